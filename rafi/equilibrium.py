@@ -1,0 +1,120 @@
+"""Thermal equilibrium: when a constant-speed run stops growing (paper Table 1).
+
+Definition used throughout the project (documented in the report):
+
+1. The displacement rise ``dz`` is smoothed with a centred rolling median of
+   ``smooth_window_s`` (removes logger noise and single spikes).
+2. The final plateau is the median of the raw ``dz`` over the last
+   ``plateau_window_s`` of the run.
+3. The band is ``band_fraction`` of the total rise ``|plateau - dz(0)|``.
+4. ``t_eq`` is the first time after which the smoothed ``dz`` stays inside
+   ``plateau +- band`` until the end of the run.
+
+Uncertainty: ``t_eq_low`` / ``t_eq_high`` repeat step 4 with the band widened /
+narrowed by ``band_spread`` (default 1.5x), which brackets how sensitive the
+value is to the band choice. Cross-check: a first-order step response
+``dz = c + A (1 - exp(-t / tau))`` is fitted by least squares, and
+``t_eq_tau = tau * ln(1 / band_fraction)`` is the time the fitted curve needs to
+come within the same band of its asymptote.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, asdict
+
+import numpy as np
+import pandas as pd
+from scipy.optimize import curve_fit
+
+
+@dataclass(frozen=True)
+class EquilibriumResult:
+    """Time to thermal equilibrium of one run, with its uncertainty and cross-check."""
+
+    t_eq_s: float
+    t_eq_low_s: float
+    t_eq_high_s: float
+    tau_s: float
+    t_eq_tau_s: float
+    plateau_um: float
+    rise_um: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+def _time_in_band(t_s: np.ndarray, smooth: np.ndarray, plateau: float, band: float) -> float:
+    outside = np.abs(smooth - plateau) > band
+    if not outside.any():
+        return float(t_s[0])
+    last_out = np.flatnonzero(outside)[-1]
+    if last_out + 1 >= len(t_s):
+        return float("nan")
+    return float(t_s[last_out + 1])
+
+
+def first_order_fit(t_s: np.ndarray, dz: np.ndarray) -> tuple[float, float, float]:
+    """Fit ``dz = c + A (1 - exp(-t / tau))``; return ``(c, A, tau)`` (NaN on failure)."""
+    ok = np.isfinite(t_s) & np.isfinite(dz)
+    t, z = t_s[ok] - t_s[ok][0], dz[ok]
+    if len(t) < 10:
+        return (np.nan, np.nan, np.nan)
+    span = max(t[-1], 1.0)
+    amp0 = float(np.median(z[-max(len(z) // 10, 1):]) - z[0])
+
+    def model(tt, c, a, tau):
+        return c + a * (1.0 - np.exp(-tt / tau))
+
+    try:
+        popt, _ = curve_fit(model, t, z, p0=(float(z[0]), amp0 or 1.0, span / 4),
+                            bounds=([-np.inf, -np.inf, 1.0], [np.inf, np.inf, 50 * span]),
+                            maxfev=5000)
+    except (RuntimeError, ValueError):
+        return (np.nan, np.nan, np.nan)
+    return tuple(float(v) for v in popt)
+
+
+def equilibrium_time(t_s, dz_um, *, band_fraction: float = 0.05, plateau_window_s: float = 900.0,
+                     smooth_window_s: float = 300.0, band_spread: float = 1.5) -> EquilibriumResult:
+    """Time to thermal equilibrium of one constant-speed run.
+
+    Parameters
+    ----------
+    t_s : array_like
+        Seconds since the start of the run, increasing, regular.
+    dz_um : array_like
+        Displacement change from the reference state, micrometres.
+    band_fraction : float
+        Half-width of the equilibrium band as a fraction of the total rise.
+    plateau_window_s : float
+        Length of the final window whose median defines the plateau.
+    smooth_window_s : float
+        Centred rolling-median window applied before the band test.
+    band_spread : float
+        Factor by which the band is widened / narrowed for the uncertainty bracket.
+
+    Returns
+    -------
+    EquilibriumResult
+        ``t_eq_s`` is NaN when the run never settles inside the band.
+    """
+    t = np.asarray(t_s, dtype=float)
+    z = np.asarray(dz_um, dtype=float)
+    if t.shape != z.shape or t.ndim != 1 or len(t) < 3:
+        raise ValueError("t_s and dz_um must be 1-D arrays of equal length (>= 3 samples)")
+    dt = float(np.median(np.diff(t)))
+    win = max(int(round(smooth_window_s / dt)), 1)
+    smooth = pd.Series(z).rolling(win, center=True, min_periods=1).median().to_numpy()
+    tail = t >= t[-1] - plateau_window_s
+    plateau = float(np.nanmedian(z[tail]))
+    start = float(np.nanmedian(z[t <= t[0] + min(60.0, plateau_window_s)]))
+    rise = plateau - start
+    band = band_fraction * abs(rise)
+    t_eq = _time_in_band(t, smooth, plateau, band)
+    t_low = _time_in_band(t, smooth, plateau, band * band_spread)
+    t_high = _time_in_band(t, smooth, plateau, band / band_spread)
+    _, _, tau = first_order_fit(t, z)
+    t_eq_tau = tau * np.log(1.0 / band_fraction) if np.isfinite(tau) else np.nan
+    return EquilibriumResult(t_eq_s=t_eq - t[0], t_eq_low_s=t_low - t[0], t_eq_high_s=t_high - t[0],
+                             tau_s=tau, t_eq_tau_s=float(t_eq_tau), plateau_um=plateau,
+                             rise_um=rise)
