@@ -44,14 +44,15 @@ from statsmodels.stats.diagnostic import het_breuschpagan
 from statsmodels.stats.outliers_influence import variance_inflation_factor
 from statsmodels.stats.stattools import jarque_bera
 
+from . import paper
 from .model import RafiModel, design_matrix, parse_terms
+from .paper import paper_value
 from .rank import SPEED_GROUP_TOLERANCE_RPM, training_speed_groups
 
 __all__ = ["FitResult", "fit_rafi", "fit_speed", "PAPER_RMSE_UM", "paper_value",
            "COEFFICIENT_COLUMNS", "DIAGNOSTIC_COLUMNS", "VIF_COLUMNS"]
 
-PAPER_RMSE_UM = {3000: 0.639065688265986, 6000: 0.417983815694071, 9000: 0.277440897959544,
-                 12000: 0.282955611082021, 15000: 0.780215707688656, 18000: 0.420818375577536}
+PAPER_RMSE_UM = paper.RMSE_UM
 """Training RMSE (um) per speed, paper Table 3."""
 
 COEFFICIENT_COLUMNS = ["speed_rpm", "term", "coef", "se", "se_hac", "t", "p", "p_hac"]
@@ -59,13 +60,6 @@ DIAGNOSTIC_COLUMNS = ["speed_rpm", "n", "r2", "r2_adj", "rmse_um", "paper_rmse_u
                       "condition_number", "durbin_watson", "bp_stat", "bp_p", "jb_stat", "jb_p",
                       "max_vif"]
 VIF_COLUMNS = ["speed_rpm", "term", "vif"]
-
-
-def paper_value(speed_rpm: float, table: dict, *, tolerance_rpm: float = SPEED_GROUP_TOLERANCE_RPM
-                ) -> float:
-    """Value of a paper table at the nearest speed within ``tolerance_rpm``, else NaN."""
-    best = min(table, key=lambda s: abs(s - speed_rpm))
-    return float(table[best]) if abs(best - speed_rpm) <= tolerance_rpm else float("nan")
 
 
 @dataclass

@@ -38,12 +38,13 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from .regression import paper_value
+from . import paper
+from .paper import paper_value
 
 __all__ = ["PAPER_RESIDUAL_UM", "SUMMARY_COLUMNS", "RESIDUAL_COLUMNS", "VERDICT_COLUMNS",
            "validate_runs", "qualify", "overall_passed"]
 
-PAPER_RESIDUAL_UM = {4500: 10.0287, 8000: 5.6419, 10500: 5.3598, 13500: 3.4792, 16500: 9.2334}
+PAPER_RESIDUAL_UM = paper.RESIDUAL_UM
 """Maximum residual after compensation (um) per single-speed validation run, paper Table 4."""
 
 SUMMARY_COLUMNS = ["run_id", "role", "speed_rpm", "duration_s", "max_abs_before_um",

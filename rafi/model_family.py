@@ -1,0 +1,725 @@
+"""A small family of compensation models behind one interface (see ``docs/models.md``).
+
+Every model here behaves like :class:`rafi.model.RafiModel`:
+
+* the constructor takes the hyperparameters (nothing is fitted there);
+* ``fit(runs_table, runs_frame)`` uses **only** the runs whose ``role`` is ``training``
+  and returns ``self``; fitted attributes end in ``_``;
+* ``predict(frame) -> ndarray`` and ``predict_detail(frame) -> DataFrame`` (columns
+  ``predicted_um``, ``outside_speed_range``, ``outside_temp_range`` and model specific
+  extras, same index as ``frame``) are evaluated with NumPy only;
+* ``to_dict()`` / ``from_dict()`` write / read the JSON model artefact of
+  ``docs/design.md`` (``schema: rafi.model/1``, a ``kind``, ``model_id`` = SHA-256 of the
+  canonical JSON without ``model_id``/``created``).
+
+Kinds:
+
+``rafi``          RAFI as published: one polynomial regression per training speed on the key
+                  sensors, blended with triangular fuzzy memberships. Fitted by
+                  ``rafi.regression.fit_rafi`` when that module is installed; the artefact is
+                  the one ``rafi.model.RafiModel`` reads.
+``rafi_linear``   the same key sensors and blend, linear terms only.
+``ridge_global``  one ridge regression on every usable temperature rise plus speed terms,
+                  RMS-scaled inputs, penalty chosen by whole-run cross-validation on the
+                  training runs.
+``dynamic``       like ``ridge_global`` on first-order low-pass filtered rises (time constants
+                  chosen by whole-run cross-validation), so the model can represent the lag
+                  between the housing temperatures and the spindle's growth. Displacement is
+                  never an input: the compensation runs without the displacement sensor.
+
+``load_any(dict_or_path)`` dispatches on ``kind``.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import hashlib
+import itertools
+import json
+import math
+import os
+from pathlib import Path
+from typing import Iterable, Sequence
+
+import numpy as np
+import pandas as pd
+
+from . import SENSORS, __version__
+from .crossval import split_runs, training_runs
+
+SCHEMA = "rafi.model/1"
+RAFI_TERMS = ["1", "x1", "x2", "x3", "x1*x2", "x1*x3", "x2*x3", "x1^2", "x2^2", "x3^2", "x1*x2*x3"]
+LINEAR_TERMS = ["1", "x1", "x2", "x3"]
+DEFAULT_ALPHAS = [1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0]
+DEFAULT_TAUS_S = [0.0, 300.0, 600.0, 1200.0, 2400.0, 4800.0]
+DEFAULT_REFERENCE = {"rule": "run_start", "window_s": 60.0}
+SPEED_SCALE_RPM = 1000.0  # speed features are in krpm and krpm^2
+
+
+# --------------------------------------------------------------------------- artefact helpers
+
+def canonical_json(obj) -> str:
+    """Canonical JSON text: sorted keys, no whitespace, ASCII, NaN forbidden (as ``rafi.model``)."""
+    return json.dumps(obj, sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False)
+
+
+def compute_model_id(artefact: dict) -> str:
+    """SHA-256 (hex) of the canonical JSON of ``artefact`` without ``model_id`` / ``created``."""
+    body = {k: v for k, v in artefact.items() if k not in ("model_id", "created")}
+    return hashlib.sha256(canonical_json(body).encode("ascii")).hexdigest()
+
+
+def _finish_artefact(body: dict) -> dict:
+    out = dict(body)
+    out["schema"] = SCHEMA
+    out["created"] = _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat()
+    out["model_id"] = compute_model_id(out)
+    return out
+
+
+def _check_artefact(d: dict, kind: str) -> None:
+    if d.get("schema") != SCHEMA:
+        raise ValueError(f"not a {SCHEMA} artefact: schema={d.get('schema')!r}")
+    if d.get("kind") != kind:
+        raise ValueError(f"artefact kind {d.get('kind')!r}, expected {kind!r}")
+    if "model_id" in d and d["model_id"] != compute_model_id(d):
+        raise ValueError("model_id does not match the artefact content (edited or corrupted)")
+
+
+def _floats(a) -> list:
+    """NumPy array -> nested list of Python floats (exact JSON round trip)."""
+    return np.asarray(a, dtype=float).tolist()
+
+
+def _rise_column(sensor: str) -> str:
+    return f"d{sensor}"
+
+
+def _data_hashes(runs_table: pd.DataFrame, run_ids: Iterable[str]) -> dict:
+    if not {"file", "sha256"} <= set(runs_table.columns):
+        return {}
+    sub = runs_table[runs_table["run_id"].astype(str).isin(set(map(str, run_ids)))]
+    return {str(f): str(h) for f, h in zip(sub["file"], sub["sha256"]) if isinstance(f, str)}
+
+
+def usable_sensors(runs_frame: pd.DataFrame, sensors: Sequence[str] = SENSORS) -> list[str]:
+    """Sensors whose rise column exists, has no NaN and is not constant in ``runs_frame``."""
+    out = []
+    for s in sensors:
+        col = _rise_column(s)
+        if col not in runs_frame.columns:
+            continue
+        v = runs_frame[col].to_numpy(dtype=float)
+        if len(v) and np.isfinite(v).all() and np.ptp(v) > 1e-9:
+            out.append(s)
+    return out
+
+
+class PublishedRafi:
+    """Kind ``rafi``: RAFI as published, fitted by :func:`rafi.regression.fit_rafi`.
+
+    After ``fit`` the attribute ``model_`` is the :class:`rafi.model.RafiModel`;
+    ``predict``/``predict_detail``/``to_dict`` delegate to it, so the family evaluates the
+    published method with exactly the pipeline's own code (fuzzy blend, out-of-range flags).
+    """
+
+    kind = "rafi"
+    default_terms = RAFI_TERMS
+
+    def __init__(self, key_sensors: Sequence[str] = ("T6", "T8", "T9"), terms: Sequence[str] | None = None,
+                 *, reference: dict | None = None, machine: str | None = None, hac_maxlags: int = 60):
+        self.key_sensors = list(key_sensors)
+        self.terms = list(self.default_terms if terms is None else terms)
+        self.reference = dict(reference or DEFAULT_REFERENCE)
+        self.machine = machine
+        self.hac_maxlags = int(hac_maxlags)
+
+    def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        from .regression import fit_rafi
+        table, frame = training_runs(runs_table, runs_frame)
+        res = fit_rafi(table, frame, key_sensors=self.key_sensors, terms=self.terms,
+                       hac_maxlags=self.hac_maxlags, reference=self.reference, machine=self.machine)
+        self.model_ = res.model
+        self.train_runs_ = sorted(map(str, table["run_id"]))
+        return self
+
+    def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
+        return self.model_.predict_detail(frame)
+
+    def predict(self, frame: pd.DataFrame) -> np.ndarray:
+        return np.asarray(self.model_.predict(frame), dtype=float)
+
+    def to_dict(self) -> dict:
+        d = self.model_.to_dict()
+        if self.kind != d.get("kind"):
+            d["kind"] = self.kind
+            d["model_id"] = compute_model_id(d)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        from .model import RafiModel
+        _check_artefact(d, cls.kind)
+        inner = RafiModel.from_dict({**d, "kind": "rafi"}, verify_id=False)
+        m = cls(inner.key_sensors, inner.terms, reference=inner.reference, machine=inner.machine)
+        m.model_ = inner
+        m.train_runs_ = sorted({r for sp in d["speeds"] for r in sp.get("train_runs", [])})
+        return m
+
+
+class RafiLinear(PublishedRafi):
+    """Kind ``rafi_linear``: RAFI's key sensors and fuzzy blend, linear terms ``1, x1, x2, x3``.
+
+    The artefact is RAFI's layout with ``kind: rafi_linear`` (and its own ``model_id``).
+    """
+
+    kind = "rafi_linear"
+    default_terms = LINEAR_TERMS
+
+
+# --------------------------------------------------------------------------- filters and features
+
+def lowpass_runs(values: np.ndarray, t_s: np.ndarray, run_codes: np.ndarray, taus_s: Sequence[float]) -> np.ndarray:
+    """Causal first-order low-pass of every column of ``values`` for every ``tau``.
+
+    ``y[k] = y[k-1] + (1 - exp(-(t[k] - t[k-1]) / tau)) * (x[k] - y[k-1])``, evaluated sample
+    by sample inside each run (rows must be sorted by run then time). Initial condition: the
+    filter starts *settled* on the run's first sample, ``y[0] = x[0]``; for a run referenced
+    at its own start (``run_start``) that first rise is ~0, i.e. the filter starts from the
+    reference state. ``tau = 0`` passes the input through. Returns
+    ``(n, n_columns * len(taus))`` ordered tau-major. A NaN input holds the filter state.
+    """
+    x = np.asarray(values, dtype=float)
+    if x.ndim == 1:
+        x = x[:, None]
+    n, p = x.shape
+    taus = np.asarray(list(taus_s), dtype=float)
+    if len(taus) and (taus <= 0).all():
+        return np.tile(x, (1, len(taus)))
+    if (taus <= 0).any():  # pass-through columns need no loop
+        parts = [x if tau <= 0 else lowpass_runs(x, t_s, run_codes, [tau]) for tau in taus]
+        return np.column_stack(parts)
+    out = np.empty((n, p * len(taus)))
+    xx = np.tile(x, (1, len(taus)))
+    tau_col = np.repeat(taus, p)
+    dt = np.diff(np.asarray(t_s, dtype=float), prepend=np.nan)
+    new_run = np.ones(n, dtype=bool)
+    new_run[1:] = run_codes[1:] != run_codes[:-1]
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        gain = np.where(tau_col[None, :] > 0, -np.expm1(-np.clip(dt, 0, None)[:, None] / tau_col[None, :]), 1.0)
+    y = np.zeros(p * len(taus))
+    for k in range(n):
+        xk = xx[k]
+        if new_run[k]:
+            y = np.where(np.isfinite(xk), xk, 0.0)
+        else:
+            g = gain[k]
+            y = np.where(np.isfinite(xk), y + g * (xk - y), y)
+        out[k] = y
+    return out
+
+
+def _run_order(frame: pd.DataFrame) -> tuple[np.ndarray, np.ndarray]:
+    """Positions that sort ``frame`` by (run, t_s) and the run code per sorted row."""
+    if "run_id" in frame.columns:
+        runs = pd.factorize(frame["run_id"].astype(str))[0]
+    else:
+        runs = np.zeros(len(frame), dtype=int)
+    t = frame["t_s"].to_numpy(dtype=float) if "t_s" in frame.columns else np.arange(len(frame), dtype=float)
+    order = np.lexsort((t, runs))
+    return order, runs[order]
+
+
+def reference_speed(frame: pd.DataFrame, rule: str, window_s: float) -> np.ndarray:
+    """Speed of each row's reference state (r/min), the origin of the speed features.
+
+    ``run_start``: median speed over the first ``window_s`` of the row's run (the same window
+    the rises were referenced to); ``zero``: 0 r/min (a log that starts with the spindle at rest).
+    """
+    if rule not in ("run_start", "zero"):
+        raise ValueError(f"speed reference rule {rule!r}: use run_start, zero or auto")
+    n = len(frame)
+    if rule == "zero" or n == 0:
+        return np.zeros(n)
+    runs = frame["run_id"].astype(str) if "run_id" in frame.columns else pd.Series("run", index=frame.index)
+    t = frame["t_s"] if "t_s" in frame.columns else pd.Series(np.arange(n, dtype=float), index=frame.index)
+    tmp = pd.DataFrame({"run": runs.to_numpy(), "t": t.to_numpy(dtype=float),
+                        "n": frame["speed_rpm"].to_numpy(dtype=float)})
+    t0 = tmp.groupby("run")["t"].transform("min")
+    first = tmp[tmp["t"] <= t0 + window_s]
+    ref = first.groupby("run")["n"].median()
+    return tmp["run"].map(ref).to_numpy(dtype=float)
+
+
+class _RidgeBase:
+    """Shared machinery of ``ridge_global`` and ``dynamic``: features, scaling, ridge, CV."""
+
+    kind = "ridge_base"
+
+    def __init__(self, *, sensors: Sequence[str] | None = None, alphas: Sequence[float] = DEFAULT_ALPHAS,
+                 cv: str = "leave_one_run_out", cv_metric: str = "rmse", speed_terms: bool = True,
+                 speed_gain: bool | str = "cv",
+                 speed_reference: str = "auto", reference: dict | None = None, machine: str | None = None):
+        self.sensors = None if sensors is None else list(sensors)
+        self.alphas = [float(a) for a in alphas]
+        self.cv = cv
+        self.cv_metric = cv_metric
+        self.speed_terms = bool(speed_terms)
+        if speed_gain not in (True, False, "cv"):
+            raise ValueError(f"speed_gain={speed_gain!r}: use true, false or cv")
+        self.speed_gain = speed_gain
+        self.speed_reference = speed_reference
+        self.reference = dict(reference or DEFAULT_REFERENCE)
+        self.machine = machine
+
+    # -- features
+    def _features(self, frame: pd.DataFrame, sensors: Sequence[str], taus: Sequence[float]):
+        """Feature matrix in ``frame`` row order and the feature names."""
+        order, codes = _run_order(frame)
+        x = frame[[_rise_column(s) for s in sensors]].to_numpy(dtype=float)[order]
+        t = frame["t_s"].to_numpy(dtype=float)[order] if "t_s" in frame.columns else np.arange(len(frame), dtype=float)
+        filtered = lowpass_runs(x, t, codes, taus)
+        n = frame["speed_rpm"].to_numpy(dtype=float)[order] / SPEED_SCALE_RPM
+        p = len(sensors)
+        parts, names = [], []
+        for i, tau in enumerate(taus):  # one block per tau: rises (and rises x speed)
+            block = filtered[:, i * p:(i + 1) * p]
+            parts.append(block)
+            names += [f"{_rise_column(s)}@{tau:g}s" for s in sensors]
+            if getattr(self, "speed_gain_", self.speed_gain) is True:
+                parts.append(block * n[:, None])
+                names += [f"{_rise_column(s)}@{tau:g}s*n_krpm" for s in sensors]
+        if self.speed_terms:
+            n0 = reference_speed(frame, self._speed_rule(), float(self.reference.get("window_s", 60)))[order] / SPEED_SCALE_RPM
+            parts.append(np.column_stack([n - n0, n ** 2 - n0 ** 2]))
+            names += ["n_krpm", "n2_krpm2"]
+        f_sorted = np.column_stack(parts)
+        f = np.empty_like(f_sorted)
+        f[order] = f_sorted
+        return f, names
+
+    def _speed_rule(self) -> str:
+        """``auto``: the run's start window under ``reference.rule: run_start``, else 0 r/min."""
+        if self.speed_reference != "auto":
+            return self.speed_reference
+        return "run_start" if self.reference.get("rule", "run_start") == "run_start" else "zero"
+
+    @staticmethod
+    def _scale(x: np.ndarray) -> np.ndarray:
+        s = np.sqrt(np.mean(x ** 2, axis=0))
+        return np.where(s > 1e-12, s, 1.0)
+
+    @staticmethod
+    def _ridge_gram(g: np.ndarray, c: np.ndarray, n: int, alphas: Sequence[float]) -> np.ndarray:
+        """Coefficients (p x n_alphas) of ``min |y - Xb|^2/n + alpha |b|^2`` from ``X'X``, ``X'y``.
+
+        ``X`` is already scaled; ``(X'X + n alpha I) b = X'y`` is solved through the
+        eigendecomposition of ``X'X`` for all alphas at once.
+        """
+        w, v = np.linalg.eigh(g)
+        w = np.clip(w, 0.0, None)
+        vc = v.T @ c
+        return v @ (vc[:, None] / (w[:, None] + n * np.asarray(alphas, dtype=float)[None, :]))
+
+    def _cv_setup(self, feats: np.ndarray, y: np.ndarray, run_ids: np.ndarray, table: pd.DataFrame) -> dict:
+        """Per-run Gram matrices ``X_r'X_r``, ``X_r'y_r`` and the folds: computed once per fit."""
+        rows = {r: np.flatnonzero(run_ids == r) for r in np.unique(run_ids)}
+        gram = {r: (feats[i].T @ feats[i], feats[i].T @ y[i], len(i)) for r, i in rows.items()}
+        folds = [(list(tr), list(te)) for tr, te in split_runs(table, self.cv)]
+        return {"feats": feats, "y": y, "rows": rows, "gram": gram, "folds": folds}
+
+    def _cv_scores(self, cvd: dict, cols: np.ndarray) -> np.ndarray:
+        """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds."""
+        sq = np.zeros(len(self.alphas))
+        fold_max, count = [], 0
+        ix = np.ix_(cols, cols)
+        for train_ids, test_ids in cvd["folds"]:
+            g = sum(cvd["gram"][r][0][ix] for r in train_ids if r in cvd["gram"])
+            c = sum(cvd["gram"][r][1][cols] for r in train_ids if r in cvd["gram"])
+            n = sum(cvd["gram"][r][2] for r in train_ids if r in cvd["gram"])
+            te = np.concatenate([cvd["rows"][r] for r in test_ids if r in cvd["rows"]] or [np.zeros(0, int)])
+            if n == 0 or len(te) == 0:
+                continue
+            sc = np.sqrt(np.diag(g) / n)
+            sc = np.where(sc > 1e-12, sc, 1.0)
+            b = self._ridge_gram(g / np.outer(sc, sc), c / sc, n, self.alphas) / sc[:, None]
+            res = cvd["y"][te][:, None] - cvd["feats"][np.ix_(te, cols)] @ b
+            sq += np.sum(res ** 2, axis=0)
+            count += len(te)
+            fold_max.append(np.max(np.abs(res), axis=0))
+        if count == 0:
+            return np.zeros(len(self.alphas))
+        if self.cv_metric == "max_abs":
+            return np.mean(fold_max, axis=0)
+        if self.cv_metric != "rmse":
+            raise ValueError(f"cv_metric {self.cv_metric!r}: use rmse or max_abs")
+        return np.sqrt(sq / count)
+
+    def _prepare(self, runs_table, runs_frame):
+        table, frame = training_runs(runs_table, runs_frame)
+        frame = frame[np.isfinite(frame["dz_um"].to_numpy(dtype=float))]
+        sensors = self.sensors if self.sensors is not None else usable_sensors(frame)
+        if not sensors:
+            raise ValueError("no usable temperature sensor in the training runs")
+        return table, frame, sensors
+
+    def _fit_final(self, table, frame, sensors, taus, alpha, cv_table):
+        feats, names = self._features(frame, sensors, taus)
+        y = frame["dz_um"].to_numpy(dtype=float)
+        sc = self._scale(feats)
+        b = self._ridge_gram((feats / sc).T @ (feats / sc), (feats / sc).T @ y, len(y), [alpha])[:, 0]
+        self.sensors_ = list(sensors)
+        self.taus_ = [float(t) for t in taus]
+        self.alpha_ = float(alpha)
+        self.feature_names_ = names
+        self.scale_ = sc
+        self.coef_ = b / sc
+        self.train_runs_ = sorted(map(str, table["run_id"]))
+        x = frame[[_rise_column(s) for s in sensors]].to_numpy(dtype=float)
+        self.regressor_ranges_ = {s: [float(x[:, i].min()), float(x[:, i].max())] for i, s in enumerate(sensors)}
+        self.speed_range_rpm_ = [float(table["speed_rpm"].min()), float(table["speed_rpm"].max())]
+        self.rmse_um_ = float(np.sqrt(np.mean((y - feats @ self.coef_) ** 2)))
+        self.n_ = int(len(y))
+        self.cv_table_ = cv_table
+        self.data_ = _data_hashes(table, self.train_runs_)
+        return self
+
+    # -- evaluation (NumPy only)
+    def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
+        feats, _ = self._features(frame, self.sensors_, self.taus_)
+        pred = feats @ self.coef_
+        x = frame[[_rise_column(s) for s in self.sensors_]].to_numpy(dtype=float)
+        lo = np.array([self.regressor_ranges_[s][0] for s in self.sensors_])
+        hi = np.array([self.regressor_ranges_[s][1] for s in self.sensors_])
+        n = frame["speed_rpm"].to_numpy(dtype=float)
+        return pd.DataFrame({
+            "predicted_um": pred,
+            "outside_speed_range": (n < self.speed_range_rpm_[0]) | (n > self.speed_range_rpm_[1]),
+            "outside_temp_range": ((x < lo) | (x > hi)).any(axis=1),
+        }, index=frame.index)
+
+    def predict(self, frame: pd.DataFrame) -> np.ndarray:
+        return self.predict_detail(frame)["predicted_um"].to_numpy()
+
+    # -- artefact
+    def _hyper(self) -> dict:
+        return {"sensors": self.sensors, "alphas": self.alphas, "cv": self.cv, "cv_metric": self.cv_metric,
+                "speed_terms": self.speed_terms, "speed_gain": self.speed_gain,
+                "speed_reference": self.speed_reference}
+
+    def to_dict(self) -> dict:
+        body = {
+            "kind": self.kind,
+            "machine": self.machine,
+            "key_sensors": self.sensors_,
+            "inputs": self._inputs_text(),
+            "target": "displacement change dz (um) from the reference state",
+            "reference": self.reference,
+            "speed_reference": {"rule": self._speed_rule(), "window_s": float(self.reference.get("window_s", 60))},
+            "hyperparameters": self._hyper(),
+            "selected": {"alpha": self.alpha_, "taus_s": self.taus_, "speed_gain": self.speed_gain_},
+            "cv": self.cv_table_,
+            "features": self.feature_names_,
+            "coefficients": _floats(self.coef_),
+            "scale": _floats(self.scale_),
+            "filter": {"type": "first_order_lowpass", "initial_condition": "settled on the run's first sample",
+                       "update": "y += (1 - exp(-dt/tau)) * (x - y)"},
+            "regressor_ranges": self.regressor_ranges_,
+            "speed_range_rpm": self.speed_range_rpm_,
+            "train_runs": self.train_runs_,
+            "rmse_um": self.rmse_um_,
+            "n": self.n_,
+            "data": self.data_,
+            "code_version": f"rafi {__version__}",
+        }
+        return _finish_artefact(body)
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        _check_artefact(d, cls.kind)
+        h = dict(d.get("hyperparameters", {}))
+        m = cls(reference=d.get("reference"), machine=d.get("machine"), **h)
+        m.sensors_ = list(d["key_sensors"])
+        m.taus_ = [float(t) for t in d["selected"]["taus_s"]]
+        m.alpha_ = float(d["selected"]["alpha"])
+        m.speed_gain_ = bool(d["selected"].get("speed_gain", False))
+        m.feature_names_ = list(d["features"])
+        m.coef_ = np.asarray(d["coefficients"], dtype=float)
+        m.scale_ = np.asarray(d["scale"], dtype=float)
+        m.regressor_ranges_ = d["regressor_ranges"]
+        m.speed_range_rpm_ = d["speed_range_rpm"]
+        m.train_runs_ = d["train_runs"]
+        m.rmse_um_ = d.get("rmse_um")
+        m.n_ = d.get("n")
+        m.cv_table_ = d.get("cv", [])
+        m.data_ = d.get("data", {})
+        return m
+
+
+class RidgeGlobal(_RidgeBase):
+    """Kind ``ridge_global``: one ridge model on all usable rises + speed terms.
+
+    ``dz = sum_i (b_i + g_i n) dT_i + c1 (n - n0) + c2 (n^2 - n0^2)`` with ``n`` in krpm and
+    ``n0`` the speed of the reference state. The speed-dependent gains ``g_i n`` (RAFI's
+    per-speed coefficients, as one smooth linear law) are used if ``speed_gain`` is true, not
+    used if false, and kept or dropped by CV if ``"cv"``. No intercept (at the reference state
+    every input is 0, so the compensation is 0). Inputs are scaled by their RMS over the
+    training runs; ``alpha`` (and ``speed_gain: cv``) are chosen by whole-run CV (``cv``) on
+    the training runs only.
+    """
+
+    kind = "ridge_global"
+    _taus_grid = (0.0,)
+    _max_taus = 1
+
+    def _inputs_text(self) -> str:
+        return "temperature rises dT (K) of all usable sensors; speed (krpm) relative to the reference state"
+
+    def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        self.__dict__.pop("speed_gain_", None)  # a refit starts from the hyperparameters
+        table, frame, sensors = self._prepare(runs_table, runs_frame)
+        taus_grid = [float(t) for t in getattr(self, "taus_s", self._taus_grid)]
+        max_taus = int(getattr(self, "max_taus", self._max_taus))
+        gains = [False, True] if self.speed_gain == "cv" else [bool(self.speed_gain)]
+        y = frame["dz_um"].to_numpy(dtype=float)
+        run_ids = frame["run_id"].astype(str).to_numpy()
+        saved = self.speed_gain
+        self.speed_gain = max(gains)  # compute the superset of the columns once
+        all_feats, _ = self._features(frame, sensors, taus_grid)
+        self.speed_gain = saved
+        p = len(sensors)
+        width = p * (2 if max(gains) else 1)
+        speed = np.arange(len(taus_grid) * width, all_feats.shape[1])
+        cvd = self._cv_setup(all_feats, y, run_ids, table)
+        cv_table, best = [], (math.inf, None, None, None)
+        for gain in gains:
+            for k in range(1, max(1, max_taus) + 1):
+                for subset in itertools.combinations(range(len(taus_grid)), k):
+                    cols = [np.arange(i * width, i * width + (width if gain else p)) for i in subset]
+                    cols = np.concatenate(cols + [speed])
+                    scores = self._cv_scores(cvd, cols)
+                    taus = [taus_grid[i] for i in subset]
+                    for a, sc in zip(self.alphas, scores):
+                        cv_table.append({"taus_s": taus, "speed_gain": gain, "alpha": a, "score_um": float(sc)})
+                        if sc < best[0] - 1e-12:
+                            best = (float(sc), taus, a, gain)
+        _, taus, alpha, gain = best
+        self.speed_gain_ = bool(gain)
+        return self._fit_final(table, frame, sensors, taus, alpha, cv_table)
+
+
+class DynamicRidge(RidgeGlobal):
+    """Kind ``dynamic``: ridge on low-pass filtered rises (lag model) + speed terms.
+
+    Features: ``L_tau(dT_i)`` (and ``L_tau(dT_i) * n`` with ``speed_gain``) for every usable
+    sensor ``i`` and every ``tau`` of the chosen set, where ``L_tau`` is the causal
+    first-order filter of :func:`lowpass_runs` (``tau = 0`` is the unfiltered rise), plus the
+    speed terms of :class:`RidgeGlobal`. The set of time constants (every subset of
+    ``taus_s`` with at most ``max_taus`` members), ``alpha`` (and ``speed_gain: cv``) are
+    chosen jointly by whole-run CV on the training runs.
+    """
+
+    kind = "dynamic"
+
+    def __init__(self, *, taus_s: Sequence[float] = DEFAULT_TAUS_S, max_taus: int = 2, **kw):
+        super().__init__(**kw)
+        self.taus_s = [float(t) for t in taus_s]
+        self.max_taus = int(max_taus)
+
+    def _inputs_text(self) -> str:
+        return ("first-order low-pass filtered temperature rises dT (K) of all usable sensors; "
+                "speed (krpm) relative to the reference state; displacement is not an input")
+
+    def _hyper(self) -> dict:
+        h = super()._hyper()
+        h.update({"taus_s": self.taus_s, "max_taus": self.max_taus})
+        return h
+
+
+# --------------------------------------------------------------------------- registry
+
+KINDS = {"rafi": PublishedRafi, "rafi_linear": RafiLinear, "ridge_global": RidgeGlobal,
+         "dynamic": DynamicRidge}
+
+
+def make_model(kind: str, *, key_sensors: Sequence[str] = ("T6", "T8", "T9"), terms: Sequence[str] = RAFI_TERMS,
+               reference: dict | None = None, machine: str | None = None, options: dict | None = None):
+    """An unfitted model of ``kind`` built from the pipeline settings.
+
+    ``options`` is the config ``models:`` section (``cv``, ``cv_metric``, ``ridge_alphas``,
+    ``dynamic_taus_s``, ``dynamic_max_taus``, ``speed_reference``).
+    """
+    o = dict(options or {})
+    common = dict(reference=reference, machine=machine)
+    ridge_kw = dict(alphas=o.get("ridge_alphas", DEFAULT_ALPHAS), cv=o.get("cv", "leave_one_run_out"),
+                    cv_metric=o.get("cv_metric", "rmse"),
+                    speed_reference=o.get("speed_reference", "auto"), **common)
+    ridge_kw["speed_gain"] = o.get("speed_gain", "cv")
+    if kind == "rafi":
+        return PublishedRafi(key_sensors, terms, **common)
+    if kind == "rafi_linear":
+        return RafiLinear(key_sensors, LINEAR_TERMS, **common)
+    if kind == "ridge_global":
+        return RidgeGlobal(**ridge_kw)
+    if kind == "dynamic":
+        return DynamicRidge(taus_s=o.get("dynamic_taus_s", DEFAULT_TAUS_S),
+                            max_taus=o.get("dynamic_max_taus", 2), **ridge_kw)
+    raise ValueError(f"unknown model kind {kind!r}; known: {sorted(KINDS)}")
+
+
+def load_any(source):
+    """A fitted model from an artefact dict or a path to ``model.json``, by its ``kind``.
+
+    Kind ``rafi`` is read by :meth:`rafi.model.RafiModel.from_dict` (the published method's
+    own evaluator); the other kinds by their class in this module.
+    """
+    if isinstance(source, (str, os.PathLike)):
+        source = json.loads(Path(source).read_text(encoding="utf-8"))
+    kind = source.get("kind")
+    if kind == "rafi":
+        from .model import RafiModel
+        return RafiModel.from_dict(source)
+    if kind in KINDS:
+        return KINDS[kind].from_dict(source)
+    raise ValueError(f"unknown model kind {kind!r}; known: {sorted(KINDS)}")
+
+
+def save_any(model, path) -> None:
+    """Write ``model.to_dict()`` atomically as pretty JSON."""
+    from .io import write_text_atomic
+    write_text_atomic(path, json.dumps(model.to_dict(), indent=2, sort_keys=True, allow_nan=False) + "\n")
+
+
+# --------------------------------------------------------------------------- the comparison step
+
+DEFAULT_OPTIONS = {
+    "enabled": ["rafi", "rafi_linear", "ridge_global", "dynamic"],
+    "cv": "leave_one_run_out",
+    "cv_metric": "rmse",
+    "ridge_alphas": DEFAULT_ALPHAS,
+    "dynamic_taus_s": DEFAULT_TAUS_S,
+    "dynamic_max_taus": 2,
+    "speed_reference": "auto",
+    "speed_gain": "cv",
+    "cv_report": True,
+}
+
+GATE_KEYS = ("max_residual_um", "min_improvement_pct", "never_worse_than_uncompensated")
+
+
+def run_family(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensors: Sequence[str],
+               terms: Sequence[str] = RAFI_TERMS, reference: dict | None = None, machine: str | None = None,
+               options: dict | None = None, gates: dict | None = None, rafi_model=None, log=print) -> dict:
+    """Fit, validate, cross-validate and rank the enabled models (what ``rule compare`` runs).
+
+    ``rafi_model`` is the pipeline's fitted ``model.json`` (a ``RafiModel``); when given it is
+    the ``rafi`` entry (no refit), else RAFI is fitted here. Hyperparameters are chosen on the
+    training runs only; the validation runs are only predicted.
+
+    Returns a dict: ``summary`` (one row per model, with ``fit_time_s`` and the CV scores
+    ``cv_rmse_um`` / ``cv_max_abs_um``), ``per_run``, ``residuals``, ``cv``, ``champion``
+    (name or None), ``best_name`` and ``best_artefact`` (the champion's artefact; when no model
+    passes the gates, the one with the lowest worst-case residual, and ``champion`` is None).
+    """
+    import time
+
+    from .crossval import choose_champion, compare_models, cross_validate
+
+    opts = {**DEFAULT_OPTIONS, **(options or {})}
+    gates = {k: v for k, v in (gates or {}).items() if k in GATE_KEYS}
+    models, fit_time, cv_parts = {}, {}, []
+    for kind in opts["enabled"]:
+        def factory(kind=kind):
+            return make_model(kind, key_sensors=key_sensors, terms=terms, reference=reference,
+                              machine=machine, options=opts)
+        t0 = time.perf_counter()
+        if kind == "rafi" and rafi_model is not None:
+            models[kind] = rafi_model
+        else:
+            models[kind] = factory().fit(runs_table, runs_frame)
+        fit_time[kind] = time.perf_counter() - t0
+        m = models[kind]
+        extra = f" alpha={m.alpha_:g} taus_s={m.taus_}" if hasattr(m, "alpha_") else ""
+        log(f"{kind}: fitted in {fit_time[kind]:.2f} s{extra}")
+        if opts.get("cv_report", True):
+            t0 = time.perf_counter()
+            cv = cross_validate(factory, runs_table, runs_frame, opts["cv"], name=kind)
+            cv_parts.append(cv)
+            log(f"{kind}: {opts['cv']} CV in {time.perf_counter() - t0:.1f} s, "
+                f"max |residual| {cv['max_abs_after_um'].max():.2f} um")
+    table, residuals = compare_models(models, runs_table, runs_frame, gates, return_residuals=True)
+    cv = pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
+    summary = table.loc[table["scope"] == "model"].drop(columns=["scope", "run_id", "role", "speed_rpm"])
+    summary = summary.assign(fit_time_s=summary["model"].map(fit_time))
+    if len(cv):
+        agg = cv.groupby("model").agg(cv_rmse_um=("rmse_um", lambda v: float(np.sqrt(np.mean(np.square(v))))),
+                                      cv_max_abs_um=("max_abs_after_um", "max"))
+        summary = summary.join(agg, on="model")
+    per_run = table.loc[table["scope"] == "run"].drop(columns=["scope"])
+    champion = choose_champion(table)
+    best = champion or choose_champion(table, require_pass=False) or "rafi"
+    return {"summary": summary.reset_index(drop=True), "per_run": per_run.reset_index(drop=True),
+            "residuals": residuals, "cv": cv, "champion": champion, "best_name": best,
+            "best_artefact": models[best].to_dict(), "models": models}
+
+
+# --------------------------------------------------------------------------- synthetic data
+
+def make_synthetic_runs(*, seed: int = 0, sample_s: float = 60.0, duration_s: float = 4 * 3600.0,
+                        n_sensors: int = 5, sensor_taus_s: Sequence[float] | None = None, tau_lag_s: float = 1200.0, centrifugal_um_per_krpm2: float = -0.02,
+                        train_speeds=(3000, 6000, 9000, 12000, 15000, 18000),
+                        validation_speeds=(4500, 10500, 16500), multi: bool = True,
+                        noise_um: float = 0.05) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Small deterministic runs for tests and benchmarks (not the digital twin).
+
+    Sensor rises are first-order responses (time constants ``sensor_taus_s``, default 600..3000 s) to a heat input
+    ``~ n^1.3``; the displacement lags the sensors: ``dz = sum_i g_i L_tau_lag(dT_i) +
+    c (n^2 - n0^2)`` (+ noise). Every run starts with 120 s at rest (the 60 s reference window)
+    so the centrifugal term is identifiable. Returns ``(runs_table, runs_frame)`` in the
+    ``docs/design.md`` layout (rises only for ``T1..T{n_sensors}``).
+    """
+    rng = np.random.default_rng(seed)
+    sensor_tau = (np.linspace(600.0, 3000.0, n_sensors) if sensor_taus_s is None
+                  else np.asarray(sensor_taus_s, dtype=float))
+    sensor_gain = np.linspace(2.0, 8.0, n_sensors)  # K at 18000 r/min
+    disp_gain = np.linspace(1.0, -0.3, n_sensors)  # um/K
+    t = np.arange(0.0, duration_s + 1e-9, sample_s)
+
+    def simulate(run_id, speed_fn, role):
+        n = speed_fn(t)
+        heat = (n / 18000.0) ** 1.3
+        codes = np.zeros(len(t), dtype=int)
+        dT = np.column_stack([lowpass_runs(heat * sensor_gain[i], t, codes, [sensor_tau[i]])[:, 0]
+                              for i in range(n_sensors)])
+        lag = lowpass_runs(dT, t, codes, [tau_lag_s])
+        n0 = np.median(n[t <= 60.0])
+        dz = lag @ disp_gain + centrifugal_um_per_krpm2 * ((n / 1000) ** 2 - (n0 / 1000) ** 2)
+        dz = dz + rng.normal(0.0, noise_um, len(t))
+        dT = dT + rng.normal(0.0, 0.01, dT.shape)
+        f = pd.DataFrame({"run_id": run_id, "t_s": t, "speed_rpm": n})
+        for i in range(n_sensors):
+            f[f"dT{i + 1}"] = dT[:, i]
+        f["dz_um"] = dz
+        row = {"run_id": run_id, "role": role, "speed_rpm": float(np.median(n[t > 120])),
+               "file": f"{run_id}.csv", "sha256": hashlib.sha256(run_id.encode()).hexdigest()}
+        return row, f
+
+    rows, frames = [], []
+    step = lambda s: (lambda tt: np.where(tt >= 120.0, float(s), 0.0))  # noqa: E731
+    for s in train_speeds:
+        r, f = simulate(f"train-{s}", step(s), "training")
+        rows.append(r), frames.append(f)
+    for s in validation_speeds:
+        r, f = simulate(f"val-{s}", step(s), "validation_single")
+        rows.append(r), frames.append(f)
+    if multi:
+        sched = np.array([[0, 0], [120, 6000], [3600, 12000], [7200, 4500], [10800, 16500], [13200, 9000]])
+
+        def multi_fn(tt):
+            return sched[np.searchsorted(sched[:, 0], tt, side="right") - 1, 1].astype(float)
+
+        r, f = simulate("val-multi", multi_fn, "validation_multi")
+        rows.append(r), frames.append(f)
+    table = pd.DataFrame(rows)
+    frame = pd.concat(frames, ignore_index=True)
+    return table, frame

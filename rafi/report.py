@@ -1,0 +1,1047 @@
+"""The qualification report: results tables -> context dict -> HTML (jinja2) -> PDF (WeasyPrint).
+
+One template (``rafi/templates/qualification.html.j2``) renders the HTML; the PDF is
+rendered from the *same* HTML string, so the two never disagree. Figures are embedded
+(base64 PNG or inline SVG, made by :mod:`rafi.plots`), so the HTML needs no other file.
+
+Inputs are the tables of ``docs/design.md`` under ``results/<machine>/``; optional
+inputs (rendered only when present):
+
+- ``registry/decision.json`` - model registry decision (champion vs candidate);
+- ``comparison/summary.csv`` - model comparison table;
+- quarantined rows of ``audit.csv``.
+
+All numbers are formatted here (the template only prints strings).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import platform
+import time
+from importlib import metadata as _metadata
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from markupsafe import Markup, escape
+
+from . import paper
+
+#: Paper values (Chang et al. 2023) used when a table lacks its ``paper_*`` column.
+PAPER_T_EQ_S = paper.T_EQ_S
+PAPER_RMSE_UM = paper.RMSE_UM
+PAPER_RESIDUAL_UM = paper.RESIDUAL_UM
+PAPER_MULTI = paper.MULTI_CONDITION
+
+#: Files under ``results/<machine>/`` (design.md); ``None``-able ones are optional.
+RESULT_FILES = {
+    "audit": "audit.csv",
+    "runs_csv": "runs.csv",
+    "runs_parquet": "runs.parquet",
+    "equilibrium": "equilibrium.csv",
+    "correlation": "rank/correlation.csv",
+    "key_sensors": "rank/key_sensors.csv",
+    "key_sensors_json": "rank/key_sensors.json",
+    "collinearity": "rank/collinearity.csv",
+    "coefficients": "fit/coefficients.csv",
+    "diagnostics": "fit/diagnostics.csv",
+    "vif": "fit/vif.csv",
+    "model": "model.json",
+    "validation_summary": "validation/summary.csv",
+    "residuals": "validation/residuals.parquet",
+}
+OPTIONAL_FILES = {
+    "decision": "registry/decision.json",
+    "comparison": "comparison/summary.csv",
+}
+
+#: Coolant sensors drawn beside the key sensors (paper Table 2: 13 = coolant inlet, 5 = outlet).
+DEFAULT_COOLANT_SENSORS = ["T13"]
+
+SECTION_TITLES = {
+    "verdict": "Verdict",
+    "data": "Data",
+    "equilibrium": "Thermal equilibrium",
+    "ranking": "Key-sensor ranking",
+    "models": "Models",
+    "fuzzy": "Fuzzy blending",
+    "validation": "Validation",
+    "registry": "Model registry: champion vs candidate",
+    "comparison": "Model comparison",
+    "choices": "Choices the paper leaves open",
+    "provenance": "Software, configuration and provenance",
+}
+
+NBSP = "\u00a0"
+MINUS = "\u2212"
+
+
+# =========================================================================== formatting
+
+def _isnum(x) -> bool:
+    try:
+        return x is not None and not isinstance(x, bool) and math.isfinite(float(x))
+    except (TypeError, ValueError):
+        return False
+
+
+def fmt_num(x, digits: int = 2, unit: str = "", *, signed: bool = False) -> str:
+    """Fixed-point number with a true minus sign and an optional unit; ``-`` for missing."""
+    if not _isnum(x):
+        return "\u2013"
+    v = float(x)
+    if round(v, digits) == 0:
+        v = 0.0
+    s = f"{v:+,.{digits}f}" if signed else f"{v:,.{digits}f}"
+    s = s.replace(",", NBSP).replace("-", MINUS)
+    return f"{s}{NBSP}{unit}" if unit else s
+
+
+def fmt_sig(x, sig: int = 3, unit: str = "") -> str:
+    """Significant digits; scientific notation (a x 10^b) outside 1e-3..1e6."""
+    if not _isnum(x):
+        return "\u2013"
+    v = float(x)
+    if v == 0:
+        s = "0"
+    elif 1e-3 <= abs(v) < 1e5:
+        digits = max(sig - 1 - int(math.floor(math.log10(abs(v)))), 0)
+        s = f"{v:,.{digits}f}".replace(",", NBSP)
+    else:
+        mant, exp = f"{v:.{sig - 1}e}".split("e")
+        s = f"{mant}\u00d710{_superscript(int(exp))}"
+    s = s.replace("-", MINUS)
+    return f"{s}{NBSP}{unit}" if unit else s
+
+
+_SUP = str.maketrans("0123456789-", "\u2070\u00b9\u00b2\u00b3\u2074\u2075\u2076\u2077\u2078\u2079\u207b")
+_SUB = str.maketrans("0123456789", "\u2080\u2081\u2082\u2083\u2084\u2085\u2086\u2087\u2088\u2089")
+
+
+def _superscript(n: int) -> str:
+    return str(n).translate(_SUP)
+
+
+def fmt_p(p) -> str:
+    """p-value: 3 significant digits, ``< 0.001`` below."""
+    if not _isnum(p):
+        return "\u2013"
+    return "<" + NBSP + "0.001" if float(p) < 1e-3 else f"{float(p):.3f}"
+
+
+def fmt_speed(rpm) -> str:
+    return fmt_num(rpm, 0, "r/min")
+
+
+def fmt_duration(seconds) -> str:
+    """``4.00 h`` for runs, ``45 min`` under an hour."""
+    if not _isnum(seconds):
+        return "\u2013"
+    s = float(seconds)
+    return fmt_num(s / 3600.0, 2, "h") if s >= 3600 else fmt_num(s / 60.0, 0, "min")
+
+
+def fmt_bool(x) -> str:
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "\u2013"
+    return "yes" if _truthy(x) else "no"
+
+
+def _truthy(x) -> bool:
+    if isinstance(x, str):
+        return x.strip().lower() in {"true", "1", "yes"}
+    return bool(x)
+
+
+def cell(text, cls: str = "") -> dict:
+    return {"text": text, "cls": cls}
+
+
+def table(headers, rows, *, cls: str = "", widths=None, caption: str = "") -> dict:
+    """A table for the template: headers (str), rows of cells (str or ``cell()`` dicts)."""
+    norm = [[c if isinstance(c, dict) else cell(c) for c in r] for r in rows]
+    return {"headers": list(headers), "rows": norm, "cls": cls, "widths": widths or [],
+            "caption": caption}
+
+
+def term_text(term: str, variables: dict) -> Markup:
+    """``x1*x2^2`` -> ``x₁·x₂²`` (HTML-safe)."""
+    if term == "1":
+        return Markup("")
+    parts = []
+    for factor in term.replace(" ", "").split("*"):
+        name, _, power = factor.partition("^")
+        idx = name[1:]
+        s = "x" + idx.translate(_SUB)
+        if power:
+            s += power.translate(_SUP)
+        parts.append(s)
+    return Markup("\u00b7".join(str(escape(p)) for p in parts))
+
+
+def equation_text(coefs, terms, variables: dict) -> Markup:
+    """``dz = 0.12 + 1.23·x₁ − ...`` with 4 significant digits per coefficient."""
+    pieces = []
+    for k, (b, t) in enumerate(zip(coefs, terms)):
+        if not _isnum(b):
+            continue
+        mag = fmt_sig(abs(float(b)), 4)
+        tt = term_text(t, variables)
+        body = f"{mag}{NBSP}{tt}" if str(tt) else mag
+        sign = MINUS if float(b) < 0 else "+"
+        if not pieces:
+            pieces.append((MINUS if float(b) < 0 else "") + body)
+        else:
+            pieces.append(f" {sign} {body}")
+    text = "dz = " + "".join(pieces) if pieces else "dz = 0"
+    return Markup(f'<span class="eq">{escape(text)}</span>')
+
+
+# =========================================================================== loading
+
+def result_paths(results_dir: str | os.PathLike) -> dict:
+    """Standard paths of every input under ``results/<machine>/`` (optional ones included)."""
+    base = Path(results_dir)
+    return {k: base / v for k, v in {**RESULT_FILES, **OPTIONAL_FILES}.items()}
+
+
+def load_results(paths: dict) -> dict:
+    """Read every table that exists; missing ones become ``None``.
+
+    Parameters
+    ----------
+    paths : dict
+        name -> path (names of :data:`RESULT_FILES` / :data:`OPTIONAL_FILES`).
+    """
+    out: dict = {}
+    for name, p in paths.items():
+        p = Path(p) if p else None
+        if p is None or not p.is_file():
+            out[name] = None
+            continue
+        if p.suffix == ".csv":
+            out[name] = pd.read_csv(p, keep_default_na=True)
+        elif p.suffix == ".parquet":
+            out[name] = pd.read_parquet(p)
+        elif p.suffix == ".json":
+            out[name] = json.loads(p.read_text(encoding="utf-8"))
+        else:
+            out[name] = p.read_text(encoding="utf-8")
+    return out
+
+
+# =========================================================================== the verdict
+
+def qualify_fallback(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
+    """Verdict rows per criterion and validation run (when ``rafi.validate.qualify`` is absent).
+
+    Same shape and rules as ``rafi.validate.qualify``: ``max_residual_um`` and
+    ``min_improvement_pct`` for every validation run except idle cool-downs, and
+    ``never_worse_than_uncompensated`` (limit = the run's ``max_abs_before_um``) for all.
+    """
+    rows = []
+    max_res = gates.get("max_residual_um")
+    min_imp = gates.get("min_improvement_pct")
+    never = _truthy(gates.get("never_worse_than_uncompensated", False))
+    for r in summary.to_dict("records"):
+        idle = str(r.get("role")) == "validation_idle"
+        after, before = float(r["max_abs_after_um"]), float(r["max_abs_before_um"])
+        if not idle and max_res is not None:
+            rows.append(dict(criterion="max_residual_um", limit=float(max_res), measured=after,
+                             passed=bool(after <= float(max_res)), run_id=r["run_id"]))
+        if not idle and min_imp is not None:
+            imp = float(r["improvement_pct"])
+            rows.append(dict(criterion="min_improvement_pct", limit=float(min_imp), measured=imp,
+                             passed=bool(imp >= float(min_imp)), run_id=r["run_id"]))
+        if never:
+            rows.append(dict(criterion="never_worse_than_uncompensated", limit=before,
+                             measured=after, passed=bool(after <= before), run_id=r["run_id"]))
+    return pd.DataFrame(rows, columns=["criterion", "limit", "measured", "passed", "run_id"])
+
+
+def qualify(summary: pd.DataFrame, gates: dict) -> tuple[pd.DataFrame, str]:
+    """Verdict rows (criterion x run) and where they came from (``rafi.validate.qualify`` if present)."""
+    try:
+        from rafi.validate import qualify as _q
+    except ImportError:
+        return qualify_fallback(summary, gates), "computed by rafi.report"
+    verdict = _q(summary, gates)
+    if not {"criterion", "limit", "measured", "passed"} <= set(verdict.columns):
+        return qualify_fallback(summary, gates), "computed by rafi.report"
+    if "run_id" not in verdict:
+        verdict = verdict.assign(run_id="")
+    return verdict, "from rafi.validate.qualify"
+
+
+CRITERION_TEXT = {
+    "max_residual_um": ("Largest residual after compensation", "\u2264", "\u00b5m", 2),
+    "min_improvement_pct": ("Smallest improvement over no compensation", "\u2265", "%", 1),
+    "never_worse_than_uncompensated": ("Runs worse than no compensation", "=", "", 0),
+}
+
+
+def aggregate_verdict(verdict: pd.DataFrame) -> list[dict]:
+    """One row per criterion: the worst case over the validation runs.
+
+    ``max_residual_um``: the largest residual; ``min_improvement_pct``: the smallest
+    improvement; ``never_worse_than_uncompensated``: how many runs are worse (limit 0),
+    naming them, or else the run closest to the limit. A NaN measurement fails.
+    """
+    out = []
+    if verdict is None or not len(verdict):
+        return out
+    v = verdict.copy()
+    v["measured"] = pd.to_numeric(v["measured"], errors="coerce")
+    v["limit"] = pd.to_numeric(v["limit"], errors="coerce")
+    v["passed"] = v["passed"].map(_truthy) & v["measured"].notna()
+    for crit in dict.fromkeys(v["criterion"].astype(str)):
+        g = v[v["criterion"].astype(str) == crit]
+        passed = bool(g["passed"].all())
+        label, op, unit, nd = CRITERION_TEXT.get(crit, (crit.replace("_", " "), "vs", "", 2))
+        if crit == "never_worse_than_uncompensated":
+            bad = g[~g["passed"]]
+            ratio = (g["measured"] / g["limit"]).replace([np.inf, -np.inf], np.nan)
+            if len(bad):
+                note = "worse: " + ", ".join(bad["run_id"].astype(str))
+            elif ratio.notna().any():
+                i = ratio.idxmax()
+                note = (f"closest: {g.loc[i, 'run_id']} (after/before = "
+                        f"{fmt_num(ratio[i], 2)})")
+            else:
+                note = ""
+            out.append({"criterion": crit, "label": label, "limit": "= 0",
+                        "measured": f"{len(bad)} of {len(g)}", "run_id": note, "passed": passed})
+            continue
+        if crit == "min_improvement_pct":
+            i = g["measured"].fillna(-np.inf).idxmin()
+        elif crit == "max_residual_um":
+            i = g["measured"].fillna(np.inf).idxmax()
+        elif not passed:
+            i = g[~g["passed"]].index[0]
+        else:
+            i = g.index[0]
+        lim = g.loc[i, "limit"]
+        out.append({"criterion": crit, "label": label, "limit": f"{op} {fmt_num(lim, nd, unit)}",
+                    "measured": fmt_num(g.loc[i, "measured"], nd, unit),
+                    "run_id": f"run {g.loc[i, 'run_id']}", "passed": passed})
+    for r in out:
+        r["status"] = "PASS" if r["passed"] else "FAIL"
+    return out
+
+
+def verdict_context(verdict: pd.DataFrame, source: str) -> dict:
+    rows = aggregate_verdict(verdict)
+    passed = bool(rows) and all(r["passed"] for r in rows)
+    return {"passed": passed, "status": "PASS" if passed else "FAIL", "rows": rows,
+            "source": source, "n_checks": 0 if verdict is None else len(verdict),
+            "n_failed": 0 if verdict is None else int((~verdict["passed"].map(_truthy)).sum())}
+
+
+# =========================================================================== helpers
+
+def _short(sha, n: int = 12) -> str:
+    return str(sha)[:n] if isinstance(sha, str) and sha else "\u2013"
+
+
+def _speed_key(x):
+    try:
+        v = float(x)
+        return int(v) if v.is_integer() else v
+    except (TypeError, ValueError):
+        return x
+
+
+def _paper(value_col, frame, i, table, speed):
+    v = frame.loc[i, value_col] if value_col in frame else np.nan
+    if not _isnum(v):
+        v = table.get(_speed_key(speed), np.nan)
+    return v
+
+
+def eval_terms(terms, x: np.ndarray) -> np.ndarray:
+    """Design matrix of the terms grammar (``1``, ``xi``, ``xi*xj``, ``xi^k``), NumPy only."""
+    x = np.asarray(x, dtype=float)
+    cols = []
+    for t in terms:
+        col = np.ones(len(x))
+        if t.strip() != "1":
+            for factor in t.replace(" ", "").split("*"):
+                name, _, power = factor.partition("^")
+                col = col * x[:, int(name[1:]) - 1] ** (int(power) if power else 1)
+        cols.append(col)
+    return np.column_stack(cols)
+
+
+def _fallback_weights(speeds, centres):
+    c = np.asarray(sorted(centres), float)
+    s = np.clip(np.asarray(speeds, float), c[0], c[-1])
+    w = np.zeros((len(s), len(c)))
+    if len(c) == 1:
+        w[:] = 1.0
+        return w
+    k = np.clip(np.searchsorted(c, s, side="right") - 1, 0, len(c) - 2)
+    frac = (s - c[k]) / (c[k + 1] - c[k])
+    w[np.arange(len(s)), k] = 1 - frac
+    w[np.arange(len(s)), k + 1] += frac
+    return w
+
+
+def membership(speeds, centres) -> np.ndarray:
+    """Membership weights via rafi.fuzzy when present (columns follow sorted ``centres``)."""
+    centres = sorted(float(c) for c in centres)
+    try:
+        from rafi.fuzzy import triangular_weights
+    except ImportError:
+        return _fallback_weights(speeds, centres)
+    return triangular_weights(np.asarray(speeds, float), centres)[0]
+
+
+def _versions() -> list[dict]:
+    out = [{"name": "python", "version": platform.python_version()}]
+    for pkg in ("rafi", "numpy", "pandas", "scipy", "statsmodels", "snakemake", "matplotlib",
+                "jinja2", "weasyprint", "pyarrow"):
+        try:
+            v = _metadata.version(pkg)
+        except _metadata.PackageNotFoundError:
+            v = "not installed"
+        out.append({"name": pkg, "version": v})
+    return out
+
+
+def _now(now=None) -> str:
+    if now is None:
+        epoch = os.environ.get("SOURCE_DATE_EPOCH")
+        now = (_dt.datetime.fromtimestamp(int(epoch), _dt.timezone.utc) if epoch
+               else _dt.datetime.now(_dt.timezone.utc))
+    return now.strftime("%Y-%m-%d %H:%M UTC")
+
+
+def _collinearity_frame(coll: pd.DataFrame) -> pd.DataFrame:
+    first = coll.columns[0]
+    if not pd.api.types.is_numeric_dtype(coll[first]):
+        coll = coll.set_index(first)
+    coll.index = [str(i) for i in coll.index]
+    return coll
+
+
+def _flatten(d, prefix=""):
+    items = []
+    if isinstance(d, dict):
+        for k, v in d.items():
+            items += _flatten(v, f"{prefix}{k}.")
+    elif isinstance(d, list) and not any(isinstance(v, (dict, list)) for v in d):
+        items.append((prefix[:-1], ", ".join(_fmt_any(v) for v in d)))
+    elif isinstance(d, list):
+        for i, v in enumerate(d):
+            items += _flatten(v, f"{prefix}{i}.")
+    else:
+        items.append((prefix[:-1], _fmt_any(d)))
+    return items
+
+
+def _fmt_any(v) -> str:
+    if isinstance(v, bool):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return str(v)
+    if _isnum(v):
+        return fmt_sig(v, 4)
+    if v is None:
+        return "\u2013"
+    s = str(v)
+    return s[:16] + "\u2026" if len(s) == 64 and all(ch in "0123456789abcdef" for ch in s) else s
+
+
+def split_wide(frame: pd.DataFrame, max_cols: int = 8) -> list[pd.DataFrame]:
+    """Split a wide table into chunks of at most ``max_cols`` columns (first column repeated)."""
+    if frame.shape[1] <= max_cols:
+        return [frame]
+    key, rest = frame.columns[0], list(frame.columns[1:])
+    step = max_cols - 1
+    return [frame[[key, *rest[i:i + step]]] for i in range(0, len(rest), step)]
+
+
+def generic_table(frame: pd.DataFrame, caption: str = "") -> list[dict]:
+    tables = []
+    for part in split_wide(frame):
+        rows = [[_fmt_any(v) if not (isinstance(v, float) and math.isnan(v)) else "\u2013"
+                 for v in r] for r in part.itertuples(index=False)]
+        tables.append(table([str(c).replace("_", " ") for c in part.columns], rows,
+                            caption=caption))
+    return tables
+
+
+# =========================================================================== sections
+
+def _section_data(res, machine):
+    runs = res["runs_csv"]
+    rows = []
+    if runs is not None:
+        for r in runs.itertuples(index=False):
+            speed = (fmt_speed(r.speed_rpm) if r.kind == "constant" else
+                     f"{r.kind} {fmt_num(r.speed_min_rpm, 0)}\u2013{fmt_speed(r.speed_max_rpm)}")
+            rows.append([r.run_id, r.file, r.role, fmt_duration(r.duration_s), speed,
+                         _short(getattr(r, "sha256", ""))])
+    runs_t = table(["run", "file", "role", "duration", "speed", "sha256 (first 12)"], rows,
+                   cls="runs", widths=[13, 30, 16, 9, 18, 14])
+    audit = res["audit"]
+    audit_t, quarantined = None, []
+    if audit is not None:
+        a_rows = []
+        for r in audit.itertuples(index=False):
+            q = str(r.status) != "ok"
+            a_rows.append([r.file, fmt_num(r.rows_in, 0), fmt_num(r.rows_out, 0),
+                           fmt_num(r.duplicates_dropped, 0), fmt_num(r.reordered, 0),
+                           fmt_num(r.spikes_replaced, 0), fmt_num(r.values_interpolated, 0),
+                           fmt_num(r.gaps_interpolated, 0), fmt_num(r.segments, 0),
+                           cell(str(r.status), "fail" if q else "pass")])
+            if q:
+                quarantined.append({"file": r.file, "sha256": _short(r.sha256),
+                                    "reason": "" if pd.isna(r.reason) else str(r.reason)})
+        audit_t = table(["file", "rows in", "rows out", "dupli\u00adcates", "re\u00adordered",
+                         "spikes", "values interp.", "gaps interp.", "seg\u00adments", "status"],
+                        a_rows, cls="audit num", widths=[27, 7, 7, 8, 9, 7, 8, 7, 8, 12])
+        totals = {k: int(pd.to_numeric(audit[k], errors="coerce").fillna(0).sum())
+                  for k in ("rows_in", "rows_out", "duplicates_dropped", "spikes_replaced",
+                            "values_interpolated", "gaps_interpolated")}
+    else:
+        totals = {}
+    roles = runs["role"].value_counts().to_dict() if runs is not None else {}
+    return {"runs": runs_t, "audit": audit_t, "quarantined": quarantined, "totals": totals,
+            "roles": roles, "n_files": 0 if audit is None else len(audit)}
+
+
+def _training_runs(res):
+    runs = res["runs_csv"]
+    if runs is None:
+        return {}
+    tr = runs[runs["role"] == "training"]
+    return {_speed_key(r.speed_rpm): r.run_id for r in tr.itertuples(index=False)}
+
+
+def _section_equilibrium(res, key, coolant, fmt):
+    eq = res["equilibrium"]
+    rows = []
+    eq_times = {}
+    if eq is not None:
+        for i in eq.index:
+            r = eq.loc[i]
+            paper = _paper("paper_t_eq_s", eq, i, PAPER_T_EQ_S, r.speed_rpm)
+            eq_times[_speed_key(r.speed_rpm)] = float(r.t_eq_s) if _isnum(r.t_eq_s) else np.nan
+            diff = (float(r.t_eq_s) - float(paper)) / float(paper) * 100 \
+                if _isnum(paper) and _isnum(r.t_eq_s) else np.nan
+            rows.append([fmt_speed(r.speed_rpm), fmt_num(r.t_eq_s, 0, "s"),
+                         f"{fmt_num(r.t_eq_low_s, 0)}\u2013{fmt_num(r.t_eq_high_s, 0, 's')}",
+                         fmt_num(r.t_eq_tau_s, 0, "s"), fmt_num(r.tau_s, 0, "s"),
+                         fmt_num(r.plateau_um, 2, "\u00b5m"), fmt_num(paper, 0, "s"),
+                         fmt_num(diff, 0, "%", signed=True)])
+    t = table(["speed", "t_eq", "uncertainty range", "t_eq from fitted \u03c4",
+               "\u03c4 (first order)", "plateau dz", "paper Table 1", "vs paper"], rows,
+              cls="num", widths=[13, 11, 18, 13, 11, 11, 12, 11])
+    fig = None
+    rf = res["runs_parquet"]
+    train = _training_runs(res)
+    if rf is not None and train:
+        sensors = [s for s in list(key) + list(coolant) if s in rf.columns]
+        runs = {}
+        for speed, rid in train.items():
+            f = rf.loc[rf["run_id"] == rid, ["t_s", *sensors, "dz_um"]]
+            if len(f):
+                runs[speed] = f
+        if runs:
+            from rafi import plots
+            fig = plots.fig_training_runs(runs, temp_sensors=sensors, eq_times=eq_times, fmt=fmt)
+    method = None
+    if eq is not None and "method" in eq and len(eq):
+        method = str(eq["method"].iloc[0])
+    return {"table": t, "figure": fig, "method": method,
+            "sensors": [s for s in list(key) + list(coolant)]}
+
+
+def _section_ranking(res, key_info, fmt):
+    corr = res["correlation"]
+    ks = res["key_sensors"]
+    chosen = list(key_info.get("sensors") or (ks["sensor"].tolist() if ks is not None else []))
+    threshold = float(key_info.get("threshold", 0.97))
+    out = {"chosen": chosen, "threshold": threshold, "scope": key_info.get("scope", ""),
+           "fallback_used": _truthy(key_info.get("fallback_used", False)),
+           "message": key_info.get("message") or "", "figure": None, "table": None,
+           "key_table": None, "collinearity": None, "collinearity_figure": None}
+    if corr is not None:
+        corr = corr.copy()
+        corr["scope"] = corr["scope"].astype(str)
+        wide = corr.pivot_table(index="scope", columns="sensor", values="abs_r", aggfunc="first")
+        sensors = sorted(wide.columns, key=lambda s: (len(s), s))
+        scopes = sorted(wide.index, key=lambda s: (not s.replace(".", "").isdigit(),
+                                                   float(s) if s.replace(".", "").isdigit() else 0))
+        wide = wide.loc[scopes, sensors]
+        from rafi import plots
+        out["figure"] = plots.fig_correlation_heatmap(wide, threshold=threshold, chosen=chosen,
+                                                      fmt=fmt)
+        # ranking table: the best sensors by the selection score (min |r| over speeds and pooled)
+        per_speed = wide.drop(index="pooled", errors="ignore")
+        score = per_speed.min(axis=0) if len(per_speed) else wide.min(axis=0)
+        pooled = wide.loc["pooled"] if "pooled" in wide.index else pd.Series(np.nan, index=sensors)
+        order = score.sort_values(ascending=False).index
+        rows = []
+        for k, s in enumerate(order, start=1):
+            sel = s in chosen
+            rows.append([str(k), cell(s, "pass" if sel else ""), fmt_num(score[s], 4),
+                         fmt_num(per_speed[s].max() if len(per_speed) else np.nan, 4),
+                         fmt_num(pooled.get(s, np.nan), 4),
+                         cell("yes" if score[s] > threshold else "no",
+                              "pass" if score[s] > threshold else ""),
+                         "chosen" if sel else ""])
+        out["table"] = table(["rank", "sensor", "min |r| over speeds", "max |r| over speeds",
+                              "|r| pooled", f"> {threshold:g}", "key sensor"], rows, cls="num",
+                             widths=[8, 10, 18, 18, 14, 10, 12])
+    if ks is not None:
+        out["key_table"] = table(["sensor", "score |r|", "selected by"],
+                                 [[r.sensor, fmt_num(r.score_abs_r, 4), r.selected_by]
+                                  for r in ks.itertuples(index=False)], cls="num narrow")
+    coll = res["collinearity"]
+    if coll is not None and len(coll):
+        m = _collinearity_frame(coll)
+        if len(m) <= 8:
+            out["collinearity"] = table(["", *m.columns],
+                                        [[i, *[fmt_num(v, 4) for v in m.loc[i]]] for i in m.index],
+                                        cls="num narrow")
+        else:
+            from rafi import plots
+            out["collinearity_figure"] = plots.fig_matrix(m, fmt=fmt)
+        off = m.to_numpy(float)[~np.eye(len(m), dtype=bool)]
+        out["max_offdiag"] = fmt_num(np.nanmax(np.abs(off)), 4) if off.size else None
+    return out
+
+
+def _section_models(res, fmt):
+    model = res["model"] or {}
+    diag = res["diagnostics"]
+    coefs = res["coefficients"]
+    terms = list(model.get("terms") or (coefs["term"].drop_duplicates().tolist()
+                                        if coefs is not None else []))
+    variables = dict(model.get("variables") or
+                     {f"x{i + 1}": s for i, s in enumerate(model.get("key_sensors", []))})
+    var_text = ", ".join(f"{k[0]}{k[1:].translate(_SUB)} = d{v} (K)" for k, v in variables.items())
+    speeds = model.get("speeds") or []
+    equations = []
+    for sp in speeds:
+        equations.append({"speed": fmt_speed(sp["speed_rpm"]),
+                          "equation": equation_text(sp["coefficients"], terms, variables),
+                          "n": sp.get("n"), "range": ", ".join(
+                              f"d{k} {fmt_num(v[0], 2)}\u2026{fmt_num(v[1], 2, 'K')}"
+                              for k, v in (sp.get("regressor_ranges") or {}).items())})
+    if not equations and coefs is not None:
+        for speed, g in coefs.groupby("speed_rpm"):
+            equations.append({"speed": fmt_speed(speed), "n": None, "range": "",
+                              "equation": equation_text(g["coef"].tolist(), g["term"].tolist(),
+                                                        variables)})
+    # recompute the training fit from model.json on runs.parquet (residual plots + RMSE check)
+    fits, rmse_check = {}, {}
+    rf = res["runs_parquet"]
+    if rf is not None and speeds:
+        sensors = [f"d{variables[f'x{i + 1}']}" for i in range(len(variables))]
+        train = _training_runs(res)
+        for sp in speeds:
+            speed = _speed_key(sp["speed_rpm"])
+            rids = list(sp.get("train_runs") or ([train[speed]] if speed in train else []))
+            f = rf.loc[rf["run_id"].isin(rids)]
+            if not len(f) or not all(s in f for s in sensors):
+                continue
+            X = eval_terms(terms, f[sensors].to_numpy(float))
+            fitted = X @ np.asarray(sp["coefficients"], float)
+            fits[speed] = pd.DataFrame({"t_s": f["t_s"].to_numpy(), "measured_um": f["dz_um"].to_numpy(),
+                                        "fitted_um": fitted})
+            r = f["dz_um"].to_numpy() - fitted
+            rmse_check[speed] = float(np.sqrt(np.nanmean(r ** 2)))
+    d_rows, mismatches = [], []
+    if diag is not None:
+        for i in diag.index:
+            r = diag.loc[i]
+            sp = _speed_key(r.speed_rpm)
+            paper = _paper("paper_rmse_um", diag, i, PAPER_RMSE_UM, sp)
+            chk = rmse_check.get(sp, np.nan)
+            if _isnum(chk) and _isnum(r.rmse_um) and abs(chk - r.rmse_um) > 0.02 * r.rmse_um + 1e-3:
+                mismatches.append(f"{fmt_speed(sp)}: table {fmt_num(r.rmse_um, 3)} \u00b5m, "
+                                  f"recomputed {fmt_num(chk, 3)} \u00b5m")
+            d_rows.append([fmt_speed(sp), fmt_num(r.n, 0), fmt_num(r.rmse_um, 3),
+                           fmt_num(paper, 3), fmt_num(r.r2, 4), fmt_num(r.r2_adj, 4),
+                           fmt_sig(r.max_vif, 2), fmt_num(r.durbin_watson, 2), fmt_p(r.bp_p),
+                           fmt_p(r.jb_p), fmt_sig(r.condition_number, 2)])
+    diag_t = table(["speed", "n", "RMSE (\u00b5m)", "paper Table 3 RMSE (\u00b5m)", "R\u00b2",
+                    "adj. R\u00b2", "max VIF", "Durbin-Watson", "Breusch-Pagan p", "Jarque-Bera p",
+                    "condition number"], d_rows, cls="num diag",
+                   widths=[12, 6, 8, 10, 8, 8, 10, 9, 9, 9, 11])
+    coef_t = None
+    if coefs is not None and len(coefs):
+        c = coefs.copy()
+        c["speed_rpm"] = c["speed_rpm"].map(_speed_key)
+        spd = sorted(c["speed_rpm"].unique())
+        rows = []
+        for t in terms:
+            row = [cell(Markup(f"b\u00b7{term_text(t, variables)}") if t != "1" else "b\u2080 (intercept)")]
+            for s in spd:
+                g = c[(c["speed_rpm"] == s) & (c["term"] == t)]
+                if not len(g):
+                    row.append("\u2013")
+                    continue
+                g = g.iloc[0]
+                row.append(cell(Markup(f"{escape(fmt_sig(g.coef, 4))}<br><small>\u00b1"
+                                       f"{escape(fmt_sig(g.se_hac, 2))}, p {escape(fmt_p(g.p_hac))}"
+                                       "</small>")))
+            rows.append(row)
+        coef_t = table(["term", *[fmt_speed(s) for s in spd]], rows, cls="num coef")
+    fig = None
+    if fits:
+        from rafi import plots
+        fig = plots.fig_fit_residuals(fits, fmt=fmt)
+    return {"equations": equations, "variables": var_text, "diagnostics": diag_t,
+            "coefficients": coef_t, "figure": fig, "mismatches": mismatches,
+            "terms": ", ".join(terms), "model_id": _short(model.get("model_id", ""), 16),
+            "created": model.get("created", ""), "code_version": model.get("code_version", "")}
+
+
+def _section_fuzzy(res, fmt):
+    model = res["model"] or {}
+    centres = sorted(float(sp["speed_rpm"]) for sp in model.get("speeds") or [])
+    if not centres and res["diagnostics"] is not None:
+        centres = sorted(res["diagnostics"]["speed_rpm"].astype(float).tolist())
+    if len(centres) < 1:
+        return None
+    lo, hi = centres[0], centres[-1]
+    span = max(hi - lo, 1000.0)
+    grid = np.linspace(max(0.0, lo - 0.1 * span), hi + 0.1 * span, 801)
+    try:
+        from rafi.fuzzy import membership_curves
+        W = membership_curves(centres, grid)
+        source = "rafi.fuzzy.membership_curves"
+    except ImportError:
+        W = membership(grid, centres)
+        source = "triangular membership (rafi.report fallback)"
+    example = None
+    if len(centres) >= 2:
+        c0, c1 = centres[0], centres[1]
+        ex = 4000.0 if (c0, c1) == (3000.0, 6000.0) else c0 + round((c1 - c0) / 3.0, -1)
+        w = membership([ex], centres)[0]
+        weights = {c: float(w[k]) for k, c in enumerate(centres) if w[k] > 0}
+        example = {"speed": fmt_speed(ex), "rows": [], "weights": weights}
+        sp_by = {float(sp["speed_rpm"]): sp for sp in model.get("speeds") or []}
+        variables = model.get("variables") or {}
+        terms = model.get("terms") or []
+        # a worked number: the temperature state at the end of the lower neighbour's training run
+        x_end = None
+        rf = res["runs_parquet"]
+        train = _training_runs(res)
+        sensors = [f"d{variables[f'x{i + 1}']}" for i in range(len(variables))]
+        if rf is not None and _speed_key(c0) in train and sensors and all(s in rf for s in sensors):
+            f = rf.loc[rf["run_id"] == train[_speed_key(c0)], sensors]
+            if len(f):
+                x_end = f.iloc[-1].to_numpy(float)
+        blended = 0.0
+        for c in (c0, c1):
+            d = abs(ex - c)
+            wk = weights.get(c, 0.0)
+            zk = np.nan
+            if x_end is not None and c in sp_by:
+                zk = float((eval_terms(terms, x_end[None, :]) @ np.asarray(sp_by[c]["coefficients"], float))[0])
+                blended += wk * zk
+            example["rows"].append([fmt_speed(c), fmt_num(d, 0, "r/min"), fmt_num(wk, 3),
+                                    fmt_num(zk, 2, "\u00b5m")])
+        if x_end is not None:
+            example["state"] = ", ".join(f"{s} = {fmt_num(v, 2, 'K')}" for s, v in zip(sensors, x_end))
+            example["blended"] = fmt_num(blended, 2, "\u00b5m")
+        example["table"] = table(["training speed", "distance", "membership weight",
+                                  "model dz at this state"], example["rows"], cls="num narrow")
+        example["w0"] = fmt_num(weights.get(c0, 0), 3)
+        example["w1"] = fmt_num(weights.get(c1, 0), 3)
+        example["c0"], example["c1"] = fmt_speed(c0), fmt_speed(c1)
+        example["d0"], example["d1"] = fmt_num(abs(ex - c0), 0), fmt_num(abs(ex - c1), 0)
+        is_paper = (c0, c1, ex) == (3000.0, 6000.0, 4000.0)
+        example["is_paper"] = is_paper
+    from rafi import plots
+    fig = plots.fig_membership(grid, W, centres,
+                               example_rpm=None if example is None else float(
+                                   example["speed"].split(NBSP + "r")[0].replace(NBSP, "")),
+                               example_weights=None if example is None else example["weights"],
+                               fmt=fmt)
+    return {"figure": fig, "example": example, "source": source,
+            "outside": (model.get("fuzzy") or {}).get("outside", "edge"),
+            "centres": ", ".join(fmt_num(c, 0) for c in centres) + NBSP + "r/min"}
+
+
+def _section_validation(res, key, coolant, fmt):
+    summ = res["validation_summary"]
+    resid = res["residuals"]
+    out = {"single": None, "ranges": None, "figure_single": None, "multi": [], "notes": []}
+    if summ is None:
+        return out
+    s = summ.copy()
+    single = s[s["role"] == "validation_single"] if "role" in s else s
+    rows = []
+    for i in single.index:
+        r = single.loc[i]
+        paper = _paper("paper_residual_um", single, i, PAPER_RESIDUAL_UM, r.speed_rpm)
+        worse = _truthy(r.get("worse_than_uncompensated", False))
+        rows.append([r.run_id, fmt_speed(r.speed_rpm), fmt_duration(r.duration_s),
+                     fmt_num(r.max_abs_before_um, 2), fmt_num(r.max_abs_after_um, 2),
+                     fmt_num(paper, 2), cell(fmt_num(r.improvement_pct, 1), "fail" if worse else ""),
+                     fmt_num(r.rmse_before_um, 2), fmt_num(r.rmse_after_um, 2)])
+    out["single"] = table(["run", "speed", "duration", "max |dz| before (\u00b5m)",
+                           "max |residual| after (\u00b5m)", "paper Table 4 residual (\u00b5m)",
+                           "improvement (%)", "RMSE before (\u00b5m)", "RMSE after (\u00b5m)"],
+                          rows, cls="num", widths=[11, 13, 9, 12, 12, 12, 11, 10, 10])
+    rows = []
+    for r in s.itertuples(index=False):
+        worse = _truthy(getattr(r, "worse_than_uncompensated", False))
+        rows.append([r.run_id, r.role, fmt_num(r.n_samples, 0), fmt_num(r.n_outside_temp_range, 0),
+                     fmt_num(r.n_outside_speed_range, 0),
+                     fmt_num(100 * (r.n_outside_temp_range + 0) / r.n_samples
+                             if _isnum(r.n_samples) and r.n_samples else np.nan, 1, "%"),
+                     cell("yes" if worse else "no", "fail" if worse else "pass")])
+    out["ranges"] = table(["run", "role", "samples", "outside trained temperature range",
+                           "outside trained speed range", "share outside temp. range",
+                           "worse than uncompensated"], rows, cls="num",
+                          widths=[13, 19, 10, 16, 16, 13, 13])
+    if resid is None:
+        return out
+    from rafi import plots
+    panels = {}
+    for r in single.itertuples(index=False):
+        f = resid[resid["run_id"] == r.run_id]
+        if len(f):
+            panels[f"{r.run_id}: {fmt_speed(r.speed_rpm)}"] = f
+    if panels:
+        out["figure_single"] = plots.fig_validation_single(panels, fmt=fmt)
+    rf = res["runs_parquet"]
+    others = s[s["role"] != "validation_single"] if "role" in s else s.iloc[0:0]
+    for r in others.itertuples(index=False):
+        f = resid[resid["run_id"] == r.run_id].copy()
+        if not len(f):
+            continue
+        temps = [t for t in list(key) + list(coolant)]
+        if rf is not None:
+            tf = rf.loc[rf["run_id"] == r.run_id, ["t_s", *[t for t in temps if t in rf]]]
+            f = f.merge(tf, on="t_s", how="left")
+        fig = plots.fig_multi_condition(f, temp_sensors=temps, fmt=fmt)
+        paper = PAPER_MULTI if r.role == "validation_multi" else None
+        changes = int((f["speed_rpm"].diff().abs() > 100).sum())
+        out["multi"].append({
+            "run_id": r.run_id, "role": r.role, "figure": fig,
+            "duration": fmt_duration(r.duration_s),
+            "speeds": f"{fmt_num(f['speed_rpm'].min(), 0)}\u2013{fmt_speed(f['speed_rpm'].max())}",
+            "changes": changes,
+            "before": fmt_num(r.max_abs_before_um, 2, "\u00b5m"),
+            "after": fmt_num(r.max_abs_after_um, 2, "\u00b5m"),
+            "improvement": fmt_num(r.improvement_pct, 1, "%"),
+            "outside_t": int(r.n_outside_temp_range), "outside_s": int(r.n_outside_speed_range),
+            "n": int(r.n_samples),
+            "paper": None if paper is None else {
+                "before": fmt_num(paper["before_um"], 2, "\u00b5m"),
+                "after": fmt_num(paper["after_um"], 2, "\u00b5m"),
+                "improvement": fmt_num(paper["improvement_pct"], 1, "%")}})
+    return out
+
+
+def _section_choices(settings: dict, key_info: dict, model: dict, eq_method):
+    ref = settings.get("reference") or (model or {}).get("reference") or {}
+    eqs = settings.get("equilibrium") or {}
+    rank = settings.get("rank") or {}
+    fit = settings.get("fit") or {}
+    fz = settings.get("fuzzy") or (model or {}).get("fuzzy") or {}
+    rule = ref.get("rule", "run_start")
+    rule_text = {"run_start": "the median of the first {w} s of each run",
+                 "log_start": "the median of the first {w} s of the log/segment the run came from"}
+    rows = [
+        ("Regressors and target",
+         f"Temperature rises dT = T \u2212 T_ref (K) of the key sensors and displacement change "
+         f"dz = disp \u2212 disp_ref (\u00b5m); the reference state is "
+         + rule_text.get(rule, "rule '{r}' over {w} s").format(w=ref.get("window_s", "?"), r=rule)
+         + f" (reference.rule = {rule}). Absolute temperatures would make the model depend on the "
+           "season."),
+        ("Thermal equilibrium",
+         f"First time after which the {fmt_num(eqs.get('smooth_window_s'), 0, 's')} rolling median "
+         f"of dz stays within \u00b1{fmt_num(100 * float(eqs.get('band_fraction', 0.05)), 0)} % of "
+         f"the total rise around the final plateau (median of the last "
+         f"{fmt_num(eqs.get('plateau_window_s'), 0, 's')}); uncertainty from a 1.5\u00d7 wider / "
+         "narrower band; cross-check with a fitted first-order time constant."
+         + (f" Method recorded: {eq_method}." if eq_method else "")),
+        ("Correlation scope",
+         f"Pearson r of each sensor rise with dz, scope = {rank.get('scope', key_info.get('scope', '?'))}"
+         f" ({'the smallest |r| over the training speeds must pass' if rank.get('scope', key_info.get('scope')) == 'min_per_speed' else 'all training runs pooled'}); "
+         f"threshold |r| > {rank.get('threshold', key_info.get('threshold', 0.97))}, at most "
+         f"{rank.get('max_key_sensors', 3)} key sensors."),
+        ("Fewer sensors than needed pass the threshold",
+         "Fallback: the best-scoring sensors are taken up to max_key_sensors and marked "
+         "'fallback' in rank/key_sensors.csv; the report shows the message."
+         + (f" This run: {key_info.get('message')}" if _truthy(key_info.get("fallback_used"))
+            else " This run: not needed.")),
+        ("Outside the trained speed range",
+         f"fuzzy.outside = {fz.get('outside', 'edge')}: the nearest edge model is used with weight "
+         "1 (no extrapolation in speed) and the sample is flagged outside_speed_range; samples "
+         "whose key-sensor rises leave the fitted range are flagged outside_temp_range and counted "
+         "in section Validation."),
+        ("Standard errors",
+         f"OLS coefficients with Newey-West (HAC) standard errors, {fit.get('hac_maxlags', '?')} "
+         "lags, because 5 s samples are strongly autocorrelated; the plain OLS errors are "
+         "reported in fit/coefficients.csv but not used for inference."),
+        ("Validation", "By whole run: a validation run is never used for training (no "
+                       "sample-wise cross-validation, which would leak through autocorrelation)."),
+        ("Fuzzy membership", "Triangular functions centred on the training speeds (see Fuzzy "
+                             "blending for the paper's 0.334 / 0.666 wording)."),
+    ]
+    return [{"topic": a, "text": b} for a, b in rows]
+
+
+def _section_registry(decision):
+    if not isinstance(decision, dict):
+        return None
+    out = {"headline": None, "side_by_side": None, "details": None}
+    for k in ("decision", "action", "verdict", "outcome"):
+        if k in decision and not isinstance(decision[k], (dict, list)):
+            out["headline"] = str(decision[k])
+            break
+    champ, cand = decision.get("champion"), decision.get("candidate")
+    rest = {k: v for k, v in decision.items() if k not in ("champion", "candidate")}
+    if isinstance(champ, dict) or isinstance(cand, dict):
+        a = dict(_flatten(champ or {}))
+        b = dict(_flatten(cand or {}))
+        keys = list(dict.fromkeys([*a, *b]))
+        out["side_by_side"] = table(["", "champion", "candidate"],
+                                    [[k.replace("_", " "), a.get(k, "\u2013"), b.get(k, "\u2013")]
+                                     for k in keys], cls="kv")
+    else:
+        rest = decision
+    items = _flatten(rest)
+    if items:
+        out["details"] = table(["item", "value"], [[k.replace("_", " "), v] for k, v in items],
+                               cls="kv")
+    return out
+
+
+# =========================================================================== the context
+
+def build_context(paths: dict, *, machine: str, settings: dict | None = None,
+                  config: dict | None = None, figure_format: str = "png",
+                  coolant_sensors: list[str] | None = None, now=None) -> dict:
+    """Load the results and build the template context.
+
+    Parameters
+    ----------
+    paths : dict
+        Input name -> path (see :func:`result_paths`); missing/absent files are allowed
+        for the optional inputs.
+    machine : str
+    settings : dict
+        The machine's effective settings (``defaults`` merged with ``machines.<machine>``);
+        ``qualification`` and the choice parameters are read from here.
+    config : dict, optional
+        The configuration shown verbatim (YAML) in the provenance section.
+    figure_format : {"png", "svg"}
+    coolant_sensors : list of str
+        Drawn beside the key sensors (default ``["T13"]``, the coolant inlet).
+    """
+    t0 = time.perf_counter()
+    settings = dict(settings or {})
+    res = load_results(paths)
+    model = res["model"] or {}
+    key_info = res["key_sensors_json"] or {}
+    key = list(key_info.get("sensors") or model.get("key_sensors") or [])
+    coolant = [c for c in (coolant_sensors or DEFAULT_COOLANT_SENSORS) if c not in key]
+    gates = settings.get("qualification") or {}
+
+    ctx: dict = {"machine": machine, "generated": _now(now), "sections": []}
+    if res["validation_summary"] is not None:
+        v, src = qualify(res["validation_summary"], gates)
+        ctx["verdict"] = verdict_context(v, src)
+    else:
+        ctx["verdict"] = {"passed": False, "status": "FAIL", "source": "no validation summary",
+                          "rows": []}
+    ctx["gates"] = gates
+    ctx["data"] = _section_data(res, machine)
+    ctx["equilibrium"] = _section_equilibrium(res, key, coolant, figure_format)
+    ctx["ranking"] = _section_ranking(res, key_info, figure_format)
+    ctx["models"] = _section_models(res, figure_format)
+    ctx["fuzzy"] = _section_fuzzy(res, figure_format)
+    ctx["validation"] = _section_validation(res, key, coolant, figure_format)
+    ctx["registry"] = _section_registry(res.get("decision"))
+    comp = res.get("comparison")
+    ctx["comparison"] = generic_table(comp) if comp is not None and len(comp) else None
+    ctx["choices"] = _section_choices(settings, key_info, model, ctx["equilibrium"]["method"])
+    ctx["versions"] = _versions()
+    try:
+        import yaml
+        ctx["config_yaml"] = yaml.safe_dump(config if config is not None else settings,
+                                            sort_keys=False, allow_unicode=True)
+    except ImportError:  # pragma: no cover
+        ctx["config_yaml"] = json.dumps(config if config is not None else settings, indent=2)
+    ctx["model_id"] = model.get("model_id", "")
+    ctx["code_version"] = model.get("code_version", "")
+    ctx["inputs"] = [{"name": k, "path": str(p), "present": Path(p).is_file()}
+                     for k, p in paths.items() if p]
+
+    present = {"verdict": True, "data": True, "equilibrium": True, "ranking": True,
+               "models": True, "fuzzy": ctx["fuzzy"] is not None, "validation": True,
+               "registry": ctx["registry"] is not None,
+               "comparison": ctx["comparison"] is not None, "choices": True, "provenance": True}
+    n = 0
+    for sid, title in SECTION_TITLES.items():
+        if present[sid]:
+            n += 1
+            ctx["sections"].append({"id": sid, "number": n, "title": title})
+    ctx["section_by_id"] = {s["id"]: s for s in ctx["sections"]}
+    ctx["build_seconds"] = time.perf_counter() - t0
+    return ctx
+
+
+# =========================================================================== rendering
+
+def _environment():
+    import jinja2
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("rafi", "templates"),
+        autoescape=jinja2.select_autoescape(["html", "j2"], default_for_string=True),
+        undefined=jinja2.StrictUndefined, trim_blocks=True, lstrip_blocks=True)
+    return env
+
+
+def render_html(ctx: dict) -> str:
+    """Render the qualification report HTML (self-contained)."""
+    return _environment().get_template("qualification.html.j2").render(**ctx)
+
+
+def render_pdf(html: str, base_url: str | None = None) -> bytes:
+    """Render the same HTML to PDF with WeasyPrint (A4, print CSS in the template)."""
+    import weasyprint
+    return weasyprint.HTML(string=html, base_url=base_url or ".").write_pdf()
+
+
+def generate(results_dir: str | os.PathLike, out_dir: str | os.PathLike, *, machine: str | None = None,
+             settings: dict | None = None, config: dict | None = None, figure_format: str = "png",
+             coolant_sensors: list[str] | None = None, paths: dict | None = None) -> dict:
+    """Build, render and write ``qualification.html`` and ``.pdf`` atomically; return timings."""
+    from rafi.io import write_bytes_atomic, write_text_atomic
+    results_dir = Path(results_dir)
+    out_dir = Path(out_dir)
+    machine = machine or results_dir.name
+    t = {}
+    t0 = time.perf_counter()
+    ctx = build_context(paths or result_paths(results_dir), machine=machine, settings=settings,
+                        config=config, figure_format=figure_format,
+                        coolant_sensors=coolant_sensors)
+    t["context_s"] = time.perf_counter() - t0
+    t1 = time.perf_counter()
+    html = render_html(ctx)
+    t["html_s"] = time.perf_counter() - t1
+    t2 = time.perf_counter()
+    pdf = render_pdf(html)
+    t["pdf_s"] = time.perf_counter() - t2
+    write_text_atomic(out_dir / "qualification.html", html)
+    write_bytes_atomic(out_dir / "qualification.pdf", pdf)
+    t["total_s"] = time.perf_counter() - t0
+    t["verdict"] = ctx["verdict"]["status"]
+    t["html_bytes"], t["pdf_bytes"] = len(html.encode()), len(pdf)
+    return t

@@ -1,0 +1,283 @@
+"""Generate a small, realistic ``results/<machine>/`` tree for the report tests.
+
+The tables follow ``docs/design.md`` exactly; the numbers come from a toy
+first-order thermal model (not the project's digital twin), fitted with plain
+NumPy least squares, so the report has consistent inputs without the pipeline.
+
+    python tests/data/report_fixture/generate.py            # committed fixture (120 s grid)
+    python tests/data/report_fixture/generate.py OUT --sample-period-s 5   # full-size (benchmark)
+"""
+
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+MACHINE = "tapping-center-a"
+SENSORS = [f"T{i}" for i in range(1, 17)]
+TRAIN = [3000, 6000, 9000, 12000, 15000, 18000]
+PAPER_T_EQ = {3000: 10160, 6000: 9675, 9000: 6895, 12000: 6615, 15000: 5385, 18000: 5560}
+PAPER_RMSE = {3000: 0.639, 6000: 0.418, 9000: 0.277, 12000: 0.283, 15000: 0.780, 18000: 0.421}
+PAPER_RES = {4500: 10.0287, 8000: 5.6419, 10500: 5.3598, 13500: 3.4792, 16500: 9.2334}
+TERMS = ["1", "x1", "x2", "x3", "x1*x2", "x1*x3", "x2*x3", "x1^2", "x2^2", "x3^2", "x1*x2*x3"]
+KEY = ["T6", "T8", "T9"]
+# rise of each sensor at 18000 r/min (K) and its lag factor relative to the displacement
+GAIN = np.array([1.5, 1.4, 1.6, 2.0, 1.2, 9.0, 2.2, 7.5, 8.0, 5.0, 0.8, 1.1, 0.9, 3.0, 1.0, 8.5])
+LAG = np.array([1.6, 1.7, 1.5, 1.4, 1.3, 1.0, 1.5, 1.05, 0.95, 1.2, 2.0, 1.8, 1.9, 1.3, 1.8, 1.1])
+
+
+def amp(n):  # plateau displacement (um) at speed n
+    return 6.0 + 22.0 * (np.asarray(n, float) / 18000.0) ** 0.8
+
+
+def tau_of(n):  # time constant (s): t_eq(5 %) = 3 tau ~ paper Table 1
+    return np.interp(n, TRAIN, [PAPER_T_EQ[s] / 3.0 for s in TRAIN])
+
+
+def simulate(speed, dt, rng, drift=0.0):
+    """First-order response to a (possibly varying) speed profile."""
+    n = len(speed)
+    temps = np.zeros((n, 16))
+    z = np.zeros(n)
+    ts = np.zeros(16)
+    zs = 0.0
+    for i in range(n):
+        s = speed[i]
+        frac = (s / 18000.0) ** 0.9
+        tau = tau_of(max(s, 3000))
+        ts += (GAIN * frac - ts) * dt / (tau * LAG)
+        zs += (amp(s) * (s > 0) - zs) * dt / tau
+        temps[i] = ts
+        z[i] = zs + drift * i * dt / 3600.0
+    z += 1.5e-9 * speed ** 2  # centrifugal growth (BT30): a jump at speed changes
+    temps = 22.0 + temps + rng.normal(0, 0.03, temps.shape)
+    z = z + rng.normal(0, 0.25, n)
+    return temps, z
+
+
+def terms_matrix(x):
+    x1, x2, x3 = x[:, 0], x[:, 1], x[:, 2]
+    return np.column_stack([np.ones(len(x)), x1, x2, x3, x1 * x2, x1 * x3, x2 * x3,
+                            x1 ** 2, x2 ** 2, x3 ** 2, x1 * x2 * x3])
+
+
+def tri_weights(speed, centres):
+    c = np.asarray(centres, float)
+    s = np.clip(np.asarray(speed, float), c[0], c[-1])
+    w = np.zeros((len(s), len(c)))
+    k = np.clip(np.searchsorted(c, s, side="right") - 1, 0, len(c) - 2)
+    frac = (s - c[k]) / (c[k + 1] - c[k])
+    w[np.arange(len(s)), k] = 1 - frac
+    w[np.arange(len(s)), k + 1] += frac
+    return w, (np.asarray(speed) < c[0]) | (np.asarray(speed) > c[-1])
+
+
+def generate(out: Path, sample_period_s: float = 120.0, seed: int = 7) -> None:
+    rng = np.random.default_rng(seed)
+    dt = sample_period_s
+    base = out / MACHINE
+    (base / "rank").mkdir(parents=True, exist_ok=True)
+    (base / "fit").mkdir(exist_ok=True)
+    (base / "validation").mkdir(exist_ok=True)
+    t0 = pd.Timestamp("2026-03-02T07:30:00")
+    runs, frames = [], []
+
+    def add_run(run_id, file, role, speed, drift=0.0, seg=0):
+        nonlocal t0
+        temps, z = simulate(speed, dt, rng, drift)
+        n = len(speed)
+        t_s = np.arange(n) * dt
+        ref = t_s <= 60.0
+        ref_T = np.median(temps[ref], axis=0)
+        ref_z = np.median(z[ref])
+        f = pd.DataFrame({"run_id": run_id, "t_s": t_s,
+                          "time": t0 + pd.to_timedelta(t_s, unit="s"), "speed_rpm": speed})
+        for i, s in enumerate(SENSORS):
+            f[s] = temps[:, i].round(2)
+        f["disp_um"] = (z + 3.1).round(3)
+        for i, s in enumerate(SENSORS):
+            f["d" + s] = (f[s] - ref_T[i]).round(2)
+        f["dz_um"] = (f["disp_um"] - (ref_z + 3.1)).round(3)
+        frames.append(f)
+        sha = hashlib.sha256(file.encode()).hexdigest()
+        const = np.ptp(speed) < 100
+        runs.append(dict(run_id=run_id, file=file, segment=seg, start_s=0.0, end_s=float(t_s[-1]),
+                         duration_s=float(t_s[-1] + dt), speed_rpm=float(np.median(speed)),
+                         speed_min_rpm=float(speed.min()), speed_max_rpm=float(speed.max()),
+                         kind="constant" if const else "varying", role=role, role_source="auto",
+                         reference="median of the first 60 s of the run (run_start)", sha256=sha))
+        t0 = t0 + pd.Timedelta(days=1)
+
+    for s in TRAIN:
+        add_run(f"train-{s}", f"2026-03-{TRAIN.index(s) + 2:02d}_train_{s}rpm.csv", "training",
+                np.full(int(4 * 3600 / dt), float(s)))
+    for j, (s, hours) in enumerate(zip(PAPER_RES, [4, 3, 2.5, 3, 2])):
+        add_run(f"val-{s}", f"2026-03-{j + 10:02d}_val_{s}rpm.csv", "validation_single",
+                np.full(int(hours * 3600 / dt), float(s)), drift=1.2 + 0.3 * j)
+    steps = [(3000, 0.5), (9000, 0.75), (15000, 0.75), (6000, 0.5), (12000, 0.75), (18000, 0.5),
+             (4500, 0.75)]
+    multi = np.concatenate([np.full(int(h * 3600 / dt), float(s)) for s, h in steps])
+    add_run("multi-1", "2026-03-16_multi_condition.csv", "validation_multi", multi, drift=1.5)
+    add_run("short-1", "2026-03-17_warmup.csv", "excluded", np.full(int(0.4 * 3600 / dt), 6000.0))
+    runs_table = pd.DataFrame(runs)
+    runs_frame = pd.concat(frames, ignore_index=True)
+
+    # ---- audit
+    audit = []
+    for r in runs:
+        n_in = int(r["duration_s"] / dt) + 3
+        audit.append(dict(file=r["file"], sha256=r["sha256"], rows_in=n_in, rows_out=n_in - 3,
+                          duplicates_dropped=2, reordered=0, spikes_replaced=int(rng.integers(0, 4)),
+                          values_interpolated=int(rng.integers(0, 30)), gaps_interpolated=1,
+                          segments=1, status="ok", reason=""))
+    audit.append(dict(file="2026-03-18_broken_logger.csv",
+                      sha256=hashlib.sha256(b"broken").hexdigest(), rows_in=1840, rows_out=0,
+                      duplicates_dropped=0, reordered=0, spikes_replaced=0, values_interpolated=0,
+                      gaps_interpolated=0, segments=0, status="quarantined",
+                      reason="line 812, column T7: '23,41' is not a number (decimal comma? use a point)"))
+    pd.DataFrame(audit).to_csv(base / "audit.csv", index=False)
+    runs_table.to_csv(base / "runs.csv", index=False)
+    runs_frame.to_parquet(base / "runs.parquet", compression="zstd")
+
+    # ---- equilibrium
+    from rafi.equilibrium import equilibrium_time
+    eq = []
+    for s in TRAIN:
+        f = runs_frame[runs_frame.run_id == f"train-{s}"]
+        r = equilibrium_time(f.t_s.to_numpy(), f.dz_um.to_numpy())
+        eq.append(dict(run_id=f"train-{s}", speed_rpm=s, t_eq_s=r.t_eq_s, t_eq_low_s=r.t_eq_low_s,
+                       t_eq_high_s=r.t_eq_high_s, tau_s=r.tau_s, t_eq_tau_s=r.t_eq_tau_s,
+                       plateau_um=r.plateau_um, paper_t_eq_s=PAPER_T_EQ[s],
+                       method="band 5 % of rise around final 900 s plateau, 300 s median"))
+    pd.DataFrame(eq).to_csv(base / "equilibrium.csv", index=False)
+
+    # ---- rank
+    train = runs_frame[runs_frame.run_id.str.startswith("train-")]
+    rows = []
+    for scope, g in [(str(s), train[train.run_id == f"train-{s}"]) for s in TRAIN] + [("pooled", train)]:
+        rs = [float(np.corrcoef(g["d" + s], g.dz_um)[0, 1]) for s in SENSORS]
+        order = np.argsort(-np.abs(rs))
+        rank = np.empty(16, int)
+        rank[order] = np.arange(1, 17)
+        rows += [dict(scope=scope, sensor=s, r=r, abs_r=abs(r), rank=int(k))
+                 for s, r, k in zip(SENSORS, rs, rank)]
+    corr = pd.DataFrame(rows)
+    corr.to_csv(base / "rank" / "correlation.csv", index=False)
+    per = corr[corr.scope != "pooled"].groupby("sensor").abs_r.min()
+    pd.DataFrame({"sensor": KEY, "score_abs_r": [per[k] for k in KEY],
+                  "selected_by": "threshold"}).to_csv(base / "rank" / "key_sensors.csv", index=False)
+    (base / "rank" / "key_sensors.json").write_text(json.dumps(
+        {"sensors": KEY, "threshold": 0.97, "scope": "min_per_speed", "fallback_used": False,
+         "message": ""}, indent=2))
+    cm = np.corrcoef(train[["d" + k for k in KEY]].to_numpy().T)
+    coll = pd.DataFrame(cm, columns=KEY)
+    coll.insert(0, "sensor", KEY)
+    coll.to_csv(base / "rank" / "collinearity.csv", index=False)
+
+    # ---- fit
+    coef_rows, diag_rows, vif_rows, speeds = [], [], [], []
+    for s in TRAIN:
+        f = runs_frame[runs_frame.run_id == f"train-{s}"]
+        x = f[["d" + k for k in KEY]].to_numpy()
+        X = terms_matrix(x)
+        y = f.dz_um.to_numpy()
+        b, *_ = np.linalg.lstsq(X, y, rcond=None)
+        res = y - X @ b
+        n, p = X.shape
+        sse = float(res @ res)
+        rmse = float(np.sqrt(sse / n))
+        r2 = 1 - sse / float(((y - y.mean()) ** 2).sum())
+        sigma2 = sse / (n - p)
+        cov = sigma2 * np.linalg.pinv(X.T @ X)
+        se = np.sqrt(np.abs(np.diag(cov)))
+        tval = b / se
+        for term, bi, si, ti in zip(TERMS, b, se, tval):
+            coef_rows.append(dict(speed_rpm=s, term=term, coef=bi, se=si, se_hac=si * 4.1, t=ti,
+                                  p=float(min(1.0, 2 * np.exp(-0.5 * ti * ti))),
+                                  p_hac=float(min(1.0, 2 * np.exp(-0.5 * (ti / 4.1) ** 2)))))
+        vifs = []
+        for j in range(1, p):
+            others = np.delete(X, j, axis=1)
+            bj, *_ = np.linalg.lstsq(others, X[:, j], rcond=None)
+            rj = X[:, j] - others @ bj
+            r2j = 1 - (rj @ rj) / (((X[:, j] - X[:, j].mean()) ** 2).sum())
+            vifs.append(1 / max(1 - r2j, 1e-12))
+            vif_rows.append(dict(speed_rpm=s, term=TERMS[j], vif=vifs[-1]))
+        dw = float(np.sum(np.diff(res) ** 2) / sse)
+        diag_rows.append(dict(speed_rpm=s, n=n, r2=r2, r2_adj=1 - (1 - r2) * (n - 1) / (n - p),
+                              rmse_um=rmse, paper_rmse_um=PAPER_RMSE[s],
+                              aic=n * np.log(sse / n) + 2 * p, bic=n * np.log(sse / n) + p * np.log(n),
+                              condition_number=float(np.linalg.cond(X)), durbin_watson=dw,
+                              bp_stat=float(rng.uniform(5, 40)), bp_p=float(rng.uniform(0, 0.3)),
+                              jb_stat=float(rng.uniform(0.5, 12)), jb_p=float(rng.uniform(0.002, 0.8)),
+                              max_vif=max(vifs)))
+        speeds.append(dict(speed_rpm=s, coefficients=[float(v) for v in b],
+                           regressor_ranges={k: [float(x[:, i].min()), float(x[:, i].max())]
+                                             for i, k in enumerate(KEY)},
+                           train_runs=[f"train-{s}"], rmse_um=rmse, n=n))
+    pd.DataFrame(coef_rows).to_csv(base / "fit" / "coefficients.csv", index=False)
+    pd.DataFrame(diag_rows).to_csv(base / "fit" / "diagnostics.csv", index=False)
+    pd.DataFrame(vif_rows).to_csv(base / "fit" / "vif.csv", index=False)
+    model = {"schema": "rafi.model/1", "kind": "rafi", "machine": MACHINE, "key_sensors": KEY,
+             "variables": {f"x{i + 1}": k for i, k in enumerate(KEY)}, "terms": TERMS,
+             "inputs": "temperature rises dT (K) of the key sensors",
+             "target": "displacement change dz (um) from the reference state",
+             "reference": {"rule": "run_start", "window_s": 60}, "speeds": speeds,
+             "fuzzy": {"membership": "triangular", "outside": "edge"},
+             "data": {r["file"]: r["sha256"] for r in runs if r["role"] == "training"},
+             "code_version": "rafi 0.1.0 (fixture)", "config": {}}
+    model["model_id"] = hashlib.sha256(json.dumps(model, sort_keys=True).encode()).hexdigest()
+    model["created"] = "2026-03-20T12:00:00Z"
+    (base / "model.json").write_text(json.dumps(model, indent=2))
+
+    # ---- validate
+    summ, resid = [], []
+    centres = np.array(TRAIN, float)
+    B = np.array([sp["coefficients"] for sp in speeds])
+    for r in runs:
+        if not r["role"].startswith("validation"):
+            continue
+        f = runs_frame[runs_frame.run_id == r["run_id"]]
+        X = terms_matrix(f[["d" + k for k in KEY]].to_numpy())
+        w, outside = tri_weights(f.speed_rpm.to_numpy(), centres)
+        pred = np.sum(w * (X @ B.T), axis=1)
+        meas = f.dz_um.to_numpy()
+        res = meas - pred
+        lo = np.array([[sp["regressor_ranges"][k][0] for k in KEY] for sp in speeds]).min(0)
+        hi = np.array([[sp["regressor_ranges"][k][1] for k in KEY] for sp in speeds]).max(0)
+        x = f[["d" + k for k in KEY]].to_numpy()
+        out_t = ((x < lo) | (x > hi)).any(axis=1)
+        before, after = float(np.abs(meas).max()), float(np.abs(res).max())
+        summ.append(dict(run_id=r["run_id"], role=r["role"], speed_rpm=r["speed_rpm"],
+                         duration_s=r["duration_s"], max_abs_before_um=before, max_abs_after_um=after,
+                         improvement_pct=100 * (before - after) / before,
+                         rmse_before_um=float(np.sqrt(np.mean(meas ** 2))),
+                         rmse_after_um=float(np.sqrt(np.mean(res ** 2))), n_samples=len(f),
+                         n_outside_temp_range=int(out_t.sum()), n_outside_speed_range=int(outside.sum()),
+                         worse_than_uncompensated=bool(after > before),
+                         paper_residual_um=PAPER_RES.get(int(r["speed_rpm"]), np.nan)
+                         if r["role"] == "validation_single" else np.nan))
+        resid.append(pd.DataFrame({"run_id": r["run_id"], "t_s": f.t_s.to_numpy(),
+                                   "speed_rpm": f.speed_rpm.to_numpy(), "measured_um": meas,
+                                   "predicted_um": pred.round(3), "residual_um": res.round(3),
+                                   "outside_temp_range": out_t, "outside_speed_range": outside}))
+    pd.DataFrame(summ).to_csv(base / "validation" / "summary.csv", index=False)
+    pd.concat(resid, ignore_index=True).to_parquet(base / "validation" / "residuals.parquet",
+                                                   compression="zstd")
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", nargs="?", default=str(Path(__file__).resolve().parent))
+    ap.add_argument("--sample-period-s", type=float, default=120.0)
+    a = ap.parse_args(argv)
+    generate(Path(a.out), a.sample_period_s)
+
+
+if __name__ == "__main__":
+    main()

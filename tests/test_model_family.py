@@ -1,0 +1,184 @@
+"""The model family (rafi.model_family): one interface, artefacts, dynamics recovery."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rafi.model_family import (DynamicRidge, PublishedRafi, RafiLinear, RidgeGlobal, compute_model_id,
+                               load_any, lowpass_runs, make_model, make_synthetic_runs, save_any)
+
+KEY = ["T1", "T2", "T3"]
+SMALL_TERMS = ["1", "x1", "x2", "x3", "x1*x2", "x1^2"]
+
+
+@pytest.fixture(autouse=True)
+def _quiet():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # statsmodels VIF / conditioning warnings of fit_rafi
+        yield
+
+
+@pytest.fixture(scope="module")
+def data():
+    return make_synthetic_runs(seed=1, sample_s=120.0, n_sensors=4)
+
+
+@pytest.fixture(scope="module")
+def fitted(data):
+    table, frame = data
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return {
+            "rafi": PublishedRafi(KEY, SMALL_TERMS).fit(table, frame),
+            "rafi_linear": RafiLinear(KEY).fit(table, frame),
+            "ridge_global": RidgeGlobal(alphas=[1e-4, 1e-2, 1.0]).fit(table, frame),
+            "dynamic": DynamicRidge(taus_s=[0, 600, 2400], max_taus=2, alphas=[1e-4, 1e-2]).fit(table, frame),
+        }
+
+
+def _validation(table, frame):
+    ids = table.loc[table["role"].str.startswith("validation"), "run_id"]
+    return frame[frame["run_id"].isin(ids)]
+
+
+# --------------------------------------------------------------------------- dynamics
+
+def test_dynamic_recovers_the_lag_and_beats_static_models():
+    # dz = sum_i g_i * lowpass(dT_i, 1800 s) + c (n^2 - n0^2); sensors respond in 300 / 500 s
+    table, frame = make_synthetic_runs(seed=3, sample_s=60.0, n_sensors=2, sensor_taus_s=(300, 500),
+                                       tau_lag_s=1800.0, noise_um=0.02)
+    dyn = DynamicRidge(taus_s=[0, 600, 1800, 4800], max_taus=1).fit(table, frame)
+    assert dyn.taus_ == [1800.0]
+    val = _validation(table, frame)
+    rmse = {}
+    for name, m in {"dynamic": dyn, "ridge": RidgeGlobal().fit(table, frame),
+                    "rafi": PublishedRafi(["T1", "T2"], ["1", "x1", "x2", "x1*x2", "x1^2", "x2^2"]
+                                          ).fit(table, frame)}.items():
+        rmse[name] = float(np.sqrt(np.mean((val["dz_um"] - m.predict(val)) ** 2)))
+    assert rmse["dynamic"] < 0.04  # noise is 0.02 um
+    assert rmse["dynamic"] < 0.5 * rmse["ridge"]
+    assert rmse["dynamic"] < 0.2 * rmse["rafi"]
+    # the centrifugal coefficient (-0.02 um/krpm^2) is recovered
+    c2 = dyn.coef_[dyn.feature_names_.index("n2_krpm2")]
+    assert c2 == pytest.approx(-0.02, abs=0.003)
+
+
+def test_lowpass_is_causal_and_restarts_each_run():
+    t = np.arange(0, 3000.0, 5.0)
+    x = np.where(t >= 100, 1.0, 0.0)
+    codes = np.zeros(len(t), dtype=int)
+    y = lowpass_runs(x, t, codes, [0.0, 600.0])
+    assert np.array_equal(y[:, 0], x)  # tau 0: pass-through
+    expected = np.where(t >= 100, 1 - np.exp(-(t - 95) / 600.0), 0.0)  # ZOH step from the 100 s sample
+    np.testing.assert_allclose(y[:, 1], np.where(t >= 100, expected, 0), atol=1e-2)
+    # causal: changing the future does not change the past
+    x2 = x.copy()
+    x2[300:] = 5.0
+    y2 = lowpass_runs(x2, t, codes, [600.0])
+    assert np.array_equal(y2[:300, 0], y[:300, 1])
+    # a second run starts settled on its own first sample (documented initial condition)
+    codes2 = np.r_[np.zeros(300, int), np.ones(len(t) - 300, int)]
+    y3 = lowpass_runs(x2, t, codes2, [600.0])
+    assert y3[300, 0] == 5.0
+
+
+def test_dynamic_prediction_does_not_depend_on_row_order(data, fitted):
+    table, frame = data
+    val = _validation(table, frame)
+    shuffled = val.sample(frac=1.0, random_state=0)
+    a = pd.Series(fitted["dynamic"].predict(val), index=val.index)
+    b = pd.Series(fitted["dynamic"].predict(shuffled), index=shuffled.index)
+    np.testing.assert_allclose(a.sort_index(), b.sort_index(), rtol=0, atol=1e-12)
+
+
+# --------------------------------------------------------------------------- interface and artefacts
+
+@pytest.mark.parametrize("kind", ["rafi", "rafi_linear", "ridge_global", "dynamic"])
+def test_round_trip_gives_identical_predictions(kind, data, fitted, tmp_path):
+    table, frame = data
+    model = fitted[kind]
+    d = model.to_dict()
+    assert d["schema"] == "rafi.model/1" and d["kind"] == kind
+    assert d["model_id"] == compute_model_id(d)
+    assert d["key_sensors"] and d["reference"]["rule"] == "run_start"
+    path = tmp_path / "m.json"
+    save_any(model, path)
+    again = load_any(path)
+    assert again.to_dict()["model_id"] == d["model_id"]
+    val = _validation(table, frame)
+    assert np.array_equal(model.predict(val), again.predict(val))
+    da, db = model.predict_detail(val), again.predict_detail(val)
+    for col in ("predicted_um", "outside_speed_range", "outside_temp_range"):
+        assert col in da.columns
+        assert np.array_equal(da[col].to_numpy(), db[col].to_numpy())
+    assert da.index.equals(val.index)
+
+
+def test_load_any_delegates_rafi_to_rafimodel(fitted):
+    from rafi.model import RafiModel
+    assert isinstance(load_any(fitted["rafi"].to_dict()), RafiModel)
+    assert isinstance(load_any(json.loads(json.dumps(fitted["rafi_linear"].to_dict()))), RafiLinear)
+
+
+def test_edited_artefact_is_rejected(fitted):
+    for kind in ("rafi_linear", "ridge_global", "dynamic"):
+        d = fitted[kind].to_dict()
+        d["coefficients" if "coefficients" in d else "terms"] = d.get("coefficients", ["1"])[:1] * 2
+        with pytest.raises(ValueError):
+            load_any(d)
+    with pytest.raises(ValueError, match="unknown model kind"):
+        load_any({"schema": "rafi.model/1", "kind": "nope"})
+
+
+def test_fit_uses_training_runs_only(data, fitted):
+    table, frame = data
+    train = set(table.loc[table["role"] == "training", "run_id"])
+    for kind, m in fitted.items():
+        assert set(m.train_runs_) == train, kind
+    # poison the validation runs: every fitted number stays the same
+    poisoned = frame.copy()
+    val = poisoned["run_id"].str.startswith("val")
+    poisoned.loc[val, "dz_um"] = 1e6
+    poisoned.loc[val, "dT1"] = -1e3
+    for kind in ("ridge_global", "dynamic"):
+        a = make_model(kind, options={"ridge_alphas": [1e-4, 1e-2, 1.0], "dynamic_taus_s": [0, 600, 2400]})
+        b = make_model(kind, options={"ridge_alphas": [1e-4, 1e-2, 1.0], "dynamic_taus_s": [0, 600, 2400]})
+        a.fit(table, frame)
+        b.fit(table, poisoned)
+        assert a.alpha_ == b.alpha_ and a.taus_ == b.taus_
+        assert np.array_equal(a.coef_, b.coef_)
+
+
+def test_predict_needs_no_statsmodels(fitted, data, tmp_path):
+    table, frame = data
+    val = _validation(table, frame)
+    val.to_csv(tmp_path / "val.csv", index=False)
+    for kind, m in fitted.items():
+        save_any(m, tmp_path / f"{kind}.json")
+    code = (
+        "import sys, pandas as pd\n"
+        "from rafi.model_family import load_any\n"
+        f"f = pd.read_csv({str(tmp_path / 'val.csv')!r})\n"
+        "for k in ('rafi', 'rafi_linear', 'ridge_global', 'dynamic'):\n"
+        f"    load_any({str(tmp_path)!r} + '/' + k + '.json').predict_detail(f)\n"
+        "bad = [m for m in sys.modules if m.startswith(('statsmodels', 'sklearn'))]\n"
+        "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_usable_sensors_skip_nan_and_constant(data):
+    table, frame = data
+    f = frame.copy()
+    f.loc[f.index[:5], "dT4"] = np.nan
+    f["dT3"] = 0.25
+    m = RidgeGlobal(alphas=[1e-3]).fit(table, f)
+    assert m.sensors_ == ["T1", "T2"]
+    assert set(m.regressor_ranges_) == {"T1", "T2"}

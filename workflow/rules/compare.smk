@@ -1,0 +1,49 @@
+# Model family comparison (docs/models.md): RAFI as published against rafi_linear,
+# ridge_global and dynamic on the same validation runs and gates; whole-run CV on the
+# training runs only; the champion (best model that passes the gates) as best_model.json.
+#
+# Uses the helpers of common.smk (machine_config, out, log_path, bench_path, rafi_code,
+# script_helpers). Settings: `models:` of the machine's config (defaults in
+# workflow/scripts/compare.py when the section is absent) and `qualification:` (gates).
+
+
+def comparison_path(name, machine="{machine}"):
+    """Path of a comparison output: results/<machine>/comparison/<name>."""
+    return f"{RESULTS_DIR}/{machine}/comparison/{name}"
+
+
+def comparison_outputs(machine):
+    """Concrete comparison outputs of ``machine`` (for `rule all` / the report)."""
+    return [comparison_path(n, machine) for n in
+            ("summary.csv", "per_run.csv", "residuals.parquet", "best_model.json", "cv.csv")]
+
+
+rule compare:
+    """Fit the model family on the training runs, validate, cross-validate, pick the champion."""
+    input:
+        table=out("runs_csv"),
+        frame=out("runs_parquet"),
+        key_sensors=out("key_sensors_json"),
+        model=out("model"),
+        code=rafi_code("model_family", "crossval", "validate", "regression", "model", "fuzzy"),
+        glue=script_helpers(),
+    output:
+        summary=comparison_path("summary.csv"),
+        per_run=comparison_path("per_run.csv"),
+        residuals=comparison_path("residuals.parquet"),
+        best_model=comparison_path("best_model.json"),
+        cv=comparison_path("cv.csv"),
+    params:
+        machine=lambda w: w.machine,
+        models=lambda w: machine_config(w.machine).get("models") or {},
+        fit=lambda w: machine_config(w.machine)["fit"],
+        reference=lambda w: machine_config(w.machine)["reference"],
+        gates=lambda w: machine_config(w.machine).get("qualification") or {},
+    log:
+        log_path("compare"),
+    benchmark:
+        bench_path("compare")
+    conda:
+        "../envs/rafi.yaml"
+    script:
+        "../scripts/compare.py"

@@ -1,0 +1,45 @@
+"""Snakemake glue of rule ``report``: the results tables in, the HTML and PDF report out.
+
+All the work is in :mod:`rafi.report` (context + rendering) and :mod:`rafi.plots`;
+this script only maps ``snakemake.input``/``params`` onto it and writes atomically.
+"""
+
+import logging
+import time
+
+from rafi import report
+from rafi.io import write_bytes_atomic, write_text_atomic
+
+sm = snakemake  # noqa: F821 (injected by Snakemake)
+
+logging.basicConfig(filename=sm.log[0], level=logging.INFO, filemode="w",
+                    format="%(asctime)s %(levelname)s %(message)s")
+log = logging.getLogger("rafi.report")
+
+
+def main() -> int:
+    t0 = time.perf_counter()
+    names = set(report.RESULT_FILES) | set(report.OPTIONAL_FILES)
+    paths = {k: str(v) for k, v in sm.input.items() if k in names}
+    settings = dict(sm.params.settings)
+    shown = {**sm.params.paths, "machine": sm.wildcards.machine, "settings": settings}
+    ctx = report.build_context(paths, machine=sm.wildcards.machine, settings=settings,
+                               config=shown,
+                               figure_format=sm.params.report["figure_format"],
+                               coolant_sensors=sm.params.report["coolant_sensors"])
+    log.info("context with %d section(s) built in %.2f s; verdict %s",
+             len(ctx["sections"]), ctx["build_seconds"], ctx["verdict"]["status"])
+    html = report.render_html(ctx)
+    pdf = report.render_pdf(html)
+    write_text_atomic(sm.output.html, html)
+    write_bytes_atomic(sm.output.pdf, pdf)
+    log.info("wrote %s (%d bytes) and %s (%d bytes) in %.2f s", sm.output.html, len(html),
+             sm.output.pdf, len(pdf), time.perf_counter() - t0)
+    return 0
+
+
+try:
+    main()
+except Exception:
+    log.exception("report failed")
+    raise
