@@ -1,4 +1,14 @@
-"""The one documented error type for bad input."""
+"""The documented error types.
+
+* :class:`RawFormatError` - a raw log that cannot be read as documented in
+  ``docs/raw-format.md`` (or as its machine's ``input:`` mapping says). It is the
+  only error a reader (``rafi.io.read_raw_log``, ``rafi.io.read_log``) or the
+  plausibility checks (``rafi.checks.check_log``) raise for bad *data*.
+* :class:`InputSpecError` - the ``input:`` mapping in ``config.yaml`` itself is
+  wrong (unknown format, bad unit, ...). It is raised before any file is read and
+  is a configuration mistake, not a bad file, so the workflow should stop rather
+  than quarantine the file.
+"""
 
 from __future__ import annotations
 
@@ -9,7 +19,8 @@ class RawFormatError(ValueError):
     """A log file that cannot be read as documented in ``docs/raw-format.md``.
 
     The message always names the file and, where known, the line (1-based, as an
-    editor shows it) and the column, then what was expected.
+    editor shows it) - or, for a spreadsheet, the sheet and row (1-based, as Excel
+    shows it) - and the column, then what was found and what was expected.
 
     Parameters
     ----------
@@ -18,19 +29,25 @@ class RawFormatError(ValueError):
     message : str
         What was found and what was expected.
     line : int, optional
-        1-based line number in the file.
+        1-based line number in the file (row number for a spreadsheet).
     column : str, optional
-        Column name (or spreadsheet column) concerned.
+        Column name (as written in the file's header) concerned.
+    sheet : str, optional
+        Worksheet name for spreadsheets; the location then reads ``sheet 'S', row N``.
     """
 
-    def __init__(self, path, message: str, *, line: int | None = None, column: str | None = None):
+    def __init__(self, path, message: str, *, line: int | None = None,
+                 column: str | None = None, sheet: str | None = None):
         self.path = str(path)
         self.line = line
         self.column = column
+        self.sheet = sheet
         self.reason = message
         where = self.path
+        if sheet is not None:
+            where += f", sheet {sheet!r}"
         if line is not None:
-            where += f", line {line}"
+            where += f", {'row' if sheet is not None else 'line'} {line}"
         if column is not None:
             where += f", column {column!r}"
         super().__init__(f"{where}: {message}")
@@ -38,3 +55,11 @@ class RawFormatError(ValueError):
     @property
     def file_name(self) -> str:
         return Path(self.path).name
+
+
+class InputSpecError(ValueError):
+    """The per-machine ``input:`` mapping is invalid (a configuration error).
+
+    The message names the offending key (e.g. ``input.displacement.unit``) and the
+    accepted values.
+    """

@@ -16,7 +16,9 @@ import contextlib
 import csv
 import hashlib
 import io
+import math
 import os
+import re
 import tempfile
 from pathlib import Path
 from typing import Iterator
@@ -46,11 +48,19 @@ def sha256_file(path: str | os.PathLike) -> str:
 
 # --------------------------------------------------------------------------- atomic writes
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
 
     On any exception the temporary file is removed and ``path`` is untouched.
+    The file gets the usual permissions (``0o666`` less the umask), not
+    ``mkstemp``'s private ``0o600``.
     """
     target = Path(path)
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -59,6 +69,7 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        os.chmod(tmp_path, 0o666 & ~_umask())
         os.replace(tmp_path, target)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
@@ -94,22 +105,57 @@ def write_parquet_atomic(frame: pd.DataFrame, path: str | os.PathLike) -> None:
 
 # --------------------------------------------------------------------------- native reader
 
-def _decode(path: Path, raw: bytes) -> str:
+_LINE_BREAK = re.compile(r"\r\n|\r|\n")
+
+
+def split_lines(text: str) -> list[str]:
+    """Split text into lines the way an editor numbers them (``\\n``, ``\\r\\n``, ``\\r``).
+
+    Unlike :meth:`str.splitlines` this does not break on form feeds, ``\\x1c``,
+    ``\\u2028`` and friends, so line numbers in messages match what a user sees.
+    """
+    lines = _LINE_BREAK.split(text)
+    if lines and lines[-1] == "":
+        lines.pop()
+    return lines
+
+
+def decode_bytes(path: Path, raw: bytes, encoding: str = "utf-8", *,
+                 hint: str = "the file must be UTF-8 encoded") -> str:
+    """Decode raw bytes, raising :class:`RawFormatError` with the line of the first bad byte.
+
+    Rejects empty files, UTF-16/32 files and NUL bytes (a binary or corrupted file).
+    """
     if not raw.strip():
         raise RawFormatError(path, "file is empty; expected optional '# key: value' lines, "
                                    "a header line and data rows")
+    if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+        raise RawFormatError(path, "file is UTF-16 encoded; save it as UTF-8 text (CSV UTF-8)",
+                             line=1)
+    nul = raw.find(b"\x00")
+    if nul >= 0:
+        line = raw[:nul].count(b"\n") + 1
+        raise RawFormatError(path, "NUL byte (0x00) in the text: the file looks binary or "
+                                   "corrupted; expected plain text", line=line)
+    enc = "utf-8-sig" if encoding.lower().replace("_", "-") in ("utf-8", "utf8") else encoding
     try:
-        return raw.decode("utf-8-sig")
+        return raw.decode(enc)
     except UnicodeDecodeError as exc:
         line = raw[: exc.start].count(b"\n") + 1
         raise RawFormatError(
-            path, f"byte 0x{raw[exc.start]:02x} is not valid UTF-8; the file must be UTF-8 encoded",
+            path, f"byte 0x{raw[exc.start]:02x} is not valid "
+                  f"{'UTF-8' if enc == 'utf-8-sig' else encoding}; {hint}",
             line=line) from None
 
 
-def _split_metadata(path: Path, lines: list[str]) -> tuple[dict[str, str], int]:
-    """Return metadata and the index of the header line."""
+def _decode(path: Path, raw: bytes) -> str:
+    return decode_bytes(path, raw)
+
+
+def _split_metadata(path: Path, lines: list[str]) -> tuple[dict[str, str], int, dict[str, int]]:
+    """Return metadata, the index of the header line and the line number of each key."""
     meta: dict[str, str] = {}
+    where: dict[str, int] = {}
     notes: list[str] = []
     for i, line in enumerate(lines):
         stripped = line.strip()
@@ -119,37 +165,95 @@ def _split_metadata(path: Path, lines: list[str]) -> tuple[dict[str, str], int]:
             meta_notes = "\n".join(notes)
             if meta_notes:
                 meta["notes"] = (meta.get("notes", "") + "\n" + meta_notes).strip()
-            return meta, i
+            return meta, i, where
         body = stripped.lstrip("#").strip()
         key, sep, value = body.partition(":")
         key = key.strip().lower().replace(" ", "_")
         if sep and key and " " not in key:
-            meta[key] = value.strip()
+            if key == "notes" and key in meta:      # multi-line notes (see format_raw_log)
+                meta[key] = meta[key] + "\n" + value.strip()
+            else:
+                meta[key] = value.strip()
+            where[key] = i + 1
         elif body:
             notes.append(body)
     raise RawFormatError(path, "no header line found after the metadata; expected a header "
                                f"with columns {', '.join(REQUIRED_COLUMNS)}", line=len(lines))
 
 
-def parse_metadata(meta: dict[str, str], path: Path) -> dict:
-    """Type the documented metadata keys (``sample_period_s`` as float)."""
+def parse_metadata(meta: dict[str, str], path: Path, lines: dict[str, int] | None = None) -> dict:
+    """Type the documented metadata keys (``sample_period_s`` as a positive float)."""
     out: dict = dict(meta)
+    line = (lines or {}).get("sample_period_s")
     if "sample_period_s" in out:
         try:
             out["sample_period_s"] = float(out["sample_period_s"])
         except ValueError:
             raise RawFormatError(path, f"metadata 'sample_period_s' is {meta['sample_period_s']!r}; "
-                                       "expected a number of seconds") from None
-        if not out["sample_period_s"] > 0:
-            raise RawFormatError(path, "metadata 'sample_period_s' must be positive")
+                                       "expected a number of seconds such as 5",
+                                 line=line) from None
+        if not (math.isfinite(out["sample_period_s"]) and out["sample_period_s"] > 0):
+            raise RawFormatError(path, f"metadata 'sample_period_s' is {meta['sample_period_s']!r}; "
+                                       "expected a positive number of seconds", line=line)
     return out
 
 
-def _first_bad(values: pd.Series, parsed: pd.Series) -> int | None:
-    """Index label of the first value that is non-empty but did not parse."""
-    bad = parsed.isna() & values.fillna("").str.strip().ne("")
+_INNER_SPACE = re.compile(r"[^\S\r\n]")
+_PLAIN_NUMBER_CHARS = re.compile(r"[^0-9.eE+\-]")
+
+
+def parse_numbers(values: list[str]) -> tuple[np.ndarray, int | None]:
+    """Stripped strings -> float64 (``""`` = NaN) and the position of the first bad value.
+
+    A value is bad when it is not empty and does not parse as a finite number
+    (``nan``, ``inf`` and text are bad).
+    """
+    if _PLAIN_NUMBER_CHARS.search("".join(values)) is None:
+        # fast path: only digits, signs, points and exponents -> float() semantics are plain
+        try:
+            parsed = np.array([v if v else "nan" for v in values], dtype=float)
+        except ValueError:
+            pass
+        else:
+            bad = ~np.isfinite(parsed) & np.array([bool(v) for v in values])
+            return parsed, (int(np.argmax(bad)) if bad.any() else None)
+    arr = np.array(values, dtype=object)
+    empty = arr == ""
+    work = arr.copy()
+    work[empty] = np.nan
+    parsed = np.asarray(pd.to_numeric(work, errors="coerce"), dtype=float)
+    bad = ~np.isfinite(parsed) & ~empty
     if bad.any():
-        return bad.idxmax()
+        return parsed, int(np.argmax(bad))
+    return parsed, None
+
+
+def _split_fields(path: Path, line: str, line_no: int, delimiter: str = ",") -> list[str]:
+    try:
+        return next(csv.reader([line], delimiter=delimiter, strict=False))
+    except (csv.Error, StopIteration) as exc:
+        raise RawFormatError(path, f"cannot split the line into fields ({exc}); check quotes "
+                                   "and delimiters", line=line_no) from None
+
+
+#: Earliest and latest timestamps the canonical frame can hold (datetime64[ns]).
+TIME_MIN = pd.Timestamp("1678-01-01")
+TIME_MAX = pd.Timestamp("2261-12-31")
+
+
+def to_naive_ns(times: pd.Series) -> pd.Series:
+    """UTC-aware or naive datetimes -> naive ``datetime64[ns]`` (caller checked the range)."""
+    if isinstance(times.dtype, pd.DatetimeTZDtype):
+        times = times.dt.tz_convert(None)
+    return times.astype("datetime64[ns]")
+
+
+def out_of_range_time(times: pd.Series) -> int | None:
+    """Position of the first timestamp outside what datetime64[ns] can hold."""
+    naive = times.dt.tz_convert(None) if isinstance(times.dtype, pd.DatetimeTZDtype) else times
+    bad = (naive.notna() & ((naive < TIME_MIN) | (naive > TIME_MAX))).to_numpy()
+    if bad.any():
+        return int(np.argmax(bad))
     return None
 
 
@@ -174,16 +278,20 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
     ------
     RawFormatError
         Naming file, line and column, on anything that does not follow the format.
+        No other exception escapes for any file content (property-tested).
     """
     path = Path(path)
-    raw = path.read_bytes()
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise RawFormatError(path, f"cannot read the file ({exc.strerror or exc})") from None
     text = _decode(path, raw)
-    lines = text.splitlines()
-    meta, header_idx = _split_metadata(path, lines)
-    meta = parse_metadata(meta, path)
+    lines = split_lines(text)
+    meta, header_idx, meta_lines = _split_metadata(path, lines)
+    meta = parse_metadata(meta, path, meta_lines)
     header_line_no = header_idx + 1
 
-    header = next(csv.reader([lines[header_idx]]))
+    header = _split_fields(path, lines[header_idx], header_line_no)
     header = [h.strip() for h in header]
     if len(header) == 1:
         for delim in (";", "\t", "|"):
@@ -203,72 +311,174 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
                              line=header_line_no, column=missing[0])
 
     body_lines = lines[header_idx + 1:]
+    # Whitespace around values is allowed; skip the per-field strip when there is none.
+    needs_strip = _INNER_SPACE.search("".join(body_lines)) is not None
     rows: list[list[str]] = []
     line_numbers: list[int] = []
+    n_fields = len(header)
+    first = header[0]
     for offset, line in enumerate(body_lines):
-        if not line.strip():
+        if not line or (needs_strip and not line.strip()):
             continue
         line_no = header_line_no + 1 + offset
-        fields = next(csv.reader([line]))
-        if len(fields) != len(header):
-            if [f.strip() for f in fields] == header:
-                raise RawFormatError(path, "the header line is repeated inside the data; expected "
-                                           "one header only", line=line_no)
+        fields = line.split(",") if '"' not in line else _split_fields(path, line, line_no)
+        if needs_strip:
+            fields = [f.strip() for f in fields]
+        if fields[0] == first and fields == header:
+            raise RawFormatError(path, "the header line is repeated inside the data; expected "
+                                       "one header only", line=line_no)
+        if len(fields) != n_fields:
             hint = ""
-            if len(fields) > len(header):
+            if '"' in line:
+                hint = " (an unclosed or stray quote '\"' merges fields?)"
+            elif len(fields) > n_fields:
                 hint = " (a decimal comma, or an unquoted comma in a value?)"
             elif offset == len(body_lines) - 1:
                 hint = " (the last line looks truncated)"
-            raise RawFormatError(path, f"found {len(fields)} fields, expected {len(header)} as in "
+            raise RawFormatError(path, f"found {len(fields)} fields, expected {n_fields} as in "
                                        f"the header{hint}", line=line_no)
         rows.append(fields)
         line_numbers.append(line_no)
     if not rows:
         raise RawFormatError(path, "header found but no data rows", line=header_line_no)
 
-    strings = pd.DataFrame(rows, columns=header, index=pd.Index(line_numbers, name="line"), dtype=object)
-    frame = pd.DataFrame(index=strings.index)
+    index = pd.Index(line_numbers, name="line", dtype="int64")
+    columns = {name: list(col) for name, col in zip(header, zip(*rows))}
+    data: dict[str, object] = {}
 
-    time_str = strings["time"].astype(str).str.strip()
-    if time_str.eq("").any():
-        bad = time_str.eq("").idxmax()
+    time_str = columns["time"]
+    if "" in time_str:
+        bad = line_numbers[time_str.index("")]
         raise RawFormatError(path, "empty timestamp; expected an ISO-8601 time such as "
-                                   "2026-03-01T08:00:00", line=int(bad), column="time")
-    times = pd.to_datetime(time_str, format="ISO8601", errors="coerce", utc=True)
-    bad = _first_bad(time_str, times)
-    if bad is not None:
-        if times.notna().any() and time_str.loc[bad] == "time":
+                                   "2026-03-01T08:00:00", line=bad, column="time")
+    times = pd.Series(pd.to_datetime(pd.Series(time_str, dtype=object), format="ISO8601",
+                                     errors="coerce", utc=True))
+    if times.isna().any():
+        k = int(np.argmax(times.isna().to_numpy()))
+        if times.notna().any() and time_str[k] == "time":
             raise RawFormatError(path, "the header line is repeated inside the data; expected one "
-                                       "header only", line=int(bad), column="time")
-        raise RawFormatError(path, f"{time_str.loc[bad]!r} is not an ISO-8601 timestamp "
-                                   "(e.g. 2026-03-01T08:00:00)", line=int(bad), column="time")
-    frame["time"] = times.dt.tz_convert(None).astype("datetime64[ns]")
+                                       "header only", line=line_numbers[k], column="time")
+        raise RawFormatError(path, f"{time_str[k]!r} is not an ISO-8601 timestamp "
+                                   "(e.g. 2026-03-01T08:00:00)", line=line_numbers[k],
+                             column="time")
+    k = out_of_range_time(times)
+    if k is not None:
+        raise RawFormatError(path, f"timestamp {time_str[k]!r} is outside the supported "
+                                   "years 1678..2261", line=line_numbers[k], column="time")
+    data["time"] = to_naive_ns(times).to_numpy()
 
     for name in NUMERIC_COLUMNS:
-        values = strings[name].astype(str).str.strip()
-        parsed = pd.to_numeric(values.where(values.ne(""), None), errors="coerce")
-        bad = _first_bad(values, parsed)
+        parsed, bad = parse_numbers(columns[name])
         if bad is not None:
-            found = values.loc[bad]
+            found = columns[name][bad]
             hint = " (decimal comma? use a point)" if "," in found else ""
             raise RawFormatError(path, f"{found!r} is not a number{hint}; expected a decimal "
-                                       f"number in {name}", line=int(bad), column=name)
-        frame[name] = parsed.astype("float64")
+                                       f"number in {name}", line=line_numbers[bad], column=name)
+        data[name] = parsed
 
     for name in header:
-        if name in frame.columns:
+        if name in data:
             continue
-        values = strings[name].astype(str).str.strip()
-        parsed = pd.to_numeric(values.where(values.ne(""), None), errors="coerce")
-        if _first_bad(values, parsed) is None:
-            frame[name] = parsed.astype("float64")
-        else:
-            frame[name] = values
+        parsed, bad = parse_numbers(columns[name])
+        data[name] = parsed if bad is None else pd.array(columns[name], dtype="str")
 
+    frame = pd.DataFrame(data, index=index)
     frame.attrs["metadata"] = meta
     frame.attrs["source"] = str(path)
     frame.attrs["sha256"] = hashlib.sha256(raw).hexdigest()
     return frame
+
+
+# --------------------------------------------------------------------------- dispatch
+
+def read_log(path: str | os.PathLike, input_spec: dict | None = None) -> pd.DataFrame:
+    """Read one raw log as its machine's ``input:`` mapping says; return the canonical frame.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The raw file.
+    input_spec : dict, optional
+        The machine's ``input:`` mapping from ``config.yaml`` (``docs/raw-format.md``,
+        "Bringing your own layout"). ``None`` or ``{"format": "native"}`` reads the
+        native format with :func:`read_raw_log`; ``csv`` and ``xlsx`` go through
+        :func:`rafi.formats.read_mapped`.
+
+    Returns
+    -------
+    pandas.DataFrame
+        The canonical frame (same contract as :func:`read_raw_log`). A
+        ``sample_period_s`` in the spec fills ``attrs['metadata']['sample_period_s']``
+        (for native files only when the file's own metadata does not give one).
+
+    Raises
+    ------
+    RawFormatError
+        The file does not follow the format / mapping.
+    rafi.errors.InputSpecError
+        The mapping itself is invalid.
+    """
+    from . import formats
+
+    spec = formats.normalise_input_spec(input_spec)
+    if spec["format"] == "native":
+        frame = read_raw_log(path)
+        if spec.get("sample_period_s") is not None:
+            frame.attrs["metadata"].setdefault("sample_period_s", float(spec["sample_period_s"]))
+        return frame
+    return formats.read_mapped(path, spec)
+
+
+def find_logs(machine_dir: str | os.PathLike, input_spec: dict | None = None) -> list[Path]:
+    """Raw files of one machine folder matching the spec's ``pattern`` (glob or list), sorted.
+
+    Hidden files (``.name``) and office lock files (``~$name.xlsx``) are skipped.
+    """
+    from . import formats
+
+    spec = formats.normalise_input_spec(input_spec)
+    folder = Path(machine_dir)
+    patterns = [spec["pattern"]] if isinstance(spec["pattern"], str) else spec["pattern"]
+    found = {p for pattern in patterns for p in folder.glob(pattern)}
+    return sorted(p for p in found if p.is_file() and not p.name.startswith((".", "~$")))
+
+
+def contract_violations(frame: pd.DataFrame) -> list[str]:
+    """Ways ``frame`` breaks the canonical-frame contract (empty list = it holds).
+
+    Checks column order and dtypes, the ``line`` index (unique, increasing, >= 1),
+    finite-or-NaN numbers, no NaT in ``time`` and the ``attrs`` keys.
+    """
+    problems: list[str] = []
+    cols = list(frame.columns)
+    if cols[: len(REQUIRED_COLUMNS)] != list(REQUIRED_COLUMNS):
+        problems.append(f"canonical columns not first/in order: {cols[:len(REQUIRED_COLUMNS)]}")
+        return problems
+    if len(set(cols)) != len(cols):
+        problems.append("duplicate column names")
+    if str(frame["time"].dtype) != "datetime64[ns]":
+        problems.append(f"time dtype is {frame['time'].dtype}")
+    elif frame["time"].isna().any():
+        problems.append("NaT in time")
+    for name in NUMERIC_COLUMNS:
+        if str(frame[name].dtype) != "float64":
+            problems.append(f"{name} dtype is {frame[name].dtype}")
+        elif np.isinf(frame[name].to_numpy()).any():
+            problems.append(f"infinite value in {name}")
+    idx = frame.index
+    if idx.name != "line":
+        problems.append(f"index name is {idx.name!r}")
+    if len(idx) == 0:
+        problems.append("no rows")
+    elif not (pd.api.types.is_integer_dtype(idx.dtype) and idx.is_unique
+              and idx.is_monotonic_increasing and idx.min() >= 1):
+        problems.append("index is not unique increasing 1-based line numbers")
+    for key in ("metadata", "source", "sha256"):
+        if key not in frame.attrs:
+            problems.append(f"attrs lacks {key!r}")
+    if not isinstance(frame.attrs.get("metadata"), dict):
+        problems.append("attrs['metadata'] is not a dict")
+    return problems
 
 
 # --------------------------------------------------------------------------- native writer

@@ -1,0 +1,338 @@
+"""Mapped readers (rafi.formats, rafi.io.read_log with an ``input:`` mapping)."""
+
+from __future__ import annotations
+
+import copy
+import re
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import openpyxl
+import pandas as pd
+import pytest
+import yaml
+
+from rafi import REQUIRED_COLUMNS
+from rafi.checks import check_log
+from rafi.errors import InputSpecError, RawFormatError
+from rafi.formats import (INPUT_SCHEMA, closest_headers, excel_column, normalise_input_spec,
+                          sanitise_name)
+from rafi.io import contract_violations, find_logs, read_log
+
+ROOT = Path(__file__).resolve().parents[1]
+FOREIGN = ROOT / "tests" / "data" / "foreign"
+XLSX = FOREIGN / "machining_center_b_small.xlsx"
+CSV = FOREIGN / "machining_center_b_small.csv"
+
+
+def doc_yaml_blocks() -> list[str]:
+    text = (ROOT / "docs" / "raw-format.md").read_text(encoding="utf-8")
+    return re.findall(r"```yaml\n(.+?)```", text, flags=re.S)
+
+
+@pytest.fixture(scope="module")
+def mcb_machine() -> dict:
+    """The machining-center-b settings exactly as docs/raw-format.md shows them."""
+    return yaml.safe_load(doc_yaml_blocks()[0])["machines"]["machining-center-b"]
+
+
+@pytest.fixture()
+def xlsx_spec(mcb_machine) -> dict:
+    return copy.deepcopy(mcb_machine["input"])
+
+
+@pytest.fixture()
+def csv_spec(mcb_machine) -> dict:
+    spec = copy.deepcopy(mcb_machine["input"])
+    spec.pop("sheet")
+    spec.update(yaml.safe_load(doc_yaml_blocks()[1]))
+    return spec
+
+
+@pytest.fixture(scope="module")
+def xlsx_frame(mcb_machine):
+    return read_log(XLSX, mcb_machine["input"])
+
+
+def test_docs_example_is_valid_against_schema_and_normaliser(mcb_machine):
+    jsonschema.Draft7Validator.check_schema(INPUT_SCHEMA)
+    jsonschema.validate(mcb_machine["input"], INPUT_SCHEMA)
+    spec = normalise_input_spec(mcb_machine["input"])
+    assert spec["displacement"] == {"column": "Verlagerung Z1 [µm]", "unit": "um", "sign": -1}
+    assert mcb_machine["sample_period_s"] == spec["sample_period_s"] == 15
+
+
+def test_xlsx_layout_reads_into_the_canonical_frame(xlsx_frame):
+    f = xlsx_frame
+    assert contract_violations(f) == []
+    assert list(f.columns[:len(REQUIRED_COLUMNS)]) == list(REQUIRED_COLUMNS)
+    assert list(f.columns[len(REQUIRED_COLUMNS):]) == [
+        "verlagerung_x1_um", "verlagerung_y1_um", "verlagerung_z2_um", "bemerkung"]
+    assert f.index[0] == 2 and f.index[-1] == 241 and len(f) == 240   # Excel rows
+    assert f["time"].iloc[0] == pd.Timestamp("2026-10-14T00:00:00")
+    assert (f["time"].diff().dropna() == pd.Timedelta(seconds=15)).all()
+    assert f.attrs["metadata"]["sample_period_s"] == 15.0
+    assert f.attrs["metadata"]["sheet"] == "Messdaten"
+    assert f.attrs["metadata"]["columns"]["disp_um"] == "Verlagerung Z1 [µm]"
+    assert len(f.attrs["sha256"]) == 64 and f.attrs["source"].endswith(XLSX.name)
+    assert f["bemerkung"].iloc[0] == "Start" and f["bemerkung"].iloc[1] == ""
+    assert f["speed_rpm"].iloc[0] == 6000.0
+
+
+def test_sign_is_applied_to_the_target_only(xlsx_frame):
+    wb = openpyxl.load_workbook(XLSX, read_only=True, data_only=True)
+    rows = list(wb["Messdaten"].iter_rows(values_only=True))
+    wb.close()
+    header = rows[0]
+    z1 = np.array([r[header.index("Verlagerung Z1 [µm]")] for r in rows[1:]], dtype=float)
+    z2 = np.array([r[header.index("Verlagerung Z2 [µm]")] for r in rows[1:]], dtype=float)
+    np.testing.assert_array_equal(xlsx_frame["disp_um"].to_numpy(), -z1)
+    np.testing.assert_array_equal(xlsx_frame["verlagerung_z2_um"].to_numpy(), z2)
+    assert xlsx_frame["disp_um"].max() > 10        # growth towards the table is positive
+    assert not np.signbit(xlsx_frame["disp_um"].to_numpy()[0])   # no -0.0
+
+
+def test_xlsx_passes_the_checks(xlsx_frame, mcb_machine):
+    check_log(xlsx_frame, XLSX, min_run_s=1800, sample_period_s=mcb_machine["sample_period_s"],
+              open_circuit_values=[-999.0, 999.9, 850.0])
+
+
+def test_csv_export_gives_the_same_frame(xlsx_frame, csv_spec):
+    g = read_log(CSV, csv_spec)
+    assert contract_violations(g) == []
+    assert g.index[0] == 2
+    pd.testing.assert_frame_equal(xlsx_frame, g, check_exact=False, rtol=0, atol=1e-9)
+
+
+def test_csv_in_utf8_with_bom_and_latin1(tmp_path, csv_spec, xlsx_frame):
+    text = CSV.read_bytes().decode("latin-1")
+    utf8 = tmp_path / "utf8.csv"
+    utf8.write_bytes(b"\xef\xbb\xbf" + text.encode("utf-8"))
+    spec = dict(csv_spec, encoding="utf-8")
+    g = read_log(utf8, spec)
+    pd.testing.assert_frame_equal(xlsx_frame, g, check_exact=False, rtol=0, atol=1e-9)
+    with pytest.raises(RawFormatError, match=r"line 1: byte 0xb0 is not valid UTF-8.*input.encoding"):
+        read_log(CSV, spec)                      # latin-1 file read as UTF-8
+
+
+def test_sheet_by_index(xlsx_spec, xlsx_frame):
+    xlsx_spec["sheet"] = 1
+    pd.testing.assert_frame_equal(read_log(XLSX, xlsx_spec), xlsx_frame)
+    xlsx_spec["sheet"] = 0           # "Info": no such headers
+    with pytest.raises(RawFormatError, match="sheet 'Info', row 1.*not found in the header row"):
+        read_log(XLSX, xlsx_spec)
+    xlsx_spec["sheet"] = 5
+    with pytest.raises(RawFormatError, match="no sheet number 5.*'Info', 'Messdaten'"):
+        read_log(XLSX, xlsx_spec)
+
+
+def _write_xlsx(path, rows, title="Messdaten"):
+    wb = openpyxl.Workbook()
+    ws = wb.active
+    ws.title = title
+    for r in rows:
+        ws.append(r)
+    wb.save(path)
+
+
+def _simple_header():
+    return ["Zeit", "n [1/min]", *[f"Temp{i} [K]" for i in range(1, 17)], "Z [mm]", "Notiz"]
+
+
+def _simple_spec(fmt="xlsx", **kw):
+    spec = {"format": fmt, "columns": {"time": "Zeit", "speed_rpm": "n [1/min]",
+                                       **{f"T{i}": f"Temp{i} [K]" for i in range(1, 17)},
+                                       "disp_um": "Z [mm]"},
+            "temperature_unit": "K", "displacement": {"unit": "mm"}}
+    spec.update(kw)
+    return spec
+
+
+def test_header_row_skip_rows_kelvin_mm_and_timestamps(tmp_path):
+    import datetime as dt
+
+    rows = [["Messung B", None], [None], _simple_header(), ["s", "1/min"]]
+    t0 = dt.datetime(2026, 10, 14, 8, 0, 0)
+    for k in range(12):
+        rows.append([t0 + dt.timedelta(seconds=5 * k), 3000, *[293.15 + k] * 16, 0.001 * k,
+                     "ok" if k == 3 else None])
+    rows.insert(10, [None] * 5)                       # an empty row in the data
+    path = tmp_path / "b.xlsx"
+    _write_xlsx(path, rows)
+    f = read_log(path, _simple_spec(header_row=3, skip_rows=1))
+    assert contract_violations(f) == []
+    assert f.index[0] == 5 and 11 not in f.index and f.index[-1] == 17
+    np.testing.assert_allclose(f["T1"].to_numpy(), 20.0 + np.arange(12))
+    np.testing.assert_allclose(f["disp_um"].to_numpy(), np.arange(12.0))
+    assert f["time"].iloc[1] == pd.Timestamp("2026-10-14T08:00:05")
+    assert f["notiz"].tolist()[3] == "ok"
+
+
+def test_csv_timestamp_with_strptime_format_and_decimal_comma(tmp_path):
+    header = _simple_header()
+    lines = [";".join(header)]
+    for k in range(10):
+        lines.append(";".join([f"14.10.2026 08:00:{k * 5:02d}", "1.500", *["293,15"] * 16,
+                               f"0,{k:03d}", "x"]))
+    path = tmp_path / "b.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    spec = _simple_spec("csv", delimiter=";", decimal=",",
+                        time={"kind": "timestamp", "format": "%d.%m.%Y %H:%M:%S"})
+    f = read_log(path, spec)
+    assert f["speed_rpm"].iloc[0] == 1500.0      # '.' as thousands separator
+    assert f["T1"].iloc[0] == pytest.approx(20.0)
+    assert f["disp_um"].iloc[3] == pytest.approx(3.0)
+    assert f["time"].iloc[2] == pd.Timestamp("2026-10-14T08:00:10")
+    path.write_text(path.read_text(encoding="utf-8").replace("293,15", "293.15", 1), encoding="utf-8")
+    with pytest.raises(RawFormatError, match=r"line 2, column 'Temp1 \[K\]': '293.15' is not a "
+                                             r"number \(decimal point in a file with"):
+        read_log(path, spec)
+    spec["time"]["format"] = None
+    path.write_text(path.read_text(encoding="utf-8").replace("293.15", "293,15", 1), encoding="utf-8")
+    with pytest.raises(RawFormatError, match=r"line 2, column 'Zeit'.*is not a timestamp.*"
+                                             r"time.format"):
+        read_log(path, spec)
+
+
+def test_elapsed_default_start_and_timedelta_cells(tmp_path):
+    import datetime as dt
+
+    rows = [_simple_header()]
+    for k in range(5):
+        rows.append([dt.timedelta(seconds=10 * k), 0, *[300.0] * 16, 0.0 + k / 100, None])
+    path = tmp_path / "e.xlsx"
+    _write_xlsx(path, rows)
+    f = read_log(path, _simple_spec(time={"kind": "elapsed_s"}))
+    assert f["time"].iloc[0] == pd.Timestamp("2000-01-01T00:00:00")
+    assert f["time"].iloc[4] == pd.Timestamp("2000-01-01T00:00:40")
+    assert f["notiz"].isna().all()          # an empty extra column: all missing
+
+
+def test_duplicate_mapped_header_and_cell_beyond_header(tmp_path):
+    header = _simple_header()
+    header[5] = "Temp1 [K]"
+    rows = [header] + [[k, 0, *[300.0] * 16, 0.01 * k, None] for k in range(5)]
+    path = tmp_path / "d.xlsx"
+    _write_xlsx(path, rows)
+    spec = _simple_spec(time={"kind": "elapsed_s"})
+    with pytest.raises(RawFormatError, match=r"sheet 'Messdaten', row 1, column 'Temp1 \[K\]': "
+                                             r"header 'Temp1 \[K\]' appears 2 times \(columns C, F\)"):
+        read_log(path, spec)
+    rows = [_simple_header()] + [[k, 0, *[300.0] * 16, 0.01 * k, None] for k in range(5)]
+    rows[3] = rows[3] + [None, "stray"]
+    _write_xlsx(path, rows)
+    with pytest.raises(RawFormatError, match=r"row 4, column 'V'.*cell V4 holds 'stray'"):
+        read_log(path, spec)
+
+
+def test_keep_extra_false_drops_other_columns(xlsx_spec):
+    xlsx_spec["keep_extra"] = False
+    f = read_log(XLSX, xlsx_spec)
+    assert list(f.columns) == list(REQUIRED_COLUMNS)
+
+
+def test_missing_mapped_column_lists_closest(xlsx_spec):
+    xlsx_spec["columns"]["T3"] = "Temperatur 3 [C]"
+    with pytest.raises(RawFormatError) as info:
+        read_log(XLSX, xlsx_spec)
+    msg = str(info.value)
+    assert "sheet 'Messdaten', row 1, column 'Temperatur 3 [C]'" in msg
+    assert "input.columns.T3" in msg and "closest: 'Temperatur 3 [°C]'" in msg
+
+
+@pytest.mark.parametrize("change, key", [
+    ({"format": "parquet"}, "input.format"),
+    ({"colour": "red"}, "input.colour"),
+    ({"format": "native", "sheet": "x"}, "input.sheet"),
+    ({"displacement": {"unit": "cm"}}, "input.displacement.unit"),
+    ({"displacement": {"sign": 2}}, "input.displacement.sign"),
+    ({"displacement": {"probe": "Z"}}, "input.displacement.probe"),
+    ({"columns": {"T17": "x"}}, "input.columns.T17"),
+    ({"columns": {"T1": "A", "T2": "A"}}, "input.columns"),
+    ({"delimiter": ";;"}, "input.delimiter"),
+    ({"delimiter": ",", "decimal": ","}, "input.decimal"),
+    ({"encoding": "klingon"}, "input.encoding"),
+    ({"header_row": 0}, "input.header_row"),
+    ({"skip_rows": -1}, "input.skip_rows"),
+    ({"time": {"kind": "relative"}}, "input.time.kind"),
+    ({"time": {"start": "yesterday"}}, "input.time.start"),
+    ({"time": {"format": "dd.mm.yyyy"}}, "input.time.format"),
+    ({"sample_period_s": 0}, "input.sample_period_s"),
+    ({"temperature_unit": "F"}, "input.temperature_unit"),
+    ({"sheet": -1}, "input.sheet"),
+    ({"pattern": ""}, "input.pattern"),
+])
+def test_bad_mapping_raises_input_spec_error(change, key):
+    spec = {"format": "csv", **change}
+    with pytest.raises(InputSpecError, match=re.escape(key)):
+        normalise_input_spec(spec)
+
+
+@pytest.mark.parametrize("bad", [
+    {"format": "parquet"}, {"displacement": {"unit": "cm"}}, {"displacement": {"sign": 2}},
+    {"columns": {"T17": "x"}}, {"header_row": 0}, {"colour": "red"},
+    {"time": {"kind": "relative"}}, {"temperature_unit": "F"}])
+def test_schema_rejects_what_the_normaliser_rejects(bad):
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(bad, INPUT_SCHEMA)
+
+
+def test_defaults():
+    spec = normalise_input_spec(None)
+    assert spec["format"] == "native" and spec["pattern"] == "*.csv"
+    spec = normalise_input_spec({"format": "xlsx"})
+    assert spec["pattern"] == "*.xlsx" and spec["sheet"] == 0 and spec["header_row"] == 1
+    assert spec["time"] == {"kind": "timestamp", "start": "2000-01-01T00:00:00", "format": None}
+    assert spec["displacement"] == {"column": None, "unit": "um", "sign": 1}
+    assert normalise_input_spec({"format": "csv", "delimiter": "tab"})["delimiter"] == "\t"
+
+
+def test_native_accepts_filled_in_defaults_only():
+    """A schema validator that fills defaults must not break native mappings."""
+    spec = {"format": "native", "pattern": "*.csv", "sheet": 0, "delimiter": ",",
+            "time": {"kind": "timestamp"}, "displacement": {"sign": 1}, "columns": {}}
+    assert normalise_input_spec(spec)["format"] == "native"
+    with pytest.raises(InputSpecError, match="input.displacement: applies to format csv"):
+        normalise_input_spec({"format": "native", "displacement": {"sign": -1}})
+
+
+def test_find_logs_skips_lock_and_hidden_files(tmp_path):
+    for name in ("a.xlsx", "~$a.xlsx", ".b.xlsx", "c.csv", "d.XLSX.bak"):
+        (tmp_path / name).write_bytes(b"x")
+    assert [p.name for p in find_logs(tmp_path, {"format": "xlsx"})] == ["a.xlsx"]
+    got = find_logs(tmp_path, {"format": "csv", "pattern": ["*.csv", "*.xlsx"]})
+    assert [p.name for p in got] == ["a.xlsx", "c.csv"]
+
+
+def test_helpers():
+    assert sanitise_name("Verlagerung X1 [µm]") == "verlagerung_x1_um"
+    assert sanitise_name("Temperatur 1 [°C]") == "temperatur_1_c"
+    assert sanitise_name("Größe %") == "grosse_pct"
+    assert sanitise_name("1. Wert") == "c_1_wert"
+    assert sanitise_name("***") == "column"
+    assert [excel_column(i) for i in (0, 25, 26, 701)] == ["A", "Z", "AA", "ZZ"]
+    heads = [f"Temperatur {i} [°C]" for i in range(1, 17)]
+    assert closest_headers("Temperatur 3 [C]", heads)[0] == "Temperatur 3 [°C]"
+    assert closest_headers("Temp 3", ["Zeit", "Drehzahl"]) == []
+
+
+def test_shipped_config_matches_the_documented_mapping(mcb_machine):
+    """Once config.yaml maps machining-center-b, it must be the documented mapping."""
+    cfg = yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))
+    machine = (cfg.get("machines") or {}).get("machining-center-b")
+    if not machine or "input" not in machine:
+        pytest.skip("config.yaml has no input mapping for machining-center-b yet")
+    assert normalise_input_spec(machine["input"]) == normalise_input_spec(mcb_machine["input"])
+
+
+def test_shipped_foreign_raw_file_reads_and_checks(mcb_machine):
+    files = sorted((ROOT / "raw" / "machining-center-b").glob("*.xlsx"))
+    if not files:
+        pytest.skip("raw/machining-center-b has no xlsx yet")
+    for path in files:
+        f = read_log(path, mcb_machine["input"])
+        assert contract_violations(f) == []
+        check_log(f, path, min_run_s=0, sample_period_s=15,
+                  open_circuit_values=[-999.0, 999.9, 850.0])
+        assert f["disp_um"].quantile(0.9) > 0      # sign -1 makes growth positive
