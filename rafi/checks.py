@@ -35,6 +35,7 @@ import numpy as np
 import pandas as pd
 
 from . import SENSORS
+from .clean import BACKWARDS_TOLERANCE_SAMPLES
 from .errors import RawFormatError
 
 #: Columns that must carry at least one value.
@@ -75,7 +76,7 @@ def check_log(frame: pd.DataFrame, path: str | os.PathLike | None = None, *,
               min_run_s: float = 0.0,
               sample_period_s: float | None = None,
               open_circuit_values=(),
-              backwards_tolerance_samples: float = 3.0,
+              backwards_tolerance_samples: float = BACKWARDS_TOLERANCE_SAMPLES,
               max_speed_rpm: float = 100_000.0,
               temp_range_c: tuple[float, float] = (-40.0, 200.0),
               stuck_std_um: float = 1e-3,

@@ -16,6 +16,10 @@ value is to the band choice. Cross-check: a first-order step response
 ``dz = c + A (1 - exp(-t / tau))`` is fitted by least squares, and
 ``t_eq_tau = tau * ln(1 / band_fraction)`` is the time the fitted curve needs to
 come within the same band of its asymptote.
+
+:func:`equilibrium_table` applies this to every ``training`` run of
+``runs.csv`` / ``runs.parquet`` and sets the paper's Table 1 value beside it
+(``paper_t_eq_s``, NaN for speeds the paper did not run).
 """
 
 from __future__ import annotations
@@ -118,3 +122,88 @@ def equilibrium_time(t_s, dz_um, *, band_fraction: float = 0.05, plateau_window_
     return EquilibriumResult(t_eq_s=t_eq - t[0], t_eq_low_s=t_low - t[0], t_eq_high_s=t_high - t[0],
                              tau_s=tau, t_eq_tau_s=float(t_eq_tau), plateau_um=plateau,
                              rise_um=rise)
+
+
+# --------------------------------------------------------------------------- table
+
+#: Time to thermal equilibrium per training speed, paper Table 1 (r/min -> s).
+PAPER_T_EQ_S = {3000: 10160.0, 6000: 9675.0, 9000: 6895.0, 12000: 6615.0, 15000: 5385.0,
+                18000: 5560.0}
+
+#: A run's median speed matches a Table 1 speed when within this many r/min.
+PAPER_SPEED_TOLERANCE_RPM = 50.0
+
+#: Columns of ``equilibrium.csv``, in order (``docs/design.md``).
+EQUILIBRIUM_COLUMNS = ("run_id", "speed_rpm", "t_eq_s", "t_eq_low_s", "t_eq_high_s", "tau_s",
+                       "t_eq_tau_s", "plateau_um", "paper_t_eq_s", "method")
+
+
+def paper_t_eq(speed_rpm: float) -> float:
+    """Paper Table 1 equilibrium time for ``speed_rpm`` (within 50 r/min), else NaN."""
+    if speed_rpm is None or not np.isfinite(speed_rpm):
+        return float("nan")
+    for speed, t_eq in PAPER_T_EQ_S.items():
+        if abs(float(speed_rpm) - speed) <= PAPER_SPEED_TOLERANCE_RPM:
+            return t_eq
+    return float("nan")
+
+
+def equilibrium_table(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *,
+                      band_fraction: float = 0.05, plateau_window_s: float = 900.0,
+                      smooth_window_s: float = 300.0) -> pd.DataFrame:
+    """Time to thermal equilibrium of every training run (``equilibrium.csv``).
+
+    Parameters
+    ----------
+    runs_table : pandas.DataFrame
+        ``runs.csv`` of :func:`rafi.runs.find_runs` (``run_id``, ``role``,
+        ``speed_rpm``); only rows with ``role == 'training'`` are used.
+    runs_frame : pandas.DataFrame
+        ``runs.parquet`` (``run_id``, ``t_s``, ``dz_um``).
+    band_fraction, plateau_window_s, smooth_window_s : float
+        As in :func:`equilibrium_time`.
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per training run (order of ``runs_table``), columns
+        ``EQUILIBRIUM_COLUMNS``. ``paper_t_eq_s`` is the paper's Table 1 value when
+        the run's speed is within 50 r/min of a Table 1 speed, else NaN. Samples
+        with NaN ``dz_um`` are dropped first; a run with fewer than 3 valid samples,
+        or that never settles inside the band, has NaN times and says so in
+        ``method``.
+    """
+    method = (f"band: first time after which the {smooth_window_s:g} s rolling median of dz stays "
+              f"within {100 * band_fraction:g} % of the rise around the final plateau (median of "
+              f"the last {plateau_window_s:g} s); low/high: band x1.5 / x1/1.5; "
+              f"tau: first-order fit, t_eq_tau = tau ln(1/{band_fraction:g})")
+    rows = []
+    training = runs_table[runs_table["role"] == "training"] if len(runs_table) else runs_table
+    groups = runs_frame.groupby("run_id", sort=False).indices if len(runs_frame) else {}
+    t_all = runs_frame["t_s"].to_numpy(dtype=float) if len(runs_frame) else np.array([])
+    z_all = runs_frame["dz_um"].to_numpy(dtype=float, na_value=np.nan) if len(runs_frame) \
+        else np.array([])
+    for run in training.itertuples(index=False):
+        run_id = str(run.run_id)
+        speed = float(run.speed_rpm)
+        idx = groups.get(run_id, np.array([], dtype=int))
+        t, z = t_all[idx], z_all[idx]
+        ok = np.isfinite(t) & np.isfinite(z)
+        t, z = t[ok], z[ok]
+        row = {"run_id": run_id, "speed_rpm": speed, "paper_t_eq_s": paper_t_eq(speed)}
+        if len(t) < 3:
+            nan = float("nan")
+            row.update(t_eq_s=nan, t_eq_low_s=nan, t_eq_high_s=nan, tau_s=nan, t_eq_tau_s=nan,
+                       plateau_um=nan, method=method + f"; not computed: {len(t)} valid samples")
+        else:
+            res = equilibrium_time(t, z, band_fraction=band_fraction,
+                                   plateau_window_s=plateau_window_s,
+                                   smooth_window_s=smooth_window_s)
+            row.update({k: v for k, v in res.as_dict().items() if k != "rise_um"})
+            note = "; never settled inside the band before the end of the run" \
+                if not np.isfinite(res.t_eq_s) else ""
+            row["method"] = method + note
+        rows.append(row)
+    table = pd.DataFrame(rows, columns=list(EQUILIBRIUM_COLUMNS))
+    return table.astype({c: "float64" for c in EQUILIBRIUM_COLUMNS
+                         if c not in ("run_id", "method")})
