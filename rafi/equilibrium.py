@@ -30,6 +30,8 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import curve_fit
 
+from . import paper
+
 
 @dataclass(frozen=True)
 class EquilibriumResult:
@@ -126,12 +128,7 @@ def equilibrium_time(t_s, dz_um, *, band_fraction: float = 0.05, plateau_window_
 
 # --------------------------------------------------------------------------- table
 
-#: Time to thermal equilibrium per training speed, paper Table 1 (r/min -> s).
-PAPER_T_EQ_S = {3000: 10160.0, 6000: 9675.0, 9000: 6895.0, 12000: 6615.0, 15000: 5385.0,
-                18000: 5560.0}
-
-#: A run's median speed matches a Table 1 speed when within this many r/min.
-PAPER_SPEED_TOLERANCE_RPM = 50.0
+PAPER_T_EQ_S = paper.T_EQ_S
 
 #: Columns of ``equilibrium.csv``, in order (``docs/design.md``).
 EQUILIBRIUM_COLUMNS = ("run_id", "speed_rpm", "t_eq_s", "t_eq_low_s", "t_eq_high_s", "tau_s",
@@ -142,10 +139,7 @@ def paper_t_eq(speed_rpm: float) -> float:
     """Paper Table 1 equilibrium time for ``speed_rpm`` (within 50 r/min), else NaN."""
     if speed_rpm is None or not np.isfinite(speed_rpm):
         return float("nan")
-    for speed, t_eq in PAPER_T_EQ_S.items():
-        if abs(float(speed_rpm) - speed) <= PAPER_SPEED_TOLERANCE_RPM:
-            return t_eq
-    return float("nan")
+    return paper.paper_value(float(speed_rpm), paper.T_EQ_S)
 
 
 def equilibrium_table(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *,
