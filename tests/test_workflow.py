@@ -1,0 +1,201 @@
+"""End to end: the Snakemake pipeline on a trimmed copy of the shipped data.
+
+Copies Snakefile, workflow/ and config.yaml into a temporary directory with a subset
+of raw/tapping-center-a (three training speeds, one single-speed validation run, the
+multi-condition log), runs `snakemake --cores 2 tables` there and checks:
+
+* every table of docs/design.md exists with its columns;
+* a second dry run has nothing to do;
+* changing rank.threshold re-runs rank and its downstream (fit, validate) only;
+* the raw files are byte-for-byte unchanged.
+
+The report rule is not part of this test (target `tables`): it has its own tests.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pandas as pd
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+MACHINE = "tapping-center-a"
+#: The shipped logs (override with RAFI_E2E_RAW=<folder> to try other data).
+RAW = Path(os.environ.get("RAFI_E2E_RAW", ROOT / "raw" / MACHINE))
+
+pytestmark = pytest.mark.slow
+
+#: design.md: file under results/<machine>/ -> required columns (None: not a flat table).
+TABLES = {
+    "audit.csv": ["file", "sha256", "rows_in", "rows_out", "duplicates_dropped", "reordered",
+                  "spikes_replaced", "values_interpolated", "gaps_interpolated", "segments",
+                  "status", "reason"],
+    "runs.csv": ["run_id", "file", "segment", "start_s", "end_s", "duration_s", "speed_rpm",
+                 "speed_min_rpm", "speed_max_rpm", "kind", "role", "role_source", "reference",
+                 "sha256"],
+    "runs.parquet": ["run_id", "t_s", "time", "speed_rpm", *[f"T{i}" for i in range(1, 17)],
+                     "disp_um", *[f"dT{i}" for i in range(1, 17)], "dz_um"],
+    "equilibrium.csv": ["run_id", "speed_rpm", "t_eq_s", "t_eq_low_s", "t_eq_high_s", "tau_s",
+                        "t_eq_tau_s", "plateau_um", "paper_t_eq_s", "method"],
+    "rank/correlation.csv": ["scope", "sensor", "r", "abs_r", "rank"],
+    "rank/key_sensors.csv": ["sensor", "score_abs_r", "selected_by"],
+    "rank/collinearity.csv": None,
+    "fit/coefficients.csv": ["speed_rpm", "term", "coef", "se", "se_hac", "t", "p", "p_hac"],
+    "fit/diagnostics.csv": ["speed_rpm", "n", "r2", "r2_adj", "rmse_um", "paper_rmse_um", "aic",
+                            "bic", "condition_number", "durbin_watson", "bp_stat", "bp_p",
+                            "jb_stat", "jb_p", "max_vif"],
+    "fit/vif.csv": ["speed_rpm", "term", "vif"],
+    "validation/summary.csv": ["run_id", "role", "speed_rpm", "duration_s", "max_abs_before_um",
+                               "max_abs_after_um", "improvement_pct", "rmse_before_um",
+                               "rmse_after_um", "n_samples", "n_outside_temp_range",
+                               "n_outside_speed_range", "worse_than_uncompensated",
+                               "paper_residual_um"],
+    "validation/residuals.parquet": ["run_id", "t_s", "speed_rpm", "measured_um", "predicted_um",
+                                     "residual_um", "outside_temp_range", "outside_speed_range"],
+}
+CLEAN_COLUMNS = ["time", "t_s", "speed_rpm", *[f"T{i}" for i in range(1, 17)], "disp_um", "segment"]
+AUDIT_ACTION_COLUMNS = ["file", "action", "column", "first_line", "last_line", "n_rows", "detail"]
+
+
+def sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+def pick_files(config: dict) -> list[Path]:
+    """Three training speeds, one single-speed validation log and the multi-condition log."""
+    from rafi.io import read_raw_log
+
+    training = config["defaults"]["training_speeds_rpm"]
+    tol = config["defaults"]["speed_tolerance_rpm"]
+    by_training: dict[float, Path] = {}
+    validation: list[tuple[float, Path]] = []
+    multi: list[tuple[float, Path]] = []
+    for path in sorted(RAW.glob("*.csv")):
+        try:
+            frame = read_raw_log(path)
+        except ValueError:          # a deliberately broken demo file: not for this test
+            continue
+        speed = frame["speed_rpm"].dropna()
+        moving = speed[speed > 100]
+        if moving.empty:
+            continue
+        hours = (frame["time"].iloc[-1] - frame["time"].iloc[0]).total_seconds() / 3600
+        if moving.max() - moving.min() > 2 * tol:
+            multi.append((-hours, path))
+            continue
+        rpm = float(moving.median())
+        near = [s for s in training if abs(s - rpm) <= tol]
+        if near:
+            by_training.setdefault(near[0], path)
+        elif hours >= 1:
+            validation.append((hours, path))
+    speeds = sorted(by_training)
+    chosen = [by_training[s] for s in (speeds[::2] if len(speeds) >= 5 else speeds)[:3]]
+    if len(chosen) < 3 or not validation or not multi:
+        pytest.skip(f"shipped data in {RAW} lacks 3 training speeds, a validation run or a "
+                    "multi-condition log")
+    return chosen + [min(validation)[1], min(multi)[1]]
+
+
+def snakemake(cwd: Path, *args: str) -> subprocess.CompletedProcess:
+    """Run Snakemake in ``cwd`` with the frozen copy of the rafi package found first."""
+    cmd = [sys.executable, "-m", "snakemake", "--cores", "2", *args]
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+        [str(cwd), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+
+
+def job_counts(output: str) -> dict[str, int]:
+    """Rule -> job count from the 'Job stats' table of a (dry) run."""
+    counts: dict[str, int] = {}
+    if "Job stats:" not in output:
+        return counts
+    for line in output.split("Job stats:", 1)[1].splitlines()[3:]:
+        m = re.match(r"^(\w+)\s+(\d+)\s*$", line)
+        if not m:
+            break
+        if m.group(1) != "total":
+            counts[m.group(1)] = int(m.group(2))
+    return counts
+
+
+@pytest.fixture(scope="module")
+def workdir(tmp_path_factory) -> Path:
+    if not RAW.is_dir() or not any(RAW.glob("*.csv")):
+        pytest.skip(f"shipped data not present yet ({RAW}): generate it with `rafi simulate`")
+    tmp = tmp_path_factory.mktemp("pipeline")
+    shutil.copy2(ROOT / "Snakefile", tmp / "Snakefile")
+    shutil.copytree(ROOT / "workflow", tmp / "workflow",
+                    ignore=shutil.ignore_patterns("__pycache__"))
+    # A frozen copy of the package: rafi/*.py are inputs of the rules (rafi_code), so an
+    # edit in the working tree during the test must not change what the test measures.
+    shutil.copytree(ROOT / "rafi", tmp / "rafi", ignore=shutil.ignore_patterns("__pycache__"))
+    config = yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))
+    files = pick_files(config)
+    (tmp / "raw" / MACHINE).mkdir(parents=True)
+    for path in files:
+        shutil.copy2(path, tmp / "raw" / MACHINE / path.name)
+    machine_cfg = (config.get("machines") or {}).get(MACHINE) or {}
+    overrides = machine_cfg.get("runs", {}).get("overrides", {})
+    kept = {Path(f).stem for f in files}
+    if overrides:   # keep only the overrides of the files we copied
+        machine_cfg.setdefault("runs", {})["overrides"] = {
+            k: v for k, v in overrides.items() if k in kept}
+    config["machines"] = {MACHINE: machine_cfg} if machine_cfg else {}
+    (tmp / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+    return tmp
+
+
+def test_pipeline_end_to_end(workdir: Path):
+    raw_before = {p.name: sha256(p) for p in (workdir / "raw" / MACHINE).iterdir()}
+
+    proc = snakemake(workdir, "tables")
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
+
+    results = workdir / "results" / MACHINE
+    for name, columns in TABLES.items():
+        path = results / name
+        assert path.is_file(), f"missing {name}"
+        frame = pd.read_parquet(path) if name.endswith(".parquet") else pd.read_csv(path)
+        assert len(frame) > 0, f"{name} is empty"
+        if columns is not None:
+            missing = [c for c in columns if c not in frame.columns]
+            assert not missing, f"{name} lacks columns {missing}"
+    for stem in (p.stem for p in (workdir / "raw" / MACHINE).iterdir()):
+        clean = pd.read_parquet(results / "clean" / f"{stem}.parquet")
+        assert [c for c in CLEAN_COLUMNS if c not in clean.columns] == []
+        actions = pd.read_csv(results / "clean" / f"{stem}.audit.csv")
+        assert list(actions.columns) == AUDIT_ACTION_COLUMNS
+    assert (results / "rank" / "key_sensors.json").is_file()
+    assert (results / "model.json").is_file()
+    runs = pd.read_csv(results / "runs.csv")
+    assert {"training", "validation_single", "validation_multi"} <= set(runs["role"])
+    for rule in ("runs", "rank", "fit", "validate"):
+        assert (workdir / "logs" / MACHINE / f"{rule}.log").stat().st_size > 0
+    model = json.loads((results / "model.json").read_text(encoding="utf-8"))
+    assert model["machine"] == MACHINE and model["speeds"]
+
+    proc = snakemake(workdir, "tables", "-n")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert "Nothing to be done" in proc.stdout + proc.stderr, proc.stdout[-3000:]
+
+    config_path = workdir / "config.yaml"
+    config = yaml.safe_load(config_path.read_text(encoding="utf-8"))
+    config["defaults"]["rank"]["threshold"] = 0.5
+    config_path.write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+    proc = snakemake(workdir, "tables", "-n")
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    counts = job_counts(proc.stdout + proc.stderr)
+    assert set(counts) == {"rank", "fit", "validate", "tables"}, counts
+
+    raw_after = {p.name: sha256(p) for p in (workdir / "raw" / MACHINE).iterdir()}
+    assert raw_after == raw_before

@@ -1,0 +1,294 @@
+# Shared helpers of the RAFI workflow: config validation, machine discovery,
+# per-machine settings, path templates and input functions.
+#
+# Functions only (no rules) - `snakemake --lint` wants rules and functions apart;
+# another step's helpers go to workflow/rules/<step>_common.smk (the Snakefile includes
+# those first). Every public name below may be used by the other .smk files -
+#   constants  RAW_DIR, RESULTS_DIR, REPORTS_DIR, LOGS_DIR, RAFI_DIR, MACHINES, OUTPUTS
+#   settings   machine_config(machine)
+#   raw files  raw_files(machine), raw_file(wildcards)
+#   paths      out(name, machine="{machine}"), pipeline_tables(machine),
+#              all_pipeline_tables(), report_paths(machine="{machine}"),
+#              log_path(step), bench_path(step)
+#   inputs     clean_files(kind), rafi_code(*modules), script_helpers()
+
+import ast
+import copy
+import fnmatch
+import importlib.util
+import logging
+from pathlib import Path
+
+from snakemake.exceptions import WorkflowError
+from snakemake.utils import validate
+
+validate(config, schema="../schemas/config.schema.yaml")
+
+_log = logging.getLogger("rafi.workflow")
+
+RAW_DIR = Path(config["raw_dir"])
+RESULTS_DIR = str(config["results_dir"]).rstrip("/")
+REPORTS_DIR = str(config["reports_dir"]).rstrip("/")
+LOGS_DIR = "logs"
+
+wildcard_constraints:
+    machine=r"[^/]+",
+    stem=r"[^/]+",
+
+
+# --------------------------------------------------------------------------- settings
+
+def _deep_merge(base, override):
+    """Return ``base`` updated recursively with ``override`` (neither is modified).
+
+    Dicts merge key by key; any other value (lists included) in ``override``
+    replaces the one in ``base``.
+    """
+    merged = copy.deepcopy(base)
+    for key, value in (override or {}).items():
+        if isinstance(value, dict) and isinstance(merged.get(key), dict):
+            merged[key] = _deep_merge(merged[key], value)
+        else:
+            merged[key] = copy.deepcopy(value)
+    return merged
+
+
+def machine_config(machine):
+    """Effective settings of one machine: ``defaults`` deep-merged with ``machines[<machine>]``.
+
+    Parameters
+    ----------
+    machine : str
+        Folder name under ``raw_dir``.
+
+    Returns
+    -------
+    dict
+        A fresh copy (safe to modify). Besides the keys of ``defaults`` it always
+        holds ``on_bad_input`` (the machine's value, else the top-level one).
+    """
+    merged = _deep_merge(config["defaults"], (config.get("machines") or {}).get(machine) or {})
+    merged.setdefault("on_bad_input", config["on_bad_input"])
+    return merged
+
+
+def _patterns(machine):
+    pattern = machine_config(machine)["input"]["pattern"]
+    return [pattern] if isinstance(pattern, str) else list(pattern)
+
+
+# --------------------------------------------------------------------------- discovery
+
+def _find_logs(folder, machine):
+    """Raw files of one machine folder: ``rafi.io.find_logs`` (the same rule as ``rafi
+    nightly``; it also validates the ``input:`` mapping), else a plain glob of the names."""
+    spec = machine_config(machine)["input"]
+    try:
+        from rafi.io import find_logs
+    except ImportError:
+        return sorted(
+            p for p in folder.iterdir()
+            if p.is_file() and not p.name.startswith((".", "~$"))
+            and any(fnmatch.fnmatchcase(p.name, pat) for pat in _patterns(machine))
+        )
+    try:
+        return find_logs(folder, spec)
+    except ValueError as exc:          # rafi.formats.InputSpecError: a bad input: mapping
+        raise WorkflowError(f"RAFI: machine {machine!r}: {exc}") from None
+
+
+def _discover():
+    """Map machine -> {stem: raw path} from the folders of ``raw_dir``.
+
+    Re-evaluated on every Snakemake invocation, so a new folder or file is picked
+    up on the next run without editing the config. Hidden entries are ignored;
+    a folder with no file matching the machine's ``input.pattern`` is skipped
+    with a warning.
+    """
+    found = {}
+    if not RAW_DIR.is_dir():
+        _log.warning("RAFI: raw_dir %r does not exist; no machines to process", str(RAW_DIR))
+        return found
+    for folder in sorted(p for p in RAW_DIR.iterdir() if p.is_dir() and not p.name.startswith(".")):
+        machine = folder.name
+        patterns = _patterns(machine)
+        files = {}
+        for path in _find_logs(folder, machine):
+            if path.stem in files:
+                raise WorkflowError(
+                    f"RAFI: {path} and {files[path.stem]} have the same stem {path.stem!r}; "
+                    f"results/<machine>/clean/<stem>.parquet would collide - rename one of them")
+            files[path.stem] = str(path)
+        if not files:
+            _log.warning("RAFI: skipping machine folder %s: no file matches input.pattern %s",
+                         folder, patterns)
+            continue
+        found[machine] = files
+    unknown = set(config.get("machines") or {}) - {p.name for p in RAW_DIR.iterdir() if p.is_dir()}
+    for machine in sorted(unknown):
+        _log.warning("RAFI: config has settings for machine %r but %s/%s does not exist",
+                     machine, RAW_DIR, machine)
+    return found
+
+
+RAW = _discover()
+
+#: Machines to process: the folders of ``raw_dir`` holding at least one matching file.
+MACHINES = sorted(RAW)
+
+
+def raw_files(machine):
+    """Raw log paths of ``machine`` (those matching its ``input.pattern``), sorted."""
+    return sorted(RAW.get(machine, {}).values())
+
+
+def raw_file(wildcards):
+    """Input function (clean step): the raw file of ``{machine}``/``{stem}``."""
+    try:
+        return RAW[wildcards.machine][wildcards.stem]
+    except KeyError:
+        raise WorkflowError(f"RAFI: no raw file {wildcards.stem}.* for machine "
+                            f"{wildcards.machine!r} under {RAW_DIR}") from None
+
+
+# --------------------------------------------------------------------------- paths
+
+#: Output templates (relative to ``results_dir``) - the tables of docs/design.md plus the
+#: per-file intermediates of the clean step (``clean/<stem>.summary.csv``: one audit row).
+OUTPUTS = {
+    "clean_parquet": "clean/{stem}.parquet",
+    "clean_audit": "clean/{stem}.audit.csv",
+    "clean_summary": "clean/{stem}.summary.csv",
+    "audit": "audit.csv",
+    "runs_csv": "runs.csv",
+    "runs_parquet": "runs.parquet",
+    "equilibrium": "equilibrium.csv",
+    "correlation": "rank/correlation.csv",
+    "key_sensors": "rank/key_sensors.csv",
+    "key_sensors_json": "rank/key_sensors.json",
+    "collinearity": "rank/collinearity.csv",
+    "coefficients": "fit/coefficients.csv",
+    "diagnostics": "fit/diagnostics.csv",
+    "vif": "fit/vif.csv",
+    "model": "model.json",
+    "validation_summary": "validation/summary.csv",
+    "residuals": "validation/residuals.parquet",
+}
+
+#: Settings recorded in model.json ("config"): everything upstream of the model artefact.
+MODEL_CONFIG_KEYS = ("input", "sample_period_s", "training_speeds_rpm", "speed_tolerance_rpm",
+                     "clean", "runs", "reference", "rank", "fit", "fuzzy")
+
+#: Per-machine tables every full run must produce (``rule all``).
+TABLES = [name for name in OUTPUTS if not name.startswith("clean_")]
+
+
+def out(name, machine="{machine}", stem="{stem}"):
+    """Path of output ``name`` (a key of ``OUTPUTS``) under ``results_dir``.
+
+    With the default arguments the ``{machine}`` (and ``{stem}``) wildcards are kept,
+    so ``out("model")`` can be used directly in ``input:``/``output:``; pass a machine
+    name to get a concrete path, e.g. ``out("model", "tapping-center-a")``.
+    """
+    return f"{RESULTS_DIR}/{machine}/{OUTPUTS[name]}".replace("{stem}", stem)
+
+
+def pipeline_tables(machine):
+    """Dict name -> concrete path of every per-machine table of design.md for ``machine``."""
+    return {name: out(name, machine) for name in TABLES}
+
+
+def all_pipeline_tables():
+    """Flat list of ``pipeline_tables`` of every discovered machine (for ``rule all``)."""
+    return [path for m in MACHINES for path in pipeline_tables(m).values()]
+
+
+def report_paths(machine="{machine}"):
+    """Paths of the qualification report of ``machine``: dict ``html``/``pdf``."""
+    return {ext: f"{REPORTS_DIR}/{machine}/qualification.{ext}" for ext in ("html", "pdf")}
+
+
+def log_path(step, machine="{machine}"):
+    """Log file of a step: ``logs/{machine}/<step>.log`` (step may contain ``{stem}``)."""
+    return f"{LOGS_DIR}/{machine}/{step}.log"
+
+
+def bench_path(step, machine="{machine}"):
+    """Benchmark TSV of a step: ``results/{machine}/benchmarks/<step>.tsv``."""
+    return f"{RESULTS_DIR}/{machine}/benchmarks/{step}.tsv"
+
+
+def clean_files(kind="clean_parquet"):
+    """Input function: the per-file clean outputs of ``{machine}`` (one per raw file).
+
+    ``kind`` is ``clean_parquet``, ``clean_audit`` or ``clean_summary``.
+    """
+    def _inputs(wildcards):
+        return [out(kind, wildcards.machine, stem) for stem in sorted(RAW.get(wildcards.machine, {}))]
+    return _inputs
+
+
+# --------------------------------------------------------------------------- code dependencies
+#
+# Snakemake's own `code` rerun trigger only covers the script file of a rule (or
+# its run: block), not the rafi modules the script imports. rafi_code() lists
+# those modules so that they can be given as `input:`: editing rafi/rank.py then
+# makes the rank output older than its input and re-runs rank and everything
+# downstream, and nothing upstream.
+
+def _rafi_package_dir():
+    spec = importlib.util.find_spec("rafi")
+    if spec is not None and spec.origin:
+        return Path(spec.origin).parent
+    return Path(workflow.basedir) / "rafi"
+
+
+RAFI_DIR = _rafi_package_dir()
+
+
+def _rafi_imports(path):
+    """Names of the rafi modules ``path`` imports (``from .x``, ``from rafi.x``, ``import rafi.x``)."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    names = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            mod = node.module or ""
+            if node.level == 1 or mod == "rafi" or mod.startswith("rafi."):
+                base = mod.split(".")[-1] if mod and mod != "rafi" else ""
+                if base:
+                    names.add(base)
+                else:
+                    names.add("__init__")
+                    names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.Import):
+            for alias in node.names:
+                if alias.name.startswith("rafi."):
+                    names.add(alias.name.split(".")[1])
+    return names
+
+
+def rafi_code(*modules):
+    """Paths of the ``rafi/*.py`` files a rule's script depends on, for use as ``input:``.
+
+    Each named module (e.g. ``rafi_code("clean", "io")``) is followed through its
+    rafi imports, transitively. Modules that do not exist (optional ones such as
+    ``checks``) are left out. Returns a sorted list of paths.
+    """
+    todo, seen = list(modules), set()
+    while todo:
+        name = todo.pop()
+        if name in seen:
+            continue
+        seen.add(name)
+        path = RAFI_DIR / f"{name}.py"
+        if path.is_file():
+            todo.extend(_rafi_imports(path) - seen)
+    return sorted(str(RAFI_DIR / f"{n}.py") for n in seen if (RAFI_DIR / f"{n}.py").is_file())
+
+
+_SCRIPTS_DIR = Path(str(workflow.current_basedir)).parent / "scripts"
+
+
+def script_helpers():
+    """The shared script glue module (``workflow/scripts/_glue.py``), an input of every rule."""
+    return str(_SCRIPTS_DIR / "_glue.py")

@@ -1,0 +1,36 @@
+"""Rule runs: clean logs of a machine -> runs.csv + runs.parquet."""
+
+from pathlib import Path
+
+import pandas as pd
+
+from _glue import step
+
+with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
+    import rafi.io
+    from rafi.runs import find_runs
+
+    smk = snakemake  # noqa: F821
+    audit = pd.read_csv(smk.input.audit)
+    usable = audit[audit["status"] == "ok"]
+    sha256 = dict(zip(usable["file"], usable["sha256"]))
+    by_stem = {Path(p).name.removesuffix(".parquet"): p for p in smk.input.clean}
+    frames = {}
+    for name in usable["file"]:
+        frames[name] = pd.read_parquet(by_stem[Path(name).stem])
+        print(f"read clean {name}: {len(frames[name])} rows", flush=True)
+    if not frames:
+        raise RuntimeError(f"no usable raw file for machine {smk.wildcards.machine}: all "
+                           f"{len(audit)} quarantined (see {smk.input.audit})")
+    cfg = smk.params.runs
+    table, frame = find_runs(
+        frames, sha256,
+        training_speeds_rpm=smk.params.training_speeds_rpm,
+        speed_tolerance_rpm=smk.params.speed_tolerance_rpm,
+        idle_below_rpm=cfg["idle_below_rpm"], min_run_s=cfg["min_run_s"],
+        min_constant_s=cfg["min_constant_s"], overrides=cfg["overrides"],
+        reference_rule=smk.params.reference["rule"],
+        reference_window_s=smk.params.reference["window_s"])
+    print(f"{len(table)} runs; roles: {table['role'].value_counts().to_dict()}", flush=True)
+    rafi.io.write_csv_atomic(table, smk.output.table)
+    rafi.io.write_parquet_atomic(frame, smk.output.frame)
