@@ -6,11 +6,9 @@
 #
 # Machines are the folders of `raw_dir`; settings are `defaults` deep-merged with
 # `machines.<name>` (config.yaml, validated by workflow/schemas/config.schema.yaml).
-# Outputs: docs/design.md. Helpers: workflow/rules/common.smk; the steps:
-# workflow/rules/pipeline.smk; every other workflow/rules/*.smk is included too
-# (report.smk, owned by the report step, makes `all` request the reports).
-
-from pathlib import Path
+# Outputs: docs/design.md. Helpers (functions only): workflow/rules/common.smk; the
+# method's steps: pipeline.smk; the model family: compare.smk; champion/challenger:
+# registry.smk; the qualification report: report.smk.
 
 from snakemake.utils import min_version
 
@@ -21,34 +19,22 @@ configfile: "config.yaml"
 
 
 include: "workflow/rules/common.smk"
-
-
-# Helper-only files (`*_common.smk`: functions, no rules - as `snakemake --lint` wants
-# them apart) are included before the rule files that use them.
-RULE_FILES = sorted(
-    (
-        p.name
-        for p in Path(workflow.basedir, "workflow", "rules").glob("*.smk")
-        if p.name != "common.smk"
-    ),
-    key=lambda name: (not name.endswith("_common.smk"), name),
-)
-HAVE_REPORT = "report.smk" in RULE_FILES
+include: "workflow/rules/pipeline.smk"
+include: "workflow/rules/compare.smk"
+include: "workflow/rules/registry.smk"
+include: "workflow/rules/report.smk"
 
 
 rule all:
     input:
         all_pipeline_tables(),
-        [path for m in MACHINES for path in report_paths(m).values()] if HAVE_REPORT else [],
+        [p for m in MACHINES for p in comparison_outputs(m)],
+        [registry_path(n, m) for m in MACHINES for n in ("decision.json", "comparison.csv")],
+        [p for m in MACHINES for p in report_paths(m).values()],
     default_target: True
 
 
-# The tables of docs/design.md only (no report), every machine.
+# The tables of docs/design.md only (no comparison, registry or report), every machine.
 rule tables:
     input:
         all_pipeline_tables(),
-
-
-for rule_file in RULE_FILES:
-
-    include: f"workflow/rules/{rule_file}"

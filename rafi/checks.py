@@ -20,6 +20,10 @@ Thresholds (keyword arguments, defaults in brackets):
 * displacement constant: standard deviation below ``stuck_std_um`` (1e-3 um) or
   more than ``stuck_fraction`` (95 %) of the values identical, with at least
   ``min_samples`` (10) values.
+* displacement stuck: the same value in consecutive rows for ``stuck_max_s``
+  (600 s) or longer while some temperature changes by ``stuck_min_temp_change_k``
+  (1 K) or more in that stretch: the machine is growing, a live probe would move.
+  (A coarse probe on a machine at rest may repeat its value for long; that passes.)
 * displacement range (max - min) at most ``mm_max_range_um`` (0.2) while some
   temperature rises by at least ``mm_min_temp_rise_k`` (3 K) -> millimetres.
 * speed below 0 or above ``max_speed_rpm`` (100000 r/min).
@@ -65,6 +69,17 @@ class _Where:
                               column=column, sheet=self.sheet)
 
 
+def _longest_repeat(values: np.ndarray) -> tuple[int, int]:
+    """Start and length of the longest stretch of identical consecutive non-NaN values."""
+    if values.size == 0:
+        return 0, 0
+    same = np.concatenate(([False], (values[1:] == values[:-1])))
+    starts = np.flatnonzero(~same)
+    lengths = np.diff(np.append(starts, values.size))
+    k = int(np.argmax(lengths))
+    return int(starts[k]), int(lengths[k])
+
+
 def _open_circuit_mask(values: np.ndarray, open_circuit_values) -> np.ndarray:
     mask = np.zeros(values.shape, dtype=bool)
     for v in open_circuit_values or ():
@@ -81,6 +96,8 @@ def check_log(frame: pd.DataFrame, path: str | os.PathLike | None = None, *,
               temp_range_c: tuple[float, float] = (-40.0, 200.0),
               stuck_std_um: float = 1e-3,
               stuck_fraction: float = 0.95,
+              stuck_max_s: float = 600.0,
+              stuck_min_temp_change_k: float = 1.0,
               mm_max_range_um: float = 0.2,
               mm_min_temp_rise_k: float = 3.0,
               min_samples: int = 10) -> pd.DataFrame:
@@ -101,7 +118,7 @@ def check_log(frame: pd.DataFrame, path: str | os.PathLike | None = None, *,
         Documented open-circuit readings (``clean.open_circuit_values``): allowed
         outside the temperature range and counted as missing.
     backwards_tolerance_samples, max_speed_rpm, temp_range_c, stuck_std_um,
-    stuck_fraction, mm_max_range_um, mm_min_temp_rise_k, min_samples
+    stuck_fraction, stuck_max_s, stuck_min_temp_change_k, mm_max_range_um, mm_min_temp_rise_k, min_samples
         Thresholds, see the module docstring.
 
     Returns
@@ -189,6 +206,18 @@ def check_log(frame: pd.DataFrame, path: str | os.PathLike | None = None, *,
                 f"{where.label('disp_um')} is constant (std {std:.2g} um, "
                 f"{100 * top:.0f} % of the values equal {uniq[counts.argmax()]:g}): stuck or "
                 "disconnected probe, or the wrong channel is mapped", column="disp_um")
+        first, length = _longest_repeat(d)
+        if stuck_max_s > 0 and length * sample_period_s >= stuck_max_s:
+            stretch = slice(first, first + length)
+            change = max((float(np.nanmax(values[s][stretch]) - np.nanmin(values[s][stretch]))
+                          for s in SENSORS if np.isfinite(values[s][stretch]).any()), default=0.0)
+            if change >= stuck_min_temp_change_k:
+                raise where.error(
+                    f"{where.label('disp_um')} is stuck at {d[first]:g} um for {length} rows "
+                    f"({length * sample_period_s / 60:.0f} min, lines {lines[first]}-"
+                    f"{lines[first + length - 1]}) while temperatures change by {change:.1f} K: "
+                    "a live probe would move; check the probe and its cable",
+                    line=lines[first], column="disp_um")
         rise = 0.0
         for name in SENSORS:
             v = values[name]

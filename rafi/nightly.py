@@ -280,18 +280,6 @@ def run_snakemake(args, overrides: dict, log_fh, planned: int = 0) -> tuple[int,
     return proc.wait(), tracker
 
 
-def cleanup_decision_metadata(args, overrides: dict, files: list[Path]) -> None:
-    """Forget Snakemake's record of ``files`` (see registry.smk, champion_input)."""
-    if not files:
-        return
-    rel = [os.path.relpath(f, args.directory) for f in files]  # metadata keys are relative
-    cmd = snakemake_base(args, overrides) + ["--cleanup-metadata", *rel]
-    proc = subprocess.run(cmd, capture_output=True, text=True, cwd=args.directory)
-    if proc.returncode != 0:
-        print("rafi nightly: warning: could not clear Snakemake's record of "
-              f"{', '.join(rel)}; the next night re-runs `decide` once", file=sys.stderr)
-
-
 # --------------------------------------------------------------------------- fast path
 
 def _tree(root: Path, skip=()) -> list[str]:
@@ -527,7 +515,6 @@ def _promote(args, paths: Paths, machines: list[str]) -> int:
 def _night(args, paths: Paths, machines: list[str], overrides: dict) -> int:
     started = time.time()
     night_start = float(int(started))
-    before = {m: (paths.registry(m) / "champion.json").exists() for m in machines}
     fp = None if args.full_check else fingerprint(args, paths, overrides)
     if fp is not None and read_state(paths).get("fingerprint") == fp:
         rc, jobs, text = 0, {}, ""  # nothing changed since the last successful night
@@ -555,9 +542,6 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict) -> int:
                      f"pid {os.getpid()}\n")
         src, tracker = run_snakemake(args, overrides, log_fh,
                                      planned=sum(n for r, n in jobs.items() if r != "nightly"))
-    created = [m for m in machines if not before[m] and (paths.registry(m) / "champion.json").exists()]
-    cleanup_decision_metadata(args, overrides, [paths.registry(m) / n for m in created
-                                                for n in ("decision.json", "comparison.csv")])
     if src == 0:
         write_state(paths, fingerprint(args, paths, overrides))
     else:

@@ -125,7 +125,9 @@ def test_stuck_probe_by_std_and_by_identical_fraction():
     with pytest.raises(RawFormatError, match="98 % of the values equal 3"):
         check(f)
     f = frame()
-    f.loc[f.index[:180], "disp_um"] = 3.0                 # 90 %: a long standstill is fine
+    f.loc[f.index[:180], "disp_um"] = 3.0                 # 90 %: a long standstill is fine ...
+    for s in SENSORS:                                     # ... when the machine is at rest
+        f.loc[f.index[:180], s] = 21.0
     check(f)
 
 
@@ -171,3 +173,22 @@ def test_default_path_is_the_source():
     f["T2"] = np.nan
     with pytest.raises(RawFormatError, match=r"^raw/m/log.csv, column 'T2'"):
         check_log(f)
+
+
+def test_probe_stuck_mid_run_is_rejected_with_its_lines(tmp_path):
+    import numpy as np
+    import pandas as pd
+    from rafi.checks import check_log
+    from rafi.errors import RawFormatError
+    n = 720
+    t = pd.date_range("2026-03-01T08:00:00", periods=n, freq="5s")
+    rng = np.random.default_rng(3)
+    frame = pd.DataFrame({"time": t, "speed_rpm": 3000.0,
+                          **{f"T{i}": 21 + np.linspace(0, 4, n) for i in range(1, 17)},
+                          "disp_um": np.round(np.linspace(0, 12, n) + rng.normal(0, 0.2, n), 3)},
+                         index=pd.Index(np.arange(n) + 3, name="line"))
+    check_log(frame, "ok.csv", sample_period_s=5)          # a live probe passes
+    frame.loc[frame.index[500]:, "disp_um"] = frame["disp_um"].iloc[500]
+    with pytest.raises(RawFormatError, match=r"stuck at .* for 220 rows") as err:
+        check_log(frame, "stuck.csv", sample_period_s=5)
+    assert err.value.line == 503 and err.value.column == "disp_um"

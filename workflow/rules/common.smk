@@ -11,6 +11,10 @@
 #              all_pipeline_tables(), report_paths(machine="{machine}"),
 #              log_path(step), bench_path(step)
 #   inputs     clean_files(kind), rafi_code(*modules), script_helpers()
+#   compare    comparison_path(name, machine), comparison_outputs(machine)
+#   registry   nightly_settings(machine), qualification_gates(machine),
+#              registry_path(name, machine), candidate_model(wildcards), nightly_targets()
+#   report     report_inputs(wildcards), report_settings(machine)
 
 import ast
 import copy
@@ -20,6 +24,8 @@ import logging
 from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
+
+import rafi.registry as _registry
 from snakemake.utils import validate
 
 validate(config, schema="../schemas/config.schema.yaml")
@@ -292,3 +298,105 @@ _SCRIPTS_DIR = Path(str(workflow.current_basedir)).parent / "scripts"
 def script_helpers():
     """The shared script glue module (``workflow/scripts/_glue.py``), an input of every rule."""
     return str(_SCRIPTS_DIR / "_glue.py")
+
+
+# --------------------------------------------------------------------------- model comparison
+
+def comparison_path(name, machine="{machine}"):
+    """Path of a comparison output: ``results/<machine>/comparison/<name>``."""
+    return f"{RESULTS_DIR}/{machine}/comparison/{name}"
+
+
+COMPARISON_FILES = ("summary.csv", "per_run.csv", "residuals.parquet", "best_model.json", "cv.csv")
+
+
+def comparison_outputs(machine):
+    """Concrete comparison outputs of ``machine`` (for ``rule all``)."""
+    return [comparison_path(name, machine) for name in COMPARISON_FILES]
+
+
+# --------------------------------------------------------------------------- registry
+#
+# Side effects of `decide` (deliberately NOT declared outputs): registry/models/<id>.json
+# (+ .meta.json), registry/champion.json and registry/history.jsonl. Snakemake deletes a
+# job's declared outputs before it re-runs the job; the registry must survive every run.
+# champion.json is not an input of `decide` either: a rollback (`rafi nightly --promote`)
+# rewrites decision.json itself, and listing a file that appears on the first promotion
+# would change decide's input set and make the next dry run want to re-run it.
+
+def nightly_settings(machine):
+    """``nightly:`` of ``machine``: built-in defaults < top-level ``nightly`` < machine's."""
+    merged = dict(_registry.DEFAULT_NIGHTLY)
+    merged.update(config.get("nightly") or {})
+    merged.update(machine_config(machine).get("nightly") or {})
+    return merged
+
+
+def qualification_gates(machine):
+    """Promotion gates of ``machine`` (``qualification:``, per machine over top level)."""
+    merged = dict(_registry.DEFAULT_GATES)
+    merged.update(config.get("qualification") or {})
+    merged.update(machine_config(machine).get("qualification") or {})
+    return {k: merged[k] for k in _registry.GATE_KEYS if k in merged}
+
+
+def registry_path(name, machine="{machine}"):
+    """``results/<machine>/registry/<name>``."""
+    return f"{RESULTS_DIR}/{machine}/registry/{name}"
+
+
+def candidate_model(wildcards):
+    """Input function: tonight's candidate (``rafi.registry.candidate_model_path``)."""
+    return _registry.candidate_model_path(
+        wildcards.machine, RESULTS_DIR, nightly_settings(wildcards.machine)["candidate"])
+
+
+def _nightly_machines():
+    only = config.get("nightly_machines")
+    if not only:
+        return MACHINES
+    only = [only] if isinstance(only, str) else list(only)
+    return [m for m in MACHINES if m in only]
+
+
+def _report_wanted():
+    return str(config.get("nightly_report", True)).lower() not in ("0", "false", "no")
+
+
+def nightly_targets():
+    """Every output a night produces: tables, comparison, decision and (unless
+    ``--config nightly_report=false``) the report, for the machines of the night."""
+    targets = []
+    for m in _nightly_machines():
+        targets += list(pipeline_tables(m).values()) + comparison_outputs(m)
+        targets += [registry_path("decision.json", m), registry_path("comparison.csv", m)]
+        if _report_wanted():
+            targets += list(report_paths(m).values())
+    return targets
+
+
+# --------------------------------------------------------------------------- report
+
+REPORT_TABLES = ("audit", "runs_csv", "runs_parquet", "equilibrium", "correlation", "key_sensors",
+                 "key_sensors_json", "collinearity", "coefficients", "diagnostics", "vif", "model",
+                 "validation_summary", "residuals")
+
+
+def report_inputs(wildcards):
+    """Named inputs of the report: the design.md tables, the model comparison, the
+    registry decision, the code and the template."""
+    machine = wildcards.machine
+    inputs = {name: out(name, machine) for name in REPORT_TABLES}
+    inputs["comparison"] = comparison_path("summary.csv", machine)
+    inputs["decision"] = registry_path("decision.json", machine)
+    inputs["code"] = rafi_code("report", "plots")
+    inputs["template"] = str(RAFI_DIR / "templates" / "qualification.html.j2")
+    return inputs
+
+
+def report_settings(machine):
+    """Report-only settings (optional ``report:`` block in config.yaml; defaults here)."""
+    rep = dict(config.get("report") or {})
+    rep.update(((config.get("machines") or {}).get(machine) or {}).get("report") or {})
+    return {"figure_format": rep.get("figure_format", "png"),
+            "coolant_sensors": list(rep.get("coolant_sensors", ["T13"]))}

@@ -2,20 +2,9 @@
 # ridge_global and dynamic on the same validation runs and gates; whole-run CV on the
 # training runs only; the champion (best model that passes the gates) as best_model.json.
 #
-# Uses the helpers of common.smk (machine_config, out, log_path, bench_path, rafi_code,
-# script_helpers). Settings: `models:` of the machine's config (defaults in
+# Uses the helpers of common.smk (machine_config, out, comparison_path, log_path,
+# bench_path, rafi_code, script_helpers). Settings: `models:` of the machine's config (defaults in
 # workflow/scripts/compare.py when the section is absent) and `qualification:` (gates).
-
-
-def comparison_path(name, machine="{machine}"):
-    """Path of a comparison output: results/<machine>/comparison/<name>."""
-    return f"{RESULTS_DIR}/{machine}/comparison/{name}"
-
-
-def comparison_outputs(machine):
-    """Concrete comparison outputs of ``machine`` (for `rule all` / the report)."""
-    return [comparison_path(n, machine) for n in
-            ("summary.csv", "per_run.csv", "residuals.parquet", "best_model.json", "cv.csv")]
 
 
 rule compare:
