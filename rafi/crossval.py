@@ -249,7 +249,7 @@ def choose_champion(summary: pd.DataFrame, *, require_pass: bool = True) -> str 
     """The model that passes every gate with the lowest worst-case max residual.
 
     Ties are broken by the higher minimum improvement, then the simpler kind
-    (rafi_linear, ridge_global, dynamic), then by name. Returns ``None`` if
+    (rafi_linear, ridge_global, dynamic, grey_box), then by name. Returns ``None`` if
     no model passes (``require_pass=False``: the lowest worst case regardless of gates).
     """
     m = summary.loc[summary["scope"] == "model"]
@@ -258,10 +258,10 @@ def choose_champion(summary: pd.DataFrame, *, require_pass: bool = True) -> str 
     m = m.dropna(subset=["max_abs_after_um"])
     if m.empty:
         return None
-    order = {"rafi_linear": 0, "ridge_global": 1, "dynamic": 2}  # simpler first on exact ties
+    order = {"rafi_linear": 0, "ridge_global": 1, "dynamic": 2, "grey_box": 3}  # simpler first on exact ties
     kinds = m["kind"] if "kind" in m.columns else m["model"]
     m = m.assign(_res=m["max_abs_after_um"].astype(float).round(9),
                  _imp=-m["improvement_pct"].astype(float).fillna(-np.inf),
-                 _cx=kinds.map(order).fillna(3))
+                 _cx=kinds.map(order).fillna(4))
     m = m.sort_values(["_res", "_imp", "_cx", "model"], kind="stable")
     return str(m["model"].iloc[0])

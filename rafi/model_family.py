@@ -27,6 +27,11 @@ Kinds:
                   between the housing temperatures and the spindle's growth. Displacement is
                   never an input: the compensation runs without the displacement sensor.
 
+``grey_box``      ridge on (filtered) rises plus causal first-order filtered speed powers
+                  ``(n/10^4)^p`` (heat input to the unmeasured shaft/bearings/stator), filter
+                  constants and penalty by whole-run CV (max-abs metric); the instantaneous
+                  ``n^2`` centrifugal term only where the training runs identify it.
+
 ``load_any(dict_or_path)`` dispatches on ``kind``.
 """
 
@@ -179,7 +184,8 @@ class RafiLinear(PublishedRafi):
 
 # --------------------------------------------------------------------------- filters and features
 
-def lowpass_runs(values: np.ndarray, t_s: np.ndarray, run_codes: np.ndarray, taus_s: Sequence[float]) -> np.ndarray:
+def lowpass_runs(values: np.ndarray, t_s: np.ndarray, run_codes: np.ndarray, taus_s: Sequence[float],
+                 initial: str = "settled") -> np.ndarray:
     """Causal first-order low-pass of every column of ``values`` for every ``tau``.
 
     ``y[k] = y[k-1] + (1 - exp(-(t[k] - t[k-1]) / tau)) * (x[k] - y[k-1])``, evaluated sample
@@ -188,7 +194,11 @@ def lowpass_runs(values: np.ndarray, t_s: np.ndarray, run_codes: np.ndarray, tau
     at its own start (``run_start``) that first rise is ~0, i.e. the filter starts from the
     reference state. ``tau = 0`` passes the input through. Returns
     ``(n, n_columns * len(taus))`` ordered tau-major. A NaN input holds the filter state.
+    ``initial="zero"``: the state before the run's first sample is 0 (a cold start from rest:
+    the first sample is then ``g0 * x[0]`` with ``g0`` the gain of one nominal sample step).
     """
+    if initial not in ("settled", "zero"):
+        raise ValueError(f"initial={initial!r}: use settled or zero")
     x = np.asarray(values, dtype=float)
     if x.ndim == 1:
         x = x[:, None]
@@ -197,7 +207,7 @@ def lowpass_runs(values: np.ndarray, t_s: np.ndarray, run_codes: np.ndarray, tau
     if len(taus) and (taus <= 0).all():
         return np.tile(x, (1, len(taus)))
     if (taus <= 0).any():  # pass-through columns need no loop
-        parts = [x if tau <= 0 else lowpass_runs(x, t_s, run_codes, [tau]) for tau in taus]
+        parts = [x if tau <= 0 else lowpass_runs(x, t_s, run_codes, [tau], initial) for tau in taus]
         return np.column_stack(parts)
     out = np.empty((n, p * len(taus)))
     xx = np.tile(x, (1, len(taus)))
@@ -207,11 +217,17 @@ def lowpass_runs(values: np.ndarray, t_s: np.ndarray, run_codes: np.ndarray, tau
     new_run[1:] = run_codes[1:] != run_codes[:-1]
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         gain = np.where(tau_col[None, :] > 0, -np.expm1(-np.clip(dt, 0, None)[:, None] / tau_col[None, :]), 1.0)
+    tt = np.asarray(t_s, dtype=float)
+    step = float(np.median(np.diff(tt))) if n > 1 and np.isfinite(np.diff(tt)).any() else 1.0
+    gain0 = -np.expm1(-max(step, 0.0) / tau_col)
     y = np.zeros(p * len(taus))
     for k in range(n):
         xk = xx[k]
         if new_run[k]:
-            y = np.where(np.isfinite(xk), xk, 0.0)
+            if initial == "zero":
+                y = np.where(np.isfinite(xk), gain0 * xk, 0.0)
+            else:
+                y = np.where(np.isfinite(xk), xk, 0.0)
         else:
             g = gain[k]
             y = np.where(np.isfinite(xk), y + g * (xk - y), y)
@@ -536,10 +552,166 @@ class DynamicRidge(RidgeGlobal):
         return h
 
 
+DEFAULT_SPEED_TAUS_S = [60.0, 120.0, 180.0, 300.0, 600.0, 1200.0, 2400.0]
+DEFAULT_SPEED_POWERS = [0.0, 1.0, 5.0 / 3.0, 2.0]  # 0: "running" (magnetising loss ~ constant)
+DEFAULT_GREY_TAUS_S = [0.0, 600.0, 1200.0]
+SPEED_POWER_SCALE_RPM = 10000.0  # speed-power features use (n / 10000 r/min)^p
+
+
+def _reference_median(values: np.ndarray, t_s: np.ndarray, run_codes: np.ndarray, window_s: float) -> np.ndarray:
+    """Per row, the median of ``values`` over the first ``window_s`` of the row's run (sorted rows)."""
+    out = np.empty_like(values)
+    starts = np.flatnonzero(np.r_[True, run_codes[1:] != run_codes[:-1]])
+    ends = np.r_[starts[1:], len(run_codes)]
+    for a, b in zip(starts, ends):
+        w = a + np.flatnonzero(t_s[a:b] <= t_s[a] + window_s)
+        out[a:b] = np.median(values[w], axis=0) if len(w) else 0.0
+    return out
+
+
+class GreyBox(RidgeGlobal):
+    """Kind ``grey_box``: ridge on filtered rises + filtered speed-power (heat input) terms.
+
+    ``dz = sum_{tau in T} sum_i b_{i,tau} L_tau(dT_i) + sum_{tau in S} sum_p c_{p,tau} L_tau((n/10^4)^p)
+    [+ d (n^2 - n0^2)]`` with ``L_tau`` the causal first-order filter of :func:`lowpass_runs`.
+    The speed powers (``speed_powers``, default 0, 1, 5/3, 2: spindle running (magnetising
+    loss, ~constant; ``n^0`` is 0 at rest), motor/windage, bearing friction,
+    rotor losses) stand for the heat input to the *unmeasured* fast parts (shaft, bearings,
+    stator); their filters represent the lag with which those parts follow a speed change.
+
+    Initial condition of the speed-power filters: ``reference.rule: run_start`` (cold start):
+    the state before the first sample is zero (machine at rest), and the feature is then
+    referenced like ``dz`` (minus its median over the reference window); ``log_start``: the
+    filter starts settled on the first sample's speed (the run's history is not in the frame;
+    exact when the speed was steady for a few tau before the run started).
+
+    The instantaneous centrifugal term ``n^2 - n0^2`` (krpm^2) is used only if it is
+    identifiable: when at least 1 % of the training samples run more than
+    ``speed_tolerance_rpm`` away from their run's reference speed. Cold-start constant-speed
+    runs referenced while spinning do not identify it (the reference absorbs the draw-in),
+    so it is left out rather than fitted to speed jitter.
+
+    Chosen jointly by whole-run CV on the training runs only (``cv_metric``, default
+    ``max_abs``): the set of rise filter constants (subsets of ``taus_s``, at most
+    ``max_taus``), the set of speed filter constants (subsets of ``speed_taus_s``, at most
+    ``max_speed_taus``) and ``alpha``.
+    """
+
+    kind = "grey_box"
+
+    def __init__(self, *, taus_s: Sequence[float] = DEFAULT_GREY_TAUS_S, max_taus: int = 1,
+                 speed_taus_s: Sequence[float] = DEFAULT_SPEED_TAUS_S, max_speed_taus: int = 2,
+                 speed_powers: Sequence[float] = DEFAULT_SPEED_POWERS, speed_tolerance_rpm: float = 50.0,
+                 cv_metric: str = "max_abs", speed_gain: bool | str = False, **kw):
+        super().__init__(cv_metric=cv_metric, speed_gain=speed_gain, **kw)
+        self.taus_s = [float(t) for t in taus_s]
+        self.max_taus = int(max_taus)
+        self.speed_taus_s = [float(t) for t in speed_taus_s]
+        self.max_speed_taus = int(max_speed_taus)
+        self.speed_powers = [float(p) for p in speed_powers]
+        self.speed_tolerance_rpm = float(speed_tolerance_rpm)
+
+    def _inputs_text(self) -> str:
+        return ("first-order low-pass filtered temperature rises dT (K) of all usable sensors; first-order "
+                "low-pass filtered speed powers (n/10000 r/min)^p; displacement is not an input")
+
+    def _hyper(self) -> dict:
+        h = super()._hyper()
+        h.update({"taus_s": self.taus_s, "max_taus": self.max_taus, "speed_taus_s": self.speed_taus_s,
+                  "max_speed_taus": self.max_speed_taus, "speed_powers": self.speed_powers,
+                  "speed_tolerance_rpm": self.speed_tolerance_rpm})
+        return h
+
+    def _features(self, frame: pd.DataFrame, sensors: Sequence[str], taus: Sequence[float]):
+        order, codes = _run_order(frame)
+        x = frame[[_rise_column(s) for s in sensors]].to_numpy(dtype=float)[order]
+        t = frame["t_s"].to_numpy(dtype=float)[order] if "t_s" in frame.columns else np.arange(len(frame), dtype=float)
+        rpm = frame["speed_rpm"].to_numpy(dtype=float)[order]
+        parts, names = [lowpass_runs(x, t, codes, taus)], []
+        for tau in taus:
+            names += [f"{_rise_column(s)}@{tau:g}s" for s in sensors]
+        speed_taus = list(getattr(self, "speed_taus_", []))
+        if speed_taus:
+            r = np.abs(rpm) / SPEED_POWER_SCALE_RPM
+            pw = np.column_stack([(np.abs(rpm) > self.speed_tolerance_rpm).astype(float) if p == 0 else r ** p
+                                  for p in self.speed_powers])  # p = 0: running (1) / at rest (0)
+            cold = self.reference.get("rule", "run_start") == "run_start"
+            f = lowpass_runs(pw, t, codes, speed_taus, initial="zero" if cold else "settled")
+            if cold:
+                f = f - _reference_median(f, t, codes, float(self.reference.get("window_s", 60)))
+            parts.append(f)
+            for tau in speed_taus:
+                names += [f"L{tau:g}s(n^{p:.4g})" for p in self.speed_powers]
+        if getattr(self, "instantaneous_", False):
+            n0 = reference_speed(frame, self._speed_rule(), float(self.reference.get("window_s", 60)))[order]
+            parts.append(((rpm / SPEED_SCALE_RPM) ** 2 - (n0 / SPEED_SCALE_RPM) ** 2)[:, None])
+            names.append("n2_krpm2")
+        f_sorted = np.column_stack(parts)
+        out = np.empty_like(f_sorted)
+        out[order] = f_sorted
+        return out, names
+
+    def _identifiable(self, frame: pd.DataFrame) -> bool:
+        n = frame["speed_rpm"].to_numpy(dtype=float)
+        n0 = reference_speed(frame, self._speed_rule(), float(self.reference.get("window_s", 60)))
+        return bool(len(n) and np.mean(np.abs(n - n0) > self.speed_tolerance_rpm) >= 0.01)
+
+    def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        table, frame, sensors = self._prepare(runs_table, runs_frame)
+        self.speed_gain_ = False
+        self.instantaneous_ = self.speed_terms and self._identifiable(frame)
+        y = frame["dz_um"].to_numpy(dtype=float)
+        run_ids = frame["run_id"].astype(str).to_numpy()
+        self.speed_taus_ = list(self.speed_taus_s)
+        feats, _ = self._features(frame, sensors, self.taus_s)
+        p, q = len(sensors), len(self.speed_powers)
+        n_rise = p * len(self.taus_s)
+        inst = np.arange(n_rise + q * len(self.speed_taus_s), feats.shape[1])
+        cvd = self._cv_setup(feats, y, run_ids, table)
+        cv_table, best = [], (math.inf, None, None, None)
+        rise_sets = [c for k in range(1, max(1, self.max_taus) + 1)
+                     for c in itertools.combinations(range(len(self.taus_s)), k)]
+        speed_sets = [c for k in range(0, self.max_speed_taus + 1)
+                      for c in itertools.combinations(range(len(self.speed_taus_s)), k)]
+        for rs in rise_sets:
+            rcols = [np.arange(i * p, (i + 1) * p) for i in rs]
+            for ss in speed_sets:
+                scols = [n_rise + np.arange(j * q, (j + 1) * q) for j in ss]
+                cols = np.concatenate(rcols + scols + [inst])
+                scores = self._cv_scores(cvd, cols)
+                taus = [self.taus_s[i] for i in rs]
+                staus = [self.speed_taus_s[j] for j in ss]
+                for a, sc in zip(self.alphas, scores):
+                    cv_table.append({"taus_s": taus, "speed_taus_s": staus, "alpha": a, "score_um": float(sc)})
+                    if sc < best[0] - 1e-12:
+                        best = (float(sc), taus, staus, a)
+        _, taus, staus, alpha = best
+        self.speed_taus_ = staus
+        return self._fit_final(table, frame, sensors, taus, alpha, cv_table)
+
+    def to_dict(self) -> dict:
+        d = {k: v for k, v in super().to_dict().items() if k not in ("model_id", "created", "schema")}
+        d["selected"] = {**d["selected"], "speed_taus_s": self.speed_taus_, "instantaneous_n2": bool(self.instantaneous_)}
+        d["filter"] = {"type": "first_order_lowpass", "update": "y += (1 - exp(-dt/tau)) * (x - y)",
+                       "initial_condition": {
+                           "rises": "settled on the run's first sample (~0 at a cold start)",
+                           "speed_powers": ("zero before the first sample (cold start from rest), then minus the "
+                                            "median over the reference window" if self.reference.get("rule", "run_start")
+                                            == "run_start" else "settled on the first sample's speed")}}
+        return _finish_artefact(d)
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        m = super().from_dict(d)
+        m.speed_taus_ = [float(t) for t in d["selected"].get("speed_taus_s", [])]
+        m.instantaneous_ = bool(d["selected"].get("instantaneous_n2", False))
+        return m
+
+
 # --------------------------------------------------------------------------- registry
 
 KINDS = {"rafi": PublishedRafi, "rafi_linear": RafiLinear, "ridge_global": RidgeGlobal,
-         "dynamic": DynamicRidge}
+         "dynamic": DynamicRidge, "grey_box": GreyBox}
 
 
 def make_model(kind: str, *, key_sensors: Sequence[str] = ("T6", "T8", "T9"), terms: Sequence[str] = RAFI_TERMS,
@@ -564,6 +736,14 @@ def make_model(kind: str, *, key_sensors: Sequence[str] = ("T6", "T8", "T9"), te
     if kind == "dynamic":
         return DynamicRidge(taus_s=o.get("dynamic_taus_s", DEFAULT_TAUS_S),
                             max_taus=o.get("dynamic_max_taus", 2), **ridge_kw)
+    if kind == "grey_box":
+        kw = {k: v for k, v in ridge_kw.items() if k not in ("speed_gain", "cv_metric")}
+        return GreyBox(taus_s=o.get("grey_box_taus_s", DEFAULT_GREY_TAUS_S),
+                       max_taus=o.get("grey_box_max_taus", 1),
+                       speed_taus_s=o.get("grey_box_speed_taus_s", DEFAULT_SPEED_TAUS_S),
+                       max_speed_taus=o.get("grey_box_max_speed_taus", 2),
+                       speed_powers=o.get("grey_box_speed_powers", DEFAULT_SPEED_POWERS),
+                       cv_metric=o.get("grey_box_cv_metric", "max_abs"), **kw)
     raise ValueError(f"unknown model kind {kind!r}; known: {sorted(KINDS)}")
 
 
@@ -593,7 +773,7 @@ def save_any(model, path) -> None:
 # --------------------------------------------------------------------------- the comparison step
 
 DEFAULT_OPTIONS = {
-    "enabled": ["rafi", "rafi_linear", "ridge_global", "dynamic"],
+    "enabled": ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"],
     "cv": "leave_one_run_out",
     "cv_metric": "rmse",
     "ridge_alphas": DEFAULT_ALPHAS,
@@ -640,6 +820,8 @@ def run_family(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensor
         fit_time[kind] = time.perf_counter() - t0
         m = models[kind]
         extra = f" alpha={m.alpha_:g} taus_s={m.taus_}" if hasattr(m, "alpha_") else ""
+        if hasattr(m, "speed_taus_"):
+            extra += f" speed_taus_s={m.speed_taus_} instantaneous_n2={m.instantaneous_}"
         log(f"{kind}: fitted in {fit_time[kind]:.2f} s{extra}")
         if opts.get("cv_report", True):
             t0 = time.perf_counter()
@@ -669,13 +851,16 @@ def make_synthetic_runs(*, seed: int = 0, sample_s: float = 60.0, duration_s: fl
                         n_sensors: int = 5, sensor_taus_s: Sequence[float] | None = None, tau_lag_s: float = 1200.0, centrifugal_um_per_krpm2: float = -0.02,
                         train_speeds=(3000, 6000, 9000, 12000, 15000, 18000),
                         validation_speeds=(4500, 10500, 16500), multi: bool = True,
-                        noise_um: float = 0.05) -> tuple[pd.DataFrame, pd.DataFrame]:
+                        noise_um: float = 0.05, shaft_um: float = 0.0, shaft_tau_s: float = 300.0,
+                        shaft_power: float = 5.0 / 3.0) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Small deterministic runs for tests and benchmarks (not the digital twin).
 
     Sensor rises are first-order responses (time constants ``sensor_taus_s``, default 600..3000 s) to a heat input
     ``~ n^1.3``; the displacement lags the sensors: ``dz = sum_i g_i L_tau_lag(dT_i) +
     c (n^2 - n0^2)`` (+ noise). Every run starts with 120 s at rest (the 60 s reference window)
-    so the centrifugal term is identifiable. Returns ``(runs_table, runs_frame)`` in the
+    so the centrifugal term is identifiable. ``shaft_um`` > 0 adds an unmeasured fast part
+    (the shaft): ``shaft_um * L_shaft_tau_s((n / 10000)^shaft_power)``, zero before the run
+    (no sensor sees it; the grey-box speed-power filter must recover it). Returns ``(runs_table, runs_frame)`` in the
     ``docs/design.md`` layout (rises only for ``T1..T{n_sensors}``).
     """
     rng = np.random.default_rng(seed)
@@ -694,6 +879,9 @@ def make_synthetic_runs(*, seed: int = 0, sample_s: float = 60.0, duration_s: fl
         lag = lowpass_runs(dT, t, codes, [tau_lag_s])
         n0 = np.median(n[t <= 60.0])
         dz = lag @ disp_gain + centrifugal_um_per_krpm2 * ((n / 1000) ** 2 - (n0 / 1000) ** 2)
+        if shaft_um:
+            dz = dz + shaft_um * lowpass_runs((n / SPEED_POWER_SCALE_RPM) ** shaft_power, t, codes, [shaft_tau_s],
+                                              initial="zero")[:, 0]
         dz = dz + rng.normal(0.0, noise_um, len(t))
         dT = dT + rng.normal(0.0, 0.01, dT.shape)
         f = pd.DataFrame({"run_id": run_id, "t_s": t, "speed_rpm": n})

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rafi.model_family import (DynamicRidge, PublishedRafi, RafiLinear, RidgeGlobal, compute_model_id,
+from rafi.model_family import (DynamicRidge, GreyBox, PublishedRafi, RafiLinear, RidgeGlobal, compute_model_id,
                                load_any, lowpass_runs, make_model, make_synthetic_runs, save_any)
 
 KEY = ["T1", "T2", "T3"]
@@ -40,6 +40,8 @@ def fitted(data):
             "rafi_linear": RafiLinear(KEY).fit(table, frame),
             "ridge_global": RidgeGlobal(alphas=[1e-4, 1e-2, 1.0]).fit(table, frame),
             "dynamic": DynamicRidge(taus_s=[0, 600, 2400], max_taus=2, alphas=[1e-4, 1e-2]).fit(table, frame),
+            "grey_box": GreyBox(taus_s=[0, 600], speed_taus_s=[120, 600], max_speed_taus=1,
+                                alphas=[1e-4, 1e-2]).fit(table, frame),
         }
 
 
@@ -68,6 +70,48 @@ def test_dynamic_recovers_the_lag_and_beats_static_models():
     # the centrifugal coefficient (-0.02 um/krpm^2) is recovered
     c2 = dyn.coef_[dyn.feature_names_.index("n2_krpm2")]
     assert c2 == pytest.approx(-0.02, abs=0.003)
+
+
+def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
+    # dz = sum_i g_i L_1800(dT_i) + 4 um * L_300((n/1e4)^(5/3)) (an unmeasured fast part: no
+    # sensor sees it) - 0.02 um/krpm^2 (n^2 - n0^2); every run starts 120 s at rest
+    table, frame = make_synthetic_runs(seed=3, sample_s=60.0, n_sensors=2, sensor_taus_s=(300, 500),
+                                       tau_lag_s=1800.0, noise_um=0.02, shaft_um=4.0, shaft_tau_s=300.0)
+    gb = GreyBox(taus_s=[0, 600, 1800, 4800], max_taus=1, speed_taus_s=[60, 300, 1200, 3600],
+                 max_speed_taus=1, speed_powers=[5 / 3], cv_metric="max_abs").fit(table, frame)
+    assert gb.taus_ == [1800.0] and gb.speed_taus_ == [300.0]
+    assert gb.instantaneous_  # runs start at rest: the n^2 jump is identifiable
+    coef = dict(zip(gb.feature_names_, gb.coef_))
+    assert coef["L300s(n^1.667)"] == pytest.approx(4.0, rel=0.03)
+    assert coef["n2_krpm2"] == pytest.approx(-0.02, abs=0.003)
+    val = _validation(table, frame)
+    rmse = {}
+    for name, m in {"grey_box": gb, "dynamic": DynamicRidge(taus_s=[0, 600, 1800, 4800], max_taus=1).fit(table, frame)
+                    }.items():
+        rmse[name] = float(np.sqrt(np.mean((val["dz_um"] - m.predict(val)) ** 2)))
+    assert rmse["grey_box"] < 0.05  # noise is 0.02 um
+    assert rmse["grey_box"] < 0.25 * rmse["dynamic"]  # the sensor-only model cannot see the shaft
+
+
+def test_grey_box_drops_the_unidentifiable_centrifugal_term():
+    # cold-start runs referenced while already spinning (the first 120 s at rest cut off):
+    # n - n0 is only jitter in training, so the instantaneous n^2 term is left out
+    table, frame = make_synthetic_runs(seed=4, sample_s=60.0, n_sensors=2, noise_um=0.02,
+                                       validation_speeds=(), multi=False)
+    spinning = frame[frame["t_s"] >= 120.0].copy()
+    spinning["speed_rpm"] += np.random.default_rng(0).normal(0, 2.0, len(spinning))
+    gb = GreyBox(taus_s=[0], speed_taus_s=[300], max_speed_taus=1, alphas=[1e-3]).fit(table, spinning)
+    assert not gb.instantaneous_ and "n2_krpm2" not in gb.feature_names_
+    assert gb.to_dict()["selected"]["instantaneous_n2"] is False
+
+
+def test_lowpass_zero_initial_state_is_a_cold_start():
+    t = np.arange(0, 3000.0, 5.0)
+    x = np.ones(len(t))
+    y = lowpass_runs(x, t, np.zeros(len(t), dtype=int), [600.0], initial="zero")[:, 0]
+    np.testing.assert_allclose(y, 1 - np.exp(-(t + 5.0) / 600.0), atol=1e-12)
+    with pytest.raises(ValueError):
+        lowpass_runs(x, t, np.zeros(len(t), dtype=int), [600.0], initial="warm")
 
 
 def test_lowpass_is_causal_and_restarts_each_run():
@@ -100,7 +144,7 @@ def test_dynamic_prediction_does_not_depend_on_row_order(data, fitted):
 
 # --------------------------------------------------------------------------- interface and artefacts
 
-@pytest.mark.parametrize("kind", ["rafi", "rafi_linear", "ridge_global", "dynamic"])
+@pytest.mark.parametrize("kind", ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"])
 def test_round_trip_gives_identical_predictions(kind, data, fitted, tmp_path):
     table, frame = data
     model = fitted[kind]
@@ -128,7 +172,7 @@ def test_load_any_delegates_rafi_to_rafimodel(fitted):
 
 
 def test_edited_artefact_is_rejected(fitted):
-    for kind in ("rafi_linear", "ridge_global", "dynamic"):
+    for kind in ("rafi_linear", "ridge_global", "dynamic", "grey_box"):
         d = fitted[kind].to_dict()
         d["coefficients" if "coefficients" in d else "terms"] = d.get("coefficients", ["1"])[:1] * 2
         with pytest.raises(ValueError):
@@ -147,9 +191,11 @@ def test_fit_uses_training_runs_only(data, fitted):
     val = poisoned["run_id"].str.startswith("val")
     poisoned.loc[val, "dz_um"] = 1e6
     poisoned.loc[val, "dT1"] = -1e3
-    for kind in ("ridge_global", "dynamic"):
-        a = make_model(kind, options={"ridge_alphas": [1e-4, 1e-2, 1.0], "dynamic_taus_s": [0, 600, 2400]})
-        b = make_model(kind, options={"ridge_alphas": [1e-4, 1e-2, 1.0], "dynamic_taus_s": [0, 600, 2400]})
+    for kind in ("ridge_global", "dynamic", "grey_box"):
+        opts = {"ridge_alphas": [1e-4, 1e-2, 1.0], "dynamic_taus_s": [0, 600, 2400],
+                "grey_box_taus_s": [0, 600], "grey_box_speed_taus_s": [120, 600], "grey_box_max_speed_taus": 1}
+        a = make_model(kind, options=opts)
+        b = make_model(kind, options=opts)
         a.fit(table, frame)
         b.fit(table, poisoned)
         assert a.alpha_ == b.alpha_ and a.taus_ == b.taus_
@@ -166,7 +212,7 @@ def test_predict_needs_no_statsmodels(fitted, data, tmp_path):
         "import sys, pandas as pd\n"
         "from rafi.model_family import load_any\n"
         f"f = pd.read_csv({str(tmp_path / 'val.csv')!r})\n"
-        "for k in ('rafi', 'rafi_linear', 'ridge_global', 'dynamic'):\n"
+        "for k in ('rafi', 'rafi_linear', 'ridge_global', 'dynamic', 'grey_box'):\n"
         f"    load_any({str(tmp_path)!r} + '/' + k + '.json').predict_detail(f)\n"
         "bad = [m for m in sys.modules if m.startswith(('statsmodels', 'sklearn'))]\n"
         "assert not bad, bad\n"
