@@ -75,6 +75,43 @@ def _hours(t_s):
     return np.asarray(t_s, dtype=float) / 3600.0
 
 
+#: Longest series drawn as is; longer ones are reduced to a min/max envelope (same look,
+#: every extreme kept, far fewer vertices for matplotlib and the PDF).
+MAX_POINTS = 1600
+
+
+def envelope(x, y, max_points: int = MAX_POINTS):
+    """Min/max envelope of ``y`` over ``x`` for plotting: at most ``max_points`` points.
+
+    The samples are cut into ``max_points / 2`` consecutive buckets; each bucket keeps its
+    minimum and its maximum (in time order), so peaks - the numbers the report is about -
+    survive the reduction. NaN buckets stay NaN (a gap in the line). Short series are
+    returned unchanged.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = len(y)
+    if n <= max_points or max_points < 4:
+        return x, y
+    b = int(np.ceil(n / (max_points // 2)))
+    nb = int(np.ceil(n / b))
+    pad = nb * b - n
+    yy = np.concatenate([y, np.full(pad, np.nan)]).reshape(nb, b)
+    finite = np.isfinite(yy)
+    lo = np.where(finite, yy, np.inf).argmin(axis=1)
+    hi = np.where(finite, yy, -np.inf).argmax(axis=1)
+    first, second = np.minimum(lo, hi), np.maximum(lo, hi)
+    idx = (np.arange(nb) * b)[:, None] + np.column_stack([first, second])
+    idx = np.minimum(idx.ravel(), n - 1)
+    return x[idx], y[idx]
+
+
+def _plot(ax, x, y, *args, **kwargs):
+    """``ax.plot`` of a possibly long series through :func:`envelope`."""
+    xe, ye = envelope(x, y)
+    return ax.plot(xe, ye, *args, **kwargs)
+
+
 def _grid(n: int, ncols: int = 3, row_h: float = 2.1, extra_rows: int = 1):
     ncols = max(1, min(ncols, n))
     nrows = max(1, int(np.ceil(n / ncols)))
@@ -112,7 +149,7 @@ def fig_training_runs(runs: dict, *, temp_sensors: list[str], eq_times: dict | N
             h = _hours(f["t_s"])
             for i, s in enumerate(temp_sensors):
                 if s in f:
-                    (ln,) = ax.plot(h, f[s], color=colours(i), ls="-" if i < 3 else "--", lw=0.9)
+                    (ln,) = _plot(ax, h, f[s], color=colours(i), ls="-" if i < 3 else "--", lw=0.9)
                     handles.setdefault(f"{s} (°C)", ln)
             ax.set_title(_speed_label(speed))
             ax.set_xlabel("time (h)")
@@ -120,7 +157,7 @@ def fig_training_runs(runs: dict, *, temp_sensors: list[str], eq_times: dict | N
             ax2 = ax.twinx()
             ax2.grid(False)
             ax2.spines["right"].set_visible(True)
-            (ln,) = ax2.plot(h, f["dz_um"], color="black", lw=1.2)
+            (ln,) = _plot(ax2, h, f["dz_um"], color="black", lw=1.2)
             handles.setdefault("dz (µm, right axis)", ln)
             ax2.set_ylabel("displacement dz (µm)")
             if eq_times and np.isfinite(eq_times.get(speed, np.nan)):
@@ -195,8 +232,8 @@ def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> dict:
             f = fits[speed]
             h = _hours(f["t_s"])
             ax = fig.add_subplot(gs[2 * r, c])
-            ax.plot(h, f["measured_um"], ".", ms=1.5, color=C_MEAS, label="measured")
-            ax.plot(h, f["fitted_um"], color=C_PRED, lw=1.0, label="model")
+            _plot(ax, h, f["measured_um"], ".", ms=1.5, color=C_MEAS, label="measured")
+            _plot(ax, h, f["fitted_um"], color=C_PRED, lw=1.0, label="model")
             ax.set_title(_speed_label(speed))
             ax.set_ylabel("dz (µm)")
             ax.tick_params(labelbottom=False)
@@ -204,7 +241,7 @@ def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> dict:
                 ax.legend(loc="lower right", frameon=False)
             axr = fig.add_subplot(gs[2 * r + 1, c], sharex=ax)
             res = np.asarray(f["measured_um"], float) - np.asarray(f["fitted_um"], float)
-            axr.plot(h, res, color=C_RES, lw=0.7)
+            _plot(axr, h, res, color=C_RES, lw=0.7)
             axr.axhline(0, color="black", lw=0.5)
             axr.set_ylabel("residual (µm)")
             axr.set_xlabel("time (h)")
@@ -250,8 +287,8 @@ def fig_validation_single(runs: dict, *, fmt: str = "png") -> dict:
         for ax, lab in zip(axes.flat, labels):
             f = runs[lab]
             h = _hours(f["t_s"])
-            ax.plot(h, f["measured_um"], color=C_MEAS, label="before (measured dz)")
-            ax.plot(h, f["residual_um"], color=C_RES, label="after (residual)")
+            _plot(ax, h, f["measured_um"], color=C_MEAS, label="before (measured dz)")
+            _plot(ax, h, f["residual_um"], color=C_RES, label="after (residual)")
             ax.axhline(0, color="black", lw=0.5)
             ax.set_title(lab)
             ax.set_xlabel("time (h)")
@@ -279,7 +316,8 @@ def fig_multi_condition(f: pd.DataFrame, *, temp_sensors: list[str], title: str 
                                  gridspec_kw={"height_ratios": [1, 1.3, 1.6] if n == 3 else [1, 1.6]})
         h = _hours(f["t_s"])
         ax = axes[0]
-        ax.step(h, f["speed_rpm"], where="post", color=C_SPEED)
+        hs, sp = envelope(h, f["speed_rpm"])
+        ax.step(hs, sp, where="post", color=C_SPEED)
         ax.set_ylabel("speed (r/min)")
         if title:
             ax.set_title(title)
@@ -287,15 +325,138 @@ def fig_multi_condition(f: pd.DataFrame, *, temp_sensors: list[str], title: str 
             ax = axes[1]
             cmap = plt.get_cmap("tab10")
             for i, s in enumerate(temps):
-                ax.plot(h, f[s], color=cmap(i), ls="-" if i < 3 else "--", label=s)
+                _plot(ax, h, f[s], color=cmap(i), ls="-" if i < 3 else "--", label=s)
             ax.set_ylabel("temperature (°C)")
             ax.legend(ncol=len(temps), loc="upper left", frameon=False)
         ax = axes[-1]
-        ax.plot(h, f["measured_um"], color=C_MEAS, label="measured dz (before)")
-        ax.plot(h, f["predicted_um"], color=C_PRED, label="predicted")
-        ax.plot(h, f["residual_um"], color=C_RES, label="residual (after)")
+        _plot(ax, h, f["measured_um"], color=C_MEAS, label="measured dz (before)")
+        _plot(ax, h, f["predicted_um"], color=C_PRED, label="predicted")
+        _plot(ax, h, f["residual_um"], color=C_RES, label="residual (after)")
         ax.axhline(0, color="black", lw=0.5)
         ax.set_ylabel("displacement (µm)")
         ax.set_xlabel("time (h)")
         ax.legend(ncol=3, loc="upper left", frameon=False)
+        return encode(fig, fmt)
+
+
+# --------------------------------------------------------------------------- model comparison
+
+#: One colour per model kind (stable across figures); unknown kinds cycle through tab10.
+MODEL_COLOURS = {"rafi": "#c0392b", "rafi_linear": "#e07b00", "ridge_global": "#1f77b4",
+                 "dynamic": "#2e7d32"}
+
+
+def _model_colour(name: str, k: int) -> str:
+    return MODEL_COLOURS.get(name, plt.get_cmap("tab10")((k + 4) % 10))
+
+
+def fig_comparison_bars(after: pd.DataFrame, before: pd.Series, *, failed: pd.DataFrame | None = None,
+                        gate_um: float | None = None, labels: dict | None = None,
+                        fmt: str = "png") -> dict:
+    """Grouped bars: max |residual| per validation run (groups) and model (bars).
+
+    Parameters
+    ----------
+    after : DataFrame
+        index = run ids (plot order), columns = models, values = max |residual| (um).
+    before : Series
+        index = run ids: uncompensated max |dz| (um), drawn as a black tick over each group.
+    failed : DataFrame of bool, optional
+        Same shape as ``after``: True where that model fails a gate on that run (hatched bar).
+    gate_um : float, optional
+        The ``max_residual_um`` gate (dashed red line).
+    labels : dict, optional
+        model -> legend label (e.g. marking the champion).
+    """
+    with plt.rc_context(STYLE):
+        runs, models = list(after.index), list(after.columns)
+        n, m = len(runs), max(len(models), 1)
+        fig, ax = plt.subplots(figsize=(PAGE_WIDTH_IN, 2.9), constrained_layout=True)
+        x = np.arange(n, dtype=float)
+        width = 0.8 / m
+        b = before.reindex(runs).to_numpy(float)
+        # a run-away model (e.g. 200 um) must not flatten the others: clip the axis just above
+        # the uncompensated values and write the clipped bars' values on top
+        allv = after.to_numpy(float)
+        ref = np.nanmax(np.concatenate([b[np.isfinite(b)], [gate_um or 0.0, 1e-9]]))
+        top = 1.25 * ref
+        clip = np.isfinite(allv).any() and np.nanmax(allv) > top
+        for k, name in enumerate(models):
+            pos = x - 0.4 + width * (k + 0.5)
+            vals = after[name].to_numpy(float)
+            if clip:
+                for xi, v in zip(pos, vals):
+                    if np.isfinite(v) and v > top:
+                        ax.text(xi, 0.97 * top, f"{v:.0f} \u2191", rotation=90, ha="center",
+                                va="top", fontsize=6, color="white", fontweight="bold")
+                vals = np.minimum(vals, top)
+            bad = (failed[name].to_numpy(bool) if failed is not None and name in failed
+                   else np.zeros(n, bool))
+            colour = _model_colour(name, k)
+            ax.bar(pos, np.nan_to_num(vals), width * 0.92, color=colour,
+                   label=(labels or {}).get(name, name))
+            if bad.any():
+                ax.bar(pos[bad], np.nan_to_num(vals[bad]), width * 0.92, facecolor="none",
+                       edgecolor="black", hatch="////", lw=0.6)
+        ax.hlines(b, x - 0.45, x + 0.45, color="black", lw=1.6,
+                  label="uncompensated max |dz|")
+        if gate_um is not None and np.isfinite(gate_um):
+            ax.axhline(gate_um, color=C_RES, ls="--", lw=0.9,
+                       label=f"gate: max residual {gate_um:g} µm")
+        if failed is not None and failed.to_numpy(bool).any():
+            ax.bar([np.nan], [0], color="white", edgecolor="black", hatch="////", lw=0.6,
+                   label="fails a gate on this run")
+        ax.set_xticks(x, runs, rotation=20 if n > 4 else 0, ha="right" if n > 4 else "center")
+        ax.set_xlim(-0.6, n - 0.4)
+        if clip:
+            ax.set_ylim(0, top)
+        ax.set_xlabel("validation run" + (" (bars above the axis clipped, value written on top, µm)"
+                                          if clip else ""))
+        ax.set_ylabel("max |residual| after compensation (µm)")
+        h, lab = ax.get_legend_handles_labels()
+        fig.legend(h, lab, ncol=min(m + 2, 4), loc="outside upper center", frameon=False)
+        return encode(fig, fmt)
+
+
+def fig_comparison_residuals(series: dict, *, measured=None, outside=None, gate_um=None,
+                             title: str = "", fmt: str = "png") -> dict:
+    """Residual against time of several models on one run (RAFI vs the champion).
+
+    ``series``: label -> DataFrame with ``t_s`` and ``residual_um`` (first = RAFI, drawn red).
+    ``measured``: DataFrame ``t_s``, ``measured_um`` (uncompensated dz, thin grey).
+    ``outside``: DataFrame ``t_s``, ``outside`` (bool): shaded where RAFI was evaluated
+    outside its trained temperature range.
+    """
+    with plt.rc_context(STYLE):
+        fig, ax = plt.subplots(figsize=(PAGE_WIDTH_IN, 2.5), constrained_layout=True)
+        if measured is not None and len(measured):
+            _plot(ax, _hours(measured["t_s"]), measured["measured_um"], color="#9aa0a6", lw=0.8,
+                  label="uncompensated dz")
+        for k, (lab, f) in enumerate(series.items()):
+            colour = C_RES if k == 0 else ("#1f77b4", "#2e7d32", "#e07b00")[(k - 1) % 3]
+            _plot(ax, _hours(f["t_s"]), f["residual_um"], color=colour, lw=1.0,
+                  label=f"residual {lab}")
+        if outside is not None and len(outside) and bool(np.any(outside["outside"])):
+            h = _hours(outside["t_s"])
+            xe, ye = envelope(h, np.asarray(outside["outside"], float))
+            ax.fill_between(xe, 0, 1, where=ye > 0.5, step="post", color="#f2b8b5", alpha=0.35,
+                            lw=0, transform=ax.get_xaxis_transform(),
+                            label="RAFI outside trained temperature range")
+        if gate_um is not None and np.isfinite(gate_um):
+            ax.axhline(gate_um, color=C_RES, ls="--", lw=0.7)
+            ax.axhline(-gate_um, color=C_RES, ls="--", lw=0.7, label=f"±{gate_um:g} µm gate")
+        ax.axhline(0, color="black", lw=0.5)
+        ylabel = "displacement (µm)"
+        if measured is not None and len(measured):
+            ref = max(float(np.nanmax(np.abs(measured["measured_um"]))), gate_um or 0.0)
+            peak = max(float(np.nanmax(np.abs(f["residual_um"]))) for f in series.values())
+            if np.isfinite(ref) and peak > 1.5 * ref:
+                ax.set_ylim(-1.5 * ref, 1.5 * ref)
+                ylabel = f"displacement (µm; clipped at ±{1.5 * ref:.0f})"
+        if title:
+            ax.set_title(title)
+        ax.set_xlabel("time since run start (h)")
+        ax.set_ylabel(ylabel)
+        h, lab = ax.get_legend_handles_labels()
+        fig.legend(h, lab, ncol=3, loc="outside upper center", frameon=False)
         return encode(fig, fmt)

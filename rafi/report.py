@@ -7,9 +7,16 @@ rendered from the *same* HTML string, so the two never disagree. Figures are emb
 Inputs are the tables of ``docs/design.md`` under ``results/<machine>/``; optional
 inputs (rendered only when present):
 
-- ``registry/decision.json`` - model registry decision (champion vs candidate);
-- ``comparison/summary.csv`` - model comparison table;
+- ``registry/decision.json`` + ``registry/comparison.csv`` - the registry decision (champion
+  vs candidate, per validation run, speed-range adaptation, drift); the kind / created / data
+  of each model id is read from ``registry/models/<id>.json`` when present (immutable files,
+  named by their content hash), else from ``comparison/summary.csv``;
+- ``comparison/summary.csv``, ``per_run.csv``, ``cv.csv``, ``residuals.parquet`` - the model
+  family comparison (``docs/models.md``);
 - quarantined rows of ``audit.csv``.
+
+With ``decision.json`` the verdict judges the model on the machine after this run (the
+registry's champion); RAFI as published is always reported beside it as the paper's reference.
 
 All numbers are formatted here (the template only prints strings).
 """
@@ -56,7 +63,11 @@ RESULT_FILES = {
 }
 OPTIONAL_FILES = {
     "decision": "registry/decision.json",
+    "registry_comparison": "registry/comparison.csv",
     "comparison": "comparison/summary.csv",
+    "comparison_per_run": "comparison/per_run.csv",
+    "comparison_cv": "comparison/cv.csv",
+    "comparison_residuals": "comparison/residuals.parquet",
 }
 
 #: Coolant sensors drawn beside the key sensors (paper Table 2: 13 = coolant inlet, 5 = outlet).
@@ -484,10 +495,10 @@ def _section_data(res, machine):
         for r in runs.itertuples(index=False):
             speed = (fmt_speed(r.speed_rpm) if r.kind == "constant" else
                      f"{r.kind} {fmt_num(r.speed_min_rpm, 0)}\u2013{fmt_speed(r.speed_max_rpm)}")
-            rows.append([r.run_id, r.file, r.role, fmt_duration(r.duration_s), speed,
-                         _short(getattr(r, "sha256", ""))])
+            rows.append([cell(run_label(r.run_id)), r.file, r.role, fmt_duration(r.duration_s),
+                         speed, _short(getattr(r, "sha256", ""))])
     runs_t = table(["run", "file", "role", "duration", "speed", "sha256 (first 12)"], rows,
-                   cls="runs", widths=[13, 30, 16, 9, 18, 14])
+                   cls="runs", widths=[18, 26, 16, 9, 17, 14])
     audit = res["audit"]
     audit_t, quarantined = None, []
     if audit is not None:
@@ -776,7 +787,8 @@ def _section_fuzzy(res, fmt):
 def _section_validation(res, key, coolant, fmt):
     summ = res["validation_summary"]
     resid = res["residuals"]
-    out = {"single": None, "ranges": None, "figure_single": None, "multi": [], "notes": []}
+    out = {"single": None, "ranges": None, "figure_single": None, "multi": [], "notes": [],
+           "figure_idle": None, "n_idle": 0}
     if summ is None:
         return out
     s = summ.copy()
@@ -786,18 +798,19 @@ def _section_validation(res, key, coolant, fmt):
         r = single.loc[i]
         paper = _paper("paper_residual_um", single, i, PAPER_RESIDUAL_UM, r.speed_rpm)
         worse = _truthy(r.get("worse_than_uncompensated", False))
-        rows.append([r.run_id, fmt_speed(r.speed_rpm), fmt_duration(r.duration_s),
+        rows.append([cell(run_label(r.run_id)), fmt_speed(r.speed_rpm), fmt_duration(r.duration_s),
                      fmt_num(r.max_abs_before_um, 2), fmt_num(r.max_abs_after_um, 2),
                      fmt_num(paper, 2), cell(fmt_num(r.improvement_pct, 1), "fail" if worse else ""),
                      fmt_num(r.rmse_before_um, 2), fmt_num(r.rmse_after_um, 2)])
     out["single"] = table(["run", "speed", "duration", "max |dz| before (\u00b5m)",
                            "max |residual| after (\u00b5m)", "paper Table 4 residual (\u00b5m)",
                            "improvement (%)", "RMSE before (\u00b5m)", "RMSE after (\u00b5m)"],
-                          rows, cls="num", widths=[11, 13, 9, 12, 12, 12, 11, 10, 10])
+                          rows, cls="num", widths=[17, 11, 8, 11, 11, 12, 10, 10, 10])
     rows = []
     for r in s.itertuples(index=False):
         worse = _truthy(getattr(r, "worse_than_uncompensated", False))
-        rows.append([r.run_id, r.role, fmt_num(r.n_samples, 0), fmt_num(r.n_outside_temp_range, 0),
+        rows.append([cell(run_label(r.run_id)), r.role, fmt_num(r.n_samples, 0),
+                     fmt_num(r.n_outside_temp_range, 0),
                      fmt_num(r.n_outside_speed_range, 0),
                      fmt_num(100 * (r.n_outside_temp_range + 0) / r.n_samples
                              if _isnum(r.n_samples) and r.n_samples else np.nan, 1, "%"),
@@ -805,7 +818,7 @@ def _section_validation(res, key, coolant, fmt):
     out["ranges"] = table(["run", "role", "samples", "outside trained temperature range",
                            "outside trained speed range", "share outside temp. range",
                            "worse than uncompensated"], rows, cls="num",
-                          widths=[13, 19, 10, 16, 16, 13, 13])
+                          widths=[20, 17, 9, 15, 14, 12, 13])
     if resid is None:
         return out
     from rafi import plots
@@ -816,8 +829,18 @@ def _section_validation(res, key, coolant, fmt):
             panels[f"{r.run_id}: {fmt_speed(r.speed_rpm)}"] = f
     if panels:
         out["figure_single"] = plots.fig_validation_single(panels, fmt=fmt)
+    idle = s[s["role"] == "validation_idle"] if "role" in s else s.iloc[0:0]
+    panels = {}
+    for r in idle.itertuples(index=False):
+        f = resid[resid["run_id"] == r.run_id]
+        if len(f):
+            panels[f"{r.run_id}: {fmt_num(r.max_abs_before_um, 1)} → "
+                   f"{fmt_num(r.max_abs_after_um, 1, chr(181) + 'm')}"] = f
+    out["figure_idle"] = plots.fig_validation_single(panels, fmt=fmt) if panels else None
+    out["n_idle"] = len(panels)
     rf = res["runs_parquet"]
-    others = s[s["role"] != "validation_single"] if "role" in s else s.iloc[0:0]
+    others = (s[~s["role"].isin(["validation_single", "validation_idle"])] if "role" in s
+              else s.iloc[0:0])
     for r in others.itertuples(index=False):
         f = resid[resid["run_id"] == r.run_id].copy()
         if not len(f):
@@ -896,29 +919,482 @@ def _section_choices(settings: dict, key_info: dict, model: dict, eq_method):
     return [{"topic": a, "text": b} for a, b in rows]
 
 
-def _section_registry(decision):
-    if not isinstance(decision, dict):
+def run_label(run_id) -> Markup:
+    """A run id that may wrap: ``<wbr>`` after ``_`` / ``-`` and before ``#``
+    (``thermal_log_2026-10-14#3`` breaks as ``thermal_log_`` / ``2026-10-14`` / ``#3``)."""
+    text = str(escape(str(run_id)))
+    text = text.replace("_", "_<wbr>").replace("#", "<wbr>#")
+    return Markup(text)
+
+
+def _id_short(model_id, n: int = 12) -> str:
+    return str(model_id)[:n] if isinstance(model_id, str) and model_id else "\u2013"
+
+
+def _num_or_nan(v) -> float:
+    return float(v) if _isnum(v) else np.nan
+
+
+def _model_infos(res: dict, registry_dir: Path | None) -> dict:
+    """``model_id -> {kind, created, files, name}`` from every source that names models."""
+    infos: dict = {}
+
+    def add(mid, **kw):
+        if not isinstance(mid, str) or not mid:
+            return
+        cur = infos.setdefault(mid, {"kind": None, "created": None, "files": None, "name": None})
+        for k, v in kw.items():
+            if v is not None and cur.get(k) is None:
+                cur[k] = v
+
+    model = res.get("model") or {}
+    add(model.get("model_id"), kind=model.get("kind", "rafi"), created=model.get("created"),
+        files=sorted((model.get("data") or {}).keys()) or None, name="rafi")
+    summ = res.get("comparison")
+    if summ is not None and "model_id" in summ:
+        for r in summ.to_dict("records"):
+            add(r.get("model_id"), kind=r.get("kind"), name=r.get("model"))
+    dec = res.get("decision")
+    if registry_dir is not None and isinstance(dec, dict):
+        for mid in {dec.get("candidate_id"), dec.get("champion_id_before"),
+                    dec.get("champion_id_after")}:
+            if not isinstance(mid, str) or "/" in mid or not mid:
+                continue
+            path = Path(registry_dir) / "models" / f"{mid}.json"
+            if path.is_file():
+                try:
+                    d = json.loads(path.read_text(encoding="utf-8"))
+                except (OSError, ValueError):
+                    continue
+                add(mid, kind=d.get("kind"), created=d.get("created"),
+                    files=sorted((d.get("data") or {}).keys()))
+    return infos
+
+
+def _registry_summary(comp: pd.DataFrame | None, who: str) -> pd.DataFrame | None:
+    """Per-run summary (``rafi.validate`` columns) of the champion or the candidate from
+    ``registry/comparison.csv``."""
+    col = f"{who}_max_abs_after_um"
+    if comp is None or col not in comp or comp[col].isna().all():
         return None
-    out = {"headline": None, "side_by_side": None, "details": None}
-    for k in ("decision", "action", "verdict", "outcome"):
-        if k in decision and not isinstance(decision[k], (dict, list)):
-            out["headline"] = str(decision[k])
-            break
-    champ, cand = decision.get("champion"), decision.get("candidate")
-    rest = {k: v for k, v in decision.items() if k not in ("champion", "candidate")}
-    if isinstance(champ, dict) or isinstance(cand, dict):
-        a = dict(_flatten(champ or {}))
-        b = dict(_flatten(cand or {}))
-        keys = list(dict.fromkeys([*a, *b]))
-        out["side_by_side"] = table(["", "champion", "candidate"],
-                                    [[k.replace("_", " "), a.get(k, "\u2013"), b.get(k, "\u2013")]
-                                     for k in keys], cls="kv")
+    out = pd.DataFrame({"run_id": comp["run_id"].astype(str),
+                        "role": comp["role"].astype(str) if "role" in comp else "validation_single",
+                        "speed_rpm": comp.get("speed_rpm"),
+                        "max_abs_before_um": pd.to_numeric(comp["max_abs_before_um"], errors="coerce"),
+                        "max_abs_after_um": pd.to_numeric(comp[col], errors="coerce"),
+                        "improvement_pct": pd.to_numeric(comp[f"{who}_improvement_pct"],
+                                                         errors="coerce")})
+    return out[out["max_abs_after_um"].notna()].reset_index(drop=True)
+
+
+def _per_run_gates(summary: pd.DataFrame, gates: dict) -> dict:
+    """``run_id -> (passed, [failed criteria])`` with the pipeline's own gate rules."""
+    if summary is None or not len(summary):
+        return {}
+    v, _ = qualify(summary, gates)
+    out = {}
+    for rid, g in v.groupby(v["run_id"].astype(str), sort=False):
+        ok = g["passed"].map(_truthy) & pd.to_numeric(g["measured"], errors="coerce").notna()
+        out[rid] = (bool(ok.all()), g.loc[~ok, "criterion"].astype(str).tolist())
+    for rid in summary["run_id"].astype(str):
+        out.setdefault(rid, (True, []))
+    return out
+
+
+GATE_SHORT = {"max_residual_um": "residual", "min_improvement_pct": "improvement",
+              "never_worse_than_uncompensated": "worse than uncomp."}
+
+
+def _gate_cell(result) -> dict:
+    if result is None:
+        return cell("\u2013")
+    ok, failed = result
+    if ok:
+        return cell("PASS", "pass")
+    return cell("FAIL: " + ", ".join(GATE_SHORT.get(c, c) for c in failed), "fail")
+
+
+DECISION_TEXT = {
+    "promoted": ("pass", "PROMOTED", "tonight's candidate passed every gate and is now the model "
+                                     "on the machine"),
+    "kept": ("neutral", "KEPT", "the model on the machine is unchanged"),
+    "rejected": ("fail", "REJECTED", "tonight's candidate failed qualification; it does not go "
+                                     "on the machine"),
+    "rolled_back": ("warn", "ROLLED BACK", "an operator set the model on the machine by hand"),
+}
+
+
+def _champion_after_summary(res: dict, dec: dict):
+    """Validation summary of the model on the machine after this run, and where it came from."""
+    after = dec.get("champion_id_after")
+    comp = res.get("registry_comparison")
+    if not after:
+        return None, ""
+    if after == dec.get("candidate_id"):
+        s = _registry_summary(comp, "candidate")
+        if s is not None:
+            return s, "registry/comparison.csv (candidate columns)"
+    if after == dec.get("champion_id_before"):
+        s = _registry_summary(comp, "champion")
+        if s is not None:
+            return s, "registry/comparison.csv (champion columns)"
+    pr = res.get("comparison_per_run")
+    if pr is not None and "model_id" in pr:
+        g = pr[pr["model_id"].astype(str) == after]
+        if len(g):
+            return g.reset_index(drop=True), "comparison/per_run.csv"
+    model = res.get("model") or {}
+    if model.get("model_id") == after and res.get("validation_summary") is not None:
+        return res["validation_summary"], "validation/summary.csv"
+    return None, ""
+
+
+def _verdict_all(res: dict, gates: dict, infos: dict) -> dict:
+    """The verdict of section 1: the model on the machine (with decision.json) + RAFI."""
+    rafi_v = None
+    if res["validation_summary"] is not None:
+        v, src = qualify(res["validation_summary"], gates)
+        rafi_v = verdict_context(v, src)
+        gated = res["validation_summary"]
+        if "role" in gated:
+            gated = gated[gated["role"].astype(str) != "validation_idle"]
+        rafi_v["worst"] = fmt_num(pd.to_numeric(gated["max_abs_after_um"], errors="coerce").max(),
+                                  2, "\u00b5m")
+        rafi_v["min_imp"] = fmt_num(pd.to_numeric(gated["improvement_pct"], errors="coerce").min(),
+                                    1, "%")
     else:
-        rest = decision
-    items = _flatten(rest)
-    if items:
-        out["details"] = table(["item", "value"], [[k.replace("_", " "), v] for k, v in items],
-                               cls="kv")
+        rafi_v = {"passed": False, "status": "FAIL", "source": "no validation summary",
+                  "rows": [], "n_checks": 0, "n_failed": 0, "worst": "\u2013", "min_imp": "\u2013"}
+    dec = res.get("decision")
+    if not isinstance(dec, dict):
+        out = dict(rafi_v)
+        out.update(judged=None, rafi=None, subject="RAFI as published (model.json)")
+        return out
+    after = dec.get("champion_id_after")
+    info = infos.get(after or "", {})
+    decision = str(dec.get("decision", "?"))
+    judged = {"id": _id_short(after), "kind": info.get("kind") or "kind unknown",
+              "decision": decision, "decision_cls": DECISION_TEXT.get(decision, ("neutral",))[0],
+              "none": not after, "is_rafi": info.get("kind") == "rafi"}
+    summ, src = _champion_after_summary(res, dec)
+    if summ is not None and len(summ):
+        v, _ = qualify(summ, gates)
+        out = verdict_context(v, "computed from " + src)
+    else:
+        out = {"passed": False, "status": "FAIL", "rows": [], "n_checks": 0, "n_failed": 0,
+               "source": ("no model on the machine" if not after else
+                          "no validation results for this model in this run's outputs")}
+    out.update(judged=judged, rafi=rafi_v,
+               subject=f"model {judged['id']} ({judged['kind']}) on the machine")
+    return out
+
+
+def _section_registry(res: dict, gates: dict, infos: dict, fmt: str):
+    dec = res.get("decision")
+    if not isinstance(dec, dict):
+        return None
+    decision = str(dec.get("decision", "?"))
+    cls, word, meaning = DECISION_TEXT.get(decision, ("neutral", decision.upper(), ""))
+    out = {"decision": decision, "cls": cls, "word": word, "meaning": meaning,
+           "reasons": [str(r) for r in dec.get("reasons") or []],
+           "time": str(dec.get("time") or "\u2013"), "schema": dec.get("schema", "")}
+    cand_id, champ_id = dec.get("candidate_id"), dec.get("champion_id_before")
+    after = dec.get("champion_id_after")
+    comp = res.get("registry_comparison")
+    cand_s, champ_s = _registry_summary(comp, "candidate"), _registry_summary(comp, "champion")
+    cs, ks = dec.get("candidate_summary") or {}, dec.get("champion_summary") or {}
+
+    def info_col(mid, summ_rec, summ, present):
+        if not mid:
+            return ["none (no champion yet)" if not present else "\u2013"] + ["\u2013"] * 6
+        i = infos.get(mid, {})
+        files = i.get("files")
+        gate = _per_run_gates(summ, gates) if summ is not None else {}
+        n_fail = sum(1 for ok, _ in gate.values() if not ok)
+        files_text = (Markup(", ".join(str(escape(f)) for f in files)) if files else "\u2013")
+        return [Markup(f"<code>{escape(_id_short(mid))}</code>"), i.get("kind") or "\u2013",
+                i.get("created") or "\u2013",
+                cell(Markup(f"{len(files)} file(s): <small>{files_text}</small>")) if files else "\u2013",
+                fmt_num((summ_rec or {}).get("max_residual_um"), 2, "\u00b5m"),
+                fmt_num((summ_rec or {}).get("min_improvement_pct"), 1, "%"),
+                (cell("no validation runs", "") if not gate else
+                 cell("PASS on every run", "pass") if n_fail == 0 else
+                 cell(f"FAIL on {n_fail} of {len(gate)} run(s)", "fail"))]
+
+    labels = ["model id", "kind", "created", "training data", "worst max residual (gated runs)",
+              "min improvement (gated runs)", "gates"]
+    champ_col = info_col(champ_id, ks, champ_s, False)
+    cand_col = info_col(cand_id, cs, cand_s, True)
+    rows = [[cell(l, "rowhead"), a, b] for l, a, b in zip(labels, champ_col, cand_col)]
+    head_champ = "champion before this run" + (" (stays)" if after and after == champ_id else "")
+    head_cand = "candidate" + (" (now on the machine)" if after and after == cand_id
+                               and after != champ_id else "")
+    out["side"] = table(["", head_champ, head_cand], rows, cls="side", widths=[22, 39, 39])
+
+    # per validation run
+    out["runs"] = None
+    if comp is not None and len(comp) and res.get("runs_csv") is not None:
+        order = {str(r): k for k, r in enumerate(res["runs_csv"]["run_id"].astype(str))}
+        comp = comp.assign(_o=comp["run_id"].astype(str).map(order).fillna(len(order)))
+        comp = comp.sort_values("_o", kind="stable").drop(columns="_o")
+    if comp is not None and len(comp):
+        g_c = _per_run_gates(cand_s, gates) if cand_s is not None else {}
+        g_k = _per_run_gates(champ_s, gates) if champ_s is not None else {}
+        rows = []
+        for r in comp.to_dict("records"):
+            rid = str(r["run_id"])
+            new = _truthy(r.get("new_since_champion", False))
+            rows.append([cell(Markup(f"{run_label(rid)}" + (' <span class="tag">new</span>' if new
+                                                             else ""))),
+                         str(r.get("role", "")).replace("validation_", ""),
+                         fmt_num(r.get("max_abs_before_um"), 2),
+                         fmt_num(r.get("champion_max_abs_after_um"), 2),
+                         fmt_num(r.get("champion_improvement_pct"), 1),
+                         _gate_cell(g_k.get(rid)) if g_k else "\u2013",
+                         fmt_num(r.get("candidate_max_abs_after_um"), 2),
+                         fmt_num(r.get("candidate_improvement_pct"), 1),
+                         _gate_cell(g_c.get(rid)) if g_c else "\u2013"])
+        out["runs"] = table(["validation run", "role", "max |dz| uncomp. (\u00b5m)",
+                             "champion max |res.| (\u00b5m)", "champion impr. (%)", "champion gates",
+                             "candidate max |res.| (\u00b5m)", "candidate impr. (%)",
+                             "candidate gates"], rows, cls="num runs-cmp",
+                            widths=[19, 8, 9, 10, 9, 11, 10, 9, 15])
+
+    # speed-range adaptation
+    ad = dec.get("adaptation") or {}
+    rng = ad.get("retrain_speed_range_rpm")
+    rs = dec.get("retrained_speeds") or []
+    mode = ad.get("mode", "full")
+    if mode == "speed_range":
+        lo, hi = (list(rng or []) + [None, None])[:2]
+        text = (f"Speed-range adaptation: only the speeds in [{fmt_num(lo, 0)}, "
+                f"{fmt_speed(hi)}] were retrained from this run's data; every other speed keeps "
+                f"the champion's regression (from model {_id_short(ad.get('kept_from'))}).")
+    elif rng is not None:
+        text = (f"Speed-range adaptation was requested (retrain_speed_range_rpm = {rng}) but the "
+                "full new fit is the candidate.")
+    else:
+        ckind = infos.get(cand_id or "", {}).get("kind")
+        text = ("Full refit: retrain_speed_range_rpm is not set, so the candidate is the complete "
+                "new fit")
+        if rs:
+            text += " (every speed retrained on the runs below)."
+        elif cand_id and cand_id == champ_id:
+            text += "; it equals the champion (no new training data), nothing was retrained."
+        elif ckind and ckind not in ("rafi", "rafi_linear"):
+            text += (f"; {ckind} is one global model fitted on every training run (no per-speed "
+                     "regressions to list).")
+        else:
+            text += "."
+    out["adapt_text"] = text
+    out["adapt_note"] = ad.get("note") or ""
+    out["retrained"] = None
+    if rs:
+        out["retrained"] = table(
+            ["speed", "training runs", "files"],
+            [[fmt_speed(r.get("speed_rpm")),
+              cell(Markup(", ".join(str(run_label(x)) for x in r.get("train_runs") or [])) or "\u2013"),
+              cell(Markup("<small>" + ", ".join(str(escape(x)) for x in r.get("files") or [])
+                          + "</small>"))] for r in rs],
+            cls="num", widths=[16, 34, 50])
+    new_files = (dec.get("data") or {}).get("new_since_champion") or []
+    out["new_files"] = ", ".join(str(f) for f in new_files)
+
+    # drift
+    dr = dec.get("drift") or {}
+    status = str(dr.get("status", "\u2013"))
+    recal = _truthy(dec.get("recalibration_due", False))
+    status_text = {
+        "ok": "no drift: the champion's residual on the new validation logs is within the margin",
+        "degraded": "DRIFT DETECTED: the champion's residual on the new validation logs grew "
+                    "beyond the margin",
+        "no_new_runs": "no validation log is new since the champion's promotion: nothing to check",
+        "no_reference": "the champion's residual at promotion is unknown: drift cannot be judged",
+        "no_champion": "no champion yet: nothing to check",
+    }.get(status, status)
+    if status == "degraded" and not recal:
+        status_text += "; resolved by tonight's promotion (no recalibration due)"
+    per_run = dr.get("per_run") or {}
+    out["drift"] = {
+        "status": status, "text": status_text, "detected": _truthy(dr.get("detected", False)),
+        "recal": recal, "champion": _id_short(dr.get("champion_id")),
+        "promoted_at": dr.get("promoted_at") or "\u2013",
+        "margin": fmt_num(dr.get("margin_um"), 2, "\u00b5m"),
+        "reference": fmt_num(dr.get("reference_max_residual_um"), 2, "\u00b5m"),
+        "now": fmt_num(dr.get("new_max_residual_um"), 2, "\u00b5m"),
+        "limit": fmt_num(dr.get("limit_um"), 2, "\u00b5m"),
+        "degradation": fmt_num(dr.get("degradation_um"), 2, "\u00b5m", signed=True),
+        "new_runs": Markup(", ".join(str(run_label(r)) for r in dr.get("new_runs") or [])),
+        "per_run": table(["new validation run", "champion max |residual|"],
+                         [[cell(run_label(k)), fmt_num(v, 2, "\u00b5m")] for k, v in per_run.items()],
+                         cls="num narrow") if per_run else None,
+    }
+    return out
+
+
+def _cv_stats(cv: pd.DataFrame | None) -> dict:
+    if cv is None or not len(cv) or "model" not in cv:
+        return {}
+    out = {}
+    for name, g in cv.groupby("model"):
+        out[str(name)] = {"folds": len(g), "scheme": str(g["scheme"].iloc[0]) if "scheme" in g else ""}
+    return out
+
+
+def _section_comparison(res: dict, gates: dict, champion_after, settings: dict, fmt: str):
+    summ = res.get("comparison")
+    if summ is None or not len(summ):
+        return None
+    pr = res.get("comparison_per_run")
+    out = {"summary": None, "per_run": None, "figure_bars": None, "figures_resid": [],
+           "rafi_fail": None, "champion": None, "on_machine": None, "cv": None, "notes": []}
+    s = summ.copy()
+    s["model"] = s["model"].astype(str)
+    champ_rows = s[s["champion"].map(_truthy)] if "champion" in s else s.iloc[0:0]
+    fam_champ = champ_rows["model"].iloc[0] if len(champ_rows) else None
+    out["champion"] = fam_champ
+    on_machine = None
+    if champion_after and "model_id" in s:
+        hit = s[s["model_id"].astype(str) == str(champion_after)]
+        on_machine = hit["model"].iloc[0] if len(hit) else None
+    out["on_machine"] = on_machine
+    cvs = _cv_stats(res.get("comparison_cv"))
+    rows = []
+    for r in s.to_dict("records"):
+        name = r["model"]
+        passed = _truthy(r.get("passed", False))
+        n = r.get("n_samples")
+        share = (100.0 * float(r["n_outside_temp_range"]) / float(n)
+                 if _isnum(n) and float(n) > 0 and _isnum(r.get("n_outside_temp_range")) else np.nan)
+        tags = []
+        if name == fam_champ:
+            tags.append('<span class="tag champ">champion</span>')
+        if on_machine == name:
+            tags.append('<span class="tag">on the machine</span>')
+        if str(r.get("kind")) == "rafi":
+            tags.append('<span class="tag ref">paper reference</span>')
+        rows.append([cell(Markup(f"<b>{escape(name)}</b> " + " ".join(tags))),
+                     str(r.get("kind", "")),
+                     cell(fmt_num(r.get("max_abs_after_um"), 2), "" if passed else "fail"),
+                     cell(fmt_num(r.get("improvement_pct"), 1), "" if passed else "fail"),
+                     fmt_num(r.get("rmse_after_um"), 2),
+                     f"{fmt_num(r.get('n_outside_temp_range'), 0)} ({fmt_num(share, 0, '%')})",
+                     fmt_num(r.get("n_outside_speed_range"), 0),
+                     fmt_num(r.get("cv_rmse_um"), 2), fmt_num(r.get("cv_max_abs_um"), 2),
+                     cell("PASS" if passed else "FAIL", "pass" if passed else "fail")])
+    out["summary"] = table(["model", "kind", "worst max |res.| (\u00b5m)", "min impr. (%)",
+                            "worst RMSE (\u00b5m)", "samples outside trained temp.",
+                            "outside trained speed", "CV RMSE (\u00b5m)", "CV max |res.| (\u00b5m)",
+                            "gates"], rows, cls="num models",
+                           widths=[22, 11, 9, 8, 8, 11, 8, 8, 8, 7])
+    if cvs:
+        k = next(iter(cvs.values()))
+        out["cv"] = (f"Cross-validation: {k['scheme'].replace('_', '-')} over the training runs "
+                     f"({k['folds']} folds per model; each model refitted without the held-out "
+                     "run, hyperparameters re-chosen inside the fold). The validation runs never "
+                     "enter model selection.")
+    if pr is None or not len(pr):
+        return out
+    p = pr.copy()
+    p["model"], p["run_id"] = p["model"].astype(str), p["run_id"].astype(str)
+    models = list(dict.fromkeys(s["model"]))
+    runs = list(dict.fromkeys(p["run_id"]))
+    after = p.pivot_table(index="run_id", columns="model", values="max_abs_after_um",
+                          aggfunc="first").reindex(index=runs, columns=models)
+    imp = p.pivot_table(index="run_id", columns="model", values="improvement_pct",
+                        aggfunc="first").reindex(index=runs, columns=models)
+    before = p.groupby("run_id")["max_abs_before_um"].first().reindex(runs)
+    role = p.groupby("run_id")["role"].first().reindex(runs).astype(str)
+    passed = (p.assign(ok=p["passed"].map(_truthy)).pivot_table(
+        index="run_id", columns="model", values="ok", aggfunc="first")
+        .reindex(index=runs, columns=models).fillna(True).astype(bool))
+    rows = []
+    for rid in runs:
+        row = [cell(Markup(f"{run_label(rid)}<br><small>{escape(role[rid].replace('validation_', ''))}"
+                           "</small>")), fmt_num(before[rid], 2)]
+        for m in models:
+            ok = bool(passed.loc[rid, m])
+            row.append(cell(Markup(f"{escape(fmt_num(after.loc[rid, m], 2))}<br><small>"
+                                   f"{escape(fmt_num(imp.loc[rid, m], 1, '%'))}</small>"),
+                            "" if ok else "fail"))
+        rows.append(row)
+    heads = ["validation run", "max |dz| uncomp. (\u00b5m)"]
+    for m in models:
+        heads.append(m + (" \u2605" if m == fam_champ else ""))
+    w_run, w_before = 24, 11
+    w_m = (100 - w_run - w_before) / max(len(models), 1)
+    out["per_run"] = table(heads, rows, cls="num per-run",
+                           widths=[w_run, w_before] + [round(w_m, 1)] * len(models))
+    from rafi import plots
+    labels = {m: m + (" (champion)" if m == fam_champ else "") +
+              (" (paper)" if m == "rafi" else "") for m in models}
+    out["figure_bars"] = plots.fig_comparison_bars(
+        after, before, failed=~passed, gate_um=_num_or_nan(gates.get("max_residual_um")),
+        labels=labels, fmt=fmt)
+
+    # RAFI as published: where it fails and why
+    rafi_name = next((r["model"] for r in s.to_dict("records") if str(r.get("kind")) == "rafi"), None)
+    if rafi_name is not None and rafi_name in passed.columns and not passed[rafi_name].all():
+        bad = p[(p["model"] == rafi_name) & ~p["passed"].map(_truthy)]
+        parts, shares = [], []
+        for r in bad.to_dict("records"):
+            n = float(r.get("n_samples") or 0)
+            sh = 100.0 * float(r.get("n_outside_temp_range") or 0) / n if n else np.nan
+            shares.append(sh)
+            parts.append(Markup(f"{run_label(r['run_id'])} ({escape(fmt_num(r['max_abs_after_um'], 2, chr(181) + 'm'))}, "
+                                f"{escape(fmt_num(r['improvement_pct'], 1, '%'))}; "
+                                f"{escape(fmt_num(r.get('n_outside_temp_range'), 0))} of "
+                                f"{escape(fmt_num(n, 0))} samples = {escape(fmt_num(sh, 0, '%'))} "
+                                "outside the trained temperature range)"))
+        rule = ((settings.get("reference") or {}).get("rule")
+                or ((res.get("model") or {}).get("reference") or {}).get("rule"))
+        why = ("Its per-speed quadratic-plus-interaction regressions on three nearly collinear "
+               "key sensors are only valid inside the temperature rises they were fitted on; "
+               "outside that range the squared and product terms extrapolate and the "
+               "prediction runs away from the measurement.")
+        if rule == "log_start":
+            why += (" On this machine the runs are cut out of a continuous log and do not start "
+                    "cold (reference.rule = log_start), so the rises start outside the cold-start "
+                    "training range.")
+        champ_txt = ""
+        if fam_champ and fam_champ != rafi_name:
+            champ_txt = f" The family's champion ({fam_champ}) passes every gate on the same runs"
+            champ_txt += (" and is the model on the machine." if on_machine == fam_champ else
+                          "; whether it goes on the machine is the registry's decision (section "
+                          "Model registry).")
+        out["rafi_fail"] = {"runs": Markup("; ".join(str(x) for x in parts)), "why": why + champ_txt,
+                            "n": len(bad), "max_share": fmt_num(np.nanmax(shares) if shares else np.nan, 0, "%")}
+
+    # residual time series: RAFI vs the champion on the multi-condition run(s)
+    resid = res.get("comparison_residuals")
+    if resid is not None and len(resid) and rafi_name is not None:
+        other = on_machine if on_machine and on_machine != rafi_name else fam_champ
+        if other is None or other == rafi_name:
+            cands = [m for m in models if m != rafi_name]
+            other = min(cands, key=lambda m: after[m].max()) if cands else None
+        multi = [r for r in runs if role[r] == "validation_multi"]
+        if not multi and rafi_name in after:
+            multi = [after[rafi_name].idxmax()]
+        for rid in multi[:2]:
+            sub = resid[resid["run_id"].astype(str) == rid]
+            series = {}
+            for m in [rafi_name, other]:
+                if m is None:
+                    continue
+                f = sub[sub["model"].astype(str) == m].sort_values("t_s")
+                if len(f):
+                    series[f"{m}" + (" (paper)" if m == rafi_name else " (champion)"
+                                     if m == fam_champ else "")] = f
+            if not series:
+                continue
+            rf = sub[sub["model"].astype(str) == rafi_name].sort_values("t_s")
+            fig = plots.fig_comparison_residuals(
+                series, measured=rf[["t_s", "measured_um"]] if len(rf) else None,
+                outside=(rf[["t_s"]].assign(outside=rf["outside_temp_range"].map(_truthy))
+                         if len(rf) and "outside_temp_range" in rf else None),
+                gate_um=_num_or_nan(gates.get("max_residual_um")), fmt=fmt)
+            out["figures_resid"].append({"run_id": rid, "figure": fig, "other": other,
+                                         "rafi": rafi_name, "role": role[rid]})
     return out
 
 
@@ -954,12 +1430,10 @@ def build_context(paths: dict, *, machine: str, settings: dict | None = None,
     gates = settings.get("qualification") or {}
 
     ctx: dict = {"machine": machine, "generated": _now(now), "sections": []}
-    if res["validation_summary"] is not None:
-        v, src = qualify(res["validation_summary"], gates)
-        ctx["verdict"] = verdict_context(v, src)
-    else:
-        ctx["verdict"] = {"passed": False, "status": "FAIL", "source": "no validation summary",
-                          "rows": []}
+    dec_path = paths.get("decision")
+    registry_dir = Path(dec_path).parent if dec_path else None
+    infos = _model_infos(res, registry_dir)
+    ctx["verdict"] = _verdict_all(res, gates, infos)
     ctx["gates"] = gates
     ctx["data"] = _section_data(res, machine)
     ctx["equilibrium"] = _section_equilibrium(res, key, coolant, figure_format)
@@ -967,9 +1441,12 @@ def build_context(paths: dict, *, machine: str, settings: dict | None = None,
     ctx["models"] = _section_models(res, figure_format)
     ctx["fuzzy"] = _section_fuzzy(res, figure_format)
     ctx["validation"] = _section_validation(res, key, coolant, figure_format)
-    ctx["registry"] = _section_registry(res.get("decision"))
-    comp = res.get("comparison")
-    ctx["comparison"] = generic_table(comp) if comp is not None and len(comp) else None
+    ctx["registry"] = _section_registry(res, gates, infos, figure_format)
+    dec = res.get("decision") if isinstance(res.get("decision"), dict) else {}
+    ctx["comparison"] = _section_comparison(res, gates, dec.get("champion_id_after"), settings,
+                                            figure_format)
+    ctx["verdict"]["quarantined"] = len(ctx["data"]["quarantined"])
+    ctx["verdict"]["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
     ctx["choices"] = _section_choices(settings, key_info, model, ctx["equilibrium"]["method"])
     ctx["versions"] = _versions()
     try:
@@ -979,6 +1456,7 @@ def build_context(paths: dict, *, machine: str, settings: dict | None = None,
     except ImportError:  # pragma: no cover
         ctx["config_yaml"] = json.dumps(config if config is not None else settings, indent=2)
     ctx["model_id"] = model.get("model_id", "")
+    ctx["champion_id"] = dec.get("champion_id_after") or ""
     ctx["code_version"] = model.get("code_version", "")
     ctx["inputs"] = [{"name": k, "path": str(p), "present": Path(p).is_file()}
                      for k, p in paths.items() if p]

@@ -70,7 +70,7 @@ def test_xlsx_layout_reads_into_the_canonical_frame(xlsx_frame):
     assert list(f.columns[len(REQUIRED_COLUMNS):]) == [
         "verlagerung_x1_um", "verlagerung_y1_um", "verlagerung_z2_um", "bemerkung"]
     assert f.index[0] == 2 and f.index[-1] == 241 and len(f) == 240   # Excel rows
-    assert f["time"].iloc[0] == pd.Timestamp("2026-10-14T00:00:00")
+    assert f["time"].iloc[0] == pd.Timestamp("2026-10-14T06:00:00")
     assert (f["time"].diff().dropna() == pd.Timedelta(seconds=15)).all()
     assert f.attrs["metadata"]["sample_period_s"] == 15.0
     assert f.attrs["metadata"]["sheet"] == "Messdaten"

@@ -388,7 +388,11 @@ def report_inputs(wildcards):
     machine = wildcards.machine
     inputs = {name: out(name, machine) for name in REPORT_TABLES}
     inputs["comparison"] = comparison_path("summary.csv", machine)
+    inputs["comparison_per_run"] = comparison_path("per_run.csv", machine)
+    inputs["comparison_cv"] = comparison_path("cv.csv", machine)
+    inputs["comparison_residuals"] = comparison_path("residuals.parquet", machine)
     inputs["decision"] = registry_path("decision.json", machine)
+    inputs["registry_comparison"] = registry_path("comparison.csv", machine)
     inputs["code"] = rafi_code("report", "plots")
     inputs["template"] = str(RAFI_DIR / "templates" / "qualification.html.j2")
     return inputs

@@ -4,12 +4,18 @@
 # string (rafi.report), so the two never disagree. Uses helpers of common.smk:
 # out(), machine_config(), report_paths(), log_path(), bench_path(), rafi_code(), RAFI_DIR.
 #
-# Besides the tables it shows the model comparison (comparison/summary.csv) and the
-# registry decision (registry/decision.json); inputs: report_inputs() in common.smk.
+# Besides the tables it shows the model comparison (comparison/summary.csv, per_run.csv,
+# cv.csv, residuals.parquet) and the registry decision (registry/decision.json and
+# registry/comparison.csv); inputs: report_inputs() in common.smk.
+# The kind/created of a registered model id is read from registry/models/<id>.json (not an
+# input: those files are registry side effects, immutable and named by their content hash,
+# so decision.json - an input - already pins them).
+
 
 rule report:
-    """Qualification report of one machine: verdict, data, equilibrium, ranking, models,
-    fuzzy blending, validation, open choices, provenance (HTML + PDF, figures embedded)."""
+    """Qualification report of one machine: verdict (model on the machine + RAFI as published),
+    data, equilibrium, ranking, models, fuzzy blending, validation, registry decision, model
+    comparison, open choices, provenance (HTML + PDF, figures embedded)."""
     input:
         unpack(report_inputs),
     output:

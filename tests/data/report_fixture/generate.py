@@ -6,6 +6,9 @@ NumPy least squares, so the report has consistent inputs without the pipeline.
 
     python tests/data/report_fixture/generate.py            # committed fixture (120 s grid)
     python tests/data/report_fixture/generate.py OUT --sample-period-s 5   # full-size (benchmark)
+
+``comparison/`` and ``registry/`` come from the real producers (``rafi.model_family.run_family``
+and two nights of ``rafi.registry.run_decide``), ``validation/`` from ``rafi.validate``.
 """
 
 from __future__ import annotations
@@ -77,7 +80,8 @@ def tri_weights(speed, centres):
     return w, (np.asarray(speed) < c[0]) | (np.asarray(speed) > c[-1])
 
 
-def generate(out: Path, sample_period_s: float = 120.0, seed: int = 7) -> None:
+def generate(out: Path, sample_period_s: float = 120.0, seed: int = 7,
+             family: bool = True) -> None:
     rng = np.random.default_rng(seed)
     dt = sample_period_s
     base = out / MACHINE
@@ -230,53 +234,91 @@ def generate(out: Path, sample_period_s: float = 120.0, seed: int = 7) -> None:
              "reference": {"rule": "run_start", "window_s": 60}, "speeds": speeds,
              "fuzzy": {"membership": "triangular", "outside": "edge"},
              "data": {r["file"]: r["sha256"] for r in runs if r["role"] == "training"},
-             "code_version": "rafi 0.1.0 (fixture)", "config": {}}
-    model["model_id"] = hashlib.sha256(json.dumps(model, sort_keys=True).encode()).hexdigest()
-    model["created"] = "2026-03-20T12:00:00Z"
-    (base / "model.json").write_text(json.dumps(model, indent=2))
+             "code_version": "rafi 0.1.0 (fixture)", "config": {},
+             "created": "2026-03-20T12:00:00Z"}
+    # the real artefact (canonical content, valid model_id) so every producer accepts it
+    from rafi.model import RafiModel
+    rafi_model = RafiModel.from_dict(model, verify_id=False)
+    model = rafi_model.to_dict()
+    model["variables"] = {f"x{i + 1}": k for i, k in enumerate(KEY)}
+    (base / "model.json").write_text(json.dumps(model, indent=2, sort_keys=True))
 
-    # ---- validate
-    summ, resid = [], []
-    centres = np.array(TRAIN, float)
-    B = np.array([sp["coefficients"] for sp in speeds])
-    for r in runs:
-        if not r["role"].startswith("validation"):
-            continue
-        f = runs_frame[runs_frame.run_id == r["run_id"]]
-        X = terms_matrix(f[["d" + k for k in KEY]].to_numpy())
-        w, outside = tri_weights(f.speed_rpm.to_numpy(), centres)
-        pred = np.sum(w * (X @ B.T), axis=1)
-        meas = f.dz_um.to_numpy()
-        res = meas - pred
-        lo = np.array([[sp["regressor_ranges"][k][0] for k in KEY] for sp in speeds]).min(0)
-        hi = np.array([[sp["regressor_ranges"][k][1] for k in KEY] for sp in speeds]).max(0)
-        x = f[["d" + k for k in KEY]].to_numpy()
-        out_t = ((x < lo) | (x > hi)).any(axis=1)
-        before, after = float(np.abs(meas).max()), float(np.abs(res).max())
-        summ.append(dict(run_id=r["run_id"], role=r["role"], speed_rpm=r["speed_rpm"],
-                         duration_s=r["duration_s"], max_abs_before_um=before, max_abs_after_um=after,
-                         improvement_pct=100 * (before - after) / before,
-                         rmse_before_um=float(np.sqrt(np.mean(meas ** 2))),
-                         rmse_after_um=float(np.sqrt(np.mean(res ** 2))), n_samples=len(f),
-                         n_outside_temp_range=int(out_t.sum()), n_outside_speed_range=int(outside.sum()),
-                         worse_than_uncompensated=bool(after > before),
-                         paper_residual_um=PAPER_RES.get(int(r["speed_rpm"]), np.nan)
-                         if r["role"] == "validation_single" else np.nan))
-        resid.append(pd.DataFrame({"run_id": r["run_id"], "t_s": f.t_s.to_numpy(),
-                                   "speed_rpm": f.speed_rpm.to_numpy(), "measured_um": meas,
-                                   "predicted_um": pred.round(3), "residual_um": res.round(3),
-                                   "outside_temp_range": out_t, "outside_speed_range": outside}))
-    pd.DataFrame(summ).to_csv(base / "validation" / "summary.csv", index=False)
-    pd.concat(resid, ignore_index=True).to_parquet(base / "validation" / "residuals.parquet",
-                                                   compression="zstd")
+    # ---- validate (the pipeline's own rafi.validate.validate_runs)
+    from rafi.validate import validate_runs
+    summary, residuals = validate_runs(rafi_model, runs_table, runs_frame)
+    summary.to_csv(base / "validation" / "summary.csv", index=False)
+    residuals.to_parquet(base / "validation" / "residuals.parquet", compression="zstd")
+
+    if family:
+        _family_and_registry(base, runs_table, runs_frame, rafi_model, model)
+
+
+#: Model-family options for the fixture: the config defaults with a smaller tau grid (fast).
+FAMILY_OPTIONS = {"enabled": ["rafi", "rafi_linear", "ridge_global", "dynamic"],
+                  "cv": "leave_one_run_out", "cv_metric": "rmse",
+                  "ridge_alphas": [1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0, 10.0],
+                  "dynamic_taus_s": [0, 1200, 4800], "dynamic_max_taus": 1,
+                  "speed_gain": "cv", "speed_reference": "auto", "cv_report": True}
+GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0,
+         "never_worse_than_uncompensated": True}
+
+
+def _family_and_registry(base: Path, runs_table, runs_frame, rafi_model, model: dict) -> None:
+    """comparison/* from rafi.model_family.run_family and registry/* from two nights of
+    rafi.registry.run_decide (the real producers of rules compare and decide).
+
+    Night 1 (the multi-condition log not recorded yet): RAFI as published is the candidate
+    and is promoted. Night 2 (all logs): the family's champion is the candidate; the
+    multi-condition run is new since the champion's promotion, so the drift check runs.
+    """
+    import shutil
+    import tempfile
+
+    from rafi.model_family import run_family
+    from rafi.registry import run_decide
+
+    comp = base / "comparison"
+    comp.mkdir(exist_ok=True)
+    res = run_family(runs_table, runs_frame, key_sensors=KEY, terms=TERMS,
+                     reference=model["reference"], machine=MACHINE, options=FAMILY_OPTIONS,
+                     gates=GATES, rafi_model=rafi_model, log=lambda m: None)
+    res["summary"].to_csv(comp / "summary.csv", index=False)
+    res["per_run"].to_csv(comp / "per_run.csv", index=False)
+    res["cv"].to_csv(comp / "cv.csv", index=False)
+    res["residuals"].to_parquet(comp / "residuals.parquet", compression="zstd")
+    (comp / "best_model.json").write_text(json.dumps(res["best_artefact"], indent=2, sort_keys=True))
+
+    reg = base / "registry"
+    if reg.exists():
+        shutil.rmtree(reg)
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        night1 = tmp / "runs_night1.csv"
+        runs_table[runs_table["role"] != "validation_multi"].to_csv(night1, index=False)
+        runs_csv = tmp / "runs.csv"
+        runs_table.to_csv(runs_csv, index=False)
+        frame = tmp / "runs.parquet"
+        runs_frame.to_parquet(frame)
+        for table, cand in ((night1, base / "model.json"), (runs_csv, comp / "best_model.json")):
+            run_decide(machine=MACHINE, candidate_path=cand, runs_csv=table, runs_parquet=frame,
+                       registry_root=tmp / "registry", decision_path=tmp / "registry" / "decision.json",
+                       comparison_path=tmp / "registry" / "comparison.csv", gates=GATES,
+                       nightly={"candidate": "family", "retrain_speed_range_rpm": None,
+                                "drift_margin_um": 2.0}, log=lambda m: None)
+        shutil.copytree(tmp / "registry", reg)
+    for p in reg.rglob("*"):
+        if p.is_file():
+            p.chmod(0o644)
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", nargs="?", default=str(Path(__file__).resolve().parent))
     ap.add_argument("--sample-period-s", type=float, default=120.0)
+    ap.add_argument("--no-family", action="store_true",
+                    help="skip comparison/ and registry/ (model family + registry decision)")
     a = ap.parse_args(argv)
-    generate(Path(a.out), a.sample_period_s)
+    generate(Path(a.out), a.sample_period_s, family=not a.no_family)
 
 
 if __name__ == "__main__":
