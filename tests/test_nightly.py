@@ -311,12 +311,23 @@ def test_two_nights_on_the_pipeline(tmp_path):
     sim = subprocess.run(rafi_cmd("simulate", "day", "--machine", MACHINE, "--out",
                                   str(proj / "raw"), "--seed", "8", "--stuck-displacement"),
                          capture_output=True, text=True, cwd=proj)
-    if sim.returncode == 0:
-        n3 = _nightly(proj)
-        assert n3.returncode in (2, 3, 4), n3.stdout + n3.stderr
-        d3 = json.loads((reg / "decision.json").read_text())
-        assert json.loads((reg / "champion.json").read_text())["model_id"] == champion_before
-        assert d3["decision"] in ("rejected", "kept")
+    assert sim.returncode == 0, sim.stderr
+    # ... and, the same night, a file the reader cannot parse (issue 6: quarantine, carry on)
+    broken = proj / "raw" / MACHINE / "2026-04-20_broken.csv"
+    shutil.copy(ROOT / "tests" / "data" / "bad" / "text_in_numeric.csv", broken)
+    broken_hash = _sha(broken)
+    n3 = _nightly(proj)
+    assert n3.returncode == N.EXIT_QUARANTINED, n3.stdout + n3.stderr
+    d3 = json.loads((reg / "decision.json").read_text())
+    assert json.loads((reg / "champion.json").read_text())["model_id"] == champion_before
+    assert d3["decision"] in ("rejected", "kept")
+    audit = pd.read_csv(res_dir / "audit.csv").set_index("file")
+    stuck = [f for f in audit.index if "_s8_" in f]
+    assert stuck and (audit.loc[stuck, "status"] == "quarantined").all()
+    assert audit.loc[stuck, "reason"].str.contains("stuck").all()
+    assert audit.loc[broken.name, "status"] == "quarantined"
+    assert "line 13" in audit.loc[broken.name, "reason"]
+    assert _sha(broken) == broken_hash                  # raw files are never modified
 
     # two nightly commands at once: one runs, the other refuses
     procs = [subprocess.Popen(rafi_cmd("nightly", "--directory", str(proj), "--no-report"),
