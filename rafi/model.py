@@ -136,14 +136,14 @@ def design_matrix(x, exponents) -> np.ndarray:
 
 # --------------------------------------------------------------------------- helpers
 
-def _jsonable(value):
-    """Convert numpy scalars/arrays, tuples and NaN to plain JSON values (NaN -> None)."""
+def jsonable(value):
+    """Convert numpy scalars/arrays, tuples, timestamps and NaN to plain JSON values (NaN -> None)."""
     if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
+        return {str(k): jsonable(v) for k, v in value.items()}
     if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
+        return [jsonable(v) for v in value]
     if isinstance(value, np.ndarray):
-        return [_jsonable(v) for v in value.tolist()]
+        return [jsonable(v) for v in value.tolist()]
     if isinstance(value, (bool, np.bool_)):
         return bool(value)
     if isinstance(value, (int, np.integer)):
@@ -151,12 +151,14 @@ def _jsonable(value):
     if isinstance(value, (float, np.floating)):
         v = float(value)
         return v if math.isfinite(v) else None
+    if isinstance(value, pd.Timestamp):
+        return value.isoformat()
     return value
 
 
 def canonical_json(content: dict) -> str:
     """Canonical JSON used for ``model_id``: sorted keys, no whitespace, ASCII, no NaN."""
-    return json.dumps(_jsonable(content), sort_keys=True, separators=(",", ":"),
+    return json.dumps(jsonable(content), sort_keys=True, separators=(",", ":"),
                       ensure_ascii=True, allow_nan=False)
 
 
@@ -447,7 +449,7 @@ class RafiModel:
 
         NaN values (e.g. an unknown RMSE) are written as ``null``.
         """
-        content = _jsonable(self._content())
+        content = jsonable(self._content())
         content["model_id"] = hashlib.sha256(
             canonical_json(content).encode("ascii")).hexdigest()
         content["created"] = self.created

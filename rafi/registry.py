@@ -34,6 +34,7 @@ import numpy as np
 import pandas as pd
 
 from . import __version__
+from .model import canonical_json, jsonable
 
 __all__ = [
     "RegistryError", "Registry", "candidate_model_path", "canonical_json", "compute_model_id",
@@ -83,39 +84,6 @@ def now_iso() -> str:
 
 # --------------------------------------------------------------------------- ids
 
-def _jsonable(value):
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return [_jsonable(v) for v in value.tolist()]
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        v = float(value)
-        return v if math.isfinite(v) else None
-    if isinstance(value, pd.Timestamp):
-        return value.isoformat()
-    return value
-
-
-def canonical_json(content: dict) -> str:
-    """Canonical JSON (sorted keys, no whitespace, ASCII, NaN -> null).
-
-    Uses :func:`rafi.model.canonical_json` when available so ids agree with
-    ``RafiModel.model_id``.
-    """
-    try:
-        from .model import canonical_json as _cj
-    except ImportError:  # pragma: no cover - model.py always ships
-        return json.dumps(_jsonable(content), sort_keys=True, separators=(",", ":"),
-                          ensure_ascii=True, allow_nan=False)
-    return _cj(content)
-
-
 def compute_model_id(model_dict: dict) -> str:
     """SHA-256 of the canonical JSON of ``model_dict`` without ``model_id``/``created``.
 
@@ -126,7 +94,7 @@ def compute_model_id(model_dict: dict) -> str:
 
 
 def _json_text(obj) -> str:
-    return json.dumps(_jsonable(obj), indent=2, sort_keys=True, allow_nan=False) + "\n"
+    return json.dumps(jsonable(obj), indent=2, sort_keys=True, allow_nan=False) + "\n"
 
 
 # --------------------------------------------------------------------------- paths
@@ -217,7 +185,7 @@ def append_jsonl(path: Path, record: dict) -> None:
     concurrent appenders do not interleave and existing lines are never rewritten.
     """
     path.parent.mkdir(parents=True, exist_ok=True)
-    line = json.dumps(_jsonable(record), sort_keys=True, separators=(",", ":"),
+    line = json.dumps(jsonable(record), sort_keys=True, separators=(",", ":"),
                       allow_nan=False) + "\n"
     if "\n" in line[:-1]:  # pragma: no cover - json.dumps never emits raw newlines
         raise ValueError("history record would span lines")
@@ -827,7 +795,7 @@ def decide(*, machine: str, candidate_dict: dict, candidate_summary: pd.DataFram
         "gates": dict(gates),
         "gates_passed": bool(passed),
         "measured": measured,
-        "verdict": _jsonable(candidate_verdict.to_dict("records")) if candidate_verdict is not None else [],
+        "verdict": jsonable(candidate_verdict.to_dict("records")) if candidate_verdict is not None else [],
         "candidate_summary": _summary_record(candidate_summary),
         "champion_summary": _summary_record(champion_summary),
         "retrained_speeds": retrained_speeds or [],
@@ -845,7 +813,7 @@ def decide(*, machine: str, candidate_dict: dict, candidate_summary: pd.DataFram
     hist["data_files"] = data_files
     hist["time"] = time
     comp = comparison_table(runs_table, champion_summary, candidate_summary, new_runs)
-    return Decision(record=_jsonable(record), comparison=comp, history=_jsonable(hist))
+    return Decision(record=jsonable(record), comparison=comp, history=jsonable(hist))
 
 
 # --------------------------------------------------------------------------- I/O driver
