@@ -10,6 +10,14 @@ Definition used throughout the project (documented in the report):
 4. ``t_eq`` is the first time after which the smoothed ``dz`` stays inside
    ``plateau +- band`` until the end of the run.
 
+Time origin: the **spindle start**. A cold-start log begins with the machine at rest
+(the reference state, ``rafi.runs``: a short leading rest is part of the run), so the
+times are counted from the first sample at which the spindle turns
+(``start_s``; :func:`equilibrium_table` finds it as the first sample whose speed reaches
+half the run's median speed); ``dz(0)`` in step 3 is still the reference (the rest, first
+60 s of the run), so the total rise includes the centrifugal draw-in at the spindle start.
+The first-order cross-check is fitted from the spindle start.
+
 Uncertainty: ``t_eq_low`` / ``t_eq_high`` repeat step 4 with the band widened /
 narrowed by ``band_spread`` (default 1.5x), which brackets how sensitive the
 value is to the band choice. Cross-check: a first-order step response
@@ -81,7 +89,8 @@ def first_order_fit(t_s: np.ndarray, dz: np.ndarray) -> tuple[float, float, floa
 
 
 def equilibrium_time(t_s, dz_um, *, band_fraction: float = 0.05, plateau_window_s: float = 900.0,
-                     smooth_window_s: float = 300.0, band_spread: float = 1.5) -> EquilibriumResult:
+                     smooth_window_s: float = 300.0, band_spread: float = 1.5,
+                     start_s: float | None = None) -> EquilibriumResult:
     """Time to thermal equilibrium of one constant-speed run.
 
     Parameters
@@ -98,6 +107,10 @@ def equilibrium_time(t_s, dz_um, *, band_fraction: float = 0.05, plateau_window_
         Centred rolling-median window applied before the band test.
     band_spread : float
         Factor by which the band is widened / narrowed for the uncertainty bracket.
+    start_s : float, optional
+        Time of the spindle start (same clock as ``t_s``); the times returned are counted
+        from it and the first-order fit starts there. Default: the first sample (a run that
+        starts with the spindle already turning).
 
     Returns
     -------
@@ -119,14 +132,34 @@ def equilibrium_time(t_s, dz_um, *, band_fraction: float = 0.05, plateau_window_
     t_eq = _time_in_band(t, smooth, plateau, band)
     t_low = _time_in_band(t, smooth, plateau, band * band_spread)
     t_high = _time_in_band(t, smooth, plateau, band / band_spread)
-    _, _, tau = first_order_fit(t, z)
+    t0 = float(t[0]) if start_s is None else float(start_s)
+    on = t >= t0
+    _, _, tau = first_order_fit(t[on], z[on]) if on.sum() >= 3 else (np.nan, np.nan, np.nan)
     t_eq_tau = tau * np.log(1.0 / band_fraction) if np.isfinite(tau) else np.nan
-    return EquilibriumResult(t_eq_s=t_eq - t[0], t_eq_low_s=t_low - t[0], t_eq_high_s=t_high - t[0],
+    return EquilibriumResult(t_eq_s=t_eq - t0, t_eq_low_s=t_low - t0, t_eq_high_s=t_high - t0,
                              tau_s=tau, t_eq_tau_s=float(t_eq_tau), plateau_um=plateau,
                              rise_um=rise)
 
 
 # --------------------------------------------------------------------------- table
+
+def spindle_start(t_s, speed_rpm, run_speed_rpm: float | None = None) -> float:
+    """Time of the first sample whose speed reaches half the run's speed (the spindle start).
+
+    ``run_speed_rpm`` defaults to the median of ``speed_rpm``; without any valid speed the
+    first sample's time is returned.
+    """
+    t = np.asarray(t_s, dtype=float)
+    n = np.asarray(speed_rpm, dtype=float)
+    if not len(t):
+        return float("nan")
+    ref = run_speed_rpm if run_speed_rpm is not None and np.isfinite(run_speed_rpm) else \
+        (float(np.nanmedian(n)) if np.isfinite(n).any() else float("nan"))
+    if not np.isfinite(ref) or ref <= 0:
+        return float(t[0])
+    hit = np.flatnonzero(np.abs(n) >= 0.5 * ref)
+    return float(t[hit[0]]) if len(hit) else float(t[0])
+
 
 PAPER_T_EQ_S = paper.T_EQ_S
 
@@ -165,25 +198,31 @@ def equilibrium_table(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *,
         the run's speed is within 50 r/min of a Table 1 speed, else NaN. Samples
         with NaN ``dz_um`` are dropped first; a run with fewer than 3 valid samples,
         or that never settles inside the band, has NaN times and says so in
-        ``method``.
+        ``method``. Times are counted from the spindle start: the first sample whose
+        ``speed_rpm`` reaches half the run's median speed (a leading rest of a cold
+        start is part of the run, see :mod:`rafi.runs`); without ``speed_rpm`` in
+        ``runs_frame``, from the run's first sample.
     """
     method = (f"band: first time after which the {smooth_window_s:g} s rolling median of dz stays "
               f"within {100 * band_fraction:g} % of the rise around the final plateau (median of "
               f"the last {plateau_window_s:g} s); low/high: band x1.5 / x1/1.5; "
-              f"tau: first-order fit, t_eq_tau = tau ln(1/{band_fraction:g})")
+              f"tau: first-order fit, t_eq_tau = tau ln(1/{band_fraction:g}); times from the spindle "
+              f"start (first sample at >= half the run's median speed)")
     rows = []
     training = runs_table[runs_table["role"] == "training"] if len(runs_table) else runs_table
     groups = runs_frame.groupby("run_id", sort=False).indices if len(runs_frame) else {}
     t_all = runs_frame["t_s"].to_numpy(dtype=float) if len(runs_frame) else np.array([])
     z_all = runs_frame["dz_um"].to_numpy(dtype=float, na_value=np.nan) if len(runs_frame) \
         else np.array([])
+    n_all = (runs_frame["speed_rpm"].to_numpy(dtype=float, na_value=np.nan)
+             if len(runs_frame) and "speed_rpm" in runs_frame else np.full(len(t_all), np.nan))
     for run in training.itertuples(index=False):
         run_id = str(run.run_id)
         speed = float(run.speed_rpm)
         idx = groups.get(run_id, np.array([], dtype=int))
-        t, z = t_all[idx], z_all[idx]
+        t, z, n = t_all[idx], z_all[idx], n_all[idx]
         ok = np.isfinite(t) & np.isfinite(z)
-        t, z = t[ok], z[ok]
+        t, z, n = t[ok], z[ok], n[ok]
         row = {"run_id": run_id, "speed_rpm": speed, "paper_t_eq_s": paper_t_eq(speed)}
         if len(t) < 3:
             nan = float("nan")
@@ -192,7 +231,7 @@ def equilibrium_table(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *,
         else:
             res = equilibrium_time(t, z, band_fraction=band_fraction,
                                    plateau_window_s=plateau_window_s,
-                                   smooth_window_s=smooth_window_s)
+                                   smooth_window_s=smooth_window_s, start_s=spindle_start(t, n, speed))
             row.update({k: v for k, v in res.as_dict().items() if k != "rise_um"})
             note = "; never settled inside the band before the end of the run" \
                 if not np.isfinite(res.t_eq_s) else ""

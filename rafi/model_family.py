@@ -267,6 +267,41 @@ def reference_speed(frame: pd.DataFrame, rule: str, window_s: float) -> np.ndarr
     return tmp["run"].map(ref).to_numpy(dtype=float)
 
 
+#: A term relative to the reference speed needs this many training runs that show a speed change.
+MIN_IDENTIFYING_RUNS = 2
+
+
+def speed_change_evidence(frame: pd.DataFrame, n0: np.ndarray, tolerance_rpm: float,
+                          window_s: float) -> list[str]:
+    """Training runs that show a speed change relative to their reference speed ``n0``.
+
+    A run counts when it has at least ``window_s`` (the reference window; at least one
+    samples) of samples within ``tolerance_rpm`` of its reference speed **and** at least as
+    long more than ``tolerance_rpm`` away from it: a step such as the spindle start after a
+    rest. Only such a step separates an instantaneous speed term (the centrifugal draw-in,
+    ``n^2 - n0^2``) from the reference and from the slow thermal terms. A run referenced while
+    already spinning shows only speed jitter (never > tolerance); a run without any sample at
+    its reference speed (e.g. ``n0 = 0`` for a log segment that starts spinning) shows no
+    step either.
+    """
+    n = frame["speed_rpm"].to_numpy(dtype=float)
+    if not len(n):
+        return []
+    runs = frame["run_id"].astype(str).to_numpy() if "run_id" in frame.columns else np.full(len(n), "run")
+    t = frame["t_s"].to_numpy(dtype=float) if "t_s" in frame.columns else np.arange(len(n), dtype=float)
+    away = np.abs(n - np.asarray(n0, dtype=float)) > float(tolerance_rpm)
+    at = np.abs(n - np.asarray(n0, dtype=float)) <= float(tolerance_rpm)
+    out = []
+    for r in pd.unique(runs):
+        i = np.flatnonzero(runs == r)
+        dt = np.diff(np.sort(t[i]))
+        period = float(np.median(dt[dt > 0])) if (dt > 0).any() else 1.0
+        need = max(1, int(math.ceil(float(window_s) / period - 1e-9)))
+        if at[i].sum() >= need and away[i].sum() >= need:
+            out.append(str(r))
+    return out
+
+
 class _RidgeBase:
     """Shared machinery of ``ridge_global`` and ``dynamic``: features, scaling, ridge, CV."""
 
@@ -275,8 +310,10 @@ class _RidgeBase:
     def __init__(self, *, sensors: Sequence[str] | None = None, alphas: Sequence[float] = DEFAULT_ALPHAS,
                  cv: str = "leave_one_run_out", cv_metric: str = "rmse", speed_terms: bool = True,
                  speed_gain: bool | str = "cv",
-                 speed_reference: str = "auto", reference: dict | None = None, machine: str | None = None):
+                 speed_reference: str = "auto", reference: dict | None = None, machine: str | None = None,
+                 speed_tolerance_rpm: float = 50.0):
         self.sensors = None if sensors is None else list(sensors)
+        self.speed_tolerance_rpm = float(speed_tolerance_rpm)
         self.alphas = [float(a) for a in alphas]
         self.cv = cv
         self.cv_metric = cv_metric
@@ -305,7 +342,7 @@ class _RidgeBase:
             if getattr(self, "speed_gain_", self.speed_gain) is True:
                 parts.append(block * n[:, None])
                 names += [f"{_rise_column(s)}@{tau:g}s*n_krpm" for s in sensors]
-        if self.speed_terms:
+        if getattr(self, "speed_terms_", self.speed_terms):
             n0 = reference_speed(frame, self._speed_rule(), float(self.reference.get("window_s", 60)))[order] / SPEED_SCALE_RPM
             parts.append(np.column_stack([n - n0, n ** 2 - n0 ** 2]))
             names += ["n_krpm", "n2_krpm2"]
@@ -313,6 +350,15 @@ class _RidgeBase:
         f = np.empty_like(f_sorted)
         f[order] = f_sorted
         return f, names
+
+    def _identifiable(self, frame: pd.DataFrame) -> bool:
+        """Speed terms relative to the reference speed are used only if the training runs identify
+        them: at least ``MIN_IDENTIFYING_RUNS`` runs with a step from their reference speed
+        (:func:`speed_change_evidence`). Sets ``identifying_runs_``."""
+        window = float(self.reference.get("window_s", 60))
+        n0 = reference_speed(frame, self._speed_rule(), window)
+        self.identifying_runs_ = speed_change_evidence(frame, n0, self.speed_tolerance_rpm, window)
+        return len(self.identifying_runs_) >= MIN_IDENTIFYING_RUNS
 
     def _speed_rule(self) -> str:
         """``auto``: the run's start window under ``reference.rule: run_start``, else 0 r/min."""
@@ -421,7 +467,7 @@ class _RidgeBase:
     def _hyper(self) -> dict:
         return {"sensors": self.sensors, "alphas": self.alphas, "cv": self.cv, "cv_metric": self.cv_metric,
                 "speed_terms": self.speed_terms, "speed_gain": self.speed_gain,
-                "speed_reference": self.speed_reference}
+                "speed_reference": self.speed_reference, "speed_tolerance_rpm": self.speed_tolerance_rpm}
 
     def to_dict(self) -> dict:
         body = {
@@ -433,7 +479,9 @@ class _RidgeBase:
             "reference": self.reference,
             "speed_reference": {"rule": self._speed_rule(), "window_s": float(self.reference.get("window_s", 60))},
             "hyperparameters": self._hyper(),
-            "selected": {"alpha": self.alpha_, "taus_s": self.taus_, "speed_gain": self.speed_gain_},
+            "selected": {"alpha": self.alpha_, "taus_s": self.taus_, "speed_gain": self.speed_gain_,
+                         "speed_terms": bool(getattr(self, "speed_terms_", self.speed_terms)),
+                         "identifying_runs": list(getattr(self, "identifying_runs_", []))},
             "cv": self.cv_table_,
             "features": self.feature_names_,
             "coefficients": _floats(self.coef_),
@@ -459,6 +507,8 @@ class _RidgeBase:
         m.taus_ = [float(t) for t in d["selected"]["taus_s"]]
         m.alpha_ = float(d["selected"]["alpha"])
         m.speed_gain_ = bool(d["selected"].get("speed_gain", False))
+        m.speed_terms_ = bool(d["selected"].get("speed_terms", m.speed_terms))
+        m.identifying_runs_ = list(d["selected"].get("identifying_runs", []))
         m.feature_names_ = list(d["features"])
         m.coef_ = np.asarray(d["coefficients"], dtype=float)
         m.scale_ = np.asarray(d["scale"], dtype=float)
@@ -494,6 +544,8 @@ class RidgeGlobal(_RidgeBase):
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         self.__dict__.pop("speed_gain_", None)  # a refit starts from the hyperparameters
         table, frame, sensors = self._prepare(runs_table, runs_frame)
+        # speed terms only where the training runs identify them (same rule as grey_box)
+        self.speed_terms_ = self.speed_terms and self._identifiable(frame)
         taus_grid = [float(t) for t in getattr(self, "taus_s", self._taus_grid)]
         max_taus = int(getattr(self, "max_taus", self._max_taus))
         gains = [False, True] if self.speed_gain == "cv" else [bool(self.speed_gain)]
@@ -586,10 +638,12 @@ class GreyBox(RidgeGlobal):
     exact when the speed was steady for a few tau before the run started).
 
     The instantaneous centrifugal term ``n^2 - n0^2`` (krpm^2) is used only if it is
-    identifiable: when at least 1 % of the training samples run more than
-    ``speed_tolerance_rpm`` away from their run's reference speed. Cold-start constant-speed
-    runs referenced while spinning do not identify it (the reference absorbs the draw-in),
-    so it is left out rather than fitted to speed jitter.
+    identifiable: at least ``MIN_IDENTIFYING_RUNS`` training runs show a step from their
+    reference speed (:func:`speed_change_evidence`: at least a reference window of samples
+    within ``speed_tolerance_rpm`` of the reference speed and as many beyond it), e.g. a cold
+    start logged from rest. Constant-speed runs referenced while already spinning do not
+    identify it (the reference absorbs the draw-in), so it is left out rather than fitted to
+    speed jitter. ``ridge_global`` and ``dynamic`` apply the same rule to their speed terms.
 
     Chosen jointly by whole-run CV on the training runs only (``cv_metric``, default
     ``max_abs``): the set of rise filter constants (subsets of ``taus_s``, at most
@@ -603,13 +657,12 @@ class GreyBox(RidgeGlobal):
                  speed_taus_s: Sequence[float] = DEFAULT_SPEED_TAUS_S, max_speed_taus: int = 2,
                  speed_powers: Sequence[float] = DEFAULT_SPEED_POWERS, speed_tolerance_rpm: float = 50.0,
                  cv_metric: str = "max_abs", speed_gain: bool | str = False, **kw):
-        super().__init__(cv_metric=cv_metric, speed_gain=speed_gain, **kw)
+        super().__init__(cv_metric=cv_metric, speed_gain=speed_gain, speed_tolerance_rpm=speed_tolerance_rpm, **kw)
         self.taus_s = [float(t) for t in taus_s]
         self.max_taus = int(max_taus)
         self.speed_taus_s = [float(t) for t in speed_taus_s]
         self.max_speed_taus = int(max_speed_taus)
         self.speed_powers = [float(p) for p in speed_powers]
-        self.speed_tolerance_rpm = float(speed_tolerance_rpm)
 
     def _inputs_text(self) -> str:
         return ("first-order low-pass filtered temperature rises dT (K) of all usable sensors; first-order "
@@ -618,8 +671,7 @@ class GreyBox(RidgeGlobal):
     def _hyper(self) -> dict:
         h = super()._hyper()
         h.update({"taus_s": self.taus_s, "max_taus": self.max_taus, "speed_taus_s": self.speed_taus_s,
-                  "max_speed_taus": self.max_speed_taus, "speed_powers": self.speed_powers,
-                  "speed_tolerance_rpm": self.speed_tolerance_rpm})
+                  "max_speed_taus": self.max_speed_taus, "speed_powers": self.speed_powers})
         return h
 
     def _features(self, frame: pd.DataFrame, sensors: Sequence[str], taus: Sequence[float]):
@@ -651,15 +703,11 @@ class GreyBox(RidgeGlobal):
         out[order] = f_sorted
         return out, names
 
-    def _identifiable(self, frame: pd.DataFrame) -> bool:
-        n = frame["speed_rpm"].to_numpy(dtype=float)
-        n0 = reference_speed(frame, self._speed_rule(), float(self.reference.get("window_s", 60)))
-        return bool(len(n) and np.mean(np.abs(n - n0) > self.speed_tolerance_rpm) >= 0.01)
-
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         table, frame, sensors = self._prepare(runs_table, runs_frame)
         self.speed_gain_ = False
         self.instantaneous_ = self.speed_terms and self._identifiable(frame)
+        self.speed_terms_ = self.instantaneous_   # grey_box's only reference-speed term is n^2 - n0^2
         y = frame["dz_um"].to_numpy(dtype=float)
         run_ids = frame["run_id"].astype(str).to_numpy()
         self.speed_taus_ = list(self.speed_taus_s)
@@ -705,6 +753,7 @@ class GreyBox(RidgeGlobal):
         m = super().from_dict(d)
         m.speed_taus_ = [float(t) for t in d["selected"].get("speed_taus_s", [])]
         m.instantaneous_ = bool(d["selected"].get("instantaneous_n2", False))
+        m.speed_terms_ = m.instantaneous_
         return m
 
 

@@ -21,7 +21,17 @@ never spans a gap). Within a segment:
    ``min_constant_s`` (a stop inside a multi-condition schedule) are merged,
    idle piece included, into one **varying** run. So one cold-start log with
    several short speed steps is ONE varying run.
-6. Every other idle piece is an **idle** run.
+6. **Rest before start**: an idle piece at the very start of a segment that is shorter
+   than ``max_leading_rest_s`` (default 300 s) and followed by a non-idle run is absorbed
+   into that run as its rest before start (a cold-start log: the logger is started with
+   the machine at rest, then the spindle). A one-run file stays one run (``run_id`` = the
+   stem), ``t_s`` of the run starts at the log (segment) start, and the reference window
+   falls on the rest: the reference state is the cold machine at rest, which is also what
+   a compensation on the controller is relative to. The kind (constant / varying) and the
+   speed statistics (``speed_rpm``, ``speed_min_rpm``, ``speed_max_rpm``) ignore the rest;
+   ``duration_s`` counts every sample of the run, rest included; ``note`` states the rest.
+   A longer leading idle piece stays an idle run of its own.
+7. Every other idle piece is an **idle** run.
 
 Roles: ``excluded`` when shorter than ``min_run_s`` (reason in ``note``);
 constant within ``speed_tolerance_rpm`` of a training speed -> ``training``;
@@ -126,8 +136,13 @@ def _pieces(speed: np.ndarray, idle: np.ndarray, tol: float) -> list[list]:
 
 
 def _segment_runs(speed: np.ndarray, period: float, *, tol: float, idle_below: float,
-                  min_constant_s: float) -> list[tuple[int, int, str]]:
-    """Runs ``(start, end_exclusive, kind)`` of one segment, in time order."""
+                  min_constant_s: float, max_leading_rest_s: float = 0.0
+                  ) -> list[tuple[int, int, str, int]]:
+    """Runs ``(start, end_exclusive, kind, rest_samples)`` of one segment, in time order.
+
+    ``rest_samples`` > 0 for a run that absorbed the segment's leading rest (its first
+    ``rest_samples`` samples are the rest, idle).
+    """
     win = max(3, 2 * int(round(SPEED_SMOOTH_S / 2 / period)) + 1)
     smooth = pd.Series(speed).rolling(win, center=True, min_periods=1).median().to_numpy()
     idle = ~(smooth >= idle_below)                    # NaN speed counts as idle
@@ -164,12 +179,20 @@ def _segment_runs(speed: np.ndarray, period: float, *, tol: float, idle_below: f
             out[-1][1] = g[1]
             continue
         out.append(g)
-    return [(int(a), int(b), kind) for a, b, kind in out]
+    rest = [0] * len(out)
+    # a short rest at the segment start belongs to the following run (cold start from rest)
+    if (len(out) >= 2 and out[0][2] == "idle" and out[1][2] != "idle" and out[0][0] == 0
+            and (out[0][1] - out[0][0]) * period < float(max_leading_rest_s) - 1e-9):
+        n_rest = out[0][1] - out[0][0]
+        out[1][0] = out[0][0]
+        out.pop(0)
+        rest = [n_rest] + [0] * (len(out) - 1)
+    return [(int(a), int(b), kind, int(r)) for (a, b, kind), r in zip(out, rest)]
 
 
 def find_runs(clean_frames: dict, sha256: dict, *, training_speeds_rpm, speed_tolerance_rpm: float,
               idle_below_rpm: float, min_run_s: float, min_constant_s: float, overrides,
-              reference_rule: str, reference_window_s: float
+              reference_rule: str, reference_window_s: float, max_leading_rest_s: float = 300.0
               ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Find the runs of a machine's clean logs, classify them and compute the rises.
 
@@ -198,6 +221,9 @@ def find_runs(clean_frames: dict, sha256: dict, *, training_speeds_rpm, speed_to
         Where the reference state is taken.
     reference_window_s : float
         Length of the reference window, seconds.
+    max_leading_rest_s : float
+        An idle stretch at the start of a segment shorter than this (s) is the rest before
+        the start of the following run and is absorbed into it (``0``: never).
 
     Returns
     -------
@@ -207,7 +233,8 @@ def find_runs(clean_frames: dict, sha256: dict, *, training_speeds_rpm, speed_to
         ``f"{stem}#{k}"`` with ``k = 1, 2, ...`` in time order.
     runs_frame : pandas.DataFrame
         All runs stacked (RangeIndex), columns ``RUNS_FRAME_COLUMNS``; ``t_s`` is
-        seconds since the start of the run.
+        seconds since the start of the run (for a run with an absorbed rest: since the
+        start of the rest, i.e. of the log segment).
 
     Raises
     ------
@@ -248,17 +275,22 @@ def find_runs(clean_frames: dict, sha256: dict, *, training_speeds_rpm, speed_to
         found = []                                    # (segment, seg_first_row, a, b, kind)
         change = np.flatnonzero(seg[1:] != seg[:-1]) + 1
         for s0, s1 in zip(np.concatenate(([0], change)), np.concatenate((change, [n_rows]))):
-            for a, b, kind in _segment_runs(speed[s0:s1], period, tol=tol,
-                                            idle_below=float(idle_below_rpm),
-                                            min_constant_s=float(min_constant_s)):
-                found.append((int(seg[s0]), int(s0), int(s1), int(s0 + a), int(s0 + b), kind))
+            for a, b, kind, rest in _segment_runs(speed[s0:s1], period, tol=tol,
+                                                  idle_below=float(idle_below_rpm),
+                                                  min_constant_s=float(min_constant_s),
+                                                  max_leading_rest_s=float(max_leading_rest_s)):
+                found.append((int(seg[s0]), int(s0), int(s1), int(s0 + a), int(s0 + b), kind, int(rest)))
 
-        for k, (segment, s0, s1, a, b, kind) in enumerate(found, start=1):
+        for k, (segment, s0, s1, a, b, kind, rest) in enumerate(found, start=1):
             run_id = stem if len(found) == 1 else f"{stem}#{k}"
             sp = speed[a:b]
-            med = float(np.nanmedian(sp)) if np.isfinite(sp).any() else float("nan")
+            sp_on = speed[a + rest:b]                 # speed statistics ignore the rest
+            med = float(np.nanmedian(sp_on)) if np.isfinite(sp_on).any() else float("nan")
             duration = (b - a) * period
             notes = []
+            if rest:
+                notes.append(f"rest before start: {rest * period:g} s at rest absorbed (reference "
+                             "state = cold machine at rest)")
             if duration < float(min_run_s) - 1e-9:
                 auto = "excluded"
                 notes.append(f"shorter than min_run_s ({duration:g} s < {float(min_run_s):g} s)")
@@ -300,8 +332,8 @@ def find_runs(clean_frames: dict, sha256: dict, *, training_speeds_rpm, speed_to
                 "run_id": run_id, "file": str(key), "segment": segment,
                 "start_s": float(t_s[a]), "end_s": float(t_s[b - 1]), "duration_s": float(duration),
                 "speed_rpm": med,
-                "speed_min_rpm": float(np.nanmin(sp)) if np.isfinite(sp).any() else float("nan"),
-                "speed_max_rpm": float(np.nanmax(sp)) if np.isfinite(sp).any() else float("nan"),
+                "speed_min_rpm": float(np.nanmin(sp_on)) if np.isfinite(sp_on).any() else float("nan"),
+                "speed_max_rpm": float(np.nanmax(sp_on)) if np.isfinite(sp_on).any() else float("nan"),
                 "kind": kind, "role": role, "role_source": source, "reference": ref_text,
                 "sha256": str(sha256.get(key, sha256.get(stem, ""))), "note": "; ".join(notes),
             })

@@ -427,6 +427,18 @@ def schedule_duration_s(schedule: Sequence[Step]) -> float:
     return float(sum(st.duration_s for st in schedule))
 
 
+#: Rest (spindle at 0 r/min) logged before the spindle starts in every cold-start log of
+#: tapping-center-a (shipped and ``day`` mode): the logger is started with the machine cold
+#: and at rest, then the spindle is started. The reference window (first 60 s) falls on it.
+REST_BEFORE_START_S = 180.0
+
+
+def with_rest(schedule: Sequence[Step], rest_s: float = REST_BEFORE_START_S) -> list[Step]:
+    """``schedule`` preceded by ``rest_s`` seconds at 0 r/min (cold machine at rest)."""
+    steps = list(schedule)
+    return ([Step(float(rest_s), 0.0)] if rest_s > 0 else []) + steps
+
+
 # --------------------------------------------------------------------------- the run
 
 @dataclass
@@ -736,24 +748,26 @@ def shipped_specs(machine: str = "tapping-center-a") -> list[RunSpec]:
     """The runs of the shipped data set of one machine."""
     if machine == "tapping-center-a":
         h = 3600.0
+        rest = REST_BEFORE_START_S
         specs = []
         train = [(3000, "2026-03-02T08:00:00", 21.6, 0.02), (6000, "2026-03-03T08:10:00", 21.9, -0.03),
                  (9000, "2026-03-04T07:55:00", 22.3, 0.01), (12000, "2026-03-05T08:05:00", 22.0, 0.04),
                  (15000, "2026-03-06T08:00:00", 21.7, -0.02), (18000, "2026-03-09T08:15:00", 22.2, 0.0)]
         for i, (sp, start, base, drift) in enumerate(train):
-            specs.append(_spec_a(i, f"train_{sp:05d}rpm.csv", f"training run, 4 h at {sp} r/min, cold start",
-                                 constant_schedule(sp, 4 * h), start, base, drift))
+            specs.append(_spec_a(i, f"train_{sp:05d}rpm.csv",
+                                 f"training run, 4 h at {sp} r/min, cold start after {rest:g} s at rest",
+                                 with_rest(constant_schedule(sp, 4 * h)), start, base, drift))
         valid = [(4500, 4.0, "2026-03-10T08:00:00", 22.4, 0.03), (8000, 3.0, "2026-03-11T09:00:00", 22.1, 0.0),
                  (10500, 2.5, "2026-03-12T08:30:00", 21.8, -0.02), (13500, 4.0, "2026-03-13T08:00:00", 22.5, 0.02),
                  (16500, 2.0, "2026-03-16T10:00:00", 22.0, 0.05)]
         for i, (sp, hours, start, base, drift) in enumerate(valid, start=10):
             specs.append(_spec_a(i, f"valid_{sp:05d}rpm.csv",
-                                 f"validation run, {hours:g} h at {sp} r/min, cold start",
-                                 constant_schedule(sp, hours * h), start, base, drift))
+                                 f"validation run, {hours:g} h at {sp} r/min, cold start after {rest:g} s at rest",
+                                 with_rest(constant_schedule(sp, hours * h)), start, base, drift))
         specs.append(_spec_a(20, "multi_condition.csv",
-                             "multi-condition validation run, 4.5 h, speed steps "
+                             f"multi-condition validation run, {rest:g} s at rest, then 4.5 h of speed steps "
                              + ", ".join(f"{n} r/min {m} min" for m, n in MULTI_CONDITION_A),
-                             multi_condition_schedule(), "2026-03-17T08:00:00", 22.3, 0.02))
+                             with_rest(multi_condition_schedule()), "2026-03-17T08:00:00", 22.3, 0.02))
         return specs
     if machine == "machining-center-b":
         return [machining_center_b_spec()]
@@ -1005,7 +1019,9 @@ def write_day(out_dir: str | os.PathLike = "raw", *, machine: str = "tapping-cen
     File names carry the date and the seed (``<date>_s<seed>_train_03000rpm.csv`` ...;
     machining-center-b: ``thermal_log_<date>_s<seed>.xlsx``) and existing files are never
     overwritten (``FileExistsError``).  Constant-speed runs are cold starts on
-    consecutive days starting at ``date``.
+    consecutive days starting at ``date``; every tapping-center-a log (training, validation,
+    multi-condition) starts with ``REST_BEFORE_START_S`` (180 s) at rest before the spindle
+    starts, like the shipped logs.
     """
     from .io import write_text_atomic, format_raw_log
     if machine not in _MACHINES:
@@ -1046,13 +1062,15 @@ def write_day(out_dir: str | os.PathLike = "raw", *, machine: str = "tapping-cen
     runs = []
     run_hours = hours or 4.0
     for sp in speeds:
-        runs.append((f"train_{int(sp):05d}rpm", constant_schedule(sp, run_hours * 3600.0),
-                     f"training run, {run_hours:g} h at {int(sp)} r/min, cold start"))
+        runs.append((f"train_{int(sp):05d}rpm", with_rest(constant_schedule(sp, run_hours * 3600.0)),
+                     f"training run, {run_hours:g} h at {int(sp)} r/min, cold start after "
+                     f"{REST_BEFORE_START_S:g} s at rest"))
     for sp in validation_speeds:
-        runs.append((f"valid_{int(sp):05d}rpm", constant_schedule(sp, 3 * 3600.0),
-                     f"validation run, 3 h at {int(sp)} r/min, cold start"))
+        runs.append((f"valid_{int(sp):05d}rpm", with_rest(constant_schedule(sp, 3 * 3600.0)),
+                     f"validation run, 3 h at {int(sp)} r/min, cold start after {REST_BEFORE_START_S:g} s at rest"))
     if multi:
-        runs.append(("multi_condition", multi_condition_schedule(), "multi-condition run, 4.5 h"))
+        runs.append(("multi_condition", with_rest(multi_condition_schedule()),
+                     f"multi-condition run, {REST_BEFORE_START_S:g} s at rest, then 4.5 h"))
     if not runs:
         raise ValueError("nothing to simulate: give --speeds, --validation-speeds or --multi")
     plan = []

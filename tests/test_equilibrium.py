@@ -99,3 +99,22 @@ def test_equilibrium_table_ignores_nan_and_handles_empty_runs(runs):
     assert np.isnan(empty.loc["b", "t_eq_s"]) and "not computed" in empty.loc["b", "method"]
     none = equilibrium_table(table[table["role"] != "training"], frame, **EQ)
     assert len(none) == 0 and list(none.columns) == list(EQUILIBRIUM_COLUMNS)
+
+
+def test_rest_before_start_does_not_shift_t_eq():
+    """A run that starts with 180 s at rest: t_eq is counted from the spindle start."""
+    tau, rest = 1500.0, 180.0
+    t, dz = first_order_run(tau_s=tau, rise_um=15.0, duration_s=4 * H, noise_um=0.05, seed=3)
+    t_rest = np.arange(0.0, rest, 5.0)
+    t_all = np.concatenate([t_rest, t + rest])
+    z_all = np.concatenate([np.full(len(t_rest), np.median(dz[t <= 60])), dz])
+    base = equilibrium_time(t, dz, **EQ)
+    res = equilibrium_time(t_all, z_all, start_s=rest, **EQ)
+    assert res.t_eq_s == pytest.approx(base.t_eq_s, abs=10.0)
+    assert res.tau_s == pytest.approx(tau, rel=0.05)
+    # the table finds the spindle start from the speed
+    frame = pd.DataFrame({"run_id": "r", "t_s": t_all, "dz_um": z_all,
+                          "speed_rpm": np.where(t_all < rest, 0.0, 9000.0)})
+    table = pd.DataFrame({"run_id": ["r"], "role": ["training"], "speed_rpm": [9000.0]})
+    eq = equilibrium_table(table, frame, **EQ)
+    assert eq["t_eq_s"].iloc[0] == pytest.approx(base.t_eq_s, abs=10.0)

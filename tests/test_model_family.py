@@ -12,7 +12,8 @@ import pandas as pd
 import pytest
 
 from rafi.model_family import (DynamicRidge, GreyBox, PublishedRafi, RafiLinear, RidgeGlobal, compute_model_id,
-                               load_any, lowpass_runs, make_model, make_synthetic_runs, save_any)
+                               load_any, lowpass_runs, make_model, make_synthetic_runs, reference_speed, save_any,
+                               speed_change_evidence)
 
 KEY = ["T1", "T2", "T3"]
 SMALL_TERMS = ["1", "x1", "x2", "x3", "x1*x2", "x1^2"]
@@ -103,6 +104,47 @@ def test_grey_box_drops_the_unidentifiable_centrifugal_term():
     gb = GreyBox(taus_s=[0], speed_taus_s=[300], max_speed_taus=1, alphas=[1e-3]).fit(table, spinning)
     assert not gb.instantaneous_ and "n2_krpm2" not in gb.feature_names_
     assert gb.to_dict()["selected"]["instantaneous_n2"] is False
+
+
+def _spinning(seed=4):
+    """Cold-start runs referenced while already spinning (rest cut off), speed jitter +-2 r/min."""
+    table, frame = make_synthetic_runs(seed=seed, sample_s=60.0, n_sensors=2, noise_um=0.02,
+                                       validation_speeds=(), multi=False)
+    spinning = frame[frame["t_s"] >= 120.0].copy()
+    spinning["t_s"] -= 120.0
+    spinning["speed_rpm"] += np.random.default_rng(0).normal(0, 2.0, len(spinning))
+    return table, frame, spinning
+
+
+def test_speed_change_evidence_needs_a_step_from_the_reference_speed():
+    table, frame, spinning = _spinning()
+    n0 = reference_speed(frame, "run_start", 60.0)
+    assert sorted(speed_change_evidence(frame, n0, 50.0, 60.0)) == sorted(table["run_id"])  # rest -> speed
+    n0 = reference_speed(spinning, "run_start", 60.0)
+    assert speed_change_evidence(spinning, n0, 50.0, 60.0) == []                     # jitter only
+    # n0 = 0 r/min for runs that never stand still (a log segment cut while spinning): no step
+    assert speed_change_evidence(spinning, np.zeros(len(spinning)), 50.0, 60.0) == []
+
+
+@pytest.mark.parametrize("cls", [RidgeGlobal, DynamicRidge])
+def test_ridge_and_dynamic_drop_unidentifiable_speed_terms(cls):
+    # issue 7 safety: speed terms fitted to jitter blew up (118-196 um) at the first speed change
+    table, frame, spinning = _spinning()
+    kw = {"taus_s": [0, 1200], "max_taus": 1} if cls is DynamicRidge else {}
+    m = cls(**kw).fit(table, spinning)
+    assert not m.speed_terms_ and "n_krpm" not in m.feature_names_ and "n2_krpm2" not in m.feature_names_
+    assert m.to_dict()["selected"]["speed_terms"] is False
+    back = load_any(m.to_dict())
+    assert not back.speed_terms_
+    steps = spinning[spinning["run_id"] == "train-3000"].copy()
+    steps["speed_rpm"] = np.where(steps["t_s"] < 3600, 3000.0, 18000.0)      # a speed step
+    np.testing.assert_allclose(back.predict(steps), m.predict(steps))
+    jump = np.abs(np.diff(m.predict(steps)))
+    assert jump.max() < 0.5                      # no jump from the speed terms
+    # with the rest kept, the terms are identified and used
+    m2 = cls(**kw).fit(table, frame)
+    assert m2.speed_terms_ and "n2_krpm2" in m2.feature_names_
+    assert len(m2.identifying_runs_) == 6
 
 
 def test_lowpass_zero_initial_state_is_a_cold_start():

@@ -16,7 +16,8 @@ from synthetic import schedule_log
 H = 3600.0
 TRAIN = [3000, 6000, 9000, 12000, 15000, 18000]
 KW = dict(training_speeds_rpm=TRAIN, speed_tolerance_rpm=50, idle_below_rpm=100, min_run_s=1800,
-          min_constant_s=3600, overrides={}, reference_rule="run_start", reference_window_s=60)
+          min_constant_s=3600, overrides={}, reference_rule="run_start", reference_window_s=60,
+          max_leading_rest_s=300)
 
 #: 4 constant runs + idles (one too short) + a varying tail with a short stop inside it.
 CONTINUOUS = [(3000, 4 * H), (0, H), (6000, 4 * H), (0, 600), (4500, 3 * H), (0, 2700),
@@ -172,3 +173,75 @@ def test_find_runs_is_fast():
     table, rf = runs(frame)
     assert time.perf_counter() - t0 < 0.5
     assert len(rf) == len(frame)
+
+
+# --------------------------------------------------------------------------- rest before start
+
+def test_short_leading_rest_is_absorbed_into_the_run():
+    """A cold start logged from rest: one run (the stem), t_s from the log start, reference on the rest."""
+    frame, _ = schedule_log([(0, 180), (12000, 4 * H)], speed_noise_rpm=20, seed=3)
+    table, rf = runs({"train_12000.csv": frame})
+    assert table["run_id"].tolist() == ["train_12000"] and len(rf) == len(frame)
+    row = table.iloc[0]
+    assert (row["kind"], row["role"]) == ("constant", "training")
+    # speed statistics ignore the rest
+    assert abs(row["speed_rpm"] - 12000) <= 20 and row["speed_min_rpm"] >= 12000 - 20
+    assert row["start_s"] == 0.0 and row["duration_s"] == 4 * H + 180
+    assert "rest before start: 180 s" in row["note"]
+    # t_s starts at the log start; the reference window (60 s) falls on the rest
+    assert rf["t_s"].iloc[0] == 0.0 and rf["speed_rpm"].iloc[0] == 0.0
+    ref = frame.iloc[:12]
+    np.testing.assert_allclose(rf["dT6"], frame["T6"] - ref["T6"].median())
+    np.testing.assert_allclose(rf["dz_um"], frame["disp_um"] - ref["disp_um"].median())
+
+
+def test_rest_before_a_multi_condition_schedule_keeps_one_varying_run():
+    steps = [p for p in MULTI if p[0] > 0]        # without the stop inside
+    frame, _ = schedule_log([(0, 180)] + steps, speed_noise_rpm=10)
+    table, rf = runs({"multi": frame})
+    assert len(table) == 1 and table["run_id"].iloc[0] == "multi"
+    row = table.iloc[0]
+    assert (row["kind"], row["role"]) == ("varying", "validation_multi")
+    assert row["speed_min_rpm"] >= 3000 - 10      # the rest does not count
+    assert row["speed_max_rpm"] >= 18000 - 10
+    assert row["duration_s"] == sum(d for _, d in steps) + 180
+    # with the stop inside the schedule: still one run; the stop is part of it
+    frame, _ = schedule_log([(0, 180)] + MULTI, ramp_samples=1, speed_noise_rpm=10)
+    table, _ = runs({"multi": frame})
+    assert len(table) == 1 and table["kind"].iloc[0] == "varying"
+    assert table["speed_min_rpm"].iloc[0] == 0.0 and table["duration_s"].iloc[0] == 4.5 * H + 180
+
+
+def test_long_leading_rest_stays_an_idle_run():
+    frame, _ = schedule_log([(0, 400), (6000, 4 * H)])
+    table, _ = runs({"log": frame})
+    assert table["run_id"].tolist() == ["log#1", "log#2"]
+    assert table["kind"].tolist() == ["idle", "constant"]
+    assert table["role"].tolist() == ["excluded", "training"]     # 400 s < min_run_s
+    assert table["start_s"].iloc[1] == 400.0 and table["note"].iloc[1] == ""
+    # the same file with the key at 0: the short rest is never absorbed
+    short, _ = schedule_log([(0, 180), (6000, 4 * H)])
+    table0, _ = runs({"log": short}, max_leading_rest_s=0)
+    assert table0["kind"].tolist() == ["idle", "constant"]
+
+
+@pytest.mark.parametrize("ramp,noise", [(0, 0.0), (1, 20.0), (3, 30.0)])
+def test_continuous_logs_are_unaffected_by_the_rest_rule(ramp, noise):
+    frame, _ = schedule_log(CONTINUOUS, ramp_samples=ramp, speed_noise_rpm=noise, seed=ramp)
+    with_rule, f1 = runs({"cont": frame})
+    without, f0 = runs({"cont": frame}, max_leading_rest_s=0)
+    pd.testing.assert_frame_equal(with_rule, without)
+    pd.testing.assert_frame_equal(f1, f0)
+    # idle stretches inside the log (also the short 600 s / 300 s ones) are not a leading rest
+    assert (with_rule["note"].str.contains("rest before start") == False).all()  # noqa: E712
+
+
+def test_rest_at_the_start_of_a_later_segment_is_absorbed_too():
+    a, _ = schedule_log([(3000, 2 * H)], segment=0)
+    b, _ = schedule_log([(0, 120), (3000, 2 * H)], segment=1, t0_s=2 * H + 600,
+                        start=pd.Timestamp("2026-03-02T10:10:00"), seed=1)
+    table, rf = runs({"log": pd.concat([a, b], ignore_index=True)})
+    assert table["run_id"].tolist() == ["log#1", "log#2"]
+    assert table["start_s"].tolist() == [0.0, 2 * H + 600]
+    assert "rest before start: 120 s" in table["note"].iloc[1]
+    assert rf.loc[rf["run_id"] == "log#2", "speed_rpm"].iloc[0] == 0.0
