@@ -19,8 +19,10 @@ Selection score:
 Sensors with ``score > threshold`` are kept, best first, at most
 ``max_key_sensors``. If fewer pass, the set is filled up to ``max_key_sensors``
 with the next best sensors by score, marked ``selected_by="fallback"``, and
-``info["fallback_used"]`` is True with a message saying so. A sensor with any
-missing value (logger dropout left after cleaning) or zero variance in a scope gets
+``info["fallback_used"]`` is True with a message saying so. ``r`` is computed on the
+samples where both the rise and ``dz`` are present: a logger dropout left after
+cleaning (too long to interpolate) only removes those samples. A sensor present in
+fewer than ``min_coverage`` (90 %) of a scope's samples, or with zero variance, gets
 ``r = NaN`` there and is never selected (with ``min_per_speed`` a NaN at any speed
 makes its score NaN). Ties are broken by sensor number.
 
@@ -117,21 +119,24 @@ def _sensor_columns(runs_frame: pd.DataFrame) -> list[str]:
     return [s for s in SENSORS if f"d{s}" in runs_frame.columns]
 
 
-def _pearson(dt: np.ndarray, dz: np.ndarray) -> np.ndarray:
-    """Pearson r of each column of ``dt`` [n, m] with ``dz`` [n]; NaN if a column has
-    a NaN or (near) zero variance."""
+def _pearson(dt: np.ndarray, dz: np.ndarray, min_coverage: float = 0.9) -> np.ndarray:
+    """Pearson r of each column of ``dt`` [n, m] with ``dz`` [n] over the rows where
+    both are finite; NaN if a column is finite in fewer than ``min_coverage`` of the
+    rows or has (near) zero variance there."""
     n, m = dt.shape
     out = np.full(m, np.nan)
     if n < 3:
         return out
-    zc = dz - dz.mean()
-    sz = np.sqrt(np.sum(zc * zc))
-    if not np.isfinite(sz) or sz == 0:
-        return out
     for j in range(m):
-        col = dt[:, j]
-        if not np.all(np.isfinite(col)):
+        ok = np.isfinite(dt[:, j]) & np.isfinite(dz)
+        if ok.sum() < max(3, min_coverage * n):
             continue
+        col, z = dt[ok, j], dz[ok]
+        zc = z - z.mean()
+        sz = np.sqrt(np.sum(zc * zc))
+        if not np.isfinite(sz) or sz == 0:
+            continue
+        n = int(ok.sum())
         xc = col - col.mean()
         sx = np.sqrt(np.sum(xc * xc))
         if sx <= 1e-12 * max(1.0, float(np.max(np.abs(col)))) * np.sqrt(n):
@@ -148,7 +153,7 @@ def _scope_table(scope: str, sensors: list[str], r: np.ndarray) -> pd.DataFrame:
 
 def rank_sensors(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *,
                  threshold: float = 0.97, max_key_sensors: int = 3,
-                 scope: str = "min_per_speed") -> RankResult:
+                 scope: str = "min_per_speed", min_coverage: float = 0.9) -> RankResult:
     """Rank the temperature sensors by correlation with the displacement; pick key sensors.
 
     Parameters
@@ -165,6 +170,9 @@ def rank_sensors(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *,
         topped up by the next best (``selected_by="fallback"``).
     scope : {"min_per_speed", "pooled"}
         Selection score, see the module docstring.
+    min_coverage : float, default 0.9
+        Smallest share of a scope's samples in which a sensor must be present to
+        get a correlation there.
 
     Returns
     -------
@@ -198,13 +206,13 @@ def rank_sensors(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *,
         train_ids.extend(ids)
         sub = runs_frame.loc[run_ids.isin(ids) & runs_frame["dz_um"].notna()]
         r = _pearson(sub[dcols].to_numpy(dtype=float, na_value=np.nan),
-                     sub["dz_um"].to_numpy(dtype=float))
+                     sub["dz_um"].to_numpy(dtype=float), min_coverage)
         tables.append(_scope_table(str(speed), sensors, r))
         per_speed_abs.append(np.abs(r))
     pooled_rows = run_ids.isin(train_ids) & runs_frame["dz_um"].notna()
     pooled = runs_frame.loc[pooled_rows]
     r_pooled = _pearson(pooled[dcols].to_numpy(dtype=float, na_value=np.nan),
-                        pooled["dz_um"].to_numpy(dtype=float))
+                        pooled["dz_um"].to_numpy(dtype=float), min_coverage)
     tables.append(_scope_table("pooled", sensors, r_pooled))
     correlation = pd.concat(tables, ignore_index=True)
 

@@ -128,3 +128,21 @@ def test_speed_groups_and_errors(clean):
         rank_sensors(clean.runs_table, clean.runs_frame, scope="median")
     with pytest.raises(ValueError, match="training"):
         rank_sensors(clean.runs_table.assign(role="excluded"), clean.runs_frame)
+
+
+def test_a_short_dropout_only_removes_its_samples(clean):
+    """A dropout left after cleaning removes its samples from r; below min_coverage the
+    sensor is out."""
+    full = rank_sensors(clean.runs_table, clean.runs_frame)
+    frame = clean.runs_frame.copy()
+    run = clean.runs_table.loc[clean.runs_table["role"] == "training", "run_id"].iloc[0]
+    rows = np.flatnonzero(frame["run_id"].to_numpy() == run)
+    frame.loc[frame.index[rows[100:100 + len(rows) // 20]], "dT8"] = np.nan     # 5 % missing
+    short = rank_sensors(clean.runs_table, frame)
+    assert short.info["sensors"] == full.info["sensors"] and "T8" in short.info["sensors"]
+    r_full = full.correlation.set_index(["scope", "sensor"])["r"]
+    r_short = short.correlation.set_index(["scope", "sensor"])["r"]
+    assert abs(r_short[("pooled", "T8")] - r_full[("pooled", "T8")]) < 1e-3
+    frame.loc[frame.index[rows[: len(rows) // 2]], "dT8"] = np.nan              # 50 % missing
+    long = rank_sensors(clean.runs_table, frame, min_coverage=0.9)
+    assert "T8" not in long.info["sensors"]

@@ -10,7 +10,8 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     table, frame = read_runs(smk)
     cfg = smk.params.rank
     result = rank_sensors(table, frame, threshold=cfg["threshold"],
-                          max_key_sensors=cfg["max_key_sensors"], scope=cfg["scope"])
+                          max_key_sensors=cfg["max_key_sensors"], scope=cfg["scope"],
+                          min_coverage=cfg["min_coverage"])
     print(f"key sensors: {result.info.get('sensors')} ({result.info.get('message', '')})",
           flush=True)
     rafi.io.write_csv_atomic(as_table(result.correlation), smk.output.correlation)
