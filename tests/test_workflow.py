@@ -199,3 +199,34 @@ def test_pipeline_end_to_end(workdir: Path):
 
     raw_after = {p.name: sha256(p) for p in (workdir / "raw" / MACHINE).iterdir()}
     assert raw_after == raw_before
+
+
+def test_bad_file_fails_fast_interactively_and_is_quarantined_at_night(workdir: Path, tmp_path: Path):
+    """Issue 6: one broken log among good ones. Interactive (on_bad_input: fail): the run
+    stops with a message naming the file, line and column. Nightly (quarantine): it
+    finishes, lists the file as quarantined with the reason; the raw file is untouched."""
+    work = tmp_path / "bad"
+    work.mkdir()
+    for name in ("Snakefile", "config.yaml"):
+        shutil.copy2(workdir / name, work / name)
+    for name in ("workflow", "rafi", "raw"):
+        shutil.copytree(workdir / name, work / name, ignore=shutil.ignore_patterns("__pycache__"))
+    broken = work / "raw" / MACHINE / "zz_broken.csv"
+    shutil.copy2(ROOT / "tests" / "data" / "bad" / "text_in_numeric.csv", broken)
+    before = sha256(broken)
+
+    failed = snakemake(work, "tables")
+    assert failed.returncode != 0
+    message = failed.stdout + failed.stderr
+    assert "zz_broken.csv, line 13, column 'T3'" in message, message[-3000:]
+    assert "'ERR' is not a number" in message
+
+    night = snakemake(work, "tables", "--config", "on_bad_input=quarantine")
+    assert night.returncode == 0, night.stdout[-3000:] + night.stderr[-3000:]
+    audit = pd.read_csv(work / "results" / MACHINE / "audit.csv").set_index("file")
+    assert audit.loc["zz_broken.csv", "status"] == "quarantined"
+    assert "line 13" in audit.loc["zz_broken.csv", "reason"]
+    assert (audit.drop(index="zz_broken.csv")["status"] == "ok").all()
+    runs = pd.read_csv(work / "results" / MACHINE / "runs.csv")
+    assert "zz_broken" not in set(runs["run_id"])
+    assert sha256(broken) == before
