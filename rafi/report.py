@@ -875,6 +875,9 @@ def _section_choices(settings: dict, key_info: dict, model: dict, eq_method):
     rank = settings.get("rank") or {}
     fit = settings.get("fit") or {}
     fz = settings.get("fuzzy") or (model or {}).get("fuzzy") or {}
+    clean = settings.get("clean") or {}
+    runs = settings.get("runs") or {}
+    models = settings.get("models") or {}
     rule = ref.get("rule", "run_start")
     rule_text = {"run_start": "the median of the first {w} s of each run",
                  "log_start": "the median of the first {w} s of the log/segment the run came from"}
@@ -915,6 +918,36 @@ def _section_choices(settings: dict, key_info: dict, model: dict, eq_method):
                        "sample-wise cross-validation, which would leak through autocorrelation)."),
         ("Fuzzy membership", "Triangular functions centred on the training speeds (see Fuzzy "
                              "blending for the paper's 0.334 / 0.666 wording)."),
+        ("Cleaning the logs",
+         f"Regular grid of {fmt_num(settings.get('sample_period_s'), 0, 's')}; duplicate rows "
+         "dropped (first kept); rows at most 3 samples out of order re-sorted, a larger step back "
+         "is an error; single-sample spikes (beyond both neighbours by more than "
+         f"{clean.get('spike_threshold', '?')} robust sigma of the first differences) replaced by "
+         f"interpolation; open-circuit values {clean.get('open_circuit_values', [])} treated as "
+         f"missing; gaps and dropouts up to {fmt_num(clean.get('max_interpolate_gap_s'), 0, 's')} "
+         "interpolated linearly, a longer gap splits the log into segments (never bridged). Every "
+         "action is listed per file in results/<machine>/clean/<file>.audit.csv."),
+        ("Runs, roles and the rest before start",
+         f"Runs are cut from the speed column: constant for at least "
+         f"{fmt_num(runs.get('min_constant_s'), 0, 's')} at a training speed -> training, elsewhere "
+         "-> single-speed validation; shorter steps -> one multi-condition run; speed below "
+         f"{fmt_num(runs.get('idle_below_rpm'), 0, 'r/min')} -> idle cool-down (validated, never "
+         "trained on). A rest at the start of a log shorter than "
+         f"{fmt_num(runs.get('max_leading_rest_s'), 0, 's')} belongs to the run, so the reference "
+         "state is the cold machine at rest, before the spindle turns (what a controller "
+         "compensation is relative to). Roles can be overridden per file (runs.overrides)."),
+        ("Sensor dropouts",
+         f"A sensor's correlation uses the samples it has; a sensor present in fewer than "
+         f"{fmt_num(100 * float(rank.get('min_coverage', 0.9)), 0, '%')} of a speed's samples is "
+         "not ranked there. Samples with a missing key sensor are left out of the fit and "
+         "get no prediction."),
+        ("Model family and the champion",
+         f"Besides RAFI as published, the models in models.enabled ({', '.join(models.get('enabled', []))}) "
+         f"are fitted on the same training runs; their hyperparameters come from whole-run "
+         f"cross-validation ({models.get('cv', 'leave_one_run_out')}) on training runs only. The "
+         "champion is the best model that passes every gate on every validation run; RAFI as "
+         "published is always reported as the paper's reference. A centrifugal (speed-squared) "
+         "term is used only when training runs contain a speed step that identifies it."),
     ]
     return [{"topic": a, "text": b} for a, b in rows]
 
