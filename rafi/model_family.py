@@ -220,18 +220,42 @@ def lowpass_runs(values: np.ndarray, t_s: np.ndarray, run_codes: np.ndarray, tau
     tt = np.asarray(t_s, dtype=float)
     step = float(np.median(np.diff(tt))) if n > 1 and np.isfinite(np.diff(tt)).any() else 1.0
     gain0 = -np.expm1(-max(step, 0.0) / tau_col)
-    y = np.zeros(p * len(taus))
-    for k in range(n):
-        xk = xx[k]
-        if new_run[k]:
-            if initial == "zero":
-                y = np.where(np.isfinite(xk), gain0 * xk, 0.0)
+    starts = np.flatnonzero(new_run)
+    ends = np.append(starts[1:], n)
+    for a, b in zip(starts, ends):
+        seg = xx[a:b]
+        dts = dt[a + 1:b]
+        if np.isfinite(seg).all() and (dts.size == 0 or np.allclose(dts, dts[0], rtol=1e-9, atol=0)):
+            # regular grid, no gaps: the recursion is a first-order IIR filter per column
+            out[a:b] = _lowpass_regular(seg, gain[a + 1] if b - a > 1 else gain0, gain0, initial)
+            continue
+        y = np.zeros(p * len(taus))
+        for k in range(a, b):
+            xk = xx[k]
+            if k == a:
+                y = np.where(np.isfinite(xk), gain0 * xk if initial == "zero" else xk, 0.0)
             else:
-                y = np.where(np.isfinite(xk), xk, 0.0)
+                y = np.where(np.isfinite(xk), y + gain[k] * (xk - y), y)
+            out[k] = y
+    return out
+
+
+def _lowpass_regular(x: np.ndarray, gain: np.ndarray, gain0: np.ndarray, initial: str) -> np.ndarray:
+    """:func:`lowpass_runs` on one run sampled on a regular grid with no missing value:
+    ``y[k] = (1 - g) y[k-1] + g x[k]`` per column, computed by ``scipy.signal.lfilter``
+    (same numbers as the sample loop, to rounding)."""
+    from scipy.signal import lfilter
+
+    out = np.empty_like(x)
+    for j in range(x.shape[1]):
+        g = float(gain[j])
+        if initial == "zero":
+            y0 = float(gain0[j]) * x[0, j]
         else:
-            g = gain[k]
-            y = np.where(np.isfinite(xk), y + g * (xk - y), y)
-        out[k] = y
+            y0 = x[0, j]
+        out[0, j] = y0
+        if len(x) > 1:
+            out[1:, j] = lfilter([g], [1.0, g - 1.0], x[1:, j], zi=[(1.0 - g) * y0])[0]
     return out
 
 
