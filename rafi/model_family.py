@@ -408,30 +408,36 @@ class _RidgeBase:
         return v @ (vc[:, None] / (w[:, None] + n * np.asarray(alphas, dtype=float)[None, :]))
 
     def _cv_setup(self, feats: np.ndarray, y: np.ndarray, run_ids: np.ndarray, table: pd.DataFrame) -> dict:
-        """Per-run Gram matrices ``X_r'X_r``, ``X_r'y_r`` and the folds: computed once per fit."""
+        """Per fold, once per fit: the training runs' Gram matrix ``X'X``, ``X'y`` and sample
+        count (sums of per-run parts) and the test runs' rows of ``X`` and ``y``."""
         rows = {r: np.flatnonzero(run_ids == r) for r in np.unique(run_ids)}
         gram = {r: (feats[i].T @ feats[i], feats[i].T @ y[i], len(i)) for r, i in rows.items()}
-        folds = [(list(tr), list(te)) for tr, te in split_runs(table, self.cv)]
-        return {"feats": feats, "y": y, "rows": rows, "gram": gram, "folds": folds}
+        folds = []
+        for train_ids, test_ids in split_runs(table, self.cv):
+            train = [gram[r] for r in train_ids if r in gram]
+            te = [rows[r] for r in test_ids if r in rows]
+            if not train or not te:
+                continue
+            te = np.concatenate(te)
+            folds.append({"g": sum(t[0] for t in train), "c": sum(t[1] for t in train),
+                          "n": sum(t[2] for t in train), "x_test": feats[te], "y_test": y[te]})
+        return {"folds": folds}
 
     def _cv_scores(self, cvd: dict, cols: np.ndarray) -> np.ndarray:
         """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds."""
         sq = np.zeros(len(self.alphas))
         fold_max, count = [], 0
         ix = np.ix_(cols, cols)
-        for train_ids, test_ids in cvd["folds"]:
-            g = sum(cvd["gram"][r][0][ix] for r in train_ids if r in cvd["gram"])
-            c = sum(cvd["gram"][r][1][cols] for r in train_ids if r in cvd["gram"])
-            n = sum(cvd["gram"][r][2] for r in train_ids if r in cvd["gram"])
-            te = np.concatenate([cvd["rows"][r] for r in test_ids if r in cvd["rows"]] or [np.zeros(0, int)])
-            if n == 0 or len(te) == 0:
+        for fold in cvd["folds"]:
+            g, c, n = fold["g"][ix], fold["c"][cols], fold["n"]
+            if n == 0:
                 continue
             sc = np.sqrt(np.diag(g) / n)
             sc = np.where(sc > 1e-12, sc, 1.0)
             b = self._ridge_gram(g / np.outer(sc, sc), c / sc, n, self.alphas) / sc[:, None]
-            res = cvd["y"][te][:, None] - cvd["feats"][np.ix_(te, cols)] @ b
+            res = fold["y_test"][:, None] - fold["x_test"][:, cols] @ b
             sq += np.sum(res ** 2, axis=0)
-            count += len(te)
+            count += len(res)
             fold_max.append(np.max(np.abs(res), axis=0))
         if count == 0:
             return np.zeros(len(self.alphas))
