@@ -1116,8 +1116,8 @@ def quick_clean(frame: pd.DataFrame, sample_period_s: float = 5.0) -> pd.DataFra
     vals = vals.mask((vals - med).abs() > limit, axis=1)
     f[cols] = vals
     grid = pd.date_range(f["time"].iloc[0], f["time"].iloc[-1], freq=pd.Timedelta(seconds=sample_period_s))
-    f = f.set_index("time").reindex(f["time"].tolist() + [t for t in grid if t not in set(f["time"])])
-    f = f.sort_index()
+    f = f.set_index("time")
+    f = f.reindex(f.index.union(grid)).sort_index()
     f[["speed_rpm", *cols]] = f[["speed_rpm", *cols]].interpolate(method="time", limit_direction="both")
     f = f.loc[grid].reset_index(names="time")
     f["t_s"] = (f["time"] - f["time"].iloc[0]) / pd.Timedelta(seconds=1)
