@@ -503,3 +503,24 @@ def summarise_audit(file, sha256: str, rows_in: int, clean_frame: pd.DataFrame,
         "segments": segments, "status": "ok", "reason": "",
     }
     return pd.DataFrame([row], columns=list(SUMMARY_COLUMNS))
+
+
+def quarantined(file: str, sha256: str, reason: str) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+    """The clean step's outputs for a file that could not be read or checked.
+
+    Returns an empty clean frame with the usual columns and types, an empty audit
+    table, and a summary row with ``status`` ``quarantined`` and the ``reason`` (the
+    error message naming file, line and column), so the other files carry on and the
+    report lists this one.
+    """
+    clean = pd.DataFrame({"time": pd.Series(dtype="datetime64[ns]"),
+                          "t_s": pd.Series(dtype="float64"),
+                          "speed_rpm": pd.Series(dtype="float64"),
+                          **{c: pd.Series(dtype="float64") for c in SENSOR_COLUMNS},
+                          "segment": pd.Series(dtype="int64")})
+    actions = pd.DataFrame(columns=list(AUDIT_COLUMNS))
+    summary = pd.DataFrame([{
+        "file": file, "sha256": sha256, "rows_in": pd.NA, "rows_out": 0, "duplicates_dropped": 0,
+        "reordered": 0, "spikes_replaced": 0, "values_interpolated": 0, "gaps_interpolated": 0,
+        "segments": 0, "status": "quarantined", "reason": reason}], columns=list(SUMMARY_COLUMNS))
+    return clean, actions, summary

@@ -28,16 +28,12 @@ rule clean:
         input_spec=lambda w: machine_config(w.machine)["input"],
         sample_period_s=lambda w: machine_config(w.machine)["sample_period_s"],
         clean=lambda w: machine_config(w.machine)["clean"],
-        # plausibility checks (rafi.checks.check_log), when that module exists
-        checks=lambda w: (
-            {
-                "min_run_s": machine_config(w.machine)["runs"]["min_run_s"],
-                "sample_period_s": machine_config(w.machine)["sample_period_s"],
-                "open_circuit_values": machine_config(w.machine)["clean"]["open_circuit_values"],
-            }
-            if rafi_code("checks")
-            else {}
-        ),
+        # plausibility checks (rafi.checks.check_log)
+        checks=lambda w: {
+            "min_run_s": machine_config(w.machine)["runs"]["min_run_s"],
+            "sample_period_s": machine_config(w.machine)["sample_period_s"],
+            "open_circuit_values": machine_config(w.machine)["clean"]["open_circuit_values"],
+        },
         on_bad_input=lambda w: machine_config(w.machine)["on_bad_input"],
     log:
         log_path("clean/{stem}"),

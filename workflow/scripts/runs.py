@@ -29,7 +29,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         speed_tolerance_rpm=smk.params.speed_tolerance_rpm,
         idle_below_rpm=cfg["idle_below_rpm"], min_run_s=cfg["min_run_s"],
         min_constant_s=cfg["min_constant_s"], overrides=cfg["overrides"],
-        max_leading_rest_s=cfg.get("max_leading_rest_s", 300.0),
+        max_leading_rest_s=cfg["max_leading_rest_s"],
         reference_rule=smk.params.reference["rule"],
         reference_window_s=smk.params.reference["window_s"])
     print(f"{len(table)} runs; roles: {table['role'].value_counts().to_dict()}", flush=True)
