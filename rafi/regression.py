@@ -193,7 +193,8 @@ def fit_speed(y, x, terms, *, groups=None, hac_maxlags: int = 60) -> dict:
 
 def fit_rafi(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensors, terms,
              hac_maxlags: int = 60, reference: dict | None = None,
-             machine: str | None = None) -> FitResult:
+             machine: str | None = None, fuzzy_outside: str = "edge",
+             speed_tolerance_rpm: float = 50.0, config: dict | None = None) -> FitResult:
     """Fit the RAFI model: one OLS per training speed on the key sensors' rises.
 
     Parameters
@@ -214,6 +215,12 @@ def fit_rafi(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensors,
         Reference rule stored in the model, e.g. ``{"rule": "run_start", "window_s": 60}``.
     machine : str, optional
         Machine name stored in the model.
+    fuzzy_outside : str, default "edge"
+        What the model does outside the trained speeds (stored in the model).
+    speed_tolerance_rpm : float, default 50
+        Speeds this close to a training speed count as that speed (stored in the model).
+    config : dict, optional
+        The settings that made the model, stored in the artefact for provenance.
 
     Returns
     -------
@@ -244,7 +251,9 @@ def fit_rafi(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensors,
             if pd.notna(f):
                 data[str(f)] = None if pd.isna(h) else str(h)
 
-    model = RafiModel(key_sensors, terms, reference=reference, machine=machine, data=data)
+    model = RafiModel(key_sensors, terms, reference=reference, machine=machine, data=data,
+                      fuzzy_outside=fuzzy_outside, speed_tolerance_rpm=speed_tolerance_rpm,
+                      config=config)
     run_ids = runs_frame["run_id"].astype(str)
     coef_rows, diag_rows, vif_rows = [], [], []
     for speed, ids in groups.items():

@@ -18,15 +18,12 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
           flush=True)
     result = fit_rafi(table, frame, key_sensors=key_sensors, terms=cfg["terms"],
                       hac_maxlags=cfg["hac_maxlags"], reference=smk.params.reference,
-                      machine=smk.params.machine)
-    model = result.model
-    # fit_rafi does not take these (yet): stamp them before saving, model_id covers them
-    model.fuzzy_outside = smk.params.fuzzy["outside"]
-    model.speed_tolerance_rpm = float(smk.params.speed_tolerance_rpm)
-    model.config = smk.params.model_config
+                      machine=smk.params.machine, fuzzy_outside=smk.params.fuzzy["outside"],
+                      speed_tolerance_rpm=float(smk.params.speed_tolerance_rpm),
+                      config=smk.params.model_config)
     print(as_table(result.diagnostics).to_string(index=False), flush=True)
     rafi.io.write_csv_atomic(as_table(result.coefficients), smk.output.coefficients)
     rafi.io.write_csv_atomic(as_table(result.diagnostics), smk.output.diagnostics)
     rafi.io.write_csv_atomic(as_table(result.vif), smk.output.vif)
-    save_model(model, smk.output.model)  # atomic
+    save_model(result.model, smk.output.model)  # atomic
     print(f"wrote {smk.output.model}", flush=True)
