@@ -22,6 +22,7 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import collections
 import contextlib
 import fcntl
 import json
@@ -229,9 +230,13 @@ class JobTracker:
     _wildcards: str = ""
     _jobid: str | None = None
     _total: str = "?"
+    nothing_to_do: bool = False
 
     def feed(self, line: str) -> None:
         s = line.strip()
+        if s.startswith("Nothing to be done"):
+            self.nothing_to_do = True
+            return
         m = re.match(r"^(?:local)?rule (\w+):$", s)
         if m:
             self._rule, self._wildcards, self._jobid = m.group(1), "", None
@@ -273,11 +278,17 @@ def run_snakemake(args, overrides: dict, log_fh, planned: int = 0) -> tuple[int,
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
                             cwd=args.directory, bufsize=1)
     assert proc.stdout is not None
+    tail: collections.deque = collections.deque(maxlen=25)
     for line in proc.stdout:
         if log_fh is not None:
             log_fh.write(line)
+        tail.append(line)
         tracker.feed(line)
-    return proc.wait(), tracker
+    code = proc.wait()
+    if code != 0 and not tracker.failed:   # it failed before any job: show why
+        print("".join(tail), file=sys.stderr, end="")
+        print("rafi nightly: the pipeline cannot be planned (see above)", file=sys.stderr)
+    return code, tracker
 
 
 # --------------------------------------------------------------------------- fast path
@@ -517,31 +528,19 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict) -> int:
     night_start = float(int(started))
     fp = None if args.full_check else fingerprint(args, paths, overrides)
     if fp is not None and read_state(paths).get("fingerprint") == fp:
-        rc, jobs, text = 0, {}, ""  # nothing changed since the last successful night
-    else:
-        rc, jobs, text = pending_jobs(args, overrides)
-    if rc != 0:
-        print(text, file=sys.stderr)
-        print("rafi nightly: the pipeline cannot be planned (see above)", file=sys.stderr)
-        return EXIT_PIPELINE_FAILED
-    if not jobs:
-        if fp is None or read_state(paths).get("fingerprint") != fp:
-            write_state(paths, fingerprint(args, paths, overrides))
-        statuses = [machine_status(paths, m, None) for m in machines]
-        champs = ", ".join(f"{s.machine} {_short((s.decision or {}).get('champion_id_after'))}"
-                           for s in statuses) or "none"
-        print(f"rafi nightly: nothing new since {last_activity(statuses)}: champion {champs} "
-              f"stays ({time.time() - started:.1f} s)")
-        return _report(statuses)
-    print("rafi nightly: to run: " + ", ".join(f"{r} x{n}" for r, n in sorted(jobs.items())),
-          flush=True)
+        # nothing changed since the last successful night: no need to ask Snakemake
+        return _nothing_new(paths, machines, started)
+    # One Snakemake run, no separate dry run (it would build the job graph twice): Snakemake
+    # itself says "Nothing to be done" when no new data arrived.
     log_file = Path(args.log_file) if args.log_file else paths.results_dir / "nightly.log"
     log_file.parent.mkdir(parents=True, exist_ok=True)
     with open(log_file, "a", encoding="utf-8") as log_fh:
         log_fh.write(f"\n===== rafi nightly {time.strftime('%Y-%m-%dT%H:%M:%SZ', time.gmtime())} "
                      f"pid {os.getpid()}\n")
-        src, tracker = run_snakemake(args, overrides, log_fh,
-                                     planned=sum(n for r, n in jobs.items() if r != "nightly"))
+        src, tracker = run_snakemake(args, overrides, log_fh)
+    if src == 0 and tracker.nothing_to_do and not tracker.ran:
+        write_state(paths, fingerprint(args, paths, overrides))
+        return _nothing_new(paths, machines, started)
     if src == 0:
         write_state(paths, fingerprint(args, paths, overrides))
     else:
@@ -552,6 +551,15 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict) -> int:
     print(f"rafi nightly: {len(tracker.ran)} job(s) in {time.time() - started:.1f} s; "
           f"exit {code} (log {log_file})")
     return code
+
+
+def _nothing_new(paths: Paths, machines: list[str], started: float) -> int:
+    statuses = [machine_status(paths, m, None) for m in machines]
+    champs = ", ".join(f"{s.machine} {_short((s.decision or {}).get('champion_id_after'))}"
+                       for s in statuses) or "none"
+    print(f"rafi nightly: nothing new since {last_activity(statuses)}: champion {champs} "
+          f"stays ({time.time() - started:.1f} s)")
+    return _report(statuses)
 
 
 def _report(statuses: list[MachineStatus], pipeline_failed: bool = False) -> int:
