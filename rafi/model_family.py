@@ -866,52 +866,10 @@ DEFAULT_OPTIONS = {
 GATE_KEYS = ("max_residual_um", "min_improvement_pct", "never_worse_than_uncompensated")
 
 
-_WORKER_DATA: tuple = ()
-
-
-def _set_worker_data(runs_table: pd.DataFrame, runs_frame: pd.DataFrame) -> None:
-    global _WORKER_DATA
-    _WORKER_DATA = (runs_table, runs_frame)
-
-
-def _fit_and_cross_validate(task):
-    """Fit one model of the family and cross-validate it (a unit of :func:`run_family`)."""
-    import time
-
-    from .crossval import cross_validate
-
-    kind, spec, rafi_model = task
-    runs_table, runs_frame = _WORKER_DATA
-    opts = spec["options"]
-
-    def factory():
-        return make_model(kind, **spec)
-
-    lines = []
-    t0 = time.perf_counter()
-    model = rafi_model if rafi_model is not None else factory().fit(runs_table, runs_frame)
-    seconds = time.perf_counter() - t0
-    extra = f" alpha={model.alpha_:g} taus_s={model.taus_}" if hasattr(model, "alpha_") else ""
-    if hasattr(model, "speed_taus_"):
-        extra += f" speed_taus_s={model.speed_taus_} instantaneous_n2={model.instantaneous_}"
-    lines.append(f"{kind}: fitted in {seconds:.2f} s{extra}")
-    cv = None
-    if opts.get("cv_report", True):
-        t0 = time.perf_counter()
-        cv = cross_validate(factory, runs_table, runs_frame, opts["cv"], name=kind)
-        lines.append(f"{kind}: {opts['cv']} CV in {time.perf_counter() - t0:.1f} s, "
-                     f"max |residual| {cv['max_abs_after_um'].max():.2f} um")
-    return kind, model, seconds, cv, lines
-
-
 def run_family(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensors: Sequence[str],
                terms: Sequence[str] = RAFI_TERMS, reference: dict | None = None, machine: str | None = None,
-               options: dict | None = None, gates: dict | None = None, rafi_model=None, log=print,
-               n_jobs: int = 1) -> dict:
+               options: dict | None = None, gates: dict | None = None, rafi_model=None, log=print) -> dict:
     """Fit, validate, cross-validate and rank the enabled models (what ``rule compare`` runs).
-
-    ``n_jobs`` > 1 fits and cross-validates the models in that many worker processes (each
-    model is independent; the results are the same as with one process).
 
     ``rafi_model`` is the pipeline's fitted ``model.json`` (a ``RafiModel``); when given it is
     the ``rafi`` entry (no refit), else RAFI is fitted here. Hyperparameters are chosen on the
@@ -922,33 +880,34 @@ def run_family(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensor
     (name or None), ``best_name`` and ``best_artefact`` (the champion's artefact; when no model
     passes the gates, the one with the lowest worst-case residual, and ``champion`` is None).
     """
-    from .crossval import choose_champion, compare_models
+    import time
+
+    from .crossval import choose_champion, compare_models, cross_validate
 
     opts = {**DEFAULT_OPTIONS, **(options or {})}
     gates = {k: v for k, v in (gates or {}).items() if k in GATE_KEYS}
-    spec = dict(key_sensors=key_sensors, terms=terms, reference=reference, machine=machine,
-                options=opts)
-    tasks = [(kind, spec, rafi_model if kind == "rafi" else None) for kind in opts["enabled"]]
-    if n_jobs > 1 and len(tasks) > 1:
-        import concurrent.futures
-        import multiprocessing
-
-        # fork: the workers share the parent's data pages; each model is independent
-        with concurrent.futures.ProcessPoolExecutor(
-                max_workers=min(n_jobs, len(tasks)),
-                mp_context=multiprocessing.get_context("fork"),
-                initializer=_set_worker_data, initargs=(runs_table, runs_frame)) as pool:
-            done = list(pool.map(_fit_and_cross_validate, tasks))
-    else:
-        _set_worker_data(runs_table, runs_frame)
-        done = [_fit_and_cross_validate(task) for task in tasks]
     models, fit_time, cv_parts = {}, {}, []
-    for kind, model, seconds, cv, lines in done:
-        models[kind], fit_time[kind] = model, seconds
-        if cv is not None:
+    for kind in opts["enabled"]:
+        def factory(kind=kind):
+            return make_model(kind, key_sensors=key_sensors, terms=terms, reference=reference,
+                              machine=machine, options=opts)
+        t0 = time.perf_counter()
+        if kind == "rafi" and rafi_model is not None:
+            models[kind] = rafi_model
+        else:
+            models[kind] = factory().fit(runs_table, runs_frame)
+        fit_time[kind] = time.perf_counter() - t0
+        m = models[kind]
+        extra = f" alpha={m.alpha_:g} taus_s={m.taus_}" if hasattr(m, "alpha_") else ""
+        if hasattr(m, "speed_taus_"):
+            extra += f" speed_taus_s={m.speed_taus_} instantaneous_n2={m.instantaneous_}"
+        log(f"{kind}: fitted in {fit_time[kind]:.2f} s{extra}")
+        if opts.get("cv_report", True):
+            t0 = time.perf_counter()
+            cv = cross_validate(factory, runs_table, runs_frame, opts["cv"], name=kind)
             cv_parts.append(cv)
-        for line in lines:
-            log(line)
+            log(f"{kind}: {opts['cv']} CV in {time.perf_counter() - t0:.1f} s, "
+                f"max |residual| {cv['max_abs_after_um'].max():.2f} um")
     table, residuals = compare_models(models, runs_table, runs_frame, gates, return_residuals=True)
     cv = pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
     summary = table.loc[table["scope"] == "model"].drop(columns=["scope", "run_id", "role", "speed_rpm"])

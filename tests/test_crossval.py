@@ -193,19 +193,3 @@ if __name__ == "__main__":  # regenerate the golden table
     compare_models(_golden_models(t, f), t, f, GATES).drop(columns=["model_id"]).to_csv(
         DATA / "golden_comparison.csv", index=False, float_format="%.9g")
     print("wrote", DATA / "golden_comparison.csv")
-
-
-def test_run_family_in_two_processes_gives_the_same_results():
-    """rule compare runs the family with n_jobs=2: same tables, same models (ids), same champion."""
-    table, frame = make_synthetic_runs(seed=2, sample_s=300.0, n_sensors=3)
-    options = {"enabled": ["rafi", "rafi_linear", "ridge_global"], "ridge_alphas": [1e-4, 1e-2]}
-    kw = dict(key_sensors=["T1", "T2", "T3"], options=options, log=lambda m: None,
-              gates={"max_residual_um": 50.0, "min_improvement_pct": 0.0,
-                     "never_worse_than_uncompensated": True})
-    one = run_family(table, frame, n_jobs=1, **kw)
-    two = run_family(table, frame, n_jobs=2, **kw)
-    pd.testing.assert_frame_equal(one["per_run"], two["per_run"])
-    pd.testing.assert_frame_equal(one["cv"], two["cv"])
-    assert one["champion"] == two["champion"]
-    assert {k: m.to_dict()["model_id"] for k, m in one["models"].items()} == \
-           {k: m.to_dict()["model_id"] for k, m in two["models"].items()}

@@ -28,7 +28,6 @@ rule compare:
         fit=lambda w: machine_config(w.machine)["fit"],
         reference=lambda w: machine_config(w.machine)["reference"],
         gates=lambda w: machine_config(w.machine).get("qualification") or {},
-    threads: 2  # the models are fitted and cross-validated in parallel processes
     log:
         log_path("compare"),
     benchmark:

@@ -22,8 +22,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     result = run_family(table, frame, key_sensors=key_sensors, terms=smk.params.fit["terms"],
                         reference=smk.params.reference, machine=smk.params.machine,
                         options=smk.params.models, gates=smk.params.gates,
-                        rafi_model=load_any(smk.input.model), log=lambda m: print(m, flush=True),
-                        n_jobs=smk.threads)
+                        rafi_model=load_any(smk.input.model), log=lambda m: print(m, flush=True))
     cols = ["model", "max_abs_after_um", "improvement_pct", "passed", "champion"]
     print(result["summary"][cols].to_string(index=False), flush=True)
     if result["champion"] is None:
