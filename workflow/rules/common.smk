@@ -21,6 +21,7 @@ import copy
 import fnmatch
 import importlib.util
 import logging
+import os
 from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
@@ -29,6 +30,13 @@ import rafi.registry as _registry
 from snakemake.utils import validate
 
 validate(config, schema="../schemas/config.schema.yaml")
+
+# Every job does linear algebra on small matrices: one BLAS thread per process is fastest,
+# and Snakemake's --cores stays the only parallelism (multi-threaded BLAS in several jobs at
+# once oversubscribes the cores badly). Jobs inherit this environment; it must be set here
+# because a script's own setting comes after Snakemake has loaded NumPy.
+os.environ.update({var: os.environ.get(var, "1")
+                   for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")})
 
 _log = logging.getLogger("rafi.workflow")
 

@@ -2,12 +2,6 @@
 residuals.parquet, best_model.json, cv.csv (docs/models.md)."""
 
 import json
-import os
-
-# The family's linear algebra is on small matrices (p < 200): one BLAS thread is fastest and
-# does not fight the other Snakemake jobs for the cores. Must be set before NumPy loads.
-for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
-    os.environ.setdefault(_var, "1")
 
 from _glue import as_table, read_runs, step, to_json
 
