@@ -18,7 +18,10 @@ COMMANDS = {
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="rafi", description=__doc__.splitlines()[0])
+    parser = argparse.ArgumentParser(
+        prog="rafi",
+        description="RAFI thermal-displacement compensation for CNC spindles: the tools beside "
+                    "the pipeline (run the pipeline itself with `snakemake --cores 2`).")
     from . import __version__
     parser.add_argument("--version", action="version", version=f"rafi {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
