@@ -20,6 +20,8 @@ matplotlib.use("Agg", force=True)
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+from matplotlib.font_manager import FontProperties  # noqa: E402
+from PIL import Image  # noqa: E402
 
 #: Figure width that fills the A4 content box (180 mm) at 100 % image width.
 PAGE_WIDTH_IN = 7.0
@@ -64,7 +66,13 @@ def encode(fig, fmt: str = "png", dpi: int = 140) -> dict:
             text = text[text.index("<svg"):]
             text = re.sub(r'<svg([^>]*?) width="[^"]*" height="[^"]*"', r'<svg\1', text, count=1)
             return {"kind": "svg", "svg": text}
-        fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
+        fig.set_dpi(dpi)
+        fig.canvas.draw()
+        rgba = np.asarray(fig.canvas.buffer_rgba())
+        # the figure is opaque (white face): drop the alpha channel, so WeasyPrint embeds
+        # the image as is instead of splitting it into colour + soft mask (two re-encodes)
+        Image.fromarray(np.ascontiguousarray(rgba[..., :3])).save(buf, format="PNG",
+                                                                   compress_level=6)
         data = base64.b64encode(buf.getvalue()).decode("ascii")
         return {"kind": "png", "src": f"data:image/png;base64,{data}"}
     finally:
@@ -112,6 +120,81 @@ def _plot(ax, x, y, *args, **kwargs):
     return ax.plot(xe, ye, *args, **kwargs)
 
 
+# --------------------------------------------------------------------------- fixed layout
+# constrained_layout measures every artist's tight bbox at save time (about 40 % of the
+# figure time of the report); the multi-panel figures below use explicit margins in inches
+# instead, sized from their actual tick labels, so nothing is cut off with other data.
+
+#: Gaps (inches) of the fixed layouts, as constrained_layout placed them for the report.
+TOP_TITLE_IN = 0.22         # axes title above the top row
+TOP_LEGEND_IN = 0.48        # figure legend + axes title above the top row
+BOTTOM_IN = 0.40            # x tick labels + x label below the bottom row
+ROW_GAP_IN = 0.61           # x tick labels + x label + next row's title
+SHARED_GAP_IN = 0.13        # between panels sharing x (tick labels hidden)
+EDGE_IN = 0.05              # outer edge where nothing sticks out
+
+
+def _tick_label_width_in(fig, axis) -> float:
+    """Widest major tick label of ``axis`` in inches (without drawing the figure)."""
+    lo, hi = sorted(axis.get_view_interval())
+    eps = 1e-9 * max(abs(hi - lo), 1e-300)
+    locs = [v for v in axis.get_majorticklocs() if lo - eps <= v <= hi + eps]
+    labels = axis.get_major_formatter().format_ticks(locs) if locs else []
+    size = matplotlib.rcParams["ytick.labelsize"]
+    prop = FontProperties(size=size)
+    renderer = fig.canvas.get_renderer()
+    w = 0.0
+    for text in labels:
+        if text:
+            w = max(w, renderer.get_text_width_height_descent(
+                text, prop, ismath="TeX" if "$" in text else False)[0])
+    return w / fig.dpi
+
+
+def _y_room_in(ax, axis=None) -> float:
+    """Inches beside ``ax`` taken by y tick labels + y label (+ a small pad)."""
+    axis = axis or ax.yaxis
+    fig = ax.figure
+    tick = axis.get_major_ticks()[0] if axis.get_major_ticks() else None
+    size = (tick.tick1line.get_markersize() if tick else 3.5) / 72.0
+    pad = (tick.get_pad() if tick else 3.5) / 72.0
+    room = size + pad + _tick_label_width_in(fig, axis)
+    if axis.get_label_text():
+        fs = FontProperties(size=matplotlib.rcParams["axes.labelsize"]).get_size_in_points()
+        room += axis.labelpad / 72.0 + 1.1 * fs / 72.0
+    return room + 0.03
+
+
+def _adjust(fig, *, left, right, top, bottom, ncols=1, nrows=1, wgap=0.0, hgap=0.0):
+    """``fig.subplots_adjust`` with margins and gaps in inches."""
+    W, H = fig.get_size_inches()
+    aw = (W - left - right - (ncols - 1) * wgap) / ncols
+    ah = (H - top - bottom - (nrows - 1) * hgap) / nrows
+    fig.subplots_adjust(left=left / W, right=1 - right / W, bottom=bottom / H, top=1 - top / H,
+                        wspace=wgap / aw if ncols > 1 else 0.2,
+                        hspace=hgap / ah if nrows > 1 else 0.2)
+
+
+def _split_shared(fig, outer, nrows, ncols, gap_in):
+    """Set the gap (inches) inside the 2-row sub-grids of ``outer`` (panels sharing x)."""
+    H = fig.get_size_inches()[1]
+    pos = outer.get_grid_positions(fig)
+    cell_h = pos[1][0] - pos[0][0]          # top - bottom of one outer cell (figure fraction)
+    gap = gap_in / H
+    for sub in {id(a.get_subplotspec().get_gridspec()): a.get_subplotspec().get_gridspec()
+                for a in fig.axes}.values():
+        if sub is not outer:
+            sub._hspace = 2 * gap / max(cell_h - gap, 1e-6)
+    for ax in fig.axes:
+        ax._set_position(ax.get_subplotspec().get_position(fig))
+
+
+def _legend_top(fig, handles, labels, ncol):
+    """Figure legend centred above the axes (the ``loc="outside upper center"`` look)."""
+    return fig.legend(handles, labels, loc="upper center", bbox_to_anchor=(0.5, 1.0),
+                      ncol=ncol, frameon=False, borderaxespad=0.3)
+
+
 def _grid(n: int, ncols: int = 3, row_h: float = 2.1, extra_rows: int = 1):
     ncols = max(1, min(ncols, n))
     nrows = max(1, int(np.ceil(n / ncols)))
@@ -141,9 +224,10 @@ def fig_training_runs(runs: dict, *, temp_sensors: list[str], eq_times: dict | N
     with plt.rc_context(STYLE):
         speeds = sorted(runs)
         nrows, ncols, size = _grid(len(speeds), 2, 2.0)
-        fig, axes = plt.subplots(nrows, ncols, figsize=size, squeeze=False, constrained_layout=True)
+        fig, axes = plt.subplots(nrows, ncols, figsize=size, squeeze=False)
         colours = plt.get_cmap("tab10")
         handles = {}
+        twins = []
         for ax, speed in zip(axes.flat, speeds):
             f = runs[speed]
             h = _hours(f["t_s"])
@@ -155,6 +239,7 @@ def fig_training_runs(runs: dict, *, temp_sensors: list[str], eq_times: dict | N
             ax.set_xlabel("time (h)")
             ax.set_ylabel("temperature (°C)")
             ax2 = ax.twinx()
+            twins.append(ax2)
             ax2.grid(False)
             ax2.spines["right"].set_visible(True)
             (ln,) = _plot(ax2, h, f["dz_um"], color="black", lw=1.2)
@@ -165,8 +250,12 @@ def fig_training_runs(runs: dict, *, temp_sensors: list[str], eq_times: dict | N
                 handles.setdefault("equilibrium t_eq", ln)
         for ax in list(axes.flat)[len(speeds):]:
             ax.set_visible(False)
-        fig.legend(list(handles.values()), list(handles.keys()), loc="outside upper center",
-                   ncol=min(len(handles), 6), frameon=False)
+        used = list(axes.flat)[:len(speeds)]
+        left = max(_y_room_in(ax) for ax in used)
+        right = max(_y_room_in(ax2, ax2.yaxis) for ax2 in twins)
+        _adjust(fig, left=left, right=right, top=TOP_LEGEND_IN, bottom=BOTTOM_IN,
+                ncols=ncols, nrows=nrows, wgap=left + right + 0.05, hgap=ROW_GAP_IN)
+        _legend_top(fig, list(handles.values()), list(handles.keys()), min(len(handles), 6))
         return encode(fig, fmt)
 
 
@@ -225,13 +314,15 @@ def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> dict:
         speeds = sorted(fits)
         ncols = min(3, len(speeds))
         nblocks = int(np.ceil(len(speeds) / ncols))
-        fig = plt.figure(figsize=(PAGE_WIDTH_IN, 2.6 * nblocks), constrained_layout=True)
-        gs = fig.add_gridspec(2 * nblocks, ncols, height_ratios=[2, 1] * nblocks)
+        fig = plt.figure(figsize=(PAGE_WIDTH_IN, 2.6 * nblocks))
+        outer = fig.add_gridspec(nblocks, ncols)
+        left_axes = []
         for k, speed in enumerate(speeds):
             r, c = divmod(k, ncols)
             f = fits[speed]
             h = _hours(f["t_s"])
-            ax = fig.add_subplot(gs[2 * r, c])
+            inner = outer[r, c].subgridspec(2, 1, height_ratios=[2, 1], hspace=0.0)
+            ax = fig.add_subplot(inner[0])
             _plot(ax, h, f["measured_um"], ".", ms=1.5, color=C_MEAS, label="measured")
             _plot(ax, h, f["fitted_um"], color=C_PRED, lw=1.0, label="model")
             ax.set_title(_speed_label(speed))
@@ -239,12 +330,17 @@ def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> dict:
             ax.tick_params(labelbottom=False)
             if k == 0:
                 ax.legend(loc="lower right", frameon=False)
-            axr = fig.add_subplot(gs[2 * r + 1, c], sharex=ax)
+            axr = fig.add_subplot(inner[1], sharex=ax)
+            left_axes += [ax, axr]
             res = np.asarray(f["measured_um"], float) - np.asarray(f["fitted_um"], float)
             _plot(axr, h, res, color=C_RES, lw=0.7)
             axr.axhline(0, color="black", lw=0.5)
             axr.set_ylabel("residual (µm)")
             axr.set_xlabel("time (h)")
+        room = max((_y_room_in(a) for a in left_axes), default=0.5)
+        _adjust(fig, left=room, right=EDGE_IN, top=TOP_TITLE_IN, bottom=BOTTOM_IN,
+                ncols=ncols, nrows=nblocks, wgap=room + 0.05, hgap=ROW_GAP_IN)
+        _split_shared(fig, outer, nblocks, ncols, SHARED_GAP_IN)
         return encode(fig, fmt)
 
 
@@ -283,7 +379,7 @@ def fig_validation_single(runs: dict, *, fmt: str = "png") -> dict:
     with plt.rc_context(STYLE):
         labels = list(runs)
         nrows, ncols, size = _grid(len(labels), 3, 2.0)
-        fig, axes = plt.subplots(nrows, ncols, figsize=size, squeeze=False, constrained_layout=True)
+        fig, axes = plt.subplots(nrows, ncols, figsize=size, squeeze=False)
         for ax, lab in zip(axes.flat, labels):
             f = runs[lab]
             h = _hours(f["t_s"])
@@ -295,9 +391,13 @@ def fig_validation_single(runs: dict, *, fmt: str = "png") -> dict:
             ax.set_ylabel("displacement (µm)")
         for ax in list(axes.flat)[len(labels):]:
             ax.set_visible(False)
+        used = list(axes.flat)[:len(labels)]
+        room = max((_y_room_in(ax) for ax in used), default=0.5)
+        _adjust(fig, left=room, right=EDGE_IN, top=TOP_LEGEND_IN if labels else TOP_TITLE_IN,
+                bottom=BOTTOM_IN, ncols=ncols, nrows=nrows, wgap=room + 0.05, hgap=ROW_GAP_IN)
         if labels:
             h, lab = axes.flat[0].get_legend_handles_labels()
-            fig.legend(h, lab, loc="outside upper center", ncol=2, frameon=False)
+            _legend_top(fig, h, lab, 2)
         return encode(fig, fmt)
 
 
@@ -312,7 +412,6 @@ def fig_multi_condition(f: pd.DataFrame, *, temp_sensors: list[str], title: str 
         temps = [s for s in temp_sensors if s in f]
         n = 3 if temps else 2
         fig, axes = plt.subplots(n, 1, figsize=(PAGE_WIDTH_IN, 1.45 * n + 0.9), sharex=True,
-                                 constrained_layout=True,
                                  gridspec_kw={"height_ratios": [1, 1.3, 1.6] if n == 3 else [1, 1.6]})
         h = _hours(f["t_s"])
         ax = axes[0]
@@ -336,6 +435,9 @@ def fig_multi_condition(f: pd.DataFrame, *, temp_sensors: list[str], title: str 
         ax.set_ylabel("displacement (µm)")
         ax.set_xlabel("time (h)")
         ax.legend(ncol=3, loc="upper left", frameon=False)
+        _adjust(fig, left=max(_y_room_in(a) for a in axes), right=EDGE_IN,
+                top=TOP_TITLE_IN if title else EDGE_IN + 0.03, bottom=BOTTOM_IN,
+                nrows=n, hgap=SHARED_GAP_IN)
         return encode(fig, fmt)
 
 
