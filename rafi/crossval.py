@@ -159,7 +159,7 @@ def cross_validate(model_factory: Callable[[], object], runs_table: pd.DataFrame
     for k, (train_ids, test_ids) in enumerate(split_runs(runs_table, scheme)):
         assert_disjoint(train_ids, test_ids)
         t_table, t_frame = subset_runs(runs_table, runs_frame, train_ids)
-        assert not set(t_frame["run_id"].astype(str)) & set(test_ids)
+        assert not set(map(str, pd.unique(t_frame["run_id"]))) & set(map(str, test_ids))
         model = model_factory().fit(t_table, t_frame)
         for rid in test_ids:
             _, run = subset_runs(runs_table, runs_frame, [rid])
