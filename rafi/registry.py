@@ -35,10 +35,12 @@ import pandas as pd
 
 from . import __version__
 from .model import canonical_json, jsonable
+from .validate import qualify as _qualify
+from .validate import validate_runs as _validate_runs
 
 __all__ = [
     "RegistryError", "Registry", "candidate_model_path", "canonical_json", "compute_model_id",
-    "merge_speed_models", "qualify_builtin", "gate_outcome", "drift_check", "new_validation_runs",
+    "merge_speed_models", "gate_outcome", "drift_check", "new_validation_runs",
     "decide", "comparison_table", "run_decide", "promote", "DEFAULT_NIGHTLY", "DEFAULT_GATES",
     "now_iso",
 ]
@@ -466,43 +468,6 @@ def speeds_from(merged: dict, candidate: dict) -> list[float]:
 
 # --------------------------------------------------------------------------- gates
 
-def qualify_builtin(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
-    """Reference implementation of the gates, same table as ``rafi.validate.qualify``.
-
-    One row per validation run and criterion: ``criterion``, ``limit``, ``measured``,
-    ``passed``, ``run_id``. Used when ``rafi.validate`` is not importable and in tests.
-    """
-    rows = []
-    for rec in summary.to_dict("records"):
-        rid = rec.get("run_id")
-        idle = str(rec.get("role")) == "validation_idle"
-        if gates.get("max_residual_um") is not None and not idle:
-            v = float(rec["max_abs_after_um"])
-            rows.append(("max_residual_um", float(gates["max_residual_um"]), v,
-                         bool(v <= float(gates["max_residual_um"])), rid))
-        if gates.get("min_improvement_pct") is not None and not idle:
-            v = float(rec["improvement_pct"])
-            rows.append(("min_improvement_pct", float(gates["min_improvement_pct"]), v,
-                         bool(v >= float(gates["min_improvement_pct"])), rid))
-        if gates.get("never_worse_than_uncompensated"):
-            v = float(rec["max_abs_after_um"]) - float(rec["max_abs_before_um"])
-            rows.append(("never_worse_than_uncompensated", 0.0, v, bool(v <= 0.0), rid))
-    return pd.DataFrame(rows, columns=["criterion", "limit", "measured", "passed", "run_id"])
-
-
-def _default_qualify() -> Callable:
-    try:
-        from .validate import qualify
-        return qualify
-    except ImportError:
-        return qualify_builtin
-
-
-def _default_validate() -> Callable:
-    from .validate import validate_runs
-    return validate_runs
-
-
 def gate_outcome(summary: pd.DataFrame, verdict: pd.DataFrame, gates: dict) -> tuple[bool, list[str], dict]:
     """Did the candidate pass every gate? Returns ``(passed, reasons, measured)``.
 
@@ -819,12 +784,9 @@ def decide(*, machine: str, candidate_dict: dict, candidate_summary: pd.DataFram
 # --------------------------------------------------------------------------- I/O driver
 
 def _model_from_dict(d: dict):
-    """A predicting model from an artefact dict: any kind of the model family, else RAFI."""
-    try:
-        from .model_family import load_any
-    except ImportError:
-        from .model import RafiModel
-        return RafiModel.from_dict(d)
+    """A predicting model from an artefact dict, of any kind (imported here: the family
+    pulls in statsmodels, which the registry itself does not need)."""
+    from .model_family import load_any
     return load_any(d)
 
 
@@ -853,8 +815,8 @@ def run_decide(*, machine: str, candidate_path: str | os.PathLike, runs_csv: str
 
     gates = {k: v for k, v in {**DEFAULT_GATES, **(gates or {})}.items() if k in GATE_KEYS}
     nightly = {**DEFAULT_NIGHTLY, **(nightly or {})}
-    validate_runs = validate_runs or _default_validate()
-    qualify = qualify or _default_qualify()
+    validate_runs = validate_runs or _validate_runs
+    qualify = qualify or _qualify
     reg = Registry(Path(registry_root), machine)
     runs_table = pd.read_csv(runs_csv)
     runs_frame = pd.read_parquet(runs_parquet)

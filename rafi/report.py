@@ -34,9 +34,10 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import yaml
 from markupsafe import Markup, escape
 
-from . import paper
+from . import fuzzy, paper, validate
 
 #: Paper values (Chang et al. 2023) used when a table lacks its ``paper_*`` column.
 PAPER_T_EQ_S = paper.T_EQ_S
@@ -247,45 +248,11 @@ def load_results(paths: dict) -> dict:
 
 # =========================================================================== the verdict
 
-def qualify_fallback(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
-    """Verdict rows per criterion and validation run (when ``rafi.validate.qualify`` is absent).
-
-    Same shape and rules as ``rafi.validate.qualify``: ``max_residual_um`` and
-    ``min_improvement_pct`` for every validation run except idle cool-downs, and
-    ``never_worse_than_uncompensated`` (limit = the run's ``max_abs_before_um``) for all.
-    """
-    rows = []
-    max_res = gates.get("max_residual_um")
-    min_imp = gates.get("min_improvement_pct")
-    never = _truthy(gates.get("never_worse_than_uncompensated", False))
-    for r in summary.to_dict("records"):
-        idle = str(r.get("role")) == "validation_idle"
-        after, before = float(r["max_abs_after_um"]), float(r["max_abs_before_um"])
-        if not idle and max_res is not None:
-            rows.append(dict(criterion="max_residual_um", limit=float(max_res), measured=after,
-                             passed=bool(after <= float(max_res)), run_id=r["run_id"]))
-        if not idle and min_imp is not None:
-            imp = float(r["improvement_pct"])
-            rows.append(dict(criterion="min_improvement_pct", limit=float(min_imp), measured=imp,
-                             passed=bool(imp >= float(min_imp)), run_id=r["run_id"]))
-        if never:
-            rows.append(dict(criterion="never_worse_than_uncompensated", limit=before,
-                             measured=after, passed=bool(after <= before), run_id=r["run_id"]))
-    return pd.DataFrame(rows, columns=["criterion", "limit", "measured", "passed", "run_id"])
-
-
-def qualify(summary: pd.DataFrame, gates: dict) -> tuple[pd.DataFrame, str]:
-    """Verdict rows (criterion x run) and where they came from (``rafi.validate.qualify`` if present)."""
-    try:
-        from rafi.validate import qualify as _q
-    except ImportError:
-        return qualify_fallback(summary, gates), "computed by rafi.report"
-    verdict = _q(summary, gates)
-    if not {"criterion", "limit", "measured", "passed"} <= set(verdict.columns):
-        return qualify_fallback(summary, gates), "computed by rafi.report"
-    if "run_id" not in verdict:
-        verdict = verdict.assign(run_id="")
-    return verdict, "from rafi.validate.qualify"
+def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
+    """Verdict rows (criterion x validation run) of ``rafi.validate.qualify``; a ``run_id``
+    column is always present."""
+    verdict = validate.qualify(summary, gates)
+    return verdict if "run_id" in verdict else verdict.assign(run_id="")
 
 
 CRITERION_TEXT = {
@@ -387,28 +354,10 @@ def eval_terms(terms, x: np.ndarray) -> np.ndarray:
     return np.column_stack(cols)
 
 
-def _fallback_weights(speeds, centres):
-    c = np.asarray(sorted(centres), float)
-    s = np.clip(np.asarray(speeds, float), c[0], c[-1])
-    w = np.zeros((len(s), len(c)))
-    if len(c) == 1:
-        w[:] = 1.0
-        return w
-    k = np.clip(np.searchsorted(c, s, side="right") - 1, 0, len(c) - 2)
-    frac = (s - c[k]) / (c[k + 1] - c[k])
-    w[np.arange(len(s)), k] = 1 - frac
-    w[np.arange(len(s)), k + 1] += frac
-    return w
-
-
 def membership(speeds, centres) -> np.ndarray:
-    """Membership weights via rafi.fuzzy when present (columns follow sorted ``centres``)."""
+    """Membership weights of ``rafi.fuzzy`` (columns follow sorted ``centres``)."""
     centres = sorted(float(c) for c in centres)
-    try:
-        from rafi.fuzzy import triangular_weights
-    except ImportError:
-        return _fallback_weights(speeds, centres)
-    return triangular_weights(np.asarray(speeds, float), centres)[0]
+    return fuzzy.triangular_weights(np.asarray(speeds, float), centres)[0]
 
 
 def _versions() -> list[dict]:
@@ -726,13 +675,8 @@ def _section_fuzzy(res, fmt):
     lo, hi = centres[0], centres[-1]
     span = max(hi - lo, 1000.0)
     grid = np.linspace(max(0.0, lo - 0.1 * span), hi + 0.1 * span, 801)
-    try:
-        from rafi.fuzzy import membership_curves
-        W = membership_curves(centres, grid)
-        source = "rafi.fuzzy.membership_curves"
-    except ImportError:
-        W = membership(grid, centres)
-        source = "triangular membership (rafi.report fallback)"
+    W = fuzzy.membership_curves(centres, grid)
+    source = "rafi.fuzzy.membership_curves"
     example = None
     if len(centres) >= 2:
         c0, c1 = centres[0], centres[1]
@@ -883,8 +827,8 @@ def _section_choices(settings: dict, key_info: dict, model: dict, eq_method):
                  "log_start": "the median of the first {w} s of the log/segment the run came from"}
     rows = [
         ("Regressors and target",
-         f"Temperature rises dT = T \u2212 T_ref (K) of the key sensors and displacement change "
-         f"dz = disp \u2212 disp_ref (\u00b5m); the reference state is "
+         "Temperature rises dT = T \u2212 T_ref (K) of the key sensors and displacement change "
+         "dz = disp \u2212 disp_ref (\u00b5m); the reference state is "
          + rule_text.get(rule, "rule '{r}' over {w} s").format(w=ref.get("window_s", "?"), r=rule)
          + f" (reference.rule = {rule}). Absolute temperatures would make the model depend on the "
            "season."),
@@ -1024,7 +968,7 @@ def _per_run_gates(summary: pd.DataFrame, gates: dict) -> dict:
     """``run_id -> (passed, [failed criteria])`` with the pipeline's own gate rules."""
     if summary is None or not len(summary):
         return {}
-    v, _ = qualify(summary, gates)
+    v = qualify(summary, gates)
     out = {}
     for rid, g in v.groupby(v["run_id"].astype(str), sort=False):
         ok = g["passed"].map(_truthy) & pd.to_numeric(g["measured"], errors="coerce").notna()
@@ -1086,8 +1030,8 @@ def _verdict_all(res: dict, gates: dict, infos: dict) -> dict:
     """The verdict of section 1: the model on the machine (with decision.json) + RAFI."""
     rafi_v = None
     if res["validation_summary"] is not None:
-        v, src = qualify(res["validation_summary"], gates)
-        rafi_v = verdict_context(v, src)
+        rafi_v = verdict_context(qualify(res["validation_summary"], gates),
+                                 "from rafi.validate.qualify")
         gated = res["validation_summary"]
         if "role" in gated:
             gated = gated[gated["role"].astype(str) != "validation_idle"]
@@ -1111,7 +1055,7 @@ def _verdict_all(res: dict, gates: dict, infos: dict) -> dict:
               "none": not after, "is_rafi": info.get("kind") == "rafi"}
     summ, src = _champion_after_summary(res, dec)
     if summ is not None and len(summ):
-        v, _ = qualify(summ, gates)
+        v = qualify(summ, gates)
         out = verdict_context(v, "computed from " + src)
     else:
         out = {"passed": False, "status": "FAIL", "rows": [], "n_checks": 0, "n_failed": 0,
@@ -1482,12 +1426,8 @@ def build_context(paths: dict, *, machine: str, settings: dict | None = None,
     ctx["verdict"]["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
     ctx["choices"] = _section_choices(settings, key_info, model, ctx["equilibrium"]["method"])
     ctx["versions"] = _versions()
-    try:
-        import yaml
-        ctx["config_yaml"] = yaml.safe_dump(config if config is not None else settings,
-                                            sort_keys=False, allow_unicode=True)
-    except ImportError:  # pragma: no cover
-        ctx["config_yaml"] = json.dumps(config if config is not None else settings, indent=2)
+    ctx["config_yaml"] = yaml.safe_dump(config if config is not None else settings,
+                                        sort_keys=False, allow_unicode=True)
     ctx["model_id"] = model.get("model_id", "")
     ctx["champion_id"] = dec.get("champion_id_after") or ""
     ctx["code_version"] = model.get("code_version", "")

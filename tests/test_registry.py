@@ -17,6 +17,7 @@ import pytest
 
 from rafi import registry as R
 from rafi.model import RafiModel
+from rafi.validate import qualify
 
 TERMS = ["1", "x1", "x2", "x3"]
 GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0,
@@ -170,7 +171,7 @@ def _decide(cand_summary, champ_summary=None, champion_id=None, history=(), cand
             nightly=None):
     cand = candidate or make_model(offset=1.0)
     return R.decide(machine="m1", candidate_dict=cand, candidate_summary=cand_summary,
-                    candidate_verdict=R.qualify_builtin(cand_summary, GATES),
+                    candidate_verdict=qualify(cand_summary, GATES),
                     champion_id=champion_id, champion_summary=champ_summary,
                     runs_table=RUNS, gates=GATES, nightly=nightly or {"drift_margin_um": 1.0},
                     history=list(history), time="2026-05-01T00:00:00Z")
@@ -206,7 +207,7 @@ def test_never_worse_gate_applies_to_any_single_run():
     assert r["measured"]["worse_than_uncompensated_runs"] == ["v3"]
     assert any("never_worse" in x and "v3" in x for x in r["reasons"])
     # even if a qualify() implementation forgot the per-run check, the decision catches it
-    passed, reasons, _ = R.gate_outcome(summary(rows), R.qualify_builtin(summary(rows), {}), {})
+    passed, reasons, _ = R.gate_outcome(summary(rows), qualify(summary(rows), {}), {})
     assert not passed and any("v3" in x for x in reasons)
 
 
@@ -221,18 +222,6 @@ def test_candidate_equal_to_champion_is_kept():
     r = _decide(summary([("v1", "validation_single", 20, 5)]), champion_id=cand["model_id"],
                 champ_summary=summary([("v1", "validation_single", 20, 5)]), candidate=cand).record
     assert r["decision"] == "kept" and r["champion_id_after"] == cand["model_id"]
-
-
-def test_builtin_qualify_matches_rafi_validate():
-    validate = pytest.importorskip("rafi.validate")
-    s = summary([("v1", "validation_single", 20, 13), ("v2", "validation_idle", 4, 5),
-                 ("v3", "validation_multi", 20, 5)])
-    ours = R.qualify_builtin(s, GATES)
-    theirs = validate.qualify(s, GATES)
-    key = ["criterion", "run_id"]
-    a = ours.sort_values(key).reset_index(drop=True)[key + ["passed"]]
-    b = theirs.sort_values(key).reset_index(drop=True)[key + ["passed"]]
-    pd.testing.assert_frame_equal(a, b, check_dtype=False)
 
 
 # --------------------------------------------------------------------------- drift
@@ -316,7 +305,7 @@ def _run(tmp_path, cand, nightly=None):
                         registry_root=reg, decision_path=reg / "decision.json",
                         comparison_path=reg / "comparison.csv", gates=GATES,
                         nightly=nightly or {}, log=lambda m: None, model_from_dict=FakeModel,
-                        validate_runs=fake_validate, qualify=R.qualify_builtin)
+                        validate_runs=fake_validate, qualify=qualify)
 
 
 def test_run_decide_promotes_rejects_and_rolls_back(tmp_path):
@@ -382,7 +371,7 @@ def test_run_decide_speed_range_with_real_models(tmp_path):
                        comparison_path=reg.comparison_path, gates=GATES,
                        nightly={"retrain_speed_range_rpm": [5000, 10000]}, log=lambda m: None,
                        model_from_dict=model_from_dict, validate_runs=fake_validate,
-                       qualify=R.qualify_builtin)
+                       qualify=qualify)
     assert rec["decision"] == "promoted"
     assert rec["adaptation"]["mode"] == "speed_range"
     assert [s["speed_rpm"] for s in rec["retrained_speeds"]] == [6000, 9000]

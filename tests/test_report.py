@@ -386,7 +386,7 @@ def test_envelope_keeps_extremes_and_bounds_points():
     assert len(xs) == 500                      # short series unchanged
 
 
-def test_fallback_qualify_matches_design_rules():
+def test_verdict_aggregates_the_worst_case_per_criterion():
     summary = pd.DataFrame({"run_id": ["a", "b", "idle"],
                             "role": ["validation_single", "validation_multi", "validation_idle"],
                             "max_abs_before_um": [20.0, 30.0, 10.0],
@@ -394,7 +394,7 @@ def test_fallback_qualify_matches_design_rules():
                             "improvement_pct": [75.0, 56.7, -10.0]})
     gates = {"max_residual_um": 12.0, "min_improvement_pct": 30.0,
              "never_worse_than_uncompensated": True}
-    rows = {r["criterion"]: r for r in report.aggregate_verdict(report.qualify_fallback(summary, gates))}
+    rows = {r["criterion"]: r for r in report.aggregate_verdict(report.qualify(summary, gates))}
     assert not rows["max_residual_um"]["passed"] and "b" in rows["max_residual_um"]["run_id"]
     assert rows["min_improvement_pct"]["passed"]          # idle run is not held to it
     assert not rows["never_worse_than_uncompensated"]["passed"]

@@ -18,7 +18,6 @@
 
 import ast
 import copy
-import fnmatch
 import importlib.util
 import logging
 import os
@@ -27,6 +26,7 @@ from pathlib import Path
 from snakemake.exceptions import WorkflowError
 
 import rafi.registry as _registry
+from rafi.io import find_logs
 from snakemake.utils import validate
 
 validate(config, schema="../schemas/config.schema.yaml")
@@ -95,18 +95,9 @@ def _patterns(machine):
 
 def _find_logs(folder, machine):
     """Raw files of one machine folder: ``rafi.io.find_logs`` (the same rule as ``rafi
-    nightly``; it also validates the ``input:`` mapping), else a plain glob of the names."""
-    spec = machine_config(machine)["input"]
+    nightly``; it also validates the ``input:`` mapping)."""
     try:
-        from rafi.io import find_logs
-    except ImportError:
-        return sorted(
-            p for p in folder.iterdir()
-            if p.is_file() and not p.name.startswith((".", "~$"))
-            and any(fnmatch.fnmatchcase(p.name, pat) for pat in _patterns(machine))
-        )
-    try:
-        return find_logs(folder, spec)
+        return find_logs(folder, machine_config(machine)["input"])
     except ValueError as exc:          # rafi.formats.InputSpecError: a bad input: mapping
         raise WorkflowError(f"RAFI: machine {machine!r}: {exc}") from None
 
