@@ -55,7 +55,7 @@ from .crossval import split_runs, training_runs
 SCHEMA = "rafi.model/1"
 RAFI_TERMS = ["1", "x1", "x2", "x3", "x1*x2", "x1*x3", "x2*x3", "x1^2", "x2^2", "x3^2", "x1*x2*x3"]
 LINEAR_TERMS = ["1", "x1", "x2", "x3"]
-DEFAULT_ALPHAS = [1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 1e-1, 1.0, 10.0]
+DEFAULT_ALPHAS = [float(f"{m}e{e}") for e in range(-8, 1) for m in (1, 2, 5)] + [10.0]  # 1-2-5 per decade
 DEFAULT_TAUS_S = [0.0, 300.0, 600.0, 1200.0, 2400.0, 4800.0]
 DEFAULT_REFERENCE = {"rule": "run_start", "window_s": 60.0}
 SPEED_SCALE_RPM = 1000.0  # speed features are in krpm and krpm^2
@@ -142,8 +142,10 @@ class PublishedRafi:
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         from .regression import fit_rafi
         table, frame = training_runs(runs_table, runs_frame)
+        # the artefact needs the coefficients only: the diagnostics belong to rule fit
         res = fit_rafi(table, frame, key_sensors=self.key_sensors, terms=self.terms,
-                       hac_maxlags=self.hac_maxlags, reference=self.reference, machine=self.machine)
+                       hac_maxlags=self.hac_maxlags, reference=self.reference, machine=self.machine,
+                       diagnostics=False)
         self.model_ = res.model
         self.train_runs_ = sorted(map(str, table["run_id"]))
         return self
@@ -242,20 +244,48 @@ def lowpass_runs(values: np.ndarray, t_s: np.ndarray, run_codes: np.ndarray, tau
 
 def _lowpass_regular(x: np.ndarray, gain: np.ndarray, gain0: np.ndarray, initial: str) -> np.ndarray:
     """:func:`lowpass_runs` on one run sampled on a regular grid with no missing value:
-    ``y[k] = (1 - g) y[k-1] + g x[k]`` per column, computed by ``scipy.signal.lfilter``
-    (same numbers as the sample loop, to rounding)."""
-    from scipy.signal import lfilter
+    ``y[k] = (1 - g) y[k-1] + g x[k]`` per column (same numbers as the sample loop, to
+    rounding), computed by :func:`first_order_recursion`."""
+    g = np.asarray(gain, dtype=float)
+    y0 = np.asarray(gain0, dtype=float) * x[0] if initial == "zero" else x[0].astype(float)
+    out = np.empty_like(x, dtype=float)
+    out[0] = y0
+    if len(x) > 1:
+        out[1:] = first_order_recursion(x[1:], 1.0 - g, g, y0)
+    return out
 
+
+#: Largest growth of the scaling factor ``a**-k`` inside one block of :func:`first_order_recursion`.
+_MAX_LOG_SCALE = 600.0
+
+
+def first_order_recursion(x: np.ndarray, a: np.ndarray, b: np.ndarray, y0: np.ndarray) -> np.ndarray:
+    """``y[k] = a y[k-1] + b x[k]`` down the rows of ``x``, per column, with ``y[-1] = y0``.
+
+    Vectorised without a sample loop (and without importing scipy.signal, whose import alone
+    costs about a second per job): inside a block of rows,
+    ``y[k] = a^k (y0 + sum_{j<=k} b a^-j x[j])``, a cumulative sum. Blocks are short enough
+    that ``a^-k`` stays below ``exp(600)``; the rounding error is then of the order of
+    ``eps * max|x| * b / (1 - a)``, as for the recursion itself.
+    """
+    x = np.asarray(x, dtype=float)
+    a = np.broadcast_to(np.asarray(a, dtype=float), x.shape[1:]).copy()
+    b = np.broadcast_to(np.asarray(b, dtype=float), x.shape[1:])
+    y_prev = np.broadcast_to(np.asarray(y0, dtype=float), x.shape[1:]).copy()
     out = np.empty_like(x)
-    for j in range(x.shape[1]):
-        g = float(gain[j])
-        if initial == "zero":
-            y0 = float(gain0[j]) * x[0, j]
-        else:
-            y0 = x[0, j]
-        out[0, j] = y0
-        if len(x) > 1:
-            out[1:, j] = lfilter([g], [1.0, g - 1.0], x[1:, j], zi=[(1.0 - g) * y0])[0]
+    through = a <= 1e-300          # no memory: y = b x
+    a[through] = 0.5               # any value: those columns are overwritten below
+    log_a = np.log(a)
+    block = max(1, int(_MAX_LOG_SCALE / max(float(np.max(-log_a)), 1e-300)))
+    for start in range(0, len(x), block):
+        seg = x[start:start + block]
+        k = np.arange(1, len(seg) + 1, dtype=float).reshape((-1,) + (1,) * (x.ndim - 1))
+        scale = np.exp(-k * log_a)                       # a^-k
+        y = (y_prev + np.cumsum(seg * (b * scale), axis=0)) / scale
+        out[start:start + len(seg)] = y
+        y_prev = y[-1]
+    if through.any():
+        out[:, through] = x[:, through] * b[through]
     return out
 
 
@@ -281,14 +311,15 @@ def reference_speed(frame: pd.DataFrame, rule: str, window_s: float) -> np.ndarr
     n = len(frame)
     if rule == "zero" or n == 0:
         return np.zeros(n)
-    runs = frame["run_id"].astype(str) if "run_id" in frame.columns else pd.Series("run", index=frame.index)
-    t = frame["t_s"] if "t_s" in frame.columns else pd.Series(np.arange(n, dtype=float), index=frame.index)
-    tmp = pd.DataFrame({"run": runs.to_numpy(), "t": t.to_numpy(dtype=float),
-                        "n": frame["speed_rpm"].to_numpy(dtype=float)})
-    t0 = tmp.groupby("run")["t"].transform("min")
-    first = tmp[tmp["t"] <= t0 + window_s]
-    ref = first.groupby("run")["n"].median()
-    return tmp["run"].map(ref).to_numpy(dtype=float)
+    codes = pd.factorize(frame["run_id"])[0] if "run_id" in frame.columns else np.zeros(n, dtype=int)
+    t = frame["t_s"].to_numpy(dtype=float) if "t_s" in frame.columns else np.arange(n, dtype=float)
+    speed = frame["speed_rpm"].to_numpy(dtype=float)
+    out = np.empty(n)
+    for c in np.unique(codes):
+        rows = np.flatnonzero(codes == c)
+        tr = t[rows]
+        out[rows] = np.median(speed[rows[tr <= tr.min() + window_s]])
+    return out
 
 
 #: A term relative to the reference speed needs this many training runs that show a speed change.
@@ -409,7 +440,8 @@ class _RidgeBase:
 
     def _cv_setup(self, feats: np.ndarray, y: np.ndarray, run_ids: np.ndarray, table: pd.DataFrame) -> dict:
         """Per fold, once per fit: the training runs' Gram matrix ``X'X``, ``X'y`` and sample
-        count (sums of per-run parts) and the test runs' rows of ``X`` and ``y``."""
+        count (sums of per-run parts), the test runs' rows of ``X`` and ``y`` (for ``max_abs``)
+        and their ``X'X``, ``X'y``, ``y'y`` (for ``rmse``)."""
         rows = {r: np.flatnonzero(run_ids == r) for r in np.unique(run_ids)}
         gram = {r: (feats[i].T @ feats[i], feats[i].T @ y[i], len(i)) for r, i in rows.items()}
         folds = []
@@ -418,9 +450,12 @@ class _RidgeBase:
             te = [rows[r] for r in test_ids if r in rows]
             if not train or not te:
                 continue
+            test = [gram[r] for r in test_ids if r in gram]
             te = np.concatenate(te)
             folds.append({"g": sum(t[0] for t in train), "c": sum(t[1] for t in train),
-                          "n": sum(t[2] for t in train), "x_test": feats[te], "y_test": y[te]})
+                          "n": sum(t[2] for t in train), "x_test": feats[te], "y_test": y[te],
+                          "g_test": sum(t[0] for t in test), "c_test": sum(t[1] for t in test),
+                          "yy_test": float(y[te] @ y[te])})
         return {"folds": folds}
 
     def _cv_scores(self, cvd: dict, cols: np.ndarray) -> np.ndarray:
@@ -435,12 +470,20 @@ class _RidgeBase:
             sc = np.sqrt(np.diag(g) / n)
             sc = np.where(sc > 1e-12, sc, 1.0)
             b = self._ridge_gram(g / np.outer(sc, sc), c / sc, n, self.alphas) / sc[:, None]
+            count += len(fold["y_test"])
+            if self.cv_metric == "rmse":
+                # |y - Xb|^2 = y'y - 2 b'X'y + b'X'Xb from the test fold's Gram matrix: no pass
+                # over the test samples per candidate
+                sq += (fold["yy_test"] - 2.0 * (fold["c_test"][cols] @ b)
+                       + np.einsum("ia,ij,ja->a", b, fold["g_test"][ix], b))
+                continue
             res = fold["y_test"][:, None] - fold["x_test"][:, cols] @ b
             sq += np.sum(res ** 2, axis=0)
-            count += len(res)
             fold_max.append(np.max(np.abs(res), axis=0))
         if count == 0:
             return np.zeros(len(self.alphas))
+        if self.cv_metric == "rmse":
+            return np.sqrt(np.clip(sq, 0.0, None) / count)
         if self.cv_metric == "max_abs":
             return np.mean(fold_max, axis=0)
         if self.cv_metric != "rmse":
@@ -634,9 +677,10 @@ class DynamicRidge(RidgeGlobal):
         return h
 
 
-DEFAULT_SPEED_TAUS_S = [60.0, 120.0, 180.0, 300.0, 600.0, 1200.0, 2400.0]
+DEFAULT_SPEED_TAUS_S = [60.0, 180.0, 600.0, 2400.0]
 DEFAULT_SPEED_POWERS = [0.0, 1.0, 5.0 / 3.0, 2.0]  # 0: "running" (magnetising loss ~ constant)
-DEFAULT_GREY_TAUS_S = [0.0, 600.0, 1200.0]
+DEFAULT_GREY_TAUS_S = [0.0, 120.0, 600.0]
+DEFAULT_CENTRIFUGAL_LAGS_S = [0.0, 5.0, 10.0, 20.0]  # first-order lag of the draw-in n^2 term (by CV)
 SPEED_POWER_SCALE_RPM = 10000.0  # speed-power features use (n / 10000 r/min)^p
 
 
@@ -686,13 +730,20 @@ class GreyBox(RidgeGlobal):
     def __init__(self, *, taus_s: Sequence[float] = DEFAULT_GREY_TAUS_S, max_taus: int = 1,
                  speed_taus_s: Sequence[float] = DEFAULT_SPEED_TAUS_S, max_speed_taus: int = 2,
                  speed_powers: Sequence[float] = DEFAULT_SPEED_POWERS, speed_tolerance_rpm: float = 50.0,
-                 cv_metric: str = "max_abs", speed_gain: bool | str = False, **kw):
+                 cv_metric: str = "max_abs", speed_gain: bool | str = False, filter_search: str = "all",
+                 centrifugal_lags_s: Sequence[float] = DEFAULT_CENTRIFUGAL_LAGS_S, **kw):
         super().__init__(cv_metric=cv_metric, speed_gain=speed_gain, speed_tolerance_rpm=speed_tolerance_rpm, **kw)
         self.taus_s = [float(t) for t in taus_s]
         self.max_taus = int(max_taus)
         self.speed_taus_s = [float(t) for t in speed_taus_s]
         self.max_speed_taus = int(max_speed_taus)
         self.speed_powers = [float(p) for p in speed_powers]
+        if filter_search not in ("all", "subsets"):
+            raise ValueError(f"filter_search={filter_search!r}: use all or subsets")
+        self.filter_search = filter_search
+        self.centrifugal_lags_s = [float(t) for t in centrifugal_lags_s] or [0.0]
+        if min(self.centrifugal_lags_s) < 0:
+            raise ValueError(f"centrifugal_lags_s={centrifugal_lags_s!r}: lags must be >= 0")
 
     def _inputs_text(self) -> str:
         return ("first-order low-pass filtered temperature rises dT (K) of all usable sensors; first-order "
@@ -701,7 +752,8 @@ class GreyBox(RidgeGlobal):
     def _hyper(self) -> dict:
         h = super()._hyper()
         h.update({"taus_s": self.taus_s, "max_taus": self.max_taus, "speed_taus_s": self.speed_taus_s,
-                  "max_speed_taus": self.max_speed_taus, "speed_powers": self.speed_powers})
+                  "max_speed_taus": self.max_speed_taus, "speed_powers": self.speed_powers,
+                  "filter_search": self.filter_search, "centrifugal_lags_s": self.centrifugal_lags_s})
         return h
 
     def _features(self, frame: pd.DataFrame, sensors: Sequence[str], taus: Sequence[float]):
@@ -726,12 +778,34 @@ class GreyBox(RidgeGlobal):
                 names += [f"L{tau:g}s(n^{p:.4g})" for p in self.speed_powers]
         if getattr(self, "instantaneous_", False):
             n0 = reference_speed(frame, self._speed_rule(), float(self.reference.get("window_s", 60)))[order]
-            parts.append(((rpm / SPEED_SCALE_RPM) ** 2 - (n0 / SPEED_SCALE_RPM) ** 2)[:, None])
-            names.append("n2_krpm2")
+            n2 = ((rpm / SPEED_SCALE_RPM) ** 2 - (n0 / SPEED_SCALE_RPM) ** 2)[:, None]
+            lags = self._centrifugal_lags_in_features()
+            parts.append(lowpass_runs(n2, t, codes, lags))
+            names += ["n2_krpm2" if lag <= 0 else f"L{lag:g}s(n2_krpm2)" for lag in lags]
         f_sorted = np.column_stack(parts)
         out = np.empty_like(f_sorted)
         out[order] = f_sorted
         return out, names
+
+    def _centrifugal_lags_in_features(self) -> list[float]:
+        """The draw-in lags whose ``n^2`` columns the features carry: every candidate while
+        :meth:`fit` searches, afterwards the chosen one."""
+        searching = getattr(self, "_searching_lags", None)
+        return list(searching) if searching else [float(getattr(self, "centrifugal_lag_s_", 0.0))]
+
+    def _filter_sets(self) -> tuple[list, list]:
+        """Candidate (rise tau indices, speed tau indices) sets. ``all``: every rise filter at
+        once, with every heat-input filter at once or with none (the ridge penalty sorts out
+        redundant constants; CV decides whether the heat-input terms help at all, e.g. they do
+        not for runs referenced while already spinning). ``subsets``: every subset of at most
+        ``max_taus`` / ``max_speed_taus`` of them."""
+        if self.filter_search == "all":
+            return [tuple(range(len(self.taus_s)))], [(), tuple(range(len(self.speed_taus_s)))]
+        rise_sets = [c for k in range(1, max(1, self.max_taus) + 1)
+                     for c in itertools.combinations(range(len(self.taus_s)), k)]
+        speed_sets = [c for k in range(0, self.max_speed_taus + 1)
+                      for c in itertools.combinations(range(len(self.speed_taus_s)), k)]
+        return rise_sets, speed_sets
 
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         table, frame, sensors = self._prepare(runs_table, runs_frame)
@@ -741,35 +815,43 @@ class GreyBox(RidgeGlobal):
         y = frame["dz_um"].to_numpy(dtype=float)
         run_ids = frame["run_id"].astype(str).to_numpy()
         self.speed_taus_ = list(self.speed_taus_s)
-        feats, _ = self._features(frame, sensors, self.taus_s)
+        lags = self.centrifugal_lags_s if self.instantaneous_ else [0.0]
+        self._searching_lags = lags
+        try:
+            feats, _ = self._features(frame, sensors, self.taus_s)
+        finally:
+            del self._searching_lags
         p, q = len(sensors), len(self.speed_powers)
         n_rise = p * len(self.taus_s)
-        inst = np.arange(n_rise + q * len(self.speed_taus_s), feats.shape[1])
+        n_speed = q * len(self.speed_taus_s)
+        inst_cols = [np.arange(n_rise + n_speed + k, n_rise + n_speed + k + 1) for k in range(len(lags))] \
+            if self.instantaneous_ else [np.arange(0)]
         cvd = self._cv_setup(feats, y, run_ids, table)
-        cv_table, best = [], (math.inf, None, None, None)
-        rise_sets = [c for k in range(1, max(1, self.max_taus) + 1)
-                     for c in itertools.combinations(range(len(self.taus_s)), k)]
-        speed_sets = [c for k in range(0, self.max_speed_taus + 1)
-                      for c in itertools.combinations(range(len(self.speed_taus_s)), k)]
+        cv_table, best = [], (math.inf, None, None, None, 0.0)
+        rise_sets, speed_sets = self._filter_sets()
         for rs in rise_sets:
             rcols = [np.arange(i * p, (i + 1) * p) for i in rs]
             for ss in speed_sets:
                 scols = [n_rise + np.arange(j * q, (j + 1) * q) for j in ss]
-                cols = np.concatenate(rcols + scols + [inst])
-                scores = self._cv_scores(cvd, cols)
-                taus = [self.taus_s[i] for i in rs]
-                staus = [self.speed_taus_s[j] for j in ss]
-                for a, sc in zip(self.alphas, scores):
-                    cv_table.append({"taus_s": taus, "speed_taus_s": staus, "alpha": a, "score_um": float(sc)})
-                    if sc < best[0] - 1e-12:
-                        best = (float(sc), taus, staus, a)
-        _, taus, staus, alpha = best
+                for lag, inst in zip(lags, inst_cols):
+                    cols = np.concatenate(rcols + scols + [inst])
+                    scores = self._cv_scores(cvd, cols)
+                    taus = [self.taus_s[i] for i in rs]
+                    staus = [self.speed_taus_s[j] for j in ss]
+                    for a, sc in zip(self.alphas, scores):
+                        cv_table.append({"taus_s": taus, "speed_taus_s": staus, "centrifugal_lag_s": lag,
+                                         "alpha": a, "score_um": float(sc)})
+                        if sc < best[0] - 1e-12:
+                            best = (float(sc), taus, staus, a, lag)
+        _, taus, staus, alpha, lag = best
         self.speed_taus_ = staus
+        self.centrifugal_lag_s_ = float(lag)
         return self._fit_final(table, frame, sensors, taus, alpha, cv_table)
 
     def to_dict(self) -> dict:
         d = {k: v for k, v in super().to_dict().items() if k not in ("model_id", "created", "schema")}
-        d["selected"] = {**d["selected"], "speed_taus_s": self.speed_taus_, "instantaneous_n2": bool(self.instantaneous_)}
+        d["selected"] = {**d["selected"], "speed_taus_s": self.speed_taus_, "instantaneous_n2": bool(self.instantaneous_),
+                         "centrifugal_lag_s": float(getattr(self, "centrifugal_lag_s_", 0.0))}
         d["filter"] = {"type": "first_order_lowpass", "update": "y += (1 - exp(-dt/tau)) * (x - y)",
                        "initial_condition": {
                            "rises": "settled on the run's first sample (~0 at a cold start)",
@@ -783,6 +865,7 @@ class GreyBox(RidgeGlobal):
         m = super().from_dict(d)
         m.speed_taus_ = [float(t) for t in d["selected"].get("speed_taus_s", [])]
         m.instantaneous_ = bool(d["selected"].get("instantaneous_n2", False))
+        m.centrifugal_lag_s_ = float(d["selected"].get("centrifugal_lag_s", 0.0))
         m.speed_terms_ = m.instantaneous_
         return m
 
@@ -822,7 +905,9 @@ def make_model(kind: str, *, key_sensors: Sequence[str] = ("T6", "T8", "T9"), te
                        speed_taus_s=o.get("grey_box_speed_taus_s", DEFAULT_SPEED_TAUS_S),
                        max_speed_taus=o.get("grey_box_max_speed_taus", 2),
                        speed_powers=o.get("grey_box_speed_powers", DEFAULT_SPEED_POWERS),
-                       cv_metric=o.get("grey_box_cv_metric", "max_abs"), **kw)
+                       cv_metric=o.get("grey_box_cv_metric", "max_abs"),
+                       filter_search=o.get("grey_box_filter_search", "all"),
+                       centrifugal_lags_s=o.get("grey_box_centrifugal_lags_s", DEFAULT_CENTRIFUGAL_LAGS_S), **kw)
     raise ValueError(f"unknown model kind {kind!r}; known: {sorted(KINDS)}")
 
 
@@ -900,7 +985,8 @@ def run_family(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensor
         m = models[kind]
         extra = f" alpha={m.alpha_:g} taus_s={m.taus_}" if hasattr(m, "alpha_") else ""
         if hasattr(m, "speed_taus_"):
-            extra += f" speed_taus_s={m.speed_taus_} instantaneous_n2={m.instantaneous_}"
+            extra += (f" speed_taus_s={m.speed_taus_} instantaneous_n2={m.instantaneous_}"
+                      f" centrifugal_lag_s={getattr(m, 'centrifugal_lag_s_', 0.0):g}")
         log(f"{kind}: fitted in {fit_time[kind]:.2f} s{extra}")
         if opts.get("cv_report", True):
             t0 = time.perf_counter()
@@ -931,7 +1017,8 @@ def make_synthetic_runs(*, seed: int = 0, sample_s: float = 60.0, duration_s: fl
                         train_speeds=(3000, 6000, 9000, 12000, 15000, 18000),
                         validation_speeds=(4500, 10500, 16500), multi: bool = True,
                         noise_um: float = 0.05, shaft_um: float = 0.0, shaft_tau_s: float = 300.0,
-                        shaft_power: float = 5.0 / 3.0) -> tuple[pd.DataFrame, pd.DataFrame]:
+                        shaft_power: float = 5.0 / 3.0,
+                        centrifugal_lag_s: float = 0.0) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Small deterministic runs for tests and benchmarks (not the digital twin).
 
     Sensor rises are first-order responses (time constants ``sensor_taus_s``, default 600..3000 s) to a heat input
@@ -939,7 +1026,8 @@ def make_synthetic_runs(*, seed: int = 0, sample_s: float = 60.0, duration_s: fl
     c (n^2 - n0^2)`` (+ noise). Every run starts with 120 s at rest (the 60 s reference window)
     so the centrifugal term is identifiable. ``shaft_um`` > 0 adds an unmeasured fast part
     (the shaft): ``shaft_um * L_shaft_tau_s((n / 10000)^shaft_power)``, zero before the run
-    (no sensor sees it; the grey-box speed-power filter must recover it). Returns ``(runs_table, runs_frame)`` in the
+    (no sensor sees it; the grey-box speed-power filter must recover it). ``centrifugal_lag_s``
+    > 0 passes the ``n^2`` term through a first-order lag. Returns ``(runs_table, runs_frame)`` in the
     ``docs/design.md`` layout (rises only for ``T1..T{n_sensors}``).
     """
     rng = np.random.default_rng(seed)
@@ -957,7 +1045,8 @@ def make_synthetic_runs(*, seed: int = 0, sample_s: float = 60.0, duration_s: fl
                               for i in range(n_sensors)])
         lag = lowpass_runs(dT, t, codes, [tau_lag_s])
         n0 = np.median(n[t <= 60.0])
-        dz = lag @ disp_gain + centrifugal_um_per_krpm2 * ((n / 1000) ** 2 - (n0 / 1000) ** 2)
+        n2 = ((n / 1000) ** 2 - (n0 / 1000) ** 2)[:, None]
+        dz = lag @ disp_gain + centrifugal_um_per_krpm2 * lowpass_runs(n2, t, codes, [centrifugal_lag_s])[:, 0]
         if shaft_um:
             dz = dz + shaft_um * lowpass_runs((n / SPEED_POWER_SCALE_RPM) ** shaft_power, t, codes, [shaft_tau_s],
                                               initial="zero")[:, 0]

@@ -39,10 +39,6 @@ from dataclasses import dataclass
 
 import numpy as np
 import pandas as pd
-from statsmodels.regression.linear_model import OLS
-from statsmodels.stats.diagnostic import het_breuschpagan
-from statsmodels.stats.outliers_influence import variance_inflation_factor
-from statsmodels.stats.stattools import jarque_bera
 
 from . import paper
 from .model import RafiModel, design_matrix, parse_terms
@@ -92,7 +88,13 @@ def _durbin_watson_within(resid: np.ndarray, groups: np.ndarray) -> float:
     return float(np.sum(diff[same] ** 2) / denom) if denom > 0 else float("nan")
 
 
-def fit_speed(y, x, terms, *, groups=None, hac_maxlags: int = 60) -> dict:
+def _ols_coefficients(y: np.ndarray, design: np.ndarray) -> np.ndarray:
+    """OLS coefficients computed exactly as statsmodels' ``OLS(y, X).fit()`` does
+    (``pinv(X) @ y``), without importing statsmodels."""
+    return np.linalg.pinv(design, rcond=1e-15, hermitian=False) @ y
+
+
+def fit_speed(y, x, terms, *, groups=None, hac_maxlags: int = 60, diagnostics: bool = True) -> dict:
     """Fit one speed's OLS and compute its coefficient table and diagnostics.
 
     Parameters
@@ -108,6 +110,11 @@ def fit_speed(y, x, terms, *, groups=None, hac_maxlags: int = 60) -> dict:
         Default: one run.
     hac_maxlags : int, default 60
         Newey-West lags in samples.
+    diagnostics : bool, default True
+        False: the coefficients only (same numbers, computed as statsmodels does, without
+        importing it), for refits whose diagnostics nobody reads (cross-validation folds,
+        the model family's RAFI variants). ``se`` .. ``p_hac`` are then NaN, ``vif`` is
+        empty, ``diagnostics`` holds only ``n`` and ``rmse_um``, and ``result`` is None.
 
     Returns
     -------
@@ -131,6 +138,20 @@ def fit_speed(y, x, terms, *, groups=None, hac_maxlags: int = 60) -> dict:
         raise ValueError("groups must have one entry per sample")
     if np.any(groups[1:] < groups[:-1]):
         raise ValueError("groups must be sorted (samples of a run contiguous)")
+
+    if not diagnostics:
+        coef = _ols_coefficients(y, design)
+        fitted = design @ coef
+        resid = y - fitted
+        nan = np.full(k, np.nan)
+        return {"coef": coef, "se": nan, "se_hac": nan, "t": nan, "p": nan, "p_hac": nan, "vif": {},
+                "diagnostics": {"n": int(n), "rmse_um": float(np.sqrt(np.mean(resid ** 2)))},
+                "resid": resid, "fitted": fitted, "result": None}
+
+    from statsmodels.regression.linear_model import OLS
+    from statsmodels.stats.diagnostic import het_breuschpagan
+    from statsmodels.stats.outliers_influence import variance_inflation_factor
+    from statsmodels.stats.stattools import jarque_bera
 
     res = OLS(y, design).fit()
     _, counts = np.unique(groups, return_counts=True)
@@ -194,7 +215,8 @@ def fit_speed(y, x, terms, *, groups=None, hac_maxlags: int = 60) -> dict:
 def fit_rafi(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensors, terms,
              hac_maxlags: int = 60, reference: dict | None = None,
              machine: str | None = None, fuzzy_outside: str = "edge",
-             speed_tolerance_rpm: float = 50.0, config: dict | None = None) -> FitResult:
+             speed_tolerance_rpm: float = 50.0, config: dict | None = None,
+             diagnostics: bool = True) -> FitResult:
     """Fit the RAFI model: one OLS per training speed on the key sensors' rises.
 
     Parameters
@@ -221,6 +243,9 @@ def fit_rafi(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensors,
         Speeds this close to a training speed count as that speed (stored in the model).
     config : dict, optional
         The settings that made the model, stored in the artefact for provenance.
+    diagnostics : bool, default True
+        False: coefficients only (:func:`fit_speed`); the model is the same, the
+        coefficient table's standard errors and the diagnostics are NaN, ``vif`` is empty.
 
     Returns
     -------
@@ -271,7 +296,7 @@ def fit_rafi(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensors,
         y = sub["dz_um"].to_numpy(dtype=float)
         g = sub["_run"].to_numpy(dtype=int)
         try:
-            fit = fit_speed(y, x, terms, groups=g, hac_maxlags=hac_maxlags)
+            fit = fit_speed(y, x, terms, groups=g, hac_maxlags=hac_maxlags, diagnostics=diagnostics)
         except ValueError as exc:
             raise ValueError(f"fit at {speed} r/min: {exc}") from None
         for j, term in enumerate(terms):
@@ -281,7 +306,7 @@ def fit_rafi(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensors,
         for term, v in fit["vif"].items():
             vif_rows.append({"speed_rpm": speed, "term": term, "vif": v})
         d = fit["diagnostics"]
-        d = {"speed_rpm": speed, **{c: d[c] for c in DIAGNOSTIC_COLUMNS[1:] if c in d},
+        d = {"speed_rpm": speed, **{c: d.get(c, float("nan")) for c in DIAGNOSTIC_COLUMNS[1:]},
              "paper_rmse_um": paper_value(speed, PAPER_RMSE_UM)}
         diag_rows.append({c: d[c] for c in DIAGNOSTIC_COLUMNS})
         ranges = {s: (float(np.min(x[:, i])), float(np.max(x[:, i])))

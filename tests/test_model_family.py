@@ -79,9 +79,11 @@ def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
     table, frame = make_synthetic_runs(seed=3, sample_s=60.0, n_sensors=2, sensor_taus_s=(300, 500),
                                        tau_lag_s=1800.0, noise_um=0.02, shaft_um=4.0, shaft_tau_s=300.0)
     gb = GreyBox(taus_s=[0, 600, 1800, 4800], max_taus=1, speed_taus_s=[60, 300, 1200, 3600],
-                 max_speed_taus=1, speed_powers=[5 / 3], cv_metric="max_abs").fit(table, frame)
+                 max_speed_taus=1, speed_powers=[5 / 3], cv_metric="max_abs", filter_search="subsets",
+                 centrifugal_lags_s=[0, 20]).fit(table, frame)
     assert gb.taus_ == [1800.0] and gb.speed_taus_ == [300.0]
     assert gb.instantaneous_  # runs start at rest: the n^2 jump is identifiable
+    assert gb.centrifugal_lag_s_ == 0.0  # the truth has no draw-in lag
     coef = dict(zip(gb.feature_names_, gb.coef_))
     assert coef["L300s(n^1.667)"] == pytest.approx(4.0, rel=0.03)
     assert coef["n2_krpm2"] == pytest.approx(-0.02, abs=0.003)
@@ -92,6 +94,37 @@ def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
         rmse[name] = float(np.sqrt(np.mean((val["dz_um"] - m.predict(val)) ** 2)))
     assert rmse["grey_box"] < 0.05  # noise is 0.02 um
     assert rmse["grey_box"] < 0.25 * rmse["dynamic"]  # the sensor-only model cannot see the shaft
+
+
+def test_grey_box_recovers_the_draw_in_lag_and_fits_every_filter_at_once():
+    # 5 s samples; the n^2 draw-in follows the speed with a 10 s lag (the twin's holder: 8 s)
+    table, frame = make_synthetic_runs(seed=5, sample_s=5.0, duration_s=3600.0, n_sensors=2,
+                                       sensor_taus_s=(300, 500), tau_lag_s=600.0, noise_um=0.02,
+                                       shaft_um=2.0, shaft_tau_s=300.0, centrifugal_lag_s=10.0)
+    gb = GreyBox(taus_s=[0, 600], speed_taus_s=[120, 300, 1200], speed_powers=[5 / 3],
+                 centrifugal_lags_s=[0, 10, 60]).fit(table, frame)
+    assert gb.filter_search == "all"
+    assert gb.centrifugal_lag_s_ == 10.0
+    assert gb.taus_ == [0.0, 600.0] and gb.speed_taus_ == [120.0, 300.0, 1200.0]
+    assert "L10s(n2_krpm2)" in gb.feature_names_
+    val = _validation(table, frame)
+    assert float(np.sqrt(np.mean((val["dz_um"] - gb.predict(val)) ** 2))) < 0.05  # noise 0.02 um
+    # the CV table records every candidate lag, and the artefact round trip keeps the choice
+    assert {row["centrifugal_lag_s"] for row in gb.cv_table_} == {0.0, 10.0, 60.0}
+    again = GreyBox.from_dict(gb.to_dict())
+    assert again.centrifugal_lag_s_ == 10.0
+    np.testing.assert_allclose(again.predict(val), gb.predict(val), rtol=0, atol=1e-12)
+
+
+def test_grey_box_all_mode_may_leave_the_heat_input_terms_out():
+    # no unmeasured part and runs referenced while spinning: the sensors explain dz, so CV is
+    # free to drop the heat-input filters as a block
+    table, _, spinning = _spinning(seed=6)
+    gb = GreyBox(taus_s=[0], speed_taus_s=[300, 1200], alphas=[1e-6, 1e-3]).fit(table, spinning)
+    scores = {(tuple(r["speed_taus_s"]), r["alpha"]): r["score_um"] for r in gb.cv_table_}
+    assert {k[0] for k in scores} == {(), (300.0, 1200.0)}
+    best = min(scores, key=scores.get)
+    assert gb.speed_taus_ == list(best[0])
 
 
 def test_grey_box_drops_the_unidentifiable_centrifugal_term():
@@ -270,3 +303,19 @@ def test_usable_sensors_skip_nan_and_constant(data):
     m = RidgeGlobal(alphas=[1e-3]).fit(table, f)
     assert m.sensors_ == ["T1", "T2"]
     assert set(m.regressor_ranges_) == {"T1", "T2"}
+
+
+@pytest.mark.parametrize("taus", [[5.0], [60.0, 2400.0], [1e-3, 300.0]])
+def test_first_order_recursion_matches_the_sample_loop(taus):
+    from rafi.model_family import first_order_recursion
+    rng = np.random.default_rng(1)
+    x = rng.normal(size=(5000, len(taus))).cumsum(axis=0)   # long enough for several blocks
+    g = -np.expm1(-5.0 / np.asarray(taus))
+    y0 = rng.normal(size=len(taus))
+    want = np.empty_like(x)
+    y = y0.copy()
+    for k in range(len(x)):
+        y = (1 - g) * y + g * x[k]
+        want[k] = y
+    got = first_order_recursion(x, 1 - g, g, y0)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())

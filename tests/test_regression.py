@@ -193,3 +193,19 @@ def test_errors():
     with pytest.raises(ValueError, match="dT99"):
         fit_rafi(syn.runs_table, syn.runs_frame, key_sensors=["T99"], terms=["1", "x1"],
                  hac_maxlags=5, reference=REF, machine="m")
+
+
+def test_coefficients_only_path_matches_the_full_fit_and_skips_statsmodels(white):
+    syn, full = white
+    quick = fit(syn, diagnostics=False)
+    # same coefficients bit for bit (pinv(X) @ y, as statsmodels' OLS), same deployable model
+    np.testing.assert_array_equal(quick.coefficients["coef"], full.coefficients["coef"])
+    assert quick.model.to_dict()["speeds"] == full.model.to_dict()["speeds"]
+    np.testing.assert_allclose(quick.diagnostics["rmse_um"], full.diagnostics["rmse_um"], rtol=1e-12)
+    assert quick.coefficients["se_hac"].isna().all() and quick.vif.empty
+    assert quick.diagnostics["r2"].isna().all()
+    code = ("import sys; import rafi.model_family as mf, rafi.crossval, rafi.validate; "
+            "assert 'statsmodels' not in sys.modules and 'scipy.signal' not in sys.modules, sorted(sys.modules)")
+    import subprocess
+    import sys
+    subprocess.run([sys.executable, "-c", code], check=True)
