@@ -84,6 +84,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--stuck-displacement", action="store_true",
                    help="deliberately broken logs: the displacement freezes after 25 %% of each run")
 
+    p = sub.add_parser("noise-floor", formatter_class=fmt,
+                       help="max residual a perfect model would leave on each shipped run",
+                       description="Simulate the shipped validation runs again without logger "
+                                   "defects and print, per run, the max |displacement noise| "
+                                   "(log minus the noise-free truth, referenced like dz): the "
+                                   "smallest max residual any model can reach on that run.")
+    p.add_argument("--machine", default="tapping-center-a", choices=["tapping-center-a"], help="machine id")
+
     p = sub.add_parser("plot", formatter_class=fmt,
                        help="plot temperatures and displacement of logs against time",
                        description="Plot key sensors, coolant sensors and the displacement of each "
@@ -121,6 +129,10 @@ def run(args: argparse.Namespace) -> int:
         for path in paths:
             print(path)
         return 0
+    if mode == "noise-floor":
+        table = twin.noise_floor(args.machine)
+        print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+        return 0
     if mode == "plot":
         folder = Path(args.folder)
         files = sorted(folder.glob(args.pattern))
@@ -131,6 +143,6 @@ def run(args: argparse.Namespace) -> int:
         for path in twin.plot_runs(files, args.out, sensors=sensors):
             print(path)
         return 0
-    print("rafi simulate: choose a mode: shipped, day or plot (see rafi simulate --help)",
+    print("rafi simulate: choose a mode: shipped, day, noise-floor or plot (see rafi simulate --help)",
           file=sys.stderr)
     return 2

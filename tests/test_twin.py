@@ -297,3 +297,14 @@ def test_plot_command(tmp_path):
                  "--pattern", "train_03000rpm.csv"]) == 0
     assert (tmp_path / "twin-train_03000rpm.png").stat().st_size > 10000
     assert (tmp_path / "twin-overview.png").exists()
+
+
+def test_noise_floor_of_the_shipped_validation_runs():
+    # the documented floor (docs/models.md): the max of the 0.2 um displacement noise per run
+    floor = twin.noise_floor("tapping-center-a")
+    assert list(floor["run_id"]) == ["valid_04500rpm", "valid_08000rpm", "valid_10500rpm",
+                                     "valid_13500rpm", "valid_16500rpm", "multi_condition"]
+    np.testing.assert_allclose(floor["noise_std_um"], 0.2, atol=0.01)
+    assert ((floor["floor_max_abs_um"] > 3 * floor["noise_std_um"])
+            & (floor["floor_max_abs_um"] < 5 * floor["noise_std_um"])).all()
+    assert floor.set_index("run_id").loc["valid_04500rpm", "floor_max_abs_um"] == pytest.approx(0.730, abs=0.001)
