@@ -27,6 +27,7 @@ import numpy as np
 import pandas as pd
 
 from . import REQUIRED_COLUMNS, SENSORS
+from .config import find_logs  # noqa: F401  (its home: rafi.config, stdlib only)
 from .errors import RawFormatError
 
 NUMERIC_COLUMNS = ("speed_rpm", *SENSORS, "disp_um")
@@ -427,20 +428,6 @@ def read_log(path: str | os.PathLike, input_spec: dict | None = None) -> pd.Data
             frame.attrs["metadata"].setdefault("sample_period_s", float(spec["sample_period_s"]))
         return frame
     return formats.read_mapped(path, spec)
-
-
-def find_logs(machine_dir: str | os.PathLike, input_spec: dict | None = None) -> list[Path]:
-    """Raw files of one machine folder matching the spec's ``pattern`` (glob or list), sorted.
-
-    Hidden files (``.name``) and office lock files (``~$name.xlsx``) are skipped.
-    """
-    from . import formats
-
-    spec = formats.normalise_input_spec(input_spec)
-    folder = Path(machine_dir)
-    patterns = [spec["pattern"]] if isinstance(spec["pattern"], str) else spec["pattern"]
-    found = {p for pattern in patterns for p in folder.glob(pattern)}
-    return sorted(p for p in found if p.is_file() and not p.name.startswith((".", "~$")))
 
 
 def contract_violations(frame: pd.DataFrame) -> list[str]:

@@ -172,7 +172,8 @@ class Paths:
 def snakemake_base(args, config_overrides: dict) -> list[str]:
     cfg = Path(args.config_file)
     cfg = cfg if cfg.is_absolute() else Path(args.directory) / cfg
-    cmd = [sys.executable, "-m", "snakemake", "--directory", str(args.directory),
+    # rafi.snakemake_run = `python -m snakemake` without Snakemake's idle second at exit
+    cmd = [sys.executable, "-m", "rafi.snakemake_run", "--directory", str(args.directory),
            "--configfile", str(cfg)]
     snakefile = Path(args.directory) / "Snakefile"
     if snakefile.exists():

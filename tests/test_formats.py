@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import copy
+import datetime as dt
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import jsonschema
@@ -295,6 +298,40 @@ def test_native_accepts_filled_in_defaults_only():
     assert normalise_input_spec(spec)["format"] == "native"
     with pytest.raises(InputSpecError, match="input.displacement: applies to format csv"):
         normalise_input_spec({"format": "native", "displacement": {"sign": -1}})
+
+
+@pytest.mark.parametrize("start", [
+    "2026-10-14T06:00:00", "2026-10-14 06:00", "2026-10-14", "1678-01-01", "2261-12-31T00:00:00",
+    "2261-12-31T00:00:01", "1677-12-31", "0999-01-01", "2026-02-30", "2026-10-14T24:00:00",
+    "2026-10-14T06:00:00Z", "2026-10-14T06:00:00+02:00", "2026-10-14T06:00:00.5", "20261014",
+    "2026-W42-3", "14.10.2026", "yesterday"])
+def test_time_start_checked_without_pandas_as_pandas_would(start):
+    """rafi.config checks plain ISO times without pandas (planning imports no pandas); every
+    value gets the outcome of the pandas check (pd.Timestamp within rafi.io.TIME_MIN/MAX)."""
+    from rafi.config import _plain_start_ok
+    from rafi.io import TIME_MAX, TIME_MIN
+    try:
+        ts = pd.Timestamp(start)
+        ts = ts.tz_convert(None) if ts.tzinfo is not None else ts
+        pandas_ok = bool(TIME_MIN <= ts <= TIME_MAX)
+    except (ValueError, TypeError):
+        pandas_ok = False
+    if _plain_start_ok(start):
+        assert pandas_ok and pd.Timestamp(start).to_pydatetime() == dt.datetime.fromisoformat(start)
+    spec = {"format": "csv", "time": {"kind": "elapsed_s", "start": start}}
+    if pandas_ok:
+        assert normalise_input_spec(spec)["time"]["start"] == start
+    else:
+        with pytest.raises(InputSpecError, match="input.time.start"):
+            normalise_input_spec(spec)
+
+
+def test_planning_imports_no_pandas():
+    """What workflow/rules/common.smk imports (rafi.config) loads neither pandas nor NumPy."""
+    code = ("import sys, rafi.config as c; c.find_logs('.', {'format': 'csv', 'time': "
+            "{'start': '2026-10-14T06:00:00'}}); c.candidate_model_path('m');"
+            "assert not {'pandas', 'numpy'} & set(sys.modules), sorted(sys.modules)")
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
 
 
 def test_find_logs_skips_lock_and_hidden_files(tmp_path):

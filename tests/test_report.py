@@ -11,6 +11,7 @@ speed-range adaptation, reference.rule log_start) checks the same sections and w
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import re
 import shutil
@@ -369,6 +370,61 @@ def test_machine_b_like_results_render_and_fit(tmp_path):
         assert "do not start cold" in ctx["comparison"]["rafi_fail"]["why"]
     checked = _assert_nothing_wider_than_page(html)
     assert checked["table"] >= 16 and checked["image"] >= 8
+
+
+def _figures_ahead(results: Path, tmp: Path, settings: dict, fmt: str = "png") -> list[Path]:
+    """What rule report_figures writes: every group drawn from its inputs, as JSON files."""
+    paths = report.result_paths(results)
+    files = []
+    for group in report.FIGURE_GROUPS:
+        doc = report.build_figures(paths, group, figure_format=fmt, coolant_sensors=["T13"],
+                                   gates=settings["qualification"])
+        files.append(tmp / f"figures-{group}.json")
+        files[-1].write_text(json.dumps(doc), encoding="utf-8")
+    return files
+
+
+def test_figures_drawn_ahead_give_the_same_report(tmp_path):
+    """Rule report_figures draws the figures before the report (beside compare and decide):
+    the report made with them is identical to the one that draws them itself, also when the
+    model on the machine is not the family's champion (that figure is then drawn again)."""
+    results = tmp_path / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    cfg, settings = _settings()
+    now = dt.datetime(2026, 1, 2, 3, 4, tzinfo=dt.timezone.utc)
+    files = _figures_ahead(results, tmp_path, settings)
+    kw = {"machine": "tapping-center-a", "settings": settings, "config": cfg, "now": now,
+          "coolant_sensors": ["T13"]}
+    known, notes = report.load_figures(files, coolant_sensors=["T13"],
+                                       gates=settings["qualification"])
+    assert not notes and "training_runs" in known and "comparison_bars" in known
+
+    def both():
+        alone = report.build_context(report.result_paths(results), **kw)
+        ahead = report.build_context(report.result_paths(results), figures=known, **kw)
+        assert report.render_html(ahead) == report.render_html(alone)
+        assert sorted(ahead["figures_reused"] + ahead["figures_drawn"]) == sorted(alone["figures_drawn"])
+        return ahead
+
+    ahead = both()
+    assert ahead["figures_drawn"] == [] and len(ahead["figures_reused"]) >= 8
+    # the registry put a family model other than the champion on the machine
+    summary = pd.read_csv(results / "comparison" / "summary.csv")
+    other = summary[~summary["champion"].map(report._truthy) & (summary["kind"] != "rafi")].iloc[0]
+    dec_path = results / "registry" / "decision.json"
+    dec = json.loads(dec_path.read_text())
+    dec["champion_id_after"] = other["model_id"]
+    dec_path.write_text(json.dumps(dec))
+    ahead = both()
+    assert ahead["figures_drawn"] and all(
+        k.startswith("comparison_residuals/") and k.endswith("/" + other["model"])
+        for k in ahead["figures_drawn"])
+    # figures drawn with other parameters are not used; a group needs all of its inputs
+    known, notes = report.load_figures(files, figure_format="svg", coolant_sensors=["T13"],
+                                       gates=settings["qualification"])
+    assert known == {} and len(notes) == 2
+    with pytest.raises(ValueError, match="no path for"):
+        report.build_figures({"model": results / "model.json"}, "comparison")
 
 
 def test_envelope_keeps_extremes_and_bounds_points():

@@ -14,7 +14,9 @@
 #   compare    comparison_path(name, machine), comparison_outputs(machine)
 #   registry   nightly_settings(machine), qualification_gates(machine),
 #              registry_path(name, machine), candidate_model(wildcards), nightly_targets()
-#   report     report_inputs(wildcards), report_settings(machine)
+#   report     report_inputs(wildcards), report_settings(machine),
+#              REPORT_FIGURE_GROUPS, report_figures_path(group, machine),
+#              report_figure_inputs(wildcards), report_figure_gates(wildcards)
 
 import ast
 import copy
@@ -25,8 +27,10 @@ from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
 
-import rafi.registry as _registry
-from rafi.io import find_logs
+# rafi.config: what planning needs, standard library only (no NumPy/pandas to import on
+# every invocation); rafi.registry and rafi.io re-export these names.
+import rafi.config as _rafi_config
+from rafi.config import find_logs
 from snakemake.utils import validate
 
 validate(config, schema="../schemas/config.schema.yaml")
@@ -94,8 +98,8 @@ def _patterns(machine):
 # --------------------------------------------------------------------------- discovery
 
 def _find_logs(folder, machine):
-    """Raw files of one machine folder: ``rafi.io.find_logs`` (the same rule as ``rafi
-    nightly``; it also validates the ``input:`` mapping)."""
+    """Raw files of one machine folder: ``rafi.config.find_logs`` (= ``rafi.io.find_logs``;
+    it also validates the machine's input mapping)."""
     try:
         return find_logs(folder, machine_config(machine)["input"])
     except ValueError as exc:          # rafi.formats.InputSpecError: a bad input: mapping
@@ -251,11 +255,29 @@ def _rafi_package_dir():
 RAFI_DIR = _rafi_package_dir()
 
 
+#: Statement-like nodes whose lists may hold statements (function and class bodies, if /
+#: try / with / match blocks): the only places an import can be.
+_STATEMENTS = (ast.stmt, ast.excepthandler, ast.match_case)
+
+#: path -> rafi modules it imports; each file is parsed once per Snakemake invocation
+#: (several rules follow the same modules).
+_IMPORTS = {}
+
+
 def _rafi_imports(path):
-    """Names of the rafi modules ``path`` imports (``from .x``, ``from rafi.x``, ``import rafi.x``)."""
+    """Names of the rafi modules ``path`` imports (``from .x``, ``from rafi.x``, ``import rafi.x``),
+    at any depth (also inside functions). Cached per invocation."""
+    if path not in _IMPORTS:
+        _IMPORTS[path] = frozenset(_scan_imports(path))
+    return _IMPORTS[path]
+
+
+def _scan_imports(path):
     tree = ast.parse(path.read_text(encoding="utf-8"))
     names = set()
-    for node in ast.walk(tree):
+    stack = list(tree.body)
+    while stack:        # statements only: expressions cannot hold an import, skip them
+        node = stack.pop()
         if isinstance(node, ast.ImportFrom):
             mod = node.module or ""
             if node.level == 1 or mod == "rafi" or mod.startswith("rafi."):
@@ -269,6 +291,10 @@ def _rafi_imports(path):
             for alias in node.names:
                 if alias.name.startswith("rafi."):
                     names.add(alias.name.split(".")[1])
+        else:
+            for _, value in ast.iter_fields(node):
+                if isinstance(value, list):
+                    stack.extend(v for v in value if isinstance(v, _STATEMENTS))
     return names
 
 
@@ -325,7 +351,7 @@ def comparison_outputs(machine):
 
 def nightly_settings(machine):
     """``nightly:`` of ``machine``: built-in defaults < top-level ``nightly`` < machine's."""
-    merged = dict(_registry.DEFAULT_NIGHTLY)
+    merged = dict(_rafi_config.DEFAULT_NIGHTLY)
     merged.update(config.get("nightly") or {})
     merged.update(machine_config(machine).get("nightly") or {})
     return merged
@@ -333,10 +359,10 @@ def nightly_settings(machine):
 
 def qualification_gates(machine):
     """Promotion gates of ``machine`` (``qualification:``, per machine over top level)."""
-    merged = dict(_registry.DEFAULT_GATES)
+    merged = dict(_rafi_config.DEFAULT_GATES)
     merged.update(config.get("qualification") or {})
     merged.update(machine_config(machine).get("qualification") or {})
-    return {k: merged[k] for k in _registry.GATE_KEYS if k in merged}
+    return {k: merged[k] for k in _rafi_config.GATE_KEYS if k in merged}
 
 
 def registry_path(name, machine="{machine}"):
@@ -346,7 +372,7 @@ def registry_path(name, machine="{machine}"):
 
 def candidate_model(wildcards):
     """Input function: tonight's candidate (``rafi.registry.candidate_model_path``)."""
-    return _registry.candidate_model_path(
+    return _rafi_config.candidate_model_path(
         wildcards.machine, RESULTS_DIR, nightly_settings(wildcards.machine)["candidate"])
 
 
@@ -381,9 +407,49 @@ REPORT_TABLES = ("audit", "runs_csv", "runs_parquet", "equilibrium", "correlatio
                  "validation_summary", "residuals")
 
 
+#: Figures drawn ahead of the report by report_figures, per group - the inputs of each
+#: group, the names of rafi.report.FIGURE_GROUPS (rafi.report.build_figures checks that it
+#: gets every one of them; the report itself is not imported here, it would load pandas).
+REPORT_FIGURE_GROUPS = {
+    "pipeline": ("runs_csv", "runs_parquet", "equilibrium", "correlation", "key_sensors",
+                 "key_sensors_json", "collinearity", "coefficients", "diagnostics", "model",
+                 "validation_summary", "residuals"),
+    "comparison": ("model", "comparison", "comparison_per_run", "comparison_cv",
+                   "comparison_residuals"),
+}
+
+_COMPARISON_INPUTS = {"comparison": "summary.csv", "comparison_per_run": "per_run.csv",
+                      "comparison_cv": "cv.csv", "comparison_residuals": "residuals.parquet"}
+
+
+def report_figures_path(group="{group}", machine="{machine}"):
+    """Figures of one group drawn ahead of the report: ``results/<machine>/report/figures-<group>.json``."""
+    return f"{RESULTS_DIR}/{machine}/report/figures-{group}.json"
+
+
+def report_figure_inputs(wildcards):
+    """Named inputs of report_figures - the tables its group draws from, and the code."""
+    machine = wildcards.machine
+    inputs = {}
+    for name in REPORT_FIGURE_GROUPS[wildcards.group]:
+        inputs[name] = (comparison_path(_COMPARISON_INPUTS[name], machine)
+                        if name in _COMPARISON_INPUTS else out(name, machine))
+    inputs["code"] = rafi_code("report", "plots")
+    inputs["glue"] = script_helpers()
+    return inputs
+
+
+def report_figure_gates(wildcards):
+    """The report's gates (``qualification:`` of the machine) for the comparison figures;
+    the pipeline figures do not depend on them."""
+    if wildcards.group != "comparison":
+        return {}
+    return machine_config(wildcards.machine).get("qualification") or {}
+
+
 def report_inputs(wildcards):
     """Named inputs of the report: the design.md tables, the model comparison, the
-    registry decision, the code and the template."""
+    registry decision, the figures drawn ahead, the code and the template."""
     machine = wildcards.machine
     inputs = {name: out(name, machine) for name in REPORT_TABLES}
     inputs["comparison"] = comparison_path("summary.csv", machine)
@@ -392,6 +458,7 @@ def report_inputs(wildcards):
     inputs["comparison_residuals"] = comparison_path("residuals.parquet", machine)
     inputs["decision"] = registry_path("decision.json", machine)
     inputs["registry_comparison"] = registry_path("comparison.csv", machine)
+    inputs["figures"] = [report_figures_path(g, machine) for g in REPORT_FIGURE_GROUPS]
     inputs["code"] = rafi_code("report", "plots")
     inputs["template"] = str(RAFI_DIR / "templates" / "qualification.html.j2")
     return inputs

@@ -1,8 +1,12 @@
 # The RAFI steps (docs/design.md, "Outputs under results/<machine>/"):
 #
 #   raw/<machine>/<stem>.<ext>
-#     -> clean (per file) -> audit (per machine) -> runs -> equilibrium
-#                                                     \-> rank -> fit -> validate
+#     -> clean (per file) -> runs -> equilibrium
+#                 |             \-> rank -> fit -> validate
+#                 \-> audit (per machine)
+#
+# runs reads the per-file audit summaries themselves (audit.csv is their concatenation), so
+# audit is not on the way to the model: it runs beside runs.
 #
 # Every config value a script uses arrives through `params:` (functions of the
 # machine wildcard over machine_config()), so changing one value re-runs exactly the
@@ -64,7 +68,7 @@ rule runs:
     """Split the clean logs into runs, assign roles and compute rises from the reference state."""
     input:
         clean=clean_files("clean_parquet"),
-        audit=out("audit"),
+        summaries=clean_files("clean_summary"),
         code=rafi_code("runs"),
         glue=script_helpers(),
     output:

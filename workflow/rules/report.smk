@@ -2,7 +2,14 @@
 #
 # One jinja2 template renders the HTML; WeasyPrint renders the PDF from the same HTML
 # string (rafi.report), so the two never disagree. Uses helpers of common.smk:
-# out(), machine_config(), report_paths(), log_path(), bench_path(), rafi_code(), RAFI_DIR.
+# out(), machine_config(), report_paths(), log_path(), bench_path(), rafi_code(), RAFI_DIR,
+# report_figures_path(), report_figure_inputs(), report_figure_gates().
+#
+# The figures are drawn ahead, by group, as soon as their inputs exist (rafi.report.build_figures):
+#   pipeline    the method's figures: after validate, on the core compare leaves free
+#   comparison  the model family's figures: after compare, beside decide
+# so the report job itself only renders the HTML and the PDF (it draws a figure only if the
+# one drawn ahead does not fit, e.g. the model on the machine is not the family's champion).
 #
 # Besides the tables it shows the model comparison (comparison/summary.csv, per_run.csv,
 # cv.csv, residuals.parquet) and the registry decision (registry/decision.json and
@@ -10,6 +17,28 @@
 # The kind/created of a registered model id is read from registry/models/<id>.json (not an
 # input: those files are registry side effects, immutable and named by their content hash,
 # so decision.json - an input - already pins them).
+
+
+rule report_figures:
+    """Figures of one group of the report, drawn ahead of it (encoded, in one JSON file)."""
+    input:
+        unpack(report_figure_inputs),
+    output:
+        figures=report_figures_path(),
+    params:
+        figure_format=lambda w: report_settings(w.machine)["figure_format"],
+        coolant_sensors=lambda w: report_settings(w.machine)["coolant_sensors"],
+        gates=report_figure_gates,
+    wildcard_constraints:
+        group="|".join(REPORT_FIGURE_GROUPS),
+    log:
+        log_path("report_figures_{group}"),
+    benchmark:
+        bench_path("report_figures_{group}")
+    conda:
+        "../envs/rafi.yaml"
+    script:
+        "../scripts/report_figures.py"
 
 
 rule report:

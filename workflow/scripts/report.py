@@ -1,7 +1,9 @@
 """Snakemake glue of rule ``report``: the results tables in, the HTML and PDF report out.
 
 All the work is in :mod:`rafi.report` (context + rendering) and :mod:`rafi.plots`;
-this script only maps ``snakemake.input``/``params`` onto it and writes atomically.
+this script only maps ``snakemake.input``/``params`` onto it and writes atomically. The
+figures come drawn ahead from rule ``report_figures`` (input ``figures``); any figure they
+do not hold is drawn here.
 """
 
 import logging
@@ -23,12 +25,18 @@ def main() -> int:
     paths = {k: str(v) for k, v in sm.input.items() if k in names}
     settings = dict(sm.params.settings)
     shown = {**sm.params.paths, "machine": sm.wildcards.machine, "settings": settings}
+    fig_args = {"figure_format": sm.params.report["figure_format"],
+                "coolant_sensors": sm.params.report["coolant_sensors"]}
+    figures, notes = report.load_figures(list(sm.input.figures), **fig_args,
+                                         gates=settings.get("qualification") or {})
+    for note in notes:
+        log.warning("figures drawn ahead: %s", note)
     ctx = report.build_context(paths, machine=sm.wildcards.machine, settings=settings,
-                               config=shown,
-                               figure_format=sm.params.report["figure_format"],
-                               coolant_sensors=sm.params.report["coolant_sensors"])
-    log.info("context with %d section(s) built in %.2f s; verdict %s",
-             len(ctx["sections"]), ctx["build_seconds"], ctx["verdict"]["status"])
+                               config=shown, figures=figures, **fig_args)
+    log.info("context with %d section(s) built in %.2f s; verdict %s; %d figure(s) drawn ahead, "
+             "%d drawn here %s", len(ctx["sections"]), ctx["build_seconds"],
+             ctx["verdict"]["status"], len(ctx["figures_reused"]), len(ctx["figures_drawn"]),
+             ctx["figures_drawn"])
     html = report.render_html(ctx)
     pdf = report.render_pdf(html)
     write_text_atomic(sm.output.html, html)

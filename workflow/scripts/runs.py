@@ -1,4 +1,8 @@
-"""Rule runs: clean logs of a machine -> runs.csv + runs.parquet."""
+"""Rule runs: clean logs of a machine -> runs.csv + runs.parquet.
+
+Which files are usable (status ok) and their sha256 come from the per-file audit summaries,
+stacked as rule audit stacks them into audit.csv (so runs need not wait for audit).
+"""
 
 from pathlib import Path
 
@@ -11,7 +15,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     from rafi.runs import find_runs
 
     smk = snakemake  # noqa: F821
-    audit = pd.read_csv(smk.input.audit)
+    audit = pd.concat([pd.read_csv(p) for p in smk.input.summaries], ignore_index=True)
     usable = audit[audit["status"] == "ok"]
     sha256 = dict(zip(usable["file"], usable["sha256"]))
     by_stem = {Path(p).name.removesuffix(".parquet"): p for p in smk.input.clean}
@@ -21,7 +25,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         print(f"read clean {name}: {len(frames[name])} rows", flush=True)
     if not frames:
         raise RuntimeError(f"no usable raw file for machine {smk.wildcards.machine}: all "
-                           f"{len(audit)} quarantined (see {smk.input.audit})")
+                           f"{len(audit)} quarantined (see audit.csv)")
     cfg = smk.params.runs
     table, frame = find_runs(
         frames, sha256,
