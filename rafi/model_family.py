@@ -951,6 +951,30 @@ DEFAULT_OPTIONS = {
 GATE_KEYS = ("max_residual_um", "min_improvement_pct", "never_worse_than_uncompensated")
 
 
+def _seconds(values) -> str:
+    return "/".join(f"{float(v):g}" for v in values) + " s"
+
+
+def describe_selection(model) -> str:
+    """What cross-validation chose for a fitted model of the family, in one line for people."""
+    if not hasattr(model, "alpha_"):
+        return "nothing to choose (one OLS per training speed, fuzzy blend)"
+    parts = [f"alpha {model.alpha_:g}", "rises " + ", ".join("as is" if t <= 0 else f"filtered {t:g} s"
+                                                             for t in model.taus_)]
+    if isinstance(model, GreyBox):
+        parts.append(f"heat-input filters {_seconds(model.speed_taus_)}" if model.speed_taus_
+                     else "no heat-input filters")
+        if model.instantaneous_:
+            lag = float(getattr(model, "centrifugal_lag_s_", 0.0))
+            parts.append("draw-in n\u00b2 term" + (f" with a {lag:g} s lag" if lag > 0 else ""))
+        else:
+            parts.append("no draw-in term (not identified)")
+    else:
+        parts.append("speed gain dT\u00b7n" if model.speed_gain_ else "no speed gain")
+        parts.append("speed terms" if model.speed_terms_ else "no speed terms (not identified)")
+    return "; ".join(parts)
+
+
 def run_family(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensors: Sequence[str],
                terms: Sequence[str] = RAFI_TERMS, reference: dict | None = None, machine: str | None = None,
                options: dict | None = None, gates: dict | None = None, rafi_model=None, log=print) -> dict:
@@ -960,7 +984,8 @@ def run_family(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensor
     the ``rafi`` entry (no refit), else RAFI is fitted here. Hyperparameters are chosen on the
     training runs only; the validation runs are only predicted.
 
-    Returns a dict: ``summary`` (one row per model, with ``fit_time_s`` and the CV scores
+    Returns a dict: ``summary`` (one row per model, with ``fit_time_s``, ``selected`` (what CV
+    chose, :func:`describe_selection`) and the CV scores
     ``cv_rmse_um`` / ``cv_max_abs_um``), ``per_run``, ``residuals``, ``cv``, ``champion``
     (name or None), ``best_name`` and ``best_artefact`` (the champion's artefact; when no model
     passes the gates, the one with the lowest worst-case residual, and ``champion`` is None).
@@ -997,7 +1022,8 @@ def run_family(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, key_sensor
     table, residuals = compare_models(models, runs_table, runs_frame, gates, return_residuals=True)
     cv = pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
     summary = table.loc[table["scope"] == "model"].drop(columns=["scope", "run_id", "role", "speed_rpm"])
-    summary = summary.assign(fit_time_s=summary["model"].map(fit_time))
+    summary = summary.assign(fit_time_s=summary["model"].map(fit_time),
+                             selected=summary["model"].map({k: describe_selection(m) for k, m in models.items()}))
     if len(cv):
         agg = cv.groupby("model").agg(cv_rmse_um=("rmse_um", lambda v: float(np.sqrt(np.mean(np.square(v))))),
                                       cv_max_abs_um=("max_abs_after_um", "max"))

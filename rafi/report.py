@@ -1224,7 +1224,8 @@ def _section_comparison(res: dict, gates: dict, champion_after, settings: dict, 
         return None
     pr = res.get("comparison_per_run")
     out = {"summary": None, "per_run": None, "figure_bars": None, "figures_resid": [],
-           "rafi_fail": None, "champion": None, "on_machine": None, "cv": None, "notes": []}
+           "rafi_fail": None, "champion": None, "on_machine": None, "cv": None, "selected": [],
+           "notes": []}
     s = summ.copy()
     s["model"] = s["model"].astype(str)
     champ_rows = s[s["champion"].map(_truthy)] if "champion" in s else s.iloc[0:0]
@@ -1264,6 +1265,9 @@ def _section_comparison(res: dict, gates: dict, champion_after, settings: dict, 
                             "outside trained speed", "CV RMSE (\u00b5m)", "CV max |res.| (\u00b5m)",
                             "gates"], rows, cls="num models",
                            widths=[22, 11, 9, 8, 8, 11, 8, 8, 8, 7])
+    if "selected" in s:
+        out["selected"] = [(str(r["model"]), str(r["selected"])) for r in s.to_dict("records")
+                           if isinstance(r.get("selected"), str) and r["selected"]]
     if cvs:
         k = next(iter(cvs.values()))
         out["cv"] = (f"Cross-validation: {k['scheme'].replace('_', '-')} over the training runs "

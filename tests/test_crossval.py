@@ -184,7 +184,11 @@ def test_run_family_end_to_end():
                               "dynamic_max_taus": 1}, log=lambda m: None)
     s = res["summary"]
     assert set(s["model"]) == {"rafi_linear", "ridge_global", "dynamic"}
-    assert {"fit_time_s", "cv_rmse_um", "cv_max_abs_um"} <= set(s.columns)
+    assert {"fit_time_s", "cv_rmse_um", "cv_max_abs_um", "selected"} <= set(s.columns)
+    selected = dict(zip(s["model"], s["selected"]))
+    assert selected["rafi_linear"].startswith("nothing to choose")
+    dyn = res["models"]["dynamic"]
+    assert selected["dynamic"].startswith(f"alpha {dyn.alpha_:g}; rises ")
     assert res["champion"] in set(s["model"])
     assert res["best_artefact"]["kind"] == res["champion"]
     assert set(res["cv"]["test_runs"]) == set(table.loc[table["role"] == "training", "run_id"])

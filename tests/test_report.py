@@ -345,6 +345,22 @@ def test_comparison_section(rendered):
     assert "leave-one-run-out" in html       # CV from cv.csv
 
 
+def test_comparison_lists_what_cross_validation_chose(tmp_path):
+    results = tmp_path / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    summary = pd.read_csv(results / "comparison" / "summary.csv")
+    said = {m: f"alpha 5e-05; rises as is; choice of {m}" for m in summary["model"]}
+    summary.assign(selected=summary["model"].map(said)).to_csv(results / "comparison" / "summary.csv", index=False)
+    cfg, settings = _settings()
+    ctx = report.build_context(report.result_paths(results), machine="tapping-center-a", settings=settings,
+                               config=cfg)
+    html = report.render_html(ctx)
+    assert ctx["comparison"]["selected"] == list(said.items())
+    assert "Chosen by cross-validation on the training runs" in html
+    for m, what in said.items():
+        assert f"<li><b>{m}</b>: {what}</li>" in html
+
+
 def test_machine_b_like_results_render_and_fit(tmp_path):
     results = tmp_path / "results" / "machining-center-b"
     _machine_b_like(FIXTURE, results)
