@@ -459,7 +459,11 @@ class _RidgeBase:
         return {"folds": folds}
 
     def _cv_scores(self, cvd: dict, cols: np.ndarray) -> np.ndarray:
-        """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds."""
+        """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds:
+        ``rmse`` over every held-out sample, or ``max_abs``, the mean over folds of the held-out
+        runs' max |residual|."""
+        if self.cv_metric not in ("rmse", "max_abs"):
+            raise ValueError(f"cv_metric {self.cv_metric!r}: use rmse or max_abs")
         sq = np.zeros(len(self.alphas))
         fold_max, count = [], 0
         ix = np.ix_(cols, cols)
@@ -470,25 +474,18 @@ class _RidgeBase:
             sc = np.sqrt(np.diag(g) / n)
             sc = np.where(sc > 1e-12, sc, 1.0)
             b = self._ridge_gram(g / np.outer(sc, sc), c / sc, n, self.alphas) / sc[:, None]
-            count += len(fold["y_test"])
             if self.cv_metric == "rmse":
                 # |y - Xb|^2 = y'y - 2 b'X'y + b'X'Xb from the test fold's Gram matrix: no pass
                 # over the test samples per candidate
                 sq += (fold["yy_test"] - 2.0 * (fold["c_test"][cols] @ b)
                        + np.einsum("ia,ij,ja->a", b, fold["g_test"][ix], b))
-                continue
-            res = fold["y_test"][:, None] - fold["x_test"][:, cols] @ b
-            sq += np.sum(res ** 2, axis=0)
-            fold_max.append(np.max(np.abs(res), axis=0))
-        if count == 0:
-            return np.zeros(len(self.alphas))
+                count += len(fold["y_test"])
+            else:
+                res = fold["y_test"][:, None] - fold["x_test"][:, cols] @ b
+                fold_max.append(np.max(np.abs(res), axis=0))
         if self.cv_metric == "rmse":
-            return np.sqrt(np.clip(sq, 0.0, None) / count)
-        if self.cv_metric == "max_abs":
-            return np.mean(fold_max, axis=0)
-        if self.cv_metric != "rmse":
-            raise ValueError(f"cv_metric {self.cv_metric!r}: use rmse or max_abs")
-        return np.sqrt(sq / count)
+            return np.sqrt(np.clip(sq, 0.0, None) / count) if count else np.zeros(len(self.alphas))
+        return np.mean(fold_max, axis=0) if fold_max else np.zeros(len(self.alphas))
 
     def _prepare(self, runs_table, runs_frame):
         table, frame = training_runs(runs_table, runs_frame)
@@ -756,7 +753,10 @@ class GreyBox(RidgeGlobal):
                   "filter_search": self.filter_search, "centrifugal_lags_s": self.centrifugal_lags_s})
         return h
 
-    def _features(self, frame: pd.DataFrame, sensors: Sequence[str], taus: Sequence[float]):
+    def _features(self, frame: pd.DataFrame, sensors: Sequence[str], taus: Sequence[float],
+                  centrifugal_lags: Sequence[float] | None = None):
+        """As :meth:`_RidgeBase._features`; the ``n^2`` draw-in column is given once per lag of
+        ``centrifugal_lags`` (while :meth:`fit` searches), by default for the chosen lag only."""
         order, codes = _run_order(frame)
         x = frame[[_rise_column(s) for s in sensors]].to_numpy(dtype=float)[order]
         t = frame["t_s"].to_numpy(dtype=float)[order] if "t_s" in frame.columns else np.arange(len(frame), dtype=float)
@@ -779,19 +779,14 @@ class GreyBox(RidgeGlobal):
         if getattr(self, "instantaneous_", False):
             n0 = reference_speed(frame, self._speed_rule(), float(self.reference.get("window_s", 60)))[order]
             n2 = ((rpm / SPEED_SCALE_RPM) ** 2 - (n0 / SPEED_SCALE_RPM) ** 2)[:, None]
-            lags = self._centrifugal_lags_in_features()
+            lags = ([float(getattr(self, "centrifugal_lag_s_", 0.0))] if centrifugal_lags is None
+                    else list(centrifugal_lags))
             parts.append(lowpass_runs(n2, t, codes, lags))
             names += ["n2_krpm2" if lag <= 0 else f"L{lag:g}s(n2_krpm2)" for lag in lags]
         f_sorted = np.column_stack(parts)
         out = np.empty_like(f_sorted)
         out[order] = f_sorted
         return out, names
-
-    def _centrifugal_lags_in_features(self) -> list[float]:
-        """The draw-in lags whose ``n^2`` columns the features carry: every candidate while
-        :meth:`fit` searches, afterwards the chosen one."""
-        searching = getattr(self, "_searching_lags", None)
-        return list(searching) if searching else [float(getattr(self, "centrifugal_lag_s_", 0.0))]
 
     def _filter_sets(self) -> tuple[list, list]:
         """Candidate (rise tau indices, speed tau indices) sets. ``all``: every rise filter at
@@ -816,11 +811,7 @@ class GreyBox(RidgeGlobal):
         run_ids = frame["run_id"].astype(str).to_numpy()
         self.speed_taus_ = list(self.speed_taus_s)
         lags = self.centrifugal_lags_s if self.instantaneous_ else [0.0]
-        self._searching_lags = lags
-        try:
-            feats, _ = self._features(frame, sensors, self.taus_s)
-        finally:
-            del self._searching_lags
+        feats, _ = self._features(frame, sensors, self.taus_s, centrifugal_lags=lags)
         p, q = len(sensors), len(self.speed_powers)
         n_rise = p * len(self.taus_s)
         n_speed = q * len(self.speed_taus_s)
