@@ -33,7 +33,7 @@ from . import SENSORS
 from .config import (DEFAULT_PATTERN, FORMATS, INPUT_DEFAULTS, INPUT_SCHEMA,  # noqa: F401
                      NATIVE_KEYS, _norm, _spec_error, normalise_input_spec, resolve_columns)
 from .errors import InputSpecError, RawFormatError  # noqa: F401
-from .io import (NUMERIC_COLUMNS, TIME_MAX, TIME_MIN, _split_fields, decode_bytes,
+from .io import (NUMERIC_COLUMNS, TIME_MAX, TIME_MIN, _split_fields, decode_bytes, field_count_error,
                  split_lines, to_naive_ns)
 
 # --------------------------------------------------------------------------- the mapping
@@ -131,16 +131,10 @@ def _read_csv_table(path: Path, raw: bytes, spec: dict) -> _Table:
             if [_norm(f) for f in fields] == [_norm(h) for h in header]:
                 raise RawFormatError(path, "the header line is repeated inside the data; "
                                            "expected one header only", line=line_no)
-            hint = ""
-            if '"' in line:
-                hint = " (an unclosed or stray quote '\"' merges fields?)"
-            elif len(fields) > len(header):
-                hint = (" (a decimal comma with delimiter ','? set input.delimiter and "
-                        "input.decimal)" if delim == "," else " (a delimiter inside a value?)")
-            elif i == len(lines) - 1:
-                hint = " (the last line looks truncated)"
-            raise RawFormatError(path, f"found {len(fields)} fields, expected {len(header)} as "
-                                       f"in the header{hint}", line=line_no)
+            raise field_count_error(
+                path, line, line_no, len(fields), len(header), last=i == len(lines) - 1,
+                too_many_hint=("a decimal comma with delimiter ','? set input.delimiter and input.decimal"
+                               if delim == "," else "a delimiter inside a value?"))
         rows.append(fields)
         numbers.append(line_no)
     return _Table(path, header, rows, numbers, hr, None)

@@ -258,6 +258,22 @@ def out_of_range_time(times: pd.Series) -> int | None:
     return None
 
 
+def field_count_error(path, line: str, line_no: int, found: int, expected: int, *, last: bool,
+                      too_many_hint: str) -> RawFormatError:
+    """The error for a data line with ``found`` fields where the header has ``expected``, with
+    a hint at the likely cause: a stray quote, ``too_many_hint`` for extra fields, or a
+    truncated ``last`` line."""
+    hint = ""
+    if '"' in line:
+        hint = " (an unclosed or stray quote '\"' merges fields?)"
+    elif found > expected:
+        hint = f" ({too_many_hint})"
+    elif last:
+        hint = " (the last line looks truncated)"
+    return RawFormatError(path, f"found {found} fields, expected {expected} as in the header{hint}",
+                          line=line_no)
+
+
 def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
     """Read one native raw log (``docs/raw-format.md``) into the canonical frame.
 
@@ -329,15 +345,9 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
             raise RawFormatError(path, "the header line is repeated inside the data; expected "
                                        "one header only", line=line_no)
         if len(fields) != n_fields:
-            hint = ""
-            if '"' in line:
-                hint = " (an unclosed or stray quote '\"' merges fields?)"
-            elif len(fields) > n_fields:
-                hint = " (a decimal comma, or an unquoted comma in a value?)"
-            elif offset == len(body_lines) - 1:
-                hint = " (the last line looks truncated)"
-            raise RawFormatError(path, f"found {len(fields)} fields, expected {n_fields} as in "
-                                       f"the header{hint}", line=line_no)
+            raise field_count_error(path, line, line_no, len(fields), n_fields,
+                                    last=offset == len(body_lines) - 1,
+                                    too_many_hint="a decimal comma, or an unquoted comma in a value?")
         rows.append(fields)
         line_numbers.append(line_no)
     if not rows:
