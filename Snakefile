@@ -26,12 +26,12 @@ include: "workflow/rules/report.smk"
 
 
 rule all:
+    default_target: True
     input:
         all_pipeline_tables(),
         [p for m in MACHINES for p in comparison_outputs(m)],
         [registry_path(n, m) for m in MACHINES for n in ("decision.json", "comparison.csv")],
         [p for m in MACHINES for p in report_paths(m).values()],
-    default_target: True
 
 
 # The tables of docs/design.md only (no comparison, registry or report), every machine.

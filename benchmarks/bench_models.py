@@ -7,7 +7,7 @@ Usage (after the pipeline has produced results/<machine>/runs.* and rank/key_sen
     python benchmarks/bench_models.py --synthetic           # no pipeline outputs needed
     python benchmarks/bench_models.py --twin-preview --compare   # twin physics, no pipeline
 
-``--twin-preview`` simulates clean runs with the digital twin's physics (``rafi.twin``:
+``--twin-preview`` simulates clean runs with the digital twin's physics (``rafi.twin.spindle.spindle``:
 integrate / sensor_truth / displacement_truth; no logger defects, so no clean/runs step is
 needed): 6 cold-start 4 h training runs at 3000..18000 r/min, 3 h validation runs at
 4500, 8000, 10500, 13500, 16500 r/min and a 4.5 h multi-condition run (45 min steps
@@ -38,7 +38,7 @@ import pandas as pd  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rafi.model_family import DEFAULT_OPTIONS, make_model, make_synthetic_runs  # noqa: E402
+from rafi.family.models import DEFAULT_OPTIONS, make_model, make_synthetic_runs  # noqa: E402
 
 
 def _load(machine_dir: Path):
@@ -51,6 +51,7 @@ def _load(machine_dir: Path):
 def _config(machine: str) -> tuple[dict, list, dict]:
     try:
         import yaml
+
         cfg = yaml.safe_load((ROOT / "config.yaml").read_text())
     except Exception:  # noqa: BLE001 - benchmark falls back to the defaults
         return {}, None, None
@@ -65,7 +66,8 @@ def _config(machine: str) -> tuple[dict, list, dict]:
 def twin_preview(seed: int = 0, dt: float = 5.0):
     """(runs_table, runs_frame) of clean twin runs, key sensors T6, T8, T9 (the paper's)."""
     import numpy as np
-    from rafi import twin
+
+    from rafi.twin.spindle.spindle import spindle as twin
 
     p = twin.tapping_center_a()
     rng = np.random.default_rng(seed)
@@ -99,16 +101,29 @@ def twin_preview(seed: int = 0, dt: float = 5.0):
 
 
 def show_comparison(table, frame, key, opts, terms, reference):
-    from rafi.model_family import run_family
+    from rafi.family.models import run_family
+
     gates = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
-    res = run_family(table, frame, key_sensors=key, terms=terms or None, reference=reference,
-                     options={**opts, "cv_report": False}, gates=gates, log=lambda m: None)
+    res = run_family(
+        table,
+        frame,
+        key_sensors=key,
+        terms=terms or None,
+        reference=reference,
+        options={**opts, "cv_report": False},
+        gates=gates,
+        log=lambda m: None,
+    )
     pr = res["per_run"]
     for col in ("max_abs_before_um", "max_abs_after_um", "improvement_pct"):
         print(f"\n{col}")
         print(pr.pivot(index="run_id", columns="model", values=col).round(2).to_string())
-    print("\n" + res["summary"][["model", "max_abs_after_um", "improvement_pct", "passed",
-                                  "champion"]].round(2).to_string(index=False))
+    print(
+        "\n"
+        + res["summary"][["model", "max_abs_after_um", "improvement_pct", "passed", "champion"]]
+        .round(2)
+        .to_string(index=False)
+    )
 
 
 def bench(name, table, frame, key, opts, terms, reference, repeat, kinds):
@@ -117,15 +132,23 @@ def bench(name, table, frame, key, opts, terms, reference, repeat, kinds):
         best_fit, best_pred, model = float("inf"), float("inf"), None
         for _ in range(repeat):
             t0 = time.perf_counter()
-            model = make_model(kind, key_sensors=key, terms=terms or None, reference=reference,
-                               options={**DEFAULT_OPTIONS, **opts}).fit(table, frame)
+            model = make_model(
+                kind,
+                key_sensors=key,
+                terms=terms or None,
+                reference=reference,
+                options={**DEFAULT_OPTIONS, **opts},
+            ).fit(table, frame)
             best_fit = min(best_fit, time.perf_counter() - t0)
             t0 = time.perf_counter()
             model.predict(frame)
             best_pred = min(best_pred, time.perf_counter() - t0)
         hp = f"alpha={model.alpha_:g} taus_s={model.taus_}" if hasattr(model, "alpha_") else ""
-        print(f"{name:20s} {kind:13s} fit {best_fit:7.2f} s  predict {best_pred:6.2f} s "
-              f"({len(frame)} rows, {n_train} training)  {hp}", flush=True)
+        print(
+            f"{name:20s} {kind:13s} fit {best_fit:7.2f} s  predict {best_pred:6.2f} s "
+            f"({len(frame)} rows, {n_train} training)  {hp}",
+            flush=True,
+        )
 
 
 def main(argv=None) -> int:
@@ -149,8 +172,9 @@ def main(argv=None) -> int:
         if a.compare:
             show_comparison(table, frame, key, {}, None, None)
         return 0
-    machines = a.machine or sorted(p.name for p in Path(a.results).iterdir()
-                                   if (p / "runs.parquet").is_file())
+    machines = a.machine or sorted(
+        p.name for p in Path(a.results).iterdir() if (p / "runs.parquet").is_file()
+    )
     for m in machines:
         table, frame, key = _load(Path(a.results) / m)
         opts, terms, ref = _config(m)

@@ -46,9 +46,16 @@ def setup(dest: Path, all_files: bool) -> Path:
         synthetic_logs(raw, SYNTHETIC)
         return proj
     files = sorted((ROOT / "raw" / MACHINE).glob("*.csv"))
-    keep = files if all_files else [
-        f for f in files if re.search(r"(train|trn).*(3000|9000|15000)|valid.*(4500|13500)|multi",
-                                      f.name, re.I)] or files
+    keep = (
+        files
+        if all_files
+        else [
+            f
+            for f in files
+            if re.search(r"(train|trn).*(3000|9000|15000)|valid.*(4500|13500)|multi", f.name, re.I)
+        ]
+        or files
+    )
     for f in keep:
         shutil.copy2(f, raw / f.name)
     return proj
@@ -59,27 +66,40 @@ SYNTH = False
 
 
 def synthetic_logs(raw: Path, names_days, seed0: int = 0) -> None:
-    """Write defect-free synthetic logs (tests/synthetic.py) instead of the shipped data."""
+    """Write defect-free synthetic logs (rafi/twin/synthetic_logs.py) instead of the shipped data."""
     sys.path.insert(0, str(ROOT / "tests"))
     import pandas as pd
-    from synthetic import canonical_log
 
-    from rafi.io import write_raw_log
+    from rafi.readers.native import write_raw_log
+    from rafi.twin.synthetic_logs import canonical_log
+
     for i, (name, speed, n, day) in enumerate(names_days):
-        log, _ = canonical_log(n, steps=((0.0, speed),), seed=seed0 + i, extras=False,
-                               start=pd.Timestamp("2026-03-02T08:00:00") + pd.Timedelta(days=day))
+        log, _ = canonical_log(
+            n,
+            steps=((0.0, speed),),
+            seed=seed0 + i,
+            extras=False,
+            start=pd.Timestamp("2026-03-02T08:00:00") + pd.Timedelta(days=day),
+        )
         write_raw_log(log, raw / f"{name}.csv", metadata={"machine": MACHINE})
 
 
-SYNTHETIC = [("train-3000", 3000, 2880, 0), ("train-9000", 9000, 2880, 1),
-             ("train-15000", 15000, 2880, 2), ("valid-4500", 4500, 1440, 3),
-             ("valid-13500", 13500, 1440, 4)]
+SYNTHETIC = [
+    ("train-3000", 3000, 2880, 0),
+    ("train-9000", 9000, 2880, 1),
+    ("train-15000", 15000, 2880, 2),
+    ("valid-4500", 4500, 1440, 3),
+    ("valid-13500", 13500, 1440, 4),
+]
 
 
 def nightly(proj: Path) -> tuple[float, int, str]:
     t0 = time.perf_counter()
-    res = subprocess.run([sys.executable, "-m", "rafi.cli", "nightly", "--directory", str(proj),
-                          "--cores", "2", *EXTRA], capture_output=True, text=True)
+    res = subprocess.run(
+        [sys.executable, "-m", "rafi.cli", "nightly", "--directory", str(proj), "--cores", "2", *EXTRA],
+        capture_output=True,
+        text=True,
+    )
     return time.perf_counter() - t0, res.returncode, res.stdout + res.stderr
 
 
@@ -88,9 +108,26 @@ def add_one_log(proj: Path) -> str:
         synthetic_logs(proj / "raw" / MACHINE, [("day2-valid-10500", 10500, 1440, 9)], seed0=50)
         return "synthetic validation log"
     before = set((proj / "raw" / MACHINE).glob("*.csv"))
-    sim = subprocess.run([sys.executable, "-m", "rafi.cli", "simulate", "day", "--machine", MACHINE,
-                          "--out", str(proj / "raw"), "--seed", "11", "--ambient-shift", "2"],
-                         capture_output=True, text=True, cwd=proj)
+    sim = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "rafi.cli",
+            "simulate",
+            "day",
+            "--machine",
+            MACHINE,
+            "--out",
+            str(proj / "raw"),
+            "--seed",
+            "11",
+            "--ambient-shift",
+            "2",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=proj,
+    )
     new = set((proj / "raw" / MACHINE).glob("*.csv")) - before
     if sim.returncode == 0 and new:
         # keep exactly one new log so the figure means "one new log"
@@ -108,15 +145,18 @@ def main(argv=None) -> int:
     ap.add_argument("--keep", help="build the project copy in this directory and keep it")
     ap.add_argument("--all-files", action="store_true", help="use every shipped log, not a subset")
     ap.add_argument("--no-report", action="store_true", help="time the nights without the report")
-    ap.add_argument("--full-check", action="store_true",
-                    help="no fingerprint fast path: always ask Snakemake (dry run)")
-    ap.add_argument("--synthetic", action="store_true",
-                    help="use synthetic logs (tests/synthetic.py) instead of the shipped data")
+    ap.add_argument(
+        "--full-check", action="store_true", help="no fingerprint fast path: always ask Snakemake (dry run)"
+    )
+    ap.add_argument(
+        "--synthetic",
+        action="store_true",
+        help="use synthetic logs (rafi/twin/synthetic_logs.py) instead of the shipped data",
+    )
     args = ap.parse_args(argv)
     global SYNTH
     SYNTH = args.synthetic
-    EXTRA[:] = (["--no-report"] if args.no_report else []) + (
-        ["--full-check"] if args.full_check else [])
+    EXTRA[:] = (["--no-report"] if args.no_report else []) + (["--full-check"] if args.full_check else [])
     if not SYNTH and not any((ROOT / "raw" / MACHINE).glob("*.csv")):
         print(f"no shipped data in raw/{MACHINE}: run `rafi simulate shipped --out raw` first")
         return 2
@@ -131,14 +171,18 @@ def main(argv=None) -> int:
             return 1
         t_none, rc_none, out_none = nightly(proj)
         ok_none = t_none < TARGET_NOTHING_S and "nothing new" in out_none
-        print(f"nothing new:                          {t_none:6.1f} s  exit {rc_none}  "
-              f"(target < {TARGET_NOTHING_S:.0f} s: {'ok' if ok_none else 'MISSED'})")
+        print(
+            f"nothing new:                          {t_none:6.1f} s  exit {rc_none}  "
+            f"(target < {TARGET_NOTHING_S:.0f} s: {'ok' if ok_none else 'MISSED'})"
+        )
         what = add_one_log(proj)
         t_new, rc_new, out_new = nightly(proj)
         jobs = re.findall(r"done (\w+)", out_new)
         ok_new = t_new < TARGET_NEW_S
-        print(f"one new log ({what}): {t_new:6.1f} s  exit {rc_new}  {len(jobs)} jobs "
-              f"[{', '.join(jobs)}]  (target < {TARGET_NEW_S:.0f} s: {'ok' if ok_new else 'MISSED'})")
+        print(
+            f"one new log ({what}): {t_new:6.1f} s  exit {rc_new}  {len(jobs)} jobs "
+            f"[{', '.join(jobs)}]  (target < {TARGET_NEW_S:.0f} s: {'ok' if ok_new else 'MISSED'})"
+        )
         return 0 if ok_none and ok_new else 1
     finally:
         if not args.keep:

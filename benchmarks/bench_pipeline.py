@@ -41,8 +41,7 @@ TIME_V = Path("/usr/bin/time")
 def prepare(workdir: Path, raw_src: Path) -> None:
     """A runnable copy of the workflow in ``workdir`` reading raw data from ``raw_src``."""
     shutil.copy2(ROOT / "Snakefile", workdir / "Snakefile")
-    shutil.copytree(ROOT / "workflow", workdir / "workflow",
-                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "workflow", workdir / "workflow", ignore=shutil.ignore_patterns("__pycache__"))
     shutil.copy2(ROOT / "config.yaml", workdir / "config.yaml")
     shutil.copytree(raw_src, workdir / "raw")
 
@@ -64,7 +63,7 @@ def _shift_csv(text: str, shift: dt.timedelta, suffix: str) -> str:
             new = dt.datetime.fromisoformat(stamp.strip()) + shift
             stamp = new.isoformat()
         except ValueError:
-            pass                                 # leave a defect as it is
+            pass  # leave a defect as it is
         out.append(stamp + sep + rest)
     return "".join(out)
 
@@ -84,8 +83,9 @@ def replicate(raw_src: Path, raw_dst: Path, scale: int) -> int:
                 if text is None:
                     shutil.copy2(path, dst / name)
                 else:
-                    (dst / name).write_text(_shift_csv(text, dt.timedelta(weeks=k), f"_x{k:02d}"),
-                                            encoding="utf-8")
+                    (dst / name).write_text(
+                        _shift_csv(text, dt.timedelta(weeks=k), f"_x{k:02d}"), encoding="utf-8"
+                    )
                 n += 1
     return n
 
@@ -106,7 +106,7 @@ def rule_benchmarks(results: Path) -> dict:
     per_rule: dict[str, dict] = {}
     for tsv in sorted(results.glob("*/benchmarks/**/*.tsv")):
         rel = tsv.relative_to(results).parts
-        rule = rel[2] if len(rel) > 3 else tsv.stem     # clean/<stem>.tsv -> clean
+        rule = rel[2] if len(rel) > 3 else tsv.stem  # clean/<stem>.tsv -> clean
         lines = tsv.read_text().splitlines()
         if len(lines) < 2:
             continue
@@ -123,8 +123,7 @@ def rule_benchmarks(results: Path) -> dict:
     return per_rule
 
 
-def run_case(name: str, raw_src: Path, *, scale: int, cores: int, target: str,
-             keep: bool) -> dict:
+def run_case(name: str, raw_src: Path, *, scale: int, cores: int, target: str, keep: bool) -> dict:
     workdir = Path(tempfile.mkdtemp(prefix=f"rafi-bench-{name}-"))
     try:
         if scale > 1:
@@ -134,8 +133,9 @@ def run_case(name: str, raw_src: Path, *, scale: int, cores: int, target: str,
             shutil.rmtree(prepare_dir)
         else:
             prepare(workdir, raw_src)
-            n_files = sum(1 for p in (workdir / "raw").rglob("*") if p.is_file()
-                          and not p.name.startswith("."))
+            n_files = sum(
+                1 for p in (workdir / "raw").rglob("*") if p.is_file() and not p.name.startswith(".")
+            )
         raw_mb = sum(p.stat().st_size for p in (workdir / "raw").rglob("*") if p.is_file()) / 2**20
         cmd = [sys.executable, "-m", "snakemake", "--cores", str(cores), target]
         use_time = TIME_V.exists()
@@ -146,16 +146,21 @@ def run_case(name: str, raw_src: Path, *, scale: int, cores: int, target: str,
         wall = time.perf_counter() - t0
         if proc.returncode != 0:
             sys.stderr.write(proc.stderr[-5000:])
-            raise SystemExit(f"{name}: snakemake failed (exit {proc.returncode}); "
-                             f"workdir kept at {workdir}")
+            raise SystemExit(f"{name}: snakemake failed (exit {proc.returncode}); workdir kept at {workdir}")
         measured = _parse_time_v(proc.stderr) if use_time else {}
         if "peak_rss_mb" not in measured:
             after = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-            measured["peak_rss_mb"] = max(after, before) / 1024   # Linux: kB
+            measured["peak_rss_mb"] = max(after, before) / 1024  # Linux: kB
         return {
-            "case": name, "scale": scale, "files": n_files, "raw_mb": round(raw_mb, 1),
-            "cores": cores, "target": target, "command": "snakemake " + " ".join(cmd[3:]),
-            "wall_s": round(wall, 2), "peak_rss_mb": round(measured["peak_rss_mb"], 1),
+            "case": name,
+            "scale": scale,
+            "files": n_files,
+            "raw_mb": round(raw_mb, 1),
+            "cores": cores,
+            "target": target,
+            "command": "snakemake " + " ".join(cmd[3:]),
+            "wall_s": round(wall, 2),
+            "peak_rss_mb": round(measured["peak_rss_mb"], 1),
             "cpu_pct": measured.get("cpu_pct"),
             "rules": rule_benchmarks(workdir / "results"),
             "workdir": str(workdir) if keep else None,
@@ -166,16 +171,27 @@ def run_case(name: str, raw_src: Path, *, scale: int, cores: int, target: str,
 
 
 def markdown(report: dict) -> str:
-    lines = [f"# Pipeline benchmark ({report['date']})", "",
-             f"Host: {report['host']}, {report['cpus']} CPUs, Python {report['python']}.", "",
-             "| case | files | raw MB | command | wall s | peak RSS MB | CPU % |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        f"# Pipeline benchmark ({report['date']})",
+        "",
+        f"Host: {report['host']}, {report['cpus']} CPUs, Python {report['python']}.",
+        "",
+        "| case | files | raw MB | command | wall s | peak RSS MB | CPU % |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for c in report["cases"]:
-        lines.append(f"| {c['case']} | {c['files']} | {c['raw_mb']} | `{c['command']}` | "
-                     f"{c['wall_s']} | {c['peak_rss_mb']} | {c['cpu_pct']} |")
+        lines.append(
+            f"| {c['case']} | {c['files']} | {c['raw_mb']} | `{c['command']}` | "
+            f"{c['wall_s']} | {c['peak_rss_mb']} | {c['cpu_pct']} |"
+        )
     for c in report["cases"]:
-        lines += ["", f"## {c['case']}: per rule (sum of job wall time, max job RSS)", "",
-                  "| rule | jobs | wall s | max RSS MB |", "|---|---|---|---|"]
+        lines += [
+            "",
+            f"## {c['case']}: per rule (sum of job wall time, max job RSS)",
+            "",
+            "| rule | jobs | wall s | max RSS MB |",
+            "|---|---|---|---|",
+        ]
         for rule, e in sorted(c["rules"].items(), key=lambda kv: -kv[1]["wall_s"]):
             lines.append(f"| {rule} | {e['jobs']} | {e['wall_s']} | {e['max_rss_mb']} |")
     return "\n".join(lines) + "\n"
@@ -184,12 +200,12 @@ def markdown(report: dict) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--raw", type=Path, default=ROOT / "raw", help="shipped raw data")
-    parser.add_argument("--cases", nargs="+", default=["shipped", "scaled"],
-                        choices=["shipped", "scaled"])
+    parser.add_argument("--cases", nargs="+", default=["shipped", "scaled"], choices=["shipped", "scaled"])
     parser.add_argument("--scale", type=int, default=10, help="size factor of the scaled case")
     parser.add_argument("--cores", type=int, default=2)
-    parser.add_argument("--target", default="tables",
-                        help="snakemake target: tables (raw -> tables) or all (+ reports)")
+    parser.add_argument(
+        "--target", default="tables", help="snakemake target: tables (raw -> tables) or all (+ reports)"
+    )
     parser.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "pipeline")
     parser.add_argument("--keep", action="store_true", help="keep the temporary work dirs")
     args = parser.parse_args(argv)
@@ -200,14 +216,20 @@ def main(argv=None) -> int:
     for case in args.cases:
         scale = 1 if case == "shipped" else args.scale
         print(f"running {case} (x{scale}) ...", flush=True)
-        result = run_case(case, args.raw, scale=scale, cores=args.cores, target=args.target,
-                          keep=args.keep)
-        print(f"  {result['files']} files, {result['raw_mb']} MB: {result['wall_s']} s, "
-              f"peak RSS {result['peak_rss_mb']} MB", flush=True)
+        result = run_case(case, args.raw, scale=scale, cores=args.cores, target=args.target, keep=args.keep)
+        print(
+            f"  {result['files']} files, {result['raw_mb']} MB: {result['wall_s']} s, "
+            f"peak RSS {result['peak_rss_mb']} MB",
+            flush=True,
+        )
         cases.append(result)
-    report = {"date": dt.datetime.now(dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-              "host": platform.node(), "cpus": os.cpu_count(),
-              "python": platform.python_version(), "cases": cases}
+    report = {
+        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "host": platform.node(),
+        "cpus": os.cpu_count(),
+        "python": platform.python_version(),
+        "cases": cases,
+    }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n")
     args.out.with_suffix(".md").write_text(markdown(report))

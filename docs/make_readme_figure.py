@@ -31,18 +31,28 @@ def main(results: Path, out: Path) -> None:
     best = res[res["model"] == champion].sort_values("t_s")
     hours = rafi["t_s"] / 3600.0
 
-    fig, (ax_n, ax_z) = plt.subplots(2, 1, figsize=(8, 4.2), sharex=True,
-                                     gridspec_kw={"height_ratios": [1, 2.6]}, constrained_layout=True)
+    fig, (ax_n, ax_z) = plt.subplots(
+        2, 1, figsize=(8, 4.2), sharex=True, gridspec_kw={"height_ratios": [1, 2.6]}, constrained_layout=True
+    )
     ax_n.plot(hours, rafi["speed_rpm"], color="#2e7d32", lw=1.2)
     ax_n.set_ylabel("speed (r/min)")
     ax_n.set_title(f"{results.name}: multi-condition validation run ({multi})", fontsize=10)
     peak = rafi["measured_um"].abs().max()
     for label, frame, colour, lw in (
-            (f"uncompensated (max {peak:.1f} µm)", rafi.assign(r=rafi["measured_um"]), "#9aa0a6", 1.0),
-            (f"after RAFI as published (max {rafi['residual_um'].abs().max():.1f} µm)",
-             rafi.assign(r=rafi["residual_um"]), "#c0392b", 0.9),
-            (f"after {champion} (max {best['residual_um'].abs().max():.1f} µm)",
-             best.assign(r=best["residual_um"]), "#1f77b4", 0.9)):
+        (f"uncompensated (max {peak:.1f} µm)", rafi.assign(r=rafi["measured_um"]), "#9aa0a6", 1.0),
+        (
+            f"after RAFI as published (max {rafi['residual_um'].abs().max():.1f} µm)",
+            rafi.assign(r=rafi["residual_um"]),
+            "#c0392b",
+            0.9,
+        ),
+        (
+            f"after {champion} (max {best['residual_um'].abs().max():.1f} µm)",
+            best.assign(r=best["residual_um"]),
+            "#1f77b4",
+            0.9,
+        ),
+    ):
         ax_z.plot(frame["t_s"] / 3600.0, frame["r"], color=colour, lw=lw, label=label)
     ax_z.axhline(0, color="black", lw=0.5)
     ax_z.set_xlabel("time since run start (h)")
@@ -58,5 +68,7 @@ def main(results: Path, out: Path) -> None:
 
 if __name__ == "__main__":
     args = sys.argv[1:]
-    main(Path(args[0] if args else "results/tapping-center-a"),
-         Path(args[1] if len(args) > 1 else "docs/img/readme-multi-condition.png"))
+    main(
+        Path(args[0] if args else "results/tapping-center-a"),
+        Path(args[1] if len(args) > 1 else "docs/img/readme-multi-condition.png"),
+    )

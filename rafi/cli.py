@@ -12,8 +12,8 @@ import sys
 
 #: sub-command -> (module, one-line help)
 COMMANDS = {
-    "simulate": ("rafi.twin_cli", "write raw logs from the spindle digital twin"),
-    "nightly": ("rafi.nightly", "retrain, qualify and promote models (for cron / systemd)"),
+    "simulate": ("rafi.twin.cli", "write raw logs from the spindle digital twin"),
+    "nightly": ("rafi.ops.nightly", "retrain, qualify and promote models (for cron / systemd)"),
 }
 
 
@@ -21,8 +21,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="rafi",
         description="RAFI thermal-displacement compensation for CNC spindles: the tools beside "
-                    "the pipeline (run the pipeline itself with `snakemake --cores 2`).")
-    from . import __version__
+        "the pipeline (run the pipeline itself with `snakemake --cores 2`).",
+    )
+    from rafi import __version__
+
     parser.add_argument("--version", action="version", version=f"rafi {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module_name, help_text) in COMMANDS.items():
@@ -32,8 +34,12 @@ def build_parser() -> argparse.ArgumentParser:
             if exc.name != module_name:
                 raise
             continue
-        p = sub.add_parser(name, help=help_text, description=(module.__doc__ or help_text).strip(),
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        p = sub.add_parser(
+            name,
+            help=help_text,
+            description=(module.__doc__ or help_text).strip(),
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
         module.add_arguments(p)
         p.set_defaults(_run=module.run)
     return parser

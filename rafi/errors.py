@@ -2,8 +2,8 @@
 
 * :class:`RawFormatError` - a raw log that cannot be read as documented in
   ``docs/raw-format.md`` (or as its machine's ``input:`` mapping says). It is the
-  only error a reader (``rafi.io.read_raw_log``, ``rafi.io.read_log``) or the
-  plausibility checks (``rafi.checks.check_log``) raise for bad *data*.
+  only error a reader (``rafi.readers.native.read_raw_log``, ``rafi.readers.logs.read_log``) or the
+  plausibility checks (``rafi.readers.checks.check_log``) raise for bad *data*.
 * :class:`InputSpecError` - the ``input:`` mapping in ``config.yaml`` itself is
   wrong (unknown format, bad unit, ...). It is raised before any file is read and
   is a configuration mistake, not a bad file, so the workflow should stop rather
@@ -36,8 +36,15 @@ class RawFormatError(ValueError):
         Worksheet name for spreadsheets; the location then reads ``sheet 'S', row N``.
     """
 
-    def __init__(self, path, message: str, *, line: int | None = None,
-                 column: str | None = None, sheet: str | None = None):
+    def __init__(
+        self,
+        path,
+        message: str,
+        *,
+        line: int | None = None,
+        column: str | None = None,
+        sheet: str | None = None,
+    ):
         self.path = str(path)
         self.line = line
         self.column = column
@@ -63,3 +70,20 @@ class InputSpecError(ValueError):
     The message names the offending key (e.g. ``input.displacement.unit``) and the
     accepted values.
     """
+
+
+class RegistryError(RuntimeError):
+    """The registry is inconsistent (hash mismatch, overwrite attempt, unknown model id)."""
+
+
+class IncompatibleModels(ValueError):
+    """Two models cannot be merged speed by speed (different sensors, terms or reference)."""
+
+
+class LockHeld(RuntimeError):
+    """Another process holds the nightly lock; ``holder`` is what it wrote in the file."""
+
+    def __init__(self, path: Path, holder: str):
+        self.path = path
+        self.holder = holder.strip() or "unknown process"
+        super().__init__(f"another nightly run holds {path}: {self.holder}")

@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-from rafi.checks import check_log
 from rafi.errors import RawFormatError
-from rafi.io import read_log
+from rafi.readers.checks import check_log
+from rafi.readers.logs import read_log
 
 BAD = Path(__file__).resolve().parent / "data" / "bad"
 
@@ -23,7 +23,7 @@ BAD = Path(__file__).resolve().parent / "data" / "bad"
 def _load_corpus():
     spec = importlib.util.spec_from_file_location("rafi_bad_corpus", BAD / "make_bad.py")
     module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module          # dataclasses need the module registered
+    sys.modules[spec.name] = module  # dataclasses need the module registered
     spec.loader.exec_module(module)
     return module
 
@@ -87,8 +87,7 @@ def test_raw_files_are_opened_read_only(monkeypatch):
     for case in corpus.CASES:
         path = BAD / case.file
         try:
-            check_log(read_log(path, corpus.SPECS[case.spec]), path,
-                      **{**corpus.CHECKS, **case.checks})
+            check_log(read_log(path, corpus.SPECS[case.spec]), path, **{**corpus.CHECKS, **case.checks})
         except RawFormatError:
             pass
     assert all(set(m) <= set("rbt") for m in modes), modes

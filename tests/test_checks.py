@@ -1,4 +1,4 @@
-"""Plausibility checks (rafi.checks.check_log): thresholds and what they leave alone."""
+"""Plausibility checks (rafi.readers.checks.check_log): thresholds and what they leave alone."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 
 from rafi import SENSORS
-from rafi.checks import check_log
 from rafi.errors import RawFormatError
+from rafi.readers.checks import check_log
 
 OC = [-999.0, 999.9, 850.0]
 
@@ -21,7 +21,7 @@ def frame(n=200, period_s=5.0, seed=1) -> pd.DataFrame:
     for i, s in enumerate(SENSORS):
         f[s] = 21 + 0.1 * i + np.linspace(0, 5, n) + rng.normal(0, 0.02, n)
     f["disp_um"] = np.round(np.linspace(0, 30, n) + rng.normal(0, 0.1, n), 3)
-    f.index = pd.Index(np.arange(n) + 3, name="line")     # two metadata lines + header
+    f.index = pd.Index(np.arange(n) + 3, name="line")  # two metadata lines + header
     f.attrs.update(metadata={"sample_period_s": period_s}, source="raw/m/log.csv", sha256="0")
     return f
 
@@ -49,7 +49,7 @@ def test_adjacent_swap_and_duplicates_are_left_for_cleaning():
 def test_backwards_threshold_is_three_samples(back_samples, fails):
     f = frame()
     t = f["time"].to_numpy().copy()
-    t[100:] = t[100:] - np.timedelta64(int((back_samples + 1) * 5000), "ms")   # step = -back
+    t[100:] = t[100:] - np.timedelta64(int((back_samples + 1) * 5000), "ms")  # step = -back
     f["time"] = t
     if fails:
         with pytest.raises(RawFormatError, match="clock reset") as info:
@@ -67,7 +67,7 @@ def test_sample_period_is_inferred_when_not_given():
     f["time"] = t
     with pytest.raises(RawFormatError, match="more than 3 samples of 1 s"):
         check(f)
-    check(f, sample_period_s=5.0)            # a 9 s step back is under 3 x 5 s
+    check(f, sample_period_s=5.0)  # a 9 s step back is under 3 x 5 s
 
 
 def test_too_short():
@@ -89,8 +89,7 @@ def test_open_circuit_values_are_allowed_and_count_as_missing():
     assert info.value.column == "T7"
 
 
-@pytest.mark.parametrize("value, ok", [(-40.0, True), (200.0, True), (-40.5, False),
-                                       (200.1, False)])
+@pytest.mark.parametrize("value, ok", [(-40.0, True), (200.0, True), (-40.5, False), (200.1, False)])
 def test_temperature_range_edges(value, ok):
     f = frame()
     f.loc[f.index[9], "T16"] = value
@@ -102,8 +101,7 @@ def test_temperature_range_edges(value, ok):
         assert info.value.line == 12 and info.value.column == "T16"
 
 
-@pytest.mark.parametrize("speed, ok", [(0.0, True), (100_000.0, True), (-1.0, False),
-                                       (100_001.0, False)])
+@pytest.mark.parametrize("speed, ok", [(0.0, True), (100_000.0, True), (-1.0, False), (100_001.0, False)])
 def test_speed_limits(speed, ok):
     f = frame()
     f.loc[f.index[4], "speed_rpm"] = speed
@@ -117,16 +115,16 @@ def test_speed_limits(speed, ok):
 
 def test_stuck_probe_by_std_and_by_identical_fraction():
     f = frame()
-    f["disp_um"] = 5.0 + np.arange(len(f)) * 1e-7       # std far below 1e-3 um
+    f["disp_um"] = 5.0 + np.arange(len(f)) * 1e-7  # std far below 1e-3 um
     with pytest.raises(RawFormatError, match="is constant"):
         check(f)
     f = frame()
-    f.loc[f.index[:195], "disp_um"] = 3.0                 # 97.5 % identical
+    f.loc[f.index[:195], "disp_um"] = 3.0  # 97.5 % identical
     with pytest.raises(RawFormatError, match="98 % of the values equal 3"):
         check(f)
     f = frame()
-    f.loc[f.index[:180], "disp_um"] = 3.0                 # 90 %: a long standstill is fine ...
-    for s in SENSORS:                                     # ... when the machine is at rest
+    f.loc[f.index[:180], "disp_um"] = 3.0  # 90 %: a long standstill is fine ...
+    for s in SENSORS:  # ... when the machine is at rest
         f.loc[f.index[:180], s] = 21.0
     check(f)
 
@@ -140,10 +138,9 @@ def test_few_values_are_not_judged_stuck():
 def test_millimetres_are_spotted_only_when_temperatures_rise():
     f = frame()
     f["disp_um"] = f["disp_um"] / 1000
-    with pytest.raises(RawFormatError, match="values look like millimetres; set "
-                                             "displacement.unit: mm"):
+    with pytest.raises(RawFormatError, match="values look like millimetres; set displacement.unit: mm"):
         check(f)
-    for s in SENSORS:                                     # no heating: small movement is fine
+    for s in SENSORS:  # no heating: small movement is fine
         f[s] = 21.0 + np.random.default_rng(0).normal(0, 0.05, len(f))
     check(f)
 
@@ -158,14 +155,18 @@ def test_all_nan_column():
 
 def test_mapped_frames_name_the_header_and_sheet():
     f = frame()
-    f.attrs["metadata"] = {"sample_period_s": 5.0, "sheet": "Messdaten",
-                           "columns": {"T4": "Temperatur 4 [°C]", "disp_um": "Verlagerung Z1 [µm]"}}
+    f.attrs["metadata"] = {
+        "sample_period_s": 5.0,
+        "sheet": "Messdaten",
+        "columns": {"T4": "Temperatur 4 [°C]", "disp_um": "Verlagerung Z1 [µm]"},
+    }
     f.loc[f.index[2], "T4"] = 500.0
     with pytest.raises(RawFormatError) as info:
         check_log(f, "b.xlsx", open_circuit_values=OC)
     msg = str(info.value)
-    assert msg.startswith("b.xlsx, sheet 'Messdaten', row 5, column 'T4': T4 (header "
-                          "'Temperatur 4 [°C]'): temperature 500")
+    assert msg.startswith(
+        "b.xlsx, sheet 'Messdaten', row 5, column 'T4': T4 (header 'Temperatur 4 [°C]'): temperature 500"
+    )
 
 
 def test_default_path_is_the_source():
@@ -178,17 +179,24 @@ def test_default_path_is_the_source():
 def test_probe_stuck_mid_run_is_rejected_with_its_lines(tmp_path):
     import numpy as np
     import pandas as pd
-    from rafi.checks import check_log
+
     from rafi.errors import RawFormatError
+    from rafi.readers.checks import check_log
+
     n = 720
     t = pd.date_range("2026-03-01T08:00:00", periods=n, freq="5s")
     rng = np.random.default_rng(3)
-    frame = pd.DataFrame({"time": t, "speed_rpm": 3000.0,
-                          **{f"T{i}": 21 + np.linspace(0, 4, n) for i in range(1, 17)},
-                          "disp_um": np.round(np.linspace(0, 12, n) + rng.normal(0, 0.2, n), 3)},
-                         index=pd.Index(np.arange(n) + 3, name="line"))
-    check_log(frame, "ok.csv", sample_period_s=5)          # a live probe passes
-    frame.loc[frame.index[500]:, "disp_um"] = frame["disp_um"].iloc[500]
+    frame = pd.DataFrame(
+        {
+            "time": t,
+            "speed_rpm": 3000.0,
+            **{f"T{i}": 21 + np.linspace(0, 4, n) for i in range(1, 17)},
+            "disp_um": np.round(np.linspace(0, 12, n) + rng.normal(0, 0.2, n), 3),
+        },
+        index=pd.Index(np.arange(n) + 3, name="line"),
+    )
+    check_log(frame, "ok.csv", sample_period_s=5)  # a live probe passes
+    frame.loc[frame.index[500] :, "disp_um"] = frame["disp_um"].iloc[500]
     with pytest.raises(RawFormatError, match=r"stuck at .* for 220 rows") as err:
         check_log(frame, "stuck.csv", sample_period_s=5)
     assert err.value.line == 503 and err.value.column == "disp_um"

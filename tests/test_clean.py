@@ -1,4 +1,4 @@
-"""rafi.clean against synthetic logs with injected defects and known truth."""
+"""rafi.method.clean against synthetic logs with injected defects and known truth."""
 
 from __future__ import annotations
 
@@ -7,17 +7,22 @@ import time
 import numpy as np
 import pandas as pd
 import pytest
-from hypothesis import HealthCheck, Phase, given, settings, strategies as st
+from hypothesis import HealthCheck, Phase, given, settings
+from hypothesis import strategies as st
 
 from rafi import SENSORS
-from rafi.clean import AUDIT_COLUMNS, SUMMARY_COLUMNS, clean_log, summarise_audit
 from rafi.errors import RawFormatError
-from rafi.io import format_raw_log, read_raw_log
+from rafi.method.clean import AUDIT_COLUMNS, SUMMARY_COLUMNS, clean_log, summarise_audit
+from rafi.readers.native import format_raw_log, read_raw_log
+from rafi.twin.synthetic_logs import OPEN_CIRCUIT, canonical_log, inject_defects
 
-from synthetic import OPEN_CIRCUIT, canonical_log, inject_defects
-
-KW = dict(file="log.csv", sample_period_s=5.0, max_interpolate_gap_s=60.0, spike_threshold=8.0,
-          open_circuit_values=[-999.0, 999.9, 850.0])
+KW = dict(
+    file="log.csv",
+    sample_period_s=5.0,
+    max_interpolate_gap_s=60.0,
+    spike_threshold=8.0,
+    open_circuit_values=[-999.0, 999.9, 850.0],
+)
 SENSORS = list(SENSORS)
 SENSOR_COLS = [*SENSORS, "disp_um"]
 
@@ -38,19 +43,20 @@ def log_truth():
 @pytest.fixture(scope="module")
 def defective(log_truth):
     log, truth = log_truth
-    frame, defects = inject_defects(log, duplicates=3, duplicates_differ=2, swaps=4, spikes=6,
-                                    dropouts=5, open_circuit=3, gaps=4, seed=11)
+    frame, defects = inject_defects(
+        log, duplicates=3, duplicates_differ=2, swaps=4, spikes=6, dropouts=5, open_circuit=3, gaps=4, seed=11
+    )
     out, audit = clean(frame)
     return log, truth, frame, defects, out, audit
 
 
 # --------------------------------------------------------------------------- no defects
 
+
 def test_clean_log_without_defects_is_identity(log_truth):
     log, _ = log_truth
     out, audit = clean(log)
-    assert list(out.columns) == ["time", "t_s", "speed_rpm", *SENSORS, "disp_um", "segment",
-                                 "ambient_c"]
+    assert list(out.columns) == ["time", "t_s", "speed_rpm", *SENSORS, "disp_um", "segment", "ambient_c"]
     assert len(out) == len(log)
     assert (out["segment"] == 0).all() and out["segment"].dtype == np.int64
     assert out["time"].dtype == "datetime64[ns]"
@@ -72,6 +78,7 @@ def test_audit_table_is_empty_but_typed_without_extras():
 
 # --------------------------------------------------------------------------- injected defects
 
+
 def test_audit_counts_equal_injected_counts(defective):
     _, _, frame, defects, out, audit = defective
     c = counts(audit)
@@ -80,12 +87,12 @@ def test_audit_counts_equal_injected_counts(defective):
     assert c["reordered"] == inj["swap"]
     assert c["spike_replaced"] == inj["spike"]
     assert c["open_circuit_removed"] == inj["open_circuit"]
-    assert c["gap_interpolated"] == inj["gap"]                  # rows inserted
+    assert c["gap_interpolated"] == inj["gap"]  # rows inserted
     assert (audit["action"] == "gap_interpolated").sum() == (defects["kind"] == "gap").sum()
     # open-circuit values become dropouts that are interpolated
     assert c["dropout_interpolated"] == inj["dropout"] + inj["open_circuit"]
     assert "gap_split" not in c and "dropout_left_nan" not in c
-    assert len(out) == 3000                                      # back on the full grid
+    assert len(out) == 3000  # back on the full grid
     summary = summarise_audit("log.csv", "f" * 64, len(frame), out, audit)
     assert list(summary.columns) == list(SUMMARY_COLUMNS)
     s = summary.iloc[0]
@@ -98,9 +105,15 @@ def test_audit_counts_equal_injected_counts(defective):
 
 def test_audit_lines_are_the_source_lines(defective):
     _, _, frame, defects, _, audit = defective
-    match = {"duplicate": "duplicate_dropped", "duplicate_differ": "duplicate_dropped",
-             "swap": "reordered", "spike": "spike_replaced", "open_circuit": "open_circuit_removed",
-             "dropout": "dropout_interpolated", "gap": "gap_interpolated"}
+    match = {
+        "duplicate": "duplicate_dropped",
+        "duplicate_differ": "duplicate_dropped",
+        "swap": "reordered",
+        "spike": "spike_replaced",
+        "open_circuit": "open_circuit_removed",
+        "dropout": "dropout_interpolated",
+        "gap": "gap_interpolated",
+    }
     for d in defects.itertuples():
         rows = audit[(audit["action"] == match[d.kind]) & (audit["first_line"] == d.line)]
         assert len(rows) == 1, d
@@ -122,14 +135,14 @@ def test_duplicate_with_other_values_keeps_first_and_says_so(defective):
         assert "differs in T1" in row["detail"].iloc[0]
         kept = frame.loc[d.line - 1]
         t = out.loc[out["time"] == kept["time"], "T1"]
-        assert t.iloc[0] == kept["T1"]                       # first row kept, not the copy
+        assert t.iloc[0] == kept["T1"]  # first row kept, not the copy
 
 
 def test_values_match_truth_after_cleaning(defective):
     log, truth, _, defects, out, _ = defective
-    out = out.set_index(log.index)                           # same grid as the defect-free log
+    out = out.set_index(log.index)  # same grid as the defect-free log
     touched = np.zeros(len(log), bool)
-    ambiguous = np.zeros(len(log), bool)     # a gap over the speed step: the jump time is unknown
+    ambiguous = np.zeros(len(log), bool)  # a gap over the speed step: the jump time is unknown
     step = np.flatnonzero(np.diff(log["speed_rpm"].to_numpy())) + 1
     for d in defects.itertuples():
         window = slice(max(d.position - 1, 0), d.position + d.n_rows + 1)
@@ -140,7 +153,7 @@ def test_values_match_truth_after_cleaning(defective):
     for c in ["speed_rpm", *SENSOR_COLS, "ambient_c"]:
         # rows no defect touched come through bit-identical
         np.testing.assert_array_equal(out[c].to_numpy()[untouched], log[c].to_numpy()[untouched])
-        if c == "speed_rpm":          # piecewise constant: only the logged set points appear
+        if c == "speed_rpm":  # piecewise constant: only the logged set points appear
             assert set(out[c]) == set(log[c])
             continue
         # repaired rows are within noise of the truth (temps: sigma 0.02 K, disp 0.1 um)
@@ -167,6 +180,7 @@ def test_raw_frame_is_never_mutated(defective):
 
 # --------------------------------------------------------------------------- gaps and time
 
+
 def test_long_gap_splits_into_segments_and_is_never_bridged(log_truth):
     log, _ = log_truth
     frame, defects = inject_defects(log, long_gaps=1, gaps=1, seed=2)
@@ -177,7 +191,7 @@ def test_long_gap_splits_into_segments_and_is_never_bridged(log_truth):
     assert len(split) == 1
     assert split["first_line"].iloc[0] == long.line and split["last_line"].iloc[0] == long.last_line
     assert split["n_rows"].iloc[0] == long.n_rows
-    assert len(out) == len(log) - long.n_rows                 # nothing inserted in the long gap
+    assert len(out) == len(log) - long.n_rows  # nothing inserted in the long gap
     assert out[SENSOR_COLS].notna().all().all()
     first_of_1 = out.index[out["segment"] == 1][0]
     assert out["t_s"].iloc[first_of_1] - out["t_s"].iloc[first_of_1 - 1] == 5.0 * (long.n_rows + 1)
@@ -188,7 +202,7 @@ def test_gap_limit_is_the_time_between_valid_samples(log_truth):
     log, _ = log_truth
     # 11 missing rows -> 60 s between samples: interpolated; 12 missing -> 65 s: split
     for missing, segments in ((11, 1), (12, 2)):
-        frame = log.drop(log.index[100:100 + missing])
+        frame = log.drop(log.index[100 : 100 + missing])
         out, audit = clean(frame)
         assert out["segment"].nunique() == segments, missing
 
@@ -196,7 +210,7 @@ def test_gap_limit_is_the_time_between_valid_samples(log_truth):
 def test_backwards_clock_jump_raises_with_line():
     log, _ = canonical_log(600, extras=False)
     frame = log.copy()
-    frame.loc[frame.index >= 302, "time"] -= pd.Timedelta(hours=1)   # clock reset at line 302
+    frame.loc[frame.index >= 302, "time"] -= pd.Timedelta(hours=1)  # clock reset at line 302
     with pytest.raises(RawFormatError) as err:
         clean(frame)
     e = err.value
@@ -207,11 +221,11 @@ def test_backwards_clock_jump_raises_with_line():
 def test_small_swap_is_sorted_not_an_error():
     log, _ = canonical_log(100, extras=False)
     order = list(range(100))
-    order[10], order[12] = order[12], order[10]          # a row 2 places late
+    order[10], order[12] = order[12], order[10]  # a row 2 places late
     frame = log.iloc[order]
     out, audit = clean(frame)
     pd.testing.assert_series_equal(out["T1"], log["T1"].reset_index(drop=True))
-    assert counts(audit)["reordered"] == 2                 # two backwards steps
+    assert counts(audit)["reordered"] == 2  # two backwards steps
 
 
 def test_jittered_timestamps_are_snapped_to_the_grid():
@@ -246,13 +260,14 @@ def test_wrong_sample_period_is_reported():
 
 # --------------------------------------------------------------------------- values
 
+
 def test_speed_is_never_blended_across_a_gap():
     log, _ = canonical_log(400, steps=((0, 6000.0), (1000.0, 9000.0)), extras=False)
     # rows 198..202 (t = 990..1010 s) missing: the speed changes inside the gap
     frame = log.drop(log.index[198:203])
     out, audit = clean(frame)
     assert set(out["speed_rpm"].unique()) == {6000.0, 9000.0}
-    assert (out["speed_rpm"].iloc[:203] == 6000.0).all()       # carried forward
+    assert (out["speed_rpm"].iloc[:203] == 6000.0).all()  # carried forward
     assert (out["speed_rpm"].iloc[203:] == 9000.0).all()
 
 
@@ -267,10 +282,9 @@ def test_speed_dropout_takes_previous_value():
 
 
 def test_step_in_displacement_is_not_a_spike():
-    log, _ = canonical_log(600, steps=((0, 3000.0), (1500.0, 18000.0)), extras=False,
-                           noise_disp=0.05)
+    log, _ = canonical_log(600, steps=((0, 3000.0), (1500.0, 18000.0)), extras=False, noise_disp=0.05)
     frame = log.copy()
-    frame.loc[frame.index >= frame.index[300], "disp_um"] += 8.0    # a real jump
+    frame.loc[frame.index >= frame.index[300], "disp_um"] += 8.0  # a real jump
     out, audit = clean(frame)
     assert "spike_replaced" not in set(audit["action"])
     np.testing.assert_array_equal(out["disp_um"], frame["disp_um"].to_numpy())
@@ -279,7 +293,7 @@ def test_step_in_displacement_is_not_a_spike():
 def test_spike_detection_floor_on_quantised_signal():
     log, _ = canonical_log(300, extras=False, noise_temp=0.0)
     frame = log.copy()
-    frame[SENSORS] = frame[SENSORS].round(2)                   # slow, quantised: MAD of diffs ~ 0
+    frame[SENSORS] = frame[SENSORS].round(2)  # slow, quantised: MAD of diffs ~ 0
     frame.loc[frame.index[150], "T4"] += 1.0
     out, audit = clean(frame)
     spikes = audit[audit["action"] == "spike_replaced"]
@@ -289,15 +303,14 @@ def test_spike_detection_floor_on_quantised_signal():
 def test_long_dropout_is_left_nan_and_recorded():
     log, _ = canonical_log(300, extras=False)
     frame = log.copy()
-    frame.loc[frame.index[100:130], "T7"] = np.nan                # 155 s between valid samples
-    frame.loc[frame.index[:3], "T8"] = np.nan                     # at the start of the log
+    frame.loc[frame.index[100:130], "T7"] = np.nan  # 155 s between valid samples
+    frame.loc[frame.index[:3], "T8"] = np.nan  # at the start of the log
     out, audit = clean(frame)
     assert out["T7"].iloc[100:130].isna().all() and out["T7"].notna().sum() == 270
     assert out["T8"].iloc[:3].isna().all()
     left = audit[audit["action"] == "dropout_left_nan"].set_index("column")
     assert left.loc["T7", "n_rows"] == 30
-    assert (left.loc["T7", "first_line"], left.loc["T7", "last_line"]) == (
-        frame.index[100], frame.index[129])
+    assert (left.loc["T7", "first_line"], left.loc["T7", "last_line"]) == (frame.index[100], frame.index[129])
     assert left.loc["T8", "n_rows"] == 3 and "start or end of a segment" in left.loc["T8", "detail"]
     s = summarise_audit("f", "s", 300, out, audit).iloc[0]
     assert s["values_interpolated"] == 0
@@ -313,8 +326,7 @@ def test_open_circuit_recorded_per_sensor_and_line_range():
     oc = audit[audit["action"] == "open_circuit_removed"]
     got = sorted(oc[["column", "first_line", "last_line", "n_rows"]].values.tolist())
     i = frame.index
-    assert got == sorted([["T3", i[50], i[52], 3], ["T3", i[80], i[80], 1],
-                          ["T12", i[80], i[80], 1]])
+    assert got == sorted([["T3", i[50], i[52], 3], ["T3", i[80], i[80], 1], ["T12", i[80], i[80], 1]])
     assert out[SENSORS].abs().max().max() < 100
 
 
@@ -332,9 +344,8 @@ def test_read_raw_log_round_trip_points_at_file_lines(tmp_path):
     log, _ = canonical_log(400, extras=False)
     frame, defects = inject_defects(log, spikes=3, duplicates=1, swaps=1, seed=5)
     path = tmp_path / "raw.csv"
-    path.write_text(format_raw_log(frame, metadata={"machine": "m", "sample_period_s": 5}),
-                    encoding="utf-8")
-    raw = read_raw_log(path)                                   # header on line 3 now
+    path.write_text(format_raw_log(frame, metadata={"machine": "m", "sample_period_s": 5}), encoding="utf-8")
+    raw = read_raw_log(path)  # header on line 3 now
     out, audit = clean(raw, file=path.name)
     lines = path.read_text(encoding="utf-8").splitlines()
     for r in audit[audit["action"] == "spike_replaced"].itertuples():
@@ -347,14 +358,28 @@ def test_read_raw_log_round_trip_points_at_file_lines(tmp_path):
 
 # --------------------------------------------------------------------------- property + speed
 
-@settings(max_examples=15, deadline=None, database=None, print_blob=True,
-          phases=[Phase.explicit, Phase.generate], suppress_health_check=[HealthCheck.too_slow])
-@given(dup=st.integers(0, 4), swaps=st.integers(0, 4), spikes=st.integers(0, 5),
-       dropouts=st.integers(0, 4), gaps=st.integers(0, 4), seed=st.integers(0, 10_000))
+
+@settings(
+    max_examples=15,
+    deadline=None,
+    database=None,
+    print_blob=True,
+    phases=[Phase.explicit, Phase.generate],
+    suppress_health_check=[HealthCheck.too_slow],
+)
+@given(
+    dup=st.integers(0, 4),
+    swaps=st.integers(0, 4),
+    spikes=st.integers(0, 5),
+    dropouts=st.integers(0, 4),
+    gaps=st.integers(0, 4),
+    seed=st.integers(0, 10_000),
+)
 def test_audit_counts_property(dup, swaps, spikes, dropouts, gaps, seed):
     log, truth = canonical_log(1200, extras=False, seed=seed % 7)
-    frame, defects = inject_defects(log, duplicates=dup, swaps=swaps, spikes=spikes,
-                                    dropouts=dropouts, gaps=gaps, seed=seed)
+    frame, defects = inject_defects(
+        log, duplicates=dup, swaps=swaps, spikes=spikes, dropouts=dropouts, gaps=gaps, seed=seed
+    )
     out, audit = clean(frame)
     s = summarise_audit("f", "s", len(frame), out, audit).iloc[0]
     kinds = defects["kind"].value_counts()
@@ -376,8 +401,9 @@ def test_clean_is_fast(log_truth):
     clean(frame)
     assert time.perf_counter() - t0 < 0.2
     big, _ = canonical_log(30000, extras=False, seed=1)
-    big, _ = inject_defects(big, duplicates=20, swaps=20, spikes=40, dropouts=40, gaps=20,
-                            long_gaps=2, seed=3)
+    big, _ = inject_defects(
+        big, duplicates=20, swaps=20, spikes=40, dropouts=40, gaps=20, long_gaps=2, seed=3
+    )
     t0 = time.perf_counter()
     out, audit = clean(big)
     assert time.perf_counter() - t0 < 1.0
@@ -388,11 +414,11 @@ def test_backwards_limit_is_three_samples():
     log, _ = canonical_log(100, extras=False)
     order = list(range(100))
     moved = order.pop(40)
-    order.insert(44, moved)                               # 4 samples late -> 20 s backwards
+    order.insert(44, moved)  # 4 samples late -> 20 s backwards
     with pytest.raises(RawFormatError, match="backwards by 20 s"):
         clean(log.iloc[order])
     order = list(range(100))
-    order.insert(43, order.pop(40))                       # 3 samples late: a local swap
+    order.insert(43, order.pop(40))  # 3 samples late: a local swap
     out, audit = clean(log.iloc[order])
     assert counts(audit)["reordered"] == 1
     np.testing.assert_array_equal(out["T3"], log["T3"].to_numpy())

@@ -1,4 +1,4 @@
-"""Whole-run cross-validation, comparison and champion choice (rafi.crossval)."""
+"""Whole-run cross-validation, comparison and champion choice (rafi.family.crossval)."""
 
 from __future__ import annotations
 
@@ -8,12 +8,28 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from rafi.crossval import (COMPARISON_COLUMNS, assert_disjoint, choose_champion, compare_models,
-                           cross_validate, leave_one_run_out, leave_one_speed_out, split_runs)
-from rafi.model_family import (DynamicRidge, GreyBox, PublishedRafi, RafiLinear, RidgeGlobal, make_synthetic_runs,
-                               run_family)
+from rafi.family.crossval import (
+    COMPARISON_COLUMNS,
+    assert_disjoint,
+    choose_champion,
+    compare_models,
+    cross_validate,
+    leave_one_run_out,
+    leave_one_speed_out,
+    split_runs,
+)
+from rafi.family.models import (
+    DynamicRidge,
+    GreyBox,
+    PublishedRafi,
+    RafiLinear,
+    RidgeGlobal,
+    run_family,
+)
+from rafi.twin.family_runs import make_synthetic_runs
 
 DATA = Path(__file__).parent / "data"
 GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
@@ -29,10 +45,13 @@ def _quiet():
 
 # --------------------------------------------------------------------------- splitters
 
+
 @st.composite
 def runs_tables(draw):
     n = draw(st.integers(2, 12))
-    speeds = draw(st.lists(st.sampled_from([3000, 3010, 6000, 9000, 12000, 15000, 18000]), min_size=n, max_size=n))
+    speeds = draw(
+        st.lists(st.sampled_from([3000, 3010, 6000, 9000, 12000, 15000, 18000]), min_size=n, max_size=n)
+    )
     roles = draw(st.lists(st.sampled_from(ROLES), min_size=n, max_size=n))
     roles[0] = roles[1] = "training"
     return pd.DataFrame({"run_id": [f"r{i}" for i in range(n)], "role": roles, "speed_rpm": speeds})
@@ -48,13 +67,21 @@ def test_folds_never_mix_runs_and_never_use_validation(table, scheme):
         assert not set(train) & set(test)  # never the same run on both sides
         assert set(train) | set(test) == train_ids  # only training runs, all of them
         held_out += test
-    if len({round(s / 100) for s in table.loc[table["role"] == "training", "speed_rpm"]}) > 1 or scheme == "leave_one_run_out":
+    if (
+        len({round(s / 100) for s in table.loc[table["role"] == "training", "speed_rpm"]}) > 1
+        or scheme == "leave_one_run_out"
+    ):
         assert sorted(held_out) == sorted(train_ids)  # each training run is held out exactly once
 
 
 def test_leave_one_speed_out_holds_out_all_runs_of_a_speed():
-    table = pd.DataFrame({"run_id": ["a", "b", "c", "d"], "role": ["training"] * 3 + ["validation_single"],
-                          "speed_rpm": [3000, 3020, 6000, 4500]})
+    table = pd.DataFrame(
+        {
+            "run_id": ["a", "b", "c", "d"],
+            "role": ["training"] * 3 + ["validation_single"],
+            "speed_rpm": [3000, 3020, 6000, 4500],
+        }
+    )
     folds = list(leave_one_speed_out(table))
     assert folds == [(["c"], ["a", "b"]), (["a", "b"], ["c"])]
     assert [f[1] for f in leave_one_run_out(table)] == [["a"], ["b"], ["c"]]
@@ -70,6 +97,7 @@ def test_assert_disjoint_raises():
 
 
 # --------------------------------------------------------------------------- cross_validate
+
 
 class Spy:
     """A model that records every run id its fit sees (outer and inner CV included)."""
@@ -102,7 +130,7 @@ def test_cross_validate_never_shows_held_out_or_validation_runs():
 
 def test_hyperparameters_come_from_training_only(monkeypatch):
     """The inner CV of ridge / dynamic splits training runs only, and nothing else reaches fit."""
-    import rafi.model_family as mf
+    import rafi.family.models as mf
 
     table, frame = make_synthetic_runs(seed=2, sample_s=300.0, n_sensors=3)
     validation = set(table.loc[table["role"] != "training", "run_id"])
@@ -121,6 +149,7 @@ def test_hyperparameters_come_from_training_only(monkeypatch):
 
 # --------------------------------------------------------------------------- comparison
 
+
 def _golden_models(table, frame):
     key = ["T1", "T2", "T3"]
     return {
@@ -128,13 +157,17 @@ def _golden_models(table, frame):
         "rafi_linear": RafiLinear(key).fit(table, frame),
         "ridge_global": RidgeGlobal().fit(table, frame),
         "dynamic": DynamicRidge(taus_s=[0, 600, 1200, 2400], max_taus=1).fit(table, frame),
-        "grey_box": GreyBox(taus_s=[0, 600, 1200], speed_taus_s=[120, 600, 2400], max_speed_taus=1).fit(table, frame),
+        "grey_box": GreyBox(taus_s=[0, 600, 1200], speed_taus_s=[120, 600, 2400], max_speed_taus=1).fit(
+            table, frame
+        ),
     }
 
 
 def _golden_data():
-    return (pd.read_csv(DATA / "golden_comparison_runs.csv"),
-            pd.read_csv(DATA / "golden_comparison_frame.csv"))
+    return (
+        pd.read_csv(DATA / "golden_comparison_runs.csv"),
+        pd.read_csv(DATA / "golden_comparison_frame.csv"),
+    )
 
 
 def test_golden_comparison_table():
@@ -162,16 +195,29 @@ def test_golden_comparison_table():
         assert got[col].astype(bool).tolist() == want[col].astype(bool).tolist(), col
     for col in ["n_samples", "n_outside_temp_range", "n_outside_speed_range"]:
         assert got[col].astype(int).tolist() == want[col].astype(int).tolist(), col
-    for col in ["speed_rpm", "max_abs_before_um", "max_abs_after_um", "improvement_pct", "rmse_before_um",
-                "rmse_after_um"]:
-        np.testing.assert_allclose(got[col].to_numpy(float), want[col].to_numpy(float), rtol=1e-6, atol=1e-6,
-                                   err_msg=col)
+    for col in [
+        "speed_rpm",
+        "max_abs_before_um",
+        "max_abs_after_um",
+        "improvement_pct",
+        "rmse_before_um",
+        "rmse_after_um",
+    ]:
+        np.testing.assert_allclose(
+            got[col].to_numpy(float), want[col].to_numpy(float), rtol=1e-6, atol=1e-6, err_msg=col
+        )
 
 
 def test_champion_is_the_best_passer():
-    s = pd.DataFrame({"model": ["rafi", "a", "b", "c"], "scope": "model",
-                      "max_abs_after_um": [9.0, 3.0, 2.0, 3.0], "improvement_pct": [40.0, 80.0, 90.0, 85.0],
-                      "passed": [True, True, False, True]})
+    s = pd.DataFrame(
+        {
+            "model": ["rafi", "a", "b", "c"],
+            "scope": "model",
+            "max_abs_after_um": [9.0, 3.0, 2.0, 3.0],
+            "improvement_pct": [40.0, 80.0, 90.0, 85.0],
+            "passed": [True, True, False, True],
+        }
+    )
     assert choose_champion(s) == "c"  # b fails the gates; c ties with a on residual, better improvement
     assert choose_champion(s.assign(passed=False)) is None
     assert choose_champion(s.assign(passed=False), require_pass=False) == "b"
@@ -179,9 +225,19 @@ def test_champion_is_the_best_passer():
 
 def test_run_family_end_to_end():
     table, frame = _golden_data()
-    res = run_family(table, frame, key_sensors=["T1", "T2", "T3"], machine="synthetic", gates=GATES,
-                     options={"enabled": ["rafi_linear", "ridge_global", "dynamic"], "dynamic_taus_s": [0, 1200],
-                              "dynamic_max_taus": 1}, log=lambda m: None)
+    res = run_family(
+        table,
+        frame,
+        key_sensors=["T1", "T2", "T3"],
+        machine="synthetic",
+        gates=GATES,
+        options={
+            "enabled": ["rafi_linear", "ridge_global", "dynamic"],
+            "dynamic_taus_s": [0, 1200],
+            "dynamic_max_taus": 1,
+        },
+        log=lambda m: None,
+    )
     s = res["summary"]
     assert set(s["model"]) == {"rafi_linear", "ridge_global", "dynamic"}
     assert {"fit_time_s", "cv_rmse_um", "cv_max_abs_um", "selected"} <= set(s.columns)
@@ -198,5 +254,6 @@ def test_run_family_end_to_end():
 if __name__ == "__main__":  # regenerate the golden table
     t, f = _golden_data()
     compare_models(_golden_models(t, f), t, f, GATES).drop(columns=["model_id"]).to_csv(
-        DATA / "golden_comparison.csv", index=False, float_format="%.9g")
+        DATA / "golden_comparison.csv", index=False, float_format="%.9g"
+    )
     print("wrote", DATA / "golden_comparison.csv")

@@ -1,4 +1,4 @@
-"""rafi.equilibrium on first-order responses with a known time constant."""
+"""rafi.method.equilibrium on first-order responses with a known time constant."""
 
 from __future__ import annotations
 
@@ -8,30 +8,44 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rafi.equilibrium import (EQUILIBRIUM_COLUMNS, PAPER_T_EQ_S, equilibrium_table,
-                              equilibrium_time, paper_t_eq)
-from rafi.runs import find_runs
-
-from synthetic import first_order_run, schedule_log
+from rafi.method.equilibrium import (
+    EQUILIBRIUM_COLUMNS,
+    PAPER_T_EQ_S,
+    equilibrium_table,
+    equilibrium_time,
+    paper_t_eq,
+)
+from rafi.method.runs import find_runs
+from rafi.twin.synthetic_logs import first_order_run, schedule_log
 
 H = 3600.0
 EQ = dict(band_fraction=0.05, plateau_window_s=900.0, smooth_window_s=300.0)
-RUNS = dict(speed_tolerance_rpm=50, idle_below_rpm=100, min_run_s=1800, min_constant_s=3600,
-            overrides={}, reference_rule="run_start", reference_window_s=60)
+RUNS = dict(
+    speed_tolerance_rpm=50,
+    idle_below_rpm=100,
+    min_run_s=1800,
+    min_constant_s=3600,
+    overrides={},
+    reference_rule="run_start",
+    reference_window_s=60,
+)
 
 
-@pytest.mark.parametrize("tau,duration,rise", [(1000.0, 4 * H, 12.0), (2000.0, 4 * H, 20.0),
-                                               (3000.0, 7 * H, 25.0), (2000.0, 4 * H, -8.0)])
+@pytest.mark.parametrize(
+    "tau,duration,rise",
+    [(1000.0, 4 * H, 12.0), (2000.0, 4 * H, 20.0), (3000.0, 7 * H, 25.0), (2000.0, 4 * H, -8.0)],
+)
 def test_equilibrium_time_recovers_first_order_time_constant(tau, duration, rise):
-    t, dz = first_order_run(tau_s=tau, rise_um=rise, duration_s=duration, noise_um=0.1,
-                            offset_um=1.5, seed=int(tau))
+    t, dz = first_order_run(
+        tau_s=tau, rise_um=rise, duration_s=duration, noise_um=0.1, offset_um=1.5, seed=int(tau)
+    )
     res = equilibrium_time(t, dz, **EQ)
-    expected = tau * np.log(1 / 0.05)              # = tau ln(rise / band)
+    expected = tau * np.log(1 / 0.05)  # = tau ln(rise / band)
     assert res.t_eq_s == pytest.approx(expected, rel=0.04)
     assert res.tau_s == pytest.approx(tau, rel=0.03)
     assert res.t_eq_tau_s == pytest.approx(expected, rel=0.03)
     assert res.t_eq_low_s <= res.t_eq_s <= res.t_eq_high_s
-    assert res.rise_um == pytest.approx(rise, abs=0.5)     # start = median of the first 60 s
+    assert res.rise_um == pytest.approx(rise, abs=0.5)  # start = median of the first 60 s
     assert res.plateau_um == pytest.approx(1.5 + rise, abs=0.1)
 
 
@@ -59,10 +73,11 @@ def test_paper_table_lookup():
 def runs():
     a, _ = schedule_log([(3000, 4 * H)], seed=1)
     b, _ = schedule_log([(7000, 4 * H)], seed=2)
-    c, _ = schedule_log([(4500, 3 * H)], seed=3)                    # validation: not in the table
+    c, _ = schedule_log([(4500, 3 * H)], seed=3)  # validation: not in the table
     d, _ = schedule_log([(3000, 4 * H), (0, H), (12000, 4 * H)], seed=4)
-    return find_runs({"a": a, "b": b, "c": c, "d.csv": d}, {}, training_speeds_rpm=[3000, 7000,
-                                                                                   12000], **RUNS)
+    return find_runs(
+        {"a": a, "b": b, "c": c, "d.csv": d}, {}, training_speeds_rpm=[3000, 7000, 12000], **RUNS
+    )
 
 
 def test_equilibrium_table(runs):
@@ -85,8 +100,7 @@ def test_equilibrium_table_from_csv_round_trip(runs):
     buf = io.StringIO()
     table.to_csv(buf, index=False)
     back = pd.read_csv(io.StringIO(buf.getvalue()))
-    pd.testing.assert_frame_equal(equilibrium_table(back, frame, **EQ),
-                                  equilibrium_table(table, frame, **EQ))
+    pd.testing.assert_frame_equal(equilibrium_table(back, frame, **EQ), equilibrium_table(table, frame, **EQ))
 
 
 def test_equilibrium_table_ignores_nan_and_handles_empty_runs(runs):
@@ -113,8 +127,9 @@ def test_rest_before_start_does_not_shift_t_eq():
     assert res.t_eq_s == pytest.approx(base.t_eq_s, abs=10.0)
     assert res.tau_s == pytest.approx(tau, rel=0.05)
     # the table finds the spindle start from the speed
-    frame = pd.DataFrame({"run_id": "r", "t_s": t_all, "dz_um": z_all,
-                          "speed_rpm": np.where(t_all < rest, 0.0, 9000.0)})
+    frame = pd.DataFrame(
+        {"run_id": "r", "t_s": t_all, "dz_um": z_all, "speed_rpm": np.where(t_all < rest, 0.0, 9000.0)}
+    )
     table = pd.DataFrame({"run_id": ["r"], "role": ["training"], "speed_rpm": [9000.0]})
     eq = equilibrium_table(table, frame, **EQ)
     assert eq["t_eq_s"].iloc[0] == pytest.approx(base.t_eq_s, abs=10.0)

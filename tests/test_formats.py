@@ -1,4 +1,4 @@
-"""Mapped readers (rafi.formats, rafi.io.read_log with an ``input:`` mapping)."""
+"""Mapped readers (rafi.readers.mapped, rafi.readers.logs.read_log with an ``input:`` mapping)."""
 
 from __future__ import annotations
 
@@ -17,11 +17,12 @@ import pytest
 import yaml
 
 from rafi import REQUIRED_COLUMNS
-from rafi.checks import check_log
 from rafi.errors import InputSpecError, RawFormatError
-from rafi.formats import (INPUT_SCHEMA, closest_headers, excel_column, normalise_input_spec,
-                          sanitise_name)
-from rafi.io import contract_violations, find_logs, read_log
+from rafi.readers.checks import check_log
+from rafi.readers.input_spec import INPUT_SCHEMA, find_logs, normalise_input_spec
+from rafi.readers.logs import read_log
+from rafi.readers.mapped import closest_headers, excel_column, sanitise_name
+from rafi.readers.native import contract_violations
 
 ROOT = Path(__file__).resolve().parents[1]
 FOREIGN = ROOT / "tests" / "data" / "foreign"
@@ -69,10 +70,14 @@ def test_docs_example_is_valid_against_schema_and_normaliser(mcb_machine):
 def test_xlsx_layout_reads_into_the_canonical_frame(xlsx_frame):
     f = xlsx_frame
     assert contract_violations(f) == []
-    assert list(f.columns[:len(REQUIRED_COLUMNS)]) == list(REQUIRED_COLUMNS)
-    assert list(f.columns[len(REQUIRED_COLUMNS):]) == [
-        "verlagerung_x1_um", "verlagerung_y1_um", "verlagerung_z2_um", "bemerkung"]
-    assert f.index[0] == 2 and f.index[-1] == 241 and len(f) == 240   # Excel rows
+    assert list(f.columns[: len(REQUIRED_COLUMNS)]) == list(REQUIRED_COLUMNS)
+    assert list(f.columns[len(REQUIRED_COLUMNS) :]) == [
+        "verlagerung_x1_um",
+        "verlagerung_y1_um",
+        "verlagerung_z2_um",
+        "bemerkung",
+    ]
+    assert f.index[0] == 2 and f.index[-1] == 241 and len(f) == 240  # Excel rows
     assert f["time"].iloc[0] == pd.Timestamp("2026-10-14T06:00:00")
     assert (f["time"].diff().dropna() == pd.Timedelta(seconds=15)).all()
     assert f.attrs["metadata"]["sample_period_s"] == 15.0
@@ -92,13 +97,18 @@ def test_sign_is_applied_to_the_target_only(xlsx_frame):
     z2 = np.array([r[header.index("Verlagerung Z2 [µm]")] for r in rows[1:]], dtype=float)
     np.testing.assert_array_equal(xlsx_frame["disp_um"].to_numpy(), -z1)
     np.testing.assert_array_equal(xlsx_frame["verlagerung_z2_um"].to_numpy(), z2)
-    assert xlsx_frame["disp_um"].max() > 10        # growth towards the table is positive
-    assert not np.signbit(xlsx_frame["disp_um"].to_numpy()[0])   # no -0.0
+    assert xlsx_frame["disp_um"].max() > 10  # growth towards the table is positive
+    assert not np.signbit(xlsx_frame["disp_um"].to_numpy()[0])  # no -0.0
 
 
 def test_xlsx_passes_the_checks(xlsx_frame, mcb_machine):
-    check_log(xlsx_frame, XLSX, min_run_s=1800, sample_period_s=mcb_machine["sample_period_s"],
-              open_circuit_values=[-999.0, 999.9, 850.0])
+    check_log(
+        xlsx_frame,
+        XLSX,
+        min_run_s=1800,
+        sample_period_s=mcb_machine["sample_period_s"],
+        open_circuit_values=[-999.0, 999.9, 850.0],
+    )
 
 
 def test_csv_export_gives_the_same_frame(xlsx_frame, csv_spec):
@@ -116,13 +126,13 @@ def test_csv_in_utf8_with_bom_and_latin1(tmp_path, csv_spec, xlsx_frame):
     g = read_log(utf8, spec)
     pd.testing.assert_frame_equal(xlsx_frame, g, check_exact=False, rtol=0, atol=1e-9)
     with pytest.raises(RawFormatError, match=r"line 1: byte 0xb0 is not valid UTF-8.*input.encoding"):
-        read_log(CSV, spec)                      # latin-1 file read as UTF-8
+        read_log(CSV, spec)  # latin-1 file read as UTF-8
 
 
 def test_sheet_by_index(xlsx_spec, xlsx_frame):
     xlsx_spec["sheet"] = 1
     pd.testing.assert_frame_equal(read_log(XLSX, xlsx_spec), xlsx_frame)
-    xlsx_spec["sheet"] = 0           # "Info": no such headers
+    xlsx_spec["sheet"] = 0  # "Info": no such headers
     with pytest.raises(RawFormatError, match="sheet 'Info', row 1.*not found in the header row"):
         read_log(XLSX, xlsx_spec)
     xlsx_spec["sheet"] = 5
@@ -144,10 +154,17 @@ def _simple_header():
 
 
 def _simple_spec(fmt="xlsx", **kw):
-    spec = {"format": fmt, "columns": {"time": "Zeit", "speed_rpm": "n [1/min]",
-                                       **{f"T{i}": f"Temp{i} [K]" for i in range(1, 17)},
-                                       "disp_um": "Z [mm]"},
-            "temperature_unit": "K", "displacement": {"unit": "mm"}}
+    spec = {
+        "format": fmt,
+        "columns": {
+            "time": "Zeit",
+            "speed_rpm": "n [1/min]",
+            **{f"T{i}": f"Temp{i} [K]" for i in range(1, 17)},
+            "disp_um": "Z [mm]",
+        },
+        "temperature_unit": "K",
+        "displacement": {"unit": "mm"},
+    }
     spec.update(kw)
     return spec
 
@@ -158,9 +175,10 @@ def test_header_row_skip_rows_kelvin_mm_and_timestamps(tmp_path):
     rows = [["Messung B", None], [None], _simple_header(), ["s", "1/min"]]
     t0 = dt.datetime(2026, 10, 14, 8, 0, 0)
     for k in range(12):
-        rows.append([t0 + dt.timedelta(seconds=5 * k), 3000, *[293.15 + k] * 16, 0.001 * k,
-                     "ok" if k == 3 else None])
-    rows.insert(10, [None] * 5)                       # an empty row in the data
+        rows.append(
+            [t0 + dt.timedelta(seconds=5 * k), 3000, *[293.15 + k] * 16, 0.001 * k, "ok" if k == 3 else None]
+        )
+    rows.insert(10, [None] * 5)  # an empty row in the data
     path = tmp_path / "b.xlsx"
     _write_xlsx(path, rows)
     f = read_log(path, _simple_spec(header_row=3, skip_rows=1))
@@ -176,25 +194,33 @@ def test_csv_timestamp_with_strptime_format_and_decimal_comma(tmp_path):
     header = _simple_header()
     lines = [";".join(header)]
     for k in range(10):
-        lines.append(";".join([f"14.10.2026 08:00:{k * 5:02d}", "1.500", *["293,15"] * 16,
-                               f"0,{k:03d}", "x"]))
+        lines.append(
+            ";".join([f"14.10.2026 08:00:{k * 5:02d}", "1.500", *["293,15"] * 16, f"0,{k:03d}", "x"])
+        )
     path = tmp_path / "b.csv"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8")
-    spec = _simple_spec("csv", delimiter=";", decimal=",",
-                        time={"kind": "timestamp", "format": "%d.%m.%Y %H:%M:%S"})
+    spec = _simple_spec(
+        "csv", delimiter=";", decimal=",", time={"kind": "timestamp", "format": "%d.%m.%Y %H:%M:%S"}
+    )
     f = read_log(path, spec)
-    assert f["speed_rpm"].iloc[0] == 1500.0      # '.' as thousands separator
+    assert f["speed_rpm"].iloc[0] == 1500.0  # '.' as thousands separator
     assert f["T1"].iloc[0] == pytest.approx(20.0)
     assert f["disp_um"].iloc[3] == pytest.approx(3.0)
     assert f["time"].iloc[2] == pd.Timestamp("2026-10-14T08:00:10")
     path.write_text(path.read_text(encoding="utf-8").replace("293,15", "293.15", 1), encoding="utf-8")
-    with pytest.raises(RawFormatError, match=r"line 2, column 'Temp1 \[K\]': '293.15' is not a "
-                                             r"number \(decimal point in a file with"):
+    with pytest.raises(
+        RawFormatError,
+        match=r"line 2, column 'Temp1 \[K\]': '293.15' is not a "
+        r"number \(decimal point in a file with",
+    ):
         read_log(path, spec)
     spec["time"]["format"] = None
     path.write_text(path.read_text(encoding="utf-8").replace("293.15", "293,15", 1), encoding="utf-8")
-    with pytest.raises(RawFormatError, match=r"line 2, column 'Zeit'.*is not a timestamp.*"
-                                             r"time.format"):
+    with pytest.raises(
+        RawFormatError,
+        match=r"line 2, column 'Zeit'.*is not a timestamp.*"
+        r"time.format",
+    ):
         read_log(path, spec)
 
 
@@ -209,7 +235,7 @@ def test_elapsed_default_start_and_timedelta_cells(tmp_path):
     f = read_log(path, _simple_spec(time={"kind": "elapsed_s"}))
     assert f["time"].iloc[0] == pd.Timestamp("2000-01-01T00:00:00")
     assert f["time"].iloc[4] == pd.Timestamp("2000-01-01T00:00:40")
-    assert f["notiz"].isna().all()          # an empty extra column: all missing
+    assert f["notiz"].isna().all()  # an empty extra column: all missing
 
 
 def test_duplicate_mapped_header_and_cell_beyond_header(tmp_path):
@@ -219,8 +245,11 @@ def test_duplicate_mapped_header_and_cell_beyond_header(tmp_path):
     path = tmp_path / "d.xlsx"
     _write_xlsx(path, rows)
     spec = _simple_spec(time={"kind": "elapsed_s"})
-    with pytest.raises(RawFormatError, match=r"sheet 'Messdaten', row 1, column 'Temp1 \[K\]': "
-                                             r"header 'Temp1 \[K\]' appears 2 times \(columns C, F\)"):
+    with pytest.raises(
+        RawFormatError,
+        match=r"sheet 'Messdaten', row 1, column 'Temp1 \[K\]': "
+        r"header 'Temp1 \[K\]' appears 2 times \(columns C, F\)",
+    ):
         read_log(path, spec)
     rows = [_simple_header()] + [[k, 0, *[300.0] * 16, 0.01 * k, None] for k in range(5)]
     rows[3] = rows[3] + [None, "stray"]
@@ -244,38 +273,50 @@ def test_missing_mapped_column_lists_closest(xlsx_spec):
     assert "input.columns.T3" in msg and "closest: 'Temperatur 3 [°C]'" in msg
 
 
-@pytest.mark.parametrize("change, key", [
-    ({"format": "parquet"}, "input.format"),
-    ({"colour": "red"}, "input.colour"),
-    ({"format": "native", "sheet": "x"}, "input.sheet"),
-    ({"displacement": {"unit": "cm"}}, "input.displacement.unit"),
-    ({"displacement": {"sign": 2}}, "input.displacement.sign"),
-    ({"displacement": {"probe": "Z"}}, "input.displacement.probe"),
-    ({"columns": {"T17": "x"}}, "input.columns.T17"),
-    ({"columns": {"T1": "A", "T2": "A"}}, "input.columns"),
-    ({"delimiter": ";;"}, "input.delimiter"),
-    ({"delimiter": ",", "decimal": ","}, "input.decimal"),
-    ({"encoding": "klingon"}, "input.encoding"),
-    ({"header_row": 0}, "input.header_row"),
-    ({"skip_rows": -1}, "input.skip_rows"),
-    ({"time": {"kind": "relative"}}, "input.time.kind"),
-    ({"time": {"start": "yesterday"}}, "input.time.start"),
-    ({"time": {"format": "dd.mm.yyyy"}}, "input.time.format"),
-    ({"sample_period_s": 0}, "input.sample_period_s"),
-    ({"temperature_unit": "F"}, "input.temperature_unit"),
-    ({"sheet": -1}, "input.sheet"),
-    ({"pattern": ""}, "input.pattern"),
-])
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        ({"format": "parquet"}, "input.format"),
+        ({"colour": "red"}, "input.colour"),
+        ({"format": "native", "sheet": "x"}, "input.sheet"),
+        ({"displacement": {"unit": "cm"}}, "input.displacement.unit"),
+        ({"displacement": {"sign": 2}}, "input.displacement.sign"),
+        ({"displacement": {"probe": "Z"}}, "input.displacement.probe"),
+        ({"columns": {"T17": "x"}}, "input.columns.T17"),
+        ({"columns": {"T1": "A", "T2": "A"}}, "input.columns"),
+        ({"delimiter": ";;"}, "input.delimiter"),
+        ({"delimiter": ",", "decimal": ","}, "input.decimal"),
+        ({"encoding": "klingon"}, "input.encoding"),
+        ({"header_row": 0}, "input.header_row"),
+        ({"skip_rows": -1}, "input.skip_rows"),
+        ({"time": {"kind": "relative"}}, "input.time.kind"),
+        ({"time": {"start": "yesterday"}}, "input.time.start"),
+        ({"time": {"format": "dd.mm.yyyy"}}, "input.time.format"),
+        ({"sample_period_s": 0}, "input.sample_period_s"),
+        ({"temperature_unit": "F"}, "input.temperature_unit"),
+        ({"sheet": -1}, "input.sheet"),
+        ({"pattern": ""}, "input.pattern"),
+    ],
+)
 def test_bad_mapping_raises_input_spec_error(change, key):
     spec = {"format": "csv", **change}
     with pytest.raises(InputSpecError, match=re.escape(key)):
         normalise_input_spec(spec)
 
 
-@pytest.mark.parametrize("bad", [
-    {"format": "parquet"}, {"displacement": {"unit": "cm"}}, {"displacement": {"sign": 2}},
-    {"columns": {"T17": "x"}}, {"header_row": 0}, {"colour": "red"},
-    {"time": {"kind": "relative"}}, {"temperature_unit": "F"}])
+@pytest.mark.parametrize(
+    "bad",
+    [
+        {"format": "parquet"},
+        {"displacement": {"unit": "cm"}},
+        {"displacement": {"sign": 2}},
+        {"columns": {"T17": "x"}},
+        {"header_row": 0},
+        {"colour": "red"},
+        {"time": {"kind": "relative"}},
+        {"temperature_unit": "F"},
+    ],
+)
 def test_schema_rejects_what_the_normaliser_rejects(bad):
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate(bad, INPUT_SCHEMA)
@@ -293,23 +334,48 @@ def test_defaults():
 
 def test_native_accepts_filled_in_defaults_only():
     """A schema validator that fills defaults must not break native mappings."""
-    spec = {"format": "native", "pattern": "*.csv", "sheet": 0, "delimiter": ",",
-            "time": {"kind": "timestamp"}, "displacement": {"sign": 1}, "columns": {}}
+    spec = {
+        "format": "native",
+        "pattern": "*.csv",
+        "sheet": 0,
+        "delimiter": ",",
+        "time": {"kind": "timestamp"},
+        "displacement": {"sign": 1},
+        "columns": {},
+    }
     assert normalise_input_spec(spec)["format"] == "native"
     with pytest.raises(InputSpecError, match="input.displacement: applies to format csv"):
         normalise_input_spec({"format": "native", "displacement": {"sign": -1}})
 
 
-@pytest.mark.parametrize("start", [
-    "2026-10-14T06:00:00", "2026-10-14 06:00", "2026-10-14", "1678-01-01", "2261-12-31T00:00:00",
-    "2261-12-31T00:00:01", "1677-12-31", "0999-01-01", "2026-02-30", "2026-10-14T24:00:00",
-    "2026-10-14T06:00:00Z", "2026-10-14T06:00:00+02:00", "2026-10-14T06:00:00.5", "20261014",
-    "2026-W42-3", "14.10.2026", "yesterday"])
+@pytest.mark.parametrize(
+    "start",
+    [
+        "2026-10-14T06:00:00",
+        "2026-10-14 06:00",
+        "2026-10-14",
+        "1678-01-01",
+        "2261-12-31T00:00:00",
+        "2261-12-31T00:00:01",
+        "1677-12-31",
+        "0999-01-01",
+        "2026-02-30",
+        "2026-10-14T24:00:00",
+        "2026-10-14T06:00:00Z",
+        "2026-10-14T06:00:00+02:00",
+        "2026-10-14T06:00:00.5",
+        "20261014",
+        "2026-W42-3",
+        "14.10.2026",
+        "yesterday",
+    ],
+)
 def test_time_start_checked_without_pandas_as_pandas_would(start):
-    """rafi.config checks plain ISO times without pandas (planning imports no pandas); every
-    value gets the outcome of the pandas check (pd.Timestamp within rafi.io.TIME_MIN/MAX)."""
-    from rafi.config import _plain_start_ok
-    from rafi.io import TIME_MAX, TIME_MIN
+    """rafi.readers.input_spec checks plain ISO times without pandas (planning imports no pandas); every
+    value gets the outcome of the pandas check (pd.Timestamp within rafi.readers.parsing.TIME_MIN/MAX)."""
+    from rafi.readers.input_spec import _plain_start_ok
+    from rafi.readers.parsing import TIME_MAX, TIME_MIN
+
     try:
         ts = pd.Timestamp(start)
         ts = ts.tz_convert(None) if ts.tzinfo is not None else ts
@@ -327,10 +393,14 @@ def test_time_start_checked_without_pandas_as_pandas_would(start):
 
 
 def test_planning_imports_no_pandas():
-    """What workflow/rules/common.smk imports (rafi.config) loads neither pandas nor NumPy."""
-    code = ("import sys, rafi.config as c; c.find_logs('.', {'format': 'csv', 'time': "
-            "{'start': '2026-10-14T06:00:00'}}); c.candidate_model_path('m');"
-            "assert not {'pandas', 'numpy'} & set(sys.modules), sorted(sys.modules)")
+    """What workflow/rules/common.smk imports (rafi.settings, rafi.readers.input_spec,
+    rafi.ops.code_deps) loads neither pandas nor NumPy."""
+    code = (
+        "import sys, rafi.readers.input_spec as c, rafi.settings as s, rafi.ops.code_deps; "
+        "c.find_logs('.', {'format': 'csv', 'time': "
+        "{'start': '2026-10-14T06:00:00'}}); s.candidate_model_path('m');"
+        "assert not {'pandas', 'numpy'} & set(sys.modules), sorted(sys.modules)"
+    )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
 
 
@@ -370,6 +440,5 @@ def test_shipped_foreign_raw_file_reads_and_checks(mcb_machine):
     for path in files:
         f = read_log(path, mcb_machine["input"])
         assert contract_violations(f) == []
-        check_log(f, path, min_run_s=0, sample_period_s=15,
-                  open_circuit_values=[-999.0, 999.9, 850.0])
-        assert f["disp_um"].quantile(0.9) > 0      # sign -1 makes growth positive
+        check_log(f, path, min_run_s=0, sample_period_s=15, open_circuit_values=[-999.0, 999.9, 850.0])
+        assert f["disp_um"].quantile(0.9) > 0  # sign -1 makes growth positive

@@ -1,10 +1,11 @@
-"""Triangular fuzzy memberships (rafi.fuzzy)."""
+"""Triangular fuzzy memberships (rafi.method.fuzzy)."""
 
 import numpy as np
 import pytest
-from hypothesis import given, settings, strategies as st
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
-from rafi.fuzzy import membership_curves, triangular_weights
+from rafi.method.fuzzy import membership_curves, triangular_weights
 
 PAPER_CENTRES = [3000, 6000, 9000, 12000, 15000, 18000]
 
@@ -75,8 +76,7 @@ centres_st = st.lists(st.integers(0, 40000), min_size=1, max_size=8, unique=True
 
 
 @settings(max_examples=100, deadline=None)
-@given(centres=centres_st,
-       speeds=st.lists(st.floats(-1e4, 6e4, allow_nan=False), min_size=1, max_size=30))
+@given(centres=centres_st, speeds=st.lists(st.floats(-1e4, 6e4, allow_nan=False), min_size=1, max_size=30))
 def test_weights_are_a_partition_of_unity(centres, speeds):
     w, out = triangular_weights(speeds, centres)
     s = np.asarray(speeds)

@@ -9,10 +9,17 @@ import pandas as pd
 import pytest
 
 from rafi import REQUIRED_COLUMNS, SENSORS
+from rafi.artefact import (
+    atomic_path,
+    write_bytes_atomic,
+    write_csv_atomic,
+    write_parquet_atomic,
+    write_text_atomic,
+)
 from rafi.errors import RawFormatError
-from rafi.io import (atomic_path, contract_violations, format_raw_log, read_log, read_raw_log,
-                     sha256_file, split_lines, write_bytes_atomic, write_csv_atomic,
-                     write_parquet_atomic, write_raw_log, write_text_atomic)
+from rafi.readers.logs import read_log, sha256_file
+from rafi.readers.native import contract_violations, format_raw_log, read_raw_log, write_raw_log
+from rafi.readers.parsing import split_lines
 
 
 def make_frame(n=20, start="2026-03-01T08:00:00", period_s=5, seed=0) -> pd.DataFrame:
@@ -42,9 +49,8 @@ def test_round_trip_with_metadata_and_extra_columns(tmp_path):
     write_raw_log(frame, path, metadata=meta, decimals={"coolant_c": 1})
     got = read_raw_log(path)
     assert contract_violations(got) == []
-    assert got.index[0] == 7 and got.index.name == "line"      # 6 metadata lines, header line 6
-    assert got.attrs["metadata"] == {"machine": "m", "run_id": "r1", "sample_period_s": 5.0,
-                                     "notes": "x\ny"}
+    assert got.index[0] == 7 and got.index.name == "line"  # 6 metadata lines, header line 6
+    assert got.attrs["metadata"] == {"machine": "m", "run_id": "r1", "sample_period_s": 5.0, "notes": "x\ny"}
     assert got.attrs["sha256"] == sha256_file(path)
     assert np.isnan(got["T4"].iloc[3])
     assert list(got.columns) == [*REQUIRED_COLUMNS, "coolant_c", "note"]
@@ -56,8 +62,8 @@ def test_round_trip_with_metadata_and_extra_columns(tmp_path):
 def test_line_numbers_follow_the_editor(tmp_path):
     text = format_raw_log(make_frame(5), {"sample_period_s": 5})
     lines = text.splitlines()
-    lines.insert(3, "")                                      # blank line kept in numbering
-    lines[5] = lines[5] + ",,"                               # will fail: extra fields
+    lines.insert(3, "")  # blank line kept in numbering
+    lines[5] = lines[5] + ",,"  # will fail: extra fields
     path = write(tmp_path, "\r\n".join(lines) + "\r\n")
     with pytest.raises(RawFormatError, match=r"line 6: found 21 fields"):
         read_raw_log(path)
@@ -81,11 +87,14 @@ def test_timezone_offsets_are_converted_to_utc(tmp_path):
     assert str(got["time"].dtype) == "datetime64[ns]"
 
 
-@pytest.mark.parametrize("value, fragment", [
-    ("nan", "'nan' is not a number"),
-    ("inf", "'inf' is not a number"),
-    ("1,5", "decimal comma"),
-])
+@pytest.mark.parametrize(
+    "value, fragment",
+    [
+        ("nan", "'nan' is not a number"),
+        ("inf", "'inf' is not a number"),
+        ("1,5", "decimal comma"),
+    ],
+)
 def test_non_finite_and_bad_numbers(tmp_path, value, fragment):
     text = format_raw_log(make_frame(4))
     lines = text.splitlines()
@@ -135,6 +144,7 @@ def test_contract_violations_detects_problems():
 
 # --------------------------------------------------------------------------- writers
 
+
 def test_atomic_path_leaves_target_untouched_on_error(tmp_path):
     target = tmp_path / "out.txt"
     target.write_text("old")
@@ -169,7 +179,9 @@ def test_format_raw_log_is_deterministic_and_has_no_negative_zero():
 
 def test_atomic_writes_get_normal_permissions(tmp_path):
     import os
-    from rafi.io import write_text_atomic
+
+    from rafi.artefact import write_text_atomic
+
     target = tmp_path / "out.txt"
     write_text_atomic(target, "x")
     mask = os.umask(0)

@@ -1,4 +1,4 @@
-"""The RAFI model artefact (rafi.model): terms, prediction, blending, JSON round trip."""
+"""The RAFI model artefact (rafi.method.model): terms, prediction, blending, JSON round trip."""
 
 import hashlib
 import json
@@ -11,30 +11,57 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rafi.model import (SCHEMA, RafiModel, design_matrix, load_model, parse_term, parse_terms,
-                        save_model)
+from rafi.method.model import (
+    SCHEMA,
+    RafiModel,
+    design_matrix,
+    load_model,
+    parse_term,
+    parse_terms,
+    save_model,
+)
 
 ROOT = Path(__file__).resolve().parents[1]
 TERMS = ["1", "x1", "x2", "x1*x2", "x1^2", "x2^2*x1"]
 
 
 def two_speed_model(**kw):
-    m = RafiModel(["T6", "T8"], TERMS, reference={"rule": "run_start", "window_s": 60},
-                  machine="m", created="2026-01-01T00:00:00Z", code_version="rafi test", **kw)
-    m.add_speed_model(6000, [1.0, 2.0, 0.5, 0.1, -0.05, 0.01], {"T6": (0, 10), "T8": (0, 8)},
-                      train_runs=["b"], rmse_um=0.3, n=100)
-    m.add_speed_model(3000, [0.5, 1.0, 0.2, 0.0, 0.02, 0.0], {"T6": (0, 4), "T8": (0, 3)},
-                      train_runs=["a"], rmse_um=0.2, n=90)
+    m = RafiModel(
+        ["T6", "T8"],
+        TERMS,
+        reference={"rule": "run_start", "window_s": 60},
+        machine="m",
+        created="2026-01-01T00:00:00Z",
+        code_version="rafi test",
+        **kw,
+    )
+    m.add_speed_model(
+        6000,
+        [1.0, 2.0, 0.5, 0.1, -0.05, 0.01],
+        {"T6": (0, 10), "T8": (0, 8)},
+        train_runs=["b"],
+        rmse_um=0.3,
+        n=100,
+    )
+    m.add_speed_model(
+        3000,
+        [0.5, 1.0, 0.2, 0.0, 0.02, 0.0],
+        {"T6": (0, 4), "T8": (0, 3)},
+        train_runs=["a"],
+        rmse_um=0.2,
+        n=90,
+    )
     return m
 
 
 def frame(speed, t6, t8):
-    return pd.DataFrame({"speed_rpm": np.asarray(speed, float), "dT6": np.asarray(t6, float),
-                         "dT8": np.asarray(t8, float)})
+    return pd.DataFrame(
+        {"speed_rpm": np.asarray(speed, float), "dT6": np.asarray(t6, float), "dT8": np.asarray(t8, float)}
+    )
 
 
 def poly(c, x1, x2):
-    return c[0] + c[1] * x1 + c[2] * x2 + c[3] * x1 * x2 + c[4] * x1 ** 2 + c[5] * x2 ** 2 * x1
+    return c[0] + c[1] * x1 + c[2] * x2 + c[3] * x1 * x2 + c[4] * x1**2 + c[5] * x2**2 * x1
 
 
 def test_terms_grammar():
@@ -50,8 +77,7 @@ def test_terms_grammar():
     with pytest.raises(ValueError, match="same monomial"):
         parse_terms(["x1*x2", "x2*x1"], 2)
     x = np.array([[2.0, 3.0]])
-    np.testing.assert_array_equal(design_matrix(x, parse_terms(TERMS, 2)),
-                                  [[1, 2, 3, 6, 4, 18]])
+    np.testing.assert_array_equal(design_matrix(x, parse_terms(TERMS, 2)), [[1, 2, 3, 6, 4, 18]])
 
 
 def test_predict_blends_per_speed_polynomials():
@@ -67,13 +93,20 @@ def test_predict_blends_per_speed_polynomials():
 
 def test_predict_detail_flags_and_weights():
     m = two_speed_model()
-    f = frame([6000, 5000, 6000, 7000, 3000, 4000, np.nan],
-              [5.0, 5.0, 10.05, 1.0, -0.05, 1.0, 1.0],
-              [1.0, 1.0, 1.0, 1.0, 0.0, np.nan, 1.0])
+    f = frame(
+        [6000, 5000, 6000, 7000, 3000, 4000, np.nan],
+        [5.0, 5.0, 10.05, 1.0, -0.05, 1.0, 1.0],
+        [1.0, 1.0, 1.0, 1.0, 0.0, np.nan, 1.0],
+    )
     f.index = [10, 11, 12, 13, 14, 15, 16]
     d = m.predict_detail(f)
-    assert list(d.columns) == ["predicted_um", "w_3000", "w_6000", "outside_speed_range",
-                               "outside_temp_range"]
+    assert list(d.columns) == [
+        "predicted_um",
+        "w_3000",
+        "w_6000",
+        "outside_speed_range",
+        "outside_temp_range",
+    ]
     assert list(d.index) == list(f.index)
     # 6000 r/min, dT6=5: outside the 3000 model's range but that model has weight 0
     assert not d.loc[10, "outside_temp_range"]
@@ -99,8 +132,22 @@ def test_to_dict_schema_and_model_id():
     m = two_speed_model()
     d = m.to_dict()
     assert d["schema"] == SCHEMA and d["kind"] == "rafi"
-    for key in ["model_id", "created", "machine", "key_sensors", "variables", "terms", "inputs",
-                "target", "reference", "speeds", "fuzzy", "data", "code_version", "config"]:
+    for key in [
+        "model_id",
+        "created",
+        "machine",
+        "key_sensors",
+        "variables",
+        "terms",
+        "inputs",
+        "target",
+        "reference",
+        "speeds",
+        "fuzzy",
+        "data",
+        "code_version",
+        "config",
+    ]:
         assert key in d
     assert d["variables"] == {"x1": "T6", "x2": "T8"}
     assert [s["speed_rpm"] for s in d["speeds"]] == [3000, 6000]
@@ -119,7 +166,7 @@ def test_to_dict_schema_and_model_id():
 
 def test_round_trip_save_load(tmp_path):
     m = two_speed_model(data={"a.csv": "ab" * 32})
-    m.rmse_um_[1] = np.nan          # NaN is written as null and read back
+    m.rmse_um_[1] = np.nan  # NaN is written as null and read back
     path = tmp_path / "sub" / "model.json"
     save_model(m, path)
     text = path.read_text()
@@ -170,7 +217,7 @@ def test_works_without_statsmodels(tmp_path):
         import sys
         sys.modules["statsmodels"] = None     # any import of statsmodels now fails
         import numpy as np, pandas as pd
-        from rafi.model import load_model
+        from rafi.method.model import load_model
         m = load_model({str(path)!r})
         f = pd.DataFrame({{"speed_rpm": [3500.0, 4000.0, 8000.0], "dT6": [1.0, 2.0, 3.0],
                            "dT8": [0.5, 1.0, 1.5]}})
@@ -178,7 +225,6 @@ def test_works_without_statsmodels(tmp_path):
         m.predict_detail(f)
         assert not any(k.startswith("statsmodels.") for k in sys.modules), "statsmodels loaded"
     """)
-    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
-                         timeout=120)
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
     assert eval(out.stdout.strip()) == m.predict(f).tolist()

@@ -1,4 +1,4 @@
-"""The model family (rafi.model_family): one interface, artefacts, dynamics recovery."""
+"""The model family (rafi.family.models): one interface, artefacts, dynamics recovery."""
 
 from __future__ import annotations
 
@@ -11,9 +11,21 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rafi.model_family import (DynamicRidge, GreyBox, PublishedRafi, RafiLinear, RidgeGlobal, compute_model_id,
-                               load_any, lowpass_runs, make_model, make_synthetic_runs, reference_speed, save_any,
-                               speed_change_evidence)
+from rafi.family.models import (
+    DynamicRidge,
+    GreyBox,
+    PublishedRafi,
+    RafiLinear,
+    RidgeGlobal,
+    compute_model_id,
+    load_any,
+    lowpass_runs,
+    make_model,
+    reference_speed,
+    save_any,
+    speed_change_evidence,
+)
+from rafi.twin.family_runs import make_synthetic_runs
 
 KEY = ["T1", "T2", "T3"]
 SMALL_TERMS = ["1", "x1", "x2", "x3", "x1*x2", "x1^2"]
@@ -41,8 +53,9 @@ def fitted(data):
             "rafi_linear": RafiLinear(KEY).fit(table, frame),
             "ridge_global": RidgeGlobal(alphas=[1e-4, 1e-2, 1.0]).fit(table, frame),
             "dynamic": DynamicRidge(taus_s=[0, 600, 2400], max_taus=2, alphas=[1e-4, 1e-2]).fit(table, frame),
-            "grey_box": GreyBox(taus_s=[0, 600], speed_taus_s=[120, 600], max_speed_taus=1,
-                                alphas=[1e-4, 1e-2]).fit(table, frame),
+            "grey_box": GreyBox(
+                taus_s=[0, 600], speed_taus_s=[120, 600], max_speed_taus=1, alphas=[1e-4, 1e-2]
+            ).fit(table, frame),
         }
 
 
@@ -53,17 +66,21 @@ def _validation(table, frame):
 
 # --------------------------------------------------------------------------- dynamics
 
+
 def test_dynamic_recovers_the_lag_and_beats_static_models():
     # dz = sum_i g_i * lowpass(dT_i, 1800 s) + c (n^2 - n0^2); sensors respond in 300 / 500 s
-    table, frame = make_synthetic_runs(seed=3, sample_s=60.0, n_sensors=2, sensor_taus_s=(300, 500),
-                                       tau_lag_s=1800.0, noise_um=0.02)
+    table, frame = make_synthetic_runs(
+        seed=3, sample_s=60.0, n_sensors=2, sensor_taus_s=(300, 500), tau_lag_s=1800.0, noise_um=0.02
+    )
     dyn = DynamicRidge(taus_s=[0, 600, 1800, 4800], max_taus=1).fit(table, frame)
     assert dyn.taus_ == [1800.0]
     val = _validation(table, frame)
     rmse = {}
-    for name, m in {"dynamic": dyn, "ridge": RidgeGlobal().fit(table, frame),
-                    "rafi": PublishedRafi(["T1", "T2"], ["1", "x1", "x2", "x1*x2", "x1^2", "x2^2"]
-                                          ).fit(table, frame)}.items():
+    for name, m in {
+        "dynamic": dyn,
+        "ridge": RidgeGlobal().fit(table, frame),
+        "rafi": PublishedRafi(["T1", "T2"], ["1", "x1", "x2", "x1*x2", "x1^2", "x2^2"]).fit(table, frame),
+    }.items():
         rmse[name] = float(np.sqrt(np.mean((val["dz_um"] - m.predict(val)) ** 2)))
     assert rmse["dynamic"] < 0.04  # noise is 0.02 um
     assert rmse["dynamic"] < 0.5 * rmse["ridge"]
@@ -76,11 +93,26 @@ def test_dynamic_recovers_the_lag_and_beats_static_models():
 def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
     # dz = sum_i g_i L_1800(dT_i) + 4 um * L_300((n/1e4)^(5/3)) (an unmeasured fast part: no
     # sensor sees it) - 0.02 um/krpm^2 (n^2 - n0^2); every run starts 120 s at rest
-    table, frame = make_synthetic_runs(seed=3, sample_s=60.0, n_sensors=2, sensor_taus_s=(300, 500),
-                                       tau_lag_s=1800.0, noise_um=0.02, shaft_um=4.0, shaft_tau_s=300.0)
-    gb = GreyBox(taus_s=[0, 600, 1800, 4800], max_taus=1, speed_taus_s=[60, 300, 1200, 3600],
-                 max_speed_taus=1, speed_powers=[5 / 3], cv_metric="max_abs", filter_search="subsets",
-                 centrifugal_lags_s=[0, 20]).fit(table, frame)
+    table, frame = make_synthetic_runs(
+        seed=3,
+        sample_s=60.0,
+        n_sensors=2,
+        sensor_taus_s=(300, 500),
+        tau_lag_s=1800.0,
+        noise_um=0.02,
+        shaft_um=4.0,
+        shaft_tau_s=300.0,
+    )
+    gb = GreyBox(
+        taus_s=[0, 600, 1800, 4800],
+        max_taus=1,
+        speed_taus_s=[60, 300, 1200, 3600],
+        max_speed_taus=1,
+        speed_powers=[5 / 3],
+        cv_metric="max_abs",
+        filter_search="subsets",
+        centrifugal_lags_s=[0, 20],
+    ).fit(table, frame)
     assert gb.taus_ == [1800.0] and gb.speed_taus_ == [300.0]
     assert gb.instantaneous_  # runs start at rest: the n^2 jump is identifiable
     assert gb.centrifugal_lag_s_ == 0.0  # the truth has no draw-in lag
@@ -89,8 +121,10 @@ def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
     assert coef["n2_krpm2"] == pytest.approx(-0.02, abs=0.003)
     val = _validation(table, frame)
     rmse = {}
-    for name, m in {"grey_box": gb, "dynamic": DynamicRidge(taus_s=[0, 600, 1800, 4800], max_taus=1).fit(table, frame)
-                    }.items():
+    for name, m in {
+        "grey_box": gb,
+        "dynamic": DynamicRidge(taus_s=[0, 600, 1800, 4800], max_taus=1).fit(table, frame),
+    }.items():
         rmse[name] = float(np.sqrt(np.mean((val["dz_um"] - m.predict(val)) ** 2)))
     assert rmse["grey_box"] < 0.05  # noise is 0.02 um
     assert rmse["grey_box"] < 0.25 * rmse["dynamic"]  # the sensor-only model cannot see the shaft
@@ -98,11 +132,21 @@ def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
 
 def test_grey_box_recovers_the_draw_in_lag_and_fits_every_filter_at_once():
     # 5 s samples; the n^2 draw-in follows the speed with a 10 s lag (the twin's holder: 8 s)
-    table, frame = make_synthetic_runs(seed=5, sample_s=5.0, duration_s=3600.0, n_sensors=2,
-                                       sensor_taus_s=(300, 500), tau_lag_s=600.0, noise_um=0.02,
-                                       shaft_um=2.0, shaft_tau_s=300.0, centrifugal_lag_s=10.0)
-    gb = GreyBox(taus_s=[0, 600], speed_taus_s=[120, 300, 1200], speed_powers=[5 / 3],
-                 centrifugal_lags_s=[0, 10, 60]).fit(table, frame)
+    table, frame = make_synthetic_runs(
+        seed=5,
+        sample_s=5.0,
+        duration_s=3600.0,
+        n_sensors=2,
+        sensor_taus_s=(300, 500),
+        tau_lag_s=600.0,
+        noise_um=0.02,
+        shaft_um=2.0,
+        shaft_tau_s=300.0,
+        centrifugal_lag_s=10.0,
+    )
+    gb = GreyBox(
+        taus_s=[0, 600], speed_taus_s=[120, 300, 1200], speed_powers=[5 / 3], centrifugal_lags_s=[0, 10, 60]
+    ).fit(table, frame)
     assert gb.filter_search == "all"
     assert gb.centrifugal_lag_s_ == 10.0
     assert gb.taus_ == [0.0, 600.0] and gb.speed_taus_ == [120.0, 300.0, 1200.0]
@@ -130,8 +174,9 @@ def test_grey_box_all_mode_may_leave_the_heat_input_terms_out():
 def test_grey_box_drops_the_unidentifiable_centrifugal_term():
     # cold-start runs referenced while already spinning (the first 120 s at rest cut off):
     # n - n0 is only jitter in training, so the instantaneous n^2 term is left out
-    table, frame = make_synthetic_runs(seed=4, sample_s=60.0, n_sensors=2, noise_um=0.02,
-                                       validation_speeds=(), multi=False)
+    table, frame = make_synthetic_runs(
+        seed=4, sample_s=60.0, n_sensors=2, noise_um=0.02, validation_speeds=(), multi=False
+    )
     spinning = frame[frame["t_s"] >= 120.0].copy()
     spinning["speed_rpm"] += np.random.default_rng(0).normal(0, 2.0, len(spinning))
     gb = GreyBox(taus_s=[0], speed_taus_s=[300], max_speed_taus=1, alphas=[1e-3]).fit(table, spinning)
@@ -141,8 +186,9 @@ def test_grey_box_drops_the_unidentifiable_centrifugal_term():
 
 def _spinning(seed=4):
     """Cold-start runs referenced while already spinning (rest cut off), speed jitter +-2 r/min."""
-    table, frame = make_synthetic_runs(seed=seed, sample_s=60.0, n_sensors=2, noise_um=0.02,
-                                       validation_speeds=(), multi=False)
+    table, frame = make_synthetic_runs(
+        seed=seed, sample_s=60.0, n_sensors=2, noise_um=0.02, validation_speeds=(), multi=False
+    )
     spinning = frame[frame["t_s"] >= 120.0].copy()
     spinning["t_s"] -= 120.0
     spinning["speed_rpm"] += np.random.default_rng(0).normal(0, 2.0, len(spinning))
@@ -154,7 +200,7 @@ def test_speed_change_evidence_needs_a_step_from_the_reference_speed():
     n0 = reference_speed(frame, "run_start", 60.0)
     assert sorted(speed_change_evidence(frame, n0, 50.0, 60.0)) == sorted(table["run_id"])  # rest -> speed
     n0 = reference_speed(spinning, "run_start", 60.0)
-    assert speed_change_evidence(spinning, n0, 50.0, 60.0) == []                     # jitter only
+    assert speed_change_evidence(spinning, n0, 50.0, 60.0) == []  # jitter only
     # n0 = 0 r/min for runs that never stand still (a log segment cut while spinning): no step
     assert speed_change_evidence(spinning, np.zeros(len(spinning)), 50.0, 60.0) == []
 
@@ -170,10 +216,10 @@ def test_ridge_and_dynamic_drop_unidentifiable_speed_terms(cls):
     back = load_any(m.to_dict())
     assert not back.speed_terms_
     steps = spinning[spinning["run_id"] == "train-3000"].copy()
-    steps["speed_rpm"] = np.where(steps["t_s"] < 3600, 3000.0, 18000.0)      # a speed step
+    steps["speed_rpm"] = np.where(steps["t_s"] < 3600, 3000.0, 18000.0)  # a speed step
     np.testing.assert_allclose(back.predict(steps), m.predict(steps))
     jump = np.abs(np.diff(m.predict(steps)))
-    assert jump.max() < 0.5                      # no jump from the speed terms
+    assert jump.max() < 0.5  # no jump from the speed terms
     # with the rest kept, the terms are identified and used
     m2 = cls(**kw).fit(table, frame)
     assert m2.speed_terms_ and "n2_krpm2" in m2.feature_names_
@@ -219,6 +265,7 @@ def test_dynamic_prediction_does_not_depend_on_row_order(data, fitted):
 
 # --------------------------------------------------------------------------- interface and artefacts
 
+
 @pytest.mark.parametrize("kind", ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"])
 def test_round_trip_gives_identical_predictions(kind, data, fitted, tmp_path):
     table, frame = data
@@ -241,7 +288,8 @@ def test_round_trip_gives_identical_predictions(kind, data, fitted, tmp_path):
 
 
 def test_load_any_delegates_rafi_to_rafimodel(fitted):
-    from rafi.model import RafiModel
+    from rafi.method.model import RafiModel
+
     assert isinstance(load_any(fitted["rafi"].to_dict()), RafiModel)
     assert isinstance(load_any(json.loads(json.dumps(fitted["rafi_linear"].to_dict()))), RafiLinear)
 
@@ -267,8 +315,13 @@ def test_fit_uses_training_runs_only(data, fitted):
     poisoned.loc[val, "dz_um"] = 1e6
     poisoned.loc[val, "dT1"] = -1e3
     for kind in ("ridge_global", "dynamic", "grey_box"):
-        opts = {"ridge_alphas": [1e-4, 1e-2, 1.0], "dynamic_taus_s": [0, 600, 2400],
-                "grey_box_taus_s": [0, 600], "grey_box_speed_taus_s": [120, 600], "grey_box_max_speed_taus": 1}
+        opts = {
+            "ridge_alphas": [1e-4, 1e-2, 1.0],
+            "dynamic_taus_s": [0, 600, 2400],
+            "grey_box_taus_s": [0, 600],
+            "grey_box_speed_taus_s": [120, 600],
+            "grey_box_max_speed_taus": 1,
+        }
         a = make_model(kind, options=opts)
         b = make_model(kind, options=opts)
         a.fit(table, frame)
@@ -285,7 +338,7 @@ def test_predict_needs_no_statsmodels(fitted, data, tmp_path):
         save_any(m, tmp_path / f"{kind}.json")
     code = (
         "import sys, pandas as pd\n"
-        "from rafi.model_family import load_any\n"
+        "from rafi.family.models import load_any\n"
         f"f = pd.read_csv({str(tmp_path / 'val.csv')!r})\n"
         "for k in ('rafi', 'rafi_linear', 'ridge_global', 'dynamic', 'grey_box'):\n"
         f"    load_any({str(tmp_path)!r} + '/' + k + '.json').predict_detail(f)\n"
@@ -307,9 +360,10 @@ def test_usable_sensors_skip_nan_and_constant(data):
 
 @pytest.mark.parametrize("taus", [[5.0], [60.0, 2400.0], [1e-3, 300.0]])
 def test_first_order_recursion_matches_the_sample_loop(taus):
-    from rafi.model_family import first_order_recursion
+    from rafi.family.models import first_order_recursion
+
     rng = np.random.default_rng(1)
-    x = rng.normal(size=(5000, len(taus))).cumsum(axis=0)   # long enough for several blocks
+    x = rng.normal(size=(5000, len(taus))).cumsum(axis=0)  # long enough for several blocks
     g = -np.expm1(-5.0 / np.asarray(taus))
     y0 = rng.normal(size=len(taus))
     want = np.empty_like(x)

@@ -20,7 +20,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
-from rafi import nightly as N
+from rafi.ops import nightly as N
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = "tapping-center-a"
@@ -38,8 +38,8 @@ def fake_project(tmp_path: Path, *, fail: bool = False) -> Path:
     (d / "done.txt").write_text("ok\n")
     if fail:
         (d / "Snakefile").write_text(
-            "rule nightly:\n    input: 'out.txt'\n"
-            "rule make:\n    output: 'out.txt'\n    shell: 'exit 3'\n")
+            "rule nightly:\n    input: 'out.txt'\nrule make:\n    output: 'out.txt'\n    shell: 'exit 3'\n"
+        )
     else:
         (d / "Snakefile").write_text("rule nightly:\n    input: 'done.txt'\n")
     return d
@@ -50,6 +50,7 @@ def no_partial_files(root: Path) -> list[Path]:
 
 
 # --------------------------------------------------------------------------- lock
+
 
 def test_lock_is_released_on_exception(tmp_path):
     path = tmp_path / "results" / ".nightly.lock"
@@ -64,9 +65,11 @@ def test_lock_is_released_on_exception(tmp_path):
 
 def test_lock_held_by_another_process_names_the_holder(tmp_path):
     path = tmp_path / ".nightly.lock"
-    code = ("import sys, time; from rafi.nightly import NightlyLock\n"
-            f"with NightlyLock({str(path)!r}):\n"
-            "    print('locked', flush=True); time.sleep(30)\n")
+    code = (
+        "import sys, time; from rafi.ops.nightly import NightlyLock\n"
+        f"with NightlyLock({str(path)!r}):\n"
+        "    print('locked', flush=True); time.sleep(30)\n"
+    )
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "locked"
@@ -86,13 +89,19 @@ def test_lock_held_by_another_process_names_the_holder(tmp_path):
 def test_two_nightly_commands_one_runs_the_other_refuses(tmp_path):
     proj = fake_project(tmp_path)
     env = {**os.environ, N.HOLD_ENV: "4"}
-    first = subprocess.Popen(rafi_cmd("nightly", "--directory", str(proj)), env=env,
-                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = subprocess.Popen(
+        rafi_cmd("nightly", "--directory", str(proj)),
+        env=env,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
     try:
         line = first.stdout.readline()
         assert "acquired" in line, line
-        second = subprocess.run(rafi_cmd("nightly", "--directory", str(proj)),
-                                capture_output=True, text=True, timeout=60)
+        second = subprocess.run(
+            rafi_cmd("nightly", "--directory", str(proj)), capture_output=True, text=True, timeout=60
+        )
         assert second.returncode == N.EXIT_LOCKED == 75
         assert "another nightly run is in progress" in second.stderr
         assert f"pid={first.pid}" in second.stderr
@@ -109,8 +118,12 @@ def test_two_nightly_commands_one_runs_the_other_refuses(tmp_path):
 
 def test_failed_pipeline_exits_1_and_frees_the_lock(tmp_path):
     proj = fake_project(tmp_path, fail=True)
-    res = subprocess.run(rafi_cmd("nightly", "--directory", str(proj), "--cores", "1"),
-                         capture_output=True, text=True, timeout=120)
+    res = subprocess.run(
+        rafi_cmd("nightly", "--directory", str(proj), "--cores", "1"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
     assert res.returncode == N.EXIT_PIPELINE_FAILED, res.stdout + res.stderr
     assert "FAILED" in res.stdout
     assert N.lock_is_free(proj / "results" / N.LOCK_NAME)
@@ -119,8 +132,9 @@ def test_failed_pipeline_exits_1_and_frees_the_lock(tmp_path):
 def test_nothing_to_do_is_quick(tmp_path):
     proj = fake_project(tmp_path)
     t0 = time.perf_counter()
-    res = subprocess.run(rafi_cmd("nightly", "--directory", str(proj)), capture_output=True,
-                         text=True, timeout=60)
+    res = subprocess.run(
+        rafi_cmd("nightly", "--directory", str(proj)), capture_output=True, text=True, timeout=60
+    )
     elapsed = time.perf_counter() - t0
     assert res.returncode == 0, res.stderr
     assert "nothing new since the first run" in res.stdout
@@ -128,25 +142,32 @@ def test_nothing_to_do_is_quick(tmp_path):
     # the next night takes the fingerprint fast path (no Snakemake at all) ...
     assert (proj / "results" / N.STATE_NAME).exists()
     t0 = time.perf_counter()
-    res = subprocess.run(rafi_cmd("nightly", "--directory", str(proj)), capture_output=True,
-                         text=True, timeout=60)
+    res = subprocess.run(
+        rafi_cmd("nightly", "--directory", str(proj)), capture_output=True, text=True, timeout=60
+    )
     assert res.returncode == 0 and "nothing new since" in res.stdout
     assert time.perf_counter() - t0 < 5
     # ... until anything it covers changes: a new raw file makes Snakemake decide again
     (proj / "raw" / "m1" / "y.csv").write_text("time\n")
-    assert N.fingerprint(N.argparse.Namespace(config_file="config.yaml"),
-                         N.Paths.from_config(proj, {}), {}) != json.loads(
-        (proj / "results" / N.STATE_NAME).read_text())["fingerprint"]
+    assert (
+        N.fingerprint(N.argparse.Namespace(config_file="config.yaml"), N.Paths.from_config(proj, {}), {})
+        != json.loads((proj / "results" / N.STATE_NAME).read_text())["fingerprint"]
+    )
 
 
 def test_unknown_machine_is_a_usage_error(tmp_path):
     proj = fake_project(tmp_path)
-    res = subprocess.run(rafi_cmd("nightly", "--directory", str(proj), "--machine", "nope"),
-                         capture_output=True, text=True, timeout=60)
+    res = subprocess.run(
+        rafi_cmd("nightly", "--directory", str(proj), "--machine", "nope"),
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )
     assert res.returncode == N.EXIT_USAGE
 
 
 # --------------------------------------------------------------------------- exit codes
+
 
 def test_severity_order():
     assert N.most_severe([]) == 0
@@ -160,19 +181,32 @@ def _status_dir(tmp_path, decision, audit_status="ok"):
     reg = paths.registry("m1")
     reg.mkdir(parents=True)
     (reg / "decision.json").write_text(json.dumps(decision))
-    pd.DataFrame({"file": ["a.csv"], "status": [audit_status], "reason": ["stuck displacement"]}) \
-        .to_csv(paths.results_dir / "m1" / "audit.csv", index=False)
+    pd.DataFrame({"file": ["a.csv"], "status": [audit_status], "reason": ["stuck displacement"]}).to_csv(
+        paths.results_dir / "m1" / "audit.csv", index=False
+    )
     return paths
 
 
-@pytest.mark.parametrize("decision, audit, tonight, expected", [
-    ({"decision": "promoted", "time": "2026-05-01T00:00:00Z"}, "ok", True, set()),
-    ({"decision": "rejected", "time": "2026-05-01T00:00:00Z"}, "ok", True, {2}),
-    ({"decision": "rejected", "time": "2026-05-01T00:00:00Z"}, "ok", False, set()),
-    ({"decision": "kept", "recalibration_due": True, "time": "2026-05-01T00:00:00Z",
-      "drift": {"new_max_residual_um": 9, "reference_max_residual_um": 5}}, "ok", False, {3}),
-    ({"decision": "promoted", "time": "2026-05-01T00:00:00Z"}, "quarantined", True, {4}),
-])
+@pytest.mark.parametrize(
+    "decision, audit, tonight, expected",
+    [
+        ({"decision": "promoted", "time": "2026-05-01T00:00:00Z"}, "ok", True, set()),
+        ({"decision": "rejected", "time": "2026-05-01T00:00:00Z"}, "ok", True, {2}),
+        ({"decision": "rejected", "time": "2026-05-01T00:00:00Z"}, "ok", False, set()),
+        (
+            {
+                "decision": "kept",
+                "recalibration_due": True,
+                "time": "2026-05-01T00:00:00Z",
+                "drift": {"new_max_residual_um": 9, "reference_max_residual_um": 5},
+            },
+            "ok",
+            False,
+            {3},
+        ),
+        ({"decision": "promoted", "time": "2026-05-01T00:00:00Z"}, "quarantined", True, {4}),
+    ],
+)
 def test_machine_status_codes(tmp_path, decision, audit, tonight, expected):
     paths = _status_dir(tmp_path, decision, audit)
     start = N._parse_time("2026-05-01T00:00:00Z") if tonight else N._parse_time("2026-06-01T00:00:00Z")
@@ -184,6 +218,7 @@ def test_machine_status_codes(tmp_path, decision, audit, tonight, expected):
 
 def test_job_tracker_one_line_per_job():
     import io
+
     out = io.StringIO()
     tr = N.JobTracker(out=out)
     log = """
@@ -213,20 +248,9 @@ Error in rule fit:
 
 # --------------------------------------------------------------------------- integration
 
+
 def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _have_pipeline() -> str | None:
-    raw = ROOT / "raw" / MACHINE
-    if not raw.is_dir() or not any(raw.glob("*.csv")):
-        return f"shipped data raw/{MACHINE} is not present yet (`rafi simulate shipped --out raw`)"
-    for mod in ("clean", "runs", "rank", "regression", "model", "validate", "twin_cli"):
-        if not (ROOT / "rafi" / f"{mod}.py").is_file():
-            return f"pipeline module rafi/{mod}.py is not present yet"
-    if not (ROOT / "Snakefile").is_file():
-        return "Snakefile is not present yet"
-    return None
 
 
 def _setup_project(tmp_path: Path) -> Path:
@@ -241,8 +265,11 @@ def _setup_project(tmp_path: Path) -> Path:
     raw = proj / "raw" / MACHINE
     raw.mkdir(parents=True)
     files = sorted((ROOT / "raw" / MACHINE).glob("*.csv"))
-    keep = [f for f in files if re.search(r"(train|trn).*(3000|9000|15000)|valid.*(4500|13500)|multi",
-                                          f.name, re.I)]
+    keep = [
+        f
+        for f in files
+        if re.search(r"(train|trn).*(3000|9000|15000)|valid.*(4500|13500)|multi", f.name, re.I)
+    ]
     for f in keep or files:
         shutil.copy2(f, raw / f.name)
     return proj
@@ -250,16 +277,17 @@ def _setup_project(tmp_path: Path) -> Path:
 
 def _nightly(proj: Path, *extra, env=None) -> subprocess.CompletedProcess:
     # --no-report keeps the test within its time budget (the report has its own tests)
-    return subprocess.run(rafi_cmd("nightly", "--directory", str(proj), "--cores", "2",
-                                   "--no-report", *extra),
-                          capture_output=True, text=True, timeout=600, env=env)
+    return subprocess.run(
+        rafi_cmd("nightly", "--directory", str(proj), "--cores", "2", "--no-report", *extra),
+        capture_output=True,
+        text=True,
+        timeout=600,
+        env=env,
+    )
 
 
 @pytest.mark.slow
 def test_two_nights_on_the_pipeline(tmp_path):
-    reason = _have_pipeline()
-    if reason:
-        pytest.skip(reason)
     proj = _setup_project(tmp_path)
     res_dir = proj / "results" / MACHINE
     reg = res_dir / "registry"
@@ -275,22 +303,53 @@ def test_two_nights_on_the_pipeline(tmp_path):
     assert json.loads((reg / "champion.json").read_text())["model_id"] == first_id
 
     # a dry run right after has nothing to do; so does a second night
-    dry = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--directory", str(proj),
-                          "--config", "on_bad_input=quarantine", "nightly_report=false", "--",
-                          "nightly"],
-                         capture_output=True, text=True, cwd=proj)
+    dry = subprocess.run(
+        [
+            sys.executable,
+            "-m",
+            "snakemake",
+            "-n",
+            "--directory",
+            str(proj),
+            "--config",
+            "on_bad_input=quarantine",
+            "nightly_report=false",
+            "--",
+            "nightly",
+        ],
+        capture_output=True,
+        text=True,
+        cwd=proj,
+    )
     assert "Nothing to be done" in dry.stdout + dry.stderr, dry.stdout + dry.stderr
     n1b = _nightly(proj)
     assert "nothing new since" in n1b.stdout
 
     # night 2: a new day of logs (ambient shifted, some wear)
     clean_before = {p.name: p.stat().st_mtime_ns for p in (res_dir / "clean").glob("*.parquet")}
-    sim = subprocess.run(rafi_cmd("simulate", "day", "--machine", MACHINE, "--out",
-                                  str(proj / "raw"), "--seed", "7", "--ambient-shift", "3",
-                                  "--wear", "0.3"), capture_output=True, text=True, cwd=proj)
+    sim = subprocess.run(
+        rafi_cmd(
+            "simulate",
+            "day",
+            "--machine",
+            MACHINE,
+            "--out",
+            str(proj / "raw"),
+            "--seed",
+            "7",
+            "--ambient-shift",
+            "3",
+            "--wear",
+            "0.3",
+        ),
+        capture_output=True,
+        text=True,
+        cwd=proj,
+    )
     assert sim.returncode == 0, sim.stderr
-    new_files = {p.stem for p in (proj / "raw" / MACHINE).glob("*.csv")} - \
-        {Path(n).stem for n in clean_before}
+    new_files = {p.stem for p in (proj / "raw" / MACHINE).glob("*.csv")} - {
+        Path(n).stem for n in clean_before
+    }
     assert new_files
     n2 = _nightly(proj)
     assert n2.returncode in (0, 2, 3, 4), n2.stdout + n2.stderr
@@ -308,9 +367,22 @@ def test_two_nights_on_the_pipeline(tmp_path):
 
     # a broken training log (stuck displacement channel): rejected or quarantined, champion stays
     champion_before = json.loads((reg / "champion.json").read_text())["model_id"]
-    sim = subprocess.run(rafi_cmd("simulate", "day", "--machine", MACHINE, "--out",
-                                  str(proj / "raw"), "--seed", "8", "--stuck-displacement"),
-                         capture_output=True, text=True, cwd=proj)
+    sim = subprocess.run(
+        rafi_cmd(
+            "simulate",
+            "day",
+            "--machine",
+            MACHINE,
+            "--out",
+            str(proj / "raw"),
+            "--seed",
+            "8",
+            "--stuck-displacement",
+        ),
+        capture_output=True,
+        text=True,
+        cwd=proj,
+    )
     assert sim.returncode == 0, sim.stderr
     # ... and, the same night, a file the reader cannot parse (issue 6: quarantine, carry on)
     broken = proj / "raw" / MACHINE / "2026-04-20_broken.csv"
@@ -327,12 +399,19 @@ def test_two_nights_on_the_pipeline(tmp_path):
     assert audit.loc[stuck, "reason"].str.contains("stuck").all()
     assert audit.loc[broken.name, "status"] == "quarantined"
     assert "line 13" in audit.loc[broken.name, "reason"]
-    assert _sha(broken) == broken_hash                  # raw files are never modified
+    assert _sha(broken) == broken_hash  # raw files are never modified
 
     # two nightly commands at once: one runs, the other refuses
-    procs = [subprocess.Popen(rafi_cmd("nightly", "--directory", str(proj), "--no-report"),
-                              env={**os.environ, N.HOLD_ENV: "3"}, stdout=subprocess.PIPE,
-                              stderr=subprocess.PIPE, text=True) for _ in range(2)]
+    procs = [
+        subprocess.Popen(
+            rafi_cmd("nightly", "--directory", str(proj), "--no-report"),
+            env={**os.environ, N.HOLD_ENV: "3"},
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        for _ in range(2)
+    ]
     codes = sorted(p.wait(timeout=300) for p in procs)
     assert N.EXIT_LOCKED in codes and codes.count(N.EXIT_LOCKED) == 1
     assert N.lock_is_free(proj / "results" / N.LOCK_NAME)

@@ -1,4 +1,4 @@
-"""Key sensor ranking (rafi.rank) on synthetic runs with a known best sensor set."""
+"""Key sensor ranking (rafi.method.rank) on synthetic runs with a known best sensor set."""
 
 import json
 import re
@@ -7,8 +7,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rafi.rank import rank_sensors, training_speed_groups
-from synthetic_model import make_runs
+from rafi.method.rank import rank_sensors, training_speed_groups
+from rafi.twin.synthetic_model import make_runs
 
 SPEEDS = (3000, 6000, 9000)
 
@@ -33,8 +33,7 @@ def test_recovers_known_key_sensors(clean):
     assert (res.key_sensors["score_abs_r"] > 0.97).all()
     assert res.info["fallback_used"] is False
     assert res.info["message"].startswith("3 sensors reach |r| > 0.97 at every training speed")
-    assert set(res.info) == {"sensors", "threshold", "scope", "max_key_sensors",
-                             "fallback_used", "message"}
+    assert set(res.info) == {"sensors", "threshold", "scope", "max_key_sensors", "fallback_used", "message"}
     json.dumps(res.info)  # JSON-serialisable
 
 
@@ -68,9 +67,11 @@ def test_fallback_adds_next_best_with_message(t9_fault):
     assert list(ks["selected_by"]) == ["threshold", "threshold", "fallback"]
     assert ks["score_abs_r"].iloc[2] < 0.97
     assert res.info["fallback_used"] is True
-    assert re.fullmatch(r"only 2 sensors reach \|r\| > 0\.97 at every training speed; T13 added "
-                        r"as the next best \(min \|r\| 0\.9\d\d\)", res.info["message"]), \
-        res.info["message"]
+    assert re.fullmatch(
+        r"only 2 sensors reach \|r\| > 0\.97 at every training speed; T13 added "
+        r"as the next best \(min \|r\| 0\.9\d\d\)",
+        res.info["message"],
+    ), res.info["message"]
 
 
 def test_pooled_scope_uses_pooled_abs_r(t9_fault):
@@ -119,8 +120,11 @@ def test_collinearity_matrix(clean):
 def test_speed_groups_and_errors(clean):
     table = clean.runs_table.copy()
     table.loc[0, "speed_rpm"] = 3004.0
-    assert training_speed_groups(table) == {3004: ["train-3000-1"], 6000: ["train-6000-1"],
-                                            9000: ["train-9000-1"]}
+    assert training_speed_groups(table) == {
+        3004: ["train-3000-1"],
+        6000: ["train-6000-1"],
+        9000: ["train-9000-1"],
+    }
     extra = clean.runs_table.iloc[[0]].assign(run_id="x", speed_rpm=3010.0)
     two = pd.concat([clean.runs_table, extra])
     assert training_speed_groups(two)[3005] == ["train-3000-1", "x"]
@@ -137,12 +141,12 @@ def test_a_short_dropout_only_removes_its_samples(clean):
     frame = clean.runs_frame.copy()
     run = clean.runs_table.loc[clean.runs_table["role"] == "training", "run_id"].iloc[0]
     rows = np.flatnonzero(frame["run_id"].to_numpy() == run)
-    frame.loc[frame.index[rows[100:100 + len(rows) // 20]], "dT8"] = np.nan     # 5 % missing
+    frame.loc[frame.index[rows[100 : 100 + len(rows) // 20]], "dT8"] = np.nan  # 5 % missing
     short = rank_sensors(clean.runs_table, frame)
     assert short.info["sensors"] == full.info["sensors"] and "T8" in short.info["sensors"]
     r_full = full.correlation.set_index(["scope", "sensor"])["r"]
     r_short = short.correlation.set_index(["scope", "sensor"])["r"]
     assert abs(r_short[("pooled", "T8")] - r_full[("pooled", "T8")]) < 1e-3
-    frame.loc[frame.index[rows[: len(rows) // 2]], "dT8"] = np.nan              # 50 % missing
+    frame.loc[frame.index[rows[: len(rows) // 2]], "dT8"] = np.nan  # 50 % missing
     long = rank_sensors(clean.runs_table, frame, min_coverage=0.9)
     assert "T8" not in long.info["sensors"]

@@ -1,4 +1,4 @@
-"""Unit tests of rafi.registry: immutable model store, append-only history, champion pointer,
+"""Unit tests of rafi.ops.registry: immutable model store, append-only history, champion pointer,
 speed-range merge, champion/challenger decision on fake summaries, drift check, rollback.
 
 Fake models: any object with ``predict(frame)`` and ``to_dict()``; validation summaries are
@@ -9,29 +9,38 @@ from __future__ import annotations
 
 import json
 import os
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 
-from rafi import registry as R
-from rafi.model import RafiModel
-from rafi.validate import qualify
+from rafi.method.model import RafiModel
+from rafi.method.validate import qualify
+from rafi.ops import registry as R
 
 TERMS = ["1", "x1", "x2", "x3"]
-GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0,
-         "never_worse_than_uncompensated": True}
+GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
 
 
 def make_model(speeds=(3000, 6000, 9000), offset=0.0, sensors=("T6", "T8", "T9"), data=None):
-    m = RafiModel(list(sensors), TERMS, reference={"rule": "run_start", "window_s": 60},
-                  machine="m1", data=data or {"a.csv": "aa"}, code_version="rafi test",
-                  created="2026-01-01T00:00:00Z")
+    m = RafiModel(
+        list(sensors),
+        TERMS,
+        reference={"rule": "run_start", "window_s": 60},
+        machine="m1",
+        data=data or {"a.csv": "aa"},
+        code_version="rafi test",
+        created="2026-01-01T00:00:00Z",
+    )
     for s in speeds:
-        m.add_speed_model(s, [offset + s / 1000, 1.0, 2.0, 3.0],
-                          {k: [0.0, 5.0] for k in sensors}, train_runs=[f"r{s}"], rmse_um=0.5,
-                          n=100)
+        m.add_speed_model(
+            s,
+            [offset + s / 1000, 1.0, 2.0, 3.0],
+            {k: [0.0, 5.0] for k in sensors},
+            train_runs=[f"r{s}"],
+            rmse_um=0.5,
+            n=100,
+        )
     return m.to_dict()
 
 
@@ -39,22 +48,32 @@ def summary(rows):
     """rows: (run_id, role, before, after)."""
     recs = []
     for rid, role, before, after in rows:
-        recs.append({"run_id": rid, "role": role, "speed_rpm": 4500.0, "max_abs_before_um": before,
-                     "max_abs_after_um": after,
-                     "improvement_pct": 100 * (before - after) / before,
-                     "worse_than_uncompensated": after > before})
+        recs.append(
+            {
+                "run_id": rid,
+                "role": role,
+                "speed_rpm": 4500.0,
+                "max_abs_before_um": before,
+                "max_abs_after_um": after,
+                "improvement_pct": 100 * (before - after) / before,
+                "worse_than_uncompensated": after > before,
+            }
+        )
     return pd.DataFrame(recs)
 
 
-RUNS = pd.DataFrame({
-    "run_id": ["r3000", "r6000", "v1", "v2", "v3"],
-    "file": ["a.csv", "a.csv", "b.csv", "c.csv", "d.csv"],
-    "role": ["training", "training", "validation_single", "validation_single", "validation_multi"],
-    "sha256": ["aa", "aa", "bb", "cc", "dd"],
-})
+RUNS = pd.DataFrame(
+    {
+        "run_id": ["r3000", "r6000", "v1", "v2", "v3"],
+        "file": ["a.csv", "a.csv", "b.csv", "c.csv", "d.csv"],
+        "role": ["training", "training", "validation_single", "validation_single", "validation_multi"],
+        "sha256": ["aa", "aa", "bb", "cc", "dd"],
+    }
+)
 
 
 # --------------------------------------------------------------------------- model store
+
 
 def test_save_model_is_write_once_and_verified(tmp_path):
     reg = R.Registry(tmp_path / "registry", "m1")
@@ -132,6 +151,7 @@ def test_champion_pointer(tmp_path):
 
 # --------------------------------------------------------------------------- merge
 
+
 def test_merge_speed_models_takes_only_the_range_from_the_new_fit():
     champ = make_model(speeds=(3000, 6000, 9000, 12000), offset=0.0, data={"old.csv": "o"})
     cand = make_model(speeds=(3000, 6000, 9000, 12000), offset=100.0, data={"new.csv": "n"})
@@ -167,14 +187,22 @@ def test_merge_refuses_incompatible_models():
 
 # --------------------------------------------------------------------------- gates / decision
 
-def _decide(cand_summary, champ_summary=None, champion_id=None, history=(), candidate=None,
-            nightly=None):
+
+def _decide(cand_summary, champ_summary=None, champion_id=None, history=(), candidate=None, nightly=None):
     cand = candidate or make_model(offset=1.0)
-    return R.decide(machine="m1", candidate_dict=cand, candidate_summary=cand_summary,
-                    candidate_verdict=qualify(cand_summary, GATES),
-                    champion_id=champion_id, champion_summary=champ_summary,
-                    runs_table=RUNS, gates=GATES, nightly=nightly or {"drift_margin_um": 1.0},
-                    history=list(history), time="2026-05-01T00:00:00Z")
+    return R.decide(
+        machine="m1",
+        candidate_dict=cand,
+        candidate_summary=cand_summary,
+        candidate_verdict=qualify(cand_summary, GATES),
+        champion_id=champion_id,
+        champion_summary=champ_summary,
+        runs_table=RUNS,
+        gates=GATES,
+        nightly=nightly or {"drift_margin_um": 1.0},
+        history=list(history),
+        time="2026-05-01T00:00:00Z",
+    )
 
 
 def test_candidate_passing_every_gate_is_promoted():
@@ -183,14 +211,21 @@ def test_candidate_passing_every_gate_is_promoted():
     assert r["decision"] == "promoted" and r["gates_passed"]
     assert r["champion_id_after"] == r["candidate_id"] and r["champion_id_before"] is None
     assert r["measured"]["max_residual_um"] == 8
-    assert set(d.comparison.columns) >= {"run_id", "champion_max_abs_after_um",
-                                         "candidate_max_abs_after_um", "candidate_improvement_pct"}
+    assert set(d.comparison.columns) >= {
+        "run_id",
+        "champion_max_abs_after_um",
+        "candidate_max_abs_after_um",
+        "candidate_improvement_pct",
+    }
 
 
-@pytest.mark.parametrize("rows, gate", [
-    ([("v1", "validation_single", 40, 13)], "max_residual_um"),
-    ([("v1", "validation_single", 10, 8)], "min_improvement_pct"),
-])
+@pytest.mark.parametrize(
+    "rows, gate",
+    [
+        ([("v1", "validation_single", 40, 13)], "max_residual_um"),
+        ([("v1", "validation_single", 10, 8)], "min_improvement_pct"),
+    ],
+)
 def test_each_gate_can_reject(rows, gate):
     r = _decide(summary(rows), champion_id="c" * 64).record
     assert r["decision"] == "rejected" and r["champion_id_after"] == "c" * 64
@@ -200,8 +235,11 @@ def test_each_gate_can_reject(rows, gate):
 
 def test_never_worse_gate_applies_to_any_single_run():
     # excellent on two runs, worse than uncompensated on one idle cool-down run
-    rows = [("v1", "validation_single", 30, 2), ("v2", "validation_multi", 30, 3),
-            ("v3", "validation_idle", 4, 5)]
+    rows = [
+        ("v1", "validation_single", 30, 2),
+        ("v2", "validation_multi", 30, 3),
+        ("v3", "validation_idle", 4, 5),
+    ]
     r = _decide(summary(rows)).record
     assert r["decision"] == "rejected"
     assert r["measured"]["worse_than_uncompensated_runs"] == ["v3"]
@@ -212,19 +250,27 @@ def test_never_worse_gate_applies_to_any_single_run():
 
 
 def test_no_validation_run_is_not_a_pass():
-    r = _decide(summary([]).reindex(columns=["run_id", "role", "max_abs_before_um",
-                                             "max_abs_after_um", "improvement_pct"])).record
+    r = _decide(
+        summary([]).reindex(
+            columns=["run_id", "role", "max_abs_before_um", "max_abs_after_um", "improvement_pct"]
+        )
+    ).record
     assert r["decision"] == "rejected"
 
 
 def test_candidate_equal_to_champion_is_kept():
     cand = make_model(offset=1.0)
-    r = _decide(summary([("v1", "validation_single", 20, 5)]), champion_id=cand["model_id"],
-                champ_summary=summary([("v1", "validation_single", 20, 5)]), candidate=cand).record
+    r = _decide(
+        summary([("v1", "validation_single", 20, 5)]),
+        champion_id=cand["model_id"],
+        champ_summary=summary([("v1", "validation_single", 20, 5)]),
+        candidate=cand,
+    ).record
     assert r["decision"] == "kept" and r["champion_id_after"] == cand["model_id"]
 
 
 # --------------------------------------------------------------------------- drift
+
 
 def test_drift_check_numbers():
     champ = summary([("v1", "validation_single", 20, 5), ("v3", "validation_multi", 20, 9.5)])
@@ -246,11 +292,22 @@ def test_new_validation_runs_by_hash():
 def test_decision_reports_recalibration_due_from_history():
     champ = make_model(offset=0.0)
     cid = champ["model_id"]
-    history = [{"decision": "promoted", "champion_id_after": cid, "time": "2026-04-01T00:00:00Z",
-                "candidate_summary": {"max_residual_um": 5.0},
-                "data_files": {"a.csv": "aa", "b.csv": "bb"}}]
-    champ_sum = summary([("v1", "validation_single", 20, 5), ("v2", "validation_single", 20, 7.5),
-                         ("v3", "validation_multi", 20, 5.5)])
+    history = [
+        {
+            "decision": "promoted",
+            "champion_id_after": cid,
+            "time": "2026-04-01T00:00:00Z",
+            "candidate_summary": {"max_residual_um": 5.0},
+            "data_files": {"a.csv": "aa", "b.csv": "bb"},
+        }
+    ]
+    champ_sum = summary(
+        [
+            ("v1", "validation_single", 20, 5),
+            ("v2", "validation_single", 20, 7.5),
+            ("v3", "validation_multi", 20, 5.5),
+        ]
+    )
     # candidate identical to the champion (no new training data) -> kept, drift flagged
     r = _decide(champ_sum, champ_sum, cid, history, candidate=champ).record
     assert r["decision"] == "kept" and r["recalibration_due"]
@@ -259,15 +316,14 @@ def test_decision_reports_recalibration_due_from_history():
     assert r["data"]["new_since_champion"] == ["c.csv", "d.csv"]
     assert any("recalibration due" in x for x in r["reasons"])
     comp = _decide(champ_sum, champ_sum, cid, history, candidate=champ).comparison
-    assert comp.set_index("run_id")["new_since_champion"].to_dict() == {
-        "v1": False, "v2": True, "v3": True}
+    assert comp.set_index("run_id")["new_since_champion"].to_dict() == {"v1": False, "v2": True, "v3": True}
     # within the margin: no recalibration
-    r2 = _decide(champ_sum, champ_sum, cid, history, candidate=champ,
-                 nightly={"drift_margin_um": 3.0}).record
+    r2 = _decide(champ_sum, champ_sum, cid, history, candidate=champ, nightly={"drift_margin_um": 3.0}).record
     assert not r2["recalibration_due"] and r2["drift"]["status"] == "ok"
 
 
 # --------------------------------------------------------------------------- driver with fakes
+
 
 class FakeModel:
     """A model whose residual on each validation run is given by its dict (fake 'quality')."""
@@ -284,8 +340,11 @@ class FakeModel:
 
 def fake_validate(model, runs_table, runs_frame):
     after = model.to_dict()["fake_after"]
-    rows = [(rid, role, 20.0, after.get(rid, 5.0)) for rid, role in
-            zip(runs_table["run_id"], runs_table["role"]) if role.startswith("validation")]
+    rows = [
+        (rid, role, 20.0, after.get(rid, 5.0))
+        for rid, role in zip(runs_table["run_id"], runs_table["role"])
+        if role.startswith("validation")
+    ]
     return summary(rows), pd.DataFrame()
 
 
@@ -300,12 +359,21 @@ def _run(tmp_path, cand, nightly=None):
     RUNS.to_csv(tmp_path / "runs.csv", index=False)
     pd.DataFrame({"run_id": ["v1"], "t_s": [0.0]}).to_parquet(tmp_path / "runs.parquet")
     reg = tmp_path / "registry"
-    return R.run_decide(machine="m1", candidate_path=tmp_path / "model.json",
-                        runs_csv=tmp_path / "runs.csv", runs_parquet=tmp_path / "runs.parquet",
-                        registry_root=reg, decision_path=reg / "decision.json",
-                        comparison_path=reg / "comparison.csv", gates=GATES,
-                        nightly=nightly or {}, log=lambda m: None, model_from_dict=FakeModel,
-                        validate_runs=fake_validate, qualify=qualify)
+    return R.run_decide(
+        machine="m1",
+        candidate_path=tmp_path / "model.json",
+        runs_csv=tmp_path / "runs.csv",
+        runs_parquet=tmp_path / "runs.parquet",
+        registry_root=reg,
+        decision_path=reg / "decision.json",
+        comparison_path=reg / "comparison.csv",
+        gates=GATES,
+        nightly=nightly or {},
+        log=lambda m: None,
+        model_from_dict=FakeModel,
+        validate_runs=fake_validate,
+        qualify=qualify,
+    )
 
 
 def test_run_decide_promotes_rejects_and_rolls_back(tmp_path):
@@ -338,8 +406,13 @@ def test_run_decide_promotes_rejects_and_rolls_back(tmp_path):
     r4 = _run(tmp_path, better)
     assert r4["decision"] == "kept" and reg.champion_id() == good["model_id"]
     assert "rolled back" in r4["reasons"][0]
-    assert [h["decision"] for h in reg.history()] == ["promoted", "rejected", "promoted",
-                                                      "rolled_back", "kept"]
+    assert [h["decision"] for h in reg.history()] == [
+        "promoted",
+        "rejected",
+        "promoted",
+        "rolled_back",
+        "kept",
+    ]
     with pytest.raises(R.RegistryError):
         R.promote(reg.root, "m1", "ffff")
 
@@ -354,8 +427,14 @@ def test_run_decide_speed_range_with_real_models(tmp_path):
     reg = R.Registry(tmp_path / "registry", "m1")
     champ_clean = {k: v for k, v in champ.items() if k != "fake_after"}
     reg.save_model(champ_clean)
-    reg.append_history({"decision": "promoted", "champion_id_after": champ["model_id"],
-                        "candidate_summary": {"max_residual_um": 5.0}, "data_files": {"a.csv": "aa"}})
+    reg.append_history(
+        {
+            "decision": "promoted",
+            "champion_id_after": champ["model_id"],
+            "candidate_summary": {"max_residual_um": 5.0},
+            "data_files": {"a.csv": "aa"},
+        }
+    )
     reg.set_champion(champ["model_id"], reason="test")
     cand_clean = {k: v for k, v in cand.items() if k != "fake_after"}
 
@@ -365,13 +444,21 @@ def test_run_decide_speed_range_with_real_models(tmp_path):
     (tmp_path / "model.json").write_text(json.dumps(cand_clean))
     RUNS.to_csv(tmp_path / "runs.csv", index=False)
     pd.DataFrame({"run_id": ["v1"]}).to_parquet(tmp_path / "runs.parquet")
-    rec = R.run_decide(machine="m1", candidate_path=tmp_path / "model.json",
-                       runs_csv=tmp_path / "runs.csv", runs_parquet=tmp_path / "runs.parquet",
-                       registry_root=reg.root, decision_path=reg.decision_path,
-                       comparison_path=reg.comparison_path, gates=GATES,
-                       nightly={"retrain_speed_range_rpm": [5000, 10000]}, log=lambda m: None,
-                       model_from_dict=model_from_dict, validate_runs=fake_validate,
-                       qualify=qualify)
+    rec = R.run_decide(
+        machine="m1",
+        candidate_path=tmp_path / "model.json",
+        runs_csv=tmp_path / "runs.csv",
+        runs_parquet=tmp_path / "runs.parquet",
+        registry_root=reg.root,
+        decision_path=reg.decision_path,
+        comparison_path=reg.comparison_path,
+        gates=GATES,
+        nightly={"retrain_speed_range_rpm": [5000, 10000]},
+        log=lambda m: None,
+        model_from_dict=model_from_dict,
+        validate_runs=fake_validate,
+        qualify=qualify,
+    )
     assert rec["decision"] == "promoted"
     assert rec["adaptation"]["mode"] == "speed_range"
     assert [s["speed_rpm"] for s in rec["retrained_speeds"]] == [6000, 9000]

@@ -1,21 +1,33 @@
-"""Per-speed OLS fits with diagnostics (rafi.regression)."""
+"""Per-speed OLS fits with diagnostics (rafi.method.fit)."""
 
 import numpy as np
 import pytest
 from statsmodels.regression.linear_model import OLS
 
-from rafi.model import RafiModel, design_matrix, parse_terms
-from rafi.regression import (COEFFICIENT_COLUMNS, DIAGNOSTIC_COLUMNS, VIF_COLUMNS, fit_rafi,
-                             fit_speed)
-from synthetic_model import KEY, TERMS, make_runs
+from rafi.method.fit import (
+    COEFFICIENT_COLUMNS,
+    DIAGNOSTIC_COLUMNS,
+    VIF_COLUMNS,
+    fit_rafi,
+    fit_speed,
+)
+from rafi.method.model import RafiModel, design_matrix, parse_terms
+from rafi.twin.synthetic_model import KEY, TERMS, make_runs
 
 REF = {"rule": "run_start", "window_s": 60}
 
 
 def fit(syn, **kw):
     kw.setdefault("hac_maxlags", 60)
-    return fit_rafi(syn.runs_table, syn.runs_frame, key_sensors=list(KEY), terms=TERMS,
-                    reference=REF, machine="synthetic", **kw)
+    return fit_rafi(
+        syn.runs_table,
+        syn.runs_frame,
+        key_sensors=list(KEY),
+        terms=TERMS,
+        reference=REF,
+        machine="synthetic",
+        **kw,
+    )
 
 
 @pytest.fixture(scope="module")
@@ -32,6 +44,7 @@ def ar1():
 
 # ---------------------------------------------------------------- golden values
 
+
 def golden_data():
     i = np.arange(40.0)
     x1 = np.linspace(0, 5, 40)
@@ -44,10 +57,12 @@ def test_golden_small_deterministic_fit():
     # Golden numbers from numpy.linalg.lstsq and closed-form formulas (independent of statsmodels).
     y, x = golden_data()
     out = fit_speed(y, x, ["1", "x1", "x2", "x1*x2"], hac_maxlags=3)
-    np.testing.assert_allclose(out["coef"], [1.003802790714419, 1.999465821250816,
-                                             -0.502222769713059, 0.10012157163637], rtol=1e-10)
-    np.testing.assert_allclose(out["se"], [0.014622405275878, 0.007478272799604,
-                                           0.013694602405599, 0.004116641800377], rtol=1e-10)
+    np.testing.assert_allclose(
+        out["coef"], [1.003802790714419, 1.999465821250816, -0.502222769713059, 0.10012157163637], rtol=1e-10
+    )
+    np.testing.assert_allclose(
+        out["se"], [0.014622405275878, 0.007478272799604, 0.013694602405599, 0.004116641800377], rtol=1e-10
+    )
     d = out["diagnostics"]
     assert d["rmse_um"] == pytest.approx(0.033932158521353624, rel=1e-10)
     assert d["r2"] == pytest.approx(0.9998708337375576, rel=1e-12)
@@ -82,14 +97,14 @@ def test_hac_lags_never_cross_runs():
     terms = ["1", "x1", "x2"]
     out = fit_speed(y, x, terms, groups=groups, hac_maxlags=10)
     design = design_matrix(x, parse_terms(terms, 2))
-    np.testing.assert_allclose(out["se_hac"], newey_west_se(design, out["resid"], groups, 10),
-                               rtol=1e-8)
+    np.testing.assert_allclose(out["se_hac"], newey_west_se(design, out["resid"], groups, 10), rtol=1e-8)
     # one run: the same as statsmodels' plain HAC with the small-sample correction
     one = fit_speed(y, x, terms, hac_maxlags=10)
     ref = OLS(y, design).fit(cov_type="HAC", cov_kwds={"maxlags": 10, "use_correction": True})
     np.testing.assert_allclose(one["se_hac"], ref.bse, rtol=1e-10)
     # p_hac: t distribution with the OLS residual degrees of freedom
     from scipy import stats
+
     t_hac = out["coef"] / out["se_hac"]
     np.testing.assert_allclose(out["p_hac"], 2 * stats.t.sf(np.abs(t_hac), n - 3), rtol=1e-8)
     # lags are clamped to the shortest run
@@ -98,6 +113,7 @@ def test_hac_lags_never_cross_runs():
 
 
 # ---------------------------------------------------------------- synthetic truth
+
 
 def test_recovers_known_coefficients(white):
     syn, res = white
@@ -114,7 +130,7 @@ def test_fitted_model_reproduces_truth_function(white):
     f = syn.runs_frame
     pred = res.model.predict(f)
     noise_free = f["dz_um"].to_numpy() - pred
-    assert np.sqrt(np.mean(noise_free ** 2)) < 0.0105  # noise sigma 0.01 um
+    assert np.sqrt(np.mean(noise_free**2)) < 0.0105  # noise sigma 0.01 um
 
 
 def test_table_layouts_and_sane_diagnostics(white):
@@ -126,7 +142,7 @@ def test_table_layouts_and_sane_diagnostics(white):
     assert list(d.index) == [3000, 7000, 9000]
     assert (d["r2"] > 0.999).all() and (d["r2_adj"] <= d["r2"]).all()
     assert (d["rmse_um"].between(0.008, 0.012)).all()
-    assert (d["durbin_watson"].between(1.7, 2.3)).all()       # white noise
+    assert (d["durbin_watson"].between(1.7, 2.3)).all()  # white noise
     assert (d["n"] == 720).all()
     assert d.loc[3000, "paper_rmse_um"] == pytest.approx(0.639065688265986)
     assert d.loc[9000, "paper_rmse_um"] == pytest.approx(0.277440897959544)
@@ -135,8 +151,7 @@ def test_table_layouts_and_sane_diagnostics(white):
     assert (d["condition_number"] > 1).all()
     assert set(res.vif["term"]) == set(TERMS) - {"1"}
     assert (res.vif["vif"] >= 1).all()
-    np.testing.assert_allclose(res.vif.groupby("speed_rpm")["vif"].max().to_numpy(),
-                               d["max_vif"].to_numpy())
+    np.testing.assert_allclose(res.vif.groupby("speed_rpm")["vif"].max().to_numpy(), d["max_vif"].to_numpy())
     c = res.coefficients
     np.testing.assert_allclose(c["t"], c["coef"] / c["se"])
     assert c[["p", "p_hac"]].stack().between(0, 1).all()
@@ -147,7 +162,7 @@ def test_rmse_is_paper_definition(white):
     f = syn.runs_frame[syn.runs_frame["run_id"] == "train-7000-1"]
     resid = f["dz_um"].to_numpy() - res.model.predict(f)
     got = res.diagnostics.set_index("speed_rpm").loc[7000, "rmse_um"]
-    assert got == pytest.approx(np.sqrt(np.mean(resid ** 2)), rel=1e-9)
+    assert got == pytest.approx(np.sqrt(np.mean(resid**2)), rel=1e-9)
 
 
 def test_autocorrelated_noise_low_dw_and_larger_hac_se(ar1):
@@ -171,13 +186,13 @@ def test_model_attributes(white):
 
 
 def test_several_runs_per_speed_and_missing_samples():
-    syn = make_runs((3000,), runs_per_speed=2, sigma=0.05, rho=0.9, seed=4,
-                    duration_s=1800)
+    syn = make_runs((3000,), runs_per_speed=2, sigma=0.05, rho=0.9, seed=4, duration_s=1800)
     frame = syn.runs_frame.copy()
     frame.loc[frame.index[10:20], "dT6"] = np.nan
     frame.loc[frame.index[30], "dz_um"] = np.nan
-    res = fit_rafi(syn.runs_table, frame, key_sensors=list(KEY), terms=TERMS, hac_maxlags=30,
-                   reference=REF, machine="m")
+    res = fit_rafi(
+        syn.runs_table, frame, key_sensors=list(KEY), terms=TERMS, hac_maxlags=30, reference=REF, machine="m"
+    )
     assert res.model.train_runs_[0] == ["train-3000-1", "train-3000-2"]
     assert list(res.diagnostics["n"]) == [2 * 360 - 11]
 
@@ -185,14 +200,35 @@ def test_several_runs_per_speed_and_missing_samples():
 def test_errors():
     syn = make_runs((3000,), sigma=0.05, seed=1, duration_s=50)
     with pytest.raises(ValueError, match="x4"):
-        fit_rafi(syn.runs_table, syn.runs_frame, key_sensors=list(KEY), terms=["1", "x4"],
-                 hac_maxlags=5, reference=REF, machine="m")
+        fit_rafi(
+            syn.runs_table,
+            syn.runs_frame,
+            key_sensors=list(KEY),
+            terms=["1", "x4"],
+            hac_maxlags=5,
+            reference=REF,
+            machine="m",
+        )
     with pytest.raises(ValueError, match="3000 r/min.*more samples than terms"):
-        fit_rafi(syn.runs_table, syn.runs_frame, key_sensors=list(KEY), terms=TERMS,
-                 hac_maxlags=5, reference=REF, machine="m")
+        fit_rafi(
+            syn.runs_table,
+            syn.runs_frame,
+            key_sensors=list(KEY),
+            terms=TERMS,
+            hac_maxlags=5,
+            reference=REF,
+            machine="m",
+        )
     with pytest.raises(ValueError, match="dT99"):
-        fit_rafi(syn.runs_table, syn.runs_frame, key_sensors=["T99"], terms=["1", "x1"],
-                 hac_maxlags=5, reference=REF, machine="m")
+        fit_rafi(
+            syn.runs_table,
+            syn.runs_frame,
+            key_sensors=["T99"],
+            terms=["1", "x1"],
+            hac_maxlags=5,
+            reference=REF,
+            machine="m",
+        )
 
 
 def test_coefficients_only_path_matches_the_full_fit_and_skips_statsmodels(white):
@@ -204,8 +240,11 @@ def test_coefficients_only_path_matches_the_full_fit_and_skips_statsmodels(white
     np.testing.assert_allclose(quick.diagnostics["rmse_um"], full.diagnostics["rmse_um"], rtol=1e-12)
     assert quick.coefficients["se_hac"].isna().all() and quick.vif.empty
     assert quick.diagnostics["r2"].isna().all()
-    code = ("import sys; import rafi.model_family as mf, rafi.crossval, rafi.validate; "
-            "assert 'statsmodels' not in sys.modules and 'scipy.signal' not in sys.modules, sorted(sys.modules)")
+    code = (
+        "import sys; import rafi.family.models as mf, rafi.family.crossval, rafi.method.validate; "
+        "assert 'statsmodels' not in sys.modules and 'scipy.signal' not in sys.modules, sorted(sys.modules)"
+    )
     import subprocess
     import sys
+
     subprocess.run([sys.executable, "-c", code], check=True)

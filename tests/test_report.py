@@ -1,8 +1,8 @@
-"""The qualification report (rafi.report, rafi.plots, the template) on a small fixture.
+"""The qualification report (rafi.report.build, rafi.report.plots, the template) on a small fixture.
 
 The fixture (tests/data/report_fixture/<machine>/, made by generate.py) holds results tables
-in the docs/design.md formats, including comparison/* from rafi.model_family.run_family and
-registry/* from two nights of rafi.registry.run_decide (the real producers). The tests render
+in the docs/design.md formats, including comparison/* from rafi.family.models.run_family and
+registry/* from two nights of rafi.ops.registry.run_decide (the real producers). The tests render
 HTML + PDF in a tmp dir, open the HTML in headless Chromium, rasterise the PDF with pdftoppm and
 check the layout with WeasyPrint. A variant shaped like machining-center-b (run ids
 ``thermal_log_2026-10-14#3``, an idle cool-down run, a rejected candidate, recalibration due,
@@ -24,13 +24,22 @@ import pandas as pd
 import pytest
 import yaml
 
-from rafi import report
+from rafi.report import build as report
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "tests" / "data" / "report_fixture" / "tapping-center-a"
-CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
-                  "--disable-background-networking", "--disable-component-update", "--disable-sync",
-                  "--disable-dev-shm-usage", "--hide-scrollbars"]
+CHROMIUM_FLAGS = [
+    "--headless",
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-quic",
+    "--no-first-run",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--disable-dev-shm-usage",
+    "--hide-scrollbars",
+]
 PAGE_RANGE = (10, 20)
 
 
@@ -48,8 +57,12 @@ def browser_tools():
     if _chromium() is None or shutil.which("pdftoppm") is None:
         try:
             subprocess.run(["apt-get", "update"], check=True, capture_output=True, timeout=600)
-            subprocess.run(["apt-get", "install", "-y", "chromium", "poppler-utils"], check=True,
-                           capture_output=True, timeout=1200)
+            subprocess.run(
+                ["apt-get", "install", "-y", "chromium", "poppler-utils"],
+                check=True,
+                capture_output=True,
+                timeout=1200,
+            )
         except (OSError, subprocess.SubprocessError) as exc:
             pytest.skip(f"chromium/pdftoppm missing and apt-get install failed: {exc}")
     if _chromium() is None or shutil.which("pdftoppm") is None:
@@ -64,8 +77,7 @@ def _settings():
 
 def _render(results: Path, out: Path, settings: dict, cfg: dict | None = None, machine=None):
     machine = machine or results.name
-    ctx = report.build_context(report.result_paths(results), machine=machine,
-                               settings=settings, config=cfg)
+    ctx = report.build_context(report.result_paths(results), machine=machine, settings=settings, config=cfg)
     html = report.render_html(ctx)
     pdf = report.render_pdf(html)
     out.mkdir(parents=True, exist_ok=True)
@@ -87,10 +99,15 @@ def rendered(tmp_path_factory):
 
 
 #: fixture run id -> a run id as machining-center-b's continuous logs produce them
-B_RUN_IDS = {"val-4500": "thermal_log_2026-10-14#3", "val-8000": "thermal_log_2026-10-14#5",
-             "val-10500": "thermal_log_2026-10-15#2", "val-13500": "thermal_log_2026-10-15#4",
-             "val-16500": "thermal_log_2026-10-16#1", "multi-1": "thermal_log_2026-10-16#2",
-             "train-9000": "thermal_log_2026-10-12#1"}
+B_RUN_IDS = {
+    "val-4500": "thermal_log_2026-10-14#3",
+    "val-8000": "thermal_log_2026-10-14#5",
+    "val-10500": "thermal_log_2026-10-15#2",
+    "val-13500": "thermal_log_2026-10-15#4",
+    "val-16500": "thermal_log_2026-10-16#1",
+    "multi-1": "thermal_log_2026-10-16#2",
+    "train-9000": "thermal_log_2026-10-12#1",
+}
 B_IDLE = "thermal_log_2026-10-15#4"
 
 
@@ -111,25 +128,45 @@ def _machine_b_like(src: Path, dst: Path) -> None:
             if "run_id" in f:
                 f["run_id"] = f["run_id"].astype(str).replace(B_RUN_IDS)
                 f.to_parquet(path)
-    for rel in ("runs.csv", "validation/summary.csv", "comparison/per_run.csv",
-                "registry/comparison.csv"):
+    for rel in ("runs.csv", "validation/summary.csv", "comparison/per_run.csv", "registry/comparison.csv"):
         f = pd.read_csv(dst / rel)
         f.loc[f["run_id"] == B_IDLE, "role"] = "validation_idle"
         f.to_csv(dst / rel, index=False)
     dec = json.loads((dst / "registry" / "decision.json").read_text())
     before = dec["champion_id_before"]
-    dec.update(decision="rejected", champion_id_after=before, recalibration_due=True,
-               reasons=["gate max_residual_um failed on run thermal_log_2026-10-16#2: measured 13.1, "
-                        "limit 12", f"champion {before[:12]} stays"],
-               adaptation={"retrain_speed_range_rpm": [9000, 12000], "mode": "speed_range",
-                           "kept_from": before, "fitted_id": "c" * 64,
-                           "retrained_speeds_rpm": [9000]},
-               retrained_speeds=[{"speed_rpm": 9000, "train_runs": ["thermal_log_2026-10-12#1"],
-                                  "files": ["thermal_log_2026-10-12.xlsx"]}])
-    dec["drift"].update(status="degraded", detected=True, new_max_residual_um=11.5,
-                        reference_max_residual_um=6.5, limit_um=8.5, degradation_um=5.0,
-                        new_runs=["thermal_log_2026-10-16#2"],
-                        per_run={"thermal_log_2026-10-16#2": 11.5})
+    dec.update(
+        decision="rejected",
+        champion_id_after=before,
+        recalibration_due=True,
+        reasons=[
+            "gate max_residual_um failed on run thermal_log_2026-10-16#2: measured 13.1, limit 12",
+            f"champion {before[:12]} stays",
+        ],
+        adaptation={
+            "retrain_speed_range_rpm": [9000, 12000],
+            "mode": "speed_range",
+            "kept_from": before,
+            "fitted_id": "c" * 64,
+            "retrained_speeds_rpm": [9000],
+        },
+        retrained_speeds=[
+            {
+                "speed_rpm": 9000,
+                "train_runs": ["thermal_log_2026-10-12#1"],
+                "files": ["thermal_log_2026-10-12.xlsx"],
+            }
+        ],
+    )
+    dec["drift"].update(
+        status="degraded",
+        detected=True,
+        new_max_residual_um=11.5,
+        reference_max_residual_um=6.5,
+        limit_um=8.5,
+        degradation_um=5.0,
+        new_runs=["thermal_log_2026-10-16#2"],
+        per_run={"thermal_log_2026-10-16#2": 11.5},
+    )
     (dst / "registry" / "decision.json").write_text(json.dumps(dec, indent=2))
 
 
@@ -145,8 +182,13 @@ def _assert_nothing_wider_than_page(html: str) -> dict:
         stack = [pb]
         while stack:
             box = stack.pop()
-            kind = ("table" if isinstance(box, boxes.TableBox) else
-                    "image" if isinstance(box, boxes.ReplacedBox) else None)
+            kind = (
+                "table"
+                if isinstance(box, boxes.TableBox)
+                else "image"
+                if isinstance(box, boxes.ReplacedBox)
+                else None
+            )
             if kind:
                 checked[kind] += 1
                 edge = box.border_box_x() + box.border_width()
@@ -192,12 +234,14 @@ class _DomSummary(HTMLParser):
 
 # --------------------------------------------------------------------------- browser / PDF
 
+
 @pytest.mark.slow
 def test_html_renders_in_chromium_with_every_section_and_figure(rendered, browser_tools, tmp_path):
     html_path = rendered["dir"] / "qualification.html"
     cmd = [browser_tools["chromium"], *CHROMIUM_FLAGS, f"--user-data-dir={tmp_path / 'profile'}"]
-    dom = subprocess.run([*cmd, "--dump-dom", html_path.as_uri()], capture_output=True, text=True,
-                         timeout=180, check=True).stdout
+    dom = subprocess.run(
+        [*cmd, "--dump-dom", html_path.as_uri()], capture_output=True, text=True, timeout=180, check=True
+    ).stdout
     parsed = _DomSummary()
     parsed.feed(dom)
     headings = [" ".join(h.split()) for h in parsed.h2]
@@ -207,25 +251,45 @@ def test_html_renders_in_chromium_with_every_section_and_figure(rendered, browse
         assert any(optional in h for h in headings)
     assert "Quarantined input" in dom
     expected = set(re.findall(r'<figure id="([^"]+)"', rendered["html"]))
-    assert {"fig-training", "fig-heatmap", "fig-residuals", "fig-membership",
-            "fig-validation-single", "fig-multi-1", "fig-comparison",
-            "fig-comparison-resid-1"} <= expected
+    assert {
+        "fig-training",
+        "fig-heatmap",
+        "fig-residuals",
+        "fig-membership",
+        "fig-validation-single",
+        "fig-multi-1",
+        "fig-comparison",
+        "fig-comparison-resid-1",
+    } <= expected
     assert set(parsed.figures) == expected
     for fid, content in parsed.figures.items():
         assert content, f"figure {fid} has no img/svg in the DOM"
         tag, src = content[0]
         assert tag == "svg" or src.startswith("data:image/png;base64,"), (fid, src)
     shot = tmp_path / "screenshot.png"
-    subprocess.run([*cmd, f"--screenshot={shot}", "--window-size=1200,2400", html_path.as_uri()],
-                   capture_output=True, timeout=180, check=True)
+    subprocess.run(
+        [*cmd, f"--screenshot={shot}", "--window-size=1200,2400", html_path.as_uri()],
+        capture_output=True,
+        timeout=180,
+        check=True,
+    )
     assert shot.is_file() and shot.stat().st_size > 20_000
 
 
 @pytest.mark.slow
 def test_pdf_page_count_and_rasterises(rendered, browser_tools, tmp_path):
-    subprocess.run([browser_tools["pdftoppm"], "-r", "50", "-png",
-                    str(rendered["dir"] / "qualification.pdf"), str(tmp_path / "page")],
-                   check=True, timeout=180)
+    subprocess.run(
+        [
+            browser_tools["pdftoppm"],
+            "-r",
+            "50",
+            "-png",
+            str(rendered["dir"] / "qualification.pdf"),
+            str(tmp_path / "page"),
+        ],
+        check=True,
+        timeout=180,
+    )
     pages = sorted(tmp_path.glob("page-*.png"))
     assert PAGE_RANGE[0] <= len(pages) <= PAGE_RANGE[1], len(pages)
     assert all(p.stat().st_size > 2_000 for p in pages)
@@ -240,17 +304,34 @@ def test_no_table_or_figure_wider_than_the_page(rendered):
 def test_pdf_text_has_every_last_column_header(rendered):
     if shutil.which("pdftotext") is None:
         pytest.skip("pdftotext (poppler-utils) not installed")
-    text = subprocess.run(["pdftotext", "-layout", str(rendered["dir"] / "qualification.pdf"), "-"],
-                          capture_output=True, text=True, check=True).stdout
+    text = subprocess.run(
+        ["pdftotext", "-layout", str(rendered["dir"] / "qualification.pdf"), "-"],
+        capture_output=True,
+        text=True,
+        check=True,
+    ).stdout
     flat = " ".join(text.split())
-    for header in ("sha256 (first 12)", "status", "vs paper", "key sensor", "condition",
-                   "18 000 r/min", "RMSE after", "worse than", "candidate gates", "dynamic",
-                   "gates", "Model on the machine after this run", "RAFI as published",
-                   "PASS" if rendered["ctx"]["verdict"]["passed"] else "FAIL"):
+    for header in (
+        "sha256 (first 12)",
+        "status",
+        "vs paper",
+        "key sensor",
+        "condition",
+        "18 000 r/min",
+        "RMSE after",
+        "worse than",
+        "candidate gates",
+        "dynamic",
+        "gates",
+        "Model on the machine after this run",
+        "RAFI as published",
+        "PASS" if rendered["ctx"]["verdict"]["passed"] else "FAIL",
+    ):
         assert header in flat, header
 
 
 # --------------------------------------------------------------------------- content
+
 
 def test_verdict_judges_the_model_on_the_machine_and_reports_rafi(rendered):
     v, html = rendered["ctx"]["verdict"], rendered["html"]
@@ -267,7 +348,8 @@ def test_verdict_judges_the_model_on_the_machine_and_reports_rafi(rendered):
     rows = {r["criterion"]: r for r in v["rows"]}
     assert set(rows) == {"max_residual_um", "min_improvement_pct", "never_worse_than_uncompensated"}
     assert rows["max_residual_um"]["measured"] == report.fmt_num(
-        comp[f"{col}_max_abs_after_um"].max(), 2, "\u00b5m")
+        comp[f"{col}_max_abs_after_um"].max(), 2, "\u00b5m"
+    )
     assert v["passed"] == all(r["passed"] for r in v["rows"])
     # RAFI as published: its own worst case from validation/summary.csv, beside it
     rafi = {r["criterion"]: r for r in v["rafi"]["rows"]}
@@ -284,14 +366,14 @@ def test_verdict_falls_back_to_rafi_without_decision(tmp_path):
     shutil.copytree(FIXTURE, results)
     (results / "registry" / "decision.json").unlink()
     _, settings = _settings()
-    ctx = report.build_context(report.result_paths(results), machine="tapping-center-a",
-                               settings=settings)
+    ctx = report.build_context(report.result_paths(results), machine="tapping-center-a", settings=settings)
     v = ctx["verdict"]
     assert v["judged"] is None and v["rafi"] is None
     summary = pd.read_csv(FIXTURE / "validation" / "summary.csv")
     rows = {r["criterion"]: r for r in v["rows"]}
     assert rows["max_residual_um"]["measured"] == report.fmt_num(
-        summary["max_abs_after_um"].max(), 2, "\u00b5m")
+        summary["max_abs_after_um"].max(), 2, "\u00b5m"
+    )
     ids = [s["id"] for s in ctx["sections"]]
     assert "registry" not in ids and "comparison" in ids
     html = report.render_html(ctx)
@@ -307,8 +389,15 @@ def test_registry_section_is_structured_not_a_json_dump(rendered):
         assert str(report.escape(reason)) in html
     assert dec["candidate_id"][:12] in html and dec["champion_id_before"][:12] in html
     # no flattened keys / raw JSON
-    for bad in ("verdict.0", "verdict.1.", "candidate summary.runs", "candidate_summary",
-                "data.files.", "drift.per_run", '{"'):
+    for bad in (
+        "verdict.0",
+        "verdict.1.",
+        "candidate summary.runs",
+        "candidate_summary",
+        "data.files.",
+        "drift.per_run",
+        '{"',
+    ):
         assert bad not in html, bad
     comp = pd.read_csv(FIXTURE / "registry" / "comparison.csv")
     assert len(g["runs"]["rows"]) == len(comp)
@@ -337,12 +426,12 @@ def test_comparison_section(rendered):
     assert c["figure_bars"] and c["figures_resid"]
     assert c["figures_resid"][0]["run_id"] == "multi-1"
     rafi = summary[summary["kind"] == "rafi"].iloc[0]
-    if not bool(rafi["passed"]):          # the fixture's RAFI fails the multi-condition run
+    if not bool(rafi["passed"]):  # the fixture's RAFI fails the multi-condition run
         assert c["rafi_fail"] and "outside the trained temperature range" in html
         assert "extrapolate" in c["rafi_fail"]["why"]
     for m in summary["model"]:
         assert f"<b>{m}</b>" in html
-    assert "leave-one-run-out" in html       # CV from cv.csv
+    assert "leave-one-run-out" in html  # CV from cv.csv
 
 
 def test_comparison_lists_what_cross_validation_chose(tmp_path):
@@ -350,10 +439,13 @@ def test_comparison_lists_what_cross_validation_chose(tmp_path):
     shutil.copytree(FIXTURE, results)
     summary = pd.read_csv(results / "comparison" / "summary.csv")
     said = {m: f"alpha 5e-05; rises as is; choice of {m}" for m in summary["model"]}
-    summary.assign(selected=summary["model"].map(said)).to_csv(results / "comparison" / "summary.csv", index=False)
+    summary.assign(selected=summary["model"].map(said)).to_csv(
+        results / "comparison" / "summary.csv", index=False
+    )
     cfg, settings = _settings()
-    ctx = report.build_context(report.result_paths(results), machine="tapping-center-a", settings=settings,
-                               config=cfg)
+    ctx = report.build_context(
+        report.result_paths(results), machine="tapping-center-a", settings=settings, config=cfg
+    )
     html = report.render_html(ctx)
     assert ctx["comparison"]["selected"] == list(said.items())
     assert "Chosen by cross-validation on the training runs" in html
@@ -377,8 +469,10 @@ def test_machine_b_like_results_render_and_fit(tmp_path):
     assert "[9\u00a0000, 12\u00a0000\u00a0r/min]" in html
     v = ctx["verdict"]
     assert v["judged"]["decision"] == "rejected"
-    assert v["judged"]["id"] == json.loads(
-        (results / "registry" / "decision.json").read_text())["champion_id_before"][:12]
+    assert (
+        v["judged"]["id"]
+        == json.loads((results / "registry" / "decision.json").read_text())["champion_id_before"][:12]
+    )
     # the idle run gets only the never-worse gate, in the verdict and the per-run tables
     idle = [r for r in g["runs"]["rows"] if B_IDLE in str(r[0]["text"]).replace("<wbr>", "")]
     assert idle and idle[0][1]["text"] == "idle"
@@ -393,8 +487,9 @@ def _figures_ahead(results: Path, tmp: Path, settings: dict, fmt: str = "png") -
     paths = report.result_paths(results)
     files = []
     for group in report.FIGURE_GROUPS:
-        doc = report.build_figures(paths, group, figure_format=fmt, coolant_sensors=["T13"],
-                                   gates=settings["qualification"])
+        doc = report.build_figures(
+            paths, group, figure_format=fmt, coolant_sensors=["T13"], gates=settings["qualification"]
+        )
         files.append(tmp / f"figures-{group}.json")
         files[-1].write_text(json.dumps(doc), encoding="utf-8")
     return files
@@ -407,12 +502,16 @@ def test_figures_drawn_ahead_give_the_same_report(tmp_path):
     results = tmp_path / "tapping-center-a"
     shutil.copytree(FIXTURE, results)
     cfg, settings = _settings()
-    now = dt.datetime(2026, 1, 2, 3, 4, tzinfo=dt.timezone.utc)
+    now = dt.datetime(2026, 1, 2, 3, 4, tzinfo=dt.UTC)
     files = _figures_ahead(results, tmp_path, settings)
-    kw = {"machine": "tapping-center-a", "settings": settings, "config": cfg, "now": now,
-          "coolant_sensors": ["T13"]}
-    known, notes = report.load_figures(files, coolant_sensors=["T13"],
-                                       gates=settings["qualification"])
+    kw = {
+        "machine": "tapping-center-a",
+        "settings": settings,
+        "config": cfg,
+        "now": now,
+        "coolant_sensors": ["T13"],
+    }
+    known, notes = report.load_figures(files, coolant_sensors=["T13"], gates=settings["qualification"])
     assert not notes and "training_runs" in known and "comparison_bars" in known
 
     def both():
@@ -434,17 +533,20 @@ def test_figures_drawn_ahead_give_the_same_report(tmp_path):
     ahead = both()
     assert ahead["figures_drawn"] and all(
         k.startswith("comparison_residuals/") and k.endswith("/" + other["model"])
-        for k in ahead["figures_drawn"])
+        for k in ahead["figures_drawn"]
+    )
     # figures drawn with other parameters are not used; a group needs all of its inputs
-    known, notes = report.load_figures(files, figure_format="svg", coolant_sensors=["T13"],
-                                       gates=settings["qualification"])
+    known, notes = report.load_figures(
+        files, figure_format="svg", coolant_sensors=["T13"], gates=settings["qualification"]
+    )
     assert known == {} and len(notes) == 2
     with pytest.raises(ValueError, match="no path for"):
         report.build_figures({"model": results / "model.json"}, "comparison")
 
 
 def test_envelope_keeps_extremes_and_bounds_points():
-    from rafi import plots
+    from rafi.report import plots
+
     x = np.arange(100_000, dtype=float)
     y = np.sin(x / 500.0)
     y[12_345] = 7.0
@@ -453,43 +555,56 @@ def test_envelope_keeps_extremes_and_bounds_points():
     xe, ye = plots.envelope(x, y, max_points=1000)
     assert len(xe) <= 1002 and np.all(np.diff(xe) >= 0)
     assert np.nanmax(ye) == 7.0 and np.nanmin(ye) == -9.0
-    assert np.isnan(ye).any()                 # an all-NaN bucket stays a gap
+    assert np.isnan(ye).any()  # an all-NaN bucket stays a gap
     xs, ys = plots.envelope(x[:500], y[:500], max_points=1000)
-    assert len(xs) == 500                      # short series unchanged
+    assert len(xs) == 500  # short series unchanged
 
 
 def test_verdict_aggregates_the_worst_case_per_criterion():
-    summary = pd.DataFrame({"run_id": ["a", "b", "idle"],
-                            "role": ["validation_single", "validation_multi", "validation_idle"],
-                            "max_abs_before_um": [20.0, 30.0, 10.0],
-                            "max_abs_after_um": [5.0, 13.0, 11.0],
-                            "improvement_pct": [75.0, 56.7, -10.0]})
-    gates = {"max_residual_um": 12.0, "min_improvement_pct": 30.0,
-             "never_worse_than_uncompensated": True}
+    summary = pd.DataFrame(
+        {
+            "run_id": ["a", "b", "idle"],
+            "role": ["validation_single", "validation_multi", "validation_idle"],
+            "max_abs_before_um": [20.0, 30.0, 10.0],
+            "max_abs_after_um": [5.0, 13.0, 11.0],
+            "improvement_pct": [75.0, 56.7, -10.0],
+        }
+    )
+    gates = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
     rows = {r["criterion"]: r for r in report.aggregate_verdict(report.qualify(summary, gates))}
     assert not rows["max_residual_um"]["passed"] and "b" in rows["max_residual_um"]["run_id"]
-    assert rows["min_improvement_pct"]["passed"]          # idle run is not held to it
+    assert rows["min_improvement_pct"]["passed"]  # idle run is not held to it
     assert not rows["never_worse_than_uncompensated"]["passed"]
     assert rows["never_worse_than_uncompensated"]["measured"] == "1 of 3"
 
 
 def test_sections_and_numbers(rendered):
     ctx, html = rendered["ctx"], rendered["html"]
-    assert [s["id"] for s in ctx["sections"]] == ["verdict", "data", "equilibrium", "ranking",
-                                                  "models", "fuzzy", "validation", "registry",
-                                                  "comparison", "choices", "provenance"]
+    assert [s["id"] for s in ctx["sections"]] == [
+        "verdict",
+        "data",
+        "equilibrium",
+        "ranking",
+        "models",
+        "fuzzy",
+        "validation",
+        "registry",
+        "comparison",
+        "choices",
+        "provenance",
+    ]
     assert "0.334 and 0.666, respectively" in html
     ex = ctx["fuzzy"]["example"]
     assert ex["w0"] == "0.667" and ex["w1"] == "0.333"
-    assert "10\u00a0160\u00a0s" in html          # paper Table 1, 3000 r/min
-    assert "10.03" in html and "0.639" in html      # paper Tables 4 and 3
+    assert "10\u00a0160\u00a0s" in html  # paper Table 1, 3000 r/min
+    assert "10.03" in html and "0.639" in html  # paper Tables 4 and 3
     assert "2026-03-18_broken_logger.csv" in html and "decimal comma" in html
     assert "rafi_linear" in html and "ridge_global" in html
     assert len(ctx["models"]["equations"]) == 6
-    assert not ctx["models"]["mismatches"]          # model.json reproduces diagnostics RMSE
+    assert not ctx["models"]["mismatches"]  # model.json reproduces diagnostics RMSE
     for pkg in ("python", "numpy", "pandas", "statsmodels", "snakemake", "rafi"):
         assert f"<td>{pkg}</td>" in html
-    assert "max_residual_um: 12.0" in html          # config dump
+    assert "max_residual_um: 12.0" in html  # config dump
     assert "run_start" in html and "min_per_speed" in html
 
 
@@ -504,8 +619,9 @@ def test_optional_sections_absent_without_their_files(tmp_path):
     info.update(fallback_used=True, message="only 2 sensors passed |r| > 0.97; T9 added as fallback")
     (results / "rank" / "key_sensors.json").write_text(json.dumps(info))
     _, settings = _settings()
-    ctx = report.build_context(report.result_paths(results), machine="tapping-center-a",
-                               settings=settings, figure_format="svg")
+    ctx = report.build_context(
+        report.result_paths(results), machine="tapping-center-a", settings=settings, figure_format="svg"
+    )
     html = report.render_html(ctx)
     ids = [s["id"] for s in ctx["sections"]]
     assert "registry" not in ids and "comparison" not in ids
@@ -517,13 +633,17 @@ def test_optional_sections_absent_without_their_files(tmp_path):
 
 # --------------------------------------------------------------------------- formatting
 
-@pytest.mark.parametrize("value, args, expected", [
-    (1234.5, (1, "\u00b5m"), "1\u00a0234.5\u00a0\u00b5m"),
-    (-0.004, (2,), "0.00"),
-    (-3.25, (2,), "\u22123.25"),
-    (float("nan"), (2,), "\u2013"),
-    (None, (2,), "\u2013"),
-])
+
+@pytest.mark.parametrize(
+    "value, args, expected",
+    [
+        (1234.5, (1, "\u00b5m"), "1\u00a0234.5\u00a0\u00b5m"),
+        (-0.004, (2,), "0.00"),
+        (-3.25, (2,), "\u22123.25"),
+        (float("nan"), (2,), "\u2013"),
+        (None, (2,), "\u2013"),
+    ],
+)
 def test_fmt_num(value, args, expected):
     assert report.fmt_num(value, *args) == expected
 
@@ -538,5 +658,7 @@ def test_fmt_sig_and_p():
 
 def test_equation_text():
     eq = str(report.equation_text([0.12, 1.23, -0.5, 2e-6], ["1", "x1", "x1*x2", "x3^2"], {}))
-    assert ("dz = 0.1200 + 1.230\u00a0x\u2081 \u2212 0.5000\u00a0x\u2081\u00b7x\u2082 + "
-            "2.000\u00d710\u207b\u2076\u00a0x\u2083\u00b2") in eq
+    assert (
+        "dz = 0.1200 + 1.230\u00a0x\u2081 \u2212 0.5000\u00a0x\u2081\u00b7x\u2082 + "
+        "2.000\u00d710\u207b\u2076\u00a0x\u2083\u00b2"
+    ) in eq

@@ -1,4 +1,4 @@
-"""rafi.runs.find_runs on synthetic speed schedules with known boundaries."""
+"""rafi.method.runs.find_runs on synthetic speed schedules with known boundaries."""
 
 from __future__ import annotations
 
@@ -9,29 +9,62 @@ import pandas as pd
 import pytest
 
 from rafi import SENSORS
-from rafi.runs import RUNS_FRAME_COLUMNS, RUNS_TABLE_COLUMNS, find_runs
-
-from synthetic import schedule_log
+from rafi.method.runs import RUNS_FRAME_COLUMNS, RUNS_TABLE_COLUMNS, find_runs
+from rafi.twin.synthetic_logs import schedule_log
 
 H = 3600.0
 TRAIN = [3000, 6000, 9000, 12000, 15000, 18000]
-KW = dict(training_speeds_rpm=TRAIN, speed_tolerance_rpm=50, idle_below_rpm=100, min_run_s=1800,
-          min_constant_s=3600, overrides={}, reference_rule="run_start", reference_window_s=60,
-          max_leading_rest_s=300)
+KW = dict(
+    training_speeds_rpm=TRAIN,
+    speed_tolerance_rpm=50,
+    idle_below_rpm=100,
+    min_run_s=1800,
+    min_constant_s=3600,
+    overrides={},
+    reference_rule="run_start",
+    reference_window_s=60,
+    max_leading_rest_s=300,
+)
 
 #: 4 constant runs + idles (one too short) + a varying tail with a short stop inside it.
-CONTINUOUS = [(3000, 4 * H), (0, H), (6000, 4 * H), (0, 600), (4500, 3 * H), (0, 2700),
-              (9000, 2 * H), (0, H), (3000, 1200), (9000, 1200), (0, 300), (12000, 1200),
-              (6000, 1200)]
+CONTINUOUS = [
+    (3000, 4 * H),
+    (0, H),
+    (6000, 4 * H),
+    (0, 600),
+    (4500, 3 * H),
+    (0, 2700),
+    (9000, 2 * H),
+    (0, H),
+    (3000, 1200),
+    (9000, 1200),
+    (0, 300),
+    (12000, 1200),
+    (6000, 1200),
+]
 #: expected runs: (first piece, last piece, kind, role)
-EXPECTED = [(0, 0, "constant", "training"), (1, 1, "idle", "validation_idle"),
-            (2, 2, "constant", "training"), (3, 3, "idle", "excluded"),
-            (4, 4, "constant", "validation_single"), (5, 5, "idle", "validation_idle"),
-            (6, 6, "constant", "training"), (7, 7, "idle", "validation_idle"),
-            (8, 12, "varying", "validation_multi")]
+EXPECTED = [
+    (0, 0, "constant", "training"),
+    (1, 1, "idle", "validation_idle"),
+    (2, 2, "constant", "training"),
+    (3, 3, "idle", "excluded"),
+    (4, 4, "constant", "validation_single"),
+    (5, 5, "idle", "validation_idle"),
+    (6, 6, "constant", "training"),
+    (7, 7, "idle", "validation_idle"),
+    (8, 12, "varying", "validation_multi"),
+]
 #: one cold-start multi-condition test (4.5 h of short steps, one stop)
-MULTI = [(3000, 1800), (9000, 2400), (0, 600), (15000, 1800), (4500, 2700), (12000, 3000),
-         (6000, 1800), (18000, 2100)]
+MULTI = [
+    (3000, 1800),
+    (9000, 2400),
+    (0, 600),
+    (15000, 1800),
+    (4500, 2700),
+    (12000, 3000),
+    (6000, 1800),
+    (18000, 2100),
+]
 
 
 def runs(frames, **over):
@@ -69,7 +102,7 @@ def test_tables_have_the_design_columns():
     assert list(rf.columns) == list(RUNS_FRAME_COLUMNS)
     assert rf["time"].dtype == "datetime64[ns]" and rf["t_s"].dtype == np.float64
     assert table["segment"].dtype == np.int64
-    for rid, g in rf.groupby("run_id", sort=False):
+    for _rid, g in rf.groupby("run_id", sort=False):
         assert g["t_s"].iloc[0] == 0.0 and np.all(np.diff(g["t_s"]) == 5.0)
     assert table["reference"].iloc[0] == "median of the first 60 s of the run (run_start)"
 
@@ -79,7 +112,7 @@ def test_single_multi_step_file_is_one_varying_run():
     table, rf = runs({"2026-03-16_multi.csv": frame})
     assert len(table) == 1
     row = table.iloc[0]
-    assert row["run_id"] == "2026-03-16_multi"                # the stem: one run per file
+    assert row["run_id"] == "2026-03-16_multi"  # the stem: one run per file
     assert row["file"] == "2026-03-16_multi.csv"
     assert (row["kind"], row["role"]) == ("varying", "validation_multi")
     assert row["duration_s"] == 4.5 * H and len(rf) == len(frame)
@@ -119,19 +152,20 @@ def test_reference_run_start_and_log_start():
     t_run, f_run = runs(frame, reference_rule="run_start", reference_window_s=60)
     t_log, f_log = runs(frame, reference_rule="log_start", reference_window_s=60)
     assert t_log["reference"].iloc[0] == "median of the first 60 s of segment 0 of the log (log_start)"
-    first12 = frame.iloc[:12]                                   # 60 s at 5 s = 12 samples
+    first12 = frame.iloc[:12]  # 60 s at 5 s = 12 samples
     third = t_run[t_run["run_id"] == "log#3"].iloc[0]
     start = int(third["start_s"] / 5)
     for s in ("T6", "T9"):
-        ref_run = frame[s].iloc[start:start + 12].median()
+        ref_run = frame[s].iloc[start : start + 12].median()
         ref_log = first12[s].median()
         g_run = f_run[f_run["run_id"] == "log#3"]
         g_log = f_log[f_log["run_id"] == "log#3"]
         np.testing.assert_allclose(g_run[f"d{s}"], g_run[s] - ref_run)
         np.testing.assert_allclose(g_log[f"d{s}"], g_log[s] - ref_log)
-    ref_z = frame["disp_um"].iloc[start:start + 12].median()
-    np.testing.assert_allclose(f_run.loc[f_run["run_id"] == "log#3", "dz_um"],
-                               frame["disp_um"].iloc[start:] - ref_z)
+    ref_z = frame["disp_um"].iloc[start : start + 12].median()
+    np.testing.assert_allclose(
+        f_run.loc[f_run["run_id"] == "log#3", "dz_um"], frame["disp_um"].iloc[start:] - ref_z
+    )
     # log_start: the second heating run does not start from zero (the machine is still warm)
     g_log = f_log[f_log["run_id"] == "log#3"]
     assert g_log["dT6"].iloc[:12].median() > 0.3
@@ -141,20 +175,21 @@ def test_reference_run_start_and_log_start():
 
 def test_runs_never_span_segments_and_log_start_uses_the_segment():
     a, _ = schedule_log([(3000, 2 * H)], segment=0)
-    b, _ = schedule_log([(3000, 2 * H)], segment=1, t0_s=2 * H + 600,
-                        start=pd.Timestamp("2026-03-02T10:10:00"), seed=1)
-    b[list(SENSORS)] += 1.0                                    # warmer after the gap
+    b, _ = schedule_log(
+        [(3000, 2 * H)], segment=1, t0_s=2 * H + 600, start=pd.Timestamp("2026-03-02T10:10:00"), seed=1
+    )
+    b[list(SENSORS)] += 1.0  # warmer after the gap
     frame = pd.concat([a, b], ignore_index=True)
     table, rf = runs({"log": frame}, reference_rule="log_start")
     assert table["segment"].tolist() == [0, 1] and table["run_id"].tolist() == ["log#1", "log#2"]
     assert table["start_s"].tolist() == [0.0, 2 * H + 600]
     second = rf[rf["run_id"] == "log#2"]
-    assert abs(second["dT1"].iloc[:12].median()) < 0.05       # reference of segment 1, not 0
+    assert abs(second["dT1"].iloc[:12].median()) < 0.05  # reference of segment 1, not 0
 
 
 def test_sensor_without_reference_gets_nan_rises_and_a_note():
     frame, _ = schedule_log([(9000, 2 * H)])
-    frame.loc[:20, "T5"] = np.nan                              # left NaN by cleaning
+    frame.loc[:20, "T5"] = np.nan  # left NaN by cleaning
     table, rf = runs(frame)
     assert rf["dT5"].isna().all() and rf["dT6"].notna().all()
     assert "T5" in table["note"].iloc[0]
@@ -167,7 +202,7 @@ def test_empty_input_gives_empty_tables():
 
 
 def test_find_runs_is_fast():
-    frame, _ = schedule_log(CONTINUOUS * 3, speed_noise_rpm=20)    # ~37 000 samples
+    frame, _ = schedule_log(CONTINUOUS * 3, speed_noise_rpm=20)  # ~37 000 samples
     runs(frame)
     t0 = time.perf_counter()
     table, rf = runs(frame)
@@ -176,6 +211,7 @@ def test_find_runs_is_fast():
 
 
 # --------------------------------------------------------------------------- rest before start
+
 
 def test_short_leading_rest_is_absorbed_into_the_run():
     """A cold start logged from rest: one run (the stem), t_s from the log start, reference on the rest."""
@@ -196,13 +232,13 @@ def test_short_leading_rest_is_absorbed_into_the_run():
 
 
 def test_rest_before_a_multi_condition_schedule_keeps_one_varying_run():
-    steps = [p for p in MULTI if p[0] > 0]        # without the stop inside
+    steps = [p for p in MULTI if p[0] > 0]  # without the stop inside
     frame, _ = schedule_log([(0, 180)] + steps, speed_noise_rpm=10)
     table, rf = runs({"multi": frame})
     assert len(table) == 1 and table["run_id"].iloc[0] == "multi"
     row = table.iloc[0]
     assert (row["kind"], row["role"]) == ("varying", "validation_multi")
-    assert row["speed_min_rpm"] >= 3000 - 10      # the rest does not count
+    assert row["speed_min_rpm"] >= 3000 - 10  # the rest does not count
     assert row["speed_max_rpm"] >= 18000 - 10
     assert row["duration_s"] == sum(d for _, d in steps) + 180
     # with the stop inside the schedule: still one run; the stop is part of it
@@ -217,7 +253,7 @@ def test_long_leading_rest_stays_an_idle_run():
     table, _ = runs({"log": frame})
     assert table["run_id"].tolist() == ["log#1", "log#2"]
     assert table["kind"].tolist() == ["idle", "constant"]
-    assert table["role"].tolist() == ["excluded", "training"]     # 400 s < min_run_s
+    assert table["role"].tolist() == ["excluded", "training"]  # 400 s < min_run_s
     assert table["start_s"].iloc[1] == 400.0 and table["note"].iloc[1] == ""
     # the same file with the key at 0: the short rest is never absorbed
     short, _ = schedule_log([(0, 180), (6000, 4 * H)])
@@ -238,8 +274,13 @@ def test_continuous_logs_are_unaffected_by_the_rest_rule(ramp, noise):
 
 def test_rest_at_the_start_of_a_later_segment_is_absorbed_too():
     a, _ = schedule_log([(3000, 2 * H)], segment=0)
-    b, _ = schedule_log([(0, 120), (3000, 2 * H)], segment=1, t0_s=2 * H + 600,
-                        start=pd.Timestamp("2026-03-02T10:10:00"), seed=1)
+    b, _ = schedule_log(
+        [(0, 120), (3000, 2 * H)],
+        segment=1,
+        t0_s=2 * H + 600,
+        start=pd.Timestamp("2026-03-02T10:10:00"),
+        seed=1,
+    )
     table, rf = runs({"log": pd.concat([a, b], ignore_index=True)})
     assert table["run_id"].tolist() == ["log#1", "log#2"]
     assert table["start_s"].tolist() == [0.0, 2 * H + 600]

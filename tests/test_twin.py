@@ -1,4 +1,4 @@
-"""The spindle digital twin (rafi.twin) and the `rafi simulate` command."""
+"""The spindle digital twin (rafi.twin.spindle) and the `rafi simulate` command."""
 
 from __future__ import annotations
 
@@ -13,8 +13,8 @@ import pandas as pd
 import pytest
 
 from rafi import REQUIRED_COLUMNS, SENSORS
-from rafi import twin
-from rafi.io import read_raw_log
+from rafi.readers.native import read_raw_log
+from rafi.twin import spindle as twin
 
 ROOT = Path(__file__).resolve().parents[1]
 RAW = ROOT / "raw"
@@ -26,15 +26,18 @@ def sha(path: Path) -> str:
 
 # --------------------------------------------------------------------------- model
 
+
 def test_import_is_light():
-    code = ("import sys, rafi.twin; "
-            "print(any(m.split('.')[0] in ('matplotlib', 'openpyxl', 'statsmodels') for m in sys.modules))")
+    code = (
+        "import sys, rafi.twin.spindle; "
+        "print(any(m.split('.')[0] in ('matplotlib', 'openpyxl', 'statsmodels') for m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
     assert out.stdout.strip() == "False", out.stderr
 
 
 def test_four_hour_run_is_fast():
-    twin.simulate_run(twin.constant_schedule(6000, 600), seed=1)      # warm caches / imports
+    twin.simulate_run(twin.constant_schedule(6000, 600), seed=1)  # warm caches / imports
     t0 = time.perf_counter()
     run = twin.simulate_run(twin.constant_schedule(9000, 4 * 3600), seed=1)
     assert time.perf_counter() - t0 < 1.0
@@ -58,7 +61,7 @@ def test_cold_start_nodes_at_ambient_and_heating_with_speed():
         assert first[node] == pytest.approx(first["ambient"])
     last = run.nodes.iloc[-1]
     assert last["shaft"] > last["housing"] > last["ambient"]
-    assert last["coolant"] > last["tank"]                         # outlet warmer than inlet
+    assert last["coolant"] > last["tank"]  # outlet warmer than inlet
 
 
 def test_truth_has_canonical_columns_and_no_noise():
@@ -74,7 +77,7 @@ def test_truth_has_canonical_columns_and_no_noise():
 def test_noise_and_quantisation_like_a_logger():
     run = twin.simulate_run(twin.constant_schedule(6000, 3600), seed=5, defects=False)
     temps = run.log[list(SENSORS)].to_numpy()
-    assert np.allclose(temps * 100, np.round(temps * 100), atol=1e-6)   # 0.01 degC steps
+    assert np.allclose(temps * 100, np.round(temps * 100), atol=1e-6)  # 0.01 degC steps
     resid = (run.log["T6"] - run.truth["T6"]).std()
     assert 0.03 < resid < 0.12
     dresid = (run.log["disp_um"] - run.truth["disp_um"]).std()
@@ -83,12 +86,18 @@ def test_noise_and_quantisation_like_a_logger():
 
 def test_equilibrium_earlier_and_elongation_larger_at_high_speed():
     def curve(sp):
-        run = twin.simulate_run(twin.constant_schedule(sp, 4 * 3600), seed=0, defects=False, noise=False,
-                                ambient=twin.Ambient(daily_amplitude_c=0.0, wander_c=0.0))
+        run = twin.simulate_run(
+            twin.constant_schedule(sp, 4 * 3600),
+            seed=0,
+            defects=False,
+            noise=False,
+            ambient=twin.Ambient(daily_amplitude_c=0.0, wander_c=0.0),
+        )
         return run.nodes["disp_thermal_um"].to_numpy()
+
     low, high = curve(3000), curve(18000)
     assert high[-1] > low[-1] > 5
-    k = 1440   # 2 h: fraction of the 4 h rise reached
+    k = 1440  # 2 h: fraction of the 4 h rise reached
     assert high[k] / high[-1] > low[k] / low[-1]
 
 
@@ -96,14 +105,14 @@ def test_centrifugal_jump_at_speed_change():
     sched = twin.schedule_from_pairs([(600, 3000), (600, 18000)])
     run = twin.simulate_run(sched, seed=0, defects=False, noise=False)
     cf = run.nodes["disp_centrifugal_um"].to_numpy()
-    assert cf[125] - cf[115] < -1.0            # draw-in jump within a few samples
+    assert cf[125] - cf[115] < -1.0  # draw-in jump within a few samples
     assert abs(cf[121] - cf[-1]) < 0.1
 
 
 def test_heat_sources_grow_with_speed():
     p = twin.machine_params("tapping-center-a")
     q = [twin.heat_sources(p, n).sum() for n in (0, 3000, 9000, 18000)]
-    assert q[0] == 0 and q[1] < q[2] and q[1] < q[3]     # motor losses fall in field weakening
+    assert q[0] == 0 and q[1] < q[2] and q[1] < q[3]  # motor losses fall in field weakening
     shaft = [twin.heat_sources(p, n)[twin.NODES.index("shaft")] for n in (3000, 9000, 18000)]
     assert shaft[0] < shaft[1] < shaft[2]
     fb = [twin.heat_sources(p, n)[twin.NODES.index("front_bearing")] for n in (5000, 10000)]
@@ -120,19 +129,27 @@ def test_sensor_drift_and_wear_options():
 
 
 def test_stuck_displacement_option():
-    run = twin.simulate_run(twin.constant_schedule(6000, 3600), seed=1, defects=False,
-                            stuck_displacement=True)
-    tail = run.log["disp_um"].iloc[len(run.log) // 3:]
+    run = twin.simulate_run(
+        twin.constant_schedule(6000, 3600), seed=1, defects=False, stuck_displacement=True
+    )
+    tail = run.log["disp_um"].iloc[len(run.log) // 3 :]
     assert tail.nunique() == 1
     assert "stuck_displacement" in set(run.defects["kind"])
 
 
 # --------------------------------------------------------------------------- defects
 
+
 @pytest.fixture(scope="module")
 def defective():
-    rates = twin.DefectRates(missing_row=0.004, restart_gap_prob=1.0, duplicate_row=0.003,
-                             spike_per_1000_rows=3.0, dropout_prob=1.0, swap_per_1000_rows=2.0)
+    rates = twin.DefectRates(
+        missing_row=0.004,
+        restart_gap_prob=1.0,
+        duplicate_row=0.003,
+        spike_per_1000_rows=3.0,
+        dropout_prob=1.0,
+        swap_per_1000_rows=2.0,
+    )
     return twin.simulate_run(twin.constant_schedule(12000, 4 * 3600), seed=11, defects=rates)
 
 
@@ -150,13 +167,13 @@ def test_defect_table_matches_the_log(defective):
         p = row["row"]
         gap = (log["time"].iat[p] - log["time"].iat[p - 1]).total_seconds()
         assert 20 <= gap - 5 <= 50 + 5
-        assert gap <= 60                                   # interpolable (max_interpolate_gap_s)
+        assert gap <= 60  # interpolable (max_interpolate_gap_s)
     for _, row in d[d["kind"] == "spike"].iterrows():
         p, col = row["row"], row["column"]
         true = truth.set_index("time").loc[log["time"].iat[p], col]
         assert abs(log[col].iat[p] - true) > (2.5 if col != "disp_um" else 7.0)
     for _, row in d[d["kind"] == "dropout"].iterrows():
-        seg = log[row["column"]].iloc[row["row"]:row["row"] + row["n_rows"]]
+        seg = log[row["column"]].iloc[row["row"] : row["row"] + row["n_rows"]]
         assert seg.isna().all() or seg.isin([-999.0, 850.0]).all()
     missing = set(truth["time"]) - set(log["time"])
     n_missing = d.loc[d["kind"].isin(["missing_row", "restart_gap"]), "n_rows"].sum()
@@ -179,6 +196,7 @@ def test_no_defects_option():
 
 # --------------------------------------------------------------------------- shipped files / CLI
 
+
 def test_shipped_native_files_read_with_the_project_reader():
     files = sorted((RAW / "tapping-center-a").glob("*.csv"))
     assert len(files) == 12
@@ -193,6 +211,7 @@ def test_shipped_native_files_read_with_the_project_reader():
 
 def test_shipped_regenerates_byte_for_byte(tmp_path):
     from rafi.cli import main
+
     assert main(["simulate", "shipped", "--out", str(tmp_path)]) == 0
     for machine in ("tapping-center-a", "machining-center-b"):
         shipped = sorted(p.name for p in (RAW / machine).iterdir())
@@ -204,6 +223,7 @@ def test_shipped_regenerates_byte_for_byte(tmp_path):
 
 def test_machining_center_b_layout():
     import openpyxl
+
     path = RAW / "machining-center-b" / "thermal_log_2026-10-14.xlsx"
     wb = openpyxl.load_workbook(path, read_only=True)
     assert wb.sheetnames == ["Info", "Messdaten"]
@@ -217,7 +237,7 @@ def test_machining_center_b_layout():
     speed = frame["Drehzahl [1/min]"]
     assert {1250, 2500, 3750, 5000, 3500, 0} <= set(speed.round(-1).astype(int))
     tail = speed[frame["Zeit [s]"] > 33 * 3600]
-    assert (tail.between(100, 1200)).any()                 # below the lowest trained speed
+    assert (tail.between(100, 1200)).any()  # below the lowest trained speed
     assert frame["Temperatur 6 [°C]"].isna().sum() < 50
     assert frame["Bemerkung"].notna().sum() < 60
 
@@ -233,8 +253,9 @@ def test_machining_center_b_cell_values_deterministic(tmp_path):
 
 def test_machining_center_b_z1_is_reversed_displacement():
     frame, run = twin.simulate_b(twin.machining_center_b_spec())
-    by_time = run.truth.set_index(((run.truth["time"] - run.truth["time"].iat[0])
-                                   / pd.Timedelta(seconds=1)).round().astype(int))
+    by_time = run.truth.set_index(
+        ((run.truth["time"] - run.truth["time"].iat[0]) / pd.Timedelta(seconds=1)).round().astype(int)
+    )
     truth = by_time.loc[frame["Zeit [s]"], "disp_um"].to_numpy()
     z1 = frame["Verlagerung Z1 [µm]"].to_numpy()
     ok = np.abs(z1 + truth) < 5
@@ -244,9 +265,30 @@ def test_machining_center_b_z1_is_reversed_displacement():
 
 def test_day_mode_writes_new_names_and_never_overwrites(tmp_path):
     from rafi.cli import main
-    args = ["simulate", "day", "--machine", "tapping-center-a", "--out", str(tmp_path), "--seed", "7",
-            "--ambient-shift", "3.0", "--sensor-drift", "T8:0.4", "--wear", "0.1",
-            "--speeds", "3000,6000", "--validation-speeds", "4500", "--multi", "--hours", "1"]
+
+    args = [
+        "simulate",
+        "day",
+        "--machine",
+        "tapping-center-a",
+        "--out",
+        str(tmp_path),
+        "--seed",
+        "7",
+        "--ambient-shift",
+        "3.0",
+        "--sensor-drift",
+        "T8:0.4",
+        "--wear",
+        "0.1",
+        "--speeds",
+        "3000,6000",
+        "--validation-speeds",
+        "4500",
+        "--multi",
+        "--hours",
+        "1",
+    ]
     assert main(args) == 0
     files = sorted((tmp_path / "tapping-center-a").glob("*.csv"))
     names = [p.name for p in files]
@@ -255,16 +297,33 @@ def test_day_mode_writes_new_names_and_never_overwrites(tmp_path):
     assert not set(names) & shipped
     frame = read_raw_log(files[0])
     assert "--ambient-shift 3" in frame.attrs["metadata"]["notes"]
-    assert frame["T1"].median() > 23.5                     # the room is 3 K warmer
-    assert main(args) == 1                                 # same names: refused, nothing overwritten
-    assert main(args[:8] + ["--seed", "8", "--speeds", "3000", "--stuck-displacement",
-                            "--hours", "1"]) == 0
+    assert frame["T1"].median() > 23.5  # the room is 3 K warmer
+    assert main(args) == 1  # same names: refused, nothing overwritten
+    assert main(args[:8] + ["--seed", "8", "--speeds", "3000", "--stuck-displacement", "--hours", "1"]) == 0
 
 
 def test_day_mode_machining_center_b(tmp_path):
     from rafi.cli import main
-    assert main(["simulate", "day", "--machine", "machining-center-b", "--out", str(tmp_path),
-                 "--seed", "3", "--speeds", "2500", "--hours", "1"]) == 0
+
+    assert (
+        main(
+            [
+                "simulate",
+                "day",
+                "--machine",
+                "machining-center-b",
+                "--out",
+                str(tmp_path),
+                "--seed",
+                "3",
+                "--speeds",
+                "2500",
+                "--hours",
+                "1",
+            ]
+        )
+        == 0
+    )
     (path,) = (tmp_path / "machining-center-b").glob("*.xlsx")
     assert "_s3" in path.name
     frame = twin.read_b_layout(path)
@@ -273,9 +332,11 @@ def test_day_mode_machining_center_b(tmp_path):
 
 def test_help_documents_every_option():
     from rafi.cli import build_parser
+
     parser = build_parser()
-    top = subprocess.run([sys.executable, "-m", "rafi.cli", "simulate", "--help"], capture_output=True,
-                         text=True, cwd=ROOT)
+    top = subprocess.run(
+        [sys.executable, "-m", "rafi.cli", "simulate", "--help"], capture_output=True, text=True, cwd=ROOT
+    )
     assert top.returncode == 0 and "rafi simulate shipped --out raw" in top.stdout
     sim = next(a for a in parser._subparsers._group_actions[0].choices.items() if a[0] == "simulate")[1]
     modes = sim._subparsers._group_actions[0].choices
@@ -285,16 +346,33 @@ def test_help_documents_every_option():
             if action.dest == "help":
                 continue
             assert action.help and action.help.strip(), (name, action.dest)
-        out = subprocess.run([sys.executable, "-m", "rafi.cli", "simulate", name, "--help"],
-                             capture_output=True, text=True, cwd=ROOT)
+        out = subprocess.run(
+            [sys.executable, "-m", "rafi.cli", "simulate", name, "--help"],
+            capture_output=True,
+            text=True,
+            cwd=ROOT,
+        )
         assert out.returncode == 0, out.stderr
 
 
 def test_plot_command(tmp_path):
     pytest.importorskip("matplotlib")
     from rafi.cli import main
-    assert main(["simulate", "plot", str(RAW / "tapping-center-a"), "--out", str(tmp_path),
-                 "--pattern", "train_03000rpm.csv"]) == 0
+
+    assert (
+        main(
+            [
+                "simulate",
+                "plot",
+                str(RAW / "tapping-center-a"),
+                "--out",
+                str(tmp_path),
+                "--pattern",
+                "train_03000rpm.csv",
+            ]
+        )
+        == 0
+    )
     assert (tmp_path / "twin-train_03000rpm.png").stat().st_size > 10000
     assert (tmp_path / "twin-overview.png").exists()
 
@@ -302,9 +380,19 @@ def test_plot_command(tmp_path):
 def test_noise_floor_of_the_shipped_validation_runs():
     # the documented floor (docs/models.md): the max of the 0.2 um displacement noise per run
     floor = twin.noise_floor("tapping-center-a")
-    assert list(floor["run_id"]) == ["valid_04500rpm", "valid_08000rpm", "valid_10500rpm",
-                                     "valid_13500rpm", "valid_16500rpm", "multi_condition"]
+    assert list(floor["run_id"]) == [
+        "valid_04500rpm",
+        "valid_08000rpm",
+        "valid_10500rpm",
+        "valid_13500rpm",
+        "valid_16500rpm",
+        "multi_condition",
+    ]
     np.testing.assert_allclose(floor["noise_std_um"], 0.2, atol=0.01)
-    assert ((floor["floor_max_abs_um"] > 3 * floor["noise_std_um"])
-            & (floor["floor_max_abs_um"] < 5 * floor["noise_std_um"])).all()
-    assert floor.set_index("run_id").loc["valid_04500rpm", "floor_max_abs_um"] == pytest.approx(0.730, abs=0.001)
+    assert (
+        (floor["floor_max_abs_um"] > 3 * floor["noise_std_um"])
+        & (floor["floor_max_abs_um"] < 5 * floor["noise_std_um"])
+    ).all()
+    assert floor.set_index("run_id").loc["valid_04500rpm", "floor_max_abs_um"] == pytest.approx(
+        0.730, abs=0.001
+    )

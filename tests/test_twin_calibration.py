@@ -14,9 +14,10 @@ import pandas as pd
 import pytest
 import statsmodels.api as sm
 
-from rafi import SENSORS, twin
-from rafi.equilibrium import equilibrium_time
-from rafi.io import read_raw_log
+from rafi import SENSORS
+from rafi.method.equilibrium import equilibrium_time
+from rafi.readers.native import read_raw_log
+from rafi.twin import spindle as twin
 
 ROOT = Path(__file__).resolve().parents[1]
 RAW_A = ROOT / "raw" / "tapping-center-a"
@@ -54,10 +55,11 @@ def abs_r(dz, dT):
 
 def rafi_rmse(dz, dT) -> float:
     x1, x2, x3 = (dT[s].to_numpy() for s in KEY)
-    X = np.column_stack([np.ones_like(x1), x1, x2, x3, x1 * x2, x1 * x3, x2 * x3,
-                         x1 ** 2, x2 ** 2, x3 ** 2, x1 * x2 * x3])
+    X = np.column_stack(
+        [np.ones_like(x1), x1, x2, x3, x1 * x2, x1 * x3, x2 * x3, x1**2, x2**2, x3**2, x1 * x2 * x3]
+    )
     res = sm.OLS(dz, X).fit()
-    return float(np.sqrt(np.mean(res.resid ** 2)))
+    return float(np.sqrt(np.mean(res.resid**2)))
 
 
 def spindle_start_s(f: pd.DataFrame) -> float:
@@ -70,15 +72,30 @@ def calibration_table(training) -> pd.DataFrame:
     for sp, f in training.items():
         dz, dT = rises(f)
         # reference = the cold machine at rest (first 60 s); t_eq counted from the spindle start
-        eq = equilibrium_time(f["t_s"].to_numpy(), dz, band_fraction=0.05,
-                              plateau_window_s=900, smooth_window_s=300,
-                              start_s=spindle_start_s(f))
+        eq = equilibrium_time(
+            f["t_s"].to_numpy(),
+            dz,
+            band_fraction=0.05,
+            plateau_window_s=900,
+            smooth_window_s=300,
+            start_s=spindle_start_s(f),
+        )
         r = abs_r(dz, dT)
-        rows.append(dict(speed_rpm=sp, rest_s=spindle_start_s(f), t_eq_s=eq.t_eq_s,
-                         paper_t_eq_s=PAPER_T_EQ_S[sp],
-                         peak_um=float(np.max(np.abs(dz))), r_T6=r["T6"], r_T8=r["T8"], r_T9=r["T9"],
-                         r_T16=r["T16"], max_r_coolant=max(r[s] for s in COOLANT),
-                         rmse_um=rafi_rmse(dz, dT)))
+        rows.append(
+            dict(
+                speed_rpm=sp,
+                rest_s=spindle_start_s(f),
+                t_eq_s=eq.t_eq_s,
+                paper_t_eq_s=PAPER_T_EQ_S[sp],
+                peak_um=float(np.max(np.abs(dz))),
+                r_T6=r["T6"],
+                r_T8=r["T8"],
+                r_T9=r["T9"],
+                r_T16=r["T16"],
+                max_r_coolant=max(r[s] for s in COOLANT),
+                rmse_um=rafi_rmse(dz, dT),
+            )
+        )
     return pd.DataFrame(rows)
 
 
@@ -89,8 +106,11 @@ def table(training):
 
 def test_shipped_files_exist():
     names = {p.name for p in RAW_A.glob("*.csv")}
-    expected = {f"train_{sp:05d}rpm.csv" for sp in TRAINING} | \
-        {f"valid_{sp:05d}rpm.csv" for sp in VALIDATION} | {"multi_condition.csv"}
+    expected = (
+        {f"train_{sp:05d}rpm.csv" for sp in TRAINING}
+        | {f"valid_{sp:05d}rpm.csv" for sp in VALIDATION}
+        | {"multi_condition.csv"}
+    )
     assert expected <= names
 
 
@@ -114,17 +134,22 @@ def test_training_elongation_grows_with_speed(table):
     assert 10.0 <= peak[3000] <= 18.0 and 22.0 <= peak[18000] <= 33.0
 
 
-@pytest.mark.parametrize("speed,low,high", [(4500, 13.0, 20.0), (8000, 15.0, 30.0),
-                                            (10500, 15.0, 30.0), (13500, 20.0, 28.0),
-                                            (16500, 15.0, 30.0)])
+@pytest.mark.parametrize(
+    "speed,low,high",
+    [(4500, 13.0, 20.0), (8000, 15.0, 30.0), (10500, 15.0, 30.0), (13500, 20.0, 28.0), (16500, 15.0, 30.0)],
+)
 def test_validation_peak_elongation_in_paper_range(speed, low, high):
     f = minimal_clean(RAW_A / f"valid_{speed:05d}rpm.csv")
     dz, _ = rises(f)
     assert low <= np.max(np.abs(dz)) <= high
 
 
-@pytest.mark.parametrize("stem", [f"train_{sp:05d}rpm" for sp in TRAINING]
-                         + [f"valid_{sp:05d}rpm" for sp in VALIDATION] + ["multi_condition"])
+@pytest.mark.parametrize(
+    "stem",
+    [f"train_{sp:05d}rpm" for sp in TRAINING]
+    + [f"valid_{sp:05d}rpm" for sp in VALIDATION]
+    + ["multi_condition"],
+)
 def test_every_log_starts_with_a_rest_at_0_rpm(stem):
     """The logger starts with the cold machine at rest; the spindle starts after 180 s."""
     f = minimal_clean(RAW_A / f"{stem}.csv")
@@ -134,7 +159,7 @@ def test_every_log_starts_with_a_rest_at_0_rpm(stem):
 
 def test_multi_condition_run_steps_across_speeds():
     full = minimal_clean(RAW_A / "multi_condition.csv")
-    f = full[full["t_s"] >= spindle_start_s(full)].reset_index(drop=True)   # the steps after the rest
+    f = full[full["t_s"] >= spindle_start_s(full)].reset_index(drop=True)  # the steps after the rest
     speed = f["speed_rpm"].round(-2)
     steps = speed[speed.diff().abs() > 100]
     assert len(steps) >= 6
@@ -144,7 +169,7 @@ def test_multi_condition_run_steps_across_speeds():
     durations = f.groupby(seg)["t_s"].agg(lambda s: s.iloc[-1] - s.iloc[0] + 5)
     assert durations.between(20 * 60, 45 * 60).all(), durations
     assert 4.4 * 3600 <= f["t_s"].iloc[-1] - f["t_s"].iloc[0] + 5 <= 4.6 * 3600
-    dz, _ = rises(full)                                               # from the rest, as the pipeline
+    dz, _ = rises(full)  # from the rest, as the pipeline
     assert 15.0 <= np.max(np.abs(dz)) <= 30.0
 
 

@@ -36,31 +36,106 @@ pytestmark = pytest.mark.slow
 
 #: design.md: file under results/<machine>/ -> required columns (None: not a flat table).
 TABLES = {
-    "audit.csv": ["file", "sha256", "rows_in", "rows_out", "duplicates_dropped", "reordered",
-                  "spikes_replaced", "values_interpolated", "gaps_interpolated", "segments",
-                  "status", "reason"],
-    "runs.csv": ["run_id", "file", "segment", "start_s", "end_s", "duration_s", "speed_rpm",
-                 "speed_min_rpm", "speed_max_rpm", "kind", "role", "role_source", "reference",
-                 "sha256"],
-    "runs.parquet": ["run_id", "t_s", "time", "speed_rpm", *[f"T{i}" for i in range(1, 17)],
-                     "disp_um", *[f"dT{i}" for i in range(1, 17)], "dz_um"],
-    "equilibrium.csv": ["run_id", "speed_rpm", "t_eq_s", "t_eq_low_s", "t_eq_high_s", "tau_s",
-                        "t_eq_tau_s", "plateau_um", "paper_t_eq_s", "method"],
+    "audit.csv": [
+        "file",
+        "sha256",
+        "rows_in",
+        "rows_out",
+        "duplicates_dropped",
+        "reordered",
+        "spikes_replaced",
+        "values_interpolated",
+        "gaps_interpolated",
+        "segments",
+        "status",
+        "reason",
+    ],
+    "runs.csv": [
+        "run_id",
+        "file",
+        "segment",
+        "start_s",
+        "end_s",
+        "duration_s",
+        "speed_rpm",
+        "speed_min_rpm",
+        "speed_max_rpm",
+        "kind",
+        "role",
+        "role_source",
+        "reference",
+        "sha256",
+    ],
+    "runs.parquet": [
+        "run_id",
+        "t_s",
+        "time",
+        "speed_rpm",
+        *[f"T{i}" for i in range(1, 17)],
+        "disp_um",
+        *[f"dT{i}" for i in range(1, 17)],
+        "dz_um",
+    ],
+    "equilibrium.csv": [
+        "run_id",
+        "speed_rpm",
+        "t_eq_s",
+        "t_eq_low_s",
+        "t_eq_high_s",
+        "tau_s",
+        "t_eq_tau_s",
+        "plateau_um",
+        "paper_t_eq_s",
+        "method",
+    ],
     "rank/correlation.csv": ["scope", "sensor", "r", "abs_r", "rank"],
     "rank/key_sensors.csv": ["sensor", "score_abs_r", "selected_by"],
     "rank/collinearity.csv": None,
     "fit/coefficients.csv": ["speed_rpm", "term", "coef", "se", "se_hac", "t", "p", "p_hac"],
-    "fit/diagnostics.csv": ["speed_rpm", "n", "r2", "r2_adj", "rmse_um", "paper_rmse_um", "aic",
-                            "bic", "condition_number", "durbin_watson", "bp_stat", "bp_p",
-                            "jb_stat", "jb_p", "max_vif"],
+    "fit/diagnostics.csv": [
+        "speed_rpm",
+        "n",
+        "r2",
+        "r2_adj",
+        "rmse_um",
+        "paper_rmse_um",
+        "aic",
+        "bic",
+        "condition_number",
+        "durbin_watson",
+        "bp_stat",
+        "bp_p",
+        "jb_stat",
+        "jb_p",
+        "max_vif",
+    ],
     "fit/vif.csv": ["speed_rpm", "term", "vif"],
-    "validation/summary.csv": ["run_id", "role", "speed_rpm", "duration_s", "max_abs_before_um",
-                               "max_abs_after_um", "improvement_pct", "rmse_before_um",
-                               "rmse_after_um", "n_samples", "n_outside_temp_range",
-                               "n_outside_speed_range", "worse_than_uncompensated",
-                               "paper_residual_um"],
-    "validation/residuals.parquet": ["run_id", "t_s", "speed_rpm", "measured_um", "predicted_um",
-                                     "residual_um", "outside_temp_range", "outside_speed_range"],
+    "validation/summary.csv": [
+        "run_id",
+        "role",
+        "speed_rpm",
+        "duration_s",
+        "max_abs_before_um",
+        "max_abs_after_um",
+        "improvement_pct",
+        "rmse_before_um",
+        "rmse_after_um",
+        "n_samples",
+        "n_outside_temp_range",
+        "n_outside_speed_range",
+        "worse_than_uncompensated",
+        "paper_residual_um",
+    ],
+    "validation/residuals.parquet": [
+        "run_id",
+        "t_s",
+        "speed_rpm",
+        "measured_um",
+        "predicted_um",
+        "residual_um",
+        "outside_temp_range",
+        "outside_speed_range",
+    ],
 }
 CLEAN_COLUMNS = ["time", "t_s", "speed_rpm", *[f"T{i}" for i in range(1, 17)], "disp_um", "segment"]
 AUDIT_ACTION_COLUMNS = ["file", "action", "column", "first_line", "last_line", "n_rows", "detail"]
@@ -72,7 +147,7 @@ def sha256(path: Path) -> str:
 
 def pick_files(config: dict) -> list[Path]:
     """Three training speeds, one single-speed validation log and the multi-condition log."""
-    from rafi.io import read_raw_log
+    from rafi.readers.native import read_raw_log
 
     training = config["defaults"]["training_speeds_rpm"]
     tol = config["defaults"]["speed_tolerance_rpm"]
@@ -82,7 +157,7 @@ def pick_files(config: dict) -> list[Path]:
     for path in sorted(RAW.glob("*.csv")):
         try:
             frame = read_raw_log(path)
-        except ValueError:          # a deliberately broken demo file: not for this test
+        except ValueError:  # a deliberately broken demo file: not for this test
             continue
         speed = frame["speed_rpm"].dropna()
         moving = speed[speed > 100]
@@ -101,16 +176,19 @@ def pick_files(config: dict) -> list[Path]:
     speeds = sorted(by_training)
     chosen = [by_training[s] for s in (speeds[::2] if len(speeds) >= 5 else speeds)[:3]]
     if len(chosen) < 3 or not validation or not multi:
-        pytest.skip(f"shipped data in {RAW} lacks 3 training speeds, a validation run or a "
-                    "multi-condition log")
+        pytest.skip(
+            f"shipped data in {RAW} lacks 3 training speeds, a validation run or a multi-condition log"
+        )
     return chosen + [min(validation)[1], min(multi)[1]]
 
 
 def snakemake(cwd: Path, *args: str) -> subprocess.CompletedProcess:
     """Run Snakemake in ``cwd`` with the frozen copy of the rafi package found first."""
     cmd = [sys.executable, "-m", "snakemake", "--cores", "2", *args]
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join(
-        [str(cwd), *filter(None, [os.environ.get("PYTHONPATH")])])}
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join([str(cwd), *filter(None, [os.environ.get("PYTHONPATH")])]),
+    }
     return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
 
 
@@ -134,8 +212,7 @@ def workdir(tmp_path_factory) -> Path:
         pytest.skip(f"shipped data not present yet ({RAW}): generate it with `rafi simulate`")
     tmp = tmp_path_factory.mktemp("pipeline")
     shutil.copy2(ROOT / "Snakefile", tmp / "Snakefile")
-    shutil.copytree(ROOT / "workflow", tmp / "workflow",
-                    ignore=shutil.ignore_patterns("__pycache__"))
+    shutil.copytree(ROOT / "workflow", tmp / "workflow", ignore=shutil.ignore_patterns("__pycache__"))
     # A frozen copy of the package: rafi/*.py are inputs of the rules (rafi_code), so an
     # edit in the working tree during the test must not change what the test measures.
     shutil.copytree(ROOT / "rafi", tmp / "rafi", ignore=shutil.ignore_patterns("__pycache__"))
@@ -147,9 +224,8 @@ def workdir(tmp_path_factory) -> Path:
     machine_cfg = (config.get("machines") or {}).get(MACHINE) or {}
     overrides = machine_cfg.get("runs", {}).get("overrides", {})
     kept = {Path(f).stem for f in files}
-    if overrides:   # keep only the overrides of the files we copied
-        machine_cfg.setdefault("runs", {})["overrides"] = {
-            k: v for k, v in overrides.items() if k in kept}
+    if overrides:  # keep only the overrides of the files we copied
+        machine_cfg.setdefault("runs", {})["overrides"] = {k: v for k, v in overrides.items() if k in kept}
     config["machines"] = {MACHINE: machine_cfg} if machine_cfg else {}
     (tmp / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
     return tmp

@@ -10,7 +10,7 @@
 #   paths      out(name, machine="{machine}"), pipeline_tables(machine),
 #              all_pipeline_tables(), report_paths(machine="{machine}"),
 #              log_path(step), bench_path(step)
-#   inputs     clean_files(kind), rafi_code(*modules), script_helpers()
+#   inputs     clean_files(kind), rafi_code(script), script_helpers()
 #   compare    comparison_path(name, machine), comparison_outputs(machine)
 #   registry   nightly_settings(machine), qualification_gates(machine),
 #              registry_path(name, machine), candidate_model(wildcards), nightly_targets()
@@ -18,7 +18,6 @@
 #              REPORT_FIGURE_GROUPS, report_figures_path(group, machine),
 #              report_figure_inputs(wildcards), report_figure_gates(wildcards)
 
-import ast
 import copy
 import importlib.util
 import logging
@@ -28,9 +27,10 @@ from pathlib import Path
 from snakemake.exceptions import WorkflowError
 
 # rafi.config: what planning needs, standard library only (no NumPy/pandas to import on
-# every invocation); rafi.registry and rafi.io re-export these names.
-import rafi.config as _rafi_config
-from rafi.config import find_logs
+# every invocation); rafi.ops.registry and rafi.io re-export these names.
+import rafi.settings as _settings
+from rafi.readers.input_spec import find_logs
+from rafi.ops.code_deps import code_files
 from snakemake.utils import validate
 
 validate(config, schema="../schemas/config.schema.yaml")
@@ -39,8 +39,9 @@ validate(config, schema="../schemas/config.schema.yaml")
 # and Snakemake's --cores stays the only parallelism (multi-threaded BLAS in several jobs at
 # once oversubscribes the cores badly). Jobs inherit this environment; it must be set here
 # because a script's own setting comes after Snakemake has loaded NumPy.
-os.environ.update({var: os.environ.get(var, "1")
-                   for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")})
+os.environ.update(
+    {var: os.environ.get(var, "1") for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS")}
+)
 
 _log = logging.getLogger("rafi.workflow")
 
@@ -49,12 +50,14 @@ RESULTS_DIR = str(config["results_dir"]).rstrip("/")
 REPORTS_DIR = str(config["reports_dir"]).rstrip("/")
 LOGS_DIR = "logs"
 
+
 wildcard_constraints:
     machine=r"[^/]+",
     stem=r"[^/]+",
 
 
 # --------------------------------------------------------------------------- settings
+
 
 def _deep_merge(base, override):
     """Return ``base`` updated recursively with ``override`` (neither is modified).
@@ -97,12 +100,13 @@ def _patterns(machine):
 
 # --------------------------------------------------------------------------- discovery
 
+
 def _find_logs(folder, machine):
-    """Raw files of one machine folder: ``rafi.config.find_logs`` (= ``rafi.io.find_logs``;
+    """Raw files of one machine folder: ``rafi.readers.input_spec.find_logs`` (= ``rafi.readers.input_spec.find_logs``;
     it also validates the machine's input mapping)."""
     try:
         return find_logs(folder, machine_config(machine)["input"])
-    except ValueError as exc:          # rafi.formats.InputSpecError: a bad input: mapping
+    except ValueError as exc:  # rafi.errors.InputSpecError: a bad input: mapping
         raise WorkflowError(f"RAFI: machine {machine!r}: {exc}") from None
 
 
@@ -126,17 +130,20 @@ def _discover():
             if path.stem in files:
                 raise WorkflowError(
                     f"RAFI: {path} and {files[path.stem]} have the same stem {path.stem!r}; "
-                    f"results/<machine>/clean/<stem>.parquet would collide - rename one of them")
+                    f"results/<machine>/clean/<stem>.parquet would collide - rename one of them"
+                )
             files[path.stem] = str(path)
         if not files:
-            _log.warning("RAFI: skipping machine folder %s: no file matches input.pattern %s",
-                         folder, patterns)
+            _log.warning(
+                "RAFI: skipping machine folder %s: no file matches input.pattern %s", folder, patterns
+            )
             continue
         found[machine] = files
     unknown = set(config.get("machines") or {}) - {p.name for p in RAW_DIR.iterdir() if p.is_dir()}
     for machine in sorted(unknown):
-        _log.warning("RAFI: config has settings for machine %r but %s/%s does not exist",
-                     machine, RAW_DIR, machine)
+        _log.warning(
+            "RAFI: config has settings for machine %r but %s/%s does not exist", machine, RAW_DIR, machine
+        )
     return found
 
 
@@ -156,8 +163,9 @@ def raw_file(wildcards):
     try:
         return RAW[wildcards.machine][wildcards.stem]
     except KeyError:
-        raise WorkflowError(f"RAFI: no raw file {wildcards.stem}.* for machine "
-                            f"{wildcards.machine!r} under {RAW_DIR}") from None
+        raise WorkflowError(
+            f"RAFI: no raw file {wildcards.stem}.* for machine " f"{wildcards.machine!r} under {RAW_DIR}"
+        ) from None
 
 
 # --------------------------------------------------------------------------- paths
@@ -185,8 +193,18 @@ OUTPUTS = {
 }
 
 #: Settings recorded in model.json ("config"): everything upstream of the model artefact.
-MODEL_CONFIG_KEYS = ("input", "sample_period_s", "training_speeds_rpm", "speed_tolerance_rpm",
-                     "clean", "runs", "reference", "rank", "fit", "fuzzy")
+MODEL_CONFIG_KEYS = (
+    "input",
+    "sample_period_s",
+    "training_speeds_rpm",
+    "speed_tolerance_rpm",
+    "clean",
+    "runs",
+    "reference",
+    "rank",
+    "fit",
+    "fuzzy",
+)
 
 #: Per-machine tables every full run must produce (``rule all``).
 TABLES = [name for name in OUTPUTS if not name.startswith("clean_")]
@@ -232,18 +250,20 @@ def clean_files(kind="clean_parquet"):
 
     ``kind`` is ``clean_parquet``, ``clean_audit`` or ``clean_summary``.
     """
+
     def _inputs(wildcards):
         return [out(kind, wildcards.machine, stem) for stem in sorted(RAW.get(wildcards.machine, {}))]
+
     return _inputs
 
 
 # --------------------------------------------------------------------------- code dependencies
 #
-# Snakemake's own `code` rerun trigger only covers the script file of a rule (or
-# its run: block), not the rafi modules the script imports. rafi_code() lists
-# those modules so that they can be given as `input:`: editing rafi/rank.py then
-# makes the rank output older than its input and re-runs rank and everything
-# downstream, and nothing upstream.
+# Snakemake's own `code` rerun trigger only covers the script file of a rule, not the rafi
+# modules the script imports. rafi_code(script) lists them (rafi.ops.code_deps, from the
+# script's own imports) for use as `input:`: editing rafi/method/rank.py makes the rank
+# outputs older than an input and re-runs rank and everything downstream, nothing upstream.
+
 
 def _rafi_package_dir():
     spec = importlib.util.find_spec("rafi")
@@ -255,66 +275,9 @@ def _rafi_package_dir():
 RAFI_DIR = _rafi_package_dir()
 
 
-#: Statement-like nodes whose lists may hold statements (function and class bodies, if /
-#: try / with / match blocks): the only places an import can be.
-_STATEMENTS = (ast.stmt, ast.excepthandler, ast.match_case)
-
-#: path -> rafi modules it imports; each file is parsed once per Snakemake invocation
-#: (several rules follow the same modules).
-_IMPORTS = {}
-
-
-def _rafi_imports(path):
-    """Names of the rafi modules ``path`` imports (``from .x``, ``from rafi.x``, ``import rafi.x``),
-    at any depth (also inside functions). Cached per invocation."""
-    if path not in _IMPORTS:
-        _IMPORTS[path] = frozenset(_scan_imports(path))
-    return _IMPORTS[path]
-
-
-def _scan_imports(path):
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    names = set()
-    stack = list(tree.body)
-    while stack:        # statements only: expressions cannot hold an import, skip them
-        node = stack.pop()
-        if isinstance(node, ast.ImportFrom):
-            mod = node.module or ""
-            if node.level == 1 or mod == "rafi" or mod.startswith("rafi."):
-                base = mod.split(".")[-1] if mod and mod != "rafi" else ""
-                if base:
-                    names.add(base)
-                else:
-                    names.add("__init__")
-                    names.update(alias.name for alias in node.names)
-        elif isinstance(node, ast.Import):
-            for alias in node.names:
-                if alias.name.startswith("rafi."):
-                    names.add(alias.name.split(".")[1])
-        else:
-            for _, value in ast.iter_fields(node):
-                if isinstance(value, list):
-                    stack.extend(v for v in value if isinstance(v, _STATEMENTS))
-    return names
-
-
-def rafi_code(*modules):
-    """Paths of the ``rafi/*.py`` files a rule's script depends on, for use as ``input:``.
-
-    Each named module (e.g. ``rafi_code("clean", "io")``) is followed through its
-    rafi imports, transitively. Modules that do not exist (optional ones such as
-    ``checks``) are left out. Returns a sorted list of paths.
-    """
-    todo, seen = list(modules), set()
-    while todo:
-        name = todo.pop()
-        if name in seen:
-            continue
-        seen.add(name)
-        path = RAFI_DIR / f"{name}.py"
-        if path.is_file():
-            todo.extend(_rafi_imports(path) - seen)
-    return sorted(str(RAFI_DIR / f"{n}.py") for n in seen if (RAFI_DIR / f"{n}.py").is_file())
+def rafi_code(script):
+    """Paths of the ``rafi`` source files ``workflow/scripts/<script>.py`` runs (``input:``)."""
+    return code_files(_SCRIPTS_DIR / f"{script}.py", RAFI_DIR)
 
 
 _SCRIPTS_DIR = Path(str(workflow.current_basedir)).parent / "scripts"
@@ -326,6 +289,7 @@ def script_helpers():
 
 
 # --------------------------------------------------------------------------- model comparison
+
 
 def comparison_path(name, machine="{machine}"):
     """Path of a comparison output: ``results/<machine>/comparison/<name>``."""
@@ -349,9 +313,10 @@ def comparison_outputs(machine):
 # rewrites decision.json itself, and listing a file that appears on the first promotion
 # would change decide's input set and make the next dry run want to re-run it.
 
+
 def nightly_settings(machine):
     """``nightly:`` of ``machine``: built-in defaults < top-level ``nightly`` < machine's."""
-    merged = dict(_rafi_config.DEFAULT_NIGHTLY)
+    merged = dict(_settings.DEFAULT_NIGHTLY)
     merged.update(config.get("nightly") or {})
     merged.update(machine_config(machine).get("nightly") or {})
     return merged
@@ -359,10 +324,10 @@ def nightly_settings(machine):
 
 def qualification_gates(machine):
     """Promotion gates of ``machine`` (``qualification:``, per machine over top level)."""
-    merged = dict(_rafi_config.DEFAULT_GATES)
+    merged = dict(_settings.DEFAULT_GATES)
     merged.update(config.get("qualification") or {})
     merged.update(machine_config(machine).get("qualification") or {})
-    return {k: merged[k] for k in _rafi_config.GATE_KEYS if k in merged}
+    return {k: merged[k] for k in _settings.GATE_KEYS if k in merged}
 
 
 def registry_path(name, machine="{machine}"):
@@ -371,9 +336,10 @@ def registry_path(name, machine="{machine}"):
 
 
 def candidate_model(wildcards):
-    """Input function: tonight's candidate (``rafi.registry.candidate_model_path``)."""
-    return _rafi_config.candidate_model_path(
-        wildcards.machine, RESULTS_DIR, nightly_settings(wildcards.machine)["candidate"])
+    """Input function: tonight's candidate (``rafi.settings.candidate_model_path``)."""
+    return _settings.candidate_model_path(
+        wildcards.machine, RESULTS_DIR, nightly_settings(wildcards.machine)["candidate"]
+    )
 
 
 def _nightly_machines():
@@ -402,24 +368,51 @@ def nightly_targets():
 
 # --------------------------------------------------------------------------- report
 
-REPORT_TABLES = ("audit", "runs_csv", "runs_parquet", "equilibrium", "correlation", "key_sensors",
-                 "key_sensors_json", "collinearity", "coefficients", "diagnostics", "vif", "model",
-                 "validation_summary", "residuals")
+REPORT_TABLES = (
+    "audit",
+    "runs_csv",
+    "runs_parquet",
+    "equilibrium",
+    "correlation",
+    "key_sensors",
+    "key_sensors_json",
+    "collinearity",
+    "coefficients",
+    "diagnostics",
+    "vif",
+    "model",
+    "validation_summary",
+    "residuals",
+)
 
 
 #: Figures drawn ahead of the report by report_figures, per group - the inputs of each
-#: group, the names of rafi.report.FIGURE_GROUPS (rafi.report.build_figures checks that it
+#: group, the names of rafi.report.build.FIGURE_GROUPS (rafi.report.build.build_figures checks that it
 #: gets every one of them; the report itself is not imported here, it would load pandas).
 REPORT_FIGURE_GROUPS = {
-    "pipeline": ("runs_csv", "runs_parquet", "equilibrium", "correlation", "key_sensors",
-                 "key_sensors_json", "collinearity", "coefficients", "diagnostics", "model",
-                 "validation_summary", "residuals"),
-    "comparison": ("model", "comparison", "comparison_per_run", "comparison_cv",
-                   "comparison_residuals"),
+    "pipeline": (
+        "runs_csv",
+        "runs_parquet",
+        "equilibrium",
+        "correlation",
+        "key_sensors",
+        "key_sensors_json",
+        "collinearity",
+        "coefficients",
+        "diagnostics",
+        "model",
+        "validation_summary",
+        "residuals",
+    ),
+    "comparison": ("model", "comparison", "comparison_per_run", "comparison_cv", "comparison_residuals"),
 }
 
-_COMPARISON_INPUTS = {"comparison": "summary.csv", "comparison_per_run": "per_run.csv",
-                      "comparison_cv": "cv.csv", "comparison_residuals": "residuals.parquet"}
+_COMPARISON_INPUTS = {
+    "comparison": "summary.csv",
+    "comparison_per_run": "per_run.csv",
+    "comparison_cv": "cv.csv",
+    "comparison_residuals": "residuals.parquet",
+}
 
 
 def report_figures_path(group="{group}", machine="{machine}"):
@@ -432,9 +425,12 @@ def report_figure_inputs(wildcards):
     machine = wildcards.machine
     inputs = {}
     for name in REPORT_FIGURE_GROUPS[wildcards.group]:
-        inputs[name] = (comparison_path(_COMPARISON_INPUTS[name], machine)
-                        if name in _COMPARISON_INPUTS else out(name, machine))
-    inputs["code"] = rafi_code("report", "plots")
+        inputs[name] = (
+            comparison_path(_COMPARISON_INPUTS[name], machine)
+            if name in _COMPARISON_INPUTS
+            else out(name, machine)
+        )
+    inputs["code"] = rafi_code("report_figures")
     inputs["glue"] = script_helpers()
     return inputs
 
@@ -459,8 +455,8 @@ def report_inputs(wildcards):
     inputs["decision"] = registry_path("decision.json", machine)
     inputs["registry_comparison"] = registry_path("comparison.csv", machine)
     inputs["figures"] = [report_figures_path(g, machine) for g in REPORT_FIGURE_GROUPS]
-    inputs["code"] = rafi_code("report", "plots")
-    inputs["template"] = str(RAFI_DIR / "templates" / "qualification.html.j2")
+    inputs["code"] = rafi_code("report")
+    inputs["template"] = str(RAFI_DIR / "report" / "templates" / "qualification.html.j2")
     return inputs
 
 
@@ -468,5 +464,7 @@ def report_settings(machine):
     """Report-only settings (optional ``report:`` block in config.yaml; defaults here)."""
     rep = dict(config.get("report") or {})
     rep.update(((config.get("machines") or {}).get(machine) or {}).get("report") or {})
-    return {"figure_format": rep.get("figure_format", "png"),
-            "coolant_sensors": list(rep.get("coolant_sensors", ["T13"]))}
+    return {
+        "figure_format": rep.get("figure_format", "png"),
+        "coolant_sensors": list(rep.get("coolant_sensors", ["T13"])),
+    }

@@ -14,7 +14,7 @@ rule compare:
         frame=out("runs_parquet"),
         key_sensors=out("key_sensors_json"),
         model=out("model"),
-        code=rafi_code("model_family", "crossval", "validate", "regression", "model", "fuzzy"),
+        code=rafi_code("compare"),
         glue=script_helpers(),
     output:
         summary=comparison_path("summary.csv"),
@@ -22,17 +22,17 @@ rule compare:
         residuals=comparison_path("residuals.parquet"),
         best_model=comparison_path("best_model.json"),
         cv=comparison_path("cv.csv"),
-    params:
-        machine=lambda w: w.machine,
-        models=lambda w: machine_config(w.machine).get("models") or {},
-        fit=lambda w: machine_config(w.machine)["fit"],
-        reference=lambda w: machine_config(w.machine)["reference"],
-        gates=lambda w: machine_config(w.machine).get("qualification") or {},
     log:
         log_path("compare"),
     benchmark:
         bench_path("compare")
     conda:
         "../envs/rafi.yaml"
+    params:
+        machine=lambda w: w.machine,
+        models=lambda w: machine_config(w.machine).get("models") or {},
+        fit=lambda w: machine_config(w.machine)["fit"],
+        reference=lambda w: machine_config(w.machine)["reference"],
+        gates=lambda w: machine_config(w.machine).get("qualification") or {},
     script:
         "../scripts/compare.py"

@@ -22,29 +22,29 @@ rule clean:
     """
     input:
         raw=raw_file,
-        code=rafi_code("io", "clean", "checks"),
+        code=rafi_code("clean"),
         glue=script_helpers(),
     output:
         parquet=out("clean_parquet"),
         audit=out("clean_audit"),
         summary=out("clean_summary"),
-    params:
-        input_spec=lambda w: machine_config(w.machine)["input"],
-        sample_period_s=lambda w: machine_config(w.machine)["sample_period_s"],
-        clean=lambda w: machine_config(w.machine)["clean"],
-        # plausibility checks (rafi.checks.check_log)
-        checks=lambda w: {
-            "min_run_s": machine_config(w.machine)["runs"]["min_run_s"],
-            "sample_period_s": machine_config(w.machine)["sample_period_s"],
-            "open_circuit_values": machine_config(w.machine)["clean"]["open_circuit_values"],
-        },
-        on_bad_input=lambda w: machine_config(w.machine)["on_bad_input"],
     log:
         log_path("clean/{stem}"),
     benchmark:
         bench_path("clean/{stem}")
     conda:
         "../envs/rafi.yaml"
+    params:
+        input_spec=lambda w: machine_config(w.machine)["input"],
+        sample_period_s=lambda w: machine_config(w.machine)["sample_period_s"],
+        clean=lambda w: machine_config(w.machine)["clean"],
+        # plausibility checks (rafi.readers.checks.check_log)
+        checks=lambda w: {
+            "min_run_s": machine_config(w.machine)["runs"]["min_run_s"],
+            "sample_period_s": machine_config(w.machine)["sample_period_s"],
+            "open_circuit_values": machine_config(w.machine)["clean"]["open_circuit_values"],
+        },
+        on_bad_input=lambda w: machine_config(w.machine)["on_bad_input"],
     script:
         "../scripts/clean.py"
 
@@ -53,6 +53,7 @@ rule audit:
     """Stack the per-file audit summaries of a machine into results/<machine>/audit.csv."""
     input:
         summaries=clean_files("clean_summary"),
+        code=rafi_code("audit"),
         glue=script_helpers(),
     output:
         audit=out("audit"),
@@ -74,17 +75,17 @@ rule runs:
     output:
         table=out("runs_csv"),
         frame=out("runs_parquet"),
-    params:
-        training_speeds_rpm=lambda w: machine_config(w.machine)["training_speeds_rpm"],
-        speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],
-        runs=lambda w: machine_config(w.machine)["runs"],
-        reference=lambda w: machine_config(w.machine)["reference"],
     log:
         log_path("runs"),
     benchmark:
         bench_path("runs")
     conda:
         "../envs/rafi.yaml"
+    params:
+        training_speeds_rpm=lambda w: machine_config(w.machine)["training_speeds_rpm"],
+        speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],
+        runs=lambda w: machine_config(w.machine)["runs"],
+        reference=lambda w: machine_config(w.machine)["reference"],
     script:
         "../scripts/runs.py"
 
@@ -98,14 +99,14 @@ rule equilibrium:
         glue=script_helpers(),
     output:
         equilibrium=out("equilibrium"),
-    params:
-        equilibrium=lambda w: machine_config(w.machine)["equilibrium"],
     log:
         log_path("equilibrium"),
     benchmark:
         bench_path("equilibrium")
     conda:
         "../envs/rafi.yaml"
+    params:
+        equilibrium=lambda w: machine_config(w.machine)["equilibrium"],
     script:
         "../scripts/equilibrium.py"
 
@@ -122,14 +123,14 @@ rule rank:
         key_sensors=out("key_sensors"),
         key_sensors_json=out("key_sensors_json"),
         collinearity=out("collinearity"),
-    params:
-        rank=lambda w: machine_config(w.machine)["rank"],
     log:
         log_path("rank"),
     benchmark:
         bench_path("rank")
     conda:
         "../envs/rafi.yaml"
+    params:
+        rank=lambda w: machine_config(w.machine)["rank"],
     script:
         "../scripts/rank.py"
 
@@ -140,13 +141,19 @@ rule fit:
         table=out("runs_csv"),
         frame=out("runs_parquet"),
         key_sensors=out("key_sensors_json"),
-        code=rafi_code("regression", "model"),
+        code=rafi_code("fit"),
         glue=script_helpers(),
     output:
         coefficients=out("coefficients"),
         diagnostics=out("diagnostics"),
         vif=out("vif"),
         model=out("model"),
+    log:
+        log_path("fit"),
+    benchmark:
+        bench_path("fit")
+    conda:
+        "../envs/rafi.yaml"
     params:
         machine=lambda w: w.machine,
         fit=lambda w: machine_config(w.machine)["fit"],
@@ -159,12 +166,6 @@ rule fit:
             for key in MODEL_CONFIG_KEYS
             if key in machine_config(w.machine)
         },
-    log:
-        log_path("fit"),
-    benchmark:
-        bench_path("fit")
-    conda:
-        "../envs/rafi.yaml"
     script:
         "../scripts/fit.py"
 
@@ -175,7 +176,7 @@ rule validate:
         table=out("runs_csv"),
         frame=out("runs_parquet"),
         model=out("model"),
-        code=rafi_code("validate", "model", "fuzzy"),
+        code=rafi_code("validate"),
         glue=script_helpers(),
     output:
         summary=out("validation_summary"),

@@ -1,4 +1,4 @@
-# Model registry and champion/challenger decision (rafi.registry, docs/operations.md).
+# Model registry and champion/challenger decision (rafi.ops.registry, docs/operations.md).
 #
 #   candidate model (config nightly.candidate = family's best model or fit's model.json)
 #     + runs.csv, runs.parquet, validation/summary.csv  ->  registry/decision.json and
@@ -15,22 +15,22 @@ rule decide:
         table=out("runs_csv"),
         frame=out("runs_parquet"),
         summary=out("validation_summary"),
-        code=rafi_code("registry"),
+        code=rafi_code("registry_decide"),
         glue=script_helpers(),
     output:
         decision=registry_path("decision.json"),
         comparison=registry_path("comparison.csv"),
-    params:
-        machine=lambda w: w.machine,
-        gates=lambda w: qualification_gates(w.machine),
-        nightly=lambda w: nightly_settings(w.machine),
-        registry=lambda w: registry_path("", w.machine).rstrip("/"),
     log:
         log_path("decide"),
     benchmark:
         bench_path("decide")
     conda:
         "../envs/rafi.yaml"
+    params:
+        machine=lambda w: w.machine,
+        gates=lambda w: qualification_gates(w.machine),
+        nightly=lambda w: nightly_settings(w.machine),
+        registry=lambda w: registry_path("", w.machine).rstrip("/"),
     script:
         "../scripts/registry_decide.py"
 

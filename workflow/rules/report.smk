@@ -1,11 +1,11 @@
 # The qualification report: results/<machine>/ tables -> reports/<machine>/qualification.{html,pdf}.
 #
 # One jinja2 template renders the HTML; WeasyPrint renders the PDF from the same HTML
-# string (rafi.report), so the two never disagree. Uses helpers of common.smk:
+# string (rafi.report.build), so the two never disagree. Uses helpers of common.smk:
 # out(), machine_config(), report_paths(), log_path(), bench_path(), rafi_code(), RAFI_DIR,
 # report_figures_path(), report_figure_inputs(), report_figure_gates().
 #
-# The figures are drawn ahead, by group, as soon as their inputs exist (rafi.report.build_figures):
+# The figures are drawn ahead, by group, as soon as their inputs exist (rafi.report.build.build_figures):
 #   pipeline    the method's figures: after validate, on the core compare leaves free
 #   comparison  the model family's figures: after compare, beside decide
 # so the report job itself only renders the HTML and the PDF (it draws a figure only if the
@@ -25,18 +25,18 @@ rule report_figures:
         unpack(report_figure_inputs),
     output:
         figures=report_figures_path(),
-    params:
-        figure_format=lambda w: report_settings(w.machine)["figure_format"],
-        coolant_sensors=lambda w: report_settings(w.machine)["coolant_sensors"],
-        gates=report_figure_gates,
-    wildcard_constraints:
-        group="|".join(REPORT_FIGURE_GROUPS),
     log:
         log_path("report_figures_{group}"),
     benchmark:
         bench_path("report_figures_{group}")
+    wildcard_constraints:
+        group="|".join(REPORT_FIGURE_GROUPS),
     conda:
         "../envs/rafi.yaml"
+    params:
+        figure_format=lambda w: report_settings(w.machine)["figure_format"],
+        coolant_sensors=lambda w: report_settings(w.machine)["coolant_sensors"],
+        gates=report_figure_gates,
     script:
         "../scripts/report_figures.py"
 
@@ -50,16 +50,15 @@ rule report:
     output:
         html=report_paths()["html"],
         pdf=report_paths()["pdf"],
-    params:
-        settings=lambda w: machine_config(w.machine),
-        report=lambda w: report_settings(w.machine),
-        paths={"raw_dir": str(config["raw_dir"]), "results_dir": RESULTS_DIR,
-               "reports_dir": REPORTS_DIR},
     log:
         log_path("report"),
     benchmark:
         bench_path("report")
     conda:
         "../envs/rafi.yaml"
+    params:
+        settings=lambda w: machine_config(w.machine),
+        report=lambda w: report_settings(w.machine),
+        paths={"raw_dir": str(config["raw_dir"]), "results_dir": RESULTS_DIR, "reports_dir": REPORTS_DIR},
     script:
         "../scripts/report.py"

@@ -30,10 +30,17 @@ def step(smk):
     log_file.parent.mkdir(parents=True, exist_ok=True)
     terminal = sys.__stderr__
     started = time.perf_counter()
-    with open(log_file, "w", encoding="utf-8", buffering=1) as fh, \
-            contextlib.redirect_stdout(fh), contextlib.redirect_stderr(fh):
-        logging.basicConfig(stream=fh, level=logging.INFO, force=True,
-                            format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    with (
+        open(log_file, "w", encoding="utf-8", buffering=1) as fh,
+        contextlib.redirect_stdout(fh),
+        contextlib.redirect_stderr(fh),
+    ):
+        logging.basicConfig(
+            stream=fh,
+            level=logging.INFO,
+            force=True,
+            format="%(asctime)s %(levelname)s %(name)s: %(message)s",
+        )
         log = logging.getLogger(f"rafi.workflow.{smk.rule}")
         wildcards = ", ".join(f"{k}={v}" for k, v in smk.wildcards.items())
         print(f"[{smk.rule}] {wildcards}", flush=True)
@@ -41,8 +48,11 @@ def step(smk):
             yield log
         except BaseException as exc:
             log.exception("rule %s failed", smk.rule)
-            print(f"RAFI {smk.rule} ({wildcards}) failed: {exc}\n  (details: {log_file})",
-                  file=terminal, flush=True)
+            print(
+                f"RAFI {smk.rule} ({wildcards}) failed: {exc}\n  (details: {log_file})",
+                file=terminal,
+                flush=True,
+            )
             raise
         print(f"[{smk.rule}] done in {time.perf_counter() - started:.1f} s", flush=True)
 
@@ -51,8 +61,7 @@ def read_runs(smk) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Read ``runs.csv`` and ``runs.parquet`` (inputs ``table`` and ``frame``)."""
     table = pd.read_csv(smk.input.table)
     frame = pd.read_parquet(smk.input.frame)
-    print(f"read {smk.input.table}: {len(table)} runs; {smk.input.frame}: {len(frame)} rows",
-          flush=True)
+    print(f"read {smk.input.table}: {len(table)} runs; {smk.input.frame}: {len(frame)} rows", flush=True)
     return table, frame
 
 
@@ -66,6 +75,7 @@ def as_table(obj) -> pd.DataFrame:
 
 def to_json(obj) -> str:
     """Deterministic JSON text of ``obj`` (NumPy / pandas scalars converted)."""
+
     def default(value):
         if hasattr(value, "item"):
             return value.item()
@@ -74,4 +84,5 @@ def to_json(obj) -> str:
         if hasattr(value, "isoformat"):
             return value.isoformat()
         return str(value)
+
     return json.dumps(obj, indent=2, sort_keys=True, default=default) + "\n"

@@ -1,11 +1,10 @@
 """Rule audit: stack the per-file summaries into results/<machine>/audit.csv."""
 
 import pandas as pd
-
 from _glue import step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
-    import rafi.io
+    import rafi.artefact
 
     smk = snakemake  # noqa: F821
     audit = pd.concat([pd.read_csv(p) for p in smk.input.summaries], ignore_index=True)
@@ -13,4 +12,4 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     print(f"{len(audit)} files, {len(quarantined)} quarantined", flush=True)
     for _, row in quarantined.iterrows():
         log.warning("quarantined %s: %s", row["file"], row["reason"])
-    rafi.io.write_csv_atomic(audit, smk.output.audit)
+    rafi.artefact.write_csv_atomic(audit, smk.output.audit)

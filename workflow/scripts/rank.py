@@ -3,21 +3,25 @@
 from _glue import as_table, read_runs, step, to_json
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
-    import rafi.io
-    from rafi.rank import rank_sensors
+    import rafi.artefact
+    from rafi.method.rank import rank_sensors
 
     smk = snakemake  # noqa: F821
     table, frame = read_runs(smk)
     cfg = smk.params.rank
-    result = rank_sensors(table, frame, threshold=cfg["threshold"],
-                          max_key_sensors=cfg["max_key_sensors"], scope=cfg["scope"],
-                          min_coverage=cfg["min_coverage"])
-    print(f"key sensors: {result.info.get('sensors')} ({result.info.get('message', '')})",
-          flush=True)
-    rafi.io.write_csv_atomic(as_table(result.correlation), smk.output.correlation)
-    rafi.io.write_csv_atomic(as_table(result.key_sensors), smk.output.key_sensors)
-    rafi.io.write_text_atomic(smk.output.key_sensors_json, to_json(result.info))
+    result = rank_sensors(
+        table,
+        frame,
+        threshold=cfg["threshold"],
+        max_key_sensors=cfg["max_key_sensors"],
+        scope=cfg["scope"],
+        min_coverage=cfg["min_coverage"],
+    )
+    print(f"key sensors: {result.info.get('sensors')} ({result.info.get('message', '')})", flush=True)
+    rafi.artefact.write_csv_atomic(as_table(result.correlation), smk.output.correlation)
+    rafi.artefact.write_csv_atomic(as_table(result.key_sensors), smk.output.key_sensors)
+    rafi.artefact.write_text_atomic(smk.output.key_sensors_json, to_json(result.info))
     collinearity = result.collinearity
     if collinearity.index.name is None and list(collinearity.index) == list(collinearity.columns):
         collinearity = collinearity.rename_axis("sensor")
-    rafi.io.write_csv_atomic(as_table(collinearity), smk.output.collinearity)
+    rafi.artefact.write_csv_atomic(as_table(collinearity), smk.output.collinearity)

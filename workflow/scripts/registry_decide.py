@@ -7,7 +7,7 @@ workflow/rules/registry.smk and rafi/registry.py (run_decide).
 from _glue import step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
-    from rafi.registry import run_decide
+    from rafi.ops.registry import run_decide
 
     smk = snakemake  # noqa: F821
     record = run_decide(
@@ -21,9 +21,13 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         gates=dict(smk.params.gates),
         nightly=dict(smk.params.nightly),
         log=lambda msg: print(msg, flush=True),
-        candidate_summary_path=(smk.input.summary
-                                if smk.params.nightly.get("candidate", "fit") == "fit" else None),
+        candidate_summary_path=(
+            smk.input.summary if smk.params.nightly.get("candidate", "fit") == "fit" else None
+        ),
     )
-    print(f"decision: {record['decision']} (candidate {record['candidate_id'][:12]}, champion "
-          f"after {str(record['champion_id_after'])[:12]}), recalibration_due="
-          f"{record['recalibration_due']}", flush=True)
+    print(
+        f"decision: {record['decision']} (candidate {record['candidate_id'][:12]}, champion "
+        f"after {str(record['champion_id_after'])[:12]}), recalibration_due="
+        f"{record['recalibration_due']}",
+        flush=True,
+    )

@@ -7,12 +7,11 @@ stacked as rule audit stacks them into audit.csv (so runs need not wait for audi
 from pathlib import Path
 
 import pandas as pd
-
 from _glue import step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
-    import rafi.io
-    from rafi.runs import find_runs
+    import rafi.artefact
+    from rafi.method.runs import find_runs
 
     smk = snakemake  # noqa: F821
     audit = pd.concat([pd.read_csv(p) for p in smk.input.summaries], ignore_index=True)
@@ -24,18 +23,24 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         frames[name] = pd.read_parquet(by_stem[Path(name).stem])
         print(f"read clean {name}: {len(frames[name])} rows", flush=True)
     if not frames:
-        raise RuntimeError(f"no usable raw file for machine {smk.wildcards.machine}: all "
-                           f"{len(audit)} quarantined (see audit.csv)")
+        raise RuntimeError(
+            f"no usable raw file for machine {smk.wildcards.machine}: all "
+            f"{len(audit)} quarantined (see audit.csv)"
+        )
     cfg = smk.params.runs
     table, frame = find_runs(
-        frames, sha256,
+        frames,
+        sha256,
         training_speeds_rpm=smk.params.training_speeds_rpm,
         speed_tolerance_rpm=smk.params.speed_tolerance_rpm,
-        idle_below_rpm=cfg["idle_below_rpm"], min_run_s=cfg["min_run_s"],
-        min_constant_s=cfg["min_constant_s"], overrides=cfg["overrides"],
+        idle_below_rpm=cfg["idle_below_rpm"],
+        min_run_s=cfg["min_run_s"],
+        min_constant_s=cfg["min_constant_s"],
+        overrides=cfg["overrides"],
         max_leading_rest_s=cfg["max_leading_rest_s"],
         reference_rule=smk.params.reference["rule"],
-        reference_window_s=smk.params.reference["window_s"])
+        reference_window_s=smk.params.reference["window_s"],
+    )
     print(f"{len(table)} runs; roles: {table['role'].value_counts().to_dict()}", flush=True)
-    rafi.io.write_csv_atomic(table, smk.output.table)
-    rafi.io.write_parquet_atomic(frame, smk.output.frame)
+    rafi.artefact.write_csv_atomic(table, smk.output.table)
+    rafi.artefact.write_parquet_atomic(frame, smk.output.frame)

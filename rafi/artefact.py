@@ -1,0 +1,278 @@
+"""Model artefacts and the files around them: canonical JSON, model id, code version,
+atomic writes (temporary file, fsync, rename; fsync of the folder).
+
+Every file the project writes goes through this module, so an interrupted run never
+leaves a half-written file that looks complete.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import datetime as dt
+import hashlib
+import json
+import math
+import os
+import re
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from rafi import __version__
+
+if TYPE_CHECKING:
+    import pandas as pd
+
+
+def jsonable(value):
+    """Convert numpy scalars/arrays, tuples, timestamps and NaN to plain JSON values (NaN -> None)."""
+    if isinstance(value, dict):
+        return {str(k): jsonable(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return [jsonable(v) for v in value.tolist()]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return v if math.isfinite(v) else None
+    if hasattr(value, "isoformat"):  # pandas.Timestamp, datetime
+        return value.isoformat()
+    return value
+
+
+def canonical_json(content: dict) -> str:
+    """Canonical JSON used for ``model_id``: sorted keys, no whitespace, ASCII, no NaN."""
+    return json.dumps(
+        jsonable(content), sort_keys=True, separators=(",", ":"), ensure_ascii=True, allow_nan=False
+    )
+
+
+def code_version() -> str:
+    """``"rafi <version>"`` plus the git commit of the source tree if it can be read.
+
+    Reads ``.git/HEAD`` directly (no subprocess); returns the plain version when
+    the package is not in a git checkout.
+    """
+    text = f"rafi {__version__}"
+    try:
+        git = Path(__file__).resolve().parents[1] / ".git"
+        head = (git / "HEAD").read_text().strip()
+        if head.startswith("ref:"):
+            ref = head.split(None, 1)[1]
+            ref_file = git / ref
+            if ref_file.exists():
+                commit = ref_file.read_text().strip()
+            else:
+                commit = ""
+                packed = git / "packed-refs"
+                if packed.exists():
+                    for line in packed.read_text().splitlines():
+                        parts = line.split()
+                        if len(parts) == 2 and parts[1] == ref:
+                            commit = parts[0]
+        else:
+            commit = head
+        if re.fullmatch(r"[0-9a-f]{40}", commit or ""):
+            text += f" (git {commit[:12]})"
+    except OSError:
+        pass
+    return text
+
+
+def now_iso() -> str:
+    """Current UTC time, ISO-8601 with seconds and ``Z``."""
+    return dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def compute_model_id(model_dict: dict) -> str:
+    """SHA-256 of the canonical JSON of ``model_dict`` without ``model_id``/``created``.
+
+    For a dict written by ``RafiModel.to_dict`` this equals its ``model_id``.
+    """
+    content = {k: v for k, v in model_dict.items() if k not in ("model_id", "created")}
+    return hashlib.sha256(canonical_json(content).encode("ascii")).hexdigest()
+
+
+def json_text(obj) -> str:
+    return json.dumps(jsonable(obj), indent=2, sort_keys=True, allow_nan=False) + "\n"
+
+
+def fsync_dir(path: Path) -> None:
+    with contextlib.suppress(OSError):
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def write_once(path: Path, text: str) -> bool:
+    """Create ``path`` with ``text`` unless it exists; never overwrites.
+
+    The content goes to a temporary file (fsynced) that is then hard-linked onto
+    ``path``: ``link`` fails if ``path`` exists, so two writers cannot clobber each
+    other and a reader never sees a half-written file. Returns True if created.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.chmod(tmp, 0o444)
+        try:
+            os.link(tmp, path)
+        except FileExistsError:
+            return False
+        fsync_dir(path.parent)
+        return True
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+
+
+def replace_atomic(path: Path, text: str) -> None:
+    """Replace ``path`` atomically (temp file, fsync, rename)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
+            fh.write(text)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+        fsync_dir(path.parent)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            os.unlink(tmp)
+        raise
+
+
+def append_jsonl(path: Path, record: dict) -> None:
+    """Append one JSON object as one line; flush and fsync before returning.
+
+    The line is written with a single ``write`` on an ``O_APPEND`` descriptor, so
+    concurrent appenders do not interleave and existing lines are never rewritten.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    line = json.dumps(jsonable(record), sort_keys=True, separators=(",", ":"), allow_nan=False) + "\n"
+    if "\n" in line[:-1]:  # pragma: no cover - json.dumps never emits raw newlines
+        raise ValueError("history record would span lines")
+    fd = os.open(path, os.O_WRONLY | os.O_APPEND | os.O_CREAT, 0o644)
+    try:
+        data = line.encode("utf-8")
+        # A torn previous line (crash mid-write) must not swallow this record.
+        if os.fstat(fd).st_size > 0:
+            with open(path, "rb") as rf:
+                rf.seek(-1, os.SEEK_END)
+                if rf.read(1) != b"\n":
+                    data = b"\n" + data
+        os.write(fd, data)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def read_jsonl(path: Path) -> list[dict]:
+    """Records of a JSONL file; a torn (unparsable) line is skipped, not fatal."""
+    if not path.exists():
+        return []
+    records = []
+    for line in path.read_text(encoding="utf-8").splitlines():
+        if not line.strip():
+            continue
+        try:
+            obj = json.loads(line)
+        except json.JSONDecodeError:
+            continue
+        if isinstance(obj, dict):
+            records.append(obj)
+    return records
+
+
+def git_commit(start: str | os.PathLike | None = None) -> str | None:
+    """Commit of the git checkout holding ``start`` (default: this package), read from .git."""
+    here = Path(start or Path(__file__).resolve().parent).resolve()
+    for d in (here, *here.parents):
+        git = d / ".git"
+        if git.is_dir():
+            try:
+                head = (git / "HEAD").read_text().strip()
+                if head.startswith("ref:"):
+                    ref = head.split(None, 1)[1]
+                    if (git / ref).exists():
+                        return (git / ref).read_text().strip() or None
+                    packed = git / "packed-refs"
+                    if packed.exists():
+                        for line in packed.read_text().splitlines():
+                            parts = line.split()
+                            if len(parts) == 2 and parts[1] == ref:
+                                return parts[0]
+                    return None
+                return head or None
+            except OSError:
+                return None
+    return None
+
+
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+@contextlib.contextmanager
+def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
+    """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
+
+    On any exception the temporary file is removed and ``path`` is untouched.
+    The file gets the usual permissions (``0o666`` less the umask), not
+    ``mkstemp``'s private ``0o600``.
+    """
+    target = Path(path)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".part", dir=target.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.chmod(tmp_path, 0o666 & ~_umask())
+        os.replace(tmp_path, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp_path.unlink()
+        raise
+
+
+def write_text_atomic(path: str | os.PathLike, text: str) -> None:
+    """Write ``text`` (UTF-8, ``\\n`` line ends) to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_text(text, encoding="utf-8", newline="\n")
+
+
+def write_bytes_atomic(path: str | os.PathLike, data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically."""
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
+
+
+def write_csv_atomic(frame: pd.DataFrame, path: str | os.PathLike, **kwargs) -> None:
+    """Write a table as CSV atomically (no index unless asked)."""
+    kwargs.setdefault("index", False)
+    kwargs.setdefault("lineterminator", "\n")
+    with atomic_path(path) as tmp:
+        frame.to_csv(tmp, **kwargs)
+
+
+def write_parquet_atomic(frame: pd.DataFrame, path: str | os.PathLike) -> None:
+    """Write a frame as Parquet atomically (index kept)."""
+    with atomic_path(path) as tmp:
+        frame.to_parquet(tmp, engine="pyarrow")

@@ -1,0 +1,299 @@
+"""Key temperature sensors: Pearson correlation of each sensor's rise with the displacement.
+
+The paper keeps the sensors whose temperature-displacement Pearson ``|r|`` exceeds
+0.97 (fewer than 4; result T6, T8, T9) but does not say whether ``r`` is computed
+per speed or over all runs. We compute both, on the rises ``dT_i`` and ``dz_um``
+relative to each run's reference state, over the *training* runs only:
+
+* one scope per training speed (``scope`` = the speed as text, e.g. ``"3000"``),
+  pooling all training runs at that speed;
+* ``"pooled"``: all training runs together.
+
+Selection score:
+
+* ``scope="min_per_speed"`` (default): a sensor's score is its minimum ``|r|``
+  over the training speeds, i.e. it must pass the threshold at *every* speed,
+  since every per-speed regression uses the same key sensors;
+* ``scope="pooled"``: the pooled ``|r|``.
+
+Sensors with ``score > threshold`` are kept, best first, at most
+``max_key_sensors``. If fewer pass, the set is filled up to ``max_key_sensors``
+with the next best sensors by score, marked ``selected_by="fallback"``, and
+``info["fallback_used"]`` is True with a message saying so. ``r`` is computed on the
+samples where both the rise and ``dz`` are present: a logger dropout left after
+cleaning (too long to interpolate) only removes those samples. A sensor present in
+fewer than ``min_coverage`` (90 %) of a scope's samples, or with zero variance, gets
+``r = NaN`` there and is never selected (with ``min_per_speed`` a NaN at any speed
+makes its score NaN). Ties are broken by sensor number.
+
+Pearson ranking ignores that the chosen sensors correlate with each other;
+``collinearity`` (sensor x sensor ``r`` of the chosen rises) makes that visible.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from rafi import SENSORS
+
+__all__ = ["RankResult", "rank_sensors", "training_speed_groups", "SPEED_GROUP_TOLERANCE_RPM"]
+
+SPEED_GROUP_TOLERANCE_RPM = 50.0
+"""Training runs whose ``speed_rpm`` differ by at most this are one training speed."""
+
+SCOPES = ("min_per_speed", "pooled")
+
+
+@dataclass
+class RankResult:
+    """Output of :func:`rank_sensors`.
+
+    Attributes
+    ----------
+    correlation : pandas.DataFrame
+        Long table ``scope``, ``sensor``, ``r``, ``abs_r``, ``rank`` (1 = best within
+        the scope; missing for NaN ``r``).
+    key_sensors : pandas.DataFrame
+        ``sensor``, ``score_abs_r``, ``selected_by`` (``threshold`` / ``fallback``).
+    info : dict
+        JSON-serialisable ``{sensors, threshold, scope, max_key_sensors,
+        fallback_used, message}``.
+    collinearity : pandas.DataFrame
+        Pearson ``r`` between the chosen sensors' rises, training runs pooled;
+        index and columns are the sensor names.
+    """
+
+    correlation: pd.DataFrame
+    key_sensors: pd.DataFrame
+    info: dict
+    collinearity: pd.DataFrame
+
+
+def _speed_label(v: float) -> int | float:
+    v = float(v)
+    r = round(v)
+    return int(r) if abs(v - r) < 1e-9 else v
+
+
+def training_speed_groups(
+    runs_table: pd.DataFrame, *, tolerance_rpm: float = SPEED_GROUP_TOLERANCE_RPM
+) -> dict:
+    """Group the training runs by training speed.
+
+    Runs with ``role == "training"`` are sorted by ``speed_rpm``; a run joins the
+    current group if its speed is within ``tolerance_rpm`` of the group's first
+    run. The group's label is its median speed rounded to an integer r/min (the
+    runs step normally already reports the nominal speed).
+
+    Returns
+    -------
+    dict
+        ``{speed_label (int): [run_id, ...]}``, increasing speed.
+
+    Raises
+    ------
+    ValueError
+        If there are no training runs.
+    """
+    for col in ("run_id", "role", "speed_rpm"):
+        if col not in runs_table.columns:
+            raise ValueError(f"runs_table lacks column {col!r}")
+    train = runs_table.loc[runs_table["role"].astype(str) == "training", ["run_id", "speed_rpm"]]
+    train = train.dropna(subset=["speed_rpm"])
+    if train.empty:
+        raise ValueError("runs_table has no runs with role 'training' (and a speed)")
+    train = train.sort_values(["speed_rpm", "run_id"], kind="stable")
+    groups: list[tuple[list[float], list[str]]] = []
+    for run_id, speed in zip(train["run_id"].astype(str), train["speed_rpm"].astype(float)):
+        if groups and speed - groups[-1][0][0] <= tolerance_rpm:
+            groups[-1][0].append(speed)
+            groups[-1][1].append(run_id)
+        else:
+            groups.append(([speed], [run_id]))
+    return {int(round(float(np.median(s)))): ids for s, ids in groups}
+
+
+def _sensor_columns(runs_frame: pd.DataFrame) -> list[str]:
+    return [s for s in SENSORS if f"d{s}" in runs_frame.columns]
+
+
+def _pearson(dt: np.ndarray, dz: np.ndarray, min_coverage: float = 0.9) -> np.ndarray:
+    """Pearson r of each column of ``dt`` [n, m] with ``dz`` [n] over the rows where
+    both are finite; NaN if a column is finite in fewer than ``min_coverage`` of the
+    rows or has (near) zero variance there."""
+    n, m = dt.shape
+    out = np.full(m, np.nan)
+    if n < 3:
+        return out
+    for j in range(m):
+        ok = np.isfinite(dt[:, j]) & np.isfinite(dz)
+        if ok.sum() < max(3, min_coverage * n):
+            continue
+        col, z = dt[ok, j], dz[ok]
+        zc = z - z.mean()
+        sz = np.sqrt(np.sum(zc * zc))
+        if not np.isfinite(sz) or sz == 0:
+            continue
+        n = int(ok.sum())
+        xc = col - col.mean()
+        sx = np.sqrt(np.sum(xc * xc))
+        if sx <= 1e-12 * max(1.0, float(np.max(np.abs(col)))) * np.sqrt(n):
+            continue
+        out[j] = float(np.clip(np.sum(xc * zc) / (sx * sz), -1.0, 1.0))
+    return out
+
+
+def _scope_table(scope: str, sensors: list[str], r: np.ndarray) -> pd.DataFrame:
+    tab = pd.DataFrame({"scope": scope, "sensor": sensors, "r": r, "abs_r": np.abs(r)})
+    tab["rank"] = tab["abs_r"].rank(ascending=False, method="min").astype("Int64")
+    return tab
+
+
+def rank_sensors(
+    runs_table: pd.DataFrame,
+    runs_frame: pd.DataFrame,
+    *,
+    threshold: float = 0.97,
+    max_key_sensors: int = 3,
+    scope: str = "min_per_speed",
+    min_coverage: float = 0.9,
+) -> RankResult:
+    """Rank the temperature sensors by correlation with the displacement; pick key sensors.
+
+    Parameters
+    ----------
+    runs_table : pandas.DataFrame
+        One row per run (``run_id``, ``role``, ``speed_rpm``, ...); only
+        ``role == "training"`` runs are used.
+    runs_frame : pandas.DataFrame
+        Stacked samples with ``run_id``, the rises ``dT1``..``dT16`` and ``dz_um``.
+    threshold : float, default 0.97
+        Keep sensors with score ``> threshold`` (paper: 0.97).
+    max_key_sensors : int, default 3
+        At most this many (paper: "fewer than 4"); fewer passing sensors are
+        topped up by the next best (``selected_by="fallback"``).
+    scope : {"min_per_speed", "pooled"}
+        Selection score, see the module docstring.
+    min_coverage : float, default 0.9
+        Smallest share of a scope's samples in which a sensor must be present to
+        get a correlation there.
+
+    Returns
+    -------
+    RankResult
+
+    Raises
+    ------
+    ValueError
+        Bad arguments, no training runs, or no sensor with a finite score.
+    """
+    if scope not in SCOPES:
+        raise ValueError(f"scope={scope!r}; expected one of {SCOPES}")
+    if not 0 <= threshold <= 1:
+        raise ValueError(f"threshold={threshold}; expected a |r| between 0 and 1")
+    if int(max_key_sensors) != max_key_sensors or max_key_sensors < 1:
+        raise ValueError(f"max_key_sensors={max_key_sensors}; expected an integer >= 1")
+    max_key_sensors = int(max_key_sensors)
+    if "dz_um" not in runs_frame.columns or "run_id" not in runs_frame.columns:
+        raise ValueError("runs_frame needs columns 'run_id' and 'dz_um'")
+    sensors = _sensor_columns(runs_frame)
+    if not sensors:
+        raise ValueError("runs_frame has no rise columns dT1..dT16")
+    dcols = [f"d{s}" for s in sensors]
+
+    groups = training_speed_groups(runs_table)
+    run_ids = runs_frame["run_id"].astype(str)
+    tables = []
+    per_speed_abs = []
+    train_ids: list[str] = []
+    for speed, ids in groups.items():
+        train_ids.extend(ids)
+        sub = runs_frame.loc[run_ids.isin(ids) & runs_frame["dz_um"].notna()]
+        r = _pearson(
+            sub[dcols].to_numpy(dtype=float, na_value=np.nan),
+            sub["dz_um"].to_numpy(dtype=float),
+            min_coverage,
+        )
+        tables.append(_scope_table(str(speed), sensors, r))
+        per_speed_abs.append(np.abs(r))
+    pooled_rows = run_ids.isin(train_ids) & runs_frame["dz_um"].notna()
+    pooled = runs_frame.loc[pooled_rows]
+    r_pooled = _pearson(
+        pooled[dcols].to_numpy(dtype=float, na_value=np.nan),
+        pooled["dz_um"].to_numpy(dtype=float),
+        min_coverage,
+    )
+    tables.append(_scope_table("pooled", sensors, r_pooled))
+    correlation = pd.concat(tables, ignore_index=True)
+
+    if scope == "min_per_speed":
+        stack = np.vstack(per_speed_abs)
+        score = np.where(np.isnan(stack).any(axis=0), np.nan, stack.min(axis=0))
+        where = "at every training speed"
+        score_name = "min |r|"
+    else:
+        score = np.abs(r_pooled)
+        where = "over the pooled training runs"
+        score_name = "pooled |r|"
+
+    finite = np.flatnonzero(np.isfinite(score))
+    if finite.size == 0:
+        raise ValueError(
+            "no sensor has a finite correlation with dz_um in the training runs "
+            "(all rises missing or constant?)"
+        )
+    # best first; ties by sensor number (the order of `sensors`)
+    order = finite[np.lexsort((finite, -score[finite]))]
+    passing = [j for j in order if score[j] > threshold]
+    chosen = passing[:max_key_sensors]
+    fallback = [j for j in order if j not in chosen][: max_key_sensors - len(chosen)]
+    selected_by = ["threshold"] * len(chosen) + ["fallback"] * len(fallback)
+    chosen_all = chosen + fallback
+    names = [sensors[j] for j in chosen_all]
+
+    def fmt(js):
+        return ", ".join(f"{sensors[j]} ({score_name} {score[j]:.3f})" for j in js)
+
+    n_pass = len(passing)
+    if n_pass == 0:
+        head = f"no sensor reaches |r| > {threshold:g} {where}"
+    elif n_pass == 1:
+        head = f"1 sensor reaches |r| > {threshold:g} {where}"
+    else:
+        head = f"{n_pass} sensors reach |r| > {threshold:g} {where}"
+    if fallback:
+        added = ", ".join(sensors[j] for j in fallback)
+        message = (
+            f"{'' if n_pass == 0 else 'only '}{head}; {added} added as the next best "
+            f"({'; '.join(f'{score_name} {score[j]:.3f}' for j in fallback)})"
+        )
+        if len(chosen_all) < max_key_sensors:
+            message += (
+                f"; only {len(chosen_all)} sensor(s) have a finite correlation, "
+                f"fewer than max_key_sensors={max_key_sensors}"
+            )
+    elif n_pass > max_key_sensors:
+        message = f"{head}; the best {max_key_sensors} kept: {fmt(chosen)}"
+    else:
+        message = f"{head}: {fmt(chosen)}"
+
+    key_sensors = pd.DataFrame(
+        {"sensor": names, "score_abs_r": [float(score[j]) for j in chosen_all], "selected_by": selected_by}
+    )
+    info = {
+        "sensors": names,
+        "threshold": float(threshold),
+        "scope": scope,
+        "max_key_sensors": max_key_sensors,
+        "fallback_used": bool(fallback),
+        "message": message,
+    }
+
+    chosen_cols = [f"d{s}" for s in names]
+    coll = pooled[chosen_cols].astype(float).corr(method="pearson")
+    coll.index = pd.Index(names, name="sensor")
+    coll.columns = pd.Index(names)
+    return RankResult(correlation=correlation, key_sensors=key_sensors, info=info, collinearity=coll)

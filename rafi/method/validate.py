@@ -1,0 +1,277 @@
+"""Validation by whole run and qualification against acceptance gates.
+
+Every run whose ``role`` starts with ``"validation"`` (``validation_single``,
+``validation_multi``, ``validation_idle``) is predicted as a whole (runs are never
+split into random samples: 5 s samples are autocorrelated, so sample-wise splits
+leak). Per run, over the samples where both ``dz_um`` and the prediction exist:
+
+* ``max_abs_before_um`` = ``max |dz|`` (no compensation),
+* ``max_abs_after_um``  = ``max |dz - predicted|`` (with compensation; the paper's
+  Table 4 "residual"),
+* ``improvement_pct`` = ``100 * (before - after) / before`` (paper definition; NaN
+  if ``before`` is 0),
+* ``rmse_before_um`` / ``rmse_after_um``, ``n_samples``, ``n_outside_temp_range``,
+  ``n_outside_speed_range``, ``worse_than_uncompensated`` (``after > before``),
+* ``paper_residual_um``: paper Table 4 for ``validation_single`` runs whose speed is
+  within 50 r/min of a Table 4 speed, else NaN.
+
+Qualification (:func:`qualify`)
+-------------------------------
+Gates ``{max_residual_um, min_improvement_pct, never_worse_than_uncompensated}``,
+one verdict row per criterion and validation run:
+
+* ``max_residual_um``: ``max_abs_after_um <= limit``;
+* ``min_improvement_pct``: ``improvement_pct >= limit``;
+* ``never_worse_than_uncompensated`` (if the gate is true): ``max_abs_after_um <=
+  max_abs_before_um``; the row's ``limit`` is the run's ``max_abs_before_um``.
+
+Idle (cool-down) runs (``validation_idle``) get only the never-worse criterion:
+their displacement falls back towards the reference state, so ``max |dz|`` is
+largely the warm state they start from, and an improvement percentage or an
+absolute residual limit calibrated on warm-up runs says nothing meaningful about
+them; what matters is that compensation never makes a cooling machine worse.
+A missing (NaN) measurement fails its criterion.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from rafi.method import paper
+from rafi.method.paper import paper_value
+
+__all__ = [
+    "PAPER_RESIDUAL_UM",
+    "SUMMARY_COLUMNS",
+    "RESIDUAL_COLUMNS",
+    "VERDICT_COLUMNS",
+    "validate_runs",
+    "qualify",
+    "overall_passed",
+]
+
+PAPER_RESIDUAL_UM = paper.RESIDUAL_UM
+"""Maximum residual after compensation (um) per single-speed validation run, paper Table 4."""
+
+SUMMARY_COLUMNS = [
+    "run_id",
+    "role",
+    "speed_rpm",
+    "duration_s",
+    "max_abs_before_um",
+    "max_abs_after_um",
+    "improvement_pct",
+    "rmse_before_um",
+    "rmse_after_um",
+    "n_samples",
+    "n_outside_temp_range",
+    "n_outside_speed_range",
+    "worse_than_uncompensated",
+    "paper_residual_um",
+]
+RESIDUAL_COLUMNS = [
+    "run_id",
+    "t_s",
+    "speed_rpm",
+    "measured_um",
+    "predicted_um",
+    "residual_um",
+    "outside_temp_range",
+    "outside_speed_range",
+]
+VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
+
+
+def _run_summary(run_id, role, speed, duration, detail, measured, t_s) -> dict:
+    pred = detail["predicted_um"].to_numpy(dtype=float)
+    resid = measured - pred
+    ok = np.isfinite(measured) & np.isfinite(pred)
+    n = int(ok.sum())
+    if n:
+        before = float(np.max(np.abs(measured[ok])))
+        after = float(np.max(np.abs(resid[ok])))
+        rmse_b = float(np.sqrt(np.mean(measured[ok] ** 2)))
+        rmse_a = float(np.sqrt(np.mean(resid[ok] ** 2)))
+    else:
+        before = after = rmse_b = rmse_a = float("nan")
+    improvement = 100.0 * (before - after) / before if n and before > 0 else float("nan")
+    if duration is None or pd.isna(duration):
+        finite_t = t_s[np.isfinite(t_s)]
+        duration = float(finite_t.max() - finite_t.min()) if finite_t.size else float("nan")
+    paper = (
+        paper_value(speed, PAPER_RESIDUAL_UM)
+        if role == "validation_single" and pd.notna(speed)
+        else float("nan")
+    )
+    return {
+        "run_id": run_id,
+        "role": role,
+        "speed_rpm": speed,
+        "duration_s": float(duration),
+        "max_abs_before_um": before,
+        "max_abs_after_um": after,
+        "improvement_pct": improvement,
+        "rmse_before_um": rmse_b,
+        "rmse_after_um": rmse_a,
+        "n_samples": n,
+        "n_outside_temp_range": int(detail["outside_temp_range"].to_numpy()[ok].sum()),
+        "n_outside_speed_range": int(detail["outside_speed_range"].to_numpy()[ok].sum()),
+        "worse_than_uncompensated": bool(n and after > before),
+        "paper_residual_um": paper,
+    }
+
+
+def validate_runs(
+    model, runs_table: pd.DataFrame, runs_frame: pd.DataFrame
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Compensate every validation run with ``model`` and measure the improvement.
+
+    Parameters
+    ----------
+    model : rafi.method.model.RafiModel
+        Anything with ``predict_detail(frame)`` returning ``predicted_um``,
+        ``outside_temp_range`` and ``outside_speed_range``.
+    runs_table : pandas.DataFrame
+        ``run_id``, ``role``, ``speed_rpm`` and (optional) ``duration_s``.
+    runs_frame : pandas.DataFrame
+        Stacked samples with ``run_id``, ``t_s``, ``speed_rpm``, the rises and ``dz_um``.
+
+    Returns
+    -------
+    summary : pandas.DataFrame
+        One row per validation run, columns :data:`SUMMARY_COLUMNS`.
+    residuals : pandas.DataFrame
+        One row per sample of the validation runs, columns :data:`RESIDUAL_COLUMNS`.
+    """
+    for col in ("run_id", "role"):
+        if col not in runs_table.columns:
+            raise ValueError(f"runs_table lacks column {col!r}")
+    for col in ("run_id", "t_s", "speed_rpm", "dz_um"):
+        if col not in runs_frame.columns:
+            raise ValueError(f"runs_frame lacks column {col!r}")
+    roles = runs_table["role"].astype(str)
+    val = runs_table.loc[roles.str.startswith("validation")]
+    frame_ids = runs_frame["run_id"].astype(str)
+    rows, parts = [], []
+    for _, run in val.iterrows():
+        run_id = str(run["run_id"])
+        sub = runs_frame.loc[frame_ids == run_id]
+        if "t_s" in sub.columns:
+            sub = sub.sort_values("t_s", kind="stable")
+        detail = model.predict_detail(sub)
+        measured = sub["dz_um"].to_numpy(dtype=float, na_value=np.nan)
+        t_s = sub["t_s"].to_numpy(dtype=float, na_value=np.nan)
+        speed = run.get("speed_rpm", np.nan)
+        if pd.isna(speed) and len(sub):
+            speed = np.nanmedian(sub["speed_rpm"].to_numpy(dtype=float, na_value=np.nan))
+        speed = float(speed)
+        rows.append(
+            _run_summary(run_id, str(run["role"]), speed, run.get("duration_s"), detail, measured, t_s)
+        )
+        pred = detail["predicted_um"].to_numpy(dtype=float)
+        parts.append(
+            pd.DataFrame(
+                {
+                    "run_id": run_id,
+                    "t_s": t_s,
+                    "speed_rpm": sub["speed_rpm"].to_numpy(dtype=float, na_value=np.nan),
+                    "measured_um": measured,
+                    "predicted_um": pred,
+                    "residual_um": measured - pred,
+                    "outside_temp_range": detail["outside_temp_range"].to_numpy(dtype=bool),
+                    "outside_speed_range": detail["outside_speed_range"].to_numpy(dtype=bool),
+                }
+            )
+        )
+    summary = pd.DataFrame(rows, columns=SUMMARY_COLUMNS)
+    residuals = (
+        pd.concat(parts, ignore_index=True)
+        if parts
+        else pd.DataFrame({c: pd.Series(dtype=float) for c in RESIDUAL_COLUMNS})
+    )
+    residuals = residuals[RESIDUAL_COLUMNS]
+    summary = summary.astype(
+        {
+            "n_samples": "int64",
+            "n_outside_temp_range": "int64",
+            "n_outside_speed_range": "int64",
+            "worse_than_uncompensated": "bool",
+        }
+    )
+    return summary, residuals
+
+
+def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
+    """Verdict per acceptance criterion and validation run.
+
+    Parameters
+    ----------
+    summary : pandas.DataFrame
+        From :func:`validate_runs`.
+    gates : dict
+        ``max_residual_um`` (float or None to skip), ``min_improvement_pct`` (float
+        or None to skip), ``never_worse_than_uncompensated`` (bool).
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns ``criterion``, ``limit``, ``measured``, ``passed``, ``run_id``; see
+        the module docstring (idle runs: never-worse only).
+    """
+    unknown = set(gates) - {"max_residual_um", "min_improvement_pct", "never_worse_than_uncompensated"}
+    if unknown:
+        raise ValueError(f"unknown qualification gate(s): {sorted(unknown)}")
+    max_res = gates.get("max_residual_um")
+    min_imp = gates.get("min_improvement_pct")
+    never_worse = bool(gates.get("never_worse_than_uncompensated", False))
+    rows = []
+    for _, run in summary.iterrows():
+        idle = str(run["role"]) == "validation_idle"
+        after = float(run["max_abs_after_um"])
+        before = float(run["max_abs_before_um"])
+        if not idle and max_res is not None:
+            rows.append(
+                {
+                    "criterion": "max_residual_um",
+                    "limit": float(max_res),
+                    "measured": after,
+                    "passed": bool(after <= max_res),
+                    "run_id": run["run_id"],
+                }
+            )
+        if not idle and min_imp is not None:
+            imp = float(run["improvement_pct"])
+            rows.append(
+                {
+                    "criterion": "min_improvement_pct",
+                    "limit": float(min_imp),
+                    "measured": imp,
+                    "passed": bool(imp >= min_imp),
+                    "run_id": run["run_id"],
+                }
+            )
+        if never_worse:
+            rows.append(
+                {
+                    "criterion": "never_worse_than_uncompensated",
+                    "limit": before,
+                    "measured": after,
+                    "passed": bool(after <= before),
+                    "run_id": run["run_id"],
+                }
+            )
+    verdict = pd.DataFrame(rows, columns=VERDICT_COLUMNS)
+    verdict["passed"] = verdict["passed"].astype(bool)
+    verdict["limit"] = verdict["limit"].astype(float)
+    verdict["measured"] = verdict["measured"].astype(float)
+    return verdict
+
+
+def overall_passed(verdict: pd.DataFrame) -> bool:
+    """True if there is at least one verdict row and every criterion passed.
+
+    An empty verdict (no validation runs, or no gates) is *not* a pass: nothing
+    was qualified.
+    """
+    return bool(len(verdict) > 0 and verdict["passed"].astype(bool).all())

@@ -1,0 +1,2 @@
+"""Operations: the model registry (champion/challenger), ``rafi nightly`` and how it drives
+Snakemake."""

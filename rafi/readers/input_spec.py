@@ -1,0 +1,344 @@
+"""Configuration the workflow needs while Snakemake plans it (standard library only).
+
+Snakemake evaluates ``workflow/rules/common.smk`` on every invocation (``rafi nightly``
+included) before it runs any job; what that needs lives here, so planning does not import
+NumPy or pandas (a third of a second):
+
+* the ``input:`` mapping of a machine: :data:`INPUT_DEFAULTS`, :data:`INPUT_SCHEMA`,
+  :func:`normalise_input_spec` (raises :class:`rafi.errors.InputSpecError`), and
+  :func:`find_logs`, the raw files of a machine folder. ``rafi.readers.mapped`` and ``rafi.io``
+  re-export them (their documented home);
+* the defaults of ``nightly:`` and ``qualification:`` and the candidate model's path
+  (``rafi.ops.registry`` re-exports them).
+"""
+
+from __future__ import annotations
+
+import codecs
+import copy
+import datetime as dt
+import math
+import os
+import re
+import unicodedata
+from pathlib import Path
+
+from rafi import REQUIRED_COLUMNS
+from rafi.errors import InputSpecError
+
+# --------------------------------------------------------------------------- the input: mapping
+
+FORMATS = ("native", "csv", "xlsx")
+
+#: Defaults of the ``input:`` mapping (``pattern`` defaults by format).
+INPUT_DEFAULTS: dict = {
+    "format": "native",
+    "pattern": None,
+    "sheet": 0,
+    "delimiter": ",",
+    "decimal": ".",
+    "encoding": "utf-8",
+    "header_row": 1,
+    "skip_rows": 0,
+    "columns": {},
+    "time": {"kind": "timestamp", "start": "2000-01-01T00:00:00", "format": None},
+    "sample_period_s": None,
+    "displacement": {"column": None, "unit": "um", "sign": 1},
+    "temperature_unit": "C",
+    "keep_extra": True,
+}
+
+DEFAULT_PATTERN = {"native": "*.csv", "csv": "*.csv", "xlsx": "*.xlsx"}
+
+#: Keys meaningful for the native format (everything else is for csv/xlsx).
+NATIVE_KEYS = {"format", "pattern", "sample_period_s"}
+
+_CANONICAL_RE = "^(time|speed_rpm|T([1-9]|1[0-6])|disp_um)$"
+
+#: JSON schema (draft 7) of one ``input:`` mapping; the workflow's config schema embeds it.
+#: It carries no ``default`` keywords on purpose: a validator that fills defaults in would
+#: add csv/xlsx keys to native mappings. Defaults live in :data:`INPUT_DEFAULTS`.
+INPUT_SCHEMA: dict = {
+    "type": "object",
+    "additionalProperties": False,
+    "properties": {
+        "format": {"enum": list(FORMATS)},
+        "pattern": {
+            "oneOf": [
+                {"type": "string", "minLength": 1},
+                {"type": "array", "items": {"type": "string", "minLength": 1}, "minItems": 1},
+            ]
+        },
+        "sheet": {"type": ["string", "integer"], "minLength": 1, "minimum": 0},
+        "delimiter": {
+            "anyOf": [{"type": "string", "minLength": 1, "maxLength": 1}, {"enum": ["tab", "\\t"]}]
+        },
+        "decimal": {"enum": [".", ","]},
+        "encoding": {"type": "string", "minLength": 1},
+        "header_row": {"type": "integer", "minimum": 1},
+        "skip_rows": {"type": "integer", "minimum": 0},
+        "columns": {
+            "type": "object",
+            "propertyNames": {"pattern": _CANONICAL_RE},
+            "additionalProperties": {"type": "string", "minLength": 1},
+        },
+        "time": {
+            "type": "object",
+            "additionalProperties": False,
+            "properties": {
+                "kind": {"enum": ["timestamp", "elapsed_s"]},
+                "start": {"type": "string", "minLength": 1},
+                "format": {"type": ["string", "null"]},
+            },
+        },
+        "sample_period_s": {"type": "number", "exclusiveMinimum": 0},
+        "displacement": {
+            "type": "object",
+            "additionalProperties": False,
+            "properties": {
+                "column": {"type": "string", "minLength": 1},
+                "unit": {"enum": ["um", "mm"]},
+                "sign": {"enum": [1, -1]},
+            },
+        },
+        "temperature_unit": {"enum": ["C", "K"]},
+        "keep_extra": {"type": "boolean"},
+    },
+}
+
+
+def _spec_error(key: str, message: str) -> InputSpecError:
+    return InputSpecError(f"input.{key}: {message}")
+
+
+def normalise_input_spec(spec: dict | None) -> dict:
+    """Validate an ``input:`` mapping and fill in the defaults.
+
+    Parameters
+    ----------
+    spec : dict or None
+        The mapping as written in ``config.yaml`` (``None`` = native format).
+
+    Returns
+    -------
+    dict
+        A new dict with every key of :data:`INPUT_DEFAULTS` (nested ``time`` and
+        ``displacement`` complete, ``pattern`` set from the format).
+
+    Raises
+    ------
+    InputSpecError
+        Naming the key (``input.displacement.unit``) and what is accepted.
+    """
+    if spec is None:
+        spec = {}
+    if not isinstance(spec, dict):
+        raise InputSpecError(f"input: expected a mapping, got {type(spec).__name__}")
+    unknown = sorted(set(spec) - set(INPUT_DEFAULTS))
+    if unknown:
+        raise _spec_error(unknown[0], f"unknown key; accepted keys: {', '.join(INPUT_DEFAULTS)}")
+    out = copy.deepcopy(INPUT_DEFAULTS)
+    for key, value in spec.items():
+        if key in ("time", "displacement"):
+            if value is None:
+                continue
+            if not isinstance(value, dict):
+                raise _spec_error(key, f"expected a mapping, got {value!r}")
+            extra = sorted(set(value) - set(INPUT_DEFAULTS[key]))
+            if extra:
+                raise _spec_error(
+                    f"{key}.{extra[0]}", "unknown key; accepted keys: " + ", ".join(INPUT_DEFAULTS[key])
+                )
+            out[key].update(value)
+        elif key == "columns":
+            out[key] = dict(value or {})
+        else:
+            out[key] = value
+
+    fmt = out["format"]
+    if fmt not in FORMATS:
+        raise _spec_error("format", f"{fmt!r} is not one of {', '.join(FORMATS)}")
+    if fmt == "native":
+        extra = sorted(k for k in spec if k not in NATIVE_KEYS and not _is_default(k, spec[k]))
+        if extra:
+            raise _spec_error(
+                extra[0],
+                "applies to format csv or xlsx only; a native file is "
+                "read as documented in docs/raw-format.md",
+            )
+    if out["pattern"] is None:
+        out["pattern"] = DEFAULT_PATTERN[fmt]
+    pats = out["pattern"] if isinstance(out["pattern"], (list, tuple)) else [out["pattern"]]
+    if not pats or not all(isinstance(x, str) and x.strip() for x in pats):
+        raise _spec_error(
+            "pattern", f"{out['pattern']!r}: expected a glob such as '*.xlsx' or a list of globs"
+        )
+    out["pattern"] = out["pattern"] if isinstance(out["pattern"], str) else list(pats)
+
+    sheet = out["sheet"]
+    if (
+        isinstance(sheet, bool)
+        or not isinstance(sheet, (str, int))
+        or (isinstance(sheet, int) and sheet < 0)
+        or (isinstance(sheet, str) and not sheet)
+    ):
+        raise _spec_error("sheet", f"{sheet!r}: expected a sheet name or a 0-based index")
+    delim = out["delimiter"]
+    if delim in ("tab", "\\t"):
+        delim = out["delimiter"] = "\t"
+    if not isinstance(delim, str) or len(delim) != 1 or delim in '\r\n"':
+        raise _spec_error("delimiter", f"{delim!r}: expected one character such as ',' ';' or tab")
+    if out["decimal"] not in (".", ","):
+        raise _spec_error("decimal", f"{out['decimal']!r}: expected '.' or ','")
+    if out["decimal"] == delim:
+        raise _spec_error(
+            "decimal",
+            f"the decimal mark {delim!r} is also the delimiter; set delimiter: ';' for decimal commas",
+        )
+    try:
+        codecs.lookup(str(out["encoding"]))
+    except LookupError:
+        raise _spec_error(
+            "encoding", f"unknown encoding {out['encoding']!r} (e.g. utf-8, latin-1, cp1252)"
+        ) from None
+    for key, low in (("header_row", 1), ("skip_rows", 0)):
+        v = out[key]
+        if isinstance(v, bool) or not isinstance(v, int) or v < low:
+            raise _spec_error(key, f"{v!r}: expected an integer >= {low}")
+
+    columns = out["columns"]
+    for canon, theirs in columns.items():
+        if not re.match(_CANONICAL_RE, str(canon)):
+            raise _spec_error(
+                f"columns.{canon}",
+                "not a canonical column; map " + ", ".join(REQUIRED_COLUMNS) + " to your headers",
+            )
+        if not isinstance(theirs, str) or not theirs.strip():
+            raise _spec_error(f"columns.{canon}", f"{theirs!r}: expected your header text")
+    disp = out["displacement"]
+    if disp["column"] is not None:
+        if not isinstance(disp["column"], str) or not disp["column"].strip():
+            raise _spec_error("displacement.column", f"{disp['column']!r}: expected a header text")
+        if "disp_um" in columns and norm_header(columns["disp_um"]) != norm_header(disp["column"]):
+            raise _spec_error(
+                "displacement.column",
+                "conflicts with columns.disp_um; give the target channel in one place only",
+            )
+    if disp["unit"] not in ("um", "mm"):
+        raise _spec_error("displacement.unit", f"{disp['unit']!r}: expected um or mm")
+    if isinstance(disp["sign"], bool) or disp["sign"] not in (1, -1):
+        raise _spec_error("displacement.sign", f"{disp['sign']!r}: expected 1 or -1")
+    resolved = resolve_columns(out)
+    dup = first_duplicate([norm_header(v) for v in resolved.values()])
+    if dup is not None:
+        names = [k for k, v in resolved.items() if norm_header(v) == dup]
+        raise _spec_error(
+            "columns",
+            f"header {dup!r} is mapped to {' and '.join(names)}; each header can feed one canonical column",
+        )
+
+    tm = out["time"]
+    if tm["kind"] not in ("timestamp", "elapsed_s"):
+        raise _spec_error("time.kind", f"{tm['kind']!r}: expected timestamp or elapsed_s")
+    if not _plain_start_ok(str(tm["start"])):
+        import pandas as pd
+
+        from rafi.readers.parsing import TIME_MAX, TIME_MIN
+
+        try:
+            start = pd.Timestamp(str(tm["start"]))
+        except (ValueError, TypeError):
+            raise _spec_error("time.start", f"{tm['start']!r} is not an ISO-8601 timestamp") from None
+        if start.tzinfo is not None:
+            start = start.tz_convert(None)
+        if not (TIME_MIN <= start <= TIME_MAX):
+            raise _spec_error("time.start", f"{tm['start']!r} is outside 1678..2261")
+    tm["start"] = str(tm["start"])
+    if tm["format"] is not None and (not isinstance(tm["format"], str) or "%" not in tm["format"]):
+        raise _spec_error(
+            "time.format", f"{tm['format']!r}: expected a strptime format such as '%d.%m.%Y %H:%M:%S'"
+        )
+    sp = out["sample_period_s"]
+    if sp is not None:
+        if isinstance(sp, bool) or not isinstance(sp, (int, float)) or not (math.isfinite(sp) and sp > 0):
+            raise _spec_error("sample_period_s", f"{sp!r}: expected a positive number of seconds")
+        out["sample_period_s"] = float(sp)
+    if out["temperature_unit"] not in ("C", "K"):
+        raise _spec_error("temperature_unit", f"{out['temperature_unit']!r}: expected C or K")
+    if not isinstance(out["keep_extra"], bool):
+        raise _spec_error("keep_extra", f"{out['keep_extra']!r}: expected true or false")
+    return out
+
+
+def _is_default(key: str, value) -> bool:
+    """True if ``value`` says nothing beyond the default (a filled-in default is harmless)."""
+    default = INPUT_DEFAULTS[key]
+    if value is None or value == default:
+        return True
+    if isinstance(default, dict) and isinstance(value, dict):
+        return {**default, **value} == default
+    return False
+
+
+def resolve_columns(spec: dict) -> dict[str, str]:
+    """Canonical name -> the header text to look for (identity where not mapped)."""
+    cols = {name: spec["columns"].get(name, name) for name in REQUIRED_COLUMNS}
+    if spec["displacement"]["column"] is not None:
+        cols["disp_um"] = spec["displacement"]["column"]
+    return cols
+
+
+def norm_header(text) -> str:
+    """Header comparison key: NFC-normalised, stripped text."""
+    if text is None:
+        return ""
+    return unicodedata.normalize("NFC", str(text)).strip()
+
+
+def first_duplicate(items):
+    seen = set()
+    for item in items:
+        if item in seen:
+            return item
+        seen.add(item)
+    return None
+
+
+#: ``YYYY-MM-DD``, optionally with ``[T ]HH:MM[:SS]``: the ``time.start`` values checked
+#: without pandas (everything else goes through ``pd.Timestamp``, as the reader parses it).
+_PLAIN_START = re.compile(r"^\d{4}-\d{2}-\d{2}(?:[T ]\d{2}:\d{2}(?::\d{2})?)?$")
+_START_MIN, _START_MAX = (
+    dt.datetime(1678, 1, 1),
+    dt.datetime(2261, 12, 31),
+)  # rafi.readers.parsing.TIME_MIN/MAX
+
+
+def _plain_start_ok(text: str) -> bool:
+    """True if ``text`` is a plain ISO date/time that ``pd.Timestamp`` reads as the same
+    valid time inside ``rafi.readers.parsing.TIME_MIN..TIME_MAX`` (no pandas import needed). False
+    means: not sure, let pandas decide (and word the error)."""
+    if not _PLAIN_START.match(text):
+        return False
+    try:
+        value = dt.datetime.fromisoformat(text)
+    except ValueError:
+        return False
+    return _START_MIN <= value <= _START_MAX
+
+
+# --------------------------------------------------------------------------- raw files
+
+
+def find_logs(machine_dir: str | os.PathLike, input_spec: dict | None = None) -> list[Path]:
+    """Raw files of one machine folder matching the spec's ``pattern`` (glob or list), sorted.
+
+    Hidden files (``.name``) and office lock files (``~$name.xlsx``) are skipped.
+    """
+    spec = normalise_input_spec(input_spec)
+    folder = Path(machine_dir)
+    patterns = [spec["pattern"]] if isinstance(spec["pattern"], str) else spec["pattern"]
+    found = {p for pattern in patterns for p in folder.glob(pattern)}
+    return sorted(p for p in found if p.is_file() and not p.name.startswith((".", "~$")))
+
+
+# --------------------------------------------------------------------------- nightly and gates

@@ -1,0 +1,577 @@
+"""Mapped readers: bring a machine's own CSV or xlsx layout into the canonical frame.
+
+A machine's ``input:`` mapping in ``config.yaml`` (documented in
+``docs/raw-format.md``, "Bringing your own layout") says where its columns are,
+what they are called, which units and sign they use. :func:`read_mapped` reads one
+file with such a mapping and returns the same canonical frame as
+:func:`rafi.readers.native.read_raw_log`: ``time``, ``speed_rpm``, ``T1``..``T16``, ``disp_um``
+then the remaining columns under sanitised names, indexed by the 1-based line (CSV)
+or row (xlsx, as Excel shows it) of each record.
+
+Every problem with a file raises :class:`rafi.errors.RawFormatError` naming the
+file, the sheet (xlsx), the line/row and the column as written in the file. A
+mapping that is itself wrong raises :class:`rafi.errors.InputSpecError`.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import difflib
+import hashlib
+import math
+import os
+import re
+import unicodedata
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rafi import SENSORS
+from rafi.errors import InputSpecError, RawFormatError  # noqa: F401
+
+# The input: mapping (defaults, schema, validation) lives in rafi.config, which the workflow
+# imports while Snakemake plans (no pandas there); it is part of this module's API too.
+from rafi.readers.input_spec import (
+    _spec_error,
+    norm_header,
+    normalise_input_spec,
+    resolve_columns,
+)
+from rafi.readers.parsing import (
+    NUMERIC_COLUMNS,
+    TIME_MAX,
+    TIME_MIN,
+    decode_bytes,
+    field_count_error,
+    split_fields,
+    split_lines,
+    to_naive_ns,
+)
+
+# --------------------------------------------------------------------------- the mapping
+
+
+def sanitise_name(header: str) -> str:
+    """A header as a snake_case ASCII column name: ``'Verlagerung X1 [µm]'`` -> ``'verlagerung_x1_um'``."""
+    text = norm_header(header).replace("µ", "u").replace("μ", "u").replace("°", "")
+    text = text.replace("ß", "ss").replace("%", "pct")
+    text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode("ascii")
+    text = re.sub(r"[^0-9a-zA-Z]+", "_", text).strip("_").lower()
+    if not text:
+        return "column"
+    if text[0].isdigit():
+        text = "c_" + text
+    return text
+
+
+def _simple(text: str) -> str:
+    return re.sub(r"[\W_]+", "", sanitise_name(text)).casefold()
+
+
+def closest_headers(wanted: str, available: list[str], n: int = 3) -> list[str]:
+    """The ``n`` available headers most like ``wanted`` (difflib ratio, units/case/punctuation
+    differences forgiven first): ``'Temperatur 3 [°C]'`` finds ``'Temperatur 3 [C]'``."""
+    sw = _simple(wanted)
+
+    def score(h: str) -> float:
+        sh = _simple(h)
+        exact = 1.0 if sh == sw and sw else 0.0
+        return exact + max(
+            difflib.SequenceMatcher(None, wanted, h).ratio(), difflib.SequenceMatcher(None, sw, sh).ratio()
+        )
+
+    ranked = sorted(available, key=score, reverse=True)
+    return [h for h in ranked[:n] if score(h) >= 0.4]
+
+
+def excel_column(index0: int) -> str:
+    """0-based column index -> Excel letters (0 -> A, 26 -> AA)."""
+    letters = ""
+    n = index0 + 1
+    while n:
+        n, rem = divmod(n - 1, 26)
+        letters = chr(65 + rem) + letters
+    return letters
+
+
+class _Table:
+    """Header + raw rows of one file, with what is needed to word an error."""
+
+    def __init__(
+        self,
+        path: Path,
+        header: list,
+        rows: list[list],
+        row_numbers: list[int],
+        header_row: int,
+        sheet: str | None,
+    ):
+        self.path = path
+        self.header = [norm_header(h) for h in header]
+        self.rows = rows
+        self.row_numbers = row_numbers
+        self.header_row = header_row
+        self.sheet = sheet
+
+    def error(
+        self, message: str, *, row: int | None = None, column: str | None = None, col_index: int | None = None
+    ) -> RawFormatError:
+        if self.sheet is not None and row is not None and col_index is not None:
+            message = f"{message} (cell {excel_column(col_index)}{row})"
+        return RawFormatError(self.path, message, line=row, column=column, sheet=self.sheet)
+
+
+# --------------------------------------------------------------------------- file readers
+
+
+def _read_csv_table(path: Path, raw: bytes, spec: dict) -> _Table:
+    text = decode_bytes(
+        path, raw, spec["encoding"], hint="set input.encoding to the file's encoding (e.g. latin-1, cp1252)"
+    )
+    lines = split_lines(text)
+    hr = spec["header_row"]
+    if hr > len(lines) or not lines[hr - 1].strip():
+        raise RawFormatError(
+            path,
+            f"no header at line {hr} (input.header_row); the file has {len(lines)} line(s)",
+            line=min(hr, max(len(lines), 1)),
+        )
+    delim = spec["delimiter"]
+    header = [h.strip() for h in split_fields(path, lines[hr - 1], hr, delim)]
+    if len(header) == 1:
+        for other in (";", ",", "\t", "|"):
+            if other != delim and other in header[0]:
+                raise RawFormatError(
+                    path,
+                    f"header is separated by {other!r}, not by the "
+                    f"configured delimiter {delim!r}; set input.delimiter",
+                    line=hr,
+                )
+    rows, numbers = [], []
+    first_data = hr + spec["skip_rows"]  # 0-based index of the first data line
+    for i in range(first_data, len(lines)):
+        line = lines[i]
+        if not line.strip():
+            continue
+        line_no = i + 1
+        fields = split_fields(path, line, line_no, delim)
+        if len(fields) > len(header) and not any(f.strip() for f in fields[len(header) :]):
+            fields = fields[: len(header)]
+        if len(fields) != len(header):
+            if [norm_header(f) for f in fields] == [norm_header(h) for h in header]:
+                raise RawFormatError(
+                    path,
+                    "the header line is repeated inside the data; expected one header only",
+                    line=line_no,
+                )
+            raise field_count_error(
+                path,
+                line,
+                line_no,
+                len(fields),
+                len(header),
+                last=i == len(lines) - 1,
+                too_many_hint=(
+                    "a decimal comma with delimiter ','? set input.delimiter and input.decimal"
+                    if delim == ","
+                    else "a delimiter inside a value?"
+                ),
+            )
+        rows.append(fields)
+        numbers.append(line_no)
+    return _Table(path, header, rows, numbers, hr, None)
+
+
+def _read_xlsx_table(path: Path, spec: dict) -> _Table:
+    try:
+        import openpyxl
+    except ImportError as exc:  # pragma: no cover - openpyxl is a dependency
+        raise RawFormatError(path, f"reading xlsx needs openpyxl ({exc})") from None
+    try:
+        wb = openpyxl.load_workbook(path, read_only=True, data_only=True)
+    except Exception as exc:  # zip, XML, openpyxl's own errors: all mean "not a workbook"
+        raise RawFormatError(
+            path,
+            f"not a readable .xlsx workbook ({type(exc).__name__}: {exc}); save it as Excel Workbook (.xlsx)",
+        ) from None
+    try:
+        names = list(wb.sheetnames)
+        sheet = spec["sheet"]
+        available = ", ".join(repr(n) for n in names)
+        if isinstance(sheet, int):
+            if sheet >= len(names):
+                raise RawFormatError(
+                    path, f"no sheet number {sheet} (0-based, input.sheet); the workbook has: {available}"
+                )
+            name = names[sheet]
+        else:
+            match = [n for n in names if norm_header(n) == norm_header(sheet)]
+            if not match:
+                close = difflib.get_close_matches(sheet, names, n=3, cutoff=0.5)
+                hint = f"; closest: {', '.join(map(repr, close))}" if close else ""
+                raise RawFormatError(
+                    path, f"no sheet {sheet!r} (input.sheet); the workbook has: {available}{hint}"
+                )
+            name = match[0]
+        ws = wb[name]
+        hr = spec["header_row"]
+        header = None
+        rows, numbers = [], []
+        try:
+            for row_no, values in enumerate(ws.iter_rows(values_only=True), start=1):
+                if row_no < hr:
+                    continue
+                values = list(values)
+                if row_no == hr:
+                    while values and (values[-1] is None or str(values[-1]).strip() == ""):
+                        values.pop()
+                    header = ["" if v is None else str(v) for v in values]
+                    continue
+                if row_no <= hr + spec["skip_rows"]:
+                    continue
+                if all(v is None or (isinstance(v, str) and not v.strip()) for v in values):
+                    continue
+                if len(values) > len(header):
+                    for j in range(len(header), len(values)):
+                        if values[j] is not None and str(values[j]).strip():
+                            raise RawFormatError(
+                                path,
+                                f"cell {excel_column(j)}{row_no} holds {values[j]!r} but "
+                                "its column has no header",
+                                line=row_no,
+                                column=excel_column(j),
+                                sheet=name,
+                            )
+                    values = values[: len(header)]
+                elif len(values) < len(header):
+                    values = values + [None] * (len(header) - len(values))
+                rows.append(values)
+                numbers.append(row_no)
+        except RawFormatError:
+            raise
+        except Exception as exc:  # malformed sheet XML
+            raise RawFormatError(
+                path, f"cannot read the sheet ({type(exc).__name__}: {exc})", sheet=name
+            ) from None
+        if not header:
+            raise RawFormatError(
+                path,
+                f"no header in row {hr} (input.header_row); the sheet is empty there",
+                line=hr,
+                sheet=name,
+            )
+        return _Table(path, header, rows, numbers, hr, name)
+    finally:
+        wb.close()
+
+
+# --------------------------------------------------------------------------- value parsing
+
+_THOUSANDS_POINT = re.compile(r"^[+-]?\d{1,3}(\.\d{3})+(,\d*)?$")
+
+
+def _numeric(table: _Table, values: list, decimal: str, column: str, col_index: int, what: str) -> np.ndarray:
+    """Raw cells -> float64 (NaN for empty); RawFormatError at the first bad cell."""
+    out = np.full(len(values), np.nan)
+    for k, v in enumerate(values):
+        if v is None:
+            continue
+        if isinstance(v, bool) or isinstance(v, (dt.datetime, dt.date, dt.time, dt.timedelta)):
+            raise table.error(
+                f"{v!s} is not a number; expected {what}",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        if isinstance(v, (int, float, np.integer, np.floating)):
+            x = float(v)
+        else:
+            s = str(v).strip().replace("\u00a0", "").replace(" ", "")
+            if not s:
+                continue
+            t = s
+            if decimal == ",":
+                if "." in t and _THOUSANDS_POINT.match(t):
+                    t = t.replace(".", "")
+                elif "." in t:
+                    t = "!"  # a point in a decimal-comma file: refuse rather than guess
+                t = t.replace(",", ".")
+            elif "," in t:
+                t = "!"
+            try:
+                x = float(t)
+            except ValueError:
+                hint = ""
+                if decimal == "." and "," in s:
+                    hint = " (decimal comma? set input.decimal: ',')"
+                elif decimal == "," and "." in s:
+                    hint = " (decimal point in a file with input.decimal: ',')"
+                raise table.error(
+                    f"{s!r} is not a number{hint}; expected {what}",
+                    row=table.row_numbers[k],
+                    column=column,
+                    col_index=col_index,
+                ) from None
+        if not math.isfinite(x):
+            raise table.error(
+                f"{v!r} is not a finite number; expected {what}",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        out[k] = x
+    return out
+
+
+def _timestamps(table: _Table, values: list, spec: dict, column: str, col_index: int) -> pd.Series:
+    tm = spec["time"]
+    if tm["kind"] == "elapsed_s":
+        secs = []
+        for v in values:
+            if isinstance(v, dt.timedelta):
+                v = v.total_seconds()
+            elif isinstance(v, dt.time):
+                v = v.hour * 3600 + v.minute * 60 + v.second + v.microsecond / 1e6
+            secs.append(v)
+        sec = _numeric(table, secs, spec["decimal"], column, col_index, "elapsed seconds")
+        empty = np.isnan(sec)
+        if empty.any():
+            k = int(np.argmax(empty))
+            raise table.error(
+                "empty time; expected elapsed seconds",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        start = pd.Timestamp(tm["start"])
+        if start.tzinfo is not None:
+            start = start.tz_convert(None)
+        lo = (TIME_MIN - start).total_seconds()
+        hi = (TIME_MAX - start).total_seconds()
+        bad = (sec < lo) | (sec > hi)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise table.error(
+                f"{values[k]!r} seconds from {tm['start']} is outside the supported years 1678..2261",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        return pd.Series(start + pd.to_timedelta(np.round(sec * 1e9).astype("int64"), unit="ns"))
+
+    if values and all(isinstance(v, str) and v.strip() for v in values):
+        # vectorised path for text timestamps (CSV); errors fall through to the cell loop
+        strings = pd.Series([v.strip() for v in values], dtype=object)
+        try:
+            if tm["format"]:
+                parsed = pd.to_datetime(strings, format=tm["format"], errors="coerce", utc=True)
+            else:
+                parsed = pd.to_datetime(strings, format="ISO8601", errors="coerce", utc=True)
+            naive = parsed.dt.tz_convert(None)
+            if naive.notna().all() and ((naive >= TIME_MIN) & (naive <= TIME_MAX)).all():
+                return naive
+        except (ValueError, TypeError, OverflowError):
+            pass
+
+    parsed = []
+    for k, v in enumerate(values):
+        ts = None
+        if isinstance(v, dt.datetime):
+            ts = pd.Timestamp(v)
+        elif isinstance(v, dt.date):
+            ts = pd.Timestamp(v)
+        elif isinstance(v, str) and v.strip():
+            s = v.strip()
+            try:
+                if tm["format"]:
+                    ts = pd.Timestamp(dt.datetime.strptime(s, tm["format"]))
+                else:
+                    ts = pd.to_datetime(s, format="ISO8601")
+            except (ValueError, TypeError, OverflowError):
+                ts = None
+            if ts is not None and ts is not pd.NaT and ts.tzinfo is not None:
+                ts = ts.tz_convert("UTC").tz_localize(None)
+        elif v is None or (isinstance(v, str) and not v.strip()):
+            raise table.error(
+                "empty timestamp; expected a date and time",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        if ts is None or ts is pd.NaT:
+            expect = (
+                f"a time in the format {tm['format']!r}"
+                if tm["format"]
+                else "an ISO-8601 time such as 2026-10-14T08:00:00 (or set input.time.format)"
+            )
+            raise table.error(
+                f"{v!r} is not a timestamp; expected {expect}",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        if not (TIME_MIN <= ts <= TIME_MAX):
+            raise table.error(
+                f"timestamp {v!r} is outside the supported years 1678..2261",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        parsed.append(ts)
+    return pd.Series(pd.DatetimeIndex(parsed))
+
+
+def _text(values: list) -> list[str]:
+    out = []
+    for v in values:
+        if v is None:
+            out.append("")
+        elif isinstance(v, float) and v.is_integer():
+            out.append(str(int(v)) if abs(v) < 1e15 else str(v))
+        else:
+            out.append(str(v).strip())
+    return out
+
+
+# --------------------------------------------------------------------------- main entry
+
+
+def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
+    """Read a csv or xlsx log with a machine's ``input:`` mapping into the canonical frame.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        The raw file.
+    input_spec : dict
+        The ``input:`` mapping (normalised here with :func:`normalise_input_spec`);
+        ``format`` must be ``csv`` or ``xlsx``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Canonical frame: ``time``, ``speed_rpm``, ``T1``..``T16`` (deg C),
+        ``disp_um`` (um, sign and unit applied), then the other columns of the file
+        under sanitised names (``'Verlagerung X1 [µm]'`` -> ``verlagerung_x1_um``,
+        values as in the file). Index ``line`` = 1-based line (csv) or row (xlsx).
+        ``attrs``: ``metadata`` (``format``, ``sheet`` for xlsx, ``columns`` =
+        canonical -> header used, ``sample_period_s`` if the spec gives it),
+        ``source``, ``sha256``.
+
+    Raises
+    ------
+    RawFormatError
+        Naming file, sheet (xlsx), line/row and the column as written in the file.
+    InputSpecError
+        If the mapping is invalid.
+    """
+    path = Path(path)
+    spec = normalise_input_spec(input_spec)
+    if spec["format"] not in ("csv", "xlsx"):
+        raise _spec_error("format", f"read_mapped reads csv or xlsx, not {spec['format']!r}")
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise RawFormatError(path, f"cannot read the file ({exc.strerror or exc})") from None
+    if spec["format"] == "csv":
+        table = _read_csv_table(path, raw, spec)
+    else:
+        if not raw:
+            raise RawFormatError(path, "file is empty; expected an .xlsx workbook")
+        table = _read_xlsx_table(path, spec)
+
+    header = table.header
+    wanted = resolve_columns(spec)
+    where_row = table.header_row
+    positions: dict[str, int] = {}
+    for canon, theirs in wanted.items():
+        key = norm_header(theirs)
+        hits = [j for j, h in enumerate(header) if h == key]
+        if not hits:
+            candidates = [h for h in header if h]
+            close = closest_headers(key, candidates)
+            if close:
+                hint = "closest: " + ", ".join(repr(c) for c in close)
+            else:
+                hint = (
+                    "available: "
+                    + ", ".join(repr(c) for c in candidates[:8])
+                    + (", ..." if len(candidates) > 8 else "")
+                )
+            where = (
+                "input.displacement.column"
+                if (canon == "disp_um" and spec["displacement"]["column"])
+                else f"input.columns.{canon}"
+            )
+            raise RawFormatError(
+                path,
+                f"header {theirs!r} ({where}) not found in the header row; {hint}",
+                line=where_row,
+                column=theirs,
+                sheet=table.sheet,
+            )
+        if len(hits) > 1:
+            raise RawFormatError(
+                path,
+                f"header {theirs!r} appears {len(hits)} times "
+                f"(columns {', '.join(excel_column(j) for j in hits)}); "
+                f"cannot tell which one is {canon}",
+                line=where_row,
+                column=theirs,
+                sheet=table.sheet,
+            )
+        positions[canon] = hits[0]
+    if not table.rows:
+        raise RawFormatError(path, "header found but no data rows", line=where_row, sheet=table.sheet)
+
+    cols = list(zip(*table.rows))
+    index = pd.Index(table.row_numbers, name="line", dtype="int64")
+    frame = pd.DataFrame(index=index)
+    j = positions["time"]
+    times = _timestamps(table, list(cols[j]), spec, header[j], j)
+    frame["time"] = to_naive_ns(times).to_numpy()
+    for canon in NUMERIC_COLUMNS:
+        j = positions[canon]
+        unit = {"speed_rpm": "r/min", "disp_um": spec["displacement"]["unit"]}.get(
+            canon, "deg " + spec["temperature_unit"]
+        )
+        values = _numeric(
+            table, list(cols[j]), spec["decimal"], header[j], j, f"a number ({unit}) for {canon}"
+        )
+        if canon == "disp_um":
+            values = values * (1000.0 if spec["displacement"]["unit"] == "mm" else 1.0)
+            values = values * spec["displacement"]["sign"] + 0.0  # no -0.0
+        elif canon in SENSORS and spec["temperature_unit"] == "K":
+            values = values - 273.15
+        frame[canon] = values.astype("float64")
+
+    if spec["keep_extra"]:
+        used = set(positions.values())
+        taken = set(frame.columns) | {"line"}
+        for j, name in enumerate(header):
+            if j in used:
+                continue
+            values = list(cols[j])
+            if not name and all(v is None or str(v).strip() == "" for v in values):
+                continue
+            base = sanitise_name(name) if name else f"column_{excel_column(j).lower()}"
+            new, n = base, 2
+            while new in taken:
+                new, n = f"{base}_{n}", n + 1
+            taken.add(new)
+            try:
+                frame[new] = _numeric(table, values, spec["decimal"], name, j, "a number")
+            except RawFormatError:
+                frame[new] = pd.Series(_text(values), index=index, dtype="str")
+
+    meta: dict = {"format": spec["format"]}
+    if table.sheet is not None:
+        meta["sheet"] = table.sheet
+    meta["columns"] = {canon: header[j] for canon, j in positions.items()}
+    if spec["sample_period_s"] is not None:
+        meta["sample_period_s"] = spec["sample_period_s"]
+    frame.attrs["metadata"] = meta
+    frame.attrs["source"] = str(path)
+    frame.attrs["sha256"] = hashlib.sha256(raw).hexdigest()
+    return frame

@@ -1,0 +1,370 @@
+"""Reading and writing logs and tables: the I/O edge of the project.
+
+The native raw-log format is documented in ``docs/raw-format.md``. Every reader
+returns the *canonical frame*: columns ``time`` (datetime64[ns]), ``speed_rpm``,
+``T1``..``T16`` (deg C) and ``disp_um`` (float64), then any extra columns of the
+file, indexed by the 1-based line number of each row in the source file (so any
+later message can point back at the file). Metadata goes to ``frame.attrs``.
+
+Writers are atomic: they write a temporary file beside the target and rename it,
+so an interrupted run never leaves a half-written file that looks complete.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import io
+import math
+import os
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rafi import REQUIRED_COLUMNS, SENSORS
+from rafi.artefact import write_text_atomic
+from rafi.errors import RawFormatError
+from rafi.readers.parsing import (
+    _INNER_SPACE,
+    NUMERIC_COLUMNS,
+    _decode,
+    field_count_error,
+    out_of_range_time,
+    parse_numbers,
+    split_fields,
+    split_lines,
+    to_naive_ns,
+)
+
+#: Metadata keys with a documented meaning; any other ``# key: value`` is kept as text.
+KNOWN_METADATA = {"machine", "run_id", "sample_period_s", "notes"}
+
+
+# --------------------------------------------------------------------------- hashing
+
+
+# --------------------------------------------------------------------------- atomic writes
+
+
+# --------------------------------------------------------------------------- native reader
+
+
+def _split_metadata(path: Path, lines: list[str]) -> tuple[dict[str, str], int, dict[str, int]]:
+    """Return metadata, the index of the header line and the line number of each key."""
+    meta: dict[str, str] = {}
+    where: dict[str, int] = {}
+    notes: list[str] = []
+    for i, line in enumerate(lines):
+        stripped = line.strip()
+        if not stripped:
+            continue
+        if not stripped.startswith("#"):
+            meta_notes = "\n".join(notes)
+            if meta_notes:
+                meta["notes"] = (meta.get("notes", "") + "\n" + meta_notes).strip()
+            return meta, i, where
+        body = stripped.lstrip("#").strip()
+        key, sep, value = body.partition(":")
+        key = key.strip().lower().replace(" ", "_")
+        if sep and key and " " not in key:
+            if key == "notes" and key in meta:  # multi-line notes (see format_raw_log)
+                meta[key] = meta[key] + "\n" + value.strip()
+            else:
+                meta[key] = value.strip()
+            where[key] = i + 1
+        elif body:
+            notes.append(body)
+    raise RawFormatError(
+        path,
+        "no header line found after the metadata; expected a header "
+        f"with columns {', '.join(REQUIRED_COLUMNS)}",
+        line=len(lines),
+    )
+
+
+def parse_metadata(meta: dict[str, str], path: Path, lines: dict[str, int] | None = None) -> dict:
+    """Type the documented metadata keys (``sample_period_s`` as a positive float)."""
+    out: dict = dict(meta)
+    line = (lines or {}).get("sample_period_s")
+    if "sample_period_s" in out:
+        try:
+            out["sample_period_s"] = float(out["sample_period_s"])
+        except ValueError:
+            raise RawFormatError(
+                path,
+                f"metadata 'sample_period_s' is {meta['sample_period_s']!r}; "
+                "expected a number of seconds such as 5",
+                line=line,
+            ) from None
+        if not (math.isfinite(out["sample_period_s"]) and out["sample_period_s"] > 0):
+            raise RawFormatError(
+                path,
+                f"metadata 'sample_period_s' is {meta['sample_period_s']!r}; "
+                "expected a positive number of seconds",
+                line=line,
+            )
+    return out
+
+
+def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
+    """Read one native raw log (``docs/raw-format.md``) into the canonical frame.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        CSV file under ``raw/<machine>/``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Canonical columns first (``time``, ``speed_rpm``, ``T1``..``T16``,
+        ``disp_um``), then extra columns; index = 1-based line number in the file.
+        ``attrs`` holds ``metadata`` (dict), ``source`` (path) and ``sha256``.
+        Empty numeric fields become NaN (a logger dropout); cleaning decides what
+        to do with them.
+
+    Raises
+    ------
+    RawFormatError
+        Naming file, line and column, on anything that does not follow the format.
+        No other exception escapes for any file content (property-tested).
+    """
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise RawFormatError(path, f"cannot read the file ({exc.strerror or exc})") from None
+    text = _decode(path, raw)
+    lines = split_lines(text)
+    meta, header_idx, meta_lines = _split_metadata(path, lines)
+    meta = parse_metadata(meta, path, meta_lines)
+    header_line_no = header_idx + 1
+
+    header = split_fields(path, lines[header_idx], header_line_no)
+    header = [h.strip() for h in header]
+    if len(header) == 1:
+        for delim in (";", "\t", "|"):
+            if delim in header[0]:
+                raise RawFormatError(
+                    path,
+                    f"header is separated by {delim!r}; expected commas (',') between columns",
+                    line=header_line_no,
+                )
+    seen: set[str] = set()
+    for name in header:
+        if name in seen:
+            raise RawFormatError(
+                path, f"column {name!r} appears twice in the header", line=header_line_no, column=name
+            )
+        seen.add(name)
+    missing = [c for c in REQUIRED_COLUMNS if c not in seen]
+    if missing:
+        raise RawFormatError(
+            path,
+            f"required column(s) missing from header: {', '.join(missing)}; "
+            f"expected {', '.join(REQUIRED_COLUMNS)}",
+            line=header_line_no,
+            column=missing[0],
+        )
+
+    body_lines = lines[header_idx + 1 :]
+    # Whitespace around values is allowed; skip the per-field strip when there is none.
+    needs_strip = _INNER_SPACE.search("".join(body_lines)) is not None
+    rows: list[list[str]] = []
+    line_numbers: list[int] = []
+    n_fields = len(header)
+    first = header[0]
+    for offset, line in enumerate(body_lines):
+        if not line or (needs_strip and not line.strip()):
+            continue
+        line_no = header_line_no + 1 + offset
+        fields = line.split(",") if '"' not in line else split_fields(path, line, line_no)
+        if needs_strip:
+            fields = [f.strip() for f in fields]
+        if fields[0] == first and fields == header:
+            raise RawFormatError(
+                path, "the header line is repeated inside the data; expected one header only", line=line_no
+            )
+        if len(fields) != n_fields:
+            raise field_count_error(
+                path,
+                line,
+                line_no,
+                len(fields),
+                n_fields,
+                last=offset == len(body_lines) - 1,
+                too_many_hint="a decimal comma, or an unquoted comma in a value?",
+            )
+        rows.append(fields)
+        line_numbers.append(line_no)
+    if not rows:
+        raise RawFormatError(path, "header found but no data rows", line=header_line_no)
+
+    index = pd.Index(line_numbers, name="line", dtype="int64")
+    columns = {name: list(col) for name, col in zip(header, zip(*rows))}
+    data: dict[str, object] = {}
+
+    time_str = columns["time"]
+    if "" in time_str:
+        bad = line_numbers[time_str.index("")]
+        raise RawFormatError(
+            path,
+            "empty timestamp; expected an ISO-8601 time such as 2026-03-01T08:00:00",
+            line=bad,
+            column="time",
+        )
+    times = pd.Series(
+        pd.to_datetime(pd.Series(time_str, dtype=object), format="ISO8601", errors="coerce", utc=True)
+    )
+    if times.isna().any():
+        k = int(np.argmax(times.isna().to_numpy()))
+        if times.notna().any() and time_str[k] == "time":
+            raise RawFormatError(
+                path,
+                "the header line is repeated inside the data; expected one header only",
+                line=line_numbers[k],
+                column="time",
+            )
+        raise RawFormatError(
+            path,
+            f"{time_str[k]!r} is not an ISO-8601 timestamp (e.g. 2026-03-01T08:00:00)",
+            line=line_numbers[k],
+            column="time",
+        )
+    k = out_of_range_time(times)
+    if k is not None:
+        raise RawFormatError(
+            path,
+            f"timestamp {time_str[k]!r} is outside the supported years 1678..2261",
+            line=line_numbers[k],
+            column="time",
+        )
+    data["time"] = to_naive_ns(times).to_numpy()
+
+    for name in NUMERIC_COLUMNS:
+        parsed, bad = parse_numbers(columns[name])
+        if bad is not None:
+            found = columns[name][bad]
+            hint = " (decimal comma? use a point)" if "," in found else ""
+            raise RawFormatError(
+                path,
+                f"{found!r} is not a number{hint}; expected a decimal number in {name}",
+                line=line_numbers[bad],
+                column=name,
+            )
+        data[name] = parsed
+
+    for name in header:
+        if name in data:
+            continue
+        parsed, bad = parse_numbers(columns[name])
+        data[name] = parsed if bad is None else pd.array(columns[name], dtype="str")
+
+    frame = pd.DataFrame(data, index=index)
+    frame.attrs["metadata"] = meta
+    frame.attrs["source"] = str(path)
+    frame.attrs["sha256"] = hashlib.sha256(raw).hexdigest()
+    return frame
+
+
+# --------------------------------------------------------------------------- dispatch
+
+
+def contract_violations(frame: pd.DataFrame) -> list[str]:
+    """Ways ``frame`` breaks the canonical-frame contract (empty list = it holds).
+
+    Checks column order and dtypes, the ``line`` index (unique, increasing, >= 1),
+    finite-or-NaN numbers, no NaT in ``time`` and the ``attrs`` keys.
+    """
+    problems: list[str] = []
+    cols = list(frame.columns)
+    if cols[: len(REQUIRED_COLUMNS)] != list(REQUIRED_COLUMNS):
+        problems.append(f"canonical columns not first/in order: {cols[: len(REQUIRED_COLUMNS)]}")
+        return problems
+    if len(set(cols)) != len(cols):
+        problems.append("duplicate column names")
+    if str(frame["time"].dtype) != "datetime64[ns]":
+        problems.append(f"time dtype is {frame['time'].dtype}")
+    elif frame["time"].isna().any():
+        problems.append("NaT in time")
+    for name in NUMERIC_COLUMNS:
+        if str(frame[name].dtype) != "float64":
+            problems.append(f"{name} dtype is {frame[name].dtype}")
+        elif np.isinf(frame[name].to_numpy()).any():
+            problems.append(f"infinite value in {name}")
+    idx = frame.index
+    if idx.name != "line":
+        problems.append(f"index name is {idx.name!r}")
+    if len(idx) == 0:
+        problems.append("no rows")
+    elif not (
+        pd.api.types.is_integer_dtype(idx.dtype)
+        and idx.is_unique
+        and idx.is_monotonic_increasing
+        and idx.min() >= 1
+    ):
+        problems.append("index is not unique increasing 1-based line numbers")
+    for key in ("metadata", "source", "sha256"):
+        if key not in frame.attrs:
+            problems.append(f"attrs lacks {key!r}")
+    if not isinstance(frame.attrs.get("metadata"), dict):
+        problems.append("attrs['metadata'] is not a dict")
+    return problems
+
+
+# --------------------------------------------------------------------------- native writer
+
+#: Decimal places used when writing each canonical column (the logger's resolution).
+DEFAULT_DECIMALS = {"speed_rpm": 0, **{s: 2 for s in SENSORS}, "disp_um": 3}
+
+
+def format_raw_log(
+    frame: pd.DataFrame, metadata: dict | None = None, decimals: dict[str, int] | None = None
+) -> str:
+    """Render a canonical frame as native raw-log text (deterministic).
+
+    ``frame`` may hold NaN (written as an empty field) and rows in any order
+    (written as given). ``time`` is written as ISO-8601 with whole seconds unless
+    sub-second parts are present.
+    """
+    decimals = {**DEFAULT_DECIMALS, **(decimals or {})}
+    out = io.StringIO()
+    for key, value in (metadata or {}).items():
+        for part in str(value).splitlines() or [""]:
+            out.write(f"# {key}: {part}\n")
+    columns = list(frame.columns)
+    out.write(",".join(columns) + "\n")
+    rendered: dict[str, np.ndarray] = {}
+    for name in columns:
+        col = frame[name]
+        if name == "time":
+            ts = pd.to_datetime(col)
+            has_frac = bool((ts.dt.microsecond != 0).any())
+            fmt = "%Y-%m-%dT%H:%M:%S.%f" if has_frac else "%Y-%m-%dT%H:%M:%S"
+            rendered[name] = ts.dt.strftime(fmt).fillna("").to_numpy(dtype=object)
+        elif pd.api.types.is_numeric_dtype(col):
+            nd = decimals.get(name, 4)
+            vals = col.to_numpy(dtype=float)
+            strs = np.array([("" if np.isnan(v) else f"{v:.{nd}f}") for v in vals], dtype=object)
+            if nd > 0:
+                strs = np.array(
+                    [("0." + "0" * nd) if s == ("-0." + "0" * nd) else s for s in strs], dtype=object
+                )
+            elif nd == 0:
+                strs = np.array(["0" if s == "-0" else s for s in strs], dtype=object)
+            rendered[name] = strs
+        else:
+            rendered[name] = col.astype(str).to_numpy(dtype=object)
+    for i in range(len(frame)):
+        out.write(",".join(rendered[name][i] for name in columns) + "\n")
+    return out.getvalue()
+
+
+def write_raw_log(
+    frame: pd.DataFrame,
+    path: str | os.PathLike,
+    metadata: dict | None = None,
+    decimals: dict[str, int] | None = None,
+) -> None:
+    """Write a native raw log atomically (see :func:`format_raw_log`)."""
+    write_text_atomic(path, format_raw_log(frame, metadata, decimals))

@@ -1,0 +1,1 @@
+"""The qualification report: context from result tables, figures, templates, HTML and PDF."""

@@ -1,0 +1,201 @@
+"""Write raw logs from the spindle digital twin (rafi.twin.spindle, see docs/twin.md).
+
+Modes:
+  shipped   regenerate the shipped data set byte for byte:
+              rafi simulate shipped --out raw
+  day       write "a new day" of logs for a machine (new file names, never overwrites), e.g.
+              rafi simulate day --machine tapping-center-a --out raw --seed 7 \\
+                  --ambient-shift 3.0 --sensor-drift T8:0.4 --wear 0.1 \\
+                  --speeds 3000,6000 --validation-speeds 4500 --multi
+  plot      plot temperatures and displacement of logs (paper Figure 9 style):
+              rafi simulate plot raw/tapping-center-a --out docs/img
+
+Run "rafi simulate MODE --help" for the options of each mode.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def _speeds(text: str) -> list[int]:
+    if text is None or text.strip() == "":
+        return []
+    try:
+        return [int(float(v)) for v in text.split(",") if v.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated speeds in r/min, got {text!r}") from None
+
+
+def _drift(text: str) -> tuple[str, float]:
+    name, sep, value = text.partition(":")
+    name = name.strip().upper()
+    try:
+        if not sep or not name.startswith("T") or not 1 <= int(name[1:]) <= 16:
+            raise ValueError
+        return name, float(value)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected SENSOR:KELVIN such as T8:0.4, got {text!r}") from None
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    sub = parser.add_subparsers(dest="mode", metavar="MODE")
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+
+    p = sub.add_parser(
+        "shipped",
+        formatter_class=fmt,
+        help="regenerate the shipped raw data set (byte for byte)",
+        description="Regenerate the shipped data set: raw/tapping-center-a/*.csv "
+        "(12 native logs) and raw/machining-center-b/"
+        "thermal_log_2026-10-14.xlsx. Output is deterministic.",
+    )
+    p.add_argument("--out", default="raw", help="raw data folder; files go to OUT/<machine>/")
+    p.add_argument(
+        "--machine",
+        action="append",
+        choices=["tapping-center-a", "machining-center-b"],
+        help="only this machine (repeatable); default: both",
+    )
+
+    p = sub.add_parser(
+        "day",
+        formatter_class=fmt,
+        help="write a new day of logs for a machine (for retraining tests)",
+        description="Simulate a new day of logs for a machine and write them with "
+        "new file names (date and seed in the name; existing files are "
+        "never overwritten). tapping-center-a: one native CSV per run; "
+        "machining-center-b: one continuous xlsx in its own layout.",
+    )
+    p.add_argument(
+        "--machine",
+        default="tapping-center-a",
+        choices=["tapping-center-a", "machining-center-b"],
+        help="machine id",
+    )
+    p.add_argument("--out", default="raw", help="raw data folder; files go to OUT/<machine>/")
+    p.add_argument("--seed", type=int, default=1, help="random seed (noise, defects, room wander)")
+    p.add_argument(
+        "--date", default=None, help="day of the logs, YYYY-MM-DD; default 2026-04-01 plus SEED days"
+    )
+    p.add_argument(
+        "--ambient-shift", type=float, default=0.0, help="room temperature shift against the shipped days, K"
+    )
+    p.add_argument(
+        "--sensor-drift",
+        type=_drift,
+        action="append",
+        default=[],
+        metavar="SENSOR:K",
+        help="calibration drift of one sensor, e.g. T8:0.4 (repeatable)",
+    )
+    p.add_argument(
+        "--wear", type=float, default=0.0, help="relative increase of bearing friction (0.1 = +10 %%)"
+    )
+    p.add_argument(
+        "--speeds",
+        type=_speeds,
+        default=None,
+        metavar="LIST",
+        help="training speeds to run (constant, 4 h each, cold start), comma-separated "
+        "r/min; default: the machine's training speeds",
+    )
+    p.add_argument(
+        "--validation-speeds",
+        type=_speeds,
+        default=[],
+        metavar="LIST",
+        help="validation speeds (constant, 3 h each), comma-separated r/min",
+    )
+    p.add_argument(
+        "--multi", action="store_true", help="also write the 4.5 h multi-condition run (tapping-center-a)"
+    )
+    p.add_argument(
+        "--hours", type=float, default=None, help="duration of each training run in hours (default 4)"
+    )
+    p.add_argument("--no-defects", action="store_true", help="write clean logs (no logger defects)")
+    p.add_argument(
+        "--stuck-displacement",
+        action="store_true",
+        help="deliberately broken logs: the displacement freezes after 25 %% of each run",
+    )
+
+    p = sub.add_parser(
+        "noise-floor",
+        formatter_class=fmt,
+        help="max residual a perfect model would leave on each shipped run",
+        description="Simulate the shipped validation runs again without logger "
+        "defects and print, per run, the max |displacement noise| "
+        "(log minus the noise-free truth, referenced like dz): the "
+        "smallest max residual any model can reach on that run.",
+    )
+    p.add_argument("--machine", default="tapping-center-a", choices=["tapping-center-a"], help="machine id")
+
+    p = sub.add_parser(
+        "plot",
+        formatter_class=fmt,
+        help="plot temperatures and displacement of logs against time",
+        description="Plot key sensors, coolant sensors and the displacement of each "
+        "native log (Figure 9 style) and an overview of all runs; "
+        "images are written as OUT/twin-<file stem>.png and "
+        "OUT/twin-overview.png.",
+    )
+    p.add_argument("folder", help="folder with native logs, e.g. raw/tapping-center-a")
+    p.add_argument("--out", default="docs/img", help="image folder")
+    p.add_argument("--pattern", default="train_*.csv", help="glob of the files to plot")
+    p.add_argument("--sensors", default="T6,T8,T9,T16,T5,T11,T13", help="comma-separated sensors to draw")
+
+
+def run(args: argparse.Namespace) -> int:
+    from rafi.twin import spindle as twin
+
+    mode = getattr(args, "mode", None)
+    if mode == "shipped":
+        machines = args.machine or ["tapping-center-a", "machining-center-b"]
+        for path in twin.write_shipped(args.out, machines=machines):
+            print(path)
+        return 0
+    if mode == "day":
+        try:
+            paths = twin.write_day(
+                args.out,
+                machine=args.machine,
+                seed=args.seed,
+                date=args.date,
+                ambient_shift=args.ambient_shift,
+                sensor_drift=dict(args.sensor_drift),
+                wear=args.wear,
+                speeds=args.speeds,
+                validation_speeds=args.validation_speeds,
+                multi=args.multi,
+                hours=args.hours,
+                defects=not args.no_defects,
+                stuck_displacement=args.stuck_displacement,
+            )
+        except (FileExistsError, ValueError) as exc:
+            print(f"rafi simulate day: {exc}", file=sys.stderr)
+            return 1
+        for path in paths:
+            print(path)
+        return 0
+    if mode == "noise-floor":
+        table = twin.noise_floor(args.machine)
+        print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+        return 0
+    if mode == "plot":
+        folder = Path(args.folder)
+        files = sorted(folder.glob(args.pattern))
+        if not files:
+            print(f"rafi simulate plot: no files match {args.pattern!r} in {folder}", file=sys.stderr)
+            return 1
+        sensors = [s.strip() for s in args.sensors.split(",") if s.strip()]
+        for path in twin.plot_runs(files, args.out, sensors=sensors):
+            print(path)
+        return 0
+    print(
+        "rafi simulate: choose a mode: shipped, day, noise-floor or plot (see rafi simulate --help)",
+        file=sys.stderr,
+    )
+    return 2

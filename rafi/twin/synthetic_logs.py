@@ -1,0 +1,420 @@
+"""Ground-truth generators for the clean / runs / equilibrium tests.
+
+In the style of ``ruptures.datasets`` (``pw_constant(n, dim, n_bkps, ...) ->
+(signal, bkps)``): every generator returns the data AND the truth it was built
+from, so a test can compare what the code finds with what was put in.
+
+* :func:`thermal_response` - noise-free first-order temperatures and displacement
+  for any speed profile (independent of the project's digital twin ``rafi.twin.spindle``).
+* :func:`canonical_log` - a regular, defect-free canonical frame (as
+  ``rafi.readers.native.read_raw_log`` returns it) and its noise-free truth.
+* :func:`inject_defects` - duplicates, swaps, spikes, dropouts, open-circuit
+  values and gaps injected into a canonical log at random, non-interacting
+  places; returns the defective frame and a defect table with the SOURCE lines
+  the audit must report.
+* :func:`schedule_log` - a clean frame (``rafi.method.clean`` output format) following a
+  speed schedule, with the true piece boundaries.
+* :func:`first_order_run` - ``dz = rise (1 - exp(-t / tau))`` plus noise.
+
+Everything is deterministic given ``seed``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+from scipy.signal import lfilter
+
+SENSORS = [f"T{i}" for i in range(1, 17)]
+START = pd.Timestamp("2026-03-02T08:00:00")
+AMBIENT_C = 22.0
+#: Rise of each sensor at 18000 r/min (K) and its time-constant factor.
+GAIN = np.array([1.5, 1.4, 1.6, 2.0, 1.2, 9.0, 2.2, 7.5, 8.0, 5.0, 0.8, 1.1, 0.9, 3.0, 1.0, 8.5])
+LAG = np.array([1.6, 1.7, 1.5, 1.4, 1.3, 1.0, 1.5, 1.05, 0.95, 1.2, 2.0, 1.8, 1.9, 1.3, 1.8, 1.1])
+#: Thermal displacement plateau at 18000 r/min (um) and centrifugal growth coefficient (um/rpm^2).
+DISP_GAIN_UM = 28.0
+CENTRIFUGAL_UM_PER_RPM2 = 1.5e-8
+OPEN_CIRCUIT = -999.0
+
+
+def _first_order(u: np.ndarray, period_s: float, tau_s: float, y0: float = 0.0) -> np.ndarray:
+    a = np.exp(-period_s / tau_s)
+    y, _ = lfilter(
+        [1 - a],
+        [1, -a],
+        u,
+        axis=0,
+        zi=np.atleast_1d(a * y0 * np.ones(u.shape[1:])) if u.ndim > 1 else np.array([a * y0]),
+    )
+    return y
+
+
+def thermal_response(
+    speed_rpm, period_s: float = 5.0, *, tau_s: float = 2400.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Noise-free temperature rises (n x 16, K) and displacement (n, um) for a speed profile.
+
+    Each sensor follows a first-order lag (time constant ``tau_s * LAG``) towards
+    ``GAIN * (speed / 18000) ** 0.9``; the displacement lags towards
+    ``DISP_GAIN_UM * (speed / 18000) ** 0.8`` with ``tau_s`` and jumps by the
+    centrifugal term ``CENTRIFUGAL_UM_PER_RPM2 * speed**2`` at speed changes.
+    """
+    s = np.asarray(speed_rpm, dtype=float)
+    frac = np.clip(s, 0, None) / 18000.0
+    u_t = (frac**0.9)[:, None] * GAIN[None, :]
+    rises = np.column_stack([_first_order(u_t[:, i], period_s, tau_s * LAG[i]) for i in range(16)])
+    z = _first_order(DISP_GAIN_UM * frac**0.8, period_s, tau_s) + CENTRIFUGAL_UM_PER_RPM2 * s**2
+    return rises, z
+
+
+def _speed_from_steps(t_s: np.ndarray, steps) -> np.ndarray:
+    times = np.array([a for a, _ in steps], float)
+    speeds = np.array([b for _, b in steps], float)
+    return speeds[np.searchsorted(times, t_s, side="right") - 1]
+
+
+def canonical_log(
+    n_samples: int = 3000,
+    *,
+    period_s: float = 5.0,
+    steps=((0.0, 6000.0), (7500.0, 9000.0)),
+    noise_temp: float = 0.02,
+    noise_disp: float = 0.1,
+    seed: int = 0,
+    start: pd.Timestamp = START,
+    first_line: int = 2,
+    extras: bool = True,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """A regular, defect-free canonical frame and its noise-free truth.
+
+    Parameters
+    ----------
+    n_samples : int
+        Rows.
+    period_s : float
+        Sample period.
+    steps : sequence of (t_s, speed_rpm)
+        Piecewise-constant speed: ``speed_rpm`` from ``t_s`` on (first at 0).
+    noise_temp, noise_disp : float
+        Gaussian noise (K, um) added to the temperatures / displacement.
+    seed : int
+        Random seed.
+    start : pandas.Timestamp
+        Time of the first sample.
+    first_line : int
+        Source line of the first data row (2 = header on line 1, no metadata).
+    extras : bool
+        Add a numeric extra ``ambient_c`` and a text extra ``operator``.
+
+    Returns
+    -------
+    log : pandas.DataFrame
+        Canonical frame (index ``line``): ``time``, ``speed_rpm``, ``T1``..``T16``,
+        ``disp_um`` (+ extras); what a perfect logger would have written.
+    truth : pandas.DataFrame
+        Same index and numeric columns without noise, plus ``t_s``.
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(n_samples) * period_s
+    speed = _speed_from_steps(t, steps)
+    rises, z = thermal_response(speed, period_s)
+    index = pd.Index(np.arange(first_line, first_line + n_samples), name="line")
+    time = start + pd.to_timedelta(t, unit="s")
+    truth = pd.DataFrame({"time": time, "t_s": t, "speed_rpm": speed}, index=index)
+    log = pd.DataFrame({"time": time, "speed_rpm": speed}, index=index)
+    temps = AMBIENT_C + rises
+    noisy = temps + rng.normal(0, noise_temp, temps.shape)
+    for i, name in enumerate(SENSORS):
+        truth[name] = temps[:, i]
+        log[name] = noisy[:, i]
+    truth["disp_um"] = z
+    log["disp_um"] = z + rng.normal(0, noise_disp, n_samples)
+    if extras:
+        amb = AMBIENT_C + 0.5 * np.sin(2 * np.pi * t / 86400.0)
+        truth["ambient_c"] = amb
+        log["ambient_c"] = amb
+        log["operator"] = pd.array(np.where(np.arange(n_samples) % 2, "ab", "cd"), dtype="str")
+    log["time"] = log["time"].astype("datetime64[ns]")
+    truth["time"] = truth["time"].astype("datetime64[ns]")
+    return log, truth
+
+
+def inject_defects(
+    log: pd.DataFrame,
+    *,
+    duplicates: int = 0,
+    duplicates_differ: int = 0,
+    swaps: int = 0,
+    spikes: int = 0,
+    dropouts: int = 0,
+    open_circuit: int = 0,
+    gaps: int = 0,
+    long_gaps: int = 0,
+    period_s: float = 5.0,
+    max_gap_s: float = 60.0,
+    spike_size: dict | None = None,
+    seed: int = 0,
+    margin: int = 6,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Inject defects into a canonical log at random, non-interacting places.
+
+    Parameters
+    ----------
+    log : pandas.DataFrame
+        Regular canonical frame (e.g. from :func:`canonical_log`); not modified.
+    duplicates : int
+        Rows written twice, identical.
+    duplicates_differ : int
+        Rows written twice with the same time but a different ``T1`` (kept: first).
+    swaps : int
+        Adjacent rows written in the wrong order (one ``reordered`` event each).
+    spikes : int
+        Single-sample spikes (temperatures and ``disp_um``).
+    dropouts : int
+        Runs of 1..``max_gap_s / period_s - 1`` empty values in one sensor
+        (interpolable).
+    open_circuit : int
+        Runs of 1..3 open-circuit values (``OPEN_CIRCUIT``) in one temperature.
+    gaps : int
+        Missing rows, interpolable (at most ``max_gap_s / period_s - 1`` rows).
+    long_gaps : int
+        Missing stretches too long to interpolate (split the log).
+    spike_size : dict, optional
+        Spike height per kind: ``{"temp": 5.0, "disp": 15.0}``.
+    seed : int
+        Random seed.
+    margin : int
+        Clean samples kept between any two defects.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        Canonical frame as a logger with these faults would have produced it,
+        index = its own line numbers (first line as in ``log``).
+    defects : pandas.DataFrame
+        One row per defect: ``kind`` (duplicate, duplicate_differ, swap, spike,
+        dropout, open_circuit, gap, long_gap), ``column``, ``line`` and
+        ``last_line`` (lines in ``frame``; for gaps the rows around the gap),
+        ``n_rows`` (rows / values concerned), ``time`` (true time of the first
+        affected sample), ``position`` (row in ``log``).
+    """
+    rng = np.random.default_rng(seed)
+    sizes = {"temp": 5.0, "disp": 15.0, **(spike_size or {})}
+    n = len(log)
+    first_line = int(log.index[0])
+    max_rows = int(max_gap_s // period_s) - 1  # longest interpolable run of missing rows
+    used = np.zeros(n, bool)
+
+    def place(length: int) -> int:
+        for _ in range(10000):
+            p = int(rng.integers(margin + 2, n - length - margin - 2))
+            lo, hi = p - margin, p + length + margin
+            if not used[lo:hi].any():
+                used[lo:hi] = True
+                return p
+        raise RuntimeError("could not place all defects; use a longer log or fewer defects")
+
+    vals = log.copy(deep=True)
+    keys = np.arange(n, dtype=float)  # sort key of each row in the written file
+    keep = np.ones(n, bool)
+    extra_rows: list[tuple[float, int, dict]] = []  # (key, source position, changes)
+    defects: list[dict] = []
+
+    def record(kind, column, pos, n_rows, **kw):
+        defects.append(
+            {
+                "kind": kind,
+                "column": column,
+                "position": pos,
+                "n_rows": n_rows,
+                "time": log["time"].iloc[pos],
+                **kw,
+            }
+        )
+
+    for _ in range(long_gaps):
+        length = max_rows + 1 + int(rng.integers(5, 40))
+        p = place(length)
+        keep[p : p + length] = False
+        record("long_gap", "time", p, length, last_pos=p + length)
+    for _ in range(gaps):
+        length = int(rng.integers(1, max_rows + 1))
+        p = place(length)
+        keep[p : p + length] = False
+        record("gap", "time", p, length, last_pos=p + length)
+    sensor_cols = [*SENSORS, "disp_um"]
+    for _ in range(dropouts):
+        length = int(rng.integers(1, max_rows + 1))
+        p = place(length)
+        col = sensor_cols[int(rng.integers(len(sensor_cols)))]
+        vals.iloc[p : p + length, vals.columns.get_loc(col)] = np.nan
+        record("dropout", col, p, length, last_pos=p + length - 1)
+    for _ in range(open_circuit):
+        length = int(rng.integers(1, 4))
+        p = place(length)
+        col = SENSORS[int(rng.integers(16))]
+        vals.iloc[p : p + length, vals.columns.get_loc(col)] = OPEN_CIRCUIT
+        record("open_circuit", col, p, length, last_pos=p + length - 1)
+    for _ in range(spikes):
+        p = place(1)
+        col = sensor_cols[int(rng.integers(len(sensor_cols)))]
+        size = sizes["disp" if col == "disp_um" else "temp"] * (1 if rng.random() < 0.5 else -1)
+        vals.iloc[p, vals.columns.get_loc(col)] += size
+        record("spike", col, p, 1, last_pos=p, size=size)
+    for _ in range(swaps):
+        p = place(2)
+        keys[p] = p + 1.25  # row p written after row p + 1
+        record("swap", "time", p, 1, last_pos=p)
+    for kind, count in (("duplicate", duplicates), ("duplicate_differ", duplicates_differ)):
+        for _ in range(count):
+            p = place(1)
+            changes = {"T1": float(vals["T1"].iloc[p]) + 0.5} if kind == "duplicate_differ" else {}
+            extra_rows.append((p + 0.5, p, changes))
+            record(kind, "time", p, 1, last_pos=p)
+
+    base = vals[keep].copy()
+    base_keys = keys[keep]
+    base_pos = np.flatnonzero(keep)
+    dup_frames = []
+    for _key, p, changes in extra_rows:
+        row = vals.iloc[[p]].copy()
+        for c, v in changes.items():
+            row[c] = v
+        dup_frames.append(row)
+    frame = pd.concat([base, *dup_frames]) if dup_frames else base
+    all_keys = np.concatenate([base_keys, [k for k, _, _ in extra_rows]])
+    all_pos = np.concatenate([base_pos, [p for _, p, _ in extra_rows]]).astype(int)
+    is_dup = np.concatenate([np.zeros(len(base_keys), bool), np.ones(len(extra_rows), bool)])
+    order = np.argsort(all_keys, kind="stable")
+    frame = frame.iloc[order].copy()
+    frame.index = pd.Index(np.arange(first_line, first_line + len(frame)), name="line")
+    line_of = {
+        (int(p), bool(d)): first_line + r for r, (p, d) in enumerate(zip(all_pos[order], is_dup[order]))
+    }
+
+    out = []
+    for d in defects:
+        p, kind = d.pop("position"), d["kind"]
+        last_pos = d.pop("last_pos")
+        if kind in ("gap", "long_gap"):
+            line, last = line_of[(p - 1, False)], line_of[(last_pos, False)]
+        elif kind in ("duplicate", "duplicate_differ"):
+            line = last = line_of[(p, True)]
+        elif kind == "swap":
+            line, last = line_of[(p + 1, False)], line_of[(p, False)]
+        else:
+            line, last = line_of[(p, False)], line_of[(last_pos, False)]
+        out.append({**d, "line": line, "last_line": last, "position": p})
+    columns = ["kind", "column", "line", "last_line", "n_rows", "time", "position", "size"]
+    table = pd.DataFrame(out, columns=columns).sort_values("line", ignore_index=True)
+    frame.attrs = dict(log.attrs)
+    return frame, table
+
+
+def schedule_log(
+    schedule,
+    *,
+    period_s: float = 5.0,
+    seed: int = 0,
+    ramp_samples: int = 0,
+    speed_noise_rpm: float = 0.0,
+    noise_temp: float = 0.02,
+    noise_disp: float = 0.1,
+    start: pd.Timestamp = START,
+    segment: int = 0,
+    t0_s: float = 0.0,
+    tau_s: float = 2400.0,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """A clean frame (``rafi.method.clean`` format) that follows a speed schedule.
+
+    Parameters
+    ----------
+    schedule : sequence of (speed_rpm, duration_s)
+        Pieces in time order; durations are whole multiples of ``period_s``.
+    period_s : float
+        Sample period.
+    seed : int
+        Random seed of the noise.
+    ramp_samples : int
+        Samples at the start of each piece (after the first) whose speed ramps
+        linearly from the previous speed (as a controller log shows a spindle
+        ramping); they belong to the new piece in the truth.
+    speed_noise_rpm : float
+        Uniform speed noise (+-) added to non-idle samples.
+    noise_temp, noise_disp : float
+        Gaussian noise of temperatures (K) and displacement (um).
+    start : pandas.Timestamp
+        Time at ``t_s == t0_s``.
+    segment : int
+        Value of the ``segment`` column.
+    t0_s : float
+        ``t_s`` of the first sample.
+    tau_s : float
+        Thermal time constant.
+
+    Returns
+    -------
+    frame : pandas.DataFrame
+        ``time``, ``t_s``, ``speed_rpm``, ``T1``..``T16``, ``disp_um``, ``segment``.
+    pieces : pandas.DataFrame
+        Truth: ``speed_rpm``, ``start_s``, ``end_s`` (t_s of the last sample),
+        ``duration_s`` (samples x period), ``first_row``, ``last_row``.
+    """
+    rng = np.random.default_rng(seed)
+    counts = [int(round(d / period_s)) for _, d in schedule]
+    speed = np.concatenate([np.full(c, float(s)) for (s, _), c in zip(schedule, counts)])
+    bounds = np.concatenate(([0], np.cumsum(counts)))
+    for k in range(1, len(schedule)):
+        a, b = float(schedule[k - 1][0]), float(schedule[k][0])
+        for r in range(min(ramp_samples, counts[k] - 1)):
+            speed[bounds[k] + r] = a + (b - a) * (r + 1) / (ramp_samples + 1)
+    if speed_noise_rpm:
+        moving = speed > 0
+        speed[moving] += rng.uniform(-speed_noise_rpm, speed_noise_rpm, moving.sum())
+    n = len(speed)
+    t = t0_s + np.arange(n) * period_s
+    rises, z = thermal_response(speed, period_s, tau_s=tau_s)
+    frame = pd.DataFrame(
+        {
+            "time": (start + pd.to_timedelta(t - t0_s, unit="s")).astype("datetime64[ns]"),
+            "t_s": t,
+            "speed_rpm": speed,
+        }
+    )
+    temps = AMBIENT_C + rises + rng.normal(0, noise_temp, rises.shape)
+    for i, name in enumerate(SENSORS):
+        frame[name] = temps[:, i]
+    frame["disp_um"] = z + rng.normal(0, noise_disp, n)
+    frame["segment"] = np.int64(segment)
+    pieces = pd.DataFrame(
+        {
+            "speed_rpm": [float(s) for s, _ in schedule],
+            "start_s": t[bounds[:-1]],
+            "end_s": t[bounds[1:] - 1],
+            "duration_s": np.asarray(counts, float) * period_s,
+            "first_row": bounds[:-1],
+            "last_row": bounds[1:] - 1,
+        }
+    )
+    return frame, pieces
+
+
+def first_order_run(
+    *,
+    tau_s: float = 2000.0,
+    rise_um: float = 20.0,
+    duration_s: float = 14400.0,
+    period_s: float = 5.0,
+    noise_um: float = 0.1,
+    offset_um: float = 0.0,
+    seed: int = 0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """``dz = offset + rise (1 - exp(-t / tau)) + noise`` on a regular grid.
+
+    The true time to enter a band of ``f * rise`` around the asymptote is
+    ``tau * ln(1 / f)``.
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(int(round(duration_s / period_s))) * period_s
+    dz = offset_um + rise_um * (1 - np.exp(-t / tau_s)) + rng.normal(0, noise_um, len(t))
+    return t, dz
