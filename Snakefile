@@ -2,10 +2,10 @@
 #
 #   snakemake --cores 2                  # every machine under raw/: tables + reports
 #   snakemake --cores 2 tables           # the tables of docs/design.md only
-#   snakemake --cores 2 --config on_bad_input=quarantine
+#   snakemake --cores 2 --config on_bad_input=quarantine   # carry on past a bad raw file
 #
-# Machines are the folders of `raw_dir`; settings are `defaults` deep-merged with
-# `machines.<name>` (config.yaml, validated by workflow/schemas/config.schema.yaml).
+# Machines are the folders of `raw_dir`; a machine's settings are rafi/settings.py's defaults,
+# deep-merged with `defaults:` and `machines.<name>:` of config.yaml (rafi.settings.machine_settings).
 # Outputs: docs/design.md. Helpers (functions only): workflow/rules/common.smk; the
 # method's steps: pipeline.smk; the model family: compare.smk; champion/challenger:
 # registry.smk; the qualification report: report.smk.

@@ -87,3 +87,10 @@ class LockHeld(RuntimeError):
         self.path = path
         self.holder = holder.strip() or "unknown process"
         super().__init__(f"another nightly run holds {path}: {self.holder}")
+
+
+class SettingsError(ValueError):
+    """``config.yaml`` puts a setting where nothing reads it, or names an unknown one.
+
+    The message names the key and where it belongs.
+    """

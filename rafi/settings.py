@@ -1,44 +1,210 @@
-"""Settings (standard library only)."""
+"""The one settings resolver: every default, and the effective settings of a machine.
+
+Standard library only: Snakemake imports this while it plans every run (``rafi nightly``
+included), before any job starts.
+
+Layers, lowest first; a dict merges key by key, any other value (lists included) replaces:
+
+1. :data:`MACHINE_DEFAULTS` and :data:`RUN_DEFAULTS` below - the only place a default lives
+   (the input mapping's own defaults live with the mapping, in
+   :data:`rafi.readers.input_spec.INPUT_DEFAULTS`);
+2. ``defaults:`` of ``config.yaml`` - what this installation changes for every machine;
+3. ``machines: <name>:`` - what one machine changes.
+
+Run settings (``raw_dir``, ``results_dir``, ``reports_dir``, ``on_bad_input`` and the options
+``rafi nightly`` passes) are top-level keys of ``config.yaml``; per-machine sections
+(``qualification:``, ``models:``, ...) are not, and :func:`check_layout` says where such a key
+belongs instead of letting it be read by one job and ignored by another.
+``docs/settings.md`` explains every key; ``rafi settings --machine NAME`` prints what a machine
+gets.
+"""
 
 from __future__ import annotations
 
+import copy
 import os
+from collections.abc import Mapping
 
-#: Defaults of ``nightly:`` (config.yaml, top level or per machine).
-DEFAULT_NIGHTLY = {
-    "candidate": "fit",  # fit | family: which file is tonight's candidate
-    "retrain_speed_range_rpm": None,  # [lo, hi]: only these speeds come from the new fit
-    "drift_margin_um": 2.0,  # champion max residual may grow this much on new logs
+from rafi.errors import SettingsError
+from rafi.readers.input_spec import normalise_input_spec
+
+#: Run settings: top level of ``config.yaml`` (``--config key=value`` on the command line).
+RUN_DEFAULTS: dict = {
+    "raw_dir": "raw",
+    "results_dir": "results",
+    "reports_dir": "reports",
+    # fail: the run stops at the first unreadable file; quarantine: the file is listed as
+    # quarantined and the rest carries on (rafi nightly). The clean outputs are the same.
+    "on_bad_input": "fail",
+    "nightly_machines": None,  # rafi nightly --machine: only these machines
+    "nightly_report": True,  # rafi nightly --no-report: false
 }
 
-
-#: Defaults of ``qualification:`` (the promotion gates).
-DEFAULT_GATES = {
-    "max_residual_um": 12.0,
-    "min_improvement_pct": 30.0,
-    "never_worse_than_uncompensated": True,
+#: Every per-machine default (``docs/settings.md`` explains each key).
+MACHINE_DEFAULTS: dict = {
+    "input": {},  # rafi.readers.input_spec.INPUT_DEFAULTS (the native format)
+    "sample_period_s": 5,
+    "training_speeds_rpm": [3000, 6000, 9000, 12000, 15000, 18000],
+    "speed_tolerance_rpm": 50,
+    "clean": {
+        "max_interpolate_gap_s": 60,
+        "spike_threshold": 8,
+        "open_circuit_values": [-999.0, 999.9, 850.0],
+    },
+    "runs": {
+        "idle_below_rpm": 100,
+        "min_run_s": 1800,
+        "min_constant_s": 3600,
+        "max_leading_rest_s": 300,
+        "overrides": {},
+    },
+    "reference": {"rule": "run_start", "window_s": 60},
+    "equilibrium": {"band_fraction": 0.05, "plateau_window_s": 900, "smooth_window_s": 300},
+    "rank": {"threshold": 0.97, "max_key_sensors": 3, "scope": "min_per_speed", "min_coverage": 0.9},
+    "fit": {
+        "terms": ["1", "x1", "x2", "x3", "x1*x2", "x1*x3", "x2*x3", "x1^2", "x2^2", "x3^2", "x1*x2*x3"],
+        "hac_maxlags": 60,
+    },
+    "fuzzy": {"outside": "edge"},
+    "qualification": {
+        "max_residual_um": 12.0,
+        "min_improvement_pct": 30.0,
+        "never_worse_than_uncompensated": True,
+    },
+    "models": {
+        "enabled": ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"],
+        "cv": "leave_one_run_out",
+        "cv_metric": "rmse",
+        "ridge_alphas": [float(f"{m}e{e}") for e in range(-8, 1) for m in (1, 2, 5)] + [10.0],
+        "dynamic_taus_s": [0.0, 300.0, 600.0, 1200.0, 2400.0, 4800.0],
+        "dynamic_max_taus": 2,
+        "speed_gain": "cv",
+        "speed_reference": "auto",
+        "cv_report": True,
+        "grey_box_taus_s": [0.0, 120.0, 600.0],
+        "grey_box_speed_taus_s": [60.0, 180.0, 600.0, 2400.0],
+        "grey_box_filter_search": "all",
+        "grey_box_max_taus": 1,
+        "grey_box_max_speed_taus": 2,
+        "grey_box_centrifugal_lags_s": [0.0, 5.0, 10.0, 20.0],
+        "grey_box_speed_powers": [0.0, 1.0, 5.0 / 3.0, 2.0],
+        "grey_box_cv_metric": "max_abs",
+    },
+    "nightly": {
+        "candidate": "family",
+        "retrain_speed_range_rpm": None,
+        "drift_margin_um": 2.0,
+    },
+    "report": {"figure_format": "png", "coolant_sensors": ["T13"]},
 }
 
+#: The promotion gates, in the order they are reported.
+GATE_KEYS = tuple(MACHINE_DEFAULTS["qualification"])
 
-GATE_KEYS = ("max_residual_um", "min_improvement_pct", "never_worse_than_uncompensated")
+#: Top-level keys of ``config.yaml``.
+TOP_LEVEL_KEYS = frozenset(RUN_DEFAULTS) | {"defaults", "machines"}
 
 
-def candidate_model_path(
-    machine: str, results_dir: str | os.PathLike = "results", source: str = "fit"
-) -> str:
+def deep_merge(base: Mapping, override: Mapping | None) -> dict:
+    """``base`` updated recursively with ``override`` (neither is modified).
+
+    Dicts merge key by key; any other value in ``override`` (lists included) replaces the one
+    in ``base``.
+    """
+    merged = copy.deepcopy(dict(base))
+    for key, value in (override or {}).items():
+        if isinstance(value, Mapping) and isinstance(merged.get(key), Mapping):
+            merged[key] = deep_merge(merged[key], value)
+        else:
+            merged[key] = copy.deepcopy(value)
+    return merged
+
+
+def check_layout(config: Mapping) -> None:
+    """Raise :class:`SettingsError` for a top-level key that is not a run setting.
+
+    A per-machine section at the top level (``qualification:``, ``models:``, ...) would be
+    read by nothing; the message says where it belongs.
+    """
+    misplaced = sorted(k for k in config if k not in TOP_LEVEL_KEYS)
+    if not misplaced:
+        return
+    hints = []
+    for key in misplaced:
+        if key in MACHINE_DEFAULTS:
+            hints.append(
+                f"{key!r} is a per-machine setting: put it under 'defaults:' (every machine) or "
+                f"'machines: <name>:' (one machine)"
+            )
+        else:
+            hints.append(f"{key!r} is not a setting (top-level keys: {', '.join(sorted(TOP_LEVEL_KEYS))})")
+    raise SettingsError("config.yaml: " + "; ".join(hints))
+
+
+def run_settings(config: Mapping) -> dict:
+    """The run settings (top level of ``config.yaml`` over :data:`RUN_DEFAULTS`)."""
+    check_layout(config)
+    out = copy.deepcopy(RUN_DEFAULTS)
+    out.update({k: copy.deepcopy(v) for k, v in config.items() if k in RUN_DEFAULTS})
+    return out
+
+
+def machine_settings(config: Mapping, machine: str) -> dict:
+    """Effective settings of one machine: every key present, nothing to default later.
+
+    Parameters
+    ----------
+    config : Mapping
+        ``config.yaml`` as loaded (validated against ``workflow/schemas/config.schema.yaml``).
+    machine : str
+        Folder name under ``raw_dir``.
+
+    Returns
+    -------
+    dict
+        A fresh copy of :data:`MACHINE_DEFAULTS` < ``defaults:`` < ``machines.<machine>``, with
+        ``input`` normalised by :func:`rafi.readers.input_spec.normalise_input_spec` (its
+        defaults filled in).
+    """
+    check_layout(config)
+    merged = deep_merge(MACHINE_DEFAULTS, config.get("defaults"))
+    merged = deep_merge(merged, (config.get("machines") or {}).get(machine))
+    merged["input"] = normalise_input_spec(merged["input"])
+    return merged
+
+
+def model_provenance(settings: Mapping) -> dict:
+    """The settings recorded in ``model.json`` (``config``): everything upstream of the model."""
+    keys = (
+        "input",
+        "sample_period_s",
+        "training_speeds_rpm",
+        "speed_tolerance_rpm",
+        "clean",
+        "runs",
+        "reference",
+        "rank",
+        "fit",
+        "fuzzy",
+    )
+    return {key: copy.deepcopy(settings[key]) for key in keys}
+
+
+def candidate_model_path(machine: str, results_dir: str | os.PathLike, source: str) -> str:
     """Path of tonight's candidate model of ``machine``.
 
-    ``source`` is ``nightly.candidate`` from the config:
-
-    * ``fit`` (default): ``<results>/<machine>/model.json``, written by rule ``fit``;
-    * ``family``: ``<results>/<machine>/comparison/best_model.json``, the best model of the
-      model family (``rafi.family.models``), which must be a ``rafi.model/1`` artefact.
-
-    The decision is made at DAG-build time from the config (not from which files happen
-    to exist), so the rule graph is the same on a fresh checkout and after a run.
+    ``source`` is ``nightly.candidate``: ``fit`` -> ``<results>/<machine>/model.json`` (RAFI as
+    published, rule ``fit``); ``family`` -> ``<results>/<machine>/comparison/best_model.json``
+    (the best model of the family, rule ``compare``). Decided from the settings when the job
+    graph is built, not from which files exist, so the graph is the same before and after a run.
     """
     if source == "fit":
         return f"{results_dir}/{machine}/model.json"
     if source == "family":
         return f"{results_dir}/{machine}/comparison/best_model.json"
-    raise ValueError(f"nightly.candidate is {source!r}; expected 'fit' or 'family'")
+    raise SettingsError(f"nightly.candidate is {source!r}; expected 'fit' or 'family'")
+
+
+# Read by name where one section is needed on its own (the values live above, nowhere else).
+DEFAULT_GATES = MACHINE_DEFAULTS["qualification"]
+DEFAULT_NIGHTLY = MACHINE_DEFAULTS["nightly"]

@@ -12,7 +12,8 @@ from hypothesis import strategies as st
 
 from rafi import SENSORS
 from rafi.errors import RawFormatError
-from rafi.method.clean import AUDIT_COLUMNS, SUMMARY_COLUMNS, clean_log, summarise_audit
+from rafi.method.audit import SUMMARY_COLUMNS, summarise_audit
+from rafi.method.clean import AUDIT_COLUMNS, clean_log
 from rafi.readers.native import format_raw_log, read_raw_log
 from rafi.twin.synthetic_logs import OPEN_CIRCUIT, canonical_log, inject_defects
 

@@ -27,6 +27,8 @@ import pandas as pd
 import pytest
 import yaml
 
+from rafi.settings import deep_merge, machine_settings
+
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = "tapping-center-a"
 #: The shipped logs (override with RAFI_E2E_RAW=<folder> to try other data).
@@ -149,8 +151,9 @@ def pick_files(config: dict) -> list[Path]:
     """Three training speeds, one single-speed validation log and the multi-condition log."""
     from rafi.readers.native import read_raw_log
 
-    training = config["defaults"]["training_speeds_rpm"]
-    tol = config["defaults"]["speed_tolerance_rpm"]
+    settings = machine_settings(config, MACHINE)
+    training = settings["training_speeds_rpm"]
+    tol = settings["speed_tolerance_rpm"]
     by_training: dict[float, Path] = {}
     validation: list[tuple[float, Path]] = []
     multi: list[tuple[float, Path]] = []
@@ -266,7 +269,7 @@ def test_pipeline_end_to_end(workdir: Path):
 
     config_path = workdir / "config.yaml"
     config = yaml.safe_load(config_path.read_text(encoding="utf-8"))
-    config["defaults"]["rank"]["threshold"] = 0.5
+    config["defaults"] = deep_merge(config.get("defaults") or {}, {"rank": {"threshold": 0.5}})
     config_path.write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
     proc = snakemake(workdir, "tables", "-n")
     assert proc.returncode == 0, proc.stderr[-3000:]
@@ -306,3 +309,67 @@ def test_bad_file_fails_fast_interactively_and_is_quarantined_at_night(workdir: 
     runs = pd.read_csv(work / "results" / MACHINE / "runs.csv")
     assert "zz_broken" not in set(runs["run_id"])
     assert sha256(broken) == before
+
+    # Interactive again with nothing new: the quarantined file's outputs are up to date, so no
+    # job would fail on it; planning stops the run with the reason instead.
+    again = snakemake(work, "tables", "-n")
+    assert again.returncode != 0
+    assert "zz_broken.csv, line 13, column 'T3'" in again.stdout + again.stderr
+    assert "on_bad_input=quarantine" in again.stdout + again.stderr
+    # ... and once the file is gone the interactive run goes on, re-running what depended on it
+    broken.unlink()
+    fixed = snakemake(work, "tables", "-n")
+    assert fixed.returncode == 0, fixed.stdout[-3000:] + fixed.stderr[-3000:]
+
+
+def _project(workdir: Path, dest: Path, files: dict[str, Path]) -> Path:
+    """A project in ``dest`` with the workflow of ``workdir`` and ``files`` (name -> source)."""
+    dest.mkdir()
+    for name in ("Snakefile", "config.yaml"):
+        shutil.copy2(workdir / name, dest / name)
+    for name in ("workflow", "rafi"):
+        shutil.copytree(workdir / name, dest / name, ignore=shutil.ignore_patterns("__pycache__"))
+    (dest / "raw" / MACHINE).mkdir(parents=True)
+    for name, source in files.items():
+        shutil.copy2(source, dest / "raw" / MACHINE / name)
+    return dest
+
+
+def test_any_legal_file_name_works_and_switching_on_bad_input_reruns_nothing(workdir: Path, tmp_path: Path):
+    """Braces (Snakemake's wildcard syntax), spaces and unicode in raw file names; then the
+    interactive and the nightly mode share every output: switching re-runs no job."""
+    shipped = sorted((workdir / "raw" / MACHINE).glob("*.csv"))
+    names = ["log_{date}.csv", "with space é.csv", "v}{x.csv", "ünïcode_日本.csv", "100%.csv"]
+    work = _project(workdir, tmp_path / "odd", dict(zip(names, shipped)))
+
+    first = snakemake(work, "tables")
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    runs = pd.read_csv(work / "results" / MACHINE / "runs.csv")
+    assert set(runs["file"]) == set(names)
+    assert (work / "results" / MACHINE / "clean" / "log_%7Bdate%7D.parquet").is_file()
+    assert (work / "results" / MACHINE / "clean" / "100%25.parquet").is_file()
+
+    for mode in ("quarantine", "fail", "quarantine"):
+        dry = snakemake(work, "tables", "-n", "--config", f"on_bad_input={mode}")
+        assert dry.returncode == 0, dry.stderr[-3000:]
+        assert "Nothing to be done" in dry.stdout + dry.stderr, (mode, job_counts(dry.stdout + dry.stderr))
+
+    # a raw file Snakemake cannot name as an input is followed by its size and mtime: an edit
+    # re-runs its clean job (and what depends on it), not the others
+    with open(work / "raw" / MACHINE / "log_{date}.csv", "a", encoding="utf-8") as fh:
+        fh.write("\n")
+    edited = snakemake(work, "tables", "-n")
+    counts = job_counts(edited.stdout + edited.stderr)
+    assert counts.get("clean") == 1, counts
+
+
+def test_a_machine_section_at_the_top_level_stops_planning_with_where_it_belongs(workdir: Path, tmp_path: Path):
+    """The first settings bug: `qualification:` at the top level was valid, read by the decide
+    job and ignored by the compare job. Now the run does not start, and says why."""
+    work = _project(workdir, tmp_path / "top", {})
+    config = yaml.safe_load((work / "config.yaml").read_text(encoding="utf-8"))
+    config["qualification"] = {"max_residual_um": 5.0}
+    (work / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+    proc = snakemake(work, "-n")
+    assert proc.returncode != 0
+    assert "'qualification' is a per-machine setting: put it under 'defaults:'" in proc.stdout + proc.stderr

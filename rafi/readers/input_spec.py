@@ -342,3 +342,20 @@ def find_logs(machine_dir: str | os.PathLike, input_spec: dict | None = None) ->
 
 
 # --------------------------------------------------------------------------- nightly and gates
+
+
+def log_id(stem: str) -> str:
+    """The name of a raw file's outputs (``clean/<log id>.parquet``): its stem, with ``%``,
+    ``{`` and ``}`` percent-encoded.
+
+    Snakemake reads ``{name}`` in any path as a wildcard and has no escape for it, so a raw
+    file called ``log_{date}.csv`` gets the outputs ``clean/log_%7Bdate%7D.*``. Every other
+    character (spaces, unicode) is kept as it is.
+    """
+    return stem.replace("%", "%25").replace("{", "%7B").replace("}", "%7D")
+
+
+def has_braces(path: str | os.PathLike) -> bool:
+    """True if ``path`` holds ``{`` or ``}`` (Snakemake cannot name it as an input)."""
+    text = str(path)
+    return "{" in text or "}" in text

@@ -18,7 +18,6 @@
 #              REPORT_FIGURE_GROUPS, report_figures_path(group, machine),
 #              report_figure_inputs(wildcards), report_figure_gates(wildcards)
 
-import copy
 import importlib.util
 import logging
 import os
@@ -26,13 +25,19 @@ from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
 
-# rafi.config: what planning needs, standard library only (no NumPy/pandas to import on
-# every invocation); rafi.ops.registry and rafi.io re-export these names.
+# What planning needs is standard library only (no NumPy/pandas to import on every invocation).
 import rafi.settings as _settings
-from rafi.readers.input_spec import find_logs
+from rafi.errors import SettingsError
+from rafi.readers.input_spec import find_logs, has_braces, log_id
+from rafi.readers.quarantine import still_quarantined
 from rafi.ops.code_deps import code_files
 from snakemake.utils import validate
 
+try:
+    #: Run settings (top level of config.yaml over rafi.settings.RUN_DEFAULTS).
+    RUN = _settings.run_settings(config)
+except SettingsError as exc:
+    raise WorkflowError(f"RAFI: {exc}") from None
 validate(config, schema="../schemas/config.schema.yaml")
 
 # Every job does linear algebra on small matrices: one BLAS thread per process is fastest,
@@ -45,9 +50,9 @@ os.environ.update(
 
 _log = logging.getLogger("rafi.workflow")
 
-RAW_DIR = Path(config["raw_dir"])
-RESULTS_DIR = str(config["results_dir"]).rstrip("/")
-REPORTS_DIR = str(config["reports_dir"]).rstrip("/")
+RAW_DIR = Path(RUN["raw_dir"])
+RESULTS_DIR = str(RUN["results_dir"]).rstrip("/")
+REPORTS_DIR = str(RUN["reports_dir"]).rstrip("/")
 LOGS_DIR = "logs"
 
 
@@ -58,39 +63,17 @@ wildcard_constraints:
 
 # --------------------------------------------------------------------------- settings
 
-
-def _deep_merge(base, override):
-    """Return ``base`` updated recursively with ``override`` (neither is modified).
-
-    Dicts merge key by key; any other value (lists included) in ``override``
-    replaces the one in ``base``.
-    """
-    merged = copy.deepcopy(base)
-    for key, value in (override or {}).items():
-        if isinstance(value, dict) and isinstance(merged.get(key), dict):
-            merged[key] = _deep_merge(merged[key], value)
-        else:
-            merged[key] = copy.deepcopy(value)
-    return merged
+_MACHINE_SETTINGS = {}
 
 
 def machine_config(machine):
-    """Effective settings of one machine: ``defaults`` deep-merged with ``machines[<machine>]``.
+    """Effective settings of ``machine`` (``rafi.settings.machine_settings``: every key present).
 
-    Parameters
-    ----------
-    machine : str
-        Folder name under ``raw_dir``.
-
-    Returns
-    -------
-    dict
-        A fresh copy (safe to modify). Besides the keys of ``defaults`` it always
-        holds ``on_bad_input`` (the machine's value, else the top-level one).
+    Computed once per machine and invocation; callers must not modify the dict they get.
     """
-    merged = _deep_merge(config["defaults"], (config.get("machines") or {}).get(machine) or {})
-    merged.setdefault("on_bad_input", config["on_bad_input"])
-    return merged
+    if machine not in _MACHINE_SETTINGS:
+        _MACHINE_SETTINGS[machine] = _settings.machine_settings(config, machine)
+    return _MACHINE_SETTINGS[machine]
 
 
 def _patterns(machine):
@@ -111,7 +94,7 @@ def _find_logs(folder, machine):
 
 
 def _discover():
-    """Map machine -> {stem: raw path} from the folders of ``raw_dir``.
+    """Map machine -> {log id: raw path} from the folders of ``raw_dir``.
 
     Re-evaluated on every Snakemake invocation, so a new folder or file is picked
     up on the next run without editing the config. Hidden entries are ignored;
@@ -124,15 +107,19 @@ def _discover():
         return found
     for folder in sorted(p for p in RAW_DIR.iterdir() if p.is_dir() and not p.name.startswith(".")):
         machine = folder.name
+        if has_braces(machine):
+            _log.warning("RAFI: skipping machine folder %s: a machine name cannot hold { or }", folder)
+            continue
         patterns = _patterns(machine)
         files = {}
         for path in _find_logs(folder, machine):
-            if path.stem in files:
+            key = log_id(path.stem)
+            if key in files:
                 raise WorkflowError(
-                    f"RAFI: {path} and {files[path.stem]} have the same stem {path.stem!r}; "
+                    f"RAFI: {path} and {files[key]} have the same stem {path.stem!r}; "
                     f"results/<machine>/clean/<stem>.parquet would collide - rename one of them"
                 )
-            files[path.stem] = str(path)
+            files[key] = str(path)
         if not files:
             _log.warning(
                 "RAFI: skipping machine folder %s: no file matches input.pattern %s", folder, patterns
@@ -158,17 +145,35 @@ def raw_files(machine):
     return sorted(RAW.get(machine, {}).values())
 
 
-def raw_file(wildcards):
-    """Input function (clean step): the raw file of ``{machine}``/``{stem}``."""
+def raw_path(wildcards):
+    """The raw file of ``{machine}``/``{stem}`` (``{stem}`` is its log id)."""
     try:
         return RAW[wildcards.machine][wildcards.stem]
     except KeyError:
         raise WorkflowError(
-            f"RAFI: no raw file {wildcards.stem}.* for machine " f"{wildcards.machine!r} under {RAW_DIR}"
+            f"RAFI: no raw file {wildcards.stem}.* for machine {wildcards.machine!r} under {RAW_DIR}"
         ) from None
 
 
+def raw_file(wildcards):
+    """Input function (clean step): the raw file, unless its path holds braces, which Snakemake
+    would read as wildcards; such a file is followed by ``raw_stamp`` (a param) instead."""
+    path = raw_path(wildcards)
+    return [] if has_braces(path) else path
+
+
+def raw_stamp(wildcards):
+    """Size and modification time of a raw file that cannot be an input (see ``raw_file``), so
+    that editing it re-runs its clean job; ``None`` for every other file."""
+    path = raw_path(wildcards)
+    if not has_braces(path):
+        return None
+    stat = os.stat(path)
+    return [stat.st_size, stat.st_mtime_ns]
+
+
 # --------------------------------------------------------------------------- paths
+
 
 #: Output templates (relative to ``results_dir``) - the tables of docs/design.md plus the
 #: per-file intermediates of the clean step (``clean/<stem>.summary.csv``: one audit row).
@@ -192,19 +197,11 @@ OUTPUTS = {
     "residuals": "validation/residuals.parquet",
 }
 
-#: Settings recorded in model.json ("config"): everything upstream of the model artefact.
-MODEL_CONFIG_KEYS = (
-    "input",
-    "sample_period_s",
-    "training_speeds_rpm",
-    "speed_tolerance_rpm",
-    "clean",
-    "runs",
-    "reference",
-    "rank",
-    "fit",
-    "fuzzy",
-)
+
+def model_provenance(settings):
+    """Settings recorded in model.json (``rafi.settings.model_provenance``)."""
+    return _settings.model_provenance(settings)
+
 
 #: Per-machine tables every full run must produce (``rule all``).
 TABLES = [name for name in OUTPUTS if not name.startswith("clean_")]
@@ -315,19 +312,13 @@ def comparison_outputs(machine):
 
 
 def nightly_settings(machine):
-    """``nightly:`` of ``machine``: built-in defaults < top-level ``nightly`` < machine's."""
-    merged = dict(_settings.DEFAULT_NIGHTLY)
-    merged.update(config.get("nightly") or {})
-    merged.update(machine_config(machine).get("nightly") or {})
-    return merged
+    """``nightly:`` of ``machine`` (its effective settings)."""
+    return machine_config(machine)["nightly"]
 
 
 def qualification_gates(machine):
-    """Promotion gates of ``machine`` (``qualification:``, per machine over top level)."""
-    merged = dict(_settings.DEFAULT_GATES)
-    merged.update(config.get("qualification") or {})
-    merged.update(machine_config(machine).get("qualification") or {})
-    return {k: merged[k] for k in _settings.GATE_KEYS if k in merged}
+    """Promotion gates of ``machine`` (``qualification:`` of its effective settings)."""
+    return machine_config(machine)["qualification"]
 
 
 def registry_path(name, machine="{machine}"):
@@ -343,7 +334,7 @@ def candidate_model(wildcards):
 
 
 def _nightly_machines():
-    only = config.get("nightly_machines")
+    only = RUN["nightly_machines"]
     if not only:
         return MACHINES
     only = [only] if isinstance(only, str) else list(only)
@@ -351,7 +342,7 @@ def _nightly_machines():
 
 
 def _report_wanted():
-    return str(config.get("nightly_report", True)).lower() not in ("0", "false", "no")
+    return str(RUN["nightly_report"]).lower() not in ("0", "false", "no")
 
 
 def nightly_targets():
@@ -461,10 +452,26 @@ def report_inputs(wildcards):
 
 
 def report_settings(machine):
-    """Report-only settings (optional ``report:`` block in config.yaml; defaults here)."""
-    rep = dict(config.get("report") or {})
-    rep.update(((config.get("machines") or {}).get(machine) or {}).get("report") or {})
-    return {
-        "figure_format": rep.get("figure_format", "png"),
-        "coolant_sensors": list(rep.get("coolant_sensors", ["T13"])),
-    }
+    """``report:`` of ``machine`` (its effective settings)."""
+    return machine_config(machine)["report"]
+
+
+# --------------------------------------------------------------------------- bad input
+
+
+def _refuse_quarantined():
+    """``on_bad_input: fail``: stop now if an earlier (quarantine) run set aside a raw file that
+    is still there unchanged; its outputs are up to date, so no job would fail on it."""
+    if RUN["on_bad_input"] != "fail":
+        return
+    pairs = [(path, out("clean_summary", m, key)) for m in MACHINES for key, path in RAW[m].items()]
+    reasons = still_quarantined(pairs)
+    if reasons:
+        listed = "\n  ".join(reasons)
+        raise WorkflowError(
+            f"RAFI: {len(reasons)} raw file(s) cannot be used:\n  {listed}\nFix or remove them, or "
+            "run with --config on_bad_input=quarantine to carry on without them."
+        )
+
+
+_refuse_quarantined()

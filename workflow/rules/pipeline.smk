@@ -17,8 +17,11 @@
 rule clean:
     """Read, check and clean one raw log onto the regular sample grid.
 
-    On a RawFormatError: on_bad_input=fail stops with the message (file, line,
-    column); on_bad_input=quarantine writes an empty table and a quarantined audit row.
+    A file that cannot be used (RawFormatError): with on_bad_input=fail the job fails with
+    the message (file, line, column); with quarantine it gets an empty table and a
+    quarantined audit row with the message. on_bad_input is read from the run's config, not
+    a param, so switching modes re-runs nothing; common.smk stops a fail-mode run at
+    planning when an earlier run quarantined a file that is still there.
     """
     input:
         raw=raw_file,
@@ -35,6 +38,8 @@ rule clean:
     conda:
         "../envs/rafi.yaml"
     params:
+        raw_path=raw_path,
+        raw_stamp=raw_stamp,
         input_spec=lambda w: machine_config(w.machine)["input"],
         sample_period_s=lambda w: machine_config(w.machine)["sample_period_s"],
         clean=lambda w: machine_config(w.machine)["clean"],
@@ -44,7 +49,6 @@ rule clean:
             "sample_period_s": machine_config(w.machine)["sample_period_s"],
             "open_circuit_values": machine_config(w.machine)["clean"]["open_circuit_values"],
         },
-        on_bad_input=lambda w: machine_config(w.machine)["on_bad_input"],
     script:
         "../scripts/clean.py"
 
@@ -161,11 +165,7 @@ rule fit:
         fuzzy=lambda w: machine_config(w.machine)["fuzzy"],
         speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],
         # settings that shaped the model, stored in model.json for provenance
-        model_config=lambda w: {
-            key: machine_config(w.machine)[key]
-            for key in MODEL_CONFIG_KEYS
-            if key in machine_config(w.machine)
-        },
+        model_config=lambda w: model_provenance(machine_config(w.machine)),
     script:
         "../scripts/fit.py"
 

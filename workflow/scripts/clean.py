@@ -6,13 +6,15 @@ from _glue import step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import rafi.artefact
+    import rafi.method.audit
     import rafi.method.clean
     import rafi.readers.logs
     from rafi.errors import RawFormatError
     from rafi.readers.checks import check_log
+    from rafi.settings import run_settings
 
     smk = snakemake  # noqa: F821
-    src = Path(smk.input.raw)
+    src = Path(smk.params.raw_path)
     spec = smk.params.input_spec
     cfg = smk.params.clean
     sha = rafi.readers.logs.sha256_file(src)
@@ -30,13 +32,14 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
             spike_threshold=cfg["spike_threshold"],
             open_circuit_values=cfg["open_circuit_values"],
         )
-        summary = rafi.method.clean.summarise_audit(src.name, sha, rows_in, clean, actions)
+        summary = rafi.method.audit.summarise_audit(src.name, sha, rows_in, clean, actions)
     except RawFormatError as exc:
-        if smk.params.on_bad_input != "quarantine":
+        # on_bad_input is a run mode, not a param: the outputs are the same in both modes
+        if run_settings(smk.config)["on_bad_input"] == "fail":
             raise
         log.warning("quarantined %s: %s", src.name, exc)
         print(f"  QUARANTINED: {exc}", flush=True)
-        clean, actions, summary = rafi.method.clean.quarantined(src.name, sha, str(exc))
+        clean, actions, summary = rafi.method.audit.quarantined(src.name, sha, str(exc))
     else:
         counts = actions["action"].value_counts().to_dict() if len(actions) else {}
         print(f"  clean: {len(clean)} rows; actions: {counts or 'none'}", flush=True)

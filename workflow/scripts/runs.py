@@ -11,16 +11,18 @@ from _glue import step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import rafi.artefact
+    from rafi.method.audit import stack_summaries
     from rafi.method.runs import find_runs
+    from rafi.readers.input_spec import log_id
 
     smk = snakemake  # noqa: F821
-    audit = pd.concat([pd.read_csv(p) for p in smk.input.summaries], ignore_index=True)
+    audit = stack_summaries(pd.read_csv(p) for p in smk.input.summaries)
     usable = audit[audit["status"] == "ok"]
     sha256 = dict(zip(usable["file"], usable["sha256"]))
     by_stem = {Path(p).name.removesuffix(".parquet"): p for p in smk.input.clean}
     frames = {}
     for name in usable["file"]:
-        frames[name] = pd.read_parquet(by_stem[Path(name).stem])
+        frames[name] = pd.read_parquet(by_stem[log_id(Path(name).stem)])
         print(f"read clean {name}: {len(frames[name])} rows", flush=True)
     if not frames:
         raise RuntimeError(

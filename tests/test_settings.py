@@ -1,0 +1,168 @@
+"""The one settings resolver (rafi.settings): layers, the schema, and the two bugs it fixed.
+
+* ``qualification:`` at the top level of config.yaml was valid under the schema, read by the
+  decide job and ignored by the compare job (one run, two gate sets): now refused, naming
+  where it belongs.
+* ``defaults.report.figure_format`` passed the schema and was never read: every key the schema
+  allows has one default and is read somewhere.
+"""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import jsonschema
+import pytest
+import yaml
+
+from rafi.errors import SettingsError
+from rafi.settings import (
+    GATE_KEYS,
+    MACHINE_DEFAULTS,
+    RUN_DEFAULTS,
+    check_layout,
+    deep_merge,
+    machine_settings,
+    run_settings,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+SCHEMA = yaml.safe_load((ROOT / "workflow" / "schemas" / "config.schema.yaml").read_text(encoding="utf-8"))
+CONFIG = yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))
+
+#: Sections whose keys are names chosen by the user (not settings): their content is free.
+OPEN_MAPS = {("runs", "overrides"), ("input", "columns")}
+
+
+def _resolve_ref(node: dict) -> dict:
+    while "$ref" in node:
+        node = SCHEMA["$defs"][node["$ref"].split("/")[-1]]
+    return node
+
+
+def schema_keys(node: dict, prefix: tuple = ()) -> set[tuple]:
+    """Every key path the schema allows below ``node`` (leaves and sections)."""
+    node = _resolve_ref(node)
+    keys = set()
+    for key, sub in (node.get("properties") or {}).items():
+        path = (*prefix, key)
+        keys.add(path)
+        if path not in OPEN_MAPS:
+            keys |= schema_keys(sub, path)
+    return keys
+
+
+def default_keys(mapping: dict, prefix: tuple = ()) -> set[tuple]:
+    keys = set()
+    for key, value in mapping.items():
+        path = (*prefix, key)
+        keys.add(path)
+        if isinstance(value, dict) and path not in OPEN_MAPS:
+            keys |= default_keys(value, path)
+    return keys
+
+
+def settings_validator() -> jsonschema.Draft202012Validator:
+    schema = {"$defs": SCHEMA["$defs"], **SCHEMA["$defs"]["settings"]}
+    return jsonschema.Draft202012Validator(schema)
+
+
+def test_config_validates_and_shipped_machines_resolve_completely():
+    jsonschema.validate(CONFIG, SCHEMA)
+    validator = settings_validator()
+    for machine in ("tapping-center-a", "machining-center-b", "a-machine-without-settings"):
+        settings = machine_settings(CONFIG, machine)
+        assert set(settings) == set(MACHINE_DEFAULTS)
+        settings.pop("input")  # normalised: its defaults are rafi.readers.input_spec's, None included
+        validator.validate(settings)
+
+
+def test_every_default_has_a_schema_entry_and_every_setting_a_default():
+    allowed = {k for k in schema_keys(SCHEMA["$defs"]["settings"]) if k[0] != "input"}
+    defaulted = {k for k in default_keys(MACHINE_DEFAULTS) if k[0] != "input"}
+    assert defaulted == allowed, (sorted(allowed - defaulted), sorted(defaulted - allowed))
+    top = set(SCHEMA["properties"]) - {"defaults", "machines"}
+    assert top == set(RUN_DEFAULTS)
+
+
+def _source_files():
+    yield from (p for p in (ROOT / "rafi").rglob("*.py") if p.name != "settings.py")
+    yield from (ROOT / "workflow").rglob("*.py")
+    yield from (ROOT / "workflow").rglob("*.smk")
+    yield ROOT / "Snakefile"
+
+
+def _read_keys() -> set[str]:
+    """Names read as a key somewhere: ``x["key"]``, ``x.get("key")``, ``key=`` in a call, or
+    ``smk.params.key`` (the workflow's params are named like the settings they carry)."""
+    found: set[str] = set()
+    for path in _source_files():
+        text = path.read_text(encoding="utf-8")
+        found |= set(re.findall(r"""\[\s*["'](\w+)["']\s*\]""", text))
+        found |= set(re.findall(r"""\.get\(\s*["'](\w+)["']""", text))
+        found |= set(re.findall(r"""\.params\.(\w+)""", text))
+        if path.suffix == ".py":
+            for node in ast.walk(ast.parse(text)):
+                if isinstance(node, ast.keyword) and node.arg:
+                    found.add(node.arg)
+    return found
+
+
+def test_every_key_the_schema_allows_is_read_somewhere():
+    read = _read_keys()
+    leaves = {path[-1] for path in schema_keys(SCHEMA["$defs"]["settings"]) if path[0] != "input"}
+    leaves |= {path[-1] for path in schema_keys(SCHEMA)}
+    unread = sorted(leaves - read - {"defaults", "machines"})
+    assert not unread, f"settings nothing reads: {unread}"
+
+
+def test_layers_machine_over_defaults_over_built_in():
+    config = {
+        "defaults": {"qualification": {"max_residual_um": 9.0}, "report": {"figure_format": "svg"}},
+        "machines": {"m1": {"qualification": {"min_improvement_pct": 50.0}}},
+    }
+    m1 = machine_settings(config, "m1")
+    assert m1["qualification"] == {
+        "max_residual_um": 9.0,
+        "min_improvement_pct": 50.0,
+        "never_worse_than_uncompensated": True,
+    }
+    assert tuple(m1["qualification"]) == GATE_KEYS
+    assert m1["report"]["figure_format"] == "svg"  # the bug: defaults.report was never read
+    assert machine_settings(config, "m2")["qualification"]["min_improvement_pct"] == 30.0
+    # lists replace, they do not merge
+    assert deep_merge({"a": [1, 2], "b": {"c": 1}}, {"a": [3]}) == {"a": [3], "b": {"c": 1}}
+    # a fresh copy every time
+    m1["qualification"]["max_residual_um"] = 0
+    assert machine_settings(config, "m1")["qualification"]["max_residual_um"] == 9.0
+    assert MACHINE_DEFAULTS["qualification"]["max_residual_um"] == 12.0
+
+
+def test_input_mapping_is_normalised_with_its_own_defaults():
+    native = machine_settings({}, "m")["input"]
+    assert native["format"] == "native" and native["pattern"] == "*.csv"
+    xlsx = machine_settings({"machines": {"m": {"input": {"format": "xlsx"}}}}, "m")["input"]
+    assert xlsx["pattern"] == "*.xlsx"  # not the native pattern of a merged default
+
+
+@pytest.mark.parametrize("section", ["qualification", "models", "nightly", "report", "rank"])
+def test_a_machine_section_at_the_top_level_is_refused_with_where_it_belongs(section):
+    config = {**CONFIG, section: {}}
+    with pytest.raises(SettingsError, match=rf"'{section}' is a per-machine setting: put it under 'defaults:'"):
+        check_layout(config)
+    with pytest.raises(SettingsError):
+        machine_settings(config, "tapping-center-a")
+    with pytest.raises(jsonschema.ValidationError):
+        jsonschema.validate(config, SCHEMA)
+
+
+def test_an_unknown_top_level_key_is_refused():
+    with pytest.raises(SettingsError, match="'raw_directory' is not a setting"):
+        run_settings({"raw_directory": "x"})
+
+
+def test_run_settings_defaults_and_overrides():
+    assert run_settings({}) == RUN_DEFAULTS
+    assert run_settings({"on_bad_input": "quarantine"})["on_bad_input"] == "quarantine"
