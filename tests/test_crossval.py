@@ -29,7 +29,7 @@ from rafi.family.models import (
     RidgeGlobal,
     run_family,
 )
-from rafi.twin.family_runs import make_synthetic_runs
+from rafi.twin.synthetic_runs import make_synthetic_runs
 
 DATA = Path(__file__).parent / "data"
 GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}

@@ -25,7 +25,7 @@ from rafi.family.models import (
     save_any,
     speed_change_evidence,
 )
-from rafi.twin.family_runs import make_synthetic_runs
+from rafi.twin.synthetic_runs import make_synthetic_runs
 
 KEY = ["T1", "T2", "T3"]
 SMALL_TERMS = ["1", "x1", "x2", "x3", "x1*x2", "x1^2"]

@@ -8,7 +8,7 @@ import pandas as pd
 import pytest
 
 from rafi.method.rank import rank_sensors, training_speed_groups
-from rafi.twin.synthetic_model import make_runs
+from rafi.twin.synthetic_runs import make_runs
 
 SPEEDS = (3000, 6000, 9000)
 

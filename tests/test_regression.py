@@ -12,7 +12,7 @@ from rafi.method.fit import (
     fit_speed,
 )
 from rafi.method.model import RafiModel, design_matrix, parse_terms
-from rafi.twin.synthetic_model import KEY, TERMS, make_runs
+from rafi.twin.synthetic_runs import KEY, TERMS, make_runs
 
 REF = {"rule": "run_start", "window_s": 60}
 

@@ -1,4 +1,4 @@
-"""The spindle digital twin (rafi.twin.spindle) and the `rafi simulate` command."""
+"""The spindle digital twin (rafi.twin) and the `rafi simulate` command."""
 
 from __future__ import annotations
 
@@ -14,7 +14,14 @@ import pytest
 
 from rafi import REQUIRED_COLUMNS, SENSORS
 from rafi.readers.native import read_raw_log
-from rafi.twin import spindle as twin
+from rafi.twin.calibration import noise_floor
+from rafi.twin.defects import DEFECT_COLUMNS
+from rafi.twin.machines import NODES, Ambient, DefectRates, machine_params
+from rafi.twin.physics import heat_sources
+from rafi.twin.recipes import machining_center_b_spec
+from rafi.twin.schedules import constant_schedule, multi_condition_schedule, schedule_from_pairs
+from rafi.twin.simulate import simulate_run
+from rafi.twin.writers import B_COLUMNS, read_b_layout, render_xlsx, simulate_b
 
 ROOT = Path(__file__).resolve().parents[1]
 RAW = ROOT / "raw"
@@ -29,7 +36,8 @@ def sha(path: Path) -> str:
 
 def test_import_is_light():
     code = (
-        "import sys, rafi.twin.spindle; "
+        "import sys, rafi.twin.simulate, rafi.twin.recipes, rafi.twin.writers, rafi.twin.day, "
+        "rafi.twin.calibration, rafi.twin.plots; "
         "print(any(m.split('.')[0] in ('matplotlib', 'openpyxl', 'statsmodels') for m in sys.modules))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT)
@@ -37,27 +45,27 @@ def test_import_is_light():
 
 
 def test_four_hour_run_is_fast():
-    twin.simulate_run(twin.constant_schedule(6000, 600), seed=1)  # warm caches / imports
+    simulate_run(constant_schedule(6000, 600), seed=1)  # warm caches / imports
     t0 = time.perf_counter()
-    run = twin.simulate_run(twin.constant_schedule(9000, 4 * 3600), seed=1)
+    run = simulate_run(constant_schedule(9000, 4 * 3600), seed=1)
     assert time.perf_counter() - t0 < 1.0
     assert len(run.truth) == 2880
 
 
 def test_same_seed_same_log_other_seed_other_log():
-    sched = twin.multi_condition_schedule(((10, 3000), (10, 12000)))
-    a = twin.simulate_run(sched, seed=3)
-    b = twin.simulate_run(sched, seed=3)
-    c = twin.simulate_run(sched, seed=4)
+    sched = multi_condition_schedule(((10, 3000), (10, 12000)))
+    a = simulate_run(sched, seed=3)
+    b = simulate_run(sched, seed=3)
+    c = simulate_run(sched, seed=4)
     pd.testing.assert_frame_equal(a.log, b.log)
     pd.testing.assert_frame_equal(a.defects, b.defects)
     assert not a.log[list(SENSORS)].equals(c.log[list(SENSORS)])
 
 
 def test_cold_start_nodes_at_ambient_and_heating_with_speed():
-    run = twin.simulate_run(twin.constant_schedule(12000, 3600), seed=0, defects=False, noise=False)
+    run = simulate_run(constant_schedule(12000, 3600), seed=0, defects=False, noise=False)
     first = run.nodes.iloc[0]
-    for node in twin.NODES:
+    for node in NODES:
         assert first[node] == pytest.approx(first["ambient"])
     last = run.nodes.iloc[-1]
     assert last["shaft"] > last["housing"] > last["ambient"]
@@ -65,17 +73,17 @@ def test_cold_start_nodes_at_ambient_and_heating_with_speed():
 
 
 def test_truth_has_canonical_columns_and_no_noise():
-    run = twin.simulate_run(twin.constant_schedule(3000, 1800), seed=2, defects=False, noise=False)
+    run = simulate_run(constant_schedule(3000, 1800), seed=2, defects=False, noise=False)
     assert list(run.truth.columns) == list(REQUIRED_COLUMNS)
     assert list(run.log.columns) == list(REQUIRED_COLUMNS)
     pd.testing.assert_frame_equal(run.log, run.truth)
     assert run.defects.empty
     assert run.truth["time"].diff().dropna().eq(pd.Timedelta(seconds=5)).all()
-    assert list(run.defects.columns) == list(twin.DEFECT_COLUMNS)
+    assert list(run.defects.columns) == list(DEFECT_COLUMNS)
 
 
 def test_noise_and_quantisation_like_a_logger():
-    run = twin.simulate_run(twin.constant_schedule(6000, 3600), seed=5, defects=False)
+    run = simulate_run(constant_schedule(6000, 3600), seed=5, defects=False)
     temps = run.log[list(SENSORS)].to_numpy()
     assert np.allclose(temps * 100, np.round(temps * 100), atol=1e-6)  # 0.01 degC steps
     resid = (run.log["T6"] - run.truth["T6"]).std()
@@ -86,12 +94,12 @@ def test_noise_and_quantisation_like_a_logger():
 
 def test_equilibrium_earlier_and_elongation_larger_at_high_speed():
     def curve(sp):
-        run = twin.simulate_run(
-            twin.constant_schedule(sp, 4 * 3600),
+        run = simulate_run(
+            constant_schedule(sp, 4 * 3600),
             seed=0,
             defects=False,
             noise=False,
-            ambient=twin.Ambient(daily_amplitude_c=0.0, wander_c=0.0),
+            ambient=Ambient(daily_amplitude_c=0.0, wander_c=0.0),
         )
         return run.nodes["disp_thermal_um"].to_numpy()
 
@@ -102,36 +110,34 @@ def test_equilibrium_earlier_and_elongation_larger_at_high_speed():
 
 
 def test_centrifugal_jump_at_speed_change():
-    sched = twin.schedule_from_pairs([(600, 3000), (600, 18000)])
-    run = twin.simulate_run(sched, seed=0, defects=False, noise=False)
+    sched = schedule_from_pairs([(600, 3000), (600, 18000)])
+    run = simulate_run(sched, seed=0, defects=False, noise=False)
     cf = run.nodes["disp_centrifugal_um"].to_numpy()
     assert cf[125] - cf[115] < -1.0  # draw-in jump within a few samples
     assert abs(cf[121] - cf[-1]) < 0.1
 
 
 def test_heat_sources_grow_with_speed():
-    p = twin.machine_params("tapping-center-a")
-    q = [twin.heat_sources(p, n).sum() for n in (0, 3000, 9000, 18000)]
+    p = machine_params("tapping-center-a")
+    q = [heat_sources(p, n).sum() for n in (0, 3000, 9000, 18000)]
     assert q[0] == 0 and q[1] < q[2] and q[1] < q[3]  # motor losses fall in field weakening
-    shaft = [twin.heat_sources(p, n)[twin.NODES.index("shaft")] for n in (3000, 9000, 18000)]
+    shaft = [heat_sources(p, n)[NODES.index("shaft")] for n in (3000, 9000, 18000)]
     assert shaft[0] < shaft[1] < shaft[2]
-    fb = [twin.heat_sources(p, n)[twin.NODES.index("front_bearing")] for n in (5000, 10000)]
+    fb = [heat_sources(p, n)[NODES.index("front_bearing")] for n in (5000, 10000)]
     assert fb[1] / fb[0] == pytest.approx(2 ** (5 / 3))
 
 
 def test_sensor_drift_and_wear_options():
-    sched = twin.constant_schedule(9000, 3600)
-    base = twin.simulate_run(sched, seed=1, defects=False, noise=False)
-    drift = twin.simulate_run(sched, seed=1, defects=False, noise=False, sensor_drift={"T8": 0.4})
-    worn = twin.simulate_run(sched, seed=1, defects=False, noise=False, wear=0.2)
+    sched = constant_schedule(9000, 3600)
+    base = simulate_run(sched, seed=1, defects=False, noise=False)
+    drift = simulate_run(sched, seed=1, defects=False, noise=False, sensor_drift={"T8": 0.4})
+    worn = simulate_run(sched, seed=1, defects=False, noise=False, wear=0.2)
     assert (drift.truth["T8"] - base.truth["T8"]).abs().max() == pytest.approx(0.4)
     assert worn.truth["disp_um"].iloc[-1] > base.truth["disp_um"].iloc[-1]
 
 
 def test_stuck_displacement_option():
-    run = twin.simulate_run(
-        twin.constant_schedule(6000, 3600), seed=1, defects=False, stuck_displacement=True
-    )
+    run = simulate_run(constant_schedule(6000, 3600), seed=1, defects=False, stuck_displacement=True)
     tail = run.log["disp_um"].iloc[len(run.log) // 3 :]
     assert tail.nunique() == 1
     assert "stuck_displacement" in set(run.defects["kind"])
@@ -142,7 +148,7 @@ def test_stuck_displacement_option():
 
 @pytest.fixture(scope="module")
 def defective():
-    rates = twin.DefectRates(
+    rates = DefectRates(
         missing_row=0.004,
         restart_gap_prob=1.0,
         duplicate_row=0.003,
@@ -150,7 +156,7 @@ def defective():
         dropout_prob=1.0,
         swap_per_1000_rows=2.0,
     )
-    return twin.simulate_run(twin.constant_schedule(12000, 4 * 3600), seed=11, defects=rates)
+    return simulate_run(constant_schedule(12000, 4 * 3600), seed=11, defects=rates)
 
 
 def test_defect_table_matches_the_log(defective):
@@ -182,7 +188,7 @@ def test_defect_table_matches_the_log(defective):
 
 
 def test_default_defect_rates_are_low():
-    run = twin.simulate_run(twin.constant_schedule(6000, 4 * 3600), seed=21)
+    run = simulate_run(constant_schedule(6000, 4 * 3600), seed=21)
     d = run.defects
     assert len(d) < 40
     assert (d["kind"] == "restart_gap").sum() <= 1
@@ -190,7 +196,7 @@ def test_default_defect_rates_are_low():
 
 
 def test_no_defects_option():
-    run = twin.simulate_run(twin.constant_schedule(6000, 3600), seed=21, defects=False)
+    run = simulate_run(constant_schedule(6000, 3600), seed=21, defects=False)
     assert run.defects.empty and len(run.log) == len(run.truth)
 
 
@@ -228,8 +234,8 @@ def test_machining_center_b_layout():
     wb = openpyxl.load_workbook(path, read_only=True)
     assert wb.sheetnames == ["Info", "Messdaten"]
     wb.close()
-    frame = twin.read_b_layout(path)
-    assert list(frame.columns) == list(twin.B_COLUMNS)
+    frame = read_b_layout(path)
+    assert list(frame.columns) == list(B_COLUMNS)
     assert frame.columns[0] == "Zeit [s]" and frame.columns[-1] == "Bemerkung"
     t = frame["Zeit [s]"].to_numpy()
     assert t[0] == 0 and (np.diff(t) > 0).all() and np.median(np.diff(t)) == 15
@@ -243,16 +249,16 @@ def test_machining_center_b_layout():
 
 
 def test_machining_center_b_cell_values_deterministic(tmp_path):
-    spec = twin.machining_center_b_spec()
+    spec = machining_center_b_spec()
     target = tmp_path / "b.xlsx"
-    target.write_bytes(twin.render_xlsx(spec))
-    a = twin.read_b_layout(target)
-    b = twin.read_b_layout(RAW / "machining-center-b" / "thermal_log_2026-10-14.xlsx")
+    target.write_bytes(render_xlsx(spec))
+    a = read_b_layout(target)
+    b = read_b_layout(RAW / "machining-center-b" / "thermal_log_2026-10-14.xlsx")
     pd.testing.assert_frame_equal(a, b)
 
 
 def test_machining_center_b_z1_is_reversed_displacement():
-    frame, run = twin.simulate_b(twin.machining_center_b_spec())
+    frame, run = simulate_b(machining_center_b_spec())
     by_time = run.truth.set_index(
         ((run.truth["time"] - run.truth["time"].iat[0]) / pd.Timedelta(seconds=1)).round().astype(int)
     )
@@ -326,8 +332,8 @@ def test_day_mode_machining_center_b(tmp_path):
     )
     (path,) = (tmp_path / "machining-center-b").glob("*.xlsx")
     assert "_s3" in path.name
-    frame = twin.read_b_layout(path)
-    assert list(frame.columns) == list(twin.B_COLUMNS)
+    frame = read_b_layout(path)
+    assert list(frame.columns) == list(B_COLUMNS)
 
 
 def test_help_documents_every_option():
@@ -379,7 +385,7 @@ def test_plot_command(tmp_path):
 
 def test_noise_floor_of_the_shipped_validation_runs():
     # the documented floor (docs/models.md): the max of the 0.2 um displacement noise per run
-    floor = twin.noise_floor("tapping-center-a")
+    floor = noise_floor("tapping-center-a")
     assert list(floor["run_id"]) == [
         "valid_04500rpm",
         "valid_08000rpm",
@@ -396,3 +402,30 @@ def test_noise_floor_of_the_shipped_validation_runs():
     assert floor.set_index("run_id").loc["valid_04500rpm", "floor_max_abs_um"] == pytest.approx(
         0.730, abs=0.001
     )
+
+
+# --------------------------------------------------------------------------- shared primitives
+
+
+def test_schedule_spellings_and_signal_primitives_agree():
+    from rafi.twin.schedules import Step, sample_schedule, speed_at
+    from rafi.twin.signals import ar1, first_order, step_response
+
+    steps = [Step(60.0, 0.0), Step(120.0, 6000.0), Step(0.0, 9000.0), Step(30.0, 3000.0)]
+    sampled = sample_schedule(steps, 5.0)
+    t = np.arange(len(sampled)) * 5.0
+    np.testing.assert_array_equal(sampled, speed_at(t, [(0.0, 0.0), (60.0, 6000.0), (180.0, 3000.0)]))
+    with pytest.raises(ValueError, match="empty"):
+        sample_schedule([Step(1.0, 3000.0)], 5.0)
+
+    u = np.full(200, 4.0)
+    np.testing.assert_allclose(first_order(u, 5.0, 50.0, y0=4.0), u)  # starts settled
+    np.testing.assert_array_equal(first_order(u, 5.0, 0.0), u)  # tau 0: pass-through
+    # from rest, sample k of the lag is the analytic step response one sample later
+    np.testing.assert_allclose(
+        first_order(u, 5.0, 50.0), step_response((np.arange(200) + 1) * 5.0, 4.0, 50.0)
+    )
+    a = 0.9
+    noise = ar1(np.random.default_rng(0).normal(0.0, 1.0, 200_000), a, np.sqrt(1 - a * a))
+    assert np.std(noise) == pytest.approx(1.0, abs=0.02)
+    assert np.corrcoef(noise[1:], noise[:-1])[0, 1] == pytest.approx(a, abs=0.01)

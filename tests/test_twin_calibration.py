@@ -17,7 +17,7 @@ import statsmodels.api as sm
 from rafi import SENSORS
 from rafi.method.equilibrium import equilibrium_time
 from rafi.readers.native import read_raw_log
-from rafi.twin import spindle as twin
+from rafi.twin.calibration import quick_clean
 
 ROOT = Path(__file__).resolve().parents[1]
 RAW_A = ROOT / "raw" / "tapping-center-a"
@@ -32,7 +32,7 @@ COOLANT = ("T1", "T2", "T3", "T4", "T5", "T7", "T11", "T12", "T14", "T15")
 def minimal_clean(path: Path) -> pd.DataFrame:
     """The twin's minimal cleaning (sort, de-duplicate, mask open-circuit values and isolated
     spikes, interpolate on the 5 s grid), not the pipeline's: these tests judge the data."""
-    f = twin.quick_clean(read_raw_log(path))
+    f = quick_clean(read_raw_log(path))
     assert f[[*SENSORS, "disp_um"]].notna().all().all()
     return f
 

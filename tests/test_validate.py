@@ -16,7 +16,7 @@ from rafi.method.validate import (
     qualify,
     validate_runs,
 )
-from rafi.twin.synthetic_model import KEY, TERMS, make_runs
+from rafi.twin.synthetic_runs import KEY, TERMS, make_runs
 
 GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
 

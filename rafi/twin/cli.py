@@ -149,17 +149,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from rafi.twin import spindle as twin
-
     mode = getattr(args, "mode", None)
     if mode == "shipped":
+        from rafi.twin.writers import write_shipped
+
         machines = args.machine or ["tapping-center-a", "machining-center-b"]
-        for path in twin.write_shipped(args.out, machines=machines):
+        for path in write_shipped(args.out, machines=machines):
             print(path)
         return 0
     if mode == "day":
+        from rafi.twin.day import write_day
+
         try:
-            paths = twin.write_day(
+            paths = write_day(
                 args.out,
                 machine=args.machine,
                 seed=args.seed,
@@ -181,17 +183,21 @@ def run(args: argparse.Namespace) -> int:
             print(path)
         return 0
     if mode == "noise-floor":
-        table = twin.noise_floor(args.machine)
+        from rafi.twin.calibration import noise_floor
+
+        table = noise_floor(args.machine)
         print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
         return 0
     if mode == "plot":
+        from rafi.twin.plots import plot_runs
+
         folder = Path(args.folder)
         files = sorted(folder.glob(args.pattern))
         if not files:
             print(f"rafi simulate plot: no files match {args.pattern!r} in {folder}", file=sys.stderr)
             return 1
         sensors = [s.strip() for s in args.sensors.split(",") if s.strip()]
-        for path in twin.plot_runs(files, args.out, sensors=sensors):
+        for path in plot_runs(files, args.out, sensors=sensors):
             print(path)
         return 0
     print(

@@ -5,7 +5,7 @@ In the style of ``ruptures.datasets`` (``pw_constant(n, dim, n_bkps, ...) ->
 from, so a test can compare what the code finds with what was put in.
 
 * :func:`thermal_response` - noise-free first-order temperatures and displacement
-  for any speed profile (independent of the project's digital twin ``rafi.twin.spindle``).
+  for any speed profile (independent of the twin's physics, ``rafi.twin.physics``).
 * :func:`canonical_log` - a regular, defect-free canonical frame (as
   ``rafi.readers.native.read_raw_log`` returns it) and its noise-free truth.
 * :func:`inject_defects` - duplicates, swaps, spikes, dropouts, open-circuit
@@ -23,9 +23,12 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from scipy.signal import lfilter
 
-SENSORS = [f"T{i}" for i in range(1, 17)]
+from rafi import SENSORS
+from rafi.twin.defects import OPEN_CIRCUIT_VALUES
+from rafi.twin.schedules import Step, sample_schedule, speed_at
+from rafi.twin.signals import first_order, step_response
+
 START = pd.Timestamp("2026-03-02T08:00:00")
 AMBIENT_C = 22.0
 #: Rise of each sensor at 18000 r/min (K) and its time-constant factor.
@@ -34,19 +37,7 @@ LAG = np.array([1.6, 1.7, 1.5, 1.4, 1.3, 1.0, 1.5, 1.05, 0.95, 1.2, 2.0, 1.8, 1.
 #: Thermal displacement plateau at 18000 r/min (um) and centrifugal growth coefficient (um/rpm^2).
 DISP_GAIN_UM = 28.0
 CENTRIFUGAL_UM_PER_RPM2 = 1.5e-8
-OPEN_CIRCUIT = -999.0
-
-
-def _first_order(u: np.ndarray, period_s: float, tau_s: float, y0: float = 0.0) -> np.ndarray:
-    a = np.exp(-period_s / tau_s)
-    y, _ = lfilter(
-        [1 - a],
-        [1, -a],
-        u,
-        axis=0,
-        zi=np.atleast_1d(a * y0 * np.ones(u.shape[1:])) if u.ndim > 1 else np.array([a * y0]),
-    )
-    return y
+OPEN_CIRCUIT = OPEN_CIRCUIT_VALUES[0]
 
 
 def thermal_response(
@@ -62,15 +53,24 @@ def thermal_response(
     s = np.asarray(speed_rpm, dtype=float)
     frac = np.clip(s, 0, None) / 18000.0
     u_t = (frac**0.9)[:, None] * GAIN[None, :]
-    rises = np.column_stack([_first_order(u_t[:, i], period_s, tau_s * LAG[i]) for i in range(16)])
-    z = _first_order(DISP_GAIN_UM * frac**0.8, period_s, tau_s) + CENTRIFUGAL_UM_PER_RPM2 * s**2
+    rises = np.column_stack([first_order(u_t[:, i], period_s, tau_s * LAG[i]) for i in range(16)])
+    z = first_order(DISP_GAIN_UM * frac**0.8, period_s, tau_s) + CENTRIFUGAL_UM_PER_RPM2 * s**2
     return rises, z
 
 
-def _speed_from_steps(t_s: np.ndarray, steps) -> np.ndarray:
-    times = np.array([a for a, _ in steps], float)
-    speeds = np.array([b for _, b in steps], float)
-    return speeds[np.searchsorted(times, t_s, side="right") - 1]
+def _observe(
+    rises: np.ndarray, z: np.ndarray, rng: np.random.Generator, noise_temp: float, noise_disp: float
+):
+    """True temperatures, and temperatures and displacement with Gaussian noise (in this order of draws)."""
+    temps = AMBIENT_C + rises
+    return temps, temps + rng.normal(0, noise_temp, temps.shape), z + rng.normal(0, noise_disp, len(z))
+
+
+def _set_readings(frame: pd.DataFrame, temps: np.ndarray, disp: np.ndarray) -> None:
+    """Columns ``T1``..``T16`` and ``disp_um`` of ``frame`` (in place)."""
+    for i, name in enumerate(SENSORS):
+        frame[name] = temps[:, i]
+    frame["disp_um"] = disp
 
 
 def canonical_log(
@@ -116,19 +116,15 @@ def canonical_log(
     """
     rng = np.random.default_rng(seed)
     t = np.arange(n_samples) * period_s
-    speed = _speed_from_steps(t, steps)
+    speed = speed_at(t, steps)
     rises, z = thermal_response(speed, period_s)
     index = pd.Index(np.arange(first_line, first_line + n_samples), name="line")
     time = start + pd.to_timedelta(t, unit="s")
     truth = pd.DataFrame({"time": time, "t_s": t, "speed_rpm": speed}, index=index)
     log = pd.DataFrame({"time": time, "speed_rpm": speed}, index=index)
-    temps = AMBIENT_C + rises
-    noisy = temps + rng.normal(0, noise_temp, temps.shape)
-    for i, name in enumerate(SENSORS):
-        truth[name] = temps[:, i]
-        log[name] = noisy[:, i]
-    truth["disp_um"] = z
-    log["disp_um"] = z + rng.normal(0, noise_disp, n_samples)
+    temps, noisy, disp = _observe(rises, z, rng, noise_temp, noise_disp)
+    _set_readings(truth, temps, z)
+    _set_readings(log, noisy, disp)
     if extras:
         amb = AMBIENT_C + 0.5 * np.sin(2 * np.pi * t / 86400.0)
         truth["ambient_c"] = amb
@@ -362,7 +358,7 @@ def schedule_log(
     """
     rng = np.random.default_rng(seed)
     counts = [int(round(d / period_s)) for _, d in schedule]
-    speed = np.concatenate([np.full(c, float(s)) for (s, _), c in zip(schedule, counts)])
+    speed = sample_schedule([Step(d, s) for s, d in schedule], period_s)
     bounds = np.concatenate(([0], np.cumsum(counts)))
     for k in range(1, len(schedule)):
         a, b = float(schedule[k - 1][0]), float(schedule[k][0])
@@ -381,10 +377,8 @@ def schedule_log(
             "speed_rpm": speed,
         }
     )
-    temps = AMBIENT_C + rises + rng.normal(0, noise_temp, rises.shape)
-    for i, name in enumerate(SENSORS):
-        frame[name] = temps[:, i]
-    frame["disp_um"] = z + rng.normal(0, noise_disp, n)
+    _, temps, disp = _observe(rises, z, rng, noise_temp, noise_disp)
+    _set_readings(frame, temps, disp)
     frame["segment"] = np.int64(segment)
     pieces = pd.DataFrame(
         {
@@ -416,5 +410,5 @@ def first_order_run(
     """
     rng = np.random.default_rng(seed)
     t = np.arange(int(round(duration_s / period_s))) * period_s
-    dz = offset_um + rise_um * (1 - np.exp(-t / tau_s)) + rng.normal(0, noise_um, len(t))
+    dz = offset_um + step_response(t, rise_um, tau_s) + rng.normal(0, noise_um, len(t))
     return t, dz
