@@ -14,6 +14,8 @@ import sys
 COMMANDS = {
     "simulate": ("rafi.twin.cli", "write raw logs from the spindle digital twin"),
     "nightly": ("rafi.ops.nightly", "retrain, qualify and promote models (for cron / systemd)"),
+    "settings": ("rafi.settings", "print the effective settings of a machine (every default filled in)"),
+    "diff": ("rafi.ops.result_diff", "compare two result trees number by number (timings, ids aside)"),
 }
 
 

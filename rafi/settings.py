@@ -208,3 +208,28 @@ def candidate_model_path(machine: str, results_dir: str | os.PathLike, source: s
 # Read by name where one section is needed on its own (the values live above, nowhere else).
 DEFAULT_GATES = MACHINE_DEFAULTS["qualification"]
 DEFAULT_NIGHTLY = MACHINE_DEFAULTS["nightly"]
+
+
+# --------------------------------------------------------------------------- rafi settings
+
+
+def add_arguments(parser) -> None:
+    """``rafi settings``: print the effective settings of a machine."""
+    parser.add_argument("--config", default="config.yaml", help="config file (default: config.yaml)")
+    parser.add_argument("--machine", help="a machine folder under raw_dir (default: the run settings)")
+
+
+def run(args) -> int:
+    import sys
+
+    import yaml
+
+    try:
+        with open(args.config, encoding="utf-8") as fh:
+            config = yaml.safe_load(fh) or {}
+        shown = machine_settings(config, args.machine) if args.machine else run_settings(config)
+    except (OSError, yaml.YAMLError, SettingsError) as exc:
+        print(f"rafi settings: {exc}", file=sys.stderr)
+        return 2
+    yaml.safe_dump(shown, sys.stdout, sort_keys=False, allow_unicode=True)
+    return 0

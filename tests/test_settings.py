@@ -150,7 +150,9 @@ def test_input_mapping_is_normalised_with_its_own_defaults():
 @pytest.mark.parametrize("section", ["qualification", "models", "nightly", "report", "rank"])
 def test_a_machine_section_at_the_top_level_is_refused_with_where_it_belongs(section):
     config = {**CONFIG, section: {}}
-    with pytest.raises(SettingsError, match=rf"'{section}' is a per-machine setting: put it under 'defaults:'"):
+    with pytest.raises(
+        SettingsError, match=rf"'{section}' is a per-machine setting: put it under 'defaults:'"
+    ):
         check_layout(config)
     with pytest.raises(SettingsError):
         machine_settings(config, "tapping-center-a")
@@ -166,3 +168,23 @@ def test_an_unknown_top_level_key_is_refused():
 def test_run_settings_defaults_and_overrides():
     assert run_settings({}) == RUN_DEFAULTS
     assert run_settings({"on_bad_input": "quarantine"})["on_bad_input"] == "quarantine"
+
+
+def test_docs_settings_explains_every_key():
+    text = (ROOT / "docs" / "settings.md").read_text(encoding="utf-8")
+    for path in default_keys(MACHINE_DEFAULTS):
+        if path[0] == "input" or isinstance(MACHINE_DEFAULTS.get(path[0]), dict) and len(path) == 1:
+            continue
+        assert f"`{'.'.join(path)}`" in text, path
+    for key in RUN_DEFAULTS:
+        assert f"`{key}`" in text, key
+
+
+def test_rafi_settings_prints_what_a_machine_gets(capsys, monkeypatch):
+    from rafi.cli import main
+
+    monkeypatch.chdir(ROOT)
+    assert main(["settings", "--machine", "machining-center-b"]) == 0
+    shown = yaml.safe_load(capsys.readouterr().out)
+    assert shown == machine_settings(CONFIG, "machining-center-b")
+    assert shown["sample_period_s"] == 15 and shown["qualification"]["max_residual_um"] == 12.0

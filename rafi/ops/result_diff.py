@@ -106,7 +106,10 @@ def diff_frames(a, b, rtol: float = 0.0) -> list[str]:
             same = (xs == ys).to_numpy()
         if not same.all():
             i = int(np.argmin(same))
-            out.append(f"column {col}: {int((~same).sum())} cell(s) differ, first at row {i}: {x.iloc[i]!r} vs {y.iloc[i]!r}")
+            out.append(
+                f"column {col}: {int((~same).sum())} cell(s) differ, "
+                f"first at row {i}: {x.iloc[i]!r} vs {y.iloc[i]!r}"
+            )
     return out
 
 
@@ -175,7 +178,9 @@ def diff_trees(old: Path, new: Path, rtol: float = 0.0) -> dict[str, list[str]]:
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("old", type=Path, help="one result tree (e.g. a copy of results/ and reports/)")
     parser.add_argument("new", type=Path, help="the other")
-    parser.add_argument("--rtol", type=float, default=0.0, help="relative tolerance for numbers (default: exact)")
+    parser.add_argument(
+        "--rtol", type=float, default=0.0, help="relative tolerance for numbers (default: exact)"
+    )
 
 
 def run(args) -> int:

@@ -1,4 +1,4 @@
-"""Write raw logs from the spindle digital twin (rafi.twin.spindle, see docs/twin.md).
+"""Write raw logs from the spindle digital twin (rafi.twin, see docs/twin.md).
 
 Modes:
   shipped   regenerate the shipped data set byte for byte:
