@@ -1,5 +1,5 @@
-"""Tests of `rafi nightly`: the lock, exit codes, progress parsing, and (slow) two nights of
-the real pipeline on a trimmed copy of the shipped data.
+"""Tests of `rafi nightly`: the lock, exit codes, progress from Snakemake's structured log records,
+and (slow) two nights of the real pipeline on a trimmed copy of the shipped data.
 
 Unit part: a tiny fake project (a Snakefile whose `nightly` target is up to date or fails),
 so the lock and the exit paths are tested in seconds without the pipeline.
@@ -7,8 +7,11 @@ so the lock and the exit paths are tested in seconds without the pipeline.
 
 from __future__ import annotations
 
+import argparse
 import hashlib
+import io
 import json
+import logging
 import os
 import re
 import shutil
@@ -20,7 +23,13 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+from rafi.errors import LockHeld
 from rafi.ops import nightly as N
+from rafi.ops import snakemake_api
+from rafi.ops import status as S
+from rafi.ops.lock import LOCK_NAME, NightlyLock, lock_is_free
+from rafi.ops.project import Paths
+from rafi.ops.state import STATE_NAME, fingerprint
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = "tapping-center-a"
@@ -55,34 +64,34 @@ def no_partial_files(root: Path) -> list[Path]:
 def test_lock_is_released_on_exception(tmp_path):
     path = tmp_path / "results" / ".nightly.lock"
     with pytest.raises(RuntimeError, match="boom"):
-        with N.NightlyLock(path):
-            assert not N.lock_is_free(path)
+        with NightlyLock(path):
+            assert not lock_is_free(path)
             assert re.match(r"pid=\d+ started=\S+Z host=", path.read_text())
             raise RuntimeError("boom")
-    assert N.lock_is_free(path)
+    assert lock_is_free(path)
     assert path.read_text() == ""
 
 
 def test_lock_held_by_another_process_names_the_holder(tmp_path):
     path = tmp_path / ".nightly.lock"
     code = (
-        "import sys, time; from rafi.ops.nightly import NightlyLock\n"
+        "import sys, time; from rafi.ops.lock import NightlyLock\n"
         f"with NightlyLock({str(path)!r}):\n"
         "    print('locked', flush=True); time.sleep(30)\n"
     )
     holder = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
     try:
         assert holder.stdout.readline().strip() == "locked"
-        with pytest.raises(N.LockHeld) as info:
-            with N.NightlyLock(path):
+        with pytest.raises(LockHeld) as info:
+            with NightlyLock(path):
                 pass  # pragma: no cover
         assert f"pid={holder.pid}" in info.value.holder
     finally:
         holder.kill()
         holder.wait()
     # the kernel drops the flock of a killed process: no stale lock
-    assert N.lock_is_free(path)
-    with N.NightlyLock(path):
+    assert lock_is_free(path)
+    with NightlyLock(path):
         pass
 
 
@@ -102,7 +111,7 @@ def test_two_nightly_commands_one_runs_the_other_refuses(tmp_path):
         second = subprocess.run(
             rafi_cmd("nightly", "--directory", str(proj)), capture_output=True, text=True, timeout=60
         )
-        assert second.returncode == N.EXIT_LOCKED == 75
+        assert second.returncode == S.EXIT_LOCKED == 75
         assert "another nightly run is in progress" in second.stderr
         assert f"pid={first.pid}" in second.stderr
         out, err = first.communicate(timeout=120)
@@ -111,8 +120,8 @@ def test_two_nightly_commands_one_runs_the_other_refuses(tmp_path):
             first.kill()
     assert first.returncode == 0, err
     assert "nothing new since" in out
-    lock = proj / "results" / N.LOCK_NAME
-    assert N.lock_is_free(lock) and lock.read_text() == ""
+    lock = proj / "results" / LOCK_NAME
+    assert lock_is_free(lock) and lock.read_text() == ""
     assert not no_partial_files(proj)
 
 
@@ -124,9 +133,9 @@ def test_failed_pipeline_exits_1_and_frees_the_lock(tmp_path):
         text=True,
         timeout=120,
     )
-    assert res.returncode == N.EXIT_PIPELINE_FAILED, res.stdout + res.stderr
+    assert res.returncode == S.EXIT_PIPELINE_FAILED, res.stdout + res.stderr
     assert "FAILED" in res.stdout
-    assert N.lock_is_free(proj / "results" / N.LOCK_NAME)
+    assert lock_is_free(proj / "results" / LOCK_NAME)
 
 
 def test_nothing_to_do_is_quick(tmp_path):
@@ -140,7 +149,7 @@ def test_nothing_to_do_is_quick(tmp_path):
     assert "nothing new since the first run" in res.stdout
     assert elapsed < 10
     # the next night takes the fingerprint fast path (no Snakemake at all) ...
-    assert (proj / "results" / N.STATE_NAME).exists()
+    assert (proj / "results" / STATE_NAME).exists()
     t0 = time.perf_counter()
     res = subprocess.run(
         rafi_cmd("nightly", "--directory", str(proj)), capture_output=True, text=True, timeout=60
@@ -148,11 +157,11 @@ def test_nothing_to_do_is_quick(tmp_path):
     assert res.returncode == 0 and "nothing new since" in res.stdout
     assert time.perf_counter() - t0 < 5
     # ... until anything it covers changes: a new raw file makes Snakemake decide again
+    stored = json.loads((proj / "results" / STATE_NAME).read_text())["fingerprint"]
+    overrides = N.config_overrides(argparse.Namespace(machine=None, no_report=False))
+    assert fingerprint("config.yaml", Paths.from_config(proj, {}), overrides) == stored
     (proj / "raw" / "m1" / "y.csv").write_text("time\n")
-    assert (
-        N.fingerprint(N.argparse.Namespace(config_file="config.yaml"), N.Paths.from_config(proj, {}), {})
-        != json.loads((proj / "results" / N.STATE_NAME).read_text())["fingerprint"]
-    )
+    assert fingerprint("config.yaml", Paths.from_config(proj, {}), overrides) != stored
 
 
 def test_unknown_machine_is_a_usage_error(tmp_path):
@@ -163,21 +172,21 @@ def test_unknown_machine_is_a_usage_error(tmp_path):
         text=True,
         timeout=60,
     )
-    assert res.returncode == N.EXIT_USAGE
+    assert res.returncode == S.EXIT_USAGE
 
 
 # --------------------------------------------------------------------------- exit codes
 
 
 def test_severity_order():
-    assert N.most_severe([]) == 0
-    assert N.most_severe([4, 2]) == 2
-    assert N.most_severe([4, 2, 3]) == 3
-    assert N.most_severe([3, 1, 4]) == 1
+    assert S.most_severe([]) == 0
+    assert S.most_severe([4, 2]) == 2
+    assert S.most_severe([4, 2, 3]) == 3
+    assert S.most_severe([3, 1, 4]) == 1
 
 
 def _status_dir(tmp_path, decision, audit_status="ok"):
-    paths = N.Paths(tmp_path, tmp_path / "raw", tmp_path / "results")
+    paths = Paths(tmp_path, tmp_path / "raw", tmp_path / "results")
     reg = paths.registry("m1")
     reg.mkdir(parents=True)
     (reg / "decision.json").write_text(json.dumps(decision))
@@ -209,41 +218,95 @@ def _status_dir(tmp_path, decision, audit_status="ok"):
 )
 def test_machine_status_codes(tmp_path, decision, audit, tonight, expected):
     paths = _status_dir(tmp_path, decision, audit)
-    start = N._parse_time("2026-05-01T00:00:00Z") if tonight else N._parse_time("2026-06-01T00:00:00Z")
-    st = N.machine_status(paths, "m1", start)
+    start = S.parse_time("2026-05-01T00:00:00Z") if tonight else S.parse_time("2026-06-01T00:00:00Z")
+    st = S.machine_status(paths, "m1", start)
     assert st.tonight == tonight
     assert st.codes() == expected
     assert st.line().startswith("m1: ")
 
 
-def test_job_tracker_one_line_per_job():
-    import io
+def _record(**fields) -> logging.LogRecord:
+    record = logging.LogRecord("snakemake.logging", logging.INFO, __file__, 0, None, None, None)
+    record.__dict__.update(fields)
+    return record
+
+
+def test_progress_handler_one_line_per_job():
+    """Progress comes from the records' structured fields (LogEvent and its documented fields)."""
+    from snakemake_interface_logger_plugins.common import LogEvent
 
     out = io.StringIO()
-    tr = N.JobTracker(out=out)
-    log = """
-[Sat Nov 21 09:17:07 2026]
-rule clean:
-    input: raw/m/a.csv
-    output: results/m/clean/a.parquet
-    jobid: 7
-    reason: Missing output files
-    wildcards: machine=m, stem=a
-    resources: tmpdir=/tmp
-[Sat Nov 21 09:17:08 2026]
-Finished jobid: 7 (Rule: clean)
-1 of 3 steps (33%) done
-localrule nightly:
-    jobid: 0
-Finished jobid: 0 (Rule: nightly)
-Error in rule fit:
-"""
-    for line in log.splitlines():
-        tr.feed(line + "\n")
-    assert tr.ran == [("clean", "machine=m, stem=a")]
-    assert tr.failed == ["fit"]
+    tr = snakemake_api.ProgressHandler(out=out)
+    for rec in [
+        _record(event=LogEvent.RUN_INFO, stats={"clean": 1, "fit": 1, "nightly": 1, "total": 3}),
+        _record(event=LogEvent.JOB_INFO, jobid=7, rule_name="clean", wildcards={"machine": "m", "stem": "a"}),
+        _record(event=LogEvent.JOB_FINISHED, job_id=7),
+        _record(event=LogEvent.PROGRESS, done=1, total=3),
+        _record(event=LogEvent.JOB_INFO, jobid=0, rule_name="nightly", wildcards={}),
+        _record(event=LogEvent.JOB_FINISHED, job_id=0),
+        _record(event=LogEvent.JOB_ERROR, jobid=3, rule_name="fit"),
+        _record(event=LogEvent.JOB_ERROR, jobid=3, rule_name="fit"),
+        _record(msg="Finished jobid: 9 (Rule: report)"),  # printed text is not read
+    ]:
+        tr.handle(rec)
+    assert tr.outcome.ran == [("clean", "machine=m, stem=a")]
+    assert tr.outcome.failed == ["fit"]
+    assert tr.outcome.planned == {"clean": 1} and tr.outcome.target_scheduled
     text = out.getvalue()
-    assert "done clean (machine=m, stem=a)" in text and "FAILED fit" in text
+    assert "[1/2] done clean (machine=m, stem=a)" in text and "FAILED fit" in text
+    assert "done nightly" not in text and text.count("FAILED fit") == 1
+
+
+def _two_job_project(tmp_path: Path) -> Path:
+    proj = fake_project(tmp_path)
+    (proj / "Snakefile").write_text(
+        "rule nightly:\n    input: expand('out/{n}.txt', n=['a', 'b'])\n"
+        "rule make:\n    output: 'out/{n}.txt'\n    shell: 'echo {wildcards.n} > {output}'\n"
+    )
+    return proj
+
+
+def test_progress_and_dry_run_through_the_api(tmp_path):
+    """Jobs done/total and the dry-run plan from the installed Snakemake (run on both ends of
+    the supported range: .ci/lower-bound.sh)."""
+    proj = _two_job_project(tmp_path)
+    dry = subprocess.run(
+        rafi_cmd("nightly", "--directory", str(proj), "--dry-run"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert dry.returncode == 0, dry.stdout + dry.stderr
+    assert "would run make x2" in dry.stdout
+    assert not (proj / "out").exists()
+    res = subprocess.run(
+        rafi_cmd("nightly", "--directory", str(proj), "--cores", "1"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == 0, res.stdout + res.stderr
+    done = re.findall(r"\[(\d)/(\d)\] done make \(n=([ab])\)", res.stdout)
+    assert [d[:2] for d in done] == [("1", "2"), ("2", "2")] and sorted(d[2] for d in done) == ["a", "b"]
+    assert "2 job(s) in" in res.stdout and "m1: no decision yet" in res.stdout
+    # Snakemake's own output goes to the log, not to the console
+    log = (proj / "results" / "nightly.log").read_text()
+    assert "Finished jobid" in log and "Finished jobid" not in res.stdout + res.stderr
+
+
+def test_planning_error_exits_1_and_says_why(tmp_path):
+    proj = fake_project(tmp_path)
+    (proj / "Snakefile").write_text("rule nightly:\n    input: 'missing.txt'\n")
+    res = subprocess.run(
+        rafi_cmd("nightly", "--directory", str(proj), "--cores", "1"),
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert res.returncode == S.EXIT_PIPELINE_FAILED, res.stdout + res.stderr
+    assert "cannot be planned" in res.stderr and "missing.txt" in res.stderr
+    assert not (proj / "results" / STATE_NAME).exists()
+    assert lock_is_free(proj / "results" / LOCK_NAME)
 
 
 # --------------------------------------------------------------------------- integration
@@ -389,7 +452,7 @@ def test_two_nights_on_the_pipeline(tmp_path):
     shutil.copy(ROOT / "tests" / "data" / "bad" / "text_in_numeric.csv", broken)
     broken_hash = _sha(broken)
     n3 = _nightly(proj)
-    assert n3.returncode == N.EXIT_QUARANTINED, n3.stdout + n3.stderr
+    assert n3.returncode == S.EXIT_QUARANTINED, n3.stdout + n3.stderr
     d3 = json.loads((reg / "decision.json").read_text())
     assert json.loads((reg / "champion.json").read_text())["model_id"] == champion_before
     assert d3["decision"] in ("rejected", "kept")
@@ -413,6 +476,6 @@ def test_two_nights_on_the_pipeline(tmp_path):
         for _ in range(2)
     ]
     codes = sorted(p.wait(timeout=300) for p in procs)
-    assert N.EXIT_LOCKED in codes and codes.count(N.EXIT_LOCKED) == 1
-    assert N.lock_is_free(proj / "results" / N.LOCK_NAME)
+    assert S.EXIT_LOCKED in codes and codes.count(S.EXIT_LOCKED) == 1
+    assert lock_is_free(proj / "results" / LOCK_NAME)
     assert not no_partial_files(proj / "results")

@@ -1,5 +1,6 @@
-"""Unit tests of rafi.ops.registry: immutable model store, append-only history, champion pointer,
-speed-range merge, champion/challenger decision on fake summaries, drift check, rollback.
+"""Unit tests of rafi.ops.registry, adapt, gates, drift and decide: immutable model store,
+append-only history, champion pointer, speed-range merge, champion/challenger decision on fake
+summaries, drift check, rollback.
 
 Fake models: any object with ``predict(frame)`` and ``to_dict()``; validation summaries are
 written by hand, so every gate can be failed on purpose.
@@ -14,8 +15,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
+from rafi import artefact, errors
 from rafi.method.model import RafiModel
 from rafi.method.validate import qualify
+from rafi.ops import adapt, drift, gates
+from rafi.ops import decide as D
 from rafi.ops import registry as R
 
 TERMS = ["1", "x1", "x2", "x3"]
@@ -101,22 +105,22 @@ def test_edited_content_is_never_registered_or_overwritten(tmp_path):
     original = path.read_bytes()
     forged = json.loads(json.dumps(d))
     forged["speeds"][0]["coefficients"][0] = 99.0  # same id, different content
-    with pytest.raises(R.RegistryError, match="does not match"):
+    with pytest.raises(errors.RegistryError, match="does not match"):
         reg.save_model(forged)
     assert path.read_bytes() == original
     # a tampered registry file is detected, and not repaired silently
     os.chmod(path, 0o644)
     path.write_text(path.read_text().replace('"rmse_um": 0.5', '"rmse_um": 0.7', 1))
     tampered = path.read_bytes()
-    with pytest.raises(R.RegistryError, match="modified"):
+    with pytest.raises(errors.RegistryError, match="modified"):
         reg.save_model(d)
     assert path.read_bytes() == tampered
 
 
 def test_write_once_never_replaces(tmp_path):
     p = tmp_path / "x.json"
-    assert R.write_once(p, "one\n")
-    assert not R.write_once(p, "two\n")
+    assert artefact.write_once(p, "one\n")
+    assert not artefact.write_once(p, "two\n")
     assert p.read_text() == "one\n"
     assert [f.name for f in tmp_path.iterdir()] == ["x.json"]  # no temp file left
 
@@ -139,7 +143,7 @@ def test_history_is_append_only(tmp_path):
 
 def test_champion_pointer(tmp_path):
     reg = R.Registry(tmp_path / "registry", "m1")
-    with pytest.raises(R.RegistryError):
+    with pytest.raises(errors.RegistryError):
         reg.set_champion("0" * 64, reason="x")
     d = make_model()
     reg.save_model(d)
@@ -155,25 +159,25 @@ def test_champion_pointer(tmp_path):
 def test_merge_speed_models_takes_only_the_range_from_the_new_fit():
     champ = make_model(speeds=(3000, 6000, 9000, 12000), offset=0.0, data={"old.csv": "o"})
     cand = make_model(speeds=(3000, 6000, 9000, 12000), offset=100.0, data={"new.csv": "n"})
-    merged = R.merge_speed_models(cand, champ, 6000, 9000)  # inclusive bounds
+    merged = adapt.merge_speed_models(cand, champ, 6000, 9000)  # inclusive bounds
     coef0 = {s["speed_rpm"]: s["coefficients"][0] for s in merged["speeds"]}
     assert coef0 == {3000: 3.0, 6000: 106.0, 9000: 109.0, 12000: 12.0}
     assert merged["data"] == {"old.csv": "o", "new.csv": "n"}
-    assert merged["model_id"] == R.compute_model_id(merged)
+    assert merged["model_id"] == artefact.compute_model_id(merged)
     assert merged["model_id"] not in (cand["model_id"], champ["model_id"])
     # the merged dict is a valid model with the same id as the model class computes
     assert RafiModel.from_dict(merged).model_id == merged["model_id"]
-    assert R.speeds_from(merged, cand) == [6000, 9000]
+    assert adapt.speeds_from(merged, cand) == [6000, 9000]
     # open ends and full range
-    assert R.merge_speed_models(cand, champ, None, None)["speeds"] == cand["speeds"]
-    low = R.merge_speed_models(cand, champ, None, 4000)
+    assert adapt.merge_speed_models(cand, champ, None, None)["speeds"] == cand["speeds"]
+    low = adapt.merge_speed_models(cand, champ, None, 4000)
     assert [s["coefficients"][0] for s in low["speeds"]] == [103.0, 6.0, 9.0, 12.0]
 
 
 def test_merge_keeps_speeds_only_one_side_has():
     champ = make_model(speeds=(3000, 6000), offset=0.0)
     cand = make_model(speeds=(6000, 9000), offset=100.0)
-    merged = R.merge_speed_models(cand, champ, 6000, 6000)
+    merged = adapt.merge_speed_models(cand, champ, 6000, 6000)
     got = {s["speed_rpm"]: s["coefficients"][0] for s in merged["speeds"]}
     assert got == {3000: 3.0, 6000: 106.0, 9000: 109.0}
 
@@ -181,8 +185,8 @@ def test_merge_keeps_speeds_only_one_side_has():
 def test_merge_refuses_incompatible_models():
     champ = make_model(sensors=("T6", "T8", "T9"))
     cand = make_model(sensors=("T6", "T8", "T10"))
-    with pytest.raises(R.IncompatibleModels, match="key_sensors"):
-        R.merge_speed_models(cand, champ, 0, 10000)
+    with pytest.raises(errors.IncompatibleModels, match="key_sensors"):
+        adapt.merge_speed_models(cand, champ, 0, 10000)
 
 
 # --------------------------------------------------------------------------- gates / decision
@@ -190,7 +194,7 @@ def test_merge_refuses_incompatible_models():
 
 def _decide(cand_summary, champ_summary=None, champion_id=None, history=(), candidate=None, nightly=None):
     cand = candidate or make_model(offset=1.0)
-    return R.decide(
+    return D.decide(
         machine="m1",
         candidate_dict=cand,
         candidate_summary=cand_summary,
@@ -245,7 +249,7 @@ def test_never_worse_gate_applies_to_any_single_run():
     assert r["measured"]["worse_than_uncompensated_runs"] == ["v3"]
     assert any("never_worse" in x and "v3" in x for x in r["reasons"])
     # even if a qualify() implementation forgot the per-run check, the decision catches it
-    passed, reasons, _ = R.gate_outcome(summary(rows), qualify(summary(rows), {}), {})
+    passed, reasons, _ = gates.gate_outcome(summary(rows), qualify(summary(rows), {}), {})
     assert not passed and any("v3" in x for x in reasons)
 
 
@@ -274,19 +278,19 @@ def test_candidate_equal_to_champion_is_kept():
 
 def test_drift_check_numbers():
     champ = summary([("v1", "validation_single", 20, 5), ("v3", "validation_multi", 20, 9.5)])
-    out = R.drift_check(champ, ["v3"], reference_max_residual_um=7.0, margin_um=2.0)
+    out = drift.drift_check(champ, ["v3"], reference_max_residual_um=7.0, margin_um=2.0)
     assert out["detected"] and out["status"] == "degraded"
     assert out["new_max_residual_um"] == 9.5 and out["limit_um"] == 9.0
     assert out["degradation_um"] == pytest.approx(2.5)
-    ok = R.drift_check(champ, ["v3"], reference_max_residual_um=8.0, margin_um=2.0)
+    ok = drift.drift_check(champ, ["v3"], reference_max_residual_um=8.0, margin_um=2.0)
     assert not ok["detected"] and ok["status"] == "ok"
-    assert R.drift_check(champ, [], 7.0, 2.0)["status"] == "no_new_runs"
-    assert R.drift_check(None, ["v3"], 7.0, 2.0)["status"] == "no_champion"
+    assert drift.drift_check(champ, [], 7.0, 2.0)["status"] == "no_new_runs"
+    assert drift.drift_check(None, ["v3"], 7.0, 2.0)["status"] == "no_champion"
 
 
 def test_new_validation_runs_by_hash():
-    assert R.new_validation_runs(RUNS, {"a.csv": "aa", "b.csv": "bb"}) == ["v2", "v3"]
-    assert R.new_validation_runs(RUNS, None) == []
+    assert drift.new_validation_runs(RUNS, {"a.csv": "aa", "b.csv": "bb"}) == ["v2", "v3"]
+    assert drift.new_validation_runs(RUNS, None) == []
 
 
 def test_decision_reports_recalibration_due_from_history():
@@ -350,7 +354,7 @@ def fake_validate(model, runs_table, runs_frame):
 
 def fake_model(tag, after):
     d = {"schema": "fake/1", "kind": "fake", "tag": tag, "fake_after": after, "data": {"a.csv": "aa"}}
-    d["model_id"] = R.compute_model_id(d)
+    d["model_id"] = artefact.compute_model_id(d)
     return d
 
 
@@ -359,7 +363,7 @@ def _run(tmp_path, cand, nightly=None):
     RUNS.to_csv(tmp_path / "runs.csv", index=False)
     pd.DataFrame({"run_id": ["v1"], "t_s": [0.0]}).to_parquet(tmp_path / "runs.parquet")
     reg = tmp_path / "registry"
-    return R.run_decide(
+    return D.run_decide(
         machine="m1",
         candidate_path=tmp_path / "model.json",
         runs_csv=tmp_path / "runs.csv",
@@ -413,7 +417,7 @@ def test_run_decide_promotes_rejects_and_rolls_back(tmp_path):
         "rolled_back",
         "kept",
     ]
-    with pytest.raises(R.RegistryError):
+    with pytest.raises(errors.RegistryError):
         R.promote(reg.root, "m1", "ffff")
 
 
@@ -444,7 +448,7 @@ def test_run_decide_speed_range_with_real_models(tmp_path):
     (tmp_path / "model.json").write_text(json.dumps(cand_clean))
     RUNS.to_csv(tmp_path / "runs.csv", index=False)
     pd.DataFrame({"run_id": ["v1"]}).to_parquet(tmp_path / "runs.parquet")
-    rec = R.run_decide(
+    rec = D.run_decide(
         machine="m1",
         candidate_path=tmp_path / "model.json",
         runs_csv=tmp_path / "runs.csv",

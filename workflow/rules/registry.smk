@@ -1,4 +1,4 @@
-# Model registry and champion/challenger decision (rafi.ops.registry, docs/operations.md).
+# Model registry and champion/challenger decision (rafi.ops.decide, rafi.ops.registry; docs/operations.md).
 #
 #   candidate model (config nightly.candidate = family's best model or fit's model.json)
 #     + runs.csv, runs.parquet, validation/summary.csv  ->  registry/decision.json and

@@ -1,13 +1,13 @@
 """Rule decide: candidate vs champion -> registry/decision.json, registry/comparison.csv.
 
 Also updates the registry (models/, history.jsonl, champion.json) as documented in
-workflow/rules/registry.smk and rafi/registry.py (run_decide).
+workflow/rules/registry.smk and rafi.ops.decide.run_decide.
 """
 
 from _glue import step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
-    from rafi.ops.registry import run_decide
+    from rafi.ops.decide import run_decide
 
     smk = snakemake  # noqa: F821
     record = run_decide(

@@ -1,0 +1,140 @@
+"""What a night reports per machine, and the exit codes of ``rafi nightly``.
+
+The codes and their order are in ``rafi nightly --help`` and ``docs/operations.md``.
+"""
+
+from __future__ import annotations
+
+import calendar
+import contextlib
+import csv
+import json
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from rafi.ops.project import Paths
+
+EXIT_OK = 0
+EXIT_PIPELINE_FAILED = 1
+EXIT_REJECTED = 2
+EXIT_RECALIBRATION_DUE = 3
+EXIT_QUARANTINED = 4
+EXIT_USAGE = 64
+EXIT_LOCKED = 75  # EX_TEMPFAIL (sysexits.h)
+
+#: Severity order used when several codes apply (first wins).
+SEVERITY = (EXIT_PIPELINE_FAILED, EXIT_RECALIBRATION_DUE, EXIT_REJECTED, EXIT_QUARANTINED, EXIT_OK)
+
+
+def most_severe(codes: Iterable[int]) -> int:
+    """The most severe of ``codes`` by :data:`SEVERITY` (0 for none)."""
+    codes = set(codes)
+    for code in SEVERITY:
+        if code in codes:
+            return code
+    return EXIT_OK
+
+
+def short_id(model_id) -> str:
+    """The first 12 characters of a model id, or ``none``."""
+    return str(model_id)[:12] if model_id else "none"
+
+
+def _num(v) -> str:
+    return "?" if v is None else f"{float(v):.2f}"
+
+
+def parse_time(text) -> float | None:
+    """Seconds since the epoch of a ``YYYY-MM-DDTHH:MM:SSZ`` time (None if not one)."""
+    if not text:
+        return None
+    try:
+        return calendar.timegm(time.strptime(str(text), "%Y-%m-%dT%H:%M:%SZ"))
+    except ValueError:
+        return None
+
+
+@dataclass
+class MachineStatus:
+    """A machine's decision.json and quarantined inputs after a night."""
+
+    machine: str
+    decision: dict | None
+    quarantined: list[str]
+    tonight: bool
+
+    def codes(self) -> set[int]:
+        """Exit codes this machine contributes (recalibration, rejection tonight, quarantine)."""
+        codes = set()
+        d = self.decision or {}
+        if d.get("recalibration_due"):
+            codes.add(EXIT_RECALIBRATION_DUE)
+        if self.tonight and d.get("decision") == "rejected":
+            codes.add(EXIT_REJECTED)
+        if self.quarantined:
+            codes.add(EXIT_QUARANTINED)
+        return codes
+
+    def line(self) -> str:
+        """The one status line printed for this machine."""
+        d = self.decision
+        if not d:
+            return f"{self.machine}: no decision yet"
+        text = (
+            f"{self.machine}: {d.get('decision')}"
+            f"{' tonight' if self.tonight else ' (' + str(d.get('time')) + ')'}; champion "
+            f"{short_id(d.get('champion_id_after'))}"
+        )
+        if d.get("decision") in ("promoted", "rejected"):
+            text += f", candidate {short_id(d.get('candidate_id'))}"
+        sp = [str(s.get("speed_rpm")) for s in d.get("retrained_speeds") or []]
+        if sp and d.get("decision") == "promoted":
+            text += f", retrained speeds {', '.join(sp)} r/min"
+        if d.get("recalibration_due"):
+            dr = d.get("drift") or {}
+            text += (
+                f"; RECALIBRATION DUE: max residual {_num(dr.get('new_max_residual_um'))} um on "
+                f"new logs vs {_num(dr.get('reference_max_residual_um'))} um at promotion"
+            )
+        if self.quarantined:
+            text += f"; quarantined: {', '.join(self.quarantined)}"
+        return text
+
+
+def machine_status(paths: Paths, machine: str, night_start: float | None) -> MachineStatus:
+    """Read ``machine``'s decision.json and audit.csv.
+
+    Parameters
+    ----------
+    paths : Paths
+        The project.
+    machine : str
+        Folder name under raw/.
+    night_start : float or None
+        Start of tonight (epoch seconds); a decision at or after it is tonight's. None: no
+        decision is tonight's (a night without a Snakemake run).
+    """
+    decision = None
+    dpath = paths.registry(machine) / "decision.json"
+    if dpath.exists():
+        with contextlib.suppress(ValueError, OSError):
+            decision = json.loads(dpath.read_text(encoding="utf-8"))
+    quarantined = []
+    audit = paths.results_dir / machine / "audit.csv"
+    if audit.exists():
+        with open(audit, newline="", encoding="utf-8") as fh:
+            for row in csv.DictReader(fh):
+                if (row.get("status") or "").strip() == "quarantined":
+                    quarantined.append(f"{row.get('file')} ({row.get('reason') or 'no reason'})")
+    tonight = False
+    if decision and night_start is not None:
+        t = parse_time(decision.get("time"))
+        tonight = t is not None and t >= night_start - 1
+    return MachineStatus(machine, decision, quarantined, tonight)
+
+
+def last_activity(statuses: list[MachineStatus]) -> str:
+    """Time of the latest decision of any machine, or ``the first run``."""
+    times = [s.decision.get("time") for s in statuses if s.decision and s.decision.get("time")]
+    return max(times) if times else "the first run"
