@@ -7,7 +7,7 @@ Usage (after the pipeline has produced results/<machine>/runs.* and rank/key_sen
     python benchmarks/bench_models.py --synthetic           # no pipeline outputs needed
     python benchmarks/bench_models.py --twin-preview --compare   # twin physics, no pipeline
 
-``--twin-preview`` simulates clean runs with the digital twin's physics (``rafi.twin.spindle.spindle``:
+``--twin-preview`` simulates clean runs with the digital twin's physics (``rafi.twin.physics``:
 integrate / sensor_truth / displacement_truth; no logger defects, so no clean/runs step is
 needed): 6 cold-start 4 h training runs at 3000..18000 r/min, 3 h validation runs at
 4500, 8000, 10500, 13500, 16500 r/min and a 4.5 h multi-condition run (45 min steps
@@ -16,8 +16,11 @@ needed): 6 cold-start 4 h training runs at 3000..18000 r/min, 3 h validation run
 
 Prints one line per (machine, model): best-of-``repeat`` fit time (with the model's own
 whole-run CV for the hyperparameters), predict time for all samples, the chosen
-hyperparameters, and the row count. Fit times include RAFI's statsmodels diagnostics
-(HAC errors, VIF), which dominate its cost. BLAS runs single-threaded, as in the compare rule.
+hyperparameters, and the row count. RAFI's refits skip the statsmodels diagnostics (HAC
+errors, VIF), as in the compare rule. BLAS runs single-threaded, as in the compare rule.
+Settings: each machine's effective settings (``rafi.settings.machine_settings`` on
+``config.yaml``); the synthetic and twin data use the defaults. Timings are measured here and
+logged by the compare job; they are never written into the comparison tables.
 """
 
 from __future__ import annotations
@@ -38,7 +41,9 @@ import pandas as pd  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from rafi.family.models import DEFAULT_OPTIONS, make_model, make_synthetic_runs  # noqa: E402
+from rafi.family.compare import make_model, run_family  # noqa: E402
+from rafi.settings import MACHINE_DEFAULTS, machine_settings  # noqa: E402
+from rafi.twin.synthetic_runs import make_synthetic_runs  # noqa: E402
 
 
 def _load(machine_dir: Path):
@@ -48,28 +53,21 @@ def _load(machine_dir: Path):
     return table, frame, key
 
 
-def _config(machine: str) -> tuple[dict, list, dict]:
-    try:
-        import yaml
+def _settings(machine: str) -> dict:
+    """The machine's effective settings (every key present)."""
+    import yaml
 
-        cfg = yaml.safe_load((ROOT / "config.yaml").read_text())
-    except Exception:  # noqa: BLE001 - benchmark falls back to the defaults
-        return {}, None, None
-    d = cfg.get("defaults", {})
-    m = (cfg.get("machines") or {}).get(machine) or {}
-    opts = {**d.get("models", {}), **m.get("models", {})}
-    terms = (m.get("fit") or {}).get("terms") or (d.get("fit") or {}).get("terms")
-    ref = {**d.get("reference", {}), **(m.get("reference") or {})}
-    return opts, terms, ref
+    return machine_settings(yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8")), machine)
 
 
 def twin_preview(seed: int = 0, dt: float = 5.0):
     """(runs_table, runs_frame) of clean twin runs, key sensors T6, T8, T9 (the paper's)."""
     import numpy as np
 
-    from rafi.twin.spindle.spindle import spindle as twin
+    from rafi.twin import physics
+    from rafi.twin.machines import tapping_center_a
 
-    p = twin.tapping_center_a()
+    p = tapping_center_a()
     rng = np.random.default_rng(seed)
 
     def run(rid, role, sched, speed):
@@ -77,9 +75,9 @@ def twin_preview(seed: int = 0, dt: float = 5.0):
         n = len(sp)
         t = np.arange(n) * dt
         amb = 22 + 0.3 * np.sin(2 * np.pi * t / (6 * 3600) + rng.uniform(0, 6))
-        nodes, _ = twin.integrate(p, sp, amb, dt)
-        temps = twin.sensor_truth(p, nodes, amb, dt) + rng.normal(0, p.temp_noise_c, (n, 16))
-        z = twin.displacement_truth(p, nodes, sp, dt, nodes[0]) + rng.normal(0, p.disp_noise_um, n)
+        nodes, _ = physics.integrate(p, sp, amb, dt)
+        temps = physics.sensor_truth(p, nodes, amb, dt) + rng.normal(0, p.temp_noise_c, (n, 16))
+        z = physics.displacement_truth(p, nodes, sp, dt, nodes[0]) + rng.normal(0, p.disp_noise_um, n)
         ref = t <= 60
         f = pd.DataFrame({"run_id": rid, "t_s": t, "speed_rpm": sp})
         for i in range(16):
@@ -100,18 +98,16 @@ def twin_preview(seed: int = 0, dt: float = 5.0):
     return pd.DataFrame(rows), pd.concat(frames, ignore_index=True)
 
 
-def show_comparison(table, frame, key, opts, terms, reference):
-    from rafi.family.models import run_family
-
-    gates = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
+def show_comparison(name, table, frame, key, settings):
     res = run_family(
         table,
         frame,
         key_sensors=key,
-        terms=terms or None,
-        reference=reference,
-        options={**opts, "cv_report": False},
-        gates=gates,
+        terms=settings["fit"]["terms"],
+        reference=settings["reference"],
+        machine=name,
+        options={**settings["models"], "cv_report": False},
+        gates=settings["qualification"],
         log=lambda m: None,
     )
     pr = res["per_run"]
@@ -126,7 +122,7 @@ def show_comparison(table, frame, key, opts, terms, reference):
     )
 
 
-def bench(name, table, frame, key, opts, terms, reference, repeat, kinds):
+def bench(name, table, frame, key, settings, repeat, kinds):
     n_train = int(frame["run_id"].isin(table.loc[table["role"] == "training", "run_id"]).sum())
     for kind in kinds:
         best_fit, best_pred, model = float("inf"), float("inf"), None
@@ -135,9 +131,10 @@ def bench(name, table, frame, key, opts, terms, reference, repeat, kinds):
             model = make_model(
                 kind,
                 key_sensors=key,
-                terms=terms or None,
-                reference=reference,
-                options={**DEFAULT_OPTIONS, **opts},
+                terms=settings["fit"]["terms"],
+                reference=settings["reference"],
+                machine=name,
+                options=settings["models"],
             ).fit(table, frame)
             best_fit = min(best_fit, time.perf_counter() - t0)
             t0 = time.perf_counter()
@@ -159,7 +156,7 @@ def main(argv=None) -> int:
     p.add_argument("--synthetic", action="store_true")
     p.add_argument("--twin-preview", action="store_true")
     p.add_argument("--compare", action="store_true", help="also print the per-run comparison")
-    p.add_argument("--kinds", nargs="+", default=DEFAULT_OPTIONS["enabled"])
+    p.add_argument("--kinds", nargs="+", help="default: the machine's models: enabled")
     a = p.parse_args(argv)
     warnings.simplefilter("ignore")
     if a.synthetic or a.twin_preview:
@@ -168,19 +165,20 @@ def main(argv=None) -> int:
         else:
             table, frame, key = (*twin_preview(), ["T6", "T8", "T9"])
         name = "synthetic" if a.synthetic else "twin-preview"
-        bench(name, table, frame, key, {}, None, None, a.repeat, a.kinds)
+        settings = MACHINE_DEFAULTS
+        bench(name, table, frame, key, settings, a.repeat, a.kinds or settings["models"]["enabled"])
         if a.compare:
-            show_comparison(table, frame, key, {}, None, None)
+            show_comparison(name, table, frame, key, settings)
         return 0
     machines = a.machine or sorted(
         p.name for p in Path(a.results).iterdir() if (p / "runs.parquet").is_file()
     )
     for m in machines:
         table, frame, key = _load(Path(a.results) / m)
-        opts, terms, ref = _config(m)
-        bench(m, table, frame, key, opts, terms, ref, a.repeat, a.kinds)
+        settings = _settings(m)
+        bench(m, table, frame, key, settings, a.repeat, a.kinds or settings["models"]["enabled"])
         if a.compare:
-            show_comparison(table, frame, key, opts, terms, ref)
+            show_comparison(m, table, frame, key, settings)
     return 0
 
 

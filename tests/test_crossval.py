@@ -1,4 +1,4 @@
-"""Whole-run cross-validation, comparison and champion choice (rafi.family.crossval)."""
+"""Whole-run cross-validation (rafi.family.crossval), comparison and champion choice (rafi.family.compare)."""
 
 from __future__ import annotations
 
@@ -11,24 +11,21 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from rafi.artefact import write_csv_atomic
+from rafi.family.compare import COMPARISON_COLUMNS, choose_champion, compare_models, run_family
 from rafi.family.crossval import (
-    COMPARISON_COLUMNS,
     assert_disjoint,
-    choose_champion,
-    compare_models,
     cross_validate,
     leave_one_run_out,
     leave_one_speed_out,
     split_runs,
 )
-from rafi.family.models import (
-    DynamicRidge,
-    GreyBox,
-    PublishedRafi,
-    RafiLinear,
-    RidgeGlobal,
-    run_family,
-)
+from rafi.family.dynamic import DynamicRidge
+from rafi.family.grey_box import GreyBox
+from rafi.family.published import PublishedRafi
+from rafi.family.rafi_linear import RafiLinear
+from rafi.family.ridge_global import RidgeGlobal
+from rafi.settings import MACHINE_DEFAULTS
 from rafi.twin.synthetic_runs import make_synthetic_runs
 
 DATA = Path(__file__).parent / "data"
@@ -130,7 +127,7 @@ def test_cross_validate_never_shows_held_out_or_validation_runs():
 
 def test_hyperparameters_come_from_training_only(monkeypatch):
     """The inner CV of ridge / dynamic splits training runs only, and nothing else reaches fit."""
-    import rafi.family.models as mf
+    import rafi.family.ridge as mf
 
     table, frame = make_synthetic_runs(seed=2, sample_s=300.0, n_sensors=3)
     validation = set(table.loc[table["role"] != "training", "run_id"])
@@ -153,8 +150,8 @@ def test_hyperparameters_come_from_training_only(monkeypatch):
 def _golden_models(table, frame):
     key = ["T1", "T2", "T3"]
     return {
-        "rafi": PublishedRafi(key).fit(table, frame),
-        "rafi_linear": RafiLinear(key).fit(table, frame),
+        "rafi": PublishedRafi(key_sensors=key).fit(table, frame),
+        "rafi_linear": RafiLinear(key_sensors=key).fit(table, frame),
         "ridge_global": RidgeGlobal().fit(table, frame),
         "dynamic": DynamicRidge(taus_s=[0, 600, 1200, 2400], max_taus=1).fit(table, frame),
         "grey_box": GreyBox(taus_s=[0, 600, 1200], speed_taus_s=[120, 600, 2400], max_speed_taus=1).fit(
@@ -223,24 +220,34 @@ def test_champion_is_the_best_passer():
     assert choose_champion(s.assign(passed=False), require_pass=False) == "b"
 
 
-def test_run_family_end_to_end():
-    table, frame = _golden_data()
-    res = run_family(
+def _run_family(table, frame, options=None, **changes):
+    """run_family on the golden data with complete options: ``options`` or the defaults + ``changes``."""
+    return run_family(
         table,
         frame,
         key_sensors=["T1", "T2", "T3"],
+        terms=MACHINE_DEFAULTS["fit"]["terms"],
+        reference=MACHINE_DEFAULTS["reference"],
         machine="synthetic",
         gates=GATES,
-        options={
-            "enabled": ["rafi_linear", "ridge_global", "dynamic"],
-            "dynamic_taus_s": [0, 1200],
-            "dynamic_max_taus": 1,
-        },
+        options=options or {**MACHINE_DEFAULTS["models"], **changes},
         log=lambda m: None,
+    )
+
+
+def test_run_family_end_to_end():
+    table, frame = _golden_data()
+    res = _run_family(
+        table,
+        frame,
+        enabled=["rafi_linear", "ridge_global", "dynamic"],
+        dynamic_taus_s=[0, 1200],
+        dynamic_max_taus=1,
     )
     s = res["summary"]
     assert set(s["model"]) == {"rafi_linear", "ridge_global", "dynamic"}
-    assert {"fit_time_s", "cv_rmse_um", "cv_max_abs_um", "selected"} <= set(s.columns)
+    assert {"cv_rmse_um", "cv_max_abs_um", "selected"} <= set(s.columns)
+    assert not any("time" in c for c in s.columns)  # timings go to the log only
     selected = dict(zip(s["model"], s["selected"]))
     assert selected["rafi_linear"].startswith("nothing to choose")
     dyn = res["models"]["dynamic"]
@@ -249,6 +256,35 @@ def test_run_family_end_to_end():
     assert res["best_artefact"]["kind"] == res["champion"]
     assert set(res["cv"]["test_runs"]) == set(table.loc[table["role"] == "training", "run_id"])
     assert len(res["per_run"]) == 3 * 4 and set(res["residuals"]["model"]) == set(s["model"])
+
+
+def test_run_family_tables_are_identical_on_identical_inputs(tmp_path):
+    """Two runs on the same inputs write byte-identical comparison tables (no timings in them)."""
+    table, frame = _golden_data()
+    opts = {
+        "enabled": ["rafi", "rafi_linear", "ridge_global", "grey_box"],
+        "grey_box_speed_taus_s": [120, 600],
+    }
+    written, best = [], []
+    for k in range(2):
+        res = _run_family(table, frame, **opts)
+        files = {}
+        for name in ("summary", "per_run", "cv"):
+            path = tmp_path / f"{name}-{k}.csv"
+            write_csv_atomic(res[name], path, index=False)  # as workflow/scripts/compare.py
+            files[name] = path.read_bytes()
+        written.append(files)
+        best.append({key: v for key, v in res["best_artefact"].items() if key != "created"})
+    assert written[0] == written[1]
+    assert best[0] == best[1]
+
+
+def test_run_family_needs_every_option():
+    """Options come complete from rafi.settings; a missing key is an error, not a second default."""
+    table, frame = _golden_data()
+    options = {k: v for k, v in MACHINE_DEFAULTS["models"].items() if k != "cv_report"}
+    with pytest.raises(KeyError, match="cv_report"):
+        _run_family(table, frame, {**options, "enabled": ["rafi_linear"]})
 
 
 if __name__ == "__main__":  # regenerate the golden table

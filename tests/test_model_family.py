@@ -1,4 +1,4 @@
-"""The model family (rafi.family.models): one interface, artefacts, dynamics recovery."""
+"""The model family (rafi.family): one interface, artefacts, dynamics recovery."""
 
 from __future__ import annotations
 
@@ -11,20 +11,15 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rafi.family.models import (
-    DynamicRidge,
-    GreyBox,
-    PublishedRafi,
-    RafiLinear,
-    RidgeGlobal,
-    compute_model_id,
-    load_any,
-    lowpass_runs,
-    make_model,
-    reference_speed,
-    save_any,
-    speed_change_evidence,
-)
+from rafi.artefact import compute_model_id
+from rafi.family.compare import load_any, make_model, save_any
+from rafi.family.dynamic import DynamicRidge
+from rafi.family.features import first_order_recursion, lowpass_runs, reference_speed, speed_change_evidence
+from rafi.family.grey_box import GreyBox
+from rafi.family.published import PublishedRafi
+from rafi.family.rafi_linear import RafiLinear
+from rafi.family.ridge_global import RidgeGlobal
+from rafi.settings import MACHINE_DEFAULTS
 from rafi.twin.synthetic_runs import make_synthetic_runs
 
 KEY = ["T1", "T2", "T3"]
@@ -49,8 +44,8 @@ def fitted(data):
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return {
-            "rafi": PublishedRafi(KEY, SMALL_TERMS).fit(table, frame),
-            "rafi_linear": RafiLinear(KEY).fit(table, frame),
+            "rafi": PublishedRafi(key_sensors=KEY, terms=SMALL_TERMS).fit(table, frame),
+            "rafi_linear": RafiLinear(key_sensors=KEY).fit(table, frame),
             "ridge_global": RidgeGlobal(alphas=[1e-4, 1e-2, 1.0]).fit(table, frame),
             "dynamic": DynamicRidge(taus_s=[0, 600, 2400], max_taus=2, alphas=[1e-4, 1e-2]).fit(table, frame),
             "grey_box": GreyBox(
@@ -79,7 +74,9 @@ def test_dynamic_recovers_the_lag_and_beats_static_models():
     for name, m in {
         "dynamic": dyn,
         "ridge": RidgeGlobal().fit(table, frame),
-        "rafi": PublishedRafi(["T1", "T2"], ["1", "x1", "x2", "x1*x2", "x1^2", "x2^2"]).fit(table, frame),
+        "rafi": PublishedRafi(key_sensors=["T1", "T2"], terms=["1", "x1", "x2", "x1*x2", "x1^2", "x2^2"]).fit(
+            table, frame
+        ),
     }.items():
         rmse[name] = float(np.sqrt(np.mean((val["dz_um"] - m.predict(val)) ** 2)))
     assert rmse["dynamic"] < 0.04  # noise is 0.02 um
@@ -314,16 +311,23 @@ def test_fit_uses_training_runs_only(data, fitted):
     val = poisoned["run_id"].str.startswith("val")
     poisoned.loc[val, "dz_um"] = 1e6
     poisoned.loc[val, "dT1"] = -1e3
+    settings = {
+        "key_sensors": KEY,
+        "terms": SMALL_TERMS,
+        "reference": MACHINE_DEFAULTS["reference"],
+        "machine": None,
+    }
     for kind in ("ridge_global", "dynamic", "grey_box"):
         opts = {
+            **MACHINE_DEFAULTS["models"],
             "ridge_alphas": [1e-4, 1e-2, 1.0],
             "dynamic_taus_s": [0, 600, 2400],
             "grey_box_taus_s": [0, 600],
             "grey_box_speed_taus_s": [120, 600],
             "grey_box_max_speed_taus": 1,
         }
-        a = make_model(kind, options=opts)
-        b = make_model(kind, options=opts)
+        a = make_model(kind, **settings, options=opts)
+        b = make_model(kind, **settings, options=opts)
         a.fit(table, frame)
         b.fit(table, poisoned)
         assert a.alpha_ == b.alpha_ and a.taus_ == b.taus_
@@ -338,7 +342,7 @@ def test_predict_needs_no_statsmodels(fitted, data, tmp_path):
         save_any(m, tmp_path / f"{kind}.json")
     code = (
         "import sys, pandas as pd\n"
-        "from rafi.family.models import load_any\n"
+        "from rafi.family.compare import load_any\n"
         f"f = pd.read_csv({str(tmp_path / 'val.csv')!r})\n"
         "for k in ('rafi', 'rafi_linear', 'ridge_global', 'dynamic', 'grey_box'):\n"
         f"    load_any({str(tmp_path)!r} + '/' + k + '.json').predict_detail(f)\n"
@@ -360,8 +364,6 @@ def test_usable_sensors_skip_nan_and_constant(data):
 
 @pytest.mark.parametrize("taus", [[5.0], [60.0, 2400.0], [1e-3, 300.0]])
 def test_first_order_recursion_matches_the_sample_loop(taus):
-    from rafi.family.models import first_order_recursion
-
     rng = np.random.default_rng(1)
     x = rng.normal(size=(5000, len(taus))).cumsum(axis=0)  # long enough for several blocks
     g = -np.expm1(-5.0 / np.asarray(taus))
@@ -373,3 +375,34 @@ def test_first_order_recursion_matches_the_sample_loop(taus):
         want[k] = y
     got = first_order_recursion(x, 1 - g, g, y0)
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
+
+
+@pytest.mark.parametrize("cls", [PublishedRafi, RafiLinear, RidgeGlobal, DynamicRidge, GreyBox])
+def test_constructor_only_stores_its_arguments(cls):
+    """scikit-learn conventions: keyword arguments stored as given, defaults from rafi.settings,
+    nothing fitted (no attribute ending in ``_``) before ``fit``."""
+    kw = {"key_sensors": ("T1", "T2", "T3")} if cls in (PublishedRafi, RafiLinear) else {"alphas": (1e-3,)}
+    m = cls(**kw)
+    for name, value in kw.items():
+        assert getattr(m, name) is value
+    assert not [a for a in vars(m) if a.endswith("_")]
+    assert m.reference is MACHINE_DEFAULTS["reference"]
+    assert type(m)(**m.get_params()).get_params() == m.get_params()
+    with pytest.raises(TypeError):
+        cls(("T1", "T2", "T3"))  # keyword arguments only
+
+
+@pytest.mark.parametrize(
+    ("cls", "bad"),
+    [
+        (RidgeGlobal, {"speed_gain": "sometimes"}),
+        (RidgeGlobal, {"cv_metric": "mae"}),
+        (GreyBox, {"filter_search": "some"}),
+        (GreyBox, {"centrifugal_lags_s": [-5.0]}),
+    ],
+)
+def test_hyperparameters_are_checked_by_fit(cls, bad, data):
+    table, frame = data
+    m = cls(**bad)  # the constructor checks nothing
+    with pytest.raises(ValueError):
+        m.fit(table, frame)

@@ -241,7 +241,7 @@ def test_coefficients_only_path_matches_the_full_fit_and_skips_statsmodels(white
     assert quick.coefficients["se_hac"].isna().all() and quick.vif.empty
     assert quick.diagnostics["r2"].isna().all()
     code = (
-        "import sys; import rafi.family.models as mf, rafi.family.crossval, rafi.method.validate; "
+        "import sys; import rafi.family.compare as mf, rafi.family.crossval, rafi.method.validate; "
         "assert 'statsmodels' not in sys.modules and 'scipy.signal' not in sys.modules, sorted(sys.modules)"
     )
     import subprocess

@@ -1,4 +1,4 @@
-"""Whole-run cross-validation, model comparison and champion choice.
+"""Whole-run cross-validation of the model family.
 
 5 s samples are strongly autocorrelated, so a sample-wise split leaks: a test sample's
 neighbours, 5 s away, sit in the training set. Every split here is by **whole run**:
@@ -11,10 +11,8 @@ neighbours, 5 s away, sit in the training set. Every split here is by **whole ru
 Only runs with ``role == "training"`` are ever split; validation runs never enter model
 selection. Every splitter asserts that no run is in both the train and the test set.
 
-:func:`compare_models` validates several fitted models on the validation runs with
-:func:`rafi.method.validate.validate_runs` (the pipeline's own definitions of residual and
-improvement) and the acceptance gates of :func:`rafi.method.validate.qualify`;
-:func:`choose_champion` picks the passer with the lowest worst-case residual.
+The comparison on the validation runs and the champion choice are in
+:mod:`rafi.family.compare`.
 """
 
 from __future__ import annotations
@@ -33,10 +31,7 @@ __all__ = [
     "assert_disjoint",
     "subset_runs",
     "cross_validate",
-    "compare_models",
-    "choose_champion",
     "CV_COLUMNS",
-    "COMPARISON_COLUMNS",
 ]
 
 SPEED_GROUP_TOLERANCE_RPM = 50.0
@@ -54,29 +49,6 @@ CV_COLUMNS = [
     "improvement_pct",
     "rmse_um",
 ]
-
-COMPARISON_COLUMNS = [
-    "model",
-    "kind",
-    "scope",
-    "run_id",
-    "role",
-    "speed_rpm",
-    "n_samples",
-    "max_abs_before_um",
-    "max_abs_after_um",
-    "improvement_pct",
-    "rmse_before_um",
-    "rmse_after_um",
-    "n_outside_temp_range",
-    "n_outside_speed_range",
-    "worse_than_uncompensated",
-    "passed",
-    "verdict",
-    "champion",
-    "model_id",
-]
-
 
 # --------------------------------------------------------------------------- subsets
 
@@ -243,119 +215,3 @@ def cross_validate(
                 }
             )
     return pd.DataFrame(rows, columns=CV_COLUMNS)
-
-
-# --------------------------------------------------------------------------- comparison
-
-
-def _model_kind(model) -> str:
-    return str(getattr(model, "kind", None) or model.to_dict().get("kind", type(model).__name__))
-
-
-def compare_models(
-    models: dict,
-    runs_table: pd.DataFrame,
-    runs_frame: pd.DataFrame,
-    gates: dict,
-    *,
-    return_residuals: bool = False,
-):
-    """Validate every fitted model on the validation runs and qualify it against ``gates``.
-
-    Parameters
-    ----------
-    models : dict[str, fitted model]
-        Name -> anything with ``predict_detail`` (family models or a ``RafiModel``).
-    gates : dict
-        The config ``qualification:`` section (see :func:`rafi.method.validate.qualify`).
-
-    Returns
-    -------
-    summary : pandas.DataFrame
-        Columns :data:`COMPARISON_COLUMNS`: one ``scope == "run"`` row per model and
-        validation run, and one ``scope == "model"`` row per model with the worst case
-        (``max_abs_after_um`` = worst max residual, ``improvement_pct`` = minimum over the
-        runs, ``rmse_after_um`` = worst, counts summed, ``passed`` = every gate of every
-        run passed, ``verdict`` pass/fail, ``champion`` from :func:`choose_champion`).
-    residuals : pandas.DataFrame (only with ``return_residuals=True``)
-        :func:`rafi.method.validate.validate_runs` residuals with a ``model`` column.
-    """
-    from rafi.method.validate import qualify, validate_runs
-
-    parts, res_parts = [], []
-    for name, model in models.items():
-        summary, residuals = validate_runs(model, runs_table, runs_frame)
-        verdict = qualify(summary, gates)
-        passed_run = verdict.groupby(verdict["run_id"].astype(str))["passed"].all()
-        s = summary.copy()
-        s["passed"] = s["run_id"].astype(str).map(passed_run).fillna(False).astype(bool)
-        s["model"], s["kind"], s["scope"] = name, _model_kind(model), "run"
-        try:
-            s["model_id"] = model.to_dict().get("model_id", "")
-        except Exception:  # noqa: BLE001 - an unfitted or foreign object: id unknown
-            s["model_id"] = ""
-        s["verdict"] = np.where(s["passed"], "pass", "fail")
-        parts.append(s)
-        if return_residuals:
-            res_parts.append(residuals.assign(model=name))
-        overall = bool(len(verdict) and verdict["passed"].all())
-        parts.append(
-            pd.DataFrame(
-                [
-                    {
-                        "model": name,
-                        "kind": s["kind"].iloc[0] if len(s) else _model_kind(model),
-                        "scope": "model",
-                        "run_id": "all",
-                        "role": "all",
-                        "speed_rpm": np.nan,
-                        "n_samples": int(s["n_samples"].sum()),
-                        "max_abs_before_um": float(s["max_abs_before_um"].max()) if len(s) else np.nan,
-                        "max_abs_after_um": float(s["max_abs_after_um"].max()) if len(s) else np.nan,
-                        "improvement_pct": float(s["improvement_pct"].min()) if len(s) else np.nan,
-                        "rmse_before_um": float(s["rmse_before_um"].max()) if len(s) else np.nan,
-                        "rmse_after_um": float(s["rmse_after_um"].max()) if len(s) else np.nan,
-                        "n_outside_temp_range": int(s["n_outside_temp_range"].sum()),
-                        "n_outside_speed_range": int(s["n_outside_speed_range"].sum()),
-                        "worse_than_uncompensated": bool(s["worse_than_uncompensated"].any()),
-                        "passed": overall,
-                        "verdict": "pass" if overall else "fail",
-                        "model_id": s["model_id"].iloc[0] if len(s) else "",
-                    }
-                ]
-            )
-        )
-    out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=COMPARISON_COLUMNS)
-    out["champion"] = False
-    champ = choose_champion(out)
-    if champ is not None:
-        out.loc[out["model"] == champ, "champion"] = True
-    out = out[COMPARISON_COLUMNS]
-    if return_residuals:
-        res = pd.concat(res_parts, ignore_index=True) if res_parts else pd.DataFrame()
-        return out, res
-    return out
-
-
-def choose_champion(summary: pd.DataFrame, *, require_pass: bool = True) -> str | None:
-    """The model that passes every gate with the lowest worst-case max residual.
-
-    Ties are broken by the higher minimum improvement, then the simpler kind
-    (rafi_linear, ridge_global, dynamic, grey_box), then by name. Returns ``None`` if
-    no model passes (``require_pass=False``: the lowest worst case regardless of gates).
-    """
-    m = summary.loc[summary["scope"] == "model"]
-    if require_pass:
-        m = m.loc[m["passed"].astype(bool)]
-    m = m.dropna(subset=["max_abs_after_um"])
-    if m.empty:
-        return None
-    order = {"rafi_linear": 0, "ridge_global": 1, "dynamic": 2, "grey_box": 3}  # simpler first on exact ties
-    kinds = m["kind"] if "kind" in m.columns else m["model"]
-    m = m.assign(
-        _res=m["max_abs_after_um"].astype(float).round(9),
-        _imp=-m["improvement_pct"].astype(float).fillna(-np.inf),
-        _cx=kinds.map(order).fillna(4),
-    )
-    m = m.sort_values(["_res", "_imp", "_cx", "model"], kind="stable")
-    return str(m["model"].iloc[0])

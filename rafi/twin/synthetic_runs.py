@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.family.models import SPEED_POWER_SCALE_RPM, lowpass_runs
+from rafi.family.features import SPEED_POWER_SCALE_RPM, lowpass_runs
 from rafi.method.runs import RUNS_TABLE_COLUMNS
 from rafi.twin.schedules import speed_at
 from rafi.twin.signals import ar1, step_response

@@ -1,10 +1,11 @@
 # Model family comparison (docs/models.md): RAFI as published against rafi_linear,
-# ridge_global and dynamic on the same validation runs and gates; whole-run CV on the
+# ridge_global, dynamic and grey_box on the same validation runs and gates; whole-run CV on the
 # training runs only; the champion (best model that passes the gates) as best_model.json.
 #
 # Uses the helpers of common.smk (machine_config, out, comparison_path, log_path,
-# bench_path, rafi_code, script_helpers). Settings: `models:` of the machine's config (defaults in
-# workflow/scripts/compare.py when the section is absent) and `qualification:` (gates).
+# bench_path, rafi_code, script_helpers). Settings: the machine's complete `models:` and
+# `qualification:` sections (rafi.settings.machine_settings: every key present); the gates are
+# the ones rule decide judges with. Fit times go to the log, never into the tables.
 
 
 rule compare:
@@ -30,9 +31,9 @@ rule compare:
         "../envs/rafi.yaml"
     params:
         machine=lambda w: w.machine,
-        models=lambda w: machine_config(w.machine).get("models") or {},
+        models=lambda w: machine_config(w.machine)["models"],
         fit=lambda w: machine_config(w.machine)["fit"],
         reference=lambda w: machine_config(w.machine)["reference"],
-        gates=lambda w: machine_config(w.machine).get("qualification") or {},
+        gates=lambda w: machine_config(w.machine)["qualification"],
     script:
         "../scripts/compare.py"

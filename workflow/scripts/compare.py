@@ -7,7 +7,7 @@ from _glue import as_table, read_runs, step, to_json
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import rafi.artefact
-    from rafi.family.models import load_any, run_family
+    from rafi.family.compare import load_any, run_family
 
     smk = snakemake  # noqa: F821
     table, frame = read_runs(smk)

@@ -1,0 +1,376 @@
+"""The family's comparison step (``rule compare``): build a model of any kind from the
+settings, read any artefact, validate fitted models on the validation runs, choose the
+champion (``docs/models.md``).
+
+:func:`compare_models` validates several fitted models on the validation runs with
+:func:`rafi.method.validate.validate_runs` (the pipeline's own definitions of residual and
+improvement) and the acceptance gates of :func:`rafi.method.validate.qualify`;
+:func:`choose_champion` picks the passer with the lowest worst-case residual;
+:func:`run_family` does all of it for the enabled kinds.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rafi.artefact import json_text, write_text_atomic
+from rafi.family.crossval import cross_validate
+from rafi.family.dynamic import DynamicRidge
+from rafi.family.grey_box import GreyBox
+from rafi.family.published import PublishedRafi
+from rafi.family.rafi_linear import RafiLinear
+from rafi.family.ridge_global import RidgeGlobal
+from rafi.method.validate import qualify, validate_runs
+
+KINDS = {
+    "rafi": PublishedRafi,
+    "rafi_linear": RafiLinear,
+    "ridge_global": RidgeGlobal,
+    "dynamic": DynamicRidge,
+    "grey_box": GreyBox,
+}
+
+
+def make_model(
+    kind: str,
+    *,
+    key_sensors: Sequence[str],
+    terms: Sequence[str],
+    reference: dict,
+    machine: str | None,
+    options: dict,
+):
+    """An unfitted model of ``kind`` built from a machine's settings.
+
+    Parameters
+    ----------
+    kind : str
+        One of :data:`KINDS`.
+    key_sensors : sequence of str
+        RAFI's key sensors (kinds ``rafi``, ``rafi_linear``).
+    terms : sequence of str
+        ``fit: terms`` (kind ``rafi``).
+    reference : dict
+        The machine's ``reference:`` settings.
+    machine : str or None
+        Machine name recorded in the artefact.
+    options : dict
+        The machine's complete ``models:`` settings (:data:`rafi.settings.MACHINE_DEFAULTS`
+        with the machine's changes); every key this kind reads must be present.
+    """
+    o = options
+    common = {"reference": reference, "machine": machine}
+    ridge = {"alphas": o["ridge_alphas"], "cv": o["cv"], "speed_reference": o["speed_reference"], **common}
+    if kind == "rafi":
+        return PublishedRafi(key_sensors=key_sensors, terms=terms, **common)
+    if kind == "rafi_linear":
+        return RafiLinear(key_sensors=key_sensors, **common)
+    if kind == "ridge_global":
+        return RidgeGlobal(cv_metric=o["cv_metric"], speed_gain=o["speed_gain"], **ridge)
+    if kind == "dynamic":
+        return DynamicRidge(
+            taus_s=o["dynamic_taus_s"],
+            max_taus=o["dynamic_max_taus"],
+            cv_metric=o["cv_metric"],
+            speed_gain=o["speed_gain"],
+            **ridge,
+        )
+    if kind == "grey_box":
+        return GreyBox(
+            taus_s=o["grey_box_taus_s"],
+            max_taus=o["grey_box_max_taus"],
+            speed_taus_s=o["grey_box_speed_taus_s"],
+            max_speed_taus=o["grey_box_max_speed_taus"],
+            speed_powers=o["grey_box_speed_powers"],
+            filter_search=o["grey_box_filter_search"],
+            centrifugal_lags_s=o["grey_box_centrifugal_lags_s"],
+            cv_metric=o["grey_box_cv_metric"],
+            **ridge,
+        )
+    raise ValueError(f"unknown model kind {kind!r}; known: {sorted(KINDS)}")
+
+
+def load_any(source):
+    """A fitted model from an artefact dict or a path to ``model.json``, by its ``kind``.
+
+    Kind ``rafi`` is read by :meth:`rafi.method.model.RafiModel.from_dict` (the published method's
+    own evaluator); the other kinds by their class (:data:`KINDS`).
+    """
+    if isinstance(source, (str, os.PathLike)):
+        source = json.loads(Path(source).read_text(encoding="utf-8"))
+    kind = source.get("kind")
+    if kind == "rafi":
+        from rafi.method.model import RafiModel
+
+        return RafiModel.from_dict(source)
+    if kind in KINDS:
+        return KINDS[kind].from_dict(source)
+    raise ValueError(f"unknown model kind {kind!r}; known: {sorted(KINDS)}")
+
+
+def save_any(model, path) -> None:
+    """Write ``model.to_dict()`` atomically as pretty JSON."""
+    write_text_atomic(path, json_text(model.to_dict()))
+
+
+def _seconds(values) -> str:
+    return "/".join(f"{float(v):g}" for v in values) + " s"
+
+
+def describe_selection(model) -> str:
+    """What cross-validation chose for a fitted model of the family, in one line for people."""
+    if not hasattr(model, "alpha_"):
+        return "nothing to choose (one OLS per training speed, fuzzy blend)"
+    parts = [
+        f"alpha {model.alpha_:g}",
+        "rises " + ", ".join("as is" if t <= 0 else f"filtered {t:g} s" for t in model.taus_),
+    ]
+    if isinstance(model, GreyBox):
+        parts.append(
+            f"heat-input filters {_seconds(model.speed_taus_)}"
+            if model.speed_taus_
+            else "no heat-input filters"
+        )
+        if model.instantaneous_:
+            lag = model.centrifugal_lag_s_
+            parts.append("draw-in n\u00b2 term" + (f" with a {lag:g} s lag" if lag > 0 else ""))
+        else:
+            parts.append("no draw-in term (not identified)")
+    else:
+        parts.append("speed gain dT\u00b7n" if model.speed_gain_ else "no speed gain")
+        parts.append("speed terms" if model.speed_terms_ else "no speed terms (not identified)")
+    return "; ".join(parts)
+
+
+COMPARISON_COLUMNS = [
+    "model",
+    "kind",
+    "scope",
+    "run_id",
+    "role",
+    "speed_rpm",
+    "n_samples",
+    "max_abs_before_um",
+    "max_abs_after_um",
+    "improvement_pct",
+    "rmse_before_um",
+    "rmse_after_um",
+    "n_outside_temp_range",
+    "n_outside_speed_range",
+    "worse_than_uncompensated",
+    "passed",
+    "verdict",
+    "champion",
+    "model_id",
+]
+
+
+def _model_kind(model) -> str:
+    return str(getattr(model, "kind", None) or model.to_dict().get("kind", type(model).__name__))
+
+
+def compare_models(
+    models: dict,
+    runs_table: pd.DataFrame,
+    runs_frame: pd.DataFrame,
+    gates: dict,
+    *,
+    return_residuals: bool = False,
+):
+    """Validate every fitted model on the validation runs and qualify it against ``gates``.
+
+    Parameters
+    ----------
+    models : dict[str, fitted model]
+        Name -> anything with ``predict_detail`` (family models or a ``RafiModel``).
+    gates : dict
+        The config ``qualification:`` section (see :func:`rafi.method.validate.qualify`).
+
+    Returns
+    -------
+    summary : pandas.DataFrame
+        Columns :data:`COMPARISON_COLUMNS`: one ``scope == "run"`` row per model and
+        validation run, and one ``scope == "model"`` row per model with the worst case
+        (``max_abs_after_um`` = worst max residual, ``improvement_pct`` = minimum over the
+        runs, ``rmse_after_um`` = worst, counts summed, ``passed`` = every gate of every
+        run passed, ``verdict`` pass/fail, ``champion`` from :func:`choose_champion`).
+    residuals : pandas.DataFrame (only with ``return_residuals=True``)
+        :func:`rafi.method.validate.validate_runs` residuals with a ``model`` column.
+    """
+    parts, res_parts = [], []
+    for name, model in models.items():
+        summary, residuals = validate_runs(model, runs_table, runs_frame)
+        verdict = qualify(summary, gates)
+        passed_run = verdict.groupby(verdict["run_id"].astype(str))["passed"].all()
+        s = summary.copy()
+        s["passed"] = s["run_id"].astype(str).map(passed_run).fillna(False).astype(bool)
+        s["model"], s["kind"], s["scope"] = name, _model_kind(model), "run"
+        try:
+            s["model_id"] = model.to_dict().get("model_id", "")
+        except Exception:  # noqa: BLE001 - an unfitted or foreign object: id unknown
+            s["model_id"] = ""
+        s["verdict"] = np.where(s["passed"], "pass", "fail")
+        parts.append(s)
+        if return_residuals:
+            res_parts.append(residuals.assign(model=name))
+        overall = bool(len(verdict) and verdict["passed"].all())
+        parts.append(
+            pd.DataFrame(
+                [
+                    {
+                        "model": name,
+                        "kind": s["kind"].iloc[0] if len(s) else _model_kind(model),
+                        "scope": "model",
+                        "run_id": "all",
+                        "role": "all",
+                        "speed_rpm": np.nan,
+                        "n_samples": int(s["n_samples"].sum()),
+                        "max_abs_before_um": float(s["max_abs_before_um"].max()) if len(s) else np.nan,
+                        "max_abs_after_um": float(s["max_abs_after_um"].max()) if len(s) else np.nan,
+                        "improvement_pct": float(s["improvement_pct"].min()) if len(s) else np.nan,
+                        "rmse_before_um": float(s["rmse_before_um"].max()) if len(s) else np.nan,
+                        "rmse_after_um": float(s["rmse_after_um"].max()) if len(s) else np.nan,
+                        "n_outside_temp_range": int(s["n_outside_temp_range"].sum()),
+                        "n_outside_speed_range": int(s["n_outside_speed_range"].sum()),
+                        "worse_than_uncompensated": bool(s["worse_than_uncompensated"].any()),
+                        "passed": overall,
+                        "verdict": "pass" if overall else "fail",
+                        "model_id": s["model_id"].iloc[0] if len(s) else "",
+                    }
+                ]
+            )
+        )
+    out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=COMPARISON_COLUMNS)
+    out["champion"] = False
+    champ = choose_champion(out)
+    if champ is not None:
+        out.loc[out["model"] == champ, "champion"] = True
+    out = out[COMPARISON_COLUMNS]
+    if return_residuals:
+        res = pd.concat(res_parts, ignore_index=True) if res_parts else pd.DataFrame()
+        return out, res
+    return out
+
+
+def choose_champion(summary: pd.DataFrame, *, require_pass: bool = True) -> str | None:
+    """The model that passes every gate with the lowest worst-case max residual.
+
+    Ties are broken by the higher minimum improvement, then the simpler kind
+    (rafi_linear, ridge_global, dynamic, grey_box), then by name. Returns ``None`` if
+    no model passes (``require_pass=False``: the lowest worst case regardless of gates).
+    """
+    m = summary.loc[summary["scope"] == "model"]
+    if require_pass:
+        m = m.loc[m["passed"].astype(bool)]
+    m = m.dropna(subset=["max_abs_after_um"])
+    if m.empty:
+        return None
+    order = {"rafi_linear": 0, "ridge_global": 1, "dynamic": 2, "grey_box": 3}  # simpler first on exact ties
+    kinds = m["kind"] if "kind" in m.columns else m["model"]
+    m = m.assign(
+        _res=m["max_abs_after_um"].astype(float).round(9),
+        _imp=-m["improvement_pct"].astype(float).fillna(-np.inf),
+        _cx=kinds.map(order).fillna(4),
+    )
+    m = m.sort_values(["_res", "_imp", "_cx", "model"], kind="stable")
+    return str(m["model"].iloc[0])
+
+
+def _fitted_text(model) -> str:
+    """What CV chose, for the job's log."""
+    text = f" alpha={model.alpha_:g} taus_s={model.taus_}" if hasattr(model, "alpha_") else ""
+    if isinstance(model, GreyBox):
+        text += (
+            f" speed_taus_s={model.speed_taus_} instantaneous_n2={model.instantaneous_}"
+            f" centrifugal_lag_s={model.centrifugal_lag_s_:g}"
+        )
+    return text
+
+
+def run_family(
+    runs_table: pd.DataFrame,
+    runs_frame: pd.DataFrame,
+    *,
+    key_sensors: Sequence[str],
+    terms: Sequence[str],
+    reference: dict,
+    machine: str | None,
+    options: dict,
+    gates: dict,
+    rafi_model=None,
+    log=print,
+) -> dict:
+    """Fit, validate, cross-validate and rank the enabled models (what ``rule compare`` runs).
+
+    ``options`` and ``gates`` are the machine's complete ``models:`` and ``qualification:``
+    settings (:func:`rafi.settings.machine_settings`); the registry's decision judges with the
+    same gates. ``rafi_model`` is the pipeline's fitted ``model.json`` (a ``RafiModel``); when
+    given it is the ``rafi`` entry (no refit), else RAFI is fitted here. Hyperparameters are
+    chosen on the training runs only; the validation runs are only predicted. Fit and CV times
+    go to ``log`` only, so the tables of two runs on the same inputs are identical.
+
+    Returns a dict: ``summary`` (one row per model, with ``selected`` (what CV chose,
+    :func:`describe_selection`) and the CV scores ``cv_rmse_um`` / ``cv_max_abs_um``),
+    ``per_run``, ``residuals``, ``cv``, ``champion`` (name or None), ``best_name`` and
+    ``best_artefact`` (the champion's artefact; when no model passes the gates, the one with the
+    lowest worst-case residual, and ``champion`` is None), ``models`` (name -> fitted model).
+    """
+    models, cv_parts = {}, []
+    for kind in options["enabled"]:
+
+        def factory(kind=kind):
+            return make_model(
+                kind,
+                key_sensors=key_sensors,
+                terms=terms,
+                reference=reference,
+                machine=machine,
+                options=options,
+            )
+
+        t0 = time.perf_counter()
+        if kind == "rafi" and rafi_model is not None:
+            models[kind] = rafi_model
+        else:
+            models[kind] = factory().fit(runs_table, runs_frame)
+        log(f"{kind}: fitted in {time.perf_counter() - t0:.2f} s{_fitted_text(models[kind])}")
+        if options["cv_report"]:
+            t0 = time.perf_counter()
+            cv = cross_validate(factory, runs_table, runs_frame, options["cv"], name=kind)
+            cv_parts.append(cv)
+            log(
+                f"{kind}: {options['cv']} CV in {time.perf_counter() - t0:.1f} s, "
+                f"max |residual| {cv['max_abs_after_um'].max():.2f} um"
+            )
+    table, residuals = compare_models(models, runs_table, runs_frame, gates, return_residuals=True)
+    cv = pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
+    summary = table.loc[table["scope"] == "model"].drop(columns=["scope", "run_id", "role", "speed_rpm"])
+    summary = summary.assign(
+        selected=summary["model"].map({k: describe_selection(m) for k, m in models.items()}),
+    )
+    if len(cv):
+        agg = cv.groupby("model").agg(
+            cv_rmse_um=("rmse_um", lambda v: float(np.sqrt(np.mean(np.square(v))))),
+            cv_max_abs_um=("max_abs_after_um", "max"),
+        )
+        summary = summary.join(agg, on="model")
+    per_run = table.loc[table["scope"] == "run"].drop(columns=["scope"])
+    champion = choose_champion(table)
+    best = champion or choose_champion(table, require_pass=False) or "rafi"
+    return {
+        "summary": summary.reset_index(drop=True),
+        "per_run": per_run.reset_index(drop=True),
+        "residuals": residuals,
+        "cv": cv,
+        "champion": champion,
+        "best_name": best,
+        "best_artefact": models[best].to_dict(),
+        "models": models,
+    }

@@ -1,0 +1,76 @@
+"""Kind ``dynamic``: ridge on first-order low-pass filtered rises (a lag model) + speed terms."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+from rafi.family.ridge_global import MODELS, RidgeGlobal
+from rafi.settings import MACHINE_DEFAULTS
+
+
+class DynamicRidge(RidgeGlobal):
+    """Kind ``dynamic``: ridge on low-pass filtered rises (lag model) + speed terms.
+
+    Features: ``L_tau(dT_i)`` (and ``L_tau(dT_i) * n`` with ``speed_gain``) for every usable
+    sensor ``i`` and every ``tau`` of the chosen set, where ``L_tau`` is the causal
+    first-order filter of :func:`rafi.family.features.lowpass_runs` (``tau = 0`` is the
+    unfiltered rise), plus the speed terms of :class:`RidgeGlobal`. The set of time constants
+    (every subset of ``taus_s`` with at most ``max_taus`` members), ``alpha`` (and
+    ``speed_gain: cv``) are chosen jointly by whole-run CV on the training runs. The
+    measured displacement is never an input.
+
+    Parameters
+    ----------
+    taus_s : sequence of float
+        Filter time constants to choose from (``models: dynamic_taus_s``).
+    max_taus : int
+        At most this many chosen at once (``models: dynamic_max_taus``).
+    **others
+        As :class:`RidgeGlobal`.
+    """
+
+    kind = "dynamic"
+
+    def __init__(
+        self,
+        *,
+        taus_s: Sequence[float] = MODELS["dynamic_taus_s"],
+        max_taus: int = MODELS["dynamic_max_taus"],
+        sensors: Sequence[str] | None = None,
+        alphas: Sequence[float] = MODELS["ridge_alphas"],
+        cv: str = MODELS["cv"],
+        cv_metric: str = MODELS["cv_metric"],
+        speed_terms: bool = True,
+        speed_gain: bool | str = MODELS["speed_gain"],
+        speed_reference: str = MODELS["speed_reference"],
+        reference: dict = MACHINE_DEFAULTS["reference"],
+        machine: str | None = None,
+        speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
+    ):
+        super().__init__(
+            sensors=sensors,
+            alphas=alphas,
+            cv=cv,
+            cv_metric=cv_metric,
+            speed_terms=speed_terms,
+            speed_gain=speed_gain,
+            speed_reference=speed_reference,
+            reference=reference,
+            machine=machine,
+            speed_tolerance_rpm=speed_tolerance_rpm,
+        )
+        self.taus_s = taus_s
+        self.max_taus = max_taus
+
+    def _inputs_text(self) -> str:
+        return (
+            "first-order low-pass filtered temperature rises dT (K) of all usable sensors; "
+            "speed (krpm) relative to the reference state; displacement is not an input"
+        )
+
+    def _tau_grid(self) -> tuple[list[float], int]:
+        return [float(t) for t in self.taus_s], int(self.max_taus)
+
+    def _hyper(self) -> dict:
+        taus, max_taus = self._tau_grid()
+        return {**super()._hyper(), "taus_s": taus, "max_taus": max_taus}

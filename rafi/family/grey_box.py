@@ -1,0 +1,317 @@
+"""Kind ``grey_box``: ridge on filtered rises + causal first-order filtered speed powers
+(the heat input to the unmeasured shaft, bearings and stator), ``docs/models.md``."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from rafi.family.features import (
+    SPEED_POWER_SCALE_RPM,
+    SPEED_SCALE_RPM,
+    lowpass_runs,
+    reference_median,
+    rise_column,
+    sorted_inputs,
+)
+from rafi.family.ridge import RidgeBase, cv_folds, cv_scores
+from rafi.settings import MACHINE_DEFAULTS
+
+MODELS = MACHINE_DEFAULTS["models"]
+FILTER_SEARCHES = ("all", "subsets")
+
+
+class GreyBox(RidgeBase):
+    """Kind ``grey_box``: ridge on filtered rises + filtered speed-power (heat input) terms.
+
+    ``dz = sum_{tau in T} sum_i b_{i,tau} L_tau(dT_i) + sum_{tau in S} sum_p c_{p,tau} L_tau((n/10^4)^p)
+    [+ d (n^2 - n0^2)]`` with ``L_tau`` the causal first-order filter of
+    :func:`~rafi.family.features.lowpass_runs`.
+    The speed powers (``speed_powers``, default 0, 1, 5/3, 2: spindle running (magnetising
+    loss, ~constant; ``n^0`` is 0 at rest), motor/windage, bearing friction,
+    rotor losses) stand for the heat input to the *unmeasured* fast parts (shaft, bearings,
+    stator); their filters represent the lag with which those parts follow a speed change.
+
+    Initial condition of the speed-power filters: ``reference.rule: run_start`` (cold start):
+    the state before the first sample is zero (machine at rest), and the feature is then
+    referenced like ``dz`` (minus its median over the reference window); ``log_start``: the
+    filter starts settled on the first sample's speed (the run's history is not in the frame;
+    exact when the speed was steady for a few tau before the run started).
+
+    The instantaneous centrifugal term ``n^2 - n0^2`` (krpm^2) is used only if it is
+    identifiable: at least ``MIN_IDENTIFYING_RUNS`` training runs show a step from their
+    reference speed (:func:`~rafi.family.features.speed_change_evidence`: at least a reference
+    window of samples
+    within ``speed_tolerance_rpm`` of the reference speed and as many beyond it), e.g. a cold
+    start logged from rest. Constant-speed runs referenced while already spinning do not
+    identify it (the reference absorbs the draw-in), so it is left out rather than fitted to
+    speed jitter. ``ridge_global`` and ``dynamic`` apply the same rule to their speed terms.
+
+    Chosen jointly by whole-run CV on the training runs only (``cv_metric``, default
+    ``max_abs``): the set of rise filter constants (subsets of ``taus_s``, at most
+    ``max_taus``), the set of speed filter constants (subsets of ``speed_taus_s``, at most
+    ``max_speed_taus``) and ``alpha``.
+
+    Parameters
+    ----------
+    taus_s, max_taus : sequence of float, int
+        Rise filter constants and, for ``filter_search: subsets``, the most chosen at once
+        (``models: grey_box_taus_s``, ``grey_box_max_taus``).
+    speed_taus_s, max_speed_taus : sequence of float, int
+        Heat-input filter constants (``models: grey_box_speed_taus_s``, ``grey_box_max_speed_taus``).
+    speed_powers : sequence of float
+        The powers ``p`` of ``(n/10^4)^p`` (``models: grey_box_speed_powers``).
+    filter_search : str
+        ``all``: every filter constant at once, the heat-input block in or out by CV;
+        ``subsets``: CV over subsets (``models: grey_box_filter_search``).
+    centrifugal_lags_s : sequence of float
+        First-order lags of the ``n^2`` draw-in term to choose from (``models: grey_box_centrifugal_lags_s``).
+    cv_metric : str
+        ``rmse`` or ``max_abs`` (``models: grey_box_cv_metric``).
+    **others
+        ``sensors``, ``alphas``, ``cv``, ``speed_terms``, ``speed_reference``, ``reference``,
+        ``machine``, ``speed_tolerance_rpm`` as :class:`rafi.family.ridge_global.RidgeGlobal`.
+    """
+
+    kind = "grey_box"
+
+    def __init__(
+        self,
+        *,
+        taus_s: Sequence[float] = MODELS["grey_box_taus_s"],
+        max_taus: int = MODELS["grey_box_max_taus"],
+        speed_taus_s: Sequence[float] = MODELS["grey_box_speed_taus_s"],
+        max_speed_taus: int = MODELS["grey_box_max_speed_taus"],
+        speed_powers: Sequence[float] = MODELS["grey_box_speed_powers"],
+        filter_search: str = MODELS["grey_box_filter_search"],
+        centrifugal_lags_s: Sequence[float] = MODELS["grey_box_centrifugal_lags_s"],
+        cv_metric: str = MODELS["grey_box_cv_metric"],
+        sensors: Sequence[str] | None = None,
+        alphas: Sequence[float] = MODELS["ridge_alphas"],
+        cv: str = MODELS["cv"],
+        speed_terms: bool = True,
+        speed_reference: str = MODELS["speed_reference"],
+        reference: dict = MACHINE_DEFAULTS["reference"],
+        machine: str | None = None,
+        speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
+    ):
+        self.taus_s = taus_s
+        self.max_taus = max_taus
+        self.speed_taus_s = speed_taus_s
+        self.max_speed_taus = max_speed_taus
+        self.speed_powers = speed_powers
+        self.filter_search = filter_search
+        self.centrifugal_lags_s = centrifugal_lags_s
+        self.cv_metric = cv_metric
+        self.sensors = sensors
+        self.alphas = alphas
+        self.cv = cv
+        self.speed_terms = speed_terms
+        self.speed_reference = speed_reference
+        self.reference = reference
+        self.machine = machine
+        self.speed_tolerance_rpm = speed_tolerance_rpm
+
+    def _inputs_text(self) -> str:
+        return (
+            "first-order low-pass filtered temperature rises dT (K) of all usable sensors; first-order "
+            "low-pass filtered speed powers (n/10000 r/min)^p; displacement is not an input"
+        )
+
+    # -- hyperparameters, as used (floats and ints)
+    def _rise_taus(self) -> list[float]:
+        return [float(t) for t in self.taus_s]
+
+    def _speed_taus(self) -> list[float]:
+        return [float(t) for t in self.speed_taus_s]
+
+    def _powers(self) -> list[float]:
+        return [float(p) for p in self.speed_powers]
+
+    def _lags(self) -> list[float]:
+        return [float(t) for t in self.centrifugal_lags_s] or [0.0]
+
+    def _check_params(self) -> None:
+        super()._check_params()
+        if self.filter_search not in FILTER_SEARCHES:
+            raise ValueError(f"filter_search={self.filter_search!r}: use all or subsets")
+        if min(self._lags()) < 0:
+            raise ValueError(f"centrifugal_lags_s={self.centrifugal_lags_s!r}: lags must be >= 0")
+
+    def _cold_start(self) -> bool:
+        return self.reference["rule"] == "run_start"
+
+    def _features(
+        self,
+        frame: pd.DataFrame,
+        sensors: Sequence[str],
+        taus: Sequence[float],
+        *,
+        speed_taus: Sequence[float],
+        instantaneous: bool,
+        centrifugal_lags: Sequence[float],
+    ):
+        """Feature matrix in ``frame`` row order and the feature names: filtered rises, filtered
+        speed powers (none if ``speed_taus`` is empty) and, if ``instantaneous``, the ``n^2``
+        draw-in column once per lag of ``centrifugal_lags``."""
+        order, codes, x, t, rpm = sorted_inputs(frame, sensors)
+        parts, names = [lowpass_runs(x, t, codes, taus)], []
+        for tau in taus:
+            names += [f"{rise_column(s)}@{tau:g}s" for s in sensors]
+        if speed_taus:
+            r = np.abs(rpm) / SPEED_POWER_SCALE_RPM
+            running = float(self.speed_tolerance_rpm)
+            powers = self._powers()
+            pw = np.column_stack(
+                [(np.abs(rpm) > running).astype(float) if p == 0 else r**p for p in powers]
+            )  # p = 0: running (1) / at rest (0)
+            cold = self._cold_start()
+            f = lowpass_runs(pw, t, codes, speed_taus, initial="zero" if cold else "settled")
+            if cold:
+                f = f - reference_median(f, t, codes, self._window_s())
+            parts.append(f)
+            for tau in speed_taus:
+                names += [f"L{tau:g}s(n^{p:.4g})" for p in powers]
+        if instantaneous:
+            n0 = self._reference_speed(frame)[order]
+            n2 = ((rpm / SPEED_SCALE_RPM) ** 2 - (n0 / SPEED_SCALE_RPM) ** 2)[:, None]
+            parts.append(lowpass_runs(n2, t, codes, centrifugal_lags))
+            names += ["n2_krpm2" if lag <= 0 else f"L{lag:g}s(n2_krpm2)" for lag in centrifugal_lags]
+        f_sorted = np.column_stack(parts)
+        out = np.empty_like(f_sorted)
+        out[order] = f_sorted
+        return out, names
+
+    def _design(self, frame: pd.DataFrame):
+        return self._features(
+            frame,
+            self.sensors_,
+            self.taus_,
+            speed_taus=self.speed_taus_,
+            instantaneous=self.instantaneous_,
+            centrifugal_lags=[self.centrifugal_lag_s_],
+        )
+
+    def _filter_sets(self) -> tuple[list, list]:
+        """Candidate (rise tau indices, speed tau indices) sets. ``all``: every rise filter at
+        once, with every heat-input filter at once or with none (the ridge penalty sorts out
+        redundant constants; CV decides whether the heat-input terms help at all, e.g. they do
+        not for runs referenced while already spinning). ``subsets``: every subset of at most
+        ``max_taus`` / ``max_speed_taus`` of them."""
+        n_rise, n_speed = len(self.taus_s), len(self.speed_taus_s)
+        if self.filter_search == "all":
+            return [tuple(range(n_rise))], [(), tuple(range(n_speed))]
+        rise_sets = [
+            c
+            for k in range(1, max(1, int(self.max_taus)) + 1)
+            for c in itertools.combinations(range(n_rise), k)
+        ]
+        speed_sets = [
+            c
+            for k in range(0, int(self.max_speed_taus) + 1)
+            for c in itertools.combinations(range(n_speed), k)
+        ]
+        return rise_sets, speed_sets
+
+    def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        """Choose the filter constants, the draw-in lag and ``alpha`` by whole-run CV on the
+        training runs, then fit on all of them; returns ``self``."""
+        table, frame, sensors = self._prepare(runs_table, runs_frame)
+        self.speed_gain_ = False
+        self.instantaneous_ = self._use_speed_terms(frame)
+        self.speed_terms_ = self.instantaneous_  # grey_box's only reference-speed term is n^2 - n0^2
+        rise_taus, speed_taus, alphas = self._rise_taus(), self._speed_taus(), self._alphas()
+        y = frame["dz_um"].to_numpy(dtype=float)
+        run_ids = frame["run_id"].astype(str).to_numpy()
+        lags = self._lags() if self.instantaneous_ else [0.0]
+        feats, _ = self._features(
+            frame,
+            sensors,
+            rise_taus,
+            speed_taus=speed_taus,
+            instantaneous=self.instantaneous_,
+            centrifugal_lags=lags,
+        )
+        p, q = len(sensors), len(self._powers())
+        n_rise = p * len(rise_taus)
+        n_speed = q * len(speed_taus)
+        inst_cols = (
+            [np.arange(n_rise + n_speed + k, n_rise + n_speed + k + 1) for k in range(len(lags))]
+            if self.instantaneous_
+            else [np.arange(0)]
+        )
+        folds = cv_folds(feats, y, run_ids, table, self.cv)
+        cv_table, best = [], (math.inf, None, None, None, 0.0)
+        rise_sets, speed_sets = self._filter_sets()
+        for rs in rise_sets:
+            rcols = [np.arange(i * p, (i + 1) * p) for i in rs]
+            for ss in speed_sets:
+                scols = [n_rise + np.arange(j * q, (j + 1) * q) for j in ss]
+                for lag, inst in zip(lags, inst_cols):
+                    cols = np.concatenate(rcols + scols + [inst])
+                    scores = cv_scores(folds, cols, alphas, self.cv_metric)
+                    taus = [rise_taus[i] for i in rs]
+                    staus = [speed_taus[j] for j in ss]
+                    for a, sc in zip(alphas, scores):
+                        cv_table.append(
+                            {
+                                "taus_s": taus,
+                                "speed_taus_s": staus,
+                                "centrifugal_lag_s": lag,
+                                "alpha": a,
+                                "score_um": float(sc),
+                            }
+                        )
+                        if sc < best[0] - 1e-12:
+                            best = (float(sc), taus, staus, a, lag)
+        _, taus, staus, alpha, lag = best
+        self.speed_taus_ = staus
+        self.centrifugal_lag_s_ = float(lag)
+        return self._fit_final(table, frame, sensors, taus, alpha, cv_table)
+
+    # -- artefact
+    def _hyper(self) -> dict:
+        return {
+            **super()._hyper(),
+            "speed_gain": False,  # no speed-gain products (a key of every ridge kind's artefact)
+            "taus_s": self._rise_taus(),
+            "max_taus": int(self.max_taus),
+            "speed_taus_s": self._speed_taus(),
+            "max_speed_taus": int(self.max_speed_taus),
+            "speed_powers": self._powers(),
+            "filter_search": self.filter_search,
+            "centrifugal_lags_s": self._lags(),
+        }
+
+    def _selected(self) -> dict:
+        return {
+            **super()._selected(),
+            "speed_taus_s": self.speed_taus_,
+            "instantaneous_n2": bool(self.instantaneous_),
+            "centrifugal_lag_s": float(self.centrifugal_lag_s_),
+        }
+
+    def _filter_text(self) -> dict:
+        return {
+            "type": "first_order_lowpass",
+            "update": "y += (1 - exp(-dt/tau)) * (x - y)",
+            "initial_condition": {
+                "rises": "settled on the run's first sample (~0 at a cold start)",
+                "speed_powers": (
+                    "zero before the first sample (cold start from rest), then minus the "
+                    "median over the reference window"
+                    if self._cold_start()
+                    else "settled on the first sample's speed"
+                ),
+            },
+        }
+
+    def _from_selected(self, selected: dict) -> None:
+        self.speed_taus_ = [float(t) for t in selected.get("speed_taus_s", [])]
+        self.instantaneous_ = bool(selected.get("instantaneous_n2", False))
+        self.centrifugal_lag_s_ = float(selected.get("centrifugal_lag_s", 0.0))
+        self.speed_terms_ = self.instantaneous_

@@ -1,0 +1,284 @@
+"""What the ridge kinds (``ridge_global``, ``dynamic``, ``grey_box``) share: the ridge solve for
+every penalty at once, whole-run CV from per-run Gram matrices, the final fit, the evaluation
+and the artefact (``docs/models.md``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from rafi.family.base import CODE_VERSION, FamilyModel, check_artefact, data_hashes, finish_artefact, floats
+from rafi.family.crossval import split_runs, training_runs
+from rafi.family.features import (
+    MIN_IDENTIFYING_RUNS,
+    reference_speed,
+    rise_column,
+    speed_change_evidence,
+    usable_sensors,
+)
+
+CV_METRICS = ("rmse", "max_abs")
+
+
+def ridge_gram(g: np.ndarray, c: np.ndarray, n: int, alphas: Sequence[float]) -> np.ndarray:
+    """Coefficients (p x n_alphas) of ``min |y - Xb|^2/n + alpha |b|^2`` from ``X'X``, ``X'y``.
+
+    ``X`` is already scaled; ``(X'X + n alpha I) b = X'y`` is solved through the
+    eigendecomposition of ``X'X`` for all alphas at once.
+    """
+    w, v = np.linalg.eigh(g)
+    w = np.clip(w, 0.0, None)
+    vc = v.T @ c
+    return v @ (vc[:, None] / (w[:, None] + n * np.asarray(alphas, dtype=float)[None, :]))
+
+
+def rms_scale(x: np.ndarray) -> np.ndarray:
+    """RMS of every column of ``x`` (1 where it is ~0): the inputs' scale, about zero."""
+    s = np.sqrt(np.mean(x**2, axis=0))
+    return np.where(s > 1e-12, s, 1.0)
+
+
+def cv_folds(feats: np.ndarray, y: np.ndarray, run_ids: np.ndarray, table: pd.DataFrame, scheme: str) -> list:
+    """Per whole-run fold of ``scheme``, once per fit: the training runs' ``X'X``, ``X'y`` and
+    sample count (sums of per-run parts), the test runs' rows of ``X`` and ``y`` (for
+    ``max_abs``) and their ``X'X``, ``X'y``, ``y'y`` (for ``rmse``)."""
+    rows = {r: np.flatnonzero(run_ids == r) for r in np.unique(run_ids)}
+    gram = {r: (feats[i].T @ feats[i], feats[i].T @ y[i], len(i)) for r, i in rows.items()}
+    folds = []
+    for train_ids, test_ids in split_runs(table, scheme):
+        train = [gram[r] for r in train_ids if r in gram]
+        te = [rows[r] for r in test_ids if r in rows]
+        if not train or not te:
+            continue
+        test = [gram[r] for r in test_ids if r in gram]
+        te = np.concatenate(te)
+        folds.append(
+            {
+                "g": sum(t[0] for t in train),
+                "c": sum(t[1] for t in train),
+                "n": sum(t[2] for t in train),
+                "x_test": feats[te],
+                "y_test": y[te],
+                "g_test": sum(t[0] for t in test),
+                "c_test": sum(t[1] for t in test),
+                "yy_test": float(y[te] @ y[te]),
+            }
+        )
+    return folds
+
+
+def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
+    """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds:
+    ``rmse`` over every held-out sample, or ``max_abs``, the mean over folds of the held-out
+    runs' max |residual|."""
+    sq = np.zeros(len(alphas))
+    fold_max, count = [], 0
+    ix = np.ix_(cols, cols)
+    for fold in folds:
+        g, c, n = fold["g"][ix], fold["c"][cols], fold["n"]
+        if n == 0:
+            continue
+        sc = np.sqrt(np.diag(g) / n)
+        sc = np.where(sc > 1e-12, sc, 1.0)
+        b = ridge_gram(g / np.outer(sc, sc), c / sc, n, alphas) / sc[:, None]
+        if metric == "rmse":
+            # |y - Xb|^2 = y'y - 2 b'X'y + b'X'Xb from the test fold's Gram matrix: no pass
+            # over the test samples per candidate
+            sq += (
+                fold["yy_test"]
+                - 2.0 * (fold["c_test"][cols] @ b)
+                + np.einsum("ia,ij,ja->a", b, fold["g_test"][ix], b)
+            )
+            count += len(fold["y_test"])
+        else:
+            res = fold["y_test"][:, None] - fold["x_test"][:, cols] @ b
+            fold_max.append(np.max(np.abs(res), axis=0))
+    if metric == "rmse":
+        return np.sqrt(np.clip(sq, 0.0, None) / count) if count else np.zeros(len(alphas))
+    return np.mean(fold_max, axis=0) if fold_max else np.zeros(len(alphas))
+
+
+class RidgeBase(FamilyModel):
+    """Base of the ridge kinds. A subclass defines ``__init__`` (its hyperparameters, among them
+    ``sensors``, ``alphas``, ``cv``, ``cv_metric``, ``speed_terms``, ``speed_reference``,
+    ``reference``, ``machine``, ``speed_tolerance_rpm``), ``fit``, ``_design`` (the feature
+    matrix of the fitted model) and ``_inputs_text``."""
+
+    kind = "ridge_base"
+
+    # -- hyperparameters
+    def _check_params(self) -> None:
+        if self.cv_metric not in CV_METRICS:
+            raise ValueError(f"cv_metric {self.cv_metric!r}: use rmse or max_abs")
+
+    def _alphas(self) -> list[float]:
+        return [float(a) for a in self.alphas]
+
+    def _window_s(self) -> float:
+        return float(self.reference["window_s"])
+
+    def _speed_rule(self) -> str:
+        """``auto``: the run's start window under ``reference.rule: run_start``, else 0 r/min."""
+        if self.speed_reference != "auto":
+            return self.speed_reference
+        return "run_start" if self.reference["rule"] == "run_start" else "zero"
+
+    def _reference_speed(self, frame: pd.DataFrame) -> np.ndarray:
+        """Speed of each row's reference state (r/min), in ``frame`` row order."""
+        return reference_speed(frame, self._speed_rule(), self._window_s())
+
+    def _identifying_runs(self, frame: pd.DataFrame) -> list[str]:
+        """Training runs with a step from their reference speed (:func:`speed_change_evidence`);
+        a speed term relative to the reference speed is used only if at least
+        ``MIN_IDENTIFYING_RUNS`` of them identify it."""
+        return speed_change_evidence(
+            frame, self._reference_speed(frame), float(self.speed_tolerance_rpm), self._window_s()
+        )
+
+    def _use_speed_terms(self, frame: pd.DataFrame) -> bool:
+        """Set ``identifying_runs_``; True if ``speed_terms`` and the training runs identify them."""
+        self.identifying_runs_ = self._identifying_runs(frame) if self.speed_terms else []
+        return bool(self.speed_terms) and len(self.identifying_runs_) >= MIN_IDENTIFYING_RUNS
+
+    # -- fit
+    def _prepare(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        self._check_params()
+        table, frame = training_runs(runs_table, runs_frame)
+        frame = frame[np.isfinite(frame["dz_um"].to_numpy(dtype=float))]
+        sensors = list(self.sensors) if self.sensors is not None else usable_sensors(frame)
+        if not sensors:
+            raise ValueError("no usable temperature sensor in the training runs")
+        return table, frame, sensors
+
+    def _fit_final(self, table, frame, sensors, taus, alpha, cv_table):
+        """Fit the chosen model on every training run (the selection attributes of the subclass,
+        e.g. ``speed_gain_``, are set before)."""
+        self.sensors_ = list(sensors)
+        self.taus_ = [float(t) for t in taus]
+        self.alpha_ = float(alpha)
+        feats, names = self._design(frame)
+        y = frame["dz_um"].to_numpy(dtype=float)
+        sc = rms_scale(feats)
+        b = ridge_gram((feats / sc).T @ (feats / sc), (feats / sc).T @ y, len(y), [alpha])[:, 0]
+        self.feature_names_ = names
+        self.scale_ = sc
+        self.coef_ = b / sc
+        self.train_runs_ = sorted(map(str, table["run_id"]))
+        x = frame[[rise_column(s) for s in sensors]].to_numpy(dtype=float)
+        self.regressor_ranges_ = {
+            s: [float(x[:, i].min()), float(x[:, i].max())] for i, s in enumerate(sensors)
+        }
+        self.speed_range_rpm_ = [float(table["speed_rpm"].min()), float(table["speed_rpm"].max())]
+        self.rmse_um_ = float(np.sqrt(np.mean((y - feats @ self.coef_) ** 2)))
+        self.n_ = int(len(y))
+        self.cv_table_ = cv_table
+        self.data_ = data_hashes(table, self.train_runs_)
+        return self
+
+    # -- evaluation (NumPy only)
+    def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """``predicted_um`` and the out-of-range flags per row of ``frame`` (same index)."""
+        feats, _ = self._design(frame)
+        pred = feats @ self.coef_
+        x = frame[[rise_column(s) for s in self.sensors_]].to_numpy(dtype=float)
+        lo = np.array([self.regressor_ranges_[s][0] for s in self.sensors_])
+        hi = np.array([self.regressor_ranges_[s][1] for s in self.sensors_])
+        n = frame["speed_rpm"].to_numpy(dtype=float)
+        return pd.DataFrame(
+            {
+                "predicted_um": pred,
+                "outside_speed_range": (n < self.speed_range_rpm_[0]) | (n > self.speed_range_rpm_[1]),
+                "outside_temp_range": ((x < lo) | (x > hi)).any(axis=1),
+            },
+            index=frame.index,
+        )
+
+    # -- artefact
+    def _hyper(self) -> dict:
+        """The hyperparameters as recorded in the artefact (``hyperparameters``)."""
+        return {
+            "sensors": None if self.sensors is None else list(self.sensors),
+            "alphas": self._alphas(),
+            "cv": self.cv,
+            "cv_metric": self.cv_metric,
+            "speed_terms": bool(self.speed_terms),
+            "speed_reference": self.speed_reference,
+            "speed_tolerance_rpm": float(self.speed_tolerance_rpm),
+        }
+
+    def _selected(self) -> dict:
+        """What CV chose, as recorded in the artefact (``selected``)."""
+        return {
+            "alpha": self.alpha_,
+            "taus_s": self.taus_,
+            "speed_gain": self.speed_gain_,
+            "speed_terms": bool(self.speed_terms_),
+            "identifying_runs": list(self.identifying_runs_),
+        }
+
+    def _filter_text(self) -> dict:
+        return {
+            "type": "first_order_lowpass",
+            "initial_condition": "settled on the run's first sample",
+            "update": "y += (1 - exp(-dt/tau)) * (x - y)",
+        }
+
+    def to_dict(self) -> dict:
+        """The ``rafi.model/1`` artefact of the fitted model."""
+        body = {
+            "kind": self.kind,
+            "machine": self.machine,
+            "key_sensors": self.sensors_,
+            "inputs": self._inputs_text(),
+            "target": "displacement change dz (um) from the reference state",
+            "reference": dict(self.reference),
+            "speed_reference": {"rule": self._speed_rule(), "window_s": self._window_s()},
+            "hyperparameters": self._hyper(),
+            "selected": self._selected(),
+            "cv": self.cv_table_,
+            "features": self.feature_names_,
+            "coefficients": floats(self.coef_),
+            "scale": floats(self.scale_),
+            "filter": self._filter_text(),
+            "regressor_ranges": self.regressor_ranges_,
+            "speed_range_rpm": self.speed_range_rpm_,
+            "train_runs": self.train_runs_,
+            "rmse_um": self.rmse_um_,
+            "n": self.n_,
+            "data": self.data_,
+            "code_version": CODE_VERSION,
+        }
+        return finish_artefact(body)
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        """A fitted model from its artefact (refused if edited)."""
+        check_artefact(d, cls.kind)
+        names = cls._param_names()
+        params = {k: v for k, v in d.get("hyperparameters", {}).items() if k in names}
+        m = cls(reference=d["reference"], machine=d["machine"], **params)
+        selected = d["selected"]
+        m.sensors_ = list(d["key_sensors"])
+        m.taus_ = [float(t) for t in selected["taus_s"]]
+        m.alpha_ = float(selected["alpha"])
+        m.speed_gain_ = bool(selected.get("speed_gain", False))
+        m.speed_terms_ = bool(selected.get("speed_terms", m.speed_terms))
+        m.identifying_runs_ = list(selected.get("identifying_runs", []))
+        m.feature_names_ = list(d["features"])
+        m.coef_ = np.asarray(d["coefficients"], dtype=float)
+        m.scale_ = np.asarray(d["scale"], dtype=float)
+        m.regressor_ranges_ = d["regressor_ranges"]
+        m.speed_range_rpm_ = d["speed_range_rpm"]
+        m.train_runs_ = d["train_runs"]
+        m.rmse_um_ = d.get("rmse_um")
+        m.n_ = d.get("n")
+        m.cv_table_ = d.get("cv", [])
+        m.data_ = d.get("data", {})
+        m._from_selected(selected)
+        return m
+
+    def _from_selected(self, selected: dict) -> None:
+        """Fitted attributes of a subclass from the artefact's ``selected`` (none here)."""

@@ -1,0 +1,162 @@
+"""Kind ``ridge_global``: one ridge regression on every usable temperature rise + speed terms."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from rafi.family.features import SPEED_SCALE_RPM, lowpass_runs, rise_column, sorted_inputs
+from rafi.family.ridge import RidgeBase, cv_folds, cv_scores
+from rafi.settings import MACHINE_DEFAULTS
+
+MODELS = MACHINE_DEFAULTS["models"]
+SPEED_GAINS = (True, False, "cv")
+
+
+class RidgeGlobal(RidgeBase):
+    """Kind ``ridge_global``: one ridge model on all usable rises + speed terms.
+
+    ``dz = sum_i (b_i + g_i n) dT_i + c1 (n - n0) + c2 (n^2 - n0^2)`` with ``n`` in krpm and
+    ``n0`` the speed of the reference state. The speed-dependent gains ``g_i n`` (RAFI's
+    per-speed coefficients, as one smooth linear law) are used if ``speed_gain`` is true, not
+    used if false, and kept or dropped by CV if ``"cv"``. No intercept (at the reference state
+    every input is 0, so the compensation is 0). Inputs are scaled by their RMS over the
+    training runs; ``alpha`` (and ``speed_gain: cv``) are chosen by whole-run CV (``cv``) on
+    the training runs only. The speed terms are used only where the training runs identify
+    them (:meth:`RidgeBase._use_speed_terms`).
+
+    Parameters
+    ----------
+    sensors : sequence of str or None
+        The sensors whose rises are inputs; None: every usable one (:func:`usable_sensors`).
+    alphas : sequence of float
+        Ridge penalties to choose from (``models: ridge_alphas``).
+    cv : str
+        Whole-run CV scheme (``models: cv``).
+    cv_metric : str
+        ``rmse`` or ``max_abs`` (``models: cv_metric``).
+    speed_terms : bool
+        Allow the terms ``n - n0``, ``n^2 - n0^2``.
+    speed_gain : bool or "cv"
+        The products ``dT_i * n`` (``models: speed_gain``).
+    speed_reference : str
+        ``auto``, ``run_start`` or ``zero``: the speed ``n0`` (``models: speed_reference``).
+    reference : dict
+        The ``reference:`` settings (``rule``, ``window_s``).
+    machine : str or None
+        Machine name recorded in the artefact.
+    speed_tolerance_rpm : float
+        A sample this far from the reference speed shows a speed step.
+    """
+
+    kind = "ridge_global"
+
+    def __init__(
+        self,
+        *,
+        sensors: Sequence[str] | None = None,
+        alphas: Sequence[float] = MODELS["ridge_alphas"],
+        cv: str = MODELS["cv"],
+        cv_metric: str = MODELS["cv_metric"],
+        speed_terms: bool = True,
+        speed_gain: bool | str = MODELS["speed_gain"],
+        speed_reference: str = MODELS["speed_reference"],
+        reference: dict = MACHINE_DEFAULTS["reference"],
+        machine: str | None = None,
+        speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
+    ):
+        self.sensors = sensors
+        self.alphas = alphas
+        self.cv = cv
+        self.cv_metric = cv_metric
+        self.speed_terms = speed_terms
+        self.speed_gain = speed_gain
+        self.speed_reference = speed_reference
+        self.reference = reference
+        self.machine = machine
+        self.speed_tolerance_rpm = speed_tolerance_rpm
+
+    def _inputs_text(self) -> str:
+        return "temperature rises dT (K) of all usable sensors; speed (krpm) relative to the reference state"
+
+    def _tau_grid(self) -> tuple[list[float], int]:
+        """Filter constants to choose from and the most chosen at once (rises as they are)."""
+        return [0.0], 1
+
+    def _check_params(self) -> None:
+        super()._check_params()
+        if self.speed_gain not in SPEED_GAINS:
+            raise ValueError(f"speed_gain={self.speed_gain!r}: use true, false or cv")
+
+    def _features(
+        self, frame: pd.DataFrame, sensors: Sequence[str], taus: Sequence[float], *, speed_gain, speed_terms
+    ):
+        """Feature matrix in ``frame`` row order and the feature names."""
+        order, codes, x, t, rpm = sorted_inputs(frame, sensors)
+        filtered = lowpass_runs(x, t, codes, taus)
+        n = rpm / SPEED_SCALE_RPM
+        p = len(sensors)
+        parts, names = [], []
+        for i, tau in enumerate(taus):  # one block per tau: rises (and rises x speed)
+            block = filtered[:, i * p : (i + 1) * p]
+            parts.append(block)
+            names += [f"{rise_column(s)}@{tau:g}s" for s in sensors]
+            if speed_gain is True:
+                parts.append(block * n[:, None])
+                names += [f"{rise_column(s)}@{tau:g}s*n_krpm" for s in sensors]
+        if speed_terms:
+            n0 = self._reference_speed(frame)[order] / SPEED_SCALE_RPM
+            parts.append(np.column_stack([n - n0, n**2 - n0**2]))
+            names += ["n_krpm", "n2_krpm2"]
+        f_sorted = np.column_stack(parts)
+        f = np.empty_like(f_sorted)
+        f[order] = f_sorted
+        return f, names
+
+    def _design(self, frame: pd.DataFrame):
+        return self._features(
+            frame, self.sensors_, self.taus_, speed_gain=self.speed_gain_, speed_terms=self.speed_terms_
+        )
+
+    def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        """Choose the filter constants, ``alpha`` (and the speed gain) by whole-run CV on the
+        training runs, then fit on all of them; returns ``self``."""
+        table, frame, sensors = self._prepare(runs_table, runs_frame)
+        self.speed_terms_ = self._use_speed_terms(frame)
+        taus_grid, max_taus = self._tau_grid()
+        gains = [False, True] if self.speed_gain == "cv" else [bool(self.speed_gain)]
+        alphas = self._alphas()
+        y = frame["dz_um"].to_numpy(dtype=float)
+        run_ids = frame["run_id"].astype(str).to_numpy()
+        # the superset of the columns, once; each candidate is a subset
+        all_feats, _ = self._features(
+            frame, sensors, taus_grid, speed_gain=max(gains), speed_terms=self.speed_terms_
+        )
+        p = len(sensors)
+        width = p * (2 if max(gains) else 1)
+        speed = np.arange(len(taus_grid) * width, all_feats.shape[1])
+        folds = cv_folds(all_feats, y, run_ids, table, self.cv)
+        cv_table, best = [], (math.inf, None, None, None)
+        for gain in gains:
+            for k in range(1, max(1, max_taus) + 1):
+                for subset in itertools.combinations(range(len(taus_grid)), k):
+                    cols = [np.arange(i * width, i * width + (width if gain else p)) for i in subset]
+                    cols = np.concatenate(cols + [speed])
+                    scores = cv_scores(folds, cols, alphas, self.cv_metric)
+                    taus = [taus_grid[i] for i in subset]
+                    for a, sc in zip(alphas, scores):
+                        cv_table.append(
+                            {"taus_s": taus, "speed_gain": gain, "alpha": a, "score_um": float(sc)}
+                        )
+                        if sc < best[0] - 1e-12:
+                            best = (float(sc), taus, a, gain)
+        _, taus, alpha, gain = best
+        self.speed_gain_ = bool(gain)
+        return self._fit_final(table, frame, sensors, taus, alpha, cv_table)
+
+    def _hyper(self) -> dict:
+        return {**super()._hyper(), "speed_gain": self.speed_gain}
