@@ -1,9 +1,10 @@
-"""The qualification report (rafi.report.build, rafi.report.plots, the template) on a small fixture.
+"""The qualification report (rafi.report: tables, figures, context, render, the template) on a small fixture.
 
 The fixture (tests/data/report_fixture/<machine>/, made by generate.py) holds results tables
 in the docs/design.md formats, including comparison/* from rafi.family.models.run_family and
-registry/* from two nights of rafi.ops.registry.run_decide (the real producers). The tests render
-HTML + PDF in a tmp dir, open the HTML in headless Chromium, rasterise the PDF with pdftoppm and
+registry/* from two nights of rafi.ops.registry.run_decide (the real producers). Each test first
+does what rules report_tables and report_figures do (tables from the model, figure files), then
+renders HTML + PDF in a tmp dir, open the HTML in headless Chromium, rasterise the PDF with pdftoppm and
 check the layout with WeasyPrint. A variant shaped like machining-center-b (run ids
 ``thermal_log_2026-10-14#3``, an idle cool-down run, a rejected candidate, recalibration due,
 speed-range adaptation, reference.rule log_start) checks the same sections and widths.
@@ -11,11 +12,11 @@ speed-range adaptation, reference.rule log_start) checks the same sections and w
 
 from __future__ import annotations
 
-import datetime as dt
 import json
 import re
 import shutil
 import subprocess
+import sys
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -23,8 +24,16 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from markupsafe import escape
 
-from rafi.report import build as report
+from rafi.artefact import jsonable
+from rafi.report import figures, tables
+from rafi.report.context import build_context
+from rafi.report.format import equation_text, fmt_duration, fmt_num, fmt_p, fmt_sig, truthy
+from rafi.report.inputs import figure_dirs, result_paths
+from rafi.report.render import render_html, render_pdf
+from rafi.report.verdict import aggregate_verdict, qualify
+from rafi.settings import machine_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "tests" / "data" / "report_fixture" / "tapping-center-a"
@@ -70,16 +79,51 @@ def browser_tools():
     return {"chromium": _chromium(), "pdftoppm": shutil.which("pdftoppm")}
 
 
-def _settings():
+def _settings(machine: str = "tapping-center-a"):
     cfg = yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))
-    return cfg, dict(cfg["defaults"])
+    return cfg, machine_settings(cfg, machine)
+
+
+def _upstream(results: Path, settings: dict) -> dict:
+    """What rules report_tables and report_figures write before the report; the figure
+    folders (``comparison`` only when comparison/ exists)."""
+    paths = result_paths(results)
+    runs, frames = pd.read_csv(paths["runs_csv"]), pd.read_parquet(paths["runs_parquet"])
+    doc = json.loads(Path(paths["model"]).read_text(encoding="utf-8"))
+    fit = tables.training_fit(doc, runs, frames)
+    (results / "report").mkdir(exist_ok=True)
+    fit.to_parquet(paths["training_fit"])
+    tables.training_rmse(fit).to_csv(paths["training_fit_rmse"], index=False)
+    example = tables.fuzzy_example(doc, pd.read_csv(paths["diagnostics"]), runs, frames)
+    Path(paths["fuzzy_example"]).write_text(json.dumps(jsonable(example)), encoding="utf-8")
+    dirs = {}
+    for group, folder in figure_dirs(results).items():
+        if group == "comparison" and not (results / "comparison").is_dir():
+            continue
+        figures.draw_group(
+            paths,
+            group,
+            folder,
+            figure_format=settings["report"]["figure_format"],
+            coolant_sensors=settings["report"]["coolant_sensors"],
+            gates=settings["qualification"],
+        )
+        dirs[group] = folder
+    return dirs
+
+
+def _context(results: Path, settings: dict, **kw) -> dict:
+    """The report's context after the upstream rules (:func:`_upstream`)."""
+    dirs = _upstream(results, settings)
+    return build_context(
+        result_paths(results), dirs, machine=kw.pop("machine", results.name), settings=settings, **kw
+    )
 
 
 def _render(results: Path, out: Path, settings: dict, cfg: dict | None = None, machine=None):
-    machine = machine or results.name
-    ctx = report.build_context(report.result_paths(results), machine=machine, settings=settings, config=cfg)
-    html = report.render_html(ctx)
-    pdf = report.render_pdf(html)
+    ctx = _context(results, settings, machine=machine or results.name, config=cfg)
+    html = render_html(ctx)
+    pdf = render_pdf(html)
     out.mkdir(parents=True, exist_ok=True)
     (out / "qualification.html").write_text(html, encoding="utf-8")
     (out / "qualification.pdf").write_bytes(pdf)
@@ -94,7 +138,9 @@ def rendered(tmp_path_factory):
     shutil.copytree(FIXTURE, results)
     cfg, settings = _settings()
     out = tmp / "reports" / "tapping-center-a"
-    ctx, html = _render(results, out, settings, cfg)
+    # what rule report shows as the configuration used: the paths, the machine and its settings
+    shown = {**{k: cfg[k] for k in ("raw_dir", "results_dir", "reports_dir")}, "settings": settings}
+    ctx, html = _render(results, out, settings, shown)
     return {"ctx": ctx, "html": html, "dir": out, "tmp": tmp, "results": results}
 
 
@@ -347,14 +393,12 @@ def test_verdict_judges_the_model_on_the_machine_and_reports_rafi(rendered):
     col = "candidate" if after == dec["candidate_id"] else "champion"
     rows = {r["criterion"]: r for r in v["rows"]}
     assert set(rows) == {"max_residual_um", "min_improvement_pct", "never_worse_than_uncompensated"}
-    assert rows["max_residual_um"]["measured"] == report.fmt_num(
-        comp[f"{col}_max_abs_after_um"].max(), 2, "\u00b5m"
-    )
+    assert rows["max_residual_um"]["measured"] == fmt_num(comp[f"{col}_max_abs_after_um"].max(), 2, "\u00b5m")
     assert v["passed"] == all(r["passed"] for r in v["rows"])
     # RAFI as published: its own worst case from validation/summary.csv, beside it
     rafi = {r["criterion"]: r for r in v["rafi"]["rows"]}
     worst = pd.read_csv(FIXTURE / "validation" / "summary.csv")["max_abs_after_um"].max()
-    assert rafi["max_residual_um"]["measured"] == report.fmt_num(worst, 2, "\u00b5m")
+    assert rafi["max_residual_um"]["measured"] == fmt_num(worst, 2, "\u00b5m")
     assert rafi["max_residual_um"]["passed"] == (worst <= 12.0)
     assert "RAFI as published" in html and v["rafi"]["status"] in html
     # quarantined input is flagged in the verdict area
@@ -366,17 +410,15 @@ def test_verdict_falls_back_to_rafi_without_decision(tmp_path):
     shutil.copytree(FIXTURE, results)
     (results / "registry" / "decision.json").unlink()
     _, settings = _settings()
-    ctx = report.build_context(report.result_paths(results), machine="tapping-center-a", settings=settings)
+    ctx = _context(results, settings, machine="tapping-center-a")
     v = ctx["verdict"]
     assert v["judged"] is None and v["rafi"] is None
     summary = pd.read_csv(FIXTURE / "validation" / "summary.csv")
     rows = {r["criterion"]: r for r in v["rows"]}
-    assert rows["max_residual_um"]["measured"] == report.fmt_num(
-        summary["max_abs_after_um"].max(), 2, "\u00b5m"
-    )
+    assert rows["max_residual_um"]["measured"] == fmt_num(summary["max_abs_after_um"].max(), 2, "\u00b5m")
     ids = [s["id"] for s in ctx["sections"]]
     assert "registry" not in ids and "comparison" in ids
-    html = report.render_html(ctx)
+    html = render_html(ctx)
     assert "Model on the machine after this run" not in html
 
 
@@ -386,7 +428,7 @@ def test_registry_section_is_structured_not_a_json_dump(rendered):
     g = ctx["registry"]
     assert g["decision"] == dec["decision"] and g["word"] in html
     for reason in dec["reasons"]:
-        assert str(report.escape(reason)) in html
+        assert str(escape(reason)) in html
     assert dec["candidate_id"][:12] in html and dec["champion_id_before"][:12] in html
     # no flattened keys / raw JSON
     for bad in (
@@ -406,7 +448,7 @@ def test_registry_section_is_structured_not_a_json_dump(rendered):
         assert rid in text
     # drift numbers shown (the fixture's champion drifted; tonight's promotion resolved it)
     d = g["drift"]
-    assert d["reference"] == report.fmt_num(dec["drift"]["reference_max_residual_um"], 2, "\u00b5m")
+    assert d["reference"] == fmt_num(dec["drift"]["reference_max_residual_um"], 2, "\u00b5m")
     assert d["reference"] in html and d["now"] in html and d["margin"] in html
     assert d["detected"] == dec["drift"]["detected"]
     assert "Retrained speeds" in html and "Drift check" in html
@@ -443,10 +485,8 @@ def test_comparison_lists_what_cross_validation_chose(tmp_path):
         results / "comparison" / "summary.csv", index=False
     )
     cfg, settings = _settings()
-    ctx = report.build_context(
-        report.result_paths(results), machine="tapping-center-a", settings=settings, config=cfg
-    )
-    html = report.render_html(ctx)
+    ctx = _context(results, settings, machine="tapping-center-a", config=cfg)
+    html = render_html(ctx)
     assert ctx["comparison"]["selected"] == list(said.items())
     assert "Chosen by cross-validation on the training runs" in html
     for m, what in said.items():
@@ -482,81 +522,122 @@ def test_machine_b_like_results_render_and_fit(tmp_path):
     assert checked["table"] >= 16 and checked["image"] >= 8
 
 
-def _figures_ahead(results: Path, tmp: Path, settings: dict, fmt: str = "png") -> list[Path]:
-    """What rule report_figures writes: every group drawn from its inputs, as JSON files."""
-    paths = report.result_paths(results)
-    files = []
-    for group in report.FIGURE_GROUPS:
-        doc = report.build_figures(
-            paths, group, figure_format=fmt, coolant_sensors=["T13"], gates=settings["qualification"]
-        )
-        files.append(tmp / f"figures-{group}.json")
-        files[-1].write_text(json.dumps(doc), encoding="utf-8")
-    return files
-
-
-def test_figures_drawn_ahead_give_the_same_report(tmp_path):
-    """Rule report_figures draws the figures before the report (beside compare and decide):
-    the report made with them is identical to the one that draws them itself, also when the
-    model on the machine is not the family's champion (that figure is then drawn again)."""
+def test_figures_are_the_files_of_report_figures(tmp_path):
+    """Rule report_figures writes one file per figure and index.csv; the report embeds exactly
+    those (a figure not listed is not drawn by the report), and needs the folder of every group
+    it shows."""
     results = tmp_path / "tapping-center-a"
     shutil.copytree(FIXTURE, results)
     cfg, settings = _settings()
-    now = dt.datetime(2026, 1, 2, 3, 4, tzinfo=dt.UTC)
-    files = _figures_ahead(results, tmp_path, settings)
-    kw = {
-        "machine": "tapping-center-a",
-        "settings": settings,
-        "config": cfg,
-        "now": now,
-        "coolant_sensors": ["T13"],
-    }
-    known, notes = report.load_figures(files, coolant_sensors=["T13"], gates=settings["qualification"])
-    assert not notes and "training_runs" in known and "comparison_bars" in known
+    dirs = _upstream(results, settings)
+    index = {g: pd.read_csv(Path(d) / "index.csv") for g, d in dirs.items()}
+    assert {
+        "training_runs",
+        "correlation_heatmap",
+        "fit_residuals",
+        "membership",
+        "validation_single",
+    } <= set(index["pipeline"]["key"])
+    for g, frame in index.items():
+        assert all((Path(dirs[g]) / f).is_file() and f.endswith(".png") for f in frame["file"])
+    ctx = build_context(
+        result_paths(results), dirs, machine="tapping-center-a", settings=settings, config=cfg
+    )
+    html = render_html(ctx)
+    assert html.count('src="data:image/png;base64,') == len(ctx["figures_used"]) >= 8
+    # a figure the group did not draw is absent from the report, not drawn by it
+    pipe = index["pipeline"]
+    pipe[pipe["key"] != "membership"].to_csv(Path(dirs["pipeline"]) / "index.csv", index=False)
+    ctx = build_context(result_paths(results), dirs, machine="tapping-center-a", settings=settings)
+    assert ctx["fuzzy"]["figure"] is None and 'id="fig-membership"' not in render_html(ctx)
+    with pytest.raises(ValueError, match="no figure folder of group 'comparison'"):
+        build_context(result_paths(results), {"pipeline": dirs["pipeline"]}, machine="m", settings=settings)
+    with pytest.raises(ValueError, match="no path for"):
+        figures.draw_group(
+            {"comparison": results / "comparison" / "summary.csv"},
+            "comparison",
+            tmp_path / "f",
+            figure_format="png",
+            coolant_sensors=["T13"],
+            gates=settings["qualification"],
+        )
 
-    def both():
-        alone = report.build_context(report.result_paths(results), **kw)
-        ahead = report.build_context(report.result_paths(results), figures=known, **kw)
-        assert report.render_html(ahead) == report.render_html(alone)
-        assert sorted(ahead["figures_reused"] + ahead["figures_drawn"]) == sorted(alone["figures_drawn"])
-        return ahead
 
-    ahead = both()
-    assert ahead["figures_drawn"] == [] and len(ahead["figures_reused"]) >= 8
-    # the registry put a family model other than the champion on the machine
+def test_residuals_beside_rafi_follow_the_registry(tmp_path):
+    """RAFI's residuals are drawn ahead beside every other model, so the report shows them beside
+    the model the registry put on the machine, also when that is not the family's champion."""
+    results = tmp_path / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    _, settings = _settings()
     summary = pd.read_csv(results / "comparison" / "summary.csv")
-    other = summary[~summary["champion"].map(report._truthy) & (summary["kind"] != "rafi")].iloc[0]
+    other = summary[~summary["champion"].map(truthy) & (summary["kind"] != "rafi")].iloc[0]
     dec_path = results / "registry" / "decision.json"
     dec = json.loads(dec_path.read_text())
     dec["champion_id_after"] = other["model_id"]
     dec_path.write_text(json.dumps(dec))
-    ahead = both()
-    assert ahead["figures_drawn"] and all(
-        k.startswith("comparison_residuals/") and k.endswith("/" + other["model"])
-        for k in ahead["figures_drawn"]
+    ctx = _context(results, settings, machine="tapping-center-a")
+    resid = ctx["comparison"]["figures_resid"]
+    assert resid and all(f["other"] == other["model"] and f["figure"] for f in resid)
+    assert f"comparison/comparison_residuals/{resid[0]['run_id']}/{other['model']}" in ctx["figures_used"]
+
+
+def test_the_report_job_evaluates_no_model_and_draws_nothing(tmp_path):
+    """Building and rendering the report imports neither matplotlib nor the model's code."""
+    results = tmp_path / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    _, settings = _settings()
+    dirs = _upstream(results, settings)
+    code = (
+        "import sys, json\n"
+        "from rafi.report.context import build_context\n"
+        "from rafi.report.render import render_html\n"
+        "from rafi.report.inputs import result_paths\n"
+        f"settings = json.loads({json.dumps(json.dumps(settings))})\n"
+        f"dirs = {json.dumps({g: str(d) for g, d in dirs.items()})}\n"
+        f"ctx = build_context(result_paths({str(results)!r}), dirs, machine='m', settings=settings)\n"
+        "render_html(ctx)\n"
+        "bad = [m for m in ('matplotlib', 'rafi.method.model', 'rafi.method.fuzzy', 'rafi.report.plots') "
+        "if m in sys.modules]\n"
+        "print(bad)\n"
     )
-    # figures drawn with other parameters are not used; a group needs all of its inputs
-    known, notes = report.load_figures(
-        files, figure_format="svg", coolant_sensors=["T13"], gates=settings["qualification"]
-    )
-    assert known == {} and len(notes) == 2
-    with pytest.raises(ValueError, match="no path for"):
-        report.build_figures({"model": results / "model.json"}, "comparison")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]", out
+
+
+def test_report_tables_come_from_the_model(tmp_path):
+    """report_tables: the worked example and the training fit evaluated with RafiModel itself."""
+    from rafi.method.model import RafiModel
+
+    doc = json.loads((FIXTURE / "model.json").read_text())
+    runs, frames = pd.read_csv(FIXTURE / "runs.csv"), pd.read_parquet(FIXTURE / "runs.parquet")
+    ex = tables.fuzzy_example(doc, None, runs, frames)
+    assert ex["example_rpm"] == 4000.0 and [n["centre_rpm"] for n in ex["neighbours"]] == [3000.0, 6000.0]
+    w = [n["weight"] for n in ex["neighbours"]]
+    assert w == pytest.approx([2 / 3, 1 / 3])
+    z = [n["model_dz_um"] for n in ex["neighbours"]]
+    assert ex["blended_dz_um"] == pytest.approx(w[0] * z[0] + w[1] * z[1])
+    model = RafiModel.from_dict(doc)
+    state = pd.DataFrame([ex["state"]]).assign(speed_rpm=3000.0)
+    assert z[0] == pytest.approx(model.predict(state)[0])
+    rmse = tables.training_rmse(tables.training_fit(doc, runs, frames))
+    diag = pd.read_csv(FIXTURE / "fit" / "diagnostics.csv")
+    assert np.allclose(rmse["rmse_um"], diag.sort_values("speed_rpm")["rmse_um"], rtol=0.02)
+    assert tables.fuzzy_example({}, None, None, None)["example_rpm"] is None
 
 
 def test_envelope_keeps_extremes_and_bounds_points():
-    from rafi.report import plots
+    from rafi.report import plot_layout
 
     x = np.arange(100_000, dtype=float)
     y = np.sin(x / 500.0)
     y[12_345] = 7.0
     y[54_321] = -9.0
     y[70_000:70_500] = np.nan
-    xe, ye = plots.envelope(x, y, max_points=1000)
+    xe, ye = plot_layout.envelope(x, y, max_points=1000)
     assert len(xe) <= 1002 and np.all(np.diff(xe) >= 0)
     assert np.nanmax(ye) == 7.0 and np.nanmin(ye) == -9.0
     assert np.isnan(ye).any()  # an all-NaN bucket stays a gap
-    xs, ys = plots.envelope(x[:500], y[:500], max_points=1000)
+    xs, ys = plot_layout.envelope(x[:500], y[:500], max_points=1000)
     assert len(xs) == 500  # short series unchanged
 
 
@@ -571,7 +652,7 @@ def test_verdict_aggregates_the_worst_case_per_criterion():
         }
     )
     gates = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
-    rows = {r["criterion"]: r for r in report.aggregate_verdict(report.qualify(summary, gates))}
+    rows = {r["criterion"]: r for r in aggregate_verdict(qualify(summary, gates))}
     assert not rows["max_residual_um"]["passed"] and "b" in rows["max_residual_um"]["run_id"]
     assert rows["min_improvement_pct"]["passed"]  # idle run is not held to it
     assert not rows["never_worse_than_uncompensated"]["passed"]
@@ -619,10 +700,9 @@ def test_optional_sections_absent_without_their_files(tmp_path):
     info.update(fallback_used=True, message="only 2 sensors passed |r| > 0.97; T9 added as fallback")
     (results / "rank" / "key_sensors.json").write_text(json.dumps(info))
     _, settings = _settings()
-    ctx = report.build_context(
-        report.result_paths(results), machine="tapping-center-a", settings=settings, figure_format="svg"
-    )
-    html = report.render_html(ctx)
+    settings["report"]["figure_format"] = "svg"
+    ctx = _context(results, settings, machine="tapping-center-a")
+    html = render_html(ctx)
     ids = [s["id"] for s in ctx["sections"]]
     assert "registry" not in ids and "comparison" not in ids
     assert "Model registry" not in html and "Model comparison" not in html
@@ -645,19 +725,19 @@ def test_optional_sections_absent_without_their_files(tmp_path):
     ],
 )
 def test_fmt_num(value, args, expected):
-    assert report.fmt_num(value, *args) == expected
+    assert fmt_num(value, *args) == expected
 
 
 def test_fmt_sig_and_p():
-    assert report.fmt_sig(0.0012345, 3) == "0.00123"
-    assert report.fmt_sig(568462, 2) == "5.7\u00d710\u2075"
-    assert report.fmt_sig(-2.5e-5, 2) == "\u22122.5\u00d710\u207b\u2075"
-    assert report.fmt_p(0.0004) == "<\u00a00.001"
-    assert report.fmt_duration(14400) == "4.00\u00a0h"
+    assert fmt_sig(0.0012345, 3) == "0.00123"
+    assert fmt_sig(568462, 2) == "5.7\u00d710\u2075"
+    assert fmt_sig(-2.5e-5, 2) == "\u22122.5\u00d710\u207b\u2075"
+    assert fmt_p(0.0004) == "<\u00a00.001"
+    assert fmt_duration(14400) == "4.00\u00a0h"
 
 
 def test_equation_text():
-    eq = str(report.equation_text([0.12, 1.23, -0.5, 2e-6], ["1", "x1", "x1*x2", "x3^2"], {}))
+    eq = str(equation_text([0.12, 1.23, -0.5, 2e-6], ["1", "x1", "x1*x2", "x3^2"], {}))
     assert (
         "dz = 0.1200 + 1.230\u00a0x\u2081 \u2212 0.5000\u00a0x\u2081\u00b7x\u2082 + "
         "2.000\u00d710\u207b\u2076\u00a0x\u2083\u00b2"

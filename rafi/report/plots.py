@@ -1,230 +1,48 @@
-"""All figures of the qualification report (the only module that imports matplotlib).
+"""All figures of the qualification report, one function per figure.
 
-Every ``fig_*`` function takes plain tables/arrays, draws one figure with labelled
-axes and units, and returns an *embeddable* figure: a dict ``{"kind": "png", "src":
-"data:image/png;base64,..."}`` or ``{"kind": "svg", "svg": "<svg ...>"}`` so the
-HTML report needs no external files and WeasyPrint renders the same bytes.
-Backend is Agg (no display); figures are closed after encoding.
+Every ``fig_*`` function takes plain tables/arrays, draws one figure with labelled axes and
+units, and returns the bytes of a PNG or SVG file (:func:`rafi.report.plot_layout.render`).
+They are called by rule ``report_figures`` (:mod:`rafi.report.figures`), never by the report
+job, which embeds the files.
 """
 
 from __future__ import annotations
 
-import base64
-import io
-import re
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
 
-import matplotlib
-
-matplotlib.use("Agg", force=True)
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-from matplotlib.font_manager import FontProperties  # noqa: E402
-from PIL import Image  # noqa: E402
-
-#: Figure width that fills the A4 content box (180 mm) at 100 % image width.
-PAGE_WIDTH_IN = 7.0
-
-STYLE = {
-    "font.family": "DejaVu Sans",
-    "font.size": 7.5,
-    "axes.titlesize": 8,
-    "axes.labelsize": 7.5,
-    "legend.fontsize": 6.5,
-    "xtick.labelsize": 6.5,
-    "ytick.labelsize": 6.5,
-    "axes.grid": True,
-    "grid.alpha": 0.3,
-    "grid.linewidth": 0.5,
-    "lines.linewidth": 1.0,
-    "axes.spines.top": False,
-    "axes.spines.right": False,
-    "svg.hashsalt": "rafi-report",
-    "svg.fonttype": "path",
-}
-
-#: Colours: measured / before = grey-blue, model / after = orange, residual = red.
-C_MEAS, C_PRED, C_RES, C_SPEED = "#4a6fa5", "#e07b00", "#c0392b", "#2e7d32"
-
-
-def encode(fig, fmt: str = "png", dpi: int = 140) -> dict:
-    """Encode a figure for inline embedding and close it.
-
-    Parameters
-    ----------
-    fig : matplotlib.figure.Figure
-    fmt : {"png", "svg"}
-    dpi : int
-        Resolution of PNG output (ignored for SVG).
-    """
-    buf = io.BytesIO()
-    try:
-        if fmt == "svg":
-            fig.savefig(buf, format="svg", metadata={"Date": None})
-            text = buf.getvalue().decode("utf-8")
-            text = text[text.index("<svg") :]
-            text = re.sub(r'<svg([^>]*?) width="[^"]*" height="[^"]*"', r"<svg\1", text, count=1)
-            return {"kind": "svg", "svg": text}
-        fig.set_dpi(dpi)
-        fig.canvas.draw()
-        rgba = np.asarray(fig.canvas.buffer_rgba())
-        # the figure is opaque (white face): drop the alpha channel, so WeasyPrint embeds
-        # the image as is instead of splitting it into colour + soft mask (two re-encodes)
-        Image.fromarray(np.ascontiguousarray(rgba[..., :3])).save(buf, format="PNG", compress_level=6)
-        data = base64.b64encode(buf.getvalue()).decode("ascii")
-        return {"kind": "png", "src": f"data:image/png;base64,{data}"}
-    finally:
-        plt.close(fig)
-
-
-def _hours(t_s):
-    return np.asarray(t_s, dtype=float) / 3600.0
-
-
-#: Longest series drawn as is; longer ones are reduced to a min/max envelope (same look,
-#: every extreme kept, far fewer vertices for matplotlib and the PDF).
-MAX_POINTS = 1600
-
-
-def envelope(x, y, max_points: int = MAX_POINTS):
-    """Min/max envelope of ``y`` over ``x`` for plotting: at most ``max_points`` points.
-
-    The samples are cut into ``max_points / 2`` consecutive buckets; each bucket keeps its
-    minimum and its maximum (in time order), so peaks - the numbers the report is about -
-    survive the reduction. NaN buckets stay NaN (a gap in the line). Short series are
-    returned unchanged.
-    """
-    x = np.asarray(x, dtype=float)
-    y = np.asarray(y, dtype=float)
-    n = len(y)
-    if n <= max_points or max_points < 4:
-        return x, y
-    b = int(np.ceil(n / (max_points // 2)))
-    nb = int(np.ceil(n / b))
-    pad = nb * b - n
-    yy = np.concatenate([y, np.full(pad, np.nan)]).reshape(nb, b)
-    finite = np.isfinite(yy)
-    lo = np.where(finite, yy, np.inf).argmin(axis=1)
-    hi = np.where(finite, yy, -np.inf).argmax(axis=1)
-    first, second = np.minimum(lo, hi), np.maximum(lo, hi)
-    idx = (np.arange(nb) * b)[:, None] + np.column_stack([first, second])
-    idx = np.minimum(idx.ravel(), n - 1)
-    return x[idx], y[idx]
-
-
-def _plot(ax, x, y, *args, **kwargs):
-    """``ax.plot`` of a possibly long series through :func:`envelope`."""
-    xe, ye = envelope(x, y)
-    return ax.plot(xe, ye, *args, **kwargs)
-
-
-# --------------------------------------------------------------------------- fixed layout
-# constrained_layout measures every artist's tight bbox at save time (about 40 % of the
-# figure time of the report); the multi-panel figures below use explicit margins in inches
-# instead, sized from their actual tick labels, so nothing is cut off with other data.
-
-#: Gaps (inches) of the fixed layouts, as constrained_layout placed them for the report.
-TOP_TITLE_IN = 0.22  # axes title above the top row
-TOP_LEGEND_IN = 0.48  # figure legend + axes title above the top row
-BOTTOM_IN = 0.40  # x tick labels + x label below the bottom row
-ROW_GAP_IN = 0.61  # x tick labels + x label + next row's title
-SHARED_GAP_IN = 0.13  # between panels sharing x (tick labels hidden)
-EDGE_IN = 0.05  # outer edge where nothing sticks out
-
-
-def _tick_label_width_in(fig, axis) -> float:
-    """Widest major tick label of ``axis`` in inches (without drawing the figure)."""
-    lo, hi = sorted(axis.get_view_interval())
-    eps = 1e-9 * max(abs(hi - lo), 1e-300)
-    locs = [v for v in axis.get_majorticklocs() if lo - eps <= v <= hi + eps]
-    labels = axis.get_major_formatter().format_ticks(locs) if locs else []
-    size = matplotlib.rcParams["ytick.labelsize"]
-    prop = FontProperties(size=size)
-    renderer = fig.canvas.get_renderer()
-    w = 0.0
-    for text in labels:
-        if text:
-            w = max(
-                w,
-                renderer.get_text_width_height_descent(text, prop, ismath="TeX" if "$" in text else False)[0],
-            )
-    return w / fig.dpi
-
-
-def _y_room_in(ax, axis=None) -> float:
-    """Inches beside ``ax`` taken by y tick labels + y label (+ a small pad)."""
-    axis = axis or ax.yaxis
-    fig = ax.figure
-    tick = axis.get_major_ticks()[0] if axis.get_major_ticks() else None
-    size = (tick.tick1line.get_markersize() if tick else 3.5) / 72.0
-    pad = (tick.get_pad() if tick else 3.5) / 72.0
-    room = size + pad + _tick_label_width_in(fig, axis)
-    if axis.get_label_text():
-        fs = FontProperties(size=matplotlib.rcParams["axes.labelsize"]).get_size_in_points()
-        room += axis.labelpad / 72.0 + 1.1 * fs / 72.0
-    return room + 0.03
-
-
-def _adjust(fig, *, left, right, top, bottom, ncols=1, nrows=1, wgap=0.0, hgap=0.0):
-    """``fig.subplots_adjust`` with margins and gaps in inches."""
-    W, H = fig.get_size_inches()
-    aw = (W - left - right - (ncols - 1) * wgap) / ncols
-    ah = (H - top - bottom - (nrows - 1) * hgap) / nrows
-    fig.subplots_adjust(
-        left=left / W,
-        right=1 - right / W,
-        bottom=bottom / H,
-        top=1 - top / H,
-        wspace=wgap / aw if ncols > 1 else 0.2,
-        hspace=hgap / ah if nrows > 1 else 0.2,
-    )
-
-
-def _split_shared(fig, outer, nrows, ncols, gap_in):
-    """Set the gap (inches) inside the 2-row sub-grids of ``outer`` (panels sharing x)."""
-    H = fig.get_size_inches()[1]
-    pos = outer.get_grid_positions(fig)
-    cell_h = pos[1][0] - pos[0][0]  # top - bottom of one outer cell (figure fraction)
-    gap = gap_in / H
-    for sub in {
-        id(a.get_subplotspec().get_gridspec()): a.get_subplotspec().get_gridspec() for a in fig.axes
-    }.values():
-        if sub is not outer:
-            sub._hspace = 2 * gap / max(cell_h - gap, 1e-6)
-    for ax in fig.axes:
-        ax._set_position(ax.get_subplotspec().get_position(fig))
-
-
-def _legend_top(fig, handles, labels, ncol):
-    """Figure legend centred above the axes (the ``loc="outside upper center"`` look)."""
-    return fig.legend(
-        handles,
-        labels,
-        loc="upper center",
-        bbox_to_anchor=(0.5, 1.0),
-        ncol=ncol,
-        frameon=False,
-        borderaxespad=0.3,
-    )
-
-
-def _grid(n: int, ncols: int = 3, row_h: float = 2.1, extra_rows: int = 1):
-    ncols = max(1, min(ncols, n))
-    nrows = max(1, int(np.ceil(n / ncols)))
-    return nrows, ncols, (PAGE_WIDTH_IN, row_h * nrows * extra_rows)
-
-
-def _speed_label(speed) -> str:
-    return f"{float(speed):,.0f} r/min".replace(",", "\u00a0")
-
+from rafi.report.plot_layout import (
+    BOTTOM_IN,
+    C_MEAS,
+    C_PRED,
+    C_RES,
+    C_SPEED,
+    EDGE_IN,
+    PAGE_WIDTH_IN,
+    ROW_GAP_IN,
+    SHARED_GAP_IN,
+    STYLE,
+    TOP_LEGEND_IN,
+    TOP_TITLE_IN,
+    adjust,
+    envelope,
+    hours,
+    legend_top,
+    panel_grid,
+    plot_series,
+    render,
+    speed_label,
+    split_shared,
+    y_room_in,
+)
 
 # --------------------------------------------------------------------------- section 3
 
 
 def fig_training_runs(
     runs: dict, *, temp_sensors: list[str], eq_times: dict | None = None, fmt: str = "png"
-) -> dict:
+) -> bytes:
     """Temperatures and displacement against time, one panel per training speed (paper Fig. 9).
 
     Parameters
@@ -239,26 +57,26 @@ def fig_training_runs(
     """
     with plt.rc_context(STYLE):
         speeds = sorted(runs)
-        nrows, ncols, size = _grid(len(speeds), 2, 2.0)
+        nrows, ncols, size = panel_grid(len(speeds), 2, 2.0)
         fig, axes = plt.subplots(nrows, ncols, figsize=size, squeeze=False)
         colours = plt.get_cmap("tab10")
         handles = {}
         twins = []
         for ax, speed in zip(axes.flat, speeds):
             f = runs[speed]
-            h = _hours(f["t_s"])
+            h = hours(f["t_s"])
             for i, s in enumerate(temp_sensors):
                 if s in f:
-                    (ln,) = _plot(ax, h, f[s], color=colours(i), ls="-" if i < 3 else "--", lw=0.9)
+                    (ln,) = plot_series(ax, h, f[s], color=colours(i), ls="-" if i < 3 else "--", lw=0.9)
                     handles.setdefault(f"{s} (°C)", ln)
-            ax.set_title(_speed_label(speed))
+            ax.set_title(speed_label(speed))
             ax.set_xlabel("time (h)")
             ax.set_ylabel("temperature (°C)")
             ax2 = ax.twinx()
             twins.append(ax2)
             ax2.grid(False)
             ax2.spines["right"].set_visible(True)
-            (ln,) = _plot(ax2, h, f["dz_um"], color="black", lw=1.2)
+            (ln,) = plot_series(ax2, h, f["dz_um"], color="black", lw=1.2)
             handles.setdefault("dz (µm, right axis)", ln)
             ax2.set_ylabel("displacement dz (µm)")
             if eq_times and np.isfinite(eq_times.get(speed, np.nan)):
@@ -267,9 +85,9 @@ def fig_training_runs(
         for ax in list(axes.flat)[len(speeds) :]:
             ax.set_visible(False)
         used = list(axes.flat)[: len(speeds)]
-        left = max(_y_room_in(ax) for ax in used)
-        right = max(_y_room_in(ax2, ax2.yaxis) for ax2 in twins)
-        _adjust(
+        left = max(y_room_in(ax) for ax in used)
+        right = max(y_room_in(ax2, ax2.yaxis) for ax2 in twins)
+        adjust(
             fig,
             left=left,
             right=right,
@@ -280,8 +98,8 @@ def fig_training_runs(
             wgap=left + right + 0.05,
             hgap=ROW_GAP_IN,
         )
-        _legend_top(fig, list(handles.values()), list(handles.keys()), min(len(handles), 6))
-        return encode(fig, fmt)
+        legend_top(fig, list(handles.values()), list(handles.keys()), min(len(handles), 6))
+        return render(fig, fmt)
 
 
 # --------------------------------------------------------------------------- section 4
@@ -289,7 +107,7 @@ def fig_training_runs(
 
 def fig_correlation_heatmap(
     abs_r: pd.DataFrame, *, threshold: float, chosen: list[str], fmt: str = "png"
-) -> dict:
+) -> bytes:
     """Heatmap of |r| (rows = scopes: speeds and pooled, columns = sensors)."""
     with plt.rc_context({**STYLE, "axes.grid": False}):
         nrow, ncol = abs_r.shape
@@ -321,10 +139,10 @@ def fig_correlation_heatmap(
         cb = fig.colorbar(im, ax=ax, pad=0.01, fraction=0.03)
         cb.set_label("|r| (-)")
         cb.ax.axhline(threshold, color="red", lw=1)
-        return encode(fig, fmt)
+        return render(fig, fmt)
 
 
-def fig_matrix(matrix: pd.DataFrame, *, label: str = "Pearson r (-)", fmt: str = "png") -> dict:
+def fig_matrix(matrix: pd.DataFrame, *, label: str = "Pearson r (-)", fmt: str = "png") -> bytes:
     """A square correlation matrix (used when it is too wide for a table)."""
     with plt.rc_context({**STYLE, "axes.grid": False}):
         n = len(matrix)
@@ -334,13 +152,13 @@ def fig_matrix(matrix: pd.DataFrame, *, label: str = "Pearson r (-)", fmt: str =
         ax.set_xticks(range(n), matrix.columns, rotation=90)
         ax.set_yticks(range(n), matrix.index)
         fig.colorbar(im, ax=ax, label=label)
-        return encode(fig, fmt)
+        return render(fig, fmt)
 
 
 # --------------------------------------------------------------------------- section 5
 
 
-def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> dict:
+def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> bytes:
     """Measured and fitted dz (top) and residual (bottom) per training speed.
 
     ``fits``: ``speed_rpm -> DataFrame`` with ``t_s``, ``measured_um``, ``fitted_um``.
@@ -355,12 +173,12 @@ def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> dict:
         for k, speed in enumerate(speeds):
             r, c = divmod(k, ncols)
             f = fits[speed]
-            h = _hours(f["t_s"])
+            h = hours(f["t_s"])
             inner = outer[r, c].subgridspec(2, 1, height_ratios=[2, 1], hspace=0.0)
             ax = fig.add_subplot(inner[0])
-            _plot(ax, h, f["measured_um"], ".", ms=1.5, color=C_MEAS, label="measured")
-            _plot(ax, h, f["fitted_um"], color=C_PRED, lw=1.0, label="model")
-            ax.set_title(_speed_label(speed))
+            plot_series(ax, h, f["measured_um"], ".", ms=1.5, color=C_MEAS, label="measured")
+            plot_series(ax, h, f["fitted_um"], color=C_PRED, lw=1.0, label="model")
+            ax.set_title(speed_label(speed))
             ax.set_ylabel("dz (µm)")
             ax.tick_params(labelbottom=False)
             if k == 0:
@@ -368,12 +186,12 @@ def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> dict:
             axr = fig.add_subplot(inner[1], sharex=ax)
             left_axes += [ax, axr]
             res = np.asarray(f["measured_um"], float) - np.asarray(f["fitted_um"], float)
-            _plot(axr, h, res, color=C_RES, lw=0.7)
+            plot_series(axr, h, res, color=C_RES, lw=0.7)
             axr.axhline(0, color="black", lw=0.5)
             axr.set_ylabel("residual (µm)")
             axr.set_xlabel("time (h)")
-        room = max((_y_room_in(a) for a in left_axes), default=0.5)
-        _adjust(
+        room = max((y_room_in(a) for a in left_axes), default=0.5)
+        adjust(
             fig,
             left=room,
             right=EDGE_IN,
@@ -384,8 +202,8 @@ def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> dict:
             wgap=room + 0.05,
             hgap=ROW_GAP_IN,
         )
-        _split_shared(fig, outer, nblocks, ncols, SHARED_GAP_IN)
-        return encode(fig, fmt)
+        split_shared(fig, outer, nblocks, ncols, SHARED_GAP_IN)
+        return render(fig, fmt)
 
 
 # --------------------------------------------------------------------------- section 6
@@ -399,20 +217,20 @@ def fig_membership(
     example_rpm: float | None = None,
     example_weights: dict | None = None,
     fmt: str = "png",
-) -> dict:
+) -> bytes:
     """Triangular membership functions of the training speeds."""
     with plt.rc_context(STYLE):
         fig, ax = plt.subplots(figsize=(PAGE_WIDTH_IN, 2.3), constrained_layout=True)
         cmap = plt.get_cmap("tab10")
         x = np.asarray(speed_grid, float)
         for k, c in enumerate(centres):
-            ax.plot(x, weights[:, k], color=cmap(k % 10), label=_speed_label(c))
+            ax.plot(x, weights[:, k], color=cmap(k % 10), label=speed_label(c))
         if example_rpm is not None:
             ax.axvline(example_rpm, color="black", ls="--", lw=0.8)
             for c, w in (example_weights or {}).items():
                 ax.plot([example_rpm], [w], "o", color="black", ms=3)
                 ax.annotate(
-                    f"{w:.3f} on {_speed_label(c)}",
+                    f"{w:.3f} on {speed_label(c)}",
                     (example_rpm, w),
                     xytext=(6, 2),
                     textcoords="offset points",
@@ -422,26 +240,26 @@ def fig_membership(
         ax.set_ylabel("membership weight (-)")
         ax.set_ylim(-0.03, 1.08)
         ax.legend(ncol=min(len(centres), 6), loc="upper center", bbox_to_anchor=(0.5, 1.22), frameon=False)
-        return encode(fig, fmt)
+        return render(fig, fmt)
 
 
 # --------------------------------------------------------------------------- section 7
 
 
-def fig_validation_single(runs: dict, *, fmt: str = "png") -> dict:
+def fig_validation_single(runs: dict, *, fmt: str = "png") -> bytes:
     """Before (measured dz) and after (residual) compensation per validation run (paper Fig. 12).
 
     ``runs``: ``label -> DataFrame`` with ``t_s``, ``measured_um``, ``residual_um``.
     """
     with plt.rc_context(STYLE):
         labels = list(runs)
-        nrows, ncols, size = _grid(len(labels), 3, 2.0)
+        nrows, ncols, size = panel_grid(len(labels), 3, 2.0)
         fig, axes = plt.subplots(nrows, ncols, figsize=size, squeeze=False)
         for ax, lab in zip(axes.flat, labels):
             f = runs[lab]
-            h = _hours(f["t_s"])
-            _plot(ax, h, f["measured_um"], color=C_MEAS, label="before (measured dz)")
-            _plot(ax, h, f["residual_um"], color=C_RES, label="after (residual)")
+            h = hours(f["t_s"])
+            plot_series(ax, h, f["measured_um"], color=C_MEAS, label="before (measured dz)")
+            plot_series(ax, h, f["residual_um"], color=C_RES, label="after (residual)")
             ax.axhline(0, color="black", lw=0.5)
             ax.set_title(lab)
             ax.set_xlabel("time (h)")
@@ -449,8 +267,8 @@ def fig_validation_single(runs: dict, *, fmt: str = "png") -> dict:
         for ax in list(axes.flat)[len(labels) :]:
             ax.set_visible(False)
         used = list(axes.flat)[: len(labels)]
-        room = max((_y_room_in(ax) for ax in used), default=0.5)
-        _adjust(
+        room = max((y_room_in(ax) for ax in used), default=0.5)
+        adjust(
             fig,
             left=room,
             right=EDGE_IN,
@@ -463,13 +281,13 @@ def fig_validation_single(runs: dict, *, fmt: str = "png") -> dict:
         )
         if labels:
             h, lab = axes.flat[0].get_legend_handles_labels()
-            _legend_top(fig, h, lab, 2)
-        return encode(fig, fmt)
+            legend_top(fig, h, lab, 2)
+        return render(fig, fmt)
 
 
 def fig_multi_condition(
     f: pd.DataFrame, *, temp_sensors: list[str], title: str = "", fmt: str = "png"
-) -> dict:
+) -> bytes:
     """Multi-condition run (paper Figs 13-14): speed, temperatures, measured vs predicted, residual.
 
     ``f`` has ``t_s``, ``speed_rpm``, ``measured_um``, ``predicted_um``, ``residual_um`` and the
@@ -485,7 +303,7 @@ def fig_multi_condition(
             sharex=True,
             gridspec_kw={"height_ratios": [1, 1.3, 1.6] if n == 3 else [1, 1.6]},
         )
-        h = _hours(f["t_s"])
+        h = hours(f["t_s"])
         ax = axes[0]
         hs, sp = envelope(h, f["speed_rpm"])
         ax.step(hs, sp, where="post", color=C_SPEED)
@@ -496,27 +314,27 @@ def fig_multi_condition(
             ax = axes[1]
             cmap = plt.get_cmap("tab10")
             for i, s in enumerate(temps):
-                _plot(ax, h, f[s], color=cmap(i), ls="-" if i < 3 else "--", label=s)
+                plot_series(ax, h, f[s], color=cmap(i), ls="-" if i < 3 else "--", label=s)
             ax.set_ylabel("temperature (°C)")
             ax.legend(ncol=len(temps), loc="upper left", frameon=False)
         ax = axes[-1]
-        _plot(ax, h, f["measured_um"], color=C_MEAS, label="measured dz (before)")
-        _plot(ax, h, f["predicted_um"], color=C_PRED, label="predicted")
-        _plot(ax, h, f["residual_um"], color=C_RES, label="residual (after)")
+        plot_series(ax, h, f["measured_um"], color=C_MEAS, label="measured dz (before)")
+        plot_series(ax, h, f["predicted_um"], color=C_PRED, label="predicted")
+        plot_series(ax, h, f["residual_um"], color=C_RES, label="residual (after)")
         ax.axhline(0, color="black", lw=0.5)
         ax.set_ylabel("displacement (µm)")
         ax.set_xlabel("time (h)")
         ax.legend(ncol=3, loc="upper left", frameon=False)
-        _adjust(
+        adjust(
             fig,
-            left=max(_y_room_in(a) for a in axes),
+            left=max(y_room_in(a) for a in axes),
             right=EDGE_IN,
             top=TOP_TITLE_IN if title else EDGE_IN + 0.03,
             bottom=BOTTOM_IN,
             nrows=n,
             hgap=SHARED_GAP_IN,
         )
-        return encode(fig, fmt)
+        return render(fig, fmt)
 
 
 # --------------------------------------------------------------------------- model comparison
@@ -537,7 +355,7 @@ def fig_comparison_bars(
     gate_um: float | None = None,
     labels: dict | None = None,
     fmt: str = "png",
-) -> dict:
+) -> bytes:
     """Grouped bars: max |residual| per validation run (groups) and model (bars).
 
     Parameters
@@ -620,12 +438,12 @@ def fig_comparison_bars(
         ax.set_ylabel("max |residual| after compensation (µm)")
         h, lab = ax.get_legend_handles_labels()
         fig.legend(h, lab, ncol=min(m + 2, 4), loc="outside upper center", frameon=False)
-        return encode(fig, fmt)
+        return render(fig, fmt)
 
 
 def fig_comparison_residuals(
     series: dict, *, measured=None, outside=None, gate_um=None, title: str = "", fmt: str = "png"
-) -> dict:
+) -> bytes:
     """Residual against time of several models on one run (RAFI vs the champion).
 
     ``series``: label -> DataFrame with ``t_s`` and ``residual_um`` (first = RAFI, drawn red).
@@ -636,9 +454,9 @@ def fig_comparison_residuals(
     with plt.rc_context(STYLE):
         fig, ax = plt.subplots(figsize=(PAGE_WIDTH_IN, 2.5), constrained_layout=True)
         if measured is not None and len(measured):
-            _plot(
+            plot_series(
                 ax,
-                _hours(measured["t_s"]),
+                hours(measured["t_s"]),
                 measured["measured_um"],
                 color="#9aa0a6",
                 lw=0.8,
@@ -646,9 +464,9 @@ def fig_comparison_residuals(
             )
         for k, (lab, f) in enumerate(series.items()):
             colour = C_RES if k == 0 else ("#1f77b4", "#2e7d32", "#e07b00")[(k - 1) % 3]
-            _plot(ax, _hours(f["t_s"]), f["residual_um"], color=colour, lw=1.0, label=f"residual {lab}")
+            plot_series(ax, hours(f["t_s"]), f["residual_um"], color=colour, lw=1.0, label=f"residual {lab}")
         if outside is not None and len(outside) and bool(np.any(outside["outside"])):
-            h = _hours(outside["t_s"])
+            h = hours(outside["t_s"])
             xe, ye = envelope(h, np.asarray(outside["outside"], float))
             ax.fill_between(
                 xe,
@@ -679,4 +497,4 @@ def fig_comparison_residuals(
         ax.set_ylabel(ylabel)
         h, lab = ax.get_legend_handles_labels()
         fig.legend(h, lab, ncol=3, loc="outside upper center", frameon=False)
-        return encode(fig, fmt)
+        return render(fig, fmt)

@@ -14,9 +14,10 @@
 #   compare    comparison_path(name, machine), comparison_outputs(machine)
 #   registry   nightly_settings(machine), qualification_gates(machine),
 #              registry_path(name, machine), candidate_model(wildcards), nightly_targets()
-#   report     report_inputs(wildcards), report_settings(machine),
-#              REPORT_FIGURE_GROUPS, report_figures_path(group, machine),
-#              report_figure_inputs(wildcards), report_figure_gates(wildcards)
+#   report     report_inputs(wildcards), report_settings(machine), REPORT_MODEL_TABLES,
+#              report_table_path(name, machine), REPORT_FIGURE_GROUPS,
+#              report_figures_path(group, machine), report_figure_inputs(wildcards),
+#              report_figure_settings(wildcards)
 
 import importlib.util
 import logging
@@ -359,10 +360,11 @@ def nightly_targets():
 
 # --------------------------------------------------------------------------- report
 
+#: Tables of design.md the report reads (not runs.parquet: what the report shows from it comes
+#: from rule report_tables and report_figures).
 REPORT_TABLES = (
     "audit",
     "runs_csv",
-    "runs_parquet",
     "equilibrium",
     "correlation",
     "key_sensors",
@@ -370,16 +372,23 @@ REPORT_TABLES = (
     "collinearity",
     "coefficients",
     "diagnostics",
-    "vif",
     "model",
     "validation_summary",
     "residuals",
 )
 
+#: Outputs of report_tables under ``results/<machine>/report/`` - what the report shows from
+#: evaluating the model (rafi.report.tables).
+REPORT_MODEL_TABLES = {
+    "training_fit": "training_fit.parquet",
+    "training_fit_rmse": "training_fit.csv",
+    "fuzzy_example": "fuzzy_example.json",
+}
 
-#: Figures drawn ahead of the report by report_figures, per group - the inputs of each
-#: group, the names of rafi.report.build.FIGURE_GROUPS (rafi.report.build.build_figures checks that it
-#: gets every one of them; the report itself is not imported here, it would load pandas).
+
+#: Figure groups of rule report_figures - the inputs each draws from, the names of
+#: rafi.report.figures.FIGURE_GROUPS (rafi.report.figures.draw_group checks that it gets
+#: every one; the report package is not imported here, it would load pandas).
 REPORT_FIGURE_GROUPS = {
     "pipeline": (
         "runs_csv",
@@ -389,13 +398,13 @@ REPORT_FIGURE_GROUPS = {
         "key_sensors",
         "key_sensors_json",
         "collinearity",
-        "coefficients",
-        "diagnostics",
         "model",
         "validation_summary",
         "residuals",
+        "training_fit",
+        "fuzzy_example",
     ),
-    "comparison": ("model", "comparison", "comparison_per_run", "comparison_cv", "comparison_residuals"),
+    "comparison": ("comparison", "comparison_per_run", "comparison_residuals"),
 }
 
 _COMPARISON_INPUTS = {
@@ -406,47 +415,62 @@ _COMPARISON_INPUTS = {
 }
 
 
+def report_table_path(name, machine="{machine}"):
+    """Path of an output of rule report_tables (a key of ``REPORT_MODEL_TABLES``)."""
+    return f"{RESULTS_DIR}/{machine}/report/{REPORT_MODEL_TABLES[name]}"
+
+
 def report_figures_path(group="{group}", machine="{machine}"):
-    """Figures of one group drawn ahead of the report: ``results/<machine>/report/figures-<group>.json``."""
-    return f"{RESULTS_DIR}/{machine}/report/figures-{group}.json"
+    """Folder of one figure group: ``results/<machine>/report/figures/<group>/`` (one PNG or
+    SVG file per figure and ``index.csv``)."""
+    return f"{RESULTS_DIR}/{machine}/report/figures/{group}"
+
+
+def _report_input(name, machine):
+    if name in _COMPARISON_INPUTS:
+        return comparison_path(_COMPARISON_INPUTS[name], machine)
+    if name in REPORT_MODEL_TABLES:
+        return report_table_path(name, machine)
+    return out(name, machine)
 
 
 def report_figure_inputs(wildcards):
     """Named inputs of report_figures - the tables its group draws from, and the code."""
     machine = wildcards.machine
-    inputs = {}
-    for name in REPORT_FIGURE_GROUPS[wildcards.group]:
-        inputs[name] = (
-            comparison_path(_COMPARISON_INPUTS[name], machine)
-            if name in _COMPARISON_INPUTS
-            else out(name, machine)
-        )
+    inputs = {name: _report_input(name, machine) for name in REPORT_FIGURE_GROUPS[wildcards.group]}
     inputs["code"] = rafi_code("report_figures")
     inputs["glue"] = script_helpers()
     return inputs
 
 
-def report_figure_gates(wildcards):
-    """The report's gates (``qualification:`` of the machine) for the comparison figures;
-    the pipeline figures do not depend on them."""
-    if wildcards.group != "comparison":
-        return {}
-    return machine_config(wildcards.machine).get("qualification") or {}
+def report_figure_settings(wildcards):
+    """The settings the figures of a group depend on: ``report.figure_format`` (both groups),
+    ``report.coolant_sensors`` (pipeline) and ``qualification`` (comparison: the gate lines)."""
+    shown = report_settings(wildcards.machine)
+    pipeline = wildcards.group == "pipeline"
+    return {
+        "report": {
+            "figure_format": shown["figure_format"],
+            "coolant_sensors": list(shown["coolant_sensors"]) if pipeline else [],
+        },
+        "qualification": {} if pipeline else dict(machine_config(wildcards.machine)["qualification"]),
+    }
 
 
 def report_inputs(wildcards):
-    """Named inputs of the report: the design.md tables, the model comparison, the
-    registry decision, the figures drawn ahead, the code and the template."""
+    """Named inputs of the report: the design.md tables, the tables of report_tables, the
+    model comparison, the registry decision, the figure folders, the code and the template."""
     machine = wildcards.machine
     inputs = {name: out(name, machine) for name in REPORT_TABLES}
-    inputs["comparison"] = comparison_path("summary.csv", machine)
-    inputs["comparison_per_run"] = comparison_path("per_run.csv", machine)
-    inputs["comparison_cv"] = comparison_path("cv.csv", machine)
-    inputs["comparison_residuals"] = comparison_path("residuals.parquet", machine)
+    inputs["training_fit_rmse"] = report_table_path("training_fit_rmse", machine)
+    inputs["fuzzy_example"] = report_table_path("fuzzy_example", machine)
+    for name in ("comparison", "comparison_per_run", "comparison_cv"):
+        inputs[name] = _report_input(name, machine)
     inputs["decision"] = registry_path("decision.json", machine)
     inputs["registry_comparison"] = registry_path("comparison.csv", machine)
     inputs["figures"] = [report_figures_path(g, machine) for g in REPORT_FIGURE_GROUPS]
     inputs["code"] = rafi_code("report")
+    inputs["glue"] = script_helpers()
     inputs["template"] = str(RAFI_DIR / "report" / "templates" / "qualification.html.j2")
     return inputs
 

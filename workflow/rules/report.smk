@@ -1,30 +1,59 @@
 # The qualification report: results/<machine>/ tables -> reports/<machine>/qualification.{html,pdf}.
 #
-# One jinja2 template renders the HTML; WeasyPrint renders the PDF from the same HTML
-# string (rafi.report.build), so the two never disagree. Uses helpers of common.smk:
-# out(), machine_config(), report_paths(), log_path(), bench_path(), rafi_code(), RAFI_DIR,
-# report_figures_path(), report_figure_inputs(), report_figure_gates().
-#
-# The figures are drawn ahead, by group, as soon as their inputs exist (rafi.report.build.build_figures):
-#   pipeline    the method's figures: after validate, on the core compare leaves free
-#   comparison  the model family's figures: after compare, beside decide
-# so the report job itself only renders the HTML and the PDF (it draws a figure only if the
-# one drawn ahead does not fit, e.g. the model on the machine is not the family's champion).
+# The report job only presents: every number it shows is read from a table a rule wrote and
+# every figure is a file of report_figures; it evaluates no model and draws nothing.
+#   report_tables   what the report shows from evaluating the model (rafi.report.tables, with
+#                   RafiModel.predict and rafi.method.fuzzy): results/<machine>/report/
+#                   training_fit.parquet, training_fit.csv, fuzzy_example.json; after fit
+#   report_figures  the figures, by group, as soon as their inputs exist (rafi.report.figures):
+#                     pipeline    the method's figures: after validate, beside compare
+#                     comparison  the model family's figures: after compare, beside decide
+#                   output: the folder results/<machine>/report/figures/<group>/ (directory():
+#                   which figures a group has depends on the data) with one PNG or SVG file
+#                   per figure (report.figure_format) and index.csv (key,file)
+#   report          the HTML (jinja2) and the PDF (WeasyPrint, from the same HTML string),
+#                   figures embedded from the files (rafi.report.render)
 #
 # Besides the tables it shows the model comparison (comparison/summary.csv, per_run.csv,
-# cv.csv, residuals.parquet) and the registry decision (registry/decision.json and
-# registry/comparison.csv); inputs: report_inputs() in common.smk.
-# The kind/created of a registered model id is read from registry/models/<id>.json (not an
-# input: those files are registry side effects, immutable and named by their content hash,
-# so decision.json - an input - already pins them).
+# cv.csv) and the registry decision (registry/decision.json and registry/comparison.csv);
+# inputs: report_inputs() in common.smk. The kind/created of a registered model id is read
+# from registry/models/<id>.json (not an input: those files are registry side effects,
+# immutable and named by their content hash, so decision.json - an input - already pins them).
+# Uses helpers of common.smk: out(), machine_config(), report_paths(), log_path(),
+# bench_path(), rafi_code(), script_helpers(), RAFI_DIR, report_settings(),
+# report_table_path(), report_figures_path(), report_figure_inputs(), report_figure_settings().
+
+
+rule report_tables:
+    """What the report shows from evaluating the model: each training speed's fit on its own
+    training runs (series + RMSE) and the worked example of the fuzzy blending."""
+    input:
+        model=out("model"),
+        table=out("runs_csv"),
+        frame=out("runs_parquet"),
+        diagnostics=out("diagnostics"),
+        code=rafi_code("report_tables"),
+        glue=script_helpers(),
+    output:
+        fit=report_table_path("training_fit"),
+        rmse=report_table_path("training_fit_rmse"),
+        fuzzy_example=report_table_path("fuzzy_example"),
+    log:
+        log_path("report_tables"),
+    benchmark:
+        bench_path("report_tables")
+    conda:
+        "../envs/rafi.yaml"
+    script:
+        "../scripts/report_tables.py"
 
 
 rule report_figures:
-    """Figures of one group of the report, drawn ahead of it (encoded, in one JSON file)."""
+    """Figures of one group of the report, drawn ahead of it: one file per figure + index.csv."""
     input:
         unpack(report_figure_inputs),
     output:
-        figures=report_figures_path(),
+        folder=directory(report_figures_path()),
     log:
         log_path("report_figures_{group}"),
     benchmark:
@@ -34,9 +63,7 @@ rule report_figures:
     conda:
         "../envs/rafi.yaml"
     params:
-        figure_format=lambda w: report_settings(w.machine)["figure_format"],
-        coolant_sensors=lambda w: report_settings(w.machine)["coolant_sensors"],
-        gates=report_figure_gates,
+        settings=report_figure_settings,
     script:
         "../scripts/report_figures.py"
 
@@ -48,8 +75,20 @@ rule report:
     input:
         unpack(report_inputs),
     output:
-        html=report_paths()["html"],
-        pdf=report_paths()["pdf"],
+        html=report(
+            report_paths()["html"],
+            caption="../report/qualification.rst",
+            category="Qualification",
+            subcategory="{machine}",
+            labels={"machine": "{machine}", "file": "qualification.html"},
+        ),
+        pdf=report(
+            report_paths()["pdf"],
+            caption="../report/qualification_pdf.rst",
+            category="Qualification",
+            subcategory="{machine}",
+            labels={"machine": "{machine}", "file": "qualification.pdf"},
+        ),
     log:
         log_path("report"),
     benchmark:
@@ -58,7 +97,7 @@ rule report:
         "../envs/rafi.yaml"
     params:
         settings=lambda w: machine_config(w.machine),
-        report=lambda w: report_settings(w.machine),
-        paths={"raw_dir": str(config["raw_dir"]), "results_dir": RESULTS_DIR, "reports_dir": REPORTS_DIR},
+        figure_groups=list(REPORT_FIGURE_GROUPS),
+        paths={"raw_dir": str(RAW_DIR), "results_dir": RESULTS_DIR, "reports_dir": REPORTS_DIR},
     script:
         "../scripts/report.py"

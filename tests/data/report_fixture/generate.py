@@ -7,8 +7,8 @@ NumPy least squares, so the report has consistent inputs without the pipeline.
     python tests/data/report_fixture/generate.py            # committed fixture (120 s grid)
     python tests/data/report_fixture/generate.py OUT --sample-period-s 5   # full-size (benchmark)
 
-``comparison/`` and ``registry/`` come from the real producers (``rafi.model_family.run_family``
-and two nights of ``rafi.registry.run_decide``), ``validation/`` from ``rafi.validate``.
+``comparison/`` and ``registry/`` come from the real producers (``rafi.family.compare.run_family``
+and two nights of ``rafi.ops.decide.run_decide``), ``validation/`` from ``rafi.method.validate``.
 """
 
 from __future__ import annotations
@@ -149,7 +149,7 @@ def generate(out: Path, sample_period_s: float = 120.0, seed: int = 7,
     runs_frame.to_parquet(base / "runs.parquet", compression="zstd")
 
     # ---- equilibrium
-    from rafi.equilibrium import equilibrium_time
+    from rafi.method.equilibrium import equilibrium_time
     eq = []
     for s in TRAIN:
         f = runs_frame[runs_frame.run_id == f"train-{s}"]
@@ -237,14 +237,14 @@ def generate(out: Path, sample_period_s: float = 120.0, seed: int = 7,
              "code_version": "rafi 0.1.0 (fixture)", "config": {},
              "created": "2026-03-20T12:00:00Z"}
     # the real artefact (canonical content, valid model_id) so every producer accepts it
-    from rafi.model import RafiModel
+    from rafi.method.model import RafiModel
     rafi_model = RafiModel.from_dict(model, verify_id=False)
     model = rafi_model.to_dict()
     model["variables"] = {f"x{i + 1}": k for i, k in enumerate(KEY)}
     (base / "model.json").write_text(json.dumps(model, indent=2, sort_keys=True))
 
-    # ---- validate (the pipeline's own rafi.validate.validate_runs)
-    from rafi.validate import validate_runs
+    # ---- validate (the pipeline's own rafi.method.validate.validate_runs)
+    from rafi.method.validate import validate_runs
     summary, residuals = validate_runs(rafi_model, runs_table, runs_frame)
     summary.to_csv(base / "validation" / "summary.csv", index=False)
     residuals.to_parquet(base / "validation" / "residuals.parquet", compression="zstd")
@@ -264,8 +264,8 @@ GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0,
 
 
 def _family_and_registry(base: Path, runs_table, runs_frame, rafi_model, model: dict) -> None:
-    """comparison/* from rafi.model_family.run_family and registry/* from two nights of
-    rafi.registry.run_decide (the real producers of rules compare and decide).
+    """comparison/* from rafi.family.compare.run_family and registry/* from two nights of
+    rafi.ops.decide.run_decide (the real producers of rules compare and decide).
 
     Night 1 (the multi-condition log not recorded yet): RAFI as published is the candidate
     and is promoted. Night 2 (all logs): the family's champion is the candidate; the
@@ -274,8 +274,8 @@ def _family_and_registry(base: Path, runs_table, runs_frame, rafi_model, model: 
     import shutil
     import tempfile
 
-    from rafi.model_family import run_family
-    from rafi.registry import run_decide
+    from rafi.family.compare import run_family
+    from rafi.ops.decide import run_decide
 
     comp = base / "comparison"
     comp.mkdir(exist_ok=True)

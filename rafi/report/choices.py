@@ -1,0 +1,166 @@
+"""Sections 10 and 11 of the report: the choices the paper leaves open, and provenance."""
+
+from __future__ import annotations
+
+import datetime as _dt
+import os
+import platform
+from importlib import metadata as _metadata
+
+from rafi.report.format import fmt_num, truthy
+
+
+def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
+    """Section 10: how this run decided what the paper leaves open (from the machine's settings).
+
+    Parameters
+    ----------
+    settings : dict
+        The machine's settings, every key present (``rafi.settings``).
+    key_info : dict
+        ``rank/key_sensors.json`` (the fallback message).
+    eq_method : str or None
+        The equilibrium method recorded in ``equilibrium.csv``.
+    """
+    ref, eqs, rank, fit = settings["reference"], settings["equilibrium"], settings["rank"], settings["fit"]
+    clean, runs, models = settings["clean"], settings["runs"], settings["models"]
+    rule = ref["rule"]
+    scope_text = (
+        "the smallest |r| over the training speeds must pass"
+        if rank["scope"] == "min_per_speed"
+        else "all training runs pooled"
+    )
+    rule_text = {
+        "run_start": "the median of the first {w} s of each run",
+        "log_start": "the median of the first {w} s of the log/segment the run came from",
+    }
+    rows = [
+        (
+            "Regressors and target",
+            "Temperature rises dT = T \u2212 T_ref (K) of the key sensors and displacement change "
+            "dz = disp \u2212 disp_ref (\u00b5m); the reference state is "
+            + rule_text.get(rule, "rule '{r}' over {w} s").format(w=ref["window_s"], r=rule)
+            + f" (reference.rule = {rule}). Absolute temperatures would make the model depend on the "
+            "season.",
+        ),
+        (
+            "Thermal equilibrium",
+            f"First time after which the {fmt_num(eqs['smooth_window_s'], 0, 's')} rolling median "
+            f"of dz stays within \u00b1{fmt_num(100 * float(eqs['band_fraction']), 0)} % of "
+            f"the total rise around the final plateau (median of the last "
+            f"{fmt_num(eqs['plateau_window_s'], 0, 's')}); uncertainty from a 1.5\u00d7 wider / "
+            "narrower band; cross-check with a fitted first-order time constant."
+            + (f" Method recorded: {eq_method}." if eq_method else ""),
+        ),
+        (
+            "Correlation scope",
+            f"Pearson r of each sensor rise with dz, scope = {rank['scope']}"
+            f" ({scope_text}); "
+            f"threshold |r| > {rank['threshold']}, at most "
+            f"{rank['max_key_sensors']} key sensors.",
+        ),
+        (
+            "Fewer sensors than needed pass the threshold",
+            "Fallback: the best-scoring sensors are taken up to max_key_sensors and marked "
+            "'fallback' in rank/key_sensors.csv; the report shows the message."
+            + (
+                f" This run: {key_info.get('message')}"
+                if truthy(key_info.get("fallback_used"))
+                else " This run: not needed."
+            ),
+        ),
+        (
+            "Outside the trained speed range",
+            f"fuzzy.outside = {settings['fuzzy']['outside']}: the nearest edge model is used with weight "
+            "1 (no extrapolation in speed) and the sample is flagged outside_speed_range; samples "
+            "whose key-sensor rises leave the fitted range are flagged outside_temp_range and counted "
+            "in section Validation.",
+        ),
+        (
+            "Standard errors",
+            f"OLS coefficients with Newey-West (HAC) standard errors, {fit['hac_maxlags']} "
+            "lags, because 5 s samples are strongly autocorrelated; the plain OLS errors are "
+            "reported in fit/coefficients.csv but not used for inference.",
+        ),
+        (
+            "Validation",
+            "By whole run: a validation run is never used for training (no "
+            "sample-wise cross-validation, which would leak through autocorrelation).",
+        ),
+        (
+            "Fuzzy membership",
+            "Triangular functions centred on the training speeds (see Fuzzy "
+            "blending for the paper's 0.334 / 0.666 wording).",
+        ),
+        (
+            "Cleaning the logs",
+            f"Regular grid of {fmt_num(settings['sample_period_s'], 0, 's')}; duplicate rows "
+            "dropped (first kept); rows at most 3 samples out of order re-sorted, a larger step back "
+            "is an error; single-sample spikes (beyond both neighbours by more than "
+            f"{clean['spike_threshold']} robust sigma of the first differences) replaced by "
+            f"interpolation; open-circuit values {clean['open_circuit_values']} treated as "
+            f"missing; gaps and dropouts up to {fmt_num(clean['max_interpolate_gap_s'], 0, 's')} "
+            "interpolated linearly, a longer gap splits the log into segments (never bridged). Every "
+            "action is listed per file in results/<machine>/clean/<file>.audit.csv.",
+        ),
+        (
+            "Runs, roles and the rest before start",
+            f"Runs are cut from the speed column: constant for at least "
+            f"{fmt_num(runs['min_constant_s'], 0, 's')} at a training speed -> training, elsewhere "
+            "-> single-speed validation; shorter steps -> one multi-condition run; speed below "
+            f"{fmt_num(runs['idle_below_rpm'], 0, 'r/min')} -> idle cool-down (validated, never "
+            "trained on). A rest at the start of a log shorter than "
+            f"{fmt_num(runs['max_leading_rest_s'], 0, 's')} belongs to the run, so the reference "
+            "state is the cold machine at rest, before the spindle turns (what a controller "
+            "compensation is relative to). Roles can be overridden per file (runs.overrides).",
+        ),
+        (
+            "Sensor dropouts",
+            f"A sensor's correlation uses the samples it has; a sensor present in fewer than "
+            f"{fmt_num(100 * float(rank['min_coverage']), 0, '%')} of a speed's samples is "
+            "not ranked there. Samples with a missing key sensor are left out of the fit and "
+            "get no prediction.",
+        ),
+        (
+            "Model family and the champion",
+            "Besides RAFI as published, the models in models.enabled "
+            f"({', '.join(models['enabled'])}) "
+            f"are fitted on the same training runs; their hyperparameters come from whole-run "
+            f"cross-validation ({models['cv']}) on training runs only. The "
+            "champion is the best model that passes every gate on every validation run; RAFI as "
+            "published is always reported as the paper's reference. A centrifugal (speed-squared) "
+            "term is used only when training runs contain a speed step that identifies it.",
+        ),
+    ]
+    return [{"topic": a, "text": b} for a, b in rows]
+
+
+def versions() -> list[dict]:
+    """Versions of Python and of the packages the pipeline and the report use."""
+    out = [{"name": "python", "version": platform.python_version()}]
+    for pkg in (
+        "rafi",
+        "numpy",
+        "pandas",
+        "scipy",
+        "statsmodels",
+        "snakemake",
+        "matplotlib",
+        "jinja2",
+        "weasyprint",
+        "pyarrow",
+    ):
+        try:
+            v = _metadata.version(pkg)
+        except _metadata.PackageNotFoundError:
+            v = "not installed"
+        out.append({"name": pkg, "version": v})
+    return out
+
+
+def generated_at(now=None) -> str:
+    """``now`` (default: ``SOURCE_DATE_EPOCH`` if set, else the clock) as ``YYYY-MM-DD HH:MM UTC``."""
+    if now is None:
+        epoch = os.environ.get("SOURCE_DATE_EPOCH")
+        now = _dt.datetime.fromtimestamp(int(epoch), _dt.UTC) if epoch else _dt.datetime.now(_dt.UTC)
+    return now.strftime("%Y-%m-%d %H:%M UTC")

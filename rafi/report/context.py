@@ -1,0 +1,122 @@
+"""The template context of the qualification report: every section, formatted.
+
+The report only presents: each number it shows is read from a table that a rule wrote
+upstream (``docs/design.md``; what comes from evaluating the model from rule
+``report_tables``) and each figure is a file of rule ``report_figures``. It evaluates no
+model and draws nothing.
+
+With ``registry/decision.json`` the verdict judges the model on the machine after this run
+(the registry's champion); RAFI as published is always reported beside it as the paper's
+reference.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import yaml
+
+from rafi.report.choices import generated_at, section_choices, versions
+from rafi.report.comparison_section import section_comparison
+from rafi.report.data_sections import section_data, section_equilibrium, section_ranking
+from rafi.report.embed import FigureFiles
+from rafi.report.inputs import load_results
+from rafi.report.model_sections import section_fuzzy, section_models, section_validation
+from rafi.report.registry_section import section_registry
+from rafi.report.verdict import model_infos, verdict_all
+
+SECTION_TITLES = {
+    "verdict": "Verdict",
+    "data": "Data",
+    "equilibrium": "Thermal equilibrium",
+    "ranking": "Key-sensor ranking",
+    "models": "Models",
+    "fuzzy": "Fuzzy blending",
+    "validation": "Validation",
+    "registry": "Model registry: champion vs candidate",
+    "comparison": "Model comparison",
+    "choices": "Choices the paper leaves open",
+    "provenance": "Software, configuration and provenance",
+}
+
+
+def build_context(
+    paths: dict,
+    figure_dirs: dict,
+    *,
+    machine: str,
+    settings: dict,
+    config: dict | None = None,
+    now=None,
+) -> dict:
+    """Load the results and build the template context.
+
+    Parameters
+    ----------
+    paths : dict
+        Input name -> path (:func:`rafi.report.inputs.result_paths`); the optional inputs
+        may be absent.
+    figure_dirs : dict
+        ``group -> folder`` of rule ``report_figures`` (:func:`rafi.report.inputs.figure_dirs`).
+    machine : str
+    settings : dict
+        The machine's settings, every key present (``rafi.settings``): ``qualification`` and
+        the choice parameters are read from here.
+    config : dict, optional
+        The configuration shown verbatim (YAML) in the provenance section (default: ``settings``).
+    now : datetime, optional
+        The time the report says it was made.
+
+    Returns
+    -------
+    dict
+        The template's variables; ``figures_used`` lists the figures embedded.
+    """
+    t0 = time.perf_counter()
+    res = load_results(paths)
+    model = res["model"] or {}
+    key_info = res["key_sensors_json"] or {}
+    gates = settings["qualification"]
+    figs = FigureFiles(figure_dirs)
+
+    ctx: dict = {"machine": machine, "generated": generated_at(now), "sections": []}
+    dec_path = paths.get("decision")
+    infos = model_infos(res, Path(dec_path).parent if dec_path else None)
+    ctx["verdict"] = verdict_all(res, gates, infos)
+    ctx["gates"] = gates
+    ctx["data"] = section_data(res)
+    ctx["equilibrium"] = section_equilibrium(res, figs)
+    ctx["ranking"] = section_ranking(res, key_info, figs)
+    ctx["models"] = section_models(res, figs)
+    ctx["fuzzy"] = section_fuzzy(res, figs)
+    ctx["validation"] = section_validation(res, figs)
+    ctx["registry"] = section_registry(res, gates, infos)
+    dec = res["decision"] if isinstance(res.get("decision"), dict) else {}
+    ctx["comparison"] = section_comparison(res, dec.get("champion_id_after"), settings, figs)
+    ctx["figures_used"] = list(figs.used)
+    ctx["verdict"]["quarantined"] = len(ctx["data"]["quarantined"])
+    ctx["verdict"]["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
+    ctx["choices"] = section_choices(settings, key_info, ctx["equilibrium"]["method"])
+    ctx["versions"] = versions()
+    ctx["config_yaml"] = yaml.safe_dump(
+        config if config is not None else settings, sort_keys=False, allow_unicode=True
+    )
+    ctx["model_id"] = model.get("model_id", "")
+    ctx["champion_id"] = dec.get("champion_id_after") or ""
+    ctx["code_version"] = model.get("code_version", "")
+
+    present = {
+        **dict.fromkeys(SECTION_TITLES, True),
+        "fuzzy": ctx["fuzzy"] is not None,
+        "registry": ctx["registry"] is not None,
+        "comparison": ctx["comparison"] is not None,
+    }
+    n = 0
+    for sid, title in SECTION_TITLES.items():
+        if present[sid]:
+            n += 1
+            ctx["sections"].append({"id": sid, "number": n, "title": title})
+    ctx["section_by_id"] = {s["id"]: s for s in ctx["sections"]}
+    ctx["build_seconds"] = time.perf_counter() - t0
+    return ctx

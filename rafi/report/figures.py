@@ -1,0 +1,269 @@
+"""Rule ``report_figures``: every figure of the report as a file, drawn ahead of the report.
+
+Two groups, each drawn as soon as its inputs exist:
+
+``pipeline``
+    The method's figures (sections Thermal equilibrium ... Validation), after ``validate``
+    and ``report_tables``, beside ``compare``.
+``comparison``
+    The model family's figures, after ``compare``, beside ``decide``. The residual series of
+    RAFI are drawn beside every other model of the family, so the one the registry puts on
+    the machine is there whatever ``decide`` decides.
+
+A group is written to one folder: ``<key-slug>.<png|svg>`` per figure and ``index.csv``
+(``key,file``), read back by :class:`rafi.report.embed.FigureFiles`.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rafi.artefact import write_bytes_atomic, write_csv_atomic
+from rafi.method.fuzzy import membership_curves
+from rafi.report import plots
+from rafi.report.comparison_section import comparison_frames, residual_figure_key, residual_runs
+from rafi.report.data_sections import MAX_COLLINEARITY_TABLE
+from rafi.report.embed import INDEX
+from rafi.report.format import fmt_num, fmt_speed, isnum, speed_key, truthy
+from rafi.report.inputs import (
+    chosen_sensors,
+    collinearity_frame,
+    correlation_wide,
+    load_results,
+    sensors,
+    training_runs,
+)
+
+#: The inputs each group draws from (names of :func:`rafi.report.inputs.result_paths`).
+FIGURE_GROUPS = {
+    "pipeline": (
+        "runs_csv",
+        "runs_parquet",
+        "equilibrium",
+        "correlation",
+        "key_sensors",
+        "key_sensors_json",
+        "collinearity",
+        "model",
+        "validation_summary",
+        "residuals",
+        "training_fit",
+        "fuzzy_example",
+    ),
+    "comparison": ("comparison", "comparison_per_run", "comparison_residuals"),
+}
+
+UM = "\u00b5m"
+
+
+def _pipeline(res: dict, coolant_sensors: list, fmt: str):
+    """``(key, file bytes)`` of each figure of sections 3-7 that has data."""
+    key_info, key, coolant = sensors(res, coolant_sensors)
+    rf, eq = res["runs_parquet"], res["equilibrium"]
+    train = training_runs(res["runs_csv"])
+    if rf is not None and train:
+        eq_times = {}
+        if eq is not None:
+            for r in eq.itertuples(index=False):
+                eq_times[speed_key(r.speed_rpm)] = float(r.t_eq_s) if isnum(r.t_eq_s) else np.nan
+        drawn = [s for s in key + coolant if s in rf.columns]
+        runs = {}
+        for speed, rid in train.items():
+            f = rf.loc[rf["run_id"] == rid, ["t_s", *drawn, "dz_um"]]
+            if len(f):
+                runs[speed] = f
+        if runs:
+            yield (
+                "training_runs",
+                plots.fig_training_runs(runs, temp_sensors=drawn, eq_times=eq_times, fmt=fmt),
+            )
+    if res["correlation"] is not None:
+        yield (
+            "correlation_heatmap",
+            plots.fig_correlation_heatmap(
+                correlation_wide(res["correlation"]),
+                threshold=float(key_info.get("threshold", 0.97)),
+                chosen=chosen_sensors(key_info, res["key_sensors"]),
+                fmt=fmt,
+            ),
+        )
+    coll = res["collinearity"]
+    if coll is not None and len(coll) > MAX_COLLINEARITY_TABLE:
+        yield "collinearity", plots.fig_matrix(collinearity_frame(coll), fmt=fmt)
+    fit = res["training_fit"]
+    if fit is not None and len(fit):
+        fits = {
+            speed_key(s): g[["t_s", "measured_um", "fitted_um"]].reset_index(drop=True)
+            for s, g in fit.groupby("speed_rpm", sort=False)
+        }
+        yield "fit_residuals", plots.fig_fit_residuals(fits, fmt=fmt)
+    yield from _membership(res["fuzzy_example"], fmt)
+    yield from _validation(res, key + coolant, fmt)
+
+
+def _membership(example: dict, fmt: str):
+    centres = example["centres_rpm"]
+    if not centres:
+        return
+    lo, hi = centres[0], centres[-1]
+    span = max(hi - lo, 1000.0)
+    grid = np.linspace(max(0.0, lo - 0.1 * span), hi + 0.1 * span, 801)
+    weights = None
+    if example["example_rpm"] is not None:
+        weights = {n["centre_rpm"]: n["weight"] for n in example["neighbours"] if n["weight"] > 0}
+    yield (
+        "membership",
+        plots.fig_membership(
+            grid,
+            membership_curves(centres, grid),
+            centres,
+            example_rpm=example["example_rpm"],
+            example_weights=weights,
+            fmt=fmt,
+        ),
+    )
+
+
+def _validation(res: dict, temps: list, fmt: str):
+    s, resid, rf = res["validation_summary"], res["residuals"], res["runs_parquet"]
+    if s is None or resid is None:
+        return
+    single = s[s["role"] == "validation_single"] if "role" in s else s
+    panels = {}
+    for r in single.itertuples(index=False):
+        f = resid[resid["run_id"] == r.run_id]
+        if len(f):
+            panels[f"{r.run_id}: {fmt_speed(r.speed_rpm)}"] = f
+    if panels:
+        yield "validation_single", plots.fig_validation_single(panels, fmt=fmt)
+    idle = s[s["role"] == "validation_idle"] if "role" in s else s.iloc[0:0]
+    panels = {}
+    for r in idle.itertuples(index=False):
+        f = resid[resid["run_id"] == r.run_id]
+        if len(f):
+            label = f"{r.run_id}: {fmt_num(r.max_abs_before_um, 1)} → {fmt_num(r.max_abs_after_um, 1, UM)}"
+            panels[label] = f
+    if panels:
+        yield "validation_idle", plots.fig_validation_single(panels, fmt=fmt)
+    others = s[~s["role"].isin(["validation_single", "validation_idle"])] if "role" in s else s.iloc[0:0]
+    for r in others.itertuples(index=False):
+        f = resid[resid["run_id"] == r.run_id].copy()
+        if not len(f):
+            continue
+        if rf is not None:
+            tf = rf.loc[rf["run_id"] == r.run_id, ["t_s", *[t for t in temps if t in rf]]]
+            f = f.merge(tf, on="t_s", how="left")
+        yield f"multi_condition/{r.run_id}", plots.fig_multi_condition(f, temp_sensors=temps, fmt=fmt)
+
+
+def _comparison(res: dict, gates: dict, fmt: str):
+    """``(key, file bytes)`` of the bars and of RAFI's residuals beside every other model."""
+    summary, per_run = res["comparison"], res["comparison_per_run"]
+    if summary is None or not len(summary) or per_run is None or not len(per_run):
+        return
+    fr = comparison_frames(summary, per_run)
+    champion, rafi, models = fr["champion"], fr["rafi"], fr["models"]
+    gate_um = float(gates["max_residual_um"]) if isnum(gates["max_residual_um"]) else np.nan
+    labels = {
+        m: m + (" (champion)" if m == champion else "") + (" (paper)" if m == "rafi" else "") for m in models
+    }
+    yield (
+        "comparison_bars",
+        plots.fig_comparison_bars(
+            fr["after"], fr["before"], failed=~fr["passed"], gate_um=gate_um, labels=labels, fmt=fmt
+        ),
+    )
+    resid = res["comparison_residuals"]
+    if resid is None or not len(resid) or rafi is None:
+        return
+    for rid in residual_runs(fr):
+        sub = resid[resid["run_id"].astype(str) == rid]
+        rf = sub[sub["model"].astype(str) == rafi].sort_values("t_s")
+        for other in [m for m in models if m != rafi] or [None]:
+            series = {}
+            for m in (rafi, other):
+                if m is None:
+                    continue
+                f = sub[sub["model"].astype(str) == m].sort_values("t_s")
+                if len(f):
+                    tag = " (paper)" if m == rafi else " (champion)" if m == champion else ""
+                    series[f"{m}{tag}"] = f
+            if not series:
+                continue
+            yield (
+                residual_figure_key(rid, other),
+                plots.fig_comparison_residuals(
+                    series,
+                    measured=rf[["t_s", "measured_um"]] if len(rf) else None,
+                    outside=(
+                        rf[["t_s"]].assign(outside=rf["outside_temp_range"].map(truthy))
+                        if len(rf) and "outside_temp_range" in rf
+                        else None
+                    ),
+                    gate_um=gate_um,
+                    fmt=fmt,
+                ),
+            )
+
+
+def _file_name(n: int, key: str, fmt: str) -> str:
+    slug = re.sub(r"[^A-Za-z0-9._-]+", "_", key)
+    return f"{n:02d}-{slug}.{fmt}"
+
+
+def draw_group(
+    paths: dict,
+    group: str,
+    out_dir: str | os.PathLike,
+    *,
+    figure_format: str,
+    coolant_sensors: list,
+    gates: dict,
+) -> list[str]:
+    """Draw the figures of one group into ``out_dir`` (files + ``index.csv``).
+
+    Parameters
+    ----------
+    paths : dict
+        Input name -> path; every name of ``FIGURE_GROUPS[group]`` is needed.
+    group : {"pipeline", "comparison"}
+    out_dir : path
+        The group's folder (created).
+    figure_format : {"png", "svg"}
+        ``report.figure_format`` of the machine.
+    coolant_sensors : list of str
+        ``report.coolant_sensors`` of the machine (drawn beside the key sensors; pipeline).
+    gates : dict
+        ``qualification`` of the machine (the gate lines; comparison).
+
+    Returns
+    -------
+    list of str
+        The keys of the figures drawn.
+    """
+    if group not in FIGURE_GROUPS:
+        raise ValueError(f"unknown figure group {group!r}; expected one of {', '.join(FIGURE_GROUPS)}")
+    if figure_format not in ("png", "svg"):
+        raise ValueError(f"figure format {figure_format!r}; expected png or svg")
+    missing = [k for k in FIGURE_GROUPS[group] if k not in paths]
+    if missing:  # an absent input would change the figures silently
+        raise ValueError(f"figure group {group!r}: no path for {', '.join(missing)}")
+    res = load_results({k: paths[k] for k in FIGURE_GROUPS[group]})
+    if group == "pipeline":
+        drawn = _pipeline(res, list(coolant_sensors), figure_format)
+    else:
+        drawn = _comparison(res, dict(gates), figure_format)
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for n, (key, data) in enumerate(drawn):
+        name = _file_name(n, key, figure_format)
+        write_bytes_atomic(out_dir / name, data)
+        rows.append({"key": key, "file": name})
+    write_csv_atomic(pd.DataFrame(rows, columns=["key", "file"]), out_dir / INDEX)
+    return [r["key"] for r in rows]

@@ -1,0 +1,154 @@
+"""The files the qualification report reads, and the small lookups every part of it shares.
+
+Inputs are the tables of ``docs/design.md`` under ``results/<machine>/``, the tables rule
+``report_tables`` writes for the report (``report/*``: what the report shows that comes from
+evaluating the model) and the figure files of rule ``report_figures``
+(``report/figures/<group>/``). Optional inputs (sections rendered only when present):
+
+- ``registry/decision.json`` + ``registry/comparison.csv`` - the registry decision;
+- ``comparison/summary.csv``, ``per_run.csv``, ``cv.csv`` - the model family comparison.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import pandas as pd
+
+from rafi.report.format import speed_key
+
+#: Files under ``results/<machine>/`` the report needs (design.md and rule report_tables).
+RESULT_FILES = {
+    "audit": "audit.csv",
+    "runs_csv": "runs.csv",
+    "equilibrium": "equilibrium.csv",
+    "correlation": "rank/correlation.csv",
+    "key_sensors": "rank/key_sensors.csv",
+    "key_sensors_json": "rank/key_sensors.json",
+    "collinearity": "rank/collinearity.csv",
+    "coefficients": "fit/coefficients.csv",
+    "diagnostics": "fit/diagnostics.csv",
+    "model": "model.json",
+    "validation_summary": "validation/summary.csv",
+    "residuals": "validation/residuals.parquet",
+    "training_fit_rmse": "report/training_fit.csv",
+    "fuzzy_example": "report/fuzzy_example.json",
+}
+
+#: Optional inputs: a section is left out when its file is absent.
+OPTIONAL_FILES = {
+    "decision": "registry/decision.json",
+    "registry_comparison": "registry/comparison.csv",
+    "comparison": "comparison/summary.csv",
+    "comparison_per_run": "comparison/per_run.csv",
+    "comparison_cv": "comparison/cv.csv",
+}
+
+#: Inputs of rule report_figures besides those above (read by the figure job only).
+FIGURE_INPUT_FILES = {
+    "runs_parquet": "runs.parquet",
+    "training_fit": "report/training_fit.parquet",
+    "comparison_residuals": "comparison/residuals.parquet",
+}
+
+#: Figure folder of each group (rule report_figures), under ``results/<machine>/``.
+FIGURE_DIRS = {"pipeline": "report/figures/pipeline", "comparison": "report/figures/comparison"}
+
+
+def result_paths(results_dir: str | os.PathLike) -> dict:
+    """Standard path of every input under ``results/<machine>/`` (optional and figure inputs included)."""
+    base = Path(results_dir)
+    names = {**RESULT_FILES, **OPTIONAL_FILES, **FIGURE_INPUT_FILES}
+    return {k: base / v for k, v in names.items()}
+
+
+def figure_dirs(results_dir: str | os.PathLike) -> dict:
+    """Figure folder of each group under ``results/<machine>/``: ``{group: path}``."""
+    return {group: Path(results_dir) / rel for group, rel in FIGURE_DIRS.items()}
+
+
+def load_results(paths: dict) -> dict:
+    """Read every table that exists; missing ones become ``None``.
+
+    Parameters
+    ----------
+    paths : dict
+        name -> path (names of :data:`RESULT_FILES`, :data:`OPTIONAL_FILES`,
+        :data:`FIGURE_INPUT_FILES`).
+
+    Returns
+    -------
+    dict
+        name -> DataFrame (CSV, Parquet), parsed JSON, or ``None``.
+    """
+    out: dict = {}
+    for name, p in paths.items():
+        p = Path(p) if p else None
+        if p is None or not p.is_file():
+            out[name] = None
+            continue
+        if p.suffix == ".csv":
+            out[name] = pd.read_csv(p, keep_default_na=True)
+        elif p.suffix == ".parquet":
+            out[name] = pd.read_parquet(p)
+        elif p.suffix == ".json":
+            out[name] = json.loads(p.read_text(encoding="utf-8"))
+        else:
+            out[name] = p.read_text(encoding="utf-8")
+    return out
+
+
+def training_runs(runs: pd.DataFrame | None) -> dict:
+    """``speed -> run id`` of the training runs in ``runs.csv`` (the last one per speed)."""
+    if runs is None:
+        return {}
+    tr = runs[runs["role"] == "training"]
+    return {speed_key(r.speed_rpm): r.run_id for r in tr.itertuples(index=False)}
+
+
+def sensors(res: dict, coolant_sensors) -> tuple[dict, list, list]:
+    """``(key_sensors.json, key sensors, coolant sensors drawn beside them)``.
+
+    Parameters
+    ----------
+    res : dict
+        Loaded inputs (:func:`load_results`); ``key_sensors_json`` and ``model`` are read.
+    coolant_sensors : list of str
+        ``report.coolant_sensors`` of the machine's settings.
+    """
+    model = res.get("model") or {}
+    key_info = res.get("key_sensors_json") or {}
+    key = list(key_info.get("sensors") or model.get("key_sensors") or [])
+    coolant = [c for c in coolant_sensors if c not in key]
+    return key_info, key, coolant
+
+
+def correlation_wide(corr: pd.DataFrame) -> pd.DataFrame:
+    """``rank/correlation.csv`` as |r| by scope (rows: speeds in order, then pooled) and sensor."""
+    corr = corr.copy()
+    corr["scope"] = corr["scope"].astype(str)
+    wide = corr.pivot_table(index="scope", columns="sensor", values="abs_r", aggfunc="first")
+    names = sorted(wide.columns, key=lambda s: (len(s), s))
+    scopes = sorted(
+        wide.index,
+        key=lambda s: (not s.replace(".", "").isdigit(), float(s) if s.replace(".", "").isdigit() else 0),
+    )
+    return wide.loc[scopes, names]
+
+
+def collinearity_frame(coll: pd.DataFrame) -> pd.DataFrame:
+    """``rank/collinearity.csv`` as a square frame indexed by sensor name."""
+    first = coll.columns[0]
+    if not pd.api.types.is_numeric_dtype(coll[first]):
+        coll = coll.set_index(first)
+    coll.index = [str(i) for i in coll.index]
+    return coll
+
+
+def chosen_sensors(key_info: dict, key_sensors: pd.DataFrame | None) -> list:
+    """The key sensors: ``key_sensors.json`` ``sensors``, else ``rank/key_sensors.csv``."""
+    return list(
+        key_info.get("sensors") or (key_sensors["sensor"].tolist() if key_sensors is not None else [])
+    )

@@ -1,0 +1,221 @@
+"""Style, file output and fixed layouts of the report's figures (matplotlib, Agg backend).
+
+Used by :mod:`rafi.report.plots` only: :func:`render` turns a figure into the bytes of a
+PNG or SVG file (rule ``report_figures`` writes them), :func:`envelope` thins long series,
+and the layout helpers place multi-panel figures with margins in inches.
+"""
+
+from __future__ import annotations
+
+import io
+
+import matplotlib
+
+matplotlib.use("Agg", force=True)
+
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+from matplotlib.font_manager import FontProperties  # noqa: E402
+from PIL import Image  # noqa: E402
+
+#: Figure width that fills the A4 content box (180 mm) at 100 % image width.
+PAGE_WIDTH_IN = 7.0
+
+STYLE = {
+    "font.family": "DejaVu Sans",
+    "font.size": 7.5,
+    "axes.titlesize": 8,
+    "axes.labelsize": 7.5,
+    "legend.fontsize": 6.5,
+    "xtick.labelsize": 6.5,
+    "ytick.labelsize": 6.5,
+    "axes.grid": True,
+    "grid.alpha": 0.3,
+    "grid.linewidth": 0.5,
+    "lines.linewidth": 1.0,
+    "axes.spines.top": False,
+    "axes.spines.right": False,
+    "svg.hashsalt": "rafi-report",
+    "svg.fonttype": "path",
+}
+
+#: Colours: measured / before = grey-blue, model / after = orange, residual = red.
+C_MEAS, C_PRED, C_RES, C_SPEED = "#4a6fa5", "#e07b00", "#c0392b", "#2e7d32"
+
+
+def render(fig, fmt: str = "png", dpi: int = 140) -> bytes:
+    """The bytes of a figure file (PNG or SVG), and close the figure.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+    fmt : {"png", "svg"}
+    dpi : int
+        Resolution of PNG output (ignored for SVG).
+
+    Returns
+    -------
+    bytes
+        A complete PNG or SVG document (SVG without a date, so the same figure gives the
+        same bytes).
+    """
+    if fmt not in ("png", "svg"):
+        raise ValueError(f"figure format {fmt!r}; expected png or svg")
+    buf = io.BytesIO()
+    try:
+        if fmt == "svg":
+            fig.savefig(buf, format="svg", metadata={"Date": None})
+            return buf.getvalue()
+        fig.set_dpi(dpi)
+        fig.canvas.draw()
+        rgba = np.asarray(fig.canvas.buffer_rgba())
+        # the figure is opaque (white face): drop the alpha channel, so WeasyPrint embeds
+        # the image as is instead of splitting it into colour + soft mask (two re-encodes)
+        Image.fromarray(np.ascontiguousarray(rgba[..., :3])).save(buf, format="PNG", compress_level=6)
+        return buf.getvalue()
+    finally:
+        plt.close(fig)
+
+
+def hours(t_s):
+    """Seconds -> hours (array)."""
+    return np.asarray(t_s, dtype=float) / 3600.0
+
+
+#: Longest series drawn as is; longer ones are reduced to a min/max envelope (same look,
+#: every extreme kept, far fewer vertices for matplotlib and the PDF).
+MAX_POINTS = 1600
+
+
+def envelope(x, y, max_points: int = MAX_POINTS):
+    """Min/max envelope of ``y`` over ``x`` for plotting: at most ``max_points`` points.
+
+    The samples are cut into ``max_points / 2`` consecutive buckets; each bucket keeps its
+    minimum and its maximum (in time order), so peaks - the numbers the report is about -
+    survive the reduction. NaN buckets stay NaN (a gap in the line). Short series are
+    returned unchanged.
+    """
+    x = np.asarray(x, dtype=float)
+    y = np.asarray(y, dtype=float)
+    n = len(y)
+    if n <= max_points or max_points < 4:
+        return x, y
+    b = int(np.ceil(n / (max_points // 2)))
+    nb = int(np.ceil(n / b))
+    pad = nb * b - n
+    yy = np.concatenate([y, np.full(pad, np.nan)]).reshape(nb, b)
+    finite = np.isfinite(yy)
+    lo = np.where(finite, yy, np.inf).argmin(axis=1)
+    hi = np.where(finite, yy, -np.inf).argmax(axis=1)
+    first, second = np.minimum(lo, hi), np.maximum(lo, hi)
+    idx = (np.arange(nb) * b)[:, None] + np.column_stack([first, second])
+    idx = np.minimum(idx.ravel(), n - 1)
+    return x[idx], y[idx]
+
+
+def plot_series(ax, x, y, *args, **kwargs):
+    """``ax.plot`` of a possibly long series through :func:`envelope`."""
+    xe, ye = envelope(x, y)
+    return ax.plot(xe, ye, *args, **kwargs)
+
+
+# --------------------------------------------------------------------------- fixed layout
+# constrained_layout measures every artist's tight bbox at save time (about 40 % of the
+# figure time of the report); the multi-panel figures below use explicit margins in inches
+# instead, sized from their actual tick labels, so nothing is cut off with other data.
+
+#: Gaps (inches) of the fixed layouts, as constrained_layout placed them for the report.
+TOP_TITLE_IN = 0.22  # axes title above the top row
+TOP_LEGEND_IN = 0.48  # figure legend + axes title above the top row
+BOTTOM_IN = 0.40  # x tick labels + x label below the bottom row
+ROW_GAP_IN = 0.61  # x tick labels + x label + next row's title
+SHARED_GAP_IN = 0.13  # between panels sharing x (tick labels hidden)
+EDGE_IN = 0.05  # outer edge where nothing sticks out
+
+
+def _tick_label_width_in(fig, axis) -> float:
+    """Widest major tick label of ``axis`` in inches (without drawing the figure)."""
+    lo, hi = sorted(axis.get_view_interval())
+    eps = 1e-9 * max(abs(hi - lo), 1e-300)
+    locs = [v for v in axis.get_majorticklocs() if lo - eps <= v <= hi + eps]
+    labels = axis.get_major_formatter().format_ticks(locs) if locs else []
+    size = matplotlib.rcParams["ytick.labelsize"]
+    prop = FontProperties(size=size)
+    renderer = fig.canvas.get_renderer()
+    w = 0.0
+    for text in labels:
+        if text:
+            w = max(
+                w,
+                renderer.get_text_width_height_descent(text, prop, ismath="TeX" if "$" in text else False)[0],
+            )
+    return w / fig.dpi
+
+
+def y_room_in(ax, axis=None) -> float:
+    """Inches beside ``ax`` taken by y tick labels + y label (+ a small pad)."""
+    axis = axis or ax.yaxis
+    fig = ax.figure
+    tick = axis.get_major_ticks()[0] if axis.get_major_ticks() else None
+    size = (tick.tick1line.get_markersize() if tick else 3.5) / 72.0
+    pad = (tick.get_pad() if tick else 3.5) / 72.0
+    room = size + pad + _tick_label_width_in(fig, axis)
+    if axis.get_label_text():
+        fs = FontProperties(size=matplotlib.rcParams["axes.labelsize"]).get_size_in_points()
+        room += axis.labelpad / 72.0 + 1.1 * fs / 72.0
+    return room + 0.03
+
+
+def adjust(fig, *, left, right, top, bottom, ncols=1, nrows=1, wgap=0.0, hgap=0.0):
+    """``fig.subplots_adjust`` with margins and gaps in inches."""
+    W, H = fig.get_size_inches()
+    aw = (W - left - right - (ncols - 1) * wgap) / ncols
+    ah = (H - top - bottom - (nrows - 1) * hgap) / nrows
+    fig.subplots_adjust(
+        left=left / W,
+        right=1 - right / W,
+        bottom=bottom / H,
+        top=1 - top / H,
+        wspace=wgap / aw if ncols > 1 else 0.2,
+        hspace=hgap / ah if nrows > 1 else 0.2,
+    )
+
+
+def split_shared(fig, outer, nrows, ncols, gap_in):
+    """Set the gap (inches) inside the 2-row sub-grids of ``outer`` (panels sharing x)."""
+    H = fig.get_size_inches()[1]
+    pos = outer.get_grid_positions(fig)
+    cell_h = pos[1][0] - pos[0][0]  # top - bottom of one outer cell (figure fraction)
+    gap = gap_in / H
+    for sub in {
+        id(a.get_subplotspec().get_gridspec()): a.get_subplotspec().get_gridspec() for a in fig.axes
+    }.values():
+        if sub is not outer:
+            sub._hspace = 2 * gap / max(cell_h - gap, 1e-6)
+    for ax in fig.axes:
+        ax._set_position(ax.get_subplotspec().get_position(fig))
+
+
+def legend_top(fig, handles, labels, ncol):
+    """Figure legend centred above the axes (the ``loc="outside upper center"`` look)."""
+    return fig.legend(
+        handles,
+        labels,
+        loc="upper center",
+        bbox_to_anchor=(0.5, 1.0),
+        ncol=ncol,
+        frameon=False,
+        borderaxespad=0.3,
+    )
+
+
+def panel_grid(n: int, ncols: int = 3, row_h: float = 2.1, extra_rows: int = 1):
+    """``(nrows, ncols, figsize)`` of a page-wide grid of ``n`` panels, ``row_h`` inches per row."""
+    ncols = max(1, min(ncols, n))
+    nrows = max(1, int(np.ceil(n / ncols)))
+    return nrows, ncols, (PAGE_WIDTH_IN, row_h * nrows * extra_rows)
+
+
+def speed_label(speed) -> str:
+    """``3000`` -> ``3 000 r/min`` (no-break space)."""
+    return f"{float(speed):,.0f} r/min".replace(",", "\u00a0")

@@ -1,0 +1,287 @@
+"""Section 1 of the report: the verdict on the model on the machine and on RAFI as published.
+
+The gates are :func:`rafi.method.validate.qualify`'s; the per-run results of a model come from
+the table that holds them (``registry/comparison.csv``, ``comparison/per_run.csv`` or
+``validation/summary.csv``), which :func:`champion_after_summary` picks.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rafi.method import validate
+from rafi.report.format import fmt_num, short_id, truthy
+
+
+def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
+    """Verdict rows (criterion x validation run) of ``rafi.method.validate.qualify``; a ``run_id``
+    column is always present."""
+    verdict = validate.qualify(summary, gates)
+    return verdict if "run_id" in verdict else verdict.assign(run_id="")
+
+
+CRITERION_TEXT = {
+    "max_residual_um": ("Largest residual after compensation", "\u2264", "\u00b5m", 2),
+    "min_improvement_pct": ("Smallest improvement over no compensation", "\u2265", "%", 1),
+    "never_worse_than_uncompensated": ("Runs worse than no compensation", "=", "", 0),
+}
+
+
+def aggregate_verdict(verdict: pd.DataFrame) -> list[dict]:
+    """One row per criterion: the worst case over the validation runs.
+
+    ``max_residual_um``: the largest residual; ``min_improvement_pct``: the smallest
+    improvement; ``never_worse_than_uncompensated``: how many runs are worse (limit 0),
+    naming them, or else the run closest to the limit. A NaN measurement fails.
+    """
+    out = []
+    if verdict is None or not len(verdict):
+        return out
+    v = verdict.copy()
+    v["measured"] = pd.to_numeric(v["measured"], errors="coerce")
+    v["limit"] = pd.to_numeric(v["limit"], errors="coerce")
+    v["passed"] = v["passed"].map(truthy) & v["measured"].notna()
+    for crit in dict.fromkeys(v["criterion"].astype(str)):
+        g = v[v["criterion"].astype(str) == crit]
+        passed = bool(g["passed"].all())
+        label, op, unit, nd = CRITERION_TEXT.get(crit, (crit.replace("_", " "), "vs", "", 2))
+        if crit == "never_worse_than_uncompensated":
+            bad = g[~g["passed"]]
+            ratio = (g["measured"] / g["limit"]).replace([np.inf, -np.inf], np.nan)
+            if len(bad):
+                note = "worse: " + ", ".join(bad["run_id"].astype(str))
+            elif ratio.notna().any():
+                i = ratio.idxmax()
+                note = f"closest: {g.loc[i, 'run_id']} (after/before = {fmt_num(ratio[i], 2)})"
+            else:
+                note = ""
+            out.append(
+                {
+                    "criterion": crit,
+                    "label": label,
+                    "limit": "= 0",
+                    "measured": f"{len(bad)} of {len(g)}",
+                    "run_id": note,
+                    "passed": passed,
+                }
+            )
+            continue
+        if crit == "min_improvement_pct":
+            i = g["measured"].fillna(-np.inf).idxmin()
+        elif crit == "max_residual_um":
+            i = g["measured"].fillna(np.inf).idxmax()
+        elif not passed:
+            i = g[~g["passed"]].index[0]
+        else:
+            i = g.index[0]
+        lim = g.loc[i, "limit"]
+        out.append(
+            {
+                "criterion": crit,
+                "label": label,
+                "limit": f"{op} {fmt_num(lim, nd, unit)}",
+                "measured": fmt_num(g.loc[i, "measured"], nd, unit),
+                "run_id": f"run {g.loc[i, 'run_id']}",
+                "passed": passed,
+            }
+        )
+    for r in out:
+        r["status"] = "PASS" if r["passed"] else "FAIL"
+    return out
+
+
+def verdict_context(verdict: pd.DataFrame, source: str) -> dict:
+    rows = aggregate_verdict(verdict)
+    passed = bool(rows) and all(r["passed"] for r in rows)
+    return {
+        "passed": passed,
+        "status": "PASS" if passed else "FAIL",
+        "rows": rows,
+        "source": source,
+        "n_checks": 0 if verdict is None else len(verdict),
+        "n_failed": 0 if verdict is None else int((~verdict["passed"].map(truthy)).sum()),
+    }
+
+
+def model_infos(res: dict, registry_dir: Path | None) -> dict:
+    """``model_id -> {kind, created, files, name}`` from every source that names models."""
+    infos: dict = {}
+
+    def add(mid, **kw):
+        if not isinstance(mid, str) or not mid:
+            return
+        cur = infos.setdefault(mid, {"kind": None, "created": None, "files": None, "name": None})
+        for k, v in kw.items():
+            if v is not None and cur.get(k) is None:
+                cur[k] = v
+
+    model = res.get("model") or {}
+    add(
+        model.get("model_id"),
+        kind=model.get("kind", "rafi"),
+        created=model.get("created"),
+        files=sorted((model.get("data") or {}).keys()) or None,
+        name="rafi",
+    )
+    summ = res.get("comparison")
+    if summ is not None and "model_id" in summ:
+        for r in summ.to_dict("records"):
+            add(r.get("model_id"), kind=r.get("kind"), name=r.get("model"))
+    dec = res.get("decision")
+    if registry_dir is not None and isinstance(dec, dict):
+        for mid in {dec.get("candidate_id"), dec.get("champion_id_before"), dec.get("champion_id_after")}:
+            if not isinstance(mid, str) or "/" in mid or not mid:
+                continue
+            path = Path(registry_dir) / "models" / f"{mid}.json"
+            if path.is_file():
+                try:
+                    d = json.loads(path.read_text(encoding="utf-8"))
+                except (OSError, ValueError):
+                    continue
+                add(
+                    mid,
+                    kind=d.get("kind"),
+                    created=d.get("created"),
+                    files=sorted((d.get("data") or {}).keys()),
+                )
+    return infos
+
+
+def registry_summary(comp: pd.DataFrame | None, who: str) -> pd.DataFrame | None:
+    """Per-run summary (``rafi.method.validate`` columns) of the champion or the candidate from
+    ``registry/comparison.csv``."""
+    col = f"{who}_max_abs_after_um"
+    if comp is None or col not in comp or comp[col].isna().all():
+        return None
+    out = pd.DataFrame(
+        {
+            "run_id": comp["run_id"].astype(str),
+            "role": comp["role"].astype(str) if "role" in comp else "validation_single",
+            "speed_rpm": comp.get("speed_rpm"),
+            "max_abs_before_um": pd.to_numeric(comp["max_abs_before_um"], errors="coerce"),
+            "max_abs_after_um": pd.to_numeric(comp[col], errors="coerce"),
+            "improvement_pct": pd.to_numeric(comp[f"{who}_improvement_pct"], errors="coerce"),
+        }
+    )
+    return out[out["max_abs_after_um"].notna()].reset_index(drop=True)
+
+
+def per_run_gates(summary: pd.DataFrame, gates: dict) -> dict:
+    """``run_id -> (passed, [failed criteria])`` with the pipeline's own gate rules."""
+    if summary is None or not len(summary):
+        return {}
+    v = qualify(summary, gates)
+    out = {}
+    for rid, g in v.groupby(v["run_id"].astype(str), sort=False):
+        ok = g["passed"].map(truthy) & pd.to_numeric(g["measured"], errors="coerce").notna()
+        out[rid] = (bool(ok.all()), g.loc[~ok, "criterion"].astype(str).tolist())
+    for rid in summary["run_id"].astype(str):
+        out.setdefault(rid, (True, []))
+    return out
+
+
+DECISION_TEXT = {
+    "promoted": (
+        "pass",
+        "PROMOTED",
+        "tonight's candidate passed every gate and is now the model on the machine",
+    ),
+    "kept": ("neutral", "KEPT", "the model on the machine is unchanged"),
+    "rejected": (
+        "fail",
+        "REJECTED",
+        "tonight's candidate failed qualification; it does not go on the machine",
+    ),
+    "rolled_back": ("warn", "ROLLED BACK", "an operator set the model on the machine by hand"),
+}
+
+
+def champion_after_summary(res: dict, dec: dict):
+    """Validation summary of the model on the machine after this run, and where it came from."""
+    after = dec.get("champion_id_after")
+    comp = res.get("registry_comparison")
+    if not after:
+        return None, ""
+    if after == dec.get("candidate_id"):
+        s = registry_summary(comp, "candidate")
+        if s is not None:
+            return s, "registry/comparison.csv (candidate columns)"
+    if after == dec.get("champion_id_before"):
+        s = registry_summary(comp, "champion")
+        if s is not None:
+            return s, "registry/comparison.csv (champion columns)"
+    pr = res.get("comparison_per_run")
+    if pr is not None and "model_id" in pr:
+        g = pr[pr["model_id"].astype(str) == after]
+        if len(g):
+            return g.reset_index(drop=True), "comparison/per_run.csv"
+    model = res.get("model") or {}
+    if model.get("model_id") == after and res.get("validation_summary") is not None:
+        return res["validation_summary"], "validation/summary.csv"
+    return None, ""
+
+
+def verdict_all(res: dict, gates: dict, infos: dict) -> dict:
+    """The verdict of section 1: the model on the machine (with decision.json) + RAFI."""
+    rafi_v = None
+    if res["validation_summary"] is not None:
+        rafi_v = verdict_context(
+            qualify(res["validation_summary"], gates), "from rafi.method.validate.qualify"
+        )
+        gated = res["validation_summary"]
+        if "role" in gated:
+            gated = gated[gated["role"].astype(str) != "validation_idle"]
+        rafi_v["worst"] = fmt_num(
+            pd.to_numeric(gated["max_abs_after_um"], errors="coerce").max(), 2, "\u00b5m"
+        )
+        rafi_v["min_imp"] = fmt_num(pd.to_numeric(gated["improvement_pct"], errors="coerce").min(), 1, "%")
+    else:
+        rafi_v = {
+            "passed": False,
+            "status": "FAIL",
+            "source": "no validation summary",
+            "rows": [],
+            "n_checks": 0,
+            "n_failed": 0,
+            "worst": "\u2013",
+            "min_imp": "\u2013",
+        }
+    dec = res.get("decision")
+    if not isinstance(dec, dict):
+        out = dict(rafi_v)
+        out.update(judged=None, rafi=None, subject="RAFI as published (model.json)")
+        return out
+    after = dec.get("champion_id_after")
+    info = infos.get(after or "", {})
+    decision = str(dec.get("decision", "?"))
+    judged = {
+        "id": short_id(after),
+        "kind": info.get("kind") or "kind unknown",
+        "decision": decision,
+        "decision_cls": DECISION_TEXT.get(decision, ("neutral",))[0],
+        "none": not after,
+        "is_rafi": info.get("kind") == "rafi",
+    }
+    summ, src = champion_after_summary(res, dec)
+    if summ is not None and len(summ):
+        v = qualify(summ, gates)
+        out = verdict_context(v, "computed from " + src)
+    else:
+        out = {
+            "passed": False,
+            "status": "FAIL",
+            "rows": [],
+            "n_checks": 0,
+            "n_failed": 0,
+            "source": (
+                "no model on the machine"
+                if not after
+                else "no validation results for this model in this run's outputs"
+            ),
+        }
+    out.update(judged=judged, rafi=rafi_v, subject=f"model {judged['id']} ({judged['kind']}) on the machine")
+    return out
