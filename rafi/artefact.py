@@ -139,23 +139,6 @@ def write_once(path: Path, text: str) -> bool:
             os.unlink(tmp)
 
 
-def replace_atomic(path: Path, text: str) -> None:
-    """Replace ``path`` atomically (temp file, fsync, rename)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".part", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="\n") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-        fsync_dir(path.parent)
-    except BaseException:
-        with contextlib.suppress(FileNotFoundError):
-            os.unlink(tmp)
-        raise
-
-
 def append_jsonl(path: Path, record: dict) -> None:
     """Append one JSON object as one line; flush and fsync before returning.
 
@@ -231,7 +214,8 @@ def _umask() -> int:
 
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
-    """Yield a temporary path beside ``path``; rename it onto ``path`` on success.
+    """Yield a temporary path beside ``path``; on success fsync it, rename it onto ``path``
+    and fsync the folder, so that after a crash ``path`` is either the old or the new file.
 
     On any exception the temporary file is removed and ``path`` is untouched.
     The file gets the usual permissions (``0o666`` less the umask), not
@@ -245,7 +229,13 @@ def atomic_path(path: str | os.PathLike) -> Iterator[Path]:
     try:
         yield tmp_path
         os.chmod(tmp_path, 0o666 & ~_umask())
+        fd = os.open(tmp_path, os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
         os.replace(tmp_path, target)
+        fsync_dir(target.parent)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()

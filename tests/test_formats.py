@@ -396,9 +396,10 @@ def test_planning_imports_no_pandas():
     """What workflow/rules/common.smk imports (rafi.settings, rafi.readers.input_spec,
     rafi.ops.code_deps) loads neither pandas nor NumPy."""
     code = (
-        "import sys, rafi.readers.input_spec as c, rafi.readers.quarantine, rafi.settings as s, rafi.ops.code_deps; "
-        "c.find_logs('.', {'format': 'csv', 'time': "
-        "{'start': '2026-10-14T06:00:00'}}); s.candidate_model_path('m', 'results', 'fit'); s.machine_settings({}, 'm');"
+        "import sys, rafi.readers.input_spec as c, rafi.readers.quarantine, rafi.settings as s, "
+        "rafi.ops.code_deps; c.find_logs('.', {'format': 'csv', 'time': "
+        "{'start': '2026-10-14T06:00:00'}}); s.candidate_model_path('m', 'results', 'fit'); "
+        "s.machine_settings({}, 'm');"
         "assert not {'pandas', 'numpy'} & set(sys.modules), sorted(sys.modules)"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)

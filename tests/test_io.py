@@ -1,4 +1,4 @@
-"""Native reader, writers and atomic helpers (rafi.io)."""
+"""Native reader, writers and atomic helpers (rafi.readers.native, rafi.readers.logs, rafi.artefact)."""
 
 from __future__ import annotations
 

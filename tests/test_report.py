@@ -1,7 +1,7 @@
 """The qualification report (rafi.report: tables, figures, context, render, the template) on a small fixture.
 
 The fixture (tests/data/report_fixture/<machine>/, made by generate.py) holds results tables
-in the docs/design.md formats, including comparison/* from rafi.family.models.run_family and
+in the docs/design.md formats, including comparison/* from rafi.family.compare.run_family and
 registry/* from two nights of rafi.ops.registry.run_decide (the real producers). Each test first
 does what rules report_tables and report_figures do (tables from the model, figure files), then
 renders HTML + PDF in a tmp dir, open the HTML in headless Chromium, rasterise the PDF with pdftoppm and
@@ -62,20 +62,16 @@ def _chromium() -> str | None:
 
 @pytest.fixture(scope="session")
 def browser_tools():
-    """Chromium and pdftoppm; installed with apt-get when missing (CI runs as root)."""
-    if _chromium() is None or shutil.which("pdftoppm") is None:
-        try:
-            subprocess.run(["apt-get", "update"], check=True, capture_output=True, timeout=600)
-            subprocess.run(
-                ["apt-get", "install", "-y", "chromium", "poppler-utils"],
-                check=True,
-                capture_output=True,
-                timeout=1200,
-            )
-        except (OSError, subprocess.SubprocessError) as exc:
-            pytest.skip(f"chromium/pdftoppm missing and apt-get install failed: {exc}")
-    if _chromium() is None or shutil.which("pdftoppm") is None:
-        pytest.skip("chromium or pdftoppm not available after apt-get install")
+    """Chromium and pdftoppm (Debian's chromium and poppler-utils; .ci/run installs them)."""
+    missing = [
+        name
+        for name, found in (("chromium", _chromium()), ("pdftoppm", shutil.which("pdftoppm")))
+        if not found
+    ]
+    if missing:
+        pytest.fail(
+            f"{', '.join(missing)} not installed: apt-get install chromium poppler-utils (as .ci/run does)"
+        )
     return {"chromium": _chromium(), "pdftoppm": shutil.which("pdftoppm")}
 
 
@@ -347,9 +343,7 @@ def test_no_table_or_figure_wider_than_the_page(rendered):
     assert checked["table"] >= 16 and checked["image"] >= 8, checked
 
 
-def test_pdf_text_has_every_last_column_header(rendered):
-    if shutil.which("pdftotext") is None:
-        pytest.skip("pdftotext (poppler-utils) not installed")
+def test_pdf_text_has_every_last_column_header(rendered, browser_tools):
     text = subprocess.run(
         ["pdftotext", "-layout", str(rendered["dir"] / "qualification.pdf"), "-"],
         capture_output=True,

@@ -363,7 +363,9 @@ def test_any_legal_file_name_works_and_switching_on_bad_input_reruns_nothing(wor
     assert counts.get("clean") == 1, counts
 
 
-def test_a_machine_section_at_the_top_level_stops_planning_with_where_it_belongs(workdir: Path, tmp_path: Path):
+def test_a_machine_section_at_the_top_level_stops_planning_with_where_it_belongs(
+    workdir: Path, tmp_path: Path
+):
     """The first settings bug: `qualification:` at the top level was valid, read by the decide
     job and ignored by the compare job. Now the run does not start, and says why."""
     work = _project(workdir, tmp_path / "top", {})

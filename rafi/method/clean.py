@@ -1,6 +1,6 @@
 """Cleaning one canonical log: a regular time grid, every change recorded.
 
-:func:`clean_log` turns the canonical frame of a reader (``rafi.io``) into the
+:func:`clean_log` turns the canonical frame of a reader (``rafi.readers``) into the
 *clean frame* of ``docs/design.md`` and an *audit table* with one row per action,
 whose ``first_line`` / ``last_line`` point at lines of the SOURCE file (the index
 of the canonical frame). The steps, in this order:
@@ -208,7 +208,7 @@ def clean_log(
     if missing:
         raise RawFormatError(
             file,
-            f"column(s) {', '.join(missing)} missing; expected the canonical frame of rafi.io",
+            f"column(s) {', '.join(missing)} missing; expected the canonical frame of rafi.readers",
             column=missing[0],
         )
     if len(frame) == 0:

@@ -300,7 +300,7 @@ class RafiModel:
     def _check_fitted(self) -> None:
         if self.speeds_rpm_.size == 0:
             raise ValueError(
-                "RafiModel has no per-speed models; fit it (rafi.regression."
+                "RafiModel has no per-speed models; fit it (rafi.method.fit."
                 "fit_rafi) or load one (rafi.method.model.load_model) first"
             )
 

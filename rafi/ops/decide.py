@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from rafi.artefact import json_text, jsonable, now_iso, replace_atomic
+from rafi.artefact import json_text, jsonable, now_iso, write_text_atomic
 from rafi.errors import IncompatibleModels
 from rafi.method.validate import qualify as _qualify
 from rafi.method.validate import validate_runs as _validate_runs
@@ -366,7 +366,7 @@ def run_decide(
             candidate["model_id"], reason="promoted by nightly decision", time=dec.record["time"]
         )
     write_csv_atomic(dec.comparison, comparison_path)
-    replace_atomic(Path(decision_path), json_text(dec.record))
+    write_text_atomic(Path(decision_path), json_text(dec.record))
     for r in dec.record["reasons"]:
         log(f"{machine}: {dec.record['decision']}: {r}")
     return dec.record

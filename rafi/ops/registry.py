@@ -33,8 +33,8 @@ from rafi.artefact import (
     json_text,
     now_iso,
     read_jsonl,
-    replace_atomic,
     write_once,
+    write_text_atomic,
 )
 from rafi.errors import RegistryError
 
@@ -189,7 +189,7 @@ class Registry:
             "since": time or now_iso(),
             "reason": reason,
         }
-        replace_atomic(self.champion_path, json_text(pointer))
+        write_text_atomic(self.champion_path, json_text(pointer))
         return pointer
 
     # history
@@ -275,5 +275,5 @@ def promote(
             "recalibration_due": False,
             "time": time,
         }
-        replace_atomic(Path(decision_path), json_text(new))
+        write_text_atomic(Path(decision_path), json_text(new))
     return rec

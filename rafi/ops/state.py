@@ -13,7 +13,7 @@ import json
 import os
 from pathlib import Path
 
-from rafi.artefact import canonical_json, json_text, now_iso, replace_atomic
+from rafi.artefact import canonical_json, json_text, now_iso, write_text_atomic
 from rafi.ops.lock import LOCK_NAME
 from rafi.ops.project import Paths, config_path
 
@@ -84,7 +84,7 @@ def read_state(paths: Paths) -> dict:
 
 def write_state(paths: Paths, fp: str) -> None:
     """Store ``fp`` as the fingerprint of a successful night (atomic replace)."""
-    replace_atomic(paths.results_dir / STATE_NAME, json_text({"fingerprint": fp, "time": now_iso()}))
+    write_text_atomic(paths.results_dir / STATE_NAME, json_text({"fingerprint": fp, "time": now_iso()}))
 
 
 def clear_state(paths: Paths) -> None:

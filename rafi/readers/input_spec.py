@@ -1,15 +1,11 @@
-"""Configuration the workflow needs while Snakemake plans it (standard library only).
+"""The ``input:`` mapping of a machine and the discovery of its raw files (standard library only).
 
 Snakemake evaluates ``workflow/rules/common.smk`` on every invocation (``rafi nightly``
-included) before it runs any job; what that needs lives here, so planning does not import
-NumPy or pandas (a third of a second):
-
-* the ``input:`` mapping of a machine: :data:`INPUT_DEFAULTS`, :data:`INPUT_SCHEMA`,
-  :func:`normalise_input_spec` (raises :class:`rafi.errors.InputSpecError`), and
-  :func:`find_logs`, the raw files of a machine folder. ``rafi.readers.mapped`` and ``rafi.io``
-  re-export them (their documented home);
-* the defaults of ``nightly:`` and ``qualification:`` and the candidate model's path
-  (``rafi.ops.registry`` re-exports them).
+included) before it runs any job; what that needs of the readers lives here, so planning does
+not import NumPy or pandas: :data:`INPUT_DEFAULTS` (the mapping's defaults, by format),
+:data:`INPUT_SCHEMA`, :func:`normalise_input_spec` (raises
+:class:`rafi.errors.InputSpecError`), :func:`find_logs` (the raw files of a machine folder) and
+:func:`log_id` (the name of a raw file's outputs).
 """
 
 from __future__ import annotations

@@ -28,10 +28,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.errors import InputSpecError, RawFormatError  # noqa: F401
-
-# The input: mapping (defaults, schema, validation) lives in rafi.config, which the workflow
-# imports while Snakemake plans (no pandas there); it is part of this module's API too.
+from rafi.errors import RawFormatError
 from rafi.readers.input_spec import (
     _spec_error,
     norm_header,

@@ -18,8 +18,20 @@ rule compare:
         code=rafi_code("compare"),
         glue=script_helpers(),
     output:
-        summary=comparison_path("summary.csv"),
-        per_run=comparison_path("per_run.csv"),
+        summary=report(
+            comparison_path("summary.csv"),
+            caption="../report/comparison_summary.rst",
+            category="Model comparison",
+            subcategory="{machine}",
+            labels={"machine": "{machine}", "table": "comparison/summary.csv"},
+        ),
+        per_run=report(
+            comparison_path("per_run.csv"),
+            caption="../report/comparison_per_run.rst",
+            category="Model comparison",
+            subcategory="{machine}",
+            labels={"machine": "{machine}", "table": "comparison/per_run.csv"},
+        ),
         residuals=comparison_path("residuals.parquet"),
         best_model=comparison_path("best_model.json"),
         cv=comparison_path("cv.csv"),

@@ -179,7 +179,13 @@ rule validate:
         code=rafi_code("validate"),
         glue=script_helpers(),
     output:
-        summary=out("validation_summary"),
+        summary=report(
+            out("validation_summary"),
+            caption="../report/validation_summary.rst",
+            category="Validation",
+            subcategory="{machine}",
+            labels={"machine": "{machine}", "table": "validation/summary.csv"},
+        ),
         residuals=out("residuals"),
     log:
         log_path("validate"),

@@ -3,7 +3,7 @@
     python tests/data/bad/make_bad.py
 
 ``CASES`` is the single source of truth: ``tests/test_bad_input.py`` imports it and
-checks that reading (``rafi.io.read_log``) and checking (``rafi.checks.check_log``)
+checks that reading (``rafi.readers.logs.read_log``) and checking (``rafi.readers.checks.check_log``)
 each file raises ``RawFormatError`` whose message names the file, the line/row and
 column given here and contains the fragment.
 """

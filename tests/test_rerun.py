@@ -1,0 +1,93 @@
+"""Interactive runs and `rafi nightly` share every output (issue 11: the re-run thrash).
+
+`on_bad_input` used to be a param of the clean rule: `snakemake --cores 2` followed by
+`rafi nightly` with nothing new re-ran all 35 jobs, and the next `snakemake` re-ran them back.
+Here, on a trimmed copy of the shipped data with the real Snakefile:
+
+1. `snakemake --cores 2` builds everything;
+2. `rafi nightly` with nothing new runs no job (no output is rewritten);
+3. a new log arrives and `rafi nightly` processes it; then `snakemake -n` has nothing to do.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+MACHINE = "tapping-center-a"
+KEEP = ("train_03000rpm", "train_09000rpm", "train_15000rpm", "valid_04500rpm", "multi_condition")
+
+pytestmark = pytest.mark.slow
+
+
+def _env(proj: Path) -> dict:
+    path = os.pathsep.join([str(proj), *filter(None, [os.environ.get("PYTHONPATH")])])
+    return {**os.environ, "PYTHONPATH": path}
+
+
+def _run(proj: Path, *cmd: str) -> subprocess.CompletedProcess:
+    proc = subprocess.run(
+        [sys.executable, "-m", *cmd], cwd=proj, env=_env(proj), capture_output=True, text=True, timeout=900
+    )
+    return proc
+
+
+def _outputs(proj: Path) -> dict[str, int]:
+    """Every file a job writes, with its mtime (nightly's own lock/state/log files aside)."""
+    found = {}
+    for folder in ("results", "reports"):
+        for path in (proj / folder).rglob("*"):
+            rel = str(path.relative_to(proj))
+            if (
+                path.is_file()
+                and "/benchmarks/" not in rel
+                and not path.name.startswith((".nightly", "nightly"))
+            ):
+                found[rel] = path.stat().st_mtime_ns
+    return found
+
+
+@pytest.fixture
+def project(tmp_path: Path) -> Path:
+    proj = tmp_path / "proj"
+    proj.mkdir()
+    shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
+    shutil.copy2(ROOT / "config.yaml", proj / "config.yaml")
+    for name in ("workflow", "rafi"):  # a frozen copy of the package: its files are rule inputs
+        shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
+    (proj / "raw" / MACHINE).mkdir(parents=True)
+    for stem in KEEP:
+        shutil.copy2(ROOT / "raw" / MACHINE / f"{stem}.csv", proj / "raw" / MACHINE / f"{stem}.csv")
+    return proj
+
+
+def test_snakemake_then_nightly_then_snakemake_rerun_nothing(project: Path):
+    first = _run(project, "snakemake", "--cores", "2")
+    assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
+    built = _outputs(project)
+    assert f"reports/{MACHINE}/qualification.html" in built
+
+    night = _run(project, "rafi.cli", "nightly", "--directory", str(project), "--cores", "2")
+    assert night.returncode in (0, 4), night.stdout[-3000:] + night.stderr[-3000:]
+    assert _outputs(project) == built, "rafi nightly with nothing new rewrote outputs"
+
+    again = _run(project, "snakemake", "--cores", "2", "-n")
+    assert again.returncode == 0, again.stderr[-3000:]
+    assert "Nothing to be done" in again.stdout + again.stderr, again.stdout[-3000:]
+
+    # the other way round: a night processes a new log, then an interactive run has nothing to do
+    shutil.copy2(
+        ROOT / "raw" / MACHINE / "valid_13500rpm.csv", project / "raw" / MACHINE / "valid_13500rpm.csv"
+    )
+    night = _run(project, "rafi.cli", "nightly", "--directory", str(project), "--cores", "2")
+    assert night.returncode in (0, 4), night.stdout[-3000:] + night.stderr[-3000:]
+    assert f"results/{MACHINE}/clean/valid_13500rpm.parquet" in _outputs(project)
+    after_night = _run(project, "snakemake", "--cores", "2", "-n")
+    assert after_night.returncode == 0, after_night.stderr[-3000:]
+    assert "Nothing to be done" in after_night.stdout + after_night.stderr, after_night.stdout[-3000:]
