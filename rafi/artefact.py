@@ -55,35 +55,11 @@ def canonical_json(content: dict) -> str:
 
 
 def code_version() -> str:
-    """``"rafi <version>"`` plus the git commit of the source tree if it can be read.
-
-    Reads ``.git/HEAD`` directly (no subprocess); returns the plain version when
-    the package is not in a git checkout.
-    """
-    text = f"rafi {__version__}"
-    try:
-        git = Path(__file__).resolve().parents[1] / ".git"
-        head = (git / "HEAD").read_text().strip()
-        if head.startswith("ref:"):
-            ref = head.split(None, 1)[1]
-            ref_file = git / ref
-            if ref_file.exists():
-                commit = ref_file.read_text().strip()
-            else:
-                commit = ""
-                packed = git / "packed-refs"
-                if packed.exists():
-                    for line in packed.read_text().splitlines():
-                        parts = line.split()
-                        if len(parts) == 2 and parts[1] == ref:
-                            commit = parts[0]
-        else:
-            commit = head
-        if re.fullmatch(r"[0-9a-f]{40}", commit or ""):
-            text += f" (git {commit[:12]})"
-    except OSError:
-        pass
-    return text
+    """``"rafi <version>"`` plus the git commit of the source tree (:func:`git_commit`), if any."""
+    commit = git_commit()
+    if commit and re.fullmatch(r"[0-9a-f]{40}", commit):
+        return f"rafi {__version__} (git {commit[:12]})"
+    return f"rafi {__version__}"
 
 
 def now_iso() -> str:
@@ -181,28 +157,29 @@ def read_jsonl(path: Path) -> list[dict]:
     return records
 
 
-def git_commit(start: str | os.PathLike | None = None) -> str | None:
-    """Commit of the git checkout holding ``start`` (default: this package), read from .git."""
-    here = Path(start or Path(__file__).resolve().parent).resolve()
-    for d in (here, *here.parents):
-        git = d / ".git"
-        if git.is_dir():
-            try:
-                head = (git / "HEAD").read_text().strip()
-                if head.startswith("ref:"):
-                    ref = head.split(None, 1)[1]
-                    if (git / ref).exists():
-                        return (git / ref).read_text().strip() or None
-                    packed = git / "packed-refs"
-                    if packed.exists():
-                        for line in packed.read_text().splitlines():
-                            parts = line.split()
-                            if len(parts) == 2 and parts[1] == ref:
-                                return parts[0]
-                    return None
-                return head or None
-            except OSError:
-                return None
+def git_commit(checkout: str | os.PathLike | None = None) -> str | None:
+    """Commit checked out in ``checkout`` (default: the tree this package lives in), read from
+    ``.git`` directly (no subprocess); ``None`` outside a git checkout.
+
+    Only ``checkout`` itself is looked at, not its parents: a copy of the package installed
+    inside some other repository (a virtual environment in a checkout) has no commit.
+    """
+    git = Path(checkout or Path(__file__).resolve().parents[1]) / ".git"
+    try:
+        head = (git / "HEAD").read_text().strip()
+        if not head.startswith("ref:"):
+            return head or None
+        ref = head.split(None, 1)[1]
+        if (git / ref).exists():
+            return (git / ref).read_text().strip() or None
+        packed = git / "packed-refs"
+        if packed.exists():
+            for line in packed.read_text().splitlines():
+                parts = line.split()
+                if len(parts) == 2 and parts[1] == ref:
+                    return parts[0]
+    except OSError:
+        pass
     return None
 
 

@@ -23,7 +23,6 @@ Out-of-range flags (:meth:`RafiModel.predict_detail`)
 
 from __future__ import annotations
 
-import hashlib
 import json
 import os
 import re
@@ -32,7 +31,13 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi.artefact import canonical_json, code_version, jsonable, write_text_atomic
+from rafi.artefact import (
+    code_version,
+    compute_model_id,
+    json_text,
+    jsonable,
+    write_text_atomic,
+)
 from rafi.method.fuzzy import triangular_weights
 
 __all__ = [
@@ -41,8 +46,6 @@ __all__ = [
     "parse_term",
     "parse_terms",
     "design_matrix",
-    "canonical_json",
-    "code_version",
     "save_model",
     "load_model",
 ]
@@ -415,7 +418,7 @@ class RafiModel:
     @property
     def model_id(self) -> str:
         """SHA-256 of the canonical JSON of the content (without ``model_id``/``created``)."""
-        return hashlib.sha256(canonical_json(self._content()).encode("ascii")).hexdigest()
+        return compute_model_id(self._content())
 
     def to_dict(self) -> dict:
         """The ``model.json`` content (schema ``rafi.model/1``, ``docs/design.md``).
@@ -423,7 +426,7 @@ class RafiModel:
         NaN values (e.g. an unknown RMSE) are written as ``null``.
         """
         content = jsonable(self._content())
-        content["model_id"] = hashlib.sha256(canonical_json(content).encode("ascii")).hexdigest()
+        content["model_id"] = compute_model_id(content)
         content["created"] = self.created
         return content
 
@@ -495,8 +498,7 @@ class RafiModel:
 
 def save_model(model: RafiModel, path: str | os.PathLike) -> None:
     """Write ``model.json`` atomically (indented JSON, sorted keys, trailing newline)."""
-    text = json.dumps(model.to_dict(), indent=2, sort_keys=True, allow_nan=False)
-    write_text_atomic(path, text + "\n")
+    write_text_atomic(path, json_text(model.to_dict()))
 
 
 def load_model(path: str | os.PathLike) -> RafiModel:

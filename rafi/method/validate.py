@@ -40,6 +40,7 @@ import pandas as pd
 
 from rafi.method import paper
 from rafi.method.paper import paper_value
+from rafi.settings import GATE_KEYS
 
 __all__ = [
     "PAPER_RESIDUAL_UM",
@@ -219,7 +220,7 @@ def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
         Columns ``criterion``, ``limit``, ``measured``, ``passed``, ``run_id``; see
         the module docstring (idle runs: never-worse only).
     """
-    unknown = set(gates) - {"max_residual_um", "min_improvement_pct", "never_worse_than_uncompensated"}
+    unknown = set(gates) - set(GATE_KEYS)
     if unknown:
         raise ValueError(f"unknown qualification gate(s): {sorted(unknown)}")
     max_res = gates.get("max_residual_um")

@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import io
 import os
 from collections.abc import Sequence
 from pathlib import Path
 
+from rafi.artefact import write_bytes_atomic
 from rafi.twin.calibration import quick_clean
 
 
@@ -55,8 +57,7 @@ def plot_runs(
         )
         fig.tight_layout()
         target = out / f"twin-{Path(path).stem}.png"
-        fig.savefig(target, dpi=90)
-        plt.close(fig)
+        _save(fig, target)
         written.append(target)
     fig, ax = plt.subplots(figsize=(9, 4.5))
     for stem, f in runs:
@@ -69,7 +70,16 @@ def plot_runs(
     ax.set_title("displacement rise per run")
     fig.tight_layout()
     target = out / "twin-overview.png"
-    fig.savefig(target, dpi=90)
-    plt.close(fig)
+    _save(fig, target)
     written.append(target)
     return written
+
+
+def _save(fig, target: Path) -> None:
+    """Write ``fig`` as PNG to ``target`` atomically and close it."""
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=90)
+    plt.close(fig)
+    write_bytes_atomic(target, buf.getvalue())

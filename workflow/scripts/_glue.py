@@ -14,7 +14,6 @@ with its traceback and, as one line, to the terminal, then re-raised (the job fa
 from __future__ import annotations
 
 import contextlib
-import json
 import logging
 import sys
 import time
@@ -71,18 +70,3 @@ def as_table(obj) -> pd.DataFrame:
     if any(name is not None for name in frame.index.names):
         frame = frame.reset_index()
     return frame
-
-
-def to_json(obj) -> str:
-    """Deterministic JSON text of ``obj`` (NumPy / pandas scalars converted)."""
-
-    def default(value):
-        if hasattr(value, "item"):
-            return value.item()
-        if hasattr(value, "tolist"):
-            return value.tolist()
-        if hasattr(value, "isoformat"):
-            return value.isoformat()
-        return str(value)
-
-    return json.dumps(obj, indent=2, sort_keys=True, default=default) + "\n"

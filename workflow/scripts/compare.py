@@ -3,7 +3,7 @@ residuals.parquet, best_model.json, cv.csv (docs/models.md)."""
 
 import json
 
-from _glue import as_table, read_runs, step, to_json
+from _glue import as_table, read_runs, step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import rafi.artefact
@@ -37,4 +37,4 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     rafi.artefact.write_csv_atomic(as_table(result["per_run"]), smk.output.per_run, index=False)
     rafi.artefact.write_parquet_atomic(result["residuals"], smk.output.residuals)
     rafi.artefact.write_csv_atomic(as_table(result["cv"]), smk.output.cv, index=False)
-    rafi.artefact.write_text_atomic(smk.output.best_model, to_json(result["best_artefact"]))
+    rafi.artefact.write_text_atomic(smk.output.best_model, rafi.artefact.json_text(result["best_artefact"]))
