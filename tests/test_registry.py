@@ -21,9 +21,11 @@ from rafi.method.validate import qualify
 from rafi.ops import adapt, drift, gates
 from rafi.ops import decide as D
 from rafi.ops import registry as R
+from rafi.settings import MACHINE_DEFAULTS
 
 TERMS = ["1", "x1", "x2", "x3"]
 GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
+NIGHTLY = MACHINE_DEFAULTS["nightly"]
 
 
 def make_model(speeds=(3000, 6000, 9000), offset=0.0, sensors=("T6", "T8", "T9"), data=None):
@@ -203,7 +205,7 @@ def _decide(cand_summary, champ_summary=None, champion_id=None, history=(), cand
         champion_summary=champ_summary,
         runs_table=RUNS,
         gates=GATES,
-        nightly=nightly or {"drift_margin_um": 1.0},
+        nightly={**NIGHTLY, "drift_margin_um": 1.0, **(nightly or {})},
         history=list(history),
         time="2026-05-01T00:00:00Z",
     )
@@ -249,7 +251,7 @@ def test_never_worse_gate_applies_to_any_single_run():
     assert r["measured"]["worse_than_uncompensated_runs"] == ["v3"]
     assert any("never_worse" in x and "v3" in x for x in r["reasons"])
     # even if a qualify() implementation forgot the per-run check, the decision catches it
-    passed, reasons, _ = gates.gate_outcome(summary(rows), qualify(summary(rows), {}), {})
+    passed, reasons, _ = gates.gate_outcome(summary(rows), qualify(summary(rows), {}), GATES)
     assert not passed and any("v3" in x for x in reasons)
 
 
@@ -372,7 +374,7 @@ def _run(tmp_path, cand, nightly=None):
         decision_path=reg / "decision.json",
         comparison_path=reg / "comparison.csv",
         gates=GATES,
-        nightly=nightly or {},
+        nightly={**NIGHTLY, **(nightly or {})},
         log=lambda m: None,
         model_from_dict=FakeModel,
         validate_runs=fake_validate,
@@ -457,7 +459,7 @@ def test_run_decide_speed_range_with_real_models(tmp_path):
         decision_path=reg.decision_path,
         comparison_path=reg.comparison_path,
         gates=GATES,
-        nightly={"retrain_speed_range_rpm": [5000, 10000]},
+        nightly={**NIGHTLY, "retrain_speed_range_rpm": [5000, 10000]},
         log=lambda m: None,
         model_from_dict=model_from_dict,
         validate_runs=fake_validate,

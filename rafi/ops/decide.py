@@ -25,7 +25,7 @@ from rafi.ops.adapt import merge_speed_models, retrained_speed_info, speeds_from
 from rafi.ops.drift import drift_check, new_validation_runs
 from rafi.ops.gates import col_max, col_min, fmt_value, gate_outcome, gated_runs
 from rafi.ops.registry import DECISION_SCHEMA, Registry, demoted_by_operator, promotion_record
-from rafi.settings import DEFAULT_GATES, DEFAULT_NIGHTLY, GATE_KEYS
+from rafi.settings import GATE_KEYS
 
 
 def comparison_table(
@@ -178,7 +178,7 @@ def decide(
         champion_summary,
         new_runs,
         ref,
-        float(nightly.get("drift_margin_um", DEFAULT_NIGHTLY["drift_margin_um"])),
+        float(nightly["drift_margin_um"]),
     )
     drift["champion_id"] = champion_id
     drift["promoted_at"] = (prom or {}).get("time")
@@ -294,8 +294,7 @@ def run_decide(
     """
     from rafi.artefact import write_csv_atomic  # local: keeps the pure part importable without pyarrow
 
-    gates = {k: v for k, v in {**DEFAULT_GATES, **(gates or {})}.items() if k in GATE_KEYS}
-    nightly = {**DEFAULT_NIGHTLY, **(nightly or {})}
+    gates = {k: gates[k] for k in GATE_KEYS}  # the machine's resolved settings: every key present
     validate_runs = validate_runs or _validate_runs
     qualify = qualify or _qualify
     reg = Registry(Path(registry_root), machine)
@@ -307,7 +306,7 @@ def run_decide(
     champion_id = reg.champion_id()
     champion_dict = reg.load_model_dict(champion_id) if champion_id else None
 
-    rng = nightly.get("retrain_speed_range_rpm")
+    rng = nightly["retrain_speed_range_rpm"]
     candidate = fitted
     adaptation = {"retrain_speed_range_rpm": rng, "mode": "full", "fitted_id": fitted["model_id"]}
     if rng is not None and champion_dict is not None:

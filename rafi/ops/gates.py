@@ -40,7 +40,7 @@ def gate_outcome(summary: pd.DataFrame, verdict: pd.DataFrame, gates: dict) -> t
                 f"{fmt_value(rec.get('measured'))}, limit {fmt_value(rec.get('limit'))}"
             )
     worse = []
-    if gates.get("never_worse_than_uncompensated", True):
+    if gates["never_worse_than_uncompensated"]:
         after = summary["max_abs_after_um"].astype(float)
         before = summary["max_abs_before_um"].astype(float)
         bad = after > before

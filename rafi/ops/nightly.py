@@ -28,7 +28,7 @@ import time
 from pathlib import Path
 
 from rafi.artefact import now_iso
-from rafi.errors import LockHeld, RegistryError
+from rafi.errors import LockHeld, RegistryError, SettingsError
 from rafi.ops import snakemake_api
 from rafi.ops.lock import LOCK_NAME, NightlyLock
 from rafi.ops.project import Paths, config_path, load_config
@@ -98,10 +98,13 @@ def run(args) -> int:
     args.directory = directory
     try:
         config = load_config(directory, args.config_file)
+        paths = Paths.from_config(directory, config)
     except OSError as exc:
         print(f"rafi nightly: cannot read config: {exc}", file=sys.stderr)
         return EXIT_USAGE
-    paths = Paths.from_config(directory, config)
+    except SettingsError as exc:
+        print(f"rafi nightly: {exc}", file=sys.stderr)
+        return EXIT_USAGE
     machines = paths.machines()
     if args.machine and args.machine not in machines:
         print(

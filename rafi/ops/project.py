@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from rafi.settings import run_settings
+
 
 def config_path(directory: Path, config_file: str | Path) -> Path:
     """``config_file`` resolved against the project ``directory`` unless absolute."""
@@ -36,9 +38,16 @@ class Paths:
 
     @classmethod
     def from_config(cls, directory: Path, config: dict) -> Paths:
-        """Paths of the project in ``directory`` with ``config``'s ``raw_dir``/``results_dir``."""
+        """Paths of the project in ``directory`` with ``config``'s ``raw_dir``/``results_dir``.
+
+        Raises
+        ------
+        rafi.errors.SettingsError
+            The config puts a setting where nothing reads it (:func:`rafi.settings.run_settings`).
+        """
+        run = run_settings(config)
         d = Path(directory).resolve()
-        return cls(d, d / str(config.get("raw_dir", "raw")), d / str(config.get("results_dir", "results")))
+        return cls(d, d / str(run["raw_dir"]), d / str(run["results_dir"]))
 
     def machines(self) -> list[str]:
         """Folders of ``raw_dir`` holding at least one visible file, sorted."""

@@ -180,7 +180,7 @@ def section_ranking(res: dict, key_info: dict, figs) -> dict:
     corr = res["correlation"]
     ks = res["key_sensors"]
     chosen = chosen_sensors(key_info, ks)
-    threshold = float(key_info.get("threshold", 0.97))
+    threshold = float(key_info["threshold"])
     out = {
         "chosen": chosen,
         "threshold": threshold,

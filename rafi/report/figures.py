@@ -87,7 +87,7 @@ def _pipeline(res: dict, coolant_sensors: list, fmt: str):
             "correlation_heatmap",
             plots.fig_correlation_heatmap(
                 correlation_wide(res["correlation"]),
-                threshold=float(key_info.get("threshold", 0.97)),
+                threshold=float(key_info["threshold"]),
                 chosen=chosen_sensors(key_info, res["key_sensors"]),
                 fmt=fmt,
             ),

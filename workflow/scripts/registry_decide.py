@@ -21,9 +21,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         gates=dict(smk.params.gates),
         nightly=dict(smk.params.nightly),
         log=lambda msg: print(msg, flush=True),
-        candidate_summary_path=(
-            smk.input.summary if smk.params.nightly.get("candidate", "fit") == "fit" else None
-        ),
+        candidate_summary_path=(smk.input.summary if smk.params.nightly["candidate"] == "fit" else None),
     )
     print(
         f"decision: {record['decision']} (candidate {record['candidate_id'][:12]}, champion "
