@@ -188,3 +188,12 @@ def test_rafi_settings_prints_what_a_machine_gets(capsys, monkeypatch):
     shown = yaml.safe_load(capsys.readouterr().out)
     assert shown == machine_settings(CONFIG, "machining-center-b")
     assert shown["sample_period_s"] == 15 and shown["qualification"]["max_residual_um"] == 12.0
+
+
+def test_rafi_nightly_refuses_a_misplaced_section_with_the_message(tmp_path, capsys):
+    from rafi.cli import main
+    from rafi.ops.status import EXIT_USAGE
+
+    (tmp_path / "config.yaml").write_text("qualification:\n  max_residual_um: 5.0\n", encoding="utf-8")
+    assert main(["nightly", "--directory", str(tmp_path)]) == EXIT_USAGE
+    assert "'qualification' is a per-machine setting" in capsys.readouterr().err
