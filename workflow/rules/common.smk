@@ -1,12 +1,14 @@
 # Shared helpers of the RAFI workflow: config validation, machine discovery,
-# per-machine settings, path templates and input functions.
+# per-machine settings (resolved by rafi.settings), path templates and input functions.
+# A fail-mode run stops here, while it plans, on a raw file an earlier run quarantined.
 #
 # Functions only (no rules) - `snakemake --lint` wants rules and functions apart;
 # another step's helpers go to workflow/rules/<step>_common.smk (the Snakefile includes
 # those first). Every public name below may be used by the other .smk files -
-#   constants  RAW_DIR, RESULTS_DIR, REPORTS_DIR, LOGS_DIR, RAFI_DIR, MACHINES, OUTPUTS
-#   settings   machine_config(machine)
-#   raw files  raw_files(machine), raw_file(wildcards)
+#   constants  RUN (run settings), RAW_DIR, RESULTS_DIR, REPORTS_DIR, LOGS_DIR, RAFI_DIR,
+#              MACHINES, OUTPUTS
+#   settings   machine_config(machine) (rafi.settings.machine_settings), model_provenance(machine)
+#   raw files  raw_files(machine), raw_path(wildcards), raw_file(wildcards), raw_stamp(wildcards)
 #   paths      out(name, machine="{machine}"), pipeline_tables(machine),
 #              all_pipeline_tables(), report_paths(machine="{machine}"),
 #              log_path(step), bench_path(step)
@@ -75,6 +77,11 @@ def machine_config(machine):
     if machine not in _MACHINE_SETTINGS:
         _MACHINE_SETTINGS[machine] = _settings.machine_settings(config, machine)
     return _MACHINE_SETTINGS[machine]
+
+
+def model_provenance(machine):
+    """The settings ``model.json`` records for ``machine`` (``rafi.settings.model_provenance``)."""
+    return _settings.model_provenance(machine_config(machine))
 
 
 def _patterns(machine):
@@ -197,11 +204,6 @@ OUTPUTS = {
     "validation_summary": "validation/summary.csv",
     "residuals": "validation/residuals.parquet",
 }
-
-
-def model_provenance(settings):
-    """Settings recorded in model.json (``rafi.settings.model_provenance``)."""
-    return _settings.model_provenance(settings)
 
 
 #: Per-machine tables every full run must produce (``rule all``).

@@ -165,7 +165,7 @@ rule fit:
         fuzzy=lambda w: machine_config(w.machine)["fuzzy"],
         speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],
         # settings that shaped the model, stored in model.json for provenance
-        model_config=lambda w: model_provenance(machine_config(w.machine)),
+        model_config=lambda w: model_provenance(w.machine),
     script:
         "../scripts/fit.py"
 
