@@ -205,10 +205,6 @@ def candidate_model_path(machine: str, results_dir: str | os.PathLike, source: s
     raise SettingsError(f"nightly.candidate is {source!r}; expected 'fit' or 'family'")
 
 
-# Read by name where one section is needed on its own (the values live above, nowhere else).
-DEFAULT_GATES = MACHINE_DEFAULTS["qualification"]
-DEFAULT_NIGHTLY = MACHINE_DEFAULTS["nightly"]
-
 
 # --------------------------------------------------------------------------- rafi settings
 
