@@ -19,6 +19,7 @@ configfile: "config.yaml"
 
 
 include: "workflow/rules/common.smk"
+include: "workflow/rules/report_common.smk"
 include: "workflow/rules/pipeline.smk"
 include: "workflow/rules/compare.smk"
 include: "workflow/rules/registry.smk"

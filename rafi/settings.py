@@ -205,7 +205,6 @@ def candidate_model_path(machine: str, results_dir: str | os.PathLike, source: s
     raise SettingsError(f"nightly.candidate is {source!r}; expected 'fit' or 'family'")
 
 
-
 # --------------------------------------------------------------------------- rafi settings
 
 

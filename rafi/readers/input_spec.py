@@ -17,10 +17,11 @@ import math
 import os
 import re
 import unicodedata
+from collections.abc import Iterable
 from pathlib import Path
 
 from rafi import REQUIRED_COLUMNS
-from rafi.errors import InputSpecError
+from rafi.errors import InputSpecError, RawFormatError
 
 # --------------------------------------------------------------------------- the input: mapping
 
@@ -355,3 +356,69 @@ def has_braces(path: str | os.PathLike) -> bool:
     """True if ``path`` holds ``{`` or ``}`` (Snakemake cannot name it as an input)."""
     text = str(path)
     return "{" in text or "}" in text
+
+
+def discover_machines(
+    raw_dir: str | os.PathLike, input_spec_of, configured: Iterable[str] = ()
+) -> tuple[dict[str, dict[str, str]], list[str]]:
+    """The machines under ``raw_dir`` and their raw files, as the workflow plans them.
+
+    Parameters
+    ----------
+    raw_dir : str or os.PathLike
+        The folder of the machine folders.
+    input_spec_of : callable
+        ``machine -> input: mapping`` (the machine's resolved settings).
+    configured : iterable of str
+        Machines named under ``machines:`` in the config (a name with no folder is warned about).
+
+    Returns
+    -------
+    machines : dict
+        ``machine -> {log id: raw path}``, machines sorted; a folder with no matching file, a
+        hidden folder and a folder whose name holds a brace are left out.
+    warnings : list of str
+        What was left out, and why.
+
+    Raises
+    ------
+    rafi.errors.InputSpecError
+        A machine's ``input:`` mapping is invalid (names the machine).
+    rafi.errors.RawFormatError
+        Two raw files of a machine share a stem, so their outputs would collide.
+    """
+    root = Path(raw_dir)
+    found: dict[str, dict[str, str]] = {}
+    warnings: list[str] = []
+    if not root.is_dir():
+        return found, [f"raw_dir {str(root)!r} does not exist; no machines to process"]
+    folders = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
+    for folder in folders:
+        machine = folder.name
+        if has_braces(machine):
+            warnings.append(f"skipping machine folder {folder}: a machine name cannot hold {{ or }}")
+            continue
+        spec = input_spec_of(machine)
+        try:
+            paths = find_logs(folder, spec)
+        except InputSpecError as exc:
+            raise InputSpecError(f"machine {machine!r}: {exc}") from None
+        files: dict[str, str] = {}
+        for path in paths:
+            key = log_id(path.stem)
+            if key in files:
+                raise RawFormatError(
+                    path,
+                    f"same stem {path.stem!r} as {files[key]}; their outputs "
+                    f"(results/<machine>/clean/<stem>.*) would collide - rename one of them",
+                )
+            files[key] = str(path)
+        if not files:
+            pattern = normalise_input_spec(spec)["pattern"]
+            warnings.append(f"skipping machine folder {folder}: no file matches input.pattern {pattern!r}")
+            continue
+        found[machine] = files
+    names = {p.name for p in folders}
+    for machine in sorted(set(configured) - names):
+        warnings.append(f"config has settings for machine {machine!r} but {root / machine} does not exist")
+    return found, warnings

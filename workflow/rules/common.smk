@@ -16,10 +16,7 @@
 #   compare    comparison_path(name, machine), comparison_outputs(machine)
 #   registry   nightly_settings(machine), qualification_gates(machine),
 #              registry_path(name, machine), candidate_model(wildcards), nightly_targets()
-#   report     report_inputs(wildcards), report_settings(machine), REPORT_MODEL_TABLES,
-#              report_table_path(name, machine), REPORT_FIGURE_GROUPS,
-#              report_figures_path(group, machine), report_figure_inputs(wildcards),
-#              report_figure_settings(wildcards)
+#   report     workflow/rules/report_common.smk
 
 import importlib.util
 import logging
@@ -30,8 +27,8 @@ from snakemake.exceptions import WorkflowError
 
 # What planning needs is standard library only (no NumPy/pandas to import on every invocation).
 import rafi.settings as _settings
-from rafi.errors import SettingsError
-from rafi.readers.input_spec import find_logs, has_braces, log_id
+from rafi.errors import InputSpecError, RawFormatError, SettingsError
+from rafi.readers.input_spec import discover_machines, has_braces
 from rafi.readers.quarantine import still_quarantined
 from rafi.ops.code_deps import code_files
 from snakemake.utils import validate
@@ -84,61 +81,20 @@ def model_provenance(machine):
     return _settings.model_provenance(machine_config(machine))
 
 
-def _patterns(machine):
-    pattern = machine_config(machine)["input"]["pattern"]
-    return [pattern] if isinstance(pattern, str) else list(pattern)
-
-
 # --------------------------------------------------------------------------- discovery
 
 
-def _find_logs(folder, machine):
-    """Raw files of one machine folder: ``rafi.readers.input_spec.find_logs`` (= ``rafi.readers.input_spec.find_logs``;
-    it also validates the machine's input mapping)."""
-    try:
-        return find_logs(folder, machine_config(machine)["input"])
-    except ValueError as exc:  # rafi.errors.InputSpecError: a bad input: mapping
-        raise WorkflowError(f"RAFI: machine {machine!r}: {exc}") from None
-
-
 def _discover():
-    """Map machine -> {log id: raw path} from the folders of ``raw_dir``.
-
-    Re-evaluated on every Snakemake invocation, so a new folder or file is picked
-    up on the next run without editing the config. Hidden entries are ignored;
-    a folder with no file matching the machine's ``input.pattern`` is skipped
-    with a warning.
-    """
-    found = {}
-    if not RAW_DIR.is_dir():
-        _log.warning("RAFI: raw_dir %r does not exist; no machines to process", str(RAW_DIR))
-        return found
-    for folder in sorted(p for p in RAW_DIR.iterdir() if p.is_dir() and not p.name.startswith(".")):
-        machine = folder.name
-        if has_braces(machine):
-            _log.warning("RAFI: skipping machine folder %s: a machine name cannot hold { or }", folder)
-            continue
-        patterns = _patterns(machine)
-        files = {}
-        for path in _find_logs(folder, machine):
-            key = log_id(path.stem)
-            if key in files:
-                raise WorkflowError(
-                    f"RAFI: {path} and {files[key]} have the same stem {path.stem!r}; "
-                    f"results/<machine>/clean/<stem>.parquet would collide - rename one of them"
-                )
-            files[key] = str(path)
-        if not files:
-            _log.warning(
-                "RAFI: skipping machine folder %s: no file matches input.pattern %s", folder, patterns
-            )
-            continue
-        found[machine] = files
-    unknown = set(config.get("machines") or {}) - {p.name for p in RAW_DIR.iterdir() if p.is_dir()}
-    for machine in sorted(unknown):
-        _log.warning(
-            "RAFI: config has settings for machine %r but %s/%s does not exist", machine, RAW_DIR, machine
+    """Machine -> {log id: raw path} (``rafi.readers.input_spec.discover_machines``), read anew
+    on every invocation, so a new folder or file is picked up without editing the config."""
+    try:
+        found, warnings = discover_machines(
+            RAW_DIR, lambda m: machine_config(m)["input"], configured=config.get("machines") or {}
         )
+    except (InputSpecError, RawFormatError) as exc:
+        raise WorkflowError(f"RAFI: {exc}") from None
+    for warning in warnings:
+        _log.warning("RAFI: %s", warning)
     return found
 
 
@@ -358,128 +314,6 @@ def nightly_targets():
         if _report_wanted():
             targets += list(report_paths(m).values())
     return targets
-
-
-# --------------------------------------------------------------------------- report
-
-#: Tables of design.md the report reads (not runs.parquet: what the report shows from it comes
-#: from rule report_tables and report_figures).
-REPORT_TABLES = (
-    "audit",
-    "runs_csv",
-    "equilibrium",
-    "correlation",
-    "key_sensors",
-    "key_sensors_json",
-    "collinearity",
-    "coefficients",
-    "diagnostics",
-    "model",
-    "validation_summary",
-    "residuals",
-)
-
-#: Outputs of report_tables under ``results/<machine>/report/`` - what the report shows from
-#: evaluating the model (rafi.report.tables).
-REPORT_MODEL_TABLES = {
-    "training_fit": "training_fit.parquet",
-    "training_fit_rmse": "training_fit.csv",
-    "fuzzy_example": "fuzzy_example.json",
-}
-
-
-#: Figure groups of rule report_figures - the inputs each draws from, the names of
-#: rafi.report.figures.FIGURE_GROUPS (rafi.report.figures.draw_group checks that it gets
-#: every one; the report package is not imported here, it would load pandas).
-REPORT_FIGURE_GROUPS = {
-    "pipeline": (
-        "runs_csv",
-        "runs_parquet",
-        "equilibrium",
-        "correlation",
-        "key_sensors",
-        "key_sensors_json",
-        "collinearity",
-        "model",
-        "validation_summary",
-        "residuals",
-        "training_fit",
-        "fuzzy_example",
-    ),
-    "comparison": ("comparison", "comparison_per_run", "comparison_residuals"),
-}
-
-_COMPARISON_INPUTS = {
-    "comparison": "summary.csv",
-    "comparison_per_run": "per_run.csv",
-    "comparison_cv": "cv.csv",
-    "comparison_residuals": "residuals.parquet",
-}
-
-
-def report_table_path(name, machine="{machine}"):
-    """Path of an output of rule report_tables (a key of ``REPORT_MODEL_TABLES``)."""
-    return f"{RESULTS_DIR}/{machine}/report/{REPORT_MODEL_TABLES[name]}"
-
-
-def report_figures_path(group="{group}", machine="{machine}"):
-    """Folder of one figure group: ``results/<machine>/report/figures/<group>/`` (one PNG or
-    SVG file per figure and ``index.csv``)."""
-    return f"{RESULTS_DIR}/{machine}/report/figures/{group}"
-
-
-def _report_input(name, machine):
-    if name in _COMPARISON_INPUTS:
-        return comparison_path(_COMPARISON_INPUTS[name], machine)
-    if name in REPORT_MODEL_TABLES:
-        return report_table_path(name, machine)
-    return out(name, machine)
-
-
-def report_figure_inputs(wildcards):
-    """Named inputs of report_figures - the tables its group draws from, and the code."""
-    machine = wildcards.machine
-    inputs = {name: _report_input(name, machine) for name in REPORT_FIGURE_GROUPS[wildcards.group]}
-    inputs["code"] = rafi_code("report_figures")
-    inputs["glue"] = script_helpers()
-    return inputs
-
-
-def report_figure_settings(wildcards):
-    """The settings the figures of a group depend on: ``report.figure_format`` (both groups),
-    ``report.coolant_sensors`` (pipeline) and ``qualification`` (comparison: the gate lines)."""
-    shown = report_settings(wildcards.machine)
-    pipeline = wildcards.group == "pipeline"
-    return {
-        "report": {
-            "figure_format": shown["figure_format"],
-            "coolant_sensors": list(shown["coolant_sensors"]) if pipeline else [],
-        },
-        "qualification": {} if pipeline else dict(machine_config(wildcards.machine)["qualification"]),
-    }
-
-
-def report_inputs(wildcards):
-    """Named inputs of the report: the design.md tables, the tables of report_tables, the
-    model comparison, the registry decision, the figure folders, the code and the template."""
-    machine = wildcards.machine
-    inputs = {name: out(name, machine) for name in REPORT_TABLES}
-    inputs["training_fit_rmse"] = report_table_path("training_fit_rmse", machine)
-    inputs["fuzzy_example"] = report_table_path("fuzzy_example", machine)
-    for name in ("comparison", "comparison_per_run", "comparison_cv"):
-        inputs[name] = _report_input(name, machine)
-    inputs["decision"] = registry_path("decision.json", machine)
-    inputs["registry_comparison"] = registry_path("comparison.csv", machine)
-    inputs["figures"] = [report_figures_path(g, machine) for g in REPORT_FIGURE_GROUPS]
-    inputs["code"] = rafi_code("report")
-    inputs["glue"] = script_helpers()
-    inputs["template"] = str(RAFI_DIR / "report" / "templates" / "qualification.html.j2")
-    return inputs
-
-
-def report_settings(machine):
-    """``report:`` of ``machine`` (its effective settings)."""
-    return machine_config(machine)["report"]
 
 
 # --------------------------------------------------------------------------- bad input

@@ -1,0 +1,127 @@
+# Helpers of the qualification report (path and input functions only): what report_tables,
+# report_figures and report read. Uses common.smk (out, comparison_path, registry_path,
+# machine_config, rafi_code, script_helpers, RAFI_DIR, RESULTS_DIR); the Snakefile includes
+# this file after common.smk and before the rules.
+#   report_inputs(wildcards), report_settings(machine), REPORT_MODEL_TABLES,
+#   report_table_path(name, machine), REPORT_FIGURE_GROUPS, report_figures_path(group, machine),
+#   report_figure_inputs(wildcards), report_figure_settings(wildcards)
+
+
+#: Tables of design.md the report reads (not runs.parquet: what the report shows from it comes
+#: from rule report_tables and report_figures).
+REPORT_TABLES = (
+    "audit",
+    "runs_csv",
+    "equilibrium",
+    "correlation",
+    "key_sensors",
+    "key_sensors_json",
+    "collinearity",
+    "coefficients",
+    "diagnostics",
+    "model",
+    "validation_summary",
+    "residuals",
+)
+
+#: Outputs of report_tables under ``results/<machine>/report/`` - what the report shows from
+#: evaluating the model (rafi.report.tables).
+REPORT_MODEL_TABLES = {
+    "training_fit": "training_fit.parquet",
+    "training_fit_rmse": "training_fit.csv",
+    "fuzzy_example": "fuzzy_example.json",
+}
+
+
+#: Figure groups of rule report_figures - the inputs each draws from, the names of
+#: rafi.report.figures.FIGURE_GROUPS (rafi.report.figures.draw_group checks that it gets
+#: every one; the report package is not imported here, it would load pandas).
+REPORT_FIGURE_GROUPS = {
+    "pipeline": (
+        "runs_csv",
+        "runs_parquet",
+        "equilibrium",
+        "correlation",
+        "key_sensors",
+        "key_sensors_json",
+        "collinearity",
+        "model",
+        "validation_summary",
+        "residuals",
+        "training_fit",
+        "fuzzy_example",
+    ),
+    "comparison": ("comparison", "comparison_per_run", "comparison_residuals"),
+}
+
+_COMPARISON_INPUTS = {
+    "comparison": "summary.csv",
+    "comparison_per_run": "per_run.csv",
+    "comparison_cv": "cv.csv",
+    "comparison_residuals": "residuals.parquet",
+}
+
+
+def report_table_path(name, machine="{machine}"):
+    """Path of an output of rule report_tables (a key of ``REPORT_MODEL_TABLES``)."""
+    return f"{RESULTS_DIR}/{machine}/report/{REPORT_MODEL_TABLES[name]}"
+
+
+def report_figures_path(group="{group}", machine="{machine}"):
+    """Folder of one figure group: ``results/<machine>/report/figures/<group>/`` (one PNG or
+    SVG file per figure and ``index.csv``)."""
+    return f"{RESULTS_DIR}/{machine}/report/figures/{group}"
+
+
+def _report_input(name, machine):
+    if name in _COMPARISON_INPUTS:
+        return comparison_path(_COMPARISON_INPUTS[name], machine)
+    if name in REPORT_MODEL_TABLES:
+        return report_table_path(name, machine)
+    return out(name, machine)
+
+
+def report_figure_inputs(wildcards):
+    """Named inputs of report_figures - the tables its group draws from, and the code."""
+    machine = wildcards.machine
+    inputs = {name: _report_input(name, machine) for name in REPORT_FIGURE_GROUPS[wildcards.group]}
+    inputs["code"] = rafi_code("report_figures")
+    inputs["glue"] = script_helpers()
+    return inputs
+
+
+def report_figure_settings(wildcards):
+    """The settings the figures of a group depend on: ``report.figure_format`` (both groups),
+    ``report.coolant_sensors`` (pipeline) and ``qualification`` (comparison: the gate lines)."""
+    shown = report_settings(wildcards.machine)
+    pipeline = wildcards.group == "pipeline"
+    return {
+        "report": {
+            "figure_format": shown["figure_format"],
+            "coolant_sensors": list(shown["coolant_sensors"]) if pipeline else [],
+        },
+        "qualification": {} if pipeline else dict(machine_config(wildcards.machine)["qualification"]),
+    }
+
+
+def report_inputs(wildcards):
+    """Named inputs of the report: the design.md tables, the tables of report_tables, the
+    model comparison, the registry decision, the figure folders, the code and the template."""
+    machine = wildcards.machine
+    inputs = {name: out(name, machine) for name in REPORT_TABLES}
+    inputs["training_fit_rmse"] = report_table_path("training_fit_rmse", machine)
+    inputs["fuzzy_example"] = report_table_path("fuzzy_example", machine)
+    for name in ("comparison", "comparison_per_run", "comparison_cv"):
+        inputs[name] = _report_input(name, machine)
+    inputs["decision"] = registry_path("decision.json", machine)
+    inputs["registry_comparison"] = registry_path("comparison.csv", machine)
+    inputs["figures"] = [report_figures_path(g, machine) for g in REPORT_FIGURE_GROUPS]
+    inputs["code"] = rafi_code("report")
+    inputs["glue"] = script_helpers()
+    inputs["template"] = str(RAFI_DIR / "report" / "templates" / "qualification.html.j2")
+    return inputs
+
+
+def report_settings(machine):
+    """``report:`` of ``machine`` (its effective settings)."""
+    return machine_config(machine)["report"]
