@@ -28,6 +28,7 @@ from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
 from rafi.family.ridge_global import RidgeGlobal
 from rafi.method.validate import qualify, validate_runs
+from rafi.settings import MACHINE_DEFAULTS
 
 KINDS = {
     "rafi": PublishedRafi,
@@ -46,6 +47,8 @@ def make_model(
     reference: dict,
     machine: str | None,
     options: dict,
+    hac_maxlags: int = MACHINE_DEFAULTS["fit"]["hac_maxlags"],
+    speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
 ):
     """An unfitted model of ``kind`` built from a machine's settings.
 
@@ -64,14 +67,18 @@ def make_model(
     options : dict
         The machine's complete ``models:`` settings (:data:`rafi.settings.MACHINE_DEFAULTS`
         with the machine's changes); every key this kind reads must be present.
+    hac_maxlags : int
+        ``fit: hac_maxlags`` (kinds ``rafi``, ``rafi_linear``).
+    speed_tolerance_rpm : float
+        The machine's ``speed_tolerance_rpm`` (every kind).
     """
     o = options
-    common = {"reference": reference, "machine": machine}
+    common = {"reference": reference, "machine": machine, "speed_tolerance_rpm": speed_tolerance_rpm}
     ridge = {"alphas": o["ridge_alphas"], "cv": o["cv"], "speed_reference": o["speed_reference"], **common}
     if kind == "rafi":
-        return PublishedRafi(key_sensors=key_sensors, terms=terms, **common)
+        return PublishedRafi(key_sensors=key_sensors, terms=terms, hac_maxlags=hac_maxlags, **common)
     if kind == "rafi_linear":
-        return RafiLinear(key_sensors=key_sensors, **common)
+        return RafiLinear(key_sensors=key_sensors, hac_maxlags=hac_maxlags, **common)
     if kind == "ridge_global":
         return RidgeGlobal(cv_metric=o["cv_metric"], speed_gain=o["speed_gain"], **ridge)
     if kind == "dynamic":
@@ -304,6 +311,8 @@ def run_family(
     machine: str | None,
     options: dict,
     gates: dict,
+    hac_maxlags: int = MACHINE_DEFAULTS["fit"]["hac_maxlags"],
+    speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
     rafi_model=None,
     log=print,
 ) -> dict:
@@ -333,6 +342,8 @@ def run_family(
                 reference=reference,
                 machine=machine,
                 options=options,
+                hac_maxlags=hac_maxlags,
+                speed_tolerance_rpm=speed_tolerance_rpm,
             )
 
         t0 = time.perf_counter()

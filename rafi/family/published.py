@@ -33,6 +33,8 @@ class PublishedRafi(FamilyModel):
         Machine name recorded in the artefact.
     hac_maxlags : int
         ``fit: hac_maxlags`` (passed to ``fit_rafi``).
+    speed_tolerance_rpm : float
+        The machine's ``speed_tolerance_rpm`` (passed to ``fit_rafi``).
     """
 
     kind = "rafi"
@@ -45,12 +47,14 @@ class PublishedRafi(FamilyModel):
         reference: dict = MACHINE_DEFAULTS["reference"],
         machine: str | None = None,
         hac_maxlags: int = MACHINE_DEFAULTS["fit"]["hac_maxlags"],
+        speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
     ):
         self.key_sensors = key_sensors
         self.terms = terms
         self.reference = reference
         self.machine = machine
         self.hac_maxlags = hac_maxlags
+        self.speed_tolerance_rpm = speed_tolerance_rpm
 
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """Fit on the training runs of ``runs_table``; returns ``self``."""
@@ -66,6 +70,7 @@ class PublishedRafi(FamilyModel):
             hac_maxlags=int(self.hac_maxlags),
             reference=dict(self.reference),
             machine=self.machine,
+            speed_tolerance_rpm=float(self.speed_tolerance_rpm),
             diagnostics=False,
         )
         self.model_ = res.model

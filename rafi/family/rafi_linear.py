@@ -29,9 +29,11 @@ class RafiLinear(PublishedRafi):
         reference: dict = MACHINE_DEFAULTS["reference"],
         machine: str | None = None,
         hac_maxlags: int = MACHINE_DEFAULTS["fit"]["hac_maxlags"],
+        speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
     ):
         self.key_sensors = key_sensors
         self.terms = terms
         self.reference = reference
         self.machine = machine
         self.hac_maxlags = hac_maxlags
+        self.speed_tolerance_rpm = speed_tolerance_rpm

@@ -39,6 +39,7 @@ import pandas as pd
 from scipy.optimize import curve_fit
 
 from rafi.method import paper
+from rafi.settings import MACHINE_DEFAULTS
 
 
 @dataclass(frozen=True)
@@ -97,9 +98,9 @@ def equilibrium_time(
     t_s,
     dz_um,
     *,
-    band_fraction: float = 0.05,
-    plateau_window_s: float = 900.0,
-    smooth_window_s: float = 300.0,
+    band_fraction: float = MACHINE_DEFAULTS["equilibrium"]["band_fraction"],
+    plateau_window_s: float = MACHINE_DEFAULTS["equilibrium"]["plateau_window_s"],
+    smooth_window_s: float = MACHINE_DEFAULTS["equilibrium"]["smooth_window_s"],
     band_spread: float = 1.5,
     start_s: float | None = None,
 ) -> EquilibriumResult:
@@ -211,9 +212,9 @@ def equilibrium_table(
     runs_table: pd.DataFrame,
     runs_frame: pd.DataFrame,
     *,
-    band_fraction: float = 0.05,
-    plateau_window_s: float = 900.0,
-    smooth_window_s: float = 300.0,
+    band_fraction: float = MACHINE_DEFAULTS["equilibrium"]["band_fraction"],
+    plateau_window_s: float = MACHINE_DEFAULTS["equilibrium"]["plateau_window_s"],
+    smooth_window_s: float = MACHINE_DEFAULTS["equilibrium"]["smooth_window_s"],
 ) -> pd.DataFrame:
     """Time to thermal equilibrium of every training run (``equilibrium.csv``).
 

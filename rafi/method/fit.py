@@ -44,6 +44,7 @@ from rafi.method import paper
 from rafi.method.model import RafiModel, design_matrix, parse_terms
 from rafi.method.paper import paper_value
 from rafi.method.rank import training_speed_groups
+from rafi.settings import MACHINE_DEFAULTS
 
 __all__ = [
     "FitResult",
@@ -116,7 +117,15 @@ def _ols_coefficients(y: np.ndarray, design: np.ndarray) -> np.ndarray:
     return np.linalg.pinv(design, rcond=1e-15, hermitian=False) @ y
 
 
-def fit_speed(y, x, terms, *, groups=None, hac_maxlags: int = 60, diagnostics: bool = True) -> dict:
+def fit_speed(
+    y,
+    x,
+    terms,
+    *,
+    groups=None,
+    hac_maxlags: int = MACHINE_DEFAULTS["fit"]["hac_maxlags"],
+    diagnostics: bool = True,
+) -> dict:
     """Fit one speed's OLS and compute its coefficient table and diagnostics.
 
     Parameters
@@ -251,11 +260,11 @@ def fit_rafi(
     *,
     key_sensors,
     terms,
-    hac_maxlags: int = 60,
+    hac_maxlags: int = MACHINE_DEFAULTS["fit"]["hac_maxlags"],
     reference: dict | None = None,
     machine: str | None = None,
-    fuzzy_outside: str = "edge",
-    speed_tolerance_rpm: float = 50.0,
+    fuzzy_outside: str = MACHINE_DEFAULTS["fuzzy"]["outside"],
+    speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
     config: dict | None = None,
     diagnostics: bool = True,
 ) -> FitResult:

@@ -39,6 +39,7 @@ from rafi.artefact import (
     write_text_atomic,
 )
 from rafi.method.fuzzy import triangular_weights
+from rafi.settings import MACHINE_DEFAULTS
 
 __all__ = [
     "SCHEMA",
@@ -218,8 +219,8 @@ class RafiModel:
         *,
         reference: dict | None = None,
         machine: str | None = None,
-        fuzzy_outside: str = "edge",
-        speed_tolerance_rpm: float = 50.0,
+        fuzzy_outside: str = MACHINE_DEFAULTS["fuzzy"]["outside"],
+        speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
         temp_tolerance_k: float = 0.1,
         data: dict | None = None,
         config: dict | None = None,

@@ -38,6 +38,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
+from rafi.settings import MACHINE_DEFAULTS
 
 __all__ = ["RankResult", "rank_sensors", "training_speed_groups", "SPEED_GROUP_TOLERANCE_RPM"]
 
@@ -120,7 +121,9 @@ def _sensor_columns(runs_frame: pd.DataFrame) -> list[str]:
     return [s for s in SENSORS if f"d{s}" in runs_frame.columns]
 
 
-def _pearson(dt: np.ndarray, dz: np.ndarray, min_coverage: float = 0.9) -> np.ndarray:
+def _pearson(
+    dt: np.ndarray, dz: np.ndarray, min_coverage: float = MACHINE_DEFAULTS["rank"]["min_coverage"]
+) -> np.ndarray:
     """Pearson r of each column of ``dt`` [n, m] with ``dz`` [n] over the rows where
     both are finite; NaN if a column is finite in fewer than ``min_coverage`` of the
     rows or has (near) zero variance there."""
@@ -156,10 +159,10 @@ def rank_sensors(
     runs_table: pd.DataFrame,
     runs_frame: pd.DataFrame,
     *,
-    threshold: float = 0.97,
-    max_key_sensors: int = 3,
-    scope: str = "min_per_speed",
-    min_coverage: float = 0.9,
+    threshold: float = MACHINE_DEFAULTS["rank"]["threshold"],
+    max_key_sensors: int = MACHINE_DEFAULTS["rank"]["max_key_sensors"],
+    scope: str = MACHINE_DEFAULTS["rank"]["scope"],
+    min_coverage: float = MACHINE_DEFAULTS["rank"]["min_coverage"],
 ) -> RankResult:
     """Rank the temperature sensors by correlation with the displacement; pick key sensors.
 

@@ -60,6 +60,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
+from rafi.settings import MACHINE_DEFAULTS
 
 #: Roles a run can have (``docs/design.md``).
 ROLES = ("training", "validation_single", "validation_multi", "validation_idle", "excluded")
@@ -240,7 +241,7 @@ def find_runs(
     overrides,
     reference_rule: str,
     reference_window_s: float,
-    max_leading_rest_s: float = 300.0,
+    max_leading_rest_s: float = MACHINE_DEFAULTS["runs"]["max_leading_rest_s"],
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Find the runs of a machine's clean logs, classify them and compute the rises.
 

@@ -46,6 +46,7 @@ rule compare:
         models=lambda w: machine_config(w.machine)["models"],
         fit=lambda w: machine_config(w.machine)["fit"],
         reference=lambda w: machine_config(w.machine)["reference"],
+        speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],
         gates=lambda w: machine_config(w.machine)["qualification"],
     script:
         "../scripts/compare.py"

@@ -22,6 +22,8 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         machine=smk.params.machine,
         options=smk.params.models,
         gates=smk.params.gates,
+        hac_maxlags=smk.params.fit["hac_maxlags"],
+        speed_tolerance_rpm=smk.params.speed_tolerance_rpm,
         rafi_model=load_any(smk.input.model),
         log=lambda m: print(m, flush=True),
     )
