@@ -26,7 +26,7 @@ import pytest
 import yaml
 from markupsafe import escape
 
-from rafi.artefact import jsonable
+from rafi.artefact import compute_model_id, jsonable
 from rafi.report import figures, tables
 from rafi.report.context import build_context
 from rafi.report.format import equation_text, fmt_duration, fmt_num, fmt_p, fmt_sig, truthy
@@ -170,6 +170,9 @@ def _machine_b_like(src: Path, dst: Path) -> None:
             if "run_id" in f:
                 f["run_id"] = f["run_id"].astype(str).replace(B_RUN_IDS)
                 f.to_parquet(path)
+    model = json.loads((dst / "model.json").read_text(encoding="utf-8"))
+    model["model_id"] = compute_model_id(model)  # its train_runs were renamed above
+    (dst / "model.json").write_text(json.dumps(model, indent=2), encoding="utf-8")
     for rel in ("runs.csv", "validation/summary.csv", "comparison/per_run.csv", "registry/comparison.csv"):
         f = pd.read_csv(dst / rel)
         f.loc[f["run_id"] == B_IDLE, "role"] = "validation_idle"

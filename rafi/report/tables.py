@@ -34,8 +34,7 @@ def _model(doc: dict | None) -> RafiModel | None:
     """The RAFI model of ``model.json`` (``None`` without per-speed regressions)."""
     if not doc or not doc.get("speeds"):
         return None
-    # the id is the registry's concern; the report shows whatever model.json holds
-    return RafiModel.from_dict(doc, verify_id=False)
+    return RafiModel.from_dict(doc)
 
 
 def training_fit(doc: dict | None, runs: pd.DataFrame | None, frames: pd.DataFrame | None) -> pd.DataFrame:
