@@ -32,10 +32,9 @@ def _env(proj: Path) -> dict:
 
 
 def _run(proj: Path, *cmd: str) -> subprocess.CompletedProcess:
-    proc = subprocess.run(
+    return subprocess.run(
         [sys.executable, "-m", *cmd], cwd=proj, env=_env(proj), capture_output=True, text=True, timeout=900
     )
-    return proc
 
 
 def _outputs(proj: Path) -> dict[str, int]:

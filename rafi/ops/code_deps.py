@@ -31,11 +31,8 @@ def module_file(name: str, package_dir: Path) -> Path | None:
 
 
 def _package_of(path: Path, package_dir: Path) -> str:
-    rel = path.relative_to(package_dir).with_suffix("")
-    parts = ["rafi", *rel.parts]
-    if parts[-1] == "__init__":
-        return ".".join(parts[:-1])
-    return ".".join(parts[:-1])
+    """The package a source file belongs to (``rafi/a/b.py`` and ``rafi/a/__init__.py``: ``rafi.a``)."""
+    return ".".join(["rafi", *path.relative_to(package_dir).parent.parts])
 
 
 @functools.cache
@@ -46,7 +43,7 @@ def imported_modules(path: Path, package_dir: Path) -> frozenset[str]:
     relative imports are resolved against the file's package.
     """
     tree = ast.parse(Path(path).read_text(encoding="utf-8"))
-    inside = path.is_relative_to(package_dir) if isinstance(path, Path) else False
+    inside = path.is_relative_to(package_dir)
     names: set[str] = set()
     stack = list(tree.body)
     while stack:

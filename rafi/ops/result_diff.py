@@ -158,7 +158,7 @@ def diff_trees(old: Path, new: Path, rtol: float = 0.0) -> dict[str, list[str]]:
         return {
             str(p.relative_to(root)): p
             for p in root.rglob("*")
-            if p.is_file() and not _skipped(str(p.relative_to(root)) + ("/" if p.is_dir() else ""))
+            if p.is_file() and not _skipped(str(p.relative_to(root)))
         }
 
     a, b = files(old), files(new)
