@@ -50,7 +50,7 @@ EXPECTED = [
     (3, 3, "idle", "excluded"),
     (4, 4, "constant", "validation_single"),
     (5, 5, "idle", "validation_idle"),
-    (6, 6, "constant", "training"),
+    (6, 6, "constant", "validation_single"),  # at a training speed, but after the 4500 validation run
     (7, 7, "idle", "validation_idle"),
     (8, 12, "varying", "validation_multi"),
 ]
@@ -84,13 +84,14 @@ def test_continuous_log_boundaries_and_roles(ramp, noise):
         slack = 5.0 * max(2, ramp)
         assert abs(row.start_s - pieces["start_s"][p0]) <= slack, row
         assert abs(row.end_s - pieces["end_s"][p1]) <= slack, row
-        assert row.role_source == "auto" and row.file == "cont" and row.sha256 == "sha-cont"
+        expected_source = "leak_guard" if row.Index == 6 else "auto"
+        assert row.role_source == expected_source and row.file == "cont" and row.sha256 == "sha-cont"
     # runs tile the log: no sample lost or counted twice
     assert table["duration_s"].sum() == len(frame) * 5.0 and len(rf) == len(frame)
     assert np.all(table["start_s"].to_numpy()[1:] == table["end_s"].to_numpy()[:-1] + 5.0)
     constant = table[table["kind"] == "constant"]
     np.testing.assert_allclose(constant["speed_rpm"], [3000, 6000, 4500, 9000], atol=noise + 1)
-    assert "min_run_s" in table.loc[3, "note"]
+    assert "min_run_s" in table.loc[3, "role_reason"]
     tail = table.iloc[-1]
     assert tail["speed_min_rpm"] <= 0.0 + noise and tail["speed_max_rpm"] >= 12000 - noise
 
@@ -140,7 +141,7 @@ def test_overrides_by_stem_and_by_run_id():
     table, _ = runs({"a": a, "b": b}, overrides={"a": "excluded", "b#3": "validation_single"})
     t = table.set_index("run_id")
     assert t.loc["a", "role"] == "excluded" and t.loc["a", "role_source"] == "config"
-    assert "automatic role: training" in t.loc["a", "note"]
+    assert "otherwise: training" in t.loc["a", "role_reason"]
     assert t.loc["b#3", "role"] == "validation_single" and t.loc["b#3", "role_source"] == "config"
     assert t.loc["b#1", "role"] == "training" and t.loc["b#1", "role_source"] == "auto"
     with pytest.raises(ValueError, match="not one of"):
@@ -286,3 +287,166 @@ def test_rest_at_the_start_of_a_later_segment_is_absorbed_too():
     assert table["start_s"].tolist() == [0.0, 2 * H + 600]
     assert "rest before start: 120 s" in table["note"].iloc[1]
     assert rf.loc[rf["run_id"] == "log#2", "speed_rpm"].iloc[0] == 0.0
+
+
+# ----------------------------------------------------------------- roles by time windows
+
+#: a continuous log: training speeds, cool-downs, a validation speed, then a tail of 1 h steps
+#: at training speeds (the case that leaked: each step is exactly min_constant_s long)
+CHRONO = [
+    (3000, 4 * H),
+    (0, 3 * H),
+    (6000, 4 * H),
+    (0, 3 * H),
+    (4500, 3 * H),
+    (0, 2 * H),
+    (9000, H),
+    (6000, H),
+    (3000, H),
+]
+SPAN_S = sum(d for _, d in CHRONO) - 5.0  # first to last sample
+
+
+def test_tail_after_validation_never_trains_with_automatic_roles():
+    frame, pieces = schedule_log(CHRONO)
+    table, _ = runs({"log": frame})
+    tail = table[table["start_s"] >= pieces["start_s"][6] - 10]
+    assert len(tail) == 3 and set(tail["kind"]) == {"constant"}
+    # at training speeds and exactly min_constant_s long, but after the 4500 r/min validation run
+    assert set(tail["role"]) == {"validation_single"} and set(tail["role_source"]) == {"leak_guard"}
+    assert tail["role_reason"].str.contains("leak guard").all()
+    assert table.loc[table["start_s"] < pieces["start_s"][4], "role"].tolist() == [
+        "training",
+        "validation_idle",
+        "training",
+        "validation_idle",
+    ]
+
+
+def test_fraction_window_cuts_runs_at_the_boundary():
+    frame, _ = schedule_log(CHRONO)
+    split = 0.4  # 9.2 h: inside the 6000 r/min run (7-11 h), which is cut there
+    windows = [
+        {"role": "training", "end": split, "unit": "fraction"},
+        {"role": "validation", "start": split, "unit": "fraction"},
+    ]
+    table, rf = runs({"log": frame}, windows=windows)
+    boundary = split * SPAN_S
+    # no run spans the boundary, and every sample is in exactly one run
+    assert not ((table["start_s"] < boundary - 1e-6) & (table["end_s"] >= boundary)).any()
+    assert len(rf) == len(frame) and table["duration_s"].sum() == len(frame) * 5.0
+    before = table[table["end_s"] < boundary]
+    after = table[table["start_s"] >= boundary]
+    assert (before["role_source"] == "window").all() and (after["role_source"] == "window").all()
+    # idle runs inside the training window are excluded (idle_training is false)
+    assert set(before["role"]) == {"training", "excluded"}
+    assert (before.loc[before["kind"] == "idle", "role"] == "excluded").all()
+    assert set(after["role"]) <= {"validation_single", "validation_idle"}
+    # the cut 6000 r/min run: its two parts keep their kind and get the window's role
+    cut = table[(table["kind"] == "constant") & (table["speed_rpm"].round() == 6000)]
+    assert cut["role"].tolist()[:2] == ["training", "validation_single"]
+    assert "training window start-40 % of the log" in cut["role_reason"].iloc[0]
+    # the frame carries the log's clock: log_t_s is the clean frame's t_s, in order
+    np.testing.assert_array_equal(rf["log_t_s"].to_numpy(), frame["t_s"].to_numpy())
+    assert set(rf["log"]) == {"log"} and (rf["segment"] == 0).all()
+
+
+def test_window_units_agree():
+    frame, _ = schedule_log(CHRONO)
+    edge_s = 0.4 * SPAN_S
+    t0 = pd.Timestamp(frame["time"].iloc[0])
+    as_time = (t0 + pd.Timedelta(seconds=edge_s)).isoformat()
+    tables = []
+    for unit, value in (("fraction", 0.4), ("elapsed_s", edge_s), ("time", as_time)):
+        windows = [
+            {"role": "training", "end": value, "unit": unit},
+            {"role": "validation", "start": value, "unit": unit},
+        ]
+        table, _ = runs({"log": frame}, windows=windows)
+        tables.append(table[["run_id", "start_s", "end_s", "role"]])
+    pd.testing.assert_frame_equal(tables[0], tables[1])
+    pd.testing.assert_frame_equal(tables[0], tables[2])
+
+
+def test_idle_training_makes_cool_downs_training_runs():
+    frame, _ = schedule_log(CHRONO)
+    windows = [
+        {"role": "training", "end": 0.5, "unit": "fraction"},
+        {"role": "validation", "start": 0.5, "unit": "fraction"},
+    ]
+    table, _ = runs({"log": frame}, windows=windows, idle_training=True)
+    early = table[table["end_s"] < 0.5 * SPAN_S]
+    assert (early.loc[early["kind"] == "idle", "role"] == "training").all()
+    # automatic roles: cool-downs become training runs too
+    table, _ = runs({"log": frame}, idle_training=True)
+    assert (table.loc[(table["kind"] == "idle") & (table["start_s"] < 14 * H), "role"] == "training").all()
+
+
+def test_leak_guard_refuses_training_window_after_validation_window():
+    from rafi.errors import SettingsError
+
+    frame, _ = schedule_log(CHRONO)
+    unsafe = [
+        {"role": "validation", "end": 0.3, "unit": "fraction"},
+        {"role": "training", "start": 0.3, "unit": "fraction"},
+    ]
+    with pytest.raises(SettingsError) as err:
+        runs({"log": frame}, windows=unsafe)
+    text = str(err.value)
+    assert "log log: training run" in text and "runs.allow_training_after_validation" in text
+    assert "lies after or overlaps validation run" in text
+    table, _ = runs({"log": frame}, windows=unsafe, allow_training_after_validation=True)
+    trained = table[table["role"] == "training"]
+    assert (
+        len(trained) and trained["note"].str.contains("allowed by runs.allow_training_after_validation").all()
+    )
+    # a run-id override that trains after validation is refused the same way
+    table, _ = runs({"log": frame})
+    late = table.loc[table["role"] == "validation_single", "run_id"].iloc[-1]
+    with pytest.raises(SettingsError, match="runs.allow_training_after_validation"):
+        runs({"log": frame}, overrides={late: "training"})
+
+
+@pytest.mark.parametrize(
+    "windows,match",
+    [
+        (
+            [
+                {"role": "training", "end": 0.6, "unit": "fraction"},
+                {"role": "validation", "start": 0.5, "unit": "fraction"},
+            ],
+            "overlap",
+        ),
+        ([{"role": "train", "end": 0.6}], "role 'train'"),
+        ([{"role": "training", "end": 1.5, "unit": "fraction"}], "between 0 and 1"),
+        ([{"role": "training", "end": 10, "unit": "hours"}], "unit 'hours'"),
+        ([{"role": "training", "stop": 10}], "unknown key"),
+        ([{"role": "training", "start": 7200, "end": 3600}], "end is not after start"),
+    ],
+)
+def test_bad_windows_are_refused_naming_the_entry(windows, match):
+    from rafi.errors import SettingsError
+
+    frame, _ = schedule_log(CHRONO)
+    with pytest.raises(SettingsError, match=match):
+        runs({"log": frame}, windows=windows)
+
+
+def test_time_window_on_a_log_without_a_clock_is_refused():
+    from rafi.errors import SettingsError
+
+    frame, _ = schedule_log(CHRONO)
+    with pytest.raises(SettingsError, match="has no clock"):
+        runs(
+            {"log": frame.drop(columns=["time"])},
+            windows=[{"role": "training", "end": "2026-01-01T00:00:00", "unit": "time"}],
+        )
+
+
+def test_window_applies_to_matching_logs_only():
+    a, _ = schedule_log(CHRONO)
+    b, _ = schedule_log(CHRONO, seed=1)
+    windows = [{"role": "excluded", "unit": "fraction", "log": "b*"}]
+    table, _ = runs({"a": a, "b": b}, windows=windows)
+    assert (table.loc[table["file"] == "b", "role"] == "excluded").all()
+    assert (table.loc[table["file"] == "a", "role_source"] != "window").all()

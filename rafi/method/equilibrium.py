@@ -39,6 +39,7 @@ import pandas as pd
 from scipy.optimize import curve_fit
 
 from rafi.method import paper
+from rafi.method.rank import speed_training_runs
 from rafi.settings import MACHINE_DEFAULTS
 
 
@@ -249,7 +250,7 @@ def equilibrium_table(
         f"start (first sample at >= half the run's median speed)"
     )
     rows = []
-    training = runs_table[runs_table["role"] == "training"] if len(runs_table) else runs_table
+    training = speed_training_runs(runs_table) if len(runs_table) else runs_table
     groups = runs_frame.groupby("run_id", sort=False).indices if len(runs_frame) else {}
     t_all = runs_frame["t_s"].to_numpy(dtype=float) if len(runs_frame) else np.array([])
     z_all = runs_frame["dz_um"].to_numpy(dtype=float, na_value=np.nan) if len(runs_frame) else np.array([])

@@ -43,7 +43,7 @@ import pandas as pd
 from rafi.method import paper
 from rafi.method.model import RafiModel, design_matrix, parse_terms
 from rafi.method.paper import paper_value
-from rafi.method.rank import training_speed_groups
+from rafi.method.rank import speed_training_runs, training_speed_groups
 from rafi.settings import MACHINE_DEFAULTS
 
 __all__ = [
@@ -322,7 +322,7 @@ def fit_rafi(
 
     data: dict[str, str] = {}
     if {"file", "sha256"} <= set(runs_table.columns):
-        train = runs_table.loc[runs_table["role"].astype(str) == "training"]
+        train = speed_training_runs(runs_table)
         for f, h in zip(train["file"], train["sha256"]):
             if pd.notna(f):
                 data[str(f)] = None if pd.isna(h) else str(h)

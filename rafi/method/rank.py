@@ -40,7 +40,13 @@ import pandas as pd
 from rafi import SENSORS
 from rafi.settings import MACHINE_DEFAULTS
 
-__all__ = ["RankResult", "rank_sensors", "training_speed_groups", "SPEED_GROUP_TOLERANCE_RPM"]
+__all__ = [
+    "RankResult",
+    "rank_sensors",
+    "speed_training_runs",
+    "training_speed_groups",
+    "SPEED_GROUP_TOLERANCE_RPM",
+]
 
 SPEED_GROUP_TOLERANCE_RPM = 50.0
 """Training runs whose ``speed_rpm`` differ by at most this are one training speed."""
@@ -79,12 +85,22 @@ def _speed_label(v: float) -> int | float:
     return int(r) if abs(v - r) < 1e-9 else v
 
 
+def speed_training_runs(runs_table: pd.DataFrame) -> pd.DataFrame:
+    """The training runs RAFI as published learns from: ``role == "training"`` and, where the
+    table has a ``kind``, constant speed (idle cool-downs and varying stretches that a time
+    window or ``runs.idle_training`` made training runs are for the family's models only)."""
+    train = runs_table.loc[runs_table["role"].astype(str) == "training"]
+    if "kind" in train.columns:
+        train = train.loc[~train["kind"].astype(str).isin(["idle", "varying"])]
+    return train
+
+
 def training_speed_groups(
     runs_table: pd.DataFrame, *, tolerance_rpm: float = SPEED_GROUP_TOLERANCE_RPM
 ) -> dict:
     """Group the training runs by training speed.
 
-    Runs with ``role == "training"`` are sorted by ``speed_rpm``; a run joins the
+    Runs of :func:`speed_training_runs` are sorted by ``speed_rpm``; a run joins the
     current group if its speed is within ``tolerance_rpm`` of the group's first
     run. The group's label is its median speed rounded to an integer r/min (the
     runs step normally already reports the nominal speed).
@@ -102,7 +118,7 @@ def training_speed_groups(
     for col in ("run_id", "role", "speed_rpm"):
         if col not in runs_table.columns:
             raise ValueError(f"runs_table lacks column {col!r}")
-    train = runs_table.loc[runs_table["role"].astype(str) == "training", ["run_id", "speed_rpm"]]
+    train = speed_training_runs(runs_table)[["run_id", "speed_rpm"]]
     train = train.dropna(subset=["speed_rpm"])
     if train.empty:
         raise ValueError("runs_table has no runs with role 'training' (and a speed)")

@@ -60,6 +60,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
+from rafi.method.windows import check_windows, cut_points, leak_check, resolve_windows, window_of
 from rafi.settings import MACHINE_DEFAULTS
 
 #: Roles a run can have (``docs/design.md``).
@@ -82,6 +83,9 @@ RUNS_TABLE_COLUMNS = (
     "reference",
     "sha256",
     "note",
+    "role_reason",
+    "start_time",
+    "end_time",
 )
 
 #: Columns of ``runs.parquet``, in order.
@@ -94,6 +98,9 @@ RUNS_FRAME_COLUMNS = (
     "disp_um",
     *(f"d{s}" for s in SENSORS),
     "dz_um",
+    "log",
+    "log_t_s",
+    "segment",
 )
 
 #: Width (s) of the centred rolling median applied to the speed before cutting it into
@@ -242,6 +249,9 @@ def find_runs(
     reference_rule: str,
     reference_window_s: float,
     max_leading_rest_s: float = MACHINE_DEFAULTS["runs"]["max_leading_rest_s"],
+    windows=MACHINE_DEFAULTS["runs"]["windows"],
+    idle_training: bool = MACHINE_DEFAULTS["runs"]["idle_training"],
+    allow_training_after_validation: bool = MACHINE_DEFAULTS["runs"]["allow_training_after_validation"],
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Find the runs of a machine's clean logs, classify them and compute the rises.
 
@@ -273,6 +283,17 @@ def find_runs(
     max_leading_rest_s : float
         An idle stretch at the start of a segment shorter than this (s) is the rest before
         the start of the following run and is absorbed into it (``0``: never).
+    windows : sequence of mapping
+        ``runs: windows:``, roles by time (:mod:`rafi.method.windows`); runs are cut where a
+        window starts or ends. A run in a window gets the window's role (``role_source =
+        'window'``); run-id overrides still win.
+    idle_training : bool
+        Idle runs (cool-downs) that would be validation (automatic role) or lie in a training
+        window are ``training`` runs (the family's models learn the cool-down; RAFI as
+        published ignores idle training runs).
+    allow_training_after_validation : bool
+        Accept configured training data after validation data of the same log (the leak guard,
+        :func:`rafi.method.windows.leak_check`, otherwise refuses it).
 
     Returns
     -------
@@ -289,6 +310,9 @@ def find_runs(
     ------
     ValueError
         On an unknown ``reference_rule`` or an override with an unknown role.
+    rafi.errors.SettingsError
+        A bad or overlapping window, or configured training data after validation data of the
+        same log (unless ``allow_training_after_validation``).
     """
     if reference_rule not in REFERENCE_RULES:
         raise ValueError(
@@ -301,6 +325,7 @@ def find_runs(
     train = np.asarray(sorted(float(s) for s in (training_speeds_rpm or [])), dtype=float)
     tol = float(speed_tolerance_rpm)
     window = float(reference_window_s)
+    windows = check_windows(windows)
 
     rows: list[dict] = []
     parts: dict[str, list] = {c: [] for c in RUNS_FRAME_COLUMNS}
@@ -345,7 +370,10 @@ def find_runs(
                 max_leading_rest_s=float(max_leading_rest_s),
             ):
                 found.append((int(seg[s0]), int(s0), int(s1), int(s0 + a), int(s0 + b), kind, int(rest)))
+        log_windows = resolve_windows(windows, str(key), t_s, times)
+        found = _cut_at(found, cut_points(log_windows, t_s))
 
+        first_row = len(rows)
         for k, (segment, s0, s1, a, b, kind, rest) in enumerate(found, start=1):
             run_id = stem if len(found) == 1 else f"{stem}#{k}"
             sp = speed[a:b]
@@ -358,21 +386,19 @@ def find_runs(
                     f"rest before start: {rest * period:g} s at rest absorbed (reference "
                     "state = cold machine at rest)"
                 )
-            if duration < float(min_run_s) - 1e-9:
-                auto = "excluded"
-                notes.append(f"shorter than min_run_s ({duration:g} s < {float(min_run_s):g} s)")
-            elif kind == "constant":
-                near = len(train) and np.min(np.abs(train - med)) <= tol + 1e-9
-                auto = "training" if near else "validation_single"
-            elif kind == "varying":
-                auto = "validation_multi"
-            else:
-                auto = "validation_idle"
+            auto, reason = _auto_role(
+                kind, med, duration, train, tol, float(min_run_s), float(idle_below_rpm)
+            )
+            if auto == "validation_idle" and idle_training:
+                auto, reason = "training", reason + "; idle cool-down used for training (runs.idle_training)"
             role, source = auto, "auto"
+            win = window_of(log_windows, float(t_s[a]))
+            if win is not None:
+                role, source, reason = _window_role(win, kind, duration, float(min_run_s), idle_training)
             for okey in (run_id, stem, str(key)):
                 if okey in overrides:
+                    reason = f"run-id override {okey!r} in runs.overrides (otherwise: {role}, {reason})"
                     role, source = overrides[okey], "config"
-                    notes.append(f"role set by config override {okey!r} (automatic role: {auto})")
                     break
 
             # reference state
@@ -410,6 +436,9 @@ def find_runs(
                     "reference": ref_text,
                     "sha256": str(sha256.get(key, sha256.get(stem, ""))),
                     "note": "; ".join(notes),
+                    "role_reason": reason,
+                    "start_time": _iso(times[a]),
+                    "end_time": _iso(times[b - 1]),
                 }
             )
             n = b - a
@@ -422,6 +451,10 @@ def find_runs(
                 parts[f"d{s}"].append(temps[a:b, i] - ref_T[i])
             parts["disp_um"].append(disp[a:b])
             parts["dz_um"].append(disp[a:b] - ref_z)
+            parts["log"].append((str(key), n))
+            parts["log_t_s"].append(t_s[a:b])
+            parts["segment"].append(seg[a:b])
+        rows[first_row:] = _guard_log(rows[first_row:], allow_training_after_validation)
 
     table = pd.DataFrame(rows, columns=list(RUNS_TABLE_COLUMNS))
     table = table.astype(
@@ -436,6 +469,7 @@ def find_runs(
         }
     )
     ids = parts.pop("run_id")
+    logs = parts.pop("log")
     data = {
         "run_id": pd.Categorical.from_codes(
             np.repeat(np.arange(len(ids)), [n for _, n in ids]), categories=[r for r, _ in ids]
@@ -443,7 +477,14 @@ def find_runs(
         if ids
         else pd.array([], dtype="str")
     }
+    data["log"] = (
+        np.repeat(np.array([k for k, _ in logs], dtype=object), [n for _, n in logs])
+        if logs
+        else np.array([], dtype=object)
+    )
     for c in RUNS_FRAME_COLUMNS[1:]:
+        if c == "log":
+            continue
         if parts[c]:
             data[c] = np.concatenate(parts[c])
         else:
@@ -451,4 +492,60 @@ def find_runs(
                 [], dtype="datetime64[ns]" if c == "time" else (object if c == "run_id" else float)
             )
     frame = pd.DataFrame(data, columns=list(RUNS_FRAME_COLUMNS))
+    frame["segment"] = frame["segment"].astype("int64")
     return table, frame
+
+
+def _iso(value) -> str:
+    return "" if pd.isna(value) else pd.Timestamp(value).isoformat()
+
+
+def _cut_at(found: list, cuts: np.ndarray) -> list:
+    """``found`` runs split at the sample indices ``cuts`` (window boundaries)."""
+    out = []
+    for segment, s0, s1, a, b, kind, rest in found:
+        inner = [int(c) for c in cuts if a < c < b]
+        for x, y in zip([a, *inner], [*inner, b]):
+            out.append((segment, s0, s1, x, y, kind, min(rest, y - x) if x == a else 0))
+    return out
+
+
+def _auto_role(kind, speed, duration, train, tol, min_run_s, idle_below) -> tuple[str, str]:
+    """The automatic role of a run and why, in words."""
+    if duration < min_run_s - 1e-9:
+        return "excluded", f"shorter than runs.min_run_s ({duration:g} s < {min_run_s:g} s)"
+    if kind == "constant":
+        if len(train) and np.min(np.abs(train - speed)) <= tol + 1e-9:
+            return "training", f"constant at {speed:.0f} r/min, a training speed"
+        return "validation_single", f"constant at {speed:.0f} r/min, not a training speed"
+    if kind == "varying":
+        return "validation_multi", "varying speed (steps shorter than runs.min_constant_s)"
+    return "validation_idle", f"idle (spindle below {idle_below:g} r/min): a cool-down"
+
+
+#: The validation role of a run of each kind.
+VALIDATION_BY_KIND = {
+    "constant": "validation_single",
+    "varying": "validation_multi",
+    "idle": "validation_idle",
+}
+
+
+def _window_role(win, kind, duration, min_run_s, idle_training) -> tuple[str, str, str]:
+    """Role, source and reason of a run inside the window ``win``."""
+    if win.role == "excluded":
+        return "excluded", "window", f"in the {win.text}"
+    if duration < min_run_s - 1e-9:
+        return "excluded", "window", f"in the {win.text} but shorter than runs.min_run_s ({duration:g} s)"
+    if win.role == "validation":
+        return VALIDATION_BY_KIND[kind], "window", f"in the {win.text} ({kind})"
+    if kind == "idle" and not idle_training:
+        return "excluded", "window", f"idle, in the {win.text}, and runs.idle_training is false"
+    return "training", "window", f"in the {win.text} ({kind})"
+
+
+def _guard_log(rows: list[dict], allow: bool) -> list[dict]:
+    """The runs of one log after the leak guard (:func:`rafi.method.windows.leak_check`)."""
+    if not rows:
+        return rows
+    return leak_check(pd.DataFrame(rows), allow=allow).to_dict("records")

@@ -17,6 +17,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from rafi.method.rank import speed_training_runs
 from rafi.report.format import speed_key
 
 #: Files under ``results/<machine>/`` the report needs (design.md and rule report_tables).
@@ -104,7 +105,7 @@ def training_runs(runs: pd.DataFrame | None) -> dict:
     """``speed -> run id`` of the training runs in ``runs.csv`` (the last one per speed)."""
     if runs is None:
         return {}
-    tr = runs[runs["role"] == "training"]
+    tr = speed_training_runs(runs)
     return {speed_key(r.speed_rpm): r.run_id for r in tr.itertuples(index=False)}
 
 

@@ -40,6 +40,9 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         min_constant_s=cfg["min_constant_s"],
         overrides=cfg["overrides"],
         max_leading_rest_s=cfg["max_leading_rest_s"],
+        windows=cfg["windows"],
+        idle_training=cfg["idle_training"],
+        allow_training_after_validation=cfg["allow_training_after_validation"],
         reference_rule=smk.params.reference["rule"],
         reference_window_s=smk.params.reference["window_s"],
     )
