@@ -239,13 +239,36 @@ def test_machining_center_b_layout():
     assert frame.columns[0] == "Zeit [s]" and frame.columns[-1] == "Bemerkung"
     t = frame["Zeit [s]"].to_numpy()
     assert t[0] == 0 and (np.diff(t) > 0).all() and np.median(np.diff(t)) == 15
-    assert 33 * 3600 <= t[-1] <= 48 * 3600
+    assert 46 * 3600 <= t[-1] < 48 * 3600
     speed = frame["Drehzahl [1/min]"]
     assert {1250, 2500, 3750, 5000, 3500, 0} <= set(speed.round(-1).astype(int))
     tail = speed[frame["Zeit [s]"] > 33 * 3600]
     assert (tail.between(100, 1200)).any()  # below the lowest trained speed
     assert frame["Temperatur 6 [°C]"].isna().sum() < 50
     assert frame["Bemerkung"].notna().sum() < 60
+
+
+def test_machining_center_b_ends_like_a_real_log():
+    """After the varying 4 h: a cool-down, steps whose speed only decreases, one of them exactly
+    ``runs.min_constant_s`` long at a training speed (after the validation run), a final cool-down."""
+    import yaml
+
+    from rafi.settings import MACHINE_DEFAULTS
+
+    frame = read_b_layout(RAW / "machining-center-b" / "thermal_log_2026-10-14.xlsx")
+    t = frame["Zeit [s]"].to_numpy()
+    level = frame["Drehzahl [1/min]"].round(-2).astype(int).to_numpy()
+    tail = t >= 37 * 3600
+    t, level = t[tail], level[tail]
+    starts = np.concatenate(([0], np.flatnonzero(np.diff(level)) + 1))
+    ends = np.concatenate((starts[1:], [len(level)]))
+    steps = [(int(level[a]), int(b - a), float(t[a]) / 3600) for a, b in zip(starts, ends)]
+    assert [s[0] for s in steps] == [0, 4500, 2500, 1500, 500, 0]
+    assert [s[2] for s in steps] == [37.0, 40.0, 42.0, 43.0, 44.0, 45.0]
+    n_2500 = steps[2][1]
+    assert n_2500 * 15 == MACHINE_DEFAULTS["runs"]["min_constant_s"] == 3600  # no row missing
+    cfg = yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))
+    assert 2500 in cfg["machines"]["machining-center-b"]["training_speeds_rpm"]
 
 
 def test_machining_center_b_cell_values_deterministic(tmp_path):

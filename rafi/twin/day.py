@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.twin.machines import Ambient, DefectRates, machine_params
-from rafi.twin.recipes import SCHEDULE_B, RunSpec, machining_center_b_spec
+from rafi.twin.recipes import VARYING_B, RunSpec, machining_center_b_spec
 from rafi.twin.schedules import REST_BEFORE_START_S, constant_schedule, multi_condition_schedule, with_rest
 from rafi.twin.writers import render_run, render_xlsx
 
@@ -63,7 +63,7 @@ def _steps_b(speeds, validation_speeds, multi, hours) -> list[tuple[float, float
     for sp in validation_speeds:
         steps += [(3.0, sp, f"Validierung {sp} 1/min"), (2.0, 0, "Stillstand")]
     if multi:
-        steps += list(SCHEDULE_B[10:])
+        steps += list(VARYING_B)
     return steps
 
 

@@ -127,9 +127,9 @@ def shipped_specs(machine: str = "tapping-center-a") -> list[RunSpec]:
     raise ValueError(f"unknown machine {machine!r}")
 
 
-#: machining-center-b continuous log: (hours, r/min, remark) - training 1250/2500/3750/5000,
-#: validation 3500, idle cool-downs, then a varying tail that goes below the lowest trained speed.
-SCHEDULE_B = (
+#: machining-center-b: training 1250/2500/3750/5000 r/min and validation 3500 r/min, each from the
+#: end of an idle cool-down (``(hours, r/min, remark)`` steps; 0 h to 33 h of the log).
+RUNS_B = (
     (4.0, 1250, "Warmlauf 1250 1/min"),
     (3.0, 0, "Stillstand"),
     (4.0, 2500, "Warmlauf 2500 1/min"),
@@ -140,6 +140,9 @@ SCHEDULE_B = (
     (3.0, 0, "Stillstand"),
     (3.0, 3500, "Validierung 3500 1/min"),
     (2.0, 0, "Stillstand"),
+)
+#: machining-center-b: 4 h of short varying-speed steps, below the lowest trained speed too (33 h to 37 h).
+VARYING_B = (
     (25 / 60, 800, "Wechsellast"),
     (35 / 60, 4200, ""),
     (30 / 60, 1800, ""),
@@ -149,6 +152,20 @@ SCHEDULE_B = (
     (25 / 60, 1000, ""),
     (35 / 60, 2200, "Ende Wechsellast"),
 )
+#: machining-center-b: the end of the log like real logs end (37 h to 48 h): a cool-down, then steps of
+#: 1-2 h whose speed only decreases, one of them 1 h at a training speed (2500 r/min: exactly
+#: ``runs.min_constant_s`` long, so it segments as a constant run that lies after the validation runs),
+#: then a final cool-down.
+STEPS_B = (
+    (3.0, 0, "Stillstand"),
+    (2.0, 4500, "Stufe 4500 1/min"),
+    (1.0, 2500, "Stufe 2500 1/min"),
+    (1.0, 1500, "Stufe 1500 1/min"),
+    (1.0, 500, "Stufe 500 1/min"),
+    (3.0, 0, "Stillstand, Messende"),
+)
+#: machining-center-b continuous log (48 h): :data:`RUNS_B`, :data:`VARYING_B`, :data:`STEPS_B`.
+SCHEDULE_B = RUNS_B + VARYING_B + STEPS_B
 B_FILE = "thermal_log_2026-10-14.xlsx"
 B_START = "2026-10-14T06:00:00"
 
@@ -171,7 +188,8 @@ def machining_center_b_spec(
         seed,
         ambient
         or Ambient(base_c=19.5, daily_amplitude_c=1.2, peak_hour=16.0, drift_c_per_h=0.0, wander_c=0.15),
-        "continuous log, training 1250/2500/3750/5000 r/min, validation 3500 r/min, "
-        "idle cool-downs and a varying-speed tail",
+        "continuous 48 h log, training 1250/2500/3750/5000 r/min, validation 3500 r/min, "
+        "idle cool-downs, 4 h of varying speed, a cool-down, decreasing 1-2 h steps "
+        "4500/2500/1500/500 r/min and a final cool-down",
         DefectRates.light(),
     )
