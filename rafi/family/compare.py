@@ -1,12 +1,16 @@
 """The family's comparison step (``rule compare``): build a model of any kind from the
-settings, read any artefact, validate fitted models on the validation runs, choose the
-champion (``docs/models.md``).
+settings, read any artefact, choose the model offered to the machine on the training runs,
+then validate every model once (``docs/models.md``).
 
-:func:`compare_models` validates several fitted models on the validation runs with
-:func:`rafi.method.validate.validate_runs` (the pipeline's own definitions of residual and
-improvement) and the acceptance gates of :func:`rafi.method.validate.qualify`;
-:func:`choose_champion` picks the passer with the lowest worst-case residual;
-:func:`run_family` does all of it for the enabled kinds.
+:func:`choose_champion` chooses the champion (the model offered to the machine) from the
+outer folds of the nested whole-run cross-validation on the **training runs only**
+(:func:`rafi.family.crossval.cross_validate`): the lowest mean over held-out runs of the max
+|residual| (:data:`SELECTION_RULE`). :func:`compare_models` then validates the fitted models
+on the validation runs with :func:`rafi.method.validate.validate_runs` (the pipeline's own
+definitions of residual and improvement) and the acceptance gates of
+:func:`rafi.method.validate.qualify`; the validation results never change the choice: a
+champion that fails a gate is reported as failing, with no second pick. :func:`run_family`
+does all of it for the enabled kinds.
 """
 
 from __future__ import annotations
@@ -156,6 +160,22 @@ def describe_selection(model) -> str:
     return "; ".join(parts)
 
 
+#: The rule that chooses the model offered to the machine, for people (the report states it).
+SELECTION_RULE = (
+    "chosen by whole-run cross-validation on the training runs only: each training run is held "
+    "out in turn, every model is refitted on the others (choosing its own hyperparameters by an "
+    "inner cross-validation on them) and predicts the held-out run; the model with the lowest "
+    "mean over the held-out runs of the max |residual| is offered to the machine. Validation "
+    "runs are touched once, after the choice; if the chosen model fails a gate the verdict is "
+    "FAIL, with no second pick."
+)
+
+#: Kinds in order of simplicity (fewest fitted numbers first), the last tie-breaker.
+SIMPLICITY = {"rafi_linear": 0, "ridge_global": 1, "dynamic": 2, "grey_box": 3, "rafi": 4}
+
+#: Selection scores closer than this (um) are a tie (1 nm: far below any sensor's resolution).
+TIE_UM = 1e-3
+
 COMPARISON_COLUMNS = [
     "model",
     "kind",
@@ -176,6 +196,8 @@ COMPARISON_COLUMNS = [
     "verdict",
     "champion",
     "model_id",
+    "noise_sigma_um",
+    "noise_floor_um",
 ]
 
 
@@ -189,9 +211,13 @@ def compare_models(
     runs_frame: pd.DataFrame,
     gates: dict,
     *,
+    champion: str | None = None,
     return_residuals: bool = False,
 ):
     """Validate every fitted model on the validation runs and qualify it against ``gates``.
+
+    The champion is chosen before, on the training runs (:func:`choose_champion`); this
+    function only marks it: nothing here depends on which model is the champion.
 
     Parameters
     ----------
@@ -199,15 +225,18 @@ def compare_models(
         Name -> anything with ``predict_detail`` (family models or a ``RafiModel``).
     gates : dict
         The config ``qualification:`` section (see :func:`rafi.method.validate.qualify`).
+    champion : str, optional
+        Name of the model chosen on the training runs (``champion`` is true on its rows).
 
     Returns
     -------
     summary : pandas.DataFrame
         Columns :data:`COMPARISON_COLUMNS`: one ``scope == "run"`` row per model and
-        validation run, and one ``scope == "model"`` row per model with the worst case
-        (``max_abs_after_um`` = worst max residual, ``improvement_pct`` = minimum over the
-        runs, ``rmse_after_um`` = worst, counts summed, ``passed`` = every gate of every
-        run passed, ``verdict`` pass/fail, ``champion`` from :func:`choose_champion`).
+        validation run, and one ``scope == "model"`` row per model with the worst case over
+        every validation run, idle cool-downs included (``max_abs_after_um`` = worst max
+        residual, ``improvement_pct`` = minimum over the runs, ``rmse_after_um`` = worst,
+        counts summed, ``passed`` = every gate of every run passed, ``verdict`` pass/fail,
+        ``noise_sigma_um`` / ``noise_floor_um`` of the run with the worst residual).
     residuals : pandas.DataFrame (only with ``return_residuals=True``)
         :func:`rafi.method.validate.validate_runs` residuals with a ``model`` column.
     """
@@ -228,6 +257,7 @@ def compare_models(
         if return_residuals:
             res_parts.append(residuals.assign(model=name))
         overall = bool(len(verdict) and verdict["passed"].all())
+        worst = s["max_abs_after_um"].astype(float).idxmax() if s["max_abs_after_um"].notna().any() else None
         parts.append(
             pd.DataFrame(
                 [
@@ -250,15 +280,14 @@ def compare_models(
                         "passed": overall,
                         "verdict": "pass" if overall else "fail",
                         "model_id": s["model_id"].iloc[0] if len(s) else "",
+                        "noise_sigma_um": np.nan if worst is None else float(s.loc[worst, "noise_sigma_um"]),
+                        "noise_floor_um": np.nan if worst is None else float(s.loc[worst, "noise_floor_um"]),
                     }
                 ]
             )
         )
     out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=COMPARISON_COLUMNS)
-    out["champion"] = False
-    champ = choose_champion(out)
-    if champ is not None:
-        out.loc[out["model"] == champ, "champion"] = True
+    out["champion"] = out["model"].astype(str) == str(champion) if champion is not None else False
     out = out[COMPARISON_COLUMNS]
     if return_residuals:
         res = pd.concat(res_parts, ignore_index=True) if res_parts else pd.DataFrame()
@@ -266,28 +295,86 @@ def compare_models(
     return out
 
 
-def choose_champion(summary: pd.DataFrame, *, require_pass: bool = True) -> str | None:
-    """The model that passes every gate with the lowest worst-case max residual.
+SELECTION_COLUMNS = [
+    "model",
+    "cv_folds",
+    "cv_mean_max_abs_um",
+    "cv_max_abs_um",
+    "cv_rmse_um",
+    "selection_rank",
+]
 
-    Ties are broken by the higher minimum improvement, then the simpler kind
-    (rafi_linear, ridge_global, dynamic, grey_box), then by name. Returns ``None`` if
-    no model passes (``require_pass=False``: the lowest worst case regardless of gates).
+
+def selection_table(cv: pd.DataFrame) -> pd.DataFrame:
+    """The selection scores of every model from the outer folds of the whole-run CV.
+
+    Parameters
+    ----------
+    cv : pandas.DataFrame
+        :func:`rafi.family.crossval.cross_validate` rows of every model (``cv.csv``): one
+        row per model and held-out training run.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Columns :data:`SELECTION_COLUMNS`, one row per model, best first:
+        ``cv_mean_max_abs_um`` (the selection score: mean over the held-out runs of the max
+        |residual|; a held-out run the model cannot predict counts as infinite),
+        ``cv_max_abs_um`` (worst held-out run), ``cv_rmse_um`` (pooled over folds) and
+        ``selection_rank`` (1 = the champion). Ties (scores within :data:`TIE_UM`) go to the
+        lower worst held-out run (same tolerance), then the simpler kind (:data:`SIMPLICITY`), then the name.
     """
-    m = summary.loc[summary["scope"] == "model"]
-    if require_pass:
-        m = m.loc[m["passed"].astype(bool)]
-    m = m.dropna(subset=["max_abs_after_um"])
-    if m.empty:
+    if cv is None or not len(cv):
+        return pd.DataFrame(columns=SELECTION_COLUMNS)
+    rows = []
+    for name, g in cv.groupby(cv["model"].astype(str), sort=False):
+        mx = pd.to_numeric(g["max_abs_after_um"], errors="coerce").to_numpy(dtype=float)
+        rmse = pd.to_numeric(g["rmse_um"], errors="coerce").to_numpy(dtype=float)
+        complete = bool(len(mx)) and bool(np.isfinite(mx).all())
+        rows.append(
+            {
+                "model": name,
+                "cv_folds": len(g),
+                "cv_mean_max_abs_um": float(np.mean(mx)) if complete else np.inf,
+                "cv_max_abs_um": float(np.max(mx)) if complete else np.inf,
+                "cv_rmse_um": float(np.sqrt(np.nanmean(np.square(rmse))))
+                if np.isfinite(rmse).any()
+                else np.nan,
+            }
+        )
+    t = pd.DataFrame(rows)
+    t = t.assign(
+        _score=np.round(t["cv_mean_max_abs_um"] / TIE_UM),
+        _worst=np.round(t["cv_max_abs_um"] / TIE_UM),
+        _cx=t["model"].map(SIMPLICITY).fillna(len(SIMPLICITY)),
+    ).sort_values(["_score", "_worst", "_cx", "model"], kind="stable")
+    t["selection_rank"] = np.arange(1, len(t) + 1)
+    return t[SELECTION_COLUMNS].reset_index(drop=True)
+
+
+def choose_champion(cv: pd.DataFrame) -> str | None:
+    """The model offered to the machine: rank 1 of :func:`selection_table` (``None`` without CV
+    scores, or when no model can predict every held-out run).
+
+    Only the outer folds of the whole-run CV on the **training runs** enter; validation results
+    are not an argument, so they cannot change the choice (:data:`SELECTION_RULE`).
+
+    Why this score: the gates judge the max |residual| of each run, so each held-out run is
+    scored by its max |residual|; the mean over the held-out runs uses every fold, whereas the
+    worst fold alone is one number that leaving out the lowest or highest training speed
+    (an extrapolation) decides.
+    """
+    t = selection_table(cv)
+    if t.empty or not np.isfinite(t["cv_mean_max_abs_um"].iloc[0]):
         return None
-    order = {"rafi_linear": 0, "ridge_global": 1, "dynamic": 2, "grey_box": 3}  # simpler first on exact ties
-    kinds = m["kind"] if "kind" in m.columns else m["model"]
-    m = m.assign(
-        _res=m["max_abs_after_um"].astype(float).round(9),
-        _imp=-m["improvement_pct"].astype(float).fillna(-np.inf),
-        _cx=kinds.map(order).fillna(4),
-    )
-    m = m.sort_values(["_res", "_imp", "_cx", "model"], kind="stable")
-    return str(m["model"].iloc[0])
+    return str(t["model"].iloc[0])
+
+
+def default_champion(enabled: Sequence[str]) -> str:
+    """The model offered when cross-validation has no fold (fewer than two training runs, or
+    speeds under ``leave_one_speed_out``): RAFI as published if enabled (the paper's method has
+    no hyperparameter to choose), else the first enabled kind. Declared before any data."""
+    return "rafi" if "rafi" in enabled else str(enabled[0])
 
 
 def _fitted_text(model) -> str:
@@ -316,20 +403,31 @@ def run_family(
     rafi_model=None,
     log=print,
 ) -> dict:
-    """Fit, validate, cross-validate and rank the enabled models (what ``rule compare`` runs).
+    """Fit, cross-validate, choose, then validate the enabled models (what ``rule compare`` runs).
+
+    Order (:data:`SELECTION_RULE`): every enabled kind is fitted on the training runs and
+    cross-validated by whole run on them (``options["cv"]``, nested: each fold re-chooses the
+    hyperparameters on its own training runs); the champion is chosen from those held-out
+    scores (:func:`choose_champion`; :func:`default_champion` when there is no fold); only
+    then is every model validated, once, on the validation runs, and the champion qualified
+    against ``gates``. The champion is offered whether it passes or not: a failing champion
+    means a FAIL verdict, never a second pick.
 
     ``options`` and ``gates`` are the machine's complete ``models:`` and ``qualification:``
     settings (:func:`rafi.settings.machine_settings`); the registry's decision judges with the
     same gates. ``rafi_model`` is the pipeline's fitted ``model.json`` (a ``RafiModel``); when
-    given it is the ``rafi`` entry (no refit), else RAFI is fitted here. Hyperparameters are
-    chosen on the training runs only; the validation runs are only predicted. Fit and CV times
-    go to ``log`` only, so the tables of two runs on the same inputs are identical.
+    given it is the ``rafi`` entry (no refit), else RAFI is fitted here. Fit and CV times go to
+    ``log`` only, so the tables of two runs on the same inputs are identical.
 
-    Returns a dict: ``summary`` (one row per model, with ``selected`` (what CV chose,
-    :func:`describe_selection`) and the CV scores ``cv_rmse_um`` / ``cv_max_abs_um``),
-    ``per_run``, ``residuals``, ``cv``, ``champion`` (name or None), ``best_name`` and
-    ``best_artefact`` (the champion's artefact; when no model passes the gates, the one with the
-    lowest worst-case residual, and ``champion`` is None), ``models`` (name -> fitted model).
+    Returns
+    -------
+    dict
+        ``summary`` (one row per model: the validation worst cases, ``selected`` (what CV chose
+        inside the model, :func:`describe_selection`) and the columns of :func:`selection_table`),
+        ``per_run``, ``residuals``, ``cv``, ``selection`` (:func:`selection_table`),
+        ``champion`` (name of the model offered), ``champion_passed`` (its gates on the
+        validation runs), ``selection_basis`` (``"cv"`` or ``"default"``), ``best_name`` (=
+        ``champion``) and ``best_artefact`` (its artefact), ``models`` (name -> fitted model).
     """
     models, cv_parts = {}, []
     for kind in options["enabled"]:
@@ -352,36 +450,40 @@ def run_family(
         else:
             models[kind] = factory().fit(runs_table, runs_frame)
         log(f"{kind}: fitted in {time.perf_counter() - t0:.2f} s{_fitted_text(models[kind])}")
-        if options["cv_report"]:
-            t0 = time.perf_counter()
-            cv = cross_validate(factory, runs_table, runs_frame, options["cv"], name=kind)
-            cv_parts.append(cv)
-            log(
-                f"{kind}: {options['cv']} CV in {time.perf_counter() - t0:.1f} s, "
-                f"max |residual| {cv['max_abs_after_um'].max():.2f} um"
-            )
-    table, residuals = compare_models(models, runs_table, runs_frame, gates, return_residuals=True)
+        t0 = time.perf_counter()
+        cv = cross_validate(factory, runs_table, runs_frame, options["cv"], name=kind)
+        cv_parts.append(cv)
+        worst = f"{cv['max_abs_after_um'].max():.2f} um" if len(cv) else "no fold"
+        log(f"{kind}: {options['cv']} CV in {time.perf_counter() - t0:.1f} s, max |residual| {worst}")
     cv = pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
+    # the choice: training runs only, before any validation run is predicted
+    selection = selection_table(cv)
+    champion = choose_champion(cv)
+    basis = "cv"
+    if champion is None:
+        champion, basis = default_champion(list(models)), "default"
+        log(f"no cross-validation fold: {champion} offered by the default rule")
+    log(f"champion (chosen on the training runs): {champion}")
+    table, residuals = compare_models(
+        models, runs_table, runs_frame, gates, champion=champion, return_residuals=True
+    )
     summary = table.loc[table["scope"] == "model"].drop(columns=["scope", "run_id", "role", "speed_rpm"])
     summary = summary.assign(
         selected=summary["model"].map({k: describe_selection(m) for k, m in models.items()}),
     )
-    if len(cv):
-        agg = cv.groupby("model").agg(
-            cv_rmse_um=("rmse_um", lambda v: float(np.sqrt(np.mean(np.square(v))))),
-            cv_max_abs_um=("max_abs_after_um", "max"),
-        )
-        summary = summary.join(agg, on="model")
+    summary = summary.merge(selection, on="model", how="left")
     per_run = table.loc[table["scope"] == "run"].drop(columns=["scope"])
-    champion = choose_champion(table)
-    best = champion or choose_champion(table, require_pass=False) or "rafi"
+    passed = bool(summary.loc[summary["model"] == champion, "passed"].astype(bool).all())
     return {
         "summary": summary.reset_index(drop=True),
         "per_run": per_run.reset_index(drop=True),
         "residuals": residuals,
         "cv": cv,
+        "selection": selection,
         "champion": champion,
-        "best_name": best,
-        "best_artefact": models[best].to_dict(),
+        "champion_passed": passed,
+        "selection_basis": basis,
+        "best_name": champion,
+        "best_artefact": models[champion].to_dict(),
         "models": models,
     }

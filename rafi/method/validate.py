@@ -13,7 +13,14 @@ leak). Per run, over the samples where both ``dz_um`` and the prediction exist:
 * ``rmse_before_um`` / ``rmse_after_um``, ``n_samples``, ``n_outside_temp_range``,
   ``n_outside_speed_range``, ``worse_than_uncompensated`` (``after > before``),
 * ``paper_residual_um``: paper Table 4 for ``validation_single`` runs whose speed is
-  within 50 r/min of a Table 4 speed, else NaN.
+  within 50 r/min of a Table 4 speed, else NaN;
+* ``noise_sigma_um`` / ``noise_floor_um``: the white-noise sigma of the run's ``dz`` and the
+  expected max |noise| over its samples, estimated from the measurement alone
+  (:mod:`rafi.method.noise`): a ``max_abs_after_um`` near ``noise_floor_um`` is at the noise.
+
+The model predicts the **whole** runs frame once (every log in time order, training and
+excluded runs included: a model that filters its inputs sees the whole log before each
+run) and each validation run is a slice of that prediction.
 
 Qualification (:func:`qualify`)
 -------------------------------
@@ -25,12 +32,11 @@ one verdict row per criterion and validation run:
 * ``never_worse_than_uncompensated`` (if the gate is true): ``max_abs_after_um <=
   max_abs_before_um``; the row's ``limit`` is the run's ``max_abs_before_um``.
 
-Idle (cool-down) runs (``validation_idle``) get only the never-worse criterion:
-their displacement falls back towards the reference state, so ``max |dz|`` is
-largely the warm state they start from, and an improvement percentage or an
-absolute residual limit calibrated on warm-up runs says nothing meaningful about
-them; what matters is that compensation never makes a cooling machine worse.
-A missing (NaN) measurement fails its criterion.
+Every gate applies to every validation run, idle cool-downs (``validation_idle``)
+included: a compensated machine that cools down is as much in production as one that
+warms up, and a residual above the limit on a cool-down is a failure like any other
+(issue 12; before, idle runs were held only to the never-worse gate). A missing (NaN)
+measurement fails its criterion.
 """
 
 from __future__ import annotations
@@ -39,6 +45,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.method import paper
+from rafi.method.noise import expected_max_abs_noise, white_noise_sigma
 from rafi.method.paper import paper_value
 from rafi.settings import GATE_KEYS
 
@@ -70,6 +77,8 @@ SUMMARY_COLUMNS = [
     "n_outside_speed_range",
     "worse_than_uncompensated",
     "paper_residual_um",
+    "noise_sigma_um",
+    "noise_floor_um",
 ]
 RESIDUAL_COLUMNS = [
     "run_id",
@@ -105,6 +114,8 @@ def _run_summary(run_id, role, speed, duration, detail, measured, t_s) -> dict:
         if role == "validation_single" and pd.notna(speed)
         else float("nan")
     )
+    sigma = white_noise_sigma(measured)  # the run's own dz; the floor over the compared samples
+    floor = expected_max_abs_noise(sigma, n) if n else float("nan")
     return {
         "run_id": run_id,
         "role": role,
@@ -120,7 +131,26 @@ def _run_summary(run_id, role, speed, duration, detail, measured, t_s) -> dict:
         "n_outside_speed_range": int(detail["outside_speed_range"].to_numpy()[ok].sum()),
         "worse_than_uncompensated": bool(n and after > before),
         "paper_residual_um": paper,
+        "noise_sigma_um": sigma,
+        "noise_floor_um": floor,
     }
+
+
+def time_ordered(runs_frame: pd.DataFrame) -> pd.DataFrame:
+    """``runs_frame`` with every log in time order (positional index 0..n-1).
+
+    With ``log`` and ``log_t_s`` (the runs frame of ``rafi.method.runs``): logs in order of
+    first appearance, samples by the log's clock, so the runs of a log follow each other as
+    recorded. Without them: runs in order of first appearance, samples by ``t_s``. Stable
+    on ties.
+    """
+    if {"log", "log_t_s"} <= set(runs_frame.columns):
+        group, clock = runs_frame["log"].astype(str), runs_frame["log_t_s"]
+    else:
+        group, clock = runs_frame["run_id"].astype(str), runs_frame["t_s"]
+    codes = pd.factorize(group)[0]
+    order = np.lexsort((clock.to_numpy(dtype=float, na_value=np.nan), codes))
+    return runs_frame.iloc[order].reset_index(drop=True)
 
 
 def validate_runs(
@@ -128,11 +158,16 @@ def validate_runs(
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Compensate every validation run with ``model`` and measure the improvement.
 
+    The model predicts the whole ``runs_frame`` once, in time order (:func:`time_ordered`),
+    so a model that filters its inputs over a log sees the log's earlier samples (training
+    and excluded runs included) before each validation run; each run is a slice of that
+    prediction. A row-wise model gives the same numbers as predicting run by run.
+
     Parameters
     ----------
     model : rafi.method.model.RafiModel
         Anything with ``predict_detail(frame)`` returning ``predicted_um``,
-        ``outside_temp_range`` and ``outside_speed_range``.
+        ``outside_temp_range`` and ``outside_speed_range`` (same rows as ``frame``).
     runs_table : pandas.DataFrame
         ``run_id``, ``role``, ``speed_rpm`` and (optional) ``duration_s``.
     runs_frame : pandas.DataFrame
@@ -153,14 +188,16 @@ def validate_runs(
             raise ValueError(f"runs_frame lacks column {col!r}")
     roles = runs_table["role"].astype(str)
     val = runs_table.loc[roles.str.startswith("validation")]
-    frame_ids = runs_frame["run_id"].astype(str)
     rows, parts = [], []
+    if len(val):
+        frame = time_ordered(runs_frame)
+        whole = model.predict_detail(frame).reset_index(drop=True)
+        frame_ids = frame["run_id"].astype(str).to_numpy()
     for _, run in val.iterrows():
         run_id = str(run["run_id"])
-        sub = runs_frame.loc[frame_ids == run_id]
-        if "t_s" in sub.columns:
-            sub = sub.sort_values("t_s", kind="stable")
-        detail = model.predict_detail(sub)
+        rows_of_run = np.flatnonzero(frame_ids == run_id)
+        sub = frame.iloc[rows_of_run]
+        detail = whole.iloc[rows_of_run]
         measured = sub["dz_um"].to_numpy(dtype=float, na_value=np.nan)
         t_s = sub["t_s"].to_numpy(dtype=float, na_value=np.nan)
         speed = run.get("speed_rpm", np.nan)
@@ -217,8 +254,8 @@ def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
     Returns
     -------
     pandas.DataFrame
-        Columns ``criterion``, ``limit``, ``measured``, ``passed``, ``run_id``; see
-        the module docstring (idle runs: never-worse only).
+        Columns ``criterion``, ``limit``, ``measured``, ``passed``, ``run_id``: every gate
+        for every validation run, idle cool-downs included (see the module docstring).
     """
     unknown = set(gates) - set(GATE_KEYS)
     if unknown:
@@ -228,10 +265,9 @@ def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
     never_worse = bool(gates.get("never_worse_than_uncompensated", False))
     rows = []
     for _, run in summary.iterrows():
-        idle = str(run["role"]) == "validation_idle"
         after = float(run["max_abs_after_um"])
         before = float(run["max_abs_before_um"])
-        if not idle and max_res is not None:
+        if max_res is not None:
             rows.append(
                 {
                     "criterion": "max_residual_um",
@@ -241,7 +277,7 @@ def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
                     "run_id": run["run_id"],
                 }
             )
-        if not idle and min_imp is not None:
+        if min_imp is not None:
             imp = float(run["improvement_pct"])
             rows.append(
                 {

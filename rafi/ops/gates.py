@@ -8,11 +8,10 @@ import pandas as pd
 
 
 def gated_runs(summary: pd.DataFrame) -> pd.DataFrame:
-    """Validation runs the residual/improvement gates apply to (idle cool-downs get only
-    the never-worse gate, as in ``rafi.method.validate.qualify``)."""
-    if "role" not in summary:
-        return summary
-    return summary[summary["role"].astype(str) != "validation_idle"]
+    """Validation runs the residual/improvement gates apply to: every one, idle cool-downs
+    included, as in ``rafi.method.validate.qualify`` (issue 12: before, idle runs were held
+    only to the never-worse gate and left out of the worst case)."""
+    return summary
 
 
 def gate_outcome(summary: pd.DataFrame, verdict: pd.DataFrame, gates: dict) -> tuple[bool, list[str], dict]:

@@ -1,5 +1,8 @@
 """Rule compare: runs + key sensors + model.json -> comparison/summary.csv, per_run.csv,
-residuals.parquet, best_model.json, cv.csv (docs/models.md)."""
+residuals.parquet, best_model.json, cv.csv (docs/models.md).
+
+best_model.json is the model chosen by whole-run CV on the training runs (the champion),
+whether or not it passes the gates on the validation runs: no second pick."""
 
 import json
 
@@ -27,12 +30,17 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         rafi_model=load_any(smk.input.model),
         log=lambda m: print(m, flush=True),
     )
-    cols = ["model", "max_abs_after_um", "improvement_pct", "passed", "champion"]
+    cols = ["model", "cv_mean_max_abs_um", "selection_rank", "max_abs_after_um", "passed", "champion"]
     print(result["summary"][cols].to_string(index=False), flush=True)
-    if result["champion"] is None:
+    print(
+        f"champion {result['champion']} (chosen by {result['selection_basis']} on the training runs) "
+        f"{'passes' if result['champion_passed'] else 'FAILS'} the gates on the validation runs",
+        flush=True,
+    )
+    if not result["champion_passed"]:
         print(
-            f"WARNING: no model passes the gates; best_model.json is {result['best_name']} "
-            "(lowest worst-case residual) and is NOT qualified",
+            f"WARNING: the chosen model {result['champion']} fails the gates; best_model.json is "
+            "still that model (no second pick on validation) and the registry will not promote it",
             flush=True,
         )
     rafi.artefact.write_csv_atomic(as_table(result["summary"]), smk.output.summary, index=False)
