@@ -394,7 +394,10 @@ def find_runs(
             role, source = auto, "auto"
             win = window_of(log_windows, float(t_s[a]))
             if win is not None:
-                role, source, reason = _window_role(win, kind, duration, float(min_run_s), idle_training)
+                what = f"constant at {med:.0f} r/min" if kind == "constant" else kind
+                role, source, reason = _window_role(
+                    win, what, kind, duration, float(min_run_s), idle_training
+                )
             for okey in (run_id, stem, str(key)):
                 if okey in overrides:
                     reason = f"run-id override {okey!r} in runs.overrides (otherwise: {role}, {reason})"
@@ -531,17 +534,18 @@ VALIDATION_BY_KIND = {
 }
 
 
-def _window_role(win, kind, duration, min_run_s, idle_training) -> tuple[str, str, str]:
-    """Role, source and reason of a run inside the window ``win``."""
+def _window_role(win, what, kind, duration, min_run_s, idle_training) -> tuple[str, str, str]:
+    """Role, source and reason of a run of ``kind`` (``what``: the kind for people) inside the
+    window ``win``."""
     if win.role == "excluded":
         return "excluded", "window", f"in the {win.text}"
     if duration < min_run_s - 1e-9:
         return "excluded", "window", f"in the {win.text} but shorter than runs.min_run_s ({duration:g} s)"
     if win.role == "validation":
-        return VALIDATION_BY_KIND[kind], "window", f"in the {win.text} ({kind})"
+        return VALIDATION_BY_KIND[kind], "window", f"in the {win.text} ({what})"
     if kind == "idle" and not idle_training:
         return "excluded", "window", f"idle, in the {win.text}, and runs.idle_training is false"
-    return "training", "window", f"in the {win.text} ({kind})"
+    return "training", "window", f"in the {win.text} ({what})"
 
 
 def _guard_log(rows: list[dict], allow: bool) -> list[dict]:
