@@ -31,6 +31,13 @@ from rafi.family.grey_box import GreyBox
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
 from rafi.family.ridge_global import RidgeGlobal
+from rafi.family.selection import (  # noqa: F401 - re-exported: the selection rule lives there
+    SELECTION_COLUMNS,
+    SELECTION_RULE,
+    choose_champion,
+    default_champion,
+    selection_table,
+)
 from rafi.method.validate import qualify, validate_runs
 from rafi.settings import MACHINE_DEFAULTS
 
@@ -79,6 +86,7 @@ def make_model(
     o = options
     common = {"reference": reference, "machine": machine, "speed_tolerance_rpm": speed_tolerance_rpm}
     ridge = {"alphas": o["ridge_alphas"], "cv": o["cv"], "speed_reference": o["speed_reference"], **common}
+    ridge["filter_restart_gap_s"] = o["filter_restart_gap_s"]
     if kind == "rafi":
         return PublishedRafi(key_sensors=key_sensors, terms=terms, hac_maxlags=hac_maxlags, **common)
     if kind == "rafi_linear":
@@ -159,22 +167,6 @@ def describe_selection(model) -> str:
         parts.append("speed terms" if model.speed_terms_ else "no speed terms (not identified)")
     return "; ".join(parts)
 
-
-#: The rule that chooses the model offered to the machine, for people (the report states it).
-SELECTION_RULE = (
-    "chosen by whole-run cross-validation on the training runs only: each training run is held "
-    "out in turn, every model is refitted on the others (choosing its own hyperparameters by an "
-    "inner cross-validation on them) and predicts the held-out run; the model with the lowest "
-    "mean over the held-out runs of the max |residual| is offered to the machine. Validation "
-    "runs are touched once, after the choice; if the chosen model fails a gate the verdict is "
-    "FAIL, with no second pick."
-)
-
-#: Kinds in order of simplicity (fewest fitted numbers first), the last tie-breaker.
-SIMPLICITY = {"rafi_linear": 0, "ridge_global": 1, "dynamic": 2, "grey_box": 3, "rafi": 4}
-
-#: Selection scores closer than this (um) are a tie (1 nm: far below any sensor's resolution).
-TIE_UM = 1e-3
 
 COMPARISON_COLUMNS = [
     "model",
@@ -293,88 +285,6 @@ def compare_models(
         res = pd.concat(res_parts, ignore_index=True) if res_parts else pd.DataFrame()
         return out, res
     return out
-
-
-SELECTION_COLUMNS = [
-    "model",
-    "cv_folds",
-    "cv_mean_max_abs_um",
-    "cv_max_abs_um",
-    "cv_rmse_um",
-    "selection_rank",
-]
-
-
-def selection_table(cv: pd.DataFrame) -> pd.DataFrame:
-    """The selection scores of every model from the outer folds of the whole-run CV.
-
-    Parameters
-    ----------
-    cv : pandas.DataFrame
-        :func:`rafi.family.crossval.cross_validate` rows of every model (``cv.csv``): one
-        row per model and held-out training run.
-
-    Returns
-    -------
-    pandas.DataFrame
-        Columns :data:`SELECTION_COLUMNS`, one row per model, best first:
-        ``cv_mean_max_abs_um`` (the selection score: mean over the held-out runs of the max
-        |residual|; a held-out run the model cannot predict counts as infinite),
-        ``cv_max_abs_um`` (worst held-out run), ``cv_rmse_um`` (pooled over folds) and
-        ``selection_rank`` (1 = the champion). Ties (scores within :data:`TIE_UM`) go to the
-        lower worst held-out run (same tolerance), then the simpler kind (:data:`SIMPLICITY`), then the name.
-    """
-    if cv is None or not len(cv):
-        return pd.DataFrame(columns=SELECTION_COLUMNS)
-    rows = []
-    for name, g in cv.groupby(cv["model"].astype(str), sort=False):
-        mx = pd.to_numeric(g["max_abs_after_um"], errors="coerce").to_numpy(dtype=float)
-        rmse = pd.to_numeric(g["rmse_um"], errors="coerce").to_numpy(dtype=float)
-        complete = bool(len(mx)) and bool(np.isfinite(mx).all())
-        rows.append(
-            {
-                "model": name,
-                "cv_folds": len(g),
-                "cv_mean_max_abs_um": float(np.mean(mx)) if complete else np.inf,
-                "cv_max_abs_um": float(np.max(mx)) if complete else np.inf,
-                "cv_rmse_um": float(np.sqrt(np.nanmean(np.square(rmse))))
-                if np.isfinite(rmse).any()
-                else np.nan,
-            }
-        )
-    t = pd.DataFrame(rows)
-    t = t.assign(
-        _score=np.round(t["cv_mean_max_abs_um"] / TIE_UM),
-        _worst=np.round(t["cv_max_abs_um"] / TIE_UM),
-        _cx=t["model"].map(SIMPLICITY).fillna(len(SIMPLICITY)),
-    ).sort_values(["_score", "_worst", "_cx", "model"], kind="stable")
-    t["selection_rank"] = np.arange(1, len(t) + 1)
-    return t[SELECTION_COLUMNS].reset_index(drop=True)
-
-
-def choose_champion(cv: pd.DataFrame) -> str | None:
-    """The model offered to the machine: rank 1 of :func:`selection_table` (``None`` without CV
-    scores, or when no model can predict every held-out run).
-
-    Only the outer folds of the whole-run CV on the **training runs** enter; validation results
-    are not an argument, so they cannot change the choice (:data:`SELECTION_RULE`).
-
-    Why this score: the gates judge the max |residual| of each run, so each held-out run is
-    scored by its max |residual|; the mean over the held-out runs uses every fold, whereas the
-    worst fold alone is one number that leaving out the lowest or highest training speed
-    (an extrapolation) decides.
-    """
-    t = selection_table(cv)
-    if t.empty or not np.isfinite(t["cv_mean_max_abs_um"].iloc[0]):
-        return None
-    return str(t["model"].iloc[0])
-
-
-def default_champion(enabled: Sequence[str]) -> str:
-    """The model offered when cross-validation has no fold (fewer than two training runs, or
-    speeds under ``leave_one_speed_out``): RAFI as published if enabled (the paper's method has
-    no hyperparameter to choose), else the first enabled kind. Declared before any data."""
-    return "rafi" if "rafi" in enabled else str(enabled[0])
 
 
 def _fitted_text(model) -> str:
