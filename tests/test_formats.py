@@ -327,7 +327,13 @@ def test_defaults():
     assert spec["format"] == "native" and spec["pattern"] == "*.csv"
     spec = normalise_input_spec({"format": "xlsx"})
     assert spec["pattern"] == "*.xlsx" and spec["sheet"] == 0 and spec["header_row"] == 1
-    assert spec["time"] == {"kind": "timestamp", "start": "2000-01-01T00:00:00", "format": None}
+    assert spec["time"] == {
+        "kind": "timestamp",
+        "start": "2000-01-01T00:00:00",
+        "format": None,
+        "period_s": None,
+    }
+    assert spec["speed"] == {"constant_rpm": None, "constant_rpm_by_file": {}}
     assert spec["displacement"] == {"column": None, "unit": "um", "sign": 1}
     assert normalise_input_spec({"format": "csv", "delimiter": "tab"})["delimiter"] == "\t"
 

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from rafi import REQUIRED_COLUMNS
 from rafi.errors import InputSpecError, RawFormatError
+from rafi.readers.input_assumed import check_no_time_column, check_speed, constant_speed, has_constant_speed
 
 # --------------------------------------------------------------------------- the input: mapping
 
@@ -38,7 +39,8 @@ INPUT_DEFAULTS: dict = {
     "header_row": 1,
     "skip_rows": 0,
     "columns": {},
-    "time": {"kind": "timestamp", "start": "2000-01-01T00:00:00", "format": None},
+    "time": {"kind": "timestamp", "start": "2000-01-01T00:00:00", "format": None, "period_s": None},
+    "speed": {"constant_rpm": None, "constant_rpm_by_file": {}},
     "sample_period_s": None,
     "displacement": {"column": None, "unit": "um", "sign": 1},
     "temperature_unit": "C",
@@ -46,6 +48,10 @@ INPUT_DEFAULTS: dict = {
 }
 
 DEFAULT_PATTERN = {"native": "*.csv", "csv": "*.csv", "xlsx": "*.xlsx"}
+
+#: ``input.time.kind``: a column of timestamps, a column of elapsed seconds, or no time column
+#: (row k of the file at ``start + k * period_s``).
+TIME_KINDS = ("timestamp", "elapsed_s", "none")
 
 #: Keys meaningful for the native format (everything else is for csv/xlsx).
 NATIVE_KEYS = {"format", "pattern", "sample_period_s"}
@@ -83,9 +89,22 @@ INPUT_SCHEMA: dict = {
             "type": "object",
             "additionalProperties": False,
             "properties": {
-                "kind": {"enum": ["timestamp", "elapsed_s"]},
+                "kind": {"enum": list(TIME_KINDS)},
                 "start": {"type": "string", "minLength": 1},
                 "format": {"type": ["string", "null"]},
+                "period_s": {"type": "number", "exclusiveMinimum": 0},
+            },
+        },
+        "speed": {
+            "type": "object",
+            "additionalProperties": False,
+            "properties": {
+                "constant_rpm": {"type": "number", "minimum": 0},
+                "constant_rpm_by_file": {
+                    "type": "object",
+                    "propertyNames": {"minLength": 1},
+                    "additionalProperties": {"type": "number", "minimum": 0},
+                },
             },
         },
         "sample_period_s": {"type": "number", "exclusiveMinimum": 0},
@@ -119,7 +138,7 @@ def normalise_input_spec(spec: dict | None) -> dict:
     Returns
     -------
     dict
-        A new dict with every key of :data:`INPUT_DEFAULTS` (nested ``time`` and
+        A new dict with every key of :data:`INPUT_DEFAULTS` (nested ``time``, ``speed`` and
         ``displacement`` complete, ``pattern`` set from the format).
 
     Raises
@@ -136,7 +155,7 @@ def normalise_input_spec(spec: dict | None) -> dict:
         raise _spec_error(unknown[0], f"unknown key; accepted keys: {', '.join(INPUT_DEFAULTS)}")
     out = copy.deepcopy(INPUT_DEFAULTS)
     for key, value in spec.items():
-        if key in ("time", "displacement"):
+        if key in ("time", "speed", "displacement"):
             if value is None:
                 continue
             if not isinstance(value, dict):
@@ -148,6 +167,8 @@ def normalise_input_spec(spec: dict | None) -> dict:
                 )
             out[key].update(value)
         elif key == "columns":
+            if value is not None and not isinstance(value, dict):
+                raise _spec_error(key, f"expected a mapping of canonical names to headers, got {value!r}")
             out[key] = dict(value or {})
         else:
             out[key] = value
@@ -235,8 +256,8 @@ def normalise_input_spec(spec: dict | None) -> dict:
         )
 
     tm = out["time"]
-    if tm["kind"] not in ("timestamp", "elapsed_s"):
-        raise _spec_error("time.kind", f"{tm['kind']!r}: expected timestamp or elapsed_s")
+    if tm["kind"] not in TIME_KINDS:
+        raise _spec_error("time.kind", f"{tm['kind']!r}: expected timestamp, elapsed_s or none")
     if not _plain_start_ok(str(tm["start"])):
         import pandas as pd
 
@@ -260,6 +281,8 @@ def normalise_input_spec(spec: dict | None) -> dict:
         if isinstance(sp, bool) or not isinstance(sp, (int, float)) or not (math.isfinite(sp) and sp > 0):
             raise _spec_error("sample_period_s", f"{sp!r}: expected a positive number of seconds")
         out["sample_period_s"] = float(sp)
+    check_no_time_column(out)
+    check_speed(out)
     if out["temperature_unit"] not in ("C", "K"):
         raise _spec_error("temperature_unit", f"{out['temperature_unit']!r}: expected C or K")
     if not isinstance(out["keep_extra"], bool):
@@ -278,8 +301,16 @@ def _is_default(key: str, value) -> bool:
 
 
 def resolve_columns(spec: dict) -> dict[str, str]:
-    """Canonical name -> the header text to look for (identity where not mapped)."""
+    """Canonical name -> the header text to look for (identity where not mapped).
+
+    ``time`` is left out when ``time.kind`` is ``none`` and ``speed_rpm`` when the speed is a
+    configured constant: those columns are not read from the file.
+    """
     cols = {name: spec["columns"].get(name, name) for name in REQUIRED_COLUMNS}
+    if spec["time"]["kind"] == "none":
+        del cols["time"]
+    if has_constant_speed(spec):
+        del cols["speed_rpm"]
     if spec["displacement"]["column"] is not None:
         cols["disp_um"] = spec["displacement"]["column"]
     return cols
@@ -383,7 +414,8 @@ def discover_machines(
     Raises
     ------
     rafi.errors.InputSpecError
-        A machine's ``input:`` mapping is invalid (names the machine).
+        A machine's ``input:`` mapping is invalid, or two globs of its
+        ``speed.constant_rpm_by_file`` with different speeds match one file (names the machine).
     rafi.errors.RawFormatError
         Two raw files of a machine share a stem, so their outputs would collide.
     """
@@ -401,6 +433,10 @@ def discover_machines(
         spec = input_spec_of(machine)
         try:
             paths = find_logs(folder, spec)
+            normalised = normalise_input_spec(spec)
+            if has_constant_speed(normalised):
+                for path in paths:  # two speed globs with different speeds: stop while planning
+                    constant_speed(path.name, normalised)
         except InputSpecError as exc:
             raise InputSpecError(f"machine {machine!r}: {exc}") from None
         files: dict[str, str] = {}

@@ -8,6 +8,11 @@ file with such a mapping and returns the same canonical frame as
 then the remaining columns under sanitised names, indexed by the 1-based line (CSV)
 or row (xlsx, as Excel shows it) of each record.
 
+A file without a time column (``time.kind: none``) gets the times ``time.start + k *
+time.period_s`` (:mod:`rafi.readers.mapped_time`); a file without a speed column its
+configured constant speed (:mod:`rafi.readers.input_assumed`); both are recorded in
+``attrs['metadata']['assumed']``. Cells are parsed by :mod:`rafi.readers.mapped_cells`.
+
 Every problem with a file raises :class:`rafi.errors.RawFormatError` naming the
 file, the sheet (xlsx), the line/row and the column as written in the file. A
 mapping that is itself wrong raises :class:`rafi.errors.InputSpecError`.
@@ -15,10 +20,8 @@ mapping that is itself wrong raises :class:`rafi.errors.InputSpecError`.
 
 from __future__ import annotations
 
-import datetime as dt
 import difflib
 import hashlib
-import math
 import os
 import re
 import unicodedata
@@ -29,16 +32,17 @@ import pandas as pd
 
 from rafi import SENSORS
 from rafi.errors import RawFormatError
+from rafi.readers.input_assumed import constant_speed, has_constant_speed
 from rafi.readers.input_spec import (
     _spec_error,
     norm_header,
     normalise_input_spec,
     resolve_columns,
 )
+from rafi.readers.mapped_cells import Table, excel_column, numeric, text
+from rafi.readers.mapped_time import assumed_notes, row_times, row_times_error, timestamps
 from rafi.readers.parsing import (
     NUMERIC_COLUMNS,
-    TIME_MAX,
-    TIME_MIN,
     decode_bytes,
     field_count_error,
     split_fields,
@@ -82,47 +86,10 @@ def closest_headers(wanted: str, available: list[str], n: int = 3) -> list[str]:
     return [h for h in ranked[:n] if score(h) >= 0.4]
 
 
-def excel_column(index0: int) -> str:
-    """0-based column index -> Excel letters (0 -> A, 26 -> AA)."""
-    letters = ""
-    n = index0 + 1
-    while n:
-        n, rem = divmod(n - 1, 26)
-        letters = chr(65 + rem) + letters
-    return letters
-
-
-class _Table:
-    """Header + raw rows of one file, with what is needed to word an error."""
-
-    def __init__(
-        self,
-        path: Path,
-        header: list,
-        rows: list[list],
-        row_numbers: list[int],
-        header_row: int,
-        sheet: str | None,
-    ):
-        self.path = path
-        self.header = [norm_header(h) for h in header]
-        self.rows = rows
-        self.row_numbers = row_numbers
-        self.header_row = header_row
-        self.sheet = sheet
-
-    def error(
-        self, message: str, *, row: int | None = None, column: str | None = None, col_index: int | None = None
-    ) -> RawFormatError:
-        if self.sheet is not None and row is not None and col_index is not None:
-            message = f"{message} (cell {excel_column(col_index)}{row})"
-        return RawFormatError(self.path, message, line=row, column=column, sheet=self.sheet)
-
-
 # --------------------------------------------------------------------------- file readers
 
 
-def _read_csv_table(path: Path, raw: bytes, spec: dict) -> _Table:
+def _read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
     text = decode_bytes(
         path, raw, spec["encoding"], hint="set input.encoding to the file's encoding (e.g. latin-1, cp1252)"
     )
@@ -177,10 +144,10 @@ def _read_csv_table(path: Path, raw: bytes, spec: dict) -> _Table:
             )
         rows.append(fields)
         numbers.append(line_no)
-    return _Table(path, header, rows, numbers, hr, None)
+    return Table(path, header, rows, numbers, hr, None)
 
 
-def _read_xlsx_table(path: Path, spec: dict) -> _Table:
+def _read_xlsx_table(path: Path, spec: dict) -> Table:
     try:
         import openpyxl
     except ImportError as exc:  # pragma: no cover - openpyxl is a dependency
@@ -258,180 +225,28 @@ def _read_xlsx_table(path: Path, spec: dict) -> _Table:
                 line=hr,
                 sheet=name,
             )
-        return _Table(path, header, rows, numbers, hr, name)
+        return Table(path, header, rows, numbers, hr, name)
     finally:
         wb.close()
 
 
-# --------------------------------------------------------------------------- value parsing
-
-_THOUSANDS_POINT = re.compile(r"^[+-]?\d{1,3}(\.\d{3})+(,\d*)?$")
-
-
-def _numeric(table: _Table, values: list, decimal: str, column: str, col_index: int, what: str) -> np.ndarray:
-    """Raw cells -> float64 (NaN for empty); RawFormatError at the first bad cell."""
-    out = np.full(len(values), np.nan)
-    for k, v in enumerate(values):
-        if v is None:
-            continue
-        if isinstance(v, bool) or isinstance(v, (dt.datetime, dt.date, dt.time, dt.timedelta)):
-            raise table.error(
-                f"{v!s} is not a number; expected {what}",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
-        if isinstance(v, (int, float, np.integer, np.floating)):
-            x = float(v)
-        else:
-            s = str(v).strip().replace("\u00a0", "").replace(" ", "")
-            if not s:
-                continue
-            t = s
-            if decimal == ",":
-                if "." in t and _THOUSANDS_POINT.match(t):
-                    t = t.replace(".", "")
-                elif "." in t:
-                    t = "!"  # a point in a decimal-comma file: refuse rather than guess
-                t = t.replace(",", ".")
-            elif "," in t:
-                t = "!"
-            try:
-                x = float(t)
-            except ValueError:
-                hint = ""
-                if decimal == "." and "," in s:
-                    hint = " (decimal comma? set input.decimal: ',')"
-                elif decimal == "," and "." in s:
-                    hint = " (decimal point in a file with input.decimal: ',')"
-                raise table.error(
-                    f"{s!r} is not a number{hint}; expected {what}",
-                    row=table.row_numbers[k],
-                    column=column,
-                    col_index=col_index,
-                ) from None
-        if not math.isfinite(x):
-            raise table.error(
-                f"{v!r} is not a finite number; expected {what}",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
-        out[k] = x
-    return out
-
-
-def _timestamps(table: _Table, values: list, spec: dict, column: str, col_index: int) -> pd.Series:
-    tm = spec["time"]
-    if tm["kind"] == "elapsed_s":
-        secs = []
-        for v in values:
-            if isinstance(v, dt.timedelta):
-                v = v.total_seconds()
-            elif isinstance(v, dt.time):
-                v = v.hour * 3600 + v.minute * 60 + v.second + v.microsecond / 1e6
-            secs.append(v)
-        sec = _numeric(table, secs, spec["decimal"], column, col_index, "elapsed seconds")
-        empty = np.isnan(sec)
-        if empty.any():
-            k = int(np.argmax(empty))
-            raise table.error(
-                "empty time; expected elapsed seconds",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
-        start = pd.Timestamp(tm["start"])
-        if start.tzinfo is not None:
-            start = start.tz_convert(None)
-        lo = (TIME_MIN - start).total_seconds()
-        hi = (TIME_MAX - start).total_seconds()
-        bad = (sec < lo) | (sec > hi)
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise table.error(
-                f"{values[k]!r} seconds from {tm['start']} is outside the supported years 1678..2261",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
-        return pd.Series(start + pd.to_timedelta(np.round(sec * 1e9).astype("int64"), unit="ns"))
-
-    if values and all(isinstance(v, str) and v.strip() for v in values):
-        # vectorised path for text timestamps (CSV); errors fall through to the cell loop
-        strings = pd.Series([v.strip() for v in values], dtype=object)
-        try:
-            if tm["format"]:
-                parsed = pd.to_datetime(strings, format=tm["format"], errors="coerce", utc=True)
-            else:
-                parsed = pd.to_datetime(strings, format="ISO8601", errors="coerce", utc=True)
-            naive = parsed.dt.tz_convert(None)
-            if naive.notna().all() and ((naive >= TIME_MIN) & (naive <= TIME_MAX)).all():
-                return naive
-        except (ValueError, TypeError, OverflowError):
-            pass
-
-    parsed = []
-    for k, v in enumerate(values):
-        ts = None
-        if isinstance(v, dt.datetime):
-            ts = pd.Timestamp(v)
-        elif isinstance(v, dt.date):
-            ts = pd.Timestamp(v)
-        elif isinstance(v, str) and v.strip():
-            s = v.strip()
-            try:
-                if tm["format"]:
-                    ts = pd.Timestamp(dt.datetime.strptime(s, tm["format"]))
-                else:
-                    ts = pd.to_datetime(s, format="ISO8601")
-            except (ValueError, TypeError, OverflowError):
-                ts = None
-            if ts is not None and ts is not pd.NaT and ts.tzinfo is not None:
-                ts = ts.tz_convert("UTC").tz_localize(None)
-        elif v is None or (isinstance(v, str) and not v.strip()):
-            raise table.error(
-                "empty timestamp; expected a date and time",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
-        if ts is None or ts is pd.NaT:
-            expect = (
-                f"a time in the format {tm['format']!r}"
-                if tm["format"]
-                else "an ISO-8601 time such as 2026-10-14T08:00:00 (or set input.time.format)"
-            )
-            raise table.error(
-                f"{v!r} is not a timestamp; expected {expect}",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
-        if not (TIME_MIN <= ts <= TIME_MAX):
-            raise table.error(
-                f"timestamp {v!r} is outside the supported years 1678..2261",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
-        parsed.append(ts)
-    return pd.Series(pd.DatetimeIndex(parsed))
-
-
-def _text(values: list) -> list[str]:
-    out = []
-    for v in values:
-        if v is None:
-            out.append("")
-        elif isinstance(v, float) and v.is_integer():
-            out.append(str(int(v)) if abs(v) < 1e15 else str(v))
-        else:
-            out.append(str(v).strip())
-    return out
-
-
 # --------------------------------------------------------------------------- main entry
+
+
+def _file_speed(path: Path, spec: dict) -> tuple[float, str] | None:
+    """The file's configured constant speed and its key; None when the speed is read from a column."""
+    if not has_constant_speed(spec):
+        return None
+    found = constant_speed(path.name, spec)
+    if found is None:
+        globs = ", ".join(repr(g) for g in spec["speed"]["constant_rpm_by_file"])
+        raise RawFormatError(
+            path,
+            f"no speed for this file: the mapping reads no speed column and no glob of "
+            f"input.speed.constant_rpm_by_file ({globs}) matches the file name {path.name!r}; "
+            "add a glob that matches it, or set input.speed.constant_rpm for the machine",
+        )
+    return found
 
 
 def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
@@ -453,15 +268,22 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
         under sanitised names (``'Verlagerung X1 [µm]'`` -> ``verlagerung_x1_um``,
         values as in the file). Index ``line`` = 1-based line (csv) or row (xlsx).
         ``attrs``: ``metadata`` (``format``, ``sheet`` for xlsx, ``columns`` =
-        canonical -> header used, ``sample_period_s`` if the spec gives it),
-        ``source``, ``sha256``.
+        canonical -> header used, ``sample_period_s`` if the spec gives it,
+        ``assumed`` = canonical column -> sentence for ``time`` / ``speed_rpm`` when they
+        come from the config rather than the file, see
+        :func:`rafi.readers.mapped_time.assumed_notes`), ``source``, ``sha256``.
+        Without a time column (``time.kind: none``) data row k is at ``time.start + k *
+        time.period_s``; without a speed column every row has the file's constant speed
+        (:func:`rafi.readers.input_spec.constant_speed`).
 
     Raises
     ------
     RawFormatError
-        Naming file, sheet (xlsx), line/row and the column as written in the file.
+        Naming file, sheet (xlsx), line/row and the column as written in the file; also a
+        file with no configured constant speed when the mapping reads no speed column.
     InputSpecError
-        If the mapping is invalid.
+        If the mapping is invalid (two speed globs with different speeds match the file
+        included).
     """
     path = Path(path)
     spec = normalise_input_spec(input_spec)
@@ -471,6 +293,7 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
         raw = path.read_bytes()
     except OSError as exc:
         raise RawFormatError(path, f"cannot read the file ({exc.strerror or exc})") from None
+    speed = _file_speed(path, spec)
     if spec["format"] == "csv":
         table = _read_csv_table(path, raw, spec)
     else:
@@ -525,15 +348,24 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
     cols = list(zip(*table.rows))
     index = pd.Index(table.row_numbers, name="line", dtype="int64")
     frame = pd.DataFrame(index=index)
-    j = positions["time"]
-    times = _timestamps(table, list(cols[j]), spec, header[j], j)
+    if spec["time"]["kind"] == "none":
+        problem = row_times_error(len(table.rows), spec)
+        if problem:
+            raise RawFormatError(path, problem, line=table.row_numbers[-1], sheet=table.sheet)
+        times = row_times(len(table.rows), spec)
+    else:
+        j = positions["time"]
+        times = timestamps(table, list(cols[j]), spec, header[j], j)
     frame["time"] = to_naive_ns(times).to_numpy()
     for canon in NUMERIC_COLUMNS:
+        if canon == "speed_rpm" and speed is not None:
+            frame[canon] = np.full(len(index), speed[0], dtype="float64")
+            continue
         j = positions[canon]
         unit = {"speed_rpm": "r/min", "disp_um": spec["displacement"]["unit"]}.get(
             canon, "deg " + spec["temperature_unit"]
         )
-        values = _numeric(
+        values = numeric(
             table, list(cols[j]), spec["decimal"], header[j], j, f"a number ({unit}) for {canon}"
         )
         if canon == "disp_um":
@@ -558,9 +390,9 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
                 new, n = f"{base}_{n}", n + 1
             taken.add(new)
             try:
-                frame[new] = _numeric(table, values, spec["decimal"], name, j, "a number")
+                frame[new] = numeric(table, values, spec["decimal"], name, j, "a number")
             except RawFormatError:
-                frame[new] = pd.Series(_text(values), index=index, dtype="str")
+                frame[new] = pd.Series(text(values), index=index, dtype="str")
 
     meta: dict = {"format": spec["format"]}
     if table.sheet is not None:
@@ -568,6 +400,9 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
     meta["columns"] = {canon: header[j] for canon, j in positions.items()}
     if spec["sample_period_s"] is not None:
         meta["sample_period_s"] = spec["sample_period_s"]
+    assumed = assumed_notes(spec, speed=speed)
+    if assumed:
+        meta["assumed"] = assumed
     frame.attrs["metadata"] = meta
     frame.attrs["source"] = str(path)
     frame.attrs["sha256"] = hashlib.sha256(raw).hexdigest()

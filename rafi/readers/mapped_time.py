@@ -1,0 +1,219 @@
+"""The clock of a mapped log: parsed from its time column, or built from the row number.
+
+``input.time.kind`` says where a mapped file's times come from (``docs/raw-format.md``):
+
+* ``timestamp``: a column of dates and times (``time.format``, or ISO-8601);
+* ``elapsed_s``: a column of seconds (or ``h:mm:ss`` cells) counted from ``time.start``;
+* ``none``: the file has no time column. Data row k (0-based, in file order, blank lines
+  not counted) is at ``time.start + k * time.period_s``: a logger that writes one row per
+  period and never misses one. The times are *assumed*, not measured, and the frame says so
+  in ``attrs['metadata']['assumed']`` (see :func:`assumed_notes`).
+
+The speed of a log without a speed column is a configured constant
+(:func:`rafi.readers.input_spec.constant_speed`); its note is worded here too.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+
+import numpy as np
+import pandas as pd
+
+from rafi.readers.input_spec import INPUT_DEFAULTS
+from rafi.readers.mapped_cells import Table, numeric
+from rafi.readers.parsing import TIME_MAX, TIME_MIN
+
+
+def timestamps(table: Table, values: list, spec: dict, column: str, col_index: int) -> pd.Series:
+    """The time column of a mapped file as naive timestamps (``input.time.kind`` timestamp or elapsed_s).
+
+    Parameters
+    ----------
+    table : Table
+        The file (words the error).
+    values : list
+        The cells of the time column, in row order.
+    spec : dict
+        The normalised ``input:`` mapping.
+    column : str
+        The header as written in the file.
+    col_index : int
+        0-based column index.
+
+    Returns
+    -------
+    pandas.Series
+        One timestamp per row (naive; UTC where the text carried an offset).
+
+    Raises
+    ------
+    RawFormatError
+        At the first cell that is empty, not a time, or outside 1678..2261.
+    """
+    tm = spec["time"]
+    if tm["kind"] == "elapsed_s":
+        secs = []
+        for v in values:
+            if isinstance(v, dt.timedelta):
+                v = v.total_seconds()
+            elif isinstance(v, dt.time):
+                v = v.hour * 3600 + v.minute * 60 + v.second + v.microsecond / 1e6
+            secs.append(v)
+        sec = numeric(table, secs, spec["decimal"], column, col_index, "elapsed seconds")
+        empty = np.isnan(sec)
+        if empty.any():
+            k = int(np.argmax(empty))
+            raise table.error(
+                "empty time; expected elapsed seconds",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        start = pd.Timestamp(tm["start"])
+        if start.tzinfo is not None:
+            start = start.tz_convert(None)
+        lo = (TIME_MIN - start).total_seconds()
+        hi = (TIME_MAX - start).total_seconds()
+        bad = (sec < lo) | (sec > hi)
+        if bad.any():
+            k = int(np.argmax(bad))
+            raise table.error(
+                f"{values[k]!r} seconds from {tm['start']} is outside the supported years 1678..2261",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        return pd.Series(start + pd.to_timedelta(np.round(sec * 1e9).astype("int64"), unit="ns"))
+
+    if values and all(isinstance(v, str) and v.strip() for v in values):
+        # vectorised path for text timestamps (CSV); errors fall through to the cell loop
+        strings = pd.Series([v.strip() for v in values], dtype=object)
+        try:
+            if tm["format"]:
+                parsed = pd.to_datetime(strings, format=tm["format"], errors="coerce", utc=True)
+            else:
+                parsed = pd.to_datetime(strings, format="ISO8601", errors="coerce", utc=True)
+            naive = parsed.dt.tz_convert(None)
+            if naive.notna().all() and ((naive >= TIME_MIN) & (naive <= TIME_MAX)).all():
+                return naive
+        except (ValueError, TypeError, OverflowError):
+            pass
+
+    parsed = []
+    for k, v in enumerate(values):
+        ts = None
+        if isinstance(v, dt.datetime):
+            ts = pd.Timestamp(v)
+        elif isinstance(v, dt.date):
+            ts = pd.Timestamp(v)
+        elif isinstance(v, str) and v.strip():
+            s = v.strip()
+            try:
+                if tm["format"]:
+                    ts = pd.Timestamp(dt.datetime.strptime(s, tm["format"]))
+                else:
+                    ts = pd.to_datetime(s, format="ISO8601")
+            except (ValueError, TypeError, OverflowError):
+                ts = None
+            if ts is not None and ts is not pd.NaT and ts.tzinfo is not None:
+                ts = ts.tz_convert("UTC").tz_localize(None)
+        elif v is None or (isinstance(v, str) and not v.strip()):
+            raise table.error(
+                "empty timestamp; expected a date and time",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        if ts is None or ts is pd.NaT:
+            expect = (
+                f"a time in the format {tm['format']!r}"
+                if tm["format"]
+                else "an ISO-8601 time such as 2026-10-14T08:00:00 (or set input.time.format)"
+            )
+            raise table.error(
+                f"{v!r} is not a timestamp; expected {expect}",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        if not (TIME_MIN <= ts <= TIME_MAX):
+            raise table.error(
+                f"timestamp {v!r} is outside the supported years 1678..2261",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+        parsed.append(ts)
+    return pd.Series(pd.DatetimeIndex(parsed))
+
+
+def _start(spec: dict) -> pd.Timestamp:
+    start = pd.Timestamp(spec["time"]["start"])
+    return start.tz_convert(None) if start.tzinfo is not None else start
+
+
+def row_times(n_rows: int, spec: dict) -> pd.Series:
+    """Times of a file without a time column: row k at ``time.start + k * time.period_s``.
+
+    Parameters
+    ----------
+    n_rows : int
+        Data rows of the file.
+    spec : dict
+        The normalised ``input:`` mapping, ``time.kind`` ``none``.
+
+    Returns
+    -------
+    pandas.Series
+        ``datetime64[ns]``, one per row, ``period_s`` apart (each offset rounded to the
+        nanosecond from the start, so no error accumulates over a long log).
+    """
+    period_ns = float(spec["time"]["period_s"]) * 1e9
+    offsets = np.round(np.arange(n_rows, dtype="float64") * period_ns).astype("int64")
+    return pd.Series(_start(spec) + pd.to_timedelta(offsets, unit="ns"))
+
+
+def row_times_error(n_rows: int, spec: dict) -> str | None:
+    """Why :func:`row_times` cannot date ``n_rows`` rows (the last one after 2261), else None."""
+    tm = spec["time"]
+    span_s = (n_rows - 1) * float(tm["period_s"])
+    if span_s > (TIME_MAX - _start(spec)).total_seconds():
+        return (
+            f"{n_rows} rows of {tm['period_s']:g} s from {tm['start']} (input.time.start, "
+            "input.time.period_s) end after the supported year 2261"
+        )
+    return None
+
+
+def assumed_notes(spec: dict, *, speed: tuple[float, str] | None) -> dict[str, str]:
+    """What a reader took from the config instead of the file, for ``attrs['metadata']['assumed']``.
+
+    Parameters
+    ----------
+    spec : dict
+        The normalised ``input:`` mapping.
+    speed : tuple of (float, str) or None
+        The file's constant speed and the key that gave it
+        (:func:`rafi.readers.input_spec.constant_speed`); None when the speed was read.
+
+    Returns
+    -------
+    dict
+        Canonical column -> a sentence for people (empty when everything was read from the
+        file): ``time`` when ``time.kind`` is ``none``, ``speed_rpm`` when the speed is a
+        configured constant.
+    """
+    notes: dict[str, str] = {}
+    tm = spec["time"]
+    if tm["kind"] == "none":
+        nominal = tm["start"] == INPUT_DEFAULTS["time"]["start"]
+        start = f"{tm['start']} (input.time.start not set: a nominal date)" if nominal else tm["start"]
+        notes["time"] = (
+            f"no time column: row k of the file is taken to be at {start} + k x {tm['period_s']:g} s "
+            "(input.time.kind none, input.time.period_s); a missing row cannot be seen"
+        )
+    if speed is not None:
+        rpm, source = speed
+        notes["speed_rpm"] = f"no speed column: {rpm:g} r/min for every row, from {source}"
+    return notes
