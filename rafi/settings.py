@@ -26,6 +26,7 @@ import os
 from collections.abc import Mapping
 
 from rafi.errors import SettingsError
+from rafi.readers.input_assumed import check_period
 from rafi.readers.input_spec import normalise_input_spec
 
 #: Run settings: top level of ``config.yaml`` (``--config key=value`` on the command line).
@@ -173,6 +174,7 @@ def machine_settings(config: Mapping, machine: str) -> dict:
     merged = deep_merge(MACHINE_DEFAULTS, config.get("defaults"))
     merged = deep_merge(merged, (config.get("machines") or {}).get(machine))
     merged["input"] = normalise_input_spec(merged["input"])
+    check_period(merged["input"], merged["sample_period_s"])
     return merged
 
 

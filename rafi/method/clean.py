@@ -181,7 +181,8 @@ def clean_log(
         ``reordered``, ``duplicate_dropped``, ``open_circuit_removed``,
         ``time_snapped``, ``gap_interpolated``, ``gap_split``, ``spike_replaced``,
         ``dropout_interpolated``, ``dropout_left_nan``, ``speed_filled``,
-        ``column_dropped``.
+        ``column_dropped``, ``assumed`` (a column the reader took from the config, not the
+        file: ``attrs['metadata']['assumed']``, e.g. no time column).
 
     Raises
     ------
@@ -230,6 +231,9 @@ def clean_log(
             num_extras.append(c)
         else:
             text_extras.append(c)
+    meta = frame.attrs.get("metadata")
+    for column, detail in ((meta.get("assumed") if isinstance(meta, dict) else None) or {}).items():
+        audit.add("assumed", str(column), lines[0], lines[-1], len(frame), str(detail))  # from config
     for c in text_extras:
         audit.add(
             "column_dropped",
