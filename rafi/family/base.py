@@ -8,6 +8,12 @@ them as given; a default, where there is one, is read from
 ``_``). ``from_dict`` builds a fitted model from its artefact explicitly: the constructor
 with the recorded hyperparameters, then every fitted attribute from the artefact.
 
+Every fitted model of the family has ``grid_edges_``: plain-text flags for hyperparameters
+CV chose at an edge of their grid (:func:`rafi.family.grids.edge_flags`; empty for the kinds
+without a grid), also recorded in the ridge kinds' artefact as ``selected.grid_edges``.
+``fit`` receives the whole runs frame: a model filtering its inputs evaluates them over whole
+logs (:mod:`rafi.family.whole_log`) but learns from the ``training`` runs' displacement only.
+
 Artefact (``docs/design.md``): ``schema: rafi.model/1``, a ``kind``, ``model_id`` = SHA-256
 of the canonical JSON without ``model_id``/``created`` (:func:`rafi.artefact.compute_model_id`).
 """

@@ -11,6 +11,11 @@ neighbours, 5 s away, sit in the training set. Every split here is by **whole ru
 Only runs with ``role == "training"`` are ever split; validation runs never enter model
 selection. Every splitter asserts that no run is in both the train and the test set.
 
+A fold's model sees the **inputs** of whole logs (a filter runs through the other runs of a
+log, held-out ones included) but the **displacement** of its training runs only: the held-out
+runs get the role :data:`HELD_OUT` in the table ``fit`` receives, and ``fit`` learns from
+``role == "training"`` rows alone.
+
 The comparison on the validation runs and the champion choice are in
 :mod:`rafi.family.compare`.
 """
@@ -22,6 +27,8 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pandas as pd
 
+from rafi.family.whole_log import rows_of_logs
+
 __all__ = [
     "SCHEMES",
     "training_runs",
@@ -32,9 +39,14 @@ __all__ = [
     "subset_runs",
     "cross_validate",
     "CV_COLUMNS",
+    "HELD_OUT",
+    "hold_out",
 ]
 
 SPEED_GROUP_TOLERANCE_RPM = 50.0
+
+#: Role of a training run held out of a CV fold (in the table that fold's ``fit`` receives).
+HELD_OUT = "held_out"
 
 CV_COLUMNS = [
     "model",
@@ -76,6 +88,14 @@ def subset_runs(
         runs_table.loc[runs_table["run_id"].astype(str).isin(ids)],
         runs_frame.loc[runs_frame["run_id"].astype(str).isin(ids)],
     )
+
+
+def hold_out(runs_table: pd.DataFrame, run_ids) -> pd.DataFrame:
+    """A copy of ``runs_table`` whose runs ``run_ids`` have the role :data:`HELD_OUT`."""
+    out = runs_table.copy()
+    ids = set(map(str, run_ids))
+    out.loc[out["run_id"].astype(str).isin(ids), "role"] = HELD_OUT
+    return out
 
 
 # --------------------------------------------------------------------------- splitters
@@ -178,11 +198,14 @@ def cross_validate(
 ) -> pd.DataFrame:
     """Whole-run CV of the model that ``model_factory()`` builds, on the training runs only.
 
-    Each fold fits a fresh model on the fold's training runs (the held-out runs are
-    removed from both ``runs_table`` and ``runs_frame`` before ``fit`` sees them; a model
-    with hyperparameters runs its own inner CV on those training runs only) and predicts
-    every held-out run as a whole. Metrics per held-out run are those of
-    ``docs/design.md`` (``max |dz - predicted|``, improvement, RMSE).
+    Each fold fits a fresh model on the fold's training runs: ``fit`` gets the whole
+    ``runs_frame`` and the table with the held-out runs' role set to :data:`HELD_OUT`, so it
+    learns from the displacement of the fold's training runs only (a model with
+    hyperparameters runs its own inner CV on those runs only = nested CV) while a filter may
+    run through the inputs of whole logs. The fold's model then predicts the logs holding the
+    held-out runs once (:func:`rafi.family.whole_log.rows_of_logs`; per-run frames: the
+    held-out runs' rows) and each held-out run is scored on its own samples. Metrics per
+    held-out run are those of ``docs/design.md`` (``max |dz - predicted|``, improvement, RMSE).
 
     Returns
     -------
@@ -194,15 +217,16 @@ def cross_validate(
     speeds = dict(zip(train_table["run_id"].astype(str), train_table["speed_rpm"].astype(float)))
     for k, (train_ids, test_ids) in enumerate(split_runs(runs_table, scheme)):
         assert_disjoint(train_ids, test_ids)
-        t_table, t_frame = subset_runs(runs_table, runs_frame, train_ids)
-        assert not set(map(str, pd.unique(t_frame["run_id"]))) & set(map(str, test_ids))
-        model = model_factory().fit(t_table, t_frame)
+        fold_table = hold_out(runs_table, test_ids)
+        fitted_on = set(map(str, training_runs(fold_table, runs_frame)[0]["run_id"]))
+        assert fitted_on == set(map(str, train_ids)), "a fold fits on exactly its training runs"
+        model = model_factory().fit(fold_table, runs_frame)
+        needed = runs_frame.loc[rows_of_logs(runs_frame, test_ids)]
+        predicted = np.asarray(model.predict(needed), dtype=float)
+        run_of = needed["run_id"].astype(str).to_numpy()
         for rid in test_ids:
-            _, run = subset_runs(runs_table, runs_frame, [rid])
-            if "t_s" in run.columns:
-                run = run.sort_values("t_s", kind="stable")
-            pred = np.asarray(model.predict(run), dtype=float)
-            met = _metrics(run["dz_um"].to_numpy(dtype=float), pred)
+            mine = run_of == str(rid)
+            met = _metrics(needed["dz_um"].to_numpy(dtype=float)[mine], predicted[mine])
             rows.append(
                 {
                     "model": name,

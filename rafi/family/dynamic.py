@@ -21,8 +21,9 @@ class DynamicRidge(RidgeGlobal):
 
     Parameters
     ----------
-    taus_s : sequence of float
-        Filter time constants to choose from (``models: dynamic_taus_s``).
+    taus_s : sequence of float or "auto"
+        Filter time constants to choose from (``models: dynamic_taus_s``); ``auto``: derived
+        from the sample period and the median training-run length (:mod:`rafi.family.grids`).
     max_taus : int
         At most this many chosen at once (``models: dynamic_max_taus``).
     **others
@@ -46,6 +47,7 @@ class DynamicRidge(RidgeGlobal):
         reference: dict = MACHINE_DEFAULTS["reference"],
         machine: str | None = None,
         speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
+        filter_restart_gap_s: float = MODELS["filter_restart_gap_s"],
     ):
         super().__init__(
             sensors=sensors,
@@ -58,6 +60,7 @@ class DynamicRidge(RidgeGlobal):
             reference=reference,
             machine=machine,
             speed_tolerance_rpm=speed_tolerance_rpm,
+            filter_restart_gap_s=filter_restart_gap_s,
         )
         self.taus_s = taus_s
         self.max_taus = max_taus
@@ -68,9 +71,15 @@ class DynamicRidge(RidgeGlobal):
             "speed (krpm) relative to the reference state; displacement is not an input"
         )
 
+    def _grid_settings(self) -> dict:
+        return {"dynamic_taus_s": self.taus_s}
+
     def _tau_grid(self) -> tuple[list[float], int]:
-        return [float(t) for t in self.taus_s], int(self.max_taus)
+        return list(self.grids_["dynamic_taus_s"]), int(self.max_taus)
+
+    def _chosen(self) -> dict:
+        return {"alpha": self.alpha_, "dynamic_taus_s": self.taus_}
 
     def _hyper(self) -> dict:
-        taus, max_taus = self._tau_grid()
-        return {**super()._hyper(), "taus_s": taus, "max_taus": max_taus}
+        taus = self.taus_s if isinstance(self.taus_s, str) else [float(t) for t in self.taus_s]
+        return {**super()._hyper(), "taus_s": taus, "max_taus": int(self.max_taus)}

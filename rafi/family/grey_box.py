@@ -10,15 +10,9 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from rafi.family.features import (
-    SPEED_POWER_SCALE_RPM,
-    SPEED_SCALE_RPM,
-    lowpass_runs,
-    reference_median,
-    rise_column,
-    sorted_inputs,
-)
-from rafi.family.ridge import RidgeBase, cv_folds, cv_scores
+from rafi.family.features import SPEED_POWER_SCALE_RPM, SPEED_SCALE_RPM, lowpass_runs, rise_column
+from rafi.family.ridge import FILTER_STATE_TEXT, RidgeBase, cv_folds, cv_scores
+from rafi.family.whole_log import filtered_inputs, filtered_rises, lowpass_log, unsort
 from rafi.settings import MACHINE_DEFAULTS
 
 MODELS = MACHINE_DEFAULTS["models"]
@@ -36,11 +30,12 @@ class GreyBox(RidgeBase):
     rotor losses) stand for the heat input to the *unmeasured* fast parts (shaft, bearings,
     stator); their filters represent the lag with which those parts follow a speed change.
 
-    Initial condition of the speed-power filters: ``reference.rule: run_start`` (cold start):
-    the state before the first sample is zero (machine at rest), and the feature is then
-    referenced like ``dz`` (minus its median over the reference window); ``log_start``: the
-    filter starts settled on the first sample's speed (the run's history is not in the frame;
-    exact when the speed was steady for a few tau before the run started).
+    Initial condition of the filters: on a frame of whole logs (``log``, ``log_t_s``) every
+    filter runs over the log and each feature is the filtered absolute input minus its median
+    over the run's reference window (:mod:`rafi.family.whole_log`). Per-run frames, as
+    before: speed-power filters under ``reference.rule: run_start`` (cold start) start from
+    zero (machine at rest) and are referenced like ``dz`` (minus the median over the
+    reference window); under ``log_start`` they start settled on the first sample's speed.
 
     The instantaneous centrifugal term ``n^2 - n0^2`` (krpm^2) is used only if it is
     identifiable: at least ``MIN_IDENTIFYING_RUNS`` training runs show a step from their
@@ -58,23 +53,25 @@ class GreyBox(RidgeBase):
 
     Parameters
     ----------
-    taus_s, max_taus : sequence of float, int
+    taus_s, max_taus : sequence of float or "auto", int
         Rise filter constants and, for ``filter_search: subsets``, the most chosen at once
-        (``models: grey_box_taus_s``, ``grey_box_max_taus``).
-    speed_taus_s, max_speed_taus : sequence of float, int
+        (``models: grey_box_taus_s``, ``grey_box_max_taus``); ``auto``: from the sample period
+        and the median training-run length (:mod:`rafi.family.grids`).
+    speed_taus_s, max_speed_taus : sequence of float or "auto", int
         Heat-input filter constants (``models: grey_box_speed_taus_s``, ``grey_box_max_speed_taus``).
     speed_powers : sequence of float
         The powers ``p`` of ``(n/10^4)^p`` (``models: grey_box_speed_powers``).
     filter_search : str
         ``all``: every filter constant at once, the heat-input block in or out by CV;
         ``subsets``: CV over subsets (``models: grey_box_filter_search``).
-    centrifugal_lags_s : sequence of float
+    centrifugal_lags_s : sequence of float or "auto"
         First-order lags of the ``n^2`` draw-in term to choose from (``models: grey_box_centrifugal_lags_s``).
     cv_metric : str
         ``rmse`` or ``max_abs`` (``models: grey_box_cv_metric``).
     **others
         ``sensors``, ``alphas``, ``cv``, ``speed_terms``, ``speed_reference``, ``reference``,
-        ``machine``, ``speed_tolerance_rpm`` as :class:`rafi.family.ridge_global.RidgeGlobal`.
+        ``machine``, ``speed_tolerance_rpm``, ``filter_restart_gap_s`` as
+        :class:`rafi.family.ridge_global.RidgeGlobal`.
     """
 
     kind = "grey_box"
@@ -98,6 +95,7 @@ class GreyBox(RidgeBase):
         reference: dict = MACHINE_DEFAULTS["reference"],
         machine: str | None = None,
         speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
+        filter_restart_gap_s: float = MODELS["filter_restart_gap_s"],
     ):
         self.taus_s = taus_s
         self.max_taus = max_taus
@@ -115,6 +113,7 @@ class GreyBox(RidgeBase):
         self.reference = reference
         self.machine = machine
         self.speed_tolerance_rpm = speed_tolerance_rpm
+        self.filter_restart_gap_s = filter_restart_gap_s
 
     def _inputs_text(self) -> str:
         return (
@@ -122,24 +121,37 @@ class GreyBox(RidgeBase):
             "low-pass filtered speed powers (n/10000 r/min)^p; displacement is not an input"
         )
 
-    # -- hyperparameters, as used (floats and ints)
+    # -- hyperparameters, as used (floats and ints; the grids as resolved by fit)
+    def _grid_settings(self) -> dict:
+        return {
+            "grey_box_taus_s": self.taus_s,
+            "grey_box_speed_taus_s": self.speed_taus_s,
+            "grey_box_centrifugal_lags_s": self.centrifugal_lags_s,
+        }
+
     def _rise_taus(self) -> list[float]:
-        return [float(t) for t in self.taus_s]
+        return list(self.grids_["grey_box_taus_s"])
 
     def _speed_taus(self) -> list[float]:
-        return [float(t) for t in self.speed_taus_s]
+        return list(self.grids_["grey_box_speed_taus_s"])
 
     def _powers(self) -> list[float]:
         return [float(p) for p in self.speed_powers]
 
     def _lags(self) -> list[float]:
-        return [float(t) for t in self.centrifugal_lags_s] or [0.0]
+        return list(self.grids_["grey_box_centrifugal_lags_s"]) or [0.0]
+
+    @staticmethod
+    def _given(value):
+        """A grid setting as recorded: ``auto`` or the list as floats."""
+        return value if isinstance(value, str) else [float(v) for v in value]
 
     def _check_params(self) -> None:
         super()._check_params()
         if self.filter_search not in FILTER_SEARCHES:
             raise ValueError(f"filter_search={self.filter_search!r}: use all or subsets")
-        if min(self._lags()) < 0:
+        lags = self.centrifugal_lags_s
+        if not isinstance(lags, str) and len(lags) and min(float(v) for v in lags) < 0:
             raise ValueError(f"centrifugal_lags_s={self.centrifugal_lags_s!r}: lags must be >= 0")
 
     def _cold_start(self) -> bool:
@@ -158,8 +170,9 @@ class GreyBox(RidgeBase):
         """Feature matrix in ``frame`` row order and the feature names: filtered rises, filtered
         speed powers (none if ``speed_taus`` is empty) and, if ``instantaneous``, the ``n^2``
         draw-in column once per lag of ``centrifugal_lags``."""
-        order, codes, x, t, rpm = sorted_inputs(frame, sensors)
-        parts, names = [lowpass_runs(x, t, codes, taus)], []
+        lay = self._layout(frame)
+        rpm = frame["speed_rpm"].to_numpy(dtype=float)[lay.order]
+        parts, names = [filtered_rises(frame, lay, sensors, taus)], []
         for tau in taus:
             names += [f"{rise_column(s)}@{tau:g}s" for s in sensors]
         if speed_taus:
@@ -170,21 +183,26 @@ class GreyBox(RidgeBase):
                 [(np.abs(rpm) > running).astype(float) if p == 0 else r**p for p in powers]
             )  # p = 0: running (1) / at rest (0)
             cold = self._cold_start()
-            f = lowpass_runs(pw, t, codes, speed_taus, initial="zero" if cold else "settled")
-            if cold:
-                f = f - reference_median(f, t, codes, self._window_s())
+            f = filtered_inputs(
+                pw,
+                lay,
+                speed_taus,
+                initial="zero" if cold else "settled",
+                referenced=cold,
+                window_s=self._window_s(),
+            )
             parts.append(f)
             for tau in speed_taus:
                 names += [f"L{tau:g}s(n^{p:.4g})" for p in powers]
         if instantaneous:
-            n0 = self._reference_speed(frame)[order]
-            n2 = ((rpm / SPEED_SCALE_RPM) ** 2 - (n0 / SPEED_SCALE_RPM) ** 2)[:, None]
-            parts.append(lowpass_runs(n2, t, codes, centrifugal_lags))
+            n0 = (self._reference_speed(frame)[lay.order] / SPEED_SCALE_RPM) ** 2
+            n2 = (rpm / SPEED_SCALE_RPM) ** 2
+            if lay.whole_logs:  # L(n^2) over the log, relative to the reference speed's n0^2
+                parts.append(lowpass_log(n2, lay.t, lay.restart, centrifugal_lags) - n0[:, None])
+            else:
+                parts.append(lowpass_runs((n2 - n0)[:, None], lay.t, lay.codes, centrifugal_lags))
             names += ["n2_krpm2" if lag <= 0 else f"L{lag:g}s(n2_krpm2)" for lag in centrifugal_lags]
-        f_sorted = np.column_stack(parts)
-        out = np.empty_like(f_sorted)
-        out[order] = f_sorted
-        return out, names
+        return unsort(np.column_stack(parts), lay), names
 
     def _design(self, frame: pd.DataFrame):
         return self._features(
@@ -202,7 +220,7 @@ class GreyBox(RidgeBase):
         redundant constants; CV decides whether the heat-input terms help at all, e.g. they do
         not for runs referenced while already spinning). ``subsets``: every subset of at most
         ``max_taus`` / ``max_speed_taus`` of them."""
-        n_rise, n_speed = len(self.taus_s), len(self.speed_taus_s)
+        n_rise, n_speed = len(self._rise_taus()), len(self._speed_taus())
         if self.filter_search == "all":
             return [tuple(range(n_rise))], [(), tuple(range(n_speed))]
         rise_sets = [
@@ -220,13 +238,14 @@ class GreyBox(RidgeBase):
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """Choose the filter constants, the draw-in lag and ``alpha`` by whole-run CV on the
         training runs, then fit on all of them; returns ``self``."""
-        table, frame, sensors = self._prepare(runs_table, runs_frame)
+        table, frame, rows, sensors = self._prepare(runs_table, runs_frame)
+        train = frame.loc[rows]
         self.speed_gain_ = False
-        self.instantaneous_ = self._use_speed_terms(frame)
+        self.instantaneous_ = self._use_speed_terms(train)
         self.speed_terms_ = self.instantaneous_  # grey_box's only reference-speed term is n^2 - n0^2
         rise_taus, speed_taus, alphas = self._rise_taus(), self._speed_taus(), self._alphas()
-        y = frame["dz_um"].to_numpy(dtype=float)
-        run_ids = frame["run_id"].astype(str).to_numpy()
+        y = train["dz_um"].to_numpy(dtype=float)
+        run_ids = train["run_id"].astype(str).to_numpy()
         lags = self._lags() if self.instantaneous_ else [0.0]
         feats, _ = self._features(
             frame,
@@ -236,6 +255,7 @@ class GreyBox(RidgeBase):
             instantaneous=self.instantaneous_,
             centrifugal_lags=lags,
         )
+        feats = feats[rows]
         p, q = len(sensors), len(self._powers())
         n_rise = p * len(rise_taus)
         n_speed = q * len(speed_taus)
@@ -271,20 +291,31 @@ class GreyBox(RidgeBase):
         _, taus, staus, alpha, lag = best
         self.speed_taus_ = staus
         self.centrifugal_lag_s_ = float(lag)
-        return self._fit_final(table, frame, sensors, taus, alpha, cv_table)
+        return self._fit_final(table, frame, rows, sensors, taus, alpha, cv_table)
+
+    def _chosen(self) -> dict:
+        """What CV chose among grid values: with ``filter_search: all`` every filter constant
+        is in the model (nothing chosen, no edge); the draw-in lag only if the term is used."""
+        out = {"alpha": self.alpha_}
+        if self.filter_search == "subsets":
+            out["grey_box_taus_s"] = self.taus_
+            out["grey_box_speed_taus_s"] = self.speed_taus_
+        if self.instantaneous_:
+            out["grey_box_centrifugal_lags_s"] = self.centrifugal_lag_s_
+        return out
 
     # -- artefact
     def _hyper(self) -> dict:
         return {
             **super()._hyper(),
             "speed_gain": False,  # no speed-gain products (a key of every ridge kind's artefact)
-            "taus_s": self._rise_taus(),
+            "taus_s": self._given(self.taus_s),
             "max_taus": int(self.max_taus),
-            "speed_taus_s": self._speed_taus(),
+            "speed_taus_s": self._given(self.speed_taus_s),
             "max_speed_taus": int(self.max_speed_taus),
             "speed_powers": self._powers(),
             "filter_search": self.filter_search,
-            "centrifugal_lags_s": self._lags(),
+            "centrifugal_lags_s": self._given(self.centrifugal_lags_s),
         }
 
     def _selected(self) -> dict:
@@ -300,13 +331,14 @@ class GreyBox(RidgeBase):
             "type": "first_order_lowpass",
             "update": "y += (1 - exp(-dt/tau)) * (x - y)",
             "initial_condition": {
-                "rises": "settled on the run's first sample (~0 at a cold start)",
-                "speed_powers": (
+                **FILTER_STATE_TEXT,
+                "per_run_speed_powers": (
                     "zero before the first sample (cold start from rest), then minus the "
                     "median over the reference window"
                     if self._cold_start()
                     else "settled on the first sample's speed"
                 ),
+                "draw_in": "L(n^2) - n0^2, n0 the reference speed",
             },
         }
 

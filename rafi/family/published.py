@@ -75,6 +75,7 @@ class PublishedRafi(FamilyModel):
         )
         self.model_ = res.model
         self.train_runs_ = sorted(map(str, table["run_id"]))
+        self.grid_edges_ = []  # no hyperparameter grid
         return self
 
     def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
@@ -104,5 +105,6 @@ class PublishedRafi(FamilyModel):
             key_sensors=inner.key_sensors, terms=inner.terms, reference=inner.reference, machine=inner.machine
         )
         m.model_ = inner
+        m.grid_edges_ = []
         m.train_runs_ = sorted({r for sp in d["speeds"] for r in sp.get("train_runs", [])})
         return m

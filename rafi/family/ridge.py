@@ -19,8 +19,21 @@ from rafi.family.features import (
     speed_change_evidence,
     usable_sensors,
 )
+from rafi.family.grids import data_scales, edge_flags, resolve
+from rafi.family.whole_log import has_whole_logs, layout, rows_of_logs
 
 CV_METRICS = ("rmse", "max_abs")
+
+#: How the filters start and what a filtered feature is relative to (the artefact's ``filter``).
+FILTER_STATE_TEXT = {
+    "whole_logs": (
+        "frames with log/log_t_s: causal over each log in log_t_s order, state carried through "
+        "cool-downs and gaps up to filter_restart_gap_s, restarted settled on the first finite "
+        "sample at a log start or after a longer gap; the absolute input is filtered and the "
+        "feature is the filtered value minus its median over the run's reference window"
+    ),
+    "per_run": "frames without log columns: per run, settled on the run's first sample",
+}
 
 
 def ridge_gram(g: np.ndarray, c: np.ndarray, n: int, alphas: Sequence[float]) -> np.ndarray:
@@ -104,8 +117,13 @@ def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: st
 class RidgeBase(FamilyModel):
     """Base of the ridge kinds. A subclass defines ``__init__`` (its hyperparameters, among them
     ``sensors``, ``alphas``, ``cv``, ``cv_metric``, ``speed_terms``, ``speed_reference``,
-    ``reference``, ``machine``, ``speed_tolerance_rpm``), ``fit``, ``_design`` (the feature
-    matrix of the fitted model) and ``_inputs_text``."""
+    ``reference``, ``machine``, ``speed_tolerance_rpm``, ``filter_restart_gap_s``), ``fit``,
+    ``_design`` (the feature matrix of the fitted model), ``_grid_settings`` and ``_inputs_text``.
+
+    Features are computed over whole logs where the frame has ``log`` / ``log_t_s``
+    (:mod:`rafi.family.whole_log`): ``fit`` evaluates them on every log that holds a training
+    run (the inputs of every run of those logs, never another run's displacement) and then
+    keeps the training rows with a finite ``dz_um``."""
 
     kind = "ridge_base"
 
@@ -119,6 +137,28 @@ class RidgeBase(FamilyModel):
 
     def _window_s(self) -> float:
         return float(self.reference["window_s"])
+
+    def _layout(self, frame: pd.DataFrame):
+        """How ``frame`` is filtered (:func:`rafi.family.whole_log.layout`)."""
+        return layout(
+            frame,
+            rule=str(self.reference["rule"]),
+            window_s=self._window_s(),
+            restart_gap_s=float(self.filter_restart_gap_s),
+        )
+
+    def _grid_settings(self) -> dict:
+        """Setting name -> value (a list or ``auto``) of the filter grids of this kind."""
+        return {}
+
+    def _resolve_grids(self, frame: pd.DataFrame) -> None:
+        """Set ``data_scales_`` (sample period, median run length of the training rows ``frame``)
+        and ``grids_`` (every grid as used: ``alpha`` and the kind's filter grids)."""
+        period, run_s = data_scales(frame)
+        self.data_scales_ = {"sample_period_s": period, "run_length_s": run_s}
+        self.grids_ = {"alpha": self._alphas()}
+        for name, value in self._grid_settings().items():
+            self.grids_[name] = resolve(name, value, period, run_s)
 
     def _speed_rule(self) -> str:
         """``auto``: the run's start window under ``reference.rule: run_start``, else 0 r/min."""
@@ -145,21 +185,35 @@ class RidgeBase(FamilyModel):
 
     # -- fit
     def _prepare(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        """``(table, frame, rows, sensors)``: the training runs, the rows features are computed
+        on (whole logs holding a training run; per run: the training rows), the mask of the
+        training rows with a finite ``dz_um`` in ``frame`` and the sensors. Sets ``grids_``."""
         self._check_params()
-        table, frame = training_runs(runs_table, runs_frame)
-        frame = frame[np.isfinite(frame["dz_um"].to_numpy(dtype=float))]
-        sensors = list(self.sensors) if self.sensors is not None else usable_sensors(frame)
+        table, train = training_runs(runs_table, runs_frame)
+        if has_whole_logs(runs_frame):
+            frame = runs_frame.loc[rows_of_logs(runs_frame, table["run_id"])]
+            ids = set(table["run_id"].astype(str))
+            rows = frame["run_id"].astype(str).isin(ids).to_numpy()
+            rows = rows & np.isfinite(frame["dz_um"].to_numpy(dtype=float))
+        else:  # per run, as before: only the training rows with a finite dz
+            frame = train[np.isfinite(train["dz_um"].to_numpy(dtype=float))]
+            rows = np.ones(len(frame), dtype=bool)
+        fit_rows = frame.loc[rows]
+        sensors = list(self.sensors) if self.sensors is not None else usable_sensors(fit_rows)
         if not sensors:
             raise ValueError("no usable temperature sensor in the training runs")
-        return table, frame, sensors
+        self._resolve_grids(fit_rows)
+        return table, frame, rows, sensors
 
-    def _fit_final(self, table, frame, sensors, taus, alpha, cv_table):
+    def _fit_final(self, table, frame, rows, sensors, taus, alpha, cv_table):
         """Fit the chosen model on every training run (the selection attributes of the subclass,
-        e.g. ``speed_gain_``, are set before)."""
+        e.g. ``speed_gain_``, are set before); ``rows`` marks the training rows of ``frame``."""
         self.sensors_ = list(sensors)
         self.taus_ = [float(t) for t in taus]
         self.alpha_ = float(alpha)
         feats, names = self._design(frame)
+        feats = feats[rows]
+        frame = frame.loc[rows]
         y = frame["dz_um"].to_numpy(dtype=float)
         sc = rms_scale(feats)
         b = ridge_gram((feats / sc).T @ (feats / sc), (feats / sc).T @ y, len(y), [alpha])[:, 0]
@@ -176,7 +230,12 @@ class RidgeBase(FamilyModel):
         self.n_ = int(len(y))
         self.cv_table_ = cv_table
         self.data_ = data_hashes(table, self.train_runs_)
+        self.grid_edges_ = edge_flags(self.kind, self._chosen(), self.grids_)
         return self
+
+    def _chosen(self) -> dict:
+        """Hyperparameter -> the value CV chose, for :func:`rafi.family.grids.edge_flags`."""
+        return {"alpha": self.alpha_}
 
     # -- evaluation (NumPy only)
     def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
@@ -207,6 +266,7 @@ class RidgeBase(FamilyModel):
             "speed_terms": bool(self.speed_terms),
             "speed_reference": self.speed_reference,
             "speed_tolerance_rpm": float(self.speed_tolerance_rpm),
+            "filter_restart_gap_s": float(self.filter_restart_gap_s),
         }
 
     def _selected(self) -> dict:
@@ -217,13 +277,16 @@ class RidgeBase(FamilyModel):
             "speed_gain": self.speed_gain_,
             "speed_terms": bool(self.speed_terms_),
             "identifying_runs": list(self.identifying_runs_),
+            "grids": {k: [float(v) for v in g] for k, g in self.grids_.items()},
+            "data_scales": dict(self.data_scales_),
+            "grid_edges": list(self.grid_edges_),
         }
 
     def _filter_text(self) -> dict:
         return {
             "type": "first_order_lowpass",
-            "initial_condition": "settled on the run's first sample",
             "update": "y += (1 - exp(-dt/tau)) * (x - y)",
+            "initial_condition": FILTER_STATE_TEXT,
         }
 
     def to_dict(self) -> dict:
@@ -277,6 +340,9 @@ class RidgeBase(FamilyModel):
         m.n_ = d.get("n")
         m.cv_table_ = d.get("cv", [])
         m.data_ = d.get("data", {})
+        m.grids_ = {k: [float(v) for v in g] for k, g in selected.get("grids", {}).items()}
+        m.data_scales_ = dict(selected.get("data_scales", {}))
+        m.grid_edges_ = list(selected.get("grid_edges", []))
         m._from_selected(selected)
         return m
 

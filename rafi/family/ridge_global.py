@@ -9,8 +9,9 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from rafi.family.features import SPEED_SCALE_RPM, lowpass_runs, rise_column, sorted_inputs
+from rafi.family.features import SPEED_SCALE_RPM, rise_column
 from rafi.family.ridge import RidgeBase, cv_folds, cv_scores
+from rafi.family.whole_log import filtered_rises, unsort
 from rafi.settings import MACHINE_DEFAULTS
 
 MODELS = MACHINE_DEFAULTS["models"]
@@ -51,6 +52,9 @@ class RidgeGlobal(RidgeBase):
         Machine name recorded in the artefact.
     speed_tolerance_rpm : float
         A sample this far from the reference speed shows a speed step.
+    filter_restart_gap_s : float
+        Whole-log frames: a gap longer than this (s) restarts the filters
+        (``models: filter_restart_gap_s``; :mod:`rafi.family.whole_log`).
     """
 
     kind = "ridge_global"
@@ -68,6 +72,7 @@ class RidgeGlobal(RidgeBase):
         reference: dict = MACHINE_DEFAULTS["reference"],
         machine: str | None = None,
         speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
+        filter_restart_gap_s: float = MODELS["filter_restart_gap_s"],
     ):
         self.sensors = sensors
         self.alphas = alphas
@@ -79,6 +84,7 @@ class RidgeGlobal(RidgeBase):
         self.reference = reference
         self.machine = machine
         self.speed_tolerance_rpm = speed_tolerance_rpm
+        self.filter_restart_gap_s = filter_restart_gap_s
 
     def _inputs_text(self) -> str:
         return "temperature rises dT (K) of all usable sensors; speed (krpm) relative to the reference state"
@@ -96,8 +102,9 @@ class RidgeGlobal(RidgeBase):
         self, frame: pd.DataFrame, sensors: Sequence[str], taus: Sequence[float], *, speed_gain, speed_terms
     ):
         """Feature matrix in ``frame`` row order and the feature names."""
-        order, codes, x, t, rpm = sorted_inputs(frame, sensors)
-        filtered = lowpass_runs(x, t, codes, taus)
+        lay = self._layout(frame)
+        rpm = frame["speed_rpm"].to_numpy(dtype=float)[lay.order]
+        filtered = filtered_rises(frame, lay, sensors, taus)
         n = rpm / SPEED_SCALE_RPM
         p = len(sensors)
         parts, names = [], []
@@ -109,13 +116,10 @@ class RidgeGlobal(RidgeBase):
                 parts.append(block * n[:, None])
                 names += [f"{rise_column(s)}@{tau:g}s*n_krpm" for s in sensors]
         if speed_terms:
-            n0 = self._reference_speed(frame)[order] / SPEED_SCALE_RPM
+            n0 = self._reference_speed(frame)[lay.order] / SPEED_SCALE_RPM
             parts.append(np.column_stack([n - n0, n**2 - n0**2]))
             names += ["n_krpm", "n2_krpm2"]
-        f_sorted = np.column_stack(parts)
-        f = np.empty_like(f_sorted)
-        f[order] = f_sorted
-        return f, names
+        return unsort(np.column_stack(parts), lay), names
 
     def _design(self, frame: pd.DataFrame):
         return self._features(
@@ -125,17 +129,20 @@ class RidgeGlobal(RidgeBase):
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """Choose the filter constants, ``alpha`` (and the speed gain) by whole-run CV on the
         training runs, then fit on all of them; returns ``self``."""
-        table, frame, sensors = self._prepare(runs_table, runs_frame)
-        self.speed_terms_ = self._use_speed_terms(frame)
+        table, frame, rows, sensors = self._prepare(runs_table, runs_frame)
+        train = frame.loc[rows]
+        self.speed_terms_ = self._use_speed_terms(train)
         taus_grid, max_taus = self._tau_grid()
         gains = [False, True] if self.speed_gain == "cv" else [bool(self.speed_gain)]
         alphas = self._alphas()
-        y = frame["dz_um"].to_numpy(dtype=float)
-        run_ids = frame["run_id"].astype(str).to_numpy()
-        # the superset of the columns, once; each candidate is a subset
+        y = train["dz_um"].to_numpy(dtype=float)
+        run_ids = train["run_id"].astype(str).to_numpy()
+        # the superset of the columns, once (over whole logs), then the training rows; each
+        # candidate is a subset of the columns
         all_feats, _ = self._features(
             frame, sensors, taus_grid, speed_gain=max(gains), speed_terms=self.speed_terms_
         )
+        all_feats = all_feats[rows]
         p = len(sensors)
         width = p * (2 if max(gains) else 1)
         speed = np.arange(len(taus_grid) * width, all_feats.shape[1])
@@ -156,7 +163,7 @@ class RidgeGlobal(RidgeBase):
                             best = (float(sc), taus, a, gain)
         _, taus, alpha, gain = best
         self.speed_gain_ = bool(gain)
-        return self._fit_final(table, frame, sensors, taus, alpha, cv_table)
+        return self._fit_final(table, frame, rows, sensors, taus, alpha, cv_table)
 
     def _hyper(self) -> dict:
         return {**super()._hyper(), "speed_gain": self.speed_gain}
