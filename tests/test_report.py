@@ -27,6 +27,7 @@ import yaml
 from markupsafe import escape
 
 from rafi.artefact import compute_model_id, jsonable
+from rafi.family.selection import SELECTION_RULE
 from rafi.report import figures, tables
 from rafi.report.context import build_context
 from rafi.report.format import equation_text, fmt_duration, fmt_num, fmt_p, fmt_sig, truthy
@@ -213,6 +214,36 @@ def _machine_b_like(src: Path, dst: Path) -> None:
         per_run={"thermal_log_2026-10-16#2": 11.5},
     )
     (dst / "registry" / "decision.json").write_text(json.dumps(dec, indent=2))
+    _continuous_logs(dst)
+
+
+def _continuous_logs(dst: Path) -> None:
+    """Runs ``<stem>#k`` become runs of the log ``<stem>.xlsx``, one after the other on its
+    clock (runs.csv start_s/end_s, runs.parquet log/log_t_s), with the columns of issue 12
+    (role_reason, start_time, end_time; role_source ``window`` on one run)."""
+    runs = pd.read_csv(dst / "runs.csv")
+    frame = pd.read_parquet(dst / "runs.parquet")
+    ids = runs["run_id"].astype(str)
+    cont = ids.str.contains("#")
+    runs.loc[cont, "file"] = ids[cont].str.split("#").str[0] + ".xlsx"
+    start = {}
+    for _, g in runs[cont].groupby("file"):
+        t = 0.0
+        for rid in sorted(g["run_id"], key=lambda r: int(r.split("#")[1])):
+            start[rid] = t
+            t += float(g.loc[g["run_id"] == rid, "duration_s"].iloc[0])
+    runs["start_s"] = ids.map(start).fillna(0.0)
+    runs["end_s"] = runs["start_s"] + runs["duration_s"] - 120.0
+    runs["role_reason"] = [f"reason of {r}: {role}" for r, role in zip(ids, runs["role"])]
+    t0 = pd.Timestamp("2026-10-12T06:00:00")
+    runs["start_time"] = [(t0 + pd.Timedelta(seconds=v)).isoformat() for v in runs["start_s"]]
+    runs["end_time"] = [(t0 + pd.Timedelta(seconds=v)).isoformat() for v in runs["end_s"]]
+    runs.loc[ids == B_IDLE, "role_source"] = "window"
+    runs.to_csv(dst / "runs.csv", index=False)
+    fid = frame["run_id"].astype(str)
+    frame["log"] = fid.map(dict(zip(ids, runs["file"])))
+    frame["log_t_s"] = frame["t_s"] + fid.map(dict(zip(ids, runs["start_s"]))).astype(float)
+    frame.to_parquet(dst / "runs.parquet")
 
 
 def _assert_nothing_wider_than_page(html: str) -> dict:
@@ -458,7 +489,7 @@ def test_comparison_section(rendered):
     per_run = pd.read_csv(FIXTURE / "comparison" / "per_run.csv")
     assert len(c["summary"]["rows"]) == len(summary)
     assert len(c["per_run"]["rows"]) == per_run["run_id"].nunique()
-    assert len(c["per_run"]["headers"]) == 2 + len(summary)
+    assert len(c["per_run"]["headers"]) == 3 + len(summary)  # run, before, noise floor, models
     champ = summary.loc[summary["champion"], "model"]
     assert c["champion"] == (champ.iloc[0] if len(champ) else None)
     assert "RAFI as published is always reported as the paper" in html
@@ -517,6 +548,81 @@ def test_machine_b_like_results_render_and_fit(tmp_path):
         assert "do not start cold" in ctx["comparison"]["rafi_fail"]["why"]
     checked = _assert_nothing_wider_than_page(html)
     assert checked["table"] >= 16 and checked["image"] >= 8
+
+
+def test_segmentation_section_lists_every_run_and_why(tmp_path):
+    results = tmp_path / "results" / "machining-center-b"
+    _machine_b_like(FIXTURE, results)
+    cfg, settings = _settings()
+    ctx = _context(results, settings, machine="machining-center-b", config=cfg)
+    html = render_html(ctx)
+    runs = pd.read_csv(results / "runs.csv")
+    sg = ctx["segmentation"]
+    assert len(sg["table"]["rows"]) == len(runs) and sg["n_runs"] == len(runs)
+    assert sg["n_logs"] == runs["file"].nunique()
+    text = _text(html)
+    for r in runs.itertuples(index=False):
+        assert r.role_reason in text, r.run_id
+    assert "2026-10-12T06:00:00" in text  # the log's clock, where it has one
+    assert "time window" in text  # role_source window, for people
+    assert sg["figure"] is not None and 'id="fig-segmentation"' in html
+    assert not sg["allow_late"] and "Training after validation allowed" not in html
+    # a log with one run per file (the plain fixture) has no timeline
+    plain = tmp_path / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, plain)
+    assert _context(plain, settings)["segmentation"]["figure"] is None
+
+
+def test_training_after_validation_is_said_prominently(tmp_path):
+    results = tmp_path / "results" / "machining-center-b"
+    _machine_b_like(FIXTURE, results)
+    runs = pd.read_csv(results / "runs.csv")
+    late = "thermal_log_2026-10-14#5"  # after the validation run #3 of the same log
+    runs.loc[runs["run_id"] == late, "role"] = "training"
+    runs.to_csv(results / "runs.csv", index=False)
+    cfg, settings = _settings()
+    settings = {**settings, "runs": {**settings["runs"], "allow_training_after_validation": True}}
+    ctx = _context(results, settings, machine="machining-center-b", config=cfg)
+    html = render_html(ctx)
+    assert ctx["verdict"]["allow_late"] and ctx["verdict"]["late"] == [late]
+    verdict_part = html[html.index('id="sec-verdict"') : html.index('id="sec-data"')]
+    assert "Training after validation allowed" in verdict_part and late in verdict_part
+    assert "allow_training_after_validation: true" in verdict_part
+
+
+def test_selection_rule_and_noise_floor_are_shown(rendered):
+    ctx, html = rendered["ctx"], rendered["html"]
+    summary = pd.read_csv(FIXTURE / "comparison" / "summary.csv")
+    champ = summary.loc[summary["champion"].map(truthy)].iloc[0]
+    sel = ctx["comparison"]["selection"]
+    assert sel["champion"] == champ["model"] and sel["basis"] == "cv"
+    assert sel["passed"] == truthy(champ["passed"])
+    text = _text(html)
+    assert _text(str(escape(SELECTION_RULE))) in text
+    assert "chosen by whole-run CV on the training runs only" in text
+    if not truthy(champ["passed"]):  # the fixture's CV choice fails validation: no second pick
+        assert "FAIL, with no second pick" in text
+        assert sel["better_on_validation"]
+    # the noise floor beside every max residual: verdict, validation, comparison, registry
+    floors = pd.read_csv(FIXTURE / "validation" / "summary.csv").set_index("run_id")["noise_floor_um"]
+    rows = {r["criterion"]: r for r in ctx["verdict"]["rows"]}
+    worst = rows["max_residual_um"]["run_id"].removeprefix("run ")
+    assert rows["max_residual_um"]["noise"] == fmt_num(floors[worst], 2, "\u00b5m")
+    assert "noise floor" in ctx["validation"]["single"]["headers"][5]
+    assert any("noise floor" in h for h in ctx["comparison"]["summary"]["headers"])
+    assert any("noise floor" in h for h in ctx["registry"]["runs"]["headers"])
+    assert "noise floor of that run" in text
+
+
+def test_rafi_failure_reason_is_computed_from_the_data(rendered):
+    c = rendered["ctx"]["comparison"]
+    per_run = pd.read_csv(FIXTURE / "comparison" / "per_run.csv")
+    bad = per_run[(per_run["model"] == "rafi") & ~per_run["passed"].map(truthy)]
+    assert c["rafi_fail"]["n"] == len(bad)
+    share = 100.0 * bad["n_outside_temp_range"] / bad["n_samples"]
+    assert c["rafi_fail"]["max_share"] == fmt_num(share.max(), 0, "%")
+    assert fmt_num(share.max(), 0, "%") in c["rafi_fail"]["why"]
+    assert "|r| =" in c["rafi_fail"]["why"]  # the key sensors' collinearity, from rank/collinearity.csv
 
 
 def test_figures_are_the_files_of_report_figures(tmp_path):
@@ -649,11 +755,20 @@ def test_verdict_aggregates_the_worst_case_per_criterion():
         }
     )
     gates = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
-    rows = {r["criterion"]: r for r in aggregate_verdict(qualify(summary, gates))}
+    rows = {r["criterion"]: r for r in aggregate_verdict(qualify(summary, gates), {"b": 0.73})}
     assert not rows["max_residual_um"]["passed"] and "b" in rows["max_residual_um"]["run_id"]
-    assert rows["min_improvement_pct"]["passed"]  # idle run is not held to it
+    assert rows["max_residual_um"]["noise"] == "0.73\u00a0\u00b5m"  # the noise floor of run b
+    # issue 12: the idle cool-down is held to every gate and is in the worst case
+    assert not rows["min_improvement_pct"]["passed"] and "idle" in rows["min_improvement_pct"]["run_id"]
+    assert rows["min_improvement_pct"]["n_runs"] == 3
     assert not rows["never_worse_than_uncompensated"]["passed"]
     assert rows["never_worse_than_uncompensated"]["measured"] == "1 of 3"
+    # an idle run with the largest residual is the headline
+    idle_worst = summary.assign(max_abs_after_um=[5.0, 6.6, 12.9], improvement_pct=[75, 78, 60])
+    rows = {r["criterion"]: r for r in aggregate_verdict(qualify(idle_worst, gates))}
+    assert rows["max_residual_um"]["measured"] == "12.90\u00a0\u00b5m"
+    assert "idle" in rows["max_residual_um"]["run_id"]
+    assert not rows["max_residual_um"]["passed"]
 
 
 def test_sections_and_numbers(rendered):
@@ -661,6 +776,7 @@ def test_sections_and_numbers(rendered):
     assert [s["id"] for s in ctx["sections"]] == [
         "verdict",
         "data",
+        "segmentation",
         "equilibrium",
         "ranking",
         "models",

@@ -11,7 +11,9 @@ import numpy as np
 import pandas as pd
 from markupsafe import Markup, escape
 
+from rafi.family.selection import SELECTION_RULE
 from rafi.report.format import cell, fmt_num, isnum, run_label, table, truthy
+from rafi.report.inputs import collinearity_frame, noise_floors
 
 
 def family_champion(summary: pd.DataFrame):
@@ -103,6 +105,116 @@ def _cv_stats(cv: pd.DataFrame | None) -> dict:
     return out
 
 
+#: A run with at least this share of samples outside RAFI's trained temperature range counts
+#: as extrapolated in the explanation of its failures.
+EXTRAPOLATED_PCT = 10.0
+
+
+def _key_sensor_r(res: dict) -> float:
+    """Largest |r| between two of RAFI's key sensors on the training runs (rank/collinearity.csv)."""
+    coll, info = res.get("collinearity"), res.get("key_sensors_json") or {}
+    key = [str(k) for k in info.get("sensors") or []]
+    if coll is None or len(key) < 2:
+        return np.nan
+    m = collinearity_frame(coll.copy())
+    key = [k for k in key if k in m.index and k in m.columns]
+    vals = [abs(float(m.loc[a, b])) for i, a in enumerate(key) for b in key[i + 1 :]]
+    return max(vals) if vals else np.nan
+
+
+def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
+    """Why RAFI as published fails on the runs ``bad`` (its rows of ``comparison/per_run.csv``),
+    from the data: per run the residual and the shares of samples outside the temperature rises
+    and speeds it was trained on; the trained speeds (model.json); the key sensors' collinearity
+    (rank/collinearity.csv); the reference rule of the machine."""
+    um = "\u00b5m"
+    parts, t_share, s_share = [], [], []
+    for r in bad.to_dict("records"):
+        n = float(r.get("n_samples") or 0)
+        ts = 100.0 * float(r.get("n_outside_temp_range") or 0) / n if n else np.nan
+        ss = 100.0 * float(r.get("n_outside_speed_range") or 0) / n if n else np.nan
+        t_share.append(ts)
+        s_share.append(ss)
+        parts.append(
+            Markup(
+                f"{run_label(r['run_id'])} ({escape(fmt_num(r['max_abs_after_um'], 2, um))}, "
+                f"noise floor {escape(fmt_num(r.get('noise_floor_um'), 2, um))}; "
+                f"{escape(fmt_num(ts, 0, '%'))} of {escape(fmt_num(n, 0))} samples outside the trained "
+                f"temperature range, {escape(fmt_num(ss, 0, '%'))} outside the trained speeds)"
+            )
+        )
+    t_share, s_share = np.asarray(t_share, float), np.asarray(s_share, float)
+    n_ext = int(np.sum(t_share >= EXTRAPOLATED_PCT))
+    speeds = [float(x["speed_rpm"]) for x in (res.get("model") or {}).get("speeds") or [] if "speed_rpm" in x]
+    trained = (
+        f" (trained speeds {fmt_num(min(speeds), 0)}\u2013{fmt_num(max(speeds), 0)} r/min)" if speeds else ""
+    )
+    if n_ext:
+        why = (
+            f"On {n_ext} of the {len(bad)} failing run(s) at least {EXTRAPOLATED_PCT:g} % of the samples lie "
+            f"outside the temperature rises RAFI's per-speed regressions were fitted on (up to "
+            f"{fmt_num(np.nanmax(t_share), 0, '%')}), where its squared and product terms extrapolate"
+        )
+    else:
+        why = (
+            f"The failing run(s) lie inside the trained temperature range (at most "
+            f"{fmt_num(np.nanmax(t_share) if len(t_share) else np.nan, 0, '%')} of the samples outside): "
+            "the failure is not extrapolation in temperature"
+        )
+    if len(s_share) and np.nanmax(s_share) > 0:
+        worst_speed = fmt_num(np.nanmax(s_share), 0, "%")
+        why += f"; up to {worst_speed} of the samples are outside its trained speeds{trained}"
+    why += "."
+    r_max = _key_sensor_r(res)
+    if isnum(r_max):
+        why += f" Its key sensors correlate up to |r| = {fmt_num(r_max, 3)} on the training runs."
+    if settings["reference"]["rule"] == "log_start":
+        why += (
+            " On this machine the runs are cut out of a continuous log and do not start cold "
+            "(reference.rule = log_start): each starts from the state the log reached."
+        )
+    return {
+        "runs": Markup("; ".join(str(x) for x in parts)),
+        "why": why,
+        "n": len(bad),
+        "max_share": fmt_num(np.nanmax(t_share) if len(t_share) else np.nan, 0, "%"),
+    }
+
+
+def selection_context(summary: pd.DataFrame, champion) -> dict:
+    """How the champion was chosen, from ``comparison/summary.csv``: the rule
+    (:data:`rafi.family.compare.SELECTION_RULE`), its CV score and rank, and its gates on the
+    validation runs (touched once, after the choice)."""
+    out = {
+        "rule": SELECTION_RULE,
+        "champion": champion,
+        "basis": "none",
+        "score": "\u2013",
+        "n": len(summary),
+    }
+    if champion is None:
+        return out
+    r = summary[summary["model"].astype(str) == champion].iloc[0]
+    score = r.get("cv_mean_max_abs_um")
+    out["basis"] = "cv" if isnum(score) else "default"
+    out["score"] = fmt_num(score, 2, "\u00b5m")
+    out["worst_fold"] = fmt_num(r.get("cv_max_abs_um"), 2, "\u00b5m")
+    out["passed"] = truthy(r.get("passed", False))
+    out["validation_worst"] = fmt_num(r.get("max_abs_after_um"), 2, "\u00b5m")
+    out["noise"] = fmt_num(r.get("noise_floor_um"), 2, "\u00b5m")
+    out["better_on_validation"] = [
+        str(m)
+        for m, after in zip(
+            summary["model"].astype(str), pd.to_numeric(summary["max_abs_after_um"], errors="coerce")
+        )
+        if m != champion
+        and isnum(after)
+        and isnum(r.get("max_abs_after_um"))
+        and after < float(r["max_abs_after_um"])
+    ]
+    return out
+
+
 def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict | None:
     """Section 9: the family's summary, per-run table, figures and why RAFI fails where it does.
 
@@ -135,6 +247,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "champion": None,
         "on_machine": None,
         "cv": None,
+        "selection": None,
         "selected": [],
         "notes": [],
     }
@@ -165,17 +278,19 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
             tags.append('<span class="tag">on the machine</span>')
         if str(r.get("kind")) == "rafi":
             tags.append('<span class="tag ref">paper reference</span>')
+        rank = r.get("selection_rank")
         rows.append(
             [
                 cell(Markup(f"<b>{escape(name)}</b> " + " ".join(tags))),
                 str(r.get("kind", "")),
+                cell(fmt_num(r.get("cv_mean_max_abs_um"), 2), "champ" if name == fam_champ else ""),
+                fmt_num(r.get("cv_max_abs_um"), 2),
+                fmt_num(rank, 0) if isnum(rank) else "\u2013",
                 cell(fmt_num(r.get("max_abs_after_um"), 2), "" if passed else "fail"),
+                fmt_num(r.get("noise_floor_um"), 2),
                 cell(fmt_num(r.get("improvement_pct"), 1), "" if passed else "fail"),
-                fmt_num(r.get("rmse_after_um"), 2),
                 f"{fmt_num(r.get('n_outside_temp_range'), 0)} ({fmt_num(share, 0, '%')})",
                 fmt_num(r.get("n_outside_speed_range"), 0),
-                fmt_num(r.get("cv_rmse_um"), 2),
-                fmt_num(r.get("cv_max_abs_um"), 2),
                 cell("PASS" if passed else "FAIL", "pass" if passed else "fail"),
             ]
         )
@@ -183,19 +298,21 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         [
             "model",
             "kind",
-            "worst max |res.| (\u00b5m)",
+            "CV mean max |res.| (\u00b5m): the choice",
+            "CV worst run (\u00b5m)",
+            "rank",
+            "validation worst max |res.| (\u00b5m)",
+            "noise floor of that run (\u00b5m)",
             "min impr. (%)",
-            "worst RMSE (\u00b5m)",
             "samples outside trained temp.",
             "outside trained speed",
-            "CV RMSE (\u00b5m)",
-            "CV max |res.| (\u00b5m)",
             "gates",
         ],
         rows,
         cls="num models",
-        widths=[22, 11, 9, 8, 8, 11, 8, 8, 8, 7],
+        widths=[19, 9, 9, 8, 5, 9, 8, 7, 10, 8, 8],
     )
+    out["selection"] = selection_context(s, fam_champ)
     if "selected" in s:
         out["selected"] = [
             (str(r["model"]), str(r["selected"]))
@@ -207,13 +324,15 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         out["cv"] = (
             f"Cross-validation: {k['scheme'].replace('_', '-')} over the training runs "
             f"({k['folds']} folds per model; each model refitted without the held-out "
-            "run, hyperparameters re-chosen inside the fold). The validation runs never "
-            "enter model selection."
+            "run, hyperparameters re-chosen inside the fold: nested). The CV columns come "
+            "from the training runs only and choose the champion; the validation columns "
+            "come after the choice and do not change it."
         )
     if pr is None or not len(pr):
         return out
     fr = comparison_frames(summ, pr)
     p, models, runs = fr["per_run"], fr["models"], fr["runs"]
+    noise = noise_floors(res)
     after, imp, before, role, passed = fr["after"], fr["imp"], fr["before"], fr["role"], fr["passed"]
     rows = []
     for rid in runs:
@@ -222,6 +341,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
                 Markup(f"{run_label(rid)}<br><small>{escape(role[rid].replace('validation_', ''))}</small>")
             ),
             fmt_num(before[rid], 2),
+            fmt_num(noise.get(rid), 2),
         ]
         for m in models:
             ok = bool(passed.loc[rid, m])
@@ -235,61 +355,32 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
                 )
             )
         rows.append(row)
-    heads = ["validation run", "max |dz| uncomp. (\u00b5m)"]
+    heads = ["validation run", "max |dz| uncomp. (\u00b5m)", "noise floor (\u00b5m)"]
     for m in models:
         heads.append(m + (" \u2605" if m == fam_champ else ""))
-    w_run, w_before = 24, 11
-    w_m = (100 - w_run - w_before) / max(len(models), 1)
+    w_run, w_before = 22, 9
+    w_m = (100 - w_run - 2 * w_before) / max(len(models), 1)
     out["per_run"] = table(
-        heads, rows, cls="num per-run", widths=[w_run, w_before] + [round(w_m, 1)] * len(models)
+        heads, rows, cls="num per-run", widths=[w_run, w_before, w_before] + [round(w_m, 1)] * len(models)
     )
     out["figure_bars"] = figs.get("comparison", "comparison_bars")
 
-    # RAFI as published: where it fails and why
+    # RAFI as published: where it fails and why (computed from this machine's tables)
     rafi_name = fr["rafi"]
     if rafi_name is not None and rafi_name in passed.columns and not passed[rafi_name].all():
         bad = p[(p["model"] == rafi_name) & ~p["passed"].map(truthy)]
-        parts, shares = [], []
-        for r in bad.to_dict("records"):
-            n = float(r.get("n_samples") or 0)
-            sh = 100.0 * float(r.get("n_outside_temp_range") or 0) / n if n else np.nan
-            shares.append(sh)
-            parts.append(
-                Markup(
-                    f"{run_label(r['run_id'])} ({escape(fmt_num(r['max_abs_after_um'], 2, chr(181) + 'm'))}, "
-                    f"{escape(fmt_num(r['improvement_pct'], 1, '%'))}; "
-                    f"{escape(fmt_num(r.get('n_outside_temp_range'), 0))} of "
-                    f"{escape(fmt_num(n, 0))} samples = {escape(fmt_num(sh, 0, '%'))} "
-                    "outside the trained temperature range)"
-                )
-            )
-        rule = settings["reference"]["rule"]
-        why = (
-            "Its per-speed quadratic-plus-interaction regressions on three nearly collinear "
-            "key sensors are only valid inside the temperature rises they were fitted on; "
-            "outside that range the squared and product terms extrapolate and the "
-            "prediction runs away from the measurement."
-        )
-        if rule == "log_start":
-            why += (
-                " On this machine the runs are cut out of a continuous log and do not start "
-                "cold (reference.rule = log_start), so the rises start outside the cold-start "
-                "training range."
-            )
+        out["rafi_fail"] = rafi_failure(bad, res, settings)
         champ_txt = ""
         if fam_champ and fam_champ != rafi_name:
-            champ_txt = f" The family's champion ({fam_champ}) passes every gate on the same runs"
+            ok = bool(passed[fam_champ].all()) if fam_champ in passed.columns else False
+            verb = "passes every gate" if ok else "also fails a gate"
+            champ_txt = f" The champion ({fam_champ}) {verb} on the same runs"
             champ_txt += (
                 " and is the model on the machine."
                 if on_machine == fam_champ
                 else "; whether it goes on the machine is the registry's decision (section Model registry)."
             )
-        out["rafi_fail"] = {
-            "runs": Markup("; ".join(str(x) for x in parts)),
-            "why": why + champ_txt,
-            "n": len(bad),
-            "max_share": fmt_num(np.nanmax(shares) if shares else np.nan, 0, "%"),
-        }
+        out["rafi_fail"]["why"] += champ_txt
 
     # residual time series: RAFI vs the model beside it on the multi-condition run(s)
     if rafi_name is not None:

@@ -24,11 +24,13 @@ from rafi.report.embed import FigureFiles
 from rafi.report.inputs import load_results
 from rafi.report.model_sections import section_fuzzy, section_models, section_validation
 from rafi.report.registry_section import section_registry
+from rafi.report.segmentation_section import section_segmentation
 from rafi.report.verdict import model_infos, verdict_all
 
 SECTION_TITLES = {
     "verdict": "Verdict",
     "data": "Data",
+    "segmentation": "Segmentation",
     "equilibrium": "Thermal equilibrium",
     "ranking": "Key-sensor ranking",
     "models": "Models",
@@ -86,6 +88,7 @@ def build_context(
     ctx["verdict"] = verdict_all(res, gates, infos)
     ctx["gates"] = gates
     ctx["data"] = section_data(res)
+    ctx["segmentation"] = section_segmentation(res, settings, figs)
     ctx["equilibrium"] = section_equilibrium(res, figs)
     ctx["ranking"] = section_ranking(res, key_info, figs)
     ctx["models"] = section_models(res, figs)
@@ -96,6 +99,10 @@ def build_context(
     ctx["comparison"] = section_comparison(res, dec.get("champion_id_after"), settings, figs)
     ctx["figures_used"] = list(figs.used)
     ctx["verdict"]["quarantined"] = len(ctx["data"]["quarantined"])
+    seg = ctx["segmentation"] or {}
+    ctx["verdict"]["allow_late"] = bool(seg.get("allow_late"))
+    ctx["verdict"]["late"] = list(seg.get("late") or [])
+    ctx["verdict"]["selection"] = (ctx["comparison"] or {}).get("selection")
     ctx["verdict"]["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
     ctx["choices"] = section_choices(settings, key_info, ctx["equilibrium"]["method"])
     ctx["versions"] = versions()
@@ -109,6 +116,7 @@ def build_context(
     present = {
         **dict.fromkeys(SECTION_TITLES, True),
         "fuzzy": ctx["fuzzy"] is not None,
+        "segmentation": ctx["segmentation"] is not None,
         "registry": ctx["registry"] is not None,
         "comparison": ctx["comparison"] is not None,
     }

@@ -104,6 +104,57 @@ def _pipeline(res: dict, coolant_sensors: list, fmt: str):
         yield "fit_residuals", plots.fig_fit_residuals(fits, fmt=fmt)
     yield from _membership(res["fuzzy_example"], fmt)
     yield from _validation(res, key + coolant, fmt)
+    yield from _segmentation(res["runs_csv"], rf, fmt)
+
+
+#: At most this many logs get a segmentation timeline (the logs cut into the most runs).
+MAX_TIMELINES = 4
+
+
+def segmentation_logs(runs: pd.DataFrame | None) -> list[str]:
+    """Files of ``runs.csv`` cut into two or more runs (at most :data:`MAX_TIMELINES`, the most
+    runs first, then in file order): the logs the segmentation timeline shows."""
+    if runs is None or not len(runs) or "file" not in runs:
+        return []
+    counts = runs["file"].astype(str).value_counts(sort=False)
+    order = {f: i for i, f in enumerate(dict.fromkeys(runs["file"].astype(str)))}
+    multi = sorted((f for f, n in counts.items() if n >= 2), key=lambda f: (-counts[f], order[f]))
+    return multi[:MAX_TIMELINES]
+
+
+def _segmentation(runs: pd.DataFrame | None, rf: pd.DataFrame | None, fmt: str):
+    """The timeline of every log cut into several runs, coloured by role (section Segmentation)."""
+    files = segmentation_logs(runs)
+    if rf is None or not files:
+        return
+    logs = {}
+    for file in files:
+        table = runs[runs["file"].astype(str) == file]
+        ids = table["run_id"].astype(str)
+        f = rf[rf["run_id"].astype(str).isin(set(ids))]
+        if "log_t_s" in f:
+            clock = f["log_t_s"].to_numpy(dtype=float)
+        else:  # results written before runs.parquet had the log's clock
+            start = dict(zip(ids, table["start_s"].astype(float)))
+            clock = f["t_s"].to_numpy(dtype=float) + f["run_id"].astype(str).map(start).to_numpy(dtype=float)
+        order = np.argsort(clock, kind="stable")
+        samples = pd.DataFrame(
+            {
+                "h": clock[order] / 3600.0,
+                "speed_rpm": f["speed_rpm"].to_numpy(dtype=float)[order],
+                "dz_um": f["dz_um"].to_numpy(dtype=float)[order],
+            }
+        )
+        spans = pd.DataFrame(
+            {
+                "start_h": table["start_s"].astype(float).to_numpy() / 3600.0,
+                "end_h": table["end_s"].astype(float).to_numpy() / 3600.0,
+                "role": table["role"].astype(str).to_numpy(),
+                "label": ["#" + r.rsplit("#", 1)[-1] if "#" in r else r for r in ids],
+            }
+        )
+        logs[file] = (samples, spans)
+    yield "segmentation", plots.fig_segmentation(logs, fmt=fmt)
 
 
 def _membership(example: dict, fmt: str):

@@ -153,3 +153,19 @@ def chosen_sensors(key_info: dict, key_sensors: pd.DataFrame | None) -> list:
     return list(
         key_info.get("sensors") or (key_sensors["sensor"].tolist() if key_sensors is not None else [])
     )
+
+
+def noise_floors(res: dict) -> dict:
+    """``run_id -> noise floor (um)`` of every validation run: the expected max |noise| estimated
+    from the run's own dz (``noise_floor_um`` of ``validation/summary.csv``, else of
+    ``comparison/per_run.csv``; a property of the run, the same for every model). Results
+    written before the noise floor existed give an empty dict."""
+    out: dict = {}
+    for name in ("comparison_per_run", "validation_summary"):
+        t = res.get(name)
+        if t is None or "noise_floor_um" not in t or "run_id" not in t:
+            continue
+        for rid, v in zip(t["run_id"].astype(str), pd.to_numeric(t["noise_floor_um"], errors="coerce")):
+            if pd.notna(v):
+                out[rid] = float(v)
+    return out

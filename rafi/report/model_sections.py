@@ -30,6 +30,7 @@ from rafi.report.format import (
     term_text,
     truthy,
 )
+from rafi.report.inputs import noise_floors
 
 #: Where the membership curves of the figure come from (shown in its caption).
 MEMBERSHIP_SOURCE = "rafi.method.fuzzy.membership_curves"
@@ -227,6 +228,7 @@ def section_validation(res: dict, figs) -> dict:
     if summ is None:
         return out
     s = summ.copy()
+    noise = noise_floors(res)
     single = s[s["role"] == "validation_single"] if "role" in s else s
     rows = []
     for i in single.index:
@@ -240,6 +242,7 @@ def section_validation(res: dict, figs) -> dict:
                 fmt_duration(r.duration_s),
                 fmt_num(r.max_abs_before_um, 2),
                 fmt_num(r.max_abs_after_um, 2),
+                fmt_num(noise.get(str(r.run_id)), 2),
                 fmt_num(paper, 2),
                 cell(fmt_num(r.improvement_pct, 1), "fail" if worse else ""),
                 fmt_num(r.rmse_before_um, 2),
@@ -253,6 +256,7 @@ def section_validation(res: dict, figs) -> dict:
             "duration",
             "max |dz| before (\u00b5m)",
             "max |residual| after (\u00b5m)",
+            "noise floor (\u00b5m)",
             "paper Table 4 residual (\u00b5m)",
             "improvement (%)",
             "RMSE before (\u00b5m)",
@@ -260,7 +264,7 @@ def section_validation(res: dict, figs) -> dict:
         ],
         rows,
         cls="num",
-        widths=[17, 11, 8, 11, 11, 12, 10, 10, 10],
+        widths=[14, 10, 7, 10, 10, 8, 10, 9, 11, 11],
     )
     rows = []
     for r in s.itertuples(index=False):
@@ -320,6 +324,7 @@ def section_validation(res: dict, figs) -> dict:
                 "changes": changes,
                 "before": fmt_num(r.max_abs_before_um, 2, "\u00b5m"),
                 "after": fmt_num(r.max_abs_after_um, 2, "\u00b5m"),
+                "noise": fmt_num(noise.get(str(r.run_id)), 2, "\u00b5m"),
                 "improvement": fmt_num(r.improvement_pct, 1, "%"),
                 "outside_t": int(r.n_outside_temp_range),
                 "outside_s": int(r.n_outside_speed_range),

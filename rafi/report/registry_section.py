@@ -6,6 +6,7 @@ from __future__ import annotations
 from markupsafe import Markup, escape
 
 from rafi.report.format import cell, fmt_num, fmt_speed, run_label, short_id, table, truthy
+from rafi.report.inputs import noise_floors
 from rafi.report.verdict import DECISION_TEXT, per_run_gates, registry_summary
 
 GATE_SHORT = {
@@ -74,8 +75,8 @@ def section_registry(res: dict, gates: dict, infos: dict):
         "kind",
         "created",
         "training data",
-        "worst max residual (gated runs)",
-        "min improvement (gated runs)",
+        "worst max residual (all validation runs)",
+        "min improvement (all validation runs)",
         "gates",
     ]
     champ_col = info_col(champ_id, ks, champ_s, False)
@@ -96,6 +97,7 @@ def section_registry(res: dict, gates: dict, infos: dict):
     if comp is not None and len(comp):
         g_c = per_run_gates(cand_s, gates) if cand_s is not None else {}
         g_k = per_run_gates(champ_s, gates) if champ_s is not None else {}
+        noise = noise_floors(res)
         rows = []
         for r in comp.to_dict("records"):
             rid = str(r["run_id"])
@@ -105,6 +107,7 @@ def section_registry(res: dict, gates: dict, infos: dict):
                     cell(Markup(f"{run_label(rid)}" + (' <span class="tag">new</span>' if new else ""))),
                     str(r.get("role", "")).replace("validation_", ""),
                     fmt_num(r.get("max_abs_before_um"), 2),
+                    fmt_num(noise.get(rid), 2),
                     fmt_num(r.get("champion_max_abs_after_um"), 2),
                     fmt_num(r.get("champion_improvement_pct"), 1),
                     gate_cell(g_k.get(rid)) if g_k else "\u2013",
@@ -118,6 +121,7 @@ def section_registry(res: dict, gates: dict, infos: dict):
                 "validation run",
                 "role",
                 "max |dz| uncomp. (\u00b5m)",
+                "noise floor (\u00b5m)",
                 "champion max |res.| (\u00b5m)",
                 "champion impr. (%)",
                 "champion gates",
@@ -127,7 +131,7 @@ def section_registry(res: dict, gates: dict, infos: dict):
             ],
             rows,
             cls="num runs-cmp",
-            widths=[19, 8, 9, 10, 9, 11, 10, 9, 15],
+            widths=[17, 7, 8, 7, 10, 8, 10, 10, 8, 15],
         )
 
     # speed-range adaptation

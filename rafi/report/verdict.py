@@ -15,6 +15,7 @@ import pandas as pd
 
 from rafi.method import validate
 from rafi.report.format import fmt_num, short_id, truthy
+from rafi.report.inputs import noise_floors
 
 
 def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
@@ -31,13 +32,17 @@ CRITERION_TEXT = {
 }
 
 
-def aggregate_verdict(verdict: pd.DataFrame) -> list[dict]:
-    """One row per criterion: the worst case over the validation runs.
+def aggregate_verdict(verdict: pd.DataFrame, noise: dict | None = None) -> list[dict]:
+    """One row per criterion: the worst case over every validation run (idle cool-downs
+    included: :func:`rafi.method.validate.qualify` holds them to every gate).
 
-    ``max_residual_um``: the largest residual; ``min_improvement_pct``: the smallest
-    improvement; ``never_worse_than_uncompensated``: how many runs are worse (limit 0),
-    naming them, or else the run closest to the limit. A NaN measurement fails.
+    ``max_residual_um``: the largest residual, with ``noise`` = the noise floor of that run
+    (``noise``: run id -> expected max |noise|, :func:`rafi.report.inputs.noise_floors`);
+    ``min_improvement_pct``: the smallest improvement; ``never_worse_than_uncompensated``:
+    how many runs are worse (limit 0), naming them, or else the run closest to the limit.
+    A NaN measurement fails.
     """
+    noise = noise or {}
     out = []
     if verdict is None or not len(verdict):
         return out
@@ -67,6 +72,8 @@ def aggregate_verdict(verdict: pd.DataFrame) -> list[dict]:
                     "measured": f"{len(bad)} of {len(g)}",
                     "run_id": note,
                     "passed": passed,
+                    "noise": "",
+                    "n_runs": int(g["run_id"].nunique()),
                 }
             )
             continue
@@ -79,6 +86,7 @@ def aggregate_verdict(verdict: pd.DataFrame) -> list[dict]:
         else:
             i = g.index[0]
         lim = g.loc[i, "limit"]
+        floor = noise.get(str(g.loc[i, "run_id"])) if crit == "max_residual_um" else None
         out.append(
             {
                 "criterion": crit,
@@ -87,6 +95,8 @@ def aggregate_verdict(verdict: pd.DataFrame) -> list[dict]:
                 "measured": fmt_num(g.loc[i, "measured"], nd, unit),
                 "run_id": f"run {g.loc[i, 'run_id']}",
                 "passed": passed,
+                "noise": fmt_num(floor, 2, unit) if floor is not None else "",
+                "n_runs": int(g["run_id"].nunique()),
             }
         )
     for r in out:
@@ -94,8 +104,9 @@ def aggregate_verdict(verdict: pd.DataFrame) -> list[dict]:
     return out
 
 
-def verdict_context(verdict: pd.DataFrame, source: str) -> dict:
-    rows = aggregate_verdict(verdict)
+def verdict_context(verdict: pd.DataFrame, source: str, noise: dict | None = None) -> dict:
+    """The verdict box: :func:`aggregate_verdict` rows, PASS only if every criterion passed."""
+    rows = aggregate_verdict(verdict, noise)
     passed = bool(rows) and all(r["passed"] for r in rows)
     return {
         "passed": passed,
@@ -226,18 +237,20 @@ def champion_after_summary(res: dict, dec: dict):
 
 
 def verdict_all(res: dict, gates: dict, infos: dict) -> dict:
-    """The verdict of section 1: the model on the machine (with decision.json) + RAFI."""
+    """The verdict of section 1: the model on the machine (with decision.json) + RAFI, over
+    every validation run (idle cool-downs included), each max residual beside its run's noise
+    floor."""
     rafi_v = None
+    noise = noise_floors(res)
     if res["validation_summary"] is not None:
         rafi_v = verdict_context(
-            qualify(res["validation_summary"], gates), "from rafi.method.validate.qualify"
+            qualify(res["validation_summary"], gates), "from rafi.method.validate.qualify", noise
         )
         gated = res["validation_summary"]
-        if "role" in gated:
-            gated = gated[gated["role"].astype(str) != "validation_idle"]
-        rafi_v["worst"] = fmt_num(
-            pd.to_numeric(gated["max_abs_after_um"], errors="coerce").max(), 2, "\u00b5m"
-        )
+        after = pd.to_numeric(gated["max_abs_after_um"], errors="coerce")
+        rafi_v["worst"] = fmt_num(after.max(), 2, "\u00b5m")
+        worst_run = str(gated.loc[after.idxmax(), "run_id"]) if after.notna().any() else ""
+        rafi_v["worst_noise"] = fmt_num(noise[worst_run], 2, "\u00b5m") if worst_run in noise else ""
         rafi_v["min_imp"] = fmt_num(pd.to_numeric(gated["improvement_pct"], errors="coerce").min(), 1, "%")
     else:
         rafi_v = {
@@ -248,6 +261,7 @@ def verdict_all(res: dict, gates: dict, infos: dict) -> dict:
             "n_checks": 0,
             "n_failed": 0,
             "worst": "\u2013",
+            "worst_noise": "",
             "min_imp": "\u2013",
         }
     dec = res.get("decision")
@@ -269,7 +283,7 @@ def verdict_all(res: dict, gates: dict, infos: dict) -> dict:
     summ, src = champion_after_summary(res, dec)
     if summ is not None and len(summ):
         v = qualify(summ, gates)
-        out = verdict_context(v, "computed from " + src)
+        out = verdict_context(v, "computed from " + src, noise)
     else:
         out = {
             "passed": False,

@@ -253,12 +253,15 @@ def generate(out: Path, sample_period_s: float = 120.0, seed: int = 7,
         _family_and_registry(base, runs_table, runs_frame, rafi_model, model)
 
 
-#: Model-family options for the fixture: the config defaults with a smaller tau grid (fast).
-FAMILY_OPTIONS = {"enabled": ["rafi", "rafi_linear", "ridge_global", "dynamic"],
-                  "cv": "leave_one_run_out", "cv_metric": "rmse",
-                  "ridge_alphas": [1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0, 10.0],
-                  "dynamic_taus_s": [0, 1200, 4800], "dynamic_max_taus": 1,
-                  "speed_gain": "cv", "speed_reference": "auto", "cv_report": True}
+#: Model-family options for the fixture: the config defaults with a smaller grid (fast).
+def _family_options() -> dict:
+    from rafi.settings import MACHINE_DEFAULTS
+    return {**MACHINE_DEFAULTS["models"],
+            "enabled": ["rafi", "rafi_linear", "ridge_global", "dynamic"],
+            "ridge_alphas": [1e-8, 1e-7, 1e-6, 1e-5, 1e-4, 1e-3, 1e-2, 0.1, 1.0, 10.0],
+            "dynamic_taus_s": [0, 1200, 4800], "dynamic_max_taus": 1}
+
+
 GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0,
          "never_worse_than_uncompensated": True}
 
@@ -280,7 +283,7 @@ def _family_and_registry(base: Path, runs_table, runs_frame, rafi_model, model: 
     comp = base / "comparison"
     comp.mkdir(exist_ok=True)
     res = run_family(runs_table, runs_frame, key_sensors=KEY, terms=TERMS,
-                     reference=model["reference"], machine=MACHINE, options=FAMILY_OPTIONS,
+                     reference=model["reference"], machine=MACHINE, options=_family_options(),
                      gates=GATES, rafi_model=rafi_model, log=lambda m: None)
     res["summary"].to_csv(comp / "summary.csv", index=False)
     res["per_run"].to_csv(comp / "per_run.csv", index=False)
@@ -311,13 +314,34 @@ def _family_and_registry(base: Path, runs_table, runs_frame, rafi_model, model: 
             p.chmod(0o644)
 
 
+def refresh(out: Path) -> None:
+    """Re-run the real producers (validation, comparison, registry) on the committed data and
+    model (runs.csv, runs.parquet, model.json unchanged): after a change of the producers."""
+    from rafi.method.model import RafiModel
+    from rafi.method.validate import validate_runs
+    base = out / MACHINE
+    runs_table = pd.read_csv(base / "runs.csv")
+    runs_frame = pd.read_parquet(base / "runs.parquet")
+    model = json.loads((base / "model.json").read_text())
+    rafi_model = RafiModel.from_dict(model)
+    summary, residuals = validate_runs(rafi_model, runs_table, runs_frame)
+    summary.to_csv(base / "validation" / "summary.csv", index=False)
+    residuals.to_parquet(base / "validation" / "residuals.parquet", compression="zstd")
+    _family_and_registry(base, runs_table, runs_frame, rafi_model, model)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("out", nargs="?", default=str(Path(__file__).resolve().parent))
     ap.add_argument("--sample-period-s", type=float, default=120.0)
     ap.add_argument("--no-family", action="store_true",
                     help="skip comparison/ and registry/ (model family + registry decision)")
+    ap.add_argument("--refresh", action="store_true",
+                    help="keep the data and model.json; re-run validation, comparison and registry")
     a = ap.parse_args(argv)
+    if a.refresh:
+        refresh(Path(a.out))
+        return
     generate(Path(a.out), a.sample_period_s, family=not a.no_family)
 
 
