@@ -8,7 +8,8 @@
 # deep-merged with `defaults:` and `machines.<name>:` of config.yaml (rafi.settings.machine_settings).
 # Outputs: docs/design.md. Helpers (functions only): workflow/rules/common.smk; the
 # method's steps: pipeline.smk; the model family: compare.smk; champion/challenger:
-# registry.smk; the qualification report: report.smk.
+# registry.smk; the qualification report: report.smk; which machines have a usable raw file
+# (a machine without one is skipped, the others carry on): input_status.smk.
 
 from snakemake.utils import min_version
 
@@ -21,6 +22,7 @@ configfile: "config.yaml"
 include: "workflow/rules/common.smk"
 include: "workflow/rules/report_common.smk"
 include: "workflow/rules/pipeline.smk"
+include: "workflow/rules/input_status.smk"
 include: "workflow/rules/compare.smk"
 include: "workflow/rules/registry.smk"
 include: "workflow/rules/report.smk"
@@ -29,13 +31,19 @@ include: "workflow/rules/report.smk"
 rule all:
     default_target: True
     input:
-        all_pipeline_tables(),
-        [p for m in MACHINES for p in comparison_outputs(m)],
-        [registry_path(n, m) for m in MACHINES for n in ("decision.json", "comparison.csv")],
-        [p for m in MACHINES for p in report_paths(m).values()],
+        all_targets(),
 
 
 # The tables of docs/design.md only (no comparison, registry or report), every machine.
 rule tables:
     input:
         all_pipeline_tables(),
+
+
+# A run that rejected input (a quarantined file, a skipped machine) says so at its end.
+onsuccess:
+    say_rejected_input()
+
+
+onerror:
+    say_rejected_input()

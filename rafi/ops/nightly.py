@@ -2,14 +2,17 @@
 
 Runs the Snakemake pipeline (target rule `nightly`: every table, the champion/challenger
 decision and the report of every machine under raw/) under an exclusive lock, then reads
-each machine's registry/decision.json and audit.csv. See docs/operations.md.
+each machine's registry/decision.json and audit.csv. Bad input is quarantined: a machine none
+of whose raw files is usable is skipped (reports/<machine>/skipped.html says why) and the
+other machines finish. See docs/operations.md.
 
 Exit codes (most severe first when several apply: 1 > 3 > 2 > 4 > 0):
   0   all good (promoted, kept, or nothing new)
   1   the pipeline failed (Snakemake error; other machines carried on with --keep-going)
   3   recalibration due: the champion drifted on the newest validation logs
   2   tonight's candidate failed qualification (the champion was kept)
-  4   some input was quarantined (other machines/files carried on)
+  4   some input was rejected: a raw file quarantined, or a machine skipped because none of
+      its raw files is usable (the other files and machines carried on)
   64  usage error (unknown machine or model id for --promote)
   75  another nightly run holds the lock (EX_TEMPFAIL: try again later)
 
@@ -37,6 +40,7 @@ from rafi.ops.status import (
     EXIT_LOCKED,
     EXIT_OK,
     EXIT_PIPELINE_FAILED,
+    EXIT_QUARANTINED,
     EXIT_USAGE,
     MachineStatus,
     last_activity,
@@ -240,6 +244,14 @@ def _report(statuses: list[MachineStatus], pipeline_failed: bool = False) -> int
     for s in statuses:
         print("rafi nightly: " + s.line())
         codes |= s.codes()
+    skipped = [s.machine for s in statuses if s.skipped]
+    n_files = sum(len(s.quarantined) for s in statuses)
+    if skipped or n_files:
+        print(
+            f"rafi nightly: INPUT REJECTED: {n_files} raw file(s) quarantined"
+            + (f", machine(s) skipped: {', '.join(skipped)}" if skipped else "")
+            + f" (exit code {EXIT_QUARANTINED} unless a more severe one applies)"
+        )
     if pipeline_failed:
         print("rafi nightly: the pipeline FAILED for some job (details in the log)")
     return most_severe(codes)

@@ -1,6 +1,8 @@
 """What a night reports per machine, and the exit codes of ``rafi nightly``.
 
-The codes and their order are in ``rafi nightly --help`` and ``docs/operations.md``.
+The codes and their order are in ``rafi nightly --help`` and ``docs/operations.md``. Rejected
+input - a quarantined raw file, or a machine *skipped* because none of its raw files is usable
+(``on_bad_input: quarantine``) - gives :data:`EXIT_QUARANTINED`, never a pipeline failure.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ EXIT_OK = 0
 EXIT_PIPELINE_FAILED = 1
 EXIT_REJECTED = 2
 EXIT_RECALIBRATION_DUE = 3
-EXIT_QUARANTINED = 4
+EXIT_QUARANTINED = 4  # some input was rejected: a raw file quarantined or a machine skipped
 EXIT_USAGE = 64
 EXIT_LOCKED = 75  # EX_TEMPFAIL (sysexits.h)
 
@@ -57,28 +59,40 @@ def parse_time(text) -> float | None:
 
 @dataclass
 class MachineStatus:
-    """A machine's decision.json and quarantined inputs after a night."""
+    """A machine's decision.json and quarantined inputs after a night.
+
+    ``skipped``: every raw file of the machine was quarantined, so the night built only its
+    audit and skipped page; ``decision`` is then an earlier night's (never tonight's).
+    """
 
     machine: str
     decision: dict | None
     quarantined: list[str]
     tonight: bool
+    skipped: bool = False
 
     def codes(self) -> set[int]:
-        """Exit codes this machine contributes (recalibration, rejection tonight, quarantine)."""
+        """Exit codes this machine contributes (recalibration, rejection tonight, rejected input)."""
         codes = set()
         d = self.decision or {}
         if d.get("recalibration_due"):
             codes.add(EXIT_RECALIBRATION_DUE)
-        if self.tonight and d.get("decision") == "rejected":
+        if self.tonight and not self.skipped and d.get("decision") == "rejected":
             codes.add(EXIT_REJECTED)
-        if self.quarantined:
+        if self.quarantined or self.skipped:
             codes.add(EXIT_QUARANTINED)
         return codes
 
     def line(self) -> str:
         """The one status line printed for this machine."""
         d = self.decision
+        if self.skipped:
+            champion = (d or {}).get("champion_id_after")
+            text = f"{self.machine}: SKIPPED - no usable raw file, nothing retrained or judged; "
+            text += f"champion {short_id(champion)} stays" if champion else "no model in service"
+            if d:
+                text += f" (last decision {d.get('decision')} at {d.get('time')})"
+            return text + f"; quarantined: {', '.join(self.quarantined) or 'every file'}"
         if not d:
             return f"{self.machine}: no decision yet"
         text = (
@@ -103,7 +117,8 @@ class MachineStatus:
 
 
 def machine_status(paths: Paths, machine: str, night_start: float | None) -> MachineStatus:
-    """Read ``machine``'s decision.json and audit.csv.
+    """Read ``machine``'s decision.json and audit.csv (a machine whose audit lists files but no
+    usable one is ``skipped``: the workflow built no decision for it tonight).
 
     Parameters
     ----------
@@ -121,17 +136,22 @@ def machine_status(paths: Paths, machine: str, night_start: float | None) -> Mac
         with contextlib.suppress(ValueError, OSError):
             decision = json.loads(dpath.read_text(encoding="utf-8"))
     quarantined = []
+    usable = 0
     audit = paths.results_dir / machine / "audit.csv"
     if audit.exists():
         with open(audit, newline="", encoding="utf-8") as fh:
             for row in csv.DictReader(fh):
-                if (row.get("status") or "").strip() == "quarantined":
+                status = (row.get("status") or "").strip()
+                if status == "ok":
+                    usable += 1
+                elif status == "quarantined":
                     quarantined.append(f"{row.get('file')} ({row.get('reason') or 'no reason'})")
     tonight = False
     if decision and night_start is not None:
         t = parse_time(decision.get("time"))
         tonight = t is not None and t >= night_start - 1
-    return MachineStatus(machine, decision, quarantined, tonight)
+    skipped = bool(quarantined) and not usable
+    return MachineStatus(machine, decision, quarantined, tonight, skipped)
 
 
 def last_activity(statuses: list[MachineStatus]) -> str:

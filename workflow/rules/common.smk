@@ -1,6 +1,8 @@
 # Shared helpers of the RAFI workflow: config validation, machine discovery,
 # per-machine settings (resolved by rafi.settings), path templates and input functions.
 # A fail-mode run stops here, while it plans, on a raw file an earlier run quarantined.
+# What a run builds per machine depends on the checkpoint input_status (input_status.smk): a
+# machine with no usable raw file is skipped (machine_targets).
 #
 # Functions only (no rules) - `snakemake --lint` wants rules and functions apart;
 # another step's helpers go to workflow/rules/<step>_common.smk (the Snakefile includes
@@ -10,12 +12,15 @@
 #   settings   machine_config(machine) (rafi.settings.machine_settings), model_provenance(machine)
 #   raw files  raw_files(machine), raw_path(wildcards), raw_file(wildcards), raw_stamp(wildcards)
 #   paths      out(name, machine="{machine}"), pipeline_tables(machine),
-#              all_pipeline_tables(), report_paths(machine="{machine}"),
-#              log_path(step), bench_path(step)
+#              report_paths(machine="{machine}"), log_path(step), bench_path(step)
+#   quarantine input_status_path(machine), skipped_page_path(machine), INPUT_CHECK,
+#              machine_skipped(machine), rejected_input_message(), say_rejected_input()
+#   targets    machine_targets(machine, what), all_pipeline_tables(), all_targets(),
+#              nightly_targets() (input functions: they wait for the checkpoint input_status)
 #   inputs     clean_files(kind), rafi_code(script), script_helpers()
 #   compare    comparison_path(name, machine), comparison_outputs(machine)
 #   registry   nightly_settings(machine), qualification_gates(machine),
-#              registry_path(name, machine), candidate_model(wildcards), nightly_targets()
+#              registry_path(name, machine), candidate_model(wildcards)
 #   report     workflow/rules/report_common.smk
 
 import importlib.util
@@ -24,12 +29,19 @@ import os
 from pathlib import Path
 
 from snakemake.exceptions import WorkflowError
+from snakemake.logging import logger as snakemake_logger
 
 # What planning needs is standard library only (no NumPy/pandas to import on every invocation).
 import rafi.settings as _settings
 from rafi.errors import InputSpecError, RawFormatError, SettingsError
 from rafi.readers.input_spec import discover_machines, has_braces
-from rafi.readers.quarantine import still_quarantined
+from rafi.readers.quarantine import (
+    is_skipped,
+    present_statuses,
+    read_input_status,
+    rejection_lines,
+    still_quarantined,
+)
 from rafi.ops.code_deps import code_files
 from snakemake.utils import validate
 
@@ -181,11 +193,6 @@ def pipeline_tables(machine):
     return {name: out(name, machine) for name in TABLES}
 
 
-def all_pipeline_tables():
-    """Flat list of ``pipeline_tables`` of every discovered machine (for ``rule all``)."""
-    return [path for m in MACHINES for path in pipeline_tables(m).values()]
-
-
 def report_paths(machine="{machine}"):
     """Paths of the qualification report of ``machine``: dict ``html``/``pdf``."""
     return {ext: f"{REPORTS_DIR}/{machine}/qualification.{ext}" for ext in ("html", "pdf")}
@@ -304,16 +311,108 @@ def _report_wanted():
     return str(RUN["nightly_report"]).lower() not in ("0", "false", "no")
 
 
+# --------------------------------------------------------------------------- machine-level quarantine
+#
+# The checkpoint input_status (input_status.smk) writes results/<machine>/input_status.json
+# after the clean jobs: `usable` (at least one raw file is ok) or `skipped` (every file was
+# quarantined). The final targets are input functions that read it (machine_targets), so a
+# skipped machine builds only audit.csv and reports/<machine>/skipped.html, and the run carries
+# on with the others. Until the checkpoint has run, checkpoints.input_status.get() raises and
+# Snakemake builds the checkpoint first; one function per machine, so that one machine's
+# checkpoint does not hold back another's jobs.
+
+
+def input_status_path(machine="{machine}"):
+    """``results/<machine>/input_status.json`` (output of the checkpoint input_status)."""
+    return f"{RESULTS_DIR}/{machine}/input_status.json"
+
+
+def skipped_page_path(machine="{machine}"):
+    """``reports/<machine>/skipped.html``: the page of a skipped machine (rule skipped_report)."""
+    return f"{REPORTS_DIR}/{machine}/skipped.html"
+
+
+#: Run-level summary of rejected input, ``results/input_check.json`` (written by input_check).
+INPUT_CHECK = f"{RESULTS_DIR}/input_check.json"
+
+
+def machine_skipped(machine):
+    """True if ``machine`` has no usable raw file (after the checkpoint input_status: raises
+    Snakemake's IncompleteCheckpointException until it has run)."""
+    return is_skipped(read_input_status(checkpoints.input_status.get(machine=machine).output.status))
+
+
+#: What machine_targets() builds for a machine, by purpose.
+TARGET_KINDS = ("tables", "all", "nightly")
+
+
+def machine_targets(machine, what):
+    """Input function: the final outputs of ``machine`` for ``what`` (a ``TARGET_KINDS``).
+
+    ``tables``: the tables of docs/design.md; ``all``: plus the comparison, the registry
+    decision and the report; ``nightly``: as ``all``, the report only unless ``--config
+    nightly_report=false``. A skipped machine gets ``audit.csv`` (and, except for ``tables``,
+    its ``skipped.html`` page) instead. Every kind includes ``input_status.json``.
+    """
+    if what not in TARGET_KINDS:
+        raise ValueError(f"machine_targets: what must be one of {TARGET_KINDS}, not {what!r}")
+
+    def _targets(wildcards):
+        targets = [input_status_path(machine)]
+        if machine_skipped(machine):
+            targets.append(out("audit", machine))
+            return targets if what == "tables" else targets + [skipped_page_path(machine)]
+        targets += list(pipeline_tables(machine).values())
+        if what == "tables":
+            return targets
+        targets += comparison_outputs(machine)
+        targets += [registry_path("decision.json", machine), registry_path("comparison.csv", machine)]
+        if what == "all" or _report_wanted():
+            targets += list(report_paths(machine).values())
+        return targets
+
+    return _targets
+
+
+def all_pipeline_tables():
+    """Input functions (one per machine): the tables of every machine (``rule tables``)."""
+    return [machine_targets(m, "tables") for m in MACHINES]
+
+
+def all_targets():
+    """Input functions (one per machine) and ``INPUT_CHECK``: everything (``rule all``)."""
+    return [machine_targets(m, "all") for m in MACHINES] + [INPUT_CHECK]
+
+
 def nightly_targets():
     """Every output a night produces: tables, comparison, decision and (unless
-    ``--config nightly_report=false``) the report, for the machines of the night."""
-    targets = []
-    for m in _nightly_machines():
-        targets += list(pipeline_tables(m).values()) + comparison_outputs(m)
-        targets += [registry_path("decision.json", m), registry_path("comparison.csv", m)]
-        if _report_wanted():
-            targets += list(report_paths(m).values())
-    return targets
+    ``--config nightly_report=false``) the report, for the machines of the night (a skipped
+    machine: its audit and skipped page); ``INPUT_CHECK`` when the night covers every machine."""
+    machines = _nightly_machines()
+    targets = [machine_targets(m, "nightly") for m in machines]
+    return targets + ([INPUT_CHECK] if machines == MACHINES else [])
+
+
+def rejected_input_message():
+    """What the run says at its end if input was rejected, else ``""`` (read from the
+    ``input_status.json`` of every machine there is one for)."""
+    lines = rejection_lines(present_statuses(input_status_path(m) for m in MACHINES))
+    if not lines:
+        return ""
+    listed = "\n  ".join(lines)
+    return (
+        f"RAFI: INPUT WAS REJECTED - the run carried on without it:\n  {listed}\n"
+        f"Summary: {INPUT_CHECK}; per machine: {RESULTS_DIR}/<machine>/audit.csv and "
+        f"input_status.json; a skipped machine's page: {REPORTS_DIR}/<machine>/skipped.html. "
+        "rafi nightly exits with 4 for this."
+    )
+
+
+def say_rejected_input():
+    """onsuccess/onerror of the Snakefile: log ``rejected_input_message()``, if any."""
+    message = rejected_input_message()
+    if message:
+        snakemake_logger.warning(message)
 
 
 # --------------------------------------------------------------------------- bad input

@@ -37,6 +37,8 @@ rule decide:
 
 # `rafi nightly` builds this target (restricted by `--config nightly_machines=M`; the
 # report is left out with `--config nightly_report=false`, i.e. `rafi nightly --no-report`).
+# A machine skipped for want of a usable raw file (input_status.smk) gets no decide job: no
+# candidate, no decision, its champion stays; it builds audit.csv and its skipped page only.
 rule nightly:
     input:
         nightly_targets(),

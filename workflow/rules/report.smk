@@ -101,3 +101,21 @@ rule report:
         paths={"raw_dir": str(RAW_DIR), "results_dir": RESULTS_DIR, "reports_dir": REPORTS_DIR},
     script:
         "../scripts/report.py"
+
+
+rule skipped_report:
+    """Page of a machine skipped for want of a usable raw file (machine-level quarantine, see
+    input_status.smk): the rejected files and why, in place of the qualification report."""
+    input:
+        status=input_status_path(),
+        audit=out("audit"),
+        code=rafi_code("skipped_report"),
+        glue=script_helpers(),
+    output:
+        html=skipped_page_path(),
+    log:
+        log_path("skipped_report"),
+    conda:
+        "../envs/rafi.yaml"
+    script:
+        "../scripts/skipped_report.py"

@@ -25,9 +25,12 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         frames[name] = pd.read_parquet(by_stem[log_id(Path(name).stem)])
         print(f"read clean {name}: {len(frames[name])} rows", flush=True)
     if not frames:
+        # a run builds nothing of a skipped machine beyond its audit (input_status.smk): only
+        # a target named on the command line (runs.csv, model.json, ...) gets here
         raise RuntimeError(
-            f"no usable raw file for machine {smk.wildcards.machine}: all "
-            f"{len(audit)} quarantined (see audit.csv)"
+            f"no usable raw file for machine {smk.wildcards.machine}: all {len(audit)} "
+            "quarantined (see audit.csv); the machine is skipped (input_status.json, "
+            "skipped.html) and has no runs, model or report to build"
         )
     cfg = smk.params.runs
     table, frame = find_runs(
