@@ -386,7 +386,7 @@ def test_pdf_text_has_every_last_column_header(rendered, browser_tools):
     ).stdout
     flat = " ".join(text.split())
     for header in (
-        "sha256 (first 12)",
+        "role (source) why",  # the segmentation table's last two headers
         "status",
         "vs paper",
         "key sensor",

@@ -8,11 +8,9 @@ import pandas as pd
 from rafi.method.paper import T_EQ_S
 from rafi.report.format import (
     cell,
-    fmt_duration,
     fmt_num,
     fmt_speed,
     isnum,
-    run_label,
     short_id,
     speed_key,
     table,
@@ -33,32 +31,9 @@ def paper_value(frame: pd.DataFrame, i, column: str, values: dict, speed):
 
 
 def section_data(res: dict) -> dict:
-    """Section 2: the runs, the cleaning audit per file and the quarantined files."""
+    """Section 2: the runs by role, the cleaning audit per file and the quarantined files (every
+    run in detail: :mod:`rafi.report.segmentation_section`)."""
     runs = res["runs_csv"]
-    rows = []
-    if runs is not None:
-        for r in runs.itertuples(index=False):
-            speed = (
-                fmt_speed(r.speed_rpm)
-                if r.kind == "constant"
-                else f"{r.kind} {fmt_num(r.speed_min_rpm, 0)}\u2013{fmt_speed(r.speed_max_rpm)}"
-            )
-            rows.append(
-                [
-                    cell(run_label(r.run_id)),
-                    r.file,
-                    r.role,
-                    fmt_duration(r.duration_s),
-                    speed,
-                    short_id(getattr(r, "sha256", "")),
-                ]
-            )
-    runs_t = table(
-        ["run", "file", "role", "duration", "speed", "sha256 (first 12)"],
-        rows,
-        cls="runs",
-        widths=[18, 26, 16, 9, 17, 14],
-    )
     audit = res["audit"]
     audit_t, quarantined = None, []
     if audit is not None:
@@ -119,7 +94,6 @@ def section_data(res: dict) -> dict:
         totals = {}
     roles = runs["role"].value_counts().to_dict() if runs is not None else {}
     return {
-        "runs": runs_t,
         "audit": audit_t,
         "quarantined": quarantined,
         "totals": totals,

@@ -518,7 +518,7 @@ def fig_segmentation(logs: dict, *, fmt: str = "png") -> bytes:
 
     ``logs``: ``label -> (samples, spans)``; ``samples`` has ``h`` (hours on the log's clock),
     ``speed_rpm`` and ``dz_um``; ``spans`` has ``start_h``, ``end_h``, ``role`` and ``label``
-    (the run's number within the log, written at the top of its band).
+    (the run's number within the log, written at the top of its band where it fits).
     """
     with plt.rc_context(STYLE):
         names = list(logs)
@@ -529,9 +529,12 @@ def fig_segmentation(logs: dict, *, fmt: str = "png") -> bytes:
         seen, twins = {}, []
         for ax, name in zip(axes, names):
             samples, spans = logs[name]
+            span_h = max(float(spans["end_h"].max() - spans["start_h"].min()), 1e-9) if len(spans) else 1.0
             for s in spans.itertuples(index=False):
                 colour = ROLE_COLOURS.get(str(s.role), "#eeeeee")
                 seen.setdefault(str(s.role), ax.axvspan(s.start_h, s.end_h, color=colour, alpha=0.35, lw=0))
+                if s.end_h - s.start_h < 0.03 * span_h:  # too narrow for its number
+                    continue
                 ax.text(
                     (s.start_h + s.end_h) / 2,
                     0.98,

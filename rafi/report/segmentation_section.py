@@ -57,7 +57,8 @@ def _span(r) -> Markup:
 
 
 def _speed(r) -> str:
-    if str(r.get("kind")) == "constant" or not isnum(r.get("speed_min_rpm")):
+    lo, hi = r.get("speed_min_rpm"), r.get("speed_max_rpm")
+    if str(r.get("kind")) != "varying" or not (isnum(lo) and isnum(hi)) or float(hi) - float(lo) < 1.0:
         return fmt_speed(r.get("speed_rpm"))
     return f"{fmt_num(r.get('speed_min_rpm'), 0)}\u2013{fmt_speed(r.get('speed_max_rpm'))}"
 
@@ -115,7 +116,7 @@ def section_segmentation(res: dict, settings: dict, figs) -> dict | None:
         "table": table(
             ["run", "span on the log's clock", "duration", "speed", "kind", "role (source)", "why"],
             rows,
-            cls="runs segmentation",
+            cls="segmentation",
             widths=[17, 17, 8, 13, 8, 13, 24],
         ),
         "figure": figs.get("pipeline", "segmentation"),
