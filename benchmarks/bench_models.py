@@ -106,7 +106,7 @@ def show_comparison(name, table, frame, key, settings):
         terms=settings["fit"]["terms"],
         reference=settings["reference"],
         machine=name,
-        options={**settings["models"], "cv_report": False},
+        options=settings["models"],
         gates=settings["qualification"],
         log=lambda m: None,
     )

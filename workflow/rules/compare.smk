@@ -1,6 +1,6 @@
 # Model family comparison (docs/models.md): RAFI as published against rafi_linear,
 # ridge_global, dynamic and grey_box on the same validation runs and gates; whole-run CV on the
-# training runs only; the champion (best model that passes the gates) as best_model.json.
+# training runs only chooses the champion (best_model.json, passing or not).
 #
 # Uses the helpers of common.smk (machine_config, out, comparison_path, log_path,
 # bench_path, rafi_code, script_helpers). Settings: the machine's complete `models:` and
