@@ -28,10 +28,10 @@ __all__ = [
 SELECTION_RULE = (
     "chosen by whole-run cross-validation on the training runs only: each training run (or "
     "speed, under leave_one_speed_out) is held out in turn, every model is refitted on the "
-    "others (choosing its own hyperparameters by an inner cross-validation on them) and predicts the held-out run; the model with the lowest "
-    "mean over the held-out runs of the max |residual| is offered to the machine. Validation "
-    "runs are touched once, after the choice; if the chosen model fails a gate the verdict is "
-    "FAIL, with no second pick."
+    "others (choosing its own hyperparameters by an inner cross-validation on them) and "
+    "predicts the held-out run; the model with the lowest mean over the held-out runs of the "
+    "max |residual| is offered to the machine. Validation runs are touched once, after the "
+    "choice; if the chosen model fails a gate the verdict is FAIL, with no second pick."
 )
 
 #: Kinds in order of simplicity (fewest fitted numbers first), the last tie-breaker.
