@@ -252,3 +252,18 @@ def test_a_lag_longer_than_the_grid_is_flagged_and_recorded(tmp_path):
     auto = DynamicRidge(alphas=[1e-4, 1e-2], reference=ref).fit(table, frame)
     assert auto.to_dict()["hyperparameters"]["taus_s"] == "auto"
     assert auto.grids_["dynamic_taus_s"][-1] >= 3600.0  # up to about the run length
+
+
+def test_a_choice_at_a_grid_edge_is_said_where_people_read_what_cv_chose():
+    from rafi.family.compare import describe_selection
+
+    _, table, frame = _runs("run_start")
+    ref = {"rule": "run_start", "window_s": WINDOW}
+    m = DynamicRidge(taus_s=[0, 60, 300], max_taus=1, alphas=[1e-4, 1e-2], reference=ref).fit(table, frame)
+    text = describe_selection(m)
+    assert "AT A GRID EDGE" in text and "300 s is the largest" in text
+    inner = DynamicRidge(
+        taus_s=[0, 200, 1500, 6000], max_taus=1, alphas=[1e-6, 1e-4, 1e-2, 1.0], reference=ref
+    )
+    inner = inner.fit(table, frame)
+    assert inner.grid_edges_ == [] and "GRID EDGE" not in describe_selection(inner)

@@ -165,6 +165,9 @@ def describe_selection(model) -> str:
     else:
         parts.append("speed gain dT\u00b7n" if model.speed_gain_ else "no speed gain")
         parts.append("speed terms" if model.speed_terms_ else "no speed terms (not identified)")
+    edges = list(getattr(model, "grid_edges_", []) or [])
+    if edges:
+        parts.append("AT A GRID EDGE (the best value may lie outside the grid): " + "; ".join(edges))
     return "; ".join(parts)
 
 
