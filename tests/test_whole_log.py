@@ -262,8 +262,5 @@ def test_a_choice_at_a_grid_edge_is_said_where_people_read_what_cv_chose():
     m = DynamicRidge(taus_s=[0, 60, 300], max_taus=1, alphas=[1e-4, 1e-2], reference=ref).fit(table, frame)
     text = describe_selection(m)
     assert "AT A GRID EDGE" in text and "300 s is the largest" in text
-    inner = DynamicRidge(
-        taus_s=[0, 200, 1500, 6000], max_taus=1, alphas=[1e-6, 1e-4, 1e-2, 1.0], reference=ref
-    )
-    inner = inner.fit(table, frame)
-    assert inner.grid_edges_ == [] and "GRID EDGE" not in describe_selection(inner)
+    m.grid_edges_ = []  # the same fitted model with nothing at an edge: nothing said
+    assert "GRID EDGE" not in describe_selection(m)
