@@ -19,6 +19,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from project_copy import copy_project
 
 from rafi import REQUIRED_COLUMNS
 from rafi.errors import InputSpecError, RawFormatError
@@ -313,15 +314,10 @@ def test_a_machine_without_time_and_speed_columns_runs_through_the_workflow(tmp_
     (one row per minute, one speed per file from its name): every table is made, the clean
     parquet and the runs carry the configured clock and speeds, and the audit says so."""
     import os
-    import shutil
     import subprocess
     import sys
 
-    work = tmp_path / "project"
-    work.mkdir()
-    shutil.copy2(ROOT / "Snakefile", work / "Snakefile")
-    for name in ("workflow", "rafi"):
-        shutil.copytree(ROOT / name, work / name, ignore=shutil.ignore_patterns("__pycache__"))
+    work = copy_project(tmp_path / "project", config=False)
     raw = work / "raw" / "rig-c"
     raw.mkdir(parents=True)
     for i, (name, rpm) in enumerate(E2E_FILES.items()):

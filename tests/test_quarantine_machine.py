@@ -19,6 +19,7 @@ from pathlib import Path
 
 import pandas as pd
 import pytest
+from project_copy import copy_project
 
 from rafi.artefact import write_csv_atomic
 from rafi.method.audit import quarantined, summarise_audit
@@ -212,12 +213,7 @@ def _nightly(proj: Path) -> subprocess.CompletedProcess:
 @pytest.fixture
 def project(tmp_path: Path) -> Path:
     """Two machines: GOOD (a trimmed copy of the shipped logs), BROKEN (two bad files only)."""
-    proj = tmp_path / "proj"
-    proj.mkdir()
-    shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
-    shutil.copy2(ROOT / "config.yaml", proj / "config.yaml")
-    for name in ("workflow", "rafi"):  # a frozen copy of the package: its files are rule inputs
-        shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
+    proj = copy_project(tmp_path / "proj")
     (proj / "raw" / GOOD).mkdir(parents=True)
     for stem in KEEP:
         shutil.copy2(ROOT / "raw" / GOOD / f"{stem}.csv", proj / "raw" / GOOD / f"{stem}.csv")

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 import pytest
+from project_copy import copy_project
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = "tapping-center-a"
@@ -54,12 +55,7 @@ def _outputs(proj: Path) -> dict[str, int]:
 
 @pytest.fixture
 def project(tmp_path: Path) -> Path:
-    proj = tmp_path / "proj"
-    proj.mkdir()
-    shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
-    shutil.copy2(ROOT / "config.yaml", proj / "config.yaml")
-    for name in ("workflow", "rafi"):  # a frozen copy of the package: its files are rule inputs
-        shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
+    proj = copy_project(tmp_path / "proj")
     (proj / "raw" / MACHINE).mkdir(parents=True)
     for stem in KEEP:
         shutil.copy2(ROOT / "raw" / MACHINE / f"{stem}.csv", proj / "raw" / MACHINE / f"{stem}.csv")
