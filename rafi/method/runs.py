@@ -60,7 +60,14 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.method.windows import check_windows, cut_points, leak_check, resolve_windows, window_of
+from rafi.method.windows import (
+    VALIDATION_BY_KIND,
+    check_windows,
+    cut_points,
+    leak_check,
+    resolve_windows,
+    window_of,
+)
 from rafi.settings import MACHINE_DEFAULTS
 
 #: Roles a run can have (``docs/design.md``).
@@ -524,14 +531,6 @@ def _auto_role(kind, speed, duration, train, tol, min_run_s, idle_below) -> tupl
     if kind == "varying":
         return "validation_multi", "varying speed (steps shorter than runs.min_constant_s)"
     return "validation_idle", f"idle (spindle below {idle_below:g} r/min): a cool-down"
-
-
-#: The validation role of a run of each kind.
-VALIDATION_BY_KIND = {
-    "constant": "validation_single",
-    "varying": "validation_multi",
-    "idle": "validation_idle",
-}
 
 
 def _window_role(win, what, kind, duration, min_run_s, idle_training) -> tuple[str, str, str]:

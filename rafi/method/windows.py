@@ -30,6 +30,12 @@ from rafi.errors import SettingsError
 
 WINDOW_ROLES = ("training", "validation", "excluded")
 WINDOW_UNITS = ("elapsed_s", "fraction", "time")
+#: The validation role of a run of each kind.
+VALIDATION_BY_KIND = {
+    "constant": "validation_single",
+    "varying": "validation_multi",
+    "idle": "validation_idle",
+}
 
 
 @dataclass(frozen=True)
@@ -201,9 +207,7 @@ def leak_check(table: pd.DataFrame, *, allow: bool) -> pd.DataFrame:
     for i in out.index[after]:
         run = out.loc[i]
         if run["role_source"] == "auto":
-            demoted = {"varying": "validation_multi", "idle": "validation_idle"}.get(
-                str(run.get("kind", "")), "validation_single"
-            )
+            demoted = VALIDATION_BY_KIND.get(str(run.get("kind", "")), "validation_single")
             out.loc[i, ["role", "role_source"]] = [demoted, "leak_guard"]
             out.loc[i, "role_reason"] = (
                 f"would be training ({run['role_reason']}) but lies after {what} of the same log: "
