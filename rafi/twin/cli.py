@@ -7,6 +7,9 @@ Modes:
               rafi simulate day --machine tapping-center-a --out raw --seed 7 \\
                   --ambient-shift 3.0 --sensor-drift T8:0.4 --wear 0.1 \\
                   --speeds 3000,6000 --validation-speeds 4500 --multi
+  hostile   write logs that look valid but are wrong (units, sign, channels, ...) beside a
+            machine's files, with the outcome each must get (docs/raw-format.md, "Checks"):
+              rafi simulate hostile --out /tmp/try/raw/tapping-center-a --shipped raw/tapping-center-a
   plot      plot temperatures and displacement of logs (paper Figure 9 style):
               rafi simulate plot raw/tapping-center-a --out docs/img
 
@@ -134,6 +137,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     p.add_argument("--machine", default="tapping-center-a", choices=["tapping-center-a"], help="machine id")
 
     p = sub.add_parser(
+        "hostile",
+        formatter_class=fmt,
+        help="write the hostile-log corpus (wrong units, sign, channels, ...) with its ground truth",
+        description="Derive logs that look valid but are wrong from the shipped tapping-center-a "
+        "logs, write them into OUT (a machine folder) and print, per file, the check that must "
+        "catch it and how (quarantined, rejected, warning, flagged, not_read). Never writes "
+        "into the shipped folder.",
+    )
+    p.add_argument("--out", required=True, help="machine folder to write into, e.g. /tmp/try/raw/m")
+    p.add_argument("--shipped", default="raw/tapping-center-a", help="the shipped tapping-center-a logs")
+    p.add_argument("--long-bytes", type=int, default=200_000, help="length of the oversized line and field")
+
+    p = sub.add_parser(
         "plot",
         formatter_class=fmt,
         help="plot temperatures and displacement of logs against time",
@@ -188,6 +204,19 @@ def run(args: argparse.Namespace) -> int:
         table = noise_floor(args.machine)
         print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
         return 0
+    if mode == "hostile":
+        from rafi.twin.hostile import write_hostile_corpus
+
+        out, shipped = Path(args.out).resolve(), Path(args.shipped).resolve()
+        if out == shipped:
+            print("rafi simulate hostile: --out must not be the shipped folder", file=sys.stderr)
+            return 2
+        cases = write_hostile_corpus(
+            shipped, out, out.parent.parent / "outside-raw", long_bytes=args.long_bytes
+        )
+        for case in cases:
+            print(f"{out / case.file}\t{case.check}\t{case.outcome}\t{case.what}")
+        return 0
     if mode == "plot":
         from rafi.twin.plots import plot_runs
 
@@ -201,7 +230,7 @@ def run(args: argparse.Namespace) -> int:
             print(path)
         return 0
     print(
-        "rafi simulate: choose a mode: shipped, day, noise-floor or plot (see rafi simulate --help)",
+        "rafi simulate: choose a mode: shipped, day, hostile, noise-floor or plot (see rafi simulate --help)",
         file=sys.stderr,
     )
     return 2

@@ -1,0 +1,369 @@
+"""Hostile logs: good native logs made wrong in ways that still look valid, with the ground truth.
+
+Each :class:`HostileCase` says which file to write, what was done to it, which check must
+catch it (a check id of ``docs/raw-format.md``, "Checks") and how: ``quarantined`` (certain:
+the file is refused), ``rejected`` (refused at machine level, e.g. a byte-identical copy),
+``warning`` (used, shown in the report, blocks promotion until confirmed), ``flagged`` (either
+of the last three) or ``not_read`` (never opened: a link leaving ``raw/``, a file still being
+written). :func:`hostile_corpus` derives every case from the shipped tapping-center-a logs;
+:func:`write_hostile_corpus` writes them beside a machine's files (``rafi simulate hostile``).
+
+The cases are the kinds of issue 13: wrong units (degF, K, mm, nm, rev/s), a reversed probe,
+swapped channels, a stuck logger, a constant sensor, a channel missing in most rows, absurd
+speeds, oversized lines and fields, duplicate content, metadata contradicting the data or the
+folder, links out of ``raw/`` and a file still being written.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rafi import SENSORS as _SENSORS
+
+SENSORS = list(_SENSORS)
+
+#: Outcomes a case can expect.
+OUTCOMES = ("quarantined", "rejected", "warning", "flagged", "not_read")
+
+#: The logger's open-circuit codes (settings ``clean.open_circuit_values``), kept by unit changes.
+OPEN_CIRCUIT = (-999.0, 999.9, 850.0)
+
+#: Shipped tapping-center-a logs the cases start from.
+SOURCES = ("train_03000rpm.csv", "train_06000rpm.csv", "train_09000rpm.csv", "valid_13500rpm.csv")
+
+
+@dataclass(frozen=True)
+class HostileCase:
+    """One hostile log and what must happen to it.
+
+    Attributes
+    ----------
+    name : str
+        Case id.
+    file : str
+        File name under the machine folder.
+    check : str
+        Check id that must name the problem.
+    outcome : str
+        One of :data:`OUTCOMES`.
+    what : str
+        What was done to the good log, for people.
+    """
+
+    name: str
+    file: str
+    check: str
+    outcome: str
+    what: str
+
+
+def split_native(text: str) -> tuple[dict[str, str], pd.DataFrame]:
+    """Metadata lines and data of a native log (the columns as text-free floats, ``time`` as text)."""
+    meta: dict[str, str] = {}
+    lines = text.splitlines(keepends=True)
+    k = 0
+    while k < len(lines) and lines[k].startswith("#"):
+        key, _, value = lines[k][1:].strip().partition(":")
+        meta[key.strip()] = value.strip()
+        k += 1
+    frame = pd.read_csv(io.StringIO("".join(lines[k:])), dtype={"time": str})
+    return meta, frame
+
+
+def join_native(meta: dict[str, str], frame: pd.DataFrame, decimals: dict[str, int] | None = None) -> str:
+    """Native log text of ``meta`` and ``frame`` (inverse of :func:`split_native`)."""
+    decimals = {"speed_rpm": 0, **{s: 2 for s in SENSORS}, "disp_um": 3, **(decimals or {})}
+    out = io.StringIO()
+    for key, value in meta.items():
+        out.write(f"# {key}: {value}\n")
+    cols = list(frame.columns)
+    out.write(",".join(cols) + "\n")
+    rendered = []
+    for name in cols:
+        col = frame[name]
+        if name == "time" or not pd.api.types.is_numeric_dtype(col):
+            rendered.append(col.fillna("").astype(str).to_numpy(dtype=object))
+        else:
+            nd = decimals.get(name, 4)
+            rendered.append(np.array(["" if np.isnan(v) else f"{v:.{nd}f}" for v in col.to_numpy(float)]))
+    for row in zip(*rendered, strict=True):
+        out.write(",".join(row) + "\n")
+    return out.getvalue()
+
+
+def _variant(meta, frame, change: Callable[[dict, pd.DataFrame], None], decimals=None) -> str:
+    meta, frame = dict(meta), frame.copy()
+    change(meta, frame)
+    return join_native(meta, frame, decimals)
+
+
+def _set(meta, key, value):
+    meta[key] = value
+
+
+def hostile_corpus(sources: dict[str, str], *, long_bytes: int = 200_000) -> list[tuple[HostileCase, str]]:
+    """Every text case of the corpus, built from good native logs.
+
+    Parameters
+    ----------
+    sources : dict
+        File name -> text of the shipped logs named in :data:`SOURCES`.
+    long_bytes : int
+        Length of the oversized line and field (the issue's corpus used 50 MB).
+
+    Returns
+    -------
+    list of (HostileCase, str)
+        The case and the file's text. Cases that are not text (a link, a file still being
+        written) are made by :func:`write_hostile_corpus`.
+    """
+    parsed = {name: split_native(text) for name, text in sources.items()}
+    m3, f3 = parsed["train_03000rpm.csv"]
+    m6, f6 = parsed["train_06000rpm.csv"]
+    m9, f9 = parsed["train_09000rpm.csv"]
+    mv, fv = parsed["valid_13500rpm.csv"]
+    rng = np.random.default_rng(13)
+    glitch = int(rng.integers(len(f6) // 4, 3 * len(f6) // 4))
+
+    def temps(f, convert):
+        # the logger's open-circuit codes stay as they are: only real readings change unit
+        values = f[SENSORS]
+        f[SENSORS] = values.where(values.isin(OPEN_CIRCUIT), convert(values))
+
+    def degf(_, f):
+        temps(f, lambda v: v * 9 / 5 + 32)
+
+    def kelvin(_, f):
+        temps(f, lambda v: v + 273.15)
+
+    def mm_glitch(_, f):
+        f["disp_um"] = f["disp_um"] / 1000.0
+        f.loc[glitch, "disp_um"] = 35.0  # one glitch sample makes max - min look like micrometres
+
+    def nm(_, f):
+        f["disp_um"] = f["disp_um"] * 1000.0
+
+    def reversed_probe(_, f):
+        f["disp_um"] = -f["disp_um"]
+
+    def swapped(_, f):
+        f["T1"], f["disp_um"] = f["disp_um"].to_numpy(), f["T1"].to_numpy()
+
+    def stuck(_, f):
+        f[SENSORS] = f[SENSORS].iloc[0].to_numpy()
+
+    def rev_s(_, f):
+        f["speed_rpm"] = f["speed_rpm"] / 60.0
+
+    def fast(_, f):
+        f.loc[f["speed_rpm"] > 100, "speed_rpm"] = 50_000.0
+
+    def sparse(_, f):
+        keep = f.index.isin([0, len(f) // 2, len(f) - 1])
+        f.loc[~keep, "disp_um"] = np.nan
+
+    def long_line(m, _):
+        m["notes"] = "x" * long_bytes
+
+    def long_field(_, f):
+        f["remark"] = ""
+        f.loc[len(f) // 3, "remark"] = "y" * long_bytes
+
+    def other_machine(m, _):
+        m["machine"] = "machining-center-b"
+
+    def wrong_period(m, _):
+        m["sample_period_s"] = "1"
+
+    def constant_sensor(_, f):
+        f["T5"] = f["T5"].iloc[0]
+
+    text_cases = [
+        ("degF", m6, f6, degf, None, "temperature_unit", "quarantined", "temperatures in degF"),
+        ("kelvin", m6, f6, kelvin, None, "temperature_unit", "quarantined", "temperatures in K"),
+        (
+            "mm_glitch",
+            m6,
+            f6,
+            mm_glitch,
+            {"disp_um": 6},
+            "displacement_unit",
+            "quarantined",
+            "displacement in mm with one glitch sample",
+        ),
+        ("nm", m6, f6, nm, {"disp_um": 0}, "displacement_unit", "quarantined", "displacement in nm"),
+        (
+            "reversed_probe",
+            m9,
+            f9,
+            reversed_probe,
+            None,
+            "probe_sign",
+            "warning",
+            "the displacement probe's sign reversed",
+        ),
+        (
+            "swapped_T1_disp",
+            m6,
+            f6,
+            swapped,
+            None,
+            "swapped_channels",
+            "flagged",
+            "T1 and the displacement column swapped",
+        ),
+        ("stuck_logger", m6, f6, stuck, None, "stuck_logger", "quarantined", "all 16 temperatures constant"),
+        (
+            "rev_s",
+            m3,
+            f3,
+            rev_s,
+            {"speed_rpm": 1},
+            "speed_unit",
+            "quarantined",
+            "speed in rev/s on a training run",
+        ),
+        ("fast_validation", mv, fv, fast, None, "speed_range", "warning", "a validation run at 50,000 r/min"),
+        (
+            "sparse_disp",
+            m6,
+            f6,
+            sparse,
+            None,
+            "sparse_channel",
+            "quarantined",
+            "displacement present in 3 rows",
+        ),
+        (
+            "long_line",
+            m6,
+            f6,
+            long_line,
+            None,
+            "line_too_long",
+            "quarantined",
+            f"a notes line of {long_bytes} bytes",
+        ),
+        (
+            "long_field",
+            m6,
+            f6,
+            long_field,
+            None,
+            "field_too_long",
+            "quarantined",
+            f"a field of {long_bytes} characters",
+        ),
+        (
+            "other_machine",
+            m9,
+            f9,
+            other_machine,
+            None,
+            "metadata_machine",
+            "warning",
+            "metadata names another machine than the folder",
+        ),
+        (
+            "wrong_period",
+            m9,
+            f9,
+            wrong_period,
+            None,
+            "metadata_period",
+            "quarantined",
+            "metadata says 1 s samples on 5 s data",
+        ),
+        (
+            "constant_sensor",
+            m9,
+            f9,
+            constant_sensor,
+            None,
+            "constant_channel",
+            "warning",
+            "temperature T5 constant (a dead sensor)",
+        ),
+    ]
+    out = []
+    for name, meta, frame, change, decimals, check, outcome, what in text_cases:
+        case = HostileCase(name, f"hostile_{name}.csv", check, outcome, what)
+        out.append((case, _variant(meta, frame, change, decimals)))
+    dup = HostileCase(
+        "duplicate",
+        "train_03000rpm_copy.csv",
+        "duplicate_content",
+        "rejected",
+        "a byte-identical copy of a training file",
+    )
+    out.append((dup, sources["train_03000rpm.csv"]))
+    return out
+
+
+def write_hostile_corpus(
+    shipped_dir: str | os.PathLike,
+    machine_dir: str | os.PathLike,
+    outside_dir: str | os.PathLike,
+    *,
+    long_bytes: int = 200_000,
+    settling: bool = True,
+) -> list[HostileCase]:
+    """Write the hostile corpus into ``machine_dir``; return its cases (the ground truth).
+
+    Parameters
+    ----------
+    shipped_dir : path
+        Folder holding the shipped tapping-center-a logs (:data:`SOURCES`).
+    machine_dir : path
+        Machine folder under ``raw/`` to write into (created).
+    outside_dir : path
+        A folder outside ``raw/`` for the target of the link case.
+    long_bytes : int
+        Length of the oversized line and field.
+    settling : bool
+        Also write a file that is still being written (its modification time is now).
+
+    Returns
+    -------
+    list of HostileCase
+    """
+    shipped_dir, machine_dir, outside_dir = Path(shipped_dir), Path(machine_dir), Path(outside_dir)
+    machine_dir.mkdir(parents=True, exist_ok=True)
+    outside_dir.mkdir(parents=True, exist_ok=True)
+    sources = {name: (shipped_dir / name).read_text(encoding="utf-8") for name in SOURCES}
+    cases = []
+    old = time.time() - 86_400  # a day old: settled
+    for case, text in hostile_corpus(sources, long_bytes=long_bytes):
+        path = machine_dir / case.file
+        path.write_text(text, encoding="utf-8")
+        os.utime(path, (old, old))
+        cases.append(case)
+    target = outside_dir / "elsewhere.csv"
+    target.write_text(sources["train_06000rpm.csv"], encoding="utf-8")
+    link = machine_dir / "hostile_link_outside.csv"
+    link.symlink_to(target.resolve())
+    cases.append(
+        HostileCase("link_outside", link.name, "link_outside_raw", "not_read", "a symlink leaving raw/")
+    )
+    if settling:
+        text = sources["train_06000rpm.csv"]
+        half = text[: len(text) // 2].rsplit("\n", 1)[0] + "\n"
+        (machine_dir / "hostile_settling.csv").write_text(half, encoding="utf-8")
+        cases.append(
+            HostileCase(
+                "settling",
+                "hostile_settling.csv",
+                "settling",
+                "not_read",
+                "a file still being written (half its rows, modified now)",
+            )
+        )
+    return cases
