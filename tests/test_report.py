@@ -855,3 +855,38 @@ def test_equation_text():
         "dz = 0.1200 + 1.230\u00a0x\u2081 \u2212 0.5000\u00a0x\u2081\u00b7x\u2082 + "
         "2.000\u00d710\u207b\u2076\u00a0x\u2083\u00b2"
     ) in eq
+
+
+def test_input_warnings_and_machine_level_rejections_are_shown(tmp_path):
+    """Issue 13: a suspicious file is listed with its check; unconfirmed ones raise an alert in the
+    verdict; a file rejected for the machine (input_status.json) is listed as not used."""
+    results = tmp_path / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    status = {
+        "machine": "tapping-center-a",
+        "status": "usable",
+        "rejected": [
+            {"file": "copy.csv", "sha256": "ab" * 32, "reason": "byte-identical to a.csv [duplicate_content]"}
+        ],
+        "warnings": [
+            {"file": "b.csv", "sha256": "cd" * 32, "check": "metadata_machine", "column": None,
+             "message": "the header names machine x", "confirmed": True},
+            {"file": "a.csv", "sha256": "ef" * 32, "check": "probe_sign", "column": "disp_um",
+             "message": "dz falls while the temperatures rise", "confirmed": False},
+        ],
+    }  # fmt: skip
+    (results / "input_status.json").write_text(json.dumps(status), encoding="utf-8")
+    cfg, settings = _settings()
+    ctx = _context(results, settings, config=cfg)
+    html = render_html(ctx)
+    assert ctx["verdict"]["unconfirmed_warnings"] == 1
+    assert [w["check"] for w in ctx["data"]["warnings"]] == ["probe_sign", "metadata_machine"]
+    verdict_part = html[html.index('id="sec-verdict"') : html.index('id="sec-data"')]
+    assert "1 input warning not confirmed" in _text(verdict_part)
+    data_part = _text(html[html.index('id="sec-data"') :])
+    assert "dz falls while the temperatures rise" in data_part and "not confirmed" in data_part
+    assert "copy.csv" in data_part and "[duplicate_content]" in data_part
+    # without input_status.json (older results) the section is simply absent
+    (results / "input_status.json").unlink()
+    ctx = _context(results, settings, config=cfg)
+    assert ctx["data"]["warnings"] == [] and ctx["verdict"]["unconfirmed_warnings"] == 0

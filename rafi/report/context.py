@@ -99,6 +99,7 @@ def build_context(
     ctx["comparison"] = section_comparison(res, dec.get("champion_id_after"), settings, figs)
     ctx["figures_used"] = list(figs.used)
     ctx["verdict"]["quarantined"] = len(ctx["data"]["quarantined"])
+    ctx["verdict"]["unconfirmed_warnings"] = sum(not w["confirmed"] for w in ctx["data"]["warnings"])
     seg = ctx["segmentation"] or {}
     ctx["verdict"]["allow_late"] = bool(seg.get("allow_late"))
     ctx["verdict"]["late"] = list(seg.get("late") or [])

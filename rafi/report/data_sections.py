@@ -93,13 +93,45 @@ def section_data(res: dict) -> dict:
     else:
         totals = {}
     roles = runs["role"].value_counts().to_dict() if runs is not None else {}
+    status = res.get("input_status") if isinstance(res.get("input_status"), dict) else {}
+    listed = {q["file"] for q in quarantined}
+    for rec in status.get("rejected") or []:
+        if rec.get("file") not in listed:  # rejected at machine level (e.g. duplicate content)
+            quarantined.append(
+                {
+                    "file": rec.get("file", ""),
+                    "sha256": short_id(rec.get("sha256") or ""),
+                    "reason": str(rec.get("reason") or rec.get("check") or ""),
+                }
+            )
     return {
         "audit": audit_t,
         "quarantined": quarantined,
+        "warnings": input_warnings(status),
         "totals": totals,
         "roles": roles,
         "n_files": 0 if audit is None else len(audit),
     }
+
+
+def input_warnings(status: dict) -> list[dict]:
+    """The input warnings of ``input_status.json`` for the report, unconfirmed ones first.
+
+    Each: ``file``, ``check`` (check id, docs/raw-format.md "Checks"), ``column``, ``message``,
+    ``confirmed`` (a person confirmed it in ``checks.confirmed``; an unconfirmed warning blocks
+    promotion at night).
+    """
+    rows = [
+        {
+            "file": str(w.get("file", "")),
+            "check": str(w.get("check", "")),
+            "column": "" if w.get("column") in (None, "") else str(w.get("column")),
+            "message": str(w.get("message", "")),
+            "confirmed": bool(w.get("confirmed")),
+        }
+        for w in (status or {}).get("warnings") or []
+    ]
+    return sorted(rows, key=lambda w: (w["confirmed"], w["file"], w["check"]))
 
 
 def section_equilibrium(res: dict, figs) -> dict:

@@ -5,6 +5,7 @@ Inputs are the tables of ``docs/design.md`` under ``results/<machine>/``, the ta
 evaluating the model) and the figure files of rule ``report_figures``
 (``report/figures/<group>/``). Optional inputs (sections rendered only when present):
 
+- ``input_status.json`` - files rejected at machine level and the input warnings;
 - ``registry/decision.json`` + ``registry/comparison.csv`` - the registry decision;
 - ``comparison/summary.csv``, ``per_run.csv``, ``cv.csv`` - the model family comparison.
 """
@@ -40,6 +41,7 @@ RESULT_FILES = {
 
 #: Optional inputs: a section is left out when its file is absent.
 OPTIONAL_FILES = {
+    "input_status": "input_status.json",
     "decision": "registry/decision.json",
     "registry_comparison": "registry/comparison.csv",
     "comparison": "comparison/summary.csv",

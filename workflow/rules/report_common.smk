@@ -113,6 +113,7 @@ def report_inputs(wildcards):
     inputs["fuzzy_example"] = report_table_path("fuzzy_example", machine)
     for name in ("comparison", "comparison_per_run", "comparison_cv"):
         inputs[name] = _report_input(name, machine)
+    inputs["input_status"] = input_status_path(machine)
     inputs["decision"] = registry_path("decision.json", machine)
     inputs["registry_comparison"] = registry_path("comparison.csv", machine)
     inputs["figures"] = [report_figures_path(g, machine) for g in REPORT_FIGURE_GROUPS]
