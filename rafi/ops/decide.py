@@ -23,9 +23,36 @@ from rafi.method.validate import qualify as _qualify
 from rafi.method.validate import validate_runs as _validate_runs
 from rafi.ops.adapt import merge_speed_models, retrained_speed_info, speeds_from
 from rafi.ops.drift import drift_check, new_validation_runs
-from rafi.ops.gates import col_max, col_min, fmt_value, gate_outcome, gated_runs
+from rafi.ops.gates import (
+    col_max,
+    col_min,
+    fmt_value,
+    gate_outcome,
+    gated_runs,
+    relative_gate,
+    relative_reasons,
+)
+from rafi.ops.provenance import (
+    champion_speeds,
+    coverage_reasons,
+    data_change_reasons,
+    files_of,
+    input_warnings,
+    speed_coverage,
+    trained_speeds,
+    training_data_changes,
+    warning_reason,
+)
 from rafi.ops.registry import DECISION_SCHEMA, Registry, demoted_by_operator, promotion_record
 from rafi.settings import GATE_KEYS
+
+RELATIVE_COLUMNS = [
+    "noise_floor_um",
+    "margin_um",
+    "both_scored",
+    "candidate_minus_champion_um",
+    "candidate_worse",
+]
 
 
 def comparison_table(
@@ -33,8 +60,11 @@ def comparison_table(
     champion_summary: pd.DataFrame | None,
     candidate_summary: pd.DataFrame | None,
     new_run_ids=(),
+    relative: pd.DataFrame | None = None,
 ) -> pd.DataFrame:
-    """Per validation run: champion vs candidate max residual and improvement."""
+    """Per validation run: champion vs candidate max residual and improvement, and the relative
+    gate (``relative``, :func:`rafi.ops.gates.relative_gate`): the run's noise floor, the margin,
+    whether both models are scored on it, the difference and whether the candidate is worse."""
     cols = [
         "run_id",
         "file",
@@ -46,6 +76,7 @@ def comparison_table(
         "champion_improvement_pct",
         "candidate_max_abs_after_um",
         "candidate_improvement_pct",
+        *RELATIVE_COLUMNS,
     ]
     frames = []
     base = None
@@ -78,6 +109,17 @@ def comparison_table(
         out = out.merge(files, on="run_id", how="left")
     new = {str(r) for r in new_run_ids}
     out["new_since_champion"] = out["run_id"].astype(str).isin(new)
+    if relative is not None and len(relative):
+        out = out.merge(
+            relative[["run_id", *RELATIVE_COLUMNS]].astype({"run_id": str}), on="run_id", how="left"
+        )
+    else:
+        floors = [s for s in (candidate_summary, champion_summary) if s is not None and "noise_floor_um" in s]
+        if floors:
+            f = floors[0][["run_id", "noise_floor_um"]].astype({"run_id": str}).drop_duplicates("run_id")
+            out = out.merge(f, on="run_id", how="left")
+    for c in ("both_scored", "candidate_worse"):
+        out[c] = out[c].fillna(False).astype(bool) if c in out else False
     for c in cols:
         if c not in out:
             out[c] = np.nan
@@ -131,6 +173,9 @@ def decide(
     history: list[dict],
     retrained_speeds: list[dict] | None = None,
     adaptation: dict | None = None,
+    champion_dict: dict | None = None,
+    speed_tolerance_rpm: float = 50.0,
+    input_status: dict | None = None,
     time: str | None = None,
 ) -> Decision:
     """Champion / challenger decision (pure).
@@ -138,14 +183,56 @@ def decide(
     * candidate identical to the champion -> ``kept`` (nothing to promote);
     * candidate was demoted by an operator rollback after its last promotion -> ``kept``
       (a rolled-back model is not re-promoted until the data change);
-    * candidate passes every gate -> ``promoted``;
+    * candidate passes every absolute gate (``gates``) and, with a champion, the relative
+      gate (not worse than the champion on any validation run both are scored on by more than
+      ``nightly.champion_margin_um``) and the coverage check (its training covers every speed
+      the champion's did, within ``speed_tolerance_rpm``), and no unconfirmed input warning of
+      ``input_status`` is on a file tonight's data uses -> ``promoted``;
     * otherwise -> ``rejected`` (champion, if any, stays).
 
-    The drift check always runs on the champion in service before tonight.
+    ``champion_dict`` is the champion's artefact (its training speeds and files); the
+    champion's training files gone from or changed in tonight's data are reported in
+    ``data.vanished`` / ``data.changed`` (reasons too), without blocking. The drift check
+    always runs on the champion in service before tonight.
     """
     time = time or now_iso()
     cand_id = candidate_dict["model_id"]
     passed, reasons, measured = gate_outcome(candidate_summary, candidate_verdict, gates)
+    prom = promotion_record(history, champion_id)
+    tonight = files_of(runs_table)
+    status = input_status or {}
+
+    # relative to the champion in service (issue 13 item 4)
+    margin = nightly.get("champion_margin_um", "noise")
+    rel = pd.DataFrame(columns=["run_id", *RELATIVE_COLUMNS])
+    rel_lines: list[str] = []
+    if champion_id is not None:
+        rel = relative_gate(champion_summary, candidate_summary, margin)
+        rel_lines = relative_reasons(rel, champion_id, margin)
+    worse = rel[rel["candidate_worse"].astype(bool)] if len(rel) else rel
+    cand_training = trained_speeds(candidate_dict, runs_table)
+    champ_training = champion_speeds(champion_dict, prom, runs_table) if champion_id is not None else None
+    cov = speed_coverage(champ_training, cand_training, speed_tolerance_rpm)
+    champ_data = (champion_dict or {}).get("data") or (prom or {}).get("data_files") or {}
+    changes = training_data_changes(
+        champ_data if champion_id is not None else {}, tonight, status.get("rejected"), status.get("usable")
+    )
+    warns = input_warnings(status, tonight)
+    blocked_by = [
+        name
+        for name, hit in (
+            ("relative_gate", len(worse) > 0),
+            ("coverage", cov["blocking"]),
+            ("input_warnings", bool(warns["blocking"])),
+        )
+        if hit
+    ]
+    blockers = (
+        [x for x in rel_lines if x.startswith("relative gate failed")]
+        + coverage_reasons(cov, champion_id)
+        + [warning_reason(w) for w in warns["blocking"]]
+    )
+
     if champion_id is not None and cand_id == champion_id:
         decision, reasons = (
             "kept",
@@ -157,18 +244,20 @@ def decide(
             f"candidate {cand_id[:12]} was rolled back by an operator at "
             f"{rb.get('time')}; not re-promoted until new data change it"
         ] + reasons
-    elif passed:
+    elif passed and not blocked_by:
         decision = "promoted"
+        reasons = reasons + rel_lines
     else:
         decision = "rejected"
+        reasons = reasons + (blockers if blocked_by else rel_lines)
         if champion_id:
             reasons = reasons + [f"champion {champion_id[:12]} stays"]
         else:
             reasons = reasons + ["no champion yet: the machine has no qualified model"]
+    reasons += data_change_reasons(changes, champion_id)
     champion_after = cand_id if decision == "promoted" else champion_id
 
     # drift of the champion in service
-    prom = promotion_record(history, champion_id)
     known = (prom or {}).get("data_files")
     new_runs = new_validation_runs(runs_table, known) if prom else []
     ref = None
@@ -197,12 +286,25 @@ def decide(
         )
         reasons.append(msg)
 
-    data_files = {}
-    if {"file", "sha256"} <= set(runs_table.columns):
-        data_files = dict(zip(runs_table["file"].astype(str), runs_table["sha256"].astype(str)))
-    new_files = sorted(
-        {f for f, h in data_files.items() if known is not None and h not in set(known.values())}
-    )
+    new_files = sorted({f for f, h in tonight.items() if known is not None and h not in set(known.values())})
+    shared = rel[rel["both_scored"].astype(bool)] if len(rel) else rel
+    relative = {
+        "applied": champion_id is not None and len(shared) > 0,
+        "champion_margin_um": margin,
+        "n_runs_both_scored": int(len(shared)),
+        "passed": len(worse) == 0,
+        "worse_runs": [
+            {
+                "run_id": str(r["run_id"]),
+                "champion_max_abs_after_um": r["champion_max_abs_after_um"],
+                "candidate_max_abs_after_um": r["candidate_max_abs_after_um"],
+                "noise_floor_um": r["noise_floor_um"],
+                "margin_um": r["margin_um"],
+                "candidate_minus_champion_um": r["candidate_minus_champion_um"],
+            }
+            for r in worse.to_dict("records")
+        ],
+    }
     record = {
         "schema": DECISION_SCHEMA,
         "machine": machine,
@@ -213,16 +315,23 @@ def decide(
         "reasons": reasons,
         "gates": dict(gates),
         "gates_passed": bool(passed),
+        "blocked_by": blocked_by,
         "measured": measured,
         "verdict": jsonable(candidate_verdict.to_dict("records")) if candidate_verdict is not None else [],
         "candidate_summary": _summary_record(candidate_summary),
         "champion_summary": _summary_record(champion_summary),
+        "relative_gate": relative,
+        "coverage": cov,
+        "input_warnings": warns,
         "retrained_speeds": retrained_speeds or [],
         "adaptation": adaptation or {"retrain_speed_range_rpm": None, "mode": "full"},
+        "training": cand_training,
         "data": {
-            "files": data_files,
+            "files": tonight,
             "new_since_champion": new_files,
             "candidate_data": candidate_dict.get("data", {}),
+            "champion_data": champ_data if champion_id is not None else {},
+            **changes,
         },
         "recalibration_due": recal,
         "drift": drift,
@@ -238,18 +347,22 @@ def decide(
             "reasons",
             "gates",
             "gates_passed",
+            "blocked_by",
             "measured",
             "candidate_summary",
             "champion_summary",
             "retrained_speeds",
             "adaptation",
+            "training",
             "recalibration_due",
             "drift",
         )
     }
-    hist["data_files"] = data_files
+    hist["data_files"] = tonight
+    hist["vanished"] = changes["vanished"]
+    hist["changed"] = changes["changed"]
     hist["time"] = time
-    comp = comparison_table(runs_table, champion_summary, candidate_summary, new_runs)
+    comp = comparison_table(runs_table, champion_summary, candidate_summary, new_runs, rel)
     return Decision(record=jsonable(record), comparison=comp, history=jsonable(hist))
 
 
@@ -281,11 +394,16 @@ def run_decide(
     model_from_dict: Callable[[dict], Any] = _model_from_dict,
     validate_runs: Callable | None = None,
     qualify: Callable | None = None,
+    input_status_path: str | os.PathLike | None = None,
+    speed_tolerance_rpm: float = 50.0,
 ) -> dict:
     """Judge tonight's candidate, update the registry, write decision.json + comparison.csv.
 
     ``candidate_summary_path``: ``validation/summary.csv`` of the fitted model; reused when
     the candidate is that model (no speed-range merge), so it is not evaluated twice.
+    ``input_status_path``: the machine's ``input_status.json`` (its ``warnings`` block
+    promotion until confirmed; its ``rejected`` files explain a vanished training file).
+    ``speed_tolerance_rpm``: the machine's speed tolerance (coverage of the champion's speeds).
 
     Order of writes (each atomic): models/<id>.json (write-once) -> history.jsonl (append)
     -> champion.json (replace, only on promotion) -> comparison.csv -> decision.json. The
@@ -301,6 +419,9 @@ def run_decide(
     runs_table = pd.read_csv(runs_csv)
     runs_frame = pd.read_parquet(runs_parquet)
     history = reg.history()
+    input_status = None
+    if input_status_path is not None and Path(input_status_path).exists():
+        input_status = json.loads(Path(input_status_path).read_text(encoding="utf-8"))
 
     fitted = json.loads(Path(candidate_path).read_text(encoding="utf-8"))
     champion_id = reg.champion_id()
@@ -356,6 +477,9 @@ def run_decide(
         history=history,
         retrained_speeds=retrained_speed_info(candidate, retrained, runs_table),
         adaptation=adaptation,
+        champion_dict=champion_dict,
+        speed_tolerance_rpm=speed_tolerance_rpm,
+        input_status=input_status,
     )
 
     reg.save_model(candidate, source=str(candidate_path), extra={"adaptation": adaptation})

@@ -254,6 +254,8 @@ def promote(
         # keep the drift reference of the model's own promotion
         "candidate_summary": prom.get("candidate_summary"),
         "data_files": prom.get("data_files"),
+        # and the speeds it was trained on (coverage check of the next candidates)
+        "training": prom.get("training"),
         "time": time,
     }
     reg.load_model_dict(model_id)

@@ -1,8 +1,8 @@
 # Model registry and champion/challenger decision (rafi.ops.decide, rafi.ops.registry; docs/operations.md).
 #
 #   candidate model (config nightly.candidate = family's best model or fit's model.json)
-#     + runs.csv, runs.parquet, validation/summary.csv  ->  registry/decision.json and
-#     registry/comparison.csv
+#     + runs.csv, runs.parquet, validation/summary.csv, input_status.json (its warnings block
+#     promotion until confirmed)  ->  registry/decision.json and registry/comparison.csv
 #
 # The registry's own files are side effects, not outputs: see the note in common.smk.
 # The script writes the declared outputs last, after champion.json.
@@ -15,6 +15,7 @@ rule decide:
         table=out("runs_csv"),
         frame=out("runs_parquet"),
         summary=out("validation_summary"),
+        status=input_status_path(),
         code=rafi_code("registry_decide"),
         glue=script_helpers(),
     output:
@@ -30,6 +31,7 @@ rule decide:
         machine=lambda w: w.machine,
         gates=lambda w: qualification_gates(w.machine),
         nightly=lambda w: nightly_settings(w.machine),
+        speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],
         registry=lambda w: registry_path("", w.machine).rstrip("/"),
     script:
         "../scripts/registry_decide.py"
