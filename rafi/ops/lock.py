@@ -1,10 +1,12 @@
-"""The nightly lock: an exclusive, non-blocking ``flock`` on ``results/.nightly.lock``."""
+"""The nightly lock (an exclusive, non-blocking ``flock`` on ``results/.nightly.lock``) and
+Snakemake's own lock in the project (``.snakemake/locks``): stale after a killed run, cleared."""
 
 from __future__ import annotations
 
 import contextlib
 import fcntl
 import os
+import re
 from pathlib import Path
 
 from rafi.artefact import now_iso
@@ -54,9 +56,14 @@ class NightlyLock:
         # replace: a renamed-over lock file would be a new inode that a second night could
         # lock while this one still holds the old one.
         text = f"pid={os.getpid()} started={now_iso()} host={os.uname().nodename}\n".encode()
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, text, 0)
-        os.fsync(fd)
+        try:
+            os.ftruncate(fd, 0)
+            os.pwrite(fd, text, 0)
+            os.fsync(fd)
+        except OSError as exc:  # a full disk: say which file (closing the descriptor unlocks)
+            self._fd = None
+            os.close(fd)
+            raise OSError(exc.errno, exc.strerror, str(self.path)) from None
         return self
 
     def __exit__(self, *exc) -> None:
@@ -86,3 +93,145 @@ def lock_is_free(path: str | os.PathLike) -> bool:
         return False
     finally:
         os.close(fd)
+
+
+# --------------------------------------------------------------------------- Snakemake's lock
+#
+# Snakemake locks a working directory by writing .snakemake/locks/<n>.input.lock and
+# <n>.output.lock (the files its run reads and writes) and deletes them when it ends. A run
+# killed with SIGKILL cannot delete them, and every later run then refuses to start
+# ("Directory cannot be locked") until someone runs `snakemake --unlock`. The files name no
+# process, so whether a lock is still in use is decided from the processes themselves: a
+# Snakemake run (or one of its job scripts) whose working directory is the project.
+
+SNAKEMAKE_LOCK_DIR = Path(".snakemake") / "locks"
+_LOCK_FILE = re.compile(r"\d+\.(input|output)\.lock")
+
+
+def snakemake_lock_files(directory: str | os.PathLike) -> list[Path]:
+    """The lock files Snakemake left in ``directory``'s ``.snakemake/locks`` (sorted)."""
+    lock_dir = Path(directory) / SNAKEMAKE_LOCK_DIR
+    with contextlib.suppress(OSError):
+        return sorted(p for p in lock_dir.iterdir() if _LOCK_FILE.fullmatch(p.name) and p.is_file())
+    return []
+
+
+def _is_snakemake(argv: list[str]) -> bool:
+    """``argv`` runs Snakemake (``snakemake ...``, ``python -m snakemake ...``), one of the job
+    scripts a Snakemake run starts (``python .snakemake/scripts/tmpXXXX.<script>.py``), or a
+    ``rafi nightly`` (which runs Snakemake in its own process)."""
+    names = [os.path.basename(a) for a in argv[:2]]
+    modules = {argv[i + 1] for i in range(len(argv) - 1) if argv[i] == "-m"}
+    if "snakemake" in names or "snakemake" in modules:
+        return True
+    if ("rafi" in names or modules & {"rafi.cli", "rafi"}) and "nightly" in argv:
+        return True
+    return "rafi.ops.nightly" in modules or any(".snakemake/scripts/" in a for a in argv)
+
+
+def _workdirs(argv: list[str], cwd: str) -> set[str]:
+    """Where a Snakemake process may be working: its current directory and, if given, its
+    ``--directory`` / ``-d`` argument (relative to that directory; the API moves into the
+    working directory, so the argument may already be behind it)."""
+    dirs = {os.path.realpath(cwd)}
+    for i, arg in enumerate(argv):
+        value = None
+        if arg in ("--directory", "-d") and i + 1 < len(argv):
+            value = argv[i + 1]
+        elif arg.startswith("--directory="):
+            value = arg.split("=", 1)[1]
+        if value:
+            dirs.add(os.path.realpath(os.path.join(cwd, value)))
+    return dirs
+
+
+def _ancestors() -> set[int]:
+    """This process and its parents (never counted as a foreign Snakemake run)."""
+    pids, pid = set(), os.getpid()
+    while pid > 1 and pid not in pids:
+        pids.add(pid)
+        try:
+            with open(f"/proc/{pid}/stat", encoding="utf-8", errors="replace") as fh:
+                pid = int(fh.read().rsplit(")", 1)[1].split()[1])
+        except (OSError, ValueError, IndexError):
+            break
+    return pids
+
+
+def live_snakemake_processes(
+    directory: str | os.PathLike, proc: str | os.PathLike = "/proc"
+) -> list[tuple[int, str]]:
+    """Processes running Snakemake (or one of its job scripts) in ``directory``.
+
+    A process counts if its command line runs Snakemake (see :func:`_is_snakemake`) and its
+    current directory (``/proc/<pid>/cwd``) or its ``--directory`` argument is ``directory``.
+    Processes whose current directory cannot be read (another user's, for a non-root user) are
+    not counted. This process and its parents never count.
+
+    Parameters
+    ----------
+    directory : path
+        The project (Snakemake's working directory).
+    proc : path
+        The proc file system (a test may pass a fake one).
+
+    Returns
+    -------
+    list of (int, str)
+        ``(pid, command line)``, sorted by pid; the command line cut to 200 characters.
+    """
+    target = os.path.realpath(directory)
+    skip = _ancestors() if Path(proc) == Path("/proc") else set()
+    found = []
+    try:
+        entries = [e for e in os.listdir(proc) if e.isdigit()]
+    except OSError:
+        entries = []
+    for entry in entries:
+        pid = int(entry)
+        if pid in skip:
+            continue
+        try:
+            with open(os.path.join(proc, entry, "cmdline"), "rb") as fh:
+                argv = [a.decode("utf-8", "replace") for a in fh.read().split(b"\0") if a]
+            if not argv or not _is_snakemake(argv):
+                continue
+            cwd = os.readlink(os.path.join(proc, entry, "cwd"))
+        except OSError:
+            continue
+        if target in _workdirs(argv, cwd):
+            found.append((pid, " ".join(argv)[:200]))
+    return sorted(found)
+
+
+def clear_stale_snakemake_lock(directory: str | os.PathLike) -> tuple[list[Path], list[tuple[int, str]]]:
+    """Remove Snakemake's lock files in ``directory`` if no Snakemake process works there.
+
+    What ``snakemake --unlock`` does, but only when the lock is stale: to be called while this
+    process holds the nightly lock (so no other night can be starting Snakemake here).
+
+    Parameters
+    ----------
+    directory : path
+        The project (Snakemake's working directory).
+
+    Returns
+    -------
+    removed : list of Path
+        The lock files removed (empty if there were none, or if the lock is live).
+    live : list of (int, str)
+        The Snakemake processes working in ``directory`` (see
+        :func:`live_snakemake_processes`) when there are lock files; the lock is then left alone.
+    """
+    files = snakemake_lock_files(directory)
+    if not files:
+        return [], []
+    live = live_snakemake_processes(directory)
+    if live:
+        return [], live
+    removed = []
+    for path in files:
+        with contextlib.suppress(FileNotFoundError):
+            path.unlink()
+            removed.append(path)
+    return removed, []

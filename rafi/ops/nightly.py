@@ -25,6 +25,7 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import errno
 import os
 import sys
 import time
@@ -33,10 +34,12 @@ from pathlib import Path
 from rafi.artefact import now_iso
 from rafi.errors import LockHeld, RegistryError, SettingsError
 from rafi.ops import snakemake_api
-from rafi.ops.lock import LOCK_NAME, NightlyLock
-from rafi.ops.project import Paths, config_path, load_config
+from rafi.ops.lock import LOCK_NAME, NightlyLock, clear_stale_snakemake_lock, snakemake_lock_files
+from rafi.ops.project import Paths, config_path, load_config, settling
 from rafi.ops.state import NIGHTLY_LOG, clear_state, fingerprint, read_state, write_state
 from rafi.ops.status import (
+    EXIT_CANTCREAT,
+    EXIT_IOERR,
     EXIT_LOCKED,
     EXIT_OK,
     EXIT_PIPELINE_FAILED,
@@ -48,14 +51,23 @@ from rafi.ops.status import (
     most_severe,
     short_id,
 )
+from rafi.settings import run_settings
 
 #: Test hook: seconds to sleep while holding the lock, before anything else (tests only).
 HOLD_ENV = "RAFI_NIGHTLY_TEST_HOLD_S"
 
 
-def config_overrides(args) -> dict:
-    """The ``--config`` values of a night: quarantine bad input, the machine, the report."""
-    over = {"on_bad_input": "quarantine"}
+#: errno values that mean "this file cannot be written" (exit code 73, EX_CANTCREAT).
+WRITE_ERRNOS = frozenset(
+    {errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EFBIG, errno.EMFILE}
+)
+
+
+def config_overrides(args, config: dict | None = None) -> dict:
+    """The ``--config`` values of a night: quarantine bad input, the settle time (run setting
+    ``nightly_settle_s``: a raw file modified less than that many seconds ago waits for the next
+    night), the machine, the report."""
+    over = {"on_bad_input": "quarantine", "settle_s": run_settings(config or {})["nightly_settle_s"]}
     if args.machine:
         over["nightly_machines"] = args.machine
     if getattr(args, "no_report", False):
@@ -119,10 +131,12 @@ def run(args) -> int:
         return EXIT_USAGE
     if args.machine:
         machines = [args.machine]
-    overrides = config_overrides(args)
+    overrides = config_overrides(args, config)
+    args.settle_s = float(overrides["settle_s"])
+    args.settling = settling(paths, config, machines, args.settle_s)
 
     if args.dry_run:
-        return _dry_run(args, overrides)
+        return _dry_run(args, paths, overrides)
 
     lock_path = paths.results_dir / LOCK_NAME
     try:
@@ -141,9 +155,106 @@ def run(args) -> int:
             file=sys.stderr,
         )
         return EXIT_LOCKED
+    except OSError as exc:  # results/ read-only or full, or another I/O error: one line, no traceback
+        return _os_error(exc, paths.results_dir)
 
 
-def _dry_run(args, overrides: dict) -> int:
+def _os_error(exc: OSError, results_dir: Path) -> int:
+    """Say in one line which file could not be written or read and why; the exit code."""
+    code = EXIT_CANTCREAT if exc.errno in WRITE_ERRNOS else EXIT_IOERR
+    name = errno.errorcode.get(exc.errno or 0, "unknown errno")
+    what = exc.filename or results_dir
+    reason = os.strerror(exc.errno) if exc.errno else str(exc)
+    hint = {
+        errno.EROFS: "the file system is mounted read-only",
+        errno.ENOSPC: "the disk is full: free some space",
+        errno.EDQUOT: "the disk quota is used up",
+        errno.EACCES: "this user may not write there",
+        errno.EPERM: "this user may not write there (or the file is immutable: lsattr)",
+    }.get(exc.errno, "")
+    print(
+        f"rafi nightly: cannot {'write' if code == EXIT_CANTCREAT else 'use'} {what}: {reason} "
+        f"({name}){'; ' + hint if hint else ''}; results_dir is {results_dir}. The night stopped "
+        f"(the champion in service stays); exiting with {code}",
+        file=sys.stderr,
+    )
+    return code
+
+
+def check_writable(folder: Path) -> None:
+    """Create, write (64 KiB), fsync and remove a file in ``folder`` (created if missing).
+
+    Raises
+    ------
+    OSError
+        What writing there gives (``EROFS`` read-only, ``ENOSPC`` full, ``EACCES`` ...), with the
+        probe's path as ``filename``.
+    """
+    folder.mkdir(parents=True, exist_ok=True)
+    probe = folder / f".nightly.write-probe.{os.getpid()}"
+    try:
+        fd = os.open(probe, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+        try:
+            os.write(fd, b"\0" * 65536)
+            os.fsync(fd)
+        except OSError as exc:
+            raise OSError(exc.errno, exc.strerror, str(folder)) from None
+        finally:
+            os.close(fd)
+    finally:
+        try:
+            os.unlink(probe)
+        except FileNotFoundError:
+            pass
+
+
+def _log_line(log_file: Path, text: str) -> None:
+    """Append ``<time> rafi nightly: <text>`` to the nightly log."""
+    with open(log_file, "a", encoding="utf-8") as fh:
+        fh.write(f"{now_iso()} rafi nightly: {text}\n")
+
+
+def _snakemake_lock(paths: Paths, log_file: Path) -> int | None:
+    """Clear a stale Snakemake lock in the project (said on stdout and in the log); exit code
+    75 if a Snakemake run works in the project now, else None."""
+    removed, live = clear_stale_snakemake_lock(paths.directory)
+    if live:
+        procs = "; ".join(f"pid {pid}: {cmd}" for pid, cmd in live)
+        text = (
+            f"Snakemake is running in {paths.directory} ({procs}) and holds its lock "
+            f"{paths.directory / '.snakemake' / 'locks'}; exiting with {EXIT_LOCKED} (the next night "
+            "runs when it has finished)"
+        )
+        _log_line(log_file, text)
+        print(f"rafi nightly: {text}", file=sys.stderr)
+        return EXIT_LOCKED
+    if removed:
+        text = (
+            f"cleared a stale Snakemake lock ({', '.join(p.name for p in removed)} in "
+            f"{removed[0].parent}): no Snakemake process works in {paths.directory}; it was left by "
+            "a run that was killed"
+        )
+        _log_line(log_file, text)
+        print(f"rafi nightly: {text}", flush=True)
+    return None
+
+
+def _say_settling(args, prefix: str = "rafi nightly: ") -> None:
+    for path, age in args.settling:
+        print(
+            f"{prefix}waits for the next night (still being written?): {path} was modified "
+            f"{age:.0f} s ago (nightly_settle_s {args.settle_s:g})"
+        )
+
+
+def _dry_run(args, paths: Paths, overrides: dict) -> int:
+    _say_settling(args, "rafi nightly (dry run): ")
+    stale = snakemake_lock_files(paths.directory)
+    if stale:
+        print(
+            f"rafi nightly (dry run): Snakemake's lock is set ({', '.join(p.name for p in stale)}); "
+            "a night clears it if no Snakemake process works here"
+        )
     with open(os.devnull, "w", encoding="utf-8") as sink, snakemake_api.output_to(sink):
         outcome = snakemake_api.run(
             args.directory,
@@ -189,14 +300,21 @@ def _promote(args, paths: Paths, machines: list[str]) -> int:
 def _night(args, paths: Paths, machines: list[str], overrides: dict) -> int:
     started = time.time()
     night_start = float(int(started))
+    check_writable(paths.results_dir)
+    log_file = Path(args.log_file) if args.log_file else paths.results_dir / NIGHTLY_LOG
+    log_file.parent.mkdir(parents=True, exist_ok=True)
+    code = _snakemake_lock(paths, log_file)
+    if code is not None:
+        return code
+    _say_settling(args)
+    # a night that left a settling file out must not let the next one take the fast path
+    remember = not args.settling
     fp = None if args.full_check else fingerprint(args.config_file, paths, overrides)
     if fp is not None and read_state(paths).get("fingerprint") == fp:
         # nothing changed since the last successful night: no need to ask Snakemake
         return _nothing_new(paths, machines, started)
     # One Snakemake run, no separate dry run (it would build the job graph twice): Snakemake
     # itself schedules no job when no new data arrived.
-    log_file = Path(args.log_file) if args.log_file else paths.results_dir / NIGHTLY_LOG
-    log_file.parent.mkdir(parents=True, exist_ok=True)
     cfg = config_path(paths.directory, args.config_file)
     print(
         f"rafi nightly: snakemake --cores {args.cores} --rerun-incomplete --keep-going --configfile {cfg} "
@@ -210,13 +328,25 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict) -> int:
             outcome = snakemake_api.run(paths.directory, cfg, overrides, cores=args.cores, out=console)
             if not outcome.ok and not outcome.failed:  # it failed before any job: say why
                 print(f"rafi nightly: the pipeline cannot be planned: {outcome.error}", file=console_err)
-    if outcome.nothing_to_do:
-        write_state(paths, fingerprint(args.config_file, paths, overrides))
-        return _nothing_new(paths, machines, started)
-    if outcome.ok:
+    if outcome.ok and remember:
         write_state(paths, fingerprint(args.config_file, paths, overrides))
     else:
         clear_state(paths)
+    if outcome.nothing_to_do:
+        return _nothing_new(paths, machines, started)
+    if not outcome.ok and "LockException" in str(outcome.error):
+        # a Snakemake run started here between the check above and ours
+        print(
+            f"rafi nightly: Snakemake's lock in {paths.directory} was taken by another run; exiting "
+            f"with {EXIT_LOCKED} (try again later)",
+            file=sys.stderr,
+        )
+        return EXIT_LOCKED
+    if not outcome.ok:
+        try:  # a disk that filled up during the night is the cause, not the pipeline
+            check_writable(paths.results_dir)
+        except OSError as exc:
+            return _os_error(exc, paths.results_dir)
     statuses = [machine_status(paths, m, night_start) for m in machines]
     code = _report(statuses, pipeline_failed=not outcome.ok)
     print(

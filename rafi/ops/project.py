@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import importlib
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from rafi.settings import run_settings
+from rafi.errors import InputSpecError, SettingsError
+from rafi.settings import machine_settings, run_settings
 
 
 def config_path(directory: Path, config_file: str | Path) -> Path:
@@ -64,3 +67,51 @@ class Paths:
     def registry(self, machine: str) -> Path:
         """``<results>/<machine>/registry``."""
         return self.results_dir / machine / "registry"
+
+
+def raw_logs(paths: Paths, config: dict, machine: str) -> list[Path]:
+    """The raw files of ``machine`` the pipeline reads (its ``input.pattern``; every visible
+    file of the folder if the machine's settings cannot be resolved)."""
+    from rafi.readers.input_spec import find_logs
+
+    folder = paths.raw_dir / machine
+    try:
+        return find_logs(folder, machine_settings(config, machine)["input"], paths.raw_dir)
+    except (InputSpecError, SettingsError, OSError):
+        return sorted(p for p in folder.glob("*") if p.is_file() and not p.name.startswith("."))
+
+
+def _settling_function():
+    """``settling_files(paths, settle_s, now) -> [(path, age_s)]`` of the readers (None if absent)."""
+    for module in ("rafi.readers.discovery", "rafi.readers.input_spec"):
+        try:
+            func = getattr(importlib.import_module(module), "settling_files", None)
+        except ImportError:
+            continue
+        if func is not None:
+            return func
+    return None
+
+
+def settling(
+    paths: Paths, config: dict, machines: list[str], settle_s: float, now: float | None = None
+) -> list[tuple[Path, float]]:
+    """The raw files of ``machines`` modified less than ``settle_s`` seconds before ``now``:
+    the pipeline leaves them out tonight (``settle_s``) and reads them the next night.
+
+    Returns
+    -------
+    list of (Path, float)
+        Each waiting file (relative to the project folder where possible) and its age in s.
+    """
+    func = _settling_function()
+    if func is None or not settle_s or settle_s <= 0:
+        return []
+    files = [f for m in machines for f in raw_logs(paths, config, m)]
+    out = []
+    for path, age in func(files, settle_s, time.time() if now is None else now):
+        path = Path(path)
+        if path.is_relative_to(paths.directory):
+            path = path.relative_to(paths.directory)
+        out.append((path, float(age)))
+    return out

@@ -16,16 +16,23 @@ from pathlib import Path
 from rafi.artefact import canonical_json, json_text, now_iso, write_text_atomic
 from rafi.ops.lock import LOCK_NAME
 from rafi.ops.project import Paths, config_path
+from rafi.ops.raw_hashes import CACHE_NAME as RAW_HASH_CACHE
 
 STATE_NAME = ".nightly.state.json"
 NIGHTLY_LOG = "nightly.log"
 
 
-def _tree(root: Path, skip=()) -> list[str]:
-    """``name<TAB>size<TAB>mtime_ns`` of every file under ``root`` (or of ``root`` itself)."""
+def _line(name: str, st: os.stat_result, ctime: bool) -> str:
+    line = f"{name}\t{st.st_size}\t{st.st_mtime_ns}"
+    return f"{line}\t{st.st_ctime_ns}\t{st.st_ino}" if ctime else line
+
+
+def _tree(root: Path, skip=(), ctime: bool = False) -> list[str]:
+    """``name<TAB>size<TAB>mtime_ns`` of every file under ``root`` (or of ``root`` itself);
+    with ``ctime`` also the inode change time and the inode, which no user can set back: a
+    content edit with size and mtime kept (``cp -p``, ``rsync -t``) still changes the line."""
     if root.is_file():
-        st = root.stat()
-        return [f"{root.name}\t{st.st_size}\t{st.st_mtime_ns}"]
+        return [_line(root.name, root.stat(), ctime)]
     out: list[str] = []
     if not root.is_dir():
         return out
@@ -37,14 +44,14 @@ def _tree(root: Path, skip=()) -> list[str]:
             if rel in skip or name.endswith(".part"):
                 continue
             with contextlib.suppress(OSError):
-                st = p.stat()
-                out.append(f"{rel}\t{st.st_size}\t{st.st_mtime_ns}")
+                out.append(_line(rel, p.stat(), ctime))
     return out
 
 
 def fingerprint(config_file: str | Path, paths: Paths, overrides: dict) -> str:
     """SHA-256 of the config, the overrides, Snakefile and workflow/, the rafi package, raw/
-    and results/ (names, sizes, modification times; the nightly's own files left out).
+    and results/ (names, sizes, modification times; for raw/ also inode change times and
+    inodes; the nightly's own files and the raw-hash cache left out).
 
     Parameters
     ----------
@@ -69,8 +76,8 @@ def fingerprint(config_file: str | Path, paths: Paths, overrides: dict) -> str:
         "snakefile": _tree(paths.directory / "Snakefile"),
         "workflow": _tree(paths.directory / "workflow"),
         "rafi": _tree(rafi_dir),
-        "raw": _tree(paths.raw_dir),
-        "results": _tree(paths.results_dir, skip={LOCK_NAME, STATE_NAME, NIGHTLY_LOG}),
+        "raw": _tree(paths.raw_dir, ctime=True),
+        "results": _tree(paths.results_dir, skip={LOCK_NAME, STATE_NAME, NIGHTLY_LOG, RAW_HASH_CACHE}),
     }
     return hashlib.sha256(canonical_json(parts).encode("ascii")).hexdigest()
 

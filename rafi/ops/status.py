@@ -23,7 +23,9 @@ EXIT_REJECTED = 2
 EXIT_RECALIBRATION_DUE = 3
 EXIT_QUARANTINED = 4  # some input was rejected: a raw file quarantined or a machine skipped
 EXIT_USAGE = 64
-EXIT_LOCKED = 75  # EX_TEMPFAIL (sysexits.h)
+EXIT_CANTCREAT = 73  # EX_CANTCREAT (sysexits.h): results/ cannot be written (read-only, full)
+EXIT_IOERR = 74  # EX_IOERR: another error reading or writing the project's files
+EXIT_LOCKED = 75  # EX_TEMPFAIL (sysexits.h): another night, or a Snakemake run, works here
 
 #: Severity order used when several codes apply (first wins).
 SEVERITY = (EXIT_PIPELINE_FAILED, EXIT_RECALIBRATION_DUE, EXIT_REJECTED, EXIT_QUARANTINED, EXIT_OK)

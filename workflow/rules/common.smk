@@ -43,6 +43,7 @@ from rafi.readers.quarantine import (
     still_quarantined,
 )
 from rafi.ops.code_deps import code_files
+from rafi.ops.raw_hashes import CACHE_NAME as _RAW_HASH_CACHE, raw_stamps
 from snakemake.utils import validate
 
 try:
@@ -133,19 +134,29 @@ def raw_path(wildcards):
 
 def raw_file(wildcards):
     """Input function (clean step): the raw file, unless its path holds braces, which Snakemake
-    would read as wildcards; such a file is followed by ``raw_stamp`` (a param) instead."""
+    would read as wildcards; such a file is followed by ``raw_stamp`` (a param) alone."""
     path = raw_path(wildcards)
     return [] if has_braces(path) else path
 
 
+_RAW_STAMPS = {}
+
+
 def raw_stamp(wildcards):
-    """Size and modification time of a raw file that cannot be an input (see ``raw_file``), so
-    that editing it re-runs its clean job; ``None`` for every other file."""
-    path = raw_path(wildcards)
-    if not has_braces(path):
-        return None
-    stat = os.stat(path)
-    return [stat.st_size, stat.st_mtime_ns]
+    """Param of the clean step: the raw file's content hash (``sha256:<hex>``, or
+    ``unreadable:<errno>``), so that a file whose content changed re-runs its clean job even
+    if its size and mtime were kept (``cp -p``, ``rsync -t``); Snakemake itself compares
+    mtimes only. Computed once per invocation for every raw file, through the cache
+    ``results/.raw_hashes.json`` (``rafi.ops.raw_hashes``: an unchanged file is not read
+    again; a dry run does not write the cache)."""
+    if not _RAW_STAMPS:
+        paths = [p for m in MACHINES for p in raw_files(m)]
+        cache = Path(RESULTS_DIR) / _RAW_HASH_CACHE
+        _RAW_STAMPS.update(raw_stamps(paths, cache, write=not workflow.output_settings.dryrun))
+    path = str(raw_path(wildcards))
+    if path not in _RAW_STAMPS:  # not discovered at startup (cannot happen): hash it alone
+        _RAW_STAMPS.update(raw_stamps([path], Path(RESULTS_DIR) / _RAW_HASH_CACHE, write=False))
+    return _RAW_STAMPS[path]
 
 
 # --------------------------------------------------------------------------- paths
