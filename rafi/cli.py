@@ -2,6 +2,13 @@
 
 Each sub-command lives in the module that does the work and exposes
 ``add_arguments(parser)`` and ``run(args) -> int``; this file only wires them up.
+
+A user error (:class:`rafi.errors.RafiUserError`: a bad raw file, a bad ``config.yaml``) that
+reaches this level prints one line, ``rafi <command>: <message>``, and exits with its status:
+64 (``EX_USAGE``) for a configuration or usage mistake, 65 (``EX_DATAERR``) for bad data.
+``rafi --debug <command>`` prints the traceback as well (and sets ``args.debug``, which a
+command passes on, e.g. as the run setting ``debug``). Other exit statuses are the command's
+own (``rafi nightly``: docs/operations.md).
 """
 
 from __future__ import annotations
@@ -9,6 +16,7 @@ from __future__ import annotations
 import argparse
 import importlib
 import sys
+import traceback
 
 #: sub-command -> (module, one-line help)
 COMMANDS = {
@@ -28,6 +36,11 @@ def build_parser() -> argparse.ArgumentParser:
     from rafi import __version__
 
     parser.add_argument("--version", action="version", version=f"rafi {__version__}")
+    parser.add_argument(
+        "--debug",
+        action="store_true",
+        help="a user error (bad file, bad config) prints its traceback too, not one line only",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module_name, help_text) in COMMANDS.items():
         try:
@@ -48,12 +61,20 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
+    from rafi.errors import RafiUserError
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "_run", None):
         parser.print_help()
         return 2
-    return int(args._run(args) or 0)
+    try:
+        return int(args._run(args) or 0)
+    except RafiUserError as exc:
+        if args.debug:
+            traceback.print_exc()
+        print(f"rafi {args.command}: {exc}", file=sys.stderr)
+        return exc.exit_status
 
 
 if __name__ == "__main__":

@@ -1,5 +1,10 @@
-"""The documented error types.
+"""The documented error types, and the bound on what a message may quote.
 
+* :class:`RafiUserError` - the common base of the errors a *user* can cause and cure (a bad
+  file, a bad ``config.yaml``): the workflow prints its message as one line (the traceback
+  goes to the rule's log), and ``rafi`` exits with its :attr:`~RafiUserError.exit_status`
+  (``EX_USAGE`` 64 for configuration, ``EX_DATAERR`` 65 for bad data) instead of printing a
+  traceback; ``rafi --debug`` / ``--config debug=true`` show the traceback too.
 * :class:`RawFormatError` - a raw log that cannot be read as documented in
   ``docs/raw-format.md`` (or as its machine's ``input:`` mapping says). It is the
   only error a reader (``rafi.readers.native.read_raw_log``, ``rafi.readers.logs.read_log``) or the
@@ -8,14 +13,147 @@
   wrong (unknown format, bad unit, ...). It is raised before any file is read and
   is a configuration mistake, not a bad file, so the workflow should stop rather
   than quarantine the file.
+
+Every message of a user error is bounded here, centrally, so that no caller can forget: a
+run of text longer than :data:`QUOTE_MAX_CHARS` characters (a quoted field, a header, a
+path) is cut to that many with ``...`` and its total length, and the whole message to
+:data:`MESSAGE_MAX_CHARS` characters (the location at its start and the end of the
+explanation are kept). A 50 MB field thus gives a message of a few hundred characters, not
+one of 50 MB in the log, the terminal and the report.
+
+Standard library only (imported while Snakemake plans).
 """
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
+#: At most this many characters of any offending text (a field, a header, a line) are quoted.
+QUOTE_MAX_CHARS = 80
 
-class RawFormatError(ValueError):
+#: A user error's whole message is at most this many characters (plus the cut marker).
+MESSAGE_MAX_CHARS = 500
+
+#: A path in a message: kept whole up to this length, else ``.../<file name>``.
+PATH_MAX_CHARS = 160
+
+#: Exit statuses (``sysexits.h``) of ``rafi`` for a user error.
+EX_USAGE = 64
+EX_DATAERR = 65
+
+
+def shorten(text, limit: int = QUOTE_MAX_CHARS) -> str:
+    """``text`` if it is at most ``limit`` characters, else its first ``limit`` characters,
+    ``...`` and the total length (``xxxx... (52428800 characters)``), without quotes.
+
+    Parameters
+    ----------
+    text : str
+        Any text (a field, a header, a line).
+    limit : int
+        Characters kept.
+
+    Returns
+    -------
+    str
+        At most ``limit + 30`` characters.
+    """
+    text = text if isinstance(text, str) else str(text)
+    if len(text) <= limit:
+        return text
+    return f"{text[:limit]}... ({len(text)} characters)"
+
+
+def quote(text, limit: int = QUOTE_MAX_CHARS) -> str:
+    """``repr`` of at most ``limit`` characters of ``text``: ``'abc'`` or ``'abc...' (N characters)``.
+
+    Use it instead of ``{value!r}`` for text read from a file: the repr of a huge value is
+    never built, and escapes (``\\x00``) count towards the limit.
+    """
+    text = text if isinstance(text, str) else str(text)
+    shown = repr(text[:limit])
+    cut = len(text) > limit
+    if len(shown) > limit + 2:
+        shown, cut = shown[: limit + 1] + shown[0], True
+    return f"{shown}... ({len(text)} characters)" if cut else shown
+
+
+#: A quoted Python repr longer than the quote limit ('...' or "...", its quotes not touching
+#: a letter or another quote), or any other run of about 100 characters without white space.
+_QUOTED_RUN = "{" + str(QUOTE_MAX_CHARS + 1) + ",}"
+_BARE_RUN = "{" + str(QUOTE_MAX_CHARS + 20) + ",}"  # above what quote() leaves: 'x...'...,
+_LONG_RUN = re.compile(
+    rf"""(?<![\w'"])'[^'\n]{_QUOTED_RUN}'(?![\w'])|(?<![\w'"])"[^"\n]{_QUOTED_RUN}"(?![\w"])|\S{_BARE_RUN}"""
+)
+
+
+def _shorten_run(match: re.Match) -> str:
+    run = match.group(0)
+    if len(run) > 1 and run[0] in "'\"" and run[-1] == run[0]:
+        return f"{run[: QUOTE_MAX_CHARS + 1]}{run[0]}... ({len(run) - 2} characters)"
+    return shorten(run)
+
+
+def _cut_middle(text: str, limit: int) -> str:
+    """``text`` cut to at most ``limit`` characters: two thirds from its start, one third
+    from its end, ``[... N characters cut ...]`` between."""
+    if len(text) <= limit:
+        return text
+    marker_room = 40  # " [... 123456789 characters cut ...] "
+    keep = max(limit - marker_room, 2)
+    head, tail = text[: keep - keep // 3], text[len(text) - keep // 3 :]
+    return f"{head} [... {len(text) - len(head) - len(tail)} characters cut ...] {tail}"[:limit]
+
+
+def bound_message(message, limit: int = MESSAGE_MAX_CHARS) -> str:
+    """A one-line message with every long run of text shortened (to :data:`QUOTE_MAX_CHARS`
+    characters, with ``...`` and its length) and at most ``limit`` characters in all: the
+    start (the location) and the end (what to do) are kept, the middle is cut.
+
+    Parameters
+    ----------
+    message : str
+        Any message (it may quote text read from a file).
+    limit : int
+        Characters at most.
+
+    Returns
+    -------
+    str
+        The bounded message (unchanged when it was short, on one line and had no long run).
+        Linear in the message's length (about 1 s for 50 MB).
+    """
+    message = message if isinstance(message, str) else str(message)
+    message = _LONG_RUN.sub(_shorten_run, message)
+    if "\n" in message or "\r" in message:
+        message = " ".join(message.split())
+    return _cut_middle(message, limit)
+
+
+def short_path(path) -> str:
+    """A path for a message: whole if at most :data:`PATH_MAX_CHARS` characters, else
+    ``.../<name>`` (the name shortened to :data:`QUOTE_MAX_CHARS` characters if need be)."""
+    text = str(path)
+    if len(text) <= PATH_MAX_CHARS:
+        return text
+    return ".../" + shorten(Path(text).name)
+
+
+class RafiUserError(Exception):
+    """Base of the errors a user causes and cures: bad data or a bad configuration.
+
+    The message is bounded (:func:`bound_message`). ``exit_status`` is what ``rafi`` exits
+    with for it (:data:`EX_USAGE` for configuration, :data:`EX_DATAERR` for data).
+    """
+
+    exit_status = EX_USAGE
+
+    def __init__(self, message: str = "", *args):
+        super().__init__(bound_message(message), *args)
+
+
+class RawFormatError(RafiUserError, ValueError):
     """A log file that cannot be read as documented in ``docs/raw-format.md``.
 
     The message always names the file and, where known, the line (1-based, as an
@@ -34,7 +172,16 @@ class RawFormatError(ValueError):
         Column name (as written in the file's header) concerned.
     sheet : str, optional
         Worksheet name for spreadsheets; the location then reads ``sheet 'S', row N``.
+    check : str, optional
+        The check id (``docs/raw-format.md``: ``line_too_long``, ``unreadable``, ...) when the
+        error is one of the documented checks.
+
+    The message is bounded (:func:`bound_message`): a path, sheet or column longer than
+    the quote limit is shortened, and so is any long text the caller quoted, so the message
+    always names the file (``.../<name>`` for a very long path) and the line.
     """
+
+    exit_status = EX_DATAERR
 
     def __init__(
         self,
@@ -44,27 +191,30 @@ class RawFormatError(ValueError):
         line: int | None = None,
         column: str | None = None,
         sheet: str | None = None,
+        check: str | None = None,
     ):
         self.path = str(path)
         self.line = line
         self.column = column
         self.sheet = sheet
-        self.reason = message
-        where = self.path
+        self.check = check
+        where = short_path(self.path)
         if sheet is not None:
-            where += f", sheet {sheet!r}"
+            where += f", sheet {quote(sheet, 31)}"
         if line is not None:
             where += f", {'row' if sheet is not None else 'line'} {line}"
         if column is not None:
-            where += f", column {column!r}"
-        super().__init__(f"{where}: {message}")
+            where += f", column {quote(column, 60)}"
+        # the location is kept whole (at most ~350 characters); the reason gets the rest
+        self.reason = bound_message(message, max(MESSAGE_MAX_CHARS - len(where) - 2, 140))
+        Exception.__init__(self, f"{where}: {self.reason}")
 
     @property
     def file_name(self) -> str:
         return Path(self.path).name
 
 
-class InputSpecError(ValueError):
+class InputSpecError(RafiUserError, ValueError):
     """The per-machine ``input:`` mapping is invalid (a configuration error).
 
     The message names the offending key (e.g. ``input.displacement.unit``) and the
@@ -85,11 +235,11 @@ class LockHeld(RuntimeError):
 
     def __init__(self, path: Path, holder: str):
         self.path = path
-        self.holder = holder.strip() or "unknown process"
+        self.holder = shorten(holder.strip()) or "unknown process"
         super().__init__(f"another nightly run holds {path}: {self.holder}")
 
 
-class SettingsError(ValueError):
+class SettingsError(RafiUserError, ValueError):
     """``config.yaml`` puts a setting where nothing reads it, or names an unknown one.
 
     The message names the key and where it belongs.

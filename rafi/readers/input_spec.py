@@ -4,8 +4,10 @@ Snakemake evaluates ``workflow/rules/common.smk`` on every invocation (``rafi ni
 included) before it runs any job; what that needs of the readers lives here, so planning does
 not import NumPy or pandas: :data:`INPUT_DEFAULTS` (the mapping's defaults, by format),
 :data:`INPUT_SCHEMA`, :func:`normalise_input_spec` (raises
-:class:`rafi.errors.InputSpecError`), :func:`find_logs` (the raw files of a machine folder) and
-:func:`log_id` (the name of a raw file's outputs).
+:class:`rafi.errors.InputSpecError`), :func:`find_logs` (the raw files of a machine folder),
+:func:`discover_machines` (every machine's raw files, leaving out links out of ``raw_dir`` and
+files still being written: :mod:`rafi.readers.discovery`) and :func:`log_id` (the name of a raw
+file's outputs).
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from pathlib import Path
 
 from rafi import REQUIRED_COLUMNS
 from rafi.errors import InputSpecError, RawFormatError
+from rafi.readers.discovery import is_inside, link_warning, settling_files, settling_warning, split_outside
 from rafi.readers.input_assumed import check_no_time_column, check_speed, constant_speed, has_constant_speed
 
 # --------------------------------------------------------------------------- the input: mapping
@@ -357,16 +360,29 @@ def _plain_start_ok(text: str) -> bool:
 # --------------------------------------------------------------------------- raw files
 
 
-def find_logs(machine_dir: str | os.PathLike, input_spec: dict | None = None) -> list[Path]:
+def find_logs(
+    machine_dir: str | os.PathLike, input_spec: dict | None = None, raw_dir: str | os.PathLike | None = None
+) -> list[Path]:
     """Raw files of one machine folder matching the spec's ``pattern`` (glob or list), sorted.
 
-    Hidden files (``.name``) and office lock files (``~$name.xlsx``) are skipped.
+    Hidden files (``.name``) and office lock files (``~$name.xlsx``) are skipped, and so is a
+    symbolic link whose target lies outside ``raw_dir`` (default: the machine folder's parent;
+    :func:`scan_logs` also says which).
     """
+    return scan_logs(machine_dir, input_spec, raw_dir)[0]
+
+
+def scan_logs(
+    machine_dir: str | os.PathLike, input_spec: dict | None = None, raw_dir: str | os.PathLike | None = None
+) -> tuple[list[Path], list[str]]:
+    """:func:`find_logs` and a ``link_outside_raw`` warning line for each file it refused."""
     spec = normalise_input_spec(input_spec)
     folder = Path(machine_dir)
+    root = Path(raw_dir) if raw_dir is not None else folder.absolute().parent
     patterns = [spec["pattern"]] if isinstance(spec["pattern"], str) else spec["pattern"]
     found = {p for pattern in patterns for p in folder.glob(pattern)}
-    return sorted(p for p in found if p.is_file() and not p.name.startswith((".", "~$")))
+    files = sorted(p for p in found if p.is_file() and not p.name.startswith((".", "~$")))
+    return split_outside(files, root)
 
 
 # --------------------------------------------------------------------------- nightly and gates
@@ -390,7 +406,12 @@ def has_braces(path: str | os.PathLike) -> bool:
 
 
 def discover_machines(
-    raw_dir: str | os.PathLike, input_spec_of, configured: Iterable[str] = ()
+    raw_dir: str | os.PathLike,
+    input_spec_of,
+    configured: Iterable[str] = (),
+    *,
+    settle_s: float = 0,
+    now: float | None = None,
 ) -> tuple[dict[str, dict[str, str]], list[str]]:
     """The machines under ``raw_dir`` and their raw files, as the workflow plans them.
 
@@ -402,14 +423,22 @@ def discover_machines(
         ``machine -> input: mapping`` (the machine's resolved settings).
     configured : iterable of str
         Machines named under ``machines:`` in the config (a name with no folder is warned about).
+    settle_s : float
+        Run setting ``settle_s``: a file modified less than this many seconds before ``now``
+        waits for the next run (``rafi.readers.discovery.settling_files``); 0: none waits.
+    now : float, optional
+        Time of the decision (``time.time()`` by default).
 
     Returns
     -------
     machines : dict
-        ``machine -> {log id: raw path}``, machines sorted; a folder with no matching file, a
-        hidden folder and a folder whose name holds a brace are left out.
+        ``machine -> {log id: raw path}``, machines sorted; a folder with no usable file, a
+        hidden folder and a folder whose name holds a brace are left out, and so are links
+        whose target lies outside ``raw_dir`` (a linked machine folder included) and files
+        still settling.
     warnings : list of str
-        What was left out, and why.
+        What was left out, and why; a refused link's line starts ``link_outside_raw:``, a
+        settling file's ``settling:`` (``docs/raw-format.md``).
 
     Raises
     ------
@@ -430,15 +459,24 @@ def discover_machines(
         if has_braces(machine):
             warnings.append(f"skipping machine folder {folder}: a machine name cannot hold {{ or }}")
             continue
+        if not is_inside(folder, root):
+            warnings.append(link_warning(folder, root))
+            continue
         spec = input_spec_of(machine)
         try:
-            paths = find_logs(folder, spec)
+            paths, refused = scan_logs(folder, spec, root)
             normalised = normalise_input_spec(spec)
             if has_constant_speed(normalised):
                 for path in paths:  # two speed globs with different speeds: stop while planning
                     constant_speed(path.name, normalised)
         except InputSpecError as exc:
             raise InputSpecError(f"machine {machine!r}: {exc}") from None
+        warnings += refused
+        waiting = settling_files(paths, settle_s, now)
+        for path, age in waiting:
+            warnings.append(settling_warning(path, age, settle_s))
+        left_out = {path for path, _ in waiting}
+        paths = [p for p in paths if p not in left_out]
         files: dict[str, str] = {}
         for path in paths:
             key = log_id(path.stem)
@@ -451,7 +489,10 @@ def discover_machines(
             files[key] = str(path)
         if not files:
             pattern = normalise_input_spec(spec)["pattern"]
-            warnings.append(f"skipping machine folder {folder}: no file matches input.pattern {pattern!r}")
+            why = f"no file matches input.pattern {pattern!r}"
+            if refused or waiting:
+                why = f"no usable file ({len(refused)} refused link(s), {len(waiting)} settling)"
+            warnings.append(f"skipping machine folder {folder}: {why}")
             continue
         found[machine] = files
     names = {p.name for p in folders}

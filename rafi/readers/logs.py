@@ -8,14 +8,25 @@ import os
 import pandas as pd
 
 from rafi.readers.native import read_raw_log
+from rafi.readers.parsing import unreadable_error
 
 
 def sha256_file(path: str | os.PathLike) -> str:
-    """Return the hex SHA-256 of a file's bytes."""
+    """Return the hex SHA-256 of a file's bytes (read in blocks of 1 MiB).
+
+    Raises
+    ------
+    RawFormatError
+        Check ``unreadable``: the file cannot be opened or read (permissions, an I/O error,
+        a directory); the message says so and what to check.
+    """
     digest = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            digest.update(block)
+    try:
+        with open(path, "rb") as fh:
+            for block in iter(lambda: fh.read(1 << 20), b""):
+                digest.update(block)
+    except OSError as exc:
+        raise unreadable_error(path, exc) from None
     return digest.hexdigest()
 
 
@@ -42,7 +53,9 @@ def read_log(path: str | os.PathLike, input_spec: dict | None = None) -> pd.Data
     Raises
     ------
     RawFormatError
-        The file does not follow the format / mapping.
+        The file does not follow the format / mapping, breaks a limit (``line_too_long``,
+        ``field_too_long``), holds formulas without values (``formula_without_value``) or
+        cannot be read (``unreadable``).
     rafi.errors.InputSpecError
         The mapping itself is invalid.
     """

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.errors import RawFormatError
+from rafi.errors import RawFormatError, quote
 from rafi.readers.input_assumed import constant_speed, has_constant_speed
 from rafi.readers.input_spec import (
     _spec_error,
@@ -39,15 +39,19 @@ from rafi.readers.input_spec import (
     normalise_input_spec,
     resolve_columns,
 )
-from rafi.readers.mapped_cells import Table, excel_column, numeric, text
+from rafi.readers.mapped_cells import Table, check_formulas, excel_column, numeric, text
 from rafi.readers.mapped_time import assumed_notes, row_times, row_times_error, timestamps
 from rafi.readers.parsing import (
+    FIELD_MAX_CHARS,
     NUMERIC_COLUMNS,
+    check_fields,
     decode_bytes,
     field_count_error,
+    read_file_bytes,
     split_fields,
     split_lines,
     to_naive_ns,
+    unreadable_error,
 )
 
 # --------------------------------------------------------------------------- the mapping
@@ -103,6 +107,7 @@ def _read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
         )
     delim = spec["delimiter"]
     header = [h.strip() for h in split_fields(path, lines[hr - 1], hr, delim)]
+    check_fields(path, header, hr)
     if len(header) == 1:
         for other in (";", ",", "\t", "|"):
             if other != delim and other in header[0]:
@@ -120,6 +125,8 @@ def _read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
             continue
         line_no = i + 1
         fields = split_fields(path, line, line_no, delim)
+        if len(line) > FIELD_MAX_CHARS:
+            check_fields(path, fields, line_no, header, raw_line=line)
         if len(fields) > len(header) and not any(f.strip() for f in fields[len(header) :]):
             fields = fields[: len(header)]
         if len(fields) != len(header):
@@ -154,10 +161,13 @@ def _read_xlsx_table(path: Path, spec: dict) -> Table:
         raise RawFormatError(path, f"reading xlsx needs openpyxl ({exc})") from None
     try:
         wb = openpyxl.load_workbook(path, read_only=True, data_only=True)
+    except OSError as exc:
+        raise unreadable_error(path, exc) from None
     except Exception as exc:  # zip, XML, openpyxl's own errors: all mean "not a workbook"
         raise RawFormatError(
             path,
-            f"not a readable .xlsx workbook ({type(exc).__name__}: {exc}); save it as Excel Workbook (.xlsx)",
+            f"not a readable .xlsx workbook ({type(exc).__name__}: {quote(exc)}); "
+            "save it as Excel Workbook (.xlsx)",
         ) from None
     try:
         names = list(wb.sheetnames)
@@ -181,6 +191,7 @@ def _read_xlsx_table(path: Path, spec: dict) -> Table:
         ws = wb[name]
         hr = spec["header_row"]
         header = None
+        header_cells: list = []
         rows, numbers = [], []
         try:
             for row_no, values in enumerate(ws.iter_rows(values_only=True), start=1):
@@ -188,20 +199,23 @@ def _read_xlsx_table(path: Path, spec: dict) -> Table:
                     continue
                 values = list(values)
                 if row_no == hr:
+                    header_cells = list(values)
                     while values and (values[-1] is None or str(values[-1]).strip() == ""):
                         values.pop()
                     header = ["" if v is None else str(v) for v in values]
+                    check_fields(path, header, row_no, sheet=name)
                     continue
                 if row_no <= hr + spec["skip_rows"]:
                     continue
                 if all(v is None or (isinstance(v, str) and not v.strip()) for v in values):
                     continue
+                check_fields(path, values, row_no, header, sheet=name)
                 if len(values) > len(header):
                     for j in range(len(header), len(values)):
                         if values[j] is not None and str(values[j]).strip():
                             raise RawFormatError(
                                 path,
-                                f"cell {excel_column(j)}{row_no} holds {values[j]!r} but "
+                                f"cell {excel_column(j)}{row_no} holds {quote(values[j])} but "
                                 "its column has no header",
                                 line=row_no,
                                 column=excel_column(j),
@@ -214,9 +228,11 @@ def _read_xlsx_table(path: Path, spec: dict) -> Table:
                 numbers.append(row_no)
         except RawFormatError:
             raise
+        except OSError as exc:
+            raise unreadable_error(path, exc) from None
         except Exception as exc:  # malformed sheet XML
             raise RawFormatError(
-                path, f"cannot read the sheet ({type(exc).__name__}: {exc})", sheet=name
+                path, f"cannot read the sheet ({type(exc).__name__}: {quote(exc)})", sheet=name
             ) from None
         if not header:
             raise RawFormatError(
@@ -225,7 +241,9 @@ def _read_xlsx_table(path: Path, spec: dict) -> Table:
                 line=hr,
                 sheet=name,
             )
-        return Table(path, header, rows, numbers, hr, name)
+        table = Table(path, header, rows, numbers, hr, name)
+        check_formulas(table, header_cells[: len(header)])
+        return table
     finally:
         wb.close()
 
@@ -289,10 +307,7 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
     spec = normalise_input_spec(input_spec)
     if spec["format"] not in ("csv", "xlsx"):
         raise _spec_error("format", f"read_mapped reads csv or xlsx, not {spec['format']!r}")
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise RawFormatError(path, f"cannot read the file ({exc.strerror or exc})") from None
+    raw = read_file_bytes(path)
     speed = _file_speed(path, spec)
     if spec["format"] == "csv":
         table = _read_csv_table(path, raw, spec)

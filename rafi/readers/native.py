@@ -23,14 +23,19 @@ import pandas as pd
 
 from rafi import REQUIRED_COLUMNS, SENSORS
 from rafi.artefact import write_text_atomic
-from rafi.errors import RawFormatError
+from rafi.errors import RawFormatError, quote
 from rafi.readers.parsing import (
     _INNER_SPACE,
+    FIELD_MAX_CHARS,
+    METADATA_MAX_CHARS,
     NUMERIC_COLUMNS,
     _decode,
+    check_fields,
     field_count_error,
+    field_too_long_error,
     out_of_range_time,
     parse_numbers,
+    read_file_bytes,
     split_fields,
     split_lines,
     to_naive_ns,
@@ -54,10 +59,22 @@ def _split_metadata(path: Path, lines: list[str]) -> tuple[dict[str, str], int, 
     meta: dict[str, str] = {}
     where: dict[str, int] = {}
     notes: list[str] = []
+    total = 0
     for i, line in enumerate(lines):
         stripped = line.strip()
         if not stripped:
             continue
+        if stripped.startswith("#"):
+            total += len(stripped)
+            if total > METADATA_MAX_CHARS:
+                raise RawFormatError(
+                    path,
+                    f"the '#' metadata lines hold more than {METADATA_MAX_CHARS} characters up to "
+                    "this line; metadata is a few short 'key: value' lines: move long notes "
+                    "out of the log",
+                    line=i + 1,
+                    check="field_too_long",
+                )
         if not stripped.startswith("#"):
             meta_notes = "\n".join(notes)
             if meta_notes:
@@ -66,6 +83,10 @@ def _split_metadata(path: Path, lines: list[str]) -> tuple[dict[str, str], int, 
         body = stripped.lstrip("#").strip()
         key, sep, value = body.partition(":")
         key = key.strip().lower().replace(" ", "_")
+        if len(body) > FIELD_MAX_CHARS:
+            raise field_too_long_error(
+                path, body, line=i + 1, what=f"metadata {quote(key, 20) if sep else 'line'}"
+            )
         if sep and key and " " not in key:
             if key == "notes" and key in meta:  # multi-line notes (see format_raw_log)
                 meta[key] = meta[key] + "\n" + value.strip()
@@ -92,14 +113,14 @@ def parse_metadata(meta: dict[str, str], path: Path, lines: dict[str, int] | Non
         except ValueError:
             raise RawFormatError(
                 path,
-                f"metadata 'sample_period_s' is {meta['sample_period_s']!r}; "
+                f"metadata 'sample_period_s' is {quote(meta['sample_period_s'])}; "
                 "expected a number of seconds such as 5",
                 line=line,
             ) from None
         if not (math.isfinite(out["sample_period_s"]) and out["sample_period_s"] > 0):
             raise RawFormatError(
                 path,
-                f"metadata 'sample_period_s' is {meta['sample_period_s']!r}; "
+                f"metadata 'sample_period_s' is {quote(meta['sample_period_s'])}; "
                 "expected a positive number of seconds",
                 line=line,
             )
@@ -130,10 +151,7 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
         No other exception escapes for any file content (property-tested).
     """
     path = Path(path)
-    try:
-        raw = path.read_bytes()
-    except OSError as exc:
-        raise RawFormatError(path, f"cannot read the file ({exc.strerror or exc})") from None
+    raw = read_file_bytes(path)
     text = _decode(path, raw)
     lines = split_lines(text)
     meta, header_idx, meta_lines = _split_metadata(path, lines)
@@ -142,6 +160,7 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
 
     header = split_fields(path, lines[header_idx], header_line_no)
     header = [h.strip() for h in header]
+    check_fields(path, header, header_line_no)
     if len(header) == 1:
         for delim in (";", "\t", "|"):
             if delim in header[0]:
@@ -154,7 +173,7 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
     for name in header:
         if name in seen:
             raise RawFormatError(
-                path, f"column {name!r} appears twice in the header", line=header_line_no, column=name
+                path, f"column {quote(name)} appears twice in the header", line=header_line_no, column=name
             )
         seen.add(name)
     missing = [c for c in REQUIRED_COLUMNS if c not in seen]
@@ -181,6 +200,8 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
         fields = line.split(",") if '"' not in line else split_fields(path, line, line_no)
         if needs_strip:
             fields = [f.strip() for f in fields]
+        if len(line) > FIELD_MAX_CHARS:
+            check_fields(path, fields, line_no, header, raw_line=line)
         if fields[0] == first and fields == header:
             raise RawFormatError(
                 path, "the header line is repeated inside the data; expected one header only", line=line_no
@@ -227,7 +248,7 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
             )
         raise RawFormatError(
             path,
-            f"{time_str[k]!r} is not an ISO-8601 timestamp (e.g. 2026-03-01T08:00:00)",
+            f"{quote(time_str[k])} is not an ISO-8601 timestamp (e.g. 2026-03-01T08:00:00)",
             line=line_numbers[k],
             column="time",
         )
@@ -235,7 +256,7 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
     if k is not None:
         raise RawFormatError(
             path,
-            f"timestamp {time_str[k]!r} is outside the supported years 1678..2261",
+            f"timestamp {quote(time_str[k])} is outside the supported years 1678..2261",
             line=line_numbers[k],
             column="time",
         )
@@ -248,7 +269,7 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
             hint = " (decimal comma? use a point)" if "," in found else ""
             raise RawFormatError(
                 path,
-                f"{found!r} is not a number{hint}; expected a decimal number in {name}",
+                f"{quote(found)} is not a number{hint}; expected a decimal number in {name}",
                 line=line_numbers[bad],
                 column=name,
             )

@@ -1,8 +1,20 @@
-"""Text-level parsing shared by the readers: decoding, lines, fields, numbers, times."""
+"""Text-level parsing shared by the readers: reading, decoding, lines, fields, numbers, times.
+
+Input is bounded (``docs/raw-format.md``, "Limits"): a line of a text file is at most
+:data:`LINE_MAX_BYTES` bytes (check ``line_too_long``), a field, cell or metadata value at most
+:data:`FIELD_MAX_CHARS` characters and a native file's metadata at most
+:data:`METADATA_MAX_CHARS` characters in all (check ``field_too_long``). A sample of 16
+temperatures, a speed and a displacement takes about 150 bytes; the limits leave room for
+hundreds of extra columns and long notes, and keep what a bad file can put into a message, a
+Parquet file's metadata or a report small. A file that cannot be read at all (permissions,
+an I/O error) raises check ``unreadable``.
+"""
 
 from __future__ import annotations
 
 import csv
+import errno
+import os
 import re
 from pathlib import Path
 
@@ -10,9 +22,151 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.errors import RawFormatError
+from rafi.errors import QUOTE_MAX_CHARS, RawFormatError, quote
 
 NUMERIC_COLUMNS = ("speed_rpm", *SENSORS, "disp_um")
+
+#: Longest line of a raw text file, in bytes (check ``line_too_long``): 64 KiB.
+LINE_MAX_BYTES = 64 * 1024
+
+#: Longest field: a value between delimiters, an xlsx cell, a ``# key: value`` value, a
+#: header (check ``field_too_long``): 4 KiB characters.
+FIELD_MAX_CHARS = 4 * 1024
+
+#: Most characters the ``#`` metadata lines of a native file hold together (check
+#: ``field_too_long``): 64 KiB. The metadata travels in every clean Parquet file's schema.
+METADATA_MAX_CHARS = 64 * 1024
+
+#: Bytes scanned at a time for line breaks (bounds the scan's temporary arrays).
+_SCAN_CHUNK = 1 << 20
+
+_ERRNO_WORDS = {
+    errno.EACCES: "permission denied",
+    errno.EPERM: "permission denied",
+    errno.EIO: "I/O error",
+    errno.EISDIR: "it is a directory, not a file",
+    errno.ENOENT: "no such file (moved or deleted after the run was planned?)",
+}
+
+
+def unreadable_error(path, exc: OSError) -> RawFormatError:
+    """The ``unreadable`` error for a file the operating system refused to read."""
+    what = _ERRNO_WORDS.get(exc.errno, exc.strerror or type(exc).__name__)
+    code = f" ({errno.errorcode[exc.errno]})" if exc.errno in errno.errorcode else ""
+    return RawFormatError(
+        path,
+        f"cannot read the file: {what}{code}; check the file's permissions or the disk",
+        check="unreadable",
+    )
+
+
+def read_file_bytes(path: str | os.PathLike) -> bytes:
+    """The bytes of a raw file; :class:`RawFormatError` (check ``unreadable``) if it cannot be read."""
+    try:
+        with open(path, "rb") as fh:
+            return fh.read()
+    except OSError as exc:
+        raise unreadable_error(path, exc) from None
+
+
+def first_long_line(raw: bytes, limit: int = LINE_MAX_BYTES) -> tuple[int, int, int] | None:
+    """The first line of ``raw`` longer than ``limit`` bytes: ``(line number, start, length)``.
+
+    Lines end at ``\\n``, ``\\r\\n`` or ``\\r`` (numbered as :func:`split_lines` does). The bytes
+    are scanned in chunks of 1 MiB without copying them or decoding them, and the scan stops
+    at the first long line: a 50 MB line costs no more than its bytes.
+    """
+    if len(raw) <= limit:
+        return None
+    arr = np.frombuffer(raw, dtype=np.uint8)
+    last_break = -1  # offset of the last line break seen
+    start = None
+    for lo in range(0, len(arr), _SCAN_CHUNK):
+        chunk = arr[lo : lo + _SCAN_CHUNK]
+        breaks = np.flatnonzero((chunk == 10) | (chunk == 13)) + lo
+        if len(breaks):
+            edges = np.concatenate(([last_break], breaks))
+            over = np.flatnonzero(np.diff(edges) - 1 > limit)
+            if len(over):
+                start = int(edges[over[0]]) + 1
+                break
+            last_break = int(breaks[-1])
+        if lo + len(chunk) - last_break - 1 > limit:
+            start = last_break + 1
+            break
+    if start is None:
+        return None
+    ends = [k for k in (raw.find(b"\n", start), raw.find(b"\r", start)) if k >= 0]
+    length = (min(ends) if ends else len(raw)) - start
+    line_no = raw.count(b"\n", 0, start) + raw.count(b"\r", 0, start) - raw.count(b"\r\n", 0, start) + 1
+    return line_no, start, length
+
+
+def check_line_lengths(path, raw: bytes) -> None:
+    """Raise ``line_too_long`` for the first line of ``raw`` longer than :data:`LINE_MAX_BYTES`."""
+    found = first_long_line(raw)
+    if found is None:
+        return
+    line_no, start, length = found
+    head = raw[start : start + 4 * QUOTE_MAX_CHARS].decode("utf-8", errors="replace")[:QUOTE_MAX_CHARS]
+    raise RawFormatError(
+        path,
+        f"line of {length} bytes, longer than the limit of {LINE_MAX_BYTES} bytes "
+        f"(it starts {quote(head)}...); a line holds one sample: a huge notes or text value, "
+        "or the line breaks were lost (a binary or corrupted file)",
+        line=line_no,
+        check="line_too_long",
+    )
+
+
+def first_long_field(fields, limit: int = FIELD_MAX_CHARS) -> int | None:
+    """Position of the first text field longer than ``limit`` characters (``None``: none)."""
+    for k, field in enumerate(fields):
+        if isinstance(field, str) and len(field) > limit:
+            return k
+    return None
+
+
+def field_too_long_error(
+    path,
+    field: str,
+    *,
+    line: int | None,
+    column: str | None = None,
+    sheet: str | None = None,
+    what: str = "field",
+    raw_line: str | None = None,
+) -> RawFormatError:
+    """The ``field_too_long`` error for ``field`` (longer than :data:`FIELD_MAX_CHARS`); a quote
+    in ``raw_line`` (the line as written) or the field adds the likely cause, an unclosed quote."""
+    quoted = '"' in field or (raw_line is not None and '"' in raw_line)
+    hint = " or an unclosed quote '\"' that swallowed the rest of the line" if quoted else ""
+    return RawFormatError(
+        path,
+        f"{what} of {len(field)} characters, longer than the limit of {FIELD_MAX_CHARS} "
+        f"({quote(field)}); a value of a log is a number or a short text: a huge notes or text "
+        f"value{hint}",
+        line=line,
+        column=column,
+        sheet=sheet,
+        check="field_too_long",
+    )
+
+
+def check_fields(
+    path,
+    fields: list,
+    line_no: int,
+    header: list | None = None,
+    sheet: str | None = None,
+    raw_line: str | None = None,
+) -> None:
+    """Raise ``field_too_long`` for the first field of a line (or row) longer than the limit."""
+    k = first_long_field(fields)
+    if k is None:
+        return
+    column = header[k] if header is not None and k < len(header) else None
+    raise field_too_long_error(path, fields[k], line=line_no, column=column, sheet=sheet, raw_line=raw_line)
 
 
 _LINE_BREAK = re.compile(r"\r\n|\r|\n")
@@ -35,9 +189,10 @@ def decode_bytes(
 ) -> str:
     """Decode raw bytes, raising :class:`RawFormatError` with the line of the first bad byte.
 
-    Rejects empty files, UTF-16/32 files and NUL bytes (a binary or corrupted file).
+    Rejects empty files, UTF-16/32 files, NUL bytes (a binary or corrupted file) and lines
+    longer than :data:`LINE_MAX_BYTES` (``line_too_long``, checked before decoding).
     """
-    if not raw.strip():
+    if not raw or raw.isspace():  # (raw.strip() would copy a 50 MB file)
         raise RawFormatError(
             path, "file is empty; expected optional '# key: value' lines, a header line and data rows"
         )
@@ -45,12 +200,13 @@ def decode_bytes(
         raise RawFormatError(path, "file is UTF-16 encoded; save it as UTF-8 text (CSV UTF-8)", line=1)
     nul = raw.find(b"\x00")
     if nul >= 0:
-        line = raw[:nul].count(b"\n") + 1
+        line = raw.count(b"\n", 0, nul) + 1
         raise RawFormatError(
             path,
             "NUL byte (0x00) in the text: the file looks binary or corrupted; expected plain text",
             line=line,
         )
+    check_line_lengths(path, raw)
     enc = "utf-8-sig" if encoding.lower().replace("_", "-") in ("utf-8", "utf8") else encoding
     try:
         return raw.decode(enc)

@@ -99,10 +99,15 @@ def model_provenance(machine):
 
 def _discover():
     """Machine -> {log id: raw path} (``rafi.readers.input_spec.discover_machines``), read anew
-    on every invocation, so a new folder or file is picked up without editing the config."""
+    on every invocation, so a new folder or file is picked up without editing the config. A
+    link out of ``raw_dir`` is refused and a file modified less than ``settle_s`` seconds ago
+    waits for the next run (each with a warning line: link_outside_raw, settling)."""
     try:
         found, warnings = discover_machines(
-            RAW_DIR, lambda m: machine_config(m)["input"], configured=config.get("machines") or {}
+            RAW_DIR,
+            lambda m: machine_config(m)["input"],
+            configured=config.get("machines") or {},
+            settle_s=float(RUN["settle_s"]),
         )
     except (InputSpecError, RawFormatError) as exc:
         raise WorkflowError(f"RAFI: {exc}") from None

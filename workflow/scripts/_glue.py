@@ -8,7 +8,12 @@ Each script does::
 
 Inside the block stdout, stderr and the ``logging`` module go to ``snakemake.log[0]``,
 so ``print`` lines are progress lines of the log. An exception is written to the log
-with its traceback and, as one line, to the terminal, then re-raised (the job fails).
+with its traceback and, as one line, to the terminal. A user error (a bad file or a bad
+configuration: :class:`rafi.errors.RafiUserError`) then ends the script with exit status 1
+and no Python traceback on the terminal (the traceback stays in the log; run setting
+``debug: true`` re-raises it, so the terminal shows it too); any other exception is re-raised.
+Either way the job fails, and Snakemake adds its own block (``RuleException:
+CalledProcessError ... returned non-zero exit status 1`` and ``Error in rule ...``).
 """
 
 from __future__ import annotations
@@ -20,6 +25,17 @@ import time
 from pathlib import Path
 
 import pandas as pd
+
+
+def debug_wanted(config) -> bool:
+    """Run setting ``debug`` (``--config debug=true``): user errors keep their traceback."""
+    from rafi.settings import run_settings
+
+    try:
+        value = run_settings(config)["debug"]
+    except Exception:  # an unusable config was refused while planning; be quiet here
+        return False
+    return str(value).strip().lower() in ("1", "true", "yes", "on")
 
 
 @contextlib.contextmanager
@@ -46,12 +62,16 @@ def step(smk):
         try:
             yield log
         except BaseException as exc:
+            from rafi.errors import RafiUserError, bound_message
+
             log.exception("rule %s failed", smk.rule)
             print(
-                f"RAFI {smk.rule} ({wildcards}) failed: {exc}\n  (details: {log_file})",
+                f"RAFI {smk.rule} ({wildcards}) failed: {bound_message(exc, 2000)}\n  (details: {log_file})",
                 file=terminal,
                 flush=True,
             )
+            if isinstance(exc, RafiUserError) and not debug_wanted(smk.config):
+                raise SystemExit(1) from None
             raise
         print(f"[{smk.rule}] done in {time.perf_counter() - started:.1f} s", flush=True)
 
