@@ -318,7 +318,9 @@ def test_run_decide_reads_the_input_status_and_records_training_speeds(tmp_path:
     status = tmp_path / "input_status.json"
 
     def night(cand, warnings=()):
-        status.write_text(json.dumps({"status": "usable", "usable": [], "rejected": [], "warnings": warnings}))
+        status.write_text(
+            json.dumps({"status": "usable", "usable": [], "rejected": [], "warnings": warnings})
+        )
         (tmp_path / "model.json").write_text(json.dumps(cand))
         return D.run_decide(
             machine="m1",

@@ -227,11 +227,7 @@ def decide(
         )
         if hit
     ]
-    blockers = (
-        [x for x in rel_lines if x.startswith("relative gate failed")]
-        + coverage_reasons(cov, champion_id)
-        + [warning_reason(w) for w in warns["blocking"]]
-    )
+    blockers = coverage_reasons(cov, champion_id) + [warning_reason(w) for w in warns["blocking"]]
 
     if champion_id is not None and cand_id == champion_id:
         decision, reasons = (
@@ -249,7 +245,7 @@ def decide(
         reasons = reasons + rel_lines
     else:
         decision = "rejected"
-        reasons = reasons + (blockers if blocked_by else rel_lines)
+        reasons = reasons + rel_lines + blockers
         if champion_id:
             reasons = reasons + [f"champion {champion_id[:12]} stays"]
         else:

@@ -1,11 +1,13 @@
 """Section 8 of the report: the registry's decision - champion vs candidate, per validation run,
-speed-range adaptation and drift (``registry/decision.json``, ``registry/comparison.csv``)."""
+the checks against the champion in service (relative gate, speed coverage, vanished or changed
+training files, input warnings), speed-range adaptation and drift (``registry/decision.json``,
+``registry/comparison.csv``)."""
 
 from __future__ import annotations
 
 from markupsafe import Markup, escape
 
-from rafi.report.format import cell, fmt_num, fmt_speed, run_label, short_id, table, truthy
+from rafi.report.format import cell, fmt_num, fmt_speed, isnum, run_label, short_id, table, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.verdict import DECISION_TEXT, per_run_gates, registry_summary
 
@@ -134,6 +136,8 @@ def section_registry(res: dict, gates: dict, infos: dict):
             widths=[17, 7, 8, 7, 10, 8, 10, 10, 8, 15],
         )
 
+    out["against"] = against_champion(dec, comp)
+
     # speed-range adaptation
     ad = dec.get("adaptation") or {}
     rng = ad.get("retrain_speed_range_rpm")
@@ -226,3 +230,172 @@ def section_registry(res: dict, gates: dict, infos: dict):
         else None,
     }
     return out
+
+
+def _speeds(speeds) -> str:
+    if speeds is None:
+        return "unknown"
+    return ", ".join(fmt_speed(s) for s in speeds) or "none"
+
+
+def _relative_table(comp):
+    if comp is None or not len(comp) or "candidate_worse" not in comp:
+        return None
+    rows = []
+    for r in comp.to_dict("records"):
+        scored = truthy(r.get("both_scored", False))
+        worse = truthy(r.get("candidate_worse", False))
+        margin = r.get("margin_um")
+        rows.append(
+            [
+                cell(run_label(str(r["run_id"]))),
+                fmt_num(r.get("champion_max_abs_after_um"), 2),
+                fmt_num(r.get("candidate_max_abs_after_um"), 2),
+                fmt_num(r.get("candidate_minus_champion_um"), 2, signed=True),
+                fmt_num(r.get("noise_floor_um"), 2),
+                fmt_num(margin, 2) if scored or isnum(margin) else "\u2013",
+                cell("WORSE", "fail")
+                if worse
+                else cell("not worse", "pass")
+                if scored
+                else cell("not compared (a model has no finite prediction)", ""),
+            ]
+        )
+    return table(
+        [
+            "validation run",
+            "champion max |res.| (\u00b5m)",
+            "candidate max |res.| (\u00b5m)",
+            "candidate \u2212 champion (\u00b5m)",
+            "noise floor (\u00b5m)",
+            "margin (\u00b5m)",
+            "relative gate",
+        ],
+        rows,
+        cls="num",
+        widths=[20, 13, 13, 13, 11, 10, 20],
+    )
+
+
+def against_champion(dec: dict, comp) -> dict | None:
+    """The checks of tonight's candidate against the champion in service (issue 13 item 4):
+    relative gate per run, coverage of the champion's speeds, the champion's training files
+    gone or changed, and the input warnings (blocking, confirmed). None for a decision.json
+    written before these checks existed."""
+    keys = ("relative_gate", "coverage", "input_warnings")
+    if not any(k in dec for k in keys):
+        return None
+    rel = dec.get("relative_gate") or {}
+    cov = dec.get("coverage") or {}
+    warns = dec.get("input_warnings") or {}
+    data = dec.get("data") or {}
+    blocked = [str(b) for b in dec.get("blocked_by") or []]
+    margin = rel.get("champion_margin_um", "noise")
+    margin_text = (
+        "the run's noise floor (the expected max |noise| of its dz)"
+        if isinstance(margin, str)
+        else fmt_num(margin, 2, "\u00b5m")
+    )
+    has_champion = bool(dec.get("champion_id_before"))
+    if not has_champion:
+        rel_text = "No champion yet: only the absolute gates apply."
+    elif not rel.get("applied"):
+        rel_text = "No validation run both the candidate and the champion can be scored on: not applied."
+    elif rel.get("passed", True):
+        rel_text = (
+            f"Not worse than the champion on any of the {rel.get('n_runs_both_scored', 0)} validation "
+            f"run(s) both are scored on (margin: {margin_text})."
+        )
+    else:
+        rel_text = (
+            f"WORSE than the champion on {len(rel.get('worse_runs') or [])} of "
+            f"{rel.get('n_runs_both_scored', 0)} validation run(s) by more than the margin ({margin_text}): "
+            "not promoted."
+        )
+    status = cov.get("status")
+    missing = cov.get("missing_speeds_rpm") or []
+    cov_text = {
+        "ok": "The candidate's training covers every speed the champion was trained on.",
+        "missing": f"The candidate's training has no run at {_speeds(missing)}, a speed the champion "
+        "was trained on: not promoted.",
+        "unknown_runs": "The speed of the champion's training run(s) "
+        + ", ".join(str(r) for r in cov.get("unknown_runs") or [])
+        + " is unknown (gone from the data, not recorded at its promotion): not promoted.",
+        "no_champion": "No champion yet: nothing to cover.",
+        "not_checked": "Not checked: a model does not record what it was trained on.",
+    }.get(status, "\u2013")
+    cov_rows = None
+    if status not in (None, "no_champion"):
+        cov_rows = table(
+            ["", "speeds (tolerance " + fmt_num(cov.get("tolerance_rpm"), 0, "r/min") + ")", "from"],
+            [
+                [
+                    cell("champion", "rowhead"),
+                    _speeds(cov.get("champion_speeds_rpm")),
+                    cov.get("champion_source") or "\u2013",
+                ],
+                [
+                    cell("candidate", "rowhead"),
+                    _speeds(cov.get("candidate_speeds_rpm")),
+                    cov.get("candidate_source") or "\u2013",
+                ],
+                [
+                    cell("missing", "rowhead"),
+                    cell(_speeds(missing), "fail") if missing else cell("none", "pass"),
+                    "",
+                ],
+            ],
+            cls="kv narrow",
+        )
+    files = [
+        [cell(str(v.get("file"))), cell("vanished", "fail"), str(v.get("why") or "")]
+        for v in data.get("vanished") or []
+    ]
+    files += [
+        [
+            cell(str(c.get("file"))),
+            cell("changed", "fail"),
+            f"sha256 {short_id(c.get('sha256_champion'))} at training, {short_id(c.get('sha256_now'))} now",
+        ]
+        for c in data.get("changed") or []
+    ]
+    files += [
+        [cell(str(r.get("file"))), "renamed", f"same content as {r.get('now')}"]
+        for r in data.get("renamed") or []
+    ]
+
+    def warn_rows(entries, state, cls):
+        return [
+            [
+                cell(str(w.get("file") or "(machine)")),
+                cell(Markup(f"<code>{escape(str(w.get('check')))}</code>")),
+                str(w.get("column") or "\u2013"),
+                cell(state, cls),
+                str(w.get("message") or ""),
+            ]
+            for w in entries
+        ]
+
+    wrows = (
+        warn_rows(warns.get("blocking") or [], "NOT CONFIRMED: blocks promotion", "fail")
+        + warn_rows(warns.get("confirmed") or [], "confirmed", "pass")
+        + warn_rows(warns.get("not_used") or [], "not confirmed; file not used tonight", "")
+    )
+    return {
+        "blocked": ", ".join(b.replace("_", " ") for b in blocked),
+        "relative_text": rel_text,
+        "relative_fail": bool(has_champion and not rel.get("passed", True)),
+        "relative": _relative_table(comp) if has_champion else None,
+        "coverage_text": cov_text,
+        "coverage_fail": bool(cov.get("blocking")),
+        "coverage": cov_rows,
+        "files": table(
+            ["training file of the champion", "now", "detail"], files, cls="narrow", widths=[30, 12, 58]
+        )
+        if files
+        else None,
+        "n_blocking_warnings": len(warns.get("blocking") or []),
+        "warnings": table(["file", "check", "column", "state", "message"], wrows, widths=[18, 14, 8, 16, 44])
+        if wrows
+        else None,
+    }

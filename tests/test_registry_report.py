@@ -1,0 +1,130 @@
+"""The report's registry section shows the checks against the champion in service (issue 13
+item 4): the relative gate per run (champion, candidate, margin), the speed coverage, the
+champion's vanished or changed training files and the input warnings that block promotion."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pandas as pd
+from markupsafe import escape
+from test_report import FIXTURE, _context, _settings
+
+from rafi.report.registry_section import section_registry
+from rafi.report.render import render_html
+
+GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
+
+
+def _rejected(dec: dict, comp: pd.DataFrame) -> tuple[dict, pd.DataFrame]:
+    """The fixture's decision, made a rejection for all three new reasons."""
+    champ = dec["champion_id_before"]
+    comp = comp.copy()
+    comp["candidate_max_abs_after_um"] = comp["champion_max_abs_after_um"]
+    first = comp["run_id"].iloc[0]
+    comp.loc[comp["run_id"] == first, "candidate_max_abs_after_um"] += 1.234
+    comp["noise_floor_um"] = 0.61
+    comp["margin_um"] = 0.61
+    comp["both_scored"] = True
+    comp["candidate_minus_champion_um"] = (
+        comp["candidate_max_abs_after_um"] - comp["champion_max_abs_after_um"]
+    )
+    comp["candidate_worse"] = comp["candidate_minus_champion_um"] > comp["margin_um"]
+    warning = {
+        "file": "2026-03-12_val_10500rpm.csv",
+        "sha256": "ab" * 32,
+        "check": "probe_sign",
+        "column": "dz",
+        "message": "dz falls by 20.1 um while T1 rises by 9.8 degC (expected positive)",
+        "confirmed": False,
+    }
+    dec = {
+        **dec,
+        "decision": "rejected",
+        "champion_id_after": champ,
+        "blocked_by": ["relative_gate", "coverage", "input_warnings"],
+        "relative_gate": {
+            "applied": True,
+            "champion_margin_um": "noise",
+            "n_runs_both_scored": int(len(comp)),
+            "passed": False,
+            "worse_runs": [{"run_id": first}],
+        },
+        "coverage": {
+            "status": "missing",
+            "blocking": True,
+            "tolerance_rpm": 50.0,
+            "champion_speeds_rpm": [3000.0, 9000.0, 15000.0],
+            "champion_source": "artefact speeds",
+            "candidate_speeds_rpm": [3000.0, 9000.0],
+            "candidate_source": "artefact speeds",
+            "missing_speeds_rpm": [15000.0],
+            "unknown_runs": [],
+        },
+        "input_warnings": {
+            "blocking": [warning],
+            "confirmed": [{**warning, "file": "2026-03-16_multi_condition.csv", "check": "sparse_channel"}],
+            "not_used": [],
+        },
+        "data": {
+            **dec["data"],
+            "vanished": [
+                {"file": "train_15000rpm.csv", "sha256": "cd" * 32, "why": "no longer in the raw folder"}
+            ],
+            "changed": [
+                {"file": "train_03000rpm.csv", "sha256_champion": "ef" * 32, "sha256_now": "01" * 32}
+            ],
+            "renamed": [],
+        },
+    }
+    return dec, comp
+
+
+def test_registry_section_shows_relative_gate_coverage_files_and_warnings(tmp_path: Path):
+    results = tmp_path / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    dec, comp = _rejected(
+        json.loads((results / "registry" / "decision.json").read_text()),
+        pd.read_csv(results / "registry" / "comparison.csv"),
+    )
+    (results / "registry" / "decision.json").write_text(json.dumps(dec))
+    comp.to_csv(results / "registry" / "comparison.csv", index=False)
+
+    g = section_registry(
+        {"decision": dec, "registry_comparison": comp, "runs_csv": pd.read_csv(results / "runs.csv")},
+        GATES,
+        {},
+    )
+    a = g["against"]
+    assert a["blocked"] == "relative gate, coverage, input warnings"
+    assert a["relative_fail"] and a["coverage_fail"] and a["n_blocking_warnings"] == 1
+    verdicts = [row[-1]["text"] for row in a["relative"]["rows"]]
+    assert verdicts.count("WORSE") == 1 and verdicts.count("not worse") == len(comp) - 1
+    assert [r[1]["text"] for r in a["files"]["rows"]] == ["vanished", "changed"]
+    states = [r[3]["text"] for r in a["warnings"]["rows"]]
+    assert states == ["NOT CONFIRMED: blocks promotion", "confirmed"]
+
+    _, settings = _settings()
+    html = render_html(_context(results, settings, machine="tapping-center-a"))
+    for text in (
+        "Against the champion in service",
+        "WORSE than the champion on 1 of",
+        "+1.23",  # candidate - champion on the worse run
+        "0.61",  # its margin
+        "has no run at 15\u00a0000\u00a0r/min",
+        "train_15000rpm.csv",
+        "no longer in the raw folder",
+        "train_03000rpm.csv",
+        "NOT CONFIRMED: blocks promotion",
+        str(escape("dz falls by 20.1 um while T1 rises by 9.8 degC (expected positive)")),
+        "checks.confirmed",
+    ):
+        assert text in html, text
+
+
+def test_a_decision_from_before_the_checks_has_no_such_part():
+    dec = json.loads((FIXTURE / "registry" / "decision.json").read_text())
+    g = section_registry({"decision": dec, "registry_comparison": None}, GATES, {})
+    assert g["against"] is None
