@@ -235,7 +235,7 @@ class LockHeld(RuntimeError):
 
     def __init__(self, path: Path, holder: str):
         self.path = path
-        self.holder = shorten(holder.strip()) or "unknown process"
+        self.holder = holder.strip() or "unknown process"
         super().__init__(f"another nightly run holds {path}: {self.holder}")
 
 
