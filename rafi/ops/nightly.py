@@ -4,7 +4,11 @@ Runs the Snakemake pipeline (target rule `nightly`: every table, the champion/ch
 decision and the report of every machine under raw/) under an exclusive lock, then reads
 each machine's registry/decision.json and audit.csv. Bad input is quarantined: a machine none
 of whose raw files is usable is skipped (reports/<machine>/skipped.html says why) and the
-other machines finish. See docs/operations.md.
+other machines finish. A night heals what a killed night left: Snakemake's lock in
+.snakemake/locks with no live Snakemake process in the project is stale and is cleared (a
+line on stdout and in the nightly log). A raw file modified less than nightly_settle_s seconds
+ago (config, default 600) waits for the next night; each such file is named. See
+docs/operations.md.
 
 Exit codes (most severe first when several apply: 1 > 3 > 2 > 4 > 0):
   0   all good (promoted, kept, or nothing new)
@@ -13,8 +17,20 @@ Exit codes (most severe first when several apply: 1 > 3 > 2 > 4 > 0):
   2   tonight's candidate failed qualification (the champion was kept)
   4   some input was rejected: a raw file quarantined, or a machine skipped because none of
       its raw files is usable (the other files and machines carried on)
+Returned alone, before any decision:
   64  usage error (unknown machine or model id for --promote)
-  75  another nightly run holds the lock (EX_TEMPFAIL: try again later)
+  73  results/ (or the log file) cannot be written: read-only, disk full, quota, permission
+      (EX_CANTCREAT; one line names the path and the errno, no traceback)
+  74  another I/O error on the project's files (EX_IOERR; one line)
+  75  another nightly run holds the lock, or a live Snakemake run works in the project and
+      holds Snakemake's lock (EX_TEMPFAIL: try again later; the message names the pid)
+
+Output lines (stdout): `lock ... acquired`, `cleared a stale Snakemake lock (...)`, `waits
+for the next night (still being written?): <file> ...`, `snakemake --cores ... -- nightly (log
+...)`, `[i/n] done <rule> (...)` / `FAILED <rule>`, `nothing new since ...`, one status line
+per machine, `INPUT REJECTED: ...`, `N job(s) in T s; exit C`. Errors (stderr): `another
+nightly run is in progress ...`, `Snakemake is running in <dir> (pid N: ...) ...`, `cannot
+write <path>: <strerror> (<ERRNO>); ...; exiting with 73`.
 
 Examples:
   rafi nightly --cores 2                   # cron / systemd
@@ -58,9 +74,7 @@ HOLD_ENV = "RAFI_NIGHTLY_TEST_HOLD_S"
 
 
 #: errno values that mean "this file cannot be written" (exit code 73, EX_CANTCREAT).
-WRITE_ERRNOS = frozenset(
-    {errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EFBIG, errno.EMFILE}
-)
+WRITE_ERRNOS = frozenset({errno.EROFS, errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EFBIG})
 
 
 def config_overrides(args, config: dict | None = None) -> dict:
