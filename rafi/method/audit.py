@@ -5,7 +5,9 @@ check that stops an interactive run on a file that could not be used.
 be read or fails the plausibility checks is *quarantined*: the clean step writes empty
 outputs and a summary row with ``status`` ``quarantined`` and the reason (the error message
 naming file, line and column), or, with ``on_bad_input: fail``, the clean job fails with
-that message (``workflow/scripts/clean.py``).
+that message (``workflow/scripts/clean.py``). The plausibility checks' warnings are audit rows
+with action ``warning`` (:func:`warning_rows`); the summary counts them (``warnings``) and
+records the file's ``probe_sign`` (docs/raw-format.md, "Checks").
 """
 
 from __future__ import annotations
@@ -30,11 +32,22 @@ SUMMARY_COLUMNS = (
     "segments",
     "status",
     "reason",
+    "warnings",
+    "probe_sign",
 )
+
+#: ``action`` of an audit row that records a warning of the plausibility checks.
+WARNING_ACTION = "warning"
 
 
 def summarise_audit(
-    file, sha256: str, rows_in: int, clean_frame: pd.DataFrame, audit_actions: pd.DataFrame
+    file,
+    sha256: str,
+    rows_in: int,
+    clean_frame: pd.DataFrame,
+    audit_actions: pd.DataFrame,
+    *,
+    probe_sign: int = 0,
 ) -> pd.DataFrame:
     """One-row summary of the cleaning of one file (a row of ``audit.csv``).
 
@@ -47,7 +60,10 @@ def summarise_audit(
     rows_in : int
         Data rows read from the raw file.
     clean_frame, audit_actions : pandas.DataFrame
-        The two results of :func:`clean_log`.
+        The two results of :func:`clean_log` (``audit_actions`` with the :func:`warning_rows`
+        of the checks appended).
+    probe_sign : int
+        The file's probe sign from the checks (+1, -1, 0 = no evidence).
 
     Returns
     -------
@@ -57,7 +73,8 @@ def summarise_audit(
         repaired), ``spikes_replaced`` (values), ``values_interpolated`` (sensor /
         extra values filled after a dropout or open circuit; spikes and inserted
         gap rows not included), ``gaps_interpolated`` (gaps bridged, not rows),
-        ``segments``, ``status`` (``ok``) and ``reason`` (empty).
+        ``segments``, ``status`` (``ok``), ``reason`` (empty), ``warnings`` (rows with action
+        ``warning``) and ``probe_sign``.
     """
     a = audit_actions
 
@@ -87,8 +104,52 @@ def summarise_audit(
         "segments": segments,
         "status": "ok",
         "reason": "",
+        "warnings": events_of(WARNING_ACTION),
+        "probe_sign": int(probe_sign),
     }
     return pd.DataFrame([row], columns=list(SUMMARY_COLUMNS))
+
+
+def warning_rows(file: str, warnings) -> pd.DataFrame:
+    """Audit rows (``clean/<stem>.audit.csv``) of the checks' warnings: action ``warning``,
+    ``column``, ``first_line`` / ``last_line`` (empty when the finding has no span), ``n_rows`` 0
+    and ``detail`` ``"<check id>: <message>"``.
+
+    Parameters
+    ----------
+    file : str
+        File name as in the other audit rows.
+    warnings : iterable of rafi.readers.checks_base.CheckWarning
+        What :func:`rafi.readers.checks.check_file` returned.
+    """
+    rows = [
+        {
+            "file": str(file),
+            "action": WARNING_ACTION,
+            "column": w.column,
+            "first_line": w.first_line,
+            "last_line": w.last_line,
+            "n_rows": 0,
+            "detail": w.detail,
+        }
+        for w in warnings
+    ]
+    frame = pd.DataFrame(rows, columns=list(AUDIT_COLUMNS))
+    for col in ("first_line", "last_line", "n_rows"):
+        frame[col] = frame[col].astype("Int64")
+    return frame
+
+
+def with_warnings(audit_actions: pd.DataFrame, warnings: pd.DataFrame) -> pd.DataFrame:
+    """The cleaning's audit rows followed by the :func:`warning_rows` (line columns nullable)."""
+    if len(warnings) == 0:
+        return audit_actions
+    if len(audit_actions) == 0:
+        return warnings.reset_index(drop=True)
+    actions = audit_actions.copy()
+    for col in ("first_line", "last_line", "n_rows"):
+        actions[col] = actions[col].astype("Int64")
+    return pd.concat([actions, warnings], ignore_index=True)
 
 
 def quarantined(file: str, sha256: str, reason: str) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
@@ -124,6 +185,8 @@ def quarantined(file: str, sha256: str, reason: str) -> tuple[pd.DataFrame, pd.D
                 "segments": 0,
                 "status": "quarantined",
                 "reason": reason,
+                "warnings": 0,
+                "probe_sign": 0,
             }
         ],
         columns=list(SUMMARY_COLUMNS),

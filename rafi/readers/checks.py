@@ -1,73 +1,82 @@
-"""Plausibility checks on a freshly read log, before cleaning.
+"""Plausibility checks on a freshly read log, before cleaning (docs/raw-format.md, "Checks").
 
-:func:`check_log` looks for mistakes that would otherwise pass silently through
-the pipeline and spoil a model: a clock reset, a run too short to use, a sensor
-that never delivered a value, a stuck displacement probe, displacement logged in
-millimetres instead of micrometres, absurd speeds and temperatures. Each raises
-:class:`rafi.errors.RawFormatError` naming the file, the line (or sheet and row)
-and the column, and saying what to do. Problems the cleaning step repairs
-(local swaps of adjacent rows, duplicates, single spikes, short dropouts,
-documented open-circuit values) are left alone.
+:func:`check_file` looks for mistakes that would otherwise pass silently through the pipeline
+and spoil a model. What is *certain* raises :class:`rafi.errors.RawFormatError` naming the file,
+the line (or sheet and row) and the column and saying what to do (the file is quarantined, or
+the run stops); what is only *suspicious* comes back as a
+:class:`~rafi.readers.checks_base.CheckWarning` (the file is used, the warning recorded in its
+audit and shown). It also returns the file's probe sign (the sign of the displacement's change
+while the temperatures rise), which the machine-level checks compare across files
+(:mod:`rafi.readers.checks_machine`). :func:`check_log` is the same without the report.
 
-Thresholds (keyword arguments, defaults in brackets):
+Problems the cleaning step repairs (local swaps of adjacent rows, duplicates, single spikes,
+short dropouts, documented open-circuit values) are left alone.
 
-* time going back by more than ``backwards_tolerance_samples`` (3) sample periods
-  from one row to the next -> clock reset. A step back of up to 3 periods (two
-  adjacent rows swapped, a repeated sample) is left for cleaning.
+Checks of this module (thresholds are keyword arguments, defaults in brackets); the others are
+in :mod:`rafi.readers.checks_units` and :mod:`rafi.readers.checks_channels`:
+
+* a canonical column (``speed_rpm``, ``T1``..``T16``, ``disp_um``) without a single value
+  (empty, or only open-circuit values).
+* time going back by more than ``backwards_tolerance_samples`` (3) sample periods from one row
+  to the next -> clock reset. A step back of up to 3 periods is left for cleaning.
 * run shorter than ``min_run_s`` (0 = no check) from first to last timestamp.
-* a canonical column (``speed_rpm``, ``T1``..``T16``, ``disp_um``) without a single
-  value (empty, or only open-circuit values).
-* displacement constant: standard deviation below ``stuck_std_um`` (1e-3 um) or
-  more than ``stuck_fraction`` (95 %) of the values identical, with at least
-  ``min_samples`` (10) values.
-* displacement stuck: the same value in consecutive rows for ``stuck_max_s``
-  (600 s) or longer while some temperature changes by ``stuck_min_temp_change_k``
-  (1 K) or more in that stretch: the machine is growing, a live probe would move.
-  (A coarse probe on a machine at rest may repeat its value for long; that passes.)
-* displacement range (max - min) at most ``mm_max_range_um`` (0.2) while some
-  temperature rises by at least ``mm_min_temp_rise_k`` (3 K) -> millimetres.
+* displacement constant: standard deviation below ``stuck_std_um`` (1e-3 um) or more than
+  ``stuck_fraction`` (95 %) of the values identical, with at least ``min_samples`` (10) values.
+* displacement stuck: the same value in consecutive rows for ``stuck_max_s`` (600 s) or longer
+  while some temperature changes by ``stuck_min_temp_change_k`` (1 K) or more in that stretch.
 * speed below 0 or above ``max_speed_rpm`` (100000 r/min).
-* temperature outside ``temp_range_c`` (-40..200 deg C), except the documented
-  open-circuit values (``clean.open_circuit_values``).
+* temperature outside ``temp_range_c`` (-40..200 deg C), except the documented open-circuit
+  values (``clean.open_circuit_values``).
+* displacement range (2nd-98th percentile) at most ``mm_max_range_um`` (0.2) while some
+  temperature changes by at least ``mm_min_temp_rise_k`` (3 K) -> millimetres.
 """
 
 from __future__ import annotations
 
 import os
+from dataclasses import dataclass, field
 
 import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.errors import RawFormatError
 from rafi.method.clean import BACKWARDS_TOLERANCE_SAMPLES
+from rafi.readers import checks_channels as channels
+from rafi.readers import checks_units as units
+from rafi.readers.checks_base import CheckWarning, Signals, Where
 
 #: Columns that must carry at least one value.
 VALUE_COLUMNS = ("speed_rpm", *SENSORS, "disp_um")
 
+#: Every check id of the per-file checks (docs/raw-format.md, "Checks").
+FILE_CHECKS = (
+    "temperature_unit",
+    "speed_unit",
+    "speed_range",
+    "displacement_unit",
+    "swapped_channels",
+    "constant_channel",
+    "stuck_logger",
+    "sparse_channel",
+    "metadata_machine",
+    "metadata_period",
+)
 
-class _Where:
-    """Words an error for this frame: sheet/row for spreadsheets, file headers for mapped files."""
 
-    def __init__(self, frame: pd.DataFrame, path):
-        meta = frame.attrs.get("metadata") or {}
-        self.path = path if path is not None else frame.attrs.get("source", "<log>")
-        self.sheet = meta.get("sheet") if isinstance(meta, dict) else None
-        cols = meta.get("columns") if isinstance(meta, dict) else None
-        self.columns = cols if isinstance(cols, dict) else {}
+@dataclass
+class CheckReport:
+    """What :func:`check_file` found in a file that passed (no error).
 
-    def label(self, canon: str) -> str:
-        theirs = self.columns.get(canon)
-        return f"{canon} (header {theirs!r})" if theirs and theirs != canon else canon
+    Attributes
+    ----------
+    warnings : list of CheckWarning
+        Suspicious findings, in the order the checks ran.
+    probe_sign : int
+        +1 / -1: the displacement rises / falls while the temperatures rise; 0: no clear evidence.
+    """
 
-    def prefix(self, canon: str) -> str:
-        label = self.label(canon)
-        return f"{label}: " if label != canon else ""
-
-    def error(self, message: str, *, line=None, column: str | None = None) -> RawFormatError:
-        return RawFormatError(
-            self.path, message, line=None if line is None else int(line), column=column, sheet=self.sheet
-        )
+    warnings: list[CheckWarning] = field(default_factory=list)
+    probe_sign: int = 0
 
 
 def _longest_repeat(values: np.ndarray) -> tuple[int, int]:
@@ -88,56 +97,9 @@ def _open_circuit_mask(values: np.ndarray, open_circuit_values) -> np.ndarray:
     return mask
 
 
-def check_log(
-    frame: pd.DataFrame,
-    path: str | os.PathLike | None = None,
-    *,
-    min_run_s: float = 0.0,
-    sample_period_s: float | None = None,
-    open_circuit_values=(),
-    backwards_tolerance_samples: float = BACKWARDS_TOLERANCE_SAMPLES,
-    max_speed_rpm: float = 100_000.0,
-    temp_range_c: tuple[float, float] = (-40.0, 200.0),
-    stuck_std_um: float = 1e-3,
-    stuck_fraction: float = 0.95,
-    stuck_max_s: float = 600.0,
-    stuck_min_temp_change_k: float = 1.0,
-    mm_max_range_um: float = 0.2,
-    mm_min_temp_rise_k: float = 3.0,
-    min_samples: int = 10,
-) -> pd.DataFrame:
-    """Raise :class:`RawFormatError` on an implausible log; return ``frame`` unchanged otherwise.
-
-    Parameters
-    ----------
-    frame : pandas.DataFrame
-        Canonical frame from :func:`rafi.readers.logs.read_log` (index = source line/row).
-    path : str or os.PathLike, optional
-        File named in messages (default ``frame.attrs['source']``).
-    min_run_s : float
-        Shortest acceptable log (first to last timestamp), seconds; 0 disables.
-    sample_period_s : float, optional
-        Nominal sample period; default ``attrs['metadata']['sample_period_s']``, else
-        the median positive time step.
-    open_circuit_values : iterable of float
-        Documented open-circuit readings (``clean.open_circuit_values``): allowed
-        outside the temperature range and counted as missing.
-    backwards_tolerance_samples, max_speed_rpm, temp_range_c, stuck_std_um,
-    stuck_fraction, stuck_max_s, stuck_min_temp_change_k, mm_max_range_um, mm_min_temp_rise_k, min_samples
-        Thresholds, see the module docstring.
-
-    Returns
-    -------
-    pandas.DataFrame
-        ``frame`` itself (not copied), so calls can be chained.
-    """
-    where = _Where(frame, path)
-    lines = frame.index.to_numpy()
+def _values(frame: pd.DataFrame, where: Where, open_circuit_values) -> dict[str, np.ndarray]:
+    """The value columns as floats with open-circuit readings as NaN; error on an empty column."""
     n = len(frame)
-    if n == 0:
-        raise where.error("no data rows")
-
-    # -- sensors without any value ------------------------------------------------------
     values: dict[str, np.ndarray] = {}
     for name in VALUE_COLUMNS:
         v = frame[name].to_numpy(dtype=float, na_value=np.nan)
@@ -151,17 +113,11 @@ def check_log(
                 f"empty{extra}): sensor not connected or wrong column mapped",
                 column=name,
             )
+    return values
 
-    # -- time: clock reset, duration ------------------------------------------------------
-    t = frame["time"].to_numpy(dtype="datetime64[ns]").astype("int64") / 1e9
+
+def _check_time(frame, where, t, lines, sample_period_s, backwards_tolerance_samples, min_run_s) -> None:
     steps = np.diff(t)
-    if sample_period_s is None:
-        meta = frame.attrs.get("metadata") or {}
-        sample_period_s = meta.get("sample_period_s") if isinstance(meta, dict) else None
-    if sample_period_s is None:
-        pos = steps[steps > 0]
-        sample_period_s = float(np.median(pos)) if pos.size else 1.0
-    sample_period_s = float(sample_period_s)
     limit = backwards_tolerance_samples * sample_period_s
     back = np.flatnonzero(steps < -limit)
     if back.size:
@@ -174,7 +130,7 @@ def check_log(
             line=lines[k],
             column="time",
         )
-    duration = float(np.nanmax(t) - np.nanmin(t)) if n else 0.0
+    duration = float(np.nanmax(t) - np.nanmin(t)) if t.size else 0.0
     if min_run_s and duration < min_run_s:
         raise where.error(
             f"log covers only {duration:.0f} s, shorter than the minimum run of "
@@ -183,7 +139,8 @@ def check_log(
             column="time",
         )
 
-    # -- speed --------------------------------------------------------------------------
+
+def _check_ranges(values, where, lines, max_speed_rpm, temp_range_c, open_circuit_values) -> None:
     s = values["speed_rpm"]
     bad = np.flatnonzero((s < 0) | (s > max_speed_rpm))
     if bad.size:
@@ -194,8 +151,6 @@ def check_log(
             line=lines[k],
             column="speed_rpm",
         )
-
-    # -- temperatures -------------------------------------------------------------------
     lo, hi = temp_range_c
     first_bad = None
     for name in SENSORS:
@@ -214,53 +169,147 @@ def check_log(
             column=name,
         )
 
-    # -- displacement: stuck probe, millimetres -----------------------------------------
+
+def _check_stuck_probe(values, where, lines, sample_period_s, th: dict) -> None:
     d = values["disp_um"]
     d_ok = d[~np.isnan(d)]
-    if d_ok.size >= min_samples:
-        std = float(np.std(d_ok))
-        uniq, counts = np.unique(d_ok, return_counts=True)
-        top = float(counts.max()) / d_ok.size
-        if std < stuck_std_um or top > stuck_fraction:
+    std = float(np.std(d_ok))
+    uniq, counts = np.unique(d_ok, return_counts=True)
+    top = float(counts.max()) / d_ok.size
+    if std < th["stuck_std_um"] or top > th["stuck_fraction"]:
+        raise where.error(
+            f"{where.label('disp_um')} is constant (std {std:.2g} um, "
+            f"{100 * top:.0f} % of the values equal {uniq[counts.argmax()]:g}): stuck or "
+            "disconnected probe, or the wrong channel is mapped",
+            column="disp_um",
+        )
+    first, length = _longest_repeat(d)
+    if th["stuck_max_s"] > 0 and length * sample_period_s >= th["stuck_max_s"]:
+        stretch = slice(first, first + length)
+        change = max(
+            (
+                float(np.nanmax(values[s][stretch]) - np.nanmin(values[s][stretch]))
+                for s in SENSORS
+                if np.isfinite(values[s][stretch]).any()
+            ),
+            default=0.0,
+        )
+        if change >= th["stuck_min_temp_change_k"]:
             raise where.error(
-                f"{where.label('disp_um')} is constant (std {std:.2g} um, "
-                f"{100 * top:.0f} % of the values equal {uniq[counts.argmax()]:g}): stuck or "
-                "disconnected probe, or the wrong channel is mapped",
+                f"{where.label('disp_um')} is stuck at {d[first]:g} um for {length} rows "
+                f"({length * sample_period_s / 60:.0f} min, lines {lines[first]}-"
+                f"{lines[first + length - 1]}) while temperatures change by {change:.1f} K: "
+                "a live probe would move; check the probe and its cable",
+                line=lines[first],
                 column="disp_um",
             )
-        first, length = _longest_repeat(d)
-        if stuck_max_s > 0 and length * sample_period_s >= stuck_max_s:
-            stretch = slice(first, first + length)
-            change = max(
-                (
-                    float(np.nanmax(values[s][stretch]) - np.nanmin(values[s][stretch]))
-                    for s in SENSORS
-                    if np.isfinite(values[s][stretch]).any()
-                ),
-                default=0.0,
-            )
-            if change >= stuck_min_temp_change_k:
-                raise where.error(
-                    f"{where.label('disp_um')} is stuck at {d[first]:g} um for {length} rows "
-                    f"({length * sample_period_s / 60:.0f} min, lines {lines[first]}-"
-                    f"{lines[first + length - 1]}) while temperatures change by {change:.1f} K: "
-                    "a live probe would move; check the probe and its cable",
-                    line=lines[first],
-                    column="disp_um",
-                )
-        rise = 0.0
-        for name in SENSORS:
-            v = values[name]
-            v = v[~np.isnan(v)]
-            if v.size >= min_samples:
-                lo_q, hi_q = np.percentile(v, [1, 99])
-                rise = max(rise, float(hi_q - lo_q))
-        spread = float(d_ok.max() - d_ok.min())
-        if spread <= mm_max_range_um and rise >= mm_min_temp_rise_k:
-            raise where.error(
-                f"{where.label('disp_um')} varies by only {spread:.3g} um while temperatures change "
-                f"by {rise:.1f} K: values look like millimetres; set displacement.unit: mm in "
-                "the machine's input mapping (config.yaml)",
-                column="disp_um",
-            )
+
+
+def check_file(
+    frame: pd.DataFrame,
+    path: str | os.PathLike | None = None,
+    *,
+    min_run_s: float = 0.0,
+    sample_period_s: float | None = None,
+    open_circuit_values=(),
+    training_speeds_rpm=None,
+    speed_tolerance_rpm: float = 50.0,
+    machine: str | None = None,
+    backwards_tolerance_samples: float = BACKWARDS_TOLERANCE_SAMPLES,
+    max_speed_rpm: float = 100_000.0,
+    temp_range_c: tuple[float, float] = (-40.0, 200.0),
+    stuck_std_um: float = 1e-3,
+    stuck_fraction: float = 0.95,
+    stuck_max_s: float = 600.0,
+    stuck_min_temp_change_k: float = 1.0,
+    mm_max_range_um: float = 0.2,
+    mm_min_temp_rise_k: float = 3.0,
+    min_samples: int = 10,
+) -> CheckReport:
+    """Raise :class:`RawFormatError` on an implausible log; return its warnings and probe sign.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        Canonical frame from :func:`rafi.readers.logs.read_log` (index = source line/row).
+    path : str or os.PathLike, optional
+        File named in messages (default ``frame.attrs['source']``).
+    min_run_s : float
+        Shortest acceptable log (first to last timestamp), seconds; 0 disables.
+    sample_period_s : float, optional
+        The machine's configured sample period (``sample_period_s``); default
+        ``attrs['metadata']['sample_period_s']``, else the median positive time step. When given,
+        it is also compared with the data (check ``metadata_period``).
+    open_circuit_values : iterable of float
+        Documented open-circuit readings (``clean.open_circuit_values``): allowed
+        outside the temperature range and counted as missing.
+    training_speeds_rpm : sequence of float, optional
+        The machine's training speeds: checks ``speed_unit`` and ``speed_range`` need them
+        (skipped without).
+    speed_tolerance_rpm : float
+        The machine's ``speed_tolerance_rpm``.
+    machine : str, optional
+        The machine (folder) the file belongs to (check ``metadata_machine``).
+    backwards_tolerance_samples, max_speed_rpm, temp_range_c, stuck_std_um,
+    stuck_fraction, stuck_max_s, stuck_min_temp_change_k, mm_max_range_um, mm_min_temp_rise_k, min_samples
+        Thresholds, see the module docstring.
+
+    Returns
+    -------
+    CheckReport
+        The warnings (suspicious, not certain) and the file's probe sign.
+
+    Raises
+    ------
+    RawFormatError
+        A certain problem; the message starts with the location, then (for the checks with an
+        id) ``"<check id>: "``, the evidence and the likely cause.
+    """
+    where = Where(frame, path)
+    lines = frame.index.to_numpy()
+    n = len(frame)
+    if n == 0:
+        raise where.error("no data rows")
+    meta = frame.attrs.get("metadata") or {}
+    meta = meta if isinstance(meta, dict) else {}
+    values = _values(frame, where, open_circuit_values)
+    t = frame["time"].to_numpy(dtype="datetime64[ns]").astype("int64") / 1e9
+    steps = np.diff(t)
+    period = sample_period_s if sample_period_s is not None else meta.get("sample_period_s")
+    if period is None:
+        pos = steps[steps > 0]
+        period = float(np.median(pos)) if pos.size else 1.0
+    period = float(period)
+    sig = Signals(t=t - t[0], values=values, lines=lines, period_s=period)
+
+    report = CheckReport()
+    report.warnings += channels.sparse_channel(sig, where)
+    report.warnings += units.metadata_period(sig, where, meta.get("sample_period_s"), sample_period_s)
+    _check_time(frame, where, t, lines, period, backwards_tolerance_samples, min_run_s)
+    units.temperature_unit(sig, where)
+    _check_ranges(values, where, lines, max_speed_rpm, temp_range_c, open_circuit_values)
+    if np.sum(~np.isnan(values["disp_um"])) >= min_samples:
+        thresholds = {
+            "stuck_std_um": stuck_std_um,
+            "stuck_fraction": stuck_fraction,
+            "stuck_max_s": stuck_max_s,
+            "stuck_min_temp_change_k": stuck_min_temp_change_k,
+        }
+        _check_stuck_probe(values, where, lines, period, thresholds)
+        units.displacement_unit(
+            sig, where, mm_max_range_um=mm_max_range_um, mm_min_temp_rise_k=mm_min_temp_rise_k
+        )
+    report.warnings += channels.stuck_logger_and_constant(sig, where, speed_tolerance_rpm)
+    report.warnings += channels.swapped_channels(sig, where)
+    report.warnings += units.speed_unit(sig, where, training_speeds_rpm, speed_tolerance_rpm)
+    report.warnings += units.speed_range(sig, where, training_speeds_rpm, speed_tolerance_rpm)
+    report.warnings += units.metadata_machine(meta, machine)
+    report.probe_sign = channels.probe_sign(sig)
+    return report
+
+
+def check_log(frame: pd.DataFrame, path: str | os.PathLike | None = None, **kwargs) -> pd.DataFrame:
+    """:func:`check_file` for callers that want only the errors: returns ``frame`` itself (not
+    copied), so calls can be chained; warnings are dropped (the clean step records them)."""
+    check_file(frame, path, **kwargs)
     return frame

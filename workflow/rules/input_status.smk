@@ -2,8 +2,9 @@
 # usable raw file. Only known after the clean jobs, so it is a checkpoint per machine; the final
 # targets of a machine (common.smk: machine_targets) depend on it:
 #
-#   clean/<stem>.summary.csv (every file of the machine)
-#     -> input_status (checkpoint)  results/<machine>/input_status.json
+#   clean/<stem>.summary.csv + .audit.csv (every file of the machine)
+#     -> input_status (checkpoint)  results/<machine>/input_status.json (+ machine-level checks:
+#          duplicate content, probe sign; every warning with `confirmed` from checks.confirmed)
 #          usable  -> the machine's tables, comparison, decision and report as usual
 #          skipped -> audit.csv and reports/<machine>/skipped.html only (report.smk)
 #     -> input_check                results/input_check.json (every machine: was input rejected?)
@@ -15,6 +16,8 @@ checkpoint input_status:
     """Usable and rejected raw files of one machine; whether the machine is skipped."""
     input:
         summaries=clean_files("clean_summary"),
+        # the checks' warnings (audit rows with action warning)
+        audits=clean_files("clean_audit"),
         code=rafi_code("input_status"),
         glue=script_helpers(),
     output:
@@ -27,6 +30,9 @@ checkpoint input_status:
         machine=lambda w: w.machine,
         # removed when the machine is usable again (a page of an earlier night)
         skipped_page=lambda w: skipped_page_path(w.machine),
+        # machine-level checks (docs/raw-format.md, "Checks")
+        probe_sign=lambda w: machine_config(w.machine)["checks"]["probe_sign"],
+        confirmed=lambda w: machine_config(w.machine)["checks"]["confirmed"],
     script:
         "../scripts/input_status.py"
 

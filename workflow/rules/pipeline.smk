@@ -43,11 +43,14 @@ rule clean:
         input_spec=lambda w: machine_config(w.machine)["input"],
         sample_period_s=lambda w: machine_config(w.machine)["sample_period_s"],
         clean=lambda w: machine_config(w.machine)["clean"],
-        # plausibility checks (rafi.readers.checks.check_log)
+        # plausibility checks (rafi.readers.checks.check_file, docs/raw-format.md "Checks")
         checks=lambda w: {
             "min_run_s": machine_config(w.machine)["runs"]["min_run_s"],
             "sample_period_s": machine_config(w.machine)["sample_period_s"],
             "open_circuit_values": machine_config(w.machine)["clean"]["open_circuit_values"],
+            "training_speeds_rpm": machine_config(w.machine)["training_speeds_rpm"],
+            "speed_tolerance_rpm": machine_config(w.machine)["speed_tolerance_rpm"],
+            "machine": w.machine,
         },
     script:
         "../scripts/clean.py"
@@ -74,6 +77,10 @@ rule runs:
     input:
         clean=clean_files("clean_parquet"),
         summaries=clean_files("clean_summary"),
+        # the usable files (machine-level checks reject duplicates, reversed probes); ancient:
+        # confirming a warning rewrites it but changes no usable file (a changed
+        # checks.probe_sign re-runs runs through its param below)
+        status=ancient(input_status_path()),
         code=rafi_code("runs"),
         glue=script_helpers(),
     output:
@@ -90,6 +97,7 @@ rule runs:
         speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],
         runs=lambda w: machine_config(w.machine)["runs"],
         reference=lambda w: machine_config(w.machine)["reference"],
+        probe_sign=lambda w: machine_config(w.machine)["checks"]["probe_sign"],
     script:
         "../scripts/runs.py"
 

@@ -1,29 +1,64 @@
-"""Rule clean: one raw log -> clean/<stem>.parquet, clean/<stem>.audit.csv, clean/<stem>.summary.csv."""
+"""Rule clean: one raw log -> clean/<stem>.parquet, clean/<stem>.audit.csv, clean/<stem>.summary.csv.
+
+With on_bad_input=quarantine ANY failure reading, checking or cleaning the file (a RawFormatError,
+but also an OSError, a PermissionError, a pandas ValueError, a MemoryError, ...) quarantines the
+file with a one-line reason (the traceback goes to the log); so does a clean table that cannot be
+read back. With fail the job fails with the message.
+"""
 
 from pathlib import Path
 
 from _glue import step
 
+#: Longest text of an unexpected exception quoted in a quarantine reason.
+REASON_CHARS = 300
+
+
+def one_line(exc: BaseException) -> str:
+    """An exception as one bounded line."""
+    text = " ".join(str(exc).split())
+    if len(text) > REASON_CHARS:
+        text = text[:REASON_CHARS] + " ..."
+    return text
+
+
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
+    import pandas as pd
+
     import rafi.artefact
     import rafi.method.audit
     import rafi.method.clean
     import rafi.readers.logs
     from rafi.errors import RawFormatError
-    from rafi.readers.checks import check_log
+    from rafi.readers.checks import check_file
     from rafi.settings import run_settings
 
     smk = snakemake  # noqa: F821
     src = Path(smk.params.raw_path)
     spec = smk.params.input_spec
     cfg = smk.params.clean
-    sha = rafi.readers.logs.sha256_file(src)
-    print(f"read {src} (format {spec.get('format', 'native')}, sha256 {sha[:12]})", flush=True)
+    # on_bad_input is a run mode, not a param: the outputs are the same in both modes
+    fail_mode = run_settings(smk.config)["on_bad_input"] == "fail"
+    sha = ""
+
+    def quarantine(reason: str) -> None:
+        """Write the quarantined outputs of this file."""
+        print(f"  QUARANTINED: {reason}", flush=True)
+        clean, actions, summary = rafi.method.audit.quarantined(src.name, sha, reason)
+        rafi.artefact.write_parquet_atomic(clean, smk.output.parquet)
+        rafi.artefact.write_csv_atomic(actions, smk.output.audit)
+        rafi.artefact.write_csv_atomic(summary, smk.output.summary)
+
     try:
+        sha = rafi.readers.logs.sha256_file(src)
+        print(f"read {src} (format {spec.get('format', 'native')}, sha256 {sha[:12]})", flush=True)
         frame = rafi.readers.logs.read_log(src, spec)
         rows_in = len(frame)
         print(f"  {rows_in} rows, {frame.shape[1]} columns", flush=True)
-        check_log(frame, src, **smk.params.checks)
+        report = check_file(frame, src, **smk.params.checks)
+        for w in report.warnings:
+            log.warning("%s: %s", src.name, w.detail)
+        print(f"  checks: {len(report.warnings)} warning(s), probe sign {report.probe_sign:+d}", flush=True)
         clean, actions = rafi.method.clean.clean_log(
             frame,
             file=src.name,
@@ -32,19 +67,40 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
             spike_threshold=cfg["spike_threshold"],
             open_circuit_values=cfg["open_circuit_values"],
         )
-        summary = rafi.method.audit.summarise_audit(src.name, sha, rows_in, clean, actions)
-    except RawFormatError as exc:
-        # on_bad_input is a run mode, not a param: the outputs are the same in both modes
-        if run_settings(smk.config)["on_bad_input"] == "fail":
+        actions = rafi.method.audit.with_warnings(
+            actions, rafi.method.audit.warning_rows(src.name, report.warnings)
+        )
+        summary = rafi.method.audit.summarise_audit(
+            src.name, sha, rows_in, clean, actions, probe_sign=report.probe_sign
+        )
+    except Exception as exc:  # noqa: BLE001 - any failure on one file quarantines that file
+        if fail_mode:
             raise
-        log.warning("quarantined %s: %s", src.name, exc)
-        print(f"  QUARANTINED: {exc}", flush=True)
-        clean, actions, summary = rafi.method.audit.quarantined(src.name, sha, str(exc))
+        if isinstance(exc, RawFormatError):
+            reason = one_line(exc)
+            log.warning("quarantined %s: %s", src.name, reason)
+        else:
+            reason = f"{src.name}: could not be read or cleaned: {type(exc).__name__}: {one_line(exc)}"
+            log.warning("quarantined %s: %s", src.name, reason, exc_info=True)
+        quarantine(reason)
     else:
         counts = actions["action"].value_counts().to_dict() if len(actions) else {}
         print(f"  clean: {len(clean)} rows; actions: {counts or 'none'}", flush=True)
-
-    rafi.artefact.write_parquet_atomic(clean, smk.output.parquet)
-    rafi.artefact.write_csv_atomic(actions, smk.output.audit)
-    rafi.artefact.write_csv_atomic(summary, smk.output.summary)
+        rafi.artefact.write_parquet_atomic(clean, smk.output.parquet)
+        rafi.artefact.write_csv_atomic(actions, smk.output.audit)
+        rafi.artefact.write_csv_atomic(summary, smk.output.summary)
+        # the next rule must be able to read what we wrote (e.g. huge metadata breaks parquet)
+        try:
+            back = pd.read_parquet(smk.output.parquet)
+            if len(back) != len(clean):
+                raise ValueError(f"{len(back)} rows read back, {len(clean)} written")
+        except Exception as exc:  # noqa: BLE001
+            why = (
+                f"its clean table {smk.output.parquet} cannot be read back "
+                f"({type(exc).__name__}: {one_line(exc)})"
+            )
+            if fail_mode:
+                raise RawFormatError(src, why) from exc
+            log.warning("quarantined %s: %s", src.name, why, exc_info=True)
+            quarantine(f"{src.name}: {why}")
     print(f"wrote {smk.output.parquet}", flush=True)

@@ -1,4 +1,9 @@
-"""Checkpoint input_status: the clean summaries of a machine -> results/<machine>/input_status.json."""
+"""Checkpoint input_status: clean summaries and audits of a machine -> results/<machine>/input_status.json.
+
+Per file: usable or quarantined (the clean summaries). Machine level (rafi.readers.checks_machine):
+byte-identical copies and probe signs against the configured or majority sign; every warning of
+the checks with ``confirmed`` resolved from ``checks.confirmed``.
+"""
 
 from pathlib import Path
 
@@ -6,13 +11,26 @@ from _glue import step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     from rafi.artefact import json_text, write_text_atomic
+    from rafi.readers.checks_machine import apply_machine_checks, audit_warnings, read_rows, warning_lines
     from rafi.readers.quarantine import is_skipped, machine_input_status
 
     smk = snakemake  # noqa: F821
-    status = machine_input_status(smk.params.machine, smk.input.summaries)
+    base = machine_input_status(smk.params.machine, smk.input.summaries)
+    rows = [row for path in smk.input.summaries for row in read_rows(path)]
+    warnings = [w for path in smk.input.audits for w in audit_warnings(read_rows(path))]
+    status = apply_machine_checks(
+        base, rows, warnings, probe_sign=smk.params.probe_sign, confirmed=smk.params.confirmed
+    )
+    for f in status["rejected"]:
+        if f.get("check"):
+            log.warning("rejected %s", f["reason"])
+    for line in warning_lines(status):
+        log.warning("warning %s", line)
+    n_open = sum(1 for w in status["warnings"] if not w["confirmed"])
     print(
         f"{status['n_files']} raw file(s): {len(status['usable'])} usable, "
-        f"{len(status['rejected'])} rejected -> {status['status']}",
+        f"{len(status['rejected'])} rejected -> {status['status']}; {len(status['warnings'])} "
+        f"warning(s), {n_open} not confirmed",
         flush=True,
     )
     if is_skipped(status):

@@ -1,0 +1,242 @@
+"""Channel checks: channels present in too few rows, a constant sensor, a stuck logger, a
+displacement and a temperature swapped, and the sign of the probe.
+
+Each function takes the :class:`~rafi.readers.checks_base.Signals` of a frame and a
+:class:`~rafi.readers.checks_base.Where`; it raises the check's error (certain) or returns its
+warnings (suspicious). Thresholds are module constants, documented in docs/raw-format.md
+("Checks").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from rafi import SENSORS
+from rafi.readers.checks_base import (
+    CheckWarning,
+    Signals,
+    Where,
+    fmt,
+    is_flat,
+    present,
+    robust_range,
+    start_level,
+)
+
+#: A channel with values in fewer than this share of the rows is sparse.
+SPARSE_BELOW = 0.5
+#: Channels without which a log cannot be used (sparse -> error); temperatures only warn.
+REQUIRED = ("speed_rpm", "disp_um")
+
+#: A sensor that moves less than this (K, 1st-99th percentile) is constant ...
+FLAT_K = 0.01
+#: ... while another sensor changes by at least this (K): constant_channel.
+OTHERS_CHANGE_K = 1.0
+#: The displacement changes by at least this (um, 2nd-98th percentile), or the speed by more than
+#: the speed tolerance, while every temperature is constant: stuck_logger.
+ACTIVE_DISP_UM = 1.0
+
+#: A sensor whose start level is this far (K) from the other sensors' median start level is out of
+#: the temperatures' band; with the displacement inside it the two are swapped (error).
+SWAP_OUTLIER_K = 5.0
+#: Alone (no displacement inside the band), an outlier this far is only a warning.
+LONE_OUTLIER_K = 10.0
+#: Margin (K) around the other sensors' start levels / overall range that is "inside the band".
+BAND_MARGIN_K = 2.0
+#: Two channels whose values agree within this in this share of the rows are the same channel.
+SAME_WITHIN = 0.01
+SAME_SHARE = 0.95
+
+#: Probe sign: evidence needs the temperatures' median to change by this much (K) ...
+SIGN_MIN_TEMP_K = 1.0
+#: ... the displacement by this much (um, 2nd-98th percentile) ...
+SIGN_MIN_DISP_UM = 1.0
+#: ... and |correlation| between them of at least this.
+SIGN_MIN_CORR = 0.5
+
+
+def sparse_channel(sig: Signals, where: Where) -> list[CheckWarning]:
+    """Error if ``speed_rpm`` or ``disp_um`` has values in under half of the rows; a warning for a
+    temperature (open-circuit readings count as missing)."""
+    warnings = []
+    for name in (*REQUIRED, *SENSORS):
+        v = sig.values[name]
+        share = float((~np.isnan(v)).mean()) if v.size else 0.0
+        if share >= SPARSE_BELOW:
+            continue
+        text = (
+            f"{where.label(name)} has a value in only {int((~np.isnan(v)).sum())} of {v.size} rows "
+            f"({100 * share:.0f} %, less than {100 * SPARSE_BELOW:.0f} %)"
+        )
+        if name in REQUIRED:
+            raise where.check_error(
+                "sparse_channel",
+                f"{text}: too few to model or validate; a loose cable, a wrong column mapped, or a "
+                "logger that writes this channel only now and then",
+                column=name,
+            )
+        warnings.append(
+            CheckWarning(
+                "sparse_channel",
+                name,
+                f"{text}: an intermittent sensor; its gaps are interpolated or left empty",
+                int(sig.lines[0]),
+                int(sig.lines[-1]),
+            )
+        )
+    return warnings
+
+
+def stuck_logger_and_constant(sig: Signals, where: Where, tolerance_rpm: float) -> list[CheckWarning]:
+    """Error if every temperature is constant while the displacement or the speed changes (the
+    logger repeats stale values); a warning for one constant sensor while others change."""
+    with_values = [s for s in SENSORS if present(sig.values[s]).size]
+    flat = [s for s in with_values if is_flat(sig.values[s], FLAT_K)]
+    if with_values and len(flat) == len(with_values):
+        d_change = robust_range(sig.values["disp_um"])
+        s_change = robust_range(sig.values["speed_rpm"], 1.0, 99.0)
+        if d_change >= ACTIVE_DISP_UM or s_change > tolerance_rpm:
+            moving = (
+                f"disp_um changes by {fmt(d_change)} um"
+                if d_change >= ACTIVE_DISP_UM
+                else f"the speed changes by {fmt(s_change)} r/min"
+            )
+            raise where.check_error(
+                "stuck_logger",
+                f"all {len(flat)} temperatures are constant (each within {FLAT_K:g} K over {sig.n} "
+                f"rows) while {moving}: the logger repeats stale temperature values (a stuck "
+                "logger or a frozen interface)",
+                column=flat[0],
+            )
+        return []
+    warnings = []
+    for name in flat:
+        others = max((robust_range(sig.values[s], 1.0, 99.0) for s in with_values if s != name), default=0.0)
+        if others < OTHERS_CHANGE_K:
+            continue
+        v = present(sig.values[name])
+        warnings.append(
+            CheckWarning(
+                "constant_channel",
+                name,
+                f"{where.label(name)} stays at {fmt(float(np.median(v)))} deg C (within {FLAT_K:g} K in "
+                f"98 % of {v.size} values) while other sensors change by up to {others:.1f} K: a stuck "
+                "or disconnected sensor, or a constant written by the logger",
+                int(sig.lines[0]),
+                int(sig.lines[-1]),
+            )
+        )
+    return warnings
+
+
+def _same(a: np.ndarray, b: np.ndarray) -> bool:
+    both = ~np.isnan(a) & ~np.isnan(b)
+    if both.sum() < 10:
+        return False
+    return float((np.abs(a[both] - b[both]) <= SAME_WITHIN).mean()) >= SAME_SHARE
+
+
+def swapped_channels(sig: Signals, where: Where) -> list[CheckWarning]:
+    """A displacement that behaves like a temperature and a temperature that behaves like a
+    displacement.
+
+    Evidence: the start level (median over the first minutes) of each sensor against the other
+    sensors'; whether the displacement starts inside the temperatures' band and stays within their
+    overall range; and whether a channel holds the same values as another. Errors: both sides
+    (a sensor out of the band and the displacement inside it: swapped), or a copy. Warnings: one
+    side only.
+    """
+    mask = sig.start_mask()
+    d = sig.values["disp_um"]
+    d_label = where.label("disp_um")
+    for s in SENSORS:
+        if _same(d, sig.values[s]):
+            raise where.check_error(
+                "swapped_channels",
+                f"{d_label} holds the same values as {where.label(s)} (within {SAME_WITHIN:g} in "
+                f"{100 * SAME_SHARE:.0f} % of the rows): the displacement is mapped to a temperature "
+                "channel",
+                column="disp_um",
+            )
+    levels = {s: start_level(sig.values[s], mask) for s in SENSORS}
+    levels = {s: v for s, v in levels.items() if np.isfinite(v)}
+    if len(levels) < 3:
+        return []
+    d_start = start_level(d, mask)
+    if not np.isfinite(d_start):
+        return []
+
+    def others(name):
+        return [v for s, v in levels.items() if s != name]
+
+    deviation = {s: abs(v - float(np.median(others(s)))) for s, v in levels.items()}
+    outlier = max(deviation, key=deviation.get)
+    rest = others(outlier) if deviation[outlier] > SWAP_OUTLIER_K else list(levels.values())
+    band = (min(rest) - BAND_MARGIN_K, max(rest) + BAND_MARGIN_K)
+    envelope_sensors = [s for s in levels if deviation[s] <= SWAP_OUTLIER_K]
+    t_lo = min(np.nanpercentile(sig.values[s], 1) for s in envelope_sensors)
+    t_hi = max(np.nanpercentile(sig.values[s], 99) for s in envelope_sensors)
+    d_ok = present(d)
+    d_lo, d_hi = np.percentile(d_ok, [2, 98])
+    d_inside = band[0] <= d_start <= band[1] and d_lo >= t_lo - BAND_MARGIN_K and d_hi <= t_hi + BAND_MARGIN_K
+    band_text = f"{fmt(min(rest))}..{fmt(max(rest))} deg C"
+    if deviation[outlier] > SWAP_OUTLIER_K and d_inside:
+        raise where.check_error(
+            "swapped_channels",
+            f"{where.label(outlier)} and {d_label} look swapped: {outlier} starts at "
+            f"{fmt(levels[outlier])} while the other sensors start at {band_text}, and disp_um "
+            f"starts at {fmt(d_start)} um, inside that band, and stays within the temperatures' "
+            f"{fmt(t_lo)}..{fmt(t_hi)}; swap the columns back (header or input mapping)",
+            column=outlier,
+        )
+    if d_inside:
+        return [
+            CheckWarning(
+                "swapped_channels",
+                "disp_um",
+                f"{d_label} behaves like a temperature: it starts at {fmt(d_start)} um, inside the "
+                f"sensors' start levels {band_text}, and stays within their range "
+                f"{fmt(t_lo)}..{fmt(t_hi)}: a temperature channel mapped as the displacement?",
+                int(sig.lines[0]),
+                int(sig.lines[-1]),
+            )
+        ]
+    if deviation[outlier] > LONE_OUTLIER_K:
+        return [
+            CheckWarning(
+                "swapped_channels",
+                outlier,
+                f"{where.label(outlier)} starts at {fmt(levels[outlier])} deg C while the other sensors "
+                f"start at {band_text} ({deviation[outlier]:.1f} K from their median): a displacement "
+                "or another quantity in a temperature column, or a sensor of another machine part?",
+                int(sig.lines[0]),
+                int(sig.lines[-1]),
+            )
+        ]
+    return []
+
+
+def probe_sign(sig: Signals) -> int:
+    """Sign of the displacement's change while the temperatures rise: +1, -1, or 0 without clear
+    evidence (the temperatures' row median changes by less than :data:`SIGN_MIN_TEMP_K`, the
+    displacement by less than :data:`SIGN_MIN_DISP_UM`, or their correlation is weaker than
+    :data:`SIGN_MIN_CORR`)."""
+    temps = np.column_stack([sig.values[s] for s in SENSORS])
+    counts = np.sum(~np.isnan(temps), axis=1)
+    tm = np.full(sig.n, np.nan)
+    has = counts > 0
+    if has.any():
+        tm[has] = np.nanmedian(temps[has], axis=1)
+    d = sig.values["disp_um"]
+    both = ~np.isnan(tm) & ~np.isnan(d)
+    if both.sum() < 10:
+        return 0
+    tm, d = tm[both], d[both]
+    if robust_range(tm) < SIGN_MIN_TEMP_K or robust_range(d) < SIGN_MIN_DISP_UM:
+        return 0
+    if np.std(tm) == 0 or np.std(d) == 0:
+        return 0
+    r = float(np.corrcoef(tm, d)[0, 1])
+    if not np.isfinite(r) or abs(r) < SIGN_MIN_CORR:
+        return 0
+    return 1 if r > 0 else -1

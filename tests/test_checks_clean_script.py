@@ -1,0 +1,166 @@
+"""The clean step (workflow/scripts/clean.py) in quarantine mode: ANY failure on one file
+quarantines that file with a one-line reason (traceback in the log), warnings become audit rows,
+and a clean table that cannot be read back quarantines the file too.
+
+The script is run as Snakemake runs it (``snakemake`` injected as a global), with a stand-in
+object carrying the params the rule passes.
+"""
+
+from __future__ import annotations
+
+import runpy
+import shutil
+import sys
+from pathlib import Path
+from types import SimpleNamespace
+
+import pandas as pd
+import pytest
+
+import rafi.readers.logs
+from rafi.errors import RawFormatError
+
+ROOT = Path(__file__).resolve().parents[1]
+SCRIPT = ROOT / "workflow" / "scripts" / "clean.py"
+A = "tapping-center-a"
+
+
+def _smk(tmp_path: Path, raw: Path, mode: str = "quarantine") -> SimpleNamespace:
+    out = tmp_path / "results" / A / "clean"
+    return SimpleNamespace(
+        params=SimpleNamespace(
+            raw_path=str(raw),
+            raw_stamp=None,
+            input_spec={"format": "native"},
+            sample_period_s=5,
+            clean={
+                "max_interpolate_gap_s": 60,
+                "spike_threshold": 8,
+                "open_circuit_values": [-999.0, 999.9, 850.0],
+            },
+            checks={
+                "min_run_s": 1800,
+                "sample_period_s": 5,
+                "open_circuit_values": [-999.0, 999.9, 850.0],
+                "training_speeds_rpm": [3000, 6000, 9000, 12000, 15000, 18000],
+                "speed_tolerance_rpm": 50,
+                "machine": A,
+            },
+        ),
+        config={"on_bad_input": mode},
+        output=SimpleNamespace(
+            parquet=str(out / f"{raw.stem}.parquet"),
+            audit=str(out / f"{raw.stem}.audit.csv"),
+            summary=str(out / f"{raw.stem}.summary.csv"),
+        ),
+        log=[str(tmp_path / "logs" / f"{raw.stem}.log")],
+        rule="clean",
+        wildcards={"machine": A, "stem": raw.stem},
+    )
+
+
+def _clean(smk) -> None:
+    sys.path.insert(0, str(SCRIPT.parent))
+    try:
+        runpy.run_path(str(SCRIPT), init_globals={"snakemake": smk}, run_name="__main__")
+    finally:
+        sys.path.remove(str(SCRIPT.parent))
+
+
+@pytest.fixture
+def raw(tmp_path) -> Path:
+    path = tmp_path / "raw" / A / "valid_16500rpm.csv"
+    path.parent.mkdir(parents=True)
+    shutil.copy2(ROOT / "raw" / A / "valid_16500rpm.csv", path)
+    return path
+
+
+def test_a_good_file_is_cleaned_with_its_probe_sign(tmp_path, raw):
+    smk = _smk(tmp_path, raw)
+    _clean(smk)
+    summary = pd.read_csv(smk.output.summary).iloc[0]
+    assert summary["status"] == "ok" and summary["warnings"] == 0 and summary["probe_sign"] == 1
+    assert len(pd.read_parquet(smk.output.parquet)) > 1000
+
+
+def test_a_warning_is_an_audit_row_and_counted(tmp_path, raw):
+    text = raw.read_text(encoding="utf-8").replace("# machine: tapping-center-a", "# machine: lathe-7")
+    raw.write_text(text, encoding="utf-8")
+    smk = _smk(tmp_path, raw)
+    _clean(smk)
+    summary = pd.read_csv(smk.output.summary).iloc[0]
+    assert summary["status"] == "ok" and summary["warnings"] == 1
+    audit = pd.read_csv(smk.output.audit, keep_default_na=False)
+    row = audit[audit["action"] == "warning"].iloc[0]
+    assert row["detail"].startswith("metadata_machine: the file's metadata says machine 'lathe-7'")
+    assert row["n_rows"] == 0 and row["first_line"] == "" and row["file"] == raw.name
+    assert "metadata_machine" in Path(smk.log[0]).read_text()
+
+
+@pytest.mark.parametrize(
+    "exc",
+    [
+        PermissionError(13, "Permission denied"),
+        OSError(5, "Input/output error"),
+        MemoryError(),
+        ValueError("cannot reindex on an axis with duplicate labels\nsecond line"),
+    ],
+    ids=["permission", "io", "memory", "pandas"],
+)
+def test_any_failure_reading_a_file_quarantines_it(tmp_path, raw, monkeypatch, exc):
+    def fail(*args, **kwargs):
+        raise exc
+
+    monkeypatch.setattr(rafi.readers.logs, "read_log", fail)
+    smk = _smk(tmp_path, raw)
+    _clean(smk)
+    summary = pd.read_csv(smk.output.summary).iloc[0]
+    assert summary["status"] == "quarantined"
+    reason = summary["reason"]
+    assert reason.startswith(f"{raw.name}: could not be read or cleaned: {type(exc).__name__}")
+    assert "\n" not in reason and len(reason) < 500
+    assert len(pd.read_parquet(smk.output.parquet)) == 0
+    assert "Traceback" in Path(smk.log[0]).read_text()  # the details are in the log
+
+
+def test_an_unreadable_file_is_quarantined_without_a_hash(tmp_path, raw, monkeypatch):
+    def fail(path):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(rafi.readers.logs, "sha256_file", fail)
+    smk = _smk(tmp_path, raw)
+    _clean(smk)
+    summary = pd.read_csv(smk.output.summary, keep_default_na=False).iloc[0]
+    assert summary["status"] == "quarantined" and summary["sha256"] == ""
+    assert "PermissionError" in summary["reason"] and "Permission denied" in summary["reason"]
+
+
+def test_fail_mode_raises_the_error(tmp_path, raw, monkeypatch):
+    monkeypatch.setattr(rafi.readers.logs, "read_log", lambda *a, **k: (_ for _ in ()).throw(OSError("boom")))
+    with pytest.raises(OSError, match="boom"):
+        _clean(_smk(tmp_path, raw, mode="fail"))
+
+
+def test_a_clean_table_that_cannot_be_read_back_quarantines_the_file(tmp_path, raw, monkeypatch):
+    real = pd.read_parquet
+
+    def broken(path, *args, **kwargs):
+        if Path(path).name == f"{raw.stem}.parquet" and not broken.done:
+            broken.done = True
+            raise OSError("Couldn't deserialize thrift: TProtocolException: Exceeded size limit")
+        return real(path, *args, **kwargs)
+
+    broken.done = False
+    monkeypatch.setattr(pd, "read_parquet", broken)
+    smk = _smk(tmp_path, raw)
+    _clean(smk)
+    summary = pd.read_csv(smk.output.summary).iloc[0]
+    assert summary["status"] == "quarantined"
+    assert "cannot be read back (OSError: Couldn't deserialize thrift" in summary["reason"]
+    assert len(real(smk.output.parquet)) == 0
+
+    broken.done = False
+    smk = _smk(tmp_path, raw, mode="fail")
+    with pytest.raises((RawFormatError, SystemExit)):  # the glue turns a user error into an exit
+        _clean(smk)
+    assert "cannot be read back" in Path(smk.log[0]).read_text()
