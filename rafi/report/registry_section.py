@@ -377,7 +377,13 @@ def against_champion(dec: dict, comp) -> dict | None:
         ]
 
     wrows = (
-        warn_rows(warns.get("blocking") or [], "NOT CONFIRMED: blocks promotion", "fail")
+        warn_rows(
+            warns.get("blocking") or [],
+            "NOT CONFIRMED: blocks promotion"
+            if dec.get("decision") == "rejected"
+            else "not confirmed (would block a promotion)",
+            "fail",
+        )
         + warn_rows(warns.get("confirmed") or [], "confirmed", "pass")
         + warn_rows(warns.get("not_used") or [], "not confirmed; file not used tonight", "")
     )
