@@ -119,6 +119,7 @@ def test_any_failure_reading_a_file_quarantines_it(tmp_path, raw, monkeypatch, e
     reason = summary["reason"]
     assert reason.startswith(f"{raw.name}: could not be read or cleaned: {type(exc).__name__}")
     assert "\n" not in reason and len(reason) < 500
+    assert reason.endswith(" [unreadable]") == isinstance(exc, OSError)
     assert len(pd.read_parquet(smk.output.parquet)) == 0
     assert "Traceback" in Path(smk.log[0]).read_text()  # the details are in the log
 
@@ -157,6 +158,7 @@ def test_a_clean_table_that_cannot_be_read_back_quarantines_the_file(tmp_path, r
     summary = pd.read_csv(smk.output.summary).iloc[0]
     assert summary["status"] == "quarantined"
     assert "cannot be read back (OSError: Couldn't deserialize thrift" in summary["reason"]
+    assert summary["reason"].endswith("[clean_table_unreadable]")
     assert len(real(smk.output.parquet)) == 0
 
     broken.done = False
@@ -164,3 +166,23 @@ def test_a_clean_table_that_cannot_be_read_back_quarantines_the_file(tmp_path, r
     with pytest.raises((RawFormatError, SystemExit)):  # the glue turns a user error into an exit
         _clean(smk)
     assert "cannot be read back" in Path(smk.log[0]).read_text()
+
+
+def test_a_check_error_names_its_check_id_in_brackets(tmp_path, raw):
+    lines = raw.read_text(encoding="utf-8").splitlines()
+    header = lines[4].split(",")
+    k = header.index("speed_rpm")
+    for i in range(5, len(lines)):
+        fields = lines[i].split(",")
+        fields[k] = f"{float(fields[k]) / 60:.2f}"  # rev/s on a validation run: a warning ...
+        lines[i] = ",".join(fields)
+    raw.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    smk = _smk(tmp_path, raw)
+    _clean(smk)
+    assert pd.read_csv(smk.output.summary).iloc[0]["warnings"] == 1
+    smk.params.checks["training_speeds_rpm"] = [16500]  # ... an error once x 60 is a training speed
+    _clean(smk)
+    summary = pd.read_csv(smk.output.summary).iloc[0]
+    assert summary["status"] == "quarantined"
+    assert "speed_unit: speed_rpm holds 1 plateau(s)" in summary["reason"]
+    assert summary["reason"].endswith(" [speed_unit]")

@@ -70,15 +70,24 @@ class Where:
         label = self.label(canon)
         return f"{label}: " if label != canon else ""
 
-    def error(self, message: str, *, line=None, column: str | None = None) -> RawFormatError:
+    def error(
+        self, message: str, *, line=None, column: str | None = None, check: str | None = None
+    ) -> RawFormatError:
         """The :class:`RawFormatError` of a certain finding at ``line`` / ``column``."""
         return RawFormatError(
-            self.path, message, line=None if line is None else int(line), column=column, sheet=self.sheet
+            self.path,
+            message,
+            line=None if line is None else int(line),
+            column=column,
+            sheet=self.sheet,
+            check=check,
         )
 
     def check_error(self, check: str, message: str, *, line=None, column: str | None = None):
-        """An error of check ``check``: the message starts with the check id."""
-        return self.error(f"{check}: {message}", line=line, column=column)
+        """An error of check ``check``: the message starts with the check id, which is also the
+        error's ``check`` attribute (the clean step appends ``[<check id>]`` to the quarantine
+        reason)."""
+        return self.error(f"{check}: {message}", line=line, column=column, check=check)
 
 
 @dataclass

@@ -3,7 +3,8 @@
 With on_bad_input=quarantine ANY failure reading, checking or cleaning the file (a RawFormatError,
 but also an OSError, a PermissionError, a pandas ValueError, a MemoryError, ...) quarantines the
 file with a one-line reason (the traceback goes to the log); so does a clean table that cannot be
-read back. With fail the job fails with the message.
+read back. With fail the job fails with the message. A reason ends with ``[<check id>]`` when
+the error is a documented check (docs/raw-format.md); ``[unreadable]`` for an OSError.
 """
 
 from pathlib import Path
@@ -14,11 +15,11 @@ from _glue import step
 REASON_CHARS = 300
 
 
-def one_line(exc: BaseException) -> str:
-    """An exception as one bounded line."""
+def one_line(exc: BaseException, limit: int | None = REASON_CHARS) -> str:
+    """An exception as one line, at most ``limit`` characters (``None``: as long as it is)."""
     text = " ".join(str(exc).split())
-    if len(text) > REASON_CHARS:
-        text = text[:REASON_CHARS] + " ..."
+    if limit is not None and len(text) > limit:
+        text = text[:limit] + " ..."
     return text
 
 
@@ -77,10 +78,12 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         if fail_mode:
             raise
         if isinstance(exc, RawFormatError):
-            reason = one_line(exc)
+            # rafi.errors bounds its messages already
+            reason = one_line(exc, None) + (f" [{exc.check}]" if getattr(exc, "check", None) else "")
             log.warning("quarantined %s: %s", src.name, reason)
         else:
-            reason = f"{src.name}: could not be read or cleaned: {type(exc).__name__}: {one_line(exc)}"
+            tag = " [unreadable]" if isinstance(exc, OSError) else ""
+            reason = f"{src.name}: could not be read or cleaned: {type(exc).__name__}: {one_line(exc)}{tag}"
             log.warning("quarantined %s: %s", src.name, reason, exc_info=True)
         quarantine(reason)
     else:
@@ -100,7 +103,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
                 f"({type(exc).__name__}: {one_line(exc)})"
             )
             if fail_mode:
-                raise RawFormatError(src, why) from exc
+                raise RawFormatError(src, why, check="clean_table_unreadable") from exc
             log.warning("quarantined %s: %s", src.name, why, exc_info=True)
-            quarantine(f"{src.name}: {why}")
+            quarantine(f"{src.name}: {why} [clean_table_unreadable]")
     print(f"wrote {smk.output.parquet}", flush=True)
