@@ -401,3 +401,18 @@ def test_every_check_id_is_documented():
     section = doc[doc.index("## Checks") :]
     for check in (*FILE_CHECKS, "probe_sign", "duplicate_content"):
         assert f"`{check}`" in section, check
+
+
+def test_errors_carry_their_check_id():
+    f = shipped()
+    f["disp_um"] = f["disp_um"] * 1000
+    assert error_of(f).check == "displacement_unit"
+    f = shipped()
+    f.loc[f.index[40], "T4"] = 450.0
+    assert error_of(f).check == "temperature_range"
+    f = shipped()
+    f["time"] = f["time"].where(f.index < 1000, f["time"] - pd.Timedelta(hours=1))
+    assert error_of(f).check == "clock_reset"
+    f = shipped()
+    f["T6"] = np.nan
+    assert error_of(f).check == "no_value"

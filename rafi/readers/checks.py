@@ -112,6 +112,7 @@ def _values(frame: pd.DataFrame, where: Where, open_circuit_values) -> dict[str,
                 f"{where.label(name)} has no value in any of the {n} rows (all "
                 f"empty{extra}): sensor not connected or wrong column mapped",
                 column=name,
+                check="no_value",
             )
     return values
 
@@ -129,6 +130,7 @@ def _check_time(frame, where, t, lines, sample_period_s, backwards_tolerance_sam
             f"{sample_period_s:g} s): a clock reset? split the file there or correct the clock",
             line=lines[k],
             column="time",
+            check="clock_reset",
         )
     duration = float(np.nanmax(t) - np.nanmin(t)) if t.size else 0.0
     if min_run_s and duration < min_run_s:
@@ -137,6 +139,7 @@ def _check_time(frame, where, t, lines, sample_period_s, backwards_tolerance_sam
             f"{min_run_s:g} s (runs.min_run_s)",
             line=lines[-1],
             column="time",
+            check="too_short",
         )
 
 
@@ -150,6 +153,7 @@ def _check_ranges(values, where, lines, max_speed_rpm, temp_range_c, open_circui
             f"expected 0..{max_speed_rpm:g} r/min",
             line=lines[k],
             column="speed_rpm",
+            check="speed_value",
         )
     lo, hi = temp_range_c
     first_bad = None
@@ -167,6 +171,7 @@ def _check_ranges(values, where, lines, max_speed_rpm, temp_range_c, open_circui
             "clean.open_circuit_values)",
             line=lines[k],
             column=name,
+            check="temperature_range",
         )
 
 
@@ -182,6 +187,7 @@ def _check_stuck_probe(values, where, lines, sample_period_s, th: dict) -> None:
             f"{100 * top:.0f} % of the values equal {uniq[counts.argmax()]:g}): stuck or "
             "disconnected probe, or the wrong channel is mapped",
             column="disp_um",
+            check="displacement_constant",
         )
     first, length = _longest_repeat(d)
     if th["stuck_max_s"] > 0 and length * sample_period_s >= th["stuck_max_s"]:
@@ -202,6 +208,7 @@ def _check_stuck_probe(values, where, lines, sample_period_s, th: dict) -> None:
                 "a live probe would move; check the probe and its cable",
                 line=lines[first],
                 column="disp_um",
+                check="displacement_stuck",
             )
 
 
