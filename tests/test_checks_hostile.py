@@ -308,6 +308,32 @@ def test_all_temperatures_constant_is_a_stuck_logger():
     assert "stuck_logger: all 16 temperatures are constant" in str(err) and "disp_um changes by" in str(err)
 
 
+def test_a_logger_that_freezes_half_way_is_a_stuck_logger():
+    f = shipped()
+    frozen = f.index >= f.index[1200]
+    for s in SENSORS:
+        f.loc[frozen, s] = float(f.loc[f.index[1200], s])
+    err = error_of(f)
+    assert err.check == "stuck_logger" and err.line == f.index[1200]
+    assert f"temperatures repeat the same values for {len(f) - 1200} rows" in str(err)
+
+
+def test_a_short_freeze_or_a_freeze_at_rest_passes():
+    f = shipped()
+    short = (f.index >= f.index[1200]) & (f.index < f.index[1400])  # 17 min
+    for s in SENSORS:
+        f.loc[short, s] = float(f.loc[f.index[1200], s])
+    assert "stuck_logger" not in checks_of(run(f))
+    f = shipped()
+    rest = f.index >= f.index[1200]
+    for s in SENSORS:
+        f.loc[rest, s] = float(f.loc[f.index[1200], s])
+    f.loc[rest, "disp_um"] = float(f.loc[f.index[1200], "disp_um"]) + np.random.default_rng(2).normal(
+        0, 0.2, rest.sum()
+    )
+    assert run(f).warnings == []
+
+
 def test_a_machine_at_rest_is_not_a_stuck_logger():
     f = shipped()
     for s in SENSORS:

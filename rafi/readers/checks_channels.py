@@ -36,6 +36,11 @@ OTHERS_CHANGE_K = 1.0
 #: the speed tolerance, while every temperature is constant: stuck_logger.
 ACTIVE_DISP_UM = 1.0
 
+#: Every sensor repeating its value for this long (s) while the displacement changes by
+#: :data:`FROZEN_DISP_UM` (um, 2nd-98th percentile of that stretch) is a frozen logger too.
+FROZEN_MIN_S = 1200.0
+FROZEN_DISP_UM = 2.0
+
 #: A sensor whose start level is this far (K) from the other sensors' median start level is out of
 #: the temperatures' band; with the displacement inside it the two are swapped (error).
 SWAP_OUTLIER_K = 5.0
@@ -87,9 +92,28 @@ def sparse_channel(sig: Signals, where: Where) -> list[CheckWarning]:
     return warnings
 
 
+def _frozen_stretch(sig: Signals, sensors: list[str]) -> tuple[int, int]:
+    """Start and length of the longest stretch of rows in which no sensor's value changes (a
+    missing value counts as unchanged)."""
+    temps = np.column_stack([sig.values[s] for s in sensors])
+    same = np.all((temps[1:] == temps[:-1]) | np.isnan(temps[1:]) | np.isnan(temps[:-1]), axis=1)
+    best, start, run_start, length = 0, 0, 0, 0
+    for k, flag in enumerate(same):
+        if flag:
+            if length == 0:
+                run_start = k
+            length += 1
+            if length > best:
+                best, start = length, run_start
+        else:
+            length = 0
+    return start, best + 1 if best else 0
+
+
 def stuck_logger_and_constant(sig: Signals, where: Where, tolerance_rpm: float) -> list[CheckWarning]:
     """Error if every temperature is constant while the displacement or the speed changes (the
-    logger repeats stale values); a warning for one constant sensor while others change."""
+    logger repeats stale values), over the whole log or for :data:`FROZEN_MIN_S` in a row; a
+    warning for one constant sensor while others change."""
     with_values = [s for s in SENSORS if present(sig.values[s]).size]
     flat = [s for s in with_values if is_flat(sig.values[s], FLAT_K)]
     if with_values and len(flat) == len(with_values):
@@ -109,6 +133,21 @@ def stuck_logger_and_constant(sig: Signals, where: Where, tolerance_rpm: float) 
                 column=flat[0],
             )
         return []
+    if len(with_values) >= 2:
+        first, length = _frozen_stretch(sig, with_values)
+        if length * sig.period_s >= FROZEN_MIN_S:
+            stretch = slice(first, first + length)
+            d_change = robust_range(sig.values["disp_um"][stretch])
+            if d_change >= FROZEN_DISP_UM:
+                raise where.check_error(
+                    "stuck_logger",
+                    f"all {len(with_values)} temperatures repeat the same values for {length} rows "
+                    f"({length * sig.period_s / 60:.0f} min, lines {sig.lines[first]}-"
+                    f"{sig.lines[first + length - 1]}) while disp_um changes by {fmt(d_change)} um: "
+                    "the logger repeats stale temperature values (a stuck logger or a frozen interface)",
+                    line=sig.lines[first],
+                    column=with_values[0],
+                )
     warnings = []
     for name in flat:
         others = max((robust_range(sig.values[s], 1.0, 99.0) for s in with_values if s != name), default=0.0)
