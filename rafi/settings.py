@@ -39,6 +39,10 @@ RUN_DEFAULTS: dict = {
     "on_bad_input": "fail",
     "nightly_machines": None,  # rafi nightly --machine: only these machines
     "nightly_report": True,  # rafi nightly --no-report: false
+    # a raw file modified less than this many seconds ago is still being written: it waits
+    "settle_s": 0,
+    "nightly_settle_s": 600,  # the settle_s of `rafi nightly`
+    "debug": False,  # a user error prints its traceback too (rafi --debug, --config debug=true)
 }
 
 #: Every per-machine default (``docs/settings.md`` explains each key).
@@ -47,6 +51,13 @@ MACHINE_DEFAULTS: dict = {
     "sample_period_s": 5,
     "training_speeds_rpm": [3000, 6000, 9000, 12000, 15000, 18000],
     "speed_tolerance_rpm": 50,
+    "checks": {
+        # expected sign of dz while the machine warms up: positive (the spindle grows towards
+        # the table, docs/raw-format.md), negative, or auto (the machine's other files)
+        "probe_sign": "auto",
+        # warnings a person has looked at: [{file: <name or glob>, check: <check id>}]
+        "confirmed": [],
+    },
     "clean": {
         "max_interpolate_gap_s": 60,
         "spike_threshold": 8,
@@ -98,6 +109,9 @@ MACHINE_DEFAULTS: dict = {
         "candidate": "family",
         "retrain_speed_range_rpm": None,
         "drift_margin_um": 2.0,
+        # a candidate may be worse than the champion on a validation run by at most this (um);
+        # "noise": the run's noise floor (rafi.method.noise)
+        "champion_margin_um": "noise",
     },
     "report": {"figure_format": "png", "coolant_sensors": ["T13"]},
 }

@@ -369,7 +369,7 @@ def test_help_documents_every_option():
     assert top.returncode == 0 and "rafi simulate shipped --out raw" in top.stdout
     sim = next(a for a in parser._subparsers._group_actions[0].choices.items() if a[0] == "simulate")[1]
     modes = sim._subparsers._group_actions[0].choices
-    assert set(modes) == {"shipped", "day", "noise-floor", "plot"}
+    assert set(modes) == {"shipped", "day", "hostile", "noise-floor", "plot"}
     for name, sub in modes.items():
         for action in sub._actions:
             if action.dest == "help":
@@ -452,3 +452,21 @@ def test_schedule_spellings_and_signal_primitives_agree():
     noise = ar1(np.random.default_rng(0).normal(0.0, 1.0, 200_000), a, np.sqrt(1 - a * a))
     assert np.std(noise) == pytest.approx(1.0, abs=0.02)
     assert np.corrcoef(noise[1:], noise[:-1])[0, 1] == pytest.approx(a, abs=0.01)
+
+
+def test_hostile_command_writes_the_corpus_and_its_ground_truth(tmp_path):
+    from rafi.cli import main
+    from rafi.twin.hostile import OUTCOMES
+
+    out = tmp_path / "raw" / "m"
+    assert (
+        main(["simulate", "hostile", "--out", str(out), "--shipped", str(ROOT / "raw" / "tapping-center-a")])
+        == 0
+    )
+    written = sorted(p.name for p in out.iterdir())
+    assert "hostile_degF.csv" in written and "hostile_link_outside.csv" in written
+    assert (out / "hostile_link_outside.csv").is_symlink()
+    assert not (out / "hostile_link_outside.csv").resolve().is_relative_to(out.parent)
+    shipped = ROOT / "raw" / "tapping-center-a"
+    assert main(["simulate", "hostile", "--out", str(shipped), "--shipped", str(shipped)]) == 2
+    assert OUTCOMES[0] == "quarantined"

@@ -147,7 +147,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--out", required=True, help="machine folder to write into, e.g. /tmp/try/raw/m")
     p.add_argument("--shipped", default="raw/tapping-center-a", help="the shipped tapping-center-a logs")
-    p.add_argument("--long-bytes", type=int, default=200_000, help="length of the oversized line and field")
+    p.add_argument("--long-bytes", type=int, default=200_000, help="length of the oversized line")
 
     p = sub.add_parser(
         "plot",

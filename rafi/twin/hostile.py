@@ -36,6 +36,9 @@ OUTCOMES = ("quarantined", "rejected", "warning", "flagged", "not_read")
 #: The logger's open-circuit codes (settings ``clean.open_circuit_values``), kept by unit changes.
 OPEN_CIRCUIT = (-999.0, 999.9, 850.0)
 
+#: Length of the oversized field: over the readers' field limit (4 KiB), under their line limit (64 KiB).
+FIELD_CHARS = 20_000
+
 #: Shipped tapping-center-a logs the cases start from.
 SOURCES = ("train_03000rpm.csv", "train_06000rpm.csv", "train_09000rpm.csv", "valid_13500rpm.csv")
 
@@ -117,7 +120,7 @@ def hostile_corpus(sources: dict[str, str], *, long_bytes: int = 200_000) -> lis
     sources : dict
         File name -> text of the shipped logs named in :data:`SOURCES`.
     long_bytes : int
-        Length of the oversized line and field (the issue's corpus used 50 MB).
+        Length of the oversized line (the issue's corpus used 50 MB).
 
     Returns
     -------
@@ -175,7 +178,7 @@ def hostile_corpus(sources: dict[str, str], *, long_bytes: int = 200_000) -> lis
 
     def long_field(_, f):
         f["remark"] = ""
-        f.loc[len(f) // 3, "remark"] = "y" * long_bytes
+        f.loc[len(f) // 3, "remark"] = "y" * FIELD_CHARS
 
     def other_machine(m, _):
         m["machine"] = "machining-center-b"
@@ -260,7 +263,7 @@ def hostile_corpus(sources: dict[str, str], *, long_bytes: int = 200_000) -> lis
             None,
             "field_too_long",
             "quarantined",
-            f"a field of {long_bytes} characters",
+            f"a field of {FIELD_CHARS} characters",
         ),
         (
             "other_machine",
@@ -327,7 +330,7 @@ def write_hostile_corpus(
     outside_dir : path
         A folder outside ``raw/`` for the target of the link case.
     long_bytes : int
-        Length of the oversized line and field.
+        Length of the oversized line.
     settling : bool
         Also write a file that is still being written (its modification time is now).
 
