@@ -198,6 +198,19 @@ def _status_dir(tmp_path, decision, audit_status="ok"):
     return paths
 
 
+def test_machine_level_rejection_counts_as_rejected_input(tmp_path):
+    """A byte-identical copy rejected in input_status.json (clean read it: audit says ok) is named in
+    the nightly line and gives exit 4, like a quarantined file."""
+    paths = _status_dir(tmp_path, {"decision": "kept", "time": "2026-05-01T00:00:00Z"})
+    status = {
+        "rejected": [{"file": "a.csv", "check": "duplicate_content", "reason": "byte-identical to b.csv"}]
+    }
+    (paths.results_dir / "m1" / "input_status.json").write_text(json.dumps(status))
+    st = S.machine_status(paths, "m1", None)
+    assert st.quarantined == ["a.csv (byte-identical to b.csv)"]
+    assert 4 in st.codes() and "a.csv" in st.line()
+
+
 @pytest.mark.parametrize(
     "decision, audit, tonight, expected",
     [
@@ -483,3 +496,10 @@ def test_two_nights_on_the_pipeline(tmp_path):
     assert S.EXIT_LOCKED in codes and codes.count(S.EXIT_LOCKED) == 1
     assert lock_is_free(proj / "results" / LOCK_NAME)
     assert not no_partial_files(proj / "results")
+
+
+def test_debug_reaches_the_pipeline_only_when_asked():
+    args = argparse.Namespace(machine=None, no_report=True, debug=False)
+    assert "debug" not in N.config_overrides(args, {})
+    args.debug = True
+    assert N.config_overrides(args, {})["debug"] == "true"

@@ -86,6 +86,8 @@ def config_overrides(args, config: dict | None = None) -> dict:
         over["nightly_machines"] = args.machine
     if getattr(args, "no_report", False):
         over["nightly_report"] = "false"
+    if getattr(args, "debug", False):  # rafi --debug nightly: job tracebacks on the terminal too
+        over["debug"] = "true"
     return over
 
 

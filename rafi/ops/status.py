@@ -119,8 +119,9 @@ class MachineStatus:
 
 
 def machine_status(paths: Paths, machine: str, night_start: float | None) -> MachineStatus:
-    """Read ``machine``'s decision.json and audit.csv (a machine whose audit lists files but no
-    usable one is ``skipped``: the workflow built no decision for it tonight).
+    """Read ``machine``'s decision.json, audit.csv and input_status.json (a machine whose audit
+    lists files but no usable one is ``skipped``: the workflow built no decision for it tonight).
+    Files rejected for the machine in input_status.json count as quarantined.
 
     Parameters
     ----------
@@ -148,6 +149,19 @@ def machine_status(paths: Paths, machine: str, night_start: float | None) -> Mac
                     usable += 1
                 elif status == "quarantined":
                     quarantined.append(f"{row.get('file')} ({row.get('reason') or 'no reason'})")
+    # files rejected for the machine as a whole (input_status.json: duplicate content, a probe
+    # sign against the configured one): clean read them, so audit.csv calls them ok
+    rejected = {}
+    with contextlib.suppress(ValueError, OSError):
+        status_doc = json.loads(
+            (paths.results_dir / machine / "input_status.json").read_text(encoding="utf-8")
+        )
+        rejected = {str(r.get("file")): r for r in status_doc.get("rejected") or []}
+    listed = {q.split(" (", 1)[0] for q in quarantined}
+    for name, rec in sorted(rejected.items()):
+        if name not in listed:
+            quarantined.append(f"{name} ({rec.get('reason') or rec.get('check') or 'rejected'})")
+            usable -= 1
     tonight = False
     if decision and night_start is not None:
         t = parse_time(decision.get("time"))

@@ -205,7 +205,8 @@ DECISION_TEXT = {
     "rejected": (
         "fail",
         "REJECTED",
-        "tonight's candidate failed qualification; it does not go on the machine",
+        "tonight's candidate was not promoted (a gate, the comparison with the model in service, "
+        "its speed coverage or an unconfirmed input warning: see the reasons); it does not go on the machine",
     ),
     "rolled_back": ("warn", "ROLLED BACK", "an operator set the model on the machine by hand"),
 }
