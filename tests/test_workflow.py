@@ -354,7 +354,7 @@ def test_any_legal_file_name_works_and_switching_on_bad_input_reruns_nothing(wor
         assert dry.returncode == 0, dry.stderr[-3000:]
         assert "Nothing to be done" in dry.stdout + dry.stderr, (mode, job_counts(dry.stdout + dry.stderr))
 
-    # a raw file Snakemake cannot name as an input is followed by its size and mtime: an edit
+    # a raw file Snakemake cannot name as an input is followed by its content hash: an edit
     # re-runs its clean job (and what depends on it), not the others
     with open(work / "raw" / MACHINE / "log_{date}.csv", "a", encoding="utf-8") as fh:
         fh.write("\n")
