@@ -50,6 +50,12 @@ class CheckWarning:
         return f"{self.check}: {self.message}"
 
 
+def whole_log_warning(check: str, column: str, message: str, sig) -> CheckWarning:
+    """A :class:`CheckWarning` about the whole log: it spans the first to the last line of ``sig``
+    (a :class:`Signals`)."""
+    return CheckWarning(check, column, message, int(sig.lines[0]), int(sig.lines[-1]))
+
+
 class Where:
     """Words a finding for one frame: sheet/row for spreadsheets, file headers for mapped files."""
 

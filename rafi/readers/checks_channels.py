@@ -21,6 +21,7 @@ from rafi.readers.checks_base import (
     present,
     robust_range,
     start_level,
+    whole_log_warning,
 )
 
 #: A channel with values in fewer than this share of the rows is sparse.
@@ -81,12 +82,11 @@ def sparse_channel(sig: Signals, where: Where) -> list[CheckWarning]:
                 column=name,
             )
         warnings.append(
-            CheckWarning(
+            whole_log_warning(
                 "sparse_channel",
                 name,
                 f"{text}: an intermittent sensor; its gaps are interpolated or left empty",
-                int(sig.lines[0]),
-                int(sig.lines[-1]),
+                sig,
             )
         )
     return warnings
@@ -155,14 +155,13 @@ def stuck_logger_and_constant(sig: Signals, where: Where, tolerance_rpm: float) 
             continue
         v = present(sig.values[name])
         warnings.append(
-            CheckWarning(
+            whole_log_warning(
                 "constant_channel",
                 name,
                 f"{where.label(name)} stays at {fmt(float(np.median(v)))} deg C (within {FLAT_K:g} K in "
                 f"98 % of {v.size} values) while other sensors change by up to {others:.1f} K: a stuck "
                 "or disconnected sensor, or a constant written by the logger",
-                int(sig.lines[0]),
-                int(sig.lines[-1]),
+                sig,
             )
         )
     return warnings
@@ -230,26 +229,24 @@ def swapped_channels(sig: Signals, where: Where) -> list[CheckWarning]:
         )
     if d_inside:
         return [
-            CheckWarning(
+            whole_log_warning(
                 "swapped_channels",
                 "disp_um",
                 f"{d_label} behaves like a temperature: it starts at {fmt(d_start)} um, inside the "
                 f"sensors' start levels {band_text}, and stays within their range "
                 f"{fmt(t_lo)}..{fmt(t_hi)}: a temperature channel mapped as the displacement?",
-                int(sig.lines[0]),
-                int(sig.lines[-1]),
+                sig,
             )
         ]
     if deviation[outlier] > LONE_OUTLIER_K:
         return [
-            CheckWarning(
+            whole_log_warning(
                 "swapped_channels",
                 outlier,
                 f"{where.label(outlier)} starts at {fmt(levels[outlier])} deg C while the other sensors "
                 f"start at {band_text} ({deviation[outlier]:.1f} K from their median): a displacement "
                 "or another quantity in a temperature column, or a sensor of another machine part?",
-                int(sig.lines[0]),
-                int(sig.lines[-1]),
+                sig,
             )
         ]
     return []

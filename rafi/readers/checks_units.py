@@ -12,7 +12,16 @@ from __future__ import annotations
 import numpy as np
 
 from rafi import SENSORS
-from rafi.readers.checks_base import CheckWarning, Signals, Where, fmt, present, robust_range, start_level
+from rafi.readers.checks_base import (
+    CheckWarning,
+    Signals,
+    Where,
+    fmt,
+    present,
+    robust_range,
+    start_level,
+    whole_log_warning,
+)
 
 #: Coolest sensor's start level above this (in the file's numbers) -> deg F.
 DEGF_ABOVE = 40.0
@@ -122,14 +131,13 @@ def speed_unit(sig: Signals, where: Where, training_speeds_rpm, tolerance_rpm: f
     lo, hi = min(speeds) - tolerance_rpm, SPEED_RANGE_FACTOR * max(speeds) + tolerance_rpm
     if running >= RUNNING_MIN_SHARE and 0 < top <= REV_PER_S_MAX and lo <= 60 * top <= hi:
         return [
-            CheckWarning(
+            whole_log_warning(
                 "speed_unit",
                 "speed_rpm",
                 f"{label} never exceeds {fmt(top)} r/min (99th percentile) although the spindle turns "
                 f"in {100 * running:.0f} % of the rows; x 60 = {fmt(60 * top)} r/min would lie in the "
                 f"trained range ({fmt(min(speeds))}-{fmt(max(speeds))} r/min): rev/s instead of r/min?",
-                int(sig.lines[0]),
-                int(sig.lines[-1]),
+                sig,
             )
         ]
     return []
@@ -219,14 +227,13 @@ def metadata_period(sig: Signals, where: Where, meta_period, configured_period) 
             )
     if configured_period is not None and float(configured_period) / step > PERIOD_FACTOR:
         return [
-            CheckWarning(
+            whole_log_warning(
                 "metadata_period",
                 "time",
                 f"the rows are {fmt(step)} s apart (median step) but the machine's sample_period_s "
                 f"is {fmt(float(configured_period))} s: cleaning keeps one row per "
                 f"{fmt(float(configured_period))} s; set sample_period_s if the logger's period changed",
-                int(sig.lines[0]),
-                int(sig.lines[-1]),
+                sig,
             )
         ]
     return []
