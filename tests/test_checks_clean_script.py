@@ -186,3 +186,19 @@ def test_a_check_error_names_its_check_id_in_brackets(tmp_path, raw):
     assert summary["status"] == "quarantined"
     assert "speed_unit: speed_rpm holds 1 plateau(s)" in summary["reason"]
     assert summary["reason"].endswith(" [speed_unit]")
+
+
+def test_quarantine_reason_is_one_line_with_its_check_id():
+    from rafi.errors import RawFormatError
+    from rafi.method.audit import REASON_CHARS, quarantine_reason
+
+    err = RawFormatError("raw/m/a.csv", "temperatures look like deg F", column="T1", check="temperature_unit")
+    assert quarantine_reason(err, "a.csv").endswith("deg F [temperature_unit]")
+    untagged = RawFormatError("raw/m/a.csv", "no data rows")
+    assert quarantine_reason(untagged, "a.csv") == str(untagged)
+    io = quarantine_reason(PermissionError(13, "Permission denied"), "a.csv")
+    assert io.startswith("a.csv: could not be read or cleaned: PermissionError") and io.endswith(
+        "[unreadable]"
+    )
+    huge = quarantine_reason(ValueError("x\n" * 10_000), "a.csv")
+    assert "\n" not in huge and len(huge) < REASON_CHARS + 100 and "[" not in huge

@@ -16,6 +16,7 @@ from collections.abc import Iterable
 
 import pandas as pd
 
+from rafi.errors import RawFormatError
 from rafi.method.clean import AUDIT_COLUMNS, SENSOR_COLUMNS
 
 #: Columns of the per-file summary (``audit.csv``), in order.
@@ -150,6 +151,31 @@ def with_warnings(audit_actions: pd.DataFrame, warnings: pd.DataFrame) -> pd.Dat
     for col in ("first_line", "last_line", "n_rows"):
         actions[col] = actions[col].astype("Int64")
     return pd.concat([actions, warnings], ignore_index=True)
+
+
+#: Longest text of an unexpected exception quoted in a quarantine reason.
+REASON_CHARS = 300
+
+
+def one_line(exc: BaseException, limit: int | None = REASON_CHARS) -> str:
+    """An exception's text on one line, at most ``limit`` characters (``None``: all of it)."""
+    text = " ".join(str(exc).split())
+    if limit is not None and len(text) > limit:
+        text = text[:limit] + " ..."
+    return text
+
+
+def quarantine_reason(exc: BaseException, file: str) -> str:
+    """The one-line reason a file is quarantined for ``exc``, ending with ``[<check id>]``.
+
+    A :class:`rafi.errors.RawFormatError` is its own (already bounded) message plus its check id;
+    any other exception names the file and the exception type, quoted to :data:`REASON_CHARS`
+    characters, with ``[unreadable]`` for an ``OSError``.
+    """
+    if isinstance(exc, RawFormatError):
+        return one_line(exc, None) + (f" [{exc.check}]" if exc.check else "")
+    tag = " [unreadable]" if isinstance(exc, OSError) else ""
+    return f"{file}: could not be read or cleaned: {type(exc).__name__}: {one_line(exc)}{tag}"
 
 
 def quarantined(file: str, sha256: str, reason: str) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:

@@ -11,18 +11,6 @@ from pathlib import Path
 
 from _glue import step
 
-#: Longest text of an unexpected exception quoted in a quarantine reason.
-REASON_CHARS = 300
-
-
-def one_line(exc: BaseException, limit: int | None = REASON_CHARS) -> str:
-    """An exception as one line, at most ``limit`` characters (``None``: as long as it is)."""
-    text = " ".join(str(exc).split())
-    if limit is not None and len(text) > limit:
-        text = text[:limit] + " ..."
-    return text
-
-
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import pandas as pd
 
@@ -77,14 +65,9 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     except Exception as exc:  # noqa: BLE001 - any failure on one file quarantines that file
         if fail_mode:
             raise
-        if isinstance(exc, RawFormatError):
-            # rafi.errors bounds its messages already
-            reason = one_line(exc, None) + (f" [{exc.check}]" if getattr(exc, "check", None) else "")
-            log.warning("quarantined %s: %s", src.name, reason)
-        else:
-            tag = " [unreadable]" if isinstance(exc, OSError) else ""
-            reason = f"{src.name}: could not be read or cleaned: {type(exc).__name__}: {one_line(exc)}{tag}"
-            log.warning("quarantined %s: %s", src.name, reason, exc_info=True)
+        reason = rafi.method.audit.quarantine_reason(exc, src.name)
+        # a documented check needs no traceback; anything else keeps it in the log
+        log.warning("quarantined %s: %s", src.name, reason, exc_info=not isinstance(exc, RawFormatError))
         quarantine(reason)
     else:
         counts = actions["action"].value_counts().to_dict() if len(actions) else {}
@@ -100,7 +83,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         except Exception as exc:  # noqa: BLE001
             why = (
                 f"its clean table {smk.output.parquet} cannot be read back "
-                f"({type(exc).__name__}: {one_line(exc)})"
+                f"({type(exc).__name__}: {rafi.method.audit.one_line(exc)})"
             )
             if fail_mode:
                 raise RawFormatError(src, why, check="clean_table_unreadable") from exc
