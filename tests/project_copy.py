@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 import shutil
+import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -18,3 +20,21 @@ def copy_project(proj: Path, *, config: bool = True) -> Path:
     for name in ("workflow", "rafi"):
         shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
     return proj
+
+
+#: Age given to raw files copied into a test project: older than `rafi nightly`'s settle time
+#: (run setting nightly_settle_s), so a night reads them. A fresh git clone has new mtimes.
+SETTLED_AGE_S = 86_400
+
+
+def settle(path: Path) -> Path:
+    """Give ``path`` a modification time a day ago (a raw file nobody is writing any more)."""
+    old = time.time() - SETTLED_AGE_S
+    os.utime(path, (old, old))
+    return path
+
+
+def copy_settled(src: Path, dst: Path) -> Path:
+    """Copy a raw file into a test project and :func:`settle` it; returns ``dst``."""
+    shutil.copy2(src, dst)
+    return settle(dst)

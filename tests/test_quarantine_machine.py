@@ -12,14 +12,13 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from project_copy import copy_project
+from project_copy import copy_project, copy_settled, settle
 
 from rafi.artefact import write_csv_atomic
 from rafi.method.audit import quarantined, summarise_audit
@@ -216,10 +215,10 @@ def project(tmp_path: Path) -> Path:
     proj = copy_project(tmp_path / "proj")
     (proj / "raw" / GOOD).mkdir(parents=True)
     for stem in KEEP:
-        shutil.copy2(ROOT / "raw" / GOOD / f"{stem}.csv", proj / "raw" / GOOD / f"{stem}.csv")
+        copy_settled(ROOT / "raw" / GOOD / f"{stem}.csv", proj / "raw" / GOOD / f"{stem}.csv")
     (proj / "raw" / BROKEN).mkdir()
     for name, source in BAD_FILES.items():
-        shutil.copy2(BAD / source, proj / "raw" / BROKEN / name)
+        copy_settled(BAD / source, proj / "raw" / BROKEN / name)
     return proj
 
 
@@ -273,7 +272,7 @@ def test_a_machine_without_a_usable_file_is_skipped_and_the_others_finish(projec
         text = (project / "raw" / GOOD / f"{stem}.csv").read_text(encoding="utf-8")
         text = text.replace(f"# machine: {GOOD}", f"# machine: {BROKEN}")
         (project / "raw" / BROKEN / f"{stem}.csv").write_text(text, encoding="utf-8")
-        shutil.copystat(project / "raw" / GOOD / f"{stem}.csv", project / "raw" / BROKEN / f"{stem}.csv")
+        settle(project / "raw" / BROKEN / f"{stem}.csv")
     night = _nightly(project)
     assert night.returncode == S.EXIT_QUARANTINED, night.stdout + night.stderr  # day1/day2 still bad
     reg = res / BROKEN / "registry"

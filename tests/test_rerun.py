@@ -12,13 +12,12 @@ Here, on a trimmed copy of the shipped data with the real Snakefile:
 from __future__ import annotations
 
 import os
-import shutil
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
-from project_copy import copy_project
+from project_copy import copy_project, copy_settled
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = "tapping-center-a"
@@ -58,7 +57,7 @@ def project(tmp_path: Path) -> Path:
     proj = copy_project(tmp_path / "proj")
     (proj / "raw" / MACHINE).mkdir(parents=True)
     for stem in KEEP:
-        shutil.copy2(ROOT / "raw" / MACHINE / f"{stem}.csv", proj / "raw" / MACHINE / f"{stem}.csv")
+        copy_settled(ROOT / "raw" / MACHINE / f"{stem}.csv", proj / "raw" / MACHINE / f"{stem}.csv")
     return proj
 
 
@@ -77,7 +76,7 @@ def test_snakemake_then_nightly_then_snakemake_rerun_nothing(project: Path):
     assert "Nothing to be done" in again.stdout + again.stderr, again.stdout[-3000:]
 
     # the other way round: a night processes a new log, then an interactive run has nothing to do
-    shutil.copy2(
+    copy_settled(
         ROOT / "raw" / MACHINE / "valid_13500rpm.csv", project / "raw" / MACHINE / "valid_13500rpm.csv"
     )
     night = _run(project, "rafi.cli", "nightly", "--directory", str(project), "--cores", "2")
