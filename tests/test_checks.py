@@ -190,7 +190,7 @@ def test_probe_stuck_mid_run_is_rejected_with_its_lines(tmp_path):
         {
             "time": t,
             "speed_rpm": 3000.0,
-            **{f"T{i}": 21 + np.linspace(0, 4, n) for i in range(1, 17)},
+            **{f"T{i}": 21 + np.linspace(0, 4 + 0.1 * i, n) for i in range(1, 17)},  # distinct sensors
             "disp_um": np.round(np.linspace(0, 12, n) + rng.normal(0, 0.2, n), 3),
         },
         index=pd.Index(np.arange(n) + 3, name="line"),

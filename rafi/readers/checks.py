@@ -57,6 +57,7 @@ FILE_CHECKS = (
     "swapped_channels",
     "constant_channel",
     "stuck_logger",
+    "copied_channel",
     "sparse_channel",
     "metadata_machine",
     "metadata_period",
@@ -303,13 +304,18 @@ def check_file(
             "stuck_min_temp_change_k": stuck_min_temp_change_k,
         }
         _check_stuck_probe(values, where, lines, period, thresholds)
-        units.displacement_unit(
+        report.warnings += units.displacement_unit(
             sig, where, mm_max_range_um=mm_max_range_um, mm_min_temp_rise_k=mm_min_temp_rise_k
         )
     report.warnings += channels.stuck_logger_and_constant(sig, where, speed_tolerance_rpm)
+    report.warnings += channels.copied_channel(sig, where)
     report.warnings += channels.swapped_channels(sig, where)
-    report.warnings += units.speed_unit(sig, where, training_speeds_rpm, speed_tolerance_rpm)
-    report.warnings += units.speed_range(sig, where, training_speeds_rpm, speed_tolerance_rpm)
+    report.warnings += channels.idle_speed(sig, where, speed_tolerance_rpm)
+    speed_unit = units.speed_unit(sig, where, training_speeds_rpm, speed_tolerance_rpm)
+    report.warnings += speed_unit
+    report.warnings += units.speed_range(
+        sig, where, training_speeds_rpm, speed_tolerance_rpm, check_low=not speed_unit
+    )
     report.warnings += units.metadata_machine(meta, machine)
     report.probe_sign = channels.probe_sign(sig)
     return report

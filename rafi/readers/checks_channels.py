@@ -53,6 +53,16 @@ BAND_MARGIN_K = 2.0
 SAME_WITHIN = 0.01
 SAME_SHARE = 0.95
 
+#: disp_um a straight-line function of one sensor (r^2 at least this, the sensor changing by
+#: :data:`OTHERS_CHANGE_K` or more): a temperature scaled or shifted into the displacement column.
+AFFINE_MIN_R2 = 0.9995
+#: A sensor must change by this much (K, 1st-99th percentile) for a copy of it to count.
+COPY_MIN_CHANGE_K = 0.5
+#: The spindle at rest (within the speed tolerance of 0) in this share of the rows while a sensor
+#: rises this far (K) above its start level: a spindle at rest does not heat the machine.
+IDLE_SHARE = 0.98
+IDLE_HEATING_K = 5.0
+
 #: Probe sign: evidence needs the temperatures' median to change by this much (K) ...
 SIGN_MIN_TEMP_K = 1.0
 #: ... the displacement by this much (um, 2nd-98th percentile) ...
@@ -174,6 +184,104 @@ def _same(a: np.ndarray, b: np.ndarray) -> bool:
     return float((np.abs(a[both] - b[both]) <= SAME_WITHIN).mean()) >= SAME_SHARE
 
 
+def _affine_copy(sig: Signals, where: Where) -> list[CheckWarning]:
+    """Warning if ``disp_um`` is a straight-line function of one sensor (r^2 at least
+    :data:`AFFINE_MIN_R2`): a real probe lags the temperatures and has its own noise."""
+    d = sig.values["disp_um"]
+    for s in SENSORS:
+        v = sig.values[s]
+        both = ~np.isnan(d) & ~np.isnan(v)
+        if both.sum() < 10 or robust_range(v[both], 1.0, 99.0) < OTHERS_CHANGE_K or np.std(d[both]) == 0:
+            continue
+        r = float(np.corrcoef(v[both], d[both])[0, 1])
+        if not np.isfinite(r) or r * r < AFFINE_MIN_R2:
+            continue
+        slope, offset = np.polyfit(v[both], d[both], 1)
+        return [
+            whole_log_warning(
+                "swapped_channels",
+                "disp_um",
+                f"{where.label('disp_um')} is a straight-line function of {where.label(s)} "
+                f"(disp_um = {slope:.4g} x {s} {'+' if offset >= 0 else '-'} {abs(offset):.4g}, r^2 = "
+                f"{r * r:.5f} over {int(both.sum())} rows): a real probe lags the temperatures; a "
+                "temperature channel scaled or shifted into the displacement column?",
+                sig,
+            )
+        ]
+    return []
+
+
+def copied_channel(sig: Signals, where: Where) -> list[CheckWarning]:
+    """Sensors holding the same values as another sensor (within :data:`SAME_WITHIN` in
+    :data:`SAME_SHARE` of the rows) while they change by :data:`COPY_MIN_CHANGE_K`: error if every
+    sensor is a copy of one, else a warning per copied sensor."""
+    names = [s for s in SENSORS if robust_range(sig.values[s], 1.0, 99.0) >= COPY_MIN_CHANGE_K]
+    copies: dict[str, str] = {}
+    for i, a in enumerate(names):
+        if a in copies:
+            continue
+        for b in names[i + 1 :]:
+            if b not in copies and _same(sig.values[a], sig.values[b]):
+                copies[b] = a
+    if not copies:
+        return []
+    with_values = [s for s in SENSORS if present(sig.values[s]).size]
+    originals = set(copies.values())
+    if len(originals) == 1 and len(copies) + 1 == len(with_values):
+        first = next(iter(originals))
+        raise where.check_error(
+            "copied_channel",
+            f"all {len(with_values)} temperatures hold the same values as {where.label(first)} (within "
+            f"{SAME_WITHIN:g} in {100 * SAME_SHARE:.0f} % of the rows): one channel written into every "
+            "sensor column; check the logger's channel list or the input mapping",
+            column=first,
+        )
+    return [
+        whole_log_warning(
+            "copied_channel",
+            copy,
+            f"{where.label(copy)} holds the same values as {where.label(original)} (within {SAME_WITHIN:g} "
+            f"in {100 * SAME_SHARE:.0f} % of the rows) while both change by "
+            f"{robust_range(sig.values[original], 1.0, 99.0):.1f} K: two sensors never agree that "
+            "closely; one channel written twice (logger channel list or mapping)",
+            sig,
+        )
+        for copy, original in copies.items()
+    ]
+
+
+def idle_speed(sig: Signals, where: Where, tolerance_rpm: float) -> list[CheckWarning]:
+    """Warning if ``speed_rpm`` says the spindle is at rest in :data:`IDLE_SHARE` of the rows while
+    a sensor rises :data:`IDLE_HEATING_K` above its start level: a stuck or wrong speed channel."""
+    v = present(sig.values["speed_rpm"])
+    if v.size == 0 or float((np.abs(v) <= tolerance_rpm).mean()) < IDLE_SHARE:
+        return []
+    mask = sig.start_mask()
+    rises = {}
+    for s in SENSORS:
+        x = present(sig.values[s])
+        if x.size:
+            rises[s] = float(np.percentile(x, 99)) - start_level(sig.values[s], mask)
+    rises = {s: r for s, r in rises.items() if np.isfinite(r)}
+    if not rises:
+        return []
+    hottest = max(rises, key=rises.get)
+    if rises[hottest] < IDLE_HEATING_K:
+        return []
+    return [
+        whole_log_warning(
+            "constant_channel",
+            "speed_rpm",
+            f"{where.label('speed_rpm')} says the spindle is at rest in "
+            f"{100 * float((np.abs(v) <= tolerance_rpm).mean()):.0f} % of the rows (within "
+            f"{tolerance_rpm:g} r/min of 0) while {where.label(hottest)} rises {rises[hottest]:.1f} K "
+            f"above its start level: a spindle at rest does not heat the machine; a stuck, "
+            "disconnected or wrong speed channel?",
+            sig,
+        )
+    ]
+
+
 def swapped_channels(sig: Signals, where: Where) -> list[CheckWarning]:
     """A displacement that behaves like a temperature and a temperature that behaves like a
     displacement.
@@ -196,6 +304,9 @@ def swapped_channels(sig: Signals, where: Where) -> list[CheckWarning]:
                 "channel",
                 column="disp_um",
             )
+    affine = _affine_copy(sig, where)
+    if affine:
+        return affine
     levels = {s: start_level(sig.values[s], mask) for s in SENSORS}
     levels = {s: v for s, v in levels.items() if np.isfinite(v)}
     if len(levels) < 3:
@@ -211,7 +322,7 @@ def swapped_channels(sig: Signals, where: Where) -> list[CheckWarning]:
     outlier = max(deviation, key=deviation.get)
     rest = others(outlier) if deviation[outlier] > SWAP_OUTLIER_K else list(levels.values())
     band = (min(rest) - BAND_MARGIN_K, max(rest) + BAND_MARGIN_K)
-    envelope_sensors = [s for s in levels if deviation[s] <= SWAP_OUTLIER_K]
+    envelope_sensors = [s for s in levels if deviation[s] <= SWAP_OUTLIER_K] or list(levels)
     t_lo = min(np.nanpercentile(sig.values[s], 1) for s in envelope_sensors)
     t_hi = max(np.nanpercentile(sig.values[s], 99) for s in envelope_sensors)
     d_ok = present(d)
