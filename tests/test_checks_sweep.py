@@ -229,3 +229,41 @@ def test_twin_days_trigger_no_check(tmp_path):
         report = check_file(frame, path, **kwargs(machine))
         assert report.warnings == [], (path.name, [w.detail for w in report.warnings])
         assert report.probe_sign >= 0, path.name  # never reversed (0: no clear evidence)
+
+
+# --------------------------------------------------------------------------- part way: sign, steps, speed
+
+
+def test_a_probe_sign_flipping_half_way_is_an_error_at_that_line():
+    f = shipped("valid_10500rpm.csv")
+    half = np.arange(len(f)) >= len(f) // 2
+    f["disp_um"] = np.where(half, -f["disp_um"], f["disp_um"])
+    err = error_of(f)
+    assert err.check == "probe_sign" and err.line == int(f.index[len(f) // 2])
+    assert "the probe's sign flips there" in str(err)
+
+
+def test_a_re_zeroed_probe_is_a_warning_at_that_line():
+    f = shipped("thermal_log_2026-10-14.xlsx", B)
+    k = len(f) // 2
+    f["disp_um"] = np.where(np.arange(len(f)) >= k, f["disp_um"] - f["disp_um"].iloc[k], f["disp_um"])
+    report = run(f, B)
+    assert checks_of(report) == ["displacement_step"]
+    w = report.warnings[0]
+    assert w.first_line == int(f.index[k]) and "a bumped or re-zeroed probe" in w.message
+
+
+def test_a_small_offset_change_passes():
+    f = shipped("train_06000rpm.csv")
+    half = np.arange(len(f)) >= len(f) // 2
+    f["disp_um"] = np.where(half, f["disp_um"] + 1.5, f["disp_um"])  # below 5 um
+    assert run(f).warnings == []
+
+
+@pytest.mark.parametrize("name", ["train_09000rpm.csv", "valid_04500rpm.csv", "multi_condition.csv"])
+def test_speed_in_rev_per_s_from_half_way_is_an_error(name):
+    f = shipped(name)
+    half = np.arange(len(f)) >= len(f) // 2
+    f["speed_rpm"] = np.where(half, f["speed_rpm"] / 60, f["speed_rpm"])
+    err = error_of(f)
+    assert err.check == "speed_unit" and "part of the log is written in rev/s" in str(err)

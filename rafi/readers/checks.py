@@ -54,6 +54,7 @@ FILE_CHECKS = (
     "speed_unit",
     "speed_range",
     "displacement_unit",
+    "displacement_step",
     "swapped_channels",
     "constant_channel",
     "stuck_logger",

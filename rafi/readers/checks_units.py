@@ -66,6 +66,11 @@ GLITCH_MEDIAN_ROWS = 7
 #: The displacement's level stepping by this much (um) to 1/1000 of its level before (or back):
 #: the logger switched between um and mm part way.
 MM_STEP_UM = 2.0
+#: The displacement's level stepping by this much (um) and this share of its 2nd-98th percentile
+#: range from one row to the next (thermal growth is slow): a bumped or re-zeroed probe (warning);
+#: to minus its level before (within 10 %, or 1 um): a probe whose sign flips (error).
+JUMP_UM = 5.0
+JUMP_SHARE = 0.25
 #: Plausible thermal growth per kelvin of the hottest sensor's change (um/K): outside -> warning
 #: (inches, mils, a wrong scale factor).
 GROWTH_PER_K_UM = (0.2, 15.0)
@@ -199,6 +204,33 @@ def _near(value: float, speeds, tol: float) -> float | None:
     return None
 
 
+def _part_way_speed(plateaus, where: Where, speeds: list[float], tolerance_rpm: float) -> None:
+    """Error if the log holds plateaus in the trained range and one far below it (under
+    :data:`SPEED_LOW_FACTOR` x the lowest training speed) that is, x 60, a training speed or
+    another plateau of the log, or, x 9.549, a training speed: part of the log is in rev/s or
+    rad/s."""
+    slow_below = SPEED_LOW_FACTOR * min(speeds)
+    fast = [v for v, _ in plateaus if v >= slow_below]
+    if not fast:
+        return  # no part in r/min: the whole-log rule below speaks
+    for v, rows in plateaus:
+        if v >= slow_below:
+            continue
+        for factor, unit in SPEED_UNITS:
+            targets = [*speeds, *fast] if unit == "rev/s" else speeds
+            match = _near(factor * v, targets, tolerance_rpm)
+            if match is None:
+                continue
+            what = "a training speed" if match in speeds else "another speed of this log"
+            raise where.check_error(
+                "speed_unit",
+                f"{where.label('speed_rpm')} holds {fmt(v)} r/min for {rows} rows, and {fmt(v)} x "
+                f"{factor:.4g} = {fmt(factor * v)} r/min is {what} "
+                f"({fmt(match)} r/min): part of the log is written in {unit}; convert it to r/min",
+                column="speed_rpm",
+            )
+
+
 def speed_unit(sig: Signals, where: Where, training_speeds_rpm, tolerance_rpm: float) -> list[CheckWarning]:
     """rev/s instead of r/min: error if plateaus x 60 match training speeds while the raw values do
     not; a warning if the spindle turns but never exceeds :data:`REV_PER_S_MAX` and x 60 would
@@ -208,9 +240,10 @@ def speed_unit(sig: Signals, where: Where, training_speeds_rpm, tolerance_rpm: f
         return []
     s = sig.values["speed_rpm"]
     plateaus = _plateaus(s)
+    label = where.label("speed_rpm")
+    _part_way_speed(plateaus, where, speeds, tolerance_rpm)
     if any(_near(v, speeds, tolerance_rpm) is not None for v, _ in plateaus):
         return []
-    label = where.label("speed_rpm")
     for factor, unit in SPEED_UNITS:
         matched = [(v, _near(factor * v, speeds, tolerance_rpm)) for v, _ in plateaus]
         matched = [(v, m) for v, m in matched if m is not None]
@@ -344,12 +377,13 @@ def displacement_unit(
             column="disp_um",
         )
     _mm_step(sig, where)
+    jumps = _jumps(sig, where, spread)
     if rise < mm_min_temp_rise_k or spread <= 0:
-        return []
+        return jumps
     per_k = spread / rise
     lo, hi = GROWTH_PER_K_UM
     if lo <= per_k <= hi:
-        return []
+        return jumps
     cause = (
         "a scale factor too large (inches x 25.4, or um written as nm / 10?)"
         if per_k > hi
@@ -363,8 +397,39 @@ def displacement_unit(
             f"changes by {rise:.1f} K: {per_k:.3g} um/K, outside the {lo:g}..{hi:g} um/K thermal growth "
             f"can give; {cause} Check displacement.unit and the logger's scaling",
             sig,
-        )
+        ),
+        *jumps,
     ]
+
+
+def _jumps(sig: Signals, where: Where, spread: float) -> list[CheckWarning]:
+    """The displacement's level jumping from one row to the next (by :data:`JUMP_UM` and
+    :data:`JUMP_SHARE` of ``spread``): error if it jumps to minus its level (the probe's sign
+    flips part way), else a warning (a bumped or re-zeroed probe)."""
+    label = where.label("disp_um")
+    for k, b, a in level_steps(sig.values["disp_um"], max(JUMP_UM, JUMP_SHARE * spread)):
+        line = int(sig.lines[k])
+        if abs(a + b) <= max(1.0, 0.1 * abs(b)):
+            raise where.check_error(
+                "probe_sign",
+                f"{label} jumps from {fmt(b)} to {fmt(a)} um at line {line}: the probe's sign flips "
+                "there (thermal growth does not jump); write one sign for the whole log",
+                line=line,
+                column="disp_um",
+            )
+        return [
+            CheckWarning(
+                "displacement_step",
+                "disp_um",
+                f"{label} jumps from {fmt(b)} to {fmt(a)} um at line {line} ({fmt(abs(a - b))} um from "
+                f"one row to the next, {100 * abs(a - b) / spread:.0f} % of its range; thermal growth "
+                "does not jump): a bumped or re-zeroed probe, or a changed offset; the rows after it "
+                "are not comparable with the rows before",
+                line,
+                line,
+            )
+        ]
+    return []
 
 
 def _mm_step(sig: Signals, where: Where) -> None:

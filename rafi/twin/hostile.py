@@ -8,10 +8,12 @@ of the last three) or ``not_read`` (never opened: a link leaving ``raw/``, a fil
 written). :func:`hostile_corpus` derives every case from the shipped tapping-center-a logs;
 :func:`write_hostile_corpus` writes them beside a machine's files (``rafi simulate hostile``).
 
-The cases are the kinds of issue 13: wrong units (degF, K, mm, nm, rev/s), a reversed probe,
-swapped channels, a stuck logger, a constant sensor, a channel missing in most rows, absurd
-speeds, oversized lines and fields, duplicate content, metadata contradicting the data or the
-folder, links out of ``raw/`` and a file still being written.
+The cases are the kinds of issue 13: wrong units (degF, K, mm, nm, rev/s, rad/s; on some
+sensors, from half way, with many glitches, an inch factor), a reversed probe (training and
+validation, or flipping half way), a re-zeroed probe, swapped channels, a displacement made from
+a temperature, copied sensors, a stuck logger, a constant sensor, a speed stuck at rest, a channel
+missing in most rows, absurd speeds, oversized lines and fields, duplicate content, metadata
+contradicting the data or the folder, links out of ``raw/`` and a file still being written.
 """
 
 from __future__ import annotations
@@ -189,6 +191,195 @@ def hostile_corpus(sources: dict[str, str], *, long_bytes: int = 200_000) -> lis
     def constant_sensor(_, f):
         f["T5"] = f["T5"].iloc[0]
 
+    half6 = np.arange(len(f6)) >= len(f6) // 2
+    halfv = np.arange(len(fv)) >= len(fv) // 2
+
+    def degf_some(_, f):  # T1..T8 only: the coolest sensor is still in deg C
+        values = f[SENSORS[:8]]
+        f[SENSORS[:8]] = values.where(values.isin(OPEN_CIRCUIT), values * 9 / 5 + 32)
+
+    def degf_part_way(_, f):
+        values = f[SENSORS]
+        converted = values.where(values.isin(OPEN_CIRCUIT), values * 9 / 5 + 32)
+        f[SENSORS] = values.where(np.repeat(~halfv[:, None], len(SENSORS), axis=1), converted)
+
+    def mm_part_way(_, f):
+        f["disp_um"] = np.where(half6, f["disp_um"] / 1000.0, f["disp_um"])
+
+    def mm_many_glitches(_, f):
+        f["disp_um"] = f["disp_um"] / 1000.0
+        rows = np.random.default_rng(31).choice(len(f), int(0.03 * len(f)), replace=False)
+        f.loc[f.index[rows], "disp_um"] = 35.0  # 3 % glitch samples: more than p2-p98 ignores
+
+    def inch(_, f):
+        f["disp_um"] = f["disp_um"] * 25.4
+
+    def rad_s(_, f):
+        f["speed_rpm"] = f["speed_rpm"] * 2 * np.pi / 60.0
+
+    def at_rest(_, f):
+        f["speed_rpm"] = 0.0
+
+    def copied(_, f):
+        for s in SENSORS[1:]:
+            f[s] = f["T1"].to_numpy()
+
+    def affine(_, f):
+        t3 = f["T3"].where(~f["T3"].isin(OPEN_CIRCUIT))
+        f["disp_um"] = (2.0 * (t3 - t3.iloc[:20].median())).interpolate().bfill().ffill()
+
+    def flip_part_way(_, f):
+        f["disp_um"] = np.where(halfv, -f["disp_um"], f["disp_um"])
+
+    def re_zeroed(_, f):
+        k = len(f) // 2
+        f["disp_um"] = np.where(half6, f["disp_um"] - f["disp_um"].iloc[k], f["disp_um"])
+
+    def rev_s_part_way(_, f):
+        f["speed_rpm"] = np.where(half6, f["speed_rpm"] / 60.0, f["speed_rpm"])
+
+    more_cases = [
+        (
+            "probe_flips_part_way",
+            mv,
+            fv,
+            flip_part_way,
+            None,
+            "probe_sign",
+            "quarantined",
+            "the probe's sign flips half way through a validation run",
+        ),
+        (
+            "probe_re_zeroed",
+            m6,
+            f6,
+            re_zeroed,
+            None,
+            "displacement_step",
+            "warning",
+            "the probe re-zeroed half way (the displacement jumps to 0)",
+        ),
+        (
+            "rev_s_part_way",
+            m6,
+            f6,
+            rev_s_part_way,
+            {"speed_rpm": 2},
+            "speed_unit",
+            "quarantined",
+            "speed in r/min, then in rev/s from half way",
+        ),
+        (
+            "degF_some_sensors",
+            m6,
+            f6,
+            degf_some,
+            None,
+            "temperature_unit",
+            "quarantined",
+            "T1..T8 in degF, T9..T16 in degC",
+        ),
+        (
+            "degF_part_way",
+            mv,
+            fv,
+            degf_part_way,
+            None,
+            "temperature_unit",
+            "quarantined",
+            "a validation run whose temperatures switch to degF half way",
+        ),
+        (
+            "mm_part_way",
+            m6,
+            f6,
+            mm_part_way,
+            {"disp_um": 6},
+            "displacement_unit",
+            "quarantined",
+            "displacement in um, then in mm from half way",
+        ),
+        (
+            "mm_many_glitches",
+            m6,
+            f6,
+            mm_many_glitches,
+            {"disp_um": 6},
+            "displacement_unit",
+            "quarantined",
+            "displacement in mm with 3 % glitch samples",
+        ),
+        (
+            "inch_scale",
+            mv,
+            fv,
+            inch,
+            None,
+            "displacement_unit",
+            "warning",
+            "displacement x 25.4 (an inch conversion applied to um) on a validation run",
+        ),
+        (
+            "rad_s",
+            m3,
+            f3,
+            rad_s,
+            {"speed_rpm": 2},
+            "speed_unit",
+            "quarantined",
+            "speed in rad/s on a training run",
+        ),
+        (
+            "rad_s_validation",
+            mv,
+            fv,
+            rad_s,
+            {"speed_rpm": 2},
+            "speed_range",
+            "warning",
+            "speed in rad/s on a validation run (far below the training speeds)",
+        ),
+        (
+            "speed_at_rest",
+            m9,
+            f9,
+            at_rest,
+            None,
+            "constant_channel",
+            "warning",
+            "speed 0 throughout while the machine heats (a stuck speed channel)",
+        ),
+        (
+            "copied_sensors",
+            m6,
+            f6,
+            copied,
+            None,
+            "copied_channel",
+            "quarantined",
+            "all 16 temperature columns hold T1",
+        ),
+        (
+            "disp_from_temperature",
+            m9,
+            f9,
+            affine,
+            None,
+            "swapped_channels",
+            "flagged",
+            "the displacement column is 2 x the rise of T3",
+        ),
+        (
+            "reversed_probe_validation",
+            mv,
+            fv,
+            reversed_probe,
+            None,
+            "probe_sign",
+            "warning",
+            "the displacement probe's sign reversed on a validation run",
+        ),
+    ]
     text_cases = [
         ("degF", m6, f6, degf, None, "temperature_unit", "quarantined", "temperatures in degF"),
         ("kelvin", m6, f6, kelvin, None, "temperature_unit", "quarantined", "temperatures in K"),
@@ -297,7 +488,7 @@ def hostile_corpus(sources: dict[str, str], *, long_bytes: int = 200_000) -> lis
         ),
     ]
     out = []
-    for name, meta, frame, change, decimals, check, outcome, what in text_cases:
+    for name, meta, frame, change, decimals, check, outcome, what in [*text_cases, *more_cases]:
         case = HostileCase(name, f"hostile_{name}.csv", check, outcome, what)
         out.append((case, _variant(meta, frame, change, decimals)))
     dup = HostileCase(
