@@ -310,14 +310,20 @@ def test_a_directory_named_like_a_log_is_unreadable(tmp_path):
 def test_io_errors_and_permissions_give_one_clear_message(tmp_path, monkeypatch, code, words, fmt):
     path = tmp_path / ("x.xlsx" if fmt == "xlsx" else "x.csv")
     path.write_bytes(SHIPPED.read_bytes())
-    real_open = open
+    real_open, real_os_open = open, os.open
 
     def failing_open(file, *args, **kwargs):
         if str(file) == str(path):
             raise OSError(code, "simulated")
         return real_open(file, *args, **kwargs)
 
+    def failing_os_open(file, *args, **kwargs):  # the readers open raw files with os.open
+        if str(file) == str(path):
+            raise OSError(code, "simulated")
+        return real_os_open(file, *args, **kwargs)
+
     monkeypatch.setattr("builtins.open", failing_open)
+    monkeypatch.setattr("os.open", failing_os_open)
     spec = {"format": fmt} if fmt != "native" else None
     for call in (lambda: read_log(path, spec), lambda: sha256_file(path)):
         with pytest.raises(RawFormatError) as info:

@@ -73,7 +73,9 @@ def test_a_link_loop_is_not_followed(tmp_path):
     raw = _raw(tmp_path)
     (raw / "m1" / "loop.csv").symlink_to(raw / "m1" / "loop.csv")
     found, warnings = discover_machines(raw, lambda m: NATIVE)
-    assert "loop" not in found["m1"] and warnings == []
+    assert "loop" not in found["m1"]
+    assert len(warnings) == 1 and warnings[0].startswith("not_a_file: skipped ")
+    assert "loop.csv" in warnings[0] and "leads nowhere" in warnings[0]
 
 
 def _age(path: Path, seconds: float, now: float) -> None:

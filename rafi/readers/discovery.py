@@ -9,12 +9,21 @@ Two checks of ``docs/raw-format.md`` run while Snakemake plans (standard library
   ``nightly_settle_s``), a file modified less than ``settle_s`` seconds ago may still be being
   written: it is left out of this run, with a warning, and read by the next one.
 
+* ``not_a_file``: a name matching the pattern that is not a regular file (a folder, a FIFO, a
+  socket, a device, a link that leads nowhere or to itself) is not read (a FIFO would block
+  the reader), with a warning naming what it is.
+
 Each warning line starts with its check id (``link_outside_raw: ...``, ``settling: ...``).
+:func:`safe_name_problem` says why a name cannot name a machine's outputs (Snakemake refuses a
+wildcard value that ends in a periodic repetition, control characters break its paths, and a
+file name has at most 255 bytes).
 """
 
 from __future__ import annotations
 
 import os
+import re
+import stat
 import time
 from collections.abc import Iterable
 from pathlib import Path
@@ -120,3 +129,67 @@ def settling_warning(path: str | os.PathLike, age_s: float, settle_s: float) -> 
         f"settling: waits for the next run: {short_path(path)} was modified {age_s:.0f} s ago"
         f"{future} (settle_s {settle_s:g})"
     )
+
+
+_KIND_WORDS = (
+    (stat.S_ISDIR, "a folder"),
+    (stat.S_ISFIFO, "a FIFO (named pipe)"),
+    (stat.S_ISSOCK, "a socket"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+)
+
+
+def not_a_file(path: str | os.PathLike) -> str | None:
+    """Why ``path`` is not a regular file a reader may open (``None``: it is one).
+
+    Links are followed; a link that leads nowhere or to itself is named as such. The answer
+    comes from ``stat`` alone: nothing is opened (opening a FIFO would wait for a writer).
+    """
+    try:
+        mode = os.stat(path).st_mode
+    except OSError as exc:
+        if os.path.islink(path):
+            return "a symbolic link that leads nowhere (its target is missing, or a loop of links)"
+        return f"cannot be examined ({exc.strerror or type(exc).__name__})"
+    if stat.S_ISREG(mode):
+        return None
+    for test, words in _KIND_WORDS:
+        if test(mode):
+            return words
+    return "not a regular file"
+
+
+def not_a_file_warning(path: str | os.PathLike, what: str) -> str:
+    """The ``not_a_file`` line for ``path`` (``what``: :func:`not_a_file`)."""
+    return bound_message(
+        f"not_a_file: skipped {short_path(path)}: it is {what}, not a regular file; it matches the "
+        "raw-file pattern but is not read - remove it from the machine folder or rename it"
+    )
+
+
+#: Snakemake's test for a wildcard value that "would lead to an infinite recursion"
+#: (``snakemake.io.PeriodicityDetector``: a substring repeated 20 or more times at the end).
+_PERIODIC_TAIL = re.compile(r"((?P<value>.+)(?P=value){19,99})$", re.DOTALL)
+
+#: Most bytes of a name used in an output path (``clean/<log id>.summary.csv`` and the atomic
+#: writer's temporary ``.<name>.XXXXXXXX.part`` must stay within 255 bytes).
+NAME_MAX_BYTES = 150
+
+_CONTROL = re.compile(r"[\x00-\x1f\x7f]")
+
+
+def periodic_tail(text: str) -> bool:
+    """True if ``text`` ends with a substring repeated 20 or more times (Snakemake refuses it)."""
+    return len(text) >= 20 and _PERIODIC_TAIL.search(text) is not None
+
+
+def safe_name_problem(name: str) -> str | None:
+    """Why ``name`` cannot be used as it is in a Snakemake output path (``None``: it can)."""
+    if _CONTROL.search(name):
+        return "it holds a control character (a line break, a tab)"
+    if len(name.encode("utf-8", "surrogateescape")) > NAME_MAX_BYTES:
+        return f"it is longer than {NAME_MAX_BYTES} bytes"
+    if periodic_tail(name):
+        return "it ends in a run of 20 or more repetitions, which Snakemake refuses as a wildcard value"
+    return None

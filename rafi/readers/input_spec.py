@@ -15,6 +15,7 @@ from __future__ import annotations
 import codecs
 import copy
 import datetime as dt
+import hashlib
 import math
 import os
 import re
@@ -23,8 +24,18 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from rafi import REQUIRED_COLUMNS
-from rafi.errors import InputSpecError, RawFormatError
-from rafi.readers.discovery import is_inside, link_warning, settling_files, settling_warning, split_outside
+from rafi.errors import InputSpecError, RawFormatError, bound_message, short_path
+from rafi.readers.discovery import (
+    NAME_MAX_BYTES,
+    is_inside,
+    link_warning,
+    not_a_file,
+    not_a_file_warning,
+    safe_name_problem,
+    settling_files,
+    settling_warning,
+    split_outside,
+)
 from rafi.readers.input_assumed import check_no_time_column, check_speed, constant_speed, has_constant_speed
 
 # --------------------------------------------------------------------------- the input: mapping
@@ -366,7 +377,8 @@ def find_logs(
     """Raw files of one machine folder matching the spec's ``pattern`` (glob or list), sorted.
 
     Hidden files (``.name``) and office lock files (``~$name.xlsx``) are skipped, and so is a
-    symbolic link whose target lies outside ``raw_dir`` (default: the machine folder's parent;
+    symbolic link whose target lies outside ``raw_dir`` (default: the machine folder's parent)
+    and a name that is not a regular file (a folder, a FIFO, a socket, a dangling link;
     :func:`scan_logs` also says which).
     """
     return scan_logs(machine_dir, input_spec, raw_dir)[0]
@@ -375,28 +387,51 @@ def find_logs(
 def scan_logs(
     machine_dir: str | os.PathLike, input_spec: dict | None = None, raw_dir: str | os.PathLike | None = None
 ) -> tuple[list[Path], list[str]]:
-    """:func:`find_logs` and a ``link_outside_raw`` warning line for each file it refused."""
+    """:func:`find_logs` and a warning line for each file it refused (``link_outside_raw``,
+    ``not_a_file``)."""
     spec = normalise_input_spec(input_spec)
     folder = Path(machine_dir)
     root = Path(raw_dir) if raw_dir is not None else folder.absolute().parent
     patterns = [spec["pattern"]] if isinstance(spec["pattern"], str) else spec["pattern"]
     found = {p for pattern in patterns for p in folder.glob(pattern)}
-    files = sorted(p for p in found if p.is_file() and not p.name.startswith((".", "~$")))
-    return split_outside(files, root)
+    names = sorted(p for p in found if not p.name.startswith((".", "~$")))
+    inside, refused = split_outside(names, root)
+    files = []
+    for path in inside:
+        what = not_a_file(path)
+        if what is None:
+            files.append(path)
+        else:
+            refused.append(not_a_file_warning(path, what))
+    return files, refused
 
 
 # --------------------------------------------------------------------------- nightly and gates
 
 
+def _percent(char: str) -> str:
+    return "".join(f"%{b:02X}" for b in char.encode("utf-8", "surrogateescape"))
+
+
 def log_id(stem: str) -> str:
     """The name of a raw file's outputs (``clean/<log id>.parquet``): its stem, with ``%``,
-    ``{`` and ``}`` percent-encoded.
+    ``{``, ``}`` and control characters percent-encoded.
 
     Snakemake reads ``{name}`` in any path as a wildcard and has no escape for it, so a raw
-    file called ``log_{date}.csv`` gets the outputs ``clean/log_%7Bdate%7D.*``. Every other
-    character (spaces, unicode) is kept as it is.
+    file called ``log_{date}.csv`` gets the outputs ``clean/log_%7Bdate%7D.*``; a line break
+    becomes ``%0A``. Every other character (spaces, unicode) is kept as it is. A stem whose
+    encoding is longer than ``NAME_MAX_BYTES`` (150) bytes, or ends in a run Snakemake refuses
+    as a wildcard value (a substring repeated 20 or more times, ``log_000...0``), is cut to
+    100 bytes and gets ``%~`` and 12 hex digits of the SHA-256 of the stem: ``%~`` never occurs
+    in a plain id, so two stems never share an id.
     """
-    return stem.replace("%", "%25").replace("{", "%7B").replace("}", "%7D")
+    text = "".join(_percent(c) if c in "%{}" or ord(c) < 32 or ord(c) == 127 else c for c in stem)
+    if len(text.encode("utf-8", "surrogateescape")) <= NAME_MAX_BYTES and safe_name_problem(text) is None:
+        return text
+    digest = hashlib.sha256(stem.encode("utf-8", "surrogateescape")).hexdigest()[:12]
+    head = text.encode("utf-8", "surrogateescape")[:100].decode("utf-8", "ignore")
+    head = re.sub(r"%[0-9A-F]?$", "", head)  # do not cut an escape in two
+    return f"{head}%~{digest}"
 
 
 def has_braces(path: str | os.PathLike) -> bool:
@@ -458,6 +493,12 @@ def discover_machines(
         machine = folder.name
         if has_braces(machine):
             warnings.append(f"skipping machine folder {folder}: a machine name cannot hold {{ or }}")
+            continue
+        problem = safe_name_problem(machine)
+        if problem is not None:
+            warnings.append(
+                bound_message(f"skipping machine folder {short_path(folder)}: {problem}; rename the folder")
+            )
             continue
         if not is_inside(folder, root):
             warnings.append(link_warning(folder, root))

@@ -8,7 +8,7 @@ import os
 import pandas as pd
 
 from rafi.readers.native import read_raw_log
-from rafi.readers.parsing import unreadable_error
+from rafi.readers.parsing import open_regular, unreadable_error
 
 
 def sha256_file(path: str | os.PathLike) -> str:
@@ -18,15 +18,17 @@ def sha256_file(path: str | os.PathLike) -> str:
     ------
     RawFormatError
         Check ``unreadable``: the file cannot be opened or read (permissions, an I/O error,
-        a directory); the message says so and what to check.
+        not a regular file: a directory, a FIFO - never waited on - or a socket); check
+        ``file_too_large``: more than ``rafi.readers.parsing.FILE_MAX_BYTES`` bytes. The message
+        says so and what to check.
     """
     digest = hashlib.sha256()
-    try:
-        with open(path, "rb") as fh:
+    with open_regular(path) as fh:
+        try:
             for block in iter(lambda: fh.read(1 << 20), b""):
                 digest.update(block)
-    except OSError as exc:
-        raise unreadable_error(path, exc) from None
+        except OSError as exc:
+            raise unreadable_error(path, exc) from None
     return digest.hexdigest()
 
 

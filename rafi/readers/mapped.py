@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import difflib
 import hashlib
+import io
 import os
 import re
 import unicodedata
@@ -39,11 +40,20 @@ from rafi.readers.input_spec import (
     normalise_input_spec,
     resolve_columns,
 )
-from rafi.readers.mapped_cells import Table, check_formulas, excel_column, numeric, text
+from rafi.readers.mapped_cells import (
+    XLSX_MAX_ROWS,
+    Table,
+    check_formulas,
+    check_zip_sizes,
+    excel_column,
+    numeric,
+    text,
+)
 from rafi.readers.mapped_time import assumed_notes, row_times, row_times_error, timestamps
 from rafi.readers.parsing import (
     FIELD_MAX_CHARS,
     NUMERIC_COLUMNS,
+    check_column_count,
     check_fields,
     decode_bytes,
     field_count_error,
@@ -108,6 +118,7 @@ def _read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
     delim = spec["delimiter"]
     header = [h.strip() for h in split_fields(path, lines[hr - 1], hr, delim)]
     check_fields(path, header, hr)
+    check_column_count(path, header, hr)
     if len(header) == 1:
         for other in (";", ",", "\t", "|"):
             if other != delim and other in header[0]:
@@ -154,13 +165,15 @@ def _read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
     return Table(path, header, rows, numbers, hr, None)
 
 
-def _read_xlsx_table(path: Path, spec: dict) -> Table:
+def _read_xlsx_table(path: Path, raw: bytes, spec: dict) -> Table:
+    """The sheet of the workbook whose bytes are ``raw`` (read once: the file is not opened again)."""
     try:
         import openpyxl
     except ImportError as exc:  # pragma: no cover - openpyxl is a dependency
         raise RawFormatError(path, f"reading xlsx needs openpyxl ({exc})") from None
+    check_zip_sizes(path, raw)
     try:
-        wb = openpyxl.load_workbook(path, read_only=True, data_only=True)
+        wb = openpyxl.load_workbook(io.BytesIO(raw), read_only=True, data_only=True)
     except OSError as exc:
         raise unreadable_error(path, exc) from None
     except Exception as exc:  # zip, XML, openpyxl's own errors: all mean "not a workbook"
@@ -189,12 +202,23 @@ def _read_xlsx_table(path: Path, spec: dict) -> Table:
                 )
             name = match[0]
         ws = wb[name]
+        # the sheet's own <dimension> may be stale or forged: rows past it would be dropped
+        # silently, and a forged A1:XFD1048576 pads every row to 16384 cells
+        ws.reset_dimensions()
         hr = spec["header_row"]
         header = None
         header_cells: list = []
         rows, numbers = [], []
         try:
             for row_no, values in enumerate(ws.iter_rows(values_only=True), start=1):
+                if row_no > XLSX_MAX_ROWS:
+                    raise RawFormatError(
+                        path,
+                        f"a row numbered beyond {XLSX_MAX_ROWS}, the last row of an Excel sheet: "
+                        "a corrupted or crafted workbook; open and save it in Excel or LibreOffice",
+                        line=row_no,
+                        sheet=name,
+                    )
                 if row_no < hr:
                     continue
                 values = list(values)
@@ -204,6 +228,7 @@ def _read_xlsx_table(path: Path, spec: dict) -> Table:
                         values.pop()
                     header = ["" if v is None else str(v) for v in values]
                     check_fields(path, header, row_no, sheet=name)
+                    check_column_count(path, header, row_no, sheet=name)
                     continue
                 if row_no <= hr + spec["skip_rows"]:
                     continue
@@ -242,7 +267,7 @@ def _read_xlsx_table(path: Path, spec: dict) -> Table:
                 sheet=name,
             )
         table = Table(path, header, rows, numbers, hr, name)
-        check_formulas(table, header_cells[: len(header)])
+        check_formulas(table, header_cells[: len(header)], raw)
         return table
     finally:
         wb.close()
@@ -314,7 +339,7 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
     else:
         if not raw:
             raise RawFormatError(path, "file is empty; expected an .xlsx workbook")
-        table = _read_xlsx_table(path, spec)
+        table = _read_xlsx_table(path, raw, spec)
 
     header = table.header
     wanted = resolve_columns(spec)

@@ -3,13 +3,15 @@
 :class:`Table` is the header and raw rows of one file with what is needed to word an error
 (file, sheet, row, Excel cell); :func:`numeric` and :func:`text` turn one column of raw cells
 into values; :func:`check_formulas` refuses formula cells whose value the workbook does not
-hold (check ``formula_without_value``). Used by :mod:`rafi.readers.mapped` and
-:mod:`rafi.readers.mapped_time`.
+hold (check ``formula_without_value``); :func:`check_zip_sizes` refuses a workbook that would
+inflate past ``rafi.readers.parsing.FILE_MAX_BYTES`` (check ``file_too_large``). Used by
+:mod:`rafi.readers.mapped` and :mod:`rafi.readers.mapped_time`.
 """
 
 from __future__ import annotations
 
 import datetime as dt
+import io
 import math
 import re
 import zipfile
@@ -19,6 +21,7 @@ import numpy as np
 
 from rafi.errors import RawFormatError, quote
 from rafi.readers.input_spec import norm_header
+from rafi.readers.parsing import FILE_MAX_BYTES
 
 
 def excel_column(index0: int) -> str:
@@ -65,11 +68,43 @@ class Table:
 _FORMULA_TAG = re.compile(rb"<(?:[A-Za-z_][\w.-]*:)?f[\s>/]")
 
 
-def has_formulas(path: Path) -> bool:
-    """True if any worksheet of the xlsx file holds a formula (a streamed scan of its XML:
-    about 0.05 s for the shipped 1.2 MB workbook, far less than reading it)."""
+#: Rows of an Excel sheet (1,048,576): a row numbered beyond it is a corrupted workbook.
+XLSX_MAX_ROWS = 1 << 20
+
+
+def check_zip_sizes(path, raw: bytes, limit: int = FILE_MAX_BYTES) -> None:
+    """Raise ``file_too_large`` if the parts of the xlsx workbook ``raw`` inflate to more than
+    ``limit`` bytes together (a "zip bomb": a small file whose sheet XML inflates to gigabytes).
+
+    The sizes are those the zip's directory declares; Python's ``zipfile`` (used by openpyxl)
+    never inflates a part beyond its declared size (it raises instead), so the check bounds
+    what the reader inflates. A file that is not a zip is left to the reader (it says so).
+    """
     try:
-        with zipfile.ZipFile(path) as zf:
+        with zipfile.ZipFile(io.BytesIO(raw)) as zf:
+            infos = zf.infolist()
+    except (zipfile.BadZipFile, OSError, RuntimeError, ValueError, EOFError, NotImplementedError):
+        return
+    total = sum(max(int(info.file_size), 0) for info in infos)
+    if total > limit:
+        biggest = max(infos, key=lambda info: info.file_size)
+        raise RawFormatError(
+            path,
+            f"the workbook inflates to {total} bytes ({quote(biggest.filename)}: "
+            f"{biggest.file_size} bytes) from {len(raw)} bytes on disk, more than the limit of "
+            f"{limit} bytes ({limit >> 20} MiB); a log of a few days inflates to some megabytes: "
+            "a corrupted or crafted workbook (a zip bomb), or split the recording into several files",
+            check="file_too_large",
+        )
+
+
+def has_formulas(source: Path | bytes) -> bool:
+    """True if any worksheet of the xlsx file (path or bytes) holds a formula (a streamed scan
+    of its XML: about 0.05 s for the shipped 1.2 MB workbook, far less than reading it)."""
+    if isinstance(source, (bytes, bytearray)):
+        source = io.BytesIO(source)
+    try:
+        with zipfile.ZipFile(source) as zf:
             for name in zf.namelist():
                 if not (name.startswith("xl/worksheets/") and name.endswith(".xml")):
                     continue
@@ -90,7 +125,7 @@ def _is_formula(value) -> bool:
     return type(value).__name__ in ("ArrayFormula", "DataTableFormula")
 
 
-def check_formulas(table: Table, header_row: list) -> None:
+def check_formulas(table: Table, header_row: list, raw: bytes | None = None) -> None:
     """Raise ``formula_without_value`` if an empty cell of ``table`` is a formula.
 
     openpyxl reads the value a spreadsheet program saved with each formula; a workbook written
@@ -105,6 +140,8 @@ def check_formulas(table: Table, header_row: list) -> None:
         The sheet as read with cached values (``data_only``).
     header_row : list
         The header row's cells as read (before the trailing empty ones were dropped).
+    raw : bytes, optional
+        The workbook's bytes (default: read ``table.path`` again).
     """
     empty = {
         row_no: [j for j, v in enumerate(values) if v is None]
@@ -114,15 +151,20 @@ def check_formulas(table: Table, header_row: list) -> None:
     header_gaps = [j for j, v in enumerate(header_row) if v is None]
     if header_gaps:
         empty[table.header_row] = header_gaps
-    if not empty or not has_formulas(table.path):
+    source = table.path if raw is None else raw
+    if not empty or not has_formulas(source):
         return
     import openpyxl
 
-    wb = openpyxl.load_workbook(table.path, read_only=True, data_only=False)
+    wb = openpyxl.load_workbook(
+        io.BytesIO(raw) if raw is not None else table.path, read_only=True, data_only=False
+    )
     try:
         found = []
         last = max(empty)
-        for row_no, values in enumerate(wb[table.sheet].iter_rows(values_only=True), start=1):
+        ws = wb[table.sheet]
+        ws.reset_dimensions()
+        for row_no, values in enumerate(ws.iter_rows(values_only=True), start=1):
             if row_no > last:
                 break
             for j in empty.get(row_no, ()):

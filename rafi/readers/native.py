@@ -30,6 +30,7 @@ from rafi.readers.parsing import (
     METADATA_MAX_CHARS,
     NUMERIC_COLUMNS,
     _decode,
+    check_column_count,
     check_fields,
     field_count_error,
     field_too_long_error,
@@ -161,6 +162,7 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
     header = split_fields(path, lines[header_idx], header_line_no)
     header = [h.strip() for h in header]
     check_fields(path, header, header_line_no)
+    check_column_count(path, header, header_line_no)
     if len(header) == 1:
         for delim in (";", "\t", "|"):
             if delim in header[0]:

@@ -6,8 +6,11 @@ Input is bounded (``docs/raw-format.md``, "Limits"): a line of a text file is at
 :data:`METADATA_MAX_CHARS` characters in all (check ``field_too_long``). A sample of 16
 temperatures, a speed and a displacement takes about 150 bytes; the limits leave room for
 hundreds of extra columns and long notes, and keep what a bad file can put into a message, a
-Parquet file's metadata or a report small. A file that cannot be read at all (permissions,
-an I/O error) raises check ``unreadable``.
+Parquet file's metadata or a report small. A file holds at most :data:`FILE_MAX_BYTES` bytes
+(check ``file_too_large``) and a header at most :data:`COLUMNS_MAX` columns (check
+``too_many_columns``). A file that cannot be read at all (permissions, an I/O error, not a
+regular file: a FIFO, a socket, a device, a directory) raises check ``unreadable``; a FIFO is
+never waited on.
 """
 
 from __future__ import annotations
@@ -16,6 +19,7 @@ import csv
 import errno
 import os
 import re
+import stat
 from pathlib import Path
 
 import numpy as np
@@ -36,6 +40,15 @@ FIELD_MAX_CHARS = 4 * 1024
 #: Most characters the ``#`` metadata lines of a native file hold together (check
 #: ``field_too_long``): 64 KiB. The metadata travels in every clean Parquet file's schema.
 METADATA_MAX_CHARS = 64 * 1024
+
+#: Largest raw file, in bytes (check ``file_too_large``): 256 MiB. Reading a native file takes
+#: about 16 times its size in memory (a 90 MB file peaks at 1.5 GB); an xlsx workbook's sheets
+#: may inflate to at most this many bytes too (``rafi.readers.mapped_cells.check_zip_sizes``).
+FILE_MAX_BYTES = 256 * 1024 * 1024
+
+#: Most columns of a header (check ``too_many_columns``): 1024. A log has 19 required
+#: columns and a few extra ones; 10,000 empty extra columns cost 1.5 GB and 11 s to read.
+COLUMNS_MAX = 1024
 
 #: Bytes scanned at a time for line breaks (bounds the scan's temporary arrays).
 _SCAN_CHUNK = 1 << 20
@@ -60,13 +73,110 @@ def unreadable_error(path, exc: OSError) -> RawFormatError:
     )
 
 
-def read_file_bytes(path: str | os.PathLike) -> bytes:
-    """The bytes of a raw file; :class:`RawFormatError` (check ``unreadable``) if it cannot be read."""
+_KINDS = (
+    (stat.S_ISDIR, "a directory"),
+    (stat.S_ISFIFO, "a FIFO (named pipe)"),
+    (stat.S_ISSOCK, "a socket"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+)
+
+
+def file_kind(mode: int) -> str:
+    """What a file of ``st_mode`` ``mode`` is, in words (``"a regular file"``, ``"a FIFO (named pipe)"``)."""
+    for test, words in _KINDS:
+        if test(mode):
+            return words
+    return "a regular file" if stat.S_ISREG(mode) else "not a regular file"
+
+
+def not_regular_error(path, mode: int) -> RawFormatError:
+    """The ``unreadable`` error for a path that is not a regular file (a FIFO, a socket, ...)."""
+    return RawFormatError(
+        path,
+        f"cannot read the file: it is {file_kind(mode)}, not a regular file; a raw log is a file "
+        "the logger wrote: remove it from the machine folder or rename it so the pattern misses it",
+        check="unreadable",
+    )
+
+
+def too_large_error(path, size: int, limit: int | None = None, what: str = "file") -> RawFormatError:
+    """The ``file_too_large`` error: ``size`` bytes, more than ``limit`` (default :data:`FILE_MAX_BYTES`)."""
+    limit = FILE_MAX_BYTES if limit is None else limit
+    return RawFormatError(
+        path,
+        f"{what} of {size} bytes, larger than the limit of {limit} bytes ({limit >> 20} MiB); a log "
+        "of a few days holds some megabytes: split the recording into several files, or the file "
+        "is corrupted",
+        check="file_too_large",
+    )
+
+
+def open_regular(path: str | os.PathLike):
+    """Open ``path`` for reading in binary mode, only if it is a regular file of at most
+    :data:`FILE_MAX_BYTES` bytes.
+
+    The file is opened without blocking (a FIFO with no writer would otherwise wait for ever)
+    and checked with ``fstat`` on the open descriptor (no race between a check and the open).
+
+    Raises
+    ------
+    RawFormatError
+        Check ``unreadable`` (cannot be opened, or not a regular file) or ``file_too_large``.
+    """
     try:
-        with open(path, "rb") as fh:
-            return fh.read()
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except OSError as exc:
+        try:  # a socket cannot be opened at all (ENXIO): say what it is
+            mode = os.stat(path).st_mode
+        except OSError:
+            mode = stat.S_IFREG
+        if not (stat.S_ISREG(mode) or stat.S_ISDIR(mode)):
+            raise not_regular_error(path, mode) from None
         raise unreadable_error(path, exc) from None
+    try:
+        st = os.fstat(fd)
+        if stat.S_ISDIR(st.st_mode):
+            raise unreadable_error(path, IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR)))
+        if not stat.S_ISREG(st.st_mode):
+            raise not_regular_error(path, st.st_mode)
+        if st.st_size > FILE_MAX_BYTES:
+            raise too_large_error(path, st.st_size)
+        if hasattr(os, "set_blocking"):
+            os.set_blocking(fd, True)
+        return os.fdopen(fd, "rb")
+    except BaseException:
+        os.close(fd)
+        raise
+
+
+def read_file_bytes(path: str | os.PathLike) -> bytes:
+    """The bytes of a raw file (:func:`open_regular`); :class:`RawFormatError` (check ``unreadable``)
+    if it cannot be read, ``file_too_large`` if it holds more than :data:`FILE_MAX_BYTES` bytes
+    (also when it grew past the limit while being read)."""
+    with open_regular(path) as fh:
+        try:
+            data = fh.read(FILE_MAX_BYTES + 1)
+        except OSError as exc:
+            raise unreadable_error(path, exc) from None
+    if len(data) > FILE_MAX_BYTES:
+        raise too_large_error(path, len(data))
+    return data
+
+
+def check_column_count(path, header: list, line_no: int, sheet: str | None = None) -> None:
+    """Raise ``too_many_columns`` if ``header`` has more than :data:`COLUMNS_MAX` names."""
+    if len(header) <= COLUMNS_MAX:
+        return
+    raise RawFormatError(
+        path,
+        f"header of {len(header)} columns, more than the limit of {COLUMNS_MAX}; a log has the 19 "
+        "required columns and a few more: the wrong header row, a transposed table, or a "
+        "corrupted file",
+        line=line_no,
+        sheet=sheet,
+        check="too_many_columns",
+    )
 
 
 def first_long_line(raw: bytes, limit: int = LINE_MAX_BYTES) -> tuple[int, int, int] | None:
