@@ -470,3 +470,11 @@ def test_hostile_command_writes_the_corpus_and_its_ground_truth(tmp_path):
     shipped = ROOT / "raw" / "tapping-center-a"
     assert main(["simulate", "hostile", "--out", str(shipped), "--shipped", str(shipped)]) == 2
     assert OUTCOMES[0] == "quarantined"
+
+
+def test_hostile_corpus_sources_regenerate_byte_for_byte_without_the_shipped_folder(tmp_path):
+    from rafi.twin.hostile import SOURCES, shipped_sources
+
+    simulated = shipped_sources(tmp_path / "nothing-here")
+    shipped = ROOT / "raw" / "tapping-center-a"
+    assert simulated == {name: (shipped / name).read_text(encoding="utf-8") for name in SOURCES}

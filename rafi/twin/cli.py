@@ -146,7 +146,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "into the shipped folder.",
     )
     p.add_argument("--out", required=True, help="machine folder to write into, e.g. /tmp/try/raw/m")
-    p.add_argument("--shipped", default="raw/tapping-center-a", help="the shipped tapping-center-a logs")
+    p.add_argument(
+        "--shipped",
+        default="raw/tapping-center-a",
+        help="the shipped tapping-center-a logs; if they are not there, the twin simulates them again",
+    )
     p.add_argument("--long-bytes", type=int, default=200_000, help="length of the oversized line")
 
     p = sub.add_parser(

@@ -502,8 +502,32 @@ def hostile_corpus(sources: dict[str, str], *, long_bytes: int = 200_000) -> lis
     return out
 
 
+def shipped_sources(shipped_dir: str | os.PathLike | None = None) -> dict[str, str]:
+    """Text of the shipped logs of :data:`SOURCES`: read from ``shipped_dir`` when it holds them
+    all, else simulated again by the twin (byte for byte the shipped files, a few seconds).
+
+    Parameters
+    ----------
+    shipped_dir : path, optional
+        Folder of the shipped tapping-center-a logs (``raw/tapping-center-a``).
+
+    Returns
+    -------
+    dict
+        File name -> text.
+    """
+    folder = Path(shipped_dir) if shipped_dir is not None else None
+    if folder is not None and all((folder / name).is_file() for name in SOURCES):
+        return {name: (folder / name).read_text(encoding="utf-8") for name in SOURCES}
+    from rafi.twin.recipes import shipped_specs
+    from rafi.twin.writers import render_run
+
+    specs = {spec.file: spec for spec in shipped_specs("tapping-center-a")}
+    return {name: render_run(specs[name])[0] for name in SOURCES}
+
+
 def write_hostile_corpus(
-    shipped_dir: str | os.PathLike,
+    shipped_dir: str | os.PathLike | None,
     machine_dir: str | os.PathLike,
     outside_dir: str | os.PathLike,
     *,
@@ -514,8 +538,9 @@ def write_hostile_corpus(
 
     Parameters
     ----------
-    shipped_dir : path
-        Folder holding the shipped tapping-center-a logs (:data:`SOURCES`).
+    shipped_dir : path or None
+        Folder holding the shipped tapping-center-a logs (:data:`SOURCES`); None or a folder
+        without them: the twin simulates them again (:func:`shipped_sources`).
     machine_dir : path
         Machine folder under ``raw/`` to write into (created).
     outside_dir : path
@@ -529,10 +554,10 @@ def write_hostile_corpus(
     -------
     list of HostileCase
     """
-    shipped_dir, machine_dir, outside_dir = Path(shipped_dir), Path(machine_dir), Path(outside_dir)
+    machine_dir, outside_dir = Path(machine_dir), Path(outside_dir)
     machine_dir.mkdir(parents=True, exist_ok=True)
     outside_dir.mkdir(parents=True, exist_ok=True)
-    sources = {name: (shipped_dir / name).read_text(encoding="utf-8") for name in SOURCES}
+    sources = shipped_sources(shipped_dir)
     cases = []
     old = time.time() - 86_400  # a day old: settled
     for case, text in hostile_corpus(sources, long_bytes=long_bytes):
