@@ -12,17 +12,14 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import re
-import shutil
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from project_copy import ROOT, copy_project
+from project_copy import ROOT, copy_project, copy_settled
 
 from rafi.twin.hostile import OUTCOMES, SOURCES, hostile_corpus, write_hostile_corpus
 
@@ -33,12 +30,6 @@ KEEP = re.compile(r"train_(03000|09000|15000)rpm|valid_(04500|13500)rpm|multi_co
 
 def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _old(path: Path) -> None:
-    """A day-old modification time: settled for `rafi nightly` (nightly_settle_s)."""
-    old = time.time() - 86_400
-    os.utime(path, (old, old))
 
 
 def _nightly(proj: Path) -> subprocess.CompletedProcess:
@@ -100,8 +91,7 @@ def test_hostile_logs_never_replace_the_champion(tmp_path):
     raw.mkdir(parents=True)
     for f in sorted(SHIPPED.glob("*.csv")):
         if KEEP.search(f.name):
-            shutil.copy2(f, raw / f.name)
-            _old(raw / f.name)
+            copy_settled(f, raw / f.name)
     res = proj / "results" / MACHINE
     reg = res / "registry"
 
