@@ -92,6 +92,14 @@ def test_a_byte_identical_copy_is_rejected_the_first_by_name_stays(tmp_path):
     assert "byte-identical to a.csv" in rejection_lines([status])[0]
 
 
+def test_of_a_file_and_a_link_to_it_the_link_goes_whatever_the_names(tmp_path):
+    files = [_file(tmp_path, "a_link.csv", sha="d" * 64), _file(tmp_path, "train.csv", sha="d" * 64)]
+    status = _status(tmp_path, files, links=["a_link.csv"])
+    assert status["usable"] == ["train.csv"]
+    (rej,) = status["rejected"]
+    assert rej["file"] == "a_link.csv" and rej["reason"].endswith("remove the link")
+
+
 def test_quarantined_files_are_not_duplicates_of_usable_ones(tmp_path):
     files = [
         _file(tmp_path, "a.csv", sha="d" * 64),

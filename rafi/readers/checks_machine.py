@@ -95,6 +95,7 @@ def apply_machine_checks(
     *,
     probe_sign: str = "auto",
     confirmed: Iterable[Mapping] = (),
+    links: Iterable[str] = (),
 ) -> dict:
     """Add the machine-level checks and the per-file warnings to a machine input status.
 
@@ -111,6 +112,9 @@ def apply_machine_checks(
         ``checks.probe_sign``: ``auto``, ``positive`` or ``negative``.
     confirmed : iterable of mapping
         ``checks.confirmed``.
+    links : iterable of str
+        Files that are symbolic links (inside ``raw/``): of byte-identical files the link is the
+        copy that goes, whatever the names.
 
     Returns
     -------
@@ -135,9 +139,10 @@ def apply_machine_checks(
             {"file": file, "sha256": sha[file], "check": check, "reason": f"{file}: {check}: {why}"}
         )
 
-    # -- duplicate content: the later file by name goes
+    # -- duplicate content: the later file by name goes (a link before any regular file)
+    linked = set(links)
     first_of: dict[str, str] = {}
-    for file in sorted(usable):
+    for file in sorted(usable, key=lambda f: (f in linked, f)):
         digest = sha[file]
         if not digest:
             continue
@@ -146,7 +151,7 @@ def apply_machine_checks(
                 file,
                 "duplicate_content",
                 f"byte-identical to {first_of[digest]} (sha256 {digest[:12]}): the same data would be "
-                "used twice; delete the copy",
+                + ("used twice; remove the link" if file in linked else "used twice; delete the copy"),
             )
         else:
             first_of[digest] = file

@@ -10,7 +10,8 @@
 #   constants  RUN (run settings), RAW_DIR, RESULTS_DIR, REPORTS_DIR, LOGS_DIR, RAFI_DIR,
 #              MACHINES, OUTPUTS
 #   settings   machine_config(machine) (rafi.settings.machine_settings), model_provenance(machine)
-#   raw files  raw_files(machine), raw_path(wildcards), raw_file(wildcards), raw_stamp(wildcards)
+#   raw files  raw_files(machine), raw_links(machine), raw_path(wildcards), raw_file(wildcards),
+#              raw_stamp(wildcards)
 #   paths      out(name, machine="{machine}"), pipeline_tables(machine),
 #              report_paths(machine="{machine}"), log_path(step), bench_path(step)
 #   quarantine input_status_path(machine), skipped_page_path(machine), INPUT_CHECK,
@@ -125,6 +126,11 @@ MACHINES = sorted(RAW)
 def raw_files(machine):
     """Raw log paths of ``machine`` (those matching its ``input.pattern``), sorted."""
     return sorted(RAW.get(machine, {}).values())
+
+
+def raw_links(machine):
+    """Names of the raw files of ``machine`` that are symbolic links (inside ``raw_dir``)."""
+    return sorted(Path(p).name for p in raw_files(machine) if Path(p).is_symlink())
 
 
 def raw_path(wildcards):

@@ -33,6 +33,8 @@ checkpoint input_status:
         # machine-level checks (docs/raw-format.md, "Checks")
         probe_sign=lambda w: machine_config(w.machine)["checks"]["probe_sign"],
         confirmed=lambda w: machine_config(w.machine)["checks"]["confirmed"],
+        # of byte-identical files, a link inside raw/ is the copy that goes
+        links=lambda w: raw_links(w.machine),
     script:
         "../scripts/input_status.py"
 

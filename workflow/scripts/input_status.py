@@ -19,7 +19,12 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     rows = [row for path in smk.input.summaries for row in read_rows(path)]
     warnings = [w for path in smk.input.audits for w in audit_warnings(read_rows(path))]
     status = apply_machine_checks(
-        base, rows, warnings, probe_sign=smk.params.probe_sign, confirmed=smk.params.confirmed
+        base,
+        rows,
+        warnings,
+        probe_sign=smk.params.probe_sign,
+        confirmed=smk.params.confirmed,
+        links=smk.params.links,
     )
     for f in status["rejected"]:
         if f.get("check"):
