@@ -267,3 +267,12 @@ def test_speed_in_rev_per_s_from_half_way_is_an_error(name):
     f["speed_rpm"] = np.where(half, f["speed_rpm"] / 60, f["speed_rpm"])
     err = error_of(f)
     assert err.check == "speed_unit" and "part of the log is written in rev/s" in str(err)
+
+
+def test_a_clock_that_was_never_set_is_a_warning_and_shipped_clocks_are_not():
+    for machine, name in ((A, "valid_04500rpm.csv"), (B, "thermal_log_2026-10-14.xlsx")):
+        assert "clock_unset" not in checks_of(check_file(shipped(name, machine), name, **kwargs(machine)))
+    frame = shipped("valid_04500rpm.csv")
+    frame["time"] = frame["time"] - (frame["time"].min() - np.datetime64("1970-01-01T00:00:00"))
+    (w,) = [w for w in check_file(frame, "x.csv", **kwargs(A)).warnings if w.check == "clock_unset"]
+    assert w.column == "time" and "1970-01-01T00:00:00" in w.message and "never set" in w.message

@@ -62,6 +62,7 @@ FILE_CHECKS = (
     "sparse_channel",
     "metadata_machine",
     "metadata_period",
+    "clock_unset",
 )
 
 
@@ -318,6 +319,7 @@ def check_file(
         sig, where, training_speeds_rpm, speed_tolerance_rpm, check_low=not speed_unit
     )
     report.warnings += units.metadata_machine(meta, machine)
+    report.warnings += units.clock_unset(frame["time"], where, lines)
     report.probe_sign = channels.probe_sign(sig)
     return report
 

@@ -493,6 +493,30 @@ def metadata_period(sig: Signals, where: Where, meta_period, configured_period) 
     return []
 
 
+#: A log that starts before this was written by a logger whose clock was never set.
+CLOCK_EARLIEST = "2000-01-01T00:00:00"
+
+
+def clock_unset(time: pd.Series, where: Where, lines: np.ndarray) -> list[CheckWarning]:
+    """Warning if the log starts before :data:`CLOCK_EARLIEST` (1970 or 1900: a clock that was
+    never set); the bound is fixed, not "now", so the result never depends on the day it runs."""
+    first = pd.Timestamp(time.min())
+    if pd.isna(first) or first >= pd.Timestamp(CLOCK_EARLIEST):
+        return []
+    return [
+        CheckWarning(
+            "clock_unset",
+            "time",
+            f"{where.label('time')} starts at {first.isoformat()}, before {CLOCK_EARLIEST[:10]}: the "
+            "logger's clock was never set (flat battery, no time server); windows by time "
+            "(runs.windows unit time) and the order of this machine's logs cannot rely on it. "
+            "Set the logger's clock, or map an elapsed-seconds column (input.time.kind elapsed_s)",
+            int(lines[0]),
+            int(lines[-1]),
+        )
+    ]
+
+
 def metadata_machine(meta: dict, machine: str | None) -> list[CheckWarning]:
     """Warning if the metadata names another machine than the folder the file lies in."""
     named = meta.get("machine") if isinstance(meta, dict) else None

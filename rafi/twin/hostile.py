@@ -188,6 +188,10 @@ def hostile_corpus(sources: dict[str, str], *, long_bytes: int = 200_000) -> lis
     def wrong_period(m, _):
         m["sample_period_s"] = "1"
 
+    def clock_1970(_, f):
+        times = pd.to_datetime(f["time"])
+        f["time"] = (times - (times.min() - pd.Timestamp("1970-01-01"))).dt.strftime("%Y-%m-%dT%H:%M:%S")
+
     def constant_sensor(_, f):
         f["T5"] = f["T5"].iloc[0]
 
@@ -465,6 +469,16 @@ def hostile_corpus(sources: dict[str, str], *, long_bytes: int = 200_000) -> lis
             "metadata_machine",
             "warning",
             "metadata names another machine than the folder",
+        ),
+        (
+            "clock_1970",
+            mv,
+            fv,
+            clock_1970,
+            None,
+            "clock_unset",
+            "warning",
+            "a logger clock that was never set (timestamps from 1970-01-01)",
         ),
         (
             "wrong_period",
