@@ -21,7 +21,8 @@ import pandas as pd
 import pytest
 from project_copy import ROOT, copy_project, copy_settled
 
-from rafi.twin.hostile import OUTCOMES, SOURCES, hostile_corpus, write_hostile_corpus
+from rafi.twin.hostile import OUTCOMES, SOURCES, hostile_corpus
+from rafi.twin.hostile_files import write_hostile_corpus
 
 MACHINE = "tapping-center-a"
 SHIPPED = ROOT / "raw" / MACHINE

@@ -473,7 +473,8 @@ def test_hostile_command_writes_the_corpus_and_its_ground_truth(tmp_path):
 
 
 def test_hostile_corpus_sources_regenerate_byte_for_byte_without_the_shipped_folder(tmp_path):
-    from rafi.twin.hostile import SOURCES, shipped_sources
+    from rafi.twin.hostile import SOURCES
+    from rafi.twin.hostile_files import shipped_sources
 
     simulated = shipped_sources(tmp_path / "nothing-here")
     shipped = ROOT / "raw" / "tapping-center-a"

@@ -209,7 +209,7 @@ def run(args: argparse.Namespace) -> int:
         print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
         return 0
     if mode == "hostile":
-        from rafi.twin.hostile import write_hostile_corpus
+        from rafi.twin.hostile_files import write_hostile_corpus
 
         out, shipped = Path(args.out).resolve(), Path(args.shipped).resolve()
         if out == shipped:
