@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from test_registry import FakeModel
 
 from rafi import artefact
 from rafi.method.model import RafiModel
@@ -286,17 +287,6 @@ def test_an_unconfirmed_warning_blocks_and_a_confirmed_one_does_not():
 
 
 # --------------------------------------------------------------------------- driver
-
-
-class FakeModel:
-    def __init__(self, d):
-        self.d = d
-
-    def predict(self, frame):
-        return np.zeros(len(frame))
-
-    def to_dict(self):
-        return self.d
 
 
 def fake_validate(m, runs_table, runs_frame):
