@@ -244,3 +244,34 @@ class SettingsError(RafiUserError, ValueError):
 
     The message names the key and where it belongs.
     """
+
+
+class TargetError(RafiUserError, ValueError):
+    """A controller target (``rafi.deploy.targets``) refuses a value or its own configuration.
+
+    Raised *before* anything of the sample is written: a value outside the range the
+    controller documents or the machine agreed (``SD 43910`` beyond the ``MD 32760`` factor,
+    ``SD 43900`` beyond the configured limit, a non-finite number), a missing or unknown axis,
+    a write to a closed target, or a target set up wrongly (``SD 43920`` at the axis zero).
+
+    Parameters
+    ----------
+    message : str
+        What was refused and what is allowed.
+    target : str, optional
+        The target's name (``sinumerik``, ``csv``, ``jsonl``).
+    axis : str, optional
+        The axis concerned.
+    value, limit : float, optional
+        The refused value and the limit it broke, in the unit the message names.
+    """
+
+    exit_status = EX_DATAERR
+
+    def __init__(self, message: str, *, target=None, axis=None, value=None, limit=None):
+        self.target = target
+        self.axis = axis
+        self.value = value
+        self.limit = limit
+        where = " ".join(p for p in (target and f"target {target}", axis and f"axis {axis}") if p)
+        super().__init__(f"{where}: {message}" if where else message)
