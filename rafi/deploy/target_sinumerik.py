@@ -77,10 +77,11 @@ class SinumerikAxis:
     number : int
         The machine axis number (1-based), the index ``[u<number>]`` of its setting data.
     sign : int
-        +1 or -1: the compensation written is ``sign * value``. The compensator's value is the
-        correction to apply (not the deformation); ``sign`` maps its direction onto the axis'
-        direction as mounted (set it on the machine: a known offset must move the axis the
-        right way).
+        +1 or -1, no default: SD 43900 is ``sign * value``. The compensator's value is the
+        model's estimate of the thermal displacement, signed as the displacement was measured
+        (``Step.compensation_um``); whether cancelling it needs the same or the opposite sign
+        on the axis depends on the probe's direction and the axis' direction, so it is set per
+        machine and checked on it (``docs/deploy-targets.md``).
     limit_um : float
         The largest ``|value|`` accepted, in um (the range agreed for the machine, at most
         :data:`HARD_LIMIT_UM`); a larger value is refused, not clipped.
