@@ -1,0 +1,511 @@
+"""The streaming compensator: one model artefact of the family, evaluated one sample at a time.
+
+NumPy only at run time (no pandas, statsmodels or Snakemake: ``tests/test_compensator.py``
+imports this module in a fresh interpreter and checks ``sys.modules``), so it runs on a
+controller PC. ``docs/deploy.md`` describes it for a controls engineer.
+
+Use::
+
+    comp = Compensator.from_artefact(json.load(open("best_model.json")))
+    for t_s, speed_rpm, temps in samples:          # temps: T1..T16 (degC), NaN = missing
+        out = comp.step(t_s, speed_rpm, temps)     # out.compensation_um, out.status
+
+What it does per sample
+-----------------------
+1. **Filters from power-on.** Every first-order filter of the model (``dynamic``'s and
+   ``grey_box``'s rise filters, ``grey_box``'s heat-input filters and draw-in lag) runs over
+   the *absolute* inputs from the first sample on, with the discretisation of
+   :func:`rafi.family.whole_log.lowpass_log`: ``y = e y + (1 - e) x``, ``e = exp(-dt/tau)``,
+   settled on the first finite value, a NaN input holds the state, and the filters restart
+   (settled) after a gap longer than the artefact's ``filter_restart_gap_s``.
+2. **Reference capture.** The compensation is relative to a reference state (no intercept:
+   0 at the reference). After power-on, and again after :meth:`Compensator.capture_reference`
+   (e.g. at the start of a job, with the machine at rest), the compensator collects the first
+   ``reference.window_s`` seconds of samples and takes, as the batch code does, the median
+   (NaN ignored) of the temperatures (the zero of the rises) and of every filter output (the
+   zero of every filtered feature) over the samples with ``t < t0 + window_s``, and the median
+   speed over ``t - t0 <= window_s`` (``speed_reference.rule: run_start``; ``zero``: 0 r/min).
+   While it collects, the status is ``referencing`` and the compensation is 0 um (the value at
+   the reference state). :meth:`Compensator.set_reference` gives a reference instead (see there).
+3. **Evaluation.** The features and the model's own formula: the fuzzy blend of per-speed
+   polynomials for ``rafi`` / ``rafi_linear`` (:func:`rafi.method.fuzzy.triangular_weights`),
+   ``features . coefficients`` for the ridge kinds; the out-of-range flags of the batch
+   ``predict_detail``.
+
+Equality with the batch prediction, and the exact differences
+-------------------------------------------------------------
+On a recorded log of whole-log runs (``rule runs``' frame, with ``log`` / ``log_t_s``), fed in
+``log_t_s`` order from the log's first sample, with :meth:`capture_reference` called at the
+first sample of every run (``reference.rule: run_start``) or of every log segment
+(``log_start``), the compensation equals ``predict_detail(frame)["predicted_um"]`` of the
+fitted model to 1e-9 um on every sample after the run's reference window where the batch value
+is finite; where the batch value is NaN the status is ``no_value``. The differences, all due
+to what a device cannot know when a sample arrives:
+
+* **Inside the reference window** the batch code references every sample to the median of the
+  whole window, later samples included; the device knows the reference only when the window is
+  complete. It returns 0 um with status ``referencing`` there (the batch value there is the
+  noise of the window about its median, a few tenths of a um at most).
+* **Where a run starts** is known to the batch code from the whole log (``rafi.method.runs``
+  cuts it after the fact); the device is told by the caller (:meth:`capture_reference`), e.g.
+  by the controller at the start of a job. A new log segment (the logger's gap rule,
+  ``clean: max_interpolate_gap_s``) is likewise the caller's decision.
+* **Per-run frames** (frames without ``log`` / ``log_t_s``, e.g. the synthetic test runs) are
+  filtered by the batch code per run, settled on the run's first *rise*
+  (:func:`rafi.family.features.lowpass_runs`); the device filters absolute inputs from
+  power-on, i.e. the whole-log rule, which is what the pipeline uses on every real log. The two
+  agree for a log that starts settled and holds one run (to the noise of its first sample).
+* **Rounding**: the batch filter is vectorised (:func:`rafi.family.whole_log._decay_sum`), the
+  device runs the recursion, and the final dot product is summed in another order; the
+  difference is ~1e-12 um.
+
+Limits and fault rules (not yet)
+--------------------------------
+Clamp, rate limit, sensor faults and the trained range are issue 14's next step. The hooks:
+``input_rule(t_s, speed_rpm, temperatures) -> (speed_rpm, temperatures, status or None)`` runs
+before the filters (a fault rule replaces or flags a sample there; a returned status replaces
+``ok``), ``output_rule(t_s, raw_um, status, outside_speed_range, outside_temp_range) ->
+(compensation_um, status)`` after the model (clamp, rate limit, hold). Without them the
+compensation is the model's raw value; the flags ``outside_speed_range`` / ``outside_temp_range``
+of every step are informational (as in the batch ``predict_detail``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from rafi import SENSORS
+from rafi.artefact import compute_model_id
+from rafi.deploy.streaming import LowpassBank, ReferenceWindow
+from rafi.method.fuzzy import triangular_weights
+
+__all__ = ["KINDS", "STATUSES", "Compensator", "Step", "parse_exponents"]
+
+SCHEMA = "rafi.model/1"
+#: Model kinds the compensator evaluates.
+KINDS = ("rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box")
+#: Status values of a step (``docs/deploy.md``).
+STATUSES = {
+    "referencing": "collecting the reference window; compensation 0 um (the reference state)",
+    "ok": "the model's value",
+    "no_value": "the model has no value (a needed input is missing); compensation NaN",
+}
+SPEED_SCALE_RPM = 1000.0  # rafi.family.features.SPEED_SCALE_RPM
+SPEED_POWER_SCALE_RPM = 10000.0  # rafi.family.features.SPEED_POWER_SCALE_RPM
+
+
+class Step(NamedTuple):
+    """The result of one :meth:`Compensator.step`."""
+
+    t_s: float
+    compensation_um: float
+    status: str
+    raw_um: float
+    outside_speed_range: bool
+    outside_temp_range: bool
+
+
+def parse_exponents(terms: Sequence[str], n_vars: int) -> np.ndarray:
+    """Exponent matrix of RAFI's terms (the grammar of :func:`rafi.method.model.parse_term`)."""
+    out = np.zeros((len(terms), n_vars), dtype=int)
+    for j, term in enumerate(terms):
+        text = str(term).replace(" ", "")
+        if text == "1":
+            continue
+        for factor in text.split("*"):
+            name, _, power = factor.partition("^")
+            if not name.startswith("x") or not name[1:].isdigit() or not 1 <= int(name[1:]) <= n_vars:
+                raise ValueError(f"term {term!r}: factor {factor!r} is not 'xi' or 'xi^k' (i <= {n_vars})")
+            out[j, int(name[1:]) - 1] += int(power) if power else 1
+    return out
+
+
+def _design(x: np.ndarray, exponents: np.ndarray) -> np.ndarray:
+    """:func:`rafi.method.model.design_matrix` of one row (same operations, same rounding)."""
+    out = np.ones((1, exponents.shape[0]))
+    for j, row in enumerate(exponents):
+        for i, p in enumerate(row):
+            if p:
+                out[:, j] *= x[:, i] ** p
+    return out
+
+
+def _check(d: dict) -> str:
+    if not isinstance(d, dict):
+        raise ValueError(f"a model artefact is a JSON object, got {type(d).__name__}")
+    if d.get("schema") != SCHEMA:
+        raise ValueError(f"not a {SCHEMA} artefact: schema={d.get('schema')!r}")
+    kind = d.get("kind")
+    if kind not in KINDS:
+        raise ValueError(f"artefact kind {kind!r}: the compensator evaluates {', '.join(KINDS)}")
+    if "model_id" in d and d["model_id"] != compute_model_id(d):
+        raise ValueError("model_id does not match the artefact content (edited or corrupted)")
+    return kind
+
+
+class Compensator:
+    """A model artefact evaluated one sample at a time (module docstring).
+
+    Create it with :meth:`from_artefact`; the constructor only stores its arguments (every one
+    of them is set by :meth:`from_artefact`).
+
+    Parameters
+    ----------
+    kind, model_id : str
+        From the artefact.
+    sensor_index : ndarray of int
+        Positions in ``T1..T16`` of the sensors the model reads (its key sensors / sensors).
+    window_s : float
+        ``reference.window_s``.
+    speed_rule : str
+        ``run_start`` (the median speed of the reference window) or ``zero``.
+    restart_gap_s : float
+        A gap longer than this restarts the filters.
+    rise_taus, speed_taus : ndarray
+        Rise filter constants (0: the rise itself) and heat-input filter constants.
+    speed_powers : ndarray
+        The powers of ``(n / 10^4 r/min)^p`` (p = 0: running above ``running_rpm``).
+    running_rpm : float
+        The speed above which the spindle counts as running (``speed_tolerance_rpm``).
+    draw_in_lag_s : float or None
+        Lag of ``grey_box``'s ``n^2`` term, None without it.
+    speed_terms, speed_gain : bool
+        ``ridge_global`` / ``dynamic``: the terms ``n - n0``, ``n^2 - n0^2``; the products ``dT n``.
+    coef : ndarray
+        Ridge coefficients, or RAFI's ``(k, n_terms)`` per-speed coefficients.
+    exponents : ndarray or None
+        RAFI's term exponents.
+    speeds_rpm : ndarray or None
+        RAFI's training speeds (the fuzzy centres).
+    ranges : ndarray
+        Rise ranges: ridge ``(p, 2)``; RAFI ``(k, p, 2)``, tolerance already applied.
+    speed_range_rpm : tuple of float
+        Ridge: the training speed range; RAFI: ``(speed_tolerance_rpm, nan)``.
+    banks : dict
+        The filter banks (``rise``, ``power``, ``draw``; each optional).
+    input_rule, output_rule : callable or None
+        The hooks of the module docstring.
+    """
+
+    def __init__(
+        self,
+        *,
+        kind: str,
+        model_id: str,
+        sensor_index: np.ndarray,
+        window_s: float,
+        speed_rule: str,
+        restart_gap_s: float,
+        rise_taus: np.ndarray,
+        speed_taus: np.ndarray,
+        speed_powers: np.ndarray,
+        running_rpm: float,
+        draw_in_lag_s: float | None,
+        speed_terms: bool,
+        speed_gain: bool,
+        coef: np.ndarray,
+        exponents: np.ndarray | None,
+        speeds_rpm: np.ndarray | None,
+        ranges: np.ndarray,
+        speed_range_rpm: tuple,
+        banks: dict,
+        input_rule: Callable | None = None,
+        output_rule: Callable | None = None,
+    ):
+        self.kind = kind
+        self.model_id = model_id
+        self.sensor_index = sensor_index
+        self.window_s = window_s
+        self.speed_rule = speed_rule
+        self.restart_gap_s = restart_gap_s
+        self.rise_taus = rise_taus
+        self.speed_taus = speed_taus
+        self.speed_powers = speed_powers
+        self.running_rpm = running_rpm
+        self.draw_in_lag_s = draw_in_lag_s
+        self.speed_terms = speed_terms
+        self.speed_gain = speed_gain
+        self.coef = coef
+        self.exponents = exponents
+        self.speeds_rpm = speeds_rpm
+        self.ranges = ranges
+        self.speed_range_rpm = speed_range_rpm
+        self.banks = banks
+        self.input_rule = input_rule
+        self.output_rule = output_rule
+        # run-time state: the last sample's time, the reference being captured or in force
+        self.t_prev_s: float | None = None
+        self.window: ReferenceWindow | None = ReferenceWindow.create(window_s)
+        self.ref_values: np.ndarray | None = None
+        self.ref_speed_rpm: float = float("nan")
+
+    # ------------------------------------------------------------------ creation
+    @classmethod
+    def from_artefact(
+        cls,
+        d: dict,
+        *,
+        input_rule: Callable | None = None,
+        output_rule: Callable | None = None,
+    ) -> Compensator:
+        """A compensator for the fitted model ``d`` (a ``rafi.model/1`` artefact of a kind in
+        :data:`KINDS`; an edited artefact is refused), capturing its reference from the first
+        sample on.
+
+        Raises
+        ------
+        ValueError
+            Not such an artefact, or its features are not what this module computes.
+        """
+        kind = _check(d)
+        ref = d.get("reference") or {}
+        window_s = float(ref.get("window_s", 0.0))
+        common = dict(kind=kind, model_id=str(d.get("model_id", "")), window_s=window_s)
+        hooks = dict(input_rule=input_rule, output_rule=output_rule)
+        if kind in ("rafi", "rafi_linear"):
+            return cls(**common, **cls._rafi_parts(d), **hooks)
+        return cls(**common, **cls._ridge_parts(d), **hooks)
+
+    @staticmethod
+    def _rafi_parts(d: dict) -> dict:
+        sensors = list(d["key_sensors"])
+        speeds = sorted(d["speeds"], key=lambda sp: float(sp["speed_rpm"]))
+        fuzzy = d.get("fuzzy") or {}
+        tol_k = float(fuzzy.get("temp_tolerance_k", 0.1))
+        ranges = np.array([[sp["regressor_ranges"][s] for s in sensors] for sp in speeds], dtype=float)
+        ranges[:, :, 0] -= tol_k
+        ranges[:, :, 1] += tol_k
+        return dict(
+            sensor_index=np.array([SENSORS.index(s) for s in sensors]),
+            speed_rule="zero",
+            restart_gap_s=float("inf"),
+            rise_taus=np.zeros(1),
+            speed_taus=np.zeros(0),
+            speed_powers=np.zeros(0),
+            running_rpm=0.0,
+            draw_in_lag_s=None,
+            speed_terms=False,
+            speed_gain=False,
+            coef=np.array([sp["coefficients"] for sp in speeds], dtype=float),
+            exponents=parse_exponents(d["terms"], len(sensors)),
+            speeds_rpm=np.array([float(sp["speed_rpm"]) for sp in speeds]),
+            ranges=ranges,
+            speed_range_rpm=(float(fuzzy.get("speed_tolerance_rpm", 50.0)), float("nan")),
+            banks={},
+        )
+
+    @staticmethod
+    def _ridge_parts(d: dict) -> dict:
+        kind, sel, hyper = d["kind"], d["selected"], d.get("hyperparameters", {})
+        sensors = list(d["key_sensors"])
+        p = len(sensors)
+        rise_taus = np.array([float(t) for t in sel["taus_s"]])
+        grey = kind == "grey_box"
+        speed_gain = bool(sel.get("speed_gain", False)) and not grey
+        speed_terms = bool(sel.get("speed_terms", False)) and not grey
+        speed_taus = np.array([float(t) for t in sel.get("speed_taus_s", [])]) if grey else np.zeros(0)
+        powers = (
+            np.array([float(v) for v in hyper.get("speed_powers", [])]) if len(speed_taus) else np.zeros(0)
+        )
+        lag = float(sel.get("centrifugal_lag_s", 0.0)) if grey and sel.get("instantaneous_n2") else None
+        names = []
+        for tau in rise_taus:
+            names += [f"d{s}@{tau:g}s" for s in sensors]
+            if speed_gain:
+                names += [f"d{s}@{tau:g}s*n_krpm" for s in sensors]
+        if speed_terms:
+            names += ["n_krpm", "n2_krpm2"]
+        for tau in speed_taus:
+            names += [f"L{tau:g}s(n^{q:.4g})" for q in powers]
+        if lag is not None:
+            names += ["n2_krpm2" if lag <= 0 else f"L{lag:g}s(n2_krpm2)"]
+        if names != list(d["features"]):
+            raise ValueError(
+                f"{kind} artefact: features {d['features']} are not the {names} this compensator computes"
+            )
+        banks = {}
+        if (rise_taus > 0).any():
+            banks["rise"] = LowpassBank.create(rise_taus[rise_taus > 0], p)
+        if len(speed_taus):
+            banks["power"] = LowpassBank.create(speed_taus, len(powers))
+        if lag is not None:
+            banks["draw"] = LowpassBank.create([lag], 1)
+        rng = d["regressor_ranges"]
+        speed_rule = (d.get("speed_reference") or {}).get("rule", "zero")
+        return dict(
+            sensor_index=np.array([SENSORS.index(s) for s in sensors]),
+            speed_rule=speed_rule,
+            restart_gap_s=float(hyper.get("filter_restart_gap_s", float("inf"))),
+            rise_taus=rise_taus,
+            speed_taus=speed_taus,
+            speed_powers=powers,
+            running_rpm=float(hyper.get("speed_tolerance_rpm", 50.0)),
+            draw_in_lag_s=lag,
+            speed_terms=speed_terms,
+            speed_gain=speed_gain,
+            coef=np.asarray(d["coefficients"], dtype=float),
+            exponents=None,
+            speeds_rpm=None,
+            ranges=np.array([rng[s] for s in sensors], dtype=float).reshape(p, 2),
+            speed_range_rpm=tuple(float(v) for v in d["speed_range_rpm"]),
+            banks=banks,
+        )
+
+    # ------------------------------------------------------------------ reference
+    def capture_reference(self) -> None:
+        """Capture a new reference state from the next sample on (the filters run on)."""
+        self.window = ReferenceWindow.create(self.window_s)
+        self.ref_values = None
+
+    def set_reference(self, temperatures, speed_rpm: float) -> None:
+        """Use a given reference state: temperatures ``T1..T16`` (degC) and speed (r/min).
+
+        The machine is taken as *settled* there: the reference of every filtered feature is
+        its settled value (the filtered temperature is the temperature, a heat-input filter
+        the speed power itself). The filters themselves are not touched.
+        """
+        temps = np.asarray(temperatures, dtype=float)[self.sensor_index]
+        self.window = None
+        self.ref_speed_rpm = float(speed_rpm) if self.speed_rule == "run_start" else 0.0
+        parts = [temps]
+        if "rise" in self.banks:
+            parts.append(np.tile(temps, int((self.rise_taus > 0).sum())))
+        if "power" in self.banks:
+            parts.append(np.tile(self._powers(float(speed_rpm)), len(self.speed_taus)))
+        self.ref_values = np.concatenate(parts)
+
+    # ------------------------------------------------------------------ one sample
+    def _powers(self, rpm: float) -> np.ndarray:
+        """``grey_box``'s speed powers of one speed (the batch code's operations)."""
+        r = np.abs(rpm) / SPEED_POWER_SCALE_RPM
+        return np.array(
+            [float(np.abs(rpm) > self.running_rpm) if q == 0 else r**q for q in self.speed_powers],
+            dtype=float,
+        )
+
+    def _filter(self, temps: np.ndarray, rpm: float, dt: float) -> tuple[np.ndarray, float]:
+        """Advance every filter; the referenced part (temperatures, filtered temperatures,
+        filtered speed powers) and the filtered ``n^2`` (NaN without the draw-in term)."""
+        parts = [temps]
+        if "rise" in self.banks:
+            parts.append(self.banks["rise"].update(temps, dt))
+        if "power" in self.banks:
+            parts.append(self.banks["power"].update(self._powers(rpm), dt))
+        draw = float("nan")
+        if "draw" in self.banks:
+            draw = float(self.banks["draw"].update(np.array([(rpm / SPEED_SCALE_RPM) ** 2]), dt)[0])
+        return np.concatenate(parts), draw
+
+    def step(self, t_s: float, speed_rpm: float, temperatures) -> Step:
+        """Take one sample and return the compensation (um) with its status.
+
+        Parameters
+        ----------
+        t_s : float
+            Time (s), increasing (any origin).
+        speed_rpm : float
+            Spindle speed (r/min); NaN if unknown.
+        temperatures : array_like, shape (16,)
+            ``T1..T16`` (degC), NaN where a sensor has no value.
+        """
+        t = float(t_s)
+        rpm = float(speed_rpm)
+        temps_all = np.asarray(temperatures, dtype=float)
+        forced = None
+        if self.input_rule is not None:
+            rpm, temps_all, forced = self.input_rule(t, rpm, temps_all)
+        temps = temps_all[self.sensor_index]
+        dt = 0.0 if self.t_prev_s is None else t - self.t_prev_s
+        if self.t_prev_s is None or dt > self.restart_gap_s:
+            for bank in self.banks.values():
+                bank.restart()
+        self.t_prev_s = t
+        values, draw = self._filter(temps, rpm, dt)
+        if self.window is not None:
+            if not self.window.closes_at(t):
+                self.window.add(t, values)
+                self.window.add_speed(t, rpm)
+                return self._finish(t, 0.0, "referencing", False, False)
+            self.window.add_speed(t, rpm)  # t - t0 == window_s still counts for the speed
+            self.ref_values = self.window.median()
+            self.ref_speed_rpm = self.window.median_speed() if self.speed_rule == "run_start" else 0.0
+            self.window = None
+        feats = values - self.ref_values
+        rises = feats[: len(temps)]
+        if self.exponents is not None:
+            raw, out_speed, out_temp = self._rafi(rises, rpm)
+        else:
+            raw, out_speed, out_temp = self._ridge(feats, rises, rpm, draw)
+        status = "ok" if np.isfinite(raw) else "no_value"
+        if forced is not None:
+            status = forced
+        return self._finish(t, raw, status, out_speed, out_temp)
+
+    def _finish(self, t: float, raw: float, status: str, out_speed: bool, out_temp: bool) -> Step:
+        value = raw if status != "no_value" else float("nan")
+        if self.output_rule is not None:
+            value, status = self.output_rule(t, raw, status, out_speed, out_temp)
+        return Step(t, float(value), status, float(raw), bool(out_speed), bool(out_temp))
+
+    def _rafi(self, rises: np.ndarray, rpm: float) -> tuple[float, bool, bool]:
+        """:meth:`rafi.method.model.RafiModel._evaluate` and its flags for one row."""
+        x = rises[None, :]
+        per_speed = _design(x, self.exponents) @ self.coef.T
+        speed = np.array([rpm])
+        weights, outside = triangular_weights(speed, self.speeds_rpm, tolerance_rpm=self.speed_range_rpm[0])
+        active = weights > 0
+        contrib = np.where(active, weights * np.where(active, per_speed, 0.0), 0.0)
+        pred = contrib.sum(axis=1)
+        bad = ~np.isfinite(speed) | np.any(active & ~np.isfinite(per_speed), axis=1)
+        pred[bad] = np.nan
+        with np.errstate(invalid="ignore"):
+            out_model = np.any(
+                (x[:, None, :] < self.ranges[None, :, :, 0]) | (x[:, None, :] > self.ranges[None, :, :, 1]),
+                axis=2,
+            )
+        out_temp = bool(np.any(out_model & active))
+        return float(pred[0]), bool(outside[0]), out_temp
+
+    def _ridge(
+        self, feats: np.ndarray, rises: np.ndarray, rpm: float, draw: float
+    ) -> tuple[float, bool, bool]:
+        """``features . coefficients`` of a ridge kind and its flags for one row."""
+        p = len(rises)
+        n = rpm / SPEED_SCALE_RPM
+        filt = feats[p:]
+        parts, k = [], 0
+        for tau in self.rise_taus:
+            if tau > 0:
+                block = filt[k * p : (k + 1) * p]
+                k += 1
+            else:
+                block = rises
+            parts.append(block)
+            if self.speed_gain:
+                parts.append(block * n)
+        if self.speed_terms:
+            n0 = self.ref_speed_rpm / SPEED_SCALE_RPM
+            parts.append(np.array([n - n0, n**2 - n0**2]))
+        if len(self.speed_taus):
+            parts.append(filt[k * p :])
+        if self.draw_in_lag_s is not None:
+            parts.append(np.array([draw - (self.ref_speed_rpm / SPEED_SCALE_RPM) ** 2]))
+        pred = float(np.concatenate(parts) @ self.coef)
+        lo, hi = self.ranges[:, 0], self.ranges[:, 1]
+        out_temp = bool(((rises < lo) | (rises > hi)).any())
+        out_speed = bool(rpm < self.speed_range_rpm[0] or rpm > self.speed_range_rpm[1])
+        return pred, out_speed, out_temp
+
+    # ------------------------------------------------------------------ introspection
+    @property
+    def state_nbytes(self) -> int:
+        """Bytes of the run-time state (filter states, reference, window in progress)."""
+        n = sum(b.nbytes for b in self.banks.values())
+        if self.ref_values is not None:
+            n += self.ref_values.nbytes
+        if self.window is not None:
+            n += sum(v.nbytes for v in self.window.values) + 8 * len(self.window.speeds)
+        return int(n)

@@ -1,0 +1,247 @@
+"""The streaming compensator (rafi.deploy): streaming equals batch for every model kind."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rafi import SENSORS
+from rafi.deploy.compensator import Compensator, parse_exponents
+from rafi.deploy.streaming import LowpassBank
+from rafi.family.dynamic import DynamicRidge
+from rafi.family.grey_box import GreyBox
+from rafi.family.published import PublishedRafi
+from rafi.family.rafi_linear import RafiLinear
+from rafi.family.ridge_global import RidgeGlobal
+from rafi.method.model import parse_terms
+from rafi.method.runs import find_runs
+from rafi.method.validate import time_ordered
+from rafi.twin.synthetic_logs import schedule_log
+
+PERIOD = 20.0
+WINDOW = 60.0
+RESTART = 3600.0
+KEY = ["T6", "T8", "T9"]
+TERMS = ["1", "x1", "x2", "x3", "x1*x2", "x1^2", "x2^2"]
+KINDS = ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"]
+
+
+def _log(pieces, seed, *, segments=()):
+    """A clean frame of a schedule; ``segments``: (piece index, gap s) - a logger gap before
+    that piece starts a new segment (the clean step's rule for a long gap)."""
+    frame, truth = schedule_log(pieces, period_s=PERIOD, seed=seed, speed_noise_rpm=3.0)
+    frame["disp_um"] += 7.0  # the displacement has an arbitrary zero
+    for k, gap in segments:
+        first = int(truth["first_row"].iloc[k])
+        frame.loc[first:, "t_s"] += gap
+        frame.loc[first:, "time"] += pd.Timedelta(seconds=gap)
+        frame.loc[first:, "segment"] += 1
+    return frame
+
+
+def _logs():
+    rest = (0, 180)
+    logs = {
+        f"train{i}.csv": _log([rest, (s, 3 * 3600), (0, 3600)], seed=i)
+        for i, s in enumerate((3000, 6000, 9000))
+    }
+    multi = _log(
+        [rest, (4500, 3600), (7500, 2400), (0, 1800), (6000, 3600), (0, 1200), (8000, 3600)],
+        seed=7,
+        segments=[(4, 600.0), (6, 2 * RESTART)],  # a short gap (carried) and a long one (restart)
+    )
+    multi.loc[200:203, "T8"] = np.nan  # a sensor drop-out: rises NaN, the filters hold
+    multi.loc[300, "speed_rpm"] = np.nan  # a missing speed
+    logs["multi.csv"] = multi
+    return logs
+
+
+@pytest.fixture(scope="module", params=["run_start", "log_start"])
+def data(request):
+    rule = request.param
+    table, frame = find_runs(
+        _logs(),
+        {},
+        training_speeds_rpm=[3000, 6000, 9000],
+        speed_tolerance_rpm=50,
+        idle_below_rpm=100,
+        min_run_s=600,
+        min_constant_s=1800,
+        overrides={},
+        reference_rule=rule,
+        reference_window_s=WINDOW,
+    )
+    assert {"log", "log_t_s", "segment"} <= set(frame.columns)
+    return rule, table, frame
+
+
+def _model(kind: str, rule: str):
+    ref = {"rule": rule, "window_s": WINDOW}
+    alphas = [1e-6, 1e-4, 1e-2]
+    if kind == "rafi":
+        return PublishedRafi(key_sensors=KEY, terms=TERMS, reference=ref)
+    if kind == "rafi_linear":
+        return RafiLinear(key_sensors=KEY, reference=ref)
+    if kind == "ridge_global":
+        return RidgeGlobal(alphas=alphas, reference=ref, speed_gain="cv", filter_restart_gap_s=RESTART)
+    if kind == "dynamic":
+        return DynamicRidge(
+            taus_s=[600, 2400], max_taus=2, alphas=alphas, reference=ref, filter_restart_gap_s=RESTART
+        )
+    return GreyBox(
+        taus_s=[0, 600],
+        speed_taus_s=[120, 900],
+        centrifugal_lags_s=[20],
+        alphas=alphas,
+        reference=ref,
+        filter_restart_gap_s=RESTART,
+    )
+
+
+def _fit(kind, rule, table, frame):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # statsmodels conditioning warnings of fit_rafi
+        return _model(kind, rule).fit(table, frame)
+
+
+def _stream(artefact: dict, frame: pd.DataFrame, rule: str) -> pd.DataFrame:
+    """Every log of ``frame`` through a fresh compensator (power-on at the log's first sample),
+    ``capture_reference`` at the first sample of every run (``run_start``) or segment
+    (``log_start``): what the controller would be told."""
+    out = []
+    for _, log in frame.groupby("log", sort=False):
+        log = log.sort_values("log_t_s")
+        comp = Compensator.from_artefact(artefact)
+        key = log["run_id"] if rule == "run_start" else log["segment"]
+        starts = key.ne(key.shift()).to_numpy()
+        temps = log[list(SENSORS)].to_numpy(dtype=float)
+        t = log["log_t_s"].to_numpy(dtype=float)
+        rpm = log["speed_rpm"].to_numpy(dtype=float)
+        rows = []
+        for k in range(len(log)):
+            if starts[k] and k > 0:
+                comp.capture_reference()
+            s = comp.step(t[k], rpm[k], temps[k])
+            rows.append((s.compensation_um, s.status, s.outside_speed_range, s.outside_temp_range))
+        out.append(pd.DataFrame(rows, index=log.index, columns=["um", "status", "out_speed", "out_temp"]))
+    return pd.concat(out).loc[frame.index]
+
+
+def _in_window(frame: pd.DataFrame, rule: str) -> np.ndarray:
+    """Rows inside their reference window (``t < t0 + window``), computed here from the frame."""
+    key = frame["run_id"] if rule == "run_start" else frame["log"] + "/" + frame["segment"].astype(str)
+    t0 = frame.groupby(key)["log_t_s"].transform("min")
+    return (frame["log_t_s"] < t0 + WINDOW - 1e-9).to_numpy()
+
+
+@pytest.mark.parametrize("kind", KINDS)
+def test_streaming_equals_batch_for_every_kind(data, kind):
+    rule, table, frame = data
+    model = _fit(kind, rule, table, frame)
+    artefact = json.loads(json.dumps(model.to_dict()))  # through JSON, as a controller reads it
+    if kind == "dynamic":  # every filter of the family is exercised
+        assert min(artefact["selected"]["taus_s"]) > 0
+    if kind == "grey_box":
+        sel = artefact["selected"]
+        assert sel["speed_taus_s"] and sel["instantaneous_n2"] and sel["centrifugal_lag_s"] == 20.0
+    frame = time_ordered(frame)
+    batch = model.predict_detail(frame)
+    got = _stream(artefact, frame, rule)
+    want = batch["predicted_um"].to_numpy(dtype=float)
+    window = _in_window(frame, rule)
+    status = got["status"].to_numpy()
+    # the reference window (the device does not know its median yet): 0 um, 'referencing'
+    assert (status[window] == "referencing").all() and (got["um"].to_numpy()[window] == 0.0).all()
+    after = ~window
+    defined = after & np.isfinite(want)
+    assert defined.sum() > 0.9 * len(frame)
+    np.testing.assert_allclose(got["um"].to_numpy()[defined], want[defined], rtol=0, atol=1e-9)
+    assert (status[defined] == "ok").all()
+    undefined = after & ~np.isfinite(want)
+    assert (status[undefined] == "no_value").all() and np.isnan(got["um"].to_numpy()[undefined]).all()
+    # the T8 drop-out (4 samples) and the missing speed (1); filters hold through a NaN input:
+    # dynamic's rise filters through the drop-out, grey_box's speed filters through the speed
+    assert undefined.sum() == {"dynamic": 1, "grey_box": 4}.get(kind, 5)
+    for flag, col in (("out_speed", "outside_speed_range"), ("out_temp", "outside_temp_range")):
+        assert np.array_equal(got[flag].to_numpy()[after], batch[col].to_numpy(dtype=bool)[after])
+    # the compensation is not trivially zero: the models compensate microns
+    assert np.abs(want[defined]).max() > 5.0
+
+
+def test_the_filters_restart_after_a_long_gap_and_carry_through_a_short_one():
+    """Known truth: a step input through one filter: ``x1 + (x0 - x1) exp(-t / tau)``."""
+    tau = 300.0
+    bank = LowpassBank.create([tau, 0.0], 1)
+    bank.restart()
+    assert bank.update(np.array([np.nan]), 0.0).tolist()[0] != bank.update(np.array([np.nan]), 0.0)[0]  # NaN
+    y = [bank.update(np.array([2.0]), 10.0)]  # settled on the first finite value
+    for _ in range(30):
+        y.append(bank.update(np.array([5.0]), 10.0))
+    want = 5.0 + (2.0 - 5.0) * np.exp(-np.arange(31) * 10.0 / tau)
+    np.testing.assert_allclose([v[0] for v in y], want, rtol=0, atol=1e-12)
+    assert [v[1] for v in y] == [2.0] + [5.0] * 30  # tau = 0 passes the input through
+    held = bank.update(np.array([np.nan]), 10.0)
+    assert held[0] == y[-1][0] and np.isnan(held[1])  # a NaN input holds the state
+
+
+def test_a_given_reference_equals_the_captured_one():
+    """ridge_global without filters: ``set_reference`` with the window medians gives the same
+    numbers as capturing the window."""
+    rule = "run_start"
+    table, frame = find_runs(
+        {"a.csv": _log([(0, 180), (5000, 7200)], seed=3), "b.csv": _log([(0, 180), (9000, 7200)], seed=4)},
+        {},
+        training_speeds_rpm=[5000, 9000],
+        speed_tolerance_rpm=50,
+        idle_below_rpm=100,
+        min_run_s=600,
+        min_constant_s=1800,
+        overrides={},
+        reference_rule=rule,
+        reference_window_s=WINDOW,
+    )
+    model = _fit("ridge_global", rule, table, frame)
+    log = frame[frame["log"] == "a.csv"].sort_values("log_t_s")
+    temps = log[list(SENSORS)].to_numpy(dtype=float)
+    t, rpm = log["log_t_s"].to_numpy(), log["speed_rpm"].to_numpy()
+    w = t < t[0] + WINDOW - 1e-9
+    captured, given = Compensator.from_artefact(model.to_dict()), Compensator.from_artefact(model.to_dict())
+    given.set_reference(np.median(temps[w], axis=0), np.median(rpm[t - t[0] <= WINDOW]))
+    a = [captured.step(t[k], rpm[k], temps[k]) for k in range(len(t))]
+    b = [given.step(t[k], rpm[k], temps[k]) for k in range(len(t))]
+    assert b[0].status == "ok" and a[0].status == "referencing"
+    assert all(x.compensation_um == y.compensation_um for x, y in zip(a, b) if x.status == "ok")
+
+
+def test_an_edited_or_foreign_artefact_is_refused(data):
+    rule, table, frame = data
+    d = _fit("rafi_linear", rule, table, frame).to_dict()
+    edited = {**d, "speeds": d["speeds"][:1]}
+    with pytest.raises(ValueError, match="model_id"):
+        Compensator.from_artefact(edited)
+    with pytest.raises(ValueError, match="kind"):
+        Compensator.from_artefact({**d, "kind": "neural_net"})
+
+
+def test_rafi_terms_parse_as_the_pipeline_parses_them():
+    terms = ["1", "x1", "x2", "x3", "x1*x2", "x1^2", "x1*x2*x3", "x1^2*x3", "x3 ^ 2"]
+    assert np.array_equal(parse_exponents(terms, 3), parse_terms(terms, 3))
+    with pytest.raises(ValueError):
+        parse_exponents(["x4"], 3)
+
+
+def test_the_compensator_runs_without_pandas_statsmodels_or_snakemake():
+    code = (
+        "import sys, json\n"
+        "import rafi.deploy.compensator as c\n"
+        "bad = [m for m in ('pandas', 'statsmodels', 'snakemake', 'scipy', 'sklearn') if m in sys.modules]\n"
+        "print(json.dumps(bad))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert json.loads(out.stdout) == []
