@@ -186,6 +186,8 @@ class Compensator:
         Ridge: the training speed range; RAFI: ``(speed_tolerance_rpm, nan)``.
     banks : dict
         The filter banks (``rise``, ``power``, ``draw``; each optional).
+    window : ReferenceWindow or None
+        The reference window being captured (from the first sample on: an empty one).
     input_rule, output_rule : callable or None
         The hooks of the module docstring.
     """
@@ -212,6 +214,7 @@ class Compensator:
         ranges: np.ndarray,
         speed_range_rpm: tuple,
         banks: dict,
+        window: ReferenceWindow | None,
         input_rule: Callable | None = None,
         output_rule: Callable | None = None,
     ):
@@ -236,9 +239,9 @@ class Compensator:
         self.banks = banks
         self.input_rule = input_rule
         self.output_rule = output_rule
-        # run-time state: the last sample's time, the reference being captured or in force
+        self.window = window  # the reference window being captured (None: a reference in force)
+        # run-time state: the last sample's time, the reference in force
         self.t_prev_s: float | None = None
-        self.window: ReferenceWindow | None = ReferenceWindow.create(window_s)
         self.ref_values: np.ndarray | None = None
         self.ref_speed_rpm: float = float("nan")
 
@@ -264,7 +267,7 @@ class Compensator:
         ref = d.get("reference") or {}
         window_s = float(ref.get("window_s", 0.0))
         common = dict(kind=kind, model_id=str(d.get("model_id", "")), window_s=window_s)
-        hooks = dict(input_rule=input_rule, output_rule=output_rule)
+        hooks = dict(input_rule=input_rule, output_rule=output_rule, window=ReferenceWindow.create(window_s))
         if kind in ("rafi", "rafi_linear"):
             return cls(**common, **cls._rafi_parts(d), **hooks)
         return cls(**common, **cls._ridge_parts(d), **hooks)
