@@ -62,13 +62,12 @@ def _logs():
     return logs
 
 
-@pytest.fixture(scope="module", params=["run_start", "log_start"])
-def data(request):
-    rule = request.param
-    table, frame = find_runs(
-        _logs(),
+def _find_runs(logs: dict, training_speeds_rpm: list, rule: str):
+    """Runs of the synthetic logs with the settings every test here uses."""
+    return find_runs(
+        logs,
         {},
-        training_speeds_rpm=[3000, 6000, 9000],
+        training_speeds_rpm=training_speeds_rpm,
         speed_tolerance_rpm=50,
         idle_below_rpm=100,
         min_run_s=600,
@@ -77,6 +76,12 @@ def data(request):
         reference_rule=rule,
         reference_window_s=WINDOW,
     )
+
+
+@pytest.fixture(scope="module", params=["run_start", "log_start"])
+def data(request):
+    rule = request.param
+    table, frame = _find_runs(_logs(), [3000, 6000, 9000], rule)
     assert {"log", "log_t_s", "segment"} <= set(frame.columns)
     return rule, table, frame
 
@@ -194,18 +199,8 @@ def test_a_given_reference_equals_the_captured_one():
     """ridge_global without filters: ``set_reference`` with the window medians gives the same
     numbers as capturing the window."""
     rule = "run_start"
-    table, frame = find_runs(
-        {"a.csv": _log([(0, 180), (5000, 7200)], seed=3), "b.csv": _log([(0, 180), (9000, 7200)], seed=4)},
-        {},
-        training_speeds_rpm=[5000, 9000],
-        speed_tolerance_rpm=50,
-        idle_below_rpm=100,
-        min_run_s=600,
-        min_constant_s=1800,
-        overrides={},
-        reference_rule=rule,
-        reference_window_s=WINDOW,
-    )
+    logs = {"a.csv": _log([(0, 180), (5000, 7200)], seed=3), "b.csv": _log([(0, 180), (9000, 7200)], seed=4)}
+    table, frame = _find_runs(logs, [5000, 9000], rule)
     model = _fit("ridge_global", rule, table, frame)
     log = frame[frame["log"] == "a.csv"].sort_values("log_t_s")
     temps = log[list(SENSORS)].to_numpy(dtype=float)
