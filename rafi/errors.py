@@ -275,3 +275,11 @@ class TargetError(RafiUserError, ValueError):
         self.limit = limit
         where = " ".join(p for p in (target and f"target {target}", axis and f"axis {axis}") if p)
         super().__init__(f"{where}: {message}" if where else message)
+
+
+class UnqualifiedModel(RafiUserError):
+    """A model that may not compensate a machine: it is not the registry's champion (the only
+    qualified model, ``rafi.deploy.qualified``), the registry has no champion, or the artefact
+    does not verify. Nothing is written to the controller."""
+
+    exit_status = EX_DATAERR

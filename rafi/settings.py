@@ -114,6 +114,30 @@ MACHINE_DEFAULTS: dict = {
         "champion_margin_um": "noise",
     },
     "report": {"figure_format": "png", "coolant_sensors": ["T13"]},
+    # the model on the machine: limits and fault rules (rafi.deploy.limits), the live loop
+    # (rafi deploy), the report's replay (docs/deploy.md)
+    "deploy": {
+        "clamp_um": [-50.0, 50.0],  # the command never leaves this range (um)
+        "rate_um_per_s": 0.2,  # nor changes faster than this
+        "temp_valid_c": [-10.0, 70.0],  # a temperature outside this range is a sensor fault
+        # a sensor whose reading has not changed for stuck_s while another sensor the model
+        # reads moved by stuck_change_k is stuck
+        "stuck_s": 1800,
+        "stuck_change_k": 0.5,
+        # outside the trained range: a rise beyond its training range by more than
+        # range_margin_k, a speed above the trained speeds by more than speed_margin_rpm
+        "range_margin_k": 2.0,
+        "speed_margin_rpm": 500,
+        # on a fault or outside the trained range: hold the last good value for hold_s, then
+        # ramp to safe_um at ramp_um_per_s
+        "hold_s": 600,
+        "safe_um": 0.0,
+        "ramp_um_per_s": 0.02,
+        "interval_s": 5,  # the live loop writes every interval_s
+        "target": None,  # the controller (docs/deploy-targets.md); none: replay only
+        "opcua": None,  # the OPC UA connection of the live loop (docs/deploy.md)
+        "replay_roles": ["validation_multi"],  # the runs the report replays
+    },
 }
 
 #: The promotion gates, in the order they are reported.

@@ -1,0 +1,301 @@
+"""Limits and fault rules around the streaming compensator: what may reach the controller.
+
+NumPy only, like :mod:`rafi.deploy.compensator`. ``docs/deploy.md`` ("Limits and faults")
+describes the rules for a controls engineer; the settings are the ``deploy:`` block
+(``docs/settings.md``).
+
+Use::
+
+    safe = SafeCompensator(limits=Limits.from_settings(settings["deploy"]))
+    safe.step(t, n, temps).status                 # "off": no model loaded, nothing is sent
+    safe.load(load_champion("results/m/registry"))  # the qualified model (rafi.deploy.qualified)
+    cmd = safe.step(t_s, speed_rpm, temps)          # cmd.command_um: what to write if cmd.send
+
+The rules, per sample, in this order
+------------------------------------
+1. **Off.** Without a loaded model the status is ``off``, the command 0 um and ``send`` is
+   False: nothing is written.
+2. **Sensor checks** (only the sensors the model reads, and the speed), before the filters:
+
+   * *missing*: NaN;
+   * *out of range*: outside ``temp_valid_c`` (an open thermocouple, a unit mix-up); the value
+     is replaced by NaN before the filters, so it cannot corrupt their state (a filter holds
+     on NaN);
+   * *stuck*: the reading has not changed for ``stuck_s`` seconds while another sensor the
+     model reads moved by at least ``stuck_change_k`` over the same time (a sensor that sits
+     still while the machine around it heats or cools); the value is still fed (there is no
+     better one), but the model's value is not trusted;
+   * *speed missing*: NaN speed.
+
+3. **The model** (:class:`rafi.deploy.compensator.Compensator`): ``referencing`` (0 um) while
+   it collects its reference window, else its value.
+4. **Outside the trained range**: a rise beyond the training range of a sensor (for RAFI, of
+   the speed models in use) by more than ``range_margin_k``, or a speed above the highest
+   trained speed by more than ``speed_margin_rpm``. Speeds below the trained ones are not
+   outside: the machine at rest cooling down is normal service, and every model of the family
+   extrapolates to rest by its own rule (``docs/models.md``).
+5. **Fault rule.** On a fault (2), a model without value, or outside the trained range (4),
+   the command *holds* the last value sent in ``ok`` state for ``hold_s`` seconds (status
+   ``hold``), then *ramps* to ``safe_um`` at ``ramp_um_per_s`` (status ``ramp``) and stays
+   there. When the fault clears, the status is ``ok`` again and the command returns to the
+   model's value under the rate limit (6). ``fault`` names every cause.
+6. **Clamp**, then **rate limit.** The target value is clamped to ``clamp_um``; the command
+   then moves towards it by at most ``rate_um_per_s * min(dt, interval_s)`` per sample (``dt``
+   the time since the previous sample, ``interval_s`` the loop's interval, one sample per
+   write; a replay sets it to the log's sample period): after a long gap (a lost
+   connection) it resumes from the last command at the rate limit, not in one step. The
+   first command after loading starts from 0 um (compensation was off). ``clamped`` /
+   ``rate_limited`` say which acted.
+
+The command is always finite and inside ``clamp_um``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+from rafi import SENSORS
+from rafi.deploy.compensator import Compensator
+from rafi.errors import SettingsError
+from rafi.method.fuzzy import triangular_weights
+
+__all__ = ["STATUSES", "Command", "Limits", "SafeCompensator"]
+
+#: Status of a command (``docs/deploy.md``).
+STATUSES = {
+    "off": "no qualified model loaded: nothing is sent",
+    "referencing": "the model collects its reference window: the command goes to 0 um",
+    "ok": "the model's value, clamped and rate limited",
+    "hold": "a fault or outside the trained range: the last good command is held",
+    "ramp": "the fault lasted longer than hold_s: the command ramps to safe_um",
+}
+
+
+@dataclass(frozen=True)
+class Limits:
+    """The limits and fault-rule settings (the ``deploy:`` block; defaults in
+    :mod:`rafi.settings`, meanings in the module docstring)."""
+
+    clamp_um: tuple[float, float]
+    rate_um_per_s: float
+    temp_valid_c: tuple[float, float]
+    stuck_s: float
+    stuck_change_k: float
+    range_margin_k: float
+    speed_margin_rpm: float
+    hold_s: float
+    safe_um: float
+    ramp_um_per_s: float
+    interval_s: float
+
+    @classmethod
+    def from_settings(cls, deploy: dict) -> Limits:
+        """Limits from a machine's effective ``deploy`` settings (other keys are ignored).
+
+        Raises
+        ------
+        SettingsError
+            A range whose ends are not increasing, or ``safe_um`` outside ``clamp_um``.
+        """
+        kw = dict(
+            clamp_um=deploy["clamp_um"],
+            rate_um_per_s=deploy["rate_um_per_s"],
+            temp_valid_c=deploy["temp_valid_c"],
+            stuck_s=deploy["stuck_s"],
+            stuck_change_k=deploy["stuck_change_k"],
+            range_margin_k=deploy["range_margin_k"],
+            speed_margin_rpm=deploy["speed_margin_rpm"],
+            hold_s=deploy["hold_s"],
+            safe_um=deploy["safe_um"],
+            ramp_um_per_s=deploy["ramp_um_per_s"],
+            interval_s=deploy["interval_s"],
+        )
+        for key in ("clamp_um", "temp_valid_c"):
+            lo, hi = (float(v) for v in kw[key])
+            if not lo < hi:
+                raise SettingsError(f"deploy.{key} is [{lo:g}, {hi:g}]; the first end must be the lower")
+            kw[key] = (lo, hi)
+        for key in ("rate_um_per_s", "ramp_um_per_s", "interval_s", "stuck_s", "stuck_change_k"):
+            if not float(kw[key]) > 0:
+                raise SettingsError(f"deploy.{key} is {kw[key]!r}; it must be above 0")
+        if not kw["clamp_um"][0] <= float(kw["safe_um"]) <= kw["clamp_um"][1]:
+            clamp = list(kw["clamp_um"])
+            raise SettingsError(f"deploy.safe_um ({kw['safe_um']}) is outside deploy.clamp_um {clamp}")
+        return cls(**{k: (v if isinstance(v, tuple) else float(v)) for k, v in kw.items()})
+
+
+class Command(NamedTuple):
+    """What :meth:`SafeCompensator.step` returns for one sample (module docstring)."""
+
+    t_s: float
+    command_um: float
+    status: str
+    model_um: float
+    raw_um: float
+    clamped: bool
+    rate_limited: bool
+    fault: str
+    outside_range: bool
+    send: bool
+
+
+class _SensorWatch:
+    """Missing / out-of-range / stuck checks of the model's sensors, one sample at a time."""
+
+    def __init__(self, names: list[str], limits: Limits):
+        self.names = names
+        self.limits = limits
+        self.since_t = np.full(len(names), np.nan)  # when each reading last changed
+        self.value = np.full(len(names), np.nan)  # ... to what
+        self.others_at = np.full((len(names), len(names)), np.nan)  # every reading at that time
+
+    def check(self, t: float, temps: np.ndarray) -> tuple[np.ndarray, list[str]]:
+        """The readings to feed (out of range -> NaN) and the faults of this sample."""
+        lo, hi = self.limits.temp_valid_c
+        faults, fed = [], temps.copy()
+        for i, (name, v) in enumerate(zip(self.names, temps)):
+            if not np.isfinite(v):
+                faults.append(f"{name} missing")
+            elif not lo <= v <= hi:
+                faults.append(f"{name} out of range ({v:.4g} degC)")
+                fed[i] = np.nan
+        valid = np.where(np.isfinite(fed), fed, np.nan)
+        for i, v in enumerate(valid):
+            if not np.isfinite(v):
+                continue
+            if v != self.value[i] or not np.isfinite(self.since_t[i]):
+                self.since_t[i], self.value[i] = t, v
+                self.others_at[i] = valid
+                continue
+            if t - self.since_t[i] >= self.limits.stuck_s:
+                with np.errstate(invalid="ignore"):
+                    moved = np.abs(valid - self.others_at[i])
+                moved[i] = np.nan
+                if np.nanmax(moved, initial=0.0) >= self.limits.stuck_change_k:
+                    faults.append(f"{self.names[i]} stuck")
+        return fed, faults
+
+
+class SafeCompensator:
+    """A compensator with the limits and fault rules of the module docstring.
+
+    Parameters
+    ----------
+    limits : Limits
+        The limits in force.
+
+    Attributes
+    ----------
+    compensator_ : Compensator
+        Set by :meth:`load` (absent before: the status is ``off``).
+    """
+
+    def __init__(self, *, limits: Limits):
+        self.limits = limits
+
+    def load(self, artefact: dict) -> SafeCompensator:
+        """Load a model artefact of the family (``rafi.model/1``) and start from power-on.
+
+        Whether the model is *qualified* for the machine is the caller's check
+        (:func:`rafi.deploy.qualified.load_champion`); the replay of any model uses this too.
+        """
+        self.compensator_ = Compensator.from_artefact(artefact, input_rule=self._input_rule)
+        names = [SENSORS[i] for i in self.compensator_.sensor_index]
+        self._watch = _SensorWatch(names, self.limits)
+        self._faults: list[str] = []
+        self._last_t: float | None = None
+        self._command = 0.0  # compensation was off
+        self._good = 0.0  # the last command sent in "ok" state
+        self._bad_since: float | None = None
+        return self
+
+    def capture_reference(self) -> None:
+        """Capture a new reference state from the next sample on
+        (:meth:`Compensator.capture_reference`)."""
+        self.compensator_.capture_reference()
+
+    # ------------------------------------------------------------------ one sample
+    def _input_rule(self, t: float, rpm: float, temps: np.ndarray):
+        idx = self.compensator_.sensor_index
+        fed, faults = self._watch.check(t, temps[idx])
+        if not np.isfinite(rpm):
+            faults.append("speed missing")
+        self._faults = faults
+        self._fed = fed
+        if np.array_equal(fed, temps[idx], equal_nan=True):
+            return rpm, temps, None
+        temps = temps.copy()
+        temps[idx] = fed
+        return rpm, temps, None
+
+    def _outside(self, rpm: float) -> list[str]:
+        """Causes of "outside the trained range" for the current sample (rises beyond the
+        training range by more than ``range_margin_k``; a speed above the trained speeds by
+        more than ``speed_margin_rpm``)."""
+        comp, lim = self.compensator_, self.limits
+        out = []
+        if comp.ref_values is None:
+            return out
+        p = len(comp.sensor_index)
+        rises = self._fed - comp.ref_values[:p]
+        if comp.exponents is not None:  # RAFI: the ranges of the speed models in use
+            top = float(comp.speeds_rpm.max())
+            weights, _ = triangular_weights(
+                np.array([rpm]), comp.speeds_rpm, tolerance_rpm=comp.speed_range_rpm[0]
+            )
+            active = weights[0] > 0
+            ranges = comp.ranges[active] if active.any() else comp.ranges
+            lo, hi = ranges[:, :, 0].min(axis=0), ranges[:, :, 1].max(axis=0)
+        else:
+            top = comp.speed_range_rpm[1]
+            lo, hi = comp.ranges[:, 0], comp.ranges[:, 1]
+        with np.errstate(invalid="ignore"):
+            beyond = (rises < lo - lim.range_margin_k) | (rises > hi + lim.range_margin_k)
+        for i in np.flatnonzero(beyond):
+            out.append(f"{SENSORS[comp.sensor_index[i]]} rise {rises[i]:.3g} K outside trained range")
+        if np.isfinite(rpm) and abs(rpm) > top + lim.speed_margin_rpm:
+            out.append(f"speed {abs(rpm):.0f} r/min above trained {top:.0f} r/min")
+        return out
+
+    def step(self, t_s: float, speed_rpm: float, temperatures) -> Command:
+        """Take one sample (as :meth:`Compensator.step`) and return the command to send."""
+        t = float(t_s)
+        if not hasattr(self, "compensator_"):
+            return Command(t, 0.0, "off", float("nan"), float("nan"), False, False, "", False, False)
+        out = self.compensator_.step(t, speed_rpm, temperatures)
+        causes = list(self._faults)
+        outside = [] if out.status == "referencing" else self._outside(float(speed_rpm))
+        if out.status == "no_value" and not causes:
+            causes.append("no model value")
+        causes += outside
+        dt = 0.0 if self._last_t is None else max(t - self._last_t, 0.0)
+        self._last_t = t
+        lim = self.limits
+        if out.status == "referencing" and not causes:
+            status, target, self._bad_since = "referencing", 0.0, None
+        elif causes or out.status == "no_value":
+            if self._bad_since is None:
+                self._bad_since = t
+            if t - self._bad_since < lim.hold_s:
+                status, target = "hold", self._good
+            else:
+                status = "ramp"
+                step = lim.ramp_um_per_s * min(dt, lim.interval_s)
+                target = self._command + float(np.clip(lim.safe_um - self._command, -step, step))
+        else:
+            status, target, self._bad_since = "ok", out.compensation_um, None
+        clamped_target = float(np.clip(target, *lim.clamp_um))
+        clamped = bool(clamped_target != target)
+        max_step = lim.rate_um_per_s * min(dt, lim.interval_s)
+        delta = clamped_target - self._command
+        rate_limited = bool(abs(delta) > max_step)
+        command = self._command + float(np.clip(delta, -max_step, max_step))
+        self._command = command
+        if status == "ok":
+            self._good = command
+        model, raw = float(out.compensation_um), float(out.raw_um)
+        faults = "; ".join(causes)
+        return Command(t, command, status, model, raw, clamped, rate_limited, faults, bool(outside), True)
