@@ -1,0 +1,205 @@
+"""The replay of a recorded log through the safe compensator (rafi.deploy.replay, ``rafi replay``).
+
+Synthetic logs with known truth (the schedules of tests/test_compensator.py): with the limits
+wide open the replayed command is the batch ``predict_detail`` to 1e-9 um after each reference
+window; with a tight clamp and rate limit every command respects them and the table says which
+limit acted (checked against a recursion written here from the documented rule); a sensor
+drop-out is held and named.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+from test_compensator import WINDOW, _find_runs, _fit, _in_window, _logs
+
+from rafi.deploy.limits import Limits
+from rafi.deploy.replay import (
+    COLUMNS,
+    SUMMARY_COLUMNS,
+    replay_log,
+    replay_runs,
+    replay_summary,
+    summary_frame,
+)
+from rafi.method.validate import time_ordered
+
+#: Nothing limits, nothing counts as a fault but a missing value (held for ever).
+OPEN = Limits(
+    clamp_um=(-1e9, 1e9),
+    rate_um_per_s=1e9,
+    temp_valid_c=(-1e3, 1e3),
+    stuck_s=1e12,
+    stuck_change_k=1e9,
+    range_margin_k=1e9,
+    speed_margin_rpm=1e12,
+    hold_s=1e12,
+    safe_um=0.0,
+    ramp_um_per_s=1.0,
+    interval_s=1e9,
+)
+
+
+@pytest.fixture(scope="module", params=["run_start", "log_start"])
+def data(request):
+    rule = request.param
+    table, frame = _find_runs(_logs(), [3000, 6000, 9000], rule)
+    return rule, table, time_ordered(frame)
+
+
+def _artefact(model) -> dict:
+    return json.loads(json.dumps(model.to_dict()))
+
+
+def _replay_every_log(frame, artefact, limits, rule=None):
+    """Every log replayed; rows back in the frame's order (the replay sorts by ``log_t_s``)."""
+    out = []
+    for _, log in frame.groupby("log", sort=False):
+        got = replay_log(log, artefact, limits, reference_rule=rule)
+        got.index = log.sort_values("log_t_s", kind="stable").index
+        out.append(got)
+    return pd.concat(out).loc[frame.index]
+
+
+@pytest.mark.parametrize("kind", ["rafi_linear", "grey_box"])
+def test_wide_open_limits_replay_the_batch_prediction(data, kind):
+    rule, table, frame = data
+    model = _fit(kind, rule, table, frame)
+    got = _replay_every_log(frame, _artefact(model), OPEN)
+    assert list(got.columns) == list(COLUMNS)
+    want = model.predict_detail(frame)["predicted_um"].to_numpy(dtype=float)
+    after = ~_in_window(frame, rule)
+    status, command = got["status"].to_numpy(), got["command_um"].to_numpy(dtype=float)
+    # a fault (a key sensor or the speed missing) is the only rule that can act: the last
+    # command is held there, also where the batch value is defined (grey_box filters T8)
+    art = _artefact(model)
+    missing = frame[list(art["key_sensors"])].isna().any(axis=1) | frame["speed_rpm"].isna()
+    fault = after & missing.to_numpy()
+    assert (
+        fault.sum() == 5 and (status[fault] == "hold").all() and (got["fault"].to_numpy()[fault] != "").all()
+    )
+    held = np.flatnonzero(fault)
+    assert (command[held] == command[held - 1]).all()
+    assert np.isfinite(want[after & ~fault]).all()  # the batch has a value wherever no input is missing
+    ok = after & ~fault
+    assert ok.sum() > 0.9 * len(frame) and np.abs(want[ok]).max() > 5.0
+    assert (status[ok] == "ok").all() and (got["fault"].to_numpy()[ok] == "").all()
+    np.testing.assert_allclose(command[ok], want[ok], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got["model_um"].to_numpy()[ok], want[ok], rtol=0, atol=1e-9)
+    assert (status[~after] == "referencing").all() and (command[~after] == 0.0).all()
+    assert not got["clamped"].any() and not got["rate_limited"].iloc[1:].any()
+    np.testing.assert_allclose(
+        got["residual_um"], got["measured_um"] - got["command_um"], rtol=0, atol=0
+    )  # the definition
+    np.testing.assert_array_equal(got["measured_um"].to_numpy(), frame["dz_um"].to_numpy())
+
+
+def _expected_commands(t, target, limits):
+    """The documented clamp-then-rate rule, from 0 um: ``c_k = c_{k-1} + clip(clip(x_k) - c_{k-1},
+    +-rate * min(dt, interval_s))``, with the flags it implies."""
+    lo, hi = limits.clamp_um
+    c, out, clamped, limited = 0.0, [], [], []
+    for k in range(len(t)):
+        dt = 0.0 if k == 0 else t[k] - t[k - 1]
+        x = min(max(target[k], lo), hi)
+        step = limits.rate_um_per_s * min(dt, limits.interval_s)
+        clamped.append(x != target[k])
+        limited.append(abs(x - c) > step)
+        c = c + min(max(x - c, -step), step)
+        out.append(c)
+    return np.array(out), np.array(clamped), np.array(limited)
+
+
+def test_a_tight_clamp_and_rate_limit_are_respected_and_reported(data):
+    rule, table, frame = data
+    model = _fit("rafi_linear", rule, table, frame)
+    tight = dataclasses.replace(OPEN, clamp_um=(-4.0, 4.0), rate_um_per_s=0.002, interval_s=5.0)
+    clean = frame[frame["log"] == "train1.csv"]  # no drop-out in this log
+    got = replay_log(clean, _artefact(model), tight)
+    t = got["log_t_s"].to_numpy(dtype=float)
+    command = got["command_um"].to_numpy(dtype=float)
+    assert (np.abs(command) <= 4.0).all()
+    steps = np.abs(np.diff(command))
+    assert (steps <= 0.002 * np.minimum(np.diff(t), 5.0) + 1e-12).all()
+    # the model's own value (wide open) is the target in "ok"; 0 um while referencing
+    free = replay_log(clean, _artefact(model), OPEN)
+    assert set(got["status"]) == {"referencing", "ok"}
+    target = np.where(got["status"] == "ok", free["command_um"], 0.0)
+    np.testing.assert_allclose(
+        got["model_um"][got["status"] == "ok"], target[got["status"] == "ok"], atol=1e-12
+    )
+    want, clamped, limited = _expected_commands(t, target, tight)
+    np.testing.assert_allclose(command, want, rtol=0, atol=1e-9)
+    assert clamped.any() and limited.any()  # both limits act on this log
+    np.testing.assert_array_equal(got["clamped"].to_numpy(), clamped)
+    np.testing.assert_array_equal(got["rate_limited"].to_numpy(), limited)
+    s = summary_frame(replay_summary(got))
+    assert s["n_clamped"].sum() == clamped.sum() and s["n_rate_limited"].sum() == limited.sum()
+    assert (s["n_ok"] + s["n_referencing"] == s["n_samples"]).all() and s["n_samples"].sum() == len(got)
+    ok = (got["status"] == "ok").to_numpy()
+    for r in s.itertuples(index=False):
+        mine = (got["run_id"] == r.run_id).to_numpy()
+        measured = got["measured_um"].to_numpy()[mine]
+        model = np.where(ok, free["command_um"], 0.0)[mine]  # 0 um while referencing
+        assert r.max_abs_residual_model_um == pytest.approx(np.abs(measured - model).max(), abs=1e-9)
+        assert r.max_abs_residual_um == pytest.approx(np.abs(measured - command[mine]).max(), abs=1e-12)
+        assert r.max_abs_command_minus_model_um == pytest.approx(
+            np.abs(command[mine] - model).max(), abs=1e-9
+        )
+    assert (s["max_abs_residual_um"] > s["max_abs_residual_model_um"]).any()  # the limits cost accuracy here
+
+
+def test_a_drop_out_is_held_named_and_counted(data):
+    rule, table, frame = data
+    model = _fit("rafi_linear", rule, table, frame)  # reads T6, T8, T9
+    short_hold = dataclasses.replace(OPEN, hold_s=40.0, ramp_um_per_s=0.01, interval_s=20.0)
+    got = replay_log(frame[frame["log"] == "multi.csv"], _artefact(model), short_hold)
+    faulty = got[got["fault"] != ""]
+    assert set(faulty["fault"]) == {"T8 missing", "speed missing"}
+    assert (faulty["fault"] == "T8 missing").sum() == 4 and (faulty["fault"] == "speed missing").sum() == 1
+    # 4 samples of 20 s: held for 40 s (2 samples), then ramping to 0 um at 0.01 um/s
+    t8 = got[got["fault"] == "T8 missing"]
+    assert list(t8["status"]) == ["hold", "hold", "ramp", "ramp"]
+    before = got["command_um"].loc[t8.index[0] - 1]
+    assert (t8["command_um"].iloc[:2] == before).all()
+    ramp = t8["command_um"].iloc[2:].to_numpy()
+    np.testing.assert_allclose(np.abs(np.diff(np.r_[before, ramp])), 0.2, rtol=0, atol=1e-12)
+    s = summary_frame(replay_summary(got))
+    assert list(s.columns) == list(SUMMARY_COLUMNS)
+    by_run = got.groupby("run_id", sort=False)
+    row = s.set_index("run_id").loc[t8["run_id"].iloc[0]]
+    assert "T8 missing: 4" in row["faults"]
+    assert s["n_samples"].sum() == len(got) == by_run.size().sum()
+    statuses = [
+        c for c in s.columns if c.startswith("n_") and c[2:] in ("off", "referencing", "ok", "hold", "ramp")
+    ]
+    assert (s[statuses].sum(axis=1) == s["n_samples"]).all()
+    assert s["n_hold"].sum() == (got["status"] == "hold").sum() == 3  # the speed sample held too
+
+
+def test_replay_runs_feeds_the_run_s_log_from_power_on(data):
+    rule, table, frame = data
+    model = _fit("grey_box", rule, table, frame)
+    art = _artefact(model)
+    multi = table[table["file"] == "multi.csv"]["run_id"].astype(str).tolist()
+    assert len(multi) >= 3
+    whole = replay_log(frame[frame["log"] == "multi.csv"], art, OPEN)
+    got = replay_runs(frame, [multi[2], multi[1]], art, OPEN)
+    for rid in (multi[2], multi[1]):
+        a = got[got["run_id"] == rid].reset_index(drop=True)
+        b = whole[whole["run_id"] == rid].reset_index(drop=True)
+        pd.testing.assert_frame_equal(a, b)
+    assert list(dict.fromkeys(got["run_id"])) == [multi[2], multi[1]]
+    # replayed alone (no history: power-on at the run's start) the filters start elsewhere
+    alone = replay_log(frame[frame["run_id"] == multi[2]], art, OPEN)
+    mine = got[got["run_id"] == multi[2]]
+    assert np.nanmax(np.abs(alone["command_um"].to_numpy() - mine["command_um"].to_numpy())) > 0.1
+    with pytest.raises(KeyError):
+        replay_runs(frame, ["nope"], art, OPEN)
+    with pytest.raises(ValueError, match="one log"):
+        replay_log(frame, art, OPEN)
+    assert WINDOW == 60.0
