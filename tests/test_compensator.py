@@ -20,9 +20,9 @@ from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
 from rafi.family.ridge_global import RidgeGlobal
 from rafi.method.model import parse_terms
-from rafi.method.runs import find_runs
 from rafi.method.validate import time_ordered
 from rafi.twin.synthetic_logs import schedule_log
+from rafi.twin.synthetic_runs import runs_of_logs
 
 PERIOD = 20.0
 WINDOW = 60.0
@@ -64,17 +64,8 @@ def _logs():
 
 def _find_runs(logs: dict, training_speeds_rpm: list, rule: str):
     """Runs of the synthetic logs with the settings every test here uses."""
-    return find_runs(
-        logs,
-        {},
-        training_speeds_rpm=training_speeds_rpm,
-        speed_tolerance_rpm=50,
-        idle_below_rpm=100,
-        min_run_s=600,
-        min_constant_s=1800,
-        overrides={},
-        reference_rule=rule,
-        reference_window_s=WINDOW,
+    return runs_of_logs(
+        logs, training_speeds_rpm=training_speeds_rpm, reference_rule=rule, reference_window_s=WINDOW
     )
 
 

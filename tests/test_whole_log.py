@@ -14,7 +14,7 @@ from rafi.family.grey_box import GreyBox
 from rafi.family.grids import edge_flags, resolve
 from rafi.family.ridge_global import RidgeGlobal
 from rafi.family.whole_log import filtered_rises, layout, lowpass_log
-from rafi.method.runs import find_runs
+from rafi.twin.synthetic_runs import runs_of_logs
 
 SENSORS = list(_SENSORS)
 PERIOD = 30.0
@@ -83,17 +83,8 @@ def _continuous_log(seed: int = 0) -> pd.DataFrame:
 
 def _runs(rule: str):
     clean = _continuous_log()
-    table, frame = find_runs(
-        {"log.csv": clean},
-        {"log.csv": "0" * 64},
-        training_speeds_rpm=[3000, 6000, 9000],
-        speed_tolerance_rpm=50,
-        idle_below_rpm=100,
-        min_run_s=600,
-        min_constant_s=3600,
-        overrides={},
-        reference_rule=rule,
-        reference_window_s=WINDOW,
+    table, frame = runs_of_logs(
+        {"log.csv": clean}, reference_rule=rule, reference_window_s=WINDOW, min_constant_s=3600
     )
     return clean, table, frame
 

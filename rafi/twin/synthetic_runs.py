@@ -326,3 +326,31 @@ def make_synthetic_runs(
     table = pd.DataFrame(rows)
     frame = pd.concat(frames, ignore_index=True)
     return table, frame
+
+
+def runs_of_logs(
+    logs: dict,
+    *,
+    training_speeds_rpm: Sequence[float] = (3000, 6000, 9000),
+    reference_rule: str = "run_start",
+    reference_window_s: float = 60.0,
+    min_constant_s: float = 1800,
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Rule ``runs``' table and frame of synthetic clean logs (``{name: frame}``, e.g. from
+    :func:`rafi.twin.synthetic_logs.schedule_log`), with the settings the tests and benchmarks
+    of whole logs share: 50 r/min speed tolerance, idle below 100 r/min, runs of 600 s at least,
+    no overrides, zero hashes."""
+    from rafi.method.runs import find_runs
+
+    return find_runs(
+        logs,
+        {name: "0" * 64 for name in logs},
+        training_speeds_rpm=list(training_speeds_rpm),
+        speed_tolerance_rpm=50,
+        idle_below_rpm=100,
+        min_run_s=600,
+        min_constant_s=min_constant_s,
+        overrides={},
+        reference_rule=reference_rule,
+        reference_window_s=reference_window_s,
+    )
