@@ -24,6 +24,10 @@ COMMANDS = {
     "nightly": ("rafi.ops.nightly", "retrain, qualify and promote models (for cron / systemd)"),
     "settings": ("rafi.settings", "print the effective settings of a machine (every default filled in)"),
     "diff": ("rafi.ops.result_diff", "compare two result trees number by number (timings, ids aside)"),
+    "replay": (
+        "rafi.deploy.replay_cli",
+        "replay recorded runs through the compensator with the limits in force",
+    ),
 }
 
 

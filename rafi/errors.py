@@ -283,3 +283,9 @@ class UnqualifiedModel(RafiUserError):
     does not verify. Nothing is written to the controller."""
 
     exit_status = EX_DATAERR
+
+
+class ReplayError(RafiUserError):
+    """``rafi replay`` cannot replay what was asked: the pipeline's results are missing, a run id
+    is unknown, no run has a role of ``deploy.replay_roles``, or the model file is not a model
+    artefact. The message says what to run or which values exist."""

@@ -30,7 +30,15 @@ import pandas as pd
 
 from rafi import SENSORS
 
-__all__ = ["COLUMNS", "SUMMARY_COLUMNS", "replay_log", "replay_runs", "replay_summary", "summary_frame"]
+__all__ = [
+    "COLUMNS",
+    "SUMMARY_COLUMNS",
+    "replay_log",
+    "replay_run_ids",
+    "replay_runs",
+    "replay_summary",
+    "summary_frame",
+]
 
 #: Columns of the replay table, in order (``docs/deploy.md``, section Replay).
 COLUMNS = (
@@ -55,6 +63,8 @@ REPLAY_STATUSES = ("off", "referencing", "ok", "hold", "ramp")
 
 #: Columns of the summary table (one row per replayed run).
 SUMMARY_COLUMNS = (
+    "model_id",
+    "kind",
     "run_id",
     "log",
     "n_samples",
@@ -286,12 +296,24 @@ def replay_summary(table: pd.DataFrame) -> dict:
     return out
 
 
-def summary_frame(summary: dict) -> pd.DataFrame:
+def summary_frame(summary: dict, *, artefact: dict | None = None) -> pd.DataFrame:
     """:func:`replay_summary` as a table (``replay_summary.csv``): one row per run, the columns of
-    :data:`SUMMARY_COLUMNS` (and ``n_<status>`` of any other status after ``n_ramp``)."""
-    rows = list(summary.values())
+    :data:`SUMMARY_COLUMNS` (and ``n_<status>`` of any other status after ``n_ramp``);
+    ``model_id`` and ``kind`` from ``artefact`` (empty without it)."""
+    art = artefact or {}
+    rows = [
+        {"model_id": str(art.get("model_id", "")), "kind": str(art.get("kind", "")), **r}
+        for r in summary.values()
+    ]
     extra = sorted({k for r in rows for k in r} - set(SUMMARY_COLUMNS))
     cols = list(SUMMARY_COLUMNS)
     at = cols.index("n_clamped")
     cols[at:at] = extra
     return pd.DataFrame(rows, columns=cols)
+
+
+def replay_run_ids(table: pd.DataFrame, roles) -> list[str]:
+    """Run ids of ``runs.csv`` whose role is one of ``roles`` (``deploy.replay_roles``), in the
+    table's order."""
+    wanted = {str(r) for r in roles}
+    return [str(r.run_id) for r in table.itertuples(index=False) if str(r.role) in wanted]
