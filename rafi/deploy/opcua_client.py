@@ -1,0 +1,571 @@
+"""The OPC UA link of the live loop (``rafi deploy``): read the inputs, write the compensation.
+
+The only module of ``rafi`` that imports ``asyncua`` (the ``deploy`` extra), and only when a
+link is created, so that ``rafi`` works without it. ``docs/deploy.md`` ("Live: OPC UA")
+describes every setting for a controls engineer.
+
+* :func:`opcua_settings` checks the ``deploy.opcua`` block of ``config.yaml`` and fills in its
+  defaults; a user name or password there is refused (they go to the environment or a
+  credentials file, :func:`load_credentials`).
+* :class:`OpcUaLink` holds one session to the server. It is synchronous for its caller (the
+  asyncua client runs in a background thread with its own event loop) and is both the *source*
+  of the live loop (:meth:`OpcUaLink.read_sample`) and the *sink* of
+  :class:`rafi.deploy.target_sinumerik.SinumerikTarget` (:meth:`OpcUaLink.write_value`).
+  A value is written as ``ua.DataValue(ua.Variant(value, <the node's own variant type>))``
+  without timestamps (a SINUMERIK refuses a write of another type, or with timestamps,
+  ``../shared/docs/controllers.md``); the node's type is read once.
+* A lost connection raises the built-in :class:`ConnectionError` from a read or a write; the
+  caller (:class:`rafi.deploy.live.LiveLoop`) then writes nothing and calls
+  :meth:`OpcUaLink.try_reconnect` on each cycle, which tries again after a bounded, doubling
+  back-off (``reconnect_min_s`` .. ``reconnect_max_s``). A refusal that reconnecting cannot
+  cure (credentials, the right to write, a wrong node or data type) is a
+  :class:`rafi.errors.RafiUserError` and stops the loop.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import os
+import stat
+import threading
+from collections.abc import Callable, Mapping
+from pathlib import Path
+
+import numpy as np
+
+from rafi import SENSORS
+from rafi.errors import RafiUserError, SettingsError, short_path
+
+__all__ = [
+    "ENV_CREDENTIALS",
+    "ENV_PASSWORD",
+    "ENV_USER",
+    "OPCUA_DEFAULTS",
+    "OpcUaLink",
+    "load_credentials",
+    "opcua_settings",
+]
+
+ENV_USER = "RAFI_OPCUA_USER"
+ENV_PASSWORD = "RAFI_OPCUA_PASSWORD"
+ENV_CREDENTIALS = "RAFI_OPCUA_CREDENTIALS"
+
+#: The keys of ``deploy.opcua`` and their defaults (``endpoint`` is required).
+OPCUA_DEFAULTS = {
+    "endpoint": None,  # opc.tcp://host:4840
+    "inputs": {},  # speed_rpm / T1..T16 -> node id, or {node, scale, offset}
+    "node_prefix": "ns=2;s=",  # put before a node name that is not a full node id
+    "credentials_file": None,  # outside the project; RAFI_OPCUA_CREDENTIALS overrides it
+    "timeout_s": 5.0,  # per request
+    "reconnect_min_s": 1.0,  # first wait after a lost connection
+    "reconnect_max_s": 60.0,  # the wait doubles up to this
+}
+
+#: Keys refused in ``deploy.opcua``: credentials never go to config.yaml.
+SECRET_KEYS = ("user", "username", "user_name", "login", "password", "passwd", "pwd", "secret", "token")
+
+#: Inputs the loop reads: the speed and the 16 temperatures.
+INPUT_NAMES = ("speed_rpm", *SENSORS)
+
+#: Status codes that no reconnecting cures: the loop stops with a message.
+_FATAL = {
+    "BadUserAccessDenied": "the server refused the user (wrong user or password, or no right to do this)",
+    "BadIdentityTokenRejected": "the server does not accept this kind of login (anonymous or user/password)",
+    "BadIdentityTokenInvalid": "the server refused the login",
+    "BadNotWritable": "the node is not writable for this user (SINUMERIK: the user needs the SeaWrite right)",
+    "BadWriteNotSupported": "the server refused the write's form (data type or timestamps)",
+    "BadTypeMismatch": "the value's data type is not the node's",
+    "BadNodeIdUnknown": "the server has no such node",
+    "BadNodeIdInvalid": "the node id is not valid",
+}
+
+#: Variant types a compensation (a float) may be written as, exactly.
+_FLOAT_TYPES = ("Double", "Float")
+
+
+def _asyncua():
+    """The ``asyncua`` package, or a RafiUserError saying how to install it."""
+    try:
+        import asyncua
+    except ImportError:
+        raise RafiUserError(
+            "the OPC UA client needs the asyncua package: pip install 'rafi[deploy]'"
+        ) from None
+    return asyncua
+
+
+# --------------------------------------------------------------------------- settings
+
+
+def _positive(block: dict, key: str) -> float:
+    value = block[key]
+    if (
+        isinstance(value, bool)
+        or not isinstance(value, (int, float))
+        or not (math.isfinite(value) and value > 0)
+    ):
+        raise SettingsError(f"deploy.opcua.{key} is {value!r}; expected a number of seconds above 0")
+    return float(value)
+
+
+def _node_id(value, prefix: str, where: str) -> str:
+    if not isinstance(value, str) or not value.strip():
+        raise SettingsError(f"{where} is {value!r}; expected a node id such as 'ns=2;s=/Channel/...'")
+    value = value.strip()
+    full = value.startswith(("ns=", "nsu=", "i=", "s=", "g=", "b="))
+    return value if full else prefix + value
+
+
+def opcua_settings(block: Mapping | None, *, need_inputs: bool = True) -> dict:
+    """The ``deploy.opcua`` block checked, with its defaults filled in.
+
+    Parameters
+    ----------
+    block : mapping or None
+        ``machine_settings(config, m)["deploy"]["opcua"]``.
+    need_inputs : bool
+        The inputs are read from the server (not from a followed log file): ``inputs`` must
+        name the speed.
+
+    Returns
+    -------
+    dict
+        The keys of :data:`OPCUA_DEFAULTS`; ``inputs`` as ``{name: (node_id, scale, offset)}``
+        (value read = raw * scale + offset), node ids complete.
+
+    Raises
+    ------
+    SettingsError
+        A missing endpoint, an unknown key, a user name or password in the block (they belong
+        in the environment or a credentials file), a malformed input.
+    """
+    if block is None:
+        raise SettingsError("deploy.opcua is not set: the live loop needs at least deploy.opcua.endpoint")
+    if not isinstance(block, Mapping):
+        raise SettingsError(f"deploy.opcua is {type(block).__name__}; expected a mapping")
+    secrets = [k for k in block if str(k).lower() in SECRET_KEYS]
+    if secrets:
+        raise SettingsError(
+            f"deploy.opcua.{secrets[0]}: credentials never go to config.yaml; set the environment "
+            f"variables {ENV_USER} and {ENV_PASSWORD}, or name a credentials file outside the "
+            f"project (mode 600) in {ENV_CREDENTIALS} or deploy.opcua.credentials_file (docs/deploy.md)"
+        )
+    unknown = sorted(str(k) for k in block if k not in OPCUA_DEFAULTS)
+    if unknown:
+        raise SettingsError(f"deploy.opcua.{unknown[0]} is not a setting; known: {sorted(OPCUA_DEFAULTS)}")
+    out = {**OPCUA_DEFAULTS, **block}
+    endpoint = out["endpoint"]
+    if not isinstance(endpoint, str) or not endpoint.startswith("opc.tcp://"):
+        raise SettingsError(f"deploy.opcua.endpoint is {endpoint!r}; expected 'opc.tcp://host:port'")
+    if "@" in endpoint.split("//", 1)[1].split("/", 1)[0]:
+        raise SettingsError(
+            "deploy.opcua.endpoint holds a user name (user@host): credentials never go to config.yaml"
+        )
+    if not isinstance(out["node_prefix"], str):
+        raise SettingsError(
+            f"deploy.opcua.node_prefix is {out['node_prefix']!r}; expected text such as 'ns=2;s='"
+        )
+    for key in ("timeout_s", "reconnect_min_s", "reconnect_max_s"):
+        out[key] = _positive(out, key)
+    if out["reconnect_max_s"] < out["reconnect_min_s"]:
+        raise SettingsError("deploy.opcua.reconnect_max_s is below reconnect_min_s")
+    cred = out["credentials_file"]
+    if cred is not None and (not isinstance(cred, str) or not cred):
+        raise SettingsError(f"deploy.opcua.credentials_file is {cred!r}; expected a path")
+    inputs = out["inputs"] or {}
+    if not isinstance(inputs, Mapping):
+        raise SettingsError("deploy.opcua.inputs must map speed_rpm, T1..T16 to node ids")
+    parsed = {}
+    for name, spec in inputs.items():
+        where = f"deploy.opcua.inputs.{name}"
+        if name not in INPUT_NAMES:
+            raise SettingsError(f"{where}: not an input; the inputs are speed_rpm and T1..T16")
+        scale, offset = 1.0, 0.0
+        if isinstance(spec, Mapping):
+            extra = sorted(set(spec) - {"node", "scale", "offset"})
+            if extra:
+                raise SettingsError(f"{where}.{extra[0]} is not a setting; known: node, scale, offset")
+            scale, offset = spec.get("scale", 1.0), spec.get("offset", 0.0)
+            for key, v in (("scale", scale), ("offset", offset)):
+                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                    raise SettingsError(f"{where}.{key} is {v!r}; expected a finite number")
+            if scale == 0:
+                raise SettingsError(f"{where}.scale is 0")
+            spec = spec.get("node")
+        parsed[name] = (_node_id(spec, out["node_prefix"], where), float(scale), float(offset))
+    if need_inputs and "speed_rpm" not in parsed:
+        raise SettingsError("deploy.opcua.inputs has no speed_rpm node (the spindle speed)")
+    out["inputs"] = parsed
+    return out
+
+
+# --------------------------------------------------------------------------- credentials
+
+
+def _repository_root(start: Path) -> Path | None:
+    for folder in (start, *start.parents):
+        if (folder / ".git").exists():
+            return folder
+    return None
+
+
+def _read_credentials_file(path: Path, project_dir: Path) -> tuple[str, str]:
+    where = f"credentials file {short_path(path)}"
+    try:
+        real = path.resolve(strict=True)
+    except (OSError, RuntimeError):
+        raise RafiUserError(f"{where} does not exist") from None
+    forbidden = [project_dir.resolve()]
+    repo = _repository_root(project_dir.resolve())
+    if repo is not None:
+        forbidden.append(repo)
+    for root in forbidden:
+        if real == root or root in real.parents:
+            raise RafiUserError(
+                f"{where} lies inside {short_path(root)} (the project or its repository); keep "
+                "credentials outside it (e.g. /etc/rafi/opcua.credentials, mode 600)"
+            )
+    mode = real.stat().st_mode
+    if not stat.S_ISREG(mode):
+        raise RafiUserError(f"{where} is not a regular file")
+    if mode & 0o077:
+        raise RafiUserError(
+            f"{where} has mode {stat.S_IMODE(mode):o}: readable or writable by group or others; "
+            f"allow its owner only (chmod 600 {short_path(real)})"
+        )
+    values = {}
+    for number, line in enumerate(real.read_text(encoding="utf-8").splitlines(), 1):
+        line = line.strip()
+        if not line or line.startswith("#"):
+            continue
+        key, sep, value = line.partition("=") if "=" in line.split(":", 1)[0] else line.partition(":")
+        if not sep or key.strip() not in ("user", "password"):
+            raise RafiUserError(f"{where}, line {number}: expected 'user: NAME' or 'password: SECRET'")
+        values[key.strip()] = value.strip()
+    if not values.get("user") or "password" not in values:
+        raise RafiUserError(f"{where}: needs a line 'user: NAME' and a line 'password: SECRET'")
+    return values["user"], values["password"]
+
+
+def load_credentials(
+    settings: Mapping, *, project_dir=".", environ: Mapping[str, str] | None = None
+) -> tuple[str | None, str | None]:
+    """The user and password of the OPC UA session, never from ``config.yaml``.
+
+    In this order: the environment variables ``RAFI_OPCUA_USER`` and ``RAFI_OPCUA_PASSWORD``
+    (both, or neither); the file named by ``RAFI_OPCUA_CREDENTIALS``; the file named by
+    ``deploy.opcua.credentials_file``; else anonymous (``(None, None)``: a SINUMERIK then lets
+    the client read but not write).
+
+    The file holds two lines, ``user: NAME`` and ``password: SECRET`` (``#`` comments allowed).
+    It must lie outside the project folder and its git repository, and be readable by its owner
+    only (like ssh, a file any group or other may read is refused).
+
+    Parameters
+    ----------
+    settings : mapping
+        :func:`opcua_settings`.
+    project_dir : path
+        The folder of ``config.yaml``.
+    environ : mapping, optional
+        The environment (default ``os.environ``).
+
+    Raises
+    ------
+    RafiUserError
+        Only one of the two variables set; the file missing, inside the project, too open, or
+        malformed.
+    """
+    env = os.environ if environ is None else environ
+    user, password = env.get(ENV_USER), env.get(ENV_PASSWORD)
+    if user or password:
+        if not user or password is None:
+            raise RafiUserError(f"set both {ENV_USER} and {ENV_PASSWORD}, or neither")
+        return user, password
+    path = env.get(ENV_CREDENTIALS) or settings.get("credentials_file")
+    if path:
+        return _read_credentials_file(Path(os.path.expanduser(path)), Path(project_dir))
+    return None, None
+
+
+# --------------------------------------------------------------------------- the link
+
+
+def _status_name(exc: BaseException) -> str | None:
+    """The OPC UA status name of an asyncua error (``BadUserAccessDenied``), else None."""
+    code = getattr(exc, "code", None)
+    if code is None:
+        return None
+    try:
+        from asyncua.ua.status_codes import get_name_and_doc
+
+        return get_name_and_doc(code)[0]
+    except (ImportError, KeyError, TypeError):
+        return type(exc).__name__
+
+
+class OpcUaLink:
+    """One OPC UA session: the live inputs, and a sink for the SINUMERIK target.
+
+    Parameters
+    ----------
+    settings : mapping
+        :func:`opcua_settings`.
+    user, password : str, optional
+        From :func:`load_credentials`; None: anonymous.
+    log : callable, optional
+        ``log(message)`` for each lost and restored connection (default: nothing).
+    clock : callable
+        Seconds, for the back-off (default ``time.monotonic``).
+
+    Notes
+    -----
+    Not thread-safe: one caller (the live loop). The asyncua client runs in a daemon thread
+    with its own event loop; each call waits at most ``timeout_s`` (+1 s) for it.
+    """
+
+    def __init__(
+        self, settings: Mapping, *, user=None, password=None, log: Callable | None = None, clock=None
+    ):
+        import time
+
+        self.settings = dict(settings)
+        self.endpoint = self.settings["endpoint"]
+        self.inputs = dict(self.settings["inputs"])
+        self.node_prefix = self.settings["node_prefix"]
+        self.timeout_s = float(self.settings["timeout_s"])
+        self._user, self._password = user, password
+        self.log = log or (lambda message: None)
+        self.clock = clock or time.monotonic
+        self.connected = False
+        self.losses = 0
+        self.reconnects = 0
+        self._client = None
+        self._types: dict[str, object] = {}  # node id -> ua.VariantType
+        self._nodes: dict[str, object] = {}
+        self._backoff = float(self.settings["reconnect_min_s"])
+        self._next_try = -math.inf
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._thread: threading.Thread | None = None
+
+    # -- the event loop in its thread ----------------------------------------------------
+    def _run(self, coro):
+        if self._loop is None:
+            self._loop = asyncio.new_event_loop()
+            self._thread = threading.Thread(target=self._loop.run_forever, name="rafi-opcua", daemon=True)
+            self._thread.start()
+        future = asyncio.run_coroutine_threadsafe(coro, self._loop)
+        try:
+            return future.result(self.timeout_s * 3 + 1)
+        except TimeoutError:
+            future.cancel()
+            raise TimeoutError(f"no answer from {self.endpoint} within {self.timeout_s:g} s") from None
+
+    def node_id(self, node: str) -> str:
+        """``node`` as a complete node id (``node_prefix`` put before a bare name)."""
+        return _node_id(node, self.node_prefix, "node")
+
+    # -- connection ----------------------------------------------------------------------
+    def _fatal(self, exc: BaseException, what: str) -> RafiUserError | None:
+        name = _status_name(exc)
+        if name in _FATAL:
+            who = f"user {self._user!r}" if self._user else "an anonymous session"
+            return RafiUserError(
+                f"OPC UA {self.endpoint}: {what} refused for {who}: {name}: {_FATAL[name]}. "
+                f"Credentials come from {ENV_USER}/{ENV_PASSWORD} or a credentials file (docs/deploy.md)"
+            )
+        return None
+
+    async def _connect(self):
+        asyncua = _asyncua()
+        client = asyncua.Client(url=self.endpoint, timeout=self.timeout_s)
+        if self._user is not None:
+            client.set_user(self._user)
+            client.set_password(self._password)
+        try:
+            await client.connect()
+        except BaseException:
+            try:
+                await client.disconnect()
+            except Exception:
+                pass
+            raise
+        return client
+
+    def connect(self) -> OpcUaLink:
+        """Open the session (again). ConnectionError if the server cannot be reached,
+        RafiUserError if it refuses the login."""
+        _asyncua()
+        self._drop_client()
+        try:
+            self._client = self._run(self._connect())
+        except RafiUserError:
+            raise
+        except Exception as exc:
+            fatal = self._fatal(exc, "the login")
+            if fatal is not None:
+                raise fatal from None
+            raise ConnectionError(
+                f"OPC UA {self.endpoint}: cannot connect: {type(exc).__name__}: {exc}"
+            ) from None
+        self._nodes = {}
+        self.connected = True
+        self._backoff = float(self.settings["reconnect_min_s"])
+        return self
+
+    def _drop_client(self) -> None:
+        client, self._client = self._client, None
+        self.connected = False
+        if client is not None:
+            try:
+                self._run(asyncio.wait_for(client.disconnect(), self.timeout_s))
+            except BaseException:
+                pass
+
+    def lost(self, exc: BaseException) -> ConnectionError:
+        """Record a lost connection (logged once), schedule the next try; the error to raise."""
+        if self.connected:
+            self.losses += 1
+            self.log(
+                f"OPC UA {self.endpoint}: connection lost ({type(exc).__name__}: {exc}); "
+                "nothing is written until it is back"
+            )
+        self._drop_client()
+        self._next_try = self.clock() + self._backoff
+        return ConnectionError(f"OPC UA {self.endpoint}: connection lost: {type(exc).__name__}: {exc}")
+
+    def try_reconnect(self) -> bool:
+        """Try to connect again if the back-off has passed; True when connected.
+
+        The wait starts at ``reconnect_min_s`` and doubles after each failed try, up to
+        ``reconnect_max_s``. A refused login is not retried: RafiUserError.
+        """
+        if self.connected:
+            return True
+        now = self.clock()
+        if now < self._next_try:
+            return False
+        try:
+            self.connect()
+        except ConnectionError:
+            self._backoff = min(self._backoff * 2, float(self.settings["reconnect_max_s"]))
+            self._next_try = now + self._backoff
+            return False
+        self.reconnects += 1
+        self.log(f"OPC UA {self.endpoint}: reconnected")
+        return True
+
+    # -- reading -------------------------------------------------------------------------
+    async def _read(self, node_ids: list[str]):
+        from asyncua import ua
+
+        nodes = [self._client.get_node(n) for n in node_ids]
+        return await self._client.read_attributes(nodes, ua.AttributeIds.Value)
+
+    def read_inputs(self) -> dict[str, float]:
+        """The configured inputs, scaled (raw * scale + offset); NaN where the server has no
+        good value. ConnectionError when the connection is lost."""
+        if not self.connected:
+            raise ConnectionError(f"OPC UA {self.endpoint}: not connected")
+        names = list(self.inputs)
+        try:
+            values = self._run(self._read([self.inputs[n][0] for n in names]))
+        except Exception as exc:
+            fatal = self._fatal(exc, "reading the inputs")
+            if fatal is not None:
+                raise fatal from None
+            raise self.lost(exc) from None
+        out = {}
+        for name, dv in zip(names, values):
+            _, scale, offset = self.inputs[name]
+            raw = dv.Value.Value if (dv.StatusCode is None or dv.StatusCode.is_good()) and dv.Value else None
+            try:
+                value = float(raw) * scale + offset
+            except (TypeError, ValueError):
+                value = math.nan
+            out[name] = value if math.isfinite(value) else math.nan
+        return out
+
+    def read_sample(self, t_s: float) -> tuple[float, float, np.ndarray]:
+        """``(t_s, speed_rpm, temperatures[16])`` from the inputs (NaN where not configured)."""
+        values = self.read_inputs()
+        temps = np.array([values.get(name, math.nan) for name in SENSORS], dtype=float)
+        return float(t_s), values.get("speed_rpm", math.nan), temps
+
+    # -- writing (the sink of SinumerikTarget) -------------------------------------------
+    async def _variant_type(self, node_id: str):
+        from asyncua import ua
+
+        node = self._client.get_node(node_id)
+        try:
+            vtype = await node.read_data_type_as_variant_type()
+        except Exception:
+            vtype = None
+        if vtype in (None, ua.VariantType.Null, ua.VariantType.Variant, ua.VariantType.ExtensionObject):
+            vtype = (await node.read_data_value()).Value.VariantType
+        return vtype
+
+    async def _write(self, node_id: str, value: float, vtype):
+        from asyncua import ua
+
+        node = self._client.get_node(node_id)
+        # no timestamps: a SINUMERIK refuses a write that carries them
+        await node.write_attribute(ua.AttributeIds.Value, ua.DataValue(ua.Variant(value, vtype)))
+
+    def write_value(self, node: str, value: float, datatype: str) -> None:
+        """Write ``value`` to ``node`` as the node's own variant type (read once per node).
+
+        ``datatype`` is the type the target computed the value for (``"Double"``); a node of
+        another floating type is written as its own type, an integer or other type is refused.
+
+        Raises
+        ------
+        ConnectionError
+            The connection was lost (nothing more is written until :meth:`try_reconnect`).
+        RafiUserError
+            The server refused the write (no right to write, unknown node, wrong type).
+        """
+        if not self.connected:
+            raise ConnectionError(f"OPC UA {self.endpoint}: not connected")
+        node_id = self.node_id(node)
+        try:
+            vtype = self._types.get(node_id)
+            if vtype is None:
+                vtype = self._run(self._variant_type(node_id))
+                if getattr(vtype, "name", None) not in _FLOAT_TYPES:
+                    raise RafiUserError(
+                        f"OPC UA node {node_id} is of type {getattr(vtype, 'name', vtype)}; the "
+                        f"compensation is a {datatype}: refused (check the node id)"
+                    )
+                self._types[node_id] = vtype
+            self._run(self._write(node_id, float(value), vtype))
+        except RafiUserError:
+            raise
+        except Exception as exc:
+            fatal = self._fatal(exc, f"writing {node_id}")
+            if fatal is not None:
+                raise fatal from None
+            raise self.lost(exc) from None
+
+    def open(self) -> None:
+        """Connect if not connected (called when the target opens)."""
+        if not self.connected:
+            self.connect()
+
+    def close(self) -> None:
+        """Close the session and stop the event loop thread (closing twice does nothing)."""
+        self._drop_client()
+        loop, self._loop = self._loop, None
+        if loop is not None:
+            loop.call_soon_threadsafe(loop.stop)
+            if self._thread is not None:
+                self._thread.join(5)
+            loop.close()
+
+    def __enter__(self) -> OpcUaLink:
+        return self
+
+    def __exit__(self, *exc) -> bool:
+        self.close()
+        return False

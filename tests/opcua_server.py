@@ -1,0 +1,237 @@
+"""A real asyncua OPC UA server on 127.0.0.1 shaped like a SINUMERIK 840D sl, for the tests.
+
+The nodes are named and typed as the controller's (``ns=2`` string node ids):
+
+* the temperature compensation setting data of machine axis ``axis`` (SD 43900/43910/43920,
+  ``/NC/_N_AX_SEA_ACX/$SA_TEMP_COMP_ABS_VALUE[u3]`` ..., ``Double``: the default template of
+  :mod:`rafi.deploy.target_sinumerik`), writable by the one configured user only;
+* a ``Float`` ``/Plc/DB200.DBD0`` (writable), for the write of another type;
+* the spindle speed ``/Channel/Spindle/actSpeed[u1]`` (``Double``, r/min);
+* the temperatures as PLC values: T1..T8 as ``Int16`` in 0.1 degC (``/Plc/DB100.DBW<2i>``),
+  T9..T16 as ``Float`` in degC (``/Plc/DB101.DBD<4i>``); read-only.
+
+Like the controller, the server refuses a write whose variant type is not the node's
+(``BadTypeMismatch``, asyncua's own check) or that carries a timestamp
+(``BadWriteNotSupported``), and an anonymous session may read but not write
+(``BadUserAccessDenied``); a wrong password is refused at login.
+
+Every write a client makes is recorded server-side, in order (:attr:`SinumerikLikeServer.writes`,
+accepted ones; :attr:`refused`, the others). The server runs in a thread with its own event
+loop; every method is synchronous and waits a bounded time.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import socket
+import threading
+from dataclasses import dataclass
+
+from asyncua import Server, ua
+from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
+
+NS_URI = "http://rafi.test/sinumerik-like"
+SD_TEMPLATE = "/NC/_N_AX_SEA_ACX/$SA_{data}[u{axis}]"
+SD_NAMES = ("TEMP_COMP_ABS_VALUE", "TEMP_COMP_SLOPE", "TEMP_COMP_REF_POSITION")
+SPEED_NODE = "/Channel/Spindle/actSpeed[u1]"
+PLC_COMP_NODE = "/Plc/DB200.DBD0"  # a Float a PLC program could pass on (a second write type)
+WAIT_S = 20.0
+
+
+def temp_node(i: int) -> tuple[str, ua.VariantType, float]:
+    """Node name, variant type and scale (degC per raw unit) of sensor ``T<i>`` (1-based)."""
+    if i <= 8:
+        return f"/Plc/DB100.DBW{2 * (i - 1)}", ua.VariantType.Int16, 0.1
+    return f"/Plc/DB101.DBD{4 * (i - 9)}", ua.VariantType.Float, 1.0
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@dataclass(frozen=True)
+class Write:
+    """One client write as the server saw it."""
+
+    node: str  # the string identifier, without ns=2;s=
+    value: object
+    variant_type: str
+    user: str | None
+    status: str  # "Good" or the refusal
+
+
+class _Users:
+    def __init__(self, user: str, password: str):
+        self.user, self.password = user, password
+
+    def get_user(self, iserver, username=None, password=None, certificate=None):
+        if username is None:
+            return User(role=UserRole.Anonymous)
+        if username == self.user and password == self.password:
+            return User(role=UserRole.User, name=username)
+        return None  # BadUserAccessDenied at login
+
+
+class _Rules(PermissionRuleset):
+    """Anonymous: everything a user may do but write; the user: everything a user may do."""
+
+    def __init__(self):
+        user_ids = set(map(ua.NodeId, USER_TYPES))
+        write = ua.NodeId(ua.ObjectIds.WriteRequest_Encoding_DefaultBinary)
+        self._allowed = {
+            UserRole.Admin: user_ids,
+            UserRole.User: user_ids,
+            UserRole.Anonymous: user_ids - {write},
+        }
+
+    def check_validity(self, user, action_type_id, body):
+        return action_type_id in self._allowed[user.role]
+
+
+class SinumerikLikeServer:
+    """The server; ``start()`` / ``stop()`` / ``restart()`` (same port, values kept).
+
+    Parameters
+    ----------
+    axis : int
+        The machine axis whose setting data exist.
+    user, password : str
+        The one login that may write.
+    """
+
+    def __init__(
+        self, *, axis: int = 3, user: str = "seawriter", password: str = "s3cret-Pw", port: int | None = None
+    ):
+        self.axis = axis
+        self.user, self.password = user, password
+        self.port = port or free_port()
+        self.endpoint = f"opc.tcp://127.0.0.1:{self.port}"
+        self.writes: list[Write] = []
+        self.refused: list[Write] = []
+        self.values: dict[str, tuple[object, ua.VariantType]] = {}
+        for data in SD_NAMES:
+            self.values[self.sd_node(data)] = (0.0, ua.VariantType.Double)
+        self.values[SPEED_NODE] = (0.0, ua.VariantType.Double)
+        self.values[PLC_COMP_NODE] = (0.0, ua.VariantType.Float)
+        for i in range(1, 17):
+            name, vtype, _ = temp_node(i)
+            self.values[name] = (0 if vtype == ua.VariantType.Int16 else 0.0, vtype)
+        self._server: Server | None = None
+        self._loop = asyncio.new_event_loop()
+        self._thread = threading.Thread(target=self._loop.run_forever, name="opcua-test-server", daemon=True)
+        self._thread.start()
+        self._lock = threading.Lock()
+
+    def sd_node(self, data: str = "TEMP_COMP_ABS_VALUE") -> str:
+        return SD_TEMPLATE.format(data=data, axis=self.axis)
+
+    def _call(self, coro):
+        return asyncio.run_coroutine_threadsafe(coro, self._loop).result(WAIT_S)
+
+    # -- life cycle ----------------------------------------------------------------------
+    async def _start(self) -> None:
+        server = Server(user_manager=_Users(self.user, self.password))
+        await server.init()
+        server.set_endpoint(f"{self.endpoint}/")
+        server.set_security_policy([ua.SecurityPolicyType.NoSecurity], permission_ruleset=_Rules())
+        server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
+        ns = await server.register_namespace(NS_URI)
+        assert ns == 2, ns
+        objects = server.nodes.objects
+        for name, (value, vtype) in self.values.items():
+            node = await objects.add_variable(
+                ua.NodeId(name, 2), ua.QualifiedName(name, 2), ua.Variant(value, vtype)
+            )
+            if name.startswith("/NC/") or name == PLC_COMP_NODE:
+                await node.set_writable(True)
+        original = server.iserver.attribute_service.write
+
+        async def write(params, user=None):
+            user = user or User(role=UserRole.Admin)
+            if user.role == UserRole.Admin:  # the server itself (the test feeding inputs)
+                return await original(params, user=user)
+            results = []
+            for wv in params.NodesToWrite:
+                dv = wv.Value
+                name = wv.NodeId.Identifier
+                if dv.SourceTimestamp is not None or dv.ServerTimestamp is not None:
+                    code = ua.StatusCode(ua.StatusCodes.BadWriteNotSupported)
+                elif user.role == UserRole.Anonymous:
+                    code = ua.StatusCode(ua.StatusCodes.BadUserAccessDenied)
+                else:
+                    one = ua.WriteParameters()
+                    one.NodesToWrite = [wv]
+                    code = (await original(one, user=user))[0]
+                rec = Write(name, dv.Value.Value, dv.Value.VariantType.name, user.name, code.name)
+                with self._lock:
+                    (self.writes if code.is_good() else self.refused).append(rec)
+                    if code.is_good():
+                        self.values[name] = (dv.Value.Value, dv.Value.VariantType)
+                results.append(code)
+            return results
+
+        server.iserver.attribute_service.write = write
+        await server.start()
+        self._server = server
+
+    def start(self) -> SinumerikLikeServer:
+        self._call(self._start())
+        return self
+
+    async def _stop(self) -> None:
+        server, self._server = self._server, None
+        if server is not None:
+            await server.stop()
+
+    def stop(self) -> None:
+        self._call(self._stop())
+
+    def restart(self) -> None:
+        self.stop()
+        self.start()
+
+    def close(self) -> None:
+        self.stop()
+        self._loop.call_soon_threadsafe(self._loop.stop)
+        self._thread.join(WAIT_S)
+
+    # -- the machine's side --------------------------------------------------------------
+    async def _set(self, name: str, value) -> None:
+        _, vtype = self.values[name]
+        await self._server.write_attribute_value(ua.NodeId(name, 2), ua.DataValue(ua.Variant(value, vtype)))
+        self.values[name] = (value, vtype)
+
+    def set_inputs(self, speed_rpm: float, temperatures) -> None:
+        """Put one sample on the input nodes (a NaN temperature: the sensor reads bad)."""
+
+        async def put():
+            await self._set(SPEED_NODE, float(speed_rpm))
+            for i, t in enumerate(temperatures, start=1):
+                name, vtype, scale = temp_node(i)
+                node = ua.NodeId(name, 2)
+                if t != t:  # NaN: a sensor without value, as the PLC flags it
+                    dv = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadSensorFailure))
+                    await self._server.write_attribute_value(node, dv)
+                    continue
+                raw = int(round(t / scale)) if vtype == ua.VariantType.Int16 else float(t)
+                await self._set(name, raw)
+
+        self._call(put())
+
+    def value(self, name: str):
+        """The current value of node ``name`` (as the server holds it)."""
+        with self._lock:
+            return self.values[name][0]
+
+    def client_writes(self) -> list[Write]:
+        with self._lock:
+            return list(self.writes)
+
+    def __enter__(self) -> SinumerikLikeServer:
+        return self.start()
+
+    def __exit__(self, *exc) -> bool:
+        self.close()
+        return False

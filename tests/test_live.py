@@ -1,0 +1,409 @@
+"""The live loop (rafi.deploy.live) with fakes, the log follower, the target and credential
+settings; and the helpers the OPC UA end-to-end test shares (a hand-written model with a known
+formula, a registry holding it as champion, and an oracle of the documented limit rules).
+
+The model is a hand-written ``ridge_global`` artefact whose value is ``c . (T - T0)`` (T0: the
+median of the key temperatures over the reference window), so the expected command of every
+sample follows from that formula and the rules of ``rafi.deploy.limits``' docstring, written
+again here (:func:`expected_commands`), not from the code under test.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+
+import numpy as np
+import pytest
+
+from rafi import SENSORS
+from rafi.artefact import compute_model_id
+from rafi.deploy.limits import Limits, SafeCompensator
+from rafi.deploy.live import LiveLoop, LogFollower, build_target, check_target_limits
+from rafi.deploy.opcua_client import load_credentials, opcua_settings
+from rafi.deploy.target_sinumerik import DrySink
+from rafi.errors import RafiUserError, SettingsError, TargetError
+from rafi.settings import MACHINE_DEFAULTS
+
+KEY = ["T6", "T8", "T9"]
+COEF = [30.0, -10.0, 5.0]
+WINDOW = 60.0
+TOP_RPM = 9000.0
+DT = 5.0
+
+
+def artefact(coef=COEF) -> dict:
+    d = {
+        "schema": "rafi.model/1",
+        "kind": "ridge_global",
+        "key_sensors": KEY,
+        "features": [f"d{s}@0s" for s in KEY],
+        "coefficients": list(coef),
+        "selected": {"taus_s": [0.0], "speed_gain": False, "speed_terms": False},
+        "hyperparameters": {"speed_tolerance_rpm": 50, "filter_restart_gap_s": 3600},
+        "regressor_ranges": {s: [-1000.0, 1000.0] for s in KEY},
+        "speed_range_rpm": [0.0, TOP_RPM],
+        "reference": {"rule": "run_start", "window_s": WINDOW},
+        "speed_reference": {"rule": "zero"},
+    }
+    d["model_id"] = compute_model_id(d)
+    return d
+
+
+def make_registry(root, champion: dict) -> None:
+    """``root`` (results/<m>/registry) with ``champion`` as its champion."""
+    (root / "models").mkdir(parents=True, exist_ok=True)
+    (root / "models" / f"{champion['model_id']}.json").write_text(json.dumps(champion))
+    (root / "champion.json").write_text(json.dumps({"model_id": champion["model_id"]}))
+
+
+#: The deploy settings of the tests: every rule reachable within a few dozen samples.
+DEPLOY = dict(
+    MACHINE_DEFAULTS["deploy"],
+    clamp_um=[-20.0, 20.0],
+    rate_um_per_s=0.4,  # 2 um per 5 s sample
+    stuck_s=60.0,
+    stuck_change_k=0.5,
+    range_margin_k=1000.0,
+    speed_margin_rpm=500.0,
+    hold_s=30.0,
+    safe_um=0.0,
+    ramp_um_per_s=0.2,  # 1 um per sample
+    interval_s=DT,
+)
+
+
+def temps16(key_values) -> np.ndarray:
+    out = np.full(16, 25.0)
+    for s, v in zip(KEY, key_values):
+        out[SENSORS.index(s)] = v
+    return out
+
+
+def expected_commands(samples, s=DEPLOY, coef=COEF) -> list[tuple[float, str]]:
+    """(command um, status) per sample by the documented rules, for the model c . (T - T0)."""
+    lo, hi = s["clamp_um"]
+    vlo, vhi = s["temp_valid_c"]
+    t0, ref, window, last_t = None, None, [], None
+    cmd = good = 0.0
+    bad_since = None
+    since, value, others = [None] * 3, [None] * 3, [None] * 3
+    out = []
+    for t, n, temps in samples:
+        key = np.array([temps[SENSORS.index(k)] for k in KEY], dtype=float)
+        causes = []
+        fed = key.copy()
+        for i in range(3):
+            if not math.isfinite(key[i]):
+                causes.append("missing")
+            elif not vlo <= key[i] <= vhi:
+                causes.append("out of range")
+                fed[i] = math.nan
+        for i in range(3):
+            if not math.isfinite(fed[i]):
+                continue
+            if since[i] is None or fed[i] != value[i]:
+                since[i], value[i], others[i] = t, fed[i], fed.copy()
+            elif t - since[i] >= s["stuck_s"]:
+                moved = [abs(fed[j] - others[i][j]) for j in range(3) if j != i]
+                if max((m for m in moved if math.isfinite(m)), default=0.0) >= s["stuck_change_k"]:
+                    causes.append("stuck")
+        if not math.isfinite(n):
+            causes.append("speed missing")
+        if t0 is None:
+            t0 = t
+        referencing = t < t0 + WINDOW
+        if referencing:
+            window.append(fed)
+            model = math.nan
+        else:
+            if ref is None:
+                ref = np.nanmedian(np.array(window), axis=0)
+            model = float(np.dot(coef, fed - ref))
+            if math.isfinite(n) and abs(n) > TOP_RPM + s["speed_margin_rpm"]:
+                causes.append("speed outside")
+        dt = 0.0 if last_t is None else max(t - last_t, 0.0)
+        last_t = t
+        if referencing and not causes:
+            status, target, bad_since = "referencing", 0.0, None
+        elif causes or not math.isfinite(model):
+            bad_since = t if bad_since is None else bad_since
+            if t - bad_since < s["hold_s"]:
+                status, target = "hold", good
+            else:
+                status = "ramp"
+                step = s["ramp_um_per_s"] * min(dt, s["interval_s"])
+                target = cmd + min(max(s["safe_um"] - cmd, -step), step)
+        else:
+            status, target, bad_since = "ok", model, None
+        target = min(max(target, lo), hi)
+        max_step = s["rate_um_per_s"] * min(dt, s["interval_s"])
+        cmd = cmd + min(max(target - cmd, -max_step), max_step)
+        if status == "ok":
+            good = cmd
+        out.append((cmd, status))
+    return out
+
+
+def scenario() -> list[tuple[float, np.ndarray]]:
+    """(speed, temperatures) per sample: reference, a rise into the clamp, a fall, T8 dropping
+    out, T9 stuck while the others rise (hold, then ramp), recovery, a speed outside the trained
+    range, recovery."""
+    base = np.array([20.0, 21.0, 22.0])
+    rows = []
+    k = base.copy()
+
+    def add(n, speed, step, *, freeze=None, drop=None):
+        nonlocal k
+        for _ in range(n):
+            k = k + step
+            if freeze is not None:
+                k[freeze] -= step[freeze]
+            vals = k.copy()
+            if drop is not None:
+                vals[drop] = math.nan
+            rows.append((speed, temps16(vals)))
+
+    add(12, 6000.0, np.zeros(3))  # the reference window
+    add(18, 6000.0, np.full(3, 0.1))  # rise: rate limited, then clamped
+    add(10, 6000.0, np.full(3, -0.1))  # fall
+    add(3, 6000.0, np.zeros(3), drop=1)  # T8 drops out
+    add(26, 6000.0, np.full(3, 0.1), freeze=2)  # T9 stuck: hold, then ramp
+    add(8, 6000.0, np.full(3, 0.05))  # T9 moves again
+    add(5, 12000.0, np.zeros(3))  # outside the trained speeds
+    add(8, 6000.0, np.zeros(3))
+    return rows
+
+
+def test_the_oracle_matches_the_safe_compensator_on_the_scenario():
+    """The loop with fakes on the scenario: every write equals the oracle's command (no link)."""
+    rows = scenario()
+    clock = [1000.0]
+    fed = []
+
+    class Source:
+        def read(self, now):
+            i = len(fed)
+            if i >= len(rows):
+                return []
+            fed.append((now, *rows[i]))
+            return [fed[-1]]
+
+        def after_outage(self, samples):
+            return samples
+
+    sink = DrySink()
+    target, axis = build_target(
+        {"kind": "sinumerik", "axis": {"name": "Z", "number": 3, "sign": 1, "limit_um": 50.0},
+         "int_incr_per_mm": 1000000},
+        sink=sink,
+    )  # fmt: skip
+    safe = SafeCompensator(limits=Limits.from_settings(DEPLOY)).load(artefact())
+    lines = []
+
+    def sleep(s):
+        clock[0] += s
+
+    loop = LiveLoop(
+        Source(),
+        safe,
+        target,
+        axis=axis,
+        interval_s=DT,
+        clock=lambda: clock[0],
+        sleep=sleep,
+        log=lines.append,
+    )
+    assert loop.run(max_cycles=len(rows)) == len(rows)
+    expected = expected_commands(fed)
+    got = [w.value * 1000 for w in sink.writes]
+    assert got == pytest.approx([c for c, _ in expected], abs=1e-6)
+    statuses = {st for _, st in expected}
+    assert statuses == {"referencing", "ok", "hold", "ramp"}  # every rule was reached
+    assert max(abs(g) for g in got) == pytest.approx(20.0)  # the clamp acted
+    assert len(lines) == len(rows) and target.closed
+
+
+class FakeLink:
+    def __init__(self, up):
+        self.up = up  # callable: is the server there
+        self.connected = True
+        self.tries = 0
+
+    def try_reconnect(self):
+        self.tries += 1
+        self.connected = self.up()
+        return self.connected
+
+
+def test_no_write_and_no_sample_during_an_outage_then_resume():
+    clock = [0.0]
+    down = {3, 4, 5}
+    stepped, written = [], []
+
+    class Source:
+        def __init__(self, link):
+            self.link = link
+
+        def read(self, now):
+            if int(now / DT) in down:
+                self.link.connected = False
+                raise ConnectionError("gone")
+            return [(now, 6000.0, temps16([20, 21, 22]))]
+
+        def after_outage(self, samples):
+            return samples
+
+    class Safe:
+        limits = Limits.from_settings(DEPLOY)
+
+        def step(self, t, n, temps):
+            stepped.append(t)
+            from rafi.deploy.limits import Command
+
+            return Command(t, 1.0, "ok", 1.0, 1.0, False, False, "", False, True)
+
+    class Target:
+        is_open, closed, name = False, False, "fake"
+
+        def open(self):
+            self.is_open = True
+
+        def write(self, t, values, status):
+            written.append(t)
+
+        def close(self):
+            self.closed = True
+
+    link = FakeLink(lambda: int(clock[0] / DT) not in down)
+    link.connected = True
+
+    def sleep(s):
+        clock[0] += s
+
+    loop = LiveLoop(Source(link), Safe(), Target(), axis="Z", interval_s=DT, link=link,
+                    clock=lambda: clock[0], sleep=sleep, log=lambda m: None)  # fmt: skip
+    loop.run(max_cycles=9)
+    assert stepped == written == [0.0, 5.0, 10.0, 30.0, 35.0, 40.0]
+    assert loop.outage_cycles == 3
+
+
+def test_nothing_is_written_while_off():
+    written = []
+
+    class Target:
+        is_open, name = True, "fake"
+
+        def write(self, *a):
+            written.append(a)
+
+        def close(self):
+            pass
+
+    safe = SafeCompensator(limits=Limits.from_settings(DEPLOY))  # no model: status off
+
+    class Source:
+        def read(self, now):
+            return [(now, 6000.0, temps16([20, 21, 22]))]
+
+    loop = LiveLoop(Source(), safe, Target(), axis="Z", interval_s=1.0, clock=lambda: 0.0,
+                    sleep=lambda s: None, log=lambda m: None)  # fmt: skip
+    loop.run(max_cycles=5)
+    assert written == [] and loop.last_command.status == "off"
+
+
+def test_the_target_is_closed_on_ctrl_c():
+    class Target:
+        is_open, closed, name = True, False, "fake"
+
+        def close(self):
+            self.closed = True
+
+    class Source:
+        def read(self, now):
+            raise KeyboardInterrupt
+
+    target = Target()
+    loop = LiveLoop(Source(), None, target, axis="Z", interval_s=1.0, log=lambda m: None)
+    with pytest.raises(KeyboardInterrupt):
+        loop.run()
+    assert target.closed
+
+
+# --------------------------------------------------------------------------- the log follower
+
+
+def test_the_follower_reads_complete_new_lines_only(tmp_path):
+    path = tmp_path / "log.csv"
+    header = "# machine: m\ntime,speed_rpm," + ",".join(SENSORS) + ",disp_um\n"
+    old = "2026-03-01T08:00:00,3000," + ",".join(["20"] * 16) + ",0\n"
+    path.write_text(header + old)
+    follower = LogFollower(path)
+    assert follower.read() == []  # lines already there are not new
+    row = "2026-03-01T08:00:05,3000," + ",".join(["21.5"] * 3 + [""] + ["20"] * 12) + ",0.1"
+    with open(path, "a") as fh:
+        fh.write(row[:20])  # half a line: not yet
+    assert follower.read() == []
+    with open(path, "a") as fh:
+        fh.write(row[20:] + "\r\n" + "garbage,1\n" + "2026-03-01T08:00:05,1," + ",".join(["1"] * 16) + ",0\n")
+    samples = follower.read()
+    assert len(samples) == 1  # the garbage line and the repeated time are skipped
+    t, n, temps = samples[0]
+    assert t == pytest.approx(1772352005.0) and n == 3000.0
+    assert temps[0] == 21.5 and math.isnan(temps[3]) and temps[15] == 20.0
+    path.write_text(header + row + "\n")  # replaced: read again from the start
+    assert len(LogFollower(path, from_start=True).read()) == 1
+
+
+# --------------------------------------------------------------------------- settings
+
+
+def test_target_settings_are_checked_with_clear_messages():
+    axis = {"name": "Z", "number": 3, "limit_um": 50.0}
+    with pytest.raises(SettingsError, match="axis.sign is missing; it has no default"):
+        build_target({"kind": "sinumerik", "axis": axis}, sink=DrySink())
+    with pytest.raises(SettingsError, match="kind is 'fanuc'"):
+        build_target({"kind": "fanuc"})
+    with pytest.raises(SettingsError, match="deploy.target.colour is not a setting"):
+        build_target({"kind": "csv", "axis": "Z", "path": "x.csv", "colour": 1})
+    with pytest.raises(TargetError, match="sign"):
+        build_target({"kind": "sinumerik", "axis": {**axis, "sign": 2}}, sink=DrySink())
+    target, _ = build_target(
+        {"kind": "sinumerik", "axis": {**axis, "sign": -1, "limit_um": 10.0}}, sink=DrySink()
+    )
+    with pytest.raises(TargetError, match="narrow deploy.clamp_um"):
+        check_target_limits(target, "Z", Limits.from_settings(DEPLOY))  # clamp 20 > limit 10
+
+
+def test_credentials_never_come_from_config_yaml(tmp_path, monkeypatch):
+    with pytest.raises(SettingsError, match="credentials never go to config.yaml.*RAFI_OPCUA_USER"):
+        opcua_settings({"endpoint": "opc.tcp://h:4840", "password": "x", "inputs": {"speed_rpm": "a"}})
+    s = opcua_settings(
+        {
+            "endpoint": "opc.tcp://h:4840",
+            "inputs": {"speed_rpm": "/a", "T1": {"node": "ns=3;i=5", "scale": 0.1}},
+        }
+    )
+    assert s["inputs"] == {"speed_rpm": ("ns=2;s=/a", 1.0, 0.0), "T1": ("ns=3;i=5", 0.1, 0.0)}
+    assert load_credentials(s, environ={}) == (None, None)
+    assert load_credentials(s, environ={"RAFI_OPCUA_USER": "u", "RAFI_OPCUA_PASSWORD": "p"}) == ("u", "p")
+    with pytest.raises(RafiUserError, match="both"):
+        load_credentials(s, environ={"RAFI_OPCUA_USER": "u"})
+    project = tmp_path / "project"
+    project.mkdir()
+    inside = project / "cred"
+    inside.write_text("user: u\npassword: p\n")
+    inside.chmod(0o600)
+    with pytest.raises(RafiUserError, match="inside .*project"):
+        load_credentials(s, project_dir=project, environ={"RAFI_OPCUA_CREDENTIALS": str(inside)})
+    outside = tmp_path / "cred"
+    outside.write_text("# the SeaWrite user\nuser: u\npassword: p: with colon\n")
+    outside.chmod(0o644)
+    with pytest.raises(RafiUserError, match="mode 644.*chmod 600"):
+        load_credentials({**s, "credentials_file": str(outside)}, project_dir=project, environ={})
+    os.chmod(outside, 0o600)
+    assert load_credentials({**s, "credentials_file": str(outside)}, project_dir=project, environ={}) == (
+        "u",
+        "p: with colon",
+    )
