@@ -8,8 +8,10 @@
 # deep-merged with `defaults:` and `machines.<name>:` of config.yaml (rafi.settings.machine_settings).
 # Outputs: docs/design.md. Helpers (functions only): workflow/rules/common.smk; the
 # method's steps: pipeline.smk; the model family: compare.smk; champion/challenger:
-# registry.smk; the qualification report: report.smk; which machines have a usable raw file
-# (a machine without one is skipped, the others carry on): input_status.smk.
+# registry.smk; the replay of recorded runs through the compensator with its limits (the
+# model on the machine, offline): deploy.smk; the qualification report: report.smk; which
+# machines have a usable raw file (a machine without one is skipped, the others carry on):
+# input_status.smk.
 
 from snakemake.utils import min_version
 
@@ -25,6 +27,7 @@ include: "workflow/rules/pipeline.smk"
 include: "workflow/rules/input_status.smk"
 include: "workflow/rules/compare.smk"
 include: "workflow/rules/registry.smk"
+include: "workflow/rules/deploy.smk"
 include: "workflow/rules/report.smk"
 
 

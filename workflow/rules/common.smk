@@ -22,6 +22,7 @@
 #   compare    comparison_path(name, machine), comparison_outputs(machine)
 #   registry   nightly_settings(machine), qualification_gates(machine),
 #              registry_path(name, machine), candidate_model(wildcards)
+#   deploy     deploy_path(name, machine), DEPLOY_FILES, replay_settings(machine)
 #   report     workflow/rules/report_common.smk
 
 import importlib.util
@@ -321,6 +322,40 @@ def candidate_model(wildcards):
     )
 
 
+# --------------------------------------------------------------------------- deploy (replay)
+
+
+def deploy_path(name, machine="{machine}"):
+    """``results/<machine>/deploy/<name>`` (the outputs of the replay: ``replay.parquet``, ``replay_summary.csv``)."""
+    return f"{RESULTS_DIR}/{machine}/deploy/{name}"
+
+
+DEPLOY_FILES = ("replay.parquet", "replay_summary.csv")
+
+#: The ``deploy:`` settings a replay depends on (the fields of rafi.deploy.limits.Limits and
+#: which runs it replays; not the controller's connection settings).
+REPLAY_SETTINGS = (
+    "clamp_um",
+    "rate_um_per_s",
+    "temp_valid_c",
+    "stuck_s",
+    "stuck_change_k",
+    "range_margin_k",
+    "speed_margin_rpm",
+    "hold_s",
+    "safe_um",
+    "ramp_um_per_s",
+    "interval_s",
+    "replay_roles",
+)
+
+
+def replay_settings(machine):
+    """The limits in force and ``replay_roles`` of ``machine`` (``deploy:`` of its settings)."""
+    deploy = machine_config(machine)["deploy"]
+    return {key: deploy[key] for key in REPLAY_SETTINGS}
+
+
 def _nightly_machines():
     only = RUN["nightly_machines"]
     if not only:
@@ -372,8 +407,8 @@ def machine_targets(machine, what):
     """Input function: the final outputs of ``machine`` for ``what`` (a ``TARGET_KINDS``).
 
     ``tables``: the tables of docs/design.md; ``all``: plus the comparison, the registry
-    decision and the report; ``nightly``: as ``all``, the report only unless ``--config
-    nightly_report=false``. A skipped machine gets ``audit.csv`` (and, except for ``tables``,
+    decision, the replay (``deploy/``) and the report; ``nightly``: as ``all``, the report (and
+    the replay it shows) only unless ``--config nightly_report=false``. A skipped machine gets ``audit.csv`` (and, except for ``tables``,
     its ``skipped.html`` page) instead. Every kind includes ``input_status.json``.
     """
     if what not in TARGET_KINDS:
@@ -389,6 +424,8 @@ def machine_targets(machine, what):
             return targets
         targets += comparison_outputs(machine)
         targets += [registry_path("decision.json", machine), registry_path("comparison.csv", machine)]
+        if what == "all":
+            targets += [deploy_path(name, machine) for name in DEPLOY_FILES]
         if what == "all" or _report_wanted():
             targets += list(report_paths(machine).values())
         return targets

@@ -1,0 +1,35 @@
+# The model on the machine, offline: the replay of recorded runs through the safe compensator
+# (rafi.deploy.replay; docs/deploy.md, section Replay).
+#
+#   candidate model (nightly.candidate: comparison/best_model.json by default, the model this
+#   run offers to the machine) + runs.csv + runs.parquet  ->  deploy/replay.parquet (one row
+#   per sample of each replayed run) and deploy/replay_summary.csv (one row per run)
+#
+# The runs replayed are those whose role is in deploy.replay_roles; the limits in force are the
+# machine's deploy: settings (replay_settings() in common.smk: the limits and replay_roles only,
+# so a change of the controller's connection settings re-runs nothing). Uses the helpers of
+# common.smk (candidate_model, out, deploy_path, log_path, bench_path, rafi_code,
+# script_helpers).
+
+
+rule replay:
+    """Feed the replayed runs' logs sample by sample through the compensator with the limits."""
+    input:
+        model=candidate_model,
+        table=out("runs_csv"),
+        frame=out("runs_parquet"),
+        code=rafi_code("replay"),
+        glue=script_helpers(),
+    output:
+        table=deploy_path("replay.parquet"),
+        summary=deploy_path("replay_summary.csv"),
+    log:
+        log_path("replay"),
+    benchmark:
+        bench_path("replay")
+    conda:
+        "../envs/rafi.yaml"
+    params:
+        deploy=lambda w: replay_settings(w.machine),
+    script:
+        "../scripts/replay.py"
