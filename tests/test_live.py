@@ -407,3 +407,48 @@ def test_credentials_never_come_from_config_yaml(tmp_path, monkeypatch):
         "u",
         "p: with colon",
     )
+
+
+def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path):
+    """`rafi deploy --follow` with a CSV target: no OPC UA; each appended line gives one row,
+    equal to the oracle's command."""
+    import argparse
+    from datetime import datetime, timedelta
+
+    import yaml
+
+    from rafi.deploy import live_cli
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    block = dict(DEPLOY, target={"kind": "csv", "axis": "Z", "path": "out/commands.csv"})
+    (tmp_path / "out").mkdir()
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump({"machines": {"m1": {"deploy": block}}}))
+    log = tmp_path / "live.csv"
+    log.write_text("time,speed_rpm," + ",".join(SENSORS) + ",disp_um\n")
+    args = argparse.Namespace(
+        machine="m1", config=str(tmp_path / "config.yaml"), model=None, follow=str(log), dry_run=False
+    )
+    loop, link = live_cli.build(args, log=lambda m: None, environ={})
+    assert link is None
+    rows = scenario()[:40]
+    start = datetime(2026, 3, 1, 8)
+    fed = []
+
+    def append(i):
+        speed, temps = rows[i]
+        stamp = start + timedelta(seconds=DT * i)
+        with open(log, "a") as fh:
+            fh.write(f"{stamp.isoformat()},{speed:g}," + ",".join(f"{t:.2f}" for t in temps) + ",\n")
+        fed.append((stamp.replace(tzinfo=None).timestamp(), speed, np.round(temps, 2)))
+
+    def sleep(s):
+        append(len(fed))
+
+    loop.clock, loop.sleep = (lambda: 0.0), sleep
+    assert loop.source.read() == []  # the follower starts at the end of the file (tail -f)
+    append(0)
+    loop.run(max_cycles=len(rows))
+    lines = (tmp_path / "out" / "commands.csv").read_text().splitlines()
+    assert lines[0] == "time_s,Z_um,status" and len(lines) == len(rows) + 1
+    got = [float(line.split(",")[1]) for line in lines[1:]]
+    assert got == pytest.approx([c for c, _ in expected_commands(fed)], abs=1e-9)
