@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import shutil
 
 import numpy as np
 import pandas as pd
@@ -22,6 +23,7 @@ from rafi.deploy.replay import (
     COLUMNS,
     SUMMARY_COLUMNS,
     replay_log,
+    replay_run_ids,
     replay_runs,
     replay_summary,
     summary_frame,
@@ -203,3 +205,50 @@ def test_replay_runs_feeds_the_run_s_log_from_power_on(data):
     with pytest.raises(ValueError, match="one log"):
         replay_log(frame, art, OPEN)
     assert WINDOW == 60.0
+
+
+# --------------------------------------------------------------------------- the report
+
+
+def test_the_report_shows_the_replay_with_the_limits_in_force(tmp_path):
+    """The report's fixture replayed with a tight clamp: the section names the run, says what
+    each limit did with the summary's numbers, and embeds the figure of rule report_figures."""
+    from test_report import FIXTURE, _settings, _upstream
+
+    from rafi.artefact import write_csv_atomic, write_parquet_atomic
+    from rafi.report.context import build_context
+    from rafi.report.inputs import result_paths
+    from rafi.report.render import render_html
+
+    results = tmp_path / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    frame, table = pd.read_parquet(results / "runs.parquet"), pd.read_csv(results / "runs.csv")
+    files = dict(zip(table["run_id"], table["file"]))
+    frame["log"], frame["log_t_s"] = frame["run_id"].map(files), frame["t_s"]  # one run per log
+    artefact = json.loads((results / "comparison" / "best_model.json").read_text())
+    _, settings = _settings()
+    settings["deploy"] = {**settings["deploy"], "clamp_um": [-6.0, 6.0]}
+    limits = Limits.from_settings(settings["deploy"])
+    ids = replay_run_ids(table, settings["deploy"]["replay_roles"])
+    assert ids == ["multi-1"]
+    replayed = replay_runs(frame, ids, artefact, limits)
+    summary = summary_frame(replay_summary(replayed), artefact=artefact)
+    (results / "deploy").mkdir()
+    write_parquet_atomic(replayed, results / "deploy" / "replay.parquet")
+    write_csv_atomic(summary, results / "deploy" / "replay_summary.csv")
+    dirs = _upstream(results, settings)
+    ctx = build_context(result_paths(results), dirs, machine="tapping-center-a", settings=settings)
+    html = render_html(ctx)
+    row = summary.iloc[0]
+    assert row["n_clamped"] > 0 and (np.abs(replayed["command_um"]) <= 6.0).all()
+    assert ctx["section_by_id"]["replay"]["title"] == "The model on the machine: replay of multi-1"
+    assert "The model on the machine: replay of multi-1" in html
+    assert f"clamped the command on {row['n_clamped']} of {row['n_samples']} samples" in html
+    assert "[\u22126.0, 6.0]" in html  # the clamp in force, from the settings
+    assert "replay/replay/multi-1" in ctx["figures_used"] and 'id="fig-replay-1"' in html
+    # the champion of the fixture's registry is the replayed model
+    assert "the model on the machine</b> after this run" in html
+    # without the replay's table the section is absent
+    (results / "deploy" / "replay_summary.csv").unlink()
+    ctx = build_context(result_paths(results), dirs, machine="tapping-center-a", settings=settings)
+    assert "replay" not in ctx["section_by_id"] and ctx["replay"] is None

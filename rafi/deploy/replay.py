@@ -65,6 +65,7 @@ REPLAY_STATUSES = ("off", "referencing", "ok", "hold", "ramp")
 SUMMARY_COLUMNS = (
     "model_id",
     "kind",
+    "reference_rule",
     "run_id",
     "log",
     "n_samples",
@@ -299,12 +300,16 @@ def replay_summary(table: pd.DataFrame) -> dict:
 def summary_frame(summary: dict, *, artefact: dict | None = None) -> pd.DataFrame:
     """:func:`replay_summary` as a table (``replay_summary.csv``): one row per run, the columns of
     :data:`SUMMARY_COLUMNS` (and ``n_<status>`` of any other status after ``n_ramp``);
-    ``model_id`` and ``kind`` from ``artefact`` (empty without it)."""
+    ``model_id``, ``kind`` and ``reference_rule`` (when the replay captured a reference: the
+    artefact's ``reference.rule``, as :func:`replay_log` uses it) from ``artefact`` (empty
+    without it)."""
     art = artefact or {}
-    rows = [
-        {"model_id": str(art.get("model_id", "")), "kind": str(art.get("kind", "")), **r}
-        for r in summary.values()
-    ]
+    model = {
+        "model_id": str(art.get("model_id", "")),
+        "kind": str(art.get("kind", "")),
+        "reference_rule": _reference_rule(art, None) if art else "",
+    }
+    rows = [{**model, **r} for r in summary.values()]
     extra = sorted({k for r in rows for k in r} - set(SUMMARY_COLUMNS))
     cols = list(SUMMARY_COLUMNS)
     at = cols.index("n_clamped")

@@ -24,6 +24,7 @@ from rafi.report.embed import FigureFiles
 from rafi.report.inputs import load_results
 from rafi.report.model_sections import section_fuzzy, section_models, section_validation
 from rafi.report.registry_section import section_registry
+from rafi.report.replay_section import section_replay, section_title
 from rafi.report.segmentation_section import section_segmentation
 from rafi.report.verdict import model_infos, verdict_all
 
@@ -38,6 +39,7 @@ SECTION_TITLES = {
     "validation": "Validation",
     "registry": "Model registry: champion vs candidate",
     "comparison": "Model comparison",
+    "replay": "The model on the machine: replay",
     "choices": "Choices the paper leaves open",
     "provenance": "Software, configuration and provenance",
 }
@@ -97,6 +99,7 @@ def build_context(
     ctx["registry"] = section_registry(res, gates, infos)
     dec = res["decision"] if isinstance(res.get("decision"), dict) else {}
     ctx["comparison"] = section_comparison(res, dec.get("champion_id_after"), settings, figs)
+    ctx["replay"] = section_replay(res, settings, figs, dec.get("champion_id_after"))
     ctx["figures_used"] = list(figs.used)
     ctx["verdict"]["quarantined"] = len(ctx["data"]["quarantined"])
     ctx["verdict"]["unconfirmed_warnings"] = sum(not w["confirmed"] for w in ctx["data"]["warnings"])
@@ -120,11 +123,14 @@ def build_context(
         "segmentation": ctx["segmentation"] is not None,
         "registry": ctx["registry"] is not None,
         "comparison": ctx["comparison"] is not None,
+        "replay": ctx["replay"] is not None,
     }
     n = 0
     for sid, title in SECTION_TITLES.items():
         if present[sid]:
             n += 1
+            if sid == "replay":
+                title = section_title(ctx["replay"], title)
             ctx["sections"].append({"id": sid, "number": n, "title": title})
     ctx["section_by_id"] = {s["id"]: s for s in ctx["sections"]}
     ctx["build_seconds"] = time.perf_counter() - t0

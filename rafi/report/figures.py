@@ -1,6 +1,6 @@
 """Rule ``report_figures``: every figure of the report as a file, drawn ahead of the report.
 
-Two groups, each drawn as soon as its inputs exist:
+Three groups, each drawn as soon as its inputs exist:
 
 ``pipeline``
     The method's figures (sections Thermal equilibrium ... Validation), after ``validate``
@@ -9,6 +9,9 @@ Two groups, each drawn as soon as its inputs exist:
     The model family's figures, after ``compare``, beside ``decide``. The residual series of
     RAFI are drawn beside every other model of the family, so the one the registry puts on
     the machine is there whatever ``decide`` decides.
+``replay``
+    The replay of each run of ``deploy/replay.parquet`` (:mod:`rafi.report.replay_plot`),
+    after ``replay``.
 
 A group is written to one folder: ``<key-slug>.<png|svg>`` per figure and ``index.csv``
 (``key,file``), read back by :class:`rafi.report.embed.FigureFiles`.
@@ -38,6 +41,8 @@ from rafi.report.inputs import (
     sensors,
     training_runs,
 )
+from rafi.report.replay_plot import fig_replay
+from rafi.report.replay_section import replay_figure_key
 
 #: The inputs each group draws from (names of :func:`rafi.report.inputs.result_paths`).
 FIGURE_GROUPS = {
@@ -56,6 +61,7 @@ FIGURE_GROUPS = {
         "fuzzy_example",
     ),
     "comparison": ("comparison", "comparison_per_run", "comparison_residuals"),
+    "replay": ("replay", "replay_summary"),
 }
 
 UM = "\u00b5m"
@@ -262,6 +268,21 @@ def _comparison(res: dict, gates: dict, fmt: str):
             )
 
 
+def _replay(res: dict, deploy: dict, fmt: str):
+    """``(key, file bytes)`` of each run of the replay summary that has samples."""
+    summary, table = res["replay_summary"], res["replay"]
+    if summary is None or not len(summary) or table is None or not len(table):
+        return
+    clamp = deploy.get("clamp_um")
+    for rid in summary["run_id"].astype(str):
+        rows = table[table["run_id"].astype(str) == rid]
+        if len(rows):
+            yield (
+                replay_figure_key(rid),
+                fig_replay(rows, clamp_um=tuple(clamp) if clamp else None, title=f"Replay of {rid}", fmt=fmt),
+            )
+
+
 def _file_name(n: int, key: str, fmt: str) -> str:
     slug = re.sub(r"[^A-Za-z0-9._-]+", "_", key)
     return f"{n:02d}-{slug}.{fmt}"
@@ -275,6 +296,7 @@ def draw_group(
     figure_format: str,
     coolant_sensors: list,
     gates: dict,
+    deploy: dict | None = None,
 ) -> list[str]:
     """Draw the figures of one group into ``out_dir`` (files + ``index.csv``).
 
@@ -282,7 +304,7 @@ def draw_group(
     ----------
     paths : dict
         Input name -> path; every name of ``FIGURE_GROUPS[group]`` is needed.
-    group : {"pipeline", "comparison"}
+    group : {"pipeline", "comparison", "replay"}
     out_dir : path
         The group's folder (created).
     figure_format : {"png", "svg"}
@@ -291,6 +313,8 @@ def draw_group(
         ``report.coolant_sensors`` of the machine (drawn beside the key sensors; pipeline).
     gates : dict
         ``qualification`` of the machine (the gate lines; comparison).
+    deploy : dict, optional
+        ``deploy`` of the machine; ``clamp_um`` is drawn (replay).
 
     Returns
     -------
@@ -307,6 +331,8 @@ def draw_group(
     res = load_results({k: paths[k] for k in FIGURE_GROUPS[group]})
     if group == "pipeline":
         drawn = _pipeline(res, list(coolant_sensors), figure_format)
+    elif group == "replay":
+        drawn = _replay(res, dict(deploy or {}), figure_format)
     else:
         drawn = _comparison(res, dict(gates), figure_format)
     out_dir = Path(out_dir)

@@ -7,7 +7,8 @@ evaluating the model) and the figure files of rule ``report_figures``
 
 - ``input_status.json`` - files rejected at machine level and the input warnings;
 - ``registry/decision.json`` + ``registry/comparison.csv`` - the registry decision;
-- ``comparison/summary.csv``, ``per_run.csv``, ``cv.csv`` - the model family comparison.
+- ``comparison/summary.csv``, ``per_run.csv``, ``cv.csv`` - the model family comparison;
+- ``deploy/replay_summary.csv`` - the replay of the model on the machine (rule ``replay``).
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ OPTIONAL_FILES = {
     "comparison": "comparison/summary.csv",
     "comparison_per_run": "comparison/per_run.csv",
     "comparison_cv": "comparison/cv.csv",
+    "replay_summary": "deploy/replay_summary.csv",
 }
 
 #: Inputs of rule report_figures besides those above (read by the figure job only).
@@ -54,10 +56,15 @@ FIGURE_INPUT_FILES = {
     "runs_parquet": "runs.parquet",
     "training_fit": "report/training_fit.parquet",
     "comparison_residuals": "comparison/residuals.parquet",
+    "replay": "deploy/replay.parquet",
 }
 
 #: Figure folder of each group (rule report_figures), under ``results/<machine>/``.
-FIGURE_DIRS = {"pipeline": "report/figures/pipeline", "comparison": "report/figures/comparison"}
+FIGURE_DIRS = {
+    "pipeline": "report/figures/pipeline",
+    "comparison": "report/figures/comparison",
+    "replay": "report/figures/replay",
+}
 
 
 def result_paths(results_dir: str | os.PathLike) -> dict:

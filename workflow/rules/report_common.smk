@@ -1,5 +1,5 @@
 # Helpers of the qualification report (path and input functions only): what report_tables,
-# report_figures and report read. Uses common.smk (out, comparison_path, registry_path,
+# report_figures and report read. Uses common.smk (out, comparison_path, registry_path, deploy_path,
 # machine_config, rafi_code, script_helpers, RAFI_DIR, RESULTS_DIR); the Snakefile includes
 # this file after common.smk and before the rules.
 #   report_inputs(wildcards), report_settings(machine), REPORT_MODEL_TABLES,
@@ -52,6 +52,7 @@ REPORT_FIGURE_GROUPS = {
         "fuzzy_example",
     ),
     "comparison": ("comparison", "comparison_per_run", "comparison_residuals"),
+    "replay": ("replay", "replay_summary"),
 }
 
 _COMPARISON_INPUTS = {
@@ -73,7 +74,12 @@ def report_figures_path(group="{group}", machine="{machine}"):
     return f"{RESULTS_DIR}/{machine}/report/figures/{group}"
 
 
+_REPLAY_INPUTS = {"replay": "replay.parquet", "replay_summary": "replay_summary.csv"}
+
+
 def _report_input(name, machine):
+    if name in _REPLAY_INPUTS:
+        return deploy_path(_REPLAY_INPUTS[name], machine)
     if name in _COMPARISON_INPUTS:
         return comparison_path(_COMPARISON_INPUTS[name], machine)
     if name in REPORT_MODEL_TABLES:
@@ -91,27 +97,36 @@ def report_figure_inputs(wildcards):
 
 
 def report_figure_settings(wildcards):
-    """The settings the figures of a group depend on: ``report.figure_format`` (both groups),
-    ``report.coolant_sensors`` (pipeline) and ``qualification`` (comparison: the gate lines)."""
+    """The settings the figures of a group depend on: ``report.figure_format`` (every group),
+    ``report.coolant_sensors`` (pipeline), ``qualification`` (comparison: the gate lines) and
+    ``deploy.clamp_um`` (replay: the clamp lines)."""
     shown = report_settings(wildcards.machine)
     pipeline = wildcards.group == "pipeline"
-    return {
+    settings = {
         "report": {
             "figure_format": shown["figure_format"],
             "coolant_sensors": list(shown["coolant_sensors"]) if pipeline else [],
         },
-        "qualification": {} if pipeline else dict(machine_config(wildcards.machine)["qualification"]),
+        "qualification": (
+            dict(machine_config(wildcards.machine)["qualification"])
+            if wildcards.group == "comparison"
+            else {}
+        ),
     }
+    if wildcards.group == "replay":
+        settings["deploy"] = {"clamp_um": list(machine_config(wildcards.machine)["deploy"]["clamp_um"])}
+    return settings
 
 
 def report_inputs(wildcards):
     """Named inputs of the report: the design.md tables, the tables of report_tables, the
-    model comparison, the registry decision, the figure folders, the code and the template."""
+    model comparison, the registry decision, the replay summary, the figure folders, the code
+    and the template."""
     machine = wildcards.machine
     inputs = {name: out(name, machine) for name in REPORT_TABLES}
     inputs["training_fit_rmse"] = report_table_path("training_fit_rmse", machine)
     inputs["fuzzy_example"] = report_table_path("fuzzy_example", machine)
-    for name in ("comparison", "comparison_per_run", "comparison_cv"):
+    for name in ("comparison", "comparison_per_run", "comparison_cv", "replay_summary"):
         inputs[name] = _report_input(name, machine)
     inputs["input_status"] = input_status_path(machine)
     inputs["decision"] = registry_path("decision.json", machine)

@@ -20,5 +20,6 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         figure_format=settings["report"]["figure_format"],
         coolant_sensors=list(settings["report"]["coolant_sensors"]),
         gates=dict(settings["qualification"]),
+        deploy=dict(settings.get("deploy") or {}),
     )
     print(f"{len(keys)} figure(s): {', '.join(keys)}", flush=True)
