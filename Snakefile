@@ -22,6 +22,7 @@ configfile: "config.yaml"
 
 
 include: "workflow/rules/common.smk"
+include: "workflow/rules/fleet.smk"
 include: "workflow/rules/report_common.smk"
 include: "workflow/rules/pipeline.smk"
 include: "workflow/rules/input_status.smk"

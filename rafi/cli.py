@@ -24,6 +24,7 @@ COMMANDS = {
     "nightly": ("rafi.ops.nightly", "retrain, qualify and promote models (for cron / systemd)"),
     "settings": ("rafi.settings", "print the effective settings of a machine (every default filled in)"),
     "diff": ("rafi.ops.result_diff", "compare two result trees number by number (timings, ids aside)"),
+    "status": ("rafi.ops.fleet_cli", "every machine: model in service, decision, drift; urgent first"),
     "deploy": ("rafi.deploy.live_cli", "run the qualified model live: inputs in, compensation out"),
     "replay": (
         "rafi.deploy.replay_cli",

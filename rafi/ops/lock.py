@@ -1,5 +1,12 @@
-"""The nightly lock (an exclusive, non-blocking ``flock`` on ``results/.nightly.lock``) and
-Snakemake's own lock in the project (``.snakemake/locks``): stale after a killed run, cleared."""
+"""The nightly locks and Snakemake's own lock in the project (``.snakemake/locks``).
+
+Nightly locks are exclusive, non-blocking ``flock`` s. A night for one machine (``rafi nightly
+--machine M``) takes ``results/.nightly.locks/M.lock`` only, so nights for different machines
+run at the same time and two for the same machine refuse each other. A night for every machine
+takes the fleet lock ``results/.nightly.lock`` and then every machine's lock, in sorted order
+(:func:`night_locks`); all of them or none. Snakemake's lock is stale after a killed run and is
+cleared (:func:`clear_stale_snakemake_lock`).
+"""
 
 from __future__ import annotations
 
@@ -7,12 +14,16 @@ import contextlib
 import fcntl
 import os
 import re
+from collections.abc import Iterable
 from pathlib import Path
 
 from rafi.artefact import now_iso
 from rafi.errors import LockHeld
 
+#: The fleet lock under ``results_dir``: held by a night for every machine.
 LOCK_NAME = ".nightly.lock"
+#: The folder of the machine locks under ``results_dir`` (``<machine>.lock``).
+MACHINE_LOCK_DIR = ".nightly.locks"
 
 
 class NightlyLock:
@@ -82,6 +93,71 @@ class NightlyLock:
             os.close(fd)
 
 
+def machine_lock_path(results_dir: str | os.PathLike, machine: str) -> Path:
+    """``results/.nightly.locks/<machine>.lock``: the nightly lock of one machine."""
+    return Path(results_dir) / MACHINE_LOCK_DIR / f"{machine}.lock"
+
+
+def night_locks(
+    results_dir: str | os.PathLike, machines: Iterable[str], every_machine: bool
+) -> contextlib.ExitStack:
+    """Take the nightly locks of a night, all or none.
+
+    Parameters
+    ----------
+    results_dir : path
+        The project's ``results_dir``.
+    machines : iterable of str
+        The machines of the night.
+    every_machine : bool
+        The night covers every machine: the fleet lock (:data:`LOCK_NAME`) is taken first.
+
+    Returns
+    -------
+    contextlib.ExitStack
+        Holds the locks; closing it releases them (in reverse order). The locks are taken in a
+        fixed order (the fleet lock, then the machines sorted by name), non-blocking, so two
+        nights never wait for each other: the one that finds a lock held gives up at once.
+
+    Raises
+    ------
+    rafi.errors.LockHeld
+        A lock is held by another night (the locks taken so far are released first).
+    """
+    paths = [Path(results_dir) / LOCK_NAME] if every_machine else []
+    paths += [machine_lock_path(results_dir, m) for m in sorted(set(machines))]
+    stack = contextlib.ExitStack()
+    try:
+        for path in paths:
+            stack.enter_context(NightlyLock(path))
+    except BaseException:
+        stack.close()
+        raise
+    return stack
+
+
+_PID = re.compile(r"\bpid=(\d+)")
+
+
+def holder_pids(results_dir: str | os.PathLike) -> set[int]:
+    """Pids named in the nightly lock files (the fleet lock and every machine lock).
+
+    A held lock names its holder; a released one is empty; one left by a killed night names a
+    process that is gone. So a live ``rafi nightly`` named here is a night that holds its
+    lock(s): it works on its own machines, under this module's locks.
+    """
+    root = Path(results_dir)
+    files = [root / LOCK_NAME]
+    with contextlib.suppress(OSError):
+        files += sorted((root / MACHINE_LOCK_DIR).glob("*.lock"))
+    pids = set()
+    for path in files:
+        with contextlib.suppress(OSError):
+            text = path.read_text(encoding="utf-8", errors="replace")
+            pids.update(int(m) for m in _PID.findall(text))
+    return pids
+
+
 def lock_is_free(path: str | os.PathLike) -> bool:
     """True if nobody holds the flock on ``path`` (a probe, for tests and status)."""
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
@@ -147,15 +223,20 @@ def _workdirs(argv: list[str], cwd: str) -> set[str]:
 
 def _ancestors() -> set[int]:
     """This process and its parents (never counted as a foreign Snakemake run)."""
-    pids, pid = set(), os.getpid()
-    while pid > 1 and pid not in pids:
-        pids.add(pid)
+    return set(_parent_chain(os.getpid(), "/proc"))
+
+
+def _parent_chain(pid: int, proc: str | os.PathLike) -> list[int]:
+    """``pid`` and its parents, read from ``<proc>/<pid>/stat`` (as far as readable)."""
+    chain: list[int] = []
+    while pid > 1 and pid not in chain:
+        chain.append(pid)
         try:
-            with open(f"/proc/{pid}/stat", encoding="utf-8", errors="replace") as fh:
+            with open(os.path.join(proc, str(pid), "stat"), encoding="utf-8", errors="replace") as fh:
                 pid = int(fh.read().rsplit(")", 1)[1].split()[1])
         except (OSError, ValueError, IndexError):
             break
-    return pids
+    return chain
 
 
 def live_snakemake_processes(
@@ -204,16 +285,28 @@ def live_snakemake_processes(
     return sorted(found)
 
 
-def clear_stale_snakemake_lock(directory: str | os.PathLike) -> tuple[list[Path], list[tuple[int, str]]]:
+def coordinated_with(pid: int, coordinated: Iterable[int], proc: str | os.PathLike = "/proc") -> bool:
+    """``pid`` is one of ``coordinated`` (nights holding nightly locks here, :func:`holder_pids`)
+    or descends from one (a job script of such a night)."""
+    return not set(coordinated).isdisjoint(_parent_chain(pid, proc))
+
+
+def clear_stale_snakemake_lock(
+    directory: str | os.PathLike, coordinated: Iterable[int] = ()
+) -> tuple[list[Path], list[tuple[int, str]]]:
     """Remove Snakemake's lock files in ``directory`` if no Snakemake process works there.
 
     What ``snakemake --unlock`` does, but only when the lock is stale: to be called while this
-    process holds the nightly lock (so no other night can be starting Snakemake here).
+    process holds its nightly lock(s). Other nights (``coordinated``) do not make the lock
+    live: a night for some machines runs Snakemake without its directory lock (``--nolock``,
+    see ``rafi.ops.nightly``), and a night for every machine excludes every other night.
 
     Parameters
     ----------
     directory : path
         The project (Snakemake's working directory).
+    coordinated : iterable of int
+        Pids of other nights holding nightly locks here (:func:`holder_pids`).
 
     Returns
     -------
@@ -226,7 +319,13 @@ def clear_stale_snakemake_lock(directory: str | os.PathLike) -> tuple[list[Path]
     files = snakemake_lock_files(directory)
     if not files:
         return [], []
-    live = live_snakemake_processes(directory)
+    # another night (or its job) works under its own nightly locks: not a foreign run
+    coordinated = set(coordinated) - _ancestors()
+    live = [
+        (pid, cmd)
+        for pid, cmd in live_snakemake_processes(directory)
+        if not coordinated_with(pid, coordinated)
+    ]
     if live:
         return [], live
     removed = []

@@ -1,7 +1,7 @@
 """Nightly retraining: pick up new logs, retrain, qualify, promote or keep the champion.
 
 Runs the Snakemake pipeline (target rule `nightly`: every table, the champion/challenger
-decision and the report of every machine under raw/) under an exclusive lock, then reads
+decision and the report of every machine under raw/) under nightly locks, then reads
 each machine's registry/decision.json and audit.csv. Bad input is quarantined: a machine none
 of whose raw files is usable is skipped (reports/<machine>/skipped.html says why) and the
 other machines finish. A night heals what a killed night left: Snakemake's lock in
@@ -9,6 +9,14 @@ other machines finish. A night heals what a killed night left: Snakemake's lock 
 line on stdout and in the nightly log). A raw file modified less than nightly_settle_s seconds
 ago (config, default 600) waits for the next night; each such file is named. See
 docs/operations.md.
+
+Locks: `--machine M` takes results/.nightly.locks/M.lock only, so nights for different
+machines run at the same time (a cron line or a Slurm array task per machine) and two for the
+same machine refuse each other (exit 75); such a night runs Snakemake without its directory
+lock (--nolock: the machines' outputs never overlap) and writes results/nightly.M.log and
+results/.nightly.state.M.json. A night for every machine takes results/.nightly.lock and
+every machine's lock (sorted order, all or none), keeps Snakemake's lock, and writes
+results/nightly.log and results/.nightly.state.json.
 
 Exit codes (most severe first when several apply: 1 > 3 > 2 > 4 > 0):
   0   all good (promoted, kept, or nothing new)
@@ -50,9 +58,16 @@ from pathlib import Path
 from rafi.artefact import now_iso
 from rafi.errors import LockHeld, RegistryError, SettingsError
 from rafi.ops import snakemake_api
-from rafi.ops.lock import LOCK_NAME, NightlyLock, clear_stale_snakemake_lock, snakemake_lock_files
+from rafi.ops.lock import (
+    LOCK_NAME,
+    MACHINE_LOCK_DIR,
+    clear_stale_snakemake_lock,
+    holder_pids,
+    night_locks,
+    snakemake_lock_files,
+)
 from rafi.ops.project import Paths, config_path, load_config, settling
-from rafi.ops.state import NIGHTLY_LOG, clear_state, fingerprint, read_state, write_state
+from rafi.ops.state import clear_state, fingerprint, log_name, read_state, write_state
 from rafi.ops.status import (
     EXIT_CANTCREAT,
     EXIT_IOERR,
@@ -71,6 +86,8 @@ from rafi.settings import run_settings
 
 #: Test hook: seconds to sleep while holding the lock, before anything else (tests only).
 HOLD_ENV = "RAFI_NIGHTLY_TEST_HOLD_S"
+#: Test hook: while holding the lock, wait until this file exists (at most 600 s; tests only).
+HOLD_UNTIL_ENV = "RAFI_NIGHTLY_TEST_HOLD_UNTIL"
 
 
 #: errno values that mean "this file cannot be written" (exit code 73, EX_CANTCREAT).
@@ -148,22 +165,22 @@ def run(args) -> int:
     if args.machine:
         machines = [args.machine]
     overrides = config_overrides(args, config)
+    args.reports_dir = directory / str(run_settings(config)["reports_dir"])
     args.settle_s = float(overrides["settle_s"])
     args.settling = settling(paths, config, machines, args.settle_s)
 
     if args.dry_run:
         return _dry_run(args, paths, overrides)
 
-    lock_path = paths.results_dir / LOCK_NAME
+    every = not args.machine  # a night for every machine, or for --machine only
     try:
-        with NightlyLock(lock_path):
-            print(f"rafi nightly: lock {lock_path} acquired (pid {os.getpid()})", flush=True)
-            hold = os.environ.get(HOLD_ENV)
-            if hold:
-                time.sleep(float(hold))
+        with night_locks(paths.results_dir, machines, every_machine=every):
+            held = _locks_text(paths, machines, every)
+            print(f"rafi nightly: {held} acquired (pid {os.getpid()}, {now_iso()})", flush=True)
+            _test_hold()
             if args.promote:
                 return _promote(args, paths, machines)
-            return _night(args, paths, machines, overrides)
+            return _night(args, paths, machines, overrides, every)
     except LockHeld as exc:
         print(
             f"rafi nightly: another nightly run is in progress ({exc.holder}; lock "
@@ -173,6 +190,28 @@ def run(args) -> int:
         return EXIT_LOCKED
     except OSError as exc:  # results/ read-only or full, or another I/O error: one line, no traceback
         return _os_error(exc, paths.results_dir)
+
+
+def _locks_text(paths: Paths, machines: list[str], every: bool) -> str:
+    """``lock <path>`` (one machine) or ``locks <fleet lock> + N machine locks in <dir>``."""
+    if not every:
+        return "lock " + ", ".join(str(paths.results_dir / MACHINE_LOCK_DIR / f"{m}.lock") for m in machines)
+    return (
+        f"lock {paths.results_dir / LOCK_NAME} and {len(machines)} machine lock(s) in "
+        f"{paths.results_dir / MACHINE_LOCK_DIR}"
+    )
+
+
+def _test_hold() -> None:
+    """The test hooks (:data:`HOLD_ENV`, :data:`HOLD_UNTIL_ENV`): hold the locks a while."""
+    hold = os.environ.get(HOLD_ENV)
+    if hold:
+        time.sleep(float(hold))
+    until = os.environ.get(HOLD_UNTIL_ENV)
+    if until:
+        deadline = time.monotonic() + 600
+        while not os.path.exists(until) and time.monotonic() < deadline:
+            time.sleep(0.05)
 
 
 def _os_error(exc: OSError, results_dir: Path) -> int:
@@ -232,8 +271,9 @@ def _log_line(log_file: Path, text: str) -> None:
 
 def _snakemake_lock(paths: Paths, log_file: Path) -> int | None:
     """Clear a stale Snakemake lock in the project (said on stdout and in the log); exit code
-    75 if a Snakemake run works in the project now, else None."""
-    removed, live = clear_stale_snakemake_lock(paths.directory)
+    75 if a Snakemake run works in the project now, else None. Other nights holding their
+    nightly locks here (and their jobs) are not such a run."""
+    removed, live = clear_stale_snakemake_lock(paths.directory, coordinated=holder_pids(paths.results_dir))
     if live:
         procs = "; ".join(f"pid {pid}: {cmd}" for pid, cmd in live)
         text = (
@@ -313,11 +353,12 @@ def _promote(args, paths: Paths, machines: list[str]) -> int:
     return EXIT_OK
 
 
-def _night(args, paths: Paths, machines: list[str], overrides: dict) -> int:
+def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool = True) -> int:
     started = time.time()
     night_start = float(int(started))
+    scope = None if every else machines  # whose fast-path state and log
     check_writable(paths.results_dir)
-    log_file = Path(args.log_file) if args.log_file else paths.results_dir / NIGHTLY_LOG
+    log_file = Path(args.log_file) if args.log_file else paths.results_dir / log_name(scope)
     log_file.parent.mkdir(parents=True, exist_ok=True)
     code = _snakemake_lock(paths, log_file)
     if code is not None:
@@ -325,15 +366,16 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict) -> int:
     _say_settling(args)
     # a night that left a settling file out must not let the next one take the fast path
     remember = not args.settling
-    fp = None if args.full_check else fingerprint(args.config_file, paths, overrides)
-    if fp is not None and read_state(paths).get("fingerprint") == fp:
+    fp = None if args.full_check else fingerprint(args.config_file, paths, overrides, scope)
+    if fp is not None and read_state(paths, scope).get("fingerprint") == fp:
         # nothing changed since the last successful night: no need to ask Snakemake
         return _nothing_new(paths, machines, started)
     # One Snakemake run, no separate dry run (it would build the job graph twice): Snakemake
     # itself schedules no job when no new data arrived.
     cfg = config_path(paths.directory, args.config_file)
     print(
-        f"rafi nightly: snakemake --cores {args.cores} --rerun-incomplete --keep-going --configfile {cfg} "
+        f"rafi nightly: snakemake --cores {args.cores} --rerun-incomplete --keep-going "
+        f"{'' if every else '--nolock '}--configfile {cfg} "
         f"--config {' '.join(f'{k}={v}' for k, v in overrides.items())} -- {snakemake_api.TARGET} "
         f"(log {log_file})",
         flush=True,
@@ -341,13 +383,21 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict) -> int:
     with open(log_file, "a", encoding="utf-8") as log_fh:
         log_fh.write(f"\n===== rafi nightly {now_iso()} pid {os.getpid()}\n")
         with snakemake_api.output_to(log_fh) as (console, console_err):
-            outcome = snakemake_api.run(paths.directory, cfg, overrides, cores=args.cores, out=console)
+            # A night for some machines runs without Snakemake's directory lock: its own nightly
+            # locks keep every other night off these machines' outputs, and Snakemake's file
+            # lock cannot be shared (a run that ends removes .snakemake/locks whole, so a run
+            # still planning fails to write its lock; docs/operations.md, "Parallel nights").
+            outcome = snakemake_api.run(
+                paths.directory, cfg, overrides, cores=args.cores, out=console, lock=every
+            )
             if not outcome.ok and not outcome.failed:  # it failed before any job: say why
                 print(f"rafi nightly: the pipeline cannot be planned: {outcome.error}", file=console_err)
     if outcome.ok and remember:
-        write_state(paths, fingerprint(args.config_file, paths, overrides))
+        write_state(paths, fingerprint(args.config_file, paths, overrides, scope), scope)
     else:
-        clear_state(paths)
+        clear_state(paths, scope)
+    if not every:  # a night for every machine builds the page in rule fleet_index
+        _refresh_fleet_page(paths, getattr(args, "reports_dir", paths.directory / "reports"))
     if outcome.nothing_to_do:
         return _nothing_new(paths, machines, started)
     if not outcome.ok and "LockException" in str(outcome.error):
@@ -370,6 +420,19 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict) -> int:
         f"exit {code} (log {log_file})"
     )
     return code
+
+
+def _refresh_fleet_page(paths: Paths, reports_dir: Path) -> None:
+    """Rewrite ``reports/index.html`` after a night for some machines (one line if it cannot
+    be written; the night's exit code is not changed)."""
+    from rafi.report.fleet_page import write_fleet_page
+
+    try:
+        out = write_fleet_page(paths, reports_dir)
+    except (OSError, ValueError) as exc:
+        print(f"rafi nightly: the fleet overview was not updated: {exc}", file=sys.stderr)
+        return
+    print(f"rafi nightly: fleet overview {out} updated", flush=True)
 
 
 def _nothing_new(paths: Paths, machines: list[str], started: float) -> int:

@@ -168,6 +168,7 @@ def run(
     dry_run: bool = False,
     target: str = TARGET,
     out: TextIO | None = sys.stdout,
+    lock: bool = True,
 ) -> Outcome:
     """Build ``target`` of the project in ``directory`` with Snakemake (``--rerun-incomplete
     --keep-going``), or only plan it (``dry_run``).
@@ -188,6 +189,9 @@ def run(
         Target rule.
     out : text stream or None
         Where the progress lines go.
+    lock : bool
+        Take Snakemake's directory lock (False: ``--nolock``; only for a night for some
+        machines, which holds their nightly locks, see ``rafi.ops.nightly``).
 
     Returns
     -------
@@ -226,7 +230,7 @@ def run(
                 dag = workflow.dag(DAGSettings(targets={target}, force_incomplete=not dry_run))
                 dag.execute_workflow(
                     executor="dryrun" if dry_run else "local",
-                    execution_settings=ExecutionSettings(keep_going=True),
+                    execution_settings=ExecutionSettings(keep_going=True, lock=lock),
                 )
             except Exception as exc:  # Snakemake's errors have no common base class
                 api.print_exception(exc)

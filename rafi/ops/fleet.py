@@ -1,0 +1,279 @@
+"""The state of every machine of a project, read from its files (``rafi status``, reports/index.html).
+
+One dict per machine (:func:`machine_overview`), built only from what the pipeline and the
+nights wrote; nothing is computed anew:
+
+* the model in service: ``registry/champion.json`` (id, since, reason) and the ``kind`` of its
+  stored model (``registry/models/<id>.json``);
+* the last decision and its date: ``registry/decision.json`` (the last line of
+  ``registry/history.jsonl`` when decision.json is missing);
+* the worst validation residual of the model in service: ``max_residual_um`` of the summary
+  ``decide`` made of that model on tonight's validation runs (``decision.json``:
+  ``candidate_summary`` when the champion is tonight's candidate, else ``champion_summary``),
+  the number the gates and the drift check use, on every validation run. Not
+  ``comparison/per_run.csv`` or ``validation/summary.csv``: those score tonight's candidates,
+  which are not in service unless promoted. After a rollback there is none until the next
+  night scores the model;
+* drift and recalibration due: ``decision.json`` ``drift`` and ``recalibration_due``;
+* quarantined files and whether the machine was skipped: ``audit.csv`` and
+  ``input_status.json`` (:func:`rafi.ops.status.machine_status`);
+* its page: ``reports/<m>/qualification.html``, or ``reports/<m>/skipped.html`` for a skipped
+  machine.
+
+Attention order (:data:`RANK`, most urgent first; within a rank by machine name):
+
+0. ``failed`` (the machine has data but no decision, or its decision is older than its
+   ``audit.csv``: the last run stopped before the decision), ``not_run`` (nothing in results/
+   yet) and ``skipped`` (no usable raw file);
+1. ``recalibration_due``;
+2. ``rejected`` (the last decision rejected the candidate; the champion stays) and
+   ``quarantined`` (some raw file was set aside);
+3. ``ok``.
+
+Exit status of ``rafi status`` (:func:`exit_code`): the codes of ``rafi nightly`` with its
+severity 1 > 3 > 2 > 4 > 0: 1 some machine failed or was never run, 3 recalibration due,
+2 the last decision of some machine was a rejection, 4 input rejected (quarantined files or a
+skipped machine), 0 every machine ok.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+from pathlib import Path
+
+from rafi.ops.project import Paths
+from rafi.ops.status import (
+    EXIT_OK,
+    EXIT_PIPELINE_FAILED,
+    EXIT_QUARANTINED,
+    EXIT_RECALIBRATION_DUE,
+    EXIT_REJECTED,
+    machine_status,
+    most_severe,
+)
+
+#: Attention rank of each state (lower: more urgent).
+RANK = {
+    "failed": 0,
+    "not_run": 0,
+    "skipped": 0,
+    "recalibration_due": 1,
+    "rejected": 2,
+    "quarantined": 2,
+    "ok": 3,
+}
+
+#: Exit code of each state (``rafi nightly``'s codes).
+STATE_CODE = {
+    "failed": EXIT_PIPELINE_FAILED,
+    "not_run": EXIT_PIPELINE_FAILED,
+    "skipped": EXIT_QUARANTINED,
+    "recalibration_due": EXIT_RECALIBRATION_DUE,
+    "rejected": EXIT_REJECTED,
+    "quarantined": EXIT_QUARANTINED,
+    "ok": EXIT_OK,
+}
+
+#: Decisions written by rule ``decide`` (their summaries score the models they name).
+_DECIDED = ("promoted", "kept", "rejected")
+
+
+def _read_json(path: Path) -> dict | None:
+    with contextlib.suppress(OSError, ValueError):
+        data = json.loads(path.read_text(encoding="utf-8"))
+        return data if isinstance(data, dict) else None
+    return None
+
+
+def _last_history(path: Path) -> dict | None:
+    """The last complete JSON line of ``history.jsonl`` (a line torn by a crash is skipped)."""
+    last = None
+    with contextlib.suppress(OSError):
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                with contextlib.suppress(ValueError):
+                    rec = json.loads(line)
+                    if isinstance(rec, dict):
+                        last = rec
+    return last
+
+
+def _num(value) -> float | None:
+    try:
+        out = float(value)
+    except (TypeError, ValueError):
+        return None
+    return out if out == out else None  # NaN -> None
+
+
+def champion_residual(decision: dict | None, champion_id: str | None) -> dict | None:
+    """The worst validation residual of the model in service, from ``decision.json``.
+
+    Parameters
+    ----------
+    decision : dict or None
+        ``registry/decision.json``.
+    champion_id : str or None
+        The model in service (``champion.json``).
+
+    Returns
+    -------
+    dict or None
+        ``{"max_residual_um", "run", "n_runs", "source"}``: ``source`` names the summary used
+        (``candidate_summary`` or ``champion_summary``); ``run`` the validation run with that
+        residual (None if no run matches it). None when no summary of that model is in the
+        decision (no champion, a rollback, a decision of another model).
+    """
+    if not decision or not champion_id or decision.get("decision") not in _DECIDED:
+        return None
+    if decision.get("candidate_id") == champion_id:
+        source = "candidate_summary"
+    elif decision.get("champion_id_before") == champion_id:
+        source = "champion_summary"
+    else:
+        return None
+    summary = decision.get(source) or {}
+    worst = _num(summary.get("max_residual_um"))
+    if worst is None:
+        return None
+    run = None
+    for run_id, rec in sorted((summary.get("runs") or {}).items()):
+        value = _num((rec or {}).get("max_abs_after_um"))
+        if value is not None and abs(value - worst) <= 1e-9 * max(1.0, abs(worst)):
+            run = run_id
+            break
+    return {"max_residual_um": worst, "run": run, "n_runs": summary.get("n_runs"), "source": source}
+
+
+def _drift(decision: dict | None) -> dict | None:
+    drift = (decision or {}).get("drift")
+    if not isinstance(drift, dict):
+        return None
+    keys = ("status", "degradation_um", "new_max_residual_um", "reference_max_residual_um", "limit_um")
+    return {k: drift.get(k) for k in keys} | {"new_runs": list(drift.get("new_runs") or [])}
+
+
+def _page(reports_dir: Path, machine: str, skipped: bool) -> str | None:
+    """The machine's page relative to ``reports_dir`` (None if it is not there)."""
+    name = "skipped.html" if skipped else "qualification.html"
+    return f"{machine}/{name}" if (reports_dir / machine / name).is_file() else None
+
+
+def _older(a: Path, b: Path) -> bool:
+    """``a`` was modified before ``b`` (False if either is missing)."""
+    try:
+        return a.stat().st_mtime_ns < b.stat().st_mtime_ns
+    except OSError:
+        return False
+
+
+def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str) -> dict:
+    """The state of one machine (see the module docstring for the sources and states).
+
+    Parameters
+    ----------
+    paths : Paths
+        The project.
+    reports_dir : path
+        The project's ``reports_dir`` (absolute, or relative to the current directory).
+    machine : str
+        Folder name under raw/.
+
+    Returns
+    -------
+    dict
+        ``machine``, ``state``, ``rank``, ``attention`` (every state that applies, most urgent
+        first, with a short text each), ``champion`` (``id``, ``kind``, ``since``, ``reason``;
+        or None), ``last_decision`` (``decision``, ``time``, ``candidate_id``, ``reasons``,
+        ``source``; or None), ``worst_residual`` (:func:`champion_residual`), ``drift``,
+        ``recalibration_due``, ``quarantined`` (list of ``file (reason)``), ``skipped``,
+        ``report`` (path relative to ``reports_dir``, or None), ``exit_code``.
+    """
+    reports_dir = Path(reports_dir)
+    reg = paths.registry(machine)
+    champion = _read_json(reg / "champion.json")
+    champion_id = (champion or {}).get("model_id")
+    kind = None
+    if champion_id and "/" not in champion_id and not champion_id.startswith("."):
+        kind = ((_read_json(reg / "models" / f"{champion_id}.json") or {}).get("kind")) or None
+    decision = _read_json(reg / "decision.json")
+    last = None
+    if decision:
+        last = {k: decision.get(k) for k in ("decision", "time", "candidate_id")} | {
+            "reasons": list(decision.get("reasons") or []),
+            "source": "decision.json",
+        }
+    else:
+        rec = _last_history(reg / "history.jsonl")
+        if rec:
+            last = {k: rec.get(k) for k in ("decision", "time", "candidate_id")} | {
+                "reasons": list(rec.get("reasons") or []),
+                "source": "history.jsonl",
+            }
+    status = machine_status(paths, machine, None)
+    machine_dir = paths.results_dir / machine
+    audit = machine_dir / "audit.csv"
+    attention: list[tuple[str, str]] = []
+    if status.skipped:
+        attention.append(("skipped", "no usable raw file: nothing retrained or judged"))
+    elif not machine_dir.is_dir() or not (audit.exists() or (machine_dir / "input_status.json").exists()):
+        attention.append(("not_run", "no results yet: the pipeline has not run for this machine"))
+    elif decision is None:
+        attention.append(("failed", "no decision.json: the last run stopped before the decision"))
+    elif decision.get("decision") in _DECIDED and _older(reg / "decision.json", audit):
+        attention.append(
+            ("failed", "decision.json is older than audit.csv: the last run stopped before the decision")
+        )
+    recal = bool((decision or {}).get("recalibration_due"))
+    drift = _drift(decision)
+    if recal:
+        deg = _num((drift or {}).get("degradation_um"))
+        by = f" by {deg:.2f} um" if deg is not None else ""
+        attention.append(("recalibration_due", f"the model in service drifted{by}: recalibration due"))
+    if (decision or {}).get("decision") == "rejected":
+        attention.append(("rejected", "the last candidate was rejected; the champion stays"))
+    if status.quarantined and not status.skipped:
+        attention.append(("quarantined", f"{len(status.quarantined)} raw file(s) quarantined"))
+    attention.sort(key=lambda a: RANK[a[0]])
+    state = attention[0][0] if attention else "ok"
+    return {
+        "machine": machine,
+        "state": state,
+        "rank": RANK[state],
+        "attention": [{"state": s, "text": t} for s, t in attention],
+        "champion": (
+            {
+                "id": champion_id,
+                "kind": kind,
+                "since": champion.get("since"),
+                "reason": champion.get("reason"),
+            }
+            if champion_id
+            else None
+        ),
+        "last_decision": last,
+        "worst_residual": champion_residual(decision, champion_id),
+        "drift": drift,
+        "recalibration_due": recal,
+        "quarantined": list(status.quarantined),
+        "skipped": status.skipped,
+        "report": _page(reports_dir, machine, status.skipped),
+        "exit_code": most_severe(STATE_CODE[s] for s, _ in attention),
+    }
+
+
+def fleet_overview(
+    paths: Paths, reports_dir: str | os.PathLike, machines: list[str] | None = None
+) -> list[dict]:
+    """:func:`machine_overview` of every machine (``machines``, default every folder of raw/),
+    most urgent first (:data:`RANK`), then by machine name."""
+    names = paths.machines() if machines is None else list(machines)
+    rows = [machine_overview(paths, reports_dir, m) for m in names]
+    return sorted(rows, key=lambda r: (r["rank"], r["machine"]))
+
+
+def exit_code(rows: list[dict]) -> int:
+    """The exit status of ``rafi status``: the most severe code of any machine (0: all ok)."""
+    return most_severe(r["exit_code"] for r in rows)

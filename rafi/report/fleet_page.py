@@ -1,0 +1,158 @@
+"""The fleet overview page ``reports/index.html``: every machine's state on one page.
+
+The rows are :func:`rafi.ops.fleet.fleet_overview` (machines that need attention first); the
+page is one self-contained HTML file (template ``templates/fleet_index.html.j2``, inline CSS,
+no script) whose links point at each machine's ``qualification.html`` or ``skipped.html``,
+relative to where the page is written. Written by rule ``fleet_index``
+(``workflow/rules/fleet.smk``), after a night for some machines by ``rafi nightly``, and by
+``rafi status --html PATH``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import fcntl
+import os
+from collections import Counter
+from pathlib import Path
+
+from rafi.artefact import now_iso, write_text_atomic
+from rafi.ops.fleet import RANK, fleet_overview
+from rafi.ops.lock import MACHINE_LOCK_DIR
+from rafi.ops.project import Paths
+
+TEMPLATE = "fleet_index.html.j2"
+
+#: Serialises writers of the page (nights for different machines may end at the same time).
+PAGE_LOCK = ".fleet-page.lock"
+
+
+def _environment():
+    import jinja2
+
+    return jinja2.Environment(
+        loader=jinja2.PackageLoader("rafi.report", "templates"),
+        autoescape=jinja2.select_autoescape(["html", "j2"], default_for_string=True),
+        undefined=jinja2.StrictUndefined,
+        trim_blocks=True,
+        lstrip_blocks=True,
+    )
+
+
+def fleet_page(
+    rows: list[dict],
+    *,
+    created: str,
+    results_dir: str = "results",
+    raw_dir: str = "raw",
+    link_prefix: str = "",
+) -> str:
+    """HTML of the fleet overview.
+
+    Parameters
+    ----------
+    rows : list of dict
+        :func:`rafi.ops.fleet.fleet_overview` (in the order to show).
+    created : str
+        When the page is written (shown).
+    results_dir, raw_dir : str
+        Shown to the reader.
+    link_prefix : str
+        Put before each row's ``report`` (a path relative to ``reports_dir``) so the link works
+        from where the page is: ``""`` for ``reports/index.html``.
+
+    Returns
+    -------
+    str
+        A complete HTML document (every value escaped).
+    """
+    shown = []
+    for r in rows:
+        r = dict(r)
+        if r.get("report"):
+            r["report"] = f"{link_prefix}{r['report']}"
+        shown.append(r)
+    by_state = Counter(r["state"] for r in rows)
+    counts = {
+        "attention": sum(1 for r in rows if r["state"] != "ok"),
+        "by_state": sorted(by_state.items(), key=lambda kv: (RANK[kv[0]], kv[0])),
+    }
+    return (
+        _environment()
+        .get_template(TEMPLATE)
+        .render(
+            rows=shown,
+            counts=counts,
+            rank=RANK,
+            created=created,
+            results_dir=results_dir,
+            raw_dir=raw_dir,
+        )
+    )
+
+
+def _link_prefix(reports_dir: Path, out: Path) -> str:
+    rel = os.path.relpath(reports_dir.resolve(), out.resolve().parent)
+    return "" if rel == "." else rel.replace(os.sep, "/") + "/"
+
+
+def write_fleet_page(
+    paths: Paths,
+    reports_dir: str | os.PathLike,
+    out: str | os.PathLike | None = None,
+    rows: list[dict] | None = None,
+    machines: list[str] | None = None,
+) -> Path:
+    """Write the overview of every machine to ``out`` (default ``<reports_dir>/index.html``).
+
+    Readers and the write run under an exclusive ``flock`` on
+    ``results/.nightly.locks/.fleet-page.lock`` (waits for another writer), so the last page
+    written read every machine's files after the writer before it had finished.
+
+    Parameters
+    ----------
+    paths : Paths
+        The project.
+    reports_dir : path
+        The project's ``reports_dir``.
+    out : path, optional
+        Where to write the page.
+    rows : list of dict, optional
+        Rows already read (default: :func:`rafi.ops.fleet.fleet_overview` of ``machines``).
+    machines : list of str, optional
+        The machines shown (default: every folder of raw/ with a file).
+
+    Returns
+    -------
+    Path
+        The page written (atomic replace).
+    """
+    reports_dir = Path(reports_dir)
+    out = Path(out) if out is not None else reports_dir / "index.html"
+    lock_path = paths.results_dir / MACHINE_LOCK_DIR / PAGE_LOCK
+    lock_path.parent.mkdir(parents=True, exist_ok=True)
+    fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        if rows is None:
+            rows = fleet_overview(paths, reports_dir, machines)
+        html = fleet_page(
+            rows,
+            created=now_iso(),
+            results_dir=_shown(paths.results_dir, paths.directory),
+            raw_dir=_shown(paths.raw_dir, paths.directory),
+            link_prefix=_link_prefix(reports_dir, out),
+        )
+        out.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(out, html)
+    finally:
+        with contextlib.suppress(OSError):
+            fcntl.flock(fd, fcntl.LOCK_UN)
+        os.close(fd)
+    return out
+
+
+def _shown(path: Path, directory: Path) -> str:
+    with contextlib.suppress(ValueError):
+        return str(Path(path).relative_to(directory))
+    return str(path)

@@ -1,0 +1,35 @@
+# The fleet overview (docs/operations.md, "rafi status"): reports/index.html, every machine's
+# model in service, last decision, worst validation residual, drift, quarantined files and a
+# link to its page, machines that need attention first (rafi.ops.fleet, rafi.report.fleet_page).
+#
+#   every machine's nightly targets (tables, decision, report or skipped page)
+#     -> fleet_index   reports/index.html
+#
+# Part of `all`, and of `nightly` when the night covers every machine (fleet_targets.smk); a
+# night for some machines (`rafi nightly --machine M`) rewrites the page itself when it ends,
+# and so does a night whose pipeline failed (this rule then does not run).
+
+
+include: "fleet_targets.smk"
+
+
+rule fleet_index:
+    """Every machine's state on one page, machines that need attention first."""
+    input:
+        # one input function per machine (checkpoint input_status): its nightly targets
+        [machine_targets(m, "nightly") for m in MACHINES],
+        code=rafi_code("fleet_index"),
+        glue=script_helpers(),
+    output:
+        html=FLEET_INDEX,
+    log:
+        f"{LOGS_DIR}/fleet_index.log",
+    conda:
+        "../envs/rafi.yaml"
+    params:
+        raw_dir=str(RAW_DIR),
+        results_dir=RESULTS_DIR,
+        reports_dir=lambda w, output: os.path.dirname(output.html),
+        machines=MACHINES,
+    script:
+        "../scripts/fleet_index.py"
