@@ -11,11 +11,16 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from project_copy import copy_project
 from test_compensator import WINDOW, _find_runs, _fit, _in_window, _logs
 
 from rafi.deploy.limits import Limits
@@ -29,6 +34,8 @@ from rafi.deploy.replay import (
     summary_frame,
 )
 from rafi.method.validate import time_ordered
+
+ROOT = Path(__file__).resolve().parents[1]
 
 #: Nothing limits, nothing counts as a fault but a missing value (held for ever).
 OPEN = Limits(
@@ -252,3 +259,65 @@ def test_the_report_shows_the_replay_with_the_limits_in_force(tmp_path):
     (results / "deploy" / "replay_summary.csv").unlink()
     ctx = build_context(result_paths(results), dirs, machine="tapping-center-a", settings=settings)
     assert "replay" not in ctx["section_by_id"] and ctx["replay"] is None
+
+
+# --------------------------------------------------------------------------- rule and command
+
+MACHINE = "tapping-center-a"
+KEEP = ("train_03000rpm", "train_09000rpm", "train_15000rpm", "multi_condition")
+
+
+def _run(proj, *args):
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")])),
+    }
+    return subprocess.run(
+        [sys.executable, "-m", *args], cwd=proj, env=env, capture_output=True, text=True, timeout=600
+    )
+
+
+@pytest.mark.slow
+def test_rule_replay_and_rafi_replay_on_a_trimmed_project(tmp_path):
+    """The real Snakefile builds deploy/replay.* (byte-identical on a forced rerun); ``rafi replay``
+    on the same results writes the same samples, prints what each limit did, and refuses an
+    unknown run or a machine without results in one line."""
+    proj = copy_project(tmp_path / "proj")
+    raw = proj / "raw" / MACHINE
+    raw.mkdir(parents=True)
+    for stem in KEEP:
+        shutil.copy2(ROOT / "raw" / MACHINE / f"{stem}.csv", raw / f"{stem}.csv")
+    target = f"results/{MACHINE}/deploy/replay_summary.csv"
+    done = _run(proj, "snakemake", "--cores", "2", target)
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    deploy = proj / "results" / MACHINE / "deploy"
+    table, summary = pd.read_parquet(deploy / "replay.parquet"), pd.read_csv(deploy / "replay_summary.csv")
+    assert list(table.columns) == list(COLUMNS) and list(summary.columns) == list(SUMMARY_COLUMNS)
+    assert (
+        list(summary["run_id"]) == ["multi_condition"] and summary["n_samples"].iloc[0] == len(table) > 1000
+    )
+    best = json.loads((proj / "results" / MACHINE / "comparison" / "best_model.json").read_text())
+    assert summary["model_id"].iloc[0] == best["model_id"]
+    first = {p.name: p.read_bytes() for p in deploy.iterdir()}
+    done = _run(proj, "snakemake", "--cores", "2", "--forcerun", "replay", target)
+    assert done.returncode == 0 and "replay" in done.stderr, done.stderr[-3000:]
+    assert {p.name: p.read_bytes() for p in deploy.iterdir()} == first
+
+    done = _run(proj, "rafi.cli", "replay", "--machine", MACHINE, "--out", "cli")
+    assert done.returncode == 0, done.stderr
+    assert (
+        f"multi_condition: {len(table)} samples" in done.stdout
+        and "clamp [-50, 50] um acted on" in done.stdout
+    )
+    cli = pd.read_csv(proj / "cli" / "multi_condition.csv", keep_default_na=False, na_values=[""])
+    assert (proj / "cli" / "multi_condition.png").stat().st_size > 10_000
+    for col in ("log_t_s", "measured_um", "model_um", "command_um", "residual_um"):
+        np.testing.assert_allclose(cli[col], table[col], rtol=1e-12, atol=1e-12)
+    assert list(cli["status"]) == list(table["status"])
+    pd.testing.assert_frame_equal(pd.read_csv(proj / "cli" / "summary.csv"), summary)
+
+    done = _run(proj, "rafi.cli", "replay", "--machine", MACHINE, "--run", "nope")
+    assert done.returncode == 64 and "unknown run id(s) nope; runs.csv has: multi_condition" in done.stderr
+    assert len(done.stderr.strip().splitlines()) == 1
+    done = _run(proj, "rafi.cli", "replay", "--machine", "machining-center-b")
+    assert done.returncode == 64 and "run `snakemake --cores 2 tables` first" in done.stderr
