@@ -205,3 +205,69 @@ def test_a_night_for_every_machine_holds_every_lock(parallel):
     assert "--nolock" not in out  # a night for every machine keeps Snakemake's lock
     assert (results / "input_check.json").exists() and (proj / "reports" / "index.html").exists()
     assert "===== rafi nightly" in (results / "nightly.log").read_text()
+
+
+# --------------------------------------------------------------------------- the locks themselves
+
+
+def _hold(path: Path) -> subprocess.Popen:
+    """Another process holding the nightly lock ``path`` until killed."""
+    code = (
+        "import time; from rafi.ops.lock import NightlyLock\n"
+        f"with NightlyLock({str(path)!r}):\n"
+        "    print('locked', flush=True); time.sleep(120)\n"
+    )
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.PIPE, text=True, start_new_session=True
+    )
+    assert proc.stdout.readline().strip() == "locked"
+    return proc
+
+
+def test_night_locks_are_all_or_none(tmp_path):
+    results = tmp_path / "results"
+    holder = _hold(L.machine_lock_path(results, "m2"))
+    try:
+        with pytest.raises(L.LockHeld) as info:
+            L.night_locks(results, ["m3", "m2", "m1"], every_machine=True)
+        assert info.value.path == L.machine_lock_path(results, "m2")
+        assert f"pid={holder.pid} " in info.value.holder
+        # what it had taken before m2 (fleet lock, m1) is released; m3 was never taken
+        for path in (
+            results / L.LOCK_NAME,
+            L.machine_lock_path(results, "m1"),
+            L.machine_lock_path(results, "m3"),
+        ):
+            assert L.lock_is_free(path)
+        assert L.holder_pids(results) == {holder.pid}
+        # another machine's night is not held back
+        with L.night_locks(results, ["m1", "m3"], every_machine=False):
+            assert L.holder_pids(results) == {holder.pid, os.getpid()}
+            assert L.lock_is_free(results / L.LOCK_NAME)
+    finally:
+        _kill(holder)
+    # released locks are emptied; a killed holder's text stays (it names a process that is gone,
+    # which no live process is: only live processes are checked against it) ...
+    assert L.holder_pids(results) == {holder.pid}
+    # ... and the kernel dropped its flock: the lock can be taken, and then names its new holder
+    with L.night_locks(results, ["m1", "m2", "m3"], every_machine=True):
+        assert not L.lock_is_free(L.machine_lock_path(results, "m2"))
+        assert L.holder_pids(results) == {os.getpid()}
+
+
+def _proc_with_stat(root: Path, tree: dict[int, int]) -> Path:
+    """A fake ``/proc`` with ``<pid>/stat`` naming each pid's parent."""
+    for pid, parent in tree.items():
+        d = root / "proc" / str(pid)
+        d.mkdir(parents=True)
+        (d / "stat").write_text(f"{pid} (python3 x) S {parent} 1 1 0 -1\n")
+    return root / "proc"
+
+
+def test_a_job_of_another_night_is_coordinated(tmp_path):
+    # 100 = rafi nightly --machine a (holds its lock); 200 = sh -c of one of its jobs; 300 = the
+    # job script; 400 = a snakemake someone started by hand (parent: a login shell, 40)
+    proc = _proc_with_stat(tmp_path, {100: 1, 200: 100, 300: 200, 400: 40, 40: 1})
+    assert L.coordinated_with(300, {100}, proc=proc) and L.coordinated_with(100, {100}, proc=proc)
+    assert not L.coordinated_with(400, {100}, proc=proc)
+    assert not L.coordinated_with(300, set(), proc=proc)

@@ -1,0 +1,330 @@
+"""``rafi status`` and reports/index.html on fabricated projects whose truth is known.
+
+Each machine below is written to be in exactly one state (plus ``quarantined`` where said);
+the expected attention order, residuals, exit codes and links follow from the files alone.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+from pathlib import Path
+
+import pytest
+
+from rafi.ops import fleet as F
+from rafi.ops import fleet_cli
+from rafi.ops.project import Paths
+from rafi.report.fleet_page import fleet_page, write_fleet_page
+
+T0 = 1_800_000_000  # audit.csv time; a decision is written after it unless the machine is stale
+ID = {k: (c * 64) for k, c in {"X": "a", "Y": "b", "Z": "c", "C": "d", "R": "e", "Q": "f"}.items()}
+
+
+def _json(path: Path, data) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(data))
+
+
+def _summary(worst_run: str, worst: float, other: float = 1.0) -> dict:
+    return {
+        "n_runs": 2,
+        "max_residual_um": worst,
+        "runs": {
+            "v_other": {"max_abs_after_um": other, "max_abs_before_um": 20.0},
+            worst_run: {"max_abs_after_um": worst, "max_abs_before_um": 20.0},
+        },
+    }
+
+
+def _machine(
+    root: Path,
+    name: str,
+    *,
+    champion: str | None = None,
+    kind: str = "rafi",
+    decision: dict | None = None,
+    audit: list[tuple[str, str, str]] = (("day1.csv", "ok", ""),),
+    skipped: bool = False,
+    stale: bool = False,
+    history: list[dict] = (),
+    report: bool = True,
+) -> None:
+    (root / "raw" / name).mkdir(parents=True)
+    (root / "raw" / name / "day1.csv").write_text("time\n")
+    if audit is None:  # never run: nothing under results/
+        return
+    res = root / "results" / name
+    res.mkdir(parents=True)
+    rows = "\n".join(f"{f},{s},{r}" for f, s, r in audit)
+    (res / "audit.csv").write_text(f"file,status,reason\n{rows}\n")
+    _json(
+        res / "input_status.json",
+        {"machine": name, "status": "skipped" if skipped else "usable", "rejected": []},
+    )
+    os.utime(res / "audit.csv", (T0, T0))
+    reg = res / "registry"
+    if champion:
+        _json(
+            reg / "champion.json",
+            {"model_id": ID[champion], "since": "2026-01-02T03:04:05Z", "reason": "promoted"},
+        )
+        _json(reg / "models" / f"{ID[champion]}.json", {"model_id": ID[champion], "kind": kind})
+    if decision is not None:
+        _json(reg / "decision.json", decision)
+        t = T0 - 10 if stale else T0 + 10
+        os.utime(reg / "decision.json", (t, t))
+    if history:
+        reg.mkdir(parents=True, exist_ok=True)
+        lines = "".join(json.dumps(h) + "\n" for h in history)
+        (reg / "history.jsonl").write_text(lines + '{"torn": ')  # a line torn by a crash is skipped
+    page = root / "reports" / name / ("skipped.html" if skipped else "qualification.html")
+    if report:
+        page.parent.mkdir(parents=True, exist_ok=True)
+        page.write_text("<html></html>")
+
+
+def _decision(kind: str, champion: str | None, candidate: str, **extra) -> dict:
+    return {
+        "decision": kind,
+        "time": "2026-03-04T05:06:07Z",
+        "candidate_id": ID[candidate],
+        "champion_id_before": ID[champion] if champion else None,
+        "champion_id_after": ID[candidate] if kind == "promoted" else (ID[champion] if champion else None),
+        "reasons": [f"{kind} for the test"],
+        "recalibration_due": False,
+        "drift": {"status": "ok", "degradation_um": 0.1, "limit_um": 2.0},
+        **extra,
+    }
+
+
+@pytest.fixture
+def fleet(tmp_path):
+    root = tmp_path / "proj"
+    _machine(
+        root,
+        "ok-m",
+        champion="X",
+        decision=_decision("promoted", None, "X", candidate_summary=_summary("v1", 2.5)),
+    )
+    _machine(
+        root,
+        "recal-m",
+        champion="Y",
+        kind="grey_box",
+        decision=_decision(
+            "kept",
+            "Y",
+            "Y",
+            candidate_summary=_summary("v3", 6.25),
+            recalibration_due=True,
+            drift={"status": "degraded", "degradation_um": 3.1, "limit_um": 2.0, "new_runs": ["v3"]},
+        ),
+    )
+    _machine(
+        root,
+        "rej-m",
+        champion="Z",
+        decision=_decision(
+            "rejected", "Z", "C", champion_summary=_summary("v2", 4.0), candidate_summary=_summary("v2", 9.0)
+        ),
+    )
+    _machine(
+        root,
+        "quar-m",
+        champion="Q",
+        decision=_decision("promoted", None, "Q", candidate_summary=_summary("v1", 1.5)),
+        audit=[("good.csv", "ok", ""), ("bad.csv", "quarantined", "line 3: <b>not a number</b>")],
+    )
+    _machine(
+        root,
+        "skip-m",
+        champion="X",
+        decision=_decision("promoted", None, "X", candidate_summary=_summary("v1", 2.0)),
+        audit=[("only.csv", "quarantined", "empty file")],
+        skipped=True,
+    )
+    _machine(
+        root,
+        "fail-m",
+        champion="X",
+        history=[{"decision": "promoted", "time": "2026-02-01T00:00:00Z", "candidate_id": ID["X"]}],
+    )
+    _machine(
+        root,
+        "stale-m",
+        champion="X",
+        decision=_decision("promoted", None, "X", candidate_summary=_summary("v1", 3.0)),
+        stale=True,
+    )
+    _machine(root, "new-m", audit=None, report=False)
+    _machine(
+        root,
+        "rolled-m",
+        champion="R",
+        decision=_decision("rolled_back", "X", "X", candidate_summary=_summary("v1", 2.0))
+        | {"champion_id_after": ID["R"]},
+        report=False,
+    )
+    (root / "config.yaml").write_text("raw_dir: raw\nresults_dir: results\nreports_dir: reports\n")
+    return root
+
+
+def _rows(root: Path, machines=None) -> list[dict]:
+    return F.fleet_overview(Paths.from_config(root, {}), root / "reports", machines)
+
+
+EXPECTED_ORDER = ["fail-m", "new-m", "skip-m", "stale-m", "recal-m", "quar-m", "rej-m", "ok-m", "rolled-m"]
+EXPECTED_STATE = {
+    "fail-m": "failed",
+    "new-m": "not_run",
+    "skip-m": "skipped",
+    "stale-m": "failed",
+    "recal-m": "recalibration_due",
+    "quar-m": "quarantined",
+    "rej-m": "rejected",
+    "ok-m": "ok",
+    "rolled-m": "ok",
+}
+
+
+def test_states_and_attention_order(fleet):
+    rows = _rows(fleet)
+    assert [r["machine"] for r in rows] == EXPECTED_ORDER
+    assert {r["machine"]: r["state"] for r in rows} == EXPECTED_STATE
+    assert [r["rank"] for r in rows] == [0, 0, 0, 0, 1, 2, 2, 3, 3]
+    assert F.exit_code(rows) == 1
+
+
+def test_what_each_row_says(fleet):
+    rows = {r["machine"]: r for r in _rows(fleet)}
+    # model in service: champion.json + the kind of its stored model
+    assert rows["recal-m"]["champion"] == {
+        "id": ID["Y"],
+        "kind": "grey_box",
+        "since": "2026-01-02T03:04:05Z",
+        "reason": "promoted",
+    }
+    assert rows["new-m"]["champion"] is None and rows["new-m"]["last_decision"] is None
+    # worst residual of the model in service: the summary that scores it
+    assert rows["ok-m"]["worst_residual"] == {
+        "max_residual_um": 2.5,
+        "run": "v1",
+        "n_runs": 2,
+        "source": "candidate_summary",
+    }
+    assert rows["recal-m"]["worst_residual"]["max_residual_um"] == 6.25
+    rej = rows["rej-m"]["worst_residual"]  # the champion (4.0), not the rejected candidate (9.0)
+    assert (rej["max_residual_um"], rej["run"], rej["source"]) == (4.0, "v2", "champion_summary")
+    assert rows["rolled-m"]["worst_residual"] is None  # not scored since the rollback
+    assert rows["fail-m"]["worst_residual"] is None
+    # last decision: decision.json, else the last whole line of history.jsonl
+    assert rows["rej-m"]["last_decision"]["decision"] == "rejected"
+    assert rows["fail-m"]["last_decision"] == {
+        "decision": "promoted",
+        "time": "2026-02-01T00:00:00Z",
+        "candidate_id": ID["X"],
+        "reasons": [],
+        "source": "history.jsonl",
+    }
+    # drift and recalibration
+    assert rows["recal-m"]["recalibration_due"] and rows["recal-m"]["drift"]["degradation_um"] == 3.1
+    assert "3.10 um" in rows["recal-m"]["attention"][0]["text"]
+    assert not rows["ok-m"]["recalibration_due"]
+    # quarantine, skipped
+    assert rows["quar-m"]["quarantined"] == ["bad.csv (line 3: <b>not a number</b>)"]
+    assert rows["skip-m"]["skipped"] and rows["skip-m"]["quarantined"] == ["only.csv (empty file)"]
+    # pages, relative to reports_dir
+    assert rows["ok-m"]["report"] == "ok-m/qualification.html"
+    assert rows["skip-m"]["report"] == "skip-m/skipped.html"
+    assert rows["rolled-m"]["report"] is None
+    # per-machine exit codes (rafi nightly's)
+    codes = {m: r["exit_code"] for m, r in rows.items()}
+    assert codes == {
+        "fail-m": 1,
+        "new-m": 1,
+        "skip-m": 4,
+        "stale-m": 1,
+        "recal-m": 3,
+        "quar-m": 4,
+        "rej-m": 2,
+        "ok-m": 0,
+        "rolled-m": 0,
+    }
+
+
+@pytest.mark.parametrize(
+    "machines, code",
+    [
+        (["ok-m", "rolled-m"], 0),
+        (["ok-m", "quar-m"], 4),
+        (["quar-m", "rej-m"], 2),
+        (["rej-m", "recal-m", "skip-m"], 3),
+        (["skip-m", "recal-m", "new-m"], 1),
+    ],
+)
+def test_exit_code_is_the_most_severe(fleet, machines, code):
+    assert F.exit_code(_rows(fleet, machines)) == code
+
+
+def test_page_lists_every_machine_most_urgent_first_with_links(fleet):
+    out = write_fleet_page(Paths.from_config(fleet, {}), fleet / "reports")
+    assert out == fleet / "reports" / "index.html"
+    page = out.read_text()
+    positions = [page.index(f"<strong>{m}</strong>") for m in EXPECTED_ORDER]
+    assert positions == sorted(positions)
+    links = re.findall(r'href="([^"]+)"', page)
+    with_page = [m for m in EXPECTED_ORDER if m not in ("new-m", "rolled-m")]  # no page built
+    assert sorted(links) == sorted(
+        f"{m}/{'skipped' if m == 'skip-m' else 'qualification'}.html" for m in with_page
+    )
+    assert "&lt;b&gt;not a number&lt;/b&gt;" in page and "<b>not a number" not in page  # escaped
+    assert "<script" not in page and "http" not in page.split("<body>")[1]  # self-contained
+    assert "4.00" in page and "6.25" in page
+
+
+def test_page_elsewhere_links_back_into_reports(fleet, tmp_path):
+    out = write_fleet_page(Paths.from_config(fleet, {}), fleet / "reports", tmp_path / "www" / "fleet.html")
+    assert 'href="../proj/reports/ok-m/qualification.html"' in out.read_text()
+
+
+def test_a_skipped_machine_alone(tmp_path):
+    root = tmp_path / "p"
+    _machine(
+        root,
+        "only",
+        audit=[("a.csv", "quarantined", "no header"), ("b.csv", "quarantined", "empty")],
+        skipped=True,
+    )
+    rows = _rows(root)
+    assert [r["state"] for r in rows] == ["skipped"] and F.exit_code(rows) == 4
+    page = fleet_page(rows, created="now")
+    assert 'href="only/skipped.html"' in page and "a.csv (no header)" in page and "skipped: 1" in page
+
+
+def test_empty_fleet(tmp_path):
+    rows = _rows(tmp_path)
+    assert rows == [] and F.exit_code(rows) == 0
+    assert "No machine" in fleet_page(rows, created="now")
+
+
+def _cli(root: Path, *argv: str) -> argparse.Namespace:
+    parser = argparse.ArgumentParser()
+    fleet_cli.add_arguments(parser)
+    return parser.parse_args(["--directory", str(root), *argv])
+
+
+def test_cli_json_text_and_html(fleet, capsys, tmp_path):
+    assert fleet_cli.run(_cli(fleet, "--json")) == 1
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["exit_code"] == 1 and [m["machine"] for m in doc["machines"]] == EXPECTED_ORDER
+    assert fleet_cli.run(_cli(fleet, "--machine", "ok-m", "--machine", "rolled-m")) == 0
+    text = capsys.readouterr().out
+    assert text.startswith("ok-m: OK") and "2.50 um (v1)" in text and "rolled-m: OK" in text
+    html = tmp_path / "out" / "index.html"
+    assert fleet_cli.run(_cli(fleet, "--machine", "recal-m", "--html", str(html))) == 3
+    assert "RECALIBRATION_DUE" in capsys.readouterr().out and "recal-m" in html.read_text()
+    assert fleet_cli.run(_cli(fleet, "--machine", "nope")) == 64
+    assert "no machine 'nope'" in capsys.readouterr().err
