@@ -132,8 +132,13 @@ def test_a_tight_clamp_and_rate_limit_are_respected_and_reported(data):
     t = got["log_t_s"].to_numpy(dtype=float)
     command = got["command_um"].to_numpy(dtype=float)
     assert (np.abs(command) <= 4.0).all()
+    # the replay writes once per sample: interval_s is the log's sample period, not the 5 s given
+    period = float(np.median(np.diff(t)))
+    assert period == 20.0
+    tight = dataclasses.replace(tight, interval_s=period)
     steps = np.abs(np.diff(command))
-    assert (steps <= 0.002 * np.minimum(np.diff(t), 5.0) + 1e-12).all()
+    assert (steps <= 0.002 * np.minimum(np.diff(t), period) + 1e-12).all()
+    assert (steps > 0.002 * 5.0 + 1e-12).any()  # more than a 5 s interval would allow
     # the model's own value (wide open) is the target in "ok"; 0 um while referencing
     free = replay_log(clean, _artefact(model), OPEN)
     assert set(got["status"]) == {"referencing", "ok"}

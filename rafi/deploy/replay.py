@@ -23,6 +23,7 @@ Functions
 
 from __future__ import annotations
 
+import dataclasses
 from collections import Counter
 
 import numpy as np
@@ -118,7 +119,9 @@ def replay_log(
     artefact : dict
         A ``rafi.model/1`` artefact of the family (``best_model.json``, a champion).
     limits : rafi.deploy.limits.Limits
-        The limits and fault rules in force (``Limits.from_settings``).
+        The limits and fault rules in force (``Limits.from_settings``). Its ``interval_s`` is
+        replaced by the log's sample period (the median time between samples): a controller
+        replaying this log writes once per sample.
     reference_rule : {"run_start", "log_start"}, optional
         When to call ``capture_reference()``: at each run's first sample, or each segment's.
         Default: the artefact's ``reference.rule`` (the rule it was trained with).
@@ -151,6 +154,10 @@ def replay_log(
     temps = log[list(SENSORS)].to_numpy(dtype=float)
     t = log["log_t_s"].to_numpy(dtype=float)
     rpm = log["speed_rpm"].to_numpy(dtype=float)
+    steps = np.diff(t)
+    steps = steps[steps > 0]
+    if len(steps):
+        limits = dataclasses.replace(limits, interval_s=float(np.median(steps)))
     safe = SafeCompensator(limits=limits).load(artefact)
     rows = []
     for k in range(len(log)):
