@@ -396,7 +396,7 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
         write_state(paths, fingerprint(args.config_file, paths, overrides, scope), scope)
     else:
         clear_state(paths, scope)
-    if not every:  # a night for every machine builds the page in rule fleet_index
+    if not every or not outcome.ok:  # else rule fleet_index has written it
         _refresh_fleet_page(paths, getattr(args, "reports_dir", paths.directory / "reports"))
     if outcome.nothing_to_do:
         return _nothing_new(paths, machines, started)
