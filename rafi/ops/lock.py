@@ -1,7 +1,7 @@
 """The nightly locks and Snakemake's own lock in the project (``.snakemake/locks``).
 
 Nightly locks are exclusive, non-blocking ``flock`` s. A night for one machine (``rafi nightly
---machine M``) takes ``results/.nightly.locks/M.lock`` only, so nights for different machines
+--machine M``) takes ``results/.nightly.M.lock`` only, so nights for different machines
 run at the same time and two for the same machine refuse each other. A night for every machine
 takes the fleet lock ``results/.nightly.lock`` and then every machine's lock, in sorted order
 (:func:`night_locks`); all of them or none. Snakemake's lock is stale after a killed run and is
@@ -22,8 +22,9 @@ from rafi.errors import LockHeld
 
 #: The fleet lock under ``results_dir``: held by a night for every machine.
 LOCK_NAME = ".nightly.lock"
-#: The folder of the machine locks under ``results_dir`` (``<machine>.lock``).
-MACHINE_LOCK_DIR = ".nightly.locks"
+#: The name of a machine's lock under ``results_dir`` (every nightly file starts with
+#: ``.nightly`` or ``nightly``, so tools that skip the nightly's own files skip it too).
+MACHINE_LOCK = ".nightly.{machine}.lock"
 
 
 class NightlyLock:
@@ -94,8 +95,8 @@ class NightlyLock:
 
 
 def machine_lock_path(results_dir: str | os.PathLike, machine: str) -> Path:
-    """``results/.nightly.locks/<machine>.lock``: the nightly lock of one machine."""
-    return Path(results_dir) / MACHINE_LOCK_DIR / f"{machine}.lock"
+    """``results/.nightly.<machine>.lock``: the nightly lock of one machine."""
+    return Path(results_dir) / MACHINE_LOCK.format(machine=machine)
 
 
 def night_locks(
@@ -149,7 +150,7 @@ def holder_pids(results_dir: str | os.PathLike) -> set[int]:
     root = Path(results_dir)
     files = [root / LOCK_NAME]
     with contextlib.suppress(OSError):
-        files += sorted((root / MACHINE_LOCK_DIR).glob("*.lock"))
+        files += sorted(root.glob(MACHINE_LOCK.format(machine="?*")))
     pids = set()
     for path in files:
         with contextlib.suppress(OSError):

@@ -10,7 +10,7 @@ line on stdout and in the nightly log). A raw file modified less than nightly_se
 ago (config, default 600) waits for the next night; each such file is named. See
 docs/operations.md.
 
-Locks: `--machine M` takes results/.nightly.locks/M.lock only, so nights for different
+Locks: `--machine M` takes results/.nightly.M.lock only, so nights for different
 machines run at the same time (a cron line or a Slurm array task per machine) and two for the
 same machine refuse each other (exit 75); such a night runs Snakemake without its directory
 lock (--nolock: the machines' outputs never overlap) and writes results/nightly.M.log and
@@ -60,9 +60,9 @@ from rafi.errors import LockHeld, RegistryError, SettingsError
 from rafi.ops import snakemake_api
 from rafi.ops.lock import (
     LOCK_NAME,
-    MACHINE_LOCK_DIR,
     clear_stale_snakemake_lock,
     holder_pids,
+    machine_lock_path,
     night_locks,
     snakemake_lock_files,
 )
@@ -195,10 +195,10 @@ def run(args) -> int:
 def _locks_text(paths: Paths, machines: list[str], every: bool) -> str:
     """``lock <path>`` (one machine) or ``locks <fleet lock> + N machine locks in <dir>``."""
     if not every:
-        return "lock " + ", ".join(str(paths.results_dir / MACHINE_LOCK_DIR / f"{m}.lock") for m in machines)
+        return "lock " + ", ".join(str(machine_lock_path(paths.results_dir, m)) for m in machines)
     return (
-        f"lock {paths.results_dir / LOCK_NAME} and {len(machines)} machine lock(s) in "
-        f"{paths.results_dir / MACHINE_LOCK_DIR}"
+        f"lock {paths.results_dir / LOCK_NAME} and {len(machines)} machine lock(s) "
+        f"{machine_lock_path(paths.results_dir, '<machine>')}"
     )
 
 

@@ -20,7 +20,6 @@ import os
 from pathlib import Path
 
 from rafi.artefact import canonical_json, json_text, now_iso, write_text_atomic
-from rafi.ops.lock import LOCK_NAME, MACHINE_LOCK_DIR
 from rafi.ops.project import Paths, config_path
 from rafi.ops.raw_hashes import CACHE_NAME as RAW_HASH_CACHE
 
@@ -49,13 +48,12 @@ def log_name(machines=None) -> str:
 
 
 def _nightly_file(rel: str) -> bool:
-    """A file of the nightly itself under ``results_dir`` (locks, states, logs, hash cache)."""
+    """A file of the nightly itself under ``results_dir``: its locks, states and logs (every name
+    starts with ``.nightly`` or ``nightly.``), and the raw-hash cache."""
     top = rel.split(os.sep, 1)[0]
-    return (
-        top in (LOCK_NAME, MACHINE_LOCK_DIR, RAW_HASH_CACHE)
-        or (top.startswith(".nightly.state.") and top.endswith(".json"))
-        or (top.startswith("nightly.") and top.endswith(".log"))
-    )
+    if top == RAW_HASH_CACHE or top.startswith(".nightly"):
+        return True
+    return top.startswith("nightly.") and top.endswith(".log")
 
 
 def _line(name: str, st: os.stat_result, ctime: bool) -> str:

@@ -18,13 +18,13 @@ from pathlib import Path
 
 from rafi.artefact import now_iso, write_text_atomic
 from rafi.ops.fleet import RANK, fleet_overview
-from rafi.ops.lock import MACHINE_LOCK_DIR
 from rafi.ops.project import Paths
 
 TEMPLATE = "fleet_index.html.j2"
 
-#: Serialises writers of the page (nights for different machines may end at the same time).
-PAGE_LOCK = ".fleet-page.lock"
+#: Serialises writers of the page (nights for different machines may end at the same time);
+#: under ``results_dir``, named like the nightly's files but never like a machine's lock.
+PAGE_LOCK = ".nightly.page-lock"
 
 
 def _environment():
@@ -106,7 +106,7 @@ def write_fleet_page(
     """Write the overview of every machine to ``out`` (default ``<reports_dir>/index.html``).
 
     Readers and the write run under an exclusive ``flock`` on
-    ``results/.nightly.locks/.fleet-page.lock`` (waits for another writer), so the last page
+    ``results/.nightly.page-lock`` (waits for another writer), so the last page
     written read every machine's files after the writer before it had finished.
 
     Parameters
@@ -129,7 +129,7 @@ def write_fleet_page(
     """
     reports_dir = Path(reports_dir)
     out = Path(out) if out is not None else reports_dir / "index.html"
-    lock_path = paths.results_dir / MACHINE_LOCK_DIR / PAGE_LOCK
+    lock_path = paths.results_dir / PAGE_LOCK
     lock_path.parent.mkdir(parents=True, exist_ok=True)
     fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
     try:
