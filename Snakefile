@@ -9,7 +9,8 @@
 # Outputs: docs/design.md. Helpers (functions only): workflow/rules/common.smk; the
 # method's steps: pipeline.smk; the model family: compare.smk; champion/challenger:
 # registry.smk; the replay of recorded runs through the compensator with its limits (the
-# model on the machine, offline): deploy.smk; the qualification report: report.smk; which
+# model on the machine, offline): deploy.smk; the qualification report: report.smk; the fleet
+# overview reports/index.html: fleet.smk; which
 # machines have a usable raw file (a machine without one is skipped, the others carry on):
 # input_status.smk.
 
@@ -22,7 +23,6 @@ configfile: "config.yaml"
 
 
 include: "workflow/rules/common.smk"
-include: "workflow/rules/fleet.smk"
 include: "workflow/rules/report_common.smk"
 include: "workflow/rules/pipeline.smk"
 include: "workflow/rules/input_status.smk"
@@ -30,6 +30,7 @@ include: "workflow/rules/compare.smk"
 include: "workflow/rules/registry.smk"
 include: "workflow/rules/deploy.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/fleet.smk"
 
 
 rule all:

@@ -140,24 +140,20 @@ def test_failed_pipeline_exits_1_and_frees_the_lock(tmp_path):
     assert lock_is_free(proj / "results" / LOCK_NAME)
 
 
-def test_nothing_to_do_is_quick(tmp_path):
+def test_nothing_to_do_takes_the_fast_path(tmp_path):
+    # how long it takes is measured by benchmarks/bench_nightly.py, not here
     proj = fake_project(tmp_path)
-    t0 = time.perf_counter()
     res = subprocess.run(
         rafi_cmd("nightly", "--directory", str(proj)), capture_output=True, text=True, timeout=60
     )
-    elapsed = time.perf_counter() - t0
     assert res.returncode == 0, res.stderr
     assert "nothing new since the first run" in res.stdout
-    assert elapsed < 10
     # the next night takes the fingerprint fast path (no Snakemake at all) ...
     assert (proj / "results" / STATE_NAME).exists()
-    t0 = time.perf_counter()
     res = subprocess.run(
         rafi_cmd("nightly", "--directory", str(proj)), capture_output=True, text=True, timeout=60
     )
     assert res.returncode == 0 and "nothing new since" in res.stdout
-    assert time.perf_counter() - t0 < 5
     # ... until anything it covers changes: a new raw file makes Snakemake decide again
     stored = json.loads((proj / "results" / STATE_NAME).read_text())["fingerprint"]
     overrides = N.config_overrides(argparse.Namespace(machine=None, no_report=False))

@@ -391,6 +391,8 @@ def skipped_page_path(machine="{machine}"):
 
 #: Run-level summary of rejected input, ``results/input_check.json`` (written by input_check).
 INPUT_CHECK = f"{RESULTS_DIR}/input_check.json"
+#: The fleet overview page (rule fleet_index, fleet.smk).
+FLEET_INDEX = f"{REPORTS_DIR}/index.html"
 
 
 def machine_skipped(machine):
@@ -439,17 +441,20 @@ def all_pipeline_tables():
 
 
 def all_targets():
-    """Input functions (one per machine) and ``INPUT_CHECK``: everything (``rule all``)."""
-    return [machine_targets(m, "all") for m in MACHINES] + [INPUT_CHECK]
+    """Input functions (one per machine), ``INPUT_CHECK`` and the fleet overview: everything
+    (``rule all``)."""
+    return [machine_targets(m, "all") for m in MACHINES] + [INPUT_CHECK, FLEET_INDEX]
 
 
 def nightly_targets():
     """Every output a night produces: tables, comparison, decision and (unless
     ``--config nightly_report=false``) the report, for the machines of the night (a skipped
-    machine: its audit and skipped page); ``INPUT_CHECK`` when the night covers every machine."""
+    machine: its audit and skipped page); ``INPUT_CHECK`` and the fleet overview when the night
+    covers every machine (a night for some machines, ``rafi nightly --machine M``, rewrites the
+    page itself)."""
     machines = _nightly_machines()
     targets = [machine_targets(m, "nightly") for m in machines]
-    return targets + ([INPUT_CHECK] if machines == MACHINES else [])
+    return targets + ([INPUT_CHECK, FLEET_INDEX] if machines == MACHINES else [])
 
 
 def rejected_input_message():

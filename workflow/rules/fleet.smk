@@ -5,12 +5,9 @@
 #   every machine's nightly targets (tables, decision, report or skipped page)
 #     -> fleet_index   reports/index.html
 #
-# Part of `all`, and of `nightly` when the night covers every machine (fleet_targets.smk); a
+# Part of `all`, and of `nightly` when the night covers every machine (common.smk); a
 # night for some machines (`rafi nightly --machine M`) rewrites the page itself when it ends,
 # and so does a night whose pipeline failed (this rule then does not run).
-
-
-include: "fleet_targets.smk"
 
 
 rule fleet_index:
