@@ -20,6 +20,7 @@ groups are still checked against the workflow's rules.
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import re
 import shutil
@@ -83,9 +84,7 @@ def test_profile_groups_every_per_machine_rule():
 
 def _skip_reason() -> str | None:
     """Why the Slurm run cannot happen here, or None."""
-    try:
-        import snakemake_executor_plugin_slurm  # noqa: F401
-    except ImportError:
+    if importlib.util.find_spec("snakemake_executor_plugin_slurm") is None:
         return "snakemake-executor-plugin-slurm is not installed"
     if shutil.which("sinfo") is None or shutil.which("sbatch") is None:
         return "no Slurm client (sinfo/sbatch); `bash .ci/slurm-up.sh` brings up a test cluster"
