@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -394,20 +392,13 @@ def test_audit_counts_property(dup, swaps, spikes, dropouts, gaps, seed):
     assert err.max() < 0.15
 
 
-def test_clean_is_fast(log_truth):
-    log, _ = log_truth
-    frame, _ = inject_defects(log, duplicates=3, swaps=3, spikes=5, dropouts=5, gaps=3, seed=1)
-    clean(frame)
-    t0 = time.perf_counter()
-    clean(frame)
-    assert time.perf_counter() - t0 < 0.2
+def test_a_long_log_with_two_long_gaps_gives_three_segments():
+    # the time of clean is measured by benchmarks/bench_steps.py (clean_3000, clean_30000)
     big, _ = canonical_log(30000, extras=False, seed=1)
     big, _ = inject_defects(
         big, duplicates=20, swaps=20, spikes=40, dropouts=40, gaps=20, long_gaps=2, seed=3
     )
-    t0 = time.perf_counter()
     out, audit = clean(big)
-    assert time.perf_counter() - t0 < 1.0
     assert out["segment"].nunique() == 3
 
 

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pandas as pd
 import pytest
@@ -202,12 +200,10 @@ def test_empty_input_gives_empty_tables():
     assert len(rf) == 0 and list(rf.columns) == list(RUNS_FRAME_COLUMNS)
 
 
-def test_find_runs_is_fast():
+def test_every_sample_of_a_long_log_is_in_one_run():
+    # the time of find_runs is measured by benchmarks/bench_steps.py (find_runs_37000)
     frame, _ = schedule_log(CONTINUOUS * 3, speed_noise_rpm=20)  # ~37 000 samples
-    runs(frame)
-    t0 = time.perf_counter()
     table, rf = runs(frame)
-    assert time.perf_counter() - t0 < 0.5
     assert len(rf) == len(frame)
 
 

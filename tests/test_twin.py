@@ -5,7 +5,6 @@ from __future__ import annotations
 import hashlib
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -44,11 +43,9 @@ def test_import_is_light():
     assert out.stdout.strip() == "False", out.stderr
 
 
-def test_four_hour_run_is_fast():
-    simulate_run(constant_schedule(6000, 600), seed=1)  # warm caches / imports
-    t0 = time.perf_counter()
+def test_four_hour_run_has_every_sample():
+    # its time is measured by benchmarks/bench_steps.py (twin_4h_run), not here
     run = simulate_run(constant_schedule(9000, 4 * 3600), seed=1)
-    assert time.perf_counter() - t0 < 1.0
     assert len(run.truth) == 2880
 
 
