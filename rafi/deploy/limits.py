@@ -162,7 +162,7 @@ class _SensorWatch:
             elif not lo <= v <= hi:
                 faults.append(f"{name} out of range ({v:.4g} degC)")
                 fed[i] = np.nan
-        valid = np.where(np.isfinite(fed), fed, np.nan)
+        valid = fed  # NaN where missing or out of range
         for i, v in enumerate(valid):
             if not np.isfinite(v):
                 continue

@@ -30,6 +30,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
+from rafi.deploy.limits import STATUSES, SafeCompensator
 
 __all__ = [
     "COLUMNS",
@@ -60,7 +61,7 @@ COLUMNS = (
 )
 
 #: The status values a replay counts (``rafi.deploy.limits.STATUSES``, in this order).
-REPLAY_STATUSES = ("off", "referencing", "ok", "hold", "ramp")
+REPLAY_STATUSES = tuple(STATUSES)
 
 #: Columns of the summary table (one row per replayed run).
 SUMMARY_COLUMNS = (
@@ -140,8 +141,6 @@ def replay_log(
     ValueError
         No rows, more than one log, or a column missing.
     """
-    from rafi.deploy.limits import SafeCompensator  # the lead's module; imported when used
-
     missing = [c for c in _NEEDED if c not in frame.columns]
     if missing:
         raise ValueError(f"the frame has no column(s) {', '.join(missing)} (runs.parquet of rule runs)")
