@@ -113,7 +113,25 @@ MACHINE_DEFAULTS: dict = {
         # "noise": the run's noise floor (rafi.method.noise)
         "champion_margin_um": "noise",
     },
-    "report": {"figure_format": "png", "coolant_sensors": ["T13"]},
+    "report": {
+        "figure_format": "png",
+        # sensors the report names by role; none unless the machine's settings say so
+        "coolant_sensors": [],
+        "ambient_sensor": None,  # the sensor in the room air: the test record's ambient
+        # the machine is the paper's rig (Chang et al. 2023): the paper's numbers are shown
+        # beside this machine's; on any other machine they are left out
+        "paper_rig": False,
+        # the sign-off block on the first page: a value left out is a blank line to sign
+        "document": {"number": None, "prepared_by": None, "approved_by": None, "approved_date": None},
+        # test conditions for the test record, shown when given (a warning names what is missing)
+        "instruments": {
+            "machine_serial": None,
+            "controller": None,
+            "probe": None,  # displacement probe: make, model, resolution
+            "sensor_positions": {},  # sensor -> where it sits, e.g. T8: rear spindle bearing
+            "calibration": {},  # instrument -> calibration date (ISO 8601)
+        },
+    },
     # the model on the machine: limits and fault rules (rafi.deploy.limits), the live loop
     # (rafi deploy), the report's replay (docs/deploy.md)
     "deploy": {
