@@ -28,23 +28,6 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-H = 3600.0
-CONTINUOUS = [
-    (3000, 4 * H),
-    (0, H),
-    (6000, 4 * H),
-    (0, 600),
-    (4500, 3 * H),
-    (0, 2700),
-    (9000, 2 * H),
-    (0, H),
-    (3000, 1200),
-    (9000, 1200),
-    (0, 300),
-    (12000, 1200),
-    (6000, 1200),
-]
-
 
 def cases() -> dict:
     """name -> (callable, target seconds)."""
@@ -52,7 +35,14 @@ def cases() -> dict:
     from rafi.method.runs import find_runs
     from rafi.twin.schedules import constant_schedule
     from rafi.twin.simulate import simulate_run
-    from rafi.twin.synthetic_logs import canonical_log, inject_defects, schedule_log
+    from rafi.twin.synthetic_logs import (
+        CLEAN_KWARGS,
+        CONTINUOUS_SCHEDULE,
+        FIND_RUNS_KWARGS,
+        canonical_log,
+        inject_defects,
+        schedule_log,
+    )
 
     small, _ = canonical_log(3000, seed=3)
     small, _ = inject_defects(small, duplicates=3, swaps=3, spikes=5, dropouts=5, gaps=3, seed=1)
@@ -60,25 +50,9 @@ def cases() -> dict:
     big, _ = inject_defects(
         big, duplicates=20, swaps=20, spikes=40, dropouts=40, gaps=20, long_gaps=2, seed=3
     )
-    clean_kw = dict(
-        file="log.csv",
-        sample_period_s=5.0,
-        max_interpolate_gap_s=60.0,
-        spike_threshold=8.0,
-        open_circuit_values=[-999.0, 999.9, 850.0],
-    )
-    cont, _ = schedule_log(CONTINUOUS * 3, speed_noise_rpm=20)
-    kw = dict(
-        training_speeds_rpm=[3000, 6000, 9000, 12000, 15000, 18000],
-        speed_tolerance_rpm=50,
-        idle_below_rpm=100,
-        min_run_s=1800,
-        min_constant_s=3600,
-        overrides={},
-        reference_rule="run_start",
-        reference_window_s=60,
-        max_leading_rest_s=300,
-    )
+    clean_kw = CLEAN_KWARGS
+    cont, _ = schedule_log(CONTINUOUS_SCHEDULE * 3, speed_noise_rpm=20)
+    kw = FIND_RUNS_KWARGS
     return {
         "twin_4h_run": (lambda: simulate_run(constant_schedule(9000, 4 * 3600), seed=1), 1.0),
         "clean_3000": (lambda: clean_log(small, **clean_kw), 0.2),

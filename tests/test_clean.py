@@ -13,15 +13,9 @@ from rafi.errors import RawFormatError
 from rafi.method.audit import SUMMARY_COLUMNS, summarise_audit
 from rafi.method.clean import AUDIT_COLUMNS, clean_log
 from rafi.readers.native import format_raw_log, read_raw_log
-from rafi.twin.synthetic_logs import OPEN_CIRCUIT, canonical_log, inject_defects
+from rafi.twin.synthetic_logs import CLEAN_KWARGS, OPEN_CIRCUIT, canonical_log, inject_defects
 
-KW = dict(
-    file="log.csv",
-    sample_period_s=5.0,
-    max_interpolate_gap_s=60.0,
-    spike_threshold=8.0,
-    open_circuit_values=[-999.0, 999.9, 850.0],
-)
+KW = CLEAN_KWARGS
 SENSORS = list(SENSORS)
 SENSOR_COLS = [*SENSORS, "disp_um"]
 

@@ -8,38 +8,12 @@ import pytest
 
 from rafi import SENSORS
 from rafi.method.runs import RUNS_FRAME_COLUMNS, RUNS_TABLE_COLUMNS, find_runs
-from rafi.twin.synthetic_logs import schedule_log
+from rafi.twin.synthetic_logs import CONTINUOUS_SCHEDULE, FIND_RUNS_KWARGS, schedule_log
 
 H = 3600.0
-TRAIN = [3000, 6000, 9000, 12000, 15000, 18000]
-KW = dict(
-    training_speeds_rpm=TRAIN,
-    speed_tolerance_rpm=50,
-    idle_below_rpm=100,
-    min_run_s=1800,
-    min_constant_s=3600,
-    overrides={},
-    reference_rule="run_start",
-    reference_window_s=60,
-    max_leading_rest_s=300,
-)
-
-#: 4 constant runs + idles (one too short) + a varying tail with a short stop inside it.
-CONTINUOUS = [
-    (3000, 4 * H),
-    (0, H),
-    (6000, 4 * H),
-    (0, 600),
-    (4500, 3 * H),
-    (0, 2700),
-    (9000, 2 * H),
-    (0, H),
-    (3000, 1200),
-    (9000, 1200),
-    (0, 300),
-    (12000, 1200),
-    (6000, 1200),
-]
+TRAIN = FIND_RUNS_KWARGS["training_speeds_rpm"]
+KW = FIND_RUNS_KWARGS
+CONTINUOUS = CONTINUOUS_SCHEDULE
 #: expected runs: (first piece, last piece, kind, role)
 EXPECTED = [
     (0, 0, "constant", "training"),

@@ -39,6 +39,45 @@ DISP_GAIN_UM = 28.0
 CENTRIFUGAL_UM_PER_RPM2 = 1.5e-8
 OPEN_CIRCUIT = OPEN_CIRCUIT_VALUES[0]
 
+H = 3600.0
+#: A continuous log's schedule: 4 constant runs and idles (one too short), then a varying tail
+#: with a short stop inside it (speed r/min, duration s).
+CONTINUOUS_SCHEDULE = [
+    (3000, 4 * H),
+    (0, H),
+    (6000, 4 * H),
+    (0, 600),
+    (4500, 3 * H),
+    (0, 2700),
+    (9000, 2 * H),
+    (0, H),
+    (3000, 1200),
+    (9000, 1200),
+    (0, 300),
+    (12000, 1200),
+    (6000, 1200),
+]
+#: ``rafi.method.clean.clean_log`` keyword arguments that fit these logs (5 s samples).
+CLEAN_KWARGS = dict(
+    file="log.csv",
+    sample_period_s=5.0,
+    max_interpolate_gap_s=60.0,
+    spike_threshold=8.0,
+    open_circuit_values=[-999.0, 999.9, 850.0],
+)
+#: ``rafi.method.runs.find_runs`` keyword arguments that fit these logs.
+FIND_RUNS_KWARGS = dict(
+    training_speeds_rpm=[3000, 6000, 9000, 12000, 15000, 18000],
+    speed_tolerance_rpm=50,
+    idle_below_rpm=100,
+    min_run_s=1800,
+    min_constant_s=3600,
+    overrides={},
+    reference_rule="run_start",
+    reference_window_s=60,
+    max_leading_rest_s=300,
+)
+
 
 def thermal_response(
     speed_rpm, period_s: float = 5.0, *, tau_s: float = 2400.0
