@@ -1,0 +1,378 @@
+"""Section "The model offered to the machine: <kind>": the comparison's champion in full.
+
+Computed from this machine's results only: the champion of ``comparison/summary.csv`` (chosen by
+whole-run CV on the training runs), its artefact ``comparison/best_model.json`` (the file the
+registry judges and the compensator runs), ``comparison/cv.csv`` and ``per_run.csv``. The
+section lists what the model reads, the equation and every coefficient exactly as the artefact
+stores them (shortest round-trip decimal: the written table *is* the model), what CV chose and
+the validation result of every validation run; the residual plots are files of rule
+``report_figures`` (group ``comparison``, :func:`deployed_panels` says which runs, in which
+order). Nothing is evaluated or drawn here.
+"""
+
+from __future__ import annotations
+
+import importlib
+import re
+
+import numpy as np
+import pandas as pd
+
+from rafi.report.comparison_section import family_champion
+from rafi.report.deployed_terms import (
+    rafi_equation,
+    rafi_inputs,
+    rafi_tables,
+    ridge_equation,
+    ridge_inputs,
+    ridge_tables,
+)
+from rafi.report.format import cell, fmt_num, fmt_sig, isnum, run_label, short_id, table, truthy
+
+UM = "\u00b5m"
+
+#: Where each kind's class lives (its docstring is the kind's own description).
+KIND_CLASSES = {
+    "rafi": ("rafi.family.published", "PublishedRafi"),
+    "rafi_linear": ("rafi.family.rafi_linear", "RafiLinear"),
+    "ridge_global": ("rafi.family.ridge_global", "RidgeGlobal"),
+    "dynamic": ("rafi.family.dynamic", "DynamicRidge"),
+    "grey_box": ("rafi.family.grey_box", "GreyBox"),
+}
+
+#: At most this many validation runs per residual figure (3 rows of 2 panels: one page).
+RUNS_PER_FIGURE = 6
+
+
+def kind_description(kind: str) -> str:
+    """The first paragraph of the kind's class docstring, as plain text (``""`` if unknown)."""
+    where = KIND_CLASSES.get(kind)
+    if where is None:
+        return ""
+    doc = getattr(importlib.import_module(where[0]), where[1]).__doc__ or ""
+    first = " ".join(doc.strip().split("\n\n")[0].split())
+    first = re.sub(r"^Kind ``[^`]+``:\s*", "", first)
+    first = re.sub(r":[a-z]+:`~?([^`]+)`", lambda m: m.group(1).rsplit(".", 1)[-1], first)
+    text = first.replace("``", "")
+    return text[:1].upper() + text[1:]
+
+
+def deployed_figure_key(k: int) -> str:
+    """Key of the ``k``-th (1-based) residual figure of the offered model (group ``comparison``)."""
+    return f"deployed/residuals/{k}"
+
+
+def offered_name(summary: pd.DataFrame | None):
+    """Name of the model offered to the machine (the comparison's champion), or ``None``."""
+    if summary is None or not len(summary):
+        return None
+    return family_champion(summary.assign(model=summary["model"].astype(str)))
+
+
+def deployed_panels(summary, per_run, residuals) -> list[list[dict]]:
+    """The residual panels of the offered model, grouped into figures of at most
+    :data:`RUNS_PER_FIGURE`: per validation run (``per_run.csv`` order, idle cool-downs
+    included) ``run_id``, ``role``, ``before`` / ``after`` (max |dz|, max |residual|, um),
+    ``noise_floor`` (um or NaN) and ``frame`` (``t_s``, ``measured_um``, ``residual_um``)."""
+    name = offered_name(summary)
+    if name is None or per_run is None or residuals is None or not len(residuals):
+        return []
+    pr = per_run[per_run["model"].astype(str) == name]
+    res = residuals[residuals["model"].astype(str) == name]
+    panels = []
+    for r in pr.to_dict("records"):
+        rid = str(r["run_id"])
+        f = res[res["run_id"].astype(str) == rid].sort_values("t_s")
+        if not len(f):
+            continue
+        panels.append(
+            {
+                "run_id": rid,
+                "role": str(r.get("role", "")),
+                "before": float(r.get("max_abs_before_um", np.nan)),
+                "after": float(r.get("max_abs_after_um", np.nan)),
+                "noise_floor": float(r["noise_floor_um"]) if isnum(r.get("noise_floor_um")) else np.nan,
+                "frame": f[["t_s", "measured_um", "residual_um"]].reset_index(drop=True),
+            }
+        )
+    return [panels[i : i + RUNS_PER_FIGURE] for i in range(0, len(panels), RUNS_PER_FIGURE)]
+
+
+# ---------------------------------------------------------------------------- CV
+def _hyper_text(art: dict) -> list[tuple[str, str]]:
+    """``(hyperparameter, value chosen, from)`` of the artefact's ``selected``."""
+    sel = art.get("selected") or {}
+    grids = sel.get("grids") or {}
+    out = []
+
+    def grid(name):
+        g = grids.get(name)
+        return ", ".join(fmt_num(v, 0) for v in g) if g else ""
+
+    if "alpha" in sel:
+        g = grids.get("alpha") or []
+        span = f"{len(g)} values {fmt_sig(min(g), 2)} \u2026 {fmt_sig(max(g), 2)}" if g else ""
+        out.append(("ridge penalty alpha", fmt_sig(sel["alpha"], 3), span))
+    kind = art.get("kind")
+    if kind == "dynamic":
+        out.append(
+            (
+                "rise filter constants (s)",
+                ", ".join(fmt_num(t, 0) for t in sel.get("taus_s", [])),
+                grid("dynamic_taus_s"),
+            )
+        )
+    if kind == "grey_box":
+        search = (art.get("hyperparameters") or {}).get("filter_search", "")
+        out.append(
+            (
+                "rise filter constants (s)",
+                ", ".join(fmt_num(t, 0) for t in sel.get("taus_s", [])),
+                grid("grey_box_taus_s") + (" (all at once: filter_search all)" if search == "all" else ""),
+            )
+        )
+        st = sel.get("speed_taus_s") or []
+        out.append(
+            (
+                "heat-input filter constants (s)",
+                ", ".join(fmt_num(t, 0) for t in st) if st else "none (the heat-input block left out)",
+                grid("grey_box_speed_taus_s") + (" (the block in or out)" if search == "all" else ""),
+            )
+        )
+        if sel.get("instantaneous_n2"):
+            out.append(
+                (
+                    "draw-in lag (s)",
+                    fmt_num(sel.get("centrifugal_lag_s"), 0),
+                    grid("grey_box_centrifugal_lags_s"),
+                )
+            )
+        else:
+            out.append(
+                (
+                    "draw-in n\u00b2 term",
+                    "not used (not identified: fewer than 2 training runs step from their reference speed)",
+                    "",
+                )
+            )
+    if kind in ("ridge_global", "dynamic"):
+        out.append(("speed-dependent gains dT\u00b7n", "used" if sel.get("speed_gain") else "not used", ""))
+        out.append(
+            (
+                "speed terms n \u2212 n\u2080, n\u00b2 \u2212 n\u2080\u00b2",
+                "used" if sel.get("speed_terms") else "not used (not identified)",
+                "",
+            )
+        )
+    return out
+
+
+def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name: str) -> dict:
+    """What CV chose: the model's own (inner) choice, the outer score that made it the
+    champion, the candidates it beat, and its folds."""
+    hyper = art.get("hyperparameters") or {}
+    inner = art.get("cv") or []
+    scores = [float(r["score_um"]) for r in inner if isnum(r.get("score_um"))]
+    s = summary.assign(model=summary["model"].astype(str))
+    me = s[s["model"] == name].iloc[0]
+    others = []
+    for r in s.sort_values("cv_mean_max_abs_um", na_position="last").to_dict("records"):
+        if r["model"] == name:
+            continue
+        others.append(
+            [
+                r["model"] + (" (RAFI as published)" if str(r.get("kind")) == "rafi" else ""),
+                fmt_num(r.get("cv_mean_max_abs_um"), 2),
+                fmt_num(r.get("cv_max_abs_um"), 2),
+                fmt_num(r.get("selection_rank"), 0),
+            ]
+        )
+    folds = []
+    if cv is not None and len(cv) and "model" in cv:
+        g = cv[cv["model"].astype(str) == name]
+        for r in g.to_dict("records"):
+            folds.append(
+                [
+                    run_label(r.get("test_runs", "")),
+                    fmt_num(r.get("max_abs_before_um"), 2),
+                    fmt_num(r.get("max_abs_after_um"), 2),
+                    fmt_num(r.get("rmse_um"), 2),
+                ]
+            )
+    scheme = (
+        str(cv["scheme"].iloc[0]).replace("_", "-") if cv is not None and len(cv) and "scheme" in cv else ""
+    )
+    metric = str(hyper.get("cv_metric", ""))
+    return {
+        "hyper": table(
+            ["chosen", "value", "grid"], [list(r) for r in _hyper_text(art)], cls="kv", widths=[28, 30, 42]
+        )
+        if _hyper_text(art)
+        else None,
+        "inner_metric": {
+            "rmse": "the pooled RMSE of the held-out runs",
+            "max_abs": "the mean over held-out runs of the max |residual|",
+        }.get(metric, metric),
+        "inner_scheme": str(hyper.get("cv", "")).replace("_", "-"),
+        "inner_n": len(inner),
+        "inner_best": fmt_num(min(scores), 3, UM) if scores else "",
+        "edges": list((art.get("selected") or {}).get("grid_edges") or []),
+        "score": fmt_num(me.get("cv_mean_max_abs_um"), 2, UM),
+        "worst": fmt_num(me.get("cv_max_abs_um"), 2, UM),
+        "n_models": len(s),
+        "scheme": scheme,
+        "beaten": table(
+            ["candidate", f"CV mean max |res.| ({UM})", f"CV worst run ({UM})", "rank"],
+            others,
+            cls="num",
+            widths=[40, 22, 22, 16],
+        )
+        if others
+        else None,
+        "folds": table(
+            ["held-out training run", f"max |dz| ({UM})", f"max |residual| ({UM})", f"RMSE ({UM})"],
+            folds,
+            cls="num",
+            widths=[40, 20, 20, 20],
+        )
+        if folds
+        else None,
+    }
+
+
+# ---------------------------------------------------------------------------- section
+def _validation_table(per_run: pd.DataFrame | None, name: str):
+    if per_run is None or not len(per_run):
+        return None, 0
+    g = per_run[per_run["model"].astype(str) == name]
+    rows = []
+    for r in g.to_dict("records"):
+        ok = truthy(r.get("passed", False))
+        rows.append(
+            [
+                cell(run_label(r["run_id"])),
+                str(r.get("role", "")).replace("validation_", ""),
+                fmt_num(r.get("speed_rpm"), 0),
+                fmt_num(r.get("max_abs_before_um"), 2),
+                cell(fmt_num(r.get("max_abs_after_um"), 2), "" if ok else "fail"),
+                fmt_num(r.get("noise_floor_um"), 2),
+                fmt_num(r.get("rmse_after_um"), 2),
+                cell("PASS" if ok else "FAIL", "pass" if ok else "fail"),
+            ]
+        )
+    return (
+        table(
+            [
+                "validation run",
+                "kind",
+                "speed (r/min)",
+                f"max |dz| uncomp. ({UM})",
+                f"max |residual| ({UM})",
+                f"noise floor ({UM})",
+                f"RMSE after ({UM})",
+                "gates",
+            ],
+            rows,
+            cls="num",
+            widths=[26, 10, 10, 11, 12, 10, 11, 10],
+        ),
+        len(rows),
+    )
+
+
+def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
+    """The section's context, or ``None`` without a comparison champion and its artefact.
+
+    Parameters
+    ----------
+    res : dict
+        Loaded inputs: ``comparison``, ``comparison_per_run``, ``comparison_cv``,
+        ``best_model`` (``comparison/best_model.json``), ``model`` (RAFI's ``model.json``,
+        used if the champion is RAFI as published and ``best_model`` is absent).
+    figs : rafi.report.embed.FigureFiles
+        The figure files (group ``comparison``: :func:`deployed_figure_key`).
+    champion_after : str, optional
+        The model id on the machine after this run (``registry/decision.json``).
+    """
+    summary = res.get("comparison")
+    name = offered_name(summary)
+    if name is None:
+        return None
+    row = summary[summary["model"].astype(str) == name].iloc[0]
+    mid = str(row.get("model_id", ""))
+    art = None
+    for cand in (res.get("best_model"), res.get("model")):
+        if isinstance(cand, dict) and str(cand.get("model_id", "")) == mid:
+            art = cand
+            break
+    if art is None:
+        return None
+    kind = str(art.get("kind", row.get("kind", "")))
+    rafi_like = kind in ("rafi", "rafi_linear")
+    if rafi_like:
+        blocks, terms = rafi_tables(art)
+        equation, inputs = rafi_equation(art), rafi_inputs(art)
+    else:
+        blocks, terms = ridge_tables(art)
+        equation, inputs = ridge_equation(art), ridge_inputs(art)
+    speeds = art.get("speed_range_rpm")
+    if speeds is None and rafi_like:
+        sp = [float(s["speed_rpm"]) for s in art.get("speeds") or []]
+        speeds = [min(sp), max(sp)] if sp else None
+    if rafi_like:
+        rng = {}
+        for s in art.get("speeds") or []:
+            for k, (lo, hi) in (s.get("regressor_ranges") or {}).items():
+                a, b = rng.get(k, (np.inf, -np.inf))
+                rng[k] = (min(a, lo), max(b, hi))
+    else:
+        rng = art.get("regressor_ranges") or {}
+    rises = ", ".join(f"{k} {fmt_num(v[0], 1)} \u2026 {fmt_num(v[1], 1)}" for k, v in rng.items())
+    if not rafi_like:
+        rises = "in the last column of the temperature terms"
+    train_runs = [str(r) for r in art.get("train_runs") or []]
+    n_fit = art.get("n")
+    if rafi_like:  # per training speed in RAFI's artefact
+        train_runs = [str(r) for s in art.get("speeds") or [] for r in s.get("train_runs") or []]
+        n_fit = sum(int(s.get("n") or 0) for s in art.get("speeds") or [])
+    validation, n_runs = _validation_table(res.get("comparison_per_run"), name)
+    figures = []
+    k = 1
+    while True:
+        f = figs.get("comparison", deployed_figure_key(k))
+        if f is None:
+            break
+        figures.append(f)
+        k += 1
+    on_machine = None if not champion_after else str(champion_after) == mid
+    return {
+        "name": name,
+        "kind": kind,
+        "model_id": mid,
+        "short_id": short_id(mid),
+        "description": kind_description(kind),
+        "inputs_text": str(art.get("inputs", "")),
+        "inputs": table(
+            ["input", "how the model reads it"], [list(r) for r in inputs], cls="kv", widths=[24, 76]
+        ),
+        "train_runs": ", ".join(train_runs),
+        "n_train": len(train_runs),
+        "speeds": (f"{fmt_num(speeds[0], 0)} \u2026 {fmt_num(speeds[1], 0)} r/min" if speeds else "\u2013"),
+        "rises": rises,
+        "n_terms": len(terms),
+        "equation": equation,
+        "blocks": blocks,
+        "terms": terms,
+        "rmse": fmt_num(art.get("rmse_um"), 3, UM) if not rafi_like else "",
+        "n_fit": fmt_num(n_fit, 0),
+        "cv": _cv_context(art, summary, res.get("comparison_cv"), name),
+        "passed": truthy(row.get("passed", False)),
+        "worst": fmt_num(row.get("max_abs_after_um"), 2, UM),
+        "worst_noise": fmt_num(row.get("noise_floor_um"), 2, UM),
+        "validation": validation,
+        "n_runs": n_runs,
+        "figures": figures,
+        "on_machine": on_machine,
+        "champion_after": short_id(champion_after) if champion_after else "",
+        "rafi_like": rafi_like,
+    }
