@@ -776,6 +776,7 @@ def test_sections_and_numbers(rendered):
     assert [s["id"] for s in ctx["sections"]] == [
         "verdict",
         "data",
+        "test_record",
         "segmentation",
         "equilibrium",
         "ranking",
