@@ -20,19 +20,20 @@ import yaml
 from rafi.report.choices import generated_at, section_choices, versions
 from rafi.report.comparison_section import section_comparison
 from rafi.report.data_sections import section_data, section_equilibrium, section_ranking
+from rafi.report.deployed_section import section_deployed
 from rafi.report.embed import FigureFiles
 from rafi.report.inputs import load_results
 from rafi.report.model_sections import section_fuzzy, section_models, section_validation
 from rafi.report.registry_section import section_registry
 from rafi.report.replay_section import section_replay, section_title
 from rafi.report.segmentation_section import section_segmentation
-from rafi.report.test_record import section_test_record
 from rafi.report.verdict import model_infos, verdict_all
 
 SECTION_TITLES = {
     "verdict": "Verdict",
+    "deployed": "The model offered to the machine",
+    "replay": "The model on the machine: replay",
     "data": "Data",
-    "test_record": "Test record and conditions",
     "segmentation": "Segmentation",
     "equilibrium": "Thermal equilibrium",
     "ranking": "Key-sensor ranking",
@@ -41,7 +42,6 @@ SECTION_TITLES = {
     "validation": "Validation",
     "registry": "Model registry: champion vs candidate",
     "comparison": "Model comparison",
-    "replay": "The model on the machine: replay",
     "choices": "Choices the paper leaves open",
     "provenance": "Software, configuration and provenance",
 }
@@ -92,7 +92,6 @@ def build_context(
     ctx["verdict"] = verdict_all(res, gates, infos)
     ctx["gates"] = gates
     ctx["data"] = section_data(res)
-    ctx["test_record"] = section_test_record(res, settings)
     ctx["segmentation"] = section_segmentation(res, settings, figs)
     ctx["equilibrium"] = section_equilibrium(res, figs)
     ctx["ranking"] = section_ranking(res, key_info, figs)
@@ -103,6 +102,11 @@ def build_context(
     dec = res["decision"] if isinstance(res.get("decision"), dict) else {}
     ctx["comparison"] = section_comparison(res, dec.get("champion_id_after"), settings, figs)
     ctx["replay"] = section_replay(res, settings, figs, dec.get("champion_id_after"))
+    ctx["deployed"] = section_deployed(res, figs, dec.get("champion_id_after"))
+    # figure numbers in document order: the offered model, its replay, then sections 3 on
+    ctx["fig_deployed0"] = 0
+    ctx["fig_replay0"] = len(ctx["deployed"]["figures"]) if ctx["deployed"] else 0
+    ctx["fig_offset"] = ctx["fig_replay0"] + (len(ctx["replay"]["runs"]) if ctx["replay"] else 0)
     ctx["figures_used"] = list(figs.used)
     ctx["verdict"]["quarantined"] = len(ctx["data"]["quarantined"])
     ctx["verdict"]["unconfirmed_warnings"] = sum(not w["confirmed"] for w in ctx["data"]["warnings"])
@@ -127,6 +131,7 @@ def build_context(
         "registry": ctx["registry"] is not None,
         "comparison": ctx["comparison"] is not None,
         "replay": ctx["replay"] is not None,
+        "deployed": ctx["deployed"] is not None,
     }
     n = 0
     for sid, title in SECTION_TITLES.items():
@@ -134,6 +139,8 @@ def build_context(
             n += 1
             if sid == "replay":
                 title = section_title(ctx["replay"], title)
+            if sid == "deployed":
+                title = f"{title}: {ctx['deployed']['kind']}"
             ctx["sections"].append({"id": sid, "number": n, "title": title})
     ctx["section_by_id"] = {s["id"]: s for s in ctx["sections"]}
     ctx["build_seconds"] = time.perf_counter() - t0

@@ -19,6 +19,7 @@ A group is written to one folder: ``<key-slug>.<png|svg>`` per figure and ``inde
 
 from __future__ import annotations
 
+import itertools
 import os
 import re
 from pathlib import Path
@@ -31,6 +32,8 @@ from rafi.method.fuzzy import membership_curves
 from rafi.report import plots
 from rafi.report.comparison_section import comparison_frames, residual_figure_key, residual_runs
 from rafi.report.data_sections import MAX_COLLINEARITY_TABLE
+from rafi.report.deployed_plot import fig_deployed_residuals
+from rafi.report.deployed_section import deployed_figure_key, deployed_panels
 from rafi.report.embed import INDEX
 from rafi.report.format import fmt_num, fmt_speed, isnum, speed_key, truthy
 from rafi.report.inputs import (
@@ -268,6 +271,19 @@ def _comparison(res: dict, gates: dict, fmt: str):
             )
 
 
+def _deployed(res: dict, fmt: str):
+    """``(key, file bytes)`` of the residual figures of the model offered to the machine: every
+    validation run (idle cool-downs included), :func:`rafi.report.deployed_section.deployed_panels`."""
+    groups = deployed_panels(res["comparison"], res["comparison_per_run"], res["comparison_residuals"])
+    for k, group in enumerate(groups, start=1):
+        panels = []
+        for p in group:
+            role = p["role"].replace("validation_", "")
+            title = f"{p['run_id']} ({role}): {fmt_num(p['before'], 1)} \u2192 {fmt_num(p['after'], 2, UM)}"
+            panels.append({"title": title, "frame": p["frame"], "noise_floor": p["noise_floor"]})
+        yield deployed_figure_key(k), fig_deployed_residuals(panels, fmt=fmt)
+
+
 def _replay(res: dict, deploy: dict, fmt: str):
     """``(key, file bytes)`` of each run of the replay summary that has samples."""
     summary, table = res["replay_summary"], res["replay"]
@@ -334,7 +350,7 @@ def draw_group(
     elif group == "replay":
         drawn = _replay(res, dict(deploy or {}), figure_format)
     else:
-        drawn = _comparison(res, dict(gates), figure_format)
+        drawn = itertools.chain(_comparison(res, dict(gates), figure_format), _deployed(res, figure_format))
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     rows = []

@@ -7,9 +7,8 @@
 #   report_figure_inputs(wildcards), report_figure_settings(wildcards)
 
 
-#: Tables of design.md the report reads (runs.parquet: only the test record's spans, ambient
-#: temperatures and drifts; what it shows from evaluating the model comes from rule
-#: report_tables, the figures from report_figures).
+#: Tables of design.md the report reads (not runs.parquet: what the report shows from it comes
+#: from rule report_tables and report_figures).
 REPORT_TABLES = (
     "audit",
     "runs_csv",
@@ -23,7 +22,6 @@ REPORT_TABLES = (
     "model",
     "validation_summary",
     "residuals",
-    "runs_parquet",
 )
 
 #: Outputs of report_tables under ``results/<machine>/report/`` - what the report shows from
@@ -62,6 +60,7 @@ _COMPARISON_INPUTS = {
     "comparison_per_run": "per_run.csv",
     "comparison_cv": "cv.csv",
     "comparison_residuals": "residuals.parquet",
+    "best_model": "best_model.json",
 }
 
 
@@ -128,7 +127,7 @@ def report_inputs(wildcards):
     inputs = {name: out(name, machine) for name in REPORT_TABLES}
     inputs["training_fit_rmse"] = report_table_path("training_fit_rmse", machine)
     inputs["fuzzy_example"] = report_table_path("fuzzy_example", machine)
-    for name in ("comparison", "comparison_per_run", "comparison_cv", "replay_summary"):
+    for name in ("comparison", "comparison_per_run", "comparison_cv", "best_model", "replay_summary"):
         inputs[name] = _report_input(name, machine)
     inputs["input_status"] = input_status_path(machine)
     inputs["decision"] = registry_path("decision.json", machine)
