@@ -777,6 +777,7 @@ def test_sections_and_numbers(rendered):
         "verdict",
         "deployed",
         "data",
+        "test_record",
         "segmentation",
         "equilibrium",
         "ranking",

@@ -27,6 +27,7 @@ from rafi.report.model_sections import section_fuzzy, section_models, section_va
 from rafi.report.registry_section import section_registry
 from rafi.report.replay_section import section_replay, section_title
 from rafi.report.segmentation_section import section_segmentation
+from rafi.report.test_record import section_test_record
 from rafi.report.verdict import model_infos, verdict_all
 
 SECTION_TITLES = {
@@ -34,6 +35,7 @@ SECTION_TITLES = {
     "deployed": "The model offered to the machine",
     "replay": "The model on the machine: replay",
     "data": "Data",
+    "test_record": "Test record and conditions",
     "segmentation": "Segmentation",
     "equilibrium": "Thermal equilibrium",
     "ranking": "Key-sensor ranking",
@@ -92,6 +94,7 @@ def build_context(
     ctx["verdict"] = verdict_all(res, gates, infos)
     ctx["gates"] = gates
     ctx["data"] = section_data(res)
+    ctx["test_record"] = section_test_record(res, settings)
     ctx["segmentation"] = section_segmentation(res, settings, figs)
     ctx["equilibrium"] = section_equilibrium(res, figs)
     ctx["ranking"] = section_ranking(res, key_info, figs)

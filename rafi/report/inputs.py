@@ -9,7 +9,9 @@ evaluating the model) and the figure files of rule ``report_figures``
 - ``registry/decision.json`` + ``registry/comparison.csv`` - the registry decision;
 - ``comparison/summary.csv``, ``per_run.csv``, ``cv.csv``, ``best_model.json`` - the model family
   comparison and the artefact of the model it offers;
-- ``deploy/replay_summary.csv`` - the replay of the model on the machine (rule ``replay``).
+- ``deploy/replay_summary.csv`` - the replay of the model on the machine (rule ``replay``);
+- ``runs.parquet`` - every logged sample: the test record (log spans, sample period, ambient
+  temperature, thermal drift per run; :mod:`rafi.report.test_record`) and the figures.
 """
 
 from __future__ import annotations
@@ -51,11 +53,11 @@ OPTIONAL_FILES = {
     "comparison_cv": "comparison/cv.csv",
     "best_model": "comparison/best_model.json",
     "replay_summary": "deploy/replay_summary.csv",
+    "runs_parquet": "runs.parquet",
 }
 
 #: Inputs of rule report_figures besides those above (read by the figure job only).
 FIGURE_INPUT_FILES = {
-    "runs_parquet": "runs.parquet",
     "training_fit": "report/training_fit.parquet",
     "comparison_residuals": "comparison/residuals.parquet",
     "replay": "deploy/replay.parquet",

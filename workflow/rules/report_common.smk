@@ -7,8 +7,9 @@
 #   report_figure_inputs(wildcards), report_figure_settings(wildcards)
 
 
-#: Tables of design.md the report reads (not runs.parquet: what the report shows from it comes
-#: from rule report_tables and report_figures).
+#: Tables of design.md the report reads (runs.parquet: only the test record's spans, ambient
+#: temperatures and drifts; what it shows from evaluating the model comes from rule
+#: report_tables, the figures from report_figures).
 REPORT_TABLES = (
     "audit",
     "runs_csv",
@@ -22,6 +23,7 @@ REPORT_TABLES = (
     "model",
     "validation_summary",
     "residuals",
+    "runs_parquet",
 )
 
 #: Outputs of report_tables under ``results/<machine>/report/`` - what the report shows from

@@ -1,0 +1,235 @@
+"""The report's test record (rafi.report.test_record) and its uncertainty statements
+(rafi.report.verdict.residual_statement, the noise floors beside the max residuals).
+
+Every test builds a synthetic ``runs.parquet``/``runs.csv`` whose truth is known by
+construction: logs with a known clock and sample period, an ambient sensor on a known linear
+ramp, and a displacement whose range per run is known.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rafi.report.render import _environment
+from rafi.report.test_record import (
+    fmt_period,
+    instrument_record,
+    log_record,
+    run_record,
+    sample_period,
+    section_test_record,
+    with_log_clock,
+)
+from rafi.settings import machine_settings
+
+START = pd.Timestamp("2026-01-05 08:00:00")
+
+
+def _log(name, n, period, runs, *, clock=True, amb=(20.0, 21.5), dz_amp=None, start=START):
+    """One log of ``n`` samples every ``period`` s, cut into ``runs`` (list of (run_id, first
+    index, last index)); T16 ramps linearly from ``amb[0]`` to ``amb[1]`` over the log; dz of a
+    run is 3 um plus a sine of amplitude ``dz_amp[run_id]`` (range = 2 * amplitude)."""
+    t = np.arange(n) * float(period)
+    frame = pd.DataFrame(
+        {
+            "log": name,
+            "log_t_s": t,
+            "time": (start + pd.to_timedelta(t, unit="s")) if clock else pd.NaT,
+            "T1": 25.0 + 0.001 * t,
+            "T16": np.linspace(amb[0], amb[1], n),
+            "speed_rpm": 0.0,
+        }
+    )
+    frame["run_id"] = ""
+    frame["t_s"] = np.nan
+    frame["dz_um"] = np.nan
+    for rid, i0, i1 in runs:
+        k = np.arange(i1 - i0 + 1)
+        frame.loc[i0:i1, "run_id"] = rid
+        frame.loc[i0:i1, "t_s"] = k * float(period)
+        # a sine of period 200 samples reaches +-amp exactly at k = 50 and 150 (runs >= 151 samples)
+        frame.loc[i0:i1, "dz_um"] = 3.0 + dz_amp[rid] * np.sin(2 * np.pi * k / 200)
+    return frame
+
+
+@pytest.fixture()
+def synthetic():
+    """Log A: 2 runs, 10 s, clock, T16 20.0 -> 21.5 degC; log B: 1 run, 5 s, no clock, T16
+    constant 19.0 but one sample missing."""
+    a = _log("a.csv", 801, 10, [("a#1", 0, 400), ("a#2", 401, 800)], dz_amp={"a#1": 2.5, "a#2": 4.0})
+    b = _log("b.csv", 201, 5, [("b", 0, 200)], clock=False, amb=(19.0, 19.0), dz_amp={"b": 1.25})
+    b.loc[50, "T16"] = np.nan
+    frame = pd.concat([a, b], ignore_index=True)
+    runs = pd.DataFrame(
+        {
+            "run_id": ["a#1", "a#2", "b"],
+            "file": ["a.csv", "a.csv", "b.csv"],
+            "role": ["training", "validation_single", "validation_idle"],
+            "speed_rpm": [3000.0, 6000.0, 0.0],
+            "speed_min_rpm": [2998.0, 5997.0, 0.0],
+            "speed_max_rpm": [3003.0, 6002.0, 0.0],
+            "duration_s": [4010.0, 4000.0, 1005.0],
+        }
+    )
+    return frame, runs
+
+
+def test_sample_period_is_the_median_step():
+    assert sample_period([0, 15, 30, 45, 60]) == 15.0
+    # a gap and a duplicate do not move the median step
+    assert sample_period([0, 5, 5, 10, 15, 20, 500, 505, 510]) == 5.0
+    assert np.isnan(sample_period([3.0]))
+    assert fmt_period(15.0) == "15\u00a0s" and fmt_period(0.5) == "0.50\u00a0s"
+
+
+def test_log_record_spans_periods_and_ambient(synthetic):
+    frame, _ = synthetic
+    logs = log_record(frame, "T16").set_index("log")
+    a, b = logs.loc["a.csv"], logs.loc["b.csv"]
+    assert a["first_time"] == START and a["last_time"] == START + pd.Timedelta(seconds=8000)
+    assert a["period_s"] == 10.0 and b["period_s"] == 5.0
+    assert a["duration_s"] == 8010.0 and b["duration_s"] == 1005.0  # 801 * 10, 201 * 5
+    assert a["n_samples"] == 801 and b["n_samples"] == 201
+    assert a["ambient_min_c"] == pytest.approx(20.0)
+    assert a["ambient_max_c"] == pytest.approx(21.5)
+    assert a["ambient_variation_k"] == pytest.approx(1.5)
+    assert pd.isna(b["first_time"]) and b["ambient_variation_k"] == 0.0  # the NaN sample ignored
+    none = log_record(frame, None)
+    assert none["ambient_variation_k"].isna().all()
+
+
+def test_run_record_thermal_drift_is_the_dz_range(synthetic):
+    frame, runs = synthetic
+    rr = run_record(frame, runs, "T16").set_index("run_id")
+    assert rr.loc["a#1", "thermal_drift_um"] == pytest.approx(5.0)
+    assert rr.loc["a#2", "thermal_drift_um"] == pytest.approx(8.0)
+    assert rr.loc["b", "thermal_drift_um"] == pytest.approx(2.5)
+    assert rr.loc["a#1", "dz_min_um"] == pytest.approx(0.5) and rr.loc["a#1", "dz_max_um"] == pytest.approx(
+        5.5
+    )
+    # the ramp of 1.5 K over 800 steps: run a#1 covers steps 0..400, a#2 401..800
+    assert rr.loc["a#1", "ambient_variation_k"] == pytest.approx(1.5 * 400 / 800)
+    assert rr.loc["a#2", "ambient_variation_k"] == pytest.approx(1.5 * 399 / 800)
+    assert rr.loc["a#2", "first_time"] == START + pd.Timedelta(seconds=4010)
+    assert list(rr.index) == ["a#1", "a#2", "b"] and rr.loc["a#2", "role"] == "validation_single"
+    assert rr.loc["a#2", "speed_rpm"] == 6000.0 and rr.loc["b", "log"] == "b.csv"
+
+
+def _settings(**report):
+    cfg = {"machines": {"m": {"report": report}}} if report else {}
+    return machine_settings(cfg, "m")
+
+
+def test_instrument_record_lists_what_is_missing():
+    s = _settings()
+    inst = instrument_record(s["report"]["instruments"], None, ["T1", "T16"], {})
+    missing = " ".join(inst["missing"])
+    for what in (
+        "machine serial",
+        "controller",
+        "probe",
+        "ambient sensor",
+        "sensor positions",
+        "calibration",
+    ):
+        assert what in missing
+    full = {
+        "machine_serial": "SN 4711",
+        "controller": "SINUMERIK 840D sl",
+        "probe": "Pulsotronic KJ2-M8MB40-ANU",
+        "sensor_positions": {"T1": "spindle front", "T16": "room air"},
+        "calibration": {"probe": "2026-01-02", "T16": "2026-02-01", "T1": "last spring"},
+    }
+    inst = instrument_record(full, "T16", ["T1", "T16"], {"T16": "ambient"}, START)
+    assert inst["missing"] == []
+    flags = {name: flag for name, _, flag in inst["calibration"]}
+    assert flags == {"probe": "", "T16": "after the last logged sample", "T1": "not an ISO 8601 date"}
+    part = dict(full, sensor_positions={"T1": "spindle front"})
+    assert instrument_record(part, "T16", ["T1", "T16"], {})["missing"] == [
+        "positions of T16 (report.instruments.sensor_positions)"
+    ]
+
+
+def _render_section(ctx: dict) -> str:
+    tpl = _environment().get_template("sections/test_record.html.j2")
+    return tpl.render(
+        test_record=ctx, section_by_id={"test_record": {"id": "test_record", "number": 3, "title": "T"}}
+    )
+
+
+def test_section_without_ambient_sensor_states_no_number(synthetic):
+    frame, runs = synthetic
+    res = {"runs_parquet": frame, "runs_csv": runs, "key_sensors_json": {"sensors": ["T1"]}}
+    ctx = section_test_record(res, _settings())
+    assert ctx["ambient"] is None
+    assert not any("ambient" in h for h in ctx["logs"]["headers"])
+    assert not any("temperature variation" in h for h in ctx["runs"]["headers"])
+    html = _render_section(ctx)
+    assert "Ambient temperature not measured" in html and "Test conditions missing" in html
+    assert "\u00b0C" not in html  # no temperature is stated
+    # the configured default (5 s) differs from log A's 10 s: said
+    assert "10\u00a0s" in ctx["period_note"] and "sample_period_s = 5\u00a0s" in ctx["period_note"]
+
+
+def test_section_with_ambient_sensor_and_instruments(synthetic):
+    frame, runs = synthetic
+    res = {"runs_parquet": frame, "runs_csv": runs, "key_sensors_json": {"sensors": ["T1"]}}
+    inst = {
+        "machine_serial": "SN 4711",
+        "controller": "SINUMERIK 840D sl",
+        "probe": "inductive probe",
+        "sensor_positions": {"T1": "spindle front", "T16": "room air, 1 m from the machine"},
+        "calibration": {"probe": "2025-12-01"},
+    }
+    ctx = section_test_record(res, _settings(ambient_sensor="T16", instruments=inst))
+    assert ctx["missing"] == []
+    log_rows = {r[0]["text"]: [c["text"] for c in r] for r in ctx["logs"]["rows"]}
+    a = log_rows[str(next(iter(log_rows)))]
+    assert a[1] == "2026-01-05 08:00:00" and a[2] == "10:13:20" and a[5] == "10\u00a0s"
+    assert a[-3:] == ["20.00", "21.50", "1.50"]
+    b = [c["text"] for c in ctx["logs"]["rows"][1]]
+    assert b[1] == b[2] == "\u2013" and b[5] == "5\u00a0s" and b[-1] == "0.00"
+    assert len(ctx["runs"]["headers"]) == len(ctx["runs"]["widths"]) == len(ctx["runs"]["rows"][0])
+    assert len(ctx["logs"]["headers"]) == len(ctx["logs"]["widths"]) == len(ctx["logs"]["rows"][0])
+    drift = [r[-2]["text"] for r in ctx["runs"]["rows"]]
+    assert [str(d) for d in drift] == ["<b>5.00</b>", "<b>8.00</b>", "<b>2.50</b>"]
+    html = _render_section(ctx)
+    assert "Test conditions missing" not in html and "not measured" not in html
+    assert "SN 4711" in html and "room air, 1 m from the machine" in html and "2025-12-01" in html
+    assert "key sensor of RAFI" in html and "ambient" in html
+
+
+def test_section_one_run_per_log_is_one_table(synthetic):
+    frame, runs = synthetic
+    frame = frame[frame["run_id"] != "a#2"].reset_index(drop=True)
+    runs = runs[runs["run_id"] != "a#2"].reset_index(drop=True)
+    ctx = section_test_record({"runs_parquet": frame, "runs_csv": runs}, _settings(ambient_sensor="T16"))
+    assert ctx["runs"] is None
+    t = ctx["logs"]
+    assert len(t["headers"]) == len(t["widths"]) == len(t["rows"][0]) and 99 <= sum(t["widths"]) <= 100
+    row = {h: c["text"] for h, c in zip(t["headers"], t["rows"][0])}
+    assert row["role"] == "training" and row["speed"] == "3\u00a0000\u00a0r/min"
+    drift = next(v for h, v in row.items() if h.startswith("thermal drift"))
+    assert str(drift) == "<b>5.00</b>"
+    # a#1 alone: samples 0..400 of the ramp 20.0 -> 21.5 over 800 steps
+    variation = next(v for h, v in row.items() if h.startswith("environmental"))
+    assert variation == "0.75"
+    assert "Logs and the thermal drift of their runs" in _render_section(ctx)
+
+
+def test_section_without_runs_parquet_still_lists_the_conditions():
+    ctx = section_test_record({"runs_parquet": None, "runs_csv": None}, _settings())
+    assert ctx["logs"] is None and ctx["runs"] is None and ctx["missing"]
+    assert "No per-sample table" in _render_section(ctx)
+
+
+def test_old_runs_parquet_without_log_columns_gets_them_from_runs_csv(synthetic):
+    frame, runs = synthetic
+    old = frame.drop(columns=["log", "log_t_s"])
+    runs = runs.assign(start_s=[0.0, 4010.0, 0.0])
+    got = with_log_clock(old, runs)
+    assert (got["log"] == frame["log"]).all()
+    np.testing.assert_allclose(got["log_t_s"], frame["log_t_s"])
+    pd.testing.assert_frame_equal(log_record(got, "T16"), log_record(frame, "T16"))
