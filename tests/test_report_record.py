@@ -233,3 +233,68 @@ def test_old_runs_parquet_without_log_columns_gets_them_from_runs_csv(synthetic)
     assert (got["log"] == frame["log"]).all()
     np.testing.assert_allclose(got["log_t_s"], frame["log_t_s"])
     pd.testing.assert_frame_equal(log_record(got, "T16"), log_record(frame, "T16"))
+
+
+# --------------------------------------------------------------------------- uncertainty
+
+
+def _validation_summary():
+    return pd.DataFrame(
+        {
+            "run_id": ["v1", "v2", "idle"],
+            "role": ["validation_single", "validation_multi", "validation_idle"],
+            "duration_s": [3600.0, 7200.0, 1800.0],
+            "max_abs_before_um": [10.0, 20.0, 5.0],
+            "max_abs_after_um": [2.0, 3.5, 1.25],
+            "improvement_pct": [80.0, 82.5, 75.0],
+            "rmse_before_um": [6.0, 12.0, 3.0],
+            "rmse_after_um": [0.8, 1.1, 0.4],
+            "n_samples": [720, 1440, 360],
+            "n_outside_temp_range": [0, 100, 20],
+            "worse_than_uncompensated": [False, False, False],
+            "noise_floor_um": [0.61, 0.93, 0.72],
+        }
+    )
+
+
+def test_residual_statement_numbers_come_from_the_tables():
+    from rafi.report.verdict import residual_statement
+
+    runs = pd.DataFrame(
+        {
+            "run_id": ["t1", "t2", "t3", "v1"],
+            "role": ["training", "training", "training", "validation_single"],
+            "kind": ["constant", "constant", "varying", "constant"],
+            # a constant run counts at its nominal speed, a varying one over its range
+            "speed_rpm": [1000.0, 3000.0, 2000.0, 9000.0],
+            "speed_min_rpm": [997.0, 2996.0, 500.0, 8990.0],
+            "speed_max_rpm": [1003.0, 3004.0, 4000.0, 9010.0],
+        }
+    )
+    res = {"validation_summary": _validation_summary(), "runs_csv": runs}
+    st = residual_statement(res, _settings(instruments={"probe": "KJ2 inductive"}))
+    assert (st["noise_lo"], st["noise_hi"], st["n_runs"]) == ("0.61", "0.93\u00a0\u00b5m", 3)
+    assert st["speeds"] == "500\u20134\u00a0000\u00a0r/min"
+    assert (st["outside"], st["n_samples"]) == (120, 2520) and st["probe"] == "KJ2 inductive"
+    no_noise = _validation_summary().drop(columns="noise_floor_um")
+    assert residual_statement({"validation_summary": no_noise, "runs_csv": runs}, _settings()) is None
+
+
+def test_worst_residual_of_a_decision_carries_its_runs_noise_floor():
+    from rafi.report.registry_section import worst_with_noise
+
+    rec = {"max_residual_um": 3.5, "runs": {"v1": {"max_abs_after_um": 2.0}, "v2": {"max_abs_after_um": 3.5}}}
+    noise = {"v1": 0.61, "v2": 0.93}
+    assert worst_with_noise(rec, noise) == "3.50\u00a0\u00b5m (noise floor of that run 0.93\u00a0\u00b5m)"
+    assert worst_with_noise(rec, {"v1": 0.61}) == "3.50\u00a0\u00b5m"  # no floor for v2: none printed
+    assert worst_with_noise(None, noise) == "\u2013"
+
+
+def test_idle_runs_are_listed_with_their_noise_floor():
+    from rafi.report.model_sections import idle_table
+
+    s = _validation_summary()
+    t = idle_table(s[s["role"] == "validation_idle"], {"idle": 0.72})
+    row = {h: (c["text"] if isinstance(c, dict) else c) for h, c in zip(t["headers"], t["rows"][0])}
+    assert row["max |residual| after (\u00b5m)"] == "1.25" and row["noise floor (\u00b5m)"] == "0.72"
+    assert len(t["rows"]) == 1 and idle_table(s.iloc[0:0], {}) is None

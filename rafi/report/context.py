@@ -28,7 +28,7 @@ from rafi.report.registry_section import section_registry
 from rafi.report.replay_section import section_replay, section_title
 from rafi.report.segmentation_section import section_segmentation
 from rafi.report.test_record import section_test_record
-from rafi.report.verdict import model_infos, verdict_all
+from rafi.report.verdict import model_infos, residual_statement, verdict_all
 
 SECTION_TITLES = {
     "verdict": "Verdict",
@@ -92,6 +92,7 @@ def build_context(
     dec_path = paths.get("decision")
     infos = model_infos(res, Path(dec_path).parent if dec_path else None)
     ctx["verdict"] = verdict_all(res, gates, infos)
+    ctx["verdict"]["residual"] = residual_statement(res, settings)
     ctx["gates"] = gates
     ctx["data"] = section_data(res)
     ctx["test_record"] = section_test_record(res, settings)

@@ -212,6 +212,43 @@ def section_fuzzy(res: dict, figs) -> dict | None:
     }
 
 
+def idle_table(idle, noise: dict):
+    """The idle cool-down runs of ``validation/summary.csv``: max |dz| before, max |residual|
+    after beside the run's noise floor, improvement, RMSE (``None`` without idle runs)."""
+    if not len(idle):
+        return None
+    rows = []
+    for r in idle.to_dict("records"):
+        worse = truthy(r.get("worse_than_uncompensated", False))
+        rows.append(
+            [
+                cell(run_label(r["run_id"])),
+                fmt_duration(r.get("duration_s")),
+                fmt_num(r.get("max_abs_before_um"), 2),
+                fmt_num(r.get("max_abs_after_um"), 2),
+                fmt_num(noise.get(str(r["run_id"])), 2),
+                cell(fmt_num(r.get("improvement_pct"), 1), "fail" if worse else ""),
+                fmt_num(r.get("rmse_before_um"), 2),
+                fmt_num(r.get("rmse_after_um"), 2),
+            ]
+        )
+    return table(
+        [
+            "run",
+            "duration",
+            "max |dz| before (\u00b5m)",
+            "max |residual| after (\u00b5m)",
+            "noise floor (\u00b5m)",
+            "improvement (%)",
+            "RMSE before (\u00b5m)",
+            "RMSE after (\u00b5m)",
+        ],
+        rows,
+        cls="num",
+        widths=[24, 9, 11, 11, 10, 11, 12, 12],
+    )
+
+
 def section_validation(res: dict, figs) -> dict:
     """Section 7: single-speed, multi-condition and idle validation runs, out-of-range samples."""
     summ = res["validation_summary"]
@@ -224,6 +261,7 @@ def section_validation(res: dict, figs) -> dict:
         "notes": [],
         "figure_idle": None,
         "n_idle": 0,
+        "idle": None,
     }
     if summ is None:
         return out
@@ -266,6 +304,8 @@ def section_validation(res: dict, figs) -> dict:
         cls="num",
         widths=[14, 10, 7, 10, 10, 8, 10, 9, 11, 11],
     )
+    idle_runs = s[s["role"] == "validation_idle"] if "role" in s else s.iloc[0:0]
+    out["idle"], out["n_idle"] = idle_table(idle_runs, noise), len(idle_runs)
     rows = []
     for r in s.itertuples(index=False):
         worse = truthy(getattr(r, "worse_than_uncompensated", False))

@@ -27,6 +27,23 @@ def gate_cell(result) -> dict:
     return cell("FAIL: " + ", ".join(GATE_SHORT.get(c, c) for c in failed), "fail")
 
 
+def worst_with_noise(summ_rec: dict | None, noise: dict) -> str:
+    """``max_residual_um`` of a decision's model summary, with the noise floor of the run it
+    comes from (the run of ``runs`` with the largest ``max_abs_after_um``; none when unknown)."""
+    rec = summ_rec or {}
+    text = fmt_num(rec.get("max_residual_um"), 2, "\u00b5m")
+    per_run = {
+        str(k): float(v["max_abs_after_um"])
+        for k, v in (rec.get("runs") or {}).items()
+        if isinstance(v, dict) and isnum(v.get("max_abs_after_um"))
+    }
+    if per_run:
+        worst = max(per_run, key=per_run.get)
+        if worst in noise:
+            text += " (noise floor of that run " + fmt_num(noise[worst], 2, "\u00b5m") + ")"
+    return text
+
+
 def section_registry(res: dict, gates: dict, infos: dict):
     dec = res.get("decision")
     if not isinstance(dec, dict):
@@ -47,6 +64,7 @@ def section_registry(res: dict, gates: dict, infos: dict):
     comp = res.get("registry_comparison")
     cand_s, champ_s = registry_summary(comp, "candidate"), registry_summary(comp, "champion")
     cs, ks = dec.get("candidate_summary") or {}, dec.get("champion_summary") or {}
+    noise = noise_floors(res)
 
     def info_col(mid, summ_rec, summ, present):
         if not mid:
@@ -61,7 +79,7 @@ def section_registry(res: dict, gates: dict, infos: dict):
             i.get("kind") or "\u2013",
             i.get("created") or "\u2013",
             cell(Markup(f"{len(files)} file(s): <small>{files_text}</small>")) if files else "\u2013",
-            fmt_num((summ_rec or {}).get("max_residual_um"), 2, "\u00b5m"),
+            worst_with_noise(summ_rec, noise),
             fmt_num((summ_rec or {}).get("min_improvement_pct"), 1, "%"),
             (
                 cell("no validation runs", "")
@@ -99,7 +117,6 @@ def section_registry(res: dict, gates: dict, infos: dict):
     if comp is not None and len(comp):
         g_c = per_run_gates(cand_s, gates) if cand_s is not None else {}
         g_k = per_run_gates(champ_s, gates) if champ_s is not None else {}
-        noise = noise_floors(res)
         rows = []
         for r in comp.to_dict("records"):
             rid = str(r["run_id"])
@@ -217,13 +234,22 @@ def section_registry(res: dict, gates: dict, infos: dict):
         "promoted_at": dr.get("promoted_at") or "\u2013",
         "margin": fmt_num(dr.get("margin_um"), 2, "\u00b5m"),
         "reference": fmt_num(dr.get("reference_max_residual_um"), 2, "\u00b5m"),
-        "now": fmt_num(dr.get("new_max_residual_um"), 2, "\u00b5m"),
+        "now": worst_with_noise(
+            {
+                "max_residual_um": dr.get("new_max_residual_um"),
+                "runs": {k: {"max_abs_after_um": v} for k, v in per_run.items()},
+            },
+            noise,
+        ),
         "limit": fmt_num(dr.get("limit_um"), 2, "\u00b5m"),
         "degradation": fmt_num(dr.get("degradation_um"), 2, "\u00b5m", signed=True),
         "new_runs": Markup(", ".join(str(run_label(r)) for r in dr.get("new_runs") or [])),
         "per_run": table(
-            ["new validation run", "champion max |residual|"],
-            [[cell(run_label(k)), fmt_num(v, 2, "\u00b5m")] for k, v in per_run.items()],
+            ["new validation run", "champion max |residual|", "noise floor of the run"],
+            [
+                [cell(run_label(k)), fmt_num(v, 2, "\u00b5m"), fmt_num(noise.get(str(k)), 2, "\u00b5m")]
+                for k, v in per_run.items()
+            ],
             cls="num narrow",
         )
         if per_run

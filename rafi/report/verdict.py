@@ -237,6 +237,56 @@ def champion_after_summary(res: dict, dec: dict):
     return None, ""
 
 
+def residual_statement(res: dict, settings: dict) -> dict | None:
+    """What a residual of this report can and cannot show, with this machine's numbers.
+
+    Parameters
+    ----------
+    res : dict
+        Loaded inputs: the noise floors (:func:`rafi.report.inputs.noise_floors`), ``runs_csv``
+        (the speeds of the training runs) and ``validation_summary`` (RAFI's samples outside
+        its trained temperature range).
+    settings : dict
+        The machine's settings (``report.instruments.probe``).
+
+    Returns
+    -------
+    dict or None
+        ``noise_lo``, ``noise_hi`` (the range of the validation runs' noise floors, um),
+        ``n_runs``, ``speeds`` (the training runs' speed range; ``""`` without runs.csv),
+        ``outside`` / ``n_samples`` (validation samples outside RAFI's trained temperature
+        range; ``None`` without the summary) and ``probe``; ``None`` without a noise floor.
+    """
+    noise = noise_floors(res)
+    if not noise:
+        return None
+    vals = np.asarray(list(noise.values()), float)
+    out = {
+        "noise_lo": fmt_num(vals.min(), 2),
+        "noise_hi": fmt_num(vals.max(), 2, "\u00b5m"),
+        "n_runs": len(vals),
+        "speeds": "",
+        "outside": None,
+        "n_samples": None,
+        "probe": (settings["report"].get("instruments") or {}).get("probe") or "",
+    }
+    runs = res.get("runs_csv")
+    if runs is not None and "role" in runs:
+        tr = runs[runs["role"].astype(str) == "training"]
+        # a constant-speed run at its nominal speed, a varying one over its whole range
+        nominal = pd.to_numeric(tr["speed_rpm"], errors="coerce")
+        varying = tr["kind"].astype(str).eq("varying") if "kind" in tr else nominal.isna()
+        lo = nominal.where(~varying, pd.to_numeric(tr.get("speed_min_rpm", nominal), errors="coerce")).min()
+        hi = nominal.where(~varying, pd.to_numeric(tr.get("speed_max_rpm", nominal), errors="coerce")).max()
+        if pd.notna(lo) and pd.notna(hi):
+            out["speeds"] = f"{fmt_num(lo, 0)}\u2013{fmt_num(hi, 0, 'r/min')}"
+    summ = res.get("validation_summary")
+    if summ is not None and {"n_outside_temp_range", "n_samples"} <= set(summ.columns):
+        out["outside"] = int(pd.to_numeric(summ["n_outside_temp_range"], errors="coerce").fillna(0).sum())
+        out["n_samples"] = int(pd.to_numeric(summ["n_samples"], errors="coerce").fillna(0).sum())
+    return out
+
+
 def verdict_all(res: dict, gates: dict, infos: dict) -> dict:
     """The verdict of section 1: the model on the machine (with decision.json) + RAFI, over
     every validation run (idle cool-downs included), each max residual beside its run's noise
