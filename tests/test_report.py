@@ -30,7 +30,7 @@ from rafi.artefact import compute_model_id, jsonable
 from rafi.family.selection import SELECTION_RULE
 from rafi.report import figures, tables
 from rafi.report.context import build_context
-from rafi.report.format import equation_text, fmt_duration, fmt_num, fmt_p, fmt_sig, truthy
+from rafi.report.format import equation_text, fmt_duration, fmt_num, fmt_p, fmt_sig, micro, truthy
 from rafi.report.inputs import figure_dirs, result_paths
 from rafi.report.render import render_html, render_pdf
 from rafi.report.verdict import aggregate_verdict, qualify
@@ -455,8 +455,8 @@ def test_registry_section_is_structured_not_a_json_dump(rendered):
     dec = json.loads((FIXTURE / "registry" / "decision.json").read_text())
     g = ctx["registry"]
     assert g["decision"] == dec["decision"] and g["word"] in html
-    for reason in dec["reasons"]:
-        assert str(escape(reason)) in html
+    for reason in dec["reasons"]:  # with the report's one spelling of the micrometre
+        assert str(escape(micro(reason))) in html
     assert dec["candidate_id"][:12] in html and dec["champion_id_before"][:12] in html
     # no flattened keys / raw JSON
     for bad in (
@@ -800,7 +800,7 @@ def test_sections_and_numbers(rendered):
     assert not ctx["models"]["mismatches"]  # model.json reproduces diagnostics RMSE
     for pkg in ("python", "numpy", "pandas", "statsmodels", "snakemake", "rafi"):
         assert f"<td>{pkg}</td>" in html
-    assert "max_residual_um: 12.0" in html  # config dump
+    assert "<code>report.paper_rig</code>" in html  # configuration: what differs from the defaults
     assert "run_start" in html and "min_per_speed" in html
 
 

@@ -7,7 +7,7 @@ import os
 import platform
 from importlib import metadata as _metadata
 
-from rafi.report.format import fmt_num, truthy
+from rafi.report.format import fmt_duration, fmt_num, truthy
 
 
 def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
@@ -20,11 +20,14 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
     key_info : dict
         ``rank/key_sensors.json`` (the fallback message).
     eq_method : str or None
-        The equilibrium method recorded in ``equilibrium.csv``.
+        The equilibrium method recorded in ``equilibrium.csv`` (not repeated here: section
+        Thermal equilibrium describes the method once).
     """
-    ref, eqs, rank, fit = settings["reference"], settings["equilibrium"], settings["rank"], settings["fit"]
+    ref, rank, fit = settings["reference"], settings["rank"], settings["fit"]
     clean, runs, models = settings["clean"], settings["runs"], settings["models"]
     rule = ref["rule"]
+    period = float(settings["sample_period_s"])
+    paper = bool(settings["report"]["paper_rig"])
     scope_text = (
         "the smallest |r| over the training speeds must pass"
         if rank["scope"] == "min_per_speed"
@@ -45,12 +48,9 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
         ),
         (
             "Thermal equilibrium",
-            f"First time after which the {fmt_num(eqs['smooth_window_s'], 0, 's')} rolling median "
-            f"of dz stays within \u00b1{fmt_num(100 * float(eqs['band_fraction']), 0)} % of "
-            f"the total rise around the final plateau (median of the last "
-            f"{fmt_num(eqs['plateau_window_s'], 0, 's')}); uncertainty from a 1.5\u00d7 wider / "
-            "narrower band; cross-check with a fitted first-order time constant."
-            + (f" Method recorded: {eq_method}." if eq_method else ""),
+            "Detected from dz with a band around the final plateau and cross-checked with a fitted "
+            "first-order time constant; the method with this machine's parameters is described once, "
+            "in section Thermal equilibrium.",
         ),
         (
             "Correlation scope",
@@ -79,8 +79,10 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
         (
             "Standard errors",
             f"OLS coefficients with Newey-West (HAC) standard errors, {fit['hac_maxlags']} "
-            "lags, because 5 s samples are strongly autocorrelated; the plain OLS errors are "
-            "reported in fit/coefficients.csv but not used for inference.",
+            f"lags ({fmt_duration(float(fit['hac_maxlags']) * period)} at this machine's "
+            f"{fmt_num(period, 0, 's')} sample period), because successive samples of a thermal "
+            "drift are strongly autocorrelated; the plain OLS errors are reported in "
+            "fit/coefficients.csv but not used for inference.",
         ),
         (
             "Validation",
@@ -89,8 +91,9 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
         ),
         (
             "Fuzzy membership",
-            "Triangular functions centred on the training speeds (see Fuzzy "
-            "blending for the paper's 0.334 / 0.666 wording).",
+            "Triangular functions centred on the training speeds: the nearer training speed gets "
+            "the larger weight"
+            + (" (see Fuzzy blending for the paper's 0.334 / 0.666 wording)." if paper else "."),
         ),
         (
             "Cleaning the logs",
@@ -110,9 +113,16 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
             "-> single-speed validation; shorter steps -> one multi-condition run; speed below "
             f"{fmt_num(runs['idle_below_rpm'], 0, 'r/min')} -> idle cool-down (validated, never "
             "trained on). A rest at the start of a log shorter than "
-            f"{fmt_num(runs['max_leading_rest_s'], 0, 's')} belongs to the run, so the reference "
-            "state is the cold machine at rest, before the spindle turns (what a controller "
-            "compensation is relative to). Roles can be overridden per file (runs.overrides).",
+            f"{fmt_num(runs['max_leading_rest_s'], 0, 's')} belongs to the run"
+            + (
+                ", so the reference state is the cold machine at rest, before the spindle turns "
+                "(what a controller compensation is relative to)."
+                if rule == "run_start"
+                else f"; with reference.rule = {rule} the reference state is taken at the start of "
+                "the log or segment a run was cut from, so a run cut later in a log does not start "
+                "cold."
+            )
+            + " Roles can be overridden per file (runs.overrides).",
         ),
         (
             "Sensor dropouts",
@@ -136,6 +146,83 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
         ),
     ]
     return [{"topic": a, "text": b} for a, b in rows]
+
+
+#: A list setting with more items than this is shown as its length and its two ends.
+MAX_LIST_ITEMS = 8
+
+
+def _flat(d, prefix: str = "") -> dict:
+    """``{"a.b.c": leaf}``; a non-empty dict is walked, anything else (lists too) is a leaf."""
+    out = {}
+    for k, v in d.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            out.update(_flat(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def setting_text(value) -> str:
+    """A setting's value for the appendix: YAML flow style on one line; ``none`` for null; a
+    list longer than :data:`MAX_LIST_ITEMS` as ``[n values: first \u2026 last]``."""
+    import yaml
+
+    if isinstance(value, (list, tuple)):
+        value = [v.item() if hasattr(v, "item") else v for v in value]
+    if isinstance(value, list) and len(value) > MAX_LIST_ITEMS:
+        ends = [setting_text(value[0]), setting_text(value[-1])]
+        return f"[{len(value)} values: {ends[0]} \u2026 {ends[1]}]"
+    if value is None:
+        return "none"
+    if isinstance(value, str):
+        return value
+    if hasattr(value, "item") and not isinstance(value, (list, dict)):  # a numpy scalar
+        value = value.item()
+    text = yaml.safe_dump(value, default_flow_style=True, width=10**9, allow_unicode=True).strip()
+    return text[: -len("...")].strip() if text.endswith("...") else text
+
+
+def settings_changes(settings: dict, run: dict | None = None) -> list[dict]:
+    """The settings of this machine that differ from the built-in defaults.
+
+    Parameters
+    ----------
+    settings : dict
+        The machine's effective settings (:func:`rafi.settings.machine_settings`).
+    run : dict, optional
+        Run settings shown beside them (``raw_dir``, ...): compared with
+        :data:`rafi.settings.RUN_DEFAULTS`; keys that are not run settings are ignored.
+
+    Returns
+    -------
+    list of dict
+        ``key`` (dotted path), ``value`` and ``default`` (text; an en dash where the key has no
+        default), in the order of the settings. ``input`` is compared with the defaults of
+        the input mapping (:func:`rafi.readers.input_spec.normalise_input_spec` of ``{}``).
+    """
+    from rafi.readers.input_spec import normalise_input_spec
+    from rafi.settings import MACHINE_DEFAULTS, RUN_DEFAULTS
+
+    defaults = {**MACHINE_DEFAULTS, "input": normalise_input_spec(MACHINE_DEFAULTS["input"])}
+    rows = []
+    for section, ref in (((run or {}), RUN_DEFAULTS), (settings, defaults)):
+        flat_ref = _flat(ref)
+        for key, value in _flat({k: v for k, v in section.items() if k in ref}).items():
+            missing = key not in flat_ref
+            if not missing and flat_ref[key] == value:
+                continue
+            if missing and value in ({}, [], None):
+                continue
+            rows.append(
+                {
+                    "key": key,
+                    "value": setting_text(value),
+                    "default": "\u2013" if missing else setting_text(flat_ref[key]),
+                }
+            )
+    return rows
 
 
 def versions() -> list[dict]:

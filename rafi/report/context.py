@@ -15,9 +15,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-import yaml
-
-from rafi.report.choices import generated_at, section_choices, versions
+from rafi.report.choices import generated_at, section_choices, settings_changes, versions
 from rafi.report.comparison_section import section_comparison
 from rafi.report.data_sections import section_data, section_equilibrium, section_ranking
 from rafi.report.deployed_section import section_deployed
@@ -72,7 +70,9 @@ def build_context(
         The machine's settings, every key present (``rafi.settings``): ``qualification`` and
         the choice parameters are read from here.
     config : dict, optional
-        The configuration shown verbatim (YAML) in the provenance section (default: ``settings``).
+        The run's configuration: its run settings (``raw_dir``, ...) that differ from
+        ``rafi.settings.RUN_DEFAULTS`` join the machine's settings that differ from the defaults
+        in the provenance section's table (:func:`rafi.report.choices.settings_changes`).
     now : datetime, optional
         The time the report says it was made.
 
@@ -94,14 +94,17 @@ def build_context(
     ctx["verdict"] = verdict_all(res, gates, infos)
     ctx["verdict"]["residual"] = residual_statement(res, settings)
     ctx["gates"] = gates
-    ctx["data"] = section_data(res)
+    paper = bool(settings["report"]["paper_rig"])  # paper numbers only on the paper's rig
+    ctx["paper_rig"] = paper
+    ctx["coolant_sensors"] = list(settings["report"]["coolant_sensors"])
+    ctx["data"] = section_data(res, settings["sample_period_s"])
     ctx["test_record"] = section_test_record(res, settings)
     ctx["segmentation"] = section_segmentation(res, settings, figs)
-    ctx["equilibrium"] = section_equilibrium(res, figs)
-    ctx["ranking"] = section_ranking(res, key_info, figs)
-    ctx["models"] = section_models(res, figs)
-    ctx["fuzzy"] = section_fuzzy(res, figs)
-    ctx["validation"] = section_validation(res, figs)
+    ctx["equilibrium"] = section_equilibrium(res, figs, settings, paper=paper)
+    ctx["ranking"] = section_ranking(res, key_info, figs, paper=paper)
+    ctx["models"] = section_models(res, figs, paper=paper)
+    ctx["fuzzy"] = section_fuzzy(res, figs, paper=paper)
+    ctx["validation"] = section_validation(res, figs, paper=paper)
     ctx["registry"] = section_registry(res, gates, infos)
     dec = res["decision"] if isinstance(res.get("decision"), dict) else {}
     ctx["comparison"] = section_comparison(res, dec.get("champion_id_after"), settings, figs)
@@ -121,9 +124,8 @@ def build_context(
     ctx["verdict"]["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
     ctx["choices"] = section_choices(settings, key_info, ctx["equilibrium"]["method"])
     ctx["versions"] = versions()
-    ctx["config_yaml"] = yaml.safe_dump(
-        config if config is not None else settings, sort_keys=False, allow_unicode=True
-    )
+    # the configuration appendix: only what differs from the defaults (docs/settings.md)
+    ctx["config_changes"] = settings_changes(settings, config)
     ctx["model_id"] = model.get("model_id", "")
     ctx["champion_id"] = dec.get("champion_id_after") or ""
     ctx["code_version"] = model.get("code_version", "")

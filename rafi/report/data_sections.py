@@ -7,6 +7,8 @@ import pandas as pd
 
 from rafi.method.paper import T_EQ_S
 from rafi.report.format import (
+    DASH,
+    NBSP,
     cell,
     fmt_num,
     fmt_speed,
@@ -18,8 +20,13 @@ from rafi.report.format import (
 )
 from rafi.report.inputs import chosen_sensors, collinearity_frame, correlation_wide
 
+#: The paper's key sensors (shown only on the paper's rig, ``report.paper_rig``).
+PAPER_KEY_SENSORS = "T6, T8, T9"
 #: A collinearity matrix with more sensors than this is a figure (rule report_figures).
 MAX_COLLINEARITY_TABLE = 8
+#: Two chosen sensors whose rises correlate at least this much (|r|) are called nearly
+#: collinear in the report (pairwise |r| 0.9: one explains 81 % of the other's variance).
+COLLINEAR_ABS_R = 0.9
 
 
 def paper_value(frame: pd.DataFrame, i, column: str, values: dict, speed):
@@ -30,9 +37,15 @@ def paper_value(frame: pd.DataFrame, i, column: str, values: dict, speed):
     return v
 
 
-def section_data(res: dict) -> dict:
+def section_data(res: dict, period_s=None) -> dict:
     """Section 2: the runs by role, the cleaning audit per file and the quarantined files (every
-    run in detail: :mod:`rafi.report.segmentation_section`)."""
+    run in detail: :mod:`rafi.report.segmentation_section`).
+
+    ``rows_in`` of ``audit.csv`` counts the data rows read from a raw file, ``rows_out`` the
+    rows of its clean regular grid (``period_s``, the machine's ``sample_period_s``): gaps
+    bridged by interpolation add grid rows, duplicates remove rows, so more rows can come
+    out than went in. ``totals_text`` says so with this machine's counts.
+    """
     runs = res["runs_csv"]
     audit = res["audit"]
     audit_t, quarantined = None, []
@@ -65,8 +78,8 @@ def section_data(res: dict) -> dict:
         audit_t = table(
             [
                 "file",
-                "rows in",
-                "rows out",
+                "rows read",
+                "rows on the grid",
                 "dupli\u00adcates",
                 "re\u00adordered",
                 "spikes",
@@ -92,6 +105,16 @@ def section_data(res: dict) -> dict:
         }
     else:
         totals = {}
+    totals_text = None
+    if totals:
+        grid = f"the regular {fmt_num(period_s, 0, 's')} grid" if isnum(period_s) else "the regular grid"
+        totals_text = (
+            f"Cleaning read {fmt_num(totals['rows_in'], 0)} rows and wrote {fmt_num(totals['rows_out'], 0)} "
+            f"rows on {grid}: {fmt_num(totals['duplicates_dropped'], 0)} duplicate row(s) dropped, "
+            f"{fmt_num(totals['gaps_interpolated'], 0)} gap(s) bridged by interpolated grid rows, "
+            f"{fmt_num(totals['spikes_replaced'], 0)} spike(s) replaced, "
+            f"{fmt_num(totals['values_interpolated'], 0)} sensor value(s) interpolated."
+        )
     roles = runs["role"].value_counts().to_dict() if runs is not None else {}
     status = res.get("input_status") if isinstance(res.get("input_status"), dict) else {}
     listed = {q["file"] for q in quarantined}
@@ -109,6 +132,7 @@ def section_data(res: dict) -> dict:
         "quarantined": quarantined,
         "warnings": input_warnings(status),
         "totals": totals,
+        "totals_text": totals_text,
         "roles": roles,
         "n_files": 0 if audit is None else len(audit),
     }
@@ -134,55 +158,186 @@ def input_warnings(status: dict) -> list[dict]:
     return sorted(rows, key=lambda w: (w["confirmed"], w["file"], w["check"]))
 
 
-def section_equilibrium(res: dict, figs) -> dict:
-    """Section 3: time to thermal equilibrium per training speed, beside the paper's Table 1."""
+#: Bounds of the first-order fit of :func:`rafi.method.equilibrium.first_order_fit`:
+#: ``TAU_MIN_S <= tau <= TAU_MAX_SPANS x`` the fitted span (spindle start to the run's last
+#: sample). ``equilibrium.csv`` does not record the span: the report takes it from
+#: ``runs.csv`` (``end_s - start_s``), less at most ``runs.max_leading_rest_s`` before the
+#: spindle start.
+TAU_MIN_S = 1.0
+TAU_MAX_SPANS = 50.0
+#: A tau within this fraction of a bound is reported as at the bound.
+BOUND_TOL = 0.05
+#: The detected t_eq and the tau cross-check disagree when one exceeds the other by more
+#: than this factor.
+DISAGREE_FACTOR = 2.0
+
+
+def tau_bounds(span_s, max_rest_s: float = 0.0) -> tuple[float, float]:
+    """``(lower, upper)`` bound of the fitted tau of a run spanning ``span_s`` seconds; the
+    upper bound is the smallest the fit can have had (span less ``max_rest_s``)."""
+    if not isnum(span_s):
+        return TAU_MIN_S, np.nan
+    return TAU_MIN_S, TAU_MAX_SPANS * max(float(span_s) - float(max_rest_s), 0.0)
+
+
+def tau_at_bound(tau_s, span_s, max_rest_s: float = 0.0) -> str | None:
+    """``"upper"`` / ``"lower"`` when ``tau_s`` sits at a bound of the fit (within
+    :data:`BOUND_TOL`), else ``None``."""
+    if not isnum(tau_s):
+        return None
+    lo, hi = tau_bounds(span_s, max_rest_s)
+    if float(tau_s) <= lo * (1 + BOUND_TOL):
+        return "lower"
+    if isnum(hi) and hi > 0 and float(tau_s) >= hi * (1 - BOUND_TOL):
+        return "upper"
+    return None
+
+
+def disagreement(t_eq_s, t_eq_tau_s) -> float:
+    """``max / min`` of the detected t_eq and the tau cross-check (NaN when either is missing)."""
+    if not (isnum(t_eq_s) and isnum(t_eq_tau_s)) or min(float(t_eq_s), float(t_eq_tau_s)) <= 0:
+        return np.nan
+    a, b = float(t_eq_s), float(t_eq_tau_s)
+    return max(a, b) / min(a, b)
+
+
+def _run_spans(runs: pd.DataFrame | None) -> dict:
+    """``run_id -> span (s)`` of runs.csv: ``end_s - start_s``, else ``duration_s``."""
+    if runs is None or not len(runs) or "run_id" not in runs:
+        return {}
+    if {"start_s", "end_s"} <= set(runs.columns):
+        span = runs["end_s"].astype(float) - runs["start_s"].astype(float)
+    elif "duration_s" in runs:
+        span = runs["duration_s"].astype(float)
+    else:
+        return {}
+    return dict(zip(runs["run_id"].astype(str), span))
+
+
+def equilibrium_description(eqs: dict | None) -> str:
+    """The equilibrium method in words, with the machine's ``equilibrium`` settings."""
+    if not eqs:
+        return (
+            "Equilibrium time: first time after which the smoothed dz stays inside a band around "
+            "the final plateau; the \u03c4 columns are the first-order cross-check."
+        )
+    return (
+        f"Equilibrium time t_eq: the first time after which the {fmt_num(eqs['smooth_window_s'], 0, 's')} "
+        f"rolling median of dz stays within \u00b1{fmt_num(100 * float(eqs['band_fraction']), 0, '%')} of "
+        f"the total rise around the final plateau (median of the last "
+        f"{fmt_num(eqs['plateau_window_s'], 0, 's')}), counted from the spindle start (the first "
+        "sample at half the run's median speed or more). The uncertainty range repeats the "
+        "detection with a 1.5\u00d7 wider and narrower band. Cross-check: a first-order rise "
+        f"dz = c + A (1 \u2212 e^(\u2212t/\u03c4)) fitted from the spindle start, t_eq from \u03c4 = "
+        f"\u03c4 ln(1/{float(eqs['band_fraction']):g})."
+    )
+
+
+def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper: bool = False) -> dict:
+    """Section 3: time to thermal equilibrium per training speed.
+
+    Parameters
+    ----------
+    res : dict
+        Loaded inputs (``equilibrium``, ``runs_csv``).
+    figs : rafi.report.embed.FigureFiles
+    settings : dict, optional
+        The machine's settings (``runs.max_leading_rest_s`` for the fit's bound).
+    paper : bool
+        ``report.paper_rig``: the paper's Table 1 beside each time.
+
+    Returns
+    -------
+    dict
+        ``table``, ``figure``, ``method`` and ``flags`` (one sentence per flagged run: the
+        two estimates disagree by more than :data:`DISAGREE_FACTOR`, or tau at a bound).
+    """
     eq = res["equilibrium"]
-    rows = []
+    spans = _run_spans(res.get("runs_csv"))
+    max_rest = float(((settings or {}).get("runs") or {}).get("max_leading_rest_s") or 0.0)
+    rows, flags = [], []
     if eq is not None:
         for i in eq.index:
             r = eq.loc[i]
-            paper = paper_value(eq, i, "paper_t_eq_s", T_EQ_S, r.speed_rpm)
-            diff = (
-                (float(r.t_eq_s) - float(paper)) / float(paper) * 100
-                if isnum(paper) and isnum(r.t_eq_s)
-                else np.nan
-            )
-            rows.append(
-                [
-                    fmt_speed(r.speed_rpm),
-                    fmt_num(r.t_eq_s, 0, "s"),
-                    f"{fmt_num(r.t_eq_low_s, 0)}\u2013{fmt_num(r.t_eq_high_s, 0, 's')}",
-                    fmt_num(r.t_eq_tau_s, 0, "s"),
-                    fmt_num(r.tau_s, 0, "s"),
-                    fmt_num(r.plateau_um, 2, "\u00b5m"),
-                    fmt_num(paper, 0, "s"),
-                    fmt_num(diff, 0, "%", signed=True),
-                ]
-            )
-    t = table(
-        [
-            "speed",
-            "t_eq",
-            "uncertainty range",
-            "t_eq from fitted \u03c4",
-            "\u03c4 (first order)",
-            "plateau dz",
-            "paper Table 1",
-            "vs paper",
-        ],
-        rows,
-        cls="num",
-        widths=[13, 11, 18, 13, 11, 11, 12, 11],
-    )
+            speed = fmt_speed(r.speed_rpm)
+            span = spans.get(str(r.get("run_id", "")), np.nan)
+            bound = tau_at_bound(r.tau_s, span, max_rest)
+            if bound:
+                lo, hi = tau_bounds(span, max_rest)
+                limit = (
+                    fmt_num(lo, 0, "s")
+                    if bound == "lower"
+                    else f"{TAU_MAX_SPANS:g} \u00d7 the fitted span, \u2265{NBSP}{fmt_num(hi, 0, 's')}"
+                )
+                flags.append(
+                    f"{speed}: the first-order fit ended at its {bound} bound (\u03c4 = "
+                    f"{fmt_num(r.tau_s, 0, 's')}, bound {limit}); the run does not identify a time "
+                    "constant and the \u03c4 cross-check is void."
+                )
+                tau_cell = cell(f"at {bound} bound", "fail")
+                tau_eq_cell = cell(DASH, "fail")
+            else:
+                tau_cell = fmt_num(r.tau_s, 0, "s")
+                tau_eq_cell = fmt_num(r.t_eq_tau_s, 0, "s")
+            ratio = np.nan if bound else disagreement(r.t_eq_s, r.t_eq_tau_s)
+            t_eq_cell = fmt_num(r.t_eq_s, 0, "s")
+            if isnum(ratio) and ratio > DISAGREE_FACTOR:
+                t_eq_cell = cell(t_eq_cell + NBSP + "\u2020", "fail")
+                tau_eq_cell = cell(tau_eq_cell, "fail")
+                flags.append(
+                    f"{speed}: the detected equilibrium time ({fmt_num(r.t_eq_s, 0, 's')}) and the "
+                    f"\u03c4 cross-check ({fmt_num(r.t_eq_tau_s, 0, 's')}) differ by a factor of "
+                    f"{fmt_num(ratio, 2)} (more than {DISAGREE_FACTOR:g}): dz does not rise like a "
+                    "single first-order system on this run, the two estimates do not confirm each "
+                    "other and t_eq is uncertain beyond its range in the table."
+                )
+            row = [
+                speed,
+                t_eq_cell,
+                f"{fmt_num(r.t_eq_low_s, 0)}\u2013{fmt_num(r.t_eq_high_s, 0, 's')}",
+                tau_eq_cell,
+                tau_cell,
+                fmt_num(r.plateau_um, 2, "\u00b5m"),
+            ]
+            if paper:
+                ref = paper_value(eq, i, "paper_t_eq_s", T_EQ_S, r.speed_rpm)
+                diff = (
+                    (float(r.t_eq_s) - float(ref)) / float(ref) * 100
+                    if isnum(ref) and isnum(r.t_eq_s)
+                    else np.nan
+                )
+                row += [fmt_num(ref, 0, "s"), fmt_num(diff, 0, "%", signed=True)]
+            rows.append(row)
+    heads = [
+        "speed",
+        "t_eq",
+        "uncertainty range",
+        "t_eq from fitted \u03c4",
+        "\u03c4 (first order)",
+        "plateau dz",
+    ]
+    widths = [15, 14, 20, 16, 14, 14]
+    if paper:
+        heads += ["paper Table 1", "vs paper"]
+        widths = [13, 11, 18, 13, 11, 11, 12, 11]
+    t = table(heads, rows, cls="num", widths=widths)
     fig = figs.get("pipeline", "training_runs")
     method = None
     if eq is not None and "method" in eq and len(eq):
         method = str(eq["method"].iloc[0])
-    return {"table": t, "figure": fig, "method": method}
+    return {
+        "table": t,
+        "figure": fig,
+        "method": method,
+        "description": equilibrium_description((settings or {}).get("equilibrium")),
+        "flags": flags,
+        "factor": f"{DISAGREE_FACTOR:g}",
+    }
 
 
-def section_ranking(res: dict, key_info: dict, figs) -> dict:
-    """Section 4: the correlation ranking, the chosen key sensors and their collinearity."""
+def section_ranking(res: dict, key_info: dict, figs, *, paper: bool = False) -> dict:
+    """Section 4: the correlation ranking, the chosen key sensors and their collinearity
+    (``paper``: ``report.paper_rig``, the paper's key sensors beside them)."""
     corr = res["correlation"]
     ks = res["key_sensors"]
     chosen = chosen_sensors(key_info, ks)
@@ -198,6 +353,7 @@ def section_ranking(res: dict, key_info: dict, figs) -> dict:
         "key_table": None,
         "collinearity": None,
         "collinearity_figure": None,
+        "paper": PAPER_KEY_SENSORS if paper else None,
     }
     if corr is not None:
         wide = correlation_wide(corr)
@@ -251,6 +407,26 @@ def section_ranking(res: dict, key_info: dict, figs) -> dict:
             )
         else:
             out["collinearity_figure"] = figs.get("pipeline", "collinearity")
-        off = m.to_numpy(float)[~np.eye(len(m), dtype=bool)]
-        out["max_offdiag"] = fmt_num(np.nanmax(np.abs(off)), 4) if off.size else None
+        out.update(collinearity_text(m, chosen))
     return out
+
+
+def collinearity_text(m: pd.DataFrame, chosen: list) -> dict:
+    """The largest |r| between two chosen sensors and what it means, against
+    :data:`COLLINEAR_ABS_R`: ``max_offdiag`` (formatted), ``pair`` and ``collinear`` (bool);
+    empty without two sensors."""
+    names = [s for s in chosen if s in m.index and s in m.columns] or list(m.index)
+    best, pair = np.nan, None
+    for k, a in enumerate(names):
+        for b in names[k + 1 :]:
+            v = abs(float(m.loc[a, b])) if isnum(m.loc[a, b]) else np.nan
+            if isnum(v) and not (isnum(best) and v <= best):
+                best, pair = v, (a, b)
+    if pair is None:
+        return {}
+    return {
+        "max_offdiag": fmt_num(best, 4),
+        "pair": f"{pair[0]}\u2013{pair[1]}",
+        "collinear": bool(best >= COLLINEAR_ABS_R),
+        "collinear_limit": f"{COLLINEAR_ABS_R:g}",
+    }

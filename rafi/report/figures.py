@@ -89,7 +89,9 @@ def _pipeline(res: dict, coolant_sensors: list, fmt: str):
         if runs:
             yield (
                 "training_runs",
-                plots.fig_training_runs(runs, temp_sensors=drawn, eq_times=eq_times, fmt=fmt),
+                plots.fig_training_runs(
+                    runs, temp_sensors=drawn, eq_times=eq_times, n_key=sum(s in key for s in drawn), fmt=fmt
+                ),
             )
     if res["correlation"] is not None:
         yield (
@@ -112,7 +114,7 @@ def _pipeline(res: dict, coolant_sensors: list, fmt: str):
         }
         yield "fit_residuals", plots.fig_fit_residuals(fits, fmt=fmt)
     yield from _membership(res["fuzzy_example"], fmt)
-    yield from _validation(res, key + coolant, fmt)
+    yield from _validation(res, key + coolant, fmt, n_key=len(key))
     yield from _segmentation(res["runs_csv"], rf, fmt)
 
 
@@ -189,7 +191,7 @@ def _membership(example: dict, fmt: str):
     )
 
 
-def _validation(res: dict, temps: list, fmt: str):
+def _validation(res: dict, temps: list, fmt: str, n_key: int = 3):
     s, resid, rf = res["validation_summary"], res["residuals"], res["runs_parquet"]
     if s is None or resid is None:
         return
@@ -218,7 +220,10 @@ def _validation(res: dict, temps: list, fmt: str):
         if rf is not None:
             tf = rf.loc[rf["run_id"] == r.run_id, ["t_s", *[t for t in temps if t in rf]]]
             f = f.merge(tf, on="t_s", how="left")
-        yield f"multi_condition/{r.run_id}", plots.fig_multi_condition(f, temp_sensors=temps, fmt=fmt)
+        drawn = [t for t in temps if t in f]  # key sensors first, then the coolant sensors
+        n = sum(t in temps[:n_key] for t in drawn)
+        fig = plots.fig_multi_condition(f, temp_sensors=drawn, n_key=n, fmt=fmt)
+        yield f"multi_condition/{r.run_id}", fig
 
 
 def _comparison(res: dict, gates: dict, fmt: str):

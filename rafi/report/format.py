@@ -7,6 +7,7 @@ as thousands separators and before units, an en dash for a missing value.
 from __future__ import annotations
 
 import math
+import re
 
 from markupsafe import Markup, escape
 
@@ -74,6 +75,24 @@ def fmt_p(p) -> str:
 def fmt_speed(rpm) -> str:
     """A spindle speed: ``3 000 r/min``."""
     return fmt_num(rpm, 0, "r/min")
+
+
+def fmt_speed_range(lo, hi) -> str:
+    """A speed range: ``598–4 803 r/min``; one speed when both ends print the same
+    (``0 r/min``, never ``0–0 r/min``); an en dash when neither is a number."""
+    if not isnum(lo) or not isnum(hi):
+        return fmt_speed(hi if isnum(hi) else lo)
+    a, b = fmt_num(min(float(lo), float(hi)), 0), fmt_num(max(float(lo), float(hi)), 0)
+    return fmt_speed(float(hi)) if a == b else f"{a}{DASH}{b}{NBSP}r/min"
+
+
+_UM = re.compile(r"(?<=[\d\s(])um\b")
+
+
+def micro(text) -> str:
+    """``um`` after a number written as ``µm`` (text from tables and JSON written by other
+    parts of rafi), so the report spells the unit one way."""
+    return _UM.sub("µm", str(text))
 
 
 def fmt_duration(seconds) -> str:

@@ -21,6 +21,7 @@ from rafi.report.format import (
     fmt_p,
     fmt_sig,
     fmt_speed,
+    fmt_speed_range,
     isnum,
     run_label,
     short_id,
@@ -36,8 +37,9 @@ from rafi.report.inputs import noise_floors
 MEMBERSHIP_SOURCE = "rafi.method.fuzzy.membership_curves"
 
 
-def section_models(res: dict, figs) -> dict:
-    """Section 5: the per-speed equations, diagnostics, coefficients and the training fit."""
+def section_models(res: dict, figs, *, paper: bool = False) -> dict:
+    """Section 5: the per-speed equations, diagnostics, coefficients and the training fit
+    (``paper``: ``report.paper_rig``, the paper's Table 3 RMSE beside each speed)."""
     model = res["model"] or {}
     diag = res["diagnostics"]
     coefs = res["coefficients"]
@@ -82,7 +84,7 @@ def section_models(res: dict, figs) -> dict:
         for i in diag.index:
             r = diag.loc[i]
             sp = speed_key(r.speed_rpm)
-            paper = paper_value(diag, i, "paper_rmse_um", RMSE_UM, sp)
+            ref = paper_value(diag, i, "paper_rmse_um", RMSE_UM, sp)
             chk = rmse_check.get(sp, np.nan)
             if isnum(chk) and isnum(r.rmse_um) and abs(chk - r.rmse_um) > 0.02 * r.rmse_um + 1e-3:
                 mismatches.append(
@@ -94,7 +96,7 @@ def section_models(res: dict, figs) -> dict:
                     fmt_speed(sp),
                     fmt_num(r.n, 0),
                     fmt_num(r.rmse_um, 3),
-                    fmt_num(paper, 3),
+                    *([fmt_num(ref, 3)] if paper else []),
                     fmt_num(r.r2, 4),
                     fmt_num(r.r2_adj, 4),
                     fmt_sig(r.max_vif, 2),
@@ -109,7 +111,7 @@ def section_models(res: dict, figs) -> dict:
             "speed",
             "n",
             "RMSE (\u00b5m)",
-            "paper Table 3 RMSE (\u00b5m)",
+            *(["paper Table 3 RMSE (\u00b5m)"] if paper else []),
             "R\u00b2",
             "adj. R\u00b2",
             "max VIF",
@@ -120,7 +122,7 @@ def section_models(res: dict, figs) -> dict:
         ],
         d_rows,
         cls="num diag",
-        widths=[12, 6, 8, 10, 8, 8, 10, 9, 9, 9, 11],
+        widths=[12, 6, 8, 10, 8, 8, 10, 9, 9, 9, 11] if paper else [13, 7, 9, 9, 9, 11, 10, 10, 10, 12],
     )
     coef_t = None
     if coefs is not None and len(coefs):
@@ -159,11 +161,13 @@ def section_models(res: dict, figs) -> dict:
         "model_id": short_id(model.get("model_id", ""), 16),
         "created": model.get("created", ""),
         "code_version": model.get("code_version", ""),
+        "paper": paper,
     }
 
 
-def section_fuzzy(res: dict, figs) -> dict | None:
-    """Section 6: the membership functions and the worked example (``report/fuzzy_example.json``).
+def section_fuzzy(res: dict, figs, *, paper: bool = False) -> dict | None:
+    """Section 6: the membership functions and the worked example (``report/fuzzy_example.json``);
+    ``paper`` (``report.paper_rig``): the paper's worked example and its wording are discussed.
 
     Returns ``None`` without training speeds.
     """
@@ -209,6 +213,7 @@ def section_fuzzy(res: dict, figs) -> dict | None:
         "source": MEMBERSHIP_SOURCE,
         "outside": (model.get("fuzzy") or {}).get("outside", "edge"),
         "centres": ", ".join(fmt_num(c, 0) for c in centres) + NBSP + "r/min",
+        "paper": paper,
     }
 
 
@@ -249,8 +254,9 @@ def idle_table(idle, noise: dict):
     )
 
 
-def section_validation(res: dict, figs) -> dict:
-    """Section 7: single-speed, multi-condition and idle validation runs, out-of-range samples."""
+def section_validation(res: dict, figs, *, paper: bool = False) -> dict:
+    """Section 7: single-speed, multi-condition and idle validation runs, out-of-range samples
+    (``paper``: ``report.paper_rig``, the paper's Table 4 and multi-condition run beside them)."""
     summ = res["validation_summary"]
     resid = res["residuals"]
     out = {
@@ -262,6 +268,7 @@ def section_validation(res: dict, figs) -> dict:
         "figure_idle": None,
         "n_idle": 0,
         "idle": None,
+        "paper": paper,
     }
     if summ is None:
         return out
@@ -271,7 +278,7 @@ def section_validation(res: dict, figs) -> dict:
     rows = []
     for i in single.index:
         r = single.loc[i]
-        paper = paper_value(single, i, "paper_residual_um", RESIDUAL_UM, r.speed_rpm)
+        ref = paper_value(single, i, "paper_residual_um", RESIDUAL_UM, r.speed_rpm)
         worse = truthy(r.get("worse_than_uncompensated", False))
         rows.append(
             [
@@ -281,7 +288,7 @@ def section_validation(res: dict, figs) -> dict:
                 fmt_num(r.max_abs_before_um, 2),
                 fmt_num(r.max_abs_after_um, 2),
                 fmt_num(noise.get(str(r.run_id)), 2),
-                fmt_num(paper, 2),
+                *([fmt_num(ref, 2)] if paper else []),
                 cell(fmt_num(r.improvement_pct, 1), "fail" if worse else ""),
                 fmt_num(r.rmse_before_um, 2),
                 fmt_num(r.rmse_after_um, 2),
@@ -295,14 +302,14 @@ def section_validation(res: dict, figs) -> dict:
             "max |dz| before (\u00b5m)",
             "max |residual| after (\u00b5m)",
             "noise floor (\u00b5m)",
-            "paper Table 4 residual (\u00b5m)",
+            *(["paper Table 4 residual (\u00b5m)"] if paper else []),
             "improvement (%)",
             "RMSE before (\u00b5m)",
             "RMSE after (\u00b5m)",
         ],
         rows,
         cls="num",
-        widths=[14, 10, 7, 10, 10, 8, 10, 9, 11, 11],
+        widths=[14, 10, 7, 10, 10, 8, 10, 9, 11, 11] if paper else [16, 11, 8, 11, 11, 9, 10, 12, 12],
     )
     idle_runs = s[s["role"] == "validation_idle"] if "role" in s else s.iloc[0:0]
     out["idle"], out["n_idle"] = idle_table(idle_runs, noise), len(idle_runs)
@@ -352,7 +359,7 @@ def section_validation(res: dict, figs) -> dict:
         if not len(f):
             continue
         fig = figs.get("pipeline", f"multi_condition/{r.run_id}")
-        paper = MULTI_CONDITION if r.role == "validation_multi" else None
+        ref = MULTI_CONDITION if paper and r.role == "validation_multi" else None
         changes = int((f["speed_rpm"].diff().abs() > 100).sum())
         out["multi"].append(
             {
@@ -360,7 +367,7 @@ def section_validation(res: dict, figs) -> dict:
                 "role": r.role,
                 "figure": fig,
                 "duration": fmt_duration(r.duration_s),
-                "speeds": f"{fmt_num(f['speed_rpm'].min(), 0)}\u2013{fmt_speed(f['speed_rpm'].max())}",
+                "speeds": fmt_speed_range(f["speed_rpm"].min(), f["speed_rpm"].max()),
                 "changes": changes,
                 "before": fmt_num(r.max_abs_before_um, 2, "\u00b5m"),
                 "after": fmt_num(r.max_abs_after_um, 2, "\u00b5m"),
@@ -370,11 +377,11 @@ def section_validation(res: dict, figs) -> dict:
                 "outside_s": int(r.n_outside_speed_range),
                 "n": int(r.n_samples),
                 "paper": None
-                if paper is None
+                if ref is None
                 else {
-                    "before": fmt_num(paper["before_um"], 2, "\u00b5m"),
-                    "after": fmt_num(paper["after_um"], 2, "\u00b5m"),
-                    "improvement": fmt_num(paper["improvement_pct"], 1, "%"),
+                    "before": fmt_num(ref["before_um"], 2, "\u00b5m"),
+                    "after": fmt_num(ref["after_um"], 2, "\u00b5m"),
+                    "improvement": fmt_num(ref["improvement_pct"], 1, "%"),
                 },
             }
         )

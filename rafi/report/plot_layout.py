@@ -219,3 +219,30 @@ def panel_grid(n: int, ncols: int = 3, row_h: float = 2.1, extra_rows: int = 1):
 def speed_label(speed) -> str:
     """``3000`` -> ``3 000 r/min`` (no-break space)."""
     return f"{float(speed):,.0f} r/min".replace(",", "\u00a0")
+
+
+# --------------------------------------------------------------------------- text on figures
+
+
+def text_colour(rgba) -> str:
+    """Black or white, whichever reads better on a cell of colour ``rgba`` (WCAG relative
+    luminance of the sRGB colour: black above 0.179)."""
+    lin = [c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4 for c in rgba[:3]]
+    return "black" if 0.2126 * lin[0] + 0.7152 * lin[1] + 0.0722 * lin[2] > 0.179 else "white"
+
+
+def fit_titles(fig, titles: list[str], width_in: float) -> tuple[list[str], float, int]:
+    """Panel titles that fit ``width_in``: a title too wide is broken after its ``": "`` and,
+    if a line is still too wide, all titles get a smaller font (down to 5.5 pt).
+    Returns ``(titles, font size, lines)``."""
+    renderer = fig.canvas.get_renderer()
+    size = float(plt.rcParams["axes.titlesize"])
+
+    def wide(text: str, pt: float) -> float:
+        prop = FontProperties(family=plt.rcParams["font.family"], size=pt)
+        return max(renderer.get_text_width_height_descent(t, prop, ismath=False)[0] for t in text.split("\n"))
+
+    out = [t.replace(": ", ":\n", 1) if wide(t, size) / fig.dpi > width_in else t for t in titles]
+    while size > 5.5 and any(wide(t, size) / fig.dpi > width_in for t in out):
+        size -= 0.5
+    return out, size, max((t.count("\n") + 1 for t in out), default=1)

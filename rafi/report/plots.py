@@ -27,6 +27,7 @@ from rafi.report.plot_layout import (
     TOP_TITLE_IN,
     adjust,
     envelope,
+    fit_titles,
     hours,
     legend_top,
     panel_grid,
@@ -34,6 +35,7 @@ from rafi.report.plot_layout import (
     render,
     speed_label,
     split_shared,
+    text_colour,
     y_room_in,
 )
 
@@ -41,7 +43,12 @@ from rafi.report.plot_layout import (
 
 
 def fig_training_runs(
-    runs: dict, *, temp_sensors: list[str], eq_times: dict | None = None, fmt: str = "png"
+    runs: dict,
+    *,
+    temp_sensors: list[str],
+    eq_times: dict | None = None,
+    n_key: int = 3,
+    fmt: str = "png",
 ) -> bytes:
     """Temperatures and displacement against time, one panel per training speed (paper Fig. 9).
 
@@ -51,7 +58,8 @@ def fig_training_runs(
         ``speed_rpm -> DataFrame`` with ``t_s``, the sensors in ``temp_sensors`` (deg C) and
         ``dz_um``.
     temp_sensors : list of str
-        Sensors to draw (key sensors first, then coolant sensors, drawn dashed).
+        Sensors to draw: the ``n_key`` key sensors first (solid), then the coolant sensors
+        (``report.coolant_sensors``; dashed, "coolant" in the legend).
     eq_times : dict, optional
         ``speed_rpm -> t_eq_s`` marked with a vertical line.
     """
@@ -67,8 +75,8 @@ def fig_training_runs(
             h = hours(f["t_s"])
             for i, s in enumerate(temp_sensors):
                 if s in f:
-                    (ln,) = plot_series(ax, h, f[s], color=colours(i), ls="-" if i < 3 else "--", lw=0.9)
-                    handles.setdefault(f"{s} (°C)", ln)
+                    (ln,) = plot_series(ax, h, f[s], color=colours(i), ls="-" if i < n_key else "--", lw=0.9)
+                    handles.setdefault(f"{s} (°C{')' if i < n_key else ', coolant)'}", ln)
             ax.set_title(speed_label(speed))
             ax.set_xlabel("time (h)")
             ax.set_ylabel("temperature (°C)")
@@ -133,7 +141,7 @@ def fig_correlation_heatmap(
                         ha="center",
                         va="center",
                         fontsize=5.5,
-                        color="white" if v < threshold else "black",
+                        color=text_colour(im.cmap(im.norm(v))),
                         fontweight="bold" if v >= threshold else "normal",
                     )
         cb = fig.colorbar(im, ax=ax, pad=0.01, fraction=0.03)
@@ -181,8 +189,6 @@ def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> bytes:
             ax.set_title(speed_label(speed))
             ax.set_ylabel("dz (µm)")
             ax.tick_params(labelbottom=False)
-            if k == 0:
-                ax.legend(loc="lower right", frameon=False)
             axr = fig.add_subplot(inner[1], sharex=ax)
             left_axes += [ax, axr]
             res = np.asarray(f["measured_um"], float) - np.asarray(f["fitted_um"], float)
@@ -195,7 +201,7 @@ def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> bytes:
             fig,
             left=room,
             right=EDGE_IN,
-            top=TOP_TITLE_IN,
+            top=TOP_LEGEND_IN,
             bottom=BOTTOM_IN,
             ncols=ncols,
             nrows=nblocks,
@@ -203,6 +209,7 @@ def fig_fit_residuals(fits: dict, *, fmt: str = "png") -> bytes:
             hgap=ROW_GAP_IN,
         )
         split_shared(fig, outer, nblocks, ncols, SHARED_GAP_IN)
+        legend_top(fig, *left_axes[0].get_legend_handles_labels(), 2)  # outside the axes
         return render(fig, fmt)
 
 
@@ -253,31 +260,37 @@ def fig_validation_single(runs: dict, *, fmt: str = "png") -> bytes:
     """
     with plt.rc_context(STYLE):
         labels = list(runs)
-        nrows, ncols, size = panel_grid(len(labels), 3, 2.0)
-        fig, axes = plt.subplots(nrows, ncols, figsize=size, squeeze=False)
+        nrows, ncols, size_in = panel_grid(len(labels), 3, 2.0)
+        fig, axes = plt.subplots(nrows, ncols, figsize=size_in, squeeze=False)
         for ax, lab in zip(axes.flat, labels):
             f = runs[lab]
             h = hours(f["t_s"])
             plot_series(ax, h, f["measured_um"], color=C_MEAS, label="before (measured dz)")
             plot_series(ax, h, f["residual_um"], color=C_RES, label="after (residual)")
             ax.axhline(0, color="black", lw=0.5)
-            ax.set_title(lab)
             ax.set_xlabel("time (h)")
             ax.set_ylabel("displacement (µm)")
         for ax in list(axes.flat)[len(labels) :]:
             ax.set_visible(False)
         used = list(axes.flat)[: len(labels)]
         room = max((y_room_in(ax) for ax in used), default=0.5)
+        # titles as wide as their panel at most (long run ids: two lines, then a smaller font)
+        panel_w = (PAGE_WIDTH_IN - room - EDGE_IN - (ncols - 1) * (room + 0.05)) / ncols
+        titles, size, lines = fit_titles(fig, labels, panel_w)
+        extra = (lines - 1) * 1.25 * size / 72.0
+        fig.set_size_inches(PAGE_WIDTH_IN, size_in[1] + nrows * extra)
+        for ax, title in zip(axes.flat, titles):
+            ax.set_title(title, fontsize=size)
         adjust(
             fig,
             left=room,
             right=EDGE_IN,
-            top=TOP_LEGEND_IN if labels else TOP_TITLE_IN,
+            top=(TOP_LEGEND_IN if labels else TOP_TITLE_IN) + extra,
             bottom=BOTTOM_IN,
             ncols=ncols,
             nrows=nrows,
             wgap=room + 0.05,
-            hgap=ROW_GAP_IN,
+            hgap=ROW_GAP_IN + extra,
         )
         if labels:
             h, lab = axes.flat[0].get_legend_handles_labels()
@@ -286,7 +299,7 @@ def fig_validation_single(runs: dict, *, fmt: str = "png") -> bytes:
 
 
 def fig_multi_condition(
-    f: pd.DataFrame, *, temp_sensors: list[str], title: str = "", fmt: str = "png"
+    f: pd.DataFrame, *, temp_sensors: list[str], title: str = "", n_key: int = 3, fmt: str = "png"
 ) -> bytes:
     """Multi-condition run (paper Figs 13-14): speed, temperatures, measured vs predicted, residual.
 
@@ -314,9 +327,10 @@ def fig_multi_condition(
             ax = axes[1]
             cmap = plt.get_cmap("tab10")
             for i, s in enumerate(temps):
-                plot_series(ax, h, f[s], color=cmap(i), ls="-" if i < 3 else "--", label=s)
+                lab = s if i < n_key else f"{s} (coolant)"
+                # colours apart from measured (blue), predicted (orange), residual (red): one legend
+                plot_series(ax, h, f[s], color=cmap((i + 4) % 10), ls="-" if i < n_key else "--", label=lab)
             ax.set_ylabel("temperature (°C)")
-            ax.legend(ncol=len(temps), loc="upper left", frameon=False)
         ax = axes[-1]
         plot_series(ax, h, f["measured_um"], color=C_MEAS, label="measured dz (before)")
         plot_series(ax, h, f["predicted_um"], color=C_PRED, label="predicted")
@@ -324,16 +338,18 @@ def fig_multi_condition(
         ax.axhline(0, color="black", lw=0.5)
         ax.set_ylabel("displacement (µm)")
         ax.set_xlabel("time (h)")
-        ax.legend(ncol=3, loc="upper left", frameon=False)
+        handles = [h for a in axes for h in a.get_legend_handles_labels()[0]]
+        labels = [lab for a in axes for lab in a.get_legend_handles_labels()[1]]
         adjust(
             fig,
             left=max(y_room_in(a) for a in axes),
             right=EDGE_IN,
-            top=TOP_TITLE_IN if title else EDGE_IN + 0.03,
+            top=TOP_LEGEND_IN if title else TOP_LEGEND_IN - TOP_TITLE_IN + 0.03,
             bottom=BOTTOM_IN,
             nrows=n,
             hgap=SHARED_GAP_IN,
         )
+        legend_top(fig, handles, labels, len(handles))  # outside the axes, over no curve
         return render(fig, fmt)
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from markupsafe import Markup, escape
 
-from rafi.report.format import cell, fmt_num, fmt_speed, isnum, run_label, short_id, table, truthy
+from rafi.report.format import cell, fmt_num, fmt_speed, isnum, micro, run_label, short_id, table, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.verdict import DECISION_TEXT, per_run_gates, registry_summary
 
@@ -55,7 +55,7 @@ def section_registry(res: dict, gates: dict, infos: dict):
         "cls": cls,
         "word": word,
         "meaning": meaning,
-        "reasons": [str(r) for r in dec.get("reasons") or []],
+        "reasons": [micro(r) for r in dec.get("reasons") or []],
         "time": str(dec.get("time") or "\u2013"),
         "schema": dec.get("schema", ""),
     }

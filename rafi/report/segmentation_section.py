@@ -12,7 +12,16 @@ from __future__ import annotations
 import pandas as pd
 from markupsafe import Markup, escape
 
-from rafi.report.format import cell, fmt_duration, fmt_num, fmt_speed, isnum, run_label, table
+from rafi.report.format import (
+    cell,
+    fmt_duration,
+    fmt_num,
+    fmt_speed,
+    fmt_speed_range,
+    isnum,
+    run_label,
+    table,
+)
 
 #: Where a role came from (``role_source`` of runs.csv), for people.
 SOURCE_TEXT = {
@@ -60,7 +69,7 @@ def _speed(r) -> str:
     lo, hi = r.get("speed_min_rpm"), r.get("speed_max_rpm")
     if str(r.get("kind")) != "varying" or not (isnum(lo) and isnum(hi)) or float(hi) - float(lo) < 1.0:
         return fmt_speed(r.get("speed_rpm"))
-    return f"{fmt_num(r.get('speed_min_rpm'), 0)}\u2013{fmt_speed(r.get('speed_max_rpm'))}"
+    return fmt_speed_range(lo, hi)
 
 
 def _why(r) -> Markup:
