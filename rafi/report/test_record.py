@@ -245,8 +245,13 @@ def instrument_record(
     """
     missing = []
     fields = []
+    given = {
+        "machine_serial": instruments.get("machine_serial"),
+        "controller": instruments.get("controller"),
+        "probe": instruments.get("probe"),
+    }
     for key, label in INSTRUMENT_FIELDS.items():
-        v = instruments.get(key)
+        v = given[key]
         v = None if v is None or str(v).strip() == "" else str(v)
         fields.append((label, v, key))
         if v is None:
