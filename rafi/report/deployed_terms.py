@@ -107,8 +107,9 @@ def _powers(art: dict) -> list[float]:
 
 def _power_text(p: float) -> str:
     if p == 0:
-        return "running (1 if |n| > the speed tolerance, else 0)"
-    frac = "5/3" if p == 5.0 / 3.0 else repr(float(p))  # exactly the exponent used
+        return "running (1 if |n| > the speed tolerance, else 0)"  # P0: the equation gives the tolerance
+    short = f"{p:g}"
+    frac = "5/3" if p == 5.0 / 3.0 else short if float(short) == p else repr(float(p))  # the exponent used
     return f"(n / 10\u00a0000 r/min)^{frac}"
 
 
@@ -215,6 +216,7 @@ def ridge_equation(art: dict) -> list[Markup]:
     """The model's formula, line by line (HTML), from the features the artefact holds."""
     parsed = [parse_feature(n, _powers(art)) for n in art["features"]]
     types = {p["type"] for p in parsed}
+    tol = float((art.get("hyperparameters") or {}).get("speed_tolerance_rpm", 50.0))
     rise_taus = sorted({p["tau_s"] for p in parsed if p["type"] == "rise"})
     sum_t = "&sum;<sub>i</sub>" if rise_taus == [0.0] else "&sum;<sub>i</sub> &sum;<sub>&tau;</sub>"
     f_t = "dT<sub>i</sub>(t)" if rise_taus == [0.0] else "F<sub>&tau;</sub>T<sub>i</sub>(t)"
@@ -255,13 +257,26 @@ def ridge_equation(art: dict) -> list[Markup]:
         lines.append(
             Markup(
                 "F<sub>&sigma;</sub>P<sub>p</sub>(t) = L<sub>&sigma;</sub>[P<sub>p</sub>](t) &minus; its "
-                "median over the reference window, with P<sub>0</sub> = 1 while the spindle runs (0 at "
-                "rest) and P<sub>p</sub> = "
-                "(n / 10&nbsp;000 r/min)<sup>p</sup>"
+                "median over the reference window, with P<sub>0</sub> = 1 while the spindle runs (|n| &gt; "
+                f"{fmt_num(tol, 0)} r/min; else 0) and P<sub>p</sub> = (n / 10&nbsp;000 r/min)<sup>p</sup>"
             )
         )
     if types & {"rise_speed", "speed", "speed2", "draw_in"}:
         lines.append(Markup("n in krpm (r/min / 1000); n<sub>0</sub> = the speed of the reference state"))
+    where = ["b: the temperature terms below (one column per filter constant &tau;)"]
+    if "rise_speed" in types:
+        where.append("g: their &middot;&nbsp;n columns")
+    if "power" in types:
+        where.append("c<sub>p,&sigma;</sub>: the heat-input terms (one column per filter constant &sigma;)")
+    if types & {"speed", "speed2", "draw_in"}:
+        lag = [p["tau_s"] for p in parsed if p["type"] == "draw_in"]
+        what = (
+            "c<sub>1</sub>, c<sub>2</sub>, d"
+            if "draw_in" in types and "speed" in types
+            else ("d" if "draw_in" in types else "c<sub>1</sub>, c<sub>2</sub>")
+        )
+        where.append(what + ": the speed terms" + (f" (&lambda; = {fmt_num(lag[0], 0)} s)" if lag else ""))
+    lines.append(Markup("Coefficients: " + "; ".join(where)))
     if any(p.get("tau_s", 0) > 0 for p in parsed):
         lines.append(
             Markup(
@@ -387,6 +402,7 @@ def rafi_equation(art: dict) -> list[Markup]:
             "neighbouring speeds, "
             "weights summing to 1); outside the trained speeds the edge model with weight 1"
         ),
+        Markup("Coefficients a<sub>s,j</sub>: the tables below (row: term j; column: training speed s)"),
     ]
 
 
