@@ -167,6 +167,15 @@ def _hyper_text(art: dict) -> list[tuple[str, str]]:
     return out
 
 
+def _nothing_chosen(text) -> str:
+    """``summary.csv``'s ``selected`` of a model without hyperparameters, without its lead words:
+    ``nothing to choose (one OLS per training speed, fuzzy blend)`` -> ``one OLS per ...``."""
+    if not isinstance(text, str):
+        return ""
+    m = re.fullmatch(r"\s*nothing to choose\s*\((.*)\)\s*", text)
+    return m.group(1) if m else text
+
+
 def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name: str) -> dict:
     """What CV chose: the model's own (inner) choice, the outer score that made it the
     champion, the candidates it beat, and its folds."""
@@ -215,6 +224,7 @@ def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name:
         }.get(metric, metric),
         "inner_scheme": str(hyper.get("cv", "")).replace("_", "-"),
         "inner_n": len(inner),
+        "selected": _nothing_chosen(me.get("selected")),
         "inner_best": fmt_num(min(scores), 3, UM) if scores else "",
         "edges": list((art.get("selected") or {}).get("grid_edges") or []),
         "score": fmt_num(me.get("cv_mean_max_abs_um"), 2, UM),
