@@ -11,6 +11,7 @@ the same way: each test fails on the report as it was before the fix.
 
 from __future__ import annotations
 
+import io
 import json
 import re
 import shutil
@@ -470,3 +471,34 @@ def test_the_defaults_the_appendix_compares_with_are_the_settings_module():
         {"key": "qualification.max_residual_um", "value": "9.0", "default": "12.0"}
     ]
     assert MACHINE_DEFAULTS["qualification"]["max_residual_um"] == 12.0
+
+
+def _png_grey(data: bytes) -> np.ndarray:
+    from PIL import Image
+
+    return np.asarray(Image.open(io.BytesIO(data)).convert("L"))
+
+
+def test_training_figure_labels_stay_inside_the_figure_and_apart():
+    """Read from the PNG itself: nothing drawn on the outermost pixels, and a blank pixel column
+    between the two columns of panels (the right dz label of one, the temperature label of the
+    next)."""
+    t = np.arange(0.0, 4 * 3600.0, 15.0)
+    rise = {1250: (-0.4, 7.4), 2500: (2.4, 13.6), 3750: (3.5, 14.6), 5000: (-1.2, 16.0)}
+    runs = {
+        s: pd.DataFrame(
+            {
+                "t_s": t,
+                "T8": 20 + 4 * (1 - np.exp(-t / 1500)),
+                "T9": 20 + 3 * (1 - np.exp(-t / 1500)),
+                "dz_um": lo + (hi - lo) * (1 - np.exp(-t / 1200)),
+            }
+        )
+        for s, (lo, hi) in rise.items()
+    }
+    grey = _png_grey(plots.fig_training_runs(runs, temp_sensors=["T8", "T9"], eq_times={}, n_key=2))
+    assert (grey[:, :2] > 250).all() and (grey[:, -2:] > 250).all()
+    assert (grey[:2, :] > 250).all() and (grey[-2:, :] > 250).all()
+    h, w = grey.shape
+    middle = grey[int(0.12 * h) :, int(0.4 * w) : int(0.6 * w)]  # below the legend
+    assert (middle > 250).all(axis=0).any()

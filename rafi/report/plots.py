@@ -93,19 +93,21 @@ def fig_training_runs(
         for ax in list(axes.flat)[len(speeds) :]:
             ax.set_visible(False)
         used = list(axes.flat)[: len(speeds)]
-        left = max(y_room_in(ax) for ax in used)
-        right = max(y_room_in(ax2, ax2.yaxis) for ax2 in twins)
-        adjust(
-            fig,
-            left=left,
-            right=right,
-            top=TOP_LEGEND_IN,
-            bottom=BOTTOM_IN,
-            ncols=ncols,
-            nrows=nrows,
-            wgap=left + right + 0.05,
-            hgap=ROW_GAP_IN,
-        )
+        left = right = 0.0
+        for _ in range(2):  # the panels' final size changes their ticks: measure again once
+            left = max(left, *(y_room_in(ax) for ax in used))
+            right = max(right, *(y_room_in(ax2, ax2.yaxis) for ax2 in twins))
+            adjust(
+                fig,
+                left=left,
+                right=right,
+                top=TOP_LEGEND_IN,
+                bottom=BOTTOM_IN,
+                ncols=ncols,
+                nrows=nrows,
+                wgap=left + right + 0.05,
+                hgap=ROW_GAP_IN,
+            )
         legend_top(fig, list(handles.values()), list(handles.keys()), min(len(handles), 6))
         return render(fig, fmt)
 
