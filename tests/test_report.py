@@ -789,6 +789,10 @@ def test_sections_and_numbers(rendered):
         "choices",
         "provenance",
     ]
+    # figures numbered 1, 2, ... in document order, the offered model's first
+    numbers = [int(n) for n in re.findall(r"<figcaption>Figure (\d+)\.", html)]
+    assert numbers == list(range(1, len(numbers) + 1)) and len(numbers) >= 8
+    assert re.search(r"<figcaption>Figure 1\. \w+ \(the model offered to the machine\)", html)
     assert "0.334 and 0.666, respectively" in html
     ex = ctx["fuzzy"]["example"]
     assert ex["w0"] == "0.667" and ex["w1"] == "0.333"
