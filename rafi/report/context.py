@@ -25,6 +25,7 @@ from rafi.report.model_sections import section_fuzzy, section_models, section_va
 from rafi.report.registry_section import section_registry
 from rafi.report.replay_section import section_replay, section_title
 from rafi.report.segmentation_section import section_segmentation
+from rafi.report.signoff import section_signoff
 from rafi.report.test_record import section_test_record
 from rafi.report.verdict import model_infos, residual_statement, verdict_all
 
@@ -124,6 +125,7 @@ def build_context(
     ctx["verdict"]["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
     ctx["choices"] = section_choices(settings, key_info, ctx["equilibrium"]["method"])
     ctx["versions"] = versions()
+    ctx["signoff"] = section_signoff(res, settings)  # first page: number, revision, names
     # the configuration appendix: only what differs from the defaults (docs/settings.md)
     ctx["config_changes"] = settings_changes(settings, config)
     ctx["model_id"] = model.get("model_id", "")

@@ -2,7 +2,8 @@
 
 One template (``rafi/report/templates/qualification.html.j2``) renders the HTML; the PDF is
 rendered from the *same* HTML string, so the two never disagree. The figures are embedded,
-so the HTML needs no other file.
+so the HTML needs no other file. The PDF is a PDF/A-3b with the model, the audit and the
+summary tables attached (:mod:`rafi.report.pdf_archive`).
 """
 
 from __future__ import annotations
@@ -34,18 +35,32 @@ def render_html(ctx: dict) -> str:
     return _environment().get_template("qualification.html.j2").render(**ctx)
 
 
-def render_pdf(html: str, base_url: str | None = None) -> bytes:
-    """Render the same HTML to PDF with WeasyPrint (A4, print CSS in the template)."""
+def render_pdf(html: str, base_url: str | None = None, *, attach: dict | None = None) -> bytes:
+    """Render the same HTML to a PDF/A-3b with WeasyPrint (A4, print CSS in the template).
+
+    Parameters
+    ----------
+    html : str
+    base_url : str, optional
+    attach : dict, optional
+        The report's input paths (name -> path); the files
+        :func:`rafi.report.pdf_archive.attachment_specs` picks from them are attached to the PDF
+        (the HTML carries none).
+    """
     import gc
 
     import weasyprint
+
+    from rafi.report.pdf_archive import attachment_specs, write_options
+
+    options = write_options(attachment_specs(attach or {}))
 
     # WeasyPrint allocates millions of small objects; the cyclic garbage collector's passes
     # over them were about 15 % of the rendering time. Paused for this one document only.
     enabled = gc.isenabled()
     gc.disable()
     try:
-        return weasyprint.HTML(string=html, base_url=base_url or ".").write_pdf()
+        return weasyprint.HTML(string=html, base_url=base_url or ".").write_pdf(**options)
     finally:
         if enabled:
             gc.enable()
@@ -70,8 +85,9 @@ def generate(
     out_dir = Path(out_dir)
     t = {}
     t0 = time.perf_counter()
+    paths = result_paths(results_dir)
     ctx = build_context(
-        result_paths(results_dir),
+        paths,
         figure_dirs(results_dir),
         machine=machine or results_dir.name,
         settings=settings,
@@ -82,7 +98,7 @@ def generate(
     html = render_html(ctx)
     t["html_s"] = time.perf_counter() - t1
     t2 = time.perf_counter()
-    pdf = render_pdf(html)
+    pdf = render_pdf(html, attach=paths)
     t["pdf_s"] = time.perf_counter() - t2
     write_text_atomic(out_dir / "qualification.html", html)
     write_bytes_atomic(out_dir / "qualification.pdf", pdf)

@@ -28,7 +28,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         len(ctx["figures_used"]),
     )
     html = render_html(ctx)
-    pdf = render_pdf(html)
+    pdf = render_pdf(html, attach=paths)  # PDF/A-3b; model, audit, summaries attached
     write_text_atomic(smk.output.html, html)
     write_bytes_atomic(smk.output.pdf, pdf)
     print(f"wrote {smk.output.html} ({len(html)} bytes) and {smk.output.pdf} ({len(pdf)} bytes)", flush=True)

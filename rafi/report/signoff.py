@@ -1,0 +1,134 @@
+"""The sign-off block on the report's first page: document number, revision, prepared /
+approved by and date.
+
+The names and the document number come from the machine's settings
+(``report.document.{number,prepared_by,approved_by,approved_date}``); a value left out is a
+blank line to sign by hand. The **revision** is not a setting: it is derived from what the
+report is about, so it changes when the model or the data change, and only then
+(:func:`revision`, docs/report.md "Sign-off and the archival PDF").
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import hashlib
+
+from rafi.artefact import canonical_json
+
+#: Length (hex digits) of the revision shown: 10 digits = 40 bits, no collision in practice
+#: among the revisions of one machine's reports.
+REVISION_DIGITS = 10
+
+#: Settings blocks left out of the revision: they change what the report shows, not a result.
+PRESENTATION_KEYS = ("report",)
+
+#: Fields of the sign-off block, in the order they are shown: (key, label).
+FIELDS = (
+    ("number", "Document no."),
+    ("revision", "Revision"),
+    ("prepared_by", "Prepared by"),
+    ("approved_by", "Approved by"),
+    ("approved_date", "Date"),
+)
+
+
+def _content_id(model: dict | None) -> str:
+    """SHA-256 of a model artefact's content without ``model_id``, ``created`` and ``code_version``.
+
+    RAFI's ``model_id`` hashes the code version (with the git commit); the revision must not
+    change with a commit that changes no number, so the model is identified by its content.
+    """
+    if not model:
+        return ""
+    content = {k: v for k, v in model.items() if k not in ("model_id", "created", "code_version")}
+    return hashlib.sha256(canonical_json(content).encode("ascii")).hexdigest()
+
+
+def revision_inputs(*, deployed_id: str | None, rafi_model: dict | None, audit, settings: dict) -> dict:
+    """Everything the revision is a hash of (shown in the provenance and the docs).
+
+    Parameters
+    ----------
+    deployed_id : str or None
+        Registry id of the model on the machine after this run (``champion_id_after`` of
+        ``registry/decision.json``; its content hash, see :mod:`rafi.ops.registry`).
+    rafi_model : dict or None
+        ``model.json`` (RAFI as published), identified by :func:`_content_id`.
+    audit : pandas.DataFrame or None
+        ``audit.csv``: ``file`` and ``sha256`` of every raw file the run read.
+    settings : dict
+        The machine's settings; the blocks of :data:`PRESENTATION_KEYS` are left out.
+
+    Returns
+    -------
+    dict
+        ``{deployed_model, rafi_model, raw_files: {file: sha256}, settings}``.
+    """
+    raw = {}
+    if audit is not None and {"file", "sha256"} <= set(audit.columns):
+        raw = {str(f): str(h) for f, h in zip(audit["file"], audit["sha256"])}
+    return {
+        "deployed_model": deployed_id or "",
+        "rafi_model": _content_id(rafi_model),
+        "raw_files": dict(sorted(raw.items())),
+        "settings": {k: v for k, v in settings.items() if k not in PRESENTATION_KEYS},
+    }
+
+
+def revision(inputs: dict) -> str:
+    """The revision: the first :data:`REVISION_DIGITS` hex digits of the SHA-256 of the
+    canonical JSON (:func:`rafi.artefact.canonical_json`) of :func:`revision_inputs`."""
+    return hashlib.sha256(canonical_json(inputs).encode("ascii")).hexdigest()[:REVISION_DIGITS]
+
+
+def _text(value) -> str:
+    if value is None:
+        return ""
+    if isinstance(value, (dt.date, dt.datetime)):
+        return value.isoformat()
+    return str(value).strip()
+
+
+def section_signoff(res: dict, settings: dict) -> dict:
+    """The sign-off block of the first page.
+
+    Parameters
+    ----------
+    res : dict
+        Loaded inputs (:func:`rafi.report.inputs.load_results`): ``model``, ``audit`` and
+        ``decision`` are read.
+    settings : dict
+        The machine's settings (``report.document`` and what :func:`revision_inputs` keeps).
+
+    Returns
+    -------
+    dict
+        ``fields`` (``[{key, label, value}]``, an empty value is a line to sign),
+        ``revision``, ``number``, ``inputs`` (a summary of what the revision covers).
+    """
+    doc = (settings.get("report") or {}).get("document") or {}
+    dec = res.get("decision") if isinstance(res.get("decision"), dict) else {}
+    inputs = revision_inputs(
+        deployed_id=dec.get("champion_id_after"),
+        rafi_model=res.get("model"),
+        audit=res.get("audit"),
+        settings=settings,
+    )
+    rev = revision(inputs)
+    values = {
+        "number": _text(doc.get("number")),
+        "revision": rev,
+        "prepared_by": _text(doc.get("prepared_by")),
+        "approved_by": _text(doc.get("approved_by")),
+        "approved_date": _text(doc.get("approved_date")),
+    }
+    return {
+        "fields": [{"key": k, "label": label, "value": values[k]} for k, label in FIELDS],
+        "revision": rev,
+        "number": values["number"],
+        "inputs": {
+            "deployed_model": inputs["deployed_model"][:12],
+            "rafi_model": inputs["rafi_model"][:12],
+            "raw_files": len(inputs["raw_files"]),
+        },
+    }
