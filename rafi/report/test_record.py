@@ -380,8 +380,8 @@ def _logs_table(logs: pd.DataFrame, ambient, one_run) -> dict:
             ]
         rows.append(row)
     heads = ["log"] + (["role", "speed"] if one_run is not None else [])
-    heads += ["first sample", "last sample", "duration", "samples", "sample period"]
-    widths = [21] + ([10, 11] if one_run is not None else []) + [17, 12, 7, 8, 7]
+    heads += ["first sample", "last sample", "duration", "samples", "period found"]
+    widths = [19] + ([13, 11] if one_run is not None else []) + [18, 10, 7, 8, 7]
     if one_run is not None:
         heads.append(DRIFT_HEAD)
         widths.append(10)
@@ -411,7 +411,7 @@ def _runs_table(rr: pd.DataFrame, ambient) -> dict:
         rows.append(row)
     heads = ["run", "role", "speed", "first sample", "last sample", "duration"]
     heads += [f"dz min ({UM})", f"dz max ({UM})", DRIFT_HEAD]
-    widths = [22, 10, 11, 17, 10, 7, 7, 7, 9]
+    widths = [20, 12, 11, 18, 10, 7, 7, 7, 9]
     if ambient:
         heads.append(VARIATION_HEAD)
         widths.append(9)
