@@ -200,6 +200,7 @@ def test_config_appendix_lists_only_what_differs_from_the_defaults(both):
     rows = settings_changes(machine_settings(CONFIG, "machining-center-b"))
     keys = [r["key"] for r in rows]
     assert "sample_period_s" in keys and "reference.rule" in keys
+    assert "input.columns" in keys and not any(k.startswith("input.columns.") for k in keys)  # one row
     assert not any(k.startswith(("models.", "qualification.", "deploy.")) for k in keys)
     row = rows[keys.index("sample_period_s")]
     assert (row["value"], row["default"]) == ("15", "5")
@@ -338,8 +339,9 @@ def test_equilibrium_flags_disagreement_and_a_fit_at_its_bound():
     ]
     eq = section_equilibrium(_eq_res(rows, {"a": 14400.0, "b": 14400.0, "c": 43093.6}), _Figs(), settings)
     assert len(eq["flags"]) == 2
-    assert "3\u00a0000\u00a0r/min" in eq["flags"][0] and "factor of 7.43" in eq["flags"][0]
-    assert "9\u00a0000\u00a0r/min" in eq["flags"][1] and "upper bound" in eq["flags"][1]
+    bound, apart = eq["flags"]
+    assert "9\u00a0000\u00a0r/min" in bound and "upper bound" in bound
+    assert "3\u00a0000\u00a0r/min" in apart and "factor 7.43" in apart and "6\u00a0000" not in apart
     cells = [[c["text"] for c in r] for r in eq["table"]["rows"]]
     assert cells[0][1].endswith("\u2020") and eq["table"]["rows"][0][1]["cls"] == "fail"
     assert not cells[1][1].endswith("\u2020")

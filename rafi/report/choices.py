@@ -152,13 +152,17 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
 MAX_LIST_ITEMS = 8
 
 
-def _flat(d, prefix: str = "") -> dict:
-    """``{"a.b.c": leaf}``; a non-empty dict is walked, anything else (lists too) is a leaf."""
+def _flat(d, ref=None, prefix: str = "") -> dict:
+    """``{"a.b.c": leaf}``: a dict is walked where ``ref`` (the defaults) has a non-empty dict
+    (without ``ref``: where the dict is not empty); anything else (lists, a mapping whose
+    default is ``{}`` such as ``input.columns``) is one leaf."""
     out = {}
     for k, v in d.items():
         key = f"{prefix}{k}"
-        if isinstance(v, dict) and v:
-            out.update(_flat(v, key + "."))
+        sub = ref.get(k) if isinstance(ref, dict) else None
+        walk = isinstance(sub, dict) and bool(sub) if ref is not None else bool(v)
+        if isinstance(v, dict) and walk:
+            out.update(_flat(v, sub, key + "."))
         else:
             out[key] = v
     return out
@@ -178,6 +182,8 @@ def setting_text(value) -> str:
         return "none"
     if isinstance(value, str):
         return value
+    if isinstance(value, dict) and value:  # a mapping without defaults: "key: value; ..."
+        return "; ".join(f"{k}: {setting_text(v)}" for k, v in value.items())
     if hasattr(value, "item") and not isinstance(value, (list, dict)):  # a numpy scalar
         value = value.item()
     text = yaml.safe_dump(value, default_flow_style=True, width=10**9, allow_unicode=True).strip()
@@ -209,7 +215,7 @@ def settings_changes(settings: dict, run: dict | None = None) -> list[dict]:
     rows = []
     for section, ref in (((run or {}), RUN_DEFAULTS), (settings, defaults)):
         flat_ref = _flat(ref)
-        for key, value in _flat({k: v for k, v in section.items() if k in ref}).items():
+        for key, value in _flat({k: v for k, v in section.items() if k in ref}, ref).items():
             missing = key not in flat_ref
             if not missing and flat_ref[key] == value:
                 continue

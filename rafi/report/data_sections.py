@@ -201,6 +201,21 @@ def disagreement(t_eq_s, t_eq_tau_s) -> float:
     return max(a, b) / min(a, b)
 
 
+def disagreement_text(apart: list[str]) -> list[str]:
+    """One sentence on the runs whose t_eq and tau cross-check differ by more than
+    :data:`DISAGREE_FACTOR` (``[]`` without any)."""
+    if not apart:
+        return []
+    runs = apart[0] if len(apart) == 1 else ", ".join(apart[:-1]) + " and " + apart[-1]
+    one = len(apart) == 1
+    return [
+        f"The detected equilibrium time and the \u03c4 cross-check differ by more than a factor of "
+        f"{DISAGREE_FACTOR:g} at {runs}: dz does not rise like a single first-order system on "
+        f"{'this run' if one else 'these runs'}, the two estimates do not confirm each other and "
+        f"t_eq is uncertain beyond the range in the table."
+    ]
+
+
 def _run_spans(runs: pd.DataFrame | None) -> dict:
     """``run_id -> span (s)`` of runs.csv: ``end_s - start_s``, else ``duration_s``."""
     if runs is None or not len(runs) or "run_id" not in runs:
@@ -255,7 +270,7 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
     eq = res["equilibrium"]
     spans = _run_spans(res.get("runs_csv"))
     max_rest = float(((settings or {}).get("runs") or {}).get("max_leading_rest_s") or 0.0)
-    rows, flags = [], []
+    rows, flags, apart = [], [], []
     if eq is not None:
         for i in eq.index:
             r = eq.loc[i]
@@ -284,12 +299,9 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
             if isnum(ratio) and ratio > DISAGREE_FACTOR:
                 t_eq_cell = cell(t_eq_cell + NBSP + "\u2020", "fail")
                 tau_eq_cell = cell(tau_eq_cell, "fail")
-                flags.append(
-                    f"{speed}: the detected equilibrium time ({fmt_num(r.t_eq_s, 0, 's')}) and the "
-                    f"\u03c4 cross-check ({fmt_num(r.t_eq_tau_s, 0, 's')}) differ by a factor of "
-                    f"{fmt_num(ratio, 2)} (more than {DISAGREE_FACTOR:g}): dz does not rise like a "
-                    "single first-order system on this run, the two estimates do not confirm each "
-                    "other and t_eq is uncertain beyond its range in the table."
+                apart.append(
+                    f"{speed} ({fmt_num(r.t_eq_s, 0, 's')} against {fmt_num(r.t_eq_tau_s, 0, 's')}, "
+                    f"factor {fmt_num(ratio, 2)})"
                 )
             row = [
                 speed,
@@ -330,7 +342,7 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
         "figure": fig,
         "method": method,
         "description": equilibrium_description((settings or {}).get("equilibrium")),
-        "flags": flags,
+        "flags": flags + disagreement_text(apart),
         "factor": f"{DISAGREE_FACTOR:g}",
     }
 
