@@ -8,6 +8,8 @@ band (the expected max |noise| of the run: a residual inside it is at the noise)
 
 from __future__ import annotations
 
+import re
+
 import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.font_manager import FontProperties
@@ -46,16 +48,33 @@ def _text_width_in(text: str, size_pt: float) -> float:
     return TextPath((0, 0), text, prop=prop).get_extents().width / 72.0
 
 
+def _pieces(word: str, width_in: float, size: float) -> list[str]:
+    """``word`` cut after ``_``, ``-``, ``#`` or ``/`` (else anywhere) into pieces no wider than
+    ``width_in``: a run id longer than a panel is wide."""
+    if _text_width_in(word, size) <= width_in:
+        return [word]
+    parts = re.findall(r"[^_#/-]*[_#/-]?", word)
+    out = [""]
+    for part in (p for p in parts if p):
+        for piece in [part] if _text_width_in(part, size) <= width_in else list(part):
+            if out[-1] and _text_width_in(out[-1] + piece, size) > width_in:
+                out.append(piece)
+            else:
+                out[-1] += piece
+    return out
+
+
 def _wrap(title: str, width_in: float) -> str:
-    """``title`` wrapped at spaces onto lines no wider than ``width_in`` (measured at the axes
-    title size), so a panel title never runs into the next panel."""
+    """``title`` wrapped at spaces (a word wider than a line is cut, :func:`_pieces`) onto lines no
+    wider than ``width_in`` at the axes title size, so a panel title never runs into the next panel."""
     size = float(STYLE["axes.titlesize"])
     lines: list[str] = []
     for word in title.split(" "):
-        if lines and _text_width_in(lines[-1] + " " + word, size) <= width_in:
-            lines[-1] += " " + word
-        else:
-            lines.append(word)
+        for k, piece in enumerate(_pieces(word, width_in, size)):
+            if k == 0 and lines and _text_width_in(lines[-1] + " " + piece, size) <= width_in:
+                lines[-1] += " " + piece
+            else:
+                lines.append(piece)
     return "\n".join(lines)
 
 
