@@ -12,8 +12,8 @@ import re
 
 import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.backends.backend_agg import RendererAgg
 from matplotlib.font_manager import FontProperties
-from matplotlib.textpath import TextPath
 
 from rafi.report.plot_layout import (
     BOTTOM_IN,
@@ -42,10 +42,16 @@ INNER_GAP_IN = 0.08
 TITLE_LINE_IN = 0.16
 
 
+_RENDERER: list = []
+
+
 def _text_width_in(text: str, size_pt: float) -> float:
-    """Width (inches) of ``text`` set in the figures' font at ``size_pt``."""
+    """Width (inches) of ``text`` set in the figures' font at ``size_pt`` (Agg's text layout at
+    72 dpi, the one the figures are drawn with)."""
+    if not _RENDERER:
+        _RENDERER.append(RendererAgg(1, 1, 72))
     prop = FontProperties(family=STYLE["font.family"], size=size_pt)
-    return TextPath((0, 0), text, prop=prop).get_extents().width / 72.0
+    return _RENDERER[0].get_text_width_height_descent(text, prop, ismath=False)[0] / 72.0
 
 
 def _pieces(word: str, width_in: float, size: float) -> list[str]:
