@@ -69,8 +69,16 @@ def _time_in_band(t_s: np.ndarray, smooth: np.ndarray, plateau: float, band: flo
     return float(t_s[last_out + 1])
 
 
+#: Bounds of the first-order fit's tau: ``TAU_MIN_S <= tau <= TAU_MAX_SPANS x`` the fitted span.
+TAU_MIN_S = 1.0
+TAU_MAX_SPANS = 50.0
+
+
 def first_order_fit(t_s: np.ndarray, dz: np.ndarray) -> tuple[float, float, float]:
-    """Fit ``dz = c + A (1 - exp(-t / tau))``; return ``(c, A, tau)`` (NaN on failure)."""
+    """Fit ``dz = c + A (1 - exp(-t / tau))``; return ``(c, A, tau)`` (NaN on failure).
+
+    ``tau`` is bounded to ``[TAU_MIN_S, TAU_MAX_SPANS x span]``.
+    """
     ok = np.isfinite(t_s) & np.isfinite(dz)
     t, z = t_s[ok] - t_s[ok][0], dz[ok]
     if len(t) < 10:
@@ -87,7 +95,7 @@ def first_order_fit(t_s: np.ndarray, dz: np.ndarray) -> tuple[float, float, floa
             t,
             z,
             p0=(float(z[0]), amp0 or 1.0, span / 4),
-            bounds=([-np.inf, -np.inf, 1.0], [np.inf, np.inf, 50 * span]),
+            bounds=([-np.inf, -np.inf, TAU_MIN_S], [np.inf, np.inf, TAU_MAX_SPANS * span]),
             maxfev=5000,
         )
     except (RuntimeError, ValueError):

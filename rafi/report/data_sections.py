@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from rafi.method.equilibrium import TAU_MAX_SPANS, TAU_MIN_S
 from rafi.method.paper import T_EQ_S
 from rafi.report.format import (
     DASH,
@@ -158,13 +159,11 @@ def input_warnings(status: dict) -> list[dict]:
     return sorted(rows, key=lambda w: (w["confirmed"], w["file"], w["check"]))
 
 
-#: Bounds of the first-order fit of :func:`rafi.method.equilibrium.first_order_fit`:
-#: ``TAU_MIN_S <= tau <= TAU_MAX_SPANS x`` the fitted span (spindle start to the run's last
-#: sample). ``equilibrium.csv`` does not record the span: the report takes it from
+#: The bounds of the first-order fit (:data:`rafi.method.equilibrium.TAU_MIN_S`,
+#: :data:`~rafi.method.equilibrium.TAU_MAX_SPANS`) apply to the fitted span (spindle start to the
+#: run's last sample). ``equilibrium.csv`` does not record the span: the report takes it from
 #: ``runs.csv`` (``end_s - start_s``), less at most ``runs.max_leading_rest_s`` before the
 #: spindle start.
-TAU_MIN_S = 1.0
-TAU_MAX_SPANS = 50.0
 #: A tau within this fraction of a bound is reported as at the bound.
 BOUND_TOL = 0.05
 #: The detected t_eq and the tau cross-check disagree when one exceeds the other by more
