@@ -31,7 +31,7 @@ The profile (from the largest measured fleet): job count per rule (Snakemake's j
 the rule's ``benchmark:`` seconds per job, and each job's start-up: a no-op ``script:`` job
 timed in a throw-away workflow (Python start, Snakemake's preamble, the benchmark wrapper)
 plus the import time of the rule script's imports (``_glue`` and the ``import`` statements of
-the script outside functions), so ``work = s per job - start-up``.
+the script, function bodies included), so ``work = s per job - start-up``.
 
 Results: ``benchmarks/results/fleet.json`` and ``fleet.md``.
 """
@@ -361,7 +361,9 @@ def noop_job_seconds(workdir: Path, jobs: int = 8) -> dict:
 
 
 def script_imports(script: Path) -> list[str]:
-    """The import statements a workflow script runs (outside function bodies), as source lines."""
+    """The import statements a workflow script runs, as source lines (also those in its function
+    bodies: a script of a rule that runs several steps imports each step's modules in its
+    function, and runs every function)."""
     tree = ast.parse(script.read_text())
     out: list[str] = []
 
@@ -371,8 +373,6 @@ def script_imports(script: Path) -> list[str]:
                 isinstance(node, ast.ImportFrom) and node.module == "__future__"
             ):
                 out.append(ast.unparse(node))
-            elif isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef | ast.ClassDef):
-                continue
             else:
                 for field in ("body", "orelse", "finalbody", "handlers"):
                     visit(getattr(node, field, []) or [])

@@ -450,17 +450,15 @@ def bad_project(tmp_path_factory) -> Path:
 
 
 def test_a_user_error_in_a_job_shows_its_message_once_and_no_traceback(bad_project):
-    done = _snakemake(bad_project, "results/tapping-center-a/clean/zz_bad.parquet", "-q")
+    done = _snakemake(bad_project, "results/tapping-center-a/clean", "-q")
     out = done.stdout + done.stderr
     assert done.returncode != 0
     assert out.count("field of 10000 characters") == 1 and "RAFI clean (machine=tapping-center-a" in out
     assert "Traceback" not in out and "RawFormatError" not in out
     assert "CalledProcessError" in out  # what remains: Snakemake's own block for a failed job
-    log = (bad_project / "logs" / "tapping-center-a" / "clean" / "zz_bad.log").read_text(encoding="utf-8")
+    log = (bad_project / "logs" / "tapping-center-a" / "clean.log").read_text(encoding="utf-8")
     assert "Traceback (most recent call last)" in log
-    again = _snakemake(
-        bad_project, "-q", "--config", "debug=true", "--", "results/tapping-center-a/clean/zz_bad.parquet"
-    )
+    again = _snakemake(bad_project, "-q", "--config", "debug=true", "--", "results/tapping-center-a/clean")
     assert "Traceback (most recent call last)" in again.stdout + again.stderr
 
 

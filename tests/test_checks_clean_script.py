@@ -3,7 +3,8 @@ quarantines that file with a one-line reason (traceback in the log), warnings be
 and a clean table that cannot be read back quarantines the file too.
 
 The script is run as Snakemake runs it (``snakemake`` injected as a global), with a stand-in
-object carrying the params the rule passes.
+object carrying the params the rule passes (one machine with one raw file; the machine-level
+job and its cache: tests/test_clean_cache.py).
 """
 
 from __future__ import annotations
@@ -29,8 +30,9 @@ def _smk(tmp_path: Path, raw: Path, mode: str = "quarantine") -> SimpleNamespace
     out = tmp_path / "results" / A / "clean"
     return SimpleNamespace(
         params=SimpleNamespace(
-            raw_path=str(raw),
-            raw_stamp=None,
+            raw_paths={raw.stem: str(raw)},
+            raw_stamps={raw.stem: None},
+            cache=str(tmp_path / "results" / A / ".clean_cache"),
             input_spec={"format": "native"},
             sample_period_s=5,
             clean={
@@ -48,14 +50,17 @@ def _smk(tmp_path: Path, raw: Path, mode: str = "quarantine") -> SimpleNamespace
             },
         ),
         config={"on_bad_input": mode},
+        input=SimpleNamespace(code=[], glue=str(SCRIPT.parent / "_glue.py")),
+        # the rule's output is the folder; the per-file paths are for the assertions
         output=SimpleNamespace(
+            folder=str(out),
             parquet=str(out / f"{raw.stem}.parquet"),
             audit=str(out / f"{raw.stem}.audit.csv"),
             summary=str(out / f"{raw.stem}.summary.csv"),
         ),
         log=[str(tmp_path / "logs" / f"{raw.stem}.log")],
         rule="clean",
-        wildcards={"machine": A, "stem": raw.stem},
+        wildcards={"machine": A},
     )
 
 

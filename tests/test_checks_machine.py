@@ -269,7 +269,7 @@ def test_the_workflow_lists_warnings_and_leaves_out_a_duplicate(tmp_path):
     (res / "clean" / "train_15000rpm.parquet").write_bytes(b"not a parquet file")
     os.utime(res / "input_status.json")  # runs must run again
     third = _run(
-        proj, "snakemake", "--cores", "2", "--config", "on_bad_input=quarantine", "-R", "runs", "--", target
+        proj, "snakemake", "--cores", "2", "--config", "on_bad_input=quarantine", "-R", "method", "--", target
     )
     assert third.returncode == 0, third.stdout[-3000:] + third.stderr[-3000:]
     assert "train_15000rpm.csv" not in set(pd.read_csv(res / "runs.csv")["file"])

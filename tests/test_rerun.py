@@ -52,6 +52,32 @@ def _outputs(proj: Path) -> dict[str, int]:
     return found
 
 
+#: What `snakemake --report` must show (workflow/report/*.rst): file of each report() output.
+REPORTED = (
+    f"reports/{MACHINE}/qualification.html",
+    f"reports/{MACHINE}/qualification.pdf",
+    f"results/{MACHINE}/comparison/summary.csv",
+    f"results/{MACHINE}/validation/summary.csv",
+    f"results/{MACHINE}/registry/decision.json",
+    f"results/{MACHINE}/audit.csv",
+    "reports/index.html",
+)
+
+
+def _check_snakemake_report(proj: Path) -> None:
+    """`snakemake --report` of a finished run lists the qualification reports and the key
+    tables with their captions, and changes no output (issue 15)."""
+    before = _outputs(proj)
+    done = _run(proj, "snakemake", "--report", "report.html")
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    assert "ERROR" not in done.stderr, done.stderr[-3000:]  # docutils errors in a caption
+    html = (proj / "report.html").read_text(encoding="utf-8")
+    missing = [f for f in REPORTED if f'"{f}": {{"name"' not in html]
+    assert not missing, f"not in the report's results: {missing}"
+    assert f"Registry decision of machine <strong>{MACHINE}</strong>" in html
+    assert _outputs(proj) == before
+
+
 @pytest.fixture
 def project(tmp_path: Path) -> Path:
     proj = copy_project(tmp_path / "proj")
@@ -66,6 +92,7 @@ def test_snakemake_then_nightly_then_snakemake_rerun_nothing(project: Path):
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
     built = _outputs(project)
     assert f"reports/{MACHINE}/qualification.html" in built
+    _check_snakemake_report(project)
 
     night = _run(project, "rafi.cli", "nightly", "--directory", str(project), "--cores", "2")
     assert night.returncode in (0, 4), night.stdout[-3000:] + night.stderr[-3000:]

@@ -18,7 +18,9 @@
 #              machine_skipped(machine), rejected_input_message(), say_rejected_input()
 #   targets    machine_targets(machine, what), all_pipeline_tables(), all_targets(),
 #              nightly_targets() (input functions: they wait for the checkpoint input_status)
-#   inputs     clean_files(kind), rafi_code(script), script_helpers()
+#   inputs     clean_dir(machine), clean_cache_dir(machine), machine_raw_paths(wildcards),
+#              machine_raw_inputs(wildcards), machine_raw_stamps(wildcards), rafi_code(script),
+#              script_helpers()
 #   compare    comparison_path(name, machine), comparison_outputs(machine)
 #   registry   nightly_settings(machine), qualification_gates(machine),
 #              registry_path(name, machine), candidate_model(wildcards)
@@ -29,6 +31,7 @@ import importlib.util
 import logging
 import os
 from pathlib import Path
+from types import SimpleNamespace
 
 from snakemake.exceptions import WorkflowError
 from snakemake.logging import logger as snakemake_logger
@@ -171,6 +174,27 @@ def raw_stamp(wildcards):
     return _RAW_STAMPS[path]
 
 
+def machine_raw_paths(wildcards):
+    """Param of the clean step: log id -> raw path of every raw file of ``{machine}``."""
+    return {stem: str(path) for stem, path in sorted(RAW.get(wildcards.machine, {}).items())}
+
+
+def machine_raw_inputs(wildcards):
+    """Input function (clean step): the raw files of ``{machine}`` except those whose path holds
+    braces, which Snakemake would read as wildcards (``machine_raw_stamps`` follows them)."""
+    return [p for p in raw_files(wildcards.machine) if not has_braces(p)]
+
+
+def machine_raw_stamps(wildcards):
+    """Param of the clean step: log id -> content hash (``raw_stamp``) of every raw file of
+    ``{machine}``: a file whose content changed re-runs the machine's clean job even if its
+    size and mtime were kept."""
+    return {
+        stem: raw_stamp(SimpleNamespace(machine=wildcards.machine, stem=stem))
+        for stem in sorted(RAW.get(wildcards.machine, {}))
+    }
+
+
 # --------------------------------------------------------------------------- paths
 
 
@@ -231,16 +255,17 @@ def bench_path(step, machine="{machine}"):
     return f"{RESULTS_DIR}/{machine}/benchmarks/{step}.tsv"
 
 
-def clean_files(kind="clean_parquet"):
-    """Input function: the per-file clean outputs of ``{machine}`` (one per raw file).
+def clean_dir(machine="{machine}"):
+    """The clean step's output folder ``results/<machine>/clean/``: per raw file (log id
+    ``<stem>``) ``<stem>.parquet``, ``<stem>.audit.csv`` and ``<stem>.summary.csv`` (the
+    ``clean_*`` templates of ``OUTPUTS``), all written by one job per machine."""
+    return f"{RESULTS_DIR}/{machine}/clean"
 
-    ``kind`` is ``clean_parquet``, ``clean_audit`` or ``clean_summary``.
-    """
 
-    def _inputs(wildcards):
-        return [out(kind, wildcards.machine, stem) for stem in sorted(RAW.get(wildcards.machine, {}))]
-
-    return _inputs
+def clean_cache_dir(machine="{machine}"):
+    """``results/<machine>/.clean_cache/``: the clean step's content-addressed cache
+    (``rafi.ops.clean_cache``), where an unchanged raw file's outputs come back from."""
+    return f"{RESULTS_DIR}/{machine}/.clean_cache"
 
 
 # --------------------------------------------------------------------------- code dependencies

@@ -22,7 +22,13 @@ rule replay:
         glue=script_helpers(),
     output:
         table=deploy_path("replay.parquet"),
-        summary=deploy_path("replay_summary.csv"),
+        summary=report(
+            deploy_path("replay_summary.csv"),
+            caption="../report/replay_summary.rst",
+            category="Replay",
+            subcategory="{machine}",
+            labels={"machine": "{machine}", "table": "deploy/replay_summary.csv"},
+        ),
     log:
         log_path("replay"),
     benchmark:

@@ -18,7 +18,12 @@ rule fleet_index:
         code=rafi_code("fleet_index"),
         glue=script_helpers(),
     output:
-        html=FLEET_INDEX,
+        html=report(
+            FLEET_INDEX,
+            caption="../report/fleet_index.rst",
+            category="Fleet",
+            labels={"file": "index.html"},
+        ),
     log:
         f"{LOGS_DIR}/fleet_index.log",
     conda:

@@ -13,15 +13,24 @@
 
 
 checkpoint input_status:
-    """Usable and rejected raw files of one machine; whether the machine is skipped."""
+    """Usable and rejected raw files of one machine; whether the machine is skipped; its
+    audit.csv (the per-file audit summaries stacked)."""
     input:
-        summaries=clean_files("clean_summary"),
-        # the checks' warnings (audit rows with action warning)
-        audits=clean_files("clean_audit"),
+        # per file: <stem>.summary.csv, and the checks' warnings (audit rows with action
+        # warning) in <stem>.audit.csv
+        clean=clean_dir(),
         code=rafi_code("input_status"),
         glue=script_helpers(),
     output:
         status=input_status_path(),
+        # the per-file audit summaries stacked (was rule audit: one job less per machine)
+        audit=report(
+            out("audit"),
+            caption="../report/audit.rst",
+            category="Data audit",
+            subcategory="{machine}",
+            labels={"machine": "{machine}", "table": "audit.csv"},
+        ),
     log:
         log_path("input_status"),
     conda:

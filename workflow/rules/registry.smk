@@ -19,8 +19,20 @@ rule decide:
         code=rafi_code("registry_decide"),
         glue=script_helpers(),
     output:
-        decision=registry_path("decision.json"),
-        comparison=registry_path("comparison.csv"),
+        decision=report(
+            registry_path("decision.json"),
+            caption="../report/registry_decision.rst",
+            category="Registry decision",
+            subcategory="{machine}",
+            labels={"machine": "{machine}", "file": "registry/decision.json"},
+        ),
+        comparison=report(
+            registry_path("comparison.csv"),
+            caption="../report/registry_comparison.rst",
+            category="Registry decision",
+            subcategory="{machine}",
+            labels={"machine": "{machine}", "file": "registry/comparison.csv"},
+        ),
     log:
         log_path("decide"),
     benchmark:

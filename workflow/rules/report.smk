@@ -2,15 +2,15 @@
 #
 # The report job only presents: every number it shows is read from a table a rule wrote and
 # every figure is a file of report_figures; it evaluates no model and draws nothing.
-#   report_tables   what the report shows from evaluating the model (rafi.report.tables, with
-#                   RafiModel.predict and rafi.method.fuzzy): results/<machine>/report/
-#                   training_fit.parquet, training_fit.csv, fuzzy_example.json; after fit
-#   report_figures  the figures, by group, as soon as their inputs exist (rafi.report.figures):
-#                     pipeline    the method's figures: after validate, beside compare
-#                     comparison  the model family's figures: after compare, beside decide
-#                   output: the folder results/<machine>/report/figures/<group>/ (directory():
-#                   which figures a group has depends on the data) with one PNG or SVG file
-#                   per figure (report.figure_format) and index.csv (key,file)
+#   report_figures  one job per machine (after method, compare and replay), two steps:
+#                   report_tables: what the report shows from evaluating the model
+#                   (rafi.report.tables, with RafiModel.predict and rafi.method.fuzzy):
+#                   results/<machine>/report/training_fit.parquet, training_fit.csv,
+#                   fuzzy_example.json; then the figures of every group (rafi.report.figures:
+#                   pipeline, comparison, replay), each to the folder
+#                   results/<machine>/report/figures/<group>/ (directory(): which figures a
+#                   group has depends on the data) with one PNG or SVG file per figure
+#                   (report.figure_format) and index.csv (key,file)
 #   report          the HTML (jinja2) and the PDF (WeasyPrint, from the same HTML string),
 #                   figures embedded from the files (rafi.report.render)
 #
@@ -24,45 +24,27 @@
 # report_table_path(), report_figures_path(), report_figure_inputs(), report_figure_settings().
 
 
-rule report_tables:
-    """What the report shows from evaluating the model: each training speed's fit on its own
-    training runs (series + RMSE) and the worked example of the fuzzy blending."""
+rule report_figures:
+    """What the report shows, drawn ahead of it, in one job per machine: first the tables from
+    evaluating the model (each training speed's fit on its own training runs, series + RMSE, and
+    the worked example of the fuzzy blending; formerly rule report_tables), then the figures of
+    every group (one file per figure + index.csv in the group's folder)."""
     input:
-        model=out("model"),
-        table=out("runs_csv"),
-        frame=out("runs_parquet"),
-        diagnostics=out("diagnostics"),
-        code=rafi_code("report_tables"),
-        glue=script_helpers(),
+        unpack(report_figure_inputs),
     output:
         fit=report_table_path("training_fit"),
         rmse=report_table_path("training_fit_rmse"),
         fuzzy_example=report_table_path("fuzzy_example"),
+        folders=[directory(report_figures_path(group)) for group in REPORT_FIGURE_GROUPS],
     log:
-        log_path("report_tables"),
+        report_tables=log_path("report_tables"),
+        report_figures=log_path("report_figures"),
     benchmark:
-        bench_path("report_tables")
-    conda:
-        "../envs/rafi.yaml"
-    script:
-        "../scripts/report_tables.py"
-
-
-rule report_figures:
-    """Figures of one group of the report, drawn ahead of it: one file per figure + index.csv."""
-    input:
-        unpack(report_figure_inputs),
-    output:
-        folder=directory(report_figures_path()),
-    log:
-        log_path("report_figures_{group}"),
-    benchmark:
-        bench_path("report_figures_{group}")
-    wildcard_constraints:
-        group="|".join(REPORT_FIGURE_GROUPS),
+        bench_path("report_figures")
     conda:
         "../envs/rafi.yaml"
     params:
+        groups=list(REPORT_FIGURE_GROUPS),
         settings=report_figure_settings,
     script:
         "../scripts/report_figures.py"

@@ -4,7 +4,7 @@
 # this file after common.smk and before the rules.
 #   report_inputs(wildcards), report_settings(machine), REPORT_MODEL_TABLES,
 #   report_table_path(name, machine), REPORT_FIGURE_GROUPS, report_figures_path(group, machine),
-#   report_figure_inputs(wildcards), report_figure_settings(wildcards)
+#   report_figure_inputs(wildcards), report_figure_settings(wildcards), REPORT_MODEL_TABLE_INPUTS
 
 
 #: Tables of design.md the report reads (runs.parquet: only the test record's spans, ambient
@@ -90,19 +90,33 @@ def _report_input(name, machine):
     return out(name, machine)
 
 
+#: What the report's tables from the model (rafi.report.tables) read: the first step of rule
+#: report_figures, whose figures then draw from them.
+REPORT_MODEL_TABLE_INPUTS = ("model", "runs_csv", "runs_parquet", "diagnostics")
+
+
 def report_figure_inputs(wildcards):
-    """Named inputs of report_figures - the tables its group draws from, and the code."""
+    """Named inputs of report_figures (one job per machine: the report's tables from the model,
+    then every figure group) - the tables they read, and the code. The tables the job writes
+    itself (``REPORT_MODEL_TABLES``) are not inputs."""
     machine = wildcards.machine
-    inputs = {name: _report_input(name, machine) for name in REPORT_FIGURE_GROUPS[wildcards.group]}
+    names = [*REPORT_MODEL_TABLE_INPUTS, *(n for group in REPORT_FIGURE_GROUPS.values() for n in group)]
+    inputs = {name: _report_input(name, machine) for name in names if name not in REPORT_MODEL_TABLES}
     inputs["code"] = rafi_code("report_figures")
     inputs["glue"] = script_helpers()
     return inputs
 
 
 def report_figure_settings(wildcards):
+    """Figure group -> the settings its figures depend on (``_group_figure_settings``)."""
+    return {group: _group_figure_settings(wildcards.machine, group) for group in REPORT_FIGURE_GROUPS}
+
+
+def _group_figure_settings(machine, group):
     """The settings the figures of a group depend on: ``report.figure_format`` (every group),
     ``report.coolant_sensors`` (pipeline), ``qualification`` (comparison: the gate lines) and
     ``deploy.clamp_um`` (replay: the clamp lines)."""
+    wildcards = SimpleNamespace(machine=machine, group=group)
     shown = report_settings(wildcards.machine)
     pipeline = wildcards.group == "pipeline"
     settings = {

@@ -23,6 +23,7 @@ import logging
 import sys
 import time
 from pathlib import Path
+from types import SimpleNamespace
 
 import pandas as pd
 
@@ -74,6 +75,15 @@ def step(smk):
                 raise SystemExit(1) from None
             raise
         print(f"[{smk.rule}] done in {time.perf_counter() - started:.1f} s", flush=True)
+
+
+def part(smk, name: str) -> SimpleNamespace:
+    """One step of a rule that runs several steps in one process (rules method and
+    report_figures), for :func:`step`: the step's own log (the rule's log named ``name``) and
+    name, so its log file and its error line read as those of a rule of its own."""
+    return SimpleNamespace(
+        log=[getattr(smk.log, name)], rule=name, wildcards=smk.wildcards, config=smk.config
+    )
 
 
 def read_runs(smk) -> tuple[pd.DataFrame, pd.DataFrame]:

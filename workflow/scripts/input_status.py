@@ -1,4 +1,5 @@
-"""Checkpoint input_status: clean summaries and audits of a machine -> results/<machine>/input_status.json.
+"""Checkpoint input_status: clean summaries and audits of a machine -> results/<machine>/input_status.json
+and results/<machine>/audit.csv (the summaries stacked; formerly rule audit).
 
 Per file: usable or quarantined (the clean summaries). Machine level (rafi.readers.checks_machine):
 byte-identical copies and probe signs against the configured or majority sign; every warning of
@@ -10,14 +11,19 @@ from pathlib import Path
 from _glue import step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
-    from rafi.artefact import json_text, write_text_atomic
+    import pandas as pd
+
+    from rafi.artefact import json_text, write_csv_atomic, write_text_atomic
+    from rafi.method.audit import stack_summaries
+    from rafi.ops.clean_cache import files_in
     from rafi.readers.checks_machine import apply_machine_checks, audit_warnings, read_rows, warning_lines
     from rafi.readers.quarantine import is_skipped, machine_input_status
 
     smk = snakemake  # noqa: F821
-    base = machine_input_status(smk.params.machine, smk.input.summaries)
-    rows = [row for path in smk.input.summaries for row in read_rows(path)]
-    warnings = [w for path in smk.input.audits for w in audit_warnings(read_rows(path))]
+    summaries = files_in(smk.input.clean, "summary")
+    base = machine_input_status(smk.params.machine, summaries)
+    rows = [row for path in summaries for row in read_rows(path)]
+    warnings = [w for path in files_in(smk.input.clean, "audit") for w in audit_warnings(read_rows(path))]
     status = apply_machine_checks(
         base,
         rows,
@@ -45,4 +51,11 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         if page.exists():
             page.unlink()
             print(f"removed {page} (the machine has a usable file again)", flush=True)
+    # audit.csv: the per-file summaries stacked (one row per raw file)
+    audit = stack_summaries(pd.read_csv(p) for p in summaries)
+    quarantined = audit[audit["status"] != "ok"]
+    print(f"audit: {len(audit)} files, {len(quarantined)} quarantined", flush=True)
+    for file, reason in zip(quarantined["file"], quarantined["reason"]):
+        log.warning("quarantined %s: %s", file, reason)
+    write_csv_atomic(audit, smk.output.audit)
     write_text_atomic(smk.output.status, json_text(status))

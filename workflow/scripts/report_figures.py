@@ -1,25 +1,56 @@
-"""Rule report_figures: one group of the report's figures, drawn ahead of the report as files.
+"""Rule report_figures: what the report shows, drawn ahead of it, in one process per machine.
 
-All the work is in :func:`rafi.report.figures.draw_group`; this script maps
-``snakemake.input``/``params`` onto it. The group's folder (``output.folder``) gets one
-PNG or SVG file per figure and ``index.csv``, read by the report (:mod:`rafi.report.embed`).
+1. report_tables (log ``report_tables``): what the report shows from evaluating the model, as
+   tables (:mod:`rafi.report.tables`: the model's own predict and fuzzy weights), written
+   atomically: training_fit.parquet, training_fit.csv, fuzzy_example.json.
+2. report_figures (log ``report_figures``): every figure group
+   (:func:`rafi.report.figures.draw_group`), each into its folder (``output.folders``, in the
+   order of ``params.groups``): one PNG or SVG file per figure and ``index.csv``, read by the
+   report (:mod:`rafi.report.embed`). The pipeline group draws from the tables of step 1.
 """
 
-from _glue import step
+import json
 
-with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
+from _glue import part, step
+
+smk = snakemake  # noqa: F821 - injected by Snakemake
+
+with step(part(smk, "report_tables")) as log:
+    import pandas as pd
+
+    from rafi.artefact import jsonable, write_csv_atomic, write_parquet_atomic, write_text_atomic
+    from rafi.report import tables
+
+    runs = pd.read_csv(smk.input.runs_csv)
+    frames = pd.read_parquet(smk.input.runs_parquet)
+    print(
+        f"read {smk.input.runs_csv}: {len(runs)} runs; {smk.input.runs_parquet}: {len(frames)} rows",
+        flush=True,
+    )
+    doc = json.loads(open(smk.input.model, encoding="utf-8").read())
+    diagnostics = pd.read_csv(smk.input.diagnostics)
+    fit = tables.training_fit(doc, runs, frames)
+    rmse = tables.training_rmse(fit)
+    example = tables.fuzzy_example(doc, diagnostics, runs, frames)
+    print(rmse.to_string(index=False), flush=True)
+    write_parquet_atomic(fit, smk.output.fit)
+    write_csv_atomic(rmse, smk.output.rmse)
+    write_text_atomic(smk.output.fuzzy_example, json.dumps(jsonable(example), indent=2) + "\n")
+
+with step(part(smk, "report_figures")) as log:
     from rafi.report.figures import FIGURE_GROUPS, draw_group
 
-    smk = snakemake  # noqa: F821
-    group = smk.wildcards.group
-    settings = smk.params.settings
-    keys = draw_group(
-        {k: str(v) for k, v in smk.input.items() if k in FIGURE_GROUPS[group]},
-        group,
-        smk.output.folder,
-        figure_format=settings["report"]["figure_format"],
-        coolant_sensors=list(settings["report"]["coolant_sensors"]),
-        gates=dict(settings["qualification"]),
-        deploy=dict(settings.get("deploy") or {}),
-    )
-    print(f"{len(keys)} figure(s): {', '.join(keys)}", flush=True)
+    paths = {k: str(v) for k, v in smk.input.items()}
+    paths.update(training_fit=smk.output.fit, fuzzy_example=smk.output.fuzzy_example)
+    for group, folder in zip(smk.params.groups, smk.output.folders, strict=True):
+        settings = smk.params.settings[group]
+        keys = draw_group(
+            {k: paths[k] for k in FIGURE_GROUPS[group] if k in paths},
+            group,
+            folder,
+            figure_format=settings["report"]["figure_format"],
+            coolant_sensors=list(settings["report"]["coolant_sensors"]),
+            gates=dict(settings["qualification"]),
+            deploy=dict(settings.get("deploy") or {}),
+        )
+        print(f"{group}: {len(keys)} figure(s): {', '.join(keys)}", flush=True)

@@ -1,0 +1,188 @@
+"""The clean step of one machine in one process: every raw file -> its three per-file outputs.
+
+Rule ``clean`` (``workflow/scripts/clean.py``) calls :func:`clean_machine`. Per raw file, in
+log-id order: a file whose outputs are in the cache (:mod:`rafi.ops.clean_cache`: same name,
+content, settings and code) gets them back from it; any other file is read, checked and
+cleaned by :func:`clean_file`, exactly as the former one-job-per-file rule did:
+
+- with ``on_bad_input=quarantine`` ANY failure reading, checking or cleaning the file (a
+  RawFormatError, but also an OSError, a pandas ValueError, a MemoryError, ...) quarantines the
+  file with a one-line reason (the traceback goes to the log); so does a clean table that
+  cannot be read back;
+- with ``fail`` the exception propagates: the job fails with the message (file, line, column)
+  on the first bad file, in log-id order.
+
+A reason ends with ``[<check id>]`` when the error is a documented check
+(``docs/raw-format.md``); ``[unreadable]`` for an OSError.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+import rafi.artefact
+import rafi.method.audit
+import rafi.method.clean
+import rafi.readers.logs
+from rafi.errors import RawFormatError
+from rafi.ops.clean_cache import CleanCache, cache_key, output_paths
+from rafi.readers.checks import check_file
+
+
+@dataclass(frozen=True)
+class CleanSettings:
+    """What the clean step of a machine uses (the rule's params)."""
+
+    input_spec: Mapping
+    sample_period_s: float
+    clean: Mapping
+    checks: Mapping
+
+    def as_key(self) -> dict:
+        """The settings as plain data (part of the cache key)."""
+        return {
+            "input_spec": dict(self.input_spec),
+            "sample_period_s": self.sample_period_s,
+            "clean": dict(self.clean),
+            "checks": dict(self.checks),
+        }
+
+
+def _write(outputs: Mapping[str, Path], clean, actions, summary) -> None:
+    rafi.artefact.write_parquet_atomic(clean, outputs["parquet"])
+    rafi.artefact.write_csv_atomic(actions, outputs["audit"])
+    rafi.artefact.write_csv_atomic(summary, outputs["summary"])
+
+
+def clean_file(
+    src: Path,
+    outputs: Mapping[str, Path],
+    settings: CleanSettings,
+    *,
+    fail_mode: bool,
+    log: logging.Logger,
+    say: Callable[[str], None] = print,
+    sha: str | None = None,
+) -> str:
+    """Read, check and clean one raw file; write its outputs; return ``ok`` or ``quarantined``.
+
+    ``say`` gets the progress lines (the rule's log); ``log`` the warnings. ``sha`` is the
+    file's SHA-256 if already known.
+    """
+    spec = settings.input_spec
+    cfg = settings.clean
+    digest = ""
+
+    def quarantine(reason: str) -> str:
+        say(f"  QUARANTINED: {reason}")
+        _write(outputs, *rafi.method.audit.quarantined(src.name, digest, reason))
+        return "quarantined"
+
+    try:
+        digest = sha or rafi.readers.logs.sha256_file(src)
+        say(f"read {src} (format {spec.get('format', 'native')}, sha256 {digest[:12]})")
+        frame = rafi.readers.logs.read_log(src, spec)
+        rows_in = len(frame)
+        say(f"  {rows_in} rows, {frame.shape[1]} columns")
+        report = check_file(frame, src, **settings.checks)
+        for w in report.warnings:
+            log.warning("%s: %s", src.name, w.detail)
+            say(f"  warning: {w.detail}")
+        say(f"  checks: {len(report.warnings)} warning(s), probe sign {report.probe_sign:+d}")
+        clean, actions = rafi.method.clean.clean_log(
+            frame,
+            file=src.name,
+            sample_period_s=settings.sample_period_s,
+            max_interpolate_gap_s=cfg["max_interpolate_gap_s"],
+            spike_threshold=cfg["spike_threshold"],
+            open_circuit_values=cfg["open_circuit_values"],
+        )
+        actions = rafi.method.audit.with_warnings(
+            actions, rafi.method.audit.warning_rows(src.name, report.warnings)
+        )
+        summary = rafi.method.audit.summarise_audit(
+            src.name, digest, rows_in, clean, actions, probe_sign=report.probe_sign
+        )
+    except Exception as exc:  # noqa: BLE001 - any failure on one file quarantines that file
+        if fail_mode:
+            raise
+        reason = rafi.method.audit.quarantine_reason(exc, src.name)
+        # a documented check needs no traceback; anything else keeps it in the log
+        log.warning("quarantined %s: %s", src.name, reason, exc_info=not isinstance(exc, RawFormatError))
+        return quarantine(reason)
+    counts = actions["action"].value_counts().to_dict() if len(actions) else {}
+    say(f"  clean: {len(clean)} rows; actions: {counts or 'none'}")
+    _write(outputs, clean, actions, summary)
+    # the next rule must be able to read what we wrote (e.g. huge metadata breaks parquet)
+    try:
+        back = pd.read_parquet(outputs["parquet"])
+        if len(back) != len(clean):
+            raise ValueError(f"{len(back)} rows read back, {len(clean)} written")
+    except Exception as exc:  # noqa: BLE001
+        why = (
+            f"its clean table {outputs['parquet']} cannot be read back "
+            f"({type(exc).__name__}: {rafi.method.audit.one_line(exc)})"
+        )
+        if fail_mode:
+            raise RawFormatError(src, why, check="clean_table_unreadable") from exc
+        log.warning("quarantined %s: %s", src.name, why, exc_info=True)
+        return quarantine(f"{src.name}: {why} [clean_table_unreadable]")
+    return "ok"
+
+
+def clean_machine(
+    raw_paths: Mapping[str, str],
+    folder: str | Path,
+    settings: CleanSettings,
+    *,
+    cache: CleanCache | None,
+    code: str,
+    fail_mode: bool,
+    log: logging.Logger,
+) -> dict[str, str]:
+    """Clean every raw file of a machine (``raw_paths``: log id -> path) into ``folder``.
+
+    Returns log id -> ``ok``, ``quarantined`` or ``cached``. ``cache`` None: no cache (every
+    file is cleaned). The cache's unused entries are pruned only when every file went through.
+    """
+    folder = Path(folder)
+    folder.mkdir(parents=True, exist_ok=True)
+    key_settings = settings.as_key()
+    done: dict[str, str] = {}
+    for stem in sorted(raw_paths):
+        src = Path(raw_paths[stem])
+        outputs = output_paths(folder, stem)
+        try:
+            sha = rafi.readers.logs.sha256_file(src)
+        except Exception:  # noqa: BLE001 - clean_file meets the same error and handles it
+            sha = None
+        key = cache_key(src.name, sha, key_settings, code) if sha and cache is not None else None
+        if key is not None:
+            lines = cache.restore(key, outputs)
+            if lines is not None:
+                print(f"{src.name}: unchanged, outputs from the cache ({key[:12]})", flush=True)
+                for line in lines:
+                    print(f"  | {line}", flush=True)
+                done[stem] = "cached"
+                print(f"{stem}: cached", flush=True)
+                continue
+        lines: list[str] = []
+
+        def say(msg: str, _lines=lines) -> None:
+            _lines.append(msg)
+            print(msg, flush=True)
+
+        status = clean_file(src, outputs, settings, fail_mode=fail_mode, log=log, say=say, sha=sha)
+        done[stem] = status
+        if status == "ok" and key is not None:
+            cache.store(key, outputs, lines)
+        print(f"wrote {outputs['parquet']}", flush=True)
+        print(f"{stem}: {status}", flush=True)
+    if cache is not None:
+        cache.prune()
+    return done
