@@ -246,3 +246,144 @@ def fit_titles(fig, titles: list[str], width_in: float) -> tuple[list[str], floa
     while size > 5.5 and any(wide(t, size) / fig.dpi > width_in for t in out):
         size -= 0.5
     return out, size, max((t.count("\n") + 1 for t in out), default=1)
+
+
+# --------------------------------------------------------------------------- text layout check
+
+#: Clearance of :func:`text_overlaps` in points: two texts closer than this (or overlapping)
+#: read as one - the panel titles of the old idle-run figure ran together 0.3 pt apart; a word
+#: space at the figures' 6.5-8 pt is 2-2.5 pt, a legend's row gap 3 pt, and no two texts of the
+#: report's figures are closer than 2.5 pt.
+TEXT_CLEAR_PT = 1.0
+#: A text crossing the figure's edge by more than this (points) is cut off: 0.5 pt is below a
+#: glyph's stroke at those sizes, above rounding.
+TEXT_EDGE_PT = 0.5
+
+
+def _drawn_texts(fig) -> list:
+    """The visible, non-empty text artists of a drawn figure, with a name for each."""
+    from matplotlib.text import Text
+
+    found = []
+
+    def add(text, name):
+        if isinstance(text, Text) and text.get_visible() and text.get_text().strip():
+            found.append((name, text))
+
+    for i, t in enumerate(fig.texts):
+        add(t, f"figure text {i}")
+    legends = list(fig.legends)
+    for k, ax in enumerate(fig.axes):
+        if not ax.get_visible():
+            continue
+        where = f"axes {k}"
+        for t in (ax.title, ax._left_title, ax._right_title):
+            add(t, f"{where} title")
+        for axis, xy in ((ax.xaxis, "x"), (ax.yaxis, "y")):
+            if not (ax.axison and axis.get_visible()):  # ax.axis("off") draws no axis
+                continue
+            add(axis.label, f"{where} {xy} label")
+            add(axis.get_offset_text(), f"{where} {xy} offset")
+            for tick in axis._update_ticks():  # the ticks drawn: inside the view interval
+                add(tick.label1, f"{where} {xy} tick")
+                add(tick.label2, f"{where} {xy} tick")
+        for t in ax.texts:
+            add(t, f"{where} text")
+        if ax.get_legend() is not None:
+            legends.append(ax.get_legend())
+    for j, leg in enumerate(legends):
+        if leg.get_visible():
+            for t in leg.get_texts():
+                add(t, f"legend {j}")
+            add(leg.get_title(), f"legend {j} title")
+    return found
+
+
+def _text_corners(text, renderer) -> np.ndarray:
+    """The 4 corners (display pixels) of a text's box, turned with the text.
+
+    ``get_window_extent`` of a turned text (tick labels at 30 degrees) is the upright box
+    around it, far larger than the text; the turned box has the same centre and the size of
+    the text laid out upright.
+    """
+    bb = text.get_window_extent(renderer)
+    angle = text.get_rotation() % 180.0
+    centre = np.array([(bb.x0 + bb.x1) / 2.0, (bb.y0 + bb.y1) / 2.0])
+    if angle == 0.0:
+        w, h = bb.width, bb.height
+    else:
+        text.set_rotation(0.0)
+        try:
+            upright = text.get_window_extent(renderer)
+        finally:
+            text.set_rotation(angle)
+        w, h = upright.width, upright.height
+    t = np.deg2rad(angle)
+    rot = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+    half = np.array([[-w, -h], [w, -h], [w, h], [-w, h]]) / 2.0
+    return centre + half @ rot.T
+
+
+def _penetration(a: np.ndarray, b: np.ndarray) -> float:
+    """How far two convex quadrilaterals overlap: the smallest overlap of their projections on
+    the normals of their edges (separating axis theorem; <= 0 when they are apart). For two
+    upright boxes it is the smaller of the width and the height of their intersection."""
+    depth = np.inf
+    for poly in (a, b):
+        for k in range(2):
+            edge = poly[k + 1] - poly[k]
+            normal = np.array([-edge[1], edge[0]]) / max(np.hypot(*edge), 1e-12)
+            pa, pb = a @ normal, b @ normal
+            depth = min(depth, min(pa.max(), pb.max()) - max(pa.min(), pb.min()))
+    return float(depth)
+
+
+def text_overlaps(fig, clear_pt: float = TEXT_CLEAR_PT, edge_pt: float = TEXT_EDGE_PT) -> list[dict]:
+    """Text of a figure that overlaps other text or runs off the figure, measured by matplotlib.
+
+    The figure is drawn once; every visible text (titles, axis labels, drawn tick labels,
+    offset texts, annotations, legend entries) is taken with its box from matplotlib's own
+    layout (the lines' extent from the font's metrics), turned with the text.
+
+    Parameters
+    ----------
+    fig : matplotlib.figure.Figure
+    clear_pt : float
+        Two boxes *overlap* when they are less than ``clear_pt`` points apart
+        (:func:`_penetration` > ``-clear_pt``; overlapping boxes have a positive depth).
+    edge_pt : float
+        A box is *outside* when a corner lies beyond an edge of the figure by more than
+        ``edge_pt`` points.
+
+    Returns
+    -------
+    list of dict
+        ``{"kind": "overlap", "texts": (a, b), "by_pt": depth}`` (negative: a gap narrower
+        than ``clear_pt``) or ``{"kind": "outside",
+        "texts": (a,), "by_pt": (beyond left, bottom, right, top)}``, a text named
+        ``"<where>: <text>"``; empty when the figure's text is clear.
+    """
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    scale = 72.0 / fig.dpi  # display pixels -> points
+    W, H = fig.bbox.width, fig.bbox.height
+    boxes = []
+    for name, text in _drawn_texts(fig):
+        corners = _text_corners(text, renderer)
+        if np.ptp(corners[:, 0]) > 0 and np.ptp(corners[:, 1]) > 0:
+            boxes.append((f"{name}: {text.get_text()}", corners))
+    found = []
+    for label, c in boxes:
+        x, y = c[:, 0], c[:, 1]
+        beyond = tuple(round(float(v) * scale, 2) for v in (-x.min(), -y.min(), x.max() - W, y.max() - H))
+        if max(beyond) > edge_pt:
+            found.append({"kind": "outside", "texts": (label,), "by_pt": beyond})
+    for i, (la, a) in enumerate(boxes):
+        lo_a, hi_a = a.min(axis=0), a.max(axis=0)
+        for lb, b in boxes[i + 1 :]:
+            if (np.minimum(hi_a, b.max(axis=0)) - np.maximum(lo_a, b.min(axis=0)) <= -clear_pt / scale).any():
+                continue  # the upright boxes are clear of each other: so are the texts
+            depth = _penetration(a, b) * scale
+            if depth > -clear_pt:
+                found.append({"kind": "overlap", "texts": (la, lb), "by_pt": round(depth, 2)})
+    return found
