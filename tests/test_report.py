@@ -896,3 +896,45 @@ def test_input_warnings_and_machine_level_rejections_are_shown(tmp_path):
     (results / "input_status.json").unlink()
     ctx = _context(results, settings, config=cfg)
     assert ctx["data"]["warnings"] == [] and ctx["verdict"]["unconfirmed_warnings"] == 0
+
+
+def _relative_luminance(rgba) -> float:
+    def channel(c):
+        return c / 12.92 if c <= 0.03928 else ((c + 0.055) / 1.055) ** 2.4
+
+    rgb = rgba.to("srgb").coordinates if hasattr(rgba, "to") else (rgba.red, rgba.green, rgba.blue)
+    r, g, b = (channel(v) for v in rgb)
+    return 0.2126 * r + 0.7152 * g + 0.0722 * b
+
+
+def _text_on_backgrounds(box, background=None):
+    """(text, its colour, the nearest opaque background below it) for every text box."""
+    own = box.style["background_color"]
+    if own.alpha == 1 and box.element_tag not in ("html", "body"):
+        background = own
+    text = getattr(box, "text", "").strip()
+    if text and background is not None:
+        yield text, box.style["color"], background
+    for child in getattr(box, "children", ()):
+        yield from _text_on_backgrounds(child, background)
+
+
+def test_text_on_coloured_backgrounds_is_legible(rendered):
+    """Badges and banners: text drawn on a coloured background contrasts with it.
+
+    WeasyPrint's cascade (the PDF's renderer) is the oracle for the colours actually used; the
+    bound is WCAG 2's contrast ratio of 3 for bold/large text. A ``span.pass`` rule once won on
+    specificity and drew the PASS badges green on green.
+    """
+    import weasyprint
+
+    document = weasyprint.HTML(string=rendered["html"]).render()
+    checked, illegible = 0, []
+    for page in document.pages:
+        for text, colour, background in _text_on_backgrounds(page._page_box):
+            light, dark = sorted((_relative_luminance(colour), _relative_luminance(background)), reverse=True)
+            checked += 1
+            if (light + 0.05) / (dark + 0.05) < 3:
+                illegible.append(text[:30])
+    assert checked > 20
+    assert not illegible, sorted(set(illegible))
