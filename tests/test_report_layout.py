@@ -50,6 +50,9 @@ TEMPLATE = ROOT / "rafi" / "report" / "templates" / "qualification.html.j2"
 MM = 72.0 / 25.4
 
 EDGE_TOL_PT = 1.0
+#: WCAG 2 contrast ratio below which text is hard to see on its background: 3 is WCAG's
+#: minimum for large text; the report's muted grey on its light bands is about 5.8.
+MIN_CONTRAST = 3.0
 OVERLAP_X_PT = 1.0
 OVERLAP_Y_FRAC = 0.3
 
@@ -166,6 +169,41 @@ def layout_defects(pdf: Path, work: Path, margins=None) -> list[str]:
                 )
             elif y0 < area[1] - EDGE_TOL_PT or y1 > area[3] + EDGE_TOL_PT:
                 out.append(f"page {n}: image at y {y0:.0f}-{y1:.0f}: outside the text area")
+    return out
+
+
+def _luminance(rgb) -> float:
+    lin = [c / 12.92 if c <= 0.04045 else ((c + 0.055) / 1.055) ** 2.4 for c in rgb]
+    return 0.2126 * lin[0] + 0.7152 * lin[1] + 0.0722 * lin[2]
+
+
+def _over(colour, below) -> tuple:
+    """``colour`` (a tinycss2 colour with alpha) painted over the opaque RGB ``below``."""
+    rgb = colour.to("srgb").coordinates
+    a = colour.alpha
+    return tuple(a * c + (1 - a) * b for c, b in zip(rgb, below))
+
+
+def faint_text(html: str, min_ratio: float = MIN_CONTRAST) -> list[str]:
+    """Text whose colour barely differs from the background it is drawn on, from WeasyPrint's
+    layout of ``html``: the WCAG contrast ratio of the text's colour and the nearest painted
+    background (white page below) under ``min_ratio``, as ``"page N: <text>: <ratio>"``."""
+    import weasyprint
+    from weasyprint.formatting_structure import boxes
+
+    out = []
+    for n, page in enumerate(weasyprint.HTML(string=html).render().pages, start=1):
+        stack = [(page._page_box, (1.0, 1.0, 1.0))]
+        while stack:
+            box, below = stack.pop()
+            bg = _over(box.style["background_color"], below)
+            if isinstance(box, boxes.TextBox) and box.text.strip():
+                fg = _over(box.style["color"], bg)
+                hi, lo = sorted((_luminance(fg), _luminance(bg)), reverse=True)
+                ratio = (hi + 0.05) / (lo + 0.05)
+                if ratio < min_ratio:
+                    out.append(f"page {n}: {box.text.strip()!r}: contrast {ratio:.2f}")
+            stack.extend((child, bg) for child in getattr(box, "children", []))
     return out
 
 
@@ -296,6 +334,17 @@ def test_text_overlaps_measures_turned_tick_labels_as_turned():
         assert len(crowded) >= 11 and all("x tick" in " ".join(f["texts"]) for f in crowded), crowded
 
 
+def test_faint_text_finds_text_in_the_colour_of_its_background():
+    """The badge defect: ``span.pass`` (green text) wins over ``.badge`` (white on green)."""
+    css = ".badge { color: white; background: #1b7a3a; } .muted { color: #5f6368; }"
+    ok = f"<style>{css}</style><p><span class='badge'>PASS</span> <span class='muted'>grey</span></p>"
+    assert faint_text(ok) == []
+    bad = f"<style>span.pass {{ color: #1b7a3a; }} {css}</style><p><span class='badge pass'>PASS</span></p>"
+    assert faint_text(bad) == ["page 1: 'PASS': contrast 1.00"]
+    pale = "<p style='background: #fff8e1'><span style='color: #ffe9a8'>pale</span></p>"
+    assert len(faint_text(pale)) == 1
+
+
 # --------------------------------------------------------------------------- the shipped reports
 
 
@@ -333,6 +382,7 @@ def test_every_page_of_the_shipped_reports_is_clear(pipeline, machine, tmp_path)
     pages = pdf_words(pdf)
     assert len(pages) >= 10 and all(p["words"] for p in pages)
     defects = layout_defects(pdf, tmp_path)
+    defects += faint_text((pipeline / "reports" / machine / "qualification.html").read_text(encoding="utf-8"))
     assert not defects, f"{len(defects)} layout defect(s) in {machine}'s report:\n" + "\n".join(defects)
 
 
