@@ -429,3 +429,31 @@ def test_no_figure_text_overlaps(pipeline, machine, tmp_path, monkeypatch):
         for p in problems
     ]
     assert not found, f"{len(found)} text defect(s) in {machine}'s figures:\n" + "\n".join(found)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("machine", MACHINES)
+def test_rule_report_writes_the_archival_pdf(pipeline, machine, tmp_path):
+    """Through Snakemake (workflow/scripts/report.py): PDF/A-3b, and the attachments are the
+    run's files, byte for byte (the renderer itself: tests/test_report_pdf.py)."""
+    import json
+
+    pdf = pipeline / "reports" / machine / "qualification.pdf"
+    xmp = subprocess.run([_tool("pdfinfo"), "-meta", pdf], capture_output=True, text=True, check=True).stdout
+    assert 'pdfaid:part="3"' in xmp and 'pdfaid:conformance="B"' in xmp, xmp
+    subprocess.run([_tool("pdfdetach"), "-saveall", "-o", str(tmp_path), pdf], check=True)
+    results = pipeline / "results" / machine
+    champion = json.loads((results / "registry" / "decision.json").read_text())["champion_id_after"]
+    expected = {
+        "model.json": results / "model.json",
+        "audit.csv": results / "audit.csv",
+        "validation_summary.csv": results / "validation" / "summary.csv",
+        "comparison_summary.csv": results / "comparison" / "summary.csv",
+    }
+    (deployed,) = tmp_path.glob(f"model_on_the_machine_*_{champion[:12]}.json")
+    expected[deployed.name] = results / "registry" / "models" / f"{champion}.json"
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(expected)
+    for name, src in expected.items():
+        assert (tmp_path / name).read_bytes() == src.read_bytes(), name
+    html = (pipeline / "reports" / machine / "qualification.html").read_text(encoding="utf-8")
+    assert "model_on_the_machine_" not in html  # the HTML carries no attachment
