@@ -441,6 +441,11 @@ def test_rule_report_writes_the_archival_pdf(pipeline, machine, tmp_path):
     pdf = pipeline / "reports" / machine / "qualification.pdf"
     xmp = subprocess.run([_tool("pdfinfo"), "-meta", pdf], capture_output=True, text=True, check=True).stdout
     assert 'pdfaid:part="3"' in xmp and 'pdfaid:conformance="B"' in xmp, xmp
+    # the figures are opaque RGB: no soft mask (transparency) enters the PDF from them
+    listed = subprocess.run([_tool("pdfimages"), "-list", pdf], capture_output=True, text=True, check=True)
+    listed = listed.stdout
+    images = [line.split() for line in listed.splitlines()[2:]]
+    assert images and all(row[2] == "image" and row[5] == "rgb" for row in images), listed
     subprocess.run([_tool("pdfdetach"), "-saveall", "-o", str(tmp_path), pdf], check=True)
     results = pipeline / "results" / machine
     champion = json.loads((results / "registry" / "decision.json").read_text())["champion_id_after"]
