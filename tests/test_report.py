@@ -502,6 +502,9 @@ def test_comparison_section(rendered):
     for m in summary["model"]:
         assert f"<b>{m}</b>" in html
     assert "leave-one-run-out" in html  # CV from cv.csv
+    # a kind column only where some model is not named after its kind
+    assert ("kind" in c["summary"]["headers"]) == bool((summary["kind"] != summary["model"]).any())
+    assert len(c["summary"]["widths"]) == len(c["summary"]["headers"])
 
 
 def test_comparison_lists_what_cross_validation_chose(tmp_path):

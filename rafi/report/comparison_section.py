@@ -312,6 +312,13 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         cls="num models",
         widths=[19, 9, 9, 8, 5, 9, 8, 7, 10, 8, 8],
     )
+    if all(str(r.get("kind", "")) == str(r["model"]) for r in s.to_dict("records")):
+        # every model is named after its kind: the kind column only repeats the name
+        summary = out["summary"]
+        summary["headers"].pop(1)
+        for row in summary["rows"]:
+            row.pop(1)
+        summary["widths"] = [28, *summary["widths"][2:]]
     out["selection"] = selection_context(s, fam_champ)
     if "selected" in s:
         out["selected"] = [
