@@ -194,14 +194,20 @@ def timed(cmd: list[str], cwd: Path) -> dict:
     """Run ``cmd`` under ``/usr/bin/time -v`` (if present): wall s, peak RSS (largest process and tree)."""
     use_time = TIME_V.exists()
     full = [str(TIME_V), "-v", *cmd] if use_time else cmd
+    load_before = os.getloadavg()[0]
     t0 = time.perf_counter()
     proc = subprocess.Popen(full, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     with TreeRss(proc.pid) as tree:
         stdout, stderr = proc.communicate()
     wall = time.perf_counter() - t0
     m = re.search(r"Maximum resident set size \(kbytes\): (\d+)", stderr) if use_time else None
+    # core-seconds of the whole tree (Snakemake and every job it waited for): on a machine other
+    # work shares, wall time grows with the load, core-seconds much less
+    cpu = [re.search(rf"{kind} time \(seconds\): ([\d.]+)", stderr) for kind in ("User", "System")]
     return {
         "wall_s": round(wall, 2),
+        "cpu_s": round(sum(float(c.group(1)) for c in cpu), 1) if use_time and all(cpu) else None,
+        "load_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)],
         "exit": proc.returncode,
         "peak_process_mb": round(int(m.group(1)) / 1024, 1) if m else None,
         "peak_tree_mb": round(tree.peak / 2**20, 1),
@@ -283,7 +289,8 @@ def run_size(n: int, cache: Path, workdir: Path, args) -> dict:
         "project": str(proj),
     }
     print(
-        f"  plan {plan['wall_s']} s; cold {cold['wall_s']} s ({sum(jobs.values())} jobs), "
+        f"  plan {plan['wall_s']} s; cold {cold['wall_s']} s, {cold['cpu_s']} core-s, load "
+        f"{cold['load_1min']} ({sum(jobs.values())} jobs), "
         f"peak {cold['peak_tree_mb']} MB tree / {cold['peak_process_mb']} MB one process",
         flush=True,
     )
@@ -318,7 +325,8 @@ def run_size(n: int, cache: Path, workdir: Path, args) -> dict:
         result["night_job_seconds"] = {r: round(sum(v), 2) for r, v in night_seconds.items()}
         result["night_jobs"] = done
         print(
-            f"  night {night['wall_s']} s (exit {night['exit']}, {result['night']['jobs']} jobs), "
+            f"  night {night['wall_s']} s, {night['cpu_s']} core-s, load {night['load_1min']} "
+            f"(exit {night['exit']}, {result['night']['jobs']} jobs), "
             f"peak {night['peak_tree_mb']} MB tree",
             flush=True,
         )
@@ -494,23 +502,25 @@ def markdown(report: dict) -> str:
         "",
         f"Command: `{report['command']}`",
         "",
-        "| N | files | plan s | cold s | s per machine | peak MB (tree) | peak MB (1 process) "
-        "| night s | night jobs | night peak MB |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "| N | files | plan s | cold s | s per machine | cold core-s | load (1 min) | peak MB (tree) "
+        "| peak MB (1 process) | night s | night core-s | night jobs | night peak MB |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in report["sizes"]:
         if s.get("extrapolated"):
             night = f"~{s['night_s']:.0f} (fit)" if s.get("night_s") is not None else "-"
             lines.append(
-                f"| {s['machines']} | {s['files']} | - | ~{s['cold_s']:.0f} (fit) | - | - | - "
-                f"| {night} | - | - |"
+                f"| {s['machines']} | {s['files']} | - | ~{s['cold_s']:.0f} (fit) | - | - | - | - | - "
+                f"| {night} | - | - | - |"
             )
             continue
         c, nt = s["cold"], s.get("night", {})
         lines.append(
             f"| {s['machines']} | {s['files']} | {s['plan_s']} | {c['wall_s']} | "
-            f"{c['wall_s'] / s['machines']:.1f} | {c['peak_tree_mb']} | {c['peak_process_mb']} | "
-            f"{nt.get('wall_s', '-')} | {nt.get('jobs', '-')} | {nt.get('peak_tree_mb', '-')} |"
+            f"{c['wall_s'] / s['machines']:.1f} | {c.get('cpu_s', '-')} | "
+            f"{'-'.join(str(x) for x in c.get('load_1min', []))} | {c['peak_tree_mb']} | "
+            f"{c['peak_process_mb']} | {nt.get('wall_s', '-')} | {nt.get('cpu_s', '-')} | "
+            f"{nt.get('jobs', '-')} | {nt.get('peak_tree_mb', '-')} |"
         )
     for key, label in (("cold_fit", "cold run"), ("night_fit", "fleet night")):
         f = report.get(key)
