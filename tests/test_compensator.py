@@ -14,21 +14,14 @@ import pytest
 from rafi import SENSORS
 from rafi.deploy.compensator import Compensator, parse_exponents
 from rafi.deploy.streaming import LowpassBank
-from rafi.family.dynamic import DynamicRidge
-from rafi.family.grey_box import GreyBox
-from rafi.family.published import PublishedRafi
-from rafi.family.rafi_linear import RafiLinear
-from rafi.family.ridge_global import RidgeGlobal
 from rafi.method.model import parse_terms
 from rafi.method.validate import time_ordered
 from rafi.twin.synthetic_logs import schedule_log
-from rafi.twin.synthetic_runs import runs_of_logs
+from rafi.twin.synthetic_runs import runs_of_logs, small_family_model
 
 PERIOD = 20.0
 WINDOW = 60.0
 RESTART = 3600.0
-KEY = ["T6", "T8", "T9"]
-TERMS = ["1", "x1", "x2", "x3", "x1*x2", "x1^2", "x2^2"]
 KINDS = ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"]
 
 
@@ -78,25 +71,12 @@ def data(request):
 
 
 def _model(kind: str, rule: str):
-    ref = {"rule": rule, "window_s": WINDOW}
-    alphas = [1e-6, 1e-4, 1e-2]
-    if kind == "rafi":
-        return PublishedRafi(key_sensors=KEY, terms=TERMS, reference=ref)
-    if kind == "rafi_linear":
-        return RafiLinear(key_sensors=KEY, reference=ref)
-    if kind == "ridge_global":
-        return RidgeGlobal(alphas=alphas, reference=ref, speed_gain="cv", filter_restart_gap_s=RESTART)
-    if kind == "dynamic":
-        return DynamicRidge(
-            taus_s=[600, 2400], max_taus=2, alphas=alphas, reference=ref, filter_restart_gap_s=RESTART
-        )
-    return GreyBox(
-        taus_s=[0, 600],
-        speed_taus_s=[120, 900],
-        centrifugal_lags_s=[20],
-        alphas=alphas,
-        reference=ref,
+    return small_family_model(
+        kind,
+        reference_rule=rule,
+        reference_window_s=WINDOW,
         filter_restart_gap_s=RESTART,
+        speed_gain="cv",
     )
 
 

@@ -354,3 +354,66 @@ def runs_of_logs(
         reference_rule=reference_rule,
         reference_window_s=reference_window_s,
     )
+
+
+#: Settings of the small family models fitted on :func:`runs_of_logs` output in the tests.
+SMALL_MODEL_KEY_SENSORS = ["T6", "T8", "T9"]
+SMALL_MODEL_TERMS = ["1", "x1", "x2", "x3", "x1*x2", "x1^2", "x2^2"]
+
+
+def small_family_model(
+    kind: str,
+    *,
+    reference_rule: str,
+    reference_window_s: float,
+    filter_restart_gap_s: float,
+    speed_gain="cv",
+    alphas: Sequence[float] = (1e-6, 1e-4, 1e-2),
+):
+    """An unfitted model of the family with small grids, for logs of :func:`runs_of_logs`.
+
+    Parameters
+    ----------
+    kind : {"rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"}
+    reference_rule, reference_window_s : the reference state (``reference:`` settings).
+    filter_restart_gap_s : float
+        The filters restart after a gap longer than this.
+    speed_gain : {True, False, "cv"}
+        ``ridge_global``'s speed-dependent gains.
+    alphas : sequence of float
+        The ridge grid.
+
+    Returns
+    -------
+    estimator
+        Not fitted; call ``fit(table, frame)``.
+    """
+    from rafi.family.dynamic import DynamicRidge
+    from rafi.family.grey_box import GreyBox
+    from rafi.family.published import PublishedRafi
+    from rafi.family.rafi_linear import RafiLinear
+    from rafi.family.ridge_global import RidgeGlobal
+
+    ref = {"rule": reference_rule, "window_s": reference_window_s}
+    alphas = list(alphas)
+    restart = filter_restart_gap_s
+    if kind == "rafi":
+        return PublishedRafi(key_sensors=SMALL_MODEL_KEY_SENSORS, terms=SMALL_MODEL_TERMS, reference=ref)
+    if kind == "rafi_linear":
+        return RafiLinear(key_sensors=SMALL_MODEL_KEY_SENSORS, reference=ref)
+    if kind == "ridge_global":
+        return RidgeGlobal(alphas=alphas, reference=ref, speed_gain=speed_gain, filter_restart_gap_s=restart)
+    if kind == "dynamic":
+        return DynamicRidge(
+            taus_s=[600, 2400], max_taus=2, alphas=alphas, reference=ref, filter_restart_gap_s=restart
+        )
+    if kind == "grey_box":
+        return GreyBox(
+            taus_s=[0, 600],
+            speed_taus_s=[120, 900],
+            centrifugal_lags_s=[20],
+            alphas=alphas,
+            reference=ref,
+            filter_restart_gap_s=restart,
+        )
+    raise ValueError(f"unknown model kind {kind!r}")
