@@ -26,7 +26,7 @@ import pytest
 import yaml
 from markupsafe import escape
 
-from rafi.artefact import compute_model_id, jsonable
+from rafi.artefact import compute_model_id
 from rafi.family.selection import SELECTION_RULE
 from rafi.report import figures, tables
 from rafi.report.context import build_context
@@ -85,14 +85,15 @@ def _upstream(results: Path, settings: dict) -> dict:
     """What rules report_tables and report_figures write before the report; the figure
     folders (``comparison`` only when comparison/ exists)."""
     paths = result_paths(results)
-    runs, frames = pd.read_csv(paths["runs_csv"]), pd.read_parquet(paths["runs_parquet"])
-    doc = json.loads(Path(paths["model"]).read_text(encoding="utf-8"))
-    fit = tables.training_fit(doc, runs, frames)
-    (results / "report").mkdir(exist_ok=True)
-    fit.to_parquet(paths["training_fit"])
-    tables.training_rmse(fit).to_csv(paths["training_fit_rmse"], index=False)
-    example = tables.fuzzy_example(doc, pd.read_csv(paths["diagnostics"]), runs, frames)
-    Path(paths["fuzzy_example"]).write_text(json.dumps(jsonable(example)), encoding="utf-8")
+    tables.write_report_tables(
+        paths["model"],
+        paths["runs_csv"],
+        paths["runs_parquet"],
+        paths["diagnostics"],
+        fit_path=paths["training_fit"],
+        rmse_path=paths["training_fit_rmse"],
+        example_path=paths["fuzzy_example"],
+    )
     dirs = {}
     for group, folder in figure_dirs(results).items():
         if group == "comparison" and not (results / "comparison").is_dir():

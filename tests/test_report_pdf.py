@@ -25,7 +25,6 @@ import pandas as pd
 import pytest
 import yaml
 
-from rafi.artefact import jsonable
 from rafi.report import tables
 from rafi.report.context import build_context
 from rafi.report.inputs import FIGURE_DIRS, load_results, result_paths
@@ -45,13 +44,15 @@ def _results(tmp: Path) -> Path:
     results = tmp / "results" / MACHINE
     shutil.copytree(FIXTURE, results)
     paths = result_paths(results)
-    runs, frames = pd.read_csv(paths["runs_csv"]), pd.read_parquet(paths["runs_parquet"])
-    doc = json.loads(Path(paths["model"]).read_text(encoding="utf-8"))
-    (results / "report").mkdir(exist_ok=True)
-    fit = tables.training_fit(doc, runs, frames)
-    tables.training_rmse(fit).to_csv(paths["training_fit_rmse"], index=False)
-    example = tables.fuzzy_example(doc, pd.read_csv(paths["diagnostics"]), runs, frames)
-    Path(paths["fuzzy_example"]).write_text(json.dumps(jsonable(example)), encoding="utf-8")
+    tables.write_report_tables(
+        paths["model"],
+        paths["runs_csv"],
+        paths["runs_parquet"],
+        paths["diagnostics"],
+        fit_path=paths["training_fit"],
+        rmse_path=paths["training_fit_rmse"],
+        example_path=paths["fuzzy_example"],
+    )
     for rel in FIGURE_DIRS.values():
         (results / rel).mkdir(parents=True, exist_ok=True)
         (results / rel / "index.csv").write_text("key,file\n", encoding="utf-8")

@@ -23,7 +23,6 @@ import pandas as pd
 import pytest
 import yaml
 
-from rafi.artefact import jsonable
 from rafi.method.equilibrium import first_order_fit
 from rafi.report import plot_layout, plots, tables
 from rafi.report.choices import section_choices, setting_text, settings_changes
@@ -128,13 +127,15 @@ def _fixture_html(tmp_path: Path, *, paper_rig: bool, machine: str = "tapping-ce
     results = tmp_path / "results" / machine
     shutil.copytree(FIXTURE, results)
     paths = result_paths(results)
-    runs, frames = pd.read_csv(paths["runs_csv"]), pd.read_parquet(paths["runs_parquet"])
-    doc = json.loads(Path(paths["model"]).read_text(encoding="utf-8"))
-    (results / "report").mkdir(exist_ok=True)
-    fit = tables.training_fit(doc, runs, frames)
-    tables.training_rmse(fit).to_csv(paths["training_fit_rmse"], index=False)
-    example = tables.fuzzy_example(doc, pd.read_csv(paths["diagnostics"]), runs, frames)
-    Path(paths["fuzzy_example"]).write_text(json.dumps(jsonable(example)), encoding="utf-8")
+    tables.write_report_tables(
+        paths["model"],
+        paths["runs_csv"],
+        paths["runs_parquet"],
+        paths["diagnostics"],
+        fit_path=paths["training_fit"],
+        rmse_path=paths["training_fit_rmse"],
+        example_path=paths["fuzzy_example"],
+    )
     dirs = {}
     for group, rel in FIGURE_DIRS.items():
         (results / rel).mkdir(parents=True, exist_ok=True)

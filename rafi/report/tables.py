@@ -164,3 +164,38 @@ def fuzzy_example(
         out["state"] = {c: float(state.loc[0, c]) for c in state.columns}
         out["blended_dz_um"] = float(model.predict(state.assign(speed_rpm=ex))[0])
     return out
+
+
+def write_report_tables(
+    model_path, runs_csv, runs_parquet, diagnostics_path, *, fit_path, rmse_path, example_path
+) -> tuple[pd.DataFrame, pd.DataFrame, dict]:
+    """Compute the three tables from the pipeline's files and write them atomically.
+
+    Parameters
+    ----------
+    model_path, runs_csv, runs_parquet, diagnostics_path : path-like
+        ``model.json``, ``runs.csv``, ``runs.parquet`` and ``fit/diagnostics.csv``.
+    fit_path, rmse_path, example_path : path-like
+        Where ``training_fit.parquet``, ``training_fit.csv`` and ``fuzzy_example.json`` go.
+
+    Returns
+    -------
+    fit, rmse : DataFrame
+    example : dict
+    """
+    import json
+    from pathlib import Path
+
+    from rafi.artefact import jsonable, write_csv_atomic, write_parquet_atomic, write_text_atomic
+
+    runs = pd.read_csv(runs_csv)
+    frames = pd.read_parquet(runs_parquet)
+    doc = json.loads(Path(model_path).read_text(encoding="utf-8"))
+    fit = training_fit(doc, runs, frames)
+    rmse = training_rmse(fit)
+    example = fuzzy_example(doc, pd.read_csv(diagnostics_path), runs, frames)
+    Path(fit_path).parent.mkdir(parents=True, exist_ok=True)
+    write_parquet_atomic(fit, fit_path)
+    write_csv_atomic(rmse, rmse_path)
+    write_text_atomic(example_path, json.dumps(jsonable(example), indent=2) + "\n")
+    return fit, rmse, example

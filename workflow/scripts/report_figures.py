@@ -9,33 +9,24 @@
    report (:mod:`rafi.report.embed`). The pipeline group draws from the tables of step 1.
 """
 
-import json
-
 from _glue import part, step
 
 smk = snakemake  # noqa: F821 - injected by Snakemake
 
 with step(part(smk, "report_tables")) as log:
-    import pandas as pd
+    from rafi.report.tables import write_report_tables
 
-    from rafi.artefact import jsonable, write_csv_atomic, write_parquet_atomic, write_text_atomic
-    from rafi.report import tables
-
-    runs = pd.read_csv(smk.input.runs_csv)
-    frames = pd.read_parquet(smk.input.runs_parquet)
-    print(
-        f"read {smk.input.runs_csv}: {len(runs)} runs; {smk.input.runs_parquet}: {len(frames)} rows",
-        flush=True,
+    fit, rmse, example = write_report_tables(
+        smk.input.model,
+        smk.input.runs_csv,
+        smk.input.runs_parquet,
+        smk.input.diagnostics,
+        fit_path=smk.output.fit,
+        rmse_path=smk.output.rmse,
+        example_path=smk.output.fuzzy_example,
     )
-    doc = json.loads(open(smk.input.model, encoding="utf-8").read())
-    diagnostics = pd.read_csv(smk.input.diagnostics)
-    fit = tables.training_fit(doc, runs, frames)
-    rmse = tables.training_rmse(fit)
-    example = tables.fuzzy_example(doc, diagnostics, runs, frames)
+    print(f"{len(fit)} training-fit rows from {smk.input.runs_parquet}", flush=True)
     print(rmse.to_string(index=False), flush=True)
-    write_parquet_atomic(fit, smk.output.fit)
-    write_csv_atomic(rmse, smk.output.rmse)
-    write_text_atomic(smk.output.fuzzy_example, json.dumps(jsonable(example), indent=2) + "\n")
 
 with step(part(smk, "report_figures")) as log:
     from rafi.report.figures import FIGURE_GROUPS, draw_group
