@@ -26,6 +26,7 @@ import time
 from pathlib import Path
 
 import pytest
+from conftest import require
 
 from rafi.ops import nightly as N
 from rafi.ops import snakemake_api
@@ -130,9 +131,17 @@ def _unshare_works() -> bool:
         return False
 
 
-needs_unshare = pytest.mark.skipif(
-    not _unshare_works(), reason="no private mount namespace here (unshare -m): see the monkeypatched tests"
-)
+@pytest.fixture
+def private_mount_namespace():
+    """Skip (fail under CI=true) where ``unshare -m`` cannot make a private mount namespace."""
+    require(
+        None
+        if _unshare_works()
+        else "no private mount namespace here (unshare -m): see the monkeypatched tests"
+    )
+
+
+needs_unshare = pytest.mark.usefixtures("private_mount_namespace")
 
 
 def _nightly_in_namespace(proj: Path, setup: str) -> subprocess.CompletedProcess:

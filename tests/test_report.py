@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from conftest import which_or_skip
 from markupsafe import escape
 
 from rafi.artefact import compute_model_id
@@ -53,27 +54,13 @@ CHROMIUM_FLAGS = [
 PAGE_RANGE = (10, 28)  # the model offered to the machine in full (section 2) adds 3-4 pages
 
 
-def _chromium() -> str | None:
-    for name in ("chromium", "chromium-browser", "google-chrome"):
-        path = shutil.which(name)
-        if path:
-            return path
-    return None
-
-
 @pytest.fixture(scope="session")
 def browser_tools():
     """Chromium and pdftoppm (Debian's chromium and poppler-utils; .ci/run installs them)."""
-    missing = [
-        name
-        for name, found in (("chromium", _chromium()), ("pdftoppm", shutil.which("pdftoppm")))
-        if not found
-    ]
-    if missing:
-        pytest.fail(
-            f"{', '.join(missing)} not installed: apt-get install chromium poppler-utils (as .ci/run does)"
-        )
-    return {"chromium": _chromium(), "pdftoppm": shutil.which("pdftoppm")}
+    return {
+        "chromium": which_or_skip("chromium", "chromium-browser", "google-chrome"),
+        "pdftoppm": which_or_skip("pdftoppm"),
+    }
 
 
 def _settings(machine: str = "tapping-center-a"):

@@ -33,13 +33,13 @@ from __future__ import annotations
 
 import os
 import re
-import shutil
 import subprocess
 import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
 import pytest
+from conftest import which_or_skip
 
 from rafi.report import plot_layout
 from tests.project_copy import copy_project, copy_settled
@@ -71,10 +71,7 @@ def page_margins_pt(template: Path = TEMPLATE) -> tuple[float, float, float, flo
 
 
 def _tool(name: str) -> str:
-    path = shutil.which(name)
-    if not path:
-        pytest.fail(f"{name} not installed: apt-get install poppler-utils (as .ci/run does)")
-    return path
+    return which_or_skip(name)
 
 
 def pdf_words(pdf: Path) -> list[dict]:

@@ -24,6 +24,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
+from conftest import which_or_skip
 
 from rafi.report import tables
 from rafi.report.context import build_context
@@ -188,10 +189,7 @@ def test_signoff_block_is_on_the_first_page_filled_or_blank(fixture_results):
 
 
 def _tool(name: str) -> str:
-    path = shutil.which(name)
-    if not path:
-        pytest.fail(f"{name} not installed: apt-get install poppler-utils (as .ci/run does)")
-    return path
+    return which_or_skip(name)
 
 
 def _out(*cmd) -> str:

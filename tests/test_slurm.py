@@ -31,6 +31,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from conftest import require
 from project_copy import ROOT, copy_project
 
 from rafi.ops.result_diff import diff_trees
@@ -155,9 +156,7 @@ def _raw_hashes(project: Path) -> dict[str, str]:
 
 @pytest.mark.slow
 def test_slurm_run_equals_local_run(tmp_path):
-    reason = _skip_reason()
-    if reason:
-        pytest.skip(reason)
+    require(_skip_reason())
     local, cluster = _project(tmp_path / "local"), _project(tmp_path / "slurm")
     slurm_log = tmp_path / "slurm-run.log"
     submitted: list[str] = []

@@ -1,0 +1,50 @@
+"""What every test module shares: how a test that needs a system program behaves without it.
+
+On a fresh machine (the README's test command, nothing installed beyond Python) a test that needs
+Chromium, poppler-utils, Slurm or a private mount namespace is skipped with a one-line reason. Under
+``CI=true`` (``.ci/run``, which installs and starts them) the same test fails instead: CI runs every
+test, and a missing program there is a broken CI, not a reason to skip.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+import pytest
+
+#: Debian packages of the programs the tests look for (what to install when one is missing).
+PACKAGE_OF = {
+    "chromium": "chromium",
+    "pdftoppm": "poppler-utils",
+    "pdftotext": "poppler-utils",
+    "pdfimages": "poppler-utils",
+    "pdfinfo": "poppler-utils",
+    "pdftohtml": "poppler-utils",
+    "pdfdetach": "poppler-utils",
+}
+
+
+def in_ci() -> bool:
+    """True when ``CI`` is set to a true value (``.ci/run`` sets ``CI=true``)."""
+    return os.environ.get("CI", "").strip().lower() in ("1", "true", "yes")
+
+
+def require(reason: str | None) -> None:
+    """Skip the calling test with ``reason`` (or fail under ``CI=true``); nothing if ``reason`` is None."""
+    if reason is None:
+        return
+    if in_ci():
+        pytest.fail(f"{reason} (CI=true: .ci/run installs and starts what the tests need)", pytrace=False)
+    pytest.skip(reason)
+
+
+def which_or_skip(name: str, *alternatives: str) -> str:
+    """Path of program ``name`` (or the first of ``alternatives`` found); skip or fail without one."""
+    for candidate in (name, *alternatives):
+        path = shutil.which(candidate)
+        if path:
+            return path
+    package = PACKAGE_OF.get(name, name)
+    require(f"{name} not installed (apt-get install {package}; .ci/run installs it)")
+    raise AssertionError("unreachable")  # require() skipped or failed
