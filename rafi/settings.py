@@ -29,6 +29,9 @@ from rafi.errors import SettingsError
 from rafi.readers.input_assumed import check_period
 from rafi.readers.input_spec import normalise_input_spec
 
+#: Largest backwards time step (sample periods) that cleaning repairs by sorting; more is a clock reset.
+BACKWARDS_TOLERANCE_SAMPLES = 3.0
+
 #: Run settings: top level of ``config.yaml`` (``--config key=value`` on the command line).
 RUN_DEFAULTS: dict = {
     "raw_dir": "raw",

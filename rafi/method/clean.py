@@ -61,6 +61,7 @@ import pandas as pd
 
 from rafi import SENSORS
 from rafi.errors import RawFormatError
+from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
 
 #: Columns of the audit table, in order (``docs/design.md``).
 AUDIT_COLUMNS = ("file", "action", "column", "first_line", "last_line", "n_rows", "detail")
@@ -68,9 +69,6 @@ AUDIT_COLUMNS = ("file", "action", "column", "first_line", "last_line", "n_rows"
 
 #: Columns checked for open-circuit values and single-sample spikes.
 SENSOR_COLUMNS = (*SENSORS, "disp_um")
-
-#: Largest backwards time step (in sample periods) repaired by sorting; more is a clock reset.
-BACKWARDS_TOLERANCE_SAMPLES = 3.0
 
 #: Floor of the spike sigma in the column's unit (K for temperatures, um for displacement).
 SPIKE_SIGMA_FLOOR = 0.01

@@ -40,10 +40,10 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.method.clean import BACKWARDS_TOLERANCE_SAMPLES
 from rafi.readers import checks_channels as channels
 from rafi.readers import checks_units as units
 from rafi.readers.checks_base import CheckWarning, Signals, Where
+from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
 
 #: Columns that must carry at least one value.
 VALUE_COLUMNS = ("speed_rpm", *SENSORS, "disp_um")
