@@ -5,9 +5,9 @@ included), before any job starts.
 
 Layers, lowest first; a dict merges key by key, any other value (lists included) replaces:
 
-1. :data:`MACHINE_DEFAULTS` and :data:`RUN_DEFAULTS` below - the only place a default lives
-   (the input mapping's own defaults live with the mapping, in
-   :data:`rafi.readers.input_spec.INPUT_DEFAULTS`);
+1. :data:`MACHINE_DEFAULTS` and :data:`RUN_DEFAULTS` below, read off :mod:`rafi.contract` - the
+   only place a default lives (the input mapping's own defaults too:
+   :data:`rafi.contract.INPUT_DEFAULTS`);
 2. ``defaults:`` of ``config.yaml`` - what this installation changes for every machine;
 3. ``machines: <name>:`` - what one machine changes.
 
@@ -25,6 +25,7 @@ import copy
 import os
 from collections.abc import Mapping
 
+from rafi.contract import GATE_KEYS, MACHINE_SETTINGS, RUN_SETTINGS, config_schema, defaults
 from rafi.errors import SettingsError
 from rafi.readers.input_assumed import check_period
 from rafi.readers.input_spec import normalise_input_spec
@@ -32,137 +33,15 @@ from rafi.readers.input_spec import normalise_input_spec
 #: Largest backwards time step (sample periods) that cleaning repairs by sorting; more is a clock reset.
 BACKWARDS_TOLERANCE_SAMPLES = 3.0
 
-#: Run settings: top level of ``config.yaml`` (``--config key=value`` on the command line).
-RUN_DEFAULTS: dict = {
-    "raw_dir": "raw",
-    "results_dir": "results",
-    "reports_dir": "reports",
-    # fail: the run stops at the first unreadable file; quarantine: the file is listed as
-    # quarantined and the rest carries on (rafi nightly). The clean outputs are the same.
-    "on_bad_input": "fail",
-    "nightly_machines": None,  # rafi nightly --machine: only these machines
-    "nightly_report": True,  # rafi nightly --no-report: false
-    # a raw file modified less than this many seconds ago is still being written: it waits
-    "settle_s": 0,
-    "nightly_settle_s": 600,  # the settle_s of `rafi nightly`
-    "debug": False,  # a user error prints its traceback too (rafi --debug, --config debug=true)
-}
+#: Run settings: top level of ``config.yaml`` (``--config key=value`` on the command line); each
+#: key's type, default and meaning is in :data:`rafi.contract.RUN_SETTINGS`.
+RUN_DEFAULTS: dict = defaults(RUN_SETTINGS)
 
-#: Every per-machine default (``docs/settings.md`` explains each key).
-MACHINE_DEFAULTS: dict = {
-    "input": {},  # rafi.readers.input_spec.INPUT_DEFAULTS (the native format)
-    "sample_period_s": 5,
-    "training_speeds_rpm": [3000, 6000, 9000, 12000, 15000, 18000],
-    "speed_tolerance_rpm": 50,
-    "checks": {
-        # expected sign of dz while the machine warms up: positive (the spindle grows towards
-        # the table, docs/raw-format.md), negative, or auto (the machine's other files)
-        "probe_sign": "auto",
-        # warnings a person has looked at: [{file: <name or glob>, check: <check id>}]
-        "confirmed": [],
-    },
-    "clean": {
-        "max_interpolate_gap_s": 60,
-        "spike_threshold": 8,
-        "open_circuit_values": [-999.0, 999.9, 850.0],
-    },
-    "runs": {
-        "idle_below_rpm": 100,
-        "min_run_s": 1800,
-        "min_constant_s": 3600,
-        "max_leading_rest_s": 300,
-        "overrides": {},
-        "windows": [],
-        "idle_training": False,
-        "allow_training_after_validation": False,
-    },
-    "reference": {"rule": "run_start", "window_s": 60},
-    "equilibrium": {"band_fraction": 0.05, "plateau_window_s": 900, "smooth_window_s": 300},
-    "rank": {"threshold": 0.97, "max_key_sensors": 3, "scope": "min_per_speed", "min_coverage": 0.9},
-    "fit": {
-        "terms": ["1", "x1", "x2", "x3", "x1*x2", "x1*x3", "x2*x3", "x1^2", "x2^2", "x3^2", "x1*x2*x3"],
-        "hac_maxlags": 60,
-    },
-    "fuzzy": {"outside": "edge"},
-    "qualification": {
-        "max_residual_um": 12.0,
-        "min_improvement_pct": 30.0,
-        "never_worse_than_uncompensated": True,
-    },
-    "models": {
-        "enabled": ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"],
-        "cv": "leave_one_run_out",
-        "cv_metric": "rmse",
-        "ridge_alphas": [float(f"{m}e{e}") for e in range(-8, 1) for m in (1, 2, 5)] + [10.0],
-        "dynamic_taus_s": "auto",
-        "dynamic_max_taus": 2,
-        "speed_gain": "cv",
-        "speed_reference": "auto",
-        "grey_box_taus_s": "auto",
-        "grey_box_speed_taus_s": "auto",
-        "grey_box_filter_search": "all",
-        "grey_box_max_taus": 1,
-        "grey_box_max_speed_taus": 2,
-        "grey_box_centrifugal_lags_s": "auto",
-        "grey_box_speed_powers": [0, 1, 5 / 3, 2],
-        "grey_box_cv_metric": "max_abs",
-        "filter_restart_gap_s": 3600,
-    },
-    "nightly": {
-        "candidate": "family",
-        "retrain_speed_range_rpm": None,
-        "drift_margin_um": 2.0,
-        # a candidate may be worse than the champion on a validation run by at most this (um);
-        # "noise": the run's noise floor (rafi.method.noise)
-        "champion_margin_um": "noise",
-    },
-    "report": {
-        "figure_format": "png",
-        # sensors the report names by role; none unless the machine's settings say so
-        "coolant_sensors": [],
-        "ambient_sensor": None,  # the sensor in the room air: the test record's ambient
-        # the machine is the paper's rig (Chang et al. 2023): the paper's numbers are shown
-        # beside this machine's; on any other machine they are left out
-        "paper_rig": False,
-        # the sign-off block on the first page: a value left out is a blank line to sign
-        "document": {"number": None, "prepared_by": None, "approved_by": None, "approved_date": None},
-        # test conditions for the test record, shown when given (a warning names what is missing)
-        "instruments": {
-            "machine_serial": None,
-            "controller": None,
-            "probe": None,  # displacement probe: make, model, resolution
-            "sensor_positions": {},  # sensor -> where it sits, e.g. T8: rear spindle bearing
-            "calibration": {},  # instrument -> calibration date (ISO 8601)
-        },
-    },
-    # the model on the machine: limits and fault rules (rafi.deploy.limits), the live loop
-    # (rafi deploy), the report's replay (docs/deploy.md)
-    "deploy": {
-        "clamp_um": [-50.0, 50.0],  # the command never leaves this range (um)
-        "rate_um_per_s": 0.2,  # nor changes faster than this
-        "temp_valid_c": [-10.0, 70.0],  # a temperature outside this range is a sensor fault
-        # a sensor whose reading has not changed for stuck_s while another sensor the model
-        # reads moved by stuck_change_k is stuck
-        "stuck_s": 1800,
-        "stuck_change_k": 0.5,
-        # outside the trained range: a rise beyond its training range by more than
-        # range_margin_k, a speed above the trained speeds by more than speed_margin_rpm
-        "range_margin_k": 2.0,
-        "speed_margin_rpm": 500,
-        # on a fault or outside the trained range: hold the last good value for hold_s, then
-        # ramp to safe_um at ramp_um_per_s
-        "hold_s": 600,
-        "safe_um": 0.0,
-        "ramp_um_per_s": 0.02,
-        "interval_s": 5,  # the live loop writes every interval_s
-        "target": None,  # the controller (docs/deploy-targets.md); none: replay only
-        "opcua": None,  # the OPC UA connection of the live loop (docs/deploy.md)
-        "replay_roles": ["validation_multi"],  # the runs the report replays
-    },
-}
+#: Every per-machine default (:data:`rafi.contract.MACHINE_SETTINGS`; ``docs/settings.md``).
+MACHINE_DEFAULTS: dict = defaults(MACHINE_SETTINGS)
 
-#: The promotion gates, in the order they are reported.
-GATE_KEYS = tuple(MACHINE_DEFAULTS["qualification"])
+#: The promotion gates (re-exported for the method and ops, which read settings here).
+__all__ = ["GATE_KEYS"]
 
 #: Top-level keys of ``config.yaml``.
 TOP_LEVEL_KEYS = frozenset(RUN_DEFAULTS) | {"defaults", "machines"}
@@ -202,6 +81,29 @@ def check_layout(config: Mapping) -> None:
         else:
             hints.append(f"{key!r} is not a setting (top-level keys: {', '.join(sorted(TOP_LEVEL_KEYS))})")
     raise SettingsError("config.yaml: " + "; ".join(hints))
+
+
+def validate_config(config: Mapping) -> None:
+    """Check ``config`` (``config.yaml`` as loaded) against the contract's schema, with jsonschema.
+
+    The workflow validates the same schema (``workflow/schemas/config.schema.yaml``, generated
+    from :mod:`rafi.contract`) while it plans; the commands that read the config without
+    Snakemake (``rafi settings``, ``nightly``, ``status``, ``deploy``) call this.
+
+    Raises
+    ------
+    SettingsError
+        Naming the first key the schema refuses (``machines.m.deploy.hold_s``) and why.
+    """
+    import jsonschema
+
+    check_layout(config)  # a misplaced section: say where it belongs, not only that it is unexpected
+    validator = jsonschema.Draft202012Validator(config_schema())
+    # the most specific error (best_match descends into anyOf/oneOf: machines.<name> is one)
+    first = jsonschema.exceptions.best_match(validator.iter_errors(dict(config)))
+    if first is not None:
+        where = ".".join(str(p) for p in first.absolute_path) or "top level"
+        raise SettingsError(f"config.yaml: {where}: {first.message}")
 
 
 def run_settings(config: Mapping) -> dict:
@@ -286,6 +188,7 @@ def run(args) -> int:
     try:
         with open(args.config, encoding="utf-8") as fh:
             config = yaml.safe_load(fh) or {}
+        validate_config(config)
         shown = machine_settings(config, args.machine) if args.machine else run_settings(config)
     except (OSError, yaml.YAMLError, SettingsError) as exc:
         print(f"rafi settings: {exc}", file=sys.stderr)

@@ -17,6 +17,7 @@ import jsonschema
 import pytest
 import yaml
 
+from rafi import contract
 from rafi.errors import SettingsError
 from rafi.settings import (
     GATE_KEYS,
@@ -26,6 +27,7 @@ from rafi.settings import (
     deep_merge,
     machine_settings,
     run_settings,
+    validate_config,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -65,7 +67,7 @@ def default_keys(mapping: dict, prefix: tuple = ()) -> set[tuple]:
 
 
 def settings_validator() -> jsonschema.Draft202012Validator:
-    schema = {"$defs": SCHEMA["$defs"], **SCHEMA["$defs"]["settings"]}
+    schema = {"$defs": SCHEMA["$defs"], **SCHEMA["$defs"]["machine_settings"]}
     return jsonschema.Draft202012Validator(schema)
 
 
@@ -79,16 +81,70 @@ def test_config_validates_and_shipped_machines_resolve_completely():
         validator.validate(settings)
 
 
-def test_every_default_has_a_schema_entry_and_every_setting_a_default():
-    allowed = {k for k in schema_keys(SCHEMA["$defs"]["settings"]) if k[0] != "input"}
-    defaulted = {k for k in default_keys(MACHINE_DEFAULTS) if k[0] != "input"}
-    assert defaulted == allowed, (sorted(allowed - defaulted), sorted(defaulted - allowed))
-    top = set(SCHEMA["properties"]) - {"defaults", "machines"}
-    assert top == set(RUN_DEFAULTS)
+def test_the_schema_file_is_generated_from_the_contract():
+    """workflow/schemas/config.schema.yaml is what `python -m rafi.contract` writes, and it holds
+    every key of the contract with its type: the contract is the only declaration."""
+    text = (ROOT / "workflow" / "schemas" / "config.schema.yaml").read_text(encoding="utf-8")
+    assert text == contract.schema_yaml(), "stale: run `python -m rafi.contract`"
+    allowed = {k for k in schema_keys(SCHEMA["$defs"]["machine_settings"]) if k[0] != "input"}
+    assert allowed == {k for k in default_keys(MACHINE_DEFAULTS) if k[0] != "input"}
+    assert set(SCHEMA["properties"]) - {"defaults", "machines"} == set(RUN_DEFAULTS)
+
+
+def test_docs_settings_tables_are_generated_from_the_contract():
+    text = (ROOT / "docs" / "settings.md").read_text(encoding="utf-8")
+    assert text == contract.with_settings_tables(text), "stale: run `python -m rafi.contract`"
+
+
+def test_the_generator_rewrites_a_stale_schema_and_table(tmp_path):
+    for rel in ("workflow/schemas/config.schema.yaml", "docs/settings.md"):
+        (tmp_path / rel).parent.mkdir(parents=True, exist_ok=True)
+        (tmp_path / rel).write_text((ROOT / rel).read_text(encoding="utf-8"), encoding="utf-8")
+    assert contract.write_generated(tmp_path) == []
+    schema = tmp_path / "workflow/schemas/config.schema.yaml"
+    schema.write_text(schema.read_text(encoding="utf-8").replace('"minimum": 0', '"minimum": 1'))
+    assert contract.write_generated(tmp_path) == [schema]
+    assert schema.read_text(encoding="utf-8") == contract.schema_yaml()
+
+
+def test_every_setting_says_what_it_means():
+    def leaves(tree, prefix=""):
+        for key, node in tree.items():
+            if isinstance(node, contract.Section):
+                yield from leaves(node.keys, f"{prefix}{key}.")
+            else:
+                yield f"{prefix}{key}", node
+
+    for path, node in [*leaves(contract.RUN_SETTINGS), *leaves(contract.MACHINE_SETTINGS)]:
+        assert node.doc.strip() and node.shown is not None, f"{path}: no meaning or default in docs"
+        assert "default" not in node.schema, path  # defaults live in Setting.default only
+
+
+@pytest.mark.parametrize(
+    ("config", "where"),
+    [
+        ({"defaults": {"deploy": {"hold_s": -1}}}, "defaults.deploy.hold_s"),
+        ({"machines": {"m": {"rank": {"treshold": 0.9}}}}, "machines.m.rank"),
+        ({"on_bad_input": "ignore"}, "on_bad_input"),
+    ],
+)
+def test_validate_config_names_the_key_jsonschema_refuses(config, where):
+    with pytest.raises(SettingsError, match=rf"config.yaml: {re.escape(where)}: "):
+        validate_config(config)
+    validate_config(CONFIG)  # the shipped config passes
+
+
+def test_limits_and_replay_keys_come_from_the_contract():
+    from dataclasses import fields
+
+    from rafi.deploy.limits import Limits
+
+    assert tuple(f.name for f in fields(Limits)) == contract.LIMIT_KEYS
+    assert set(contract.REPLAY_KEYS) == {*contract.LIMIT_KEYS, "replay_roles"}
 
 
 def _source_files():
-    yield from (p for p in (ROOT / "rafi").rglob("*.py") if p.name != "settings.py")
+    yield from (p for p in (ROOT / "rafi").rglob("*.py") if p.name not in ("settings.py", "contract.py"))
     yield from (ROOT / "workflow").rglob("*.py")
     yield from (ROOT / "workflow").rglob("*.smk")
     yield ROOT / "Snakefile"
@@ -112,7 +168,7 @@ def _read_keys() -> set[str]:
 
 def test_every_key_the_schema_allows_is_read_somewhere():
     read = _read_keys()
-    leaves = {path[-1] for path in schema_keys(SCHEMA["$defs"]["settings"]) if path[0] != "input"}
+    leaves = {path[-1] for path in schema_keys(SCHEMA["$defs"]["machine_settings"]) if path[0] != "input"}
     leaves |= {path[-1] for path in schema_keys(SCHEMA)}
     unread = sorted(leaves - read - {"defaults", "machines"})
     assert not unread, f"settings nothing reads: {unread}"
@@ -168,16 +224,6 @@ def test_an_unknown_top_level_key_is_refused():
 def test_run_settings_defaults_and_overrides():
     assert run_settings({}) == RUN_DEFAULTS
     assert run_settings({"on_bad_input": "quarantine"})["on_bad_input"] == "quarantine"
-
-
-def test_docs_settings_explains_every_key():
-    text = (ROOT / "docs" / "settings.md").read_text(encoding="utf-8")
-    for path in default_keys(MACHINE_DEFAULTS):
-        if path[0] == "input" or isinstance(MACHINE_DEFAULTS.get(path[0]), dict) and len(path) == 1:
-            continue
-        assert f"`{'.'.join(path)}`" in text, path
-    for key in RUN_DEFAULTS:
-        assert f"`{key}`" in text, key
 
 
 def test_rafi_settings_prints_what_a_machine_gets(capsys, monkeypatch):

@@ -7,8 +7,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
+from rafi.contract import REGISTRY_DIR
 from rafi.errors import InputSpecError, SettingsError
-from rafi.settings import machine_settings, run_settings
+from rafi.settings import machine_settings, run_settings, validate_config
 
 
 def config_path(directory: Path, config_file: str | Path) -> Path:
@@ -24,11 +25,15 @@ def load_config(directory: Path, config_file: str | Path) -> dict:
     ------
     OSError
         If the file cannot be read.
+    rafi.errors.SettingsError
+        If the config does not follow the contract (:func:`rafi.settings.validate_config`).
     """
     import yaml
 
     with open(config_path(directory, config_file), encoding="utf-8") as fh:
-        return yaml.safe_load(fh) or {}
+        config = yaml.safe_load(fh) or {}
+    validate_config(config)
+    return config
 
 
 @dataclass
@@ -66,7 +71,7 @@ class Paths:
 
     def registry(self, machine: str) -> Path:
         """``<results>/<machine>/registry``."""
-        return self.results_dir / machine / "registry"
+        return self.results_dir / machine / REGISTRY_DIR
 
 
 def raw_logs(paths: Paths, config: dict, machine: str) -> list[Path]:

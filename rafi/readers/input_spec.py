@@ -3,7 +3,7 @@
 Snakemake evaluates ``workflow/rules/common.smk`` on every invocation (``rafi nightly``
 included) before it runs any job; what that needs of the readers lives here, so planning does
 not import NumPy or pandas: :data:`INPUT_DEFAULTS` (the mapping's defaults, by format),
-:data:`INPUT_SCHEMA`, :func:`normalise_input_spec` (raises
+:data:`INPUT_SCHEMA` (both from :mod:`rafi.contract`), :func:`normalise_input_spec` (raises
 :class:`rafi.errors.InputSpecError`), :func:`find_logs` (the raw files of a machine folder),
 :func:`discover_machines` (every machine's raw files, leaving out links out of ``raw_dir`` and
 files still being written: :mod:`rafi.readers.discovery`) and :func:`log_id` (the name of a raw
@@ -24,6 +24,15 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from rafi import REQUIRED_COLUMNS
+from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of this module's API)
+    CANONICAL_RE,
+    DEFAULT_PATTERN,
+    FORMATS,
+    INPUT_DEFAULTS,
+    INPUT_SCHEMA,
+    NATIVE_KEYS,
+    TIME_KINDS,
+)
 from rafi.errors import InputSpecError, RawFormatError, bound_message, short_path
 from rafi.readers.discovery import (
     NAME_MAX_BYTES,
@@ -39,103 +48,6 @@ from rafi.readers.discovery import (
 from rafi.readers.input_assumed import check_no_time_column, check_speed, constant_speed, has_constant_speed
 
 # --------------------------------------------------------------------------- the input: mapping
-
-FORMATS = ("native", "csv", "xlsx")
-
-#: Defaults of the ``input:`` mapping (``pattern`` defaults by format).
-INPUT_DEFAULTS: dict = {
-    "format": "native",
-    "pattern": None,
-    "sheet": 0,
-    "delimiter": ",",
-    "decimal": ".",
-    "encoding": "utf-8",
-    "header_row": 1,
-    "skip_rows": 0,
-    "columns": {},
-    "time": {"kind": "timestamp", "start": "2000-01-01T00:00:00", "format": None, "period_s": None},
-    "speed": {"constant_rpm": None, "constant_rpm_by_file": {}},
-    "sample_period_s": None,
-    "displacement": {"column": None, "unit": "um", "sign": 1},
-    "temperature_unit": "C",
-    "keep_extra": True,
-}
-
-DEFAULT_PATTERN = {"native": "*.csv", "csv": "*.csv", "xlsx": "*.xlsx"}
-
-#: ``input.time.kind``: a column of timestamps, a column of elapsed seconds, or no time column
-#: (row k of the file at ``start + k * period_s``).
-TIME_KINDS = ("timestamp", "elapsed_s", "none")
-
-#: Keys meaningful for the native format (everything else is for csv/xlsx).
-NATIVE_KEYS = {"format", "pattern", "sample_period_s"}
-
-_CANONICAL_RE = "^(time|speed_rpm|T([1-9]|1[0-6])|disp_um)$"
-
-#: JSON schema (draft 7) of one ``input:`` mapping; the workflow's config schema embeds it.
-#: It carries no ``default`` keywords on purpose: a validator that fills defaults in would
-#: add csv/xlsx keys to native mappings. Defaults live in :data:`INPUT_DEFAULTS`.
-INPUT_SCHEMA: dict = {
-    "type": "object",
-    "additionalProperties": False,
-    "properties": {
-        "format": {"enum": list(FORMATS)},
-        "pattern": {
-            "oneOf": [
-                {"type": "string", "minLength": 1},
-                {"type": "array", "items": {"type": "string", "minLength": 1}, "minItems": 1},
-            ]
-        },
-        "sheet": {"type": ["string", "integer"], "minLength": 1, "minimum": 0},
-        "delimiter": {
-            "anyOf": [{"type": "string", "minLength": 1, "maxLength": 1}, {"enum": ["tab", "\\t"]}]
-        },
-        "decimal": {"enum": [".", ","]},
-        "encoding": {"type": "string", "minLength": 1},
-        "header_row": {"type": "integer", "minimum": 1},
-        "skip_rows": {"type": "integer", "minimum": 0},
-        "columns": {
-            "type": "object",
-            "propertyNames": {"pattern": _CANONICAL_RE},
-            "additionalProperties": {"type": "string", "minLength": 1},
-        },
-        "time": {
-            "type": "object",
-            "additionalProperties": False,
-            "properties": {
-                "kind": {"enum": list(TIME_KINDS)},
-                "start": {"type": "string", "minLength": 1},
-                "format": {"type": ["string", "null"]},
-                "period_s": {"type": "number", "exclusiveMinimum": 0},
-            },
-        },
-        "speed": {
-            "type": "object",
-            "additionalProperties": False,
-            "properties": {
-                "constant_rpm": {"type": "number", "minimum": 0},
-                "constant_rpm_by_file": {
-                    "type": "object",
-                    "propertyNames": {"minLength": 1},
-                    "additionalProperties": {"type": "number", "minimum": 0},
-                },
-            },
-        },
-        "sample_period_s": {"type": "number", "exclusiveMinimum": 0},
-        "displacement": {
-            "type": "object",
-            "additionalProperties": False,
-            "properties": {
-                "column": {"type": "string", "minLength": 1},
-                "unit": {"enum": ["um", "mm"]},
-                "sign": {"enum": [1, -1]},
-            },
-        },
-        "temperature_unit": {"enum": ["C", "K"]},
-        "keep_extra": {"type": "boolean"},
-    },
-}
-
 
 def _spec_error(key: str, message: str) -> InputSpecError:
     return InputSpecError(f"input.{key}: {message}")
@@ -240,7 +152,7 @@ def normalise_input_spec(spec: dict | None) -> dict:
 
     columns = out["columns"]
     for canon, theirs in columns.items():
-        if not re.match(_CANONICAL_RE, str(canon)):
+        if not re.match(CANONICAL_RE, str(canon)):
             raise _spec_error(
                 f"columns.{canon}",
                 "not a canonical column; map " + ", ".join(REQUIRED_COLUMNS) + " to your headers",
