@@ -97,17 +97,17 @@ def run(cand_sum, *, cand=None, champ=CHAMP, champ_sum=CHAMP_SUM, nightly=None, 
     cand = cand or model(offset=1.0)
     return D.decide(
         machine="m1",
-        candidate_dict=cand,
-        candidate_summary=cand_sum,
-        candidate_verdict=qualify(cand_sum, GATES),
-        champion_id=champ["model_id"] if champ else None,
-        champion_summary=champ_sum if champ else None,
-        champion_dict=champ,
+        candidate=D.Candidate(model=cand, summary=cand_sum, verdict=qualify(cand_sum, GATES)),
+        champion=D.Champion(
+            model_id=champ["model_id"] if champ else None,
+            summary=champ_sum if champ else None,
+            model=champ,
+        ),
         runs_table=RUNS,
-        gates=GATES,
-        nightly={**NIGHTLY, **(nightly or {})},
+        settings=D.DecisionSettings(
+            gates=GATES, nightly={**NIGHTLY, **(nightly or {})}, speed_tolerance_rpm=50
+        ),
         history=list(history),
-        speed_tolerance_rpm=50,
         input_status=status,
         time="2026-05-01T00:00:00Z",
     )
@@ -226,15 +226,10 @@ def test_vanished_and_changed_training_files_are_reported():
     s = summary({"v1": 2.0, "v2": 3.0, "v3": 4.0})
     r = D.decide(
         machine="m1",
-        candidate_dict=model(offset=1.0),
-        candidate_summary=s,
-        candidate_verdict=qualify(s, GATES),
-        champion_id=champ["model_id"],
-        champion_summary=CHAMP_SUM,
-        champion_dict=champ,
+        candidate=D.Candidate(model=model(offset=1.0), summary=s, verdict=qualify(s, GATES)),
+        champion=D.Champion(model_id=champ["model_id"], summary=CHAMP_SUM, model=champ),
         runs_table=runs,
-        gates=GATES,
-        nightly=NIGHTLY,
+        settings=D.DecisionSettings(gates=GATES, nightly=NIGHTLY),
         history=[],
         input_status=status,
     ).record

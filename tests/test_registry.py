@@ -201,14 +201,12 @@ def _decide(cand_summary, champ_summary=None, champion_id=None, history=(), cand
     cand = candidate or make_model(offset=1.0)
     return D.decide(
         machine="m1",
-        candidate_dict=cand,
-        candidate_summary=cand_summary,
-        candidate_verdict=qualify(cand_summary, GATES),
-        champion_id=champion_id,
-        champion_summary=champ_summary,
+        candidate=D.Candidate(model=cand, summary=cand_summary, verdict=qualify(cand_summary, GATES)),
+        champion=D.Champion(model_id=champion_id, summary=champ_summary),
         runs_table=RUNS,
-        gates=GATES,
-        nightly={**NIGHTLY, "drift_margin_um": 1.0, **(nightly or {})},
+        settings=D.DecisionSettings(
+            gates=GATES, nightly={**NIGHTLY, "drift_margin_um": 1.0, **(nightly or {})}
+        ),
         history=list(history),
         time="2026-05-01T00:00:00Z",
     )

@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import pandas as pd
 
 from rafi.artefact import json_text, jsonable, now_iso, write_text_atomic
@@ -22,16 +21,16 @@ from rafi.errors import IncompatibleModels
 from rafi.method.validate import qualify as _qualify
 from rafi.method.validate import validate_runs as _validate_runs
 from rafi.ops.adapt import merge_speed_models, retrained_speed_info, speeds_from
-from rafi.ops.drift import drift_check, new_validation_runs
-from rafi.ops.gates import (
-    col_max,
-    col_min,
-    fmt_value,
-    gate_outcome,
-    gated_runs,
-    relative_gate,
-    relative_reasons,
+from rafi.ops.decision_record import (
+    RELATIVE_COLUMNS,
+    comparison_table,
+    history_record,
+    new_since_promotion,
+    relative_gate_record,
+    summary_record,
 )
+from rafi.ops.drift import drift_check, new_validation_runs
+from rafi.ops.gates import fmt_value, gate_outcome, relative_gate, relative_reasons
 from rafi.ops.provenance import (
     champion_speeds,
     coverage_reasons,
@@ -46,108 +45,79 @@ from rafi.ops.provenance import (
 from rafi.ops.registry import DECISION_SCHEMA, Registry, demoted_by_operator, promotion_record
 from rafi.settings import GATE_KEYS
 
-RELATIVE_COLUMNS = [
-    "noise_floor_um",
-    "margin_um",
-    "both_scored",
-    "candidate_minus_champion_um",
-    "candidate_worse",
-]
+
+@dataclass(frozen=True, eq=False)
+class Candidate:
+    """Tonight's candidate, as judged.
+
+    Attributes
+    ----------
+    model : dict
+        Its artefact (``model_id``, ``data``, ``speeds`` or ``train_runs``).
+    summary : pandas.DataFrame
+        Its validation summary (:func:`rafi.method.validate.validate_runs`).
+    verdict : pandas.DataFrame
+        ``qualify``'s verdict on ``summary`` (one row per gate and validation run).
+    retrained_speeds : list of dict, optional
+        The speeds a speed-range adaptation took from tonight's fit
+        (:func:`rafi.ops.adapt.retrained_speed_info`).
+    adaptation : dict, optional
+        How the candidate was made (``mode`` ``full`` or ``speed_range``, see :func:`tonight_candidate`).
+    """
+
+    model: dict
+    summary: pd.DataFrame
+    verdict: pd.DataFrame
+    retrained_speeds: list[dict] | None = None
+    adaptation: dict | None = None
+
+    @property
+    def model_id(self) -> str:
+        return self.model["model_id"]
 
 
-def comparison_table(
-    runs_table: pd.DataFrame,
-    champion_summary: pd.DataFrame | None,
-    candidate_summary: pd.DataFrame | None,
-    new_run_ids=(),
-    relative: pd.DataFrame | None = None,
-) -> pd.DataFrame:
-    """Per validation run: champion vs candidate max residual and improvement, and the relative
-    gate (``relative``, :func:`rafi.ops.gates.relative_gate`): the run's noise floor, the margin,
-    whether both models are scored on it, the difference and whether the candidate is worse."""
-    cols = [
-        "run_id",
-        "file",
-        "role",
-        "speed_rpm",
-        "new_since_champion",
-        "max_abs_before_um",
-        "champion_max_abs_after_um",
-        "champion_improvement_pct",
-        "candidate_max_abs_after_um",
-        "candidate_improvement_pct",
-        *RELATIVE_COLUMNS,
-    ]
-    frames = []
-    base = None
-    for name, summ in (("champion", champion_summary), ("candidate", candidate_summary)):
-        if summ is None or len(summ) == 0:
-            continue
-        part = (
-            summ[["run_id", "max_abs_after_um", "improvement_pct"]]
-            .astype({"run_id": str})
-            .rename(
-                columns={
-                    "max_abs_after_um": f"{name}_max_abs_after_um",
-                    "improvement_pct": f"{name}_improvement_pct",
-                }
-            )
-        )
-        frames.append(part)
-        if base is None:
-            base = summ[
-                [c for c in ("run_id", "role", "speed_rpm", "max_abs_before_um") if c in summ]
-            ].astype({"run_id": str})
-    if base is None:
-        return pd.DataFrame(columns=cols)
-    out = base.copy()
-    for part in frames:
-        out = out.merge(part, on="run_id", how="outer")
-    out["run_id"] = out["run_id"].astype(str)
-    if {"run_id", "file"} <= set(runs_table.columns):
-        files = runs_table[["run_id", "file"]].astype(str).drop_duplicates("run_id")
-        out = out.merge(files, on="run_id", how="left")
-    new = {str(r) for r in new_run_ids}
-    out["new_since_champion"] = out["run_id"].astype(str).isin(new)
-    if relative is not None and len(relative):
-        out = out.merge(
-            relative[["run_id", *RELATIVE_COLUMNS]].astype({"run_id": str}), on="run_id", how="left"
-        )
-    else:
-        floors = [s for s in (candidate_summary, champion_summary) if s is not None and "noise_floor_um" in s]
-        if floors:
-            f = floors[0][["run_id", "noise_floor_um"]].astype({"run_id": str}).drop_duplicates("run_id")
-            out = out.merge(f, on="run_id", how="left")
-    for c in ("both_scored", "candidate_worse"):
-        out[c] = out[c].fillna(False).astype(bool) if c in out else False
-    for c in cols:
-        if c not in out:
-            out[c] = np.nan
-    return out[cols].sort_values("run_id", kind="stable").reset_index(drop=True)
+@dataclass(frozen=True, eq=False)
+class Champion:
+    """The champion in service before tonight (``model_id`` None: the machine has none yet).
+
+    Attributes
+    ----------
+    model_id : str or None
+        Its id (``registry/champion.json``).
+    summary : pandas.DataFrame or None
+        Its validation summary on tonight's runs.
+    model : dict or None
+        Its artefact (its training speeds and files).
+    """
+
+    model_id: str | None = None
+    summary: pd.DataFrame | None = None
+    model: dict | None = None
 
 
-def _summary_record(summary: pd.DataFrame | None) -> dict | None:
-    if summary is None:
-        return None
-    if len(summary) == 0:
-        return {"n_runs": 0, "max_residual_um": None, "min_improvement_pct": None, "runs": {}}
-    runs = {}
-    for rec in summary.to_dict("records"):
-        runs[str(rec["run_id"])] = {
-            "max_abs_before_um": rec.get("max_abs_before_um"),
-            "max_abs_after_um": rec.get("max_abs_after_um"),
-            "improvement_pct": rec.get("improvement_pct"),
-            "worse_than_uncompensated": bool(
-                float(rec["max_abs_after_um"]) > float(rec["max_abs_before_um"])
-            ),
-        }
-    gated = gated_runs(summary)
-    return {
-        "n_runs": int(len(summary)),
-        "max_residual_um": col_max(gated["max_abs_after_um"]),
-        "min_improvement_pct": col_min(gated["improvement_pct"]),
-        "runs": runs,
-    }
+@dataclass(frozen=True)
+class DecisionSettings:
+    """The machine's settings a decision follows.
+
+    Attributes
+    ----------
+    gates : mapping
+        ``qualification:`` (the absolute gates).
+    nightly : mapping
+        ``nightly:`` (``champion_margin_um``: the relative gate's margin, a number or
+        ``"noise"``; ``drift_margin_um``).
+    speed_tolerance_rpm : float
+        Coverage of the champion's training speeds: within this many r/min.
+    """
+
+    gates: Mapping[str, Any]
+    nightly: Mapping[str, Any]
+    speed_tolerance_rpm: float = 50.0
+
+    @property
+    def champion_margin(self):
+        """``nightly.champion_margin_um`` (``"noise"`` when not set)."""
+        return self.nightly.get("champion_margin_um", "noise")
 
 
 @dataclass
@@ -159,207 +129,280 @@ class Decision:
     history: dict = field(default_factory=dict)
 
 
+@dataclass(frozen=True, eq=False)
+class ChampionComparison:
+    """The candidate against the champion run by run (:func:`compare_with_champion`).
+
+    Attributes
+    ----------
+    table : pandas.DataFrame
+        :func:`rafi.ops.gates.relative_gate` (empty without a champion).
+    reasons : list of str
+        Its reason lines (none without a champion).
+    margin : float or str
+        ``nightly.champion_margin_um``.
+    """
+
+    table: pd.DataFrame
+    reasons: list[str]
+    margin: Any
+
+    @property
+    def worse(self) -> pd.DataFrame:
+        """The runs where the candidate is worse than the champion by more than the margin."""
+        return self.table[self.table["candidate_worse"].astype(bool)] if len(self.table) else self.table
+
+
+@dataclass(frozen=True)
+class Provenance:
+    """What the candidate and the champion were trained on, and tonight's input (:func:`check_provenance`).
+
+    Attributes
+    ----------
+    tonight : dict
+        ``file -> sha256`` of the files tonight's runs come from.
+    candidate_training : dict
+        :func:`rafi.ops.provenance.trained_speeds` of the candidate.
+    coverage : dict
+        :func:`rafi.ops.provenance.speed_coverage` of the champion's speeds.
+    champion_data : dict
+        The champion's training files (``file -> sha256``; empty without a champion).
+    changes : dict
+        :func:`rafi.ops.provenance.training_data_changes` of those files.
+    warnings : dict
+        :func:`rafi.ops.provenance.input_warnings` of tonight's input status.
+    """
+
+    tonight: dict
+    candidate_training: dict
+    coverage: dict
+    champion_data: dict
+    changes: dict
+    warnings: dict
+
+
+@dataclass(frozen=True)
+class Blocking:
+    """The checks that stop a candidate passing every gate from being promoted (:func:`blocking_checks`).
+
+    Attributes
+    ----------
+    names : list of str
+        ``blocked_by`` of ``decision.json``: ``relative_gate``, ``coverage``, ``input_warnings``.
+    reasons : list of str
+        The reason lines of the coverage and the input warnings (the relative gate has its own).
+    """
+
+    names: list[str]
+    reasons: list[str]
+
+
+def compare_with_champion(champion: Champion, candidate_summary: pd.DataFrame, margin) -> ChampionComparison:
+    """The relative gate (issue 13 item 4): the candidate against the champion in service, on every
+    validation run both are scored on (:func:`rafi.ops.gates.relative_gate`); nothing to compare
+    without a champion."""
+    if champion.model_id is None:
+        return ChampionComparison(pd.DataFrame(columns=["run_id", *RELATIVE_COLUMNS]), [], margin)
+    table = relative_gate(champion.summary, candidate_summary, margin)
+    return ChampionComparison(table, relative_reasons(table, champion.model_id, margin), margin)
+
+
+def check_provenance(
+    candidate_model: dict,
+    champion: Champion,
+    promotion: dict | None,
+    runs_table: pd.DataFrame,
+    input_status: dict | None,
+    speed_tolerance_rpm: float,
+) -> Provenance:
+    """What the candidate was trained on against what the champion was, and tonight's input.
+
+    The champion's training speeds come from its artefact, else its ``promotion`` record
+    (:func:`rafi.ops.provenance.champion_speeds`), its training files from its artefact's
+    ``data``, else the promotion's ``data_files``. ``input_status`` (``input_status.json``)
+    says why a training file is missing and carries the input warnings.
+    """
+    tonight = files_of(runs_table)
+    status = input_status or {}
+    candidate_training = trained_speeds(candidate_model, runs_table)
+    has_champion = champion.model_id is not None
+    champion_training = champion_speeds(champion.model, promotion, runs_table) if has_champion else None
+    champion_data = {}
+    if has_champion:
+        champion_data = (champion.model or {}).get("data") or (promotion or {}).get("data_files") or {}
+    return Provenance(
+        tonight=tonight,
+        candidate_training=candidate_training,
+        coverage=speed_coverage(champion_training, candidate_training, speed_tolerance_rpm),
+        champion_data=champion_data,
+        changes=training_data_changes(champion_data, tonight, status.get("rejected"), status.get("usable")),
+        warnings=input_warnings(status, tonight),
+    )
+
+
+def blocking_checks(
+    comparison: ChampionComparison, provenance: Provenance, champion_id: str | None
+) -> Blocking:
+    """Which checks block a promotion: the relative gate (worse than the champion on a run), the
+    coverage of the champion's training speeds, an unconfirmed input warning on tonight's data."""
+    hits = (
+        ("relative_gate", len(comparison.worse) > 0),
+        ("coverage", provenance.coverage["blocking"]),
+        ("input_warnings", bool(provenance.warnings["blocking"])),
+    )
+    reasons = coverage_reasons(provenance.coverage, champion_id) + [
+        warning_reason(w) for w in provenance.warnings["blocking"]
+    ]
+    return Blocking(names=[name for name, hit in hits if hit], reasons=reasons)
+
+
+def promotion_decision(
+    candidate_id: str,
+    champion_id: str | None,
+    history: list[dict],
+    gates: tuple[bool, list[str]],
+    comparison: ChampionComparison,
+    blocking: Blocking,
+) -> tuple[str, list[str]]:
+    """The decision and its reasons, in this order of precedence.
+
+    * the candidate is the champion -> ``kept`` (nothing to promote; the gate lines are left out);
+    * an operator rolled the candidate back after its last promotion -> ``kept`` (not
+      re-promoted until new data change it);
+    * ``gates`` (``(passed, reasons)`` of :func:`rafi.ops.gates.gate_outcome`) passed and nothing
+      blocks -> ``promoted``;
+    * otherwise ``rejected``: the champion, if any, stays.
+    """
+    passed, reasons = gates
+    if champion_id is not None and candidate_id == champion_id:
+        return "kept", [
+            f"candidate {candidate_id[:12]} is the champion already (no new training data changed the model)"
+        ]
+    if champion_id is not None and (rollback := demoted_by_operator(history, candidate_id)):
+        return "kept", [
+            f"candidate {candidate_id[:12]} was rolled back by an operator at "
+            f"{rollback.get('time')}; not re-promoted until new data change it",
+            *reasons,
+        ]
+    if passed and not blocking.names:
+        return "promoted", reasons + comparison.reasons
+    stays = (
+        f"champion {champion_id[:12]} stays"
+        if champion_id
+        else "no champion yet: the machine has no qualified model"
+    )
+    return "rejected", reasons + comparison.reasons + blocking.reasons + [stays]
+
+
+def champion_drift(
+    champion: Champion, promotion: dict | None, runs_table: pd.DataFrame, drift_margin_um: float
+) -> tuple[dict, list[str]]:
+    """The drift check of the champion in service (:func:`rafi.ops.drift.drift_check`): its max
+    residual on the validation runs new since its promotion (their files' content was not in its
+    ``data_files``) against the one recorded at its promotion. Returns ``(drift, new_run_ids)``;
+    no promotion record, no new runs."""
+    new_runs = new_validation_runs(runs_table, (promotion or {}).get("data_files")) if promotion else []
+    reference = (promotion.get("candidate_summary") or {}).get("max_residual_um") if promotion else None
+    drift = drift_check(champion.summary, new_runs, reference, float(drift_margin_um))
+    drift["champion_id"] = champion.model_id
+    drift["promoted_at"] = (promotion or {}).get("time")
+    return drift, new_runs
+
+
+def drift_reason(drift: dict, champion_id: str | None, decision: str) -> str:
+    """The reason line of a detected drift: resolved by a promotion tonight, else recalibration due."""
+    line = (
+        f"drift: champion {str(champion_id)[:12]} max residual on {len(drift['per_run'])} new "
+        f"validation run(s) is {fmt_value(drift['new_max_residual_um'])} um vs "
+        f"{fmt_value(drift['reference_max_residual_um'])} um at promotion (margin "
+        f"{fmt_value(drift['margin_um'])} um)"
+    )
+    if decision == "promoted":
+        return line + "; resolved by tonight's promotion"
+    return line + "; recalibration due (new training runs needed)"
+
+
 def decide(
     *,
     machine: str,
-    candidate_dict: dict,
-    candidate_summary: pd.DataFrame,
-    candidate_verdict: pd.DataFrame,
-    champion_id: str | None,
-    champion_summary: pd.DataFrame | None,
+    candidate: Candidate,
+    champion: Champion,
     runs_table: pd.DataFrame,
-    gates: dict,
-    nightly: dict,
+    settings: DecisionSettings,
     history: list[dict],
-    retrained_speeds: list[dict] | None = None,
-    adaptation: dict | None = None,
-    champion_dict: dict | None = None,
-    speed_tolerance_rpm: float = 50.0,
     input_status: dict | None = None,
     time: str | None = None,
 ) -> Decision:
     """Champion / challenger decision (pure).
 
-    * candidate identical to the champion -> ``kept`` (nothing to promote);
-    * candidate was demoted by an operator rollback after its last promotion -> ``kept``
-      (a rolled-back model is not re-promoted until the data change);
-    * candidate passes every absolute gate (``gates``) and, with a champion, the relative
-      gate (not worse than the champion on any validation run both are scored on by more than
-      ``nightly.champion_margin_um``) and the coverage check (its training covers every speed
-      the champion's did, within ``speed_tolerance_rpm``), and no unconfirmed input warning of
-      ``input_status`` is on a file tonight's data uses -> ``promoted``;
-    * otherwise -> ``rejected`` (champion, if any, stays).
+    1. the candidate's absolute gates (:func:`rafi.ops.gates.gate_outcome`);
+    2. the comparison with the champion, run by run (:func:`compare_with_champion`);
+    3. provenance: coverage of the champion's training speeds, its vanished or changed training
+       files, tonight's input warnings (:func:`check_provenance`); what blocks
+       (:func:`blocking_checks`);
+    4. the decision (:func:`promotion_decision`): ``kept`` (the candidate is the champion, or an
+       operator rolled it back), ``promoted`` (every gate passed, nothing blocks) or ``rejected``;
+    5. the drift of the champion in service (:func:`champion_drift`), whatever the decision;
+    6. the record (``decision.json``), the comparison table and the history line.
 
-    ``champion_dict`` is the champion's artefact (its training speeds and files); the
-    champion's training files gone from or changed in tonight's data are reported in
-    ``data.vanished`` / ``data.changed`` (reasons too), without blocking. The drift check
-    always runs on the champion in service before tonight.
+    Vanished or changed training files of the champion are reported (``data.vanished``,
+    ``data.changed`` and reasons), not blocking. ``history`` is ``history.jsonl`` so far;
+    ``input_status`` is ``input_status.json``; ``time`` defaults to now.
     """
     time = time or now_iso()
-    cand_id = candidate_dict["model_id"]
-    passed, reasons, measured = gate_outcome(candidate_summary, candidate_verdict, gates)
-    prom = promotion_record(history, champion_id)
-    tonight = files_of(runs_table)
-    status = input_status or {}
-
-    # relative to the champion in service (issue 13 item 4)
-    margin = nightly.get("champion_margin_um", "noise")
-    rel = pd.DataFrame(columns=["run_id", *RELATIVE_COLUMNS])
-    rel_lines: list[str] = []
-    if champion_id is not None:
-        rel = relative_gate(champion_summary, candidate_summary, margin)
-        rel_lines = relative_reasons(rel, champion_id, margin)
-    worse = rel[rel["candidate_worse"].astype(bool)] if len(rel) else rel
-    cand_training = trained_speeds(candidate_dict, runs_table)
-    champ_training = champion_speeds(champion_dict, prom, runs_table) if champion_id is not None else None
-    cov = speed_coverage(champ_training, cand_training, speed_tolerance_rpm)
-    champ_data = (champion_dict or {}).get("data") or (prom or {}).get("data_files") or {}
-    changes = training_data_changes(
-        champ_data if champion_id is not None else {}, tonight, status.get("rejected"), status.get("usable")
+    promotion = promotion_record(history, champion.model_id)
+    promoted_on = (promotion or {}).get("data_files")  # the files the champion's promotion saw
+    passed, gate_reasons, measured = gate_outcome(candidate.summary, candidate.verdict, settings.gates)
+    comparison = compare_with_champion(champion, candidate.summary, settings.champion_margin)
+    provenance = check_provenance(
+        candidate.model, champion, promotion, runs_table, input_status, settings.speed_tolerance_rpm
     )
-    warns = input_warnings(status, tonight)
-    blocked_by = [
-        name
-        for name, hit in (
-            ("relative_gate", len(worse) > 0),
-            ("coverage", cov["blocking"]),
-            ("input_warnings", bool(warns["blocking"])),
-        )
-        if hit
-    ]
-    blockers = coverage_reasons(cov, champion_id) + [warning_reason(w) for w in warns["blocking"]]
-
-    if champion_id is not None and cand_id == champion_id:
-        decision, reasons = (
-            "kept",
-            [f"candidate {cand_id[:12]} is the champion already (no new training data changed the model)"],
-        )
-    elif champion_id is not None and (rb := demoted_by_operator(history, cand_id)):
-        decision = "kept"
-        reasons = [
-            f"candidate {cand_id[:12]} was rolled back by an operator at "
-            f"{rb.get('time')}; not re-promoted until new data change it"
-        ] + reasons
-    elif passed and not blocked_by:
-        decision = "promoted"
-        reasons = reasons + rel_lines
-    else:
-        decision = "rejected"
-        reasons = reasons + rel_lines + blockers
-        if champion_id:
-            reasons = reasons + [f"champion {champion_id[:12]} stays"]
-        else:
-            reasons = reasons + ["no champion yet: the machine has no qualified model"]
-    reasons += data_change_reasons(changes, champion_id)
-    champion_after = cand_id if decision == "promoted" else champion_id
-
-    # drift of the champion in service
-    known = (prom or {}).get("data_files")
-    new_runs = new_validation_runs(runs_table, known) if prom else []
-    ref = None
-    if prom:
-        ref = (prom.get("candidate_summary") or {}).get("max_residual_um")
-    drift = drift_check(
-        champion_summary,
-        new_runs,
-        ref,
-        float(nightly["drift_margin_um"]),
+    blocking = blocking_checks(comparison, provenance, champion.model_id)
+    decision, reasons = promotion_decision(
+        candidate.model_id, champion.model_id, history, (passed, gate_reasons), comparison, blocking
     )
-    drift["champion_id"] = champion_id
-    drift["promoted_at"] = (prom or {}).get("time")
-    recal = bool(drift["detected"]) and decision != "promoted"
+    reasons += data_change_reasons(provenance.changes, champion.model_id)
+    drift, new_runs = champion_drift(champion, promotion, runs_table, settings.nightly["drift_margin_um"])
     if drift["detected"]:
-        msg = (
-            f"drift: champion {str(champion_id)[:12]} max residual on {len(drift['per_run'])} new "
-            f"validation run(s) is {fmt_value(drift['new_max_residual_um'])} um vs "
-            f"{fmt_value(drift['reference_max_residual_um'])} um at promotion (margin "
-            f"{fmt_value(drift['margin_um'])} um)"
-        )
-        msg += (
-            "; resolved by tonight's promotion"
-            if decision == "promoted"
-            else "; recalibration due (new training runs needed)"
-        )
-        reasons.append(msg)
-
-    new_files = sorted({f for f, h in tonight.items() if known is not None and h not in set(known.values())})
-    shared = rel[rel["both_scored"].astype(bool)] if len(rel) else rel
-    relative = {
-        "applied": champion_id is not None and len(shared) > 0,
-        "champion_margin_um": margin,
-        "n_runs_both_scored": int(len(shared)),
-        "passed": len(worse) == 0,
-        "worse_runs": [
-            {
-                "run_id": str(r["run_id"]),
-                "champion_max_abs_after_um": r["champion_max_abs_after_um"],
-                "candidate_max_abs_after_um": r["candidate_max_abs_after_um"],
-                "noise_floor_um": r["noise_floor_um"],
-                "margin_um": r["margin_um"],
-                "candidate_minus_champion_um": r["candidate_minus_champion_um"],
-            }
-            for r in worse.to_dict("records")
-        ],
-    }
+        reasons.append(drift_reason(drift, champion.model_id, decision))
     record = {
         "schema": DECISION_SCHEMA,
         "machine": machine,
-        "candidate_id": cand_id,
-        "champion_id_before": champion_id,
-        "champion_id_after": champion_after,
+        "candidate_id": candidate.model_id,
+        "champion_id_before": champion.model_id,
+        "champion_id_after": candidate.model_id if decision == "promoted" else champion.model_id,
         "decision": decision,
         "reasons": reasons,
-        "gates": dict(gates),
+        "gates": dict(settings.gates),
         "gates_passed": bool(passed),
-        "blocked_by": blocked_by,
+        "blocked_by": blocking.names,
         "measured": measured,
-        "verdict": jsonable(candidate_verdict.to_dict("records")) if candidate_verdict is not None else [],
-        "candidate_summary": _summary_record(candidate_summary),
-        "champion_summary": _summary_record(champion_summary),
-        "relative_gate": relative,
-        "coverage": cov,
-        "input_warnings": warns,
-        "retrained_speeds": retrained_speeds or [],
-        "adaptation": adaptation or {"retrain_speed_range_rpm": None, "mode": "full"},
-        "training": cand_training,
+        "verdict": jsonable(candidate.verdict.to_dict("records")) if candidate.verdict is not None else [],
+        "candidate_summary": summary_record(candidate.summary),
+        "champion_summary": summary_record(champion.summary),
+        "relative_gate": relative_gate_record(comparison.table, champion.model_id, comparison.margin),
+        "coverage": provenance.coverage,
+        "input_warnings": provenance.warnings,
+        "retrained_speeds": candidate.retrained_speeds or [],
+        "adaptation": candidate.adaptation or {"retrain_speed_range_rpm": None, "mode": "full"},
+        "training": provenance.candidate_training,
         "data": {
-            "files": tonight,
-            "new_since_champion": new_files,
-            "candidate_data": candidate_dict.get("data", {}),
-            "champion_data": champ_data if champion_id is not None else {},
-            **changes,
+            "files": provenance.tonight,
+            "new_since_champion": new_since_promotion(provenance.tonight, promoted_on),
+            "candidate_data": candidate.model.get("data", {}),
+            "champion_data": provenance.champion_data,
+            **provenance.changes,
         },
-        "recalibration_due": recal,
+        "recalibration_due": bool(drift["detected"]) and decision != "promoted",
         "drift": drift,
         "time": time,
     }
-    hist = {
-        k: record[k]
-        for k in (
-            "candidate_id",
-            "champion_id_before",
-            "champion_id_after",
-            "decision",
-            "reasons",
-            "gates",
-            "gates_passed",
-            "blocked_by",
-            "measured",
-            "candidate_summary",
-            "champion_summary",
-            "retrained_speeds",
-            "adaptation",
-            "training",
-            "recalibration_due",
-            "drift",
-        )
-    }
-    hist["data_files"] = tonight
-    hist["vanished"] = changes["vanished"]
-    hist["changed"] = changes["changed"]
-    hist["time"] = time
-    comp = comparison_table(runs_table, champion_summary, candidate_summary, new_runs, rel)
-    return Decision(record=jsonable(record), comparison=comp, history=jsonable(hist))
+    table = comparison_table(runs_table, champion.summary, candidate.summary, new_runs, comparison.table)
+    return Decision(
+        record=jsonable(record),
+        comparison=table,
+        history=jsonable(history_record(record, provenance.tonight, time)),
+    )
 
 
 def _model_from_dict(d: dict):
@@ -372,6 +415,51 @@ def _model_from_dict(d: dict):
 
 def _summary_only(result):
     return result[0] if isinstance(result, tuple) else result
+
+
+def tonight_candidate(
+    fitted: dict, champion_id: str | None, champion_model: dict | None, retrain_range
+) -> tuple[dict, dict]:
+    """The model tonight offers, and how it was made.
+
+    With ``nightly.retrain_speed_range_rpm`` (``retrain_range``, ``[low, high]``, either end
+    None for open) and a champion, the candidate is the champion with the speeds in the range
+    taken from tonight's ``fitted`` model (:func:`rafi.ops.adapt.merge_speed_models`); if the
+    two cannot be merged, or there is no champion, it is ``fitted`` itself.
+
+    Returns
+    -------
+    tuple
+        ``(candidate, adaptation)``: ``adaptation`` has ``retrain_speed_range_rpm``, ``mode``
+        (``full`` / ``speed_range``), ``fitted_id``, ``kept_from`` (speed range), a ``note``
+        when the range was asked for but not applied, and ``retrained_speeds_rpm`` (none when
+        the candidate is the champion).
+    """
+    candidate = fitted
+    adaptation = {"retrain_speed_range_rpm": retrain_range, "mode": "full", "fitted_id": fitted["model_id"]}
+    if retrain_range is not None and champion_model is not None:
+        low, high = (list(retrain_range) + [None, None])[:2]
+        try:
+            candidate = merge_speed_models(fitted, champion_model, low, high)
+            adaptation.update(mode="speed_range", kept_from=champion_id)
+        except IncompatibleModels as exc:
+            adaptation.update(
+                mode="full",
+                note=f"speed-range adaptation impossible: {exc}; the full new fit is the candidate",
+            )
+    elif retrain_range is not None:
+        adaptation["note"] = "no champion yet: the full new fit is the candidate"
+    adaptation["retrained_speeds_rpm"] = (
+        [] if candidate["model_id"] == champion_id else speeds_from(candidate, fitted)
+    )
+    return candidate, adaptation
+
+
+def _read_json(path: str | os.PathLike | None) -> dict | None:
+    """A JSON file's content, None without a path or file."""
+    if path is None or not Path(path).exists():
+        return None
+    return json.loads(Path(path).read_text(encoding="utf-8"))
 
 
 def run_decide(
@@ -408,74 +496,58 @@ def run_decide(
     """
     from rafi.artefact import write_csv_atomic  # local: keeps the pure part importable without pyarrow
 
-    gates = {k: gates[k] for k in GATE_KEYS}  # the machine's resolved settings: every key present
+    settings = DecisionSettings(
+        gates={k: gates[k] for k in GATE_KEYS},  # the machine's resolved settings: every key present
+        nightly=nightly,
+        speed_tolerance_rpm=speed_tolerance_rpm,
+    )
     validate_runs = validate_runs or _validate_runs
     qualify = qualify or _qualify
     reg = Registry(Path(registry_root), machine)
     runs_table = pd.read_csv(runs_csv)
     runs_frame = pd.read_parquet(runs_parquet)
-    history = reg.history()
-    input_status = None
-    if input_status_path is not None and Path(input_status_path).exists():
-        input_status = json.loads(Path(input_status_path).read_text(encoding="utf-8"))
+
+    def evaluate(model: dict) -> pd.DataFrame:
+        return _summary_only(validate_runs(model_from_dict(model), runs_table, runs_frame))
 
     fitted = json.loads(Path(candidate_path).read_text(encoding="utf-8"))
     champion_id = reg.champion_id()
-    champion_dict = reg.load_model_dict(champion_id) if champion_id else None
-
-    rng = nightly["retrain_speed_range_rpm"]
-    candidate = fitted
-    adaptation = {"retrain_speed_range_rpm": rng, "mode": "full", "fitted_id": fitted["model_id"]}
-    if rng is not None and champion_dict is not None:
-        lo, hi = (list(rng) + [None, None])[:2]
-        try:
-            candidate = merge_speed_models(fitted, champion_dict, lo, hi)
-            adaptation.update(mode="speed_range", kept_from=champion_id)
-        except IncompatibleModels as exc:
-            adaptation.update(
-                mode="full",
-                note=f"speed-range adaptation impossible: {exc}; the full new fit is the candidate",
-            )
-    elif rng is not None:
-        adaptation["note"] = "no champion yet: the full new fit is the candidate"
-    retrained = [] if candidate["model_id"] == champion_id else speeds_from(candidate, fitted)
-    adaptation["retrained_speeds_rpm"] = retrained
+    champion_model = reg.load_model_dict(champion_id) if champion_id else None
+    candidate, adaptation = tonight_candidate(
+        fitted, champion_id, champion_model, nightly["retrain_speed_range_rpm"]
+    )
     log(
         f"{machine}: candidate {candidate['model_id'][:12]} ({adaptation['mode']}), "
         f"champion {str(champion_id)[:12] if champion_id else 'none'}"
     )
-
     if (
         candidate_summary_path is not None
         and candidate["model_id"] == fitted["model_id"]
         and Path(candidate_summary_path).exists()
     ):
         # the fitted model itself: rule validate already evaluated it on these runs
-        cand_summary = pd.read_csv(candidate_summary_path)
+        candidate_summary = pd.read_csv(candidate_summary_path)
     else:
-        cand_summary = _summary_only(validate_runs(model_from_dict(candidate), runs_table, runs_frame))
-    verdict = qualify(cand_summary, gates)
-    champ_summary = None
+        candidate_summary = evaluate(candidate)
+    champion_summary = None
     if champion_id is not None and champion_id == candidate["model_id"]:
-        champ_summary = cand_summary
-    elif champion_dict is not None:
-        champ_summary = _summary_only(validate_runs(model_from_dict(champion_dict), runs_table, runs_frame))
+        champion_summary = candidate_summary
+    elif champion_model is not None:
+        champion_summary = evaluate(champion_model)
     dec = decide(
         machine=machine,
-        candidate_dict=candidate,
-        candidate_summary=cand_summary,
-        candidate_verdict=verdict,
-        champion_id=champion_id,
-        champion_summary=champ_summary,
+        candidate=Candidate(
+            model=candidate,
+            summary=candidate_summary,
+            verdict=qualify(candidate_summary, settings.gates),
+            retrained_speeds=retrained_speed_info(candidate, adaptation["retrained_speeds_rpm"], runs_table),
+            adaptation=adaptation,
+        ),
+        champion=Champion(model_id=champion_id, summary=champion_summary, model=champion_model),
         runs_table=runs_table,
-        gates=gates,
-        nightly=nightly,
-        history=history,
-        retrained_speeds=retrained_speed_info(candidate, retrained, runs_table),
-        adaptation=adaptation,
-        champion_dict=champion_dict,
-        speed_tolerance_rpm=speed_tolerance_rpm,
-        input_status=input_status,
+        settings=settings,
+        history=reg.history(),
+        input_status=_read_json(input_status_path),
     )
 
     reg.save_model(candidate, source=str(candidate_path), extra={"adaptation": adaptation})

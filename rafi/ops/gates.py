@@ -14,47 +14,106 @@ def gated_runs(summary: pd.DataFrame) -> pd.DataFrame:
     return summary
 
 
+#: The gate judged run by run against the run's own uncompensated residual.
+NEVER_WORSE = "never_worse_than_uncompensated"
+
+
+def _run_key(run_id) -> str | None:
+    """A verdict row's run as text, None for a row that names no run (NaN or missing)."""
+    if run_id is None or (isinstance(run_id, float) and math.isnan(run_id)):
+        return None
+    return str(run_id)
+
+
+def _exceeds(measured, limit) -> bool:
+    """``measured > limit`` for two numbers; False if either is missing or not a number."""
+    try:
+        return float(measured) > float(limit)
+    except (TypeError, ValueError):
+        return False
+
+
+def failed_gates(verdict: pd.DataFrame) -> list[dict]:
+    """The failed rows of ``qualify``'s verdict, in its order: ``{"gate", "run", "measured", "limit"}``
+    (``run`` None for a row that names no run)."""
+    return [
+        {
+            "gate": rec.get("criterion"),
+            "run": _run_key(rec.get("run_id")),
+            "measured": rec.get("measured"),
+            "limit": rec.get("limit"),
+        }
+        for rec in verdict.to_dict("records")
+        if not bool(rec.get("passed"))
+    ]
+
+
+def failed_gate_reason(failure: dict) -> str:
+    """The reason line of one failed verdict row (:func:`failed_gates`)."""
+    where = f" on run {failure['run']}" if failure["run"] is not None else ""
+    return (
+        f"gate {failure['gate']} failed{where}: measured "
+        f"{fmt_value(failure['measured'])}, limit {fmt_value(failure['limit'])}"
+    )
+
+
+def worse_than_uncompensated(summary: pd.DataFrame, verdict: pd.DataFrame, gates: dict) -> tuple[list, list]:
+    """The runs where compensation made things worse, as judged by ``qualify``.
+
+    A run whose never-worse verdict row failed with a measurement above its limit (``after >
+    before``; a NaN measurement fails the gate but is not "worse"). A run of ``summary`` the
+    verdict did not judge on that gate (a ``qualify`` that left it out) is judged here from
+    ``summary`` (``max_abs_after_um > max_abs_before_um`` or its ``worse_than_uncompensated``
+    flag), so the gate holds whatever granularity ``qualify`` reports.
+
+    Returns
+    -------
+    tuple of list
+        ``(worse, unjudged)``: every worse run in ``summary`` order (``run_id`` as text), and
+        those of them the verdict did not judge (they need a reason line of their own).
+    """
+    if not gates[NEVER_WORSE]:
+        return [], []
+    judged = {
+        _run_key(rec.get("run_id")): not bool(rec.get("passed"))
+        and _exceeds(rec.get("measured"), rec.get("limit"))
+        for rec in verdict.to_dict("records")
+        if rec.get("criterion") == NEVER_WORSE
+    }
+    after = summary["max_abs_after_um"].astype(float)
+    before = summary["max_abs_before_um"].astype(float)
+    flagged = after > before
+    if "worse_than_uncompensated" in summary:
+        flagged = flagged | summary["worse_than_uncompensated"].fillna(False).astype(bool)
+    worse, unjudged = [], []
+    for run, flag in zip(summary["run_id"].astype(str), flagged):
+        if run in judged:
+            if judged[run]:
+                worse.append(run)
+        elif flag:
+            worse.append(run)
+            unjudged.append(run)
+    return worse, unjudged
+
+
 def gate_outcome(summary: pd.DataFrame, verdict: pd.DataFrame, gates: dict) -> tuple[bool, list[str], dict]:
     """Did the candidate pass every gate? Returns ``(passed, reasons, measured)``.
 
-    ``verdict`` is the table of ``qualify``. The never-worse gate is additionally
-    checked here run by run from ``summary`` (max|dz - pred| > max|dz| on ANY run
-    fails), whatever granularity ``qualify`` reports. No validation run at all fails.
+    ``verdict`` is the table of ``qualify`` (one row per gate and validation run): each failed
+    row is a reason line. The never-worse gate is held on every run of ``summary``
+    (:func:`worse_than_uncompensated`); a run the verdict did not judge on it gets its own line,
+    so no (gate, run) is reported twice. No validation run at all fails.
     """
-    reasons: list[str] = []
-    passed = True
     if summary is None or len(summary) == 0:
         return False, ["no validation runs: the candidate cannot be qualified"], {}
-    for rec in verdict.to_dict("records"):
-        if not bool(rec.get("passed")):
-            passed = False
-            run = rec.get("run_id")
-            where = (
-                f" on run {run}"
-                if run is not None and not (isinstance(run, float) and math.isnan(run))
-                else ""
-            )
-            reasons.append(
-                f"gate {rec.get('criterion')} failed{where}: measured "
-                f"{fmt_value(rec.get('measured'))}, limit {fmt_value(rec.get('limit'))}"
-            )
-    worse = []
-    if gates["never_worse_than_uncompensated"]:
-        after = summary["max_abs_after_um"].astype(float)
-        before = summary["max_abs_before_um"].astype(float)
-        bad = after > before
-        if "worse_than_uncompensated" in summary:
-            bad = bad | summary["worse_than_uncompensated"].fillna(False).astype(bool)
-        worse = summary.loc[bad, "run_id"].astype(str).tolist()
-        if worse:
-            passed = False
-            already = " ".join(reasons)
-            for rid in worse:
-                if f"never_worse_than_uncompensated failed on run {rid}" not in already:
-                    reasons.append(
-                        f"gate never_worse_than_uncompensated failed on run {rid}: "
-                        "compensated residual larger than uncompensated"
-                    )
+    failures = failed_gates(verdict)
+    worse, unjudged = worse_than_uncompensated(summary, verdict, gates)
+    reasons = [failed_gate_reason(f) for f in failures]
+    reasons += [
+        f"gate {NEVER_WORSE} failed on run {run}: compensated residual larger than uncompensated"
+        for run in unjudged
+    ]
+    passed = not failures and not worse
     gated = gated_runs(summary)
     measured = {
         "max_residual_um": col_max(gated["max_abs_after_um"]),
