@@ -54,12 +54,22 @@ NaN in the rises, and later steps drop them.
 from __future__ import annotations
 
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
+from rafi.method.speed_runs import (  # noqa: F401 (the segmentation constants: part of this module's API)
+    RAMP_MAX_SAMPLES,
+    SPEED_SMOOTH_S,
+    RunSpan,
+    cut_at,
+    sample_period,
+    split_log,
+)
 from rafi.method.windows import (
     VALIDATION_BY_KIND,
     check_windows,
@@ -110,13 +120,6 @@ RUNS_FRAME_COLUMNS = (
     "segment",
 )
 
-#: Width (s) of the centred rolling median applied to the speed before cutting it into
-#: pieces (at least 3 samples): removes speed noise and isolated ramp samples, keeps steps sharp.
-SPEED_SMOOTH_S = 60.0
-
-#: A varying stretch of at most this many samples next to a constant run is a ramp.
-RAMP_MAX_SAMPLES = 3
-
 #: File-name suffixes removed from the keys of ``clean_frames`` to get the stem.
 LOG_SUFFIXES = (".csv", ".xlsx", ".xls", ".txt", ".parquet", ".tsv")
 
@@ -126,121 +129,6 @@ REFERENCE_RULES = ("run_start", "log_start")
 def _stem(key: str) -> str:
     p = Path(str(key))
     return p.stem if p.suffix.lower() in LOG_SUFFIXES else p.name
-
-
-def _period(t_s: np.ndarray, seg: np.ndarray) -> float:
-    if len(t_s) < 2:
-        return 1.0
-    d = np.diff(t_s)[seg[1:] == seg[:-1]]
-    d = d[d > 0]
-    return float(np.median(d)) if len(d) else 1.0
-
-
-def _pieces(speed: np.ndarray, idle: np.ndarray, tol: float) -> list[list]:
-    """Pieces ``[start, end_exclusive, is_idle]`` of one segment."""
-    n = len(speed)
-    pieces: list[list] = []
-    change = np.flatnonzero(np.diff(idle.astype(np.int8))) + 1
-    bounds = np.concatenate(([0], change, [n]))
-    for a, b in zip(bounds[:-1], bounds[1:]):
-        if idle[a]:
-            pieces.append([a, b, True])
-            continue
-        i = a
-        while i < b:
-            anchor = speed[i]
-            j, w = i + 1, 64
-            end = b
-            while j < b:
-                stop = min(b, j + w)
-                out = np.abs(speed[j:stop] - anchor) > tol
-                if out.any():
-                    end = j + int(np.argmax(out))
-                    break
-                j, w = stop, w * 2
-            pieces.append([i, end, False])
-            i = end
-    # merge adjacent non-idle pieces whose medians agree (speed noise around one set point)
-    merged: list[list] = []
-    for p in pieces:
-        if merged and not p[2] and not merged[-1][2] and merged[-1][1] == p[0]:
-            q = merged[-1]
-            if abs(np.median(speed[q[0] : q[1]]) - np.median(speed[p[0] : p[1]])) <= tol:
-                q[1] = p[1]
-                continue
-        merged.append(list(p))
-    return merged
-
-
-def _segment_runs(
-    speed: np.ndarray,
-    period: float,
-    *,
-    tol: float,
-    idle_below: float,
-    min_constant_s: float,
-    max_leading_rest_s: float = 0.0,
-) -> list[tuple[int, int, str, int]]:
-    """Runs ``(start, end_exclusive, kind, rest_samples)`` of one segment, in time order.
-
-    ``rest_samples`` > 0 for a run that absorbed the segment's leading rest (its first
-    ``rest_samples`` samples are the rest, idle).
-    """
-    win = max(3, 2 * int(round(SPEED_SMOOTH_S / 2 / period)) + 1)
-    smooth = pd.Series(speed).rolling(win, center=True, min_periods=1).median().to_numpy()
-    idle = ~(smooth >= idle_below)  # NaN speed counts as idle
-    pieces = _pieces(smooth, idle, tol)
-    min_const_n = min_constant_s / period
-    groups: list[list] = []  # [start, end_exclusive, kind]
-    for a, b, is_idle in pieces:
-        kind = "idle" if is_idle else ("constant" if (b - a) >= min_const_n - 1e-9 else "varying")
-        if kind == "varying" and groups and groups[-1][2] == "varying" and groups[-1][1] == a:
-            groups[-1][1] = b  # consecutive short pieces: one stretch
-        else:
-            groups.append([a, b, kind])
-    # ramps: a tiny varying stretch next to a constant run is absorbed by it
-    kept: list[list] = []
-    for k, g in enumerate(groups):
-        if g[2] == "varying" and g[1] - g[0] <= RAMP_MAX_SAMPLES:
-            nxt = groups[k + 1] if k + 1 < len(groups) else None
-            if nxt is not None and nxt[2] == "constant" and nxt[0] == g[1]:
-                nxt[0] = g[0]
-                continue
-            if kept and kept[-1][2] == "constant" and kept[-1][1] == g[0]:
-                kept[-1][1] = g[1]
-                continue
-        kept.append(g)
-    # a short idle stretch between two varying stretches is a stop inside the schedule
-    out: list[list] = []
-    for g in kept:
-        if out and g[2] == "varying" and out[-1][2] == "varying":
-            out[-1][1] = g[1]
-            continue
-        if (
-            len(out) >= 2
-            and g[2] == "varying"
-            and out[-1][2] == "idle"
-            and out[-2][2] == "varying"
-            and (out[-1][1] - out[-1][0]) < min_const_n
-        ):
-            out.pop()
-            out[-1][1] = g[1]
-            continue
-        out.append(g)
-    rest = [0] * len(out)
-    # a short rest at the segment start belongs to the following run (cold start from rest)
-    if (
-        len(out) >= 2
-        and out[0][2] == "idle"
-        and out[1][2] != "idle"
-        and out[0][0] == 0
-        and (out[0][1] - out[0][0]) * period < float(max_leading_rest_s) - 1e-9
-    ):
-        n_rest = out[0][1] - out[0][0]
-        out[1][0] = out[0][0]
-        out.pop(0)
-        rest = [n_rest] + [0] * (len(out) - 1)
-    return [(int(a), int(b), kind, int(r)) for (a, b, kind), r in zip(out, rest)]
 
 
 def find_runs(
@@ -321,6 +209,73 @@ def find_runs(
         A bad or overlapping window, or configured training data after validation data of the
         same log (unless ``allow_training_after_validation``).
     """
+    rules = run_rules(
+        training_speeds_rpm=training_speeds_rpm,
+        speed_tolerance_rpm=speed_tolerance_rpm,
+        idle_below_rpm=idle_below_rpm,
+        min_run_s=min_run_s,
+        min_constant_s=min_constant_s,
+        overrides=overrides,
+        reference_rule=reference_rule,
+        reference_window_s=reference_window_s,
+        max_leading_rest_s=max_leading_rest_s,
+        windows=windows,
+        idle_training=idle_training,
+        allow_training_after_validation=allow_training_after_validation,
+    )
+    rows: list[dict] = []
+    samples: list[dict] = []
+    for key in sorted(clean_frames):
+        if len(clean_frames[key]) == 0:
+            continue
+        log_rows, log_samples = log_runs(key, log_arrays(clean_frames[key]), sha256, rules)
+        rows += log_rows
+        samples += log_samples
+    return runs_table(rows), stack_runs(samples)
+
+
+@dataclass(frozen=True)
+class RunRules:
+    """The settings of :func:`find_runs`, checked and as the steps use them (see its parameters)."""
+
+    training_speeds_rpm: np.ndarray  # sorted
+    speed_tolerance_rpm: float
+    idle_below_rpm: float
+    min_run_s: float
+    min_constant_s: float
+    overrides: dict
+    reference_rule: str
+    reference_window_s: float
+    max_leading_rest_s: float
+    windows: list
+    idle_training: bool
+    allow_training_after_validation: bool
+
+
+def run_rules(
+    *,
+    training_speeds_rpm,
+    speed_tolerance_rpm,
+    idle_below_rpm,
+    min_run_s,
+    min_constant_s,
+    overrides,
+    reference_rule,
+    reference_window_s,
+    max_leading_rest_s,
+    windows,
+    idle_training,
+    allow_training_after_validation,
+) -> RunRules:
+    """The :class:`RunRules` of :func:`find_runs`' keyword arguments.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``reference_rule`` or an override with an unknown role.
+    rafi.errors.SettingsError
+        A bad window (:func:`rafi.method.windows.check_windows`).
+    """
     if reference_rule not in REFERENCE_RULES:
         raise ValueError(
             f"reference_rule is {reference_rule!r}; expected one of {', '.join(REFERENCE_RULES)}"
@@ -329,145 +284,227 @@ def find_runs(
     for key, role in overrides.items():
         if role not in ROLES:
             raise ValueError(f"override {key!r}: role {role!r} is not one of {', '.join(ROLES)}")
-    train = np.asarray(sorted(float(s) for s in (training_speeds_rpm or [])), dtype=float)
-    tol = float(speed_tolerance_rpm)
-    window = float(reference_window_s)
-    windows = check_windows(windows)
+    return RunRules(
+        training_speeds_rpm=np.asarray(sorted(float(s) for s in (training_speeds_rpm or [])), dtype=float),
+        speed_tolerance_rpm=float(speed_tolerance_rpm),
+        idle_below_rpm=float(idle_below_rpm),
+        min_run_s=float(min_run_s),
+        min_constant_s=float(min_constant_s),
+        overrides=overrides,
+        reference_rule=reference_rule,
+        reference_window_s=float(reference_window_s),
+        max_leading_rest_s=float(max_leading_rest_s),
+        windows=check_windows(windows),
+        idle_training=idle_training,
+        allow_training_after_validation=allow_training_after_validation,
+    )
 
-    rows: list[dict] = []
-    parts: dict[str, list] = {c: [] for c in RUNS_FRAME_COLUMNS}
-    for key in sorted(clean_frames):
-        fr = clean_frames[key]
-        stem = _stem(key)
-        n_rows = len(fr)
-        if n_rows == 0:
-            continue
-        t_s = (
-            fr["t_s"].to_numpy(dtype=float)
-            if "t_s" in fr
-            else (pd.to_datetime(fr["time"]) - pd.to_datetime(fr["time"]).iloc[0])
-            .dt.total_seconds()
-            .to_numpy()
-        )
-        seg = fr["segment"].to_numpy(dtype="int64") if "segment" in fr else np.zeros(n_rows, "int64")
-        speed = fr["speed_rpm"].to_numpy(dtype=float, na_value=np.nan)
-        temps = np.column_stack(
-            [
-                fr[s].to_numpy(dtype=float, na_value=np.nan) if s in fr else np.full(n_rows, np.nan)
-                for s in SENSORS
-            ]
-        )
-        disp = fr["disp_um"].to_numpy(dtype=float, na_value=np.nan)
-        times = (
-            fr["time"].to_numpy(dtype="datetime64[ns]")
-            if "time" in fr
-            else np.full(n_rows, np.datetime64("NaT"), dtype="datetime64[ns]")
-        )
-        period = _period(t_s, seg)
 
-        found = []  # (segment, seg_first_row, a, b, kind)
-        change = np.flatnonzero(seg[1:] != seg[:-1]) + 1
-        for s0, s1 in zip(np.concatenate(([0], change)), np.concatenate((change, [n_rows]))):
-            for a, b, kind, rest in _segment_runs(
-                speed[s0:s1],
-                period,
-                tol=tol,
-                idle_below=float(idle_below_rpm),
-                min_constant_s=float(min_constant_s),
-                max_leading_rest_s=float(max_leading_rest_s),
-            ):
-                found.append((int(seg[s0]), int(s0), int(s1), int(s0 + a), int(s0 + b), kind, int(rest)))
-        log_windows = resolve_windows(windows, str(key), t_s, times)
-        found = _cut_at(found, cut_points(log_windows, t_s))
+@dataclass(frozen=True)
+class LogArrays:
+    """One clean log as arrays (rows in time order): seconds since its first sample, segment,
+    speed, temperatures (rows x ``SENSORS``, NaN for a missing column), displacement, clock
+    (``NaT`` without one) and the sample period."""
 
-        first_row = len(rows)
-        for k, (segment, s0, s1, a, b, kind, rest) in enumerate(found, start=1):
-            run_id = stem if len(found) == 1 else f"{stem}#{k}"
-            sp = speed[a:b]
-            sp_on = speed[a + rest : b]  # speed statistics ignore the rest
-            med = float(np.nanmedian(sp_on)) if np.isfinite(sp_on).any() else float("nan")
-            duration = (b - a) * period
-            notes = []
-            if rest:
-                notes.append(
-                    f"rest before start: {rest * period:g} s at rest absorbed (reference "
-                    "state = cold machine at rest)"
-                )
-            auto, reason = _auto_role(
-                kind, med, duration, train, tol, float(min_run_s), float(idle_below_rpm)
+    t_s: np.ndarray
+    segment: np.ndarray
+    speed: np.ndarray
+    temps: np.ndarray
+    disp: np.ndarray
+    times: np.ndarray
+    period: float
+
+
+def log_arrays(frame: pd.DataFrame) -> LogArrays:
+    """The :class:`LogArrays` of a clean frame (``t_s`` from ``time`` and one segment where the
+    frame has no such column)."""
+    n_rows = len(frame)
+    if "t_s" in frame:
+        t_s = frame["t_s"].to_numpy(dtype=float)
+    else:
+        time = pd.to_datetime(frame["time"])
+        t_s = (time - time.iloc[0]).dt.total_seconds().to_numpy()
+    seg = frame["segment"].to_numpy(dtype="int64") if "segment" in frame else np.zeros(n_rows, "int64")
+    temps = np.column_stack(
+        [
+            frame[s].to_numpy(dtype=float, na_value=np.nan) if s in frame else np.full(n_rows, np.nan)
+            for s in SENSORS
+        ]
+    )
+    times = (
+        frame["time"].to_numpy(dtype="datetime64[ns]")
+        if "time" in frame
+        else np.full(n_rows, np.datetime64("NaT"), dtype="datetime64[ns]")
+    )
+    return LogArrays(
+        t_s=t_s,
+        segment=seg,
+        speed=frame["speed_rpm"].to_numpy(dtype=float, na_value=np.nan),
+        temps=temps,
+        disp=frame["disp_um"].to_numpy(dtype=float, na_value=np.nan),
+        times=times,
+        period=sample_period(t_s, seg),
+    )
+
+
+def log_runs(key, log: LogArrays, sha256: dict, rules: RunRules) -> tuple[list[dict], list[dict]]:
+    """The runs of one log (``key``: its key in ``clean_frames``): their rows of the runs table
+    (after the leak guard) and their samples (:func:`run_samples`).
+
+    The log is cut into runs (:func:`rafi.method.speed_runs.split_log`), then at its window
+    boundaries; each run gets its role (:func:`assign_role`) and reference state
+    (:func:`reference_state`).
+    """
+    name, stem = str(key), _stem(key)
+    log_windows = resolve_windows(rules.windows, name, log.t_s, log.times)
+    spans = split_log(
+        log.speed,
+        log.segment,
+        log.period,
+        tol=rules.speed_tolerance_rpm,
+        idle_below=rules.idle_below_rpm,
+        min_constant_s=rules.min_constant_s,
+        max_leading_rest_s=rules.max_leading_rest_s,
+    )
+    spans = cut_at(spans, cut_points(log_windows, log.t_s))
+    rows, samples = [], []
+    for k, span in enumerate(spans, start=1):
+        run_id = stem if len(spans) == 1 else f"{stem}#{k}"
+        speed_rpm, speed_min, speed_max = speed_statistics(log.speed[span.start + span.rest : span.end])
+        duration = (span.end - span.start) * log.period
+        window = window_of(log_windows, float(log.t_s[span.start]))
+        role, source, reason = assign_role(
+            span.kind, speed_rpm, duration, window, (run_id, stem, name), rules
+        )
+        reference = reference_state(log, span, rules)
+        notes = []
+        if span.rest:
+            notes.append(
+                f"rest before start: {span.rest * log.period:g} s at rest absorbed (reference "
+                "state = cold machine at rest)"
             )
-            if auto == "validation_idle" and idle_training:
-                auto, reason = "training", reason + "; idle cool-down used for training (runs.idle_training)"
-            role, source = auto, "auto"
-            win = window_of(log_windows, float(t_s[a]))
-            if win is not None:
-                what = f"constant at {med:.0f} r/min" if kind == "constant" else kind
-                role, source, reason = _window_role(
-                    win, what, kind, duration, float(min_run_s), idle_training
-                )
-            for okey in (run_id, stem, str(key)):
-                if okey in overrides:
-                    reason = f"run-id override {okey!r} in runs.overrides (otherwise: {role}, {reason})"
-                    role, source = overrides[okey], "config"
-                    break
+        if reference.missing:
+            notes.append(f"no valid reference value for {', '.join(reference.missing)}: rises are NaN")
+        rows.append(
+            {
+                "run_id": run_id,
+                "file": name,
+                "segment": span.segment,
+                "start_s": float(log.t_s[span.start]),
+                "end_s": float(log.t_s[span.end - 1]),
+                "duration_s": float(duration),
+                "speed_rpm": speed_rpm,
+                "speed_min_rpm": speed_min,
+                "speed_max_rpm": speed_max,
+                "kind": span.kind,
+                "role": role,
+                "role_source": source,
+                "reference": reference.text,
+                "sha256": str(sha256.get(key, sha256.get(stem, ""))),
+                "note": "; ".join(notes),
+                "role_reason": reason,
+                "start_time": _iso(log.times[span.start]),
+                "end_time": _iso(log.times[span.end - 1]),
+            }
+        )
+        samples.append(run_samples(log, span, reference, run_id=run_id, key=name))
+    return _guard_log(rows, rules.allow_training_after_validation), samples
 
-            # reference state
-            if reference_rule == "run_start":
-                r0, r_end = a, b
-                ref_text = f"median of the first {window:g} s of the run (run_start)"
-            else:
-                r0, r_end = s0, s1
-                ref_text = f"median of the first {window:g} s of segment {segment} of the log (log_start)"
-            r1 = r0 + max(1, int(np.searchsorted(t_s[r0:r_end], t_s[r0] + window - 1e-9, side="left")))
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN window -> NaN
-                ref_T = np.nanmedian(temps[r0:r1], axis=0)
-                ref_z = float(np.nanmedian(disp[r0:r1]))
-            no_ref = [SENSORS[i] for i in range(16) if np.isnan(ref_T[i])]
-            if np.isnan(ref_z):
-                no_ref.append("disp_um")
-            if no_ref:
-                notes.append(f"no valid reference value for {', '.join(no_ref)}: rises are NaN")
 
-            rows.append(
-                {
-                    "run_id": run_id,
-                    "file": str(key),
-                    "segment": segment,
-                    "start_s": float(t_s[a]),
-                    "end_s": float(t_s[b - 1]),
-                    "duration_s": float(duration),
-                    "speed_rpm": med,
-                    "speed_min_rpm": float(np.nanmin(sp_on)) if np.isfinite(sp_on).any() else float("nan"),
-                    "speed_max_rpm": float(np.nanmax(sp_on)) if np.isfinite(sp_on).any() else float("nan"),
-                    "kind": kind,
-                    "role": role,
-                    "role_source": source,
-                    "reference": ref_text,
-                    "sha256": str(sha256.get(key, sha256.get(stem, ""))),
-                    "note": "; ".join(notes),
-                    "role_reason": reason,
-                    "start_time": _iso(times[a]),
-                    "end_time": _iso(times[b - 1]),
-                }
-            )
-            n = b - a
-            parts["run_id"].append((run_id, n))
-            parts["t_s"].append(t_s[a:b] - t_s[a])
-            parts["time"].append(times[a:b])
-            parts["speed_rpm"].append(sp)
-            for i, s in enumerate(SENSORS):
-                parts[s].append(temps[a:b, i])
-                parts[f"d{s}"].append(temps[a:b, i] - ref_T[i])
-            parts["disp_um"].append(disp[a:b])
-            parts["dz_um"].append(disp[a:b] - ref_z)
-            parts["log"].append((str(key), n))
-            parts["log_t_s"].append(t_s[a:b])
-            parts["segment"].append(seg[a:b])
-        rows[first_row:] = _guard_log(rows[first_row:], allow_training_after_validation)
+def speed_statistics(speed: np.ndarray) -> tuple[float, float, float]:
+    """Median, minimum and maximum of a run's speed, NaN ignored (all NaN without a valid one)."""
+    if not np.isfinite(speed).any():
+        return float("nan"), float("nan"), float("nan")
+    return float(np.nanmedian(speed)), float(np.nanmin(speed)), float(np.nanmax(speed))
 
+
+def assign_role(kind: str, speed_rpm: float, duration_s: float, window, names, rules: RunRules):
+    """The role cascade of one run: ``(role, role_source, role_reason)``.
+
+    In order, each later rule winning: the automatic role (:func:`_auto_role`); an idle
+    cool-down trains with ``idle_training``; a window holding the run (``window``, or None)
+    sets the role (:func:`_window_role`); an override for the first of ``names`` (run id, file
+    stem, file name) found in ``rules.overrides`` sets it last (``role_source = 'config'``).
+    """
+    role, reason = _auto_role(
+        kind,
+        speed_rpm,
+        duration_s,
+        rules.training_speeds_rpm,
+        rules.speed_tolerance_rpm,
+        rules.min_run_s,
+        rules.idle_below_rpm,
+    )
+    if role == "validation_idle" and rules.idle_training:
+        role, reason = "training", reason + "; idle cool-down used for training (runs.idle_training)"
+    source = "auto"
+    if window is not None:
+        what = f"constant at {speed_rpm:.0f} r/min" if kind == "constant" else kind
+        role, source, reason = _window_role(
+            window, what, kind, duration_s, rules.min_run_s, rules.idle_training
+        )
+    for name in names:
+        if name in rules.overrides:
+            reason = f"run-id override {name!r} in runs.overrides (otherwise: {role}, {reason})"
+            return rules.overrides[name], "config", reason
+    return role, source, reason
+
+
+class Reference(NamedTuple):
+    """The reference state of a run: temperatures (per ``SENSORS``), displacement, the rule in
+    words, and the columns without a valid reference value (their rises are NaN)."""
+
+    temps: np.ndarray
+    disp_um: float
+    text: str
+    missing: list
+
+
+def reference_state(log: LogArrays, span: RunSpan, rules: RunRules) -> Reference:
+    """The median (NaN ignored) of the first ``reference_window_s`` of the run (``run_start``) or
+    of its segment (``log_start``); at least one sample."""
+    window = rules.reference_window_s
+    if rules.reference_rule == "run_start":
+        r0, r_end = span.start, span.end
+        text = f"median of the first {window:g} s of the run (run_start)"
+    else:
+        r0, r_end = span.seg_start, span.seg_end
+        text = f"median of the first {window:g} s of segment {span.segment} of the log (log_start)"
+    t_s = log.t_s
+    r1 = r0 + max(1, int(np.searchsorted(t_s[r0:r_end], t_s[r0] + window - 1e-9, side="left")))
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN window -> NaN
+        temps = np.nanmedian(log.temps[r0:r1], axis=0)
+        disp = float(np.nanmedian(log.disp[r0:r1]))
+    missing = [SENSORS[i] for i in range(16) if np.isnan(temps[i])]
+    if np.isnan(disp):
+        missing.append("disp_um")
+    return Reference(temps, disp, text, missing)
+
+
+def run_samples(log: LogArrays, span: RunSpan, reference: Reference, *, run_id: str, key: str) -> dict:
+    """The samples of one run: ``run_id``, ``log`` and the row count, and the run's slice of
+    every other column of ``runs.parquet`` (rises relative to ``reference``)."""
+    a, b = span.start, span.end
+    columns = {
+        "t_s": log.t_s[a:b] - log.t_s[a],
+        "time": log.times[a:b],
+        "speed_rpm": log.speed[a:b],
+    }
+    for i, s in enumerate(SENSORS):
+        columns[s] = log.temps[a:b, i]
+        columns[f"d{s}"] = log.temps[a:b, i] - reference.temps[i]
+    columns["disp_um"] = log.disp[a:b]
+    columns["dz_um"] = log.disp[a:b] - reference.disp_um
+    columns["log_t_s"] = log.t_s[a:b]
+    columns["segment"] = log.segment[a:b]
+    return {"run_id": run_id, "log": key, "n": b - a, "columns": columns}
+
+
+def runs_table(rows: list[dict]) -> pd.DataFrame:
+    """``runs.csv``: the rows of every run, columns ``RUNS_TABLE_COLUMNS`` with their dtypes."""
     table = pd.DataFrame(rows, columns=list(RUNS_TABLE_COLUMNS))
-    table = table.astype(
+    return table.astype(
         {
             "segment": "int64",
             "start_s": "float64",
@@ -478,46 +515,36 @@ def find_runs(
             "speed_max_rpm": "float64",
         }
     )
-    ids = parts.pop("run_id")
-    logs = parts.pop("log")
+
+
+def stack_runs(samples: list[dict]) -> pd.DataFrame:
+    """``runs.parquet``: the samples of every run (:func:`run_samples`) stacked, columns
+    ``RUNS_FRAME_COLUMNS`` (``run_id`` text, ``segment`` int64; typed when empty)."""
+    counts = [run["n"] for run in samples]
     data = {
         "run_id": pd.Categorical.from_codes(
-            np.repeat(np.arange(len(ids)), [n for _, n in ids]), categories=[r for r, _ in ids]
+            np.repeat(np.arange(len(samples)), counts), categories=[run["run_id"] for run in samples]
         ).astype("str")
-        if ids
-        else pd.array([], dtype="str")
+        if samples
+        else pd.array([], dtype="str"),
+        "log": np.repeat(np.array([run["log"] for run in samples], dtype=object), counts)
+        if samples
+        else np.array([], dtype=object),
     }
-    data["log"] = (
-        np.repeat(np.array([k for k, _ in logs], dtype=object), [n for _, n in logs])
-        if logs
-        else np.array([], dtype=object)
-    )
-    for c in RUNS_FRAME_COLUMNS[1:]:
-        if c == "log":
+    for c in RUNS_FRAME_COLUMNS:
+        if c in data:
             continue
-        if parts[c]:
-            data[c] = np.concatenate(parts[c])
+        if samples:
+            data[c] = np.concatenate([run["columns"][c] for run in samples])
         else:
-            data[c] = np.array(
-                [], dtype="datetime64[ns]" if c == "time" else (object if c == "run_id" else float)
-            )
+            data[c] = np.array([], dtype="datetime64[ns]" if c == "time" else float)
     frame = pd.DataFrame(data, columns=list(RUNS_FRAME_COLUMNS))
     frame["segment"] = frame["segment"].astype("int64")
-    return table, frame
+    return frame
 
 
 def _iso(value) -> str:
     return "" if pd.isna(value) else pd.Timestamp(value).isoformat()
-
-
-def _cut_at(found: list, cuts: np.ndarray) -> list:
-    """``found`` runs split at the sample indices ``cuts`` (window boundaries)."""
-    out = []
-    for segment, s0, s1, a, b, kind, rest in found:
-        inner = [int(c) for c in cuts if a < c < b]
-        for x, y in zip([a, *inner], [*inner, b]):
-            out.append((segment, s0, s1, x, y, kind, min(rest, y - x) if x == a else 0))
-    return out
 
 
 def _auto_role(kind, speed, duration, train, tol, min_run_s, idle_below) -> tuple[str, str]:
