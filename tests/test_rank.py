@@ -7,7 +7,13 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rafi.method.rank import rank_sensors, training_speed_groups
+from rafi.method.rank import (
+    choose_sensors,
+    rank_sensors,
+    selection_message,
+    selection_score,
+    training_speed_groups,
+)
 from rafi.twin.synthetic_runs import make_runs
 
 SPEEDS = (3000, 6000, 9000)
@@ -150,3 +156,45 @@ def test_a_short_dropout_only_removes_its_samples(clean):
     frame.loc[frame.index[rows[: len(rows) // 2]], "dT8"] = np.nan  # 50 % missing
     long = rank_sensors(clean.runs_table, frame, min_coverage=0.9)
     assert "T8" not in long.info["sensors"]
+
+
+# --------------------------------------------------------------------------- the steps of rank_sensors
+
+
+def test_selection_score_is_the_worst_speed_or_the_pooled_r():
+    per_speed = [np.array([0.99, 0.80, np.nan]), np.array([0.95, 0.90, 0.99])]
+    score, where, name = selection_score("min_per_speed", per_speed, np.array([0.5, -0.98, 0.9]))
+    np.testing.assert_array_equal(score, [0.95, 0.80, np.nan])
+    assert (where, name) == ("at every training speed", "min |r|")
+    score, where, name = selection_score("pooled", per_speed, np.array([0.5, -0.98, 0.9]))
+    np.testing.assert_array_equal(score, [0.5, 0.98, 0.9])
+    assert name == "pooled |r|"
+
+
+def test_choose_sensors_best_first_ties_by_number_then_fallback():
+    score = np.array([0.90, 0.99, np.nan, 0.99, 0.98, 0.50])
+    passing, chosen, fallback = choose_sensors(score, 0.97, 3)
+    assert (passing, chosen, fallback) == ([1, 3, 4], [1, 3, 4], [])
+    passing, chosen, fallback = choose_sensors(score, 0.985, 4)
+    assert (passing, chosen, fallback) == ([1, 3], [1, 3], [4, 0])
+    assert choose_sensors(score, 0.97, 2)[1] == [1, 3]
+    with pytest.raises(ValueError, match="no sensor has a finite correlation"):
+        choose_sensors(np.array([np.nan, np.nan]), 0.97, 3)
+
+
+def test_selection_message_says_what_was_added_and_what_is_missing():
+    sensors = ["T1", "T2", "T3"]
+    score = np.array([0.99, 0.5, np.nan])
+    kw = dict(threshold=0.97, max_key_sensors=3, where="at every training speed", score_name="min |r|")
+    message = selection_message(sensors, score, [0], [0], [1], **kw)
+    assert message == (
+        "only 1 sensor reaches |r| > 0.97 at every training speed; T2 added as the next best "
+        "(min |r| 0.500); only 2 sensor(s) have a finite correlation, fewer than max_key_sensors=3"
+    )
+    assert selection_message(sensors, score, [0], [0], [], **kw) == (
+        "1 sensor reaches |r| > 0.97 at every training speed: T1 (min |r| 0.990)"
+    )
+    kw["max_key_sensors"] = 1
+    assert selection_message(sensors, np.array([0.99, 0.98, 0]), [0, 1], [0], [], **kw).startswith(
+        "2 sensors reach |r| > 0.97 at every training speed; the best 1 kept: T1"
+    )

@@ -209,69 +209,153 @@ def rank_sensors(
     ValueError
         Bad arguments, no training runs, or no sensor with a finite score.
     """
+    max_key_sensors = _checked_arguments(threshold, max_key_sensors, scope)
+    if "dz_um" not in runs_frame.columns or "run_id" not in runs_frame.columns:
+        raise ValueError("runs_frame needs columns 'run_id' and 'dz_um'")
+    sensors = _sensor_columns(runs_frame)
+    if not sensors:
+        raise ValueError("runs_frame has no rise columns dT1..dT16")
+
+    correlation, per_speed, pooled, r_pooled = scope_correlations(
+        runs_frame, training_speed_groups(runs_table), sensors, min_coverage
+    )
+    score, where, score_name = selection_score(scope, per_speed, r_pooled)
+    passing, chosen, fallback = choose_sensors(score, threshold, max_key_sensors)
+    names = [sensors[j] for j in chosen + fallback]
+    message = selection_message(
+        sensors,
+        score,
+        passing,
+        chosen,
+        fallback,
+        threshold=threshold,
+        max_key_sensors=max_key_sensors,
+        where=where,
+        score_name=score_name,
+    )
+    key_sensors = pd.DataFrame(
+        {
+            "sensor": names,
+            "score_abs_r": [float(score[j]) for j in chosen + fallback],
+            "selected_by": ["threshold"] * len(chosen) + ["fallback"] * len(fallback),
+        }
+    )
+    info = {
+        "sensors": names,
+        "threshold": float(threshold),
+        "scope": scope,
+        "max_key_sensors": max_key_sensors,
+        "fallback_used": bool(fallback),
+        "message": message,
+    }
+    return RankResult(
+        correlation=correlation, key_sensors=key_sensors, info=info, collinearity=collinearity(pooled, names)
+    )
+
+
+def _checked_arguments(threshold: float, max_key_sensors, scope: str) -> int:
+    """``max_key_sensors`` as an int; ValueError on a bad scope, threshold or count."""
     if scope not in SCOPES:
         raise ValueError(f"scope={scope!r}; expected one of {SCOPES}")
     if not 0 <= threshold <= 1:
         raise ValueError(f"threshold={threshold}; expected a |r| between 0 and 1")
     if int(max_key_sensors) != max_key_sensors or max_key_sensors < 1:
         raise ValueError(f"max_key_sensors={max_key_sensors}; expected an integer >= 1")
-    max_key_sensors = int(max_key_sensors)
-    if "dz_um" not in runs_frame.columns or "run_id" not in runs_frame.columns:
-        raise ValueError("runs_frame needs columns 'run_id' and 'dz_um'")
-    sensors = _sensor_columns(runs_frame)
-    if not sensors:
-        raise ValueError("runs_frame has no rise columns dT1..dT16")
-    dcols = [f"d{s}" for s in sensors]
+    return int(max_key_sensors)
 
-    groups = training_speed_groups(runs_table)
+
+def scope_correlations(
+    runs_frame: pd.DataFrame, groups: dict, sensors: list[str], min_coverage: float
+) -> tuple[pd.DataFrame, list[np.ndarray], pd.DataFrame, np.ndarray]:
+    """Pearson r of each sensor's rise with ``dz_um`` per training speed and pooled.
+
+    Parameters
+    ----------
+    runs_frame : pandas.DataFrame
+        Stacked samples (``run_id``, ``dT<i>`` of ``sensors``, ``dz_um``).
+    groups : dict
+        Training speed -> run ids (:func:`training_speed_groups`).
+    sensors : list of str
+        Sensor names whose rises are correlated.
+    min_coverage : float
+        See :func:`rank_sensors`.
+
+    Returns
+    -------
+    correlation : pandas.DataFrame
+        The long table (one scope per speed, then ``pooled``).
+    per_speed_abs : list of numpy.ndarray
+        ``|r|`` per sensor at each speed, in the order of ``groups``.
+    pooled : pandas.DataFrame
+        The pooled training samples with a displacement.
+    r_pooled : numpy.ndarray
+        Pooled r per sensor.
+    """
+    dcols = [f"d{s}" for s in sensors]
     run_ids = runs_frame["run_id"].astype(str)
-    tables = []
-    per_speed_abs = []
-    train_ids: list[str] = []
-    for speed, ids in groups.items():
-        train_ids.extend(ids)
-        sub = runs_frame.loc[run_ids.isin(ids) & runs_frame["dz_um"].notna()]
-        r = _pearson(
-            sub[dcols].to_numpy(dtype=float, na_value=np.nan),
-            sub["dz_um"].to_numpy(dtype=float),
+
+    def pearson_of(samples: pd.DataFrame) -> np.ndarray:
+        return _pearson(
+            samples[dcols].to_numpy(dtype=float, na_value=np.nan),
+            samples["dz_um"].to_numpy(dtype=float),
             min_coverage,
         )
+
+    tables, per_speed_abs, train_ids = [], [], []
+    for speed, ids in groups.items():
+        train_ids.extend(ids)
+        r = pearson_of(runs_frame.loc[run_ids.isin(ids) & runs_frame["dz_um"].notna()])
         tables.append(_scope_table(str(speed), sensors, r))
         per_speed_abs.append(np.abs(r))
-    pooled_rows = run_ids.isin(train_ids) & runs_frame["dz_um"].notna()
-    pooled = runs_frame.loc[pooled_rows]
-    r_pooled = _pearson(
-        pooled[dcols].to_numpy(dtype=float, na_value=np.nan),
-        pooled["dz_um"].to_numpy(dtype=float),
-        min_coverage,
-    )
+    pooled = runs_frame.loc[run_ids.isin(train_ids) & runs_frame["dz_um"].notna()]
+    r_pooled = pearson_of(pooled)
     tables.append(_scope_table("pooled", sensors, r_pooled))
-    correlation = pd.concat(tables, ignore_index=True)
+    return pd.concat(tables, ignore_index=True), per_speed_abs, pooled, r_pooled
 
+
+def selection_score(
+    scope: str, per_speed_abs: list[np.ndarray], r_pooled: np.ndarray
+) -> tuple[np.ndarray, str, str]:
+    """Each sensor's selection score, where it was measured and its name (for the message).
+
+    ``min_per_speed``: the smallest ``|r|`` over the training speeds (NaN at any speed: NaN);
+    ``pooled``: the pooled ``|r|``.
+    """
     if scope == "min_per_speed":
         stack = np.vstack(per_speed_abs)
         score = np.where(np.isnan(stack).any(axis=0), np.nan, stack.min(axis=0))
-        where = "at every training speed"
-        score_name = "min |r|"
-    else:
-        score = np.abs(r_pooled)
-        where = "over the pooled training runs"
-        score_name = "pooled |r|"
+        return score, "at every training speed", "min |r|"
+    return np.abs(r_pooled), "over the pooled training runs", "pooled |r|"
 
+
+def choose_sensors(score: np.ndarray, threshold: float, max_key_sensors: int) -> tuple[list, list, list]:
+    """Indices of the sensors passing ``threshold``, of those chosen (best first, at most
+    ``max_key_sensors``) and of the next best added as fallback up to ``max_key_sensors``.
+
+    Sensors with a NaN score are never chosen; ties go to the lower index.
+
+    Raises
+    ------
+    ValueError
+        No sensor has a finite score.
+    """
     finite = np.flatnonzero(np.isfinite(score))
     if finite.size == 0:
         raise ValueError(
             "no sensor has a finite correlation with dz_um in the training runs "
             "(all rises missing or constant?)"
         )
-    # best first; ties by sensor number (the order of `sensors`)
-    order = finite[np.lexsort((finite, -score[finite]))]
+    order = finite[np.lexsort((finite, -score[finite]))]  # best first; ties by sensor number
     passing = [j for j in order if score[j] > threshold]
     chosen = passing[:max_key_sensors]
     fallback = [j for j in order if j not in chosen][: max_key_sensors - len(chosen)]
-    selected_by = ["threshold"] * len(chosen) + ["fallback"] * len(fallback)
-    chosen_all = chosen + fallback
-    names = [sensors[j] for j in chosen_all]
+    return passing, chosen, fallback
+
+
+def selection_message(
+    sensors, score, passing, chosen, fallback, *, threshold, max_key_sensors, where, score_name
+) -> str:
+    """The choice of key sensors in words (``key_sensors.json`` ``message``)."""
 
     def fmt(js):
         return ", ".join(f"{sensors[j]} ({score_name} {score[j]:.3f})" for j in js)
@@ -289,30 +373,21 @@ def rank_sensors(
             f"{'' if n_pass == 0 else 'only '}{head}; {added} added as the next best "
             f"({'; '.join(f'{score_name} {score[j]:.3f}' for j in fallback)})"
         )
-        if len(chosen_all) < max_key_sensors:
+        if len(chosen) + len(fallback) < max_key_sensors:
             message += (
-                f"; only {len(chosen_all)} sensor(s) have a finite correlation, "
+                f"; only {len(chosen) + len(fallback)} sensor(s) have a finite correlation, "
                 f"fewer than max_key_sensors={max_key_sensors}"
             )
-    elif n_pass > max_key_sensors:
-        message = f"{head}; the best {max_key_sensors} kept: {fmt(chosen)}"
-    else:
-        message = f"{head}: {fmt(chosen)}"
+        return message
+    if n_pass > max_key_sensors:
+        return f"{head}; the best {max_key_sensors} kept: {fmt(chosen)}"
+    return f"{head}: {fmt(chosen)}"
 
-    key_sensors = pd.DataFrame(
-        {"sensor": names, "score_abs_r": [float(score[j]) for j in chosen_all], "selected_by": selected_by}
-    )
-    info = {
-        "sensors": names,
-        "threshold": float(threshold),
-        "scope": scope,
-        "max_key_sensors": max_key_sensors,
-        "fallback_used": bool(fallback),
-        "message": message,
-    }
 
-    chosen_cols = [f"d{s}" for s in names]
-    coll = pooled[chosen_cols].astype(float).corr(method="pearson")
+def collinearity(pooled: pd.DataFrame, names: list[str]) -> pd.DataFrame:
+    """Pearson r between the rises of the sensors ``names`` over the samples ``pooled``; index
+    (named ``sensor``) and columns are the sensor names."""
+    coll = pooled[[f"d{s}" for s in names]].astype(float).corr(method="pearson")
     coll.index = pd.Index(names, name="sensor")
     coll.columns = pd.Index(names)
-    return RankResult(correlation=correlation, key_sensors=key_sensors, info=info, collinearity=coll)
+    return coll
