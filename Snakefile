@@ -52,3 +52,4 @@ onsuccess:
 
 onerror:
     say_rejected_input()
+    say_failures()

@@ -47,6 +47,17 @@ __all__ = ["GATE_KEYS"]
 TOP_LEVEL_KEYS = frozenset(RUN_DEFAULTS) | {"defaults", "machines"}
 
 
+def truthy(value) -> bool:
+    """A flag as a setting or a table cell carries it: ``True``, ``1``, ``"yes"``, ``"true"``, ``"on"``.
+
+    The one reading of booleans (``--config debug=true`` arrives as a string, a CSV column as
+    ``"True"``): any other string, ``None`` and ``0`` are false.
+    """
+    if isinstance(value, str):
+        return value.strip().lower() in ("1", "true", "yes", "on")
+    return bool(value)
+
+
 def deep_merge(base: Mapping, override: Mapping | None) -> dict:
     """``base`` updated recursively with ``override`` (neither is modified).
 

@@ -3,8 +3,7 @@ quarantines that file with a one-line reason (traceback in the log), warnings be
 and a clean table that cannot be read back quarantines the file too.
 
 The script is run as Snakemake runs it (``snakemake`` injected as a global), with a stand-in
-object carrying the params the rule passes (one machine with one raw file; the machine-level
-job and its cache: tests/test_clean_cache.py).
+object carrying the params the rule passes (one machine with one raw file).
 """
 
 from __future__ import annotations
@@ -31,8 +30,6 @@ def _smk(tmp_path: Path, raw: Path, mode: str = "quarantine") -> SimpleNamespace
     return SimpleNamespace(
         params=SimpleNamespace(
             raw_paths={raw.stem: str(raw)},
-            raw_stamps={raw.stem: None},
-            cache=str(tmp_path / "results" / A / ".clean_cache"),
             input_spec={"format": "native"},
             sample_period_s=5,
             clean={
@@ -50,7 +47,6 @@ def _smk(tmp_path: Path, raw: Path, mode: str = "quarantine") -> SimpleNamespace
             },
         ),
         config={"on_bad_input": mode},
-        input=SimpleNamespace(code=[], glue=str(SCRIPT.parent / "_glue.py")),
         # the rule's output is the folder; the per-file paths are for the assertions
         output=SimpleNamespace(
             folder=str(out),
@@ -141,10 +137,27 @@ def test_an_unreadable_file_is_quarantined_without_a_hash(tmp_path, raw, monkeyp
     assert "PermissionError" in summary["reason"] and "Permission denied" in summary["reason"]
 
 
-def test_fail_mode_raises_the_error(tmp_path, raw, monkeypatch):
+def test_fail_mode_ends_with_one_line_naming_the_file_and_no_traceback(tmp_path, raw, monkeypatch):
     monkeypatch.setattr(rafi.readers.logs, "read_log", lambda *a, **k: (_ for _ in ()).throw(OSError("boom")))
-    with pytest.raises(OSError, match="boom"):
-        _clean(_smk(tmp_path, raw, mode="fail"))
+    smk = _smk(tmp_path, raw, mode="fail")
+    with pytest.raises(SystemExit) as exit_:
+        _clean(smk)
+    assert exit_.value.code == 1
+    log = Path(smk.log[0]).read_text(encoding="utf-8")
+    assert "Traceback" not in log
+    last = log.strip().splitlines()[-1]
+    assert last.startswith("RAFI clean (machine=tapping-center-a) failed: ")
+    assert "could not be read or cleaned: OSError: boom" in last
+
+
+def test_fail_mode_with_debug_raises_the_error_with_its_cause(tmp_path, raw, monkeypatch):
+    monkeypatch.setattr(rafi.readers.logs, "read_log", lambda *a, **k: (_ for _ in ()).throw(OSError("boom")))
+    smk = _smk(tmp_path, raw, mode="fail")
+    smk.config["debug"] = True
+    with pytest.raises(RawFormatError, match="OSError: boom") as raised:
+        _clean(smk)
+    assert isinstance(raised.value.__cause__, OSError)
+    assert "Traceback" in Path(smk.log[0]).read_text(encoding="utf-8")
 
 
 def test_a_clean_table_that_cannot_be_read_back_quarantines_the_file(tmp_path, raw, monkeypatch):

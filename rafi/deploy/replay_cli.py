@@ -44,11 +44,13 @@ def add_arguments(parser) -> None:
 
 def _load_model(spec: str, machine: str, results_dir: Path, settings: dict) -> tuple[dict, str]:
     """The artefact asked for by ``--model`` and where it came from."""
+    from rafi.contract import REGISTRY_DIR
     from rafi.deploy.qualified import load_champion
     from rafi.settings import candidate_model_path
 
     if spec == "champion":
-        return load_champion(results_dir / machine / "registry"), str(results_dir / machine / "registry")
+        root = results_dir / machine / REGISTRY_DIR
+        return load_champion(root), str(root)
     if spec == "candidate":
         rel = candidate_model_path(machine, ".", settings["nightly"]["candidate"])
         path = results_dir / Path(rel).relative_to(".")

@@ -1,9 +1,10 @@
 """The clean step of one machine in one process: every raw file -> its three per-file outputs.
 
-Rule ``clean`` (``workflow/scripts/clean.py``) calls :func:`clean_machine`. Per raw file, in
-log-id order: a file whose outputs are in the cache (:mod:`rafi.ops.clean_cache`: same name,
-content, settings and code) gets them back from it; any other file is read, checked and
-cleaned by :func:`clean_file`, exactly as the former one-job-per-file rule did:
+Rule ``clean`` (``workflow/scripts/clean.py``) calls :func:`clean_machine`: every raw file, in
+log-id order, is read, checked and cleaned by :func:`clean_file`. Snakemake alone decides when
+the job runs (a raw file added, removed, changed - its content hash is a param -, a setting or
+the code changed); then it cleans every file of the machine again (about 0.3 s a file), which
+is what a job per machine costs instead of a job per file (docs/decisions.md).
 
 - with ``on_bad_input=quarantine`` ANY failure reading, checking or cleaning the file (a
   RawFormatError, but also an OSError, a pandas ValueError, a MemoryError, ...) quarantines the
@@ -19,6 +20,7 @@ A reason ends with ``[<check id>]`` when the error is a documented check
 from __future__ import annotations
 
 import logging
+import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,9 +31,29 @@ import rafi.artefact
 import rafi.method.audit
 import rafi.method.clean
 import rafi.readers.logs
-from rafi.errors import RawFormatError
-from rafi.ops.clean_cache import CleanCache, cache_key, output_paths
+from rafi.errors import RafiUserError, RawFormatError
 from rafi.readers.checks import check_file
+
+#: The per-file outputs of the clean step: key -> suffix after the file's log id
+#: (``clean_parquet``, ``clean_audit``, ``clean_summary`` of :data:`rafi.contract.RESULT_FILES`).
+SUFFIXES = {"parquet": ".parquet", "audit": ".audit.csv", "summary": ".summary.csv"}
+
+
+def output_paths(folder: str | os.PathLike, stem: str) -> dict[str, Path]:
+    """The per-file outputs of log id ``stem`` in the clean folder: ``parquet``, ``audit``, ``summary``."""
+    return {kind: Path(folder) / f"{stem}{suffix}" for kind, suffix in SUFFIXES.items()}
+
+
+def stems_in(folder: str | os.PathLike) -> list[str]:
+    """Log ids with a summary in the clean folder, sorted (the order of the raw files' ids)."""
+    suffix = SUFFIXES["summary"]
+    return sorted(p.name[: -len(suffix)] for p in Path(folder).iterdir() if p.name.endswith(suffix))
+
+
+def files_in(folder: str | os.PathLike, kind: str) -> list[str]:
+    """Paths of one kind of per-file output (a key of ``SUFFIXES``) in the clean folder,
+    in log-id order."""
+    return [str(output_paths(folder, stem)[kind]) for stem in stems_in(folder)]
 
 
 @dataclass(frozen=True)
@@ -43,20 +65,23 @@ class CleanSettings:
     clean: Mapping
     checks: Mapping
 
-    def as_key(self) -> dict:
-        """The settings as plain data (part of the cache key)."""
-        return {
-            "input_spec": dict(self.input_spec),
-            "sample_period_s": self.sample_period_s,
-            "clean": dict(self.clean),
-            "checks": dict(self.checks),
-        }
-
 
 def _write(outputs: Mapping[str, Path], clean, actions, summary) -> None:
     rafi.artefact.write_parquet_atomic(clean, outputs["parquet"])
     rafi.artefact.write_csv_atomic(actions, outputs["audit"])
     rafi.artefact.write_csv_atomic(summary, outputs["summary"])
+
+
+def _as_bad_input(exc: Exception, src: Path) -> Exception:
+    """What a fail-mode run raises for ``exc`` on raw file ``src``: a user error as it is; any other
+    failure (a pandas ValueError, an OSError, ...) as a :class:`RawFormatError` naming the file
+    with the reason a quarantine would give, so the run ends with one clear line, not a
+    traceback (``debug: true`` shows the chained traceback)."""
+    if isinstance(exc, RafiUserError):
+        return exc
+    check = "unreadable" if isinstance(exc, OSError) else None
+    why = f"could not be read or cleaned: {type(exc).__name__}: {rafi.method.audit.one_line(exc)}"
+    return RawFormatError(src, why, check=check)
 
 
 def clean_file(
@@ -110,7 +135,7 @@ def clean_file(
         )
     except Exception as exc:  # noqa: BLE001 - any failure on one file quarantines that file
         if fail_mode:
-            raise
+            raise _as_bad_input(exc, src) from exc
         reason = rafi.method.audit.quarantine_reason(exc, src.name)
         # a documented check needs no traceback; anything else keeps it in the log
         log.warning("quarantined %s: %s", src.name, reason, exc_info=not isinstance(exc, RawFormatError))
@@ -140,49 +165,19 @@ def clean_machine(
     folder: str | Path,
     settings: CleanSettings,
     *,
-    cache: CleanCache | None,
-    code: str,
     fail_mode: bool,
     log: logging.Logger,
 ) -> dict[str, str]:
     """Clean every raw file of a machine (``raw_paths``: log id -> path) into ``folder``.
 
-    Returns log id -> ``ok``, ``quarantined`` or ``cached``. ``cache`` None: no cache (every
-    file is cleaned). The cache's unused entries are pruned only when every file went through.
+    Returns log id -> ``ok`` or ``quarantined``.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
-    key_settings = settings.as_key()
     done: dict[str, str] = {}
     for stem in sorted(raw_paths):
-        src = Path(raw_paths[stem])
         outputs = output_paths(folder, stem)
-        try:
-            sha = rafi.readers.logs.sha256_file(src)
-        except Exception:  # noqa: BLE001 - clean_file meets the same error and handles it
-            sha = None
-        key = cache_key(src.name, sha, key_settings, code) if sha and cache is not None else None
-        if key is not None:
-            lines = cache.restore(key, outputs)
-            if lines is not None:
-                print(f"{src.name}: unchanged, outputs from the cache ({key[:12]})", flush=True)
-                for line in lines:
-                    print(f"  | {line}", flush=True)
-                done[stem] = "cached"
-                print(f"{stem}: cached", flush=True)
-                continue
-        lines: list[str] = []
-
-        def say(msg: str, _lines=lines) -> None:
-            _lines.append(msg)
-            print(msg, flush=True)
-
-        status = clean_file(src, outputs, settings, fail_mode=fail_mode, log=log, say=say, sha=sha)
-        done[stem] = status
-        if status == "ok" and key is not None:
-            cache.store(key, outputs, lines)
+        done[stem] = clean_file(Path(raw_paths[stem]), outputs, settings, fail_mode=fail_mode, log=log)
         print(f"wrote {outputs['parquet']}", flush=True)
-        print(f"{stem}: {status}", flush=True)
-    if cache is not None:
-        cache.prune()
+        print(f"{stem}: {done[stem]}", flush=True)
     return done

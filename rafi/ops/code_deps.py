@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import ast
 import functools
+import hashlib
 from pathlib import Path
 
 #: Statement-like nodes whose lists may hold statements (function and class bodies, if /
@@ -107,3 +108,28 @@ def code_files(script: str | Path, package_dir: str | Path) -> list[str]:
             seen.add(dotted)
             todo.extend(imported_modules(path, package_dir) - seen)
     return sorted(str(module_file(n, package_dir)) for n in seen)
+
+
+def code_version(script: str | Path, package_dir: str | Path | None = None) -> str:
+    """Digest of what running ``script`` executes: the script, the ``_glue.py`` beside it, every
+    ``rafi`` module it imports (:func:`code_files`) and, when it runs the report package, its
+    templates. A rule carries it as the param ``code``, so Snakemake's own ``params`` trigger
+    re-runs the rule when any of that code changed (and only then).
+
+    Returns
+    -------
+    str
+        ``sha256:<hex>`` over the files' paths (relative) and bytes.
+    """
+    script = Path(script).resolve()
+    package_dir = Path(package_dir).resolve() if package_dir else Path(__file__).resolve().parents[1]
+    files = [Path(p) for p in code_files(script, package_dir)]
+    if any(p.is_relative_to(package_dir / "report") for p in files):
+        files += sorted((package_dir / "report" / "templates").rglob("*.j2"))
+    digest = hashlib.sha256()
+    for path, label in [(script, script.name), (script.parent / "_glue.py", "_glue.py")]:
+        if path.is_file():
+            digest.update(f"{label}\n".encode() + path.read_bytes())
+    for path in files:
+        digest.update(f"{path.relative_to(package_dir.parent)}\n".encode() + path.read_bytes())
+    return f"sha256:{digest.hexdigest()}"

@@ -36,6 +36,7 @@ from rafi.artefact import (
     write_once,
     write_text_atomic,
 )
+from rafi.contract import REGISTRY_DIR
 from rafi.errors import RegistryError
 
 HISTORY_SCHEMA = "rafi.registry.history/1"
@@ -44,8 +45,8 @@ DECISION_SCHEMA = "rafi.registry.decision/1"
 
 
 def registry_dir(results_dir: str | os.PathLike, machine: str) -> Path:
-    """``<results_dir>/<machine>/registry``."""
-    return Path(results_dir) / machine / "registry"
+    """``<results_dir>/<machine>/registry`` (:data:`rafi.contract.REGISTRY_DIR`)."""
+    return Path(results_dir) / machine / REGISTRY_DIR
 
 
 @dataclass

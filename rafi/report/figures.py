@@ -27,6 +27,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from rafi import contract
 from rafi.artefact import write_bytes_atomic, write_csv_atomic
 from rafi.method.fuzzy import membership_curves
 from rafi.report import plots
@@ -47,25 +48,8 @@ from rafi.report.inputs import (
 from rafi.report.replay_plot import fig_replay
 from rafi.report.replay_section import replay_figure_key
 
-#: The inputs each group draws from (names of :func:`rafi.report.inputs.result_paths`).
-FIGURE_GROUPS = {
-    "pipeline": (
-        "runs_csv",
-        "runs_parquet",
-        "equilibrium",
-        "correlation",
-        "key_sensors",
-        "key_sensors_json",
-        "collinearity",
-        "model",
-        "validation_summary",
-        "residuals",
-        "training_fit",
-        "fuzzy_example",
-    ),
-    "comparison": ("comparison", "comparison_per_run", "comparison_residuals"),
-    "replay": ("replay", "replay_summary"),
-}
+#: The inputs each group draws from (names of :data:`rafi.contract.RESULT_FILES`).
+FIGURE_GROUPS = contract.FIGURE_GROUPS
 
 UM = "\u00b5m"
 

@@ -11,6 +11,8 @@ import re
 
 from markupsafe import Markup, escape
 
+from rafi.settings import truthy  # noqa: F401 (the report reads flags with it)
+
 NBSP = "\u00a0"
 MINUS = "\u2212"
 DASH = "\u2013"
@@ -101,13 +103,6 @@ def fmt_duration(seconds) -> str:
         return DASH
     s = float(seconds)
     return fmt_num(s / 3600.0, 2, "h") if s >= 3600 else fmt_num(s / 60.0, 0, "min")
-
-
-def truthy(x) -> bool:
-    """A flag read from a table: ``True``, ``1``, ``"yes"``, ``"true"`` (any case)."""
-    if isinstance(x, str):
-        return x.strip().lower() in {"true", "1", "yes"}
-    return bool(x)
 
 
 def cell(text, cls: str = "") -> dict:

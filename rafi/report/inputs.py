@@ -22,53 +22,26 @@ from pathlib import Path
 
 import pandas as pd
 
+from rafi import contract
 from rafi.method.rank import speed_training_runs
 from rafi.report.format import speed_key
 
-#: Files under ``results/<machine>/`` the report needs (design.md and rule report_tables).
-RESULT_FILES = {
-    "audit": "audit.csv",
-    "runs_csv": "runs.csv",
-    "equilibrium": "equilibrium.csv",
-    "correlation": "rank/correlation.csv",
-    "key_sensors": "rank/key_sensors.csv",
-    "key_sensors_json": "rank/key_sensors.json",
-    "collinearity": "rank/collinearity.csv",
-    "coefficients": "fit/coefficients.csv",
-    "diagnostics": "fit/diagnostics.csv",
-    "model": "model.json",
-    "validation_summary": "validation/summary.csv",
-    "residuals": "validation/residuals.parquet",
-    "training_fit_rmse": "report/training_fit.csv",
-    "fuzzy_example": "report/fuzzy_example.json",
-}
+#: Files under ``results/<machine>/`` the report needs (names of :data:`rafi.contract.RESULT_FILES`).
+RESULT_FILES = {name: contract.RESULT_FILES[name] for name in contract.REPORT_REQUIRED}
 
 #: Optional inputs: a section is left out when its file is absent.
-OPTIONAL_FILES = {
-    "input_status": "input_status.json",
-    "decision": "registry/decision.json",
-    "registry_comparison": "registry/comparison.csv",
-    "comparison": "comparison/summary.csv",
-    "comparison_per_run": "comparison/per_run.csv",
-    "comparison_cv": "comparison/cv.csv",
-    "best_model": "comparison/best_model.json",
-    "replay_summary": "deploy/replay_summary.csv",
-    "runs_parquet": "runs.parquet",
-}
+OPTIONAL_FILES = {name: contract.RESULT_FILES[name] for name in contract.REPORT_OPTIONAL}
 
 #: Inputs of rule report_figures besides those above (read by the figure job only).
 FIGURE_INPUT_FILES = {
-    "training_fit": "report/training_fit.parquet",
-    "comparison_residuals": "comparison/residuals.parquet",
-    "replay": "deploy/replay.parquet",
+    name: contract.RESULT_FILES[name]
+    for group in contract.FIGURE_GROUPS.values()
+    for name in group
+    if name not in RESULT_FILES and name not in OPTIONAL_FILES
 }
 
 #: Figure folder of each group (rule report_figures), under ``results/<machine>/``.
-FIGURE_DIRS = {
-    "pipeline": "report/figures/pipeline",
-    "comparison": "report/figures/comparison",
-    "replay": "report/figures/replay",
-}
+FIGURE_DIRS = {group: contract.result_file("figures", group=group) for group in contract.FIGURE_GROUPS}
 
 
 def result_paths(results_dir: str | os.PathLike) -> dict:

@@ -2,8 +2,7 @@
 # ridge_global, dynamic and grey_box on the same validation runs and gates; whole-run CV on the
 # training runs only chooses the champion (best_model.json, passing or not).
 #
-# Uses the helpers of common.smk (machine_config, out, comparison_path, log_path,
-# bench_path, rafi_code, script_helpers). Settings: the machine's complete `models:` and
+# Uses the helpers of common.smk (machine_config, out, log_path, bench_path, code_version). Settings: the machine's complete `models:` and
 # `qualification:` sections (rafi.settings.machine_settings: every key present); the gates are
 # the ones rule decide judges with. Fit times go to the log, never into the tables.
 
@@ -15,26 +14,24 @@ rule compare:
         frame=out("runs_parquet"),
         key_sensors=out("key_sensors_json"),
         model=out("model"),
-        code=rafi_code("compare"),
-        glue=script_helpers(),
     output:
         summary=report(
-            comparison_path("summary.csv"),
+            out("comparison"),
             caption="../report/comparison_summary.rst",
             category="Model comparison",
             subcategory="{machine}",
             labels={"machine": "{machine}", "table": "comparison/summary.csv"},
         ),
         per_run=report(
-            comparison_path("per_run.csv"),
+            out("comparison_per_run"),
             caption="../report/comparison_per_run.rst",
             category="Model comparison",
             subcategory="{machine}",
             labels={"machine": "{machine}", "table": "comparison/per_run.csv"},
         ),
-        residuals=comparison_path("residuals.parquet"),
-        best_model=comparison_path("best_model.json"),
-        cv=comparison_path("cv.csv"),
+        residuals=out("comparison_residuals"),
+        best_model=out("best_model"),
+        cv=out("comparison_cv"),
     log:
         log_path("compare"),
     benchmark:
@@ -42,6 +39,7 @@ rule compare:
     conda:
         "../envs/rafi.yaml"
     params:
+        code=code_version("compare"),
         machine=lambda w: w.machine,
         models=lambda w: machine_config(w.machine)["models"],
         fit=lambda w: machine_config(w.machine)["fit"],

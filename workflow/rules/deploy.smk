@@ -8,8 +8,7 @@
 # The runs replayed are those whose role is in deploy.replay_roles; the limits in force are the
 # machine's deploy: settings (replay_settings() in common.smk: the limits and replay_roles only,
 # so a change of the controller's connection settings re-runs nothing). Uses the helpers of
-# common.smk (candidate_model, out, deploy_path, log_path, bench_path, rafi_code,
-# script_helpers).
+# common.smk (candidate_model, out, log_path, bench_path, code_version, replay_settings).
 
 
 rule replay:
@@ -18,12 +17,10 @@ rule replay:
         model=candidate_model,
         table=out("runs_csv"),
         frame=out("runs_parquet"),
-        code=rafi_code("replay"),
-        glue=script_helpers(),
     output:
-        table=deploy_path("replay.parquet"),
+        table=out("replay"),
         summary=report(
-            deploy_path("replay_summary.csv"),
+            out("replay_summary"),
             caption="../report/replay_summary.rst",
             category="Replay",
             subcategory="{machine}",
@@ -36,6 +33,7 @@ rule replay:
     conda:
         "../envs/rafi.yaml"
     params:
+        code=code_version("replay"),
         deploy=lambda w: replay_settings(w.machine),
     script:
         "../scripts/replay.py"

@@ -15,8 +15,6 @@ rule fleet_index:
     input:
         # one input function per machine (checkpoint input_status): its nightly targets
         [machine_targets(m, "nightly") for m in MACHINES],
-        code=rafi_code("fleet_index"),
-        glue=script_helpers(),
     output:
         html=report(
             FLEET_INDEX,
@@ -29,6 +27,7 @@ rule fleet_index:
     conda:
         "../envs/rafi.yaml"
     params:
+        code=code_version("fleet_index"),
         raw_dir=str(RAW_DIR),
         results_dir=RESULTS_DIR,
         reports_dir=lambda w, output: os.path.dirname(output.html),

@@ -12,17 +12,18 @@
 # With on_bad_input=fail a bad file stops its clean job, so no machine is ever skipped.
 
 
+from rafi.ops.duplicates import duplicate_keepers
+
+
 checkpoint input_status:
     """Usable and rejected raw files of one machine; whether the machine is skipped; its
     audit.csv (the per-file audit summaries stacked)."""
     input:
         # per file: <stem>.summary.csv, and the checks' warnings (audit rows with action
         # warning) in <stem>.audit.csv
-        clean=clean_dir(),
-        code=rafi_code("input_status"),
-        glue=script_helpers(),
+        clean=out("clean_dir"),
     output:
-        status=input_status_path(),
+        status=out("input_status"),
         # the per-file audit summaries stacked (was rule audit: one job less per machine)
         audit=report(
             out("audit"),
@@ -36,6 +37,7 @@ checkpoint input_status:
     conda:
         "../envs/rafi.yaml"
     params:
+        code=code_version("input_status"),
         machine=lambda w: w.machine,
         # removed when the machine is usable again (a page of an earlier night)
         skipped_page=lambda w: skipped_page_path(w.machine),
@@ -44,6 +46,9 @@ checkpoint input_status:
         confirmed=lambda w: machine_config(w.machine)["checks"]["confirmed"],
         # of byte-identical files, a link inside raw/ is the copy that goes
         links=lambda w: raw_links(w.machine),
+        # of byte-identical files, the one that stays: the champion's, else the oldest
+        # (rafi.ops.duplicates; {} without duplicates)
+        keep=lambda w: duplicate_keepers(machine_raw_paths(w), machine_raw_stamps(w), registry_dir(w.machine)),
     script:
         "../scripts/input_status.py"
 
@@ -51,14 +56,14 @@ checkpoint input_status:
 rule input_check:
     """Run-level summary: was any raw file quarantined or any machine skipped?"""
     input:
-        statuses=[input_status_path(m) for m in MACHINES],
-        code=rafi_code("input_check"),
-        glue=script_helpers(),
+        statuses=[out("input_status", m) for m in MACHINES],
     output:
         check=INPUT_CHECK,
     log:
         f"{LOGS_DIR}/input_check.log",
     conda:
         "../envs/rafi.yaml"
+    params:
+        code=code_version("input_check"),
     script:
         "../scripts/input_check.py"

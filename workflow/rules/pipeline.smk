@@ -31,10 +31,8 @@ rule clean:
     """
     input:
         raw=machine_raw_inputs,
-        code=rafi_code("clean"),
-        glue=script_helpers(),
     output:
-        folder=directory(clean_dir()),
+        folder=directory(out("clean_dir")),
     log:
         log_path("clean"),
     benchmark:
@@ -42,10 +40,10 @@ rule clean:
     conda:
         "../envs/rafi.yaml"
     params:
+        code=code_version("clean"),
         raw_paths=machine_raw_paths,
         # content hashes: a file edited with its size and mtime kept re-runs the job
         raw_stamps=machine_raw_stamps,
-        cache=lambda w: clean_cache_dir(w.machine),
         input_spec=lambda w: machine_config(w.machine)["input"],
         sample_period_s=lambda w: machine_config(w.machine)["sample_period_s"],
         clean=lambda w: machine_config(w.machine)["clean"],
@@ -68,13 +66,11 @@ rule method:
     (paper Table 1) -> Pearson ranking and key sensors -> one OLS regression per training speed
     (the model artefact) -> the fuzzy-blended model on every validation run. One log per step."""
     input:
-        clean=clean_dir(),
+        clean=out("clean_dir"),
         # the usable files (machine-level checks reject duplicates, reversed probes); ancient:
         # confirming a warning rewrites it but changes no usable file (a changed
         # checks.probe_sign re-runs the job through its param below)
-        status=ancient(input_status_path()),
-        code=rafi_code("method"),
-        glue=script_helpers(),
+        status=ancient(out("input_status")),
     output:
         # runs
         table=out("runs_csv"),
@@ -111,6 +107,7 @@ rule method:
     conda:
         "../envs/rafi.yaml"
     params:
+        code=code_version("method"),
         # runs
         training_speeds_rpm=lambda w: machine_config(w.machine)["training_speeds_rpm"],
         speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],

@@ -15,19 +15,17 @@ rule decide:
         table=out("runs_csv"),
         frame=out("runs_parquet"),
         summary=out("validation_summary"),
-        status=input_status_path(),
-        code=rafi_code("registry_decide"),
-        glue=script_helpers(),
+        status=out("input_status"),
     output:
         decision=report(
-            registry_path("decision.json"),
+            out("decision"),
             caption="../report/registry_decision.rst",
             category="Registry decision",
             subcategory="{machine}",
             labels={"machine": "{machine}", "file": "registry/decision.json"},
         ),
         comparison=report(
-            registry_path("comparison.csv"),
+            out("registry_comparison"),
             caption="../report/registry_comparison.rst",
             category="Registry decision",
             subcategory="{machine}",
@@ -40,11 +38,12 @@ rule decide:
     conda:
         "../envs/rafi.yaml"
     params:
+        code=code_version("registry_decide"),
         machine=lambda w: w.machine,
         gates=lambda w: qualification_gates(w.machine),
         nightly=lambda w: nightly_settings(w.machine),
         speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],
-        registry=lambda w: registry_path("", w.machine).rstrip("/"),
+        registry=lambda w: registry_dir(w.machine),
     script:
         "../scripts/registry_decide.py"
 

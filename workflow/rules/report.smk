@@ -20,8 +20,8 @@
 # from registry/models/<id>.json (not an input: those files are registry side effects,
 # immutable and named by their content hash, so decision.json - an input - already pins them).
 # Uses helpers of common.smk: out(), machine_config(), report_paths(), log_path(),
-# bench_path(), rafi_code(), script_helpers(), RAFI_DIR, report_settings(),
-# report_table_path(), report_figures_path(), report_figure_inputs(), report_figure_settings().
+# bench_path(), code_version(), and of report_common.smk: report_inputs(),
+# report_figure_inputs(), report_figure_settings().
 
 
 rule report_figures:
@@ -32,10 +32,10 @@ rule report_figures:
     input:
         unpack(report_figure_inputs),
     output:
-        fit=report_table_path("training_fit"),
-        rmse=report_table_path("training_fit_rmse"),
-        fuzzy_example=report_table_path("fuzzy_example"),
-        folders=[directory(report_figures_path(group)) for group in REPORT_FIGURE_GROUPS],
+        fit=out("training_fit"),
+        rmse=out("training_fit_rmse"),
+        fuzzy_example=out("fuzzy_example"),
+        folders=[directory(out("figures", group=group)) for group in contract.FIGURE_GROUPS],
     log:
         report_tables=log_path("report_tables"),
         report_figures=log_path("report_figures"),
@@ -44,7 +44,8 @@ rule report_figures:
     conda:
         "../envs/rafi.yaml"
     params:
-        groups=list(REPORT_FIGURE_GROUPS),
+        code=code_version("report_figures"),
+        groups=list(contract.FIGURE_GROUPS),
         settings=report_figure_settings,
     script:
         "../scripts/report_figures.py"
@@ -78,8 +79,9 @@ rule report:
     conda:
         "../envs/rafi.yaml"
     params:
+        code=code_version("report"),
         settings=lambda w: machine_config(w.machine),
-        figure_groups=list(REPORT_FIGURE_GROUPS),
+        figure_groups=list(contract.FIGURE_GROUPS),
         paths={"raw_dir": str(RAW_DIR), "results_dir": RESULTS_DIR, "reports_dir": REPORTS_DIR},
     script:
         "../scripts/report.py"
@@ -89,15 +91,15 @@ rule skipped_report:
     """Page of a machine skipped for want of a usable raw file (machine-level quarantine, see
     input_status.smk): the rejected files and why, in place of the qualification report."""
     input:
-        status=input_status_path(),
+        status=out("input_status"),
         audit=out("audit"),
-        code=rafi_code("skipped_report"),
-        glue=script_helpers(),
     output:
         html=skipped_page_path(),
     log:
         log_path("skipped_report"),
     conda:
         "../envs/rafi.yaml"
+    params:
+        code=code_version("skipped_report"),
     script:
         "../scripts/skipped_report.py"

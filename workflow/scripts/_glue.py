@@ -7,13 +7,14 @@ Each script does::
         ...            # read inputs, call the rafi function, write outputs atomically
 
 Inside the block stdout, stderr and the ``logging`` module go to ``snakemake.log[0]``,
-so ``print`` lines are progress lines of the log. An exception is written to the log
-with its traceback and, as one line, to the terminal. A user error (a bad file or a bad
-configuration: :class:`rafi.errors.RafiUserError`) then ends the script with exit status 1
-and no Python traceback on the terminal (the traceback stays in the log; run setting
-``debug: true`` re-raises it, so the terminal shows it too); any other exception is re-raised.
-Either way the job fails, and Snakemake adds its own block (``RuleException:
-CalledProcessError ... returned non-zero exit status 1`` and ``Error in rule ...``).
+so ``print`` lines are progress lines of the log. A failure ends the log with one line,
+``RAFI <rule> (<wildcards>) failed: <message>``, which the Snakefile's ``onerror`` repeats as the
+last thing the user reads (``say_failures`` in common.smk). A user error (a bad file or a bad
+configuration: :class:`rafi.errors.RafiUserError`) ends the script with exit status 1 and no
+traceback anywhere (its message names the file, line and column); with run setting
+``debug: true`` it is re-raised like any other exception, whose traceback goes to the log and
+whose one line also goes to the terminal. Either way the job fails, and Snakemake adds its own
+block (``Error in rule ...``) with the log.
 """
 
 from __future__ import annotations
@@ -30,13 +31,12 @@ import pandas as pd
 
 def debug_wanted(config) -> bool:
     """Run setting ``debug`` (``--config debug=true``): user errors keep their traceback."""
-    from rafi.settings import run_settings
+    from rafi.settings import run_settings, truthy
 
     try:
-        value = run_settings(config)["debug"]
+        return truthy(run_settings(config)["debug"])
     except Exception:  # an unusable config was refused while planning; be quiet here
         return False
-    return str(value).strip().lower() in ("1", "true", "yes", "on")
 
 
 @contextlib.contextmanager
@@ -65,14 +65,13 @@ def step(smk):
         except BaseException as exc:
             from rafi.errors import RafiUserError, bound_message
 
-            log.exception("rule %s failed", smk.rule)
-            print(
-                f"RAFI {smk.rule} ({wildcards}) failed: {bound_message(exc, 2000)}\n  (details: {log_file})",
-                file=terminal,
-                flush=True,
-            )
+            line = f"RAFI {smk.rule} ({wildcards}) failed: {bound_message(exc, 2000)}"
             if isinstance(exc, RafiUserError) and not debug_wanted(smk.config):
+                # bad input: its message says it all (file, line, column); no traceback
+                print(line, flush=True)
                 raise SystemExit(1) from None
+            log.exception("rule %s failed", smk.rule)
+            print(f"{line}\n  (details: {log_file})", file=terminal, flush=True)
             raise
         print(f"[{smk.rule}] done in {time.perf_counter() - started:.1f} s", flush=True)
 

@@ -1,18 +1,13 @@
 """Rule clean: every raw log of a machine -> results/<machine>/clean/<stem>.parquet,
 <stem>.audit.csv and <stem>.summary.csv, in one process (rafi.ops.clean_job.clean_machine).
 
-A file whose name, content, clean settings and code are unchanged gets its outputs back from
-the cache results/<machine>/.clean_cache/ (rafi.ops.clean_cache); any other file is cleaned.
 With on_bad_input=quarantine any failure on a file quarantines that file with a one-line reason
 (the traceback goes to the log); with fail the job fails with the message (file, line, column).
 """
 
-from pathlib import Path
-
 from _glue import step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
-    from rafi.ops.clean_cache import CleanCache, code_fingerprint
     from rafi.ops.clean_job import CleanSettings, clean_machine
     from rafi.settings import run_settings
 
@@ -23,22 +18,8 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         clean=smk.params.clean,
         checks=smk.params.checks,
     )
-    glue = Path(smk.input.glue)
-    code = code_fingerprint([*smk.input.code, glue, glue.parent / "clean.py"])
     # on_bad_input is a run mode, not a param: the outputs are the same in both modes
     fail_mode = run_settings(smk.config)["on_bad_input"] == "fail"
-    done = clean_machine(
-        smk.params.raw_paths,
-        smk.output.folder,
-        settings,
-        cache=CleanCache(smk.params.cache),
-        code=code,
-        fail_mode=fail_mode,
-        log=log,
-    )
-    counts = {s: list(done.values()).count(s) for s in ("ok", "cached", "quarantined")}
-    print(
-        f"{len(done)} raw file(s): {counts['ok']} cleaned, {counts['cached']} from the cache, "
-        f"{counts['quarantined']} quarantined",
-        flush=True,
-    )
+    done = clean_machine(smk.params.raw_paths, smk.output.folder, settings, fail_mode=fail_mode, log=log)
+    counts = {s: list(done.values()).count(s) for s in ("ok", "quarantined")}
+    print(f"{len(done)} raw file(s): {counts['ok']} cleaned, {counts['quarantined']} quarantined", flush=True)

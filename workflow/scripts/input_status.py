@@ -15,7 +15,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
 
     from rafi.artefact import json_text, write_csv_atomic, write_text_atomic
     from rafi.method.audit import stack_summaries
-    from rafi.ops.clean_cache import files_in
+    from rafi.ops.clean_job import files_in
     from rafi.readers.checks_machine import apply_machine_checks, audit_warnings, read_rows, warning_lines
     from rafi.readers.quarantine import is_skipped, machine_input_status
 

@@ -39,7 +39,7 @@ def runs_step(smk, log):
     import rafi.artefact
     from rafi.method.audit import stack_summaries
     from rafi.method.runs import find_runs
-    from rafi.ops.clean_cache import files_in, output_paths
+    from rafi.ops.clean_job import files_in, output_paths
     from rafi.readers.input_spec import log_id
     from rafi.readers.quarantine import read_input_status
 

@@ -1,0 +1,255 @@
+"""Per-machine settings of the model family and its promotion: ``qualification``, ``models``, ``nightly``."""
+
+from __future__ import annotations
+
+from rafi.contract.keys import Section, Setting
+
+OPERATIONS_SETTINGS: dict = {
+    "qualification": Section(
+        doc="gates a model must pass to be promoted (every validation run)",
+        keys={
+            "max_residual_um": Setting(
+                default=12.0,
+                schema={"type": "number", "exclusiveMinimum": 0},
+                shown="12.0",
+                doc="gate: max \\|residual\\| on every validation run",
+            ),
+            "min_improvement_pct": Setting(
+                default=30.0,
+                schema={"type": "number", "maximum": 100},
+                shown="30.0",
+                doc="gate: improvement over no compensation on every validation run",
+            ),
+            "never_worse_than_uncompensated": Setting(
+                default=True,
+                schema={"type": "boolean"},
+                shown="true",
+                doc="gate: on no run worse than no compensation",
+            ),
+        },
+    ),
+    "models": Section(
+        doc="the model family compared with RAFI (docs/models.md)",
+        keys={
+            "enabled": Setting(
+                default=["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"],
+                schema={
+                    "type": "array",
+                    "items": {"enum": ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"]},
+                    "minItems": 1,
+                    "uniqueItems": True,
+                },
+                shown="all five",
+                doc=(
+                    "the model family (`docs/models.md`): `rafi`, `rafi_linear`, `ridge_global`, `dynamic`, "
+                    "`grey_box`"
+                ),
+            ),
+            "cv": Setting(
+                default="leave_one_run_out",
+                schema={"enum": ["leave_one_run_out", "leave_one_speed_out"]},
+                shown="`leave_one_run_out`",
+                doc=(
+                    "whole-run cross-validation on training runs: `leave_one_run_out` or "
+                    "`leave_one_speed_out`; it always runs (`comparison/cv.csv`): its held-out scores choose"
+                    " the model offered to the machine (`docs/models.md`; the former `models.cv_report` "
+                    "switch is gone)"
+                ),
+            ),
+            "cv_metric": Setting(
+                default="rmse",
+                schema={"enum": ["rmse", "max_abs"]},
+                shown="`rmse`",
+                doc="`rmse` or `max_abs`",
+            ),
+            "ridge_alphas": Setting(
+                default=[float(f"{m}e{e}") for e in range(-8, 1) for m in (1, 2, 5)] + [10.0],
+                schema={"type": "array", "items": {"type": "number", "exclusiveMinimum": 0}, "minItems": 1},
+                shown="1e-8 ... 10, 1-2-5 per decade",
+                doc="ridge penalties tried by CV",
+            ),
+            "dynamic_taus_s": Setting(
+                default="auto",
+                schema={
+                    "oneOf": [
+                        {"const": "auto"},
+                        {
+                            "type": "array",
+                            "items": {"type": "number", "minimum": 0},
+                            "minItems": 1,
+                            "uniqueItems": True,
+                        },
+                    ]
+                },
+                shown="`auto`",
+                doc=(
+                    "first-order filter constants of `dynamic`; `auto`: 0 and a geometric grid (ratio 3) "
+                    "from 4 sample periods up to about the median training-run length (`docs/models.md`, "
+                    "Grids); or a list"
+                ),
+            ),
+            "dynamic_max_taus": Setting(
+                default=2,
+                schema={"type": "integer", "minimum": 1},
+                shown="2",
+                doc="at most this many filters at once",
+            ),
+            "speed_gain": Setting(
+                default="cv",
+                schema={"enum": [True, False, "cv"]},
+                shown="`cv`",
+                doc="speed terms: `true`, `false` or chosen by CV",
+            ),
+            "speed_reference": Setting(
+                default="auto",
+                schema={"enum": ["auto", "run_start", "zero"]},
+                shown="`auto`",
+                doc="`auto`, `run_start` or `zero`",
+            ),
+            "grey_box_taus_s": Setting(
+                default="auto",
+                schema={
+                    "oneOf": [
+                        {"const": "auto"},
+                        {
+                            "type": "array",
+                            "items": {"type": "number", "minimum": 0},
+                            "minItems": 1,
+                            "uniqueItems": True,
+                        },
+                    ]
+                },
+                shown="`auto`",
+                doc=(
+                    "rise filters of `grey_box` (0 = the rise itself); `auto`: 0 and 24 P .. L/24, ratio 5 "
+                    "(0, 120, 600 s at 5 s and 4 h runs); or a list"
+                ),
+            ),
+            "grey_box_speed_taus_s": Setting(
+                default="auto",
+                schema={
+                    "oneOf": [
+                        {"const": "auto"},
+                        {
+                            "type": "array",
+                            "items": {"type": "number", "exclusiveMinimum": 0},
+                            "minItems": 1,
+                            "uniqueItems": True,
+                        },
+                    ]
+                },
+                shown="`auto`",
+                doc=(
+                    "heat-input filters; `auto`: 12 P .. L/6, ratio 3 (60, 180, 540, 1600 s at 5 s and 4 h);"
+                    " or a list"
+                ),
+            ),
+            "grey_box_filter_search": Setting(
+                default="all",
+                schema={"enum": ["all", "subsets"]},
+                shown="`all`",
+                doc="`all` filters at once with the ridge penalty by CV, or `subsets`",
+            ),
+            "grey_box_max_taus": Setting(
+                default=1,
+                schema={"type": "integer", "minimum": 1},
+                shown="1",
+                doc="(`subsets` only)",
+            ),
+            "grey_box_max_speed_taus": Setting(
+                default=2,
+                schema={"type": "integer", "minimum": 0},
+                shown="2",
+                doc="(`subsets` only)",
+            ),
+            "grey_box_centrifugal_lags_s": Setting(
+                default="auto",
+                schema={
+                    "oneOf": [
+                        {"const": "auto"},
+                        {
+                            "type": "array",
+                            "items": {"type": "number", "minimum": 0},
+                            "minItems": 1,
+                            "uniqueItems": True,
+                        },
+                    ]
+                },
+                shown="`auto`",
+                doc=(
+                    "lag of the n² draw-in term, by CV; `auto`: 0, P, 2 P, 4 P (P = sample period); or a list"
+                ),
+            ),
+            "grey_box_speed_powers": Setting(
+                default=[0, 1, 5 / 3, 2],
+                schema={
+                    "type": "array",
+                    "items": {"type": "number", "minimum": 0},
+                    "minItems": 1,
+                    "uniqueItems": True,
+                },
+                shown="0, 1, 5/3, 2",
+                doc="(n/10000)^p; 0 = running indicator",
+            ),
+            "grey_box_cv_metric": Setting(
+                default="max_abs",
+                schema={"enum": ["rmse", "max_abs"]},
+                shown="`max_abs`",
+                doc="the gates are about the max residual",
+            ),
+            "filter_restart_gap_s": Setting(
+                default=3600,
+                schema={"type": "number", "minimum": 0},
+                shown="3600",
+                doc=(
+                    "on whole logs, a gap longer than this (s) restarts the family's filters (settled on the"
+                    " first sample after it); shorter gaps and cool-downs carry the filter state "
+                    "(`docs/models.md`, Whole-log dynamics)"
+                ),
+            ),
+        },
+    ),
+    "nightly": Section(
+        doc="the nightly champion/challenger decision (docs/operations.md)",
+        keys={
+            "candidate": Setting(
+                default="family",
+                schema={"type": "string", "enum": ["fit", "family"]},
+                shown="`family`",
+                doc="tonight's candidate: `family` (the family's best model) or `fit` (RAFI as published)",
+            ),
+            "retrain_speed_range_rpm": Setting(
+                default=None,
+                schema={
+                    "oneOf": [
+                        {"type": "null"},
+                        {
+                            "type": "array",
+                            "items": {"type": "number", "minimum": 0},
+                            "minItems": 2,
+                            "maxItems": 2,
+                        },
+                    ]
+                },
+                shown="none",
+                doc="`[lo, hi]`: retrain only these speeds, keep the champion's others",
+            ),
+            "drift_margin_um": Setting(
+                default=2.0,
+                schema={"type": "number", "minimum": 0},
+                shown="2.0",
+                doc="the champion's residual on new validation logs may grow this much",
+            ),
+            "champion_margin_um": Setting(
+                default="noise",
+                schema={"oneOf": [{"type": "number", "minimum": 0}, {"const": "noise"}]},
+                shown="`noise`",
+                doc=(
+                    "a candidate is promoted only if on no validation run both models are scored on its max "
+                    "residual exceeds the champion's by more than this (um); `noise`: the run's noise floor "
+                    "(docs/operations.md)"
+                ),
+            ),
+        },
+    ),
+}
