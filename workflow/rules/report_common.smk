@@ -10,7 +10,10 @@ def report_figure_inputs(wildcards):
     """Named inputs of report_figures (one job per machine: the report's tables from the model,
     then every figure group): the tables they read. The tables the job writes itself
     (``rafi.contract.REPORT_MODEL_TABLES``) are not inputs."""
-    names = [*contract.REPORT_MODEL_TABLE_INPUTS, *(n for group in contract.FIGURE_GROUPS.values() for n in group)]
+    names = [
+        *contract.REPORT_MODEL_TABLE_INPUTS,
+        *(n for group in contract.FIGURE_GROUPS.values() for n in group),
+    ]
     return {
         name: out(name, wildcards.machine)
         for name in dict.fromkeys(names)
