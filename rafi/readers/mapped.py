@@ -11,7 +11,8 @@ or row (xlsx, as Excel shows it) of each record.
 A file without a time column (``time.kind: none``) gets the times ``time.start + k *
 time.period_s`` (:mod:`rafi.readers.mapped_time`); a file without a speed column its
 configured constant speed (:mod:`rafi.readers.input_assumed`); both are recorded in
-``attrs['metadata']['assumed']``. Cells are parsed by :mod:`rafi.readers.mapped_cells`.
+``attrs['metadata']['assumed']``. The file's header and rows are read by
+:mod:`rafi.readers.mapped_tables`, its cells parsed by :mod:`rafi.readers.mapped_cells`.
 
 Every problem with a file raises :class:`rafi.errors.RawFormatError` naming the
 file, the sheet (xlsx), the line/row and the column as written in the file. A
@@ -22,7 +23,6 @@ from __future__ import annotations
 
 import difflib
 import hashlib
-import io
 import os
 import re
 import unicodedata
@@ -32,7 +32,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.errors import RawFormatError, quote
+from rafi.errors import RawFormatError
 from rafi.readers.input_assumed import constant_speed, has_constant_speed
 from rafi.readers.input_spec import (
     _spec_error,
@@ -41,27 +41,17 @@ from rafi.readers.input_spec import (
     resolve_columns,
 )
 from rafi.readers.mapped_cells import (
-    XLSX_MAX_ROWS,
     Table,
-    check_formulas,
-    check_zip_sizes,
     excel_column,
     numeric,
     text,
 )
+from rafi.readers.mapped_tables import read_table
 from rafi.readers.mapped_time import assumed_notes, row_times, row_times_error, timestamps
 from rafi.readers.parsing import (
-    FIELD_MAX_CHARS,
     NUMERIC_COLUMNS,
-    check_column_count,
-    check_fields,
-    decode_bytes,
-    field_count_error,
     read_file_bytes,
-    split_fields,
-    split_lines,
     to_naive_ns,
-    unreadable_error,
 )
 
 # --------------------------------------------------------------------------- the mapping
@@ -100,179 +90,6 @@ def closest_headers(wanted: str, available: list[str], n: int = 3) -> list[str]:
     return [h for h in ranked[:n] if score(h) >= 0.4]
 
 
-# --------------------------------------------------------------------------- file readers
-
-
-def _read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
-    text = decode_bytes(
-        path, raw, spec["encoding"], hint="set input.encoding to the file's encoding (e.g. latin-1, cp1252)"
-    )
-    lines = split_lines(text)
-    hr = spec["header_row"]
-    if hr > len(lines) or not lines[hr - 1].strip():
-        raise RawFormatError(
-            path,
-            f"no header at line {hr} (input.header_row); the file has {len(lines)} line(s)",
-            line=min(hr, max(len(lines), 1)),
-        )
-    delim = spec["delimiter"]
-    header = [h.strip() for h in split_fields(path, lines[hr - 1], hr, delim)]
-    check_fields(path, header, hr)
-    check_column_count(path, header, hr)
-    if len(header) == 1:
-        for other in (";", ",", "\t", "|"):
-            if other != delim and other in header[0]:
-                raise RawFormatError(
-                    path,
-                    f"header is separated by {other!r}, not by the "
-                    f"configured delimiter {delim!r}; set input.delimiter",
-                    line=hr,
-                )
-    rows, numbers = [], []
-    first_data = hr + spec["skip_rows"]  # 0-based index of the first data line
-    for i in range(first_data, len(lines)):
-        line = lines[i]
-        if not line.strip():
-            continue
-        line_no = i + 1
-        fields = split_fields(path, line, line_no, delim)
-        if len(line) > FIELD_MAX_CHARS:
-            check_fields(path, fields, line_no, header, raw_line=line)
-        if len(fields) > len(header) and not any(f.strip() for f in fields[len(header) :]):
-            fields = fields[: len(header)]
-        if len(fields) != len(header):
-            if [norm_header(f) for f in fields] == [norm_header(h) for h in header]:
-                raise RawFormatError(
-                    path,
-                    "the header line is repeated inside the data; expected one header only",
-                    line=line_no,
-                )
-            raise field_count_error(
-                path,
-                line,
-                line_no,
-                len(fields),
-                len(header),
-                last=i == len(lines) - 1,
-                too_many_hint=(
-                    "a decimal comma with delimiter ','? set input.delimiter and input.decimal"
-                    if delim == ","
-                    else "a delimiter inside a value?"
-                ),
-            )
-        rows.append(fields)
-        numbers.append(line_no)
-    return Table(path, header, rows, numbers, hr, None)
-
-
-def _read_xlsx_table(path: Path, raw: bytes, spec: dict) -> Table:
-    """The sheet of the workbook whose bytes are ``raw`` (read once: the file is not opened again)."""
-    try:
-        import openpyxl
-    except ImportError as exc:  # pragma: no cover - openpyxl is a dependency
-        raise RawFormatError(path, f"reading xlsx needs openpyxl ({exc})") from None
-    check_zip_sizes(path, raw)
-    try:
-        wb = openpyxl.load_workbook(io.BytesIO(raw), read_only=True, data_only=True)
-    except OSError as exc:
-        raise unreadable_error(path, exc) from None
-    except Exception as exc:  # zip, XML, openpyxl's own errors: all mean "not a workbook"
-        raise RawFormatError(
-            path,
-            f"not a readable .xlsx workbook ({type(exc).__name__}: {quote(exc)}); "
-            "save it as Excel Workbook (.xlsx)",
-        ) from None
-    try:
-        names = list(wb.sheetnames)
-        sheet = spec["sheet"]
-        available = ", ".join(repr(n) for n in names)
-        if isinstance(sheet, int):
-            if sheet >= len(names):
-                raise RawFormatError(
-                    path, f"no sheet number {sheet} (0-based, input.sheet); the workbook has: {available}"
-                )
-            name = names[sheet]
-        else:
-            match = [n for n in names if norm_header(n) == norm_header(sheet)]
-            if not match:
-                close = difflib.get_close_matches(sheet, names, n=3, cutoff=0.5)
-                hint = f"; closest: {', '.join(map(repr, close))}" if close else ""
-                raise RawFormatError(
-                    path, f"no sheet {sheet!r} (input.sheet); the workbook has: {available}{hint}"
-                )
-            name = match[0]
-        ws = wb[name]
-        # the sheet's own <dimension> may be stale or forged: rows past it would be dropped
-        # silently, and a forged A1:XFD1048576 pads every row to 16384 cells
-        ws.reset_dimensions()
-        hr = spec["header_row"]
-        header = None
-        header_cells: list = []
-        rows, numbers = [], []
-        try:
-            for row_no, values in enumerate(ws.iter_rows(values_only=True), start=1):
-                if row_no > XLSX_MAX_ROWS:
-                    raise RawFormatError(
-                        path,
-                        f"a row numbered beyond {XLSX_MAX_ROWS}, the last row of an Excel sheet: "
-                        "a corrupted or crafted workbook; open and save it in Excel or LibreOffice",
-                        line=row_no,
-                        sheet=name,
-                    )
-                if row_no < hr:
-                    continue
-                values = list(values)
-                if row_no == hr:
-                    header_cells = list(values)
-                    while values and (values[-1] is None or str(values[-1]).strip() == ""):
-                        values.pop()
-                    header = ["" if v is None else str(v) for v in values]
-                    check_fields(path, header, row_no, sheet=name)
-                    check_column_count(path, header, row_no, sheet=name)
-                    continue
-                if row_no <= hr + spec["skip_rows"]:
-                    continue
-                if all(v is None or (isinstance(v, str) and not v.strip()) for v in values):
-                    continue
-                check_fields(path, values, row_no, header, sheet=name)
-                if len(values) > len(header):
-                    for j in range(len(header), len(values)):
-                        if values[j] is not None and str(values[j]).strip():
-                            raise RawFormatError(
-                                path,
-                                f"cell {excel_column(j)}{row_no} holds {quote(values[j])} but "
-                                "its column has no header",
-                                line=row_no,
-                                column=excel_column(j),
-                                sheet=name,
-                            )
-                    values = values[: len(header)]
-                elif len(values) < len(header):
-                    values = values + [None] * (len(header) - len(values))
-                rows.append(values)
-                numbers.append(row_no)
-        except RawFormatError:
-            raise
-        except OSError as exc:
-            raise unreadable_error(path, exc) from None
-        except Exception as exc:  # malformed sheet XML
-            raise RawFormatError(
-                path, f"cannot read the sheet ({type(exc).__name__}: {quote(exc)})", sheet=name
-            ) from None
-        if not header:
-            raise RawFormatError(
-                path,
-                f"no header in row {hr} (input.header_row); the sheet is empty there",
-                line=hr,
-                sheet=name,
-            )
-        table = Table(path, header, rows, numbers, hr, name)
-        check_formulas(table, header_cells[: len(header)], raw)
-        return table
-    finally:
-        wb.close()
-
-
 # --------------------------------------------------------------------------- main entry
 
 
@@ -290,6 +107,243 @@ def _file_speed(path: Path, spec: dict) -> tuple[float, str] | None:
             "add a glob that matches it, or set input.speed.constant_rpm for the machine",
         )
     return found
+
+
+def _header_not_found(table: Table, spec: dict, canon: str, theirs: str) -> RawFormatError:
+    """The error for a mapped header missing from the file, with the closest headers it has.
+
+    Parameters
+    ----------
+    table : Table
+        The file.
+    spec : dict
+        The normalised ``input:`` mapping (says which key named the header).
+    canon : str
+        The canonical column sought.
+    theirs : str
+        The header the mapping gives for it.
+
+    Returns
+    -------
+    RawFormatError
+        Naming the header, the mapping key and the closest (else the first eight) headers.
+    """
+    candidates = [h for h in table.header if h]
+    close = closest_headers(norm_header(theirs), candidates)
+    if close:
+        hint = "closest: " + ", ".join(repr(c) for c in close)
+    else:
+        hint = (
+            "available: "
+            + ", ".join(repr(c) for c in candidates[:8])
+            + (", ..." if len(candidates) > 8 else "")
+        )
+    where = (
+        "input.displacement.column"
+        if (canon == "disp_um" and spec["displacement"]["column"])
+        else f"input.columns.{canon}"
+    )
+    return RawFormatError(
+        table.path,
+        f"header {theirs!r} ({where}) not found in the header row; {hint}",
+        line=table.header_row,
+        column=theirs,
+        sheet=table.sheet,
+    )
+
+
+def _column_positions(table: Table, spec: dict) -> dict[str, int]:
+    """Where each canonical column the mapping reads is in the file.
+
+    Parameters
+    ----------
+    table : Table
+        The file.
+    spec : dict
+        The normalised ``input:`` mapping.
+
+    Returns
+    -------
+    dict
+        Canonical column -> 0-based column index, for every column the mapping reads
+        from the file (:func:`rafi.readers.input_spec.resolve_columns`).
+
+    Raises
+    ------
+    RawFormatError
+        When a mapped header is not in the file, or is there more than once.
+    """
+    positions: dict[str, int] = {}
+    for canon, theirs in resolve_columns(spec).items():
+        key = norm_header(theirs)
+        hits = [j for j, h in enumerate(table.header) if h == key]
+        if not hits:
+            raise _header_not_found(table, spec, canon, theirs)
+        if len(hits) > 1:
+            raise RawFormatError(
+                table.path,
+                f"header {theirs!r} appears {len(hits)} times "
+                f"(columns {', '.join(excel_column(j) for j in hits)}); "
+                f"cannot tell which one is {canon}",
+                line=table.header_row,
+                column=theirs,
+                sheet=table.sheet,
+            )
+        positions[canon] = hits[0]
+    return positions
+
+
+def _frame_times(table: Table, cols: list[tuple], positions: dict[str, int], spec: dict) -> pd.Series:
+    """The time of each data row: from the time column, or row k at ``time.start + k * time.period_s``.
+
+    Parameters
+    ----------
+    table : Table
+        The file.
+    cols : list of tuple
+        The cells of each column, in row order.
+    positions : dict
+        Canonical column -> 0-based column index.
+    spec : dict
+        The normalised ``input:`` mapping.
+
+    Returns
+    -------
+    pandas.Series
+        Naive timestamps, one per row.
+
+    Raises
+    ------
+    RawFormatError
+        At the first cell that is not a time, or when the rows of a file without a time
+        column would end after 2261.
+    """
+    if spec["time"]["kind"] == "none":
+        problem = row_times_error(len(table.rows), spec)
+        if problem:
+            raise RawFormatError(table.path, problem, line=table.row_numbers[-1], sheet=table.sheet)
+        return row_times(len(table.rows), spec)
+    j = positions["time"]
+    return timestamps(table, list(cols[j]), spec, table.header[j], j)
+
+
+def _canonical_values(table: Table, column: list, canon: str, col_index: int, spec: dict) -> np.ndarray:
+    """One numeric canonical column in the canonical unit and sign (um, deg C, r/min).
+
+    Parameters
+    ----------
+    table : Table
+        The file.
+    column : list
+        The column's cells, in row order.
+    canon : str
+        The canonical column (``speed_rpm``, ``T1``..``T16`` or ``disp_um``).
+    col_index : int
+        0-based index of the column in the file.
+    spec : dict
+        The normalised ``input:`` mapping (``decimal``, ``displacement.unit`` and
+        ``sign``, ``temperature_unit``).
+
+    Returns
+    -------
+    numpy.ndarray
+        ``float64``; empty cells NaN; a displacement in mm times 1000 and by its sign
+        (never -0.0), a temperature in K minus 273.15.
+
+    Raises
+    ------
+    RawFormatError
+        At the first cell that is not a number.
+    """
+    unit = {"speed_rpm": "r/min", "disp_um": spec["displacement"]["unit"]}.get(
+        canon, "deg " + spec["temperature_unit"]
+    )
+    values = numeric(
+        table, column, spec["decimal"], table.header[col_index], col_index, f"a number ({unit}) for {canon}"
+    )
+    if canon == "disp_um":
+        values = values * (1000.0 if spec["displacement"]["unit"] == "mm" else 1.0)
+        values = values * spec["displacement"]["sign"] + 0.0  # no -0.0
+    elif canon in SENSORS and spec["temperature_unit"] == "K":
+        values = values - 273.15
+    return values.astype("float64")
+
+
+def _add_extra_columns(
+    frame: pd.DataFrame, table: Table, cols: list[tuple], positions: dict[str, int], spec: dict
+) -> None:
+    """Append the file's other columns to ``frame`` (in place) under sanitised, unique names.
+
+    Parameters
+    ----------
+    frame : pandas.DataFrame
+        The canonical frame so far.
+    table : Table
+        The file.
+    cols : list of tuple
+        The cells of each column, in row order.
+    positions : dict
+        Canonical column -> 0-based column index (these columns are not repeated).
+    spec : dict
+        The normalised ``input:`` mapping (``decimal``).
+
+    Notes
+    -----
+    A column is numbers if every cell is one, else text. A column without a header is
+    named after its letter (``column_x``) and left out when it is empty too; a name
+    already taken gets ``_2``, ``_3``, ...
+    """
+    used = set(positions.values())
+    taken = set(frame.columns) | {"line"}
+    for j, name in enumerate(table.header):
+        if j in used:
+            continue
+        values = list(cols[j])
+        if not name and all(v is None or str(v).strip() == "" for v in values):
+            continue
+        base = sanitise_name(name) if name else f"column_{excel_column(j).lower()}"
+        new, n = base, 2
+        while new in taken:
+            new, n = f"{base}_{n}", n + 1
+        taken.add(new)
+        try:
+            frame[new] = numeric(table, values, spec["decimal"], name, j, "a number")
+        except RawFormatError:
+            frame[new] = pd.Series(text(values), index=frame.index, dtype="str")
+
+
+def _mapped_metadata(
+    spec: dict, table: Table, positions: dict[str, int], speed: tuple[float, str] | None
+) -> dict:
+    """``attrs['metadata']`` of a mapped frame: format, sheet, headers used, period, what was assumed.
+
+    Parameters
+    ----------
+    spec : dict
+        The normalised ``input:`` mapping.
+    table : Table
+        The file.
+    positions : dict
+        Canonical column -> 0-based column index.
+    speed : tuple of (float, str) or None
+        The file's constant speed and its key; None when the speed was read.
+
+    Returns
+    -------
+    dict
+        ``format``, ``sheet`` (xlsx), ``columns`` (canonical -> header used),
+        ``sample_period_s`` (when the mapping gives it) and ``assumed`` (when not empty).
+    """
+    meta: dict = {"format": spec["format"]}
+    if table.sheet is not None:
+        meta["sheet"] = table.sheet
+    meta["columns"] = {canon: table.header[j] for canon, j in positions.items()}
+    if spec["sample_period_s"] is not None:
+        meta["sample_period_s"] = spec["sample_period_s"]
+    assumed = assumed_notes(spec, speed=speed)
+    if assumed:
+        meta["assumed"] = assumed
+    return meta
 
 
 def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
@@ -334,116 +388,25 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
         raise _spec_error("format", f"read_mapped reads csv or xlsx, not {spec['format']!r}")
     raw = read_file_bytes(path)
     speed = _file_speed(path, spec)
-    if spec["format"] == "csv":
-        table = _read_csv_table(path, raw, spec)
-    else:
-        if not raw:
-            raise RawFormatError(path, "file is empty; expected an .xlsx workbook")
-        table = _read_xlsx_table(path, raw, spec)
-
-    header = table.header
-    wanted = resolve_columns(spec)
-    where_row = table.header_row
-    positions: dict[str, int] = {}
-    for canon, theirs in wanted.items():
-        key = norm_header(theirs)
-        hits = [j for j, h in enumerate(header) if h == key]
-        if not hits:
-            candidates = [h for h in header if h]
-            close = closest_headers(key, candidates)
-            if close:
-                hint = "closest: " + ", ".join(repr(c) for c in close)
-            else:
-                hint = (
-                    "available: "
-                    + ", ".join(repr(c) for c in candidates[:8])
-                    + (", ..." if len(candidates) > 8 else "")
-                )
-            where = (
-                "input.displacement.column"
-                if (canon == "disp_um" and spec["displacement"]["column"])
-                else f"input.columns.{canon}"
-            )
-            raise RawFormatError(
-                path,
-                f"header {theirs!r} ({where}) not found in the header row; {hint}",
-                line=where_row,
-                column=theirs,
-                sheet=table.sheet,
-            )
-        if len(hits) > 1:
-            raise RawFormatError(
-                path,
-                f"header {theirs!r} appears {len(hits)} times "
-                f"(columns {', '.join(excel_column(j) for j in hits)}); "
-                f"cannot tell which one is {canon}",
-                line=where_row,
-                column=theirs,
-                sheet=table.sheet,
-            )
-        positions[canon] = hits[0]
+    table = read_table(path, raw, spec)
+    positions = _column_positions(table, spec)
     if not table.rows:
-        raise RawFormatError(path, "header found but no data rows", line=where_row, sheet=table.sheet)
+        raise RawFormatError(path, "header found but no data rows", line=table.header_row, sheet=table.sheet)
 
     cols = list(zip(*table.rows))
     index = pd.Index(table.row_numbers, name="line", dtype="int64")
     frame = pd.DataFrame(index=index)
-    if spec["time"]["kind"] == "none":
-        problem = row_times_error(len(table.rows), spec)
-        if problem:
-            raise RawFormatError(path, problem, line=table.row_numbers[-1], sheet=table.sheet)
-        times = row_times(len(table.rows), spec)
-    else:
-        j = positions["time"]
-        times = timestamps(table, list(cols[j]), spec, header[j], j)
-    frame["time"] = to_naive_ns(times).to_numpy()
+    frame["time"] = to_naive_ns(_frame_times(table, cols, positions, spec)).to_numpy()
     for canon in NUMERIC_COLUMNS:
         if canon == "speed_rpm" and speed is not None:
             frame[canon] = np.full(len(index), speed[0], dtype="float64")
-            continue
-        j = positions[canon]
-        unit = {"speed_rpm": "r/min", "disp_um": spec["displacement"]["unit"]}.get(
-            canon, "deg " + spec["temperature_unit"]
-        )
-        values = numeric(
-            table, list(cols[j]), spec["decimal"], header[j], j, f"a number ({unit}) for {canon}"
-        )
-        if canon == "disp_um":
-            values = values * (1000.0 if spec["displacement"]["unit"] == "mm" else 1.0)
-            values = values * spec["displacement"]["sign"] + 0.0  # no -0.0
-        elif canon in SENSORS and spec["temperature_unit"] == "K":
-            values = values - 273.15
-        frame[canon] = values.astype("float64")
-
+        else:
+            j = positions[canon]
+            frame[canon] = _canonical_values(table, list(cols[j]), canon, j, spec)
     if spec["keep_extra"]:
-        used = set(positions.values())
-        taken = set(frame.columns) | {"line"}
-        for j, name in enumerate(header):
-            if j in used:
-                continue
-            values = list(cols[j])
-            if not name and all(v is None or str(v).strip() == "" for v in values):
-                continue
-            base = sanitise_name(name) if name else f"column_{excel_column(j).lower()}"
-            new, n = base, 2
-            while new in taken:
-                new, n = f"{base}_{n}", n + 1
-            taken.add(new)
-            try:
-                frame[new] = numeric(table, values, spec["decimal"], name, j, "a number")
-            except RawFormatError:
-                frame[new] = pd.Series(text(values), index=index, dtype="str")
+        _add_extra_columns(frame, table, cols, positions, spec)
 
-    meta: dict = {"format": spec["format"]}
-    if table.sheet is not None:
-        meta["sheet"] = table.sheet
-    meta["columns"] = {canon: header[j] for canon, j in positions.items()}
-    if spec["sample_period_s"] is not None:
-        meta["sample_period_s"] = spec["sample_period_s"]
-    assumed = assumed_notes(spec, speed=speed)
-    if assumed:
-        meta["assumed"] = assumed
-    frame.attrs["metadata"] = meta
+    frame.attrs["metadata"] = _mapped_metadata(spec, table, positions, speed)
     frame.attrs["source"] = str(path)
     frame.attrs["sha256"] = hashlib.sha256(raw).hexdigest()
     return frame

@@ -51,99 +51,187 @@ def timestamps(table: Table, values: list, spec: dict, column: str, col_index: i
     RawFormatError
         At the first cell that is empty, not a time, or outside 1678..2261.
     """
+    if spec["time"]["kind"] == "elapsed_s":
+        return _elapsed_times(table, values, spec, column, col_index)
+    fast = _text_times(values, spec["time"]["format"])
+    if fast is not None:
+        return fast
+    return _cell_times(table, values, spec["time"]["format"], column, col_index)
+
+
+def _elapsed_times(table: Table, values: list, spec: dict, column: str, col_index: int) -> pd.Series:
+    """A column of seconds (or ``h:mm:ss`` cells) from ``time.start``, as naive timestamps.
+
+    Parameters
+    ----------
+    table : Table
+        The file (words the error).
+    values : list
+        The cells of the time column, in row order: numbers, text, or the
+        ``datetime.time`` / ``datetime.timedelta`` of a duration cell.
+    spec : dict
+        The normalised ``input:`` mapping, ``time.kind`` ``elapsed_s``.
+    column : str
+        The header as written in the file.
+    col_index : int
+        0-based column index.
+
+    Returns
+    -------
+    pandas.Series
+        ``time.start`` (made naive UTC) plus each cell's seconds, rounded to the nanosecond.
+
+    Raises
+    ------
+    RawFormatError
+        At the first cell that is not a number, is empty, or lands outside 1678..2261.
+    """
     tm = spec["time"]
-    if tm["kind"] == "elapsed_s":
-        secs = []
-        for v in values:
-            if isinstance(v, dt.timedelta):
-                v = v.total_seconds()
-            elif isinstance(v, dt.time):
-                v = v.hour * 3600 + v.minute * 60 + v.second + v.microsecond / 1e6
-            secs.append(v)
-        sec = numeric(table, secs, spec["decimal"], column, col_index, "elapsed seconds")
-        empty = np.isnan(sec)
-        if empty.any():
-            k = int(np.argmax(empty))
-            raise table.error(
-                "empty time; expected elapsed seconds",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
-        start = pd.Timestamp(tm["start"])
-        if start.tzinfo is not None:
-            start = start.tz_convert(None)
-        lo = (TIME_MIN - start).total_seconds()
-        hi = (TIME_MAX - start).total_seconds()
-        bad = (sec < lo) | (sec > hi)
-        if bad.any():
-            k = int(np.argmax(bad))
-            raise table.error(
-                f"{values[k]!r} seconds from {tm['start']} is outside the supported years 1678..2261",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
-        return pd.Series(start + pd.to_timedelta(np.round(sec * 1e9).astype("int64"), unit="ns"))
+    secs = []
+    for v in values:
+        if isinstance(v, dt.timedelta):
+            v = v.total_seconds()
+        elif isinstance(v, dt.time):
+            v = v.hour * 3600 + v.minute * 60 + v.second + v.microsecond / 1e6
+        secs.append(v)
+    sec = numeric(table, secs, spec["decimal"], column, col_index, "elapsed seconds")
+    empty = np.isnan(sec)
+    if empty.any():
+        k = int(np.argmax(empty))
+        raise table.error(
+            "empty time; expected elapsed seconds",
+            row=table.row_numbers[k],
+            column=column,
+            col_index=col_index,
+        )
+    start = pd.Timestamp(tm["start"])
+    if start.tzinfo is not None:
+        start = start.tz_convert(None)
+    lo = (TIME_MIN - start).total_seconds()
+    hi = (TIME_MAX - start).total_seconds()
+    bad = (sec < lo) | (sec > hi)
+    if bad.any():
+        k = int(np.argmax(bad))
+        raise table.error(
+            f"{values[k]!r} seconds from {tm['start']} is outside the supported years 1678..2261",
+            row=table.row_numbers[k],
+            column=column,
+            col_index=col_index,
+        )
+    return pd.Series(start + pd.to_timedelta(np.round(sec * 1e9).astype("int64"), unit="ns"))
 
-    if values and all(isinstance(v, str) and v.strip() for v in values):
-        # vectorised path for text timestamps (CSV); errors fall through to the cell loop
-        strings = pd.Series([v.strip() for v in values], dtype=object)
-        try:
-            if tm["format"]:
-                parsed = pd.to_datetime(strings, format=tm["format"], errors="coerce", utc=True)
-            else:
-                parsed = pd.to_datetime(strings, format="ISO8601", errors="coerce", utc=True)
-            naive = parsed.dt.tz_convert(None)
-            if naive.notna().all() and ((naive >= TIME_MIN) & (naive <= TIME_MAX)).all():
-                return naive
-        except (ValueError, TypeError, OverflowError):
-            pass
 
+def _text_times(values: list, time_format: str | None) -> pd.Series | None:
+    """All-text timestamps parsed at once (the fast path for CSV); None when any cell needs a closer look.
+
+    Parameters
+    ----------
+    values : list
+        The cells of the time column, in row order.
+    time_format : str or None
+        ``input.time.format`` (a ``strftime`` format); None for ISO-8601.
+
+    Returns
+    -------
+    pandas.Series or None
+        Naive timestamps (UTC where the text carried an offset) when every cell is
+        non-empty text that parses to a time in 1678..2261; else None, and
+        :func:`_cell_times` finds and words the first bad cell.
+    """
+    if not (values and all(isinstance(v, str) and v.strip() for v in values)):
+        return None
+    strings = pd.Series([v.strip() for v in values], dtype=object)
+    try:
+        if time_format:
+            parsed = pd.to_datetime(strings, format=time_format, errors="coerce", utc=True)
+        else:
+            parsed = pd.to_datetime(strings, format="ISO8601", errors="coerce", utc=True)
+        naive = parsed.dt.tz_convert(None)
+        if naive.notna().all() and ((naive >= TIME_MIN) & (naive <= TIME_MAX)).all():
+            return naive
+    except (ValueError, TypeError, OverflowError):
+        pass
+    return None
+
+
+def _cell_time(value: object, time_format: str | None) -> pd.Timestamp | None:
+    """One date-and-time cell as a naive timestamp; None when it is not one (or is empty).
+
+    Parameters
+    ----------
+    value : object
+        The cell: a ``datetime.datetime`` / ``datetime.date`` (xlsx), or text.
+    time_format : str or None
+        ``input.time.format`` (a ``strptime`` format); None for ISO-8601.
+
+    Returns
+    -------
+    pandas.Timestamp or None
+        Naive (converted to UTC where the text carried an offset); None for anything
+        that does not parse.
+    """
+    if isinstance(value, (dt.datetime, dt.date)):
+        return pd.Timestamp(value)
+    if not (isinstance(value, str) and value.strip()):
+        return None
+    text = value.strip()
+    try:
+        if time_format:
+            ts = pd.Timestamp(dt.datetime.strptime(text, time_format))
+        else:
+            ts = pd.to_datetime(text, format="ISO8601")
+    except (ValueError, TypeError, OverflowError):
+        return None
+    if ts is pd.NaT:
+        return None
+    if ts.tzinfo is not None:
+        ts = ts.tz_convert("UTC").tz_localize(None)
+    return ts
+
+
+def _cell_times(
+    table: Table, values: list, time_format: str | None, column: str, col_index: int
+) -> pd.Series:
+    """Date-and-time cells parsed one by one, the error naming the first bad cell.
+
+    Parameters
+    ----------
+    table : Table
+        The file (words the error).
+    values : list
+        The cells of the time column, in row order.
+    time_format : str or None
+        ``input.time.format``; None for ISO-8601.
+    column : str
+        The header as written in the file.
+    col_index : int
+        0-based column index.
+
+    Returns
+    -------
+    pandas.Series
+        One naive timestamp per row.
+
+    Raises
+    ------
+    RawFormatError
+        At the first cell that is empty, not a timestamp, or outside 1678..2261.
+    """
     parsed = []
     for k, v in enumerate(values):
-        ts = None
-        if isinstance(v, dt.datetime):
-            ts = pd.Timestamp(v)
-        elif isinstance(v, dt.date):
-            ts = pd.Timestamp(v)
-        elif isinstance(v, str) and v.strip():
-            s = v.strip()
-            try:
-                if tm["format"]:
-                    ts = pd.Timestamp(dt.datetime.strptime(s, tm["format"]))
-                else:
-                    ts = pd.to_datetime(s, format="ISO8601")
-            except (ValueError, TypeError, OverflowError):
-                ts = None
-            if ts is not None and ts is not pd.NaT and ts.tzinfo is not None:
-                ts = ts.tz_convert("UTC").tz_localize(None)
-        elif v is None or (isinstance(v, str) and not v.strip()):
-            raise table.error(
-                "empty timestamp; expected a date and time",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
-        if ts is None or ts is pd.NaT:
+        where = {"row": table.row_numbers[k], "column": column, "col_index": col_index}
+        if v is None or (isinstance(v, str) and not v.strip()):
+            raise table.error("empty timestamp; expected a date and time", **where)
+        ts = _cell_time(v, time_format)
+        if ts is None:
             expect = (
-                f"a time in the format {tm['format']!r}"
-                if tm["format"]
+                f"a time in the format {time_format!r}"
+                if time_format
                 else "an ISO-8601 time such as 2026-10-14T08:00:00 (or set input.time.format)"
             )
-            raise table.error(
-                f"{v!r} is not a timestamp; expected {expect}",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
+            raise table.error(f"{v!r} is not a timestamp; expected {expect}", **where)
         if not (TIME_MIN <= ts <= TIME_MAX):
-            raise table.error(
-                f"timestamp {v!r} is outside the supported years 1678..2261",
-                row=table.row_numbers[k],
-                column=column,
-                col_index=col_index,
-            )
+            raise table.error(f"timestamp {v!r} is outside the supported years 1678..2261", **where)
         parsed.append(ts)
     return pd.Series(pd.DatetimeIndex(parsed))
 

@@ -128,54 +128,39 @@ def parse_metadata(meta: dict[str, str], path: Path, lines: dict[str, int] | Non
     return out
 
 
-def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
-    """Read one native raw log (``docs/raw-format.md``) into the canonical frame.
+def _check_header(path: Path, header: list[str], line_no: int) -> None:
+    """Refuse a header that cannot be the native one: wrong delimiter, a name twice, a column missing.
 
     Parameters
     ----------
-    path : str or os.PathLike
-        CSV file under ``raw/<machine>/``.
-
-    Returns
-    -------
-    pandas.DataFrame
-        Canonical columns first (``time``, ``speed_rpm``, ``T1``..``T16``,
-        ``disp_um``), then extra columns; index = 1-based line number in the file.
-        ``attrs`` holds ``metadata`` (dict), ``source`` (path) and ``sha256``.
-        Empty numeric fields become NaN (a logger dropout); cleaning decides what
-        to do with them.
+    path : Path
+        The file (names the error).
+    header : list of str
+        The header's fields, stripped.
+    line_no : int
+        1-based line of the header.
 
     Raises
     ------
     RawFormatError
-        Naming file, line and column, on anything that does not follow the format.
-        No other exception escapes for any file content (property-tested).
+        At the first problem, in the order: field limits, column count, a delimiter other
+        than ``,``, a duplicate name, missing required columns.
     """
-    path = Path(path)
-    raw = read_file_bytes(path)
-    text = _decode(path, raw)
-    lines = split_lines(text)
-    meta, header_idx, meta_lines = _split_metadata(path, lines)
-    meta = parse_metadata(meta, path, meta_lines)
-    header_line_no = header_idx + 1
-
-    header = split_fields(path, lines[header_idx], header_line_no)
-    header = [h.strip() for h in header]
-    check_fields(path, header, header_line_no)
-    check_column_count(path, header, header_line_no)
+    check_fields(path, header, line_no)
+    check_column_count(path, header, line_no)
     if len(header) == 1:
         for delim in (";", "\t", "|"):
             if delim in header[0]:
                 raise RawFormatError(
                     path,
                     f"header is separated by {delim!r}; expected commas (',') between columns",
-                    line=header_line_no,
+                    line=line_no,
                 )
     seen: set[str] = set()
     for name in header:
         if name in seen:
             raise RawFormatError(
-                path, f"column {quote(name)} appears twice in the header", line=header_line_no, column=name
+                path, f"column {quote(name)} appears twice in the header", line=line_no, column=name
             )
         seen.add(name)
     missing = [c for c in REQUIRED_COLUMNS if c not in seen]
@@ -184,11 +169,40 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
             path,
             f"required column(s) missing from header: {', '.join(missing)}; "
             f"expected {', '.join(REQUIRED_COLUMNS)}",
-            line=header_line_no,
+            line=line_no,
             column=missing[0],
         )
 
-    body_lines = lines[header_idx + 1 :]
+
+def _split_rows(
+    path: Path, body_lines: list[str], header: list[str], header_line_no: int
+) -> tuple[list[list[str]], list[int]]:
+    """The data lines after the header as fields, with the 1-based line number of each row.
+
+    Parameters
+    ----------
+    path : Path
+        The file (names the error).
+    body_lines : list of str
+        The lines after the header.
+    header : list of str
+        The header's fields (their number is the number every row must have).
+    header_line_no : int
+        1-based line of the header.
+
+    Returns
+    -------
+    rows : list of list of str
+        One list of fields per non-blank line (stripped where the file has whitespace).
+    line_numbers : list of int
+        The line of each row.
+
+    Raises
+    ------
+    RawFormatError
+        On an oversized field, the header repeated inside the data, a row with another
+        number of fields, or no data row at all.
+    """
     # Whitespace around values is allowed; skip the per-field strip when there is none.
     needs_strip = _INNER_SPACE.search("".join(body_lines)) is not None
     rows: list[list[str]] = []
@@ -222,12 +236,32 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
         line_numbers.append(line_no)
     if not rows:
         raise RawFormatError(path, "header found but no data rows", line=header_line_no)
+    return rows, line_numbers
 
-    index = pd.Index(line_numbers, name="line", dtype="int64")
-    columns = {name: list(col) for name, col in zip(header, zip(*rows))}
-    data: dict[str, object] = {}
 
-    time_str = columns["time"]
+def _parse_times(path: Path, time_str: list[str], line_numbers: list[int]) -> np.ndarray:
+    """The ``time`` column as naive ``datetime64[ns]`` (UTC where the text carried an offset).
+
+    Parameters
+    ----------
+    path : Path
+        The file (names the error).
+    time_str : list of str
+        The ``time`` fields, in row order.
+    line_numbers : list of int
+        The line of each row.
+
+    Returns
+    -------
+    numpy.ndarray
+        One timestamp per row.
+
+    Raises
+    ------
+    RawFormatError
+        At the first empty field, text that is not ISO-8601 (the header repeated inside the
+        data is named as such) or a time outside the years 1678..2261.
+    """
     if "" in time_str:
         bad = line_numbers[time_str.index("")]
         raise RawFormatError(
@@ -262,8 +296,37 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
             line=line_numbers[k],
             column="time",
         )
-    data["time"] = to_naive_ns(times).to_numpy()
+    return to_naive_ns(times).to_numpy()
 
+
+def _parse_values(
+    path: Path, header: list[str], columns: dict[str, list[str]], line_numbers: list[int]
+) -> dict[str, object]:
+    """The numeric canonical columns, then the extra columns (numbers where every field is one, else text).
+
+    Parameters
+    ----------
+    path : Path
+        The file (names the error).
+    header : list of str
+        Column names in file order.
+    columns : dict
+        Column name -> its fields, in row order.
+    line_numbers : list of int
+        The line of each row.
+
+    Returns
+    -------
+    dict
+        Column name -> values: ``float64`` arrays for ``speed_rpm``, ``T1``..``T16`` and
+        ``disp_um`` (empty fields NaN), then every other column except ``time`` in file order.
+
+    Raises
+    ------
+    RawFormatError
+        At the first field of a canonical column that is not a number.
+    """
+    data: dict[str, object] = {}
     for name in NUMERIC_COLUMNS:
         parsed, bad = parse_numbers(columns[name])
         if bad is not None:
@@ -276,12 +339,53 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
                 column=name,
             )
         data[name] = parsed
-
     for name in header:
-        if name in data:
+        if name in data or name == "time":
             continue
         parsed, bad = parse_numbers(columns[name])
         data[name] = parsed if bad is None else pd.array(columns[name], dtype="str")
+    return data
+
+
+def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
+    """Read one native raw log (``docs/raw-format.md``) into the canonical frame.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+        CSV file under ``raw/<machine>/``.
+
+    Returns
+    -------
+    pandas.DataFrame
+        Canonical columns first (``time``, ``speed_rpm``, ``T1``..``T16``,
+        ``disp_um``), then extra columns; index = 1-based line number in the file.
+        ``attrs`` holds ``metadata`` (dict), ``source`` (path) and ``sha256``.
+        Empty numeric fields become NaN (a logger dropout); cleaning decides what
+        to do with them.
+
+    Raises
+    ------
+    RawFormatError
+        Naming file, line and column, on anything that does not follow the format.
+        No other exception escapes for any file content (property-tested).
+    """
+    path = Path(path)
+    raw = read_file_bytes(path)
+    text = _decode(path, raw)
+    lines = split_lines(text)
+    meta, header_idx, meta_lines = _split_metadata(path, lines)
+    meta = parse_metadata(meta, path, meta_lines)
+    header_line_no = header_idx + 1
+
+    header = [h.strip() for h in split_fields(path, lines[header_idx], header_line_no)]
+    _check_header(path, header, header_line_no)
+    rows, line_numbers = _split_rows(path, lines[header_idx + 1 :], header, header_line_no)
+
+    index = pd.Index(line_numbers, name="line", dtype="int64")
+    columns = {name: list(col) for name, col in zip(header, zip(*rows))}
+    data: dict[str, object] = {"time": _parse_times(path, columns["time"], line_numbers)}
+    data.update(_parse_values(path, header, columns, line_numbers))
 
     frame = pd.DataFrame(data, index=index)
     frame.attrs["metadata"] = meta
