@@ -43,50 +43,51 @@ def _drift(text: str) -> tuple[str, float]:
         raise argparse.ArgumentTypeError(f"expected SENSOR:KELVIN such as T8:0.4, got {text!r}") from None
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    sub = parser.add_subparsers(dest="mode", metavar="MODE")
-    fmt = argparse.ArgumentDefaultsHelpFormatter
-
-    p = sub.add_parser(
+def _add_shipped_mode(sub: argparse._SubParsersAction, formatter: type[argparse.HelpFormatter]) -> None:
+    """``shipped``: regenerate the shipped data set."""
+    mode = sub.add_parser(
         "shipped",
-        formatter_class=fmt,
+        formatter_class=formatter,
         help="regenerate the shipped raw data set (byte for byte)",
         description="Regenerate the shipped data set: raw/tapping-center-a/*.csv "
         "(12 native logs) and raw/machining-center-b/"
         "thermal_log_2026-10-14.xlsx. Output is deterministic.",
     )
-    p.add_argument("--out", default="raw", help="raw data folder; files go to OUT/<machine>/")
-    p.add_argument(
+    mode.add_argument("--out", default="raw", help="raw data folder; files go to OUT/<machine>/")
+    mode.add_argument(
         "--machine",
         action="append",
         choices=["tapping-center-a", "machining-center-b"],
         help="only this machine (repeatable); default: both",
     )
 
-    p = sub.add_parser(
+
+def _add_day_mode(sub: argparse._SubParsersAction, formatter: type[argparse.HelpFormatter]) -> None:
+    """``day``: a new day of logs for a machine, with its room, drift, wear and speeds."""
+    mode = sub.add_parser(
         "day",
-        formatter_class=fmt,
+        formatter_class=formatter,
         help="write a new day of logs for a machine (for retraining tests)",
         description="Simulate a new day of logs for a machine and write them with "
         "new file names (date and seed in the name; existing files are "
         "never overwritten). tapping-center-a: one native CSV per run; "
         "machining-center-b: one continuous xlsx in its own layout.",
     )
-    p.add_argument(
+    mode.add_argument(
         "--machine",
         default="tapping-center-a",
         choices=["tapping-center-a", "machining-center-b"],
         help="machine id",
     )
-    p.add_argument("--out", default="raw", help="raw data folder; files go to OUT/<machine>/")
-    p.add_argument("--seed", type=int, default=1, help="random seed (noise, defects, room wander)")
-    p.add_argument(
+    mode.add_argument("--out", default="raw", help="raw data folder; files go to OUT/<machine>/")
+    mode.add_argument("--seed", type=int, default=1, help="random seed (noise, defects, room wander)")
+    mode.add_argument(
         "--date", default=None, help="day of the logs, YYYY-MM-DD; default 2026-04-01 plus SEED days"
     )
-    p.add_argument(
+    mode.add_argument(
         "--ambient-shift", type=float, default=0.0, help="room temperature shift against the shipped days, K"
     )
-    p.add_argument(
+    mode.add_argument(
         "--sensor-drift",
         type=_drift,
         action="append",
@@ -94,10 +95,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="SENSOR:K",
         help="calibration drift of one sensor, e.g. T8:0.4 (repeatable)",
     )
-    p.add_argument(
+    mode.add_argument(
         "--wear", type=float, default=0.0, help="relative increase of bearing friction (0.1 = +10 %%)"
     )
-    p.add_argument(
+    mode.add_argument(
         "--speeds",
         type=_speeds,
         default=None,
@@ -105,70 +106,93 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="training speeds to run (constant, 4 h each, cold start), comma-separated "
         "r/min; default: the machine's training speeds",
     )
-    p.add_argument(
+    mode.add_argument(
         "--validation-speeds",
         type=_speeds,
         default=[],
         metavar="LIST",
         help="validation speeds (constant, 3 h each), comma-separated r/min",
     )
-    p.add_argument(
+    mode.add_argument(
         "--multi", action="store_true", help="also write the 4.5 h multi-condition run (tapping-center-a)"
     )
-    p.add_argument(
+    mode.add_argument(
         "--hours", type=float, default=None, help="duration of each training run in hours (default 4)"
     )
-    p.add_argument("--no-defects", action="store_true", help="write clean logs (no logger defects)")
-    p.add_argument(
+    mode.add_argument("--no-defects", action="store_true", help="write clean logs (no logger defects)")
+    mode.add_argument(
         "--stuck-displacement",
         action="store_true",
         help="deliberately broken logs: the displacement freezes after 25 %% of each run",
     )
 
-    p = sub.add_parser(
+
+def _add_noise_floor_mode(sub: argparse._SubParsersAction, formatter: type[argparse.HelpFormatter]) -> None:
+    """``noise-floor``: the max residual a perfect model would leave on each shipped run."""
+    mode = sub.add_parser(
         "noise-floor",
-        formatter_class=fmt,
+        formatter_class=formatter,
         help="max residual a perfect model would leave on each shipped run",
         description="Simulate the shipped validation runs again without logger "
         "defects and print, per run, the max |displacement noise| "
         "(log minus the noise-free truth, referenced like dz): the "
         "smallest max residual any model can reach on that run.",
     )
-    p.add_argument("--machine", default="tapping-center-a", choices=["tapping-center-a"], help="machine id")
+    mode.add_argument(
+        "--machine", default="tapping-center-a", choices=["tapping-center-a"], help="machine id"
+    )
 
-    p = sub.add_parser(
+
+def _add_hostile_mode(sub: argparse._SubParsersAction, formatter: type[argparse.HelpFormatter]) -> None:
+    """``hostile``: the hostile-log corpus beside a machine's files."""
+    mode = sub.add_parser(
         "hostile",
-        formatter_class=fmt,
+        formatter_class=formatter,
         help="write the hostile-log corpus (wrong units, sign, channels, ...) with its ground truth",
         description="Derive logs that look valid but are wrong from the shipped tapping-center-a "
         "logs, write them into OUT (a machine folder) and print, per file, the check that must "
         "catch it and how (quarantined, rejected, warning, flagged, not_read). Never writes "
         "into the shipped folder.",
     )
-    p.add_argument("--out", required=True, help="machine folder to write into, e.g. /tmp/try/raw/m")
-    p.add_argument(
+    mode.add_argument("--out", required=True, help="machine folder to write into, e.g. /tmp/try/raw/m")
+    mode.add_argument(
         "--shipped",
         default="raw/tapping-center-a",
         help="the shipped tapping-center-a logs; if they are not there, the twin simulates them again",
     )
-    p.add_argument("--long-bytes", type=int, default=200_000, help="length of the oversized line")
+    mode.add_argument("--long-bytes", type=int, default=200_000, help="length of the oversized line")
 
-    p = sub.add_parser(
+
+def _add_plot_mode(sub: argparse._SubParsersAction, formatter: type[argparse.HelpFormatter]) -> None:
+    """``plot``: temperatures and displacement of logs against time."""
+    mode = sub.add_parser(
         "plot",
-        formatter_class=fmt,
+        formatter_class=formatter,
         help="plot temperatures and displacement of logs against time",
         description="Plot key sensors, coolant sensors and the displacement of each "
         "native log (Figure 9 style) and an overview of all runs; "
         "images are written as OUT/twin-<file stem>.png and "
         "OUT/twin-overview.png.",
     )
-    p.add_argument("folder", help="folder with native logs, e.g. raw/tapping-center-a")
-    p.add_argument("--out", default="docs/img", help="image folder")
-    p.add_argument("--pattern", default="train_*.csv", help="glob of the files to plot")
-    p.add_argument("--sensors", default="T6,T8,T9,T16,T5,T11,T13", help="comma-separated sensors to draw")
+    mode.add_argument("folder", help="folder with native logs, e.g. raw/tapping-center-a")
+    mode.add_argument("--out", default="docs/img", help="image folder")
+    mode.add_argument("--pattern", default="train_*.csv", help="glob of the files to plot")
+    mode.add_argument("--sensors", default="T6,T8,T9,T16,T5,T11,T13", help="comma-separated sensors to draw")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The modes of ``rafi simulate`` and their options, added to ``parser``."""
+    sub = parser.add_subparsers(dest="mode", metavar="MODE")
+    formatter = argparse.ArgumentDefaultsHelpFormatter
+    _add_shipped_mode(sub, formatter)
+    _add_day_mode(sub, formatter)
+    _add_noise_floor_mode(sub, formatter)
+    _add_hostile_mode(sub, formatter)
+    _add_plot_mode(sub, formatter)
 
 
 def run(args: argparse.Namespace) -> int:
+    """Carry out the ``rafi simulate`` mode of ``args`` and return the exit status."""
     mode = getattr(args, "mode", None)
     if mode == "shipped":
         from rafi.twin.writers import write_shipped

@@ -70,6 +70,124 @@ def _canonical(times, speeds, temps, disp) -> pd.DataFrame:
     return pd.DataFrame(data)
 
 
+def _defect_rates(defects: bool | DefectRates | None) -> DefectRates:
+    """The logger's defect rates: ``True`` the defaults, ``False``/``None`` none, else as given."""
+    if defects is True:
+        return DefectRates()
+    if not defects:
+        return DefectRates.none()
+    return defects
+
+
+def _node_frame(
+    times: pd.Series,
+    dt: float,
+    speeds: np.ndarray,
+    ambient: np.ndarray,
+    nodes: np.ndarray,
+    cooler: np.ndarray,
+    disp_thermal: np.ndarray,
+    disp_all: np.ndarray,
+) -> pd.DataFrame:
+    """The physics behind a run, one row per sample (:attr:`TwinRun.nodes`).
+
+    Parameters
+    ----------
+    times : pandas.Series
+        Time of each sample.
+    dt : float
+        Sample period (s).
+    speeds : numpy.ndarray
+        True spindle speed (r/min).
+    ambient : numpy.ndarray
+        Room temperature (degC).
+    nodes : numpy.ndarray
+        Node temperatures (samples x nodes, degC).
+    cooler : numpy.ndarray
+        Whether the oil cooler was on.
+    disp_thermal, disp_all : numpy.ndarray
+        Thermal and total (thermal + centrifugal) displacement (um).
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``time``, ``t_s``, ``speed_rpm``, ``ambient``, one column per node, ``cooler_on``,
+        ``disp_thermal_um`` and ``disp_centrifugal_um``.
+    """
+    n = len(speeds)
+    frame = pd.DataFrame({"time": times, "t_s": np.arange(n) * dt, "speed_rpm": speeds, "ambient": ambient})
+    for j, name in enumerate(NODES):
+        frame[name] = nodes[:, j]
+    frame["cooler_on"] = cooler
+    frame["disp_thermal_um"] = disp_thermal
+    frame["disp_centrifugal_um"] = disp_all - disp_thermal
+    return frame
+
+
+def _logged_readings(
+    params: TwinParams,
+    temps_true: np.ndarray,
+    disp_true: np.ndarray,
+    speeds: np.ndarray,
+    dt: float,
+    rng: np.random.Generator,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What the logger reads of the true values: noise, then quantisation.
+
+    Parameters
+    ----------
+    params : TwinParams
+        Noise levels and quanta of the sensors.
+    temps_true : numpy.ndarray
+        True sensor temperatures (samples x 16, degC).
+    disp_true : numpy.ndarray
+        True displacement (um).
+    speeds : numpy.ndarray
+        True spindle speed (r/min).
+    dt : float
+        Sample period (s).
+    rng : numpy.random.Generator
+        The noise stream (drawn in a fixed order: temperature noise, white and slow
+        displacement noise, temperature drafts, speed jitter).
+
+    Returns
+    -------
+    temps, disp, speed : numpy.ndarray
+        Temperatures and displacement with white noise plus a slow AR(1) part, rounded to
+        the sensors' quanta; speed with whole-r/min jitter while the spindle turns (0 at rest).
+    """
+    n = len(speeds)
+    temps = temps_true + rng.normal(0.0, params.temp_noise_c, temps_true.shape)
+    white = rng.normal(0.0, params.disp_noise_um * 0.85, n)
+    a = np.exp(-dt / 60.0)
+    slow = ar1(rng.normal(0.0, params.disp_noise_um * 0.5, n), a, np.sqrt(1 - a * a))
+    disp = disp_true + white + slow
+    # sensor noise: white + a slow part (air drafts at the magnet/clay mounting)
+    a2 = np.exp(-dt / 180.0)
+    drafts = ar1(rng.normal(0.0, params.temp_noise_c * 0.8, temps_true.shape), a2, np.sqrt(1 - a2 * a2))
+    temps = temps + drafts
+    temps = np.round(temps / params.temp_quantum_c) * params.temp_quantum_c
+    disp = np.round(disp / params.disp_quantum_um) * params.disp_quantum_um
+    jitter = np.round(rng.normal(0.0, params.speed_jitter_rpm, n))
+    speed_log = np.where(speeds > 0, speeds + jitter, 0.0)
+    return temps, disp, speed_log
+
+
+def _freeze_displacement(disp: np.ndarray) -> dict:
+    """Freeze ``disp`` (in place) at its value at 25 % of the run; return the defect's record."""
+    n = len(disp)
+    k0 = int(0.25 * n)
+    disp[k0:] = disp[k0]
+    return defect_record(
+        "stuck_displacement",
+        k0,
+        n - k0,
+        "displacement frozen at its last value",
+        column="disp_um",
+        value=float(disp[k0]),
+    )
+
+
 def simulate_run(
     schedule: Sequence[Step] | Sequence[tuple[float, float]],
     *,
@@ -122,18 +240,12 @@ def simulate_run(
     """
     params = params or machine_params(machine)
     ambient = ambient or Ambient()
-    if defects is True:
-        rates = DefectRates()
-    elif not defects:
-        rates = DefectRates.none()
-    else:
-        rates = defects
+    rates = _defect_rates(defects)
     steps = schedule_from_pairs(schedule)
     dt = float(sample_period_s)
     speeds = sample_schedule(steps, dt)
     n = len(speeds)
-    start_ts = pd.Timestamp(start)
-    times = start_ts + pd.to_timedelta(np.arange(n) * dt, unit="s")
+    times = pd.Timestamp(start) + pd.to_timedelta(np.arange(n) * dt, unit="s")
     ss = np.random.SeedSequence(int(seed))
     rng_amb, rng_noise, rng_def, rng_probe = (np.random.default_rng(s) for s in ss.spawn(4))
 
@@ -149,51 +261,15 @@ def simulate_run(
     )
     disp_true = z_all + zero
     temps_true = sensor_truth(params, nodes, t_amb, dt, sensor_drift)
-
     truth = _canonical(times, speeds, temps_true, disp_true)
-    node_frame = pd.DataFrame(
-        {"time": truth["time"], "t_s": np.arange(n) * dt, "speed_rpm": speeds, "ambient": t_amb}
-    )
-    for j, name in enumerate(NODES):
-        node_frame[name] = nodes[:, j]
-    node_frame["cooler_on"] = cooler
-    node_frame["disp_thermal_um"] = z_th
-    node_frame["disp_centrifugal_um"] = z_all - z_th
+    node_frame = _node_frame(truth["time"], dt, speeds, t_amb, nodes, cooler, z_th, z_all)
 
-    # ---- the logger: noise and quantisation (per true sample, so duplicates are copies)
+    # the logger: noise and quantisation (per true sample, so duplicates are copies)
     if noise:
-        temps = temps_true + rng_noise.normal(0.0, params.temp_noise_c, temps_true.shape)
-        white = rng_noise.normal(0.0, params.disp_noise_um * 0.85, n)
-        a = np.exp(-dt / 60.0)
-        slow = ar1(rng_noise.normal(0.0, params.disp_noise_um * 0.5, n), a, np.sqrt(1 - a * a))
-        disp = disp_true + white + slow
-        # sensor noise: white + a slow part (air drafts at the magnet/clay mounting)
-        a2 = np.exp(-dt / 180.0)
-        drafts = ar1(
-            rng_noise.normal(0.0, params.temp_noise_c * 0.8, temps_true.shape), a2, np.sqrt(1 - a2 * a2)
-        )
-        temps = temps + drafts
-        temps = np.round(temps / params.temp_quantum_c) * params.temp_quantum_c
-        disp = np.round(disp / params.disp_quantum_um) * params.disp_quantum_um
-        jitter = np.round(rng_noise.normal(0.0, params.speed_jitter_rpm, n))
-        speed_log = np.where(speeds > 0, speeds + jitter, 0.0)
+        temps, disp, speed_log = _logged_readings(params, temps_true, disp_true, speeds, dt, rng_noise)
     else:
         temps, disp, speed_log = temps_true.copy(), disp_true.copy(), speeds.copy()
-
-    records: list[dict] = []
-    if stuck_displacement:
-        k0 = int(0.25 * n)
-        disp[k0:] = disp[k0]
-        records.append(
-            defect_record(
-                "stuck_displacement",
-                k0,
-                n - k0,
-                "displacement frozen at its last value",
-                column="disp_um",
-                value=float(disp[k0]),
-            )
-        )
+    records: list[dict] = [_freeze_displacement(disp)] if stuck_displacement else []
     order, records, cells = plan_defects(rates, n, dt, rng_def, records)
     log = _canonical(times[order], speed_log[order], temps[order], disp[order])
     defect_table = apply_defects(records, cells, log, order, times)

@@ -11,7 +11,7 @@ from, so a test can compare what the code finds with what was put in.
 * :func:`inject_defects` - duplicates, swaps, spikes, dropouts, open-circuit
   values and gaps injected into a canonical log at random, non-interacting
   places; returns the defective frame and a defect table with the SOURCE lines
-  the audit must report.
+  the audit must report (:mod:`rafi.twin.synthetic_defects`, imported here).
 * :func:`schedule_log` - a clean frame (``rafi.method.clean`` output format) following a
   speed schedule, with the true piece boundaries.
 * :func:`first_order_run` - ``dz = rise (1 - exp(-t / tau))`` plus noise.
@@ -25,9 +25,9 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.twin.defects import OPEN_CIRCUIT_VALUES
 from rafi.twin.schedules import Step, sample_schedule, speed_at
 from rafi.twin.signals import first_order, step_response
+from rafi.twin.synthetic_defects import OPEN_CIRCUIT, inject_defects  # noqa: F401 (part of this module's API)
 
 START = pd.Timestamp("2026-03-02T08:00:00")
 AMBIENT_C = 22.0
@@ -37,7 +37,6 @@ LAG = np.array([1.6, 1.7, 1.5, 1.4, 1.3, 1.0, 1.5, 1.05, 0.95, 1.2, 2.0, 1.8, 1.
 #: Thermal displacement plateau at 18000 r/min (um) and centrifugal growth coefficient (um/rpm^2).
 DISP_GAIN_UM = 28.0
 CENTRIFUGAL_UM_PER_RPM2 = 1.5e-8
-OPEN_CIRCUIT = OPEN_CIRCUIT_VALUES[0]
 
 H = 3600.0
 #: A continuous log's schedule: 4 constant runs and idles (one too short), then a varying tail
@@ -172,178 +171,6 @@ def canonical_log(
     log["time"] = log["time"].astype("datetime64[ns]")
     truth["time"] = truth["time"].astype("datetime64[ns]")
     return log, truth
-
-
-def inject_defects(
-    log: pd.DataFrame,
-    *,
-    duplicates: int = 0,
-    duplicates_differ: int = 0,
-    swaps: int = 0,
-    spikes: int = 0,
-    dropouts: int = 0,
-    open_circuit: int = 0,
-    gaps: int = 0,
-    long_gaps: int = 0,
-    period_s: float = 5.0,
-    max_gap_s: float = 60.0,
-    spike_size: dict | None = None,
-    seed: int = 0,
-    margin: int = 6,
-) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Inject defects into a canonical log at random, non-interacting places.
-
-    Parameters
-    ----------
-    log : pandas.DataFrame
-        Regular canonical frame (e.g. from :func:`canonical_log`); not modified.
-    duplicates : int
-        Rows written twice, identical.
-    duplicates_differ : int
-        Rows written twice with the same time but a different ``T1`` (kept: first).
-    swaps : int
-        Adjacent rows written in the wrong order (one ``reordered`` event each).
-    spikes : int
-        Single-sample spikes (temperatures and ``disp_um``).
-    dropouts : int
-        Runs of 1..``max_gap_s / period_s - 1`` empty values in one sensor
-        (interpolable).
-    open_circuit : int
-        Runs of 1..3 open-circuit values (``OPEN_CIRCUIT``) in one temperature.
-    gaps : int
-        Missing rows, interpolable (at most ``max_gap_s / period_s - 1`` rows).
-    long_gaps : int
-        Missing stretches too long to interpolate (split the log).
-    spike_size : dict, optional
-        Spike height per kind: ``{"temp": 5.0, "disp": 15.0}``.
-    seed : int
-        Random seed.
-    margin : int
-        Clean samples kept between any two defects.
-
-    Returns
-    -------
-    frame : pandas.DataFrame
-        Canonical frame as a logger with these faults would have produced it,
-        index = its own line numbers (first line as in ``log``).
-    defects : pandas.DataFrame
-        One row per defect: ``kind`` (duplicate, duplicate_differ, swap, spike,
-        dropout, open_circuit, gap, long_gap), ``column``, ``line`` and
-        ``last_line`` (lines in ``frame``; for gaps the rows around the gap),
-        ``n_rows`` (rows / values concerned), ``time`` (true time of the first
-        affected sample), ``position`` (row in ``log``).
-    """
-    rng = np.random.default_rng(seed)
-    sizes = {"temp": 5.0, "disp": 15.0, **(spike_size or {})}
-    n = len(log)
-    first_line = int(log.index[0])
-    max_rows = int(max_gap_s // period_s) - 1  # longest interpolable run of missing rows
-    used = np.zeros(n, bool)
-
-    def place(length: int) -> int:
-        for _ in range(10000):
-            p = int(rng.integers(margin + 2, n - length - margin - 2))
-            lo, hi = p - margin, p + length + margin
-            if not used[lo:hi].any():
-                used[lo:hi] = True
-                return p
-        raise RuntimeError("could not place all defects; use a longer log or fewer defects")
-
-    vals = log.copy(deep=True)
-    keys = np.arange(n, dtype=float)  # sort key of each row in the written file
-    keep = np.ones(n, bool)
-    extra_rows: list[tuple[float, int, dict]] = []  # (key, source position, changes)
-    defects: list[dict] = []
-
-    def record(kind, column, pos, n_rows, **kw):
-        defects.append(
-            {
-                "kind": kind,
-                "column": column,
-                "position": pos,
-                "n_rows": n_rows,
-                "time": log["time"].iloc[pos],
-                **kw,
-            }
-        )
-
-    for _ in range(long_gaps):
-        length = max_rows + 1 + int(rng.integers(5, 40))
-        p = place(length)
-        keep[p : p + length] = False
-        record("long_gap", "time", p, length, last_pos=p + length)
-    for _ in range(gaps):
-        length = int(rng.integers(1, max_rows + 1))
-        p = place(length)
-        keep[p : p + length] = False
-        record("gap", "time", p, length, last_pos=p + length)
-    sensor_cols = [*SENSORS, "disp_um"]
-    for _ in range(dropouts):
-        length = int(rng.integers(1, max_rows + 1))
-        p = place(length)
-        col = sensor_cols[int(rng.integers(len(sensor_cols)))]
-        vals.iloc[p : p + length, vals.columns.get_loc(col)] = np.nan
-        record("dropout", col, p, length, last_pos=p + length - 1)
-    for _ in range(open_circuit):
-        length = int(rng.integers(1, 4))
-        p = place(length)
-        col = SENSORS[int(rng.integers(16))]
-        vals.iloc[p : p + length, vals.columns.get_loc(col)] = OPEN_CIRCUIT
-        record("open_circuit", col, p, length, last_pos=p + length - 1)
-    for _ in range(spikes):
-        p = place(1)
-        col = sensor_cols[int(rng.integers(len(sensor_cols)))]
-        size = sizes["disp" if col == "disp_um" else "temp"] * (1 if rng.random() < 0.5 else -1)
-        vals.iloc[p, vals.columns.get_loc(col)] += size
-        record("spike", col, p, 1, last_pos=p, size=size)
-    for _ in range(swaps):
-        p = place(2)
-        keys[p] = p + 1.25  # row p written after row p + 1
-        record("swap", "time", p, 1, last_pos=p)
-    for kind, count in (("duplicate", duplicates), ("duplicate_differ", duplicates_differ)):
-        for _ in range(count):
-            p = place(1)
-            changes = {"T1": float(vals["T1"].iloc[p]) + 0.5} if kind == "duplicate_differ" else {}
-            extra_rows.append((p + 0.5, p, changes))
-            record(kind, "time", p, 1, last_pos=p)
-
-    base = vals[keep].copy()
-    base_keys = keys[keep]
-    base_pos = np.flatnonzero(keep)
-    dup_frames = []
-    for _key, p, changes in extra_rows:
-        row = vals.iloc[[p]].copy()
-        for c, v in changes.items():
-            row[c] = v
-        dup_frames.append(row)
-    frame = pd.concat([base, *dup_frames]) if dup_frames else base
-    all_keys = np.concatenate([base_keys, [k for k, _, _ in extra_rows]])
-    all_pos = np.concatenate([base_pos, [p for _, p, _ in extra_rows]]).astype(int)
-    is_dup = np.concatenate([np.zeros(len(base_keys), bool), np.ones(len(extra_rows), bool)])
-    order = np.argsort(all_keys, kind="stable")
-    frame = frame.iloc[order].copy()
-    frame.index = pd.Index(np.arange(first_line, first_line + len(frame)), name="line")
-    line_of = {
-        (int(p), bool(d)): first_line + r for r, (p, d) in enumerate(zip(all_pos[order], is_dup[order]))
-    }
-
-    out = []
-    for d in defects:
-        p, kind = d.pop("position"), d["kind"]
-        last_pos = d.pop("last_pos")
-        if kind in ("gap", "long_gap"):
-            line, last = line_of[(p - 1, False)], line_of[(last_pos, False)]
-        elif kind in ("duplicate", "duplicate_differ"):
-            line = last = line_of[(p, True)]
-        elif kind == "swap":
-            line, last = line_of[(p + 1, False)], line_of[(p, False)]
-        else:
-            line, last = line_of[(p, False)], line_of[(last_pos, False)]
-        out.append({**d, "line": line, "last_line": last, "position": p})
-    columns = ["kind", "column", "line", "last_line", "n_rows", "time", "position", "size"]
-    table = pd.DataFrame(out, columns=columns).sort_values("line", ignore_index=True)
-    frame.attrs = dict(log.attrs)
-    return frame, table
 
 
 def schedule_log(
