@@ -7,9 +7,14 @@ from statsmodels.regression.linear_model import OLS
 from rafi.method.fit import (
     COEFFICIENT_COLUMNS,
     DIAGNOSTIC_COLUMNS,
+    PAPER_RMSE_UM,
     VIF_COLUMNS,
     fit_rafi,
     fit_speed,
+    paper_value,
+    speed_rows,
+    speed_samples,
+    training_files,
 )
 from rafi.method.model import RafiModel, design_matrix, parse_terms
 from rafi.twin.synthetic_runs import KEY, TERMS, make_runs
@@ -248,3 +253,54 @@ def test_coefficients_only_path_matches_the_full_fit_and_skips_statsmodels(white
     import sys
 
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+# --------------------------------------------------------------------------- the steps of fit_rafi
+
+
+def test_speed_samples_stack_runs_in_order_and_drop_incomplete_samples():
+    syn = make_runs((3000,), runs_per_speed=2, sigma=0.05, seed=2, duration_s=600)
+    frame = syn.runs_frame.copy()
+    ids = ["train-3000-2", "train-3000-1"]  # the order of the runs table's group
+    shuffled = frame.sample(frac=1.0, random_state=0)  # rows out of time order
+    shuffled.loc[shuffled["t_s"] == 25.0, "dT8"] = np.nan  # one sample per run lost
+    x, y, runs = speed_samples(shuffled, ids, ["dT6", "dT8"], 3000)
+    n = len(frame) // 2 - 1
+    np.testing.assert_array_equal(runs, np.repeat([0, 1], n))
+    for k, rid in enumerate(ids):
+        run = frame[(frame["run_id"] == rid) & (frame["t_s"] != 25.0)].sort_values("t_s")
+        np.testing.assert_array_equal(x[runs == k], run[["dT6", "dT8"]].to_numpy())
+        np.testing.assert_array_equal(y[runs == k], run["dz_um"].to_numpy())
+    frame["dz_um"] = np.nan
+    with pytest.raises(ValueError, match="no complete samples .* at 3000 r/min"):
+        speed_samples(frame, ids, ["dT6"], 3000)
+
+
+def test_training_files_of_constant_training_runs_only():
+    syn = make_runs((3000, 6000), validation_speeds=(4500,), seed=1, duration_s=600)
+    table = syn.runs_table.assign(
+        file=["a.csv", None, "v.csv"], sha256=["h-a", "h-b", "h-v"], kind=["constant", "constant", "constant"]
+    )
+    assert training_files(table) == {"a.csv": "h-a"}
+    table.loc[0, "sha256"] = None
+    assert training_files(table) == {"a.csv": None}
+    assert training_files(syn.runs_table.drop(columns=["sha256"])) == {}
+
+
+def test_speed_rows_one_per_term_and_the_paper_rmse():
+    fit = {
+        "coef": np.array([1.0, 2.0]),
+        "se": np.array([0.1, 0.2]),
+        "se_hac": np.array([0.3, 0.4]),
+        "t": np.array([10.0, 10.0]),
+        "p": np.array([0.0, 0.0]),
+        "p_hac": np.array([0.01, 0.02]),
+        "vif": {"x1": 1.0},
+        "diagnostics": {"n": 100, "rmse_um": 0.5},
+    }
+    coefs, diag, vifs = speed_rows(6000, ["1", "x1"], fit)
+    assert [list(row) for row in coefs] == [COEFFICIENT_COLUMNS] * 2
+    assert coefs[1]["se_hac"] == 0.4 and coefs[0]["term"] == "1"
+    assert list(diag) == DIAGNOSTIC_COLUMNS and diag["n"] == 100 and np.isnan(diag["r2"])
+    assert diag["paper_rmse_um"] == paper_value(6000, PAPER_RMSE_UM)
+    assert vifs == [{"speed_rpm": 6000, "term": "x1", "vif": 1.0}]

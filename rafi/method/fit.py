@@ -155,10 +155,64 @@ def fit_speed(
         ``fitted`` and ``result`` (the statsmodels results object).
     """
     y = np.asarray(y, dtype=float)
+    terms = list(terms)
+    exps, design, groups = _checked_design(x, terms, groups)
+    if not diagnostics:
+        return _coefficients_only(y, design)
+
+    from statsmodels.regression.linear_model import OLS
+
+    res = OLS(y, design).fit()
+    _, counts = np.unique(groups, return_counts=True)
+    lags = int(max(0, min(int(hac_maxlags), int(counts.min()) - 1)))
+    hac = res.get_robustcov_results(
+        cov_type="hac-panel", groups=groups, maxlags=lags, use_correction="hac", df_correction=False
+    )
+    resid = np.asarray(res.resid)
+    vif, tests = _residual_tests(res, design, exps, terms)
+    vif_values = [v for v in vif.values() if not math.isnan(v)]
+    diagnostics = {
+        "n": int(design.shape[0]),
+        "r2": float(res.rsquared),
+        "r2_adj": float(res.rsquared_adj),
+        "rmse_um": float(np.sqrt(np.mean(resid**2))),
+        "aic": float(res.aic),
+        "bic": float(res.bic),
+        "condition_number": tests["condition_number"],
+        "durbin_watson": _durbin_watson_within(resid, groups),
+        "bp_stat": tests["bp_stat"],
+        "bp_p": tests["bp_p"],
+        "jb_stat": tests["jb_stat"],
+        "jb_p": tests["jb_p"],
+        "max_vif": float(max(vif_values)) if vif_values else float("nan"),
+        "hac_maxlags_used": lags,
+    }
+    return {
+        "coef": np.asarray(res.params, dtype=float),
+        "se": np.asarray(res.bse, dtype=float),
+        "se_hac": np.asarray(hac.bse, dtype=float),
+        "t": np.asarray(res.tvalues, dtype=float),
+        "p": np.asarray(res.pvalues, dtype=float),
+        "p_hac": np.asarray(hac.pvalues, dtype=float),
+        "vif": vif,
+        "diagnostics": diagnostics,
+        "resid": resid,
+        "fitted": np.asarray(res.fittedvalues, dtype=float),
+        "result": res,
+    }
+
+
+def _checked_design(x, terms: list[str], groups) -> tuple[list, np.ndarray, np.ndarray]:
+    """The term exponents, the design matrix of ``x`` and the run of each sample (default: one run).
+
+    Raises
+    ------
+    ValueError
+        Not more samples than terms, or ``groups`` of the wrong length or not sorted.
+    """
     x = np.asarray(x, dtype=float)
     if x.ndim == 1:
         x = x[:, None]
-    terms = list(terms)
     exps = parse_terms(terms, x.shape[1])
     design = design_matrix(x, exps)
     n, k = design.shape
@@ -169,39 +223,40 @@ def fit_speed(
         raise ValueError("groups must have one entry per sample")
     if np.any(groups[1:] < groups[:-1]):
         raise ValueError("groups must be sorted (samples of a run contiguous)")
+    return exps, design, groups
 
-    if not diagnostics:
-        coef = _ols_coefficients(y, design)
-        fitted = design @ coef
-        resid = y - fitted
-        nan = np.full(k, np.nan)
-        return {
-            "coef": coef,
-            "se": nan,
-            "se_hac": nan,
-            "t": nan,
-            "p": nan,
-            "p_hac": nan,
-            "vif": {},
-            "diagnostics": {"n": int(n), "rmse_um": float(np.sqrt(np.mean(resid**2)))},
-            "resid": resid,
-            "fitted": fitted,
-            "result": None,
-        }
 
-    from statsmodels.regression.linear_model import OLS
+def _coefficients_only(y: np.ndarray, design: np.ndarray) -> dict:
+    """:func:`fit_speed`'s result without diagnostics: coefficients, residuals, ``n``, RMSE."""
+    coef = _ols_coefficients(y, design)
+    fitted = design @ coef
+    resid = y - fitted
+    nan = np.full(design.shape[1], np.nan)
+    return {
+        "coef": coef,
+        "se": nan,
+        "se_hac": nan,
+        "t": nan,
+        "p": nan,
+        "p_hac": nan,
+        "vif": {},
+        "diagnostics": {"n": int(design.shape[0]), "rmse_um": float(np.sqrt(np.mean(resid**2)))},
+        "resid": resid,
+        "fitted": fitted,
+        "result": None,
+    }
+
+
+def _residual_tests(res, design: np.ndarray, exps, terms: list[str]) -> tuple[dict, dict]:
+    """VIF per regressor (intercept excluded) and the tests of a fitted OLS (statsmodels
+    ``res``): ``bp_stat``, ``bp_p`` (Breusch-Pagan, NaN where it fails), ``jb_stat``, ``jb_p``,
+    ``condition_number``."""
     from statsmodels.stats.diagnostic import het_breuschpagan
     from statsmodels.stats.outliers_influence import variance_inflation_factor
     from statsmodels.stats.stattools import jarque_bera
 
-    res = OLS(y, design).fit()
-    _, counts = np.unique(groups, return_counts=True)
-    lags = int(max(0, min(int(hac_maxlags), int(counts.min()) - 1)))
-    hac = res.get_robustcov_results(
-        cov_type="hac-panel", groups=groups, maxlags=lags, use_correction="hac", df_correction=False
-    )
+    n, k = design.shape
     resid = np.asarray(res.resid)
-
     intercept = [j for j, e in enumerate(exps) if not e.any()]
     vif: dict[str, float] = {}
     with warnings.catch_warnings(), np.errstate(divide="ignore", invalid="ignore"):
@@ -221,37 +276,14 @@ def fit_speed(
             bp_stat, bp_p = float("nan"), float("nan")
         jb_stat, jb_p, _, _ = jarque_bera(resid)
         cond = float(res.condition_number)
-
-    vif_values = [v for v in vif.values() if not math.isnan(v)]
-    diagnostics = {
-        "n": int(n),
-        "r2": float(res.rsquared),
-        "r2_adj": float(res.rsquared_adj),
-        "rmse_um": float(np.sqrt(np.mean(resid**2))),
-        "aic": float(res.aic),
-        "bic": float(res.bic),
-        "condition_number": cond,
-        "durbin_watson": _durbin_watson_within(resid, groups),
+    tests = {
         "bp_stat": float(bp_stat),
         "bp_p": float(bp_p),
         "jb_stat": float(jb_stat),
         "jb_p": float(jb_p),
-        "max_vif": float(max(vif_values)) if vif_values else float("nan"),
-        "hac_maxlags_used": lags,
+        "condition_number": cond,
     }
-    return {
-        "coef": np.asarray(res.params, dtype=float),
-        "se": np.asarray(res.bse, dtype=float),
-        "se_hac": np.asarray(hac.bse, dtype=float),
-        "t": np.asarray(res.tvalues, dtype=float),
-        "p": np.asarray(res.pvalues, dtype=float),
-        "p_hac": np.asarray(hac.pvalues, dtype=float),
-        "vif": vif,
-        "diagnostics": diagnostics,
-        "resid": resid,
-        "fitted": np.asarray(res.fittedvalues, dtype=float),
-        "result": res,
-    }
+    return vif, tests
 
 
 def fit_rafi(
@@ -314,77 +346,37 @@ def fit_rafi(
         raise ValueError("key_sensors is empty")
     parse_terms(terms, len(key_sensors))
     xcols = [f"d{s}" for s in key_sensors]
-    need = ["run_id", "dz_um", *xcols]
-    missing = [c for c in need if c not in runs_frame.columns]
+    missing = [c for c in ["run_id", "dz_um", *xcols] if c not in runs_frame.columns]
     if missing:
         raise ValueError(f"runs_frame lacks column(s) {missing}")
     groups = training_speed_groups(runs_table)
-
-    data: dict[str, str] = {}
-    if {"file", "sha256"} <= set(runs_table.columns):
-        train = speed_training_runs(runs_table)
-        for f, h in zip(train["file"], train["sha256"]):
-            if pd.notna(f):
-                data[str(f)] = None if pd.isna(h) else str(h)
 
     model = RafiModel(
         key_sensors,
         terms,
         reference=reference,
         machine=machine,
-        data=data,
+        data=training_files(runs_table),
         fuzzy_outside=fuzzy_outside,
         speed_tolerance_rpm=speed_tolerance_rpm,
         config=config,
     )
-    run_ids = runs_frame["run_id"].astype(str)
     coef_rows, diag_rows, vif_rows = [], [], []
     for speed, ids in groups.items():
-        code = {rid: i for i, rid in enumerate(ids)}
-        sub = runs_frame.loc[run_ids.isin(ids), need + (["t_s"] if "t_s" in runs_frame else [])]
-        sub = sub.assign(_run=sub["run_id"].astype(str).map(code))
-        sort_cols = ["_run", "t_s"] if "t_s" in sub.columns else ["_run"]
-        sub = sub.sort_values(sort_cols, kind="stable")
-        ok = sub[["dz_um", *xcols]].notna().all(axis=1)
-        sub = sub.loc[ok]
-        if sub.empty:
-            raise ValueError(
-                f"no complete samples (dz_um and {', '.join(xcols)}) in the "
-                f"training runs at {speed} r/min: {ids}"
-            )
-        x = sub[xcols].to_numpy(dtype=float)
-        y = sub["dz_um"].to_numpy(dtype=float)
-        g = sub["_run"].to_numpy(dtype=int)
+        x, y, runs = speed_samples(runs_frame, ids, xcols, speed)
         try:
-            fit = fit_speed(y, x, terms, groups=g, hac_maxlags=hac_maxlags, diagnostics=diagnostics)
+            fit = fit_speed(y, x, terms, groups=runs, hac_maxlags=hac_maxlags, diagnostics=diagnostics)
         except ValueError as exc:
             raise ValueError(f"fit at {speed} r/min: {exc}") from None
-        for j, term in enumerate(terms):
-            coef_rows.append(
-                {
-                    "speed_rpm": speed,
-                    "term": term,
-                    "coef": fit["coef"][j],
-                    "se": fit["se"][j],
-                    "se_hac": fit["se_hac"][j],
-                    "t": fit["t"][j],
-                    "p": fit["p"][j],
-                    "p_hac": fit["p_hac"][j],
-                }
-            )
-        for term, v in fit["vif"].items():
-            vif_rows.append({"speed_rpm": speed, "term": term, "vif": v})
-        d = fit["diagnostics"]
-        d = {
-            "speed_rpm": speed,
-            **{c: d.get(c, float("nan")) for c in DIAGNOSTIC_COLUMNS[1:]},
-            "paper_rmse_um": paper_value(speed, PAPER_RMSE_UM),
-        }
-        diag_rows.append({c: d[c] for c in DIAGNOSTIC_COLUMNS})
+        coefs, diag, vifs = speed_rows(speed, terms, fit)
+        coef_rows += coefs
+        diag_rows.append(diag)
+        vif_rows += vifs
         ranges = {s: (float(np.min(x[:, i])), float(np.max(x[:, i]))) for i, s in enumerate(key_sensors)}
-        used_runs = [rid for rid in ids if code[rid] in set(g.tolist())]
+        position, used = {rid: i for i, rid in enumerate(ids)}, set(runs.tolist())
+        used_runs = [rid for rid in ids if position[rid] in used]
         model.add_speed_model(
-            speed, fit["coef"], ranges, train_runs=used_runs, rmse_um=d["rmse_um"], n=d["n"]
+            speed, fit["coef"], ranges, train_runs=used_runs, rmse_um=diag["rmse_um"], n=diag["n"]
         )
 
     coefficients = pd.DataFrame(coef_rows, columns=COEFFICIENT_COLUMNS)
@@ -394,3 +386,64 @@ def fit_rafi(
         tab["speed_rpm"] = tab["speed_rpm"].astype("int64")
     diagnostics["n"] = diagnostics["n"].astype("int64")
     return FitResult(coefficients=coefficients, diagnostics=diagnostics, vif=vif, model=model)
+
+
+def training_files(runs_table: pd.DataFrame) -> dict:
+    """File -> SHA-256 (None if unknown) of the training runs RAFI learns from
+    (:func:`rafi.method.rank.speed_training_runs`); empty without ``file`` and ``sha256``."""
+    data: dict[str, str] = {}
+    if {"file", "sha256"} <= set(runs_table.columns):
+        train = speed_training_runs(runs_table)
+        for f, h in zip(train["file"], train["sha256"]):
+            if pd.notna(f):
+                data[str(f)] = None if pd.isna(h) else str(h)
+    return data
+
+
+def speed_samples(
+    runs_frame: pd.DataFrame, ids: list[str], xcols: list[str], speed
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The regression data of one training speed: the runs ``ids`` stacked in that order, each in
+    time order (``t_s``, where present), samples with a missing ``dz_um`` or rise dropped.
+
+    Returns the rises ``x`` (columns ``xcols``), ``dz_um`` and each sample's run (its index in
+    ``ids``). ValueError (naming ``speed``) when no complete sample is left.
+    """
+    need = ["run_id", "dz_um", *xcols]
+    code = {rid: i for i, rid in enumerate(ids)}
+    sub = runs_frame.loc[
+        runs_frame["run_id"].astype(str).isin(ids), need + (["t_s"] if "t_s" in runs_frame else [])
+    ]
+    sub = sub.assign(_run=sub["run_id"].astype(str).map(code))
+    sub = sub.sort_values(["_run", "t_s"] if "t_s" in sub.columns else ["_run"], kind="stable")
+    sub = sub.loc[sub[["dz_um", *xcols]].notna().all(axis=1)]
+    if sub.empty:
+        raise ValueError(
+            f"no complete samples (dz_um and {', '.join(xcols)}) in the training runs at {speed} r/min: {ids}"
+        )
+    return (
+        sub[xcols].to_numpy(dtype=float),
+        sub["dz_um"].to_numpy(dtype=float),
+        sub["_run"].to_numpy(dtype=int),
+    )
+
+
+def speed_rows(speed, terms: list[str], fit: dict) -> tuple[list[dict], dict, list[dict]]:
+    """One speed's rows of ``coefficients.csv`` (per term), ``diagnostics.csv`` (its paper
+    RMSE added) and ``vif.csv``, from a :func:`fit_speed` result."""
+    coefs = [
+        {
+            "speed_rpm": speed,
+            "term": term,
+            **{c: fit[c][j] for c in ("coef", "se", "se_hac", "t", "p", "p_hac")},
+        }
+        for j, term in enumerate(terms)
+    ]
+    vifs = [{"speed_rpm": speed, "term": term, "vif": v} for term, v in fit["vif"].items()]
+    d = fit["diagnostics"]
+    d = {
+        "speed_rpm": speed,
+        **{c: d.get(c, float("nan")) for c in DIAGNOSTIC_COLUMNS[1:]},
+        "paper_rmse_um": paper_value(speed, PAPER_RMSE_UM),
+    }
+    return coefs, {c: d[c] for c in DIAGNOSTIC_COLUMNS}, vifs
