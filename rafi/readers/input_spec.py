@@ -49,12 +49,19 @@ from rafi.readers.input_assumed import check_no_time_column, check_speed, consta
 
 # --------------------------------------------------------------------------- the input: mapping
 
+
 def _spec_error(key: str, message: str) -> InputSpecError:
     return InputSpecError(f"input.{key}: {message}")
 
 
 def normalise_input_spec(spec: dict | None) -> dict:
     """Validate an ``input:`` mapping and fill in the defaults.
+
+    The steps, in order (each raises on the first problem it finds): the mapping's keys
+    (:func:`merge_input_defaults`), the format and the file pattern (:func:`check_format`), how
+    the text is read (:func:`check_text_layout`), the columns and the displacement channel
+    (:func:`check_columns`), the clock (:func:`check_time`), and a log without a time or speed
+    column (:mod:`rafi.readers.input_assumed`).
 
     Parameters
     ----------
@@ -72,8 +79,31 @@ def normalise_input_spec(spec: dict | None) -> dict:
     InputSpecError
         Naming the key (``input.displacement.unit``) and what is accepted.
     """
-    if spec is None:
-        spec = {}
+    spec = {} if spec is None else spec
+    out = merge_input_defaults(spec)
+    check_format(out, spec)
+    check_text_layout(out)
+    check_columns(out)
+    check_time(out)
+    check_no_time_column(out)
+    check_speed(out)
+    if out["temperature_unit"] not in ("C", "K"):
+        raise _spec_error("temperature_unit", f"{out['temperature_unit']!r}: expected C or K")
+    if not isinstance(out["keep_extra"], bool):
+        raise _spec_error("keep_extra", f"{out['keep_extra']!r}: expected true or false")
+    return out
+
+
+#: Sub-mappings of ``input:`` whose keys merge one by one over their defaults.
+NESTED_KEYS = ("time", "speed", "displacement")
+
+
+def merge_input_defaults(spec) -> dict:
+    """A copy of :data:`INPUT_DEFAULTS` with ``spec``'s values; unknown keys are refused.
+
+    ``time``, ``speed`` and ``displacement`` merge key by key (``None`` keeps the defaults);
+    ``columns`` replaces. Values are not checked here.
+    """
     if not isinstance(spec, dict):
         raise InputSpecError(f"input: expected a mapping, got {type(spec).__name__}")
     unknown = sorted(set(spec) - set(INPUT_DEFAULTS))
@@ -81,7 +111,7 @@ def normalise_input_spec(spec: dict | None) -> dict:
         raise _spec_error(unknown[0], f"unknown key; accepted keys: {', '.join(INPUT_DEFAULTS)}")
     out = copy.deepcopy(INPUT_DEFAULTS)
     for key, value in spec.items():
-        if key in ("time", "speed", "displacement"):
+        if key in NESTED_KEYS:
             if value is None:
                 continue
             if not isinstance(value, dict):
@@ -98,7 +128,12 @@ def normalise_input_spec(spec: dict | None) -> dict:
             out[key] = dict(value or {})
         else:
             out[key] = value
+    return out
 
+
+def check_format(out: dict, spec: dict) -> None:
+    """``format`` is known, a native mapping sets only native keys, and ``pattern`` is a glob or a
+    list of globs (set from the format when not given). ``out`` is changed in place."""
     fmt = out["format"]
     if fmt not in FORMATS:
         raise _spec_error("format", f"{fmt!r} is not one of {', '.join(FORMATS)}")
@@ -119,6 +154,10 @@ def normalise_input_spec(spec: dict | None) -> dict:
         )
     out["pattern"] = out["pattern"] if isinstance(out["pattern"], str) else list(pats)
 
+
+def check_text_layout(out: dict) -> None:
+    """``sheet``, ``delimiter`` (``tab`` becomes a tab), ``decimal``, ``encoding``, ``header_row``
+    and ``skip_rows``: how the file's text is read. ``out`` is changed in place."""
     sheet = out["sheet"]
     if (
         isinstance(sheet, bool)
@@ -150,6 +189,10 @@ def normalise_input_spec(spec: dict | None) -> dict:
         if isinstance(v, bool) or not isinstance(v, int) or v < low:
             raise _spec_error(key, f"{v!r}: expected an integer >= {low}")
 
+
+def check_columns(out: dict) -> None:
+    """``columns`` maps canonical names to header texts, ``displacement`` names one channel in one
+    place with a known unit and sign, and no header feeds two canonical columns."""
     columns = out["columns"]
     for canon, theirs in columns.items():
         if not re.match(CANONICAL_RE, str(canon)):
@@ -181,6 +224,10 @@ def normalise_input_spec(spec: dict | None) -> dict:
             f"header {dup!r} is mapped to {' and '.join(names)}; each header can feed one canonical column",
         )
 
+
+def check_time(out: dict) -> None:
+    """``time.kind``, ``time.start`` (ISO 8601 within pandas' range), ``time.format`` (a strptime
+    format) and ``sample_period_s`` (a positive number, made a float). ``out`` is changed in place."""
     tm = out["time"]
     if tm["kind"] not in TIME_KINDS:
         raise _spec_error("time.kind", f"{tm['kind']!r}: expected timestamp, elapsed_s or none")
@@ -207,13 +254,6 @@ def normalise_input_spec(spec: dict | None) -> dict:
         if isinstance(sp, bool) or not isinstance(sp, (int, float)) or not (math.isfinite(sp) and sp > 0):
             raise _spec_error("sample_period_s", f"{sp!r}: expected a positive number of seconds")
         out["sample_period_s"] = float(sp)
-    check_no_time_column(out)
-    check_speed(out)
-    if out["temperature_unit"] not in ("C", "K"):
-        raise _spec_error("temperature_unit", f"{out['temperature_unit']!r}: expected C or K")
-    if not isinstance(out["keep_extra"], bool):
-        raise _spec_error("keep_extra", f"{out['keep_extra']!r}: expected true or false")
-    return out
 
 
 def _is_default(key: str, value) -> bool:
