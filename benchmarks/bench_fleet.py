@@ -588,6 +588,180 @@ def markdown(report: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+# --------------------------------------------------------------------------- side by side with a commit
+
+
+def code_tree(ref: str, workdir: Path) -> Path:
+    """The workflow and package at ``ref``: the working tree for ``working``, else ``git archive``."""
+    if ref == "working":
+        return ROOT
+    dest = workdir / f"code-{ref}"
+    if not dest.is_dir():
+        dest.mkdir(parents=True)
+        archive = subprocess.run(["git", "archive", ref], cwd=ROOT, capture_output=True, check=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(dest)], input=archive, check=True)
+    return dest
+
+
+def shipped_project(dest: Path, code: Path, copies: int) -> Path:
+    """The shipped raw/ (of the working tree, so every version reads the same data) plus ``copies``
+    renamed copies of tapping-center-a, with ``code``'s Snakefile, workflow/, profiles/ and config."""
+    dest.mkdir(parents=True)
+    ignore = shutil.ignore_patterns("__pycache__")
+    shutil.copy2(code / "Snakefile", dest / "Snakefile")
+    shutil.copytree(code / "workflow", dest / "workflow", ignore=ignore)
+    if (code / "profiles").is_dir():
+        shutil.copytree(code / "profiles", dest / "profiles", ignore=ignore)
+    shutil.copy2(code / "config.yaml", dest / "config.yaml")
+    shutil.copytree(ROOT / "raw", dest / "raw")
+    for k in range(1, copies + 1):
+        name = f"{TWIN_MACHINE}-copy{k}"
+        shutil.copytree(ROOT / "raw" / TWIN_MACHINE, dest / "raw" / name)
+        _rename_machine(sorted((dest / "raw" / name).glob("*.csv")), name)
+    return dest
+
+
+def marginal_side_by_side(refs: list[str], copies: int, repeats: int, workdir: Path, cores: int) -> dict:
+    """Cold ``snakemake --cores`` of the shipped data and of the shipped data + ``copies`` copies of
+    tapping-center-a, for every code version in ``refs``, interleaved (version after version, so
+    the machine's load falls on all of them alike); the marginal cost of one more 12-file machine
+    is (copies run - shipped run) / copies."""
+    runs: list[dict] = []
+    for rep in range(repeats):
+        for ref in refs:
+            code = code_tree(ref, workdir)
+            env_path = "" if ref == "working" else str(code)
+            for n_copies in (0, copies):
+                proj = shipped_project(workdir / f"side-{ref}-{n_copies}-{rep}", code, n_copies)
+                cmd = ["env", f"PYTHONPATH={env_path}", *snakemake_cmd(cores, "all")]
+                result = timed(cmd, proj)
+                if result["exit"] != 0:
+                    sys.stderr.write(result["stderr"][-4000:])
+                    raise SystemExit(f"{ref} with {n_copies} copies failed; project kept at {proj}")
+                runs.append(
+                    {"ref": ref, "copies": n_copies, "rep": rep}
+                    | {k: v for k, v in result.items() if k not in ("stdout", "stderr")}
+                )
+                print(
+                    f"  {ref:>10} +{n_copies} copies (rep {rep}): {result['wall_s']} s, "
+                    f"{result['cpu_s']} core-s, load {result['load_1min']}",
+                    flush=True,
+                )
+                shutil.rmtree(proj, ignore_errors=True)
+    per_ref = {}
+    for ref in refs:
+        walls, cpus = [], []
+        for rep in range(repeats):
+            base = next(r for r in runs if r["ref"] == ref and r["rep"] == rep and r["copies"] == 0)
+            more = next(r for r in runs if r["ref"] == ref and r["rep"] == rep and r["copies"] == copies)
+            walls.append((more["wall_s"] - base["wall_s"]) / copies)
+            cpus.append((more["cpu_s"] - base["cpu_s"]) / copies)
+        per_ref[ref] = {"marginal_wall_s": sorted(walls), "marginal_core_s": sorted(cpus)}
+    return {"copies": copies, "repeats": repeats, "runs": runs, "marginal": per_ref}
+
+
+def big_night(n: int, new: int, cache: Path, workdir: Path, args) -> dict:
+    """A fleet of ``n`` twin machines run cold, then a night where ``new`` of them have a new log
+    and the others nothing new, timed (``rafi nightly --cores``)."""
+    generate_fleet(cache, n, args.seed0, args.cores)
+    proj = make_project(workdir / f"night-{n}", cache, n)
+    cold = timed(snakemake_cmd(args.cores, "all"), proj)
+    if cold["exit"] != 0:
+        sys.stderr.write(cold["stderr"][-4000:])
+        raise SystemExit(f"cold run of {n} machines failed; project kept at {proj}")
+    print(f"  cold, {n} machines: {cold['wall_s']} s, {cold['cpu_s']} core-s, load {cold['load_1min']}")
+    machines = sorted(p.name for p in (proj / "raw").iterdir() if p.is_dir())
+    add_night_logs(proj / "raw", machines[:new], args.night_seed0, args.cores)
+    cmd = [sys.executable, "-m", "rafi.cli", "nightly", "--directory", str(proj), "--cores", str(args.cores)]
+    night = timed(cmd, proj)
+    (proj / "bench-night.log").write_text(night["stdout"] + night["stderr"])
+    if night["exit"] not in ACCEPTED_NIGHT_EXITS:
+        sys.stderr.write(night["stdout"][-3000:] + night["stderr"][-3000:])
+        raise SystemExit(f"rafi nightly exit {night['exit']}; project kept at {proj}")
+    m = re.search(r"(\d+) job\(s\) in", night["stdout"])
+    print(f"  night, {new} of {n} with a new log: {night['wall_s']} s, {night['cpu_s']} core-s")
+    strip = ("stdout", "stderr")
+    return {
+        "machines": n,
+        "with_new_log": new,
+        "cold": {k: v for k, v in cold.items() if k not in strip},
+        "night": {k: v for k, v in night.items() if k not in strip}
+        | {"jobs": int(m.group(1)) if m else None},
+        "project": str(proj) if args.keep else None,
+    }
+
+
+def side_markdown(report: dict) -> str:
+    """The side-by-side table and the big night, as Markdown."""
+    lines = [f"`{report['command']}` ({report['date']}, {report['cpus']} CPUs)", ""]
+    side = report.get("side_by_side")
+    if side:
+        lines += [
+            f"Marginal cost of one more 12-file machine, cold (shipped + {side['copies']} copies of "
+            f"tapping-center-a minus shipped, / {side['copies']}), {side['repeats']} interleaved repeat(s):",
+            "",
+            "| code | wall s per machine (each repeat) | core-s per machine (each repeat) |",
+            "|---|---|---|",
+        ]
+        for ref, m in side["marginal"].items():
+            walls = ", ".join(f"{v:.1f}" for v in m["marginal_wall_s"])
+            cpus = ", ".join(f"{v:.1f}" for v in m["marginal_core_s"])
+            lines.append(f"| {ref} | {walls} | {cpus} |")
+        refs = list(side["marginal"])
+        if len(refs) == 2:
+            new, old = (side["marginal"][r] for r in refs)
+            med = lambda v: sorted(v)[len(v) // 2]  # noqa: E731
+            lines += [
+                "",
+                f"Ratio {refs[0]} / {refs[1]} (medians): wall "
+                f"{med(new['marginal_wall_s']) / med(old['marginal_wall_s']):.2f}, core-s "
+                f"{med(new['marginal_core_s']) / med(old['marginal_core_s']):.2f}",
+            ]
+    night = report.get("big_night")
+    if night:
+        lines += [
+            "",
+            f"Fleet of {night['machines']}: cold {night['cold']['wall_s']} s ({night['cold']['cpu_s']} "
+            f"core-s); night with {night['with_new_log']} new logs and "
+            f"{night['machines'] - night['with_new_log']} machines with nothing new: "
+            f"**{night['night']['wall_s']} s** ({night['night']['cpu_s']} core-s, {night['night']['jobs']} "
+            f"jobs, exit {night['night']['exit']}, load {night['night']['load_1min']})",
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def main_side(args, argv) -> int:
+    """``--side-by-side`` and ``--big-night``: the two measurements of issue 23."""
+    workdir = args.keep or Path(tempfile.mkdtemp(prefix="rafi-bench-fleet-"))
+    workdir.mkdir(parents=True, exist_ok=True)
+    report = {
+        "date": dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ"),
+        "cpus": os.cpu_count(),
+        "command": " ".join(["python benchmarks/bench_fleet.py", *(sys.argv[1:] if argv is None else argv)]),
+    }
+    try:
+        if args.side_by_side:
+            refs = ["working", *args.side_by_side]
+            report["side_by_side"] = marginal_side_by_side(
+                refs, args.copies, args.repeats, workdir, args.cores
+            )
+        if args.big_night:
+            n, new = args.big_night
+            cache = workdir / "twin-machines"
+            cache.mkdir(exist_ok=True)
+            report["big_night"] = big_night(n, new, cache, workdir, args)
+    finally:
+        if not args.keep:
+            shutil.rmtree(workdir, ignore_errors=True)
+    out = args.out.with_name(args.out.name + "-issue23")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n")
+    text = side_markdown(report)
+    out.with_suffix(".md").write_text(text)
+    print(text)
+    return 0
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", type=int, nargs="+", default=[1, 10, 50], help="fleet sizes N")
@@ -605,7 +779,24 @@ def main(argv=None) -> int:
     ap.add_argument("--repeat", type=int, default=3, help="repeats of each import timing (best of)")
     ap.add_argument("--keep", type=Path, help="build the projects in this directory and keep them")
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "results" / "fleet")
+    ap.add_argument(
+        "--side-by-side",
+        nargs="+",
+        metavar="COMMIT",
+        help="marginal cost of one more machine, cold, of the working tree beside these commits",
+    )
+    ap.add_argument("--copies", type=int, default=6, help="--side-by-side: copies of tapping-center-a")
+    ap.add_argument("--repeats", type=int, default=1, help="--side-by-side: interleaved repeats")
+    ap.add_argument(
+        "--big-night",
+        nargs=2,
+        type=int,
+        metavar=("N", "NEW"),
+        help="N twin machines cold, then a night where NEW of them have a new log",
+    )
     args = ap.parse_args(argv)
+    if args.side_by_side or args.big_night:
+        return main_side(args, argv)
 
     workdir = args.keep or Path(tempfile.mkdtemp(prefix="rafi-bench-fleet-"))
     workdir.mkdir(parents=True, exist_ok=True)
