@@ -88,6 +88,134 @@ def _sign_word(sign: int) -> str:
     return "rises" if sign > 0 else "falls"
 
 
+def duplicate_rejections(
+    usable: Iterable[str],
+    sha: Mapping[str, str],
+    *,
+    links: Iterable[str] = (),
+    keep: Mapping[str, str] | None = None,
+) -> list[tuple[str, str, str]]:
+    """The usable files that are byte-identical copies of another usable file.
+
+    Of the files sharing a SHA-256, one stays: never a symbolic link while a regular file is
+    there (removing the link loses nothing), else the file ``keep`` names for that content
+    (:func:`rafi.ops.duplicates.copies_to_keep`: the one the champion was trained on, else
+    the oldest), else the first by name. A file without a hash is nobody's copy.
+
+    Returns
+    -------
+    list of tuple
+        ``(file, "duplicate_content", why)`` per copy, in the order the files were ranked.
+    """
+    linked = set(links)
+    keep = keep or {}
+
+    def rank(file: str) -> tuple:
+        return (file in linked, file != keep.get(sha[file]), file)
+
+    first_of: dict[str, str] = {}
+    found = []
+    for file in sorted(usable, key=rank):
+        digest = sha[file]
+        if not digest:
+            continue
+        if digest not in first_of:
+            first_of[digest] = file
+            continue
+        what = "remove the link" if file in linked else "delete the copy"
+        found.append(
+            (
+                file,
+                "duplicate_content",
+                f"byte-identical to {first_of[digest]} (sha256 {digest[:12]}): the same data would be "
+                f"used twice; {what}",
+            )
+        )
+    return found
+
+
+def probe_sign_findings(
+    signs: Mapping[str, int], probe_sign: str
+) -> tuple[list[tuple[str, str, str]], list[dict]]:
+    """Files whose displacement moves against the expected sign while the temperatures rise.
+
+    Parameters
+    ----------
+    signs : mapping
+        ``file -> probe sign`` (+1 / -1 / 0 = no evidence) of the usable files.
+    probe_sign : str
+        ``checks.probe_sign``: with ``positive`` / ``negative`` a file of the opposite clear
+        sign is rejected; with ``auto`` the expected sign is that of most of the *other* files
+        with a clear sign (positive without any) and a file that disagrees gets a warning.
+
+    Returns
+    -------
+    tuple
+        ``(rejections, warnings)``: ``(file, "probe_sign", why)`` and ``{"file", "check",
+        "column", "message"}``, in file name order.
+    """
+    rejections, warnings = [], []
+    for file in sorted(signs):
+        sign = signs[file]
+        if sign == 0:
+            continue
+        others = [s for f, s in signs.items() if f != file and s != 0]
+        expected = _expected_sign(probe_sign, others)
+        if sign == expected:
+            continue
+        evidence = f"the displacement {_sign_word(sign)} while the temperatures rise (probe sign {sign:+d})"
+        if probe_sign in CONFIGURED_SIGNS:
+            rejections.append(
+                (
+                    file,
+                    "probe_sign",
+                    f"{evidence} but checks.probe_sign is {probe_sign}: the probe's sign is reversed in "
+                    "this file; fix the file, or set input.displacement.sign (config.yaml)",
+                )
+            )
+            continue
+        basis = (
+            f"{sum(1 for s in others if s == expected)} of the machine's other {len(others)} file(s) "
+            f"with a clear sign say {expected:+d}"
+            if others
+            else "no other file says otherwise and the convention is positive (growth towards the table)"
+        )
+        warnings.append(
+            {
+                "file": file,
+                "check": "probe_sign",
+                "column": "disp_um",
+                "message": f"{evidence}; {basis}: a reversed probe? (checks.probe_sign: auto)",
+            }
+        )
+    return rejections, warnings
+
+
+def listed_warnings(
+    warnings: Iterable[Mapping], usable: Iterable[str], sha: Mapping[str, str], confirmed: Iterable[Mapping]
+) -> list[dict]:
+    """The warnings on usable files, in the given order, as ``input_status.json`` lists them:
+    ``{"file", "sha256", "check", "column", "message", "confirmed"}`` (:func:`is_confirmed`)."""
+    usable = set(usable)
+    listed = []
+    for w in warnings:
+        file = str(w.get("file") or "")
+        if file not in usable:
+            continue
+        check = str(w.get("check") or "")
+        listed.append(
+            {
+                "file": file,
+                "sha256": sha.get(file, ""),
+                "check": check,
+                "column": str(w.get("column") or ""),
+                "message": str(w.get("message") or ""),
+                "confirmed": is_confirmed(file, check, confirmed),
+            }
+        )
+    return listed
+
+
 def apply_machine_checks(
     status: dict,
     summaries: Iterable[Mapping],
@@ -96,6 +224,7 @@ def apply_machine_checks(
     probe_sign: str = "auto",
     confirmed: Iterable[Mapping] = (),
     links: Iterable[str] = (),
+    keep: Mapping[str, str] | None = None,
 ) -> dict:
     """Add the machine-level checks and the per-file warnings to a machine input status.
 
@@ -115,6 +244,9 @@ def apply_machine_checks(
     links : iterable of str
         Files that are symbolic links (inside ``raw/``): of byte-identical files the link is the
         copy that goes, whatever the names.
+    keep : mapping, optional
+        ``sha256 -> file``: of byte-identical files, the one that stays
+        (:func:`duplicate_rejections`).
 
     Returns
     -------
@@ -131,86 +263,24 @@ def apply_machine_checks(
     usable = list(status.get("usable", []))
     sha = {f: str(rows.get(f, {}).get("sha256") or "") for f in usable}
     rejected = [dict(r) for r in status.get("rejected", [])]
-    extra_warnings: list[dict] = []
 
-    def reject(file: str, check: str, why: str) -> None:
-        usable.remove(file)
-        rejected.append(
-            {"file": file, "sha256": sha[file], "check": check, "reason": f"{file}: {check}: {why}"}
-        )
-
-    # -- duplicate content: the later file by name goes (a link before any regular file)
-    linked = set(links)
-    first_of: dict[str, str] = {}
-    for file in sorted(usable, key=lambda f: (f in linked, f)):
-        digest = sha[file]
-        if not digest:
-            continue
-        if digest in first_of:
-            reject(
-                file,
-                "duplicate_content",
-                f"byte-identical to {first_of[digest]} (sha256 {digest[:12]}): the same data would be "
-                + ("used twice; remove the link" if file in linked else "used twice; delete the copy"),
+    def reject(found: list[tuple[str, str, str]]) -> None:
+        for file, check, why in found:
+            usable.remove(file)
+            rejected.append(
+                {"file": file, "sha256": sha[file], "check": check, "reason": f"{file}: {check}: {why}"}
             )
-        else:
-            first_of[digest] = file
 
-    # -- probe sign
+    reject(duplicate_rejections(usable, sha, links=links, keep=keep))
     signs = {f: _int(rows.get(f, {}).get("probe_sign")) for f in usable}
-    for file in sorted(usable):
-        sign = signs[file]
-        if sign == 0:
-            continue
-        others = [s for f, s in signs.items() if f != file and s != 0 and f in usable]
-        expected = _expected_sign(probe_sign, others)
-        if sign == expected:
-            continue
-        evidence = f"the displacement {_sign_word(sign)} while the temperatures rise (probe sign {sign:+d})"
-        if probe_sign in CONFIGURED_SIGNS:
-            reject(
-                file,
-                "probe_sign",
-                f"{evidence} but checks.probe_sign is {probe_sign}: the probe's sign is reversed in this "
-                "file; fix the file, or set input.displacement.sign (config.yaml)",
-            )
-            continue
-        basis = (
-            f"{sum(1 for s in others if s == expected)} of the machine's other {len(others)} file(s) "
-            f"with a clear sign say {expected:+d}"
-            if others
-            else "no other file says otherwise and the convention is positive (growth towards the table)"
-        )
-        extra_warnings.append(
-            {
-                "file": file,
-                "check": "probe_sign",
-                "column": "disp_um",
-                "message": f"{evidence}; {basis}: a reversed probe? (checks.probe_sign: auto)",
-            }
-        )
-
-    listed = []
-    for w in [*warnings, *extra_warnings]:
-        file = str(w.get("file") or "")
-        if file not in usable:
-            continue
-        listed.append(
-            {
-                "file": file,
-                "sha256": sha.get(file, ""),
-                "check": str(w.get("check") or ""),
-                "column": str(w.get("column") or ""),
-                "message": str(w.get("message") or ""),
-                "confirmed": is_confirmed(file, str(w.get("check") or ""), confirmed),
-            }
-        )
+    sign_rejections, sign_warnings = probe_sign_findings(signs, probe_sign)
+    reject(sign_rejections)
     out = dict(status)
     out.update(
         status="usable" if usable else "skipped",
         usable=usable,
         rejected=rejected,
-        warnings=listed,
+        warnings=listed_warnings([*warnings, *sign_warnings], usable, sha, confirmed),
         probe_sign={"setting": probe_sign, "files": {f: signs[f] for f in usable}},
     )
     return out

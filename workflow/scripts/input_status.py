@@ -2,8 +2,9 @@
 and results/<machine>/audit.csv (the summaries stacked; formerly rule audit).
 
 Per file: usable or quarantined (the clean summaries). Machine level (rafi.readers.checks_machine):
-byte-identical copies and probe signs against the configured or majority sign; every warning of
-the checks with ``confirmed`` resolved from ``checks.confirmed``.
+byte-identical copies (which one stays: param keep, rafi.ops.duplicates) and probe signs against
+the configured or majority sign; every warning of the checks with ``confirmed`` resolved from
+``checks.confirmed``.
 """
 
 from pathlib import Path
@@ -31,6 +32,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         probe_sign=smk.params.probe_sign,
         confirmed=smk.params.confirmed,
         links=smk.params.links,
+        keep=smk.params.keep,
     )
     for f in status["rejected"]:
         if f.get("check"):
