@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from rafi import __version__
+from rafi.readers.input_spec import log_id
 
 if TYPE_CHECKING:
     import pandas as pd
@@ -67,13 +68,76 @@ def now_iso() -> str:
     return dt.datetime.now(dt.UTC).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def compute_model_id(model_dict: dict) -> str:
-    """SHA-256 of the canonical JSON of ``model_dict`` without ``model_id``/``created``.
+#: Fields of an artefact that are provenance, not the model: left out of its id.
+PROVENANCE_FIELDS = ("model_id", "created")
 
-    For a dict written by ``RafiModel.to_dict`` this equals its ``model_id``.
+
+def _names_to_hashes(value, names: dict[str, str]):
+    """``value`` with every string in ``names`` (a training file's name or log id) replaced by the
+    file's SHA-256, and a run ``<log id>#<k>`` by ``<sha256>#<k>``; in dict keys too, unless two
+    keys would become one."""
+    if isinstance(value, str):
+        if value in names:
+            return names[value]
+        log, sep, k = value.rpartition("#")
+        return f"{names[log]}#{k}" if sep and k.isdigit() and log in names else value
+    if isinstance(value, dict):
+        values = {str(k): _names_to_hashes(v, names) for k, v in value.items()}
+        renamed = {_names_to_hashes(k, names): v for k, v in values.items()}
+        return renamed if len(renamed) == len(values) else values
+    if isinstance(value, (list, tuple)):
+        return [_names_to_hashes(v, names) for v in value]
+    return value
+
+
+def identity_content(model_dict: dict) -> dict:
+    """What a model id hashes: the artefact's content, without provenance.
+
+    ``model_id`` and ``created`` are left out, and the training files' names are replaced by
+    their content: ``data`` (``file -> sha256``) becomes the sorted list of the hashes, and every
+    string naming a training file - its name, its log id (the run of a one-run file, e.g. in
+    ``train_runs``) or a run ``<log id>#<k>`` - becomes the file's SHA-256 (``#<k>`` kept). So a
+    training file renamed, or a byte-identical copy trained on in its place, gives the same id.
     """
-    content = {k: v for k, v in model_dict.items() if k not in ("model_id", "created")}
+    content = {k: v for k, v in model_dict.items() if k not in PROVENANCE_FIELDS}
+    data = content.get("data")
+    if not isinstance(data, dict) or not data:
+        return content
+    names: dict[str, str] = {}
+    for file, sha in data.items():
+        names[str(file)] = str(sha)
+        names[log_id(Path(str(file)).stem)] = str(sha)
+    content = {k: _names_to_hashes(v, names) for k, v in content.items() if k != "data"}
+    content["data"] = sorted(str(sha) for sha in data.values())
+    return content
+
+
+def compute_model_id(model_dict: dict) -> str:
+    """The model id: SHA-256 of the canonical JSON of :func:`identity_content`.
+
+    It depends on the model (kind, terms, coefficients, settings, code version) and on the
+    content of its training files, not on when it was made (``created``) nor on what its files
+    are called: the same data gives the same model id.
+    """
+    return hashlib.sha256(canonical_json(identity_content(model_dict)).encode("ascii")).hexdigest()
+
+
+def named_model_id(model_dict: dict) -> str:
+    """The id of an artefact written before ids were content only: SHA-256 of the canonical JSON
+    without ``model_id``/``created``, the training files' names included. Registries hold such
+    artefacts under their id; :func:`model_id_verifies` still accepts them."""
+    content = {k: v for k, v in model_dict.items() if k not in PROVENANCE_FIELDS}
     return hashlib.sha256(canonical_json(content).encode("ascii")).hexdigest()
+
+
+def model_id_verifies(model_dict: dict, model_id: str | None = None) -> bool:
+    """True if ``model_id`` (default: the artefact's own ``model_id``) is the id of the artefact's
+    content: :func:`compute_model_id`, or :func:`named_model_id` for an artefact written before
+    ids were content only. False for an edited artefact."""
+    model_id = model_dict.get("model_id") if model_id is None else model_id
+    if not isinstance(model_id, str) or not model_id:
+        return False
+    return model_id in (compute_model_id(model_dict), named_model_id(model_dict))
 
 
 def json_text(obj) -> str:

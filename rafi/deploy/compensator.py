@@ -78,7 +78,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rafi import SENSORS
-from rafi.artefact import compute_model_id
+from rafi.artefact import model_id_verifies
 from rafi.deploy.streaming import LowpassBank, ReferenceWindow
 from rafi.method.fuzzy import triangular_weights
 
@@ -141,7 +141,7 @@ def _check(d: dict) -> str:
     kind = d.get("kind")
     if kind not in KINDS:
         raise ValueError(f"artefact kind {kind!r}: the compensator evaluates {', '.join(KINDS)}")
-    if "model_id" in d and d["model_id"] != compute_model_id(d):
+    if "model_id" in d and not model_id_verifies(d):
         raise ValueError("model_id does not match the artefact content (edited or corrupted)")
     return kind
 

@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from rafi.artefact import compute_model_id
+from rafi.artefact import model_id_verifies
 from rafi.errors import UnqualifiedModel
 
 __all__ = ["check_qualified", "load_champion"]
@@ -58,7 +58,7 @@ def load_champion(registry_root) -> dict:
         raise UnqualifiedModel(f"{path}: the champion's artefact cannot be read ({exc})") from None
     if not isinstance(artefact, dict) or artefact.get("model_id") != model_id:
         raise UnqualifiedModel(f"{path}: the file is not the champion {model_id}")
-    if compute_model_id(artefact) != model_id:
+    if not model_id_verifies(artefact, model_id):
         raise UnqualifiedModel(f"{path}: its content does not hash to {model_id} (modified after promotion)")
     return artefact
 
@@ -68,7 +68,7 @@ def check_qualified(artefact: dict, registry_root) -> None:
     and its content verifies."""
     champion_id = _champion_id(Path(registry_root))
     model_id = artefact.get("model_id") if isinstance(artefact, dict) else None
-    if not model_id or compute_model_id(artefact) != model_id:
+    if not model_id or not model_id_verifies(artefact, model_id):
         raise UnqualifiedModel("the model artefact does not verify (its content does not hash to model_id)")
     if model_id != champion_id:
         raise UnqualifiedModel(

@@ -27,7 +27,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import __version__
-from rafi.artefact import compute_model_id, now_iso
+from rafi.artefact import compute_model_id, model_id_verifies, now_iso
 
 SCHEMA = "rafi.model/1"
 #: ``code_version`` of the family's artefacts: the package version only (no git commit), so
@@ -78,7 +78,7 @@ def check_artefact(d: dict, kind: str) -> None:
         raise ValueError(f"not a {SCHEMA} artefact: schema={d.get('schema')!r}")
     if d.get("kind") != kind:
         raise ValueError(f"artefact kind {d.get('kind')!r}, expected {kind!r}")
-    if "model_id" in d and d["model_id"] != compute_model_id(d):
+    if "model_id" in d and not model_id_verifies(d):
         raise ValueError("model_id does not match the artefact content (edited or corrupted)")
 
 

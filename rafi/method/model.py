@@ -36,6 +36,7 @@ from rafi.artefact import (
     compute_model_id,
     json_text,
     jsonable,
+    model_id_verifies,
     write_text_atomic,
 )
 from rafi.method.fuzzy import triangular_weights
@@ -482,7 +483,7 @@ class RafiModel:
                 rmse_um=float("nan") if rmse is None else rmse,
                 n=sp.get("n", 0),
             )
-        if verify_id and "model_id" in d and d["model_id"] != model.model_id:
+        if verify_id and "model_id" in d and not model_id_verifies(model._content(), d["model_id"]):
             raise ValueError(
                 f"model_id {d['model_id']} does not match the content "
                 f"({model.model_id}); the model was edited after it was saved"

@@ -31,6 +31,7 @@ from rafi.artefact import (
     compute_model_id,
     git_commit,
     json_text,
+    model_id_verifies,
     now_iso,
     read_jsonl,
     write_once,
@@ -103,7 +104,7 @@ class Registry:
         """
         model_id = model_dict.get("model_id")
         computed = compute_model_id(model_dict)
-        if model_id != computed:
+        if not model_id_verifies(model_dict):
             raise RegistryError(
                 f"model_id {model_id!r} does not match its content ({computed}); "
                 "refusing to register an edited model"
@@ -142,10 +143,10 @@ class Registry:
         if not path.exists():
             raise RegistryError(f"model {model_id} is not in the registry {self.models_dir}")
         content = json.loads(path.read_text(encoding="utf-8"))
-        computed = compute_model_id(content)
-        if content.get("model_id") != model_id or computed != model_id:
+        if content.get("model_id") != model_id or not model_id_verifies(content, model_id):
             raise RegistryError(
-                f"{path}: content hashes to {computed}, not {model_id}; the registry file was modified"
+                f"{path}: content hashes to {compute_model_id(content)}, not {model_id}; the registry "
+                "file was modified"
             )
         return content
 
