@@ -25,7 +25,10 @@ from rafi.readers.checks_base import CheckWarning
 from rafi.readers.checks_machine import (
     apply_machine_checks,
     audit_warnings,
+    duplicate_rejections,
     is_confirmed,
+    listed_warnings,
+    probe_sign_findings,
     read_rows,
     warning_lines,
 )
@@ -98,6 +101,49 @@ def test_of_a_file_and_a_link_to_it_the_link_goes_whatever_the_names(tmp_path):
     assert status["usable"] == ["train.csv"]
     (rej,) = status["rejected"]
     assert rej["file"] == "a_link.csv" and rej["reason"].endswith("remove the link")
+
+
+def test_the_file_to_keep_stays_whatever_its_name(tmp_path):
+    files = [
+        _file(tmp_path, "train (copy).csv", sha="d" * 64),
+        _file(tmp_path, "train.csv", sha="d" * 64),
+        _file(tmp_path, "c.csv", sha="e" * 64),
+    ]
+    status = _status(tmp_path, files, keep={"d" * 64: "train.csv"})
+    assert status["usable"] == ["train.csv", "c.csv"]
+    (rej,) = status["rejected"]
+    assert rej["file"] == "train (copy).csv"
+    assert "byte-identical to train.csv" in rej["reason"] and rej["reason"].endswith("delete the copy")
+    # without a choice for that content (or one naming no usable file): the first by name
+    for keep in ({}, {"d" * 64: "gone.csv"}, {"e" * 64: "c.csv"}):
+        assert _status(tmp_path, files, keep=keep)["rejected"][0]["file"] == "train.csv"
+
+
+def test_a_link_goes_even_when_it_is_the_file_to_keep():
+    sha = {"link.csv": "d" * 64, "real.csv": "d" * 64}
+    found = duplicate_rejections(
+        ["link.csv", "real.csv"], sha, links=["link.csv"], keep={"d" * 64: "link.csv"}
+    )
+    assert [(f, check) for f, check, _ in found] == [("link.csv", "duplicate_content")]
+    assert found[0][2].endswith("remove the link")
+    assert duplicate_rejections(["a.csv", "b.csv"], {"a.csv": "", "b.csv": ""}) == []
+
+
+def test_probe_sign_findings_and_listed_warnings():
+    rejections, warnings = probe_sign_findings({"a.csv": 1, "b.csv": 1, "c.csv": -1, "d.csv": 0}, "auto")
+    assert rejections == [] and [w["file"] for w in warnings] == ["c.csv"]
+    assert "2 of the machine's other 2 file(s) with a clear sign say +1" in warnings[0]["message"]
+    rejections, warnings = probe_sign_findings({"a.csv": 1, "c.csv": -1}, "negative")
+    assert [r[0] for r in rejections] == ["a.csv"] and warnings == []
+    listed = listed_warnings(
+        [{"file": "a.csv", "check": "x", "message": "m"}, {"file": "gone.csv", "check": "x"}],
+        ["a.csv"],
+        {"a.csv": "h"},
+        [{"file": "a*", "check": "x"}],
+    )
+    assert listed == [
+        {"file": "a.csv", "sha256": "h", "check": "x", "column": "", "message": "m", "confirmed": True}
+    ]
 
 
 def test_quarantined_files_are_not_duplicates_of_usable_ones(tmp_path):
