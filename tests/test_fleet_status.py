@@ -270,7 +270,8 @@ def test_exit_code_is_the_most_severe(fleet, machines, code):
 
 
 def test_page_lists_every_machine_most_urgent_first_with_links(fleet):
-    out = write_fleet_page(Paths.from_config(fleet, {}), fleet / "reports")
+    paths = Paths.from_config(fleet, {})
+    out = write_fleet_page(paths, fleet / "reports", rows=lambda: F.fleet_overview(paths, fleet / "reports"))
     assert out == fleet / "reports" / "index.html"
     page = out.read_text()
     positions = [page.index(f"<strong>{m}</strong>") for m in EXPECTED_ORDER]
@@ -286,7 +287,9 @@ def test_page_lists_every_machine_most_urgent_first_with_links(fleet):
 
 
 def test_page_elsewhere_links_back_into_reports(fleet, tmp_path):
-    out = write_fleet_page(Paths.from_config(fleet, {}), fleet / "reports", tmp_path / "www" / "fleet.html")
+    paths = Paths.from_config(fleet, {})
+    rows = F.fleet_overview(paths, fleet / "reports")
+    out = write_fleet_page(paths, fleet / "reports", tmp_path / "www" / "fleet.html", rows=rows)
     assert 'href="../proj/reports/ok-m/qualification.html"' in out.read_text()
 
 
@@ -328,3 +331,24 @@ def test_cli_json_text_and_html(fleet, capsys, tmp_path):
     assert "RECALIBRATION_DUE" in capsys.readouterr().out and "recal-m" in html.read_text()
     assert fleet_cli.run(_cli(fleet, "--machine", "nope")) == 64
     assert "no machine 'nope'" in capsys.readouterr().err
+
+
+def test_rows_given_as_a_function_are_read_under_the_lock(fleet):
+    paths = Paths.from_config(fleet, {})
+    lock = paths.results_dir / ".nightly.page-lock"
+    seen = []
+
+    def rows():
+        import fcntl
+
+        fd = os.open(lock, os.O_RDWR)
+        try:  # another process's writer would wait: the page lock is held while the rows are read
+            with pytest.raises(BlockingIOError):
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        finally:
+            os.close(fd)
+        seen.append(True)
+        return F.fleet_overview(paths, fleet / "reports")
+
+    out = write_fleet_page(paths, fleet / "reports", rows=rows)
+    assert seen == [True] and "ok-m" in out.read_text()

@@ -425,10 +425,11 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
 def _refresh_fleet_page(paths: Paths, reports_dir: Path) -> None:
     """Rewrite ``reports/index.html`` after a night for some machines (one line if it cannot
     be written; the night's exit code is not changed)."""
+    from rafi.ops.fleet import fleet_overview
     from rafi.report.fleet_page import write_fleet_page
 
     try:
-        out = write_fleet_page(paths, reports_dir)
+        out = write_fleet_page(paths, reports_dir, rows=lambda: fleet_overview(paths, reports_dir))
     except (OSError, ValueError) as exc:
         print(f"rafi nightly: the fleet overview was not updated: {exc}", file=sys.stderr)
         return

@@ -1,7 +1,8 @@
 """The fleet overview page ``reports/index.html``: every machine's state on one page.
 
-The rows are :func:`rafi.ops.fleet.fleet_overview` (machines that need attention first); the
-page is one self-contained HTML file (template ``templates/fleet_index.html.j2``, inline CSS,
+The rows are :func:`rafi.ops.fleet.fleet_overview`'s (machines that need attention first),
+computed by the caller (the report imports nothing of ``rafi.ops``); the page is one
+self-contained HTML file (template ``templates/fleet_index.html.j2``, inline CSS,
 no script) whose links point at each machine's ``qualification.html`` or ``skipped.html``,
 relative to where the page is written. Written by rule ``fleet_index``
 (``workflow/rules/fleet.smk``), after a night for some machines by ``rafi nightly``, and by
@@ -14,11 +15,11 @@ import contextlib
 import fcntl
 import os
 from collections import Counter
+from collections.abc import Callable
 from pathlib import Path
+from typing import Protocol
 
 from rafi.artefact import now_iso, write_text_atomic
-from rafi.ops.fleet import RANK, fleet_overview
-from rafi.ops.project import Paths
 
 TEMPLATE = "fleet_index.html.j2"
 
@@ -27,7 +28,16 @@ TEMPLATE = "fleet_index.html.j2"
 PAGE_LOCK = ".nightly.page-lock"
 
 
+class ProjectPaths(Protocol):
+    """The folders of a project the page names (``rafi.ops.project.Paths`` is one)."""
+
+    directory: Path
+    raw_dir: Path
+    results_dir: Path
+
+
 def _environment():
+    """The jinja2 environment of the page's template (autoescaped, strict)."""
     import jinja2
 
     return jinja2.Environment(
@@ -52,7 +62,8 @@ def fleet_page(
     Parameters
     ----------
     rows : list of dict
-        :func:`rafi.ops.fleet.fleet_overview` (in the order to show).
+        :func:`rafi.ops.fleet.fleet_overview` (in the order to show; ``state`` and its
+        attention ``rank`` are read).
     created : str
         When the page is written (shown).
     results_dir, raw_dir : str
@@ -73,9 +84,10 @@ def fleet_page(
             r["report"] = f"{link_prefix}{r['report']}"
         shown.append(r)
     by_state = Counter(r["state"] for r in rows)
+    rank = {r["state"]: r["rank"] for r in rows}
     counts = {
         "attention": sum(1 for r in rows if r["state"] != "ok"),
-        "by_state": sorted(by_state.items(), key=lambda kv: (RANK[kv[0]], kv[0])),
+        "by_state": sorted(by_state.items(), key=lambda kv: (rank[kv[0]], kv[0])),
     }
     return (
         _environment()
@@ -83,7 +95,7 @@ def fleet_page(
         .render(
             rows=shown,
             counts=counts,
-            rank=RANK,
+            rank=rank,
             created=created,
             results_dir=results_dir,
             raw_dir=raw_dir,
@@ -92,35 +104,35 @@ def fleet_page(
 
 
 def _link_prefix(reports_dir: Path, out: Path) -> str:
+    """What to put before a path relative to ``reports_dir`` to reach it from the page ``out``."""
     rel = os.path.relpath(reports_dir.resolve(), out.resolve().parent)
     return "" if rel == "." else rel.replace(os.sep, "/") + "/"
 
 
 def write_fleet_page(
-    paths: Paths,
+    paths: ProjectPaths,
     reports_dir: str | os.PathLike,
     out: str | os.PathLike | None = None,
-    rows: list[dict] | None = None,
-    machines: list[str] | None = None,
+    *,
+    rows: list[dict] | Callable[[], list[dict]],
 ) -> Path:
     """Write the overview of every machine to ``out`` (default ``<reports_dir>/index.html``).
 
-    Readers and the write run under an exclusive ``flock`` on
-    ``results/.nightly.page-lock`` (waits for another writer), so the last page
-    written read every machine's files after the writer before it had finished.
+    The write runs under an exclusive ``flock`` on ``results/.nightly.page-lock`` (waits for
+    another writer); rows given as a function are read under it too, so the last page written
+    read every machine's files after the writer before it had finished.
 
     Parameters
     ----------
-    paths : Paths
-        The project.
+    paths : ProjectPaths
+        The project (``rafi.ops.project.Paths``).
     reports_dir : path
         The project's ``reports_dir``.
     out : path, optional
         Where to write the page.
-    rows : list of dict, optional
-        Rows already read (default: :func:`rafi.ops.fleet.fleet_overview` of ``machines``).
-    machines : list of str, optional
-        The machines shown (default: every folder of raw/ with a file).
+    rows : list of dict, or a function returning them
+        The machines' rows, :func:`rafi.ops.fleet.fleet_overview` (a function is called under
+        the lock, e.g. ``lambda: fleet_overview(paths, reports_dir)``).
 
     Returns
     -------
@@ -134,10 +146,8 @@ def write_fleet_page(
     fd = os.open(lock_path, os.O_RDWR | os.O_CREAT, 0o644)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
-        if rows is None:
-            rows = fleet_overview(paths, reports_dir, machines)
         html = fleet_page(
-            rows,
+            rows() if callable(rows) else rows,
             created=now_iso(),
             results_dir=_shown(paths.results_dir, paths.directory),
             raw_dir=_shown(paths.raw_dir, paths.directory),
@@ -153,6 +163,7 @@ def write_fleet_page(
 
 
 def _shown(path: Path, directory: Path) -> str:
+    """``path`` relative to the project folder where it is inside it (as the page shows it)."""
     with contextlib.suppress(ValueError):
         return str(Path(path).relative_to(directory))
     return str(path)
