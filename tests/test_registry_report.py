@@ -98,18 +98,18 @@ def test_registry_section_shows_relative_gate_coverage_files_and_warnings(tmp_pa
         {},
     )
     a = g["against"]
-    assert a["blocked"] == "relative gate, coverage, input warnings"
-    assert a["relative_fail"] and a["coverage_fail"] and a["n_blocking_warnings"] == 1
-    verdicts = [row[-1]["text"] for row in a["relative"]["rows"]]
-    assert verdicts.count("WORSE") == 1 and verdicts.count("not worse") == len(comp) - 1
-    assert [r[1]["text"] for r in a["files"]["rows"]] == ["vanished", "changed"]
-    states = [r[3]["text"] for r in a["warnings"]["rows"]]
-    assert states == ["NOT CONFIRMED: blocks promotion", "confirmed"]
+    assert a["blocked"] == ["relative_gate", "coverage", "input_warnings"]
+    assert not a["relative_gate"]["passed"] and a["coverage"]["blocking"]
+    assert [w["group"] for w in a["warnings"]] == ["blocking", "confirmed"]
+    states = [row["state"] for row in a["relative"]]
+    assert states.count("worse") == 1 and states.count("not_worse") == len(comp) - 1
+    assert [r["state"] for r in a["files"]] == ["vanished", "changed"]
 
     _, settings = _settings()
     html = render_html(_context(results, settings, machine="tapping-center-a"))
     for text in (
         "Against the champion in service",
+        "because of: relative gate, coverage, input warnings",
         "WORSE than the champion on 1 of",
         "+1.23",  # candidate - champion on the worse run
         "0.61",  # its margin
@@ -118,6 +118,7 @@ def test_registry_section_shows_relative_gate_coverage_files_and_warnings(tmp_pa
         "no longer in the raw folder",
         "train_03000rpm.csv",
         "NOT CONFIRMED: blocks promotion",
+        '<td class="pass">confirmed</td>',
         str(escape("dz falls by 20.1 um while T1 rises by 9.8 degC (expected positive)")),
         "checks.confirmed",
     ):

@@ -8,6 +8,8 @@ ramp, and a displacement whose range per run is known.
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -285,16 +287,34 @@ def test_worst_residual_of_a_decision_carries_its_runs_noise_floor():
 
     rec = {"max_residual_um": 3.5, "runs": {"v1": {"max_abs_after_um": 2.0}, "v2": {"max_abs_after_um": 3.5}}}
     noise = {"v1": 0.61, "v2": 0.93}
-    assert worst_with_noise(rec, noise) == "3.50\u00a0\u00b5m (noise floor of that run 0.93\u00a0\u00b5m)"
-    assert worst_with_noise(rec, {"v1": 0.61}) == "3.50\u00a0\u00b5m"  # no floor for v2: none printed
-    assert worst_with_noise(None, noise) == "\u2013"
+    assert worst_with_noise(rec, noise) == {"value": 3.5, "noise": 0.93}
+    assert worst_with_noise(rec, {"v1": 0.61}) == {"value": 3.5, "noise": None}  # no floor for v2
+    assert worst_with_noise(None, noise) == {"value": None, "noise": None}
+    # as the registry section prints it
+    macro = _environment().get_template("macros.html.j2").module.with_noise
+    shown = str(macro(worst_with_noise(rec, noise)))
+    assert shown == "3.50\u00a0\u00b5m (noise floor of that run 0.93\u00a0\u00b5m)"
+    assert str(macro(worst_with_noise(rec, {"v1": 0.61}))) == "3.50\u00a0\u00b5m"
+    assert str(macro(worst_with_noise(None, noise))) == "\u2013"
 
 
 def test_idle_runs_are_listed_with_their_noise_floor():
-    from rafi.report.model_sections import idle_table
+    from rafi.report.model_sections import idle_rows
 
     s = _validation_summary()
-    t = idle_table(s[s["role"] == "validation_idle"], {"idle": 0.72})
-    row = {h: (c["text"] if isinstance(c, dict) else c) for h, c in zip(t["headers"], t["rows"][0])}
-    assert row["max |residual| after (\u00b5m)"] == "1.25" and row["noise floor (\u00b5m)"] == "0.72"
-    assert len(t["rows"]) == 1 and idle_table(s.iloc[0:0], {}) is None
+    rows = idle_rows(s[s["role"] == "validation_idle"], {"idle": 0.72})
+    assert len(rows) == 1 and idle_rows(s.iloc[0:0], {}) is None
+    assert (rows[0]["max_abs_after_um"], rows[0]["noise_floor_um"]) == (1.25, 0.72)
+    # as the validation section shows them
+    validation = {"single": None, "ranges": None, "figure_single": None, "multi": [], "figure_idle": None}
+    html = (
+        _environment()
+        .get_template("sections/validation.html.j2")
+        .render(
+            validation={**validation, "n_idle": 1, "idle": rows, "paper": False},
+            section_by_id={"validation": {"id": "validation", "number": 7, "title": "Validation"}},
+            fig_offset=0,
+        )
+    )
+    cells = re.findall(r"<td[^>]*>(.*?)</td>", html)
+    assert cells[3:5] == ["1.25", "0.72"]  # max |residual| after, noise floor

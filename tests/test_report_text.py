@@ -81,6 +81,13 @@ def _section(name: str, **ctx) -> str:
     return _environment().get_template(f"sections/{name}.html.j2").render(**{**base, **ctx})
 
 
+def _choices_text(settings: dict, key_info: dict | None = None) -> str:
+    """The visible text of the section choices of a machine with ``settings``."""
+    html = _section("choices", choices=section_choices(settings, key_info or {}, None))
+    text = re.sub(r"<[^>]+>", " ", html).replace("&gt;", ">").replace("&lt;", "<").replace("&#39;", "'")
+    return re.sub(r"[ \t\r\n]+", " ", text).strip()  # no-break spaces kept
+
+
 def _text(html: str) -> str:
     """Visible text: styles, embedded images and tags removed, digit groups joined
     (``10 160`` -> ``10160``), whitespace collapsed."""
@@ -241,7 +248,7 @@ def test_collinearity_wording_follows_the_measured_r(r, collinear):
 def test_sample_period_is_the_machines():
     for period in (15, 5, 1):
         settings = machine_settings({"machines": {"m": {"sample_period_s": period}}}, "m")
-        text = " ".join(c["text"] for c in section_choices(settings, {}, None))
+        text = _choices_text(settings)
         assert f"at this machine's {period}\u00a0s sample period" in text
         assert f"Regular grid of {period}\u00a0s" in text
         if period != 5:
@@ -253,7 +260,8 @@ def test_sample_period_is_the_machines():
 @pytest.mark.parametrize("rule, cold", [("run_start", True), ("log_start", False)])
 def test_the_reference_state_sentence_follows_the_reference_rule(rule, cold):
     settings = machine_settings({"machines": {"m": {"reference": {"rule": rule, "window_s": 60}}}}, "m")
-    (text,) = [c["text"] for c in section_choices(settings, {}, None) if c["topic"].startswith("Runs")]
+    text = _choices_text(settings)
+    text = text[text.index("Runs, roles and the rest before start") : text.index("Sensor dropouts")]
     assert ("the cold machine at rest" in text) is cold
     assert ("does not start cold" in text) is not cold
 
@@ -304,7 +312,8 @@ def test_speed_range_never_prints_the_same_speed_twice():
     )
     resid = pd.DataFrame({"run_id": ["idle#1"] * 3, "t_s": [0, 15, 30], "speed_rpm": [0.0, 0.3, 0.1]})
     v = section_validation({"validation_summary": summary, "residuals": resid}, _Figs())
-    assert v["multi"][0]["speeds"] == "0\u00a0r/min"
+    assert (v["multi"][0]["speed_min_rpm"], v["multi"][0]["speed_max_rpm"]) == (0.0, 0.3)
+    assert "speed 0\u00a0r/min with 0 speed change(s)" in _section("validation", validation=v)
 
 
 # --------------------------------------------------------------------------- equilibrium flags

@@ -7,10 +7,10 @@ import os
 import platform
 from importlib import metadata as _metadata
 
-from rafi.report.format import fmt_duration, fmt_num, truthy
+from rafi.report.format import truthy
 
 
-def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
+def section_choices(settings: dict, key_info: dict, eq_method) -> dict:
     """Section 10: how this run decided what the paper leaves open (from the machine's settings).
 
     Parameters
@@ -22,130 +22,35 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> list[dict]:
     eq_method : str or None
         The equilibrium method recorded in ``equilibrium.csv`` (not repeated here: section
         Thermal equilibrium describes the method once).
+
+    Returns
+    -------
+    dict
+        The settings the sentences of ``templates/sections/choices.html.j2`` state:
+        ``reference`` (``rule``, ``window_s``), ``rank`` (``scope``, ``threshold``,
+        ``max_key_sensors``, ``min_coverage``), ``fallback_used`` and ``fallback_message``
+        (``rank/key_sensors.json``), ``fuzzy_outside``, ``hac_maxlags`` and ``hac_span_s``,
+        ``period_s``, ``clean`` (``spike_threshold``, ``open_circuit_values``,
+        ``max_interpolate_gap_s``), ``runs`` (``min_constant_s``, ``idle_below_rpm``,
+        ``max_leading_rest_s``), ``models`` (``enabled``, ``cv``) and ``paper``.
     """
     ref, rank, fit = settings["reference"], settings["rank"], settings["fit"]
     clean, runs, models = settings["clean"], settings["runs"], settings["models"]
-    rule = ref["rule"]
     period = float(settings["sample_period_s"])
-    paper = bool(settings["report"]["paper_rig"])
-    scope_text = (
-        "the smallest |r| over the training speeds must pass"
-        if rank["scope"] == "min_per_speed"
-        else "all training runs pooled"
-    )
-    rule_text = {
-        "run_start": "the median of the first {w} s of each run",
-        "log_start": "the median of the first {w} s of the log/segment the run came from",
+    return {
+        "reference": {"rule": ref["rule"], "window_s": ref["window_s"]},
+        "rank": {k: rank[k] for k in ("scope", "threshold", "max_key_sensors", "min_coverage")},
+        "fallback_used": truthy(key_info.get("fallback_used")),
+        "fallback_message": key_info.get("message"),
+        "fuzzy_outside": settings["fuzzy"]["outside"],
+        "hac_maxlags": fit["hac_maxlags"],
+        "hac_span_s": float(fit["hac_maxlags"]) * period,
+        "period_s": period,
+        "clean": {k: clean[k] for k in ("spike_threshold", "open_circuit_values", "max_interpolate_gap_s")},
+        "runs": {k: runs[k] for k in ("min_constant_s", "idle_below_rpm", "max_leading_rest_s")},
+        "models": {"enabled": list(models["enabled"]), "cv": models["cv"]},
+        "paper": bool(settings["report"]["paper_rig"]),
     }
-    rows = [
-        (
-            "Regressors and target",
-            "Temperature rises dT = T \u2212 T_ref (K) of the key sensors and displacement change "
-            "dz = disp \u2212 disp_ref (\u00b5m); the reference state is "
-            + rule_text.get(rule, "rule '{r}' over {w} s").format(w=ref["window_s"], r=rule)
-            + f" (reference.rule = {rule}). Absolute temperatures would make the model depend on the "
-            "season.",
-        ),
-        (
-            "Thermal equilibrium",
-            "Detected from dz with a band around the final plateau and cross-checked with a fitted "
-            "first-order time constant; the method with this machine's parameters is described once, "
-            "in section Thermal equilibrium.",
-        ),
-        (
-            "Correlation scope",
-            f"Pearson r of each sensor rise with dz, scope = {rank['scope']}"
-            f" ({scope_text}); "
-            f"threshold |r| > {rank['threshold']}, at most "
-            f"{rank['max_key_sensors']} key sensors.",
-        ),
-        (
-            "Fewer sensors than needed pass the threshold",
-            "Fallback: the best-scoring sensors are taken up to max_key_sensors and marked "
-            "'fallback' in rank/key_sensors.csv; the report shows the message."
-            + (
-                f" This run: {key_info.get('message')}"
-                if truthy(key_info.get("fallback_used"))
-                else " This run: not needed."
-            ),
-        ),
-        (
-            "Outside the trained speed range",
-            f"fuzzy.outside = {settings['fuzzy']['outside']}: the nearest edge model is used with weight "
-            "1 (no extrapolation in speed) and the sample is flagged outside_speed_range; samples "
-            "whose key-sensor rises leave the fitted range are flagged outside_temp_range and counted "
-            "in section Validation.",
-        ),
-        (
-            "Standard errors",
-            f"OLS coefficients with Newey-West (HAC) standard errors, {fit['hac_maxlags']} "
-            f"lags ({fmt_duration(float(fit['hac_maxlags']) * period)} at this machine's "
-            f"{fmt_num(period, 0, 's')} sample period), because successive samples of a thermal "
-            "drift are strongly autocorrelated; the plain OLS errors are reported in "
-            "fit/coefficients.csv but not used for inference.",
-        ),
-        (
-            "Validation",
-            "By whole run: a validation run is never used for training (no "
-            "sample-wise cross-validation, which would leak through autocorrelation).",
-        ),
-        (
-            "Fuzzy membership",
-            "Triangular functions centred on the training speeds: the nearer training speed gets "
-            "the larger weight"
-            + (" (see Fuzzy blending for the paper's 0.334 / 0.666 wording)." if paper else "."),
-        ),
-        (
-            "Cleaning the logs",
-            f"Regular grid of {fmt_num(settings['sample_period_s'], 0, 's')}; duplicate rows "
-            "dropped (first kept); rows at most 3 samples out of order re-sorted, a larger step back "
-            "is an error; single-sample spikes (beyond both neighbours by more than "
-            f"{clean['spike_threshold']} robust sigma of the first differences) replaced by "
-            f"interpolation; open-circuit values {clean['open_circuit_values']} treated as "
-            f"missing; gaps and dropouts up to {fmt_num(clean['max_interpolate_gap_s'], 0, 's')} "
-            "interpolated linearly, a longer gap splits the log into segments (never bridged). Every "
-            "action is listed per file in results/<machine>/clean/<file>.audit.csv.",
-        ),
-        (
-            "Runs, roles and the rest before start",
-            f"Runs are cut from the speed column: constant for at least "
-            f"{fmt_num(runs['min_constant_s'], 0, 's')} at a training speed -> training, elsewhere "
-            "-> single-speed validation; shorter steps -> one multi-condition run; speed below "
-            f"{fmt_num(runs['idle_below_rpm'], 0, 'r/min')} -> idle cool-down (validated, never "
-            "trained on). A rest at the start of a log shorter than "
-            f"{fmt_num(runs['max_leading_rest_s'], 0, 's')} belongs to the run"
-            + (
-                ", so the reference state is the cold machine at rest, before the spindle turns "
-                "(what a controller compensation is relative to)."
-                if rule == "run_start"
-                else f"; with reference.rule = {rule} the reference state is taken at the start of "
-                "the log or segment a run was cut from, so a run cut later in a log does not start "
-                "cold."
-            )
-            + " Roles can be overridden per file (runs.overrides).",
-        ),
-        (
-            "Sensor dropouts",
-            f"A sensor's correlation uses the samples it has; a sensor present in fewer than "
-            f"{fmt_num(100 * float(rank['min_coverage']), 0, '%')} of a speed's samples is "
-            "not ranked there. Samples with a missing key sensor are left out of the fit and "
-            "get no prediction.",
-        ),
-        (
-            "Model family and the champion",
-            "Besides RAFI as published, the models in models.enabled "
-            f"({', '.join(models['enabled'])}) "
-            f"are fitted on the same training runs; their hyperparameters come from whole-run "
-            f"cross-validation ({models['cv']}) on training runs only. The "
-            "champion (the model offered to the machine) is the one with the lowest mean "
-            "held-out max |residual| in that cross-validation; the validation runs are "
-            "predicted once, after the choice, and a champion that fails a gate is a FAIL, "
-            "not a reason to pick another model. RAFI as published is always reported as the "
-            "paper's reference. A centrifugal (speed-squared) "
-            "term is used only when training runs contain a speed step that identifies it.",
-        ),
-    ]
-    return [{"topic": a, "text": b} for a, b in rows]
 
 
 #: A list setting with more items than this is shown as its length and its two ends.

@@ -9,10 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from markupsafe import Markup, escape
 
 from rafi.family.selection import SELECTION_RULE
-from rafi.report.format import cell, fmt_num, isnum, run_label, table, truthy
+from rafi.report.format import isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
 
 
@@ -97,6 +96,7 @@ def residual_figure_key(run_id, other) -> str:
 
 
 def _cv_stats(cv: pd.DataFrame | None) -> dict:
+    """``model -> {folds, scheme}`` of ``comparison/cv.csv`` (empty without the table)."""
     if cv is None or not len(cv) or "model" not in cv:
         return {}
     out = {}
@@ -122,86 +122,93 @@ def _key_sensor_r(res: dict) -> float:
     return max(vals) if vals else np.nan
 
 
+def _share_pct(count, n) -> float:
+    """``count`` of ``n`` samples in percent (NaN without samples)."""
+    n = float(n or 0)
+    return 100.0 * float(count or 0) / n if n else np.nan
+
+
+def _finite_max(values) -> float | None:
+    """The largest finite value (``None`` without one)."""
+    arr = np.asarray(values, float)
+    return float(np.nanmax(arr)) if np.isfinite(arr).any() else None
+
+
 def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
-    """Why RAFI as published fails on the runs ``bad`` (its rows of ``comparison/per_run.csv``),
-    from the data: per run the residual and the shares of samples outside the temperature rises
-    and speeds it was trained on; the trained speeds (model.json); the key sensors' collinearity
-    (rank/collinearity.csv); the reference rule of the machine."""
-    um = "\u00b5m"
-    parts, t_share, s_share = [], [], []
-    for r in bad.to_dict("records"):
-        n = float(r.get("n_samples") or 0)
-        ts = 100.0 * float(r.get("n_outside_temp_range") or 0) / n if n else np.nan
-        ss = 100.0 * float(r.get("n_outside_speed_range") or 0) / n if n else np.nan
-        t_share.append(ts)
-        s_share.append(ss)
-        parts.append(
-            Markup(
-                f"{run_label(r['run_id'])} ({escape(fmt_num(r['max_abs_after_um'], 2, um))}, "
-                f"noise floor {escape(fmt_num(r.get('noise_floor_um'), 2, um))}; "
-                f"{escape(fmt_num(ts, 0, '%'))} of {escape(fmt_num(n, 0))} samples outside the trained "
-                f"temperature range, {escape(fmt_num(ss, 0, '%'))} outside the trained speeds)"
-            )
-        )
-    t_share, s_share = np.asarray(t_share, float), np.asarray(s_share, float)
-    n_ext = int(np.sum(t_share >= EXTRAPOLATED_PCT))
+    """Why RAFI as published fails on the runs ``bad``, from the data.
+
+    Parameters
+    ----------
+    bad : DataFrame
+        RAFI's failing rows of ``comparison/per_run.csv``.
+    res : dict
+        Loaded inputs: ``model`` (the trained speeds), ``collinearity`` and ``key_sensors_json``.
+    settings : dict
+        The machine's settings (``reference.rule``).
+
+    Returns
+    -------
+    dict
+        ``runs`` (per run: ``run_id``, ``max_abs_after_um``, ``noise_floor_um``, ``n_samples``,
+        ``outside_temp_pct``, ``outside_speed_pct``), ``n``, ``n_extrapolated`` (runs with at
+        least :data:`EXTRAPOLATED_PCT` % of the samples outside the trained temperature range),
+        ``extrapolated_pct``, ``max_temp_pct``, ``max_speed_pct`` (``None`` unless some sample
+        is outside the trained speeds), ``trained_speeds`` (``[lo, hi]`` r/min or ``None``),
+        ``key_sensor_r`` (largest |r| between two key sensors, ``None`` unknown) and
+        ``log_start`` (``reference.rule`` is ``log_start``).
+    """
+    runs = [
+        {
+            "run_id": str(r["run_id"]),
+            "max_abs_after_um": r["max_abs_after_um"],
+            "noise_floor_um": r.get("noise_floor_um"),
+            "n_samples": float(r.get("n_samples") or 0),
+            "outside_temp_pct": _share_pct(r.get("n_outside_temp_range"), r.get("n_samples")),
+            "outside_speed_pct": _share_pct(r.get("n_outside_speed_range"), r.get("n_samples")),
+        }
+        for r in bad.to_dict("records")
+    ]
+    t_share = np.asarray([r["outside_temp_pct"] for r in runs], float)
+    max_speed = _finite_max([r["outside_speed_pct"] for r in runs])
     speeds = [float(x["speed_rpm"]) for x in (res.get("model") or {}).get("speeds") or [] if "speed_rpm" in x]
-    trained = (
-        f" (trained speeds {fmt_num(min(speeds), 0)}\u2013{fmt_num(max(speeds), 0)} r/min)" if speeds else ""
-    )
-    if n_ext:
-        why = (
-            f"On {n_ext} of the {len(bad)} failing run(s) at least {EXTRAPOLATED_PCT:g} % of the samples lie "
-            f"outside the temperature rises RAFI's per-speed regressions were fitted on (up to "
-            f"{fmt_num(np.nanmax(t_share), 0, '%')}), where its squared and product terms extrapolate"
-        )
-    else:
-        why = (
-            f"The failing run(s) lie inside the trained temperature range (at most "
-            f"{fmt_num(np.nanmax(t_share) if len(t_share) else np.nan, 0, '%')} of the samples outside): "
-            "the failure is not extrapolation in temperature"
-        )
-    if len(s_share) and np.nanmax(s_share) > 0:
-        worst_speed = fmt_num(np.nanmax(s_share), 0, "%")
-        why += f"; up to {worst_speed} of the samples are outside its trained speeds{trained}"
-    why += "."
     r_max = _key_sensor_r(res)
-    if isnum(r_max):
-        why += f" Its key sensors correlate up to |r| = {fmt_num(r_max, 3)} on the training runs."
-    if settings["reference"]["rule"] == "log_start":
-        why += (
-            " On this machine the runs are cut out of a continuous log and do not start cold "
-            "(reference.rule = log_start): each starts from the state the log reached."
-        )
     return {
-        "runs": Markup("; ".join(str(x) for x in parts)),
-        "why": why,
+        "runs": runs,
         "n": len(bad),
-        "max_share": fmt_num(np.nanmax(t_share) if len(t_share) else np.nan, 0, "%"),
+        "n_extrapolated": int(np.sum(t_share >= EXTRAPOLATED_PCT)),
+        "extrapolated_pct": EXTRAPOLATED_PCT,
+        "max_temp_pct": _finite_max(t_share),
+        "max_speed_pct": max_speed if max_speed is not None and max_speed > 0 else None,
+        "trained_speeds": [min(speeds), max(speeds)] if speeds else None,
+        "key_sensor_r": r_max if isnum(r_max) else None,
+        "log_start": settings["reference"]["rule"] == "log_start",
     }
 
 
 def selection_context(summary: pd.DataFrame, champion) -> dict:
-    """How the champion was chosen, from ``comparison/summary.csv``: the rule
-    (:data:`rafi.family.compare.SELECTION_RULE`), its CV score and rank, and its gates on the
-    validation runs (touched once, after the choice)."""
-    out = {
-        "rule": SELECTION_RULE,
-        "champion": champion,
-        "basis": "none",
-        "score": "\u2013",
-        "n": len(summary),
-    }
+    """How the champion was chosen, from ``comparison/summary.csv``.
+
+    Returns
+    -------
+    dict
+        ``rule`` (:data:`rafi.family.selection.SELECTION_RULE`), ``champion``, ``n`` (models),
+        ``basis`` (``cv``, ``default`` without a CV score, ``none`` without a champion) and,
+        with a champion: ``score`` (its CV mean max |residual|, um), ``worst_fold``,
+        ``passed`` (its gates on the validation runs, touched once after the choice),
+        ``validation_worst``, ``noise`` (the noise floor of that run) and
+        ``better_on_validation`` (models with a lower worst residual on the validation runs).
+    """
+    out = {"rule": SELECTION_RULE, "champion": champion, "basis": "none", "score": None, "n": len(summary)}
     if champion is None:
         return out
     r = summary[summary["model"].astype(str) == champion].iloc[0]
     score = r.get("cv_mean_max_abs_um")
     out["basis"] = "cv" if isnum(score) else "default"
-    out["score"] = fmt_num(score, 2, "\u00b5m")
-    out["worst_fold"] = fmt_num(r.get("cv_max_abs_um"), 2, "\u00b5m")
+    out["score"] = score
+    out["worst_fold"] = r.get("cv_max_abs_um")
     out["passed"] = truthy(r.get("passed", False))
-    out["validation_worst"] = fmt_num(r.get("max_abs_after_um"), 2, "\u00b5m")
-    out["noise"] = fmt_num(r.get("noise_floor_um"), 2, "\u00b5m")
+    out["validation_worst"] = r.get("max_abs_after_um")
+    out["noise"] = r.get("noise_floor_um")
     out["better_on_validation"] = [
         str(m)
         for m, after in zip(
@@ -213,6 +220,71 @@ def selection_context(summary: pd.DataFrame, champion) -> dict:
         and after < float(r["max_abs_after_um"])
     ]
     return out
+
+
+def model_rows(summary: pd.DataFrame, champion, on_machine) -> list[dict]:
+    """One row per model of ``comparison/summary.csv``: its CV and validation numbers, the
+    share of samples outside its trained temperature range, its gates and ``is_champion``,
+    ``on_machine``, ``is_rafi`` (the paper's reference)."""
+    rows = []
+    for r in summary.to_dict("records"):
+        name = str(r["model"])
+        n = r.get("n_samples")
+        outside = r.get("n_outside_temp_range")
+        rows.append(
+            {
+                "model": name,
+                "kind": str(r.get("kind", "")),
+                "cv_mean_max_abs_um": r.get("cv_mean_max_abs_um"),
+                "cv_max_abs_um": r.get("cv_max_abs_um"),
+                "selection_rank": r.get("selection_rank"),
+                "max_abs_after_um": r.get("max_abs_after_um"),
+                "noise_floor_um": r.get("noise_floor_um"),
+                "improvement_pct": r.get("improvement_pct"),
+                "n_outside_temp_range": outside,
+                "outside_temp_pct": _share_pct(outside, n) if isnum(n) and isnum(outside) else np.nan,
+                "n_outside_speed_range": r.get("n_outside_speed_range"),
+                "passed": truthy(r.get("passed", False)),
+                "is_champion": name == champion,
+                "on_machine": name == on_machine,
+                "is_rafi": str(r.get("kind")) == "rafi",
+            }
+        )
+    return rows
+
+
+def per_run_rows(frames: dict, noise: dict) -> list[dict]:
+    """One row per validation run of :func:`comparison_frames`: ``run_id``, ``role``, max |dz|,
+    noise floor and per model ``after:<model>`` (max |residual|), ``imp:<model>``
+    (improvement) and ``passed:<model>`` (its gates on the run)."""
+    rows = []
+    for rid in frames["runs"]:
+        row = {
+            "run_id": rid,
+            "role": frames["role"][rid].replace("validation_", ""),
+            "max_abs_before_um": frames["before"][rid],
+            "noise_floor_um": noise.get(rid),
+        }
+        for m in frames["models"]:
+            row[f"after:{m}"] = frames["after"].loc[rid, m]
+            row[f"imp:{m}"] = frames["imp"].loc[rid, m]
+            row[f"passed:{m}"] = bool(frames["passed"].loc[rid, m])
+        rows.append(row)
+    return rows
+
+
+def champion_beside_rafi(frames: dict, champion, on_machine) -> dict | None:
+    """The family's champion on the runs where RAFI as published fails: its name, whether it
+    passes every gate on them and whether it is on the machine (``None`` when RAFI is the
+    champion or there is none)."""
+    if not champion or champion == frames["rafi"]:
+        return None
+    passed = frames["passed"]
+    return {
+        "name": champion,
+        "passes": bool(passed[champion].all()) if champion in passed.columns else False,
+        "on_machine": on_machine == champion,
+    }
 
 
 def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict | None:
@@ -232,171 +304,61 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
     Returns
     -------
     dict or None
-        ``None`` without ``comparison/summary.csv``.
+        ``None`` without ``comparison/summary.csv``; else ``champion``, ``on_machine``,
+        ``models`` (:func:`model_rows`), ``kind_column`` (some model is not named after its
+        kind), ``selection`` (:func:`selection_context`), ``selected`` (``(model, what CV
+        chose)``), ``cv`` (``scheme``, ``folds``), ``run_models`` and ``per_run``
+        (:func:`per_run_rows`), ``figure_bars``, ``rafi_fail`` (:func:`rafi_failure` with
+        ``champion``: :func:`champion_beside_rafi`) and ``figures_resid``.
     """
     summ = res.get("comparison")
     if summ is None or not len(summ):
         return None
-    pr = res.get("comparison_per_run")
-    out = {
-        "summary": None,
-        "per_run": None,
-        "figure_bars": None,
-        "figures_resid": [],
-        "rafi_fail": None,
-        "champion": None,
-        "on_machine": None,
-        "cv": None,
-        "selection": None,
-        "selected": [],
-        "notes": [],
-    }
-    s = summ.copy()
-    s["model"] = s["model"].astype(str)
+    s = summ.assign(model=summ["model"].astype(str))
     fam_champ = family_champion(s)
-    out["champion"] = fam_champ
     on_machine = None
     if champion_after and "model_id" in s:
         hit = s[s["model_id"].astype(str) == str(champion_after)]
         on_machine = hit["model"].iloc[0] if len(hit) else None
-    out["on_machine"] = on_machine
     cvs = _cv_stats(res.get("comparison_cv"))
-    rows = []
-    for r in s.to_dict("records"):
-        name = r["model"]
-        passed = truthy(r.get("passed", False))
-        n = r.get("n_samples")
-        share = (
-            100.0 * float(r["n_outside_temp_range"]) / float(n)
-            if isnum(n) and float(n) > 0 and isnum(r.get("n_outside_temp_range"))
-            else np.nan
-        )
-        tags = []
-        if name == fam_champ:
-            tags.append('<span class="tag champ">champion</span>')
-        if on_machine == name:
-            tags.append('<span class="tag">on the machine</span>')
-        if str(r.get("kind")) == "rafi":
-            tags.append('<span class="tag ref">paper reference</span>')
-        rank = r.get("selection_rank")
-        rows.append(
-            [
-                cell(Markup(f"<b>{escape(name)}</b> " + " ".join(tags))),
-                str(r.get("kind", "")),
-                cell(fmt_num(r.get("cv_mean_max_abs_um"), 2), "champ" if name == fam_champ else ""),
-                fmt_num(r.get("cv_max_abs_um"), 2),
-                fmt_num(rank, 0) if isnum(rank) else "\u2013",
-                cell(fmt_num(r.get("max_abs_after_um"), 2), "" if passed else "fail"),
-                fmt_num(r.get("noise_floor_um"), 2),
-                cell(fmt_num(r.get("improvement_pct"), 1), "" if passed else "fail"),
-                f"{fmt_num(r.get('n_outside_temp_range'), 0)} ({fmt_num(share, 0, '%')})",
-                fmt_num(r.get("n_outside_speed_range"), 0),
-                cell("PASS" if passed else "FAIL", "pass" if passed else "fail"),
-            ]
-        )
-    out["summary"] = table(
-        [
-            "model",
-            "kind",
-            "CV mean max |res.| (\u00b5m): the choice",
-            "CV worst run (\u00b5m)",
-            "rank",
-            "validation worst max |res.| (\u00b5m)",
-            "noise floor of that run (\u00b5m)",
-            "min impr. (%)",
-            "samples outside trained temp.",
-            "outside trained speed",
-            "gates",
-        ],
-        rows,
-        cls="num models",
-        widths=[19, 9, 9, 8, 5, 9, 8, 7, 10, 8, 8],
-    )
-    if all(str(r.get("kind", "")) == str(r["model"]) for r in s.to_dict("records")):
-        # every model is named after its kind: the kind column only repeats the name
-        summary = out["summary"]
-        summary["headers"].pop(1)
-        for row in summary["rows"]:
-            row.pop(1)
-        summary["widths"] = [28, *summary["widths"][2:]]
-    out["selection"] = selection_context(s, fam_champ)
-    if "selected" in s:
-        out["selected"] = [
+    out = {
+        "champion": fam_champ,
+        "on_machine": on_machine,
+        "models": model_rows(s, fam_champ, on_machine),
+        "kind_column": any(str(r.get("kind", "")) != str(r["model"]) for r in s.to_dict("records")),
+        "selection": selection_context(s, fam_champ),
+        "selected": [
             (str(r["model"]), str(r["selected"]))
             for r in s.to_dict("records")
-            if isinstance(r.get("selected"), str) and r["selected"]
-        ]
-    if cvs:
-        k = next(iter(cvs.values()))
-        out["cv"] = (
-            f"Cross-validation: {k['scheme'].replace('_', '-')} over the training runs "
-            f"({k['folds']} folds per model; each model refitted without the held-out "
-            "run, hyperparameters re-chosen inside the fold: nested). The CV columns come "
-            "from the training runs only and choose the champion; the validation columns "
-            "come after the choice and do not change it."
-        )
+            if "selected" in s and isinstance(r.get("selected"), str) and r["selected"]
+        ],
+        "cv": next(iter(cvs.values())) if cvs else None,
+        "run_models": [],
+        "per_run": None,
+        "figure_bars": None,
+        "rafi_fail": None,
+        "figures_resid": [],
+    }
+    pr = res.get("comparison_per_run")
     if pr is None or not len(pr):
         return out
     fr = comparison_frames(summ, pr)
-    p, models, runs = fr["per_run"], fr["models"], fr["runs"]
-    noise = noise_floors(res)
-    after, imp, before, role, passed = fr["after"], fr["imp"], fr["before"], fr["role"], fr["passed"]
-    rows = []
-    for rid in runs:
-        row = [
-            cell(
-                Markup(f"{run_label(rid)}<br><small>{escape(role[rid].replace('validation_', ''))}</small>")
-            ),
-            fmt_num(before[rid], 2),
-            fmt_num(noise.get(rid), 2),
-        ]
-        for m in models:
-            ok = bool(passed.loc[rid, m])
-            row.append(
-                cell(
-                    Markup(
-                        f"{escape(fmt_num(after.loc[rid, m], 2))}<br><small>"
-                        f"{escape(fmt_num(imp.loc[rid, m], 1, '%'))}</small>"
-                    ),
-                    "" if ok else "fail",
-                )
-            )
-        rows.append(row)
-    heads = ["validation run", "max |dz| uncomp. (\u00b5m)", "noise floor (\u00b5m)"]
-    for m in models:
-        heads.append(m + (" \u2605" if m == fam_champ else ""))
-    w_run, w_before = 22, 9
-    w_m = (100 - w_run - 2 * w_before) / max(len(models), 1)
-    out["per_run"] = table(
-        heads, rows, cls="num per-run", widths=[w_run, w_before, w_before] + [round(w_m, 1)] * len(models)
-    )
+    out["run_models"] = fr["models"]
+    out["per_run"] = per_run_rows(fr, noise_floors(res))
     out["figure_bars"] = figs.get("comparison", "comparison_bars")
-
-    # RAFI as published: where it fails and why (computed from this machine's tables)
-    rafi_name = fr["rafi"]
+    rafi_name, passed = fr["rafi"], fr["passed"]
     if rafi_name is not None and rafi_name in passed.columns and not passed[rafi_name].all():
-        bad = p[(p["model"] == rafi_name) & ~p["passed"].map(truthy)]
-        out["rafi_fail"] = rafi_failure(bad, res, settings)
-        champ_txt = ""
-        if fam_champ and fam_champ != rafi_name:
-            ok = bool(passed[fam_champ].all()) if fam_champ in passed.columns else False
-            verb = "passes every gate" if ok else "also fails a gate"
-            champ_txt = f" The champion ({fam_champ}) {verb} on the same runs"
-            champ_txt += (
-                " and is the model on the machine."
-                if on_machine == fam_champ
-                else "; whether it goes on the machine is the registry's decision (section Model registry)."
-            )
-        out["rafi_fail"]["why"] += champ_txt
-
-    # residual time series: RAFI vs the model beside it on the multi-condition run(s)
-    if rafi_name is not None:
+        p = fr["per_run"]
+        out["rafi_fail"] = rafi_failure(
+            p[(p["model"] == rafi_name) & ~p["passed"].map(truthy)], res, settings
+        )
+        out["rafi_fail"]["champion"] = champion_beside_rafi(fr, fam_champ, on_machine)
+    if rafi_name is not None:  # residual time series: RAFI vs the model beside it
         other = model_beside_rafi(fr, on_machine)
         for rid in residual_runs(fr):
             fig = figs.get("comparison", residual_figure_key(rid, other))
-            if fig is None:
-                continue
-            out["figures_resid"].append(
-                {"run_id": rid, "figure": fig, "other": other, "rafi": rafi_name, "role": role[rid]}
-            )
+            if fig is not None:
+                out["figures_resid"].append(
+                    {"run_id": rid, "figure": fig, "other": other, "rafi": rafi_name, "role": fr["role"][rid]}
+                )
     return out

@@ -19,6 +19,7 @@ DASH = "\u2013"
 
 
 def isnum(x) -> bool:
+    """A finite number (not a bool, not ``None``, not NaN or infinite)."""
     try:
         return x is not None and not isinstance(x, bool) and math.isfinite(float(x))
     except (TypeError, ValueError):
@@ -59,6 +60,7 @@ _SUB = str.maketrans("0123456789", "\u2080\u2081\u2082\u2083\u2084\u2085\u2086\u
 
 
 def _superscript(n: int) -> str:
+    """An integer in superscript digits: ``-6`` -> ``⁻⁶``."""
     return str(n).translate(_SUP)
 
 
@@ -116,7 +118,7 @@ def table(headers, rows, *, cls: str = "", widths=None, caption: str = "") -> di
     return {"headers": list(headers), "rows": norm, "cls": cls, "widths": widths or [], "caption": caption}
 
 
-def term_text(term: str, variables: dict) -> Markup:
+def term_text(term: str, variables: dict | None = None) -> Markup:
     """``x1*x2^2`` -> ``x₁·x₂²`` (HTML-safe)."""
     if term == "1":
         return Markup("")
@@ -131,8 +133,9 @@ def term_text(term: str, variables: dict) -> Markup:
     return Markup("\u00b7".join(str(escape(p)) for p in parts))
 
 
-def equation_text(coefs, terms, variables: dict) -> Markup:
-    """``dz = 0.12 + 1.23·x₁ − ...`` with 4 significant digits per coefficient."""
+def equation_text(coefs, terms, variables: dict | None = None) -> Markup:
+    """``dz = 0.12 + 1.23·x₁ − ...`` with 4 significant digits per coefficient (HTML-safe; the
+    template sets it in ``<span class="eq">``)."""
     pieces = []
     for _k, (b, t) in enumerate(zip(coefs, terms)):
         if not isnum(b):
@@ -146,7 +149,7 @@ def equation_text(coefs, terms, variables: dict) -> Markup:
         else:
             pieces.append(f" {sign} {body}")
     text = "dz = " + "".join(pieces) if pieces else "dz = 0"
-    return Markup(f'<span class="eq">{escape(text)}</span>')
+    return Markup(escape(text))
 
 
 def run_label(run_id) -> Markup:
@@ -169,3 +172,100 @@ def speed_key(x):
         return int(v) if v.is_integer() else v
     except (TypeError, ValueError):
         return x
+
+
+def fmt_value(value, fmt: str | None = None, digits: int = 2, unit: str = "", signed: bool = False):
+    """``value`` as one of the report's formats.
+
+    Parameters
+    ----------
+    value
+        A number, a text or ``None``.
+    fmt : str, optional
+        ``num`` (:func:`fmt_num` with ``digits``, ``unit``, ``signed``), ``sig`` (:func:`fmt_sig`,
+        ``digits`` significant), ``p`` (:func:`fmt_p`), ``speed``, ``duration``, ``run``
+        (:func:`run_label`), ``short_id``, ``micro``; ``None``: the value as it is, an en dash for
+        ``None``.
+
+    Returns
+    -------
+    str or Markup
+    """
+    if fmt is None:
+        return DASH if value is None else value
+    if fmt == "num":
+        return fmt_num(value, digits, unit, signed=signed)
+    if fmt == "sig":
+        return fmt_sig(value, digits, unit)
+    simple = {
+        "p": fmt_p,
+        "speed": fmt_speed,
+        "duration": fmt_duration,
+        "run": run_label,
+        "short_id": short_id,
+        "micro": micro,
+    }
+    if fmt not in simple:
+        raise ValueError(f"unknown format {fmt!r}")
+    return simple[fmt](value)
+
+
+def fmt_column(value, column: dict):
+    """``value`` formatted as ``column`` says (the column spec of the templates' ``frame_table``:
+    ``fmt``, ``digits``, ``unit``, ``signed``; see :func:`fmt_value`)."""
+    return fmt_value(
+        value,
+        column.get("fmt"),
+        column.get("digits", 2),
+        column.get("unit", ""),
+        column.get("signed", False),
+    )
+
+
+def records(frame, columns: dict | None = None) -> list[dict]:
+    """The rows of a small frame as plain dicts (what the templates' ``frame_table`` shows).
+
+    Parameters
+    ----------
+    frame : DataFrame
+    columns : dict, optional
+        ``new name -> column`` to keep and rename (default: every column as it is).
+
+    Returns
+    -------
+    list of dict
+        One dict per row; NaN and NA become ``None``, NumPy scalars Python numbers.
+    """
+    if columns is not None:
+        frame = frame[list(columns.values())].set_axis(list(columns), axis=1)
+    out = []
+    for row in frame.to_dict("records"):
+        out.append({k: _plain(v) for k, v in row.items()})
+    return out
+
+
+def _plain(value):
+    """A frame's cell as a plain Python value (``None`` for NaN)."""
+    if hasattr(value, "item") and not isinstance(value, (str, bytes)):
+        value = value.item()
+    if isinstance(value, float) and math.isnan(value):
+        return None
+    return value
+
+
+#: The filters of the report's templates (:func:`rafi.report.render._environment`).
+FILTERS = {
+    "num": fmt_num,
+    "sig": fmt_sig,
+    "p": fmt_p,
+    "speed": fmt_speed,
+    "speed_range": fmt_speed_range,
+    "duration": fmt_duration,
+    "run": run_label,
+    "short_id": short_id,
+    "micro": micro,
+    "subscript": subscript,
+    "equation": equation_text,
+    "term": term_text,
+    "column": fmt_column,
+}

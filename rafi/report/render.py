@@ -17,8 +17,11 @@ from rafi.report.inputs import figure_dirs, result_paths
 
 
 def _environment():
-    """The jinja2 environment of the report's templates (autoescaped, strict)."""
+    """The jinja2 environment of the report's templates (autoescaped, strict; the formatters of
+    :data:`rafi.report.format.FILTERS` as filters)."""
     import jinja2
+
+    from rafi.report.format import FILTERS
 
     env = jinja2.Environment(
         loader=jinja2.PackageLoader("rafi.report", "templates"),
@@ -27,6 +30,7 @@ def _environment():
         trim_blocks=True,
         lstrip_blocks=True,
     )
+    env.filters.update(FILTERS)
     return env
 
 

@@ -1,8 +1,14 @@
 """Section 1 of the report: the verdict on the model on the machine and on RAFI as published.
 
-The gates are :func:`rafi.method.validate.qualify`'s; the per-run results of a model come from
-the table that holds them (``registry/comparison.csv``, ``comparison/per_run.csv`` or
-``validation/summary.csv``), which :func:`champion_after_summary` picks.
+The verdict is read where a rule stored it: ``registry/decision.json`` holds rule decide's
+verdict on tonight's candidate (``verdict``: criterion x validation run, the rows of
+:func:`rafi.method.validate.qualify`), which is the verdict on the model on the machine when
+the candidate was promoted and the verdict on RAFI as published when the candidate is
+``model.json``. No result file stores the per-criterion verdict of any other model (the
+champion kept in service, RAFI as published beside a family model, a model without a
+decision): only for those :func:`recomputed_verdict` applies the pipeline's own gate rules to
+the model's stored per-run results (``registry/comparison.csv``, ``comparison/per_run.csv``,
+``validation/summary.csv``), and the report says so.
 """
 
 from __future__ import annotations
@@ -13,16 +19,58 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi.method import validate
 from rafi.report.format import fmt_num, short_id, truthy
 from rafi.report.inputs import noise_floors
 
+#: The columns of a verdict (:data:`rafi.method.validate.VERDICT_COLUMNS`).
+VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
 
-def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
-    """Verdict rows (criterion x validation run) of ``rafi.method.validate.qualify``; a ``run_id``
-    column is always present."""
-    verdict = validate.qualify(summary, gates)
+
+def recomputed_verdict(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
+    """Verdict rows (criterion x validation run) of ``rafi.method.validate.qualify`` on a model's
+    stored per-run results, for a model whose verdict no result file stores (module docstring);
+    a ``run_id`` column is always present."""
+    from rafi.method.validate import qualify
+
+    verdict = qualify(summary, gates)
     return verdict if "run_id" in verdict else verdict.assign(run_id="")
+
+
+def scored_runs(comp: pd.DataFrame | None, who: str) -> list | None:
+    """The runs of ``registry/comparison.csv`` on which ``who`` (``candidate``, ``champion``) has
+    a finite max |residual| (the runs the report's registry tables score it on); ``None``
+    without the table."""
+    col = f"{who}_max_abs_after_um"
+    if comp is None or "run_id" not in comp:
+        return None
+    if col not in comp:
+        return []
+    after = pd.to_numeric(comp[col], errors="coerce")
+    return comp.loc[after.notna(), "run_id"].astype(str).tolist()
+
+
+def stored_verdict(dec: dict, run_ids: list | None = None) -> pd.DataFrame | None:
+    """Rule decide's verdict on the candidate, as stored in ``registry/decision.json``.
+
+    Parameters
+    ----------
+    dec : dict
+        ``registry/decision.json``.
+    run_ids : list, optional
+        Keep the rows of these runs only (:func:`scored_runs`).
+
+    Returns
+    -------
+    DataFrame or None
+        :data:`VERDICT_COLUMNS`; ``None`` for a decision without a stored verdict.
+    """
+    rows = dec.get("verdict")
+    if not isinstance(rows, list):
+        return None
+    verdict = pd.DataFrame(rows, columns=VERDICT_COLUMNS)
+    if run_ids is not None:
+        verdict = verdict[verdict["run_id"].astype(str).isin([str(r) for r in run_ids])]
+    return verdict.reset_index(drop=True)
 
 
 CRITERION_TEXT = {
@@ -123,6 +171,7 @@ def model_infos(res: dict, registry_dir: Path | None) -> dict:
     infos: dict = {}
 
     def add(mid, **kw):
+        """Fill the fields of ``mid`` not known yet."""
         if not isinstance(mid, str) or not mid:
             return
         cur = infos.setdefault(mid, {"kind": None, "created": None, "files": None, "name": None})
@@ -181,35 +230,50 @@ def registry_summary(comp: pd.DataFrame | None, who: str) -> pd.DataFrame | None
     return out[out["max_abs_after_um"].notna()].reset_index(drop=True)
 
 
-def per_run_gates(summary: pd.DataFrame, gates: dict) -> dict:
-    """``run_id -> (passed, [failed criteria])`` with the pipeline's own gate rules."""
-    if summary is None or not len(summary):
-        return {}
-    v = qualify(summary, gates)
+def per_run_gates(verdict: pd.DataFrame | None, run_ids=()) -> dict:
+    """``run_id -> (passed, [failed criteria])`` from verdict rows (stored or recomputed); a run
+    of ``run_ids`` without a row (no gate set) passes. A NaN measurement fails."""
     out = {}
-    for rid, g in v.groupby(v["run_id"].astype(str), sort=False):
-        ok = g["passed"].map(truthy) & pd.to_numeric(g["measured"], errors="coerce").notna()
-        out[rid] = (bool(ok.all()), g.loc[~ok, "criterion"].astype(str).tolist())
-    for rid in summary["run_id"].astype(str):
-        out.setdefault(rid, (True, []))
+    if verdict is not None and len(verdict):
+        for rid, g in verdict.groupby(verdict["run_id"].astype(str), sort=False):
+            ok = g["passed"].map(truthy) & pd.to_numeric(g["measured"], errors="coerce").notna()
+            out[rid] = (bool(ok.all()), g.loc[~ok, "criterion"].astype(str).tolist())
+    for rid in run_ids:
+        out.setdefault(str(rid), (True, []))
     return out
 
 
-DECISION_TEXT = {
-    "promoted": (
-        "pass",
-        "PROMOTED",
-        "tonight's candidate passed every gate and is now the model on the machine",
-    ),
-    "kept": ("neutral", "KEPT", "the model on the machine is unchanged"),
-    "rejected": (
-        "fail",
-        "REJECTED",
-        "tonight's candidate was not promoted (a gate, the comparison with the model in service, "
-        "its speed coverage or an unconfirmed input warning: see the reasons); it does not go on the machine",
-    ),
-    "rolled_back": ("warn", "ROLLED BACK", "an operator set the model on the machine by hand"),
-}
+def registry_gates(dec: dict, comp: pd.DataFrame | None, gates: dict) -> dict:
+    """The gates per validation run of the candidate and of the champion before this run, as the
+    registry section shows them.
+
+    Parameters
+    ----------
+    dec : dict
+        ``registry/decision.json``: the candidate's verdict is its ``verdict``.
+    comp : DataFrame or None
+        ``registry/comparison.csv``: the runs each model is scored on; the champion's results
+        (no file stores the champion's verdict: recomputed, :func:`recomputed_verdict`).
+    gates : dict
+        The machine's ``qualification`` settings (for the champion's recomputed verdict).
+
+    Returns
+    -------
+    dict
+        ``candidate`` and ``champion``: ``run_id -> (passed, [failed criteria])``, empty for a
+        model without results.
+    """
+    out = {}
+    for who in ("candidate", "champion"):
+        summary = registry_summary(comp, who)
+        stored = stored_verdict(dec, scored_runs(comp, who)) if who == "candidate" else None
+        if stored is not None and summary is not None:
+            out[who] = per_run_gates(stored, summary["run_id"])
+        elif summary is not None:
+            out[who] = per_run_gates(recomputed_verdict(summary, gates), summary["run_id"])
+        else:
+            out[who] = {}
+    return out
 
 
 def champion_after_summary(res: dict, dec: dict):
@@ -235,6 +299,37 @@ def champion_after_summary(res: dict, dec: dict):
     if model.get("model_id") == after and res.get("validation_summary") is not None:
         return res["validation_summary"], "validation/summary.csv"
     return None, ""
+
+
+def judged_verdict(res: dict, dec: dict, gates: dict) -> tuple[pd.DataFrame | None, str]:
+    """The verdict on the model on the machine after this run, and where it comes from.
+
+    The stored verdict of ``registry/decision.json`` when the model is tonight's candidate
+    (on the runs ``registry/comparison.csv`` scores it on); else :func:`recomputed_verdict` on
+    the model's results (:func:`champion_after_summary`). ``(None, "")`` without results.
+    """
+    if dec.get("champion_id_after") and dec.get("champion_id_after") == dec.get("candidate_id"):
+        comp = res.get("registry_comparison")
+        stored = stored_verdict(dec, scored_runs(comp, "candidate"))
+        if stored is not None and len(stored):
+            return stored, "read from registry/decision.json (rule decide's verdict)"
+    summ, src = champion_after_summary(res, dec)
+    if summ is not None and len(summ):
+        return recomputed_verdict(summ, gates), "computed from " + src
+    return None, ""
+
+
+def rafi_verdict(res: dict, gates: dict) -> tuple[pd.DataFrame, str]:
+    """The verdict on RAFI as published (``model.json``, ``validation/summary.csv`` present):
+    rule decide's stored verdict when ``model.json`` was tonight's candidate, else
+    :func:`recomputed_verdict` on ``validation/summary.csv``."""
+    dec = res.get("decision")
+    model_id = (res.get("model") or {}).get("model_id")
+    if isinstance(dec, dict) and model_id and dec.get("candidate_id") == model_id:
+        stored = stored_verdict(dec)
+        if stored is not None and len(stored):
+            return stored, "read from registry/decision.json (rule decide's verdict)"
+    return recomputed_verdict(res["validation_summary"], gates), "from rafi.method.validate.qualify"
 
 
 def residual_statement(res: dict, settings: dict) -> dict | None:
@@ -290,13 +385,11 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
 def verdict_all(res: dict, gates: dict, infos: dict) -> dict:
     """The verdict of section 1: the model on the machine (with decision.json) + RAFI, over
     every validation run (idle cool-downs included), each max residual beside its run's noise
-    floor."""
+    floor (:func:`judged_verdict`, :func:`rafi_verdict`: the stored verdict where one is)."""
     rafi_v = None
     noise = noise_floors(res)
     if res["validation_summary"] is not None:
-        rafi_v = verdict_context(
-            qualify(res["validation_summary"], gates), "from rafi.method.validate.qualify", noise
-        )
+        rafi_v = verdict_context(*rafi_verdict(res, gates), noise)
         gated = res["validation_summary"]
         after = pd.to_numeric(gated["max_abs_after_um"], errors="coerce")
         rafi_v["worst"] = fmt_num(after.max(), 2, "\u00b5m")
@@ -327,14 +420,12 @@ def verdict_all(res: dict, gates: dict, infos: dict) -> dict:
         "id": short_id(after),
         "kind": info.get("kind") or "kind unknown",
         "decision": decision,
-        "decision_cls": DECISION_TEXT.get(decision, ("neutral",))[0],
         "none": not after,
         "is_rafi": info.get("kind") == "rafi",
     }
-    summ, src = champion_after_summary(res, dec)
-    if summ is not None and len(summ):
-        v = qualify(summ, gates)
-        out = verdict_context(v, "computed from " + src, noise)
+    verdict, src = judged_verdict(res, dec, gates)
+    if verdict is not None:
+        out = verdict_context(verdict, src, noise)
     else:
         out = {
             "passed": False,
