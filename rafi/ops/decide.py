@@ -1,7 +1,14 @@
 """Champion / challenger: judge tonight's candidate against the champion and record the decision.
 
-:func:`decide` is pure (dicts and frames in, a :class:`Decision` out), so it is unit-tested with
-fake models; :func:`run_decide` is rule ``decide``: it reads the candidate and the runs,
+:func:`decide` is pure (a :class:`Candidate`, a :class:`Champion`, the runs and the
+:class:`DecisionSettings` in, a :class:`Decision` out), so it is unit-tested with fake models. Its
+steps are functions of their own: the candidate's gates (:func:`rafi.ops.gates.gate_outcome`), the
+comparison with the champion (:func:`compare_with_champion`), provenance (:func:`check_provenance`),
+what blocks (:func:`blocking_checks`), the decision (:func:`promotion_decision`), the champion's
+drift (:func:`champion_drift`) and the record (:mod:`rafi.ops.decision_record`).
+
+:func:`run_decide` is rule ``decide``: it reads the candidate and the runs, makes tonight's
+candidate (:func:`tonight_candidate`: the fit, or the champion with a speed range retrained),
 evaluates both models, and updates the registry (``rafi.ops.registry``).
 """
 
