@@ -255,3 +255,78 @@ def test_a_choice_at_a_grid_edge_is_said_where_people_read_what_cv_chose():
     assert "AT A GRID EDGE" in text and "300 s is the largest" in text
     m.grid_edges_ = []  # the same fitted model with nothing at an edge: nothing said
     assert "GRID EDGE" not in describe_selection(m)
+
+
+# --------------------------------------------------------------------------- shared features
+
+
+def test_a_logs_filtered_values_do_not_depend_on_the_logs_before_it():
+    """Known truth: a log filtered alone. After another log the values are the same to the last
+    bit, also where a block of the vectorised sum ends on a tie (5 s steps, tau 15 s: 1800 rows
+    sum to exactly 600), which the block count decides by rounding."""
+    rng = np.random.default_rng(1)
+    for _ in range(5):
+        n_before, n_log = int(rng.integers(300, 3000)), 2500
+        t_before = np.cumsum(rng.uniform(0.5, 2.0, n_before))
+        t_log = np.arange(n_log) * 5.0
+        x = rng.normal(size=(n_before + n_log, 3)).cumsum(axis=0)
+        restart = np.zeros(n_before + n_log, dtype=bool)
+        restart[[0, n_before]] = True
+        both = lowpass_log(x, np.r_[t_before, t_log], restart, [15.0, 7.5, 600.0])
+        alone = lowpass_log(x[n_before:], t_log, restart[n_before:], [15.0, 7.5, 600.0])
+        assert np.array_equal(both[n_before:], alone)
+
+
+def _several_logs():
+    """Two logs with several training runs each; a dropout of T8 in one training run, so the
+    usable sensors differ between CV folds."""
+    logs = {"a.csv": _continuous_log(0), "b.csv": _continuous_log(1)}
+    table, frame = runs_of_logs(
+        logs, reference_rule="run_start", reference_window_s=WINDOW, min_constant_s=3600
+    )
+    train = table.loc[table["role"] == "training", "run_id"].tolist()
+    rows = np.flatnonzero(frame["run_id"] == train[1])[50:60]
+    frame.loc[rows, ["T8", "dT8"]] = np.nan
+    return table, frame, train
+
+
+@pytest.mark.parametrize("k", range(3))
+def test_shared_features_change_no_fit_and_no_fold(k, monkeypatch):
+    """Known truth: every fit computing its own features (no memo). With the features shared by
+    the fits of a scope, the fitted artefact and every CV fold are bit-identical."""
+    import contextlib
+
+    from rafi.family import crossval
+    from rafi.family.feature_memo import sharing_features
+    from rafi.family.whole_log import rows_of_logs
+
+    table, frame, train = _several_logs()
+    assert frame["log"].nunique() == 2 and len(train) >= 4
+    factory = _leak_models()[k]
+    universe = frame.loc[rows_of_logs(frame, train)]
+    alone = factory().fit(table, frame).to_dict()
+    with sharing_features(universe) as memo:
+        shared = factory().fit(table, frame).to_dict()
+        shared_cv = cross_validate(factory, table, frame)
+    assert memo._features and memo._grams  # the fits did share
+    for d in (alone, shared):
+        d.pop("created")
+    assert shared == alone
+    monkeypatch.setattr(crossval, "sharing_features", lambda frame: contextlib.nullcontext())
+    pd.testing.assert_frame_equal(shared_cv, cross_validate(factory, table, frame), check_exact=True)
+
+
+def test_only_whole_logs_of_the_universe_are_served():
+    from rafi.family.feature_memo import FeatureMemo
+
+    table, frame, train = _several_logs()
+    memo = FeatureMemo(frame)
+    log_b = frame.loc[frame["log"] == "b.csv"]
+    assert np.array_equal(memo.positions(log_b), np.flatnonzero(frame["log"] == "b.csv"))
+    assert memo.positions(frame.iloc[::-1]) is not None  # any row order
+    assert memo.positions(log_b.iloc[:-1]) is None  # part of a log
+    assert memo.positions(log_b.drop(columns=["log_t_s"])) is None  # per-run frame
+    changed = log_b.copy()
+    changed["speed_rpm"] += 1.0
+    assert memo.positions(changed) is None  # other values under the same labels
+    assert memo.positions(log_b.reset_index(drop=True)) is None  # labels not of the universe rows

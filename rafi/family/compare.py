@@ -25,8 +25,9 @@ import numpy as np
 import pandas as pd
 
 from rafi.artefact import json_text, write_text_atomic
-from rafi.family.crossval import cross_validate
+from rafi.family.crossval import cross_validate, training_runs
 from rafi.family.dynamic import DynamicRidge
+from rafi.family.feature_memo import sharing_features
 from rafi.family.grey_box import GreyBox
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
@@ -38,6 +39,7 @@ from rafi.family.selection import (  # noqa: F401 - re-exported: the selection r
     default_champion,
     selection_table,
 )
+from rafi.family.whole_log import rows_of_logs
 from rafi.method.validate import qualify, validate_runs
 from rafi.settings import MACHINE_DEFAULTS
 
@@ -343,6 +345,7 @@ def run_family(
         ``champion``) and ``best_artefact`` (its artefact), ``models`` (name -> fitted model).
     """
     models, cv_parts = {}, []
+    universe = runs_frame.loc[rows_of_logs(runs_frame, training_runs(runs_table, runs_frame)[0]["run_id"])]
     for kind in options["enabled"]:
 
         def factory(kind=kind):
@@ -357,14 +360,15 @@ def run_family(
                 speed_tolerance_rpm=speed_tolerance_rpm,
             )
 
-        t0 = time.perf_counter()
-        if kind == "rafi" and rafi_model is not None:
-            models[kind] = rafi_model
-        else:
-            models[kind] = factory().fit(runs_table, runs_frame)
-        log(f"{kind}: fitted in {time.perf_counter() - t0:.2f} s{_fitted_text(models[kind])}")
-        t0 = time.perf_counter()
-        cv = cross_validate(factory, runs_table, runs_frame, options["cv"], name=kind)
+        with sharing_features(universe):  # the fit and every CV fold share the logs' features
+            t0 = time.perf_counter()
+            if kind == "rafi" and rafi_model is not None:
+                models[kind] = rafi_model
+            else:
+                models[kind] = factory().fit(runs_table, runs_frame)
+            log(f"{kind}: fitted in {time.perf_counter() - t0:.2f} s{_fitted_text(models[kind])}")
+            t0 = time.perf_counter()
+            cv = cross_validate(factory, runs_table, runs_frame, options["cv"], name=kind)
         cv_parts.append(cv)
         worst = f"{cv['max_abs_after_um'].max():.2f} um" if len(cv) else "no fold"
         log(f"{kind}: {options['cv']} CV in {time.perf_counter() - t0:.1f} s, max |residual| {worst}")

@@ -27,6 +27,7 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pandas as pd
 
+from rafi.family.feature_memo import sharing_features
 from rafi.family.whole_log import rows_of_logs
 
 __all__ = [
@@ -215,27 +216,31 @@ def cross_validate(
     rows = []
     train_table, _ = training_runs(runs_table, runs_frame)
     speeds = dict(zip(train_table["run_id"].astype(str), train_table["speed_rpm"].astype(float)))
-    for k, (train_ids, test_ids) in enumerate(split_runs(runs_table, scheme)):
-        assert_disjoint(train_ids, test_ids)
-        fold_table = hold_out(runs_table, test_ids)
-        fitted_on = set(map(str, training_runs(fold_table, runs_frame)[0]["run_id"]))
-        assert fitted_on == set(map(str, train_ids)), "a fold fits on exactly its training runs"
-        model = model_factory().fit(fold_table, runs_frame)
-        needed = runs_frame.loc[rows_of_logs(runs_frame, test_ids)]
-        predicted = np.asarray(model.predict(needed), dtype=float)
-        run_of = needed["run_id"].astype(str).to_numpy()
-        for rid in test_ids:
-            mine = run_of == str(rid)
-            met = _metrics(needed["dz_um"].to_numpy(dtype=float)[mine], predicted[mine])
-            rows.append(
-                {
-                    "model": name,
-                    "scheme": scheme,
-                    "fold": k,
-                    "test_runs": rid,
-                    "test_speed_rpm": speeds.get(rid, np.nan),
-                    "n_train_runs": len(train_ids),
-                    **met,
-                }
-            )
+    # what any fold's fit and prediction can see: the logs holding a training run (the fits
+    # share their features, rafi.family.feature_memo)
+    frame = runs_frame.loc[rows_of_logs(runs_frame, train_table["run_id"])]
+    with sharing_features(frame):
+        for k, (train_ids, test_ids) in enumerate(split_runs(runs_table, scheme)):
+            assert_disjoint(train_ids, test_ids)
+            fold_table = hold_out(runs_table, test_ids)
+            fitted_on = set(map(str, training_runs(fold_table, frame)[0]["run_id"]))
+            assert fitted_on == set(map(str, train_ids)), "a fold fits on exactly its training runs"
+            model = model_factory().fit(fold_table, frame)
+            needed = frame.loc[rows_of_logs(frame, test_ids)]
+            predicted = np.asarray(model.predict(needed), dtype=float)
+            run_of = needed["run_id"].astype(str).to_numpy()
+            dz = needed["dz_um"].to_numpy(dtype=float)
+            for rid in test_ids:
+                mine = run_of == str(rid)
+                rows.append(
+                    {
+                        "model": name,
+                        "scheme": scheme,
+                        "fold": k,
+                        "test_runs": rid,
+                        "test_speed_rpm": speeds.get(rid, np.nan),
+                        "n_train_runs": len(train_ids),
+                        **_metrics(dz[mine], predicted[mine]),
+                    }
+                )
     return pd.DataFrame(rows, columns=CV_COLUMNS)

@@ -247,7 +247,7 @@ class GreyBox(RidgeBase):
         y = train["dz_um"].to_numpy(dtype=float)
         run_ids = train["run_id"].astype(str).to_numpy()
         lags = self._lags() if self.instantaneous_ else [0.0]
-        feats, _ = self._features(
+        feats, names, key = self._candidate_features(
             frame,
             sensors,
             rise_taus,
@@ -264,8 +264,8 @@ class GreyBox(RidgeBase):
             if self.instantaneous_
             else [np.arange(0)]
         )
-        folds = cv_folds(feats, y, run_ids, table, self.cv)
-        cv_table, best = [], (math.inf, None, None, None, 0.0)
+        folds = cv_folds(feats, y, run_ids, table, self.cv, shared_key=key)
+        cv_table, best = [], (math.inf, None, None, None, 0.0, None)
         rise_sets, speed_sets = self._filter_sets()
         for rs in rise_sets:
             rcols = [np.arange(i * p, (i + 1) * p) for i in rs]
@@ -287,11 +287,12 @@ class GreyBox(RidgeBase):
                             }
                         )
                         if sc < best[0] - 1e-12:
-                            best = (float(sc), taus, staus, a, lag)
-        _, taus, staus, alpha, lag = best
+                            best = (float(sc), taus, staus, a, lag, cols)
+        _, taus, staus, alpha, lag, cols = best
         self.speed_taus_ = staus
         self.centrifugal_lag_s_ = float(lag)
-        return self._fit_final(table, frame, rows, sensors, taus, alpha, cv_table)
+        design = self._chosen_design(feats, names, cols, frame, key)
+        return self._fit_final(table, frame, rows, sensors, taus, alpha, cv_table, design)
 
     def _chosen(self) -> dict:
         """What CV chose among grid values: with ``filter_search: all`` every filter constant

@@ -12,6 +12,7 @@ import pandas as pd
 
 from rafi.family.base import CODE_VERSION, FamilyModel, check_artefact, data_hashes, finish_artefact, floats
 from rafi.family.crossval import split_runs, training_runs
+from rafi.family.feature_memo import active_memo
 from rafi.family.features import (
     MIN_IDENTIFYING_RUNS,
     reference_speed,
@@ -54,15 +55,36 @@ def rms_scale(x: np.ndarray) -> np.ndarray:
     return np.where(s > 1e-12, s, 1.0)
 
 
-def cv_folds(feats: np.ndarray, y: np.ndarray, run_ids: np.ndarray, table: pd.DataFrame, scheme: str) -> list:
+def run_gram(feats: np.ndarray, y: np.ndarray, rows: np.ndarray) -> tuple:
+    """``X'X``, ``X'y`` and the sample count of the rows ``rows`` of ``feats`` / ``y`` (one run)."""
+    return feats[rows].T @ feats[rows], feats[rows].T @ y[rows], len(rows)
+
+
+def cv_folds(
+    feats: np.ndarray,
+    y: np.ndarray,
+    run_ids: np.ndarray,
+    table: pd.DataFrame,
+    scheme: str,
+    shared_key=None,
+) -> list:
     """Per whole-run fold of ``scheme``, once per fit: the training runs' ``X'X``, ``X'y`` and
     sample count (sums of per-run parts), the test runs' rows of ``X`` and ``y`` (for
-    ``max_abs``) and their ``X'X``, ``X'y``, ``y'y`` (for ``rmse``)."""
+    ``max_abs``) and their ``X'X``, ``X'y``, ``y'y`` (for ``rmse``).
+
+    ``shared_key``: the feature memo's key of ``feats`` when they came from the active memo
+    (:class:`rafi.family.feature_memo.FeatureMemo`); each run's Gram matrices are then computed
+    once for every fit of the scope (a run's rows and features are the same in each)."""
     rows = {r: np.flatnonzero(run_ids == r) for r in np.unique(run_ids)}
-    gram = {r: (feats[i].T @ feats[i], feats[i].T @ y[i], len(i)) for r, i in rows.items()}
+    memo = active_memo() if shared_key is not None else None
+    if memo is None:
+        gram = {r: run_gram(feats, y, i) for r, i in rows.items()}
+    else:
+        gram = {r: memo.run_gram(shared_key, r, lambda i=i: run_gram(feats, y, i)) for r, i in rows.items()}
     folds = []
     for train_ids, test_ids in split_runs(table, scheme):
-        train = [gram[r] for r in train_ids if r in gram]
+        train_runs = tuple(r for r in train_ids if r in gram)
+        train = [gram[r] for r in train_runs]
         te = [rows[r] for r in test_ids if r in rows]
         if not train or not te:
             continue
@@ -78,9 +100,34 @@ def cv_folds(feats: np.ndarray, y: np.ndarray, run_ids: np.ndarray, table: pd.Da
                 "g_test": sum(t[0] for t in test),
                 "c_test": sum(t[1] for t in test),
                 "yy_test": float(y[te] @ y[te]),
+                # which sums g, c, n are: the same runs give the same sums in every fit sharing
+                # the run Grams (a pair of runs held out in the outer and the inner CV, either way)
+                "solution_key": (shared_key, train_runs) if memo is not None else None,
             }
         )
     return folds
+
+
+def fold_solution(fold: dict, cols: np.ndarray, alphas: Sequence[float]) -> np.ndarray | None:
+    """Ridge coefficients (columns ``cols``, one column per alpha) fitted on a fold's training
+    runs, or ``None`` when the fold has no training sample. Computed once per training-run set
+    and candidate in the active feature memo's scope (:func:`cv_folds`)."""
+    if fold["n"] == 0:
+        return None
+    memo = active_memo() if fold.get("solution_key") is not None else None
+    if memo is None:
+        return _fold_solution(fold, cols, alphas)
+    key = (*fold["solution_key"], np.asarray(cols).tobytes(), tuple(alphas))
+    return memo.solution(key, lambda: _fold_solution(fold, cols, alphas))
+
+
+def _fold_solution(fold: dict, cols: np.ndarray, alphas: Sequence[float]) -> np.ndarray:
+    """:func:`fold_solution` computed: ridge on the columns scaled to unit RMS."""
+    ix = np.ix_(cols, cols)
+    g, c, n = fold["g"][ix], fold["c"][cols], fold["n"]
+    sc = np.sqrt(np.diag(g) / n)
+    sc = np.where(sc > 1e-12, sc, 1.0)
+    return ridge_gram(g / np.outer(sc, sc), c / sc, n, alphas) / sc[:, None]
 
 
 def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
@@ -91,12 +138,9 @@ def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: st
     fold_max, count = [], 0
     ix = np.ix_(cols, cols)
     for fold in folds:
-        g, c, n = fold["g"][ix], fold["c"][cols], fold["n"]
-        if n == 0:
+        b = fold_solution(fold, cols, alphas)
+        if b is None:
             continue
-        sc = np.sqrt(np.diag(g) / n)
-        sc = np.where(sc > 1e-12, sc, 1.0)
-        b = ridge_gram(g / np.outer(sc, sc), c / sc, n, alphas) / sc[:, None]
         if metric == "rmse":
             # |y - Xb|^2 = y'y - 2 b'X'y + b'X'Xb from the test fold's Gram matrix: no pass
             # over the test samples per candidate
@@ -205,14 +249,52 @@ class RidgeBase(FamilyModel):
         self._resolve_grids(fit_rows)
         return table, frame, rows, sensors
 
-    def _fit_final(self, table, frame, rows, sensors, taus, alpha, cv_table):
+    def _candidate_features(self, frame: pd.DataFrame, sensors, taus, **options):
+        """``self._features(frame, sensors, taus, **options)`` (the columns of every candidate of
+        the CV) and the feature memo's key, or ``None`` where the features were computed here.
+
+        Inside :func:`rafi.family.feature_memo.sharing_features` the features of a frame made of
+        whole logs of the memo's universe are taken from the universe's, computed once for every
+        fit of the scope (the CV folds, the final fit)."""
+        memo = active_memo()
+        pos = memo.positions(frame) if memo is not None else None
+        if pos is None:
+            feats, names = self._features(frame, sensors, taus, **options)
+            return feats, names, None
+        key = (
+            type(self).__name__,
+            repr(self.get_params()),
+            tuple(sensors),
+            tuple(float(t) for t in taus),
+            repr(sorted(options.items())),
+        )
+        universe, names = memo.universe_features(key, lambda f: self._features(f, sensors, taus, **options))
+        return universe[pos], names, key
+
+    def _chosen_design(self, feats, names, columns, frame, key):
+        """The chosen candidate's design ``(features of the training rows, names)`` as columns of
+        the candidates' features ``feats`` (whole logs: each filter, each column, is evaluated on
+        its own, so the columns equal :meth:`_design`'s to the last bit), or ``None`` (per-run
+        frames: :meth:`_design` computes it). Remembers the memo's ``key`` and the columns, so a
+        prediction of whole logs of the memo's universe takes them from there too."""
+        self._shared_design = (key, np.asarray(columns)) if key is not None else None
+        if not has_whole_logs(frame):
+            return None
+        # C order, as _design returns them: the matrix products of the fit sum in the same order
+        return np.ascontiguousarray(feats[:, columns]), [names[c] for c in columns]
+
+    def _fit_final(self, table, frame, rows, sensors, taus, alpha, cv_table, design=None):
         """Fit the chosen model on every training run (the selection attributes of the subclass,
-        e.g. ``speed_gain_``, are set before); ``rows`` marks the training rows of ``frame``."""
+        e.g. ``speed_gain_``, are set before); ``rows`` marks the training rows of ``frame``;
+        ``design``: the chosen features of those rows and their names (else :meth:`_design`)."""
         self.sensors_ = list(sensors)
         self.taus_ = [float(t) for t in taus]
         self.alpha_ = float(alpha)
-        feats, names = self._design(frame)
-        feats = feats[rows]
+        if design is None:
+            feats, names = self._design(frame)
+            feats = feats[rows]
+        else:
+            feats, names = design
         frame = frame.loc[rows]
         y = frame["dz_um"].to_numpy(dtype=float)
         sc = rms_scale(feats)
@@ -238,9 +320,21 @@ class RidgeBase(FamilyModel):
         return {"alpha": self.alpha_}
 
     # -- evaluation (NumPy only)
+    def _design_of(self, frame: pd.DataFrame) -> np.ndarray:
+        """:meth:`_design`'s features of ``frame``, from the active feature memo where the fit's
+        candidates came from it and ``frame`` is whole logs of its universe."""
+        shared = getattr(self, "_shared_design", None)
+        memo = active_memo() if shared is not None else None
+        if memo is not None:
+            pos = memo.positions(frame)
+            stored = memo.stored(shared[0]) if pos is not None else None
+            if stored is not None:
+                return np.ascontiguousarray(stored[0][pos][:, shared[1]])
+        return self._design(frame)[0]
+
     def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
         """``predicted_um`` and the out-of-range flags per row of ``frame`` (same index)."""
-        feats, _ = self._design(frame)
+        feats = self._design_of(frame)
         pred = feats @ self.coef_
         x = frame[[rise_column(s) for s in self.sensors_]].to_numpy(dtype=float)
         lo = np.array([self.regressor_ranges_[s][0] for s in self.sensors_])

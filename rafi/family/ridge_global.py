@@ -139,15 +139,15 @@ class RidgeGlobal(RidgeBase):
         run_ids = train["run_id"].astype(str).to_numpy()
         # the superset of the columns, once (over whole logs), then the training rows; each
         # candidate is a subset of the columns
-        all_feats, _ = self._features(
+        all_feats, all_names, key = self._candidate_features(
             frame, sensors, taus_grid, speed_gain=max(gains), speed_terms=self.speed_terms_
         )
         all_feats = all_feats[rows]
         p = len(sensors)
         width = p * (2 if max(gains) else 1)
         speed = np.arange(len(taus_grid) * width, all_feats.shape[1])
-        folds = cv_folds(all_feats, y, run_ids, table, self.cv)
-        cv_table, best = [], (math.inf, None, None, None)
+        folds = cv_folds(all_feats, y, run_ids, table, self.cv, shared_key=key)
+        cv_table, best = [], (math.inf, None, None, None, None)
         for gain in gains:
             for k in range(1, max(1, max_taus) + 1):
                 for subset in itertools.combinations(range(len(taus_grid)), k):
@@ -160,10 +160,11 @@ class RidgeGlobal(RidgeBase):
                             {"taus_s": taus, "speed_gain": gain, "alpha": a, "score_um": float(sc)}
                         )
                         if sc < best[0] - 1e-12:
-                            best = (float(sc), taus, a, gain)
-        _, taus, alpha, gain = best
+                            best = (float(sc), taus, a, gain, cols)
+        _, taus, alpha, gain, cols = best
         self.speed_gain_ = bool(gain)
-        return self._fit_final(table, frame, rows, sensors, taus, alpha, cv_table)
+        design = self._chosen_design(all_feats, all_names, cols, frame, key)
+        return self._fit_final(table, frame, rows, sensors, taus, alpha, cv_table, design)
 
     def _hyper(self) -> dict:
         return {**super()._hyper(), "speed_gain": self.speed_gain}

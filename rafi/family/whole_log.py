@@ -166,22 +166,43 @@ def lowpass_log(
 
 
 def _decay_sum(u: np.ndarray, inc: np.ndarray) -> np.ndarray:
-    """``y[k] = exp(-inc[k]) y[k-1] + u[k]`` down the rows, per column, ``y[-1] = 0``."""
-    n = len(u)
+    """``y[k] = exp(-inc[k]) y[k-1] + u[k]`` down the rows, per column, ``y[-1] = 0``.
+
+    Evaluated in blocks (:func:`_decay_blocks`) whose summed exponent stays below
+    :data:`_MAX_EXPONENT`: a block's first row by one explicit step, the rest relative to it.
+    """
     y = np.empty_like(u)
-    cmax = np.cumsum(np.minimum(inc.max(axis=1), 2 * _MAX_EXPONENT))  # a restart ends a block
     prev = np.zeros(u.shape[1])
-    s = 0
-    while s < n:
-        # the block's first row by one explicit step, the rest relative to it
+    for s, e in _decay_blocks(inc):
         y[s] = np.exp(-inc[s]) * prev + u[s]
-        e = max(s + 1, int(np.searchsorted(cmax, cmax[s] + _MAX_EXPONENT, side="right")))
         if e > s + 1:
             d = np.cumsum(inc[s + 1 : e], axis=0)  # in [0, 600]: no restart inside a block
             y[s + 1 : e] = np.exp(-d) * (y[s] + np.cumsum(u[s + 1 : e] * np.exp(d), axis=0))
         prev = y[e - 1]
-        s = e
     return y
+
+
+def _decay_blocks(inc: np.ndarray) -> list[tuple[int, int]]:
+    """The row blocks ``[start, end)`` of :func:`_decay_sum`.
+
+    A restart (a row whose largest exponent reaches ``2 * _MAX_EXPONENT``: a filter's first
+    sample, where the old state weighs exactly 0) always starts a block, and the exponent is
+    summed from there: the blocks of a log, and so its filtered values to the last bit, are
+    those of the log alone, whichever logs come before it in the frame (the cross-validation
+    folds share a log's features, :mod:`rafi.family.feature_memo`).
+    """
+    n = len(inc)
+    step = np.minimum(inc.max(axis=1), 2 * _MAX_EXPONENT) if n else np.zeros(0)
+    starts = np.union1d([0], np.flatnonzero(step >= 2 * _MAX_EXPONENT)) if n else np.zeros(0, int)
+    blocks = []
+    for a, b in zip(starts, np.append(starts[1:], n)):
+        summed = np.cumsum(step[a:b])
+        s = a
+        while s < b:
+            e = max(s + 1, a + int(np.searchsorted(summed, summed[s - a] + _MAX_EXPONENT, side="right")))
+            blocks.append((int(s), int(e)))
+            s = e
+    return blocks
 
 
 def reference_values(filtered: np.ndarray, lay: Layout) -> np.ndarray:
@@ -240,7 +261,10 @@ def filtered_inputs(
 
 
 def unsort(sorted_values: np.ndarray, lay: Layout) -> np.ndarray:
-    """Rows of ``sorted_values`` back in the frame's row order."""
+    """Rows of ``sorted_values`` back in the frame's row order (``sorted_values`` itself when
+    the frame was in that order already, as a runs frame is)."""
+    if np.array_equal(lay.order, np.arange(len(lay.order))):
+        return sorted_values
     out = np.empty_like(sorted_values)
     out[lay.order] = sorted_values
     return out
@@ -253,5 +277,6 @@ def rows_of_logs(frame: pd.DataFrame, run_ids) -> np.ndarray:
     in_runs = frame["run_id"].astype(str).isin(ids).to_numpy()
     if not has_whole_logs(frame):
         return in_runs
-    logs = set(frame.loc[in_runs, "log"].astype(str))
-    return frame["log"].astype(str).isin(logs).to_numpy()
+    log = frame["log"].astype(str)
+    # unique() rather than set(): iterating a column of Arrow strings costs ~1 us per row
+    return log.isin(log[in_runs].unique()).to_numpy()
