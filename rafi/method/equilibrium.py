@@ -36,7 +36,6 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import curve_fit
 
 from rafi.method import paper
 from rafi.method.rank import speed_training_runs
@@ -88,6 +87,10 @@ def first_order_fit(t_s: np.ndarray, dz: np.ndarray) -> tuple[float, float, floa
 
     def model(tt, c, a, tau):
         return c + a * (1.0 - np.exp(-tt / tau))
+
+    # imported here: the report's jobs import this module for its constants, and scipy.optimize
+    # alone costs them about 0.25 s each
+    from scipy.optimize import curve_fit
 
     try:
         popt, _ = curve_fit(
