@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
@@ -20,6 +21,7 @@ from rafi.family.crossval import (
     leave_one_speed_out,
     split_runs,
 )
+from rafi.family.cv_memo import KEEP, cv_memo_key, read_cv, write_cv
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.grey_box import GreyBox
 from rafi.family.published import PublishedRafi
@@ -209,19 +211,24 @@ def test_golden_comparison_table():
         )
 
 
+def _family_args(table, frame, changes, options=None):
+    """The arguments of run_family on the golden data: ``options`` or the defaults + ``changes``."""
+    return {
+        "runs_table": table,
+        "runs_frame": frame,
+        "key_sensors": ["T1", "T2", "T3"],
+        "terms": MACHINE_DEFAULTS["fit"]["terms"],
+        "reference": MACHINE_DEFAULTS["reference"],
+        "machine": "synthetic",
+        "gates": GATES,
+        "options": options or {**MACHINE_DEFAULTS["models"], **changes},
+        "log": lambda m: None,
+    }
+
+
 def _run_family(table, frame, options=None, **changes):
     """run_family on the golden data with complete options: ``options`` or the defaults + ``changes``."""
-    return run_family(
-        table,
-        frame,
-        key_sensors=["T1", "T2", "T3"],
-        terms=MACHINE_DEFAULTS["fit"]["terms"],
-        reference=MACHINE_DEFAULTS["reference"],
-        machine="synthetic",
-        gates=GATES,
-        options=options or {**MACHINE_DEFAULTS["models"], **changes},
-        log=lambda m: None,
-    )
+    return run_family(**_family_args(table, frame, changes, options))
 
 
 def test_run_family_end_to_end():
@@ -274,6 +281,84 @@ def test_run_family_needs_every_option():
     options = {k: v for k, v in MACHINE_DEFAULTS["models"].items() if k != "cv"}
     with pytest.raises(KeyError, match="cv"):
         _run_family(table, frame, {**options, "enabled": ["rafi_linear"]})
+
+
+# --------------------------------------------------------------------------- CV memo
+
+MEMO_OPTIONS = {"enabled": ["rafi_linear", "ridge_global", "grey_box"], "grey_box_speed_taus_s": [120, 600]}
+
+
+def _memo_key(table, frame, code="sha256:code", **changes):
+    settings = {
+        "key_sensors": ["T1", "T2", "T3"],
+        "terms": list(MACHINE_DEFAULTS["fit"]["terms"]),
+        "reference": MACHINE_DEFAULTS["reference"],
+        "machine": "synthetic",
+        "options": {**MACHINE_DEFAULTS["models"], **MEMO_OPTIONS, **changes},
+        "hac_maxlags": MACHINE_DEFAULTS["fit"]["hac_maxlags"],
+        "speed_tolerance_rpm": MACHINE_DEFAULTS["speed_tolerance_rpm"],
+    }
+    return cv_memo_key(table, frame, settings, code)
+
+
+def test_cv_from_the_memo_gives_the_computed_tables(tmp_path):
+    """Known truth: the tables computed without a memo. Written on the first run, read on the
+    second: the same frames, the same cv.csv bytes, and no CV computed."""
+    table, frame = _golden_data()
+    plain = _run_family(table, frame, **MEMO_OPTIONS)
+    memo = tmp_path / ".cv_memo"
+    kwargs = {"cv_memo_dir": memo, "code_version": "sha256:code"}
+    first = run_family(**_family_args(table, frame, MEMO_OPTIONS), **kwargs)
+    lines = []
+    second = run_family(**{**_family_args(table, frame, MEMO_OPTIONS), "log": lines.append}, **kwargs)
+    assert (plain["cv_memo"], first["cv_memo"], second["cv_memo"]) == (None, "written", "read")
+    assert len(list(memo.glob("*.parquet"))) == 1
+    assert not any("CV in" in line for line in lines)
+    for res in (first, second):
+        for name in ("cv", "summary", "per_run", "selection"):
+            pd.testing.assert_frame_equal(res[name], plain[name], check_exact=True)
+        assert res["champion"] == plain["champion"]
+    paths = []
+    for k, res in enumerate((plain, second)):
+        paths.append(tmp_path / f"cv-{k}.csv")
+        write_csv_atomic(res["cv"], paths[-1], index=False)
+    assert paths[0].read_bytes() == paths[1].read_bytes()
+
+
+def test_cv_memo_key_is_the_training_data_the_settings_and_the_code():
+    table, frame = _golden_data()
+    key = _memo_key(table, frame)
+    train = table.loc[table["role"] == "training", "run_id"]
+    other = table.loc[table["role"] != "training", "run_id"].iloc[0]
+    # a new validation run (placed first: every row's label shifts) and another validation run's
+    # samples changed: the same CV, the same key
+    extra = frame.loc[frame["run_id"] == other].assign(run_id="new_validation")
+    more_table = pd.concat([table.loc[table["run_id"] == other].assign(run_id="new_validation"), table])
+    more_frame = pd.concat([extra, frame], ignore_index=True)
+    assert _memo_key(more_table, more_frame) == key
+    changed = frame.copy()
+    changed.loc[changed["run_id"] == other, "dz_um"] += 1.0
+    assert _memo_key(table, changed) == key
+    # a training sample, a setting, the code: another key
+    changed = frame.copy()
+    changed.loc[changed.index[changed["run_id"] == train.iloc[0]][3], "dT2"] += 1e-9
+    assert _memo_key(table, changed) != key
+    assert _memo_key(table, frame, grey_box_speed_taus_s=[120, 900]) != key
+    assert _memo_key(table, frame, code="sha256:other") != key
+    relabelled = table.copy()
+    relabelled.loc[relabelled["run_id"] == train.iloc[0], "role"] = "validation_single"
+    assert _memo_key(relabelled, frame) != key
+
+
+def test_cv_memo_keeps_the_newest_entries(tmp_path):
+    cv = pd.DataFrame({"model": ["m"], "max_abs_after_um": [1.0]})
+    for k in range(KEEP + 3):
+        path = write_cv(tmp_path, f"{k:064x}", cv)
+        os.utime(path, (1_000_000 + k, 1_000_000 + k))
+    kept = sorted(p.stem for p in tmp_path.glob("*.parquet"))
+    assert kept == [f"{k:064x}" for k in range(3, KEEP + 3)]
+    pd.testing.assert_frame_equal(read_cv(tmp_path, kept[-1]), cv, check_exact=True)
+    assert read_cv(tmp_path, "0" * 64) is None
 
 
 if __name__ == "__main__":  # regenerate the golden table

@@ -330,3 +330,18 @@ def test_only_whole_logs_of_the_universe_are_served():
     changed["speed_rpm"] += 1.0
     assert memo.positions(changed) is None  # other values under the same labels
     assert memo.positions(log_b.reset_index(drop=True)) is None  # labels not of the universe rows
+
+
+def test_the_cv_memo_key_sees_the_inputs_of_every_run_of_a_training_log():
+    """A filter runs through the other runs of a log: their temperatures are part of what the CV
+    reads, so they are part of its memo key (rafi.family.cv_memo)."""
+    from rafi.family.cv_memo import training_content
+
+    table, frame, train = _several_logs()
+    key = training_content(table, frame)
+    other = table.loc[table["role"] != "training", "run_id"].iloc[0]
+    training_logs = set(frame.loc[frame["run_id"].isin(train), "log"])
+    assert frame.loc[frame["run_id"] == other, "log"].iloc[0] in training_logs
+    changed = frame.copy()
+    changed.loc[changed["run_id"] == other, "T3"] += 0.01
+    assert training_content(table, changed) != key

@@ -15,6 +15,7 @@ does all of it for the enabled kinds.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import time
@@ -26,6 +27,7 @@ import pandas as pd
 
 from rafi.artefact import json_text, write_text_atomic
 from rafi.family.crossval import cross_validate, training_runs
+from rafi.family.cv_memo import cv_memo_key, read_cv, write_cv
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.feature_memo import sharing_features
 from rafi.family.grey_box import GreyBox
@@ -303,6 +305,59 @@ def _fitted_text(model) -> str:
     return text
 
 
+def fit_and_cross_validate(
+    factories: dict,
+    runs_table: pd.DataFrame,
+    runs_frame: pd.DataFrame,
+    *,
+    scheme: str,
+    rafi_model=None,
+    known_cv: pd.DataFrame | None = None,
+    log=print,
+) -> tuple[dict, pd.DataFrame]:
+    """Fit every kind of ``factories`` on the training runs and cross-validate it by whole run.
+
+    Parameters
+    ----------
+    factories : dict
+        Kind -> a function building the unfitted model (:func:`make_model`), in order.
+    scheme : str
+        The CV scheme (``models: cv``).
+    rafi_model : RafiModel, optional
+        The pipeline's ``model.json``: the ``rafi`` entry, not refitted.
+    known_cv : pandas.DataFrame, optional
+        The CV rows of these data, settings and code, read from the memo
+        (:mod:`rafi.family.cv_memo`): no CV is computed.
+
+    Returns
+    -------
+    models : dict
+        Kind -> fitted model.
+    cv : pandas.DataFrame
+        :func:`rafi.family.crossval.cross_validate` rows of every kind (``known_cv`` if given).
+    """
+    models, cv_parts = {}, []
+    universe = runs_frame.loc[rows_of_logs(runs_frame, training_runs(runs_table, runs_frame)[0]["run_id"])]
+    for kind, factory in factories.items():
+        with sharing_features(universe):  # the fit and every CV fold share the logs' features
+            t0 = time.perf_counter()
+            if kind == "rafi" and rafi_model is not None:
+                models[kind] = rafi_model
+            else:
+                models[kind] = factory().fit(runs_table, runs_frame)
+            log(f"{kind}: fitted in {time.perf_counter() - t0:.2f} s{_fitted_text(models[kind])}")
+            if known_cv is not None:
+                continue
+            t0 = time.perf_counter()
+            cv = cross_validate(factory, runs_table, runs_frame, scheme, name=kind)
+        cv_parts.append(cv)
+        worst = f"{cv['max_abs_after_um'].max():.2f} um" if len(cv) else "no fold"
+        log(f"{kind}: {scheme} CV in {time.perf_counter() - t0:.1f} s, max |residual| {worst}")
+    if known_cv is not None:
+        return models, known_cv
+    return models, pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
+
+
 def run_family(
     runs_table: pd.DataFrame,
     runs_frame: pd.DataFrame,
@@ -316,6 +371,8 @@ def run_family(
     hac_maxlags: int = MACHINE_DEFAULTS["fit"]["hac_maxlags"],
     speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
     rafi_model=None,
+    cv_memo_dir: str | os.PathLike | None = None,
+    code_version: str | None = None,
     log=print,
 ) -> dict:
     """Fit, cross-validate, choose, then validate the enabled models (what ``rule compare`` runs).
@@ -332,7 +389,10 @@ def run_family(
     settings (:func:`rafi.settings.machine_settings`); the registry's decision judges with the
     same gates. ``rafi_model`` is the pipeline's fitted ``model.json`` (a ``RafiModel``); when
     given it is the ``rafi`` entry (no refit), else RAFI is fitted here. Fit and CV times go to
-    ``log`` only, so the tables of two runs on the same inputs are identical.
+    ``log`` only, so the tables of two runs on the same inputs are identical. With
+    ``cv_memo_dir`` and ``code_version`` (the digest of the code that runs this, the compare
+    rule's ``code`` param) the CV rows come from the memo (:mod:`rafi.family.cv_memo`) when it
+    holds this CV's key, and are stored there when computed.
 
     Returns
     -------
@@ -342,37 +402,38 @@ def run_family(
         ``per_run``, ``residuals``, ``cv``, ``selection`` (:func:`selection_table`),
         ``champion`` (name of the model offered), ``champion_passed`` (its gates on the
         validation runs), ``selection_basis`` (``"cv"`` or ``"default"``), ``best_name`` (=
-        ``champion``) and ``best_artefact`` (its artefact), ``models`` (name -> fitted model).
+        ``champion``) and ``best_artefact`` (its artefact), ``models`` (name -> fitted model),
+        ``cv_memo`` (``"read"``, ``"written"`` or ``None``).
     """
-    models, cv_parts = {}, []
-    universe = runs_frame.loc[rows_of_logs(runs_frame, training_runs(runs_table, runs_frame)[0]["run_id"])]
-    for kind in options["enabled"]:
-
-        def factory(kind=kind):
-            return make_model(
-                kind,
-                key_sensors=key_sensors,
-                terms=terms,
-                reference=reference,
-                machine=machine,
-                options=options,
-                hac_maxlags=hac_maxlags,
-                speed_tolerance_rpm=speed_tolerance_rpm,
-            )
-
-        with sharing_features(universe):  # the fit and every CV fold share the logs' features
-            t0 = time.perf_counter()
-            if kind == "rafi" and rafi_model is not None:
-                models[kind] = rafi_model
-            else:
-                models[kind] = factory().fit(runs_table, runs_frame)
-            log(f"{kind}: fitted in {time.perf_counter() - t0:.2f} s{_fitted_text(models[kind])}")
-            t0 = time.perf_counter()
-            cv = cross_validate(factory, runs_table, runs_frame, options["cv"], name=kind)
-        cv_parts.append(cv)
-        worst = f"{cv['max_abs_after_um'].max():.2f} um" if len(cv) else "no fold"
-        log(f"{kind}: {options['cv']} CV in {time.perf_counter() - t0:.1f} s, max |residual| {worst}")
-    cv = pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
+    settings = {
+        "key_sensors": list(key_sensors),
+        "terms": list(terms),
+        "reference": reference,
+        "machine": machine,
+        "options": options,
+        "hac_maxlags": hac_maxlags,
+        "speed_tolerance_rpm": speed_tolerance_rpm,
+    }
+    factories = {kind: functools.partial(make_model, kind, **settings) for kind in options["enabled"]}
+    key = None
+    if cv_memo_dir and code_version:
+        key = cv_memo_key(runs_table, runs_frame, settings, code_version)
+    known = read_cv(cv_memo_dir, key) if key else None
+    if known is not None:
+        log(f"cross-validation rows from the memo ({key[:12]}: training runs, settings and code unchanged)")
+    models, cv = fit_and_cross_validate(
+        factories,
+        runs_table,
+        runs_frame,
+        scheme=options["cv"],
+        rafi_model=rafi_model,
+        known_cv=known,
+        log=log,
+    )
+    memo = "read" if known is not None else None
+    if key and known is None and len(cv):
+        write_cv(cv_memo_dir, key, cv)
+        memo = "written"
     # the choice: training runs only, before any validation run is predicted
     selection = selection_table(cv)
     champion = choose_champion(cv)
@@ -403,4 +464,5 @@ def run_family(
         "best_name": champion,
         "best_artefact": models[champion].to_dict(),
         "models": models,
+        "cv_memo": memo,
     }

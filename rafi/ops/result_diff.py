@@ -37,7 +37,15 @@ VOLATILE_KEYS = frozenset(
 )
 
 #: Folders and files never compared: timings, logs and the registry's append-only history.
-SKIPPED = ("benchmarks/", "history.jsonl", ".nightly", "registry/models/", "champion.json", ".clean_cache/")
+SKIPPED = (
+    "benchmarks/",
+    "history.jsonl",
+    ".nightly",
+    "registry/models/",
+    "champion.json",
+    ".clean_cache/",
+    ".cv_memo/",
+)
 
 _HEX_ID = re.compile(r"\b[0-9a-f]{12,64}\b")
 _ISO_TIME = re.compile(r"\d{4}-\d{2}-\d{2}[T ]\d{2}:\d{2}(:\d{2})?(\.\d+)?(Z|[+-]\d{2}:?\d{2})?")

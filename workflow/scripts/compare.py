@@ -2,9 +2,13 @@
 residuals.parquet, best_model.json, cv.csv (docs/models.md).
 
 best_model.json is the model chosen by whole-run CV on the training runs (the champion),
-whether or not it passes the gates on the validation runs: no second pick."""
+whether or not it passes the gates on the validation runs: no second pick.
+
+The CV rows are memoised by content in ``results/<machine>/.cv_memo/`` (not an output:
+:mod:`rafi.family.cv_memo`, keyed by the training logs, the settings and ``params.code``)."""
 
 import json
+from pathlib import Path
 
 from _glue import as_table, read_runs, step
 
@@ -28,6 +32,8 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         hac_maxlags=smk.params.fit["hac_maxlags"],
         speed_tolerance_rpm=smk.params.speed_tolerance_rpm,
         rafi_model=load_any(smk.input.model),
+        cv_memo_dir=Path(smk.output.cv).parents[1] / ".cv_memo",  # results/<machine>/.cv_memo
+        code_version=smk.params.code,
         log=lambda m: print(m, flush=True),
     )
     cols = ["model", "cv_mean_max_abs_um", "selection_rank", "max_abs_after_um", "passed", "champion"]
