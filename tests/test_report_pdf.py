@@ -278,3 +278,26 @@ def test_attachment_specs_skip_what_the_run_did_not_write(tmp_path):
     (tmp_path / "registry").mkdir()
     (tmp_path / "registry" / "decision.json").write_text(json.dumps({"champion_id_after": None}))
     assert [s["name"] for s in attachment_specs({"decision": tmp_path / "registry" / "decision.json"})] == []
+
+
+def test_compiled_templates_from_the_cache_give_the_same_html(fixture_results, tmp_path, monkeypatch):
+    """Known truth: the HTML rendered without a cache. The first render fills the template cache,
+    the second reads it (jinja2 compiles nothing): the same HTML both times."""
+    import jinja2
+
+    ctx = _context(fixture_results, machine_settings(CONFIG, MACHINE))
+    want = render_html(ctx)
+    cache = tmp_path / ".template_cache"
+    assert render_html(ctx, template_cache=cache) == want
+    assert len(list(cache.iterdir())) >= 2  # the page and the templates it includes
+    compiled = []
+    real_compile = jinja2.Environment.compile
+
+    def spy(self, source, name=None, *args, **kwargs):
+        compiled.append(name)
+        return real_compile(self, source, name, *args, **kwargs)
+
+    monkeypatch.setattr(jinja2.Environment, "compile", spy)
+    assert render_html(ctx, template_cache=cache) == want
+    assert compiled == []
+    assert render_html(ctx) == want and compiled  # without the cache: compiled again

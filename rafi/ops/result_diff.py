@@ -45,6 +45,7 @@ SKIPPED = (
     "champion.json",
     ".clean_cache/",
     ".cv_memo/",
+    ".template_cache/",
 )
 
 _HEX_ID = re.compile(r"\b[0-9a-f]{12,64}\b")
