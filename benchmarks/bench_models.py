@@ -6,6 +6,7 @@ Usage (after the pipeline has produced results/<machine>/runs.* and rank/key_sen
     python benchmarks/bench_models.py --machine tapping-center-a --repeat 3
     python benchmarks/bench_models.py --synthetic           # no pipeline outputs needed
     python benchmarks/bench_models.py --twin-preview --compare   # twin physics, no pipeline
+    python benchmarks/bench_models.py --family --kinds rafi     # rule compare's run_family, cold / CV memo
 
 ``--twin-preview`` simulates clean runs with the digital twin's physics (``rafi.twin.physics``:
 integrate / sensor_truth / displacement_truth; no logger defects, so no clean/runs step is
@@ -148,6 +149,38 @@ def bench(name, table, frame, key, settings, repeat, kinds):
         )
 
 
+def bench_family(name, table, frame, key, settings, repeat):
+    """Rule compare's work (:func:`run_family`: every fit, the nested whole-run CV, validation)
+    cold and with the CV rows read from the memo (:mod:`rafi.family.cv_memo`), best of ``repeat``:
+    wall and CPU seconds."""
+    import tempfile
+
+    def once(memo_dir):
+        w0, c0 = time.perf_counter(), time.process_time()
+        res = run_family(
+            table,
+            frame,
+            key_sensors=key,
+            terms=settings["fit"]["terms"],
+            reference=settings["reference"],
+            machine=name,
+            options=settings["models"],
+            gates=settings["qualification"],
+            hac_maxlags=settings["fit"]["hac_maxlags"],
+            speed_tolerance_rpm=settings["speed_tolerance_rpm"],
+            cv_memo_dir=memo_dir,
+            code_version="sha256:bench" if memo_dir else None,
+            log=lambda m: None,
+        )
+        return time.perf_counter() - w0, time.process_time() - c0, res["cv_memo"]
+
+    with tempfile.TemporaryDirectory() as memo_dir:
+        once(memo_dir)  # fills the memo
+        for label, folder in (("cold", None), ("CV from the memo", memo_dir)):
+            wall, cpu, memo = min(once(folder) for _ in range(repeat))
+            print(f"{name:20s} run_family {label:17s} {wall:6.2f} s wall {cpu:6.2f} s CPU (memo: {memo})")
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--results", default=str(ROOT / "results"))
@@ -157,6 +190,9 @@ def main(argv=None) -> int:
     p.add_argument("--twin-preview", action="store_true")
     p.add_argument("--compare", action="store_true", help="also print the per-run comparison")
     p.add_argument("--kinds", nargs="+", help="default: the machine's models: enabled")
+    p.add_argument(
+        "--family", action="store_true", help="also time run_family cold and with the CV from the memo"
+    )
     a = p.parse_args(argv)
     warnings.simplefilter("ignore")
     if a.synthetic or a.twin_preview:
@@ -177,6 +213,8 @@ def main(argv=None) -> int:
         table, frame, key = _load(Path(a.results) / m)
         settings = _settings(m)
         bench(m, table, frame, key, settings, a.repeat, a.kinds or settings["models"]["enabled"])
+        if a.family:
+            bench_family(m, table, frame, key, settings, a.repeat)
         if a.compare:
             show_comparison(m, table, frame, key, settings)
     return 0
