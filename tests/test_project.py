@@ -110,9 +110,9 @@ def test_every_error_type_lives_in_rafi_errors():
     assert {"RawFormatError", "InputSpecError", "SettingsError", "RegistryError"} <= set(defined)
 
 
-def test_rafi_code_follows_each_scripts_imports():
-    """rafi_code(script) of common.smk: what the script imports, transitively, with the packages'
-    __init__ files; nothing it does not import."""
+def test_code_files_follow_each_scripts_imports():
+    """code_files(script), behind each rule's param ``code``: what the script imports,
+    transitively, with the packages' __init__ files; nothing it does not import."""
     from rafi.ops.code_deps import code_files
 
     files = {
@@ -133,3 +133,109 @@ def test_rafi_code_follows_each_scripts_imports():
         for p in code_files(ROOT / "workflow" / "scripts" / "input_status.py", PACKAGE)
     }
     assert "rafi/method/audit.py" in audit
+
+
+def test_code_version_changes_with_the_code_a_script_runs_and_only_then(tmp_path):
+    """The param ``code`` of a rule (common.smk code_version): the digest of the script, its glue
+    and the rafi modules (and, for the report, the templates) it runs."""
+    import shutil
+
+    from rafi.ops.code_deps import code_version
+
+    package = tmp_path / "rafi"
+    shutil.copytree(PACKAGE, package, ignore=shutil.ignore_patterns("__pycache__"))
+    scripts = tmp_path / "scripts"
+    shutil.copytree(ROOT / "workflow" / "scripts", scripts)
+    method, report = scripts / "method.py", scripts / "report.py"
+    before = {s: code_version(s, package) for s in (method, report)}
+    assert before == {s: code_version(s, package) for s in (method, report)}
+    rank = package / "method" / "rank.py"
+    rank.write_text(rank.read_text(encoding="utf-8") + "\n# an edit\n", encoding="utf-8")
+    assert code_version(method, package) != before[method]
+    template = package / "report" / "templates" / "sections" / "verdict.html.j2"
+    template.write_text(template.read_text(encoding="utf-8") + "\n", encoding="utf-8")
+    assert code_version(report, package) != before[report]
+    twin = package / "twin" / "simulate.py"
+    after_rank = code_version(method, package)
+    twin.write_text(twin.read_text(encoding="utf-8") + "\n# not run by rule method\n", encoding="utf-8")
+    assert code_version(method, package) == after_rank
+
+
+# --------------------------------------------------------------------------- layers and sizes
+
+#: What each package may import from rafi besides itself (docs/design.md, "Dependencies").
+ALLOWED_IMPORTS = {
+    "readers": {"rafi", "rafi.settings", "rafi.contract", "rafi.artefact", "rafi.errors"},
+    "method": {"rafi", "rafi.settings", "rafi.contract", "rafi.artefact", "rafi.errors"},
+}
+#: What a package must never import.
+FORBIDDEN_IMPORTS = {"report": ("rafi.ops",), "contract": ("rafi.",)}
+
+
+def _imports_by_package() -> dict[str, dict[str, set[str]]]:
+    from rafi.ops.code_deps import imported_modules
+
+    found: dict[str, dict[str, set[str]]] = {}
+    for name, path in _modules().items():
+        parts = name.split(".")
+        if len(parts) < 2:
+            continue
+        found.setdefault(parts[1], {})[name] = set(imported_modules(path, PACKAGE))
+    return found
+
+
+def test_readers_and_method_import_only_settings_contract_artefact_and_errors():
+    imports = _imports_by_package()
+    for package, allowed in ALLOWED_IMPORTS.items():
+        own = f"rafi.{package}"
+        bad = {
+            module: sorted(m for m in used if m != own and not m.startswith(own + ".") and m not in allowed)
+            for module, used in imports[package].items()
+        }
+        assert not {m: b for m, b in bad.items() if b}, bad
+
+
+def test_the_report_does_not_import_ops_and_the_contract_imports_nothing_of_rafi():
+    imports = _imports_by_package()
+    for package, forbidden in FORBIDDEN_IMPORTS.items():
+        own = f"rafi.{package}"
+        bad = {
+            module: sorted(m for m in used if m.startswith(forbidden) and not m.startswith(own))
+            for module, used in imports[package].items()
+        }
+        assert not {m: b for m, b in bad.items() if b}, bad
+
+
+def test_the_contract_is_standard_library_only():
+    import ast
+    import sys
+
+    for path in (PACKAGE / "contract").glob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module]
+                if isinstance(node, ast.ImportFrom) and node.level == 0
+                else []
+            )
+            for name in names:
+                top = name.split(".")[0]
+                assert top in sys.stdlib_module_names or top in ("rafi", "__future__"), (path, name)
+
+
+#: The longest a function of rafi/ may be (docstring included): one idea per function.
+MAX_FUNCTION_LINES = 120
+
+
+def test_no_function_in_rafi_is_over_120_lines():
+    import ast
+
+    long = {}
+    for path in PACKAGE.rglob("*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+                lines = node.end_lineno - node.lineno + 1
+                if lines > MAX_FUNCTION_LINES:
+                    long[f"{path.relative_to(ROOT)}:{node.name}"] = lines
+    assert not long, long
