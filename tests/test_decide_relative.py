@@ -102,6 +102,7 @@ def run(cand_sum, *, cand=None, champ=CHAMP, champ_sum=CHAMP_SUM, nightly=None, 
             model_id=champ["model_id"] if champ else None,
             summary=champ_sum if champ else None,
             model=champ,
+            verdict=qualify(champ_sum, GATES) if champ else None,
         ),
         runs_table=RUNS,
         settings=D.DecisionSettings(
@@ -340,3 +341,12 @@ def test_run_decide_reads_the_input_status_and_records_training_speeds(tmp_path:
     rec = night(partial)
     assert rec["decision"] == "rejected" and rec["coverage"]["missing_speeds_rpm"] == [9000.0]
     assert reg.champion_id() == better["model_id"]
+
+
+def test_the_champions_verdict_is_stored_for_the_report_and_absent_without_one():
+    """decision.json carries the champion's gates as judged tonight (the report reads them)."""
+    with_champion = run(summary({"v1": 2.0, "v2": 4.5, "v3": 4.0})).record
+    stored = pd.DataFrame(with_champion["champion_verdict"])
+    expected = qualify(CHAMP_SUM, GATES)
+    assert stored[["criterion", "run_id", "passed"]].equals(expected[["criterion", "run_id", "passed"]])
+    assert "champion_verdict" not in run(summary({"v1": 2.0}), champ=None).record

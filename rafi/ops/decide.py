@@ -95,11 +95,15 @@ class Champion:
         Its validation summary on tonight's runs.
     model : dict or None
         Its artefact (its training speeds and files).
+    verdict : pandas.DataFrame or None
+        :func:`rafi.method.validate.qualify` of ``summary`` (stored as ``champion_verdict``, so
+        the report reads the champion's gates instead of judging them again).
     """
 
     model_id: str | None = None
     summary: pd.DataFrame | None = None
     model: dict | None = None
+    verdict: pd.DataFrame | None = None
 
 
 @dataclass(frozen=True)
@@ -385,6 +389,11 @@ def decide(
         "blocked_by": blocking.names,
         "measured": measured,
         "verdict": jsonable(candidate.verdict.to_dict("records")) if candidate.verdict is not None else [],
+        **(
+            {"champion_verdict": jsonable(champion.verdict.to_dict("records"))}
+            if champion.verdict is not None
+            else {}
+        ),
         "candidate_summary": summary_record(candidate.summary),
         "champion_summary": summary_record(champion.summary),
         "relative_gate": relative_gate_record(comparison.table, champion.model_id, comparison.margin),
@@ -550,7 +559,12 @@ def run_decide(
             retrained_speeds=retrained_speed_info(candidate, adaptation["retrained_speeds_rpm"], runs_table),
             adaptation=adaptation,
         ),
-        champion=Champion(model_id=champion_id, summary=champion_summary, model=champion_model),
+        champion=Champion(
+            model_id=champion_id,
+            summary=champion_summary,
+            model=champion_model,
+            verdict=None if champion_summary is None else qualify(champion_summary, settings.gates),
+        ),
         runs_table=runs_table,
         settings=settings,
         history=reg.history(),
