@@ -429,14 +429,12 @@ def test_two_nights_on_the_pipeline(tmp_path):
     assert new_files
     n2 = _nightly(proj)
     assert n2.returncode in (0, 2, 3, 4), n2.stdout + n2.stderr
-    # one clean job for the machine: the new files are cleaned, the others come back from the
-    # clean cache (rafi.ops.clean_cache) as the very files of the first night (same mtime)
+    # one clean job for the machine (Snakemake re-runs it): every file is cleaned again, the new
+    # ones among them
     assert re.findall(r"done clean \(machine=([^,)]+)\)", n2.stdout) == [MACHINE], n2.stdout
     clean_log = (proj / "logs" / MACHINE / "clean.log").read_text(encoding="utf-8")
     ran_clean = re.findall(r"^(\S+): (?:ok|quarantined)$", clean_log, flags=re.M)
-    assert set(ran_clean) == new_files, clean_log
-    for name, mtime in clean_before.items():
-        assert (res_dir / "clean" / name).stat().st_mtime_ns == mtime
+    assert set(ran_clean) == new_files | {Path(n).stem for n in clean_before}, clean_log
     d2 = json.loads((reg / "decision.json").read_text())
     assert d2["champion_id_before"] == first_id and d2["candidate_id"] != first_id
     assert len(list((reg / "models").glob("*.meta.json"))) == 2
