@@ -36,6 +36,7 @@ from rafi.errors import (
     bound_message,
     quote,
 )
+from rafi.ops.run_messages import last_failure_line
 from rafi.readers.logs import read_log, sha256_file
 from rafi.readers.parsing import FIELD_MAX_CHARS, LINE_MAX_BYTES, METADATA_MAX_CHARS, first_long_line
 from rafi.settings import machine_settings
@@ -370,9 +371,9 @@ def _fake_smk(tmp_path, config):
 
 
 @pytest.mark.parametrize("debug", [False, True, "true"])
-def test_glue_prints_one_line_for_a_user_error_and_keeps_the_traceback_in_the_log(
-    tmp_path, monkeypatch, debug
-):
+def test_glue_ends_the_log_with_one_bounded_line_for_a_user_error(tmp_path, monkeypatch, debug):
+    """Without debug: exit 1, the log ends with the one line (the Snakefile's onerror repeats it
+    last) and holds no traceback. With debug: the error is re-raised, its traceback in the log."""
     terminal = io.StringIO()
     monkeypatch.setattr(sys, "__stderr__", terminal)
     smk = _fake_smk(tmp_path, {"debug": debug})
@@ -381,10 +382,17 @@ def test_glue_prints_one_line_for_a_user_error_and_keeps_the_traceback_in_the_lo
     with pytest.raises(expected):
         with _glue.step(smk):
             raise error
-    shown = terminal.getvalue().splitlines()
-    assert len(shown) == 2 and shown[0].startswith("RAFI clean (stem=a) failed: raw/m/a.csv, line 3")
-    assert len(shown[0]) < MESSAGE_MAX_CHARS + 50 and "Traceback" not in terminal.getvalue()
-    assert "Traceback (most recent call last)" in Path(smk.log[0]).read_text(encoding="utf-8")
+    log = Path(smk.log[0]).read_text(encoding="utf-8")
+    if debug is False:
+        last = log.strip().splitlines()[-1]
+        assert last.startswith("RAFI clean (stem=a) failed: raw/m/a.csv, line 3")
+        assert len(last) < MESSAGE_MAX_CHARS + 50
+        assert "Traceback" not in log and terminal.getvalue() == ""
+        assert last_failure_line(smk.log[0]) == last
+    else:
+        shown = terminal.getvalue().splitlines()
+        assert len(shown) == 2 and shown[0].startswith("RAFI clean (stem=a) failed: raw/m/a.csv, line 3")
+        assert "Traceback (most recent call last)" in log
 
 
 def test_glue_reraises_a_bug(tmp_path, monkeypatch):
@@ -455,9 +463,10 @@ def test_a_user_error_in_a_job_shows_its_message_once_and_no_traceback(bad_proje
     assert done.returncode != 0
     assert out.count("field of 10000 characters") == 1 and "RAFI clean (machine=tapping-center-a" in out
     assert "Traceback" not in out and "RawFormatError" not in out
-    assert "CalledProcessError" in out  # what remains: Snakemake's own block for a failed job
+    # the last thing the user reads is the message (the Snakefile's onerror repeats it)
+    assert out.strip().splitlines()[-1].startswith("RAFI clean (machine=tapping-center-a) failed: ")
     log = (bad_project / "logs" / "tapping-center-a" / "clean.log").read_text(encoding="utf-8")
-    assert "Traceback (most recent call last)" in log
+    assert "Traceback" not in log and log.strip().splitlines()[-1].startswith("RAFI clean (")
     again = _snakemake(bad_project, "-q", "--config", "debug=true", "--", "results/tapping-center-a/clean")
     assert "Traceback (most recent call last)" in again.stdout + again.stderr
 
