@@ -741,7 +741,8 @@ def main_side(args, argv) -> int:
     }
     try:
         if args.side_by_side:
-            refs = ["working", *args.side_by_side]
+            # one commit: the working tree beside it; two or more: those, first against the rest
+            refs = ["working", *args.side_by_side] if len(args.side_by_side) == 1 else args.side_by_side
             report["side_by_side"] = marginal_side_by_side(
                 refs, args.copies, args.repeats, workdir, args.cores
             )
@@ -783,7 +784,8 @@ def main(argv=None) -> int:
         "--side-by-side",
         nargs="+",
         metavar="COMMIT",
-        help="marginal cost of one more machine, cold, of the working tree beside these commits",
+        help="marginal cost of one more machine, cold: the working tree beside one commit, or the "
+        "first of several commits beside the others ('working' names the working tree)",
     )
     ap.add_argument("--copies", type=int, default=6, help="--side-by-side: copies of tapping-center-a")
     ap.add_argument("--repeats", type=int, default=1, help="--side-by-side: interleaved repeats")
