@@ -33,6 +33,7 @@ RESULT_FILES: dict[str, str] = {
     "comparison_residuals": "comparison/residuals.parquet",
     "best_model": "comparison/best_model.json",
     "comparison_cv": "comparison/cv.csv",
+    "comparison_verdict": "comparison/verdict.csv",
     # decide (the registry's declared outputs; its own files are side effects, see REGISTRY_DIR)
     "decision": "registry/decision.json",
     "registry_comparison": "registry/comparison.csv",
@@ -70,7 +71,14 @@ PIPELINE_TABLES = (
     "residuals",
 )
 #: Outputs of rule compare.
-COMPARISON_FILES = ("comparison", "comparison_per_run", "comparison_residuals", "best_model", "comparison_cv")
+COMPARISON_FILES = (
+    "comparison",
+    "comparison_per_run",
+    "comparison_residuals",
+    "best_model",
+    "comparison_cv",
+    "comparison_verdict",
+)
 #: Declared outputs of rule decide.
 DECISION_FILES = ("decision", "registry_comparison")
 #: Outputs of rule replay.
@@ -125,6 +133,7 @@ REPORT_OPTIONAL = (
     "comparison",
     "comparison_per_run",
     "comparison_cv",
+    "comparison_verdict",
     "best_model",
     "replay_summary",
     "runs_parquet",

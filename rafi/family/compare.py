@@ -200,8 +200,48 @@ COMPARISON_COLUMNS = [
 ]
 
 
+#: The columns of ``comparison/verdict.csv``: the rows of :func:`rafi.method.validate.qualify`
+#: (criterion x validation run) of every model, named by the model and its id.
+VERDICT_COLUMNS = ["model", "model_id", "run_id", "criterion", "limit", "measured", "passed"]
+
+
 def _model_kind(model) -> str:
     return str(getattr(model, "kind", None) or model.to_dict().get("kind", type(model).__name__))
+
+
+def _model_id(model) -> str:
+    """The artefact id of a fitted model (``""`` when it cannot say)."""
+    try:
+        return model.to_dict().get("model_id", "")
+    except Exception:  # noqa: BLE001 - an unfitted or foreign object: id unknown
+        return ""
+
+
+def named_verdict(verdict: pd.DataFrame, name: str, model_id: str) -> pd.DataFrame:
+    """One model's verdict rows as ``comparison/verdict.csv`` stores them.
+
+    Parameters
+    ----------
+    verdict : pandas.DataFrame
+        :func:`rafi.method.validate.qualify` of the model's validation summary.
+    name, model_id : str
+        The model's name in the family and its artefact id.
+
+    Returns
+    -------
+    pandas.DataFrame
+        :data:`VERDICT_COLUMNS`, in ``verdict``'s row order.
+    """
+    return verdict.assign(model=name, model_id=model_id)[VERDICT_COLUMNS].reset_index(drop=True)
+
+
+def stacked_verdicts(parts: list) -> pd.DataFrame:
+    """The verdict rows of every model, in the order of ``parts`` (:func:`named_verdict` frames);
+    the empty table with :data:`VERDICT_COLUMNS` when no model has a gate."""
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        return pd.DataFrame(columns=VERDICT_COLUMNS)
+    return pd.concat(parts, ignore_index=True)
 
 
 def compare_models(
@@ -212,6 +252,7 @@ def compare_models(
     *,
     champion: str | None = None,
     return_residuals: bool = False,
+    return_verdict: bool = False,
 ):
     """Validate every fitted model on the validation runs and qualify it against ``gates``.
 
@@ -238,8 +279,11 @@ def compare_models(
         ``noise_sigma_um`` / ``noise_floor_um`` of the run with the worst residual).
     residuals : pandas.DataFrame (only with ``return_residuals=True``)
         :func:`rafi.method.validate.validate_runs` residuals with a ``model`` column.
+    verdict : pandas.DataFrame (only with ``return_verdict=True``, after ``residuals``)
+        Every model's :func:`rafi.method.validate.qualify` rows (:data:`VERDICT_COLUMNS`), in
+        the order of ``models``.
     """
-    parts, res_parts = [], []
+    parts, res_parts, verdict_parts = [], [], []
     for name, model in models.items():
         summary, residuals = validate_runs(model, runs_table, runs_frame)
         verdict = qualify(summary, gates)
@@ -247,12 +291,11 @@ def compare_models(
         s = summary.copy()
         s["passed"] = s["run_id"].astype(str).map(passed_run).fillna(False).astype(bool)
         s["model"], s["kind"], s["scope"] = name, _model_kind(model), "run"
-        try:
-            s["model_id"] = model.to_dict().get("model_id", "")
-        except Exception:  # noqa: BLE001 - an unfitted or foreign object: id unknown
-            s["model_id"] = ""
+        model_id = _model_id(model)
+        s["model_id"] = model_id
         s["verdict"] = np.where(s["passed"], "pass", "fail")
         parts.append(s)
+        verdict_parts.append(named_verdict(verdict, name, model_id))
         if return_residuals:
             res_parts.append(residuals.assign(model=name))
         overall = bool(len(verdict) and verdict["passed"].all())
@@ -288,10 +331,12 @@ def compare_models(
     out = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=COMPARISON_COLUMNS)
     out["champion"] = out["model"].astype(str) == str(champion) if champion is not None else False
     out = out[COMPARISON_COLUMNS]
+    extras = []
     if return_residuals:
-        res = pd.concat(res_parts, ignore_index=True) if res_parts else pd.DataFrame()
-        return out, res
-    return out
+        extras.append(pd.concat(res_parts, ignore_index=True) if res_parts else pd.DataFrame())
+    if return_verdict:
+        extras.append(stacked_verdicts(verdict_parts))
+    return (out, *extras) if extras else out
 
 
 def _fitted_text(model) -> str:
@@ -399,7 +444,8 @@ def run_family(
     dict
         ``summary`` (one row per model: the validation worst cases, ``selected`` (what CV chose
         inside the model, :func:`describe_selection`) and the columns of :func:`selection_table`),
-        ``per_run``, ``residuals``, ``cv``, ``selection`` (:func:`selection_table`),
+        ``per_run``, ``verdict`` (every model's gates per validation run, :data:`VERDICT_COLUMNS`,
+        in the order of ``summary``), ``residuals``, ``cv``, ``selection`` (:func:`selection_table`),
         ``champion`` (name of the model offered), ``champion_passed`` (its gates on the
         validation runs), ``selection_basis`` (``"cv"`` or ``"default"``), ``best_name`` (=
         ``champion``) and ``best_artefact`` (its artefact), ``models`` (name -> fitted model),
@@ -442,8 +488,8 @@ def run_family(
         champion, basis = default_champion(list(models)), "default"
         log(f"no cross-validation fold: {champion} offered by the default rule")
     log(f"champion (chosen on the training runs): {champion}")
-    table, residuals = compare_models(
-        models, runs_table, runs_frame, gates, champion=champion, return_residuals=True
+    table, residuals, verdict = compare_models(
+        models, runs_table, runs_frame, gates, champion=champion, return_residuals=True, return_verdict=True
     )
     summary = table.loc[table["scope"] == "model"].drop(columns=["scope", "run_id", "role", "speed_rpm"])
     summary = summary.assign(
@@ -455,6 +501,7 @@ def run_family(
     return {
         "summary": summary.reset_index(drop=True),
         "per_run": per_run.reset_index(drop=True),
+        "verdict": verdict,
         "residuals": residuals,
         "cv": cv,
         "selection": selection,

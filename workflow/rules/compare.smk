@@ -1,6 +1,7 @@
 # Model family comparison (docs/models.md): RAFI as published against rafi_linear,
 # ridge_global, dynamic and grey_box on the same validation runs and gates; whole-run CV on the
-# training runs only chooses the champion (best_model.json, passing or not).
+# training runs only chooses the champion (best_model.json, passing or not); every model's gates
+# per validation run go to verdict.csv (the report reads them, it judges nothing).
 #
 # Uses the helpers of common.smk (machine_config, out, log_path, bench_path, code_version). Settings: the machine's complete `models:` and
 # `qualification:` sections (rafi.settings.machine_settings: every key present); the gates are
@@ -32,6 +33,7 @@ rule compare:
         residuals=out("comparison_residuals"),
         best_model=out("best_model"),
         cv=out("comparison_cv"),
+        verdict=out("comparison_verdict"),
     log:
         log_path("compare"),
     benchmark:

@@ -1,5 +1,8 @@
 """Rule compare: runs + key sensors + model.json -> comparison/summary.csv, per_run.csv,
-residuals.parquet, best_model.json, cv.csv (docs/models.md).
+residuals.parquet, best_model.json, cv.csv, verdict.csv (docs/models.md).
+
+verdict.csv stores every model's gates per validation run (the rows of
+rafi.method.validate.qualify, named by model and model id): the report reads them there.
 
 best_model.json is the model chosen by whole-run CV on the training runs (the champion),
 whether or not it passes the gates on the validation runs: no second pick.
@@ -51,6 +54,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         )
     rafi.artefact.write_csv_atomic(as_table(result["summary"]), smk.output.summary, index=False)
     rafi.artefact.write_csv_atomic(as_table(result["per_run"]), smk.output.per_run, index=False)
+    rafi.artefact.write_csv_atomic(as_table(result["verdict"]), smk.output.verdict, index=False)
     rafi.artefact.write_parquet_atomic(result["residuals"], smk.output.residuals)
     rafi.artefact.write_csv_atomic(as_table(result["cv"]), smk.output.cv, index=False)
     rafi.artefact.write_text_atomic(smk.output.best_model, rafi.artefact.json_text(result["best_artefact"]))

@@ -1,0 +1,82 @@
+"""Rule compare stores every model's gates per validation run (comparison/verdict.csv, issue "The
+report reads the stored verdict and decision; it recomputes nothing").
+
+run_family's ``verdict`` holds, for every model in the order of its summary, the rows of
+rafi.method.validate.qualify on that model's validation runs (criterion x run), named by the model
+and its id; the per-run and per-model ``passed`` of the comparison agree with it. Data: the golden
+synthetic runs of tests/test_crossval.py (6 training speeds, 4 validation runs).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import pandas as pd
+import pytest
+from test_selection import GATES, _data, _family
+
+from rafi.family.compare import VERDICT_COLUMNS, named_verdict, stacked_verdicts
+from rafi.method.validate import qualify
+
+ENABLED = ["rafi", "rafi_linear", "ridge_global"]
+
+
+@pytest.fixture(autouse=True)
+def _quiet():
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        yield
+
+
+@pytest.fixture(scope="module")
+def family():
+    table, frame = _data()
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return _family(table, frame, enabled=ENABLED)
+
+
+def test_the_verdict_is_qualify_of_every_model_in_the_summarys_order(family):
+    verdict, per_run, summary = family["verdict"], family["per_run"], family["summary"]
+    assert list(verdict.columns) == VERDICT_COLUMNS
+    assert list(dict.fromkeys(verdict["model"])) == list(summary["model"]) == ENABLED
+    n_runs = per_run.groupby("model")["run_id"].nunique()
+    for name, model_id in zip(summary["model"], summary["model_id"]):
+        rows = verdict[verdict["model"] == name].reset_index(drop=True)
+        assert set(rows["model_id"]) == {model_id} and model_id
+        # the same rows as the gates on the model's validation results, in qualify's order
+        expected = qualify(per_run[per_run["model"] == name].reset_index(drop=True), GATES)
+        pd.testing.assert_frame_equal(rows[expected.columns.tolist()], expected, check_exact=True)
+        assert len(rows) == 3 * n_runs[name]  # three gates on every validation run
+
+
+def test_the_comparisons_passed_agrees_with_the_stored_verdict(family):
+    verdict, per_run, summary = family["verdict"], family["per_run"], family["summary"]
+    by_run = verdict.groupby(["model", "run_id"], sort=False)["passed"].all()
+    stored = per_run.set_index(["model", "run_id"])["passed"]
+    assert by_run.reindex(stored.index).tolist() == stored.tolist()
+    by_model = verdict.groupby("model", sort=False)["passed"].all()
+    assert by_model.reindex(summary["model"]).tolist() == summary["passed"].tolist()
+
+
+def test_without_gates_the_verdict_is_an_empty_table_with_its_columns():
+    table, frame = _data()
+    res = _family(table, frame, gates={}, enabled=["rafi_linear"])
+    assert res["verdict"].empty and list(res["verdict"].columns) == VERDICT_COLUMNS
+    assert list(stacked_verdicts([]).columns) == VERDICT_COLUMNS
+
+
+def test_named_verdict_keeps_qualifys_rows_and_names_them():
+    summary = pd.DataFrame(
+        {
+            "run_id": ["r1", "r0"],
+            "max_abs_before_um": [20.0, 10.0],
+            "max_abs_after_um": [13.0, 4.0],
+            "improvement_pct": [35.0, 60.0],
+        }
+    )
+    rows = named_verdict(qualify(summary, GATES), "ridge_global", "abc")
+    assert list(rows.columns) == VERDICT_COLUMNS
+    assert list(rows["run_id"]) == ["r1"] * 3 + ["r0"] * 3  # the summary's run order
+    assert list(rows["passed"]) == [False, True, True, True, True, True]
+    assert set(rows["model"]) == {"ridge_global"} and set(rows["model_id"]) == {"abc"}
