@@ -15,8 +15,6 @@ from test_report import FIXTURE, _context, _settings
 from rafi.report.registry_section import section_registry
 from rafi.report.render import render_html
 
-GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
-
 
 def _rejected(dec: dict, comp: pd.DataFrame) -> tuple[dict, pd.DataFrame]:
     """The fixture's decision, made a rejection for all three new reasons."""
@@ -93,9 +91,7 @@ def test_registry_section_shows_relative_gate_coverage_files_and_warnings(tmp_pa
     comp.to_csv(results / "registry" / "comparison.csv", index=False)
 
     g = section_registry(
-        {"decision": dec, "registry_comparison": comp, "runs_csv": pd.read_csv(results / "runs.csv")},
-        GATES,
-        {},
+        {"decision": dec, "registry_comparison": comp, "runs_csv": pd.read_csv(results / "runs.csv")}, {}
     )
     a = g["against"]
     assert a["blocked"] == ["relative_gate", "coverage", "input_warnings"]
@@ -127,5 +123,47 @@ def test_registry_section_shows_relative_gate_coverage_files_and_warnings(tmp_pa
 
 def test_a_decision_from_before_the_checks_has_no_such_part():
     dec = json.loads((FIXTURE / "registry" / "decision.json").read_text())
-    g = section_registry({"decision": dec, "registry_comparison": None}, GATES, {})
+    g = section_registry({"decision": dec, "registry_comparison": None}, {})
     assert g["against"] is None
+
+
+def test_the_champions_gates_are_its_stored_verdict(tmp_path: Path):
+    """A candidate other than the champion: the champion's gates per run are decision.json's
+    ``champion_verdict`` as stored (here one row no gate rule would give), the candidate's its
+    ``verdict``; without ``champion_verdict`` (and without the model's rows of
+    comparison/verdict.csv) the champion's gates are not stored."""
+    results = tmp_path / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    path = results / "registry" / "decision.json"
+    dec = json.loads(path.read_text())
+    champion_rows = [dict(r) for r in dec["verdict"]]
+    first = champion_rows[0]  # a passing max_residual_um row of the first run
+    assert first["criterion"] == "max_residual_um" and first["passed"]
+    first["passed"] = False
+    dec.update(candidate_id="c" * 64, champion_id_after=dec["champion_id_before"], decision="rejected")
+    dec["champion_verdict"] = champion_rows
+    path.write_text(json.dumps(dec))
+    _, settings = _settings()
+    ctx = _context(results, settings, machine="tapping-center-a")
+    g = ctx["registry"]
+    runs = {r["run_id"]: r for r in g["runs"]}
+    assert runs[first["run_id"]]["champion_passed"] is False
+    assert runs[first["run_id"]]["champion_failed"] == ["max_residual_um"]
+    assert runs[first["run_id"]]["candidate_passed"] is True
+    assert g["champion"]["gates_stored"] and g["champion"]["n_failed"] >= 1
+    # the verdict judges the champion kept on the machine: its stored verdict, named as such
+    assert ctx["verdict"]["source"].startswith("read from registry/decision.json (champion_verdict")
+    assert "FAIL: residual" in render_html(ctx)
+
+    # without champion_verdict: the same model's rows of comparison/verdict.csv (it is model.json)
+    del dec["champion_verdict"]
+    path.write_text(json.dumps(dec))
+    ctx = _context(results, settings, machine="tapping-center-a")
+    assert ctx["verdict"]["source"] == "read from comparison/verdict.csv (rule compare's verdict)"
+    assert ctx["registry"]["champion"]["gates_stored"]
+    # and without that file either: not stored, not judged
+    (results / "comparison" / "verdict.csv").unlink()
+    ctx = _context(results, settings, machine="tapping-center-a")
+    assert not ctx["registry"]["champion"]["gates_stored"] and ctx["registry"]["candidate"]["gates_stored"]
+    assert {r["champion_passed"] for r in ctx["registry"]["runs"]} == {None}
+    assert ctx["verdict"]["status"] == "NOT STORED"

@@ -29,12 +29,13 @@ from markupsafe import escape
 
 from rafi.artefact import compute_model_id
 from rafi.family.selection import SELECTION_RULE
+from rafi.method.validate import qualify
 from rafi.report import figures, tables
 from rafi.report.context import build_context
 from rafi.report.format import equation_text, fmt_duration, fmt_num, fmt_p, fmt_sig, micro, truthy
 from rafi.report.inputs import figure_dirs, result_paths
 from rafi.report.render import render_html, render_pdf
-from rafi.report.verdict import aggregate_verdict, recomputed_verdict
+from rafi.report.verdict import aggregate_verdict
 from rafi.settings import machine_settings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -160,8 +161,12 @@ def _machine_b_like(src: Path, dst: Path) -> None:
                 f["run_id"] = f["run_id"].astype(str).replace(B_RUN_IDS)
                 f.to_parquet(path)
     model = json.loads((dst / "model.json").read_text(encoding="utf-8"))
-    model["model_id"] = compute_model_id(model)  # its train_runs were renamed above
+    renamed_from, model["model_id"] = model["model_id"], compute_model_id(model)  # train_runs renamed
     (dst / "model.json").write_text(json.dumps(model, indent=2), encoding="utf-8")
+    for rel in ("summary.csv", "per_run.csv", "verdict.csv"):  # the comparison's rafi is model.json
+        path = dst / "comparison" / rel
+        text = path.read_text(encoding="utf-8")
+        path.write_text(text.replace(renamed_from, model["model_id"]), encoding="utf-8")
     for rel in ("runs.csv", "validation/summary.csv", "comparison/per_run.csv", "registry/comparison.csv"):
         f = pd.read_csv(dst / rel)
         f.loc[f["run_id"] == B_IDLE, "role"] = "validation_idle"
@@ -448,6 +453,43 @@ def test_verdict_falls_back_to_rafi_without_decision(tmp_path):
     assert "registry" not in ids and "comparison" in ids
     html = render_html(ctx)
     assert "Model on the machine after this run" not in html
+
+
+def test_results_without_stored_verdicts_say_so_and_judge_nothing(tmp_path, monkeypatch):
+    """Results written before comparison/verdict.csv and decision.json's verdicts: every verdict
+    of the report is NOT STORED (re-run the pipeline), and no gate is judged to fill it in."""
+    import rafi.method.validate
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("the report judged a gate (rafi.method.validate.qualify)")
+
+    monkeypatch.setattr(rafi.method.validate, "qualify", refuse)
+    results = tmp_path / "with_decision" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    (results / "comparison" / "verdict.csv").unlink()
+    dec = json.loads((results / "registry" / "decision.json").read_text())
+    for key in ("verdict", "champion_verdict"):
+        dec.pop(key, None)
+    (results / "registry" / "decision.json").write_text(json.dumps(dec))
+    _, settings = _settings()
+    ctx = _context(results, settings, machine="tapping-center-a")
+    v, g = ctx["verdict"], ctx["registry"]
+    assert (v["status"], v["stored"], v["rows"]) == ("NOT STORED", False, [])
+    assert (v["rafi"]["status"], v["rafi"]["rows"]) == ("NOT STORED", [])
+    assert not g["candidate"]["gates_stored"] and not g["champion"]["gates_stored"]
+    assert {r["candidate_passed"] for r in g["runs"]} == {None} == {r["champion_passed"] for r in g["runs"]}
+    text = _text(render_html(ctx))
+    said = "not stored in this results folder; re-run the pipeline"
+    assert f"the verdict on the model on the machine (rafi) is {said}" in text
+    assert f"its verdict is {said}" in text and text.count(said) >= 4  # box, RAFI line, both gates
+    assert "PASS on every run" not in text and "does not meet" not in text
+
+    # no registry either: the box is RAFI's, not stored
+    (results / "registry" / "decision.json").unlink()
+    ctx = _context(results, settings, machine="tapping-center-a")
+    assert ctx["verdict"]["status"] == "NOT STORED" and ctx["verdict"]["judged"] is None
+    text = _text(render_html(ctx))
+    assert f"the verdict on the compensation model (RAFI as published) is {said}" in text
 
 
 def test_registry_section_is_structured_not_a_json_dump(rendered):
@@ -770,7 +812,7 @@ def test_verdict_aggregates_the_worst_case_per_criterion():
         }
     )
     gates = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
-    rows = {r["criterion"]: r for r in aggregate_verdict(recomputed_verdict(summary, gates), {"b": 0.73})}
+    rows = {r["criterion"]: r for r in aggregate_verdict(qualify(summary, gates), {"b": 0.73})}
     assert not rows["max_residual_um"]["passed"] and "b" in rows["max_residual_um"]["run_id"]
     assert rows["max_residual_um"]["noise"] == "0.73\u00a0\u00b5m"  # the noise floor of run b
     # issue 12: the idle cool-down is held to every gate and is in the worst case
@@ -780,7 +822,7 @@ def test_verdict_aggregates_the_worst_case_per_criterion():
     assert rows["never_worse_than_uncompensated"]["measured"] == "1 of 3"
     # an idle run with the largest residual is the headline
     idle_worst = summary.assign(max_abs_after_um=[5.0, 6.6, 12.9], improvement_pct=[75, 78, 60])
-    rows = {r["criterion"]: r for r in aggregate_verdict(recomputed_verdict(idle_worst, gates))}
+    rows = {r["criterion"]: r for r in aggregate_verdict(qualify(idle_worst, gates))}
     assert rows["max_residual_um"]["measured"] == "12.90\u00a0\u00b5m"
     assert "idle" in rows["max_residual_um"]["run_id"]
     assert not rows["max_residual_um"]["passed"]

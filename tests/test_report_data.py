@@ -11,15 +11,20 @@ import pandas as pd
 import pytest
 
 from rafi.method.paper import RMSE_UM
+from rafi.method.validate import qualify
 from rafi.report.comparison_section import champion_beside_rafi, rafi_failure
 from rafi.report.format import fmt_value, records
 from rafi.report.model_sections import coefficient_rows, diagnostics_rows
 from rafi.report.render import _environment
 from rafi.report.verdict import (
+    NOT_STORED,
+    SOURCE_CANDIDATE,
+    SOURCE_CHAMPION,
+    SOURCE_COMPARISON,
+    comparison_verdict,
     judged_verdict,
     per_run_gates,
     rafi_verdict,
-    recomputed_verdict,
     registry_gates,
     stored_verdict,
 )
@@ -129,53 +134,132 @@ def _comparison(champion: list[float], candidate: list[float]) -> pd.DataFrame:
     )
 
 
-def _decision(verdict: pd.DataFrame, **kw) -> dict:
-    """A decision.json with ``verdict`` stored as rule decide writes it."""
-    return {"verdict": verdict.to_dict("records"), **kw}
+def _decision(verdict: pd.DataFrame, champion: pd.DataFrame | None = None, **kw) -> dict:
+    """A decision.json with ``verdict`` (and ``champion_verdict``) stored as rule decide writes it."""
+    dec = {"verdict": verdict.to_dict("records"), **kw}
+    if champion is not None:
+        dec["champion_verdict"] = champion.to_dict("records")
+    return dec
 
 
-def test_the_candidates_verdict_is_read_not_recomputed():
+def _flipped(verdict: pd.DataFrame, run_id: str, criterion: str = "max_residual_um") -> pd.DataFrame:
+    """``verdict`` with one row's ``passed`` flipped: a stored verdict no gate rule would give, so
+    a test sees whether the report shows what is stored or judges again."""
+    out = verdict.copy()
+    row = (out["run_id"] == run_id) & (out["criterion"] == criterion)
+    out.loc[row, "passed"] = ~out.loc[row, "passed"]
+    return out
+
+
+def _family_verdict(models: dict, gates: dict = GATES) -> pd.DataFrame:
+    """comparison/verdict.csv as rule compare writes it: ``name -> (model_id, summary)``."""
+    from rafi.family.compare import named_verdict, stacked_verdicts
+
+    return stacked_verdicts(
+        [named_verdict(qualify(summary, gates), name, mid) for name, (mid, summary) in models.items()]
+    )
+
+
+def test_both_registry_verdicts_are_read_not_recomputed():
     comp = _comparison([5.0, 13.0, 4.0], [3.0, 2.0, 1.0])
-    # a stored verdict that differs from what the gates would give: the report says what is stored
-    stored = recomputed_verdict(_summary([3.0, 2.0, 1.0]), GATES)
-    stored.loc[(stored["run_id"] == "r2") & (stored["criterion"] == "max_residual_um"), "passed"] = False
-    dec = _decision(stored, candidate_id="new", champion_id_before="old", champion_id_after="new")
-    gates = registry_gates(dec, comp, GATES)
+    # stored verdicts that differ from what the gates would give: the report says what is stored
+    cand = _flipped(qualify(_summary([3.0, 2.0, 1.0]), GATES), "r2")
+    champ = _flipped(qualify(_summary([5.0, 13.0, 4.0]), GATES), "r0")
+    dec = _decision(cand, champ, candidate_id="new", champion_id_before="old", champion_id_after="new")
+    res = {"decision": dec, "registry_comparison": comp}
+    gates = registry_gates(res)
     assert gates["candidate"] == {"r0": (True, []), "r1": (True, []), "r2": (False, ["max_residual_um"])}
-    # no file stores the champion's verdict: recomputed from its results
-    assert gates["champion"] == {"r0": (True, []), "r1": (False, ["max_residual_um"]), "r2": (True, [])}
-    verdict, source = judged_verdict({"registry_comparison": comp}, dec, GATES)
-    assert source.startswith("read from registry/decision.json") and len(verdict) == 9
-    assert not verdict["passed"].all()
+    assert gates["champion"] == {
+        "r0": (False, ["max_residual_um"]),
+        "r1": (False, ["max_residual_um"]),
+        "r2": (True, []),
+    }
+    verdict, source = judged_verdict(res, dec)
+    assert source == SOURCE_CANDIDATE and len(verdict) == 9 and not verdict["passed"].all()
     kept = {**dec, "champion_id_after": "old"}
-    verdict, source = judged_verdict({"registry_comparison": comp}, kept, GATES)
-    assert source == "computed from registry/comparison.csv (champion columns)"
-    assert verdict.loc[verdict["run_id"] == "r1", "passed"].tolist() == [False, True, True]
+    verdict, source = judged_verdict(res, kept)
+    assert source == SOURCE_CHAMPION
+    assert verdict.loc[verdict["run_id"] == "r0", "passed"].tolist() == [False, True, True]
+
+
+def test_a_champion_without_a_stored_verdict_is_not_judged():
+    """A decision.json written before champion_verdict: the champion's gates are not stored, and
+    the report says so instead of judging them (a comparison/verdict.csv without the champion's
+    id does not stand in for it)."""
+    comp = _comparison([5.0, 13.0], [3.0, 2.0])
+    dec = _decision(qualify(_summary([3.0, 2.0]), GATES), candidate_id="new", champion_id_before="old")
+    family = _family_verdict({"rafi": ("new", _summary([3.0, 2.0]))})
+    res = {"decision": dec, "registry_comparison": comp, "comparison_verdict": family}
+    gates = registry_gates(res)
+    assert gates["champion"] is None and gates["candidate"] == {"r0": (True, []), "r1": (True, [])}
+    assert judged_verdict(res, {**dec, "champion_id_after": "old"}) == (None, NOT_STORED)
+    # no registry/comparison.csv column for the champion: no results, nothing to store
+    assert (
+        registry_gates({**res, "registry_comparison": comp.drop(columns="champion_max_abs_after_um")})[
+            "champion"
+        ]
+        == {}
+    )
 
 
 def test_the_stored_verdict_covers_the_runs_the_comparison_scores():
     comp = _comparison([5.0, 6.0], [3.0, np.nan])  # the candidate has no finite prediction on r1
-    stored = recomputed_verdict(_summary([3.0, np.nan]), GATES)
+    stored = qualify(_summary([3.0, np.nan]), GATES)
     dec = _decision(stored, candidate_id="c", champion_id_before="k", champion_id_after="c")
     assert set(stored_verdict(dec, ["r0"])["run_id"]) == {"r0"}
-    assert registry_gates(dec, comp, GATES)["candidate"] == {"r0": (True, [])}
+    assert registry_gates({"decision": dec, "registry_comparison": comp})["candidate"] == {"r0": (True, [])}
     assert stored_verdict({"decision": "kept"}) is None  # written before the verdict was stored
+    assert stored_verdict(dec, key="champion_verdict") is None
     assert per_run_gates(None, ["x"]) == {"x": (True, [])}
 
 
-def test_rafi_as_published_reads_the_decision_when_it_was_the_candidate():
+def test_rafi_as_published_reads_the_decision_or_the_comparison():
     summary = _summary([3.0, 14.0])
-    stored = recomputed_verdict(_summary([3.0, 2.0]), GATES)  # differs on r1: which one is shown?
-    res = {"validation_summary": summary, "model": {"model_id": "m"}}
+    stored = qualify(_summary([3.0, 2.0]), GATES)  # differs on r1: which one is shown?
+    family = _family_verdict({"rafi": ("m", summary), "ridge_global": ("g", _summary([1.0, 1.0]))})
+    res = {"validation_summary": summary, "model": {"model_id": "m"}, "comparison_verdict": family}
     res["decision"] = _decision(stored, candidate_id="m", champion_id_after="m")
-    verdict, source = rafi_verdict(res, GATES)
-    assert source.startswith("read from") and verdict["passed"].all()
+    verdict, source = rafi_verdict(res)
+    assert source == SOURCE_CANDIDATE and verdict["passed"].all()
     res["decision"] = _decision(stored, candidate_id="other", champion_id_after="other")
-    verdict, source = rafi_verdict(res, GATES)
-    assert source == "from rafi.method.validate.qualify" and not verdict["passed"].all()
+    verdict, source = rafi_verdict(res)
+    assert source == SOURCE_COMPARISON and len(verdict) == 6
+    assert verdict["passed"].tolist() == qualify(summary, GATES)["passed"].tolist()
+    # a model.json without an id: its rows by the name rafi
+    verdict, source = rafi_verdict({**res, "model": {}})
+    assert source == SOURCE_COMPARISON and len(verdict) == 6 and not verdict["passed"].all()
+    # another model.json than the comparison's, or no comparison/verdict.csv: not stored
+    assert rafi_verdict({**res, "model": {"model_id": "x"}}) == (None, NOT_STORED)
+    assert rafi_verdict({**res, "comparison_verdict": None}) == (None, NOT_STORED)
 
 
-# --------------------------------------------------------------------------- section steps
+def test_a_model_compared_without_gates_has_an_empty_stored_verdict():
+    family = _family_verdict({"rafi": ("m", _summary([3.0]))}, gates={})
+    assert list(family.columns) == ["model", "model_id", "run_id", "criterion", "limit", "measured", "passed"]
+    summary = pd.DataFrame({"model": ["rafi"], "model_id": ["m"]})
+    res = {"comparison_verdict": family, "comparison": summary}
+    assert comparison_verdict(res, "m").empty and comparison_verdict(res, None, "rafi").empty
+    assert comparison_verdict(res, "other") is None and comparison_verdict({}, "m") is None
+
+
+def test_the_report_imports_no_gate_judgement():
+    """rafi/report judges no gate: no module of it imports rafi.method.validate (ast over the
+    package's sources, so a lazy import inside a function counts too)."""
+    import ast
+    from pathlib import Path
+
+    import rafi.report
+
+    found = []
+    for path in sorted(Path(rafi.report.__file__).parent.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module] + [f"{node.module}.{a.name}" for a in node.names]
+            found += [f"{path.name}: {n}" for n in names if n.startswith("rafi.method.validate")]
+    assert found == []
 
 
 def test_a_recomputed_rmse_that_differs_is_flagged():

@@ -7,7 +7,8 @@ model and draws nothing.
 
 With ``registry/decision.json`` the verdict judges the model on the machine after this run
 (the registry's champion); RAFI as published is always reported beside it as the paper's
-reference.
+reference. Both verdicts are read where rules decide and compare stored them
+(:mod:`rafi.report.verdict`); the report judges no gate.
 """
 
 from __future__ import annotations
@@ -92,7 +93,7 @@ def build_context(
     ctx: dict = {"machine": machine, "generated": generated_at(now), "sections": []}
     dec_path = paths.get("decision")
     infos = model_infos(res, Path(dec_path).parent if dec_path else None)
-    ctx["verdict"] = verdict_all(res, gates, infos)
+    ctx["verdict"] = verdict_all(res, infos)
     ctx["verdict"]["residual"] = residual_statement(res, settings)
     ctx["gates"] = gates
     paper = bool(settings["report"]["paper_rig"])  # paper numbers only on the paper's rig
@@ -106,7 +107,7 @@ def build_context(
     ctx["models"] = section_models(res, figs, paper=paper)
     ctx["fuzzy"] = section_fuzzy(res, figs, paper=paper)
     ctx["validation"] = section_validation(res, figs, paper=paper)
-    ctx["registry"] = section_registry(res, gates, infos)
+    ctx["registry"] = section_registry(res, infos)
     dec = res["decision"] if isinstance(res.get("decision"), dict) else {}
     ctx["comparison"] = section_comparison(res, dec.get("champion_id_after"), settings, figs)
     ctx["replay"] = section_replay(res, settings, figs, dec.get("champion_id_after"))

@@ -4,8 +4,10 @@ training files, input warnings), speed-range adaptation and drift (``registry/de
 ``registry/comparison.csv``).
 
 The functions return data read from those files; the sentences and tables are in
-``templates/sections/registry.html.j2``. The gates per run are the stored verdict of rule decide
-where it holds them (:func:`rafi.report.verdict.registry_gates`).
+``templates/sections/registry.html.j2``. The gates per run are the stored verdicts of rule decide
+(``verdict`` and ``champion_verdict`` of ``registry/decision.json``,
+:func:`rafi.report.verdict.registry_gates`); where no file stores a model's verdict the section
+says so and judges nothing.
 """
 
 from __future__ import annotations
@@ -44,7 +46,9 @@ def worst_with_noise(summ_rec: dict | None, noise: dict) -> dict:
     return {"value": rec.get("max_residual_um"), "noise": noise.get(worst) if worst else None}
 
 
-def model_column(model_id, summary: dict | None, run_gates: dict, info: dict, noise: dict) -> dict | None:
+def model_column(
+    model_id, summary: dict | None, run_gates: dict | None, info: dict, noise: dict
+) -> dict | None:
     """One model's column of the champion-and-candidate table (``None`` without the model).
 
     Parameters
@@ -52,8 +56,9 @@ def model_column(model_id, summary: dict | None, run_gates: dict, info: dict, no
     model_id : str or None
     summary : dict or None
         The model's summary in ``registry/decision.json``.
-    run_gates : dict
-        ``run_id -> (passed, failed criteria)`` (:func:`rafi.report.verdict.registry_gates`).
+    run_gates : dict or None
+        ``run_id -> (passed, failed criteria)`` (:func:`rafi.report.verdict.registry_gates`);
+        ``None`` when no file stores the model's verdict.
     info : dict
         The model's ``kind``, ``created`` and training ``files`` (:func:`rafi.report.verdict.model_infos`).
     noise : dict
@@ -63,7 +68,8 @@ def model_column(model_id, summary: dict | None, run_gates: dict, info: dict, no
     -------
     dict or None
         ``id``, ``kind``, ``created``, ``files``, ``worst`` (:func:`worst_with_noise`),
-        ``min_improvement_pct``, ``n_runs`` and ``n_failed`` (runs with gates; failed).
+        ``min_improvement_pct``, ``n_runs`` and ``n_failed`` (runs with gates; failed) and
+        ``gates_stored`` (false: no file stores its verdict, ``n_runs`` is 0).
     """
     if not model_id:
         return None
@@ -74,8 +80,9 @@ def model_column(model_id, summary: dict | None, run_gates: dict, info: dict, no
         "files": list(info.get("files") or []),
         "worst": worst_with_noise(summary, noise),
         "min_improvement_pct": (summary or {}).get("min_improvement_pct"),
-        "n_runs": len(run_gates),
-        "n_failed": sum(1 for ok, _ in run_gates.values() if not ok),
+        "n_runs": len(run_gates or {}),
+        "n_failed": sum(1 for ok, _ in (run_gates or {}).values() if not ok),
+        "gates_stored": run_gates is not None,
     }
 
 
@@ -191,17 +198,15 @@ def drift(dec: dict, noise: dict) -> dict:
     }
 
 
-def section_registry(res: dict, gates: dict, infos: dict) -> dict | None:
+def section_registry(res: dict, infos: dict) -> dict | None:
     """Section 8: the registry's decision, as data for ``sections/registry.html.j2``.
 
     Parameters
     ----------
     res : dict
-        Loaded inputs: ``decision`` (``registry/decision.json``), ``registry_comparison``,
+        Loaded inputs: ``decision`` (``registry/decision.json``: the stored verdicts of both
+        models, :func:`rafi.report.verdict.registry_gates`), ``registry_comparison``,
         ``runs_csv`` (the order of the runs) and the noise floors.
-    gates : dict
-        The machine's ``qualification`` settings (the champion's gates are recomputed: no file
-        stores them, :func:`rafi.report.verdict.registry_gates`).
     infos : dict
         ``model_id -> {kind, created, files}`` (:func:`rafi.report.verdict.model_infos`).
 
@@ -218,7 +223,7 @@ def section_registry(res: dict, gates: dict, infos: dict) -> dict | None:
         return None
     comp = ordered_comparison(res.get("registry_comparison"), res.get("runs_csv"))
     noise = noise_floors(res)
-    run_gates = registry_gates(dec, res.get("registry_comparison"), gates)
+    run_gates = registry_gates(res)
     cand_id, champ_id = dec.get("candidate_id"), dec.get("champion_id_before")
     after = dec.get("champion_id_after")
     return {

@@ -1,14 +1,17 @@
 """Section 1 of the report: the verdict on the model on the machine and on RAFI as published.
 
-The verdict is read where a rule stored it: ``registry/decision.json`` holds rule decide's
-verdict on tonight's candidate (``verdict``: criterion x validation run, the rows of
-:func:`rafi.method.validate.qualify`), which is the verdict on the model on the machine when
-the candidate was promoted and the verdict on RAFI as published when the candidate is
-``model.json``. No result file stores the per-criterion verdict of any other model (the
-champion kept in service, RAFI as published beside a family model, a model without a
-decision): only for those :func:`recomputed_verdict` applies the pipeline's own gate rules to
-the model's stored per-run results (``registry/comparison.csv``, ``comparison/per_run.csv``,
-``validation/summary.csv``), and the report says so.
+Every verdict is read where a rule stored it; the report judges no gate itself:
+
+- ``registry/decision.json`` ``verdict``: rule decide's verdict on tonight's candidate
+  (criterion x validation run, the rows of :func:`rafi.method.validate.qualify`);
+- ``registry/decision.json`` ``champion_verdict``: rule decide's verdict on the champion in
+  service before this run, on tonight's runs (absent without a champion);
+- ``comparison/verdict.csv``: rule compare's verdict on every model of the family (RAFI as
+  published included), named by model and model id.
+
+A model's verdict is looked up by its model id (:func:`stored_verdict_of`), RAFI's by the id of
+``model.json`` (by the name ``rafi`` when it has none). Where no file stores it (results written
+before the file or key existed), the report says so (:data:`NOT_STORED`) instead of a verdict.
 """
 
 from __future__ import annotations
@@ -25,15 +28,12 @@ from rafi.report.inputs import noise_floors
 #: The columns of a verdict (:data:`rafi.method.validate.VERDICT_COLUMNS`).
 VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
 
-
-def recomputed_verdict(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
-    """Verdict rows (criterion x validation run) of ``rafi.method.validate.qualify`` on a model's
-    stored per-run results, for a model whose verdict no result file stores (module docstring);
-    a ``run_id`` column is always present."""
-    from rafi.method.validate import qualify
-
-    verdict = qualify(summary, gates)
-    return verdict if "run_id" in verdict else verdict.assign(run_id="")
+#: Where a verdict was read from, as the report's verdict note says it.
+SOURCE_CANDIDATE = "read from registry/decision.json (rule decide's verdict)"
+SOURCE_CHAMPION = "read from registry/decision.json (champion_verdict: rule decide's verdict on the champion)"
+SOURCE_COMPARISON = "read from comparison/verdict.csv (rule compare's verdict)"
+#: What the report says where no result file stores a verdict.
+NOT_STORED = "not stored in this results folder; re-run the pipeline"
 
 
 def scored_runs(comp: pd.DataFrame | None, who: str) -> list | None:
@@ -49,8 +49,9 @@ def scored_runs(comp: pd.DataFrame | None, who: str) -> list | None:
     return comp.loc[after.notna(), "run_id"].astype(str).tolist()
 
 
-def stored_verdict(dec: dict, run_ids: list | None = None) -> pd.DataFrame | None:
-    """Rule decide's verdict on the candidate, as stored in ``registry/decision.json``.
+def stored_verdict(dec: dict, run_ids: list | None = None, key: str = "verdict") -> pd.DataFrame | None:
+    """Rule decide's verdict on the candidate (or, with ``key="champion_verdict"``, on the
+    champion), as stored in ``registry/decision.json``.
 
     Parameters
     ----------
@@ -58,19 +59,98 @@ def stored_verdict(dec: dict, run_ids: list | None = None) -> pd.DataFrame | Non
         ``registry/decision.json``.
     run_ids : list, optional
         Keep the rows of these runs only (:func:`scored_runs`).
+    key : str
+        ``verdict`` (the candidate) or ``champion_verdict`` (the champion before this run).
 
     Returns
     -------
     DataFrame or None
-        :data:`VERDICT_COLUMNS`; ``None`` for a decision without a stored verdict.
+        :data:`VERDICT_COLUMNS`; ``None`` for a decision without that stored verdict.
     """
-    rows = dec.get("verdict")
+    rows = dec.get(key)
     if not isinstance(rows, list):
         return None
     verdict = pd.DataFrame(rows, columns=VERDICT_COLUMNS)
+    return _of_runs(verdict, run_ids)
+
+
+def _of_runs(verdict: pd.DataFrame, run_ids: list | None) -> pd.DataFrame:
+    """The rows of ``verdict`` on ``run_ids`` (every row when ``None``), renumbered."""
     if run_ids is not None:
         verdict = verdict[verdict["run_id"].astype(str).isin([str(r) for r in run_ids])]
     return verdict.reset_index(drop=True)
+
+
+def comparison_verdict(res: dict, model_id: str | None, name: str | None = None) -> pd.DataFrame | None:
+    """Rule compare's verdict on one model of the family, as stored in ``comparison/verdict.csv``.
+
+    Parameters
+    ----------
+    res : dict
+        Loaded inputs: ``comparison_verdict`` (``comparison/verdict.csv``) and ``comparison``
+        (``comparison/summary.csv``: the models compared).
+    model_id : str or None
+        The model's id: its rows are those with this ``model_id``.
+    name : str, optional
+        Without ``model_id``: the rows of the model of this name (``rafi``).
+
+    Returns
+    -------
+    DataFrame or None
+        :data:`VERDICT_COLUMNS` in the file's order; empty for a model compared without a gate
+        set; ``None`` without the file or for a model the comparison does not hold.
+    """
+    table = res.get("comparison_verdict")
+    if table is None or not (model_id or name):
+        return None
+    column, value = ("model_id", model_id) if model_id else ("model", name)
+    if column not in table:
+        return None
+    rows = table[table[column].astype(str) == str(value)]
+    summary = res.get("comparison")
+    compared = summary is not None and column in summary and (summary[column].astype(str) == str(value)).any()
+    if not len(rows) and not compared:
+        return None
+    return rows[VERDICT_COLUMNS].reset_index(drop=True)
+
+
+def stored_verdict_of(
+    res: dict, model_id: str | None, run_ids: list | None = None, name: str | None = None
+) -> tuple[pd.DataFrame | None, str]:
+    """The stored verdict on a model, and where it was read from.
+
+    Parameters
+    ----------
+    res : dict
+        Loaded inputs: ``decision`` (``registry/decision.json``), ``comparison_verdict`` and
+        ``comparison``.
+    model_id : str or None
+        The model: rule decide's ``verdict`` when it is tonight's candidate, ``champion_verdict``
+        when it is the champion before this run, else its rows of ``comparison/verdict.csv``.
+    run_ids : list, optional
+        Keep the rows of these runs only (:func:`scored_runs`).
+    name : str, optional
+        The model's name in ``comparison/verdict.csv`` when the report does not know its id.
+
+    Returns
+    -------
+    (DataFrame or None, str)
+        :data:`VERDICT_COLUMNS` and :data:`SOURCE_CANDIDATE`, :data:`SOURCE_CHAMPION` or
+        :data:`SOURCE_COMPARISON`; ``(None, NOT_STORED)`` where no file stores it.
+    """
+    dec = res.get("decision") if isinstance(res.get("decision"), dict) else {}
+    if model_id and model_id == dec.get("candidate_id"):
+        verdict = stored_verdict(dec, run_ids)
+        if verdict is not None:
+            return verdict, SOURCE_CANDIDATE
+    if model_id and model_id == dec.get("champion_id_before"):
+        verdict = stored_verdict(dec, run_ids, "champion_verdict")
+        if verdict is not None:
+            return verdict, SOURCE_CHAMPION
+    verdict = comparison_verdict(res, model_id, name)
+    if verdict is not None:
+        return _of_runs(verdict, run_ids), SOURCE_COMPARISON
+    return None, NOT_STORED
 
 
 CRITERION_TEXT = {
@@ -153,16 +233,35 @@ def aggregate_verdict(verdict: pd.DataFrame, noise: dict | None = None) -> list[
 
 
 def verdict_context(verdict: pd.DataFrame, source: str, noise: dict | None = None) -> dict:
-    """The verdict box: :func:`aggregate_verdict` rows, PASS only if every criterion passed."""
+    """The verdict box: :func:`aggregate_verdict` rows, PASS only if every criterion passed;
+    ``css`` is the box's class, ``stored`` true (a stored verdict)."""
     rows = aggregate_verdict(verdict, noise)
     passed = bool(rows) and all(r["passed"] for r in rows)
     return {
         "passed": passed,
         "status": "PASS" if passed else "FAIL",
+        "css": "pass" if passed else "fail",
+        "stored": True,
         "rows": rows,
         "source": source,
         "n_checks": 0 if verdict is None else len(verdict),
         "n_failed": 0 if verdict is None else int((~verdict["passed"].map(truthy)).sum()),
+    }
+
+
+def empty_verdict(source: str, stored: bool = True) -> dict:
+    """The verdict box without a verdict: FAIL with ``source`` saying why (no model, no
+    results), or, with ``stored=False``, NOT STORED (no result file stores the verdict:
+    :data:`NOT_STORED`; the report computes none)."""
+    return {
+        "passed": False,
+        "status": "FAIL" if stored else "NOT STORED",
+        "css": "fail" if stored else "unknown",
+        "stored": stored,
+        "rows": [],
+        "source": source,
+        "n_checks": 0,
+        "n_failed": 0,
     }
 
 
@@ -211,28 +310,9 @@ def model_infos(res: dict, registry_dir: Path | None) -> dict:
     return infos
 
 
-def registry_summary(comp: pd.DataFrame | None, who: str) -> pd.DataFrame | None:
-    """Per-run summary (``rafi.method.validate`` columns) of the champion or the candidate from
-    ``registry/comparison.csv``."""
-    col = f"{who}_max_abs_after_um"
-    if comp is None or col not in comp or comp[col].isna().all():
-        return None
-    out = pd.DataFrame(
-        {
-            "run_id": comp["run_id"].astype(str),
-            "role": comp["role"].astype(str) if "role" in comp else "validation_single",
-            "speed_rpm": comp.get("speed_rpm"),
-            "max_abs_before_um": pd.to_numeric(comp["max_abs_before_um"], errors="coerce"),
-            "max_abs_after_um": pd.to_numeric(comp[col], errors="coerce"),
-            "improvement_pct": pd.to_numeric(comp[f"{who}_improvement_pct"], errors="coerce"),
-        }
-    )
-    return out[out["max_abs_after_um"].notna()].reset_index(drop=True)
-
-
 def per_run_gates(verdict: pd.DataFrame | None, run_ids=()) -> dict:
-    """``run_id -> (passed, [failed criteria])`` from verdict rows (stored or recomputed); a run
-    of ``run_ids`` without a row (no gate set) passes. A NaN measurement fails."""
+    """``run_id -> (passed, [failed criteria])`` from stored verdict rows; a run of ``run_ids``
+    without a row (no gate set) passes. A NaN measurement fails."""
     out = {}
     if verdict is not None and len(verdict):
         for rid, g in verdict.groupby(verdict["run_id"].astype(str), sort=False):
@@ -243,93 +323,61 @@ def per_run_gates(verdict: pd.DataFrame | None, run_ids=()) -> dict:
     return out
 
 
-def registry_gates(dec: dict, comp: pd.DataFrame | None, gates: dict) -> dict:
+def registry_gates(res: dict) -> dict:
     """The gates per validation run of the candidate and of the champion before this run, as the
-    registry section shows them.
+    registry section shows them: each model's stored verdict (:func:`stored_verdict_of`:
+    ``verdict``, ``champion_verdict`` of ``registry/decision.json``) on the runs
+    ``registry/comparison.csv`` scores it on.
 
     Parameters
     ----------
-    dec : dict
-        ``registry/decision.json``: the candidate's verdict is its ``verdict``.
-    comp : DataFrame or None
-        ``registry/comparison.csv``: the runs each model is scored on; the champion's results
-        (no file stores the champion's verdict: recomputed, :func:`recomputed_verdict`).
-    gates : dict
-        The machine's ``qualification`` settings (for the champion's recomputed verdict).
+    res : dict
+        Loaded inputs: ``decision``, ``registry_comparison`` and the comparison's verdict.
 
     Returns
     -------
     dict
         ``candidate`` and ``champion``: ``run_id -> (passed, [failed criteria])``, empty for a
-        model without results.
+        model without results, ``None`` for a model whose verdict no file stores.
     """
+    dec = res.get("decision") if isinstance(res.get("decision"), dict) else {}
+    comp = res.get("registry_comparison")
+    ids = {"candidate": dec.get("candidate_id"), "champion": dec.get("champion_id_before")}
     out = {}
-    for who in ("candidate", "champion"):
-        summary = registry_summary(comp, who)
-        stored = stored_verdict(dec, scored_runs(comp, who)) if who == "candidate" else None
-        if stored is not None and summary is not None:
-            out[who] = per_run_gates(stored, summary["run_id"])
-        elif summary is not None:
-            out[who] = per_run_gates(recomputed_verdict(summary, gates), summary["run_id"])
-        else:
+    for who, model_id in ids.items():
+        runs = scored_runs(comp, who)
+        if not runs:
             out[who] = {}
+            continue
+        verdict, _ = stored_verdict_of(res, model_id, runs)
+        out[who] = None if verdict is None else per_run_gates(verdict, runs)
     return out
 
 
-def champion_after_summary(res: dict, dec: dict):
-    """Validation summary of the model on the machine after this run, and where it came from."""
+def judged_verdict(res: dict, dec: dict) -> tuple[pd.DataFrame | None, str]:
+    """The stored verdict on the model on the machine after this run, and where it was read from.
+
+    The model is ``champion_id_after`` of ``dec``; its verdict is read (:func:`stored_verdict_of`)
+    on the runs ``registry/comparison.csv`` scores it on when it is tonight's candidate or the
+    champion before this run. ``(None, NOT_STORED)`` where no file stores it.
+    """
     after = dec.get("champion_id_after")
     comp = res.get("registry_comparison")
-    if not after:
-        return None, ""
-    if after == dec.get("candidate_id"):
-        s = registry_summary(comp, "candidate")
-        if s is not None:
-            return s, "registry/comparison.csv (candidate columns)"
-    if after == dec.get("champion_id_before"):
-        s = registry_summary(comp, "champion")
-        if s is not None:
-            return s, "registry/comparison.csv (champion columns)"
-    pr = res.get("comparison_per_run")
-    if pr is not None and "model_id" in pr:
-        g = pr[pr["model_id"].astype(str) == after]
-        if len(g):
-            return g.reset_index(drop=True), "comparison/per_run.csv"
-    model = res.get("model") or {}
-    if model.get("model_id") == after and res.get("validation_summary") is not None:
-        return res["validation_summary"], "validation/summary.csv"
-    return None, ""
+    runs = None
+    if after and after == dec.get("candidate_id"):
+        runs = scored_runs(comp, "candidate")
+    elif after and after == dec.get("champion_id_before"):
+        runs = scored_runs(comp, "champion")
+    return stored_verdict_of({**res, "decision": dec}, after, runs)
 
 
-def judged_verdict(res: dict, dec: dict, gates: dict) -> tuple[pd.DataFrame | None, str]:
-    """The verdict on the model on the machine after this run, and where it comes from.
-
-    The stored verdict of ``registry/decision.json`` when the model is tonight's candidate
-    (on the runs ``registry/comparison.csv`` scores it on); else :func:`recomputed_verdict` on
-    the model's results (:func:`champion_after_summary`). ``(None, "")`` without results.
-    """
-    if dec.get("champion_id_after") and dec.get("champion_id_after") == dec.get("candidate_id"):
-        comp = res.get("registry_comparison")
-        stored = stored_verdict(dec, scored_runs(comp, "candidate"))
-        if stored is not None and len(stored):
-            return stored, "read from registry/decision.json (rule decide's verdict)"
-    summ, src = champion_after_summary(res, dec)
-    if summ is not None and len(summ):
-        return recomputed_verdict(summ, gates), "computed from " + src
-    return None, ""
-
-
-def rafi_verdict(res: dict, gates: dict) -> tuple[pd.DataFrame, str]:
-    """The verdict on RAFI as published (``model.json``, ``validation/summary.csv`` present):
-    rule decide's stored verdict when ``model.json`` was tonight's candidate, else
-    :func:`recomputed_verdict` on ``validation/summary.csv``."""
-    dec = res.get("decision")
+def rafi_verdict(res: dict) -> tuple[pd.DataFrame | None, str]:
+    """The stored verdict on RAFI as published (``model.json``), and where it was read from: rule
+    decide's when ``model.json`` was tonight's candidate, else rule compare's
+    (``comparison/verdict.csv``, by the id of ``model.json``, else by the name ``rafi``);
+    ``(None, NOT_STORED)`` where no file stores it."""
     model_id = (res.get("model") or {}).get("model_id")
-    if isinstance(dec, dict) and model_id and dec.get("candidate_id") == model_id:
-        stored = stored_verdict(dec)
-        if stored is not None and len(stored):
-            return stored, "read from registry/decision.json (rule decide's verdict)"
-    return recomputed_verdict(res["validation_summary"], gates), "from rafi.method.validate.qualify"
+    return stored_verdict_of(res, model_id, name=None if model_id else "rafi")
 
 
 def residual_statement(res: dict, settings: dict) -> dict | None:
@@ -382,32 +430,35 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
     return out
 
 
-def verdict_all(res: dict, gates: dict, infos: dict) -> dict:
-    """The verdict of section 1: the model on the machine (with decision.json) + RAFI, over
-    every validation run (idle cool-downs included), each max residual beside its run's noise
-    floor (:func:`judged_verdict`, :func:`rafi_verdict`: the stored verdict where one is)."""
-    rafi_v = None
-    noise = noise_floors(res)
-    if res["validation_summary"] is not None:
-        rafi_v = verdict_context(*rafi_verdict(res, gates), noise)
-        gated = res["validation_summary"]
-        after = pd.to_numeric(gated["max_abs_after_um"], errors="coerce")
-        rafi_v["worst"] = fmt_num(after.max(), 2, "\u00b5m")
-        worst_run = str(gated.loc[after.idxmax(), "run_id"]) if after.notna().any() else ""
-        rafi_v["worst_noise"] = fmt_num(noise[worst_run], 2, "\u00b5m") if worst_run in noise else ""
-        rafi_v["min_imp"] = fmt_num(pd.to_numeric(gated["improvement_pct"], errors="coerce").min(), 1, "%")
-    else:
-        rafi_v = {
-            "passed": False,
-            "status": "FAIL",
-            "source": "no validation summary",
-            "rows": [],
-            "n_checks": 0,
-            "n_failed": 0,
+def rafi_context(res: dict, noise: dict) -> dict:
+    """The RAFI line of the verdict: its stored verdict (:func:`rafi_verdict`; NOT STORED where
+    no file stores it) with the worst residual, its run's noise floor and the smallest
+    improvement of ``validation/summary.csv``."""
+    gated = res.get("validation_summary")
+    if gated is None:
+        return {
+            **empty_verdict("no validation summary"),
             "worst": "\u2013",
             "worst_noise": "",
             "min_imp": "\u2013",
         }
+    verdict, source = rafi_verdict(res)
+    rafi_v = verdict_context(verdict, source, noise) if verdict is not None else empty_verdict(source, False)
+    after = pd.to_numeric(gated["max_abs_after_um"], errors="coerce")
+    rafi_v["worst"] = fmt_num(after.max(), 2, "\u00b5m")
+    worst_run = str(gated.loc[after.idxmax(), "run_id"]) if after.notna().any() else ""
+    rafi_v["worst_noise"] = fmt_num(noise[worst_run], 2, "\u00b5m") if worst_run in noise else ""
+    rafi_v["min_imp"] = fmt_num(pd.to_numeric(gated["improvement_pct"], errors="coerce").min(), 1, "%")
+    return rafi_v
+
+
+def verdict_all(res: dict, infos: dict) -> dict:
+    """The verdict of section 1: the model on the machine (with decision.json) + RAFI, over
+    every validation run (idle cool-downs included), each max residual beside its run's noise
+    floor (:func:`judged_verdict`, :func:`rafi_verdict`: the stored verdicts; NOT STORED where
+    no result file stores one)."""
+    noise = noise_floors(res)
+    rafi_v = rafi_context(res, noise)
     dec = res.get("decision")
     if not isinstance(dec, dict):
         out = dict(rafi_v)
@@ -423,21 +474,12 @@ def verdict_all(res: dict, gates: dict, infos: dict) -> dict:
         "none": not after,
         "is_rafi": info.get("kind") == "rafi",
     }
-    verdict, src = judged_verdict(res, dec, gates)
-    if verdict is not None:
-        out = verdict_context(verdict, src, noise)
+    verdict, src = judged_verdict(res, dec)
+    if not after:
+        out = empty_verdict("no model on the machine")
+    elif verdict is None:
+        out = empty_verdict(src, stored=False)
     else:
-        out = {
-            "passed": False,
-            "status": "FAIL",
-            "rows": [],
-            "n_checks": 0,
-            "n_failed": 0,
-            "source": (
-                "no model on the machine"
-                if not after
-                else "no validation results for this model in this run's outputs"
-            ),
-        }
+        out = verdict_context(verdict, src, noise)
     out.update(judged=judged, rafi=rafi_v, subject=f"model {judged['id']} ({judged['kind']}) on the machine")
     return out

@@ -6,6 +6,7 @@ NumPy least squares, so the report has consistent inputs without the pipeline.
 
     python tests/data/report_fixture/generate.py            # committed fixture (120 s grid)
     python tests/data/report_fixture/generate.py OUT --sample-period-s 5   # full-size (benchmark)
+    python tests/data/report_fixture/generate.py --verdict   # comparison/verdict.csv only
 
 ``comparison/`` and ``registry/`` come from the real producers (``rafi.family.compare.run_family``
 and two nights of ``rafi.ops.decide.run_decide``), ``validation/`` from ``rafi.method.validate``.
@@ -287,6 +288,7 @@ def _family_and_registry(base: Path, runs_table, runs_frame, rafi_model, model: 
                      gates=GATES, rafi_model=rafi_model, log=lambda m: None)
     res["summary"].to_csv(comp / "summary.csv", index=False)
     res["per_run"].to_csv(comp / "per_run.csv", index=False)
+    res["verdict"].to_csv(comp / "verdict.csv", index=False)
     res["cv"].to_csv(comp / "cv.csv", index=False)
     res["residuals"].to_parquet(comp / "residuals.parquet", compression="zstd")
     (comp / "best_model.json").write_text(json.dumps(res["best_artefact"], indent=2, sort_keys=True))
@@ -314,6 +316,30 @@ def _family_and_registry(base: Path, runs_table, runs_frame, rafi_model, model: 
             p.chmod(0o644)
 
 
+def write_verdict(out: Path) -> None:
+    """comparison/verdict.csv of the committed comparison, the rest of the fixture kept.
+
+    Rule compare stores, per model, :func:`rafi.family.compare.named_verdict` of
+    :func:`rafi.method.validate.qualify` of the model's validation summary (``run_family``'s
+    ``verdict``); ``comparison/per_run.csv`` is that summary, so the same two functions on it
+    (read back, in the model order of ``summary.csv``) give the file ``run_family`` wrote
+    beside it (``tests/test_comparison_verdict.py`` checks the equality on run_family's own
+    output). For a fixture made before verdict.csv existed, whose other files a full
+    ``--refresh`` would change.
+    """
+    from rafi.family.compare import named_verdict, stacked_verdicts
+    from rafi.method.validate import qualify
+
+    comp = out / MACHINE / "comparison"
+    summary = pd.read_csv(comp / "summary.csv")
+    per_run = pd.read_csv(comp / "per_run.csv")
+    parts = [
+        named_verdict(qualify(per_run[per_run["model"] == name].reset_index(drop=True), GATES), name, mid)
+        for name, mid in zip(summary["model"], summary["model_id"])
+    ]
+    stacked_verdicts(parts).to_csv(comp / "verdict.csv", index=False)
+
+
 def refresh(out: Path) -> None:
     """Re-run the real producers (validation, comparison, registry) on the committed data and
     model (runs.csv, runs.parquet, model.json unchanged): after a change of the producers."""
@@ -338,7 +364,12 @@ def main(argv=None):
                     help="skip comparison/ and registry/ (model family + registry decision)")
     ap.add_argument("--refresh", action="store_true",
                     help="keep the data and model.json; re-run validation, comparison and registry")
+    ap.add_argument("--verdict", action="store_true",
+                    help="keep everything else; write comparison/verdict.csv of the committed comparison")
     a = ap.parse_args(argv)
+    if a.verdict:
+        write_verdict(Path(a.out))
+        return
     if a.refresh:
         refresh(Path(a.out))
         return
