@@ -31,3 +31,30 @@ class Section:
     keys: dict
     shown: str | None = None
     schema_extra: dict = field(default_factory=dict)
+
+
+# --------------------------------------------------------------------------- schemas several keys share
+# (the generator copies a schema into the config schema, so sharing one dict is safe)
+
+#: A number of at least 0.
+NON_NEGATIVE: dict = {"type": "number", "minimum": 0}
+#: A number above 0.
+POSITIVE: dict = {"type": "number", "exclusiveMinimum": 0}
+#: True or false.
+FLAG: dict = {"type": "boolean"}
+#: A text, or nothing (a line left blank in the report).
+OPTIONAL_TEXT: dict = {"type": ["null", "string"]}
+#: ``[low, high]``.
+RANGE: dict = {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2}
+
+
+def auto_or_numbers(*, positive: bool = False) -> dict:
+    """``auto`` or a non-empty list of distinct numbers >= 0 (> 0 with ``positive``): a grid that
+    the model kind chooses itself unless the machine's settings give one."""
+    bound = {"exclusiveMinimum": 0} if positive else {"minimum": 0}
+    return {
+        "oneOf": [
+            {"const": "auto"},
+            {"type": "array", "items": {"type": "number", **bound}, "minItems": 1, "uniqueItems": True},
+        ]
+    }

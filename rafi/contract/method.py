@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from rafi.contract.input import INPUT_SCHEMA
-from rafi.contract.keys import Section, Setting
+from rafi.contract.keys import FLAG, NON_NEGATIVE, POSITIVE, Section, Setting
 
 METHOD_SETTINGS: dict = {
     "input": Setting(
@@ -21,7 +21,7 @@ METHOD_SETTINGS: dict = {
     ),
     "sample_period_s": Setting(
         default=5,
-        schema={"type": "number", "exclusiveMinimum": 0},
+        schema=POSITIVE,
         shown="5",
         doc=(
             "the logger's sample period (s); with `input.time.kind: none` it must equal `input.time.period_s`"
@@ -40,7 +40,7 @@ METHOD_SETTINGS: dict = {
     ),
     "speed_tolerance_rpm": Setting(
         default=50,
-        schema={"type": "number", "minimum": 0},
+        schema=NON_NEGATIVE,
         shown="50",
         doc="\\|speed - training speed\\| within this -> that training speed",
     ),
@@ -84,13 +84,13 @@ METHOD_SETTINGS: dict = {
         keys={
             "max_interpolate_gap_s": Setting(
                 default=60,
-                schema={"type": "number", "minimum": 0},
+                schema=NON_NEGATIVE,
                 shown="60",
                 doc="gaps up to this are interpolated; longer ones split the log into segments",
             ),
             "spike_threshold": Setting(
                 default=8,
-                schema={"type": "number", "exclusiveMinimum": 0},
+                schema=POSITIVE,
                 shown="8",
                 doc="robust z-score (MAD of first differences) above which a single sample is a spike",
             ),
@@ -107,25 +107,25 @@ METHOD_SETTINGS: dict = {
         keys={
             "idle_below_rpm": Setting(
                 default=100,
-                schema={"type": "number", "minimum": 0},
+                schema=NON_NEGATIVE,
                 shown="100",
                 doc="below this the spindle stands",
             ),
             "min_run_s": Setting(
                 default=1800,
-                schema={"type": "number", "minimum": 0},
+                schema=NON_NEGATIVE,
                 shown="1800",
                 doc="shorter runs are excluded (reported, not used)",
             ),
             "min_constant_s": Setting(
                 default=3600,
-                schema={"type": "number", "minimum": 0},
+                schema=NON_NEGATIVE,
                 shown="3600",
                 doc="a constant-speed stretch shorter than this is part of a varying run",
             ),
             "max_leading_rest_s": Setting(
                 default=300,
-                schema={"type": "number", "minimum": 0},
+                schema=NON_NEGATIVE,
                 shown="300",
                 doc="an idle stretch shorter than this at a log/segment start is the run's rest before start",
             ),
@@ -177,7 +177,7 @@ METHOD_SETTINGS: dict = {
             ),
             "idle_training": Setting(
                 default=False,
-                schema={"type": "boolean"},
+                schema=FLAG,
                 shown="false",
                 doc=(
                     "idle cool-downs (automatic validation_idle runs, and idle runs inside a training "
@@ -186,7 +186,7 @@ METHOD_SETTINGS: dict = {
             ),
             "allow_training_after_validation": Setting(
                 default=False,
-                schema={"type": "boolean"},
+                schema=FLAG,
                 shown="false",
                 doc=(
                     "accept configured training data that lies after, or overlaps, validation data of the "
@@ -209,7 +209,7 @@ METHOD_SETTINGS: dict = {
             ),
             "window_s": Setting(
                 default=60,
-                schema={"type": "number", "exclusiveMinimum": 0},
+                schema=POSITIVE,
                 shown="60",
                 doc="length of the reference window (s)",
             ),
@@ -226,13 +226,13 @@ METHOD_SETTINGS: dict = {
             ),
             "plateau_window_s": Setting(
                 default=900,
-                schema={"type": "number", "exclusiveMinimum": 0},
+                schema=POSITIVE,
                 shown="900",
                 doc="final plateau = median of the last 15 min",
             ),
             "smooth_window_s": Setting(
                 default=300,
-                schema={"type": "number", "exclusiveMinimum": 0},
+                schema=POSITIVE,
                 shown="300",
                 doc="rolling median before the band test",
             ),

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from rafi.contract.keys import Section, Setting
+from rafi.contract.keys import FLAG, NON_NEGATIVE, POSITIVE, Section, Setting, auto_or_numbers
 
 OPERATIONS_SETTINGS: dict = {
     "qualification": Section(
@@ -10,7 +10,7 @@ OPERATIONS_SETTINGS: dict = {
         keys={
             "max_residual_um": Setting(
                 default=12.0,
-                schema={"type": "number", "exclusiveMinimum": 0},
+                schema=POSITIVE,
                 shown="12.0",
                 doc="gate: max \\|residual\\| on every validation run",
             ),
@@ -22,7 +22,7 @@ OPERATIONS_SETTINGS: dict = {
             ),
             "never_worse_than_uncompensated": Setting(
                 default=True,
-                schema={"type": "boolean"},
+                schema=FLAG,
                 shown="true",
                 doc="gate: on no run worse than no compensation",
             ),
@@ -70,17 +70,7 @@ OPERATIONS_SETTINGS: dict = {
             ),
             "dynamic_taus_s": Setting(
                 default="auto",
-                schema={
-                    "oneOf": [
-                        {"const": "auto"},
-                        {
-                            "type": "array",
-                            "items": {"type": "number", "minimum": 0},
-                            "minItems": 1,
-                            "uniqueItems": True,
-                        },
-                    ]
-                },
+                schema=auto_or_numbers(),
                 shown="`auto`",
                 doc=(
                     "first-order filter constants of `dynamic`; `auto`: 0 and a geometric grid (ratio 3) "
@@ -108,17 +98,7 @@ OPERATIONS_SETTINGS: dict = {
             ),
             "grey_box_taus_s": Setting(
                 default="auto",
-                schema={
-                    "oneOf": [
-                        {"const": "auto"},
-                        {
-                            "type": "array",
-                            "items": {"type": "number", "minimum": 0},
-                            "minItems": 1,
-                            "uniqueItems": True,
-                        },
-                    ]
-                },
+                schema=auto_or_numbers(),
                 shown="`auto`",
                 doc=(
                     "rise filters of `grey_box` (0 = the rise itself); `auto`: 0 and 24 P .. L/24, ratio 5 "
@@ -127,17 +107,7 @@ OPERATIONS_SETTINGS: dict = {
             ),
             "grey_box_speed_taus_s": Setting(
                 default="auto",
-                schema={
-                    "oneOf": [
-                        {"const": "auto"},
-                        {
-                            "type": "array",
-                            "items": {"type": "number", "exclusiveMinimum": 0},
-                            "minItems": 1,
-                            "uniqueItems": True,
-                        },
-                    ]
-                },
+                schema=auto_or_numbers(positive=True),
                 shown="`auto`",
                 doc=(
                     "heat-input filters; `auto`: 12 P .. L/6, ratio 3 (60, 180, 540, 1600 s at 5 s and 4 h);"
@@ -164,17 +134,7 @@ OPERATIONS_SETTINGS: dict = {
             ),
             "grey_box_centrifugal_lags_s": Setting(
                 default="auto",
-                schema={
-                    "oneOf": [
-                        {"const": "auto"},
-                        {
-                            "type": "array",
-                            "items": {"type": "number", "minimum": 0},
-                            "minItems": 1,
-                            "uniqueItems": True,
-                        },
-                    ]
-                },
+                schema=auto_or_numbers(),
                 shown="`auto`",
                 doc=(
                     "lag of the n² draw-in term, by CV; `auto`: 0, P, 2 P, 4 P (P = sample period); or a list"
@@ -199,7 +159,7 @@ OPERATIONS_SETTINGS: dict = {
             ),
             "filter_restart_gap_s": Setting(
                 default=3600,
-                schema={"type": "number", "minimum": 0},
+                schema=NON_NEGATIVE,
                 shown="3600",
                 doc=(
                     "on whole logs, a gap longer than this (s) restarts the family's filters (settled on the"
@@ -236,7 +196,7 @@ OPERATIONS_SETTINGS: dict = {
             ),
             "drift_margin_um": Setting(
                 default=2.0,
-                schema={"type": "number", "minimum": 0},
+                schema=NON_NEGATIVE,
                 shown="2.0",
                 doc="the champion's residual on new validation logs may grow this much",
             ),

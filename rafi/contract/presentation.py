@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from rafi.contract.keys import Section, Setting
+from rafi.contract.keys import FLAG, NON_NEGATIVE, OPTIONAL_TEXT, POSITIVE, RANGE, Section, Setting
 
 PRESENTATION_SETTINGS: dict = {
     "report": Section(
@@ -38,7 +38,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "paper_rig": Setting(
                 default=False,
-                schema={"type": "boolean"},
+                schema=FLAG,
                 shown="`false`",
                 doc=(
                     "the machine is the paper's rig: the paper's numbers (Tables 1, 3, 4, the "
@@ -51,7 +51,7 @@ PRESENTATION_SETTINGS: dict = {
                 keys={
                     "number": Setting(
                         default=None,
-                        schema={"type": ["null", "string"]},
+                        schema=OPTIONAL_TEXT,
                         shown="none",
                         doc=(
                             "the sign-off block on the first page: the document number; left out, a blank "
@@ -60,19 +60,19 @@ PRESENTATION_SETTINGS: dict = {
                     ),
                     "prepared_by": Setting(
                         default=None,
-                        schema={"type": ["null", "string"]},
+                        schema=OPTIONAL_TEXT,
                         shown="none",
                         doc="who prepared the report; left out, a blank line to sign",
                     ),
                     "approved_by": Setting(
                         default=None,
-                        schema={"type": ["null", "string"]},
+                        schema=OPTIONAL_TEXT,
                         shown="none",
                         doc="who approved it; left out, a blank line to sign",
                     ),
                     "approved_date": Setting(
                         default=None,
-                        schema={"type": ["null", "string"]},
+                        schema=OPTIONAL_TEXT,
                         shown="none",
                         doc="the approval date; left out, a blank line",
                     ),
@@ -84,19 +84,19 @@ PRESENTATION_SETTINGS: dict = {
                 keys={
                     "machine_serial": Setting(
                         default=None,
-                        schema={"type": ["null", "string"]},
+                        schema=OPTIONAL_TEXT,
                         shown="none",
                         doc="the machine's serial number (test record); missing ones are listed in a warning",
                     ),
                     "controller": Setting(
                         default=None,
-                        schema={"type": ["null", "string"]},
+                        schema=OPTIONAL_TEXT,
                         shown="none",
                         doc="the controller (test record)",
                     ),
                     "probe": Setting(
                         default=None,
-                        schema={"type": ["null", "string"]},
+                        schema=OPTIONAL_TEXT,
                         shown="none",
                         doc="the displacement probe: make, model, resolution (test record)",
                     ),
@@ -125,7 +125,7 @@ PRESENTATION_SETTINGS: dict = {
         keys={
             "clamp_um": Setting(
                 default=[-50.0, 50.0],
-                schema={"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2},
+                schema=RANGE,
                 shown="[-50, 50]",
                 doc=(
                     "the command sent to the controller never leaves this range (um) (docs/deploy.md, Limits"
@@ -136,7 +136,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "rate_um_per_s": Setting(
                 default=0.2,
-                schema={"type": "number", "exclusiveMinimum": 0},
+                schema=POSITIVE,
                 shown="0.2",
                 doc="nor changes faster than this (um/s)",
                 limit=True,
@@ -144,7 +144,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "temp_valid_c": Setting(
                 default=[-10.0, 70.0],
-                schema={"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2},
+                schema=RANGE,
                 shown="[-10, 70]",
                 doc="a temperature outside this range (degC) is a sensor fault",
                 limit=True,
@@ -152,7 +152,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "stuck_s": Setting(
                 default=1800,
-                schema={"type": "number", "exclusiveMinimum": 0},
+                schema=POSITIVE,
                 shown="1800",
                 doc="a sensor whose reading has not changed for this long (s) ...",
                 limit=True,
@@ -160,7 +160,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "stuck_change_k": Setting(
                 default=0.5,
-                schema={"type": "number", "exclusiveMinimum": 0},
+                schema=POSITIVE,
                 shown="0.5",
                 doc="... while another sensor the model reads moved by this much (K) is stuck",
                 limit=True,
@@ -168,7 +168,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "range_margin_k": Setting(
                 default=2.0,
-                schema={"type": "number", "minimum": 0},
+                schema=NON_NEGATIVE,
                 shown="2.0",
                 doc="outside the trained range: a rise beyond its training range by more than this (K) ...",
                 limit=True,
@@ -176,7 +176,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "speed_margin_rpm": Setting(
                 default=500,
-                schema={"type": "number", "minimum": 0},
+                schema=NON_NEGATIVE,
                 shown="500",
                 doc="... or a speed above the trained speeds by more than this (r/min)",
                 limit=True,
@@ -184,7 +184,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "hold_s": Setting(
                 default=600,
-                schema={"type": "number", "minimum": 0},
+                schema=NON_NEGATIVE,
                 shown="600",
                 doc="on a fault or outside the trained range the last good value is held this long (s) ...",
                 limit=True,
@@ -200,7 +200,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "ramp_um_per_s": Setting(
                 default=0.02,
-                schema={"type": "number", "exclusiveMinimum": 0},
+                schema=POSITIVE,
                 shown="0.02",
                 doc="... at this rate (um/s)",
                 limit=True,
@@ -208,7 +208,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "interval_s": Setting(
                 default=5,
-                schema={"type": "number", "exclusiveMinimum": 0},
+                schema=POSITIVE,
                 shown="5",
                 doc="the live loop writes every this many seconds",
                 limit=True,

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from rafi.contract.keys import Setting
+from rafi.contract.keys import NON_NEGATIVE, Setting
 
 #: Run settings: top level of ``config.yaml`` (``--config key=value`` on the command line).
 RUN_SETTINGS: dict[str, Setting] = {
@@ -51,7 +51,7 @@ RUN_SETTINGS: dict[str, Setting] = {
     ),
     "settle_s": Setting(
         default=0,
-        schema={"type": "number", "minimum": 0},
+        schema=NON_NEGATIVE,
         shown="0",
         doc=(
             "a raw file modified less than this many seconds ago is still being written: it is left out of "
@@ -60,7 +60,7 @@ RUN_SETTINGS: dict[str, Setting] = {
     ),
     "nightly_settle_s": Setting(
         default=600,
-        schema={"type": "number", "minimum": 0},
+        schema=NON_NEGATIVE,
         shown="600",
         doc="the `settle_s` of `rafi nightly` (a logger may still be writing at night)",
     ),
