@@ -240,11 +240,11 @@ def records(frame, columns: dict | None = None) -> list[dict]:
         frame = frame[list(columns.values())].set_axis(list(columns), axis=1)
     out = []
     for row in frame.to_dict("records"):
-        out.append({k: _plain(v) for k, v in row.items()})
+        out.append({k: plain(v) for k, v in row.items()})
     return out
 
 
-def _plain(value):
+def plain(value):
     """A frame's cell as a plain Python value (``None`` for NaN)."""
     if hasattr(value, "item") and not isinstance(value, (str, bytes)):
         value = value.item()
