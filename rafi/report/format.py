@@ -107,17 +107,6 @@ def fmt_duration(seconds) -> str:
     return fmt_num(s / 3600.0, 2, "h") if s >= 3600 else fmt_num(s / 60.0, 0, "min")
 
 
-def cell(text, cls: str = "") -> dict:
-    """A table cell with a CSS class (``pass``, ``fail``, ...)."""
-    return {"text": text, "cls": cls}
-
-
-def table(headers, rows, *, cls: str = "", widths=None, caption: str = "") -> dict:
-    """A table for the template: headers (str), rows of cells (str or ``cell()`` dicts)."""
-    norm = [[c if isinstance(c, dict) else cell(c) for c in r] for r in rows]
-    return {"headers": list(headers), "rows": norm, "cls": cls, "widths": widths or [], "caption": caption}
-
-
 def term_text(term: str, variables: dict | None = None) -> Markup:
     """``x1*x2^2`` -> ``x₁·x₂²`` (HTML-safe)."""
     if term == "1":
