@@ -27,7 +27,7 @@ from rafi.report.deployed_terms import (
     ridge_inputs,
     ridge_tables,
 )
-from rafi.report.format import fmt_num, fmt_sig, isnum, records, short_id, truthy
+from rafi.report.format import fmt_num, fmt_sig, isnum, plain, short_id, truthy
 
 UM = "\u00b5m"
 
@@ -185,13 +185,20 @@ def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name:
     s = summary.assign(model=summary["model"].astype(str))
     me = s[s["model"] == name].iloc[0]
     others = [
-        {**r, "rafi": str(r.get("kind")) == "rafi"}
-        for r in records(s.sort_values("cv_mean_max_abs_um", na_position="last"))
+        {**_fields(r, ("cv_mean_max_abs_um", "cv_max_abs_um", "selection_rank")), "model": r["model"]}
+        | {"rafi": str(r.get("kind")) == "rafi"}
+        for r in s.sort_values("cv_mean_max_abs_um", na_position="last").to_dict("records")
         if r["model"] != name
     ]
     folds = []
     if cv is not None and len(cv) and "model" in cv:
-        folds = records(cv[cv["model"].astype(str) == name])
+        folds = [
+            {
+                **_fields(r, ("max_abs_before_um", "max_abs_after_um", "rmse_um")),
+                "test_runs": r.get("test_runs", ""),
+            }
+            for r in cv[cv["model"].astype(str) == name].to_dict("records")
+        ]
     scheme = (
         str(cv["scheme"].iloc[0]).replace("_", "-") if cv is not None and len(cv) and "scheme" in cv else ""
     )
@@ -217,14 +224,21 @@ def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name:
 
 
 # ---------------------------------------------------------------------------- section
+def _fields(row: dict, keys) -> dict:
+    """``keys`` of a frame's row as plain values, ``None`` for a missing one."""
+    return {k: plain(row.get(k)) for k in keys}
+
+
 def _validation_rows(per_run: pd.DataFrame | None, name: str) -> list[dict] | None:
     """``per_run.csv``'s rows of model ``name`` (``passed`` as a bool), ``None`` without it."""
     if per_run is None or not len(per_run):
         return None
-    rows = records(per_run[per_run["model"].astype(str) == name])
-    for r in rows:
-        r["passed"] = truthy(r.get("passed", False))
-    return rows
+    keys = ("speed_rpm", "max_abs_before_um", "max_abs_after_um", "noise_floor_um", "rmse_after_um")
+    return [
+        {**_fields(r, keys), "run_id": r["run_id"], "role": str(r.get("role", ""))}
+        | {"passed": truthy(r.get("passed", False))}
+        for r in per_run[per_run["model"].astype(str) == name].to_dict("records")
+    ]
 
 
 def section_deployed(res: dict, figs, champion_after=None) -> dict | None:

@@ -91,10 +91,10 @@ def section_segmentation(res: dict, settings: dict, figs) -> dict | None:
     dict or None
         ``table`` (one dict per run: ``run_id``, ``start_h`` / ``end_h`` on the log's clock,
         ``start_time`` / ``end_time``, ``duration_s``, ``speed_rpm``, ``speed_range`` (a varying
-        run's ``[min, max]``), ``kind``, ``role``, ``source``, ``why``), ``figure``, ``n_runs``, ``n_logs``,
-        ``by_role`` / ``by_source`` (counts),
-        ``allow_late`` (the setting), ``late`` (training runs after validation data of their
-        log), ``windows`` (number of configured windows); ``None`` without ``runs.csv``.
+        run's ``[min, max]``), ``kind``, ``role``, ``source``, ``why``), ``figure``,
+        ``n_runs``, ``n_logs``, ``by_role`` / ``by_source`` (counts), ``allow_late`` (the
+        setting), ``late`` (training runs after validation data of their log), ``windows``
+        (number of configured windows); ``None`` without ``runs.csv``.
     """
     runs = res.get("runs_csv")
     if runs is None or not len(runs):
