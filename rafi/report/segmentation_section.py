@@ -27,6 +27,7 @@ def _text(value) -> str:
 
 
 def _hours(seconds):
+    """Seconds on the log's clock as hours (``None`` for a missing value)."""
     return float(seconds) / 3600.0 if isnum(seconds) else None
 
 
