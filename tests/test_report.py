@@ -603,6 +603,26 @@ def test_machine_b_like_results_render_and_fit(tmp_path):
     assert checked["table"] >= 16 and checked["image"] >= 8
 
 
+def test_no_report_module_builds_a_table_in_python():
+    """The report's Python builds data; the templates set every table (one macro, frame_table).
+    skipped.py is the exception: the page of a skipped machine is a standard-library-only page
+    of its own (no jinja2, no report template), written before any report is built."""
+    import rafi.report
+    import rafi.report.format as fmt
+
+    assert not hasattr(fmt, "table") and not hasattr(fmt, "cell")
+    here = Path(rafi.report.__file__).parent
+    for path in sorted(here.glob("*.py")):
+        if path.name == "skipped.py":
+            continue
+        src = path.read_text(encoding="utf-8").lower()
+        for tag in ("<table", "<td", "<th", "<tr", "<colgroup"):
+            assert tag not in src, f"{path.name} writes {tag}"
+    templates = here / "templates"
+    for path in sorted(templates.rglob("*.j2")):
+        assert "render_table" not in path.read_text(encoding="utf-8"), path.name
+
+
 def test_segmentation_section_lists_every_run_and_why(tmp_path):
     results = tmp_path / "results" / "machining-center-b"
     _machine_b_like(FIXTURE, results)
@@ -611,7 +631,9 @@ def test_segmentation_section_lists_every_run_and_why(tmp_path):
     html = render_html(ctx)
     runs = pd.read_csv(results / "runs.csv")
     sg = ctx["segmentation"]
-    assert len(sg["table"]["rows"]) == len(runs) and sg["n_runs"] == len(runs)
+    assert len(sg["table"]) == len(runs) and sg["n_runs"] == len(runs)
+    (seg,) = _tables(html, "segmentation")
+    assert len(seg["cells"]) == len(runs)
     assert sg["n_logs"] == runs["file"].nunique()
     text = _text(html)
     for r in runs.itertuples(index=False):

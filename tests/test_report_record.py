@@ -13,6 +13,7 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
+from html_tables import html_tables
 
 from rafi.report.render import _environment
 from rafi.report.test_record import (
@@ -166,9 +167,11 @@ def test_section_without_ambient_sensor_states_no_number(synthetic):
     res = {"runs_parquet": frame, "runs_csv": runs, "key_sensors_json": {"sensors": ["T1"]}}
     ctx = section_test_record(res, _settings())
     assert ctx["ambient"] is None
-    assert not any("ambient" in h for h in ctx["logs"]["headers"])
-    assert not any("temperature variation" in h for h in ctx["runs"]["headers"])
     html = _render_section(ctx)
+    (logs,) = html_tables(html, "num test-logs")
+    (per_run,) = html_tables(html, "num test-runs")
+    assert not any("ambient" in h for h in logs["headers"])
+    assert not any("temperature variation" in h for h in per_run["headers"])
     assert "Ambient temperature not measured" in html and "Test conditions missing" in html
     assert "\u00b0C" not in html  # no temperature is stated
     # the configured default (5 s) differs from log A's 10 s: said
@@ -187,17 +190,18 @@ def test_section_with_ambient_sensor_and_instruments(synthetic):
     }
     ctx = section_test_record(res, _settings(ambient_sensor="T16", instruments=inst))
     assert ctx["missing"] == []
-    log_rows = {r[0]["text"]: [c["text"] for c in r] for r in ctx["logs"]["rows"]}
-    a = log_rows[str(next(iter(log_rows)))]
+    html = _render_section(ctx)
+    (logs,) = html_tables(html, "num test-logs")
+    (per_run,) = html_tables(html, "num test-runs")
+    a = [c["text"] for c in logs["rows"][0]]
     assert a[1] == "2026-01-05 08:00:00" and a[2] == "10:13:20" and a[5] == "10\u00a0s"
     assert a[-3:] == ["20.00", "21.50", "1.50"]
-    b = [c["text"] for c in ctx["logs"]["rows"][1]]
+    b = [c["text"] for c in logs["rows"][1]]
     assert b[1] == b[2] == "\u2013" and b[5] == "5\u00a0s" and b[-1] == "0.00"
-    assert len(ctx["runs"]["headers"]) == len(ctx["runs"]["widths"]) == len(ctx["runs"]["rows"][0])
-    assert len(ctx["logs"]["headers"]) == len(ctx["logs"]["widths"]) == len(ctx["logs"]["rows"][0])
-    drift = [r[-2]["text"] for r in ctx["runs"]["rows"]]
-    assert [str(d) for d in drift] == ["<b>5.00</b>", "<b>8.00</b>", "<b>2.50</b>"]
-    html = _render_section(ctx)
+    assert len(per_run["headers"]) == len(per_run["widths"]) == len(per_run["rows"][0])
+    assert len(logs["headers"]) == len(logs["widths"]) == len(logs["rows"][0])
+    drift = [r[-2]["html"] for r in per_run["rows"]]
+    assert drift == ["<b>5.00</b>", "<b>8.00</b>", "<b>2.50</b>"]
     assert "Test conditions missing" not in html and "not measured" not in html
     assert "SN 4711" in html and "room air, 1 m from the machine" in html and "2025-12-01" in html
     assert "key sensor of RAFI" in html and "ambient" in html
@@ -209,12 +213,12 @@ def test_section_one_run_per_log_is_one_table(synthetic):
     runs = runs[runs["run_id"] != "a#2"].reset_index(drop=True)
     ctx = section_test_record({"runs_parquet": frame, "runs_csv": runs}, _settings(ambient_sensor="T16"))
     assert ctx["runs"] is None
-    t = ctx["logs"]
+    (t,) = html_tables(_render_section(ctx), "num test-logs")
     assert len(t["headers"]) == len(t["widths"]) == len(t["rows"][0]) and 99 <= sum(t["widths"]) <= 100
-    row = {h: c["text"] for h, c in zip(t["headers"], t["rows"][0])}
+    row = t["records"][0]
     assert row["role"] == "training" and row["speed"] == "3\u00a0000\u00a0r/min"
-    drift = next(v for h, v in row.items() if h.startswith("thermal drift"))
-    assert str(drift) == "<b>5.00</b>"
+    drift = next(c["html"] for h, c in zip(t["headers"], t["rows"][0]) if h.startswith("thermal drift"))
+    assert drift == "<b>5.00</b>"
     # a#1 alone: samples 0..400 of the ramp 20.0 -> 21.5 over 800 steps
     variation = next(v for h, v in row.items() if h.startswith("environmental"))
     assert variation == "0.75"

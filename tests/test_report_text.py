@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from html_tables import html_tables
 
 from rafi.method.equilibrium import first_order_fit
 from rafi.report import plot_layout, plots, tables
@@ -69,7 +70,17 @@ class _Figs:
 
 def _section(name: str, **ctx) -> str:
     """One section template rendered alone (the heading macro needs ``section_by_id``)."""
-    ids = ("verdict", "equilibrium", "ranking", "models", "fuzzy", "validation", "choices", "provenance")
+    ids = (
+        "verdict",
+        "data",
+        "equilibrium",
+        "ranking",
+        "models",
+        "fuzzy",
+        "validation",
+        "choices",
+        "provenance",
+    )
     base = {
         "section_by_id": {s: {"id": s, "number": k, "title": s} for k, s in enumerate(ids, start=1)},
         "fig_offset": 0,
@@ -288,7 +299,9 @@ def test_cleaning_says_rows_read_and_rows_on_the_grid():
     assert "kept" not in text
     assert text.startswith("Cleaning read 32 026 rows and wrote 32 112 rows on the regular 15 s grid")
     assert "27 duplicate row(s) dropped" in text and "73 gap(s) bridged" in text
-    assert d["audit"]["headers"][1:3] == ["rows read", "rows on the grid"]
+    (audit_t,) = html_tables(_section("data", data=d), "audit num")
+    assert audit_t["headers"][1:3] == ["rows read", "rows on the grid"]
+    assert [r[-1]["cls"] for r in audit_t["rows"]] == ["pass", "pass"]
 
 
 def test_speed_range_never_prints_the_same_speed_twice():
@@ -352,11 +365,14 @@ def test_equilibrium_flags_disagreement_and_a_fit_at_its_bound():
     bound, apart = eq["flags"]
     assert "9\u00a0000\u00a0r/min" in bound and "upper bound" in bound
     assert "3\u00a0000\u00a0r/min" in apart and "factor 7.43" in apart and "6\u00a0000" not in apart
-    cells = [[c["text"] for c in r] for r in eq["table"]["rows"]]
-    assert cells[0][1].endswith("\u2020") and eq["table"]["rows"][0][1]["cls"] == "fail"
-    assert not cells[1][1].endswith("\u2020")
+    html = _section("equilibrium", equilibrium=eq)
+    (table,) = html_tables(html, "num")
+    cells = [[c["text"] for c in r] for r in table["rows"]]
+    assert cells[0][1].endswith("\u2020") and table["rows"][0][1]["cls"] == "fail"
+    assert not cells[1][1].endswith("\u2020") and table["rows"][1][1]["cls"] == ""
     assert "2\u00a0154\u00a0680" not in " ".join(cells[2]) and cells[2][4] == "at upper bound"
-    text = _text(_section("equilibrium", equilibrium=eq))
+    assert [c["cls"] for c in table["rows"][2][3:5]] == ["fail", "fail"]
+    text = _text(html)
     assert "Flagged" in text and "factor of 2" in text
     assert "paper" not in text.replace("the paper's reference", "").replace("the paper's method", "")
 

@@ -8,15 +8,14 @@ import pandas as pd
 from rafi.method.equilibrium import TAU_MAX_SPANS, TAU_MIN_S
 from rafi.method.paper import T_EQ_S
 from rafi.report.format import (
-    DASH,
     NBSP,
-    cell,
     fmt_num,
     fmt_speed,
     isnum,
+    plain,
+    records,
     short_id,
     speed_key,
-    table,
     truthy,
 )
 from rafi.report.inputs import chosen_sensors, collinearity_frame, correlation_wide
@@ -38,6 +37,19 @@ def paper_value(frame: pd.DataFrame, i, column: str, values: dict, speed):
     return v
 
 
+#: The counts of ``audit.csv`` the cleaning-audit table shows, in its column order.
+AUDIT_COUNTS = (
+    "rows_in",
+    "rows_out",
+    "duplicates_dropped",
+    "reordered",
+    "spikes_replaced",
+    "values_interpolated",
+    "gaps_interpolated",
+    "segments",
+)
+
+
 def section_data(res: dict, period_s=None) -> dict:
     """Section 2: the runs by role, the cleaning audit per file and the quarantined files (every
     run in detail: :mod:`rafi.report.segmentation_section`).
@@ -55,18 +67,12 @@ def section_data(res: dict, period_s=None) -> dict:
         for r in audit.itertuples(index=False):
             q = str(r.status) != "ok"
             a_rows.append(
-                [
-                    r.file,
-                    fmt_num(r.rows_in, 0),
-                    fmt_num(r.rows_out, 0),
-                    fmt_num(r.duplicates_dropped, 0),
-                    fmt_num(r.reordered, 0),
-                    fmt_num(r.spikes_replaced, 0),
-                    fmt_num(r.values_interpolated, 0),
-                    fmt_num(r.gaps_interpolated, 0),
-                    fmt_num(r.segments, 0),
-                    cell(str(r.status), "fail" if q else "pass"),
-                ]
+                {
+                    "file": r.file,
+                    **{k: plain(getattr(r, k)) for k in AUDIT_COUNTS},
+                    "status": str(r.status),
+                    "ok": not q,
+                }
             )
             if q:
                 quarantined.append(
@@ -76,23 +82,7 @@ def section_data(res: dict, period_s=None) -> dict:
                         "reason": "" if pd.isna(r.reason) else str(r.reason),
                     }
                 )
-        audit_t = table(
-            [
-                "file",
-                "rows read",
-                "rows on the grid",
-                "dupli\u00adcates",
-                "re\u00adordered",
-                "spikes",
-                "values interp.",
-                "gaps interp.",
-                "seg\u00adments",
-                "status",
-            ],
-            a_rows,
-            cls="audit num",
-            widths=[27, 7, 7, 8, 9, 7, 8, 7, 8, 12],
-        )
+        audit_t = a_rows
         totals = {
             k: int(pd.to_numeric(audit[k], errors="coerce").fillna(0).sum())
             for k in (
@@ -263,8 +253,11 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
     Returns
     -------
     dict
-        ``table``, ``figure``, ``method`` and ``flags`` (one sentence per flagged run: the
-        two estimates disagree by more than :data:`DISAGREE_FACTOR`, or tau at a bound).
+        ``table`` (one dict per run: equilibrium.csv's times, ``bound`` (tau at a bound of the
+        fit: ``"upper"``/``"lower"``/``None``), ``apart`` (the two estimates disagree),
+        ``tau_flagged``; with ``paper`` also ``paper_t_eq_s``, ``vs_paper_pct``), ``paper``,
+        ``figure``, ``method`` and ``flags`` (one sentence per flagged run: the two estimates
+        disagree by more than :data:`DISAGREE_FACTOR`, or tau at a bound).
     """
     eq = res["equilibrium"]
     spans = _run_spans(res.get("runs_csv"))
@@ -288,28 +281,26 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
                     f"{fmt_num(r.tau_s, 0, 's')}, bound {limit}); the run does not identify a time "
                     "constant and the \u03c4 cross-check is void."
                 )
-                tau_cell = cell(f"at {bound} bound", "fail")
-                tau_eq_cell = cell(DASH, "fail")
-            else:
-                tau_cell = fmt_num(r.tau_s, 0, "s")
-                tau_eq_cell = fmt_num(r.t_eq_tau_s, 0, "s")
             ratio = np.nan if bound else disagreement(r.t_eq_s, r.t_eq_tau_s)
-            t_eq_cell = fmt_num(r.t_eq_s, 0, "s")
-            if isnum(ratio) and ratio > DISAGREE_FACTOR:
-                t_eq_cell = cell(t_eq_cell + NBSP + "\u2020", "fail")
-                tau_eq_cell = cell(tau_eq_cell, "fail")
+            far = bool(isnum(ratio) and ratio > DISAGREE_FACTOR)
+            if far:
                 apart.append(
                     f"{speed} ({fmt_num(r.t_eq_s, 0, 's')} against {fmt_num(r.t_eq_tau_s, 0, 's')}, "
                     f"factor {fmt_num(ratio, 2)})"
                 )
-            row = [
-                speed,
-                t_eq_cell,
-                f"{fmt_num(r.t_eq_low_s, 0)}\u2013{fmt_num(r.t_eq_high_s, 0, 's')}",
-                tau_eq_cell,
-                tau_cell,
-                fmt_num(r.plateau_um, 2, "\u00b5m"),
-            ]
+            row = {
+                k: plain(r.get(k))
+                for k in (
+                    "speed_rpm",
+                    "t_eq_s",
+                    "t_eq_low_s",
+                    "t_eq_high_s",
+                    "t_eq_tau_s",
+                    "tau_s",
+                    "plateau_um",
+                )
+            }
+            row.update({"bound": bound, "apart": far, "tau_flagged": bool(bound) or far})
             if paper:
                 ref = paper_value(eq, i, "paper_t_eq_s", T_EQ_S, r.speed_rpm)
                 diff = (
@@ -317,27 +308,15 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
                     if isnum(ref) and isnum(r.t_eq_s)
                     else np.nan
                 )
-                row += [fmt_num(ref, 0, "s"), fmt_num(diff, 0, "%", signed=True)]
+                row.update({"paper_t_eq_s": plain(ref), "vs_paper_pct": plain(diff)})
             rows.append(row)
-    heads = [
-        "speed",
-        "t_eq",
-        "uncertainty range",
-        "t_eq from fitted \u03c4",
-        "\u03c4 (first order)",
-        "plateau dz",
-    ]
-    widths = [15, 14, 20, 16, 14, 14]
-    if paper:
-        heads += ["paper Table 1", "vs paper"]
-        widths = [13, 11, 18, 13, 11, 11, 12, 11]
-    t = table(heads, rows, cls="num", widths=widths)
     fig = figs.get("pipeline", "training_runs")
     method = None
     if eq is not None and "method" in eq and len(eq):
         method = str(eq["method"].iloc[0])
     return {
-        "table": t,
+        "table": rows,
+        "paper": paper,
         "figure": fig,
         "method": method,
         "description": equilibrium_description((settings or {}).get("equilibrium")),
@@ -348,7 +327,26 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
 
 def section_ranking(res: dict, key_info: dict, figs, *, paper: bool = False) -> dict:
     """Section 4: the correlation ranking, the chosen key sensors and their collinearity
-    (``paper``: ``report.paper_rig``, the paper's key sensors beside them)."""
+    (``paper``: ``report.paper_rig``, the paper's key sensors beside them).
+
+    Parameters
+    ----------
+    res : dict
+        Loaded inputs (``correlation``, ``key_sensors``, ``collinearity``).
+    key_info : dict
+        ``rank/key_sensors.json``.
+    figs : rafi.report.embed.FigureFiles
+    paper : bool
+
+    Returns
+    -------
+    dict
+        ``table`` (one dict per sensor, best first: ``rank``, ``sensor``, ``min_abs_r``,
+        ``max_abs_r``, ``pooled_abs_r``, ``passes``, ``chosen``), ``key_table``
+        (``key_sensors.csv``'s rows), ``collinearity`` (``sensor`` and ``r``: column sensor ->
+        r, for the sensors ``collinearity_sensors``) or ``collinearity_figure``, and the
+        chosen set in words.
+    """
     corr = res["correlation"]
     ks = res["key_sensors"]
     chosen = chosen_sensors(key_info, ks)
@@ -363,6 +361,7 @@ def section_ranking(res: dict, key_info: dict, figs, *, paper: bool = False) -> 
         "table": None,
         "key_table": None,
         "collinearity": None,
+        "collinearity_sensors": [],
         "collinearity_figure": None,
         "paper": PAPER_KEY_SENSORS if paper else None,
     }
@@ -375,47 +374,30 @@ def section_ranking(res: dict, key_info: dict, figs, *, paper: bool = False) -> 
         score = per_speed.min(axis=0) if len(per_speed) else wide.min(axis=0)
         pooled = wide.loc["pooled"] if "pooled" in wide.index else pd.Series(np.nan, index=sensors)
         order = score.sort_values(ascending=False).index
-        rows = []
-        for k, s in enumerate(order, start=1):
-            sel = s in chosen
-            rows.append(
-                [
-                    str(k),
-                    cell(s, "pass" if sel else ""),
-                    fmt_num(score[s], 4),
-                    fmt_num(per_speed[s].max() if len(per_speed) else np.nan, 4),
-                    fmt_num(pooled.get(s, np.nan), 4),
-                    cell("yes" if score[s] > threshold else "no", "pass" if score[s] > threshold else ""),
-                    "chosen" if sel else "",
-                ]
-            )
-        out["table"] = table(
-            [
-                "rank",
-                "sensor",
-                "min |r| over speeds",
-                "max |r| over speeds",
-                "|r| pooled",
-                f"> {threshold:g}",
-                "key sensor",
-            ],
-            rows,
-            cls="num",
-            widths=[8, 10, 18, 18, 14, 10, 12],
-        )
+        out["table"] = [
+            {
+                "rank": k,
+                "sensor": s,
+                "min_abs_r": plain(score[s]),
+                "max_abs_r": plain(per_speed[s].max() if len(per_speed) else np.nan),
+                "pooled_abs_r": plain(pooled.get(s, np.nan)),
+                "passes": bool(score[s] > threshold),
+                "chosen": s in chosen,
+            }
+            for k, s in enumerate(order, start=1)
+        ]
     if ks is not None:
-        out["key_table"] = table(
-            ["sensor", "score |r|", "selected by"],
-            [[r.sensor, fmt_num(r.score_abs_r, 4), r.selected_by] for r in ks.itertuples(index=False)],
-            cls="num narrow",
+        out["key_table"] = records(
+            ks, {"sensor": "sensor", "score_abs_r": "score_abs_r", "selected_by": "selected_by"}
         )
     coll = res["collinearity"]
     if coll is not None and len(coll):
         m = collinearity_frame(coll)
         if len(m) <= MAX_COLLINEARITY_TABLE:
-            out["collinearity"] = table(
-                ["", *m.columns], [[i, *[fmt_num(v, 4) for v in m.loc[i]]] for i in m.index], cls="num narrow"
-            )
+            out["collinearity"] = [
+                {"sensor": i, "r": {c: plain(v) for c, v in m.loc[i].items()}} for i in m.index
+            ]
+            out["collinearity_sensors"] = list(m.columns)
         else:
             out["collinearity_figure"] = figs.get("pipeline", "collinearity")
         out.update(collinearity_text(m, chosen))

@@ -27,7 +27,7 @@ from rafi.report.deployed_terms import (
     ridge_inputs,
     ridge_tables,
 )
-from rafi.report.format import cell, fmt_num, fmt_sig, isnum, run_label, short_id, table, truthy
+from rafi.report.format import fmt_num, fmt_sig, isnum, plain, short_id, truthy
 
 UM = "\u00b5m"
 
@@ -184,40 +184,27 @@ def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name:
     scores = [float(r["score_um"]) for r in inner if isnum(r.get("score_um"))]
     s = summary.assign(model=summary["model"].astype(str))
     me = s[s["model"] == name].iloc[0]
-    others = []
-    for r in s.sort_values("cv_mean_max_abs_um", na_position="last").to_dict("records"):
-        if r["model"] == name:
-            continue
-        others.append(
-            [
-                r["model"] + (" (RAFI as published)" if str(r.get("kind")) == "rafi" else ""),
-                fmt_num(r.get("cv_mean_max_abs_um"), 2),
-                fmt_num(r.get("cv_max_abs_um"), 2),
-                fmt_num(r.get("selection_rank"), 0),
-            ]
-        )
+    others = [
+        {**_fields(r, ("cv_mean_max_abs_um", "cv_max_abs_um", "selection_rank")), "model": r["model"]}
+        | {"rafi": str(r.get("kind")) == "rafi"}
+        for r in s.sort_values("cv_mean_max_abs_um", na_position="last").to_dict("records")
+        if r["model"] != name
+    ]
     folds = []
     if cv is not None and len(cv) and "model" in cv:
-        g = cv[cv["model"].astype(str) == name]
-        for r in g.to_dict("records"):
-            folds.append(
-                [
-                    run_label(r.get("test_runs", "")),
-                    fmt_num(r.get("max_abs_before_um"), 2),
-                    fmt_num(r.get("max_abs_after_um"), 2),
-                    fmt_num(r.get("rmse_um"), 2),
-                ]
-            )
+        folds = [
+            {
+                **_fields(r, ("max_abs_before_um", "max_abs_after_um", "rmse_um")),
+                "test_runs": r.get("test_runs", ""),
+            }
+            for r in cv[cv["model"].astype(str) == name].to_dict("records")
+        ]
     scheme = (
         str(cv["scheme"].iloc[0]).replace("_", "-") if cv is not None and len(cv) and "scheme" in cv else ""
     )
     metric = str(hyper.get("cv_metric", ""))
     return {
-        "hyper": table(
-            ["chosen", "value", "grid"], [list(r) for r in _hyper_text(art)], cls="kv", widths=[28, 30, 42]
-        )
-        if _hyper_text(art)
-        else None,
+        "hyper": [dict(zip(("chosen", "value", "grid"), r)) for r in _hyper_text(art)] or None,
         "inner_metric": {
             "rmse": "the pooled RMSE of the held-out runs",
             "max_abs": "the mean over held-out runs of the max |residual|",
@@ -231,63 +218,27 @@ def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name:
         "worst": fmt_num(me.get("cv_max_abs_um"), 2, UM),
         "n_models": len(s),
         "scheme": scheme,
-        "beaten": table(
-            ["candidate", f"CV mean max |res.| ({UM})", f"CV worst run ({UM})", "rank"],
-            others,
-            cls="num",
-            widths=[40, 22, 22, 16],
-        )
-        if others
-        else None,
-        "folds": table(
-            ["held-out training run", f"max |dz| ({UM})", f"max |residual| ({UM})", f"RMSE ({UM})"],
-            folds,
-            cls="num",
-            widths=[40, 20, 20, 20],
-        )
-        if folds
-        else None,
+        "beaten": others or None,
+        "folds": folds or None,
     }
 
 
 # ---------------------------------------------------------------------------- section
-def _validation_table(per_run: pd.DataFrame | None, name: str):
+def _fields(row: dict, keys) -> dict:
+    """``keys`` of a frame's row as plain values, ``None`` for a missing one."""
+    return {k: plain(row.get(k)) for k in keys}
+
+
+def _validation_rows(per_run: pd.DataFrame | None, name: str) -> list[dict] | None:
+    """``per_run.csv``'s rows of model ``name`` (``passed`` as a bool), ``None`` without it."""
     if per_run is None or not len(per_run):
-        return None, 0
-    g = per_run[per_run["model"].astype(str) == name]
-    rows = []
-    for r in g.to_dict("records"):
-        ok = truthy(r.get("passed", False))
-        rows.append(
-            [
-                cell(run_label(r["run_id"])),
-                str(r.get("role", "")).replace("validation_", ""),
-                fmt_num(r.get("speed_rpm"), 0),
-                fmt_num(r.get("max_abs_before_um"), 2),
-                cell(fmt_num(r.get("max_abs_after_um"), 2), "" if ok else "fail"),
-                fmt_num(r.get("noise_floor_um"), 2),
-                fmt_num(r.get("rmse_after_um"), 2),
-                cell("PASS" if ok else "FAIL", "pass" if ok else "fail"),
-            ]
-        )
-    return (
-        table(
-            [
-                "validation run",
-                "kind",
-                "speed (r/min)",
-                f"max |dz| uncomp. ({UM})",
-                f"max |residual| ({UM})",
-                f"noise floor ({UM})",
-                f"RMSE after ({UM})",
-                "gates",
-            ],
-            rows,
-            cls="num",
-            widths=[26, 10, 10, 11, 12, 10, 11, 10],
-        ),
-        len(rows),
-    )
+        return None
+    keys = ("speed_rpm", "max_abs_before_um", "max_abs_after_um", "noise_floor_um", "rmse_after_um")
+    return [
+        {**_fields(r, keys), "run_id": r["run_id"], "role": str(r.get("role", ""))}
+        | {"passed": truthy(r.get("passed", False))}
+        for r in per_run[per_run["model"].astype(str) == name].to_dict("records")
+    ]
 
 
 def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
@@ -345,7 +296,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
     if rafi_like:  # per training speed in RAFI's artefact
         train_runs = [str(r) for s in art.get("speeds") or [] for r in s.get("train_runs") or []]
         n_fit = sum(int(s.get("n") or 0) for s in art.get("speeds") or [])
-    validation, n_runs = _validation_table(res.get("comparison_per_run"), name)
+    validation = _validation_rows(res.get("comparison_per_run"), name)
     figures = []
     k = 1
     while True:
@@ -362,9 +313,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "short_id": short_id(mid),
         "description": kind_description(kind),
         "inputs_text": str(art.get("inputs", "")),
-        "inputs": table(
-            ["input", "how the model reads it"], [list(r) for r in inputs], cls="kv", widths=[24, 76]
-        ),
+        "inputs": [{"input": a, "how": b} for a, b in inputs],
         "train_runs": ", ".join(train_runs),
         "n_train": len(train_runs),
         "speeds": (f"{fmt_num(speeds[0], 0)} \u2026 {fmt_num(speeds[1], 0)} r/min" if speeds else "\u2013"),
@@ -380,7 +329,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "worst": fmt_num(row.get("max_abs_after_um"), 2, UM),
         "worst_noise": fmt_num(row.get("noise_floor_um"), 2, UM),
         "validation": validation,
-        "n_runs": n_runs,
+        "n_runs": len(validation or []),
         "figures": figures,
         "on_machine": on_machine,
         "champion_after": short_id(champion_after) if champion_after else "",

@@ -15,15 +15,10 @@ import re
 
 from markupsafe import Markup, escape
 
-from rafi.report.format import cell, fmt_num, table
+from rafi.report.format import fmt_num
 
 UM = "\u00b5m"
 TAU = "\u03c4"
-
-
-def code(text) -> Markup:
-    """An exact coefficient as set in a table cell: monospace, never broken across lines."""
-    return Markup(f'<code style="white-space: nowrap; font-size: 6.5pt">{escape(text)}</code>')
 
 
 #: At most this many columns of exact coefficients side by side (each needs ~30 mm).
@@ -115,7 +110,26 @@ def _power_text(p: float) -> str:
 
 def ridge_tables(art: dict) -> tuple[list, list]:
     """The coefficient tables of a ridge kind and the flat list of ``(feature, exact text)``
-    in the artefact's order (what the test evaluates)."""
+    in the artefact's order (what the test evaluates).
+
+    Parameters
+    ----------
+    art : dict
+        The artefact (``features``, ``coefficients``, ``regressor_ranges``, ...).
+
+    Returns
+    -------
+    blocks : list of dict
+        One per table, as ``templates/sections/deployed.html.j2`` sets it: ``kind``
+        (``temperature``: a row per sensor, a column per (``type``, ``tau_s``), ``range`` the
+        trained rise; ``heat``: a row per speed ``power``, a column per ``tau_s``; ``speed``:
+        a row per speed or draw-in term, ``type``, ``tau_s``, ``coef``), ``part`` (``[k, of]``:
+        at most :data:`MAX_COEF_COLUMNS` coefficient columns per table), ``columns``, ``rows``
+        (``coefs``: the exact text of each column's coefficient, ``None`` where the term is not
+        in the model) and ``widths``.
+    terms : list of tuple
+        ``(feature, exact text)``.
+    """
     names, coef = list(art["features"]), [float(c) for c in art["coefficients"]]
     if len(names) != len(coef):
         raise ValueError(f"artefact: {len(names)} features but {len(coef)} coefficients")
@@ -131,27 +145,21 @@ def ridge_tables(art: dict) -> tuple[list, list]:
         groups = column_groups(len(cols))
         for g, idx in enumerate(groups):
             part = [cols[i] for i in idx]
-            heads = ["sensor"]
-            for typ, t in part:
-                unit = f"{UM}/K" if typ == "rise" else f"{UM}/(K\u00b7krpm)"
-                what = "dT" if t <= 0 else f"L<sub>{fmt_num(t, 0)}\u00a0s</sub>(T)"
-                times_n = " \u00b7 n" if typ == "rise_speed" else ""
-                heads.append(Markup(f"{what}{times_n} ({unit})"))
-            heads.append("trained rise (K)")
-            rows = []
-            for s in sensors:
-                row = [s]
-                for typ, t in part:
-                    c = at.get((s, typ, t))
-                    row.append(cell(code(c)) if c is not None else "\u2013")
-                rng = ranges.get(s)
-                row.append(f"{fmt_num(rng[0], 2)} \u2026 {fmt_num(rng[1], 2)}" if rng else "\u2013")
-                rows.append(row)
+            rows = [
+                {"sensor": s, "coefs": [at.get((s, typ, t)) for typ, t in part], "range": ranges.get(s)}
+                for s in sensors
+            ]
             w_first, w_last = 8, 13
             w = round((100 - w_first - w_last) / MAX_COEF_COLUMNS, 1)
-            title = "Temperature terms" + (f" ({g + 1} of {len(groups)})" if len(groups) > 1 else "")
-            widths = [w_first] + [w] * len(part) + [w_last]
-            out.append({"title": title, "table": table(heads, rows, cls="num coef exact", widths=widths)})
+            out.append(
+                {
+                    "kind": "temperature",
+                    "part": [g + 1, len(groups)],
+                    "columns": [{"type": typ, "tau_s": t} for typ, t in part],
+                    "rows": rows,
+                    "widths": [w_first] + [w] * len(part) + [w_last],
+                }
+            )
     # heat input: one row per power, one column per filter constant
     powers = list(dict.fromkeys(p["power"] for p in parsed if p["type"] == "power"))
     ptaus = list(dict.fromkeys(p["tau_s"] for p in parsed if p["type"] == "power"))
@@ -160,55 +168,24 @@ def ridge_tables(art: dict) -> tuple[list, list]:
         groups = column_groups(len(ptaus))
         for g, idx in enumerate(groups):
             part = [ptaus[i] for i in idx]
-            heads = ["heat-input power"] + [
-                Markup(f"L<sub>{fmt_num(t, 0)}\u00a0s</sub> ({UM})") for t in part
-            ]
-            rows = [[_power_text(q)] + [cell(code(at[(q, t)])) for t in part] for q in powers]
             w = round(76 / MAX_COEF_COLUMNS, 1)
-            title = "Heat-input terms (filtered speed powers)" + (
-                f" ({g + 1} of {len(groups)})" if len(groups) > 1 else ""
-            )
             out.append(
                 {
-                    "title": title,
-                    "table": table(heads, rows, cls="num coef exact", widths=[24] + [w] * len(part)),
+                    "kind": "heat",
+                    "part": [g + 1, len(groups)],
+                    "columns": [{"tau_s": t} for t in part],
+                    "rows": [{"power": _power_text(q), "coefs": [at[(q, t)] for t in part]} for q in powers],
+                    "widths": [24] + [w] * len(part),
                 }
             )
     # speed and draw-in terms: one row each
-    rows = []
-    for p, (_, c) in zip(parsed, terms):
-        if p["type"] == "speed":
-            rows.append([Markup("n &minus; n<sub>0</sub>"), "krpm", f"{UM}/krpm", cell(code(c))])
-        elif p["type"] == "speed2":
-            rows.append(
-                [
-                    Markup("n<sup>2</sup> &minus; n<sub>0</sub><sup>2</sup>"),
-                    "krpm\u00b2",
-                    f"{UM}/krpm\u00b2",
-                    cell(code(c)),
-                ]
-            )
-        elif p["type"] == "draw_in":
-            rows.append(
-                [
-                    Markup(
-                        f"L<sub>{fmt_num(p['tau_s'], 0)}\u00a0s</sub>(n<sup>2</sup>) "
-                        "&minus; n<sub>0</sub><sup>2</sup>"
-                    ),
-                    "krpm\u00b2",
-                    f"{UM}/krpm\u00b2",
-                    cell(code(c)),
-                ]
-            )
+    rows = [
+        {"type": p["type"], "tau_s": p.get("tau_s"), "coef": c}
+        for p, (_, c) in zip(parsed, terms)
+        if p["type"] in ("speed", "speed2", "draw_in")
+    ]
     if rows:
-        out.append(
-            {
-                "title": "Speed terms",
-                "table": table(
-                    ["term", "unit", "coefficient unit", "coefficient"], rows, cls="kv coef exact narrow"
-                ),
-            }
-        )
+        out.append({"kind": "speed", "part": [1, 1], "columns": [], "rows": rows, "widths": []})
     return out, terms
 
 
@@ -364,7 +341,21 @@ def ridge_inputs(art: dict) -> list[tuple[str, Markup | str]]:
 # ---------------------------------------------------------------------------- RAFI kinds
 def rafi_tables(art: dict) -> tuple[list, list]:
     """RAFI's per-speed coefficient tables (terms x training speeds, exact; at most
-    :data:`MAX_COEF_COLUMNS` speeds per table) and the flat list ``((speed, term), exact text)``."""
+    :data:`MAX_COEF_COLUMNS` speeds per table) and the flat list ``((speed, term), exact text)``.
+
+    Parameters
+    ----------
+    art : dict
+        A ``rafi`` or ``rafi_linear`` artefact (``speeds``, ``terms``).
+
+    Returns
+    -------
+    blocks : list of dict
+        ``kind`` ``rafi``, ``part`` (``[k, of]``), ``columns`` (``speed_rpm`` each), ``rows``
+        (``term`` and ``coefs``, the exact text per column) and ``widths``.
+    flat : list of tuple
+        ``((speed, term), exact text)``.
+    """
     speeds = sorted(art["speeds"], key=lambda s: float(s["speed_rpm"]))
     terms = list(art["terms"])
     flat = [
@@ -374,13 +365,17 @@ def rafi_tables(art: dict) -> tuple[list, list]:
     blocks = []
     groups = column_groups(len(speeds))
     for g, cols in enumerate(groups):
-        sp = [speeds[i] for i in cols]
-        rows = [[cell(code(t))] + [cell(code(text[(float(s["speed_rpm"]), t)])) for s in sp] for t in terms]
-        heads = ["term"] + [f"{fmt_num(s['speed_rpm'], 0)} r/min" for s in sp]
+        sp = [float(speeds[i]["speed_rpm"]) for i in cols]
         w = round(88 / MAX_COEF_COLUMNS, 1)
-        tab = table(heads, rows, cls="num coef exact", widths=[12] + [w] * len(sp))
-        part = f" ({g + 1} of {len(groups)})" if len(groups) > 1 else ""
-        blocks.append({"title": f"Coefficients per training speed{part} ({UM}; x in K)", "table": tab})
+        blocks.append(
+            {
+                "kind": "rafi",
+                "part": [g + 1, len(groups)],
+                "columns": [{"speed_rpm": v} for v in sp],
+                "rows": [{"term": t, "coefs": [text[(v, t)] for v in sp]} for t in terms],
+                "widths": [12] + [w] * len(sp),
+            }
+        )
     return blocks, flat
 
 

@@ -107,17 +107,6 @@ def fmt_duration(seconds) -> str:
     return fmt_num(s / 3600.0, 2, "h") if s >= 3600 else fmt_num(s / 60.0, 0, "min")
 
 
-def cell(text, cls: str = "") -> dict:
-    """A table cell with a CSS class (``pass``, ``fail``, ...)."""
-    return {"text": text, "cls": cls}
-
-
-def table(headers, rows, *, cls: str = "", widths=None, caption: str = "") -> dict:
-    """A table for the template: headers (str), rows of cells (str or ``cell()`` dicts)."""
-    norm = [[c if isinstance(c, dict) else cell(c) for c in r] for r in rows]
-    return {"headers": list(headers), "rows": norm, "cls": cls, "widths": widths or [], "caption": caption}
-
-
 def term_text(term: str, variables: dict | None = None) -> Markup:
     """``x1*x2^2`` -> ``x₁·x₂²`` (HTML-safe)."""
     if term == "1":
@@ -240,11 +229,11 @@ def records(frame, columns: dict | None = None) -> list[dict]:
         frame = frame[list(columns.values())].set_axis(list(columns), axis=1)
     out = []
     for row in frame.to_dict("records"):
-        out.append({k: _plain(v) for k, v in row.items()})
+        out.append({k: plain(v) for k, v in row.items()})
     return out
 
 
-def _plain(value):
+def plain(value):
     """A frame's cell as a plain Python value (``None`` for NaN)."""
     if hasattr(value, "item") and not isinstance(value, (str, bytes)):
         value = value.item()

@@ -11,7 +11,7 @@ from __future__ import annotations
 import pandas as pd
 from markupsafe import Markup, escape
 
-from rafi.report.format import fmt_num, run_label, short_id, table
+from rafi.report.format import fmt_num, records, short_id
 
 UM = "\u00b5m"
 
@@ -42,90 +42,22 @@ def _n(value) -> int:
     return int(value) if pd.notna(value) else 0
 
 
-def _range(v) -> str:
-    lo, hi = (float(x) for x in v)
-    return f"[{fmt_num(lo, 1)}, {fmt_num(hi, 1)}]"
-
-
-def _limits_table(deploy: dict, s: pd.DataFrame):
-    """Each limit and fault rule in force, and what it did summed over the replayed runs."""
+def _limits(deploy: dict, s: pd.DataFrame) -> dict:
+    """The limits and fault rules in force and what they did summed over the replayed runs:
+    ``deploy`` (the settings), ``totals`` (the ``n_*`` counts of ``replay_summary.csv``
+    summed), ``n`` (samples) and ``faults`` (the sensor faults, ``"; "``-joined)."""
     tot = {c: int(s[c].fillna(0).sum()) for c in s.columns if c.startswith("n_")}
-    n = tot.get("n_samples", 0)
     faults = "; ".join(str(f) for f in s["faults"].fillna("") if str(f)) if "faults" in s else ""
-
-    def did(k: int, what: str) -> str:
-        return f"{what} on {k} of {n} samples" if k else "did not act"
-
-    sensor = "did not act" if not faults else f"faults: {faults}"
-    rows = [
-        [
-            "clamp",
-            f"deploy.clamp_um = {_range(deploy['clamp_um'])} {UM}",
-            did(tot.get("n_clamped", 0), "clamped the command"),
-        ],
-        [
-            "rate limit",
-            f"deploy.rate_um_per_s = {fmt_num(deploy['rate_um_per_s'], 3)} {UM}/s",
-            did(tot.get("n_rate_limited", 0), "limited the change"),
-        ],
-        [
-            "sensor checks: missing, out of range, stuck",
-            f"temp_valid_c = {_range(deploy['temp_valid_c'])} \u00b0C; stuck after "
-            f"{fmt_num(deploy['stuck_s'], 0)} s while another sensor moved "
-            f"{fmt_num(deploy['stuck_change_k'], 2)} K",
-            sensor,
-        ],
-        [
-            "trained range",
-            f"rise margin {fmt_num(deploy['range_margin_k'], 1)} K; speed margin "
-            f"{fmt_num(deploy['speed_margin_rpm'], 0)} r/min above the trained speeds",
-            did(tot.get("n_outside_range", 0), "outside"),
-        ],
-        [
-            "fault rule: hold, then ramp",
-            f"hold {fmt_num(deploy['hold_s'], 0)} s, then ramp to {fmt_num(deploy['safe_um'], 1)} {UM} at "
-            f"{fmt_num(deploy['ramp_um_per_s'], 3)} {UM}/s",
-            (
-                f"held on {tot.get('n_hold', 0)}, ramped on {tot.get('n_ramp', 0)} of {n} samples"
-                if tot.get("n_hold", 0) + tot.get("n_ramp", 0)
-                else "did not act"
-            ),
-        ],
-    ]
-    return table(
-        ["rule", "in force", "what it did in the replay"], rows, cls="kv replay-limits", widths=[24, 44, 32]
-    )
+    return {"deploy": deploy, "totals": tot, "n": tot.get("n_samples", 0), "faults": faults}
 
 
-def _runs_table(s: pd.DataFrame):
-    rows = []
-    for r in s.to_dict("records"):
-        statuses = ", ".join(f"{st} {_n(r.get(f'n_{st}'))}" for st in STATUS_ORDER if _n(r.get(f"n_{st}")))
-        rows.append(
-            [
-                run_label(r["run_id"]),
-                fmt_num(r["n_samples"], 0),
-                statuses,
-                fmt_num(r["max_abs_measured_um"], 2),
-                fmt_num(r["max_abs_residual_model_um"], 2),
-                fmt_num(r["max_abs_residual_um"], 2),
-                fmt_num(r["max_abs_command_minus_model_um"], 2),
-            ]
-        )
-    return table(
-        [
-            "run",
-            "samples",
-            "samples per status",
-            f"max |dz| uncomp. ({UM})",
-            f"max |residual|, model alone ({UM})",
-            f"max |residual|, command with the limits ({UM})",
-            f"max |command \u2212 model| ({UM})",
-        ],
-        rows,
-        cls="num replay-runs",
-        widths=[20, 9, 23, 12, 12, 12, 12],
-    )
+def _runs(s: pd.DataFrame) -> list[dict]:
+    """One dict per replayed run: ``replay_summary.csv``'s row and ``statuses`` (``[status,
+    samples]`` of every status that occurred, in :data:`STATUS_ORDER`)."""
+    rows = records(s)
+    for r in rows:
+        r["statuses"] = [[st, _n(r.get(f"n_{st}"))] for st in STATUS_ORDER if _n(r.get(f"n_{st}"))]
+    return rows
 
 
 def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
@@ -170,8 +102,8 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
         "champion": short_id(champion_id) if champion_id else "",
         "runs": runs,
         "roles": ", ".join(str(r) for r in deploy.get("replay_roles") or []),
-        "limits": _limits_table(deploy, s),
-        "per_run": _runs_table(s),
+        "limits": _limits(deploy, s),
+        "per_run": _runs(s),
         "acted": acted,
         "worst_with": fmt_num(pd.to_numeric(s["max_abs_residual_um"]).max(), 2, UM),
         "worst_without": fmt_num(pd.to_numeric(s["max_abs_residual_model_um"]).max(), 2, UM),

@@ -10,18 +10,8 @@ is computed from ``runs.csv``.
 from __future__ import annotations
 
 import pandas as pd
-from markupsafe import Markup, escape
 
-from rafi.report.format import (
-    cell,
-    fmt_duration,
-    fmt_num,
-    fmt_speed,
-    fmt_speed_range,
-    isnum,
-    run_label,
-    table,
-)
+from rafi.report.format import isnum, plain
 
 #: Where a role came from (``role_source`` of runs.csv), for people.
 SOURCE_TEXT = {
@@ -36,8 +26,9 @@ def _text(value) -> str:
     return "" if value is None or (isinstance(value, float) and pd.isna(value)) else str(value)
 
 
-def _hours(seconds) -> str:
-    return fmt_num(float(seconds) / 3600.0, 2, "h") if isnum(seconds) else "\u2013"
+def _hours(seconds):
+    """Seconds on the log's clock as hours (``None`` for a missing value)."""
+    return float(seconds) / 3600.0 if isnum(seconds) else None
 
 
 def training_after_validation(runs: pd.DataFrame) -> list[str]:
@@ -57,24 +48,31 @@ def training_after_validation(runs: pd.DataFrame) -> list[str]:
     return out
 
 
-def _span(r) -> Markup:
-    text = escape(f"{_hours(r.get('start_s'))} \u2013 {_hours(r.get('end_s'))}")
-    start, end = _text(r.get("start_time")), _text(r.get("end_time"))
-    if start and end:
-        text += Markup("<br><small>") + escape(f"{start} \u2013 {end}") + Markup("</small>")
-    return Markup(text)
-
-
-def _speed(r) -> str:
+def _speed_range(r):
+    """``[min, max]`` speed of a varying run (shown as a range), else ``None`` (its speed)."""
     lo, hi = r.get("speed_min_rpm"), r.get("speed_max_rpm")
     if str(r.get("kind")) != "varying" or not (isnum(lo) and isnum(hi)) or float(hi) - float(lo) < 1.0:
-        return fmt_speed(r.get("speed_rpm"))
-    return fmt_speed_range(lo, hi)
+        return None
+    return [float(lo), float(hi)]
 
 
-def _why(r) -> Markup:
-    parts = [escape(p) for p in (_text(r.get("role_reason")), _text(r.get("note"))) if p]
-    return Markup("; ".join(str(p) for p in parts)) if parts else Markup("\u2013")
+def _row(r: dict) -> dict:
+    """One run of ``runs.csv`` as the segmentation table shows it."""
+    source = _text(r.get("role_source"))
+    return {
+        "run_id": r["run_id"],
+        "start_h": _hours(r.get("start_s")),
+        "end_h": _hours(r.get("end_s")),
+        "start_time": _text(r.get("start_time")),
+        "end_time": _text(r.get("end_time")),
+        "duration_s": plain(r.get("duration_s")),
+        "speed_rpm": plain(r.get("speed_rpm")),
+        "speed_range": _speed_range(r),
+        "kind": _text(r.get("kind")),
+        "role": str(r.get("role", "")),
+        "source": SOURCE_TEXT.get(source, source),
+        "why": [p for p in (_text(r.get("role_reason")), _text(r.get("note"))) if p],
+    }
 
 
 def section_segmentation(res: dict, settings: dict, figs) -> dict | None:
@@ -92,42 +90,22 @@ def section_segmentation(res: dict, settings: dict, figs) -> dict | None:
     Returns
     -------
     dict or None
-        ``table``, ``figure``, ``n_runs``, ``n_logs``, ``by_role`` / ``by_source`` (counts),
-        ``allow_late`` (the setting), ``late`` (training runs after validation data of their
-        log), ``windows`` (number of configured windows); ``None`` without ``runs.csv``.
+        ``table`` (one dict per run: ``run_id``, ``start_h`` / ``end_h`` on the log's clock,
+        ``start_time`` / ``end_time``, ``duration_s``, ``speed_rpm``, ``speed_range`` (a varying
+        run's ``[min, max]``), ``kind``, ``role``, ``source``, ``why``), ``figure``,
+        ``n_runs``, ``n_logs``, ``by_role`` / ``by_source`` (counts), ``allow_late`` (the
+        setting), ``late`` (training runs after validation data of their log), ``windows``
+        (number of configured windows); ``None`` without ``runs.csv``.
     """
     runs = res.get("runs_csv")
     if runs is None or not len(runs):
         return None
-    rows = []
-    for r in runs.to_dict("records"):
-        source = _text(r.get("role_source"))
-        rows.append(
-            [
-                cell(run_label(r["run_id"])),
-                cell(_span(r)),
-                fmt_duration(r.get("duration_s")),
-                _speed(r),
-                _text(r.get("kind")),
-                cell(
-                    Markup(
-                        f"{escape(str(r.get('role', '')))}<br><small>"
-                        f"{escape(SOURCE_TEXT.get(source, source))}</small>"
-                    )
-                ),
-                cell(_why(r)),
-            ]
-        )
+    rows = [_row(r) for r in runs.to_dict("records")]
     runs_settings = settings.get("runs", {}) if isinstance(settings, dict) else {}
     late = training_after_validation(runs)
     source = runs["role_source"].astype(str) if "role_source" in runs else pd.Series(dtype=str)
     return {
-        "table": table(
-            ["run", "span on the log's clock", "duration", "speed", "kind", "role (source)", "why"],
-            rows,
-            cls="segmentation",
-            widths=[17, 17, 8, 13, 8, 13, 24],
-        ),
+        "table": rows,
         "figure": figs.get("pipeline", "segmentation"),
         "n_runs": len(runs),
         "n_logs": int(runs["file"].astype(str).nunique()) if "file" in runs else 0,

@@ -25,9 +25,8 @@ import datetime as dt
 
 import numpy as np
 import pandas as pd
-from markupsafe import Markup, escape
 
-from rafi.report.format import DASH, cell, fmt_duration, fmt_num, fmt_speed, isnum, run_label, table
+from rafi.report.format import DASH, fmt_num, fmt_speed, isnum, records
 
 UM = "\u00b5m"
 
@@ -340,82 +339,50 @@ def _role_text(role) -> str:
     return str(role).replace("validation_", "valid.\u00a0") or DASH
 
 
-def _drift_cell(value) -> dict:
-    return cell(Markup(f"<b>{escape(fmt_num(value, 2))}</b>"))
-
-
-DRIFT_HEAD = f"thermal drift, max \u2212 min of dz ({UM})"
-VARIATION_HEAD = "environmental temp. variation (K)"
-
-
 def _percent(widths) -> list:
     """Column widths as percentages summing to at most 100 (rounded down to 0.1)."""
     total = float(sum(widths))
     return [float(np.floor(1000.0 * w / total)) / 10.0 for w in widths]
 
 
-def _logs_table(logs: pd.DataFrame, ambient, one_run) -> dict:
-    """The Logs table; ``one_run`` (:func:`run_record` indexed by log, each log one run) adds
-    the run's role, speed and thermal drift."""
-    rows = []
-    for r in logs.to_dict("records"):
-        row = [cell(run_label(r["log"]))]
-        if one_run is not None:
-            rr = one_run.loc[r["log"]].to_dict()
-            row += [_role_text(rr["role"]), _speed_text(rr)]
-        row += [
-            _fmt_time(r["first_time"]),
-            _fmt_time(r["last_time"], _day(r["first_time"])),
-            fmt_duration(r["duration_s"]),
-            fmt_num(r["n_samples"], 0),
-            fmt_period(r["period_s"]),
-        ]
-        if one_run is not None:
-            row.append(_drift_cell(rr["thermal_drift_um"]))
-        if ambient:
-            row += [
-                fmt_num(r["ambient_min_c"], 2),
-                fmt_num(r["ambient_max_c"], 2),
-                fmt_num(r["ambient_variation_k"], 2),
-            ]
-        rows.append(row)
-    heads = ["log"] + (["role", "speed"] if one_run is not None else [])
-    heads += ["first sample", "last sample", "duration", "samples", "period found"]
-    widths = [19] + ([13, 11] if one_run is not None else []) + [18, 10, 7, 8, 7]
-    if one_run is not None:
-        heads.append(DRIFT_HEAD)
-        widths.append(10)
-    if ambient:
-        heads += ["ambient min (\u00b0C)", "ambient max (\u00b0C)", VARIATION_HEAD]
-        widths += [7, 7, 9]
-    return table(heads, rows, cls="num test-logs", widths=_percent(widths))
+def _span(r: dict) -> dict:
+    """The first and last sample of a log or run as the tables show them (the last one without
+    its date when on the day of the first)."""
+    return {
+        "first_sample": _fmt_time(r["first_time"]),
+        "last_sample": _fmt_time(r["last_time"], _day(r["first_time"])),
+    }
 
 
-def _runs_table(rr: pd.DataFrame, ambient) -> dict:
-    """Thermal drift per run (logs cut into several runs)."""
+def _logs_rows(logs: pd.DataFrame, one_run) -> list[dict]:
+    """The Logs table's rows; ``one_run`` (:func:`run_record` indexed by log, each log one run)
+    adds the run's ``role``, ``speed`` and ``thermal_drift_um``."""
     rows = []
-    for r in rr.to_dict("records"):
-        row = [
-            cell(run_label(r["run_id"])),
-            _role_text(r["role"]),
-            _speed_text(r),
-            _fmt_time(r["first_time"]),
-            _fmt_time(r["last_time"], _day(r["first_time"])),
-            fmt_duration(r["duration_s"]),
-            fmt_num(r["dz_min_um"], 2),
-            fmt_num(r["dz_max_um"], 2),
-            _drift_cell(r["thermal_drift_um"]),
-        ]
-        if ambient:
-            row.append(fmt_num(r["ambient_variation_k"], 2))
+    for r, orig in zip(records(logs), logs.to_dict("records")):
+        row = {**r, **_span(orig), "period": fmt_period(orig["period_s"])}
+        if one_run is not None:
+            rr = one_run.loc[orig["log"]].to_dict()
+            row.update(
+                role=_role_text(rr["role"]), speed=_speed_text(rr), thermal_drift_um=rr["thermal_drift_um"]
+            )
         rows.append(row)
-    heads = ["run", "role", "speed", "first sample", "last sample", "duration"]
-    heads += [f"dz min ({UM})", f"dz max ({UM})", DRIFT_HEAD]
-    widths = [20, 12, 11, 18, 10, 7, 7, 7, 9]
-    if ambient:
-        heads.append(VARIATION_HEAD)
-        widths.append(9)
-    return table(heads, rows, cls="num test-runs", widths=_percent(widths))
+    return rows
+
+
+def _logs_widths(one_run: bool, ambient) -> list:
+    """The Logs table's column widths (%): the columns ``test_record.html.j2`` sets."""
+    widths = [19] + ([13, 11] if one_run else []) + [18, 10, 7, 8, 7]
+    widths += [10] if one_run else []
+    widths += [7, 7, 9] if ambient else []
+    return _percent(widths)
+
+
+def _runs_rows(rr: pd.DataFrame) -> list[dict]:
+    """Thermal drift per run (logs cut into several runs): :func:`run_record`'s rows."""
+    return [
+        {**r, **_span(orig), "role": _role_text(orig["role"]), "speed": _speed_text(orig)}
+        for r, orig in zip(records(rr), rr.to_dict("records"))
+    ]
 
 
 def section_test_record(res: dict, settings: dict) -> dict:
@@ -433,10 +400,15 @@ def section_test_record(res: dict, settings: dict) -> dict:
     Returns
     -------
     dict
-        ``logs`` and ``runs`` (tables, ``None`` without ``runs.parquet``), ``ambient`` (the
+        ``logs`` and ``runs`` (rows: :func:`log_record`'s and :func:`run_record`'s, with the
+        span, role, speed and period as text; ``None`` without ``runs.parquet``; ``runs``
+        ``None`` too when each log is one run, ``logs_one_run``: then the logs carry the run's
+        role, speed and drift) and their ``logs_widths`` / ``runs_widths``, ``ambient`` (the
         sensor or ``None``), ``ambient_missing`` (logs where the named sensor has no reading),
         ``period_note`` (the configured period differs from the one found), ``instruments``
-        (kv table), ``positions`` and ``calibration`` (tables or ``None``) and ``missing``.
+        (``label``, ``value`` or ``None``), ``positions`` (one or two lists of ``sensor``,
+        ``position`` or ``None``, ``role``), ``calibration`` (``instrument``, ``date``,
+        ``flag``, ``flagged``; or ``None``) and ``missing``.
     """
     rep = settings["report"]
     ambient = rep.get("ambient_sensor") or None
@@ -444,7 +416,10 @@ def section_test_record(res: dict, settings: dict) -> dict:
     runs = res.get("runs_csv")
     out: dict = {
         "logs": None,
+        "logs_one_run": False,
+        "logs_widths": [],
         "runs": None,
+        "runs_widths": [],
         "ambient": ambient,
         "ambient_missing": [],
         "period_note": "",
@@ -464,8 +439,11 @@ def section_test_record(res: dict, settings: dict) -> dict:
         out["n_runs"] = len(rr)
         # each log one run: one table (the run's role, speed and drift beside its log's span)
         whole = len(rr) == len(logs) and rr["log"].nunique() == len(rr) and set(rr["log"]) == set(logs["log"])
-        out["logs"] = _logs_table(logs, ambient, rr.set_index("log") if whole else None)
-        out["runs"] = None if whole else _runs_table(rr, ambient)
+        out["logs"] = _logs_rows(logs, rr.set_index("log") if whole else None)
+        out["logs_one_run"] = whole
+        out["logs_widths"] = _logs_widths(whole, ambient)
+        out["runs"] = None if whole else _runs_rows(rr)
+        out["runs_widths"] = _percent([20, 12, 11, 18, 10, 7, 7, 7, 9] + ([9] if ambient else []))
         out["ambient_missing"] = [
             str(lg) for lg, v in zip(logs["log"], logs["ambient_variation_k"]) if ambient and not isnum(v)
         ]
@@ -480,39 +458,20 @@ def section_test_record(res: dict, settings: dict) -> dict:
         rep.get("instruments") or {}, ambient, sensors, _sensor_roles(res, settings, ambient), last_log
     )
     out["missing"] = inst["missing"]
-    out["instruments"] = table(
-        ["", "given in the configuration"],
-        [
-            [cell(label, "rowhead"), v if v is not None else cell("not given", "fail")]
-            for label, v, _ in inst["fields"]
-        ]
-        + [
-            [
-                cell("ambient sensor", "rowhead"),
-                ambient if ambient else cell("not named", "fail"),
-            ]
-        ],
-        cls="kv narrow",
-    )
-    placed = [p for p in inst["positions"] if p[1] is not None or p[2]]
-    rows = [[s, p if p is not None else cell("not given", "fail"), role] for s, p, role in placed]
-    half = (len(rows) + 1) // 2 if len(rows) > 6 else len(rows)
+    out["instruments"] = [{"label": label, "value": v} for label, v, _ in inst["fields"]]
+    placed = [
+        {"sensor": s, "position": p, "role": role}
+        for s, p, role in inst["positions"]
+        if p is not None or role
+    ]
+    half = (len(placed) + 1) // 2 if len(placed) > 6 else len(placed)
     out["positions"] = (
-        [
-            table(["sensor", "position", "role in this report"], part, widths=[14, 56, 30])
-            for part in (rows[:half], rows[half:])
-            if part
-        ]
+        [part for part in (placed[:half], placed[half:]) if part]
         if any(p[1] is not None for p in inst["positions"])
         else []
     )
-    out["calibration"] = (
-        table(
-            ["instrument", "calibrated", ""],
-            [[name, date, cell(flag, "fail") if flag else ""] for name, date, flag in inst["calibration"]],
-            cls="narrow",
-        )
-        if inst["calibration"]
-        else None
-    )
+    out["calibration"] = [
+        {"instrument": name, "date": date, "flag": flag, "flagged": bool(flag)}
+        for name, date, flag in inst["calibration"]
+    ] or None
     return out
