@@ -378,14 +378,17 @@ def say_rejected_input():
 def say_failures():
     """onerror of the Snakefile: repeat the one-line message of every job of this run that failed
     on bad input (``RAFI <step> (<wildcards>) failed: ...``, the last line of its log) as the last
-    thing the user reads, below Snakemake's failure blocks; then end the run (exit status 1)
-    without Snakemake's closing lines, which would bury it. A run with ``debug`` set, or whose
-    failures are not bad input (a bug: its traceback matters more), ends as Snakemake ends it."""
+    thing the user reads, below Snakemake's failure blocks; in an interactive run
+    (``on_bad_input: fail``) then end it (exit status 1) without Snakemake's closing lines, which
+    would bury it. A run with ``debug`` set, or whose failures are not bad input (a bug: its
+    traceback matters more), ends as Snakemake ends it, and so does ``rafi nightly`` (quarantine
+    mode, Snakemake in its own process: it reports the failure itself)."""
     lines = failure_lines(LOGS_DIR, since=STARTED)
     if not lines or _settings.truthy(RUN["debug"]):
         return
     print("\n" + "\n".join(lines), file=sys.stderr, flush=True)
-    raise SystemExit(1)
+    if RUN["on_bad_input"] == "fail":
+        raise SystemExit(1)
 
 
 # --------------------------------------------------------------------------- bad input
