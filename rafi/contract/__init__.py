@@ -48,6 +48,7 @@ from rafi.contract.results import (
     REPORT_OPTIONAL,
     REPORT_REQUIRED,
     RESULT_FILES,
+    RUN_FILES,
     result_file,
 )
 from rafi.contract.run import RUN_SETTINGS
@@ -74,6 +75,7 @@ __all__ = [
     "REPORT_OPTIONAL",
     "REPORT_REQUIRED",
     "RESULT_FILES",
+    "RUN_FILES",
     "RUN_SETTINGS",
     "TABLES_BEGIN",
     "TABLES_END",

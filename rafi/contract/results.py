@@ -49,6 +49,17 @@ RESULT_FILES: dict[str, str] = {
     "benchmark": "benchmarks/{step}.tsv",
 }
 
+#: Memos under ``results/<machine>/``: not outputs (no rule declares them), looked up by content and
+#: safe to delete (``docs/decisions.md``: why they are no layer of change detection).
+RESULT_FILES["cv_memo"] = ".cv_memo"  # rule compare: the CV rows by content (rafi.family.cv_memo)
+
+#: Files of a run under ``results/`` itself (not of one machine).
+RUN_FILES: dict[str, str] = {
+    "input_check": "input_check.json",  # rule input_check: was input rejected anywhere?
+    "raw_hashes": ".raw_hashes.json",  # the raw files' content hashes, cached on their stat
+    "template_cache": ".template_cache",  # the report's compiled templates (jinja2's bytecode cache)
+}
+
 #: The model registry of a machine, ``results/<machine>/registry/`` (``docs/operations.md``):
 #: ``models/<id>.json``, ``champion.json``, ``history.jsonl`` besides the declared outputs.
 REGISTRY_DIR = "registry"

@@ -29,8 +29,10 @@ import tempfile
 from collections.abc import Iterable
 from pathlib import Path
 
+from rafi.contract import RUN_FILES
+
 #: The cache file, under ``results_dir``.
-CACHE_NAME = ".raw_hashes.json"
+CACHE_NAME = RUN_FILES["raw_hashes"]
 
 #: Format of the cache file (a different value is ignored: everything is hashed again).
 CACHE_VERSION = 1

@@ -18,6 +18,8 @@ import re
 import sys
 from pathlib import Path
 
+from rafi.contract import RESULT_FILES, RUN_FILES
+
 #: JSON keys whose values differ between two runs of the same code on the same data.
 VOLATILE_KEYS = frozenset(
     {
@@ -43,9 +45,9 @@ SKIPPED = (
     ".nightly",
     "registry/models/",
     "champion.json",
-    ".clean_cache/",
-    ".cv_memo/",
-    ".template_cache/",
+    ".clean_cache/",  # the clean step's former cache (results of before issue 23)
+    RESULT_FILES["cv_memo"] + "/",
+    RUN_FILES["template_cache"] + "/",
 )
 
 _HEX_ID = re.compile(r"\b[0-9a-f]{12,64}\b")

@@ -230,7 +230,7 @@ def skipped_page_path(machine="{machine}"):
 
 
 #: Run-level summary of rejected input, ``results/input_check.json`` (written by input_check).
-INPUT_CHECK = f"{RESULTS_DIR}/input_check.json"
+INPUT_CHECK = f"{RESULTS_DIR}/{contract.RUN_FILES['input_check']}"
 #: The fleet overview page (rule fleet_index, fleet.smk).
 FLEET_INDEX = f"{REPORTS_DIR}/index.html"
 

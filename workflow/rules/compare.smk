@@ -42,6 +42,8 @@ rule compare:
         "../envs/rafi.yaml"
     params:
         code=code_version("compare"),
+        # not an output: the CV rows memoised by content (rafi.family.cv_memo)
+        cv_memo=lambda w: out("cv_memo", w.machine),
         machine=lambda w: w.machine,
         models=lambda w: machine_config(w.machine)["models"],
         fit=lambda w: machine_config(w.machine)["fit"],

@@ -83,6 +83,8 @@ rule report:
         settings=lambda w: machine_config(w.machine),
         figure_groups=list(contract.FIGURE_GROUPS),
         paths={"raw_dir": str(RAW_DIR), "results_dir": RESULTS_DIR, "reports_dir": REPORTS_DIR},
+        # not an output: compiled templates shared by the run's report jobs (keyed by the sources)
+        template_cache=f"{RESULTS_DIR}/{contract.RUN_FILES['template_cache']}",
     script:
         "../scripts/report.py"
 

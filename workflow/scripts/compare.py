@@ -11,7 +11,6 @@ The CV rows are memoised by content in ``results/<machine>/.cv_memo/`` (not an o
 :mod:`rafi.family.cv_memo`, keyed by the training logs, the settings and ``params.code``)."""
 
 import json
-from pathlib import Path
 
 from _glue import as_table, read_runs, step
 
@@ -35,7 +34,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         hac_maxlags=smk.params.fit["hac_maxlags"],
         speed_tolerance_rpm=smk.params.speed_tolerance_rpm,
         rafi_model=load_any(smk.input.model),
-        cv_memo_dir=Path(smk.output.cv).parents[1] / ".cv_memo",  # results/<machine>/.cv_memo
+        cv_memo_dir=smk.params.cv_memo,
         code_version=smk.params.code,
         log=lambda m: print(m, flush=True),
     )

@@ -5,8 +5,6 @@ All the work is in :mod:`rafi.report.render` (context + rendering); this script 
 no figure: the figures are the files of rule ``report_figures`` (input ``figures``).
 """
 
-from pathlib import Path
-
 from _glue import step
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
@@ -29,8 +27,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         ctx["verdict"]["status"],
         len(ctx["figures_used"]),
     )
-    # compiled templates shared by the run's report jobs (not an output: keyed by the sources)
-    html = render_html(ctx, template_cache=Path(smk.params.paths["results_dir"]) / ".template_cache")
+    html = render_html(ctx, template_cache=smk.params.template_cache)
     pdf = render_pdf(html, attach=paths)  # PDF/A-3b; model, audit, summaries attached
     write_text_atomic(smk.output.html, html)
     write_bytes_atomic(smk.output.pdf, pdf)
