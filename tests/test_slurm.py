@@ -34,6 +34,7 @@ import yaml
 from conftest import require
 from project_copy import ROOT, copy_project
 
+from rafi.contract import RESULT_FILES, RUN_FILES
 from rafi.ops.result_diff import diff_trees
 
 PROFILE = Path("workflow") / "profiles" / "slurm"
@@ -139,12 +140,17 @@ def _cancel_leftovers(workdir: Path, job_ids: list[str]) -> None:
         subprocess.run(["scancel", *sorted(mine)], capture_output=True, timeout=15)
 
 
+#: Not results: timings, and the memos whose entry names depend on where the code ran (the compiled
+#: templates are keyed by the template's path, which differs between the two projects' frozen copies).
+NOT_RESULTS = ("benchmarks/", f"{RESULT_FILES['cv_memo']}/", f"{RUN_FILES['template_cache']}/")
+
+
 def _files(root: Path) -> dict[str, Path]:
     return {
         str(p.relative_to(root)): p
         for top in ("results", "reports")
         for p in (root / top).rglob("*")
-        if p.is_file() and "benchmarks/" not in str(p.relative_to(root))
+        if p.is_file() and not any(part in str(p.relative_to(root)) for part in NOT_RESULTS)
     }
 
 
