@@ -12,18 +12,17 @@
 #
 # Every config value a script uses arrives through `params:` (functions of the
 # machine wildcard over machine_config()), so changing one value re-runs exactly the
-# rules that use it and their downstream (rerun trigger `params`). The rafi modules a
-# script calls are `input:` via rafi_code(), so editing them re-runs the rule too.
+# rules that use it and their downstream (rerun trigger `params`). So does the code a
+# script runs: its digest is the param `code` (code_version() in common.smk).
 
 
 rule clean:
     """Read, check and clean every raw log of a machine onto the regular sample grid, in one
     job (rafi.ops.clean_job): results/<machine>/clean/<stem>.parquet, .audit.csv, .summary.csv.
 
-    Per-file incrementality without a job per file: Snakemake deletes the folder before the
-    job runs, and a file whose name, content (sha256), clean settings and code are unchanged
-    gets its outputs back from results/<machine>/.clean_cache/ (rafi.ops.clean_cache); only the
-    others are read and cleaned. A file that cannot be used (RawFormatError): with
+    Snakemake re-runs it when a raw file is added, removed or changed (its content hash is the
+    param raw_stamps), or a setting or the code changed; it then cleans every file of the
+    machine again (docs/cluster.md, "Jobs per machine"). A file that cannot be used: with
     on_bad_input=fail the job fails with the message (file, line, column); with quarantine it
     gets an empty table and a quarantined audit row with the message. on_bad_input is read
     from the run's config, not a param, so switching modes re-runs nothing; common.smk stops a
