@@ -19,6 +19,11 @@ PREFIX = "RAFI "
 MARKER = " failed: "
 
 
+def failure_line(step: str, wildcards: str, message: str) -> str:
+    """The line a job that failed ends its log with: ``RAFI <step> (<wildcards>) failed: <message>``."""
+    return f"{PREFIX}{step} ({wildcards}){MARKER}{message}"
+
+
 def is_failure_line(line: str) -> bool:
     """True for a job log's closing line of a failure on bad input."""
     return line.startswith(PREFIX) and MARKER in line

@@ -64,8 +64,9 @@ def step(smk):
             yield log
         except BaseException as exc:
             from rafi.errors import RafiUserError, bound_message
+            from rafi.ops.run_messages import failure_line
 
-            line = f"RAFI {smk.rule} ({wildcards}) failed: {bound_message(exc, 2000)}"
+            line = failure_line(smk.rule, wildcards, bound_message(exc, 2000))
             if isinstance(exc, RafiUserError) and not debug_wanted(smk.config):
                 # bad input: its message says it all (file, line, column); no traceback
                 print(line, flush=True)
