@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import os
 import shutil
+import subprocess
+import sys
 import time
 from pathlib import Path
 
@@ -11,8 +13,9 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def copy_project(proj: Path, *, config: bool = True) -> Path:
-    """Copy ``Snakefile``, ``workflow/``, a frozen ``rafi/`` (its files are rule inputs) and, if
-    ``config``, ``config.yaml`` into ``proj`` (created); returns ``proj``. No raw data."""
+    """Copy ``Snakefile``, ``workflow/``, a frozen ``rafi/`` (the code the test's jobs run, and
+    whose digest is each rule's param ``code``) and, if ``config``, ``config.yaml`` into ``proj``
+    (created); returns ``proj``. No raw data."""
     proj.mkdir(parents=True, exist_ok=True)
     shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
     if config:
@@ -38,3 +41,24 @@ def copy_settled(src: Path, dst: Path) -> Path:
     """Copy a raw file into a test project and :func:`settle` it; returns ``dst``."""
     shutil.copy2(src, dst)
     return settle(dst)
+
+
+def run_nightly(proj: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
+    """``rafi nightly --directory proj --cores 2 --no-report *args`` in ``proj``, with the project's
+    frozen ``rafi/`` first on the path; output captured."""
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")])),
+    }
+    cmd = [
+        sys.executable,
+        "-m",
+        "rafi.cli",
+        "nightly",
+        "--directory",
+        str(proj),
+        "--cores",
+        "2",
+        "--no-report",
+    ]
+    return subprocess.run([*cmd, *args], capture_output=True, text=True, timeout=timeout, env=env, cwd=proj)

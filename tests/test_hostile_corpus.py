@@ -13,13 +13,11 @@ from __future__ import annotations
 import hashlib
 import json
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from project_copy import ROOT, copy_project, copy_settled
+from project_copy import ROOT, copy_project, copy_settled, run_nightly
 
 from rafi.twin.hostile import OUTCOMES, SOURCES, hostile_corpus
 from rafi.twin.hostile_files import write_hostile_corpus
@@ -31,25 +29,6 @@ KEEP = re.compile(r"train_(03000|09000|15000)rpm|valid_(04500|13500)rpm|multi_co
 
 def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
-
-
-def _nightly(proj: Path) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "rafi.cli",
-            "nightly",
-            "--directory",
-            str(proj),
-            "--cores",
-            "2",
-            "--no-report",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
 
 
 def _outcomes(res: Path) -> dict[str, set[tuple[str, str]]]:
@@ -96,13 +75,13 @@ def test_hostile_logs_never_replace_the_champion(tmp_path):
     res = proj / "results" / MACHINE
     reg = res / "registry"
 
-    n1 = _nightly(proj)
+    n1 = run_nightly(proj)
     assert n1.returncode in (0, 4), n1.stdout + n1.stderr
     champion = json.loads((reg / "champion.json").read_text())["model_id"]
 
     cases = write_hostile_corpus(SHIPPED, raw, tmp_path / "outside", long_bytes=100_000)
     before = {p.name: _sha(p) for p in raw.iterdir() if not p.is_symlink()}
-    n2 = _nightly(proj)
+    n2 = run_nightly(proj)
     said = n2.stdout + n2.stderr
     assert n2.returncode not in (0, 1), said  # input was rejected or the candidate held back
     assert "Traceback" not in said
@@ -136,7 +115,7 @@ def test_hostile_logs_never_replace_the_champion(tmp_path):
     for case in cases:
         (raw / case.file).unlink()
     (raw / "train_09000rpm.csv").unlink()
-    n3 = _nightly(proj)
+    n3 = run_nightly(proj)
     assert n3.returncode not in (0, 1), n3.stdout + n3.stderr
     assert json.loads((reg / "champion.json").read_text())["model_id"] == champion
     decision = json.loads((reg / "decision.json").read_text())

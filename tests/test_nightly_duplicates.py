@@ -14,15 +14,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
-from project_copy import SETTLED_AGE_S, copy_project, copy_settled
-
-from rafi.ops import status as S
+from project_copy import SETTLED_AGE_S, copy_project, copy_settled, run_nightly
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = "tapping-center-a"
@@ -31,33 +27,6 @@ ORIGINAL = "train_03000rpm.csv"
 COPY = "train_03000rpm (copy).csv"
 
 pytestmark = pytest.mark.slow
-
-
-def _night(proj: Path) -> subprocess.CompletedProcess:
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([str(proj), *filter(None, [os.environ.get("PYTHONPATH")])]),
-    }
-    night = subprocess.run(
-        [
-            sys.executable,
-            "-m",
-            "rafi.cli",
-            "nightly",
-            "--directory",
-            str(proj),
-            "--cores",
-            "2",
-            "--no-report",
-        ],
-        capture_output=True,
-        text=True,
-        timeout=900,
-        env=env,
-        cwd=proj,
-    )
-    assert night.returncode in (S.EXIT_OK, S.EXIT_QUARANTINED), night.stdout[-3000:] + night.stderr[-3000:]
-    return night
 
 
 @pytest.fixture
@@ -74,7 +43,7 @@ def test_a_copy_keeps_the_champions_file_and_a_renamed_file_gives_the_same_model
     res = project / "results" / MACHINE
     reg = res / "registry"
 
-    _night(project)
+    run_nightly(project)
     first = json.loads((reg / "decision.json").read_text())
     assert first["decision"] == "promoted", first["reasons"]
     champion = first["candidate_id"]
@@ -84,7 +53,7 @@ def test_a_copy_keeps_the_champions_file_and_a_renamed_file_gives_the_same_model
     shutil.copy(raw / ORIGINAL, raw / COPY)
     older = time.time() - 2 * SETTLED_AGE_S
     os.utime(raw / COPY, (older, older))
-    _night(project)
+    run_nightly(project)
     status = json.loads((res / "input_status.json").read_text())
     assert ORIGINAL in status["usable"] and COPY not in status["usable"]
     (rejected,) = [r for r in status["rejected"] if r.get("check") == "duplicate_content"]
@@ -97,7 +66,7 @@ def test_a_copy_keeps_the_champions_file_and_a_renamed_file_gives_the_same_model
 
     # the original deleted: the copy is the same training data under another name
     (raw / ORIGINAL).unlink()
-    _night(project)
+    run_nightly(project)
     status = json.loads((res / "input_status.json").read_text())
     assert COPY in status["usable"] and status["rejected"] == []
     third = json.loads((reg / "decision.json").read_text())
