@@ -239,6 +239,30 @@ PRESENTATION_SETTINGS: dict = {
                     "come from the environment or a file outside the repository, and are refused here"
                 ),
             ),
+            "metrics_port": Setting(
+                default=None,
+                schema={"oneOf": [{"type": "null"}, {"type": "integer", "minimum": 1, "maximum": 65535}]},
+                shown="none",
+                doc=(
+                    "`rafi deploy` serves Prometheus metrics on this TCP port (127.0.0.1 unless "
+                    "`metrics_address`); none: no metrics (docs/deploy.md, Observable)"
+                ),
+            ),
+            "metrics_address": Setting(
+                default="127.0.0.1",
+                schema={"type": "string", "minLength": 1},
+                shown="127.0.0.1",
+                doc="the address the metrics are served on (0.0.0.0: every interface)",
+            ),
+            "champion_check_s": Setting(
+                default=60,
+                schema=POSITIVE,
+                shown="60",
+                doc=(
+                    "`rafi deploy` looks this often (s) whether `rafi nightly` promoted a new champion, "
+                    "and ramps to it (docs/deploy.md, Transitions)"
+                ),
+            ),
             "replay_roles": Setting(
                 default=["validation_multi"],
                 schema={
