@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import re
 import sys
 import traceback
 
@@ -31,6 +32,15 @@ COMMANDS = {
         "replay recorded runs through the compensator with the limits in force",
     ),
 }
+
+
+_ROLE = re.compile(r":[a-z]+:`~?(?:[\w.]*\.)?([^`]+)`")
+
+
+def plain_text(docstring: str) -> str:
+    """A docstring as a user reads it in ``--help``: no reStructuredText roles or literals
+    (``:func:`rafi.x.f``` -> ``f``, double backquotes dropped)."""
+    return _ROLE.sub(r"\1", docstring).replace("``", "")
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -58,7 +68,9 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(
             name,
             help=help_text,
-            description=(module.__doc__ or help_text).strip(),
+            description=plain_text(
+                getattr(module, "CLI_DESCRIPTION", None) or module.__doc__ or help_text
+            ).strip(),
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
         module.add_arguments(p)

@@ -185,6 +185,17 @@ def candidate_model_path(machine: str, results_dir: str | os.PathLike, source: s
 # --------------------------------------------------------------------------- rafi settings
 
 
+#: ``rafi settings --help`` (the module docstring above is for developers).
+CLI_DESCRIPTION = """Print the effective settings of a machine: every key of config.yaml with the value this
+machine gets, every default filled in.
+
+Layers, lowest first (a mapping merges key by key, any other value, lists included, replaces):
+the built-in defaults (docs/settings.md lists each with its meaning); `defaults:` of config.yaml,
+what this installation changes for every machine; `machines: <name>:`, what one machine changes.
+A key in the wrong place (a per-machine section at the top level) is refused with where it belongs.
+"""
+
+
 def add_arguments(parser) -> None:
     """``rafi settings``: print the effective settings of a machine."""
     parser.add_argument("--config", default="config.yaml", help="config file (default: config.yaml)")

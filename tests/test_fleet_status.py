@@ -352,3 +352,23 @@ def test_rows_given_as_a_function_are_read_under_the_lock(fleet):
 
     out = write_fleet_page(paths, fleet / "reports", rows=rows)
     assert seen == [True] and "ok-m" in out.read_text()
+
+
+@pytest.mark.parametrize(
+    "drift, has_champion, expected",
+    [
+        ({"status": "no_champion"}, True, "not checked yet (the model was promoted by the last decision)"),
+        ({"status": "no_champion"}, False, "-"),
+        (None, True, "-"),
+        ({"status": "no_new_runs"}, True, "no new validation runs since the last check"),
+        (
+            {"status": "degraded", "degradation_um": 3.0, "limit_um": 9.0},
+            True,
+            "degraded, +3.00 um (limit 9.00 um)",
+        ),
+    ],
+)
+def test_the_drift_line_under_a_model_in_service(drift, has_champion, expected):
+    # a decision that promoted the first champion had none to check: "no_champion" under
+    # "model in service: <id>" read as a contradiction
+    assert fleet_cli.describe_drift(drift, has_champion=has_champion) == expected

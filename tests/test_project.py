@@ -3,6 +3,8 @@
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -239,3 +241,16 @@ def test_no_function_in_rafi_is_over_120_lines():
                 if lines > MAX_FUNCTION_LINES:
                     long[f"{path.relative_to(ROOT)}:{node.name}"] = lines
     assert not long, long
+
+
+def test_every_command_help_reads_as_plain_text(capsys):
+    """``rafi <command> --help`` shows the module docstring to a user: no reStructuredText roles
+    (``:data:`MACHINE_DEFAULTS```) or double backquotes (issue 24: ``rafi settings --help``)."""
+    import rafi.cli
+
+    for name in rafi.cli.COMMANDS:
+        with pytest.raises(SystemExit):
+            rafi.cli.main([name, "--help"])
+        text = capsys.readouterr().out
+        assert text.startswith(f"usage: rafi {name}"), name
+        assert not re.search(r":[a-z]+:`|``", text), (name, re.search(r".*(:[a-z]+:`|``).*", text).group(0))

@@ -3,9 +3,10 @@
 Reads the results of an earlier pipeline run (results/<machine>/runs.parquet and runs.csv) and
 feeds each run's log, from its first sample up to the run's end, through the safe compensator
 exactly as a controller would (power-on at the log's first sample, a new reference at each run
-start or log segment, as the model was trained). Writes, per replayed run, <run>.csv (one row
-per sample: the model's value, the command, the status and what each limit did) and <run>.png,
-and summary.csv; prints what each limit did. docs/deploy.md, section Replay.
+start or log segment, as the model was trained). Writes, per replayed run, <file>.csv (one row
+per sample: the model's value, the command, the status and what each limit did) and <file>.png,
+where <file> is the run id made a file name (thermal_log_2026-10-14#11 ->
+thermal_log_2026-10-14_11.csv), and summary.csv; prints what each limit did. docs/deploy.md, section Replay.
 
   rafi replay --machine tapping-center-a                     # the runs of deploy.replay_roles
   rafi replay --machine machining-center-b --run 'thermal_log_2026-10-14#11' --model champion
@@ -172,5 +173,9 @@ def run(args) -> int:
     print(f"rafi replay: {args.machine}, model {model} ({source})")
     for line in summary_lines(summary, limits):
         print("  " + line)
-    print(f"wrote {len(ids)} run(s) to {out} (<run>.csv, <run>.{fmt}, summary.csv)")
+    example = ids[0]
+    print(
+        f"wrote {len(ids)} run(s) to {out}: per run <file>.csv and <file>.{fmt}, where <file> is the run id "
+        f"made a file name (e.g. {example} -> {file_stem(example)}.csv), and summary.csv"
+    )
     return 0

@@ -52,6 +52,34 @@ def _num(value, unit: str = "") -> str:
     return "-" if value is None else f"{float(value):.2f}{unit}"
 
 
+#: What a drift status means, for the status text (``rafi.ops.drift.check_drift``).
+DRIFT_WORDS = {
+    "ok": "ok",
+    "degraded": "degraded",
+    "no_new_runs": "no new validation runs since the last check",
+    "no_reference": "no reference residual at promotion: not checked",
+}
+
+
+def describe_drift(drift: dict | None, *, has_champion: bool) -> str:
+    """The drift line of one machine.
+
+    ``no_champion`` is the status of a decision taken while the machine had no champion (the
+    decision that promoted the first one): drift is checked from the next decision on, so it
+    reads "not checked yet" under a model in service, and "no model in service" otherwise.
+    """
+    if not drift:
+        return "-"
+    status = str(drift["status"])
+    if status == "no_champion":
+        return "not checked yet (the model was promoted by the last decision)" if has_champion else "-"
+    text = DRIFT_WORDS.get(status, status)
+    if drift.get("degradation_um") is not None:
+        limit = _num(drift.get("limit_um"), " um")
+        text += f", +{_num(drift['degradation_um'], ' um')} (limit {limit})"
+    return text
+
+
 def format_rows(rows: list[dict]) -> str:
     """The text ``rafi status`` prints: one block per machine (most urgent first)."""
     if not rows:
@@ -68,13 +96,7 @@ def format_rows(rows: list[dict]) -> str:
             if worst
             else "-"
         )
-        drift = r["drift"]
-        drift_text = "-"
-        if drift:
-            drift_text = str(drift["status"])
-            if drift.get("degradation_um") is not None:
-                limit = _num(drift.get("limit_um"), " um")
-                drift_text += f", +{_num(drift['degradation_um'], ' um')} (limit {limit})"
+        drift_text = describe_drift(r["drift"], has_champion=bool(ch))
         lines.append(f"{r['machine']}: {r['state'].upper()}")
         for a in r["attention"]:
             lines.append(f"  ! {a['text']}")
