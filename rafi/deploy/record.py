@@ -14,8 +14,9 @@ Every sample period (the machine's ``sample_period_s``) one *tick*:
    appended to its CSV file since the last tick) and write it. A bad status or a missing value
    is an empty field.
 
-A tick that comes more than one period late (a slow server) is skipped, not caught up in a
-burst: a gap of that many samples. One progress line per minute. The loop ends at the end of the
+A tick whose time has passed by a whole period (a slow server, a busy computer) is skipped, not
+caught up in a burst: a gap of that many samples; so a row's time is never more than one period
+before the moment its values were read. One progress line per minute. The loop ends at the end of the
 plan, after ``duration_s``, or by Ctrl-C / SIGTERM (:class:`KeyboardInterrupt`); in every case
 the file is closed and renamed, and with a plan the speed command is set to 0. Standard
 library and NumPy only; the clock, the wall clock and the sleep are injected for the tests.
@@ -37,13 +38,18 @@ from pathlib import Path
 from rafi.deploy.record_files import COLUMNS, RecordingFiles, format_time, format_value
 from rafi.errors import RafiUserError, RawFormatError, short_path
 
-__all__ = ["DaqFollower", "OpcUaSource", "Recorder"]
+__all__ = ["DaqFollower", "OpcUaSource", "Recorder", "counted"]
 
 #: Status names that mean a configured node does not exist: refused before recording.
 _NO_SUCH_NODE = ("BadNodeIdUnknown", "BadNodeIdInvalid")
 _LINE_END = re.compile(rb"\r\n|\r|\n")
 #: Seconds between two progress lines.
 PROGRESS_S = 60.0
+
+
+def counted(n: int, word: str) -> str:
+    """``1 row``, ``2 rows``, ``0 gaps``."""
+    return f"{n} {word}" if n == 1 else f"{n} {word}s"
 
 
 # --------------------------------------------------------------------------- sources
@@ -285,6 +291,7 @@ class Recorder:
         self.skipped_ticks = 0
         self.commands: list[float] = []
         self._commanded: int | None = None
+        self._last_commanded: int | None = None
         self._gap_since: float | None = None
         self._gap_ticks = 0
         self._next_progress = 0.0
@@ -329,15 +336,17 @@ class Recorder:
                 speed = self.plan.steps[index].speed_rpm
                 self.command(speed)
                 self.commands.append(speed)
-                self._commanded = index
+                again = " again, after the reconnect" if index == self._last_commanded else ""
+                self._commanded = self._last_commanded = index
                 self.log(
-                    f"rafi record: step {index + 1}/{len(self.plan.steps)}: speed command {speed:g} r/min "
-                    f"for {self.plan.steps[index].duration_s:g} s" + ("" if run else " (not recorded)")
+                    f"rafi record: step {index + 1}/{len(self.plan.steps)}: speed command {speed:g} r/min"
+                    f"{again} for {self.plan.steps[index].duration_s:g} s"
+                    + ("" if run else " (not recorded)")
                 )
             rows = self.source.read(wall_s)
         except ConnectionError as exc:
             self._commanded = None  # written again once the link is back
-            self._gap(wall_s, f"the OPC UA connection is lost ({exc})")
+            self._gap(wall_s, str(exc))
             return
         self._gap_over(wall_s)
         if run is not None:
@@ -356,7 +365,8 @@ class Recorder:
             step = f", step {self._commanded + 1}/{len(self.plan.steps)}"
         self.log(
             f"rafi record: {format_time(wall_s, 1.0 if self.period_s >= 1 else self.period_s)} {where}: "
-            f"{self.files.rows} rows, {self.gaps} gaps, {self.missing} missing values{step}"
+            f"{counted(self.files.rows, 'row')}, {counted(self.gaps, 'gap')}, "
+            f"{counted(self.missing, 'missing value')}{step}"
         )
 
     def _end_s(self) -> float | None:
@@ -381,18 +391,19 @@ class Recorder:
         k = 0
         try:
             while end_s is None or k * self.period_s < end_s:
+                late = self.clock() - (t0 + k * self.period_s)
+                if late >= self.period_s:  # a tick whose time has passed: skip to now, no burst
+                    skip = int(late // self.period_s)
+                    why = f"{skip} samples late (a slow server or a busy computer)"
+                    self._gap(w0 + k * self.period_s, why, skip)
+                    self.skipped_ticks += skip
+                    k += skip
+                    continue
                 self.tick(k, w0 + k * self.period_s)
                 self.ticks += 1
                 self._progress(self.clock(), w0 + k * self.period_s)
                 k += 1
                 wait = t0 + k * self.period_s - self.clock()
-                if wait < -self.period_s:  # late by more than a tick: skip, no burst
-                    skip = int(-wait // self.period_s)
-                    self.skipped_ticks += skip
-                    late = f"{skip} samples late (a slow server or a busy computer)"
-                    self._gap(w0 + k * self.period_s, late, skip)
-                    k += skip
-                    wait = t0 + k * self.period_s - self.clock()
                 if wait > 0 and (end_s is None or k * self.period_s < end_s):
                     self.sleep(wait)
         finally:

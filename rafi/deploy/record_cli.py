@@ -105,6 +105,8 @@ def _check_args(args) -> None:
         len(line) > NOTES_MAX_CHARS for line in args.notes.splitlines()
     ):
         raise SettingsError(f"--notes holds {len(args.notes)} characters; at most {NOTES_MAX_CHARS}")
+    if args.duration:
+        parse_duration(args.duration)
     if args.plan and args.duration:
         raise SettingsError("--duration and --plan: the plan says how long the recording lasts; give one")
     if args.from_start and not args.follow:
@@ -230,6 +232,8 @@ def _stop_on_sigterm(signum, frame):
 
 
 def _record(args, recorder, link) -> int:
+    from rafi.deploy.record import counted
+
     if link is not None:
         try:
             link.connect()
@@ -251,8 +255,8 @@ def _record(args, recorder, link) -> int:
         stopped = True
     closed = ", ".join(p.name for p in recorder.files.closed) or "none"
     print(
-        f"rafi record: {'stopped; ' if stopped else ''}{recorder.files.rows} rows, {recorder.gaps} gaps, "
-        f"{recorder.missing} missing values; files: {closed}",
+        f"rafi record: {'stopped; ' if stopped else ''}{counted(recorder.files.rows, 'row')}, "
+        f"{counted(recorder.gaps, 'gap')}, {counted(recorder.missing, 'missing value')}; files: {closed}",
         flush=True,
     )
     return 0
