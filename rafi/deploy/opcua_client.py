@@ -549,33 +549,13 @@ class OpcUaLink:
             raise self.lost(exc) from None
 
     def read_nodes(self, node_ids) -> list[tuple[float, str, str]]:
-        """Read any nodes in one request: ``(value, variant type, status)`` for each (``rafi record``).
-
-        Parameters
-        ----------
-        node_ids : sequence of str
-            Node ids (``node_prefix`` is put before a bare name).
-
-        Returns
-        -------
-        list of (float, str, str)
-            The value as a float (NaN when the status is not good, the node holds no value or
-            not a number), the name of its variant type (``'Int16'``, ``'Float'``, ``'Double'``;
-            ``''`` when the server sent none) and the status name (``'Good'``,
-            ``'BadSensorFailure'``, ``'BadNodeIdUnknown'``, ...).
-
-        Raises
-        ------
-        ConnectionError
-            The connection was lost (:meth:`try_reconnect` tries again).
-        RafiUserError
-            The server refused the read itself (the user may not read).
-        """
+        """``(value, variant type, status)`` of each node in one request (``rafi record``): the value
+        NaN unless the status is good and it is a number; the type ``''`` if none came; the status
+        ``'Good'``, ``'BadSensorFailure'``, ... ConnectionError: lost; RafiUserError: refused."""
         if not self.connected:
             raise ConnectionError(f"OPC UA {self.endpoint}: not connected")
-        ids = [self.node_id(n) for n in node_ids]
         try:
-            values = self._run(self._read(ids))
+            values = self._run(self._read([self.node_id(n) for n in node_ids]))
         except Exception as exc:
             fatal = self._fatal(exc, "reading nodes")
             if fatal is not None:
@@ -583,12 +563,10 @@ class OpcUaLink:
             raise self.lost(exc) from None
         out = []
         for dv in values:
-            code = dv.StatusCode
-            good = code is None or code.is_good()
-            variant = dv.Value
-            vtype = getattr(getattr(variant, "VariantType", None), "name", "") if variant is not None else ""
+            code, variant = dv.StatusCode, dv.Value
+            vtype = getattr(getattr(variant, "VariantType", None), "name", "")
             try:
-                value = float(variant.Value) if good and variant is not None else math.nan
+                value = float(variant.Value) if (code is None or code.is_good()) and variant else math.nan
             except (TypeError, ValueError):
                 value = math.nan
             status = "Good" if code is None else str(getattr(code, "name", code))
