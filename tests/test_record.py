@@ -28,6 +28,7 @@ import yaml
 from project_copy import ROOT, copy_project
 
 from rafi import SENSORS
+from rafi.cli import main
 from rafi.deploy import record_cli
 from rafi.deploy.record import DaqFollower, Recorder
 from rafi.deploy.record_files import (
@@ -380,13 +381,18 @@ def args_for(path: Path, **kw) -> argparse.Namespace:
         ({"plan": "p.csv"}, {}, "--plan needs record.speed_command"),
         ({}, {}, "record.displacement is not set"),
         ({"follow": "daq.csv", "duration": "1h", "plan": "p.csv"}, {}, "--duration and --plan"),
+        (
+            {"plan": "short.csv"},
+            {"speed_command": "x"},
+            "plan short.csv, line 3, column 'duration_s': 2 s is shorter than the sample period 5 s",
+        ),
     ],
 )
 def test_settings_mistakes_are_one_line_and_exit_64(tmp_path, monkeypatch, capsys, kw, record, expected):
-    from rafi.cli import main
 
     monkeypatch.chdir(tmp_path)
     write(tmp_path / "p.csv", "speed_rpm,duration_s\n3000,60\n")
+    write(tmp_path / "short.csv", "speed_rpm,duration_s\n3000,60\n0,2\n")
     path = config(tmp_path, record=record, opcua={"endpoint": "opc.tcp://127.0.0.1:1", "inputs": inputs()})
     with pytest.raises(SettingsError, match=expected):
         record_cli.build(args_for(path, **kw))
@@ -605,3 +611,41 @@ def test_record_a_twin_log_from_opc_ua_and_qualify_it_with_snakemake(server, tmp
     assert scored["role"].startswith("validation") and scored["n_samples"] > 480
     assert math.isfinite(scored["max_abs_after_um"])
     assert stat.S_IMODE(final.stat().st_mode) == 0o444  # the pipeline read it, nothing changed it
+
+
+def test_a_node_the_server_lacks_is_refused_before_recording(server, tmp_path, capsys):
+    from opcua_server import DISP_NODE
+
+    opcua = {"endpoint": server.endpoint, "inputs": {**inputs(), "T8": "/Plc/DB100.DBW99"}, "timeout_s": 3}
+    path = config(tmp_path, record={"displacement": DISP_NODE}, opcua=opcua)
+    assert main(["record", "--machine", MACHINE, "--config", str(path)]) == 64
+    err = capsys.readouterr().err
+    assert err == (
+        "rafi record: deploy.opcua.inputs.T8: the server has no node ns=2;s=/Plc/DB100.DBW99 "
+        "(BadNodeIdUnknown); check the node id (docs/record.md)\n"
+    )
+    assert not (tmp_path / "raw").exists()
+
+
+def test_a_refused_speed_command_stops_with_64_and_no_half_file(server, tmp_path, monkeypatch, capsys):
+    from opcua_server import DISP_NODE, SPEED_COMMAND_NODE, temp_node
+
+    for name in ("RAFI_OPCUA_USER", "RAFI_OPCUA_PASSWORD", "RAFI_OPCUA_CREDENTIALS"):
+        monkeypatch.delenv(name, raising=False)
+    opcua = {"endpoint": server.endpoint, "inputs": inputs(), "timeout_s": 3}
+    plan = str(write(tmp_path / "plan.csv", "speed_rpm,duration_s\n3000,60\n"))
+    raw = tmp_path / "raw" / MACHINE
+    before = len(server.client_writes())
+    # an Int16 node is refused as the speed command before anything is read or written
+    record = {"displacement": DISP_NODE, "speed_command": temp_node(1)[0]}
+    path = str(config(tmp_path, record=record, opcua=opcua))
+    assert main(["record", "--machine", MACHINE, "--config", path, "--plan", plan]) == 64
+    assert "record.speed_command: node ns=2;s=/Plc/DB100.DBW0 is of type Int16" in capsys.readouterr().err
+    # an anonymous session may read but not write: the first step's write is refused
+    record["speed_command"] = SPEED_COMMAND_NODE
+    path = str(config(tmp_path, record=record, opcua=opcua))
+    assert main(["record", "--machine", MACHINE, "--config", path, "--plan", plan]) == 64
+    err = capsys.readouterr().err
+    assert "refused for an anonymous session: BadUserAccessDenied" in err and err.count("\n") == 1
+    assert len(server.client_writes()) == before
+    assert leftover_parts(raw) == [] and find_logs(raw) == []  # no sample was recorded: no file

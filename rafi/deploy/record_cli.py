@@ -162,6 +162,13 @@ def build(args, *, log=print, environ=None):
     record, period = settings["record"], float(settings["sample_period_s"])
     folder = project / run_settings(config)["raw_dir"] / args.machine
     plan = read_plan(args.plan, default_run=args.name) if args.plan else None
+    short = [s for s in (plan.steps if plan else ()) if s.duration_s < period]
+    if short:
+        raise SettingsError(
+            f"plan {short_path(args.plan)}, line {short[0].line}, column 'duration_s': "
+            f"{short[0].duration_s:g} s is shorter than the sample period {period:g} s "
+            "(sample_period_s): the step might never be commanded"
+        )
     if plan is not None and record["speed_command"] is None:
         raise SettingsError(
             "--plan needs record.speed_command: the node the plan's speeds are written to (docs/record.md)"
@@ -185,7 +192,7 @@ def build(args, *, log=print, environ=None):
     metadata = {
         "machine": args.machine,
         "sample_period_s": f"{period:g}",
-        "notes": args.notes,
+        **({"notes": args.notes} if args.notes.strip() else {}),
         "recorded_by": f"rafi record {__version__}",
         "source": f"OPC UA {link.endpoint}" if not args.follow else f"DAQ file {args.follow}",
     }
