@@ -8,7 +8,10 @@ The nodes are named and typed as the controller's (``ns=2`` string node ids):
 * a ``Float`` ``/Plc/DB200.DBD0`` (writable), for the write of another type;
 * the spindle speed ``/Channel/Spindle/actSpeed[u1]`` (``Double``, r/min);
 * the temperatures as PLC values: T1..T8 as ``Int16`` in 0.1 degC (``/Plc/DB100.DBW<2i>``),
-  T9..T16 as ``Float`` in degC (``/Plc/DB101.DBD<4i>``); read-only.
+  T9..T16 as ``Float`` in degC (``/Plc/DB101.DBD<4i>``); read-only;
+* the displacement probe ``/Channel/Probe/displacement_um`` (``Double``, um; read-only) and a
+  spindle speed command ``/Channel/Spindle/speedCommand`` (``Double``, r/min; writable, as a
+  variable an NC program reads), for ``rafi record``.
 
 Like the controller, the server refuses a write whose variant type is not the node's
 (``BadTypeMismatch``, asyncua's own check) or that carries a timestamp
@@ -35,6 +38,8 @@ SD_TEMPLATE = "/NC/_N_AX_SEA_ACX/$SA_{data}[u{axis}]"
 SD_NAMES = ("TEMP_COMP_ABS_VALUE", "TEMP_COMP_SLOPE", "TEMP_COMP_REF_POSITION")
 SPEED_NODE = "/Channel/Spindle/actSpeed[u1]"
 PLC_COMP_NODE = "/Plc/DB200.DBD0"  # a Float a PLC program could pass on (a second write type)
+DISP_NODE = "/Channel/Probe/displacement_um"  # the displacement probe (rafi record)
+SPEED_COMMAND_NODE = "/Channel/Spindle/speedCommand"  # the speed a test plan commands (rafi record)
 WAIT_S = 20.0
 
 
@@ -115,6 +120,8 @@ class SinumerikLikeServer:
             self.values[self.sd_node(data)] = (0.0, ua.VariantType.Double)
         self.values[SPEED_NODE] = (0.0, ua.VariantType.Double)
         self.values[PLC_COMP_NODE] = (0.0, ua.VariantType.Float)
+        self.values[DISP_NODE] = (0.0, ua.VariantType.Double)
+        self.values[SPEED_COMMAND_NODE] = (0.0, ua.VariantType.Double)
         for i in range(1, 17):
             name, vtype, _ = temp_node(i)
             self.values[name] = (0 if vtype == ua.VariantType.Int16 else 0.0, vtype)
@@ -144,7 +151,7 @@ class SinumerikLikeServer:
             node = await objects.add_variable(
                 ua.NodeId(name, 2), ua.QualifiedName(name, 2), ua.Variant(value, vtype)
             )
-            if name.startswith("/NC/") or name == PLC_COMP_NODE:
+            if name.startswith("/NC/") or name in (PLC_COMP_NODE, SPEED_COMMAND_NODE):
                 await node.set_writable(True)
         original = server.iserver.attribute_service.write
 
@@ -203,11 +210,21 @@ class SinumerikLikeServer:
         await self._server.write_attribute_value(ua.NodeId(name, 2), ua.DataValue(ua.Variant(value, vtype)))
         self.values[name] = (value, vtype)
 
-    def set_inputs(self, speed_rpm: float, temperatures) -> None:
-        """Put one sample on the input nodes (a NaN temperature: the sensor reads bad)."""
+    async def _put_bad(self, name: str) -> None:
+        dv = ua.DataValue(StatusCode=ua.StatusCode(ua.StatusCodes.BadSensorFailure))
+        await self._server.write_attribute_value(ua.NodeId(name, 2), dv)
+
+    def set_inputs(self, speed_rpm: float, temperatures, disp_um: float | None = None) -> None:
+        """Put one sample on the input nodes (a NaN temperature or displacement: the sensor reads
+        bad); ``disp_um`` None leaves the displacement node as it is."""
 
         async def put():
             await self._set(SPEED_NODE, float(speed_rpm))
+            if disp_um is not None:
+                if disp_um != disp_um:
+                    await self._put_bad(DISP_NODE)
+                else:
+                    await self._set(DISP_NODE, float(disp_um))
             for i, t in enumerate(temperatures, start=1):
                 name, vtype, scale = temp_node(i)
                 node = ua.NodeId(name, 2)

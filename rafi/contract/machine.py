@@ -7,6 +7,7 @@ from rafi.contract.keys import Section, Setting
 from rafi.contract.method import METHOD_SETTINGS
 from rafi.contract.operations import OPERATIONS_SETTINGS
 from rafi.contract.presentation import PRESENTATION_SETTINGS
+from rafi.contract.record import RECORD_SETTINGS
 
 #: Per-machine settings: ``defaults:`` and ``machines.<name>:`` of ``config.yaml``, in the order
 #: ``rafi settings`` prints them.
@@ -14,6 +15,7 @@ MACHINE_SETTINGS: dict[str, Setting | Section] = {
     **METHOD_SETTINGS,
     **OPERATIONS_SETTINGS,
     **PRESENTATION_SETTINGS,
+    **RECORD_SETTINGS,
 }
 
 #: ``deploy:`` keys of the limits and fault rules (:class:`rafi.deploy.limits.Limits`).

@@ -548,6 +548,31 @@ class OpcUaLink:
                 raise fatal from None
             raise self.lost(exc) from None
 
+    def read_nodes(self, node_ids) -> list[tuple[float, str, str]]:
+        """``(value, variant type, status)`` of each node in one request (``rafi record``): the value
+        NaN unless the status is good and it is a number; the type ``''`` if none came; the status
+        ``'Good'``, ``'BadSensorFailure'``, ... ConnectionError: lost; RafiUserError: refused."""
+        if not self.connected:
+            raise ConnectionError(f"OPC UA {self.endpoint}: not connected")
+        try:
+            values = self._run(self._read([self.node_id(n) for n in node_ids]))
+        except Exception as exc:
+            fatal = self._fatal(exc, "reading nodes")
+            if fatal is not None:
+                raise fatal from None
+            raise self.lost(exc) from None
+        out = []
+        for dv in values:
+            code, variant = dv.StatusCode, dv.Value
+            vtype = getattr(getattr(variant, "VariantType", None), "name", "")
+            try:
+                value = float(variant.Value) if (code is None or code.is_good()) and variant else math.nan
+            except (TypeError, ValueError):
+                value = math.nan
+            status = "Good" if code is None else str(getattr(code, "name", code))
+            out.append((value if math.isfinite(value) else math.nan, vtype, status))
+        return out
+
     def open(self) -> None:
         """Connect if not connected (called when the target opens)."""
         if not self.connected:
