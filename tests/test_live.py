@@ -485,3 +485,98 @@ def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path):
     assert lines[0] == "time_s,Z_um,status" and len(lines) == len(rows) + 1
     got = [float(line.split(",")[1]) for line in lines[1:]]
     assert got == pytest.approx([c for c, _ in expected_commands(fed)], abs=1e-9)
+
+
+# --------------------------------------------------------------------------- rafi deploy's messages
+
+
+def _deploy_args(tmp_path, *, model=None, machine="m1"):
+    import argparse
+
+    import yaml
+
+    block = dict(DEPLOY, target={"kind": "csv", "axis": "Z", "path": "out/commands.csv"})
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump({"machines": {"m1": {"deploy": block}}}))
+    log = tmp_path / "live.csv"
+    log.write_text("time,speed_rpm," + ",".join(SENSORS) + ",disp_um\n")
+    return argparse.Namespace(
+        machine=machine, config=str(tmp_path / "config.yaml"), model=model, follow=str(log), dry_run=False
+    )
+
+
+def test_deploy_names_the_machine_a_model_belongs_to_and_unknown_machines(tmp_path):
+    from rafi.deploy import live_cli
+    from rafi.errors import UnqualifiedModel
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    other = artefact(coef=[1.0, 2.0, 3.0])
+    make_registry(tmp_path / "results" / "m2" / "registry", other)
+    path = tmp_path / "results" / "m2" / "registry" / "models" / f"{other['model_id']}.json"
+    with pytest.raises(UnqualifiedModel, match=r"is machine m2's model, not this machine's \(m1\)") as err:
+        live_cli.build(_deploy_args(tmp_path, model=str(path)), log=lambda m: None, environ={})
+    assert err.value.exit_status == 65
+    loop, _ = live_cli.build(_deploy_args(tmp_path, model="champion"), log=lambda m: None, environ={})
+    assert loop.model_id == artefact()["model_id"]
+    with pytest.raises(SettingsError, match="^unknown machine nosuch; config.yaml has: m1; results or raw"):
+        live_cli.build(_deploy_args(tmp_path, machine="nosuch"), log=lambda m: None, environ={})
+    fitted_elsewhere = dict(artefact(), machine="m2")
+    fitted_elsewhere["model_id"] = compute_model_id(fitted_elsewhere)
+    make_registry(tmp_path / "results" / "m1" / "registry", fitted_elsewhere)
+    with pytest.raises(UnqualifiedModel, match="is machine m2's model .so its artefact says"):
+        live_cli.build(_deploy_args(tmp_path), log=lambda m: None, environ={})
+
+
+def test_an_edited_champion_is_named_by_its_whole_file_name(tmp_path):
+    from rafi.deploy import live_cli
+    from rafi.errors import UnqualifiedModel
+
+    deep = tmp_path / ("a-rather-long-folder-name-" * 3) / "project"
+    deep.mkdir(parents=True)
+    champion = artefact()
+    make_registry(deep / "results" / "m1" / "registry", champion)
+    path = deep / "results" / "m1" / "registry" / "models" / f"{champion['model_id']}.json"
+    path.write_text(json.dumps(dict(champion, coefficients=[9.0, 9.0, 9.0])))
+    with pytest.raises(UnqualifiedModel) as err:
+        live_cli.build(_deploy_args(deep), log=lambda m: None, environ={})
+    assert f"model file {champion['model_id']}.json in " in str(err.value)
+    assert "modified after promotion" in str(err.value) and "characters)" not in str(err.value)
+
+
+def test_a_new_champion_is_swapped_in_and_ramped_to(tmp_path):
+    """The registry promotes another model while the loop runs: the loop loads it at its next
+    look (deploy.champion_check_s), keeps the session's reference and moves to the new model's
+    value at the rate limit."""
+    from rafi.deploy.champion_watch import ChampionWatch
+
+    registry = tmp_path / "results" / "m1" / "registry"
+    make_registry(registry, artefact())
+    clock, fed, lines = [0.0], [], []
+    rows = [(6000.0, temps16([20.0, 21.0, 22.0]))] * 14 + [(6000.0, temps16([20.4, 21.0, 22.0]))] * 60
+    new = artefact(coef=[-8.0, 1.0, 1.0])  # -3.2 um warm, from the session's reference (T6 +0.4 K: below stuck_change_k)
+
+    class Source:
+        def read(self, now):
+            fed.append(rows[len(fed)])
+            return [(now, *fed[-1])]
+
+    def sleep(s):
+        clock[0] += s
+        if len(fed) == 30:
+            make_registry(registry, new)  # rafi nightly promotes
+
+    sink = DrySink()
+    target, axis = build_target({"kind": "sinumerik", "axis": {"name": "Z", "number": 3, "sign": 1,
+                                 "limit_um": 50.0}, "int_incr_per_mm": 1000000}, sink=sink)  # fmt: skip
+    safe = SafeCompensator(limits=Limits.from_settings(DEPLOY)).load(artefact())
+    watch = ChampionWatch(registry, artefact()["model_id"], check_s=60.0, log=lines.append)
+    loop = LiveLoop(Source(), safe, target, axis=axis, interval_s=DT, clock=lambda: clock[0], sleep=sleep,
+                    log=lines.append, champion=watch)  # fmt: skip
+    loop.run(max_cycles=len(rows))
+    got = [w.value * 1000 for w in sink.writes]
+    assert np.abs(np.diff([0.0, *got])).max() <= DEPLOY["rate_um_per_s"] * DT + 1e-9
+    assert got[29] == pytest.approx(COEF[0] * 0.4)  # the first model, settled
+    assert got[-1] == pytest.approx(-3.2)  # the new model from the power-on reference
+    assert loop.model_id == new["model_id"] and safe.compensator_.model_id == new["model_id"]
+    assert any(line.startswith(f"new champion {new['model_id'][:12]} replaces") for line in lines)
+    swapped = next(i for i, line in enumerate(lines) if line.startswith("new champion"))
+    assert 30 <= swapped - 1 <= 30 + 60 / DT  # at the next look after the promotion

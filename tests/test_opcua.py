@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 
 import numpy as np
 import pytest
@@ -375,3 +376,46 @@ def test_a_dry_run_starts_from_the_controller_and_says_would_write(tmp_path, mon
         assert srv.client_writes() == []
     finally:
         srv.close()
+
+
+# --------------------------------------------------------------------------- stopping
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_while_connecting_is_one_line_and_exit_0(tmp_path, signum):
+    """`rafi deploy` in its own process, against a server that accepts the TCP connection and
+    never answers: Ctrl-C (SIGINT) or SIGTERM while it connects gives exit 0 and one line."""
+    import os
+    import socket
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import rafi
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    with socket.socket() as mute:
+        mute.bind(("127.0.0.1", 0))
+        mute.listen(1)
+        mute.settimeout(60)
+        endpoint = f"opc.tcp://127.0.0.1:{mute.getsockname()[1]}"
+        opcua = {"endpoint": endpoint, "inputs": inputs(), "timeout_s": 120}
+        args = write_config(tmp_path, argparse.Namespace(endpoint=endpoint), deploy={"opcua": opcua})
+        env = {**os.environ, **ENV, "PYTHONPATH": str(Path(rafi.__file__).parent.parent)}
+        cmd = [sys.executable, "-m", "rafi.cli", "deploy", "--machine", "m1", "--config", args.config]
+        proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            conn, _ = mute.accept()  # the client is connecting now, and waits for an answer
+            with conn:
+                proc.send_signal(signum)
+                out, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    name = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
+    assert proc.returncode == 0, err
+    assert out.splitlines() == [
+        f"rafi deploy: stopped while connecting ({name}); nothing was written; the controller keeps its value"
+    ]
+    assert "Traceback" not in err

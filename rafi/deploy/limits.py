@@ -47,9 +47,10 @@ The rules, per sample, in this order
    then moves towards it by at most ``rate_um_per_s * min(dt, interval_s)`` per sample (``dt``
    the time since the previous sample, ``interval_s`` the loop's interval, one sample per
    write; a replay sets it to the log's sample period; 0 at the first sample): after a long
-   gap (a lost connection) it resumes at the rate limit, not in one step. ``clamped`` says the
-   clamp changed the command sent (without it the command would have been another),
-   ``rate_limited`` that the rate limit did.
+   gap (a lost connection) it resumes at the rate limit, not in one step. ``rate_limited``
+   says the rate limit held the command back from its target, ``clamped`` that the clamp
+   changed the command sent (the target was clamped and the rate limit did not act: while the
+   rate limit holds the command back, the clamp changes nothing of it).
 
 Bumpless: the command starts from the value the controller holds (:meth:`SafeCompensator.start_from`,
 else 0 um: a replay from power-on, compensation off) and, after a lost connection, from the
@@ -397,9 +398,11 @@ class SafeCompensator:
         max_step = lim.rate_um_per_s * min(dt, lim.interval_s)
         delta = clamped_target - previous
         command = previous + float(np.clip(delta, -max_step, max_step))
-        unclamped = previous + float(np.clip(target - previous, -max_step, max_step))
-        clamped = clamped_target != target and command != unclamped
-        return command, bool(clamped), bool(abs(delta) > max_step)
+        rate_limited = abs(delta) > max_step
+        # the command is always inside the clamp: while the rate limit holds it back from the
+        # clamped value, the unclamped one would give the same command, so the clamp did not act
+        clamped = clamped_target != target and not rate_limited
+        return command, bool(clamped), bool(rate_limited)
 
     # ------------------------------------------------------------------ one sample
     def step(self, t_s: float, speed_rpm: float, temperatures) -> Command:

@@ -16,11 +16,19 @@ __all__ = ["check_belongs", "check_machine", "check_qualified", "load_champion",
 
 
 def _shown(path: Path) -> str:
-    """``path`` for a message: relative to the working folder where it lies inside it."""
-    try:
-        return str(Path(path).resolve().relative_to(Path.cwd().resolve()))
-    except (ValueError, OSError):
-        return str(path)
+    """``path`` for a message, short enough never to be cut (:func:`rafi.errors.bound_message`):
+    relative to the working folder, else to the project (the folder holding ``results_dir``,
+    for a registry folder ``<results_dir>/<machine>/registry/...``)."""
+    path = Path(path).resolve()
+    parts = path.parts
+    at = parts.index("registry") if "registry" in parts[3:] else None
+    project = path.parents[len(parts) - at + 1] if at is not None else None
+    for base in (Path.cwd().resolve(), project):
+        try:
+            return str(path.relative_to(base)) if base is not None else str(path)
+        except ValueError:
+            continue
+    return str(path)
 
 
 def _file_in(path: Path) -> str:
