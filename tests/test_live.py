@@ -552,7 +552,8 @@ def test_a_new_champion_is_swapped_in_and_ramped_to(tmp_path):
     make_registry(registry, artefact())
     clock, fed, lines = [0.0], [], []
     rows = [(6000.0, temps16([20.0, 21.0, 22.0]))] * 14 + [(6000.0, temps16([20.4, 21.0, 22.0]))] * 60
-    new = artefact(coef=[-8.0, 1.0, 1.0])  # -3.2 um warm, from the session's reference (T6 +0.4 K: below stuck_change_k)
+    # T6 +0.4 K (below stuck_change_k): the new model gives -3.2 um from the session reference
+    new = artefact(coef=[-8.0, 1.0, 1.0])
 
     class Source:
         def read(self, now):
