@@ -22,7 +22,7 @@ from rafi import SENSORS
 from rafi.artefact import compute_model_id
 from rafi.deploy.limits import Limits, SafeCompensator
 from rafi.deploy.qualified import check_qualified, load_champion
-from rafi.errors import SettingsError, UnqualifiedModel
+from rafi.errors import SettingsError, TargetError, UnqualifiedModel
 from rafi.ops.registry import Registry
 from rafi.settings import MACHINE_DEFAULTS
 
@@ -276,3 +276,59 @@ def test_limits_and_qualification_run_without_pandas():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert json.loads(out.stdout) == []
+
+
+def test_clamped_is_said_only_when_the_clamp_changed_the_command_sent():
+    """The model far beyond the clamp while the rate limit still holds the command back: only
+    `rate limited`; the clamp acts once the command reaches it."""
+    rows = [(6000.0, BASE.copy()) for _ in range(N_REF)] + [(6000.0, BASE + [20.0, 0, 0])] * 30  # 40 um
+    out = run(
+        SafeCompensator(limits=limits(clamp_um=[-12.0, 12.0], rate_um_per_s=0.2)).load(artefact()), rows
+    )
+    after = out[N_REF:]
+    assert [c.command_um for c in after[:6]] == pytest.approx([2.0, 4.0, 6.0, 8.0, 10.0, 12.0])
+    assert [(c.clamped, c.rate_limited) for c in after[:5]] == [(False, True)] * 5
+    assert (after[5].clamped, after[5].rate_limited) == (True, False)  # 12 um: the clamp, not the rate
+    assert all(c.clamped and not c.rate_limited for c in after[6:])
+
+
+def test_the_command_starts_from_the_controller_and_a_fault_holds_it_there():
+    lim = limits(rate_um_per_s=0.1, hold_s=30.0, ramp_um_per_s=0.05, safe_um=0.0)  # 1 um, 0.5 um a sample
+    safe = SafeCompensator(limits=lim).load(artefact()).start_from(-6.8)
+    drop = [(6000.0, np.array([20.0, np.nan, 22.0]))] * 6  # T8 missing from the first sample
+    out = run(safe, drop)
+    assert [c.status for c in out] == ["hold"] * 3 + ["ramp"] * 3
+    assert [c.command_um for c in out] == pytest.approx([-6.8, -6.8, -6.8, -6.3, -5.8, -5.3])
+    safe = SafeCompensator(limits=lim).load(artefact()).start_from(None)  # not known: safe_um
+    assert run(safe, drop[:1])[0].command_um == 0.0
+    ok = SafeCompensator(limits=lim).load(artefact()).start_from(5.0)
+    assert [c.command_um for c in run(ok, [(6000.0, BASE)] * 3)] == pytest.approx(
+        [5.0, 4.0, 3.0]
+    )  # referencing
+    ok.resume_from(-2.0)  # after a reconnect the controller holds another value
+    assert ok.step(3600.0, 6000.0, temps16(BASE)).command_um == pytest.approx(-1.0)
+    with pytest.raises(TargetError, match="holds 60 um, outside deploy.clamp_um"):
+        SafeCompensator(limits=limits(clamp_um=[-50.0, 50.0])).load(artefact()).start_from(60.0)
+
+
+def test_a_swapped_model_compensates_from_the_session_reference():
+    """A new model swapped in while the machine is warm is referenced to the power-on state
+    (all 16 sensors), not to the warm state of the swap, and reached at the rate limit."""
+    safe = SafeCompensator(limits=limits(rate_um_per_s=0.1)).load(artefact())  # 1 um a sample
+    rows = warm(N_REF, 20, rate_k_per_sample=0.05)
+    run(safe, rows)
+    assert safe.reference_temperatures_[[SENSORS.index(s) for s in KEY]] == pytest.approx(BASE)
+    assert safe.reference_temperatures_[0] == 25.0  # every sensor, not only the model's
+    other = dict(artefact(), key_sensors=["T1", "T8", "T9"])
+    other["features"] = [f"d{s}@0s" for s in other["key_sensors"]]
+    other["regressor_ranges"] = {s: [-1, 10] for s in other["key_sensors"]}
+    other["model_id"] = compute_model_id(other)
+    before = safe.command_um_
+    safe.swap(other)
+    warm_now = temps16(BASE + 1.0)
+    warm_now[0] = 26.0  # T1 1 K above its power-on 25 degC
+    steps = [safe.step((N_REF + 20 + i) * DT, 6000.0, warm_now) for i in range(40)]
+    expected = float(COEF @ [1.0, 1.0, 1.0])  # the rises from the session's reference
+    assert steps[0].status == "ok" and steps[0].model_um == pytest.approx(expected)
+    assert abs(steps[0].command_um - before) <= 1.0 + 1e-12
+    assert steps[-1].command_um == pytest.approx(expected)

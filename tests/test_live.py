@@ -81,16 +81,23 @@ def temps16(key_values) -> np.ndarray:
     return out
 
 
-def expected_commands(samples, s=DEPLOY, coef=COEF) -> list[tuple[float, str]]:
-    """(command um, status) per sample by the documented rules, for the model c . (T - T0)."""
+def expected_commands(samples, s=DEPLOY, coef=COEF, *, start=None, resumes=None) -> list[tuple[float, str]]:
+    """(command um, status) per sample by the documented rules, for the model c . (T - T0).
+
+    ``start``: the value the controller holds at start (None: not known, ``safe_um``);
+    ``resumes``: {sample index: the value read from the controller before that sample} (after a
+    reconnect). A hold keeps the last command sent in ``ok`` or ``referencing`` state, or the
+    value read."""
     lo, hi = s["clamp_um"]
     vlo, vhi = s["temp_valid_c"]
     t0, ref, window, last_t = None, None, [], None
-    cmd = good = 0.0
+    cmd = good = s["safe_um"] if start is None else start
     bad_since = None
     since, value, others = [None] * 3, [None] * 3, [None] * 3
     out = []
-    for t, n, temps in samples:
+    for index, (t, n, temps) in enumerate(samples):
+        if resumes and index in resumes:
+            cmd = good = resumes[index]
         key = np.array([temps[SENSORS.index(k)] for k in KEY], dtype=float)
         causes = []
         fed = key.copy()
@@ -126,7 +133,7 @@ def expected_commands(samples, s=DEPLOY, coef=COEF) -> list[tuple[float, str]]:
         dt = 0.0 if last_t is None else max(t - last_t, 0.0)
         last_t = t
         if referencing and not causes:
-            status, target, bad_since = "referencing", 0.0, None
+            status, target, bad_since = "referencing", s["safe_um"], None
         elif causes or not math.isfinite(model):
             bad_since = t if bad_since is None else bad_since
             if t - bad_since < s["hold_s"]:
@@ -140,7 +147,7 @@ def expected_commands(samples, s=DEPLOY, coef=COEF) -> list[tuple[float, str]]:
         target = min(max(target, lo), hi)
         max_step = s["rate_um_per_s"] * min(dt, s["interval_s"])
         cmd = cmd + min(max(target - cmd, -max_step), max_step)
-        if status == "ok":
+        if status in ("ok", "referencing"):
             good = cmd
         out.append((cmd, status))
     return out
@@ -176,8 +183,10 @@ def scenario() -> list[tuple[float, np.ndarray]]:
     return rows
 
 
-def test_the_oracle_matches_the_safe_compensator_on_the_scenario():
-    """The loop with fakes on the scenario: every write equals the oracle's command (no link)."""
+@pytest.mark.parametrize("start_um", [None, -6.8, 13.0])
+def test_the_oracle_matches_the_safe_compensator_on_the_scenario(start_um):
+    """The loop with fakes on the scenario: every write equals the oracle's command (no link),
+    starting from the value the controller holds (None: a sink that cannot say)."""
     rows = scenario()
     clock = [1000.0]
     fed = []
@@ -195,10 +204,12 @@ def test_the_oracle_matches_the_safe_compensator_on_the_scenario():
 
     sink = DrySink()
     target, axis = build_target(
-        {"kind": "sinumerik", "axis": {"name": "Z", "number": 3, "sign": 1, "limit_um": 50.0},
+        {"kind": "sinumerik", "axis": {"name": "Z", "number": 3, "sign": -1, "limit_um": 50.0},
          "int_incr_per_mm": 1000000},
         sink=sink,
     )  # fmt: skip
+    if start_um is not None:
+        sink.start[target.node("TEMP_COMP_ABS_VALUE", "Z")] = -start_um / 1000  # sign -1
     safe = SafeCompensator(limits=Limits.from_settings(DEPLOY)).load(artefact())
     lines = []
 
@@ -216,13 +227,17 @@ def test_the_oracle_matches_the_safe_compensator_on_the_scenario():
         log=lines.append,
     )
     assert loop.run(max_cycles=len(rows)) == len(rows)
-    expected = expected_commands(fed)
-    got = [w.value * 1000 for w in sink.writes]
+    expected = expected_commands(fed, start=start_um)
+    got = [-w.value * 1000 for w in sink.writes]
     assert got == pytest.approx([c for c, _ in expected], abs=1e-6)
     statuses = {st for _, st in expected}
     assert statuses == {"referencing", "ok", "hold", "ramp"}  # every rule was reached
     assert max(abs(g) for g in got) == pytest.approx(20.0)  # the clamp acted
-    assert len(lines) == len(rows) and target.closed
+    held = DEPLOY["safe_um"] if start_um is None else start_um
+    steps = np.abs(np.diff([held, *got]))  # bumpless: the held value first
+    assert steps[0] == 0 and steps.max() <= DEPLOY["rate_um_per_s"] * DT + 1e-9
+    assert got[1] == pytest.approx(held + np.sign(DEPLOY["safe_um"] - held) * DEPLOY["rate_um_per_s"] * DT)
+    assert "holds " in lines[0] and len(lines) == len(rows) + 1 and target.closed
 
 
 class FakeLink:
@@ -240,7 +255,7 @@ class FakeLink:
 def test_no_write_and_no_sample_during_an_outage_then_resume():
     clock = [0.0]
     down = {3, 4, 5}
-    stepped, written = [], []
+    stepped, written, starts = [], [], []
 
     class Source:
         def __init__(self, link):
@@ -257,6 +272,13 @@ def test_no_write_and_no_sample_during_an_outage_then_resume():
 
     class Safe:
         limits = Limits.from_settings(DEPLOY)
+        command_um_ = 0.0
+
+        def start_from(self, value):
+            starts.append(("start", value))
+
+        def resume_from(self, value):
+            starts.append(("resume", value))
 
         def step(self, t, n, temps):
             stepped.append(t)
@@ -269,6 +291,9 @@ def test_no_write_and_no_sample_during_an_outage_then_resume():
 
         def open(self):
             self.is_open = True
+
+        def read_current_um(self):
+            return {"Z": float(len(written))}  # what the controller holds: read each time anew
 
         def write(self, t, values, status):
             written.append(t)
@@ -287,6 +312,7 @@ def test_no_write_and_no_sample_during_an_outage_then_resume():
     loop.run(max_cycles=9)
     assert stepped == written == [0.0, 5.0, 10.0, 30.0, 35.0, 40.0]
     assert loop.outage_cycles == 3
+    assert starts == [("start", 0.0), ("resume", 3.0)]  # read at start and after the outage
 
 
 def test_nothing_is_written_while_off():
@@ -294,6 +320,9 @@ def test_nothing_is_written_while_off():
 
     class Target:
         is_open, name = True, "fake"
+
+        def read_current_um(self):
+            return {"Z": None}
 
         def write(self, *a):
             written.append(a)
@@ -317,6 +346,9 @@ def test_the_target_is_closed_on_ctrl_c():
     class Target:
         is_open, closed, name = True, False, "fake"
 
+        def read_current_um(self):
+            return {"Z": 1.5}
+
         def close(self):
             self.closed = True
 
@@ -325,7 +357,8 @@ def test_the_target_is_closed_on_ctrl_c():
             raise KeyboardInterrupt
 
     target = Target()
-    loop = LiveLoop(Source(), None, target, axis="Z", interval_s=1.0, log=lambda m: None)
+    safe = SafeCompensator(limits=Limits.from_settings(DEPLOY))
+    loop = LiveLoop(Source(), safe, target, axis="Z", interval_s=1.0, log=lambda m: None)
     with pytest.raises(KeyboardInterrupt):
         loop.run()
     assert target.closed
@@ -452,3 +485,99 @@ def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path):
     assert lines[0] == "time_s,Z_um,status" and len(lines) == len(rows) + 1
     got = [float(line.split(",")[1]) for line in lines[1:]]
     assert got == pytest.approx([c for c, _ in expected_commands(fed)], abs=1e-9)
+
+
+# --------------------------------------------------------------------------- rafi deploy's messages
+
+
+def _deploy_args(tmp_path, *, model=None, machine="m1"):
+    import argparse
+
+    import yaml
+
+    block = dict(DEPLOY, target={"kind": "csv", "axis": "Z", "path": "out/commands.csv"})
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump({"machines": {"m1": {"deploy": block}}}))
+    log = tmp_path / "live.csv"
+    log.write_text("time,speed_rpm," + ",".join(SENSORS) + ",disp_um\n")
+    return argparse.Namespace(
+        machine=machine, config=str(tmp_path / "config.yaml"), model=model, follow=str(log), dry_run=False
+    )
+
+
+def test_deploy_names_the_machine_a_model_belongs_to_and_unknown_machines(tmp_path):
+    from rafi.deploy import live_cli
+    from rafi.errors import UnqualifiedModel
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    other = artefact(coef=[1.0, 2.0, 3.0])
+    make_registry(tmp_path / "results" / "m2" / "registry", other)
+    path = tmp_path / "results" / "m2" / "registry" / "models" / f"{other['model_id']}.json"
+    with pytest.raises(UnqualifiedModel, match=r"is machine m2's model, not this machine's \(m1\)") as err:
+        live_cli.build(_deploy_args(tmp_path, model=str(path)), log=lambda m: None, environ={})
+    assert err.value.exit_status == 65
+    loop, _ = live_cli.build(_deploy_args(tmp_path, model="champion"), log=lambda m: None, environ={})
+    assert loop.model_id == artefact()["model_id"]
+    with pytest.raises(SettingsError, match="^unknown machine nosuch; config.yaml has: m1; results or raw"):
+        live_cli.build(_deploy_args(tmp_path, machine="nosuch"), log=lambda m: None, environ={})
+    fitted_elsewhere = dict(artefact(), machine="m2")
+    fitted_elsewhere["model_id"] = compute_model_id(fitted_elsewhere)
+    make_registry(tmp_path / "results" / "m1" / "registry", fitted_elsewhere)
+    with pytest.raises(UnqualifiedModel, match="is machine m2's model .so its artefact says"):
+        live_cli.build(_deploy_args(tmp_path), log=lambda m: None, environ={})
+
+
+def test_an_edited_champion_is_named_by_its_whole_file_name(tmp_path):
+    from rafi.deploy import live_cli
+    from rafi.errors import UnqualifiedModel
+
+    deep = tmp_path / ("a-rather-long-folder-name-" * 3) / "project"
+    deep.mkdir(parents=True)
+    champion = artefact()
+    make_registry(deep / "results" / "m1" / "registry", champion)
+    path = deep / "results" / "m1" / "registry" / "models" / f"{champion['model_id']}.json"
+    path.write_text(json.dumps(dict(champion, coefficients=[9.0, 9.0, 9.0])))
+    with pytest.raises(UnqualifiedModel) as err:
+        live_cli.build(_deploy_args(deep), log=lambda m: None, environ={})
+    assert f"model file {champion['model_id']}.json in " in str(err.value)
+    assert "modified after promotion" in str(err.value) and "characters)" not in str(err.value)
+
+
+def test_a_new_champion_is_swapped_in_and_ramped_to(tmp_path):
+    """The registry promotes another model while the loop runs: the loop loads it at its next
+    look (deploy.champion_check_s), keeps the session's reference and moves to the new model's
+    value at the rate limit."""
+    from rafi.deploy.champion_watch import ChampionWatch
+
+    registry = tmp_path / "results" / "m1" / "registry"
+    make_registry(registry, artefact())
+    clock, fed, lines = [0.0], [], []
+    rows = [(6000.0, temps16([20.0, 21.0, 22.0]))] * 14 + [(6000.0, temps16([20.4, 21.0, 22.0]))] * 60
+    # T6 +0.4 K (below stuck_change_k): the new model gives -3.2 um from the session reference
+    new = artefact(coef=[-8.0, 1.0, 1.0])
+
+    class Source:
+        def read(self, now):
+            fed.append(rows[len(fed)])
+            return [(now, *fed[-1])]
+
+    def sleep(s):
+        clock[0] += s
+        if len(fed) == 30:
+            make_registry(registry, new)  # rafi nightly promotes
+
+    sink = DrySink()
+    target, axis = build_target({"kind": "sinumerik", "axis": {"name": "Z", "number": 3, "sign": 1,
+                                 "limit_um": 50.0}, "int_incr_per_mm": 1000000}, sink=sink)  # fmt: skip
+    safe = SafeCompensator(limits=Limits.from_settings(DEPLOY)).load(artefact())
+    watch = ChampionWatch(registry, artefact()["model_id"], check_s=60.0, log=lines.append)
+    loop = LiveLoop(Source(), safe, target, axis=axis, interval_s=DT, clock=lambda: clock[0], sleep=sleep,
+                    log=lines.append, champion=watch)  # fmt: skip
+    loop.run(max_cycles=len(rows))
+    got = [w.value * 1000 for w in sink.writes]
+    assert np.abs(np.diff([0.0, *got])).max() <= DEPLOY["rate_um_per_s"] * DT + 1e-9
+    assert got[29] == pytest.approx(COEF[0] * 0.4)  # the first model, settled
+    assert got[-1] == pytest.approx(-3.2)  # the new model from the power-on reference
+    assert loop.model_id == new["model_id"] and safe.compensator_.model_id == new["model_id"]
+    assert any(line.startswith(f"new champion {new['model_id'][:12]} replaces") for line in lines)
+    swapped = next(i for i, line in enumerate(lines) if line.startswith("new champion"))
+    assert 30 <= swapped - 1 <= 30 + 60 / DT  # at the next look after the promotion

@@ -13,6 +13,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import signal
 
 import numpy as np
 import pytest
@@ -23,6 +24,7 @@ pytest.importorskip("asyncua")
 from opcua_server import PLC_COMP_NODE, SPEED_NODE, SinumerikLikeServer, temp_node  # noqa: E402
 from test_live import DEPLOY, DT, artefact, expected_commands, make_registry, scenario  # noqa: E402
 
+from rafi import SENSORS  # noqa: E402
 from rafi.deploy import live_cli  # noqa: E402
 from rafi.deploy.opcua_client import OpcUaLink, opcua_settings  # noqa: E402
 from rafi.errors import RafiUserError, UnqualifiedModel  # noqa: E402
@@ -212,3 +214,213 @@ def test_each_node_is_written_with_its_own_type(server):
         (server.sd_node(), "Double"),
     ]
     assert server.value(server.sd_node()) == 0.0125
+
+
+# --------------------------------------------------------------------------- bumpless
+
+
+def _held_server(value_mm: float, extra=None) -> SinumerikLikeServer:
+    """A server of its own whose SD 43900 holds ``value_mm`` from the last session (and
+    ``extra`` nodes: name -> (value, variant type); names under /NC/ are writable)."""
+    from asyncua import ua
+
+    srv = SinumerikLikeServer(axis=3)
+    srv.values[srv.sd_node()] = (value_mm, ua.VariantType.Double)
+    srv.values.update(extra or {})
+    return srv.start()
+
+
+HELD_UM = -6.8  # on the axis: SD 43900 = SIGN * -6.8 um = +0.0068 mm
+CHANGED_UM = 3.0  # what someone sets during the outage
+
+
+@pytest.mark.parametrize("fault_from_start", [False, True])
+def test_every_write_is_bumpless_from_the_held_value_and_after_a_changed_reconnect(
+    tmp_path, fault_from_start
+):
+    """The done-when test of issue 24: every write differs from the value before it on the
+    controller (the held one first; after a reconnect, the one someone set meanwhile) by at most
+    rate x interval (plus one resolution step of rounding), with or without a fault (T8, a
+    sensor the model reads, BadSensorFailure) from the first sample."""
+    from asyncua import ua
+
+    rows = scenario()
+    if fault_from_start:
+        for _, temps in rows[:8]:  # inside the reference window (12 samples): T8 gets a reference
+            temps[SENSORS.index("T8")] = math.nan
+    srv = _held_server(SIGN * HELD_UM / 1000)
+    try:
+        make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+        args = write_config(tmp_path, srv)
+        log = []
+        loop, link = live_cli.build(args, log=log.append, environ=ENV)
+        clock = [5000.0]
+        loop.clock = link.clock = lambda: clock[0]
+        down = range(50, 54)
+        delivered, cycle = [], [0]
+
+        def feed(c):
+            speed, temps = rows[c]
+            srv.set_inputs(speed, temps)
+            delivered.append((clock[0], speed, as_read(temps)))
+
+        def sleep(seconds):
+            clock[0] += seconds
+            cycle[0] += 1
+            c = cycle[0]
+            if c == down.start:
+                srv.stop()
+                srv.values[srv.sd_node()] = (SIGN * CHANGED_UM / 1000, ua.VariantType.Double)
+            elif c == down.stop:
+                srv.start()
+            if c not in down and c < len(rows):
+                feed(c)
+
+        loop.sleep = sleep
+        try:
+            link.connect()
+            feed(0)
+            loop.run(max_cycles=len(rows))
+        finally:
+            link.close()
+        got_um = [SIGN * v * 1000 for v in sd_writes(srv)]
+    finally:
+        srv.close()
+    resumed = down.start  # the index in `delivered` of the first sample after the outage
+    assert len(got_um) == len(delivered) == len(rows) - len(down)
+    before = [HELD_UM, *got_um[:-1]]
+    before[resumed] = CHANGED_UM
+    steps = np.abs(np.subtract(got_um, before))
+    assert got_um[0] == pytest.approx(HELD_UM, abs=1e-9)  # the first write is the held value
+    assert steps.max() <= DEPLOY["rate_um_per_s"] * DT + 1e3 / INCR
+    expected = expected_commands(delivered, start=HELD_UM, resumes={resumed: CHANGED_UM})
+    assert got_um == pytest.approx([c for c, _ in expected], abs=0.5e3 / INCR + 1e-9)
+    statuses = [s for _, s in expected]
+    if fault_from_start:
+        assert statuses[:8] == ["hold"] * 6 + ["ramp"] * 2  # held, then towards safe_um
+        assert "ok" in statuses
+        assert any("T8 missing" in line and "model: no value" in line for line in log)
+    else:
+        assert statuses[:12] == ["referencing"] * 12  # towards safe_um at the rate limit
+    assert any("holds -6.800 um" in line for line in log) and any("+3.000 um after" in line for line in log)
+    assert not any("nan" in line for line in log)
+
+
+# --------------------------------------------------------------------------- preflight
+
+
+def _main(args, *argv) -> int:
+    from rafi.cli import main
+
+    return main(["deploy", "--machine", args.machine, "--config", args.config, *argv])
+
+
+def test_preflight_lists_every_wrong_node_and_writes_nothing(tmp_path, monkeypatch, capsys):
+    from asyncua import ua
+
+    int16_sd = "/NC/_N_AX_SEA_ACX/$SA_TEMP_COMP_ABS_VALUE[u4]"  # an Int16 where SD 43900 should be
+    read_only = "/Ro/$SA_TEMP_COMP_ABS_VALUE[u5]"  # a Double this user may not write
+    extra = {int16_sd: (0, ua.VariantType.Int16), read_only: (0.0, ua.VariantType.Double)}
+    srv = _held_server(0.0, extra)
+    try:
+        make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+        for k, v in ENV.items():
+            monkeypatch.setenv(k, v)
+        wrong_input = {**inputs(), "T8": "/Plc/DB100.DBW99"}
+        axis = {"name": "Z", "number": 4, "sign": SIGN, "limit_um": 50.0}
+        opcua = {"endpoint": srv.endpoint, "inputs": wrong_input, "timeout_s": 3}
+        target = {"kind": "sinumerik", "axis": axis, "int_incr_per_mm": INCR}
+        args = write_config(tmp_path, srv, deploy={"opcua": opcua, "target": target})
+        assert _main(args, "--cycles", "2") == 64
+        err = capsys.readouterr().err.splitlines()
+        assert any(
+            "deploy.opcua.inputs.T8: node ns=2;s=/Plc/DB100.DBW99: the server has no such" in e for e in err
+        )
+        assert any(f"node ns=2;s={int16_sd} is of type Int16" in e for e in err)
+        assert err[-1] == "rafi deploy: 2 problems: nothing written"
+        target = {**target, "axis": {**axis, "number": 5}, "node_template": "/Ro/$SA_{data}[u{axis}]"}
+        args = write_config(tmp_path, srv, deploy={"target": target})
+        assert _main(args, "--cycles", "2") == 64
+        err = capsys.readouterr().err
+        assert "is not writable for user 'seawriter'" in err and "Traceback" not in err
+        assert srv.client_writes() == [] and srv.refused == []
+    finally:
+        srv.close()
+
+
+def test_an_anonymous_session_is_refused_before_connecting(server, tmp_path, monkeypatch, capsys):
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    for k in ("RAFI_OPCUA_USER", "RAFI_OPCUA_PASSWORD", "RAFI_OPCUA_CREDENTIALS"):
+        monkeypatch.delenv(k, raising=False)
+    args = write_config(tmp_path, server)
+    before = len(server.client_writes()), len(server.refused)
+    assert _main(args, "--cycles", "2") == 64
+    err = capsys.readouterr().err
+    assert "no OPC UA credentials: an anonymous session cannot write a SINUMERIK" in err
+    assert (len(server.client_writes()), len(server.refused)) == before
+
+
+def test_a_dry_run_starts_from_the_controller_and_says_would_write(tmp_path, monkeypatch, capsys):
+    srv = _held_server(SIGN * HELD_UM / 1000)
+    try:
+        make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+        for k in ("RAFI_OPCUA_USER", "RAFI_OPCUA_PASSWORD", "RAFI_OPCUA_CREDENTIALS"):
+            monkeypatch.delenv(k, raising=False)  # a dry run needs no user with write rights
+        args = write_config(tmp_path, srv, deploy={"interval_s": 0.05})
+        srv.set_inputs(6000.0, [20.0] * 16)
+        assert _main(args, "--cycles", "1", "--dry-run") == 0
+        out = capsys.readouterr().out
+        assert "holds -6.800 um: the command starts from -6.800 um" in out
+        assert "-6.800 um (model +0.000 um)" in out
+        assert "1 cycle, would write 1 value (dry run: nothing written), 0 cycles without" in out
+        assert srv.client_writes() == []
+    finally:
+        srv.close()
+
+
+# --------------------------------------------------------------------------- stopping
+
+
+@pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
+def test_a_stop_while_connecting_is_one_line_and_exit_0(tmp_path, signum):
+    """`rafi deploy` in its own process, against a server that accepts the TCP connection and
+    never answers: Ctrl-C (SIGINT) or SIGTERM while it connects gives exit 0 and one line."""
+    import os
+    import socket
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import rafi
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    with socket.socket() as mute:
+        mute.bind(("127.0.0.1", 0))
+        mute.listen(1)
+        mute.settimeout(60)
+        endpoint = f"opc.tcp://127.0.0.1:{mute.getsockname()[1]}"
+        opcua = {"endpoint": endpoint, "inputs": inputs(), "timeout_s": 120}
+        args = write_config(tmp_path, argparse.Namespace(endpoint=endpoint), deploy={"opcua": opcua})
+        env = {**os.environ, **ENV, "PYTHONPATH": str(Path(rafi.__file__).parent.parent)}
+        cmd = [sys.executable, "-m", "rafi.cli", "deploy", "--machine", "m1", "--config", args.config]
+        proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            conn, _ = mute.accept()  # the client is connecting now, and waits for an answer
+            with conn:
+                proc.send_signal(signum)
+                out, err = proc.communicate(timeout=60)
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+    name = "Ctrl-C" if signum == signal.SIGINT else "SIGTERM"
+    assert proc.returncode == 0, err
+    assert out.splitlines() == [
+        f"rafi deploy: stopped while connecting ({name}); nothing was written; the controller keeps its value"
+    ]
+    assert "KeyboardInterrupt" not in err  # rafi deploy itself caught the stop in every case
+    if "Task was destroyed but it is pending" in err:
+        # the asyncua task of the link's connect left pending in its thread (its teardown logs a
+        # traceback): the link's part of issue 24 item 4 (an interruptible connect) removes it
+        pytest.xfail("OpcUaLink.connect leaves its task pending when interrupted")
+    assert "Traceback" not in err

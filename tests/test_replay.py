@@ -109,15 +109,16 @@ def test_wide_open_limits_replay_the_batch_prediction(data, kind):
 
 def _expected_commands(t, target, limits):
     """The documented clamp-then-rate rule, from 0 um: ``c_k = c_{k-1} + clip(clip(x_k) - c_{k-1},
-    +-rate * min(dt, interval_s))``, with the flags it implies."""
+    +-rate * min(dt, interval_s))``, with the flags it implies (rate limited: the step was cut;
+    clamped: the target was clamped and the step was not cut, i.e. the clamp changed the command)."""
     lo, hi = limits.clamp_um
     c, out, clamped, limited = 0.0, [], [], []
     for k in range(len(t)):
         dt = 0.0 if k == 0 else t[k] - t[k - 1]
         x = min(max(target[k], lo), hi)
         step = limits.rate_um_per_s * min(dt, limits.interval_s)
-        clamped.append(x != target[k])
         limited.append(abs(x - c) > step)
+        clamped.append(x != target[k] and not limited[-1])
         c = c + min(max(x - c, -step), step)
         out.append(c)
     return np.array(out), np.array(clamped), np.array(limited)

@@ -378,3 +378,36 @@ def test_every_target_is_a_target(tmp_path):
         SinumerikTarget([z_axis()], DrySink()),
     ):
         assert isinstance(target, Target)
+
+
+# -- read-back: where the controller is before the first write --------------------------------
+
+
+def test_sinumerik_read_back_inverts_the_written_value_in_both_modes():
+    slope_axis = SinumerikAxis("X", 1, -1, 100.0, mode="slope", ref_position_mm=100.0, measured_at_mm=600.0)
+    sink = DrySink(start={ABS.format(3): 0.0068, SLOPE.format(1): -4e-5})  # the last session's values
+    target = SinumerikTarget([z_axis(sign=-1), slope_axis], sink, int_incr_per_mm=100000)
+    assert target.read_current_um() == pytest.approx({"Z": -6.8, "X": 20.0}, abs=1e-9)
+    assert target.output_nodes() == [ABS.format(3), SLOPE.format(1), REF.format(1)]
+    with target:
+        target.write(0.0, {"Z": 1.25, "X": -5.0}, "ok")
+        assert target.last_report["Z"]["step"] == pytest.approx(-0.0068 - 0.00125)  # from the value read
+    assert target.read_current_um() == pytest.approx({"Z": 1.25, "X": -5.0}, abs=1e-9)  # the last written
+    for value_um in (12.34, -7.25, 0.0):
+        node, setting = target.setting_value("Z", value_um)
+        assert target.value_um("Z", setting) == pytest.approx(value_um, abs=1e-9)
+    assert SinumerikTarget([z_axis()], lambda *a: None).read_current_um() == {"Z": None}  # cannot read
+    assert SinumerikTarget([z_axis()], DrySink()).read_current_um() == {"Z": None}  # nothing there
+
+
+@pytest.mark.parametrize("cls", [CsvFileTarget, JsonLinesTarget])
+def test_a_file_target_reads_back_its_last_line(tmp_path, cls):
+    path = tmp_path / "out" / f"commands.{cls.name}"
+    assert cls(path, ["Z", "Y"]).read_current_um() == {"Z": None, "Y": None}  # no file: not known
+    with cls(path, ["Z", "Y"]) as target:
+        assert target.read_current_um() == {"Z": None, "Y": None}  # a header only
+        target.write(1.0, {"Z": 1.5, "Y": -2.0}, "ok")
+        target.write(2.0, {"Z": -6.8, "Y": 0.25}, 'hold: T8 missing, "quoted"')
+    with open(path, "a") as fh:
+        fh.write('2,99,99,"torn')  # half a line (a power loss): not a value
+    assert cls(path, ["Z", "Y"]).read_current_um() == {"Z": -6.8, "Y": 0.25}

@@ -1,15 +1,18 @@
 """Limits and fault rules around the streaming compensator: what may reach the controller.
 
-NumPy only, like :mod:`rafi.deploy.compensator`. ``docs/deploy.md`` ("Limits and faults")
-describes the rules for a controls engineer; the settings are the ``deploy:`` block
-(``docs/settings.md``).
+NumPy only, like :mod:`rafi.deploy.compensator`. ``docs/deploy.md`` ("Limits and faults",
+"Transitions") describes the rules for a controls engineer; the settings are the ``deploy:``
+block (``docs/settings.md``).
 
 Use::
 
     safe = SafeCompensator(limits=Limits.from_settings(settings["deploy"]))
     safe.step(t, n, temps).status                 # "off": no model loaded, nothing is sent
     safe.load(load_champion("results/m/registry"))  # the qualified model (rafi.deploy.qualified)
+    safe.start_from(value_um)                       # the value the controller holds now
     cmd = safe.step(t_s, speed_rpm, temps)          # cmd.command_um: what to write if cmd.send
+    safe.resume_from(value_um)                      # after a reconnect: the value read again
+    safe.swap(new_champion)                         # a new champion while running: ramp to it
 
 The rules, per sample, in this order
 ------------------------------------
@@ -27,25 +30,39 @@ The rules, per sample, in this order
      better one), but the model's value is not trusted;
    * *speed missing*: NaN speed.
 
-3. **The model** (:class:`rafi.deploy.compensator.Compensator`): ``referencing`` (0 um) while
-   it collects its reference window, else its value.
+3. **The model** (:class:`rafi.deploy.compensator.Compensator`): ``referencing`` while it
+   collects its reference window (the target is then ``safe_um``), else its value.
 4. **Outside the trained range**: a rise beyond the training range of a sensor (for RAFI, of
    the speed models in use) by more than ``range_margin_k``, or a speed above the highest
    trained speed by more than ``speed_margin_rpm``. Speeds below the trained ones are not
    outside: the machine at rest cooling down is normal service, and every model of the family
    extrapolates to rest by its own rule (``docs/models.md``).
 5. **Fault rule.** On a fault (2), a model without value, or outside the trained range (4),
-   the command *holds* the last value sent in ``ok`` state for ``hold_s`` seconds (status
-   ``hold``), then *ramps* to ``safe_um`` at ``ramp_um_per_s`` (status ``ramp``) and stays
+   the command *holds* for ``hold_s`` seconds (status ``hold``) the last command sent in
+   ``ok`` or ``referencing`` state (at start or after a reconnect: the value read from the
+   controller), then *ramps* to ``safe_um`` at ``ramp_um_per_s`` (status ``ramp``) and stays
    there. When the fault clears, the status is ``ok`` again and the command returns to the
    model's value under the rate limit (6). ``fault`` names every cause.
 6. **Clamp**, then **rate limit.** The target value is clamped to ``clamp_um``; the command
    then moves towards it by at most ``rate_um_per_s * min(dt, interval_s)`` per sample (``dt``
    the time since the previous sample, ``interval_s`` the loop's interval, one sample per
-   write; a replay sets it to the log's sample period): after a long gap (a lost
-   connection) it resumes from the last command at the rate limit, not in one step. The
-   first command after loading starts from 0 um (compensation was off). ``clamped`` /
-   ``rate_limited`` say which acted.
+   write; a replay sets it to the log's sample period; 0 at the first sample): after a long
+   gap (a lost connection) it resumes at the rate limit, not in one step. ``rate_limited``
+   says the rate limit held the command back from its target, ``clamped`` that the clamp
+   changed the command sent (the target was clamped and the rate limit did not act: while the
+   rate limit holds the command back, the clamp changes nothing of it).
+
+Bumpless: the command starts from the value the controller holds (:meth:`SafeCompensator.start_from`,
+else 0 um: a replay from power-on, compensation off) and, after a lost connection, from the
+value read again (:meth:`SafeCompensator.resume_from`: someone may have changed it); a new
+model (:meth:`SafeCompensator.swap`) takes over from the command in force. So no command
+differs from the one before it (or from the value read) by more than the rate limit.
+
+The session's reference state (the temperatures of all 16 sensors and the speed over the
+reference window after power-on or :meth:`SafeCompensator.capture_reference`) is kept, so that
+a model swapped in while running compensates from the same reference as the one it replaces
+(:meth:`Compensator.set_reference`). Its filters start settled on its first sample: the
+machine is taken as thermally settled at the swap (:meth:`SafeCompensator.swap`).
 
 The command is always finite and inside ``clamp_um``.
 """
@@ -59,7 +76,7 @@ import numpy as np
 
 from rafi import SENSORS
 from rafi.deploy.compensator import Compensator
-from rafi.errors import SettingsError
+from rafi.errors import SettingsError, TargetError
 from rafi.method.fuzzy import triangular_weights
 
 __all__ = ["STATUSES", "Command", "Limits", "SafeCompensator"]
@@ -67,9 +84,9 @@ __all__ = ["STATUSES", "Command", "Limits", "SafeCompensator"]
 #: Status of a command (``docs/deploy.md``).
 STATUSES = {
     "off": "no qualified model loaded: nothing is sent",
-    "referencing": "the model collects its reference window: the command goes to 0 um",
+    "referencing": "the model collects its reference window: the command goes to safe_um",
     "ok": "the model's value, clamped and rate limited",
-    "hold": "a fault or outside the trained range: the last good command is held",
+    "hold": "a fault or outside the trained range: the command in force is held",
     "ramp": "the fault lasted longer than hold_s: the command ramps to safe_um",
 }
 
@@ -182,6 +199,9 @@ class _SensorWatch:
 class SafeCompensator:
     """A compensator with the limits and fault rules of the module docstring.
 
+    The constructor only stores the limits; :meth:`load` loads a model, :meth:`start_from`
+    says where the controller is, :meth:`step` takes samples.
+
     Parameters
     ----------
     limits : Limits
@@ -191,33 +211,106 @@ class SafeCompensator:
     ----------
     compensator_ : Compensator
         Set by :meth:`load` (absent before: the status is ``off``).
+    command_um_ : float
+        The last command (after :meth:`start_from` / :meth:`resume_from`: the value read).
+    held_um_ : float
+        What a ``hold`` keeps: the last command sent in ``ok`` or ``referencing`` state, or
+        the value read from the controller at start or after a reconnect.
+    reference_temperatures_ : ndarray of shape (16,) or None
+        The session's reference state, ``T1..T16`` (the median over the reference window,
+        NaN where a sensor had no valid value); None while the first window is collected.
+    reference_speed_rpm_ : float
+        The session's reference speed (median over the reference window).
     """
 
     def __init__(self, *, limits: Limits):
         self.limits = limits
 
+    # ------------------------------------------------------------------ the API
     def load(self, artefact: dict) -> SafeCompensator:
         """Load a model artefact of the family (``rafi.model/1``) and start from power-on.
 
-        Whether the model is *qualified* for the machine is the caller's check
-        (:func:`rafi.deploy.qualified.load_champion`); the replay of any model uses this too.
+        The command starts from 0 um (compensation off, as in a replay from power-on) until
+        :meth:`start_from` says what the controller holds. Whether the model is *qualified*
+        for the machine is the caller's check (:func:`rafi.deploy.qualified.load_champion`);
+        the replay of any model uses this too.
         """
-        self.compensator_ = Compensator.from_artefact(artefact, input_rule=self._input_rule)
-        names = [SENSORS[i] for i in self.compensator_.sensor_index]
-        self._watch = _SensorWatch(names, self.limits)
-        self._faults: list[str] = []
+        self._install(Compensator.from_artefact(artefact, input_rule=self._input_rule))
+        self.command_um_ = 0.0
+        self.held_um_ = 0.0
+        self.reference_temperatures_: np.ndarray | None = None
+        self.reference_speed_rpm_ = float("nan")
+        self._window_rows: list[tuple[float, float, np.ndarray]] = []
         self._last_t: float | None = None
-        self._command = 0.0  # compensation was off
-        self._good = 0.0  # the last command sent in "ok" state
         self._bad_since: float | None = None
+        return self
+
+    def start_from(self, value_um: float | None) -> SafeCompensator:
+        """Start from the value the controller holds now (None: not known, ``safe_um``).
+
+        The first command equals it; the following ones move from it under the rate limit.
+
+        Raises
+        ------
+        TargetError
+            A value that is not finite or lies outside ``clamp_um``: moving it into the clamp
+            would be a step, so it is left to the operator.
+        """
+        value = self.limits.safe_um if value_um is None else self._check_read(value_um)
+        self.command_um_ = self.held_um_ = value
+        self._last_t = None  # the next sample does not move the command
+        return self
+
+    def resume_from(self, value_um: float | None) -> SafeCompensator:
+        """Resume after a lost connection from the value read again from the controller (None:
+        not known, the last command is kept). A ``hold`` then keeps that value. The rate limit
+        of the next sample counts at most ``interval_s``. Raises as :meth:`start_from`."""
+        if value_um is not None:
+            self.command_um_ = self.held_um_ = self._check_read(value_um)
+        return self
+
+    def swap(self, artefact: dict) -> SafeCompensator:
+        """Load another model while running (a new champion); the command goes on from the
+        command in force, under the rate limit, towards the new model's value.
+
+        The new model gets the session's reference state (:attr:`reference_temperatures_`,
+        :meth:`Compensator.set_reference`), not the machine's warm state of now; while the
+        first reference window is still being collected, it collects its own from the next
+        sample. Its filters start settled on its first sample (the machine is taken as
+        thermally settled then; a filtered feature is off by the settling of its filter, which
+        fades with the filter's time constant). The fault timer and the hold value carry on.
+        """
+        comp = Compensator.from_artefact(artefact, input_rule=self._input_rule)
+        if self.reference_temperatures_ is not None:
+            comp.set_reference(self.reference_temperatures_, self.reference_speed_rpm_)
+        self._install(comp)
+        self._window_rows = []
         return self
 
     def capture_reference(self) -> None:
         """Capture a new reference state from the next sample on
-        (:meth:`Compensator.capture_reference`)."""
+        (:meth:`Compensator.capture_reference`); it becomes the session's reference."""
         self.compensator_.capture_reference()
+        self._window_rows = []
 
-    # ------------------------------------------------------------------ one sample
+    # ------------------------------------------------------------------ internals
+    def _install(self, comp: Compensator) -> None:
+        self.compensator_ = comp
+        names = [SENSORS[i] for i in comp.sensor_index]
+        self._watch = _SensorWatch(names, self.limits)
+        self._faults: list[str] = []
+
+    def _check_read(self, value_um) -> float:
+        lo, hi = self.limits.clamp_um
+        value = float(value_um)
+        if not (np.isfinite(value) and lo <= value <= hi):
+            raise TargetError(
+                f"the controller holds {value:g} um, outside deploy.clamp_um [{lo:g}, {hi:g}]: moving it "
+                "inside would be a step, so nothing is written; set it inside by hand or widen "
+                "deploy.clamp_um (docs/deploy.md, Transitions)"
+            )
+        return value
+
     def _input_rule(self, t: float, rpm: float, temps: np.ndarray):
         idx = self.compensator_.sensor_index
         fed, faults = self._watch.check(t, temps[idx])
@@ -230,6 +323,28 @@ class SafeCompensator:
         temps = temps.copy()
         temps[idx] = fed
         return rpm, temps, None
+
+    def _note_reference(self, t: float, rpm: float, temperatures, status: str) -> None:
+        """Collect the session's reference (all 16 sensors) while the model collects its own."""
+        temps = np.array(temperatures, dtype=float)
+        lo, hi = self.limits.temp_valid_c
+        with np.errstate(invalid="ignore"):
+            temps[~((temps >= lo) & (temps <= hi))] = np.nan
+        if status == "referencing":
+            self._window_rows.append((t, float(rpm), temps))
+            return
+        rows, self._window_rows = self._window_rows, []
+        if not rows:
+            return
+        stack = np.array([r[2] for r in rows])
+        self.reference_temperatures_ = np.array(
+            [np.median(c[np.isfinite(c)]) if np.isfinite(c).any() else np.nan for c in stack.T]
+        )
+        speeds = [r[1] for r in rows]
+        if t - rows[0][0] <= self.compensator_.window_s:
+            speeds.append(float(rpm))  # the speed's window includes its end (Compensator)
+        finite = [s for s in speeds if np.isfinite(s)]
+        self.reference_speed_rpm_ = float(np.median(finite)) if finite else float("nan")
 
     def _outside(self, rpm: float) -> list[str]:
         """Causes of "outside the trained range" for the current sample (rises beyond the
@@ -260,12 +375,45 @@ class SafeCompensator:
             out.append(f"speed {abs(rpm):.0f} r/min above trained {top:.0f} r/min")
         return out
 
+    def _target(self, t: float, dt: float, model_status: str, model_um: float, causes: list) -> tuple:
+        """(status, the value the command moves towards) by the rules 3 and 5."""
+        lim = self.limits
+        if model_status == "referencing" and not causes:
+            self._bad_since = None
+            return "referencing", lim.safe_um
+        if causes or model_status == "no_value":
+            if self._bad_since is None:
+                self._bad_since = t
+            if t - self._bad_since < lim.hold_s:
+                return "hold", self.held_um_
+            step = lim.ramp_um_per_s * min(dt, lim.interval_s)
+            return "ramp", self.command_um_ + float(np.clip(lim.safe_um - self.command_um_, -step, step))
+        self._bad_since = None
+        return "ok", model_um
+
+    def _limit(self, target: float, dt: float) -> tuple[float, bool, bool]:
+        """(command, clamped, rate_limited): rule 6, and which limit changed the command."""
+        lim, previous = self.limits, self.command_um_
+        clamped_target = float(np.clip(target, *lim.clamp_um))
+        max_step = lim.rate_um_per_s * min(dt, lim.interval_s)
+        delta = clamped_target - previous
+        command = previous + float(np.clip(delta, -max_step, max_step))
+        rate_limited = abs(delta) > max_step
+        # the command is always inside the clamp: while the rate limit holds it back from the
+        # clamped value, the unclamped one would give the same command, so the clamp did not act
+        clamped = clamped_target != target and not rate_limited
+        return command, bool(clamped), bool(rate_limited)
+
+    # ------------------------------------------------------------------ one sample
     def step(self, t_s: float, speed_rpm: float, temperatures) -> Command:
         """Take one sample (as :meth:`Compensator.step`) and return the command to send."""
         t = float(t_s)
         if not hasattr(self, "compensator_"):
             return Command(t, 0.0, "off", float("nan"), float("nan"), False, False, "", False, False)
+        collecting = self.compensator_.window is not None
         out = self.compensator_.step(t, speed_rpm, temperatures)
+        if collecting:
+            self._note_reference(t, speed_rpm, temperatures, out.status)
         causes = list(self._faults)
         outside = [] if out.status == "referencing" else self._outside(float(speed_rpm))
         if out.status == "no_value" and not causes:
@@ -273,29 +421,11 @@ class SafeCompensator:
         causes += outside
         dt = 0.0 if self._last_t is None else max(t - self._last_t, 0.0)
         self._last_t = t
-        lim = self.limits
-        if out.status == "referencing" and not causes:
-            status, target, self._bad_since = "referencing", 0.0, None
-        elif causes or out.status == "no_value":
-            if self._bad_since is None:
-                self._bad_since = t
-            if t - self._bad_since < lim.hold_s:
-                status, target = "hold", self._good
-            else:
-                status = "ramp"
-                step = lim.ramp_um_per_s * min(dt, lim.interval_s)
-                target = self._command + float(np.clip(lim.safe_um - self._command, -step, step))
-        else:
-            status, target, self._bad_since = "ok", out.compensation_um, None
-        clamped_target = float(np.clip(target, *lim.clamp_um))
-        clamped = bool(clamped_target != target)
-        max_step = lim.rate_um_per_s * min(dt, lim.interval_s)
-        delta = clamped_target - self._command
-        rate_limited = bool(abs(delta) > max_step)
-        command = self._command + float(np.clip(delta, -max_step, max_step))
-        self._command = command
-        if status == "ok":
-            self._good = command
+        status, target = self._target(t, dt, out.status, out.compensation_um, causes)
+        command, clamped, rate_limited = self._limit(target, dt)
+        self.command_um_ = command
+        if status in ("ok", "referencing"):
+            self.held_um_ = command
         model, raw = float(out.compensation_um), float(out.raw_um)
         faults = "; ".join(causes)
         return Command(t, command, status, model, raw, clamped, rate_limited, faults, bool(outside), True)

@@ -8,9 +8,13 @@ Every ``deploy.interval_s`` seconds one *cycle*:
 
 1. If the link to the controller is down, try to reconnect (the link's bounded back-off); while
    it is down nothing is read, the compensator gets no sample and nothing is written.
-2. Read the new samples from the source (the OPC UA inputs: one sample; a followed log file:
+2. At the first cycle, and the first after a lost connection, read the value the target holds
+   (:meth:`Target.read_current_um`) and start (resume) the command from it: no write differs
+   from the value on the controller by more than the rate limit (``docs/deploy.md``,
+   Transitions). Every ``deploy.champion_check_s``, look for a new champion and swap it in.
+3. Read the new samples from the source (the OPC UA inputs: one sample; a followed log file:
    the lines appended since the last cycle) and step the compensator on each, in order.
-3. Write the last command to the target, if ``send`` (never while the status is ``off``), and
+4. Write the last command to the target, if ``send`` (never while the status is ``off``), and
    only a command inside ``deploy.clamp_um`` (the limits guarantee it; the loop checks again and
    stops rather than write one outside).
 
@@ -18,7 +22,7 @@ A lost connection (:class:`ConnectionError` from the source or the target) skips
 cycle. After reconnecting, a followed log's backlog (the lines written during the outage) is
 dropped but for its last line, so that the first write after an outage moves at most one
 sample's rate limit (``rate_um_per_s * min(dt, interval_s)``, :mod:`rafi.deploy.limits`) away from
-the last command: a backlog stepped sample by sample could move it by the rate limit of every
+the value read back: a backlog stepped sample by sample could move it by the rate limit of every
 sample in it. Standard library and NumPy only.
 """
 
@@ -326,24 +330,73 @@ class LiveLoop:
         Seconds (default ``time.monotonic``) and the wait (``time.sleep``); a test injects both.
     log : callable
         ``log(line)``: one progress line per write, one per minute while nothing is written.
+    champion : object, optional
+        ``poll(now) -> artefact or None`` (:class:`~rafi.deploy.champion_watch.ChampionWatch`):
+        a new champion to swap in (:meth:`~rafi.deploy.limits.SafeCompensator.swap`).
+
+    Attributes
+    ----------
+    phase : str
+        ``starting``, ``referencing``, ``running`` or ``reconnecting`` (for the stop message).
     """
 
     def __init__(
         self, source, safe, target, *, axis: str, interval_s: float, link=None,
         clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
-        log: Callable[[str], None] = print,
+        log: Callable[[str], None] = print, champion=None,
     ):  # fmt: skip
         if not (isinstance(interval_s, (int, float)) and math.isfinite(interval_s) and interval_s > 0):
             raise SettingsError(f"deploy.interval_s is {interval_s!r}; expected seconds above 0")
         self.source, self.safe, self.target, self.axis = source, safe, target, axis
         self.interval_s = float(interval_s)
         self.link, self.clock, self.sleep, self.log = link, clock, sleep, log
+        self.champion = champion
         self.cycles = 0
         self.writes = 0
         self.outage_cycles = 0
         self.last_command = None
         self._was_down = False
+        self._read_back: str | None = "start"  # read the controller's value before stepping
         self._quiet_since: float | None = None
+
+    @property
+    def phase(self) -> str:
+        """What the loop is doing: ``starting``, ``referencing``, ``running`` or ``reconnecting``."""
+        if self.link is not None and not self.link.connected:
+            return "reconnecting"
+        if self.last_command is None:
+            return "starting"
+        return "referencing" if self.last_command.status == "referencing" else "running"
+
+    def _start_from_controller(self) -> None:
+        """Read the value the target holds and start (or resume) the command from it."""
+        value = self.target.read_current_um()[self.axis]
+        shown = "not known" if value is None else f"{value:+.3f} um"
+        if self._read_back == "start":
+            self.safe.start_from(value)
+            start = f"{self.safe.command_um_:+.3f} um" + (" (deploy.safe_um)" if value is None else "")
+            self.log(f"{self.target.name} axis {self.axis} holds {shown}: the command starts from {start}")
+        else:
+            before = self.safe.command_um_
+            self.safe.resume_from(value)
+            if value is not None and value != before:
+                self.log(
+                    f"{self.target.name} axis {self.axis} holds {shown} after the outage (last command "
+                    f"{before:+.3f} um): the command goes on from it"
+                )
+        self._read_back = None
+
+    def _swap_champion(self, now: float) -> None:
+        artefact = self.champion.poll(now) if self.champion is not None else None
+        if artefact is None:
+            return
+        old = getattr(self, "model_id", "") or self.safe.compensator_.model_id
+        self.safe.swap(artefact)
+        self.model_id = artefact["model_id"]
+        self.log(
+            f"new champion {self.model_id[:12]} replaces {old[:12]}: the command goes from "
+            f"{self.safe.command_um_:+.3f} um to its value at the rate limit"
+        )
 
     def _quiet(self, now: float, why: str) -> None:
         if self._quiet_since is None:
@@ -361,6 +414,9 @@ class LiveLoop:
                 self._quiet(now, "the controller is unreachable")
                 return
         try:
+            if self._read_back is not None:
+                self._start_from_controller()
+            self._swap_champion(now)
             samples = self.source.read(now)
             if self._was_down:
                 samples, self._was_down = self.source.after_outage(samples), False
@@ -384,6 +440,7 @@ class LiveLoop:
             if self.link is None:
                 raise
             self._was_down = True
+            self._read_back = self._read_back or "resume"  # someone may change it meanwhile
             self.outage_cycles += 1
             return
         self.writes += 1
@@ -393,9 +450,10 @@ class LiveLoop:
             for name, on in (("clamped", command.clamped), ("rate limited", command.rate_limited))
             if on
         )
+        model = f"model {command.model_um:+.3f} um" if math.isfinite(command.model_um) else "model: no value"
         self.log(
             f"{datetime.now().isoformat(timespec='seconds')} {command.status:<11} {value:+9.3f} um "
-            f"(model {command.model_um:+.3f} um){flags}{'  ' + command.fault if command.fault else ''}"
+            f"({model}){flags}{'  ' + command.fault if command.fault else ''}"
         )
 
     def run(self, max_cycles: int | None = None) -> int:

@@ -594,3 +594,32 @@ class OpcUaLink:
     def __exit__(self, *exc) -> bool:
         self.close()
         return False
+
+    # -- preflight and read-back ----------------------------------------------------------
+    def read_attributes(self, node: str, names: tuple[str, ...]) -> list:
+        """DataValues of attributes ``names`` of ``node`` (ConnectionError: lost; RafiUserError: refused)."""
+        if not self.connected:
+            raise ConnectionError(f"OPC UA {self.endpoint}: not connected")
+        from asyncua import ua
+
+        node_id = self.node_id(node)
+        ids = [getattr(ua.AttributeIds, name) for name in names]
+        try:
+            return self._run(self._client.get_node(node_id).read_attributes(ids))
+        except Exception as exc:
+            fatal = self._fatal(exc, f"reading {node_id}")
+            if fatal is not None:
+                raise fatal from None
+            raise self.lost(exc) from None
+
+    def node_info(self, node: str) -> dict:
+        """``exists``, ``datatype``, ``readable``, ``user_writable`` (``preflight.node_info``)."""
+        from rafi.deploy.preflight import node_info
+
+        return node_info(self, node)
+
+    def read_value(self, node: str) -> float:
+        """The number ``node`` holds now (:func:`rafi.deploy.preflight.read_value`)."""
+        from rafi.deploy.preflight import read_value
+
+        return read_value(self, node)

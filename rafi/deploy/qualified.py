@@ -10,9 +10,30 @@ import json
 from pathlib import Path
 
 from rafi.artefact import model_id_verifies
-from rafi.errors import UnqualifiedModel
+from rafi.errors import SettingsError, UnqualifiedModel
 
-__all__ = ["check_qualified", "load_champion"]
+__all__ = ["check_belongs", "check_machine", "check_qualified", "load_champion", "registry_owners"]
+
+
+def _shown(path: Path) -> str:
+    """``path`` for a message, short enough never to be cut (:func:`rafi.errors.bound_message`):
+    relative to the working folder, else to the project (the folder holding ``results_dir``,
+    for a registry folder ``<results_dir>/<machine>/registry/...``)."""
+    path = Path(path).resolve()
+    parts = path.parts
+    at = parts.index("registry") if "registry" in parts[3:] else None
+    project = path.parents[len(parts) - at + 1] if at is not None else None
+    for base in (Path.cwd().resolve(), project):
+        try:
+            return str(path.relative_to(base)) if base is not None else str(path)
+        except ValueError:
+            continue
+    return str(path)
+
+
+def _file_in(path: Path) -> str:
+    """``<name> in <folder>``: the file name whole (never cut in a message), the folder apart."""
+    return f"{path.name} in {_shown(path.parent)}"
 
 
 def _champion_id(registry_root: Path) -> str:
@@ -55,11 +76,17 @@ def load_champion(registry_root) -> dict:
     try:
         artefact = json.loads(path.read_text(encoding="utf-8"))
     except (OSError, ValueError) as exc:
-        raise UnqualifiedModel(f"{path}: the champion's artefact cannot be read ({exc})") from None
+        reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else exc
+        raise UnqualifiedModel(
+            f"the champion's model file {_file_in(path)} cannot be read ({reason}); compensation stays off"
+        ) from None
     if not isinstance(artefact, dict) or artefact.get("model_id") != model_id:
-        raise UnqualifiedModel(f"{path}: the file is not the champion {model_id}")
+        raise UnqualifiedModel(f"the model file {_file_in(path)} is not the champion {model_id[:12]}")
     if not model_id_verifies(artefact, model_id):
-        raise UnqualifiedModel(f"{path}: its content does not hash to {model_id} (modified after promotion)")
+        raise UnqualifiedModel(
+            f"the champion's model file {_file_in(path)} was modified after promotion (its content does "
+            f"not hash to its model_id {model_id[:12]}): refused; compensation stays off"
+        )
     return artefact
 
 
@@ -70,8 +97,52 @@ def check_qualified(artefact: dict, registry_root) -> None:
     model_id = artefact.get("model_id") if isinstance(artefact, dict) else None
     if not model_id or not model_id_verifies(artefact, model_id):
         raise UnqualifiedModel("the model artefact does not verify (its content does not hash to model_id)")
-    if model_id != champion_id:
+    if model_id == champion_id:
+        return
+    root = Path(registry_root)
+    machine = root.parent.name
+    owners = [m for m in registry_owners(model_id, root.parent.parent) if m != machine]
+    if owners and not (root / "models" / f"{model_id}.json").is_file():
         raise UnqualifiedModel(
-            f"model {model_id[:12]} is not the champion of {registry_root} ({champion_id[:12]}): only the "
-            "champion is qualified to compensate this machine; promote it with `rafi nightly` first"
+            f"model {model_id[:12]} is machine {' and '.join(owners)}'s model, not this machine's "
+            f"({machine}): only {machine}'s champion ({champion_id[:12]}) may compensate {machine}"
+        )
+    raise UnqualifiedModel(
+        f"model {model_id[:12]} is not the champion of {_shown(root)} ({champion_id[:12]}): only the "
+        "champion is qualified to compensate this machine; promote it with `rafi nightly` first"
+    )
+
+
+def registry_owners(model_id: str, results_dir) -> list[str]:
+    """The machines whose registry (``<results_dir>/<machine>/registry``) holds ``model_id``."""
+    return sorted(
+        p.parent.parent.parent.name
+        for p in Path(results_dir).glob(f"*/registry/models/{model_id}.json")
+        if p.is_file()
+    )
+
+
+def check_belongs(artefact: dict, machine: str) -> None:
+    """Raise :class:`UnqualifiedModel` when the artefact says it was fitted for another machine
+    (its ``machine`` field; an artefact without one is not judged here)."""
+    fitted_for = artefact.get("machine") if isinstance(artefact, dict) else None
+    if isinstance(fitted_for, str) and fitted_for and fitted_for != machine:
+        raise UnqualifiedModel(
+            f"model {str(artefact.get('model_id', ''))[:12]} is machine {fitted_for}'s model (so its "
+            f"artefact says), not this machine's ({machine}): refused; compensation stays off"
+        )
+
+
+def check_machine(machine: str, config: dict, results_dir, raw_dir=None) -> None:
+    """Raise :class:`SettingsError` for a machine that neither ``config.yaml`` (``machines:``),
+    the results (a registry) nor the raw folder knows."""
+    configured = sorted(str(m) for m in (config.get("machines") or {}))
+    known = set(configured) | {p.parent.name for p in Path(results_dir).glob("*/registry") if p.is_dir()}
+    if raw_dir is not None and Path(raw_dir).is_dir():
+        known |= {p.name for p in Path(raw_dir).iterdir() if p.is_dir() and not p.name.startswith(".")}
+    if machine not in known:
+        others = sorted(known - set(configured))
+        also = f"; results or raw data also have: {', '.join(others)}" if others else ""
+        raise SettingsError(
+            f"unknown machine {machine}; config.yaml has: {', '.join(configured) or 'no machines'}{also}"
         )

@@ -80,6 +80,14 @@ class Target(abc.ABC):
         self._write(time_s, values, status)
         self.samples_written += 1
 
+    def read_current_um(self) -> dict[str, float | None]:
+        """The value each axis holds now, in micrometres (None: not known).
+
+        The live loop starts from it and, after a lost connection, resumes from it, so that its
+        first write is no step (``docs/deploy.md``, Transitions). Default: not known.
+        """
+        return {axis: None for axis in self.axes}
+
     def close(self) -> None:
         """Close the target; closing again (or a target never opened) does nothing."""
         if self.is_open:

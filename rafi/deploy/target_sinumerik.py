@@ -26,8 +26,9 @@ An axis is written in one of two modes (:class:`SinumerikAxis`):
   K at ``measured_at_mm`` equals the value and grows linearly with the distance to P0.
 
 The values go to a *sink*: any object with ``write_value(node, value, datatype)`` (the OPC UA
-client of a later step; it may also have ``open()``/``close()``) or a callable with the same
-arguments. :class:`DrySink` records what would be written. The node names follow the
+client, :class:`rafi.deploy.opcua_client.OpcUaLink`; it may also have ``open()``/``close()``,
+and ``read_value(node)`` for the read-back of :meth:`SinumerikTarget.read_current_um`) or a
+callable with the same arguments. :class:`DrySink` records what would be written. The node names follow the
 SINUMERIK OPC UA server's NC variable paths, ``/NC/_N_AX_SEA_ACX/$SA_<name>[u<axis>]`` by
 default (machine axis number, 1-based), a template the user can replace.
 """
@@ -157,11 +158,16 @@ class WrittenValue:
 
 @dataclass
 class DrySink:
-    """A sink that writes nothing and records what would have been written, in order."""
+    """A sink that writes nothing and records what would have been written, in order.
+
+    ``start`` maps a node to the value it holds before the first write (what
+    :meth:`read_value` returns until then; a dry run copies the controller's values there).
+    """
 
     writes: list[WrittenValue] = field(default_factory=list)
     opened: int = 0
     closed: int = 0
+    start: dict[str, float] = field(default_factory=dict)
 
     def open(self) -> None:
         self.opened += 1
@@ -178,6 +184,11 @@ class DrySink:
             if w.node == node:
                 return w.value
         return None
+
+    def read_value(self, node: str) -> float | None:
+        """The value ``node`` holds: the last written, else its ``start`` value, else None."""
+        last = self.last(node)
+        return self.start.get(node) if last is None else last
 
 
 class SinumerikTarget(Target):
@@ -319,7 +330,38 @@ class SinumerikTarget(Target):
         """MD 32750 ``TEMP_COMP_TYPE`` bits each machine axis needs (at least these set)."""
         return {ax.number: ax.temp_comp_type for ax in self.axis_config.values()}
 
+    def value_um(self, axis: str, setting: float) -> float:
+        """The compensation in um that setting datum value ``setting`` means on ``axis``: the
+        inverse of :meth:`setting_value` (``offset``: ``sign * mm * 1000``; ``slope``:
+        ``sign * slope * 1000 * (measured_at_mm - ref_position_mm)``)."""
+        ax = self.axis_config[axis]
+        if ax.mode == "offset":
+            return ax.sign * float(setting) * 1000.0
+        return ax.sign * float(setting) * 1000.0 * (ax.measured_at_mm - ax.ref_position_mm)
+
+    def output_nodes(self) -> list[str]:
+        """Every node this target writes (SD 43900, or SD 43910 and SD 43920 in slope mode)."""
+        nodes = []
+        for axis, ax in self.axis_config.items():
+            data = (SD_ABS_VALUE,) if ax.mode == "offset" else (SD_SLOPE, SD_REF_POSITION)
+            nodes += [self.node(d, axis) for d in data]
+        return nodes
+
     # -- the Target interface ------------------------------------------------------------
+    def read_current_um(self) -> dict[str, float | None]:
+        """Per axis, the value SD 43900 (``offset``) or SD 43910 (``slope``) holds, read
+        through the sink's ``read_value(node)`` and turned back into um (:meth:`value_um`);
+        None when the sink cannot read (a callable sink) or returns None."""
+        read = getattr(self.sink, "read_value", None)
+        out: dict[str, float | None] = {}
+        for axis, ax in self.axis_config.items():
+            node = self.node(SD_ABS_VALUE if ax.mode == "offset" else SD_SLOPE, axis)
+            setting = None if read is None else read(node)
+            if setting is not None:
+                self.last_written[node] = float(setting)  # the step report and skip_unchanged
+            out[axis] = None if setting is None else self.value_um(axis, setting)
+        return out
+
     def check_values(self, values_um) -> None:
         self._pending = [(axis, *self.setting_value(axis, v)) for axis, v in values_um.items()]
 

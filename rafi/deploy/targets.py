@@ -29,6 +29,7 @@ import contextlib
 import csv
 import io
 import json
+import math
 import os
 from pathlib import Path
 
@@ -115,6 +116,34 @@ class _LineFileTarget(Target):
         with open(self.path, "rb") as fh:
             return fh.readline(65536).decode("utf-8", "replace").rstrip("\r\n")
 
+    def parse_value(self, line: str, header: str, axis: str) -> float | None:
+        """The value of ``axis`` in a data ``line`` (None if it has none)."""
+        raise NotImplementedError
+
+    def read_current_um(self) -> dict[str, float | None]:
+        """Per axis, the value of the file's last complete line: what a controller following
+        the file applies now. None for a new or empty file, or a line without the axis (the
+        live loop then starts from ``deploy.safe_um``)."""
+        out: dict[str, float | None] = {axis: None for axis in self.axes}
+        try:
+            with open(self.path, "rb") as fh:
+                header = fh.readline(65536).decode("utf-8", "replace").rstrip("\r\n")
+                size = os.fstat(fh.fileno()).st_size
+                fh.seek(max(size - 65536, 0))
+                tail = fh.read().decode("utf-8", "replace")
+        except OSError:
+            return out
+        lines = [line for line in tail.split("\n")[:-1] if line.strip()]  # complete lines only
+        if not lines or (self.header() is not None and lines[-1] == header):
+            return out
+        for axis in self.axes:
+            try:
+                value = self.parse_value(lines[-1], header, axis)
+            except (ValueError, KeyError, IndexError, TypeError):
+                value = None
+            out[axis] = value if value is not None and math.isfinite(value) else None
+        return out
+
     def _write(self, time_s, values_um, status) -> None:
         line = self.format_line(time_s, values_um, status)
         data = (line + "\n").encode("utf-8")
@@ -151,6 +180,10 @@ class CsvFileTarget(_LineFileTarget):
     def header(self) -> str:
         return ",".join(["time_s", *(f"{a}_um" for a in self.axes), "status"])
 
+    def parse_value(self, line: str, header: str, axis: str) -> float | None:
+        names = next(csv.reader([header]))
+        return float(next(csv.reader([line]))[names.index(f"{axis}_um")])
+
     def format_line(self, time_s, values_um, status) -> str:
         buf = io.StringIO()
         csv.writer(buf, lineterminator="").writerow(
@@ -166,6 +199,9 @@ class JsonLinesTarget(_LineFileTarget):
     """
 
     name = "jsonl"
+
+    def parse_value(self, line: str, header: str, axis: str) -> float | None:
+        return float(json.loads(line)["values_um"][axis])
 
     def format_line(self, time_s, values_um, status) -> str:
         record = {"time_s": time_s, "values_um": {a: values_um[a] for a in self.axes}, "status": status}
