@@ -327,3 +327,7 @@ def test_rule_replay_and_rafi_replay_on_a_trimmed_project(tmp_path):
     assert len(done.stderr.strip().splitlines()) == 1
     done = _run(proj, "rafi.cli", "replay", "--machine", "machining-center-b")
     assert done.returncode == 64 and "run `snakemake --cores 2 tables` first" in done.stderr
+    done = _run(proj, "rafi.cli", "replay", "--machine", "nosuch")
+    assert done.returncode == 64 and done.stderr.startswith(
+        "rafi replay: unknown machine nosuch; config.yaml has:"
+    )

@@ -134,6 +134,7 @@ def run(args) -> int:
 
     from rafi.artefact import write_bytes_atomic, write_csv_atomic
     from rafi.deploy.limits import Limits
+    from rafi.deploy.qualified import check_machine
     from rafi.deploy.replay import replay_runs, replay_summary, summary_frame
     from rafi.ops.project import Paths
     from rafi.report.replay_plot import fig_replay
@@ -146,7 +147,9 @@ def run(args) -> int:
         raise ReplayError(f"cannot read the config {args.config}: {exc.strerror or exc}") from None
     except yaml.YAMLError as exc:
         raise ReplayError(f"{args.config}: not valid YAML ({exc})") from None
-    results_dir = Paths.from_config(Path("."), config).results_dir
+    paths = Paths.from_config(Path("."), config)
+    results_dir = paths.results_dir
+    check_machine(args.machine, config, results_dir, paths.raw_dir)
     settings = machine_settings(config, args.machine)
     limits = Limits.from_settings(settings["deploy"])
     frame, table = _read_results(results_dir, args.machine)
