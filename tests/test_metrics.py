@@ -328,3 +328,14 @@ def test_the_safe_compensators_statuses_are_all_exposed(served):
     s = scrape(m.port)
     assert value(s, "rafi_deploy_status", machine="m1", status="a_new_status") == 1
     assert np.isclose(sum(v for k, v in s.items() if k[0] == "rafi_deploy_status"), 1.0)
+
+
+def test_without_prometheus_client_only_no_port_works(monkeypatch):
+    from rafi.deploy import metrics as module
+
+    monkeypatch.setattr(module, "CollectorRegistry", None)  # as if the deploy extra were not installed
+    assert metrics_from_settings({"metrics_port": None}, machine="m1") is None
+    with pytest.raises(
+        SettingsError, match=r"^deploy\.metrics_port is set but prometheus_client is not installed"
+    ):
+        metrics_from_settings({"metrics_port": 9464}, machine="m1")

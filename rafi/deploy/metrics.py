@@ -57,9 +57,12 @@ import re
 import time
 from collections.abc import Callable, Mapping
 
-from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
-
 from rafi.errors import SettingsError
+
+try:  # the deploy extra; without it only metrics_port none works (metrics_from_settings says so)
+    from prometheus_client import CollectorRegistry, Counter, Gauge, Histogram, Info
+except ImportError:  # pragma: no cover - the test extra installs it
+    CollectorRegistry = None
 
 __all__ = ["FAULT_CLASSES", "LoopMetrics", "RecordMetrics", "fault_classes", "metrics_from_settings"]
 
@@ -371,6 +374,11 @@ def metrics_from_settings(
     if port is None:
         return None
     section = kind if kind == "record" else "deploy"
+    if CollectorRegistry is None:
+        raise SettingsError(
+            f"{section}.metrics_port is set but prometheus_client is not installed "
+            "(pip install -e '.[deploy]'), or set it to none"
+        )
     if isinstance(port, bool) or not isinstance(port, int) or not 1 <= port <= 65535:
         raise SettingsError(f"{section}.metrics_port is {port!r}; expected a TCP port 1..65535 or none")
     address = str(settings.get("metrics_address") or "127.0.0.1")
