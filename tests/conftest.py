@@ -22,6 +22,7 @@ PACKAGE_OF = {
     "pdfinfo": "poppler-utils",
     "pdftohtml": "poppler-utils",
     "pdfdetach": "poppler-utils",
+    "systemd-analyze": "systemd",
 }
 
 
