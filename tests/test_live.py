@@ -487,6 +487,63 @@ def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path):
     assert got == pytest.approx([c for c, _ in expected_commands(fed)], abs=1e-9)
 
 
+def test_rafi_deploy_serves_its_metrics_while_it_runs(tmp_path):
+    """deploy.metrics_port: an HTTP GET of /metrics while the loop runs reads the writes so
+    far, the last command and the model in service (docs/service.md)."""
+    import socket
+    import urllib.request
+    from datetime import datetime, timedelta
+
+    import yaml
+    from prometheus_client.parser import text_string_to_metric_families
+
+    from rafi.deploy import live_cli
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    args = _deploy_args(tmp_path)
+    config = yaml.safe_load((tmp_path / "config.yaml").read_text())
+    config["machines"]["m1"]["deploy"]["metrics_port"] = port
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    (tmp_path / "out").mkdir()
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    loop, _ = live_cli.build(args, log=lambda m: None, environ={})
+    rows, start, scraped = scenario()[:12], datetime(2026, 3, 1, 8), []
+
+    def scrape() -> dict:
+        text = urllib.request.urlopen(f"http://127.0.0.1:{port}/metrics", timeout=10).read().decode()
+        return {
+            (sample.name, tuple(sorted(sample.labels.items()))): sample.value
+            for family in text_string_to_metric_families(text)
+            for sample in family.samples
+        }
+
+    def sleep(seconds):
+        speed, temps = rows[loop.cycles]
+        stamp = start + timedelta(seconds=DT * loop.cycles)
+        with open(args.follow, "a") as fh:
+            fh.write(f"{stamp.isoformat()},{speed:g}," + ",".join(f"{t:.2f}" for t in temps) + ",\n")
+        scraped.append((loop.writes, loop.last_command, scrape()))
+
+    loop.clock, loop.sleep = (lambda: 0.0), sleep
+    try:
+        sleep(0)
+        loop.run(max_cycles=len(rows) - 1)
+    finally:
+        loop.metrics.close()
+    labels = (("machine", "m1"),)
+    for writes, command, values in scraped:
+        if command is None:  # the follower starts at the end of the file: nothing read yet
+            continue
+        assert values[("rafi_deploy_writes_total", labels)] == writes
+        assert values[("rafi_deploy_command_um", labels)] == pytest.approx(command.command_um, abs=1e-12)
+        assert values[("rafi_deploy_status", (*labels, ("status", command.status)))] == 1
+    assert scraped[-1][0] == len(rows) - 3 > 0
+    model = (("machine", "m1"), ("model_id", artefact()["model_id"]))
+    assert scraped[-1][2][("rafi_deploy_model_info", model)] == 1
+
+
 # --------------------------------------------------------------------------- rafi deploy's messages
 
 

@@ -333,6 +333,10 @@ class LiveLoop:
     champion : object, optional
         ``poll(now) -> artefact or None`` (:class:`~rafi.deploy.champion_watch.ChampionWatch`):
         a new champion to swap in (:meth:`~rafi.deploy.limits.SafeCompensator.swap`).
+    metrics : rafi.deploy.metrics.LoopMetrics, optional
+        Told every cycle, reconnect and new champion (Prometheus, ``docs/service.md``).
+    notify : rafi.deploy.sd_notify.SdNotify, optional
+        systemd's watchdog, kicked after every cycle.
 
     Attributes
     ----------
@@ -343,14 +347,14 @@ class LiveLoop:
     def __init__(
         self, source, safe, target, *, axis: str, interval_s: float, link=None,
         clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
-        log: Callable[[str], None] = print, champion=None,
+        log: Callable[[str], None] = print, champion=None, metrics=None, notify=None,
     ):  # fmt: skip
         if not (isinstance(interval_s, (int, float)) and math.isfinite(interval_s) and interval_s > 0):
             raise SettingsError(f"deploy.interval_s is {interval_s!r}; expected seconds above 0")
         self.source, self.safe, self.target, self.axis = source, safe, target, axis
         self.interval_s = float(interval_s)
         self.link, self.clock, self.sleep, self.log = link, clock, sleep, log
-        self.champion = champion
+        self.champion, self.metrics, self.notify = champion, metrics, notify
         self.cycles = 0
         self.writes = 0
         self.outage_cycles = 0
@@ -393,6 +397,8 @@ class LiveLoop:
         old = getattr(self, "model_id", "") or self.safe.compensator_.model_id
         self.safe.swap(artefact)
         self.model_id = artefact["model_id"]
+        if self.metrics is not None:
+            self.metrics.model(self.model_id)
         self.log(
             f"new champion {self.model_id[:12]} replaces {old[:12]}: the command goes from "
             f"{self.safe.command_um_:+.3f} um to its value at the rate limit"
@@ -406,13 +412,30 @@ class LiveLoop:
             self.log(f"nothing written for 60 s: {why}")
 
     def cycle(self, now: float) -> None:
-        """One cycle at clock time ``now`` (module docstring)."""
+        """One cycle at clock time ``now`` (module docstring), reported to the metrics and the
+        watchdog when they are given."""
+        started, writes, last = time.perf_counter(), self.writes, self.last_command
+        try:
+            self._cycle(now)
+        finally:
+            if self.metrics is not None:
+                fresh = self.last_command if self.last_command is not last else None
+                self.metrics.cycle(
+                    fresh, written=self.writes > writes, step_seconds=time.perf_counter() - started
+                )
+                self.metrics.connection(self.link is None or bool(self.link.connected))
+            if self.notify is not None:
+                self.notify.watchdog()
+
+    def _cycle(self, now: float) -> None:
         if self.link is not None and not self.link.connected:
             if not self.link.try_reconnect():
                 self.outage_cycles += 1
                 self._was_down = True
                 self._quiet(now, "the controller is unreachable")
                 return
+            if self.metrics is not None:
+                self.metrics.reconnect()
         try:
             if self._read_back is not None:
                 self._start_from_controller()

@@ -144,6 +144,8 @@ def build(args, *, log=print, environ=None):
     from rafi.deploy.champion_watch import ChampionWatch
     from rafi.deploy.limits import Limits, SafeCompensator
     from rafi.deploy.live import LinkSource, LiveLoop, LogFollower, build_target, check_target_limits
+    from rafi.deploy.metrics import metrics_from_settings
+    from rafi.deploy.sd_notify import SdNotify
     from rafi.deploy.target_sinumerik import DrySink
     from rafi.settings import machine_settings
 
@@ -168,10 +170,13 @@ def build(args, *, log=print, environ=None):
         target = _DryTarget(target).target
     source = LogFollower(args.follow, log=log) if args.follow else LinkSource(link)
     watch = ChampionWatch(registry, artefact["model_id"], check_s=deploy["champion_check_s"], log=log)
+    metrics = metrics_from_settings(deploy, machine=args.machine, log=log)
+    if metrics is not None:
+        metrics.model(artefact["model_id"])
     loop = LiveLoop(
         source, safe, target, axis=axis, interval_s=limits.interval_s,
         link=link if (link is not None and (not args.follow or sink is link)) else None,
-        log=log, champion=watch,
+        log=log, champion=watch, metrics=metrics, notify=SdNotify(log=log),
     )  # fmt: skip
     loop.model_id = artefact["model_id"]
     loop.preflight_spec = None
@@ -246,6 +251,24 @@ def _stopped_line(state: _State) -> str:
     return f"rafi deploy: stopped while {phase} ({state.signal}); {what}"
 
 
+def _service_ready(loop) -> None:
+    """Tell systemd (``Type=notify``) and the metrics that the loop runs (``docs/service.md``)."""
+    if loop.metrics is not None:
+        loop.metrics.connection(loop.link is None or bool(loop.link.connected))
+    warning = loop.notify.interval_warning(loop.interval_s)
+    if warning:
+        print(f"rafi deploy: {warning}", file=sys.stderr)
+    loop.notify.ready(f"model {loop.model_id[:12]} -> {loop.target.name} axis {loop.axis}")
+
+
+def _service_stopping(loop) -> None:
+    if loop is None:
+        return
+    loop.notify.stopping()
+    if loop.metrics is not None:
+        loop.metrics.close()
+
+
 def run(args) -> int:
     if args.cycles is not None and args.cycles < 1:
         raise SettingsError(f"--cycles {args.cycles}: expected 1 or more")
@@ -265,6 +288,7 @@ def run(args) -> int:
             f"{' (dry run)' if args.dry_run else ''}; Ctrl-C stops",
             flush=True,
         )
+        _service_ready(loop)
         state.phase, state.target_opened = "running", True
         started = time.monotonic()
         loop.run(max_cycles=args.cycles)
@@ -279,6 +303,7 @@ def run(args) -> int:
         return 0
     finally:
         signal.signal(signal.SIGTERM, previous)
+        _service_stopping(state.loop)
         if link is not None:
             try:
                 link.close()
