@@ -26,6 +26,10 @@ COMMANDS = {
     "diff": ("rafi.ops.result_diff", "compare two result trees number by number (timings, ids aside)"),
     "status": ("rafi.ops.fleet_cli", "every machine: model in service, decision, drift; urgent first"),
     "deploy": ("rafi.deploy.live_cli", "run the qualified model live: inputs in, compensation out"),
+    "certificate": (
+        "rafi.deploy.certificate_cli",
+        "create the OPC UA client certificate and key of rafi deploy",
+    ),
     "replay": (
         "rafi.deploy.replay_cli",
         "replay recorded runs through the compensator with the limits in force",
