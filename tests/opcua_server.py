@@ -77,8 +77,9 @@ def make_certificate(
     folder: Path, name: str, uri: str, *, server: bool, days=(-1, 365), host: str = "localhost"
 ) -> tuple[Path, Path]:
     """A self-signed application certificate ``<folder>/<name>.der`` and its key
-    ``<folder>/private/<name>.pem`` (mode 600; apart, so that ``folder`` can be a trust folder), valid from ``days[0]`` to ``days[1]`` days from now (both negative:
-    expired), for a server or a client with application URI ``uri``."""
+    ``<folder>/private/<name>.pem`` (mode 600; apart, so that ``folder`` can be a trust
+    folder), valid from ``days[0]`` to ``days[1]`` days from now (both negative: expired), for a
+    server or a client with application URI ``uri``."""
     from cryptography import x509
     from cryptography.hazmat.primitives import hashes, serialization
     from cryptography.hazmat.primitives.asymmetric import rsa

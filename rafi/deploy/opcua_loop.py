@@ -63,14 +63,17 @@ class LoopThread:
             Raised in the caller's thread while it waited: the task is cancelled on the loop,
             awaited at most ``settle_s``, and the interrupt raised again.
         """
-        future = asyncio.run_coroutine_threadsafe(coro, self._start())
+        future = None
         try:
+            future = asyncio.run_coroutine_threadsafe(coro, self._start())
             return future.result(timeout_s)
         except TimeoutError:
             future.cancel()
             raise
         except BaseException:
-            if not future.done():
+            if future is None:
+                coro.close()  # interrupted before it was scheduled: it never runs
+            elif not future.done():
                 future.cancel()
                 concurrent.futures.wait([future], timeout=settle_s)
             raise
