@@ -204,6 +204,21 @@ def test_an_untrusted_server_certificate_is_refused_with_one_line(secure_server,
     assert [r for r in library_records(caplog) if r.levelno >= logging.WARNING] == []
 
 
+def test_a_client_the_server_does_not_trust_or_a_policy_it_lacks_is_one_line(secure_server, pki, tmp_path):
+    cert, key = make_certificate(tmp_path / "c", "stranger", "urn:stranger", server=False)
+    stranger = settings(secure_server, pki, certificate=str(cert), private_key=str(key))
+    with OpcUaLink(stranger, user=USER, password=PASSWORD) as link:
+        with pytest.raises(
+            RafiUserError, match="the server refused the client's certificate .*BadCertificate"
+        ):
+            link.connect()
+    with SinumerikLikeServer(axis=3) as plain, OpcUaLink(settings(plain, pki)) as link:
+        with pytest.raises(
+            SettingsError, match="offers no endpoint Basic256Sha256/SignAndEncrypt; it offers None/None:"
+        ):
+            link.connect()
+
+
 @pytest.mark.parametrize("days, reason", [((-30, -1), "expired on"), ((2, 30), "is not valid before")])
 def test_a_server_certificate_out_of_its_validity_is_refused(pki, tmp_path, days, reason):
     cert, key = make_certificate(tmp_path / "srv", "server", SERVER_URI, server=True, days=days)

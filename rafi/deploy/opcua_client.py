@@ -324,6 +324,12 @@ class OpcUaLink:
     # -- connection ----------------------------------------------------------------------
     def _fatal(self, exc: BaseException, what: str) -> RafiUserError | None:
         name = _status_name(exc)
+        if name is not None and name.startswith(("BadCertificate", "BadSecurity")):
+            return RafiUserError(
+                f"OPC UA {self.endpoint}: the server refused the client's certificate "
+                f"{self.settings.get('certificate') or '(none)'}: {name}: make the server trust it, or check "
+                "deploy.opcua.security_policy and security_mode (docs/deploy.md#security)"
+            )
         if name in _FATAL:
             who = f"user {self._user!r}" if self._user else "an anonymous session"
             return RafiUserError(

@@ -423,7 +423,7 @@ async def secure_client(client, security: ClientSecurity, endpoint: str, user: s
     matching = [e for e in endpoints if e.SecurityPolicyUri == policy.URI and e.SecurityMode == mode]
     if not matching:
         offered = sorted(
-            {f"{e.SecurityPolicyUri.rsplit('#', 1)[-1]}/{e.SecurityMode.name}" for e in endpoints}
+            {f"{e.SecurityPolicyUri.rsplit('#', 1)[-1]}/{e.SecurityMode.name.rstrip('_')}" for e in endpoints}
         )
         raise SettingsError(
             f"OPC UA {endpoint}: the server offers no endpoint {security.policy}/{security.mode}; it "
