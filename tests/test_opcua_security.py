@@ -19,6 +19,7 @@ import socket
 import threading
 
 import pytest
+import yaml
 
 pytest.importorskip("asyncua")
 
@@ -150,6 +151,33 @@ def test_a_secure_session_reads_the_inputs_and_writes(secure_server, pki, caplog
     assert (last.node, last.value, last.user) == (secure_server.sd_node(), value, USER)
     assert log == []  # no warning of any kind, from rafi or asyncua
     assert [r for r in library_records(caplog) if r.levelno >= logging.WARNING] == []
+
+
+def test_rafi_deploy_writes_over_a_signed_and_encrypted_session(
+    secure_server, pki, tmp_path, monkeypatch, capsys
+):
+    from test_live import artefact, make_registry
+    from test_opcua import write_config
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    args = write_config(tmp_path, secure_server, deploy={"interval_s": 0.05})
+    config = yaml.safe_load(open(args.config, encoding="utf-8"))
+    opcua = config["machines"]["m1"]["deploy"]["opcua"]
+    del opcua["allow_insecure"]
+    opcua.update(
+        security_policy="Aes128_Sha256_RsaOaep",
+        certificate=str(pki.client_cert),
+        private_key=str(pki.client_key),
+        server_fingerprint=fingerprint(pki.server_cert.read_bytes()),
+    )
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    monkeypatch.setenv("RAFI_OPCUA_USER", USER)
+    monkeypatch.setenv("RAFI_OPCUA_PASSWORD", PASSWORD)
+    secure_server.set_inputs(6000.0, [20.0] * 16)
+    before = len(secure_server.client_writes())
+    assert main(["deploy", "--machine", "m1", "--config", args.config, "--cycles", "2"]) == 0
+    assert [w.user for w in secure_server.client_writes()[before:]] == [USER, USER]
+    assert "asyncua" not in capsys.readouterr().out
 
 
 def test_a_password_never_goes_in_plain_text_unless_allowed(secure_server, pki):
