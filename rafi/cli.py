@@ -28,6 +28,10 @@ COMMANDS = {
     "status": ("rafi.ops.fleet_cli", "every machine: model in service, decision, drift; urgent first"),
     "deploy": ("rafi.deploy.live_cli", "run the qualified model live: inputs in, compensation out"),
     "record": ("rafi.deploy.record_cli", "record a qualification test: speed, temperatures, probe -> raw/"),
+    "certificate": (
+        "rafi.deploy.certificate_cli",
+        "create the OPC UA client certificate and key of rafi deploy",
+    ),
     "replay": (
         "rafi.deploy.replay_cli",
         "replay recorded runs through the compensator with the limits in force",

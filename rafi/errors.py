@@ -277,6 +277,13 @@ class TargetError(RafiUserError, ValueError):
         super().__init__(f"{where}: {message}" if where else message)
 
 
+class UntrustedCertificate(RafiUserError):
+    """The OPC UA server's certificate is refused (``rafi deploy`` with a security policy): not
+    valid now, not the pinned one, not the configured fingerprint, or not trusted by the trust
+    folder. A trust setting to correct, hence ``EX_USAGE`` (64); the message names the
+    certificate (subject, SHA-256 fingerprint), why, and what to do. Nothing is sent to the server."""
+
+
 class UnqualifiedModel(RafiUserError):
     """A model that may not compensate a machine: it is not the registry's champion (the only
     qualified model, ``rafi.deploy.qualified``), the registry has no champion, or the artefact

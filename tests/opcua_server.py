@@ -18,6 +18,13 @@ Like the controller, the server refuses a write whose variant type is not the no
 (``BadWriteNotSupported``), and an anonymous session may read but not write
 (``BadUserAccessDenied``); a wrong password is refused at login.
 
+With ``security=ServerSecurity(...)`` the server offers *only* encrypted endpoints
+(Basic256Sha256 and Aes128_Sha256_RsaOaep, each Sign and SignAndEncrypt) with its own
+certificate, and accepts a client only if the client's certificate is valid, names the client's
+application URI, and is in the server's folder of trusted clients (asyncua's ``TrustStore`` and
+``CertificateValidator``). :func:`make_certificate` writes a self-signed certificate and key
+(for a server, or for a client, valid or not) for a test. Without it, as before: NoSecurity only.
+
 Every write a client makes is recorded server-side, in order (:attr:`SinumerikLikeServer.writes`,
 accepted ones; :attr:`refused`, the others). The server runs in a thread with its own event
 loop; every method is synchronous and waits a bounded time.
@@ -26,12 +33,16 @@ loop; every method is synchronous and waits a bounded time.
 from __future__ import annotations
 
 import asyncio
+import datetime
 import socket
 import threading
 from dataclasses import dataclass
+from pathlib import Path
 
 from asyncua import Server, ua
 from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
+from asyncua.crypto.truststore import TrustStore
+from asyncua.crypto.validator import CertificateValidator, CertificateValidatorOptions
 
 NS_URI = "http://rafi.test/sinumerik-like"
 SD_TEMPLATE = "/NC/_N_AX_SEA_ACX/$SA_{data}[u{axis}]"
@@ -54,6 +65,71 @@ def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         return s.getsockname()[1]
+
+
+SERVER_URI = "urn:rafi.test:sinumerik-like"
+
+#: The endpoints of a secure server: no NoSecurity.
+SECURE_POLICIES = (
+    ua.SecurityPolicyType.Basic256Sha256_Sign,
+    ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+    ua.SecurityPolicyType.Aes128Sha256RsaOaep_Sign,
+    ua.SecurityPolicyType.Aes128Sha256RsaOaep_SignAndEncrypt,
+)
+
+
+def make_certificate(
+    folder: Path, name: str, uri: str, *, server: bool, days=(-1, 365), host: str = "localhost"
+) -> tuple[Path, Path]:
+    """A self-signed application certificate ``<folder>/<name>.der`` and its key
+    ``<folder>/private/<name>.pem`` (mode 600; apart, so that ``folder`` can be a trust
+    folder), valid from ``days[0]`` to ``days[1]`` days from now (both negative: expired), for a
+    server or a client with application URI ``uri``."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import hashes, serialization
+    from cryptography.hazmat.primitives.asymmetric import rsa
+    from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+    key = rsa.generate_private_key(public_exponent=65537, key_size=2048)
+    now = datetime.datetime.now(datetime.UTC)
+    subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)])
+    usage = ExtendedKeyUsageOID.SERVER_AUTH if server else ExtendedKeyUsageOID.CLIENT_AUTH
+    cert = (
+        x509.CertificateBuilder()
+        .subject_name(subject)
+        .issuer_name(subject)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(now + datetime.timedelta(days=days[0]))
+        .not_valid_after(now + datetime.timedelta(days=days[1]))
+        .add_extension(
+            x509.SubjectAlternativeName([x509.UniformResourceIdentifier(uri), x509.DNSName(host)]), False
+        )
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), False)
+        .add_extension(x509.KeyUsage(True, True, True, True, False, False, False, False, False), True)
+        .add_extension(x509.ExtendedKeyUsage([usage]), False)
+        .sign(key, hashes.SHA256())
+    )
+    (folder / "private").mkdir(parents=True, exist_ok=True)
+    cert_path, key_path = folder / f"{name}.der", folder / "private" / f"{name}.pem"
+    cert_path.write_bytes(cert.public_bytes(serialization.Encoding.DER))
+    key_path.write_bytes(
+        key.private_bytes(
+            serialization.Encoding.PEM, serialization.PrivateFormat.PKCS8, serialization.NoEncryption()
+        )
+    )
+    key_path.chmod(0o600)
+    return cert_path, key_path
+
+
+@dataclass(frozen=True)
+class ServerSecurity:
+    """The encrypted-only server: its certificate and key, and the folder of client
+    certificates it trusts (``*.der`` / ``*.pem``)."""
+
+    certificate: Path
+    private_key: Path
+    trusted_clients: Path
 
 
 @dataclass(frozen=True)
@@ -104,12 +180,21 @@ class SinumerikLikeServer:
         The machine axis whose setting data exist.
     user, password : str
         The one login that may write.
+    security : ServerSecurity, optional
+        Only encrypted endpoints (:data:`SECURE_POLICIES`); default: NoSecurity only.
     """
 
     def __init__(
-        self, *, axis: int = 3, user: str = "seawriter", password: str = "s3cret-Pw", port: int | None = None
+        self,
+        *,
+        axis: int = 3,
+        user: str = "seawriter",
+        password: str = "s3cret-Pw",
+        port: int | None = None,
+        security: ServerSecurity | None = None,
     ):
         self.axis = axis
+        self.security = security
         self.user, self.password = user, password
         self.port = port or free_port()
         self.endpoint = f"opc.tcp://127.0.0.1:{self.port}"
@@ -142,7 +227,21 @@ class SinumerikLikeServer:
         server = Server(user_manager=_Users(self.user, self.password))
         await server.init()
         server.set_endpoint(f"{self.endpoint}/")
-        server.set_security_policy([ua.SecurityPolicyType.NoSecurity], permission_ruleset=_Rules())
+        if self.security is None:
+            server.set_security_policy([ua.SecurityPolicyType.NoSecurity], permission_ruleset=_Rules())
+        else:
+            await server.set_application_uri(SERVER_URI)
+            await server.load_certificate(str(self.security.certificate))
+            await server.load_private_key(str(self.security.private_key))
+            server.set_security_policy(list(SECURE_POLICIES), permission_ruleset=_Rules())
+            store = TrustStore([self.security.trusted_clients], [])
+            await store.load_trust()
+            options = (
+                CertificateValidatorOptions.BASIC_VALIDATION  # valid now, the client's URI
+                | CertificateValidatorOptions.TRUSTED
+                | CertificateValidatorOptions.PEER_CLIENT
+            )
+            server.set_certificate_validator(CertificateValidator(options, store))
         server.set_identity_tokens([ua.AnonymousIdentityToken, ua.UserNameIdentityToken])
         ns = await server.register_namespace(NS_URI)
         assert ns == 2, ns

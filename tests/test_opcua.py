@@ -75,6 +75,7 @@ def write_config(tmp_path, server, *, deploy=None, machine="m1") -> argparse.Nam
             "timeout_s": 3,
             "reconnect_min_s": 1,
             "reconnect_max_s": 2,
+            "allow_insecure": True,  # the NoSecurity test server: a password in plain text
         },
     )
     block.update(deploy or {})
@@ -188,7 +189,9 @@ def test_the_cli_runs_cycles_and_exits_0(server, tmp_path, monkeypatch, capsys):
 
 
 def test_credentials_and_the_right_to_write(server):
-    settings = opcua_settings({"endpoint": server.endpoint, "inputs": inputs(), "timeout_s": 3})
+    settings = opcua_settings(
+        {"endpoint": server.endpoint, "inputs": inputs(), "timeout_s": 3, "allow_insecure": True}
+    )
     with pytest.raises(RafiUserError, match="the login refused for user 'seawriter'.*wrong user or password"):
         OpcUaLink(settings, user="seawriter", password="nope").connect()
     before, value = len(server.client_writes()), server.value(server.sd_node())
@@ -202,7 +205,9 @@ def test_credentials_and_the_right_to_write(server):
 
 
 def test_each_node_is_written_with_its_own_type(server):
-    settings = opcua_settings({"endpoint": server.endpoint, "inputs": inputs(), "timeout_s": 3})
+    settings = opcua_settings(
+        {"endpoint": server.endpoint, "inputs": inputs(), "timeout_s": 3, "allow_insecure": True}
+    )
     with OpcUaLink(settings, user="seawriter", password="s3cret-Pw").connect() as link:
         link.write_value(PLC_COMP_NODE, 0.0125, "Double")  # a Float node: written as Float
         link.write_value(server.sd_node(), 0.0125, "Double")

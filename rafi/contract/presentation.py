@@ -234,9 +234,13 @@ PRESENTATION_SETTINGS: dict = {
                 doc=(
                     "the OPC UA connection of `rafi deploy`: `endpoint` (required), `inputs` (`speed_rpm`, "
                     "`T1`..`T16`: a node id or `{node, scale, offset}`), `node_prefix`, `credentials_file`, "
-                    '`timeout_s`, `reconnect_min_s`, `reconnect_max_s` (docs/deploy.md "Live: OPC UA"; '
-                    "checked by `rafi.deploy.opcua_client.opcua_settings`). Never a user or password: those "
-                    "come from the environment or a file outside the repository, and are refused here"
+                    "`timeout_s`, `reconnect_min_s`, `reconnect_max_s`; security: `security_policy` (none, "
+                    "`Basic256Sha256`, `Aes128_Sha256_RsaOaep`, `Aes256_Sha256_RsaPss`), `security_mode` "
+                    "(`SignAndEncrypt`, `Sign`), `certificate`, `private_key`, and whom to trust: "
+                    "`server_certificate`, `trust_dir`, `server_fingerprint`; `allow_insecure` (a password "
+                    'without encryption) (docs/deploy.md "Live: OPC UA", "Security"; checked by '
+                    "`rafi.deploy.opcua_client.opcua_settings`). Never a user or password: those come from "
+                    "the environment or a file outside the repository, and are refused here"
                 ),
             ),
             "metrics_port": Setting(

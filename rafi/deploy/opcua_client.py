@@ -6,7 +6,10 @@ describes every setting for a controls engineer.
 
 * :func:`opcua_settings` checks the ``deploy.opcua`` block of ``config.yaml`` and fills in its
   defaults; a user name or password there is refused (they go to the environment or a
-  credentials file, :func:`load_credentials`).
+  credentials file, :func:`rafi.deploy.opcua_credentials.load_credentials`). The security keys
+  (a signed and encrypted session, whom to trust) are :mod:`rafi.deploy.opcua_security`'s.
+* A password never crosses the network as plain text unless ``allow_insecure: true`` (then a
+  warning at every start); an untrusted server certificate is refused with one line.
 * :class:`OpcUaLink` holds one session to the server. It is synchronous for its caller (the
   asyncua client runs in a background thread with its own event loop) and is both the *source*
   of the live loop (:meth:`OpcUaLink.read_sample`) and the *sink* of
@@ -20,22 +23,34 @@ describes every setting for a controls engineer.
   back-off (``reconnect_min_s`` .. ``reconnect_max_s``). A refusal that reconnecting cannot
   cure (credentials, the right to write, a wrong node or data type) is a
   :class:`rafi.errors.RafiUserError` and stops the loop.
+* Ctrl-C / SIGTERM (a KeyboardInterrupt in the caller's thread) while a call waits: the call's
+  task is cancelled on the link's event loop and KeyboardInterrupt goes on to the caller;
+  while connecting, the link is closed too (its thread stopped, nothing left pending).
+  asyncua's own log goes to ``log`` while the link is open (:mod:`rafi.deploy.opcua_log`).
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 import math
-import os
-import stat
-import threading
 from collections.abc import Callable, Mapping
-from pathlib import Path
 
 import numpy as np
 
 from rafi import SENSORS
-from rafi.errors import RafiUserError, SettingsError, short_path
+from rafi.deploy.opcua_credentials import (
+    ENV_CREDENTIALS,
+    ENV_PASSWORD,
+    ENV_USER,
+    SECRET_KEYS,
+    load_credentials,
+    require_credentials,
+)
+from rafi.deploy.opcua_log import LibraryLogRouter, route_library_log, unroute_library_log
+from rafi.deploy.opcua_loop import LoopThread
+from rafi.deploy.opcua_security import check_security_settings, load_security, plaintext_notice, secure_client
+from rafi.errors import RafiUserError, SettingsError
 
 __all__ = [
     "ENV_CREDENTIALS",
@@ -45,11 +60,8 @@ __all__ = [
     "OpcUaLink",
     "load_credentials",
     "opcua_settings",
+    "require_credentials",
 ]
-
-ENV_USER = "RAFI_OPCUA_USER"
-ENV_PASSWORD = "RAFI_OPCUA_PASSWORD"
-ENV_CREDENTIALS = "RAFI_OPCUA_CREDENTIALS"
 
 #: The keys of ``deploy.opcua`` and their defaults (``endpoint`` is required).
 OPCUA_DEFAULTS = {
@@ -60,10 +72,20 @@ OPCUA_DEFAULTS = {
     "timeout_s": 5.0,  # per request
     "reconnect_min_s": 1.0,  # first wait after a lost connection
     "reconnect_max_s": 60.0,  # the wait doubles up to this
+    # security (rafi.deploy.opcua_security; docs/deploy.md "Security")
+    "security_policy": None,  # none, Basic256Sha256, Aes128_Sha256_RsaOaep, Aes256_Sha256_RsaPss
+    "security_mode": "SignAndEncrypt",  # or Sign
+    "certificate": None,  # the client's certificate (PEM or DER), `rafi certificate` writes one
+    "private_key": None,  # its private key (PEM or DER, unencrypted, mode 600, outside the project)
+    "server_certificate": None,  # trust: the server's certificate, pinned
+    "trust_dir": None,  # trust: a folder of trusted server or CA certificates (*.der, *.pem)
+    "server_fingerprint": None,  # trust: SHA-256 of the server's certificate (hex, colons allowed)
+    "allow_insecure": False,  # true: a password may go unencrypted (a warning at every start)
 }
 
-#: Keys refused in ``deploy.opcua``: credentials never go to config.yaml.
-SECRET_KEYS = ("user", "username", "user_name", "login", "password", "passwd", "pwd", "secret", "token")
+#: The session timeout asked of the server: a session of a client that died is freed after it
+#: (a SINUMERIK has few session slots); the client's watchdog reads every second meanwhile.
+SESSION_TIMEOUT_MS = 60_000
 
 #: Inputs the loop reads: the speed and the 16 temperatures.
 INPUT_NAMES = ("speed_rpm", *SENSORS)
@@ -117,7 +139,7 @@ def _node_id(value, prefix: str, where: str) -> str:
     return value if full else prefix + value
 
 
-def opcua_settings(block: Mapping | None, *, need_inputs: bool = True) -> dict:
+def opcua_settings(block: Mapping | None, *, need_inputs: bool = True, project_dir=".") -> dict:
     """The ``deploy.opcua`` block checked, with its defaults filled in.
 
     Parameters
@@ -127,18 +149,21 @@ def opcua_settings(block: Mapping | None, *, need_inputs: bool = True) -> dict:
     need_inputs : bool
         The inputs are read from the server (not from a followed log file): ``inputs`` must
         name the speed.
+    project_dir : path
+        The folder of ``config.yaml``: a relative certificate or key path is taken from it.
 
     Returns
     -------
     dict
         The keys of :data:`OPCUA_DEFAULTS`; ``inputs`` as ``{name: (node_id, scale, offset)}``
-        (value read = raw * scale + offset), node ids complete.
+        (value read = raw * scale + offset), node ids complete; the security keys as
+        :func:`rafi.deploy.opcua_security.check_security_settings` leaves them (paths absolute).
 
     Raises
     ------
     SettingsError
         A missing endpoint, an unknown key, a user name or password in the block (they belong
-        in the environment or a credentials file), a malformed input.
+        in the environment or a credentials file), a malformed input, a security setting.
     """
     if block is None:
         raise SettingsError("deploy.opcua is not set: the live loop needs at least deploy.opcua.endpoint")
@@ -197,96 +222,7 @@ def opcua_settings(block: Mapping | None, *, need_inputs: bool = True) -> dict:
     if need_inputs and "speed_rpm" not in parsed:
         raise SettingsError("deploy.opcua.inputs has no speed_rpm node (the spindle speed)")
     out["inputs"] = parsed
-    return out
-
-
-# --------------------------------------------------------------------------- credentials
-
-
-def _repository_root(start: Path) -> Path | None:
-    for folder in (start, *start.parents):
-        if (folder / ".git").exists():
-            return folder
-    return None
-
-
-def _read_credentials_file(path: Path, project_dir: Path) -> tuple[str, str]:
-    where = f"credentials file {short_path(path)}"
-    try:
-        real = path.resolve(strict=True)
-    except (OSError, RuntimeError):
-        raise RafiUserError(f"{where} does not exist") from None
-    forbidden = [project_dir.resolve()]
-    repo = _repository_root(project_dir.resolve())
-    if repo is not None:
-        forbidden.append(repo)
-    for root in forbidden:
-        if real == root or root in real.parents:
-            raise RafiUserError(
-                f"{where} lies inside {short_path(root)} (the project or its repository); keep "
-                "credentials outside it (e.g. /etc/rafi/opcua.credentials, mode 600)"
-            )
-    mode = real.stat().st_mode
-    if not stat.S_ISREG(mode):
-        raise RafiUserError(f"{where} is not a regular file")
-    if mode & 0o077:
-        raise RafiUserError(
-            f"{where} has mode {stat.S_IMODE(mode):o}: readable or writable by group or others; "
-            f"allow its owner only (chmod 600 {short_path(real)})"
-        )
-    values = {}
-    for number, line in enumerate(real.read_text(encoding="utf-8").splitlines(), 1):
-        line = line.strip()
-        if not line or line.startswith("#"):
-            continue
-        key, sep, value = line.partition("=") if "=" in line.split(":", 1)[0] else line.partition(":")
-        if not sep or key.strip() not in ("user", "password"):
-            raise RafiUserError(f"{where}, line {number}: expected 'user: NAME' or 'password: SECRET'")
-        values[key.strip()] = value.strip()
-    if not values.get("user") or "password" not in values:
-        raise RafiUserError(f"{where}: needs a line 'user: NAME' and a line 'password: SECRET'")
-    return values["user"], values["password"]
-
-
-def load_credentials(
-    settings: Mapping, *, project_dir=".", environ: Mapping[str, str] | None = None
-) -> tuple[str | None, str | None]:
-    """The user and password of the OPC UA session, never from ``config.yaml``.
-
-    In this order: the environment variables ``RAFI_OPCUA_USER`` and ``RAFI_OPCUA_PASSWORD``
-    (both, or neither); the file named by ``RAFI_OPCUA_CREDENTIALS``; the file named by
-    ``deploy.opcua.credentials_file``; else anonymous (``(None, None)``: a SINUMERIK then lets
-    the client read but not write).
-
-    The file holds two lines, ``user: NAME`` and ``password: SECRET`` (``#`` comments allowed).
-    It must lie outside the project folder and its git repository, and be readable by its owner
-    only (like ssh, a file any group or other may read is refused).
-
-    Parameters
-    ----------
-    settings : mapping
-        :func:`opcua_settings`.
-    project_dir : path
-        The folder of ``config.yaml``.
-    environ : mapping, optional
-        The environment (default ``os.environ``).
-
-    Raises
-    ------
-    RafiUserError
-        Only one of the two variables set; the file missing, inside the project, too open, or
-        malformed.
-    """
-    env = os.environ if environ is None else environ
-    user, password = env.get(ENV_USER), env.get(ENV_PASSWORD)
-    if user or password:
-        if not user or password is None:
-            raise RafiUserError(f"set both {ENV_USER} and {ENV_PASSWORD}, or neither")
-        return user, password
-    path = env.get(ENV_CREDENTIALS) or settings.get("credentials_file")
-    if path:
-        return _read_credentials_file(Path(os.path.expanduser(path)), Path(project_dir))
-    return None, None
+    return check_security_settings(out, project_dir)
 
 
 # --------------------------------------------------------------------------- the link
@@ -315,18 +251,35 @@ class OpcUaLink:
     user, password : str, optional
         From :func:`load_credentials`; None: anonymous.
     log : callable, optional
-        ``log(message)`` for each lost and restored connection (default: nothing).
+        ``log(message)`` for each lost and restored connection, the ``allow_insecure`` warning
+        and asyncua's own warnings (default: nothing).
     clock : callable
         Seconds, for the back-off (default ``time.monotonic``).
+    library_log_level : int
+        asyncua's records at or above this level (after :data:`rafi.deploy.opcua_log.LEVELS`)
+        go to ``log`` (default ``logging.WARNING``).
+
+    Raises
+    ------
+    SettingsError
+        A password that would cross the network unencrypted (no security policy) without
+        ``allow_insecure``; the client's certificate or key unusable (before connecting).
 
     Notes
     -----
     Not thread-safe: one caller (the live loop). The asyncua client runs in a daemon thread
-    with its own event loop; each call waits at most ``timeout_s`` (+1 s) for it.
+    with its own event loop; each call waits at most ``3 timeout_s + 1`` s for it.
     """
 
     def __init__(
-        self, settings: Mapping, *, user=None, password=None, log: Callable | None = None, clock=None
+        self,
+        settings: Mapping,
+        *,
+        user=None,
+        password=None,
+        log: Callable | None = None,
+        clock=None,
+        library_log_level: int = logging.WARNING,
     ):
         import time
 
@@ -338,6 +291,9 @@ class OpcUaLink:
         self._user, self._password = user, password
         self.log = log or (lambda message: None)
         self.clock = clock or time.monotonic
+        self._notice = plaintext_notice(self.settings, user)
+        self.security = load_security(self.settings)
+        self._library_log = LibraryLogRouter(self.log, level=library_log_level, clock=self.clock)
         self.connected = False
         self.losses = 0
         self.reconnects = 0
@@ -346,20 +302,19 @@ class OpcUaLink:
         self._nodes: dict[str, object] = {}
         self._backoff = float(self.settings["reconnect_min_s"])
         self._next_try = -math.inf
-        self._loop: asyncio.AbstractEventLoop | None = None
-        self._thread: threading.Thread | None = None
+        self._loop_thread = LoopThread(
+            "rafi-opcua",
+            on_start=lambda ident: route_library_log(ident, self._library_log),
+            on_stop=unroute_library_log,
+        )
 
     # -- the event loop in its thread ----------------------------------------------------
     def _run(self, coro):
-        if self._loop is None:
-            self._loop = asyncio.new_event_loop()
-            self._thread = threading.Thread(target=self._loop.run_forever, name="rafi-opcua", daemon=True)
-            self._thread.start()
-        future = asyncio.run_coroutine_threadsafe(coro, self._loop)
+        """Run ``coro`` on the link's loop and wait for it (:meth:`LoopThread.run`: an interrupt
+        cancels it there and goes on to the caller)."""
         try:
-            return future.result(self.timeout_s * 3 + 1)
+            return self._loop_thread.run(coro, self.timeout_s * 3 + 1, settle_s=self.timeout_s)
         except TimeoutError:
-            future.cancel()
             raise TimeoutError(f"no answer from {self.endpoint} within {self.timeout_s:g} s") from None
 
     def node_id(self, node: str) -> str:
@@ -369,6 +324,12 @@ class OpcUaLink:
     # -- connection ----------------------------------------------------------------------
     def _fatal(self, exc: BaseException, what: str) -> RafiUserError | None:
         name = _status_name(exc)
+        if name is not None and name.startswith(("BadCertificate", "BadSecurity")):
+            return RafiUserError(
+                f"OPC UA {self.endpoint}: the server refused the client's certificate "
+                f"{self.settings.get('certificate') or '(none)'}: {name}: make the server trust it, or check "
+                "deploy.opcua.security_policy and security_mode (docs/deploy.md#security)"
+            )
         if name in _FATAL:
             who = f"user {self._user!r}" if self._user else "an anonymous session"
             return RafiUserError(
@@ -380,14 +341,20 @@ class OpcUaLink:
     async def _connect(self):
         asyncua = _asyncua()
         client = asyncua.Client(url=self.endpoint, timeout=self.timeout_s)
+        client.session_timeout = SESSION_TIMEOUT_MS
         if self._user is not None:
             client.set_user(self._user)
             client.set_password(self._password)
         try:
+            if self.security is not None:
+                await secure_client(client, self.security, self.endpoint, self._user, self.log)
             await client.connect()
+        except asyncio.CancelledError:
+            client.disconnect_socket()  # no goodbye: the server may not be answering at all
+            raise
         except BaseException:
             try:
-                await client.disconnect()
+                await asyncio.wait_for(client.disconnect(), self.timeout_s)
             except Exception:
                 pass
             raise
@@ -395,8 +362,15 @@ class OpcUaLink:
 
     def connect(self) -> OpcUaLink:
         """Open the session (again). ConnectionError if the server cannot be reached,
-        RafiUserError if it refuses the login."""
+        RafiUserError if it refuses the login or its certificate is not trusted.
+
+        A KeyboardInterrupt while connecting closes the link (the connection attempt is
+        cancelled, the loop thread stopped) and goes on to the caller.
+        """
         _asyncua()
+        if self._notice is not None:
+            self.log(self._notice)
+            self._notice = None  # once per start, not at every reconnect
         self._drop_client()
         try:
             self._client = self._run(self._connect())
@@ -409,6 +383,9 @@ class OpcUaLink:
             raise ConnectionError(
                 f"OPC UA {self.endpoint}: cannot connect: {type(exc).__name__}: {exc}"
             ) from None
+        except BaseException:
+            self._loop_thread.stop(self.timeout_s)
+            raise
         self._nodes = {}
         self.connected = True
         self._backoff = float(self.settings["reconnect_min_s"])
@@ -420,7 +397,7 @@ class OpcUaLink:
         if client is not None:
             try:
                 self._run(asyncio.wait_for(client.disconnect(), self.timeout_s))
-            except BaseException:
+            except Exception:
                 pass
 
     def lost(self, exc: BaseException) -> ConnectionError:
@@ -580,13 +557,10 @@ class OpcUaLink:
 
     def close(self) -> None:
         """Close the session and stop the event loop thread (closing twice does nothing)."""
-        self._drop_client()
-        loop, self._loop = self._loop, None
-        if loop is not None:
-            loop.call_soon_threadsafe(loop.stop)
-            if self._thread is not None:
-                self._thread.join(5)
-            loop.close()
+        try:
+            self._drop_client()
+        finally:
+            self._loop_thread.stop(self.timeout_s)
 
     def __enter__(self) -> OpcUaLink:
         return self
