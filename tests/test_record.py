@@ -409,7 +409,12 @@ def test_settings_mistakes_are_one_line_and_exit_64(tmp_path, monkeypatch, capsy
 def test_an_unreachable_server_at_start_exits_69(tmp_path, capsys):
     from opcua_server import DISP_NODE, free_port
 
-    opcua = {"endpoint": f"opc.tcp://127.0.0.1:{free_port()}", "inputs": inputs(), "timeout_s": 2}
+    opcua = {
+        "endpoint": f"opc.tcp://127.0.0.1:{free_port()}",
+        "inputs": inputs(),
+        "timeout_s": 2,
+        "allow_insecure": True,
+    }
     path = config(tmp_path, record={"displacement": DISP_NODE}, opcua=opcua)
     assert record_cli.run(args_for(path)) == 69
     assert "cannot connect" in capsys.readouterr().err and not (tmp_path / "raw" / MACHINE).exists()
@@ -502,18 +507,20 @@ DOWN = range(200, 204)  # ticks with the server stopped
 
 
 def project(tmp_path: Path, server) -> Path:
-    from opcua_server import DISP_NODE, SPEED_COMMAND_NODE
+    from opcua_server import DISP_NODE, SPEED_COMMAND_NODE, free_port
 
     proj = copy_project(tmp_path / "proj")
     cfg = yaml.safe_load((proj / "config.yaml").read_text(encoding="utf-8"))
     machine = cfg["machines"][MACHINE]
     machine["deploy"] = {
         "opcua": {
-            "endpoint": server.endpoint, "inputs": inputs(), "timeout_s": 3,
+            "endpoint": server.endpoint, "inputs": inputs(), "timeout_s": 3, "allow_insecure": True,
             "reconnect_min_s": 1, "reconnect_max_s": 2,
         }
     }  # fmt: skip
-    machine["record"] = {"displacement": DISP_NODE, "speed_command": SPEED_COMMAND_NODE}
+    machine["record"] = {
+        "displacement": DISP_NODE, "speed_command": SPEED_COMMAND_NODE, "metrics_port": free_port(),
+    }  # fmt: skip
     cfg["machines"] = {MACHINE: machine}
     (proj / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
     raw = proj / "raw" / MACHINE
@@ -522,6 +529,21 @@ def project(tmp_path: Path, server) -> Path:
         shutil.copy2(ROOT / "raw" / MACHINE / name, raw / name)
     write(proj / "plan.csv", "speed_rpm,duration_s,run\n0,180,valid_08000rpm\n8000,2400,valid_08000rpm\n")
     return proj
+
+
+def scrape(recorder) -> dict:
+    """``/metrics`` of a recorder by HTTP GET: ``{(name, labels): value}``."""
+    import urllib.request
+
+    from prometheus_client.parser import text_string_to_metric_families
+
+    url = f"http://127.0.0.1:{recorder.metrics.port}/metrics"
+    text = urllib.request.urlopen(url, timeout=10).read().decode()
+    return {
+        (sample.name, tuple(sorted(sample.labels.items()))): sample.value
+        for family in text_string_to_metric_families(text)
+        for sample in family.samples
+    }
 
 
 def test_record_a_twin_log_from_opc_ua_and_qualify_it_with_snakemake(server, tmp_path):
@@ -536,7 +558,7 @@ def test_record_a_twin_log_from_opc_ua_and_qualify_it_with_snakemake(server, tmp
     clock = [1000.0]
     recorder.clock = recorder.files.clock = link.clock = lambda: clock[0]
     recorder.wall = lambda: start + clock[0] - 1000.0
-    played, tick = [], [0]
+    played, tick, scraped = [], [0], {}
     raw = proj / "raw" / MACHINE
     seen_while_recording = []
 
@@ -555,6 +577,9 @@ def test_record_a_twin_log_from_opc_ua_and_qualify_it_with_snakemake(server, tmp
             server.start()
         if k == 100:
             seen_while_recording.extend(p.name for p in find_logs(raw))
+            scraped.update(rows=recorder.files.rows, missing=recorder.missing, metrics=scrape(recorder))
+        if k == DOWN.stop + 1:
+            scraped.update(after_outage=scrape(recorder))
         if k not in DOWN and k < len(log):
             feed(k)
 
@@ -576,6 +601,21 @@ def test_record_a_twin_log_from_opc_ua_and_qualify_it_with_snakemake(server, tmp
     assert [w.value for w in commands] == [0.0, 8000.0, 8000.0, 0.0]
     assert {(w.variant_type, w.user) for w in commands} == {("Double", "seawriter")}
     assert sum("gap from" in line or "a gap of" in line for line in lines) == 2 and recorder.gaps == 1
+    assert sum("WARNING allow_insecure: the password of user 'seawriter'" in line for line in lines) == 1
+
+    # the metrics, read by HTTP while recording: rows and missing values so far, the file, the gap
+    machine = (("machine", MACHINE),)
+    metrics = scraped["metrics"]
+    assert metrics[("rafi_record_rows_total", machine)] == scraped["rows"] > 90
+    assert metrics[("rafi_record_missing_values_total", machine)] == scraped["missing"]
+    assert metrics[("rafi_record_connected", machine)] == 1
+    (path,) = [dict(k[1])["path"] for k in metrics if k[0] == "rafi_record_file_info"]
+    assert Path(path).name.startswith(".valid_08000rpm") and path.endswith(".part")
+    after = scraped["after_outage"]
+    assert (
+        after[("rafi_record_gaps_total", machine)] == 1
+        and after[("rafi_record_reconnects_total", machine)] == 1
+    )
 
     # every recorded value is the played one, to its node's resolution
     rec = read_raw_log(final)
@@ -616,7 +656,12 @@ def test_record_a_twin_log_from_opc_ua_and_qualify_it_with_snakemake(server, tmp
 def test_a_node_the_server_lacks_is_refused_before_recording(server, tmp_path, capsys):
     from opcua_server import DISP_NODE
 
-    opcua = {"endpoint": server.endpoint, "inputs": {**inputs(), "T8": "/Plc/DB100.DBW99"}, "timeout_s": 3}
+    opcua = {
+        "endpoint": server.endpoint,
+        "inputs": {**inputs(), "T8": "/Plc/DB100.DBW99"},
+        "timeout_s": 3,
+        "allow_insecure": True,
+    }
     path = config(tmp_path, record={"displacement": DISP_NODE}, opcua=opcua)
     assert main(["record", "--machine", MACHINE, "--config", str(path)]) == 64
     err = capsys.readouterr().err
@@ -632,7 +677,7 @@ def test_a_refused_speed_command_stops_with_64_and_no_half_file(server, tmp_path
 
     for name in ("RAFI_OPCUA_USER", "RAFI_OPCUA_PASSWORD", "RAFI_OPCUA_CREDENTIALS"):
         monkeypatch.delenv(name, raising=False)
-    opcua = {"endpoint": server.endpoint, "inputs": inputs(), "timeout_s": 3}
+    opcua = {"endpoint": server.endpoint, "inputs": inputs(), "timeout_s": 3, "allow_insecure": True}
     plan = str(write(tmp_path / "plan.csv", "speed_rpm,duration_s\n3000,60\n"))
     raw = tmp_path / "raw" / MACHINE
     before = len(server.client_writes())

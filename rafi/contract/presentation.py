@@ -249,7 +249,7 @@ PRESENTATION_SETTINGS: dict = {
                 shown="none",
                 doc=(
                     "`rafi deploy` serves Prometheus metrics on this TCP port (127.0.0.1 unless "
-                    "`metrics_address`); none: no metrics (docs/deploy.md, Observable)"
+                    "`metrics_address`); none: no metrics (docs/service.md, Metrics)"
                 ),
             ),
             "metrics_address": Setting(

@@ -55,6 +55,21 @@ RECORD_SETTINGS: dict = {
                     "file waits for days before the pipeline may read it"
                 ),
             ),
+            "metrics_port": Setting(
+                default=None,
+                schema={"oneOf": [{"type": "null"}, {"type": "integer", "minimum": 1, "maximum": 65535}]},
+                shown="none",
+                doc=(
+                    "`rafi record` serves Prometheus metrics on this TCP port; none: no metrics "
+                    "(docs/service.md, Metrics)"
+                ),
+            ),
+            "metrics_address": Setting(
+                default="127.0.0.1",
+                schema={"type": "string", "minLength": 1},
+                shown="127.0.0.1",
+                doc="the address the recording's metrics are served on (0.0.0.0: every interface)",
+            ),
         },
     ),
 }

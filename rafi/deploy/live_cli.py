@@ -104,16 +104,9 @@ def _link(args, deploy: dict, safe, kind, project: Path, log, environ):
     needs_link = not args.follow or (kind == "sinumerik" and not args.dry_run)
     if not needs_link:
         return None, None
-    from rafi.deploy.opcua_client import (
-        ENV_CREDENTIALS,
-        ENV_PASSWORD,
-        ENV_USER,
-        OpcUaLink,
-        load_credentials,
-        opcua_settings,
-    )
+    from rafi.deploy.opcua_client import OpcUaLink, load_credentials, opcua_settings, require_credentials
 
-    opcua = opcua_settings(deploy.get("opcua"), need_inputs=not args.follow)
+    opcua = opcua_settings(deploy.get("opcua"), need_inputs=not args.follow, project_dir=project)
     if not args.follow:
         from rafi import SENSORS
 
@@ -121,13 +114,12 @@ def _link(args, deploy: dict, safe, kind, project: Path, log, environ):
         missing = [s for s in needed if s not in opcua["inputs"]]
         if missing:
             raise SettingsError(f"deploy.opcua.inputs has no node for {missing}: the model reads {needed}")
-    user, password = load_credentials(opcua, project_dir=project, environ=environ)
-    if kind == "sinumerik" and not args.dry_run and user is None:
-        raise SettingsError(
-            f"no OPC UA credentials: an anonymous session cannot write a SINUMERIK; set {ENV_USER} and "
-            f"{ENV_PASSWORD}, or a credentials file ({ENV_CREDENTIALS} or deploy.opcua.credentials_file; "
-            "docs/deploy.md, Credentials), or use --dry-run"
-        )
+    if args.dry_run:  # reads only: no login, so that credentials meant for writing are not needed
+        user, password = None, None
+    else:
+        user, password = load_credentials(opcua, project_dir=project, environ=environ)
+    if kind == "sinumerik" and not args.dry_run:
+        require_credentials(user, opcua)
     return OpcUaLink(opcua, user=user, password=password, log=log), user
 
 

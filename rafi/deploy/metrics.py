@@ -325,6 +325,10 @@ class RecordMetrics(_Metrics):
             self._missing.inc(missing)
         self._last_row = self.clock()
 
+    def missing(self, values: int) -> None:
+        """``values`` values recorded as missing (a bad status, no value)."""
+        self._missing.inc(values)
+
     def gap(self) -> None:
         """One gap recorded."""
         self._gaps.inc()

@@ -305,7 +305,7 @@ class OpcUaLink:
         self._loop_thread = LoopThread(
             "rafi-opcua",
             on_start=lambda ident: route_library_log(ident, self._library_log),
-            on_stop=unroute_library_log,
+            on_stop=lambda ident: unroute_library_log(ident, self._library_log),
         )
 
     # -- the event loop in its thread ----------------------------------------------------

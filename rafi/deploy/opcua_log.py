@@ -159,10 +159,15 @@ def route_library_log(thread_id: int, router: LibraryLogRouter) -> None:
         _dispatch.routes[thread_id] = router
 
 
-def unroute_library_log(thread_id: int) -> None:
-    """Stop routing the records of ``thread_id``; the last one restores the loggers as they were."""
+def unroute_library_log(thread_id: int, router: LibraryLogRouter | None = None) -> None:
+    """Stop routing the records of ``thread_id`` (only if they still go to ``router``, when it is
+    given: a thread id is reused once its thread ended, and may route a newer link's records by
+    then); the last one restores the loggers as they were."""
     with _guard:
-        router = _dispatch.routes.pop(thread_id, None)
+        if router is not None and _dispatch.routes.get(thread_id) is not router:
+            router = None
+        else:
+            router = _dispatch.routes.pop(thread_id, None)
         if not _dispatch.routes and _propagate:
             for name in LIBRARY_LOGGERS:
                 logger = logging.getLogger(name)

@@ -277,6 +277,7 @@ class Recorder:
         command: Callable[[float], None] | None = None, link=None, duration_s: float | None = None,
         clock: Callable[[], float] = time.monotonic, wall: Callable[[], float] = time.time,
         sleep: Callable[[float], None] = time.sleep, log: Callable[[str], None] = print,
+        metrics=None, notify=None,
     ):  # fmt: skip
         if plan is not None and command is None:
             raise RafiUserError("a test plan needs record.speed_command (the node its speeds are written to)")
@@ -284,6 +285,7 @@ class Recorder:
         self.name, self.plan, self.command, self.link = name, plan, command, link
         self.duration_s = duration_s
         self.clock, self.wall, self.sleep, self.log = clock, wall, sleep, log
+        self.metrics, self.notify = metrics, notify
         self.ticks = 0
         self.gaps = 0
         self.lost_samples = 0
@@ -309,6 +311,8 @@ class Recorder:
         if self._gap_since is None:
             self._gap_since, self._gap_ticks = wall_s, 0
             self.gaps += 1
+            if self.metrics is not None:
+                self.metrics.gap()
             self.log(
                 f"rafi record: gap from {format_time(wall_s, self.period_s)}: {why}; no rows until it is over"
             )
@@ -324,7 +328,32 @@ class Recorder:
             self._gap_since = None
 
     def tick(self, k: int, wall_s: float) -> None:
-        """Tick ``k`` (``k`` periods after the start), stamped ``wall_s`` (module docstring)."""
+        """Tick ``k`` (``k`` periods after the start), stamped ``wall_s`` (module docstring), told
+        to the metrics and systemd's watchdog when they are given."""
+        rows, closed, reconnects = self.files.rows, len(self.files.closed), self._reconnects()
+        try:
+            self._tick(k, wall_s)
+        finally:
+            self._observe(rows, closed, reconnects)
+
+    def _reconnects(self) -> int:
+        return int(getattr(self.link, "reconnects", 0) or 0)
+
+    def _observe(self, rows_before: int, closed_before: int, reconnects_before: int) -> None:
+        if self.metrics is not None:
+            for _ in range(self.files.rows - rows_before):
+                self.metrics.row()
+            for _ in range(len(self.files.closed) - closed_before):
+                self.metrics.file_closed()
+            for _ in range(self._reconnects() - reconnects_before):
+                self.metrics.reconnect()
+            current = self.files.current
+            self.metrics.file(None if current is None else current.path)
+            self.metrics.connection(self.link is None or bool(self.link.connected))
+        if self.notify is not None:
+            self.notify.watchdog()
+
+    def _tick(self, k: int, wall_s: float) -> None:
         index, run = self._step(k * self.period_s)
         self.files.switch(run)
         if self.link is not None and not self.link.connected:
@@ -350,7 +379,10 @@ class Recorder:
             return
         self._gap_over(wall_s)
         if run is not None:
-            self.missing += sum(1 for row in rows for field in row[1:] if field == "")
+            missing = sum(1 for row in rows for field in row[1:] if field == "")
+            self.missing += missing
+            if self.metrics is not None and missing:
+                self.metrics.missing(missing)
         self.files.write(rows, wall_s)
 
     # -- the run -------------------------------------------------------------------------

@@ -140,9 +140,11 @@ def build(args, *, log=print, environ=None):
     import yaml
 
     from rafi import __version__
+    from rafi.deploy.metrics import metrics_from_settings
     from rafi.deploy.record import DaqFollower, OpcUaSource, Recorder
     from rafi.deploy.record_files import RecordingFiles, leftover_parts
     from rafi.deploy.record_plan import read_plan
+    from rafi.deploy.sd_notify import SdNotify
     from rafi.settings import machine_settings, run_settings
 
     _check_args(args)
@@ -176,10 +178,16 @@ def build(args, *, log=print, environ=None):
     link = source = None
     if not args.follow or plan is not None:
         from rafi.deploy.opcua_client import OpcUaLink, load_credentials, opcua_settings
+        from rafi.deploy.opcua_security import plaintext_notice
 
-        opcua = opcua_settings(settings["deploy"].get("opcua"), need_inputs=not args.follow)
+        opcua = opcua_settings(
+            settings["deploy"].get("opcua"), need_inputs=not args.follow, project_dir=project
+        )
         user, password = load_credentials(opcua, project_dir=project, environ=environ)
         link = OpcUaLink(opcua, user=user, password=password)  # the recorder logs the gaps
+        notice = plaintext_notice(opcua, user)  # the link's own log is silent: say it here
+        if notice:
+            log(f"rafi record: {notice}")
         if not args.follow:
             source = OpcUaSource(link, *_channels(opcua, record, log))
     if args.follow:
@@ -206,9 +214,11 @@ def build(args, *, log=print, environ=None):
         def command(speed_rpm: float) -> None:
             link.write_value(node, float(speed_rpm), "Double")
 
+    metrics = metrics_from_settings(record, machine=args.machine, log=log, kind="record", interval_s=period)
     recorder = Recorder(
         source, files, period_s=period, name=args.name, plan=plan, command=command, link=link,
         duration_s=parse_duration(args.duration) if args.duration else None, log=log,
+        metrics=metrics, notify=SdNotify(log=log),
     )  # fmt: skip
     files.clock = recorder.clock
     recorder.speed_command_node = record["speed_command"]
@@ -255,6 +265,7 @@ def _record(args, recorder, link) -> int:
         f"{f' following {short_path(args.plan)}' if args.plan else ''}; Ctrl-C stops",
         flush=True,
     )
+    recorder.notify.ready(f"recording {args.machine} every {recorder.period_s:g} s")
     stopped = False
     try:
         recorder.run()
@@ -279,5 +290,8 @@ def run(args) -> int:
         return 0
     finally:
         signal.signal(signal.SIGTERM, previous)
+        recorder.notify.stopping()
+        if recorder.metrics is not None:
+            recorder.metrics.close()
         if link is not None:
             link.close()
