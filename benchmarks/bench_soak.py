@@ -12,9 +12,9 @@ T9; 3000/6000/9000 r/min, cold starts), i.e. :class:`rafi.deploy.live.LiveLoop`,
 :class:`rafi.deploy.limits.SafeCompensator`, :class:`rafi.deploy.opcua_client.OpcUaLink` and
 the SINUMERIK target, writing SD 43900 of the SINUMERIK-like server of ``tests/opcua_server.py``
 (asyncua, 127.0.0.1, in a process of its own, as a controller is another machine: the memory and
-the timings are the client's, and tracing does not slow the server's restarts). A
-:class:`rafi.deploy.metrics.LoopMetrics` is driven each cycle and served on a free port (scraped
-at the end of each day) to soak it too.
+the timings are the client's, and tracing does not slow the server's restarts). The loop's own
+metrics (``deploy.metrics_port``: a free port) are served and scraped at the end of each day, to
+soak them too.
 
 The clock is simulated: the loop's clock is the twin's time, and the loop's ``sleep`` puts the
 next sample of the twin (``rafi.twin.simulate.simulate_run``: a 7-day schedule of random speed
@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import logging
 import os
 import resource
 import shutil
@@ -69,7 +68,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from opcua_server import SPEED_NODE, SinumerikLikeServer, temp_node  # noqa: E402
+from opcua_server import SPEED_NODE, SinumerikLikeServer, free_port, temp_node  # noqa: E402
 
 from rafi import SENSORS  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS  # noqa: E402
@@ -159,8 +158,9 @@ def write_project(folder: Path, server, champion: dict, interval_s: float) -> ar
         },
         "opcua": {
             "endpoint": server.endpoint, "inputs": inputs, "timeout_s": 3,
-            "reconnect_min_s": 1, "reconnect_max_s": 2,
+            "reconnect_min_s": 1, "reconnect_max_s": 2, "allow_insecure": True,  # a local test server
         },
+        "metrics_port": free_port(),
     }  # fmt: skip
     (folder / "config.yaml").write_text(yaml.safe_dump({"machines": {MACHINE: {"deploy": deploy}}}))
     return argparse.Namespace(
@@ -183,8 +183,8 @@ def rss_mb() -> float:
 class Soak:
     """The loop, the server and the simulated clock; :meth:`run` plays every cycle."""
 
-    def __init__(self, args, server, speeds, temps, bad, loop, link, metrics):
-        self.args, self.server, self.loop, self.link, self.metrics = args, server, loop, link, metrics
+    def __init__(self, args, server, speeds, temps, bad, loop, link):
+        self.args, self.server, self.loop, self.link = args, server, loop, link
         self.speeds, self.temps, self.bad = speeds, temps, bad
         self.n = len(speeds)
         self.interval = float(args.interval_s)
@@ -195,7 +195,6 @@ class Soak:
         self.step_s = np.full(self.n, np.nan)
         self.days: list[dict] = []
         self.statuses: Counter = Counter()
-        self.reconnects_seen = 0
         self.rng = np.random.default_rng(args.seed + 1)
         every = max(1, int(round(args.restart_every_h * 3600 / self.interval)))
         self.stop_at = set(range(every, self.n, every))
@@ -209,19 +208,13 @@ class Soak:
         self.server.set_inputs(self.speeds[c], temps)
 
     def timed_cycle(self, now: float) -> None:
-        writes, last = self.loop.writes, self.loop.last_command
+        """One cycle of the loop (which drives its own metrics), timed."""
+        last = self.loop.last_command
         start = time.perf_counter()
         self._cycle(now)
-        seconds = time.perf_counter() - start
-        self.step_s[self.cycle_no] = seconds
-        command = self.loop.last_command if self.loop.last_command is not last else None
-        if command is not None:
-            self.statuses[command.status] += 1
-        if self.link.reconnects > self.reconnects_seen:
-            self.reconnects_seen = self.link.reconnects
-            self.metrics.reconnect()
-        self.metrics.connection(self.link.connected)
-        self.metrics.cycle(command, written=self.loop.writes > writes, step_seconds=seconds)
+        self.step_s[self.cycle_no] = time.perf_counter() - start
+        if self.loop.last_command is not last:
+            self.statuses[self.loop.last_command.status] += 1
 
     def sleep(self, seconds: float) -> None:
         self.clock += seconds
@@ -251,7 +244,7 @@ class Soak:
             day.update(traced_mb=current / 2**20, traced_peak_mb=peak / 2**20)
             tracemalloc.reset_peak()
         day["rss_mb"] = rss_mb()
-        day["writes_metric"] = scraped(self.metrics.port, "rafi_deploy_writes_total")
+        day["writes_metric"] = scraped(self.loop.metrics.port, "rafi_deploy_writes_total")
         self.days.append(day)
         print(
             f"day {day['day']}: {len(ms)} cycles, median {day['median_ms']:.2f} ms, "
@@ -261,7 +254,7 @@ class Soak:
 
     def run(self) -> None:
         self.link.connect()
-        self.metrics.connection(True)
+        self.loop.metrics.connection(True)
         self.feed(0)
         self.loop.run(max_cycles=self.n)
         if len(self.days) * int(round(DAY_S / self.interval)) < self.n:
@@ -393,9 +386,7 @@ def main(argv=None) -> int:
     parser.add_argument("--held-um", type=float, default=-6.8, help="SD 43900 before the start (um)")
     parser.add_argument("--no-tracemalloc", action="store_true", help="time the cycles without tracing")
     args = parser.parse_args(argv)
-    logging.getLogger("asyncua").setLevel(logging.ERROR)  # its per-outage warnings: issue 24, item 5
     from rafi.deploy import live_cli
-    from rafi.deploy.metrics import LoopMetrics
 
     T0 = time.perf_counter()
     rng = np.random.default_rng(args.seed)
@@ -405,8 +396,6 @@ def main(argv=None) -> int:
     print(f"inputs ready: {len(speeds)} cycles, {time.perf_counter() - T0:.1f} s", file=sys.stderr)
     deploy = dict(MACHINE_DEFAULTS["deploy"], interval_s=args.interval_s)
     server = ServerProcess(SIGN * args.held_um / 1000.0)
-    metrics = LoopMetrics(machine=MACHINE, interval_s=args.interval_s)
-    metrics.serve(0)
     if not args.no_tracemalloc:
         tracemalloc.start()
     folder = tempfile.mkdtemp(prefix="rafi-soak-")
@@ -416,13 +405,12 @@ def main(argv=None) -> int:
         loop, link = live_cli.build(
             ns, log=log.append, environ={"RAFI_OPCUA_USER": USER, "RAFI_OPCUA_PASSWORD": PASSWORD}
         )
-        metrics.model(champion["model_id"])
-        soak = Soak(args, server, speeds, temps, bad, loop, link, metrics)
+        soak = Soak(args, server, speeds, temps, bad, loop, link)
         try:
             soak.run()
         finally:
             link.close()
-            metrics.close()
+            loop.metrics.close()
         written = [SIGN * v * 1000.0 for v in server.sd_values()]
     finally:
         server.close()
