@@ -68,7 +68,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "tests"))
 
-from opcua_server import SPEED_NODE, SinumerikLikeServer, free_port, temp_node  # noqa: E402
+from opcua_server import SinumerikLikeServer, free_port, input_settings  # noqa: E402
 
 from rafi import SENSORS  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS  # noqa: E402
@@ -145,10 +145,7 @@ def write_project(folder: Path, server, champion: dict, interval_s: float) -> ar
     (registry / "models").mkdir(parents=True)
     (registry / "models" / f"{champion['model_id']}.json").write_text(json.dumps(champion))
     (registry / "champion.json").write_text(json.dumps({"model_id": champion["model_id"]}))
-    inputs = {"speed_rpm": SPEED_NODE}
-    for i in range(1, 17):
-        name, _, scale = temp_node(i)
-        inputs[f"T{i}"] = {"node": name, "scale": scale}
+    inputs = input_settings()
     deploy = {
         "interval_s": interval_s,
         "target": {

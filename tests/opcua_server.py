@@ -34,11 +34,13 @@ from __future__ import annotations
 
 import asyncio
 import datetime
+import math
 import socket
 import threading
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 from asyncua import Server, ua
 from asyncua.crypto.permission_rules import USER_TYPES, PermissionRuleset, User, UserRole
 from asyncua.crypto.truststore import TrustStore
@@ -59,6 +61,29 @@ def temp_node(i: int) -> tuple[str, ua.VariantType, float]:
     if i <= 8:
         return f"/Plc/DB100.DBW{2 * (i - 1)}", ua.VariantType.Int16, 0.1
     return f"/Plc/DB101.DBD{4 * (i - 9)}", ua.VariantType.Float, 1.0
+
+
+def input_settings() -> dict:
+    """``deploy.opcua.inputs`` for this server: the speed node and T1..T16 with their scales."""
+    out = {"speed_rpm": SPEED_NODE}
+    for i in range(1, 17):
+        name, _, scale = temp_node(i)
+        out[f"T{i}"] = {"node": name, "scale": scale}
+    return out
+
+
+def as_read(temps) -> np.ndarray:
+    """The temperatures as a client reads them back: Int16 in 0.1 degC, Float (single) in degC."""
+    out = []
+    for i, t in enumerate(temps, start=1):
+        _, vtype, scale = temp_node(i)
+        if not math.isfinite(t):
+            out.append(math.nan)
+        elif vtype == ua.VariantType.Int16:
+            out.append(float(int(round(t / scale))) * scale)
+        else:
+            out.append(float(np.float32(t)))
+    return np.array(out)
 
 
 def free_port() -> int:

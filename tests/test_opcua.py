@@ -21,7 +21,8 @@ import yaml
 
 pytest.importorskip("asyncua")
 
-from opcua_server import PLC_COMP_NODE, SPEED_NODE, SinumerikLikeServer, temp_node  # noqa: E402
+from opcua_server import PLC_COMP_NODE, SinumerikLikeServer, as_read, temp_node  # noqa: E402
+from opcua_server import input_settings as inputs  # noqa: E402
 from test_live import DEPLOY, DT, artefact, expected_commands, make_registry, scenario  # noqa: E402
 
 from rafi import SENSORS  # noqa: E402
@@ -37,28 +38,6 @@ SIGN = -1
 def server():
     with SinumerikLikeServer(axis=3) as srv:
         yield srv
-
-
-def inputs() -> dict:
-    out = {"speed_rpm": SPEED_NODE}
-    for i in range(1, 17):
-        name, _, scale = temp_node(i)
-        out[f"T{i}"] = {"node": name, "scale": scale}
-    return out
-
-
-def as_read(temps) -> np.ndarray:
-    """The temperatures as the client reads them: Int16 in 0.1 degC, Float (single) in degC."""
-    out = []
-    for i, t in enumerate(temps, start=1):
-        _, vtype, scale = temp_node(i)
-        if not math.isfinite(t):
-            out.append(math.nan)
-        elif vtype.name == "Int16":
-            out.append(float(int(round(t / scale))) * scale)
-        else:
-            out.append(float(np.float32(t)))
-    return np.array(out)
 
 
 def write_config(tmp_path, server, *, deploy=None, machine="m1") -> argparse.Namespace:

@@ -452,32 +452,6 @@ def test_sigterm_closes_the_file_with_one_line_and_exit_0(tmp_path):
 # --------------------------------------------------------------------------- end to end
 
 
-def inputs() -> dict:
-    from opcua_server import SPEED_NODE, temp_node
-
-    out = {"speed_rpm": SPEED_NODE}
-    for i in range(1, 17):
-        name, _, scale = temp_node(i)
-        out[f"T{i}"] = {"node": name, "scale": scale}
-    return out
-
-
-def as_read(temps) -> np.ndarray:
-    """The temperatures as the nodes hold them: Int16 in 0.1 degC, Float (single) in degC."""
-    from opcua_server import temp_node
-
-    out = []
-    for i, t in enumerate(temps, start=1):
-        _, vtype, scale = temp_node(i)
-        if not math.isfinite(t):
-            out.append(math.nan)
-        elif vtype.name == "Int16":
-            out.append(int(round(t / scale)) * scale)
-        else:
-            out.append(float(np.float32(t)))
-    return np.array(out)
-
-
 def twin_log() -> pd.DataFrame:
     """A 43 min single-speed validation run of the twin (180 s at rest, 40 min at 8000 r/min),
     with sensor faults the PLC flags as BadSensorFailure."""
@@ -529,6 +503,18 @@ def project(tmp_path: Path, server) -> Path:
         shutil.copy2(ROOT / "raw" / MACHINE / name, raw / name)
     write(proj / "plan.csv", "speed_rpm,duration_s,run\n0,180,valid_08000rpm\n8000,2400,valid_08000rpm\n")
     return proj
+
+
+def inputs() -> dict:
+    from opcua_server import input_settings  # asyncua: only the OPC UA tests need it
+
+    return input_settings()
+
+
+def as_read(temps) -> np.ndarray:
+    from opcua_server import as_read
+
+    return as_read(temps)
 
 
 def scrape(recorder) -> dict:
