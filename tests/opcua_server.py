@@ -226,6 +226,9 @@ class SinumerikLikeServer:
         self.writes: list[Write] = []
         self.refused: list[Write] = []
         self.values: dict[str, tuple[object, ua.VariantType]] = {}
+        #: node name -> the DataType the server declares for it, where not its value's type (e.g.
+        #: ``ua.NodeId(ua.ObjectIds.BaseDataType)``, as some servers declare NC variables)
+        self.declared_types: dict[str, ua.NodeId] = {}
         for data in SD_NAMES:
             self.values[self.sd_node(data)] = (0.0, ua.VariantType.Double)
         self.values[SPEED_NODE] = (0.0, ua.VariantType.Double)
@@ -273,8 +276,9 @@ class SinumerikLikeServer:
         objects = server.nodes.objects
         for name, (value, vtype) in self.values.items():
             node = await objects.add_variable(
-                ua.NodeId(name, 2), ua.QualifiedName(name, 2), ua.Variant(value, vtype)
-            )
+                ua.NodeId(name, 2), ua.QualifiedName(name, 2), ua.Variant(value, vtype),
+                datatype=self.declared_types.get(name),
+            )  # fmt: skip
             if name.startswith("/NC/") or name in (PLC_COMP_NODE, SPEED_COMMAND_NODE):
                 await node.set_writable(True)
         original = server.iserver.attribute_service.write

@@ -335,6 +335,36 @@ def test_preflight_lists_every_wrong_node_and_writes_nothing(tmp_path, monkeypat
         srv.close()
 
 
+def test_a_target_node_declared_with_an_abstract_data_type_is_judged_by_its_value(
+    tmp_path, monkeypatch, capsys
+):
+    """A server may declare an NC variable as BaseDataType: the preflight then judges the value
+    it holds (a Double: written; an Int16: refused), as the write itself does."""
+    from asyncua import ua
+
+    int16_sd = "/NC/_N_AX_SEA_ACX/$SA_TEMP_COMP_ABS_VALUE[u4]"
+    srv = SinumerikLikeServer(axis=3)
+    srv.values[int16_sd] = (0, ua.VariantType.Int16)
+    for name in (srv.sd_node(), int16_sd):
+        srv.declared_types[name] = ua.NodeId(ua.ObjectIds.BaseDataType)
+    srv.start()
+    try:
+        make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+        for k, v in ENV.items():
+            monkeypatch.setenv(k, v)
+        args = write_config(tmp_path, srv)
+        assert _main(args, "--cycles", "2") == 0, capsys.readouterr().err
+        assert [w.variant_type for w in srv.client_writes() if w.node == srv.sd_node()] == ["Double"] * 2
+        axis = {"name": "Z", "number": 4, "sign": SIGN, "limit_um": 50.0}
+        target = {"kind": "sinumerik", "axis": axis, "int_incr_per_mm": INCR}
+        args = write_config(tmp_path, srv, deploy={"target": target})
+        capsys.readouterr()
+        assert _main(args, "--cycles", "2") == 64
+        assert f"node ns=2;s={int16_sd} is of type Int16" in capsys.readouterr().err
+    finally:
+        srv.close()
+
+
 def test_an_anonymous_session_is_refused_before_connecting(server, tmp_path, monkeypatch, capsys):
     make_registry(tmp_path / "results" / "m1" / "registry", artefact())
     for k in ("RAFI_OPCUA_USER", "RAFI_OPCUA_PASSWORD", "RAFI_OPCUA_CREDENTIALS"):

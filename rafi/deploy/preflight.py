@@ -29,6 +29,9 @@ __all__ = ["FLOAT_TYPES", "NUMERIC_TYPES", "node_info", "preflight", "read_value
 NUMERIC_TYPES = frozenset(
     "SByte Byte Int16 UInt16 Int32 UInt32 Int64 UInt64 Float Double Number Integer UInteger Decimal".split()
 )
+#: Data types that say only "some value": the value's own type decides (``BaseDataType``,
+#: ``Number``; a server that declares none).
+ABSTRACT_TYPES = (None, "BaseDataType", "Number")
 #: Data types the compensation can be written as, exactly (:mod:`rafi.deploy.opcua_client`).
 FLOAT_TYPES = ("Double", "Float")
 _UNKNOWN = ("BadNodeIdUnknown", "BadNodeIdInvalid")
@@ -183,5 +186,16 @@ def preflight(
     for name, node in inputs.items():
         problems += _input_problems(name, link.node_info(node), who)
     for node in outputs:
-        problems += _output_problems(link.node_info(node), who, write)
+        info = link.node_info(node)
+        if info["exists"] and info["datatype"] in ABSTRACT_TYPES:
+            info = dict(info, datatype=_value_type(link, node))
+        problems += _output_problems(info, who, write)
     return problems
+
+
+def _value_type(link, node: str) -> str | None:
+    """The variant type of the value ``node`` holds (a node declared with an abstract data type
+    is written as its value's type, as :meth:`OpcUaLink.write_value` does)."""
+    (dv,) = link.read_attributes(node, ("Value",))
+    variant = dv.Value if _status(dv) == "Good" else None
+    return getattr(getattr(variant, "VariantType", None), "name", None)
