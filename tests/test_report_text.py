@@ -277,6 +277,24 @@ def test_the_reference_state_sentence_follows_the_reference_rule(rule, cold):
     assert ("does not start cold" in text) is not cold
 
 
+@pytest.mark.parametrize(
+    "idle_training, said",
+    [
+        (None, "a training run when a training run of its log follows it before any validation data"),
+        (True, "a training run when it lies before the log's first validation data"),
+        (False, "validated, never trained on"),
+    ],
+)
+def test_the_cool_down_sentence_follows_idle_training(idle_training, said):
+    runs = {} if idle_training is None else {"runs": {"idle_training": idle_training}}
+    settings = machine_settings({"machines": {"m": runs}}, "m")
+    text = _choices_text(settings)
+    text = text[text.index("Runs, roles and the rest before start") : text.index("Sensor dropouts")]
+    assert said in text
+    shown = "schedule" if idle_training is None else str(idle_training).lower()
+    assert f"(runs.idle_training = {shown})" in text
+
+
 def test_cleaning_says_rows_read_and_rows_on_the_grid():
     audit = pd.DataFrame(
         {

@@ -17,7 +17,7 @@ CONTINUOUS = CONTINUOUS_SCHEDULE
 #: expected runs: (first piece, last piece, kind, role)
 EXPECTED = [
     (0, 0, "constant", "training"),
-    (1, 1, "idle", "validation_idle"),
+    (1, 1, "idle", "training"),  # a cool-down between two training runs: the training schedule
     (2, 2, "constant", "training"),
     (3, 3, "idle", "excluded"),
     (4, 4, "constant", "validation_single"),
@@ -285,9 +285,11 @@ def test_tail_after_validation_never_trains_with_automatic_roles():
     # at training speeds and exactly min_constant_s long, but after the 4500 r/min validation run
     assert set(tail["role"]) == {"validation_single"} and set(tail["role_source"]) == {"leak_guard"}
     assert tail["role_reason"].str.contains("leak guard").all()
+    # the cool-down between the training runs trains; the one after the last, before the
+    # validation run, does not (runs.idle_training: schedule)
     assert table.loc[table["start_s"] < pieces["start_s"][4], "role"].tolist() == [
         "training",
-        "validation_idle",
+        "training",
         "training",
         "validation_idle",
     ]
@@ -300,7 +302,7 @@ def test_fraction_window_cuts_runs_at_the_boundary():
         {"role": "training", "end": split, "unit": "fraction"},
         {"role": "validation", "start": split, "unit": "fraction"},
     ]
-    table, rf = runs({"log": frame}, windows=windows)
+    table, rf = runs({"log": frame}, windows=windows, idle_training=False)
     boundary = split * SPAN_S
     # no run spans the boundary, and every sample is in exactly one run
     assert not ((table["start_s"] < boundary - 1e-6) & (table["end_s"] >= boundary)).any()

@@ -176,12 +176,16 @@ METHOD_SETTINGS: dict = {
                 ),
             ),
             "idle_training": Setting(
-                default=False,
-                schema=FLAG,
-                shown="false",
+                default="schedule",
+                schema={"oneOf": [{"type": "boolean"}, {"const": "schedule"}]},
+                shown="schedule",
                 doc=(
-                    "idle cool-downs (automatic validation_idle runs, and idle runs inside a training "
-                    "window) are training runs for the family's models; RAFI as published ignores them"
+                    "which idle cool-downs are training runs for the family's models (RAFI as published "
+                    "ignores them): `schedule` those of the training schedule (an automatic cool-down "
+                    "followed by a training run of its log before any validation data, and every idle "
+                    "run in a training window); `true` also every other automatic cool-down before "
+                    "validation data; `false` none (idle runs in a training window are excluded) "
+                    "([raw-format.md](raw-format.md#segmentation-runs-and-roles))"
                 ),
             ),
             "allow_training_after_validation": Setting(

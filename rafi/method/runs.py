@@ -36,8 +36,9 @@ never spans a gap). Within a segment:
 Roles: ``excluded`` when shorter than ``min_run_s`` (reason in ``note``);
 constant within ``speed_tolerance_rpm`` of a training speed -> ``training``;
 other constant -> ``validation_single``; varying -> ``validation_multi``; idle ->
-``validation_idle``. ``overrides`` (keyed by run_id, else file stem) set the role
-with ``role_source = 'config'``.
+``validation_idle``, and ``training`` when it lies in the training schedule
+(``idle_training = 'schedule'``, :func:`rafi.method.windows.schedule_cooldowns`).
+``overrides`` (keyed by run_id, else file stem) set the role with ``role_source = 'config'``.
 
 Durations count samples: ``duration_s = n_samples * period``; ``start_s`` and
 ``end_s`` are the ``t_s`` (seconds since the first sample of the file) of the
@@ -71,11 +72,13 @@ from rafi.method.speed_runs import (  # noqa: F401 (the segmentation constants: 
     split_log,
 )
 from rafi.method.windows import (
+    IDLE_TRAINING,
     VALIDATION_BY_KIND,
     check_windows,
     cut_points,
     leak_check,
     resolve_windows,
+    schedule_cooldowns,
     window_of,
 )
 from rafi.settings import MACHINE_DEFAULTS
@@ -145,7 +148,7 @@ def find_runs(
     reference_window_s: float,
     max_leading_rest_s: float = MACHINE_DEFAULTS["runs"]["max_leading_rest_s"],
     windows=MACHINE_DEFAULTS["runs"]["windows"],
-    idle_training: bool = MACHINE_DEFAULTS["runs"]["idle_training"],
+    idle_training: bool | str = MACHINE_DEFAULTS["runs"]["idle_training"],
     allow_training_after_validation: bool = MACHINE_DEFAULTS["runs"]["allow_training_after_validation"],
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Find the runs of a machine's clean logs, classify them and compute the rises.
@@ -182,10 +185,13 @@ def find_runs(
         ``runs: windows:``, roles by time (:mod:`rafi.method.windows`); runs are cut where a
         window starts or ends. A run in a window gets the window's role (``role_source =
         'window'``); run-id overrides still win.
-    idle_training : bool
-        Idle runs (cool-downs) that would be validation (automatic role) or lie in a training
-        window are ``training`` runs (the family's models learn the cool-down; RAFI as
-        published ignores idle training runs).
+    idle_training : {False, 'schedule', True}
+        Which idle runs (cool-downs) are ``training`` runs (the family's models learn the
+        cool-down; RAFI as published ignores idle training runs). ``True``: every one in a
+        training window, and every automatic one before validation data of its log (the leak
+        guard). ``'schedule'``: every one in a training window, and the automatic ones in the
+        training schedule (:func:`rafi.method.windows.schedule_cooldowns`). ``False``: none
+        (idle runs in a training window are ``excluded``).
     allow_training_after_validation : bool
         Accept configured training data after validation data of the same log (the leak guard,
         :func:`rafi.method.windows.leak_check`, otherwise refuses it).
@@ -248,7 +254,7 @@ class RunRules:
     reference_window_s: float
     max_leading_rest_s: float
     windows: list
-    idle_training: bool
+    idle_training: bool | str
     allow_training_after_validation: bool
 
 
@@ -272,10 +278,12 @@ def run_rules(
     Raises
     ------
     ValueError
-        An unknown ``reference_rule`` or an override with an unknown role.
+        An unknown ``reference_rule`` or ``idle_training``, or an override with an unknown role.
     rafi.errors.SettingsError
         A bad window (:func:`rafi.method.windows.check_windows`).
     """
+    if not any(idle_training is v if isinstance(v, bool) else idle_training == v for v in IDLE_TRAINING):
+        raise ValueError(f"idle_training is {idle_training!r}; expected false, 'schedule' or true")
     if reference_rule not in REFERENCE_RULES:
         raise ValueError(
             f"reference_rule is {reference_rule!r}; expected one of {', '.join(REFERENCE_RULES)}"
@@ -408,7 +416,7 @@ def log_runs(key, log: LogArrays, sha256: dict, rules: RunRules) -> tuple[list[d
             }
         )
         samples.append(run_samples(log, span, reference, run_id=run_id, key=name))
-    return _guard_log(rows, rules.allow_training_after_validation), samples
+    return _guard_log(rows, rules), samples
 
 
 def speed_statistics(speed: np.ndarray) -> tuple[float, float, float]:
@@ -422,7 +430,8 @@ def assign_role(kind: str, speed_rpm: float, duration_s: float, window, names, r
     """The role cascade of one run: ``(role, role_source, role_reason)``.
 
     In order, each later rule winning: the automatic role (:func:`_auto_role`); an idle
-    cool-down trains with ``idle_training``; a window holding the run (``window``, or None)
+    cool-down trains with ``idle_training`` true (with ``'schedule'`` it is decided later, by
+    :func:`rafi.method.windows.schedule_cooldowns`); a window holding the run (``window``, or None)
     sets the role (:func:`_window_role`); an override for the first of ``names`` (run id, file
     stem, file name) found in ``rules.overrides`` sets it last (``role_source = 'config'``).
     """
@@ -435,7 +444,7 @@ def assign_role(kind: str, speed_rpm: float, duration_s: float, window, names, r
         rules.min_run_s,
         rules.idle_below_rpm,
     )
-    if role == "validation_idle" and rules.idle_training:
+    if role == "validation_idle" and rules.idle_training is True:
         role, reason = "training", reason + "; idle cool-down used for training (runs.idle_training)"
     source = "auto"
     if window is not None:
@@ -569,13 +578,17 @@ def _window_role(win, what, kind, duration, min_run_s, idle_training) -> tuple[s
         return "excluded", "window", f"in the {win.text} but shorter than runs.min_run_s ({duration:g} s)"
     if win.role == "validation":
         return VALIDATION_BY_KIND[kind], "window", f"in the {win.text} ({what})"
-    if kind == "idle" and not idle_training:
+    if kind == "idle" and idle_training is False:
         return "excluded", "window", f"idle, in the {win.text}, and runs.idle_training is false"
     return "training", "window", f"in the {win.text} ({what})"
 
 
-def _guard_log(rows: list[dict], allow: bool) -> list[dict]:
-    """The runs of one log after the leak guard (:func:`rafi.method.windows.leak_check`)."""
+def _guard_log(rows: list[dict], rules: RunRules) -> list[dict]:
+    """The runs of one log after the leak guard (:func:`rafi.method.windows.leak_check`), then with
+    the cool-downs of the training schedule as training runs (``idle_training = 'schedule'``)."""
     if not rows:
         return rows
-    return leak_check(pd.DataFrame(rows), allow=allow).to_dict("records")
+    table = leak_check(pd.DataFrame(rows), allow=rules.allow_training_after_validation)
+    if rules.idle_training == "schedule":
+        table = schedule_cooldowns(table)
+    return table.to_dict("records")

@@ -14,7 +14,8 @@ sample of a log whose time falls in ``[start, end)``::
 since its first sample); :func:`cut_points` says where runs must be cut so that no run spans a
 boundary; :func:`window_of` finds the window of a run. :func:`leak_check` is the leak guard:
 data that comes after (or during) validation data of the same log never trains a model unless
-the configuration says so explicitly.
+the configuration says so explicitly. :func:`schedule_cooldowns` gives the automatic cool-downs
+of the training schedule (``runs.idle_training: schedule``) their training role.
 """
 
 from __future__ import annotations
@@ -29,6 +30,9 @@ import pandas as pd
 from rafi.errors import SettingsError
 
 WINDOW_ROLES = ("training", "validation", "excluded")
+#: ``runs.idle_training``: no cool-down trains / the cool-downs of the training schedule / every one
+#: before validation data.
+IDLE_TRAINING = (False, "schedule", True)
 WINDOW_UNITS = ("elapsed_s", "fraction", "time")
 #: The validation role of a run of each kind.
 VALIDATION_BY_KIND = {
@@ -175,6 +179,14 @@ def window_of(windows: Sequence[Window], t_first: float) -> Window | None:
     return None
 
 
+def _validation_data(table: pd.DataFrame) -> pd.Series:
+    """The runs of one log that count as validation data for the leak guard (see :func:`leak_check`)."""
+    role, source = table["role"].astype(str), table["role_source"].astype(str)
+    return role.str.startswith("validation") & (
+        (source != "auto") | role.isin(["validation_single", "validation_multi"])
+    )
+
+
 def leak_check(table: pd.DataFrame, *, allow: bool) -> pd.DataFrame:
     """The leak guard on the runs of one log (rows of the runs table, in time order).
 
@@ -195,10 +207,8 @@ def leak_check(table: pd.DataFrame, *, allow: bool) -> pd.DataFrame:
     out = table.copy()
     if out.empty:
         return out
-    role, source = out["role"].astype(str), out["role_source"].astype(str)
-    guard = role.str.startswith("validation") & (
-        (source != "auto") | role.isin(["validation_single", "validation_multi"])
-    )
+    role = out["role"].astype(str)
+    guard = _validation_data(out)
     if not guard.any():
         return out
     first = out.loc[guard].sort_values("start_s").iloc[0]
@@ -228,3 +238,47 @@ def leak_check(table: pd.DataFrame, *, allow: bool) -> pd.DataFrame:
                 "to accept it (the report then says so)"
             )
     return out
+
+
+def schedule_cooldowns(table: pd.DataFrame) -> pd.DataFrame:
+    """The automatic cool-downs of the training schedule of one log as training runs.
+
+    Runs of one log (rows of the runs table, after :func:`leak_check`). An automatic idle run
+    (``validation_idle``, ``role_source = 'auto'``) trains when the next run after it that is
+    neither such a cool-down nor ``excluded`` is a training run, and it starts before the first
+    validation data of the log (as :func:`leak_check` counts it). So the cool-downs between
+    training runs, and a long rest before the first one, train: each training run starts from
+    the cool-down before it, and the cool-downs carry the slow thermal modes. A cool-down after
+    the last training run (before a validation run, or at the end of the log) stays
+    ``validation_idle``: no training run starts from it, and how the machine cools after the
+    last training run is for the validation to judge.
+
+    Returns the table with the roles and reasons of the promoted cool-downs updated.
+    """
+    out = table.copy()
+    if out.empty:
+        return out
+    out = out.sort_values("start_s", kind="stable")
+    role = out["role"].astype(str)
+    cooldown = (role == "validation_idle") & (out["role_source"].astype(str) == "auto")
+    validation = _validation_data(out)
+    first_validation = float(out.loc[validation, "start_s"].min()) if validation.any() else np.inf
+    following = None  # the next run (in time) that is neither a cool-down nor excluded
+    for i in reversed(out.index):
+        if cooldown[i]:
+            starts_before = float(out.loc[i, "start_s"]) < first_validation
+            if following is not None and following["role"] == "training" and starts_before:
+                out.loc[i, "role"] = "training"
+                out.loc[i, "role_reason"] = (
+                    f"{out.loc[i, 'role_reason']}; in the training schedule: training run "
+                    f"{following['run_id']} starts from it, before any validation data of the log "
+                    "(runs.idle_training: schedule)"
+                )
+            else:
+                out.loc[i, "role_reason"] = (
+                    f"{out.loc[i, 'role_reason']}; not in the training schedule: no training run "
+                    "follows it before validation data of the log (runs.idle_training: schedule)"
+                )
+        elif role[i] != "excluded":
+            following = out.loc[i]
+    return out.loc[table.index]

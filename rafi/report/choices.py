@@ -47,7 +47,9 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> dict:
         "hac_span_s": float(fit["hac_maxlags"]) * period,
         "period_s": period,
         "clean": {k: clean[k] for k in ("spike_threshold", "open_circuit_values", "max_interpolate_gap_s")},
-        "runs": {k: runs[k] for k in ("min_constant_s", "idle_below_rpm", "max_leading_rest_s")},
+        "runs": {
+            k: runs[k] for k in ("min_constant_s", "idle_below_rpm", "max_leading_rest_s", "idle_training")
+        },
         "models": {"enabled": list(models["enabled"]), "cv": models["cv"]},
         "paper": bool(settings["report"]["paper_rig"]),
     }
