@@ -165,3 +165,14 @@ def test_run_rules_refuse_an_unknown_idle_training():
     for value in ("yes", 1, None):
         with pytest.raises(ValueError, match="idle_training"):
             run_rules(**kw, idle_training=value)
+
+
+def test_config_refuses_an_unknown_idle_training_naming_the_key():
+    from rafi.errors import SettingsError
+    from rafi.settings import machine_settings, validate_config
+
+    assert machine_settings({"machines": {"m": {}}}, "m")["runs"]["idle_training"] == "schedule"
+    for value in (False, "schedule", True):
+        validate_config({"machines": {"m": {"runs": {"idle_training": value}}}})
+    with pytest.raises(SettingsError, match=r"machines\.m\.runs\.idle_training: 'yes' is not one of"):
+        validate_config({"machines": {"m": {"runs": {"idle_training": "yes"}}}})

@@ -177,7 +177,7 @@ METHOD_SETTINGS: dict = {
             ),
             "idle_training": Setting(
                 default="schedule",
-                schema={"oneOf": [{"type": "boolean"}, {"const": "schedule"}]},
+                schema={"enum": [False, "schedule", True]},
                 shown="schedule",
                 doc=(
                     "which idle cool-downs are training runs for the family's models (RAFI as published "
