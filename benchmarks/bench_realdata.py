@@ -37,7 +37,7 @@ the scored rows of ``|disp - ref - predicted_um|`` where ``disp`` is the workboo
 ``ref`` the median of the channel over the first 60 s of the log (the pipeline's log_start
 reference) and ``predicted_um`` the pipeline's prediction of the change from that reference. The
 published models predict the raw value (near 0 at t = 0); the two differ by the constant ``ref``
-(0.1-0.4 um), the probe's zero. Rows no validation run of the pipeline covers (an excluded
+(0.1-0.5 um), the probe's zero. Rows no validation run of the pipeline covers (an excluded
 short run) are not scored; the table says how many were.
 
 **The plain ridge reference** (:func:`plain_ridge`), independent of the pipeline: features are the
