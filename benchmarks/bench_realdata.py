@@ -1,0 +1,591 @@
+"""Test error of the model family on a real log: CAIVIAC/FL_THERMAL, one machine per channel.
+
+Usage (from the repository root; see benchmarks/README.md)::
+
+    python benchmarks/bench_realdata.py                          # 5 channels x 2 configurations
+    python benchmarks/bench_realdata.py --channels ch3 --configs windows
+    python benchmarks/bench_realdata.py --data PATH --cores 2 --keep /tmp/rd
+
+The data: ``data.xlsx`` of the public repository CAIVIAC/FL_THERMAL (MIT licence), a real 46 h
+spindle test, 15 s rows, 16 temperatures ``t1(°C)``..``t16(°C)``, the speed ``spindle(RPM)``,
+elapsed seconds ``時間(s)`` and five displacement channels ``ch1(um)``..``ch5(um)``. It is not
+shipped with the project: by default it is read from ``../shared/data/fl-thermal/data.xlsx``
+beside the project root (``--data``).
+
+**The pipeline, configured, not coded.** For each channel and configuration a temporary project
+holds a copy of ``Snakefile``, ``workflow/`` and ``rafi/`` (the code the jobs run), the workbook
+under ``raw/fl-thermal-<ch>/`` and a ``config.yaml`` that maps its columns as
+``docs/raw-format.md`` tells a user (:func:`machine_config`): the time column in elapsed seconds,
+the speed, ``T1``..``T16`` from ``t1``..``t16``, the displacement from the channel, the training
+speeds 1250/2500/3750/5000 r/min, and ``reference: log_start`` (a continuous log: every run's
+displacement change is taken from the first minute of the log, so the pipeline's prediction is
+the displacement from the probe's zero at t = 0, like the published models'). Two configurations:
+
+* ``windows``: roles by time windows, training until the end of the 5000 r/min run
+  (``elapsed_s`` 101 265) with the cool-downs (``runs.idle_training: true``), validation after;
+* ``automatic``: no windows, ``runs.min_constant_s: 10800`` (the tail's 1-2 h steps form one
+  varying run), every other setting at its default.
+
+``snakemake --cores N`` builds the comparison's summary and residuals
+(``results/<machine>/comparison/summary.csv`` and ``residuals.parquet``: every model of the
+family, one row per validation sample) and nothing else.
+
+**The score** (:func:`score_family`): the test MAE over rows 6751-8891 of the workbook (0-based
+data rows, row k at t = 15 k s), i.e. 101 265 s <= t <= 133 365 s: the published chronological
+split's test rows after the run it cuts through (the data's README). For every model, mean over
+the scored rows of ``|disp - ref - predicted_um|`` where ``disp`` is the workbook's raw value,
+``ref`` the median of the channel over the first 60 s of the log (the pipeline's log_start
+reference) and ``predicted_um`` the pipeline's prediction of the change from that reference. The
+published models predict the raw value (near 0 at t = 0); the two differ by the constant ``ref``
+(0.1-0.5 um), the probe's zero. Rows no validation run of the pipeline covers (an excluded
+short run) are not scored; the table says how many were.
+
+**The plain ridge reference** (:func:`plain_ridge`), independent of the pipeline: features are the
+16 temperature rises (``T - mean of T over the first 300 s``, the machine at rest before the
+first run at 465 s) and two first-order low-pass filters of each rise (time constants 900 s and
+3600 s, run causally over the whole log from the first row, state starting at the first rise),
+48 columns, standardised on the fitting rows; target the raw displacement, with an unpenalised
+intercept. The penalty is chosen from :data:`RIDGE_ALPHAS` by blocked CV on the training rows only
+(t < 101 265 s): :data:`RIDGE_BLOCKS` contiguous blocks of equal row count, each held out in turn;
+the rows within :data:`RIDGE_GAP_S` (3 x the slow time constant) before and after a held-out
+block are left out of its fit, so neither the targets' autocorrelation nor the filters' memory
+carries the held-out block into the fit. Criterion: the pooled mean squared error over the
+held-out blocks. Then a fit on every training row, scored on the test rows by the same MAE.
+
+Published test MAE (seq2seq-v2 with attention, the best of random forest, XGBoost and two
+seq2seq models; the repository's ``images/test_ch*``): :data:`PUBLISHED_UM`.
+
+Output: per configuration a table ``channel | published | plain ridge | every model | offered
+(kind)``, the automatic/windows ratio of the offered model, and per project the runs found and
+the input checks' warnings; also ``benchmarks/results/realdata.json`` and ``realdata.md``.
+Exit status 0; a failed Snakemake run prints its last lines and the next channel runs.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+from scipy.signal import lfilter
+
+ROOT = Path(__file__).resolve().parents[1]
+DATA_REL = Path("shared", "data", "fl-thermal", "data.xlsx")
+OUT_DIR = ROOT / "benchmarks" / "results"
+
+CHANNELS = ("ch1", "ch2", "ch3", "ch4", "ch5")
+CONFIGS = ("windows", "automatic")
+#: Published test MAE, um: seq2seq-v2, the best of the repository's four models.
+PUBLISHED_UM = {"ch1": 3.561, "ch2": 3.755, "ch3": 3.704, "ch4": 3.461, "ch5": 4.284}
+
+TIME_COL = "時間(s)"
+SPEED_COL = "spindle(RPM)"
+PERIOD_S = 15.0
+TRAINING_SPEEDS_RPM = [1250, 2500, 3750, 5000]
+#: End of the 5000 r/min run: training before, validation from here (row 6751).
+SPLIT_S = 101_265.0
+#: The last test row of the published split (0-based data row; t = 15 s x row).
+TEST_LAST_ROW = 8891
+#: The pipeline's log_start reference window (reference.window_s).
+REFERENCE_WINDOW_S = 60.0
+
+#: The plain ridge: rises from the mean of the first 300 s, filters, penalties, blocked CV.
+RIDGE_REST_S = 300.0
+RIDGE_TAUS_S = (900.0, 3600.0)
+RIDGE_ALPHAS = np.logspace(-4, 5, 46)
+RIDGE_BLOCKS = 5
+RIDGE_GAP_S = 3 * 3600.0
+
+
+# ----------------------------------------------------------------------------- the data
+
+
+def default_data(root: Path = ROOT) -> Path:
+    """``../shared/data/fl-thermal/data.xlsx`` beside the project root, else beside the first of
+    its parents that has one (a git worktree lies a level deeper); the first candidate if none."""
+    candidates = [parent / DATA_REL for parent in root.parents]
+    return next((c for c in candidates if c.is_file()), candidates[0])
+
+
+def read_workbook(path: Path) -> pd.DataFrame:
+    """The workbook's one sheet, headers stripped of surrounding spaces (``時間(s) `` has one)."""
+    frame = pd.read_excel(path, sheet_name=0)
+    return frame.rename(columns=lambda c: str(c).strip())
+
+
+def test_rows(t_s: np.ndarray) -> np.ndarray:
+    """Mask of the test rows: ``SPLIT_S <= t <= 15 s x TEST_LAST_ROW`` (rows 6751-8891)."""
+    t_s = np.asarray(t_s, dtype=float)
+    return (t_s >= SPLIT_S) & (t_s <= TEST_LAST_ROW * PERIOD_S)
+
+
+def training_rows(t_s: np.ndarray) -> np.ndarray:
+    """Mask of the training rows of the windows protocol: ``t < SPLIT_S`` (rows 0-6750)."""
+    return np.asarray(t_s, dtype=float) < SPLIT_S
+
+
+# ----------------------------------------------------------------------------- the plain ridge
+
+
+def lowpass(x: np.ndarray, t_s: np.ndarray, tau_s: float) -> np.ndarray:
+    """First-order low-pass of every column of ``x`` (rows at a constant step of ``t_s``), causal,
+    state starting at the first row: ``y[k] = y[k-1] + a (x[k] - y[k-1])``, ``a = 1 - exp(-dt/tau)``."""
+    x = np.asarray(x, dtype=float)
+    step = float(np.median(np.diff(t_s)))
+    a = 1.0 - np.exp(-step / tau_s)
+    zi = (1.0 - a) * x[:1]
+    y, _ = lfilter([a], [1.0, a - 1.0], x, axis=0, zi=zi)
+    return y
+
+
+def ridge_features(temps: np.ndarray, t_s: np.ndarray) -> np.ndarray:
+    """The 48 features: the rises from the mean over the first ``RIDGE_REST_S`` and their
+    low-pass filters with the time constants ``RIDGE_TAUS_S`` (rises first, then per filter)."""
+    temps = np.asarray(temps, dtype=float)
+    rest = np.asarray(t_s) < RIDGE_REST_S
+    rises = temps - temps[rest].mean(axis=0)
+    return np.hstack([rises, *(lowpass(rises, t_s, tau) for tau in RIDGE_TAUS_S)])
+
+
+def ridge_fit(x: np.ndarray, y: np.ndarray, alphas: np.ndarray) -> tuple:
+    """Ridge on standardised ``x`` with an unpenalised intercept for every penalty in ``alphas``.
+
+    Returns ``(mean, scale, intercept, coefs)``; ``coefs`` has one column per penalty, in the
+    standardised units (predict with :func:`ridge_predict`)."""
+    mean, scale = x.mean(axis=0), x.std(axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    xs = (x - mean) / scale
+    intercept = float(y.mean())
+    u, s, vt = np.linalg.svd(xs, full_matrices=False)
+    uty = u.T @ (y - intercept)
+    shrink = s[:, None] / (s[:, None] ** 2 + np.asarray(alphas)[None, :])
+    return mean, scale, intercept, vt.T @ (shrink * uty[:, None])
+
+
+def ridge_predict(fit: tuple, x: np.ndarray) -> np.ndarray:
+    """Predictions of :func:`ridge_fit`'s model, one column per penalty."""
+    mean, scale, intercept, coefs = fit
+    return intercept + ((x - mean) / scale) @ coefs
+
+
+def blocked_folds(t_s: np.ndarray, n_blocks: int, gap_s: float) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``(fit rows, held-out rows)`` index pairs: ``n_blocks`` contiguous blocks of equal row
+    count, the rows within ``gap_s`` of a held-out block left out of its fit."""
+    t_s = np.asarray(t_s, dtype=float)
+    folds = []
+    for block in np.array_split(np.arange(len(t_s)), n_blocks):
+        lo, hi = t_s[block[0]] - gap_s, t_s[block[-1]] + gap_s
+        fit = np.flatnonzero((t_s < lo) | (t_s > hi))
+        folds.append((fit, block))
+    return folds
+
+
+def choose_alpha(x: np.ndarray, y: np.ndarray, t_s: np.ndarray, alphas: np.ndarray = RIDGE_ALPHAS) -> dict:
+    """The penalty with the lowest pooled held-out mean squared error over :func:`blocked_folds`
+    (``RIDGE_BLOCKS``, ``RIDGE_GAP_S``) of the rows given (the training rows only)."""
+    sq = np.zeros(len(alphas))
+    n = 0
+    for fit_rows, held in blocked_folds(t_s, RIDGE_BLOCKS, RIDGE_GAP_S):
+        model = ridge_fit(x[fit_rows], y[fit_rows], alphas)
+        sq += np.sum((ridge_predict(model, x[held]) - y[held, None]) ** 2, axis=0)
+        n += len(held)
+    best = int(np.argmin(sq))
+    return {
+        "alpha": float(alphas[best]),
+        "cv_rmse_um": float(np.sqrt(sq[best] / n)),
+        "at_grid_edge": best in (0, len(alphas) - 1),
+    }
+
+
+def plain_ridge(temps: np.ndarray, disp: np.ndarray, t_s: np.ndarray) -> dict:
+    """The plain ridge reference (module docstring): penalty by blocked CV on the training rows,
+    fitted on all of them, scored on the test rows. Returns ``test_mae_um``, ``alpha``,
+    ``cv_rmse_um``, ``at_grid_edge``, ``train_mae_um``."""
+    t_s = np.asarray(t_s, dtype=float)
+    disp = np.asarray(disp, dtype=float)
+    x = ridge_features(temps, t_s)
+    train, test = training_rows(t_s), test_rows(t_s)
+    chosen = choose_alpha(x[train], disp[train], t_s[train])
+    model = ridge_fit(x[train], disp[train], np.array([chosen["alpha"]]))
+    pred = ridge_predict(model, x)[:, 0]
+    return {
+        **chosen,
+        "test_mae_um": float(np.mean(np.abs(disp[test] - pred[test]))),
+        "train_mae_um": float(np.mean(np.abs(disp[train] - pred[train]))),
+    }
+
+
+# ----------------------------------------------------------------------------- the projects
+
+
+def machine_name(channel: str) -> str:
+    """The machine (raw folder) of one channel."""
+    return f"fl-thermal-{channel}"
+
+
+def machine_config(channel: str, config: str) -> dict:
+    """A machine's ``config.yaml`` entry: the column mapping (docs/raw-format.md) plus the roles
+    of ``config`` (``windows`` or ``automatic``)."""
+    columns = {"time": TIME_COL, "speed_rpm": SPEED_COL, "disp_um": f"{channel}(um)"}
+    columns.update({f"T{i}": f"t{i}(°C)" for i in range(1, 17)})
+    entry = {
+        "sample_period_s": int(PERIOD_S),
+        "training_speeds_rpm": list(TRAINING_SPEEDS_RPM),
+        "reference": {"rule": "log_start", "window_s": int(REFERENCE_WINDOW_S)},
+        "input": {
+            "format": "xlsx",
+            "pattern": "*.xlsx",
+            "sheet": 0,
+            "header_row": 1,
+            "columns": columns,
+            "time": {"kind": "elapsed_s", "start": "2024-01-01T00:00:00"},
+            "sample_period_s": int(PERIOD_S),
+            "temperature_unit": "C",
+        },
+    }
+    if config == "windows":
+        entry["runs"] = {
+            "idle_training": True,
+            "windows": [
+                {"role": "training", "end": int(SPLIT_S), "unit": "elapsed_s"},
+                {"role": "validation", "start": int(SPLIT_S), "unit": "elapsed_s"},
+            ],
+        }
+    elif config == "automatic":
+        entry["runs"] = {"min_constant_s": 10800}
+    else:
+        raise ValueError(f"unknown configuration {config!r}; expected one of {CONFIGS}")
+    return entry
+
+
+def write_project(proj: Path, data: Path, channel: str, config: str) -> str:
+    """A runnable project in ``proj`` for one channel and configuration; returns the machine."""
+    proj.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
+    for name in ("workflow", "rafi"):
+        shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
+    machine = machine_name(channel)
+    raw = proj / "raw" / machine
+    raw.mkdir(parents=True)
+    shutil.copy2(data, raw / "data.xlsx")
+    settings = {
+        "raw_dir": "raw",
+        "results_dir": "results",
+        "reports_dir": "reports",
+        "on_bad_input": "fail",
+        "defaults": {},
+        "machines": {machine: machine_config(channel, config)},
+    }
+    text = f"# bench_realdata.py: FL_THERMAL {channel}, roles '{config}'\n"
+    text += yaml.safe_dump(settings, allow_unicode=True, sort_keys=False)
+    (proj / "config.yaml").write_text(text, encoding="utf-8")
+    return machine
+
+
+def targets(machine: str) -> list[str]:
+    """The smallest target set with every model's validation residuals and the champion."""
+    return [f"results/{machine}/comparison/summary.csv", f"results/{machine}/comparison/residuals.parquet"]
+
+
+def run_snakemake(proj: Path, machine: str, cores: int) -> tuple[bool, float, str]:
+    """``snakemake --cores N <targets>`` in ``proj`` (its own ``rafi/`` first on the path);
+    returns ``(ok, wall seconds, output)``."""
+    env = {
+        **os.environ,
+        "PYTHONPATH": os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")])),
+    }
+    cmd = [sys.executable, "-m", "snakemake", "--cores", str(cores), *targets(machine)]
+    t0 = time.perf_counter()
+    done = subprocess.run(cmd, cwd=proj, env=env, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    (proj / "bench-snakemake.log").write_text(done.stdout + done.stderr, encoding="utf-8")
+    return done.returncode == 0, wall, done.stdout + done.stderr
+
+
+# ----------------------------------------------------------------------------- the score
+
+
+def reference_um(disp: np.ndarray, t_s: np.ndarray) -> float:
+    """The pipeline's log_start reference: the median over the first ``REFERENCE_WINDOW_S``."""
+    return float(np.nanmedian(np.asarray(disp, dtype=float)[np.asarray(t_s) < REFERENCE_WINDOW_S]))
+
+
+def log_rows(residuals: pd.DataFrame, runs: pd.DataFrame) -> np.ndarray:
+    """The 0-based workbook row of every residual row: the run's ``start_s`` plus the row's
+    ``t_s`` (seconds since the run's start), over the 15 s step."""
+    start = residuals["run_id"].astype(str).map(runs.set_index(runs["run_id"].astype(str))["start_s"])
+    t_log = start.to_numpy(dtype=float) + residuals["t_s"].to_numpy(dtype=float)
+    rows = np.rint(t_log / PERIOD_S)
+    if not np.allclose(rows * PERIOD_S, t_log, atol=1e-6):
+        raise ValueError("residual times are not on the 15 s grid of the workbook")
+    return rows.astype(int)
+
+
+def score_family(residuals: pd.DataFrame, runs: pd.DataFrame, disp: np.ndarray, t_s: np.ndarray) -> dict:
+    """Test MAE per model over the test rows its validation residuals cover.
+
+    Returns ``{"mae": {model: um}, "rows": {model: scored test rows}, "n_test": test rows,
+    "reference_um": ref, "max_clean_diff_um": max |measured_um - (disp - ref)| over the scored
+    rows}`` (what cleaning changed in the measured values; the score uses the raw ``disp``)."""
+    disp = np.asarray(disp, dtype=float)
+    ref = reference_um(disp, t_s)
+    test = test_rows(t_s)
+    out = {"mae": {}, "rows": {}, "n_test": int(test.sum()), "reference_um": ref, "max_clean_diff_um": 0.0}
+    for model, part in residuals.groupby(residuals["model"].astype(str), sort=False):
+        rows = log_rows(part, runs)
+        keep = test[rows]
+        rows = rows[keep]
+        if len(np.unique(rows)) != len(rows):
+            raise ValueError(f"{model}: a test row is in two validation runs")
+        pred = part["predicted_um"].to_numpy(dtype=float)[keep]
+        measured = part["measured_um"].to_numpy(dtype=float)[keep]
+        out["mae"][model] = float(np.mean(np.abs(disp[rows] - ref - pred))) if len(rows) else float("nan")
+        out["rows"][model] = int(len(rows))
+        diff = np.abs(measured - (disp[rows] - ref))
+        if len(diff):
+            out["max_clean_diff_um"] = max(out["max_clean_diff_um"], float(np.nanmax(diff)))
+    return out
+
+
+def project_facts(proj: Path, machine: str) -> dict:
+    """What the pipeline found: runs (id, span in h, speed, kind, role), the champion, the
+    selection basis and the input checks' warnings."""
+    res = proj / "results" / machine
+    runs = pd.read_csv(res / "runs.csv")
+    summary = pd.read_csv(res / "comparison" / "summary.csv")
+    champion = str(summary.loc[summary["champion"].astype(bool), "model"].iloc[0])
+    status = json.loads((res / "input_status.json").read_text(encoding="utf-8"))
+    log = proj / "logs" / machine / "compare.log"
+    basis = next(
+        (line.strip() for line in log.read_text(encoding="utf-8").splitlines() if "chosen by" in line), ""
+    )
+    keys = json.loads((res / "rank" / "key_sensors.json").read_text(encoding="utf-8"))
+    audit = pd.read_csv(res / "audit.csv").iloc[0]
+    cleaning = ("spikes_replaced", "values_interpolated", "gaps_interpolated", "duplicates_dropped")
+    return {
+        "key_sensors": keys["sensors"],
+        "key_sensor_fallback": bool(keys.get("fallback_used")),
+        "cleaning": {c: int(audit[c]) for c in cleaning},
+        "runs": [
+            {
+                "run_id": str(r.run_id),
+                "span_h": f"{r.start_s / 3600:.2f}-{r.end_s / 3600:.2f}",
+                "speed_rpm": None if pd.isna(r.speed_rpm) else round(float(r.speed_rpm)),
+                "kind": str(r.kind),
+                "role": str(r.role),
+                "role_source": str(r.role_source),
+            }
+            for r in runs.itertuples()
+        ],
+        "champion": champion,
+        "selection": basis,
+        "selected": dict(zip(summary["model"].astype(str), summary["selected"].astype(str))),
+        "warnings": [f"{w.get('check')}: {w.get('message')}" for w in status.get("warnings", [])],
+    }
+
+
+def run_one(
+    data: Path, frame: pd.DataFrame, channel: str, config: str, cores: int, keep: Path | None
+) -> dict:
+    """Build, run and score one project; the temporary folder goes unless ``keep``."""
+    if keep is not None:
+        proj = keep / f"{channel}-{config}"
+        shutil.rmtree(proj, ignore_errors=True)
+    else:
+        proj = Path(tempfile.mkdtemp(prefix=f"rafi-realdata-{channel}-{config}-"))
+    try:
+        machine = write_project(proj, data, channel, config)
+        ok, wall, output = run_snakemake(proj, machine, cores)
+        row = {"channel": channel, "config": config, "wall_s": round(wall, 1), "ok": ok}
+        if not ok:
+            row["tail"] = "\n".join(output.splitlines()[-25:])
+            return row
+        res = proj / "results" / machine
+        residuals = pd.read_parquet(res / "comparison" / "residuals.parquet")
+        runs = pd.read_csv(res / "runs.csv")
+        t_s = frame[TIME_COL].to_numpy(dtype=float)
+        row.update(score_family(residuals, runs, frame[f"{channel}(um)"].to_numpy(dtype=float), t_s))
+        row.update(project_facts(proj, machine))
+        return row
+    finally:
+        if keep is None:
+            shutil.rmtree(proj, ignore_errors=True)
+
+
+# ----------------------------------------------------------------------------- the tables
+
+
+def fmt(x: float | None) -> str:
+    """Two decimals, or a dash."""
+    return "-" if x is None or not np.isfinite(x) else f"{x:.2f}"
+
+
+def config_table(config: str, rows: list[dict], ridge: dict) -> list[str]:
+    """Markdown table of one configuration: published, plain ridge, every model, offered."""
+    done = [r for r in rows if r["config"] == config and r.get("ok")]
+    models = list(dict.fromkeys(m for r in done for m in r["mae"]))
+    head = ["channel", "published seq2seq-v2", "plain ridge", *models, "offered (kind)", "scored rows"]
+    lines = [f"| {' | '.join(head)} |", "|" + "---|" * len(head)]
+    for r in sorted(done, key=lambda r: r["channel"]):
+        ch = r["channel"]
+        offered = r["champion"]
+        cells = [ch, fmt(PUBLISHED_UM[ch]), fmt(ridge[ch]["test_mae_um"])]
+        cells += [fmt(r["mae"].get(m)) for m in models]
+        cells += [f"{fmt(r['mae'].get(offered))} ({offered})", f"{r['rows'].get(offered, 0)}/{r['n_test']}"]
+        lines.append(f"| {' | '.join(cells)} |")
+    return lines
+
+
+def ratio_table(rows: list[dict]) -> list[str]:
+    """Offered model, automatic over windows, per channel measured in both."""
+    by = {(r["channel"], r["config"]): r for r in rows if r.get("ok")}
+    lines = ["| channel | windows | automatic | automatic / windows |", "|---|---|---|---|"]
+    for ch in CHANNELS:
+        w, a = by.get((ch, "windows")), by.get((ch, "automatic"))
+        if not (w and a):
+            continue
+        mw, ma = w["mae"][w["champion"]], a["mae"][a["champion"]]
+        lines.append(f"| {ch} | {fmt(mw)} ({w['champion']}) | {fmt(ma)} ({a['champion']}) | {ma / mw:.2f} |")
+    return lines
+
+
+def md_table(head: list[str], body: list[list]) -> list[str]:
+    """A markdown table."""
+    return [f"| {' | '.join(head)} |", "|" + "---|" * len(head)] + [
+        f"| {' | '.join(str(c) for c in cells)} |" for cells in body
+    ]
+
+
+def markdown(report: dict) -> str:
+    """The whole report as markdown."""
+    rows, ridge = report["runs"], report["ridge"]
+    lines = [
+        f"# Real-data benchmark, FL_THERMAL ({report['date']})",
+        "",
+        f"Command: `{report['command']}`; host {report['host']}, {report['cpus']} CPUs.",
+        "Test MAE, um, over rows 6751-8891 (101 265 s <= t <= 133 365 s).",
+    ]
+    for config in report["configs"]:
+        lines += ["", f"## {config}", "", *config_table(config, rows, ridge)]
+    lines += ["", "## offered model, automatic vs windows", "", *ratio_table(rows)]
+    body = [
+        [ch, fmt(r["test_mae_um"]), f"{r['alpha']:.3g}", fmt(r["cv_rmse_um"]), r["at_grid_edge"]]
+        for ch, r in ridge.items()
+    ]
+    lines += ["", "## plain ridge", ""]
+    lines += md_table(["channel", "test MAE", "alpha", "CV RMSE", "at grid edge"], body)
+    body = [
+        [r["channel"], r["config"], r["wall_s"], r.get("champion", "FAILED"), r.get("selection", "")]
+        for r in rows
+    ]
+    lines += ["", "## runs", "", *md_table(["channel", "config", "wall s", "offered", "selection"], body)]
+    return "\n".join(lines) + "\n"
+
+
+def describe(row: dict) -> str:
+    """What the pipeline found in one project: runs and roles, key sensors, cleaning, warnings."""
+    keys = ", ".join(row["key_sensors"]) + (
+        " (fallback: none reaches r > 0.97)" if row["key_sensor_fallback"] else ""
+    )
+    lines = [
+        f"{row['channel']} {row['config']}: {row['selection']}",
+        f"   key sensors {keys}; cleaning {row['cleaning']}",
+    ]
+    for run in row["runs"]:
+        speed = "-" if run["speed_rpm"] is None else run["speed_rpm"]
+        lines.append(
+            f"   {run['run_id']:8s} {run['span_h']:>12s} h {speed!s:>5} r/min {run['kind']:8s} "
+            f"{run['role']} ({run['role_source']})"
+        )
+    lines += [f"   warning {w}" for w in row["warnings"]]
+    return "\n".join(lines)
+
+
+def progress(row: dict) -> str:
+    """One line per channel and configuration."""
+    head = f"{row['channel']} {row['config']:9s} {row['wall_s']:7.1f} s"
+    if not row.get("ok"):
+        return f"{head}  snakemake FAILED; its last lines:\n{row['tail']}"
+    offered = row["champion"]
+    return (
+        f"{head}  offered {offered}: test MAE {row['mae'][offered]:.2f} um "
+        f"({row['rows'][offered]}/{row['n_test']} rows); "
+        + ", ".join(f"{m} {v:.2f}" for m, v in row["mae"].items())
+    )
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--data", type=Path, default=None, help="FL_THERMAL data.xlsx (default: ../shared/data/fl-thermal/)"
+    )
+    parser.add_argument("--channels", default=",".join(CHANNELS), help="comma-separated, e.g. ch3,ch5")
+    parser.add_argument("--configs", default=",".join(CONFIGS), help="windows,automatic")
+    parser.add_argument("--cores", "--jobs", type=int, default=2, help="passed to snakemake --cores")
+    parser.add_argument("--keep", type=Path, default=None, help="keep the projects under this folder")
+    args = parser.parse_args(argv)
+    channels = [c.strip() for c in args.channels.split(",") if c.strip()]
+    configs = [c.strip() for c in args.configs.split(",") if c.strip()]
+    for c in channels:
+        if c not in CHANNELS:
+            parser.error(f"unknown channel {c!r}; expected some of {', '.join(CHANNELS)}")
+    for c in configs:
+        if c not in CONFIGS:
+            parser.error(f"unknown configuration {c!r}; expected some of {', '.join(CONFIGS)}")
+    args.data = args.data or default_data()
+    if not args.data.is_file():
+        parser.error(f"no workbook at {args.data} (--data PATH: FL_THERMAL's data/data.xlsx)")
+    if args.keep is not None:
+        args.keep.mkdir(parents=True, exist_ok=True)
+    frame = read_workbook(args.data)
+    t_s = frame[TIME_COL].to_numpy(dtype=float)
+    temps = frame[[f"t{i}(°C)" for i in range(1, 17)]].to_numpy(dtype=float)
+    ridge = {}
+    for ch in channels:
+        ridge[ch] = plain_ridge(temps, frame[f"{ch}(um)"].to_numpy(dtype=float), t_s)
+        print(
+            f"{ch} plain ridge: test MAE {ridge[ch]['test_mae_um']:.2f} um (alpha {ridge[ch]['alpha']:.3g})",
+            flush=True,
+        )
+    rows = []
+    for config in configs:
+        for ch in channels:
+            row = run_one(args.data, frame, ch, config, args.cores, args.keep)
+            rows.append(row)
+            print(progress(row), flush=True)
+    report = {
+        "date": dt.date.today().isoformat(),
+        "command": " ".join(
+            ["python benchmarks/bench_realdata.py", *(sys.argv[1:] if argv is None else argv)]
+        ),
+        "host": platform.node(),
+        "cpus": os.cpu_count(),
+        "data": str(args.data),
+        "configs": configs,
+        "ridge": ridge,
+        "runs": rows,
+    }
+    text = markdown(report)
+    print("\n" + text)
+    for r in rows:
+        if r.get("ok"):
+            print(describe(r))
+    OUT_DIR.mkdir(parents=True, exist_ok=True)
+    (OUT_DIR / "realdata.json").write_text(json.dumps(report, indent=2, ensure_ascii=False, default=str))
+    (OUT_DIR / "realdata.md").write_text(text, encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
