@@ -88,7 +88,11 @@ def _time_order(frame: pd.DataFrame) -> tuple[np.ndarray, np.ndarray, np.ndarray
         group, t = pd.factorize(frame["log"].astype(str))[0], frame["log_t_s"].to_numpy(dtype=float)
     else:
         group = pd.factorize(frame["run_id"].astype(str))[0]
-        t = frame["t_s"].to_numpy(dtype=float) if "t_s" in frame.columns else np.arange(len(frame), dtype=float)
+        t = (
+            frame["t_s"].to_numpy(dtype=float)
+            if "t_s" in frame.columns
+            else np.arange(len(frame), dtype=float)
+        )
     order = np.lexsort((t, group))
     return order, t[order], runs[order]
 
