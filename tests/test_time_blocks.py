@@ -329,3 +329,42 @@ def test_whole_runs_keep_whole_run_folds():
         name="dynamic",
     )
     assert set(cv["scheme"]) == {"leave_one_run_out"} and set(cv["test_runs"]) == {"spindle_a", "spindle_b"}
+
+
+# --------------------------------------------------------------------------- what the report says
+
+
+def test_the_report_says_time_blocks_where_it_would_say_whole_runs():
+    from test_report_text import _section
+
+    from rafi.family.selection import SELECTION_RULE, SELECTION_RULE_TIME_BLOCKS
+    from rafi.report.choices import section_choices
+    from rafi.report.comparison_section import selection_context
+    from rafi.settings import machine_settings
+
+    settings = machine_settings({"machines": {"m": {}}}, "m")
+    for blocks, said, unsaid in (
+        (
+            True,
+            "come from time-blocked cross-validation (too few training runs",
+            "whole-run cross-validation",
+        ),
+        (False, "come from whole-run cross-validation (leave_one_run_out)", "time-blocked"),
+    ):
+        html = _section("choices", choices=section_choices(settings, {}, None, time_blocks=blocks))
+        text = " ".join(html.split())
+        assert said in text and unsaid not in text
+    summary = pd.DataFrame(
+        {
+            "model": ["dynamic"],
+            "cv_mean_max_abs_um": [1.0],
+            "cv_max_abs_um": [1.5],
+            "passed": [True],
+            "max_abs_after_um": [2.0],
+            "noise_floor_um": [0.5],
+        }
+    )
+    sel = selection_context(summary, "dynamic", SCHEME)
+    assert sel["rule"] == SELECTION_RULE_TIME_BLOCKS and sel["time_blocks"] and sel["basis"] == "cv"
+    sel = selection_context(summary, "dynamic", "leave_one_run_out")
+    assert sel["rule"] == SELECTION_RULE and not sel["time_blocks"]
