@@ -10,6 +10,10 @@ model from run_family (docs/models.md, "Time-blocked folds").
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 import warnings
 
 import numpy as np
@@ -17,6 +21,7 @@ import pandas as pd
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from project_copy import copy_project
 
 from rafi.family.compare import cv_data, run_family
 from rafi.family.crossval import GUARD, HELD_OUT, cross_validate, hold_out, split_runs, training_runs
@@ -368,3 +373,68 @@ def test_the_report_says_time_blocks_where_it_would_say_whole_runs():
     assert sel["rule"] == SELECTION_RULE_TIME_BLOCKS and sel["time_blocks"] and sel["basis"] == "cv"
     sel = selection_context(summary, "dynamic", "leave_one_run_out")
     assert sel["rule"] == SELECTION_RULE and not sel["time_blocks"]
+
+
+# --------------------------------------------------------------------------- the real Snakefile
+
+SINGLE_RUN_CONFIG = """
+raw_dir: raw
+results_dir: results
+reports_dir: reports
+on_bad_input: fail
+defaults: {}
+machines:
+  spindle-d:
+    sample_period_s: 60
+    training_speeds_rpm: [6000]
+    input:
+      format: csv
+      pattern: "*.csv"
+      delimiter: ";"
+      columns:
+        disp_um: "Z [um]"
+      time: {kind: none, period_s: 60, start: "2026-03-02T06:00:00"}
+      speed: {constant_rpm: 6000}
+    runs:
+      windows:
+        - {role: training, end: 0.6, unit: fraction}
+        - {role: validation, start: 0.6, unit: fraction}
+"""
+
+
+def test_the_pipeline_offers_a_model_chosen_on_time_blocks_for_a_single_run_log(tmp_path):
+    """The issue's second log in small: a motorised spindle at one speed, one row per minute, no
+    time or speed column, 16 temperatures, a 60/40 split in two windows (the training part is one
+    run). The real Snakefile: time-blocked folds, a champion chosen on them, a report that says so."""
+    proj = copy_project(tmp_path / "project", config=False)
+    (proj / "config.yaml").write_text(SINGLE_RUN_CONFIG, encoding="utf-8")
+    schedule = [*TRAIN_SCHEDULE, (3000, 4 * H), (12000, 4 * H), (6000, 6 * H)]  # 44 h
+    log, _ = schedule_log(schedule, period_s=60.0, seed=5)
+    table = log[[f"T{i}" for i in range(1, 17)]].round(3).assign(**{"Z [um]": log["disp_um"].round(3)})
+    (proj / "raw" / "spindle-d").mkdir(parents=True)
+    table.to_csv(proj / "raw" / "spindle-d" / "spindle_44h.csv", sep=";", index=False)
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(proj), os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run(
+        [sys.executable, "-m", "snakemake", "--cores", "2"],
+        cwd=proj,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    out = proj / "results" / "spindle-d" / "comparison"
+    runs = pd.read_csv(proj / "results" / "spindle-d" / "runs.csv")
+    assert list(runs["role"]) == ["training", "validation_single"]
+    cv = pd.read_csv(out / "cv.csv")
+    assert set(cv["scheme"]) == {SCHEME}
+    assert (cv.groupby("model").size() == 4).all()
+    summary = pd.read_csv(out / "summary.csv")
+    champion = summary.loc[summary["champion"].astype(bool), "model"].item()
+    assert champion == summary.sort_values("selection_rank")["model"].iloc[0]
+    assert np.isfinite(summary["cv_mean_max_abs_um"]).all()
+    assert json.loads((out / "best_model.json").read_text())["kind"] == champion
+    assert "4 time blocks with 3 h guard gaps" in (proj / "logs" / "spindle-d" / "compare.log").read_text()
+    report = " ".join((proj / "reports" / "spindle-d" / "qualification.html").read_text().split())
+    assert "chosen by time-blocked CV on the training data only" in report
+    assert "whole-run CV on the training runs" not in report
