@@ -55,6 +55,7 @@ __all__ = [
     "time_block_folds",
     "max_filter_s",
     "blocks_text",
+    "hours",
 ]
 
 #: The ``scheme`` of time-blocked folds in ``comparison/cv.csv``.
