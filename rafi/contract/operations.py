@@ -157,6 +157,25 @@ OPERATIONS_SETTINGS: dict = {
                 shown="`max_abs`",
                 doc="the gates are about the max residual",
             ),
+            "cv_time_blocks": Setting(
+                default=4,
+                schema={"type": "integer", "minimum": 2},
+                shown="4",
+                doc=(
+                    "training data without a whole-run fold (one long training run): its training time is"
+                    " cut into this many blocks, each held out in turn (fewer when the blocks would be"
+                    " shorter than the gap; `docs/models.md`, Time-blocked folds)"
+                ),
+            ),
+            "cv_time_block_gap_s": Setting(
+                default=10800,
+                schema=NON_NEGATIVE,
+                shown="10800",
+                doc=(
+                    "guard gap (s) between time blocks: the gaps beside a held-out block never train its"
+                    " fold, and no filter time constant above a third of it is a candidate then"
+                ),
+            ),
             "filter_restart_gap_s": Setting(
                 default=3600,
                 schema=NON_NEGATIVE,

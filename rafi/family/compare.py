@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.artefact import json_text, write_text_atomic
-from rafi.family.crossval import cross_validate, training_runs
+from rafi.family.crossval import cross_validate, has_folds, scheme_of, training_runs
 from rafi.family.cv_memo import cv_memo_key, read_cv, write_cv
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.feature_memo import sharing_features
@@ -41,6 +41,7 @@ from rafi.family.selection import (  # noqa: F401 - re-exported: the selection r
     default_champion,
     selection_table,
 )
+from rafi.family.time_blocks import hours, time_block_units
 from rafi.family.whole_log import rows_of_logs
 from rafi.method.validate import qualify, validate_runs
 from rafi.settings import MACHINE_DEFAULTS
@@ -169,6 +170,12 @@ def describe_selection(model) -> str:
     else:
         parts.append("speed gain dT\u00b7n" if model.speed_gain_ else "no speed gain")
         parts.append("speed terms" if model.speed_terms_ else "no speed terms (not identified)")
+    blocks = getattr(model, "time_blocks_", None)
+    if blocks:
+        parts.append(
+            f"chosen on {blocks['blocks']} time blocks with {hours(blocks['gap_s'])} guard gaps "
+            f"(filters up to {blocks['max_filter_s']:g} s)"
+        )
     edges = list(getattr(model, "grid_edges_", []) or [])
     if edges:
         parts.append("AT A GRID EDGE (the best value may lie outside the grid): " + "; ".join(edges))
@@ -397,10 +404,39 @@ def fit_and_cross_validate(
             cv = cross_validate(factory, runs_table, runs_frame, scheme, name=kind)
         cv_parts.append(cv)
         worst = f"{cv['max_abs_after_um'].max():.2f} um" if len(cv) else "no fold"
-        log(f"{kind}: {scheme} CV in {time.perf_counter() - t0:.1f} s, max |residual| {worst}")
+        log(
+            f"{kind}: {scheme_of(runs_table, scheme)} CV in {time.perf_counter() - t0:.1f} s,"
+            f" max |residual| {worst}"
+        )
     if known_cv is not None:
         return models, known_cv
     return models, pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
+
+
+def cv_data(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, options: dict, *, log=print):
+    """The table and frame the models are fitted and cross-validated on: the runs as they are
+    when ``options["cv"]`` gives a whole-run fold, else the time-blocked units of the training
+    runs (:func:`rafi.family.time_blocks.time_block_units`, ``options["cv_time_blocks"]`` blocks,
+    ``options["cv_time_block_gap_s"]`` guard gaps) when two blocks fit; the data's structure alone
+    decides. Without either there is no fold (:func:`default_champion`)."""
+    if has_folds(runs_table, options["cv"]) or not len(training_runs(runs_table, runs_frame)[1]):
+        return runs_table, runs_frame
+    units = time_block_units(
+        runs_table,
+        runs_frame,
+        n_blocks=int(options["cv_time_blocks"]),
+        gap_s=float(options["cv_time_block_gap_s"]),
+    )
+    if units is None:
+        log("too few training runs for whole-run folds and too little training time for two time blocks")
+        return runs_table, runs_frame
+    table = units[0]
+    blocks = int(table.loc[table["cv_seq"] >= 0, "cv_seq"].max()) // 2 + 1
+    log(
+        f"too few training runs for whole-run folds: {blocks} time blocks with "
+        f"{hours(float(options['cv_time_block_gap_s']))} guard gaps"
+    )
+    return units
 
 
 def run_family(
@@ -467,10 +503,11 @@ def run_family(
     known = read_cv(cv_memo_dir, key) if key else None
     if known is not None:
         log(f"cross-validation rows from the memo ({key[:12]}: training runs, settings and code unchanged)")
+    fit_table, fit_frame = cv_data(runs_table, runs_frame, options, log=log)
     models, cv = fit_and_cross_validate(
         factories,
-        runs_table,
-        runs_frame,
+        fit_table,
+        fit_frame,
         scheme=options["cv"],
         rafi_model=rafi_model,
         known_cv=known,

@@ -8,6 +8,10 @@ neighbours, 5 s away, sit in the training set. Every split here is by **whole ru
   for RAFI this is exactly the situation of a validation speed between two training speeds
   (or beyond the edge, for the lowest / highest speed).
 
+Training data with no whole-run fold (one long training run) gets **time-blocked folds**
+instead (:mod:`rafi.family.time_blocks`): :func:`split_runs` and :func:`cross_validate` then work
+on the blocks of a unit table, with a guard gap around each held-out block.
+
 Only runs with ``role == "training"`` are ever split; validation runs never enter model
 selection. Every splitter asserts that no run is in both the train and the test set.
 
@@ -28,6 +32,8 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.feature_memo import sharing_features
+from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
+from rafi.family.time_blocks import is_blocked, time_block_folds, unit_column
 from rafi.family.whole_log import rows_of_logs
 
 __all__ = [
@@ -41,13 +47,20 @@ __all__ = [
     "cross_validate",
     "CV_COLUMNS",
     "HELD_OUT",
+    "GUARD",
     "hold_out",
+    "training_mask",
+    "has_folds",
+    "scheme_of",
 ]
 
 SPEED_GROUP_TOLERANCE_RPM = 50.0
 
 #: Role of a training run held out of a CV fold (in the table that fold's ``fit`` receives).
 HELD_OUT = "held_out"
+#: Role of a guard gap beside a held-out time block (:mod:`rafi.family.time_blocks`): neither
+#: trained on nor scored in that fold.
+GUARD = "guard"
 
 CV_COLUMNS = [
     "model",
@@ -69,15 +82,23 @@ CV_COLUMNS = [
 def training_runs(runs_table: pd.DataFrame, runs_frame: pd.DataFrame) -> tuple[pd.DataFrame, pd.DataFrame]:
     """The ``role == "training"`` rows of ``runs_table`` and their samples in ``runs_frame``.
 
-    This is the only door through which a model's ``fit`` sees data.
+    This is the only door through which a model's ``fit`` sees data. For a unit table of
+    time-blocked folds (:func:`rafi.family.time_blocks.time_block_units`) the rows are those of
+    its training units (a run's held-out block and guard gaps are not among them); a run id
+    then appears once per training unit of the run.
     """
     for col in ("run_id", "role", "speed_rpm"):
         if col not in runs_table.columns:
             raise ValueError(f"runs_table lacks column {col!r}")
     table = runs_table.loc[runs_table["role"].astype(str) == "training"]
-    ids = set(table["run_id"].astype(str))
-    frame = runs_frame.loc[runs_frame["run_id"].astype(str).isin(ids)]
-    return table, frame
+    return table, runs_frame.loc[training_mask(runs_frame, table)]
+
+
+def training_mask(frame: pd.DataFrame, table: pd.DataFrame) -> np.ndarray:
+    """Rows of ``frame`` that belong to the rows of ``table``: by run, or by CV unit where both
+    have one (time-blocked folds)."""
+    col = unit_column(frame, table)
+    return frame[col].astype(str).isin(set(table[col].astype(str))).to_numpy()
 
 
 def subset_runs(
@@ -91,11 +112,11 @@ def subset_runs(
     )
 
 
-def hold_out(runs_table: pd.DataFrame, run_ids) -> pd.DataFrame:
-    """A copy of ``runs_table`` whose runs ``run_ids`` have the role :data:`HELD_OUT`."""
+def hold_out(runs_table: pd.DataFrame, run_ids, role: str = HELD_OUT) -> pd.DataFrame:
+    """A copy of ``runs_table`` whose runs (or CV units) ``run_ids`` have the role ``role``."""
     out = runs_table.copy()
     ids = set(map(str, run_ids))
-    out.loc[out["run_id"].astype(str).isin(ids), "role"] = HELD_OUT
+    out.loc[out[unit_column(out)].astype(str).isin(ids), "role"] = role
     return out
 
 
@@ -157,12 +178,27 @@ SCHEMES: dict[str, Callable] = {
 
 
 def split_runs(runs_table: pd.DataFrame, scheme: str = "leave_one_run_out"):
-    """Folds ``(train_run_ids, test_run_ids)`` of the training runs under ``scheme``."""
+    """Folds ``(train_run_ids, test_run_ids)`` of the training runs under ``scheme``; on a unit
+    table (:func:`rafi.family.time_blocks.time_block_units`) the time-blocked folds of its units,
+    whatever ``scheme`` (the data's structure chose them)."""
     try:
         fn = SCHEMES[scheme]
     except KeyError:
         raise ValueError(f"unknown CV scheme {scheme!r}; known: {sorted(SCHEMES)}") from None
+    if is_blocked(runs_table):
+        return time_block_folds(runs_table)
     return fn(runs_table)
+
+
+def has_folds(runs_table: pd.DataFrame, scheme: str) -> bool:
+    """True if ``scheme`` gives at least one fold on the training runs of ``runs_table``."""
+    return next(iter(split_runs(runs_table, scheme)), None) is not None
+
+
+def scheme_of(runs_table: pd.DataFrame, scheme: str) -> str:
+    """The scheme the folds of ``runs_table`` follow: :data:`rafi.family.time_blocks.SCHEME` on a
+    unit table, else ``scheme``."""
+    return TIME_BLOCKS if is_blocked(runs_table) else scheme
 
 
 # --------------------------------------------------------------------------- cross-validation
@@ -215,7 +251,11 @@ def cross_validate(
     """
     rows = []
     train_table, _ = training_runs(runs_table, runs_frame)
-    speeds = dict(zip(train_table["run_id"].astype(str), train_table["speed_rpm"].astype(float)))
+    col = unit_column(runs_table, runs_frame)
+    units = train_table[col].astype(str)
+    speeds = dict(zip(units, train_table["speed_rpm"].astype(float)))
+    run_of_unit = dict(zip(units, train_table["run_id"].astype(str)))
+    scheme_name = scheme_of(runs_table, scheme)
     # what any fold's fit and prediction can see: the logs holding a training run (the fits
     # share their features, rafi.family.feature_memo)
     frame = runs_frame.loc[rows_of_logs(runs_frame, train_table["run_id"])]
@@ -223,19 +263,23 @@ def cross_validate(
         for k, (train_ids, test_ids) in enumerate(split_runs(runs_table, scheme)):
             assert_disjoint(train_ids, test_ids)
             fold_table = hold_out(runs_table, test_ids)
-            fitted_on = set(map(str, training_runs(fold_table, frame)[0]["run_id"]))
+            # time-blocked folds: the training units beside the held-out block (its guard gaps)
+            guards = set(units) - set(map(str, train_ids)) - set(map(str, test_ids))
+            if guards:
+                fold_table = hold_out(fold_table, guards, GUARD)
+            fitted_on = set(map(str, training_runs(fold_table, frame)[0][col]))
             assert fitted_on == set(map(str, train_ids)), "a fold fits on exactly its training runs"
             model = model_factory().fit(fold_table, frame)
-            needed = frame.loc[rows_of_logs(frame, test_ids)]
+            needed = frame.loc[rows_of_logs(frame, {run_of_unit[str(u)] for u in test_ids})]
             predicted = np.asarray(model.predict(needed), dtype=float)
-            run_of = needed["run_id"].astype(str).to_numpy()
+            unit_of = needed[col].astype(str).to_numpy()
             dz = needed["dz_um"].to_numpy(dtype=float)
             for rid in test_ids:
-                mine = run_of == str(rid)
+                mine = unit_of == str(rid)
                 rows.append(
                     {
                         "model": name,
-                        "scheme": scheme,
+                        "scheme": scheme_name,
                         "fold": k,
                         "test_runs": rid,
                         "test_speed_rpm": speeds.get(rid, np.nan),

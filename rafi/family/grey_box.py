@@ -245,7 +245,7 @@ class GreyBox(RidgeBase):
         self.speed_terms_ = self.instantaneous_  # grey_box's only reference-speed term is n^2 - n0^2
         rise_taus, speed_taus, alphas = self._rise_taus(), self._speed_taus(), self._alphas()
         y = train["dz_um"].to_numpy(dtype=float)
-        run_ids = train["run_id"].astype(str).to_numpy()
+        run_ids = self._cv_units(train)
         lags = self._lags() if self.instantaneous_ else [0.0]
         feats, names, key = self._candidate_features(
             frame,

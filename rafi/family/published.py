@@ -61,6 +61,8 @@ class PublishedRafi(FamilyModel):
         from rafi.method.fit import fit_rafi
 
         table, frame = training_runs(runs_table, runs_frame)
+        # a run once (time-blocked folds give a row per block; frame holds the fold's rows only)
+        table = table.drop_duplicates("run_id")
         # the artefact needs the coefficients only: the diagnostics belong to rule fit
         res = fit_rafi(
             table,

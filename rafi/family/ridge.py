@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.base import CODE_VERSION, FamilyModel, check_artefact, data_hashes, finish_artefact, floats
-from rafi.family.crossval import split_runs, training_runs
+from rafi.family.crossval import split_runs, training_mask, training_runs
 from rafi.family.feature_memo import active_memo
 from rafi.family.features import (
     MIN_IDENTIFYING_RUNS,
@@ -21,6 +21,7 @@ from rafi.family.features import (
     usable_sensors,
 )
 from rafi.family.grids import data_scales, edge_flags, resolve
+from rafi.family.time_blocks import blocks_text, max_filter_s, unit_column
 from rafi.family.whole_log import has_whole_logs, layout, rows_of_logs
 
 CV_METRICS = ("rmse", "max_abs")
@@ -195,14 +196,19 @@ class RidgeBase(FamilyModel):
         """Setting name -> value (a list or ``auto``) of the filter grids of this kind."""
         return {}
 
-    def _resolve_grids(self, frame: pd.DataFrame) -> None:
+    def _resolve_grids(self, frame: pd.DataFrame, max_filter_s: float | None = None) -> None:
         """Set ``data_scales_`` (sample period, median run length of the training rows ``frame``)
-        and ``grids_`` (every grid as used: ``alpha`` and the kind's filter grids)."""
+        and ``grids_`` (every grid as used: ``alpha`` and the kind's filter grids; under
+        time-blocked folds a filter time constant above ``max_filter_s`` is left out,
+        :mod:`rafi.family.time_blocks`)."""
         period, run_s = data_scales(frame)
         self.data_scales_ = {"sample_period_s": period, "run_length_s": run_s}
         self.grids_ = {"alpha": self._alphas()}
         for name, value in self._grid_settings().items():
-            self.grids_[name] = resolve(name, value, period, run_s)
+            grid = resolve(name, value, period, run_s)
+            if max_filter_s is not None and name.endswith("taus_s"):
+                grid = [v for v in grid if v <= max_filter_s * (1 + 1e-9)]
+            self.grids_[name] = grid
 
     def _speed_rule(self) -> str:
         """``auto``: the run's start window under ``reference.rule: run_start``, else 0 r/min."""
@@ -234,10 +240,10 @@ class RidgeBase(FamilyModel):
         training rows with a finite ``dz_um`` in ``frame`` and the sensors. Sets ``grids_``."""
         self._check_params()
         table, train = training_runs(runs_table, runs_frame)
+        self.time_blocks_ = blocks_text(runs_table)
         if has_whole_logs(runs_frame):
             frame = runs_frame.loc[rows_of_logs(runs_frame, table["run_id"])]
-            ids = set(table["run_id"].astype(str))
-            rows = frame["run_id"].astype(str).isin(ids).to_numpy()
+            rows = training_mask(frame, table)
             rows = rows & np.isfinite(frame["dz_um"].to_numpy(dtype=float))
         else:  # per run, as before: only the training rows with a finite dz
             frame = train[np.isfinite(train["dz_um"].to_numpy(dtype=float))]
@@ -246,8 +252,14 @@ class RidgeBase(FamilyModel):
         sensors = list(self.sensors) if self.sensors is not None else usable_sensors(fit_rows)
         if not sensors:
             raise ValueError("no usable temperature sensor in the training runs")
-        self._resolve_grids(fit_rows)
+        self._resolve_grids(fit_rows, max_filter_s(table))
         return table, frame, rows, sensors
+
+    @staticmethod
+    def _cv_units(train: pd.DataFrame) -> np.ndarray:
+        """The CV unit of every training row: its run, or its time block or gap under
+        time-blocked folds (:mod:`rafi.family.time_blocks`)."""
+        return train[unit_column(train)].astype(str).to_numpy()
 
     def _candidate_features(self, frame: pd.DataFrame, sensors, taus, **options):
         """``self._features(frame, sensors, taus, **options)`` (the columns of every candidate of
@@ -302,7 +314,7 @@ class RidgeBase(FamilyModel):
         self.feature_names_ = names
         self.scale_ = sc
         self.coef_ = b / sc
-        self.train_runs_ = sorted(map(str, table["run_id"]))
+        self.train_runs_ = sorted(set(map(str, table["run_id"])))  # a run once, also over its time blocks
         x = frame[[rise_column(s) for s in sensors]].to_numpy(dtype=float)
         self.regressor_ranges_ = {
             s: [float(x[:, i].min()), float(x[:, i].max())] for i, s in enumerate(sensors)
@@ -364,8 +376,9 @@ class RidgeBase(FamilyModel):
         }
 
     def _selected(self) -> dict:
-        """What CV chose, as recorded in the artefact (``selected``)."""
-        return {
+        """What CV chose, as recorded in the artefact (``selected``; ``cv_folds`` only when the
+        hyperparameters were chosen on time-blocked folds)."""
+        out = {
             "alpha": self.alpha_,
             "taus_s": self.taus_,
             "speed_gain": self.speed_gain_,
@@ -375,6 +388,9 @@ class RidgeBase(FamilyModel):
             "data_scales": dict(self.data_scales_),
             "grid_edges": list(self.grid_edges_),
         }
+        if getattr(self, "time_blocks_", None):
+            out["cv_folds"] = dict(self.time_blocks_)
+        return out
 
     def _filter_text(self) -> dict:
         return {
@@ -437,6 +453,7 @@ class RidgeBase(FamilyModel):
         m.grids_ = {k: [float(v) for v in g] for k, g in selected.get("grids", {}).items()}
         m.data_scales_ = dict(selected.get("data_scales", {}))
         m.grid_edges_ = list(selected.get("grid_edges", []))
+        m.time_blocks_ = selected.get("cv_folds")
         m._from_selected(selected)
         return m
 

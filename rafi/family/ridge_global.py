@@ -136,7 +136,7 @@ class RidgeGlobal(RidgeBase):
         gains = [False, True] if self.speed_gain == "cv" else [bool(self.speed_gain)]
         alphas = self._alphas()
         y = train["dz_um"].to_numpy(dtype=float)
-        run_ids = train["run_id"].astype(str).to_numpy()
+        run_ids = self._cv_units(train)
         # the superset of the columns, once (over whole logs), then the training rows; each
         # candidate is a subset of the columns
         all_feats, all_names, key = self._candidate_features(

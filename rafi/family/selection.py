@@ -14,8 +14,12 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
+from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
+
 __all__ = [
     "SELECTION_RULE",
+    "SELECTION_RULE_TIME_BLOCKS",
+    "selection_rule",
     "SIMPLICITY",
     "TIE_UM",
     "SELECTION_COLUMNS",
@@ -32,6 +36,18 @@ SELECTION_RULE = (
     "predicts the held-out run; the model with the lowest mean over the held-out runs of the "
     "max |residual| is offered to the machine. Validation runs are touched once, after the "
     "choice; if the chosen model fails a gate the verdict is FAIL, with no second pick."
+)
+
+#: The same rule when the training data hold no whole-run fold and the folds are time blocks
+#: (:mod:`rafi.family.time_blocks`; ``scheme`` ``time_blocks`` in ``comparison/cv.csv``).
+SELECTION_RULE_TIME_BLOCKS = (
+    "chosen by time-blocked cross-validation on the training data only (too few training runs for "
+    "whole-run folds): the training time is cut into blocks separated by guard gaps, each block is "
+    "held out in turn, every model is refitted on the other blocks without the gaps beside the "
+    "held-out one (choosing its own hyperparameters by an inner cross-validation on the same kind "
+    "of blocks) and predicts the held-out block; the model with the lowest mean over the held-out "
+    "blocks of the max |residual| is offered to the machine. Validation runs are touched once, "
+    "after the choice; if the chosen model fails a gate the verdict is FAIL, with no second pick."
 )
 
 #: Kinds in order of simplicity (fewest fitted numbers first), the last tie-breaker.
@@ -115,8 +131,15 @@ def choose_champion(cv: pd.DataFrame) -> str | None:
     return str(t["model"].iloc[0])
 
 
+def selection_rule(scheme: str = "") -> str:
+    """The rule's text for the folds ``scheme`` of ``comparison/cv.csv``: :data:`SELECTION_RULE`,
+    or :data:`SELECTION_RULE_TIME_BLOCKS` for ``time_blocks``."""
+    return SELECTION_RULE_TIME_BLOCKS if str(scheme) == TIME_BLOCKS else SELECTION_RULE
+
+
 def default_champion(enabled: Sequence[str]) -> str:
     """The model offered when cross-validation has no fold (fewer than two training runs, or
-    speeds under ``leave_one_speed_out``): RAFI as published if enabled (the paper's method has
+    speeds under ``leave_one_speed_out``, and too little training time for two time blocks,
+    :func:`rafi.family.time_blocks.block_count`): RAFI as published if enabled (the paper's method has
     no hyperparameter to choose), else the first enabled kind. Declared before any data."""
     return "rafi" if "rafi" in enabled else str(enabled[0])

@@ -10,7 +10,7 @@ from importlib import metadata as _metadata
 from rafi.report.format import truthy
 
 
-def section_choices(settings: dict, key_info: dict, eq_method) -> dict:
+def section_choices(settings: dict, key_info: dict, eq_method, *, time_blocks: bool = False) -> dict:
     """Section 10: how this run decided what the paper leaves open (from the machine's settings).
 
     Parameters
@@ -22,6 +22,9 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> dict:
     eq_method : str or None
         The equilibrium method recorded in ``equilibrium.csv`` (not repeated here: section
         Thermal equilibrium describes the method once).
+    time_blocks : bool
+        The family's cross-validation used time-blocked folds (``comparison/cv.csv`` scheme
+        ``time_blocks``: too few training runs for whole-run folds).
 
     Returns
     -------
@@ -50,7 +53,7 @@ def section_choices(settings: dict, key_info: dict, eq_method) -> dict:
         "runs": {
             k: runs[k] for k in ("min_constant_s", "idle_below_rpm", "max_leading_rest_s", "idle_training")
         },
-        "models": {"enabled": list(models["enabled"]), "cv": models["cv"]},
+        "models": {"enabled": list(models["enabled"]), "cv": models["cv"], "time_blocks": bool(time_blocks)},
         "paper": bool(settings["report"]["paper_rig"]),
     }
 

@@ -10,7 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from rafi.family.selection import SELECTION_RULE
+from rafi.family.selection import selection_rule
+from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.report.format import isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
 
@@ -185,20 +186,28 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
     }
 
 
-def selection_context(summary: pd.DataFrame, champion) -> dict:
+def selection_context(summary: pd.DataFrame, champion, scheme: str = "") -> dict:
     """How the champion was chosen, from ``comparison/summary.csv``.
 
     Returns
     -------
     dict
-        ``rule`` (:data:`rafi.family.selection.SELECTION_RULE`), ``champion``, ``n`` (models),
+        ``rule`` (:func:`rafi.family.selection.selection_rule` of the folds' ``scheme``),
+        ``time_blocks`` (the folds were time blocks), ``champion``, ``n`` (models),
         ``basis`` (``cv``, ``default`` without a CV score, ``none`` without a champion) and,
         with a champion: ``score`` (its CV mean max |residual|, um), ``worst_fold``,
         ``passed`` (its gates on the validation runs, touched once after the choice),
         ``validation_worst``, ``noise`` (the noise floor of that run) and
         ``better_on_validation`` (models with a lower worst residual on the validation runs).
     """
-    out = {"rule": SELECTION_RULE, "champion": champion, "basis": "none", "score": None, "n": len(summary)}
+    out = {
+        "rule": selection_rule(scheme),
+        "time_blocks": str(scheme) == TIME_BLOCKS,
+        "champion": champion,
+        "basis": "none",
+        "score": None,
+        "n": len(summary),
+    }
     if champion is None:
         return out
     r = summary[summary["model"].astype(str) == champion].iloc[0]
@@ -326,7 +335,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "on_machine": on_machine,
         "models": model_rows(s, fam_champ, on_machine),
         "kind_column": any(str(r.get("kind", "")) != str(r["model"]) for r in s.to_dict("records")),
-        "selection": selection_context(s, fam_champ),
+        "selection": selection_context(s, fam_champ, next(iter(cvs.values()))["scheme"] if cvs else ""),
         "selected": [
             (str(r["model"]), str(r["selected"]))
             for r in s.to_dict("records")

@@ -124,7 +124,9 @@ def build_context(
     ctx["verdict"]["late"] = list(seg.get("late") or [])
     ctx["verdict"]["selection"] = (ctx["comparison"] or {}).get("selection")
     ctx["verdict"]["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
-    ctx["choices"] = section_choices(settings, key_info, ctx["equilibrium"]["method"])
+    # the folds the family's CV used (time blocks when the training data hold no whole-run fold)
+    blocks = bool((ctx["verdict"]["selection"] or {}).get("time_blocks"))
+    ctx["choices"] = section_choices(settings, key_info, ctx["equilibrium"]["method"], time_blocks=blocks)
     ctx["versions"] = versions()
     ctx["signoff"] = section_signoff(res, settings)  # first page: number, revision, names
     # the configuration appendix: only what differs from the defaults (docs/settings.md)

@@ -18,6 +18,8 @@ import re
 import numpy as np
 import pandas as pd
 
+from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
+from rafi.family.time_blocks import hours
 from rafi.report.comparison_section import family_champion
 from rafi.report.deployed_terms import (
     rafi_equation,
@@ -203,12 +205,23 @@ def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name:
         str(cv["scheme"].iloc[0]).replace("_", "-") if cv is not None and len(cv) and "scheme" in cv else ""
     )
     metric = str(hyper.get("cv_metric", ""))
+    blocks = (art.get("selected") or {}).get("cv_folds")
+    unit = "blocks" if blocks else "runs"
     return {
         "hyper": [dict(zip(("chosen", "value", "grid"), r)) for r in _hyper_text(art)] or None,
         "inner_metric": {
-            "rmse": "the pooled RMSE of the held-out runs",
-            "max_abs": "the mean over held-out runs of the max |residual|",
+            "rmse": f"the pooled RMSE of the held-out {unit}",
+            "max_abs": f"the mean over held-out {unit} of the max |residual|",
         }.get(metric, metric),
+        # time-blocked folds (rafi.family.time_blocks): how, for people; None for whole runs
+        "time_blocks": (
+            f"{blocks['blocks']} blocks of the training time, {hours(blocks['gap_s'])} guard gaps, "
+            f"filters up to {blocks['max_filter_s']:g} s"
+        )
+        if blocks
+        else None,
+        # what a fold of the outer CV (comparison/cv.csv) holds out: a time block or a run
+        "held_unit": "block" if scheme == TIME_BLOCKS.replace("_", "-") else "run",
         "inner_scheme": str(hyper.get("cv", "")).replace("_", "-"),
         "inner_n": len(inner),
         "selected": _nothing_chosen(me.get("selected")),
