@@ -8,6 +8,7 @@ test, and a missing program there is a broken CI, not a reason to skip.
 
 from __future__ import annotations
 
+import logging
 import os
 import shutil
 
@@ -49,3 +50,21 @@ def which_or_skip(name: str, *alternatives: str) -> str:
     package = PACKAGE_OF.get(name, name)
     require(f"{name} not installed (apt-get install {package}; .ci/run installs it)")
     raise AssertionError("unreachable")  # require() skipped or failed
+
+
+_ROOT = logging.getLogger()
+_ROOT_LEVEL = _ROOT.level
+
+
+@pytest.fixture(autouse=True)
+def _root_logging_as_it_was():
+    """Leave the root logger as the test found it: a handler a library added in-process (a
+    Snakemake run in a test binds one to the stderr pytest captured, closed after the test)
+    would make every later log record from a background thread print a "Logging error"
+    into another test's captured stderr. pytest's own handlers are left alone."""
+    before = set(_ROOT.handlers)
+    yield
+    for handler in list(_ROOT.handlers):
+        if handler not in before and not type(handler).__module__.startswith("_pytest"):
+            _ROOT.removeHandler(handler)
+    _ROOT.setLevel(_ROOT_LEVEL)

@@ -141,4 +141,6 @@ def test_the_machine_configuration_is_valid_settings(config):
         assert merged["runs"]["idle_training"] is True and len(merged["runs"]["windows"]) == 2
     else:
         assert merged["runs"]["windows"] == [] or not merged["runs"]["windows"]
-        assert merged["runs"]["min_constant_s"] == 10800 and merged["runs"]["idle_training"] is False
+        assert (
+            merged["runs"]["min_constant_s"] == 10800 and merged["runs"]["idle_training"] == "schedule"
+        )  # the default

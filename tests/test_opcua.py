@@ -415,7 +415,7 @@ def test_a_stop_while_connecting_is_one_line_and_exit_0(tmp_path, signum):
     with socket.socket() as mute:
         mute.bind(("127.0.0.1", 0))
         mute.listen(1)
-        mute.settimeout(60)
+        mute.settimeout(180)
         endpoint = f"opc.tcp://127.0.0.1:{mute.getsockname()[1]}"
         opcua = {"endpoint": endpoint, "inputs": inputs(), "timeout_s": 120, "allow_insecure": True}
         args = write_config(tmp_path, argparse.Namespace(endpoint=endpoint), deploy={"opcua": opcua})
@@ -426,7 +426,7 @@ def test_a_stop_while_connecting_is_one_line_and_exit_0(tmp_path, signum):
             conn, _ = mute.accept()  # the client is connecting now, and waits for an answer
             with conn:
                 proc.send_signal(signum)
-                out, err = proc.communicate(timeout=60)
+                out, err = proc.communicate(timeout=180)
         finally:
             if proc.poll() is None:
                 proc.kill()
