@@ -267,17 +267,7 @@ def test_a_single_run_log_gets_folds_and_a_chosen_model():
     assert list(table.loc[table["role"] == "training", "run_id"]) == ["spindle_a"]
     assert list(table.loc[table["role"] != "training", "role"]) == ["validation_single"]
     messages = []
-    res = run_family(
-        table,
-        frame,
-        key_sensors=["T6", "T8", "T9"],
-        terms=MACHINE_DEFAULTS["fit"]["terms"],
-        reference=MACHINE_DEFAULTS["reference"],
-        machine="spindle",
-        gates=GATES,
-        options=_options(),
-        log=messages.append,
-    )
+    res = _family(table, frame, _options(), log=messages.append)
     cv = res["cv"]
     assert set(cv["scheme"]) == {SCHEME}
     assert set(cv["test_runs"]) == {f"spindle_a@block{k}" for k in (1, 2, 3, 4)}
@@ -304,10 +294,9 @@ def test_a_single_run_log_gets_folds_and_a_chosen_model():
     assert np.abs(error).max() < 0.15 * np.abs(true_dz).max()
 
 
-def test_too_little_training_time_keeps_the_default_rule():
-    table, frame, _ = _single_run_log(hours_train=8.0)
-    assert cv_data(table, frame, _options(), log=lambda m: None)[0] is table
-    res = run_family(
+def _family(table, frame, options, *, log=lambda m: None) -> dict:
+    """``run_family`` on a single-run log of :func:`_single_run_log` (its key sensors)."""
+    return run_family(
         table,
         frame,
         key_sensors=["T6", "T8", "T9"],
@@ -315,9 +304,15 @@ def test_too_little_training_time_keeps_the_default_rule():
         reference=MACHINE_DEFAULTS["reference"],
         machine="spindle",
         gates=GATES,
-        options=_options(enabled=["rafi_linear", "ridge_global"]),
-        log=lambda m: None,
+        options=options,
+        log=log,
     )
+
+
+def test_too_little_training_time_keeps_the_default_rule():
+    table, frame, _ = _single_run_log(hours_train=8.0)
+    assert cv_data(table, frame, _options(), log=lambda m: None)[0] is table
+    res = _family(table, frame, _options(enabled=["rafi_linear", "ridge_global"]))
     assert res["selection_basis"] == "default" and res["cv"].empty
 
 
