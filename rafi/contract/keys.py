@@ -44,6 +44,8 @@ POSITIVE: dict = {"type": "number", "exclusiveMinimum": 0}
 FLAG: dict = {"type": "boolean"}
 #: A text, or nothing (a line left blank in the report).
 OPTIONAL_TEXT: dict = {"type": ["null", "string"]}
+#: A TCP port to serve on, or nothing (not served).
+OPTIONAL_PORT: dict = {"oneOf": [{"type": "null"}, {"type": "integer", "minimum": 1, "maximum": 65535}]}
 #: ``[low, high]``.
 RANGE: dict = {"type": "array", "items": {"type": "number"}, "minItems": 2, "maxItems": 2}
 

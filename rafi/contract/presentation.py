@@ -2,7 +2,16 @@
 
 from __future__ import annotations
 
-from rafi.contract.keys import FLAG, NON_NEGATIVE, OPTIONAL_TEXT, POSITIVE, RANGE, Section, Setting
+from rafi.contract.keys import (
+    FLAG,
+    NON_NEGATIVE,
+    OPTIONAL_PORT,
+    OPTIONAL_TEXT,
+    POSITIVE,
+    RANGE,
+    Section,
+    Setting,
+)
 
 PRESENTATION_SETTINGS: dict = {
     "report": Section(
@@ -245,7 +254,7 @@ PRESENTATION_SETTINGS: dict = {
             ),
             "metrics_port": Setting(
                 default=None,
-                schema={"oneOf": [{"type": "null"}, {"type": "integer", "minimum": 1, "maximum": 65535}]},
+                schema=OPTIONAL_PORT,
                 shown="none",
                 doc=(
                     "`rafi deploy` serves Prometheus metrics on this TCP port (127.0.0.1 unless "

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from rafi.contract.keys import POSITIVE, Section, Setting
+from rafi.contract.keys import OPTIONAL_PORT, POSITIVE, Section, Setting
 
 #: A node id, or ``{node, scale, offset}`` (value = raw * scale + offset).
 _NODE_OR_SCALED: dict = {
@@ -57,7 +57,7 @@ RECORD_SETTINGS: dict = {
             ),
             "metrics_port": Setting(
                 default=None,
-                schema={"oneOf": [{"type": "null"}, {"type": "integer", "minimum": 1, "maximum": 65535}]},
+                schema=OPTIONAL_PORT,
                 shown="none",
                 doc=(
                     "`rafi record` serves Prometheus metrics on this TCP port; none: no metrics "
