@@ -1,0 +1,102 @@
+"""The prediction interval of one compensation, sample by sample (NumPy only).
+
+This is the part of the interval that both the batch code (:mod:`rafi.family.intervals`, which
+calibrates it on whole-run CV residuals) and the streaming compensator
+(:mod:`rafi.deploy.compensator`) evaluate, so that the two agree to rounding.
+
+An interval is ``[predicted - h, predicted + h]`` with a half-width ``h`` that depends only on
+the sample's *cell* (a Mondrian split-conformal interval):
+
+* ``outside`` - the sample is outside the trained temperature or speed range (the flags of
+  ``predict_detail``);
+* ``transient`` - less than ``transient_s`` since the change clock was reset;
+* ``settled`` - the rest.
+
+The change clock (:class:`ChangeClock`) is reset at the first sample, at a filter restart (a
+gap longer than the restart limit), at the start of a reference window, and when the speed
+moves more than ``tolerance_rpm`` away from the speed at the last reset (its *anchor*). A NaN
+speed neither resets nor moves the anchor; the first finite speed after a reset with a NaN
+anchor becomes the anchor without a reset.
+
+The artefact's ``interval`` block (:data:`INTERVAL_SCHEMA`) holds what is needed here:
+``level``, ``transient_s``, ``tolerance_rpm`` and ``half_width_um`` (cell -> um).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+INTERVAL_SCHEMA = "rafi.interval/1"
+CELLS = ("settled", "transient", "outside")
+
+
+def interval_cell(*, since_change_s: float, outside: bool, transient_s: float) -> str:
+    """The cell of one sample (see the module docstring)."""
+    if outside:
+        return "outside"
+    if since_change_s < transient_s:
+        return "transient"
+    return "settled"
+
+
+def half_width_um(interval: dict, cell: str) -> float:
+    """The half-width (um) of ``cell`` in an artefact's ``interval`` block."""
+    return float(interval["half_width_um"][cell])
+
+
+class ChangeClock:
+    """Seconds since the last reset of the change clock, one sample at a time.
+
+    Parameters
+    ----------
+    tolerance_rpm : float
+        A speed further than this from the anchor resets the clock.
+    t_reset_s, anchor_rpm : float
+        State (NaN: no sample seen yet / no finite speed since the reset).
+    """
+
+    def __init__(self, *, tolerance_rpm: float, t_reset_s: float, anchor_rpm: float):
+        self.tolerance_rpm = tolerance_rpm
+        self.t_reset_s = t_reset_s
+        self.anchor_rpm = anchor_rpm
+
+    @classmethod
+    def create(cls, tolerance_rpm: float) -> ChangeClock:
+        """A clock that has seen no sample (the first sample resets it)."""
+        return cls(tolerance_rpm=float(tolerance_rpm), t_reset_s=math.nan, anchor_rpm=math.nan)
+
+    def update(self, t_s: float, speed_rpm: float, *, reset: bool = False) -> float:
+        """Take one sample; ``reset`` marks a restart or a reference window's start.
+
+        Returns the seconds since the last reset (0 at a reset).
+        """
+        t, rpm = float(t_s), float(speed_rpm)
+        moved = math.isfinite(rpm) and math.isfinite(self.anchor_rpm)
+        moved = moved and abs(rpm - self.anchor_rpm) > self.tolerance_rpm
+        if reset or moved or math.isnan(self.t_reset_s):
+            self.t_reset_s = t
+            self.anchor_rpm = rpm
+        elif math.isnan(self.anchor_rpm) and math.isfinite(rpm):
+            self.anchor_rpm = rpm
+        return t - self.t_reset_s
+
+
+def since_change(
+    t_s: np.ndarray, speed_rpm: np.ndarray, reset: np.ndarray, *, tolerance_rpm: float
+) -> np.ndarray:
+    """:class:`ChangeClock` over a sorted series (one log): seconds since the last reset.
+
+    Parameters
+    ----------
+    t_s, speed_rpm : ndarray
+        Time (s, increasing) and speed (r/min) of the samples in order.
+    reset : ndarray of bool
+        Samples where the clock is reset (restarts, reference windows' starts).
+    """
+    clock = ChangeClock.create(tolerance_rpm)
+    out = np.empty(len(t_s), dtype=float)
+    for i, (t, rpm, r) in enumerate(zip(np.asarray(t_s, float), np.asarray(speed_rpm, float), reset)):
+        out[i] = clock.update(t, rpm, reset=bool(r))
+    return out
