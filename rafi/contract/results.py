@@ -115,7 +115,8 @@ FIGURE_GROUPS: dict[str, tuple[str, ...]] = {
         "training_fit",
         "fuzzy_example",
     ),
-    "comparison": ("comparison", "comparison_per_run", "comparison_residuals"),
+    # model.json and best_model.json: the level of the interval bands (their "interval" blocks)
+    "comparison": ("comparison", "comparison_per_run", "comparison_residuals", "model", "best_model"),
     "replay": ("replay", "replay_summary"),
 }
 

@@ -14,6 +14,7 @@ from rafi.family.selection import selection_rule
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.report.format import isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
+from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, shared_level
 
 
 def family_champion(summary: pd.DataFrame):
@@ -35,8 +36,9 @@ def comparison_frames(summary: pd.DataFrame, per_run: pd.DataFrame) -> dict:
     dict
         ``per_run`` (model and run id as text), ``models``, ``runs``, ``after`` (max
         |residual|, um), ``imp`` (improvement, %), ``passed`` (bool), ``before`` and
-        ``role`` (by run), ``champion`` (:func:`family_champion`) and ``rafi`` (the model
-        of kind ``rafi``, or ``None``).
+        ``role`` (by run), ``champion`` (:func:`family_champion`), ``rafi`` (the model
+        of kind ``rafi``, or ``None``) and ``coverage`` / ``width`` (the interval's coverage,
+        fraction, and median width, um; ``None`` without a ``coverage`` column).
     """
     s = summary.assign(model=summary["model"].astype(str))
     p = per_run.copy()
@@ -49,6 +51,11 @@ def comparison_frames(summary: pd.DataFrame, per_run: pd.DataFrame) -> dict:
     imp = p.pivot_table(index="run_id", columns="model", values="improvement_pct", aggfunc="first").reindex(
         index=runs, columns=models
     )
+    interval = {"coverage": None, "width": None}
+    if has_coverage(p) and "interval_width_um" in p:
+        for key, col in (("coverage", "coverage"), ("width", "interval_width_um")):
+            wide = p.pivot_table(index="run_id", columns="model", values=col, aggfunc="first")
+            interval[key] = wide.reindex(index=runs, columns=models)
     passed = (
         p.assign(ok=p["passed"].map(truthy))
         .pivot_table(index="run_id", columns="model", values="ok", aggfunc="first")
@@ -67,6 +74,7 @@ def comparison_frames(summary: pd.DataFrame, per_run: pd.DataFrame) -> dict:
         "role": p.groupby("run_id")["role"].first().reindex(runs).astype(str),
         "champion": family_champion(s),
         "rafi": next((r["model"] for r in s.to_dict("records") if str(r.get("kind")) == "rafi"), None),
+        **interval,
     }
 
 
@@ -257,6 +265,7 @@ def model_rows(summary: pd.DataFrame, champion, on_machine) -> list[dict]:
                 "is_champion": name == champion,
                 "on_machine": name == on_machine,
                 "is_rafi": str(r.get("kind")) == "rafi",
+                **coverage_fields(r),
             }
         )
     return rows
@@ -265,7 +274,8 @@ def model_rows(summary: pd.DataFrame, champion, on_machine) -> list[dict]:
 def per_run_rows(frames: dict, noise: dict) -> list[dict]:
     """One row per validation run of :func:`comparison_frames`: ``run_id``, ``role``, max |dz|,
     noise floor and per model ``after:<model>`` (max |residual|), ``imp:<model>``
-    (improvement) and ``passed:<model>`` (its gates on the run)."""
+    (improvement), ``passed:<model>`` (its gates on the run) and, with the interval,
+    ``cov:<model>`` (coverage, %) and ``width:<model>`` (median width, um)."""
     rows = []
     for rid in frames["runs"]:
         row = {
@@ -278,6 +288,10 @@ def per_run_rows(frames: dict, noise: dict) -> list[dict]:
             row[f"after:{m}"] = frames["after"].loc[rid, m]
             row[f"imp:{m}"] = frames["imp"].loc[rid, m]
             row[f"passed:{m}"] = bool(frames["passed"].loc[rid, m])
+            if frames.get("coverage") is not None:
+                cov, width = frames["coverage"].loc[rid, m], frames["width"].loc[rid, m]
+                f = coverage_fields({"coverage": cov, "interval_width_um": width})
+                row[f"cov:{m}"], row[f"width:{m}"] = f["coverage_pct"], f["interval_width_um"]
         rows.append(row)
     return rows
 
@@ -318,7 +332,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         kind), ``selection`` (:func:`selection_context`), ``selected`` (``(model, what CV
         chose)``), ``cv`` (``scheme``, ``folds``), ``run_models`` and ``per_run``
         (:func:`per_run_rows`), ``figure_bars``, ``rafi_fail`` (:func:`rafi_failure` with
-        ``champion``: :func:`champion_beside_rafi`) and ``figures_resid``.
+        ``champion``: :func:`champion_beside_rafi`) and ``figures_resid``; the interval:
+        ``coverage`` (summary.csv has it), ``run_coverage`` (per_run.csv has it), ``band``
+        (residuals.parquet has it) and ``interval_label`` (``90 % interval``).
     """
     summ = res.get("comparison")
     if summ is None or not len(summ):
@@ -347,6 +363,11 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "figure_bars": None,
         "rafi_fail": None,
         "figures_resid": [],
+        # the prediction interval (issue 26): coverage beside every residual, bands in the figures
+        "coverage": has_coverage(s),
+        "run_coverage": False,
+        "band": has_band(res.get("comparison_residuals")),
+        "interval_label": band_label(shared_level(res.get("model"), res.get("best_model"))),
     }
     pr = res.get("comparison_per_run")
     if pr is None or not len(pr):
@@ -354,6 +375,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
     fr = comparison_frames(summ, pr)
     out["run_models"] = fr["models"]
     out["per_run"] = per_run_rows(fr, noise_floors(res))
+    out["run_coverage"] = fr["coverage"] is not None
     out["figure_bars"] = figs.get("comparison", "comparison_bars")
     rafi_name, passed = fr["rafi"], fr["passed"]
     if rafi_name is not None and rafi_name in passed.columns and not passed[rafi_name].all():

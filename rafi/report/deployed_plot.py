@@ -3,7 +3,10 @@
 Called by rule ``report_figures`` (:mod:`rafi.report.figures`, group ``comparison``), never by
 the report job. Each panel has two axes sharing time: the measured displacement change dz
 (uncompensated) above, the residual after compensation below with the run's noise floor as a
-band (the expected max |noise| of the run: a residual inside it is at the noise).
+band (the expected max |noise| of the run: a residual inside it is at the noise) and, where the
+results hold one, the prediction interval on the residual's scale as a second band around zero
+(:func:`rafi.report.intervals.residual_band`: a residual outside it is a sample outside the
+interval).
 """
 
 from __future__ import annotations
@@ -26,6 +29,7 @@ from rafi.report.plot_layout import (
     adjust,
     hours,
     legend_top,
+    plot_band,
     plot_series,
     render,
     split_shared,
@@ -90,8 +94,9 @@ def fig_deployed_residuals(panels: list[dict], *, fmt: str = "png") -> bytes:
     Parameters
     ----------
     panels : list of dict
-        Per run: ``title`` (str), ``frame`` (``t_s``, ``measured_um``, ``residual_um``) and
-        ``noise_floor`` (um; NaN: no band).
+        Per run: ``title`` (str), ``frame`` (``t_s``, ``measured_um``, ``residual_um``),
+        ``noise_floor`` (um; NaN: no band) and, optionally, ``band`` (``(lower, upper)`` on the
+        residual's scale, um, or ``None``) with its legend entry ``band_label``.
     fmt : {"png", "svg"}
 
     Returns
@@ -131,6 +136,8 @@ def build_figure(panels: list[dict]):
         nf = p.get("noise_floor")
         if nf is not None and np.isfinite(nf):
             ax_r.axhspan(-nf, nf, color="#b0bec5", alpha=0.45, lw=0, label="± noise floor of the run")
+        if p.get("band") is not None:
+            plot_band(ax_r, h, *p["band"], label=p.get("band_label") or "prediction interval")
         plot_series(ax_r, h, f["residual_um"], color=C_RES, lw=0.9, label="residual after compensation")
         ax_r.axhline(0, color="black", lw=0.4)
         ax_r.set_ylabel("residual (µm)")
@@ -160,5 +167,5 @@ def build_figure(panels: list[dict]):
                 if ll not in labels:
                     handles.append(hh)
                     labels.append(ll)
-        legend_top(fig, handles, labels, 3)
+        legend_top(fig, handles, labels, min(len(labels), 4))
     return fig

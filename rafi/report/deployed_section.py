@@ -30,6 +30,7 @@ from rafi.report.deployed_terms import (
     ridge_tables,
 )
 from rafi.report.format import fmt_num, fmt_sig, isnum, plain, short_id, truthy
+from rafi.report.intervals import band_columns, coverage_fields, interval_context
 
 UM = "\u00b5m"
 
@@ -75,7 +76,8 @@ def deployed_panels(summary, per_run, residuals) -> list[list[dict]]:
     """The residual panels of the offered model, grouped into figures of at most
     :data:`RUNS_PER_FIGURE`: per validation run (``per_run.csv`` order, idle cool-downs
     included) ``run_id``, ``role``, ``before`` / ``after`` (max |dz|, max |residual|, um),
-    ``noise_floor`` (um or NaN) and ``frame`` (``t_s``, ``measured_um``, ``residual_um``)."""
+    ``noise_floor`` (um or NaN) and ``frame`` (``t_s``, ``measured_um``, ``residual_um``; with
+    ``lower_um``, ``upper_um``, ``predicted_um`` where the results hold the interval)."""
     name = offered_name(summary)
     if name is None or per_run is None or residuals is None or not len(residuals):
         return []
@@ -94,7 +96,7 @@ def deployed_panels(summary, per_run, residuals) -> list[list[dict]]:
                 "before": float(r.get("max_abs_before_um", np.nan)),
                 "after": float(r.get("max_abs_after_um", np.nan)),
                 "noise_floor": float(r["noise_floor_um"]) if isnum(r.get("noise_floor_um")) else np.nan,
-                "frame": f[["t_s", "measured_um", "residual_um"]].reset_index(drop=True),
+                "frame": f[["t_s", "measured_um", "residual_um", *band_columns(f)]].reset_index(drop=True),
             }
         )
     return [panels[i : i + RUNS_PER_FIGURE] for i in range(0, len(panels), RUNS_PER_FIGURE)]
@@ -250,6 +252,7 @@ def _validation_rows(per_run: pd.DataFrame | None, name: str) -> list[dict] | No
     return [
         {**_fields(r, keys), "run_id": r["run_id"], "role": str(r.get("role", ""))}
         | {"passed": truthy(r.get("passed", False))}
+        | coverage_fields(r)
         for r in per_run[per_run["model"].astype(str) == name].to_dict("records")
     ]
 
@@ -347,4 +350,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "on_machine": on_machine,
         "champion_after": short_id(champion_after) if champion_after else "",
         "rafi_like": rafi_like,
+        "interval": interval_context(art),
+        "coverage": any(r["coverage_pct"] is not None for r in validation or []),
+        "coverage_all": coverage_fields(row),
     }

@@ -45,8 +45,10 @@ from rafi.report.inputs import (
     sensors,
     training_runs,
 )
+from rafi.report.intervals import band_label, has_band, residual_band, shared_level
 from rafi.report.replay_plot import fig_replay
 from rafi.report.replay_section import replay_figure_key
+from rafi.report.segmentation_plot import fig_segmentation
 
 #: The inputs each group draws from (names of :data:`rafi.contract.RESULT_FILES`).
 FIGURE_GROUPS = contract.FIGURE_GROUPS
@@ -149,7 +151,7 @@ def _segmentation(runs: pd.DataFrame | None, rf: pd.DataFrame | None, fmt: str):
             }
         )
         logs[file] = (samples, spans)
-    yield "segmentation", plots.fig_segmentation(logs, fmt=fmt)
+    yield "segmentation", fig_segmentation(logs, fmt=fmt)
 
 
 def _membership(example: dict, fmt: str):
@@ -176,9 +178,12 @@ def _membership(example: dict, fmt: str):
 
 
 def _validation(res: dict, temps: list, fmt: str, n_key: int = 3):
+    """The validation figures of RAFI as published, with the interval of ``model.json`` as a band
+    where ``validation/residuals.parquet`` holds it."""
     s, resid, rf = res["validation_summary"], res["residuals"], res["runs_parquet"]
     if s is None or resid is None:
         return
+    level = shared_level(res.get("model"))
     single = s[s["role"] == "validation_single"] if "role" in s else s
     panels = {}
     for r in single.itertuples(index=False):
@@ -186,7 +191,7 @@ def _validation(res: dict, temps: list, fmt: str, n_key: int = 3):
         if len(f):
             panels[f"{r.run_id}: {fmt_speed(r.speed_rpm)}"] = f
     if panels:
-        yield "validation_single", plots.fig_validation_single(panels, fmt=fmt)
+        yield "validation_single", plots.fig_validation_single(panels, level=level, fmt=fmt)
     idle = s[s["role"] == "validation_idle"] if "role" in s else s.iloc[0:0]
     panels = {}
     for r in idle.itertuples(index=False):
@@ -195,7 +200,7 @@ def _validation(res: dict, temps: list, fmt: str, n_key: int = 3):
             label = f"{r.run_id}: {fmt_num(r.max_abs_before_um, 1)} → {fmt_num(r.max_abs_after_um, 1, UM)}"
             panels[label] = f
     if panels:
-        yield "validation_idle", plots.fig_validation_single(panels, fmt=fmt)
+        yield "validation_idle", plots.fig_validation_single(panels, level=level, fmt=fmt)
     others = s[~s["role"].isin(["validation_single", "validation_idle"])] if "role" in s else s.iloc[0:0]
     for r in others.itertuples(index=False):
         f = resid[resid["run_id"] == r.run_id].copy()
@@ -206,7 +211,7 @@ def _validation(res: dict, temps: list, fmt: str, n_key: int = 3):
             f = f.merge(tf, on="t_s", how="left")
         drawn = [t for t in temps if t in f]  # key sensors first, then the coolant sensors
         n = sum(t in temps[:n_key] for t in drawn)
-        fig = plots.fig_multi_condition(f, temp_sensors=drawn, n_key=n, fmt=fmt)
+        fig = plots.fig_multi_condition(f, temp_sensors=drawn, n_key=n, level=level, fmt=fmt)
         yield f"multi_condition/{r.run_id}", fig
 
 
@@ -230,6 +235,7 @@ def _comparison(res: dict, gates: dict, fmt: str):
     resid = res["comparison_residuals"]
     if resid is None or not len(resid) or rafi is None:
         return
+    level = shared_level(res.get("model"), res.get("best_model"))
     for rid in residual_runs(fr):
         sub = resid[resid["run_id"].astype(str) == rid]
         rf = sub[sub["model"].astype(str) == rafi].sort_values("t_s")
@@ -255,6 +261,7 @@ def _comparison(res: dict, gates: dict, fmt: str):
                         else None
                     ),
                     gate_um=gate_um,
+                    level=level,
                     fmt=fmt,
                 ),
             )
@@ -264,12 +271,22 @@ def _deployed(res: dict, fmt: str):
     """``(key, file bytes)`` of the residual figures of the model offered to the machine: every
     validation run (idle cool-downs included), :func:`rafi.report.deployed_section.deployed_panels`."""
     groups = deployed_panels(res["comparison"], res["comparison_per_run"], res["comparison_residuals"])
+    label = band_label(shared_level(res.get("best_model"), res.get("model")))
     for k, group in enumerate(groups, start=1):
         panels = []
         for p in group:
             role = p["role"].replace("validation_", "")
             title = f"{p['run_id']} ({role}): {fmt_num(p['before'], 1)} \u2192 {fmt_num(p['after'], 2, UM)}"
-            panels.append({"title": title, "frame": p["frame"], "noise_floor": p["noise_floor"]})
+            band = residual_band(p["frame"]) if has_band(p["frame"]) else None
+            panels.append(
+                {
+                    "title": title,
+                    "frame": p["frame"],
+                    "noise_floor": p["noise_floor"],
+                    "band": band,
+                    "band_label": label,
+                }
+            )
         yield deployed_figure_key(k), fig_deployed_residuals(panels, fmt=fmt)
 
 

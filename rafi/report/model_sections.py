@@ -16,6 +16,7 @@ from rafi.method.paper import MULTI_CONDITION, RESIDUAL_UM, RMSE_UM
 from rafi.report.data_sections import paper_value
 from rafi.report.format import isnum, records, short_id, speed_key, truthy
 from rafi.report.inputs import noise_floors
+from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, interval_block
 
 #: Where the membership curves of the figure come from (shown in its caption).
 MEMBERSHIP_SOURCE = "rafi.method.fuzzy.membership_curves"
@@ -210,6 +211,7 @@ def idle_rows(idle: pd.DataFrame, noise: dict) -> list[dict] | None:
             "worse": truthy(r.get("worse_than_uncompensated", False)),
             "rmse_before_um": r.get("rmse_before_um"),
             "rmse_after_um": r.get("rmse_after_um"),
+            **coverage_fields(r),
         }
         for r in idle.to_dict("records")
     ]
@@ -234,6 +236,7 @@ def single_rows(single: pd.DataFrame, noise: dict) -> list[dict]:
                 "worse": truthy(r.get("worse_than_uncompensated", False)),
                 "rmse_before_um": r.rmse_before_um,
                 "rmse_after_um": r.rmse_after_um,
+                **coverage_fields(r),
             }
         )
     return rows
@@ -270,10 +273,11 @@ def other_runs(summary: pd.DataFrame, resid: pd.DataFrame, noise: dict, figs, pa
         else summary.iloc[0:0]
     )
     out = []
-    for r in others.itertuples(index=False):
-        f = resid[resid["run_id"] == r.run_id]
+    for r in others.to_dict("records"):
+        f = resid[resid["run_id"] == r["run_id"]]
         if not len(f):
             continue
+        r = pd.Series(r)
         out.append(
             {
                 "run_id": r.run_id,
@@ -291,6 +295,7 @@ def other_runs(summary: pd.DataFrame, resid: pd.DataFrame, noise: dict, figs, pa
                 "n_outside_speed_range": int(r.n_outside_speed_range),
                 "n_samples": int(r.n_samples),
                 "paper": dict(MULTI_CONDITION) if paper and r.role == "validation_multi" else None,
+                **coverage_fields(r),
             }
         )
     return out
@@ -313,6 +318,11 @@ def section_validation(res: dict, figs, *, paper: bool = False) -> dict:
         ``single`` (:func:`single_rows`), ``ranges`` (:func:`range_rows`), ``idle``
         (:func:`idle_rows`) and ``n_idle``, ``multi`` (:func:`other_runs`), ``figure_single``,
         ``figure_idle``, ``paper``; the tables are ``None`` without ``validation/summary.csv``.
+        ``coverage``: the summary has the interval's ``coverage`` (each row then has
+        ``coverage_pct`` and ``interval_width_um``, :func:`rafi.report.intervals.coverage_fields`);
+        ``band``: ``validation/residuals.parquet`` has the interval (the figures draw it);
+        ``interval``: ``label`` (``90 % interval``) and ``level_pct`` of ``model.json``'s
+        interval block (``None`` without one).
     """
     summ = res["validation_summary"]
     resid = res["residuals"]
@@ -325,7 +335,13 @@ def section_validation(res: dict, figs, *, paper: bool = False) -> dict:
         "n_idle": 0,
         "idle": None,
         "paper": paper,
+        "coverage": has_coverage(summ),
+        "band": has_band(resid),
+        "interval": None,
     }
+    block = interval_block(res.get("model"))
+    if block is not None:
+        out["interval"] = {"label": band_label(block["level"]), "level_pct": 100.0 * float(block["level"])}
     if summ is None:
         return out
     noise = noise_floors(res)

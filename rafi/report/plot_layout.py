@@ -119,6 +119,34 @@ def plot_series(ax, x, y, *args, **kwargs):
     return ax.plot(xe, ye, *args, **kwargs)
 
 
+#: The colour of the prediction interval's band.
+C_BAND = "#f0a35e"
+
+
+def plot_band(ax, x, lower, upper, *, label: str, color: str = C_BAND, alpha: float = 0.3):
+    """``ax.fill_between`` of a band ``[lower, upper]`` over ``x`` (a PolyCollection).
+
+    A long series is cut into the buckets of :func:`envelope`; each bucket is drawn from its
+    smallest lower to its largest upper bound (step-wise), so the band drawn holds every
+    sample's band. Samples with a NaN bound leave a gap.
+    """
+    x, lo, hi = (np.asarray(v, dtype=float) for v in (x, lower, upper))
+    where = np.isfinite(lo) & np.isfinite(hi)
+    step = None
+    if len(x) > MAX_POINTS:
+        b = int(np.ceil(len(x) / (MAX_POINTS // 2)))
+        starts = np.arange(0, len(x), b)
+        lo = np.where(where, lo, np.inf)
+        hi = np.where(where, hi, -np.inf)
+        lo, hi = np.minimum.reduceat(lo, starts), np.maximum.reduceat(hi, starts)
+        where = np.isfinite(lo) & np.isfinite(hi)
+        x = np.append(x[starts], x[-1])
+        lo, hi, where = np.append(lo, lo[-1]), np.append(hi, hi[-1]), np.append(where, where[-1])
+        step = "post"
+    lo, hi = np.where(where, lo, np.nan), np.where(where, hi, np.nan)
+    return ax.fill_between(x, lo, hi, where=where, step=step, color=color, alpha=alpha, lw=0, label=label)
+
+
 # --------------------------------------------------------------------------- fixed layout
 # constrained_layout measures every artist's tight bbox at save time (about 40 % of the
 # figure time of the report); the multi-panel figures below use explicit margins in inches

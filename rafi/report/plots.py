@@ -12,6 +12,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 
+from rafi.report.intervals import band_label, has_band, residual_band
 from rafi.report.plot_layout import (
     BOTTOM_IN,
     C_MEAS,
@@ -31,6 +32,7 @@ from rafi.report.plot_layout import (
     hours,
     legend_top,
     panel_grid,
+    plot_band,
     plot_series,
     render,
     speed_label,
@@ -255,10 +257,13 @@ def fig_membership(
 # --------------------------------------------------------------------------- section 7
 
 
-def fig_validation_single(runs: dict, *, fmt: str = "png") -> bytes:
+def fig_validation_single(runs: dict, *, level: float | None = None, fmt: str = "png") -> bytes:
     """Before (measured dz) and after (residual) compensation per validation run (paper Fig. 12).
 
-    ``runs``: ``label -> DataFrame`` with ``t_s``, ``measured_um``, ``residual_um``.
+    ``runs``: ``label -> DataFrame`` with ``t_s``, ``measured_um``, ``residual_um``; with
+    ``lower_um``, ``upper_um`` and ``predicted_um`` the prediction interval on the residual's
+    scale is a band around zero (:func:`rafi.report.intervals.residual_band`), named by its
+    ``level`` in the legend.
     """
     with plt.rc_context(STYLE):
         labels = list(runs)
@@ -267,6 +272,8 @@ def fig_validation_single(runs: dict, *, fmt: str = "png") -> bytes:
         for ax, lab in zip(axes.flat, labels):
             f = runs[lab]
             h = hours(f["t_s"])
+            if has_band(f):
+                plot_band(ax, h, *residual_band(f), label=band_label(level))
             plot_series(ax, h, f["measured_um"], color=C_MEAS, label="before (measured dz)")
             plot_series(ax, h, f["residual_um"], color=C_RES, label="after (residual)")
             ax.axhline(0, color="black", lw=0.5)
@@ -295,18 +302,28 @@ def fig_validation_single(runs: dict, *, fmt: str = "png") -> bytes:
             hgap=ROW_GAP_IN + extra,
         )
         if labels:
-            h, lab = axes.flat[0].get_legend_handles_labels()
-            legend_top(fig, h, lab, 2)
+            legend = {}  # a band only some runs have
+            for ax in used:
+                for hh, ll in zip(*ax.get_legend_handles_labels()):
+                    legend.setdefault(ll, hh)
+            legend_top(fig, list(legend.values()), list(legend), len(legend))
         return render(fig, fmt)
 
 
 def fig_multi_condition(
-    f: pd.DataFrame, *, temp_sensors: list[str], title: str = "", n_key: int = 3, fmt: str = "png"
+    f: pd.DataFrame,
+    *,
+    temp_sensors: list[str],
+    title: str = "",
+    n_key: int = 3,
+    level: float | None = None,
+    fmt: str = "png",
 ) -> bytes:
     """Multi-condition run (paper Figs 13-14): speed, temperatures, measured vs predicted, residual.
 
     ``f`` has ``t_s``, ``speed_rpm``, ``measured_um``, ``predicted_um``, ``residual_um`` and the
-    temperature columns (deg C) in ``temp_sensors`` when available.
+    temperature columns (deg C) in ``temp_sensors`` when available; with ``lower_um`` and
+    ``upper_um`` the prediction interval is a band around the prediction, named by its ``level``.
     """
     with plt.rc_context(STYLE):
         temps = [s for s in temp_sensors if s in f]
@@ -334,6 +351,8 @@ def fig_multi_condition(
                 plot_series(ax, h, f[s], color=cmap((i + 4) % 10), ls="-" if i < n_key else "--", label=lab)
             ax.set_ylabel("temperature (°C)")
         ax = axes[-1]
+        if has_band(f):
+            plot_band(ax, h, f["lower_um"], f["upper_um"], label=f"{band_label(level)} around the prediction")
         plot_series(ax, h, f["measured_um"], color=C_MEAS, label="measured dz (before)")
         plot_series(ax, h, f["predicted_um"], color=C_PRED, label="predicted")
         plot_series(ax, h, f["residual_um"], color=C_RES, label="residual (after)")
@@ -460,11 +479,20 @@ def fig_comparison_bars(
 
 
 def fig_comparison_residuals(
-    series: dict, *, measured=None, outside=None, gate_um=None, title: str = "", fmt: str = "png"
+    series: dict,
+    *,
+    measured=None,
+    outside=None,
+    gate_um=None,
+    title: str = "",
+    level: float | None = None,
+    fmt: str = "png",
 ) -> bytes:
     """Residual against time of several models on one run (RAFI vs the champion).
 
-    ``series``: label -> DataFrame with ``t_s`` and ``residual_um`` (first = RAFI, drawn red).
+    ``series``: label -> DataFrame with ``t_s`` and ``residual_um`` (first = RAFI, drawn red);
+    a frame with ``lower_um``, ``upper_um`` and ``predicted_um`` gets its model's interval on
+    the residual's scale as a band around zero in its colour, named by the ``level``.
     ``measured``: DataFrame ``t_s``, ``measured_um`` (uncompensated dz, thin grey).
     ``outside``: DataFrame ``t_s``, ``outside`` (bool): shaded where RAFI was evaluated
     outside its trained temperature range.
@@ -482,6 +510,10 @@ def fig_comparison_residuals(
             )
         for k, (lab, f) in enumerate(series.items()):
             colour = C_RES if k == 0 else ("#1f77b4", "#2e7d32", "#e07b00")[(k - 1) % 3]
+            if has_band(f):
+                lo, hi = residual_band(f)
+                name = f"{band_label(level)} {lab}"
+                plot_band(ax, hours(f["t_s"]), lo, hi, color=colour, alpha=0.15, label=name)
             plot_series(ax, hours(f["t_s"]), f["residual_um"], color=colour, lw=1.0, label=f"residual {lab}")
         if outside is not None and len(outside) and bool(np.any(outside["outside"])):
             h = hours(outside["t_s"])
@@ -515,77 +547,4 @@ def fig_comparison_residuals(
         ax.set_ylabel(ylabel)
         h, lab = ax.get_legend_handles_labels()
         fig.legend(h, lab, ncol=3, loc="outside upper center", frameon=False)
-        return render(fig, fmt)
-
-
-# --------------------------------------------------------------------------- segmentation
-
-#: Colour of each run role on the segmentation timeline.
-ROLE_COLOURS = {
-    "training": "#2e7d32",
-    "validation_single": "#1f77b4",
-    "validation_multi": "#7b1fa2",
-    "validation_idle": "#80cbc4",
-    "excluded": "#bdbdbd",
-}
-
-
-def fig_segmentation(logs: dict, *, fmt: str = "png") -> bytes:
-    """Timeline of each log on its own clock, the background coloured by the role of each run:
-    dz (left axis) and the spindle speed (right axis, grey).
-
-    ``logs``: ``label -> (samples, spans)``; ``samples`` has ``h`` (hours on the log's clock),
-    ``speed_rpm`` and ``dz_um``; ``spans`` has ``start_h``, ``end_h``, ``role`` and ``label``
-    (the run's number within the log, written at the top of its band where it fits).
-    """
-    with plt.rc_context(STYLE):
-        names = list(logs)
-        fig, axes = plt.subplots(
-            len(names), 1, figsize=(PAGE_WIDTH_IN, 1.9 * len(names) + 0.5), squeeze=False
-        )
-        axes = axes[:, 0]
-        seen, twins = {}, []
-        for ax, name in zip(axes, names):
-            samples, spans = logs[name]
-            span_h = max(float(spans["end_h"].max() - spans["start_h"].min()), 1e-9) if len(spans) else 1.0
-            for s in spans.itertuples(index=False):
-                colour = ROLE_COLOURS.get(str(s.role), "#eeeeee")
-                seen.setdefault(str(s.role), ax.axvspan(s.start_h, s.end_h, color=colour, alpha=0.35, lw=0))
-                if s.end_h - s.start_h < 0.03 * span_h:  # too narrow for its number
-                    continue
-                ax.text(
-                    (s.start_h + s.end_h) / 2,
-                    0.98,
-                    str(s.label),
-                    transform=ax.get_xaxis_transform(),
-                    ha="center",
-                    va="top",
-                    fontsize=5.5,
-                )
-            plot_series(ax, samples["h"], samples["dz_um"], color=C_MEAS)
-            ax.set_ylabel("dz (µm)", color=C_MEAS)
-            ax.set_title(name, loc="left")
-            ax.set_xlabel("time since the start of the log (h)")
-            ax.margins(x=0)
-            tw = ax.twinx()
-            tw.spines["right"].set_visible(True)
-            tw.grid(False)
-            hs, sp = envelope(samples["h"], samples["speed_rpm"])
-            tw.plot(hs, sp, color="#555555", lw=0.7)
-            top = float(np.nanmax(sp)) if len(sp) and np.isfinite(sp).any() else 1.0
-            tw.set_ylim(min(0.0, float(np.nanmin(sp))) if len(sp) else 0.0, 1.2 * top + 1.0)
-            tw.set_ylabel("speed (r/min)", color="#555555")
-            twins.append(tw)
-        room = max(y_room_in(a) for a in axes)
-        adjust(
-            fig,
-            left=room,
-            right=max(y_room_in(t) for t in twins),
-            top=TOP_LEGEND_IN,
-            bottom=BOTTOM_IN,
-            nrows=len(names),
-            hgap=ROW_GAP_IN,
-        )
-        order = [r for r in ROLE_COLOURS if r in seen] + [r for r in seen if r not in ROLE_COLOURS]
-        legend_top(fig, [seen[r] for r in order], [r.replace("_", " ") for r in order], len(order))
         return render(fig, fmt)

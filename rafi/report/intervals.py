@@ -1,0 +1,213 @@
+"""The prediction interval as the report shows it: bands, coverage, the verdict's sentence.
+
+Everything here is read from this machine's results, never computed anew (issue 26, the design
+in :mod:`rafi.family.interval_rule`):
+
+* ``residuals.parquet`` (validation and comparison): ``lower_um``, ``upper_um`` - the interval
+  for the measured displacement change, in the convention of ``predicted_um``;
+* ``validation/summary.csv``, ``comparison/per_run.csv`` and ``comparison/summary.csv``:
+  ``coverage`` (fraction of a run's samples with a finite measurement and interval that lie
+  inside it) and ``interval_width_um`` (median of ``upper - lower``);
+* every model artefact: the block ``interval`` (``level``, ``transient_s``, ``tolerance_rpm``,
+  ``half_width_um`` per cell, ``decorrelation_s``, ``calibration``, ``method``).
+
+Older results have none of these: then there is no band, no coverage column and no sentence -
+never a number made up in their place.
+
+**The residual band.** The residual is ``measured - predicted``; the measured value lies in
+``[lower, upper]`` exactly when the residual lies in ``[lower - predicted, upper - predicted]``
+(:func:`residual_band`): that band is drawn around zero on every residual plot, so a residual
+outside it is a sample outside the interval.
+"""
+
+from __future__ import annotations
+
+from fractions import Fraction
+
+import numpy as np
+import pandas as pd
+
+from rafi.family.interval_rule import CELLS
+from rafi.report.format import isnum
+
+#: The columns of an interval in ``residuals.parquet``.
+BAND_COLUMNS = ("lower_um", "upper_um")
+#: What a cell means, as the report says it.
+CELL_TEXT = {
+    "settled": "inside the trained temperature and speed ranges, settled since the last change",
+    "transient": "inside the trained ranges, less than the transient time after a reset of the change clock",
+    "outside": "outside the trained temperature or speed range",
+}
+
+
+def interval_block(doc) -> dict | None:
+    """The ``interval`` block of a model artefact, or ``None`` (no artefact, an artefact written
+    before intervals existed, or a block without a level or half-widths)."""
+    block = doc.get("interval") if isinstance(doc, dict) else None
+    if not isinstance(block, dict) or not isnum(block.get("level")):
+        return None
+    if not isinstance(block.get("half_width_um"), dict):
+        return None
+    return block
+
+
+def shared_level(*docs) -> float | None:
+    """The level of the artefacts' interval blocks when every block present states the same one
+    (``None`` without a block or when they differ: then no figure names a level)."""
+    levels = {float(b["level"]) for b in map(interval_block, docs) if b is not None}
+    return levels.pop() if len(levels) == 1 else None
+
+
+def band_label(level: float | None) -> str:
+    """The legend entry of a band: ``90 % interval`` (``prediction interval`` without a level)."""
+    return f"{100 * level:g}\u00a0% interval" if isnum(level) else "prediction interval"
+
+
+def times_in(level) -> str | None:
+    """``level`` as "k times in n" (``0.9`` -> ``9 times in 10``, ``0.95`` -> ``19 times in 20``)."""
+    if not isnum(level) or not 0 < float(level) < 1:
+        return None
+    f = Fraction(float(level)).limit_denominator(100)
+    return f"{f.numerator} times in {f.denominator}"
+
+
+def has_band(frame) -> bool:
+    """``frame`` has the interval columns with at least one finite bound."""
+    if frame is None or not all(c in frame for c in BAND_COLUMNS):
+        return False
+    lo = pd.to_numeric(frame["lower_um"], errors="coerce").to_numpy(float)
+    hi = pd.to_numeric(frame["upper_um"], errors="coerce").to_numpy(float)
+    return bool(np.any(np.isfinite(lo) & np.isfinite(hi)))
+
+
+def residual_band(frame) -> tuple[np.ndarray, np.ndarray]:
+    """The interval on the residual's scale: ``(lower - predicted, upper - predicted)``; the
+    residual ``measured - predicted`` lies in it exactly when the measurement lies in
+    ``[lower, upper]``."""
+    pred = frame["predicted_um"].to_numpy(float)
+    return frame["lower_um"].to_numpy(float) - pred, frame["upper_um"].to_numpy(float) - pred
+
+
+def band_columns(frame) -> list[str]:
+    """The columns a figure needs to draw the band of ``frame`` (empty without one)."""
+    return [*BAND_COLUMNS, "predicted_um"] if has_band(frame) and "predicted_um" in frame else []
+
+
+def coverage_fields(row) -> dict:
+    """``coverage_pct`` (coverage in %) and ``interval_width_um`` of a table row (``None`` where
+    the results have no such column or no value)."""
+    cov = row.get("coverage") if hasattr(row, "get") else None
+    width = row.get("interval_width_um") if hasattr(row, "get") else None
+    return {
+        "coverage_pct": 100.0 * float(cov) if isnum(cov) else None,
+        "interval_width_um": float(width) if isnum(width) else None,
+    }
+
+
+def has_coverage(table) -> bool:
+    """``table`` (a frame) has a ``coverage`` column with a value."""
+    if table is None or "coverage" not in table:
+        return False
+    return bool(pd.to_numeric(table["coverage"], errors="coerce").notna().any())
+
+
+def worst_run_interval(rows: pd.DataFrame | None, level, run_id=None) -> dict | None:
+    """The interval at the worst run, for the verdict's sentence.
+
+    Parameters
+    ----------
+    rows : DataFrame
+        One model's rows per validation run (``validation/summary.csv`` or that model's rows of
+        ``comparison/per_run.csv``): ``run_id``, ``max_abs_after_um``, ``coverage``,
+        ``interval_width_um``.
+    level : float
+        The level of the model's artefact (its ``interval`` block).
+    run_id : str, optional
+        The worst run as the verdict names it; else the run with the largest max |residual|.
+
+    Returns
+    -------
+    dict or None
+        ``run_id``, ``half_width_um`` (half the median width), ``width_um``, ``coverage_pct``,
+        ``level_pct`` and ``times`` (:func:`times_in`); ``None`` without a level, a coverage
+        column or a finite value at that run.
+    """
+    times = times_in(level)
+    if times is None or not has_coverage(rows) or "interval_width_um" not in rows:
+        return None
+    ids = rows["run_id"].astype(str)
+    if run_id is None:
+        after = pd.to_numeric(rows["max_abs_after_um"], errors="coerce")
+        if not after.notna().any():
+            return None
+        run_id = ids[after.idxmax()]
+    hit = rows[ids == str(run_id)]
+    if not len(hit):
+        return None
+    f = coverage_fields(hit.iloc[0])
+    if f["coverage_pct"] is None or f["interval_width_um"] is None:
+        return None
+    return {
+        "run_id": str(run_id),
+        "half_width_um": f["interval_width_um"] / 2.0,
+        "width_um": f["interval_width_um"],
+        "coverage_pct": f["coverage_pct"],
+        "level_pct": 100.0 * float(level),
+        "times": times,
+    }
+
+
+def _calibration_rows(cal: dict, half: dict) -> list[dict]:
+    """Per cell: its half-width, what it means, the runs and samples it was calibrated on and
+    whether it fell back to the pooled value (fields the calibration does not state: ``None``)."""
+    per_cell = cal.get("cells") if isinstance(cal.get("cells"), dict) else {}
+    fallback = cal.get("fallback_cells") or cal.get("fell_back") or []
+    rows = []
+    for cell in [c for c in CELLS if c in half] + [c for c in half if c not in CELLS]:
+        info = per_cell.get(cell) if isinstance(per_cell.get(cell), dict) else {}
+        fell = info.get("fallback", cell in fallback)
+        rows.append(
+            {
+                "cell": cell,
+                "meaning": CELL_TEXT.get(cell, ""),
+                "half_width_um": half[cell] if isnum(half[cell]) else None,
+                "n_runs": info.get("n_runs"),
+                "n_samples": info.get("n_samples"),
+                "fallback": bool(fell) if fell is not None else None,
+            }
+        )
+    return rows
+
+
+def interval_context(doc) -> dict | None:
+    """How the artefact's interval is computed and what it assumes, for the deployed section
+    and the choices list (``None`` without an ``interval`` block).
+
+    Returns
+    -------
+    dict
+        ``method``, ``level_pct``, ``times``, ``transient_s``, ``tolerance_rpm``,
+        ``decorrelation_s``, ``cells`` (:func:`_calibration_rows`), ``scheme`` (the CV scheme of
+        the calibration residuals), ``n_runs``, ``n_samples`` (over all cells), ``fallbacks``
+        (cells that took the pooled value) and ``split`` (the method is split-conformal by run).
+    """
+    block = interval_block(doc)
+    if block is None:
+        return None
+    cal = block.get("calibration") if isinstance(block.get("calibration"), dict) else {}
+    cells = _calibration_rows(cal, block["half_width_um"])
+    method = str(block.get("method", ""))
+    return {
+        "method": method,
+        "split": method == "split_conformal_by_run",
+        "level_pct": 100.0 * float(block["level"]),
+        "times": times_in(block["level"]),
+        "transient_s": block.get("transient_s") if isnum(block.get("transient_s")) else None,
+        "tolerance_rpm": block.get("tolerance_rpm") if isnum(block.get("tolerance_rpm")) else None,
+        "decorrelation_s": block.get("decorrelation_s") if isnum(block.get("decorrelation_s")) else None,
+        "cells": cells,
+        "scheme": str(cal.get("scheme", cal.get("cv", ""))).replace("_", "-"),
+        "n_runs": cal.get("n_runs") if isnum(cal.get("n_runs")) else None,
+        "n_samples": cal.get("n_samples") if isnum(cal.get("n_samples")) else None,
+        "fallbacks": [c["cell"] for c in cells if c["fallback"]],
+    }
