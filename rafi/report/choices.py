@@ -10,7 +10,9 @@ from importlib import metadata as _metadata
 from rafi.report.format import truthy
 
 
-def section_choices(settings: dict, key_info: dict, eq_method, *, time_blocks: bool = False) -> dict:
+def section_choices(
+    settings: dict, key_info: dict, eq_method, *, time_blocks: bool = False, interval: dict | None = None
+) -> dict:
     """Section 10: how this run decided what the paper leaves open (from the machine's settings).
 
     Parameters
@@ -25,6 +27,10 @@ def section_choices(settings: dict, key_info: dict, eq_method, *, time_blocks: b
     time_blocks : bool
         The family's cross-validation used time-blocked folds (``comparison/cv.csv`` scheme
         ``time_blocks``: too few training runs for whole-run folds).
+    interval : dict, optional
+        How the offered model's prediction interval is computed
+        (:func:`rafi.report.intervals.interval_context` of its artefact); ``None``: the results
+        hold no interval and the list says nothing about one.
 
     Returns
     -------
@@ -35,7 +41,7 @@ def section_choices(settings: dict, key_info: dict, eq_method, *, time_blocks: b
         (``rank/key_sensors.json``), ``fuzzy_outside``, ``hac_maxlags`` and ``hac_span_s``,
         ``period_s``, ``clean`` (``spike_threshold``, ``open_circuit_values``,
         ``max_interpolate_gap_s``), ``runs`` (``min_constant_s``, ``idle_below_rpm``,
-        ``max_leading_rest_s``), ``models`` (``enabled``, ``cv``) and ``paper``.
+        ``max_leading_rest_s``), ``models`` (``enabled``, ``cv``), ``paper`` and ``interval``.
     """
     ref, rank, fit = settings["reference"], settings["rank"], settings["fit"]
     clean, runs, models = settings["clean"], settings["runs"], settings["models"]
@@ -55,6 +61,7 @@ def section_choices(settings: dict, key_info: dict, eq_method, *, time_blocks: b
         },
         "models": {"enabled": list(models["enabled"]), "cv": models["cv"], "time_blocks": bool(time_blocks)},
         "paper": bool(settings["report"]["paper_rig"]),
+        "interval": interval,
     }
 
 

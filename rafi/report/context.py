@@ -22,6 +22,7 @@ from rafi.report.data_sections import section_data, section_equilibrium, section
 from rafi.report.deployed_section import section_deployed
 from rafi.report.embed import FigureFiles
 from rafi.report.inputs import load_results
+from rafi.report.intervals import interval_context
 from rafi.report.model_sections import section_fuzzy, section_models, section_validation
 from rafi.report.registry_section import section_registry
 from rafi.report.replay_section import section_replay, section_title
@@ -92,8 +93,9 @@ def build_context(
 
     ctx: dict = {"machine": machine, "generated": generated_at(now), "sections": []}
     dec_path = paths.get("decision")
-    infos = model_infos(res, Path(dec_path).parent if dec_path else None)
-    ctx["verdict"] = verdict_all(res, infos)
+    registry_dir = Path(dec_path).parent if dec_path else None
+    infos = model_infos(res, registry_dir)
+    ctx["verdict"] = verdict_all(res, infos, registry_dir)
     ctx["verdict"]["residual"] = residual_statement(res, settings)
     ctx["gates"] = gates
     paper = bool(settings["report"]["paper_rig"])  # paper numbers only on the paper's rig
@@ -126,7 +128,10 @@ def build_context(
     ctx["verdict"]["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
     # the folds the family's CV used (time blocks when the training data hold no whole-run fold)
     blocks = bool((ctx["verdict"]["selection"] or {}).get("time_blocks"))
-    ctx["choices"] = section_choices(settings, key_info, ctx["equilibrium"]["method"], time_blocks=blocks)
+    interval = (ctx["deployed"] or {}).get("interval") or interval_context(model)
+    ctx["choices"] = section_choices(
+        settings, key_info, ctx["equilibrium"]["method"], time_blocks=blocks, interval=interval
+    )
     ctx["versions"] = versions()
     ctx["signoff"] = section_signoff(res, settings)  # first page: number, revision, names
     # the configuration appendix: only what differs from the defaults (docs/settings.md)

@@ -30,7 +30,14 @@ from rafi.report.deployed_terms import (
     ridge_tables,
 )
 from rafi.report.format import fmt_num, fmt_sig, isnum, plain, short_id, truthy
-from rafi.report.intervals import band_columns, coverage_fields, interval_context
+from rafi.report.intervals import (
+    band_columns,
+    band_label,
+    coverage_fields,
+    has_band,
+    interval_block,
+    interval_context,
+)
 
 UM = "\u00b5m"
 
@@ -100,6 +107,13 @@ def deployed_panels(summary, per_run, residuals) -> list[list[dict]]:
             }
         )
     return [panels[i : i + RUNS_PER_FIGURE] for i in range(0, len(panels), RUNS_PER_FIGURE)]
+
+
+def _of_model(table, name):
+    """The rows of model ``name`` in a comparison table (``None`` without the table)."""
+    if table is None or "model" not in table:
+        return None
+    return table[table["model"].astype(str) == name]
 
 
 # ---------------------------------------------------------------------------- CV
@@ -351,6 +365,8 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "champion_after": short_id(champion_after) if champion_after else "",
         "rafi_like": rafi_like,
         "interval": interval_context(art),
+        "band_label": band_label((interval_block(art) or {}).get("level")),
+        "band": has_band(_of_model(res.get("comparison_residuals"), name)),
         "coverage": any(r["coverage_pct"] is not None for r in validation or []),
         "coverage_all": coverage_fields(row),
     }

@@ -210,4 +210,21 @@ def interval_context(doc) -> dict | None:
         "n_runs": cal.get("n_runs") if isnum(cal.get("n_runs")) else None,
         "n_samples": cal.get("n_samples") if isnum(cal.get("n_samples")) else None,
         "fallbacks": [c["cell"] for c in cells if c["fallback"]],
+        "other": _other_calibration(cal),
     }
+
+
+#: Keys of the calibration record the deployed section words itself.
+_CALIBRATION_WORDED = ("cells", "fallback_cells", "fell_back", "scheme", "cv", "n_runs", "n_samples")
+
+
+def _other_calibration(cal: dict) -> list[tuple[str, str]]:
+    """The calibration record's other plain entries as ``(key, text)`` (nothing hidden)."""
+    out = []
+    for key, value in cal.items():
+        if key in _CALIBRATION_WORDED or isinstance(value, dict):
+            continue
+        if isinstance(value, (list, tuple)):
+            value = ", ".join(str(v) for v in value) or "none"
+        out.append((str(key).replace("_", " "), str(value)))
+    return out

@@ -24,6 +24,7 @@ import pandas as pd
 
 from rafi.report.format import fmt_num, short_id, truthy
 from rafi.report.inputs import noise_floors
+from rafi.report.intervals import interval_block, worst_run_interval
 
 #: The columns of a verdict (:data:`rafi.method.validate.VERDICT_COLUMNS`).
 VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
@@ -449,14 +450,60 @@ def rafi_context(res: dict, noise: dict) -> dict:
     worst_run = str(gated.loc[after.idxmax(), "run_id"]) if after.notna().any() else ""
     rafi_v["worst_noise"] = fmt_num(noise[worst_run], 2, "\u00b5m") if worst_run in noise else ""
     rafi_v["min_imp"] = fmt_num(pd.to_numeric(gated["improvement_pct"], errors="coerce").min(), 1, "%")
+    level = (interval_block(res.get("model")) or {}).get("level")
+    rafi_v["interval"] = worst_run_interval(gated, level, worst_run) if worst_run else None
     return rafi_v
 
 
-def verdict_all(res: dict, infos: dict) -> dict:
+def _worst_run(verdict: pd.DataFrame | None):
+    """The run of the largest measured max residual in a stored verdict (``None`` without one)."""
+    if verdict is None or not len(verdict):
+        return None
+    g = verdict[verdict["criterion"].astype(str) == "max_residual_um"]
+    measured = pd.to_numeric(g["measured"], errors="coerce")
+    return str(g.loc[measured.idxmax(), "run_id"]) if measured.notna().any() else None
+
+
+def artefact_of(res: dict, model_id, registry_dir: Path | None = None) -> dict | None:
+    """The artefact of ``model_id``: ``comparison/best_model.json`` or ``model.json`` when they
+    carry that id, else ``registry/models/<id>.json`` (``None`` where no file holds it)."""
+    if not isinstance(model_id, str) or not model_id:
+        return None
+    for doc in (res.get("best_model"), res.get("model")):
+        if isinstance(doc, dict) and str(doc.get("model_id", "")) == model_id:
+            return doc
+    if registry_dir is None or "/" in model_id:
+        return None
+    path = Path(registry_dir) / "models" / f"{model_id}.json"
+    try:
+        return json.loads(path.read_text(encoding="utf-8")) if path.is_file() else None
+    except (OSError, ValueError):
+        return None
+
+
+def judged_interval(res: dict, model_id, verdict, registry_dir: Path | None = None) -> dict | None:
+    """The interval at the worst run of the model on the machine
+    (:func:`rafi.report.intervals.worst_run_interval`): its rows of ``comparison/per_run.csv``
+    (by ``model_id``), the level of its artefact (:func:`artefact_of`), the worst run of its
+    stored verdict (else of those rows); ``None`` where a result is missing."""
+    per_run = res.get("comparison_per_run")
+    if per_run is None or "model_id" not in per_run or not model_id:
+        return None
+    rows = per_run[per_run["model_id"].astype(str) == str(model_id)]
+    level = (interval_block(artefact_of(res, model_id, registry_dir)) or {}).get("level")
+    worst = _worst_run(verdict)
+    if worst is not None and worst not in set(rows["run_id"].astype(str)):
+        return None  # the verdict's worst run is not among the comparison's runs: say nothing
+    return worst_run_interval(rows.reset_index(drop=True), level, worst)
+
+
+def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dict:
     """The verdict of section 1: the model on the machine (with decision.json) + RAFI, over
     every validation run (idle cool-downs included), each max residual beside its run's noise
     floor (:func:`judged_verdict`, :func:`rafi_verdict`: the stored verdicts; NOT STORED where
-    no result file stores one)."""
+    no result file stores one); ``interval``: the prediction interval at the worst run of the
+    judged model (:func:`judged_interval`; RAFI's: :func:`rafi_context`), ``None`` without
+    interval results. ``registry_dir``: where ``registry/models/<id>.json`` are looked up."""
     noise = noise_floors(res)
     rafi_v = rafi_context(res, noise)
     dec = res.get("decision")
@@ -481,5 +528,6 @@ def verdict_all(res: dict, infos: dict) -> dict:
         out = empty_verdict(src, stored=False)
     else:
         out = verdict_context(verdict, src, noise)
+    out["interval"] = judged_interval(res, after, verdict, registry_dir) if after else None
     out.update(judged=judged, rafi=rafi_v, subject=f"model {judged['id']} ({judged['kind']}) on the machine")
     return out

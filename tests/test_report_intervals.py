@@ -1,0 +1,361 @@
+"""The prediction interval in the qualification report (issue 26, the report's part).
+
+The report fixture (tests/data/report_fixture/tapping-center-a, written before intervals
+existed) is rendered as it is - no band, no coverage, no sentence - and with the interval
+results added the way the pipeline writes them (docs/design.md, the shared design of issue 26):
+``lower_um``, ``upper_um``, ``interval_cell`` in both ``residuals.parquet``; ``coverage`` and
+``interval_width_um`` in ``validation/summary.csv``, ``comparison/per_run.csv`` and
+``comparison/summary.csv``, computed here from those residuals; the ``interval`` block in
+``model.json`` and ``comparison/best_model.json``. Every number the sentences state is checked
+against the tables of the same HTML, and every band against the axes the figure functions draw.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+from pathlib import Path
+
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from html_tables import html_tables
+from matplotlib.collections import PolyCollection
+
+from rafi.report import deployed_plot, plots, tables
+from rafi.report.context import build_context
+from rafi.report.figures import draw_group
+from rafi.report.inputs import FIGURE_DIRS, figure_dirs, result_paths
+from rafi.report.intervals import residual_band, times_in, worst_run_interval
+from rafi.report.render import render_html, render_pdf
+from rafi.settings import machine_settings
+
+ROOT = Path(__file__).resolve().parents[1]
+FIXTURE = ROOT / "tests" / "data" / "report_fixture" / "tapping-center-a"
+CONFIG = yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))
+HALF = {"settled": 2.0, "transient": 3.0, "outside": 4.0}
+TRANSIENT_S = 1800.0
+BLOCK = {
+    "schema": "rafi.interval/1",
+    "method": "split_conformal_by_run",
+    "level": 0.9,
+    "transient_s": TRANSIENT_S,
+    "tolerance_rpm": 250.0,
+    "half_width_um": HALF,
+    "decorrelation_s": 600.0,
+    "calibration": {
+        "scheme": "leave_one_run_out",
+        "n_runs": 6,
+        "n_samples": 812,
+        "cells": {
+            "settled": {"n_runs": 6, "n_samples": 640},
+            "transient": {"n_runs": 6, "n_samples": 150},
+            "outside": {"n_runs": 2, "n_samples": 22, "fallback": True},
+        },
+    },
+}
+
+
+def _with_interval(frame: pd.DataFrame) -> pd.DataFrame:
+    """``frame`` (a residuals table) with the interval columns: the cell of each sample from its
+    flags and time, ``[predicted - h, predicted + h]``."""
+    outside = frame["outside_temp_range"].astype(bool) | frame["outside_speed_range"].astype(bool)
+    cell = np.where(outside, "outside", np.where(frame["t_s"] < TRANSIENT_S, "transient", "settled"))
+    h = pd.Series(cell).map(HALF).to_numpy(float)
+    pred = frame["predicted_um"].to_numpy(float)
+    return frame.assign(lower_um=pred - h, upper_um=pred + h, interval_cell=cell)
+
+
+def _coverage(frame: pd.DataFrame) -> pd.Series:
+    """``coverage`` and ``interval_width_um`` of a residuals table's samples (the design's
+    definitions: samples with a finite measurement and interval)."""
+    m, lo, hi = (frame[c].to_numpy(float) for c in ("measured_um", "lower_um", "upper_um"))
+    ok = np.isfinite(m) & np.isfinite(lo) & np.isfinite(hi)
+    inside = (m[ok] >= lo[ok]) & (m[ok] <= hi[ok])
+    return pd.Series({"coverage": inside.mean(), "interval_width_um": float(np.median(hi[ok] - lo[ok]))})
+
+
+def add_interval_results(results: Path) -> None:
+    """Add what the interval pipeline writes to a results folder of the fixture."""
+    for rel in ("validation/residuals.parquet", "comparison/residuals.parquet"):
+        _with_interval(pd.read_parquet(results / rel)).to_parquet(results / rel)
+    resid = pd.read_parquet(results / "validation" / "residuals.parquet")
+    cov = resid.groupby("run_id").apply(_coverage, include_groups=False)
+    summ = pd.read_csv(results / "validation" / "summary.csv")
+    summ.join(cov, on="run_id").to_csv(results / "validation" / "summary.csv", index=False)
+    cres = pd.read_parquet(results / "comparison" / "residuals.parquet")
+    per_run = pd.read_csv(results / "comparison" / "per_run.csv")
+    cov = cres.groupby(["model", "run_id"]).apply(_coverage, include_groups=False)
+    per_run.join(cov, on=["model", "run_id"]).to_csv(results / "comparison" / "per_run.csv", index=False)
+    pooled = cres.groupby("model").apply(_coverage, include_groups=False)
+    summary = pd.read_csv(results / "comparison" / "summary.csv")
+    summary.join(pooled, on="model").to_csv(results / "comparison" / "summary.csv", index=False)
+    for rel in ("model.json", "comparison/best_model.json"):
+        doc = json.loads((results / rel).read_text(encoding="utf-8"))
+        doc["interval"] = BLOCK
+        (results / rel).write_text(json.dumps(doc, indent=2), encoding="utf-8")
+
+
+def _render(tmp: Path, *, interval: bool, draw: bool = False) -> tuple[dict, str, Path]:
+    """The fixture's context and HTML (with or without the interval results); ``draw``: the
+    figures of rule report_figures, else empty figure folders."""
+    results = tmp / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    if interval:
+        add_interval_results(results)
+    paths = result_paths(results)
+    tables.write_report_tables(
+        paths["model"],
+        paths["runs_csv"],
+        paths["runs_parquet"],
+        paths["diagnostics"],
+        fit_path=paths["training_fit"],
+        rmse_path=paths["training_fit_rmse"],
+        example_path=paths["fuzzy_example"],
+    )
+    settings = machine_settings(CONFIG, "tapping-center-a")
+    dirs = figure_dirs(results)
+    for group, folder in dirs.items():
+        if draw and group != "replay":
+            draw_group(
+                paths,
+                group,
+                folder,
+                figure_format="png",
+                coolant_sensors=settings["report"]["coolant_sensors"],
+                gates=settings["qualification"],
+            )
+        else:
+            (results / FIGURE_DIRS[group]).mkdir(parents=True, exist_ok=True)
+            (results / FIGURE_DIRS[group] / "index.csv").write_text("key,file\n", encoding="utf-8")
+    ctx = build_context(paths, dirs, machine="tapping-center-a", settings=settings)
+    return ctx, render_html(ctx), results
+
+
+@pytest.fixture(scope="module")
+def both(tmp_path_factory):
+    """The fixture rendered without and with the interval results."""
+    return {flag: _render(tmp_path_factory.mktemp(f"iv{int(flag)}"), interval=flag) for flag in (False, True)}
+
+
+def _text(html: str) -> str:
+    text = re.sub(r"<style>.*?</style>", "", html, flags=re.S)
+    text = re.sub(r"<[^>]+>", " ", text).replace("&plusmn;", "\u00b1").replace("&amp;", "&")
+    return re.sub(r"\s+", " ", text)
+
+
+def _number(text: str) -> float:
+    return float(text.replace("\u2212", "-").replace("\u00a0", "").replace("\u202f", "").split()[0])
+
+
+def _table_with(html: str, head: str) -> list[dict]:
+    """The records of the first table with a header containing ``head``."""
+    for t in html_tables(html):
+        if any(head in h for h in t["headers"]):
+            return t["records"]
+    raise AssertionError(f"no table with a header {head!r}")
+
+
+def _column(records: list[dict], head: str) -> str:
+    return next(h for h in records[0] if head in h)
+
+
+# --------------------------------------------------------------------------- without / with
+
+
+def test_older_results_show_no_band_no_coverage_no_sentence(both):
+    ctx, html, _ = both[False]
+    text = _text(html)
+    assert "coverage" not in text.lower()
+    assert "interval" not in text.lower()
+    assert ctx["verdict"]["interval"] is None and ctx["verdict"]["rafi"]["interval"] is None
+    assert ctx["deployed"]["interval"] is None and ctx["choices"]["interval"] is None
+    assert not ctx["validation"]["coverage"] and not ctx["comparison"]["coverage"]
+
+
+def test_the_interval_is_in_every_residual_table_and_section(both):
+    ctx, html, _ = both[True]
+    text = _text(html)
+    assert "9 times in 10" in text
+    assert re.search(r"Prediction interval\s+Each compensation comes with a 90\s% interval", text)
+    assert "How sure: the 90\u00a0% prediction interval" in html
+    for head in ("90\u00a0% interval: coverage (%)", "median interval width (µm)"):
+        assert head in html
+    # the single-speed, the idle-free fixture's validation table and the deployed table carry both
+    single = _table_with(html, "paper Table 4") if ctx["paper_rig"] else _table_with(html, "speed")
+    assert _column(single, "coverage") and _column(single, "median interval width")
+    # the cells of the deployed section: every cell, its half-width and its fallback as stored
+    cells = _table_with(html, "half-width h")
+    assert [r["cell"] for r in cells] == list(HALF)
+    assert [_number(r["half-width h (µm)"]) for r in cells] == list(HALF.values())
+    assert [r["pooled value used"] for r in cells] == ["no", "no", "yes"]
+    assert "scheme" not in ctx["deployed"]["interval"]["other"]
+    # the model comparison: pooled coverage per model, and per run under each model's residual
+    table = next(t for t in html_tables(html) if any("median width" in h for h in t["headers"]))
+    i = next(k for k, h in enumerate(table["headers"]) if "median width" in h)
+    summary = pd.read_csv(both[True][2] / "comparison" / "summary.csv")
+    for row, (cov, width) in zip(table["rows"], summary[["coverage", "interval_width_um"]].to_numpy()):
+        shown = [_number(re.sub(r"<[^>]+>", "", p)) for p in row[i]["html"].split("<br>")]
+        assert shown == [round(100 * cov, 1), round(width, 2)]
+    per_run = pd.read_csv(both[True][2] / "comparison" / "per_run.csv")
+    table = next(t for t in html_tables(html, "num per-run"))
+    for row in table["rows"]:
+        run_id = re.sub(r"<[^>]+>", "", row[0]["html"].split("<br>")[0])
+        for k, model in enumerate(ctx["comparison"]["run_models"]):
+            cov_line = re.sub(r"<[^>]+>", "", row[3 + k]["html"].split("<br>")[2]).split("·")
+            want = per_run[(per_run["model"] == model) & (per_run["run_id"] == run_id)].iloc[0]
+            assert [_number(v) for v in cov_line] == [
+                round(100 * want["coverage"], 1),
+                round(want["interval_width_um"], 2),
+            ]
+
+
+def test_the_verdict_sentences_equal_the_tables(both):
+    ctx, html, results = both[True]
+    text = _text(html)
+    pattern = (
+        r"At (?:the|its) worst run (\S+) , the compensation is right to \u00b1(\S+)\s?µm , 9 times in 10 "
+        r"\(the 90\s% interval: median width (\S+)\s?µm; measured coverage on that run (\S+)\s?% \)"
+    )
+    found = re.findall(pattern, text)
+    assert len(found) == 2, found  # the model on the machine and RAFI as published
+    # the model on the machine (RAFI here): the deployed section's row of that run
+    deployed = _table_with(html, "gates")
+    deployed = [r for r in deployed if "validation run" in r]
+    for run_id, half, width, cov in found:
+        row = next(r for r in deployed if r["validation run"].replace(" ", "") == run_id)
+        assert _number(row[_column(deployed, "median interval width")]) == _number(width)
+        assert _number(row[_column(deployed, "coverage")]) == _number(cov)
+        assert abs(_number(half) - _number(width) / 2) <= 0.006
+    # the worst run is the verdict's: the largest max residual of validation/summary.csv
+    summ = pd.read_csv(results / "validation" / "summary.csv")
+    worst = summ.loc[summ["max_abs_after_um"].idxmax()]
+    assert found[0][0] == found[1][0] == worst["run_id"]
+    assert _number(found[1][3]) == round(100 * worst["coverage"], 1)
+    # the multi-condition paragraph states the same coverage as the table of RAFI's runs
+    said = re.search(r"holds the measured dz on (\S+)\s?% of the samples \(coverage\)", text)
+    assert said and _number(said.group(1)) == round(100 * worst["coverage"], 1)
+
+
+def test_a_verdict_without_a_level_says_nothing():
+    rows = pd.DataFrame(
+        {
+            "run_id": ["a", "b"],
+            "max_abs_after_um": [1.0, 3.0],
+            "coverage": [0.9, 0.8],
+            "interval_width_um": [2, 4],
+        }
+    )
+    assert worst_run_interval(rows, None) is None
+    assert worst_run_interval(rows.drop(columns="coverage"), 0.9) is None
+    assert worst_run_interval(rows.assign(coverage=[0.9, np.nan]), 0.9) is None  # at the worst run
+    got = worst_run_interval(rows, 0.9)
+    assert got["run_id"] == "b" and got["half_width_um"] == 2.0 and got["coverage_pct"] == 80.0
+    assert times_in(0.9) == "9 times in 10" and times_in(0.95) == "19 times in 20" and times_in(1.0) is None
+
+
+# --------------------------------------------------------------------------- figures
+
+
+@pytest.fixture
+def kept(monkeypatch):
+    """The figures the plotting functions draw, kept open instead of rendered."""
+    figs = []
+    monkeypatch.setattr(plots, "render", lambda fig, fmt="png": figs.append(fig) or b"")
+    yield figs
+    for fig in figs:
+        plt.close(fig)
+
+
+def _run(n: int = 200, *, band: bool = True) -> pd.DataFrame:
+    t = np.arange(n) * 60.0
+    meas = 10 * (1 - np.exp(-t / 3000.0))
+    pred = meas + 0.5 * np.sin(t / 500.0)
+    f = pd.DataFrame(
+        {
+            "t_s": t,
+            "speed_rpm": np.where(t < t[n // 2], 3000.0, 6000.0),
+            "measured_um": meas,
+            "predicted_um": pred,
+            "residual_um": meas - pred,
+            "outside_temp_range": t > t[-20],
+            "outside_speed_range": False,
+        }
+    )
+    return _with_interval(f) if band else f
+
+
+def _bands(ax) -> list[PolyCollection]:
+    return [c for c in ax.collections if isinstance(c, PolyCollection) and "interval" in str(c.get_label())]
+
+
+def _band_limits(band: PolyCollection) -> tuple[float, float]:
+    y = np.concatenate([p.vertices[:, 1] for p in band.get_paths()])
+    return float(y.min()), float(y.max())
+
+
+def test_residual_plots_have_the_band_around_zero(kept):
+    plots.fig_validation_single({"run a": _run(), "run b": _run(band=False)}, level=0.9)
+    (fig,) = kept
+    with_band, without = fig.axes[:2]
+    (band,) = _bands(with_band)
+    assert band.get_label() == "90\u00a0% interval"
+    assert _band_limits(band) == (-max(HALF.values()), max(HALF.values()))  # lower - predicted, ...
+    assert not _bands(without)
+    assert "90\u00a0% interval" in [t.get_text() for t in fig.legends[0].get_texts()]
+
+
+def test_the_prediction_plot_has_the_band_around_the_prediction(kept):
+    f = _run()
+    plots.fig_multi_condition(f, temp_sensors=[], level=0.9)
+    (band,) = _bands(kept[0].axes[-1])
+    lo, hi = _band_limits(band)
+    assert lo == pytest.approx(f["lower_um"].min()) and hi == pytest.approx(f["upper_um"].max())
+    plots.fig_multi_condition(_run(band=False), temp_sensors=[], level=0.9)
+    assert not _bands(kept[1].axes[-1])
+
+
+def test_comparison_and_deployed_residual_plots_have_a_band_per_model(kept):
+    plots.fig_comparison_residuals({"rafi": _run(), "ridge": _run(), "old": _run(band=False)}, level=0.9)
+    assert [b.get_label() for b in _bands(kept[0].axes[0])] == [
+        "90\u00a0% interval rafi",
+        "90\u00a0% interval ridge",
+    ]
+    f = _run()
+    panels = [
+        {
+            "title": "a",
+            "frame": f,
+            "noise_floor": 0.5,
+            "band": residual_band(f),
+            "band_label": "90\u00a0% interval",
+        },
+        {"title": "b", "frame": _run(band=False), "noise_floor": 0.5},
+    ]
+    fig = deployed_plot.build_figure(panels)
+    try:
+        assert len(_bands(fig.axes[1])) == 1 and not _bands(fig.axes[3])
+    finally:
+        plt.close(fig)
+
+
+def test_a_long_band_is_thinned_but_holds_every_sample(kept):
+    f = _run(20_000)
+    plots.fig_validation_single({"long": f}, level=0.9)
+    (band,) = _bands(kept[0].axes[0])
+    assert sum(len(p.vertices) for p in band.get_paths()) < 10_000
+    lo, hi = residual_band(f)
+    assert _band_limits(band) == (lo.min(), hi.max())
+
+
+def test_the_figures_and_the_pdf_are_built_with_the_interval(tmp_path):
+    ctx, html, results = _render(tmp_path, interval=True, draw=True)
+    assert ctx["deployed"]["figures"] and ctx["validation"]["figure_single"]
+    assert ctx["comparison"]["figures_resid"]
+    assert "Orange band: the 90\u00a0% interval on the residual's scale" in html
+    assert "[lower − predicted, upper − predicted]" in html
+    pdf = render_pdf(html)
+    assert pdf[:5] == b"%PDF-" and pdf.count(b"/Type /Page") > 10
