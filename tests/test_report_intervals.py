@@ -12,9 +12,11 @@ against the tables of the same HTML, and every band against the axes the figure 
 
 from __future__ import annotations
 
+import html as html_lib
 import json
 import re
 import shutil
+import subprocess
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -22,6 +24,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from conftest import which_or_skip
 from html_tables import html_tables
 from matplotlib.collections import PolyCollection
 
@@ -143,7 +146,7 @@ def both(tmp_path_factory):
 
 def _text(html: str) -> str:
     text = re.sub(r"<style>.*?</style>", "", html, flags=re.S)
-    text = re.sub(r"<[^>]+>", " ", text).replace("&plusmn;", "\u00b1").replace("&amp;", "&")
+    text = html_lib.unescape(re.sub(r"<[^>]+>", " ", text))
     return re.sub(r"\s+", " ", text)
 
 
@@ -355,7 +358,14 @@ def test_the_figures_and_the_pdf_are_built_with_the_interval(tmp_path):
     ctx, html, results = _render(tmp_path, interval=True, draw=True)
     assert ctx["deployed"]["figures"] and ctx["validation"]["figure_single"]
     assert ctx["comparison"]["figures_resid"]
-    assert "Orange band: the 90\u00a0% interval on the residual's scale" in html
-    assert "[lower − predicted, upper − predicted]" in html
-    pdf = render_pdf(html)
-    assert pdf[:5] == b"%PDF-" and pdf.count(b"/Type /Page") > 10
+    text = _text(html)
+    assert (
+        "Orange band: the 90 % interval on the residual's scale, [lower − predicted, upper − predicted]"
+        in text
+    )
+    pdf = tmp_path / "qualification.pdf"
+    pdf.write_bytes(render_pdf(html))
+    words = subprocess.run(
+        [which_or_skip("pdftotext"), "-layout", str(pdf), "-"], capture_output=True, text=True, check=True
+    ).stdout
+    assert "9 times in 10" in words and "How sure: the 90" in words
