@@ -189,7 +189,8 @@ def interval_context(doc) -> dict | None:
         ``method``, ``level_pct``, ``times``, ``transient_s``, ``tolerance_rpm``,
         ``decorrelation_s``, ``cells`` (:func:`_calibration_rows`), ``scheme`` (the CV scheme of
         the calibration residuals), ``n_runs``, ``n_samples`` (over all cells), ``fallbacks``
-        (cells that took the pooled value) and ``split`` (the method is split-conformal by run).
+        (cells that took the pooled value), ``split`` (the method is split-conformal by run) and
+        ``other`` (the calibration's other plain entries, ``(key, text)``).
     """
     block = interval_block(doc)
     if block is None:

@@ -123,12 +123,13 @@ def plot_series(ax, x, y, *args, **kwargs):
 C_BAND = "#f0a35e"
 
 
-def plot_band(ax, x, lower, upper, *, label: str, color: str = C_BAND, alpha: float = 0.3):
+def plot_band(ax, x, lower, upper, *, label: str, color: str = C_BAND, alpha: float = 0.3, hatch=None):
     """``ax.fill_between`` of a band ``[lower, upper]`` over ``x`` (a PolyCollection).
 
     A long series is cut into the buckets of :func:`envelope`; each bucket is drawn from its
     smallest lower to its largest upper bound (step-wise), so the band drawn holds every
-    sample's band. Samples with a NaN bound leave a gap.
+    sample's band. Samples with a NaN bound leave a gap. With ``hatch`` the band is hatched in
+    ``color`` instead of filled (several bands on one axes, beside other shading).
     """
     x, lo, hi = (np.asarray(v, dtype=float) for v in (x, lower, upper))
     where = np.isfinite(lo) & np.isfinite(hi)
@@ -144,7 +145,11 @@ def plot_band(ax, x, lower, upper, *, label: str, color: str = C_BAND, alpha: fl
         lo, hi, where = np.append(lo, lo[-1]), np.append(hi, hi[-1]), np.append(where, where[-1])
         step = "post"
     lo, hi = np.where(where, lo, np.nan), np.where(where, hi, np.nan)
-    return ax.fill_between(x, lo, hi, where=where, step=step, color=color, alpha=alpha, lw=0, label=label)
+    if hatch:
+        kw = {"facecolor": "none", "edgecolor": color, "hatch": hatch, "alpha": alpha, "lw": 0}
+    else:
+        kw = {"color": color, "alpha": alpha, "lw": 0}
+    return ax.fill_between(x, lo, hi, where=where, step=step, label=label, **kw)
 
 
 # --------------------------------------------------------------------------- fixed layout

@@ -513,7 +513,8 @@ def fig_comparison_residuals(
             if has_band(f):
                 lo, hi = residual_band(f)
                 name = f"{band_label(level)} {lab}"
-                plot_band(ax, hours(f["t_s"]), lo, hi, color=colour, alpha=0.15, label=name)
+                hatch = ("////", "\\\\\\\\", "||||")[k % 3]
+                plot_band(ax, hours(f["t_s"]), lo, hi, color=colour, alpha=0.45, hatch=hatch, label=name)
             plot_series(ax, hours(f["t_s"]), f["residual_um"], color=colour, lw=1.0, label=f"residual {lab}")
         if outside is not None and len(outside) and bool(np.any(outside["outside"])):
             h = hours(outside["t_s"])
