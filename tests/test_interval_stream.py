@@ -170,3 +170,36 @@ def test_a_broken_block_is_refused_with_its_keys_named():
     broken = with_interval(hand_artefact(), {"level": 0.9, "half_width_um": {"settled": 1.0}})
     with pytest.raises(ValueError, match="interval block"):
         Compensator.from_artefact(broken)
+
+
+def test_the_replay_table_carries_the_interval_and_the_summary_its_coverage(data):
+    """``rafi replay``: per-sample bounds equal to the batch ones, and per run the coverage and
+    median width of the measurement against the model's interval after the reference window."""
+    from test_replay import OPEN, _replay_every_log
+
+    from rafi.deploy.replay import COLUMNS, SUMMARY_COLUMNS, replay_summary, summary_frame
+
+    rule, table, frame = data
+    model = _fit("grey_box", rule, table, frame)
+    artefact = with_interval(model.to_dict())
+    got = _replay_every_log(frame, artefact, OPEN)
+    assert list(got.columns) == list(COLUMNS)
+    want = batch_interval(model, artefact, frame, rule)
+    ok = (got["status"] == "ok").to_numpy() & np.isfinite(want["predicted_um"])
+    assert ok.sum() > 0.9 * len(frame)
+    for col in ("lower_um", "upper_um"):
+        np.testing.assert_allclose(got[col].to_numpy()[ok], want[col][ok], rtol=0, atol=1e-9)
+    np.testing.assert_array_equal(got["interval_cell"].to_numpy()[ok], want["interval_cell"][ok])
+    summary = replay_summary(got)
+    for rid, g in got.groupby("run_id"):
+        use = g[(g["status"] != "referencing") & g["lower_um"].notna() & g["measured_um"].notna()]
+        inside = (use["measured_um"] >= use["lower_um"]) & (use["measured_um"] <= use["upper_um"])
+        assert summary[rid]["coverage"] == pytest.approx(inside.mean())
+        assert summary[rid]["interval_width_um"] == pytest.approx(
+            (use["upper_um"] - use["lower_um"]).median()
+        )
+    assert all(0 <= r["coverage"] <= 1 and r["interval_width_um"] >= 3.0 for r in summary.values())
+    assert {"coverage", "interval_width_um"} <= set(summary_frame(summary, artefact=artefact).columns)
+    assert {"coverage", "interval_width_um"} <= set(SUMMARY_COLUMNS)
+    plain = replay_summary(_replay_every_log(frame, json.loads(json.dumps(model.to_dict())), OPEN))
+    assert all(np.isnan(r["coverage"]) and np.isnan(r["interval_width_um"]) for r in plain.values())
