@@ -332,3 +332,67 @@ def test_a_swapped_model_compensates_from_the_session_reference():
     assert steps[0].status == "ok" and steps[0].model_um == pytest.approx(expected)
     assert abs(steps[0].command_um - before) <= 1.0 + 1e-12
     assert steps[-1].command_um == pytest.approx(expected)
+
+
+# ------------------------------------------------------------------ the interval fault (issue 26)
+#: 2 um wide settled, 4 um in the 100 s after a reset of the change clock, 10 um outside.
+INTERVAL = {
+    "schema": "rafi.interval/1",
+    "level": 0.9,
+    "transient_s": 100.0,
+    "tolerance_rpm": 50.0,
+    "half_width_um": {"settled": 1.0, "transient": 2.0, "outside": 5.0},
+}
+
+
+def sure_artefact(block=INTERVAL) -> dict:
+    d = {**artefact(), "interval": block}
+    d["model_id"] = compute_model_id(d)
+    return d
+
+
+def _speed_step_rows():
+    """The warm-up at 6000 r/min (t = 0..450 s), then 7000 r/min with the temperatures held."""
+    rows = warm(N_REF, 40, rate_k_per_sample=0.1)
+    return rows + [(7000.0, rows[-1][1])] * 20
+
+
+def test_an_interval_wider_than_the_limit_holds_then_ramps_and_names_its_cause():
+    lim = limits(hold_s=50.0, ramp_um_per_s=0.02, safe_um=0.0, rate_um_per_s=1.0, max_interval_um=3.0)
+    rows = _speed_step_rows()
+    out = run(SafeCompensator(limits=lim).load(sure_artefact()), rows)
+    cause = "interval_wide: 4 um wider than deploy.max_interval_um 3 um"
+    # the clock starts at power-on: the first 100 s are a transient (4 um > 3 um), held at the
+    # value of the referencing state (safe_um); the reference window itself is not checked
+    assert [c.status for c in out[:N_REF]] == ["referencing"] * N_REF
+    assert [(c.status, c.command_um, c.fault) for c in out[N_REF:10]] == [("hold", 0.0, cause)] * (10 - N_REF)
+    assert all(c.status == "ok" and c.fault == "" for c in out[10 : len(rows) - 20])
+    good = model_value(rows[-21][1])
+    assert out[len(rows) - 21].command_um == pytest.approx(good, abs=1e-12)
+    # the speed step resets the clock: 100 s of a wide interval, held 50 s, then ramped, then ok
+    step = out[len(rows) - 20 :]
+    assert [c.fault for c in step[:10]] == [cause] * 10 and all(c.fault == "" for c in step[10:])
+    assert [c.status for c in step[:10]] == ["hold"] * 5 + ["ramp"] * 5
+    assert [c.command_um for c in step[:10]] == pytest.approx(
+        [good] * 5 + [good - 0.2 * k for k in range(1, 6)]
+    )
+    assert all(c.status == "ok" and c.command_um == pytest.approx(good, abs=1e-12) for c in step[10:])
+    # the interval reported is the model's, also while the command is held or ramped
+    for c in out[N_REF:]:
+        h = 2.0 if c.fault else 1.0
+        assert (c.lower_um, c.upper_um, c.half_width_um) == pytest.approx((c.model_um - h, c.model_um + h, h))
+        assert c.interval_cell == ("transient" if c.fault else "settled")
+
+
+def test_the_interval_fault_is_off_by_default_and_without_the_block():
+    assert MACHINE_DEFAULTS["deploy"]["max_interval_um"] is None and limits().max_interval_um is None
+    rows = _speed_step_rows()
+    off = run(SafeCompensator(limits=limits()).load(sure_artefact()), rows)
+    assert all(c.status == "ok" and c.fault == "" for c in off[N_REF:])
+    assert {c.interval_cell for c in off[N_REF:]} == {"transient", "settled"}  # reported all the same
+    plain = run(SafeCompensator(limits=limits(max_interval_um=0.001)).load(artefact()), rows)
+    assert all(c.status == "ok" and c.fault == "" for c in plain[N_REF:])
+    assert all(math.isnan(c.lower_um) and c.interval_cell == "" for c in plain)
+    for bad in (0, -1.0, True, "wide"):
+        with pytest.raises(SettingsError, match="deploy.max_interval_um"):
+            limits(max_interval_um=bad)

@@ -638,3 +638,77 @@ def test_a_new_champion_is_swapped_in_and_ramped_to(tmp_path):
     assert any(line.startswith(f"new champion {new['model_id'][:12]} replaces") for line in lines)
     swapped = next(i for i, line in enumerate(lines) if line.startswith("new champion"))
     assert 30 <= swapped - 1 <= 30 + 60 / DT  # at the next look after the promotion
+
+
+def test_the_loop_logs_and_exposes_the_models_interval_and_its_fault():
+    """Issue 26: an artefact with an ``interval`` block and ``deploy.max_interval_um`` set below
+    its transient width: every written line shows the model's interval, the transient after the
+    reference is held with the cause named, and /metrics (read over HTTP) shows the interval of
+    the last cycle and the interval_wide fault count."""
+    import urllib.request
+
+    from prometheus_client.parser import text_string_to_metric_families
+
+    from rafi.deploy.metrics import LoopMetrics
+
+    block = {"schema": "rafi.interval/1", "level": 0.9, "transient_s": 100.0, "tolerance_rpm": 50.0,
+             "half_width_um": {"settled": 0.5, "transient": 1.5, "outside": 4.0}}  # fmt: skip
+    model = {**artefact(), "interval": block}
+    model["model_id"] = compute_model_id(model)
+    rows = scenario()[:40]  # the reference window (60 s), then a rise
+    clock, fed, lines = [0.0], [], []
+
+    class Source:
+        def read(self, now):
+            fed.append((now, *rows[len(fed)]))
+            return [fed[-1]]
+
+        def after_outage(self, samples):
+            return samples
+
+    target, axis = build_target(
+        {"kind": "sinumerik", "axis": {"name": "Z", "number": 3, "sign": -1, "limit_um": 50.0},
+         "int_incr_per_mm": 1000000},
+        sink=DrySink(),
+    )  # fmt: skip
+    safe = SafeCompensator(limits=Limits.from_settings(dict(DEPLOY, max_interval_um=2.0))).load(model)
+    metrics = LoopMetrics(machine="m1", interval_s=DT)
+
+    def sleep(seconds):
+        clock[0] += seconds
+
+    metrics.serve(0)
+    try:
+        loop = LiveLoop(
+            Source(), safe, target, axis=axis, interval_s=DT, clock=lambda: clock[0], sleep=sleep,
+            log=lines.append, metrics=metrics,
+        )  # fmt: skip
+        loop.run(max_cycles=len(rows))
+        text = urllib.request.urlopen(f"http://127.0.0.1:{metrics.port}/metrics", timeout=10).read().decode()
+    finally:
+        metrics.close()
+    got = {
+        (s.name, tuple(sorted(s.labels.items()))): s.value
+        for family in text_string_to_metric_families(text)
+        for s in family.samples
+    }
+    last = loop.last_command
+    assert last.status == "ok" and last.interval_cell == "settled"
+    m1 = (("machine", "m1"),)
+    assert got[("rafi_deploy_interval_lower_um", m1)] == pytest.approx(last.model_um - 0.5, abs=1e-12)
+    assert got[("rafi_deploy_interval_upper_um", m1)] == pytest.approx(last.model_um + 0.5, abs=1e-12)
+    assert got[("rafi_deploy_interval_half_width_um", m1)] == 0.5
+    assert got[("rafi_deploy_interval_cell", (("cell", "settled"), *m1))] == 1.0
+    assert got[("rafi_deploy_interval_cell", (("cell", "transient"), *m1))] == 0.0
+    # t = 60..95 s after the reference: a transient 3 um wide, 8 cycles held with the cause
+    assert got[("rafi_deploy_faults_total", (("cause", "interval_wide"), *m1))] == 8
+    written = [line for line in lines if " um (model" in line]
+    assert len(written) == len(rows)
+    wide = [line for line in written if "interval_wide: 3 um wider than deploy.max_interval_um 2 um" in line]
+    # held for hold_s (30 s), then ramped: the cause and the model's interval on every line
+    assert [line.split()[1] for line in wide] == ["hold"] * 6 + ["ramp"] * 2
+    assert all("] transient)" in line for line in wide)
+    assert (
+        f"(model {last.model_um:+.3f} um in [{last.lower_um:+.3f}, {last.upper_um:+.3f}] settled)"
+        in written[-1]
+    )

@@ -25,6 +25,7 @@ from rafi.artefact import compute_model_id  # noqa: E402
 from rafi.deploy.limits import Command, Limits, SafeCompensator  # noqa: E402
 from rafi.deploy.metrics import (  # noqa: E402
     FAULT_CLASSES,
+    INTERVAL_CELLS,
     LoopMetrics,
     RecordMetrics,
     fault_classes,
@@ -34,6 +35,14 @@ from rafi.errors import SettingsError  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS  # noqa: E402
 
 NAN = math.nan
+#: An artefact's interval block (issue 26): 5 um wide when settled, 7 um in a transient.
+INTERVAL = {
+    "schema": "rafi.interval/1",
+    "level": 0.9,
+    "transient_s": 30.0,
+    "tolerance_rpm": 50.0,
+    "half_width_um": {"settled": 2.5, "transient": 3.5, "outside": 6.0},
+}
 
 
 def scrape(port: int) -> dict:
@@ -91,7 +100,7 @@ def _faults_of_the_safe_compensator() -> dict[str, str]:
     limits = Limits.from_settings(dict(DEPLOY, range_margin_k=1.0))
     out = {}
 
-    def run(rows):
+    def run(rows, model=model, limits=limits):
         safe = SafeCompensator(limits=limits).load(model)
         t, cmd = 0.0, None
         window = [
@@ -109,6 +118,10 @@ def _faults_of_the_safe_compensator() -> dict[str, str]:
     out["outside_range (speed)"] = run([(12000.0, [30.0, 31.0, 32.0])])
     rising = [(6000.0, [30.0 + 0.2 * k, 31.0 + 0.2 * k, 32.0]) for k in range(1, 16)]  # T9 sits still
     out["stuck"] = run(rising)
+    sure = {**model, "interval": INTERVAL}
+    sure["model_id"] = compute_model_id(sure)
+    narrow = Limits.from_settings(dict(DEPLOY, range_margin_k=1.0, max_interval_um=4.0))
+    out["interval_wide"] = run([(6000.0, [30.0, 31.0, 32.0])], model=sure, limits=narrow)  # 5 um wide
     return out
 
 
@@ -173,7 +186,7 @@ def test_the_loop_metrics_read_over_http(served):
         k: value(s, "rafi_deploy_faults_total", machine="m1", cause=k) for k in (*FAULT_CLASSES, "other")
     }
     assert faults == {"missing": 2, "speed_missing": 1, "out_of_range": 0, "stuck": 0, "outside_range": 0,
-                      "no_value": 0, "other": 0}  # fmt: skip
+                      "no_value": 0, "interval_wide": 0, "other": 0}  # fmt: skip
     assert value(s, "rafi_deploy_limited_total", machine="m1", limit="rate") == 1
     assert value(s, "rafi_deploy_limited_total", machine="m1", limit="clamp") == 1
     assert value(s, "rafi_deploy_cycles_total", machine="m1") == 5
@@ -193,6 +206,34 @@ def test_the_loop_metrics_read_over_http(served):
     assert [k for k in s if k[0] == "rafi_deploy_model_info"] == [
         ("rafi_deploy_model_info", frozenset({"machine": "m1", "model_id": "d4e5f6"}.items()))
     ]
+
+
+def test_the_interval_and_its_fault_read_over_http(served):
+    """The model's interval of the last cycle (gauges, one cell at 1) and the interval_wide class."""
+    m = served(machine="m1")
+    s = scrape(m.port)
+    for name in ("lower_um", "upper_um", "half_width_um"):
+        assert math.isnan(value(s, f"rafi_deploy_interval_{name}", machine="m1"))
+    assert {value(s, "rafi_deploy_interval_cell", machine="m1", cell=c) for c in INTERVAL_CELLS} == {0}
+    wide = "interval_wide: 7 um wider than deploy.max_interval_um 6 um"
+    c = command("hold", cmd=1.0, model=2.0, fault=wide)._replace(
+        lower_um=-1.5, upper_um=5.5, half_width_um=3.5, interval_cell="transient"
+    )
+    m.cycle(c, written=True, step_seconds=0.001)
+    s = scrape(m.port)
+    got = {
+        n: value(s, f"rafi_deploy_interval_{n}", machine="m1")
+        for n in ("lower_um", "upper_um", "half_width_um")
+    }
+    assert got == {"lower_um": -1.5, "upper_um": 5.5, "half_width_um": 3.5}
+    cells = {k: value(s, "rafi_deploy_interval_cell", machine="m1", cell=k) for k in INTERVAL_CELLS}
+    assert cells == {"settled": 0, "transient": 1, "outside": 0}
+    assert value(s, "rafi_deploy_faults_total", machine="m1", cause="interval_wide") == 1
+    m.cycle(command("ok", cmd=2.0, model=2.0), written=True, step_seconds=0.001)  # no interval: NaN, no cell
+    s = scrape(m.port)
+    assert math.isnan(value(s, "rafi_deploy_interval_upper_um", machine="m1"))
+    assert {value(s, "rafi_deploy_interval_cell", machine="m1", cell=c) for c in INTERVAL_CELLS} == {0}
+    assert value(s, "rafi_deploy_faults_total", machine="m1", cause="interval_wide") == 1
 
 
 def test_the_age_before_the_first_write_counts_from_the_start(served):

@@ -50,6 +50,7 @@ OPEN = Limits(
     safe_um=0.0,
     ramp_um_per_s=1.0,
     interval_s=1e9,
+    max_interval_um=None,
 )
 
 

@@ -223,6 +223,18 @@ PRESENTATION_SETTINGS: dict = {
                 limit=True,
                 replay=True,
             ),
+            "max_interval_um": Setting(
+                default=None,
+                schema={"oneOf": [{"type": "null"}, {"type": "number", "exclusiveMinimum": 0}]},
+                shown="none",
+                doc=(
+                    "a fault (`interval_wide`, held and ramped like the others) while the model's prediction "
+                    "interval is wider than this (um, upper - lower; the artefact's `interval` block); none: "
+                    'off (docs/deploy.md "Limits and faults")'
+                ),
+                limit=True,
+                replay=True,
+            ),
             "target": Setting(
                 default=None,
                 schema={"oneOf": [{"type": "null"}, {"type": "object"}]},

@@ -59,6 +59,17 @@ to what a device cannot know when a sample arrives:
   device runs the recursion, and the final dot product is summed in another order; the
   difference is ~1e-12 um.
 
+The prediction interval
+-----------------------
+With an ``interval`` block in the artefact (issue 26), every step also carries the interval of
+the model's value, ``[value - h, value + h]`` (``Step.lower_um``, ``upper_um``,
+``half_width_um``, ``interval_cell``) by the rule of :mod:`rafi.family.interval_rule`
+(:mod:`rafi.deploy.interval_stream`). The change clock is reset at the first sample, at a
+filter restart (``dt > restart_gap_s``) and at the first sample after :meth:`capture_reference`;
+the batch code resets it at the layout's restarts and at each reference group's first row, so
+on the log fed as above the interval equals the batch one to 1e-9 um wherever the compensation
+does. Without the block, or without a value, the bounds are NaN and the cell ``""``.
+
 Limits and fault rules (not yet)
 --------------------------------
 Clamp, rate limit, sensor faults and the trained range are issue 14's next step. The hooks:
@@ -79,6 +90,7 @@ import numpy as np
 
 from rafi import SENSORS
 from rafi.artefact import model_id_verifies
+from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
 from rafi.deploy.streaming import LowpassBank, ReferenceWindow
 from rafi.method.fuzzy import triangular_weights
 
@@ -98,7 +110,12 @@ SPEED_POWER_SCALE_RPM = 10000.0  # rafi.family.features.SPEED_POWER_SCALE_RPM
 
 
 class Step(NamedTuple):
-    """The result of one :meth:`Compensator.step`."""
+    """The result of one :meth:`Compensator.step`.
+
+    ``lower_um`` / ``upper_um`` / ``half_width_um`` / ``interval_cell``: the prediction interval
+    of the model's value (:mod:`rafi.deploy.interval_stream`; around 0 um while referencing);
+    NaN / ``""`` when the artefact has no ``interval`` block or the model has no value.
+    """
 
     t_s: float
     compensation_um: float
@@ -106,6 +123,10 @@ class Step(NamedTuple):
     raw_um: float
     outside_speed_range: bool
     outside_temp_range: bool
+    lower_um: float = float("nan")
+    upper_um: float = float("nan")
+    half_width_um: float = float("nan")
+    interval_cell: str = ""
 
 
 def parse_exponents(terms: Sequence[str], n_vars: int) -> np.ndarray:
@@ -190,6 +211,8 @@ class Compensator:
         The reference window being captured (from the first sample on: an empty one).
     input_rule, output_rule : callable or None
         The hooks of the module docstring.
+    interval : StreamInterval or None
+        The artefact's prediction interval (None: no ``interval`` block, no interval).
     """
 
     def __init__(
@@ -217,6 +240,7 @@ class Compensator:
         window: ReferenceWindow | None,
         input_rule: Callable | None = None,
         output_rule: Callable | None = None,
+        interval: StreamInterval | None = None,
     ):
         self.kind = kind
         self.model_id = model_id
@@ -240,6 +264,9 @@ class Compensator:
         self.input_rule = input_rule
         self.output_rule = output_rule
         self.window = window  # the reference window being captured (None: a reference in force)
+        self.interval = interval
+        self._since_change_s = float("nan")
+        self._reset_clock = False  # the next sample starts a reference window: reset the clock
         # run-time state: the last sample's time, the reference in force
         self.t_prev_s: float | None = None
         self.ref_values: np.ndarray | None = None
@@ -268,6 +295,7 @@ class Compensator:
         window_s = float(ref.get("window_s", 0.0))
         common = dict(kind=kind, model_id=str(d.get("model_id", "")), window_s=window_s)
         hooks = dict(input_rule=input_rule, output_rule=output_rule, window=ReferenceWindow.create(window_s))
+        hooks["interval"] = StreamInterval.from_artefact(d)
         if kind in ("rafi", "rafi_linear"):
             return cls(**common, **cls._rafi_parts(d), **hooks)
         return cls(**common, **cls._ridge_parts(d), **hooks)
@@ -362,6 +390,7 @@ class Compensator:
         """Capture a new reference state from the next sample on (the filters run on)."""
         self.window = ReferenceWindow.create(self.window_s)
         self.ref_values = None
+        self._reset_clock = True
 
     def set_reference(self, temperatures, speed_rpm: float) -> None:
         """Use a given reference state: temperatures ``T1..T16`` (degC) and speed (r/min).
@@ -422,10 +451,14 @@ class Compensator:
             rpm, temps_all, forced = self.input_rule(t, rpm, temps_all)
         temps = temps_all[self.sensor_index]
         dt = 0.0 if self.t_prev_s is None else t - self.t_prev_s
-        if self.t_prev_s is None or dt > self.restart_gap_s:
+        restart = self.t_prev_s is None or dt > self.restart_gap_s
+        if restart:
             for bank in self.banks.values():
                 bank.restart()
         self.t_prev_s = t
+        if self.interval is not None:
+            self._since_change_s = self.interval.update(t, rpm, reset=restart or self._reset_clock)
+        self._reset_clock = False
         values, draw = self._filter(temps, rpm, dt)
         if self.window is not None:
             if not self.window.closes_at(t):
@@ -449,9 +482,13 @@ class Compensator:
 
     def _finish(self, t: float, raw: float, status: str, out_speed: bool, out_temp: bool) -> Step:
         value = raw if status != "no_value" else float("nan")
+        bounds = NO_INTERVAL
+        if self.interval is not None:
+            outside = bool(out_speed or out_temp)
+            bounds = self.interval.bounds(float(value), since_change_s=self._since_change_s, outside=outside)
         if self.output_rule is not None:
             value, status = self.output_rule(t, raw, status, out_speed, out_temp)
-        return Step(t, float(value), status, float(raw), bool(out_speed), bool(out_temp))
+        return Step(t, float(value), status, float(raw), bool(out_speed), bool(out_temp), *bounds)
 
     def _rafi(self, rises: np.ndarray, rpm: float) -> tuple[float, bool, bool]:
         """:meth:`rafi.method.model.RafiModel._evaluate` and its flags for one row."""

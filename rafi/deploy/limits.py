@@ -37,13 +37,18 @@ The rules, per sample, in this order
    trained speed by more than ``speed_margin_rpm``. Speeds below the trained ones are not
    outside: the machine at rest cooling down is normal service, and every model of the family
    extrapolates to rest by its own rule (``docs/models.md``).
-5. **Fault rule.** On a fault (2), a model without value, or outside the trained range (4),
-   the command *holds* for ``hold_s`` seconds (status ``hold``) the last command sent in
-   ``ok`` or ``referencing`` state (at start or after a reconnect: the value read from the
-   controller), then *ramps* to ``safe_um`` at ``ramp_um_per_s`` (status ``ramp``) and stays
-   there. When the fault clears, the status is ``ok`` again and the command returns to the
-   model's value under the rate limit (6). ``fault`` names every cause.
-6. **Clamp**, then **rate limit.** The target value is clamped to ``clamp_um``; the command
+5. **Interval too wide** (``max_interval_um``, off by default): the model's prediction
+   interval (the artefact's ``interval`` block, :mod:`rafi.deploy.interval_stream`) is wider
+   (``upper - lower``) than ``max_interval_um``; cause ``interval_wide: <width> um wider than
+   deploy.max_interval_um <limit> um``. Checked where the model has a value and its reference
+   is in force (not while ``referencing``); an artefact without the block never trips it.
+6. **Fault rule.** On a fault (2), a model without value, outside the trained range (4) or an
+   interval too wide (5), the command *holds* for ``hold_s`` seconds (status ``hold``) the
+   last command sent in ``ok`` or ``referencing`` state (at start or after a reconnect: the
+   value read from the controller), then *ramps* to ``safe_um`` at ``ramp_um_per_s`` (status
+   ``ramp``) and stays there. When the fault clears, the status is ``ok`` again and the command returns to the
+   model's value under the rate limit (7). ``fault`` names every cause.
+7. **Clamp**, then **rate limit.** The target value is clamped to ``clamp_um``; the command
    then moves towards it by at most ``rate_um_per_s * min(dt, interval_s)`` per sample (``dt``
    the time since the previous sample, ``interval_s`` the loop's interval, one sample per
    write; a replay sets it to the log's sample period; 0 at the first sample): after a long
@@ -65,6 +70,12 @@ a model swapped in while running compensates from the same reference as the one 
 machine is taken as thermally settled at the swap (:meth:`SafeCompensator.swap`).
 
 The command is always finite and inside ``clamp_um``.
+
+The interval a :class:`Command` reports (``lower_um``, ``upper_um``, ``half_width_um``,
+``interval_cell``) is the *model's*: around ``model_um``, also during ``hold`` and ``ramp``
+(where the command is not the model's value, and no interval is claimed for it); the fault
+says why the command left the model. NaN / ``""`` without a block, without a model value, and
+while off.
 """
 
 from __future__ import annotations
@@ -86,7 +97,7 @@ STATUSES = {
     "off": "no qualified model loaded: nothing is sent",
     "referencing": "the model collects its reference window: the command goes to safe_um",
     "ok": "the model's value, clamped and rate limited",
-    "hold": "a fault or outside the trained range: the command in force is held",
+    "hold": "a fault, outside the trained range or the interval too wide: the command in force is held",
     "ramp": "the fault lasted longer than hold_s: the command ramps to safe_um",
 }
 
@@ -107,6 +118,7 @@ class Limits:
     safe_um: float
     ramp_um_per_s: float
     interval_s: float
+    max_interval_um: float | None
 
     @classmethod
     def from_settings(cls, deploy: dict) -> Limits:
@@ -129,6 +141,7 @@ class Limits:
             safe_um=deploy["safe_um"],
             ramp_um_per_s=deploy["ramp_um_per_s"],
             interval_s=deploy["interval_s"],
+            max_interval_um=deploy["max_interval_um"],
         )
         for key in ("clamp_um", "temp_valid_c"):
             lo, hi = (float(v) for v in kw[key])
@@ -138,14 +151,18 @@ class Limits:
         for key in ("rate_um_per_s", "ramp_um_per_s", "interval_s", "stuck_s", "stuck_change_k"):
             if not float(kw[key]) > 0:
                 raise SettingsError(f"deploy.{key} is {kw[key]!r}; it must be above 0")
+        wide = kw["max_interval_um"]
+        if wide is not None and (isinstance(wide, bool) or not (isinstance(wide, (int, float)) and wide > 0)):
+            raise SettingsError(f"deploy.max_interval_um is {wide!r}; expected um above 0, or none (off)")
         if not kw["clamp_um"][0] <= float(kw["safe_um"]) <= kw["clamp_um"][1]:
             clamp = list(kw["clamp_um"])
             raise SettingsError(f"deploy.safe_um ({kw['safe_um']}) is outside deploy.clamp_um {clamp}")
-        return cls(**{k: (v if isinstance(v, tuple) else float(v)) for k, v in kw.items()})
+        return cls(**{k: (v if isinstance(v, tuple) or v is None else float(v)) for k, v in kw.items()})
 
 
 class Command(NamedTuple):
-    """What :meth:`SafeCompensator.step` returns for one sample (module docstring)."""
+    """What :meth:`SafeCompensator.step` returns for one sample (module docstring; the
+    interval fields are the model's interval, NaN / ``""`` without one)."""
 
     t_s: float
     command_um: float
@@ -157,6 +174,10 @@ class Command(NamedTuple):
     fault: str
     outside_range: bool
     send: bool
+    lower_um: float = float("nan")
+    upper_um: float = float("nan")
+    half_width_um: float = float("nan")
+    interval_cell: str = ""
 
 
 class _SensorWatch:
@@ -375,8 +396,18 @@ class SafeCompensator:
             out.append(f"speed {abs(rpm):.0f} r/min above trained {top:.0f} r/min")
         return out
 
+    def _interval_wide(self, out) -> list[str]:
+        """The cause of rule 5 for the model's step ``out`` (empty: off, no interval, or narrow)."""
+        limit = self.limits.max_interval_um
+        if limit is None or out.status == "referencing":
+            return []
+        width = out.upper_um - out.lower_um
+        if not width > limit:  # NaN (no interval) is not a fault
+            return []
+        return [f"interval_wide: {width:.3g} um wider than deploy.max_interval_um {limit:g} um"]
+
     def _target(self, t: float, dt: float, model_status: str, model_um: float, causes: list) -> tuple:
-        """(status, the value the command moves towards) by the rules 3 and 5."""
+        """(status, the value the command moves towards) by the rules 3 and 6."""
         lim = self.limits
         if model_status == "referencing" and not causes:
             self._bad_since = None
@@ -392,7 +423,7 @@ class SafeCompensator:
         return "ok", model_um
 
     def _limit(self, target: float, dt: float) -> tuple[float, bool, bool]:
-        """(command, clamped, rate_limited): rule 6, and which limit changed the command."""
+        """(command, clamped, rate_limited): rule 7, and which limit changed the command."""
         lim, previous = self.limits, self.command_um_
         clamped_target = float(np.clip(target, *lim.clamp_um))
         max_step = lim.rate_um_per_s * min(dt, lim.interval_s)
@@ -419,6 +450,7 @@ class SafeCompensator:
         if out.status == "no_value" and not causes:
             causes.append("no model value")
         causes += outside
+        causes += self._interval_wide(out)
         dt = 0.0 if self._last_t is None else max(t - self._last_t, 0.0)
         self._last_t = t
         status, target = self._target(t, dt, out.status, out.compensation_um, causes)
@@ -428,4 +460,7 @@ class SafeCompensator:
             self.held_um_ = command
         model, raw = float(out.compensation_um), float(out.raw_um)
         faults = "; ".join(causes)
-        return Command(t, command, status, model, raw, clamped, rate_limited, faults, bool(outside), True)
+        interval = (out.lower_um, out.upper_um, out.half_width_um, out.interval_cell)
+        return Command(
+            t, command, status, model, raw, clamped, rate_limited, faults, bool(outside), True, *interval
+        )

@@ -474,6 +474,9 @@ class LiveLoop:
             if on
         )
         model = f"model {command.model_um:+.3f} um" if math.isfinite(command.model_um) else "model: no value"
+        lower, upper = getattr(command, "lower_um", math.nan), getattr(command, "upper_um", math.nan)
+        if math.isfinite(lower) and math.isfinite(upper):  # the model's interval (docs/deploy.md)
+            model += f" in [{lower:+.3f}, {upper:+.3f}] {command.interval_cell}"
         self.log(
             f"{datetime.now().isoformat(timespec='seconds')} {command.status:<11} {value:+9.3f} um "
             f"({model}){flags}{'  ' + command.fault if command.fault else ''}"

@@ -20,6 +20,11 @@ metric                                 type     meaning
 =====================================  =======  ==============================================
 ``<p>_command_um``                     gauge    the command of the last cycle (um)
 ``<p>_model_um``                       gauge    the model's value (um); NaN when it has none
+``<p>_interval_lower_um``              gauge    the model's prediction interval, lower end (um)
+``<p>_interval_upper_um``              gauge    ... upper end (um); both NaN without an interval
+``<p>_interval_half_width_um``         gauge    its half-width (um); NaN without an interval
+``<p>_interval_cell{cell}``            gauge    1 for the interval's cell (``settled``,
+                                                ``transient``, ``outside``) of the last cycle
 ``<p>_status{status}``                 gauge    1 for the status of the last cycle, 0 others
 ``<p>_faults_total{cause}``            counter  cycles with a fault of this class
 ``<p>_limited_total{limit}``           counter  cycles where ``clamp`` / ``rate`` acted
@@ -36,7 +41,8 @@ metric                                 type     meaning
 
 Fault classes (``cause``), from the texts of :attr:`rafi.deploy.limits.Command.fault`:
 ``missing``, ``out_of_range``, ``stuck``, ``speed_missing``, ``outside_range`` (a sensor rise
-or the speed beyond the trained range), ``no_value`` (the model has no value), ``other``
+or the speed beyond the trained range), ``no_value`` (the model has no value),
+``interval_wide`` (the prediction interval wider than ``deploy.max_interval_um``), ``other``
 (a text this module does not know: counted, never lost).
 
 ``rafi record`` (prefix ``rafi_record``, :class:`RecordMetrics`): ``<p>_rows_total``,
@@ -64,7 +70,14 @@ try:  # the deploy extra; without it only metrics_port none works (metrics_from_
 except ImportError:  # pragma: no cover - the test extra installs it
     CollectorRegistry = None
 
-__all__ = ["FAULT_CLASSES", "LoopMetrics", "RecordMetrics", "fault_classes", "metrics_from_settings"]
+__all__ = [
+    "FAULT_CLASSES",
+    "INTERVAL_CELLS",
+    "LoopMetrics",
+    "RecordMetrics",
+    "fault_classes",
+    "metrics_from_settings",
+]
 
 #: Fault class -> the pattern of its text in ``Command.fault`` (tried in this order).
 FAULT_CLASSES = {
@@ -74,7 +87,10 @@ FAULT_CLASSES = {
     "stuck": re.compile(r" stuck$"),
     "outside_range": re.compile(r"outside trained range|above trained"),
     "no_value": re.compile(r"^no model value$"),
+    "interval_wide": re.compile(r"^interval_wide\b"),
 }
+#: The cells of the prediction interval (:data:`rafi.family.interval_rule.CELLS`).
+INTERVAL_CELLS = ("settled", "transient", "outside")
 #: The statuses exposed from the start (others get their series when first seen).
 KNOWN_STATUSES = ("off", "referencing", "ok", "hold", "ramp")
 #: Seconds per cycle: a cycle reads, computes and writes over OPC UA (ms), or waits for a
@@ -217,6 +233,20 @@ class LoopMetrics(_Metrics):
         self._model = self._gauge("model_um", "the model's value of the last cycle (um); NaN without one")
         self._model.set(math.nan)
         self._command.set(math.nan)
+        self._interval = {
+            "lower_um": self._gauge("interval_lower_um", "the model's prediction interval, lower end (um)"),
+            "upper_um": self._gauge("interval_upper_um", "the model's prediction interval, upper end (um)"),
+            "half_width_um": self._gauge(
+                "interval_half_width_um", "the prediction interval's half-width (um)"
+            ),
+        }
+        for gauge in self._interval.values():
+            gauge.set(math.nan)
+        self._cell = self._gauge(
+            "interval_cell", "1 for the prediction interval's cell, 0 for the others", "cell"
+        )
+        for cell in INTERVAL_CELLS:
+            self._labels(self._cell, cell=cell).set(0.0)
         self._status = self._gauge("status", "1 for the status of the last cycle, 0 for the others", "status")
         for status in KNOWN_STATUSES:
             self._labels(self._status, status=status).set(0.0)
@@ -265,6 +295,15 @@ class LoopMetrics(_Metrics):
             self._labels(self._faults, cause=cause).inc()
         return classes
 
+    def interval(self, command) -> None:
+        """Set the interval gauges from a command's model interval (NaN and no cell: none)."""
+        for name, gauge in self._interval.items():
+            v = float(getattr(command, name, math.nan))
+            gauge.set(v if math.isfinite(v) else math.nan)
+        cell = str(getattr(command, "interval_cell", "") or "")
+        for known in INTERVAL_CELLS:
+            self._labels(self._cell, cell=known).set(1.0 if known == cell else 0.0)
+
     def cycle(self, command=None, *, written: bool, step_seconds: float) -> None:
         """Record one cycle.
 
@@ -285,6 +324,7 @@ class LoopMetrics(_Metrics):
             self._model.set(model if math.isfinite(model) else math.nan)
             self.status(command.status)
             self.fault(command.fault)
+            self.interval(command)
             for limit, acted in (("clamp", command.clamped), ("rate", command.rate_limited)):
                 if acted:
                     self._labels(self._limited, limit=limit).inc()

@@ -51,6 +51,9 @@ COLUMNS = (
     "speed_rpm",
     "measured_um",
     "model_um",
+    "lower_um",
+    "upper_um",
+    "interval_cell",
     "command_um",
     "status",
     "clamped",
@@ -81,6 +84,8 @@ SUMMARY_COLUMNS = (
     "max_abs_measured_um",
     "max_abs_residual_model_um",
     "max_abs_residual_um",
+    "coverage",
+    "interval_width_um",
 )
 
 _NEEDED = ("log", "log_t_s", "run_id", "t_s", "speed_rpm", "dz_um", *SENSORS)
@@ -132,7 +137,9 @@ def replay_log(
     DataFrame
         One row per sample in feeding order, the columns of :data:`COLUMNS`:
         ``measured_um`` is the frame's ``dz_um``, ``model_um`` the compensator's value (NaN
-        where it has none), ``command_um`` what would be written, ``residual_um`` =
+        where it has none), ``lower_um`` / ``upper_um`` / ``interval_cell`` the model's prediction
+        interval (around ``model_um``; NaN / ``""`` without the artefact's ``interval`` block or
+        a model value), ``command_um`` what would be written, ``residual_um`` =
         ``measured_um - command_um``; ``status``, ``clamped``, ``rate_limited``, ``fault``,
         ``outside_range`` as the safe compensator's command says.
 
@@ -166,6 +173,9 @@ def replay_log(
         rows.append(
             (
                 float(c.model_um),
+                float(c.lower_um),
+                float(c.upper_um),
+                str(c.interval_cell),
                 float(c.command_um),
                 str(c.status),
                 bool(c.clamped),
@@ -174,7 +184,18 @@ def replay_log(
                 bool(c.outside_range),
             )
         )
-    cols = ["model_um", "command_um", "status", "clamped", "rate_limited", "fault", "outside_range"]
+    cols = [
+        "model_um",
+        "lower_um",
+        "upper_um",
+        "interval_cell",
+        "command_um",
+        "status",
+        "clamped",
+        "rate_limited",
+        "fault",
+        "outside_range",
+    ]
     got = pd.DataFrame(rows, columns=cols)
     out = pd.DataFrame(
         {
@@ -258,6 +279,18 @@ def _max_abs(values) -> float:
     return float(v.max()) if len(v) else float("nan")
 
 
+def _coverage(g: pd.DataFrame) -> dict:
+    """``coverage`` and ``interval_width_um`` of one run's replay rows (:func:`replay_summary`)."""
+    lower, upper = g["lower_um"].to_numpy(dtype=float), g["upper_um"].to_numpy(dtype=float)
+    measured = g["measured_um"].to_numpy(dtype=float)
+    use = (g["status"].astype(str).to_numpy() != "referencing") & np.isfinite(measured)
+    use &= np.isfinite(lower) & np.isfinite(upper)
+    if not use.any():
+        return {"coverage": float("nan"), "interval_width_um": float("nan")}
+    inside = (measured[use] >= lower[use]) & (measured[use] <= upper[use])
+    return {"coverage": float(inside.mean()), "interval_width_um": float(np.median((upper - lower)[use]))}
+
+
 def replay_summary(table: pd.DataFrame) -> dict:
     """What the limits did on each replayed run, from the replay table alone.
 
@@ -276,7 +309,11 @@ def replay_summary(table: pd.DataFrame) -> dict:
         and its sample count, ``"T8 missing: 4; ..."``, in order of first appearance);
         ``max_abs_command_minus_model_um`` (where the model has a value), ``max_abs_measured_um``
         (uncompensated), ``max_abs_residual_model_um`` (measured - model: without the limits,
-        where the model has a value) and ``max_abs_residual_um`` (measured - command: with them).
+        where the model has a value) and ``max_abs_residual_um`` (measured - command: with them);
+        ``coverage`` (the fraction of the samples after the reference window, with a finite
+        measurement and a model interval, whose measurement lies inside the model's interval)
+        and ``interval_width_um`` (the median ``upper_um - lower_um`` over those samples), NaN
+        without such samples (an artefact without an ``interval`` block).
     """
     out: dict = {}
     for rid, g in table.groupby(table["run_id"].astype(str), sort=False):
@@ -298,6 +335,7 @@ def replay_summary(table: pd.DataFrame) -> dict:
             max_abs_measured_um=_max_abs(measured),
             max_abs_residual_model_um=_max_abs(measured - model),
             max_abs_residual_um=_max_abs(measured - command),
+            **_coverage(g),
         )
         out[rid] = row
     return out

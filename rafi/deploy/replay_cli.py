@@ -15,6 +15,7 @@ thermal_log_2026-10-14_11.csv), and summary.csv; prints what each limit did. doc
 from __future__ import annotations
 
 import json
+import math
 import re
 from pathlib import Path
 
@@ -107,6 +108,14 @@ def file_stem(run_id: str) -> str:
     return re.sub(r"[^A-Za-z0-9._-]+", "_", str(run_id)).strip("_") or "run"
 
 
+def _interval_text(row: dict) -> str:
+    """The model's interval on a run (coverage and median width), empty without one."""
+    coverage, width = row.get("coverage"), row.get("interval_width_um")
+    if coverage is None or width is None or not (math.isfinite(coverage) and math.isfinite(width)):
+        return ""
+    return f"; the model's interval (median width {width:.2f} um) held the measurement on {coverage:.0%}"
+
+
 def summary_lines(summary, limits) -> list[str]:
     """What ``rafi replay`` prints per run: counts per status and what each limit did."""
     from rafi.deploy.replay import REPLAY_STATUSES
@@ -123,7 +132,7 @@ def summary_lines(summary, limits) -> list[str]:
             + (f" [{r['faults']}]" if r["faults"] else "")
             + f"; max |command - model| {r['max_abs_command_minus_model_um']:.2f} um; max |residual| "
             f"{r['max_abs_residual_um']:.2f} um with the limits, {r['max_abs_residual_model_um']:.2f} um "
-            f"without (uncompensated {r['max_abs_measured_um']:.2f} um)"
+            f"without (uncompensated {r['max_abs_measured_um']:.2f} um)" + _interval_text(r)
         )
     return lines
 

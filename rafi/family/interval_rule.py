@@ -100,3 +100,59 @@ def since_change(
     for i, (t, rpm, r) in enumerate(zip(np.asarray(t_s, float), np.asarray(speed_rpm, float), reset)):
         out[i] = clock.update(t, rpm, reset=bool(r))
     return out
+
+
+def change_resets(restart: np.ndarray, ref_group: np.ndarray) -> np.ndarray:
+    """Where the change clock is reset in a batch layout (sorted rows): the filter restarts
+    (:attr:`rafi.family.whole_log.Layout.restart`) and the first row of every reference group
+    (:attr:`~rafi.family.whole_log.Layout.ref_group`, the start of its reference window)."""
+    out = np.asarray(restart, dtype=bool).copy()
+    groups = np.asarray(ref_group)
+    if len(groups):
+        out[np.unique(groups, return_index=True)[1]] = True
+    return out
+
+
+def batch_bounds(
+    interval: dict,
+    *,
+    predicted_um: np.ndarray,
+    t_s: np.ndarray,
+    speed_rpm: np.ndarray,
+    reset: np.ndarray,
+    outside: np.ndarray,
+) -> dict[str, np.ndarray]:
+    """The interval of every sample of a sorted series (the batch side of the streaming rule).
+
+    Parameters
+    ----------
+    interval : dict
+        An artefact's ``interval`` block.
+    predicted_um, t_s, speed_rpm : ndarray
+        The prediction (um, NaN: no value), time (s) and speed (r/min) of the samples, sorted
+        as a :class:`rafi.family.whole_log.Layout` sorts them (logs one after the other).
+    reset : ndarray of bool
+        :func:`change_resets` of the layout (a log's first row is a restart).
+    outside : ndarray of bool
+        ``outside_temp_range | outside_speed_range`` of ``predict_detail``.
+
+    Returns
+    -------
+    dict
+        ``lower_um``, ``upper_um``, ``half_width_um`` (NaN where the prediction is NaN) and
+        ``interval_cell`` (``""`` there), in the input order.
+    """
+    since = since_change(t_s, speed_rpm, reset, tolerance_rpm=float(interval["tolerance_rpm"]))
+    transient_s = float(interval["transient_s"])
+    cells = np.array(
+        [
+            interval_cell(since_change_s=s, outside=bool(o), transient_s=transient_s)
+            for s, o in zip(since, np.asarray(outside, dtype=bool))
+        ],
+        dtype=object,
+    )
+    pred = np.asarray(predicted_um, dtype=float)
+    h = np.array([half_width_um(interval, c) for c in cells], dtype=float).reshape(len(cells))
+    h[~np.isfinite(pred)] = np.nan
+    cells[~np.isfinite(pred)] = ""
+    return {"lower_um": pred - h, "upper_um": pred + h, "half_width_um": h, "interval_cell": cells}
