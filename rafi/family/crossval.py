@@ -232,6 +232,7 @@ def cross_validate(
     scheme: str = "leave_one_run_out",
     *,
     name: str = "",
+    oof: list | None = None,
 ) -> pd.DataFrame:
     """Whole-run CV of the model that ``model_factory()`` builds, on the training runs only.
 
@@ -243,6 +244,10 @@ def cross_validate(
     held-out runs once (:func:`rafi.family.whole_log.rows_of_logs`; per-run frames: the
     held-out runs' rows) and each held-out run is scored on its own samples. Metrics per
     held-out run are those of ``docs/design.md`` (``max |dz - predicted|``, improvement, RMSE).
+
+    With ``oof`` (a list), the held-out samples themselves are appended to it as one frame
+    (:func:`rafi.family.intervals.oof_samples`, :data:`rafi.family.intervals.OOF_COLUMNS`): the
+    out-of-fold residuals the prediction interval is calibrated on.
 
     Returns
     -------
@@ -259,6 +264,7 @@ def cross_validate(
     # what any fold's fit and prediction can see: the logs holding a training run (the fits
     # share their features, rafi.family.feature_memo)
     frame = runs_frame.loc[rows_of_logs(runs_frame, train_table["run_id"])]
+    held_out, artefact = [], None
     with sharing_features(frame):
         for k, (train_ids, test_ids) in enumerate(split_runs(runs_table, scheme)):
             assert_disjoint(train_ids, test_ids)
@@ -270,10 +276,15 @@ def cross_validate(
             fitted_on = set(map(str, training_runs(fold_table, frame)[0][col]))
             assert fitted_on == set(map(str, train_ids)), "a fold fits on exactly its training runs"
             model = model_factory().fit(fold_table, frame)
-            needed = frame.loc[rows_of_logs(frame, {run_of_unit[str(u)] for u in test_ids})]
-            predicted = np.asarray(model.predict(needed), dtype=float)
+            needed_mask = rows_of_logs(frame, {run_of_unit[str(u)] for u in test_ids})
+            needed = frame.loc[needed_mask]
+            detail = model.predict_detail(needed)
+            predicted = detail["predicted_um"].to_numpy(dtype=float)
             unit_of = needed[col].astype(str).to_numpy()
             dz = needed["dz_um"].to_numpy(dtype=float)
+            if oof is not None:
+                artefact = artefact or model.to_dict()
+                held_out.append(_held_out(detail, dz, unit_of, np.flatnonzero(needed_mask), test_ids))
             for rid in test_ids:
                 mine = unit_of == str(rid)
                 rows.append(
@@ -287,4 +298,24 @@ def cross_validate(
                         **_metrics(dz[mine], predicted[mine]),
                     }
                 )
+    if oof is not None:
+        from rafi.family.intervals import oof_samples
+
+        oof.append(oof_samples(held_out, frame, artefact or {}, name))
     return pd.DataFrame(rows, columns=CV_COLUMNS)
+
+
+def _held_out(detail: pd.DataFrame, dz: np.ndarray, unit_of: np.ndarray, positions: np.ndarray, test_ids):
+    """The held-out samples of one fold for :func:`rafi.family.intervals.oof_samples`."""
+    mine = np.isin(unit_of, list(map(str, test_ids)))
+    outside = detail["outside_temp_range"].to_numpy(dtype=bool) | detail["outside_speed_range"].to_numpy(
+        dtype=bool
+    )
+    return pd.DataFrame(
+        {
+            "pos": positions[mine],
+            "unit": unit_of[mine],
+            "residual_um": (dz - detail["predicted_um"].to_numpy(dtype=float))[mine],
+            "outside": outside[mine],
+        }
+    )
