@@ -278,8 +278,11 @@ def cross_validate(
             model = model_factory().fit(fold_table, frame)
             needed_mask = rows_of_logs(frame, {run_of_unit[str(u)] for u in test_ids})
             needed = frame.loc[needed_mask]
-            detail = model.predict_detail(needed)
-            predicted = detail["predicted_um"].to_numpy(dtype=float)
+            if oof is None:
+                predicted = np.asarray(model.predict(needed), dtype=float)
+            else:  # the same prediction with its out-of-range flags (the interval's cell)
+                detail = model.predict_detail(needed)
+                predicted = detail["predicted_um"].to_numpy(dtype=float)
             unit_of = needed[col].astype(str).to_numpy()
             dz = needed["dz_um"].to_numpy(dtype=float)
             if oof is not None:
