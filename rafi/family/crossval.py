@@ -33,7 +33,7 @@ import pandas as pd
 
 from rafi.family.feature_memo import sharing_features
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
-from rafi.family.time_blocks import is_blocked, time_block_folds, unit_column
+from rafi.family.time_blocks import hours, is_blocked, time_block_folds, time_block_units, unit_column
 from rafi.family.whole_log import rows_of_logs
 
 __all__ = [
@@ -52,6 +52,7 @@ __all__ = [
     "training_mask",
     "has_folds",
     "scheme_of",
+    "cv_data",
 ]
 
 SPEED_GROUP_TOLERANCE_RPM = 50.0
@@ -322,3 +323,29 @@ def _held_out(detail: pd.DataFrame, dz: np.ndarray, unit_of: np.ndarray, positio
             "outside": outside[mine],
         }
     )
+
+
+def cv_data(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, options: dict, *, log=print):
+    """The table and frame the models are fitted and cross-validated on: the runs as they are
+    when ``options["cv"]`` gives a whole-run fold, else the time-blocked units of the training
+    runs (:func:`rafi.family.time_blocks.time_block_units`, ``options["cv_time_blocks"]`` blocks,
+    ``options["cv_time_block_gap_s"]`` guard gaps) when two blocks fit; the data's structure alone
+    decides. Without either there is no fold (:func:`default_champion`)."""
+    if has_folds(runs_table, options["cv"]) or not len(training_runs(runs_table, runs_frame)[1]):
+        return runs_table, runs_frame
+    units = time_block_units(
+        runs_table,
+        runs_frame,
+        n_blocks=int(options["cv_time_blocks"]),
+        gap_s=float(options["cv_time_block_gap_s"]),
+    )
+    if units is None:
+        log("too few training runs for whole-run folds and too little training time for two time blocks")
+        return runs_table, runs_frame
+    table = units[0]
+    blocks = int(table.loc[table["cv_seq"] >= 0, "cv_seq"].max()) // 2 + 1
+    log(
+        f"too few training runs for whole-run folds: {blocks} time blocks with "
+        f"{hours(float(options['cv_time_block_gap_s']))} guard gaps"
+    )
+    return units

@@ -30,6 +30,7 @@ import pandas as pd
 
 from rafi.family.interval_rule import CELLS, INTERVAL_SCHEMA, interval_cell, since_change
 from rafi.family.whole_log import layout, unsort
+from rafi.method.validate import coverage_and_width  # noqa: F401 - re-exported: defined beside validate_runs
 
 __all__ = [
     "METHOD",
@@ -352,7 +353,9 @@ def interval_columns(
     """``lower_um``, ``upper_um``, ``interval_cell`` per row of ``frame`` (its order and index).
 
     ``model`` is a fitted model or an artefact dict; without an interval block the bounds are NaN
-    and the cell is empty. A NaN prediction gives NaN bounds (its cell is still named).
+    and the cell is empty. A NaN prediction gives NaN bounds (its cell is still named). With
+    ``functools.partial(interval_columns, model)`` it is the ``bounds`` of
+    :func:`rafi.method.validate.validate_runs`.
     """
     n = len(frame)
     block = interval_of(model)
@@ -375,15 +378,3 @@ def interval_columns(
     return pd.DataFrame(
         {"lower_um": pred - h, "upper_um": pred + h, "interval_cell": cells}, index=frame.index
     )
-
-
-def coverage_and_width(measured: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[float, float]:
-    """``coverage`` (fraction in [0, 1] of the samples with a finite measurement and interval that
-    lie inside it, bounds included) and ``interval_width_um`` (median of ``upper - lower`` over
-    those samples); NaN, NaN without such a sample."""
-    m, lo, hi = (np.asarray(v, dtype=float) for v in (measured, lower, upper))
-    ok = np.isfinite(m) & np.isfinite(lo) & np.isfinite(hi)
-    if not ok.any():
-        return math.nan, math.nan
-    inside = (m[ok] >= lo[ok]) & (m[ok] <= hi[ok])
-    return float(inside.mean()), float(np.median(hi[ok] - lo[ok]))
