@@ -125,6 +125,9 @@ def test_decorrelation_is_one_spacing_for_independent_and_the_block_length_for_b
     d = decorrelation_s(oof, blocky)
     assert 15 * 5.0 <= d <= 20 * 5.0
     assert decorrelation_s(oof, np.zeros(len(oof), bool)) == 5.0
+    # no exceedance (a calibration at level 1): the residuals' own autocorrelation decides
+    smooth = np.repeat(rng.normal(size=len(oof) // 40), 40)  # residuals constant over 40 samples
+    assert 30 * 5.0 <= decorrelation_s(oof, np.zeros(len(oof), bool), smooth) <= 40 * 5.0
 
 
 # --------------------------------------------------------------------------- change clock on a frame

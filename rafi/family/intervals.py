@@ -18,7 +18,7 @@ safer than interpolation).
 
 ``decorrelation_s`` (:func:`decorrelation_s`): the smallest lag at which the autocorrelation of the
 OOF exceedance indicators, pooled over units, falls below :data:`DECORRELATION_ACF`, times the
-sample spacing.
+sample spacing (with too few exceedances, of the residuals themselves).
 """
 
 from __future__ import annotations
@@ -204,35 +204,56 @@ def corrected_level(abs_residual: np.ndarray, units: np.ndarray, level: float) -
 # --------------------------------------------------------------------------- decorrelation
 
 
-def decorrelation_s(oof: pd.DataFrame, exceeds: np.ndarray) -> float:
+#: Fewer exceedances than this say nothing of their correlation: :func:`decorrelation_s` then
+#: reads the residuals' own autocorrelation instead.
+MIN_EXCEEDANCES = 10
+
+
+def decorrelation_s(oof: pd.DataFrame, exceeds: np.ndarray, residuals: np.ndarray | None = None) -> float:
     """Seconds at which the exceedances of the OOF samples are about independent.
 
     ``exceeds`` marks the OOF samples outside their interval. Within each unit (samples in ``t_s``
     order) the lag-``L`` autocorrelation of the indicator, pooled over units (sums of products
     over every unit, over the pooled variance), is computed for ``L = 1, 2, ...``; the first lag
-    below :data:`DECORRELATION_ACF`, times the median sample spacing, is returned. Without
-    exceedances (or with nothing but) it is one sample spacing; when the autocorrelation never
-    falls below the limit within the longest unit, that unit's duration.
+    below :data:`DECORRELATION_ACF`, times the median sample spacing, is returned; when it never
+    falls below the limit within the longest unit, that unit's duration. With fewer than
+    :data:`MIN_EXCEEDANCES` exceedances (or nothing but) the indicator says nothing: the same is
+    done on ``residuals`` (the OOF residuals; an exceedance is a large residual, and a residual's
+    autocorrelation lasts at least as long as that of its large values: the conservative side for
+    a test that thins to one sample per ``decorrelation_s``). Without those, one sample spacing.
     """
     if not len(oof):
         return math.nan
     order = np.lexsort((oof["t_s"].to_numpy(dtype=float), pd.factorize(oof["unit"].astype(str))[0]))
     unit = oof["unit"].astype(str).to_numpy()[order]
     t = oof["t_s"].to_numpy(dtype=float)[order]
-    x = np.asarray(exceeds, dtype=float)[order]
     same = unit[1:] == unit[:-1]
     dt = np.diff(t)[same]
     spacing = float(np.median(dt[dt > 0])) if (dt > 0).any() else 1.0
+    x = np.asarray(exceeds, dtype=bool)
+    if MIN_EXCEEDANCES <= x.sum() <= len(x) - MIN_EXCEEDANCES:
+        series = x.astype(float)[order]
+    elif residuals is not None:
+        series = np.asarray(residuals, dtype=float)[order]
+    else:
+        return spacing
+    lag = _first_lag_below(series, unit)
+    return spacing if lag is None else lag * spacing
+
+
+def _first_lag_below(x: np.ndarray, unit: np.ndarray) -> int | None:
+    """The first lag at which the pooled within-unit autocorrelation of ``x`` falls below
+    :data:`DECORRELATION_ACF` (the longest unit's length if never; None: no variance)."""
     x = x - x.mean()
     var = float(np.sum(x * x))
     if var <= 0:
-        return spacing
+        return None
     longest = int(pd.Series(unit).value_counts().max())
     for lag in range(1, longest):
         pair = unit[lag:] == unit[:-lag]
         if float(np.sum(x[lag:][pair] * x[:-lag][pair])) / var < DECORRELATION_ACF:
-            return lag * spacing
-    return longest * spacing
+            return lag
+    return longest
 
 
 # --------------------------------------------------------------------------- calibration
@@ -310,7 +331,7 @@ def calibrate(
         "transient_s": float(transient_s),
         "tolerance_rpm": float(tolerance_rpm),
         "half_width_um": {c: float(half[c]) for c in CELLS},
-        "decorrelation_s": float(decorrelation_s(data, a > h)),
+        "decorrelation_s": float(decorrelation_s(data, a > h, res[ok])),
         "calibration": {
             "scheme": str(scheme),
             "units": "time blocks" if scheme == "time_blocks" else "runs",
