@@ -337,11 +337,16 @@ def score_family(residuals: pd.DataFrame, runs: pd.DataFrame, disp: np.ndarray, 
 
     Returns ``{"mae": {model: um}, "rows": {model: scored test rows}, "n_test": test rows,
     "reference_um": ref, "max_clean_diff_um": max |measured_um - (disp - ref)| over the scored
-    rows}`` (what cleaning changed in the measured values; the score uses the raw ``disp``)."""
+    rows, "coverage": {model: fraction}, "width_um": {model: um}}`` (what cleaning changed in the
+    measured values; the score uses the raw ``disp``). ``coverage`` is the fraction of the scored
+    rows whose ``disp - ref`` lies in the model's prediction interval ``[lower_um, upper_um]``
+    (residuals without those columns, or a model without an interval: NaN), ``width_um`` the
+    median of ``upper_um - lower_um`` over them: read to report, never to choose."""
     disp = np.asarray(disp, dtype=float)
     ref = reference_um(disp, t_s)
     test = test_rows(t_s)
     out = {"mae": {}, "rows": {}, "n_test": int(test.sum()), "reference_um": ref, "max_clean_diff_um": 0.0}
+    out.update(coverage={}, width_um={})
     for model, part in residuals.groupby(residuals["model"].astype(str), sort=False):
         rows = log_rows(part, runs)
         keep = test[rows]
@@ -352,10 +357,23 @@ def score_family(residuals: pd.DataFrame, runs: pd.DataFrame, disp: np.ndarray, 
         measured = part["measured_um"].to_numpy(dtype=float)[keep]
         out["mae"][model] = float(np.mean(np.abs(disp[rows] - ref - pred))) if len(rows) else float("nan")
         out["rows"][model] = int(len(rows))
+        out["coverage"][model], out["width_um"][model] = interval_score(part, keep, disp[rows] - ref)
         diff = np.abs(measured - (disp[rows] - ref))
         if len(diff):
             out["max_clean_diff_um"] = max(out["max_clean_diff_um"], float(np.nanmax(diff)))
     return out
+
+
+def interval_score(part: pd.DataFrame, keep: np.ndarray, target: np.ndarray) -> tuple[float, float]:
+    """Coverage (fraction) and median width (um) of one model's interval over its scored rows."""
+    if not {"lower_um", "upper_um"} <= set(part.columns):
+        return float("nan"), float("nan")
+    lo, hi = (part[c].to_numpy(dtype=float)[keep] for c in ("lower_um", "upper_um"))
+    ok = np.isfinite(lo) & np.isfinite(hi) & np.isfinite(target)
+    if not ok.any():
+        return float("nan"), float("nan")
+    inside = (target[ok] >= lo[ok]) & (target[ok] <= hi[ok])
+    return float(inside.mean()), float(np.median(hi[ok] - lo[ok]))
 
 
 def project_facts(proj: Path, machine: str) -> dict:
@@ -436,6 +454,7 @@ def config_table(config: str, rows: list[dict], ridge: dict) -> list[str]:
     done = [r for r in rows if r["config"] == config and r.get("ok")]
     models = list(dict.fromkeys(m for r in done for m in r["mae"]))
     head = ["channel", "published seq2seq-v2", "plain ridge", *models, "offered (kind)", "scored rows"]
+    head += ["offered 90 % coverage", "offered median width"]
     lines = [f"| {' | '.join(head)} |", "|" + "---|" * len(head)]
     for r in sorted(done, key=lambda r: r["channel"]):
         ch = r["channel"]
@@ -443,6 +462,9 @@ def config_table(config: str, rows: list[dict], ridge: dict) -> list[str]:
         cells = [ch, fmt(PUBLISHED_UM[ch]), fmt(ridge[ch]["test_mae_um"])]
         cells += [fmt(r["mae"].get(m)) for m in models]
         cells += [f"{fmt(r['mae'].get(offered))} ({offered})", f"{r['rows'].get(offered, 0)}/{r['n_test']}"]
+        cover = r.get("coverage", {}).get(offered)
+        cells += ["-" if cover is None or not np.isfinite(cover) else f"{cover:.1%}"]
+        cells += [fmt(r.get("width_um", {}).get(offered))]
         lines.append(f"| {' | '.join(cells)} |")
     return lines
 
@@ -520,7 +542,8 @@ def progress(row: dict) -> str:
     offered = row["champion"]
     return (
         f"{head}  offered {offered}: test MAE {row['mae'][offered]:.2f} um "
-        f"({row['rows'][offered]}/{row['n_test']} rows); "
+        f"({row['rows'][offered]}/{row['n_test']} rows), interval coverage "
+        f"{row['coverage'].get(offered, float('nan')):.1%} width {fmt(row['width_um'].get(offered))} um; "
         + ", ".join(f"{m} {v:.2f}" for m, v in row["mae"].items())
     )
 

@@ -108,6 +108,8 @@ def test_the_score_maps_residuals_to_workbook_rows_and_scores_only_test_rows():
                         "t_s": T_S[rows] - start,
                         "measured_um": measured,
                         "predicted_um": measured - error,
+                        "lower_um": measured - error - 1.0,
+                        "upper_um": measured - error + 1.0,
                         "model": model,
                     }
                 )
@@ -118,6 +120,11 @@ def test_the_score_maps_residuals_to_workbook_rows_and_scores_only_test_rows():
     assert scored["mae"]["off"] == pytest.approx(2.0)
     assert scored["rows"] == {"exact": 2141, "off": 2141} and scored["n_test"] == 2141
     assert scored["max_clean_diff_um"] == pytest.approx(0.0, abs=1e-12)
+    # the interval +-1 um: the exact model's covers every test row, the one 2 um off none
+    assert scored["coverage"] == {"exact": 1.0, "off": 0.0}
+    assert scored["width_um"]["exact"] == pytest.approx(2.0) and scored["width_um"]["off"] == pytest.approx(
+        2.0
+    )
 
 
 def test_a_residual_off_the_15_s_grid_is_refused():

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from rafi.artefact import write_csv_atomic
+from rafi.artefact import write_csv_atomic, write_parquet_atomic
 from rafi.family.compare import COMPARISON_COLUMNS, compare_models, run_family
 from rafi.family.crossval import (
     assert_disjoint,
@@ -185,6 +185,8 @@ def test_golden_comparison_table():
     Regenerated in issue 12: ``champion`` is false on every row (compare_models no longer
     chooses: run_family chooses on the training runs' CV scores and passes the name in) and
     ``noise_sigma_um`` / ``noise_floor_um`` were appended; no other value moved.
+    Regenerated in issue 26: ``coverage`` / ``interval_width_um`` appended (NaN: these models were
+    fitted without their prediction interval); no other value moved.
     """
     table, frame = _golden_data()
     got = compare_models(_golden_models(table, frame), table, frame, GATES)
@@ -269,10 +271,14 @@ def test_run_family_tables_are_identical_on_identical_inputs(tmp_path):
             path = tmp_path / f"{name}-{k}.csv"
             write_csv_atomic(res[name], path, index=False)  # as workflow/scripts/compare.py
             files[name] = path.read_bytes()
+        path = tmp_path / f"residuals-{k}.parquet"
+        write_parquet_atomic(res["residuals"], path)
+        files["residuals"] = path.read_bytes()
         written.append(files)
         best.append({key: v for key, v in res["best_artefact"].items() if key != "created"})
     assert written[0] == written[1]
     assert best[0] == best[1]
+    assert best[0]["interval"]["schema"] == "rafi.interval/1"
 
 
 def test_run_family_needs_every_option():
@@ -312,12 +318,17 @@ def test_cv_from_the_memo_gives_the_computed_tables(tmp_path):
     lines = []
     second = run_family(**{**_family_args(table, frame, MEMO_OPTIONS), "log": lines.append}, **kwargs)
     assert (plain["cv_memo"], first["cv_memo"], second["cv_memo"]) == (None, "written", "read")
-    assert len(list(memo.glob("*.parquet"))) == 1
+    # one entry: the CV rows and the out-of-fold samples the intervals are calibrated on
+    assert sorted(p.name[64:] for p in memo.glob("*.parquet")) == [".oof.parquet", ".parquet"]
     assert not any("CV in" in line for line in lines)
     for res in (first, second):
-        for name in ("cv", "summary", "per_run", "selection"):
+        for name in ("cv", "summary", "per_run", "selection", "residuals"):
             pd.testing.assert_frame_equal(res[name], plain[name], check_exact=True)
         assert res["champion"] == plain["champion"]
+        # the same intervals, so the same artefacts and ids
+        for name, model in res["models"].items():
+            assert model.to_dict()["model_id"] == plain["models"][name].to_dict()["model_id"]
+            assert model.to_dict()["interval"] == plain["models"][name].to_dict()["interval"]
     paths = []
     for k, res in enumerate((plain, second)):
         paths.append(tmp_path / f"cv-{k}.csv")

@@ -23,7 +23,12 @@ from rafi.ops import gates, provenance
 from rafi.ops import registry as R
 from rafi.settings import MACHINE_DEFAULTS
 
-GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
+GATES = {
+    "max_residual_um": 12.0,
+    "min_improvement_pct": 30.0,
+    "never_worse_than_uncompensated": True,
+    "min_coverage": None,
+}
 NIGHTLY = MACHINE_DEFAULTS["nightly"]
 TERMS = ["1", "x1", "x2", "x3"]
 

@@ -184,6 +184,7 @@ def test_layers_machine_over_defaults_over_built_in():
         "max_residual_um": 9.0,
         "min_improvement_pct": 50.0,
         "never_worse_than_uncompensated": True,
+        "min_coverage": None,
     }
     assert tuple(m1["qualification"]) == GATE_KEYS
     assert m1["report"]["figure_format"] == "svg"  # the bug: defaults.report was never read

@@ -281,6 +281,9 @@ def test_a_single_run_log_gets_folds_and_a_chosen_model():
     dyn = res["models"]["dynamic"]
     assert dyn.n_ == int(np.isfinite(frame.loc[frame["run_id"] == "spindle_a", "dz_um"]).sum())
     assert dyn.train_runs_ == ["spindle_a"] and dyn.time_blocks_["blocks"] == 4
+    # its prediction interval is calibrated on the held-out blocks: the blocks are the units
+    cal = dyn.to_dict()["interval"]["calibration"]
+    assert (cal["scheme"], cal["units"], cal["n_runs"]) == (SCHEME, "time blocks", 4)
     assert (
         "chosen on 4 time blocks with 3 h guard gaps"
         in res["summary"].set_index("model").loc["dynamic", "selected"]

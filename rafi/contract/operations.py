@@ -26,6 +26,16 @@ OPERATIONS_SETTINGS: dict = {
                 shown="true",
                 doc="gate: on no run worse than no compensation",
             ),
+            "min_coverage": Setting(
+                default=None,
+                schema={"oneOf": [{"type": "null"}, {"type": "number", "minimum": 0, "maximum": 1}]},
+                shown="none (off)",
+                doc=(
+                    "gate: the fraction of every validation run's samples inside the model's prediction"
+                    " interval (`coverage`, 0..1; e.g. 0.8 for the 90 % interval); a model without an"
+                    " interval fails it (`docs/models.md`, Prediction intervals)"
+                ),
+            ),
         },
     ),
     "models": Section(
@@ -54,6 +64,33 @@ OPERATIONS_SETTINGS: dict = {
                     "`leave_one_speed_out`; it always runs (`comparison/cv.csv`): its held-out scores choose"
                     " the model offered to the machine (`docs/models.md`; the former `models.cv_report` "
                     "switch is gone)"
+                ),
+            ),
+            "interval_level": Setting(
+                default=0.9,
+                schema={"type": "number", "exclusiveMinimum": 0, "exclusiveMaximum": 1},
+                shown="0.9",
+                doc=(
+                    "nominal coverage of every model's prediction interval, calibrated on the whole-run CV"
+                    " residuals (`docs/models.md`, Prediction intervals)"
+                ),
+            ),
+            "interval_transient_s": Setting(
+                default=1800,
+                schema=NON_NEGATIVE,
+                shown="1800",
+                doc=(
+                    "a sample less than this (s) after a reference, a filter restart or a speed change is"
+                    " in the interval's `transient` cell (wider); about the spindle's thermal time constant"
+                ),
+            ),
+            "interval_min_runs": Setting(
+                default=3,
+                schema={"type": "integer", "minimum": 1},
+                shown="3",
+                doc=(
+                    "an interval cell calibrated on fewer held-out runs (time blocks) than this uses the"
+                    " pooled half-width instead"
                 ),
             ),
             "cv_metric": Setting(

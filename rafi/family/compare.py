@@ -26,11 +26,18 @@ import numpy as np
 import pandas as pd
 
 from rafi.artefact import json_text, write_text_atomic
-from rafi.family.crossval import cross_validate, has_folds, scheme_of, training_runs
-from rafi.family.cv_memo import cv_memo_key, read_cv, write_cv
+from rafi.family.crossval import (  # noqa: F401 - cv_data re-exported (it lived here)
+    cross_validate,
+    cv_data,
+    scheme_of,
+    training_runs,
+)
+from rafi.family.cv_memo import cv_memo_key, read_cv, read_oof, write_cv, write_oof
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.feature_memo import sharing_features
 from rafi.family.grey_box import GreyBox
+from rafi.family.interval_fit import calibrate_family, stacked_oof
+from rafi.family.intervals import coverage_and_width, interval_columns
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
 from rafi.family.ridge_global import RidgeGlobal
@@ -41,7 +48,7 @@ from rafi.family.selection import (  # noqa: F401 - re-exported: the selection r
     default_champion,
     selection_table,
 )
-from rafi.family.time_blocks import hours, time_block_units
+from rafi.family.time_blocks import hours
 from rafi.family.whole_log import rows_of_logs
 from rafi.method.validate import qualify, validate_runs
 from rafi.settings import MACHINE_DEFAULTS
@@ -204,6 +211,8 @@ COMPARISON_COLUMNS = [
     "model_id",
     "noise_sigma_um",
     "noise_floor_um",
+    "coverage",
+    "interval_width_um",
 ]
 
 
@@ -283,7 +292,8 @@ def compare_models(
         every validation run, idle cool-downs included (``max_abs_after_um`` = worst max
         residual, ``improvement_pct`` = minimum over the runs, ``rmse_after_um`` = worst,
         counts summed, ``passed`` = every gate of every run passed, ``verdict`` pass/fail,
-        ``noise_sigma_um`` / ``noise_floor_um`` of the run with the worst residual).
+        ``noise_sigma_um`` / ``noise_floor_um`` of the run with the worst residual,
+        ``coverage`` / ``interval_width_um`` pooled over every validation sample).
     residuals : pandas.DataFrame (only with ``return_residuals=True``)
         :func:`rafi.method.validate.validate_runs` residuals with a ``model`` column.
     verdict : pandas.DataFrame (only with ``return_verdict=True``, after ``residuals``)
@@ -292,7 +302,9 @@ def compare_models(
     """
     parts, res_parts, verdict_parts = [], [], []
     for name, model in models.items():
-        summary, residuals = validate_runs(model, runs_table, runs_frame)
+        summary, residuals = validate_runs(
+            model, runs_table, runs_frame, bounds=functools.partial(interval_columns, model)
+        )
         verdict = qualify(summary, gates)
         passed_run = verdict.groupby(verdict["run_id"].astype(str))["passed"].all()
         s = summary.copy()
@@ -331,6 +343,7 @@ def compare_models(
                         "model_id": s["model_id"].iloc[0] if len(s) else "",
                         "noise_sigma_um": np.nan if worst is None else float(s.loc[worst, "noise_sigma_um"]),
                         "noise_floor_um": np.nan if worst is None else float(s.loc[worst, "noise_floor_um"]),
+                        **_pooled_coverage(residuals),
                     }
                 ]
             )
@@ -344,6 +357,12 @@ def compare_models(
     if return_verdict:
         extras.append(stacked_verdicts(verdict_parts))
     return (out, *extras) if extras else out
+
+
+def _pooled_coverage(residuals: pd.DataFrame) -> dict:
+    """``coverage`` and ``interval_width_um`` over every validation sample of one model."""
+    cov, width = coverage_and_width(residuals["measured_um"], residuals["lower_um"], residuals["upper_um"])
+    return {"coverage": cov, "interval_width_um": width}
 
 
 def _fitted_text(model) -> str:
@@ -365,6 +384,7 @@ def fit_and_cross_validate(
     scheme: str,
     rafi_model=None,
     known_cv: pd.DataFrame | None = None,
+    oof: list | None = None,
     log=print,
 ) -> tuple[dict, pd.DataFrame]:
     """Fit every kind of ``factories`` on the training runs and cross-validate it by whole run.
@@ -380,6 +400,8 @@ def fit_and_cross_validate(
     known_cv : pandas.DataFrame, optional
         The CV rows of these data, settings and code, read from the memo
         (:mod:`rafi.family.cv_memo`): no CV is computed.
+    oof : list, optional
+        Receives every kind's out-of-fold samples (``cross_validate(oof=)``) when CV runs.
 
     Returns
     -------
@@ -401,7 +423,7 @@ def fit_and_cross_validate(
             if known_cv is not None:
                 continue
             t0 = time.perf_counter()
-            cv = cross_validate(factory, runs_table, runs_frame, scheme, name=kind)
+            cv = cross_validate(factory, runs_table, runs_frame, scheme, name=kind, oof=oof)
         cv_parts.append(cv)
         worst = f"{cv['max_abs_after_um'].max():.2f} um" if len(cv) else "no fold"
         log(
@@ -413,30 +435,38 @@ def fit_and_cross_validate(
     return models, pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
 
 
-def cv_data(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, options: dict, *, log=print):
-    """The table and frame the models are fitted and cross-validated on: the runs as they are
-    when ``options["cv"]`` gives a whole-run fold, else the time-blocked units of the training
-    runs (:func:`rafi.family.time_blocks.time_block_units`, ``options["cv_time_blocks"]`` blocks,
-    ``options["cv_time_block_gap_s"]`` guard gaps) when two blocks fit; the data's structure alone
-    decides. Without either there is no fold (:func:`default_champion`)."""
-    if has_folds(runs_table, options["cv"]) or not len(training_runs(runs_table, runs_frame)[1]):
-        return runs_table, runs_frame
-    units = time_block_units(
-        runs_table,
-        runs_frame,
-        n_blocks=int(options["cv_time_blocks"]),
-        gap_s=float(options["cv_time_block_gap_s"]),
+def _cross_validated(factories, runs_table, runs_frame, settings, rafi_model, cv_memo_dir, code_version, log):
+    """The fitted models, CV rows and OOF samples of :func:`run_family`, from the memo
+    (:mod:`rafi.family.cv_memo`) when it holds this CV (its rows and its OOF samples), else
+    computed (and stored). Returns ``models, cv, oof, memo, fit_table``."""
+    options = settings["options"]
+    key = (
+        cv_memo_key(runs_table, runs_frame, settings, code_version) if cv_memo_dir and code_version else None
     )
-    if units is None:
-        log("too few training runs for whole-run folds and too little training time for two time blocks")
-        return runs_table, runs_frame
-    table = units[0]
-    blocks = int(table.loc[table["cv_seq"] >= 0, "cv_seq"].max()) // 2 + 1
-    log(
-        f"too few training runs for whole-run folds: {blocks} time blocks with "
-        f"{hours(float(options['cv_time_block_gap_s']))} guard gaps"
+    known = read_cv(cv_memo_dir, key) if key else None
+    known_oof = read_oof(cv_memo_dir, key) if known is not None else None
+    known = known if known_oof is not None else None  # an entry without its OOF samples: recompute
+    if known is not None:
+        log(f"cross-validation rows from the memo ({key[:12]}: training runs, settings and code unchanged)")
+    fit_table, fit_frame = cv_data(runs_table, runs_frame, options, log=log)
+    oof_parts: list = []
+    models, cv = fit_and_cross_validate(
+        factories,
+        fit_table,
+        fit_frame,
+        scheme=options["cv"],
+        rafi_model=rafi_model,
+        known_cv=known,
+        oof=oof_parts,
+        log=log,
     )
-    return units
+    oof = known_oof if known is not None else stacked_oof(oof_parts)
+    memo = "read" if known is not None else None
+    if key and known is None and len(cv):
+        write_oof(cv_memo_dir, key, oof)
+        write_cv(cv_memo_dir, key, cv)
+        memo = "written"
+    return models, cv, oof, memo, fit_table
 
 
 def run_family(
@@ -464,7 +494,10 @@ def run_family(
     scores (:func:`choose_champion`; :func:`default_champion` when there is no fold); only
     then is every model validated, once, on the validation runs, and the champion qualified
     against ``gates``. The champion is offered whether it passes or not: a failing champion
-    means a FAIL verdict, never a second pick.
+    means a FAIL verdict, never a second pick. Between the CV and the validation every model
+    gets its prediction interval, calibrated on its own out-of-fold CV residuals
+    (:func:`rafi.family.interval_fit.calibrate_family`; memoised with the CV rows); ``rafi_model``
+    keeps the interval its ``model.json`` carries (none: NaN bounds).
 
     ``options`` and ``gates`` are the machine's complete ``models:`` and ``qualification:``
     settings (:func:`rafi.settings.machine_settings`); the registry's decision judges with the
@@ -497,26 +530,19 @@ def run_family(
         "speed_tolerance_rpm": speed_tolerance_rpm,
     }
     factories = {kind: functools.partial(make_model, kind, **settings) for kind in options["enabled"]}
-    key = None
-    if cv_memo_dir and code_version:
-        key = cv_memo_key(runs_table, runs_frame, settings, code_version)
-    known = read_cv(cv_memo_dir, key) if key else None
-    if known is not None:
-        log(f"cross-validation rows from the memo ({key[:12]}: training runs, settings and code unchanged)")
-    fit_table, fit_frame = cv_data(runs_table, runs_frame, options, log=log)
-    models, cv = fit_and_cross_validate(
-        factories,
-        fit_table,
-        fit_frame,
-        scheme=options["cv"],
-        rafi_model=rafi_model,
-        known_cv=known,
+    models, cv, oof, memo, fit_table = _cross_validated(
+        factories, runs_table, runs_frame, settings, rafi_model, cv_memo_dir, code_version, log
+    )
+    # every model's prediction interval, from its own OOF residuals (RAFI's model.json keeps its own)
+    calibrate_family(
+        models,
+        oof,
+        options=options,
+        scheme=scheme_of(fit_table, options["cv"]),
+        tolerance_rpm=speed_tolerance_rpm,
+        keep={"rafi"} if rafi_model is not None else set(),
         log=log,
     )
-    memo = "read" if known is not None else None
-    if key and known is None and len(cv):
-        write_cv(cv_memo_dir, key, cv)
-        memo = "written"
     # the choice: training runs only, before any validation run is predicted
     selection = selection_table(cv)
     champion = choose_champion(cv)

@@ -33,7 +33,7 @@ import pandas as pd
 
 from rafi.family.feature_memo import sharing_features
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
-from rafi.family.time_blocks import is_blocked, time_block_folds, unit_column
+from rafi.family.time_blocks import hours, is_blocked, time_block_folds, time_block_units, unit_column
 from rafi.family.whole_log import rows_of_logs
 
 __all__ = [
@@ -52,6 +52,7 @@ __all__ = [
     "training_mask",
     "has_folds",
     "scheme_of",
+    "cv_data",
 ]
 
 SPEED_GROUP_TOLERANCE_RPM = 50.0
@@ -232,6 +233,7 @@ def cross_validate(
     scheme: str = "leave_one_run_out",
     *,
     name: str = "",
+    oof: list | None = None,
 ) -> pd.DataFrame:
     """Whole-run CV of the model that ``model_factory()`` builds, on the training runs only.
 
@@ -243,6 +245,10 @@ def cross_validate(
     held-out runs once (:func:`rafi.family.whole_log.rows_of_logs`; per-run frames: the
     held-out runs' rows) and each held-out run is scored on its own samples. Metrics per
     held-out run are those of ``docs/design.md`` (``max |dz - predicted|``, improvement, RMSE).
+
+    With ``oof`` (a list), the held-out samples themselves are appended to it as one frame
+    (:func:`rafi.family.intervals.oof_samples`, :data:`rafi.family.intervals.OOF_COLUMNS`): the
+    out-of-fold residuals the prediction interval is calibrated on.
 
     Returns
     -------
@@ -259,6 +265,7 @@ def cross_validate(
     # what any fold's fit and prediction can see: the logs holding a training run (the fits
     # share their features, rafi.family.feature_memo)
     frame = runs_frame.loc[rows_of_logs(runs_frame, train_table["run_id"])]
+    held_out, artefact = [], None
     with sharing_features(frame):
         for k, (train_ids, test_ids) in enumerate(split_runs(runs_table, scheme)):
             assert_disjoint(train_ids, test_ids)
@@ -270,10 +277,18 @@ def cross_validate(
             fitted_on = set(map(str, training_runs(fold_table, frame)[0][col]))
             assert fitted_on == set(map(str, train_ids)), "a fold fits on exactly its training runs"
             model = model_factory().fit(fold_table, frame)
-            needed = frame.loc[rows_of_logs(frame, {run_of_unit[str(u)] for u in test_ids})]
-            predicted = np.asarray(model.predict(needed), dtype=float)
+            needed_mask = rows_of_logs(frame, {run_of_unit[str(u)] for u in test_ids})
+            needed = frame.loc[needed_mask]
+            if oof is None:
+                predicted = np.asarray(model.predict(needed), dtype=float)
+            else:  # the same prediction with its out-of-range flags (the interval's cell)
+                detail = model.predict_detail(needed)
+                predicted = detail["predicted_um"].to_numpy(dtype=float)
             unit_of = needed[col].astype(str).to_numpy()
             dz = needed["dz_um"].to_numpy(dtype=float)
+            if oof is not None:
+                artefact = artefact or model.to_dict()
+                held_out.append(_held_out(detail, dz, unit_of, np.flatnonzero(needed_mask), test_ids))
             for rid in test_ids:
                 mine = unit_of == str(rid)
                 rows.append(
@@ -287,4 +302,50 @@ def cross_validate(
                         **_metrics(dz[mine], predicted[mine]),
                     }
                 )
+    if oof is not None:
+        from rafi.family.intervals import oof_samples
+
+        oof.append(oof_samples(held_out, frame, artefact or {}, name))
     return pd.DataFrame(rows, columns=CV_COLUMNS)
+
+
+def _held_out(detail: pd.DataFrame, dz: np.ndarray, unit_of: np.ndarray, positions: np.ndarray, test_ids):
+    """The held-out samples of one fold for :func:`rafi.family.intervals.oof_samples`."""
+    mine = np.isin(unit_of, list(map(str, test_ids)))
+    outside = detail["outside_temp_range"].to_numpy(dtype=bool) | detail["outside_speed_range"].to_numpy(
+        dtype=bool
+    )
+    return pd.DataFrame(
+        {
+            "pos": positions[mine],
+            "unit": unit_of[mine],
+            "residual_um": (dz - detail["predicted_um"].to_numpy(dtype=float))[mine],
+            "outside": outside[mine],
+        }
+    )
+
+
+def cv_data(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, options: dict, *, log=print):
+    """The table and frame the models are fitted and cross-validated on: the runs as they are
+    when ``options["cv"]`` gives a whole-run fold, else the time-blocked units of the training
+    runs (:func:`rafi.family.time_blocks.time_block_units`, ``options["cv_time_blocks"]`` blocks,
+    ``options["cv_time_block_gap_s"]`` guard gaps) when two blocks fit; the data's structure alone
+    decides. Without either there is no fold (:func:`default_champion`)."""
+    if has_folds(runs_table, options["cv"]) or not len(training_runs(runs_table, runs_frame)[1]):
+        return runs_table, runs_frame
+    units = time_block_units(
+        runs_table,
+        runs_frame,
+        n_blocks=int(options["cv_time_blocks"]),
+        gap_s=float(options["cv_time_block_gap_s"]),
+    )
+    if units is None:
+        log("too few training runs for whole-run folds and too little training time for two time blocks")
+        return runs_table, runs_frame
+    table = units[0]
+    blocks = int(table.loc[table["cv_seq"] >= 0, "cv_seq"].max()) // 2 + 1
+    log(
+        f"too few training runs for whole-run folds: {blocks} time blocks with "
+        f"{hours(float(options['cv_time_block_gap_s']))} guard gaps"
+    )
+    return units

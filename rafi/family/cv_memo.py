@@ -6,7 +6,9 @@ of such a log), the table rows of their runs, the settings the models are built 
 code. Its key (:func:`cv_memo_key`) is the SHA-256 of exactly those, with the digest of the code
 the compare job runs (the rule's ``code`` param, :func:`rafi.ops.code_deps.code_version`) and the
 versions of the numerical libraries; its value is the CV rows, stored as Parquet (floats to the
-last bit) in ``results/<machine>/.cv_memo/<key>.parquet``.
+last bit) in ``results/<machine>/.cv_memo/<key>.parquet``, with the out-of-fold samples the
+prediction intervals are calibrated on (:data:`rafi.family.intervals.OOF_COLUMNS`) beside them in
+``<key>.oof.parquet`` (written first: an entry is its CV rows, read only with its OOF samples).
 
 It decides nothing about what runs: Snakemake re-runs ``rule compare`` as before (its inputs,
 params and code), and the job, when the memo holds the key, reads the CV rows instead of
@@ -29,10 +31,19 @@ import pandas as pd
 from rafi.family.crossval import training_runs
 from rafi.family.whole_log import rows_of_logs
 
-__all__ = ["MEMO_FORMAT", "KEEP", "training_content", "cv_memo_key", "read_cv", "write_cv"]
+__all__ = [
+    "MEMO_FORMAT",
+    "KEEP",
+    "training_content",
+    "cv_memo_key",
+    "read_cv",
+    "write_cv",
+    "read_oof",
+    "write_oof",
+]
 
 #: Changes when the memo's layout or key changes (old entries are then never read).
-MEMO_FORMAT = "rafi.cv_memo/1"
+MEMO_FORMAT = "rafi.cv_memo/2"
 #: Entries kept per folder, the newest by modification time.
 KEEP = 8
 
@@ -91,14 +102,40 @@ def read_cv(folder: str | os.PathLike, key: str) -> pd.DataFrame | None:
 
 
 def write_cv(folder: str | os.PathLike, key: str, cv: pd.DataFrame) -> Path:
-    """Store ``cv`` under ``key`` in ``folder`` (atomically), keeping the :data:`KEEP` newest."""
+    """Store ``cv`` under ``key`` in ``folder`` (atomically), keeping the :data:`KEEP` newest
+    entries (an entry's OOF samples go with it)."""
     from rafi.artefact import write_parquet_atomic
 
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
     path = folder / f"{key}.parquet"
     write_parquet_atomic(cv, path)
-    entries = sorted(folder.glob("*.parquet"), key=lambda p: (p.stat().st_mtime, p.name), reverse=True)
+    entries = [p for p in folder.glob("*.parquet") if not p.name.endswith(OOF_SUFFIX)]
+    entries.sort(key=lambda p: (p.stat().st_mtime, p.name), reverse=True)
     for old in entries[KEEP:]:
         old.unlink(missing_ok=True)
+        (folder / f"{old.stem}{OOF_SUFFIX}").unlink(missing_ok=True)
+    return path
+
+
+#: File name ending of an entry's out-of-fold samples.
+OOF_SUFFIX = ".oof.parquet"
+
+
+def read_oof(folder: str | os.PathLike, key: str) -> pd.DataFrame | None:
+    """The OOF samples stored under ``key`` in ``folder``, or ``None`` (absent or unreadable)."""
+    try:
+        return pd.read_parquet(Path(folder) / f"{key}{OOF_SUFFIX}")
+    except (OSError, ValueError):
+        return None
+
+
+def write_oof(folder: str | os.PathLike, key: str, oof: pd.DataFrame) -> Path:
+    """Store the OOF samples ``oof`` under ``key`` in ``folder`` (atomically; before :func:`write_cv`,
+    which prunes them with their entry)."""
+    from rafi.artefact import write_parquet_atomic
+
+    path = Path(folder) / f"{key}{OOF_SUFFIX}"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_parquet_atomic(oof.reset_index(drop=True), path)
     return path

@@ -424,6 +424,8 @@ class RidgeBase(FamilyModel):
             "data": self.data_,
             "code_version": CODE_VERSION,
         }
+        if getattr(self, "interval_", None) is not None:  # the prediction interval (rafi.family.intervals)
+            body["interval"] = dict(self.interval_)
         return finish_artefact(body)
 
     @classmethod
@@ -454,6 +456,7 @@ class RidgeBase(FamilyModel):
         m.data_scales_ = dict(selected.get("data_scales", {}))
         m.grid_edges_ = list(selected.get("grid_edges", []))
         m.time_blocks_ = selected.get("cv_folds")
+        m.interval_ = d["interval"] if isinstance(d.get("interval"), dict) else None
         m._from_selected(selected)
         return m
 

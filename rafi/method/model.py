@@ -254,6 +254,8 @@ class RafiModel:
         self.train_runs_: list[list[str]] = []
         self.rmse_um_ = np.empty(0)
         self.n_ = np.empty(0, dtype=int)
+        #: The prediction interval's block (``rafi.family.intervals``), or None: no interval.
+        self.interval_: dict | None = None
 
     # ------------------------------------------------------------------ building
     def add_speed_model(
@@ -395,7 +397,7 @@ class RafiModel:
                     "n": int(self.n_[j]),
                 }
             )
-        return {
+        content = {
             "schema": SCHEMA,
             "kind": "rafi",
             "machine": self.machine,
@@ -416,6 +418,9 @@ class RafiModel:
             "code_version": self.code_version,
             "config": dict(self.config),
         }
+        if self.interval_ is not None:  # absent in older artefacts (no interval: NaN bounds)
+            content["interval"] = dict(self.interval_)
+        return content
 
     @property
     def model_id(self) -> str:
@@ -483,6 +488,8 @@ class RafiModel:
                 rmse_um=float("nan") if rmse is None else rmse,
                 n=sp.get("n", 0),
             )
+        if isinstance(d.get("interval"), dict):
+            model.interval_ = d["interval"]
         if verify_id and "model_id" in d and not model_id_verifies(model._content(), d["model_id"]):
             raise ValueError(
                 f"model_id {d['model_id']} does not match the content "

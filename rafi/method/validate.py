@@ -16,7 +16,14 @@ leak). Per run, over the samples where both ``dz_um`` and the prediction exist:
   within 50 r/min of a Table 4 speed, else NaN;
 * ``noise_sigma_um`` / ``noise_floor_um``: the white-noise sigma of the run's ``dz`` and the
   expected max |noise| over its samples, estimated from the measurement alone
-  (:mod:`rafi.method.noise`): a ``max_abs_after_um`` near ``noise_floor_um`` is at the noise.
+  (:mod:`rafi.method.noise`): a ``max_abs_after_um`` near ``noise_floor_um`` is at the noise;
+* ``coverage`` / ``interval_width_um``: the fraction (0..1) of the run's samples with a finite
+  measurement and interval that lie inside the model's prediction interval, and the median width
+  of that interval (:mod:`rafi.family.intervals`; NaN for a model without an interval).
+
+The residuals carry the interval per sample: ``lower_um`` / ``upper_um`` (bounds for the measured
+displacement change, the convention of ``predicted_um``) and ``interval_cell`` (``settled``,
+``transient`` or ``outside``; empty without an interval).
 
 The model predicts the **whole** runs frame once (every log in time order, training and
 excluded runs included: a model that filters its inputs sees the whole log before each
@@ -30,7 +37,9 @@ one verdict row per criterion and validation run:
 * ``max_residual_um``: ``max_abs_after_um <= limit``;
 * ``min_improvement_pct``: ``improvement_pct >= limit``;
 * ``never_worse_than_uncompensated`` (if the gate is true): ``max_abs_after_um <=
-  max_abs_before_um``; the row's ``limit`` is the run's ``max_abs_before_um``.
+  max_abs_before_um``; the row's ``limit`` is the run's ``max_abs_before_um``;
+* ``min_coverage`` (off when None): ``coverage >= limit`` (a model without an interval has
+  a NaN coverage and fails it).
 
 Every gate applies to every validation run, idle cool-downs (``validation_idle``)
 included: a compensated machine that cools down is as much in production as one that
@@ -55,6 +64,7 @@ __all__ = [
     "RESIDUAL_COLUMNS",
     "VERDICT_COLUMNS",
     "validate_runs",
+    "coverage_and_width",
     "qualify",
     "overall_passed",
 ]
@@ -79,6 +89,8 @@ SUMMARY_COLUMNS = [
     "paper_residual_um",
     "noise_sigma_um",
     "noise_floor_um",
+    "coverage",
+    "interval_width_um",
 ]
 RESIDUAL_COLUMNS = [
     "run_id",
@@ -89,11 +101,14 @@ RESIDUAL_COLUMNS = [
     "residual_um",
     "outside_temp_range",
     "outside_speed_range",
+    "lower_um",
+    "upper_um",
+    "interval_cell",
 ]
 VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
 
 
-def _run_summary(run_id, role, speed, duration, detail, measured, t_s) -> dict:
+def _run_summary(run_id, role, speed, duration, detail, measured, t_s, bounds) -> dict:
     pred = detail["predicted_um"].to_numpy(dtype=float)
     resid = measured - pred
     ok = np.isfinite(measured) & np.isfinite(pred)
@@ -133,6 +148,12 @@ def _run_summary(run_id, role, speed, duration, detail, measured, t_s) -> dict:
         "paper_residual_um": paper,
         "noise_sigma_um": sigma,
         "noise_floor_um": floor,
+        **dict(
+            zip(
+                ("coverage", "interval_width_um"),
+                coverage_and_width(measured, bounds["lower_um"], bounds["upper_um"]),
+            )
+        ),
     }
 
 
@@ -153,8 +174,27 @@ def time_ordered(runs_frame: pd.DataFrame) -> pd.DataFrame:
     return runs_frame.iloc[order].reset_index(drop=True)
 
 
+def coverage_and_width(measured, lower, upper) -> tuple[float, float]:
+    """``coverage`` (fraction in [0, 1] of the samples with a finite measurement and interval that
+    lie inside it, bounds included) and ``interval_width_um`` (median of ``upper - lower`` over
+    those samples); NaN, NaN without such a sample."""
+    m, lo, hi = (np.asarray(v, dtype=float) for v in (measured, lower, upper))
+    ok = np.isfinite(m) & np.isfinite(lo) & np.isfinite(hi)
+    if not ok.any():
+        return float("nan"), float("nan")
+    inside = (m[ok] >= lo[ok]) & (m[ok] <= hi[ok])
+    return float(inside.mean()), float(np.median(hi[ok] - lo[ok]))
+
+
+def _no_interval(frame: pd.DataFrame, predicted_um, outside) -> pd.DataFrame:
+    n = len(frame)
+    return pd.DataFrame(
+        {"lower_um": np.full(n, np.nan), "upper_um": np.full(n, np.nan), "interval_cell": [""] * n}
+    )
+
+
 def validate_runs(
-    model, runs_table: pd.DataFrame, runs_frame: pd.DataFrame
+    model, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, bounds=None
 ) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Compensate every validation run with ``model`` and measure the improvement.
 
@@ -172,6 +212,11 @@ def validate_runs(
         ``run_id``, ``role``, ``speed_rpm`` and (optional) ``duration_s``.
     runs_frame : pandas.DataFrame
         Stacked samples with ``run_id``, ``t_s``, ``speed_rpm``, the rises and ``dz_um``.
+    bounds : callable, optional
+        ``bounds(frame, predicted_um, outside)`` -> ``lower_um``, ``upper_um``, ``interval_cell``
+        per row of the time-ordered frame: the model's prediction interval
+        (``functools.partial(rafi.family.intervals.interval_columns, model)``). Without it the
+        bounds, ``coverage`` and ``interval_width_um`` are NaN.
 
     Returns
     -------
@@ -192,12 +237,18 @@ def validate_runs(
     if len(val):
         frame = time_ordered(runs_frame)
         whole = model.predict_detail(frame).reset_index(drop=True)
+        outside = whole["outside_temp_range"].to_numpy(dtype=bool) | whole["outside_speed_range"].to_numpy(
+            dtype=bool
+        )
+        intervals = (bounds or _no_interval)(frame, whole["predicted_um"].to_numpy(dtype=float), outside)
+        intervals = intervals.reset_index(drop=True)
         frame_ids = frame["run_id"].astype(str).to_numpy()
     for _, run in val.iterrows():
         run_id = str(run["run_id"])
         rows_of_run = np.flatnonzero(frame_ids == run_id)
         sub = frame.iloc[rows_of_run]
         detail = whole.iloc[rows_of_run]
+        bounds = intervals.iloc[rows_of_run]
         measured = sub["dz_um"].to_numpy(dtype=float, na_value=np.nan)
         t_s = sub["t_s"].to_numpy(dtype=float, na_value=np.nan)
         speed = run.get("speed_rpm", np.nan)
@@ -205,7 +256,9 @@ def validate_runs(
             speed = np.nanmedian(sub["speed_rpm"].to_numpy(dtype=float, na_value=np.nan))
         speed = float(speed)
         rows.append(
-            _run_summary(run_id, str(run["role"]), speed, run.get("duration_s"), detail, measured, t_s)
+            _run_summary(
+                run_id, str(run["role"]), speed, run.get("duration_s"), detail, measured, t_s, bounds
+            )
         )
         pred = detail["predicted_um"].to_numpy(dtype=float)
         parts.append(
@@ -219,6 +272,9 @@ def validate_runs(
                     "residual_um": measured - pred,
                     "outside_temp_range": detail["outside_temp_range"].to_numpy(dtype=bool),
                     "outside_speed_range": detail["outside_speed_range"].to_numpy(dtype=bool),
+                    "lower_um": bounds["lower_um"].to_numpy(dtype=float),
+                    "upper_um": bounds["upper_um"].to_numpy(dtype=float),
+                    "interval_cell": bounds["interval_cell"].to_numpy(dtype=object),
                 }
             )
         )
@@ -226,7 +282,9 @@ def validate_runs(
     residuals = (
         pd.concat(parts, ignore_index=True)
         if parts
-        else pd.DataFrame({c: pd.Series(dtype=float) for c in RESIDUAL_COLUMNS})
+        else pd.DataFrame(
+            {c: pd.Series(dtype=object if c == "interval_cell" else float) for c in RESIDUAL_COLUMNS}
+        )
     )
     residuals = residuals[RESIDUAL_COLUMNS]
     summary = summary.astype(
@@ -249,7 +307,8 @@ def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
         From :func:`validate_runs`.
     gates : dict
         ``max_residual_um`` (float or None to skip), ``min_improvement_pct`` (float
-        or None to skip), ``never_worse_than_uncompensated`` (bool).
+        or None to skip), ``never_worse_than_uncompensated`` (bool), ``min_coverage`` (float
+        in [0, 1] or None to skip; a summary without ``coverage`` fails it).
 
     Returns
     -------
@@ -263,6 +322,7 @@ def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
     max_res = gates.get("max_residual_um")
     min_imp = gates.get("min_improvement_pct")
     never_worse = bool(gates.get("never_worse_than_uncompensated", False))
+    min_cov = gates.get("min_coverage")
     rows = []
     for _, run in summary.iterrows():
         after = float(run["max_abs_after_um"])
@@ -295,6 +355,17 @@ def qualify(summary: pd.DataFrame, gates: dict) -> pd.DataFrame:
                     "limit": before,
                     "measured": after,
                     "passed": bool(after <= before),
+                    "run_id": run["run_id"],
+                }
+            )
+        if min_cov is not None:
+            cov = float(run.get("coverage", np.nan))
+            rows.append(
+                {
+                    "criterion": "min_coverage",
+                    "limit": float(min_cov),
+                    "measured": cov,
+                    "passed": bool(cov >= min_cov),
                     "run_id": run["run_id"],
                 }
             )

@@ -25,8 +25,9 @@ import pandas as pd
 
 from rafi.artefact import json_text, jsonable, now_iso, write_text_atomic
 from rafi.errors import IncompatibleModels
+from rafi.family.intervals import interval_columns
 from rafi.method.validate import qualify as _qualify
-from rafi.method.validate import validate_runs as _validate_runs
+from rafi.method.validate import validate_runs
 from rafi.ops.adapt import merge_speed_models, retrained_speed_info, speeds_from
 from rafi.ops.decision_record import (
     RELATIVE_COLUMNS,
@@ -476,6 +477,11 @@ def _read_json(path: str | os.PathLike | None) -> dict | None:
     if path is None or not Path(path).exists():
         return None
     return json.loads(Path(path).read_text(encoding="utf-8"))
+
+
+def _validate_runs(model, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+    """``validate_runs`` with the model's prediction interval (``coverage``: the gate ``min_coverage``)."""
+    return validate_runs(model, runs_table, runs_frame, bounds=lambda *a: interval_columns(model, *a))
 
 
 def run_decide(

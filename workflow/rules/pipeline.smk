@@ -120,6 +120,8 @@ rule method:
         machine=lambda w: w.machine,
         fit=lambda w: machine_config(w.machine)["fit"],
         fuzzy=lambda w: machine_config(w.machine)["fuzzy"],
+        # the prediction interval of model.json: RAFI's whole-run CV (models: cv, interval_*)
+        models=lambda w: machine_config(w.machine)["models"],
         # settings that shaped the model, stored in model.json for provenance
         model_config=lambda w: model_provenance(w.machine),
     script:

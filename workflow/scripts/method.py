@@ -4,7 +4,8 @@
     equilibrium  runs -> equilibrium.csv (time to thermal equilibrium per training run)
     rank         runs -> rank/correlation.csv, key_sensors.csv/.json, collinearity.csv
     fit          runs + key sensors -> fit/coefficients.csv, diagnostics.csv, vif.csv, model.json
-    validate     model + runs -> validation/summary.csv, validation/residuals.parquet
+                 (with its prediction interval, calibrated on RAFI's whole-run CV residuals)
+    validate     model + runs -> validation/summary.csv, validation/residuals.parquet (coverage)
 
 Formerly five rules (one Python start-up each); each step still has its own log file
 (logs/<machine>/<step>.log) and reads its inputs from the files the step before it wrote, so
@@ -17,6 +18,7 @@ their sha256 from the per-file audit summaries. A clean table that cannot be rea
 like a quarantined file (a line in the log), never a failed night.
 """
 
+import functools
 import json
 from pathlib import Path
 
@@ -137,6 +139,8 @@ def rank_step(smk, log):
 
 def fit_step(smk, log):
     import rafi.artefact
+    from rafi.family.interval_fit import rafi_interval
+    from rafi.family.published import PublishedRafi
     from rafi.method.fit import fit_rafi
     from rafi.method.model import save_model
 
@@ -158,6 +162,24 @@ def fit_step(smk, log):
         config=smk.params.model_config,
     )
     print(as_table(result.diagnostics).to_string(index=False), flush=True)
+    # the prediction interval: RAFI's own whole-run CV residuals on the training runs
+    rafi_interval(
+        result.model,
+        functools.partial(
+            PublishedRafi,
+            key_sensors=key_sensors,
+            terms=cfg["terms"],
+            hac_maxlags=cfg["hac_maxlags"],
+            reference=smk.params.reference,
+            machine=smk.params.machine,
+            speed_tolerance_rpm=float(smk.params.speed_tolerance_rpm),
+        ),
+        table,
+        frame,
+        options=smk.params.models,
+        speed_tolerance_rpm=float(smk.params.speed_tolerance_rpm),
+        log=lambda m: print(m, flush=True),
+    )
     rafi.artefact.write_csv_atomic(as_table(result.coefficients), smk.output.coefficients)
     rafi.artefact.write_csv_atomic(as_table(result.diagnostics), smk.output.diagnostics)
     rafi.artefact.write_csv_atomic(as_table(result.vif), smk.output.vif)
@@ -167,12 +189,13 @@ def fit_step(smk, log):
 
 def validate_step(smk, log):
     import rafi.artefact
+    from rafi.family.intervals import interval_columns
     from rafi.method.model import load_model
     from rafi.method.validate import validate_runs
 
     table, frame = read_runs(smk.output.table, smk.output.frame)
     model = load_model(smk.output.model)
-    summary, residuals = validate_runs(model, table, frame)
+    summary, residuals = validate_runs(model, table, frame, bounds=functools.partial(interval_columns, model))
     cols = [
         c
         for c in ("run_id", "speed_rpm", "max_abs_before_um", "max_abs_after_um", "improvement_pct")

@@ -1,0 +1,126 @@
+"""Giving fitted models their prediction interval: the family in ``rule compare``
+(:func:`calibrate_family`) and RAFI's ``model.json`` in ``rule method`` (:func:`rafi_interval`).
+
+Both calibrate on the model's own out-of-fold residuals of the whole-run cross-validation
+(:func:`rafi.family.crossval.cross_validate` with ``oof=``) with
+:func:`rafi.family.intervals.calibrate` and the settings ``models: interval_level``,
+``interval_transient_s`` and ``interval_min_runs``.
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from rafi.family.crossval import cross_validate, cv_data, scheme_of
+from rafi.family.intervals import OOF_COLUMNS, calibrate, set_interval
+
+__all__ = ["interval_options", "stacked_oof", "calibrate_family", "rafi_interval"]
+
+
+def interval_options(options: dict) -> dict:
+    """The keyword arguments of :func:`rafi.family.intervals.calibrate` from ``models:``."""
+    return {
+        "level": float(options["interval_level"]),
+        "transient_s": float(options["interval_transient_s"]),
+        "min_runs": int(options["interval_min_runs"]),
+    }
+
+
+def stacked_oof(parts: list) -> pd.DataFrame:
+    """Every kind's OOF samples in one frame (the empty frame of :data:`OOF_COLUMNS` without any)."""
+    parts = [p for p in parts if len(p)]
+    if not parts:
+        return pd.DataFrame({c: pd.Series(dtype=float) for c in OOF_COLUMNS})
+    return pd.concat(parts, ignore_index=True)[OOF_COLUMNS]
+
+
+def _describe(name: str, block: dict | None) -> str:
+    if block is None:
+        return f"{name}: no prediction interval (no cross-validation fold)"
+    h = block["half_width_um"]
+    cal = block["calibration"]
+    fallback = f", fell back: {', '.join(cal['fallback'])}" if cal["fallback"] else ""
+    return (
+        f"{name}: {block['level']:.0%} interval +-{h['settled']:.2f} / {h['transient']:.2f} / "
+        f"{h['outside']:.2f} um (settled / transient / outside) from {cal['n_runs']} held-out "
+        f"{cal['units']}, level {cal['corrected_level']:.3f}{fallback}; decorrelation "
+        f"{block['decorrelation_s']:g} s"
+    )
+
+
+def calibrate_family(
+    models: dict,
+    oof: pd.DataFrame,
+    *,
+    options: dict,
+    scheme: str,
+    tolerance_rpm: float,
+    keep: set | frozenset = frozenset(),
+    log=print,
+) -> dict:
+    """Calibrate and attach every model's interval (:func:`rafi.family.intervals.set_interval`).
+
+    Parameters
+    ----------
+    models : dict
+        Name -> fitted model (changed in place: its artefact then carries the block).
+    oof : pandas.DataFrame
+        The OOF samples of every model (:data:`rafi.family.intervals.OOF_COLUMNS`; ``model`` = name).
+    options : dict
+        The machine's ``models:`` settings.
+    scheme : str
+        The CV scheme the OOF samples come from.
+    tolerance_rpm : float
+        The machine's ``speed_tolerance_rpm`` (the change clock's; the OOF samples' clock).
+    keep : set
+        Names whose model keeps the interval it has (RAFI's ``model.json``).
+
+    Returns
+    -------
+    dict
+        Name -> the block (``None``: no interval).
+    """
+    out = {}
+    names = oof["model"].astype(str).to_numpy() if len(oof) else []
+    for name, model in models.items():
+        if name in keep:
+            out[name] = None
+            continue
+        mine = oof.loc[names == str(name)] if len(oof) else oof
+        block = calibrate(
+            mine, tolerance_rpm=float(tolerance_rpm), scheme=scheme, **interval_options(options)
+        )
+        set_interval(model, block)
+        out[name] = block
+        log(_describe(name, block))
+    return out
+
+
+def rafi_interval(
+    model,
+    factory,
+    runs_table: pd.DataFrame,
+    runs_frame: pd.DataFrame,
+    *,
+    options: dict,
+    speed_tolerance_rpm: float,
+    log=print,
+) -> dict | None:
+    """Calibrate RAFI's interval for the pipeline's ``model.json`` and attach it to ``model`` (a
+    :class:`~rafi.method.model.RafiModel`): RAFI's own whole-run CV on the training runs, each
+    fold fitting ``factory()`` (a :class:`~rafi.family.published.PublishedRafi` with the
+    machine's settings), under ``models: cv`` (time-blocked folds when the training runs give no
+    whole-run fold, :func:`rafi.family.crossval.cv_data`). Returns the block (``None``: no fold,
+    no interval)."""
+    table, frame = cv_data(runs_table, runs_frame, options, log=log)
+    oof: list = []
+    cross_validate(factory, table, frame, options["cv"], name="rafi", oof=oof)
+    block = calibrate(
+        stacked_oof(oof),
+        tolerance_rpm=float(speed_tolerance_rpm),
+        scheme=scheme_of(table, options["cv"]),
+        **interval_options(options),
+    )
+    set_interval(model, block)
+    log(_describe("rafi (model.json)", block))
+    return block
