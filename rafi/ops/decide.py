@@ -36,7 +36,7 @@ from rafi.ops.decision_record import (
     relative_gate_record,
     summary_record,
 )
-from rafi.ops.drift import drift_check, new_validation_runs
+from rafi.ops.drift import drift_check, interval_drift, new_validation_runs
 from rafi.ops.gates import fmt_value, gate_outcome, relative_gate, relative_reasons
 from rafi.ops.provenance import (
     champion_speeds,
@@ -50,6 +50,7 @@ from rafi.ops.provenance import (
     warning_reason,
 )
 from rafi.ops.registry import DECISION_SCHEMA, Registry, demoted_by_operator, promotion_record
+from rafi.ops.status import drift_detected, interval_evidence
 from rafi.settings import GATE_KEYS
 
 
@@ -98,12 +99,16 @@ class Champion:
     verdict : pandas.DataFrame or None
         :func:`rafi.method.validate.qualify` of ``summary`` (stored as ``champion_verdict``, so
         the report reads the champion's gates instead of judging them again).
+    residuals : pandas.DataFrame or None
+        Its residuals on tonight's validation runs, sample by sample (with ``lower_um`` and
+        ``upper_um`` when its artefact has an interval): the interval drift test reads them.
     """
 
     model_id: str | None = None
     summary: pd.DataFrame | None = None
     model: dict | None = None
     verdict: pd.DataFrame | None = None
+    residuals: pd.DataFrame | None = None
 
 
 @dataclass(frozen=True)
@@ -116,7 +121,7 @@ class DecisionSettings:
         ``qualification:`` (the absolute gates).
     nightly : mapping
         ``nightly:`` (``champion_margin_um``: the relative gate's margin, a number or
-        ``"noise"``; ``drift_margin_um``).
+        ``"noise"``; ``drift_margin_um``; ``drift_false_alarm``).
     speed_tolerance_rpm : float
         Coverage of the champion's training speeds: within this many r/min.
     """
@@ -306,17 +311,26 @@ def promotion_decision(
 
 
 def champion_drift(
-    champion: Champion, promotion: dict | None, runs_table: pd.DataFrame, drift_margin_um: float
+    champion: Champion, promotion: dict | None, runs_table: pd.DataFrame, nightly: Mapping[str, Any]
 ) -> tuple[dict, list[str]]:
-    """The drift check of the champion in service (:func:`rafi.ops.drift.drift_check`): its max
-    residual on the validation runs new since its promotion (their files' content was not in its
-    ``data_files``) against the one recorded at its promotion. Returns ``(drift, new_run_ids)``;
-    no promotion record, no new runs."""
+    """The drift checks of the champion in service on the validation runs new since its
+    promotion (their files' content was not in its ``data_files``): its max residual against the
+    one recorded at its promotion (:func:`rafi.ops.drift.drift_check`, ``nightly.drift_margin_um``)
+    and, under ``drift["interval"]``, how often the new samples fall outside its interval
+    (:func:`rafi.ops.drift.interval_drift`, ``nightly.drift_false_alarm``). Returns ``(drift,
+    new_run_ids)``; no promotion record, no new runs."""
     new_runs = new_validation_runs(runs_table, (promotion or {}).get("data_files")) if promotion else []
     reference = (promotion.get("candidate_summary") or {}).get("max_residual_um") if promotion else None
-    drift = drift_check(champion.summary, new_runs, reference, float(drift_margin_um))
+    drift = drift_check(champion.summary, new_runs, reference, float(nightly["drift_margin_um"]))
     drift["champion_id"] = champion.model_id
     drift["promoted_at"] = (promotion or {}).get("time")
+    if champion.model_id is None:
+        drift["interval"] = {"status": "no_champion", "detected": False}
+    else:
+        interval = (champion.model or {}).get("interval")
+        drift["interval"] = interval_drift(
+            champion.residuals, new_runs, interval, float(nightly["drift_false_alarm"])
+        )
     return drift, new_runs
 
 
@@ -328,6 +342,14 @@ def drift_reason(drift: dict, champion_id: str | None, decision: str) -> str:
         f"{fmt_value(drift['reference_max_residual_um'])} um at promotion (margin "
         f"{fmt_value(drift['margin_um'])} um)"
     )
+    if decision == "promoted":
+        return line + "; resolved by tonight's promotion"
+    return line + "; recalibration due (new training runs needed)"
+
+
+def interval_drift_reason(drift: dict, champion_id: str | None, decision: str) -> str:
+    """The reason line of a detected interval drift (:func:`rafi.ops.drift.interval_drift`)."""
+    line = f"drift: champion {str(champion_id)[:12]}: {interval_evidence(drift['interval'])}"
     if decision == "promoted":
         return line + "; resolved by tonight's promotion"
     return line + "; recalibration due (new training runs needed)"
@@ -373,9 +395,11 @@ def decide(
         candidate.model_id, champion.model_id, history, (passed, gate_reasons), comparison, blocking
     )
     reasons += data_change_reasons(provenance.changes, champion.model_id)
-    drift, new_runs = champion_drift(champion, promotion, runs_table, settings.nightly["drift_margin_um"])
+    drift, new_runs = champion_drift(champion, promotion, runs_table, settings.nightly)
     if drift["detected"]:
         reasons.append(drift_reason(drift, champion.model_id, decision))
+    if drift["interval"]["detected"]:
+        reasons.append(interval_drift_reason(drift, champion.model_id, decision))
     record = {
         "schema": DECISION_SCHEMA,
         "machine": machine,
@@ -409,7 +433,7 @@ def decide(
             "champion_data": provenance.champion_data,
             **provenance.changes,
         },
-        "recalibration_due": bool(drift["detected"]) and decision != "promoted",
+        "recalibration_due": drift_detected(drift) and decision != "promoted",
         "drift": drift,
         "time": time,
     }
@@ -431,6 +455,11 @@ def _model_from_dict(d: dict):
 
 def _summary_only(result):
     return result[0] if isinstance(result, tuple) else result
+
+
+def _residuals_only(result) -> pd.DataFrame | None:
+    """The residual frame of ``validate_runs``' result (None from one that returns a summary only)."""
+    return result[1] if isinstance(result, tuple) and len(result) > 1 else None
 
 
 def tonight_candidate(
@@ -471,6 +500,13 @@ def tonight_candidate(
     return candidate, adaptation
 
 
+def _read_parquet(path: str | os.PathLike | None) -> pd.DataFrame | None:
+    """A parquet file's frame, None without a path or file."""
+    if path is None or not Path(path).exists():
+        return None
+    return pd.read_parquet(path)
+
+
 def _read_json(path: str | os.PathLike | None) -> dict | None:
     """A JSON file's content, None without a path or file."""
     if path is None or not Path(path).exists():
@@ -491,6 +527,7 @@ def run_decide(
     nightly: dict,
     log: Callable[[str], None] = print,
     candidate_summary_path: str | os.PathLike | None = None,
+    candidate_residuals_path: str | os.PathLike | None = None,
     model_from_dict: Callable[[dict], Any] = _model_from_dict,
     validate_runs: Callable | None = None,
     qualify: Callable | None = None,
@@ -500,7 +537,9 @@ def run_decide(
     """Judge tonight's candidate, update the registry, write decision.json + comparison.csv.
 
     ``candidate_summary_path``: ``validation/summary.csv`` of the fitted model; reused when
-    the candidate is that model (no speed-range merge), so it is not evaluated twice.
+    the candidate is that model (no speed-range merge), so it is not evaluated twice;
+    ``candidate_residuals_path`` (``validation/residuals.parquet``) is then its residuals (the
+    interval drift test reads them when the candidate is the champion).
     ``input_status_path``: the machine's ``input_status.json`` (its ``warnings`` block
     promotion until confirmed; its ``rejected`` files explain a vanished training file).
     ``speed_tolerance_rpm``: the machine's speed tolerance (coverage of the champion's speeds).
@@ -523,8 +562,9 @@ def run_decide(
     runs_table = pd.read_csv(runs_csv)
     runs_frame = pd.read_parquet(runs_parquet)
 
-    def evaluate(model: dict) -> pd.DataFrame:
-        return _summary_only(validate_runs(model_from_dict(model), runs_table, runs_frame))
+    def evaluate(model: dict) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+        result = validate_runs(model_from_dict(model), runs_table, runs_frame)
+        return _summary_only(result), _residuals_only(result)
 
     fitted = json.loads(Path(candidate_path).read_text(encoding="utf-8"))
     champion_id = reg.champion_id()
@@ -543,13 +583,14 @@ def run_decide(
     ):
         # the fitted model itself: rule validate already evaluated it on these runs
         candidate_summary = pd.read_csv(candidate_summary_path)
+        candidate_residuals = _read_parquet(candidate_residuals_path)
     else:
-        candidate_summary = evaluate(candidate)
-    champion_summary = None
+        candidate_summary, candidate_residuals = evaluate(candidate)
+    champion_summary, champion_residuals = None, None
     if champion_id is not None and champion_id == candidate["model_id"]:
-        champion_summary = candidate_summary
+        champion_summary, champion_residuals = candidate_summary, candidate_residuals
     elif champion_model is not None:
-        champion_summary = evaluate(champion_model)
+        champion_summary, champion_residuals = evaluate(champion_model)
     dec = decide(
         machine=machine,
         candidate=Candidate(
@@ -564,6 +605,7 @@ def run_decide(
             summary=champion_summary,
             model=champion_model,
             verdict=None if champion_summary is None else qualify(champion_summary, settings.gates),
+            residuals=champion_residuals,
         ),
         runs_table=runs_table,
         settings=settings,
