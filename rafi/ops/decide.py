@@ -5,7 +5,7 @@
 steps are functions of their own: the candidate's gates (:func:`rafi.ops.gates.gate_outcome`), the
 comparison with the champion (:func:`compare_with_champion`), provenance (:func:`check_provenance`),
 what blocks (:func:`blocking_checks`), the decision (:func:`promotion_decision`), the champion's
-drift (:func:`champion_drift`) and the record (:mod:`rafi.ops.decision_record`).
+drift (:func:`rafi.ops.drift.champion_drift`) and the record (:mod:`rafi.ops.decision_record`).
 
 :func:`run_decide` is rule ``decide``: it reads the candidate and the runs, makes tonight's
 candidate (:func:`tonight_candidate`: the fit, or the champion with a speed range retrained),
@@ -36,8 +36,8 @@ from rafi.ops.decision_record import (
     relative_gate_record,
     summary_record,
 )
-from rafi.ops.drift import drift_check, interval_drift, new_validation_runs
-from rafi.ops.gates import fmt_value, gate_outcome, relative_gate, relative_reasons
+from rafi.ops.drift import champion_drift, drift_reason, interval_drift_reason
+from rafi.ops.gates import gate_outcome, relative_gate, relative_reasons
 from rafi.ops.provenance import (
     champion_speeds,
     coverage_reasons,
@@ -50,7 +50,7 @@ from rafi.ops.provenance import (
     warning_reason,
 )
 from rafi.ops.registry import DECISION_SCHEMA, Registry, demoted_by_operator, promotion_record
-from rafi.ops.status import drift_detected, interval_evidence
+from rafi.ops.status import drift_detected
 from rafi.settings import GATE_KEYS
 
 
@@ -310,51 +310,6 @@ def promotion_decision(
     return "rejected", reasons + comparison.reasons + blocking.reasons + [stays]
 
 
-def champion_drift(
-    champion: Champion, promotion: dict | None, runs_table: pd.DataFrame, nightly: Mapping[str, Any]
-) -> tuple[dict, list[str]]:
-    """The drift checks of the champion in service on the validation runs new since its
-    promotion (their files' content was not in its ``data_files``): its max residual against the
-    one recorded at its promotion (:func:`rafi.ops.drift.drift_check`, ``nightly.drift_margin_um``)
-    and, under ``drift["interval"]``, how often the new samples fall outside its interval
-    (:func:`rafi.ops.drift.interval_drift`, ``nightly.drift_false_alarm``). Returns ``(drift,
-    new_run_ids)``; no promotion record, no new runs."""
-    new_runs = new_validation_runs(runs_table, (promotion or {}).get("data_files")) if promotion else []
-    reference = (promotion.get("candidate_summary") or {}).get("max_residual_um") if promotion else None
-    drift = drift_check(champion.summary, new_runs, reference, float(nightly["drift_margin_um"]))
-    drift["champion_id"] = champion.model_id
-    drift["promoted_at"] = (promotion or {}).get("time")
-    if champion.model_id is None:
-        drift["interval"] = {"status": "no_champion", "detected": False}
-    else:
-        interval = (champion.model or {}).get("interval")
-        drift["interval"] = interval_drift(
-            champion.residuals, new_runs, interval, float(nightly["drift_false_alarm"])
-        )
-    return drift, new_runs
-
-
-def drift_reason(drift: dict, champion_id: str | None, decision: str) -> str:
-    """The reason line of a detected drift: resolved by a promotion tonight, else recalibration due."""
-    line = (
-        f"drift: champion {str(champion_id)[:12]} max residual on {len(drift['per_run'])} new "
-        f"validation run(s) is {fmt_value(drift['new_max_residual_um'])} um vs "
-        f"{fmt_value(drift['reference_max_residual_um'])} um at promotion (margin "
-        f"{fmt_value(drift['margin_um'])} um)"
-    )
-    if decision == "promoted":
-        return line + "; resolved by tonight's promotion"
-    return line + "; recalibration due (new training runs needed)"
-
-
-def interval_drift_reason(drift: dict, champion_id: str | None, decision: str) -> str:
-    """The reason line of a detected interval drift (:func:`rafi.ops.drift.interval_drift`)."""
-    line = f"drift: champion {str(champion_id)[:12]}: {interval_evidence(drift['interval'])}"
-    if decision == "promoted":
-        return line + "; resolved by tonight's promotion"
-    return line + "; recalibration due (new training runs needed)"
-
-
 def decide(
     *,
     machine: str,
@@ -375,7 +330,8 @@ def decide(
        (:func:`blocking_checks`);
     4. the decision (:func:`promotion_decision`): ``kept`` (the candidate is the champion, or an
        operator rolled it back), ``promoted`` (every gate passed, nothing blocks) or ``rejected``;
-    5. the drift of the champion in service (:func:`champion_drift`), whatever the decision;
+    5. the drift of the champion in service (:func:`rafi.ops.drift.champion_drift`), whatever the
+       decision;
     6. the record (``decision.json``), the comparison table and the history line.
 
     Vanished or changed training files of the champion are reported (``data.vanished``,

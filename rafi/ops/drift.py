@@ -13,11 +13,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable, Mapping
+from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from rafi.ops.gates import gated_runs
+from rafi.ops.gates import fmt_value, gated_runs
+from rafi.ops.status import interval_evidence
 
 VALIDATION_ROLES = ("validation_single", "validation_multi", "validation_idle")
 
@@ -270,3 +272,49 @@ def binomial_p_value(k: int, n: int, rate: float) -> float:
     from scipy.stats import binom  # local: the registry and status code import this module
 
     return 1.0 if k <= 0 else float(binom.sf(k - 1, n, rate))
+
+
+def champion_drift(
+    champion, promotion: dict | None, runs_table: pd.DataFrame, nightly: Mapping[str, Any]
+) -> tuple[dict, list[str]]:
+    """The drift checks of the champion in service on the validation runs new since its
+    promotion (their files' content was not in its ``data_files``): its max residual against the
+    one recorded at its promotion (:func:`drift_check`, ``nightly.drift_margin_um``)
+    and, under ``drift["interval"]``, how often the new samples fall outside its interval
+    (:func:`interval_drift`, ``nightly.drift_false_alarm``). ``champion`` is a
+    :class:`rafi.ops.decide.Champion` (``model_id``, ``summary``, ``model``, ``residuals``).
+    Returns ``(drift, new_run_ids)``; no promotion record, no new runs."""
+    new_runs = new_validation_runs(runs_table, (promotion or {}).get("data_files")) if promotion else []
+    reference = (promotion.get("candidate_summary") or {}).get("max_residual_um") if promotion else None
+    drift = drift_check(champion.summary, new_runs, reference, float(nightly["drift_margin_um"]))
+    drift["champion_id"] = champion.model_id
+    drift["promoted_at"] = (promotion or {}).get("time")
+    if champion.model_id is None:
+        drift["interval"] = {"status": "no_champion", "detected": False}
+    else:
+        interval = (champion.model or {}).get("interval")
+        drift["interval"] = interval_drift(
+            champion.residuals, new_runs, interval, float(nightly["drift_false_alarm"])
+        )
+    return drift, new_runs
+
+
+def drift_reason(drift: dict, champion_id: str | None, decision: str) -> str:
+    """The reason line of a detected drift: resolved by a promotion tonight, else recalibration due."""
+    line = (
+        f"drift: champion {str(champion_id)[:12]} max residual on {len(drift['per_run'])} new "
+        f"validation run(s) is {fmt_value(drift['new_max_residual_um'])} um vs "
+        f"{fmt_value(drift['reference_max_residual_um'])} um at promotion (margin "
+        f"{fmt_value(drift['margin_um'])} um)"
+    )
+    if decision == "promoted":
+        return line + "; resolved by tonight's promotion"
+    return line + "; recalibration due (new training runs needed)"
+
+
+def interval_drift_reason(drift: dict, champion_id: str | None, decision: str) -> str:
+    """The reason line of a detected interval drift (:func:`interval_drift`)."""
+    line = f"drift: champion {str(champion_id)[:12]}: {interval_evidence(drift['interval'])}"
+    if decision == "promoted":
+        return line + "; resolved by tonight's promotion"
+    return line + "; recalibration due (new training runs needed)"
