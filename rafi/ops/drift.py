@@ -227,7 +227,8 @@ def interval_drift(
     if isinstance(settings, str):
         return out | {"status": "no_interval", "reason": settings}
     level, spacing = settings
-    out.update(level=level, decorrelation_s=spacing, allowed_rate=1.0 - level)
+    allowed = round(1.0 - level, 12)  # 0.1, not 0.09999999999999998, in decision.json
+    out.update(level=level, decorrelation_s=spacing, allowed_rate=allowed)
     missing = [c for c in ("run_id", "t_s", *INTERVAL_COLUMNS) if residuals is None or c not in residuals]
     if missing:
         what = "no residuals of the champion" if residuals is None else f"no column {', '.join(missing)}"
@@ -252,12 +253,12 @@ def interval_drift(
             "n_samples": int((usable_ids == run).sum()),
         }
     n, k = int(len(outside)), int(outside.sum())
-    p_value = binomial_p_value(k, n, 1.0 - level)
+    p_value = binomial_p_value(k, n, allowed)
     out.update(
         n_samples=int(len(usable)),
         n=n,
         k=k,
-        expected_k=n * (1.0 - level),
+        expected_k=n * allowed,
         observed_rate=k / n,
         p_value=p_value,
     )
