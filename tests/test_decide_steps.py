@@ -211,13 +211,16 @@ def test_promoted_only_when_the_gates_pass_and_nothing_blocks(nothing_compared):
 def test_drift_of_the_champion_and_its_line():
     promotion = {"time": "T0", "candidate_summary": {"max_residual_um": 2.0}, "data_files": {"b.csv": "hb"}}
     champion = D.Champion(model_id="c" * 64, summary=CHAMP_SUM)
-    drift, new_runs = D.champion_drift(champion, promotion, RUNS, 1.0)
+    nightly = {"drift_margin_um": 1.0, "drift_false_alarm": 0.01}
+    drift, new_runs = D.champion_drift(champion, promotion, RUNS, nightly)
     assert new_runs == ["v2", "v3"] and drift["detected"] and drift["new_max_residual_um"] == 4.0
+    # a champion without residuals or interval block: the interval test says so, no crash
+    assert drift["interval"]["status"] == "no_interval" and not drift["interval"]["detected"]
     assert drift["champion_id"] == "c" * 64 and drift["promoted_at"] == "T0"
     assert D.drift_reason(drift, "c" * 64, "kept").endswith("recalibration due (new training runs needed)")
     assert D.drift_reason(drift, "c" * 64, "promoted").endswith("resolved by tonight's promotion")
-    none, no_runs = D.champion_drift(D.Champion(), None, RUNS, 1.0)
-    assert no_runs == [] and not none["detected"]
+    none, no_runs = D.champion_drift(D.Champion(), None, RUNS, nightly)
+    assert no_runs == [] and not none["detected"] and none["interval"]["status"] == "no_champion"
 
 
 # --------------------------------------------------------------------------- the candidate

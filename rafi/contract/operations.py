@@ -256,6 +256,17 @@ OPERATIONS_SETTINGS: dict = {
                 shown="2.0",
                 doc="the champion's residual on new validation logs may grow this much",
             ),
+            "drift_false_alarm": Setting(
+                default=0.01,
+                schema={"type": "number", "exclusiveMinimum": 0, "exclusiveMaximum": 1},
+                shown="0.01",
+                doc=(
+                    "false-alarm rate of the interval drift test: recalibration is due when the new "
+                    "validation samples (thinned to one per `decorrelation_s`) fall outside the champion's "
+                    "interval so often that a machine as calibrated would do so with a probability below "
+                    "this (one-sided binomial test; docs/operations.md)"
+                ),
+            ),
             "champion_margin_um": Setting(
                 default="noise",
                 schema={"oneOf": [{"type": "number", "minimum": 0}, {"const": "noise"}]},

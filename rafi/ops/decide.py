@@ -5,7 +5,7 @@
 steps are functions of their own: the candidate's gates (:func:`rafi.ops.gates.gate_outcome`), the
 comparison with the champion (:func:`compare_with_champion`), provenance (:func:`check_provenance`),
 what blocks (:func:`blocking_checks`), the decision (:func:`promotion_decision`), the champion's
-drift (:func:`champion_drift`) and the record (:mod:`rafi.ops.decision_record`).
+drift (:func:`rafi.ops.drift.champion_drift`) and the record (:mod:`rafi.ops.decision_record`).
 
 :func:`run_decide` is rule ``decide``: it reads the candidate and the runs, makes tonight's
 candidate (:func:`tonight_candidate`: the fit, or the champion with a speed range retrained),
@@ -37,8 +37,8 @@ from rafi.ops.decision_record import (
     relative_gate_record,
     summary_record,
 )
-from rafi.ops.drift import drift_check, new_validation_runs
-from rafi.ops.gates import fmt_value, gate_outcome, relative_gate, relative_reasons
+from rafi.ops.drift import champion_drift, drift_reason, interval_drift_reason
+from rafi.ops.gates import gate_outcome, relative_gate, relative_reasons
 from rafi.ops.provenance import (
     champion_speeds,
     coverage_reasons,
@@ -51,6 +51,7 @@ from rafi.ops.provenance import (
     warning_reason,
 )
 from rafi.ops.registry import DECISION_SCHEMA, Registry, demoted_by_operator, promotion_record
+from rafi.ops.status import drift_detected
 from rafi.settings import GATE_KEYS
 
 
@@ -99,12 +100,16 @@ class Champion:
     verdict : pandas.DataFrame or None
         :func:`rafi.method.validate.qualify` of ``summary`` (stored as ``champion_verdict``, so
         the report reads the champion's gates instead of judging them again).
+    residuals : pandas.DataFrame or None
+        Its residuals on tonight's validation runs, sample by sample (with ``lower_um`` and
+        ``upper_um`` when its artefact has an interval): the interval drift test reads them.
     """
 
     model_id: str | None = None
     summary: pd.DataFrame | None = None
     model: dict | None = None
     verdict: pd.DataFrame | None = None
+    residuals: pd.DataFrame | None = None
 
 
 @dataclass(frozen=True)
@@ -117,7 +122,7 @@ class DecisionSettings:
         ``qualification:`` (the absolute gates).
     nightly : mapping
         ``nightly:`` (``champion_margin_um``: the relative gate's margin, a number or
-        ``"noise"``; ``drift_margin_um``).
+        ``"noise"``; ``drift_margin_um``; ``drift_false_alarm``).
     speed_tolerance_rpm : float
         Coverage of the champion's training speeds: within this many r/min.
     """
@@ -306,34 +311,6 @@ def promotion_decision(
     return "rejected", reasons + comparison.reasons + blocking.reasons + [stays]
 
 
-def champion_drift(
-    champion: Champion, promotion: dict | None, runs_table: pd.DataFrame, drift_margin_um: float
-) -> tuple[dict, list[str]]:
-    """The drift check of the champion in service (:func:`rafi.ops.drift.drift_check`): its max
-    residual on the validation runs new since its promotion (their files' content was not in its
-    ``data_files``) against the one recorded at its promotion. Returns ``(drift, new_run_ids)``;
-    no promotion record, no new runs."""
-    new_runs = new_validation_runs(runs_table, (promotion or {}).get("data_files")) if promotion else []
-    reference = (promotion.get("candidate_summary") or {}).get("max_residual_um") if promotion else None
-    drift = drift_check(champion.summary, new_runs, reference, float(drift_margin_um))
-    drift["champion_id"] = champion.model_id
-    drift["promoted_at"] = (promotion or {}).get("time")
-    return drift, new_runs
-
-
-def drift_reason(drift: dict, champion_id: str | None, decision: str) -> str:
-    """The reason line of a detected drift: resolved by a promotion tonight, else recalibration due."""
-    line = (
-        f"drift: champion {str(champion_id)[:12]} max residual on {len(drift['per_run'])} new "
-        f"validation run(s) is {fmt_value(drift['new_max_residual_um'])} um vs "
-        f"{fmt_value(drift['reference_max_residual_um'])} um at promotion (margin "
-        f"{fmt_value(drift['margin_um'])} um)"
-    )
-    if decision == "promoted":
-        return line + "; resolved by tonight's promotion"
-    return line + "; recalibration due (new training runs needed)"
-
-
 def decide(
     *,
     machine: str,
@@ -354,7 +331,8 @@ def decide(
        (:func:`blocking_checks`);
     4. the decision (:func:`promotion_decision`): ``kept`` (the candidate is the champion, or an
        operator rolled it back), ``promoted`` (every gate passed, nothing blocks) or ``rejected``;
-    5. the drift of the champion in service (:func:`champion_drift`), whatever the decision;
+    5. the drift of the champion in service (:func:`rafi.ops.drift.champion_drift`), whatever the
+       decision;
     6. the record (``decision.json``), the comparison table and the history line.
 
     Vanished or changed training files of the champion are reported (``data.vanished``,
@@ -374,9 +352,11 @@ def decide(
         candidate.model_id, champion.model_id, history, (passed, gate_reasons), comparison, blocking
     )
     reasons += data_change_reasons(provenance.changes, champion.model_id)
-    drift, new_runs = champion_drift(champion, promotion, runs_table, settings.nightly["drift_margin_um"])
+    drift, new_runs = champion_drift(champion, promotion, runs_table, settings.nightly)
     if drift["detected"]:
         reasons.append(drift_reason(drift, champion.model_id, decision))
+    if drift["interval"]["detected"]:
+        reasons.append(interval_drift_reason(drift, champion.model_id, decision))
     record = {
         "schema": DECISION_SCHEMA,
         "machine": machine,
@@ -410,7 +390,7 @@ def decide(
             "champion_data": provenance.champion_data,
             **provenance.changes,
         },
-        "recalibration_due": bool(drift["detected"]) and decision != "promoted",
+        "recalibration_due": drift_detected(drift) and decision != "promoted",
         "drift": drift,
         "time": time,
     }
@@ -432,6 +412,11 @@ def _model_from_dict(d: dict):
 
 def _summary_only(result):
     return result[0] if isinstance(result, tuple) else result
+
+
+def _residuals_only(result) -> pd.DataFrame | None:
+    """The residual frame of ``validate_runs``' result (None from one that returns a summary only)."""
+    return result[1] if isinstance(result, tuple) and len(result) > 1 else None
 
 
 def tonight_candidate(
@@ -472,6 +457,13 @@ def tonight_candidate(
     return candidate, adaptation
 
 
+def _read_parquet(path: str | os.PathLike | None) -> pd.DataFrame | None:
+    """A parquet file's frame, None without a path or file."""
+    if path is None or not Path(path).exists():
+        return None
+    return pd.read_parquet(path)
+
+
 def _read_json(path: str | os.PathLike | None) -> dict | None:
     """A JSON file's content, None without a path or file."""
     if path is None or not Path(path).exists():
@@ -497,6 +489,7 @@ def run_decide(
     nightly: dict,
     log: Callable[[str], None] = print,
     candidate_summary_path: str | os.PathLike | None = None,
+    candidate_residuals_path: str | os.PathLike | None = None,
     model_from_dict: Callable[[dict], Any] = _model_from_dict,
     validate_runs: Callable | None = None,
     qualify: Callable | None = None,
@@ -506,7 +499,9 @@ def run_decide(
     """Judge tonight's candidate, update the registry, write decision.json + comparison.csv.
 
     ``candidate_summary_path``: ``validation/summary.csv`` of the fitted model; reused when
-    the candidate is that model (no speed-range merge), so it is not evaluated twice.
+    the candidate is that model (no speed-range merge), so it is not evaluated twice;
+    ``candidate_residuals_path`` (``validation/residuals.parquet``) is then its residuals (the
+    interval drift test reads them when the candidate is the champion).
     ``input_status_path``: the machine's ``input_status.json`` (its ``warnings`` block
     promotion until confirmed; its ``rejected`` files explain a vanished training file).
     ``speed_tolerance_rpm``: the machine's speed tolerance (coverage of the champion's speeds).
@@ -529,8 +524,9 @@ def run_decide(
     runs_table = pd.read_csv(runs_csv)
     runs_frame = pd.read_parquet(runs_parquet)
 
-    def evaluate(model: dict) -> pd.DataFrame:
-        return _summary_only(validate_runs(model_from_dict(model), runs_table, runs_frame))
+    def evaluate(model: dict) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+        result = validate_runs(model_from_dict(model), runs_table, runs_frame)
+        return _summary_only(result), _residuals_only(result)
 
     fitted = json.loads(Path(candidate_path).read_text(encoding="utf-8"))
     champion_id = reg.champion_id()
@@ -549,13 +545,14 @@ def run_decide(
     ):
         # the fitted model itself: rule validate already evaluated it on these runs
         candidate_summary = pd.read_csv(candidate_summary_path)
+        candidate_residuals = _read_parquet(candidate_residuals_path)
     else:
-        candidate_summary = evaluate(candidate)
-    champion_summary = None
+        candidate_summary, candidate_residuals = evaluate(candidate)
+    champion_summary, champion_residuals = None, None
     if champion_id is not None and champion_id == candidate["model_id"]:
-        champion_summary = candidate_summary
+        champion_summary, champion_residuals = candidate_summary, candidate_residuals
     elif champion_model is not None:
-        champion_summary = evaluate(champion_model)
+        champion_summary, champion_residuals = evaluate(champion_model)
     dec = decide(
         machine=machine,
         candidate=Candidate(
@@ -570,6 +567,7 @@ def run_decide(
             summary=champion_summary,
             model=champion_model,
             verdict=None if champion_summary is None else qualify(champion_summary, settings.gates),
+            residuals=champion_residuals,
         ),
         runs_table=runs_table,
         settings=settings,

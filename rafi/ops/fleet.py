@@ -14,7 +14,8 @@ nights wrote; nothing is computed anew:
   ``comparison/per_run.csv`` or ``validation/summary.csv``: those score tonight's candidates,
   which are not in service unless promoted. After a rollback there is none until the next
   night scores the model;
-* drift and recalibration due: ``decision.json`` ``drift`` and ``recalibration_due``;
+* drift and recalibration due: ``decision.json`` ``drift`` (the max-residual check, and under
+  ``interval`` the interval test with its evidence) and ``recalibration_due``;
 * quarantined files and whether the machine was skipped: ``audit.csv`` and
   ``input_status.json`` (:func:`rafi.ops.status.machine_status`);
 * its page: ``reports/<m>/qualification.html``, or ``reports/<m>/skipped.html`` for a skipped
@@ -50,6 +51,8 @@ from rafi.ops.status import (
     EXIT_QUARANTINED,
     EXIT_RECALIBRATION_DUE,
     EXIT_REJECTED,
+    drift_detected,
+    interval_evidence,
     machine_status,
     most_severe,
 )
@@ -147,12 +150,40 @@ def champion_residual(decision: dict | None, champion_id: str | None) -> dict | 
     return {"max_residual_um": worst, "run": run, "n_runs": summary.get("n_runs"), "source": source}
 
 
+#: The evidence of the interval drift test a row repeats (``decision.json`` ``drift.interval``).
+INTERVAL_KEYS = (
+    "status",
+    "detected",
+    "n",
+    "k",
+    "expected_k",
+    "observed_rate",
+    "allowed_rate",
+    "level",
+    "p_value",
+    "false_alarm",
+    "decorrelation_s",
+    "runs",
+    "reason",
+)
+
+
 def _drift(decision: dict | None) -> dict | None:
+    """Both drift checks of ``decision.json``: the max-residual one (its keys at the top) and the
+    interval test (``interval``: :data:`INTERVAL_KEYS` and ``text``, its evidence in words; None
+    in a decision from before the test)."""
     drift = (decision or {}).get("drift")
     if not isinstance(drift, dict):
         return None
     keys = ("status", "degradation_um", "new_max_residual_um", "reference_max_residual_um", "limit_um")
-    return {k: drift.get(k) for k in keys} | {"new_runs": list(drift.get("new_runs") or [])}
+    out = {k: drift.get(k) for k in keys} | {"new_runs": list(drift.get("new_runs") or [])}
+    interval = drift.get("interval")
+    out["interval"] = (
+        {k: interval.get(k) for k in INTERVAL_KEYS} | {"text": interval_evidence(interval)}
+        if isinstance(interval, dict)
+        else None
+    )
+    return out
 
 
 def _page(reports_dir: Path, machine: str, skipped: bool) -> str | None:
@@ -229,9 +260,19 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     recal = bool((decision or {}).get("recalibration_due"))
     drift = _drift(decision)
     if recal:
-        deg = _num((drift or {}).get("degradation_um"))
-        by = f" by {deg:.2f} um" if deg is not None else ""
-        attention.append(("recalibration_due", f"the model in service drifted{by}: recalibration due"))
+        interval = (drift or {}).get("interval") or {}
+        if interval.get("detected"):
+            attention.append(
+                (
+                    "recalibration_due",
+                    f"new data fall outside the interval too often ({interval['text']}): recalibration due",
+                )
+            )
+        # the max-residual check found it, or a decision that does not say which check did
+        if (drift or {}).get("status") == "degraded" or not drift_detected((decision or {}).get("drift")):
+            deg = _num((drift or {}).get("degradation_um"))
+            by = f" by {deg:.2f} um" if deg is not None else ""
+            attention.append(("recalibration_due", f"the model in service drifted{by}: recalibration due"))
     if (decision or {}).get("decision") == "rejected":
         attention.append(("rejected", "the last candidate was rejected; the champion stays"))
     if status.quarantined and not status.skipped:

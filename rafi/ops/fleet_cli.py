@@ -8,7 +8,8 @@ then a rejected candidate or quarantined files; then ok. docs/operations.md, "ra
 Exit status (for monitoring; the codes of rafi nightly, most severe first 1 > 3 > 2 > 4 > 0):
   0   every machine ok
   1   some machine failed (data but no decision) or has never been run
-  3   some machine's model in service is due for recalibration (drift)
+  3   some machine's model in service is due for recalibration (drift: its max residual grew
+      past the margin, or new samples fall outside its interval more often than its level allows)
   2   some machine's last decision rejected the candidate (the champion stays)
   4   some input was rejected: quarantined raw files, or a machine skipped
   64  usage error (config unreadable, unknown --machine)
@@ -105,6 +106,9 @@ def format_rows(rows: list[dict]) -> str:
         lines.append(f"  worst residual:   {resid}")
         due = "YES" if r["recalibration_due"] else "no"
         lines.append(f"  drift:            {drift_text}; recalibration due: {due}")
+        interval = (r["drift"] or {}).get("interval")
+        if interval:
+            lines.append(f"  interval drift:   {interval['text']}")
         lines.append(f"  quarantined:      {'; '.join(r['quarantined']) or 'none'}")
         lines.append(f"  report:           {r['report_path'] or 'not built'}")
     return "\n".join(lines) + "\n"

@@ -59,6 +59,41 @@ def parse_time(text) -> float | None:
         return None
 
 
+def drift_detected(drift: dict | None) -> bool:
+    """Either drift check of ``decision.json``'s ``drift`` found drift: the max residual grew past
+    its margin (``detected``) or the new samples fell outside the interval too often
+    (``interval.detected``)."""
+    drift = drift or {}
+    return bool(drift.get("detected")) or bool((drift.get("interval") or {}).get("detected"))
+
+
+def interval_evidence(interval: dict | None) -> str:
+    """The interval drift test's result in words (``decision.json`` ``drift.interval``, see
+    :func:`rafi.ops.drift.interval_drift`): what was counted, against what, and the p-value.
+
+    ``"9 of 40 new samples (one per 600 s, 3 run(s)) outside the 90 % interval, 4.0 expected;
+    p = 0.00021 < 0.01"``; for the other statuses, why nothing was tested.
+    """
+    d = interval or {}
+    status = d.get("status")
+    if status in ("ok", "recalibration_due") and d.get("n"):
+        level = 100.0 * float(d["level"])
+        verdict = "<" if d.get("detected") else ">="
+        return (
+            f"{d['k']} of {d['n']} new samples (one per {float(d['decorrelation_s']):g} s, "
+            f"{len(d.get('per_run') or {})} run(s)) outside the {level:g} % interval, "
+            f"{float(d['expected_k']):.1f} expected; p = {float(d['p_value']):.2g} {verdict} "
+            f"{float(d['false_alarm']):g}"
+        )
+    if status == "no_interval":
+        return f"interval not tested: {d.get('reason') or 'no interval'}"
+    if status == "no_new_runs":
+        return "interval not tested: no new validation runs"
+    if status == "no_champion":
+        return "interval not tested: no model in service"
+    return "interval not tested"
+
+
 @dataclass
 class MachineStatus:
     """A machine's decision.json and quarantined inputs after a night.
@@ -109,10 +144,16 @@ class MachineStatus:
             text += f", retrained speeds {', '.join(sp)} r/min"
         if d.get("recalibration_due"):
             dr = d.get("drift") or {}
-            text += (
-                f"; RECALIBRATION DUE: max residual {_num(dr.get('new_max_residual_um'))} um on "
-                f"new logs vs {_num(dr.get('reference_max_residual_um'))} um at promotion"
-            )
+            interval = dr.get("interval") or {}
+            causes = []
+            if dr.get("detected") or not interval.get("detected"):
+                causes.append(
+                    f"max residual {_num(dr.get('new_max_residual_um'))} um on new logs vs "
+                    f"{_num(dr.get('reference_max_residual_um'))} um at promotion"
+                )
+            if interval.get("detected"):
+                causes.append(interval_evidence(interval))
+            text += "; RECALIBRATION DUE: " + "; ".join(causes)
         if self.quarantined:
             text += f"; quarantined: {', '.join(self.quarantined)}"
         return text

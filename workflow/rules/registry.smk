@@ -1,8 +1,10 @@
 # Model registry and champion/challenger decision (rafi.ops.decide, rafi.ops.registry; docs/operations.md).
 #
 #   candidate model (config nightly.candidate = family's best model or fit's model.json)
-#     + runs.csv, runs.parquet, validation/summary.csv, input_status.json (its warnings block
-#     promotion until confirmed)  ->  registry/decision.json and registry/comparison.csv
+#     + runs.csv, runs.parquet, validation/summary.csv and residuals.parquet (reused when the
+#     candidate is the fitted model; the residuals feed the interval drift test), input_status.json
+#     (its warnings block promotion until confirmed)  ->  registry/decision.json and
+#     registry/comparison.csv
 #
 # The registry's own files are side effects, not outputs: see the note in common.smk.
 # The script writes the declared outputs last, after champion.json.
@@ -15,6 +17,7 @@ rule decide:
         table=out("runs_csv"),
         frame=out("runs_parquet"),
         summary=out("validation_summary"),
+        residuals=out("residuals"),
         status=out("input_status"),
     output:
         decision=report(

@@ -22,6 +22,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         nightly=dict(smk.params.nightly),
         log=lambda msg: print(msg, flush=True),
         candidate_summary_path=(smk.input.summary if smk.params.nightly["candidate"] == "fit" else None),
+        candidate_residuals_path=smk.input.residuals,
         input_status_path=smk.input.status,
         speed_tolerance_rpm=float(smk.params.speed_tolerance_rpm),
     )

@@ -309,7 +309,7 @@ def _family_and_registry(base: Path, runs_table, runs_frame, rafi_model, model: 
                        registry_root=tmp / "registry", decision_path=tmp / "registry" / "decision.json",
                        comparison_path=tmp / "registry" / "comparison.csv", gates=GATES,
                        nightly={"candidate": "family", "retrain_speed_range_rpm": None,
-                                "drift_margin_um": 2.0}, log=lambda m: None)
+                                "drift_margin_um": 2.0, "drift_false_alarm": 0.01}, log=lambda m: None)
         shutil.copytree(tmp / "registry", reg)
     for p in reg.rglob("*"):
         if p.is_file():
