@@ -1,0 +1,421 @@
+"""Selection rules judged one level up: an outer whole-run CV over the training runs.
+
+Usage (from the repository root; see benchmarks/README.md)::
+
+    python benchmarks/bench_selection_rules.py --project /tmp/rd/ch3-windows --project /tmp/twins
+
+Each ``--project`` is a Snakemake project that has run (``config.yaml`` and
+``results/<machine>/`` with ``runs.csv``, ``runs.parquet``, ``rank/key_sensors.json`` and
+``comparison/cv.csv``): the folders ``bench_realdata.py --keep DIR`` leaves, or a copy of this
+project after ``snakemake --cores 2`` (the twin machines). Every machine under ``results/`` is
+judged (``--machines`` to pick some).
+
+**Why one level up.** The champion is chosen by the whole-run CV of the training runs
+(``comparison/cv.csv``); whether a *rule* that chooses from those CV scores is good is itself a
+question of generalisation, and the honest judge is the same CV one level up, on the training
+runs only (validation and test rows are never read here):
+
+* outer folds: each training run ``r`` is held out in turn (leave one run out);
+* on the other training runs the rule sees an **inner** whole-run CV of every enabled kind
+  (:func:`rafi.family.crossval.cross_validate` on the runs table with ``r`` out of the training
+  role; each kind still chooses its own hyperparameters by its own CV inside every fit) and
+  picks a kind;
+* the picked kind is scored on ``r`` by the model of that kind fitted on all the other training
+  runs: exactly the row of ``comparison/cv.csv`` that holds ``r`` out (the pipeline's own
+  numbers; its scheme must be ``leave_one_run_out``).
+
+The outer score of a rule is the mean over the outer folds of the max |residual| of its pick
+(the loss the gates judge, the same as the current selection score), with the pooled RMSE
+beside it; ``oracle`` is the best kind per outer fold (a floor no rule can beat) and
+``paired`` the mean and standard error of the per-fold difference to the current rule.
+
+The rules (:data:`RULES`), every one a function of training-run CV rows alone:
+
+* ``mean_max`` (the current rule, :func:`rafi.family.selection.choose_champion`): the lowest
+  mean over the held-out runs of the max |residual|;
+* ``mean_plus_se``: the lowest mean + one standard error of the fold scores (sample standard
+  deviation over sqrt(folds)): an upper confidence bound on the CV loss, so a kind that is
+  good on most folds and very bad on one loses to a kind that is steady;
+* ``one_se_simplest``: the one-standard-error rule, towards the simpler kind
+  (:data:`rafi.family.selection.SIMPLICITY`) among those whose mean is within one standard
+  error of the best mean;
+* ``speed_folds``: ``mean_max`` on other inner folds, one per training speed with the
+  cool-downs that follow its runs (:func:`speed_with_cooldown_folds`): folds that look like a
+  validation at an unseen speed followed by its cool-down;
+* ``cv_weighted_ensemble`` (not a choice of one kind): the weighted mean of every kind's
+  prediction, weights proportional to 1 / (inner CV mean max |residual|)^2
+  (:func:`ensemble_weights`); scored on the held-out run from refits of every kind on the
+  outer-training runs (:func:`held_out_predictions`, checked against ``comparison/cv.csv``).
+
+The scores of every rule on the machine's full training CV (what it would offer now) are
+printed beside. Output: a table per machine, ``benchmarks/results/selection_rules.json`` and
+``selection_rules.md``. It reads the data and settings of each project and refits the family
+about 10 times per training run; minutes per machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import datetime as dt
+import functools
+import json
+import os
+import platform
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+if str(ROOT) not in sys.path:
+    sys.path.insert(0, str(ROOT))
+
+from rafi.contract import RESULT_FILES  # noqa: E402
+from rafi.family import crossval  # noqa: E402
+from rafi.family.compare import make_model  # noqa: E402
+from rafi.family.feature_memo import sharing_features  # noqa: E402
+from rafi.family.selection import SIMPLICITY, choose_champion  # noqa: E402
+from rafi.family.whole_log import rows_of_logs  # noqa: E402
+from rafi.settings import machine_settings  # noqa: E402
+
+OUT_DIR = ROOT / "benchmarks" / "results"
+#: The role of the outer held-out run in the tables the inner CV sees: not training, not scored.
+OUTER = "outer_held_out"
+SPEED_SCHEME = "speed_with_cooldown"
+ENSEMBLE = "cv_weighted_ensemble"
+
+
+# ----------------------------------------------------------------------------- inner folds
+
+
+def speed_with_cooldown_folds(runs_table: pd.DataFrame, tolerance_rpm: float = 50.0):
+    """One fold per training speed: its runs and every idle training run that directly follows
+    one of them in time (the cool-down after it). An idle run with no run before it is a fold
+    of its own. Yields ``(train_ids, test_ids)`` like :func:`rafi.family.crossval.leave_one_speed_out`."""
+    t = runs_table.loc[runs_table["role"].astype(str) == "training"].sort_values("start_s", kind="stable")
+    groups: list[tuple[float | None, list[str]]] = []
+    current = None
+    for rid, speed, kind in zip(t["run_id"].astype(str), t["speed_rpm"].astype(float), t["kind"].astype(str)):
+        if kind == "idle" or not speed > 0:
+            if current is None:
+                groups.append((None, [rid]))
+            else:
+                current[1].append(rid)
+            continue
+        current = next((g for g in groups if g[0] is not None and abs(g[0] - speed) <= tolerance_rpm), None)
+        if current is None:
+            current = (speed, [rid])
+            groups.append(current)
+        else:
+            current[1].append(rid)
+    ids = list(t["run_id"].astype(str))
+    for _, test in groups:
+        train = [r for r in ids if r not in test]
+        if train:
+            crossval.assert_disjoint(train, test)
+            yield train, list(test)
+
+
+@contextlib.contextmanager
+def extra_scheme(name: str, splitter):
+    """``name`` known to :func:`rafi.family.crossval.split_runs` while the block runs (the
+    experiment's own folds; the pipeline's schemes are untouched afterwards)."""
+    crossval.SCHEMES[name] = splitter
+    try:
+        yield
+    finally:
+        crossval.SCHEMES.pop(name, None)
+
+
+# ----------------------------------------------------------------------------- the rules
+
+
+def fold_stats(cv: pd.DataFrame) -> pd.DataFrame:
+    """Per model: folds, mean and standard error of the max |residual| over held-out runs
+    (infinite when a fold has no finite score), pooled RMSE; sorted by name."""
+    rows = []
+    for name, g in cv.groupby(cv["model"].astype(str)):
+        mx = pd.to_numeric(g["max_abs_after_um"], errors="coerce").to_numpy(dtype=float)
+        rmse = pd.to_numeric(g["rmse_um"], errors="coerce").to_numpy(dtype=float)
+        ok = len(mx) > 1 and np.isfinite(mx).all()
+        rows.append(
+            {
+                "model": name,
+                "folds": len(mx),
+                "mean": float(mx.mean()) if ok else np.inf,
+                "se": float(mx.std(ddof=1) / np.sqrt(len(mx))) if ok else np.inf,
+                "rmse": float(np.sqrt(np.mean(rmse**2))) if ok else np.inf,
+            }
+        )
+    t = pd.DataFrame(rows)
+    return t.assign(cx=t["model"].map(SIMPLICITY).fillna(len(SIMPLICITY)))
+
+
+def _lowest(t: pd.DataFrame, score: pd.Series) -> str | None:
+    t = t.assign(_s=np.round(score / 1e-3)).sort_values(["_s", "cx", "model"], kind="stable")
+    return None if not np.isfinite(t["_s"].iloc[0]) else str(t["model"].iloc[0])
+
+
+def rule_mean_max(cv: pd.DataFrame) -> str | None:
+    """The current rule."""
+    return choose_champion(cv)
+
+
+def rule_mean_plus_se(cv: pd.DataFrame) -> str | None:
+    """Lowest mean + one standard error of the fold max |residual|."""
+    t = fold_stats(cv)
+    return _lowest(t, t["mean"] + t["se"])
+
+
+def rule_one_se_simplest(cv: pd.DataFrame) -> str | None:
+    """The simplest kind whose mean is within one standard error of the lowest mean."""
+    t = fold_stats(cv)
+    best = t.loc[t["mean"].idxmin()]
+    if not np.isfinite(best["mean"]):
+        return None
+    near = t.loc[t["mean"] <= best["mean"] + best["se"] + 1e-9]
+    return str(near.sort_values(["cx", "mean", "model"], kind="stable")["model"].iloc[0])
+
+
+def ensemble_weights(cv: pd.DataFrame) -> dict[str, float]:
+    """The CV-weighted ensemble's weights: proportional to 1 / (mean fold max |residual|)^2 over
+    the kinds with a finite score (an inverse-variance weighting with the CV loss as the scale)."""
+    t = fold_stats(cv)
+    t = t.loc[np.isfinite(t["mean"]) & (t["mean"] > 0)]
+    w = 1.0 / t["mean"].to_numpy() ** 2
+    return dict(zip(t["model"], w / w.sum()))
+
+
+#: Rule name -> (inner scheme, rule function).
+RULES = {
+    "mean_max": ("leave_one_run_out", rule_mean_max),
+    "mean_plus_se": ("leave_one_run_out", rule_mean_plus_se),
+    "one_se_simplest": ("leave_one_run_out", rule_one_se_simplest),
+    "speed_folds": (SPEED_SCHEME, rule_mean_max),
+}
+
+
+# ----------------------------------------------------------------------------- one machine
+
+
+def machine_inputs(project: Path, machine: str) -> dict:
+    """Settings, runs table and frame, key sensors and the pipeline's CV rows of one machine."""
+    config = yaml.safe_load((project / "config.yaml").read_text(encoding="utf-8"))
+    s = machine_settings(config, machine)
+    res = project / "results" / machine
+    keys = json.loads((res / RESULT_FILES["key_sensors_json"]).read_text(encoding="utf-8"))["sensors"]
+    settings = {
+        "key_sensors": list(keys),
+        "terms": s["fit"]["terms"],
+        "reference": s["reference"],
+        "machine": machine,
+        "options": s["models"],
+        "hac_maxlags": s["fit"]["hac_maxlags"],
+        "speed_tolerance_rpm": s["speed_tolerance_rpm"],
+    }
+    return {
+        "factories": {k: functools.partial(make_model, k, **settings) for k in s["models"]["enabled"]},
+        "table": pd.read_csv(res / RESULT_FILES["runs_csv"]),
+        "frame": pd.read_parquet(res / RESULT_FILES["runs_parquet"]),
+        "cv": pd.read_csv(res / RESULT_FILES["comparison_cv"]),
+    }
+
+
+def inner_cv(factories: dict, table: pd.DataFrame, frame: pd.DataFrame, scheme: str) -> pd.DataFrame:
+    """Whole-run CV rows of every kind on the training runs of ``table`` under ``scheme``."""
+    with extra_scheme(SPEED_SCHEME, speed_with_cooldown_folds):
+        parts = [crossval.cross_validate(f, table, frame, scheme, name=k) for k, f in factories.items()]
+    return pd.concat(parts, ignore_index=True)
+
+
+def held_out_predictions(factories: dict, table: pd.DataFrame, frame: pd.DataFrame, held: str):
+    """``(dz, {kind: prediction})`` on the samples of training run ``held``, every kind fitted on
+    the other training runs as in :func:`rafi.family.crossval.cross_validate`."""
+    universe = frame.loc[rows_of_logs(frame, crossval.training_runs(table, frame)[0]["run_id"])]
+    fold_table = crossval.hold_out(table, [held])
+    needed = universe.loc[rows_of_logs(universe, {held})]
+    mine = (needed["run_id"].astype(str) == held).to_numpy()
+    preds = {}
+    with sharing_features(universe):
+        for kind, factory in factories.items():
+            model = factory().fit(fold_table, universe)
+            preds[kind] = np.asarray(model.predict(needed), dtype=float)[mine]
+    return needed["dz_um"].to_numpy(dtype=float)[mine], preds
+
+
+def ensemble_score(dz: np.ndarray, preds: dict, weights: dict) -> dict:
+    """Max |residual| and RMSE of the weighted mean of the predictions on one held-out run."""
+    pred = sum(w * preds[k] for k, w in weights.items())
+    r = dz - pred
+    ok = np.isfinite(r)
+    return {"max": float(np.max(np.abs(r[ok]))), "rmse": float(np.sqrt(np.mean(r[ok] ** 2)))}
+
+
+def judge_machine(project: Path, machine: str, log=print) -> dict:
+    """The outer CV of every rule on one machine (module docstring)."""
+    inputs = machine_inputs(project, machine)
+    table, frame, full_cv = inputs["table"], inputs["frame"], inputs["cv"]
+    if set(full_cv["scheme"].astype(str)) != {"leave_one_run_out"}:
+        raise SystemExit(f"{machine}: comparison/cv.csv is not leave_one_run_out; cannot score outer folds")
+    outer_score = full_cv.set_index([full_cv["model"].astype(str), full_cv["test_runs"].astype(str)])
+    schemes = sorted({scheme for scheme, _ in RULES.values()})
+    folds, t0 = [], time.perf_counter()
+    for _, (held,) in crossval.leave_one_run_out(table):
+        inner_table = crossval.hold_out(table, [held], OUTER)
+        inner = {sc: inner_cv(inputs["factories"], inner_table, frame, sc) for sc in schemes}
+        picks = {rule: fn(inner[sc]) for rule, (sc, fn) in RULES.items()}
+        scores = {
+            m: {
+                "max": float(outer_score.loc[(m, held), "max_abs_after_um"]),
+                "rmse": float(outer_score.loc[(m, held), "rmse_um"]),
+            }
+            for m in inputs["factories"]
+        }
+        dz, preds = held_out_predictions(inputs["factories"], table, frame, held)
+        for m in scores:  # the same fits as the pipeline's CV row of this run
+            check = ensemble_score(dz, preds, {m: 1.0})["max"]
+            if not np.isclose(check, scores[m]["max"], rtol=1e-6, atol=1e-6):
+                raise SystemExit(f"{machine} {m} {held}: refit {check} um != cv.csv {scores[m]['max']} um")
+        weights = ensemble_weights(inner["leave_one_run_out"])
+        scores[ENSEMBLE] = ensemble_score(dz, preds, weights)
+        picks[ENSEMBLE] = ENSEMBLE
+        folds.append({"held_out": held, "picks": picks, "scores": scores, "weights": weights})
+        log(f"  {machine} outer fold {held}: " + ", ".join(f"{r} {p}" for r, p in picks.items()))
+    full = {
+        sc: full_cv if sc == "leave_one_run_out" else inner_cv(inputs["factories"], table, frame, sc)
+        for sc in schemes
+    }
+    offered = {rule: fn(full[sc]) for rule, (sc, fn) in RULES.items()}
+    weights = ensemble_weights(full_cv)
+    offered[ENSEMBLE] = " ".join(f"{k} {w:.2f}" for k, w in weights.items() if w >= 0.005)
+    return {
+        "machine": machine,
+        "project": str(project),
+        "seconds": round(time.perf_counter() - t0, 1),
+        "folds": folds,
+        "offered_now": offered,
+        "full_stats": fold_stats(full_cv).drop(columns="cx").to_dict(orient="records"),
+    }
+
+
+def summarise(result: dict) -> list[dict]:
+    """Per rule: the outer mean max |residual| of its picks, pooled RMSE, the paired difference
+    to ``mean_max`` (mean and standard error over outer folds), the picks; plus the oracle."""
+    folds = result["folds"]
+    base = np.array([f["scores"][f["picks"]["mean_max"]]["max"] for f in folds])
+    rows = []
+    for rule in [*RULES, ENSEMBLE, "oracle"]:
+        if rule == "oracle":
+            kinds = [m for m in folds[0]["scores"] if m != ENSEMBLE]
+            picks = [min(kinds, key=lambda m, f=f: f["scores"][m]["max"]) for f in folds]
+        else:
+            picks = [f["picks"][rule] for f in folds]
+        mx = np.array([f["scores"][p]["max"] for f, p in zip(folds, picks)])
+        rmse = np.array([f["scores"][p]["rmse"] for f, p in zip(folds, picks)])
+        diff = mx - base
+        rows.append(
+            {
+                "machine": result["machine"],
+                "rule": rule,
+                "outer_mean_max_um": float(mx.mean()),
+                "outer_worst_max_um": float(mx.max()),
+                "outer_rmse_um": float(np.sqrt(np.mean(rmse**2))),
+                "paired_diff_um": float(diff.mean()),
+                "paired_se_um": float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.nan,
+                "picks": " ".join(p or "-" for p in picks),
+                "offered_now": result["offered_now"].get(rule, ""),
+            }
+        )
+    return rows
+
+
+def markdown(report: dict) -> str:
+    """The report as markdown: one table over machines and rules."""
+    head = [
+        "machine",
+        "rule",
+        "outer mean max",
+        "outer worst",
+        "outer RMSE",
+        "vs mean_max (SE)",
+        "picks per outer fold",
+        "offers now",
+    ]
+    lines = [
+        f"# Selection rules by outer whole-run CV ({report['date']})",
+        "",
+        f"Command: `{report['command']}`; host {report['host']}, {report['cpus']} CPUs.",
+        "Training runs only; um. Outer folds: leave one training run out; a rule picks from the inner CV",
+        "of the other training runs; its pick is scored on the held-out run (max |residual|).",
+        "",
+        f"| {' | '.join(head)} |",
+        "|" + "---|" * len(head),
+    ]
+    for r in report["rows"]:
+        cells = [
+            r["machine"],
+            r["rule"],
+            f"{r['outer_mean_max_um']:.2f}",
+            f"{r['outer_worst_max_um']:.2f}",
+            f"{r['outer_rmse_um']:.2f}",
+            f"{r['paired_diff_um']:+.2f} ({r['paired_se_um']:.2f})",
+            r["picks"],
+            r["offered_now"] or "-",
+        ]
+        lines.append(f"| {' | '.join(cells)} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument(
+        "--project",
+        type=Path,
+        action="append",
+        required=True,
+        help="a project that has run (config.yaml, results/<machine>/); repeat",
+    )
+    parser.add_argument("--machines", default="", help="comma-separated machine names (default: all)")
+    parser.add_argument("--out", default="selection_rules", help="file stem under benchmarks/results/")
+    args = parser.parse_args(argv)
+    wanted = {m.strip() for m in args.machines.split(",") if m.strip()}
+    rows, results = [], []
+    for project in args.project:
+        for res in sorted((project / "results").iterdir()):
+            if not (res / RESULT_FILES["comparison_cv"]).is_file() or (wanted and res.name not in wanted):
+                continue
+            print(f"{res.name} ({project})", flush=True)
+            result = judge_machine(project, res.name, log=lambda m: print(m, flush=True))
+            results.append(result)
+            for row in summarise(result):
+                rows.append(row)
+                print(
+                    f"  {row['rule']:16s} outer mean max {row['outer_mean_max_um']:7.2f} um, "
+                    f"vs mean_max {row['paired_diff_um']:+.2f} ({row['paired_se_um']:.2f}); "
+                    f"offers now {row['offered_now'] or '-'}",
+                    flush=True,
+                )
+    report = {
+        "date": dt.date.today().isoformat(),
+        "command": " ".join(
+            ["python benchmarks/bench_selection_rules.py", *(sys.argv[1:] if argv is None else argv)]
+        ),
+        "host": platform.node(),
+        "cpus": os.cpu_count(),
+        "rows": rows,
+        "machines": results,
+    }
+    text = markdown(report)
+    print("\n" + text)
+    OUT_DIR.mkdir(parents=True, exist_ok=True)
+    (OUT_DIR / f"{args.out}.json").write_text(json.dumps(report, indent=2, default=str), encoding="utf-8")
+    (OUT_DIR / f"{args.out}.md").write_text(text, encoding="utf-8")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,109 @@
+"""The pure parts of benchmarks/bench_selection_rules.py: the speed-with-cool-down folds, the
+selection rules it compares and the ensemble's weights (the experiment itself is a benchmark)."""
+
+from __future__ import annotations
+
+import importlib.util
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from rafi.family import crossval
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def bench():
+    spec = importlib.util.spec_from_file_location(
+        "bench_selection_rules", ROOT / "benchmarks" / "bench_selection_rules.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module
+    spec.loader.exec_module(module)
+    yield module
+    sys.modules.pop(spec.name, None)
+
+
+def _schedule() -> pd.DataFrame:
+    """FL_THERMAL's training part: 1250, rest, 2500, rest, 3750, rest, 5000; a rest before
+    the first run, and a validation rest after the last (neither in a fold)."""
+    rows = [
+        ("r0", 0, "idle", "excluded"),
+        ("r1", 1250, "constant", "training"),
+        ("r2", 0, "idle", "training"),
+        ("r3", 2500, "constant", "training"),
+        ("r4", 0, "idle", "training"),
+        ("r5", 3750, "constant", "training"),
+        ("r6", 0, "idle", "training"),
+        ("r7", 5000, "constant", "training"),
+        ("r8", 0, "idle", "validation_idle"),
+    ]
+    t = pd.DataFrame(rows, columns=["run_id", "speed_rpm", "kind", "role"])
+    return t.assign(start_s=np.arange(len(t)) * 14_400.0)
+
+
+def test_speed_folds_hold_out_a_speed_with_the_cool_down_after_it(bench):
+    folds = list(bench.speed_with_cooldown_folds(_schedule()))
+    assert [test for _, test in folds] == [["r1", "r2"], ["r3", "r4"], ["r5", "r6"], ["r7"]]
+    for train, test in folds:
+        assert set(train) | set(test) == {"r1", "r2", "r3", "r4", "r5", "r6", "r7"}
+        assert not set(train) & set(test)
+
+
+def test_speed_folds_join_runs_at_one_speed_and_a_leading_rest_is_its_own_fold(bench):
+    t = _schedule()
+    t.loc[t["run_id"] == "r0", "role"] = "training"
+    t.loc[t["run_id"] == "r5", "speed_rpm"] = 1260  # within 50 r/min of r1: the same speed
+    tests = [test for _, test in bench.speed_with_cooldown_folds(t)]
+    assert tests == [["r0"], ["r1", "r2", "r5", "r6"], ["r3", "r4"], ["r7"]]
+
+
+def test_the_experiment_scheme_is_known_only_while_it_runs(bench):
+    with bench.extra_scheme(bench.SPEED_SCHEME, bench.speed_with_cooldown_folds):
+        assert len(list(crossval.split_runs(_schedule(), bench.SPEED_SCHEME))) == 4
+    assert bench.SPEED_SCHEME not in crossval.SCHEMES
+    with pytest.raises(ValueError, match="unknown CV scheme"):
+        crossval.split_runs(_schedule(), bench.SPEED_SCHEME)
+
+
+def _cv(scores: dict) -> pd.DataFrame:
+    rows = [
+        {"model": m, "test_runs": f"r{i}", "max_abs_after_um": v, "rmse_um": v / 2}
+        for m, values in scores.items()
+        for i, v in enumerate(values)
+    ]
+    return pd.DataFrame(rows)
+
+
+def test_rules_differ_where_the_lower_mean_is_the_less_steady(bench):
+    # dynamic: lower mean (5.0), one bad fold; grey_box: mean 5.5, steady
+    cv = _cv({"dynamic": [2.0, 2.0, 2.0, 2.0, 17.0], "grey_box": [5.0, 5.5, 6.0, 5.5, 5.5]})
+    assert bench.rule_mean_max(cv) == "dynamic"
+    assert bench.rule_mean_plus_se(cv) == "grey_box"
+    # dynamic is the simpler kind and the best mean: the one-SE rule keeps it
+    assert bench.rule_one_se_simplest(cv) == "dynamic"
+
+
+def test_one_se_rule_moves_to_a_simpler_kind_within_one_standard_error(bench):
+    cv = _cv({"grey_box": [4.0, 5.0, 6.0], "ridge_global": [4.5, 5.5, 6.5], "rafi_linear": [9.0, 9.0, 9.0]})
+    assert bench.rule_mean_max(cv) == "grey_box"
+    assert bench.rule_one_se_simplest(cv) == "ridge_global"  # 5.5 <= 5.0 + 0.577
+
+
+def test_a_model_missing_a_fold_is_never_chosen_and_gets_no_weight(bench):
+    cv = _cv({"dynamic": [1.0, np.nan], "grey_box": [3.0, 4.0]})
+    for rule in (bench.rule_mean_max, bench.rule_mean_plus_se, bench.rule_one_se_simplest):
+        assert rule(cv) == "grey_box"
+    assert bench.ensemble_weights(cv) == {"grey_box": pytest.approx(1.0)}
+
+
+def test_ensemble_weights_are_inverse_square_cv_losses(bench):
+    w = bench.ensemble_weights(_cv({"dynamic": [1.0, 3.0], "grey_box": [4.0, 4.0]}))
+    assert w["dynamic"] == pytest.approx(0.8) and w["grey_box"] == pytest.approx(0.2)
+    dz = np.array([1.0, 2.0, 4.0])
+    score = bench.ensemble_score(dz, {"dynamic": dz + 1.0, "grey_box": dz - 4.0}, w)
+    assert score["max"] == pytest.approx(0.0, abs=1e-12)
