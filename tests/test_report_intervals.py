@@ -28,6 +28,7 @@ from conftest import which_or_skip
 from html_tables import html_tables
 from matplotlib.collections import PolyCollection
 
+from rafi.artefact import compute_model_id
 from rafi.report import deployed_plot, plots, tables
 from rafi.report.context import build_context
 from rafi.report.figures import draw_group
@@ -96,10 +97,35 @@ def add_interval_results(results: Path) -> None:
     pooled = cres.groupby("model").apply(_coverage, include_groups=False)
     summary = pd.read_csv(results / "comparison" / "summary.csv")
     summary.join(pooled, on="model").to_csv(results / "comparison" / "summary.csv", index=False)
+    renamed = {}
     for rel in ("model.json", "comparison/best_model.json"):
         doc = json.loads((results / rel).read_text(encoding="utf-8"))
         doc["interval"] = BLOCK
+        renamed[doc["model_id"]] = doc["model_id"] = compute_model_id(doc)  # the id covers the block
         (results / rel).write_text(json.dumps(doc, indent=2), encoding="utf-8")
+    _rename_ids(results, renamed)
+
+
+def _rename_ids(results: Path, renamed: dict) -> None:
+    """Every text result and registry file (and registry file name) with the new ids, as a run
+    of the pipeline with intervals would have written them."""
+    for path in sorted(results.rglob("*")):
+        if path.is_file() and path.suffix in (".json", ".jsonl", ".csv"):
+            text = path.read_text(encoding="utf-8")
+            for old, new in renamed.items():
+                text = text.replace(old, new)
+            path.write_text(text, encoding="utf-8")
+    for path in sorted((results / "registry" / "models").glob("*")):
+        name = path.name
+        for old, new in renamed.items():
+            name = name.replace(old, new)
+        path.rename(path.with_name(name))
+    for new in renamed.values():
+        stored = results / "registry" / "models" / f"{new}.json"
+        if stored.exists():
+            doc = json.loads(stored.read_text(encoding="utf-8"))
+            doc["interval"] = BLOCK
+            stored.write_text(json.dumps(doc, indent=2), encoding="utf-8")
 
 
 def _render(tmp: Path, *, interval: bool, draw: bool = False) -> tuple[dict, str, Path]:
