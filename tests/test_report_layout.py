@@ -390,7 +390,7 @@ def test_no_figure_text_overlaps(pipeline, machine, tmp_path, monkeypatch):
     (:func:`rafi.report.plot_layout.text_overlaps`, one render per figure)."""
     import yaml
 
-    from rafi.report import deployed_plot, figures, plots, replay_plot
+    from rafi.report import deployed_plot, figures, plots, replay_plot, segmentation_plot
     from rafi.report.inputs import FIGURE_DIRS, result_paths
     from rafi.settings import machine_settings
 
@@ -403,7 +403,7 @@ def test_no_figure_text_overlaps(pipeline, machine, tmp_path, monkeypatch):
 
         return wrapper
 
-    for module in (plots, replay_plot, deployed_plot):
+    for module in (plots, replay_plot, deployed_plot, segmentation_plot):
         monkeypatch.setattr(module, "render", checking(module.render))
     cfg = yaml.safe_load((pipeline / "config.yaml").read_text(encoding="utf-8"))
     settings = machine_settings(cfg, machine)

@@ -311,6 +311,7 @@ def test_idle_runs_are_listed_with_their_noise_floor():
     assert (rows[0]["max_abs_after_um"], rows[0]["noise_floor_um"]) == (1.25, 0.72)
     # as the validation section shows them
     validation = {"single": None, "ranges": None, "figure_single": None, "multi": [], "figure_idle": None}
+    validation |= {"interval": None, "coverage": False, "band": False}  # results without an interval
     html = (
         _environment()
         .get_template("sections/validation.html.j2")

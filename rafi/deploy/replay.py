@@ -184,19 +184,7 @@ def replay_log(
                 bool(c.outside_range),
             )
         )
-    cols = [
-        "model_um",
-        "lower_um",
-        "upper_um",
-        "interval_cell",
-        "command_um",
-        "status",
-        "clamped",
-        "rate_limited",
-        "fault",
-        "outside_range",
-    ]
-    got = pd.DataFrame(rows, columns=cols)
+    got = pd.DataFrame(rows, columns=list(COLUMNS[COLUMNS.index("model_um") : COLUMNS.index("residual_um")]))
     out = pd.DataFrame(
         {
             "log": log["log"].astype(str).to_numpy(),

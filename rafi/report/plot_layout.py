@@ -239,6 +239,7 @@ def legend_top(fig, handles, labels, ncol):
         ncol=ncol,
         frameon=False,
         borderaxespad=0.3,
+        columnspacing=1.2,  # (default 2.0) room for a band's entry in one row
     )
 
 

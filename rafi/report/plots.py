@@ -352,7 +352,7 @@ def fig_multi_condition(
             ax.set_ylabel("temperature (°C)")
         ax = axes[-1]
         if has_band(f):
-            plot_band(ax, h, f["lower_um"], f["upper_um"], label=f"{band_label(level)} around the prediction")
+            plot_band(ax, h, f["lower_um"], f["upper_um"], label=band_label(level))
         plot_series(ax, h, f["measured_um"], color=C_MEAS, label="measured dz (before)")
         plot_series(ax, h, f["predicted_um"], color=C_PRED, label="predicted")
         plot_series(ax, h, f["residual_um"], color=C_RES, label="residual (after)")

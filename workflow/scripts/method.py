@@ -149,31 +149,22 @@ def fit_step(smk, log):
         key_sensors = json.load(fh)["sensors"]
     cfg = smk.params.fit
     print(f"fit on {key_sensors}, {len(cfg['terms'])} terms, HAC lags {cfg['hac_maxlags']}", flush=True)
+    common = {
+        "key_sensors": key_sensors,
+        "terms": cfg["terms"],
+        "hac_maxlags": cfg["hac_maxlags"],
+        "reference": smk.params.reference,
+        "machine": smk.params.machine,
+        "speed_tolerance_rpm": float(smk.params.speed_tolerance_rpm),
+    }
     result = fit_rafi(
-        table,
-        frame,
-        key_sensors=key_sensors,
-        terms=cfg["terms"],
-        hac_maxlags=cfg["hac_maxlags"],
-        reference=smk.params.reference,
-        machine=smk.params.machine,
-        fuzzy_outside=smk.params.fuzzy["outside"],
-        speed_tolerance_rpm=float(smk.params.speed_tolerance_rpm),
-        config=smk.params.model_config,
+        table, frame, **common, fuzzy_outside=smk.params.fuzzy["outside"], config=smk.params.model_config
     )
     print(as_table(result.diagnostics).to_string(index=False), flush=True)
     # the prediction interval: RAFI's own whole-run CV residuals on the training runs
     rafi_interval(
         result.model,
-        functools.partial(
-            PublishedRafi,
-            key_sensors=key_sensors,
-            terms=cfg["terms"],
-            hac_maxlags=cfg["hac_maxlags"],
-            reference=smk.params.reference,
-            machine=smk.params.machine,
-            speed_tolerance_rpm=float(smk.params.speed_tolerance_rpm),
-        ),
+        functools.partial(PublishedRafi, **common),
         table,
         frame,
         options=smk.params.models,
