@@ -150,6 +150,33 @@ def machine_settings(config: Mapping, machine: str) -> dict:
     return merged
 
 
+def read_machine_config(config_path: str | os.PathLike, machine: str) -> tuple[dict, dict]:
+    """``(config, the machine's settings)`` of a command that works on one named machine.
+
+    Raises
+    ------
+    SettingsError
+        The file cannot be read or parsed, or ``machine`` is not under ``machines:`` (a typo would
+        otherwise start a new machine folder): one line naming the file and the machines it has.
+    """
+    import yaml
+
+    from rafi.errors import short_path
+
+    try:
+        with open(config_path, encoding="utf-8") as fh:
+            config = yaml.safe_load(fh) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise SettingsError(f"{config_path}: cannot read the config ({exc})") from None
+    known = sorted((config.get("machines") or {}) if isinstance(config, dict) else {})
+    if machine not in known:
+        raise SettingsError(
+            f"--machine {machine!r} is not under machines: in {short_path(config_path)} (known: "
+            f"{', '.join(known) or 'none'}); add it there first, so that its settings are the ones used"
+        )
+    return config, machine_settings(config, machine)
+
+
 def model_provenance(settings: Mapping) -> dict:
     """The settings recorded in ``model.json`` (``config``): everything upstream of the model."""
     keys = (

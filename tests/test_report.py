@@ -26,6 +26,7 @@ import pytest
 import yaml
 from conftest import which_or_skip
 from markupsafe import escape
+from report_fixture import write_upstream_tables
 
 from rafi.artefact import compute_model_id
 from rafi.family.selection import SELECTION_RULE
@@ -72,16 +73,7 @@ def _settings(machine: str = "tapping-center-a"):
 def _upstream(results: Path, settings: dict) -> dict:
     """What rules report_tables and report_figures write before the report; the figure
     folders (``comparison`` only when comparison/ exists)."""
-    paths = result_paths(results)
-    tables.write_report_tables(
-        paths["model"],
-        paths["runs_csv"],
-        paths["runs_parquet"],
-        paths["diagnostics"],
-        fit_path=paths["training_fit"],
-        rmse_path=paths["training_fit_rmse"],
-        example_path=paths["fuzzy_example"],
-    )
+    paths = write_upstream_tables(results)
     dirs = {}
     for group, folder in figure_dirs(results).items():
         if group == "comparison" and not (results / "comparison").is_dir():

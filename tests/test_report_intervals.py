@@ -15,7 +15,6 @@ from __future__ import annotations
 import html as html_lib
 import json
 import re
-import shutil
 import subprocess
 from pathlib import Path
 
@@ -27,12 +26,13 @@ import yaml
 from conftest import which_or_skip
 from html_tables import html_tables
 from matplotlib.collections import PolyCollection
+from report_fixture import copy_fixture, write_upstream_tables
 
 from rafi.artefact import compute_model_id
-from rafi.report import deployed_plot, plots, tables
+from rafi.report import deployed_plot, plots
 from rafi.report.context import build_context
 from rafi.report.figures import draw_group
-from rafi.report.inputs import FIGURE_DIRS, figure_dirs, result_paths
+from rafi.report.inputs import FIGURE_DIRS, figure_dirs
 from rafi.report.intervals import residual_band, times_in, worst_run_interval
 from rafi.report.render import render_html, render_pdf
 from rafi.settings import machine_settings
@@ -131,20 +131,10 @@ def _rename_ids(results: Path, renamed: dict) -> None:
 def _render(tmp: Path, *, interval: bool, draw: bool = False) -> tuple[dict, str, Path]:
     """The fixture's context and HTML (with or without the interval results); ``draw``: the
     figures of rule report_figures, else empty figure folders."""
-    results = tmp / "results" / "tapping-center-a"
-    shutil.copytree(FIXTURE, results)
+    results = copy_fixture(tmp)
     if interval:
         add_interval_results(results)
-    paths = result_paths(results)
-    tables.write_report_tables(
-        paths["model"],
-        paths["runs_csv"],
-        paths["runs_parquet"],
-        paths["diagnostics"],
-        fit_path=paths["training_fit"],
-        rmse_path=paths["training_fit_rmse"],
-        example_path=paths["fuzzy_example"],
-    )
+    paths = write_upstream_tables(results)
     settings = machine_settings(CONFIG, "tapping-center-a")
     dirs = figure_dirs(results)
     for group, folder in dirs.items():

@@ -16,7 +16,6 @@ from __future__ import annotations
 import copy
 import json
 import re
-import shutil
 import subprocess
 import zlib
 from pathlib import Path
@@ -25,8 +24,8 @@ import pandas as pd
 import pytest
 import yaml
 from conftest import which_or_skip
+from report_fixture import copy_fixture, empty_figure_dirs, write_upstream_tables
 
-from rafi.report import tables
 from rafi.report.context import build_context
 from rafi.report.inputs import FIGURE_DIRS, load_results, result_paths
 from rafi.report.pdf_archive import attachment_specs
@@ -42,21 +41,9 @@ MACHINE = "tapping-center-a"
 
 def _results(tmp: Path) -> Path:
     """The report fixture with what rule report_figures writes besides figures (none here)."""
-    results = tmp / "results" / MACHINE
-    shutil.copytree(FIXTURE, results)
-    paths = result_paths(results)
-    tables.write_report_tables(
-        paths["model"],
-        paths["runs_csv"],
-        paths["runs_parquet"],
-        paths["diagnostics"],
-        fit_path=paths["training_fit"],
-        rmse_path=paths["training_fit_rmse"],
-        example_path=paths["fuzzy_example"],
-    )
-    for rel in FIGURE_DIRS.values():
-        (results / rel).mkdir(parents=True, exist_ok=True)
-        (results / rel / "index.csv").write_text("key,file\n", encoding="utf-8")
+    results = copy_fixture(tmp, MACHINE)
+    write_upstream_tables(results)
+    empty_figure_dirs(results)
     return results
 
 

@@ -14,7 +14,6 @@ from __future__ import annotations
 import io
 import json
 import re
-import shutil
 from pathlib import Path
 
 import matplotlib.pyplot as plt
@@ -23,9 +22,10 @@ import pandas as pd
 import pytest
 import yaml
 from html_tables import html_tables
+from report_fixture import copy_fixture, empty_figure_dirs, write_upstream_tables
 
 from rafi.method.equilibrium import first_order_fit
-from rafi.report import plot_layout, plots, tables
+from rafi.report import plot_layout, plots
 from rafi.report.choices import section_choices, setting_text, settings_changes
 from rafi.report.context import build_context
 from rafi.report.data_sections import (
@@ -37,7 +37,6 @@ from rafi.report.data_sections import (
     tau_at_bound,
 )
 from rafi.report.format import fmt_speed_range, micro
-from rafi.report.inputs import FIGURE_DIRS, result_paths
 from rafi.report.model_sections import section_validation
 from rafi.report.render import _environment, render_html
 from rafi.settings import MACHINE_DEFAULTS, machine_settings
@@ -142,23 +141,9 @@ def _own_numbers(results: Path) -> set:
 
 def _fixture_html(tmp_path: Path, *, paper_rig: bool, machine: str = "tapping-center-a") -> tuple[dict, str]:
     """The report fixture's context and HTML (tables of rule report_tables, no figures)."""
-    results = tmp_path / "results" / machine
-    shutil.copytree(FIXTURE, results)
-    paths = result_paths(results)
-    tables.write_report_tables(
-        paths["model"],
-        paths["runs_csv"],
-        paths["runs_parquet"],
-        paths["diagnostics"],
-        fit_path=paths["training_fit"],
-        rmse_path=paths["training_fit_rmse"],
-        example_path=paths["fuzzy_example"],
-    )
-    dirs = {}
-    for group, rel in FIGURE_DIRS.items():
-        (results / rel).mkdir(parents=True, exist_ok=True)
-        (results / rel / "index.csv").write_text("key,file\n", encoding="utf-8")
-        dirs[group] = results / rel
+    results = copy_fixture(tmp_path, machine)
+    paths = write_upstream_tables(results)
+    dirs = empty_figure_dirs(results)
     settings = machine_settings(CONFIG, "tapping-center-a")
     if not paper_rig:  # another machine: nothing of the paper's rig in its configuration
         settings["report"] = machine_settings({}, machine)["report"]

@@ -137,7 +137,6 @@ def build(args, *, log=print, environ=None):
     Everything is checked (settings, plan, credentials) before anything connects; nothing is
     written here and no file is created.
     """
-    import yaml
 
     from rafi import __version__
     from rafi.deploy.metrics import metrics_from_settings
@@ -145,22 +144,12 @@ def build(args, *, log=print, environ=None):
     from rafi.deploy.record_files import RecordingFiles, leftover_parts
     from rafi.deploy.record_plan import read_plan
     from rafi.deploy.sd_notify import SdNotify
-    from rafi.settings import machine_settings, run_settings
+    from rafi.settings import read_machine_config, run_settings
 
     _check_args(args)
     config_path = Path(args.config)
-    try:
-        config = yaml.safe_load(config_path.read_text(encoding="utf-8")) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise SettingsError(f"{config_path}: cannot read the config ({exc})") from None
-    known = sorted((config.get("machines") or {}) if isinstance(config, dict) else {})
-    if args.machine not in known:
-        raise SettingsError(
-            f"--machine {args.machine!r} is not under machines: in {short_path(config_path)} (known: "
-            f"{', '.join(known) or 'none'}); add it there first, so that its settings are the ones recorded"
-        )
+    config, settings = read_machine_config(config_path, args.machine)
     project = config_path.resolve().parent
-    settings = machine_settings(config, args.machine)
     record, period = settings["record"], float(settings["sample_period_s"])
     folder = project / run_settings(config)["raw_dir"] / args.machine
     plan = read_plan(args.plan, default_run=args.name) if args.plan else None

@@ -26,6 +26,7 @@ from rafi.report.intervals import interval_context
 from rafi.report.model_sections import section_fuzzy, section_models, section_validation
 from rafi.report.registry_section import section_registry
 from rafi.report.replay_section import section_replay, section_title
+from rafi.report.requalification_section import section_requalification
 from rafi.report.segmentation_section import section_segmentation
 from rafi.report.signoff import section_signoff
 from rafi.report.test_record import section_test_record
@@ -34,6 +35,7 @@ from rafi.report.verdict import model_infos, residual_statement, verdict_all
 SECTION_TITLES = {
     "verdict": "Verdict",
     "deployed": "The model offered to the machine",
+    "requalification": "Re-qualification from a prior",
     "replay": "The model on the machine: replay",
     "data": "Data",
     "test_record": "Test record and conditions",
@@ -112,6 +114,7 @@ def build_context(
     ctx["registry"] = section_registry(res, infos)
     dec = res["decision"] if isinstance(res.get("decision"), dict) else {}
     ctx["comparison"] = section_comparison(res, dec.get("champion_id_after"), settings, figs)
+    ctx["requalification"] = section_requalification(res)
     ctx["replay"] = section_replay(res, settings, figs, dec.get("champion_id_after"))
     ctx["deployed"] = section_deployed(res, figs, dec.get("champion_id_after"))
     # figure numbers in document order: the offered model, its replay, then sections 3 on
@@ -148,6 +151,7 @@ def build_context(
         "comparison": ctx["comparison"] is not None,
         "replay": ctx["replay"] is not None,
         "deployed": ctx["deployed"] is not None,
+        "requalification": ctx["requalification"] is not None,
     }
     n = 0
     for sid, title in SECTION_TITLES.items():

@@ -119,6 +119,13 @@ def _add_day_mode(sub: argparse._SubParsersAction, formatter: type[argparse.Help
     mode.add_argument(
         "--hours", type=float, default=None, help="duration of each training run in hours (default 4)"
     )
+    mode.add_argument(
+        "--plan",
+        default=None,
+        metavar="PLAN.csv",
+        help="run a test plan (rafi plan, rafi record --plan): its recordings are the training "
+        "runs (tapping-center-a: one cold start each); --speeds then defaults to none",
+    )
     mode.add_argument("--no-defects", action="store_true", help="write clean logs (no logger defects)")
     mode.add_argument(
         "--stuck-displacement",
@@ -202,9 +209,11 @@ def run(args: argparse.Namespace) -> int:
             print(path)
         return 0
     if mode == "day":
+        from rafi.deploy.record_plan import read_plan
         from rafi.twin.day import write_day
 
         try:
+            plan = read_plan(args.plan) if args.plan else None
             paths = write_day(
                 args.out,
                 machine=args.machine,
@@ -219,6 +228,7 @@ def run(args: argparse.Namespace) -> int:
                 hours=args.hours,
                 defects=not args.no_defects,
                 stuck_displacement=args.stuck_displacement,
+                plan=plan,
             )
         except (FileExistsError, ValueError) as exc:
             print(f"rafi simulate day: {exc}", file=sys.stderr)

@@ -12,7 +12,13 @@ import pandas as pd
 
 from rafi.twin.machines import Ambient, DefectRates, machine_params
 from rafi.twin.recipes import VARYING_B, RunSpec, machining_center_b_spec
-from rafi.twin.schedules import REST_BEFORE_START_S, constant_schedule, multi_condition_schedule, with_rest
+from rafi.twin.schedules import (
+    REST_BEFORE_START_S,
+    constant_schedule,
+    multi_condition_schedule,
+    schedule_from_pairs,
+    with_rest,
+)
 from rafi.twin.writers import render_run, render_xlsx
 
 # --------------------------------------------------------------------------- a new day
@@ -55,6 +61,36 @@ def _runs_a(speeds, validation_speeds, multi, hours) -> list[tuple[str, list, st
     return runs
 
 
+def plan_runs(plan) -> list[tuple[str, list, str]]:
+    """``(file stem, schedule, description)`` of each recording of a test plan (``rafi plan``,
+    ``rafi record --plan``: :class:`rafi.deploy.record_plan.Plan`), for tapping-center-a.
+
+    Consecutive steps with the same ``run`` are one recording; a step without a run is not
+    recorded. The twin starts each recording cold after ``REST_BEFORE_START_S`` at rest, as the
+    shipped logs do: an unrecorded step between two recordings stands for a cool-down long enough
+    to reach the room's temperature (``docs/twin.md``).
+    """
+    runs: list[tuple[str, list, str]] = []
+    last = None
+    for step in plan.steps:
+        if step.run is None:
+            last = None
+            continue
+        if step.run != last:
+            runs.append((step.run, [], f"plan {Path(plan.path).name}, recording {step.run}"))
+            last = step.run
+        runs[-1][1].append((float(step.duration_s), float(step.speed_rpm)))
+    return [(stem, with_rest(schedule_from_pairs(steps)), desc) for stem, steps, desc in runs]
+
+
+def _plan_steps_b(plan) -> list[tuple[float, float, str]]:
+    """``(hours, r/min, remark)`` of every step of a plan (machining-center-b logs continuously)."""
+    return [
+        (s.duration_s / 3600.0, s.speed_rpm, f"Plan {s.run or 'Pause'} {s.speed_rpm:g} 1/min")
+        for s in plan.steps
+    ]
+
+
 def _steps_b(speeds, validation_speeds, multi, hours) -> list[tuple[float, float, str]]:
     """``(hours, r/min, remark)`` steps of the continuous machining-center-b log of a day."""
     steps = []
@@ -82,20 +118,22 @@ def write_day(
     hours: float | None = None,
     defects: bool = True,
     stuck_displacement: bool = False,
+    plan=None,
 ) -> list[Path]:
     """Write a new day of logs for ``machine`` under ``out_dir/<machine>/``.
 
     File names carry the date and the seed (``<date>_s<seed>_train_03000rpm.csv`` ...;
     machining-center-b: ``thermal_log_<date>_s<seed>.xlsx``) and existing files are never
-    overwritten (``FileExistsError``).  Constant-speed runs are cold starts on
-    consecutive days starting at ``date``; every tapping-center-a log (training, validation,
-    multi-condition) starts with ``REST_BEFORE_START_S`` (180 s) at rest before the spindle
-    starts, like the shipped logs.
+    overwritten (``FileExistsError``). With ``plan`` (a :class:`rafi.deploy.record_plan.Plan`)
+    the plan's recordings are the training runs (:func:`plan_runs`) instead of ``speeds``.
+    Constant-speed runs are cold starts on consecutive days starting at ``date``; every
+    tapping-center-a log (training, validation, multi-condition) starts with
+    ``REST_BEFORE_START_S`` (180 s) at rest before the spindle starts, like the shipped logs.
     """
     from rafi.artefact import write_bytes_atomic, write_text_atomic
 
     machine_params(machine)  # an unknown machine raises ValueError
-    speeds = list(TRAINING_SPEEDS[machine] if speeds is None else speeds)
+    speeds = list(TRAINING_SPEEDS[machine] if speeds is None and plan is None else speeds or [])
     validation_speeds = list(validation_speeds or [])
     day0 = (
         pd.Timestamp(date) if date else pd.Timestamp("2026-04-01") + pd.Timedelta(days=int(seed))
@@ -107,7 +145,10 @@ def write_day(
     parts += [f"--sensor-drift {k}:{v:g}" for k, v in sorted((sensor_drift or {}).items())]
     if wear:
         parts.append(f"--wear {wear:g}")
-    parts.append("--speeds " + ",".join(str(int(s)) for s in speeds))
+    if plan is not None:
+        parts.append(f"--plan {Path(plan.path).name}")
+    if speeds:
+        parts.append("--speeds " + ",".join(str(int(s)) for s in speeds))
     if validation_speeds:
         parts.append("--validation-speeds " + ",".join(str(int(s)) for s in validation_speeds))
     flags = [
@@ -123,7 +164,9 @@ def write_day(
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 99]))
     rates = DefectRates() if defects else DefectRates.none()
     if machine == "machining-center-b":
-        steps = _steps_b(speeds, validation_speeds, multi, hours)
+        steps = (_plan_steps_b(plan) if plan is not None else []) + _steps_b(
+            speeds, validation_speeds, multi, hours
+        )
         if not steps:
             raise ValueError("nothing to simulate: give --speeds, --validation-speeds or --multi")
         file = f"thermal_log_{date_s}_s{seed}.xlsx"
@@ -143,7 +186,7 @@ def write_day(
         spec = replace(spec, defects=DefectRates.light() if defects else DefectRates.none())
         write_bytes_atomic(target, render_xlsx(spec, remarks=tuple(steps), command=command, **overrides))
         return [target]
-    runs = _runs_a(speeds, validation_speeds, multi, hours)
+    runs = (plan_runs(plan) if plan is not None else []) + _runs_a(speeds, validation_speeds, multi, hours)
     if not runs:
         raise ValueError("nothing to simulate: give --speeds, --validation-speeds or --multi")
     plan = []

@@ -1,0 +1,178 @@
+"""The report's re-qualification section: what qualified a model that started from a prior.
+
+Shown when ``comparison/summary.csv`` holds the adaptation candidates (``prior``,
+``prior_gain``, ``prior_ridge``: :mod:`rafi.family.adapted`, ``docs/models.md``,
+"Re-qualification from a prior"). Everything is read from this machine's results:
+
+* the new data: the training runs of ``runs.csv`` (hours, speeds, cool-downs);
+* the prior and how far each coefficient moved: the ``adaptation`` block of the offered model
+  (``comparison/best_model.json``) - ``parent``, ``parent_machine``, ``method``, ``gain``,
+  ``alpha`` and ``coefficient_change`` (``name``, ``prior``, ``new`` per coefficient);
+* the comparison: every model's row of ``comparison/summary.csv`` - the prior unchanged, the
+  adapted prior and the from-scratch family on the same data, each with its whole-run CV score
+  on the new training runs (what chose) and its worst residual on the validation runs.
+
+Without the candidates (no prior was offered) the section is left out; an offered model from
+scratch still gets the section when a prior was a candidate (the prior lost, and the section says
+by how much).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from rafi.report.format import fmt_num, fmt_speed, isnum, short_id
+from rafi.settings import truthy
+
+#: The adaptation candidates, in the order the section lists them, and what each is.
+CANDIDATES = {
+    "prior": "the prior as it is (nothing re-fitted)",
+    "prior_gain": "the prior with one gain on every coefficient, fitted on the new data",
+    "prior_ridge": "the prior's coefficients moved by a ridge penalised towards them (strength by CV)",
+}
+#: How many of the largest coefficient moves the section tabulates.
+MOVES_SHOWN = 12
+
+
+def _model_rows(summary: pd.DataFrame) -> list[dict]:
+    """One row per model: group, CV score, worst validation residual, coverage, offered."""
+    rows = []
+    for r in summary.to_dict("records"):
+        name = str(r["model"])
+        group = "prior" if name == "prior" else ("adapted prior" if name in CANDIDATES else "from scratch")
+        rows.append(
+            {
+                "model": name,
+                "kind": str(r.get("kind", name)),
+                "group": group,
+                "what": CANDIDATES.get(name, f"kind {r.get('kind', name)}, fitted on the new data only"),
+                "cv_um": r.get("cv_mean_max_abs_um"),
+                "worst_um": r.get("max_abs_after_um"),
+                "coverage_pct": 100 * float(r["coverage"]) if isnum(r.get("coverage")) else None,
+                "offered": truthy(r.get("champion")),
+            }
+        )
+    order = {"prior": 0, "adapted prior": 1, "from scratch": 2}
+    return sorted(rows, key=lambda x: (order[x["group"]], x["model"]))
+
+
+def _best_by_cv(rows: list[dict], group: str) -> dict | None:
+    """The row of ``group`` with the lowest CV score (what the selection rule would take there)."""
+    scored = [r for r in rows if r["group"] == group and isnum(r["cv_um"])]
+    return min(scored, key=lambda r: float(r["cv_um"])) if scored else None
+
+
+def new_data(runs: pd.DataFrame | None) -> dict | None:
+    """Hours and speeds of the new training data (``runs.csv`` rows of role ``training``)."""
+    if runs is None or "role" not in runs:
+        return None
+    tr = runs[runs["role"].astype(str) == "training"]
+    if not len(tr):
+        return None
+    dur = pd.to_numeric(tr["duration_s"], errors="coerce").fillna(0.0)
+    speed = pd.to_numeric(tr["speed_rpm"], errors="coerce").fillna(0.0)
+    idle = tr["kind"].astype(str).eq("idle") if "kind" in tr else speed.le(0)
+    per_speed = (
+        pd.DataFrame({"speed": speed[~idle].round(), "h": dur[~idle] / 3600.0}).groupby("speed")["h"].sum()
+    )
+    return {
+        "runs": int(len(tr)),
+        "hours": float(dur.sum() / 3600.0),
+        "idle_hours": float(dur[idle].sum() / 3600.0),
+        "n_idle": int(idle.sum()),
+        "speeds": [{"speed": fmt_speed(s), "hours": fmt_num(h, 1)} for s, h in per_speed.items()],
+    }
+
+
+def coefficient_moves(change, shown: int = MOVES_SHOWN) -> dict | None:
+    """The largest coefficient moves of an adaptation, and their spread over all coefficients.
+
+    ``change`` is the adaptation block's ``coefficient_change``: a list of ``{name, prior, new}``.
+    The move of one coefficient is ``new - prior``, relative to ``|prior|`` where that is not zero.
+    """
+    if not isinstance(change, list) or not change:
+        return None
+    frame = pd.DataFrame(change)
+    if not {"name", "prior", "new"} <= set(frame.columns):
+        return None
+    prior = pd.to_numeric(frame["prior"], errors="coerce").to_numpy(float)
+    new = pd.to_numeric(frame["new"], errors="coerce").to_numpy(float)
+    move = new - prior
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.where(np.abs(prior) > 0, move / np.abs(prior), np.nan)
+    order = np.argsort(-np.abs(np.nan_to_num(move)), kind="stable")[:shown]
+    rows = [
+        {
+            "name": str(frame["name"].iloc[i]),
+            "prior": prior[i],
+            "new": new[i],
+            "move": move[i],
+            "relative": rel[i],
+        }
+        for i in order
+    ]
+    finite = rel[np.isfinite(rel)]
+    return {
+        "n": int(len(frame)),
+        "n_moved": int(np.sum(np.abs(move) > 0)),
+        "median_relative": float(np.median(np.abs(finite))) if finite.size else None,
+        "max_relative": float(np.max(np.abs(finite))) if finite.size else None,
+        "rows": rows,
+    }
+
+
+def section_requalification(res: dict) -> dict | None:
+    """The context of the re-qualification section, or ``None`` when no prior was a candidate.
+
+    Returns
+    -------
+    dict or None
+        ``rows`` (every model: ``group`` prior / adapted prior / from scratch, ``cv_um``,
+        ``worst_um``, ``coverage``, ``offered``), ``offered`` (its row), ``prior_row``,
+        ``scratch`` (the from-scratch model CV ranks first), ``new_data`` (:func:`new_data`),
+        ``adaptation`` (the offered model's block or ``None``: the prior lost), ``parent``
+        (short id), ``moves`` (:func:`coefficient_moves`) and ``sentence`` (the comparison in
+        one sentence, every number from the rows).
+    """
+    summ = res.get("comparison")
+    if summ is None or "model" not in summ or not summ["model"].astype(str).isin(list(CANDIDATES)).any():
+        return None
+    rows = _model_rows(summ)
+    offered = next((r for r in rows if r["offered"]), None)
+    best = res.get("best_model") if isinstance(res.get("best_model"), dict) else {}
+    block = best.get("adaptation") if isinstance(best.get("adaptation"), dict) else None
+    prior_row = next((r for r in rows if r["model"] == "prior"), None)
+    scratch = _best_by_cv(rows, "from scratch")
+    return {
+        "rows": rows,
+        "offered": offered,
+        "prior_row": prior_row,
+        "scratch": scratch,
+        "new_data": new_data(res.get("runs_csv")),
+        "adaptation": block,
+        "parent": short_id(block.get("parent", "")) if block else "",
+        "parent_machine": (block or {}).get("parent_machine") or "",
+        "moves": coefficient_moves((block or {}).get("coefficient_change")),
+        "sentence": comparison_sentence(offered, prior_row, scratch),
+    }
+
+
+def comparison_sentence(offered: dict | None, prior_row: dict | None, scratch: dict | None) -> str:
+    """The offered model's worst validation residual beside the prior unchanged and the best
+    from-scratch fit on the same data (chosen among the from-scratch kinds by the same CV)."""
+    if offered is None or not isnum(offered["worst_um"]):
+        return ""
+    parts = [f"The offered model ({offered['model']}) is within {fmt_num(offered['worst_um'], 2)} \u00b5m"]
+    parts[0] += " on every validation run"
+    beside = []
+    if prior_row is not None and prior_row is not offered and isnum(prior_row["worst_um"]):
+        beside.append(f"the prior unchanged {fmt_num(prior_row['worst_um'], 2)} \u00b5m")
+    if scratch is not None and scratch is not offered and isnum(scratch["worst_um"]):
+        beside.append(
+            f"the from-scratch fit CV ranks first on the same data ({scratch['model']}) "
+            f"{fmt_num(scratch['worst_um'], 2)} \u00b5m"
+        )
+    if beside:
+        parts.append("; beside it, " + " and ".join(beside))
+    return "".join(parts) + "."

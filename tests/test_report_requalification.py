@@ -1,0 +1,149 @@
+"""The report's re-qualification section (issue 27): what qualified a model that started from a prior.
+
+The report fixture is rendered as it is (no prior was a candidate: no section) and with the
+adaptation candidates added the way rule compare writes them (``docs/models.md``,
+"Re-qualification from a prior"): rows ``prior``, ``prior_gain`` and ``prior_ridge`` in
+``comparison/summary.csv`` (the ``kind`` column is the prior's kind) and, when an adapted prior
+is offered, its ``adaptation`` block in ``comparison/best_model.json``. Every number the section
+shows is checked against those files, the coefficient moves against numpy on the same block.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from html_tables import html_tables
+from report_fixture import ROOT, copy_fixture, empty_figure_dirs, write_upstream_tables
+
+from rafi.report.context import build_context
+from rafi.report.render import render_html
+from rafi.report.requalification_section import coefficient_moves, new_data
+from rafi.settings import machine_settings
+
+CONFIG = yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))
+PARENT = "ab" * 32
+CHANGE = [
+    {"name": "T1 rise", "prior": 2.0, "new": 2.5},
+    {"name": "T2 rise", "prior": -1.0, "new": -1.0},
+    {"name": "T3 L900", "prior": 0.5, "new": -0.25},
+    {"name": "n^2", "prior": 0.0, "new": 0.1},
+]
+
+
+def _add_candidates(results, *, offered: str) -> pd.DataFrame:
+    """Rows prior, prior_gain, prior_ridge beside the fixture's models; ``offered`` is the champion."""
+    path = results / "comparison" / "summary.csv"
+    summ = pd.read_csv(path)
+    base = summ[summ["champion"]].iloc[0]
+    extra = []
+    for k, name in enumerate(("prior", "prior_gain", "prior_ridge")):
+        row = base.copy()
+        row["model"], row["kind"] = name, "dynamic"
+        row["max_abs_after_um"] = 3.0 - k
+        row["cv_mean_max_abs_um"] = 1.4 - 0.2 * k
+        row["model_id"] = f"{k}" * 64
+        extra.append(row)
+    summ = pd.concat([summ, pd.DataFrame(extra)], ignore_index=True)
+    summ["champion"] = summ["model"] == offered
+    summ.to_csv(path, index=False)
+    if offered in ("prior_gain", "prior_ridge"):
+        best_path = results / "comparison" / "best_model.json"
+        best = json.loads(best_path.read_text(encoding="utf-8"))
+        best["adaptation"] = {
+            "schema": "rafi.adaptation/1",
+            "method": "ridge" if offered == "prior_ridge" else "gain",
+            "parent": PARENT,
+            "parent_machine": "tapping-center-a",
+            "gain": None if offered == "prior_ridge" else 1.25,
+            "alpha": 3.0 if offered == "prior_ridge" else None,
+            "prior_data": {"old.csv": "cd" * 32},
+            "coefficient_change": CHANGE,
+        }
+        best_path.write_text(json.dumps(best), encoding="utf-8")
+    return summ
+
+
+def _render(tmp, offered: str | None):
+    results = copy_fixture(tmp)
+    summ = _add_candidates(results, offered=offered) if offered else None
+    paths = write_upstream_tables(results)
+    dirs = empty_figure_dirs(results)
+    ctx = build_context(
+        paths, dirs, machine="tapping-center-a", settings=machine_settings(CONFIG, "tapping-center-a")
+    )
+    return ctx, render_html(ctx), summ, results
+
+
+def _text(html: str) -> str:
+    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html))
+
+
+def test_without_a_prior_there_is_no_section(tmp_path):
+    ctx, html, _, _ = _render(tmp_path, None)
+    assert ctx["requalification"] is None
+    assert "sec-requalification" not in html and "Re-qualification from a prior" not in html
+
+
+@pytest.mark.parametrize("offered", ["prior_ridge", "prior_gain"])
+def test_the_section_states_the_prior_the_moves_and_the_comparison_from_the_tables(tmp_path, offered):
+    ctx, html, summ, results = _render(tmp_path, offered)
+    q = ctx["requalification"]
+    ids = [s["id"] for s in ctx["sections"]]
+    assert ids.index("verdict") < ids.index("requalification") < ids.index("data")
+    assert q["parent"] == PARENT[:12] and f"<code>{PARENT[:12]}</code>" in html
+    # the comparison table: one row per model of summary.csv, numbers as the table has them
+    table = next(t for t in html_tables(html) if any("what it is" in h for h in t["headers"]))
+    assert sorted(r["model"] for r in table["records"]) == sorted(summ["model"])
+    worst = next(h for h in table["headers"] if "worst validation" in h)
+    for rec in table["records"]:
+        want = summ.loc[summ["model"] == rec["model"], "max_abs_after_um"].iloc[0]
+        assert float(rec[worst]) == pytest.approx(want, abs=0.005)
+    assert [r["model"] for r in table["records"] if r["offered"] == "offered"] == [offered]
+    # the sentence: the offered model beside the prior unchanged and the best from scratch by CV
+    scratch = summ[~summ["model"].isin(["prior", "prior_gain", "prior_ridge"])]
+    best_scratch = scratch.loc[scratch["cv_mean_max_abs_um"].idxmin()]
+    text = _text(html)
+    offered_worst = summ.loc[summ["model"] == offered, "max_abs_after_um"].iloc[0]
+    assert f"The offered model ({offered}) is within {offered_worst:.2f} \u00b5m" in text
+    assert f"the prior unchanged {3.0:.2f} \u00b5m" in text
+    assert f"({best_scratch['model']}) {best_scratch['max_abs_after_um']:.2f} \u00b5m" in text
+    # the moves, against numpy on the same block
+    prior = np.array([c["prior"] for c in CHANGE])
+    new = np.array([c["new"] for c in CHANGE])
+    moves = q["moves"]
+    assert moves["n"] == 4 and moves["n_moved"] == int(np.sum(new != prior))
+    rel = np.abs((new - prior)[prior != 0] / prior[prior != 0])
+    assert moves["median_relative"] == pytest.approx(np.median(rel))
+    assert moves["max_relative"] == pytest.approx(rel.max())
+    assert [r["name"] for r in moves["rows"]] == [
+        CHANGE[i]["name"] for i in np.argsort(-np.abs(new - prior), kind="stable")
+    ]
+    # the new data: the training runs of runs.csv
+    runs = pd.read_csv(results / "runs.csv")
+    tr = runs[runs["role"] == "training"]
+    assert q["new_data"]["runs"] == len(tr)
+    assert q["new_data"]["hours"] == pytest.approx(tr["duration_s"].sum() / 3600)
+
+
+def test_an_offered_model_from_scratch_says_the_prior_lost(tmp_path):
+    ctx, html, summ, _ = _render(tmp_path, "rafi")
+    q = ctx["requalification"]
+    assert q["adaptation"] is None and q["moves"] is None
+    assert "CV ranked rafi ahead of every candidate that starts from the prior" in _text(html)
+
+
+def test_coefficient_moves_and_new_data_handle_what_is_missing():
+    assert coefficient_moves(None) is None and coefficient_moves([]) is None
+    assert coefficient_moves([{"name": "a"}]) is None
+    only_zero = coefficient_moves([{"name": "a", "prior": 0.0, "new": 1.0}])
+    assert only_zero["median_relative"] is None and only_zero["n_moved"] == 1
+    assert new_data(None) is None
+    assert (
+        new_data(pd.DataFrame({"role": ["validation_single"], "duration_s": [1.0], "speed_rpm": [1.0]}))
+        is None
+    )
