@@ -36,6 +36,10 @@ __all__ = [
     "probe_sign_of",
     "check_compatible",
     "prior_param",
+    "available_sensors",
+    "resolved_prior",
+    "parent_of",
+    "registry_meta",
 ]
 
 #: The string values of ``models: prior`` (a mapping ``{machine: <name>}`` is the fourth form).
@@ -163,11 +167,10 @@ def choose_prior(chain: list[dict], runs_table) -> tuple[dict | None, str]:
         who = "the champion" if len(chain) == 1 else f"the champion and its {len(chain) - 1} parent(s)"
         return None, f"no prior: {who} learnt from some of these logs"
     prior = chain[k]
-    role = "champion" if k == 0 else f"parent {k} of the champion"
-    n_logs = len(seen_data(prior))
+    skipped = f"; {k} newer model(s) of the chain learnt from these logs" if k else ""
     return prior, (
-        f"prior {str(prior.get('model_id', ''))[:12]} ({prior.get('kind')}, {role} of "
-        f"{prior.get('machine')}, trained on {n_logs} other log(s))"
+        f"prior {str(prior.get('model_id', ''))[:12]} ({prior.get('kind')} of {prior.get('machine')}, "
+        f"trained on {len(seen_data(prior))} other log(s)){skipped}"
     )
 
 
@@ -247,8 +250,10 @@ def prior_param(
 
     ``chain`` holds the ids of :func:`prior_chain` from its first model that has seen none of
     ``raw_hashes`` (the sha256 of the machine's raw files); ``probe_sign`` the displacement sign
-    each was qualified with (:func:`probe_sign_of`; ``settings_sign(machine)`` reads a machine's
-    settings). The job loads the artefacts from ``registry`` and chooses again on ``runs.csv``.
+    each was qualified with (:func:`probe_sign_of`; ``settings_sign(name)`` reads a machine's
+    ``input.displacement.sign``), ``probe_sign_now`` the machine's own (only with a chain). The
+    job loads the artefacts from ``registry`` and chooses again on ``runs.csv``
+    (:func:`resolved_prior`).
     """
     mode, source = prior_source(setting, machine)
     chain = prior_chain(results_dir, machine, setting)
@@ -266,7 +271,52 @@ def prior_param(
         "registry": str(reg.root) if eligible else None,
         "chain": [str(a["model_id"]) for a in eligible],
         "probe_sign": signs,
+        "probe_sign_now": int(settings_sign(machine)) if eligible else None,
     }
+
+
+def available_sensors(runs_frame) -> list[str]:
+    """The sensors ``T1`` ... whose rise column ``dT..`` has a finite value in ``runs_frame``."""
+    out = []
+    for col in runs_frame.columns:
+        name = str(col)
+        if name.startswith("dT") and name[2:].isdigit() and bool(runs_frame[col].notna().any()):
+            out.append(name[1:])
+    return out
+
+
+def resolved_prior(param: dict | None, runs_table, runs_frame, *, reference: dict, log=print) -> dict | None:
+    """The prior ``rule compare`` adapts (:func:`prior_param` = ``param``), or ``None``.
+
+    Loads the chain's artefacts from the registry (verified), chooses the first that learnt
+    from none of the runs of ``runs_table`` (:func:`choose_prior`) and checks it against
+    ``runs_frame``'s sensors, the machine's ``reference`` settings and probe sign
+    (:func:`check_compatible`, which raises). The reason goes to ``log``.
+    """
+    from rafi.ops.registry import Registry
+
+    param = param or {}
+    ids = list(param.get("chain") or [])
+    if not ids:
+        mode = param.get("mode", "none")
+        log(
+            "no prior: models.prior is none"
+            if mode == "none"
+            else f"no prior: the registry of {param.get('source')} offers none that learnt from other logs"
+        )
+        return None
+    reg = Registry(Path(param["registry"]), str(param.get("source") or ""))
+    prior, reason = choose_prior([reg.load_model_dict(i) for i in ids], runs_table)
+    log(reason)
+    if prior is not None:
+        check_compatible(
+            prior,
+            sensors_available=available_sensors(runs_frame),
+            reference=reference,
+            probe_sign_prior=int(param["probe_sign"][prior["model_id"]]),
+            probe_sign_now=int(param["probe_sign_now"]),
+        )
+    return prior
 
 
 def _read_json(path: Path) -> dict | None:
@@ -274,3 +324,27 @@ def _read_json(path: Path) -> dict | None:
         return json.loads(Path(path).read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
+
+
+def parent_of(artefact: dict) -> str | None:
+    """The model id an adapted artefact was re-qualified from (``adaptation.parent``), else None."""
+    block = artefact.get("adaptation")
+    parent = block.get("parent") if isinstance(block, dict) else None
+    return str(parent) if parent else None
+
+
+def registry_meta(artefact: dict, displacement_sign: int | None) -> dict:
+    """What the registry's ``models/<id>.meta.json`` adds for a later prior: ``parent`` (an adapted
+    model only) and a ``config`` snapshot holding the displacement sign the model was qualified
+    with (``input.displacement.sign``, added when the artefact's own ``config`` lacks it)."""
+    out = {}
+    parent = parent_of(artefact)
+    if parent:
+        out["parent"] = parent
+    config = dict(artefact.get("config") or {})
+    current = ((config.get("input") or {}).get("displacement") or {}).get("sign")
+    if current is None and displacement_sign is not None:
+        source = dict(config.get("input") or {})
+        source["displacement"] = {**(source.get("displacement") or {}), "sign": int(displacement_sign)}
+        out["config"] = {**config, "input": source}
+    return out
