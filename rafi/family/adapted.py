@@ -16,7 +16,7 @@ from-scratch kinds (:func:`adaptation_factories`; names in ``comparison/*.csv``)
 
 What is never re-fitted: the prior's features (sensors, filter time constants, speed terms); the
 from-scratch kinds beside re-choose those. The fitted artefact is one of the **prior's kind**
-(same features and hyperparameters, new coefficients), so :func:`rafi.family.compare.load_any`,
+(same features and hyperparameters, new coefficients), so ``rafi.family.compare.load_any``,
 the streaming compensator and the intervals run it unchanged; it carries the block
 ``adaptation`` (:data:`ADAPTATION_SCHEMA`) and its ``data`` are the new training data.
 """
@@ -30,10 +30,13 @@ import numpy as np
 import pandas as pd
 
 from rafi.artefact import compute_model_id, now_iso
-from rafi.family.base import FamilyModel, data_hashes
+from rafi.family.base import FamilyModel, check_artefact, data_hashes
 from rafi.family.crossval import training_mask, training_runs
+from rafi.family.dynamic import DynamicRidge
+from rafi.family.grey_box import GreyBox
 from rafi.family.prior import RIDGE_KINDS
 from rafi.family.ridge import cv_folds, cv_scores, ridge_gram, rms_scale
+from rafi.family.ridge_global import RidgeGlobal
 from rafi.family.time_blocks import unit_column
 from rafi.family.whole_log import has_whole_logs, rows_of_logs
 from rafi.settings import MACHINE_DEFAULTS
@@ -45,6 +48,7 @@ ADAPTATION_SCHEMA = "rafi.adaptation/1"
 METHODS = ("as_is", "gain", "ridge")
 #: The candidates' names in the family's tables -> their method.
 CANDIDATES = {"prior": "as_is", "prior_gain": "gain", "prior_ridge": "ridge"}
+RIDGE_CLASSES = {"ridge_global": RidgeGlobal, "dynamic": DynamicRidge, "grey_box": GreyBox}
 
 
 class AdaptedPrior(FamilyModel):
@@ -114,11 +118,16 @@ class AdaptedPrior(FamilyModel):
             raise ValueError(f"method='ridge' needs a prior of a ridge kind ({kinds}), not {self.kind}")
 
     def _base(self):
-        """A fresh fitted model of the prior (the one whose coefficients change)."""
-        from rafi.family.compare import load_any
+        """A fresh fitted model of the prior (the one whose coefficients change): the ridge kinds'
+        own class, RAFI's :class:`~rafi.method.model.RafiModel` for ``rafi`` / ``rafi_linear``."""
+        if self.kind in RIDGE_KINDS:
+            return RIDGE_CLASSES[self.kind].from_dict(self.prior)
+        if self.kind in ("rafi", "rafi_linear"):
+            from rafi.method.model import RafiModel
 
-        base = load_any(self.prior)
-        return base if self.kind in RIDGE_KINDS else getattr(base, "model_", base)
+            check_artefact(self.prior, self.kind)  # refused if edited (its id is under its own kind)
+            return RafiModel.from_dict({**self.prior, "kind": "rafi"}, verify_id=False)
+        raise ValueError(f"a prior of kind {self.kind!r} cannot be adapted")
 
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """Re-fit the prior on the training runs of ``runs_table`` by ``method``; returns ``self``."""
