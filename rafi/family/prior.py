@@ -251,8 +251,9 @@ def prior_param(
     ``chain`` holds the ids of :func:`prior_chain` from its first model that has seen none of
     ``raw_hashes`` (the sha256 of the machine's raw files); ``probe_sign`` the displacement sign
     each was qualified with (:func:`probe_sign_of`; ``settings_sign(name)`` reads a machine's
-    ``input.displacement.sign``), ``probe_sign_now`` the machine's own (only with a chain),
-    ``offered`` the length of the whole chain. The
+    ``input.displacement.sign``), ``probe_sign_now`` the machine's own (only with a chain). Nothing
+    else: a champion trained on these logs must leave the param as it was without one (no
+    re-run after a promotion). The
     job loads the artefacts from ``registry`` and chooses again on ``runs.csv``
     (:func:`resolved_prior`).
     """
@@ -271,7 +272,6 @@ def prior_param(
         "source": source,
         "registry": str(reg.root) if eligible else None,
         "chain": [str(a["model_id"]) for a in eligible],
-        "offered": len(chain),
         "probe_sign": signs,
         "probe_sign_now": int(settings_sign(machine)) if eligible else None,
     }
@@ -300,13 +300,13 @@ def resolved_prior(param: dict | None, runs_table, runs_frame, *, reference: dic
     param = param or {}
     ids = list(param.get("chain") or [])
     if not ids:
-        source, offered = param.get("source"), int(param.get("offered") or 0)
         if param.get("mode", "none") == "none":
             log("no prior: models.prior is none")
-        elif not offered:
-            log(f"no prior: the registry of {source} has no champion")
         else:
-            log(f"no prior: every model of {source}'s champion chain ({offered}) learnt from these logs")
+            log(
+                f"no prior: the registry of {param.get('source')} has no champion, or every model of its "
+                "chain learnt from these logs"
+            )
         return None
     reg = Registry(Path(param["registry"]), str(param.get("source") or ""))
     prior, reason = choose_prior([reg.load_model_dict(i) for i in ids], runs_table)
