@@ -275,3 +275,20 @@ def test_summary_record_states_the_worst_case():
         record["runs"]["v2"]["worse_than_uncompensated"]
         and not record["runs"]["v1"]["worse_than_uncompensated"]
     )
+
+
+def test_a_candidate_adapted_from_the_champion_covers_the_champions_speeds():
+    from rafi.ops.provenance import speed_coverage, with_prior_speeds
+
+    champion = {"speeds_rpm": [3000.0, 9000.0, 15000.0], "source": "artefact speeds", "unknown_runs": []}
+    tonight = {"speeds_rpm": [9000.0], "source": "training runs", "train_runs": ["p1"], "unknown_runs": []}
+    adapted = {"kind": "dynamic", "adaptation": {"parent": "c" * 64}}
+    # from scratch on tonight's one speed: two of the champion's speeds are missing
+    assert speed_coverage(champion, tonight, 50)["missing_speeds_rpm"] == [3000.0, 15000.0]
+    # adapted from the champion: what it learnt at its speeds is kept
+    both = with_prior_speeds(adapted, tonight, "c" * 64, champion)
+    assert both["speeds_rpm"] == [3000.0, 9000.0, 15000.0] and "prior cccccccccccc" in both["source"]
+    assert speed_coverage(champion, both, 50)["status"] == "ok"
+    # adapted from another model, or not adapted: the speeds are tonight's only
+    assert with_prior_speeds(adapted, tonight, "d" * 64, champion) is tonight
+    assert with_prior_speeds({"kind": "dynamic"}, tonight, "c" * 64, champion) is tonight

@@ -50,6 +50,7 @@ from rafi.ops.provenance import (
     trained_speeds,
     training_data_changes,
     warning_reason,
+    with_prior_speeds,
 )
 from rafi.ops.registry import DECISION_SCHEMA, Registry, demoted_by_operator, promotion_record
 from rafi.ops.status import drift_detected
@@ -245,6 +246,9 @@ def check_provenance(
     candidate_training = trained_speeds(candidate_model, runs_table)
     has_champion = champion.model_id is not None
     champion_training = champion_speeds(champion.model, promotion, runs_table) if has_champion else None
+    candidate_training = with_prior_speeds(
+        candidate_model, candidate_training, champion.model_id, champion_training
+    )
     champion_data = {}
     if has_champion:
         champion_data = (champion.model or {}).get("data") or (promotion or {}).get("data_files") or {}

@@ -82,6 +82,22 @@ def champion_speeds(champion_dict: dict | None, promotion: dict | None, runs_tab
     return trained_speeds(champion_dict, runs_table)
 
 
+def with_prior_speeds(
+    candidate_model: dict, candidate: dict, champion_id: str | None, champion_training
+) -> dict:
+    """A candidate adapted from the champion (``adaptation.parent``: :mod:`rafi.family.adapted`)
+    keeps what the champion learnt at its training speeds, so those speeds count as covered
+    besides tonight's runs; any other candidate's speeds are returned as they are."""
+    parent = ((candidate_model or {}).get("adaptation") or {}).get("parent")
+    if not parent or parent != champion_id or not champion_training:
+        return candidate
+    if champion_training.get("speeds_rpm") is None or candidate.get("speeds_rpm") is None:
+        return candidate
+    speeds = sorted(set(candidate["speeds_rpm"]) | set(champion_training["speeds_rpm"]))
+    source = f"{candidate.get('source')} + prior {str(parent)[:12]}"
+    return {**candidate, "speeds_rpm": speeds, "source": source}
+
+
 def speed_coverage(champion: dict | None, candidate: dict, tolerance_rpm: float) -> dict:
     """Does the candidate's training cover every speed the champion's did?
 
