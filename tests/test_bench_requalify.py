@@ -67,7 +67,7 @@ def test_a_tiny_run_writes_the_table_and_the_json(bench, tmp_path, capsys):
     (res,) = record["scenarios"]
     (row,) = res["hours"]
     assert (
-        row["training_runs"] == 2  # a heat-up and its cool-down
+        row["training_runs"] == 1  # one heat-up, no cool-down
         and row["speeds_rpm"] == [18000.0]
         and row["scratch_choice"] == "ridge_global"
     )

@@ -22,6 +22,7 @@ from rafi.twin.scenarios import (
     combine,
     make_scenario,
     noise_floor,
+    plan_pieces,
 )
 
 DT = 60.0
@@ -107,7 +108,7 @@ def test_a_replaced_sensor_changes_its_own_rise_and_nothing_else():
     sc = scenario("replaced_sensor")
     new, same = sc.new_validation(), twin_of_old(sc).new_validation()
     pd.testing.assert_frame_equal(new.truth, same.truth)
-    others = [c for c in new.frame.columns if c != "dT8"]
+    others = [c for c in new.frame.columns if c not in ("T8", "dT8")]
     pd.testing.assert_frame_equal(new.frame[others], same.frame[others])
     assert np.abs(new.frame["dT8"] - same.frame["dT8"]).max() > 0.2
 
@@ -141,22 +142,44 @@ def test_every_run_set_carries_its_truth_and_the_noise_floor_is_the_measured_min
     assert (first == 0).all()
 
 
-def test_the_new_machine_follows_a_plan_run_for_run_from_one_continuous_programme():
+def test_the_new_machine_follows_a_plan_as_one_log_cut_as_the_pipeline_cuts_it():
     sc = scenario("reworn")
     plan = plan_programme(speeds_rpm=[3000, 6000, 9000, 12000, 15000, 18000], budget_h=4)
     runs = sc.plan_runs(plan)
-    expected = plan.groupby("run", sort=False)["duration_s"].sum()
-    assert list(runs.table["run_id"]) == [f"new-{r}" for r in expected.index]
-    assert list(runs.table["duration_s"]) == list(expected)
-    assert (runs.table["role"] == "training").all()
+    assert list(runs.table["run_id"]) == [f"new-requal-{i:02d}" for i in range(1, 8)]
+    # the rest before start belongs to the first heat-up; then heat-ups and cool-downs alternate
+    assert list(runs.table["duration_s"]) == [180 + 2160, 1860, 2160, 1860, 2160, 1860, 2160]
     assert list(runs.table["speed_rpm"]) == [18000, 0, 3000, 0, 9000, 0, 6000]
+    assert (runs.table["role"] == "training").all() and set(runs.table["log"]) == {"new-requal"}
+    f = runs.frame
+    assert (f["log"] == "new-requal").all() and np.array_equal(f["log_t_s"], np.arange(len(f)) * DT)
+    first = f.groupby("run_id")["t_s"].min()
+    assert (first == 0).all()
+    for name in ("T8", "disp_um"):  # rises against each run's own first 60 s
+        rise = "dz_um" if name == "disp_um" else f"d{name}"
+        ref = f[f["t_s"] <= 60].groupby("run_id")[name].median()
+        assert np.allclose(f[rise], f[name] - f["run_id"].map(ref))
     # the state carries over: a cool-down starts hot and the spindle shrinks back
-    cool = runs.frame[runs.frame["run_id"] == "new-p01_cool"]
+    cool = f[f["run_id"] == "new-requal-02"]
     assert cool["dz_um"].iloc[-1] < -5 and cool["dT8"].iloc[-1] < -2
     again = sc.plan_runs(plan)
     pd.testing.assert_frame_equal(runs.frame, again.frame)
     other = make_scenario("reworn", seed=3, sample_period_s=DT).plan_runs(plan)
     assert not np.allclose(runs.frame["dz_um"], other.frame["dz_um"])
+
+
+def test_plan_pieces_cut_each_recording_into_its_runs_and_skip_what_is_not_recorded():
+    plan = pd.DataFrame(
+        {
+            "speed_rpm": [0, 6000, 6000, 0, 0, 3000, 0],
+            "duration_s": [120, 1800, 600, 3600, 240, 1800, 1800],
+            "run": ["a", "a", "a", "a", None, "b", "b"],
+        }
+    )
+    assert plan_pieces(plan, 60.0) == [
+        ("a", [("01", 6000.0, 0, 42), ("02", 0.0, 42, 60)]),
+        ("b", [("01", 3000.0, 106, 30), ("02", 0.0, 136, 30)]),
+    ]
 
 
 def test_run_ids_may_not_repeat_and_an_unknown_scenario_is_named():

@@ -14,12 +14,12 @@ from collections.abc import Mapping, Sequence
 
 import pandas as pd
 
-from rafi.deploy.record_plan import PLAN_COLUMNS
+from rafi.deploy.record_plan import PLAN_COLUMNS, RUN_NAME
 from rafi.errors import RafiUserError
 
 __all__ = ["PLAN_TABLE_COLUMNS", "plan_csv", "plan_programme", "spread_order"]
 
-#: Seconds at rest before each heat-up (the reference window falls on the machine at rest).
+#: Seconds at rest before the first heat-up (the reference window falls on the cold machine at rest).
 REST_S = 180.0
 #: A heat-up gets no more than this (the paper's 4 h training run: near the steady state).
 MAX_RUN_S = 4 * 3600.0
@@ -27,7 +27,7 @@ MAX_RUN_S = 4 * 3600.0
 QUANTUM_S = 60.0
 #: The columns of the table :func:`plan_programme` returns: the record format's, then what a
 #: person reads beside them (not written to the CSV).
-PLAN_TABLE_COLUMNS = (*PLAN_COLUMNS, "step", "kind", "start_h", "recorded")
+PLAN_TABLE_COLUMNS = (*PLAN_COLUMNS, "step", "kind", "start_h")
 
 
 def spread_order(speeds: Sequence[float]) -> list[float]:
@@ -113,12 +113,17 @@ def plan_programme(
     min_run_s: float = 1800.0,
     transient_s: float = 1800.0,
     uncertainty: Mapping[float, float] | None = None,
+    name: str = "requal",
 ) -> pd.DataFrame:
     """The test programme of a re-qualification that fits in ``budget_h`` hours of machine time.
 
-    The rule, step by step (every recorded run lasts ``run_s = max(min_run_s, transient_s)`` or
-    more: shorter runs are excluded by the pipeline, and the first ``transient_s`` of a run, the
-    interval's transient cell, is where a prior is least sure):
+    The programme is ONE recording (``run`` = ``name`` on every step): the pipeline cuts it
+    into runs (heat-ups and cool-downs) and, because they are one log, the family's filters
+    carry the machine's state from one run to the next (docs/models.md, "Whole-log dynamics"):
+    a heat-up that starts warm after a short cool-down is modelled as such. The rule, step by
+    step (every run lasts ``run_s = max(min_run_s, transient_s)`` or more: shorter runs are
+    excluded by the pipeline, and the first ``transient_s`` of a run, the interval's transient
+    cell, is where a prior is least sure):
 
     1. **Speeds**: the prior's training speeds ``speeds_rpm`` inside ``speed_range`` (the range
        in use; none: all), taken in the order of :func:`spread_order`: highest, lowest, then
@@ -126,27 +131,28 @@ def plan_programme(
        the spindle most (the best-conditioned single run for a gain on the prior), the lowest
        second so two speeds already span the range.
     2. **How many**: ``k`` heat-ups, the most (at most one per speed) with
-       ``k (REST_S + run_s) + (k - 1) run_s <= budget``: each heat-up is ``REST_S`` (180 s) at
-       rest then the speed, and a recorded cool-down of ``run_s`` follows every heat-up but the
-       last. A final cool-down is added when ``run_s`` is left over. Heat-ups, cool-downs and
-       the runs between them are the whole-run CV's folds (``k = 2`` already gives 3 runs).
+       ``REST_S + k run_s + (k - 1) run_s <= budget``: ``REST_S`` (180 s) at rest first (the
+       reference window falls on the cold machine at rest), then the heat-ups, each but the
+       last followed by a cool-down (speed 0) of ``run_s``. A final cool-down is added when
+       ``run_s`` is left over and ``k >= 2`` (with one heat-up, a fold that holds it out would
+       have no run at a speed to learn from). Heat-ups and cool-downs are the whole-run CV's
+       folds (``k = 2`` already gives 3 runs); with ``runs.idle_training: true`` (or a training
+       window over the recording) the cool-downs train.
     3. **How long**: the time left over goes to the heat-ups in proportion to ``uncertainty``
        (speed -> the prior's interval half width or CV error there; a speed it does not name
        counts as the worst it names; none: equal shares), no heat-up beyond ``MAX_RUN_S`` (4 h);
-       what the heat-ups cannot take goes to the cool-downs in equal shares, up to 4 h each.
-       Extra time is given in whole minutes; what is left (under a minute per run, or beyond
-       4 h per run) is not used.
-    4. **Order**: the heat-ups run in the order of step 1, each followed by its cool-down (speed
-       0, recorded as its own run: with ``runs.idle_training: true`` it trains). The programme
-       so alternates cold-ish starts at far-apart speeds, and a programme stopped early still
-       holds the most spread speeds.
+       extra time is given in whole minutes. What the heat-ups cannot take (beyond their 4 h,
+       and what rounding down to minutes leaves) goes to the cool-downs in equal shares, whole
+       minutes, up to 4 h each; the rest (under a minute per run, or beyond 4 h) is not used.
+    4. **Order**: the heat-ups run in the order of step 1, so the speed jumps are large (the
+       dynamics are excited) and a programme stopped early still holds the most spread speeds.
 
     Parameters
     ----------
     speeds_rpm : sequence of float
         The prior's training speeds, r/min.
     budget_h : float
-        Machine time available, h (the plan's total, rests and cool-downs included).
+        Machine time available, h (the plan's total, rest and cool-downs included).
     speed_range : (float, float), optional
         The range of speeds in use, r/min (inclusive).
     min_run_s : float
@@ -155,65 +161,58 @@ def plan_programme(
         ``models.interval_transient_s``: the transient cell of the intervals.
     uncertainty : mapping, optional
         Speed (r/min) -> how unsure the prior is there (any positive scale).
+    name : str
+        The recording's name (starts its file name).
 
     Returns
     -------
     pandas.DataFrame
         One row per step, columns :data:`PLAN_TABLE_COLUMNS`: ``speed_rpm``, ``duration_s``,
-        ``run`` (empty: not recorded; never in this plan), ``note``, then ``step`` (1, 2, ...),
-        ``kind`` (``rest``, ``heat-up``, ``cool-down``), ``start_h`` (from the plan's start) and
-        ``recorded``. ``attrs`` holds ``budget_h``, ``total_h`` and ``speeds_rpm`` (the speeds
-        taken, in order). :func:`plan_csv` writes the record format's columns.
+        ``run`` (``name``), ``note``, then ``step`` (1, 2, ...), ``kind`` (``rest``,
+        ``heat-up``, ``cool-down``) and ``start_h`` (from the plan's start). ``attrs`` holds
+        ``budget_h``, ``total_h`` and ``speeds_rpm`` (the speeds taken, in order).
+        :func:`plan_csv` writes the record format's columns.
 
     Raises
     ------
     RafiUserError
-        (exit status 64) No training speed in the range, a bad range, or a budget shorter than
-        one heat-up.
+        (exit status 64) No training speed in the range, a bad range or name, or a budget
+        shorter than the rest and one heat-up.
     """
+    if not RUN_NAME.match(str(name)):
+        raise RafiUserError(
+            f"plan: the name {name!r} cannot start a file name; use letters, digits, '.', '_', '-'"
+        )
     budget_s = float(budget_h) * 3600.0
     run_s = max(float(min_run_s), float(transient_s))
     order = spread_order(_candidates(speeds_rpm, speed_range))
-    heat_min = REST_S + run_s
     k = 0
-    while k < len(order) and (k + 1) * heat_min + k * run_s <= budget_s + 1e-9:
+    while k < len(order) and REST_S + (k + 1) * run_s + k * run_s <= budget_s + 1e-9:
         k += 1
     if k == 0:
         raise RafiUserError(
-            f"plan: a budget of {float(budget_h):g} h is shorter than one heat-up "
-            f"({REST_S:g} s at rest + {run_s:g} s); give at least {heat_min / 3600:.2f} h"
+            f"plan: a budget of {float(budget_h):g} h is shorter than the rest and one heat-up "
+            f"({REST_S:g} s + {run_s:g} s); give at least {(REST_S + run_s) / 3600:.2f} h"
         )
     speeds = order[:k]
     n_cool = k - 1
-    left = budget_s - k * heat_min - n_cool * run_s
-    if left >= run_s - 1e-9:
+    left = budget_s - REST_S - k * run_s - n_cool * run_s
+    if k > 1 and left >= run_s - 1e-9:
         n_cool, left = k, left - run_s
     heat_extra = _share(left, _weights(speeds, uncertainty), [MAX_RUN_S - run_s] * k)
     left -= sum(heat_extra)
     cool_extra = _share(left, [1.0] * n_cool, [MAX_RUN_S - run_s] * n_cool)
-    rows = []
+    rows = [(0.0, REST_S, "rest before start (cold machine at rest: the reference)", "rest")]
     for i, speed in enumerate(speeds):
-        name = f"p{i + 1:02d}_{speed:05.0f}rpm"
         heat = run_s + heat_extra[i]
-        rows.append((0.0, REST_S, name, "rest before start (machine at rest)", "rest"))
-        rows.append(
-            (speed, heat, name, f"heat-up {i + 1} of {k}: {speed:g} r/min for {heat / 60:g} min", "heat-up")
-        )
+        rows.append((speed, heat, f"heat-up {i + 1} of {k}: {speed:g} r/min, {heat / 60:g} min", "heat-up"))
         if i < n_cool:
             cool = run_s + cool_extra[i]
-            rows.append(
-                (
-                    0.0,
-                    cool,
-                    f"p{i + 1:02d}_cool",
-                    f"cool-down {i + 1}, recorded ({cool / 60:g} min)",
-                    "cool-down",
-                )
-            )
-    plan = pd.DataFrame(rows, columns=["speed_rpm", "duration_s", "run", "note", "kind"])
+            rows.append((0.0, cool, f"cool-down {i + 1}: spindle stopped, {cool / 60:g} min", "cool-down"))
+    plan = pd.DataFrame(rows, columns=["speed_rpm", "duration_s", "note", "kind"])
+    plan.insert(2, "run", str(name))
     plan.insert(4, "step", range(1, len(plan) + 1))
     plan["start_h"] = (plan["duration_s"].cumsum() - plan["duration_s"]) / 3600.0
-    plan["recorded"] = plan["run"].astype(bool)
     plan = plan[list(PLAN_TABLE_COLUMNS)]
     plan.attrs.update(
         budget_h=float(budget_h), total_h=float(plan["duration_s"].sum()) / 3600.0, speeds_rpm=speeds

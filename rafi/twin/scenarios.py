@@ -271,20 +271,28 @@ def simulate_runs(
     steps: Sequence[Step],
     runs: Sequence[tuple[str, str, float, int, int]],
     *,
+    log_name: str,
     seed: int,
     start: str,
     ambient: Ambient,
     dt: float,
 ) -> RunSet:
-    """Simulate ``steps`` on ``machine`` from cold (one continuous programme), cut into ``runs``.
+    """Simulate ``steps`` on ``machine`` from cold as ONE log ``log_name``, cut into ``runs``.
+
+    The frame is what rule ``runs`` makes of a log: the absolute readings (``T1``..``T16``,
+    ``disp_um``), the rises against each run's first 60 s, ``t_s`` from the run's start and
+    ``log`` / ``log_t_s`` / ``segment`` (0), so the family's filters carry the machine's state
+    from one run of the log to the next (docs/models.md, "Whole-log dynamics").
 
     Parameters
     ----------
     machine : TwinMachine
     steps : sequence of Step
-        The whole programme; the machine's state carries from one run to the next.
+        The whole log's programme.
     runs : sequence of (run_id, role, speed_rpm, first_sample, n_samples)
-        The recorded runs: each gets its own rises (against its first 60 s) and ``t_s`` from 0.
+        The runs of the log (samples outside every run are simulated but not kept).
+    log_name : str
+        The log's name (its file stem).
     seed, start, ambient, dt
         As :func:`rafi.twin.simulate.simulate_run` (no logger defects; the room shifted by
         :meth:`TwinMachine.room`).
@@ -300,21 +308,32 @@ def simulate_runs(
         wear=machine.wear,
     )
     log, truth = sim.log, sim.truth
+    temps, disp = log[list(SENSORS)].to_numpy(), log["disp_um"].to_numpy()
     rows, frames, truths = [], [], []
     for run_id, role, speed, first, n in runs:
         part = slice(first, first + n)
         t_s = np.arange(n) * dt
         frame = pd.DataFrame({"run_id": run_id, "t_s": t_s, "speed_rpm": log["speed_rpm"].to_numpy()[part]})
-        rises = _rise(log[list(SENSORS)].to_numpy()[part], t_s)
+        for j, name in enumerate(SENSORS):
+            frame[name] = temps[part, j]
+        frame["disp_um"] = disp[part]
+        rises = _rise(temps[part], t_s)
         for j, name in enumerate(RISES):
             frame[name] = rises[:, j]
-        frame["dz_um"] = _rise(log["disp_um"].to_numpy()[part], t_s)
+        frame["dz_um"] = _rise(disp[part], t_s)
+        frame["log"], frame["log_t_s"], frame["segment"] = log_name, (first + np.arange(n)) * dt, 0
         true = _rise(truth["disp_um"].to_numpy()[part], t_s)
-        digest = hashlib.sha256(frame.drop(columns="run_id").to_numpy().tobytes()).hexdigest()
+        digest = hashlib.sha256(frame[["t_s", "speed_rpm", *RISES, "dz_um"]].to_numpy().tobytes()).hexdigest()
         kind = "idle" if speed == 0 else ("varying" if role == "validation_multi" else "constant")
         rows.append(
             {"run_id": run_id, "role": role, "speed_rpm": float(speed), "kind": kind, "duration_s": n * dt}
-            | {"file": f"{run_id}.csv", "sha256": digest}
+            | {
+                "log": log_name,
+                "segment": 0,
+                "start_s": first * dt,
+                "file": f"{log_name}.csv",
+                "sha256": digest,
+            }
         )
         frames.append(frame)
         truths.append(pd.DataFrame({"run_id": run_id, "t_s": t_s, "dz_true_um": true}))
@@ -323,12 +342,47 @@ def simulate_runs(
     )
 
 
+def plan_pieces(plan: pd.DataFrame, dt: float) -> list[tuple[str, list[tuple[str, float, int, int]]]]:
+    """The logs and runs the pipeline cuts from ``plan`` (the :func:`rafi.method.runs.find_runs` rules
+    for a clean log of held speeds).
+
+    Each recording (consecutive steps of one ``run``) is a log; in it, consecutive steps at one
+    speed form a run, and a first idle piece shorter than 300 s (``runs.max_leading_rest_s``)
+    is the rest before the next run's start. Steps are rounded to whole samples.
+
+    Returns
+    -------
+    list of (log name, [(run suffix, speed_rpm, first_sample, n_samples), ...])
+        Sample positions count from the plan's start.
+    """
+    names = [str(r) if isinstance(r, str) else "" for r in plan["run"]]
+    counts = [int(round(float(d) / dt)) for d in plan["duration_s"]]
+    speeds = [float(v) for v in plan["speed_rpm"]]
+    out, first = [], 0
+    for name, group in itertools.groupby(range(len(names)), key=names.__getitem__):
+        idx = list(group)
+        pieces, rest = [], 0
+        for speed, same in itertools.groupby(idx, key=speeds.__getitem__):
+            n = sum(counts[i] for i in same)
+            if speed == 0 and not pieces and rest == 0 and n * dt < 300.0:
+                rest = n
+            else:
+                pieces.append((speed, first - rest, n + rest))
+                rest = 0
+            first += n
+        if name:
+            runs = [(f"{j + 1:02d}", sp, a, n) for j, (sp, a, n) in enumerate(pieces) if n > 0]
+            out.append((name, runs))
+    return out
+
+
 def _one_run(machine: TwinMachine, q: QualificationRun, seed: int, dt: float, prefix: str) -> RunSet:
     n = len(sample_schedule(q.schedule, dt))
     return simulate_runs(
         machine,
         q.schedule,
         [(prefix + q.run_id, q.role, q.speed_rpm, 0, n)],
+        log_name=prefix + q.run_id,
         seed=seed,
         start=q.start,
         ambient=q.ambient,
@@ -379,23 +433,29 @@ class Scenario:
         return combine(self.new_full_training(), self.new_validation())
 
     def plan_runs(self, plan: pd.DataFrame, start: str = "2026-06-01T07:00:00") -> RunSet:
-        """The new machine following ``plan`` (:func:`rafi.ops.plan.plan_programme`) from cold: every
-        recorded run (consecutive steps of one ``run``) a training run, speed = its highest step
-        (0: a cool-down). Steps are rounded to whole samples, as :func:`sample_schedule` does."""
+        """The new machine following ``plan`` (:func:`rafi.ops.plan.plan_programme`) from cold, in one
+        go: every run the pipeline would cut from its recordings (:func:`plan_pieces`) is a training
+        run ``new-<recording>-<nn>`` (speed 0: a cool-down), each recording one log."""
         dt = self.sample_period_s
         steps = [Step(float(d), float(s)) for d, s in zip(plan["duration_s"], plan["speed_rpm"])]
-        counts = [int(round(s.duration_s / dt)) for s in steps]
-        names = [str(r) if isinstance(r, str) else "" for r in plan["run"]]
-        runs, first = [], 0
-        for name, group in itertools.groupby(range(len(steps)), key=names.__getitem__):
-            idx = list(group)
-            n = sum(counts[i] for i in idx)
-            if name:
-                runs.append((f"new-{name}", "training", max(steps[i].speed_rpm for i in idx), first, n))
-            first += n
         digest = hashlib.sha256(plan[["speed_rpm", "duration_s"]].to_numpy(float).tobytes()).digest()
         seed = _seed(self.seed, 3, int.from_bytes(digest[:4], "big"))
-        return simulate_runs(self.new, steps, runs, seed=seed, start=start, ambient=Ambient(), dt=dt)
+        sets = []
+        for name, pieces in plan_pieces(plan, dt):
+            runs = [(f"new-{name}-{suffix}", "training", sp, a, n) for suffix, sp, a, n in pieces]
+            sets.append(
+                simulate_runs(
+                    self.new,
+                    steps,
+                    runs,
+                    log_name=f"new-{name}",
+                    seed=seed,
+                    start=start,
+                    ambient=Ambient(),
+                    dt=dt,
+                )
+            )
+        return combine(*sets)
 
 
 def make_scenario(
