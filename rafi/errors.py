@@ -296,3 +296,20 @@ class ReplayError(RafiUserError):
     """``rafi replay`` cannot replay what was asked: the pipeline's results are missing, a run id
     is unknown, no run has a role of ``deploy.replay_roles``, or the model file is not a model
     artefact. The message says what to run or which values exist."""
+
+
+class PriorUnavailable(RafiUserError):
+    """``models.prior`` asks for a prior that does not exist: ``champion`` on a machine whose
+    registry has no champion, or ``{machine: <name>}`` naming a machine without a registry or
+    champion. A setting to correct (or a qualification to run first), hence ``EX_USAGE`` (64);
+    the message names the setting, the registry path and what to do."""
+
+
+class PriorIncompatible(RafiUserError):
+    """The prior (``models.prior``, ``rafi.family.prior``) cannot be applied to this machine's
+    data: a temperature sensor it reads is missing, the probe sign or the reference rule
+    differs. Bad data for this prior, hence ``EX_DATAERR`` (65); the message names the prior's
+    id, what differs and the likely cause (a replaced or renamed sensor, a changed probe
+    mounting, a different reference rule)."""
+
+    exit_status = EX_DATAERR

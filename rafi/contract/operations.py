@@ -55,6 +55,27 @@ OPERATIONS_SETTINGS: dict = {
                     "`grey_box`"
                 ),
             ),
+            "prior": Setting(
+                default="auto",
+                schema={
+                    "oneOf": [
+                        {"enum": ["auto", "none", "champion"]},
+                        {
+                            "type": "object",
+                            "properties": {"machine": {"type": "string", "minLength": 1}},
+                            "required": ["machine"],
+                            "additionalProperties": False,
+                        },
+                    ]
+                },
+                shown="`auto`",
+                doc=(
+                    "the prior a re-qualification starts from (`docs/models.md`, Re-qualification from a "
+                    "prior): `auto` (the registry's champion chain when the machine has a champion, else "
+                    "none), `none`, `champion` (required: an error without one) or `{machine: <name>}` (a "
+                    "sibling's champion chain); a model that learnt from any current run is skipped"
+                ),
+            ),
             "cv": Setting(
                 default="leave_one_run_out",
                 schema={"enum": ["leave_one_run_out", "leave_one_speed_out"]},

@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.artefact import json_text, write_text_atomic
+from rafi.family.adapted import adaptation_factories
 from rafi.family.crossval import (  # noqa: F401 - cv_data re-exported (it lived here)
     cross_validate,
     cv_data,
@@ -157,6 +158,8 @@ def _seconds(values) -> str:
 
 def describe_selection(model) -> str:
     """What cross-validation chose for a fitted model of the family, in one line for people."""
+    if hasattr(model, "describe"):  # an adapted prior (rafi.family.adapted)
+        return model.describe()
     if not hasattr(model, "alpha_"):
         return "nothing to choose (one OLS per training speed, fuzzy blend)"
     parts = [
@@ -367,6 +370,8 @@ def _pooled_coverage(residuals: pd.DataFrame) -> dict:
 
 def _fitted_text(model) -> str:
     """What CV chose, for the job's log."""
+    if hasattr(model, "describe"):
+        return " " + model.describe()
     text = f" alpha={model.alpha_:g} taus_s={model.taus_}" if hasattr(model, "alpha_") else ""
     if isinstance(model, GreyBox):
         text += (
@@ -485,6 +490,7 @@ def run_family(
     cv_memo_dir: str | os.PathLike | None = None,
     code_version: str | None = None,
     log=print,
+    prior: dict | None = None,
 ) -> dict:
     """Fit, cross-validate, choose, then validate the enabled models (what ``rule compare`` runs).
 
@@ -506,7 +512,9 @@ def run_family(
     ``log`` only, so the tables of two runs on the same inputs are identical. With
     ``cv_memo_dir`` and ``code_version`` (the digest of the code that runs this, the compare
     rule's ``code`` param) the CV rows come from the memo (:mod:`rafi.family.cv_memo`) when it
-    holds this CV's key, and are stored there when computed.
+    holds this CV's key, and are stored there when computed. With ``prior`` (an artefact,
+    :mod:`rafi.family.prior`) the adaptation candidates ``prior``, ``prior_gain``, ``prior_ridge``
+    join the kinds (:func:`rafi.family.adapted.adaptation_factories`); the memo key covers its id.
 
     Returns
     -------
@@ -530,6 +538,9 @@ def run_family(
         "speed_tolerance_rpm": speed_tolerance_rpm,
     }
     factories = {kind: functools.partial(make_model, kind, **settings) for kind in options["enabled"]}
+    if prior is not None:
+        factories.update(adaptation_factories(prior, options=options, machine=machine, log=log))
+        settings = {**settings, "prior": prior.get("model_id")}  # the CV memo's key covers the prior
     models, cv, oof, memo, fit_table = _cross_validated(
         factories, runs_table, runs_frame, settings, rafi_model, cv_memo_dir, code_version, log
     )

@@ -426,6 +426,8 @@ class RidgeBase(FamilyModel):
         }
         if getattr(self, "interval_", None) is not None:  # the prediction interval (rafi.family.intervals)
             body["interval"] = dict(self.interval_)
+        if getattr(self, "adaptation_", None) is not None:  # an adapted prior (rafi.family.adapted)
+            body["adaptation"] = dict(self.adaptation_)
         return finish_artefact(body)
 
     @classmethod
@@ -457,6 +459,7 @@ class RidgeBase(FamilyModel):
         m.grid_edges_ = list(selected.get("grid_edges", []))
         m.time_blocks_ = selected.get("cv_folds")
         m.interval_ = d["interval"] if isinstance(d.get("interval"), dict) else None
+        m.adaptation_ = d["adaptation"] if isinstance(d.get("adaptation"), dict) else None
         m._from_selected(selected)
         return m
 

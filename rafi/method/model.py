@@ -256,6 +256,8 @@ class RafiModel:
         self.n_ = np.empty(0, dtype=int)
         #: The prediction interval's block (``rafi.family.intervals``), or None: no interval.
         self.interval_: dict | None = None
+        #: The ``adaptation`` block of a re-qualified prior (``rafi.family.adapted``), or None.
+        self.adaptation_: dict | None = None
 
     # ------------------------------------------------------------------ building
     def add_speed_model(
@@ -420,6 +422,8 @@ class RafiModel:
         }
         if self.interval_ is not None:  # absent in older artefacts (no interval: NaN bounds)
             content["interval"] = dict(self.interval_)
+        if self.adaptation_ is not None:  # a re-qualified prior (rafi.family.adapted)
+            content["adaptation"] = dict(self.adaptation_)
         return content
 
     @property
@@ -490,6 +494,8 @@ class RafiModel:
             )
         if isinstance(d.get("interval"), dict):
             model.interval_ = d["interval"]
+        if isinstance(d.get("adaptation"), dict):
+            model.adaptation_ = d["adaptation"]
         if verify_id and "model_id" in d and not model_id_verifies(model._content(), d["model_id"]):
             raise ValueError(
                 f"model_id {d['model_id']} does not match the content "

@@ -26,6 +26,7 @@ import pandas as pd
 from rafi.artefact import json_text, jsonable, now_iso, write_text_atomic
 from rafi.errors import IncompatibleModels
 from rafi.family.intervals import interval_columns
+from rafi.family.prior import parent_of, registry_meta
 from rafi.method.validate import qualify as _qualify
 from rafi.method.validate import validate_runs
 from rafi.ops.adapt import merge_speed_models, retrained_speed_info, speeds_from
@@ -361,6 +362,7 @@ def decide(
         "schema": DECISION_SCHEMA,
         "machine": machine,
         "candidate_id": candidate.model_id,
+        **({"candidate_parent": parent_of(candidate.model)} if parent_of(candidate.model) else {}),
         "champion_id_before": champion.model_id,
         "champion_id_after": candidate.model_id if decision == "promoted" else champion.model_id,
         "decision": decision,
@@ -495,6 +497,7 @@ def run_decide(
     qualify: Callable | None = None,
     input_status_path: str | os.PathLike | None = None,
     speed_tolerance_rpm: float = 50.0,
+    displacement_sign: int | None = None,
 ) -> dict:
     """Judge tonight's candidate, update the registry, write decision.json + comparison.csv.
 
@@ -505,6 +508,7 @@ def run_decide(
     ``input_status_path``: the machine's ``input_status.json`` (its ``warnings`` block
     promotion until confirmed; its ``rejected`` files explain a vanished training file).
     ``speed_tolerance_rpm``: the machine's speed tolerance (coverage of the champion's speeds).
+    ``displacement_sign``: the machine's ``input.displacement.sign``, kept in the model's meta.
 
     Order of writes (each atomic): models/<id>.json (write-once) -> history.jsonl (append)
     -> champion.json (replace, only on promotion) -> comparison.csv -> decision.json. The
@@ -575,7 +579,8 @@ def run_decide(
         input_status=_read_json(input_status_path),
     )
 
-    reg.save_model(candidate, source=str(candidate_path), extra={"adaptation": adaptation})
+    meta = registry_meta(candidate, displacement_sign)  # the parent, the probe sign (rafi.family.prior)
+    reg.save_model(candidate, source=str(candidate_path), extra={"adaptation": adaptation, **meta})
     reg.append_history(dec.history)
     if dec.record["decision"] == "promoted":
         reg.set_champion(

@@ -181,6 +181,8 @@ def history_record(record: dict, tonight: dict[str, str], time: str) -> dict:
     seen tonight (``data_files``: the next nights' drift check and new-file list), the
     champion's vanished and changed training files, and the time."""
     line = {k: record[k] for k in HISTORY_FIELDS}
+    if record.get("candidate_parent"):  # a re-qualified prior: the model it was adapted from
+        line["candidate_parent"] = record["candidate_parent"]
     line["data_files"] = tonight
     line["vanished"] = record["data"]["vanished"]
     line["changed"] = record["data"]["changed"]

@@ -20,7 +20,7 @@
 #   code       code_version(script): the params `code` of every rule
 #   targets    machine_targets(machine, what), all_pipeline_tables(), all_targets(),
 #              nightly_targets() (input functions: they wait for the checkpoint input_status)
-#   registry   candidate_model(wildcards)
+#   registry   candidate_model(wildcards), compare_prior(wildcards)
 #   messages   say_rejected_input(), say_failures() (onsuccess/onerror of the Snakefile)
 #   report     workflow/rules/report_common.smk
 
@@ -37,7 +37,8 @@ from snakemake.logging import logger as snakemake_logger
 # What planning needs is standard library only (no NumPy/pandas to import on every invocation).
 import rafi.settings as _settings
 from rafi import contract
-from rafi.errors import InputSpecError, RawFormatError, SettingsError
+from rafi.errors import InputSpecError, RafiUserError, RawFormatError, SettingsError
+from rafi.family import prior as _prior
 from rafi.readers.input_spec import discover_machines, has_braces
 from rafi.readers.quarantine import (
     is_skipped,
@@ -267,6 +268,25 @@ def candidate_model(wildcards):
     return _settings.candidate_model_path(
         wildcards.machine, RESULTS_DIR, nightly_settings(wildcards.machine)["candidate"]
     )
+
+
+def compare_prior(wildcards):
+    """Param ``prior`` of rule compare (``models.prior``, ``rafi.family.prior.prior_param``): the
+    registry's prior chain from its first model that learnt from none of the machine's raw files
+    (ids, the registry path, each one's probe sign). The registry files are read, not inputs: a
+    champion trained on these logs changes nothing here, so promoting one re-runs nothing."""
+    machine = wildcards.machine
+    current = [s.split(":", 1)[1] for s in machine_raw_stamps(wildcards).values() if s.startswith("sha256:")]
+    try:
+        return _prior.prior_param(
+            RESULTS_DIR,
+            machine,
+            machine_config(machine)["models"]["prior"],
+            current,
+            lambda name: machine_config(name)["input"]["displacement"]["sign"],
+        )
+    except RafiUserError as exc:
+        raise WorkflowError(f"RAFI: {exc}") from None
 
 
 def _nightly_machines():

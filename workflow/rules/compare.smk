@@ -50,5 +50,7 @@ rule compare:
         reference=lambda w: machine_config(w.machine)["reference"],
         speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],
         gates=lambda w: machine_config(w.machine)["qualification"],
+        # models.prior resolved while planning (the registry is read, never an input)
+        prior=compare_prior,
     script:
         "../scripts/compare.py"

@@ -8,7 +8,11 @@ best_model.json is the model chosen by whole-run CV on the training runs (the ch
 whether or not it passes the gates on the validation runs: no second pick.
 
 The CV rows are memoised by content in ``results/<machine>/.cv_memo/`` (not an output:
-:mod:`rafi.family.cv_memo`, keyed by the training logs, the settings and ``params.code``)."""
+:mod:`rafi.family.cv_memo`, keyed by the training logs, the settings and ``params.code``).
+
+``params.prior`` (``models.prior``, resolved while planning) names the registry's candidate
+priors; the job chooses the first that learnt from none of these runs, checks it
+(:func:`rafi.family.prior.resolved_prior`) and the adaptation candidates join the family."""
 
 import json
 
@@ -17,9 +21,17 @@ from _glue import as_table, read_runs, step
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import rafi.artefact
     from rafi.family.compare import load_any, run_family
+    from rafi.family.prior import resolved_prior
 
     smk = snakemake  # noqa: F821
     table, frame = read_runs(smk)
+    prior = resolved_prior(
+        smk.params.prior,
+        table,
+        frame,
+        reference=smk.params.reference,
+        log=lambda m: print(m, flush=True),
+    )
     with open(smk.input.key_sensors, encoding="utf-8") as fh:
         key_sensors = json.load(fh)["sensors"]
     result = run_family(
@@ -37,6 +49,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         cv_memo_dir=smk.params.cv_memo,
         code_version=smk.params.code,
         log=lambda m: print(m, flush=True),
+        prior=prior,
     )
     cols = ["model", "cv_mean_max_abs_um", "selection_rank", "max_abs_after_um", "passed", "champion"]
     print(result["summary"][cols].to_string(index=False), flush=True)

@@ -25,6 +25,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         candidate_residuals_path=smk.input.residuals,
         input_status_path=smk.input.status,
         speed_tolerance_rpm=float(smk.params.speed_tolerance_rpm),
+        displacement_sign=int(smk.params.displacement_sign),
     )
     print(
         f"decision: {record['decision']} (candidate {record['candidate_id'][:12]}, champion "

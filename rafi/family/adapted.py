@@ -1,0 +1,309 @@
+"""The adaptation family: a prior (a fitted artefact of the family, :mod:`rafi.family.prior`)
+re-qualified on new data (``docs/models.md``, "Re-qualification from a prior").
+
+Three candidates, each cross-validated by whole run on the new training runs beside the
+from-scratch kinds (:func:`adaptation_factories`; names in ``comparison/*.csv``):
+
+* ``prior``       - the prior as it is (``method="as_is"``: nothing fitted);
+* ``prior_gain``  - every coefficient of the prior times one gain ``b``
+  (``method="gain"``): ``b = sum(p y) / sum(p p)`` over the training samples, ``p`` the prior's
+  prediction, ``y`` the measured displacement change. No offset: a change is 0 at the reference
+  state by construction;
+* ``prior_ridge`` - ridge kinds only (``method="ridge"``): ``coef = coef_prior + delta``,
+  ``delta`` the ridge solution of the residual ``y - X coef_prior`` on the prior's own features
+  ``X`` (scaled to unit RMS): a ridge penalised towards the prior's coefficients, its strength
+  ``alpha`` chosen by whole-run CV inside the training runs (nested) on ``models: ridge_alphas``.
+
+What is never re-fitted: the prior's features (sensors, filter time constants, speed terms); the
+from-scratch kinds beside re-choose those. The fitted artefact is one of the **prior's kind**
+(same features and hyperparameters, new coefficients), so ``rafi.family.compare.load_any``,
+the streaming compensator and the intervals run it unchanged; it carries the block
+``adaptation`` (:data:`ADAPTATION_SCHEMA`) and its ``data`` are the new training data.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Sequence
+
+import numpy as np
+import pandas as pd
+
+from rafi.artefact import compute_model_id, now_iso
+from rafi.family.base import FamilyModel, check_artefact, data_hashes
+from rafi.family.crossval import training_mask, training_runs
+from rafi.family.dynamic import DynamicRidge
+from rafi.family.grey_box import GreyBox
+from rafi.family.prior import RIDGE_KINDS
+from rafi.family.ridge import cv_folds, cv_scores, ridge_gram, rms_scale
+from rafi.family.ridge_global import RidgeGlobal
+from rafi.family.time_blocks import unit_column
+from rafi.family.whole_log import has_whole_logs, rows_of_logs
+from rafi.settings import MACHINE_DEFAULTS
+
+__all__ = ["ADAPTATION_SCHEMA", "METHODS", "CANDIDATES", "AdaptedPrior", "adaptation_factories"]
+
+MODELS = MACHINE_DEFAULTS["models"]
+ADAPTATION_SCHEMA = "rafi.adaptation/1"
+METHODS = ("as_is", "gain", "ridge")
+#: The candidates' names in the family's tables -> their method.
+CANDIDATES = {"prior": "as_is", "prior_gain": "gain", "prior_ridge": "ridge"}
+RIDGE_CLASSES = {"ridge_global": RidgeGlobal, "dynamic": DynamicRidge, "grey_box": GreyBox}
+
+
+class AdaptedPrior(FamilyModel):
+    """A prior artefact, re-fitted on the new training runs by ``method`` (module docstring).
+
+    Parameters
+    ----------
+    prior : dict
+        The prior's artefact (``model.json`` content of any kind of the family).
+    method : {"as_is", "gain", "ridge"}
+        What is re-fitted; ``ridge`` needs a prior of a ridge kind (:data:`RIDGE_KINDS`).
+    alphas : sequence of float
+        Penalties of ``ridge`` (``models: ridge_alphas``).
+    cv : str
+        The whole-run CV scheme that chooses ``alpha`` (``models: cv``).
+    cv_metric : str
+        ``rmse`` or ``max_abs`` (``models: cv_metric``).
+    machine : str or None
+        Machine name recorded in the artefact (None: the prior's).
+
+    Attributes
+    ----------
+    model_ : fitted model of the prior's kind
+        The adapted model (a ``RafiModel`` for the kinds ``rafi`` / ``rafi_linear``).
+    gain_ : float or None
+        ``b`` of ``gain``.
+    alpha_chosen_ : float or None
+        ``alpha`` of ``ridge``.
+    coefficient_change_ : list of dict
+        ``name``, ``prior``, ``new`` per coefficient.
+    grid_edges_ : list of str
+        ``alpha`` at an edge of its grid.
+    """
+
+    def __init__(
+        self,
+        *,
+        prior: dict,
+        method: str = "gain",
+        alphas: Sequence[float] = MODELS["ridge_alphas"],
+        cv: str = MODELS["cv"],
+        cv_metric: str = MODELS["cv_metric"],
+        machine: str | None = None,
+    ):
+        self.prior = prior
+        self.method = method
+        self.alphas = alphas
+        self.cv = cv
+        self.cv_metric = cv_metric
+        self.machine = machine
+
+    @property
+    def kind(self) -> str:
+        """The prior's kind: the adapted artefact is one of that kind."""
+        return str(self.prior.get("kind"))
+
+    def __repr__(self) -> str:
+        pid = str(self.prior.get("model_id", ""))[:12]
+        return f"AdaptedPrior(prior={pid!r} ({self.kind}), method={self.method!r})"
+
+    # -- fit
+    def _check_params(self) -> None:
+        if self.method not in METHODS:
+            raise ValueError(f"method={self.method!r}: use one of {', '.join(METHODS)}")
+        if self.method == "ridge" and self.kind not in RIDGE_KINDS:
+            kinds = ", ".join(RIDGE_KINDS)
+            raise ValueError(f"method='ridge' needs a prior of a ridge kind ({kinds}), not {self.kind}")
+
+    def _base(self):
+        """A fresh fitted model of the prior (the one whose coefficients change): the ridge kinds'
+        own class, RAFI's :class:`~rafi.method.model.RafiModel` for ``rafi`` / ``rafi_linear``."""
+        if self.kind in RIDGE_KINDS:
+            return RIDGE_CLASSES[self.kind].from_dict(self.prior)
+        if self.kind in ("rafi", "rafi_linear"):
+            from rafi.method.model import RafiModel
+
+            check_artefact(self.prior, self.kind)  # refused if edited (its id is under its own kind)
+            return RafiModel.from_dict({**self.prior, "kind": "rafi"}, verify_id=False)
+        raise ValueError(f"a prior of kind {self.kind!r} cannot be adapted")
+
+    def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        """Re-fit the prior on the training runs of ``runs_table`` by ``method``; returns ``self``."""
+        self._check_params()
+        model = self._base()
+        table, frame, rows = _training_rows(runs_table, runs_frame)
+        y = frame.loc[rows, "dz_um"].to_numpy(dtype=float)
+        ridge_kind = self.kind in RIDGE_KINDS
+        x = np.asarray(model._design(frame)[0], dtype=float)[rows] if ridge_kind else None
+        before = np.array(model.coef_, dtype=float)
+        pred = x @ before if ridge_kind else np.asarray(model.predict(frame.loc[rows]), dtype=float)
+        ok = np.isfinite(pred) & np.isfinite(y)
+        self.gain_, self.alpha_chosen_, self.grid_edges_, cv_table = None, None, [], []
+        if self.method == "gain":
+            denominator = float(pred[ok] @ pred[ok])
+            self.gain_ = float(pred[ok] @ y[ok]) / denominator if denominator > 0 else 1.0
+            model.coef_ = before * self.gain_
+        elif self.method == "ridge":
+            units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
+            delta, cv_table = self._ridge(x[ok], y[ok] - pred[ok], units[ok], table)
+            model.coef_ = before + delta
+        after = np.asarray(model.coef_, dtype=float)
+        residual = y[ok] - (x[ok] @ after if ridge_kind else pred[ok] * (self.gain_ or 1.0))
+        self.coefficient_change_ = _coefficient_change(model, self.kind, before, after)
+        self._restamp(model, table, frame.loc[rows], residual, cv_table)
+        self.model_ = model
+        return self
+
+    def _ridge(self, x: np.ndarray, r: np.ndarray, units: np.ndarray, table: pd.DataFrame):
+        """``delta`` of ``ridge`` and its CV table: ``alpha`` by whole-run CV on the training
+        runs (no fold: the largest, the prior's side), then the ridge on all of them."""
+        alphas = [float(a) for a in self.alphas]
+        cols = np.arange(x.shape[1])
+        folds = cv_folds(x, r, units, table, self.cv)
+        if folds:
+            scores = cv_scores(folds, cols, alphas, self.cv_metric)
+            best = int(np.argmin(np.round(scores / 1e-9)))
+        else:
+            scores, best = np.full(len(alphas), np.nan), int(np.argmax(alphas))
+        self.alpha_chosen_ = alphas[best]
+        if len(alphas) > 1 and folds and self.alpha_chosen_ in (min(alphas), max(alphas)):
+            self.grid_edges_ = [f"prior_ridge alpha {self.alpha_chosen_:g} at an edge of models.ridge_alphas"]
+        sc = rms_scale(x)
+        xs = x / sc
+        delta = ridge_gram(xs.T @ xs, xs.T @ r, len(r), [self.alpha_chosen_])[:, 0] / sc
+        cv_table = [
+            {"alpha": a, "score_um": float(s) if np.isfinite(s) else None} for a, s in zip(alphas, scores)
+        ]
+        return delta, cv_table
+
+    def _restamp(self, model, table, train: pd.DataFrame, residual: np.ndarray, cv_table: list) -> None:
+        """Give the adapted model its new data, provenance and ``adaptation`` block."""
+        train_runs = sorted(set(map(str, table["run_id"])))
+        data = data_hashes(table, train_runs)
+        block = {
+            "schema": ADAPTATION_SCHEMA,
+            "method": self.method,
+            "parent": self.prior.get("model_id"),
+            "parent_machine": self.prior.get("machine"),
+            "gain": self.gain_,
+            "alpha": self.alpha_chosen_,
+            "prior_data": _lineage_data(self.prior),
+            "coefficient_change": self.coefficient_change_,
+        }
+        model.interval_ = None  # the prior's interval is not this model's (calibrate_family sets one)
+        model.adaptation_ = block
+        if self.machine is not None:
+            model.machine = self.machine
+        if self.kind in RIDGE_KINDS:
+            model.data_ = data
+            model.train_runs_ = train_runs
+            model.rmse_um_ = float(np.sqrt(np.mean(residual**2))) if len(residual) else float("nan")
+            model.n_ = int(len(residual))
+            model.cv_table_ = cv_table
+            model.regressor_ranges_, model.speed_range_rpm_ = _joined_ranges(model, table, train)
+        else:  # RafiModel: the per-speed records stay the prior's; the data are the new ones
+            model.data = data
+            model.created = now_iso()
+
+    # -- evaluation
+    def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """The adapted model's ``predict_detail`` (the prior's kind's own code)."""
+        return self.model_.predict_detail(frame)
+
+    def predict(self, frame: pd.DataFrame) -> np.ndarray:
+        """The adapted model's prediction (um) per row of ``frame``."""
+        return np.asarray(self.model_.predict(frame), dtype=float)
+
+    def describe(self) -> str:
+        """What the adaptation chose, in one line for people."""
+        what = {
+            "as_is": "as it is (nothing fitted)",
+            "gain": f"every coefficient times {self.gain_:.4g}" if self.gain_ is not None else "gain",
+            "ridge": f"ridge towards its coefficients, alpha {self.alpha_chosen_:g}"
+            if self.alpha_chosen_ is not None
+            else "ridge",
+        }[self.method]
+        pid = str(self.prior.get("model_id", ""))[:12]
+        text = f"prior {pid} ({self.kind} of {self.prior.get('machine')}) {what}"
+        return text + ("; AT A GRID EDGE: " + "; ".join(self.grid_edges_) if self.grid_edges_ else "")
+
+    # -- artefact
+    def to_dict(self) -> dict:
+        """The adapted artefact: of the prior's kind, with the ``adaptation`` block."""
+        d = self.model_.to_dict()
+        if d.get("kind") != self.kind:  # rafi_linear: RAFI's layout under its own kind
+            d["kind"] = self.kind
+            d["model_id"] = compute_model_id(d)
+        return d
+
+
+def _training_rows(runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+    """``(table, frame, rows)`` as the ridge kinds fit: the training runs, the whole logs holding
+    them (per-run frames: the training rows), the mask of the training rows with a finite dz."""
+    table, train = training_runs(runs_table, runs_frame)
+    if has_whole_logs(runs_frame):
+        frame = runs_frame.loc[rows_of_logs(runs_frame, table["run_id"])]
+        rows = training_mask(frame, table) & np.isfinite(frame["dz_um"].to_numpy(dtype=float))
+    else:
+        frame = train[np.isfinite(train["dz_um"].to_numpy(dtype=float))]
+        rows = np.ones(len(frame), dtype=bool)
+    if not rows.any():
+        raise ValueError("no training sample to adapt the prior on")
+    return table, frame, rows
+
+
+def _lineage_data(prior: dict) -> dict:
+    """``file -> sha256`` of everything the prior learnt from
+    (:func:`rafi.family.prior.seen_data`), by file name
+    (a name met twice with another content gets its hash appended)."""
+    out = dict(prior.get("data") or {})
+    for name, digest in ((prior.get("adaptation") or {}).get("prior_data") or {}).items():
+        key = name if out.get(name, digest) == digest else f"{name}@{str(digest)[:12]}"
+        out[key] = digest
+    return out
+
+
+def _coefficient_change(model, kind: str, before: np.ndarray, after: np.ndarray) -> list[dict]:
+    """``name``, ``prior``, ``new`` per coefficient (RAFI: ``<speed> r/min <term>``)."""
+    if kind in RIDGE_KINDS:
+        names = list(model.feature_names_)
+    else:
+        names = [f"{s:g} r/min {t}" for s in model.speeds_rpm_ for t in model.terms]
+    return [
+        {"name": n, "prior": float(a), "new": float(b)}
+        for n, a, b in zip(names, before.ravel(), after.ravel())
+    ]
+
+
+def _joined_ranges(model, table: pd.DataFrame, train: pd.DataFrame):
+    """The prior's rise and speed ranges joined with the new training runs' (the adapted model
+    stands on both)."""
+    from rafi.family.features import rise_column
+
+    ranges = {}
+    for s in model.sensors_:
+        x = train[rise_column(s)].to_numpy(dtype=float)
+        lo, hi = model.regressor_ranges_[s]
+        finite = x[np.isfinite(x)]
+        ranges[s] = [float(min(lo, finite.min())), float(max(hi, finite.max()))] if finite.size else [lo, hi]
+    speeds = table["speed_rpm"].astype(float)
+    lo, hi = model.speed_range_rpm_
+    return ranges, [float(min(lo, speeds.min())), float(max(hi, speeds.max()))]
+
+
+def adaptation_factories(prior: dict, *, options: dict, machine: str | None, log=print) -> dict:
+    """Name -> factory of the adaptation candidates of ``prior`` (:data:`CANDIDATES`; ``prior_ridge``
+    only for a ridge kind), built from the machine's ``models:`` settings ``options``."""
+    names = [n for n in CANDIDATES if CANDIDATES[n] != "ridge" or prior.get("kind") in RIDGE_KINDS]
+    if "prior_ridge" not in names:
+        log(
+            f"prior_ridge not offered: the prior is of kind {prior.get('kind')} "
+            "(a ridge towards it needs a ridge kind)"
+        )
+    common = {"alphas": options["ridge_alphas"], "cv": options["cv"], "cv_metric": options["cv_metric"]}
+    return {
+        n: functools.partial(AdaptedPrior, prior=prior, method=CANDIDATES[n], machine=machine, **common)
+        for n in names
+    }

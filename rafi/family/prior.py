@@ -1,0 +1,353 @@
+"""The prior of a re-qualification (``models: prior``, ``docs/models.md``): which fitted artefact
+the adaptation family (:mod:`rafi.family.adapted`) starts from, and whether it may.
+
+* :func:`prior_chain` resolves the setting against the registry
+  (:class:`rafi.ops.registry.Registry`): the champion of the machine (or of a sibling) and then
+  each model's ``adaptation.parent``, in order.
+* :func:`choose_prior` applies the honesty rule: the first artefact of the chain that has seen
+  none of the current runs (:func:`seen_data`: its ``data`` and its ``adaptation.prior_data``,
+  against every current run's ``sha256``, training or validation).
+* :func:`check_compatible` refuses a prior whose sensors, probe sign or reference rule differ
+  (:class:`rafi.errors.PriorIncompatible`, one line).
+* :func:`prior_param` is what ``rule compare`` gets while Snakemake plans: the chain from its
+  first model disjoint from the machine's raw files (ids only), so that promoting a champion
+  trained on these logs changes nothing the workflow sees.
+
+Standard library only at import (``workflow/rules/common.smk`` imports it while planning).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from collections.abc import Callable, Iterable
+from pathlib import Path
+
+from rafi.errors import PriorIncompatible, PriorUnavailable, RegistryError
+
+__all__ = [
+    "PRIOR_MODES",
+    "RIDGE_KINDS",
+    "prior_source",
+    "prior_chain",
+    "seen_data",
+    "choose_prior",
+    "prior_sensors",
+    "probe_sign_of",
+    "check_compatible",
+    "prior_param",
+    "available_sensors",
+    "resolved_prior",
+    "parent_of",
+    "registry_meta",
+]
+
+#: The string values of ``models: prior`` (a mapping ``{machine: <name>}`` is the fourth form).
+PRIOR_MODES = ("auto", "none", "champion")
+#: The kinds whose prediction is ``features @ coefficients`` (``prior_ridge`` is offered for these).
+RIDGE_KINDS = ("ridge_global", "dynamic", "grey_box")
+#: A guard against a corrupt registry whose parents form a very long chain.
+MAX_CHAIN = 100
+
+
+def prior_source(setting, machine: str) -> tuple[str, str]:
+    """``(mode, source machine)`` of a ``models: prior`` value: mode ``auto``, ``none``,
+    ``champion`` (the machine's own registry) or ``sibling`` (``{machine: <name>}``)."""
+    if isinstance(setting, dict):
+        name = setting.get("machine")
+        if set(setting) != {"machine"} or not isinstance(name, str) or not name:
+            raise PriorUnavailable(
+                f"models.prior: {setting!r} is not a prior; use auto, none, champion or {{machine: <name>}}"
+            )
+        return "sibling", name
+    if setting not in PRIOR_MODES:
+        raise PriorUnavailable(
+            f"models.prior: {setting!r} is not a prior; use auto, none, champion or {{machine: <name>}}"
+        )
+    return str(setting), machine
+
+
+def _registry(results_dir: str | os.PathLike, machine: str):
+    from rafi.ops.registry import Registry, registry_dir
+
+    return Registry(registry_dir(results_dir, machine), machine)
+
+
+def prior_chain(results_dir: str | os.PathLike, machine: str, setting) -> list[dict]:
+    """The candidate priors of ``machine`` under ``models: prior`` = ``setting``, in order.
+
+    Parameters
+    ----------
+    results_dir : str or path
+        The folder holding ``<machine>/registry`` (``results_dir`` of the run settings).
+    machine : str
+        The machine being qualified.
+    setting : str or dict
+        ``auto`` (the champion chain when the registry has a champion, else none), ``none``,
+        ``champion`` (required) or ``{machine: <name>}`` (a sibling's champion chain, required).
+
+    Returns
+    -------
+    list of dict
+        The champion's artefact, then its ``adaptation.parent``'s, and so on; the walk stops at
+        a parent missing from the registry or already seen (a cycle).
+
+    Raises
+    ------
+    PriorUnavailable
+        ``champion`` or a sibling without a champion (the message names the registry path).
+    """
+    mode, source = prior_source(setting, machine)
+    if mode == "none":
+        return []
+    reg = _registry(results_dir, source)
+    try:
+        champion_id = reg.champion_id()
+    except (OSError, ValueError):
+        champion_id = None
+    if champion_id is None or not reg.has_model(champion_id):
+        if mode == "auto":
+            return []
+        what = "models.prior: champion" if mode == "champion" else f"models.prior: {{machine: {source}}}"
+        raise PriorUnavailable(
+            f"{what}: {reg.root} has no champion; qualify {source} first, or set models.prior to auto or none"
+        )
+    chain, seen, model_id = [], set(), champion_id
+    while model_id and model_id not in seen and len(chain) < MAX_CHAIN and reg.has_model(model_id):
+        seen.add(model_id)
+        try:
+            artefact = reg.load_model_dict(model_id)
+        except (RegistryError, OSError, ValueError):
+            break  # a modified file ends the chain: never start from an unverified model
+        chain.append(artefact)
+        model_id = (artefact.get("adaptation") or {}).get("parent")
+    return chain
+
+
+def seen_data(artefact: dict) -> set[str]:
+    """The sha256 of every file an artefact learnt from: its ``data`` and, for an adapted model,
+    its prior's (``adaptation.prior_data``, itself the prior's whole lineage)."""
+    data = dict(artefact.get("data") or {})
+    prior = (artefact.get("adaptation") or {}).get("prior_data") or {}
+    return {str(h) for h in list(data.values()) + list(prior.values()) if h}
+
+
+def _current_hashes(runs_table) -> set[str]:
+    if runs_table is None or "sha256" not in getattr(runs_table, "columns", ()):
+        return set()
+    return {str(h) for h in runs_table["sha256"].tolist() if isinstance(h, str) and h}
+
+
+def _first_disjoint(chain: list[dict], current: set[str]) -> int | None:
+    for k, artefact in enumerate(chain):
+        if not seen_data(artefact) & current:
+            return k
+    return None
+
+
+def choose_prior(chain: list[dict], runs_table) -> tuple[dict | None, str]:
+    """The first artefact of ``chain`` that has seen none of the current runs, and why.
+
+    Parameters
+    ----------
+    chain : list of dict
+        :func:`prior_chain`.
+    runs_table : pandas.DataFrame
+        ``runs.csv`` (``file``, ``sha256``): every run, training and validation.
+
+    Returns
+    -------
+    (dict or None, str)
+        The prior (``None``: none) and one line for the log and the report.
+    """
+    if not chain:
+        return None, "no prior: the registry offers none (models.prior)"
+    k = _first_disjoint(chain, _current_hashes(runs_table))
+    if k is None:
+        who = "the champion" if len(chain) == 1 else f"the champion and its {len(chain) - 1} parent(s)"
+        return None, f"no prior: {who} learnt from some of these logs"
+    prior = chain[k]
+    skipped = f"; {k} newer model(s) of the chain learnt from these logs" if k else ""
+    return prior, (
+        f"prior {str(prior.get('model_id', ''))[:12]} ({prior.get('kind')} of {prior.get('machine')}, "
+        f"trained on {len(seen_data(prior))} other log(s)){skipped}"
+    )
+
+
+def prior_sensors(prior: dict) -> list[str]:
+    """The temperature sensors a prior reads (its ``key_sensors``)."""
+    return [str(s) for s in prior.get("key_sensors") or []]
+
+
+def probe_sign_of(meta: dict | None, settings_sign) -> int:
+    """The displacement sign (``input.displacement.sign``) a registered model was qualified with:
+    its meta's config snapshot when that holds one, else ``settings_sign`` (the machine's
+    settings)."""
+    config = (meta or {}).get("config") or {}
+    sign = ((config.get("input") or {}).get("displacement") or {}).get("sign")
+    return int(sign if sign is not None else settings_sign)
+
+
+def check_compatible(
+    prior: dict,
+    *,
+    sensors_available: Iterable[str],
+    reference: dict,
+    probe_sign_prior: int,
+    probe_sign_now: int,
+) -> None:
+    """Raise :class:`rafi.errors.PriorIncompatible` unless ``prior`` can be applied here.
+
+    Parameters
+    ----------
+    prior : dict
+        The prior's artefact.
+    sensors_available : iterable of str
+        The sensors with data in the current runs (``T1`` ...).
+    reference : dict
+        The machine's ``reference:`` settings (``rule``, ``window_s``).
+    probe_sign_prior, probe_sign_now : int
+        The displacement sign the prior was qualified with (:func:`probe_sign_of`) and the
+        machine's now (``input.displacement.sign``).
+    """
+    pid = str(prior.get("model_id", "?"))[:12]
+    missing = [s for s in prior_sensors(prior) if s not in set(map(str, sensors_available))]
+    if missing:
+        raise PriorIncompatible(
+            f"prior {pid}: sensor(s) {', '.join(missing)} it reads have no data here; a replaced or "
+            "renamed sensor? (map it in input.columns, or set models.prior: none)"
+        )
+    if int(probe_sign_prior) != int(probe_sign_now):
+        raise PriorIncompatible(
+            f"prior {pid}: probe sign {int(probe_sign_prior):+d} when it was qualified, "
+            f"{int(probe_sign_now):+d} now (input.displacement.sign); a changed probe mounting?"
+        )
+    ref_prior = prior.get("reference") or {}
+    for key in ("rule", "window_s"):
+        a, b = ref_prior.get(key), reference.get(key)
+        if a is not None and b is not None and str(a) != str(b) and _as_float(a) != _as_float(b):
+            raise PriorIncompatible(
+                f"prior {pid}: reference.{key} {a} in the prior, {b} in this machine's settings; "
+                "a different reference rule (use the prior's, or set models.prior: none)"
+            )
+
+
+def _as_float(value):
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return value
+
+
+def prior_param(
+    results_dir: str | os.PathLike,
+    machine: str,
+    setting,
+    raw_hashes: Iterable[str],
+    settings_sign: Callable[[str], int],
+) -> dict:
+    """The param ``prior`` of ``rule compare``, resolved while Snakemake plans.
+
+    ``chain`` holds the ids of :func:`prior_chain` from its first model that has seen none of
+    ``raw_hashes`` (the sha256 of the machine's raw files); ``probe_sign`` the displacement sign
+    each was qualified with (:func:`probe_sign_of`; ``settings_sign(name)`` reads a machine's
+    ``input.displacement.sign``), ``probe_sign_now`` the machine's own (only with a chain). Nothing
+    else: a champion trained on these logs must leave the param as it was without one (no
+    re-run after a promotion). The
+    job loads the artefacts from ``registry`` and chooses again on ``runs.csv``
+    (:func:`resolved_prior`).
+    """
+    mode, source = prior_source(setting, machine)
+    chain = prior_chain(results_dir, machine, setting)
+    k = _first_disjoint(chain, {str(h) for h in raw_hashes})
+    eligible = chain[k:] if k is not None else []
+    reg = _registry(results_dir, source)
+    signs = {}
+    for artefact in eligible:
+        model_id = str(artefact["model_id"])
+        meta = _read_json(reg.meta_path(model_id))
+        signs[model_id] = probe_sign_of(meta, settings_sign(str(artefact.get("machine") or source)))
+    return {
+        "mode": mode,
+        "source": source,
+        "registry": str(reg.root) if eligible else None,
+        "chain": [str(a["model_id"]) for a in eligible],
+        "probe_sign": signs,
+        "probe_sign_now": int(settings_sign(machine)) if eligible else None,
+    }
+
+
+def available_sensors(runs_frame) -> list[str]:
+    """The sensors ``T1`` ... whose rise column ``dT..`` has a finite value in ``runs_frame``."""
+    out = []
+    for col in runs_frame.columns:
+        name = str(col)
+        if name.startswith("dT") and name[2:].isdigit() and bool(runs_frame[col].notna().any()):
+            out.append(name[1:])
+    return out
+
+
+def resolved_prior(param: dict | None, runs_table, runs_frame, *, reference: dict, log=print) -> dict | None:
+    """The prior ``rule compare`` adapts (:func:`prior_param` = ``param``), or ``None``.
+
+    Loads the chain's artefacts from the registry (verified), chooses the first that learnt
+    from none of the runs of ``runs_table`` (:func:`choose_prior`) and checks it against
+    ``runs_frame``'s sensors, the machine's ``reference`` settings and probe sign
+    (:func:`check_compatible`, which raises). The reason goes to ``log``.
+    """
+    from rafi.ops.registry import Registry
+
+    param = param or {}
+    ids = list(param.get("chain") or [])
+    if not ids:
+        if param.get("mode", "none") == "none":
+            log("no prior: models.prior is none")
+        else:
+            log(
+                f"no prior: the registry of {param.get('source')} has no champion, or every model of its "
+                "chain learnt from these logs"
+            )
+        return None
+    reg = Registry(Path(param["registry"]), str(param.get("source") or ""))
+    prior, reason = choose_prior([reg.load_model_dict(i) for i in ids], runs_table)
+    log(reason)
+    if prior is not None:
+        check_compatible(
+            prior,
+            sensors_available=available_sensors(runs_frame),
+            reference=reference,
+            probe_sign_prior=int(param["probe_sign"][prior["model_id"]]),
+            probe_sign_now=int(param["probe_sign_now"]),
+        )
+    return prior
+
+
+def _read_json(path: Path) -> dict | None:
+    try:
+        return json.loads(Path(path).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+
+
+def parent_of(artefact: dict) -> str | None:
+    """The model id an adapted artefact was re-qualified from (``adaptation.parent``), else None."""
+    block = artefact.get("adaptation")
+    parent = block.get("parent") if isinstance(block, dict) else None
+    return str(parent) if parent else None
+
+
+def registry_meta(artefact: dict, displacement_sign: int | None) -> dict:
+    """What the registry's ``models/<id>.meta.json`` adds for a later prior: ``parent`` (an adapted
+    model only) and a ``config`` snapshot holding the displacement sign the model was qualified
+    with (``input.displacement.sign``, added when the artefact's own ``config`` lacks it)."""
+    out = {}
+    parent = parent_of(artefact)
+    if parent:
+        out["parent"] = parent
+    config = dict(artefact.get("config") or {})
+    current = ((config.get("input") or {}).get("displacement") or {}).get("sign")
+    if current is None and displacement_sign is not None:
+        source = dict(config.get("input") or {})
+        source["displacement"] = {**(source.get("displacement") or {}), "sign": int(displacement_sign)}
+        out["config"] = {**config, "input": source}
+    return out
