@@ -41,10 +41,14 @@ def result(prior_um_at_4h: float, scratch_um_at_4h: float = 6.0) -> dict:
     }
 
 
-def test_the_verdict_judges_the_best_budget_of_4_h_or_less_against_15_percent_of_the_full_plan(bench):
-    assert "2.20 um with 4 h (within 15 %" in bench.verdict(result(2.2))
-    assert "better than from scratch" in bench.verdict(result(2.2))
-    assert "NOT within 15 %" in bench.verdict(result(2.4))  # limit 2.30
+def test_the_verdict_judges_every_budget_of_4_h_or_less_against_15_percent_of_the_full_plan(bench):
+    assert bench.verdict(result(2.2)).startswith("met at 4 h (full plan 2.00 um, 15 % limit 2.30 um): 4 h:")
+    assert "4 h: 2.20 um, within 15 %, better than from scratch (6.00 um)" in bench.verdict(result(2.2))
+    assert "8 h" not in bench.verdict(result(2.2))  # beyond the target's 4 h
+    assert bench.verdict(result(2.4)).startswith("NOT met") and "NOT within 15 %" in bench.verdict(
+        result(2.4)
+    )
+    assert bench.verdict(result(2.2, scratch_um_at_4h=2.1)).startswith("NOT met")
     assert "NOT better" in bench.verdict(result(2.2, scratch_um_at_4h=2.1))
     assert "not judged" in bench.verdict(result(math.nan))
 
@@ -72,6 +76,7 @@ def test_a_tiny_run_writes_the_table_and_the_json(bench, tmp_path, capsys):
         and row["scratch_choice"] == "ridge_global"
     )
     assert res["full_choice"] == "ridge_global" and 0 < res["floor_um"] < res["full_um"] < row["scratch_um"]
-    assert math.isfinite(res["unchanged_um"])
+    assert math.isfinite(res["unchanged_um"]) and math.isfinite(row["prior_um"]) and row["prior_choice"]
+    assert set(row["candidates"]) == {"ridge_global", "prior", "prior_gain", "prior_ridge"}
     printed = capsys.readouterr().out
     assert record["markdown"] in printed and "replaced_sensor:" in printed
