@@ -10,8 +10,9 @@ For each twin scenario (:mod:`rafi.twin.scenarios`: ``sibling``, ``reworn``, ``s
 ``replaced_sensor``), the OLD machine's full qualification is fitted with rule compare's
 :func:`rafi.family.compare.run_family` (every enabled kind, whole-run CV, the champion chosen
 by CV); its champion's artefact is the PRIOR. On the NEW machine, for each budget of hours the
-programme :func:`rafi.ops.plan.plan_programme` plans for the prior's training speeds is
-simulated (every heat-up and cool-down a training run), and the worst validation residual
+programme :func:`rafi.ops.plan.plan_programme` plans for the prior's training speeds (extra
+time by the prior's own whole-run CV error per training speed, ``uncertainty``) is simulated as
+one log (every heat-up and cool-down a training run), and the worst validation residual
 (max |measured - predicted| over the new machine's validation runs: five single-speed runs and
 the multi-condition run, um) is printed for:
 
@@ -95,6 +96,14 @@ def every_candidate(result: dict) -> dict:
     }
 
 
+def prior_uncertainty(result: dict) -> dict[float, float]:
+    """Speed -> the champion's whole-run CV max |residual| on the training run(s) held out at that
+    speed (the worst where several): where the prior is least sure, from its own training CV."""
+    cv = result["cv"]
+    rows = cv[(cv["model"] == result["champion"]) & cv["test_speed_rpm"].notna()]
+    return {float(k): float(v) for k, v in rows.groupby("test_speed_rpm")["max_abs_after_um"].max().items()}
+
+
 def champion_worst(result: dict) -> tuple[float, str]:
     """The champion's worst validation residual (um) and its name."""
     s = result["summary"]
@@ -116,12 +125,13 @@ def one_scenario(name: str, args, settings: dict, old_fit_cache: dict) -> dict:
         old = sc.old_runs()
         fit = fit_family(old, settings, sc.key_sensors, args.machine, args.kinds)
         speeds = sorted(set(old.table.loc[old.table["role"] == "training", "speed_rpm"]))
-        old_fit_cache[args.machine] = (fit["best_artefact"], fit["champion"], speeds)
-    prior, prior_kind, speeds = old_fit_cache[args.machine]
+        old_fit_cache[args.machine] = (fit["best_artefact"], fit["champion"], speeds, prior_uncertainty(fit))
+    prior, prior_kind, speeds, uncertainty = old_fit_cache[args.machine]
     validation = sc.new_validation()
     out = {
         "scenario": name,
         "prior_champion": prior_kind,
+        "prior_cv_by_speed_um": uncertainty,
         "floor_um": noise_floor(validation),
         "unchanged_um": unchanged_worst(prior, validation, settings["qualification"]),
     }
@@ -138,6 +148,7 @@ def one_scenario(name: str, args, settings: dict, old_fit_cache: dict) -> dict:
             budget_h=hours,
             min_run_s=settings["runs"]["min_run_s"],
             transient_s=settings["models"]["interval_transient_s"],
+            uncertainty=uncertainty,
         )
         data = combine(sc.plan_runs(plan), validation)
         row = {"budget_h": hours, "plan_h": plan.attrs["total_h"], "speeds_rpm": plan.attrs["speeds_rpm"]}
