@@ -51,7 +51,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from rafi.family.compare import compare_models, load_any, run_family  # noqa: E402
-from rafi.ops.plan import plan_programme  # noqa: E402
+from rafi.ops.plan import plan_limits, plan_programme  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS  # noqa: E402
 from rafi.twin.scenarios import SCENARIOS, RunSet, combine, make_scenario, noise_floor  # noqa: E402
 
@@ -146,9 +146,8 @@ def one_scenario(name: str, args, settings: dict, old_fit_cache: dict) -> dict:
         plan = plan_programme(
             speeds_rpm=speeds,
             budget_h=hours,
-            min_run_s=settings["runs"]["min_run_s"],
-            transient_s=settings["models"]["interval_transient_s"],
             uncertainty=uncertainty,
+            **plan_limits(settings),
         )
         data = combine(sc.plan_runs(plan), validation)
         row = {"budget_h": hours, "plan_h": plan.attrs["total_h"], "speeds_rpm": plan.attrs["speeds_rpm"]}

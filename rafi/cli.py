@@ -28,6 +28,7 @@ COMMANDS = {
     "status": ("rafi.ops.fleet_cli", "every machine: model in service, decision, drift; urgent first"),
     "deploy": ("rafi.deploy.live_cli", "run the qualified model live: inputs in, compensation out"),
     "record": ("rafi.deploy.record_cli", "record a qualification test: speed, temperatures, probe -> raw/"),
+    "plan": ("rafi.ops.plan_cli", "the shortest test programme that re-qualifies a machine from a prior"),
     "certificate": (
         "rafi.deploy.certificate_cli",
         "create the OPC UA client certificate and key of rafi deploy",

@@ -103,6 +103,8 @@ def test_a_model_that_cannot_predict_a_held_out_run_is_not_chosen():
 def test_default_when_there_is_no_fold():
     assert default_champion(["rafi_linear", "rafi", "grey_box"]) == "rafi"
     assert default_champion(["grey_box", "dynamic"]) == "grey_box"
+    # with a prior: the prior with one gain, the fewest parameters a single run can estimate
+    assert default_champion(["rafi", "grey_box", "prior", "prior_gain", "prior_ridge"]) == "prior_gain"
     table, frame = _data()
     one = table[(table["role"] != "training") | (table["run_id"] == "train-9000")]
     res = _family(one, frame, enabled=["rafi_linear", "ridge_global"])

@@ -140,6 +140,15 @@ def selection_rule(scheme: str = "") -> str:
 def default_champion(enabled: Sequence[str]) -> str:
     """The model offered when cross-validation has no fold (fewer than two training runs, or
     speeds under ``leave_one_speed_out``, and too little training time for two time blocks,
-    :func:`rafi.family.time_blocks.block_count`): RAFI as published if enabled (the paper's method has
-    no hyperparameter to choose), else the first enabled kind. Declared before any data."""
-    return "rafi" if "rafi" in enabled else str(enabled[0])
+    :func:`rafi.family.time_blocks.block_count`). Declared before any data:
+
+    * with a prior (``prior_gain`` among the candidates: :mod:`rafi.family.adapted`), the prior
+      with one gain fitted on the new data - the fewest parameters any candidate fits, the one a
+      single run can estimate; a model from scratch has nothing to judge it on;
+    * else RAFI as published if enabled (the paper's method has no hyperparameter to choose);
+    * else the first enabled kind.
+    """
+    for name in ("prior_gain", "rafi"):
+        if name in enabled:
+            return name
+    return str(enabled[0])

@@ -17,7 +17,7 @@ import pandas as pd
 from rafi.deploy.record_plan import PLAN_COLUMNS, RUN_NAME
 from rafi.errors import RafiUserError
 
-__all__ = ["PLAN_TABLE_COLUMNS", "plan_csv", "plan_programme", "spread_order"]
+__all__ = ["PLAN_TABLE_COLUMNS", "plan_csv", "plan_limits", "plan_programme", "spread_order"]
 
 #: Seconds at rest before the first heat-up (the reference window falls on the cold machine at rest).
 REST_S = 180.0
@@ -28,6 +28,22 @@ QUANTUM_S = 60.0
 #: The columns of the table :func:`plan_programme` returns: the record format's, then what a
 #: person reads beside them (not written to the CSV).
 PLAN_TABLE_COLUMNS = (*PLAN_COLUMNS, "step", "kind", "start_h")
+
+
+def plan_limits(settings: Mapping) -> dict:
+    """``min_run_s`` and ``transient_s`` of :func:`plan_programme` from a machine's settings.
+
+    A run of the programme lasts at least ``runs.min_run_s`` (a shorter run is excluded) and at
+    least ``runs.min_constant_s``: a shorter heat-up is cut as a ``varying`` run, whose automatic
+    role is ``validation_multi`` (``docs/raw-format.md``, "Segmentation"), so a recorded
+    programme would not train without a hand-written window. ``transient_s`` is
+    ``models.interval_transient_s``.
+    """
+    runs = settings["runs"]
+    return {
+        "min_run_s": max(float(runs["min_run_s"]), float(runs["min_constant_s"])),
+        "transient_s": float(settings["models"]["interval_transient_s"]),
+    }
 
 
 def spread_order(speeds: Sequence[float]) -> list[float]:

@@ -1,0 +1,89 @@
+"""``rafi plan`` (issue 27): the programme of a re-qualification, from the machine's settings and prior."""
+
+from __future__ import annotations
+
+import shutil
+
+import pytest
+from report_fixture import FIXTURE, ROOT
+
+from rafi.cli import main
+from rafi.deploy.record_plan import read_plan
+from rafi.ops.plan import plan_limits
+from rafi.ops.plan_cli import speed_uncertainty, trained_speed_range
+from rafi.settings import machine_settings, read_machine_config
+
+MACHINE = "tapping-center-a"
+
+
+@pytest.fixture
+def project(tmp_path, monkeypatch):
+    shutil.copy2(ROOT / "config.yaml", tmp_path / "config.yaml")
+    monkeypatch.chdir(tmp_path)
+    return tmp_path
+
+
+def test_without_a_prior_the_plan_is_written_read_back_and_fits_the_budget(project, capsys):
+    assert main(["plan", "--machine", MACHINE, "--hours", "4"]) == 0
+    out = capsys.readouterr().out
+    assert "no prior" in out and f"rafi record --machine {MACHINE} --plan plan_{MACHINE}.csv" in out
+    plan = read_plan(project / f"plan_{MACHINE}.csv")
+    assert plan.total_s <= 4 * 3600
+    _, settings = read_machine_config(project / "config.yaml", MACHINE)
+    limits = plan_limits(settings)
+    heat = [s for s in plan.steps if s.speed_rpm > 0]
+    # every heat-up is long enough to be a constant run at a training speed: it trains by itself
+    assert heat and all(s.duration_s >= settings["runs"]["min_constant_s"] for s in heat)
+    assert all(s.speed_rpm in settings["training_speeds_rpm"] for s in heat)
+    assert limits["min_run_s"] == max(settings["runs"]["min_run_s"], settings["runs"]["min_constant_s"])
+    assert {s.run for s in plan.steps} == {f"requal_{MACHINE}"}  # one recording: one log
+
+
+def test_the_speed_range_in_use_limits_the_speeds(project):
+    assert main(["plan", "--machine", MACHINE, "--hours", "4", "--speed-range", "5000", "13000"]) == 0
+    heat = {s.speed_rpm for s in read_plan(project / f"plan_{MACHINE}.csv").steps if s.speed_rpm > 0}
+    assert heat and heat <= {6000.0, 9000.0, 12000.0}
+
+
+def test_the_champion_is_the_prior_the_header_names(project, capsys):
+    registry = project / "results" / MACHINE / "registry"
+    shutil.copytree(FIXTURE / "registry", registry)
+    assert main(["plan", "--machine", MACHINE, "--hours", "3", "--out", "p.csv"]) == 0
+    out = capsys.readouterr().out
+    assert "prior 1479963c6588 (rafi" in out and "p.csv" in out
+    assert read_plan(project / "p.csv").total_s <= 3 * 3600
+    # --prior none: the same programme without a prior
+    assert main(["plan", "--machine", MACHINE, "--hours", "3", "--prior", "none", "--out", "q.csv"]) == 0
+    assert "no prior" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize(
+    ("args", "expected"),
+    [
+        (["--machine", "nope"], "'nope' is not under machines:"),
+        (["--machine", MACHINE, "--hours", "0"], "--hours 0: expected the recorded machine time"),
+        (["--machine", MACHINE, "--hours", "0.5"], "give at least"),
+        (["--machine", MACHINE, "--prior", "champion"], "registry"),
+    ],
+)
+def test_mistakes_are_one_line_and_exit_64(project, capsys, args, expected):
+    assert main(["plan", *args]) == 64
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and expected in err
+    assert not list(project.glob("plan_*.csv"))
+
+
+def test_the_prior_is_least_sure_outside_its_trained_speeds():
+    settings = machine_settings({}, MACHINE)
+    prior = {
+        "kind": "dynamic",
+        "speed_range_rpm": [3000.0, 9000.0],
+        "interval": {"half_width_um": {"settled": 1.0, "transient": 2.0, "outside": 5.0}},
+    }
+    assert trained_speed_range(prior) == (3000.0, 9000.0)
+    got = speed_uncertainty(prior, [3000, 6000, 9000, 12000])
+    assert got == {3000.0: 1.0, 6000.0: 1.0, 9000.0: 1.0, 12000.0: 5.0}
+    assert speed_uncertainty({"kind": "rafi"}, [3000]) is None and speed_uncertainty(None, [3000]) is None
+    rafi_prior = {"speeds": [{"speed_rpm": 3000}, {"speed_rpm": 18000}]}
+    assert trained_speed_range(rafi_prior) == (3000.0, 18000.0) and trained_speed_range(None) == (None, None)
+    assert settings["runs"]["min_constant_s"] >= settings["runs"]["min_run_s"]
