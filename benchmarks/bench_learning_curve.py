@@ -75,7 +75,7 @@ CUTS = {
 }
 
 #: compare.log lines that say how the champion was chosen (or that it could not be).
-SELECTION_MARKERS = ("too few training runs", "no cross-validation fold", "chosen by")
+SELECTION_MARKERS = ("too few training runs", "offered by the default rule", "chosen by")
 
 
 # ----------------------------------------------------------------------------- the cut
@@ -159,7 +159,12 @@ def selection_lines(proj: Path, machine: str) -> list[str]:
     """The compare log's lines on how the champion was chosen (:data:`SELECTION_MARKERS`)."""
     log = proj / "logs" / machine / "compare.log"
     lines = log.read_text(encoding="utf-8").splitlines() if log.is_file() else []
-    return [ln.strip() for ln in lines if any(m in ln for m in SELECTION_MARKERS)]
+    return [ln.strip() for ln in selected_lines(lines) if ln != "-"]
+
+
+def selected_lines(lines: list[str]) -> list[str]:
+    """The lines of ``lines`` with one of :data:`SELECTION_MARKERS` (a dash if none)."""
+    return [ln for ln in lines if any(m in ln for m in SELECTION_MARKERS)] or ["-"]
 
 
 def cv_facts(proj: Path, machine: str, champion: str) -> dict:
@@ -247,14 +252,28 @@ def summary_table(rows: list[dict], channels: list[str], ridge: dict) -> list[st
     return rd.md_table(["cut", "training h", "what trains", *channels], body)
 
 
+def run_label(row: dict, run_id: str) -> str:
+    """A run by its span and speed (run ids differ between cuts: a cut inside a run adds one)."""
+    run = next((x for x in row["runs"] if x["run_id"] == run_id), None)
+    if run is None:
+        return run_id
+    return f"{run['span_h']} h, {'idle' if run['kind'] == 'idle' else run['speed_rpm']}"
+
+
+def gates(lines: list[str]) -> str:
+    """``pass`` / ``FAIL`` from the compare log's champion line, else a dash."""
+    said = " ".join(lines)
+    return "pass" if "passes the gates" in said else "FAIL" if "FAILS the gates" in said else "-"
+
+
 def channel_table(rows: list[dict], channel: str) -> list[str]:
     """One channel's curve: training, CV, offered model, its test and validation figures."""
     head = ["cut", "training h", "training runs", "CV", "offered", "test MAE", "test max abs"]
-    head += ["worst validation run max abs", "90 % coverage (test)"]
+    head += ["worst validation run max abs", "90 % coverage (test)", "gates"]
     body = []
     for r in (r for r in rows if r["channel"] == channel):
         if not r.get("ok"):
-            body.append([r["cut"], "-", "-", "-", f"FAILED ({r['cause']})", "-", "-", "-", "-"])
+            body.append([r["cut"], "-", "-", "-", f"FAILED ({r['cause']})", *["-"] * 5])
             continue
         champ = r["champion"]
         cv = f"{r['cv_scheme']} ({r['cv_folds']})" if r["cv_folds"] else "no fold: default"
@@ -267,8 +286,9 @@ def channel_table(rows: list[dict], channel: str) -> list[str]:
                 champ,
                 rd.fmt(r["mae"][champ]),
                 rd.fmt(r["test_max_abs_um"]),
-                f"{rd.fmt(r['worst_run_max_abs_um'])} ({r['worst_run']})",
+                f"{rd.fmt(r['worst_run_max_abs_um'])} ({run_label(r, r['worst_run'])})",
                 pct(r["coverage"].get(champ)),
+                gates(r["selection_log"]),
             ]
         )
     return rd.md_table(head, body)
@@ -291,7 +311,7 @@ def markdown(report: dict) -> str:
         lines += ["", f"## {ch}", "", *channel_table(rows, ch)]
     lines += ["", "## how the model was chosen", ""]
     for r in rows:
-        said = "; ".join(r["selection_log"] or ["-"]) if r.get("ok") else f"FAILED: {r['cause']}"
+        said = "; ".join(selected_lines(r["selection_log"])) if r.get("ok") else f"FAILED: {r['cause']}"
         lines.append(f"- {r['channel']} {r['cut']}: {said}")
     return "\n".join(lines) + "\n"
 
