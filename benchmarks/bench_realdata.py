@@ -269,8 +269,10 @@ def machine_config(channel: str, config: str) -> dict:
     return entry
 
 
-def write_project(proj: Path, data: Path, channel: str, config: str) -> str:
-    """A runnable project in ``proj`` for one channel and configuration; returns the machine."""
+def write_project(proj: Path, data: Path, channel: str, config: str, entry: dict | None = None) -> str:
+    """A runnable project in ``proj`` for one channel and configuration; returns the machine.
+    ``entry``: the machine's settings instead of :func:`machine_config` (``config`` then only
+    labels the project)."""
     proj.mkdir(parents=True, exist_ok=True)
     shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
     for name in ("workflow", "rafi"):
@@ -285,7 +287,7 @@ def write_project(proj: Path, data: Path, channel: str, config: str) -> str:
         "reports_dir": "reports",
         "on_bad_input": "fail",
         "defaults": {},
-        "machines": {machine: machine_config(channel, config)},
+        "machines": {machine: machine_config(channel, config) if entry is None else entry},
     }
     text = f"# bench_realdata.py: FL_THERMAL {channel}, roles '{config}'\n"
     text += yaml.safe_dump(settings, allow_unicode=True, sort_keys=False)
@@ -413,28 +415,45 @@ def project_facts(proj: Path, machine: str) -> dict:
     }
 
 
+def project_scores(proj: Path, machine: str, frame: pd.DataFrame, channel: str) -> dict:
+    """:func:`score_family` of a project's residuals and its :func:`project_facts`."""
+    res = proj / "results" / machine
+    residuals = pd.read_parquet(res / "comparison" / "residuals.parquet")
+    runs = pd.read_csv(res / "runs.csv")
+    t_s = frame[TIME_COL].to_numpy(dtype=float)
+    row = score_family(residuals, runs, frame[f"{channel}(um)"].to_numpy(dtype=float), t_s)
+    row.update(project_facts(proj, machine))
+    return row
+
+
 def run_one(
-    data: Path, frame: pd.DataFrame, channel: str, config: str, cores: int, keep: Path | None
+    data: Path,
+    frame: pd.DataFrame,
+    channel: str,
+    config: str,
+    cores: int,
+    keep: Path | None,
+    entry: dict | None = None,
+    score=project_scores,
 ) -> dict:
-    """Build, run and score one project; the temporary folder goes unless ``keep``."""
+    """Build, run and score one project; the temporary folder goes unless ``keep``.
+
+    ``entry``: the machine's settings instead of :func:`machine_config` (``config`` then only
+    labels the project); ``score(proj, machine, frame, channel) -> dict``: what is added to the
+    row of a successful run (default :func:`project_scores`)."""
     if keep is not None:
         proj = keep / f"{channel}-{config}"
         shutil.rmtree(proj, ignore_errors=True)
     else:
         proj = Path(tempfile.mkdtemp(prefix=f"rafi-realdata-{channel}-{config}-"))
     try:
-        machine = write_project(proj, data, channel, config)
+        machine = write_project(proj, data, channel, config, entry)
         ok, wall, output = run_snakemake(proj, machine, cores)
         row = {"channel": channel, "config": config, "wall_s": round(wall, 1), "ok": ok}
         if not ok:
             row["tail"] = "\n".join(output.splitlines()[-25:])
             return row
-        res = proj / "results" / machine
-        residuals = pd.read_parquet(res / "comparison" / "residuals.parquet")
-        runs = pd.read_csv(res / "runs.csv")
-        t_s = frame[TIME_COL].to_numpy(dtype=float)
-        row.update(score_family(residuals, runs, frame[f"{channel}(um)"].to_numpy(dtype=float), t_s))
-        row.update(project_facts(proj, machine))
+        row.update(score(proj, machine, frame, channel))
         return row
     finally:
         if keep is None:
