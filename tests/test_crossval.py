@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import os
 import warnings
 from pathlib import Path
@@ -17,6 +18,7 @@ from rafi.family.compare import COMPARISON_COLUMNS, compare_models, run_family
 from rafi.family.crossval import (
     assert_disjoint,
     cross_validate,
+    hold_out,
     leave_one_run_out,
     leave_one_speed_out,
     split_runs,
@@ -378,3 +380,27 @@ if __name__ == "__main__":  # regenerate the golden table
         DATA / "golden_comparison.csv", index=False, float_format="%.9g"
     )
     print("wrote", DATA / "golden_comparison.csv")
+
+
+def test_a_fold_with_nothing_rafi_learns_from_is_scored_as_no_compensation():
+    """A fold whose training part is a cool-down alone (one heat-up and its cool-down, held out in
+    turn): RAFI learns from constant-speed runs only, so there it compensates nothing - scored as
+    a prediction of 0 - and the other fold is fitted as usual (it used to stop the pipeline)."""
+    table, frame = make_synthetic_runs(
+        seed=2, sample_s=300.0, n_sensors=3, train_speeds=(3000, 9000), multi=False
+    )
+    cool = table.index[(table["role"] == "training") & (table["speed_rpm"] == 9000)]
+    table.loc[cool, "kind"] = "idle"  # the second training run stands for a cool-down
+    factory = functools.partial(PublishedRafi, key_sensors=["T1", "T2", "T3"], terms=["1", "x1", "x2", "x3"])
+    assert not factory().can_fit(hold_out(table, table.loc[table["speed_rpm"] == 3000, "run_id"]))
+    oof: list = []
+    cv = cross_validate(factory, table, frame, "leave_one_run_out", name="rafi", oof=oof).set_index(
+        "test_runs"
+    )
+    heat = table.loc[(table["role"] == "training") & (table["speed_rpm"] == 3000), "run_id"].iloc[0]
+    dz = frame.loc[frame["run_id"] == heat, "dz_um"].to_numpy(float)
+    assert cv.loc[heat, "max_abs_after_um"] == pytest.approx(np.nanmax(np.abs(dz)))
+    assert cv.loc[heat, "improvement_pct"] == 0 and len(cv) == 2 and np.isfinite(cv["max_abs_after_um"]).all()
+    assert set(oof[0]["run_id"]) == set(
+        table.loc[cool, "run_id"]
+    )  # out-of-fold samples: the fitted fold only

@@ -54,6 +54,10 @@ class FamilyModel:
         args = ", ".join(f"{k}={v!r}" for k, v in self.get_params().items())
         return f"{type(self).__name__}({args})"
 
+    def can_fit(self, runs_table: pd.DataFrame) -> bool:
+        """Whether the training runs of ``runs_table`` hold anything this kind learns from."""
+        return True
+
     def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
         """``predicted_um``, ``outside_speed_range``, ``outside_temp_range`` per row of ``frame``."""
         raise NotImplementedError

@@ -250,6 +250,11 @@ def cross_validate(
     (:func:`rafi.family.intervals.oof_samples`, :data:`rafi.family.intervals.OOF_COLUMNS`): the
     out-of-fold residuals the prediction interval is calibrated on.
 
+    A fold with nothing the model learns from (``model.can_fit(fold_table)`` false: RAFI as
+    published learns from constant-speed runs only, and a fold may hold only a cool-down) is
+    scored as no compensation (a prediction of 0 on its held-out runs, so every kind is judged on
+    the same runs) and gives no out-of-fold samples.
+
     Returns
     -------
     pandas.DataFrame
@@ -276,17 +281,20 @@ def cross_validate(
                 fold_table = hold_out(fold_table, guards, GUARD)
             fitted_on = set(map(str, training_runs(fold_table, frame)[0][col]))
             assert fitted_on == set(map(str, train_ids)), "a fold fits on exactly its training runs"
-            model = model_factory().fit(fold_table, frame)
+            model = model_factory()
+            fits = model.can_fit(fold_table) if hasattr(model, "can_fit") else True
             needed_mask = rows_of_logs(frame, {run_of_unit[str(u)] for u in test_ids})
             needed = frame.loc[needed_mask]
-            if oof is None:
-                predicted = np.asarray(model.predict(needed), dtype=float)
+            if not fits:  # nothing this kind learns from in the fold: it compensates nothing there
+                predicted = np.zeros(len(needed))
+            elif oof is None:
+                predicted = np.asarray(model.fit(fold_table, frame).predict(needed), dtype=float)
             else:  # the same prediction with its out-of-range flags (the interval's cell)
-                detail = model.predict_detail(needed)
+                detail = model.fit(fold_table, frame).predict_detail(needed)
                 predicted = detail["predicted_um"].to_numpy(dtype=float)
             unit_of = needed[col].astype(str).to_numpy()
             dz = needed["dz_um"].to_numpy(dtype=float)
-            if oof is not None:
+            if oof is not None and fits:
                 artefact = artefact or model.to_dict()
                 held_out.append(_held_out(detail, dz, unit_of, np.flatnonzero(needed_mask), test_ids))
             for rid in test_ids:

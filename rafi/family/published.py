@@ -56,6 +56,12 @@ class PublishedRafi(FamilyModel):
         self.hac_maxlags = hac_maxlags
         self.speed_tolerance_rpm = speed_tolerance_rpm
 
+    def can_fit(self, runs_table: pd.DataFrame) -> bool:
+        """RAFI learns from constant-speed training runs only (not cool-downs or varying stretches)."""
+        from rafi.method.rank import speed_training_runs
+
+        return bool(len(speed_training_runs(runs_table)))
+
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """Fit on the training runs of ``runs_table``; returns ``self``."""
         from rafi.method.fit import fit_rafi

@@ -120,6 +120,14 @@ def _add_day_mode(sub: argparse._SubParsersAction, formatter: type[argparse.Help
         "--hours", type=float, default=None, help="duration of each training run in hours (default 4)"
     )
     mode.add_argument(
+        "--sibling",
+        type=int,
+        default=None,
+        metavar="SEED",
+        help="another machine of the same series: every physical constant spread by a seeded "
+        "build factor (docs/twin.md, re-qualification scenarios)",
+    )
+    mode.add_argument(
         "--plan",
         default=None,
         metavar="PLAN.csv",
@@ -229,6 +237,7 @@ def run(args: argparse.Namespace) -> int:
                 defects=not args.no_defects,
                 stuck_displacement=args.stuck_displacement,
                 plan=plan,
+                sibling=args.sibling,
             )
         except (FileExistsError, ValueError) as exc:
             print(f"rafi simulate day: {exc}", file=sys.stderr)

@@ -119,13 +119,16 @@ def write_day(
     defects: bool = True,
     stuck_displacement: bool = False,
     plan=None,
+    sibling: int | None = None,
 ) -> list[Path]:
     """Write a new day of logs for ``machine`` under ``out_dir/<machine>/``.
 
     File names carry the date and the seed (``<date>_s<seed>_train_03000rpm.csv`` ...;
     machining-center-b: ``thermal_log_<date>_s<seed>.xlsx``) and existing files are never
     overwritten (``FileExistsError``). With ``plan`` (a :class:`rafi.deploy.record_plan.Plan`)
-    the plan's recordings are the training runs (:func:`plan_runs`) instead of ``speeds``.
+    the plan's recordings are the training runs (:func:`plan_runs`) instead of ``speeds``. With
+    ``sibling`` (a seed) the logs are those of another machine of the same series: every physical
+    constant spread by its build factor (:func:`rafi.twin.scenarios.sibling_params`).
     Constant-speed runs are cold starts on consecutive days starting at ``date``; every
     tapping-center-a log (training, validation, multi-condition) starts with
     ``REST_BEFORE_START_S`` (180 s) at rest before the spindle starts, like the shipped logs.
@@ -145,6 +148,8 @@ def write_day(
     parts += [f"--sensor-drift {k}:{v:g}" for k, v in sorted((sensor_drift or {}).items())]
     if wear:
         parts.append(f"--wear {wear:g}")
+    if sibling is not None:
+        parts.append(f"--sibling {int(sibling)}")
     if plan is not None:
         parts.append(f"--plan {Path(plan.path).name}")
     if speeds:
@@ -160,6 +165,10 @@ def write_day(
     parts += [flag for on, flag in flags if on]
     command = " ".join(parts)
     overrides = dict(sensor_drift=sensor_drift, wear=wear, stuck_displacement=stuck_displacement)
+    if sibling is not None:
+        from rafi.twin.scenarios import sibling_params
+
+        overrides["params"] = sibling_params(machine_params(machine), int(sibling))
     folder = Path(out_dir) / machine
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 99]))
     rates = DefectRates() if defects else DefectRates.none()
