@@ -204,6 +204,7 @@ def test_what_each_row_says(fleet):
     assert rows["recal-m"]["champion"] == {
         "id": ID["Y"],
         "kind": "grey_box",
+        "parent": None,  # not re-qualified from a prior (tests/test_requalify_e2e.py: one that is)
         "since": "2026-01-02T03:04:05Z",
         "reason": "promoted",
     }

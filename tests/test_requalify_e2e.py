@@ -1,10 +1,11 @@
 """Re-qualification end to end (issue 27): ``rafi plan`` -> the twin follows the plan -> ``rafi
 nightly`` (the real Snakefile) -> a re-qualified champion with its parent in the registry.
 
-Night 1 qualifies the machine on three shipped training runs and one validation run (the prior).
-The old logs then leave ``raw/`` (docs/operations.md, "Re-qualification in hours"), ``rafi plan``
-writes a 2 h programme, a sibling of the same series (``rafi simulate day --sibling``) runs it and
-one validation run, and night 2 starts from the prior: the
+Night 1 qualifies a machine on three shipped training runs and one validation run: its champion
+is the prior. A sibling of the same series is then configured with ``models.prior: {machine:
+...}`` (docs/operations.md, "Re-qualification in hours"), ``rafi plan`` writes its 2 h programme,
+the twin with the sibling's build spread (``rafi simulate day --sibling``) runs it and one
+validation run, and night 2 starts the sibling from the prior: the
 programme is one heat-up (no whole-run CV fold), so the prior with one gain is offered
 (:func:`rafi.family.selection.default_champion`), judged by the same gates, and promoted with
 its parent recorded.
@@ -12,6 +13,7 @@ its parent recorded.
 
 from __future__ import annotations
 
+import copy
 import json
 import os
 import shutil
@@ -25,6 +27,7 @@ from project_copy import ROOT, copy_project, run_nightly, settle
 from rafi.deploy.record_plan import read_plan
 
 MACHINE = "tapping-center-a"
+SIBLING = "tapping-center-a2"
 TRAIN = ("train_03000rpm.csv", "train_09000rpm.csv", "train_15000rpm.csv", "valid_08000rpm.csv")
 
 
@@ -57,58 +60,64 @@ def _project(tmp_path):
     return proj
 
 
-def _decision(proj) -> dict:
-    return json.loads((proj / "results" / MACHINE / "registry" / "decision.json").read_text(encoding="utf-8"))
+def _decision(proj, machine: str) -> dict:
+    return json.loads((proj / "results" / machine / "registry" / "decision.json").read_text(encoding="utf-8"))
 
 
 @pytest.mark.slow
-def test_plan_twin_night_gives_a_requalified_champion_with_its_parent(tmp_path):
+def test_plan_twin_night_gives_a_requalified_sibling_with_its_parent(tmp_path):
     proj = _project(tmp_path)
-    registry = proj / "results" / MACHINE / "registry"
 
-    # night 1: the machine's first qualification is the prior
+    # night 1: the first machine of the series is qualified; its champion is the prior
     night = run_nightly(proj)
     assert night.returncode in (0, 4), night.stdout + night.stderr
-    first = _decision(proj)
+    first = _decision(proj, MACHINE)
     assert first["decision"] == "promoted", first["reasons"]
     prior_id = first["candidate_id"]
 
-    # the old logs leave raw/; rafi plan writes the programme from the prior
-    archive = tmp_path / "archive"
-    shutil.move(str(proj / "raw" / MACHINE), str(archive))
-    (proj / "raw" / MACHINE).mkdir()
-    plan = _rafi(proj, "plan", "--machine", MACHINE, "--hours", "2", "--out", "plan.csv")
+    # a sibling arrives: configured like the first, starting from its champion
+    cfg = yaml.safe_load((proj / "config.yaml").read_text(encoding="utf-8"))
+    cfg["machines"][SIBLING] = {
+        **copy.deepcopy(cfg["machines"][MACHINE]),
+        "models": {**cfg["machines"][MACHINE]["models"], "prior": {"machine": MACHINE}},
+    }
+    (proj / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+    plan = _rafi(proj, "plan", "--machine", SIBLING, "--hours", "2", "--out", "plan.csv")
     assert plan.returncode == 0, plan.stderr
-    assert f"prior {prior_id[:12]}" in plan.stdout
+    assert f"prior {prior_id[:12]}" in plan.stdout and f"champion of {MACHINE}" in plan.stdout
     steps = read_plan(proj / "plan.csv").steps
     assert sum(s.duration_s for s in steps) <= 2 * 3600 and max(s.speed_rpm for s in steps) == 15000
 
-    # a machine of the same series (its build spread) follows the plan; one validation run beside it
+    # the sibling (the twin with its build spread) runs the plan, and one validation run
     sim = _rafi(
-        proj, "simulate", "day", "--machine", MACHINE, "--plan", "plan.csv", "--validation-speeds", "12000",
-        "--sibling", "0", "--seed", "9", "--no-defects", "--out", "raw",
+        proj, "simulate", "day", "--machine", MACHINE, "--name", SIBLING, "--sibling", "0",
+        "--plan", "plan.csv", "--validation-speeds", "12000", "--seed", "9", "--no-defects", "--out", "raw",
     )  # fmt: skip
     assert sim.returncode == 0, sim.stderr
-    for path in (proj / "raw" / MACHINE).glob("*.csv"):
+    new_files = sorted((proj / "raw" / SIBLING).glob("*.csv"))
+    assert len(new_files) == 2
+    for path in new_files:
         settle(path)
 
-    # night 2: the prior is adapted to the new data and promoted with its parent
+    # night 2: the sibling's first model is the prior adapted to its 2 h, promoted with its parent
     night = run_nightly(proj)
     assert night.returncode in (0, 4), night.stdout + night.stderr
-    second = _decision(proj)
+    second = _decision(proj, SIBLING)
     assert second["decision"] == "promoted", second["reasons"]
     assert second["candidate_parent"] == prior_id
+    registry = proj / "results" / SIBLING / "registry"
     champion = json.loads((registry / "champion.json").read_text(encoding="utf-8"))
     assert champion["model_id"] == second["candidate_id"] != prior_id
     model = json.loads((registry / "models" / f"{champion['model_id']}.json").read_text(encoding="utf-8"))
     adaptation = model["adaptation"]
-    assert adaptation["parent"] == prior_id and adaptation["method"] == "gain" and adaptation["gain"] > 0
+    assert adaptation["parent"] == prior_id and adaptation["parent_machine"] == MACHINE
+    assert adaptation["method"] == "gain" and adaptation["gain"] > 0  # one heat-up: no fold, the default
     meta = json.loads((registry / "models" / f"{champion['model_id']}.meta.json").read_text(encoding="utf-8"))
     assert meta["parent"] == prior_id
-    # what qualified it: the new files only, the prior's kind, its training data kept apart
-    new_files = {p.name for p in (proj / "raw" / MACHINE).glob("*.csv")}
-    assert set(model["data"]) <= new_files and not set(model["data"]) & {p.name for p in archive.glob("*")}
-    summary = (proj / "results" / MACHINE / "comparison" / "summary.csv").read_text(encoding="utf-8")
+    # what qualified it: the sibling's files only; the prior's training data stays its own
+    assert set(model["data"]) <= {p.name for p in new_files}
+    assert set(adaptation["prior_data"]) >= set(TRAIN[:3])
+    summary = (proj / "results" / SIBLING / "comparison" / "summary.csv").read_text(encoding="utf-8")
     assert all(f"\n{name}," in summary for name in ("prior", "prior_gain"))
-    status = _rafi(proj, "status", "--machine", MACHINE)
+    status = _rafi(proj, "status", "--machine", SIBLING)
     assert f"(adapted from {prior_id[:12]})" in status.stdout, status.stdout + status.stderr

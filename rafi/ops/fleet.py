@@ -216,7 +216,8 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     -------
     dict
         ``machine``, ``state``, ``rank``, ``attention`` (every state that applies, most urgent
-        first, with a short text each), ``champion`` (``id``, ``kind``, ``since``, ``reason``;
+        first, with a short text each), ``champion`` (``id``, ``kind``, ``parent``: the prior it was
+        re-qualified from or ``None``, ``since``, ``reason``;
         or None), ``last_decision`` (``decision``, ``time``, ``candidate_id``, ``reasons``,
         ``source``; or None), ``worst_residual`` (:func:`champion_residual`), ``drift``,
         ``recalibration_due``, ``quarantined`` (list of ``file (reason)``), ``skipped``,
@@ -226,9 +227,11 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     reg = paths.registry(machine)
     champion = _read_json(reg / "champion.json")
     champion_id = (champion or {}).get("model_id")
-    kind = None
+    kind = parent = None
     if champion_id and "/" not in champion_id and not champion_id.startswith("."):
-        kind = ((_read_json(reg / "models" / f"{champion_id}.json") or {}).get("kind")) or None
+        artefact = _read_json(reg / "models" / f"{champion_id}.json") or {}
+        kind = artefact.get("kind") or None
+        parent = (artefact.get("adaptation") or {}).get("parent") or None
     decision = _read_json(reg / "decision.json")
     last = None
     if decision:
@@ -288,6 +291,7 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
             {
                 "id": champion_id,
                 "kind": kind,
+                "parent": parent,
                 "since": champion.get("since"),
                 "reason": champion.get("reason"),
             }

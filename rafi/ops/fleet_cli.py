@@ -89,6 +89,8 @@ def format_rows(rows: list[dict]) -> str:
     for r in rows:
         ch = r["champion"]
         model = f"{short_id(ch['id'])} {ch['kind'] or '?'} since {ch['since']}" if ch else "none"
+        if ch and ch.get("parent"):
+            model += f" (adapted from {short_id(ch['parent'])})"
         last = r["last_decision"]
         decided = f"{last['decision']} at {last['time']}" if last else "none"
         worst = r["worst_residual"]

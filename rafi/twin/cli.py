@@ -128,6 +128,12 @@ def _add_day_mode(sub: argparse._SubParsersAction, formatter: type[argparse.Help
         "build factor (docs/twin.md, re-qualification scenarios)",
     )
     mode.add_argument(
+        "--name",
+        default=None,
+        help="the machine's name in the project: its folder under OUT and the name in the logs' "
+        "header (default: --machine; e.g. a sibling of the series)",
+    )
+    mode.add_argument(
         "--plan",
         default=None,
         metavar="PLAN.csv",
@@ -238,6 +244,7 @@ def run(args: argparse.Namespace) -> int:
                 stuck_displacement=args.stuck_displacement,
                 plan=plan,
                 sibling=args.sibling,
+                name=args.name,
             )
         except (FileExistsError, ValueError) as exc:
             print(f"rafi simulate day: {exc}", file=sys.stderr)

@@ -120,6 +120,7 @@ def write_day(
     stuck_displacement: bool = False,
     plan=None,
     sibling: int | None = None,
+    name: str | None = None,
 ) -> list[Path]:
     """Write a new day of logs for ``machine`` under ``out_dir/<machine>/``.
 
@@ -128,7 +129,9 @@ def write_day(
     overwritten (``FileExistsError``). With ``plan`` (a :class:`rafi.deploy.record_plan.Plan`)
     the plan's recordings are the training runs (:func:`plan_runs`) instead of ``speeds``. With
     ``sibling`` (a seed) the logs are those of another machine of the same series: every physical
-    constant spread by its build factor (:func:`rafi.twin.scenarios.sibling_params`).
+    constant spread by its build factor (:func:`rafi.twin.scenarios.sibling_params`). ``name``
+    is the machine's name in the project (its folder, and the header of tapping-center-a's logs:
+    a sibling is another machine of the same twin); default ``machine``.
     Constant-speed runs are cold starts on consecutive days starting at ``date``; every
     tapping-center-a log (training, validation, multi-condition) starts with
     ``REST_BEFORE_START_S`` (180 s) at rest before the spindle starts, like the shipped logs.
@@ -150,6 +153,8 @@ def write_day(
         parts.append(f"--wear {wear:g}")
     if sibling is not None:
         parts.append(f"--sibling {int(sibling)}")
+    if name:
+        parts.append(f"--name {name}")
     if plan is not None:
         parts.append(f"--plan {Path(plan.path).name}")
     if speeds:
@@ -169,7 +174,7 @@ def write_day(
         from rafi.twin.scenarios import sibling_params
 
         overrides["params"] = sibling_params(machine_params(machine), int(sibling))
-    folder = Path(out_dir) / machine
+    folder = Path(out_dir) / (name or machine)
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 99]))
     rates = DefectRates() if defects else DefectRates.none()
     if machine == "machining-center-b":
@@ -215,7 +220,7 @@ def write_day(
         spec = RunSpec(
             machine, file, Path(file).stem, tuple(sched), start, int(seed) * 1000 + k, amb, desc, rates
         )
-        text, _ = render_run(spec, command, **overrides)
+        text, _ = render_run(spec, command, name=name, **overrides)
         write_text_atomic(target, text)
         written.append(target)
     return written

@@ -43,13 +43,16 @@ def _notes(spec: RunSpec, command: str) -> str:
     )
 
 
-def render_run(spec: RunSpec, command: str = SHIPPED_COMMAND, **overrides) -> tuple[str, TwinRun]:
-    """Simulate a spec and render it as native raw-log text."""
+def render_run(
+    spec: RunSpec, command: str = SHIPPED_COMMAND, *, name: str | None = None, **overrides
+) -> tuple[str, TwinRun]:
+    """Simulate a spec and render it as native raw-log text (``name``: the machine the header
+    names, default the twin's)."""
     from rafi.readers.native import format_raw_log
 
     run = simulate_spec(spec, **overrides)
     meta = {
-        "machine": spec.machine,
+        "machine": name or spec.machine,
         "run_id": spec.run_id,
         "sample_period_s": "5",
         "notes": _notes(spec, command),
