@@ -147,3 +147,24 @@ def test_coefficient_moves_and_new_data_handle_what_is_missing():
         new_data(pd.DataFrame({"role": ["validation_single"], "duration_s": [1.0], "speed_rpm": [1.0]}))
         is None
     )
+
+
+def test_without_a_cv_fold_the_section_says_the_default_rule_chose(tmp_path):
+    results = copy_fixture(tmp_path)
+    summ = _add_candidates(results, offered="prior_gain")
+    summ["cv_mean_max_abs_um"] = np.nan  # one heat-up of new data: no whole-run fold
+    summ.to_csv(results / "comparison" / "summary.csv", index=False)
+    paths = write_upstream_tables(results)
+    ctx = build_context(
+        paths,
+        empty_figure_dirs(results),
+        machine="tapping-center-a",
+        settings=machine_settings(CONFIG, "tapping-center-a"),
+    )
+    q = ctx["requalification"]
+    assert (
+        q["cv"] is False and q["scratch"]["model"] == "rafi"
+    )  # the default rule among the from-scratch kinds
+    text = _text(render_html(ctx))
+    assert "give no whole-run cross-validation fold, so the default rule chose" in text
+    assert "Whole-run cross-validation on the new training runs chose" not in text

@@ -126,6 +126,16 @@ OPERATIONS_SETTINGS: dict = {
                 shown="1e-8 ... 10, 1-2-5 per decade",
                 doc="ridge penalties tried by CV",
             ),
+            "prior_ridge_alphas": Setting(
+                default=[float(f"{m}e{e}") for e in range(-4, 5) for m in (1, 2, 5)] + [1e5],
+                schema={"type": "array", "items": {"type": "number", "exclusiveMinimum": 0}, "minItems": 1},
+                shown="1e-4 ... 1e5, 1-2-5 per decade",
+                doc=(
+                    "penalties of `prior_ridge` tried by CV (`docs/models.md`, Re-qualification from a "
+                    "prior): the ridge shrinks the move from the prior's coefficients, so the grid reaches "
+                    "far enough to keep the prior (without a CV fold the largest is taken)"
+                ),
+            ),
             "dynamic_taus_s": Setting(
                 default="auto",
                 schema=auto_or_numbers(),

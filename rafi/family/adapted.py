@@ -12,7 +12,7 @@ from-scratch kinds (:func:`adaptation_factories`; names in ``comparison/*.csv``)
 * ``prior_ridge`` - ridge kinds only (``method="ridge"``): ``coef = coef_prior + delta``,
   ``delta`` the ridge solution of the residual ``y - X coef_prior`` on the prior's own features
   ``X`` (scaled to unit RMS): a ridge penalised towards the prior's coefficients, its strength
-  ``alpha`` chosen by whole-run CV inside the training runs (nested) on ``models: ridge_alphas``.
+  ``alpha`` chosen by whole-run CV inside the training runs (nested) on ``models: prior_ridge_alphas``.
 
 What is never re-fitted: the prior's features (sensors, filter time constants, speed terms); the
 from-scratch kinds beside re-choose those. The fitted artefact is one of the **prior's kind**
@@ -61,7 +61,7 @@ class AdaptedPrior(FamilyModel):
     method : {"as_is", "gain", "ridge"}
         What is re-fitted; ``ridge`` needs a prior of a ridge kind (:data:`RIDGE_KINDS`).
     alphas : sequence of float
-        Penalties of ``ridge`` (``models: ridge_alphas``).
+        Penalties of ``ridge`` (``models: prior_ridge_alphas``).
     cv : str
         The whole-run CV scheme that chooses ``alpha`` (``models: cv``).
     cv_metric : str
@@ -88,7 +88,7 @@ class AdaptedPrior(FamilyModel):
         *,
         prior: dict,
         method: str = "gain",
-        alphas: Sequence[float] = MODELS["ridge_alphas"],
+        alphas: Sequence[float] = MODELS["prior_ridge_alphas"],
         cv: str = MODELS["cv"],
         cv_metric: str = MODELS["cv_metric"],
         machine: str | None = None,
@@ -169,7 +169,8 @@ class AdaptedPrior(FamilyModel):
             scores, best = np.full(len(alphas), np.nan), int(np.argmax(alphas))
         self.alpha_chosen_ = alphas[best]
         if len(alphas) > 1 and folds and self.alpha_chosen_ in (min(alphas), max(alphas)):
-            self.grid_edges_ = [f"prior_ridge alpha {self.alpha_chosen_:g} at an edge of models.ridge_alphas"]
+            edge = f"prior_ridge alpha {self.alpha_chosen_:g} at an edge of models.prior_ridge_alphas"
+            self.grid_edges_ = [edge]
         sc = rms_scale(x)
         xs = x / sc
         delta = ridge_gram(xs.T @ xs, xs.T @ r, len(r), [self.alpha_chosen_])[:, 0] / sc
@@ -302,7 +303,7 @@ def adaptation_factories(prior: dict, *, options: dict, machine: str | None, log
             f"prior_ridge not offered: the prior is of kind {prior.get('kind')} "
             "(a ridge towards it needs a ridge kind)"
         )
-    common = {"alphas": options["ridge_alphas"], "cv": options["cv"], "cv_metric": options["cv_metric"]}
+    common = {"alphas": options["prior_ridge_alphas"], "cv": options["cv"], "cv_metric": options["cv_metric"]}
     return {
         n: functools.partial(AdaptedPrior, prior=prior, method=CANDIDATES[n], machine=machine, **common)
         for n in names

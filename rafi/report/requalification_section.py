@@ -58,9 +58,18 @@ def _model_rows(summary: pd.DataFrame) -> list[dict]:
 
 
 def _best_by_cv(rows: list[dict], group: str) -> dict | None:
-    """The row of ``group`` with the lowest CV score (what the selection rule would take there)."""
-    scored = [r for r in rows if r["group"] == group and isnum(r["cv_um"])]
-    return min(scored, key=lambda r: float(r["cv_um"])) if scored else None
+    """The row of ``group`` the selection would take there: the lowest CV score, or without any
+    CV score (no fold) the default rule's model (:func:`rafi.family.selection.default_champion`)."""
+    from rafi.family.selection import default_champion
+
+    mine = [r for r in rows if r["group"] == group]
+    scored = [r for r in mine if isnum(r["cv_um"])]
+    if scored:
+        return min(scored, key=lambda r: float(r["cv_um"]))
+    if not mine:
+        return None
+    name = default_champion([r["model"] for r in mine])
+    return next(r for r in mine if r["model"] == name)
 
 
 def new_data(runs: pd.DataFrame | None) -> dict | None:
@@ -155,6 +164,7 @@ def section_requalification(res: dict) -> dict | None:
         "parent_machine": (block or {}).get("parent_machine") or "",
         "moves": coefficient_moves((block or {}).get("coefficient_change")),
         "sentence": comparison_sentence(offered, prior_row, scratch),
+        "cv": any(isnum(r["cv_um"]) for r in rows),
     }
 
 
@@ -170,7 +180,7 @@ def comparison_sentence(offered: dict | None, prior_row: dict | None, scratch: d
         beside.append(f"the prior unchanged {fmt_num(prior_row['worst_um'], 2)} \u00b5m")
     if scratch is not None and scratch is not offered and isnum(scratch["worst_um"]):
         beside.append(
-            f"the from-scratch fit CV ranks first on the same data ({scratch['model']}) "
+            f"the from-scratch fit the selection takes on the same data ({scratch['model']}) "
             f"{fmt_num(scratch['worst_um'], 2)} \u00b5m"
         )
     if beside:
