@@ -43,22 +43,19 @@ def copy_settled(src: Path, dst: Path) -> Path:
     return settle(dst)
 
 
-def run_nightly(proj: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
-    """``rafi nightly --directory proj --cores 2 --no-report *args`` in ``proj``, with the project's
-    frozen ``rafi/`` first on the path; output captured."""
+def run_rafi(proj: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
+    """``rafi *args`` in ``proj``, with the project's frozen ``rafi/`` first on the path; output
+    captured."""
     env = {
         **os.environ,
         "PYTHONPATH": os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")])),
     }
-    cmd = [
-        sys.executable,
-        "-m",
-        "rafi.cli",
-        "nightly",
-        "--directory",
-        str(proj),
-        "--cores",
-        "2",
-        "--no-report",
-    ]
-    return subprocess.run([*cmd, *args], capture_output=True, text=True, timeout=timeout, env=env, cwd=proj)
+    cmd = [sys.executable, "-m", "rafi.cli", *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env, cwd=proj)
+
+
+def run_nightly(proj: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
+    """``rafi nightly --directory proj --cores 2 --no-report *args`` in ``proj`` (:func:`run_rafi`)."""
+    return run_rafi(
+        proj, "nightly", "--directory", str(proj), "--cores", "2", "--no-report", *args, timeout=timeout
+    )

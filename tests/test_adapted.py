@@ -7,7 +7,6 @@ draw-in term, so a prior fitted on state 1 times 1.2 is state 2's truth up to th
 
 from __future__ import annotations
 
-import hashlib
 import json
 import warnings
 
@@ -24,7 +23,7 @@ from rafi.family.dynamic import DynamicRidge
 from rafi.family.published import PublishedRafi
 from rafi.method.validate import time_ordered
 from rafi.settings import MACHINE_DEFAULTS
-from rafi.twin.synthetic_runs import make_synthetic_runs
+from rafi.twin.synthetic_runs import machine_state
 
 SCALE = 1.2
 REFERENCE = {"rule": "run_start", "window_s": 60}
@@ -33,14 +32,7 @@ GATES = MACHINE_DEFAULTS["qualification"]
 
 def _state(seed: int, factor: float, prefix: str):
     """Runs of one machine state: its own run ids and file hashes, displacement times ``factor``."""
-    table, frame = make_synthetic_runs(seed=seed, duration_s=3 * 3600.0, sample_s=60.0)
-    frame = frame.assign(dz_um=frame["dz_um"] * factor)
-    rename = {r: f"{prefix}{r}" for r in table["run_id"]}
-    table = table.assign(run_id=table["run_id"].map(rename))
-    frame = frame.assign(run_id=frame["run_id"].map(rename))
-    table["file"] = table["run_id"] + ".csv"
-    table["sha256"] = [hashlib.sha256(r.encode()).hexdigest() for r in table["run_id"]]
-    return table, frame
+    return machine_state(seed=seed, prefix=prefix, factor=factor, duration_s=3 * 3600.0, sample_s=60.0)
 
 
 @pytest.fixture(scope="module")

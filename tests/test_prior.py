@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import json
 
 import pandas as pd
@@ -23,20 +22,15 @@ from rafi.family.prior import (
 )
 from rafi.ops.registry import Registry, registry_dir
 from rafi.ops.status import MachineStatus
-from rafi.twin.synthetic_runs import make_synthetic_runs
+from rafi.twin.synthetic_runs import machine_state
 
 REFERENCE = {"rule": "run_start", "window_s": 60}
 
 
 def _state(seed: int, prefix: str, factor: float = 1.0):
-    table, frame = make_synthetic_runs(seed=seed, duration_s=2 * 3600.0, sample_s=120.0, multi=False)
-    frame = frame.assign(dz_um=frame["dz_um"] * factor)
-    rename = {r: f"{prefix}{r}" for r in table["run_id"]}
-    table = table.assign(run_id=table["run_id"].map(rename))
-    frame = frame.assign(run_id=frame["run_id"].map(rename))
-    table["file"] = table["run_id"] + ".csv"
-    table["sha256"] = [hashlib.sha256(r.encode()).hexdigest() for r in table["run_id"]]
-    return table, frame
+    return machine_state(
+        seed=seed, prefix=prefix, factor=factor, duration_s=2 * 3600.0, sample_s=120.0, multi=False
+    )
 
 
 @pytest.fixture(scope="module")

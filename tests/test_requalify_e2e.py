@@ -15,32 +15,17 @@ from __future__ import annotations
 
 import copy
 import json
-import os
 import shutil
-import subprocess
-import sys
 
 import pytest
 import yaml
-from project_copy import ROOT, copy_project, run_nightly, settle
+from project_copy import ROOT, copy_project, run_nightly, run_rafi, settle
 
 from rafi.deploy.record_plan import read_plan
 
 MACHINE = "tapping-center-a"
 SIBLING = "tapping-center-a2"
 TRAIN = ("train_03000rpm.csv", "train_09000rpm.csv", "train_15000rpm.csv", "valid_08000rpm.csv")
-
-
-def _rafi(proj, *args) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": str(proj)}
-    return subprocess.run(
-        [sys.executable, "-m", "rafi.cli", *args],
-        cwd=proj,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
 
 
 def _project(tmp_path):
@@ -82,14 +67,14 @@ def test_plan_twin_night_gives_a_requalified_sibling_with_its_parent(tmp_path):
         "models": {**cfg["machines"][MACHINE]["models"], "prior": {"machine": MACHINE}},
     }
     (proj / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
-    plan = _rafi(proj, "plan", "--machine", SIBLING, "--hours", "2", "--out", "plan.csv")
+    plan = run_rafi(proj, "plan", "--machine", SIBLING, "--hours", "2", "--out", "plan.csv")
     assert plan.returncode == 0, plan.stderr
     assert f"prior {prior_id[:12]}" in plan.stdout and f"champion of {MACHINE}" in plan.stdout
     steps = read_plan(proj / "plan.csv").steps
     assert sum(s.duration_s for s in steps) <= 2 * 3600 and max(s.speed_rpm for s in steps) == 15000
 
     # the sibling (the twin with its build spread) runs the plan, and one validation run
-    sim = _rafi(
+    sim = run_rafi(
         proj, "simulate", "day", "--machine", MACHINE, "--name", SIBLING, "--sibling", "0",
         "--plan", "plan.csv", "--validation-speeds", "12000", "--seed", "9", "--no-defects", "--out", "raw",
     )  # fmt: skip
@@ -119,5 +104,5 @@ def test_plan_twin_night_gives_a_requalified_sibling_with_its_parent(tmp_path):
     assert set(adaptation["prior_data"]) >= set(TRAIN[:3])
     summary = (proj / "results" / SIBLING / "comparison" / "summary.csv").read_text(encoding="utf-8")
     assert all(f"\n{name}," in summary for name in ("prior", "prior_gain"))
-    status = _rafi(proj, "status", "--machine", SIBLING)
+    status = run_rafi(proj, "status", "--machine", SIBLING)
     assert f"(adapted from {prior_id[:12]})" in status.stdout, status.stdout + status.stderr

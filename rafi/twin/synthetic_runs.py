@@ -328,6 +328,23 @@ def make_synthetic_runs(
     return table, frame
 
 
+def machine_state(
+    *, seed: int, prefix: str, factor: float = 1.0, **kwargs
+) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Runs of one state of a machine (:func:`make_synthetic_runs` with ``kwargs``): the run ids
+    start with ``prefix`` and every run is its own file with its own content hash, and the
+    displacement is ``factor`` times the generator's (a machine whose gain changed: the truth of
+    a prior re-qualified by a gain is ``factor``)."""
+    table, frame = make_synthetic_runs(seed=seed, **kwargs)
+    frame = frame.assign(dz_um=frame["dz_um"] * factor)
+    rename = {r: f"{prefix}{r}" for r in table["run_id"]}
+    table = table.assign(run_id=table["run_id"].map(rename))
+    frame = frame.assign(run_id=frame["run_id"].map(rename))
+    table["file"] = table["run_id"] + ".csv"
+    table["sha256"] = [hashlib.sha256(r.encode()).hexdigest() for r in table["run_id"]]
+    return table, frame
+
+
 def runs_of_logs(
     logs: dict,
     *,
