@@ -23,7 +23,10 @@ run-weighted quantile of the score ``|residual| / s(x)``:
 
 * normaliser ``s(x)``: ``const`` (1: the shipped absolute score); ``spread`` (the range of the
   family's predictions at the sample, + its calibration median: model disagreement; the
-  controller would have to run every kind); ``mahal`` (the Mahalanobis distance of the key
+  controller would have to run every kind); ``spread3`` (the same over the three kinds with the
+  lowest CV mean max |residual| in ``comparison/cv.csv``, the offered one among them: the poor
+  kinds' disagreement is noise; the choice reads every training fold, the outer held-out run's
+  too, a small leak in its favour); ``mahal`` (the Mahalanobis distance of the key
   sensors' rises and the speed from the training samples' mean, + its median); ``knn`` (the
   standardised distance to the nearest training sample, + its median); ``magnitude`` (``|predicted|``
   + its median);
@@ -67,7 +70,9 @@ TRANSIENT_S = 1800.0
 MIN_RUNS = 3
 #: Every k-th training sample kept for the nearest-neighbour distance (what a controller stores).
 KNN_THIN = 10
-NORMALISERS = ("const", "spread", "mahal", "knn", "magnitude")
+NORMALISERS = ("const", "spread", "spread3", "mahal", "knn", "magnitude")
+#: The kinds whose predictions ``spread3`` spans: the lowest CV mean max |residual|.
+SPREAD_KINDS = 3
 CORRECTIONS = ("level", "cell_level", "none", "scale")
 SCALE_GRID = np.round(np.arange(1.0, 20.0 + 1e-9, 0.01), 6)
 
@@ -96,6 +101,10 @@ def load_machine(results: Path) -> pd.DataFrame:
     sensors = json.loads((results / "rank" / "key_sensors.json").read_text())["sensors"]
     wide = oof.pivot_table(index=["run_id", "t_s"], columns="model", values="residual_um", dropna=False)
     spread = (wide.max(axis=1) - wide.min(axis=1)).rename("spread")
+    cv = pd.read_csv(results / "comparison" / "cv.csv")
+    best_kinds = list(cv.groupby("model")["max_abs_after_um"].mean().nsmallest(SPREAD_KINDS).index)
+    top = wide[[k for k in best_kinds if k in wide.columns]]
+    spread = pd.concat([spread, (top.max(axis=1) - top.min(axis=1)).rename("spread3")], axis=1)
     mine = oof.loc[oof["model"].astype(str) == kind].copy()
     feats = runs[["run_id", "t_s", "dz_um", "speed_rpm"] + [f"dT{s[1:]}" for s in sensors]]
     mine = mine.merge(feats, on=["run_id", "t_s"], how="left").merge(
@@ -113,6 +122,7 @@ def load_machine(results: Path) -> pd.DataFrame:
             "cell": np.array(cells, dtype=object),
             "pred": mine["dz_um"].to_numpy(float) - mine["residual_um"].to_numpy(float),
             "spread": mine["spread"].to_numpy(float),
+            "spread3": mine["spread3"].to_numpy(float),
         }
     )
     for s in sensors:
