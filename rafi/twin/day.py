@@ -103,6 +103,37 @@ def _steps_b(speeds, validation_speeds, multi, hours) -> list[tuple[float, float
     return steps
 
 
+def _day_command(
+    machine, seed, date_s, *, ambient_shift, sensor_drift, wear, sibling, name, plan, speeds,
+    validation_speeds, multi, hours, defects, stuck_displacement,
+) -> str:  # fmt: skip
+    """The ``rafi simulate day`` command line that regenerates a day (written into each log)."""
+    parts = [f"rafi simulate day --machine {machine} --seed {seed} --date {date_s}"]
+    if ambient_shift:
+        parts.append(f"--ambient-shift {ambient_shift:g}")
+    parts += [f"--sensor-drift {k}:{v:g}" for k, v in sorted((sensor_drift or {}).items())]
+    if wear:
+        parts.append(f"--wear {wear:g}")
+    if sibling is not None:
+        parts.append(f"--sibling {int(sibling)}")
+    if name:
+        parts.append(f"--name {name}")
+    if plan is not None:
+        parts.append(f"--plan {Path(plan.path).name}")
+    if speeds:
+        parts.append("--speeds " + ",".join(str(int(s)) for s in speeds))
+    if validation_speeds:
+        parts.append("--validation-speeds " + ",".join(str(int(s)) for s in validation_speeds))
+    flags = [
+        (multi, "--multi"),
+        (hours, f"--hours {hours or 0:g}"),
+        (not defects, "--no-defects"),
+        (stuck_displacement, "--stuck-displacement"),
+    ]
+    parts += [flag for on, flag in flags if on]
+    return " ".join(parts)
+
+
 def write_day(
     out_dir: str | os.PathLike = "raw",
     *,
@@ -145,30 +176,11 @@ def write_day(
         pd.Timestamp(date) if date else pd.Timestamp("2026-04-01") + pd.Timedelta(days=int(seed))
     ).normalize()
     date_s = day0.strftime("%Y-%m-%d")
-    parts = [f"rafi simulate day --machine {machine} --seed {seed} --date {date_s}"]
-    if ambient_shift:
-        parts.append(f"--ambient-shift {ambient_shift:g}")
-    parts += [f"--sensor-drift {k}:{v:g}" for k, v in sorted((sensor_drift or {}).items())]
-    if wear:
-        parts.append(f"--wear {wear:g}")
-    if sibling is not None:
-        parts.append(f"--sibling {int(sibling)}")
-    if name:
-        parts.append(f"--name {name}")
-    if plan is not None:
-        parts.append(f"--plan {Path(plan.path).name}")
-    if speeds:
-        parts.append("--speeds " + ",".join(str(int(s)) for s in speeds))
-    if validation_speeds:
-        parts.append("--validation-speeds " + ",".join(str(int(s)) for s in validation_speeds))
-    flags = [
-        (multi, "--multi"),
-        (hours, f"--hours {hours or 0:g}"),
-        (not defects, "--no-defects"),
-        (stuck_displacement, "--stuck-displacement"),
-    ]
-    parts += [flag for on, flag in flags if on]
-    command = " ".join(parts)
+    command = _day_command(
+        machine, seed, date_s, ambient_shift=ambient_shift, sensor_drift=sensor_drift, wear=wear,
+        sibling=sibling, name=name, plan=plan, speeds=speeds, validation_speeds=validation_speeds,
+        multi=multi, hours=hours, defects=defects, stuck_displacement=stuck_displacement,
+    )  # fmt: skip
     overrides = dict(sensor_drift=sensor_drift, wear=wear, stuck_displacement=stuck_displacement)
     if sibling is not None:
         from rafi.twin.scenarios import sibling_params
