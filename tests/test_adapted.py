@@ -7,6 +7,7 @@ draw-in term, so a prior fitted on state 1 times 1.2 is state 2's truth up to th
 
 from __future__ import annotations
 
+import functools
 import json
 import warnings
 
@@ -18,7 +19,7 @@ from rafi.artefact import model_id_verifies, write_csv_atomic
 from rafi.deploy.compensator import Compensator
 from rafi.family.adapted import CANDIDATES, AdaptedPrior, adaptation_factories
 from rafi.family.compare import load_any, run_family
-from rafi.family.crossval import training_runs
+from rafi.family.crossval import cross_validate, training_runs
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.published import PublishedRafi
 from rafi.method.validate import time_ordered
@@ -109,12 +110,37 @@ def test_a_rafi_prior_gets_a_gain_but_no_ridge(states):
     again = load_any(json.loads(json.dumps(art)))  # RAFI's own reader keeps the block and the id
     assert again.to_dict()["model_id"] == art["model_id"]
     np.testing.assert_allclose(again.predict(f2), gain.predict(f2), equal_nan=True)
-    with pytest.raises(ValueError, match="ridge kind"):
-        AdaptedPrior(prior=prior, method="ridge").fit(t2, f2)
+    for method in ("ridge", "time"):
+        with pytest.raises(ValueError, match="ridge kind"):
+            AdaptedPrior(prior=prior, method=method).fit(t2, f2)
     said = []
     factories = adaptation_factories(prior, options=MACHINE_DEFAULTS["models"], machine="m", log=said.append)
     assert list(factories) == ["prior", "prior_gain"]
-    assert any("prior_ridge not offered" in s for s in said)
+    assert any("prior_time and prior_ridge not offered" in s for s in said)
+
+
+def test_time_finds_a_slower_machine_by_cv():
+    """Truth: the new machine's displacement lags its sensors twice as long (tau_lag 2400 s, the
+    prior's 1200 s). ``time`` scales the prior's filter constants by the CV's factor (2 of
+    TIME_FACTORS) and halves the held-out error of the gain alone."""
+    s1 = machine_state(seed=0, prefix="s1-", duration_s=3 * 3600.0, sample_s=60.0, tau_lag_s=1200.0)
+    s2 = machine_state(seed=1, prefix="s2-", duration_s=3 * 3600.0, sample_s=60.0, tau_lag_s=2400.0)
+    prior = DynamicRidge(reference=REFERENCE).fit(*s1).to_dict()
+    timed = AdaptedPrior(prior=prior, method="time").fit(*s2)
+    assert timed.time_factor_ == 2.0 and timed.to_dict()["adaptation"]["time_factor"] == 2.0
+    assert timed.model_.taus_ == [2.0 * t for t in prior["selected"]["taus_s"]]
+    score = {}
+    for method in ("gain", "time"):
+        factory = functools.partial(AdaptedPrior, prior=prior, method=method)
+        score[method] = cross_validate(factory, *s2, "leave_one_run_out", name=method)[
+            "max_abs_after_um"
+        ].mean()
+    assert score["time"] < 0.7 * score["gain"]
+    # the same machine again: the constants stay (factor 1 or its neighbours), the gain near 1
+    same = AdaptedPrior(prior=prior, method="time").fit(
+        *machine_state(seed=2, prefix="s3-", duration_s=3 * 3600.0, sample_s=60.0)
+    )
+    assert same.time_factor_ in (0.71, 1.0, 1.41) and same.gain_ == pytest.approx(1.0, abs=0.1)
 
 
 def _family(table, frame, **kw):
@@ -182,7 +208,7 @@ def test_an_adapted_artefact_streams_as_it_predicts(kind):
     prior = _model(kind, rule).fit(table, frame).to_dict()
     newer = frame.assign(dz_um=frame["dz_um"] * SCALE)
     frame = time_ordered(newer)
-    for method in ("gain", "ridge"):
+    for method in ("gain", "time", "ridge"):
         adapted = AdaptedPrior(prior=prior, method=method, alphas=[1e-4, 1e-2, 1.0]).fit(table, newer)
         artefact = json.loads(json.dumps(adapted.to_dict()))
         assert artefact["adaptation"]["method"] == method

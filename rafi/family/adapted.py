@@ -1,7 +1,7 @@
 """The adaptation family: a prior (a fitted artefact of the family, :mod:`rafi.family.prior`)
 re-qualified on new data (``docs/models.md``, "Re-qualification from a prior").
 
-Three candidates, each cross-validated by whole run on the new training runs beside the
+Four candidates, each cross-validated by whole run on the new training runs beside the
 from-scratch kinds (:func:`adaptation_factories`; names in ``comparison/*.csv``):
 
 * ``prior``       - the prior as it is (``method="as_is"``: nothing fitted);
@@ -9,15 +9,21 @@ from-scratch kinds (:func:`adaptation_factories`; names in ``comparison/*.csv``)
   (``method="gain"``): ``b = sum(p y) / sum(p p)`` over the training samples, ``p`` the prior's
   prediction, ``y`` the measured displacement change. No offset: a change is 0 at the reference
   state by construction;
+* ``prior_time``  - ridge kinds only (``method="time"``): every filter time constant of the
+  prior (rise filters, heat-input filters, the draw-in lag) times one factor ``f`` of
+  :data:`TIME_FACTORS` and every coefficient times one gain ``b``: a machine whose thermal
+  response became slower or faster. ``f`` is chosen by whole-run CV on the training runs (each
+  held out in turn, ``b`` fitted on the others, ``models: cv_metric``); without a fold ``f = 1``;
 * ``prior_ridge`` - ridge kinds only (``method="ridge"``): ``coef = coef_prior + delta``,
   ``delta`` the ridge solution of the residual ``y - X coef_prior`` on the prior's own features
   ``X`` (scaled to unit RMS): a ridge penalised towards the prior's coefficients, its strength
   ``alpha`` chosen by whole-run CV inside the training runs (nested) on ``models: prior_ridge_alphas``.
 
-What is never re-fitted: the prior's features (sensors, filter time constants, speed terms); the
-from-scratch kinds beside re-choose those. The fitted artefact is one of the **prior's kind**
-(same features and hyperparameters, new coefficients), so ``rafi.family.compare.load_any``,
-the streaming compensator and the intervals run it unchanged; it carries the block
+What is never re-fitted: the prior's sensors and terms, and its filter time constants other than
+by the one factor of ``prior_time``; the from-scratch kinds beside re-choose those. The fitted
+artefact is one of the **prior's kind** (same features and hyperparameters, new coefficients;
+``prior_time``: scaled filter constants), so ``rafi.family.compare.load_any``, the streaming
+compensator and the intervals run it unchanged; it carries the block
 ``adaptation`` (:data:`ADAPTATION_SCHEMA`) and its ``data`` are the new training data.
 """
 
@@ -45,9 +51,13 @@ __all__ = ["ADAPTATION_SCHEMA", "METHODS", "CANDIDATES", "AdaptedPrior", "adapta
 
 MODELS = MACHINE_DEFAULTS["models"]
 ADAPTATION_SCHEMA = "rafi.adaptation/1"
-METHODS = ("as_is", "gain", "ridge")
+METHODS = ("as_is", "gain", "time", "ridge")
 #: The candidates' names in the family's tables -> their method.
-CANDIDATES = {"prior": "as_is", "prior_gain": "gain", "prior_ridge": "ridge"}
+CANDIDATES = {"prior": "as_is", "prior_gain": "gain", "prior_time": "time", "prior_ridge": "ridge"}
+#: The methods that need a prior of a ridge kind (features @ coefficients, filter constants).
+RIDGE_METHODS = ("time", "ridge")
+#: The factors ``time`` scales the prior's filter time constants by (steps of sqrt 2).
+TIME_FACTORS = (0.5, 0.71, 1.0, 1.41, 2.0)
 RIDGE_CLASSES = {"ridge_global": RidgeGlobal, "dynamic": DynamicRidge, "grey_box": GreyBox}
 
 
@@ -58,8 +68,8 @@ class AdaptedPrior(FamilyModel):
     ----------
     prior : dict
         The prior's artefact (``model.json`` content of any kind of the family).
-    method : {"as_is", "gain", "ridge"}
-        What is re-fitted; ``ridge`` needs a prior of a ridge kind (:data:`RIDGE_KINDS`).
+    method : {"as_is", "gain", "time", "ridge"}
+        What is re-fitted; ``time`` and ``ridge`` need a prior of a ridge kind (:data:`RIDGE_KINDS`).
     alphas : sequence of float
         Penalties of ``ridge`` (``models: prior_ridge_alphas``).
     cv : str
@@ -77,6 +87,8 @@ class AdaptedPrior(FamilyModel):
         ``b`` of ``gain``.
     alpha_chosen_ : float or None
         ``alpha`` of ``ridge``.
+    time_factor_ : float or None
+        ``f`` of ``time``.
     coefficient_change_ : list of dict
         ``name``, ``prior``, ``new`` per coefficient.
     grid_edges_ : list of str
@@ -113,9 +125,11 @@ class AdaptedPrior(FamilyModel):
     def _check_params(self) -> None:
         if self.method not in METHODS:
             raise ValueError(f"method={self.method!r}: use one of {', '.join(METHODS)}")
-        if self.method == "ridge" and self.kind not in RIDGE_KINDS:
+        if self.method in RIDGE_METHODS and self.kind not in RIDGE_KINDS:
             kinds = ", ".join(RIDGE_KINDS)
-            raise ValueError(f"method='ridge' needs a prior of a ridge kind ({kinds}), not {self.kind}")
+            raise ValueError(
+                f"method={self.method!r} needs a prior of a ridge kind ({kinds}), not {self.kind}"
+            )
 
     def _base(self):
         """A fresh fitted model of the prior (the one whose coefficients change): the ridge kinds'
@@ -140,10 +154,17 @@ class AdaptedPrior(FamilyModel):
         before = np.array(model.coef_, dtype=float)
         pred = x @ before if ridge_kind else np.asarray(model.predict(frame.loc[rows]), dtype=float)
         ok = np.isfinite(pred) & np.isfinite(y)
-        self.gain_, self.alpha_chosen_, self.grid_edges_, cv_table = None, None, [], []
-        if self.method == "gain":
-            denominator = float(pred[ok] @ pred[ok])
-            self.gain_ = float(pred[ok] @ y[ok]) / denominator if denominator > 0 else 1.0
+        self.gain_ = self.alpha_chosen_ = self.time_factor_ = None
+        self.grid_edges_, cv_table = [], []
+        if self.method == "time":
+            units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
+            model, x, cv_table = self._time(frame, rows, y, units)
+            pred = x @ before
+            ok = np.isfinite(pred) & np.isfinite(y)
+            self.gain_ = _gain(pred[ok], y[ok])
+            model.coef_ = before * self.gain_
+        elif self.method == "gain":
+            self.gain_ = _gain(pred[ok], y[ok])
             model.coef_ = before * self.gain_
         elif self.method == "ridge":
             units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
@@ -155,6 +176,34 @@ class AdaptedPrior(FamilyModel):
         self._restamp(model, table, frame.loc[rows], residual, cv_table)
         self.model_ = model
         return self
+
+    def _time(self, frame: pd.DataFrame, rows: np.ndarray, y: np.ndarray, units: np.ndarray):
+        """The prior with its time constants scaled by the factor of :data:`TIME_FACTORS` that
+        whole-run CV prefers (each training unit held out in turn, the gain fitted on the
+        others; one unit: no fold, factor 1), its training design and the CV table."""
+        scores = []
+        for factor in TIME_FACTORS:
+            model = _retimed(self._base(), factor)
+            pred = np.asarray(model._design(frame)[0], dtype=float)[rows] @ np.asarray(model.coef_, float)
+            scores.append(_held_out_gain_score(pred, y, units, self.cv_metric))
+        finite = [s for s in scores if np.isfinite(s)]
+        if finite:  # ties go to the factor nearest 1 (the prior's own constants)
+            best = min(
+                range(len(scores)), key=lambda i: (np.round(scores[i] / 1e-9), abs(np.log(TIME_FACTORS[i])))
+            )
+        else:
+            best = TIME_FACTORS.index(1.0)
+        self.time_factor_ = float(TIME_FACTORS[best])
+        if finite and best in (0, len(TIME_FACTORS) - 1):
+            self.grid_edges_ = [f"prior_time factor {self.time_factor_:g} at an edge of {list(TIME_FACTORS)}"]
+        model = _retimed(self._base(), self.time_factor_)
+        feats, names = model._design(frame)
+        model.feature_names_ = list(names)
+        table = [
+            {"factor": f, "score_um": float(s) if np.isfinite(s) else None}
+            for f, s in zip(TIME_FACTORS, scores)
+        ]
+        return model, np.asarray(feats, dtype=float)[rows], table
 
     def _ridge(self, x: np.ndarray, r: np.ndarray, units: np.ndarray, table: pd.DataFrame):
         """``delta`` of ``ridge`` and its CV table: ``alpha`` by whole-run CV on the training
@@ -190,6 +239,7 @@ class AdaptedPrior(FamilyModel):
             "parent_machine": self.prior.get("machine"),
             "gain": self.gain_,
             "alpha": self.alpha_chosen_,
+            "time_factor": self.time_factor_,
             "prior_data": _lineage_data(self.prior),
             "coefficient_change": self.coefficient_change_,
         }
@@ -222,6 +272,9 @@ class AdaptedPrior(FamilyModel):
         what = {
             "as_is": "as it is (nothing fitted)",
             "gain": f"every coefficient times {self.gain_:.4g}" if self.gain_ is not None else "gain",
+            "time": f"time constants times {self.time_factor_:g}, coefficients times {self.gain_:.4g}"
+            if self.time_factor_ is not None
+            else "time",
             "ridge": f"ridge towards its coefficients, alpha {self.alpha_chosen_:g}"
             if self.alpha_chosen_ is not None
             else "ridge",
@@ -238,6 +291,37 @@ class AdaptedPrior(FamilyModel):
             d["kind"] = self.kind
             d["model_id"] = compute_model_id(d)
         return d
+
+
+def _gain(pred: np.ndarray, y: np.ndarray) -> float:
+    """Least-squares gain of ``y`` on ``pred`` without intercept (1 when ``pred`` is all 0)."""
+    denominator = float(pred @ pred)
+    return float(pred @ y) / denominator if denominator > 0 else 1.0
+
+
+def _held_out_gain_score(pred: np.ndarray, y: np.ndarray, units: np.ndarray, metric: str) -> float:
+    """Mean over the units of the held-out error of ``gain * pred``, the gain fitted on the other
+    units (``rmse`` or ``max_abs``); NaN with fewer than two units."""
+    ok = np.isfinite(pred) & np.isfinite(y)
+    names = sorted(set(units[ok]))
+    if len(names) < 2:
+        return float("nan")
+    errors = []
+    for name in names:
+        test = ok & (units == name)
+        train = ok & (units != name)
+        r = y[test] - _gain(pred[train], y[train]) * pred[test]
+        errors.append(float(np.sqrt(np.mean(r**2))) if metric == "rmse" else float(np.max(np.abs(r))))
+    return float(np.mean(errors))
+
+
+def _retimed(model, factor: float):
+    """``model`` (a fitted ridge kind) with every filter time constant times ``factor``."""
+    model.taus_ = [float(t) * factor for t in model.taus_]
+    if hasattr(model, "speed_taus_"):
+        model.speed_taus_ = [float(t) * factor for t in model.speed_taus_]
+        model.centrifugal_lag_s_ = float(model.centrifugal_lag_s_) * factor
+    return model
 
 
 def _training_rows(runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
@@ -297,11 +381,11 @@ def _joined_ranges(model, table: pd.DataFrame, train: pd.DataFrame):
 def adaptation_factories(prior: dict, *, options: dict, machine: str | None, log=print) -> dict:
     """Name -> factory of the adaptation candidates of ``prior`` (:data:`CANDIDATES`; ``prior_ridge``
     only for a ridge kind), built from the machine's ``models:`` settings ``options``."""
-    names = [n for n in CANDIDATES if CANDIDATES[n] != "ridge" or prior.get("kind") in RIDGE_KINDS]
+    names = [n for n in CANDIDATES if CANDIDATES[n] not in RIDGE_METHODS or prior.get("kind") in RIDGE_KINDS]
     if "prior_ridge" not in names:
         log(
-            f"prior_ridge not offered: the prior is of kind {prior.get('kind')} "
-            "(a ridge towards it needs a ridge kind)"
+            f"prior_time and prior_ridge not offered: the prior is of kind {prior.get('kind')} "
+            "(its filter constants and a ridge towards it need a ridge kind)"
         )
     common = {"alphas": options["prior_ridge_alphas"], "cv": options["cv"], "cv_metric": options["cv_metric"]}
     return {

@@ -1,13 +1,13 @@
 """The report's re-qualification section: what qualified a model that started from a prior.
 
 Shown when ``comparison/summary.csv`` holds the adaptation candidates (``prior``,
-``prior_gain``, ``prior_ridge``: :mod:`rafi.family.adapted`, ``docs/models.md``,
+``prior_gain``, ``prior_time``, ``prior_ridge``: :mod:`rafi.family.adapted`, ``docs/models.md``,
 "Re-qualification from a prior"). Everything is read from this machine's results:
 
 * the new data: the training runs of ``runs.csv`` (hours, speeds, cool-downs);
 * the prior and how far each coefficient moved: the ``adaptation`` block of the offered model
   (``comparison/best_model.json``) - ``parent``, ``parent_machine``, ``method``, ``gain``,
-  ``alpha`` and ``coefficient_change`` (``name``, ``prior``, ``new`` per coefficient);
+  ``time_factor``, ``alpha`` and ``coefficient_change`` (``name``, ``prior``, ``new`` per coefficient);
 * the comparison: every model's row of ``comparison/summary.csv`` - the prior unchanged, the
   adapted prior and the from-scratch family on the same data, each with its whole-run CV score
   on the new training runs (what chose) and its worst residual on the validation runs.
@@ -29,6 +29,7 @@ from rafi.settings import truthy
 CANDIDATES = {
     "prior": "the prior as it is (nothing re-fitted)",
     "prior_gain": "the prior with one gain on every coefficient, fitted on the new data",
+    "prior_time": "the prior with its filter time constants scaled by one factor (by CV) and one gain",
     "prior_ridge": "the prior's coefficients moved by a ridge penalised towards them (strength by CV)",
 }
 #: How many of the largest coefficient moves the section tabulates.
