@@ -337,7 +337,8 @@ class Compensator:
         grey = kind == "grey_box"
         speed_gain = bool(sel.get("speed_gain", False)) and not grey
         speed_terms = bool(sel.get("speed_terms", False)) and not grey
-        speed_taus = np.array([float(t) for t in sel.get("speed_taus_s", [])]) if grey else np.zeros(0)
+        # heat-input filters: grey_box's, and dynamic's with heat_input (after its speed terms)
+        speed_taus = np.array([float(t) for t in sel.get("speed_taus_s", [])])
         powers = (
             np.array([float(v) for v in hyper.get("speed_powers", [])]) if len(speed_taus) else np.zeros(0)
         )
