@@ -13,7 +13,8 @@ Use::
 What it does per sample
 -----------------------
 1. **Filters from power-on.** Every first-order filter of the model (``dynamic``'s and
-   ``grey_box``'s rise filters, ``grey_box``'s heat-input filters and draw-in lag) runs over
+   ``grey_box``'s rise filters, the heat-input filters of ``grey_box`` and of ``dynamic`` with
+   ``heat_input``, ``grey_box``'s draw-in lag) runs over
    the *absolute* inputs from the first sample on, with the discretisation of
    :func:`rafi.family.whole_log.lowpass_log`: ``y = e y + (1 - e) x``, ``e = exp(-dt/tau)``,
    settled on the first finite value, a NaN input holds the state, and the filters restart
