@@ -121,8 +121,9 @@ def test_streaming_equals_batch_for_every_kind(data, kind):
     rule, table, frame = data
     model = _fit(kind, rule, table, frame)
     artefact = json.loads(json.dumps(model.to_dict()))  # through JSON, as a controller reads it
-    if kind == "dynamic":  # every filter of the family is exercised
+    if kind == "dynamic":  # every filter of the family is exercised, the heat-input history too
         assert min(artefact["selected"]["taus_s"]) > 0
+        assert artefact["selected"]["speed_taus_s"] == [120.0, 900.0]
     if kind == "grey_box":
         sel = artefact["selected"]
         assert sel["speed_taus_s"] and sel["instantaneous_n2"] and sel["centrifugal_lag_s"] == 20.0

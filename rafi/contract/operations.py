@@ -152,6 +152,15 @@ OPERATIONS_SETTINGS: dict = {
                 shown="2",
                 doc="at most this many filters at once",
             ),
+            "dynamic_heat_input": Setting(
+                default=True,
+                schema={"type": "boolean"},
+                shown="`true`",
+                doc=(
+                    "`dynamic` also gets the heat-input history: the filtered speed powers of `grey_box` "
+                    "(`grey_box_speed_taus_s`, `grey_box_speed_powers`), every filter at once"
+                ),
+            ),
             "speed_gain": Setting(
                 default="cv",
                 schema={"enum": [True, False, "cv"]},

@@ -13,7 +13,8 @@ Use::
 What it does per sample
 -----------------------
 1. **Filters from power-on.** Every first-order filter of the model (``dynamic``'s and
-   ``grey_box``'s rise filters, ``grey_box``'s heat-input filters and draw-in lag) runs over
+   ``grey_box``'s rise filters, the heat-input filters of ``grey_box`` and of ``dynamic`` with
+   ``heat_input``, ``grey_box``'s draw-in lag) runs over
    the *absolute* inputs from the first sample on, with the discretisation of
    :func:`rafi.family.whole_log.lowpass_log`: ``y = e y + (1 - e) x``, ``e = exp(-dt/tau)``,
    settled on the first finite value, a NaN input holds the state, and the filters restart
@@ -337,7 +338,8 @@ class Compensator:
         grey = kind == "grey_box"
         speed_gain = bool(sel.get("speed_gain", False)) and not grey
         speed_terms = bool(sel.get("speed_terms", False)) and not grey
-        speed_taus = np.array([float(t) for t in sel.get("speed_taus_s", [])]) if grey else np.zeros(0)
+        # heat-input filters: grey_box's, and dynamic's with heat_input (after its speed terms)
+        speed_taus = np.array([float(t) for t in sel.get("speed_taus_s", [])])
         powers = (
             np.array([float(v) for v in hyper.get("speed_powers", [])]) if len(speed_taus) else np.zeros(0)
         )

@@ -110,6 +110,9 @@ def make_model(
         return DynamicRidge(
             taus_s=o["dynamic_taus_s"],
             max_taus=o["dynamic_max_taus"],
+            heat_input=o["dynamic_heat_input"],
+            speed_taus_s=o["grey_box_speed_taus_s"],
+            speed_powers=o["grey_box_speed_powers"],
             cv_metric=o["cv_metric"],
             speed_gain=o["speed_gain"],
             **ridge,
@@ -180,6 +183,8 @@ def describe_selection(model) -> str:
     else:
         parts.append("speed gain dT\u00b7n" if model.speed_gain_ else "no speed gain")
         parts.append("speed terms" if model.speed_terms_ else "no speed terms (not identified)")
+        if getattr(model, "speed_taus_", None):  # dynamic's heat-input history
+            parts.append(f"heat-input filters {_seconds(model.speed_taus_)}")
     blocks = getattr(model, "time_blocks_", None)
     if blocks:
         parts.append(

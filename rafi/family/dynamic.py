@@ -1,10 +1,15 @@
-"""Kind ``dynamic``: ridge on first-order low-pass filtered rises (a lag model) + speed terms."""
+"""Kind ``dynamic``: ridge on first-order low-pass filtered rises (a lag model) + speed terms
++ the heat-input history (filtered speed powers)."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
+import numpy as np
+import pandas as pd
+
 from rafi.family.ridge_global import MODELS, RidgeGlobal
+from rafi.family.whole_log import heat_input, unsort
 from rafi.settings import MACHINE_DEFAULTS
 
 
@@ -14,7 +19,11 @@ class DynamicRidge(RidgeGlobal):
     Features: ``L_tau(dT_i)`` (and ``L_tau(dT_i) * n`` with ``speed_gain``) for every usable
     sensor ``i`` and every ``tau`` of the chosen set, where ``L_tau`` is the causal
     first-order filter of :func:`rafi.family.features.lowpass_runs` (``tau = 0`` is the
-    unfiltered rise), plus the speed terms of :class:`RidgeGlobal`. The set of time constants
+    unfiltered rise), plus the speed terms of :class:`RidgeGlobal`, plus (``heat_input``) the
+    heat-input history ``L_s((n/10^4)^p)`` for every ``s`` of ``speed_taus_s`` and ``p`` of
+    ``speed_powers`` at once (:func:`rafi.family.whole_log.heat_input`, the features of
+    ``grey_box``): what the unmeasured shaft, bearings and stator follow, which the housing
+    temperatures show only late. The set of time constants
     (every subset of ``taus_s`` with at most ``max_taus`` members), ``alpha`` (and
     ``speed_gain: cv``) are chosen jointly by whole-run CV on the training runs. The
     measured displacement is never an input.
@@ -26,6 +35,12 @@ class DynamicRidge(RidgeGlobal):
         from the sample period and the median training-run length (:mod:`rafi.family.grids`).
     max_taus : int
         At most this many chosen at once (``models: dynamic_max_taus``).
+    heat_input : bool
+        Add the heat-input history (``models: dynamic_heat_input``).
+    speed_taus_s : sequence of float or "auto"
+        Its filter time constants, every one at once (``models: grey_box_speed_taus_s``).
+    speed_powers : sequence of float
+        Its powers ``p`` (``models: grey_box_speed_powers``).
     **others
         As :class:`RidgeGlobal`.
     """
@@ -37,6 +52,9 @@ class DynamicRidge(RidgeGlobal):
         *,
         taus_s: Sequence[float] = MODELS["dynamic_taus_s"],
         max_taus: int = MODELS["dynamic_max_taus"],
+        heat_input: bool = MODELS["dynamic_heat_input"],
+        speed_taus_s: Sequence[float] = MODELS["grey_box_speed_taus_s"],
+        speed_powers: Sequence[float] = MODELS["grey_box_speed_powers"],
         sensors: Sequence[str] | None = None,
         alphas: Sequence[float] = MODELS["ridge_alphas"],
         cv: str = MODELS["cv"],
@@ -64,15 +82,60 @@ class DynamicRidge(RidgeGlobal):
         )
         self.taus_s = taus_s
         self.max_taus = max_taus
+        self.heat_input = heat_input
+        self.speed_taus_s = speed_taus_s
+        self.speed_powers = speed_powers
 
     def _inputs_text(self) -> str:
+        heat = "first-order low-pass filtered speed powers (n/10000 r/min)^p; " if self._heat_taus() else ""
         return (
             "first-order low-pass filtered temperature rises dT (K) of all usable sensors; "
-            "speed (krpm) relative to the reference state; displacement is not an input"
+            f"speed (krpm) relative to the reference state; {heat}displacement is not an input"
         )
 
     def _grid_settings(self) -> dict:
-        return {"dynamic_taus_s": self.taus_s}
+        grids = {"dynamic_taus_s": self.taus_s}
+        if self.heat_input:
+            grids["grey_box_speed_taus_s"] = self.speed_taus_s
+        return grids
+
+    def _heat_taus(self) -> list[float]:
+        """The heat-input filter constants in use (none without ``heat_input``)."""
+        fitted = getattr(self, "speed_taus_", None)
+        if fitted is not None:
+            return list(fitted)
+        return list(self.grids_.get("grey_box_speed_taus_s", [])) if self.heat_input else []
+
+    def _features(
+        self, frame: pd.DataFrame, sensors: Sequence[str], taus: Sequence[float], *, speed_gain, speed_terms
+    ):
+        """:meth:`RidgeGlobal._features` and, last, the heat-input block (in every candidate)."""
+        feats, names = super()._features(frame, sensors, taus, speed_gain=speed_gain, speed_terms=speed_terms)
+        heat_taus = self._heat_taus()
+        if not heat_taus:
+            return feats, names
+        lay = self._layout(frame)
+        rpm = frame["speed_rpm"].to_numpy(dtype=float)[lay.order]
+        powers = [float(p) for p in self.speed_powers]
+        heat = heat_input(
+            rpm,
+            lay,
+            heat_taus,
+            powers,
+            running_rpm=float(self.speed_tolerance_rpm),
+            cold_start=self.reference["rule"] == "run_start",
+            window_s=self._window_s(),
+        )
+        for tau in heat_taus:
+            names = names + [f"L{tau:g}s(n^{p:.4g})" for p in powers]
+        return np.column_stack([feats, unsort(heat, lay)]), names
+
+    def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        """As :meth:`RidgeGlobal.fit`, the heat-input block (if any) in every candidate."""
+        self.speed_taus_ = None  # from the grids resolved by this fit
+        super().fit(runs_table, runs_frame)
+        self.speed_taus_ = self._heat_taus()
+        return self
 
     def _tau_grid(self) -> tuple[list[float], int]:
         return list(self.grids_["dynamic_taus_s"]), int(self.max_taus)
@@ -82,4 +145,27 @@ class DynamicRidge(RidgeGlobal):
 
     def _hyper(self) -> dict:
         taus = self.taus_s if isinstance(self.taus_s, str) else [float(t) for t in self.taus_s]
-        return {**super()._hyper(), "taus_s": taus, "max_taus": int(self.max_taus)}
+        hyper = {**super()._hyper(), "taus_s": taus, "max_taus": int(self.max_taus)}
+        if self.heat_input:  # absent when off: the artefacts of dynamic without it are unchanged
+            speed = self.speed_taus_s
+            hyper["heat_input"] = True
+            hyper["speed_taus_s"] = speed if isinstance(speed, str) else [float(t) for t in speed]
+            hyper["speed_powers"] = [float(p) for p in self.speed_powers]
+        return hyper
+
+    def _selected(self) -> dict:
+        out = super()._selected()
+        if self.speed_taus_:
+            out["speed_taus_s"] = [float(t) for t in self.speed_taus_]
+        return out
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        """A fitted model from its artefact; one without ``heat_input`` (written before it
+        existed, or with it off) has none."""
+        m = super().from_dict(d)
+        m.heat_input = bool(d.get("hyperparameters", {}).get("heat_input", False))
+        return m
+
+    def _from_selected(self, selected: dict) -> None:
+        self.speed_taus_ = [float(t) for t in selected.get("speed_taus_s", [])]

@@ -10,9 +10,9 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from rafi.family.features import SPEED_POWER_SCALE_RPM, SPEED_SCALE_RPM, lowpass_runs, rise_column
+from rafi.family.features import SPEED_SCALE_RPM, lowpass_runs, rise_column
 from rafi.family.ridge import FILTER_STATE_TEXT, RidgeBase, cv_folds, cv_scores
-from rafi.family.whole_log import filtered_inputs, filtered_rises, lowpass_log, unsort
+from rafi.family.whole_log import filtered_rises, heat_input, lowpass_log, unsort
 from rafi.settings import MACHINE_DEFAULTS
 
 MODELS = MACHINE_DEFAULTS["models"]
@@ -176,22 +176,18 @@ class GreyBox(RidgeBase):
         for tau in taus:
             names += [f"{rise_column(s)}@{tau:g}s" for s in sensors]
         if speed_taus:
-            r = np.abs(rpm) / SPEED_POWER_SCALE_RPM
-            running = float(self.speed_tolerance_rpm)
             powers = self._powers()
-            pw = np.column_stack(
-                [(np.abs(rpm) > running).astype(float) if p == 0 else r**p for p in powers]
-            )  # p = 0: running (1) / at rest (0)
-            cold = self._cold_start()
-            f = filtered_inputs(
-                pw,
-                lay,
-                speed_taus,
-                initial="zero" if cold else "settled",
-                referenced=cold,
-                window_s=self._window_s(),
+            parts.append(
+                heat_input(
+                    rpm,
+                    lay,
+                    speed_taus,
+                    powers,
+                    running_rpm=float(self.speed_tolerance_rpm),
+                    cold_start=self._cold_start(),
+                    window_s=self._window_s(),
+                )
             )
-            parts.append(f)
             for tau in speed_taus:
                 names += [f"L{tau:g}s(n^{p:.4g})" for p in powers]
         if instantaneous:

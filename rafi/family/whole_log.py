@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from rafi.family.features import lowpass_runs, reference_median, rise_column, times
+from rafi.family.features import SPEED_POWER_SCALE_RPM, lowpass_runs, reference_median, rise_column, times
 
 #: Largest exponent of the scaling factor inside one block of :func:`lowpass_log`.
 _MAX_EXPONENT = 600.0
@@ -258,6 +258,27 @@ def filtered_inputs(
     if referenced:
         f = f - reference_median(f, lay.t, lay.codes, window_s)
     return f
+
+
+def heat_input(
+    rpm: np.ndarray,
+    lay: Layout,
+    taus: Sequence[float],
+    powers: Sequence[float],
+    *,
+    running_rpm: float,
+    cold_start: bool,
+    window_s: float,
+) -> np.ndarray:
+    """The heat-input features ``L_tau((|n| / 10^4 r/min)^p)`` (sorted rows; one block of
+    ``len(powers)`` columns per ``tau``), ``p = 0`` meaning running (1, ``|n| > running_rpm``) or
+    at rest (0). Filtered by :func:`filtered_inputs`: per-run frames from zero and referenced
+    under a cold start (``reference.rule: run_start``), else settled on the first sample."""
+    r = np.abs(rpm) / SPEED_POWER_SCALE_RPM
+    pw = np.column_stack([(np.abs(rpm) > running_rpm).astype(float) if p == 0 else r**p for p in powers])
+    return filtered_inputs(
+        pw, lay, taus, initial="zero" if cold_start else "settled", referenced=cold_start, window_s=window_s
+    )
 
 
 def unsort(sorted_values: np.ndarray, lay: Layout) -> np.ndarray:

@@ -422,7 +422,12 @@ def small_family_model(
         return RidgeGlobal(alphas=alphas, reference=ref, speed_gain=speed_gain, filter_restart_gap_s=restart)
     if kind == "dynamic":
         return DynamicRidge(
-            taus_s=[600, 2400], max_taus=2, alphas=alphas, reference=ref, filter_restart_gap_s=restart
+            taus_s=[600, 2400],
+            max_taus=2,
+            speed_taus_s=[120, 900],
+            alphas=alphas,
+            reference=ref,
+            filter_restart_gap_s=restart,
         )
     if kind == "grey_box":
         return GreyBox(
