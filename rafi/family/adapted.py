@@ -318,8 +318,9 @@ def _held_out_gain_score(pred: np.ndarray, y: np.ndarray, units: np.ndarray, met
 def _retimed(model, factor: float):
     """``model`` (a fitted ridge kind) with every filter time constant times ``factor``."""
     model.taus_ = [float(t) * factor for t in model.taus_]
-    if hasattr(model, "speed_taus_"):
+    if getattr(model, "speed_taus_", None) is not None:  # heat-input filters (grey_box, dynamic)
         model.speed_taus_ = [float(t) * factor for t in model.speed_taus_]
+    if getattr(model, "centrifugal_lag_s_", None) is not None:  # grey_box's draw-in lag
         model.centrifugal_lag_s_ = float(model.centrifugal_lag_s_) * factor
     return model
 
