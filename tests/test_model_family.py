@@ -142,7 +142,7 @@ def test_dynamic_with_the_heat_input_history_sees_the_unmeasured_shaft():
         shaft_tau_s=300.0,
     )
     grid = {"taus_s": [0, 600, 1800, 4800], "max_taus": 1, "speed_taus_s": [60, 300, 1200, 3600]}
-    with_heat = DynamicRidge(**grid).fit(table, frame)
+    with_heat = DynamicRidge(**grid, heat_input=True).fit(table, frame)
     without = DynamicRidge(**grid, heat_input=False).fit(table, frame)
     # every heat-input filter and power at once, after the rises and the speed terms
     heat = [f"L{t}s(n^{p:.4g})" for t in (60, 300, 1200, 3600) for p in (0, 1, 5 / 3, 2)]

@@ -153,12 +153,14 @@ OPERATIONS_SETTINGS: dict = {
                 doc="at most this many filters at once",
             ),
             "dynamic_heat_input": Setting(
-                default=True,
+                default=False,
                 schema={"type": "boolean"},
-                shown="`true`",
+                shown="`false`",
                 doc=(
                     "`dynamic` also gets the heat-input history: the filtered speed powers of `grey_box` "
-                    "(`grey_box_speed_taus_s`, `grey_box_speed_powers`), every filter at once"
+                    "(`grey_box_speed_taus_s`, `grey_box_speed_powers`), every filter at once; opt-in "
+                    "(`docs/decisions.md`, 2026-11-26: better CV everywhere, not yet shown better one "
+                    "level up)"
                 ),
             ),
             "speed_gain": Setting(
