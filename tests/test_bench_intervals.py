@@ -3,24 +3,18 @@ samples whose truth is known."""
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+from bench_loader import load_bench
 from scipy.stats import binom
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _bench():
-    path = ROOT / "benchmarks" / "bench_intervals.py"
-    spec = importlib.util.spec_from_file_location("bench_intervals", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    return module
+    return load_bench("bench_intervals")
 
 
 def _oof(n_runs: int, per_run: int, *, seed: int, far_run: bool = False) -> pd.DataFrame:

@@ -4,13 +4,12 @@ time order up to the cut and nothing after it, and validates the same rows at ev
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from bench_loader import load_bench
 
 from rafi.method.runs import find_runs
 from rafi.settings import machine_settings, validate_config
@@ -20,16 +19,7 @@ ROOT = Path(__file__).resolve().parents[1]
 H = 3600.0
 
 
-def _load():
-    path = ROOT / "benchmarks" / "bench_learning_curve.py"
-    spec = importlib.util.spec_from_file_location("bench_learning_curve", path)
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_learning_curve"] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-bench = _load()
+bench = load_bench("bench_learning_curve")
 rd = bench.rd
 
 #: FL_THERMAL's schedule (its README): rest 0-450 s, four 4 h runs at the training speeds each

@@ -3,13 +3,12 @@ mapping of the pipeline's residuals back to workbook rows and the machine's conf
 
 from __future__ import annotations
 
-import importlib.util
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from bench_loader import load_bench
 
 from rafi.readers.input_spec import normalise_input_spec
 from rafi.settings import machine_settings, validate_config
@@ -17,15 +16,7 @@ from rafi.settings import machine_settings, validate_config
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def _load():
-    spec = importlib.util.spec_from_file_location("bench_realdata", ROOT / "benchmarks" / "bench_realdata.py")
-    module = importlib.util.module_from_spec(spec)
-    sys.modules["bench_realdata"] = module
-    spec.loader.exec_module(module)
-    return module
-
-
-bench = _load()
+bench = load_bench("bench_realdata")
 
 #: The workbook's time grid: 11 115 rows every 15 s.
 T_S = np.arange(11_115) * 15.0

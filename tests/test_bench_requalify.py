@@ -3,27 +3,21 @@ end to end (one scenario, one kind, a coarse sample period: the experiment itsel
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import math
 import sys
 from pathlib import Path
 
 import pytest
+from bench_loader import load_bench
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location(
-        "bench_requalify", ROOT / "benchmarks" / "bench_requalify.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop(spec.name, None)
+    yield load_bench("bench_requalify")
+    sys.modules.pop("bench_requalify", None)
 
 
 def result(prior_um_at_4h: float, scratch_um_at_4h: float = 6.0) -> dict:
@@ -78,6 +72,6 @@ def test_a_tiny_run_writes_the_table_and_the_json(bench, tmp_path, capsys):
     assert res["full_choice"] == "ridge_global" and 0 < res["floor_um"] < res["full_um"] < row["scratch_um"]
     assert math.isfinite(res["unchanged_um"]) and math.isfinite(row["prior_um"]) and row["prior_choice"]
     assert sorted(float(k) for k in res["prior_cv_by_speed_um"]) == [3000, 6000, 9000, 12000, 15000, 18000]
-    assert set(row["candidates"]) == {"ridge_global", "prior", "prior_gain", "prior_ridge"}
+    assert set(row["candidates"]) == {"ridge_global", "prior", "prior_gain", "prior_time", "prior_ridge"}
     printed = capsys.readouterr().out
     assert record["markdown"] in printed and "replaced_sensor:" in printed

@@ -3,13 +3,13 @@ selection rules it compares and the ensemble's weights (the experiment itself is
 
 from __future__ import annotations
 
-import importlib.util
 import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from bench_loader import load_bench
 
 from rafi.family import crossval
 
@@ -18,14 +18,8 @@ ROOT = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def bench():
-    spec = importlib.util.spec_from_file_location(
-        "bench_selection_rules", ROOT / "benchmarks" / "bench_selection_rules.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[spec.name] = module
-    spec.loader.exec_module(module)
-    yield module
-    sys.modules.pop(spec.name, None)
+    yield load_bench("bench_selection_rules")
+    sys.modules.pop("bench_selection_rules", None)
 
 
 def _schedule() -> pd.DataFrame:

@@ -89,10 +89,9 @@ def test_dynamic_recovers_the_lag_and_beats_static_models():
     assert c2 == pytest.approx(-0.02, abs=0.003)
 
 
-def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
-    # dz = sum_i g_i L_1800(dT_i) + 4 um * L_300((n/1e4)^(5/3)) (an unmeasured fast part: no
-    # sensor sees it) - 0.02 um/krpm^2 (n^2 - n0^2); every run starts 120 s at rest
-    table, frame = make_synthetic_runs(
+def _shaft_data():
+    """Runs whose displacement has a 4 um shaft part no sensor sees, L_300((n/1e4)^(5/3))."""
+    return make_synthetic_runs(
         seed=3,
         sample_s=60.0,
         n_sensors=2,
@@ -102,6 +101,12 @@ def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
         shaft_um=4.0,
         shaft_tau_s=300.0,
     )
+
+
+def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
+    # dz = sum_i g_i L_1800(dT_i) + 4 um * L_300((n/1e4)^(5/3)) (an unmeasured fast part: no
+    # sensor sees it) - 0.02 um/krpm^2 (n^2 - n0^2); every run starts 120 s at rest
+    table, frame = _shaft_data()
     gb = GreyBox(
         taus_s=[0, 600, 1800, 4800],
         max_taus=1,
@@ -131,16 +136,7 @@ def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
 
 def test_dynamic_with_the_heat_input_history_sees_the_unmeasured_shaft():
     # the data of the grey_box test above: a 4 um shaft term no sensor sees, L_300((n/1e4)^(5/3))
-    table, frame = make_synthetic_runs(
-        seed=3,
-        sample_s=60.0,
-        n_sensors=2,
-        sensor_taus_s=(300, 500),
-        tau_lag_s=1800.0,
-        noise_um=0.02,
-        shaft_um=4.0,
-        shaft_tau_s=300.0,
-    )
+    table, frame = _shaft_data()
     grid = {"taus_s": [0, 600, 1800, 4800], "max_taus": 1, "speed_taus_s": [60, 300, 1200, 3600]}
     with_heat = DynamicRidge(**grid, heat_input=True).fit(table, frame)
     without = DynamicRidge(**grid, heat_input=False).fit(table, frame)
