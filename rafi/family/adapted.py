@@ -181,11 +181,13 @@ class AdaptedPrior(FamilyModel):
         """The prior with its time constants scaled by the factor of :data:`TIME_FACTORS` that
         whole-run CV prefers (each training unit held out in turn, the gain fitted on the
         others; one unit: no fold, factor 1), its training design and the CV table."""
-        scores = []
+        scores, fitted = [], []
         for factor in TIME_FACTORS:
             model = _retimed(self._base(), factor)
-            pred = np.asarray(model._design(frame)[0], dtype=float)[rows] @ np.asarray(model.coef_, float)
-            scores.append(_held_out_gain_score(pred, y, units, self.cv_metric))
+            feats, names = model._design(frame)
+            x = np.asarray(feats, dtype=float)[rows]
+            fitted.append((model, x, names))
+            scores.append(_held_out_gain_score(x @ np.asarray(model.coef_, float), y, units, self.cv_metric))
         finite = [s for s in scores if np.isfinite(s)]
         if finite:  # ties go to the factor nearest 1 (the prior's own constants)
             best = min(
@@ -196,14 +198,13 @@ class AdaptedPrior(FamilyModel):
         self.time_factor_ = float(TIME_FACTORS[best])
         if finite and best in (0, len(TIME_FACTORS) - 1):
             self.grid_edges_ = [f"prior_time factor {self.time_factor_:g} at an edge of {list(TIME_FACTORS)}"]
-        model = _retimed(self._base(), self.time_factor_)
-        feats, names = model._design(frame)
+        model, x, names = fitted[best]
         model.feature_names_ = list(names)
         table = [
             {"factor": f, "score_um": float(s) if np.isfinite(s) else None}
             for f, s in zip(TIME_FACTORS, scores)
         ]
-        return model, np.asarray(feats, dtype=float)[rows], table
+        return model, x, table
 
     def _ridge(self, x: np.ndarray, r: np.ndarray, units: np.ndarray, table: pd.DataFrame):
         """``delta`` of ``ridge`` and its CV table: ``alpha`` by whole-run CV on the training
