@@ -410,12 +410,13 @@ def _replayed(results: Path) -> pd.DataFrame:
     return replayed
 
 
-def _draw_replay(results: Path, tmp: Path) -> list[str]:
+def _draw_replay(results: Path, tmp: Path, folder: Path | None = None) -> list[str]:
+    """Figure group ``replay`` of rule report_figures, drawn into ``folder``."""
     paths = result_paths(results)
     return draw_group(
         {k: paths[k] for k in FIGURE_GROUPS["replay"]},
         "replay",
-        tmp / "replay-figures",
+        folder or tmp / "replay-figures",
         figure_format="png",
         coolant_sensors=[],
         gates={},
@@ -466,3 +467,24 @@ def test_a_replay_table_without_interval_columns_still_renders(tmp_path):
     results = copy_fixture(tmp_path)
     old = _replayed(results).drop(columns=["lower_um", "upper_um", "interval_cell"])
     assert replay_plot.fig_replay(old, level=None, fmt="png")[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("interval", [False, True])
+def test_the_replay_caption_names_the_band_where_the_figure_has_one(tmp_path, interval):
+    results = copy_fixture(tmp_path)
+    if interval:
+        add_interval_results(results)
+    _replayed(results)
+    paths = write_upstream_tables(results)
+    settings = machine_settings(CONFIG, "tapping-center-a")
+    dirs = figure_dirs(results)
+    for group in dirs:
+        (results / FIGURE_DIRS[group]).mkdir(parents=True, exist_ok=True)
+        (results / FIGURE_DIRS[group] / "index.csv").write_text("key,file\n", encoding="utf-8")
+    assert _draw_replay(results, tmp_path, dirs["replay"]) == ["replay/multi-1"]
+    ctx = build_context(paths, dirs, machine="tapping-center-a", settings=settings)
+    html = render_html(ctx)
+    text = _text(html)
+    assert "Replay of run multi-1" in text and 'id="fig-replay-1"' in html
+    named = "the model's value (orange, dashed) with its prediction interval (light orange band) and"
+    assert (named in text) is interval
