@@ -5,13 +5,19 @@ champion's vanished or changed training files and the input warnings that block 
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 
 import pandas as pd
 from markupsafe import escape
-from test_report import FIXTURE, _context, _settings
+from test_report import FIXTURE, _context, _settings, _upstream
+from test_report_intervals import _text
 
+from rafi.ops.drift import interval_drift
+from rafi.report.context import build_context
+from rafi.report.format import fmt_num, fmt_sig
+from rafi.report.inputs import result_paths
 from rafi.report.registry_section import section_registry
 from rafi.report.render import render_html
 
@@ -167,3 +173,67 @@ def test_the_champions_gates_are_its_stored_verdict(tmp_path: Path):
     assert not ctx["registry"]["champion"]["gates_stored"] and ctx["registry"]["candidate"]["gates_stored"]
     assert {r["champion_passed"] for r in ctx["registry"]["runs"]} == {None}
     assert ctx["verdict"]["status"] == "NOT STORED"
+
+
+def _interval_evidence(results: Path, half_width_um: float) -> dict:
+    """``drift.interval`` as rule decide writes it (:func:`rafi.ops.drift.interval_drift`): the
+    fixture champion's residuals on its new validation run with a 90 % interval of
+    ``+-half_width_um`` around the prediction, one sample per 600 s, false-alarm rate 0.01."""
+    resid = pd.read_parquet(results / "validation" / "residuals.parquet")
+    pred = resid["predicted_um"].to_numpy(float)
+    resid = resid.assign(lower_um=pred - half_width_um, upper_um=pred + half_width_um)
+    block = {"level": 0.9, "decorrelation_s": 600.0}
+    return interval_drift(resid, ["multi-1"], block, 0.01)
+
+
+def test_the_drift_check_shows_the_interval_test_from_decision_json(tmp_path: Path):
+    """decision.json with the interval drift test's evidence: the section states the thinned
+    count outside the interval, the expected count at 1 - level, the p-value against the
+    false-alarm rate and the verdict, every number as stored; without the evidence (the
+    fixture's older decision.json, or an interval not tested) it says nothing about it."""
+    results = tmp_path / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    path = results / "registry" / "decision.json"
+    original = json.loads(path.read_text())
+    _, settings = _settings()
+    dirs = _upstream(results, settings)
+
+    def render(dec: dict) -> tuple[dict, str]:
+        path.write_text(json.dumps(dec))
+        ctx = build_context(result_paths(results), dirs, machine="tapping-center-a", settings=settings)
+        return ctx["registry"]["drift"], _text(render_html(ctx))
+
+    narrow, wide = _interval_evidence(results, 2.0), _interval_evidence(results, 1e3)
+    assert narrow["detected"] and narrow["k"] > narrow["expected_k"] and not wide["detected"]
+    for iv in (narrow, wide):
+        dec = json.loads(json.dumps(original))
+        dec["drift"]["interval"] = json.loads(json.dumps(iv))  # as stored
+        d, text = render(dec)
+        assert d["interval"]["n"] == iv["n"] and d["interval"]["k"] == iv["k"]
+        verdict = "<" if iv["detected"] else "\u2265"
+        for part in (
+            f"Interval check: {iv['k']} of {iv['n']} new samples lie outside the champion's 90 % interval, "
+            f"{fmt_num(iv['expected_k'], 1)} expected (10 %); binomial p = {fmt_sig(iv['p_value'], 2)} "
+            f"{verdict} the false-alarm rate 0.01",
+            f"new samples outside the interval {iv['k']} of {iv['n']} "
+            f"({fmt_num(100 * iv['k'] / iv['n'], 1, '%')}; thinned to one per 600 s of each run "
+            f"from {iv['n_samples']} samples, 1 run(s))",
+            f"expected outside (1 \u2212 level) 10 % of {iv['n']}: {fmt_num(iv['expected_k'], 1)}",
+            f"binomial p / false-alarm rate {fmt_sig(iv['p_value'], 2)} / 0.01",
+        ):
+            part = re.sub(r"\s+", " ", part)  # as _text: a no-break space is a space
+            assert part in text, part
+        assert iv["n_samples"] == 133 and iv["n"] < iv["n_samples"]  # thinned
+    # the narrow interval: tonight kept the champion, so the recalibration is due
+    assert original["decision"] == "kept" and original["recalibration_due"]
+    assert (
+        "more often than its level allows, recalibration due."
+        in render({**original, "drift": {**original["drift"], "interval": narrow}})[1]
+    )
+    assert "as often as the level allows, no recalibration due from this check." in text  # wide
+    untested = {**original, "drift": {**original["drift"], "interval": {"status": "no_interval"}}}
+    for dec in (original, untested):
+        d, text = render(dec)
+        assert d["interval"] is None
+        assert "Interval check" not in text and "binomial p" not in text
+        assert "Drift check" in text and "max residual at promotion" in text

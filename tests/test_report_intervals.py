@@ -29,10 +29,12 @@ from matplotlib.collections import PolyCollection
 from report_fixture import copy_fixture, write_upstream_tables
 
 from rafi.artefact import compute_model_id
-from rafi.report import deployed_plot, plots
+from rafi.deploy.limits import Limits
+from rafi.deploy.replay import replay_runs, replay_summary, summary_frame
+from rafi.report import deployed_plot, plots, replay_plot
 from rafi.report.context import build_context
-from rafi.report.figures import draw_group
-from rafi.report.inputs import FIGURE_DIRS, figure_dirs
+from rafi.report.figures import FIGURE_GROUPS, draw_group
+from rafi.report.inputs import FIGURE_DIRS, figure_dirs, result_paths
 from rafi.report.intervals import residual_band, times_in, worst_run_interval
 from rafi.report.render import render_html, render_pdf
 from rafi.settings import machine_settings
@@ -283,7 +285,8 @@ def test_a_verdict_without_a_level_says_nothing():
 def kept(monkeypatch):
     """The figures the plotting functions draw, kept open instead of rendered."""
     figs = []
-    monkeypatch.setattr(plots, "render", lambda fig, fmt="png": figs.append(fig) or b"")
+    for module in (plots, replay_plot):
+        monkeypatch.setattr(module, "render", lambda fig, fmt="png": figs.append(fig) or b"")
     yield figs
     for fig in figs:
         plt.close(fig)
@@ -385,3 +388,103 @@ def test_the_figures_and_the_pdf_are_built_with_the_interval(tmp_path):
         [which_or_skip("pdftotext"), "-layout", str(pdf), "-"], capture_output=True, text=True, check=True
     ).stdout
     assert "9 times in 10" in words and "How sure: the 90" in words
+
+
+# --------------------------------------------------------------------------- replay figure
+
+
+def _replayed(results: Path) -> pd.DataFrame:
+    """The fixture's validation run ``multi-1`` replayed through the safe compensator with the
+    limits of config.yaml, as rule replay writes it (``deploy/replay.parquet`` and
+    ``deploy/replay_summary.csv``); the replay table is returned."""
+    frame, table = pd.read_parquet(results / "runs.parquet"), pd.read_csv(results / "runs.csv")
+    files = dict(zip(table["run_id"], table["file"]))
+    frame["log"], frame["log_t_s"] = frame["run_id"].map(files), frame["t_s"]  # one run per log
+    artefact = json.loads((results / "comparison" / "best_model.json").read_text(encoding="utf-8"))
+    limits = Limits.from_settings(machine_settings(CONFIG, "tapping-center-a")["deploy"])
+    replayed = replay_runs(frame, ["multi-1"], artefact, limits)
+    (results / "deploy").mkdir()
+    replayed.to_parquet(results / "deploy" / "replay.parquet")
+    summary = summary_frame(replay_summary(replayed), artefact=artefact)
+    summary.to_csv(results / "deploy" / "replay_summary.csv", index=False)
+    return replayed
+
+
+def _draw_replay(results: Path, tmp: Path, folder: Path | None = None) -> list[str]:
+    """Figure group ``replay`` of rule report_figures, drawn into ``folder``."""
+    paths = result_paths(results)
+    return draw_group(
+        {k: paths[k] for k in FIGURE_GROUPS["replay"]},
+        "replay",
+        folder or tmp / "replay-figures",
+        figure_format="png",
+        coolant_sensors=[],
+        gates={},
+        deploy={"clamp_um": [-50.0, 50.0]},
+    )
+
+
+def test_the_replay_figure_has_the_band_around_the_model(kept, tmp_path):
+    """A real replay of a model with an interval block: the figure of rule report_figures has
+    one band, named by the replayed artefact's level, whose edges are the replay table's
+    ``lower_um`` and ``upper_um`` at every sample (133 samples: not thinned)."""
+    results = copy_fixture(tmp_path)
+    add_interval_results(results)
+    replayed = _replayed(results)
+    assert _draw_replay(results, tmp_path) == ["replay/multi-1"]
+    (fig,) = kept
+    (band,) = _bands(fig.axes[0])
+    assert band.get_label() == "90\u00a0% interval"
+    assert "90\u00a0% interval" in [t.get_text() for t in fig.legends[0].get_texts()]
+    f = replayed.sort_values("t_s", kind="stable")
+    h = (f["t_s"] - f["t_s"].iloc[0]).to_numpy(float) / 3600.0
+    lo, hi, model = (f[c].to_numpy(float) for c in ("lower_um", "upper_um", "model_um"))
+    assert np.isfinite(lo).all() and (hi - lo > 0).all() and ((lo <= model) & (model <= hi)).all()
+    drawn = {(round(x, 9), round(y, 9)) for p in band.get_paths() for x, y in p.vertices}
+    for edge in (lo, hi):
+        assert {(round(x, 9), round(y, 9)) for x, y in zip(h, edge)} <= drawn
+    assert _band_limits(band) == (lo.min(), hi.max())
+
+
+def test_a_replay_without_an_interval_draws_as_before(kept, tmp_path):
+    """The model without an interval block (an older artefact: NaN bounds) and a replay table
+    from before intervals (no such columns): no band, and the curves are drawn."""
+    results = copy_fixture(tmp_path)
+    replayed = _replayed(results)
+    assert replayed["lower_um"].isna().all()
+    _draw_replay(results, tmp_path)
+    old = replayed.drop(columns=["lower_um", "upper_um", "interval_cell"])
+    replay_plot.fig_replay(old, clamp_um=(-50.0, 50.0), level=0.9, title="old")
+    for fig in kept:
+        ax = fig.axes[0]
+        assert not _bands(ax)
+        labels = [line.get_label() for line in ax.get_lines()]
+        assert {"measured dz", "command (what is written)", "model value"} <= set(labels)
+    assert len(kept) == 2
+
+
+def test_a_replay_table_without_interval_columns_still_renders(tmp_path):
+    results = copy_fixture(tmp_path)
+    old = _replayed(results).drop(columns=["lower_um", "upper_um", "interval_cell"])
+    assert replay_plot.fig_replay(old, level=None, fmt="png")[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+@pytest.mark.parametrize("interval", [False, True])
+def test_the_replay_caption_names_the_band_where_the_figure_has_one(tmp_path, interval):
+    results = copy_fixture(tmp_path)
+    if interval:
+        add_interval_results(results)
+    _replayed(results)
+    paths = write_upstream_tables(results)
+    settings = machine_settings(CONFIG, "tapping-center-a")
+    dirs = figure_dirs(results)
+    for group in dirs:
+        (results / FIGURE_DIRS[group]).mkdir(parents=True, exist_ok=True)
+        (results / FIGURE_DIRS[group] / "index.csv").write_text("key,file\n", encoding="utf-8")
+    assert _draw_replay(results, tmp_path, dirs["replay"]) == ["replay/multi-1"]
+    ctx = build_context(paths, dirs, machine="tapping-center-a", settings=settings)
+    html = render_html(ctx)
+    text = _text(html)
+    assert "Replay of run multi-1" in text and 'id="fig-replay-1"' in html
+    named = "the model's value (orange, dashed) with its prediction interval (light orange band) and"
+    assert (named in text) is interval

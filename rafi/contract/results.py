@@ -117,7 +117,8 @@ FIGURE_GROUPS: dict[str, tuple[str, ...]] = {
     ),
     # model.json and best_model.json: the level of the interval bands (their "interval" blocks)
     "comparison": ("comparison", "comparison_per_run", "comparison_residuals", "model", "best_model"),
-    "replay": ("replay", "replay_summary"),
+    # model.json and best_model.json: the level of the replayed model's interval (the candidate)
+    "replay": ("replay", "replay_summary", "model", "best_model"),
 }
 
 #: What the report needs: these tables must exist ...

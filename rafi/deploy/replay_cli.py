@@ -172,13 +172,14 @@ def run(args) -> int:
     out = Path(args.out) if args.out else results_dir / args.machine / "deploy" / "replay"
     out.mkdir(parents=True, exist_ok=True)
     fmt = str(settings["report"]["figure_format"])
+    level = (artefact.get("interval") or {}).get("level")  # the band's legend; none without a block
     for rid in ids:
         rows = replayed[replayed["run_id"] == rid]
         stem = file_stem(rid)
         write_csv_atomic(rows, out / f"{stem}.csv", index=False)
         write_bytes_atomic(
             out / f"{stem}.{fmt}",
-            fig_replay(rows, clamp_um=limits.clamp_um, title=f"Replay of {rid}", fmt=fmt),
+            fig_replay(rows, clamp_um=limits.clamp_um, level=level, title=f"Replay of {rid}", fmt=fmt),
         )
     write_csv_atomic(summary, out / "summary.csv", index=False)
     model = f"{artefact.get('kind', '?')} {str(artefact.get('model_id', ''))[:12]}"

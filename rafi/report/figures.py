@@ -290,19 +290,27 @@ def _deployed(res: dict, fmt: str):
         yield deployed_figure_key(k), fig_deployed_residuals(panels, fmt=fmt)
 
 
+def replayed_level(summary: pd.DataFrame, *docs) -> float | None:
+    """The interval level of the replayed model: that of the artefact among ``docs``
+    (``model.json``, ``best_model.json``) whose ``model_id`` is the replay summary's (``None``
+    when none is, or it has no ``interval`` block)."""
+    ids = set(summary["model_id"].astype(str)) if "model_id" in summary else set()
+    mine = [d for d in docs if isinstance(d, dict) and str(d.get("model_id")) in ids]
+    return shared_level(*mine) if mine else None
+
+
 def _replay(res: dict, deploy: dict, fmt: str):
     """``(key, file bytes)`` of each run of the replay summary that has samples."""
     summary, table = res["replay_summary"], res["replay"]
     if summary is None or not len(summary) or table is None or not len(table):
         return
-    clamp = deploy.get("clamp_um")
+    clamp = tuple(deploy["clamp_um"]) if deploy.get("clamp_um") else None
+    level = replayed_level(summary, res.get("model"), res.get("best_model"))
     for rid in summary["run_id"].astype(str):
         rows = table[table["run_id"].astype(str) == rid]
         if len(rows):
-            yield (
-                replay_figure_key(rid),
-                fig_replay(rows, clamp_um=tuple(clamp) if clamp else None, title=f"Replay of {rid}", fmt=fmt),
-            )
+            figure = fig_replay(rows, clamp_um=clamp, level=level, title=f"Replay of {rid}", fmt=fmt)
+            yield replay_figure_key(rid), figure
 
 
 def _file_name(n: int, key: str, fmt: str) -> str:

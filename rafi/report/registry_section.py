@@ -171,10 +171,66 @@ def adaptation(dec: dict, infos: dict) -> dict:
     }
 
 
+#: The numbers of the interval drift test the section states (``drift.interval`` of ``decision.json``).
+_INTERVAL_EVIDENCE = (
+    "n",
+    "k",
+    "level",
+    "allowed_rate",
+    "expected_k",
+    "p_value",
+    "false_alarm",
+    "decorrelation_s",
+)
+
+
+def _pct(fraction) -> str:
+    """A fraction as a percentage without trailing zeros: ``0.1`` -> ``10``, ``0.025`` -> ``2.5``."""
+    return f"{100.0 * float(fraction):.6g}"
+
+
+def interval_check(dr: dict | None) -> dict | None:
+    """The interval drift test of ``decision.json`` (``drift.interval``, written by
+    :func:`rafi.ops.drift.interval_drift`) as the section states it, or ``None`` where it has no
+    evidence: an older registry (no such block), no interval (the champion's artefact has no
+    ``interval`` block, its residuals no bounds), no new validation run or no champion.
+
+    Returns
+    -------
+    dict or None
+        ``k`` of ``n`` thinned new samples (one per ``decorrelation_s``) outside the interval,
+        ``n_samples`` (usable before thinning, ``None`` when not stored), ``n_runs``,
+        ``level_pct``, ``allowed_pct`` (``1 - level`` in %), ``observed_pct``, ``expected_k``,
+        ``p_value``, ``false_alarm`` (``nightly.drift_false_alarm``) and ``detected`` (p-value
+        below the false-alarm rate: the new data fall outside more often than the level allows).
+    """
+    iv = (dr or {}).get("interval")
+    if not isinstance(iv, dict) or iv.get("status") not in ("ok", "recalibration_due"):
+        return None
+    if not all(isnum(iv.get(key)) for key in _INTERVAL_EVIDENCE) or int(iv["n"]) <= 0:
+        return None
+    n, k = int(iv["n"]), int(iv["k"])
+    return {
+        "n": n,
+        "k": k,
+        "n_samples": int(iv["n_samples"]) if isnum(iv.get("n_samples")) else None,
+        "n_runs": len(iv.get("per_run") or {}),
+        "decorrelation_s": float(iv["decorrelation_s"]),
+        "level_pct": _pct(iv["level"]),
+        "allowed_pct": _pct(iv["allowed_rate"]),
+        "observed_pct": 100.0 * k / n,
+        "expected_k": float(iv["expected_k"]),
+        "p_value": float(iv["p_value"]),
+        "false_alarm": f"{float(iv['false_alarm']):g}",
+        "detected": truthy(iv.get("detected", False)),
+    }
+
+
 def drift(dec: dict, noise: dict) -> dict:
-    """The drift check of ``decision.json``: its status, the champion checked, its max residual
+    """The drift checks of ``decision.json``: its status, the champion checked, its max residual
     at promotion and on the new validation logs (with the noise floor of the worst run), margin,
-    limit, change, the new runs and whether a recalibration is due."""
+    limit, change, the new runs, whether a recalibration is due and ``interval`` (the interval
+    drift test, :func:`interval_check`; ``None`` without its evidence)."""
     dr = dec.get("drift") or {}
     per_run = dr.get("per_run") or {}
     return {
@@ -195,6 +251,7 @@ def drift(dec: dict, noise: dict) -> dict:
         "limit_um": dr.get("limit_um"),
         "degradation_um": dr.get("degradation_um"),
         "new_runs": [str(r) for r in dr.get("new_runs") or []],
+        "interval": interval_check(dr),
     }
 
 

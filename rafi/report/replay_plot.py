@@ -1,8 +1,10 @@
 """The figure of a replay (``rafi replay``, the report's section on the model on the machine).
 
 One run of a replay table (:func:`rafi.deploy.replay.replay_log`): the measured displacement,
-the model's value and the command against time, with bands where a limit or a fault rule acted
-(clamp, rate limit, hold / ramp), and the status of every sample as a strip below. Called by
+the model's value with its prediction interval (a band, where the table has ``lower_um`` and
+``upper_um``) and the command against time, with shading where a limit or a fault rule acted
+(clamp, rate limit, hold / ramp - an interval too wide is one of those fault rules), and the
+status of every sample as a strip below. Called by
 rule ``report_figures`` (group ``replay``) and by ``rafi replay``; the report job embeds the file.
 """
 
@@ -13,7 +15,18 @@ import numpy as np
 import pandas as pd
 from matplotlib.patches import Patch
 
-from rafi.report.plot_layout import C_MEAS, C_PRED, PAGE_WIDTH_IN, STYLE, envelope, hours, plot_series, render
+from rafi.report.intervals import band_label, has_band
+from rafi.report.plot_layout import (
+    C_MEAS,
+    C_PRED,
+    PAGE_WIDTH_IN,
+    STYLE,
+    envelope,
+    hours,
+    plot_band,
+    plot_series,
+    render,
+)
 
 #: Colour of each status in the strip (``rafi.deploy.limits.STATUSES``).
 STATUS_COLOURS = {
@@ -54,6 +67,7 @@ def fig_replay(
     table: pd.DataFrame,
     *,
     clamp_um: tuple | None = None,
+    level: float | None = None,
     title: str = "",
     fmt: str = "png",
 ) -> bytes:
@@ -63,10 +77,17 @@ def fig_replay(
     ----------
     table : DataFrame
         The run's rows of the replay table: ``t_s``, ``measured_um``, ``model_um``,
-        ``command_um``, ``status``, ``clamped``, ``rate_limited`` (time order).
+        ``command_um``, ``status``, ``clamped``, ``rate_limited`` (time order); with
+        ``lower_um`` and ``upper_um`` (:data:`rafi.deploy.replay.COLUMNS`: the model's
+        interval, around ``model_um``) the interval is a band around the model's curve. A table
+        without them, or without a finite bound (an artefact without an ``interval`` block), is
+        drawn without a band.
     clamp_um : (float, float), optional
         The clamp range, drawn as dashed lines where it falls inside the data's range
         (otherwise named in the legend only).
+    level : float, optional
+        The interval's level (the replayed artefact's ``interval.level``): the band's legend
+        entry (``90 % interval``; ``prediction interval`` without it).
     title : str
         Axes title.
     fmt : {"png", "svg"}
@@ -95,6 +116,9 @@ def fig_replay(
         }
         for key, label, colour in _BANDS:
             _band(ax, h, flags[key], colour, label)
+        if has_band(f):
+            lower, upper = (pd.to_numeric(f[c], errors="coerce") for c in ("lower_um", "upper_um"))
+            plot_band(ax, h, lower, upper, label=band_label(level))
         plot_series(ax, h, f["measured_um"], color=C_MEAS, lw=0.9, label="measured dz")
         plot_series(ax, h, f["command_um"], color="black", lw=1.1, label="command (what is written)")
         plot_series(ax, h, f["model_um"], color=C_PRED, lw=1.0, ls="--", label="model value")

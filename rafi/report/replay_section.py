@@ -11,7 +11,7 @@ from __future__ import annotations
 import pandas as pd
 from markupsafe import Markup, escape
 
-from rafi.report.format import fmt_num, records, short_id
+from rafi.report.format import fmt_num, isnum, records, short_id
 
 UM = "\u00b5m"
 
@@ -91,6 +91,8 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
                 "run_id": r["run_id"],
                 "log": str(r.get("log", "")),
                 "figure": figs.get("replay", replay_figure_key(r["run_id"])),
+                # the figure draws the model's interval (replay_plot): the summary has its coverage
+                "band": isnum(r.get("coverage")),
             }
         )
     deploy = settings["deploy"]
