@@ -191,6 +191,9 @@ def test_golden_comparison_table():
     fitted without their prediction interval); no other value moved.
     Regenerated in issue 25 when ``dynamic`` got its heat-input history (``heat_input``, default
     true): only the dynamic rows moved (worst case 0.1766 -> 0.1776 um, per run -0.007 to +0.005 um).
+    Regenerated in session 12 when the heat input became the default and ``speed_gain: cv`` offers
+    ``dynamic`` no gain beside it: only the dynamic rows moved (worst case 0.1766 -> 0.1776 um, per
+    run -0.007 to +0.005 um).
     """
     table, frame = _golden_data()
     got = compare_models(_golden_models(table, frame), table, frame, GATES)

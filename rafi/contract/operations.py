@@ -153,21 +153,23 @@ OPERATIONS_SETTINGS: dict = {
                 doc="at most this many filters at once",
             ),
             "dynamic_heat_input": Setting(
-                default=False,
+                default=True,
                 schema={"type": "boolean"},
-                shown="`false`",
+                shown="`true`",
                 doc=(
                     "`dynamic` also gets the heat-input history: the filtered speed powers of `grey_box` "
-                    "(`grey_box_speed_taus_s`, `grey_box_speed_powers`), every filter at once; opt-in "
-                    "(`docs/decisions.md`, 2026-11-26: better CV everywhere, not yet shown better one "
-                    "level up)"
+                    "(`grey_box_speed_taus_s`, `grey_box_speed_powers`), every filter at once, and then "
+                    "no speed gain under `speed_gain: cv` (`docs/decisions.md`, 2026-11-26)"
                 ),
             ),
             "speed_gain": Setting(
                 default="cv",
                 schema={"enum": [True, False, "cv"]},
                 shown="`cv`",
-                doc="speed terms: `true`, `false` or chosen by CV",
+                doc=(
+                    "the speed gain `L_tau(dT_i) * n` of `ridge_global` and `dynamic`: `true`, `false` or "
+                    "chosen by CV (`cv`; for `dynamic` with its heat-input history `cv` means none)"
+                ),
             ),
             "speed_reference": Setting(
                 default="auto",

@@ -16,7 +16,8 @@ from rafi.settings import MACHINE_DEFAULTS
 class DynamicRidge(RidgeGlobal):
     """Kind ``dynamic``: ridge on low-pass filtered rises (lag model) + speed terms.
 
-    Features: ``L_tau(dT_i)`` (and ``L_tau(dT_i) * n`` with ``speed_gain``) for every usable
+    Features: ``L_tau(dT_i)`` (and ``L_tau(dT_i) * n`` with ``speed_gain``; ``cv`` offers it only
+    without the heat input) for every usable
     sensor ``i`` and every ``tau`` of the chosen set, where ``L_tau`` is the causal
     first-order filter of :func:`rafi.family.features.lowpass_runs` (``tau = 0`` is the
     unfiltered rise), plus the speed terms of :class:`RidgeGlobal`, plus (``heat_input``) the
@@ -98,6 +99,15 @@ class DynamicRidge(RidgeGlobal):
         if self.heat_input:
             grids["grey_box_speed_taus_s"] = self.speed_taus_s
         return grids
+
+    def _gain_candidates(self) -> list[bool]:
+        """As :class:`RidgeGlobal`, but ``speed_gain: cv`` with the heat input is no gain: the
+        filtered speed powers carry the speed dependence smoothly, while ``L_tau(dT_i) * n`` would
+        step the prediction at every speed change by an amount proportional to the thermal state,
+        which no heat flow does (``docs/decisions.md``, 2026-11-26). ``true`` / ``false`` are kept."""
+        if self._heat_taus() and self.speed_gain == "cv":
+            return [False]
+        return super()._gain_candidates()
 
     def _heat_taus(self) -> list[float]:
         """The heat-input filter constants in use (none without ``heat_input``)."""

@@ -121,6 +121,10 @@ class RidgeGlobal(RidgeBase):
             names += ["n_krpm", "n2_krpm2"]
         return unsort(np.column_stack(parts), lay), names
 
+    def _gain_candidates(self) -> list[bool]:
+        """The speed-gain settings the CV chooses among (``speed_gain``)."""
+        return [False, True] if self.speed_gain == "cv" else [bool(self.speed_gain)]
+
     def _design(self, frame: pd.DataFrame):
         return self._features(
             frame, self.sensors_, self.taus_, speed_gain=self.speed_gain_, speed_terms=self.speed_terms_
@@ -133,7 +137,7 @@ class RidgeGlobal(RidgeBase):
         train = frame.loc[rows]
         self.speed_terms_ = self._use_speed_terms(train)
         taus_grid, max_taus = self._tau_grid()
-        gains = [False, True] if self.speed_gain == "cv" else [bool(self.speed_gain)]
+        gains = self._gain_candidates()
         alphas = self._alphas()
         y = train["dz_um"].to_numpy(dtype=float)
         run_ids = self._cv_units(train)

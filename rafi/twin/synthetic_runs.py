@@ -424,7 +424,7 @@ def small_family_model(
         return DynamicRidge(
             taus_s=[600, 2400],
             max_taus=2,
-            heat_input=True,  # the opt-in heat-input history: every filter of the family exercised
+            heat_input=True,  # the heat-input history: every filter of the family exercised
             speed_taus_s=[120, 900],
             alphas=alphas,
             reference=ref,
