@@ -31,7 +31,7 @@ from report_fixture import copy_fixture, write_upstream_tables
 from rafi.artefact import compute_model_id
 from rafi.deploy.limits import Limits
 from rafi.deploy.replay import replay_runs, replay_summary, summary_frame
-from rafi.report import deployed_plot, plots, replay_plot
+from rafi.report import deployed_plot, plot_layout, plots, replay_plot
 from rafi.report.context import build_context
 from rafi.report.figures import FIGURE_GROUPS, draw_group
 from rafi.report.inputs import FIGURE_DIRS, figure_dirs, result_paths
@@ -393,16 +393,16 @@ def test_the_figures_and_the_pdf_are_built_with_the_interval(tmp_path):
 # --------------------------------------------------------------------------- replay figure
 
 
-def _replayed(results: Path) -> pd.DataFrame:
-    """The fixture's validation run ``multi-1`` replayed through the safe compensator with the
-    limits of config.yaml, as rule replay writes it (``deploy/replay.parquet`` and
-    ``deploy/replay_summary.csv``); the replay table is returned."""
+def _replayed(results: Path, runs=("multi-1",), max_interval_um=None) -> pd.DataFrame:
+    """The fixture's validation ``runs`` replayed through the safe compensator with the limits
+    of config.yaml (and ``deploy.max_interval_um``), as rule replay writes it
+    (``deploy/replay.parquet`` and ``deploy/replay_summary.csv``); the replay table is returned."""
     frame, table = pd.read_parquet(results / "runs.parquet"), pd.read_csv(results / "runs.csv")
     files = dict(zip(table["run_id"], table["file"]))
     frame["log"], frame["log_t_s"] = frame["run_id"].map(files), frame["t_s"]  # one run per log
     artefact = json.loads((results / "comparison" / "best_model.json").read_text(encoding="utf-8"))
-    limits = Limits.from_settings(machine_settings(CONFIG, "tapping-center-a")["deploy"])
-    replayed = replay_runs(frame, ["multi-1"], artefact, limits)
+    deploy = {**machine_settings(CONFIG, "tapping-center-a")["deploy"], "max_interval_um": max_interval_um}
+    replayed = replay_runs(frame, list(runs), artefact, Limits.from_settings(deploy))
     (results / "deploy").mkdir()
     replayed.to_parquet(results / "deploy" / "replay.parquet")
     summary = summary_frame(replay_summary(replayed), artefact=artefact)
@@ -488,3 +488,130 @@ def test_the_replay_caption_names_the_band_where_the_figure_has_one(tmp_path, in
     assert "Replay of run multi-1" in text and 'id="fig-replay-1"' in html
     named = "the model's value (orange, dashed) with its prediction interval (light orange band) and"
     assert (named in text) is interval
+
+
+# --------------------------------------------------------------------------- replay: table and rule
+
+#: The widths of the fixture's interval cells are 4, 6 and 8 um (HALF): at 7 um the rule fires
+#: on the ``outside`` cell only - alone, and together with the trained-range fault.
+WIDE_AT_UM = 7.0
+
+
+def _replay_html(tmp: Path, *, interval: bool, edit=None, max_interval_um=None) -> tuple[str, Path]:
+    """The report HTML of the fixture with runs multi-1 and val-8000 replayed; ``edit`` changes
+    ``replay_summary.csv`` (a frame -> a frame) before the report reads it."""
+    results = copy_fixture(tmp)
+    if interval:
+        add_interval_results(results)
+    _replayed(results, ("multi-1", "val-8000"), max_interval_um)
+    if edit is not None:
+        path = results / "deploy" / "replay_summary.csv"
+        edit(pd.read_csv(path)).to_csv(path, index=False)
+    paths = write_upstream_tables(results)
+    dirs = figure_dirs(results)
+    for group in dirs:
+        (results / FIGURE_DIRS[group]).mkdir(parents=True, exist_ok=True)
+        (results / FIGURE_DIRS[group] / "index.csv").write_text("key,file\n", encoding="utf-8")
+    _draw_replay(results, tmp, dirs["replay"])
+    settings = machine_settings(CONFIG, "tapping-center-a")
+    return render_html(build_context(paths, dirs, machine="tapping-center-a", settings=settings)), results
+
+
+def _replay_runs_table(html: str) -> dict:
+    (table,) = html_tables(html, "num replay-runs")
+    return table
+
+
+def test_the_replay_table_shows_the_replay_s_coverage_and_width_as_stored(tmp_path):
+    """Coverage (%, 1 digit) and median width (um, 2 digits) of replay_summary.csv per run, as the
+    comparison shows them; a run without them (blanked here, as a model without an interval
+    writes it) shows a dash. The caption of a run where the wide-interval rule fired says so."""
+
+    def older_val_8000(s):
+        s.loc[s["run_id"] == "val-8000", ["coverage", "interval_width_um"]] = np.nan
+        return s
+
+    html, results = _replay_html(tmp_path, interval=True, edit=older_val_8000, max_interval_um=WIDE_AT_UM)
+    table = _replay_runs_table(html)
+    cov_head, width_head = "in the 90\u00a0% interval (%)", "median interval width (µm)"
+    assert table["headers"][-2:] == [cov_head, width_head] and len(table["widths"]) == len(table["headers"])
+    summary = pd.read_csv(results / "deploy" / "replay_summary.csv").set_index("run_id")
+    assert np.isfinite(summary.loc["multi-1", ["coverage", "interval_width_um"]].to_numpy(float)).all()
+    rows = {r["run"]: r for r in table["records"]}
+    assert set(rows) == {"multi-1", "val-8000"}
+    assert _number(rows["multi-1"][cov_head]) == round(100 * summary.loc["multi-1", "coverage"], 1)
+    assert _number(rows["multi-1"][width_head]) == round(summary.loc["multi-1", "interval_width_um"], 2)
+    assert rows["val-8000"][cov_head] == rows["val-8000"][width_head] == "\u2013"
+    text = _text(html)
+    assert "interval too wide" in text.split("Replay of run multi-1")[1].split("Figure")[0]
+
+
+@pytest.mark.parametrize("case", ["no interval block", "older table"])
+def test_the_replay_table_has_no_interval_columns_without_a_coverage(tmp_path, case):
+    """A model without an interval block (NaN coverage in every run) or a summary written
+    before intervals (no such columns): the table as before, no interval column, no dash."""
+
+    def drop(s):
+        return s.drop(columns=["coverage", "interval_width_um"])
+
+    interval = case == "older table"
+    html, _ = _replay_html(tmp_path, interval=interval, edit=drop if interval else None)
+    table = _replay_runs_table(html)
+    assert len(table["headers"]) == len(table["widths"]) == 7
+    assert not [h for h in table["headers"] if "interval" in h]
+    assert "interval too wide" not in _text(html)
+
+
+def _holds(ax) -> dict:
+    """The hold / ramp shading of the replay axes: label -> (PolyCollection, its x vertices)."""
+    return {
+        c.get_label(): (c, {round(x, 9) for p in c.get_paths() for x, _ in p.vertices})
+        for c in ax.collections
+        if isinstance(c, PolyCollection) and "(hold / ramp)" in str(c.get_label())
+    }
+
+
+def test_a_hold_by_the_wide_interval_rule_is_shaded_apart(kept, tmp_path):
+    """A real replay with deploy.max_interval_um = 7 um: the replay table names the rule in
+    ``fault``; the figure of rule report_figures shades the samples held or ramped because of
+    the interval alone in an artist of their own ("interval too wide (hold / ramp)", its own
+    colour and legend entry), and those with another cause too as the fault rule."""
+    results = copy_fixture(tmp_path)
+    add_interval_results(results)
+    replayed = _replayed(results, max_interval_um=WIDE_AT_UM)
+    assert _draw_replay(results, tmp_path) == ["replay/multi-1"]
+    f = replayed.sort_values("t_s", kind="stable")
+    h = (f["t_s"] - f["t_s"].iloc[0]).to_numpy(float) / 3600.0
+    held = f["status"].isin(["hold", "ramp"]).to_numpy()
+    causes = f["fault"].str.split("; ")
+    wide = causes.map(lambda c: any(x.startswith("interval_wide: ") for x in c)).to_numpy()
+    alone = held & causes.map(lambda c: all(x.startswith("interval_wide: ") for x in c)).to_numpy()
+    assert alone.any() and (held & ~alone).any() and (held & wide & ~alone).any()
+    assert f["fault"][wide].str.contains("wider than deploy.max_interval_um 7 um").all()
+    (fig,) = kept
+    shades = _holds(fig.axes[0])
+    assert set(shades) == {"interval too wide (hold / ramp)", "fault rule (hold / ramp)"}
+    mine, x_mine = shades["interval too wide (hold / ramp)"]
+    other, x_other = shades["fault rule (hold / ramp)"]
+    assert x_mine == {round(x, 9) for x in h[alone]}
+    assert x_other == {round(x, 9) for x in h[held & ~alone]}
+    assert tuple(mine.get_facecolor()[0]) != tuple(other.get_facecolor()[0])
+    legend = [t.get_text() for t in fig.legends[0].get_texts()]
+    assert {"interval too wide (hold / ramp)", "fault rule (hold / ramp)"} <= set(legend)
+    assert not plot_layout.text_overlaps(fig)  # the extra legend entry fits
+
+
+def test_without_the_fault_column_every_hold_is_the_fault_rule(kept, tmp_path):
+    """A replay table without ``fault`` cannot tell the cause: every hold / ramp is shaded as the
+    fault rule, and there is no interval-too-wide entry."""
+    results = copy_fixture(tmp_path)
+    add_interval_results(results)
+    replayed = _replayed(results, max_interval_um=WIDE_AT_UM)
+    replay_plot.fig_replay(replayed.drop(columns="fault"), level=0.9)
+    (fig,) = kept
+    shades = _holds(fig.axes[0])
+    assert set(shades) == {"fault rule (hold / ramp)"}
+    f = replayed.sort_values("t_s", kind="stable")
+    h = (f["t_s"] - f["t_s"].iloc[0]).to_numpy(float) / 3600.0
+    held = f["status"].isin(["hold", "ramp"]).to_numpy()
+    assert shades["fault rule (hold / ramp)"][1] == {round(x, 9) for x in h[held]}

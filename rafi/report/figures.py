@@ -45,7 +45,7 @@ from rafi.report.inputs import (
     sensors,
     training_runs,
 )
-from rafi.report.intervals import band_label, has_band, residual_band, shared_level
+from rafi.report.intervals import band_label, has_band, replayed_level, residual_band, shared_level
 from rafi.report.replay_plot import fig_replay
 from rafi.report.replay_section import replay_figure_key
 from rafi.report.segmentation_plot import fig_segmentation
@@ -288,15 +288,6 @@ def _deployed(res: dict, fmt: str):
                 }
             )
         yield deployed_figure_key(k), fig_deployed_residuals(panels, fmt=fmt)
-
-
-def replayed_level(summary: pd.DataFrame, *docs) -> float | None:
-    """The interval level of the replayed model: that of the artefact among ``docs``
-    (``model.json``, ``best_model.json``) whose ``model_id`` is the replay summary's (``None``
-    when none is, or it has no ``interval`` block)."""
-    ids = set(summary["model_id"].astype(str)) if "model_id" in summary else set()
-    mine = [d for d in docs if isinstance(d, dict) and str(d.get("model_id")) in ids]
-    return shared_level(*mine) if mine else None
 
 
 def _replay(res: dict, deploy: dict, fmt: str):

@@ -58,6 +58,15 @@ def shared_level(*docs) -> float | None:
     return levels.pop() if len(levels) == 1 else None
 
 
+def replayed_level(summary: pd.DataFrame, *docs) -> float | None:
+    """The interval level of the replayed model: that of the artefact among ``docs``
+    (``model.json``, ``best_model.json``) whose ``model_id`` is the replay summary's (``None``
+    when none is, or it has no ``interval`` block)."""
+    ids = set(summary["model_id"].astype(str)) if "model_id" in summary else set()
+    mine = [d for d in docs if isinstance(d, dict) and str(d.get("model_id")) in ids]
+    return shared_level(*mine) if mine else None
+
+
 def band_label(level: float | None) -> str:
     """The legend entry of a band: ``90 % interval`` (``prediction interval`` without a level)."""
     return f"{100 * level:g}\u00a0% interval" if isnum(level) else "prediction interval"

@@ -3,8 +3,8 @@
 One run of a replay table (:func:`rafi.deploy.replay.replay_log`): the measured displacement,
 the model's value with its prediction interval (a band, where the table has ``lower_um`` and
 ``upper_um``) and the command against time, with shading where a limit or a fault rule acted
-(clamp, rate limit, hold / ramp - an interval too wide is one of those fault rules), and the
-status of every sample as a strip below. Called by
+(clamp, rate limit, hold / ramp; a hold / ramp caused by the interval alone, fault class
+``interval_wide``, in a colour of its own), and the status of every sample as a strip below. Called by
 rule ``report_figures`` (group ``replay``) and by ``rafi replay``; the report job embeds the file.
 """
 
@@ -15,6 +15,7 @@ import numpy as np
 import pandas as pd
 from matplotlib.patches import Patch
 
+from rafi.deploy.metrics import fault_classes
 from rafi.report.intervals import band_label, has_band
 from rafi.report.plot_layout import (
     C_MEAS,
@@ -42,7 +43,19 @@ _BANDS = (
     ("clamped", "clamp acted", "#ce93d8"),
     ("rate_limited", "rate limit acted", "#80deea"),
     ("fault_rule", "fault rule (hold / ramp)", "#ffab91"),
+    ("interval_wide", "interval too wide (hold / ramp)", "#a1887f"),
 )
+
+
+def _held_by_interval(f: pd.DataFrame, held: np.ndarray) -> np.ndarray:
+    """True where the command was held or ramped because of the prediction interval alone: the
+    sample's ``fault`` names fault class ``interval_wide`` and no other
+    (:func:`rafi.deploy.metrics.fault_classes`). A sample with a further cause (a sensor, the
+    trained range) counts as the other fault rules; a table without ``fault`` has none."""
+    if "fault" not in f:
+        return np.zeros(len(f), dtype=bool)
+    alone = np.array([fault_classes(str(x)) == ["interval_wide"] for x in f["fault"].fillna("")], dtype=bool)
+    return held & alone
 
 
 def _band(ax, h, flag, colour, label):
@@ -77,7 +90,9 @@ def fig_replay(
     ----------
     table : DataFrame
         The run's rows of the replay table: ``t_s``, ``measured_um``, ``model_um``,
-        ``command_um``, ``status``, ``clamped``, ``rate_limited`` (time order); with
+        ``command_um``, ``status``, ``clamped``, ``rate_limited`` (time order); ``fault`` (the
+        causes, :attr:`rafi.deploy.limits.Command.fault`) tells a hold / ramp by the interval
+        alone from the other fault rules (without it, every hold / ramp is a fault rule); with
         ``lower_um`` and ``upper_um`` (:data:`rafi.deploy.replay.COLUMNS`: the model's
         interval, around ``model_um``) the interval is a band around the model's curve. A table
         without them, or without a finite bound (an artefact without an ``interval`` block), is
@@ -109,10 +124,13 @@ def fig_replay(
             gridspec_kw={"height_ratios": [7, 1], "hspace": 0.08},
             constrained_layout=True,
         )
+        held = np.isin(status, ("hold", "ramp"))
+        by_interval = _held_by_interval(f, held)
         flags = {
             "clamped": f["clamped"].astype(bool).to_numpy(),
             "rate_limited": f["rate_limited"].astype(bool).to_numpy(),
-            "fault_rule": np.isin(status, ("hold", "ramp")),
+            "fault_rule": held & ~by_interval,
+            "interval_wide": by_interval,
         }
         for key, label, colour in _BANDS:
             _band(ax, h, flags[key], colour, label)

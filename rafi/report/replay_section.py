@@ -12,6 +12,7 @@ import pandas as pd
 from markupsafe import Markup, escape
 
 from rafi.report.format import fmt_num, isnum, records, short_id
+from rafi.report.intervals import band_label, coverage_fields, has_coverage, replayed_level
 
 UM = "\u00b5m"
 
@@ -52,11 +53,14 @@ def _limits(deploy: dict, s: pd.DataFrame) -> dict:
 
 
 def _runs(s: pd.DataFrame) -> list[dict]:
-    """One dict per replayed run: ``replay_summary.csv``'s row and ``statuses`` (``[status,
-    samples]`` of every status that occurred, in :data:`STATUS_ORDER`)."""
+    """One dict per replayed run: ``replay_summary.csv``'s row, ``statuses`` (``[status,
+    samples]`` of every status that occurred, in :data:`STATUS_ORDER`) and the replay's
+    ``coverage_pct`` and ``interval_width_um`` (:func:`rafi.report.intervals.coverage_fields`:
+    ``None`` for a run without them - an older table, a model without an interval)."""
     rows = records(s)
     for r in rows:
         r["statuses"] = [[st, _n(r.get(f"n_{st}"))] for st in STATUS_ORDER if _n(r.get(f"n_{st}"))]
+        r.update(coverage_fields(r))
     return rows
 
 
@@ -93,6 +97,8 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
                 "figure": figs.get("replay", replay_figure_key(r["run_id"])),
                 # the figure draws the model's interval (replay_plot): the summary has its coverage
                 "band": isnum(r.get("coverage")),
+                # a hold / ramp by the interval alone has its own shading (replay_plot)
+                "interval_wide": "interval_wide" in str(r.get("faults", "")),
             }
         )
     deploy = settings["deploy"]
@@ -106,6 +112,9 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
         "roles": ", ".join(str(r) for r in deploy.get("replay_roles") or []),
         "limits": _limits(deploy, s),
         "per_run": _runs(s),
+        # the per-run table's interval columns: left out when no run has a coverage
+        "coverage": has_coverage(s),
+        "interval_label": band_label(replayed_level(s, res.get("model"), res.get("best_model"))),
         "acted": acted,
         "worst_with": fmt_num(pd.to_numeric(s["max_abs_residual_um"]).max(), 2, UM),
         "worst_without": fmt_num(pd.to_numeric(s["max_abs_residual_model_um"]).max(), 2, UM),
