@@ -29,7 +29,7 @@ from rafi.settings import machine_settings
 
 MACHINE = "tapping-center-a"
 RUNS = ("multi-1", "val-8000")
-INTERVAL_ROW = "prediction interval too wide"
+INTERVAL_ROW = "wide prediction interval"
 SENSOR_ROW = "sensor checks: missing, out of range, stuck"
 
 
