@@ -29,6 +29,8 @@ from rafi.deploy.metrics import (  # noqa: E402
     LoopMetrics,
     RecordMetrics,
     fault_classes,
+    fault_groups,
+    fault_groups_text,
     metrics_from_settings,
 )
 from rafi.errors import SettingsError  # noqa: E402
@@ -138,6 +140,30 @@ def test_several_causes_count_once_per_class_and_unknown_texts_are_other():
     assert fault_classes("") == []
     assert fault_classes("T6 missing; T8 missing; speed missing") == ["missing", "speed_missing"]
     assert fault_classes("T6 stuck; a cause nobody wrote yet") == ["stuck", "other"]
+
+
+def test_fault_groups_count_samples_per_class_with_the_first_cause():
+    """A sample counts once per class (two sensors missing: one sample), the example is the first
+    cause of the class met, classes in the order first met; the text is one entry per class."""
+    faults = [
+        "",
+        "T6 out of range (71.2 degC)",
+        "T6 missing; T8 missing",
+        "T8 missing; speed missing",
+        "T6 out of range (73.9 degC); a cause nobody wrote yet",
+    ]
+    groups = fault_groups(faults)
+    assert groups == [
+        ("out_of_range", 2, "T6 out of range (71.2 degC)"),
+        ("missing", 2, "T6 missing"),
+        ("speed_missing", 1, "speed missing"),
+        ("other", 1, "a cause nobody wrote yet"),
+    ]
+    assert fault_groups_text(groups) == (
+        "out_of_range: 2 (first: T6 out of range (71.2 degC)); missing: 2 (first: T6 missing); "
+        "speed_missing: 1 (first: speed missing); other: 1 (first: a cause nobody wrote yet)"
+    )
+    assert fault_groups(["", ""]) == [] and fault_groups_text([]) == ""
 
 
 # ------------------------------------------------------------------------ deploy over HTTP

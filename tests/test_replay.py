@@ -188,13 +188,53 @@ def test_a_drop_out_is_held_named_and_counted(data):
     assert list(s.columns) == list(SUMMARY_COLUMNS)
     by_run = got.groupby("run_id", sort=False)
     row = s.set_index("run_id").loc[t8["run_id"].iloc[0]]
-    assert "T8 missing: 4" in row["faults"]
+    assert row["faults"] == "missing: 4 (first: T8 missing); speed_missing: 1 (first: speed missing)"
     assert s["n_samples"].sum() == len(got) == by_run.size().sum()
     statuses = [
         c for c in s.columns if c.startswith("n_") and c[2:] in ("off", "referencing", "ok", "hold", "ramp")
     ]
     assert (s[statuses].sum(axis=1) == s["n_samples"]).all()
     assert s["n_hold"].sum() == (got["status"] == "hold").sum() == 3  # the speed sample held too
+
+
+def _class_of(cause: str) -> str:
+    """The fault class of one cause by the wording docs/deploy.md documents (an oracle written
+    here, not rafi.deploy.metrics)."""
+    if cause == "speed missing":
+        return "speed_missing"
+    if cause.endswith(" missing"):
+        return "missing"
+    if "outside trained range" in cause or "above trained" in cause:
+        return "outside_range"
+    raise AssertionError(cause)
+
+
+def test_faults_are_one_entry_per_class_however_many_values_the_messages_name(data):
+    """The trained range with no margin fires on many samples of the multi-speed log, each message
+    with its own measured rise or speed; the drop-out adds two classes. Per run, ``faults`` has
+    one entry per class: the samples with a cause of the class and its first cause."""
+    rule, table, frame = data
+    model = _fit("rafi_linear", rule, table, frame)
+    edge = dataclasses.replace(OPEN, range_margin_k=0.0, speed_margin_rpm=0.0, hold_s=40.0, interval_s=20.0)
+    multi, art = frame[frame["log"] == "multi.csv"], _artefact(model)
+    got = replay_log(multi, art, edge)
+    s = summary_frame(replay_summary(got)).set_index("run_id")
+    many = 0
+    for rid, g in got.groupby("run_id", sort=False):
+        want: dict = {}
+        for fault in g["fault"]:
+            causes = [c for c in fault.split("; ") if c]
+            for kind in dict.fromkeys(_class_of(c) for c in causes):
+                first = next(c for c in causes if _class_of(c) == kind)
+                n, example = want.get(kind, (0, first))
+                want[kind] = (n + 1, example)
+        assert s.loc[rid, "faults"] == "; ".join(f"{k}: {n} (first: {c})" for k, (n, c) in want.items())
+        many = max(many, g["fault"][g["fault"] != ""].nunique())
+    assert many > 50  # distinct messages in one run: each was an entry of its own before
+    assert s["faults"].str.contains("outside_range: ").any() and s["faults"].str.contains("missing: 4 ").any()
+    # deterministic: the same replay gives the same bytes
+    again = summary_frame(replay_summary(replay_log(multi, art, edge)))
+    assert again.to_csv(index=False) == s.reset_index()[list(again.columns)].to_csv(index=False)
 
 
 def test_replay_runs_feeds_the_run_s_log_from_power_on(data):

@@ -61,7 +61,7 @@ import errno
 import math
 import re
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 
 from rafi.errors import SettingsError
 
@@ -75,7 +75,10 @@ __all__ = [
     "INTERVAL_CELLS",
     "LoopMetrics",
     "RecordMetrics",
+    "fault_causes",
     "fault_classes",
+    "fault_groups",
+    "fault_groups_text",
     "metrics_from_settings",
 ]
 
@@ -98,6 +101,28 @@ KNOWN_STATUSES = ("off", "referencing", "ok", "hold", "ramp")
 STEP_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0)
 
 
+def fault_causes(fault: str) -> list[tuple[str, str]]:
+    """Every cause in a ``Command.fault`` text (``"; "``-separated) with its class.
+
+    Parameters
+    ----------
+    fault : str
+        ``Command.fault`` (empty: no fault).
+
+    Returns
+    -------
+    list of (str, str)
+        ``(class, cause)`` per cause, in the text's order: a key of :data:`FAULT_CLASSES`, or
+        ``other``, and the cause's text (stripped).
+    """
+    out: list[tuple[str, str]] = []
+    for cause in (c.strip() for c in (fault or "").split(";")):
+        if cause:
+            kind = next((k for k, pattern in FAULT_CLASSES.items() if pattern.search(cause)), "other")
+            out.append((kind, cause))
+    return out
+
+
 def fault_classes(fault: str) -> list[str]:
     """The classes of the causes in a ``Command.fault`` text (``"; "``-separated), each once.
 
@@ -111,14 +136,40 @@ def fault_classes(fault: str) -> list[str]:
     list of str
         Keys of :data:`FAULT_CLASSES`, or ``other``, in the order first met.
     """
-    out: list[str] = []
-    for cause in (c.strip() for c in (fault or "").split(";")):
-        if not cause:
-            continue
-        kind = next((k for k, pattern in FAULT_CLASSES.items() if pattern.search(cause)), "other")
-        if kind not in out:
-            out.append(kind)
-    return out
+    return list(dict.fromkeys(kind for kind, _ in fault_causes(fault)))
+
+
+def fault_groups(faults: Iterable[str]) -> list[tuple[str, int, str]]:
+    """The faults of many samples grouped by class: how many samples, and the first cause.
+
+    Parameters
+    ----------
+    faults : iterable of str
+        ``Command.fault`` of each sample (empty: no fault), in time order.
+
+    Returns
+    -------
+    list of (str, int, str)
+        ``(class, samples, first cause)`` per class (:func:`fault_causes`), in the order first
+        met: the number of samples with a cause of the class (a sample with two causes of one
+        class, e.g. two sensors missing, counts once) and the text of the first such cause.
+    """
+    counts: dict[str, int] = {}
+    first: dict[str, str] = {}
+    for fault in faults:
+        seen = set()
+        for kind, cause in fault_causes(fault):
+            first.setdefault(kind, cause)
+            if kind not in seen:
+                seen.add(kind)
+                counts[kind] = counts.get(kind, 0) + 1
+    return [(kind, counts[kind], first[kind]) for kind in counts]
+
+
+def fault_groups_text(groups) -> str:
+    """:func:`fault_groups` as one line: ``"missing: 4 (first: T8 missing); speed_missing: 1 (first:
+    speed missing)"``; empty without a fault."""
+    return "; ".join(f"{kind}: {n} (first: {cause})" for kind, n, cause in groups)
 
 
 class _Metrics:

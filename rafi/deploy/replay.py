@@ -31,6 +31,7 @@ import pandas as pd
 
 from rafi import SENSORS
 from rafi.deploy.limits import STATUSES, SafeCompensator
+from rafi.deploy.metrics import fault_groups, fault_groups_text
 
 __all__ = [
     "COLUMNS",
@@ -293,8 +294,11 @@ def replay_summary(table: pd.DataFrame) -> dict:
         ``run_id -> dict`` (runs in table order) with the keys of :data:`SUMMARY_COLUMNS`:
         ``n_samples``; ``n_<status>`` per status of :data:`REPLAY_STATUSES` (a status not
         listed there is counted too, as ``n_<status>``); ``n_clamped``, ``n_rate_limited``,
-        ``n_fault`` (samples with a fault), ``n_outside_range``; ``faults`` (each distinct fault
-        and its sample count, ``"T8 missing: 4; ..."``, in order of first appearance);
+        ``n_fault`` (samples with a fault), ``n_outside_range``; ``faults`` (per fault class of
+        :func:`rafi.deploy.metrics.fault_classes`, in order of first appearance: the samples with
+        a cause of the class and the first such cause, ``"missing: 4 (first: T8 missing); ..."``,
+        :func:`rafi.deploy.metrics.fault_groups_text`: one entry per class, however many
+        measured values the causes name);
         ``max_abs_command_minus_model_um`` (where the model has a value), ``max_abs_measured_um``
         (uncompensated), ``max_abs_residual_model_um`` (measured - model: without the limits,
         where the model has a value) and ``max_abs_residual_um`` (measured - command: with them);
@@ -306,7 +310,6 @@ def replay_summary(table: pd.DataFrame) -> dict:
     out: dict = {}
     for rid, g in table.groupby(table["run_id"].astype(str), sort=False):
         status = Counter(g["status"].astype(str))
-        faults = Counter(f for f in g["fault"].astype(str) if f)
         model = g["model_um"].to_numpy(dtype=float)
         command = g["command_um"].to_numpy(dtype=float)
         measured = g["measured_um"].to_numpy(dtype=float)
@@ -318,7 +321,7 @@ def replay_summary(table: pd.DataFrame) -> dict:
             n_rate_limited=int(g["rate_limited"].astype(bool).sum()),
             n_fault=int((g["fault"].astype(str) != "").sum()),
             n_outside_range=int(g["outside_range"].astype(bool).sum()),
-            faults="; ".join(f"{f}: {n}" for f, n in faults.items()),
+            faults=fault_groups_text(fault_groups(g["fault"].astype(str))),
             max_abs_command_minus_model_um=_max_abs(command - model),
             max_abs_measured_um=_max_abs(measured),
             max_abs_residual_model_um=_max_abs(measured - model),

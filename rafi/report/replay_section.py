@@ -3,14 +3,18 @@
 Reads ``deploy/replay_summary.csv`` (rule ``replay``: one row per replayed run), the limits in
 force from the machine's settings (``deploy:``, the values rule ``replay`` was given) and the
 registry decision (is the replayed model on the machine after this run?). The figures are files
-of rule ``report_figures`` (group ``replay``). Nothing is computed here but formatting.
+of rule ``report_figures`` (group ``replay``). Computed here besides formatting: the faults of
+the replay table ``deploy/replay.parquet`` (same rule) by class over all replayed runs
+(:func:`rafi.deploy.metrics.fault_groups`), as the figure classifies them.
 """
 
 from __future__ import annotations
 
+import numpy as np
 import pandas as pd
 from markupsafe import Markup, escape
 
+from rafi.deploy.metrics import fault_classes, fault_groups, fault_groups_text
 from rafi.report.format import fmt_num, isnum, records, short_id
 from rafi.report.intervals import band_label, coverage_fields, has_coverage, replayed_level
 
@@ -18,6 +22,9 @@ UM = "\u00b5m"
 
 #: Status values in the order the section lists them (``rafi.deploy.limits.STATUSES``).
 STATUS_ORDER = ("off", "referencing", "ok", "hold", "ramp")
+
+#: Fault classes with a row of their own in the limits table (not listed under the sensor checks).
+OWN_ROW = ("outside_range", "interval_wide")
 
 
 #: When the replay captures a new reference, by ``reference.rule`` (rafi.deploy.replay).
@@ -43,13 +50,43 @@ def _n(value) -> int:
     return int(value) if pd.notna(value) else 0
 
 
-def _limits(deploy: dict, s: pd.DataFrame) -> dict:
+def _acted_on(table: pd.DataFrame | None, kind: str) -> dict | None:
+    """Samples of the replay table whose ``fault`` names a cause of class ``kind``
+    (:func:`rafi.deploy.metrics.fault_classes`, as the figure shades them) by status: ``hold``,
+    ``ramp`` and ``n`` (all); ``None`` without a table with ``fault`` and ``status``."""
+    if table is None or not {"fault", "status"} <= set(table.columns):
+        return None
+    mine = np.array([kind in fault_classes(str(f)) for f in table["fault"].fillna("")], dtype=bool)
+    status = table["status"].astype(str).to_numpy()[mine]
+    return {"n": int(mine.sum()), **{st: int((status == st).sum()) for st in ("hold", "ramp")}}
+
+
+def _sensor_faults(s: pd.DataFrame, table: pd.DataFrame | None) -> str:
+    """The faults for the sensor checks' row: the replay table's faults over every replayed run
+    grouped by class (:func:`rafi.deploy.metrics.fault_groups`, the classes with a row of their
+    own left out); without the table, ``replay_summary.csv``'s ``faults`` of the runs."""
+    if table is None or "fault" not in table:
+        return "; ".join(str(f) for f in s["faults"].fillna("") if str(f)) if "faults" in s else ""
+    groups = fault_groups(table["fault"].fillna("").astype(str))
+    return fault_groups_text([g for g in groups if g[0] not in OWN_ROW])
+
+
+def _limits(deploy: dict, s: pd.DataFrame, table: pd.DataFrame | None) -> dict:
     """The limits and fault rules in force and what they did summed over the replayed runs:
     ``deploy`` (the settings), ``totals`` (the ``n_*`` counts of ``replay_summary.csv``
-    summed), ``n`` (samples) and ``faults`` (the sensor faults, ``"; "``-joined)."""
+    summed), ``n`` (samples), ``faults`` (the sensor faults, :func:`_sensor_faults`) and
+    ``interval_wide`` (the samples the wide-interval rule held / ramped, :func:`_acted_on`;
+    ``None`` without the replay table)."""
     tot = {c: int(s[c].fillna(0).sum()) for c in s.columns if c.startswith("n_")}
-    faults = "; ".join(str(f) for f in s["faults"].fillna("") if str(f)) if "faults" in s else ""
-    return {"deploy": deploy, "totals": tot, "n": tot.get("n_samples", 0), "faults": faults}
+    if table is not None and "run_id" in table:
+        table = table[table["run_id"].astype(str).isin(set(s["run_id"]))]
+    return {
+        "deploy": deploy,
+        "totals": tot,
+        "n": tot.get("n_samples", 0),
+        "faults": _sensor_faults(s, table),
+        "interval_wide": _acted_on(table, "interval_wide"),
+    }
 
 
 def _runs(s: pd.DataFrame) -> list[dict]:
@@ -110,7 +147,7 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
         "champion": short_id(champion_id) if champion_id else "",
         "runs": runs,
         "roles": ", ".join(str(r) for r in deploy.get("replay_roles") or []),
-        "limits": _limits(deploy, s),
+        "limits": _limits(deploy, s, res.get("replay")),
         "per_run": _runs(s),
         # the per-run table's interval columns: left out when no run has a coverage
         "coverage": has_coverage(s),
