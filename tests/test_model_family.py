@@ -16,6 +16,7 @@ from rafi.family.compare import load_any, make_model, save_any
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.features import first_order_recursion, lowpass_runs, reference_speed, speed_change_evidence
 from rafi.family.grey_box import GreyBox
+from rafi.family.grids import resolve
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
 from rafi.family.ridge_global import RidgeGlobal
@@ -208,6 +209,52 @@ def test_grey_box_all_mode_may_leave_the_heat_input_terms_out():
     assert {k[0] for k in scores} == {(), (300.0, 1200.0)}
     best = min(scores, key=scores.get)
     assert gb.speed_taus_ == list(best[0])
+
+
+@pytest.mark.parametrize("search", ["all", "subsets"])
+def test_grey_box_heat_input_always_keeps_the_heat_input_terms(search):
+    # the data where CV may drop them (above): under `always` no candidate is without them
+    table, _, spinning = _spinning(seed=6)
+    kw = {"taus_s": [0], "speed_taus_s": [300, 1200], "alphas": [1e-6, 1e-3], "filter_search": search}
+    gb = GreyBox(**kw, heat_input="always").fit(table, spinning)
+    assert {tuple(r["speed_taus_s"]) for r in gb.cv_table_} == (
+        {(300.0, 1200.0)} if search == "all" else {(300.0,), (1200.0,), (300.0, 1200.0)}
+    )
+    assert gb.speed_taus_ and gb.feature_names_[-1].startswith("L")
+    # the artefact records the setting and gives the same model back; the default records nothing
+    art = json.loads(json.dumps(gb.to_dict()))
+    assert art["hyperparameters"]["heat_input"] == "always"
+    again = load_any(art)
+    assert again.heat_input == "always"
+    np.testing.assert_array_equal(again.predict(spinning), gb.predict(spinning))
+    plain = GreyBox(**kw).fit(table, spinning).to_dict()["hyperparameters"]
+    assert "heat_input" not in plain and "slow_rises" not in plain
+
+
+def test_grey_box_slow_rises_reach_the_run_length():
+    # the auto rule: 0 and 24 P .. L/24 (ratio 5), or under slow_rises 24 P .. L
+    assert resolve("grey_box_taus_s", "auto", 15.0, 14400.0) == [0.0, 360.0]
+    slow = resolve("grey_box_taus_s", "auto", 15.0, 14400.0, "grey_box_slow_taus_s")
+    assert slow == [0.0, 360.0, 1800.0, 9000.0]
+    table, frame = make_synthetic_runs(seed=3, sample_s=60.0, n_sensors=2, noise_um=0.02)
+    fast, slow = (
+        GreyBox(speed_taus_s=[300], alphas=[1e-3], slow_rises=flag).fit(table, frame)
+        for flag in (False, True)
+    )
+    period, run_s = slow.data_scales_["sample_period_s"], slow.data_scales_["run_length_s"]
+    assert slow.grids_["grey_box_taus_s"] == resolve(
+        "grey_box_taus_s", "auto", period, run_s, "grey_box_slow_taus_s"
+    )
+    assert fast.grids_["grey_box_taus_s"] == resolve("grey_box_taus_s", "auto", period, run_s)
+    assert max(fast.grids_["grey_box_taus_s"]) < run_s / 5 < max(slow.grids_["grey_box_taus_s"]) <= run_s
+    assert slow.taus_ == slow.grids_["grey_box_taus_s"]  # filter_search all: every one in the model
+    assert slow.to_dict()["hyperparameters"]["slow_rises"] is True
+    # make_model hands both settings to the kind
+    options = {**MACHINE_DEFAULTS["models"], "grey_box_slow_rises": True, "grey_box_heat_input": "always"}
+    gb = make_model(
+        "grey_box", key_sensors=KEY, terms=SMALL_TERMS, reference={}, machine=None, options=options
+    )
+    assert gb.slow_rises is True and gb.heat_input == "always"
 
 
 def test_grey_box_drops_the_unidentifiable_centrifugal_term():
@@ -442,6 +489,7 @@ def test_constructor_only_stores_its_arguments(cls):
         (RidgeGlobal, {"speed_gain": "sometimes"}),
         (RidgeGlobal, {"cv_metric": "mae"}),
         (GreyBox, {"filter_search": "some"}),
+        (GreyBox, {"heat_input": "sometimes"}),
         (GreyBox, {"centrifugal_lags_s": [-5.0]}),
     ],
 )

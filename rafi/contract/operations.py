@@ -195,6 +195,27 @@ OPERATIONS_SETTINGS: dict = {
                     " or a list"
                 ),
             ),
+            "grey_box_slow_rises": Setting(
+                default=False,
+                schema={"type": "boolean"},
+                shown="`false`",
+                doc=(
+                    "`true`: the `auto` rise filters of `grey_box` reach the median training-run length "
+                    "(24 P .. L, ratio 5) instead of L/24, for a structure (housing, column) whose "
+                    "displacement lags its temperatures by hours"
+                ),
+            ),
+            "grey_box_heat_input": Setting(
+                default="cv",
+                schema={"enum": ["cv", "always"]},
+                shown="`cv`",
+                doc=(
+                    "`cv`: the heat-input filters of `grey_box` are in or out by CV (`filter_search: all`;"
+                    " `subsets`: from none); `always`: always in (at least one filter), so that a fold "
+                    "whose training speeds are all below the held-out speed cannot drop the only term "
+                    "that scales with speed"
+                ),
+            ),
             "grey_box_filter_search": Setting(
                 default="all",
                 schema={"enum": ["all", "subsets"]},

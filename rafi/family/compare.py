@@ -125,6 +125,8 @@ def make_model(
             max_speed_taus=o["grey_box_max_speed_taus"],
             speed_powers=o["grey_box_speed_powers"],
             filter_search=o["grey_box_filter_search"],
+            slow_rises=o["grey_box_slow_rises"],
+            heat_input=o["grey_box_heat_input"],
             centrifugal_lags_s=o["grey_box_centrifugal_lags_s"],
             cv_metric=o["grey_box_cv_metric"],
             **ridge,

@@ -17,6 +17,7 @@ from rafi.settings import MACHINE_DEFAULTS
 
 MODELS = MACHINE_DEFAULTS["models"]
 FILTER_SEARCHES = ("all", "subsets")
+HEAT_INPUT = ("cv", "always")
 
 
 class GreyBox(RidgeBase):
@@ -64,6 +65,12 @@ class GreyBox(RidgeBase):
     filter_search : str
         ``all``: every filter constant at once, the heat-input block in or out by CV;
         ``subsets``: CV over subsets (``models: grey_box_filter_search``).
+    slow_rises : bool
+        ``auto`` rise filters up to the median training-run length instead of a 24th of it
+        (``models: grey_box_slow_rises``; :data:`rafi.family.grids.AUTO_RULES`).
+    heat_input : str
+        ``cv``: the heat-input filters may be left out by CV; ``always``: never all of them
+        (``models: grey_box_heat_input``).
     centrifugal_lags_s : sequence of float or "auto"
         First-order lags of the ``n^2`` draw-in term to choose from (``models: grey_box_centrifugal_lags_s``).
     cv_metric : str
@@ -85,6 +92,8 @@ class GreyBox(RidgeBase):
         max_speed_taus: int = MODELS["grey_box_max_speed_taus"],
         speed_powers: Sequence[float] = MODELS["grey_box_speed_powers"],
         filter_search: str = MODELS["grey_box_filter_search"],
+        slow_rises: bool = MODELS["grey_box_slow_rises"],
+        heat_input: str = MODELS["grey_box_heat_input"],
         centrifugal_lags_s: Sequence[float] = MODELS["grey_box_centrifugal_lags_s"],
         cv_metric: str = MODELS["grey_box_cv_metric"],
         sensors: Sequence[str] | None = None,
@@ -103,6 +112,8 @@ class GreyBox(RidgeBase):
         self.max_speed_taus = max_speed_taus
         self.speed_powers = speed_powers
         self.filter_search = filter_search
+        self.slow_rises = slow_rises
+        self.heat_input = heat_input
         self.centrifugal_lags_s = centrifugal_lags_s
         self.cv_metric = cv_metric
         self.sensors = sensors
@@ -129,6 +140,9 @@ class GreyBox(RidgeBase):
             "grey_box_centrifugal_lags_s": self.centrifugal_lags_s,
         }
 
+    def _auto_rule(self, name: str) -> str:
+        return "grey_box_slow_taus_s" if name == "grey_box_taus_s" and self.slow_rises else name
+
     def _rise_taus(self) -> list[float]:
         return list(self.grids_["grey_box_taus_s"])
 
@@ -150,6 +164,8 @@ class GreyBox(RidgeBase):
         super()._check_params()
         if self.filter_search not in FILTER_SEARCHES:
             raise ValueError(f"filter_search={self.filter_search!r}: use all or subsets")
+        if self.heat_input not in HEAT_INPUT:
+            raise ValueError(f"heat_input={self.heat_input!r}: use cv or always")
         lags = self.centrifugal_lags_s
         if not isinstance(lags, str) and len(lags) and min(float(v) for v in lags) < 0:
             raise ValueError(f"centrifugal_lags_s={self.centrifugal_lags_s!r}: lags must be >= 0")
@@ -215,10 +231,13 @@ class GreyBox(RidgeBase):
         once, with every heat-input filter at once or with none (the ridge penalty sorts out
         redundant constants; CV decides whether the heat-input terms help at all, e.g. they do
         not for runs referenced while already spinning). ``subsets``: every subset of at most
-        ``max_taus`` / ``max_speed_taus`` of them."""
+        ``max_taus`` / ``max_speed_taus`` of them. ``heat_input: always`` drops the candidate
+        without heat-input filters (when there are any): the heat input is the only term that
+        scales with speed, and a CV whose held-out speeds lie between the training speeds cannot
+        tell that a fold beyond them needs it."""
         n_rise, n_speed = len(self._rise_taus()), len(self._speed_taus())
         if self.filter_search == "all":
-            return [tuple(range(n_rise))], [(), tuple(range(n_speed))]
+            return [tuple(range(n_rise))], self._heat_sets([(), tuple(range(n_speed))])
         rise_sets = [
             c
             for k in range(1, max(1, int(self.max_taus)) + 1)
@@ -229,7 +248,13 @@ class GreyBox(RidgeBase):
             for k in range(0, int(self.max_speed_taus) + 1)
             for c in itertools.combinations(range(n_speed), k)
         ]
-        return rise_sets, speed_sets
+        return rise_sets, self._heat_sets(speed_sets)
+
+    def _heat_sets(self, speed_sets: list) -> list:
+        """``speed_sets`` without the empty set under ``heat_input: always`` (if any is left)."""
+        if self.heat_input != "always":
+            return speed_sets
+        return [c for c in speed_sets if c] or speed_sets
 
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """Choose the filter constants, the draw-in lag and ``alpha`` by whole-run CV on the
@@ -303,8 +328,13 @@ class GreyBox(RidgeBase):
 
     # -- artefact
     def _hyper(self) -> dict:
+        # the two opt-in keys only when set: the artefacts of the defaults are unchanged
+        opt_in = {"slow_rises": True} if self.slow_rises else {}
+        if self.heat_input != "cv":
+            opt_in["heat_input"] = self.heat_input
         return {
             **super()._hyper(),
+            **opt_in,
             "speed_gain": False,  # no speed-gain products (a key of every ridge kind's artefact)
             "taus_s": self._given(self.taus_s),
             "max_taus": int(self.max_taus),

@@ -196,6 +196,10 @@ class RidgeBase(FamilyModel):
         """Setting name -> value (a list or ``auto``) of the filter grids of this kind."""
         return {}
 
+    def _auto_rule(self, name: str) -> str:
+        """The :data:`rafi.family.grids.AUTO_RULES` rule of grid ``name`` under ``auto``."""
+        return name
+
     def _resolve_grids(self, frame: pd.DataFrame, max_filter_s: float | None = None) -> None:
         """Set ``data_scales_`` (sample period, median run length of the training rows ``frame``)
         and ``grids_`` (every grid as used: ``alpha`` and the kind's filter grids; under
@@ -205,7 +209,7 @@ class RidgeBase(FamilyModel):
         self.data_scales_ = {"sample_period_s": period, "run_length_s": run_s}
         self.grids_ = {"alpha": self._alphas()}
         for name, value in self._grid_settings().items():
-            grid = resolve(name, value, period, run_s)
+            grid = resolve(name, value, period, run_s, self._auto_rule(name))
             if max_filter_s is not None and name.endswith("taus_s"):
                 grid = [v for v in grid if v <= max_filter_s * (1 + 1e-9)]
             self.grids_[name] = grid
