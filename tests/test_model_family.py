@@ -498,3 +498,22 @@ def test_hyperparameters_are_checked_by_fit(cls, bad, data):
     m = cls(**bad)  # the constructor checks nothing
     with pytest.raises(ValueError):
         m.fit(table, frame)
+
+
+@pytest.mark.parametrize(
+    ("kind", "heat_input", "speed_gain", "offered"),
+    [
+        (DynamicRidge, True, "cv", {False}),  # the heat input carries the speed dependence
+        (DynamicRidge, False, "cv", {False, True}),
+        (DynamicRidge, True, True, {True}),  # an explicit setting is kept
+        (RidgeGlobal, None, "cv", {False, True}),  # ridge_global is unchanged
+    ],
+)
+def test_speed_gain_cv_offers_dynamic_with_heat_input_no_gain(kind, heat_input, speed_gain, offered):
+    table, frame = make_synthetic_runs(seed=3, sample_s=120.0, n_sensors=3, noise_um=0.05)
+    kw = {"heat_input": heat_input} if heat_input is not None else {}
+    m = kind(alphas=[1e-3, 1e-1], speed_gain=speed_gain, **kw).fit(table, frame)
+    assert {bool(r["speed_gain"]) for r in m.cv_table_} == offered
+    assert m.speed_gain_ in offered
+    gain_columns = [n for n in m.feature_names_ if n.endswith("*n_krpm")]
+    assert bool(gain_columns) == m.speed_gain_
