@@ -52,8 +52,10 @@ def _n(value) -> int:
 
 def _acted_on(table: pd.DataFrame | None, kind: str) -> dict | None:
     """Samples of the replay table whose ``fault`` names a cause of class ``kind``
-    (:func:`rafi.deploy.metrics.fault_classes`, as the figure shades them) by status: ``hold``,
-    ``ramp`` and ``n`` (all); ``None`` without a table with ``fault`` and ``status``."""
+    (:func:`rafi.deploy.metrics.fault_classes`), alone or beside other causes, by status:
+    ``hold``, ``ramp`` and ``n`` (all); ``None`` without a table with ``fault`` and ``status``.
+    The figure's own shading (:mod:`rafi.report.replay_plot`) marks only the samples where the
+    wide interval is the sole cause; this count is every sample the rule acted on."""
     if table is None or not {"fault", "status"} <= set(table.columns):
         return None
     mine = np.array([kind in fault_classes(str(f)) for f in table["fault"].fillna("")], dtype=bool)
