@@ -30,12 +30,15 @@ from rafi.family.adapted import adaptation_factories
 from rafi.family.crossval import (  # noqa: F401 - cv_data re-exported (it lived here)
     cross_validate,
     cv_data,
+    has_folds,
     scheme_of,
     training_runs,
 )
 from rafi.family.cv_memo import cv_memo_key, read_cv, read_oof, write_cv, write_oof
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.feature_memo import sharing_features
+from rafi.family.forward_folds import configured_scheme as forward_scheme
+from rafi.family.forward_folds import is_forward
 from rafi.family.grey_box import GreyBox
 from rafi.family.interval_fit import calibrate_family, stacked_oof
 from rafi.family.intervals import coverage_and_width, interval_columns
@@ -394,12 +397,14 @@ def fit_and_cross_validate(
     runs_frame: pd.DataFrame,
     *,
     scheme: str,
+    forward: str | None = None,
     rafi_model=None,
     known_cv: pd.DataFrame | None = None,
     oof: list | None = None,
     log=print,
 ) -> tuple[dict, pd.DataFrame]:
-    """Fit every kind of ``factories`` on the training runs and cross-validate it by whole run.
+    """Fit every kind of ``factories`` on the training runs and cross-validate it by whole run
+    (and on forward folds).
 
     Parameters
     ----------
@@ -407,6 +412,9 @@ def fit_and_cross_validate(
         Kind -> a function building the unfitted model (:func:`make_model`), in order.
     scheme : str
         The CV scheme (``models: cv``).
+    forward : str, optional
+        A forward scheme (:func:`rafi.family.forward_folds.scheme_name`): every kind is also
+        cross-validated on its folds when the training runs give one (rows with that ``scheme``).
     rafi_model : RafiModel, optional
         The pipeline's ``model.json``: the ``rafi`` entry, not refitted.
     known_cv : pandas.DataFrame, optional
@@ -434,17 +442,25 @@ def fit_and_cross_validate(
             log(f"{kind}: fitted in {time.perf_counter() - t0:.2f} s{_fitted_text(models[kind])}")
             if known_cv is not None:
                 continue
-            t0 = time.perf_counter()
-            cv = cross_validate(factory, runs_table, runs_frame, scheme, name=kind, oof=oof)
-        cv_parts.append(cv)
-        worst = f"{cv['max_abs_after_um'].max():.2f} um" if len(cv) else "no fold"
-        log(
-            f"{kind}: {scheme_of(runs_table, scheme)} CV in {time.perf_counter() - t0:.1f} s,"
-            f" max |residual| {worst}"
-        )
+            for sch in [scheme] + ([forward] if forward and has_folds(runs_table, forward) else []):
+                t0 = time.perf_counter()
+                cv = cross_validate(factory, runs_table, runs_frame, sch, name=kind, oof=oof)
+                cv_parts.append(cv)
+                worst = f"{cv['max_abs_after_um'].max():.2f} um" if len(cv) else "no fold"
+                log(
+                    f"{kind}: {scheme_of(runs_table, sch)} CV in {time.perf_counter() - t0:.1f} s,"
+                    f" max |residual| {worst}"
+                )
     if known_cv is not None:
         return models, known_cv
     return models, pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
+
+
+def calibration_scheme(cv: pd.DataFrame, whole: str) -> str:
+    """The folds the OOF residuals of ``cv`` come from: ``whole`` (the whole-run or time-block
+    scheme), with ``+forward_<h>`` when forward folds ran."""
+    forward = sorted({str(s) for s in cv["scheme"] if is_forward(s)}) if len(cv) else []
+    return "+".join([whole, *forward])
 
 
 def _cross_validated(factories, runs_table, runs_frame, settings, rafi_model, cv_memo_dir, code_version, log):
@@ -467,6 +483,7 @@ def _cross_validated(factories, runs_table, runs_frame, settings, rafi_model, cv
         fit_table,
         fit_frame,
         scheme=options["cv"],
+        forward=forward_scheme(options),
         rafi_model=rafi_model,
         known_cv=known,
         oof=oof_parts,
@@ -556,7 +573,7 @@ def run_family(
         models,
         oof,
         options=options,
-        scheme=scheme_of(fit_table, options["cv"]),
+        scheme=calibration_scheme(cv, scheme_of(fit_table, options["cv"])),
         tolerance_rpm=speed_tolerance_rpm,
         keep={"rafi"} if rafi_model is not None else set(),
         log=log,
