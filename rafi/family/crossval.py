@@ -29,6 +29,7 @@ The comparison on the validation runs and the champion choice are in
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterator
 
 import numpy as np
@@ -187,14 +188,13 @@ def split_runs(runs_table: pd.DataFrame, scheme: str = "leave_one_run_out"):
     table (:func:`rafi.family.time_blocks.time_block_units`) the time-blocked folds of its units,
     whatever ``scheme`` (the data's structure chose them), and no forward fold (time blocks are
     the folds of one run). ``forward_<h>``: :func:`rafi.family.forward_folds.forward_folds`."""
-    if is_forward(scheme):
-        return iter(()) if is_blocked(runs_table) else forward_folds(runs_table, horizon_of(scheme))
-    try:
-        fn = SCHEMES[scheme]
-    except KeyError:
-        raise ValueError(f"unknown CV scheme {scheme!r}; known: {sorted(SCHEMES)}") from None
+    fn = SCHEMES.get(scheme)
+    if fn is None and is_forward(scheme):
+        fn = functools.partial(forward_folds, horizon=horizon_of(scheme))
+    if fn is None:
+        raise ValueError(f"unknown CV scheme {scheme!r}; known: {sorted(SCHEMES)} and forward_<runs>")
     if is_blocked(runs_table):
-        return time_block_folds(runs_table)
+        return iter(()) if is_forward(scheme) else time_block_folds(runs_table)
     return fn(runs_table)
 
 

@@ -14,10 +14,10 @@ from __future__ import annotations
 import pandas as pd
 
 from rafi.family.crossval import cross_validate, cv_data, has_folds, scheme_of
-from rafi.family.forward_folds import configured_scheme
+from rafi.family.forward_folds import configured_scheme, is_forward
 from rafi.family.intervals import OOF_COLUMNS, calibrate, set_interval
 
-__all__ = ["interval_options", "stacked_oof", "calibrate_family", "rafi_interval"]
+__all__ = ["interval_options", "stacked_oof", "calibration_scheme", "calibrate_family", "rafi_interval"]
 
 
 def interval_options(options: dict) -> dict:
@@ -35,6 +35,13 @@ def stacked_oof(parts: list) -> pd.DataFrame:
     if not parts:
         return pd.DataFrame({c: pd.Series(dtype=float) for c in OOF_COLUMNS})
     return pd.concat(parts, ignore_index=True)[OOF_COLUMNS]
+
+
+def calibration_scheme(cv: pd.DataFrame, whole: str) -> str:
+    """The folds the OOF residuals of ``cv`` come from: ``whole`` (the whole-run or time-block
+    scheme), with ``+forward_<h>`` when forward folds ran."""
+    forward = sorted({str(s) for s in cv["scheme"] if is_forward(s)}) if len(cv) else []
+    return "+".join([whole, *forward])
 
 
 def _describe(name: str, block: dict | None) -> str:

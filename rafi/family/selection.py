@@ -53,15 +53,14 @@ SELECTION_RULE_TIME_BLOCKS = (
 )
 
 
-
 def forward_rule(horizon: int) -> str:
     """The sentence the rule gains when forward-in-time folds ran (``horizon`` runs held out)."""
     runs = "run" if int(horizon) == 1 else f"{int(horizon)} runs"
     return (
         "Because a deployed model predicts what comes after its training data, every model is also "
         f"scored on forward folds: within one log, trained on the training runs before a point in time "
-        f"(at least {MIN_TRAIN}) and scored on the next {runs}; the selection score is then the mean "
-        "of the two scores (whole-run and forward)."
+        f"(at least {MIN_TRAIN}) and scored on the next {runs}; the model offered is then the one with "
+        "the lowest mean of the two scores (whole-run and forward), not of the whole-run score alone."
     )
 
 
@@ -118,9 +117,7 @@ def selection_table(cv: pd.DataFrame) -> pd.DataFrame:
     """
     if cv is None or not len(cv):
         return pd.DataFrame(columns=SELECTION_COLUMNS)
-    forward = (
-        cv["scheme"].map(is_forward).to_numpy(dtype=bool) if "scheme" in cv else np.zeros(len(cv), bool)
-    )
+    forward = cv["scheme"].map(is_forward).to_numpy(dtype=bool) if "scheme" in cv else np.zeros(len(cv), bool)
     rows = []
     for name, g in cv.loc[~forward].groupby(cv.loc[~forward, "model"].astype(str), sort=False):
         mx = _max_abs(g)
