@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 import pytest
+from test_selection import _family as selection_family
 
-from rafi.family.compare import run_family
 from rafi.family.crossval import cross_validate, has_folds, split_runs
 from rafi.family.forward_folds import (
     configured_scheme,
@@ -22,8 +22,6 @@ from rafi.family.ridge_global import RidgeGlobal
 from rafi.family.selection import choose_champion, selection_rule, selection_table
 from rafi.settings import MACHINE_DEFAULTS
 from rafi.twin.synthetic_runs import make_synthetic_runs
-
-GATES = {"max_residual_um": 12.0, "min_improvement_pct": 30.0, "never_worse_than_uncompensated": True}
 
 
 def _table(rows) -> pd.DataFrame:
@@ -181,17 +179,7 @@ def test_the_rule_text_says_when_forward_folds_chose():
 
 
 def _family(table, frame, **changes):
-    return run_family(
-        table,
-        frame,
-        key_sensors=["T1", "T2", "T3"],
-        terms=MACHINE_DEFAULTS["fit"]["terms"],
-        reference=MACHINE_DEFAULTS["reference"],
-        machine="spindle",
-        gates=GATES,
-        options={**MACHINE_DEFAULTS["models"], "enabled": ["ridge_global", "rafi_linear"], **changes},
-        log=lambda m: None,
-    )
+    return selection_family(table, frame, enabled=["ridge_global", "rafi_linear"], **changes)
 
 
 def test_run_family_scores_forward_folds_and_calibrates_on_them():

@@ -68,14 +68,21 @@ def _add_candidates(results, *, offered: str) -> pd.DataFrame:
     return summ
 
 
+def _context(results):
+    """The report's context of the results folder ``results`` (its upstream tables written)."""
+    paths = write_upstream_tables(results)
+    return build_context(
+        paths,
+        empty_figure_dirs(results),
+        machine="tapping-center-a",
+        settings=machine_settings(CONFIG, "tapping-center-a"),
+    )
+
+
 def _render(tmp, offered: str | None):
     results = copy_fixture(tmp)
     summ = _add_candidates(results, offered=offered) if offered else None
-    paths = write_upstream_tables(results)
-    dirs = empty_figure_dirs(results)
-    ctx = build_context(
-        paths, dirs, machine="tapping-center-a", settings=machine_settings(CONFIG, "tapping-center-a")
-    )
+    ctx = _context(results)
     return ctx, render_html(ctx), summ, results
 
 
@@ -154,13 +161,7 @@ def test_without_a_cv_fold_the_section_says_the_default_rule_chose(tmp_path):
     summ = _add_candidates(results, offered="prior_gain")
     summ["cv_mean_max_abs_um"] = np.nan  # one heat-up of new data: no whole-run fold
     summ.to_csv(results / "comparison" / "summary.csv", index=False)
-    paths = write_upstream_tables(results)
-    ctx = build_context(
-        paths,
-        empty_figure_dirs(results),
-        machine="tapping-center-a",
-        settings=machine_settings(CONFIG, "tapping-center-a"),
-    )
+    ctx = _context(results)
     q = ctx["requalification"]
     assert (
         q["cv"] is False and q["scratch"]["model"] == "rafi"
@@ -182,13 +183,7 @@ def test_with_forward_folds_the_section_compares_by_the_selection_score(tmp_path
     summ.to_csv(results / "comparison" / "summary.csv", index=False)
     scratch = summ[summ["model"].isin(list(ahead))]
     assert scratch.loc[scratch["cv_mean_max_abs_um"].idxmin(), "model"] == "rafi"  # not what chooses
-    paths = write_upstream_tables(results)
-    ctx = build_context(
-        paths,
-        empty_figure_dirs(results),
-        machine="tapping-center-a",
-        settings=machine_settings(CONFIG, "tapping-center-a"),
-    )
+    ctx = _context(results)
     q = ctx["requalification"]
     assert q["forward"] is True and q["scratch"]["model"] == "rafi_linear"
     html = render_html(ctx)
