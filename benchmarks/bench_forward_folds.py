@@ -15,8 +15,8 @@ training runs; a deployment lies *after* all of them. Forward folds ask the depl
 question on the training runs alone:
 
 * ``whole_run``: leave one training run out (the selection's own scheme);
-* ``F1`` (:func:`forward_folds`, ``horizon=1``): train on the training runs of a log before a
-  point in time, hold out the next run;
+* ``F1`` (:func:`rafi.family.forward_folds.forward_folds`, ``horizon=1``): train on the training
+  runs of a log before a point in time, hold out the next run;
 * ``F2`` (``horizon=2``): the same, holding out the next two runs (drift over a horizon).
 
 Forward folds start only where at least ``min_train`` (3) training runs lie before the point
@@ -68,62 +68,17 @@ from bench_selection_rules import extra_scheme, machine_inputs  # noqa: E402
 
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402
+from rafi.family.forward_folds import MIN_TRAIN, forward_folds, forward_logs  # noqa: E402
 from rafi.family.selection import SIMPLICITY  # noqa: E402
 from rafi.family.whole_log import has_whole_logs  # noqa: E402
 
 OUT_DIR = ROOT / "benchmarks" / "results"
-MIN_TRAIN = 3
 #: Scheme label -> (name registered in crossval.SCHEMES, forward horizon or None).
 SCHEMES = {"whole_run": ("leave_one_run_out", None), "F1": ("forward_1", 1), "F2": ("forward_2", 2)}
 TIE_UM = 1e-3
 
 
 # ----------------------------------------------------------------------------- folds
-
-
-def forward_folds(runs_table: pd.DataFrame, horizon: int = 1, min_train: int = MIN_TRAIN):
-    """Forward-in-time folds of the training runs, inside each log.
-
-    Per log (``file``), the training runs in time order (``start_s``, then ``run_id``); for every
-    origin ``k >= min_train`` with ``horizon`` runs after it, the fold trains on the log's first
-    ``k`` training runs and holds out the next ``horizon``. A log with fewer than
-    ``min_train + horizon`` training runs gives no fold (separate files have no time order).
-
-    Parameters
-    ----------
-    runs_table : pandas.DataFrame
-        Runs table with ``run_id``, ``role``, ``file`` and ``start_s``.
-    horizon : int
-        Held-out runs per fold (1: the next run; 2: the next two).
-    min_train : int
-        Fewest training runs before the origin.
-
-    Yields
-    ------
-    tuple of (list of str, list of str)
-        ``(train_run_ids, test_run_ids)``, logs in name order, origins in time order.
-    """
-    for col in ("file", "start_s"):
-        if col not in runs_table.columns:
-            raise ValueError(f"runs_table lacks column {col!r}: forward folds need each run's log and start")
-    t = runs_table.loc[runs_table["role"].astype(str) == "training", ["run_id", "file", "start_s"]]
-    t = t.assign(run_id=t["run_id"].astype(str), file=t["file"].astype(str))
-    for _, log in t.sort_values(["file", "start_s", "run_id"], kind="stable").groupby("file", sort=True):
-        ids = list(log["run_id"])
-        for k in range(min_train, len(ids) - horizon + 1):
-            train, test = ids[:k], ids[k : k + horizon]
-            crossval.assert_disjoint(train, test)
-            yield train, test
-
-
-def forward_logs(runs_table: pd.DataFrame, horizon: int, min_train: int = MIN_TRAIN) -> dict:
-    """Per log: its training runs and its forward folds at ``horizon`` (what the report states)."""
-    t = runs_table.loc[runs_table["role"].astype(str) == "training"]
-    counts = t.groupby(t["file"].astype(str)).size()
-    return {
-        log: {"training_runs": int(n), "folds": max(0, int(n) - min_train - horizon + 1)}
-        for log, n in counts.items()
-    }
 
 
 def training_part(runs_table: pd.DataFrame, frame: pd.DataFrame) -> pd.DataFrame:

@@ -61,6 +61,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from rafi.family.forward_folds import is_forward  # noqa: E402
 from rafi.family.interval_rule import CELLS, interval_cell  # noqa: E402
 from rafi.family.intervals import _quantiles, corrected_level, unit_weights  # noqa: E402
 
@@ -97,11 +98,13 @@ def load_machine(results: Path) -> pd.DataFrame:
     best = json.loads((results / "comparison" / "best_model.json").read_text())
     kind = str(best["kind"])
     oof = pd.read_parquet(newest_oof(results))
+    oof = oof.loc[~oof["unit"].astype(str).str.match(r"f\d+:")]  # whole-run units (forward folds apart)
     runs = pd.read_parquet(results / "runs.parquet")
     sensors = json.loads((results / "rank" / "key_sensors.json").read_text())["sensors"]
     wide = oof.pivot_table(index=["run_id", "t_s"], columns="model", values="residual_um", dropna=False)
     spread = (wide.max(axis=1) - wide.min(axis=1)).rename("spread")
     cv = pd.read_csv(results / "comparison" / "cv.csv")
+    cv = cv.loc[~cv["scheme"].map(is_forward).to_numpy(dtype=bool)]
     best_kinds = list(cv.groupby("model")["max_abs_after_um"].mean().nsmallest(SPREAD_KINDS).index)
     top = wide[[k for k in best_kinds if k in wide.columns]]
     spread = pd.concat([spread, (top.max(axis=1) - top.min(axis=1)).rename("spread3")], axis=1)

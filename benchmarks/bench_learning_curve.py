@@ -60,6 +60,8 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_realdata as rd  # noqa: E402
 
+from rafi.family.forward_folds import is_forward  # noqa: E402
+
 OUT_DIR = rd.OUT_DIR
 
 #: The cuts: name -> (cut time on the log's clock, s; what trains). Runs per the data's README:
@@ -168,9 +170,11 @@ def selected_lines(lines: list[str]) -> list[str]:
 
 
 def cv_facts(proj: Path, machine: str, champion: str) -> dict:
-    """The folds' scheme and count and the champion's CV mean max |residual| (NaN: no fold)."""
+    """The folds' schemes, the champion's whole-run fold count and CV mean max |residual| (NaN: no
+    fold)."""
     cv = pd.read_csv(proj / "results" / machine / "comparison" / "cv.csv")
-    mine = cv.loc[cv["model"].astype(str) == champion]
+    whole = ~cv["scheme"].map(is_forward).to_numpy(dtype=bool)  # the forward folds' rows apart
+    mine = cv.loc[whole & (cv["model"].astype(str) == champion).to_numpy()]
     return {
         "cv_scheme": ",".join(sorted(set(cv["scheme"].astype(str)))) if len(cv) else "no fold",
         "cv_folds": int(mine["fold"].nunique()) if len(mine) else 0,

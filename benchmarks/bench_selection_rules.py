@@ -78,6 +78,7 @@ from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402
 from rafi.family.compare import make_model  # noqa: E402
 from rafi.family.feature_memo import sharing_features  # noqa: E402
+from rafi.family.forward_folds import is_forward  # noqa: E402
 from rafi.family.selection import SIMPLICITY, choose_champion  # noqa: E402
 from rafi.family.whole_log import rows_of_logs  # noqa: E402
 from rafi.settings import machine_settings  # noqa: E402
@@ -259,6 +260,7 @@ def judge_machine(project: Path, machine: str, log=print) -> dict:
     """The outer CV of every rule on one machine (module docstring)."""
     inputs = machine_inputs(project, machine)
     table, frame, full_cv = inputs["table"], inputs["frame"], inputs["cv"]
+    full_cv = full_cv.loc[~full_cv["scheme"].map(is_forward).to_numpy(dtype=bool)]  # whole-run rules only
     if set(full_cv["scheme"].astype(str)) != {"leave_one_run_out"}:
         raise SystemExit(f"{machine}: comparison/cv.csv is not leave_one_run_out; cannot score outer folds")
     outer_score = full_cv.set_index([full_cv["model"].astype(str), full_cv["test_runs"].astype(str)])

@@ -28,58 +28,14 @@ def _table(rows) -> pd.DataFrame:
 
 
 def _one_log(n_train: int = 6) -> pd.DataFrame:
-    """A continuous log: an excluded rest, ``n_train`` training runs, two validation runs; the
-    rows out of time order (the folds must sort by start)."""
-    rows = [("log#0", "log.csv", 0.0, "excluded")]
-    rows += [(f"log#{k}", "log.csv", 3600.0 * k, "training") for k in range(1, n_train + 1)]
-    rows += [(f"log#{k}", "log.csv", 3600.0 * k, "validation_single") for k in (n_train + 1, n_train + 2)]
+    rows = [(f"log#{k}", "log.csv", 3600.0 * k, "training") for k in range(1, n_train + 1)]
     return _table(rows[::-1])
 
 
-def test_forward_folds_train_on_the_past_and_hold_out_the_next_run(bench):
-    folds = list(bench.forward_folds(_one_log(6), horizon=1, min_train=3))
-    assert folds == [
-        (["log#1", "log#2", "log#3"], ["log#4"]),
-        (["log#1", "log#2", "log#3", "log#4"], ["log#5"]),
-        (["log#1", "log#2", "log#3", "log#4", "log#5"], ["log#6"]),
-    ]
-    start = dict(zip(_one_log(6)["run_id"], _one_log(6)["start_s"]))
-    for train, test in folds:
-        assert not set(train) & set(test)
-        assert max(start[r] for r in train) < min(start[r] for r in test)
+def test_the_bench_uses_the_pipelines_forward_folds(bench):
+    from rafi.family import forward_folds
 
-
-def test_horizon_two_holds_out_the_next_two_runs_and_needs_both(bench):
-    folds = list(bench.forward_folds(_one_log(6), horizon=2, min_train=3))
-    assert [test for _, test in folds] == [["log#4", "log#5"], ["log#5", "log#6"]]
-    assert [len(train) for train, _ in folds] == [3, 4]
-
-
-def test_min_train_rule(bench):
-    assert [len(tr) for tr, _ in bench.forward_folds(_one_log(6), horizon=1, min_train=5)] == [5]
-    assert list(bench.forward_folds(_one_log(3), horizon=1, min_train=3)) == []
-    assert list(bench.forward_folds(_one_log(4), horizon=2, min_train=3)) == []
-    assert bench.forward_logs(_one_log(6), horizon=2) == {"log.csv": {"training_runs": 6, "folds": 2}}
-
-
-def test_separate_logs_have_no_time_order_and_give_no_folds(bench):
-    # a continuous log of 5 training runs and three cold-start files of one run each, the files
-    # dated between the log's runs: no fold crosses a log, and the files' runs are never used
-    rows = [(f"log#{k}", "log.csv", 3600.0 * k, "training") for k in range(1, 6)]
-    rows += [(f"cold_{k}", f"cold_{k}.csv", 3600.0 * k + 100, "training") for k in range(1, 4)]
-    table = _table(rows)
-    folds = list(bench.forward_folds(table, horizon=1, min_train=3))
-    assert [test for _, test in folds] == [["log#4"], ["log#5"]]
-    assert all(r.startswith("log#") for train, test in folds for r in train + test)
-    only_files = table.loc[table["file"] != "log.csv"]
-    assert list(bench.forward_folds(only_files, horizon=1, min_train=1)) == []
-    logs = bench.forward_logs(table, horizon=1)
-    assert logs["log.csv"]["folds"] == 2 and logs["cold_1.csv"] == {"training_runs": 1, "folds": 0}
-
-
-def test_forward_folds_need_the_log_and_start_of_each_run(bench):
-    with pytest.raises(ValueError, match="lacks column 'start_s'"):
-        list(bench.forward_folds(_one_log().drop(columns="start_s")))
+    assert bench.forward_folds is forward_folds.forward_folds and bench.MIN_TRAIN == forward_folds.MIN_TRAIN
 
 
 def test_training_part_keeps_each_log_up_to_its_last_training_run(bench):

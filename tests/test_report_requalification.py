@@ -68,14 +68,21 @@ def _add_candidates(results, *, offered: str) -> pd.DataFrame:
     return summ
 
 
+def _context(results):
+    """The report's context of the results folder ``results`` (its upstream tables written)."""
+    paths = write_upstream_tables(results)
+    return build_context(
+        paths,
+        empty_figure_dirs(results),
+        machine="tapping-center-a",
+        settings=machine_settings(CONFIG, "tapping-center-a"),
+    )
+
+
 def _render(tmp, offered: str | None):
     results = copy_fixture(tmp)
     summ = _add_candidates(results, offered=offered) if offered else None
-    paths = write_upstream_tables(results)
-    dirs = empty_figure_dirs(results)
-    ctx = build_context(
-        paths, dirs, machine="tapping-center-a", settings=machine_settings(CONFIG, "tapping-center-a")
-    )
+    ctx = _context(results)
     return ctx, render_html(ctx), summ, results
 
 
@@ -154,13 +161,7 @@ def test_without_a_cv_fold_the_section_says_the_default_rule_chose(tmp_path):
     summ = _add_candidates(results, offered="prior_gain")
     summ["cv_mean_max_abs_um"] = np.nan  # one heat-up of new data: no whole-run fold
     summ.to_csv(results / "comparison" / "summary.csv", index=False)
-    paths = write_upstream_tables(results)
-    ctx = build_context(
-        paths,
-        empty_figure_dirs(results),
-        machine="tapping-center-a",
-        settings=machine_settings(CONFIG, "tapping-center-a"),
-    )
+    ctx = _context(results)
     q = ctx["requalification"]
     assert (
         q["cv"] is False and q["scratch"]["model"] == "rafi"
@@ -168,3 +169,34 @@ def test_without_a_cv_fold_the_section_says_the_default_rule_chose(tmp_path):
     text = _text(render_html(ctx))
     assert "give no whole-run cross-validation fold, so the default rule chose" in text
     assert "Whole-run cross-validation on the new training runs chose" not in text
+
+
+def test_with_forward_folds_the_section_compares_by_the_selection_score(tmp_path):
+    """The from-scratch model the selection takes is the lowest selection score (whole-run and
+    forward mean), not the lowest whole-run mean; both parts are shown beside it."""
+    results = copy_fixture(tmp_path)
+    summ = _add_candidates(results, offered="prior_gain")
+    ahead = {"rafi": 5.0, "rafi_linear": 1.0, "ridge_global": 3.0, "dynamic": 3.5}
+    summ["cv_forward_folds"] = 2
+    summ["cv_forward_mean_max_abs_um"] = summ["model"].map(ahead).fillna(summ["cv_mean_max_abs_um"])
+    summ["selection_score_um"] = (summ["cv_mean_max_abs_um"] + summ["cv_forward_mean_max_abs_um"]) / 2
+    summ.to_csv(results / "comparison" / "summary.csv", index=False)
+    scratch = summ[summ["model"].isin(list(ahead))]
+    assert scratch.loc[scratch["cv_mean_max_abs_um"].idxmin(), "model"] == "rafi"  # not what chooses
+    ctx = _context(results)
+    q = ctx["requalification"]
+    assert q["forward"] is True and q["scratch"]["model"] == "rafi_linear"
+    html = render_html(ctx)
+    table = next(t for t in html_tables(html) if any("what it is" in h for h in t["headers"]))
+    assert len(table["widths"]) == len(table["headers"])
+    score = next(h for h in table["headers"] if h.startswith("selection score"))
+    whole = next(h for h in table["headers"] if h.startswith("whole-run CV"))
+    fwd = next(h for h in table["headers"] if h.startswith("forward CV"))
+    for rec in table["records"]:
+        row = summ[summ["model"] == rec["model"]].iloc[0]
+        assert float(rec[score]) == pytest.approx(row["selection_score_um"], abs=0.005)
+        assert float(rec[whole]) == pytest.approx(row["cv_mean_max_abs_um"], abs=0.005)
+        assert float(rec[fwd]) == pytest.approx(row["cv_forward_mean_max_abs_um"], abs=0.005)
+    text = _text(html)
+    assert "Whole-run cross-validation and forward-in-time folds on the new training runs chose" in text
+    assert "the from-scratch fit the selection takes on the same data (rafi_linear)" in text

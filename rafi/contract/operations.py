@@ -87,6 +87,18 @@ OPERATIONS_SETTINGS: dict = {
                     "switch is gone)"
                 ),
             ),
+            "cv_forward_runs": Setting(
+                default=2,
+                schema={"type": "integer", "minimum": 0},
+                shown="2",
+                doc=(
+                    "forward-in-time folds beside the whole-run CV: in a log with at least 3 + this many"
+                    " training runs, train on the runs before a point in time and hold out the next this"
+                    " many; the selection score is then the mean of the whole-run and the forward scores,"
+                    " and the prediction intervals calibrate on both (`docs/models.md`, Forward folds);"
+                    " 0 = whole-run CV only"
+                ),
+            ),
             "interval_level": Setting(
                 default=0.9,
                 schema={"type": "number", "exclusiveMinimum": 0, "exclusiveMaximum": 1},

@@ -149,6 +149,8 @@ REPORT_OPTIONAL = (
     "comparison_verdict",
     "best_model",
     "replay_summary",
+    "replay",
+    "comparison_residuals",
     "runs_parquet",
 )
 

@@ -30,14 +30,17 @@ from rafi.family.adapted import adaptation_factories
 from rafi.family.crossval import (  # noqa: F401 - cv_data re-exported (it lived here)
     cross_validate,
     cv_data,
+    has_folds,
     scheme_of,
     training_runs,
 )
 from rafi.family.cv_memo import cv_memo_key, read_cv, read_oof, write_cv, write_oof
+from rafi.family.describe import describe_selection, fitted_text
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.feature_memo import sharing_features
+from rafi.family.forward_folds import configured_scheme as forward_scheme
 from rafi.family.grey_box import GreyBox
-from rafi.family.interval_fit import calibrate_family, stacked_oof
+from rafi.family.interval_fit import calibrate_family, calibration_scheme, stacked_oof
 from rafi.family.intervals import coverage_and_width, interval_columns
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
@@ -49,7 +52,6 @@ from rafi.family.selection import (  # noqa: F401 - re-exported: the selection r
     default_champion,
     selection_table,
 )
-from rafi.family.time_blocks import hours
 from rafi.family.whole_log import rows_of_logs
 from rafi.method.validate import qualify, validate_runs
 from rafi.settings import MACHINE_DEFAULTS
@@ -155,48 +157,6 @@ def load_any(source):
 def save_any(model, path) -> None:
     """Write ``model.to_dict()`` atomically as pretty JSON."""
     write_text_atomic(path, json_text(model.to_dict()))
-
-
-def _seconds(values) -> str:
-    return "/".join(f"{float(v):g}" for v in values) + " s"
-
-
-def describe_selection(model) -> str:
-    """What cross-validation chose for a fitted model of the family, in one line for people."""
-    if hasattr(model, "describe"):  # an adapted prior (rafi.family.adapted)
-        return model.describe()
-    if not hasattr(model, "alpha_"):
-        return "nothing to choose (one OLS per training speed, fuzzy blend)"
-    parts = [
-        f"alpha {model.alpha_:g}",
-        "rises " + ", ".join("as is" if t <= 0 else f"filtered {t:g} s" for t in model.taus_),
-    ]
-    if isinstance(model, GreyBox):
-        parts.append(
-            f"heat-input filters {_seconds(model.speed_taus_)}"
-            if model.speed_taus_
-            else "no heat-input filters"
-        )
-        if model.instantaneous_:
-            lag = model.centrifugal_lag_s_
-            parts.append("draw-in n\u00b2 term" + (f" with a {lag:g} s lag" if lag > 0 else ""))
-        else:
-            parts.append("no draw-in term (not identified)")
-    else:
-        parts.append("speed gain dT\u00b7n" if model.speed_gain_ else "no speed gain")
-        parts.append("speed terms" if model.speed_terms_ else "no speed terms (not identified)")
-        if getattr(model, "speed_taus_", None):  # dynamic's heat-input history
-            parts.append(f"heat-input filters {_seconds(model.speed_taus_)}")
-    blocks = getattr(model, "time_blocks_", None)
-    if blocks:
-        parts.append(
-            f"chosen on {blocks['blocks']} time blocks with {hours(blocks['gap_s'])} guard gaps "
-            f"(filters up to {blocks['max_filter_s']:g} s)"
-        )
-    edges = list(getattr(model, "grid_edges_", []) or [])
-    if edges:
-        parts.append("AT A GRID EDGE (the best value may lie outside the grid): " + "; ".join(edges))
-    return "; ".join(parts)
 
 
 COMPARISON_COLUMNS = [
@@ -375,31 +335,20 @@ def _pooled_coverage(residuals: pd.DataFrame) -> dict:
     return {"coverage": cov, "interval_width_um": width}
 
 
-def _fitted_text(model) -> str:
-    """What CV chose, for the job's log."""
-    if hasattr(model, "describe"):
-        return " " + model.describe()
-    text = f" alpha={model.alpha_:g} taus_s={model.taus_}" if hasattr(model, "alpha_") else ""
-    if isinstance(model, GreyBox):
-        text += (
-            f" speed_taus_s={model.speed_taus_} instantaneous_n2={model.instantaneous_}"
-            f" centrifugal_lag_s={model.centrifugal_lag_s_:g}"
-        )
-    return text
-
-
 def fit_and_cross_validate(
     factories: dict,
     runs_table: pd.DataFrame,
     runs_frame: pd.DataFrame,
     *,
     scheme: str,
+    forward: str | None = None,
     rafi_model=None,
     known_cv: pd.DataFrame | None = None,
     oof: list | None = None,
     log=print,
 ) -> tuple[dict, pd.DataFrame]:
-    """Fit every kind of ``factories`` on the training runs and cross-validate it by whole run.
+    """Fit every kind of ``factories`` on the training runs and cross-validate it by whole run
+    (and on forward folds).
 
     Parameters
     ----------
@@ -407,6 +356,9 @@ def fit_and_cross_validate(
         Kind -> a function building the unfitted model (:func:`make_model`), in order.
     scheme : str
         The CV scheme (``models: cv``).
+    forward : str, optional
+        A forward scheme (:func:`rafi.family.forward_folds.scheme_name`): every kind is also
+        cross-validated on its folds when the training runs give one (rows with that ``scheme``).
     rafi_model : RafiModel, optional
         The pipeline's ``model.json``: the ``rafi`` entry, not refitted.
     known_cv : pandas.DataFrame, optional
@@ -431,17 +383,18 @@ def fit_and_cross_validate(
                 models[kind] = rafi_model
             else:
                 models[kind] = factory().fit(runs_table, runs_frame)
-            log(f"{kind}: fitted in {time.perf_counter() - t0:.2f} s{_fitted_text(models[kind])}")
+            log(f"{kind}: fitted in {time.perf_counter() - t0:.2f} s{fitted_text(models[kind])}")
             if known_cv is not None:
                 continue
-            t0 = time.perf_counter()
-            cv = cross_validate(factory, runs_table, runs_frame, scheme, name=kind, oof=oof)
-        cv_parts.append(cv)
-        worst = f"{cv['max_abs_after_um'].max():.2f} um" if len(cv) else "no fold"
-        log(
-            f"{kind}: {scheme_of(runs_table, scheme)} CV in {time.perf_counter() - t0:.1f} s,"
-            f" max |residual| {worst}"
-        )
+            for sch in [scheme] + ([forward] if forward and has_folds(runs_table, forward) else []):
+                t0 = time.perf_counter()
+                cv = cross_validate(factory, runs_table, runs_frame, sch, name=kind, oof=oof)
+                cv_parts.append(cv)
+                worst = f"{cv['max_abs_after_um'].max():.2f} um" if len(cv) else "no fold"
+                log(
+                    f"{kind}: {scheme_of(runs_table, sch)} CV in {time.perf_counter() - t0:.1f} s,"
+                    f" max |residual| {worst}"
+                )
     if known_cv is not None:
         return models, known_cv
     return models, pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
@@ -467,6 +420,7 @@ def _cross_validated(factories, runs_table, runs_frame, settings, rafi_model, cv
         fit_table,
         fit_frame,
         scheme=options["cv"],
+        forward=forward_scheme(options),
         rafi_model=rafi_model,
         known_cv=known,
         oof=oof_parts,
@@ -556,7 +510,7 @@ def run_family(
         models,
         oof,
         options=options,
-        scheme=scheme_of(fit_table, options["cv"]),
+        scheme=calibration_scheme(cv, scheme_of(fit_table, options["cv"])),
         tolerance_rpm=speed_tolerance_rpm,
         keep={"rafi"} if rafi_model is not None else set(),
         log=log,

@@ -12,6 +12,9 @@ Training data with no whole-run fold (one long training run) gets **time-blocked
 instead (:mod:`rafi.family.time_blocks`): :func:`split_runs` and :func:`cross_validate` then work
 on the blocks of a unit table, with a guard gap around each held-out block.
 
+**Forward folds** (:mod:`rafi.family.forward_folds`, scheme ``forward_<h>``) train on a log's
+training runs before a point in time and hold out the next ``h``; the later ones are guard runs.
+
 Only runs with ``role == "training"`` are ever split; validation runs never enter model
 selection. Every splitter asserts that no run is in both the train and the test set.
 
@@ -26,12 +29,14 @@ The comparison on the validation runs and the champion choice are in
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Iterator
 
 import numpy as np
 import pandas as pd
 
 from rafi.family.feature_memo import sharing_features
+from rafi.family.forward_folds import forward_folds, horizon_of, is_forward
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.family.time_blocks import hours, is_blocked, time_block_folds, time_block_units, unit_column
 from rafi.family.whole_log import rows_of_logs
@@ -181,13 +186,15 @@ SCHEMES: dict[str, Callable] = {
 def split_runs(runs_table: pd.DataFrame, scheme: str = "leave_one_run_out"):
     """Folds ``(train_run_ids, test_run_ids)`` of the training runs under ``scheme``; on a unit
     table (:func:`rafi.family.time_blocks.time_block_units`) the time-blocked folds of its units,
-    whatever ``scheme`` (the data's structure chose them)."""
-    try:
-        fn = SCHEMES[scheme]
-    except KeyError:
-        raise ValueError(f"unknown CV scheme {scheme!r}; known: {sorted(SCHEMES)}") from None
+    whatever ``scheme`` (the data's structure chose them), and no forward fold (time blocks are
+    the folds of one run). ``forward_<h>``: :func:`rafi.family.forward_folds.forward_folds`."""
+    fn = SCHEMES.get(scheme)
+    if fn is None and is_forward(scheme):
+        fn = functools.partial(forward_folds, horizon=horizon_of(scheme))
+    if fn is None:
+        raise ValueError(f"unknown CV scheme {scheme!r}; known: {sorted(SCHEMES)} and forward_<runs>")
     if is_blocked(runs_table):
-        return time_block_folds(runs_table)
+        return iter(()) if is_forward(scheme) else time_block_folds(runs_table)
     return fn(runs_table)
 
 
@@ -248,7 +255,8 @@ def cross_validate(
 
     With ``oof`` (a list), the held-out samples themselves are appended to it as one frame
     (:func:`rafi.family.intervals.oof_samples`, :data:`rafi.family.intervals.OOF_COLUMNS`): the
-    out-of-fold residuals the prediction interval is calibrated on.
+    out-of-fold residuals the prediction interval is calibrated on. Under forward folds a run is
+    held out by several folds, so its OOF unit is ``f<fold>:<run>`` (one unit per fold and run).
 
     A fold with nothing the model learns from (``model.can_fit(fold_table)`` false: RAFI as
     published learns from constant-speed runs only, and a fold may hold only a cool-down) is
@@ -296,7 +304,10 @@ def cross_validate(
             dz = needed["dz_um"].to_numpy(dtype=float)
             if oof is not None and fits:
                 artefact = artefact or model.to_dict()
-                held_out.append(_held_out(detail, dz, unit_of, np.flatnonzero(needed_mask), test_ids))
+                part = _held_out(detail, dz, unit_of, np.flatnonzero(needed_mask), test_ids)
+                if is_forward(scheme):
+                    part["unit"] = [f"f{k}:{u}" for u in part["unit"]]
+                held_out.append(part)
             for rid in test_ids:
                 mine = unit_of == str(rid)
                 rows.append(

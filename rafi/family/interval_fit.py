@@ -2,7 +2,9 @@
 (:func:`calibrate_family`) and RAFI's ``model.json`` in ``rule method`` (:func:`rafi_interval`).
 
 Both calibrate on the model's own out-of-fold residuals of the whole-run cross-validation
-(:func:`rafi.family.crossval.cross_validate` with ``oof=``) with
+(:func:`rafi.family.crossval.cross_validate` with ``oof=``), and of the forward folds where they
+run (``models: cv_forward_runs``, :mod:`rafi.family.forward_folds`; each held-out run of each
+forward fold is one more calibration unit), with
 :func:`rafi.family.intervals.calibrate` and the settings ``models: interval_level``,
 ``interval_transient_s`` and ``interval_min_runs``.
 """
@@ -11,10 +13,11 @@ from __future__ import annotations
 
 import pandas as pd
 
-from rafi.family.crossval import cross_validate, cv_data, scheme_of
+from rafi.family.crossval import cross_validate, cv_data, has_folds, scheme_of
+from rafi.family.forward_folds import configured_scheme, is_forward
 from rafi.family.intervals import OOF_COLUMNS, calibrate, set_interval
 
-__all__ = ["interval_options", "stacked_oof", "calibrate_family", "rafi_interval"]
+__all__ = ["interval_options", "stacked_oof", "calibration_scheme", "calibrate_family", "rafi_interval"]
 
 
 def interval_options(options: dict) -> dict:
@@ -32,6 +35,13 @@ def stacked_oof(parts: list) -> pd.DataFrame:
     if not parts:
         return pd.DataFrame({c: pd.Series(dtype=float) for c in OOF_COLUMNS})
     return pd.concat(parts, ignore_index=True)[OOF_COLUMNS]
+
+
+def calibration_scheme(cv: pd.DataFrame, whole: str) -> str:
+    """The folds the OOF residuals of ``cv`` come from: ``whole`` (the whole-run or time-block
+    scheme), with ``+forward_<h>`` when forward folds ran."""
+    forward = sorted({str(s) for s in cv["scheme"] if is_forward(s)}) if len(cv) else []
+    return "+".join([whole, *forward])
 
 
 def _describe(name: str, block: dict | None) -> str:
@@ -110,15 +120,21 @@ def rafi_interval(
     :class:`~rafi.method.model.RafiModel`): RAFI's own whole-run CV on the training runs, each
     fold fitting ``factory()`` (a :class:`~rafi.family.published.PublishedRafi` with the
     machine's settings), under ``models: cv`` (time-blocked folds when the training runs give no
-    whole-run fold, :func:`rafi.family.crossval.cv_data`). Returns the block (``None``: no fold,
+    whole-run fold, :func:`rafi.family.crossval.cv_data`) and on the forward folds when there are
+    any. Returns the block (``None``: no fold,
     no interval)."""
     table, frame = cv_data(runs_table, runs_frame, options, log=log)
     oof: list = []
     cross_validate(factory, table, frame, options["cv"], name="rafi", oof=oof)
+    schemes = [scheme_of(table, options["cv"])]
+    forward = configured_scheme(options)
+    if forward and has_folds(table, forward):
+        cross_validate(factory, table, frame, forward, name="rafi", oof=oof)
+        schemes.append(forward)
     block = calibrate(
         stacked_oof(oof),
         tolerance_rpm=float(speed_tolerance_rpm),
-        scheme=scheme_of(table, options["cv"]),
+        scheme="+".join(schemes),
         **interval_options(options),
     )
     set_interval(model, block)

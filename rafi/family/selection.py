@@ -14,11 +14,13 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
+from rafi.family.forward_folds import MIN_TRAIN, horizon_of, is_forward
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 
 __all__ = [
     "SELECTION_RULE",
     "SELECTION_RULE_TIME_BLOCKS",
+    "forward_rule",
     "selection_rule",
     "SIMPLICITY",
     "TIE_UM",
@@ -50,6 +52,18 @@ SELECTION_RULE_TIME_BLOCKS = (
     "after the choice; if the chosen model fails a gate the verdict is FAIL, with no second pick."
 )
 
+
+def forward_rule(horizon: int) -> str:
+    """The sentence the rule gains when forward-in-time folds ran (``horizon`` runs held out)."""
+    runs = "run" if int(horizon) == 1 else f"{int(horizon)} runs"
+    return (
+        "Because a deployed model predicts what comes after its training data, every model is also "
+        f"scored on forward folds: within one log, trained on the training runs before a point in time "
+        f"(at least {MIN_TRAIN}) and scored on the next {runs}; the model offered is then the one with "
+        "the lowest mean of the two scores (whole-run and forward), not of the whole-run score alone."
+    )
+
+
 #: Kinds in order of simplicity (fewest fitted numbers first), the last tie-breaker.
 SIMPLICITY = {"rafi_linear": 0, "ridge_global": 1, "dynamic": 2, "grey_box": 3, "rafi": 4}
 
@@ -62,50 +76,72 @@ SELECTION_COLUMNS = [
     "cv_mean_max_abs_um",
     "cv_max_abs_um",
     "cv_rmse_um",
+    "cv_forward_folds",
+    "cv_forward_mean_max_abs_um",
+    "selection_score_um",
     "selection_rank",
 ]
 
 
+def _max_abs(g: pd.DataFrame) -> np.ndarray:
+    return pd.to_numeric(g["max_abs_after_um"], errors="coerce").to_numpy(dtype=float)
+
+
+def _mean_if_complete(mx: np.ndarray) -> float:
+    """The mean of the held-out max |residual|s; infinite when one is missing (unpredicted)."""
+    return float(np.mean(mx)) if len(mx) and np.isfinite(mx).all() else np.inf
+
+
 def selection_table(cv: pd.DataFrame) -> pd.DataFrame:
-    """The selection scores of every model from the outer folds of the whole-run CV.
+    """The selection scores of every model from the outer folds of the CV on the training runs.
 
     Parameters
     ----------
     cv : pandas.DataFrame
-        :func:`rafi.family.crossval.cross_validate` rows of every model (``cv.csv``): one
-        row per model and held-out training run.
+        :func:`rafi.family.crossval.cross_validate` rows of every model (``cv.csv``): one row per
+        model, fold and held-out training run; rows whose ``scheme`` is a forward scheme
+        (:mod:`rafi.family.forward_folds`) are the forward folds, the others the whole-run CV.
 
     Returns
     -------
     pandas.DataFrame
         Columns :data:`SELECTION_COLUMNS`, one row per model, best first:
-        ``cv_mean_max_abs_um`` (the selection score: mean over the held-out runs of the max
-        |residual|; a held-out run the model cannot predict counts as infinite),
-        ``cv_max_abs_um`` (worst held-out run), ``cv_rmse_um`` (pooled over folds) and
-        ``selection_rank`` (1 = the champion). Ties (scores within :data:`TIE_UM`) go to the
-        lower worst held-out run (same tolerance), then the simpler kind (:data:`SIMPLICITY`), then the name.
+        ``cv_mean_max_abs_um`` (mean over the whole-run held-out runs of the max |residual|; a
+        held-out run the model cannot predict counts as infinite), ``cv_max_abs_um`` (worst held-out
+        run), ``cv_rmse_um`` (pooled over folds), ``cv_forward_folds`` and
+        ``cv_forward_mean_max_abs_um`` (the same mean over the forward folds' held-out runs; 0 and
+        NaN without forward folds), ``selection_score_um`` (the mean of the two means; the whole-run
+        mean alone without forward folds) and ``selection_rank`` (1 = the champion). Ties (scores
+        within :data:`TIE_UM`) go to the lower worst held-out run (same tolerance), then the
+        simpler kind (:data:`SIMPLICITY`), then the name.
     """
     if cv is None or not len(cv):
         return pd.DataFrame(columns=SELECTION_COLUMNS)
+    forward = cv["scheme"].map(is_forward).to_numpy(dtype=bool) if "scheme" in cv else np.zeros(len(cv), bool)
     rows = []
-    for name, g in cv.groupby(cv["model"].astype(str), sort=False):
-        mx = pd.to_numeric(g["max_abs_after_um"], errors="coerce").to_numpy(dtype=float)
+    for name, g in cv.loc[~forward].groupby(cv.loc[~forward, "model"].astype(str), sort=False):
+        mx = _max_abs(g)
         rmse = pd.to_numeric(g["rmse_um"], errors="coerce").to_numpy(dtype=float)
-        complete = bool(len(mx)) and bool(np.isfinite(mx).all())
+        whole = _mean_if_complete(mx)
+        f = cv.loc[forward & (cv["model"].astype(str) == name).to_numpy()]
+        ahead = _mean_if_complete(_max_abs(f)) if len(f) else np.nan
         rows.append(
             {
                 "model": name,
                 "cv_folds": len(g),
-                "cv_mean_max_abs_um": float(np.mean(mx)) if complete else np.inf,
-                "cv_max_abs_um": float(np.max(mx)) if complete else np.inf,
+                "cv_mean_max_abs_um": whole,
+                "cv_max_abs_um": float(np.max(mx)) if np.isfinite(whole) else np.inf,
                 "cv_rmse_um": float(np.sqrt(np.nanmean(np.square(rmse))))
                 if np.isfinite(rmse).any()
                 else np.nan,
+                "cv_forward_folds": int(f["fold"].nunique()) if len(f) else 0,
+                "cv_forward_mean_max_abs_um": ahead,
+                "selection_score_um": whole if not len(f) else 0.5 * (whole + ahead),
             }
         )
     t = pd.DataFrame(rows)
     t = t.assign(
-        _score=np.round(t["cv_mean_max_abs_um"] / TIE_UM),
+        _score=np.round(t["selection_score_um"] / TIE_UM),
         _worst=np.round(t["cv_max_abs_um"] / TIE_UM),
         _cx=t["model"].map(SIMPLICITY).fillna(len(SIMPLICITY)),
     ).sort_values(["_score", "_worst", "_cx", "model"], kind="stable")
@@ -117,24 +153,30 @@ def choose_champion(cv: pd.DataFrame) -> str | None:
     """The model offered to the machine: rank 1 of :func:`selection_table` (``None`` without CV
     scores, or when no model can predict every held-out run).
 
-    Only the outer folds of the whole-run CV on the **training runs** enter; validation results
-    are not an argument, so they cannot change the choice (:data:`SELECTION_RULE`).
+    Only the outer folds of the CV on the **training runs** enter (whole-run, and forward folds
+    where they ran); validation results are not an argument, so they cannot change the choice
+    (:data:`SELECTION_RULE`, :func:`forward_rule`).
 
     Why this score: the gates judge the max |residual| of each run, so each held-out run is
     scored by its max |residual|; the mean over the held-out runs uses every fold, whereas the
     worst fold alone is one number that leaving out the lowest or highest training speed
-    (an extrapolation) decides.
+    (an extrapolation) decides. The forward folds answer what the whole-run CV cannot: how a
+    model trained on the past predicts what comes after it (drift over a horizon); each estimate
+    is biased its own way (whole-run interpolates between training runs, forward folds train on
+    fewer runs), so neither alone is the score.
     """
     t = selection_table(cv)
-    if t.empty or not np.isfinite(t["cv_mean_max_abs_um"].iloc[0]):
+    if t.empty or not np.isfinite(t["selection_score_um"].iloc[0]):
         return None
     return str(t["model"].iloc[0])
 
 
-def selection_rule(scheme: str = "") -> str:
+def selection_rule(scheme: str = "", forward: str = "") -> str:
     """The rule's text for the folds ``scheme`` of ``comparison/cv.csv``: :data:`SELECTION_RULE`,
-    or :data:`SELECTION_RULE_TIME_BLOCKS` for ``time_blocks``."""
-    return SELECTION_RULE_TIME_BLOCKS if str(scheme) == TIME_BLOCKS else SELECTION_RULE
+    or :data:`SELECTION_RULE_TIME_BLOCKS` for ``time_blocks``; with ``forward`` (the forward
+    scheme of ``cv.csv``, e.g. ``forward_2``) and :func:`forward_rule`."""
+    text = SELECTION_RULE_TIME_BLOCKS if str(scheme) == TIME_BLOCKS else SELECTION_RULE
+    return f"{text} {forward_rule(horizon_of(forward))}" if is_forward(forward) else text
 
 
 def default_champion(enabled: Sequence[str]) -> str:

@@ -11,7 +11,13 @@ from rafi.report.format import truthy
 
 
 def section_choices(
-    settings: dict, key_info: dict, eq_method, *, time_blocks: bool = False, interval: dict | None = None
+    settings: dict,
+    key_info: dict,
+    eq_method,
+    *,
+    time_blocks: bool = False,
+    forward: int = 0,
+    interval: dict | None = None,
 ) -> dict:
     """Section 10: how this run decided what the paper leaves open (from the machine's settings).
 
@@ -27,6 +33,9 @@ def section_choices(
     time_blocks : bool
         The family's cross-validation used time-blocked folds (``comparison/cv.csv`` scheme
         ``time_blocks``: too few training runs for whole-run folds).
+    forward : int
+        Runs a forward-in-time fold held out when the family's selection also scored forward
+        folds (``comparison/cv.csv`` scheme ``forward_<h>``); 0: it did not.
     interval : dict, optional
         How the offered model's prediction interval is computed
         (:func:`rafi.report.intervals.interval_context` of its artefact); ``None``: the results
@@ -41,7 +50,8 @@ def section_choices(
         (``rank/key_sensors.json``), ``fuzzy_outside``, ``hac_maxlags`` and ``hac_span_s``,
         ``period_s``, ``clean`` (``spike_threshold``, ``open_circuit_values``,
         ``max_interpolate_gap_s``), ``runs`` (``min_constant_s``, ``idle_below_rpm``,
-        ``max_leading_rest_s``), ``models`` (``enabled``, ``cv``), ``paper`` and ``interval``.
+        ``max_leading_rest_s``), ``models`` (``enabled``, ``cv``, ``time_blocks``, ``forward``),
+        ``paper`` and ``interval``.
     """
     ref, rank, fit = settings["reference"], settings["rank"], settings["fit"]
     clean, runs, models = settings["clean"], settings["runs"], settings["models"]
@@ -59,7 +69,12 @@ def section_choices(
         "runs": {
             k: runs[k] for k in ("min_constant_s", "idle_below_rpm", "max_leading_rest_s", "idle_training")
         },
-        "models": {"enabled": list(models["enabled"]), "cv": models["cv"], "time_blocks": bool(time_blocks)},
+        "models": {
+            "enabled": list(models["enabled"]),
+            "cv": models["cv"],
+            "time_blocks": bool(time_blocks),
+            "forward": int(forward),
+        },
         "paper": bool(settings["report"]["paper_rig"]),
         "interval": interval,
     }

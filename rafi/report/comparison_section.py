@@ -10,6 +10,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from rafi.family.forward_folds import MIN_TRAIN, horizon_of, is_forward
 from rafi.family.selection import selection_rule
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.report.format import isnum, truthy
@@ -104,13 +105,58 @@ def residual_figure_key(run_id, other) -> str:
     return f"comparison_residuals/{run_id}/{other}"
 
 
+def selection_score(row):
+    """The score that chose the champion for one model (a ``summary.csv`` row): its
+    ``selection_score_um``, or ``cv_mean_max_abs_um`` in a ``summary.csv`` written before the
+    forward folds (no ``selection_score_um`` column: the whole-run mean was the score)."""
+    return row.get("selection_score_um") if "selection_score_um" in row else row.get("cv_mean_max_abs_um")
+
+
+def forward_mask(cv: pd.DataFrame) -> np.ndarray:
+    """True for the rows of ``comparison/cv.csv`` that are forward folds (all false in a table
+    without ``scheme``)."""
+    if "scheme" not in cv:
+        return np.zeros(len(cv), dtype=bool)
+    return cv["scheme"].map(is_forward).to_numpy(dtype=bool)
+
+
+def cv_schemes(cv: pd.DataFrame | None) -> tuple[str, str]:
+    """``(whole-run scheme, forward scheme)`` of ``comparison/cv.csv``, each ``""`` when it has no
+    such rows: the whole-run scheme (``leave_one_run_out``, ``leave_one_speed_out`` or
+    ``time_blocks``) and the forward one (``forward_2``, :mod:`rafi.family.forward_folds`)."""
+    if cv is None or not len(cv) or "scheme" not in cv:
+        return "", ""
+    scheme = cv["scheme"].astype(str)
+    forward = forward_mask(cv)
+    whole, ahead = scheme[~forward], scheme[forward]
+    return (str(whole.iloc[0]) if len(whole) else "", str(ahead.iloc[0]) if len(ahead) else "")
+
+
+def _fold_count(rows: pd.DataFrame) -> int:
+    """Folds among ``cv.csv`` rows (one row per fold and held-out run; a fold under
+    leave_one_speed_out or a forward fold holds out several runs)."""
+    return int(rows["fold"].nunique()) if "fold" in rows else len(rows)
+
+
 def _cv_stats(cv: pd.DataFrame | None) -> dict:
-    """``model -> {folds, scheme}`` of ``comparison/cv.csv`` (empty without the table)."""
+    """``model -> {folds, held_out, scheme, forward_folds, forward_held_out, forward_scheme}`` of
+    ``comparison/cv.csv`` (empty without the table): ``folds`` and ``held_out`` (runs) count the
+    whole-run folds only; the forward folds are counted apart (0 without them)."""
     if cv is None or not len(cv) or "model" not in cv:
         return {}
     out = {}
     for name, g in cv.groupby("model"):
-        out[str(name)] = {"folds": len(g), "scheme": str(g["scheme"].iloc[0]) if "scheme" in g else ""}
+        whole_scheme, forward_scheme = cv_schemes(g)
+        forward = forward_mask(g)
+        out[str(name)] = {
+            "folds": _fold_count(g[~forward]),
+            "held_out": int((~forward).sum()),
+            "scheme": whole_scheme,
+            "forward_folds": _fold_count(g[forward]),
+            "forward_held_out": int(forward.sum()),
+            "forward_scheme": forward_scheme,
+            "horizon": horizon_of(forward_scheme) if forward_scheme else 0,
+        }
     return out
 
 
@@ -194,34 +240,54 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
     }
 
 
-def selection_context(summary: pd.DataFrame, champion, scheme: str = "") -> dict:
+def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward: str = "") -> dict:
     """How the champion was chosen, from ``comparison/summary.csv``.
+
+    Parameters
+    ----------
+    summary : DataFrame
+        ``comparison/summary.csv``.
+    champion : str or None
+        The champion's name.
+    scheme, forward : str
+        The whole-run and the forward scheme of ``comparison/cv.csv`` (:func:`cv_schemes`).
 
     Returns
     -------
     dict
-        ``rule`` (:func:`rafi.family.selection.selection_rule` of the folds' ``scheme``),
-        ``time_blocks`` (the folds were time blocks), ``champion``, ``n`` (models),
-        ``basis`` (``cv``, ``default`` without a CV score, ``none`` without a champion) and,
-        with a champion: ``score`` (its CV mean max |residual|, um), ``worst_fold``,
-        ``passed`` (its gates on the validation runs, touched once after the choice),
-        ``validation_worst``, ``noise`` (the noise floor of that run) and
+        ``rule`` (:func:`rafi.family.selection.selection_rule` of the folds' ``scheme`` and
+        ``forward``), ``time_blocks`` (the folds were time blocks), ``horizon`` (runs a forward
+        fold holds out; 0 without forward folds), ``min_train`` (fewest training runs before a
+        forward fold's origin), ``champion``, ``n`` (models), ``basis``
+        (``cv``, ``default`` without a CV score, ``none`` without a champion) and, with a
+        champion: ``score`` (the selection score that chose it, um: :func:`selection_score`),
+        ``whole_score`` (its whole-run CV mean max |residual|), ``forward_score`` (the same over
+        the forward folds' held-out runs; ``None`` when they did not score it), ``worst_fold``
+        (its worst whole-run held-out run), ``passed`` (its gates on the validation runs, touched
+        once after the choice), ``validation_worst``, ``noise`` (the noise floor of that run) and
         ``better_on_validation`` (models with a lower worst residual on the validation runs).
     """
     out = {
-        "rule": selection_rule(scheme),
+        "rule": selection_rule(scheme, forward),
         "time_blocks": str(scheme) == TIME_BLOCKS,
+        "horizon": horizon_of(forward) if is_forward(forward) else 0,
+        "min_train": MIN_TRAIN,
         "champion": champion,
         "basis": "none",
         "score": None,
+        "whole_score": None,
+        "forward_score": None,
         "n": len(summary),
     }
     if champion is None:
         return out
     r = summary[summary["model"].astype(str) == champion].iloc[0]
-    score = r.get("cv_mean_max_abs_um")
+    score = selection_score(r)
+    ahead = r.get("cv_forward_mean_max_abs_um")
     out["basis"] = "cv" if isnum(score) else "default"
     out["score"] = score
+    out["whole_score"] = r.get("cv_mean_max_abs_um")
+    out["forward_score"] = ahead if out["horizon"] and isnum(ahead) else None
     out["worst_fold"] = r.get("cv_max_abs_um")
     out["passed"] = truthy(r.get("passed", False))
     out["validation_worst"] = r.get("max_abs_after_um")
@@ -240,9 +306,11 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "") -> dict
 
 
 def model_rows(summary: pd.DataFrame, champion, on_machine) -> list[dict]:
-    """One row per model of ``comparison/summary.csv``: its CV and validation numbers, the
-    share of samples outside its trained temperature range, its gates and ``is_champion``,
-    ``on_machine``, ``is_rafi`` (the paper's reference)."""
+    """One row per model of ``comparison/summary.csv``: its CV numbers (``selection_score_um``,
+    the score that chose, :func:`selection_score`; ``cv_mean_max_abs_um`` of the whole-run folds;
+    ``cv_forward_mean_max_abs_um`` of the forward folds, ``None`` in an older ``summary.csv``),
+    its validation numbers, the share of samples outside its trained temperature range, its gates
+    and ``is_champion``, ``on_machine``, ``is_rafi`` (the paper's reference)."""
     rows = []
     for r in summary.to_dict("records"):
         name = str(r["model"])
@@ -252,7 +320,9 @@ def model_rows(summary: pd.DataFrame, champion, on_machine) -> list[dict]:
             {
                 "model": name,
                 "kind": str(r.get("kind", "")),
+                "selection_score_um": selection_score(r),
                 "cv_mean_max_abs_um": r.get("cv_mean_max_abs_um"),
+                "cv_forward_mean_max_abs_um": r.get("cv_forward_mean_max_abs_um"),
                 "cv_max_abs_um": r.get("cv_max_abs_um"),
                 "selection_rank": r.get("selection_rank"),
                 "max_abs_after_um": r.get("max_abs_after_um"),
@@ -330,7 +400,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         ``None`` without ``comparison/summary.csv``; else ``champion``, ``on_machine``,
         ``models`` (:func:`model_rows`), ``kind_column`` (some model is not named after its
         kind), ``selection`` (:func:`selection_context`), ``selected`` (``(model, what CV
-        chose)``), ``cv`` (``scheme``, ``folds``), ``run_models`` and ``per_run``
+        chose)``), ``forward`` (some model has a forward CV score), ``cv`` (the first model's
+        :func:`_cv_stats`: whole-run ``scheme`` and ``folds``, ``forward_scheme``,
+        ``forward_folds``, ``horizon``), ``run_models`` and ``per_run``
         (:func:`per_run_rows`), ``figure_bars``, ``rafi_fail`` (:func:`rafi_failure` with
         ``champion``: :func:`champion_beside_rafi`) and ``figures_resid``; the interval:
         ``coverage`` (summary.csv has it), ``run_coverage`` (per_run.csv has it), ``band``
@@ -345,13 +417,17 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
     if champion_after and "model_id" in s:
         hit = s[s["model_id"].astype(str) == str(champion_after)]
         on_machine = hit["model"].iloc[0] if len(hit) else None
-    cvs = _cv_stats(res.get("comparison_cv"))
+    cv_rows = res.get("comparison_cv")
+    cvs = _cv_stats(cv_rows)
+    rows = model_rows(s, fam_champ, on_machine)
     out = {
         "champion": fam_champ,
         "on_machine": on_machine,
-        "models": model_rows(s, fam_champ, on_machine),
+        "models": rows,
         "kind_column": any(str(r.get("kind", "")) != str(r["model"]) for r in s.to_dict("records")),
-        "selection": selection_context(s, fam_champ, next(iter(cvs.values()))["scheme"] if cvs else ""),
+        "selection": selection_context(s, fam_champ, *cv_schemes(cv_rows)),
+        # the forward CV's column: only when some model was scored on forward folds
+        "forward": any(isnum(r["cv_forward_mean_max_abs_um"]) for r in rows),
         "selected": [
             (str(r["model"]), str(r["selected"]))
             for r in s.to_dict("records")

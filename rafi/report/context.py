@@ -130,10 +130,16 @@ def build_context(
     ctx["verdict"]["selection"] = (ctx["comparison"] or {}).get("selection")
     ctx["verdict"]["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
     # the folds the family's CV used (time blocks when the training data hold no whole-run fold)
-    blocks = bool((ctx["verdict"]["selection"] or {}).get("time_blocks"))
+    # and whether forward-in-time folds scored the models too
+    sel = ctx["verdict"]["selection"] or {}
     interval = (ctx["deployed"] or {}).get("interval") or interval_context(model)
     ctx["choices"] = section_choices(
-        settings, key_info, ctx["equilibrium"]["method"], time_blocks=blocks, interval=interval
+        settings,
+        key_info,
+        ctx["equilibrium"]["method"],
+        time_blocks=bool(sel.get("time_blocks")),
+        forward=int(sel.get("horizon") or 0),
+        interval=interval,
     )
     ctx["versions"] = versions()
     ctx["signoff"] = section_signoff(res, settings)  # first page: number, revision, names

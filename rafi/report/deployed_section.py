@@ -18,9 +18,10 @@ import re
 import numpy as np
 import pandas as pd
 
+from rafi.family.forward_folds import MIN_TRAIN, horizon_of
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.family.time_blocks import hours
-from rafi.report.comparison_section import family_champion
+from rafi.report.comparison_section import cv_schemes, family_champion, forward_mask, selection_score
 from rafi.report.deployed_terms import (
     rafi_equation,
     rafi_inputs,
@@ -194,32 +195,56 @@ def _nothing_chosen(text) -> str:
     return m.group(1) if m else text
 
 
+#: ``cv.csv`` columns of a fold as the section lists them.
+_FOLD_FIELDS = ("max_abs_before_um", "max_abs_after_um", "rmse_um")
+#: ``summary.csv`` columns of a candidate the model beat.
+_SCORE_FIELDS = (
+    "selection_score_um",
+    "cv_mean_max_abs_um",
+    "cv_forward_mean_max_abs_um",
+    "cv_max_abs_um",
+    "selection_rank",
+)
+
+
+def _folds_of(cv: pd.DataFrame | None, name: str) -> tuple[list[dict], list[dict]]:
+    """Model ``name``'s rows of ``cv.csv``: the whole-run folds and, apart, the forward folds
+    (with the fold and how many training runs before it the fold was trained on)."""
+    if cv is None or not len(cv) or "model" not in cv:
+        return [], []
+    mine = cv[cv["model"].astype(str) == name]
+    forward = forward_mask(mine)
+    whole = [
+        {**_fields(r, _FOLD_FIELDS), "test_runs": r.get("test_runs", "")}
+        for r in mine[~forward].to_dict("records")
+    ]
+    ahead = [
+        {**_fields(r, (*_FOLD_FIELDS, "fold", "n_train_runs")), "test_runs": r.get("test_runs", "")}
+        for r in mine[forward].to_dict("records")
+    ]
+    return whole, ahead
+
+
 def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name: str) -> dict:
     """What CV chose: the model's own (inner) choice, the outer score that made it the
-    champion, the candidates it beat, and its folds."""
+    champion (the selection score; with forward folds the mean of the whole-run and the forward
+    score, both shown), the candidates it beat (by that score), and its folds (whole-run, and
+    the forward folds apart)."""
     hyper = art.get("hyperparameters") or {}
     inner = art.get("cv") or []
     scores = [float(r["score_um"]) for r in inner if isnum(r.get("score_um"))]
     s = summary.assign(model=summary["model"].astype(str))
+    s = s.assign(_score=pd.to_numeric(s.apply(selection_score, axis=1), errors="coerce"))
     me = s[s["model"] == name].iloc[0]
     others = [
-        {**_fields(r, ("cv_mean_max_abs_um", "cv_max_abs_um", "selection_rank")), "model": r["model"]}
+        {**_fields(r | {"selection_score_um": r["_score"]}, _SCORE_FIELDS), "model": r["model"]}
         | {"rafi": str(r.get("kind")) == "rafi"}
-        for r in s.sort_values("cv_mean_max_abs_um", na_position="last").to_dict("records")
+        for r in s.sort_values("_score", na_position="last", kind="stable").to_dict("records")
         if r["model"] != name
     ]
-    folds = []
-    if cv is not None and len(cv) and "model" in cv:
-        folds = [
-            {
-                **_fields(r, ("max_abs_before_um", "max_abs_after_um", "rmse_um")),
-                "test_runs": r.get("test_runs", ""),
-            }
-            for r in cv[cv["model"].astype(str) == name].to_dict("records")
-        ]
-    scheme = (
-        str(cv["scheme"].iloc[0]).replace("_", "-") if cv is not None and len(cv) and "scheme" in cv else ""
-    )
+    folds, forward_folds = _folds_of(cv, name)
+    whole_scheme, forward_scheme = cv_schemes(cv)
+    scheme = whole_scheme.replace("_", "-")
     metric = str(hyper.get("cv_metric", ""))
     blocks = (art.get("selected") or {}).get("cv_folds")
     unit = "blocks" if blocks else "runs"
@@ -243,12 +268,19 @@ def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name:
         "selected": _nothing_chosen(me.get("selected")),
         "inner_best": fmt_num(min(scores), 3, UM) if scores else "",
         "edges": list((art.get("selected") or {}).get("grid_edges") or []),
-        "score": fmt_num(me.get("cv_mean_max_abs_um"), 2, UM),
+        "score": fmt_num(me["_score"], 2, UM),
+        "whole_score": fmt_num(me.get("cv_mean_max_abs_um"), 2, UM),
+        # the forward folds (rafi.family.forward_folds): runs each holds out, 0 without them
+        "horizon": horizon_of(forward_scheme) if forward_scheme and forward_folds else 0,
+        "forward_score": fmt_num(me.get("cv_forward_mean_max_abs_um"), 2, UM),
+        "min_train": MIN_TRAIN,
         "worst": fmt_num(me.get("cv_max_abs_um"), 2, UM),
         "n_models": len(s),
         "scheme": scheme,
         "beaten": others or None,
         "folds": folds or None,
+        "forward_folds": forward_folds or None,
+        "n_forward_folds": len({r["fold"] for r in forward_folds}),
     }
 
 

@@ -27,6 +27,7 @@ from fractions import Fraction
 import numpy as np
 import pandas as pd
 
+from rafi.family.forward_folds import horizon_of, is_forward
 from rafi.family.interval_rule import CELLS
 from rafi.report.format import isnum
 
@@ -188,6 +189,23 @@ def _calibration_rows(cal: dict, half: dict) -> list[dict]:
     return rows
 
 
+def calibration_folds(scheme) -> tuple[str, int]:
+    """The folds a calibration record's ``scheme`` names, in words, and the forward horizon.
+
+    ``leave_one_run_out`` -> ``("leave-one-run-out", 0)``; the schemes joined by ``+`` when the
+    forward folds calibrated too (:func:`rafi.family.compare.calibration_scheme`):
+    ``leave_one_run_out+forward_2`` -> ``("leave-one-run-out and forward folds, 2 runs ahead", 2)``.
+    """
+    parts = [p for p in str(scheme or "").split("+") if p]
+    whole = [p.replace("_", "-") for p in parts if not is_forward(p)]
+    ahead = [horizon_of(p) for p in parts if is_forward(p)]
+    words = " and ".join(whole)
+    for h in ahead:
+        said = f"forward folds, {'the next run' if h == 1 else f'{h} runs ahead'}"
+        words = f"{words} and {said}" if words else said
+    return words, (ahead[0] if ahead else 0)
+
+
 def interval_context(doc) -> dict | None:
     """How the artefact's interval is computed and what it assumes, for the deployed section
     and the choices list (``None`` without an ``interval`` block).
@@ -196,8 +214,10 @@ def interval_context(doc) -> dict | None:
     -------
     dict
         ``method``, ``level_pct``, ``times``, ``transient_s``, ``tolerance_rpm``,
-        ``decorrelation_s``, ``cells`` (:func:`_calibration_rows`), ``scheme`` (the CV scheme of
-        the calibration residuals), ``n_runs``, ``n_samples`` (over all cells), ``fallbacks``
+        ``decorrelation_s``, ``cells`` (:func:`_calibration_rows`), ``scheme`` (the CV folds of
+        the calibration residuals, in words: :func:`calibration_folds`), ``forward`` (the forward
+        folds' horizon in runs, 0 without them: a run held out by several forward folds is one
+        calibration unit per fold), ``n_runs``, ``n_samples`` (over all cells), ``fallbacks``
         (cells that took the pooled value), ``split`` (the method is split-conformal by run) and
         ``other`` (the calibration's other plain entries, ``(key, text)``).
     """
@@ -207,6 +227,7 @@ def interval_context(doc) -> dict | None:
     cal = block.get("calibration") if isinstance(block.get("calibration"), dict) else {}
     cells = _calibration_rows(cal, block["half_width_um"])
     method = str(block.get("method", ""))
+    folds, forward = calibration_folds(cal.get("scheme", cal.get("cv", "")))
     return {
         "method": method,
         "split": method == "split_conformal_by_run",
@@ -216,7 +237,8 @@ def interval_context(doc) -> dict | None:
         "tolerance_rpm": block.get("tolerance_rpm") if isnum(block.get("tolerance_rpm")) else None,
         "decorrelation_s": block.get("decorrelation_s") if isnum(block.get("decorrelation_s")) else None,
         "cells": cells,
-        "scheme": str(cal.get("scheme", cal.get("cv", ""))).replace("_", "-"),
+        "scheme": folds,
+        "forward": forward,
         "n_runs": cal.get("n_runs") if isnum(cal.get("n_runs")) else None,
         "n_samples": cal.get("n_samples") if isnum(cal.get("n_samples")) else None,
         "fallbacks": [c["cell"] for c in cells if c["fallback"]],

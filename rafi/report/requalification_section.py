@@ -9,8 +9,10 @@ Shown when ``comparison/summary.csv`` holds the adaptation candidates (``prior``
   (``comparison/best_model.json``) - ``parent``, ``parent_machine``, ``method``, ``gain``,
   ``time_factor``, ``alpha`` and ``coefficient_change`` (``name``, ``prior``, ``new`` per coefficient);
 * the comparison: every model's row of ``comparison/summary.csv`` - the prior unchanged, the
-  adapted prior and the from-scratch family on the same data, each with its whole-run CV score
-  on the new training runs (what chose) and its worst residual on the validation runs.
+  adapted prior and the from-scratch family on the same data, each with its selection score on
+  the new training runs (what chose: the whole-run CV score, or with forward-in-time folds the
+  mean of the whole-run and the forward score, both shown) and its worst residual on the
+  validation runs.
 
 Without the candidates (no prior was offered) the section is left out; an offered model from
 scratch still gets the section when a prior was a candidate (the prior lost, and the section says
@@ -22,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from rafi.report.comparison_section import selection_score
 from rafi.report.format import fmt_num, fmt_speed, isnum, short_id
 from rafi.settings import truthy
 
@@ -37,7 +40,8 @@ MOVES_SHOWN = 12
 
 
 def _model_rows(summary: pd.DataFrame) -> list[dict]:
-    """One row per model: group, CV score, worst validation residual, coverage, offered."""
+    """One row per model: group, CV scores (``cv_um`` the selection score that chose,
+    ``cv_whole_um`` and ``cv_forward_um`` its parts), worst validation residual, coverage, offered."""
     rows = []
     for r in summary.to_dict("records"):
         name = str(r["model"])
@@ -48,7 +52,9 @@ def _model_rows(summary: pd.DataFrame) -> list[dict]:
                 "kind": str(r.get("kind", name)),
                 "group": group,
                 "what": CANDIDATES.get(name, f"kind {r.get('kind', name)}, fitted on the new data only"),
-                "cv_um": r.get("cv_mean_max_abs_um"),
+                "cv_um": selection_score(r),
+                "cv_whole_um": r.get("cv_mean_max_abs_um"),
+                "cv_forward_um": r.get("cv_forward_mean_max_abs_um"),
                 "worst_um": r.get("max_abs_after_um"),
                 "coverage_pct": 100 * float(r["coverage"]) if isnum(r.get("coverage")) else None,
                 "offered": truthy(r.get("champion")),
@@ -139,7 +145,8 @@ def section_requalification(res: dict) -> dict | None:
     -------
     dict or None
         ``rows`` (every model: ``group`` prior / adapted prior / from scratch, ``cv_um``,
-        ``worst_um``, ``coverage``, ``offered``), ``offered`` (its row), ``prior_row``,
+        ``cv_whole_um``, ``cv_forward_um``, ``worst_um``, ``coverage``, ``offered``), ``forward``
+        (forward folds scored the models too), ``offered`` (its row), ``prior_row``,
         ``scratch`` (the from-scratch model CV ranks first), ``new_data`` (:func:`new_data`),
         ``adaptation`` (the offered model's block or ``None``: the prior lost), ``parent``
         (short id), ``moves`` (:func:`coefficient_moves`) and ``sentence`` (the comparison in
@@ -166,6 +173,7 @@ def section_requalification(res: dict) -> dict | None:
         "moves": coefficient_moves((block or {}).get("coefficient_change")),
         "sentence": comparison_sentence(offered, prior_row, scratch),
         "cv": any(isnum(r["cv_um"]) for r in rows),
+        "forward": any(isnum(r["cv_forward_um"]) for r in rows),
     }
 
 
