@@ -51,7 +51,8 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         log=lambda m: print(m, flush=True),
         prior=prior,
     )
-    cols = ["model", "cv_mean_max_abs_um", "selection_rank", "max_abs_after_um", "passed", "champion"]
+    cols = ["model", "cv_mean_max_abs_um", "cv_forward_mean_max_abs_um", "selection_score_um"]
+    cols += ["selection_rank", "max_abs_after_um", "passed", "champion"]
     print(result["summary"][cols].to_string(index=False), flush=True)
     print(
         f"champion {result['champion']} (chosen by {result['selection_basis']} on the training runs) "
