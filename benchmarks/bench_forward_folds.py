@@ -64,7 +64,7 @@ for path in (ROOT, ROOT / "benchmarks"):
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))
 
-from bench_selection_rules import extra_scheme, machine_inputs  # noqa: E402
+from bench_selection_rules import extra_scheme, machine_inputs, write_results  # noqa: E402
 
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402
@@ -72,7 +72,6 @@ from rafi.family.forward_folds import MIN_TRAIN, forward_folds, forward_logs  # 
 from rafi.family.selection import SIMPLICITY  # noqa: E402
 from rafi.family.whole_log import has_whole_logs  # noqa: E402
 
-OUT_DIR = ROOT / "benchmarks" / "results"
 #: Scheme label -> (name registered in crossval.SCHEMES, forward horizon or None).
 SCHEMES = {"whole_run": ("leave_one_run_out", None), "F1": ("forward_1", 1), "F2": ("forward_2", 2)}
 TIE_UM = 1e-3
@@ -369,9 +368,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     text = markdown(report)
     print(text)
-    OUT_DIR.mkdir(parents=True, exist_ok=True)
-    (OUT_DIR / f"{args.out}.json").write_text(json.dumps(report, indent=2, default=str), encoding="utf-8")
-    (OUT_DIR / f"{args.out}.md").write_text(text, encoding="utf-8")
+    write_results(args.out, report, text)
     return 0
 
 

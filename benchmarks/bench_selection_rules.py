@@ -74,6 +74,7 @@ ROOT = Path(__file__).resolve().parents[1]
 if str(ROOT) not in sys.path:
     sys.path.insert(0, str(ROOT))
 
+from rafi.artefact import write_text_atomic  # noqa: E402
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402
 from rafi.family.compare import make_model  # noqa: E402
@@ -256,6 +257,12 @@ def ensemble_score(dz: np.ndarray, preds: dict, weights: dict) -> dict:
     return {"max": float(np.max(np.abs(r[ok]))), "rmse": float(np.sqrt(np.mean(r[ok] ** 2)))}
 
 
+def write_results(stem: str, report: dict, text: str) -> None:
+    """``benchmarks/results/<stem>.json`` (``report``) and ``.md`` (``text``), each atomically."""
+    write_text_atomic(OUT_DIR / f"{stem}.json", json.dumps(report, indent=2, default=str))
+    write_text_atomic(OUT_DIR / f"{stem}.md", text)
+
+
 def judge_machine(project: Path, machine: str, log=print) -> dict:
     """The outer CV of every rule on one machine (module docstring)."""
     inputs = machine_inputs(project, machine)
@@ -413,9 +420,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     text = markdown(report)
     print("\n" + text)
-    OUT_DIR.mkdir(parents=True, exist_ok=True)
-    (OUT_DIR / f"{args.out}.json").write_text(json.dumps(report, indent=2, default=str), encoding="utf-8")
-    (OUT_DIR / f"{args.out}.md").write_text(text, encoding="utf-8")
+    write_results(args.out, report, text)
     return 0
 
 

@@ -30,7 +30,7 @@ from rafi.family.adapted import adaptation_factories
 from rafi.family.crossval import (  # noqa: F401 - cv_data re-exported (it lived here)
     cross_validate,
     cv_data,
-    has_folds,
+    cv_schemes,
     scheme_of,
     training_runs,
 )
@@ -375,6 +375,7 @@ def fit_and_cross_validate(
         :func:`rafi.family.crossval.cross_validate` rows of every kind (``known_cv`` if given).
     """
     models, cv_parts = {}, []
+    schemes = cv_schemes(runs_table, scheme, forward)
     universe = runs_frame.loc[rows_of_logs(runs_frame, training_runs(runs_table, runs_frame)[0]["run_id"])]
     for kind, factory in factories.items():
         with sharing_features(universe):  # the fit and every CV fold share the logs' features
@@ -386,7 +387,7 @@ def fit_and_cross_validate(
             log(f"{kind}: fitted in {time.perf_counter() - t0:.2f} s{fitted_text(models[kind])}")
             if known_cv is not None:
                 continue
-            for sch in [scheme] + ([forward] if forward and has_folds(runs_table, forward) else []):
+            for sch in schemes:
                 t0 = time.perf_counter()
                 cv = cross_validate(factory, runs_table, runs_frame, sch, name=kind, oof=oof)
                 cv_parts.append(cv)

@@ -56,6 +56,7 @@ __all__ = [
     "hold_out",
     "training_mask",
     "has_folds",
+    "cv_schemes",
     "scheme_of",
     "cv_data",
 ]
@@ -201,6 +202,12 @@ def split_runs(runs_table: pd.DataFrame, scheme: str = "leave_one_run_out"):
 def has_folds(runs_table: pd.DataFrame, scheme: str) -> bool:
     """True if ``scheme`` gives at least one fold on the training runs of ``runs_table``."""
     return next(iter(split_runs(runs_table, scheme)), None) is not None
+
+
+def cv_schemes(runs_table: pd.DataFrame, scheme: str, forward: str | None = None) -> list[str]:
+    """The CV schemes to run on ``runs_table``: ``scheme``, then ``forward`` (a forward scheme,
+    :mod:`rafi.family.forward_folds`) when it gives a fold there."""
+    return [scheme] + ([forward] if forward and has_folds(runs_table, forward) else [])
 
 
 def scheme_of(runs_table: pd.DataFrame, scheme: str) -> str:

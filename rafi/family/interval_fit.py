@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from rafi.family.crossval import cross_validate, cv_data, has_folds, scheme_of
+from rafi.family.crossval import cross_validate, cv_data, cv_schemes, scheme_of
 from rafi.family.forward_folds import configured_scheme, is_forward
 from rafi.family.intervals import OOF_COLUMNS, calibrate, set_interval
 
@@ -125,16 +125,17 @@ def rafi_interval(
     no interval)."""
     table, frame = cv_data(runs_table, runs_frame, options, log=log)
     oof: list = []
-    cross_validate(factory, table, frame, options["cv"], name="rafi", oof=oof)
-    schemes = [scheme_of(table, options["cv"])]
-    forward = configured_scheme(options)
-    if forward and has_folds(table, forward):
-        cross_validate(factory, table, frame, forward, name="rafi", oof=oof)
-        schemes.append(forward)
+    cv = pd.concat(
+        [
+            cross_validate(factory, table, frame, scheme, name="rafi", oof=oof)
+            for scheme in cv_schemes(table, options["cv"], configured_scheme(options))
+        ],
+        ignore_index=True,
+    )
     block = calibrate(
         stacked_oof(oof),
         tolerance_rpm=float(speed_tolerance_rpm),
-        scheme="+".join(schemes),
+        scheme=calibration_scheme(cv, scheme_of(table, options["cv"])),
         **interval_options(options),
     )
     set_interval(model, block)
