@@ -41,7 +41,6 @@ from __future__ import annotations
 import argparse
 import ast
 import datetime as dt
-import json
 import os
 import platform
 import re
@@ -55,6 +54,12 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+for path in (ROOT, ROOT / "benchmarks"):
+    if str(path) not in sys.path:
+        sys.path.insert(0, str(path))
+
+from _results import write_results  # noqa: E402
+
 TIME_V = Path("/usr/bin/time")
 TWIN_MACHINE = "tapping-center-a"
 VALIDATION_SPEEDS = (4500, 8000, 10500, 13500, 16500)
@@ -755,10 +760,8 @@ def main_side(args, argv) -> int:
         if not args.keep:
             shutil.rmtree(workdir, ignore_errors=True)
     out = args.out.with_name(args.out.name + "-issue23")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n")
     text = side_markdown(report)
-    out.with_suffix(".md").write_text(text)
+    write_results(out.stem, report, text, out_dir=out.parent, final_newline=True)
     print(text)
     return 0
 
@@ -884,12 +887,10 @@ def main(argv=None) -> int:
     finally:
         if not args.keep:
             shutil.rmtree(workdir, ignore_errors=True)
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n")
     text = markdown(report)
-    args.out.with_suffix(".md").write_text(text)
+    paths = write_results(args.out.stem, report, text, out_dir=args.out.parent, final_newline=True)
     print(text)
-    print(f"wrote {args.out.with_suffix('.json')} and {args.out.with_suffix('.md')}")
+    print(f"wrote {paths[0]} and {paths[1]}")
     return 0
 
 

@@ -64,7 +64,8 @@ for path in (ROOT, ROOT / "benchmarks"):
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))
 
-from bench_selection_rules import extra_scheme, machine_inputs, write_results  # noqa: E402
+from _results import write_results  # noqa: E402
+from bench_selection_rules import extra_scheme, machine_inputs  # noqa: E402
 
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402

@@ -58,14 +58,16 @@ import numpy as np
 import pandas as pd
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for path in (ROOT, ROOT / "benchmarks"):
+    if str(path) not in sys.path:
+        sys.path.insert(0, str(path))
+
+from _results import write_results  # noqa: E402
 
 from rafi.family.forward_folds import is_forward  # noqa: E402
 from rafi.family.interval_rule import CELLS, interval_cell  # noqa: E402
 from rafi.family.intervals import _quantiles, corrected_level, unit_weights  # noqa: E402
 
-OUT_DIR = ROOT / "benchmarks" / "results"
 LEVEL = 0.9
 TRANSIENT_S = 1800.0
 MIN_RUNS = 3
@@ -278,10 +280,8 @@ def main(argv: list[str] | None = None) -> int:
                 table[name][variant_name(n, cells, corr)] = outer_cv(data, n, cells=cells, correction=corr)
     lines = summary_lines(table)
     print("\n".join(lines))
-    OUT_DIR.mkdir(parents=True, exist_ok=True)
     meta = {"date": dt.date.today().isoformat(), "python": platform.python_version(), "level": LEVEL}
-    (OUT_DIR / "intervals.json").write_text(json.dumps({"meta": meta, "data": table}, indent=1))
-    (OUT_DIR / "intervals.md").write_text("\n".join(lines) + "\n")
+    write_results("intervals", {"meta": meta, "data": table}, "\n".join(lines) + "\n", indent=1)
     return 0
 
 

@@ -45,7 +45,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import json
 import os
 import platform
 import shutil
@@ -59,10 +58,9 @@ import pandas as pd
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import bench_realdata as rd  # noqa: E402
+from _results import write_results  # noqa: E402
 
 from rafi.family.forward_folds import is_forward  # noqa: E402
-
-OUT_DIR = rd.OUT_DIR
 
 #: The cuts: name -> (cut time on the log's clock, s; what trains). Runs per the data's README:
 #: 1250 r/min 465-14 850 s, then a 4 h rest, 2500 from 29 265 s, 3750 from 58 065 s, 5000 from
@@ -405,11 +403,7 @@ def main(argv: list[str] | None = None) -> int:
     }
     text = markdown(report)
     print(text)
-    OUT_DIR.mkdir(parents=True, exist_ok=True)
-    (OUT_DIR / "learning_curve.json").write_text(
-        json.dumps(report, indent=2, ensure_ascii=False, default=str)
-    )
-    (OUT_DIR / "learning_curve.md").write_text(text, encoding="utf-8")
+    write_results("learning_curve", report, text, ensure_ascii=False)
     return 0
 
 

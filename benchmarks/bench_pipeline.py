@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import datetime as dt
-import json
 import os
 import platform
 import re
@@ -35,6 +34,12 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
+for path in (ROOT, ROOT / "benchmarks"):
+    if str(path) not in sys.path:
+        sys.path.insert(0, str(path))
+
+from _results import write_results  # noqa: E402
+
 TIME_V = Path("/usr/bin/time")
 
 
@@ -230,10 +235,10 @@ def main(argv=None) -> int:
         "python": platform.python_version(),
         "cases": cases,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.with_suffix(".json").write_text(json.dumps(report, indent=2) + "\n")
-    args.out.with_suffix(".md").write_text(markdown(report))
-    print(f"wrote {args.out.with_suffix('.json')} and {args.out.with_suffix('.md')}")
+    paths = write_results(
+        args.out.stem, report, markdown(report), out_dir=args.out.parent, final_newline=True
+    )
+    print(f"wrote {paths[0]} and {paths[1]}")
     return 0
 
 

@@ -81,8 +81,13 @@ import yaml
 from scipy.signal import lfilter
 
 ROOT = Path(__file__).resolve().parents[1]
+for path in (ROOT, ROOT / "benchmarks"):
+    if str(path) not in sys.path:
+        sys.path.insert(0, str(path))
+
+from _results import write_results  # noqa: E402
+
 DATA_REL = Path("shared", "data", "fl-thermal", "data.xlsx")
-OUT_DIR = ROOT / "benchmarks" / "results"
 
 CHANNELS = ("ch1", "ch2", "ch3", "ch4", "ch5")
 CONFIGS = ("windows", "automatic")
@@ -623,9 +628,7 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         if r.get("ok"):
             print(describe(r))
-    OUT_DIR.mkdir(parents=True, exist_ok=True)
-    (OUT_DIR / "realdata.json").write_text(json.dumps(report, indent=2, ensure_ascii=False, default=str))
-    (OUT_DIR / "realdata.md").write_text(text, encoding="utf-8")
+    write_results("realdata", report, text, ensure_ascii=False)
     return 0
 
 

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import inspect
-import json
 import math
 import os
 import sys
@@ -48,7 +47,11 @@ for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
     os.environ.setdefault(_var, "1")  # as in workflow/scripts/compare.py: small matrices, one thread
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
+for path in (ROOT, ROOT / "benchmarks"):
+    if str(path) not in sys.path:
+        sys.path.insert(0, str(path))
+
+from _results import write_results  # noqa: E402
 
 from rafi.family.compare import compare_models, load_any, run_family  # noqa: E402
 from rafi.ops.plan import plan_limits, plan_programme  # noqa: E402
@@ -237,7 +240,11 @@ def main(argv=None) -> int:
     p.add_argument("--sample-period", type=float, default=20.0, help="s (default 20)")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--kinds", nargs="+", help="the kinds run_family fits (default: models.enabled)")
-    p.add_argument("--json", default=str(ROOT / "benchmarks" / "results" / "requalify.json"))
+    p.add_argument(
+        "--json",
+        default=str(ROOT / "benchmarks" / "results" / "requalify.json"),
+        help="the record's path; its suffix becomes .json (default: benchmarks/results/requalify.json)",
+    )
     args = p.parse_args(argv)
     warnings.simplefilter("ignore")
     settings = MACHINE_DEFAULTS
@@ -263,9 +270,10 @@ def main(argv=None) -> int:
         "markdown": table,
     }
     out = Path(args.json)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(record, indent=1, default=float) + "\n", encoding="utf-8")
-    progress(f"wrote {out} ({record['seconds']:g} s)")
+    (written,) = write_results(
+        out.stem, record, out_dir=out.parent, indent=1, default=float, final_newline=True
+    )
+    progress(f"wrote {written} ({record['seconds']:g} s)")
     return 0
 
 

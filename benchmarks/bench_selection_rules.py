@@ -71,10 +71,12 @@ import pandas as pd
 import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:
-    sys.path.insert(0, str(ROOT))
+for path in (ROOT, ROOT / "benchmarks"):
+    if str(path) not in sys.path:
+        sys.path.insert(0, str(path))
 
-from rafi.artefact import write_text_atomic  # noqa: E402
+from _results import write_results  # noqa: E402
+
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402
 from rafi.family.compare import make_model  # noqa: E402
@@ -84,7 +86,6 @@ from rafi.family.selection import SIMPLICITY, choose_champion  # noqa: E402
 from rafi.family.whole_log import rows_of_logs  # noqa: E402
 from rafi.settings import machine_settings  # noqa: E402
 
-OUT_DIR = ROOT / "benchmarks" / "results"
 #: The role of the outer held-out run in the tables the inner CV sees: not training, not scored.
 OUTER = "outer_held_out"
 SPEED_SCHEME = "speed_with_cooldown"
@@ -255,12 +256,6 @@ def ensemble_score(dz: np.ndarray, preds: dict, weights: dict) -> dict:
     r = dz - pred
     ok = np.isfinite(r)
     return {"max": float(np.max(np.abs(r[ok]))), "rmse": float(np.sqrt(np.mean(r[ok] ** 2)))}
-
-
-def write_results(stem: str, report: dict, text: str) -> None:
-    """``benchmarks/results/<stem>.json`` (``report``) and ``.md`` (``text``), each atomically."""
-    write_text_atomic(OUT_DIR / f"{stem}.json", json.dumps(report, indent=2, default=str))
-    write_text_atomic(OUT_DIR / f"{stem}.md", text)
 
 
 def judge_machine(project: Path, machine: str, log=print) -> dict:
