@@ -69,7 +69,7 @@ from bench_selection_rules import extra_scheme, machine_inputs  # noqa: E402
 
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402
-from rafi.family.forward_folds import MIN_TRAIN, forward_folds, forward_logs  # noqa: E402
+from rafi.family.forward_folds import MIN_TRAIN, forward_folds, forward_logs, is_forward  # noqa: E402
 from rafi.family.selection import SIMPLICITY  # noqa: E402
 from rafi.family.whole_log import has_whole_logs  # noqa: E402
 
@@ -244,6 +244,7 @@ def score_candidates(
 def check_against_pipeline(result: dict, cands: dict, cv_csv: pd.DataFrame) -> dict:
     """Per unchanged kind: does its whole-run figure of every run equal ``comparison/cv.csv``'s
     (the pipeline's own CV; a difference means other code or settings than the project's)?"""
+    cv_csv = cv_csv.loc[~cv_csv["scheme"].map(is_forward).to_numpy(dtype=bool)]  # whole-run rows only
     rows = cv_csv.set_index([cv_csv["model"].astype(str), cv_csv["test_runs"].astype(str)])[
         "max_abs_after_um"
     ]

@@ -31,8 +31,11 @@ beside it; ``oracle`` is the best kind per outer fold (a floor no rule can beat)
 
 The rules (:data:`RULES`), every one a function of training-run CV rows alone:
 
-* ``mean_max`` (the current rule, :func:`rafi.family.selection.choose_champion`): the lowest
-  mean over the held-out runs of the max |residual|;
+* ``mean_max`` (the rule before session 13, :func:`rafi.family.selection.choose_champion` on
+  whole-run rows): the lowest mean over the held-out runs of the max |residual|;
+* ``mean_max_forward`` (the current rule: the same function on the whole-run and the forward
+  rows, :data:`FORWARD`): the lowest mean of the whole-run and the forward scores where the inner
+  training runs give forward folds (in a continuous log, at least 5 of them), else ``mean_max``;
 * ``mean_plus_se``: the lowest mean + one standard error of the fold scores (sample standard
   deviation over sqrt(folds)): an upper confidence bound on the CV loss, so a kind that is
   good on most folds and very bad on one loses to a kind that is steady;
@@ -81,7 +84,7 @@ from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402
 from rafi.family.compare import make_model  # noqa: E402
 from rafi.family.feature_memo import sharing_features  # noqa: E402
-from rafi.family.forward_folds import is_forward  # noqa: E402
+from rafi.family.forward_folds import is_forward, scheme_name  # noqa: E402
 from rafi.family.selection import SIMPLICITY, choose_champion  # noqa: E402
 from rafi.family.whole_log import rows_of_logs  # noqa: E402
 from rafi.settings import machine_settings  # noqa: E402
@@ -194,8 +197,12 @@ def ensemble_weights(cv: pd.DataFrame) -> dict[str, float]:
 
 
 #: Rule name -> (inner scheme, rule function).
+#: The forward scheme of the current rule (the default ``models: cv_forward_runs``).
+FORWARD = scheme_name(2)
+
 RULES = {
     "mean_max": ("leave_one_run_out", rule_mean_max),
+    "mean_max_forward": (("leave_one_run_out", FORWARD), rule_mean_max),
     "mean_plus_se": ("leave_one_run_out", rule_mean_plus_se),
     "one_se_simplest": ("leave_one_run_out", rule_one_se_simplest),
     "speed_folds": (SPEED_SCHEME, rule_mean_max),
@@ -203,6 +210,16 @@ RULES = {
 
 
 # ----------------------------------------------------------------------------- one machine
+
+
+def schemes_of(scheme) -> tuple:
+    """The inner schemes a rule reads: one name or a tuple of names (:data:`RULES`)."""
+    return tuple(scheme) if isinstance(scheme, tuple) else (scheme,)
+
+
+def rows_of(cvs: dict, scheme) -> pd.DataFrame:
+    """A rule's CV rows: those of its scheme, or of each of its schemes stacked."""
+    return pd.concat([cvs[s] for s in schemes_of(scheme)], ignore_index=True)
 
 
 def machine_inputs(project: Path, machine: str) -> dict:
@@ -262,16 +279,18 @@ def judge_machine(project: Path, machine: str, log=print) -> dict:
     """The outer CV of every rule on one machine (module docstring)."""
     inputs = machine_inputs(project, machine)
     table, frame, full_cv = inputs["table"], inputs["frame"], inputs["cv"]
-    full_cv = full_cv.loc[~full_cv["scheme"].map(is_forward).to_numpy(dtype=bool)]  # whole-run rules only
+    forward_rows = full_cv["scheme"].map(is_forward).to_numpy(dtype=bool)
+    pipeline_forward = full_cv.loc[full_cv["scheme"].astype(str) == FORWARD]
+    full_cv = full_cv.loc[~forward_rows]  # the outer scores: whole-run rows
     if set(full_cv["scheme"].astype(str)) != {"leave_one_run_out"}:
         raise SystemExit(f"{machine}: comparison/cv.csv is not leave_one_run_out; cannot score outer folds")
     outer_score = full_cv.set_index([full_cv["model"].astype(str), full_cv["test_runs"].astype(str)])
-    schemes = sorted({scheme for scheme, _ in RULES.values()})
+    schemes = sorted({s for scheme, _ in RULES.values() for s in schemes_of(scheme)})
     folds, t0 = [], time.perf_counter()
     for _, (held,) in crossval.leave_one_run_out(table):
         inner_table = crossval.hold_out(table, [held], OUTER)
         inner = {sc: inner_cv(inputs["factories"], inner_table, frame, sc) for sc in schemes}
-        picks = {rule: fn(inner[sc]) for rule, (sc, fn) in RULES.items()}
+        picks = {rule: fn(rows_of(inner, sc)) for rule, (sc, fn) in RULES.items()}
         scores = {
             m: {
                 "max": float(outer_score.loc[(m, held), "max_abs_after_um"]),
@@ -289,11 +308,12 @@ def judge_machine(project: Path, machine: str, log=print) -> dict:
         picks[ENSEMBLE] = ENSEMBLE
         folds.append({"held_out": held, "picks": picks, "scores": scores, "weights": weights})
         log(f"  {machine} outer fold {held}: " + ", ".join(f"{r} {p}" for r, p in picks.items()))
+    pipeline = {"leave_one_run_out": full_cv, FORWARD: pipeline_forward}
     full = {
-        sc: full_cv if sc == "leave_one_run_out" else inner_cv(inputs["factories"], table, frame, sc)
+        sc: pipeline[sc] if sc in pipeline else inner_cv(inputs["factories"], table, frame, sc)
         for sc in schemes
     }
-    offered = {rule: fn(full[sc]) for rule, (sc, fn) in RULES.items()}
+    offered = {rule: fn(rows_of(full, sc)) for rule, (sc, fn) in RULES.items()}
     weights = ensemble_weights(full_cv)
     offered[ENSEMBLE] = " ".join(f"{k} {w:.2f}" for k, w in weights.items() if w >= 0.005)
     return {

@@ -101,3 +101,15 @@ def test_ensemble_weights_are_inverse_square_cv_losses(bench):
     dz = np.array([1.0, 2.0, 4.0])
     score = bench.ensemble_score(dz, {"dynamic": dz + 1.0, "grey_box": dz - 4.0}, w)
     assert score["max"] == pytest.approx(0.0, abs=1e-12)
+
+
+def test_the_current_rule_reads_the_forward_rows_beside_the_whole_run_rows(bench):
+    whole = _cv({"dynamic": [2.0, 2.0, 2.0], "grey_box": [3.0, 3.0, 3.0]})
+    ahead = _cv({"dynamic": [9.0, 9.0], "grey_box": [4.0, 4.0]}).assign(scheme=bench.FORWARD, fold=0)
+    cvs = {"leave_one_run_out": whole, bench.FORWARD: ahead}
+    scheme, rule = bench.RULES["mean_max_forward"]
+    assert bench.schemes_of(scheme) == ("leave_one_run_out", bench.FORWARD)
+    assert len(bench.rows_of(cvs, scheme)) == 10
+    # whole-run alone: dynamic (2 < 3); with the forward folds: (2 + 9) / 2 > (3 + 4) / 2
+    assert bench.RULES["mean_max"][1](bench.rows_of(cvs, bench.RULES["mean_max"][0])) == "dynamic"
+    assert rule(bench.rows_of(cvs, scheme)) == "grey_box"

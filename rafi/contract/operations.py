@@ -99,6 +99,17 @@ OPERATIONS_SETTINGS: dict = {
                     " 0 = whole-run CV only"
                 ),
             ),
+            "cv_forward_hyperparameters": Setting(
+                default=False,
+                schema={"type": "boolean"},
+                shown="false",
+                doc=(
+                    "the ridge kinds (`ridge_global`, `dynamic`, `grey_box`) also choose their own"
+                    " hyperparameters on the mean of the whole-run and the forward scores"
+                    " (`cv_forward_runs`), as the selection compares the kinds; off by default: on the"
+                    " training runs it was not better everywhere (`docs/decisions.md`, session 14)"
+                ),
+            ),
             "interval_level": Setting(
                 default=0.9,
                 schema={"type": "number", "exclusiveMinimum": 0, "exclusiveMaximum": 1},

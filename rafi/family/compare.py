@@ -102,6 +102,8 @@ def make_model(
     common = {"reference": reference, "machine": machine, "speed_tolerance_rpm": speed_tolerance_rpm}
     ridge = {"alphas": o["ridge_alphas"], "cv": o["cv"], "speed_reference": o["speed_reference"], **common}
     ridge["filter_restart_gap_s"] = o["filter_restart_gap_s"]
+    ridge["cv_forward_runs"] = o["cv_forward_runs"]
+    ridge["forward_hyperparameters"] = o["cv_forward_hyperparameters"]
     if kind == "rafi":
         return PublishedRafi(key_sensors=key_sensors, terms=terms, hac_maxlags=hac_maxlags, **common)
     if kind == "rafi_linear":

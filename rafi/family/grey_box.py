@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.features import SPEED_SCALE_RPM, lowpass_runs, rise_column
-from rafi.family.ridge import FILTER_STATE_TEXT, RidgeBase, cv_folds, cv_scores
+from rafi.family.ridge import FILTER_STATE_TEXT, RidgeBase, cv_scores
 from rafi.family.whole_log import filtered_rises, heat_input, lowpass_log, unsort
 from rafi.settings import MACHINE_DEFAULTS
 
@@ -76,8 +76,9 @@ class GreyBox(RidgeBase):
     cv_metric : str
         ``rmse`` or ``max_abs`` (``models: grey_box_cv_metric``).
     **others
-        ``sensors``, ``alphas``, ``cv``, ``speed_terms``, ``speed_reference``, ``reference``,
-        ``machine``, ``speed_tolerance_rpm``, ``filter_restart_gap_s`` as
+        ``sensors``, ``alphas``, ``cv``, ``cv_forward_runs``, ``forward_hyperparameters``,
+        ``speed_terms``, ``speed_reference``, ``reference``, ``machine``, ``speed_tolerance_rpm``,
+        ``filter_restart_gap_s`` as
         :class:`rafi.family.ridge_global.RidgeGlobal`.
     """
 
@@ -99,6 +100,8 @@ class GreyBox(RidgeBase):
         sensors: Sequence[str] | None = None,
         alphas: Sequence[float] = MODELS["ridge_alphas"],
         cv: str = MODELS["cv"],
+        cv_forward_runs: int = MODELS["cv_forward_runs"],
+        forward_hyperparameters: bool = MODELS["cv_forward_hyperparameters"],
         speed_terms: bool = True,
         speed_reference: str = MODELS["speed_reference"],
         reference: dict = MACHINE_DEFAULTS["reference"],
@@ -119,6 +122,8 @@ class GreyBox(RidgeBase):
         self.sensors = sensors
         self.alphas = alphas
         self.cv = cv
+        self.cv_forward_runs = cv_forward_runs
+        self.forward_hyperparameters = forward_hyperparameters
         self.speed_terms = speed_terms
         self.speed_reference = speed_reference
         self.reference = reference
@@ -285,7 +290,7 @@ class GreyBox(RidgeBase):
             if self.instantaneous_
             else [np.arange(0)]
         )
-        folds = cv_folds(feats, y, run_ids, table, self.cv, shared_key=key)
+        folds = self._cv_folds(feats, y, run_ids, table, key)
         cv_table, best = [], (math.inf, None, None, None, 0.0, None)
         rise_sets, speed_sets = self._filter_sets()
         for rs in rise_sets:

@@ -20,9 +20,13 @@ from rafi.family.features import (
     speed_change_evidence,
     usable_sensors,
 )
+from rafi.family.forward_folds import scheme_name
 from rafi.family.grids import data_scales, edge_flags, resolve
 from rafi.family.time_blocks import blocks_text, max_filter_s, unit_column
 from rafi.family.whole_log import has_whole_logs, layout, rows_of_logs
+from rafi.settings import MACHINE_DEFAULTS
+
+MODELS = MACHINE_DEFAULTS["models"]
 
 CV_METRICS = ("rmse", "max_abs")
 
@@ -68,10 +72,15 @@ def cv_folds(
     table: pd.DataFrame,
     scheme: str,
     shared_key=None,
+    forward: str | None = None,
 ) -> list:
     """Per whole-run fold of ``scheme``, once per fit: the training runs' ``X'X``, ``X'y`` and
     sample count (sums of per-run parts), the test runs' rows of ``X`` and ``y`` (for
     ``max_abs``) and their ``X'X``, ``X'y``, ``y'y`` (for ``rmse``).
+
+    ``forward``: a forward scheme (:mod:`rafi.family.forward_folds`, ``forward_2``) whose folds
+    follow, each marked ``"scheme": 1`` (the whole-run ones ``0``): :func:`cv_scores` then scores
+    the mean of the two schemes, the selection's own criterion (:mod:`rafi.family.selection`).
 
     ``shared_key``: the feature memo's key of ``feats`` when they came from the active memo
     (:class:`rafi.family.feature_memo.FeatureMemo`); each run's Gram matrices are then computed
@@ -83,7 +92,10 @@ def cv_folds(
     else:
         gram = {r: memo.run_gram(shared_key, r, lambda i=i: run_gram(feats, y, i)) for r, i in rows.items()}
     folds = []
-    for train_ids, test_ids in split_runs(table, scheme):
+    splits = [(0, f) for f in split_runs(table, scheme)]
+    if forward:
+        splits += [(1, f) for f in split_runs(table, forward)]
+    for tag, (train_ids, test_ids) in splits:
         train_runs = tuple(r for r in train_ids if r in gram)
         train = [gram[r] for r in train_runs]
         te = [rows[r] for r in test_ids if r in rows]
@@ -101,6 +113,7 @@ def cv_folds(
                 "g_test": sum(t[0] for t in test),
                 "c_test": sum(t[1] for t in test),
                 "yy_test": float(y[te] @ y[te]),
+                "scheme": tag,
                 # which sums g, c, n are: the same runs give the same sums in every fit sharing
                 # the run Grams (a pair of runs held out in the outer and the inner CV, either way)
                 "solution_key": (shared_key, train_runs) if memo is not None else None,
@@ -134,7 +147,17 @@ def _fold_solution(fold: dict, cols: np.ndarray, alphas: Sequence[float]) -> np.
 def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
     """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds:
     ``rmse`` over every held-out sample, or ``max_abs``, the mean over folds of the held-out
-    runs' max |residual|."""
+    runs' max |residual|. With forward folds among ``folds`` (:func:`cv_folds` ``forward=``), the
+    mean of the whole-run and the forward scores."""
+    schemes = sorted({int(f.get("scheme", 0)) for f in folds})
+    if len(schemes) < 2:
+        return _scheme_scores(folds, cols, alphas, metric)
+    parts = [_scheme_scores([f for f in folds if f["scheme"] == k], cols, alphas, metric) for k in schemes]
+    return np.mean(parts, axis=0)
+
+
+def _scheme_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
+    """:func:`cv_scores` over the folds of one scheme."""
     sq = np.zeros(len(alphas))
     fold_max, count = [], 0
     ix = np.ix_(cols, cols)
@@ -259,6 +282,16 @@ class RidgeBase(FamilyModel):
         self._resolve_grids(fit_rows, max_filter_s(table))
         return table, frame, rows, sensors
 
+    def _cv_folds(self, feats: np.ndarray, y: np.ndarray, run_ids: np.ndarray, table: pd.DataFrame, key=None):
+        """:func:`cv_folds` of the hyperparameter CV: ``cv``'s folds and, where the training runs
+        give any, the forward folds of ``cv_forward_runs`` (0: none), so the kind's own choice is
+        made on the criterion the selection compares the kinds by. Sets ``cv_forward_folds_``."""
+        horizon = int(self.cv_forward_runs) if self.forward_hyperparameters else 0
+        forward = scheme_name(horizon) if horizon > 0 else None
+        folds = cv_folds(feats, y, run_ids, table, self.cv, shared_key=key, forward=forward)
+        self.cv_forward_folds_ = sum(1 for f in folds if f["scheme"] == 1)
+        return folds
+
     @staticmethod
     def _cv_units(train: pd.DataFrame) -> np.ndarray:
         """The CV unit of every training row: its run, or its time block or gap under
@@ -377,7 +410,17 @@ class RidgeBase(FamilyModel):
             "speed_reference": self.speed_reference,
             "speed_tolerance_rpm": float(self.speed_tolerance_rpm),
             "filter_restart_gap_s": float(self.filter_restart_gap_s),
+            **self._forward_hyper(),
         }
+
+    def _forward_hyper(self) -> dict:
+        """``forward_hyperparameters`` and ``cv_forward_runs`` where either is not the default
+        (the artefacts stay as they were before the setting unless it is used)."""
+        hyper = {"forward_hyperparameters": bool(self.forward_hyperparameters)}
+        hyper["cv_forward_runs"] = int(self.cv_forward_runs)
+        defaults = {"forward_hyperparameters": MODELS["cv_forward_hyperparameters"]}
+        defaults["cv_forward_runs"] = MODELS["cv_forward_runs"]
+        return hyper if any(hyper[k] != defaults[k] for k in hyper) else {}
 
     def _selected(self) -> dict:
         """What CV chose, as recorded in the artefact (``selected``; ``cv_folds`` only when the
@@ -394,6 +437,8 @@ class RidgeBase(FamilyModel):
         }
         if getattr(self, "time_blocks_", None):
             out["cv_folds"] = dict(self.time_blocks_)
+        if getattr(self, "cv_forward_folds_", 0):
+            out["cv_forward_folds"] = int(self.cv_forward_folds_)
         return out
 
     def _filter_text(self) -> dict:
@@ -462,6 +507,7 @@ class RidgeBase(FamilyModel):
         m.data_scales_ = dict(selected.get("data_scales", {}))
         m.grid_edges_ = list(selected.get("grid_edges", []))
         m.time_blocks_ = selected.get("cv_folds")
+        m.cv_forward_folds_ = int(selected.get("cv_forward_folds", 0))
         m.interval_ = d["interval"] if isinstance(d.get("interval"), dict) else None
         m.adaptation_ = d["adaptation"] if isinstance(d.get("adaptation"), dict) else None
         m._from_selected(selected)

@@ -10,7 +10,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.features import SPEED_SCALE_RPM, rise_column
-from rafi.family.ridge import RidgeBase, cv_folds, cv_scores
+from rafi.family.ridge import RidgeBase, cv_scores
 from rafi.family.whole_log import filtered_rises, unsort
 from rafi.settings import MACHINE_DEFAULTS
 
@@ -38,6 +38,11 @@ class RidgeGlobal(RidgeBase):
         Ridge penalties to choose from (``models: ridge_alphas``).
     cv : str
         Whole-run CV scheme (``models: cv``).
+    cv_forward_runs : int
+        Forward folds hold out this many runs (``models: cv_forward_runs``; 0: none).
+    forward_hyperparameters : bool
+        Choose the hyperparameters on the mean of the whole-run and the forward scores
+        (``models: cv_forward_hyperparameters``); else on the whole-run folds alone.
     cv_metric : str
         ``rmse`` or ``max_abs`` (``models: cv_metric``).
     speed_terms : bool
@@ -66,6 +71,8 @@ class RidgeGlobal(RidgeBase):
         alphas: Sequence[float] = MODELS["ridge_alphas"],
         cv: str = MODELS["cv"],
         cv_metric: str = MODELS["cv_metric"],
+        cv_forward_runs: int = MODELS["cv_forward_runs"],
+        forward_hyperparameters: bool = MODELS["cv_forward_hyperparameters"],
         speed_terms: bool = True,
         speed_gain: bool | str = MODELS["speed_gain"],
         speed_reference: str = MODELS["speed_reference"],
@@ -78,6 +85,8 @@ class RidgeGlobal(RidgeBase):
         self.alphas = alphas
         self.cv = cv
         self.cv_metric = cv_metric
+        self.cv_forward_runs = cv_forward_runs
+        self.forward_hyperparameters = forward_hyperparameters
         self.speed_terms = speed_terms
         self.speed_gain = speed_gain
         self.speed_reference = speed_reference
@@ -150,7 +159,7 @@ class RidgeGlobal(RidgeBase):
         p = len(sensors)
         width = p * (2 if max(gains) else 1)
         speed = np.arange(len(taus_grid) * width, all_feats.shape[1])
-        folds = cv_folds(all_feats, y, run_ids, table, self.cv, shared_key=key)
+        folds = self._cv_folds(all_feats, y, run_ids, table, key)
         cv_table, best = [], (math.inf, None, None, None, None)
         for gain in gains:
             for k in range(1, max(1, max_taus) + 1):
