@@ -24,9 +24,6 @@ from rafi.family.forward_folds import scheme_name
 from rafi.family.grids import data_scales, edge_flags, resolve
 from rafi.family.time_blocks import blocks_text, max_filter_s, unit_column
 from rafi.family.whole_log import has_whole_logs, layout, rows_of_logs
-from rafi.settings import MACHINE_DEFAULTS
-
-MODELS = MACHINE_DEFAULTS["models"]
 
 CV_METRICS = ("rmse", "max_abs")
 
@@ -149,7 +146,7 @@ def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: st
     ``rmse`` over every held-out sample, or ``max_abs``, the mean over folds of the held-out
     runs' max |residual|. With forward folds among ``folds`` (:func:`cv_folds` ``forward=``), the
     mean of the whole-run and the forward scores."""
-    schemes = sorted({int(f.get("scheme", 0)) for f in folds})
+    schemes = sorted({f["scheme"] for f in folds})
     if len(schemes) < 2:
         return _scheme_scores(folds, cols, alphas, metric)
     parts = [_scheme_scores([f for f in folds if f["scheme"] == k], cols, alphas, metric) for k in schemes]
@@ -414,13 +411,11 @@ class RidgeBase(FamilyModel):
         }
 
     def _forward_hyper(self) -> dict:
-        """``forward_hyperparameters`` and ``cv_forward_runs`` where either is not the default
-        (the artefacts stay as they were before the setting unless it is used)."""
-        hyper = {"forward_hyperparameters": bool(self.forward_hyperparameters)}
-        hyper["cv_forward_runs"] = int(self.cv_forward_runs)
-        defaults = {"forward_hyperparameters": MODELS["cv_forward_hyperparameters"]}
-        defaults["cv_forward_runs"] = MODELS["cv_forward_runs"]
-        return hyper if any(hyper[k] != defaults[k] for k in hyper) else {}
+        """``forward_hyperparameters`` and ``cv_forward_runs`` when the first is on: only then do
+        they change the fit (the artefacts of the default stay as they were before the setting)."""
+        if not self.forward_hyperparameters:
+            return {}
+        return {"forward_hyperparameters": True, "cv_forward_runs": int(self.cv_forward_runs)}
 
     def _selected(self) -> dict:
         """What CV chose, as recorded in the artefact (``selected``; ``cv_folds`` only when the
