@@ -84,10 +84,10 @@ from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402
 from rafi.family.compare import make_model  # noqa: E402
 from rafi.family.feature_memo import sharing_features  # noqa: E402
-from rafi.family.forward_folds import is_forward, scheme_name  # noqa: E402
+from rafi.family.forward_folds import configured_scheme, is_forward  # noqa: E402
 from rafi.family.selection import SIMPLICITY, choose_champion  # noqa: E402
 from rafi.family.whole_log import rows_of_logs  # noqa: E402
-from rafi.settings import machine_settings  # noqa: E402
+from rafi.settings import MACHINE_DEFAULTS, machine_settings  # noqa: E402
 
 #: The role of the outer held-out run in the tables the inner CV sees: not training, not scored.
 OUTER = "outer_held_out"
@@ -196,10 +196,10 @@ def ensemble_weights(cv: pd.DataFrame) -> dict[str, float]:
     return dict(zip(t["model"], w / w.sum()))
 
 
-#: Rule name -> (inner scheme, rule function).
-#: The forward scheme of the current rule (the default ``models: cv_forward_runs``).
-FORWARD = scheme_name(2)
+#: The forward scheme of the current rule (from the default ``models: cv_forward_runs``).
+FORWARD = configured_scheme(MACHINE_DEFAULTS["models"])
 
+#: Rule name -> (inner scheme or schemes, rule function).
 RULES = {
     "mean_max": ("leave_one_run_out", rule_mean_max),
     "mean_max_forward": (("leave_one_run_out", FORWARD), rule_mean_max),
