@@ -56,6 +56,9 @@ BLOCK = {
         "scheme": "leave_one_run_out",
         "n_runs": 6,
         "n_samples": 812,
+        "corrected_level": 0.904,
+        "pooled_half_width_um": 0.674013294224082,
+        "units": "runs",
         "cells": {
             "settled": {"n_runs": 6, "n_samples": 640},
             "transient": {"n_runs": 6, "n_samples": 150},
@@ -213,7 +216,10 @@ def test_the_interval_is_in_every_residual_table_and_section(both):
     assert [r["cell"] for r in cells] == list(HALF)
     assert [_number(r["half-width h (µm)"]) for r in cells] == list(HALF.values())
     assert [r["pooled value used"] for r in cells] == ["no", "no", "yes"]
-    assert "scheme" not in ctx["deployed"]["interval"]["other"]
+    # the calibration's other plain entries: worded keys left out, "key: value", floats rounded
+    other = dict(ctx["deployed"]["interval"]["other"])
+    assert other == {"corrected level": "0.904", "pooled half width um": "0.674", "units": "runs"}
+    assert "corrected level: 0.904; pooled half width um: 0.674; units: runs." in text
     # the model comparison: pooled coverage per model, and per run under each model's residual
     table = next(t for t in html_tables(html) if any("median width" in h for h in t["headers"]))
     i = next(k for k, h in enumerate(table["headers"]) if "median width" in h)

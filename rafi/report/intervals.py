@@ -258,5 +258,7 @@ def _other_calibration(cal: dict) -> list[tuple[str, str]]:
             continue
         if isinstance(value, (list, tuple)):
             value = ", ".join(str(v) for v in value) or "none"
+        elif isinstance(value, float):
+            value = f"{value:.4g}"
         out.append((str(key).replace("_", " "), str(value)))
     return out
