@@ -10,6 +10,7 @@ import pandas as pd
 import pytest
 
 from rafi.family.crossval import cross_validate
+from rafi.family.forward_folds import fold_unit, unit_run
 from rafi.family.interval_rule import ChangeClock
 from rafi.family.intervals import (
     calibrate,
@@ -87,6 +88,34 @@ def test_corrected_level_never_narrows_and_reaches_the_leave_one_run_out_coverag
         cover.append(np.mean(a[units == u] <= h))
     assert np.mean(cover) >= 0.9
     assert corrected_level(a[units == "r0"], units[units == "r0"], 0.9) == 1.0  # one run: its max
+
+
+def test_by_run_the_correction_of_a_run_held_out_twice_is_that_of_the_run_once():
+    rng = np.random.default_rng(5)
+    residuals = {f"r{k}": rng.normal(0, 1 + 0.4 * k, 150) for k in range(5)}
+    once = _oof(residuals)
+    a, units = once["residual_um"].abs().to_numpy(), once["unit"].to_numpy()
+    # every run also held out by a forward fold, predicted identically: two units of one run
+    twice_a = np.concatenate([a, a])
+    twice_units = np.concatenate([units, [fold_unit(1, u) for u in units]])
+    assert list(unit_run(twice_units)) == list(np.concatenate([units, units]))
+    expected = corrected_level(a, units, 0.9)
+    assert corrected_level(twice_a, twice_units, 0.9, groups=unit_run(twice_units)) == expected
+    # unit by unit, each copy is covered by a quantile that holds its twin: too small a correction
+    by_unit_level = corrected_level(twice_a, twice_units, 0.9)
+    assert 0.9 <= by_unit_level < expected
+    # calibrate leaves a run out with all its units, and says so
+    oof = pd.concat([once, once.assign(unit=[fold_unit(1, u) for u in units])], ignore_index=True)
+    kw = dict(level=0.9, transient_s=1800, tolerance_rpm=50, min_runs=3, scheme="leave_one_run_out+forward_2")
+    by_run, by_unit = calibrate(oof, **kw), calibrate(oof, by_run=False, **kw)
+    assert by_run["calibration"]["corrected_level"] == expected
+    assert by_unit["calibration"]["corrected_level"] == by_unit_level
+    assert by_run["calibration"]["left_out"] == "run" and "left_out" not in by_unit["calibration"]
+
+
+def test_unit_run_strips_only_a_forward_fold_prefix():
+    units = ["data#3", "f0:data#3", "f12:thermal_log_2026-10-14#7", "f:x", "ff1:y", "b2"]
+    assert list(unit_run(units)) == ["data#3", "data#3", "thermal_log_2026-10-14#7", "f:x", "ff1:y", "b2"]
 
 
 def test_cells_fall_back_to_the_pooled_width_and_outside_is_never_narrower():

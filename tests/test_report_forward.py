@@ -93,6 +93,7 @@ def _with_forward(results, *, interval: bool = True) -> tuple[pd.DataFrame, pd.D
         best = json.loads((comp / "best_model.json").read_text(encoding="utf-8"))
         best["interval"] = copy.deepcopy(BLOCK)
         best["interval"]["calibration"]["scheme"] = CAL_SCHEME
+        best["interval"]["calibration"]["left_out"] = "run"
         (comp / "best_model.json").write_text(json.dumps(best), encoding="utf-8")
     return summ, cv
 
@@ -165,6 +166,10 @@ def test_the_calibration_folds_read_as_words():
     iv = interval_context({"interval": block})
     assert iv["scheme"] == "leave-one-run-out and forward folds, 2 runs ahead" and iv["forward"] == 2
     assert "_" not in iv["scheme"] and "+" not in iv["scheme"]
+    assert not iv["by_run"]  # an artefact calibrated unit by unit (before session 15) says nothing
+    block["calibration"]["left_out"] = "run"
+    iv = interval_context({"interval": block})
+    assert iv["by_run"] and "left out" not in dict(iv["other"])
 
 
 def test_the_choices_say_what_chose():
@@ -243,6 +248,7 @@ def test_the_deployed_section_ranks_by_the_selection_score_and_lists_both_folds(
     # the interval: calibrated on both kinds of folds, said in words
     assert "in the cross-validation (leave-one-run-out and forward folds, 2 runs ahead)" in text
     assert "held-out runs, a run held out by several forward folds counted once per fold" in text
+    assert "correction of the level is measured leaving out each run with all its units" in text
     choices = _text(html[html.index('id="sec-choices"') :])
     assert "is the one with the lowest selection score" in choices
     assert "in the cross-validation (whole-run and forward folds)" in choices

@@ -36,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.feature_memo import sharing_features
-from rafi.family.forward_folds import forward_folds, horizon_of, is_forward
+from rafi.family.forward_folds import fold_unit, forward_folds, horizon_of, is_forward
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.family.time_blocks import hours, is_blocked, time_block_folds, time_block_units, unit_column
 from rafi.family.whole_log import rows_of_logs
@@ -313,7 +313,7 @@ def cross_validate(
                 artefact = artefact or model.to_dict()
                 part = _held_out(detail, dz, unit_of, np.flatnonzero(needed_mask), test_ids)
                 if is_forward(scheme):
-                    part["unit"] = [f"f{k}:{u}" for u in part["unit"]]
+                    part["unit"] = [fold_unit(k, u) for u in part["unit"]]
                 held_out.append(part)
             for rid in test_ids:
                 mine = unit_of == str(rid)

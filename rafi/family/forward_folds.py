@@ -18,8 +18,10 @@ one or two training runs train nothing sane (the penalty at the lower grid edge,
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 
+import numpy as np
 import pandas as pd
 
 __all__ = [
@@ -29,6 +31,8 @@ __all__ = [
     "configured_scheme",
     "horizon_of",
     "is_forward",
+    "fold_unit",
+    "unit_run",
     "forward_folds",
     "forward_logs",
 ]
@@ -53,6 +57,22 @@ def configured_scheme(options: dict) -> str | None:
 def is_forward(scheme) -> bool:
     """True for a forward scheme name (:func:`scheme_name`)."""
     return str(scheme).startswith(PREFIX) and str(scheme)[len(PREFIX) :].isdigit()
+
+
+#: A forward fold's out-of-fold unit: ``f<fold>:<run>`` (:func:`fold_unit`).
+_FOLD_UNIT = re.compile(r"^f\d+:")
+
+
+def fold_unit(fold: int, unit: str) -> str:
+    """The out-of-fold unit of held-out run ``unit`` in forward fold ``fold``: a run is held out by
+    several forward folds, and each (fold, run) is one calibration unit."""
+    return f"f{int(fold)}:{unit}"
+
+
+def unit_run(units) -> np.ndarray:
+    """The held-out run (or time block) of each out-of-fold unit: the unit without its forward-fold
+    prefix (:func:`fold_unit`), so a run's whole-run unit and its forward units share one name."""
+    return np.array([_FOLD_UNIT.sub("", str(u), count=1) for u in np.asarray(units).ravel()], dtype=object)
 
 
 def horizon_of(scheme: str) -> int:

@@ -28,6 +28,7 @@ import math
 import numpy as np
 import pandas as pd
 
+from rafi.family.forward_folds import unit_run
 from rafi.family.interval_rule import CELLS, INTERVAL_SCHEMA, interval_cell, since_change
 from rafi.family.whole_log import layout, unsort
 from rafi.method.validate import coverage_and_width  # noqa: F401 - re-exported: defined beside validate_runs
@@ -171,7 +172,9 @@ def _quantiles(values: np.ndarray, weights: np.ndarray, levels: np.ndarray) -> n
     return values[order][np.minimum(k, values.size - 1)]
 
 
-def corrected_level(abs_residual: np.ndarray, units: np.ndarray, level: float) -> float:
+def corrected_level(
+    abs_residual: np.ndarray, units: np.ndarray, level: float, groups: np.ndarray | None = None
+) -> float:
     """The quantile level used for the half-widths: the smallest ``lam >= level`` (a grid of
     :data:`LEVEL_STEP`) at which the leave-one-unit-out coverage reaches ``level``.
 
@@ -182,18 +185,24 @@ def corrected_level(abs_residual: np.ndarray, units: np.ndarray, level: float) -
     the level that covers a unit it has not seen ``level`` of the time. It never narrows (``lam >=
     level``). With fewer than two units there is nothing to leave out: ``lam = 1`` (the largest
     residual).
+
+    ``groups`` (per sample, e.g. :func:`rafi.family.forward_folds.unit_run`): a unit is left out
+    together with every unit of its group, so a run held out by several folds never calibrates
+    against its own other units. With fewer than two groups: ``lam = 1``.
     """
     a = np.asarray(abs_residual, dtype=float)
     u = np.asarray(units).astype(str)
+    g = u if groups is None else np.asarray(groups).astype(str)
     names = np.unique(u)
-    if len(names) < 2:
+    if len(names) < 2 or len(np.unique(g)) < 2:
         return 1.0
     grid = np.round(np.arange(float(level), 1.0 + LEVEL_STEP / 2, LEVEL_STEP), 9)
     grid[-1] = min(grid[-1], 1.0)
     cover = np.zeros(len(grid))
     for name in names:
         mine = u == name
-        h = _quantiles(a[~mine], unit_weights(u[~mine]), grid)
+        kept = g != g[mine][0]
+        h = _quantiles(a[kept], unit_weights(u[kept]), grid)
         own = np.sort(a[mine])
         cover += np.searchsorted(own, h, side="right") / own.size
     cover /= len(names)
@@ -276,6 +285,7 @@ def calibrate(
     tolerance_rpm: float,
     min_runs: int,
     scheme: str,
+    by_run: bool = True,
 ) -> dict | None:
     """The artefact's ``interval`` block from one model's OOF samples (:data:`OOF_COLUMNS`).
 
@@ -293,6 +303,12 @@ def calibrate(
         ``models: interval_min_runs``: a cell with fewer units falls back (module docstring).
     scheme : str
         The CV scheme the OOF samples come from (recorded).
+    by_run : bool
+        Measure the level correction leaving out every unit of the held-out unit's run
+        (:func:`corrected_level` with ``groups`` :func:`~rafi.family.forward_folds.unit_run`: a run
+        held out by the whole-run and the forward folds is several units). False: unit by unit,
+        the correction before session 15 (``benchmarks/bench_interval_groups.py`` compares them).
+        Recorded as ``calibration.left_out: run``.
 
     Returns
     -------
@@ -308,7 +324,7 @@ def calibrate(
     a = np.abs(res[ok])
     units = data["unit"].astype(str).to_numpy()
     cells = _cell_of(data, transient_s)
-    lam = corrected_level(a, units, level)
+    lam = corrected_level(a, units, level, groups=unit_run(units) if by_run else None)
     pooled = weighted_quantile(a, unit_weights(units), lam)
     half, stats, fell_back = {}, {}, []
     for cell in CELLS:
@@ -344,6 +360,8 @@ def calibrate(
             "fallback": fell_back,
         },
     }
+    if by_run:
+        block["calibration"]["left_out"] = "run"
     return block
 
 

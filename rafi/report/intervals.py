@@ -219,7 +219,9 @@ def interval_context(doc) -> dict | None:
         folds' horizon in runs, 0 without them: a run held out by several forward folds is one
         calibration unit per fold), ``n_runs``, ``n_samples`` (over all cells), ``fallbacks``
         (cells that took the pooled value), ``split`` (the method is split-conformal by run) and
-        ``other`` (the calibration's other plain entries, ``(key, text)``).
+        ``by_run`` (the level correction left out every unit of a run together,
+        ``calibration.left_out: run``) and ``other`` (the calibration's other plain entries,
+        ``(key, text)``).
     """
     block = interval_block(doc)
     if block is None:
@@ -242,12 +244,22 @@ def interval_context(doc) -> dict | None:
         "n_runs": cal.get("n_runs") if isnum(cal.get("n_runs")) else None,
         "n_samples": cal.get("n_samples") if isnum(cal.get("n_samples")) else None,
         "fallbacks": [c["cell"] for c in cells if c["fallback"]],
+        "by_run": cal.get("left_out") == "run",
         "other": _other_calibration(cal),
     }
 
 
 #: Keys of the calibration record the deployed section words itself.
-_CALIBRATION_WORDED = ("cells", "fallback_cells", "fell_back", "scheme", "cv", "n_runs", "n_samples")
+_CALIBRATION_WORDED = (
+    "cells",
+    "fallback_cells",
+    "fell_back",
+    "scheme",
+    "cv",
+    "n_runs",
+    "n_samples",
+    "left_out",
+)
 
 
 def _other_calibration(cal: dict) -> list[tuple[str, str]]:
