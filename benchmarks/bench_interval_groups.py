@@ -29,7 +29,6 @@ Output: ``benchmarks/results/interval_groups.json`` and ``interval_groups.md``.
 
 from __future__ import annotations
 
-import argparse
 import datetime as dt
 import json
 import platform
@@ -46,7 +45,7 @@ for path in (ROOT, ROOT / "benchmarks"):
         sys.path.insert(0, str(path))
 
 from _results import write_results  # noqa: E402
-from bench_intervals import machines_of, newest_oof  # noqa: E402
+from bench_intervals import machines_of, newest_oof, projects_of  # noqa: E402
 
 from rafi.family.forward_folds import unit_run  # noqa: E402
 from rafi.family.interval_fit import interval_options  # noqa: E402
@@ -127,11 +126,8 @@ def markdown(table: dict) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--project", type=Path, action="append", required=True)
-    args = parser.parse_args(argv)
     table: dict[str, dict] = {}
-    for project in args.project:
+    for project in projects_of(argv, __doc__):
         config = yaml.safe_load((project / "config.yaml").read_text(encoding="utf-8"))
         for results in machines_of(project):
             options = interval_options(machine_settings(config, results.name)["models"])

@@ -265,12 +265,17 @@ def machines_of(project: Path) -> list[Path]:
     )
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+def projects_of(argv: list[str] | None, doc: str) -> list[Path]:
+    """The ``--project`` folders of a study's command line (its module docstring's first paragraph
+    as the description)."""
+    parser = argparse.ArgumentParser(description=doc.split("\n\n")[0])
     parser.add_argument("--project", type=Path, action="append", required=True)
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv).project
+
+
+def main(argv: list[str] | None = None) -> int:
     table: dict[str, dict] = {}
-    for project in args.project:
+    for project in projects_of(argv, __doc__):
         for results in machines_of(project):
             data = distances(load_machine(results))
             name = results.name
