@@ -10,6 +10,10 @@ needs the out-of-fold residuals alone (:data:`rafi.family.intervals.OOF_COLUMNS`
 Sample weights: every CV scheme (whole-run, forward) weighs the same in total, and within a
 scheme every held-out unit (a run of a fold: ``f<fold>:<run>`` under forward folds) weighs the
 same, ``1 / (samples of the unit)`` per sample, so a long run does not outweigh a short one.
+
+Non-finite predictions: a kind that predicts nothing finite on a whole held-out unit gets weight
+0 (the selection would never pick it); a sample where a kind that enters is NaN (a sensor's
+dropout) is left out of the fit, as the CV's metrics leave it out of the kind's score.
 """
 
 from __future__ import annotations
@@ -20,7 +24,7 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import nnls
 
-__all__ = ["simplex_least_squares", "residual_matrix", "stacked_weights"]
+__all__ = ["simplex_least_squares", "residual_matrix", "sample_weights", "usable_kinds", "stacked_weights"]
 
 #: The key of one out-of-fold sample within a scheme.
 KEY = ["unit", "run_id", "t_s"]
@@ -63,8 +67,8 @@ def simplex_least_squares(a: np.ndarray, b: np.ndarray | None = None) -> np.ndar
 
 def residual_matrix(
     oofs: Mapping[str, pd.DataFrame], kinds: Sequence[str], dz_at: pd.Series
-) -> tuple[np.ndarray, np.ndarray]:
-    """Out-of-fold residuals of every kind, one row per held-out sample, and the sample weights.
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Out-of-fold residuals of every kind, one row per held-out sample.
 
     Parameters
     ----------
@@ -79,15 +83,16 @@ def residual_matrix(
 
     Returns
     -------
-    (numpy.ndarray, numpy.ndarray)
-        ``(n, len(kinds))`` residuals (NaN where the kind predicted NaN) and ``(n,)`` weights
-        summing to 1 (each scheme equally, each unit equally within it). Samples without a
-        finite residual of any kind (no measurement) are dropped.
+    (numpy.ndarray, numpy.ndarray, numpy.ndarray)
+        ``(n, len(kinds))`` residuals (NaN where the kind predicted NaN), and per row its
+        held-out unit and its scheme. Samples without a finite residual of any kind (no
+        measurement) are dropped.
     """
-    blocks, weights = [], []
-    schemes = [s for s, o in oofs.items() if len(o)]
-    for scheme in schemes:
-        o = oofs[scheme].set_index([*KEY, "model"])
+    blocks, units, schemes = [], [], []
+    for scheme, o in oofs.items():
+        if not len(o):
+            continue
+        o = o.set_index([*KEY, "model"])
         r = _wide(o["residual_um"], kinds)
         # no row at all: the kind could not fit that fold, which the CV scores as predicting 0
         missing = ~np.isfinite(_wide(o["residual_um"].notna().astype(float) + 1.0, kinds))
@@ -95,13 +100,12 @@ def residual_matrix(
         dz = dz_at.reindex(pd.MultiIndex.from_arrays([index.get_level_values(c) for c in KEY[1:]]))
         r[missing] = np.broadcast_to(dz.to_numpy(dtype=float)[:, None], r.shape)[missing]
         keep = np.isfinite(r).any(axis=1)
-        units = index.get_level_values("unit").astype(str).to_numpy()[keep]
-        _, inverse, counts = np.unique(units, return_inverse=True, return_counts=True)
         blocks.append(r[keep])
-        weights.append(1.0 / counts[inverse] / len(counts) / len(schemes))
+        units.append(index.get_level_values("unit").astype(str).to_numpy()[keep])
+        schemes.append(np.full(int(keep.sum()), scheme, dtype=object))
     if not blocks:
-        return np.empty((0, len(kinds))), np.empty(0)
-    return np.vstack(blocks), np.concatenate(weights)
+        return np.empty((0, len(kinds))), np.empty(0, dtype=object), np.empty(0, dtype=object)
+    return np.vstack(blocks), np.concatenate(units), np.concatenate(schemes)
 
 
 def _wide(values: pd.Series, kinds: Sequence[str]) -> np.ndarray:
@@ -111,15 +115,39 @@ def _wide(values: pd.Series, kinds: Sequence[str]) -> np.ndarray:
     return np.array(values.unstack("model").reindex(index=keys, columns=list(kinds)), dtype=float)
 
 
+def sample_weights(units: np.ndarray, schemes: np.ndarray) -> np.ndarray:
+    """Per sample, ``1 / (schemes * units of its scheme * samples of its unit)``: every scheme
+    weighs the same in total and every held-out unit the same within its scheme; the sum is 1."""
+    out = np.empty(len(units))
+    names = pd.unique(np.asarray(schemes, dtype=object))
+    for scheme in names:
+        mine = np.asarray(schemes, dtype=object) == scheme
+        _, inverse, counts = np.unique(np.asarray(units)[mine], return_inverse=True, return_counts=True)
+        out[mine] = 1.0 / counts[inverse] / len(counts) / len(names)
+    return out
+
+
+def usable_kinds(r: np.ndarray, units: np.ndarray) -> list[int]:
+    """The columns of ``r`` with a finite residual on some sample of every held-out unit: a kind
+    with none on a unit cannot predict that run, which the selection scores as infinite
+    (:func:`rafi.family.selection.choose_champion` never picks it), so it gets no weight. A NaN
+    on a few samples (a sensor's dropout) is skipped, as the CV's metrics skip it."""
+    finite = pd.DataFrame(np.isfinite(r)).groupby(np.asarray(units)).any()
+    return [i for i in range(r.shape[1]) if len(finite) and bool(finite[i].all())]
+
+
 def stacked_weights(oofs: Mapping[str, pd.DataFrame], kinds: Sequence[str], dz_at: pd.Series) -> dict:
-    """The super learner's weights: kind -> weight, over ``kinds`` (:func:`residual_matrix`);
-    a kind whose out-of-fold prediction is not finite on some sample gets 0 and does not enter
-    the fit. Empty when no kind has a finite prediction everywhere (or there is no sample)."""
-    r, w = residual_matrix(oofs, kinds, dz_at)
-    usable = [i for i, _ in enumerate(kinds) if len(r) and np.isfinite(r[:, i]).all()]
-    if not usable:
+    """The super learner's weights: kind -> weight over ``kinds``, fitted on the samples where
+    every usable kind (:func:`usable_kinds`) has a finite residual, with :func:`sample_weights`;
+    a kind that is not usable gets 0. Empty when no kind is usable (or there is no sample)."""
+    r, units, schemes = residual_matrix(oofs, kinds, dz_at)
+    # a unit is (scheme, unit): forward units are already distinct from the whole-run ones
+    usable = usable_kinds(r, units)
+    rows = np.isfinite(r[:, usable]).all(axis=1) if usable else np.zeros(len(r), bool)
+    if not rows.any():
         return {}
-    fitted = simplex_least_squares(np.sqrt(w)[:, None] * r[:, usable])
+    w = sample_weights(units[rows], schemes[rows])
+    fitted = simplex_least_squares(np.sqrt(w)[:, None] * r[np.ix_(rows, usable)])
     out = dict.fromkeys(kinds, 0.0)
     out.update({kinds[i]: float(v) for i, v in zip(usable, fitted)})
     return out

@@ -52,7 +52,8 @@ The rules (:data:`RULES`), every one a function of training-run CV rows alone:
 * ``stacked`` (the super learner, not a choice of one kind): weights ``w >= 0``, ``sum w = 1``
   minimising the squared error of the weighted inner out-of-fold predictions (:mod:`_stacking`:
   the inner whole-run and forward folds of :data:`STACK_SCHEMES`, each scheme weighing the same
-  and each held-out unit the same within it; a kind with a non-finite OOF prediction gets 0),
+  and each held-out unit the same within it; a kind with no finite OOF prediction on a held-out
+  unit gets 0, a sample where an entering kind is NaN is left out of the fit),
   the OOF samples coming from the same inner fits as the rules' CV rows (``cross_validate``
   with ``oof=``, as the pipeline's ``rule compare``); scored like the ensemble.
 

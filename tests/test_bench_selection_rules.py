@@ -182,7 +182,8 @@ def test_stacking_weighs_each_held_out_unit_the_same_not_each_sample(stacking):
         [_oof("a", {"long": long, "short": short}), _oof("b", {"long": [-1.0] * 9, "short": [0.0]})]
     )
     dz = _dz_at({"long": [0.0] * 9, "short": [0.0]})
-    r, w = stacking.residual_matrix({"leave_one_run_out": oof}, ["a", "b"], dz)
+    _, units, schemes = stacking.residual_matrix({"leave_one_run_out": oof}, ["a", "b"], dz)
+    w = stacking.sample_weights(units, schemes)
     assert w.sum() == pytest.approx(1.0)
     assert sorted(set(np.round(w, 9))) == pytest.approx([1 / 18, 1 / 2])
     weights = stacking.stacked_weights({"leave_one_run_out": oof}, ["a", "b"], dz)
@@ -194,34 +195,54 @@ def test_stacking_weighs_each_scheme_the_same(stacking):
     whole = pd.concat([_oof("a", {"r1": [1.0], "r2": [1.0]}), _oof("b", {"r1": [-1.0], "r2": [-1.0]})])
     ahead = pd.concat([_oof("a", {"r2": [2.0]}, "f0:"), _oof("b", {"r2": [0.0]}, "f0:")])
     dz = _dz_at({"r1": [0.0], "r2": [0.0]})
-    _, w = stacking.residual_matrix(
+    _, units, schemes = stacking.residual_matrix(
         {"leave_one_run_out": whole, "forward_2": ahead, "forward_9": ahead[:0]}, ["a", "b"], dz
     )
+    w = stacking.sample_weights(units, schemes)
     assert list(w) == pytest.approx([0.25, 0.25, 0.5])  # two whole-run units, one forward unit
 
 
-def test_a_kind_with_a_nan_prediction_gets_weight_zero(bench, stacking):
+def test_a_kind_with_no_finite_prediction_on_a_held_out_run_gets_weight_zero(bench, stacking):
     dz = _dz_at({"r1": [0.0, 0.0], "r2": [0.0, 0.0]})
     oof = pd.concat(
         [
-            _oof("dynamic", {"r1": [0.1, 0.1], "r2": [np.nan, 0.1]}),  # the best, but not finite once
+            _oof("dynamic", {"r1": [0.1, 0.1], "r2": [np.nan, np.nan]}),  # the best, but not on r2
             _oof("grey_box", {"r1": [1.0, 1.0], "r2": [1.0, 1.0]}),
             _oof("ridge_global", {"r1": [-2.0, -2.0], "r2": [-2.0, -2.0]}),
         ]
     )
     w = stacking.stacked_weights({"leave_one_run_out": oof}, ["dynamic", "grey_box", "ridge_global"], dz)
     assert w["dynamic"] == 0.0
-    assert w["grey_box"] == pytest.approx(2 / 3, abs=1e-6) and w["ridge_global"] == pytest.approx(
-        1 / 3, abs=1e-6
-    )
+    assert w["grey_box"] == pytest.approx(2 / 3, abs=1e-6)
+    assert w["ridge_global"] == pytest.approx(1 / 3, abs=1e-6)
     assert bench.positive(w) == {"grey_box": w["grey_box"], "ridge_global": w["ridge_global"]}
+
+
+def test_a_nan_on_a_few_samples_leaves_those_samples_out_not_the_kind(stacking):
+    # dynamic drops out on one sample of r2 (a sensor): the sample leaves the fit, dynamic stays
+    dz = _dz_at({"r1": [0.0, 0.0], "r2": [0.0, 0.0, 0.0]})
+    oof = pd.concat(
+        [
+            _oof("dynamic", {"r1": [1.0, 1.0], "r2": [np.nan, 1.0, 1.0]}),
+            _oof("grey_box", {"r1": [-1.0, -1.0], "r2": [50.0, -1.0, -1.0]}),
+        ]
+    )
+    w = stacking.stacked_weights({"leave_one_run_out": oof}, ["dynamic", "grey_box"], dz)
+    assert w["dynamic"] == pytest.approx(0.5, abs=1e-6)  # grey_box's 50 um sample is not in the fit
+    r, units, _ = stacking.residual_matrix({"leave_one_run_out": oof}, ["dynamic", "grey_box"], dz)
+    assert stacking.usable_kinds(r, units) == [0, 1]
+    # a measurement that is missing (dz NaN: every kind NaN) is no sample at all
+    dz_gap = _dz_at({"r1": [0.0, np.nan]})
+    gap = pd.concat([_oof("dynamic", {"r1": [1.0, np.nan]}), _oof("grey_box", {"r1": [-1.0, np.nan]})])
+    r_gap, _, _ = stacking.residual_matrix({"leave_one_run_out": gap}, ["dynamic", "grey_box"], dz_gap)
+    assert r_gap.tolist() == [[1.0, -1.0]]
 
 
 def test_a_fold_a_kind_cannot_fit_counts_as_predicting_zero(stacking):
     # rafi has no OOF sample on run r2 (it could not fit that fold): its residual there is dz
     dz = _dz_at({"r1": [1.0], "r2": [4.0]})
     oof = pd.concat([_oof("rafi", {"r1": [0.0]}), _oof("grey_box", {"r1": [2.0], "r2": [-4.0]})])
-    r, _ = stacking.residual_matrix({"leave_one_run_out": oof}, ["rafi", "grey_box"], dz)
+    r, _, _ = stacking.residual_matrix({"leave_one_run_out": oof}, ["rafi", "grey_box"], dz)
     assert r.tolist() == [[0.0, 2.0], [4.0, -4.0]]
     w = stacking.stacked_weights({"leave_one_run_out": oof}, ["rafi", "grey_box"], dz)
     # min over w of (2 (1 - w))^2 + (8 w - 4)^2 (both units weigh the same): w = 9 / 17
