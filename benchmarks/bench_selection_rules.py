@@ -48,12 +48,22 @@ The rules (:data:`RULES`), every one a function of training-run CV rows alone:
 * ``cv_weighted_ensemble`` (not a choice of one kind): the weighted mean of every kind's
   prediction, weights proportional to 1 / (inner CV mean max |residual|)^2
   (:func:`ensemble_weights`); scored on the held-out run from refits of every kind on the
-  outer-training runs (:func:`held_out_predictions`, checked against ``comparison/cv.csv``).
+  outer-training runs (:func:`held_out_predictions`, checked against ``comparison/cv.csv``);
+* ``stacked`` (the super learner, not a choice of one kind): weights ``w >= 0``, ``sum w = 1``
+  minimising the squared error of the weighted inner out-of-fold predictions (:mod:`_stacking`:
+  the inner whole-run and forward folds of :data:`STACK_SCHEMES`, each scheme weighing the same
+  and each held-out unit the same within it; a kind with no finite OOF prediction on a held-out
+  unit gets 0, a sample where an entering kind is NaN is left out of the fit),
+  the OOF samples coming from the same inner fits as the rules' CV rows (``cross_validate``
+  with ``oof=``, as the pipeline's ``rule compare``); scored like the ensemble.
 
 The scores of every rule on the machine's full training CV (what it would offer now) are
-printed beside. Output: a table per machine, ``benchmarks/results/selection_rules.json`` and
-``selection_rules.md``. It reads the data and settings of each project and refits the family
-about 10 times per training run; minutes per machine.
+printed beside (for ``stacked``: its weights on the full training CV, whose rows the bench
+recomputes and checks against ``comparison/cv.csv``). Paired differences are given to
+``mean_max`` and to the current rule ``mean_max_forward``. Output: a table per machine,
+``benchmarks/results/selection_rules.json`` and ``selection_rules.md``. It reads the data and
+settings of each project and refits the family about 10 times per training run; minutes per
+machine.
 """
 
 from __future__ import annotations
@@ -79,12 +89,14 @@ for path in (ROOT, ROOT / "benchmarks"):
         sys.path.insert(0, str(path))
 
 from _results import write_results  # noqa: E402
+from _stacking import stacked_weights  # noqa: E402
 
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402
 from rafi.family.compare import make_model  # noqa: E402
 from rafi.family.feature_memo import sharing_features  # noqa: E402
 from rafi.family.forward_folds import configured_scheme, is_forward  # noqa: E402
+from rafi.family.interval_fit import stacked_oof  # noqa: E402
 from rafi.family.selection import SIMPLICITY, choose_champion  # noqa: E402
 from rafi.family.whole_log import rows_of_logs  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS, machine_settings  # noqa: E402
@@ -93,6 +105,9 @@ from rafi.settings import MACHINE_DEFAULTS, machine_settings  # noqa: E402
 OUTER = "outer_held_out"
 SPEED_SCHEME = "speed_with_cooldown"
 ENSEMBLE = "cv_weighted_ensemble"
+STACKED = "stacked"
+#: The rules that are not a choice of one kind (scored from refits of every kind).
+BLENDS = (ENSEMBLE, STACKED)
 
 
 # ----------------------------------------------------------------------------- inner folds
@@ -199,6 +214,9 @@ def ensemble_weights(cv: pd.DataFrame) -> dict[str, float]:
 #: The forward scheme of the current rule (from the default ``models: cv_forward_runs``).
 FORWARD = configured_scheme(MACHINE_DEFAULTS["models"])
 
+#: The inner schemes the stacked ensemble fits its weights on (each weighs the same).
+STACK_SCHEMES = ("leave_one_run_out", FORWARD)
+
 #: Rule name -> (inner scheme or schemes, rule function).
 RULES = {
     "mean_max": ("leave_one_run_out", rule_mean_max),
@@ -245,11 +263,56 @@ def machine_inputs(project: Path, machine: str) -> dict:
     }
 
 
-def inner_cv(factories: dict, table: pd.DataFrame, frame: pd.DataFrame, scheme: str) -> pd.DataFrame:
-    """Whole-run CV rows of every kind on the training runs of ``table`` under ``scheme``."""
+def inner_cv(
+    factories: dict, table: pd.DataFrame, frame: pd.DataFrame, scheme: str, oof: list | None = None
+) -> pd.DataFrame:
+    """Whole-run CV rows of every kind on the training runs of ``table`` under ``scheme``; with
+    ``oof`` (a list), every kind's out-of-fold samples are appended to it (the same fits,
+    :func:`rafi.family.crossval.cross_validate`, as the pipeline's ``rule compare`` does)."""
     with extra_scheme(SPEED_SCHEME, speed_with_cooldown_folds):
-        parts = [crossval.cross_validate(f, table, frame, scheme, name=k) for k, f in factories.items()]
+        parts = [
+            crossval.cross_validate(f, table, frame, scheme, name=k, oof=oof) for k, f in factories.items()
+        ]
     return pd.concat(parts, ignore_index=True)
+
+
+def inner_fold(factories: dict, table: pd.DataFrame, frame: pd.DataFrame, schemes) -> tuple[dict, dict]:
+    """The CV rows of every kind under each of ``schemes`` on the training runs of ``table``, and
+    the OOF samples (:data:`rafi.family.intervals.OOF_COLUMNS`) of the schemes the stacked
+    ensemble fits on (:data:`STACK_SCHEMES`)."""
+    rows, oofs = {}, {}
+    for sc in schemes:
+        parts = [] if sc in STACK_SCHEMES else None
+        rows[sc] = inner_cv(factories, table, frame, sc, oof=parts)
+        if parts is not None:
+            oofs[sc] = stacked_oof(parts)
+    return rows, oofs
+
+
+def dz_lookup(frame: pd.DataFrame) -> pd.Series:
+    """The measured displacement indexed by ``(run_id, t_s)`` (the key of an OOF sample)."""
+    index = pd.MultiIndex.from_arrays([frame["run_id"].astype(str), frame["t_s"].astype(float)])
+    if index.has_duplicates:
+        raise SystemExit("runs.parquet has two samples at one (run_id, t_s)")
+    return pd.Series(frame["dz_um"].to_numpy(dtype=float), index=index)
+
+
+def stacked_rule(oofs: dict, kinds, dz_at: pd.Series) -> dict:
+    """:func:`_stacking.stacked_weights` on inner OOF samples; a stop when no kind is usable."""
+    weights = stacked_weights(oofs, list(kinds), dz_at)
+    if not weights:
+        raise SystemExit("stacked: no kind has a finite out-of-fold prediction on every sample")
+    return weights
+
+
+def positive(weights: dict) -> dict:
+    """The kinds with a weight above 0 (a kind left out may predict NaN: 0 * NaN is NaN)."""
+    return {k: w for k, w in weights.items() if w > 0}
+
+
+def weights_text(weights: dict) -> str:
+    """``kind weight`` pairs of the weights of at least 0.005."""
+    return " ".join(f"{k} {w:.2f}" for k, w in weights.items() if w >= 0.005)
 
 
 def held_out_predictions(factories: dict, table: pd.DataFrame, frame: pd.DataFrame, held: str):
@@ -275,6 +338,20 @@ def ensemble_score(dz: np.ndarray, preds: dict, weights: dict) -> dict:
     return {"max": float(np.max(np.abs(r[ok]))), "rmse": float(np.sqrt(np.mean(r[ok] ** 2)))}
 
 
+def check_rows(machine: str, ours: pd.DataFrame, pipeline: pd.DataFrame) -> None:
+    """Stop unless the bench's CV rows on the full training runs are the pipeline's
+    (``comparison/cv.csv``): the OOF samples the stacked weights are offered from are then
+    those of the pipeline's own fits."""
+    key = ["model", "fold", "test_runs"]
+    a = ours.assign(test_runs=ours["test_runs"].astype(str)).set_index(key)["max_abs_after_um"]
+    b = pipeline.assign(test_runs=pipeline["test_runs"].astype(str)).set_index(key)["max_abs_after_um"]
+    same = a.index.sort_values().equals(b.index.sort_values()) and np.allclose(
+        a.sort_index().to_numpy(dtype=float), b.sort_index().to_numpy(dtype=float), rtol=1e-6, atol=1e-6
+    )
+    if not same:
+        raise SystemExit(f"{machine}: the full training CV differs from comparison/cv.csv")
+
+
 def judge_machine(project: Path, machine: str, log=print) -> dict:
     """The outer CV of every rule on one machine (module docstring)."""
     inputs = machine_inputs(project, machine)
@@ -286,10 +363,10 @@ def judge_machine(project: Path, machine: str, log=print) -> dict:
         raise SystemExit(f"{machine}: comparison/cv.csv is not leave_one_run_out; cannot score outer folds")
     outer_score = full_cv.set_index([full_cv["model"].astype(str), full_cv["test_runs"].astype(str)])
     schemes = sorted({s for scheme, _ in RULES.values() for s in schemes_of(scheme)})
-    folds, t0 = [], time.perf_counter()
+    folds, t0, dz_at = [], time.perf_counter(), dz_lookup(frame)
     for _, (held,) in crossval.leave_one_run_out(table):
         inner_table = crossval.hold_out(table, [held], OUTER)
-        inner = {sc: inner_cv(inputs["factories"], inner_table, frame, sc) for sc in schemes}
+        inner, oofs = inner_fold(inputs["factories"], inner_table, frame, schemes)
         picks = {rule: fn(rows_of(inner, sc)) for rule, (sc, fn) in RULES.items()}
         scores = {
             m: {
@@ -305,17 +382,19 @@ def judge_machine(project: Path, machine: str, log=print) -> dict:
                 raise SystemExit(f"{machine} {m} {held}: refit {check} um != cv.csv {scores[m]['max']} um")
         weights = ensemble_weights(inner["leave_one_run_out"])
         scores[ENSEMBLE] = ensemble_score(dz, preds, weights)
-        picks[ENSEMBLE] = ENSEMBLE
-        folds.append({"held_out": held, "picks": picks, "scores": scores, "weights": weights})
+        stacked = stacked_rule(oofs, inputs["factories"], dz_at)
+        scores[STACKED] = ensemble_score(dz, preds, positive(stacked))
+        picks.update({ENSEMBLE: ENSEMBLE, STACKED: STACKED})
+        fold = {"held_out": held, "picks": picks, "scores": scores, "weights": weights}
+        folds.append({**fold, "stacked_weights": stacked})
         log(f"  {machine} outer fold {held}: " + ", ".join(f"{r} {p}" for r, p in picks.items()))
-    pipeline = {"leave_one_run_out": full_cv, FORWARD: pipeline_forward}
-    full = {
-        sc: pipeline[sc] if sc in pipeline else inner_cv(inputs["factories"], table, frame, sc)
-        for sc in schemes
-    }
+    full, full_oofs = inner_fold(inputs["factories"], table, frame, schemes)
+    for sc, rows in {"leave_one_run_out": full_cv, FORWARD: pipeline_forward}.items():
+        check_rows(machine, full[sc], rows)
+        full[sc] = rows
     offered = {rule: fn(rows_of(full, sc)) for rule, (sc, fn) in RULES.items()}
-    weights = ensemble_weights(full_cv)
-    offered[ENSEMBLE] = " ".join(f"{k} {w:.2f}" for k, w in weights.items() if w >= 0.005)
+    offered[ENSEMBLE] = weights_text(ensemble_weights(full_cv))
+    offered[STACKED] = weights_text(stacked_rule(full_oofs, inputs["factories"], dz_at))
     return {
         "machine": machine,
         "project": str(project),
@@ -326,21 +405,29 @@ def judge_machine(project: Path, machine: str, log=print) -> dict:
     }
 
 
+def paired(diff: np.ndarray, prefix: str) -> dict:
+    """``<prefix>_diff_um`` and ``<prefix>_se_um``: the mean of the per-fold differences and its
+    standard error (sample standard deviation over sqrt(folds); NaN with one fold)."""
+    se = float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.nan
+    return {f"{prefix}_diff_um": float(diff.mean()), f"{prefix}_se_um": se}
+
+
 def summarise(result: dict) -> list[dict]:
-    """Per rule: the outer mean max |residual| of its picks, pooled RMSE, the paired difference
-    to ``mean_max`` (mean and standard error over outer folds), the picks; plus the oracle."""
+    """Per rule: the outer mean max |residual| of its picks, pooled RMSE, the paired differences
+    to ``mean_max`` and to the current rule ``mean_max_forward`` (mean and standard error over
+    outer folds), the picks; plus the oracle."""
     folds = result["folds"]
     base = np.array([f["scores"][f["picks"]["mean_max"]]["max"] for f in folds])
+    current = np.array([f["scores"][f["picks"]["mean_max_forward"]]["max"] for f in folds])
     rows = []
-    for rule in [*RULES, ENSEMBLE, "oracle"]:
+    for rule in [*RULES, *BLENDS, "oracle"]:
         if rule == "oracle":
-            kinds = [m for m in folds[0]["scores"] if m != ENSEMBLE]
+            kinds = [m for m in folds[0]["scores"] if m not in BLENDS]
             picks = [min(kinds, key=lambda m, f=f: f["scores"][m]["max"]) for f in folds]
         else:
             picks = [f["picks"][rule] for f in folds]
         mx = np.array([f["scores"][p]["max"] for f, p in zip(folds, picks)])
         rmse = np.array([f["scores"][p]["rmse"] for f, p in zip(folds, picks)])
-        diff = mx - base
         rows.append(
             {
                 "machine": result["machine"],
@@ -348,8 +435,8 @@ def summarise(result: dict) -> list[dict]:
                 "outer_mean_max_um": float(mx.mean()),
                 "outer_worst_max_um": float(mx.max()),
                 "outer_rmse_um": float(np.sqrt(np.mean(rmse**2))),
-                "paired_diff_um": float(diff.mean()),
-                "paired_se_um": float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.nan,
+                **paired(mx - base, "paired"),
+                **paired(mx - current, "vs_current"),
                 "picks": " ".join(p or "-" for p in picks),
                 "offered_now": result["offered_now"].get(rule, ""),
             }
@@ -366,6 +453,7 @@ def markdown(report: dict) -> str:
         "outer worst",
         "outer RMSE",
         "vs mean_max (SE)",
+        "vs mean_max_forward (SE)",
         "picks per outer fold",
         "offers now",
     ]
@@ -387,6 +475,7 @@ def markdown(report: dict) -> str:
             f"{r['outer_worst_max_um']:.2f}",
             f"{r['outer_rmse_um']:.2f}",
             f"{r['paired_diff_um']:+.2f} ({r['paired_se_um']:.2f})",
+            f"{r['vs_current_diff_um']:+.2f} ({r['vs_current_se_um']:.2f})",
             r["picks"],
             r["offered_now"] or "-",
         ]
@@ -419,7 +508,8 @@ def main(argv: list[str] | None = None) -> int:
                 rows.append(row)
                 print(
                     f"  {row['rule']:16s} outer mean max {row['outer_mean_max_um']:7.2f} um, "
-                    f"vs mean_max {row['paired_diff_um']:+.2f} ({row['paired_se_um']:.2f}); "
+                    f"vs mean_max {row['paired_diff_um']:+.2f} ({row['paired_se_um']:.2f}), "
+                    f"vs mean_max_forward {row['vs_current_diff_um']:+.2f} ({row['vs_current_se_um']:.2f}); "
                     f"offers now {row['offered_now'] or '-'}",
                     flush=True,
                 )

@@ -22,6 +22,12 @@ def bench():
     sys.modules.pop("bench_selection_rules", None)
 
 
+@pytest.fixture(scope="module")
+def stacking():
+    yield load_bench("_stacking")
+    sys.modules.pop("_stacking", None)
+
+
 def _schedule() -> pd.DataFrame:
     """FL_THERMAL's training part: 1250, rest, 2500, rest, 3750, rest, 5000; a rest before
     the first run, and a validation rest after the last (neither in a fold)."""
@@ -113,3 +119,131 @@ def test_the_current_rule_reads_the_forward_rows_beside_the_whole_run_rows(bench
     # whole-run alone: dynamic (2 < 3); with the forward folds: (2 + 9) / 2 > (3 + 4) / 2
     assert bench.RULES["mean_max"][1](bench.rows_of(cvs, bench.RULES["mean_max"][0])) == "dynamic"
     assert rule(bench.rows_of(cvs, scheme)) == "grey_box"
+
+
+# ----------------------------------------------------------------------------- the stacked ensemble
+
+
+def _brute_force(a: np.ndarray, b: np.ndarray, step: float = 0.005) -> tuple[np.ndarray, float]:
+    """The best point of a grid over the 3-simplex and its loss."""
+    best, loss = None, np.inf
+    for w0 in np.arange(0.0, 1.0 + 1e-12, step):
+        for w1 in np.arange(0.0, 1.0 - w0 + 1e-12, step):
+            w = np.array([w0, w1, max(0.0, 1.0 - w0 - w1)])
+            val = float(np.sum((a @ w - b) ** 2))
+            if val < loss:
+                best, loss = w, val
+    return best, loss
+
+
+def test_simplex_least_squares_matches_a_known_answer_and_a_brute_force_grid(stacking):
+    rng = np.random.default_rng(7)
+    # a known interior answer: b is exactly 0.2 a0 + 0.5 a1 + 0.3 a2
+    a = rng.normal(size=(40, 3))
+    w = stacking.simplex_least_squares(a, a @ np.array([0.2, 0.5, 0.3]))
+    assert w == pytest.approx([0.2, 0.5, 0.3], abs=1e-6)
+    # an answer on an edge of the simplex: the unconstrained optimum has a negative weight
+    for seed in range(5):
+        a = np.random.default_rng(seed).normal(size=(30, 3))
+        b = a @ np.array([1.4, -0.6, 0.2]) + 0.1 * np.random.default_rng(seed + 10).normal(size=30)
+        w = stacking.simplex_least_squares(a, b)
+        assert (w >= 0).all() and w.sum() == pytest.approx(1.0, abs=1e-9)
+        grid, grid_loss = _brute_force(a, b)
+        loss = float(np.sum((a @ w - b) ** 2))
+        assert loss <= grid_loss + 1e-9  # no grid point is better
+        assert w == pytest.approx(grid, abs=0.01)
+    # the residual form (b = 0): two kinds with opposite errors cancel
+    r = np.array([[1.0, -1.0], [2.0, -2.0], [-1.0, 1.0]])
+    assert stacking.simplex_least_squares(r) == pytest.approx([0.5, 0.5], abs=1e-6)
+
+
+def _oof(kind: str, residuals: dict, scheme_prefix: str = "") -> pd.DataFrame:
+    """OOF samples of one kind: unit -> residuals, one sample per 15 s."""
+    rows = [
+        {"model": kind, "unit": f"{scheme_prefix}{unit}", "run_id": unit, "t_s": 15.0 * i, "residual_um": v}
+        for unit, values in residuals.items()
+        for i, v in enumerate(values)
+    ]
+    return pd.DataFrame(rows)
+
+
+def _dz_at(dz: dict) -> pd.Series:
+    keys = [(unit, 15.0 * i) for unit, values in dz.items() for i in range(len(values))]
+    return pd.Series(
+        [v for values in dz.values() for v in values], index=pd.MultiIndex.from_tuples(keys), dtype=float
+    )
+
+
+def test_stacking_weighs_each_held_out_unit_the_same_not_each_sample(stacking):
+    # run "long" (9 samples): a errs +1, b errs -1; run "short" (1 sample): a errs +3, b errs 0.
+    # Per unit: loss = (w - (1 - w))^2 + (3w)^2 -> w_a = 2 / 13; per sample it would be 18 / 45.
+    long, short = [1.0] * 9, [3.0]
+    oof = pd.concat(
+        [_oof("a", {"long": long, "short": short}), _oof("b", {"long": [-1.0] * 9, "short": [0.0]})]
+    )
+    dz = _dz_at({"long": [0.0] * 9, "short": [0.0]})
+    _, units, schemes = stacking.residual_matrix({"leave_one_run_out": oof}, ["a", "b"], dz)
+    w = stacking.sample_weights(units, schemes)
+    assert w.sum() == pytest.approx(1.0)
+    assert sorted(set(np.round(w, 9))) == pytest.approx([1 / 18, 1 / 2])
+    weights = stacking.stacked_weights({"leave_one_run_out": oof}, ["a", "b"], dz)
+    assert weights["a"] == pytest.approx(2 / 13, abs=1e-6)
+    assert weights["a"] + weights["b"] == pytest.approx(1.0)
+
+
+def test_stacking_weighs_each_scheme_the_same(stacking):
+    whole = pd.concat([_oof("a", {"r1": [1.0], "r2": [1.0]}), _oof("b", {"r1": [-1.0], "r2": [-1.0]})])
+    ahead = pd.concat([_oof("a", {"r2": [2.0]}, "f0:"), _oof("b", {"r2": [0.0]}, "f0:")])
+    dz = _dz_at({"r1": [0.0], "r2": [0.0]})
+    _, units, schemes = stacking.residual_matrix(
+        {"leave_one_run_out": whole, "forward_2": ahead, "forward_9": ahead[:0]}, ["a", "b"], dz
+    )
+    w = stacking.sample_weights(units, schemes)
+    assert list(w) == pytest.approx([0.25, 0.25, 0.5])  # two whole-run units, one forward unit
+
+
+def test_a_kind_with_no_finite_prediction_on_a_held_out_run_gets_weight_zero(bench, stacking):
+    dz = _dz_at({"r1": [0.0, 0.0], "r2": [0.0, 0.0]})
+    oof = pd.concat(
+        [
+            _oof("dynamic", {"r1": [0.1, 0.1], "r2": [np.nan, np.nan]}),  # the best, but not on r2
+            _oof("grey_box", {"r1": [1.0, 1.0], "r2": [1.0, 1.0]}),
+            _oof("ridge_global", {"r1": [-2.0, -2.0], "r2": [-2.0, -2.0]}),
+        ]
+    )
+    w = stacking.stacked_weights({"leave_one_run_out": oof}, ["dynamic", "grey_box", "ridge_global"], dz)
+    assert w["dynamic"] == 0.0
+    assert w["grey_box"] == pytest.approx(2 / 3, abs=1e-6)
+    assert w["ridge_global"] == pytest.approx(1 / 3, abs=1e-6)
+    assert bench.positive(w) == {"grey_box": w["grey_box"], "ridge_global": w["ridge_global"]}
+
+
+def test_a_nan_on_a_few_samples_leaves_those_samples_out_not_the_kind(stacking):
+    # dynamic drops out on one sample of r2 (a sensor): the sample leaves the fit, dynamic stays
+    dz = _dz_at({"r1": [0.0, 0.0], "r2": [0.0, 0.0, 0.0]})
+    oof = pd.concat(
+        [
+            _oof("dynamic", {"r1": [1.0, 1.0], "r2": [np.nan, 1.0, 1.0]}),
+            _oof("grey_box", {"r1": [-1.0, -1.0], "r2": [50.0, -1.0, -1.0]}),
+        ]
+    )
+    w = stacking.stacked_weights({"leave_one_run_out": oof}, ["dynamic", "grey_box"], dz)
+    assert w["dynamic"] == pytest.approx(0.5, abs=1e-6)  # grey_box's 50 um sample is not in the fit
+    r, units, _ = stacking.residual_matrix({"leave_one_run_out": oof}, ["dynamic", "grey_box"], dz)
+    assert stacking.usable_kinds(r, units) == [0, 1]
+    # a measurement that is missing (dz NaN: every kind NaN) is no sample at all
+    dz_gap = _dz_at({"r1": [0.0, np.nan]})
+    gap = pd.concat([_oof("dynamic", {"r1": [1.0, np.nan]}), _oof("grey_box", {"r1": [-1.0, np.nan]})])
+    r_gap, _, _ = stacking.residual_matrix({"leave_one_run_out": gap}, ["dynamic", "grey_box"], dz_gap)
+    assert r_gap.tolist() == [[1.0, -1.0]]
+
+
+def test_a_fold_a_kind_cannot_fit_counts_as_predicting_zero(stacking):
+    # rafi has no OOF sample on run r2 (it could not fit that fold): its residual there is dz
+    dz = _dz_at({"r1": [1.0], "r2": [4.0]})
+    oof = pd.concat([_oof("rafi", {"r1": [0.0]}), _oof("grey_box", {"r1": [2.0], "r2": [-4.0]})])
+    r, _, _ = stacking.residual_matrix({"leave_one_run_out": oof}, ["rafi", "grey_box"], dz)
+    assert r.tolist() == [[0.0, 2.0], [4.0, -4.0]]
+    w = stacking.stacked_weights({"leave_one_run_out": oof}, ["rafi", "grey_box"], dz)
+    # min over w of (2 (1 - w))^2 + (8 w - 4)^2 (both units weigh the same): w = 9 / 17
+    assert w["rafi"] == pytest.approx(9 / 17, abs=1e-6)
