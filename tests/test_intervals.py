@@ -111,6 +111,9 @@ def test_by_run_the_correction_of_a_run_held_out_twice_is_that_of_the_run_once()
     assert by_run["calibration"]["corrected_level"] == expected
     assert by_unit["calibration"]["corrected_level"] == by_unit_level
     assert by_run["calibration"]["left_out"] == "run" and "left_out" not in by_unit["calibration"]
+    blocks = calibrate(once, **{**kw, "scheme": "time_blocks"})
+    assert blocks["calibration"]["left_out"] == "time block"
+    assert blocks["calibration"]["corrected_level"] == expected  # no forward unit: as before
 
 
 def test_unit_run_strips_only_a_forward_fold_prefix():

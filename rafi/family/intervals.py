@@ -308,7 +308,7 @@ def calibrate(
         (:func:`corrected_level` with ``groups`` :func:`~rafi.family.forward_folds.unit_run`: a run
         held out by the whole-run and the forward folds is several units). False: unit by unit,
         the correction before session 15 (``benchmarks/bench_interval_groups.py`` compares them).
-        Recorded as ``calibration.left_out: run``.
+        Recorded as ``calibration.left_out: run`` (``time block`` under time-blocked folds).
 
     Returns
     -------
@@ -360,8 +360,8 @@ def calibrate(
             "fallback": fell_back,
         },
     }
-    if by_run:
-        block["calibration"]["left_out"] = "run"
+    if by_run:  # a time block is its own group: the block is what is left out
+        block["calibration"]["left_out"] = "time block" if scheme == "time_blocks" else "run"
     return block
 
 
