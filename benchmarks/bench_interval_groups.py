@@ -49,12 +49,11 @@ from bench_intervals import machines_of, newest_oof, projects_of  # noqa: E402
 
 from rafi.family.forward_folds import unit_run  # noqa: E402
 from rafi.family.interval_fit import interval_options  # noqa: E402
-from rafi.family.interval_rule import interval_cell  # noqa: E402
-from rafi.family.intervals import calibrate  # noqa: E402
+from rafi.family.intervals import _cell_of, calibrate  # noqa: E402
 from rafi.settings import machine_settings  # noqa: E402
 
 #: Variant name -> ``by_run`` of :func:`calibrate`.
-VARIANTS = {"by_unit (shipped)": False, "by_run": True}
+VARIANTS = {"by_unit": False, "by_run": True}
 
 
 def offered_oof(results: Path) -> tuple[pd.DataFrame, dict]:
@@ -70,12 +69,7 @@ def coverage_of(block: dict, held: pd.DataFrame) -> tuple[float, np.ndarray]:
     """Mean over ``held``'s units of the fraction of samples inside ``block``'s interval, and the
     half-widths of its samples."""
     half = block["half_width_um"]
-    h = np.array(
-        [
-            half[interval_cell(since_change_s=s, outside=bool(o), transient_s=block["transient_s"])]
-            for s, o in zip(held["since_change_s"], held["outside"])
-        ]
-    )
+    h = np.array([half[c] for c in _cell_of(held, block["transient_s"])])
     inside = pd.Series(np.abs(held["residual_um"].to_numpy(dtype=float)) <= h)
     return float(inside.groupby(held["unit"].astype(str).to_numpy()).mean().mean()), h
 

@@ -63,7 +63,7 @@ def test_by_run_covers_a_new_run_at_the_level_and_by_unit_falls_short(tmp_path, 
         out = bench.judge_machine(res, OPTIONS)
         assert out["units"] == 16 and out["runs"] == 8
         assert set(out["by_run"]["per_run"]) == {f"log#{k}" for k in range(8)}
-        coverage.append([out["by_unit (shipped)"]["coverage"], out["by_run"]["coverage"]])
+        coverage.append([out["by_unit"]["coverage"], out["by_run"]["coverage"]])
     by_unit, by_run = np.array(coverage).T
     # a quantile that still holds the held-out run's twin unit is over-confident: never wider
     assert np.all(by_unit <= by_run) and by_unit.mean() < by_run.mean()
