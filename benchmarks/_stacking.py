@@ -24,6 +24,8 @@ import numpy as np
 import pandas as pd
 from scipy.optimize import nnls
 
+from rafi.family.intervals import unit_weights
+
 __all__ = ["simplex_least_squares", "residual_matrix", "sample_weights", "usable_kinds", "stacked_weights"]
 
 #: The key of one out-of-fold sample within a scheme.
@@ -122,8 +124,8 @@ def sample_weights(units: np.ndarray, schemes: np.ndarray) -> np.ndarray:
     names = pd.unique(np.asarray(schemes, dtype=object))
     for scheme in names:
         mine = np.asarray(schemes, dtype=object) == scheme
-        _, inverse, counts = np.unique(np.asarray(units)[mine], return_inverse=True, return_counts=True)
-        out[mine] = 1.0 / counts[inverse] / len(counts) / len(names)
+        held = np.asarray(units)[mine]
+        out[mine] = unit_weights(held) / len(np.unique(held.astype(str))) / len(names)
     return out
 
 
