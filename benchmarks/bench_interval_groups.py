@@ -47,8 +47,8 @@ for path in (ROOT, ROOT / "benchmarks"):
 from _results import write_results  # noqa: E402
 from bench_intervals import machines_of, newest_oof, projects_of  # noqa: E402
 
-from rafi.family.forward_folds import unit_run  # noqa: E402
-from rafi.family.interval_fit import interval_options  # noqa: E402
+from rafi.family.forward_folds import is_forward, unit_run  # noqa: E402
+from rafi.family.interval_fit import interval_options, whole_run_units  # noqa: E402
 from rafi.family.intervals import _cell_of, calibrate  # noqa: E402
 from rafi.settings import machine_settings  # noqa: E402
 
@@ -57,9 +57,13 @@ VARIANTS = {"by_unit": False, "by_run": True}
 
 
 def offered_oof(results: Path) -> tuple[pd.DataFrame, dict]:
-    """The offered model's finite OOF samples and its artefact (``comparison/best_model.json``)."""
+    """The offered model's finite OOF samples its interval calibrated on (the forward units only
+    when its calibration scheme names forward folds) and its artefact
+    (``comparison/best_model.json``)."""
     best = json.loads((results / "comparison" / "best_model.json").read_text(encoding="utf-8"))
     oof = pd.read_parquet(newest_oof(results))
+    if not any(map(is_forward, str(best["interval"]["calibration"]["scheme"]).split("+"))):
+        oof = whole_run_units(oof)
     oof = oof.loc[oof["model"].astype(str) == str(best["kind"])]
     oof = oof.loc[np.isfinite(oof["residual_um"].to_numpy(dtype=float))].reset_index(drop=True)
     return oof, best

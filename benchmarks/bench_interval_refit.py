@@ -31,9 +31,10 @@ pipeline would offer) and, as a larger sample of the calibration alone, for ever
 
 The variants (:data:`VARIANTS`):
 
-* ``shipped``: every inner OOF unit (whole-run and forward), the correction leaving out a run
-  with all its units (``by_run``);
-* ``whole_run``: the whole-run units only (forward units are fitted on fewer runs);
+* ``every_unit`` (shipped until session 16, ``models: interval_forward_units: true``): every
+  inner OOF unit (whole-run and forward), the correction leaving out a run with all its units;
+* ``whole_run`` (the default since session 16): the whole-run units only (forward units are
+  fitted on fewer runs; :func:`rafi.family.interval_fit.whole_run_units`);
 * ``learning_curve``: every unit, each unit's residuals scaled to what a model fitted on all the
   calibration's training runs would show (:func:`learning_curve_factors`).
 
@@ -70,14 +71,14 @@ from bench_selection_rules import (  # noqa: E402
 )
 
 from rafi.family import crossval  # noqa: E402
-from rafi.family.forward_folds import is_forward, unit_run  # noqa: E402
-from rafi.family.interval_fit import interval_options  # noqa: E402
+from rafi.family.forward_folds import is_forward  # noqa: E402
+from rafi.family.interval_fit import interval_options, whole_run_units  # noqa: E402
 from rafi.family.intervals import _cell_of, calibrate  # noqa: E402
 from rafi.settings import machine_settings  # noqa: E402
 
 #: The rule the pipeline chooses by (``bench_selection_rules.RULES``).
 CURRENT_RULE = "mean_max_forward"
-VARIANTS = ("shipped", "whole_run", "learning_curve")
+VARIANTS = ("every_unit", "whole_run", "learning_curve")
 WHOLE = "leave_one_run_out"
 
 
@@ -121,7 +122,7 @@ def learning_curve_factors(oof: pd.DataFrame, train_runs: dict, n_final: int) ->
 def variant_oof(variant: str, oof: pd.DataFrame, train_runs: dict, n_final: int) -> pd.DataFrame:
     """The OOF samples a variant calibrates on (module docstring)."""
     if variant == "whole_run":
-        return oof.loc[unit_run(oof["unit"]) == oof["unit"].astype(str).to_numpy()]
+        return whole_run_units(oof)
     if variant == "learning_curve":
         scaled = oof["residual_um"].to_numpy(dtype=float) * learning_curve_factors(oof, train_runs, n_final)
         return oof.assign(residual_um=scaled)
@@ -219,7 +220,8 @@ def markdown(table: dict) -> str:
     for what in ("pick_coverage", "all_kinds_coverage"):
         dev = {v: np.mean([abs(100 * s[v][what] - 90) for s in table.values()]) for v in VARIANTS}
         lines.append("")
-        lines.append(f"Mean |{what} - 90| over data sets: " + ", ".join(f"{v} {d:.2f}" for v, d in dev.items()))
+        said = ", ".join(f"{v} {d:.2f}" for v, d in dev.items())
+        lines.append(f"Mean |{what} - 90| over data sets: {said}")
     return "\n".join(lines) + "\n"
 
 

@@ -65,6 +65,7 @@ for path in (ROOT, ROOT / "benchmarks"):
 from _results import write_results  # noqa: E402
 
 from rafi.family.forward_folds import is_forward  # noqa: E402
+from rafi.family.interval_fit import whole_run_units  # noqa: E402
 from rafi.family.interval_rule import CELLS, interval_cell  # noqa: E402
 from rafi.family.intervals import _quantiles, corrected_level, unit_weights  # noqa: E402
 
@@ -100,7 +101,7 @@ def load_machine(results: Path) -> pd.DataFrame:
     best = json.loads((results / "comparison" / "best_model.json").read_text())
     kind = str(best["kind"])
     oof = pd.read_parquet(newest_oof(results))
-    oof = oof.loc[~oof["unit"].astype(str).str.match(r"f\d+:")]  # whole-run units (forward folds apart)
+    oof = whole_run_units(oof)  # forward folds apart
     runs = pd.read_parquet(results / "runs.parquet")
     sensors = json.loads((results / "rank" / "key_sensors.json").read_text())["sensors"]
     wide = oof.pivot_table(index=["run_id", "t_s"], columns="model", values="residual_um", dropna=False)

@@ -182,7 +182,7 @@ def _family(table, frame, **changes):
     return selection_family(table, frame, enabled=["ridge_global", "rafi_linear"], **changes)
 
 
-def test_run_family_scores_forward_folds_and_calibrates_on_them():
+def test_run_family_scores_forward_folds_and_calibrates_on_them_when_asked():
     table, frame = _continuous_log()
     res = _family(table, frame)
     cv = res["cv"]
@@ -191,7 +191,13 @@ def test_run_family_scores_forward_folds_and_calibrates_on_them():
     for name, g in cv.loc[cv["scheme"] == "forward_2"].groupby("model"):
         assert sel.loc[name, "cv_forward_mean_max_abs_um"] == pytest.approx(g["max_abs_after_um"].mean())
     assert res["champion"] == sel["selection_score_um"].idxmin()
+    # by default the intervals calibrate on the whole-run units alone
     block = res["models"][res["champion"]].to_dict()["interval"]["calibration"]
+    assert block["scheme"] == "leave_one_run_out"
+    assert block["n_runs"] == 6
+    both = _family(table, frame, interval_forward_units=True)
+    assert both["cv"].equals(cv) and both["champion"] == res["champion"]
+    block = both["models"][res["champion"]].to_dict()["interval"]["calibration"]
     assert block["scheme"] == "leave_one_run_out+forward_2"
     assert block["n_runs"] == 6 + 4  # six whole-run units, two forward folds of two runs
 
@@ -204,6 +210,9 @@ def test_run_family_scores_forward_folds_and_calibrates_on_them():
     assert (
         off["models"][off["champion"]].to_dict()["interval"]["calibration"]["scheme"] == "leave_one_run_out"
     )
+    # the forward folds change the selection's scores, not the (whole-run) intervals
+    for name, model in off["models"].items():
+        assert model.to_dict()["interval"] == res["models"][name].to_dict()["interval"]
 
 
 def test_separate_files_get_no_forward_folds():

@@ -40,7 +40,7 @@ from rafi.family.dynamic import DynamicRidge
 from rafi.family.feature_memo import sharing_features
 from rafi.family.forward_folds import configured_scheme as forward_scheme
 from rafi.family.grey_box import GreyBox
-from rafi.family.interval_fit import calibrate_family, calibration_scheme, stacked_oof
+from rafi.family.interval_fit import calibrate_family, calibration_units, stacked_oof
 from rafi.family.intervals import coverage_and_width, interval_columns
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
@@ -509,11 +509,12 @@ def run_family(
         factories, runs_table, runs_frame, settings, rafi_model, cv_memo_dir, code_version, log
     )
     # every model's prediction interval, from its own OOF residuals (RAFI's model.json keeps its own)
+    samples, calibrated_on = calibration_units(oof, cv, scheme_of(fit_table, options["cv"]), options)
     calibrate_family(
         models,
-        oof,
+        samples,
         options=options,
-        scheme=calibration_scheme(cv, scheme_of(fit_table, options["cv"])),
+        scheme=calibrated_on,
         tolerance_rpm=speed_tolerance_rpm,
         keep={"rafi"} if rafi_model is not None else set(),
         log=log,

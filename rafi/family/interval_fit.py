@@ -2,11 +2,12 @@
 (:func:`calibrate_family`) and RAFI's ``model.json`` in ``rule method`` (:func:`rafi_interval`).
 
 Both calibrate on the model's own out-of-fold residuals of the whole-run cross-validation
-(:func:`rafi.family.crossval.cross_validate` with ``oof=``), and of the forward folds where they
-run (``models: cv_forward_runs``, :mod:`rafi.family.forward_folds`; each held-out run of each
-forward fold is one more calibration unit), with
+(:func:`rafi.family.crossval.cross_validate` with ``oof=``; time blocks for a single-run log), with
 :func:`rafi.family.intervals.calibrate` and the settings ``models: interval_level``,
-``interval_transient_s`` and ``interval_min_runs``.
+``interval_transient_s`` and ``interval_min_runs``. With ``models: interval_forward_units`` the
+forward folds' held-out runs calibrate too (``models: cv_forward_runs``,
+:mod:`rafi.family.forward_folds`; each held-out run of each forward fold is one more unit); off by
+default (:func:`calibration_units`).
 """
 
 from __future__ import annotations
@@ -14,10 +15,18 @@ from __future__ import annotations
 import pandas as pd
 
 from rafi.family.crossval import cross_validate, cv_data, cv_schemes, scheme_of
-from rafi.family.forward_folds import configured_scheme, is_forward
+from rafi.family.forward_folds import configured_scheme, is_forward, unit_run
 from rafi.family.intervals import OOF_COLUMNS, calibrate, set_interval
 
-__all__ = ["interval_options", "stacked_oof", "calibration_scheme", "calibrate_family", "rafi_interval"]
+__all__ = [
+    "interval_options",
+    "stacked_oof",
+    "calibration_scheme",
+    "whole_run_units",
+    "calibration_units",
+    "calibrate_family",
+    "rafi_interval",
+]
 
 
 def interval_options(options: dict) -> dict:
@@ -42,6 +51,31 @@ def calibration_scheme(cv: pd.DataFrame, whole: str) -> str:
     scheme), with ``+forward_<h>`` when forward folds ran."""
     forward = sorted({str(s) for s in cv["scheme"] if is_forward(s)}) if len(cv) else []
     return "+".join([whole, *forward])
+
+
+def whole_run_units(oof: pd.DataFrame) -> pd.DataFrame:
+    """The OOF samples of the whole-run (or time-block) units: those of the forward folds
+    (``f<fold>:<run>``, :func:`rafi.family.forward_folds.fold_unit`) left out."""
+    if not len(oof):
+        return oof
+    units = oof["unit"].astype(str).to_numpy()
+    return oof.loc[unit_run(units) == units]
+
+
+def calibration_units(
+    oof: pd.DataFrame, cv: pd.DataFrame, whole: str, options: dict
+) -> tuple[pd.DataFrame, str]:
+    """The OOF samples the intervals calibrate on and the scheme the calibration records.
+
+    Every unit with ``options["interval_forward_units"]`` (scheme :func:`calibration_scheme`);
+    else the whole-run (time-block) units alone (:func:`whole_run_units`, scheme ``whole``). The
+    forward units are fitted on fewer runs than the whole-run folds: judged one level up with
+    refits on the training runs (``benchmarks/bench_interval_refit.py``) the whole-run units
+    alone came closer to the nominal level (``docs/decisions.md``, session 16).
+    """
+    if options["interval_forward_units"]:
+        return oof, calibration_scheme(cv, whole)
+    return whole_run_units(oof), whole
 
 
 def _describe(name: str, block: dict | None) -> str:
@@ -125,18 +159,15 @@ def rafi_interval(
     no interval)."""
     table, frame = cv_data(runs_table, runs_frame, options, log=log)
     oof: list = []
+    forward = configured_scheme(options) if options["interval_forward_units"] else None
+    schemes = cv_schemes(table, options["cv"], forward)
     cv = pd.concat(
-        [
-            cross_validate(factory, table, frame, scheme, name="rafi", oof=oof)
-            for scheme in cv_schemes(table, options["cv"], configured_scheme(options))
-        ],
+        [cross_validate(factory, table, frame, scheme, name="rafi", oof=oof) for scheme in schemes],
         ignore_index=True,
     )
+    samples, scheme = calibration_units(stacked_oof(oof), cv, scheme_of(table, options["cv"]), options)
     block = calibrate(
-        stacked_oof(oof),
-        tolerance_rpm=float(speed_tolerance_rpm),
-        scheme=calibration_scheme(cv, scheme_of(table, options["cv"])),
-        **interval_options(options),
+        samples, tolerance_rpm=float(speed_tolerance_rpm), scheme=scheme, **interval_options(options)
     )
     set_interval(model, block)
     log(_describe("rafi (model.json)", block))
