@@ -11,7 +11,7 @@ import pytest
 
 from rafi.family.compare import load_any, make_model
 from rafi.family.crossval import cross_validate
-from rafi.family.interval_fit import calibrate_family, rafi_interval, stacked_oof
+from rafi.family.interval_fit import calibrate_family, calibration_units, rafi_interval, stacked_oof
 from rafi.family.intervals import interval_columns, interval_of
 from rafi.method.model import RafiModel
 from rafi.method.validate import RESIDUAL_COLUMNS, SUMMARY_COLUMNS, qualify, validate_runs
@@ -158,3 +158,18 @@ def test_the_min_coverage_gate():
     assert rows["passed"].to_dict() == {"a": True, "b": False, "c": False}  # no interval: fails
     assert (rows["limit"] == 0.8).all() and rows.loc["b", "measured"] == 0.79
     assert MACHINE_DEFAULTS["qualification"]["min_coverage"] is None
+
+
+def test_calibration_units_leave_out_the_forward_units_unless_asked():
+    oof = pd.DataFrame(
+        {
+            "unit": ["log#1", "f0:log#3", "f1:log#3", "log#3", "log#2@block1"],
+            "residual_um": [1.0, 2.0, 3.0, 4.0, 5.0],
+        }
+    )
+    cv = pd.DataFrame({"scheme": ["leave_one_run_out", "forward_2"]})
+    samples, scheme = calibration_units(oof, cv, "leave_one_run_out", {"interval_forward_units": False})
+    assert list(samples["unit"]) == ["log#1", "log#3", "log#2@block1"] and scheme == "leave_one_run_out"
+    samples, scheme = calibration_units(oof, cv, "leave_one_run_out", {"interval_forward_units": True})
+    assert samples is oof and scheme == "leave_one_run_out+forward_2"
+    assert calibration_units(oof.iloc[:0], cv.iloc[:0], "time_blocks", OPTIONS)[1] == "time_blocks"
