@@ -118,6 +118,8 @@ def test_every_setting_says_what_it_means():
     for path, node in [*leaves(contract.RUN_SETTINGS), *leaves(contract.MACHINE_SETTINGS)]:
         assert node.doc.strip() and node.shown is not None, f"{path}: no meaning or default in docs"
         assert "default" not in node.schema, path  # defaults live in Setting.default only
+        if isinstance(node.default, bool):  # a YAML literal, shown as code like the enums
+            assert node.shown == f"`{str(node.default).lower()}`", path
 
 
 @pytest.mark.parametrize(

@@ -191,7 +191,7 @@ METHOD_SETTINGS: dict = {
             "allow_training_after_validation": Setting(
                 default=False,
                 schema=FLAG,
-                shown="false",
+                shown="`false`",
                 doc=(
                     "accept configured training data that lies after, or overlaps, validation data of the "
                     "same log; the leak guard refuses it otherwise, and the report says when it was allowed"

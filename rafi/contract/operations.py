@@ -23,7 +23,7 @@ OPERATIONS_SETTINGS: dict = {
             "never_worse_than_uncompensated": Setting(
                 default=True,
                 schema=FLAG,
-                shown="true",
+                shown="`true`",
                 doc="gate: on no run worse than no compensation",
             ),
             "min_coverage": Setting(
@@ -101,7 +101,7 @@ OPERATIONS_SETTINGS: dict = {
             "cv_forward_hyperparameters": Setting(
                 default=False,
                 schema={"type": "boolean"},
-                shown="false",
+                shown="`false`",
                 doc=(
                     "the ridge kinds (`ridge_global`, `dynamic`, `grey_box`) also choose their own"
                     " hyperparameters on the mean of the whole-run and the forward scores"
@@ -121,7 +121,7 @@ OPERATIONS_SETTINGS: dict = {
             "interval_forward_units": Setting(
                 default=False,
                 schema={"type": "boolean"},
-                shown="false",
+                shown="`false`",
                 doc=(
                     "the prediction intervals also calibrate on the runs the forward folds hold out"
                     " (`cv_forward_runs`); off by default: judged one level up with refits on the"
