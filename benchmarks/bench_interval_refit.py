@@ -60,6 +60,7 @@ for path in (ROOT, ROOT / "benchmarks"):
         sys.path.insert(0, str(path))
 
 from _results import write_results  # noqa: E402
+from bench_interval_groups import coverage_of  # noqa: E402
 from bench_selection_rules import (  # noqa: E402
     OUTER,
     RULES,
@@ -71,9 +72,9 @@ from bench_selection_rules import (  # noqa: E402
 )
 
 from rafi.family import crossval  # noqa: E402
-from rafi.family.forward_folds import is_forward  # noqa: E402
+from rafi.family.forward_folds import fold_unit, is_forward  # noqa: E402
 from rafi.family.interval_fit import interval_options, whole_run_units  # noqa: E402
-from rafi.family.intervals import _cell_of, calibrate  # noqa: E402
+from rafi.family.intervals import calibrate  # noqa: E402
 from rafi.settings import machine_settings  # noqa: E402
 
 #: The rule the pipeline chooses by (``bench_selection_rules.RULES``).
@@ -88,7 +89,7 @@ def unit_train_runs(rows: dict) -> dict[str, int]:
     out = {}
     for scheme, cv in rows.items():
         for fold, run, m in zip(cv["fold"], cv["test_runs"].astype(str), cv["n_train_runs"]):
-            out[f"f{int(fold)}:{run}" if is_forward(scheme) else run] = int(m)
+            out[fold_unit(fold, run) if is_forward(scheme) else run] = int(m)
     return out
 
 
@@ -130,13 +131,12 @@ def variant_oof(variant: str, oof: pd.DataFrame, train_runs: dict, n_final: int)
 
 
 def coverage(block: dict | None, held: pd.DataFrame) -> tuple[float, float]:
-    """Fraction of ``held``'s samples inside ``block``'s interval and the median width (NaN, NaN
-    without a block)."""
+    """Fraction of ``held``'s samples (one held-out run's OOF samples) inside ``block``'s interval
+    and the median width (NaN, NaN without a block)."""
     if block is None or not len(held):
         return np.nan, np.nan
-    half = block["half_width_um"]
-    h = np.array([half[c] for c in _cell_of(held, block["transient_s"])])
-    return float(np.mean(np.abs(held["residual_um"].to_numpy(dtype=float)) <= h)), float(np.median(2 * h))
+    share, h = coverage_of(block, held)  # held is one run: the mean over its units is its share
+    return share, float(np.median(2 * h))
 
 
 def judge_machine(project: Path, machine: str, log=print) -> dict:

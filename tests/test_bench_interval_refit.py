@@ -71,6 +71,7 @@ def test_the_whole_run_variant_keeps_the_whole_run_units_only(bench):
 def test_coverage_counts_samples_inside_their_cells_half_width(bench):
     held = pd.DataFrame(
         {
+            "unit": "r1",
             "residual_um": [0.5, -1.5, 2.5, -0.2],
             "since_change_s": [1e9, 1e9, 10.0, 1e9],
             "outside": [False, False, False, True],
