@@ -246,3 +246,33 @@ def test_rafi_nightly_refuses_a_misplaced_section_with_the_message(tmp_path, cap
     (tmp_path / "config.yaml").write_text("qualification:\n  max_residual_um: 5.0\n", encoding="utf-8")
     assert main(["nightly", "--directory", str(tmp_path)]) == EXIT_USAGE
     assert "'qualification' is a per-machine setting" in capsys.readouterr().err
+
+
+def test_the_workflow_names_the_key_of_a_machine_setting_the_schema_refuses(tmp_path):
+    """Snakemake's own validation reports a mistake under ``machines: <name>:`` only as "is not
+    valid under any of the given schemas" with a dump of the whole machine section (the schema's
+    ``anyOf`` of settings or null); planning names the key and the values accepted, in one line."""
+    import os
+    import subprocess
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from project_copy import copy_project
+
+    proj = copy_project(tmp_path / "proj", config=False)
+    bad = {"machines": {"m": {"input": {"format": "csv", "pattern": "*.csv", "temperature_unit": "F"}}}}
+    (proj / "config.yaml").write_text(yaml.safe_dump(bad), encoding="utf-8")
+    path = os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")]))
+    env = {**os.environ, "PYTHONPATH": path}
+    done = subprocess.run(
+        [sys.executable, "-m", "snakemake", "--cores", "1", "-n"],
+        cwd=proj,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=600,
+    )
+    out = done.stdout + done.stderr
+    assert done.returncode != 0
+    assert "RAFI: config.yaml: machines.m.input.temperature_unit: 'F' is not one of ['C', 'K']" in out
+    assert "not valid under any of the given schemas" not in out

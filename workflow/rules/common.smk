@@ -55,6 +55,9 @@ from snakemake.utils import validate
 try:
     #: Run settings (top level of config.yaml over the contract's defaults).
     RUN = _settings.run_settings(config)
+    # the key the schema refuses, in one line (Snakemake's own validation below reports a
+    # machine's mistake only as "not valid under any of the given schemas" with a dump of it)
+    _settings.validate_config(config)
 except SettingsError as exc:
     raise WorkflowError(f"RAFI: {exc}") from None
 validate(config, schema="../schemas/config.schema.yaml")
