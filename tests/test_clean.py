@@ -305,6 +305,8 @@ def test_long_dropout_is_left_nan_and_recorded():
     assert left.loc["T7", "n_rows"] == 30
     assert (left.loc["T7", "first_line"], left.loc["T7", "last_line"]) == (frame.index[100], frame.index[129])
     assert left.loc["T8", "n_rows"] == 3 and "start or end of a segment" in left.loc["T8", "detail"]
+    # what the later steps do with it, as they do it (rafi.family.features.usable_sensors)
+    assert "ridge models leave the sensor out" in left.loc["T7", "detail"]
     s = summarise_audit("f", "s", 300, out, audit).iloc[0]
     assert s["values_interpolated"] == 0
 

@@ -467,7 +467,11 @@ def dropout_rows(
             if missing.enclosed[r0]
             else "at the start or end of a segment"
         )
-        detail = f"{n} missing value(s) {where}: left NaN; later steps drop these samples for this sensor"
+        detail = (
+            f"{n} missing value(s) {where}: left NaN; a sample that needs this value is not fitted or "
+            "scored, and the family's ridge models leave the sensor out if any training sample of it "
+            "is missing (docs/models.md)"
+        )
         rows.append(audit_row("dropout_left_nan", name, first, last, n, detail))
     return rows
 
