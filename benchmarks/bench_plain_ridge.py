@@ -22,10 +22,11 @@ the pipeline's models otherwise:
 * **Logs**: the samples of each log (column ``log``) in ``log_t_s`` order, every sample of a log
   whatever its role (the filters run causally from the log's first sample, as a controller's
   would).
-* **Features**: every temperature column ``T*`` usable on the training rows (some finite value,
-  not constant); a missing value holds the sensor's last value within its log (the first finite
-  one before it). Rises from the mean over the log's first ``RIDGE_REST_S`` and their low-pass
-  filters (``RIDGE_TAUS_S``), 3 columns per sensor, standardised on the fitting rows.
+* **Features**: every temperature sensor ``T1``..``T16`` usable on the training rows (some
+  finite value, not constant); a missing value holds the sensor's last value within its log (at
+  the log's start, its first finite value). Rises from the mean over the log's first
+  ``RIDGE_REST_S`` and their low-pass filters (``RIDGE_TAUS_S``), 3 columns per sensor,
+  standardised on the fitting rows.
 * **Target**: ``dz_um``, the displacement change from the pipeline's reference, the quantity every
   model of the family predicts (``measured_um`` of ``comparison/residuals.parquet``), with an
   unpenalised intercept.
@@ -70,10 +71,7 @@ from bench_realdata import (  # noqa: E402
     ridge_predict,
 )
 
-
-def temperature_columns(frame: pd.DataFrame) -> list[str]:
-    """The raw temperature columns of a runs frame (``T1``, ``T2``, ..., not the rises ``dT*``)."""
-    return [c for c in frame.columns if c.startswith("T") and c[1:].isdigit()]
+from rafi import SENSORS  # noqa: E402
 
 
 def in_log_order(frame: pd.DataFrame) -> pd.DataFrame:
@@ -103,10 +101,12 @@ def end_to_end_time(frame: pd.DataFrame, gap_s: float = RIDGE_GAP_S) -> np.ndarr
     return out
 
 
-def usable_sensors(frame: pd.DataFrame, train: np.ndarray) -> list[str]:
-    """Temperature columns with a finite value on the training rows and not constant there."""
+def ridge_sensors(frame: pd.DataFrame, train: np.ndarray) -> list[str]:
+    """The sensors (:data:`rafi.SENSORS`) with a finite value on the training rows and not constant
+    there (unlike the family's :func:`rafi.family.features.usable_sensors`, a sensor with missing
+    values is kept: :func:`plain_features` holds its last value)."""
     keep = []
-    for col in temperature_columns(frame):
+    for col in (s for s in SENSORS if s in frame.columns):
         values = frame[col].to_numpy(dtype=float)[train]
         finite = values[np.isfinite(values)]
         if finite.size and np.ptp(finite) > 0:
@@ -145,7 +145,7 @@ def plain_ridge_predictions(frame: pd.DataFrame, runs: pd.DataFrame) -> tuple[pd
     ``n_training``)."""
     frame = in_log_order(frame)
     train, _ = roles_of(frame, runs)
-    sensors = usable_sensors(frame, train)
+    sensors = ridge_sensors(frame, train)
     x = plain_features(frame, sensors)
     y = frame["dz_um"].to_numpy(dtype=float)
     t = end_to_end_time(frame)
