@@ -14,7 +14,13 @@ import pytest
 from rafi.artefact import compute_model_id
 from rafi.family.compare import load_any, make_model, save_any
 from rafi.family.dynamic import DynamicRidge
-from rafi.family.features import first_order_recursion, lowpass_runs, reference_speed, speed_change_evidence
+from rafi.family.features import (
+    MAX_MISSING_FRACTION,
+    first_order_recursion,
+    lowpass_runs,
+    reference_speed,
+    speed_change_evidence,
+)
 from rafi.family.grey_box import GreyBox
 from rafi.family.grids import resolve
 from rafi.family.published import PublishedRafi
@@ -443,14 +449,21 @@ def test_predict_needs_no_statsmodels(fitted, data, tmp_path):
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
-def test_usable_sensors_skip_nan_and_constant(data):
+def test_usable_sensors_skip_constant_and_mostly_missing_ones_and_keep_a_short_dropout(data):
     table, frame = data
     f = frame.copy()
-    f.loc[f.index[:5], "dT4"] = np.nan
     f["dT3"] = 0.25
+    full = RidgeGlobal(alphas=[1e-3]).fit(table, f)
+    f.loc[f.index[:5], "dT4"] = np.nan  # a dropout of 5 samples: the rows go, not the sensor
     m = RidgeGlobal(alphas=[1e-3]).fit(table, f)
-    assert m.sensors_ == ["T1", "T2"]
-    assert set(m.regressor_ranges_) == {"T1", "T2"}
+    assert m.sensors_ == ["T1", "T2", "T4"]
+    assert set(m.regressor_ranges_) == {"T1", "T2", "T4"}
+    assert np.isfinite(list(m.regressor_ranges_.values())).all()
+    assert m.n_ == full.n_ - 5
+    share = MAX_MISSING_FRACTION + 0.01  # more than the limit: the sensor goes
+    f.loc[f.index[: int(np.ceil(share * len(f)))], "dT4"] = np.nan
+    m = RidgeGlobal(alphas=[1e-3]).fit(table, f)
+    assert m.sensors_ == ["T1", "T2"] and m.n_ == full.n_
 
 
 @pytest.mark.parametrize("taus", [[5.0], [60.0, 2400.0], [1e-3, 300.0]])

@@ -32,17 +32,37 @@ def times(frame: pd.DataFrame) -> np.ndarray:
     )
 
 
-def usable_sensors(runs_frame: pd.DataFrame, sensors: Sequence[str] = SENSORS) -> list[str]:
-    """Sensors whose rise column exists, has no NaN and is not constant in ``runs_frame``."""
+#: A sensor whose rise is missing on at most this share of the training rows stays an input of
+#: the family's ridge models (the rows that miss it are left out of the fit); more, and the sensor
+#: is left out. A dropout of minutes should not cost a sensor its place in the model.
+MAX_MISSING_FRACTION = 0.05
+
+
+def usable_sensors(
+    runs_frame: pd.DataFrame,
+    sensors: Sequence[str] = SENSORS,
+    max_missing_fraction: float = MAX_MISSING_FRACTION,
+) -> list[str]:
+    """Sensors whose rise column exists, is missing (NaN) on at most ``max_missing_fraction`` of
+    the rows of ``runs_frame`` and is not constant over its finite values."""
     out = []
     for s in sensors:
         col = rise_column(s)
         if col not in runs_frame.columns:
             continue
         v = runs_frame[col].to_numpy(dtype=float)
-        if len(v) and np.isfinite(v).all() and np.ptp(v) > 1e-9:
+        finite = np.isfinite(v)
+        if not finite.any() or 1.0 - finite.mean() > max_missing_fraction:
+            continue
+        if np.ptp(v[finite]) > 1e-9:
             out.append(s)
     return out
+
+
+def complete_rows(runs_frame: pd.DataFrame, sensors: Sequence[str]) -> np.ndarray:
+    """Mask of the rows where the rise of every one of ``sensors`` is finite."""
+    cols = [rise_column(s) for s in sensors]
+    return np.isfinite(runs_frame[cols].to_numpy(dtype=float)).all(axis=1)
 
 
 def lowpass_runs(

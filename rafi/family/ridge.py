@@ -15,6 +15,7 @@ from rafi.family.crossval import split_runs, training_mask, training_runs
 from rafi.family.feature_memo import active_memo
 from rafi.family.features import (
     MIN_IDENTIFYING_RUNS,
+    complete_rows,
     reference_speed,
     rise_column,
     speed_change_evidence,
@@ -261,7 +262,9 @@ class RidgeBase(FamilyModel):
     def _prepare(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """``(table, frame, rows, sensors)``: the training runs, the rows features are computed
         on (whole logs holding a training run; per run: the training rows), the mask of the
-        training rows with a finite ``dz_um`` in ``frame`` and the sensors. Sets ``grids_``."""
+        training rows with a finite ``dz_um`` and a finite rise of every sensor in ``frame`` and
+        the sensors (:func:`usable_sensors`: a sensor missing on a few rows stays, those rows
+        go). Sets ``grids_``."""
         self._check_params()
         table, train = training_runs(runs_table, runs_frame)
         self.time_blocks_ = blocks_text(runs_table)
@@ -276,6 +279,8 @@ class RidgeBase(FamilyModel):
         sensors = list(self.sensors) if self.sensors is not None else usable_sensors(fit_rows)
         if not sensors:
             raise ValueError("no usable temperature sensor in the training runs")
+        rows = rows & complete_rows(frame, sensors)  # a sensor's dropout: those rows, not the sensor
+        fit_rows = frame.loc[rows]
         self._resolve_grids(fit_rows, max_filter_s(table))
         return table, frame, rows, sensors
 
