@@ -67,6 +67,7 @@ from bench_realdata import (  # noqa: E402
     RIDGE_TAUS_S,
     choose_alpha,
     lowpass,
+    md_table,
     ridge_fit,
     ridge_predict,
 )
@@ -214,6 +215,29 @@ def machines_of(project: Path, names: set[str]) -> list[Path]:
 
 def markdown(report: dict) -> str:
     """The table: one row per machine."""
+    head = [
+        "project", "machine", "validation runs", "plain ridge MAE", "offered MAE (kind)", "offered / ridge",
+        "plain ridge mean max", "offered mean max", "plain ridge worst", "offered worst", "ridge alpha",
+    ]  # fmt: skip
+    body = []
+    for row in report["machines"]:
+        r, o = row["scores"]["plain_ridge"], row["scores"]["offered"]
+        edge = " (edge)" if row["ridge"]["at_grid_edge"] else ""
+        body.append(
+            [
+                row["project"],
+                row["machine"],
+                row["n_validation_runs"],
+                f"{r['mae_um']:.2f}",
+                f"{o['mae_um']:.2f} ({row['offered_kind']})",
+                f"{row['ratio_mae']:.2f}",
+                f"{r['mean_max_um']:.2f}",
+                f"{o['mean_max_um']:.2f}",
+                f"{r['worst_max_um']:.2f} ({r['worst_run']})",
+                f"{o['worst_max_um']:.2f} ({o['worst_run']})",
+                f"{row['ridge']['alpha']:.3g}{edge}",
+            ]
+        )
     lines = [
         "# The plain ridge beside the offered model, on each machine's validation runs",
         "",
@@ -221,19 +245,8 @@ def markdown(report: dict) -> str:
         "um; MAE over the validation samples, mean and worst over validation runs of the max |residual|.",
         "The plain ridge's penalty comes from blocked CV on the training rows; nothing here chose a model.",
         "",
-        "| project | machine | validation runs | plain ridge MAE | offered MAE (kind) | offered / ridge "
-        "| plain ridge mean max | offered mean max | plain ridge worst | offered worst | ridge alpha |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        *md_table(head, body),
     ]
-    for row in report["machines"]:
-        r, o = row["scores"]["plain_ridge"], row["scores"]["offered"]
-        edge = " (edge)" if row["ridge"]["at_grid_edge"] else ""
-        lines.append(
-            f"| {row['project']} | {row['machine']} | {row['n_validation_runs']} | {r['mae_um']:.2f} "
-            f"| {o['mae_um']:.2f} ({row['offered_kind']}) | {row['ratio_mae']:.2f} | {r['mean_max_um']:.2f} "
-            f"| {o['mean_max_um']:.2f} | {r['worst_max_um']:.2f} ({r['worst_run']}) "
-            f"| {o['worst_max_um']:.2f} ({o['worst_run']}) | {row['ridge']['alpha']:.3g}{edge} |"
-        )
     return "\n".join(lines) + "\n"
 
 
