@@ -246,6 +246,32 @@ def test_any_sensor_swapped_with_the_displacement_is_an_error(name, sensor):
     assert "swapped_channels" in str(error_of(f))
 
 
+def _cool_down_at_rest(name: str = "train_18000rpm.csv") -> pd.DataFrame:
+    """A heating run played backwards at rest: a file that starts during a cool-down, its
+    hottest sensor (T8) 10.7 K above the others' median and falling to them."""
+    f = shipped(name)
+    cols = [*SENSORS, "disp_um"]
+    f[cols] = f[cols].to_numpy()[::-1]
+    f["speed_rpm"] = 0.0
+    return f
+
+
+def test_a_file_that_starts_during_a_cool_down_is_not_a_swap():
+    report = run(_cool_down_at_rest())
+    assert report.warnings == [] and report.probe_sign == 1
+
+
+def test_a_hot_sensor_that_stays_hot_or_a_falling_displacement_in_a_sensor_column_still_counts():
+    f = _cool_down_at_rest()
+    others = [s for s in SENSORS if s != "T8"]
+    f["T8"] = f[others].median(axis=1) + 10.7  # stays 10.7 K above the others: not cooling
+    assert checks_of(run(f)) == ["swapped_channels"]
+    f = _cool_down_at_rest()
+    f["disp_um"] = 1.6 * f["disp_um"]  # from 45 um to 1 um: it ends far below the temperatures
+    f["T8"], f["disp_um"] = f["disp_um"].copy(), f["T8"].copy()
+    assert checks_of(run(f)) == ["swapped_channels"]
+
+
 def test_swapped_on_the_foreign_machine():
     f = shipped("thermal_log_2026-10-14.xlsx", B)
     f["T4"], f["disp_um"] = f["disp_um"].copy(), f["T4"].copy()
@@ -383,6 +409,36 @@ def test_no_evidence_gives_sign_zero():
     f = shipped()
     f["disp_um"] = np.random.default_rng(1).normal(0, 0.3, len(f))
     assert run(f).probe_sign == 0
+
+
+def _room_ramp(frame: pd.DataFrame, kelvin: float) -> None:
+    """Every sensor drifts by ``kelvin`` over the file, the displacement not at all."""
+    for sensor in SENSORS:
+        frame[sensor] = frame[sensor] + np.linspace(0.0, kelvin, len(frame))
+
+
+def test_a_room_that_cools_while_the_spindle_heats_leaves_the_sign():
+    # The row median of the temperatures falls with the room: correlated with it, the
+    # displacement looked reversed (r = -0.61 here); the spindle's heat input does not.
+    f = shipped()
+    _room_ramp(f, -8.0)
+    assert run(f).probe_sign == 1
+    f["disp_um"] = -f["disp_um"]
+    assert run(f).probe_sign == -1
+
+
+def test_a_cool_down_at_rest_takes_its_sign_from_the_hottest_sensor_above_the_others():
+    # A heating run played backwards at rest, in a room that warms by 8 K: the spindle's heat
+    # input is flat, the median rises while the displacement falls (r = -0.61), the hottest
+    # sensor's excess falls with it.
+    f = shipped()
+    cols = [*SENSORS, "disp_um"]
+    f[cols] = f[cols].to_numpy()[::-1]
+    f["speed_rpm"] = 0.0
+    _room_ramp(f, 8.0)
+    assert run(f).probe_sign == 1
+    f["disp_um"] = -f["disp_um"]
+    assert run(f).probe_sign == -1
 
 
 # --------------------------------------------------------------------------- metadata

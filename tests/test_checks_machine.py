@@ -165,7 +165,7 @@ def test_auto_probe_sign_warns_the_file_against_the_majority(tmp_path):
     assert (w["file"], w["check"], w["column"], w["confirmed"]) == ("rev.csv", "probe_sign", "disp_um", False)
     assert w["sha256"] == "9" * 64
     assert (
-        "falls while the temperatures rise (probe sign -1); 3 of the machine's other 3 file(s)"
+        "falls while the spindle heats the machine (probe sign -1); 3 of the machine's other 3 file(s)"
         in w["message"]
     )
     assert status["probe_sign"] == {

@@ -6,7 +6,7 @@ the line (or sheet and row) and the column and saying what to do (the file is qu
 the run stops); what is only *suspicious* comes back as a
 :class:`~rafi.readers.checks_base.CheckWarning` (the file is used, the warning recorded in its
 audit and shown). It also returns the file's probe sign (the sign of the displacement's change
-while the temperatures rise), which the machine-level checks compare across files
+while the spindle heats the machine), which the machine-level checks compare across files
 (:mod:`rafi.readers.checks_machine`). :func:`check_log` is the same without the report.
 
 Problems the cleaning step repairs (local swaps of adjacent rows, duplicates, single spikes,
@@ -75,7 +75,7 @@ class CheckReport:
     warnings : list of CheckWarning
         Suspicious findings, in the order the checks ran.
     probe_sign : int
-        +1 / -1: the displacement rises / falls while the temperatures rise; 0: no clear evidence.
+        +1 / -1: the displacement rises / falls while the spindle heats the machine; 0: no clear evidence.
     """
 
     warnings: list[CheckWarning] = field(default_factory=list)

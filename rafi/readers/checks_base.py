@@ -130,6 +130,14 @@ class Signals:
             mask[: min(self.n, START_MIN_SAMPLES)] = True
         return mask
 
+    def end_mask(self) -> np.ndarray:
+        """Rows of the last :data:`START_WINDOW_S` seconds (at least :data:`START_MIN_SAMPLES`)."""
+        mask = np.nanmax(self.t) - self.t <= START_WINDOW_S
+        if mask.sum() < START_MIN_SAMPLES:
+            mask = np.zeros(self.n, bool)
+            mask[max(0, self.n - START_MIN_SAMPLES) :] = True
+        return mask
+
 
 def present(values: np.ndarray) -> np.ndarray:
     """The non-NaN values."""

@@ -10,8 +10,10 @@ warnings (suspicious). Thresholds are module constants, documented in docs/raw-f
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 
 from rafi import SENSORS
+from rafi.family.features import first_order_recursion
 from rafi.readers.checks_base import (
     CheckWarning,
     Signals,
@@ -47,6 +49,10 @@ FROZEN_DISP_UM = 2.0
 SWAP_OUTLIER_K = 5.0
 #: Alone (no displacement inside the band), an outlier this far is only a warning.
 LONE_OUTLIER_K = 10.0
+#: A sensor that starts that far *above* the others and ends with at most this share of its
+#: excess over their median (and not below them) is a hot part cooling down (a file that starts
+#: during a cool-down), not a foreign quantity.
+COOLING_SHARE = 0.5
 #: Margin (K) around the other sensors' start levels / overall range that is "inside the band".
 BAND_MARGIN_K = 2.0
 #: Two channels whose values agree within this in this share of the rows are the same channel.
@@ -63,12 +69,19 @@ COPY_MIN_CHANGE_K = 0.5
 IDLE_SHARE = 0.98
 IDLE_HEATING_K = 5.0
 
-#: Probe sign: evidence needs the temperatures' median to change by this much (K) ...
+#: Probe sign: the heating signal is the spindle's heat input, the speed through a first-order
+#: low-pass of this time constant (s) from rest at the file's first row ...
+SIGN_HEAT_TAU_S = 1800.0
+#: ... when that changes by at least this much (r/min); otherwise the hottest sensor's excess over
+#: the row median of the temperatures, when that changes by :data:`SIGN_MIN_TEMP_K` or more. Both
+#: leave out the room, which moves every sensor and the structure together and can turn the
+#: displacement either way.
+SIGN_MIN_HEAT_RPM = 100.0
 SIGN_MIN_TEMP_K = 1.0
-#: ... the displacement by this much (um, 2nd-98th percentile) ...
+#: ... the displacement must change by this much (um, 2nd-98th percentile) ...
 SIGN_MIN_DISP_UM = 1.0
-#: ... and |correlation| between them of at least this.
-SIGN_MIN_CORR = 0.5
+#: ... and |correlation| between them must be at least this.
+SIGN_MIN_CORR = 0.7
 
 
 def sparse_channel(sig: Signals, where: Where) -> list[CheckWarning]:
@@ -321,6 +334,8 @@ def swapped_channels(sig: Signals, where: Where) -> list[CheckWarning]:
     deviation = {s: abs(v - float(np.median(others(s)))) for s, v in levels.items()}
     outlier = max(deviation, key=deviation.get)
     rest = others(outlier) if deviation[outlier] > SWAP_OUTLIER_K else list(levels.values())
+    if deviation[outlier] > SWAP_OUTLIER_K and _cools_towards_the_others(sig, outlier, levels):
+        deviation[outlier] = 0.0  # out of the band, but a temperature: no swap, no warning
     band = (min(rest) - BAND_MARGIN_K, max(rest) + BAND_MARGIN_K)
     envelope_sensors = [s for s in levels if deviation[s] <= SWAP_OUTLIER_K] or list(levels)
     t_lo = min(np.nanpercentile(sig.values[s], 1) for s in envelope_sensors)
@@ -363,27 +378,66 @@ def swapped_channels(sig: Signals, where: Where) -> list[CheckWarning]:
     return []
 
 
+def _cools_towards_the_others(sig: Signals, sensor: str, start_levels: dict[str, float]) -> bool:
+    """``sensor`` starts above the other sensors' median and ends with at most
+    :data:`COOLING_SHARE` of that excess, not below them by more than :data:`BAND_MARGIN_K` (levels
+    over the first and the last minutes): a displacement falling from 40 um to 0 ends far below."""
+    end = {s: start_level(sig.values[s], sig.end_mask()) for s in start_levels}
+    rest_start = [v for s, v in start_levels.items() if s != sensor]
+    rest_end = [v for s, v in end.items() if s != sensor and np.isfinite(v)]
+    if not rest_end or not np.isfinite(end[sensor]):
+        return False
+    excess_start = start_levels[sensor] - float(np.median(rest_start))
+    excess_end = end[sensor] - float(np.median(rest_end))
+    return excess_start > 0 and -BAND_MARGIN_K <= excess_end <= COOLING_SHARE * excess_start
+
+
 def probe_sign(sig: Signals) -> int:
-    """Sign of the displacement's change while the temperatures rise: +1, -1, or 0 without clear
-    evidence (the temperatures' row median changes by less than :data:`SIGN_MIN_TEMP_K`, the
-    displacement by less than :data:`SIGN_MIN_DISP_UM`, or their correlation is weaker than
-    :data:`SIGN_MIN_CORR`)."""
-    temps = np.column_stack([sig.values[s] for s in SENSORS])
-    counts = np.sum(~np.isnan(temps), axis=1)
-    tm = np.full(sig.n, np.nan)
-    has = counts > 0
-    if has.any():
-        tm[has] = np.nanmedian(temps[has], axis=1)
+    """Sign of the displacement's change while the spindle heats the machine: +1, -1, or 0
+    without clear evidence.
+
+    The heating signal is :func:`heat_signal`; the evidence is clear when it and the displacement
+    both change enough (:data:`SIGN_MIN_DISP_UM`) and their correlation reaches
+    :data:`SIGN_MIN_CORR` in size.
+    """
+    heat = heat_signal(sig)
     d = sig.values["disp_um"]
-    both = ~np.isnan(tm) & ~np.isnan(d)
+    if heat is None:
+        return 0
+    both = ~np.isnan(heat) & ~np.isnan(d)
     if both.sum() < 10:
         return 0
-    tm, d = tm[both], d[both]
-    if robust_range(tm) < SIGN_MIN_TEMP_K or robust_range(d) < SIGN_MIN_DISP_UM:
+    heat, d = heat[both], d[both]
+    if robust_range(d) < SIGN_MIN_DISP_UM or np.std(heat) == 0 or np.std(d) == 0:
         return 0
-    if np.std(tm) == 0 or np.std(d) == 0:
-        return 0
-    r = float(np.corrcoef(tm, d)[0, 1])
+    r = float(np.corrcoef(heat, d)[0, 1])
     if not np.isfinite(r) or abs(r) < SIGN_MIN_CORR:
         return 0
     return 1 if r > 0 else -1
+
+
+def heat_signal(sig: Signals) -> np.ndarray | None:
+    """What rises while the spindle heats the machine, or ``None`` when nothing does clearly.
+
+    The speed through a first-order low-pass (:data:`SIGN_HEAT_TAU_S`, from rest at the first row,
+    a missing speed holding the last value) when that changes by :data:`SIGN_MIN_HEAT_RPM`;
+    otherwise the hottest sensor's excess over the row median of the temperatures when that
+    changes by :data:`SIGN_MIN_TEMP_K`. Neither follows the room: a room that cools while the
+    spindle runs lowers every temperature and may move the displacement either way.
+    """
+    speed = sig.values["speed_rpm"]
+    if np.isfinite(speed).any():
+        held = pd.Series(speed).ffill().fillna(0.0).to_numpy()
+        a = np.exp(-sig.period_s / SIGN_HEAT_TAU_S)
+        heat = first_order_recursion(held, a, 1.0 - a, 0.0)
+        if robust_range(heat) >= SIGN_MIN_HEAT_RPM:
+            return heat
+    temps = np.column_stack([sig.values[s] for s in SENSORS])
+    has = np.sum(~np.isnan(temps), axis=1) >= 2
+    if not has.any():
+        return None
+    excess = np.full(sig.n, np.nan)
+    excess[has] = np.nanmax(temps[has], axis=1) - np.nanmedian(temps[has], axis=1)
+    if robust_range(excess[has]) < SIGN_MIN_TEMP_K:
+        return None
+    return excess

@@ -6,7 +6,7 @@ The per-file checks (:mod:`rafi.readers.checks`) see one file at a time. The che
 * ``duplicate_content``: a file byte-identical (same SHA-256) to another usable file of the
   machine; the later one by name is rejected (it would be trained or validated on twice).
 * ``probe_sign``: a file whose displacement moves the other way than expected while the
-  temperatures rise. ``checks.probe_sign: positive`` / ``negative``: a file with the opposite
+  spindle heats the machine. ``checks.probe_sign: positive`` / ``negative``: a file with the opposite
   clear sign is rejected (error). ``auto``: expected is the sign of most of the machine's *other*
   files with a clear sign (positive, the documented convention, without any); a file that
   disagrees gets a warning.
@@ -137,7 +137,7 @@ def duplicate_rejections(
 def probe_sign_findings(
     signs: Mapping[str, int], probe_sign: str
 ) -> tuple[list[tuple[str, str, str]], list[dict]]:
-    """Files whose displacement moves against the expected sign while the temperatures rise.
+    """Files whose displacement moves against the expected sign while the spindle heats the machine.
 
     Parameters
     ----------
@@ -163,7 +163,9 @@ def probe_sign_findings(
         expected = _expected_sign(probe_sign, others)
         if sign == expected:
             continue
-        evidence = f"the displacement {_sign_word(sign)} while the temperatures rise (probe sign {sign:+d})"
+        evidence = (
+            f"the displacement {_sign_word(sign)} while the spindle heats the machine (probe sign {sign:+d})"
+        )
         if probe_sign in CONFIGURED_SIGNS:
             rejections.append(
                 (
