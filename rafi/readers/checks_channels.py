@@ -13,7 +13,6 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.family.features import first_order_recursion
 from rafi.readers.checks_base import (
     CheckWarning,
     Signals,
@@ -427,9 +426,9 @@ def heat_signal(sig: Signals) -> np.ndarray | None:
     """
     speed = sig.values["speed_rpm"]
     if np.isfinite(speed).any():
-        held = pd.Series(speed).ffill().fillna(0.0).to_numpy()
-        a = np.exp(-sig.period_s / SIGN_HEAT_TAU_S)
-        heat = first_order_recursion(held, a, 1.0 - a, 0.0)
+        from_rest = pd.Series(np.r_[0.0, speed]).ffill().fillna(0.0)
+        gain = 1.0 - np.exp(-sig.period_s / SIGN_HEAT_TAU_S)
+        heat = from_rest.ewm(alpha=gain, adjust=False).mean().to_numpy()[1:]
         if robust_range(heat) >= SIGN_MIN_HEAT_RPM:
             return heat
     temps = np.column_stack([sig.values[s] for s in SENSORS])
