@@ -124,18 +124,17 @@ class Signals:
 
     def start_mask(self) -> np.ndarray:
         """Rows of the first :data:`START_WINDOW_S` seconds (at least :data:`START_MIN_SAMPLES`)."""
-        mask = self.t - np.nanmin(self.t) <= START_WINDOW_S
-        if mask.sum() < START_MIN_SAMPLES:
-            mask = np.zeros(self.n, bool)
-            mask[: min(self.n, START_MIN_SAMPLES)] = True
-        return mask
+        return self._edge_mask(self.t - np.nanmin(self.t), slice(0, START_MIN_SAMPLES))
 
     def end_mask(self) -> np.ndarray:
         """Rows of the last :data:`START_WINDOW_S` seconds (at least :data:`START_MIN_SAMPLES`)."""
-        mask = np.nanmax(self.t) - self.t <= START_WINDOW_S
+        return self._edge_mask(np.nanmax(self.t) - self.t, slice(max(0, self.n - START_MIN_SAMPLES), None))
+
+    def _edge_mask(self, seconds_from_edge: np.ndarray, fallback: slice) -> np.ndarray:
+        mask = seconds_from_edge <= START_WINDOW_S
         if mask.sum() < START_MIN_SAMPLES:
             mask = np.zeros(self.n, bool)
-            mask[max(0, self.n - START_MIN_SAMPLES) :] = True
+            mask[fallback] = True
         return mask
 
 

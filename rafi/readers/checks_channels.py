@@ -381,7 +381,8 @@ def _cools_towards_the_others(sig: Signals, sensor: str, start_levels: dict[str,
     """``sensor`` starts above the other sensors' median and ends with at most
     :data:`COOLING_SHARE` of that excess, not below them by more than :data:`BAND_MARGIN_K` (levels
     over the first and the last minutes): a displacement falling from 40 um to 0 ends far below."""
-    end = {s: start_level(sig.values[s], sig.end_mask()) for s in start_levels}
+    last_minutes = sig.end_mask()
+    end = {s: start_level(sig.values[s], last_minutes) for s in start_levels}
     rest_start = [v for s, v in start_levels.items() if s != sensor]
     rest_end = [v for s, v in end.items() if s != sensor and np.isfinite(v)]
     if not rest_end or not np.isfinite(end[sensor]):
