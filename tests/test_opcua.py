@@ -421,7 +421,16 @@ def test_a_stop_while_connecting_is_one_line_and_exit_0(tmp_path, signum):
         args = write_config(tmp_path, argparse.Namespace(endpoint=endpoint), deploy={"opcua": opcua})
         env = {**os.environ, **ENV, "PYTHONPATH": str(Path(rafi.__file__).parent.parent)}
         cmd = [sys.executable, "-m", "rafi.cli", "deploy", "--machine", "m1", "--config", args.config]
-        proc = subprocess.Popen(cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        proc = subprocess.Popen(
+            cmd,
+            env=env,
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+            # as from a terminal: a runner that starts the tests in the background (`cmd &` in a
+            # script) hands down SIGINT ignored, and Python then never raises KeyboardInterrupt
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+        )
         try:
             conn, _ = mute.accept()  # the client is connecting now, and waits for an answer
             with conn:
