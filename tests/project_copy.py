@@ -43,15 +43,28 @@ def copy_settled(src: Path, dst: Path) -> Path:
     return settle(dst)
 
 
-def run_rafi(proj: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
-    """``rafi *args`` in ``proj``, with the project's frozen ``rafi/`` first on the path; output
-    captured."""
+def _in_project(proj: Path, module: str, args, timeout: float) -> subprocess.CompletedProcess:
+    """``python -m module *args`` in ``proj``, the project's frozen ``rafi/`` first on the path;
+    output captured."""
     env = {
         **os.environ,
         "PYTHONPATH": os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")])),
     }
-    cmd = [sys.executable, "-m", "rafi.cli", *args]
+    cmd = [sys.executable, "-m", module, *args]
     return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, env=env, cwd=proj)
+
+
+def run_rafi(proj: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
+    """``rafi *args`` in ``proj``, with the project's frozen ``rafi/`` first on the path; output
+    captured."""
+    return _in_project(proj, "rafi.cli", args, timeout)
+
+
+def run_snakemake(
+    proj: Path, *args: str, cores: int = 1, timeout: float = 600
+) -> subprocess.CompletedProcess:
+    """``snakemake --cores cores *args`` in ``proj`` (:func:`run_rafi`'s path and capture)."""
+    return _in_project(proj, "snakemake", ("--cores", str(cores), *args), timeout)
 
 
 def run_nightly(proj: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:

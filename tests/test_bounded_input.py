@@ -12,7 +12,6 @@ import io
 import os
 import re
 import shutil
-import subprocess
 import sys
 import types
 from pathlib import Path
@@ -42,7 +41,7 @@ from rafi.readers.parsing import FIELD_MAX_CHARS, LINE_MAX_BYTES, METADATA_MAX_C
 from rafi.settings import machine_settings
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from project_copy import copy_project  # noqa: E402
+from project_copy import copy_project, run_snakemake  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 NATIVE_DIR = ROOT / "raw" / "tapping-center-a"
@@ -431,18 +430,6 @@ def test_cli_prints_one_line_and_a_documented_status(monkeypatch, capsys, exc, s
 # --------------------------------------------------------------------------- the real workflow
 
 
-def _snakemake(proj: Path, *args: str) -> subprocess.CompletedProcess:
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(proj), os.environ.get("PYTHONPATH", "")])}
-    return subprocess.run(
-        [sys.executable, "-m", "snakemake", "--cores", "1", *args],
-        cwd=proj,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
-
-
 @pytest.fixture(scope="module")
 def bad_project(tmp_path_factory) -> Path:
     """A project with one shipped file, one with a 10,000-character field, one link out of raw/."""
@@ -458,7 +445,7 @@ def bad_project(tmp_path_factory) -> Path:
 
 
 def test_a_user_error_in_a_job_shows_its_message_once_and_no_traceback(bad_project):
-    done = _snakemake(bad_project, "results/tapping-center-a/clean", "-q")
+    done = run_snakemake(bad_project, "results/tapping-center-a/clean", "-q")
     out = done.stdout + done.stderr
     assert done.returncode != 0
     assert out.count("field of 10000 characters") == 1 and "RAFI clean (machine=tapping-center-a" in out
@@ -467,12 +454,12 @@ def test_a_user_error_in_a_job_shows_its_message_once_and_no_traceback(bad_proje
     assert out.strip().splitlines()[-1].startswith("RAFI clean (machine=tapping-center-a) failed: ")
     log = (bad_project / "logs" / "tapping-center-a" / "clean.log").read_text(encoding="utf-8")
     assert "Traceback" not in log and log.strip().splitlines()[-1].startswith("RAFI clean (")
-    again = _snakemake(bad_project, "-q", "--config", "debug=true", "--", "results/tapping-center-a/clean")
+    again = run_snakemake(bad_project, "-q", "--config", "debug=true", "--", "results/tapping-center-a/clean")
     assert "Traceback (most recent call last)" in again.stdout + again.stderr
 
 
 def test_planning_warns_of_links_and_settling_files(bad_project):
-    dry = _snakemake(bad_project, "-n", "--config", "settle_s=1000000000")
+    dry = run_snakemake(bad_project, "-n", "--config", "settle_s=1000000000")
     out = dry.stdout + dry.stderr
     assert dry.returncode == 0, out
     assert "link_outside_raw: refused raw/tapping-center-a/zz_link.csv: a symbolic link to" in out

@@ -19,7 +19,7 @@ import pytest
 import yaml
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from project_copy import copy_project
+from project_copy import copy_project, run_snakemake
 
 from rafi import REQUIRED_COLUMNS
 from rafi.errors import InputSpecError, RawFormatError
@@ -313,9 +313,6 @@ def test_a_machine_without_time_and_speed_columns_runs_through_the_workflow(tmp_
     """The real Snakefile on a machine whose csv logs have neither a time nor a speed column
     (one row per minute, one speed per file from its name): every table is made, the clean
     parquet and the runs carry the configured clock and speeds, and the audit says so."""
-    import os
-    import subprocess
-    import sys
 
     work = copy_project(tmp_path / "project", config=False)
     raw = work / "raw" / "rig-c"
@@ -339,15 +336,7 @@ def test_a_machine_without_time_and_speed_columns_runs_through_the_workflow(tmp_
     }
     config = {"defaults": {}, "machines": {"rig-c": machine}}
     (work / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(work), os.environ.get("PYTHONPATH", "")])}
-    proc = subprocess.run(
-        [sys.executable, "-m", "snakemake", "--cores", "2", "tables"],
-        cwd=work,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
+    proc = run_snakemake(work, "tables", cores=2, timeout=900)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-5000:]
 
     results = work / "results" / "rig-c"

@@ -252,26 +252,15 @@ def test_the_workflow_names_the_key_of_a_machine_setting_the_schema_refuses(tmp_
     """Snakemake's own validation reports a mistake under ``machines: <name>:`` only as "is not
     valid under any of the given schemas" with a dump of the whole machine section (the schema's
     ``anyOf`` of settings or null); planning names the key and the values accepted, in one line."""
-    import os
-    import subprocess
     import sys
 
     sys.path.insert(0, str(ROOT / "tests"))
-    from project_copy import copy_project
+    from project_copy import copy_project, run_snakemake
 
     proj = copy_project(tmp_path / "proj", config=False)
     bad = {"machines": {"m": {"input": {"format": "csv", "pattern": "*.csv", "temperature_unit": "F"}}}}
     (proj / "config.yaml").write_text(yaml.safe_dump(bad), encoding="utf-8")
-    path = os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")]))
-    env = {**os.environ, "PYTHONPATH": path}
-    done = subprocess.run(
-        [sys.executable, "-m", "snakemake", "--cores", "1", "-n"],
-        cwd=proj,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    done = run_snakemake(proj, "-n")
     out = done.stdout + done.stderr
     assert done.returncode != 0
     assert "RAFI: config.yaml: machines.m.input.temperature_unit: 'F' is not one of ['C', 'K']" in out
