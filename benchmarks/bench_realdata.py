@@ -581,6 +581,13 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--configs", default=",".join(CONFIGS), help="windows,automatic")
     parser.add_argument("--cores", "--jobs", type=int, default=2, help="passed to snakemake --cores")
     parser.add_argument("--keep", type=Path, default=None, help="keep the projects under this folder")
+    parser.add_argument(
+        "--models",
+        type=json.loads,
+        default=None,
+        help='JSON: the machines\' models: settings, e.g. \'{"enabled": ["dynamic", "grey_box"]}\'',
+    )
+    parser.add_argument("--out", default="realdata", help="file stem under benchmarks/results/")
     args = parser.parse_args(argv)
     channels = [c.strip() for c in args.channels.split(",") if c.strip()]
     configs = [c.strip() for c in args.configs.split(",") if c.strip()]
@@ -608,7 +615,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = []
     for config in configs:
         for ch in channels:
-            row = run_one(args.data, frame, ch, config, args.cores, args.keep)
+            entry = None if args.models is None else {**machine_config(ch, config), "models": args.models}
+            row = run_one(args.data, frame, ch, config, args.cores, args.keep, entry)
             rows.append(row)
             print(progress(row), flush=True)
     report = {
@@ -628,7 +636,7 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         if r.get("ok"):
             print(describe(r))
-    write_results("realdata", report, text, ensure_ascii=False)
+    write_results(args.out, report, text, ensure_ascii=False)
     return 0
 
 

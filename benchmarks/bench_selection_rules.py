@@ -202,6 +202,16 @@ def rule_one_se_simplest(cv: pd.DataFrame) -> str | None:
     return str(near.sort_values(["cx", "mean", "model"], kind="stable")["model"].iloc[0])
 
 
+def rule_without(kind: str):
+    """The current rule on CV rows without ``kind``: whether a kind earns its place in the family
+    (``--without``; the paired difference to ``mean_max_forward`` is without minus with)."""
+
+    def rule(cv: pd.DataFrame) -> str | None:
+        return choose_champion(cv.loc[cv["model"].astype(str) != kind])
+
+    return rule
+
+
 def ensemble_weights(cv: pd.DataFrame) -> dict[str, float]:
     """The CV-weighted ensemble's weights: proportional to 1 / (mean fold max |residual|)^2 over
     the kinds with a finite score (an inverse-variance weighting with the CV loss as the scale)."""
@@ -494,7 +504,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--machines", default="", help="comma-separated machine names (default: all)")
     parser.add_argument("--out", default="selection_rules", help="file stem under benchmarks/results/")
+    parser.add_argument(
+        "--without",
+        default="",
+        help="a kind: add rule without_<KIND>, the current rule on the same CV rows without that kind",
+    )
     args = parser.parse_args(argv)
+    if args.without:
+        RULES[f"without_{args.without}"] = (RULES["mean_max_forward"][0], rule_without(args.without))
     wanted = {m.strip() for m in args.machines.split(",") if m.strip()}
     rows, results = [], []
     for project in args.project:

@@ -26,6 +26,7 @@ from rafi.family.grids import resolve
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
 from rafi.family.ridge_global import RidgeGlobal
+from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.settings import MACHINE_DEFAULTS
 from rafi.twin.synthetic_runs import make_synthetic_runs
 
@@ -58,6 +59,9 @@ def fitted(data):
             "grey_box": GreyBox(
                 taus_s=[0, 600], speed_taus_s=[120, 600], max_speed_taus=1, alphas=[1e-4, 1e-2]
             ).fit(table, frame),
+            "temperature_ridge": TemperatureRidge(taus_s=[0, 600, 2400], alphas=[1e-4, 1e-2]).fit(
+                table, frame
+            ),
         }
 
 
@@ -94,6 +98,70 @@ def test_dynamic_recovers_the_lag_and_beats_static_models():
     # the centrifugal coefficient (-0.02 um/krpm^2) is recovered
     c2 = dyn.coef_[dyn.feature_names_.index("n2_krpm2")]
     assert c2 == pytest.approx(-0.02, abs=0.003)
+
+
+def _settled_lowpass(x: np.ndarray, sample_s: float, tau_s: float) -> np.ndarray:
+    """The first-order low-pass ``y += (1 - exp(-dt/tau)) (x - y)`` from ``y[0] = x[0]``, by
+    scipy's IIR filter (an oracle independent of :mod:`rafi.family.features`)."""
+    from scipy.signal import lfilter
+
+    if tau_s == 0:
+        return x.copy()
+    a = np.exp(-sample_s / tau_s)
+    y, _ = lfilter([1 - a], [1, -a], x, zi=[a * x[0]])
+    return y
+
+
+def test_temperature_ridge_is_ols_on_the_rises_and_their_fixed_filters_and_nothing_else():
+    import statsmodels.api as sm
+
+    table, frame = make_synthetic_runs(seed=5, sample_s=60.0, n_sensors=3, noise_um=0.0)
+    taus, sensors = [0.0, 900.0, 3600.0], ["T1", "T2", "T3"]
+    blocks = []
+    for _, run in frame.groupby("run_id", sort=False):
+        cols = [_settled_lowpass(run[f"d{s}"].to_numpy(), 60.0, tau) for tau in taus for s in sensors]
+        blocks.append(pd.DataFrame(np.column_stack(cols), index=run.index))
+    x = pd.concat(blocks).loc[frame.index].to_numpy()
+    truth = np.array([0.8, -0.3, 0.5, 1.5, 0.2, -0.7, -0.9, 0.4, 1.1])
+    frame = frame.assign(dz_um=x @ truth + 0.01 * np.random.default_rng(0).standard_normal(len(frame)))
+    model = TemperatureRidge(taus_s=taus, alphas=[1e-13]).fit(table, frame)
+    # every filter at once, no speed input of any kind
+    assert model.taus_ == taus and model.sensors_ == sensors
+    assert model.feature_names_ == [f"d{s}@{tau:g}s" for tau in taus for s in sensors]
+    d = model.to_dict()
+    assert d["selected"]["speed_terms"] is False and d["selected"]["speed_gain"] is False
+    assert "speed_taus_s" not in d["selected"]
+    # the coefficients are statsmodels' OLS without a constant on the training rows
+    train = frame["run_id"].isin(table.loc[table["role"] == "training", "run_id"]).to_numpy()
+    ols = sm.OLS(frame["dz_um"].to_numpy()[train], x[train]).fit()
+    np.testing.assert_allclose(model.coef_, ols.params, rtol=0, atol=1e-6)
+    # the filters are collinear, so the function is recovered, not each coefficient (noise 0.01 um)
+    assert float(np.sqrt(np.mean((x @ model.coef_ - x @ truth) ** 2))) < 0.005
+    val = _validation(table, frame)
+    assert float(np.sqrt(np.mean((val["dz_um"] - model.predict(val)) ** 2))) < 0.02
+
+
+def test_temperature_ridge_is_a_kind_of_the_settings_the_report_and_the_controller():
+    from rafi.contract import MODEL_KINDS
+    from rafi.deploy.compensator import KINDS as CONTROLLER_KINDS
+    from rafi.family.compare import KINDS as FAMILY_KINDS
+    from rafi.family.selection import SIMPLICITY
+    from rafi.report.deployed_section import KIND_CLASSES
+
+    assert "temperature_ridge" in MODEL_KINDS and tuple(CONTROLLER_KINDS) == tuple(MODEL_KINDS)
+    assert set(FAMILY_KINDS) == set(MODEL_KINDS) == set(SIMPLICITY) == set(KIND_CLASSES)
+    options = dict(MACHINE_DEFAULTS["models"], temperature_ridge_taus_s=[0, 1200])
+    model = make_model(
+        "temperature_ridge",
+        key_sensors=KEY,
+        terms=SMALL_TERMS,
+        reference={"rule": "run_start", "window_s": 300},
+        machine="m",
+        options=options,
+    )
+    assert isinstance(model, TemperatureRidge) and model.taus_s == [0, 1200]
+    # off by default: a user asks for it in models.enabled
+    assert "temperature_ridge" not in MACHINE_DEFAULTS["models"]["enabled"]
 
 
 def _shaft_data():
@@ -360,7 +428,9 @@ def test_dynamic_prediction_does_not_depend_on_row_order(data, fitted):
 # --------------------------------------------------------------------------- interface and artefacts
 
 
-@pytest.mark.parametrize("kind", ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"])
+@pytest.mark.parametrize(
+    "kind", ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box", "temperature_ridge"]
+)
 def test_round_trip_gives_identical_predictions(kind, data, fitted, tmp_path):
     table, frame = data
     model = fitted[kind]
@@ -389,7 +459,7 @@ def test_load_any_delegates_rafi_to_rafimodel(fitted):
 
 
 def test_edited_artefact_is_rejected(fitted):
-    for kind in ("rafi_linear", "ridge_global", "dynamic", "grey_box"):
+    for kind in ("rafi_linear", "ridge_global", "dynamic", "grey_box", "temperature_ridge"):
         d = fitted[kind].to_dict()
         d["coefficients" if "coefficients" in d else "terms"] = d.get("coefficients", ["1"])[:1] * 2
         with pytest.raises(ValueError):
@@ -481,7 +551,9 @@ def test_first_order_recursion_matches_the_sample_loop(taus):
     np.testing.assert_allclose(got, want, rtol=0, atol=1e-9 * np.abs(want).max())
 
 
-@pytest.mark.parametrize("cls", [PublishedRafi, RafiLinear, RidgeGlobal, DynamicRidge, GreyBox])
+@pytest.mark.parametrize(
+    "cls", [PublishedRafi, RafiLinear, RidgeGlobal, DynamicRidge, GreyBox, TemperatureRidge]
+)
 def test_constructor_only_stores_its_arguments(cls):
     """scikit-learn conventions: keyword arguments stored as given, defaults from rafi.settings,
     nothing fitted (no attribute ending in ``_``) before ``fit``."""

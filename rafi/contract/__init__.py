@@ -36,6 +36,7 @@ from rafi.contract.input import (
 )
 from rafi.contract.keys import Section, Setting
 from rafi.contract.machine import GATE_KEYS, LIMIT_KEYS, MACHINE_SETTINGS, REPLAY_KEYS
+from rafi.contract.operations import MODEL_KINDS
 from rafi.contract.results import (
     COMPARISON_FILES,
     DECISION_FILES,
@@ -54,6 +55,7 @@ from rafi.contract.results import (
 from rafi.contract.run import RUN_SETTINGS
 
 __all__ = [
+    "MODEL_KINDS",
     "CANONICAL_RE",
     "COMPARISON_FILES",
     "DECISION_FILES",

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 from rafi.contract.keys import FLAG, NON_NEGATIVE, POSITIVE, Section, Setting, auto_or_numbers
 
+#: Every kind of the model family (`docs/models.md`); `models: enabled` names some of them.
+MODEL_KINDS = ("rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box", "temperature_ridge")
+
 OPERATIONS_SETTINGS: dict = {
     "qualification": Section(
         doc="gates a model must pass to be promoted (every validation run)",
@@ -45,14 +48,14 @@ OPERATIONS_SETTINGS: dict = {
                 default=["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"],
                 schema={
                     "type": "array",
-                    "items": {"enum": ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"]},
+                    "items": {"enum": list(MODEL_KINDS)},
                     "minItems": 1,
                     "uniqueItems": True,
                 },
                 shown="all five",
                 doc=(
                     "the model family (`docs/models.md`): `rafi`, `rafi_linear`, `ridge_global`, `dynamic`, "
-                    "`grey_box`"
+                    "`grey_box`; `temperature_ridge` (no speed input) on request"
                 ),
             ),
             "prior": Setting(
@@ -193,6 +196,20 @@ OPERATIONS_SETTINGS: dict = {
                     "`dynamic` also gets the heat-input history: the filtered speed powers of `grey_box` "
                     "(`grey_box_speed_taus_s`, `grey_box_speed_powers`), every filter at once, and then "
                     "no speed gain under `speed_gain: cv` (`docs/decisions.md`, 2026-11-26)"
+                ),
+            ),
+            "temperature_ridge_taus_s": Setting(
+                default=[0, 900, 3600],
+                schema={
+                    "type": "array",
+                    "items": {"type": "number", "minimum": 0},
+                    "minItems": 1,
+                    "uniqueItems": True,
+                },
+                shown="0, 900, 3600",
+                doc=(
+                    "first-order filter constants of `temperature_ridge`, every one at once (0 = the rise "
+                    "itself): the plain ridge of `benchmarks/bench_realdata.py`"
                 ),
             ),
             "speed_gain": Setting(

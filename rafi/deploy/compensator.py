@@ -91,6 +91,7 @@ import numpy as np
 
 from rafi import SENSORS
 from rafi.artefact import model_id_verifies
+from rafi.contract import MODEL_KINDS
 from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
 from rafi.deploy.streaming import LowpassBank, ReferenceWindow
 from rafi.method.fuzzy import triangular_weights
@@ -99,7 +100,7 @@ __all__ = ["KINDS", "STATUSES", "Compensator", "Step", "parse_exponents"]
 
 SCHEMA = "rafi.model/1"
 #: Model kinds the compensator evaluates.
-KINDS = ("rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box")
+KINDS = MODEL_KINDS
 #: Status values of a step (``docs/deploy.md``).
 STATUSES = {
     "referencing": "collecting the reference window; compensation 0 um (the reference state)",

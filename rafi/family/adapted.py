@@ -43,6 +43,7 @@ from rafi.family.grey_box import GreyBox
 from rafi.family.prior import RIDGE_KINDS
 from rafi.family.ridge import cv_folds, cv_scores, ridge_gram, rms_scale
 from rafi.family.ridge_global import RidgeGlobal
+from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.time_blocks import unit_column
 from rafi.family.whole_log import has_whole_logs, rows_of_logs
 from rafi.settings import MACHINE_DEFAULTS
@@ -58,7 +59,12 @@ CANDIDATES = {"prior": "as_is", "prior_gain": "gain", "prior_time": "time", "pri
 RIDGE_METHODS = ("time", "ridge")
 #: The factors ``time`` scales the prior's filter time constants by (steps of sqrt 2).
 TIME_FACTORS = (0.5, 0.71, 1.0, 1.41, 2.0)
-RIDGE_CLASSES = {"ridge_global": RidgeGlobal, "dynamic": DynamicRidge, "grey_box": GreyBox}
+RIDGE_CLASSES = {
+    "ridge_global": RidgeGlobal,
+    "dynamic": DynamicRidge,
+    "grey_box": GreyBox,
+    "temperature_ridge": TemperatureRidge,
+}
 
 
 class AdaptedPrior(FamilyModel):

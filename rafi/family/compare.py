@@ -52,6 +52,7 @@ from rafi.family.selection import (  # noqa: F401 - re-exported: the selection r
     default_champion,
     selection_table,
 )
+from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.whole_log import rows_of_logs
 from rafi.method.validate import qualify, validate_runs
 from rafi.settings import MACHINE_DEFAULTS
@@ -62,6 +63,7 @@ KINDS = {
     "ridge_global": RidgeGlobal,
     "dynamic": DynamicRidge,
     "grey_box": GreyBox,
+    "temperature_ridge": TemperatureRidge,
 }
 
 
@@ -120,6 +122,12 @@ def make_model(
             cv_metric=o["cv_metric"],
             speed_gain=o["speed_gain"],
             **ridge,
+        )
+    if kind == "temperature_ridge":
+        return TemperatureRidge(
+            taus_s=o["temperature_ridge_taus_s"],
+            cv_metric=o["cv_metric"],
+            **{k: v for k, v in ridge.items() if k != "speed_reference"},
         )
     if kind == "grey_box":
         return GreyBox(

@@ -45,7 +45,7 @@ __all__ = [
 #: The string values of ``models: prior`` (a mapping ``{machine: <name>}`` is the fourth form).
 PRIOR_MODES = ("auto", "none", "champion")
 #: The kinds whose prediction is ``features @ coefficients`` (``prior_ridge`` is offered for these).
-RIDGE_KINDS = ("ridge_global", "dynamic", "grey_box")
+RIDGE_KINDS = ("ridge_global", "dynamic", "grey_box", "temperature_ridge")
 #: A guard against a corrupt registry whose parents form a very long chain.
 MAX_CHAIN = 100
 

@@ -130,6 +130,12 @@ class RidgeGlobal(RidgeBase):
             names += ["n_krpm", "n2_krpm2"]
         return unsort(np.column_stack(parts), lay), names
 
+    @staticmethod
+    def _tau_subsets(n: int, max_taus: int) -> list[tuple[int, ...]]:
+        """The filter sets the CV chooses among, as positions in the grid of ``n``: every subset
+        with at most ``max_taus`` members, smallest first."""
+        return [s for k in range(1, max(1, max_taus) + 1) for s in itertools.combinations(range(n), k)]
+
     def _gain_candidates(self) -> list[bool]:
         """The speed-gain settings the CV chooses among (``speed_gain``)."""
         return [False, True] if self.speed_gain == "cv" else [bool(self.speed_gain)]
@@ -162,18 +168,15 @@ class RidgeGlobal(RidgeBase):
         folds = self._cv_folds(all_feats, y, run_ids, table, key)
         cv_table, best = [], (math.inf, None, None, None, None)
         for gain in gains:
-            for k in range(1, max(1, max_taus) + 1):
-                for subset in itertools.combinations(range(len(taus_grid)), k):
-                    cols = [np.arange(i * width, i * width + (width if gain else p)) for i in subset]
-                    cols = np.concatenate(cols + [speed])
-                    scores = cv_scores(folds, cols, alphas, self.cv_metric)
-                    taus = [taus_grid[i] for i in subset]
-                    for a, sc in zip(alphas, scores):
-                        cv_table.append(
-                            {"taus_s": taus, "speed_gain": gain, "alpha": a, "score_um": float(sc)}
-                        )
-                        if sc < best[0] - 1e-12:
-                            best = (float(sc), taus, a, gain, cols)
+            for subset in self._tau_subsets(len(taus_grid), max_taus):
+                cols = [np.arange(i * width, i * width + (width if gain else p)) for i in subset]
+                cols = np.concatenate(cols + [speed])
+                scores = cv_scores(folds, cols, alphas, self.cv_metric)
+                taus = [taus_grid[i] for i in subset]
+                for a, sc in zip(alphas, scores):
+                    cv_table.append({"taus_s": taus, "speed_gain": gain, "alpha": a, "score_um": float(sc)})
+                    if sc < best[0] - 1e-12:
+                        best = (float(sc), taus, a, gain, cols)
         _, taus, alpha, gain, cols = best
         self.speed_gain_ = bool(gain)
         design = self._chosen_design(all_feats, all_names, cols, frame, key)

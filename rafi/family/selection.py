@@ -65,7 +65,14 @@ def forward_rule(horizon: int) -> str:
 
 
 #: Kinds in order of simplicity (fewest fitted numbers first), the last tie-breaker.
-SIMPLICITY = {"rafi_linear": 0, "ridge_global": 1, "dynamic": 2, "grey_box": 3, "rafi": 4}
+SIMPLICITY = {
+    "rafi_linear": 0,
+    "ridge_global": 1,
+    "temperature_ridge": 2,
+    "dynamic": 3,
+    "grey_box": 4,
+    "rafi": 5,
+}
 
 #: Selection scores closer than this (um) are a tie (1 nm: far below any sensor's resolution).
 TIE_UM = 1e-3

@@ -49,6 +49,7 @@ KIND_CLASSES = {
     "ridge_global": ("rafi.family.ridge_global", "RidgeGlobal"),
     "dynamic": ("rafi.family.dynamic", "DynamicRidge"),
     "grey_box": ("rafi.family.grey_box", "GreyBox"),
+    "temperature_ridge": ("rafi.family.temperature_ridge", "TemperatureRidge"),
 }
 
 #: At most this many validation runs per residual figure (3 rows of 2 panels: one page).
@@ -141,6 +142,9 @@ def _hyper_text(art: dict) -> list[tuple[str, str]]:
                 grid("dynamic_taus_s"),
             )
         )
+    if kind == "temperature_ridge":
+        taus = ", ".join(fmt_num(t, 0) for t in sel.get("taus_s", []))
+        out.append(("rise filter constants (s)", taus, "fixed, every one at once (no speed input)"))
     if kind == "grey_box":
         search = (art.get("hyperparameters") or {}).get("filter_search", "")
         out.append(

@@ -377,7 +377,13 @@ def fig_multi_condition(
 # --------------------------------------------------------------------------- model comparison
 
 #: One colour per model kind (stable across figures); unknown kinds cycle through tab10.
-MODEL_COLOURS = {"rafi": "#c0392b", "rafi_linear": "#e07b00", "ridge_global": "#1f77b4", "dynamic": "#2e7d32"}
+MODEL_COLOURS = {
+    "rafi": "#c0392b",
+    "rafi_linear": "#e07b00",
+    "ridge_global": "#1f77b4",
+    "dynamic": "#2e7d32",
+    "temperature_ridge": "#6a3d9a",
+}
 
 
 def _model_colour(name: str, k: int) -> str:

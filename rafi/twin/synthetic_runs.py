@@ -391,7 +391,7 @@ def small_family_model(
 
     Parameters
     ----------
-    kind : {"rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"}
+    kind : {"rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box", "temperature_ridge"}
     reference_rule, reference_window_s : the reference state (``reference:`` settings).
     filter_restart_gap_s : float
         The filters restart after a gap longer than this.
@@ -410,6 +410,7 @@ def small_family_model(
     from rafi.family.published import PublishedRafi
     from rafi.family.rafi_linear import RafiLinear
     from rafi.family.ridge_global import RidgeGlobal
+    from rafi.family.temperature_ridge import TemperatureRidge
 
     ref = {"rule": reference_rule, "window_s": reference_window_s}
     alphas = list(alphas)
@@ -420,6 +421,10 @@ def small_family_model(
         return RafiLinear(key_sensors=SMALL_MODEL_KEY_SENSORS, reference=ref)
     if kind == "ridge_global":
         return RidgeGlobal(alphas=alphas, reference=ref, speed_gain=speed_gain, filter_restart_gap_s=restart)
+    if kind == "temperature_ridge":
+        return TemperatureRidge(
+            taus_s=[0, 600, 2400], alphas=alphas, reference=ref, filter_restart_gap_s=restart
+        )
     if kind == "dynamic":
         return DynamicRidge(
             taus_s=[600, 2400],
