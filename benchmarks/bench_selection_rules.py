@@ -42,6 +42,9 @@ The rules (:data:`RULES`), every one a function of training-run CV rows alone:
 * ``one_se_simplest``: the one-standard-error rule, towards the simpler kind
   (:data:`rafi.family.selection.SIMPLICITY`) among those whose mean is within one standard
   error of the best mean;
+* ``without_<KIND>`` (with ``--without KIND``): the current rule on the same inner CV rows
+  without that kind, so its paired difference to ``mean_max_forward`` says whether the kind
+  earns its place in the family (without minus with);
 * ``speed_folds``: ``mean_max`` on other inner folds, one per training speed with the
   cool-downs that follow its runs (:func:`speed_with_cooldown_folds`): folds that look like a
   validation at an unseen speed followed by its cool-down;

@@ -94,6 +94,13 @@ def test_one_se_rule_moves_to_a_simpler_kind_within_one_standard_error(bench):
     assert bench.rule_one_se_simplest(cv) == "ridge_global"  # 5.5 <= 5.0 + 0.577
 
 
+def test_the_rule_without_a_kind_picks_the_best_of_the_others(bench):
+    cv = _cv({"temperature_ridge": [1.0, 2.0], "dynamic": [2.0, 2.5], "grey_box": [3.0, 3.0]})
+    assert bench.rule_mean_max(cv) == "temperature_ridge"
+    assert bench.rule_without("temperature_ridge")(cv) == "dynamic"
+    assert bench.rule_without("grey_box")(cv) == "temperature_ridge"
+
+
 def test_a_model_missing_a_fold_is_never_chosen_and_gets_no_weight(bench):
     cv = _cv({"dynamic": [1.0, np.nan], "grey_box": [3.0, 4.0]})
     for rule in (bench.rule_mean_max, bench.rule_mean_plus_se, bench.rule_one_se_simplest):
