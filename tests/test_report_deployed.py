@@ -20,7 +20,7 @@ import pytest
 
 from rafi.report.deployed_plot import fig_deployed_residuals
 from rafi.report.deployed_section import deployed_panels, kind_description, section_deployed
-from rafi.report.deployed_terms import parse_feature, rafi_tables, ridge_tables
+from rafi.report.deployed_terms import parse_feature, rafi_tables, ridge_inputs, ridge_tables
 from rafi.twin.synthetic_logs import schedule_log
 from rafi.twin.synthetic_runs import runs_of_logs, small_family_model
 
@@ -196,7 +196,7 @@ def _written_in(blocks) -> set:
     return set(re.findall(r"<code[^>]*>([^<]+)</code>", html))
 
 
-@pytest.mark.parametrize("kind", ["ridge_global", "dynamic", "grey_box"])
+@pytest.mark.parametrize("kind", ["ridge_global", "dynamic", "grey_box", "temperature_ridge"])
 def test_the_written_ridge_table_is_the_model(data, kind):
     rule, table, frame = data
     model = _fit(kind, rule, table, frame)
@@ -209,6 +209,11 @@ def test_the_written_ridge_table_is_the_model(data, kind):
         assert {"rise", "power", "draw_in"} <= types
     if kind == "ridge_global":
         assert any(parse_feature(n)["type"] == "rise_speed" for n, _ in terms)
+    if kind == "temperature_ridge":  # the rises and their filters only, and the report says why
+        assert {parse_feature(n)["type"] for n, _ in terms} == {"rise"}
+        assert dict(ridge_inputs(art))["spindle speed"] == (
+            "not read by the model (temperature_ridge has no speed input)"
+        )
     mine = Written(frame, rule).ridge(terms, art).loc[frame.index]
     theirs = pd.Series(model.predict(frame), index=frame.index)
     ok = np.isfinite(theirs.to_numpy())
@@ -352,6 +357,7 @@ def test_the_section_documents_the_champion_and_every_validation_run(data):
 
 def test_kind_descriptions_come_from_the_family():
     assert kind_description("grey_box").startswith("Ridge on filtered rises")
+    assert kind_description("temperature_ridge").endswith("no speed input.")
     assert "fuzzy" in kind_description("rafi")
     assert kind_description("unknown") == ""
 

@@ -11,16 +11,17 @@ from rafi.settings import MACHINE_DEFAULTS
 
 
 class TemperatureRidge(DynamicRidge):
-    """Kind ``temperature_ridge``: ``dz = sum_i sum_tau b_(i,tau) L_tau(dT_i)``.
+    """Kind ``temperature_ridge``: ridge on the rises and their low-pass filters; no speed input.
 
-    Every usable sensor's rise ``dT_i`` through every first-order low-pass filter ``L_tau`` of
-    ``taus_s`` at once (``tau = 0`` is the rise itself; :func:`rafi.family.features.lowpass_runs`),
-    and nothing else: no speed term, no speed gain, no heat-input history, no intercept (at the
-    reference state every input is 0). Only ``alpha`` is chosen, by whole-run CV on the training
-    runs (``cv``, ``cv_metric``). It is the yardstick of ``benchmarks/bench_realdata.py`` (the
-    "plain ridge", 900 s and 3600 s filters) in the family's conventions, so the selection can
-    offer it where the training runs find the speed-driven terms of the other kinds
-    extrapolating worse than the temperatures alone (``docs/models.md``).
+    ``dz = sum_i sum_tau b_(i,tau) L_tau(dT_i)``: every usable sensor's rise ``dT_i`` through
+    every first-order low-pass filter ``L_tau`` of ``taus_s`` at once (``tau = 0`` is the rise
+    itself; :func:`rafi.family.features.lowpass_runs`), and nothing else: no speed term, no speed
+    gain, no heat-input history, no intercept (at the reference state every input is 0). Only
+    ``alpha`` is chosen, by whole-run CV on the training runs (``cv``, ``cv_metric``). It is the
+    yardstick of ``benchmarks/bench_realdata.py`` (the "plain ridge", 900 s and 3600 s filters) in
+    the family's conventions, so the selection can offer it where the training runs find the
+    speed-driven terms of the other kinds extrapolating worse than the temperatures alone
+    (``docs/models.md``).
 
     Parameters
     ----------

@@ -300,6 +300,8 @@ def ridge_inputs(art: dict) -> list[tuple[str, Markup | str]]:
         if any(p["type"] == "rise_speed" for p in parsed):
             what.append("speed-dependent gains dT\u00b7n")
         rows.append(("spindle speed", "; ".join(what)))
+    elif art.get("kind") == "temperature_ridge":
+        rows.append(("spindle speed", "not read by the model (temperature_ridge has no speed input)"))
     else:
         rows.append(
             (
