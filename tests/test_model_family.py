@@ -19,7 +19,9 @@ from rafi.family.features import (
     first_order_recursion,
     lowpass_runs,
     reference_speed,
+    sensors_left_out,
     speed_change_evidence,
+    usable_sensors,
 )
 from rafi.family.grey_box import GreyBox
 from rafi.family.grids import resolve
@@ -534,6 +536,12 @@ def test_usable_sensors_skip_constant_and_mostly_missing_ones_and_keep_a_short_d
     f.loc[f.index[: int(np.ceil(share * len(f)))], "dT4"] = np.nan
     m = RidgeGlobal(alphas=[1e-3]).fit(table, f)
     assert m.sensors_ == ["T1", "T2"] and m.n_ == full.n_
+    # the reasons, for the sensors of the data only (T5..T16 are not in it)
+    f["dT2"] = np.nan
+    reasons = sensors_left_out(f)
+    assert set(reasons) == {"T2", "T3", "T4"} and reasons["T2"] == "no value" and reasons["T3"] == "constant"
+    assert reasons["T4"] == f"missing on {100 * np.ceil(share * len(f)) / len(f):.1f} % of the rows"
+    assert usable_sensors(f) == ["T1"]
 
 
 @pytest.mark.parametrize("taus", [[5.0], [60.0, 2400.0], [1e-3, 300.0]])

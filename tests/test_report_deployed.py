@@ -19,7 +19,12 @@ import pandas as pd
 import pytest
 
 from rafi.report.deployed_plot import fig_deployed_residuals
-from rafi.report.deployed_section import deployed_panels, kind_description, section_deployed
+from rafi.report.deployed_section import (
+    deployed_panels,
+    kind_description,
+    section_deployed,
+    sensors_left_out_text,
+)
 from rafi.report.deployed_terms import parse_feature, rafi_tables, ridge_inputs, ridge_tables
 from rafi.twin.synthetic_logs import schedule_log
 from rafi.twin.synthetic_runs import runs_of_logs, small_family_model
@@ -353,6 +358,24 @@ def test_the_section_documents_the_champion_and_every_validation_run(data):
     assert section_deployed(dict(res, comparison=None), _Figs(0)) is None
     # the registry kept another model: said, not hidden
     assert section_deployed(res, _Figs(0), champion_after="f" * 64)["on_machine"] is False
+
+
+def test_the_section_names_the_sensors_a_ridge_model_leaves_out_and_why(data):
+    rule, table, frame = data
+    frame = frame.copy()
+    train = frame["run_id"].isin(table.loc[table["role"] == "training", "run_id"]).to_numpy()
+    rows = np.flatnonzero(train)
+    frame.loc[frame.index[rows[: len(rows) // 10]], "dT3"] = np.nan  # 10 % of the training rows
+    frame["dT5"] = 0.0  # a sensor stuck at its reference value
+    frame.loc[frame.index[rows[:3]], "dT6"] = np.nan  # a short dropout: T6 stays, its rows go
+    art = _fit("temperature_ridge", rule, table, frame).to_dict()
+    assert {"T3", "T5"}.isdisjoint(art["key_sensors"]) and "T6" in art["key_sensors"]
+    text = sensors_left_out_text(art, table, frame)
+    share = 100 * (len(rows) // 10) / len(rows)
+    assert text == f"T3: missing on {share:.1f} % of the rows; T5: constant"
+    # every sensor read (the shipped twins) or the samples not at hand: nothing to say
+    assert sensors_left_out_text(_fit("ridge_global", rule, table, data[2]).to_dict(), table, data[2]) == ""
+    assert sensors_left_out_text(art, table, None) == ""
 
 
 def test_kind_descriptions_come_from_the_family():

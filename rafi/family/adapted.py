@@ -37,15 +37,13 @@ import pandas as pd
 
 from rafi.artefact import compute_model_id, now_iso
 from rafi.family.base import FamilyModel, check_artefact, data_hashes
-from rafi.family.crossval import training_mask, training_runs
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.grey_box import GreyBox
 from rafi.family.prior import RIDGE_KINDS
-from rafi.family.ridge import cv_folds, cv_scores, ridge_gram, rms_scale
+from rafi.family.ridge import cv_folds, cv_scores, fit_rows_of, ridge_gram, rms_scale
 from rafi.family.ridge_global import RidgeGlobal
 from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.time_blocks import unit_column
-from rafi.family.whole_log import has_whole_logs, rows_of_logs
 from rafi.settings import MACHINE_DEFAULTS
 
 __all__ = ["ADAPTATION_SCHEMA", "METHODS", "CANDIDATES", "AdaptedPrior", "adaptation_factories"]
@@ -335,13 +333,7 @@ def _retimed(model, factor: float):
 def _training_rows(runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
     """``(table, frame, rows)`` as the ridge kinds fit: the training runs, the whole logs holding
     them (per-run frames: the training rows), the mask of the training rows with a finite dz."""
-    table, train = training_runs(runs_table, runs_frame)
-    if has_whole_logs(runs_frame):
-        frame = runs_frame.loc[rows_of_logs(runs_frame, table["run_id"])]
-        rows = training_mask(frame, table) & np.isfinite(frame["dz_um"].to_numpy(dtype=float))
-    else:
-        frame = train[np.isfinite(train["dz_um"].to_numpy(dtype=float))]
-        rows = np.ones(len(frame), dtype=bool)
+    table, frame, rows = fit_rows_of(runs_table, runs_frame)
     if not rows.any():
         raise ValueError("no training sample to adapt the prior on")
     return table, frame, rows

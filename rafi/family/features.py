@@ -45,17 +45,36 @@ def usable_sensors(
 ) -> list[str]:
     """Sensors whose rise column exists, is missing (NaN) on at most ``max_missing_fraction`` of
     the rows of ``runs_frame`` and is not constant over its finite values."""
-    out = []
+    left_out = sensors_left_out(runs_frame, sensors, max_missing_fraction)
+    return [s for s in sensors if rise_column(s) in runs_frame.columns and s not in left_out]
+
+
+def sensors_left_out(
+    runs_frame: pd.DataFrame,
+    sensors: Sequence[str] = SENSORS,
+    max_missing_fraction: float = MAX_MISSING_FRACTION,
+) -> dict[str, str]:
+    """Sensor -> why it is not usable (:func:`usable_sensors`), for the sensors of ``sensors``
+    whose rise column is in ``runs_frame`` (a sensor the machine does not have is not listed).
+
+    Returns
+    -------
+    dict
+        ``"no value"``, ``"missing on 7.2 % of the rows"`` or ``"constant"``.
+    """
+    out = {}
     for s in sensors:
         col = rise_column(s)
         if col not in runs_frame.columns:
             continue
         v = runs_frame[col].to_numpy(dtype=float)
         finite = np.isfinite(v)
-        if not finite.any() or 1.0 - finite.mean() > max_missing_fraction:
-            continue
-        if np.ptp(v[finite]) > 1e-9:
-            out.append(s)
+        if not finite.any():
+            out[s] = "no value"
+        elif 1.0 - finite.mean() > max_missing_fraction:
+            out[s] = f"missing on {100.0 * (1.0 - finite.mean()):.1f} % of the rows"
+        elif np.ptp(v[finite]) <= 1e-9:
+            out[s] = "constant"
     return out
 
 

@@ -40,6 +40,20 @@ FILTER_STATE_TEXT = {
 }
 
 
+def fit_rows_of(runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+    """``(table, frame, rows)`` as the ridge kinds fit: the training runs, the rows features are
+    computed on (the whole logs holding a training run; per-run frames: the training rows with a
+    finite ``dz_um``) and the mask of the training rows with a finite ``dz_um``."""
+    table, train = training_runs(runs_table, runs_frame)
+    if has_whole_logs(runs_frame):
+        frame = runs_frame.loc[rows_of_logs(runs_frame, table["run_id"])]
+        rows = training_mask(frame, table) & np.isfinite(frame["dz_um"].to_numpy(dtype=float))
+    else:  # per run, as before: only the training rows with a finite dz
+        frame = train[np.isfinite(train["dz_um"].to_numpy(dtype=float))]
+        rows = np.ones(len(frame), dtype=bool)
+    return table, frame, rows
+
+
 def ridge_gram(g: np.ndarray, c: np.ndarray, n: int, alphas: Sequence[float]) -> np.ndarray:
     """Coefficients (p x n_alphas) of ``min |y - Xb|^2/n + alpha |b|^2`` from ``X'X``, ``X'y``.
 
@@ -266,15 +280,8 @@ class RidgeBase(FamilyModel):
         the sensors (:func:`usable_sensors`: a sensor missing on a few rows stays, those rows
         go). Sets ``grids_``."""
         self._check_params()
-        table, train = training_runs(runs_table, runs_frame)
+        table, frame, rows = fit_rows_of(runs_table, runs_frame)
         self.time_blocks_ = blocks_text(runs_table)
-        if has_whole_logs(runs_frame):
-            frame = runs_frame.loc[rows_of_logs(runs_frame, table["run_id"])]
-            rows = training_mask(frame, table)
-            rows = rows & np.isfinite(frame["dz_um"].to_numpy(dtype=float))
-        else:  # per run, as before: only the training rows with a finite dz
-            frame = train[np.isfinite(train["dz_um"].to_numpy(dtype=float))]
-            rows = np.ones(len(frame), dtype=bool)
         fit_rows = frame.loc[rows]
         sensors = list(self.sensors) if self.sensors is not None else usable_sensors(fit_rows)
         if not sensors:

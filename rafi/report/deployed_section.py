@@ -18,7 +18,9 @@ import re
 import numpy as np
 import pandas as pd
 
+from rafi.family.features import sensors_left_out
 from rafi.family.forward_folds import MIN_TRAIN, horizon_of
+from rafi.family.ridge import fit_rows_of
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.family.time_blocks import hours
 from rafi.report.comparison_section import cv_schemes, family_champion, forward_mask, selection_score
@@ -307,6 +309,22 @@ def _validation_rows(per_run: pd.DataFrame | None, name: str) -> list[dict] | No
     ]
 
 
+def sensors_left_out_text(art: dict, runs_table, runs_frame) -> str:
+    """The sensors of the data a ridge artefact does not read, each with the reason
+    (:func:`rafi.family.features.sensors_left_out` on the rows its fit used), e.g.
+    ``"T5: missing on 7.2 % of the rows; T12: constant"``; ``""`` when every sensor is read, the
+    sensors were named in the settings, or the samples are not at hand."""
+    if runs_table is None or runs_frame is None or (art.get("hyperparameters") or {}).get("sensors"):
+        return ""
+    try:
+        _, frame, rows = fit_rows_of(runs_table, runs_frame)
+    except (KeyError, ValueError):  # no training run in these tables: nothing to say
+        return ""
+    used = set(art.get("key_sensors") or [])
+    reasons = sensors_left_out(frame.loc[rows])
+    return "; ".join(f"{s}: {why}" for s, why in reasons.items() if s not in used)
+
+
 def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
     """The section's context, or ``None`` without a comparison champion and its artefact.
 
@@ -342,6 +360,9 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
     else:
         blocks, terms = ridge_tables(art)
         equation, inputs = ridge_equation(art), ridge_inputs(art)
+        left_out = sensors_left_out_text(art, res.get("runs_csv"), res.get("runs_parquet"))
+        if left_out:
+            inputs.insert(1, ("sensors left out (training rows)", left_out))
     speeds = art.get("speed_range_rpm")
     if speeds is None and rafi_like:
         sp = [float(s["speed_rpm"]) for s in art.get("speeds") or []]
