@@ -376,6 +376,8 @@ def test_the_section_names_the_sensors_a_ridge_model_leaves_out_and_why(data):
     # every sensor read (the shipped twins) or the samples not at hand: nothing to say
     assert sensors_left_out_text(_fit("ridge_global", rule, table, data[2]).to_dict(), table, data[2]) == ""
     assert sensors_left_out_text(art, table, None) == ""
+    # an adapted prior reads the prior's sensors, chosen on the prior's data: not these rows'
+    assert sensors_left_out_text({**art, "adaptation": {"method": "gain"}}, table, frame) == ""
 
 
 def test_kind_descriptions_come_from_the_family():

@@ -313,8 +313,10 @@ def sensors_left_out_text(art: dict, runs_table, runs_frame) -> str:
     """The sensors of the data a ridge artefact does not read, each with the reason
     (:func:`rafi.family.features.sensors_left_out` on the rows its fit used), e.g.
     ``"T5: missing on 7.2 % of the rows; T12: constant"``; ``""`` when every sensor is read, the
-    sensors were named in the settings, or the samples are not at hand."""
-    if runs_table is None or runs_frame is None or (art.get("hyperparameters") or {}).get("sensors"):
+    sensors were named in the settings or chosen on a prior's data (an adapted prior), or the
+    samples are not at hand."""
+    named = (art.get("hyperparameters") or {}).get("sensors") or art.get("adaptation")
+    if runs_table is None or runs_frame is None or named:
         return ""
     try:
         _, frame, rows = fit_rows_of(runs_table, runs_frame)
