@@ -67,9 +67,6 @@ class TemperatureRidge(DynamicRidge):
     speed_gain = False
     heat_input = False
     speed_reference = "zero"
-    max_taus = None
-    speed_taus_s = ()
-    speed_powers = ()
 
     def _inputs_text(self) -> str:
         return (
