@@ -37,7 +37,16 @@ def log_truth():
 def defective(log_truth):
     log, truth = log_truth
     frame, defects = inject_defects(
-        log, duplicates=3, duplicates_differ=2, swaps=4, spikes=6, dropouts=5, open_circuit=3, gaps=4, seed=11
+        log,
+        duplicates=3,
+        duplicates_differ=2,
+        swaps=4,
+        spikes=6,
+        bursts=4,
+        dropouts=5,
+        open_circuit=3,
+        gaps=4,
+        seed=11,
     )
     out, audit = clean(frame)
     return log, truth, frame, defects, out, audit
@@ -90,7 +99,8 @@ def test_audit_counts_equal_injected_counts(defective):
     assert list(summary.columns) == list(SUMMARY_COLUMNS)
     s = summary.iloc[0]
     assert s["rows_in"] == len(frame) and s["rows_out"] == 3000
-    assert s["duplicates_dropped"] == 5 and s["reordered"] == 4 and s["spikes_replaced"] == 6
+    assert s["duplicates_dropped"] == 5 and s["reordered"] == 4 and s["spikes_replaced"] == inj["spike"]
+    assert inj["spike"] > 10  # six single samples and four bursts of 2-3 samples
     assert s["gaps_interpolated"] == 4 and s["segments"] == 1
     assert s["values_interpolated"] == inj["dropout"] + inj["open_circuit"]
     assert s["status"] == "ok" and s["reason"] == ""
@@ -366,21 +376,29 @@ def test_read_raw_log_round_trip_points_at_file_lines(tmp_path):
     dup=st.integers(0, 4),
     swaps=st.integers(0, 4),
     spikes=st.integers(0, 5),
+    bursts=st.integers(0, 3),
     dropouts=st.integers(0, 4),
     gaps=st.integers(0, 4),
     seed=st.integers(0, 10_000),
 )
-def test_audit_counts_property(dup, swaps, spikes, dropouts, gaps, seed):
+def test_audit_counts_property(dup, swaps, spikes, bursts, dropouts, gaps, seed):
     log, truth = canonical_log(1200, extras=False, seed=seed % 7)
     frame, defects = inject_defects(
-        log, duplicates=dup, swaps=swaps, spikes=spikes, dropouts=dropouts, gaps=gaps, seed=seed
+        log,
+        duplicates=dup,
+        swaps=swaps,
+        spikes=spikes,
+        bursts=bursts,
+        dropouts=dropouts,
+        gaps=gaps,
+        seed=seed,
     )
     out, audit = clean(frame)
     s = summarise_audit("f", "s", len(frame), out, audit).iloc[0]
     kinds = defects["kind"].value_counts()
     assert s["duplicates_dropped"] == kinds.get("duplicate", 0)
     assert s["reordered"] == kinds.get("swap", 0)
-    assert s["spikes_replaced"] == kinds.get("spike", 0)
+    assert s["spikes_replaced"] == defects.loc[defects["kind"] == "spike", "n_rows"].sum()
     assert s["gaps_interpolated"] == kinds.get("gap", 0)
     assert s["values_interpolated"] == defects.loc[defects["kind"] == "dropout", "n_rows"].sum()
     assert s["rows_out"] == 1200 and s["segments"] == 1

@@ -7,6 +7,7 @@ import pytest
 
 from rafi.errors import RawFormatError
 from rafi.method.clean_steps import (
+    MAX_SPIKE_SAMPLES,
     SENSOR_COLUMNS,
     SENSOR_END,
     SPIKE_SIGMA_FLOOR,
@@ -307,3 +308,30 @@ def test_speed_is_carried_forward_else_backward_within_its_segment():
         (7, 8, 2, False),
         (10, 10, 1, True),
     ]
+
+
+def test_find_spikes_finds_short_bursts_but_not_a_longer_plateau():
+    rng = np.random.default_rng(2)
+    column = 20.0 + rng.normal(0.0, 0.01, 300)
+    column[40:42] += 2.0  # two samples
+    column[90:93] -= 1.5  # three samples
+    column[140:142] += [3.0, 3.0]
+    column[142] += 1.0  # a glitch of two and a smaller third: one spike of three samples
+    column[200 : 200 + MAX_SPIKE_SAMPLES + 1] += 2.0  # longer than a spike: a change of state
+    column[250:252] += [2.0, -2.0]  # up then down: two single spikes side by side, one glitch
+    grid = grid_of(np.column_stack([column]))
+    spikes, before, after, _ = find_spikes(column, grid, PERIOD, 60.0, 8.0)
+    assert spikes.tolist() == [40, 41, 90, 91, 92, 140, 141, 142, 250, 251]
+    assert before.tolist() == [39, 39, 89, 89, 89, 139, 139, 139, 249, 249]
+    assert after.tolist() == [42, 42, 93, 93, 93, 143, 143, 143, 252, 252]
+
+
+def test_replace_spikes_reports_a_burst_once_with_its_lines():
+    n = 100
+    values = np.full((n, SENSOR_END + 1), 10.0) + np.arange(n)[:, None] * 0.001
+    values[50:52, 5] += [4.0, 4.5]
+    grid = grid_of(values)
+    out, spike, rows = replace_spikes(grid, PERIOD, 60.0, 8.0, NAMES)
+    assert np.flatnonzero(spike[:, 5]).tolist() == [50, 51] and spike.sum() == 2
+    assert [r[:5] for r in rows] == [("spike_replaced", "T5", 52, 53, 2)]
+    assert rows[0][5].startswith("2 samples 14.05, 14.551 vs neighbours 10.049 and 10.052")

@@ -92,7 +92,10 @@ METHOD_SETTINGS: dict = {
                 default=8,
                 schema=POSITIVE,
                 shown="8",
-                doc="robust z-score (MAD of first differences) above which a single sample is a spike",
+                doc=(
+                    "robust z-score (MAD of first differences) beyond which a sample, or a burst "
+                    "of at most 3, is a spike"
+                ),
             ),
             "open_circuit_values": Setting(
                 default=[-999.0, 999.9, 850.0],

@@ -27,16 +27,19 @@ of the canonical frame). The steps, in this order:
    samples around the gap is at most ``max_interpolate_gap_s``
    (``gap_interpolated``); a longer gap starts a new ``segment`` and is never
    bridged (``gap_split``).
-6. **Spikes** (``T1``..``T16``, ``disp_um``). A sample is a single-sample spike
-   when it lies beyond *both* neighbouring valid samples of its segment, on the
-   same side, by more than ``spike_threshold * sigma``; i.e. its distance from
-   the median of the two neighbours exceeds the threshold plus half their spread.
+6. **Spikes** (``T1``..``T16``, ``disp_um``). A burst of 1 to ``MAX_SPIKE_SAMPLES`` (3)
+   consecutive samples is a spike when every sample of it lies beyond *both* valid
+   samples enclosing the burst in its segment, on the same side, by more than
+   ``spike_threshold * sigma``; for one sample, its distance from the median of the
+   two neighbours exceeds the threshold plus half their spread.
    ``sigma`` is the MAD-based standard deviation of the column's first
    differences (1.4826 * MAD), floored at the logger resolution (smallest
    non-zero step) and at 0.01 (K or um), so a quantised or frozen signal does
    not make every step a spike. A genuine step (e.g. the displacement jump at a
-   speed change) moves away from one neighbour only and is never flagged.
-   Spikes are set to NaN and interpolated from their neighbours (``spike_replaced``).
+   speed change) moves away from one neighbour only and is never flagged; nor is an
+   excursion longer than three samples (a change of state, not a glitch).
+   Spikes are set to NaN and interpolated from their neighbours (``spike_replaced``, one
+   row per burst, ``n_rows`` = its samples).
 7. **Dropouts.** Runs of NaN in a numeric column whose valid neighbours (same
    segment) are at most ``max_interpolate_gap_s`` apart are interpolated
    linearly (``dropout_interpolated``). Longer runs, and runs at the start or end

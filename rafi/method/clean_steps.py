@@ -21,11 +21,15 @@ from rafi import SENSORS
 from rafi.errors import RawFormatError
 from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
 
-#: Columns checked for open-circuit values and single-sample spikes (value columns 1..16+1).
+#: Columns checked for open-circuit values and spikes (value columns 1..16+1).
 SENSOR_COLUMNS = (*SENSORS, "disp_um")
 
 #: Value columns ``1 .. SENSOR_END - 1`` are the sensors (column 0 is the speed).
 SENSOR_END = 1 + len(SENSOR_COLUMNS)
+
+#: The longest burst of consecutive samples that counts as a spike (a logger or EMI glitch);
+#: a longer excursion that returns is left alone: it may be a change of state.
+MAX_SPIKE_SAMPLES = 3
 
 #: Floor of the spike sigma in the column's unit (K for temperatures, um for displacement).
 SPIKE_SIGMA_FLOOR = 0.01
@@ -333,16 +337,20 @@ def spike_limit(diffs: np.ndarray, threshold: float) -> float:
 def find_spikes(
     column: np.ndarray, grid: Grid, period_s: float, max_gap_s: float, threshold: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """The single-sample spikes of one column of the grid.
+    """The spikes of one column of the grid: single samples and short bursts.
 
-    A valid sample is a spike when it lies beyond *both* neighbouring valid samples of its
-    segment, on the same side, by more than :func:`spike_limit`, and the two neighbours are
-    close enough to be bridged (:func:`bridgeable`).
+    A burst of 1 to :data:`MAX_SPIKE_SAMPLES` consecutive valid samples of a segment is a
+    spike when every sample of it lies beyond *both* valid samples enclosing the burst, on the
+    same side, by more than :func:`spike_limit`, and the two enclosing samples are close
+    enough to be bridged (:func:`bridgeable`). Shorter bursts are tested first; bursts that
+    overlap or touch merge into one (a glitch of two samples followed by a smaller third).
+    A step moves away from one enclosing sample only, and a plateau longer than
+    :data:`MAX_SPIKE_SAMPLES` is a change of state, so neither is flagged.
 
     Returns
     -------
     spikes, before, after : numpy.ndarray of int
-        Grid rows of the spikes and of the valid samples before and after each.
+        Grid rows of the spike samples and, for each, of the valid samples enclosing its burst.
     limit : float
         The column's spike limit (NaN when the column has too few valid samples).
     """
@@ -351,28 +359,42 @@ def find_spikes(
     if len(valid) < 3:
         return none, none, none, float("nan")
     v = column[valid]
-    same = grid.segment[valid[1:]] == grid.segment[valid[:-1]]
+    segment = grid.segment[valid]
+    same = segment[1:] == segment[:-1]
     diffs = np.diff(v)[same]
     if len(diffs) == 0:
         return none, none, none, float("nan")
     limit = spike_limit(diffs, threshold)
-    above_before = v[1:-1] - v[:-2]
-    above_after = v[1:-1] - v[2:]
-    neighbours_span_s = (grid.index[valid[2:]] - grid.index[valid[:-2]]) * period_s
-    enclosed = same[:-1] & same[1:] & bridgeable(neighbours_span_s, max_gap_s)
-    hit = np.flatnonzero(
-        enclosed
-        & (np.sign(above_before) == np.sign(above_after))
-        & (np.minimum(np.abs(above_before), np.abs(above_after)) > limit)
-    )
-    return valid[hit + 1], valid[hit], valid[hit + 2], limit
+    marked = np.zeros(len(v), bool)
+    for length in range(1, MAX_SPIKE_SAMPLES + 1):
+        first = np.arange(len(v) - length - 1)  # position of the sample before the burst
+        if len(first) == 0:
+            break
+        last = first + length + 1  # position of the sample after it
+        burst = np.lib.stride_tricks.sliding_window_view(v, length)[1 : len(v) - length]
+        from_before = burst - v[first, None]
+        from_after = burst - v[last, None]
+        side = np.sign(from_before[:, :1])
+        one_side = (np.sign(from_before) == side).all(axis=1) & (np.sign(from_after) == side).all(axis=1)
+        far = np.minimum(np.abs(from_before), np.abs(from_after)).min(axis=1) > limit
+        span_s = (grid.index[valid[last]] - grid.index[valid[first]]) * period_s
+        enclosed = (segment[first] == segment[last]) & bridgeable(span_s, max_gap_s)
+        hit = np.flatnonzero(one_side & far & enclosed)
+        for offset in range(1, length + 1):
+            marked[hit + offset] = True
+    starts, ends = true_runs(marked)
+    count = ends - starts + 1
+    positions = np.flatnonzero(marked)
+    before = np.repeat(starts - 1, count)
+    after = np.repeat(ends + 1, count)
+    return valid[positions], valid[before], valid[after], limit
 
 
 def replace_spikes(
     grid: Grid, period_s: float, max_gap_s: float, threshold: float, names: Sequence[str]
 ) -> tuple[Grid, np.ndarray, list[tuple]]:
-    """Step 6: single-sample spikes of the sensors (:func:`find_spikes`) become NaN (step 7
-    interpolates them); one ``spike_replaced`` row each.
+    """Step 6: spikes of the sensors, single samples and short bursts (:func:`find_spikes`),
+    become NaN (step 7 interpolates them); one ``spike_replaced`` row per spike.
 
     Returns the grid, the spike mask (grid rows x value columns) and the audit rows.
     """
@@ -382,16 +404,24 @@ def replace_spikes(
     for j in range(1, SENSOR_END):
         column = values[:, j]
         spikes, before, after, limit = find_spikes(column, grid, period_s, max_gap_s, threshold)
-        for r, b, a in zip(spikes, before, after):
-            spike[r, j] = True
+        spike[spikes, j] = True
+        for group in (
+            np.split(np.arange(len(spikes)), np.flatnonzero(np.diff(before)) + 1) if len(spikes) else []
+        ):
+            r, b, a = spikes[group], before[group[0]], after[group[0]]
+            shown = (
+                fmt(column[r[0]])
+                if len(r) == 1
+                else f"{len(r)} samples " + ", ".join(fmt(x) for x in column[r])
+            )
             rows.append(
                 audit_row(
                     "spike_replaced",
                     names[j],
-                    grid.line[r],
-                    grid.line[r],
-                    1,
-                    f"{fmt(column[r])} vs neighbours {fmt(column[b])} and {fmt(column[a])} "
+                    grid.line[r[0]],
+                    grid.line[r[-1]],
+                    len(r),
+                    f"{shown} vs neighbours {fmt(column[b])} and {fmt(column[a])} "
                     f"(threshold {fmt(limit)} = {fmt(threshold)} x robust sigma); interpolated",
                 )
             )

@@ -18,6 +18,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
+from rafi.method.clean_steps import MAX_SPIKE_SAMPLES
 from rafi.twin.defects import OPEN_CIRCUIT_VALUES
 
 #: The open-circuit code injected (the logger's first one).
@@ -134,10 +135,11 @@ def _spoil_values(
     dropouts: int,
     open_circuit: int,
     spikes: int,
+    bursts: int,
     max_rows: int,
     spike_size: dict[str, float],
 ) -> None:
-    """Put empty values, open-circuit codes and single-sample spikes into random channels.
+    """Put empty values, open-circuit codes, spikes and short bursts into random channels.
 
     Parameters
     ----------
@@ -151,6 +153,8 @@ def _spoil_values(
         Runs of 1..3 :data:`OPEN_CIRCUIT` values in a temperature.
     spikes : int
         Single samples moved by ``spike_size['temp']`` or ``spike_size['disp']``, sign at random.
+    bursts : int
+        Runs of 2..``MAX_SPIKE_SAMPLES`` consecutive samples moved by one spike size.
     max_rows : int
         The longest run of missing values that may be interpolated.
     spike_size : dict
@@ -170,12 +174,12 @@ def _spoil_values(
         col = SENSORS[int(rng.integers(16))]
         values.iloc[p : p + length, values.columns.get_loc(col)] = OPEN_CIRCUIT
         state.record("open_circuit", col, p, length, last_pos=p + length - 1)
-    for _ in range(spikes):
-        p = state.place(1)
+    for length in [1] * spikes + [int(rng.integers(2, MAX_SPIKE_SAMPLES + 1)) for _ in range(bursts)]:
+        p = state.place(length)
         col = sensor_cols[int(rng.integers(len(sensor_cols)))]
         size = spike_size["disp" if col == "disp_um" else "temp"] * (1 if rng.random() < 0.5 else -1)
-        values.iloc[p, values.columns.get_loc(col)] += size
-        state.record("spike", col, p, 1, last_pos=p, size=size)
+        values.iloc[p : p + length, values.columns.get_loc(col)] += size
+        state.record("spike", col, p, length, last_pos=p + length - 1, size=size)
 
 
 def _misorder_rows(state: _Injection, swaps: int, duplicates: int, duplicates_differ: int) -> None:
@@ -284,6 +288,7 @@ def inject_defects(
     duplicates_differ: int = 0,
     swaps: int = 0,
     spikes: int = 0,
+    bursts: int = 0,
     dropouts: int = 0,
     open_circuit: int = 0,
     gaps: int = 0,
@@ -308,6 +313,9 @@ def inject_defects(
         Adjacent rows written in the wrong order (one ``reordered`` event each).
     spikes : int
         Single-sample spikes (temperatures and ``disp_um``).
+    bursts : int
+        Spikes of 2..``rafi.method.clean_steps.MAX_SPIKE_SAMPLES`` consecutive samples, all
+        moved by the same amount (kind ``spike``, ``n_rows`` = their number).
     dropouts : int
         Runs of 1..``max_gap_s / period_s - 1`` empty values in one sensor
         (interpolable).
@@ -356,6 +364,7 @@ def inject_defects(
         dropouts=dropouts,
         open_circuit=open_circuit,
         spikes=spikes,
+        bursts=bursts,
         max_rows=max_rows,
         spike_size={"temp": 5.0, "disp": 15.0, **(spike_size or {})},
     )
