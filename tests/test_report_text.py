@@ -302,6 +302,7 @@ def test_cleaning_says_rows_read_and_rows_on_the_grid():
     assert "kept" not in text
     assert text.startswith("Cleaning read 32 026 rows and wrote 32 112 rows on the regular 15 s grid")
     assert "27 duplicate row(s) dropped" in text and "73 gap(s) bridged" in text
+    assert "40 spike value(s) replaced" in text  # values: a burst of three samples counts three
     (audit_t,) = html_tables(_section("data", data=d), "audit num")
     assert audit_t["headers"][1:3] == ["rows read", "rows on the grid"]
     assert [r[-1]["cls"] for r in audit_t["rows"]] == ["pass", "pass"]

@@ -103,7 +103,7 @@ def section_data(res: dict, period_s=None) -> dict:
             f"Cleaning read {fmt_num(totals['rows_in'], 0)} rows and wrote {fmt_num(totals['rows_out'], 0)} "
             f"rows on {grid}: {fmt_num(totals['duplicates_dropped'], 0)} duplicate row(s) dropped, "
             f"{fmt_num(totals['gaps_interpolated'], 0)} gap(s) bridged by interpolated grid rows, "
-            f"{fmt_num(totals['spikes_replaced'], 0)} spike(s) replaced, "
+            f"{fmt_num(totals['spikes_replaced'], 0)} spike value(s) replaced, "
             f"{fmt_num(totals['values_interpolated'], 0)} sensor value(s) interpolated."
         )
     roles = runs["role"].value_counts().to_dict() if runs is not None else {}
