@@ -80,3 +80,26 @@ def test_named_verdict_keeps_qualifys_rows_and_names_them():
     assert list(rows["run_id"]) == ["r1"] * 3 + ["r0"] * 3  # the summary's run order
     assert list(rows["passed"]) == [False, True, True, True, True, True]
     assert set(rows["model"]) == {"ridge_global"} and set(rows["model_id"]) == {"abc"}
+
+
+def test_a_sensor_dropout_in_a_validation_run_is_counted_per_model_and_named():
+    """T4 (not a key sensor) missing for 10 samples of one validation run: the ridge model, which
+    reads every sensor, gives no value there and says so; RAFI (T1-T3) compensates them."""
+    table, frame = _data()
+    run = table.loc[table["role"].str.startswith("validation"), "run_id"].iloc[0]
+    rows = frame.index[frame["run_id"] == run][20:30]
+    frame.loc[rows, "dT4"] = float("nan")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = _family(table, frame, enabled=ENABLED)
+    per_run = out["per_run"].set_index(["model", "run_id"])
+    n_run = int((frame["run_id"] == run).sum())
+    assert per_run.loc[("ridge_global", run), ["n_unpredicted", "unpredicted_inputs"]].tolist() == [10, "T4"]
+    assert per_run.loc[("ridge_global", run), "n_samples"] == n_run - 10
+    for name in ("rafi", "rafi_linear"):
+        assert per_run.loc[(name, run), "n_unpredicted"] == 0
+        assert per_run.loc[(name, run), "n_samples"] == n_run
+    summary = out["summary"].set_index("model")
+    assert summary.loc["ridge_global", "n_unpredicted"] == 10
+    assert summary.loc["ridge_global", "unpredicted_inputs"] == "T4"
+    assert summary.loc["rafi", "n_unpredicted"] == 0 and summary.loc["rafi", "unpredicted_inputs"] == ""

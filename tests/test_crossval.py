@@ -194,6 +194,8 @@ def test_golden_comparison_table():
     Regenerated in session 12 when the heat input became the default and ``speed_gain: cv`` offers
     ``dynamic`` no gain beside it: only the dynamic rows moved (worst case 0.1766 -> 0.1776 um, per
     run -0.007 to +0.005 um).
+    Regenerated in session 21: ``n_unpredicted`` / ``unpredicted_inputs`` appended (0 and empty: no
+    input is missing in these data); no other value moved.
     """
     table, frame = _golden_data()
     got = compare_models(_golden_models(table, frame), table, frame, GATES)
@@ -205,8 +207,9 @@ def test_golden_comparison_table():
         assert got[col].astype(str).tolist() == want[col].astype(str).tolist(), col
     for col in ["passed", "champion", "worse_than_uncompensated"]:
         assert got[col].astype(bool).tolist() == want[col].astype(bool).tolist(), col
-    for col in ["n_samples", "n_outside_temp_range", "n_outside_speed_range"]:
+    for col in ["n_samples", "n_outside_temp_range", "n_outside_speed_range", "n_unpredicted"]:
         assert got[col].astype(int).tolist() == want[col].astype(int).tolist(), col
+    assert got["unpredicted_inputs"].tolist() == want["unpredicted_inputs"].fillna("").tolist()
     for col in [
         "speed_rpm",
         "max_abs_before_um",

@@ -566,6 +566,29 @@ def test_comparison_lists_what_cross_validation_chose(tmp_path):
         assert f"<li><b>{m}</b>: {what}</li>" in html
 
 
+def test_samples_a_model_could_not_compensate_are_said_where_its_figures_are(tmp_path):
+    results = tmp_path / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    summary = pd.read_csv(results / "comparison" / "summary.csv")
+    per_run = pd.read_csv(results / "comparison" / "per_run.csv")
+    champion = str(summary.loc[summary["champion"].astype(bool), "model"].iloc[0])
+    run = str(per_run.loc[per_run["model"] == champion, "run_id"].iloc[0])
+    hit = (per_run["model"] == champion) & (per_run["run_id"] == run)
+    n_scored = int(per_run.loc[hit, "n_samples"].iloc[0])
+    per_run.assign(
+        n_unpredicted=hit.astype(int) * 86, unpredicted_inputs=hit.map({True: "T11", False: ""})
+    ).to_csv(results / "comparison" / "per_run.csv", index=False)
+    mine = summary["model"] == champion
+    summary.assign(
+        n_unpredicted=mine.astype(int) * 86, unpredicted_inputs=mine.map({True: "T11", False: ""})
+    ).to_csv(results / "comparison" / "summary.csv", index=False)
+    cfg, settings = _settings()
+    text = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
+    assert f"It gave no compensation on 86 samples of {run} (T11 had no value there)." in text
+    assert f"over the samples it compensated ({n_scored} of {n_scored + 86})" in text
+    assert f"No value where an input it reads was missing: {champion} on 86 samples (T11)." in text
+
+
 def test_machine_b_like_results_render_and_fit(tmp_path):
     results = tmp_path / "results" / "machining-center-b"
     _machine_b_like(FIXTURE, results)

@@ -360,6 +360,26 @@ def test_the_section_documents_the_champion_and_every_validation_run(data):
     assert section_deployed(res, _Figs(0), champion_after="f" * 64)["on_machine"] is False
 
 
+def test_the_section_says_where_the_offered_model_gave_no_compensation(data):
+    rule, table, frame = data
+    models = {k: _fit(k, rule, table, frame) for k in ("rafi", "grey_box")}
+    summ, per_run, cv, _ = _comparison_tables(models, table, frame, "grey_box")
+    res = {"comparison": summ, "comparison_per_run": per_run, "comparison_cv": cv}
+    res["best_model"] = models["grey_box"].to_dict()
+    assert section_deployed(res, _Figs(0))["unpredicted"] == []  # nothing missing: nothing said
+    per_run = per_run.assign(n_samples=100, n_unpredicted=0, unpredicted_inputs="")
+    mine = per_run.index[per_run["model"] == "grey_box"]
+    per_run.loc[mine[0], ["n_unpredicted", "unpredicted_inputs"]] = [7, "T11"]
+    per_run.loc[mine[-1], ["n_unpredicted", "unpredicted_inputs"]] = [3, float("nan")]  # as read from csv
+    per_run.loc[per_run.index[per_run["model"] == "rafi"][0], "n_unpredicted"] = 5  # another model's
+    d = section_deployed({**res, "comparison_per_run": per_run}, _Figs(0))
+    first, last = per_run.loc[mine[0], "run_id"], per_run.loc[mine[-1], "run_id"]
+    assert d["unpredicted"] == [
+        {"run_id": first, "n": 7, "n_scored": 100, "inputs": "T11"},
+        {"run_id": last, "n": 3, "n_scored": 100, "inputs": ""},
+    ]
+
+
 def test_the_section_names_the_sensors_a_ridge_model_leaves_out_and_why(data):
     rule, table, frame = data
     frame = frame.copy()

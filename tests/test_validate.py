@@ -94,6 +94,42 @@ def test_missing_samples_are_skipped_in_metrics():
     assert s["n_samples"] == 3 and s["max_abs_before_um"] == 3.5
     assert s["max_abs_after_um"] == 0.5
     assert residuals["predicted_um"].isna().sum() == 1
+    # the sample it could not compensate is counted and its missing input named
+    assert s["n_unpredicted"] == 1 and s["unpredicted_inputs"] == "T6"
+    others = summary.set_index("run_id").drop(index="good")
+    assert (others["n_unpredicted"] == 0).all() and (others["unpredicted_inputs"] == "").all()
+
+
+def test_unpredicted_inputs_name_what_the_model_reads_and_the_speed():
+    m, table, frame = hand_case()
+    frame["dT9"] = 0.0  # a sensor the model does not read
+    good = frame["run_id"] == "good"
+    frame.loc[good & (frame["t_s"] == 5.0), ["dT6", "dT9"]] = np.nan
+    frame.loc[good & (frame["t_s"] == 10.0), "speed_rpm"] = np.nan
+    frame.loc[good & (frame["t_s"] == 15.0), "dz_um"] = np.nan  # no measurement: not counted
+    frame.loc[good & (frame["t_s"] == 15.0), "dT6"] = np.nan
+    s = validate_runs(m, table, frame)[0].set_index("run_id").loc["good"]
+    assert s["n_samples"] == 1 and s["n_unpredicted"] == 2
+    assert s["unpredicted_inputs"] == "T6, speed"  # T9 is missing too, but the model does not read it
+
+
+class _Opaque:
+    """A model that does not say which sensors it reads: every rise with no value is named."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    def predict_detail(self, frame):
+        return self.inner.predict_detail(frame)
+
+
+def test_a_model_that_does_not_name_its_sensors_gets_every_missing_rise():
+    m, table, frame = hand_case()
+    frame["dT9"] = 0.0
+    good = frame["run_id"] == "good"
+    frame.loc[good & (frame["t_s"] == 5.0), ["dT6", "dT9"]] = np.nan
+    s = validate_runs(_Opaque(m), table, frame)[0].set_index("run_id").loc["good"]
+    assert s["n_unpredicted"] == 1 and s["unpredicted_inputs"] == "T6, T9"
 
 
 def test_qualify_verdict_every_gate_on_every_run():

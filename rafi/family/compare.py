@@ -184,6 +184,8 @@ COMPARISON_COLUMNS = [
     "rmse_after_um",
     "n_outside_temp_range",
     "n_outside_speed_range",
+    "n_unpredicted",
+    "unpredicted_inputs",
     "worse_than_uncompensated",
     "passed",
     "verdict",
@@ -271,7 +273,8 @@ def compare_models(
         validation run, and one ``scope == "model"`` row per model with the worst case over
         every validation run, idle cool-downs included (``max_abs_after_um`` = worst max
         residual, ``improvement_pct`` = minimum over the runs, ``rmse_after_um`` = worst,
-        counts summed, ``passed`` = every gate of every run passed, ``verdict`` pass/fail,
+        counts summed, ``unpredicted_inputs`` the runs' inputs without a value, each once,
+        ``passed`` = every gate of every run passed, ``verdict`` pass/fail,
         ``noise_sigma_um`` / ``noise_floor_um`` of the run with the worst residual,
         ``coverage`` / ``interval_width_um`` pooled over every validation sample).
     residuals : pandas.DataFrame (only with ``return_residuals=True``)
@@ -317,6 +320,8 @@ def compare_models(
                         "rmse_after_um": float(s["rmse_after_um"].max()) if len(s) else np.nan,
                         "n_outside_temp_range": int(s["n_outside_temp_range"].sum()),
                         "n_outside_speed_range": int(s["n_outside_speed_range"].sum()),
+                        "n_unpredicted": int(s["n_unpredicted"].sum()),
+                        "unpredicted_inputs": _joined_inputs(s["unpredicted_inputs"]),
                         "worse_than_uncompensated": bool(s["worse_than_uncompensated"].any()),
                         "passed": overall,
                         "verdict": "pass" if overall else "fail",
@@ -337,6 +342,12 @@ def compare_models(
     if return_verdict:
         extras.append(stacked_verdicts(verdict_parts))
     return (out, *extras) if extras else out
+
+
+def _joined_inputs(per_run: pd.Series) -> str:
+    """The inputs of every run's ``unpredicted_inputs`` (``"T8, T11"``), each once, in order."""
+    names = [n for text in per_run.fillna("").astype(str) for n in text.split(", ") if n]
+    return ", ".join(dict.fromkeys(names))
 
 
 def _pooled_coverage(residuals: pd.DataFrame) -> dict:

@@ -12,6 +12,10 @@ leak). Per run, over the samples where both ``dz_um`` and the prediction exist:
   if ``before`` is 0),
 * ``rmse_before_um`` / ``rmse_after_um``, ``n_samples``, ``n_outside_temp_range``,
   ``n_outside_speed_range``, ``worse_than_uncompensated`` (``after > before``),
+* ``n_unpredicted``: samples with a measured ``dz`` where the model gives no value (an input it
+  reads is missing there: a sensor's dropout, a missing speed), left out of every figure above;
+  ``unpredicted_inputs``: the inputs with no value on those samples (``"T11"``, ``"T8, speed"``;
+  ``""`` when there are none), so a figure over fewer samples than the run has says why;
 * ``paper_residual_um``: paper Table 4 for ``validation_single`` runs whose speed is
   within 50 r/min of a Table 4 speed, else NaN;
 * ``noise_sigma_um`` / ``noise_floor_um``: the white-noise sigma of the run's ``dz`` and the
@@ -85,6 +89,8 @@ SUMMARY_COLUMNS = [
     "n_samples",
     "n_outside_temp_range",
     "n_outside_speed_range",
+    "n_unpredicted",
+    "unpredicted_inputs",
     "worse_than_uncompensated",
     "paper_residual_um",
     "noise_sigma_um",
@@ -108,7 +114,36 @@ RESIDUAL_COLUMNS = [
 VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
 
 
-def _run_summary(run_id, role, speed, duration, detail, measured, t_s, bounds) -> dict:
+def _input_sensors(model) -> list[str] | None:
+    """The temperature sensors ``model`` reads (RAFI's key sensors, a ridge model's ``sensors_``),
+    or ``None`` when it does not say."""
+    for name in ("key_sensors", "sensors_"):
+        sensors = getattr(model, name, None)
+        if sensors is not None:
+            return [str(s) for s in sensors]
+    return None
+
+
+def _unpredicted_inputs(sub: pd.DataFrame, missing: np.ndarray, sensors: list[str] | None) -> str:
+    """The inputs with no value on the rows ``missing`` of the run frame ``sub``: each sensor of
+    ``sensors`` (every rise column ``dT..`` of the frame when ``None``) whose rise is NaN on at
+    least one of them, then ``speed`` if the speed is; joined by ``", "``."""
+    if not missing.any():
+        return ""
+    if sensors is None:
+        sensors = [c[1:] for c in sub.columns if c.startswith("dT") and c[2:].isdigit()]
+    names = [
+        s
+        for s in sensors
+        if f"d{s}" in sub.columns
+        and np.isnan(sub[f"d{s}"].to_numpy(dtype=float, na_value=np.nan)[missing]).any()
+    ]
+    if np.isnan(sub["speed_rpm"].to_numpy(dtype=float, na_value=np.nan)[missing]).any():
+        names.append("speed")
+    return ", ".join(names)
+
+
+def _run_summary(run_id, role, speed, duration, detail, measured, t_s, bounds, unpredicted="") -> dict:
     pred = detail["predicted_um"].to_numpy(dtype=float)
     resid = measured - pred
     ok = np.isfinite(measured) & np.isfinite(pred)
@@ -144,6 +179,8 @@ def _run_summary(run_id, role, speed, duration, detail, measured, t_s, bounds) -
         "n_samples": n,
         "n_outside_temp_range": int(detail["outside_temp_range"].to_numpy()[ok].sum()),
         "n_outside_speed_range": int(detail["outside_speed_range"].to_numpy()[ok].sum()),
+        "n_unpredicted": int((np.isfinite(measured) & ~np.isfinite(pred)).sum()),
+        "unpredicted_inputs": unpredicted,
         "worse_than_uncompensated": bool(n and after > before),
         "paper_residual_um": paper,
         "noise_sigma_um": sigma,
@@ -234,6 +271,7 @@ def validate_runs(
     roles = runs_table["role"].astype(str)
     val = runs_table.loc[roles.str.startswith("validation")]
     rows, parts = [], []
+    sensors = _input_sensors(model)
     if len(val):
         frame = time_ordered(runs_frame)
         whole = model.predict_detail(frame).reset_index(drop=True)
@@ -255,12 +293,21 @@ def validate_runs(
         if pd.isna(speed) and len(sub):
             speed = np.nanmedian(sub["speed_rpm"].to_numpy(dtype=float, na_value=np.nan))
         speed = float(speed)
+        pred = detail["predicted_um"].to_numpy(dtype=float)
+        missing = np.isfinite(measured) & ~np.isfinite(pred)
         rows.append(
             _run_summary(
-                run_id, str(run["role"]), speed, run.get("duration_s"), detail, measured, t_s, bounds
+                run_id,
+                str(run["role"]),
+                speed,
+                run.get("duration_s"),
+                detail,
+                measured,
+                t_s,
+                bounds,
+                _unpredicted_inputs(sub, missing, sensors),
             )
         )
-        pred = detail["predicted_um"].to_numpy(dtype=float)
         parts.append(
             pd.DataFrame(
                 {
@@ -292,6 +339,8 @@ def validate_runs(
             "n_samples": "int64",
             "n_outside_temp_range": "int64",
             "n_outside_speed_range": "int64",
+            "n_unpredicted": "int64",
+            "unpredicted_inputs": "object",
             "worse_than_uncompensated": "bool",
         }
     )

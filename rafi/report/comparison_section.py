@@ -380,6 +380,22 @@ def champion_beside_rafi(frames: dict, champion, on_machine) -> dict | None:
     }
 
 
+def unpredicted_models(summary: pd.DataFrame) -> list[dict]:
+    """The models of ``summary.csv`` that gave no value on some measured validation samples:
+    ``model``, ``n`` (``n_unpredicted``) and ``inputs`` (``unpredicted_inputs``, may be ``""``)."""
+    if "n_unpredicted" not in summary.columns:
+        return []
+    rows = summary[summary["n_unpredicted"].fillna(0) > 0]
+    return [
+        {
+            "model": str(r["model"]),
+            "n": int(r["n_unpredicted"]),
+            "inputs": "" if pd.isna(r.get("unpredicted_inputs")) else str(r.get("unpredicted_inputs")),
+        }
+        for r in rows.to_dict("records")
+    ]
+
+
 def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict | None:
     """Section 9: the family's summary, per-run table, figures and why RAFI fails where it does.
 
@@ -402,9 +418,10 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         kind), ``selection`` (:func:`selection_context`), ``selected`` (``(model, what CV
         chose)``), ``forward`` (some model has a forward CV score), ``cv`` (the first model's
         :func:`_cv_stats`: whole-run ``scheme`` and ``folds``, ``forward_scheme``,
-        ``forward_folds``, ``horizon``), ``run_models`` and ``per_run``
-        (:func:`per_run_rows`), ``figure_bars``, ``rafi_fail`` (:func:`rafi_failure` with
-        ``champion``: :func:`champion_beside_rafi`) and ``figures_resid``; the interval:
+        ``forward_folds``, ``horizon``), ``unpredicted`` (:func:`unpredicted_models`),
+        ``run_models`` and ``per_run`` (:func:`per_run_rows`), ``figure_bars``, ``rafi_fail``
+        (:func:`rafi_failure` with ``champion``: :func:`champion_beside_rafi`) and
+        ``figures_resid``; the interval:
         ``coverage`` (summary.csv has it), ``run_coverage`` (per_run.csv has it), ``band``
         (residuals.parquet has it) and ``interval_label`` (``90 % interval``).
     """
@@ -434,6 +451,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
             if "selected" in s and isinstance(r.get("selected"), str) and r["selected"]
         ],
         "cv": next(iter(cvs.values())) if cvs else None,
+        "unpredicted": unpredicted_models(s),
         "run_models": [],
         "per_run": None,
         "figure_bars": None,

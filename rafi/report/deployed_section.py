@@ -309,6 +309,24 @@ def _validation_rows(per_run: pd.DataFrame | None, name: str) -> list[dict] | No
     ]
 
 
+def unpredicted_rows(per_run: pd.DataFrame | None, name: str) -> list[dict]:
+    """The validation runs on which model ``name`` gave no value for some measured samples
+    (``per_run.csv``'s ``n_unpredicted`` > 0): ``run_id``, ``n`` (those samples), ``n_scored``
+    (the samples its figures are over) and ``inputs`` (what had no value there, may be ``""``)."""
+    if per_run is None or not len(per_run) or "n_unpredicted" not in per_run.columns:
+        return []
+    rows = per_run[(per_run["model"].astype(str) == name) & (per_run["n_unpredicted"].fillna(0) > 0)]
+    return [
+        {
+            "run_id": str(r["run_id"]),
+            "n": int(r["n_unpredicted"]),
+            "n_scored": int(r["n_samples"]),
+            "inputs": "" if pd.isna(r.get("unpredicted_inputs")) else str(r.get("unpredicted_inputs")),
+        }
+        for r in rows.to_dict("records")
+    ]
+
+
 def sensors_left_out_text(art: dict, runs_table, runs_frame) -> str:
     """The sensors of the data a ridge artefact does not read, each with the reason
     (:func:`rafi.family.features.sensors_left_out` on the rows its fit used), e.g.
@@ -418,6 +436,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "worst": fmt_num(row.get("max_abs_after_um"), 2, UM),
         "worst_noise": fmt_num(row.get("noise_floor_um"), 2, UM),
         "validation": validation,
+        "unpredicted": unpredicted_rows(res.get("comparison_per_run"), name),
         "n_runs": len(validation or []),
         "figures": figures,
         "on_machine": on_machine,
