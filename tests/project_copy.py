@@ -43,7 +43,7 @@ def copy_settled(src: Path, dst: Path) -> Path:
     return settle(dst)
 
 
-def _in_project(proj: Path, module: str, args, timeout: float) -> subprocess.CompletedProcess:
+def run_module(proj: Path, module: str, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
     """``python -m module *args`` in ``proj``, the project's frozen ``rafi/`` first on the path;
     output captured."""
     env = {
@@ -57,14 +57,14 @@ def _in_project(proj: Path, module: str, args, timeout: float) -> subprocess.Com
 def run_rafi(proj: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:
     """``rafi *args`` in ``proj``, with the project's frozen ``rafi/`` first on the path; output
     captured."""
-    return _in_project(proj, "rafi.cli", args, timeout)
+    return run_module(proj, "rafi.cli", *args, timeout=timeout)
 
 
 def run_snakemake(
     proj: Path, *args: str, cores: int = 1, timeout: float = 600
 ) -> subprocess.CompletedProcess:
     """``snakemake --cores cores *args`` in ``proj`` (:func:`run_rafi`'s path and capture)."""
-    return _in_project(proj, "snakemake", ("--cores", str(cores), *args), timeout)
+    return run_module(proj, "snakemake", "--cores", str(cores), *args, timeout=timeout)
 
 
 def run_nightly(proj: Path, *args: str, timeout: float = 900) -> subprocess.CompletedProcess:

@@ -11,13 +11,11 @@ from __future__ import annotations
 import json
 import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from project_copy import copy_project
+from project_copy import copy_project, run_module
 
 from rafi.artefact import write_csv_atomic
 from rafi.method.audit import quarantined, summarise_audit, warning_rows, with_warnings
@@ -241,16 +239,6 @@ def test_confirmation_is_case_sensitive_and_uses_the_file_name_only():
 # --------------------------------------------------------------------------- the real workflow
 
 
-def _run(proj: Path, *cmd: str) -> subprocess.CompletedProcess:
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([str(proj), *filter(None, [os.environ.get("PYTHONPATH")])]),
-    }
-    return subprocess.run(
-        [sys.executable, "-m", *cmd], cwd=proj, env=env, capture_output=True, text=True, timeout=900
-    )
-
-
 def _reversed_copy(src: Path, dst: Path) -> None:
     """``src`` with the sign of disp_um flipped (a probe mounted the other way)."""
     lines = src.read_text(encoding="utf-8").splitlines()
@@ -280,7 +268,7 @@ def test_the_workflow_lists_warnings_and_leaves_out_a_duplicate(tmp_path):
     res = proj / "results" / A
     target = f"results/{A}/runs.csv"
 
-    first = _run(proj, "snakemake", "--cores", "2", "--config", "on_bad_input=quarantine", "--", target)
+    first = run_module(proj, "snakemake", "--cores", "2", "--config", "on_bad_input=quarantine", "--", target)
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
     status = json.loads((res / "input_status.json").read_text())
     assert status["status"] == "usable" and "train_09000rpm_copy.csv" not in status["usable"]
@@ -306,7 +294,9 @@ def test_the_workflow_lists_warnings_and_leaves_out_a_duplicate(tmp_path):
     )
     (proj / "config.yaml").write_text(config, encoding="utf-8")
     runs_before = (res / "runs.csv").stat().st_mtime_ns
-    second = _run(proj, "snakemake", "--cores", "2", "--config", "on_bad_input=quarantine", "--", target)
+    second = run_module(
+        proj, "snakemake", "--cores", "2", "--config", "on_bad_input=quarantine", "--", target
+    )
     assert second.returncode == 0, second.stdout[-3000:] + second.stderr[-3000:]
     assert json.loads((res / "input_status.json").read_text())["warnings"][0]["confirmed"] is True
     assert (res / "runs.csv").stat().st_mtime_ns == runs_before
@@ -314,7 +304,7 @@ def test_the_workflow_lists_warnings_and_leaves_out_a_duplicate(tmp_path):
     # a clean table that cannot be read: its file is left out of runs, the rule does not fail
     (res / "clean" / "train_15000rpm.parquet").write_bytes(b"not a parquet file")
     os.utime(res / "input_status.json")  # runs must run again
-    third = _run(
+    third = run_module(
         proj, "snakemake", "--cores", "2", "--config", "on_bad_input=quarantine", "-R", "method", "--", target
     )
     assert third.returncode == 0, third.stdout[-3000:] + third.stderr[-3000:]

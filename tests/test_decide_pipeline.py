@@ -10,15 +10,12 @@ champion stays.
 from __future__ import annotations
 
 import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from project_copy import copy_project
+from project_copy import copy_project, run_snakemake
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = "tapping-center-a"
@@ -28,18 +25,7 @@ pytestmark = pytest.mark.slow
 
 
 def _night(proj: Path) -> dict:
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")])),
-    }
-    done = subprocess.run(
-        [sys.executable, "-m", "snakemake", "--cores", "1", "nightly", "--config", "nightly_report=false"],
-        cwd=proj,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=900,
-    )
+    done = run_snakemake(proj, "nightly", "--config", "nightly_report=false", timeout=900)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return json.loads((proj / "results" / MACHINE / "registry" / "decision.json").read_text())
 

@@ -11,14 +11,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
-from project_copy import copy_project, copy_settled, settle
+from project_copy import copy_project, copy_settled, run_module, settle
 
 from rafi.artefact import write_csv_atomic
 from rafi.method.audit import quarantined, summarise_audit
@@ -195,18 +193,8 @@ def _sha(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-def _run(proj: Path, *cmd: str) -> subprocess.CompletedProcess:
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([str(proj), *filter(None, [os.environ.get("PYTHONPATH")])]),
-    }
-    return subprocess.run(
-        [sys.executable, "-m", *cmd], cwd=proj, env=env, capture_output=True, text=True, timeout=900
-    )
-
-
 def _nightly(proj: Path) -> subprocess.CompletedProcess:
-    return _run(proj, "rafi.cli", "nightly", "--directory", str(proj), "--cores", "2", "--no-report")
+    return run_module(proj, "rafi.cli", "nightly", "--directory", str(proj), "--cores", "2", "--no-report")
 
 
 @pytest.fixture
@@ -229,7 +217,7 @@ def test_a_machine_without_a_usable_file_is_skipped_and_the_others_finish(projec
 
     # a plain quarantine run: the good machine gets its report, the broken one its page, and
     # the end of the run says that input was rejected
-    first = _run(project, "snakemake", "--cores", "2", "--config", "on_bad_input=quarantine")
+    first = run_module(project, "snakemake", "--cores", "2", "--config", "on_bad_input=quarantine")
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
     assert (rep / GOOD / "qualification.html").is_file()
     assert json.loads((res / GOOD / "registry" / "decision.json").read_text())["decision"] == "promoted"
@@ -253,9 +241,9 @@ def test_a_machine_without_a_usable_file_is_skipped_and_the_others_finish(projec
     assert {p: _sha(p) for p in raw_before} == raw_before
 
     # nothing to do afterwards; the interactive (fail) mode still refuses the quarantined files
-    dry = _run(project, "snakemake", "--cores", "2", "-n", "--config", "on_bad_input=quarantine")
+    dry = run_module(project, "snakemake", "--cores", "2", "-n", "--config", "on_bad_input=quarantine")
     assert "Nothing to be done" in dry.stdout + dry.stderr, dry.stdout[-3000:] + dry.stderr[-3000:]
-    strict = _run(project, "snakemake", "--cores", "2", "-n")
+    strict = run_module(project, "snakemake", "--cores", "2", "-n")
     assert strict.returncode != 0 and "2 raw file(s) cannot be used" in strict.stdout + strict.stderr
 
     # rafi nightly: nothing new, but input is rejected: exit 4, the broken machine named
@@ -291,7 +279,7 @@ def test_a_machine_without_a_usable_file_is_skipped_and_the_others_finish(projec
     assert f"{BROKEN}: SKIPPED" in night.stdout and f"champion {champion[:12]} stays" in night.stdout
     assert {p.name: _sha(p) for p in reg.rglob("*") if p.is_file()} == registry_before
     assert (rep / BROKEN / "skipped.html").is_file()
-    again = _run(
+    again = run_module(
         project,
         "snakemake",
         "-n",
@@ -306,7 +294,7 @@ def test_a_machine_without_a_usable_file_is_skipped_and_the_others_finish(projec
 
 @pytest.mark.slow
 def test_fail_mode_still_stops_at_the_bad_file(project: Path):
-    run = _run(project, "snakemake", "--cores", "2")
+    run = run_module(project, "snakemake", "--cores", "2")
     assert run.returncode != 0
     said = run.stdout + run.stderr
     # the first bad file a job reads stops the run (which one depends on the job order)

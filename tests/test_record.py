@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from project_copy import ROOT, copy_project
+from project_copy import ROOT, copy_project, run_snakemake
 
 from rafi import SENSORS
 from rafi.cli import main
@@ -620,14 +620,7 @@ def test_record_a_twin_log_from_opc_ua_and_qualify_it_with_snakemake(server, tmp
     assert np.isnan(got).sum() == 4 and rec["disp_um"].isna().sum() == 1  # bad status: missing
 
     # snakemake qualifies it: checked, cleaned, split into a validation run and scored
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")])),
-    }
-    done = subprocess.run(
-        [sys.executable, "-m", "snakemake", "--cores", "2", "tables", "-q"],
-        cwd=proj, env=env, capture_output=True, text=True, timeout=600,
-    )  # fmt: skip
+    done = run_snakemake(proj, "tables", "-q", cores=2)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     results = proj / "results" / MACHINE
     audit = pd.read_csv(results / "audit.csv").set_index("file")

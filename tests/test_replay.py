@@ -11,16 +11,13 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import shutil
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
-from project_copy import copy_project
+from project_copy import copy_project, run_module
 from test_compensator import WINDOW, _find_runs, _fit, _in_window, _logs
 
 from rafi.deploy.limits import Limits
@@ -314,16 +311,6 @@ MACHINE = "tapping-center-a"
 KEEP = ("train_03000rpm", "train_09000rpm", "train_15000rpm", "multi_condition")
 
 
-def _run(proj, *args):
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")])),
-    }
-    return subprocess.run(
-        [sys.executable, "-m", *args], cwd=proj, env=env, capture_output=True, text=True, timeout=600
-    )
-
-
 @pytest.mark.slow
 def test_rule_replay_and_rafi_replay_on_a_trimmed_project(tmp_path):
     """The real Snakefile builds deploy/replay.* (byte-identical on a forced rerun); ``rafi replay``
@@ -335,7 +322,7 @@ def test_rule_replay_and_rafi_replay_on_a_trimmed_project(tmp_path):
     for stem in KEEP:
         shutil.copy2(ROOT / "raw" / MACHINE / f"{stem}.csv", raw / f"{stem}.csv")
     target = f"results/{MACHINE}/deploy/replay_summary.csv"
-    done = _run(proj, "snakemake", "--cores", "2", target)
+    done = run_module(proj, "snakemake", "--cores", "2", target)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     deploy = proj / "results" / MACHINE / "deploy"
     table, summary = pd.read_parquet(deploy / "replay.parquet"), pd.read_csv(deploy / "replay_summary.csv")
@@ -346,11 +333,11 @@ def test_rule_replay_and_rafi_replay_on_a_trimmed_project(tmp_path):
     best = json.loads((proj / "results" / MACHINE / "comparison" / "best_model.json").read_text())
     assert summary["model_id"].iloc[0] == best["model_id"]
     first = {p.name: p.read_bytes() for p in deploy.iterdir()}
-    done = _run(proj, "snakemake", "--cores", "2", "--forcerun", "replay", target)
+    done = run_module(proj, "snakemake", "--cores", "2", "--forcerun", "replay", target)
     assert done.returncode == 0 and "replay" in done.stderr, done.stderr[-3000:]
     assert {p.name: p.read_bytes() for p in deploy.iterdir()} == first
 
-    done = _run(proj, "rafi.cli", "replay", "--machine", MACHINE, "--out", "cli")
+    done = run_module(proj, "rafi.cli", "replay", "--machine", MACHINE, "--out", "cli")
     assert done.returncode == 0, done.stderr
     assert (
         f"multi_condition: {len(table)} samples" in done.stdout
@@ -363,12 +350,12 @@ def test_rule_replay_and_rafi_replay_on_a_trimmed_project(tmp_path):
     assert list(cli["status"]) == list(table["status"])
     pd.testing.assert_frame_equal(pd.read_csv(proj / "cli" / "summary.csv"), summary)
 
-    done = _run(proj, "rafi.cli", "replay", "--machine", MACHINE, "--run", "nope")
+    done = run_module(proj, "rafi.cli", "replay", "--machine", MACHINE, "--run", "nope")
     assert done.returncode == 64 and "unknown run id(s) nope; runs.csv has: multi_condition" in done.stderr
     assert len(done.stderr.strip().splitlines()) == 1
-    done = _run(proj, "rafi.cli", "replay", "--machine", "machining-center-b")
+    done = run_module(proj, "rafi.cli", "replay", "--machine", "machining-center-b")
     assert done.returncode == 64 and "run `snakemake --cores 2 tables` first" in done.stderr
-    done = _run(proj, "rafi.cli", "replay", "--machine", "nosuch")
+    done = run_module(proj, "rafi.cli", "replay", "--machine", "nosuch")
     assert done.returncode == 64 and done.stderr.startswith(
         "rafi replay: unknown machine nosuch; config.yaml has:"
     )

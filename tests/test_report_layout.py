@@ -31,10 +31,8 @@ run drawn again.
 
 from __future__ import annotations
 
-import os
 import re
 import subprocess
-import sys
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -42,7 +40,7 @@ import pytest
 from conftest import which_or_skip
 
 from rafi.report import plot_layout
-from tests.project_copy import copy_project, copy_settled
+from tests.project_copy import copy_project, copy_settled, run_snakemake
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINES = ("tapping-center-a", "machining-center-b")
@@ -356,18 +354,7 @@ def pipeline(tmp_path_factory):
             if machine != "tapping-center-a" or keep.search(f.name):
                 copy_settled(f, proj / "raw" / machine / f.name)
     targets = [f"reports/{m}/qualification.pdf" for m in MACHINES]
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join(filter(None, [str(proj), os.environ.get("PYTHONPATH")])),
-    }
-    done = subprocess.run(
-        [sys.executable, "-m", "snakemake", *targets, "--cores", "2"],
-        cwd=proj,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=1200,
-    )
+    done = run_snakemake(proj, *targets, cores=2, timeout=1200)
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     return proj
 

@@ -11,30 +11,16 @@ Here, on a trimmed copy of the shipped data with the real Snakefile:
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
-from project_copy import copy_project, copy_settled
+from project_copy import copy_project, copy_settled, run_module
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = "tapping-center-a"
 KEEP = ("train_03000rpm", "train_09000rpm", "train_15000rpm", "valid_04500rpm", "multi_condition")
 
 pytestmark = pytest.mark.slow
-
-
-def _env(proj: Path) -> dict:
-    path = os.pathsep.join([str(proj), *filter(None, [os.environ.get("PYTHONPATH")])])
-    return {**os.environ, "PYTHONPATH": path}
-
-
-def _run(proj: Path, *cmd: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", *cmd], cwd=proj, env=_env(proj), capture_output=True, text=True, timeout=900
-    )
 
 
 def _outputs(proj: Path) -> dict[str, int]:
@@ -68,7 +54,7 @@ def _check_snakemake_report(proj: Path) -> None:
     """`snakemake --report` of a finished run lists the qualification reports and the key
     tables with their captions, and changes no output (issue 15)."""
     before = _outputs(proj)
-    done = _run(proj, "snakemake", "--report", "report.html")
+    done = run_module(proj, "snakemake", "--report", "report.html")
     assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
     assert "ERROR" not in done.stderr, done.stderr[-3000:]  # docutils errors in a caption
     html = (proj / "report.html").read_text(encoding="utf-8")
@@ -88,17 +74,17 @@ def project(tmp_path: Path) -> Path:
 
 
 def test_snakemake_then_nightly_then_snakemake_rerun_nothing(project: Path):
-    first = _run(project, "snakemake", "--cores", "2")
+    first = run_module(project, "snakemake", "--cores", "2")
     assert first.returncode == 0, first.stdout[-3000:] + first.stderr[-3000:]
     built = _outputs(project)
     assert f"reports/{MACHINE}/qualification.html" in built
     _check_snakemake_report(project)
 
-    night = _run(project, "rafi.cli", "nightly", "--directory", str(project), "--cores", "2")
+    night = run_module(project, "rafi.cli", "nightly", "--directory", str(project), "--cores", "2")
     assert night.returncode in (0, 4), night.stdout[-3000:] + night.stderr[-3000:]
     assert _outputs(project) == built, "rafi nightly with nothing new rewrote outputs"
 
-    again = _run(project, "snakemake", "--cores", "2", "-n")
+    again = run_module(project, "snakemake", "--cores", "2", "-n")
     assert again.returncode == 0, again.stderr[-3000:]
     assert "Nothing to be done" in again.stdout + again.stderr, again.stdout[-3000:]
 
@@ -106,9 +92,9 @@ def test_snakemake_then_nightly_then_snakemake_rerun_nothing(project: Path):
     copy_settled(
         ROOT / "raw" / MACHINE / "valid_13500rpm.csv", project / "raw" / MACHINE / "valid_13500rpm.csv"
     )
-    night = _run(project, "rafi.cli", "nightly", "--directory", str(project), "--cores", "2")
+    night = run_module(project, "rafi.cli", "nightly", "--directory", str(project), "--cores", "2")
     assert night.returncode in (0, 4), night.stdout[-3000:] + night.stderr[-3000:]
     assert f"results/{MACHINE}/clean/valid_13500rpm.parquet" in _outputs(project)
-    after_night = _run(project, "snakemake", "--cores", "2", "-n")
+    after_night = run_module(project, "snakemake", "--cores", "2", "-n")
     assert after_night.returncode == 0, after_night.stderr[-3000:]
     assert "Nothing to be done" in after_night.stdout + after_night.stderr, after_night.stdout[-3000:]

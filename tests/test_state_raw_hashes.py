@@ -10,7 +10,6 @@ import json
 import os
 import shutil
 import subprocess
-import sys
 import tempfile
 from pathlib import Path
 
@@ -22,7 +21,7 @@ from rafi.ops import nightly as N
 from rafi.ops import raw_hashes as H
 from rafi.ops.project import Paths
 from rafi.ops.state import fingerprint
-from tests.project_copy import copy_project
+from tests.project_copy import copy_project, run_snakemake
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = "tapping-center-a"
@@ -184,13 +183,7 @@ def _clean_targets(machine: str, stems: list[str]) -> list[str]:
 
 
 def _snakemake(proj: Path, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "snakemake", "--cores", "1", *args],
-        cwd=proj,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    return run_snakemake(proj, *args)
 
 
 def test_snakemake_reruns_the_clean_job_of_a_file_edited_with_its_mtime_kept(tmp_path):

@@ -11,9 +11,6 @@ model from run_family (docs/models.md, "Time-blocked folds").
 from __future__ import annotations
 
 import json
-import os
-import subprocess
-import sys
 import warnings
 
 import numpy as np
@@ -21,7 +18,7 @@ import pandas as pd
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from project_copy import copy_project
+from project_copy import copy_project, run_snakemake
 
 from rafi.family.compare import cv_data, run_family
 from rafi.family.crossval import GUARD, HELD_OUT, cross_validate, hold_out, split_runs, training_runs
@@ -411,15 +408,7 @@ def test_the_pipeline_offers_a_model_chosen_on_time_blocks_for_a_single_run_log(
     table = log[[f"T{i}" for i in range(1, 17)]].round(3).assign(**{"Z [um]": log["disp_um"].round(3)})
     (proj / "raw" / "spindle-d").mkdir(parents=True)
     table.to_csv(proj / "raw" / "spindle-d" / "spindle_44h.csv", sep=";", index=False)
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(proj), os.environ.get("PYTHONPATH", "")])}
-    done = subprocess.run(
-        [sys.executable, "-m", "snakemake", "--cores", "2"],
-        cwd=proj,
-        env=env,
-        capture_output=True,
-        text=True,
-        timeout=600,
-    )
+    done = run_snakemake(proj, cores=2)
     assert done.returncode == 0, done.stderr[-3000:]
     out = proj / "results" / "spindle-d" / "comparison"
     runs = pd.read_csv(proj / "results" / "spindle-d" / "runs.csv")

@@ -20,12 +20,12 @@ import os
 import re
 import shutil
 import subprocess
-import sys
 from pathlib import Path
 
 import pandas as pd
 import pytest
 import yaml
+from project_copy import run_snakemake
 
 from rafi.settings import deep_merge, machine_settings
 
@@ -187,12 +187,7 @@ def pick_files(config: dict) -> list[Path]:
 
 def snakemake(cwd: Path, *args: str) -> subprocess.CompletedProcess:
     """Run Snakemake in ``cwd`` with the frozen copy of the rafi package found first."""
-    cmd = [sys.executable, "-m", "snakemake", "--cores", "2", *args]
-    env = {
-        **os.environ,
-        "PYTHONPATH": os.pathsep.join([str(cwd), *filter(None, [os.environ.get("PYTHONPATH")])]),
-    }
-    return subprocess.run(cmd, cwd=cwd, env=env, capture_output=True, text=True, timeout=600)
+    return run_snakemake(cwd, *args, cores=2)
 
 
 def job_counts(output: str) -> dict[str, int]:
