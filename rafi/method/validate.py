@@ -143,10 +143,11 @@ def _unpredicted_inputs(sub: pd.DataFrame, missing: np.ndarray, sensors: list[st
     return ", ".join(names)
 
 
-def _run_summary(run_id, role, speed, duration, detail, measured, t_s, bounds, unpredicted="") -> dict:
+def _run_summary(run_id, role, speed, duration, detail, measured, t_s, bounds, sub, sensors) -> dict:
     pred = detail["predicted_um"].to_numpy(dtype=float)
     resid = measured - pred
     ok = np.isfinite(measured) & np.isfinite(pred)
+    unpredicted = np.isfinite(measured) & ~np.isfinite(pred)
     n = int(ok.sum())
     if n:
         before = float(np.max(np.abs(measured[ok])))
@@ -179,8 +180,8 @@ def _run_summary(run_id, role, speed, duration, detail, measured, t_s, bounds, u
         "n_samples": n,
         "n_outside_temp_range": int(detail["outside_temp_range"].to_numpy()[ok].sum()),
         "n_outside_speed_range": int(detail["outside_speed_range"].to_numpy()[ok].sum()),
-        "n_unpredicted": int((np.isfinite(measured) & ~np.isfinite(pred)).sum()),
-        "unpredicted_inputs": unpredicted,
+        "n_unpredicted": int(unpredicted.sum()),
+        "unpredicted_inputs": _unpredicted_inputs(sub, unpredicted, sensors),
         "worse_than_uncompensated": bool(n and after > before),
         "paper_residual_um": paper,
         "noise_sigma_um": sigma,
@@ -293,8 +294,6 @@ def validate_runs(
         if pd.isna(speed) and len(sub):
             speed = np.nanmedian(sub["speed_rpm"].to_numpy(dtype=float, na_value=np.nan))
         speed = float(speed)
-        pred = detail["predicted_um"].to_numpy(dtype=float)
-        missing = np.isfinite(measured) & ~np.isfinite(pred)
         rows.append(
             _run_summary(
                 run_id,
@@ -305,9 +304,11 @@ def validate_runs(
                 measured,
                 t_s,
                 bounds,
-                _unpredicted_inputs(sub, missing, sensors),
+                sub,
+                sensors,
             )
         )
+        pred = detail["predicted_um"].to_numpy(dtype=float)
         parts.append(
             pd.DataFrame(
                 {
