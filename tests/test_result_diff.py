@@ -52,3 +52,19 @@ def test_report_tokens_mask_figures_ids_and_times():
     a = report_tokens("<p>id 0123456789abcdef at 2026-01-01T00:00:00Z</p><svg><path d='M0'/></svg>")
     b = report_tokens("<p>id fedcba9876543210 at 2027-05-05 10:00</p><svg><path d='M1'/></svg>")
     assert a == b
+
+
+def test_a_text_column_with_empty_cells_is_the_same_and_a_changed_word_is_found(tmp_path):
+    """An empty cell of a text column reads back as missing (pandas 3 keeps it missing through
+    ``astype(str)``): empty on both sides is no difference, a word against an empty cell is."""
+    for side, second in (("old", "T11"), ("new", "T11"), ("changed", "")):
+        (tmp_path / side).mkdir()
+        pd.DataFrame({"run_id": ["a", "b", "c"], "inputs": ["", second, "T8, speed"]}).to_csv(
+            tmp_path / side / "per_run.csv", index=False
+        )
+    assert diff_trees(tmp_path / "old", tmp_path / "new") == {}
+    found = diff_trees(tmp_path / "old", tmp_path / "changed")
+    assert (
+        list(found) == ["per_run.csv"]
+        and "column inputs: 1 cell(s) differ, first at row 1" in found["per_run.csv"][0]
+    )

@@ -114,7 +114,8 @@ def diff_frames(a, b, rtol: float = 0.0) -> list[str]:
         else:
             xs = x.astype(str).str.replace(_HEX_ID, "<id>", regex=True)
             ys = y.astype(str).str.replace(_HEX_ID, "<id>", regex=True)
-            same = (xs == ys).to_numpy()
+            # pandas >= 3 keeps a missing value missing through astype(str): missing on both sides is the same
+            same = ((xs == ys).fillna(False) | (xs.isna() & ys.isna())).to_numpy(dtype=bool)
         if not same.all():
             i = int(np.argmin(same))
             out.append(
