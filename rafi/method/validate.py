@@ -57,6 +57,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from rafi import SENSORS
 from rafi.method import paper
 from rafi.method.noise import expected_max_abs_noise, white_noise_sigma
 from rafi.method.paper import paper_value
@@ -126,15 +127,13 @@ def _input_sensors(model) -> list[str] | None:
 
 def _unpredicted_inputs(sub: pd.DataFrame, missing: np.ndarray, sensors: list[str] | None) -> str:
     """The inputs with no value on the rows ``missing`` of the run frame ``sub``: each sensor of
-    ``sensors`` (every rise column ``dT..`` of the frame when ``None``) whose rise is NaN on at
+    ``sensors`` (every sensor of :data:`rafi.SENSORS` when ``None``) whose rise is NaN on at
     least one of them, then ``speed`` if the speed is; joined by ``", "``."""
     if not missing.any():
         return ""
-    if sensors is None:
-        sensors = [c[1:] for c in sub.columns if c.startswith("dT") and c[2:].isdigit()]
     names = [
         s
-        for s in sensors
+        for s in (SENSORS if sensors is None else sensors)
         if f"d{s}" in sub.columns
         and np.isnan(sub[f"d{s}"].to_numpy(dtype=float, na_value=np.nan)[missing]).any()
     ]
