@@ -63,7 +63,7 @@ def test_the_champion_is_the_prior_the_header_names(project, capsys):
         (["--machine", "nope"], "'nope' is not under machines:"),
         (["--machine", MACHINE, "--hours", "0"], "--hours 0: expected the recorded machine time"),
         (["--machine", MACHINE, "--hours", "0.5"], "give at least"),
-        (["--machine", MACHINE, "--prior", "champion"], "registry"),
+        (["--machine", MACHINE, "--prior", "champion"], "has no champion; qualify"),
     ],
 )
 def test_mistakes_are_one_line_and_exit_64(project, capsys, args, expected):
