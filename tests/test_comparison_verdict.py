@@ -103,3 +103,28 @@ def test_a_sensor_dropout_in_a_validation_run_is_counted_per_model_and_named():
     assert summary.loc["ridge_global", "n_unpredicted"] == 10
     assert summary.loc["ridge_global", "unpredicted_inputs"] == "T4"
     assert summary.loc["rafi", "n_unpredicted"] == 0 and summary.loc["rafi", "unpredicted_inputs"] == ""
+
+
+def test_a_sensor_dropout_in_a_training_run_is_counted_in_the_cv_per_model_and_named():
+    """T4 missing for 12 samples of one training run: held out in its whole-run fold, the ridge
+    model gives no value there (cv.csv and summary.csv say so, by count and input) and its CV
+    figures are over the other samples; RAFI (T1-T3) predicts them. No other run is touched."""
+    table, frame = _data()
+    run = table.loc[table["role"] == "training", "run_id"].iloc[1]
+    rows = frame.index[frame["run_id"] == run][40:52]
+    frame.loc[rows, "dT4"] = float("nan")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        out = _family(table, frame, enabled=ENABLED)
+    cv = out["cv"]
+    assert {"n_unpredicted", "unpredicted_inputs"} <= set(cv.columns)
+    held = cv[cv["test_runs"].astype(str) == run].set_index("model")
+    n_run = int((frame["run_id"] == run).sum())
+    assert held.loc["ridge_global", ["n_unpredicted", "unpredicted_inputs"]].tolist() == [12, "T4"]
+    assert held.loc["ridge_global", "n_samples"] == n_run - 12
+    assert held.loc["rafi", "n_unpredicted"] == 0 and held.loc["rafi", "n_samples"] == n_run
+    others = cv[cv["test_runs"].astype(str) != run]
+    assert (others["n_unpredicted"] == 0).all() and (others["unpredicted_inputs"] == "").all()
+    summary = out["summary"].set_index("model")
+    assert summary.loc["ridge_global", ["cv_unpredicted", "cv_unpredicted_inputs"]].tolist() == [12, "T4"]
+    assert summary.loc["rafi", "cv_unpredicted"] == 0 and summary.loc["rafi", "cv_unpredicted_inputs"] == ""

@@ -589,6 +589,24 @@ def test_samples_a_model_could_not_compensate_are_said_where_its_figures_are(tmp
     assert f"No value where an input it reads was missing: {champion} on 86 samples (T11)." in text
 
 
+def test_samples_a_model_could_not_predict_in_the_cv_are_said_in_the_comparison(tmp_path):
+    results = tmp_path / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    cfg, settings = _settings()
+    before = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
+    assert "Likewise in the cross-validation" not in before  # no column, no sentence
+    summary = pd.read_csv(results / "comparison" / "summary.csv")
+    blind = summary["model"].isin(["ridge_global", "grey_box"])
+    summary.assign(
+        cv_unpredicted=blind.astype(int) * 106, cv_unpredicted_inputs=blind.map({True: "T10, T8", False: ""})
+    ).to_csv(results / "comparison" / "summary.csv", index=False)
+    text = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
+    order = [m for m in summary["model"] if m in ("ridge_global", "grey_box")]
+    said = "; ".join(f"{m} on 106 samples (T10, T8)" for m in order)
+    assert "CV figures are over the samples of the held-out training runs it predicted." in text
+    assert f"No value where an input it reads was missing: {said}; on the controller" in text
+
+
 def test_machine_b_like_results_render_and_fit(tmp_path):
     results = tmp_path / "results" / "machining-center-b"
     _machine_b_like(FIXTURE, results)

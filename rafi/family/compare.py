@@ -39,6 +39,7 @@ from rafi.family.describe import describe_selection, fitted_text
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.feature_memo import sharing_features
 from rafi.family.forward_folds import configured_scheme as forward_scheme
+from rafi.family.forward_folds import is_forward
 from rafi.family.grey_box import GreyBox
 from rafi.family.interval_fit import calibrate_family, calibration_units, stacked_oof
 from rafi.family.intervals import coverage_and_width, interval_columns
@@ -344,6 +345,25 @@ def compare_models(
     return (out, *extras) if extras else out
 
 
+def cv_unpredicted(cv: pd.DataFrame) -> pd.DataFrame:
+    """Per model, the measured samples of its held-out training runs (whole-run CV; forward
+    folds hold the same runs out again) it gave no value on: ``cv_unpredicted`` (their count)
+    and ``cv_unpredicted_inputs`` (the inputs without a value, each once)."""
+    columns = ["model", "cv_unpredicted", "cv_unpredicted_inputs"]
+    if cv is None or not len(cv) or "n_unpredicted" not in cv.columns:
+        return pd.DataFrame(columns=columns)
+    whole = cv.loc[~cv["scheme"].map(is_forward).astype(bool)] if "scheme" in cv.columns else cv
+    rows = [
+        {
+            "model": name,
+            "cv_unpredicted": int(pd.to_numeric(g["n_unpredicted"], errors="coerce").fillna(0).sum()),
+            "cv_unpredicted_inputs": _joined_inputs(g["unpredicted_inputs"]),
+        }
+        for name, g in whole.groupby(whole["model"].astype(str), sort=False)
+    ]
+    return pd.DataFrame(rows, columns=columns)
+
+
 def _joined_inputs(per_run: pd.Series) -> str:
     """The inputs of every run's ``unpredicted_inputs`` (``"T8, T11"``), each once, in order."""
     names = [n for text in per_run.fillna("").astype(str) for n in text.split(", ") if n]
@@ -503,7 +523,8 @@ def run_family(
     -------
     dict
         ``summary`` (one row per model: the validation worst cases, ``selected`` (what CV chose
-        inside the model, :func:`describe_selection`) and the columns of :func:`selection_table`),
+        inside the model, :func:`describe_selection`), the columns of :func:`selection_table` and
+        those of :func:`cv_unpredicted`),
         ``per_run``, ``verdict`` (every model's gates per validation run, :data:`VERDICT_COLUMNS`,
         in the order of ``summary``), ``residuals``, ``cv``, ``selection`` (:func:`selection_table`),
         ``champion`` (name of the model offered), ``champion_passed`` (its gates on the
@@ -554,6 +575,7 @@ def run_family(
         selected=summary["model"].map({k: describe_selection(m) for k, m in models.items()}),
     )
     summary = summary.merge(selection, on="model", how="left")
+    summary = summary.merge(cv_unpredicted(cv), on="model", how="left")
     per_run = table.loc[table["scope"] == "run"].drop(columns=["scope"])
     passed = bool(summary.loc[summary["model"] == champion, "passed"].astype(bool).all())
     return {

@@ -40,6 +40,7 @@ from rafi.family.forward_folds import fold_unit, forward_folds, horizon_of, is_f
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.family.time_blocks import hours, is_blocked, time_block_folds, time_block_units, unit_column
 from rafi.family.whole_log import rows_of_logs
+from rafi.method.validate import input_sensors, inputs_without_value
 
 __all__ = [
     "SCHEMES",
@@ -81,6 +82,8 @@ CV_COLUMNS = [
     "max_abs_after_um",
     "improvement_pct",
     "rmse_um",
+    "n_unpredicted",
+    "unpredicted_inputs",
 ]
 
 # --------------------------------------------------------------------------- subsets
@@ -219,8 +222,16 @@ def scheme_of(runs_table: pd.DataFrame, scheme: str) -> str:
 # --------------------------------------------------------------------------- cross-validation
 
 
-def _metrics(measured: np.ndarray, predicted: np.ndarray) -> dict:
+def _metrics(measured: np.ndarray, predicted: np.ndarray, run_rows: pd.DataFrame, sensors) -> dict:
+    """The CV figures of one held-out run (its rows ``run_rows``) over the samples the model
+    predicted, and the measured samples it gave no value on, with the inputs it reads
+    (``sensors``, :func:`rafi.method.validate.input_sensors`) that had none there."""
     ok = np.isfinite(measured) & np.isfinite(predicted)
+    unpredicted = np.isfinite(measured) & ~np.isfinite(predicted)
+    blind = {
+        "n_unpredicted": int(unpredicted.sum()),
+        "unpredicted_inputs": inputs_without_value(run_rows, unpredicted, sensors),
+    }
     if not ok.any():
         return {
             "n_samples": 0,
@@ -228,6 +239,7 @@ def _metrics(measured: np.ndarray, predicted: np.ndarray) -> dict:
             "max_abs_after_um": np.nan,
             "improvement_pct": np.nan,
             "rmse_um": np.nan,
+            **blind,
         }
     m, r = measured[ok], measured[ok] - predicted[ok]
     before, after = float(np.max(np.abs(m))), float(np.max(np.abs(r)))
@@ -237,6 +249,7 @@ def _metrics(measured: np.ndarray, predicted: np.ndarray) -> dict:
         "max_abs_after_um": after,
         "improvement_pct": 100.0 * (before - after) / before if before > 0 else np.nan,
         "rmse_um": float(np.sqrt(np.mean(r**2))),
+        **blind,
     }
 
 
@@ -258,7 +271,10 @@ def cross_validate(
     run through the inputs of whole logs. The fold's model then predicts the logs holding the
     held-out runs once (:func:`rafi.family.whole_log.rows_of_logs`; per-run frames: the
     held-out runs' rows) and each held-out run is scored on its own samples. Metrics per
-    held-out run are those of ``docs/design.md`` (``max |dz - predicted|``, improvement, RMSE).
+    held-out run are those of ``docs/design.md`` (``max |dz - predicted|``, improvement, RMSE),
+    over the samples the model predicted; ``n_unpredicted`` counts the measured samples it gave
+    no value on (an input it reads missing there) and ``unpredicted_inputs`` names those inputs,
+    as in ``validation/summary.csv``.
 
     With ``oof`` (a list), the held-out samples themselves are appended to it as one frame
     (:func:`rafi.family.intervals.oof_samples`, :data:`rafi.family.intervals.OOF_COLUMNS`): the
@@ -300,13 +316,16 @@ def cross_validate(
             fits = model.can_fit(fold_table) if hasattr(model, "can_fit") else True
             needed_mask = rows_of_logs(frame, {run_of_unit[str(u)] for u in test_ids})
             needed = frame.loc[needed_mask]
+            sensors = None
             if not fits:  # nothing this kind learns from in the fold: it compensates nothing there
                 predicted = np.zeros(len(needed))
             elif oof is None:
                 predicted = np.asarray(model.fit(fold_table, frame).predict(needed), dtype=float)
+                sensors = input_sensors(model)
             else:  # the same prediction with its out-of-range flags (the interval's cell)
                 detail = model.fit(fold_table, frame).predict_detail(needed)
                 predicted = detail["predicted_um"].to_numpy(dtype=float)
+                sensors = input_sensors(model)
             unit_of = needed[col].astype(str).to_numpy()
             dz = needed["dz_um"].to_numpy(dtype=float)
             if oof is not None and fits:
@@ -325,7 +344,7 @@ def cross_validate(
                         "test_runs": rid,
                         "test_speed_rpm": speeds.get(rid, np.nan),
                         "n_train_runs": len(train_ids),
-                        **_metrics(dz[mine], predicted[mine]),
+                        **_metrics(dz[mine], predicted[mine], needed.loc[mine], sensors),
                     }
                 )
     if oof is not None:

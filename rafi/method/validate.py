@@ -70,6 +70,8 @@ __all__ = [
     "VERDICT_COLUMNS",
     "validate_runs",
     "coverage_and_width",
+    "input_sensors",
+    "inputs_without_value",
     "qualify",
     "overall_passed",
 ]
@@ -115,7 +117,7 @@ RESIDUAL_COLUMNS = [
 VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
 
 
-def _input_sensors(model) -> list[str] | None:
+def input_sensors(model) -> list[str] | None:
     """The temperature sensors ``model`` reads (RAFI's key sensors, a ridge model's ``sensors_``),
     or ``None`` when it does not say."""
     for name in ("key_sensors", "sensors_"):
@@ -125,7 +127,7 @@ def _input_sensors(model) -> list[str] | None:
     return None
 
 
-def _unpredicted_inputs(sub: pd.DataFrame, missing: np.ndarray, sensors: list[str] | None) -> str:
+def inputs_without_value(sub: pd.DataFrame, missing: np.ndarray, sensors: list[str] | None) -> str:
     """The inputs with no value on the rows ``missing`` of the run frame ``sub``: each sensor of
     ``sensors`` (every sensor of :data:`rafi.SENSORS` when ``None``) whose rise is NaN on at
     least one of them, then ``speed`` if the speed is; joined by ``", "``."""
@@ -180,7 +182,7 @@ def _run_summary(run_id, role, speed, duration, detail, measured, t_s, bounds, s
         "n_outside_temp_range": int(detail["outside_temp_range"].to_numpy()[ok].sum()),
         "n_outside_speed_range": int(detail["outside_speed_range"].to_numpy()[ok].sum()),
         "n_unpredicted": int(unpredicted.sum()),
-        "unpredicted_inputs": _unpredicted_inputs(sub, unpredicted, sensors),
+        "unpredicted_inputs": inputs_without_value(sub, unpredicted, sensors),
         "worse_than_uncompensated": bool(n and after > before),
         "paper_residual_um": paper,
         "noise_sigma_um": sigma,
@@ -271,7 +273,7 @@ def validate_runs(
     roles = runs_table["role"].astype(str)
     val = runs_table.loc[roles.str.startswith("validation")]
     rows, parts = [], []
-    sensors = _input_sensors(model)
+    sensors = input_sensors(model)
     if len(val):
         frame = time_ordered(runs_frame)
         whole = model.predict_detail(frame).reset_index(drop=True)

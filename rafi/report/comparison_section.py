@@ -380,17 +380,21 @@ def champion_beside_rafi(frames: dict, champion, on_machine) -> dict | None:
     }
 
 
-def unpredicted_models(summary: pd.DataFrame) -> list[dict]:
-    """The models of ``summary.csv`` that gave no value on some measured validation samples:
-    ``model``, ``n`` (``n_unpredicted``) and ``inputs`` (``unpredicted_inputs``, may be ``""``)."""
-    if "n_unpredicted" not in summary.columns:
+def unpredicted_models(
+    summary: pd.DataFrame, count: str = "n_unpredicted", inputs: str = "unpredicted_inputs"
+) -> list[dict]:
+    """The models of ``summary.csv`` that gave no value on some measured samples: ``model``, ``n``
+    (column ``count``) and ``inputs`` (column ``inputs``, may be ``""``). The defaults read the
+    validation runs' columns; ``cv_unpredicted`` / ``cv_unpredicted_inputs`` the held-out
+    training runs' of the cross-validation."""
+    if count not in summary.columns:
         return []
-    rows = summary[summary["n_unpredicted"].fillna(0) > 0]
+    rows = summary[summary[count].fillna(0) > 0]
     return [
         {
             "model": str(r["model"]),
-            "n": int(r["n_unpredicted"]),
-            "inputs": "" if pd.isna(r.get("unpredicted_inputs")) else str(r.get("unpredicted_inputs")),
+            "n": int(r[count]),
+            "inputs": "" if pd.isna(r.get(inputs)) else str(r.get(inputs)),
         }
         for r in rows.to_dict("records")
     ]
@@ -418,7 +422,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         kind), ``selection`` (:func:`selection_context`), ``selected`` (``(model, what CV
         chose)``), ``forward`` (some model has a forward CV score), ``cv`` (the first model's
         :func:`_cv_stats`: whole-run ``scheme`` and ``folds``, ``forward_scheme``,
-        ``forward_folds``, ``horizon``), ``unpredicted`` (:func:`unpredicted_models`),
+        ``forward_folds``, ``horizon``), ``unpredicted`` and ``cv_unpredicted`` (:func:`unpredicted_models`),
         ``run_models`` and ``per_run`` (:func:`per_run_rows`), ``figure_bars``, ``rafi_fail``
         (:func:`rafi_failure` with ``champion``: :func:`champion_beside_rafi`) and
         ``figures_resid``; the interval:
@@ -452,6 +456,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         ],
         "cv": next(iter(cvs.values())) if cvs else None,
         "unpredicted": unpredicted_models(s),
+        "cv_unpredicted": unpredicted_models(s, "cv_unpredicted", "cv_unpredicted_inputs"),
         "run_models": [],
         "per_run": None,
         "figure_bars": None,
