@@ -350,9 +350,9 @@ def cv_unpredicted(cv: pd.DataFrame) -> pd.DataFrame:
     folds hold the same runs out again) it gave no value on: ``cv_unpredicted`` (their count)
     and ``cv_unpredicted_inputs`` (the inputs without a value, each once)."""
     columns = ["model", "cv_unpredicted", "cv_unpredicted_inputs"]
-    if cv is None or not len(cv) or "n_unpredicted" not in cv.columns:
+    if cv is None or not len(cv):
         return pd.DataFrame(columns=columns)
-    whole = cv.loc[~cv["scheme"].map(is_forward).astype(bool)] if "scheme" in cv.columns else cv
+    whole = cv.loc[~cv["scheme"].map(is_forward).astype(bool)]
     rows = [
         {
             "model": name,

@@ -316,16 +316,14 @@ def cross_validate(
             fits = model.can_fit(fold_table) if hasattr(model, "can_fit") else True
             needed_mask = rows_of_logs(frame, {run_of_unit[str(u)] for u in test_ids})
             needed = frame.loc[needed_mask]
-            sensors = None
             if not fits:  # nothing this kind learns from in the fold: it compensates nothing there
                 predicted = np.zeros(len(needed))
             elif oof is None:
                 predicted = np.asarray(model.fit(fold_table, frame).predict(needed), dtype=float)
-                sensors = input_sensors(model)
             else:  # the same prediction with its out-of-range flags (the interval's cell)
                 detail = model.fit(fold_table, frame).predict_detail(needed)
                 predicted = detail["predicted_um"].to_numpy(dtype=float)
-                sensors = input_sensors(model)
+            sensors = input_sensors(model) if fits else None
             unit_of = needed[col].astype(str).to_numpy()
             dz = needed["dz_um"].to_numpy(dtype=float)
             if oof is not None and fits:
