@@ -356,7 +356,7 @@ def cv_unpredicted(cv: pd.DataFrame) -> pd.DataFrame:
     rows = [
         {
             "model": name,
-            "cv_unpredicted": int(pd.to_numeric(g["n_unpredicted"], errors="coerce").fillna(0).sum()),
+            "cv_unpredicted": int(g["n_unpredicted"].sum()),
             "cv_unpredicted_inputs": _joined_inputs(g["unpredicted_inputs"]),
         }
         for name, g in whole.groupby(whole["model"].astype(str), sort=False)
