@@ -397,6 +397,7 @@ def _sigterm_as_interrupt(signum, frame):  # as `rafi deploy` does
 
 
 @pytest.mark.filterwarnings("error::pytest.PytestUnraisableExceptionWarning")
+@pytest.mark.filterwarnings("error::RuntimeWarning")  # "coroutine ... was never awaited"
 @pytest.mark.parametrize("signum", [signal.SIGINT, signal.SIGTERM])
 @pytest.mark.parametrize("how", ["connect", "try_reconnect"])
 def test_ctrl_c_or_sigterm_while_connecting_reaches_the_caller_and_leaves_nothing(caplog, capfd, signum, how):

@@ -241,6 +241,13 @@ def _status_name(exc: BaseException) -> str | None:
         return type(exc).__name__
 
 
+async def _goodbye(client, timeout_s: float) -> None:
+    """Close ``client``'s session, waiting at most ``timeout_s``. The library's coroutine is made
+    here, on the loop, so that a goodbye that never gets to run leaves no coroutine behind."""
+    async with asyncio.timeout(timeout_s):
+        await client.disconnect()
+
+
 class OpcUaLink:
     """One OPC UA session: the live inputs, and a sink for the SINUMERIK target.
 
@@ -354,7 +361,7 @@ class OpcUaLink:
             raise
         except BaseException:
             try:
-                await asyncio.wait_for(client.disconnect(), self.timeout_s)
+                await _goodbye(client, self.timeout_s)
             except Exception:
                 pass
             raise
@@ -396,7 +403,7 @@ class OpcUaLink:
         self.connected = False
         if client is not None:
             try:
-                self._run(asyncio.wait_for(client.disconnect(), self.timeout_s))
+                self._run(_goodbye(client, self.timeout_s))
             except Exception:
                 pass
 

@@ -72,11 +72,34 @@ class LoopThread:
             raise
         except BaseException:
             if future is None:
-                coro.close()  # interrupted before it was scheduled: it never runs
+                self._cancel_unknown(coro, settle_s)
             elif not future.done():
                 future.cancel()
                 concurrent.futures.wait([future], timeout=settle_s)
             raise
+
+    def _cancel_unknown(self, coro, settle_s: float) -> None:
+        """Cancel ``coro`` after an interrupt inside the scheduling call: it may already run on
+        the loop (the interrupt came after the call had queued it) or never will. Decided on
+        the loop, after anything already queued there; closing it from this thread while the
+        loop steps it would throw into a running coroutine."""
+        loop = self._loop
+        if loop is None:
+            coro.close()  # no loop yet: it was never scheduled
+            return
+
+        async def cancel():
+            task = next((t for t in asyncio.all_tasks() if t.get_coro() is coro), None)
+            if task is None:
+                coro.close()  # never scheduled: it never runs
+            else:
+                task.cancel()
+                await asyncio.wait([task], timeout=settle_s)
+
+        try:
+            asyncio.run_coroutine_threadsafe(cancel(), loop).result(settle_s + 1)
+        except BaseException:  # an interrupt again: stop() cancels what is left
+            pass
 
     def stop(self, timeout_s: float) -> None:
         """Cancel every task still on the loop (waiting at most ``timeout_s``), stop the loop
