@@ -7,7 +7,7 @@ import threading
 import pytest
 
 from rafi.deploy import opcua_loop
-from rafi.deploy.opcua_loop import LoopThread
+from rafi.deploy.opcua_loop import LoopThread, call_within
 
 pytestmark = [
     pytest.mark.filterwarnings("error::RuntimeWarning"),  # "coroutine ... was never awaited"
@@ -108,3 +108,22 @@ def test_stop_cancels_what_still_runs_and_stopping_twice_does_nothing():
     assert work.ended == [("CancelledError", "test-loop-stop")]
     assert not loop_thread.running
     assert not [t for t in threading.enumerate() if t.name == "test-loop-stop"]
+
+
+def test_call_within_returns_times_out_and_makes_no_coroutine_it_does_not_run(monkeypatch):
+    loop_thread, made = LoopThread("test-loop-call"), []
+
+    async def answer(value, delay_s=0.0):
+        made.append(value)
+        await asyncio.sleep(delay_s)
+        return value
+
+    assert loop_thread.run(call_within(5, answer, 42), timeout_s=10, settle_s=5) == 42
+    with pytest.raises(TimeoutError):
+        loop_thread.run(call_within(0.05, answer, 1, 30), timeout_s=10, settle_s=5)
+    interrupt_scheduling(monkeypatch, queue_first=False)
+    with pytest.raises(KeyboardInterrupt):
+        loop_thread.run(call_within(5, answer, 2), timeout_s=10, settle_s=5)
+    assert made == [42, 1]  # the interrupted call never made its coroutine
+    loop_thread.stop(5)
+    gc.collect()

@@ -48,7 +48,7 @@ from rafi.deploy.opcua_credentials import (
     require_credentials,
 )
 from rafi.deploy.opcua_log import LibraryLogRouter, route_library_log, unroute_library_log
-from rafi.deploy.opcua_loop import LoopThread
+from rafi.deploy.opcua_loop import LoopThread, call_within
 from rafi.deploy.opcua_security import check_security_settings, load_security, plaintext_notice, secure_client
 from rafi.errors import RafiUserError, SettingsError
 
@@ -241,13 +241,6 @@ def _status_name(exc: BaseException) -> str | None:
         return type(exc).__name__
 
 
-async def _goodbye(client, timeout_s: float) -> None:
-    """Close ``client``'s session, waiting at most ``timeout_s``. The library's coroutine is made
-    here, on the loop, so that a goodbye that never gets to run leaves no coroutine behind."""
-    async with asyncio.timeout(timeout_s):
-        await client.disconnect()
-
-
 class OpcUaLink:
     """One OPC UA session: the live inputs, and a sink for the SINUMERIK target.
 
@@ -361,7 +354,7 @@ class OpcUaLink:
             raise
         except BaseException:
             try:
-                await _goodbye(client, self.timeout_s)
+                await call_within(self.timeout_s, client.disconnect)
             except Exception:
                 pass
             raise
@@ -403,7 +396,7 @@ class OpcUaLink:
         self.connected = False
         if client is not None:
             try:
-                self._run(_goodbye(client, self.timeout_s))
+                self._run(call_within(self.timeout_s, client.disconnect))
             except Exception:
                 pass
 

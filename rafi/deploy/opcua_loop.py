@@ -17,7 +17,7 @@ import concurrent.futures
 import threading
 from collections.abc import Callable
 
-__all__ = ["LoopThread"]
+__all__ = ["LoopThread", "call_within"]
 
 
 class LoopThread:
@@ -127,3 +127,11 @@ class LoopThread:
                 loop.close()
             if self.on_stop is not None:
                 self.on_stop(thread.ident)
+
+
+async def call_within(timeout_s: float, fn: Callable, *args):
+    """``await fn(*args)`` for at most ``timeout_s`` (TimeoutError after). The coroutine is made
+    here, on the loop, in the caller's task: a call that never gets to run leaves no coroutine
+    behind ("never awaited"), and no second task is left for a cancel to strand."""
+    async with asyncio.timeout(timeout_s):
+        return await fn(*args)
