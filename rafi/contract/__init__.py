@@ -28,10 +28,15 @@ from rafi.contract.generate import (
 from rafi.contract.input import (
     CANONICAL_RE,
     DEFAULT_PATTERN,
+    DEFAULT_SENSORS,
     FORMATS,
     INPUT_DEFAULTS,
     INPUT_SCHEMA,
+    MAX_SENSORS,
     NATIVE_KEYS,
+    NON_SENSOR_COLUMNS,
+    RESERVED_NAMES,
+    SENSOR_NAME_RE,
     TIME_KINDS,
 )
 from rafi.contract.keys import Section, Setting
@@ -60,6 +65,11 @@ __all__ = [
     "COMPARISON_FILES",
     "DECISION_FILES",
     "DEFAULT_PATTERN",
+    "DEFAULT_SENSORS",
+    "MAX_SENSORS",
+    "NON_SENSOR_COLUMNS",
+    "RESERVED_NAMES",
+    "SENSOR_NAME_RE",
     "FIGURE_GROUPS",
     "FORMATS",
     "GATE_KEYS",

@@ -15,6 +15,7 @@ INPUT_DEFAULTS: dict = {
     "encoding": "utf-8",
     "header_row": 1,
     "skip_rows": 0,
+    "sensors": None,
     "columns": {},
     "time": {"kind": "timestamp", "start": "2000-01-01T00:00:00", "format": None, "period_s": None},
     "speed": {"constant_rpm": None, "constant_rpm_by_file": {}},
@@ -31,9 +32,25 @@ DEFAULT_PATTERN = {"native": "*.csv", "csv": "*.csv", "xlsx": "*.xlsx"}
 TIME_KINDS = ("timestamp", "elapsed_s", "none")
 
 #: Keys meaningful for the native format (everything else is for csv/xlsx).
-NATIVE_KEYS = {"format", "pattern", "sample_period_s"}
+NATIVE_KEYS = {"format", "pattern", "sample_period_s", "sensors"}
 
-CANONICAL_RE = "^(time|speed_rpm|T([1-9]|1[0-6])|disp_um)$"
+#: The temperature sensors of a machine that names none: the paper's rig, ``T1`` .. ``T16``.
+DEFAULT_SENSORS = tuple(f"T{i}" for i in range(1, 17))
+
+#: How many temperature sensors a machine may have.
+MAX_SENSORS = 64
+
+#: A sensor name: a letter, then letters, digits or ``_`` (it names a column, its rise ``d<name>``,
+#: an OPC UA input and a model term).
+SENSOR_NAME_RE = "^[A-Za-z][A-Za-z0-9_]{0,31}$"
+
+#: Column names of the clean and runs tables that a sensor may not take.
+RESERVED_NAMES = ("time", "speed_rpm", "disp_um", "t_s", "dz_um", "log", "log_t_s", "segment", "run_id")
+
+#: Keys of ``input.columns`` that are not sensors.
+NON_SENSOR_COLUMNS = ("time", "speed_rpm", "disp_um")
+
+CANONICAL_RE = SENSOR_NAME_RE
 
 #: JSON schema (draft 7) of one ``input:`` mapping; the workflow's config schema embeds it.
 #: It carries no ``default`` keywords on purpose: a validator that fills defaults in would
@@ -57,6 +74,13 @@ INPUT_SCHEMA: dict = {
         "encoding": {"type": "string", "minLength": 1},
         "header_row": {"type": "integer", "minimum": 1},
         "skip_rows": {"type": "integer", "minimum": 0},
+        "sensors": {
+            "type": ["array", "null"],
+            "items": {"type": "string", "pattern": SENSOR_NAME_RE},
+            "minItems": 1,
+            "maxItems": MAX_SENSORS,
+            "uniqueItems": True,
+        },
         "columns": {
             "type": "object",
             "propertyNames": {"pattern": CANONICAL_RE},

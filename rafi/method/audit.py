@@ -12,12 +12,13 @@ records the file's ``probe_sign`` (docs/raw-format.md, "Checks").
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 
 import pandas as pd
 
 from rafi.errors import RawFormatError
-from rafi.method.clean import AUDIT_COLUMNS, SENSOR_COLUMNS
+from rafi.method.clean import AUDIT_COLUMNS
+from rafi.sensors import DEFAULT_SENSORS
 
 #: Columns of the per-file summary (``audit.csv``), in order.
 SUMMARY_COLUMNS = (
@@ -178,10 +179,12 @@ def quarantine_reason(exc: BaseException, file: str) -> str:
     return f"{file}: could not be read or cleaned: {type(exc).__name__}: {one_line(exc)}{tag}"
 
 
-def quarantined(file: str, sha256: str, reason: str) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
+def quarantined(
+    file: str, sha256: str, reason: str, sensors: Sequence[str] = DEFAULT_SENSORS
+) -> tuple[pd.DataFrame, pd.DataFrame, pd.DataFrame]:
     """The clean step's outputs for a file that could not be read or checked.
 
-    Returns an empty clean frame with the usual columns and types, an empty audit
+    Returns an empty clean frame with the usual columns (the machine's ``sensors``) and types, an empty audit
     table, and a summary row with ``status`` ``quarantined`` and the ``reason`` (the
     error message naming file, line and column), so the other files carry on and the
     report lists this one.
@@ -191,7 +194,7 @@ def quarantined(file: str, sha256: str, reason: str) -> tuple[pd.DataFrame, pd.D
             "time": pd.Series(dtype="datetime64[ns]"),
             "t_s": pd.Series(dtype="float64"),
             "speed_rpm": pd.Series(dtype="float64"),
-            **{c: pd.Series(dtype="float64") for c in SENSOR_COLUMNS},
+            **{c: pd.Series(dtype="float64") for c in (*sensors, "disp_um")},
             "segment": pd.Series(dtype="int64"),
         }
     )

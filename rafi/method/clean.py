@@ -65,11 +65,12 @@ import numpy as np
 import pandas as pd
 
 from rafi.errors import RawFormatError
+from rafi.sensors import frame_sensors
 from rafi.method.clean_steps import (  # noqa: F401 (the step constants: part of this module's API)
     MAD_TO_SIGMA,
     PERIOD_MISMATCH_FRACTION,
     SENSOR_COLUMNS,
-    SENSOR_END,
+    sensor_end,
     SNAP_REPORT_FRACTION,
     SPIKE_SIGMA_FLOOR,
     Grid,
@@ -154,7 +155,7 @@ def clean_log(
     check_frame(frame, file)
     lines = source_lines(frame)
     numeric_extras, text_extras = split_extras(frame)
-    names = ("speed_rpm", *SENSOR_COLUMNS, *numeric_extras)
+    names = ("speed_rpm", *frame_sensors(frame), "disp_um", *numeric_extras)
     rows = column_rows(frame, lines, text_extras)
     samples = Samples(timestamps_ns(frame, lines, file), value_array(frame, names), lines)
 
@@ -162,7 +163,7 @@ def clean_log(
     rows += done
     samples, done = drop_duplicate_times(samples, names)
     rows += done
-    samples, done = remove_open_circuit(samples, open_circuit_values)
+    samples, done = remove_open_circuit(samples, open_circuit_values, names)
     rows += done
     samples, grid_index, done = snap_to_grid(samples, period, file, names)
     rows += done
@@ -195,7 +196,9 @@ def check_arguments(
 
 def check_frame(frame: pd.DataFrame, file: str) -> None:
     """RawFormatError unless ``frame`` has the canonical columns and at least one row."""
-    missing = [c for c in ("time", "speed_rpm", *SENSOR_COLUMNS) if c not in frame.columns]
+    missing = [c for c in ("time", "speed_rpm", "disp_um") if c not in frame.columns]
+    if not missing and not frame_sensors(frame):
+        missing = ["a temperature sensor between speed_rpm and disp_um"]
     if missing:
         raise RawFormatError(
             file,
@@ -216,8 +219,9 @@ def source_lines(frame: pd.DataFrame) -> np.ndarray:
 def split_extras(frame: pd.DataFrame) -> tuple[list[str], list[str]]:
     """The extra columns (not canonical), numeric (bool included) and text, in frame order."""
     numeric, text = [], []
+    canonical = ("time", "speed_rpm", *frame_sensors(frame), "disp_um")
     for c in frame.columns:
-        if c in ("time", "speed_rpm", *SENSOR_COLUMNS):
+        if c in canonical:
             continue
         col = frame[c]
         if pd.api.types.is_numeric_dtype(col) or pd.api.types.is_bool_dtype(col):
@@ -265,10 +269,11 @@ def grid_frame(grid: Grid, period_s: float, names: Sequence[str], attrs: dict) -
         "time": (np.int64(grid.origin_ns) + grid.index * np.int64(period_ns)).view("datetime64[ns]"),
         "t_s": (grid.index * period_s).astype("float64"),
     }
-    for j, name in enumerate(names[:SENSOR_END]):
+    end = sensor_end(names)
+    for j, name in enumerate(names[:end]):
         out[name] = grid.values[:, j]
     out["segment"] = grid.segment
-    for j, name in enumerate(names[SENSOR_END:], start=SENSOR_END):
+    for j, name in enumerate(names[end:], start=end):
         out[name] = grid.values[:, j]
     clean = pd.DataFrame(out)
     clean.attrs = {key: (dict(val) if isinstance(val, dict) else val) for key, val in attrs.items()}

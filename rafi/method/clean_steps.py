@@ -17,15 +17,26 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from rafi import SENSORS
+from rafi.sensors import DEFAULT_SENSORS
 from rafi.errors import RawFormatError
 from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
 
 #: Columns checked for open-circuit values and spikes (value columns 1..16+1).
-SENSOR_COLUMNS = (*SENSORS, "disp_um")
+SENSOR_COLUMNS = (*DEFAULT_SENSORS, "disp_um")
 
-#: Value columns ``1 .. SENSOR_END - 1`` are the sensors (column 0 is the speed).
+#: Value columns ``1 .. SENSOR_END - 1`` are the sensors (column 0 is the speed) of the paper's
+#: rig; :func:`sensor_end` gives it for any machine's value columns.
 SENSOR_END = 1 + len(SENSOR_COLUMNS)
+
+#: The value columns of the paper's rig: the speed, its sensors and the displacement.
+DEFAULT_NAMES = ("speed_rpm", *SENSOR_COLUMNS)
+
+
+def sensor_end(names: Sequence[str]) -> int:
+    """One past the last measured channel among the value columns ``names`` (the speed, the
+    temperature sensors, ``disp_um``, then the numeric extras): the index after ``disp_um``."""
+    return list(names).index("disp_um") + 1
+
 
 #: The longest burst of consecutive samples that counts as a spike (a logger or EMI glitch);
 #: a longer excursion that returns is left alone: it may be a change of state.
@@ -188,7 +199,7 @@ def drop_duplicate_times(samples: Samples, names: Sequence[str]) -> tuple[Sample
 
 
 def remove_open_circuit(
-    samples: Samples, open_circuit_values: Iterable[float]
+    samples: Samples, open_circuit_values: Iterable[float], names: Sequence[str] = DEFAULT_NAMES
 ) -> tuple[Samples, list[tuple]]:
     """Step 3: sensor values equal (1e-9 relative) to an open-circuit value become NaN.
 
@@ -198,7 +209,8 @@ def remove_open_circuit(
     if not codes:
         return samples, []
     values = samples.values.copy()
-    sensors = values[:, 1:SENSOR_END]  # a view: setting it sets ``values``
+    channels = names[1 : sensor_end(names)]
+    sensors = values[:, 1 : sensor_end(names)]  # a view: setting it sets ``values``
     is_open = np.zeros(sensors.shape, bool)
     for code in codes:
         is_open |= np.abs(sensors - code) <= 1e-9 * max(1.0, abs(code))
@@ -208,7 +220,7 @@ def remove_open_circuit(
             rows.append(
                 audit_row(
                     "open_circuit_removed",
-                    SENSOR_COLUMNS[j],
+                    channels[j],
                     samples.lines[s],
                     samples.lines[e],
                     e - s + 1,
@@ -401,7 +413,7 @@ def replace_spikes(
     values = grid.values
     spike = np.zeros(values.shape, bool, order="F")
     rows = []
-    for j in range(1, SENSOR_END):
+    for j in range(1, sensor_end(names)):
         column = values[:, j]
         spikes, before, after, limit = find_spikes(column, grid, period_s, max_gap_s, threshold)
         spike[spikes, j] = True

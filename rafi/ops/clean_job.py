@@ -105,7 +105,8 @@ def clean_file(
 
     def quarantine(reason: str) -> str:
         say(f"  QUARANTINED: {reason}")
-        _write(outputs, *rafi.method.audit.quarantined(src.name, digest, reason))
+        sensors = spec.get("sensors") or rafi.method.audit.DEFAULT_SENSORS
+        _write(outputs, *rafi.method.audit.quarantined(src.name, digest, reason, sensors))
         return "quarantined"
 
     try:

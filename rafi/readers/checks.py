@@ -39,14 +39,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from rafi import SENSORS
 from rafi.readers import checks_channels as channels
 from rafi.readers import checks_units as units
 from rafi.readers.checks_base import CheckWarning, Signals, Where
+from rafi.sensors import frame_sensors
 from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
-
-#: Columns that must carry at least one value.
-VALUE_COLUMNS = ("speed_rpm", *SENSORS, "disp_um")
 
 #: Every check id of the per-file checks (docs/raw-format.md, "Checks").
 FILE_CHECKS = (
@@ -101,12 +98,14 @@ def _open_circuit_mask(values: np.ndarray, open_circuit_values) -> np.ndarray:
 
 
 def _values(frame: pd.DataFrame, where: Where, open_circuit_values) -> dict[str, np.ndarray]:
-    """The value columns as floats with open-circuit readings as NaN; error on an empty column."""
+    """The value columns (speed, the machine's sensors, displacement: each must carry a value) as
+    floats in that order, with open-circuit readings as NaN; error on an empty column."""
     n = len(frame)
+    sensors = frame_sensors(frame)
     values: dict[str, np.ndarray] = {}
-    for name in VALUE_COLUMNS:
+    for name in ("speed_rpm", *sensors, "disp_um"):
         v = frame[name].to_numpy(dtype=float, na_value=np.nan)
-        oc = _open_circuit_mask(v, open_circuit_values) if name in SENSORS else np.zeros(n, bool)
+        oc = _open_circuit_mask(v, open_circuit_values) if name in sensors else np.zeros(n, bool)
         v = np.where(oc, np.nan, v)
         values[name] = v
         if np.isnan(v).all():
@@ -160,7 +159,9 @@ def _check_ranges(values, where, lines, max_speed_rpm, temp_range_c, open_circui
         )
     lo, hi = temp_range_c
     first_bad = None
-    for name in SENSORS:
+    for name in values:
+        if name in ("speed_rpm", "disp_um"):
+            continue
         v = values[name]
         idx = np.flatnonzero((v < lo) | (v > hi))
         if idx.size and (first_bad is None or idx[0] < first_bad[0]):
@@ -198,8 +199,8 @@ def _check_stuck_probe(values, where, lines, sample_period_s, th: dict) -> None:
         change = max(
             (
                 float(np.nanmax(values[s][stretch]) - np.nanmin(values[s][stretch]))
-                for s in SENSORS
-                if np.isfinite(values[s][stretch]).any()
+                for s in values
+                if s not in ("speed_rpm", "disp_um") and np.isfinite(values[s][stretch]).any()
             ),
             default=0.0,
         )

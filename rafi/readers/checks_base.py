@@ -105,7 +105,7 @@ class Signals:
     t : numpy.ndarray
         Seconds since the first row (file order).
     values : dict of str to numpy.ndarray
-        ``speed_rpm``, ``T1``..``T16``, ``disp_um``.
+        ``speed_rpm``, the sensors, ``disp_um``.
     lines : numpy.ndarray
         Source line (row) of every sample.
     period_s : float
@@ -116,6 +116,11 @@ class Signals:
     values: dict[str, np.ndarray]
     lines: np.ndarray
     period_s: float
+
+    @property
+    def sensors(self) -> tuple[str, ...]:
+        """The temperature sensors: every channel but the speed and the displacement, in order."""
+        return tuple(name for name in self.values if name not in ("speed_rpm", "disp_um"))
 
     @property
     def n(self) -> int:

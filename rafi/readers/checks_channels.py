@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from rafi import SENSORS
 from rafi.readers.checks_base import (
     CheckWarning,
     Signals,
@@ -87,7 +86,7 @@ def sparse_channel(sig: Signals, where: Where) -> list[CheckWarning]:
     """Error if ``speed_rpm`` or ``disp_um`` has values in under half of the rows; a warning for a
     temperature (open-circuit readings count as missing)."""
     warnings = []
-    for name in (*REQUIRED, *SENSORS):
+    for name in (*REQUIRED, *sig.sensors):
         v = sig.values[name]
         share = float((~np.isnan(v)).mean()) if v.size else 0.0
         if share >= SPARSE_BELOW:
@@ -136,7 +135,7 @@ def stuck_logger_and_constant(sig: Signals, where: Where, tolerance_rpm: float) 
     """Error if every temperature is constant while the displacement or the speed changes (the
     logger repeats stale values), over the whole log or for :data:`FROZEN_MIN_S` in a row; a
     warning for one constant sensor while others change."""
-    with_values = [s for s in SENSORS if present(sig.values[s]).size]
+    with_values = [s for s in sig.sensors if present(sig.values[s]).size]
     flat = [s for s in with_values if is_flat(sig.values[s], FLAT_K)]
     if with_values and len(flat) == len(with_values):
         d_change = robust_range(sig.values["disp_um"])
@@ -200,7 +199,7 @@ def _affine_copy(sig: Signals, where: Where) -> list[CheckWarning]:
     """Warning if ``disp_um`` is a straight-line function of one sensor (r^2 at least
     :data:`AFFINE_MIN_R2`): a real probe lags the temperatures and has its own noise."""
     d = sig.values["disp_um"]
-    for s in SENSORS:
+    for s in sig.sensors:
         v = sig.values[s]
         both = ~np.isnan(d) & ~np.isnan(v)
         if both.sum() < 10 or robust_range(v[both], 1.0, 99.0) < OTHERS_CHANGE_K or np.std(d[both]) == 0:
@@ -227,7 +226,7 @@ def copied_channel(sig: Signals, where: Where) -> list[CheckWarning]:
     """Sensors holding the same values as another sensor (within :data:`SAME_WITHIN` in
     :data:`SAME_SHARE` of the rows) while they change by :data:`COPY_MIN_CHANGE_K`: error if every
     sensor is a copy of one, else a warning per copied sensor."""
-    names = [s for s in SENSORS if robust_range(sig.values[s], 1.0, 99.0) >= COPY_MIN_CHANGE_K]
+    names = [s for s in sig.sensors if robust_range(sig.values[s], 1.0, 99.0) >= COPY_MIN_CHANGE_K]
     copies: dict[str, str] = {}
     for i, a in enumerate(names):
         if a in copies:
@@ -237,7 +236,7 @@ def copied_channel(sig: Signals, where: Where) -> list[CheckWarning]:
                 copies[b] = a
     if not copies:
         return []
-    with_values = [s for s in SENSORS if present(sig.values[s]).size]
+    with_values = [s for s in sig.sensors if present(sig.values[s]).size]
     originals = set(copies.values())
     if len(originals) == 1 and len(copies) + 1 == len(with_values):
         first = next(iter(originals))
@@ -270,7 +269,7 @@ def idle_speed(sig: Signals, where: Where, tolerance_rpm: float) -> list[CheckWa
         return []
     mask = sig.start_mask()
     rises = {}
-    for s in SENSORS:
+    for s in sig.sensors:
         x = present(sig.values[s])
         if x.size:
             rises[s] = float(np.percentile(x, 99)) - start_level(sig.values[s], mask)
@@ -307,7 +306,7 @@ def swapped_channels(sig: Signals, where: Where) -> list[CheckWarning]:
     mask = sig.start_mask()
     d = sig.values["disp_um"]
     d_label = where.label("disp_um")
-    for s in SENSORS:
+    for s in sig.sensors:
         if _same(d, sig.values[s]):
             raise where.check_error(
                 "swapped_channels",
@@ -319,7 +318,7 @@ def swapped_channels(sig: Signals, where: Where) -> list[CheckWarning]:
     affine = _affine_copy(sig, where)
     if affine:
         return affine
-    levels = {s: start_level(sig.values[s], mask) for s in SENSORS}
+    levels = {s: start_level(sig.values[s], mask) for s in sig.sensors}
     levels = {s: v for s, v in levels.items() if np.isfinite(v)}
     if len(levels) < 3:
         return []
@@ -432,7 +431,7 @@ def heat_signal(sig: Signals) -> np.ndarray | None:
         heat = from_rest.ewm(alpha=gain, adjust=False).mean().to_numpy()[1:]
         if robust_range(heat) >= SIGN_MIN_HEAT_RPM:
             return heat
-    temps = np.column_stack([sig.values[s] for s in SENSORS])
+    temps = np.column_stack([sig.values[s] for s in sig.sensors])
     has = np.sum(~np.isnan(temps), axis=1) >= 2
     if not has.any():
         return None

@@ -12,7 +12,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from rafi import SENSORS
 from rafi.readers.checks_base import (
     CheckWarning,
     Signals,
@@ -88,7 +87,7 @@ def temperature_unit(sig: Signals, where: Where) -> None:
     level), some of them (their start levels, converted, land among the others'), or from part
     way through the log on (a sensor's level steps to the deg F value of its level before)."""
     mask = sig.start_mask()
-    levels = {s: start_level(sig.values[s], mask) for s in SENSORS}
+    levels = {s: start_level(sig.values[s], mask) for s in sig.sensors}
     levels = {s: v for s, v in levels.items() if np.isfinite(v)}
     if not levels:
         return
@@ -166,7 +165,7 @@ def level_steps(values: np.ndarray, min_step: float):
 def _part_way(sig: Signals, where: Where) -> None:
     """Error if a sensor's level steps (by :data:`STEP_K` or more) to the deg F value of its level
     before the step, or back: the logger switched unit part way through the log."""
-    for s in SENSORS:
+    for s in sig.sensors:
         for k, b, a in level_steps(sig.values[s], STEP_K):
             to_f = abs(a - (b * 1.8 + 32.0)) <= STEP_MATCH_K
             from_f = abs(b - (a * 1.8 + 32.0)) <= STEP_MATCH_K
@@ -345,7 +344,7 @@ def smoothed(values: np.ndarray) -> np.ndarray:
 
 def _temperature_change(sig: Signals, rows=slice(None)) -> tuple[float, str]:
     """The largest change of a sensor (1st-99th percentile, K) over ``rows``, and that sensor."""
-    changes = {s: robust_range(sig.values[s][rows], 1.0, 99.0) for s in SENSORS}
+    changes = {s: robust_range(sig.values[s][rows], 1.0, 99.0) for s in sig.sensors}
     name = max(changes, key=changes.get)
     return changes[name], name
 

@@ -23,14 +23,17 @@ import unicodedata
 from collections.abc import Iterable
 from pathlib import Path
 
-from rafi import REQUIRED_COLUMNS
 from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of this module's API)
-    CANONICAL_RE,
     DEFAULT_PATTERN,
+    DEFAULT_SENSORS,
     FORMATS,
     INPUT_DEFAULTS,
     INPUT_SCHEMA,
+    MAX_SENSORS,
     NATIVE_KEYS,
+    NON_SENSOR_COLUMNS,
+    RESERVED_NAMES,
+    SENSOR_NAME_RE,
     TIME_KINDS,
 )
 from rafi.errors import InputSpecError, RawFormatError, bound_message, short_path
@@ -72,7 +75,8 @@ def normalise_input_spec(spec: dict | None) -> dict:
     -------
     dict
         A new dict with every key of :data:`INPUT_DEFAULTS` (nested ``time``, ``speed`` and
-        ``displacement`` complete, ``pattern`` set from the format).
+        ``displacement`` complete, ``pattern`` set from the format, ``sensors`` the list of the
+        machine's temperature sensors: :func:`check_sensors`).
 
     Raises
     ------
@@ -83,6 +87,7 @@ def normalise_input_spec(spec: dict | None) -> dict:
     out = merge_input_defaults(spec)
     check_format(out, spec)
     check_text_layout(out)
+    check_sensors(out)
     check_columns(out)
     check_time(out)
     check_no_time_column(out)
@@ -190,15 +195,63 @@ def check_text_layout(out: dict) -> None:
             raise _spec_error(key, f"{v!r}: expected an integer >= {low}")
 
 
+def sensor_name_problem(name) -> str | None:
+    """Why ``name`` cannot name a temperature sensor, or ``None`` if it can."""
+    if not isinstance(name, str) or not re.match(SENSOR_NAME_RE, name):
+        return (
+            f"{name!r} is not a sensor name: a letter, then up to 31 letters, digits or '_' "
+            "(e.g. T1, spindle_front)"
+        )
+    if name in RESERVED_NAMES:
+        return f"{name!r} is a column of the pipeline's own ({', '.join(RESERVED_NAMES)}); name the sensor otherwise"
+    return None
+
+
+def check_sensors(out: dict) -> None:
+    """Resolve ``sensors``, the machine's temperature sensors, in order: the list given; else the
+    keys of ``columns`` other than time, speed_rpm and disp_um; else the paper rig's ``T1`` ..
+    ``T16``. One to :data:`MAX_SENSORS` valid, distinct names, none the rise column ``d<name>``
+    of another. ``out`` is changed in place."""
+    given = out["sensors"]
+    if given is None:
+        mapped = [str(k) for k in out["columns"] if k not in NON_SENSOR_COLUMNS]
+        sensors = mapped or list(DEFAULT_SENSORS)
+        key = "columns" if mapped else "sensors"
+    else:
+        if isinstance(given, str) or not isinstance(given, (list, tuple)):
+            raise _spec_error("sensors", f"{given!r}: expected a list of sensor names")
+        sensors, key = list(given), "sensors"
+    if not 1 <= len(sensors) <= MAX_SENSORS:
+        raise _spec_error(
+            key, f"{len(sensors)} sensors: a machine has 1 to {MAX_SENSORS} temperature sensors"
+        )
+    for name in sensors:
+        problem = sensor_name_problem(name)
+        if problem:
+            raise _spec_error(key if key == "sensors" else f"columns.{name}", problem)
+    dup = first_duplicate(sensors)
+    if dup is not None:
+        raise _spec_error(key, f"sensor {dup!r} is listed twice")
+    clash = sorted(s for s in sensors if s.startswith("d") and s[1:] in sensors)
+    if clash:
+        raise _spec_error(
+            key, f"sensor {clash[0]!r} is also the name of the rise of sensor {clash[0][1:]!r}; rename one"
+        )
+    out["sensors"] = sensors
+
+
 def check_columns(out: dict) -> None:
-    """``columns`` maps canonical names to header texts, ``displacement`` names one channel in one
-    place with a known unit and sign, and no header feeds two canonical columns."""
+    """``columns`` maps the machine's columns (time, speed_rpm, its sensors, disp_um) to header
+    texts, ``displacement`` names one channel in one place with a known unit and sign, and no
+    header feeds two columns."""
     columns = out["columns"]
+    known = (*NON_SENSOR_COLUMNS, *out["sensors"])
     for canon, theirs in columns.items():
-        if not re.match(CANONICAL_RE, str(canon)):
+        if canon not in known:
             raise _spec_error(
                 f"columns.{canon}",
-                "not a canonical column; map " + ", ".join(REQUIRED_COLUMNS) + " to your headers",
+                f"not a column of this machine; map {', '.join(NON_SENSOR_COLUMNS)} and the sensors "
+                f"of input.sensors ({', '.join(out['sensors'])}) to your headers",
             )
         if not isinstance(theirs, str) or not theirs.strip():
             raise _spec_error(f"columns.{canon}", f"{theirs!r}: expected your header text")
@@ -272,7 +325,8 @@ def resolve_columns(spec: dict) -> dict[str, str]:
     ``time`` is left out when ``time.kind`` is ``none`` and ``speed_rpm`` when the speed is a
     configured constant: those columns are not read from the file.
     """
-    cols = {name: spec["columns"].get(name, name) for name in REQUIRED_COLUMNS}
+    names = ("time", "speed_rpm", *spec["sensors"], "disp_um")
+    cols = {name: spec["columns"].get(name, name) for name in names}
     if spec["time"]["kind"] == "none":
         del cols["time"]
     if has_constant_speed(spec):

@@ -65,7 +65,7 @@ def read_log(path: str | os.PathLike, input_spec: dict | None = None) -> pd.Data
 
     spec = formats.normalise_input_spec(input_spec)
     if spec["format"] == "native":
-        frame = read_raw_log(path)
+        frame = read_raw_log(path, spec["sensors"])
         if spec.get("sample_period_s") is not None:
             frame.attrs["metadata"].setdefault("sample_period_s", float(spec["sample_period_s"]))
         return frame

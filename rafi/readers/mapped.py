@@ -31,7 +31,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi import SENSORS
 from rafi.errors import RawFormatError
 from rafi.readers.input_assumed import constant_speed, has_constant_speed
 from rafi.readers.input_spec import (
@@ -49,7 +48,7 @@ from rafi.readers.mapped_cells import (
 from rafi.readers.mapped_tables import read_table
 from rafi.readers.mapped_time import assumed_notes, row_times, row_times_error, timestamps
 from rafi.readers.parsing import (
-    NUMERIC_COLUMNS,
+    numeric_columns,
     read_file_bytes,
     to_naive_ns,
 )
@@ -237,7 +236,7 @@ def _canonical_values(table: Table, column: list, canon: str, col_index: int, sp
     column : list
         The column's cells, in row order.
     canon : str
-        The canonical column (``speed_rpm``, ``T1``..``T16`` or ``disp_um``).
+        The canonical column (``speed_rpm``, a sensor of ``spec["sensors"]`` or ``disp_um``).
     col_index : int
         0-based index of the column in the file.
     spec : dict
@@ -264,7 +263,7 @@ def _canonical_values(table: Table, column: list, canon: str, col_index: int, sp
     if canon == "disp_um":
         values = values * (1000.0 if spec["displacement"]["unit"] == "mm" else 1.0)
         values = values * spec["displacement"]["sign"] + 0.0  # no -0.0
-    elif canon in SENSORS and spec["temperature_unit"] == "K":
+    elif canon in spec["sensors"] and spec["temperature_unit"] == "K":
         values = values - 273.15
     return values.astype("float64")
 
@@ -397,7 +396,7 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
     index = pd.Index(table.row_numbers, name="line", dtype="int64")
     frame = pd.DataFrame(index=index)
     frame["time"] = to_naive_ns(_frame_times(table, cols, positions, spec)).to_numpy()
-    for canon in NUMERIC_COLUMNS:
+    for canon in numeric_columns(spec["sensors"]):
         if canon == "speed_rpm" and speed is not None:
             frame[canon] = np.full(len(index), speed[0], dtype="float64")
         else:

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi import REQUIRED_COLUMNS, SENSORS
+from rafi.sensors import DEFAULT_SENSORS, canonical_columns, frame_sensors
 from rafi.artefact import write_text_atomic
 from rafi.errors import RawFormatError, quote
 from rafi.readers.parsing import (
@@ -99,7 +99,7 @@ def _split_metadata(path: Path, lines: list[str]) -> tuple[dict[str, str], int, 
     raise RawFormatError(
         path,
         "no header line found after the metadata; expected a header "
-        f"with columns {', '.join(REQUIRED_COLUMNS)}",
+        f"with columns {', '.join(canonical_columns(DEFAULT_SENSORS))} (or the machine's input.sensors)",
         line=len(lines),
     )
 
@@ -128,7 +128,12 @@ def parse_metadata(meta: dict[str, str], path: Path, lines: dict[str, int] | Non
     return out
 
 
-def _check_header(path: Path, header: list[str], line_no: int) -> None:
+def _check_header(
+    path: Path,
+    header: list[str],
+    line_no: int,
+    required: tuple[str, ...] = canonical_columns(DEFAULT_SENSORS),
+) -> None:
     """Refuse a header that cannot be the native one: wrong delimiter, a name twice, a column missing.
 
     Parameters
@@ -139,6 +144,8 @@ def _check_header(path: Path, header: list[str], line_no: int) -> None:
         The header's fields, stripped.
     line_no : int
         1-based line of the header.
+    required : tuple of str
+        The canonical columns of the machine (:func:`rafi.sensors.canonical_columns`).
 
     Raises
     ------
@@ -163,12 +170,12 @@ def _check_header(path: Path, header: list[str], line_no: int) -> None:
                 path, f"column {quote(name)} appears twice in the header", line=line_no, column=name
             )
         seen.add(name)
-    missing = [c for c in REQUIRED_COLUMNS if c not in seen]
+    missing = [c for c in required if c not in seen]
     if missing:
         raise RawFormatError(
             path,
             f"required column(s) missing from header: {', '.join(missing)}; "
-            f"expected {', '.join(REQUIRED_COLUMNS)}",
+            f"expected {', '.join(required)} (the sensors are the machine's input.sensors)",
             line=line_no,
             column=missing[0],
         )
@@ -300,7 +307,11 @@ def _parse_times(path: Path, time_str: list[str], line_numbers: list[int]) -> np
 
 
 def _parse_values(
-    path: Path, header: list[str], columns: dict[str, list[str]], line_numbers: list[int]
+    path: Path,
+    header: list[str],
+    columns: dict[str, list[str]],
+    line_numbers: list[int],
+    numeric: tuple[str, ...] = NUMERIC_COLUMNS,
 ) -> dict[str, object]:
     """The numeric canonical columns, then the extra columns (numbers where every field is one, else text).
 
@@ -314,11 +325,13 @@ def _parse_values(
         Column name -> its fields, in row order.
     line_numbers : list of int
         The line of each row.
+    numeric : tuple of str
+        The numeric canonical columns (:func:`rafi.readers.parsing.numeric_columns`).
 
     Returns
     -------
     dict
-        Column name -> values: ``float64`` arrays for ``speed_rpm``, ``T1``..``T16`` and
+        Column name -> values: ``float64`` arrays for ``speed_rpm``, the sensors and
         ``disp_um`` (empty fields NaN), then every other column except ``time`` in file order.
 
     Raises
@@ -327,7 +340,7 @@ def _parse_values(
         At the first field of a canonical column that is not a number.
     """
     data: dict[str, object] = {}
-    for name in NUMERIC_COLUMNS:
+    for name in numeric:
         parsed, bad = parse_numbers(columns[name])
         if bad is not None:
             found = columns[name][bad]
@@ -347,19 +360,22 @@ def _parse_values(
     return data
 
 
-def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
+def read_raw_log(path: str | os.PathLike, sensors=DEFAULT_SENSORS) -> pd.DataFrame:
     """Read one native raw log (``docs/raw-format.md``) into the canonical frame.
 
     Parameters
     ----------
     path : str or os.PathLike
         CSV file under ``raw/<machine>/``.
+    sensors : sequence of str
+        The machine's temperature sensors (``input.sensors``; the paper rig's ``T1`` .. ``T16``
+        by default): columns the header must have.
 
     Returns
     -------
     pandas.DataFrame
-        Canonical columns first (``time``, ``speed_rpm``, ``T1``..``T16``,
-        ``disp_um``), then extra columns; index = 1-based line number in the file.
+        Canonical columns first (``time``, ``speed_rpm``, the sensors, ``disp_um``), then
+        extra columns; index = 1-based line number in the file.
         ``attrs`` holds ``metadata`` (dict), ``source`` (path) and ``sha256``.
         Empty numeric fields become NaN (a logger dropout); cleaning decides what
         to do with them.
@@ -379,13 +395,14 @@ def read_raw_log(path: str | os.PathLike) -> pd.DataFrame:
     header_line_no = header_idx + 1
 
     header = [h.strip() for h in split_fields(path, lines[header_idx], header_line_no)]
-    _check_header(path, header, header_line_no)
+    required = canonical_columns(sensors)
+    _check_header(path, header, header_line_no, required)
     rows, line_numbers = _split_rows(path, lines[header_idx + 1 :], header, header_line_no)
 
     index = pd.Index(line_numbers, name="line", dtype="int64")
     columns = {name: list(col) for name, col in zip(header, zip(*rows))}
     data: dict[str, object] = {"time": _parse_times(path, columns["time"], line_numbers)}
-    data.update(_parse_values(path, header, columns, line_numbers))
+    data.update(_parse_values(path, header, columns, line_numbers, required[1:]))
 
     frame = pd.DataFrame(data, index=index)
     frame.attrs["metadata"] = meta
@@ -405,16 +422,21 @@ def contract_violations(frame: pd.DataFrame) -> list[str]:
     """
     problems: list[str] = []
     cols = list(frame.columns)
-    if cols[: len(REQUIRED_COLUMNS)] != list(REQUIRED_COLUMNS):
-        problems.append(f"canonical columns not first/in order: {cols[: len(REQUIRED_COLUMNS)]}")
+    try:
+        required = canonical_columns(frame_sensors(cols))
+    except ValueError:
+        required = canonical_columns(DEFAULT_SENSORS)
+    if cols[: len(required)] != list(required):
+        problems.append(f"canonical columns not first/in order: {cols[: len(required)]}")
         return problems
+    numeric = required[1:]
     if len(set(cols)) != len(cols):
         problems.append("duplicate column names")
     if str(frame["time"].dtype) != "datetime64[ns]":
         problems.append(f"time dtype is {frame['time'].dtype}")
     elif frame["time"].isna().any():
         problems.append("NaT in time")
-    for name in NUMERIC_COLUMNS:
+    for name in numeric:
         if str(frame[name].dtype) != "float64":
             problems.append(f"{name} dtype is {frame[name].dtype}")
         elif np.isinf(frame[name].to_numpy()).any():
@@ -442,7 +464,7 @@ def contract_violations(frame: pd.DataFrame) -> list[str]:
 # --------------------------------------------------------------------------- native writer
 
 #: Decimal places used when writing each canonical column (the logger's resolution).
-DEFAULT_DECIMALS = {"speed_rpm": 0, **{s: 2 for s in SENSORS}, "disp_um": 3}
+DEFAULT_DECIMALS = {"speed_rpm": 0, **{s: 2 for s in DEFAULT_SENSORS}, "disp_um": 3}
 
 
 def format_raw_log(

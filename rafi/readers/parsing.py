@@ -25,10 +25,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi import SENSORS
 from rafi.errors import QUOTE_MAX_CHARS, RawFormatError, quote
+from rafi.sensors import DEFAULT_SENSORS
 
-NUMERIC_COLUMNS = ("speed_rpm", *SENSORS, "disp_um")
+
+def numeric_columns(sensors=DEFAULT_SENSORS) -> tuple[str, ...]:
+    """The numeric canonical columns of a machine with ``sensors``: speed, sensors, displacement."""
+    return ("speed_rpm", *sensors, "disp_um")
+
+
+#: :func:`numeric_columns` of the paper's rig.
+NUMERIC_COLUMNS = numeric_columns()
 
 #: Longest line of a raw text file, in bytes (check ``line_too_long``): 64 KiB.
 LINE_MAX_BYTES = 64 * 1024

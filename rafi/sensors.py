@@ -1,0 +1,65 @@
+"""The temperature sensors of a machine, as its tables carry them.
+
+A machine has its own sensors, 1 to 64 of them, named as its ``input:`` mapping names them
+(``input.sensors``, resolved once by :func:`rafi.readers.input_spec.check_sensors`; the paper's
+rig, ``T1`` .. ``T16``, where the mapping names none). The tables then say which they are:
+
+- a canonical or clean log frame has the columns ``time, speed_rpm, <sensors>, disp_um`` first,
+  in that order, then any extra columns (:func:`frame_sensors`);
+- ``runs.parquet`` has every sensor ``s`` beside its rise ``d<s>`` (:func:`run_sensors`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Sequence
+
+from rafi.contract.input import DEFAULT_SENSORS
+
+__all__ = ["DEFAULT_SENSORS", "canonical_columns", "frame_sensors", "rise_columns", "run_sensors"]
+
+
+def canonical_columns(sensors: Sequence[str] = DEFAULT_SENSORS) -> tuple[str, ...]:
+    """The first columns of a canonical log frame of a machine with ``sensors``, in order."""
+    return ("time", "speed_rpm", *sensors, "disp_um")
+
+
+def frame_sensors(columns: Iterable[str] | object) -> tuple[str, ...]:
+    """The sensors of a canonical or clean log frame: its columns between ``speed_rpm`` and
+    ``disp_um``.
+
+    Parameters
+    ----------
+    columns : iterable of str, or a DataFrame
+        The frame's columns in order (a frame is taken by its ``columns``).
+
+    Returns
+    -------
+    tuple of str
+        The sensor names in column order.
+
+    Raises
+    ------
+    ValueError
+        If ``speed_rpm`` or ``disp_um`` is missing or they are out of order (not a canonical frame).
+    """
+    names = [str(c) for c in getattr(columns, "columns", columns)]
+    try:
+        first, last = names.index("speed_rpm"), names.index("disp_um")
+    except ValueError:
+        raise ValueError(f"not a canonical log frame (no speed_rpm or disp_um column): {names[:6]}") from None
+    if last <= first:
+        raise ValueError(f"not a canonical log frame: disp_um before speed_rpm in {names[:6]}")
+    return tuple(names[first + 1 : last])
+
+
+def run_sensors(columns: Iterable[str] | object) -> tuple[str, ...]:
+    """The sensors of a runs table (or any frame holding rises): every column ``s`` beside which
+    there is its rise ``d<s>``, in column order."""
+    names = [str(c) for c in getattr(columns, "columns", columns)]
+    present = set(names)
+    return tuple(s for s in names if f"d{s}" in present)
+
+
+def rise_columns(sensors: Iterable[str]) -> list[str]:
+    """The rise column of every sensor: ``d<s>``."""
+    return [f"d{s}" for s in sensors]
