@@ -65,12 +65,10 @@ import numpy as np
 import pandas as pd
 
 from rafi.errors import RawFormatError
-from rafi.sensors import frame_sensors
 from rafi.method.clean_steps import (  # noqa: F401 (the step constants: part of this module's API)
     MAD_TO_SIGMA,
     PERIOD_MISMATCH_FRACTION,
     SENSOR_COLUMNS,
-    sensor_end,
     SNAP_REPORT_FRACTION,
     SPIKE_SIGMA_FLOOR,
     Grid,
@@ -82,9 +80,11 @@ from rafi.method.clean_steps import (  # noqa: F401 (the step constants: part of
     interpolate_dropouts,
     remove_open_circuit,
     replace_spikes,
+    sensor_end,
     snap_to_grid,
     sort_by_time,
 )
+from rafi.sensors import frame_sensors
 from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES  # noqa: F401 (named in the docstrings)
 
 #: Columns of the audit table, in order (``docs/design.md``).

@@ -21,7 +21,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi.sensors import DEFAULT_SENSORS, canonical_columns, frame_sensors
 from rafi.artefact import write_text_atomic
 from rafi.errors import RawFormatError, quote
 from rafi.readers.parsing import (
@@ -41,6 +40,7 @@ from rafi.readers.parsing import (
     split_lines,
     to_naive_ns,
 )
+from rafi.sensors import DEFAULT_SENSORS, canonical_columns, frame_sensors
 
 #: Metadata keys with a documented meaning; any other ``# key: value`` is kept as text.
 KNOWN_METADATA = {"machine", "run_id", "sample_period_s", "notes"}
