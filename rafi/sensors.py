@@ -54,10 +54,14 @@ def frame_sensors(columns: Iterable[str] | object) -> tuple[str, ...]:
 
 def run_sensors(columns: Iterable[str] | object) -> tuple[str, ...]:
     """The sensors of a runs table (or any frame holding rises): every column ``s`` beside which
-    there is its rise ``d<s>``, in column order."""
+    there is its rise ``d<s>``, in column order; in a frame of rises only (no sensor column
+    beside any of them), every rise column ``d<s>`` but ``dz_um`` and ``disp_um``."""
     names = [str(c) for c in getattr(columns, "columns", columns)]
     present = set(names)
-    return tuple(s for s in names if f"d{s}" in present)
+    paired = tuple(s for s in names if f"d{s}" in present)
+    if paired:
+        return paired
+    return tuple(c[1:] for c in names if c.startswith("d") and len(c) > 1 and c not in ("dz_um", "disp_um"))
 
 
 def rise_columns(sensors: Iterable[str]) -> list[str]:

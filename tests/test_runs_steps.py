@@ -7,7 +7,6 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from rafi import SENSORS
 from rafi.method.runs import (
     RUNS_FRAME_COLUMNS,
     LogArrays,
@@ -196,9 +195,14 @@ def test_speed_statistics_ignore_missing_values():
 
 def test_log_arrays_without_time_columns_or_segments():
     frame = pd.DataFrame(
-        {"time": pd.date_range("2026-01-01", periods=4, freq="5s"), "speed_rpm": 1.0, "disp_um": 0.0}
+        {
+            "time": pd.date_range("2026-01-01", periods=4, freq="5s"),
+            "speed_rpm": 1.0,
+            "T1": np.nan,
+            "disp_um": 0.0,
+        }
     )
     log = log_arrays(frame)
     np.testing.assert_array_equal(log.t_s, [0.0, 5.0, 10.0, 15.0])
     assert log.period == 5.0 and (log.segment == 0).all() and np.isnan(log.temps).all()
-    assert log.temps.shape == (4, len(SENSORS))
+    assert log.temps.shape == (4, 1) and log.sensors == ("T1",)

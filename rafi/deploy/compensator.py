@@ -89,12 +89,12 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rafi import SENSORS
 from rafi.artefact import model_id_verifies
 from rafi.contract import MODEL_KINDS
 from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
 from rafi.deploy.streaming import LowpassBank, ReferenceWindow
 from rafi.method.fuzzy import triangular_weights
+from rafi.sensors import DEFAULT_SENSORS
 
 __all__ = ["KINDS", "STATUSES", "Compensator", "Step", "parse_exponents"]
 
@@ -179,8 +179,11 @@ class Compensator:
     ----------
     kind, model_id : str
         From the artefact.
+    sensors : tuple of str
+        The machine's sensors: the order of the ``temperatures`` of :meth:`step` and
+        :meth:`set_reference` (``T1..T16`` for the paper's rig).
     sensor_index : ndarray of int
-        Positions in ``T1..T16`` of the sensors the model reads (its key sensors / sensors).
+        Positions in ``sensors`` of the sensors the model reads (its key sensors / sensors).
     window_s : float
         ``reference.window_s``.
     speed_rule : str
@@ -222,6 +225,7 @@ class Compensator:
         *,
         kind: str,
         model_id: str,
+        sensors: tuple,
         sensor_index: np.ndarray,
         window_s: float,
         speed_rule: str,
@@ -246,6 +250,7 @@ class Compensator:
     ):
         self.kind = kind
         self.model_id = model_id
+        self.sensors = sensors
         self.sensor_index = sensor_index
         self.window_s = window_s
         self.speed_rule = speed_rule
@@ -280,30 +285,40 @@ class Compensator:
         cls,
         d: dict,
         *,
+        sensors=DEFAULT_SENSORS,
         input_rule: Callable | None = None,
         output_rule: Callable | None = None,
     ) -> Compensator:
         """A compensator for the fitted model ``d`` (a ``rafi.model/1`` artefact of a kind in
         :data:`KINDS`; an edited artefact is refused), capturing its reference from the first
-        sample on.
+        sample on. ``sensors``: the machine's sensors, the order in which the temperatures
+        arrive (its ``input.sensors``).
 
         Raises
         ------
         ValueError
-            Not such an artefact, or its features are not what this module computes.
+            Not such an artefact, its features are not what this module computes, or it reads
+            a sensor that is not one of ``sensors``.
         """
         kind = _check(d)
+        sensors = tuple(sensors)
+        missing = [s for s in d.get("key_sensors", []) if s not in sensors]
+        if missing:
+            raise ValueError(
+                f"the model reads {', '.join(missing)}, which the machine's sensors "
+                f"({', '.join(sensors)}) do not include"
+            )
         ref = d.get("reference") or {}
         window_s = float(ref.get("window_s", 0.0))
-        common = dict(kind=kind, model_id=str(d.get("model_id", "")), window_s=window_s)
+        common = dict(kind=kind, model_id=str(d.get("model_id", "")), window_s=window_s, sensors=sensors)
         hooks = dict(input_rule=input_rule, output_rule=output_rule, window=ReferenceWindow.create(window_s))
         hooks["interval"] = StreamInterval.from_artefact(d)
         if kind in ("rafi", "rafi_linear"):
-            return cls(**common, **cls._rafi_parts(d), **hooks)
-        return cls(**common, **cls._ridge_parts(d), **hooks)
+            return cls(**common, **cls._rafi_parts(d, sensors), **hooks)
+        return cls(**common, **cls._ridge_parts(d, sensors), **hooks)
 
     @staticmethod
-    def _rafi_parts(d: dict) -> dict:
+    def _rafi_parts(d: dict, machine_sensors: tuple) -> dict:
         sensors = list(d["key_sensors"])
         speeds = sorted(d["speeds"], key=lambda sp: float(sp["speed_rpm"]))
         fuzzy = d.get("fuzzy") or {}
@@ -312,7 +327,7 @@ class Compensator:
         ranges[:, :, 0] -= tol_k
         ranges[:, :, 1] += tol_k
         return dict(
-            sensor_index=np.array([SENSORS.index(s) for s in sensors]),
+            sensor_index=np.array([machine_sensors.index(s) for s in sensors]),
             speed_rule="zero",
             restart_gap_s=float("inf"),
             rise_taus=np.zeros(1),
@@ -331,7 +346,7 @@ class Compensator:
         )
 
     @staticmethod
-    def _ridge_parts(d: dict) -> dict:
+    def _ridge_parts(d: dict, machine_sensors: tuple) -> dict:
         kind, sel, hyper = d["kind"], d["selected"], d.get("hyperparameters", {})
         sensors = list(d["key_sensors"])
         p = len(sensors)
@@ -370,7 +385,7 @@ class Compensator:
         rng = d["regressor_ranges"]
         speed_rule = (d.get("speed_reference") or {}).get("rule", "zero")
         return dict(
-            sensor_index=np.array([SENSORS.index(s) for s in sensors]),
+            sensor_index=np.array([machine_sensors.index(s) for s in sensors]),
             speed_rule=speed_rule,
             restart_gap_s=float(hyper.get("filter_restart_gap_s", float("inf"))),
             rise_taus=rise_taus,
@@ -396,7 +411,7 @@ class Compensator:
         self._reset_clock = True
 
     def set_reference(self, temperatures, speed_rpm: float) -> None:
-        """Use a given reference state: temperatures ``T1..T16`` (degC) and speed (r/min).
+        """Use a given reference state: temperatures of :attr:`sensors` (degC) and speed (r/min).
 
         The machine is taken as *settled* there: the reference of every filtered feature is
         its settled value (the filtered temperature is the temperature, a heat-input filter
@@ -443,8 +458,8 @@ class Compensator:
             Time (s), increasing (any origin).
         speed_rpm : float
             Spindle speed (r/min); NaN if unknown.
-        temperatures : array_like, shape (16,)
-            ``T1..T16`` (degC), NaN where a sensor has no value.
+        temperatures : array_like, shape (len(sensors),)
+            The machine's sensors (degC), NaN where a sensor has no value.
         """
         t = float(t_s)
         rpm = float(speed_rpm)

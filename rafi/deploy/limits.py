@@ -63,7 +63,7 @@ value read again (:meth:`SafeCompensator.resume_from`: someone may have changed 
 model (:meth:`SafeCompensator.swap`) takes over from the command in force. So no command
 differs from the one before it (or from the value read) by more than the rate limit.
 
-The session's reference state (the temperatures of all 16 sensors and the speed over the
+The session's reference state (the temperatures of every sensor and the speed over the
 reference window after power-on or :meth:`SafeCompensator.capture_reference`) is kept, so that
 a model swapped in while running compensates from the same reference as the one it replaces
 (:meth:`Compensator.set_reference`). Its filters start settled on its first sample: the
@@ -85,10 +85,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-from rafi import SENSORS
 from rafi.deploy.compensator import Compensator
 from rafi.errors import SettingsError, TargetError
 from rafi.method.fuzzy import triangular_weights
+from rafi.sensors import DEFAULT_SENSORS
 
 __all__ = ["STATUSES", "Command", "Limits", "SafeCompensator"]
 
@@ -230,6 +230,8 @@ class SafeCompensator:
 
     Attributes
     ----------
+    sensors_ : tuple of str
+        The machine's sensors (set by :meth:`load`): the order of every sample's temperatures.
     compensator_ : Compensator
         Set by :meth:`load` (absent before: the status is ``off``).
     command_um_ : float
@@ -237,8 +239,8 @@ class SafeCompensator:
     held_um_ : float
         What a ``hold`` keeps: the last command sent in ``ok`` or ``referencing`` state, or
         the value read from the controller at start or after a reconnect.
-    reference_temperatures_ : ndarray of shape (16,) or None
-        The session's reference state, ``T1..T16`` (the median over the reference window,
+    reference_temperatures_ : ndarray of shape (len(sensors),) or None
+        The session's reference state, the machine's sensors (the median over the reference window,
         NaN where a sensor had no valid value); None while the first window is collected.
     reference_speed_rpm_ : float
         The session's reference speed (median over the reference window).
@@ -248,15 +250,17 @@ class SafeCompensator:
         self.limits = limits
 
     # ------------------------------------------------------------------ the API
-    def load(self, artefact: dict) -> SafeCompensator:
-        """Load a model artefact of the family (``rafi.model/1``) and start from power-on.
+    def load(self, artefact: dict, sensors=DEFAULT_SENSORS) -> SafeCompensator:
+        """Load a model artefact of the family (``rafi.model/1``) and start from power-on;
+        ``sensors`` are the machine's, the order of the temperatures of every sample.
 
         The command starts from 0 um (compensation off, as in a replay from power-on) until
         :meth:`start_from` says what the controller holds. Whether the model is *qualified*
         for the machine is the caller's check (:func:`rafi.deploy.qualified.load_champion`);
         the replay of any model uses this too.
         """
-        self._install(Compensator.from_artefact(artefact, input_rule=self._input_rule))
+        self.sensors_ = tuple(sensors)
+        self._install(Compensator.from_artefact(artefact, sensors=self.sensors_, input_rule=self._input_rule))
         self.command_um_ = 0.0
         self.held_um_ = 0.0
         self.reference_temperatures_: np.ndarray | None = None
@@ -301,7 +305,7 @@ class SafeCompensator:
         thermally settled then; a filtered feature is off by the settling of its filter, which
         fades with the filter's time constant). The fault timer and the hold value carry on.
         """
-        comp = Compensator.from_artefact(artefact, input_rule=self._input_rule)
+        comp = Compensator.from_artefact(artefact, sensors=self.sensors_, input_rule=self._input_rule)
         if self.reference_temperatures_ is not None:
             comp.set_reference(self.reference_temperatures_, self.reference_speed_rpm_)
         self._install(comp)
@@ -317,7 +321,7 @@ class SafeCompensator:
     # ------------------------------------------------------------------ internals
     def _install(self, comp: Compensator) -> None:
         self.compensator_ = comp
-        names = [SENSORS[i] for i in comp.sensor_index]
+        names = [comp.sensors[i] for i in comp.sensor_index]
         self._watch = _SensorWatch(names, self.limits)
         self._faults: list[str] = []
 
@@ -346,7 +350,7 @@ class SafeCompensator:
         return rpm, temps, None
 
     def _note_reference(self, t: float, rpm: float, temperatures, status: str) -> None:
-        """Collect the session's reference (all 16 sensors) while the model collects its own."""
+        """Collect the session's reference (every sensor) while the model collects its own."""
         temps = np.array(temperatures, dtype=float)
         lo, hi = self.limits.temp_valid_c
         with np.errstate(invalid="ignore"):
@@ -391,7 +395,7 @@ class SafeCompensator:
         with np.errstate(invalid="ignore"):
             beyond = (rises < lo - lim.range_margin_k) | (rises > hi + lim.range_margin_k)
         for i in np.flatnonzero(beyond):
-            out.append(f"{SENSORS[comp.sensor_index[i]]} rise {rises[i]:.3g} K outside trained range")
+            out.append(f"{comp.sensors[comp.sensor_index[i]]} rise {rises[i]:.3g} K outside trained range")
         if np.isfinite(rpm) and abs(rpm) > top + lim.speed_margin_rpm:
             out.append(f"speed {abs(rpm):.0f} r/min above trained {top:.0f} r/min")
         return out

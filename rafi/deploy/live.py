@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
-from rafi import SENSORS
 from rafi.errors import RafiUserError, SettingsError, TargetError
+from rafi.sensors import DEFAULT_SENSORS
 
 __all__ = ["LiveLoop", "LogFollower", "TARGET_KINDS", "build_target", "check_target_limits"]
 
@@ -199,10 +199,15 @@ class LogFollower:
         the header is read in any case).
     log : callable, optional
         ``log(message)`` for skipped lines and a replaced file.
+    sensors : sequence of str
+        The machine's sensors (``input.sensors``): the temperature columns read, in order.
     """
 
-    def __init__(self, path, *, from_start: bool = False, log: Callable | None = None):
+    def __init__(
+        self, path, *, from_start: bool = False, log: Callable | None = None, sensors=DEFAULT_SENSORS
+    ):
         self.path = Path(path)
+        self.sensors = tuple(sensors)
         self.from_start = from_start
         self.log = log or (lambda message: None)
         self._pos = 0
@@ -245,7 +250,8 @@ class LogFollower:
         return out
 
     def read(self, now: float | None = None) -> list[tuple[float, float, np.ndarray]]:
-        """The samples ``(t_s, speed_rpm, temperatures[16])`` of the lines completed since the
+        """The samples ``(t_s, speed_rpm, temperatures)`` (of :attr:`sensors`) of the lines completed
+        since the
         last call (none if the file did not grow). ``now`` is not used (the log's own clock)."""
         import csv
 
@@ -279,7 +285,7 @@ class LogFollower:
             self._last_t = t_s
             values = [
                 _number(fields[i]) if i is not None and i < len(fields) else math.nan
-                for i in (col.get(name) for name in ("speed_rpm", *SENSORS))
+                for i in (col.get(name) for name in ("speed_rpm", *self.sensors))
             ]
             samples.append((t_s, values[0], np.array(values[1:], dtype=float)))
         return samples
@@ -293,11 +299,12 @@ class LinkSource:
     """The live inputs of a link (an :class:`~rafi.deploy.opcua_client.OpcUaLink`): one sample
     per cycle, stamped with the loop's clock."""
 
-    def __init__(self, link):
+    def __init__(self, link, sensors=DEFAULT_SENSORS):
         self.link = link
+        self.sensors = tuple(sensors)
 
     def read(self, now: float) -> list[tuple[float, float, np.ndarray]]:
-        return [self.link.read_sample(now)]
+        return [self.link.read_sample(now, self.sensors)]
 
     def after_outage(self, samples: list) -> list:
         return samples

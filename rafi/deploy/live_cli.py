@@ -108,9 +108,8 @@ def _link(args, deploy: dict, safe, kind, project: Path, log, environ):
 
     opcua = opcua_settings(deploy.get("opcua"), need_inputs=not args.follow, project_dir=project)
     if not args.follow:
-        from rafi import SENSORS
-
-        needed = [SENSORS[i] for i in safe.compensator_.sensor_index]
+        comp = safe.compensator_
+        needed = [comp.sensors[i] for i in comp.sensor_index]
         missing = [s for s in needed if s not in opcua["inputs"]]
         if missing:
             raise SettingsError(f"deploy.opcua.inputs has no node for {missing}: the model reads {needed}")
@@ -148,9 +147,10 @@ def build(args, *, log=print, environ=None):
         raise SettingsError(f"{config_path}: cannot read the config ({exc})") from None
     project = config_path.resolve().parent
     artefact, registry = _load_model(args, config, project)
-    deploy = machine_settings(config, args.machine)["deploy"]
+    settings = machine_settings(config, args.machine)
+    deploy, sensors = settings["deploy"], settings["input"]["sensors"]
     limits = Limits.from_settings(deploy)
-    safe = SafeCompensator(limits=limits).load(artefact)
+    safe = SafeCompensator(limits=limits).load(artefact, sensors)
 
     target_block = deploy.get("target")
     kind = (target_block or {}).get("kind") if isinstance(target_block, dict) else None
@@ -160,7 +160,7 @@ def build(args, *, log=print, environ=None):
     check_target_limits(target, axis, limits)
     if args.dry_run and kind in ("csv", "jsonl"):
         target = _DryTarget(target).target
-    source = LogFollower(args.follow, log=log) if args.follow else LinkSource(link)
+    source = LogFollower(args.follow, log=log, sensors=sensors) if args.follow else LinkSource(link, sensors)
     watch = ChampionWatch(registry, artefact["model_id"], check_s=deploy["champion_check_s"], log=log)
     metrics = metrics_from_settings(deploy, machine=args.machine, log=log)
     if metrics is not None:

@@ -38,7 +38,6 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
-from rafi import SENSORS
 from rafi.deploy.opcua_credentials import (
     ENV_CREDENTIALS,
     ENV_PASSWORD,
@@ -51,6 +50,7 @@ from rafi.deploy.opcua_log import LibraryLogRouter, route_library_log, unroute_l
 from rafi.deploy.opcua_loop import LoopThread, call_within
 from rafi.deploy.opcua_security import check_security_settings, load_security, plaintext_notice, secure_client
 from rafi.errors import RafiUserError, SettingsError
+from rafi.sensors import DEFAULT_SENSORS
 
 __all__ = [
     "ENV_CREDENTIALS",
@@ -87,8 +87,23 @@ OPCUA_DEFAULTS = {
 #: (a SINUMERIK has few session slots); the client's watchdog reads every second meanwhile.
 SESSION_TIMEOUT_MS = 60_000
 
-#: Inputs the loop reads: the speed and the 16 temperatures.
-INPUT_NAMES = ("speed_rpm", *SENSORS)
+#: Inputs the loop reads on the paper's rig: the speed and its 16 temperatures (any machine's
+#: sensor names are inputs: :func:`input_name_problem`).
+INPUT_NAMES = ("speed_rpm", *DEFAULT_SENSORS)
+
+
+def input_name_problem(name) -> str | None:
+    """Why ``name`` cannot be an input of ``deploy.opcua.inputs`` (``speed_rpm`` or a sensor
+    name: :func:`rafi.readers.input_spec.sensor_name_problem`), or None."""
+    from rafi.readers.input_spec import sensor_name_problem
+
+    if name == "speed_rpm":
+        return None
+    problem = sensor_name_problem(name)
+    return (
+        f"not an input ({problem}); the inputs are speed_rpm and the machine's sensors" if problem else None
+    )
+
 
 #: Status codes that no reconnecting cures: the loop stops with a message.
 _FATAL = {
@@ -200,12 +215,13 @@ def opcua_settings(block: Mapping | None, *, need_inputs: bool = True, project_d
         raise SettingsError(f"deploy.opcua.credentials_file is {cred!r}; expected a path")
     inputs = out["inputs"] or {}
     if not isinstance(inputs, Mapping):
-        raise SettingsError("deploy.opcua.inputs must map speed_rpm, T1..T16 to node ids")
+        raise SettingsError("deploy.opcua.inputs must map speed_rpm and the machine's sensors to node ids")
     parsed = {}
     for name, spec in inputs.items():
         where = f"deploy.opcua.inputs.{name}"
-        if name not in INPUT_NAMES:
-            raise SettingsError(f"{where}: not an input; the inputs are speed_rpm and T1..T16")
+        problem = input_name_problem(name)
+        if problem:
+            raise SettingsError(f"{where}: {problem}")
         scale, offset = 1.0, 0.0
         if isinstance(spec, Mapping):
             extra = sorted(set(spec) - {"node", "scale", "offset"})
@@ -464,10 +480,11 @@ class OpcUaLink:
             out[name] = value if math.isfinite(value) else math.nan
         return out
 
-    def read_sample(self, t_s: float) -> tuple[float, float, np.ndarray]:
-        """``(t_s, speed_rpm, temperatures[16])`` from the inputs (NaN where not configured)."""
+    def read_sample(self, t_s: float, sensors=DEFAULT_SENSORS) -> tuple[float, float, np.ndarray]:
+        """``(t_s, speed_rpm, temperatures)`` from the inputs, the temperatures of the machine's
+        ``sensors`` in order (NaN where not configured)."""
         values = self.read_inputs()
-        temps = np.array([values.get(name, math.nan) for name in SENSORS], dtype=float)
+        temps = np.array([values.get(name, math.nan) for name in sensors], dtype=float)
         return float(t_s), values.get("speed_rpm", math.nan), temps
 
     # -- writing (the sink of SinumerikTarget) -------------------------------------------

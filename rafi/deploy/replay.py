@@ -29,9 +29,9 @@ from collections import Counter
 import numpy as np
 import pandas as pd
 
-from rafi import SENSORS
 from rafi.deploy.limits import STATUSES, SafeCompensator
 from rafi.deploy.metrics import fault_groups, fault_groups_text
+from rafi.sensors import run_sensors
 
 __all__ = [
     "COLUMNS",
@@ -89,7 +89,7 @@ SUMMARY_COLUMNS = (
     "interval_width_um",
 )
 
-_NEEDED = ("log", "log_t_s", "run_id", "t_s", "speed_rpm", "dz_um", *SENSORS)
+_NEEDED = ("log", "log_t_s", "run_id", "t_s", "speed_rpm", "dz_um")
 
 
 def _reference_rule(artefact: dict, reference_rule: str | None) -> str:
@@ -149,7 +149,9 @@ def replay_log(
     ValueError
         No rows, more than one log, or a column missing.
     """
-    missing = [c for c in _NEEDED if c not in frame.columns]
+    missing = [c for c in _NEEDED if c not in frame.columns] + (
+        [] if run_sensors(frame) else ["<sensor> beside its rise d<sensor>"]
+    )
     if missing:
         raise ValueError(f"the frame has no column(s) {', '.join(missing)} (runs.parquet of rule runs)")
     logs = frame["log"].astype(str).unique()
@@ -158,14 +160,15 @@ def replay_log(
     rule = _reference_rule(artefact, reference_rule)
     log = frame.sort_values("log_t_s", kind="stable")
     starts = _starts(log, rule)
-    temps = log[list(SENSORS)].to_numpy(dtype=float)
+    sensors = run_sensors(log)
+    temps = log[list(sensors)].to_numpy(dtype=float)
     t = log["log_t_s"].to_numpy(dtype=float)
     rpm = log["speed_rpm"].to_numpy(dtype=float)
     steps = np.diff(t)
     steps = steps[steps > 0]
     if len(steps):
         limits = dataclasses.replace(limits, interval_s=float(np.median(steps)))
-    safe = SafeCompensator(limits=limits).load(artefact)
+    safe = SafeCompensator(limits=limits).load(artefact, sensors)
     rows = []
     for k in range(len(log)):
         if starts[k]:

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from rafi import SENSORS
+from rafi.sensors import run_sensors
 
 SPEED_SCALE_RPM = 1000.0  # speed features are in krpm and krpm^2
 SPEED_POWER_SCALE_RPM = 10000.0  # speed-power features use (n / 10000 r/min)^p
@@ -40,18 +40,20 @@ MAX_MISSING_FRACTION = 0.05
 
 def usable_sensors(
     runs_frame: pd.DataFrame,
-    sensors: Sequence[str] = SENSORS,
+    sensors: Sequence[str] | None = None,
     max_missing_fraction: float = MAX_MISSING_FRACTION,
 ) -> list[str]:
-    """Sensors whose rise column exists, is missing (NaN) on at most ``max_missing_fraction`` of
+    """Sensors (of ``sensors``; every sensor of ``runs_frame`` when ``None``) whose rise column
+    exists, is missing (NaN) on at most ``max_missing_fraction`` of
     the rows of ``runs_frame`` and is not constant over its finite values."""
+    sensors = run_sensors(runs_frame) if sensors is None else sensors
     left_out = sensors_left_out(runs_frame, sensors, max_missing_fraction)
     return [s for s in sensors if rise_column(s) in runs_frame.columns and s not in left_out]
 
 
 def sensors_left_out(
     runs_frame: pd.DataFrame,
-    sensors: Sequence[str] = SENSORS,
+    sensors: Sequence[str] | None = None,
     max_missing_fraction: float = MAX_MISSING_FRACTION,
 ) -> dict[str, str]:
     """Sensor -> why it is not usable (:func:`usable_sensors`), for the sensors of ``sensors``
@@ -63,7 +65,7 @@ def sensors_left_out(
         ``"no value"``, ``"missing on 7.2 % of the rows"`` or ``"constant"``.
     """
     out = {}
-    for s in sensors:
+    for s in run_sensors(runs_frame) if sensors is None else sensors:
         col = rise_column(s)
         if col not in runs_frame.columns:
             continue

@@ -278,13 +278,11 @@ def prior_param(
 
 
 def available_sensors(runs_frame) -> list[str]:
-    """The sensors ``T1`` ... whose rise column ``dT..`` has a finite value in ``runs_frame``."""
-    out = []
-    for col in runs_frame.columns:
-        name = str(col)
-        if name.startswith("dT") and name[2:].isdigit() and bool(runs_frame[col].notna().any()):
-            out.append(name[1:])
-    return out
+    """The sensors (:func:`rafi.sensors.run_sensors`) whose rise column ``d<s>`` has a finite value
+    in ``runs_frame``."""
+    from rafi.sensors import run_sensors
+
+    return [s for s in run_sensors(runs_frame) if bool(runs_frame[f"d{s}"].notna().any())]
 
 
 def resolved_prior(param: dict | None, runs_table, runs_frame, *, reference: dict, log=print) -> dict | None:

@@ -37,7 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from rafi import SENSORS
+from rafi.sensors import run_sensors
 from rafi.settings import MACHINE_DEFAULTS
 
 __all__ = [
@@ -134,7 +134,7 @@ def training_speed_groups(
 
 
 def _sensor_columns(runs_frame: pd.DataFrame) -> list[str]:
-    return [s for s in SENSORS if f"d{s}" in runs_frame.columns]
+    return list(run_sensors(runs_frame))
 
 
 def _pearson(

@@ -62,7 +62,6 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
-from rafi import SENSORS
 from rafi.method.speed_runs import (  # noqa: F401 (the segmentation constants: part of this module's API)
     RAMP_MAX_SAMPLES,
     SPEED_SMOOTH_S,
@@ -81,6 +80,7 @@ from rafi.method.windows import (
     schedule_cooldowns,
     window_of,
 )
+from rafi.sensors import DEFAULT_SENSORS, frame_sensors
 from rafi.settings import MACHINE_DEFAULTS
 
 #: Roles a run can have (``docs/design.md``).
@@ -108,20 +108,26 @@ RUNS_TABLE_COLUMNS = (
     "end_time",
 )
 
-#: Columns of ``runs.parquet``, in order.
-RUNS_FRAME_COLUMNS = (
-    "run_id",
-    "t_s",
-    "time",
-    "speed_rpm",
-    *SENSORS,
-    "disp_um",
-    *(f"d{s}" for s in SENSORS),
-    "dz_um",
-    "log",
-    "log_t_s",
-    "segment",
-)
+
+def runs_frame_columns(sensors=DEFAULT_SENSORS) -> tuple[str, ...]:
+    """Columns of ``runs.parquet`` of a machine with ``sensors``, in order."""
+    return (
+        "run_id",
+        "t_s",
+        "time",
+        "speed_rpm",
+        *sensors,
+        "disp_um",
+        *(f"d{s}" for s in sensors),
+        "dz_um",
+        "log",
+        "log_t_s",
+        "segment",
+    )
+
+
+#: :func:`runs_frame_columns` of the paper's rig.
+RUNS_FRAME_COLUMNS = runs_frame_columns()
 
 #: File-name suffixes removed from the keys of ``clean_frames`` to get the stem.
 LOG_SUFFIXES = (".csv", ".xlsx", ".xls", ".txt", ".parquet", ".tsv")
@@ -158,8 +164,8 @@ def find_runs(
     clean_frames : dict of str -> pandas.DataFrame
         File stem (a file name such as ``x.csv`` is accepted too; the stem is then
         the name without its suffix) -> clean frame of :func:`rafi.method.clean.clean_log`
-        (``time``, ``t_s``, ``speed_rpm``, ``T1``..``T16``, ``disp_um``,
-        ``segment``). Files are processed in sorted key order.
+        (``time``, ``t_s``, ``speed_rpm``, the machine's sensors, ``disp_um``,
+        ``segment``). Files are processed in sorted key order; every frame has the same sensors.
     sha256 : dict of str -> str
         Same keys -> SHA-256 of the raw file (missing keys give an empty text).
     training_speeds_rpm : sequence of float
@@ -203,7 +209,8 @@ def find_runs(
         ``note``). ``run_id`` is the stem when the file gives one run, else
         ``f"{stem}#{k}"`` with ``k = 1, 2, ...`` in time order.
     runs_frame : pandas.DataFrame
-        All runs stacked (RangeIndex), columns ``RUNS_FRAME_COLUMNS``; ``t_s`` is
+        All runs stacked (RangeIndex), columns :func:`runs_frame_columns` of the frames'
+        sensors; ``t_s`` is
         seconds since the start of the run (for a run with an absorbed rest: since the
         start of the rest, i.e. of the log segment).
 
@@ -229,6 +236,7 @@ def find_runs(
         idle_training=idle_training,
         allow_training_after_validation=allow_training_after_validation,
     )
+    sensors = common_sensors(clean_frames)
     rows: list[dict] = []
     samples: list[dict] = []
     for key in sorted(clean_frames):
@@ -237,7 +245,19 @@ def find_runs(
         log_rows, log_samples = log_runs(key, log_arrays(clean_frames[key]), sha256, rules)
         rows += log_rows
         samples += log_samples
-    return runs_table(rows), stack_runs(samples)
+    return runs_table(rows), stack_runs(samples, sensors)
+
+
+def common_sensors(clean_frames: dict) -> tuple[str, ...]:
+    """The sensors every clean frame of a machine has (:func:`rafi.sensors.frame_sensors`; the
+    paper rig's without a frame); ValueError naming the logs if two frames differ."""
+    found = {key: frame_sensors(frame) for key, frame in sorted(clean_frames.items())}
+    distinct = sorted(set(found.values()))
+    if len(distinct) > 1:
+        first = {sensors: key for key, sensors in reversed(found.items())}
+        shown = "; ".join(f"{first[s]}: {', '.join(s)}" for s in distinct[:2])
+        raise ValueError(f"the clean logs of one machine have different sensors ({shown})")
+    return distinct[0] if distinct else DEFAULT_SENSORS
 
 
 @dataclass(frozen=True)
@@ -311,8 +331,8 @@ def run_rules(
 @dataclass(frozen=True)
 class LogArrays:
     """One clean log as arrays (rows in time order): seconds since its first sample, segment,
-    speed, temperatures (rows x ``SENSORS``, NaN for a missing column), displacement, clock
-    (``NaT`` without one) and the sample period."""
+    speed, temperatures (rows x ``sensors``), displacement, clock (``NaT`` without one), the
+    sample period and the sensors' names."""
 
     t_s: np.ndarray
     segment: np.ndarray
@@ -321,6 +341,7 @@ class LogArrays:
     disp: np.ndarray
     times: np.ndarray
     period: float
+    sensors: tuple[str, ...] = DEFAULT_SENSORS
 
 
 def log_arrays(frame: pd.DataFrame) -> LogArrays:
@@ -333,12 +354,8 @@ def log_arrays(frame: pd.DataFrame) -> LogArrays:
         time = pd.to_datetime(frame["time"])
         t_s = (time - time.iloc[0]).dt.total_seconds().to_numpy()
     seg = frame["segment"].to_numpy(dtype="int64") if "segment" in frame else np.zeros(n_rows, "int64")
-    temps = np.column_stack(
-        [
-            frame[s].to_numpy(dtype=float, na_value=np.nan) if s in frame else np.full(n_rows, np.nan)
-            for s in SENSORS
-        ]
-    )
+    sensors = frame_sensors(frame)
+    temps = np.column_stack([frame[s].to_numpy(dtype=float, na_value=np.nan) for s in sensors])
     times = (
         frame["time"].to_numpy(dtype="datetime64[ns]")
         if "time" in frame
@@ -352,6 +369,7 @@ def log_arrays(frame: pd.DataFrame) -> LogArrays:
         disp=frame["disp_um"].to_numpy(dtype=float, na_value=np.nan),
         times=times,
         period=sample_period(t_s, seg),
+        sensors=sensors,
     )
 
 
@@ -460,7 +478,7 @@ def assign_role(kind: str, speed_rpm: float, duration_s: float, window, names, r
 
 
 class Reference(NamedTuple):
-    """The reference state of a run: temperatures (per ``SENSORS``), displacement, the rule in
+    """The reference state of a run: temperatures (per sensor of the log), displacement, the rule in
     words, and the columns without a valid reference value (their rises are NaN)."""
 
     temps: np.ndarray
@@ -485,7 +503,7 @@ def reference_state(log: LogArrays, span: RunSpan, rules: RunRules) -> Reference
         warnings.simplefilter("ignore", RuntimeWarning)  # all-NaN window -> NaN
         temps = np.nanmedian(log.temps[r0:r1], axis=0)
         disp = float(np.nanmedian(log.disp[r0:r1]))
-    missing = [SENSORS[i] for i in range(16) if np.isnan(temps[i])]
+    missing = [s for s, value in zip(log.sensors, temps) if np.isnan(value)]
     if np.isnan(disp):
         missing.append("disp_um")
     return Reference(temps, disp, text, missing)
@@ -500,7 +518,7 @@ def run_samples(log: LogArrays, span: RunSpan, reference: Reference, *, run_id: 
         "time": log.times[a:b],
         "speed_rpm": log.speed[a:b],
     }
-    for i, s in enumerate(SENSORS):
+    for i, s in enumerate(log.sensors):
         columns[s] = log.temps[a:b, i]
         columns[f"d{s}"] = log.temps[a:b, i] - reference.temps[i]
     columns["disp_um"] = log.disp[a:b]
@@ -526,9 +544,11 @@ def runs_table(rows: list[dict]) -> pd.DataFrame:
     )
 
 
-def stack_runs(samples: list[dict]) -> pd.DataFrame:
+def stack_runs(samples: list[dict], sensors=DEFAULT_SENSORS) -> pd.DataFrame:
     """``runs.parquet``: the samples of every run (:func:`run_samples`) stacked, columns
-    ``RUNS_FRAME_COLUMNS`` (``run_id`` text, ``segment`` int64; typed when empty)."""
+    :func:`runs_frame_columns` of ``sensors`` (``run_id`` text, ``segment`` int64; typed when
+    empty)."""
+    columns = runs_frame_columns(sensors)
     counts = [run["n"] for run in samples]
     data = {
         "run_id": pd.Categorical.from_codes(
@@ -540,14 +560,14 @@ def stack_runs(samples: list[dict]) -> pd.DataFrame:
         if samples
         else np.array([], dtype=object),
     }
-    for c in RUNS_FRAME_COLUMNS:
+    for c in columns:
         if c in data:
             continue
         if samples:
             data[c] = np.concatenate([run["columns"][c] for run in samples])
         else:
             data[c] = np.array([], dtype="datetime64[ns]" if c == "time" else float)
-    frame = pd.DataFrame(data, columns=list(RUNS_FRAME_COLUMNS))
+    frame = pd.DataFrame(data, columns=list(columns))
     frame["segment"] = frame["segment"].astype("int64")
     return frame
 

@@ -57,10 +57,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from rafi import SENSORS
 from rafi.method import paper
 from rafi.method.noise import expected_max_abs_noise, white_noise_sigma
 from rafi.method.paper import paper_value
+from rafi.sensors import run_sensors
 from rafi.settings import GATE_KEYS
 
 __all__ = [
@@ -129,13 +129,14 @@ def input_sensors(model) -> list[str] | None:
 
 def inputs_without_value(sub: pd.DataFrame, missing: np.ndarray, sensors: list[str] | None) -> str:
     """The inputs with no value on the rows ``missing`` of the run frame ``sub``: each sensor of
-    ``sensors`` (every sensor of :data:`rafi.SENSORS` when ``None``) whose rise is NaN on at
+    ``sensors`` (every sensor of ``sub`` when ``None``: :func:`rafi.sensors.run_sensors`) whose
+    rise is NaN on at
     least one of them, then ``speed`` if the speed is; joined by ``", "``."""
     if not missing.any():
         return ""
     names = [
         s
-        for s in (SENSORS if sensors is None else sensors)
+        for s in (run_sensors(sub) if sensors is None else sensors)
         if f"d{s}" in sub.columns
         and np.isnan(sub[f"d{s}"].to_numpy(dtype=float, na_value=np.nan)[missing]).any()
     ]

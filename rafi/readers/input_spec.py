@@ -203,7 +203,10 @@ def sensor_name_problem(name) -> str | None:
             "(e.g. T1, spindle_front)"
         )
     if name in RESERVED_NAMES:
-        return f"{name!r} is a column of the pipeline's own ({', '.join(RESERVED_NAMES)}); name the sensor otherwise"
+        return (
+            f"{name!r} is a column of the pipeline's own ({', '.join(RESERVED_NAMES)}); "
+            "name the sensor otherwise"
+        )
     return None
 
 

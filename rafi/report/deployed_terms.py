@@ -38,7 +38,7 @@ def exact(x) -> str:
 
 
 # ---------------------------------------------------------------------------- ridge kinds
-_RISE = re.compile(r"^d(T\d+)@([0-9.eE+-]+)s(\*n_krpm)?$")
+_RISE = re.compile(r"^d([A-Za-z][A-Za-z0-9_]*)@([0-9.eE+-]+)s(\*n_krpm)?$")
 _POWER = re.compile(r"^L([0-9.eE+-]+)s\(n\^([0-9.eE+-]+)\)$")
 _DRAW = re.compile(r"^L([0-9.eE+-]+)s\(n2_krpm2\)$")
 
