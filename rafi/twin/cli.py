@@ -12,6 +12,9 @@ Modes:
               rafi simulate hostile --out /tmp/try/raw/tapping-center-a --shipped raw/tapping-center-a
   plot      plot temperatures and displacement of logs (paper Figure 9 style):
               rafi simulate plot raw/tapping-center-a --out docs/img
+  layout    write the logs of a machine that is not the paper's rig (its own sensors and
+            files, docs/twin.md "Layouts") and print the config block that reads them:
+              rafi simulate layout sensors-6-diameter --out /tmp/try/raw
 
 Run "rafi simulate MODE --help" for the options of each mode.
 """
@@ -201,6 +204,24 @@ def _add_plot_mode(sub: argparse._SubParsersAction, formatter: type[argparse.Hel
     mode.add_argument("--sensors", default="T6,T8,T9,T16,T5,T11,T13", help="comma-separated sensors to draw")
 
 
+def _add_layout_mode(sub: argparse._SubParsersAction, formatter: type[argparse.HelpFormatter]) -> None:
+    """``layout``: a machine with its own sensors and files, and the config that reads it."""
+    from rafi.twin.layouts import layout_names
+
+    mode = sub.add_parser(
+        "layout",
+        formatter_class=formatter,
+        help="write the logs of a machine in a real-world layout and its config block",
+        description="Write the logs of a machine that is not the paper's rig (rafi.twin.layouts: its "
+        "own sensors, 4 to 40 of them, its own file format) into OUT/<machine>/ and print "
+        "the config block that reads them (machines: <machine>: ...).",
+    )
+    mode.add_argument("layout", choices=list(layout_names()), help="the layout")
+    mode.add_argument("--out", default="raw", help="raw data folder; files go to OUT/<machine>/")
+    mode.add_argument("--machine", help="the machine's folder name (default: the layout's name)")
+    mode.add_argument("--seed", type=int, default=1, help="seed of the twin's runs")
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The modes of ``rafi simulate`` and their options, added to ``parser``."""
     sub = parser.add_subparsers(dest="mode", metavar="MODE")
@@ -210,6 +231,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     _add_noise_floor_mode(sub, formatter)
     _add_hostile_mode(sub, formatter)
     _add_plot_mode(sub, formatter)
+    _add_layout_mode(sub, formatter)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -283,8 +305,23 @@ def run(args: argparse.Namespace) -> int:
         for path in plot_runs(files, args.out, sensors=sensors):
             print(path)
         return 0
+    if mode == "layout":
+        import yaml
+
+        from rafi.twin.layouts import LAYOUTS, layout_config, write_layout
+
+        machine = args.machine or LAYOUTS[args.layout].name
+        for path in write_layout(args.layout, args.out, seed=args.seed, machine=machine):
+            print(path, file=sys.stderr)
+        print(
+            yaml.safe_dump(
+                {"machines": {machine: layout_config(args.layout)}}, sort_keys=False, allow_unicode=True
+            )
+        )
+        return 0
     print(
-        "rafi simulate: choose a mode: shipped, day, hostile, noise-floor or plot (see rafi simulate --help)",
+        "rafi simulate: choose a mode: shipped, day, hostile, noise-floor, plot or layout "
+        "(see rafi simulate --help)",
         file=sys.stderr,
     )
     return 2

@@ -1,0 +1,133 @@
+"""A machine's own temperature sensors (issue "Any real machine in one try"): the input mapping
+names them, every step carries them, and machines of 4, 6, 22 and 40 sensors written by the twin
+(rafi.twin.layouts) run end to end through the real Snakefile."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from project_copy import copy_project, run_snakemake
+
+from rafi.errors import InputSpecError
+from rafi.readers.input_spec import normalise_input_spec
+from rafi.readers.logs import read_log
+from rafi.sensors import DEFAULT_SENSORS, frame_sensors, run_sensors
+from rafi.twin.layouts import LAYOUTS, layout_config, layout_frame, write_layout
+
+# --------------------------------------------------------------------------- resolution
+
+
+def test_sensors_resolve_from_the_list_then_the_mapping_then_the_paper_rig():
+    assert normalise_input_spec(None)["sensors"] == list(DEFAULT_SENSORS)
+    assert normalise_input_spec({"sensors": ["a", "b"]})["sensors"] == ["a", "b"]
+    mapped = {"format": "csv", "columns": {"time": "Zeit", "front": "F [C]", "speed_rpm": "n", "rear": "R"}}
+    assert normalise_input_spec(mapped)["sensors"] == ["front", "rear"]
+
+
+@pytest.mark.parametrize(
+    ("spec", "key", "words"),
+    [
+        ({"sensors": ["T1", "T1"]}, "input.sensors", "listed twice"),
+        ({"sensors": ["x", "dx"]}, "input.sensors", "rise of sensor 'x'"),
+        ({"sensors": ["segment"]}, "input.sensors", "pipeline's own"),
+        ({"sensors": [f"s{i}" for i in range(65)]}, "input.sensors", "1 to 64"),
+        ({"format": "csv", "columns": {"1st": "A"}}, "input.columns.1st", "not a sensor name"),
+    ],
+)
+def test_bad_sensor_names_name_the_key_and_the_cause(spec, key, words):
+    with pytest.raises(InputSpecError, match=key) as info:
+        normalise_input_spec(spec)
+    assert words in str(info.value)
+
+
+def test_frame_and_run_sensors_read_the_tables_layout():
+    clean = pd.DataFrame(columns=["time", "t_s", "speed_rpm", "front", "rear", "disp_um", "segment", "amb"])
+    assert frame_sensors(clean) == ("front", "rear")
+    runs = pd.DataFrame(columns=["run_id", "front", "rear", "disp_um", "dfront", "drear", "dz_um"])
+    assert run_sensors(runs) == ("front", "rear")
+    assert run_sensors(["dT1", "dT2", "dz_um", "disp_um"]) == ("T1", "T2")  # rises only
+    with pytest.raises(ValueError, match="canonical"):
+        frame_sensors(["time", "front"])
+
+
+# --------------------------------------------------------------------------- the twin's layouts
+
+
+def test_a_layout_derives_its_extra_sensors_from_two_of_the_twins():
+    layout = LAYOUTS["sensors-22"]
+    n = 400
+    log = pd.DataFrame({"time": pd.date_range("2026-01-01", periods=n, freq="30s"), "speed_rpm": 0.0})
+    rng = np.random.default_rng(0)
+    for s in DEFAULT_SENSORS:
+        log[s] = 20 + np.cumsum(rng.normal(0, 0.05, n))
+    log["disp_um"] = 0.0
+    frame = layout_frame(layout, log, seed=3)
+    assert frame_sensors(frame) == layout.sensors
+    assert (frame["T5"] == log["T5"]).all()  # a twin sensor as it is
+    a, b, w = layout.sources[20]
+    mix = w * log[a] + (1 - w) * log[b]
+    # a derived sensor follows its mix (low-passed, 0.02 K noise): close, not equal
+    assert np.abs(frame["T21"] - mix).iloc[100:].max() < 1.0
+    assert not np.allclose(frame["T21"], mix)
+
+
+@pytest.mark.parametrize("name", sorted(LAYOUTS))
+def test_each_layout_reads_back_with_its_config(tmp_path, name):
+    files = write_layout(name, tmp_path)
+    spec = layout_config(name)["input"]
+    frame = read_log(files[0], spec)
+    layout = LAYOUTS[name]
+    assert frame_sensors(frame) == layout.sensors
+    assert frame["speed_rpm"].max() == pytest.approx(3000, abs=5)
+    assert frame["disp_um"].abs().max() > 5.0  # um after the unit and sign of the mapping
+
+
+# --------------------------------------------------------------------------- end to end
+
+E2E_LAYOUTS = ("sensors-4", "sensors-6-diameter", "sensors-22", "sensors-40")
+
+
+@pytest.mark.slow
+def test_machines_of_4_to_40_sensors_run_end_to_end(tmp_path):
+    proj = copy_project(tmp_path / "proj", config=False)
+    config = {"machines": {}}
+    for name in E2E_LAYOUTS:
+        write_layout(name, proj / "raw")
+        config["machines"][name] = layout_config(name)
+    (proj / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False, allow_unicode=True))
+    raw_before = {p: p.read_bytes() for p in (proj / "raw").rglob("*") if p.is_file()}
+
+    done = run_snakemake(proj, cores=2, timeout=1500)
+    assert done.returncode == 0, done.stderr[-3000:]
+
+    for name in E2E_LAYOUTS:
+        sensors = LAYOUTS[name].sensors
+        results = proj / "results" / name
+        runs = pd.read_parquet(results / "runs.parquet")
+        assert run_sensors(runs) == sensors
+        keys = pd.read_csv(results / "rank" / "key_sensors.csv")["sensor"].tolist()
+        assert keys and set(keys) <= set(sensors)
+        # the twin's heat goes through its T6, T8, T9: the layouts' names of those must be found
+        twin_keys = {
+            s for s, (a, b, _) in zip(sensors, LAYOUTS[name].sources) if a == b and a in ("T6", "T8", "T9")
+        }
+        assert set(keys) & twin_keys
+        best = json.loads((results / "comparison" / "best_model.json").read_text())
+        assert set(best["key_sensors"]) <= set(sensors)
+        summary = pd.read_csv(results / "comparison" / "summary.csv")
+        offered = summary[summary["champion"]].iloc[0]
+        assert offered["max_abs_after_um"] < 0.5 * offered["max_abs_before_um"]
+        replay = pd.read_csv(results / "deploy" / "replay_summary.csv")
+        assert len(replay) > 0
+        audit = pd.read_csv(results / "audit.csv")
+        assert (audit["status"] == "ok").all()
+        html = (proj / "reports" / name / "qualification.html").read_text(encoding="utf-8")
+        assert keys[0] in html
+        assert (proj / "reports" / name / "qualification.pdf").stat().st_size > 10_000
+    assert {p: p.read_bytes() for p in (proj / "raw").rglob("*") if p.is_file()} == raw_before
+    again = run_snakemake(proj, "-n", cores=2)
+    assert "Nothing to be done" in again.stdout + again.stderr
