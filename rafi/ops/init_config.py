@@ -170,7 +170,7 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     lay = table.layout
     if s.format == "xlsx":
         sheets = ", ".join(
-            f"{x.name} ({x.kind}{', %d rows' % x.rows if x.kind == 'data' else ''})" for x in table.sheets
+            f"{x.name} ({x.kind}{f', {x.rows} rows' if x.kind == 'data' else ''})" for x in table.sheets
         )
         out.add(6, f"sheet: {q(lay['sheet'])}", f"sheets: {sheets}")
     else:

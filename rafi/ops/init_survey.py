@@ -248,7 +248,8 @@ def _checks(s: Survey) -> list[str]:
         out.append(f"input.displacement.sign: the probe's convention is not in the data; {s.sign_why}")
         if len(s.probes) > 1:
             out.append(
-                f"input.displacement.column: {len(s.probes)} probe candidates; {s.probes[0].header!r} is written"
+                f"input.displacement.column: {len(s.probes)} probe candidates; "
+                f"{s.probes[0].header!r} is written"
             )
     return out
 
