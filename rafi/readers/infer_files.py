@@ -154,10 +154,10 @@ def sniff_text(lines: list[str]) -> dict:
         s = counts.count(common) * 1000 + common
         if common > 0 and s > score:
             best, score = delim, s
-    sample = "\n".join(ln for _, ln in body[1:HEAD_LINES])
-    decimal = "."
-    if best != "," and re.search(r"(^|[^\d.])\d+,\d+", sample) and not re.search(r"\d\.\d", sample):
-        decimal = ","
+    fields = [f.strip() for _, ln in body[1:HEAD_LINES] for f in ln.split(best)]
+    commas = sum(bool(re.match(r"^[+-]?\d+,\d+$", f)) for f in fields)
+    points = sum(bool(re.match(r"^[+-]?\d+\.\d+$", f)) for f in fields)
+    decimal = "," if best != "," and commas > points else "."
     rows = [[f.strip() for f in ln.split(best)] for _, ln in body]
     found = header_position(rows)
     header_row = body[found[0]][0] + 1 if found else None
