@@ -81,7 +81,12 @@ def test_native_runs_roles_and_training_speeds_from_the_file_names(tmp_path):
     speeds = write_native_runs(tmp_path / "raw" / "m")
     s = survey("m", [read_unknown(p) for p in sorted((tmp_path / "raw" / "m").iterdir())])
     assert s.format == "native"
-    truth = {"time": "time", "speed_rpm": "speed", **{t: "temperature" for t in SENSORS}, "disp_um": "displacement"}
+    truth = {
+        "time": "time",
+        "speed_rpm": "speed",
+        **{t: "temperature" for t in SENSORS},
+        "disp_um": "displacement",
+    }
     assert roles(s) == truth
     assert s.kind == "runs"
     assert s.period_s == 5.0
@@ -105,7 +110,9 @@ def b_survey():
 
 
 def shipped_b() -> dict:
-    return yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))["machines"]["machining-center-b"]
+    return yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))["machines"][
+        "machining-center-b"
+    ]
 
 
 def test_german_workbook_proposes_the_shipped_mapping(b_survey):
@@ -241,7 +248,10 @@ def test_no_time_column_leaves_the_period_to_the_user(tmp_path, capsys):
     assert main([*args, "--period-s", "60"]) == 0
     entry = yaml.safe_load(config.read_text(encoding="utf-8"))["machines"]["rig"]
     assert entry["sample_period_s"] == 60 and entry["input"]["time"]["period_s"] == 60
-    frame = read_log(tmp_path / "raw" / "warmup_1500rpm.csv", machine_settings({"machines": {"rig": entry}}, "rig")["input"])
+    frame = read_log(
+        tmp_path / "raw" / "warmup_1500rpm.csv",
+        machine_settings({"machines": {"rig": entry}}, "rig")["input"],
+    )
     assert (frame["speed_rpm"] == 1500).all()
     assert np.allclose(np.diff(frame["time"].to_numpy()).astype("timedelta64[s]").astype(float), 60)
 
@@ -257,7 +267,9 @@ def fl_thermal() -> Path | None:
     return None
 
 
-@pytest.mark.skipif(fl_thermal() is None, reason="FL_THERMAL's data.xlsx is not in ../shared/data/fl-thermal/")
+@pytest.mark.skipif(
+    fl_thermal() is None, reason="FL_THERMAL's data.xlsx is not in ../shared/data/fl-thermal/"
+)
 def test_fl_thermal_time_speed_temperatures_and_five_probes():
     s = survey("fl-thermal", [read_unknown(fl_thermal())])
     assert s.time.header == "時間(s)" and s.time.unit == "s"

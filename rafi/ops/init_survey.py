@@ -2,7 +2,7 @@
 
 :func:`survey` is pure: it takes the tables :func:`rafi.readers.infer_files.read_unknown` read,
 gives each column its role (:mod:`rafi.readers.infer`), each log its shape
-(:mod:`rafi.readers.infer_layout`), and collects what the config block needs and what the user
+(:mod:`rafi.ops.init_layout`), and collects what the config block needs and what the user
 must decide (``checks``: one sentence each, the key first). :mod:`rafi.ops.init_config` writes
 the block, :mod:`rafi.ops.init_cli` prints the findings.
 """
@@ -16,9 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi.readers.infer import ColumnGuess, guess_columns, sensor_names, to_numbers, to_times
-from rafi.readers.infer_files import RawTable
-from rafi.readers.infer_layout import (
+from rafi.ops.init_layout import (
     LogShape,
     elapsed_seconds,
     log_kind,
@@ -27,6 +25,8 @@ from rafi.readers.infer_layout import (
     sample_period,
     speed_steps,
 )
+from rafi.readers.infer import ColumnGuess, guess_columns, sensor_names, to_numbers, to_times
+from rafi.readers.infer_files import RawTable
 
 #: Time constant (s) of the low-pass of the speed that stands for "the spindle heats the machine"
 #: when the probe's sign is looked at.
@@ -64,9 +64,9 @@ class Survey:
     kind, kind_why : str
         ``continuous`` or ``runs``, and why.
     training : dict
-        :func:`rafi.readers.infer_layout.propose_training`.
+        :func:`rafi.ops.init_layout.propose_training`.
     min_constant : tuple or None
-        :func:`rafi.readers.infer_layout.propose_min_constant`.
+        :func:`rafi.ops.init_layout.propose_min_constant`.
     sign : int or None
         The sign that makes the probe positive while the spindle heats (None: no evidence).
     sign_why : str
