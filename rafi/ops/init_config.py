@@ -188,7 +188,7 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     if s.time is not None:
         out.add(8, f"time: {q(s.time.header)}")
     if s.speed is not None:
-        out.add(8, f"speed_rpm: {q(s.speed.header)}", f"{s.speed.confidence}: {s.speed.why}")
+        out.add(8, f"speed_rpm: {q(s.speed.header)}")
     for name, header in s.sensors.items():
         out.add(8, f"{name}: {q(header)}")
     if not s.sensors:

@@ -223,7 +223,7 @@ def propose_min_constant(shapes: list[LogShape], default_s: float | None = None)
     value = float(np.ceil((hi + lo) / 2 / ROUND_S) * ROUND_S)
     value = min(max(value, hi + ROUND_S), lo) if lo > hi + ROUND_S else (hi + lo) / 2
     why = (
-        f"{len(short)} step(s) of {hi / 3600:.1f} h or less beside {len(main)} of {lo / 3600:.1f} h or more: "
-        f"with {value:g} s they form one varying run instead of short constant runs"
+        f"the {len(short)} step(s) of {min(st.duration_s for st in short) / 3600:.1f}-{hi / 3600:.1f} h form "
+        f"one varying run; the steps of {lo / 3600:.1f} h and more stay constant runs"
     )
     return value, why
