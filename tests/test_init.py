@@ -18,6 +18,7 @@ import yaml
 
 from rafi import SENSORS
 from rafi.cli import main
+from rafi.errors import SettingsError
 from rafi.ops.init_cli import findings
 from rafi.ops.init_config import add_machine, config_block, parse_block
 from rafi.ops.init_survey import survey
@@ -177,6 +178,9 @@ def test_add_machine_to_an_empty_mapping_and_to_no_mapping():
         new, loaded = add_machine(text, block, "m")
         assert loaded["machines"]["m"] == {"sample_period_s": 10}
         assert loaded["raw_dir"] == "raw"
+    assert add_machine("", block, "m")[0] == "machines:\n" + block
+    with pytest.raises(SettingsError, match="flow style"):
+        add_machine("machines: {a: {sample_period_s: 5},\n  b: {}}\n", block, "m")
 
 
 # --------------------------------------------------------------------------- 6 sensors, mm

@@ -261,7 +261,12 @@ def add_machine(config_text: str, block: str, machine: str) -> tuple[str, dict]:
         The machine is already under ``machines:`` (one line naming it), or the result is not
         a valid config (the message names the key).
     """
-    config = yaml.safe_load(config_text) or {}
+    try:
+        config = yaml.safe_load(config_text) or {}
+    except yaml.YAMLError as exc:
+        raise SettingsError(f"config.yaml: not valid YAML ({exc}); nothing written") from None
+    if not isinstance(config, dict):
+        raise SettingsError("config.yaml: expected a mapping of settings; nothing written")
     if machine in (config.get("machines") or {}):
         raise SettingsError(
             f"machine {machine!r} is already under machines: in config.yaml; nothing written "
@@ -270,7 +275,8 @@ def add_machine(config_text: str, block: str, machine: str) -> tuple[str, dict]:
     lines = config_text.splitlines()
     at = next((k for k, ln in enumerate(lines) if re.match(r"^machines\s*:", ln)), None)
     if at is None:
-        new = config_text.rstrip("\n") + "\n\nmachines:\n" + block
+        head = config_text.rstrip("\n")
+        new = (head + "\n\n" if head else "") + "machines:\n" + block
     else:
         if re.match(r"^machines\s*:\s*(\{\s*\}|null|~)?\s*(#.*)?$", lines[at]) and "{" in lines[at]:
             lines[at] = "machines:"
@@ -278,9 +284,15 @@ def add_machine(config_text: str, block: str, machine: str) -> tuple[str, dict]:
         while end > at + 1 and not lines[end - 1].strip():
             end -= 1
         new = "\n".join(lines[:end] + [""] + block.rstrip("\n").split("\n") + lines[end:]) + "\n"
-    loaded = yaml.safe_load(new)
-    if loaded.get("machines", {}).get(machine) != parse_block(block, machine):
-        raise SettingsError(f"config.yaml: the block for {machine!r} did not land under machines:")
+    try:
+        loaded = yaml.safe_load(new)
+    except yaml.YAMLError:
+        loaded = {}
+    if (loaded.get("machines") or {}).get(machine) != parse_block(block, machine):
+        raise SettingsError(
+            f"config.yaml: the block for {machine!r} cannot be added under machines: (a mapping in flow "
+            "style?); nothing written - add the printed block by hand"
+        )
     try:
         validate_config(loaded)
         machine_settings(loaded, machine)
