@@ -125,11 +125,11 @@ def test_time_speed_counter_and_text():
     stamps = [t0 + dt.timedelta(seconds=30 * k) for k in range(600)]
     speed = [0.0] * 100 + [3000.0] * 300 + [0.0] * 200
     cols = [stamps, list(range(1, 601)), speed, ["ok"] * 600, list(range(600))]
-    got = guess_columns(["Zeit", "Nr", "Drehzahl", "Bemerkung", "x"], cols)
+    got = guess_columns(["Zeit", "Nr", "Drehzahl", "Bemerkung", "Spalte 5"], cols)
     assert [g.role for g in got] == ["time", "other", "speed", "text", "other"]
     assert got[0].unit == "timestamp" and got[2].unit == "rpm"
     assert "second time column" in got[4].why  # elapsed seconds at 1 s, or a counter: not a clock twice
-    alone = guess_column(0, "x", list(range(600)))
+    alone = guess_column(0, "Spalte 5", list(range(600)))
     assert alone.role == "time" and "row counter" in alone.check
 
 
@@ -145,3 +145,27 @@ def test_time_speed_counter_and_text():
 )
 def test_sensor_names(headers, names):
     assert sensor_names(headers) == names
+
+
+def test_a_title_line_and_a_units_row_around_the_header(tmp_path):
+    """The units row names the roles the headers do not (``T1`` rises steadily, like a clock)."""
+    from rafi.ops.init_survey import survey
+    from rafi.readers.infer_files import read_unknown
+
+    lines = ["Messprotokoll BAZ 7;;;;", "Zeit;Drehzahl;T1;T2;Weg", "s;1/min;°C;°C;µm"]
+    for k in range(400):
+        row = f"{k * 10};{0 if k < 20 else 3000};{21 + k * 0.01:.2f};{21.5 + k * 0.005:.2f};{k * 0.03:.2f}"
+        lines.append(row.replace(".", ","))
+    path = tmp_path / "title.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="cp1252")
+    table = read_unknown(path)
+    assert table.layout == {
+        "delimiter": ";",
+        "decimal": ",",
+        "encoding": "cp1252",
+        "header_row": 2,
+        "skip_rows": 1,
+    }
+    s = survey("x", [table])
+    assert [g.role for g in s.guesses] == ["time", "speed", "temperature", "temperature", "displacement"]
+    assert [g.unit for g in s.guesses] == ["s", "rpm", "degC", "degC", "um"]

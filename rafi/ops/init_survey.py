@@ -196,7 +196,7 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
     Survey
     """
     first = tables[0]
-    guesses = guess_columns(first.header, first.columns, first.layout.get("decimal", "."))
+    guesses = guess_columns(first.header, first.columns, first.layout.get("decimal", "."), first.labels)
     temps = [g for g in guesses if g.role == "temperature"]
     names = sensor_names([g.header for g in temps])
     out = Survey(

@@ -311,7 +311,7 @@ def _displacement(header: str, v: np.ndarray) -> tuple[str | None, str, str | No
     return None, f"{rng}, resolution {res:g}", "um or mm? the range fits both"
 
 
-def guess_column(index: int, header: str, cells, decimal: str = ".") -> ColumnGuess:
+def guess_column(index: int, header: str, cells, decimal: str = ".", label: str = "") -> ColumnGuess:
     """The likely role of one column from its header and cells (see the module docstring).
 
     Parameters
@@ -324,12 +324,15 @@ def guess_column(index: int, header: str, cells, decimal: str = ".") -> ColumnGu
         Its cells in row order (numbers, text, dates, None).
     decimal : str
         The decimal mark of text cells.
+    label : str
+        The column's label rows after the header (its unit, ``°C``), read with the header.
 
     Returns
     -------
     ColumnGuess
     """
-    hints = header_hints(header)
+    named = f"{header} [{label}]" if label else header
+    hints = header_hints(named)
 
     def guess(role, unit, why, check=None, agree=None):
         agree = role in hints if agree is None else agree
@@ -353,7 +356,7 @@ def guess_column(index: int, header: str, cells, decimal: str = ".") -> ColumnGu
         return ColumnGuess(
             index, header, "text", None, "high", f"{len(filled) - n_num} cells are not numbers"
         )
-    return _numeric_guess(header, v, hints, guess)
+    return _numeric_guess(named, v, hints, guess)
 
 
 def _numeric_guess(header: str, v: np.ndarray, hints: set, guess) -> ColumnGuess:
@@ -363,7 +366,7 @@ def _numeric_guess(header: str, v: np.ndarray, hints: set, guess) -> ColumnGuess
             return guess("speed", "rpm", f"one level, {np.nanmin(v):g}, header names a speed")
         return guess("other", None, f"constant {np.nanmin(v):g}", agree=True)
     clock, step = _is_clock(v)
-    if clock:
+    if clock and ("time" in hints or not hints):  # a header naming another role is not a clock
         unit = header_unit(header)
         if unit in ("min", "h"):
             return guess("time", unit, f"rises by {step:g} every row", f"elapsed {unit}: convert to seconds")
@@ -398,7 +401,9 @@ def _numeric_guess(header: str, v: np.ndarray, hints: set, guess) -> ColumnGuess
 # --------------------------------------------------------------------------- a whole table
 
 
-def guess_columns(header: list[str], columns: list, decimal: str = ".") -> list[ColumnGuess]:
+def guess_columns(
+    header: list[str], columns: list, decimal: str = ".", labels: list[str] | None = None
+) -> list[ColumnGuess]:
     """Every column's guess, with one time and one speed column at most.
 
     Parameters
@@ -409,6 +414,8 @@ def guess_columns(header: list[str], columns: list, decimal: str = ".") -> list[
         The cells of each column, in the same order.
     decimal : str
         The decimal mark of text cells.
+    labels : list of str, optional
+        Each column's label rows after the header (units).
 
     Returns
     -------
@@ -416,7 +423,10 @@ def guess_columns(header: list[str], columns: list, decimal: str = ".") -> list[
         In column order. Of several time (speed) candidates the one with the highest
         confidence (then the first) keeps the role; the others become ``other``, saying so.
     """
-    guesses = [guess_column(j, h, c, decimal) for j, (h, c) in enumerate(zip(header, columns))]
+    labels = labels or [""] * len(header)
+    guesses = [
+        guess_column(j, h, c, decimal, lab) for j, (h, c, lab) in enumerate(zip(header, columns, labels))
+    ]
     rank = {"high": 0, "medium": 1, "low": 2}
     for role in ("time", "speed"):
         found = [g for g in guesses if g.role == role]

@@ -72,6 +72,8 @@ class RawTable:
         A start time found beside the data (ISO text, where it was found).
     notes : list of str
         What the reading noticed (other data sheets, a units row).
+    labels : list of str
+        Per column, the text of the label rows after the header (units), else empty.
     """
 
     path: Path
@@ -83,6 +85,7 @@ class RawTable:
     meta: dict = field(default_factory=dict)
     start_hint: tuple | None = None
     notes: list = field(default_factory=list)
+    labels: list = field(default_factory=list)
 
     @property
     def n_rows(self) -> int:
@@ -169,6 +172,13 @@ def sniff_text(lines: list[str]) -> dict:
     }
 
 
+def _labels(rows: list[list], n: int) -> list[str]:
+    """Per column, the label rows' cells joined by a space (units such as ``°C``)."""
+    return [
+        " ".join(str(r[j]).strip() for r in rows if j < len(r) and r[j] is not None).strip() for j in range(n)
+    ]
+
+
 def _metadata(lines: list[str]) -> dict:
     meta = {}
     for ln in lines:
@@ -200,6 +210,8 @@ def _read_text(path: Path, raw: bytes) -> RawTable:
     }
     table = read_csv_table(path, raw, spec)
     meta = _metadata(lines)
+    below = [ln for ln in lines[spec["header_row"] :] if ln.strip()][: spec["skip_rows"]]
+    labels = _labels([ln.split(spec["delimiter"]) for ln in below], len(table.header))
     native = [h for h in table.header] == list(REQUIRED_COLUMNS) and found["delimiter"] == ","
     layout = {k: spec[k] for k in ("delimiter", "decimal", "encoding", "header_row", "skip_rows")}
     return RawTable(
@@ -210,6 +222,7 @@ def _read_text(path: Path, raw: bytes) -> RawTable:
         [list(c) for c in zip(*table.rows)] if table.rows else [[] for _ in table.header],
         meta=meta,
         notes=[f"{spec['skip_rows']} label row(s) after the header skipped"] if spec["skip_rows"] else [],
+        labels=labels,
     )
 
 
@@ -268,11 +281,11 @@ def _read_workbook(path: Path, raw: bytes) -> RawTable:
         data = [r[: len(header)] + [None] * (len(header) - len(r)) for r in rows[k + 1 + skip :]]
         data = [r for r in data if any(c is not None and str(c).strip() != "" for c in r)]
         sheets.append(SheetInfo(name, len(data), len(header), "data", tuple(header)))
-        tables[name] = (k + 1, skip, header, data)
+        tables[name] = (k + 1, skip, header, data, _labels(rows[k + 1 : k + 1 + skip], len(header)))
     if not tables:
         raise RawFormatError(path, "no sheet holds a header row followed by rows of numbers")
     name = max(tables, key=lambda n: len(tables[n][3]))
-    header_row, skip, header, data = tables[name]
+    header_row, skip, header, data, labels = tables[name]
     twins = [s.name for s in sheets if s.kind == "data" and s.name != name and list(s.header) == header]
     notes = [f"{len(twins)} other sheet(s) with the same header: {', '.join(twins)}"] if twins else []
     return RawTable(
@@ -284,6 +297,7 @@ def _read_workbook(path: Path, raw: bytes) -> RawTable:
         sheets=sheets,
         start_hint=start,
         notes=notes,
+        labels=labels,
     )
 
 
