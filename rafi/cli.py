@@ -22,6 +22,7 @@ import traceback
 #: sub-command -> (module, one-line help)
 COMMANDS = {
     "simulate": ("rafi.twin.cli", "write raw logs from the spindle digital twin"),
+    "init": ("rafi.ops.init_cli", "read a new machine's logs, say what they hold, propose its config block"),
     "nightly": ("rafi.ops.nightly", "retrain, qualify and promote models (for cron / systemd)"),
     "settings": ("rafi.settings", "print the effective settings of a machine (every default filled in)"),
     "diff": ("rafi.ops.result_diff", "compare two result trees number by number (timings, ids aside)"),

@@ -1,0 +1,170 @@
+"""``rafi init --preview``: the runs the pipeline will find for a configured machine, before any fit.
+
+:func:`preview` reads the machine's raw files as the clean step does
+(:func:`rafi.readers.input_spec.scan_logs`, :func:`rafi.readers.logs.read_log`,
+:func:`rafi.method.clean.clean_log` with the machine's settings) and cuts them into runs as the
+method step does (:func:`rafi.method.runs.find_runs`), without Snakemake and without writing
+anything. It lists every run (log, start, duration, speed, kind, role and why, the reference
+rule) and warns where the configuration and the data disagree (:func:`preview_warnings`): a
+continuous log referenced by ``run_start``, no run at a training speed, a window, a window's
+``log`` glob or an override that matches nothing.
+"""
+
+from __future__ import annotations
+
+import fnmatch
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rafi.errors import RafiUserError, SettingsError
+
+
+def clean_frames(paths: list[Path], settings: Mapping) -> tuple[dict, list[str]]:
+    """``{file name: clean frame}`` of the files that read and clean, and a line for each that does not."""
+    from rafi.method.clean import clean_log
+    from rafi.readers.logs import read_log
+
+    frames, problems = {}, []
+    cfg = settings["clean"]
+    for path in paths:
+        try:
+            frame = read_log(path, settings["input"])
+            frames[path.name], _ = clean_log(
+                frame,
+                file=path.name,
+                sample_period_s=settings["sample_period_s"],
+                max_interpolate_gap_s=cfg["max_interpolate_gap_s"],
+                spike_threshold=cfg["spike_threshold"],
+                open_circuit_values=cfg["open_circuit_values"],
+            )
+        except RafiUserError as exc:
+            problems.append(f"{path.name}: not read: {exc}")
+    return frames, problems
+
+
+def segment(frames: Mapping, settings: Mapping) -> pd.DataFrame:
+    """The runs table :func:`rafi.method.runs.find_runs` gives with the machine's settings."""
+    from rafi.method.runs import find_runs
+
+    runs = settings["runs"]
+    table, _ = find_runs(
+        dict(frames),
+        {},
+        training_speeds_rpm=settings["training_speeds_rpm"],
+        speed_tolerance_rpm=settings["speed_tolerance_rpm"],
+        idle_below_rpm=runs["idle_below_rpm"],
+        min_run_s=runs["min_run_s"],
+        min_constant_s=runs["min_constant_s"],
+        overrides=runs["overrides"],
+        max_leading_rest_s=runs["max_leading_rest_s"],
+        windows=runs["windows"],
+        idle_training=runs["idle_training"],
+        allow_training_after_validation=runs["allow_training_after_validation"],
+        reference_rule=settings["reference"]["rule"],
+        reference_window_s=settings["reference"]["window_s"],
+    )
+    return table
+
+
+def _window_warnings(frames: Mapping, windows: list) -> list[str]:
+    """A line for each window whose ``log`` glob matches no file, or that holds no sample."""
+    from rafi.method.windows import resolve_windows
+
+    out = []
+    for k, spec in enumerate(windows or []):
+        glob = str(spec.get("log", "*"))
+        names = [n for n in frames if fnmatch.fnmatch(n, glob)]
+        if not names:
+            out.append(f"runs.windows[{k}].log {glob!r} matches no file (files: {', '.join(sorted(frames))})")
+            continue
+        hit = False
+        for name in names:
+            t_s = frames[name]["t_s"].to_numpy(dtype=float)
+            times = frames[name]["time"].to_numpy() if "time" in frames[name] else None
+            for w in resolve_windows([spec], name, t_s, times):
+                hit = hit or bool(((t_s >= w.start_s) & (t_s < w.end_s)).any())
+        if not hit:
+            out.append(f"runs.windows[{k}] holds no sample of {', '.join(names)}: check its start and end")
+    return out
+
+
+def preview_warnings(table: pd.DataFrame, frames: Mapping, settings: Mapping) -> list[str]:
+    """What in the configuration the runs contradict, one line each naming the key."""
+    out = []
+    moving = table[(table["kind"] != "idle") & (table["role"] != "excluded")]
+    if settings["reference"]["rule"] == "run_start":
+        for name, runs in moving.groupby("file"):
+            if len(runs) >= 2:
+                out.append(
+                    f"{name} holds {len(runs)} runs one after another (a continuous log) but reference.rule "
+                    "is run_start: each run would be measured from its own warm start; set reference: "
+                    "{rule: log_start}"
+                )
+    trained = table[(table["role"] == "training") & (table["kind"] != "idle")]
+    if trained.empty:
+        found = sorted({float(x) for x in moving.loc[moving["kind"] == "constant", "speed_rpm"].round()})
+        out.append(
+            f"no run at a training speed: training_speeds_rpm is {list(settings['training_speeds_rpm'])}, "
+            f"the constant runs found are at {', '.join(f'{x:g}' for x in found) or 'no speed'} r/min"
+        )
+    out += _window_warnings(frames, settings["runs"]["windows"])
+    stems = {Path(n).stem for n in frames}
+    for key in settings["runs"]["overrides"] or {}:
+        if key not in set(table["run_id"]) and key not in stems:
+            out.append(f"runs.overrides[{key!r}] matches no run id or file")
+    return out
+
+
+def _hours(seconds: float) -> str:
+    return f"{seconds / 3600:6.2f} h"
+
+
+def run_lines(table: pd.DataFrame) -> list[str]:
+    """One line per run: id, start, duration, speed, kind, role and why."""
+    lines = []
+    for _, r in table.iterrows():
+        lo, hi = r.get("speed_min_rpm"), r.get("speed_max_rpm")
+        speed = f"{lo:g}-{hi:g}" if r["kind"] == "varying" and np.isfinite(lo) else f"{r['speed_rpm']:g}"
+        why = r.get("role_reason") or r.get("note") or ""
+        lines.append(
+            f"  {r['run_id']:<28} {_hours(r['start_s'])} +{_hours(r['duration_s'])}  {speed:>11} r/min  "
+            f"{r['kind']:<8} {r['role']:<17} {why}"
+        )
+    return lines
+
+
+def preview(config_path: str, machine: str) -> list[str]:
+    """The lines ``rafi init --preview`` prints for ``machine`` of ``config_path``.
+
+    Raises
+    ------
+    SettingsError
+        The machine is not configured, no raw file matches its pattern, or its settings are
+        refused by the segmentation (a bad window: the message names the key).
+    """
+    from rafi.readers.input_spec import scan_logs
+    from rafi.settings import read_machine_config, run_settings
+
+    config, settings = read_machine_config(config_path, machine)
+    folder = Path(run_settings(config)["raw_dir"]) / machine
+    paths, refused = scan_logs(folder, settings["input"]) if folder.is_dir() else ([], [])
+    if not paths:
+        raise SettingsError(
+            f"machine {machine!r}: no file in {folder} matches input.pattern {settings['input']['pattern']!r}"
+        )
+    frames, problems = clean_frames(paths, settings)
+    out = [f"rafi init --preview: machine {machine}, {len(paths)} file(s) in {folder}"]
+    out += [f"  {line}" for line in refused + problems]
+    if not frames:
+        return out + ["no file could be read: nothing to segment"]
+    table = segment(frames, settings)
+    ref = settings["reference"]
+    out.append(f"reference: {ref['rule']} (median of the first {ref['window_s']:g} s)")
+    out.append(f"{len(table)} runs; roles: {table['role'].value_counts().to_dict()}")
+    out += run_lines(table)
+    warnings = preview_warnings(table, frames, settings)
+    out += [f"warning: {w}" for w in warnings] or ["no warnings"]
+    return out

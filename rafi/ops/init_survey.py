@@ -1,0 +1,258 @@
+"""What ``rafi init`` found in a machine's logs: one :class:`Survey` from the files as read.
+
+:func:`survey` is pure: it takes the tables :func:`rafi.readers.infer_files.read_unknown` read,
+gives each column its role (:mod:`rafi.readers.infer`), each log its shape
+(:mod:`rafi.ops.init_layout`), and collects what the config block needs and what the user
+must decide (``checks``: one sentence each, the key first). :mod:`rafi.ops.init_config` writes
+the block, :mod:`rafi.ops.init_cli` prints the findings.
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rafi.ops.init_layout import (
+    LogShape,
+    elapsed_seconds,
+    log_kind,
+    propose_min_constant,
+    propose_training,
+    sample_period,
+    speed_steps,
+)
+from rafi.readers.infer import ColumnGuess, guess_columns, sensor_names, to_numbers, to_times
+from rafi.readers.infer_files import RawTable
+
+#: Time constant (s) of the low-pass of the speed that stands for "the spindle heats the machine"
+#: when the probe's sign is looked at.
+HEAT_TAU_S = 1800.0
+
+#: Correlation between the probe and the heating that counts as evidence of its direction.
+SIGN_MIN_CORR = 0.5
+
+#: Share of regular time steps below which the sample period is not taken as given.
+REGULAR_SHARE = 0.9
+
+
+@dataclass
+class Survey:
+    """Everything ``rafi init`` found (see the module docstring).
+
+    Attributes
+    ----------
+    machine : str
+    tables : list of RawTable
+        The files, in the order given.
+    guesses : list of ColumnGuess
+        The columns of the first file.
+    sensors : dict
+        Sensor name -> header of each temperature column, in column order.
+    time, speed : ColumnGuess or None
+    probes : list of ColumnGuess
+        The displacement candidates, the one to model first.
+    time_format : str or None
+        ``input.time.format`` for text timestamps that are not ISO 8601.
+    period_s : float or None
+        The sample period (None: no time column, or irregular).
+    regular_share : float
+    shapes : list of LogShape
+    kind, kind_why : str
+        ``continuous`` or ``runs``, and why.
+    training : dict
+        :func:`rafi.ops.init_layout.propose_training`.
+    min_constant : tuple or None
+        :func:`rafi.ops.init_layout.propose_min_constant`.
+    sign : int or None
+        The sign that makes the probe positive while the spindle heats (None: no evidence).
+    sign_why : str
+    speed_by_file : dict
+        Without a speed column: glob -> r/min read from the file names (``*_3000rpm*``).
+    checks : list of str
+        What the user must decide, one sentence each, starting with the key.
+    notes : list of str
+        Other findings (files with another header, other sheets).
+    """
+
+    machine: str
+    tables: list
+    guesses: list
+    sensors: dict
+    time: ColumnGuess | None
+    speed: ColumnGuess | None
+    probes: list
+    time_format: str | None = None
+    period_s: float | None = None
+    regular_share: float = 0.0
+    shapes: list = field(default_factory=list)
+    kind: str = "runs"
+    kind_why: str = ""
+    training: dict = field(default_factory=dict)
+    min_constant: tuple | None = None
+    sign: int | None = None
+    sign_why: str = ""
+    speed_by_file: dict = field(default_factory=dict)
+    checks: list = field(default_factory=list)
+    notes: list = field(default_factory=list)
+
+    @property
+    def format(self) -> str:
+        return self.tables[0].format
+
+    @property
+    def temperatures(self) -> list[ColumnGuess]:
+        return [g for g in self.guesses if g.role == "temperature"]
+
+
+def _axis_first(probes: list[ColumnGuess]) -> list[ColumnGuess]:
+    """Probes whose header names the Z axis (the spindle's) first, then the rest in column order."""
+    z = re.compile(r"(^|[^a-z])z\s*\d*([^a-z]|$)", re.I)
+    return sorted(probes, key=lambda g: (not z.search(g.header), g.index))
+
+
+def _time_and_speed(
+    table: RawTable, guesses: list, survey: Survey
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """Seconds since the first row and the speed of one table (None where the column is missing)."""
+    t = s = None
+    if survey.time is not None:
+        cells = table.columns[survey.time.index]
+        if survey.time.unit == "timestamp":
+            times, fmt, _ = to_times(cells)
+            survey.time_format = fmt
+            t = elapsed_seconds(times)
+        else:
+            t = elapsed_seconds(to_numbers(cells, table.layout.get("decimal", ".")))
+    if survey.speed is not None:
+        s = to_numbers(table.columns[survey.speed.index], table.layout.get("decimal", "."))
+    return t, s
+
+
+def probe_sign(t_s: np.ndarray, speed: np.ndarray, disp: np.ndarray) -> tuple[int | None, str]:
+    """The sign that makes ``disp`` positive while the spindle heats, and why (None: no clear
+    evidence). The heating is the speed through a first-order low-pass of :data:`HEAT_TAU_S`."""
+    ok = np.isfinite(t_s) & np.isfinite(speed) & np.isfinite(disp)
+    if ok.sum() < 10:
+        return None, "too few rows to tell"
+    period = float(np.median(np.diff(t_s[ok])))
+    heat = pd.Series(speed[ok]).ewm(alpha=1.0 - np.exp(-period / HEAT_TAU_S), adjust=False).mean().to_numpy()
+    if np.std(heat) == 0 or np.std(disp[ok]) == 0:
+        return None, "the speed or the probe does not change"
+    r = float(np.corrcoef(heat, disp[ok])[0, 1])
+    if abs(r) < SIGN_MIN_CORR:
+        return None, f"no clear direction while the spindle heats (r = {r:.2f})"
+    word = "rises" if r > 0 else "falls"
+    return (1 if r > 0 else -1), f"it {word} while the spindle heats (r = {r:+.2f})"
+
+
+def _speeds_from_names(names: list[str]) -> dict[str, float]:
+    """``{'*_3000rpm*': 3000, ...}`` from file names that carry a speed, else ``{}``."""
+    out = {}
+    for name in names:
+        m = re.search(r"(\d+)\s*(rpm|upm|u_min|1_min)", name, re.I)
+        if not m:
+            return {}
+        out[f"*{m.group(0)}*"] = float(m.group(1))
+    return out
+
+
+def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
+    """Period, steps and the probe's sign of every table (``survey`` is filled in)."""
+    periods, shares = [], []
+    for table in tables:
+        t, s = _time_and_speed(table, survey.guesses, survey)
+        if t is None:
+            survey.shapes.append(LogShape(table.path.name, table.n_rows, None, 0.0, ()))
+            continue
+        period, share = sample_period(t)
+        periods.append(period)
+        shares.append(share)
+        steps = tuple(speed_steps(t, s, period)) if s is not None and period else ()
+        survey.shapes.append(LogShape(table.path.name, table.n_rows, period, share, steps))
+        if survey.sign is None and survey.probes and s is not None:
+            d = to_numbers(table.columns[survey.probes[0].index], table.layout.get("decimal", "."))
+            survey.sign, survey.sign_why = probe_sign(t, s, d)
+    if periods:
+        survey.period_s = float(np.median(periods))
+        survey.regular_share = float(min(shares))
+
+
+def survey(machine: str, tables: list[RawTable]) -> Survey:
+    """What the logs of ``machine`` hold (see the module docstring).
+
+    Parameters
+    ----------
+    machine : str
+        The machine's name (its folder under ``raw/``).
+    tables : list of RawTable
+        Its files as read, at least one.
+
+    Returns
+    -------
+    Survey
+    """
+    first = tables[0]
+    guesses = guess_columns(first.header, first.columns, first.layout.get("decimal", "."), first.labels)
+    temps = [g for g in guesses if g.role == "temperature"]
+    names = sensor_names([g.header for g in temps])
+    out = Survey(
+        machine=machine,
+        tables=tables,
+        guesses=guesses,
+        sensors=dict(zip(names, (g.header for g in temps))),
+        time=next((g for g in guesses if g.role == "time"), None),
+        speed=next((g for g in guesses if g.role == "speed"), None),
+        probes=_axis_first([g for g in guesses if g.role == "displacement"]),
+    )
+    for table in tables[1:]:
+        if table.header != first.header or table.format != first.format:
+            out.notes.append(f"{table.path.name}: another layout than {first.path.name}; it is not surveyed")
+    same = [t for t in tables if t.header == first.header and t.format == first.format]
+    out.notes += [n for t in same for n in t.notes]
+    _log_shapes(out, same)
+    if any(s.steps for s in out.shapes):
+        out.kind, out.kind_why = log_kind(out.shapes)
+        out.training = propose_training([s for s in out.shapes if s.steps], out.kind)
+        if out.kind == "continuous":  # separate runs: each file's step is its run, whatever its length
+            out.min_constant = propose_min_constant([s for s in out.shapes if s.steps])
+    if out.speed is None:
+        out.speed_by_file = _speeds_from_names([t.path.name for t in same])
+    out.checks = _checks(out)
+    return out
+
+
+def _checks(s: Survey) -> list[str]:
+    """What the user must decide, one sentence each (key first)."""
+    out = [f"column {g.letter} {g.header!r}: {g.check}" for g in s.guesses if g.check]
+    if s.training.get("speeds"):
+        out.append("training_speeds_rpm: decide which speeds train; the others validate")
+    if s.format == "native":
+        return out
+    if s.time is None:
+        out.append("input.time.period_s: no time column; give the seconds between two rows (--period-s)")
+    elif s.period_s is None or s.regular_share < REGULAR_SHARE:
+        out.append(
+            f"sample_period_s: the time steps are irregular ({s.regular_share:.0%} regular); give the period"
+        )
+    if s.time is not None and s.time.unit != "timestamp" and not s.tables[0].start_hint:
+        out.append("input.time.start: elapsed seconds with no start date found; give when second 0 was")
+    if s.speed is None and not s.speed_by_file:
+        out.append("input.speed: no speed column; give constant_rpm or constant_rpm_by_file")
+    if not s.probes:
+        out.append("input.displacement.column: no displacement column found")
+    else:
+        out.append(f"input.displacement.sign: the probe's convention is not in the data; {s.sign_why}")
+        if len(s.probes) > 1:
+            out.append(
+                f"input.displacement.column: {len(s.probes)} probe candidates; "
+                f"{s.probes[0].header!r} is written"
+            )
+    return out
+
+
+def short_name(path: str | Path) -> str:
+    return Path(path).name

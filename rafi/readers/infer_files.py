@@ -1,0 +1,316 @@
+"""Reading a log of unknown layout for ``rafi init``: its format, sheets, delimiter, header row.
+
+:func:`read_unknown` opens one file (a native log, a delimited text with any delimiter and
+decimal mark, an xlsx workbook) and returns a :class:`RawTable`: the layout it found (what
+``input:`` keys would say it), every sheet of a workbook with what it holds, and the header and
+cells of the data table. Nothing is assumed about the columns here; :mod:`rafi.readers.infer`
+says what they hold. The csv text is split by the project's own reader
+(:func:`rafi.readers.mapped_tables.read_csv_table`) with the layout found, so a file that
+``rafi init`` reads is one the pipeline reads with the proposed mapping.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import io
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from rafi import REQUIRED_COLUMNS
+from rafi.errors import RawFormatError, quote
+from rafi.readers.input_spec import norm_header
+from rafi.readers.mapped_cells import excel_column
+from rafi.readers.mapped_tables import read_csv_table
+from rafi.readers.parsing import read_file_bytes, split_lines
+
+#: Delimiters tried on a text file, in order of preference on a tie.
+DELIMITERS = (",", ";", "\t", "|")
+
+#: Encodings tried on a text file, in order.
+ENCODINGS = ("utf-8", "cp1252")
+
+#: Lines (rows) looked at to find the header.
+HEAD_LINES = 40
+
+
+@dataclass(frozen=True)
+class SheetInfo:
+    """One sheet of a workbook: its name, data rows, columns, kind (``data``, ``info``, ``empty``)
+    and header (data sheets)."""
+
+    name: str
+    rows: int
+    columns: int
+    kind: str
+    header: tuple = ()
+
+
+@dataclass
+class RawTable:
+    """A file of unknown layout as read: the layout found, the sheets, the data table.
+
+    Attributes
+    ----------
+    path : Path
+        The file.
+    format : str
+        ``native``, ``csv`` or ``xlsx``.
+    layout : dict
+        The ``input:`` keys that say how it is read: ``delimiter``, ``decimal``, ``encoding``
+        (csv), ``sheet`` (xlsx), ``header_row``, ``skip_rows``.
+    header : list of str
+        The headers (stripped, NFC).
+    columns : list of list
+        The cells of each column, in row order.
+    sheets : list of SheetInfo
+        Every sheet of a workbook (empty for a text file).
+    meta : dict
+        A native file's ``# key: value`` lines.
+    start_hint : tuple of (str, str) or None
+        A start time found beside the data (ISO text, where it was found).
+    notes : list of str
+        What the reading noticed (other data sheets, a units row).
+    labels : list of str
+        Per column, the text of the label rows after the header (units), else empty.
+    """
+
+    path: Path
+    format: str
+    layout: dict
+    header: list
+    columns: list
+    sheets: list = field(default_factory=list)
+    meta: dict = field(default_factory=dict)
+    start_hint: tuple | None = None
+    notes: list = field(default_factory=list)
+    labels: list = field(default_factory=list)
+
+    @property
+    def n_rows(self) -> int:
+        """Data rows."""
+        return len(self.columns[0]) if self.columns else 0
+
+
+def _is_number(text) -> bool:
+    if isinstance(text, (int, float)) and not isinstance(text, bool):
+        return True
+    if isinstance(text, (dt.datetime, dt.date, dt.time, dt.timedelta)):
+        return True
+    s = str(text).strip().replace(",", ".") if text is not None else ""
+    if re.match(r"^\d{1,4}[-./]\d{1,2}[-./]\d{1,4}", s):
+        return True
+    try:
+        float(s)
+    except ValueError:
+        return False
+    return True
+
+
+def _label_row(cells) -> bool:
+    """Mostly text (a header or a units row): at least two filled cells, no more than a fifth numbers."""
+    filled = [c for c in cells if c is not None and str(c).strip() != ""]
+    if len(filled) < 2:
+        return False
+    return sum(_is_number(c) for c in filled) <= len(filled) // 5
+
+
+def _data_row(cells) -> bool:
+    filled = [c for c in cells if c is not None and str(c).strip() != ""]
+    return len(filled) >= 2 and sum(_is_number(c) for c in filled) >= 0.6 * len(filled)
+
+
+def header_position(rows: list) -> tuple[int, int] | None:
+    """``(header index, label rows after it)`` of the first text row followed by data, or None."""
+    for k, cells in enumerate(rows[:HEAD_LINES]):
+        if not _label_row(cells):
+            continue
+        skip = 0
+        while k + 1 + skip < len(rows) and skip < 3 and _label_row(rows[k + 1 + skip]):
+            skip += 1
+        nxt = [r for r in rows[k + 1 + skip : k + 6 + skip] if any(c not in (None, "") for c in r)]
+        if nxt and all(_data_row(r) for r in nxt):
+            return k, skip
+    return None
+
+
+# --------------------------------------------------------------------------- text files
+
+
+def sniff_text(lines: list[str]) -> dict:
+    """The delimiter, decimal mark and header line of text ``lines`` (comment lines ``#`` skipped).
+
+    Returns
+    -------
+    dict
+        ``delimiter``, ``decimal``, ``header_row`` (1-based), ``skip_rows`` (label lines after
+        the header, e.g. units); ``header_row`` None when no header was found.
+    """
+    body = [(i, ln) for i, ln in enumerate(lines[: HEAD_LINES * 5]) if ln.strip() and not ln.startswith("#")]
+    best, score = ",", -1
+    for delim in DELIMITERS:
+        counts = [ln.count(delim) for _, ln in body[:HEAD_LINES]]
+        if not counts or max(counts) == 0:
+            continue
+        common = max(set(counts), key=counts.count)
+        s = counts.count(common) * 1000 + common
+        if common > 0 and s > score:
+            best, score = delim, s
+    fields = [f.strip() for _, ln in body[1:HEAD_LINES] for f in ln.split(best)]
+    commas = sum(bool(re.match(r"^[+-]?\d+,\d+$", f)) for f in fields)
+    points = sum(bool(re.match(r"^[+-]?\d+\.\d+$", f)) for f in fields)
+    decimal = "," if best != "," and commas > points else "."
+    rows = [[f.strip() for f in ln.split(best)] for _, ln in body]
+    found = header_position(rows)
+    header_row = body[found[0]][0] + 1 if found else None
+    return {
+        "delimiter": best,
+        "decimal": decimal,
+        "header_row": header_row,
+        "skip_rows": found[1] if found else 0,
+    }
+
+
+def _labels(rows: list[list], n: int) -> list[str]:
+    """Per column, the label rows' cells joined by a space (units such as ``°C``)."""
+    return [
+        " ".join(str(r[j]).strip() for r in rows if j < len(r) and r[j] is not None).strip() for j in range(n)
+    ]
+
+
+def _metadata(lines: list[str]) -> dict:
+    meta = {}
+    for ln in lines:
+        if not ln.startswith("#"):
+            break
+        key, _, value = ln[1:].partition(":")
+        meta[key.strip()] = value.strip()
+    return meta
+
+
+def _read_text(path: Path, raw: bytes) -> RawTable:
+    for enc in ENCODINGS:
+        try:
+            text = raw.decode("utf-8-sig" if enc == "utf-8" else enc)
+            break
+        except UnicodeDecodeError:
+            continue
+    lines = split_lines(text)
+    found = sniff_text(lines)
+    if found["header_row"] is None:
+        raise RawFormatError(path, "no header line followed by rows of numbers in the first lines")
+    spec = {
+        "format": "csv",
+        "encoding": enc,
+        "delimiter": found["delimiter"],
+        "decimal": found["decimal"],
+        "header_row": found["header_row"],
+        "skip_rows": found["skip_rows"],
+    }
+    table = read_csv_table(path, raw, spec)
+    meta = _metadata(lines)
+    below = [ln for ln in lines[spec["header_row"] :] if ln.strip()][: spec["skip_rows"]]
+    labels = _labels([ln.split(spec["delimiter"]) for ln in below], len(table.header))
+    native = [h for h in table.header] == list(REQUIRED_COLUMNS) and found["delimiter"] == ","
+    layout = {k: spec[k] for k in ("delimiter", "decimal", "encoding", "header_row", "skip_rows")}
+    return RawTable(
+        path,
+        "native" if native else "csv",
+        layout,
+        list(table.header),
+        [list(c) for c in zip(*table.rows)] if table.rows else [[] for _ in table.header],
+        meta=meta,
+        notes=[f"{spec['skip_rows']} label row(s) after the header skipped"] if spec["skip_rows"] else [],
+        labels=labels,
+    )
+
+
+# --------------------------------------------------------------------------- workbooks
+
+
+def _sheet_rows(ws) -> list[list]:
+    ws.reset_dimensions()
+    return [list(r) for r in ws.iter_rows(values_only=True)]
+
+
+def _start_in(name: str, rows: list[list]) -> tuple[str, str] | None:
+    """A date-and-time cell of an info sheet (ISO text, where), or None."""
+    for r, cells in enumerate(rows[:HEAD_LINES], start=1):
+        for c, v in enumerate(cells):
+            when = None
+            if isinstance(v, dt.datetime):
+                when = v
+            elif isinstance(v, str) and re.match(r"^\s*\d{4}-\d{2}-\d{2}[ T]\d{2}:\d{2}(:\d{2})?\s*$", v):
+                when = dt.datetime.fromisoformat(v.strip().replace(" ", "T"))
+            if when is not None:
+                label = next((str(x) for x in cells[:c] if isinstance(x, str) and x.strip()), "")
+                beside = f", next to {quote(label)}" if label else ""
+                return when.isoformat(
+                    timespec="seconds"
+                ), f"sheet {quote(name)} cell {excel_column(c)}{r}{beside}"
+    return None
+
+
+def _read_workbook(path: Path, raw: bytes) -> RawTable:
+    import openpyxl
+
+    from rafi.readers.mapped_cells import check_zip_sizes
+
+    check_zip_sizes(path, raw)
+    try:
+        wb = openpyxl.load_workbook(io.BytesIO(raw), read_only=True, data_only=True)
+    except Exception as exc:  # zip, XML, openpyxl's own errors: all mean "not a workbook"
+        raise RawFormatError(path, f"not a readable .xlsx workbook ({type(exc).__name__})") from None
+    try:
+        read = {name: _sheet_rows(wb[name]) for name in wb.sheetnames}
+    finally:
+        wb.close()
+    sheets, tables, start = [], {}, None
+    for name, rows in read.items():
+        found = header_position(rows)
+        if found is None:
+            kind = "empty" if not any(any(c is not None for c in r) for r in rows) else "info"
+            sheets.append(SheetInfo(name, len(rows), max((len(r) for r in rows), default=0), kind))
+            start = start or (_start_in(name, rows) if kind == "info" else None)
+            continue
+        k, skip = found
+        header = [norm_header("" if v is None else v) for v in rows[k]]
+        while header and not header[-1]:
+            header.pop()
+        data = [r[: len(header)] + [None] * (len(header) - len(r)) for r in rows[k + 1 + skip :]]
+        data = [r for r in data if any(c is not None and str(c).strip() != "" for c in r)]
+        sheets.append(SheetInfo(name, len(data), len(header), "data", tuple(header)))
+        tables[name] = (k + 1, skip, header, data, _labels(rows[k + 1 : k + 1 + skip], len(header)))
+    if not tables:
+        raise RawFormatError(path, "no sheet holds a header row followed by rows of numbers")
+    name = max(tables, key=lambda n: len(tables[n][3]))
+    header_row, skip, header, data, labels = tables[name]
+    twins = [s.name for s in sheets if s.kind == "data" and s.name != name and list(s.header) == header]
+    notes = [f"{len(twins)} other sheet(s) with the same header: {', '.join(twins)}"] if twins else []
+    return RawTable(
+        path,
+        "xlsx",
+        {"sheet": name, "header_row": header_row, "skip_rows": skip},
+        header,
+        [list(c) for c in zip(*data)] if data else [[] for _ in header],
+        sheets=sheets,
+        start_hint=start,
+        notes=notes,
+        labels=labels,
+    )
+
+
+def read_unknown(path: str | os.PathLike) -> RawTable:
+    """Read one log of unknown layout (native, csv or xlsx; see the module docstring).
+
+    Raises
+    ------
+    RawFormatError
+        The file cannot be read, or holds no header followed by rows of numbers.
+    """
+    path = Path(path)
+    raw = read_file_bytes(path)
+    if raw[:2] == b"PK":
+        return _read_workbook(path, raw)
+    return _read_text(path, raw)

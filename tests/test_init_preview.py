@@ -1,0 +1,171 @@
+"""``rafi init --preview`` and the column rules of ``rafi init`` on columns whose truth is known."""
+
+from __future__ import annotations
+
+import datetime as dt
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from rafi.cli import main
+from rafi.ops.init_preview import preview
+from rafi.readers.infer import guess_column, guess_columns, sensor_names
+from rafi.readers.native import format_raw_log
+from rafi.twin.synthetic_logs import schedule_log
+
+#: A continuous log: training-like steps with cool-downs between them (speed, s).
+SCHEDULE = [(0, 120), (3000, 7200), (0, 3600), (6000, 7200), (0, 3600), (4500, 7200), (0, 1800)]
+
+
+def project(tmp_path: Path, machine_entry: dict) -> Path:
+    """A config with one machine whose raw folder holds one native continuous log."""
+    folder = tmp_path / "raw" / "m"
+    folder.mkdir(parents=True)
+    frame, _ = schedule_log(SCHEDULE, period_s=10.0)
+    text = format_raw_log(frame.drop(columns=["t_s", "segment"]), {"machine": "m", "sample_period_s": "10"})
+    (folder / "log.csv").write_text(text, encoding="utf-8")
+    config = tmp_path / "config.yaml"
+    entry = {"sample_period_s": 10, **machine_entry}
+    config.write_text(yaml.safe_dump({"raw_dir": str(tmp_path / "raw"), "machines": {"m": entry}}), "utf-8")
+    return config
+
+
+def warnings(lines: list[str]) -> list[str]:
+    return [ln for ln in lines if ln.startswith("warning: ")]
+
+
+def test_preview_lists_the_runs_and_warns_of_run_start_on_a_continuous_log(tmp_path):
+    lines = preview(str(project(tmp_path, {"training_speeds_rpm": [3000, 6000]})), "m")
+    runs = [ln for ln in lines if ln.startswith("  log#")]
+    assert len(runs) == 6  # three steps (the first with its rest), three cool-downs
+    assert "training" in runs[0] and "3000 r/min" in runs[0]
+    assert "reference: run_start" in "\n".join(lines)
+    (w,) = warnings(lines)
+    assert "reference: {rule: log_start}" in w and "log.csv holds 3 runs" in w
+
+
+def test_preview_says_no_run_is_at_a_training_speed_and_lists_the_speeds(tmp_path):
+    entry = {"training_speeds_rpm": [12000], "reference": {"rule": "log_start"}}
+    (w,) = warnings(preview(str(project(tmp_path, entry)), "m"))
+    assert w.startswith("warning: no run at a training speed: training_speeds_rpm is [12000]")
+    assert "3000, 4500, 6000 r/min" in w
+
+
+def test_preview_names_a_window_glob_and_an_override_that_match_nothing(tmp_path, capsys):
+    entry = {
+        "training_speeds_rpm": [3000, 6000],
+        "reference": {"rule": "log_start"},
+        "runs": {
+            "windows": [{"role": "validation", "start": 20000, "unit": "elapsed_s", "log": "day2*"}],
+            "overrides": {"nolog#3": "excluded"},
+        },
+    }
+    config = project(tmp_path, entry)
+    assert main(["init", "--preview", "--machine", "m", "--config", str(config)]) == 0
+    out = capsys.readouterr().out
+    assert "warning: runs.windows[0].log 'day2*' matches no file (files: log.csv)" in out
+    assert "warning: runs.overrides['nolog#3'] matches no run id or file" in out
+
+
+def test_preview_window_beyond_the_log_and_a_machine_not_configured(tmp_path, capsys):
+    entry = {"training_speeds_rpm": [3000], "reference": {"rule": "log_start"}}
+    entry["runs"] = {"windows": [{"role": "validation", "start": 10**6, "unit": "elapsed_s"}]}
+    config = project(tmp_path, entry)
+    assert any("runs.windows[0] holds no sample of log.csv" in w for w in warnings(preview(str(config), "m")))
+    assert main(["init", "--preview", "--machine", "other", "--config", str(config)]) == 64
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "'other' is not under machines:" in err
+
+
+def test_stdout_is_the_block_and_stderr_the_findings(tmp_path, capsys):
+    frame, _ = schedule_log(SCHEDULE, period_s=10.0)
+    path = tmp_path / "log.csv"
+    path.write_text(format_raw_log(frame.drop(columns=["t_s", "segment"])), encoding="utf-8")
+    assert main(["init", "--machine", "m", str(tmp_path)]) == 0
+    out, err = capsys.readouterr()
+    entry = yaml.safe_load(out)["machines"]["m"]
+    assert entry["reference"] == {"rule": "log_start"}
+    assert entry["training_speeds_rpm"] == [3000, 6000]  # 4500 lies between them
+    assert "layout: one continuous log" in err and "col  header" in err
+
+
+# --------------------------------------------------------------------------- column rules
+
+
+def warm(start: float, rise: float, n: int = 600, noise: float = 0.02, seed: int = 0) -> np.ndarray:
+    """A smooth warm-up from ``start`` by ``rise``."""
+    rng = np.random.default_rng(seed)
+    return start + rise * (1 - np.exp(-np.arange(n) / 150)) + rng.normal(0, noise, n)
+
+
+def test_kelvin_fahrenheit_and_celsius():
+    kelvin = guess_column(0, "Sensor A", list(warm(295.0, 8.0)))
+    assert (kelvin.role, kelvin.unit, kelvin.check) == ("temperature", "K", None)
+    room_f = guess_column(0, "Sensor B", list(warm(70.0, 10.0)))  # a room in deg F, or a warm machine
+    assert room_f.role == "temperature" and room_f.check and "deg F" in room_f.check
+    celsius = guess_column(0, "Sensor C", list(warm(21.0, 6.0)))
+    assert (celsius.unit, celsius.check, celsius.confidence) == ("degC", None, "medium")
+    named = guess_column(0, "Lager vorne [°C]", list(warm(21.0, 6.0)))
+    assert named.confidence == "high"
+
+
+def test_displacement_units_by_range_and_resolution():
+    um = guess_column(0, "Kanal 1", list(np.round(warm(0.0, 25.0, noise=0.1), 3)))
+    assert (um.role, um.unit, um.check) == ("displacement", "um", None)
+    mm = guess_column(0, "Kanal 2", list(np.round(warm(0.0, 0.025, noise=0.0001), 4)))
+    assert (mm.role, mm.unit, mm.check) == ("displacement", "mm", None)
+    unsure = guess_column(0, "Kanal 3", list(np.round(warm(0.0, 0.8, noise=0.01), 2)))
+    assert unsure.role == "displacement" and unsure.unit is None and "um or mm" in unsure.check
+
+
+def test_time_speed_counter_and_text():
+    t0 = dt.datetime(2026, 5, 4, 6, 0)
+    stamps = [t0 + dt.timedelta(seconds=30 * k) for k in range(600)]
+    speed = [0.0] * 100 + [3000.0] * 300 + [0.0] * 200
+    cols = [stamps, list(range(1, 601)), speed, ["ok"] * 600, list(range(600))]
+    got = guess_columns(["Zeit", "Nr", "Drehzahl", "Bemerkung", "Spalte 5"], cols)
+    assert [g.role for g in got] == ["time", "other", "speed", "text", "other"]
+    assert got[0].unit == "timestamp" and got[2].unit == "rpm"
+    assert "second time column" in got[4].why  # elapsed seconds at 1 s, or a counter: not a clock twice
+    alone = guess_column(0, "Spalte 5", list(range(600)))
+    assert alone.role == "time" and "row counter" in alone.check
+
+
+@pytest.mark.parametrize(
+    "headers, names",
+    [
+        (["Temperatur 3 [°C]", "Temperatur 1 [°C]"], ["T3", "T1"]),
+        (["t1(°C)", "t12(°C)"], ["T1", "T12"]),
+        (["Lager vorne [°C]", "Motor [°C]"], ["lager_vorne", "motor"]),
+        (["溫度一", "溫度二"], ["T1", "T2"]),
+        (["T 1", "T 1 (b)"], ["T1", "T2"]),
+    ],
+)
+def test_sensor_names(headers, names):
+    assert sensor_names(headers) == names
+
+
+def test_a_title_line_and_a_units_row_around_the_header(tmp_path):
+    """The units row names the roles the headers do not (``T1`` rises steadily, like a clock)."""
+    from rafi.ops.init_survey import survey
+    from rafi.readers.infer_files import read_unknown
+
+    lines = ["Messprotokoll BAZ 7;;;;", "Zeit;Drehzahl;T1;T2;Weg", "s;1/min;°C;°C;µm"]
+    for k in range(400):
+        row = f"{k * 10};{0 if k < 20 else 3000};{21 + k * 0.01:.2f};{21.5 + k * 0.005:.2f};{k * 0.03:.2f}"
+        lines.append(row.replace(".", ","))
+    path = tmp_path / "title.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="cp1252")
+    table = read_unknown(path)
+    assert table.layout == {
+        "delimiter": ";",
+        "decimal": ",",
+        "encoding": "cp1252",
+        "header_row": 2,
+        "skip_rows": 1,
+    }
+    s = survey("x", [table])
+    assert [g.role for g in s.guesses] == ["time", "speed", "temperature", "temperature", "displacement"]
+    assert [g.unit for g in s.guesses] == ["s", "rpm", "degC", "degC", "um"]
