@@ -5,12 +5,13 @@ names them, every step carries them, and machines of 4, 6, 22 and 40 sensors wri
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 import yaml
-from project_copy import copy_project, run_snakemake
+from project_copy import copy_project, run_rafi, run_snakemake
 
 from rafi.errors import InputSpecError
 from rafi.readers.input_spec import normalise_input_spec
@@ -91,13 +92,20 @@ def test_each_layout_reads_back_with_its_config(tmp_path, name):
 E2E_LAYOUTS = ("sensors-4", "sensors-6-diameter", "sensors-22", "sensors-40")
 
 
+def init_proposal(proj: Path, machine: str, files: list[Path]) -> dict:
+    """The ``machines.<machine>:`` block ``rafi init`` proposes for ``files``, taken as written."""
+    done = run_rafi(proj, "init", "--machine", machine, *map(str, files))
+    assert done.returncode == 0, done.stderr
+    return yaml.safe_load(done.stdout)["machines"][machine]
+
+
 @pytest.mark.slow
-def test_machines_of_4_to_40_sensors_run_end_to_end(tmp_path):
+def test_machines_of_4_to_40_sensors_run_end_to_end_from_rafi_inits_proposal(tmp_path):
     proj = copy_project(tmp_path / "proj", config=False)
     config = {"machines": {}}
     for name in E2E_LAYOUTS:
-        write_layout(name, proj / "raw")
-        config["machines"][name] = layout_config(name)
+        files = write_layout(name, proj / "raw")
+        config["machines"][name] = init_proposal(proj, name, files)
     (proj / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False, allow_unicode=True))
     raw_before = {p: p.read_bytes() for p in (proj / "raw").rglob("*") if p.is_file()}
 

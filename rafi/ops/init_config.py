@@ -19,6 +19,7 @@ import yaml
 
 from rafi.errors import RafiUserError, SettingsError
 from rafi.ops.init_survey import Survey
+from rafi.sensors import DEFAULT_SENSORS
 from rafi.settings import machine_settings, validate_config
 
 #: Column at which line comments start (when the text is shorter).
@@ -162,7 +163,12 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     table = s.tables[0]
     out.add(4, "input:")
     if s.format == "native":
-        out.add(6, "format: native", "the project's own layout: time, speed_rpm, T1..T16, disp_um")
+        header = table.header
+        sensors = header[2 : header.index("disp_um")]
+        out.add(6, "format: native", "the project's own layout: time, speed_rpm, the sensors, disp_um")
+        if tuple(sensors) != DEFAULT_SENSORS:
+            why = f"{len(sensors)} temperature columns of the header"
+            out.add(6, f"sensors: [{', '.join(sensors)}]", why)
         return
     ext = table.path.suffix.lower() or ".csv"
     out.add(6, f"format: {s.format}")

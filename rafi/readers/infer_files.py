@@ -18,7 +18,6 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from rafi import REQUIRED_COLUMNS
 from rafi.errors import RawFormatError, quote
 from rafi.readers.input_spec import norm_header
 from rafi.readers.mapped_cells import excel_column
@@ -189,6 +188,16 @@ def _metadata(lines: list[str]) -> dict:
     return meta
 
 
+def _native_header(header: list[str]) -> bool:
+    """True for the project's own layout: ``time``, ``speed_rpm``, sensor names, ``disp_um``."""
+    from rafi.readers.input_spec import sensor_name_problem
+
+    if header[:2] != ["time", "speed_rpm"] or "disp_um" not in header[3:]:
+        return False
+    sensors = header[2 : header.index("disp_um")]
+    return all(sensor_name_problem(name) is None for name in sensors)
+
+
 def _read_text(path: Path, raw: bytes) -> RawTable:
     for enc in ENCODINGS:
         try:
@@ -212,7 +221,7 @@ def _read_text(path: Path, raw: bytes) -> RawTable:
     meta = _metadata(lines)
     below = [ln for ln in lines[spec["header_row"] :] if ln.strip()][: spec["skip_rows"]]
     labels = _labels([ln.split(spec["delimiter"]) for ln in below], len(table.header))
-    native = [h for h in table.header] == list(REQUIRED_COLUMNS) and found["delimiter"] == ","
+    native = _native_header(list(table.header)) and found["delimiter"] == ","
     layout = {k: spec[k] for k in ("delimiter", "decimal", "encoding", "header_row", "skip_rows")}
     return RawTable(
         path,
