@@ -25,10 +25,17 @@ import copy
 import os
 from collections.abc import Mapping
 
-from rafi.contract import GATE_KEYS, MACHINE_SETTINGS, RUN_SETTINGS, config_schema, defaults
-from rafi.errors import SettingsError
+from rafi.contract import (
+    GATE_KEYS,
+    MACHINE_SETTINGS,
+    PROBE_SEPARATOR,
+    RUN_SETTINGS,
+    config_schema,
+    defaults,
+)
+from rafi.errors import InputSpecError, SettingsError
 from rafi.readers.input_assumed import check_period
-from rafi.readers.input_spec import normalise_input_spec
+from rafi.readers.input_spec import normalise_input_spec, probe_spec
 
 #: Largest backwards time step (sample periods) that cleaning repairs by sorting; more is a clock reset.
 BACKWARDS_TOLERANCE_SAMPLES = 3.0
@@ -125,15 +132,36 @@ def run_settings(config: Mapping) -> dict:
     return out
 
 
+def split_unit(name: str) -> tuple[str, str | None]:
+    """``(machine, probe)`` of a qualification unit's name: ``fl-thermal@ch1`` -> ``("fl-thermal",
+    "ch1")``; a machine with one probe is its own unit (``probe`` None)."""
+    machine, sep, probe = str(name).partition(PROBE_SEPARATOR)
+    return (machine, probe) if sep else (machine, None)
+
+
+def unit_name(machine: str, probe: str | None) -> str:
+    """The name of the unit of ``machine``'s probe ``probe`` (:func:`split_unit` reversed)."""
+    return machine if probe is None else f"{machine}{PROBE_SEPARATOR}{probe}"
+
+
+def machine_units(config: Mapping, machine: str) -> list[str]:
+    """What the pipeline qualifies of ``machine``: one unit per probe of its ``input.probes``
+    (``<machine>@<probe>``, in the mapping's order), else the machine itself."""
+    probes = machine_settings(config, machine)["input"]["probes"]
+    return [unit_name(machine, probe) for probe in probes] or [machine]
+
+
 def machine_settings(config: Mapping, machine: str) -> dict:
-    """Effective settings of one machine: every key present, nothing to default later.
+    """Effective settings of one machine, or of one probe of it: every key present, nothing to
+    default later.
 
     Parameters
     ----------
     config : Mapping
         ``config.yaml`` as loaded (validated against ``workflow/schemas/config.schema.yaml``).
     machine : str
-        Folder name under ``raw_dir``.
+        Folder name under ``raw_dir``; or ``<folder>@<probe>``, a probe of its ``input.probes``
+        (:func:`split_unit`), whose column, unit and sign then are ``input.displacement``.
 
     Returns
     -------
@@ -141,11 +169,22 @@ def machine_settings(config: Mapping, machine: str) -> dict:
         A fresh copy of :data:`MACHINE_DEFAULTS` < ``defaults:`` < ``machines.<machine>``, with
         ``input`` normalised by :func:`rafi.readers.input_spec.normalise_input_spec` (its
         defaults filled in).
+
+    Raises
+    ------
+    SettingsError
+        The name asks for a probe the machine does not have.
     """
     check_layout(config)
+    folder, probe = split_unit(machine)
     merged = deep_merge(MACHINE_DEFAULTS, config.get("defaults"))
-    merged = deep_merge(merged, (config.get("machines") or {}).get(machine))
+    merged = deep_merge(merged, (config.get("machines") or {}).get(folder))
     merged["input"] = normalise_input_spec(merged["input"])
+    if probe is not None:
+        try:
+            merged["input"] = probe_spec(merged["input"], probe)
+        except InputSpecError as exc:
+            raise SettingsError(f"machines.{folder}.{exc}") from None
     check_period(merged["input"], merged["sample_period_s"])
     return merged
 
@@ -169,7 +208,7 @@ def read_machine_config(config_path: str | os.PathLike, machine: str) -> tuple[d
     except (OSError, yaml.YAMLError) as exc:
         raise SettingsError(f"{config_path}: cannot read the config ({exc})") from None
     known = sorted((config.get("machines") or {}) if isinstance(config, dict) else {})
-    if machine not in known:
+    if split_unit(machine)[0] not in known:
         raise SettingsError(
             f"--machine {machine!r} is not under machines: in {short_path(config_path)} (known: "
             f"{', '.join(known) or 'none'}); add it there first, so that its settings are the ones used"

@@ -21,6 +21,7 @@ INPUT_DEFAULTS: dict = {
     "speed": {"constant_rpm": None, "constant_rpm_by_file": {}},
     "sample_period_s": None,
     "displacement": {"column": None, "unit": "um", "sign": 1},
+    "probes": {},
     "temperature_unit": "C",
     "keep_extra": True,
 }
@@ -51,6 +52,16 @@ RESERVED_NAMES = ("time", "speed_rpm", "disp_um", "t_s", "dz_um", "log", "log_t_
 NON_SENSOR_COLUMNS = ("time", "speed_rpm", "disp_um")
 
 CANONICAL_RE = SENSOR_NAME_RE
+
+#: A displacement probe's name (``input.probes``): X, Y, Z, ch1, ... It names the probe's results
+#: (``results/<machine>@<probe>/``), its model, its registry and its report section.
+PROBE_NAME_RE = "^[A-Za-z][A-Za-z0-9_]{0,15}$"
+
+#: Between a machine's name and a probe's in the name of the probe's results: ``fl-thermal@ch1``.
+PROBE_SEPARATOR = "@"
+
+#: The keys of one probe of ``input.probes`` (``unit`` and ``sign`` default to ``displacement``'s).
+PROBE_KEYS = ("column", "unit", "sign", "description")
 
 #: JSON schema (draft 7) of one ``input:`` mapping; the workflow's config schema embeds it.
 #: It carries no ``default`` keywords on purpose: a validator that fills defaults in would
@@ -116,6 +127,22 @@ INPUT_SCHEMA: dict = {
                 "column": {"type": "string", "minLength": 1},
                 "unit": {"enum": ["um", "mm"]},
                 "sign": {"enum": [1, -1]},
+            },
+        },
+        "probes": {
+            "type": "object",
+            "propertyNames": {"pattern": PROBE_NAME_RE},
+            "maxProperties": 16,
+            "additionalProperties": {
+                "type": "object",
+                "additionalProperties": False,
+                "required": ["column"],
+                "properties": {
+                    "column": {"type": "string", "minLength": 1},
+                    "unit": {"enum": ["um", "mm"]},
+                    "sign": {"enum": [1, -1]},
+                    "description": {"type": "string", "minLength": 1},
+                },
             },
         },
         "temperature_unit": {"enum": ["C", "K"]},

@@ -135,16 +135,32 @@ def _displacement_keys(out: _Lines, s: Survey) -> None:
         out.add(8, 'column: "..."', "CHECK: no displacement column found; your probe's header", off=True)
         return
     first = s.probes[0]
+    several = len(s.probes) > 1
     out.add(6, "displacement:")
-    others = ", ".join(q(g.header) for g in s.probes[1:])
-    out.add(8, f"column: {q(first.header)}", f"other probe candidates: {others}" if others else first.why)
+    if not several:
+        out.add(8, f"column: {q(first.header)}", first.why)
     if first.unit in ("um", "mm"):
-        out.add(8, f"unit: {first.unit}", first.why if others else None)
+        out.add(8, f"unit: {first.unit}", first.why if several else None)
     else:
         out.add(8, "unit: um", f"CHECK: {first.check or 'um or mm?'}", off=True)
     flip = -1 if s.sign == -1 else 1
     why = f"CHECK: {s.sign_why}; -1 if your probe counts growth towards the table as negative"
     out.add(8, f"sign: {flip}", why, off=True)
+    if several:
+        out.add(6, "probes:", f"{len(s.probes)} displacement columns: one model and one verdict per probe")
+        for name, guess in zip(probe_names([g.header for g in s.probes]), s.probes):
+            out.add(8, f"{name}: {{column: {q(guess.header)}}}")
+
+
+def probe_names(headers: list[str]) -> list[str]:
+    """A probe name for every displacement header: its first word (``ch1(um)`` -> ``ch1``,
+    ``X displacement`` -> ``X``) where that is a valid, unique name, else ``P<k>``."""
+    from rafi.contract import PROBE_NAME_RE
+
+    words = [(re.match(r"[A-Za-z][A-Za-z0-9_]*", h.strip()) or [""])[0][:16] for h in headers]
+    return [
+        w if re.match(PROBE_NAME_RE, w) and words.count(w) == 1 else f"P{k + 1}" for k, w in enumerate(words)
+    ]
 
 
 def _temperature_unit(out: _Lines, s: Survey) -> None:

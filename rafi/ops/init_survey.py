@@ -248,8 +248,8 @@ def _checks(s: Survey) -> list[str]:
         out.append(f"input.displacement.sign: the probe's convention is not in the data; {s.sign_why}")
         if len(s.probes) > 1:
             out.append(
-                f"input.displacement.column: {len(s.probes)} probe candidates; "
-                f"{s.probes[0].header!r} is written"
+                f"input.probes: {len(s.probes)} displacement columns, each a probe; remove any that is "
+                "not a displacement, and give a probe its own unit or sign where it differs"
             )
     return out
 

@@ -32,6 +32,8 @@ from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of thi
     MAX_SENSORS,
     NATIVE_KEYS,
     NON_SENSOR_COLUMNS,
+    PROBE_KEYS,
+    PROBE_NAME_RE,
     RESERVED_NAMES,
     SENSOR_NAME_RE,
     TIME_KINDS,
@@ -89,6 +91,7 @@ def normalise_input_spec(spec: dict | None) -> dict:
     check_text_layout(out)
     check_sensors(out)
     check_columns(out)
+    check_probes(out)
     check_time(out)
     check_no_time_column(out)
     check_speed(out)
@@ -279,6 +282,73 @@ def check_columns(out: dict) -> None:
             "columns",
             f"header {dup!r} is mapped to {' and '.join(names)}; each header can feed one canonical column",
         )
+
+
+def check_probes(out: dict) -> None:
+    """``probes``: several displacement probes, each by name with its ``column``, ``unit`` and
+    ``sign`` (the two default to ``displacement``'s) and an optional ``description``; then
+    ``displacement.column`` stays unset (each probe names its own). ``out`` is changed in place:
+    every probe complete."""
+    probes = out["probes"]
+    if probes is None:
+        out["probes"] = {}
+        return
+    if not isinstance(probes, dict):
+        raise _spec_error("probes", f"expected a mapping of probe names to columns, got {probes!r}")
+    if probes and out["format"] == "native":
+        raise _spec_error("probes", "needs format csv or xlsx: a native log has one displacement, disp_um")
+    if probes and out["displacement"]["column"] is not None:
+        raise _spec_error(
+            "displacement.column", "with input.probes, each probe names its column there; remove this one"
+        )
+    complete = {}
+    for name, probe in probes.items():
+        where = f"probes.{name}"
+        if not isinstance(name, str) or not re.match(PROBE_NAME_RE, name):
+            raise _spec_error(
+                where, "not a probe name: a letter, then up to 15 letters, digits or '_' (X, ch1)"
+            )
+        if isinstance(probe, str):
+            probe = {"column": probe}
+        if not isinstance(probe, dict):
+            raise _spec_error(where, f"expected {{column: <header>, unit: um|mm, sign: 1|-1}}, got {probe!r}")
+        extra = sorted(set(probe) - set(PROBE_KEYS))
+        if extra:
+            raise _spec_error(f"{where}.{extra[0]}", "unknown key; accepted keys: " + ", ".join(PROBE_KEYS))
+        column = probe.get("column")
+        if not isinstance(column, str) or not column.strip():
+            raise _spec_error(f"{where}.column", f"{column!r}: expected the probe's header text")
+        unit = probe.get("unit", out["displacement"]["unit"])
+        sign = probe.get("sign", out["displacement"]["sign"])
+        if unit not in ("um", "mm"):
+            raise _spec_error(f"{where}.unit", f"{unit!r}: expected um or mm")
+        if isinstance(sign, bool) or sign not in (1, -1):
+            raise _spec_error(f"{where}.sign", f"{sign!r}: expected 1 or -1")
+        complete[name] = {
+            "column": column,
+            "unit": unit,
+            "sign": sign,
+            "description": probe.get("description"),
+        }
+    out["probes"] = complete
+
+
+def probe_spec(spec: dict, probe: str) -> dict:
+    """The normalised ``input:`` mapping ``spec`` reading probe ``probe`` as its displacement
+    (``displacement`` = the probe's column, unit and sign); a new dict.
+
+    Raises
+    ------
+    InputSpecError
+        ``probe`` is not one of ``spec["probes"]``.
+    """
+    if probe not in spec["probes"]:
+        known = ", ".join(spec["probes"]) or "none"
+        raise _spec_error("probes", f"the machine has no probe {probe!r} (its probes: {known})")
+    out = copy.deepcopy(spec)
+    chosen = spec["probes"][probe]
+    out["displacement"] = {key: chosen[key] for key in ("column", "unit", "sign")}
+    return out
 
 
 def check_time(out: dict) -> None:

@@ -142,12 +142,23 @@ def _discover():
         raise WorkflowError(f"RAFI: {exc}") from None
     for warning in warnings:
         _log.warning("RAFI: %s", warning)
-    return found
+    return _by_unit(found)
+
+
+def _by_unit(found):
+    """Folder -> files as unit -> files: a machine with several probes (``input.probes``) is one
+    unit per probe, ``<machine>@<probe>``, each reading the machine's files
+    (``rafi.settings.machine_units``)."""
+    try:
+        return {unit: files for m, files in found.items() for unit in _settings.machine_units(config, m)}
+    except (InputSpecError, SettingsError) as exc:
+        raise WorkflowError(f"RAFI: {exc}") from None
 
 
 RAW = _discover()
 
-#: Machines to process: the folders of ``raw_dir`` holding at least one matching file.
+#: What to qualify: the folders of ``raw_dir`` holding at least one matching file, a machine with
+#: several probes as one unit per probe (``<machine>@<probe>``).
 MACHINES = sorted(RAW)
 
 
