@@ -33,7 +33,7 @@ from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of thi
     NATIVE_KEYS,
     TIME_KINDS,
 )
-from rafi.errors import InputSpecError, RawFormatError, bound_message, short_path
+from rafi.errors import InputSpecError, bound_message, short_path
 from rafi.readers.discovery import (
     NAME_MAX_BYTES,
     is_inside,
@@ -45,7 +45,17 @@ from rafi.readers.discovery import (
     settling_warning,
     split_outside,
 )
-from rafi.readers.input_assumed import check_no_time_column, check_speed, constant_speed, has_constant_speed
+from rafi.readers.input_assumed import check_no_time_column, check_speed, has_constant_speed, log_speed
+from rafi.readers.input_layouts import (
+    check_column_refs,
+    check_header_row,
+    check_join,
+    check_sheet,
+    partner_columns,
+    partner_layout,
+    ref_key,
+)
+from rafi.readers.log_sources import expand_logs, log_name
 
 # --------------------------------------------------------------------------- the input: mapping
 
@@ -82,6 +92,7 @@ def normalise_input_spec(spec: dict | None) -> dict:
     spec = {} if spec is None else spec
     out = merge_input_defaults(spec)
     check_format(out, spec)
+    check_join(out)
     check_text_layout(out)
     check_columns(out)
     check_time(out)
@@ -158,14 +169,7 @@ def check_format(out: dict, spec: dict) -> None:
 def check_text_layout(out: dict) -> None:
     """``sheet``, ``delimiter`` (``tab`` becomes a tab), ``decimal``, ``encoding``, ``header_row``
     and ``skip_rows``: how the file's text is read. ``out`` is changed in place."""
-    sheet = out["sheet"]
-    if (
-        isinstance(sheet, bool)
-        or not isinstance(sheet, (str, int))
-        or (isinstance(sheet, int) and sheet < 0)
-        or (isinstance(sheet, str) and not sheet)
-    ):
-        raise _spec_error("sheet", f"{sheet!r}: expected a sheet name or a 0-based index")
+    check_sheet(out)
     delim = out["delimiter"]
     if delim in ("tab", "\\t"):
         delim = out["delimiter"] = "\t"
@@ -184,29 +188,33 @@ def check_text_layout(out: dict) -> None:
         raise _spec_error(
             "encoding", f"unknown encoding {out['encoding']!r} (e.g. utf-8, latin-1, cp1252)"
         ) from None
-    for key, low in (("header_row", 1), ("skip_rows", 0)):
-        v = out[key]
-        if isinstance(v, bool) or not isinstance(v, int) or v < low:
-            raise _spec_error(key, f"{v!r}: expected an integer >= {low}")
+    check_header_row(out)
+    v = out["skip_rows"]
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise _spec_error("skip_rows", f"{v!r}: expected an integer >= 0")
 
 
 def check_columns(out: dict) -> None:
-    """``columns`` maps canonical names to header texts, ``displacement`` names one channel in one
-    place with a known unit and sign, and no header feeds two canonical columns."""
+    """``columns`` maps canonical names to header texts (or, :mod:`rafi.readers.input_layouts`,
+    column letters and positions), ``displacement`` names one channel in one place with a known
+    unit and sign, and no column feeds two canonical columns."""
     columns = out["columns"]
-    for canon, theirs in columns.items():
+    for canon in columns:
         if not re.match(CANONICAL_RE, str(canon)):
             raise _spec_error(
                 f"columns.{canon}",
                 "not a canonical column; map " + ", ".join(REQUIRED_COLUMNS) + " to your headers",
             )
-        if not isinstance(theirs, str) or not theirs.strip():
-            raise _spec_error(f"columns.{canon}", f"{theirs!r}: expected your header text")
+    if out["join"] is not None:
+        for canon in out["join"]["columns"]:
+            if not re.match(CANONICAL_RE, canon):
+                raise _spec_error("join.columns", f"{canon!r} is not a canonical column")
+    resolved = resolve_columns(out)
+    check_column_refs(out, list(resolved))
+    header = out["header_row"] is not None
     disp = out["displacement"]
-    if disp["column"] is not None:
-        if not isinstance(disp["column"], str) or not disp["column"].strip():
-            raise _spec_error("displacement.column", f"{disp['column']!r}: expected a header text")
-        if "disp_um" in columns and norm_header(columns["disp_um"]) != norm_header(disp["column"]):
+    if disp["column"] is not None and "disp_um" in columns:
+        if ref_key(columns["disp_um"], header) != ref_key(disp["column"], header):
             raise _spec_error(
                 "displacement.column",
                 "conflicts with columns.disp_um; give the target channel in one place only",
@@ -215,14 +223,43 @@ def check_columns(out: dict) -> None:
         raise _spec_error("displacement.unit", f"{disp['unit']!r}: expected um or mm")
     if isinstance(disp["sign"], bool) or disp["sign"] not in (1, -1):
         raise _spec_error("displacement.sign", f"{disp['sign']!r}: expected 1 or -1")
-    resolved = resolve_columns(out)
-    dup = first_duplicate([norm_header(v) for v in resolved.values()])
+    keys = {canon: ref_key(value, header) for canon, value in resolved.items()}
+    dup = first_duplicate(list(keys.values()))
     if dup is not None:
-        names = [k for k, v in resolved.items() if norm_header(v) == dup]
+        names = [k for k, v in keys.items() if v == dup]
         raise _spec_error(
             "columns",
-            f"header {dup!r} is mapped to {' and '.join(names)}; each header can feed one canonical column",
+            f"{dup} is mapped to {' and '.join(names)}; each column can feed one canonical column",
         )
+
+
+def partner_input_spec(spec: dict) -> tuple[dict, list[str]]:
+    """The normalised mapping the partner file of a ``join`` is read with, and the canonical
+    columns read from it (:func:`rafi.readers.input_layouts.partner_layout`).
+
+    Raises
+    ------
+    InputSpecError
+        Naming the ``input.join.input`` key that is wrong for the partner.
+    """
+    wanted = partner_columns(spec)
+    raw = partner_layout(spec)
+    out = merge_input_defaults(raw)
+    try:
+        check_format(out, raw)
+        check_sheet(out)
+        check_text_layout(out)
+        check_time(out)
+        check_no_time_column(out)
+        if out["displacement"]["unit"] not in ("um", "mm"):
+            raise _spec_error("displacement.unit", f"{out['displacement']['unit']!r}: expected um or mm")
+        if isinstance(out["displacement"]["sign"], bool) or out["displacement"]["sign"] not in (1, -1):
+            raise _spec_error("displacement.sign", f"{out['displacement']['sign']!r}: expected 1 or -1")
+        check_column_refs(out, wanted)
+    except InputSpecError as exc:
+        raise InputSpecError(str(exc).replace("input.", "input.join.input.", 1)) from None
+    out["join"] = None
+    return out, wanted
 
 
 def check_time(out: dict) -> None:
@@ -269,8 +306,9 @@ def _is_default(key: str, value) -> bool:
 def resolve_columns(spec: dict) -> dict[str, str]:
     """Canonical name -> the header text to look for (identity where not mapped).
 
-    ``time`` is left out when ``time.kind`` is ``none`` and ``speed_rpm`` when the speed is a
-    configured constant: those columns are not read from the file.
+    ``time`` is left out when ``time.kind`` is ``none``, ``speed_rpm`` when the speed is a
+    configured constant and the columns of ``join.columns``: those columns are not read from
+    the file.
     """
     cols = {name: spec["columns"].get(name, name) for name in REQUIRED_COLUMNS}
     if spec["time"]["kind"] == "none":
@@ -279,6 +317,8 @@ def resolve_columns(spec: dict) -> dict[str, str]:
         del cols["speed_rpm"]
     if spec["displacement"]["column"] is not None:
         cols["disp_um"] = spec["displacement"]["column"]
+    for canon in (spec.get("join") or {}).get("columns", ()):
+        cols.pop(canon, None)  # read from the partner file
     return cols
 
 
@@ -400,7 +440,21 @@ def discover_machines(
     settle_s: float = 0,
     now: float | None = None,
 ) -> tuple[dict[str, dict[str, str]], list[str]]:
-    """The machines under ``raw_dir`` and their raw files, as the workflow plans them.
+    """The machines under ``raw_dir`` and their raw files, as the workflow plans them:
+    :func:`discover_logs` with each log's raw file only (``machine -> {log id: raw path}``)."""
+    found, warnings = discover_logs(raw_dir, input_spec_of, configured, settle_s=settle_s, now=now)
+    return {m: {key: src["path"] for key, src in logs.items()} for m, logs in found.items()}, warnings
+
+
+def discover_logs(
+    raw_dir: str | os.PathLike,
+    input_spec_of,
+    configured: Iterable[str] = (),
+    *,
+    settle_s: float = 0,
+    now: float | None = None,
+) -> tuple[dict[str, dict[str, dict]], list[str]]:
+    """The machines under ``raw_dir`` and their logs, as the workflow plans them.
 
     Parameters
     ----------
@@ -419,7 +473,9 @@ def discover_machines(
     Returns
     -------
     machines : dict
-        ``machine -> {log id: raw path}``, machines sorted; a folder with no usable file, a
+        ``machine -> {log id: log source}``, machines sorted; a log source is
+        ``{"path", "sheet", "partner"}`` (:func:`rafi.readers.log_sources.expand_logs`: a file,
+        a sheet of a workbook, a file joined with its partner). A folder with no usable file, a
         hidden folder and a folder whose name holds a brace are left out, and so are links
         whose target lies outside ``raw_dir`` (a linked machine folder included) and files
         still settling.
@@ -430,13 +486,14 @@ def discover_machines(
     Raises
     ------
     rafi.errors.InputSpecError
-        A machine's ``input:`` mapping is invalid, or two globs of its
-        ``speed.constant_rpm_by_file`` with different speeds match one file (names the machine).
+        A machine's ``input:`` mapping is invalid, two globs of its
+        ``speed.constant_rpm_by_file`` with different speeds match one log, or its sheet
+        pattern matches no sheet of any workbook (names the machine).
     rafi.errors.RawFormatError
-        Two raw files of a machine share a stem, so their outputs would collide.
+        Two logs of a machine share an id (two raw files a stem), so their outputs would collide.
     """
     root = Path(raw_dir)
-    found: dict[str, dict[str, str]] = {}
+    found: dict[str, dict[str, dict]] = {}
     warnings: list[str] = []
     if not root.is_dir():
         return found, [f"raw_dir {str(root)!r} does not exist; no machines to process"]
@@ -459,35 +516,28 @@ def discover_machines(
         try:
             paths, refused = scan_logs(folder, spec, root)
             normalised = normalise_input_spec(spec)
+            waiting = settling_files(paths, settle_s, now)
+            left_out = {path for path, _ in waiting}
+            logs, notes = expand_logs([p for p in paths if p not in left_out], normalised)
             if has_constant_speed(normalised):
-                for path in paths:  # two speed globs with different speeds: stop while planning
-                    constant_speed(path.name, normalised)
+                for key, src in logs.items():  # two speed globs with different speeds: stop while planning
+                    log_speed(log_name(key, src), Path(src["path"]).name, normalised)
         except InputSpecError as exc:
             raise InputSpecError(f"machine {machine!r}: {exc}") from None
         warnings += refused
-        waiting = settling_files(paths, settle_s, now)
         for path, age in waiting:
             warnings.append(settling_warning(path, age, settle_s))
-        left_out = {path for path, _ in waiting}
-        paths = [p for p in paths if p not in left_out]
-        files: dict[str, str] = {}
-        for path in paths:
-            key = log_id(path.stem)
-            if key in files:
-                raise RawFormatError(
-                    path,
-                    f"same stem {path.stem!r} as {files[key]}; their outputs "
-                    f"(results/<machine>/clean/<stem>.*) would collide - rename one of them",
-                )
-            files[key] = str(path)
-        if not files:
-            pattern = normalise_input_spec(spec)["pattern"]
+        warnings += notes
+        if not logs:
+            pattern = normalised["pattern"]
             why = f"no file matches input.pattern {pattern!r}"
             if refused or waiting:
                 why = f"no usable file ({len(refused)} refused link(s), {len(waiting)} settling)"
+            elif paths:
+                why = f"no log in the {len(paths)} file(s) matching input.pattern {pattern!r}"
             warnings.append(f"skipping machine folder {folder}: {why}")
             continue
-        found[machine] = files
+        found[machine] = logs
     names = {p.name for p in folders}
     for machine in sorted(set(configured) - names):
         warnings.append(f"config has settings for machine {machine!r} but {root / machine} does not exist")

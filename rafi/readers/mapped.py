@@ -33,7 +33,8 @@ import pandas as pd
 
 from rafi import SENSORS
 from rafi.errors import RawFormatError
-from rafi.readers.input_assumed import constant_speed, has_constant_speed
+from rafi.readers.input_assumed import has_constant_speed, log_speed
+from rafi.readers.input_layouts import column_index, is_sheet_pattern
 from rafi.readers.input_spec import (
     _spec_error,
     norm_header,
@@ -93,17 +94,22 @@ def closest_headers(wanted: str, available: list[str], n: int = 3) -> list[str]:
 # --------------------------------------------------------------------------- main entry
 
 
-def _file_speed(path: Path, spec: dict) -> tuple[float, str] | None:
-    """The file's configured constant speed and its key; None when the speed is read from a column."""
+def _file_speed(path: Path, spec: dict, name: str | None = None) -> tuple[float, str] | None:
+    """The log's configured constant speed and its key; None when the speed is read from a column.
+
+    ``name`` is the log's name (a sheet-log's id, docs/raw-format.md), matched first; then the
+    file name."""
     if not has_constant_speed(spec):
         return None
-    found = constant_speed(path.name, spec)
+    found = log_speed(name, path.name, spec)
     if found is None:
         globs = ", ".join(repr(g) for g in spec["speed"]["constant_rpm_by_file"])
         raise RawFormatError(
             path,
             f"no speed for this file: the mapping reads no speed column and no glob of "
-            f"input.speed.constant_rpm_by_file ({globs}) matches the file name {path.name!r}; "
+            f"input.speed.constant_rpm_by_file ({globs}) matches the "
+            + (f"log name {name!r} or the " if name and name != path.name else "")
+            + f"file name {path.name!r}; "
             "add a glob that matches it, or set input.speed.constant_rpm for the machine",
         )
     return found
@@ -138,11 +144,7 @@ def _header_not_found(table: Table, spec: dict, canon: str, theirs: str) -> RawF
             + ", ".join(repr(c) for c in candidates[:8])
             + (", ..." if len(candidates) > 8 else "")
         )
-    where = (
-        "input.displacement.column"
-        if (canon == "disp_um" and spec["displacement"]["column"])
-        else f"input.columns.{canon}"
-    )
+    where = _mapping_key(spec, canon)
     return RawFormatError(
         table.path,
         f"header {theirs!r} ({where}) not found in the header row; {hint}",
@@ -152,7 +154,42 @@ def _header_not_found(table: Table, spec: dict, canon: str, theirs: str) -> RawF
     )
 
 
-def _column_positions(table: Table, spec: dict) -> dict[str, int]:
+def _mapping_key(spec: dict, canon: str) -> str:
+    """The config key that names canonical column ``canon``'s column."""
+    if canon == "disp_um" and spec["displacement"]["column"]:
+        return "input.displacement.column"
+    return f"input.columns.{canon}"
+
+
+def _where(table: Table) -> str:
+    return f"sheet {table.sheet!r}" if table.sheet is not None else "the file"
+
+
+def looks_like_data(table: Table) -> str | None:
+    """If the header row's cells are mostly numbers: a sentence saying so (else None).
+
+    A file without a header row read with ``header_row: 1`` has its first data row as header:
+    its "headers" are numbers, and a mapped header is then missing or found several times."""
+    cells = [h for h in table.header if h]
+    numbers = []
+    for h in cells:
+        try:
+            float(h.replace(",", "."))
+        except ValueError:
+            continue
+        numbers.append(h)
+    if len(cells) < 2 or len(numbers) < 0.8 * len(cells):
+        return None
+    shown = ", ".join(repr(h) for h in numbers[:3])
+    return (
+        f"row {table.header_row} (input.header_row) looks like data, not a header: {len(numbers)} of "
+        f"its {len(cells)} cells are numbers ({shown}, ...); for a file without a header row set "
+        "input.header_row: none and give input.columns as column letters ('A', 'B', ...) or "
+        "1-based positions"
+    )
+
+
+def _column_positions(table: Table, spec: dict, columns: dict | None = None) -> dict[str, int]:
     """Where each canonical column the mapping reads is in the file.
 
     Parameters
@@ -161,22 +198,40 @@ def _column_positions(table: Table, spec: dict) -> dict[str, int]:
         The file.
     spec : dict
         The normalised ``input:`` mapping.
+    columns : dict, optional
+        Canonical column -> header text, letter or position to find (default: every column the
+        mapping reads, :func:`rafi.readers.input_spec.resolve_columns`).
 
     Returns
     -------
     dict
-        Canonical column -> 0-based column index, for every column the mapping reads
-        from the file (:func:`rafi.readers.input_spec.resolve_columns`).
+        Canonical column -> 0-based column index.
 
     Raises
     ------
     RawFormatError
-        When a mapped header is not in the file, or is there more than once.
+        When a mapped header is not in the file, or is there more than once (a header row of
+        numbers: says it looks like data), or a letter or position lies beyond the last column.
     """
     positions: dict[str, int] = {}
-    for canon, theirs in resolve_columns(spec).items():
+    header = table.header_row is not None
+    for canon, theirs in (resolve_columns(spec) if columns is None else columns).items():
+        index = column_index(theirs, header=header)
+        if index is not None:
+            if index >= len(table.header):
+                raise RawFormatError(
+                    table.path,
+                    f"{_mapping_key(spec, canon)}: column {excel_column(index)!r} (position {index + 1}) "
+                    f"is beyond the {len(table.header)} columns of {_where(table)}",
+                    column=excel_column(index),
+                    sheet=table.sheet,
+                )
+            positions[canon] = index
+            continue
         key = norm_header(theirs)
         hits = [j for j, h in enumerate(table.header) if h == key]
+        if len(hits) != 1 and looks_like_data(table):
+            raise RawFormatError(table.path, looks_like_data(table), line=table.header_row, sheet=table.sheet)
         if not hits:
             raise _header_not_found(table, spec, canon, theirs)
         if len(hits) > 1:
@@ -184,13 +239,18 @@ def _column_positions(table: Table, spec: dict) -> dict[str, int]:
                 table.path,
                 f"header {theirs!r} appears {len(hits)} times "
                 f"(columns {', '.join(excel_column(j) for j in hits)}); "
-                f"cannot tell which one is {canon}",
+                f"cannot tell which one is {canon} ({_mapping_key(spec, canon)})",
                 line=table.header_row,
                 column=theirs,
                 sheet=table.sheet,
             )
         positions[canon] = hits[0]
     return positions
+
+
+def column_label(table: Table, j: int) -> str:
+    """Column ``j`` of ``table`` as errors name it: its header, else its letter."""
+    return table.header[j] or excel_column(j)
 
 
 def _frame_times(table: Table, cols: list[tuple], positions: dict[str, int], spec: dict) -> pd.Series:
@@ -224,7 +284,7 @@ def _frame_times(table: Table, cols: list[tuple], positions: dict[str, int], spe
             raise RawFormatError(table.path, problem, line=table.row_numbers[-1], sheet=table.sheet)
         return row_times(len(table.rows), spec)
     j = positions["time"]
-    return timestamps(table, list(cols[j]), spec, table.header[j], j)
+    return timestamps(table, list(cols[j]), spec, column_label(table, j), j)
 
 
 def _canonical_values(table: Table, column: list, canon: str, col_index: int, spec: dict) -> np.ndarray:
@@ -258,9 +318,8 @@ def _canonical_values(table: Table, column: list, canon: str, col_index: int, sp
     unit = {"speed_rpm": "r/min", "disp_um": spec["displacement"]["unit"]}.get(
         canon, "deg " + spec["temperature_unit"]
     )
-    values = numeric(
-        table, column, spec["decimal"], table.header[col_index], col_index, f"a number ({unit}) for {canon}"
-    )
+    label = column_label(table, col_index)
+    values = numeric(table, column, spec["decimal"], label, col_index, f"a number ({unit}) for {canon}")
     if canon == "disp_um":
         values = values * (1000.0 if spec["displacement"]["unit"] == "mm" else 1.0)
         values = values * spec["displacement"]["sign"] + 0.0  # no -0.0
@@ -337,7 +396,7 @@ def _mapped_metadata(
     meta: dict = {"format": spec["format"]}
     if table.sheet is not None:
         meta["sheet"] = table.sheet
-    meta["columns"] = {canon: table.header[j] for canon, j in positions.items()}
+    meta["columns"] = {canon: column_label(table, j) for canon, j in positions.items()}
     if spec["sample_period_s"] is not None:
         meta["sample_period_s"] = spec["sample_period_s"]
     assumed = assumed_notes(spec, speed=speed)
@@ -346,7 +405,14 @@ def _mapped_metadata(
     return meta
 
 
-def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
+def read_mapped(
+    path: str | os.PathLike,
+    input_spec: dict,
+    *,
+    sheet: str | None = None,
+    partner: str | os.PathLike | None = None,
+    name: str | None = None,
+) -> pd.DataFrame:
     """Read a csv or xlsx log with a machine's ``input:`` mapping into the canonical frame.
 
     Parameters
@@ -377,17 +443,31 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
     ------
     RawFormatError
         Naming file, sheet (xlsx), line/row and the column as written in the file; also a
-        file with no configured constant speed when the mapping reads no speed column.
+        file with no configured constant speed when the mapping reads no speed column, and a
+        missing partner file or one whose rows do not agree (``input.join``).
     InputSpecError
         If the mapping is invalid (two speed globs with different speeds match the file
-        included).
+        included), or ``input.sheet`` is a pattern and no ``sheet`` is given.
+
+    Notes
+    -----
+    ``sheet`` is the sheet to read when ``input.sheet`` is a pattern (each matching sheet is a
+    log of its own, :mod:`rafi.readers.log_sources`); ``partner`` the partner file of an
+    ``input.join`` (:mod:`rafi.readers.mapped_join`: its ``join.columns`` replace this file's);
+    ``name`` the log's name, matched by ``speed.constant_rpm_by_file`` before the file name.
     """
     path = Path(path)
     spec = normalise_input_spec(input_spec)
     if spec["format"] not in ("csv", "xlsx"):
         raise _spec_error("format", f"read_mapped reads csv or xlsx, not {spec['format']!r}")
+    if sheet is not None:
+        spec["sheet"] = sheet
+    elif is_sheet_pattern(spec["sheet"]):
+        raise _spec_error("sheet", f"{spec['sheet']!r} is a pattern: give the sheet of the log to read")
+    if spec["join"] is not None and partner is None:
+        raise _spec_error("join", "the mapping joins a partner file: give the partner of the log to read")
     raw = read_file_bytes(path)
-    speed = _file_speed(path, spec)
+    speed = _file_speed(path, spec, name)
     table = read_table(path, raw, spec)
     positions = _column_positions(table, spec)
     if not table.rows:
@@ -397,8 +477,15 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
     index = pd.Index(table.row_numbers, name="line", dtype="int64")
     frame = pd.DataFrame(index=index)
     frame["time"] = to_naive_ns(_frame_times(table, cols, positions, spec)).to_numpy()
+    joined, join_meta = {}, None
+    if spec["join"] is not None:
+        from rafi.readers.mapped_join import join_partner
+
+        joined, join_meta = join_partner(table, frame["time"].to_numpy(), spec, Path(partner))
     for canon in NUMERIC_COLUMNS:
-        if canon == "speed_rpm" and speed is not None:
+        if canon in joined:
+            frame[canon] = joined[canon]
+        elif canon == "speed_rpm" and speed is not None:
             frame[canon] = np.full(len(index), speed[0], dtype="float64")
         else:
             j = positions[canon]
@@ -407,6 +494,8 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
         _add_extra_columns(frame, table, cols, positions, spec)
 
     frame.attrs["metadata"] = _mapped_metadata(spec, table, positions, speed)
+    if join_meta is not None:
+        frame.attrs["metadata"]["join"] = join_meta
     frame.attrs["source"] = str(path)
     frame.attrs["sha256"] = hashlib.sha256(raw).hexdigest()
     return frame
