@@ -77,7 +77,7 @@ def write_daily_workbook(path: Path, days: int = 18, *, extra_sheets=("Notes",),
     truth = {}
     for d in range(days):
         name = f"Tag {d + 1:02d}"
-        frame = canonical_frame(20 + d, seed=seed + d, start=f"2026-03-{d + 1:02d} 06:00")
+        frame = canonical_frame(40 + d, seed=seed + d, start=f"2026-03-{d + 1:02d} 06:00")
         ws = wb.create_sheet(name)
         ws.append(CANONICAL)
         for row in frame.itertuples(index=False):

@@ -369,3 +369,45 @@ def test_the_schema_accepts_the_new_keys(mapping):
 def test_the_schema_refuses_wrong_values(mapping):
     with pytest.raises(jsonschema.ValidationError):
         jsonschema.validate({"format": "csv", **mapping}, INPUT_SCHEMA)
+
+
+# --------------------------------------------------------------------------- the real Snakefile
+
+
+def test_the_workflow_cleans_every_sheet_of_a_workbook_and_reruns_on_a_changed_sheet(tmp_path: Path):
+    import os
+
+    import yaml
+    from project_copy import copy_project, run_snakemake, settle
+
+    proj = copy_project(tmp_path / "proj")
+    config = yaml.safe_load((proj / "config.yaml").read_text(encoding="utf-8"))
+    config["machines"] = {"lathe": {"input": {"format": "xlsx", "sheet": "Tag *"}, "sample_period_s": 60}}
+    (proj / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+    folder = proj / "raw" / "lathe"
+    folder.mkdir(parents=True)
+    book = folder / "daily tests.xlsx"
+    truth = write_daily_workbook(book, 18)
+    settle(book)
+
+    dry = run_snakemake(proj, "-n", "results/lathe/clean")
+    assert dry.returncode == 0, dry.stderr[-3000:]
+    run = run_snakemake(proj, "results/lathe/clean")
+    assert run.returncode == 0, run.stderr[-3000:]
+    clean = proj / "results" / "lathe" / "clean"
+    assert sorted(p.name[: -len(".parquet")] for p in clean.glob("*.parquet")) == sorted(truth)
+    for name, frame in truth.items():
+        assert len(pd.read_parquet(clean / f"{name}.parquet")) == len(frame)
+    summaries = pd.concat(pd.read_csv(p) for p in clean.glob("*.summary.csv"))
+    assert set(summaries["status"]) == {"ok"} and summaries["sha256"].nunique() == 18
+
+    assert "Nothing to be done" in (run_snakemake(proj, "-n", "results/lathe/clean").stdout)
+    # one cell of one sheet changed, size and mtime kept: the content stamps re-run the job
+    st = book.stat()
+    wb = openpyxl.load_workbook(book)
+    wb["Tag 07"]["C2"] = float(wb["Tag 07"]["C2"].value) + 1.0
+    wb.save(book)
+    os.utime(book, ns=(st.st_atime_ns, st.st_mtime_ns))
+    again = run_snakemake(proj, "-n", "results/lathe/clean")
+    assert again.returncode == 0 and "Nothing to be done" not in again.stdout
+    assert "clean" in again.stdout
