@@ -31,7 +31,11 @@ from rafi.contract.input import (
     FORMATS,
     INPUT_DEFAULTS,
     INPUT_SCHEMA,
+    JOIN_BY,
+    JOIN_DEFAULTS,
+    JOIN_LAYOUT_KEYS,
     NATIVE_KEYS,
+    NO_HEADER,
     TIME_KINDS,
 )
 from rafi.contract.keys import Section, Setting
@@ -65,6 +69,10 @@ __all__ = [
     "GATE_KEYS",
     "INPUT_DEFAULTS",
     "INPUT_SCHEMA",
+    "JOIN_BY",
+    "JOIN_DEFAULTS",
+    "JOIN_LAYOUT_KEYS",
+    "NO_HEADER",
     "LIMIT_KEYS",
     "MACHINE_SETTINGS",
     "NATIVE_KEYS",

@@ -20,7 +20,7 @@ import math
 import re
 import unicodedata
 
-from rafi.contract.input import JOIN_BY, JOIN_DEFAULTS, JOIN_LAYOUT_KEYS, NO_HEADER
+from rafi.contract import JOIN_BY, JOIN_DEFAULTS, JOIN_LAYOUT_KEYS, NO_HEADER
 from rafi.errors import InputSpecError
 
 #: Excel's last column is XFD (16384).

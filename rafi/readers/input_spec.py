@@ -15,7 +15,6 @@ from __future__ import annotations
 import codecs
 import copy
 import datetime as dt
-import hashlib
 import math
 import os
 import re
@@ -35,7 +34,6 @@ from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of thi
 )
 from rafi.errors import InputSpecError, bound_message, short_path
 from rafi.readers.discovery import (
-    NAME_MAX_BYTES,
     is_inside,
     link_warning,
     not_a_file,
@@ -55,7 +53,7 @@ from rafi.readers.input_layouts import (
     partner_layout,
     ref_key,
 )
-from rafi.readers.log_sources import expand_logs, log_name
+from rafi.readers.log_sources import expand_logs, log_id, log_name  # noqa: F401 (log_id: this module's API)
 
 # --------------------------------------------------------------------------- the input: mapping
 
@@ -399,31 +397,6 @@ def scan_logs(
 
 
 # --------------------------------------------------------------------------- nightly and gates
-
-
-def _percent(char: str) -> str:
-    return "".join(f"%{b:02X}" for b in char.encode("utf-8", "surrogateescape"))
-
-
-def log_id(stem: str) -> str:
-    """The name of a raw file's outputs (``clean/<log id>.parquet``): its stem, with ``%``,
-    ``{``, ``}`` and control characters percent-encoded.
-
-    Snakemake reads ``{name}`` in any path as a wildcard and has no escape for it, so a raw
-    file called ``log_{date}.csv`` gets the outputs ``clean/log_%7Bdate%7D.*``; a line break
-    becomes ``%0A``. Every other character (spaces, unicode) is kept as it is. A stem whose
-    encoding is longer than ``NAME_MAX_BYTES`` (150) bytes, or ends in a run Snakemake refuses
-    as a wildcard value (a substring repeated 20 or more times, ``log_000...0``), is cut to
-    100 bytes and gets ``%~`` and 12 hex digits of the SHA-256 of the stem: ``%~`` never occurs
-    in a plain id, so two stems never share an id.
-    """
-    text = "".join(_percent(c) if c in "%{}" or ord(c) < 32 or ord(c) == 127 else c for c in stem)
-    if len(text.encode("utf-8", "surrogateescape")) <= NAME_MAX_BYTES and safe_name_problem(text) is None:
-        return text
-    digest = hashlib.sha256(stem.encode("utf-8", "surrogateescape")).hexdigest()[:12]
-    head = text.encode("utf-8", "surrogateescape")[:100].decode("utf-8", "ignore")
-    head = re.sub(r"%[0-9A-F]?$", "", head)  # do not cut an escape in two
-    return f"{head}%~{digest}"
 
 
 def has_braces(path: str | os.PathLike) -> bool:

@@ -28,7 +28,7 @@ from pathlib import Path
 from xml.etree import ElementTree
 
 from rafi.errors import InputSpecError, RawFormatError, bound_message, short_path
-from rafi.readers.discovery import safe_name_problem
+from rafi.readers.discovery import NAME_MAX_BYTES, safe_name_problem
 from rafi.readers.input_layouts import is_sheet_pattern
 
 #: A log of a machine: ``{"path": str, "sheet": str | None, "partner": str | None}``.
@@ -41,6 +41,31 @@ _UNSAFE = re.compile(r'[/\\:*?"<>|.%{}#\x00-\x1f\x7f]')
 #: A sheet-log's name is cut to this many bytes (and gets a hash) beyond it.
 SHEET_NAME_MAX_BYTES = 100
 _MAIN_NS = "{http://schemas.openxmlformats.org/spreadsheetml/2006/main}"
+
+
+def _percent(char: str) -> str:
+    return "".join(f"%{b:02X}" for b in char.encode("utf-8", "surrogateescape"))
+
+
+def log_id(stem: str) -> str:
+    """The name of a raw file's outputs (``clean/<log id>.parquet``): its stem, with ``%``,
+    ``{``, ``}`` and control characters percent-encoded.
+
+    Snakemake reads ``{name}`` in any path as a wildcard and has no escape for it, so a raw
+    file called ``log_{date}.csv`` gets the outputs ``clean/log_%7Bdate%7D.*``; a line break
+    becomes ``%0A``. Every other character (spaces, unicode) is kept as it is. A stem whose
+    encoding is longer than ``NAME_MAX_BYTES`` (150) bytes, or ends in a run Snakemake refuses
+    as a wildcard value (a substring repeated 20 or more times, ``log_000...0``), is cut to
+    100 bytes and gets ``%~`` and 12 hex digits of the SHA-256 of the stem: ``%~`` never occurs
+    in a plain id, so two stems never share an id.
+    """
+    text = "".join(_percent(c) if c in "%{}" or ord(c) < 32 or ord(c) == 127 else c for c in stem)
+    if len(text.encode("utf-8", "surrogateescape")) <= NAME_MAX_BYTES and safe_name_problem(text) is None:
+        return text
+    digest = hashlib.sha256(stem.encode("utf-8", "surrogateescape")).hexdigest()[:12]
+    head = text.encode("utf-8", "surrogateescape")[:100].decode("utf-8", "ignore")
+    head = re.sub(r"%[0-9A-F]?$", "", head)  # do not cut an escape in two
+    return f"{head}%~{digest}"
 
 
 def xlsx_sheet_names(path: str | Path) -> list[str]:
@@ -192,8 +217,6 @@ def _sheet_ids(pairs: list[tuple[Path, str | None]]) -> dict[tuple[Path, str | N
     for pair in pairs:
         path, sheet = pair
         if sheet is None:
-            from rafi.readers.input_spec import log_id
-
             out[pair] = log_id(path.stem)
             continue
         name = plain[pair]

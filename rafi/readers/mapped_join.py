@@ -23,6 +23,7 @@ from rafi.errors import RawFormatError
 from rafi.readers.input_layouts import is_sheet_pattern
 from rafi.readers.input_spec import partner_input_spec
 from rafi.readers.mapped_cells import Table
+from rafi.readers.mapped_columns import canonical_values, column_positions, frame_times
 from rafi.readers.mapped_tables import read_table
 from rafi.readers.parsing import read_file_bytes, to_naive_ns
 
@@ -76,8 +77,6 @@ def match_by_time(main_ns: np.ndarray, partner_ns: np.ndarray, tolerance_ns: flo
 
 def _read_partner(table: Table, spec: dict, partner: Path) -> tuple[Table, dict, dict, list]:
     """The partner's table, its normalised mapping, the positions of its columns and its cells."""
-    from rafi.readers.mapped import _column_positions
-
     join = spec["join"]
     if not partner.is_file():
         raise RawFormatError(
@@ -94,7 +93,7 @@ def _read_partner(table: Table, spec: dict, partner: Path) -> tuple[Table, dict,
     columns = {c: pspec["columns"].get(c, c) for c in wanted}
     if "disp_um" in columns and pspec["displacement"]["column"] is not None:
         columns["disp_um"] = pspec["displacement"]["column"]
-    positions = _column_positions(ptable, pspec, columns)
+    positions = column_positions(ptable, pspec, columns)
     if not ptable.rows:
         raise RawFormatError(partner, "no data rows (partner file of input.join)", sheet=ptable.sheet)
     return ptable, pspec, positions, list(zip(*ptable.rows))
@@ -131,8 +130,6 @@ def join_partner(
         ``by: time`` and more than ``join.max_unmatched`` of either file's rows without a
         partner (naming both files and their time spans).
     """
-    from rafi.readers.mapped import _canonical_values, _frame_times
-
     join = spec["join"]
     ptable, pspec, positions, pcols = _read_partner(table, spec, partner)
     n, m = len(table.rows), len(ptable.rows)
@@ -146,7 +143,7 @@ def join_partner(
             )
         rows = np.arange(n)
     else:
-        ptimes = to_naive_ns(_frame_times(ptable, pcols, positions, pspec)).to_numpy()
+        ptimes = to_naive_ns(frame_times(ptable, pcols, positions, pspec)).to_numpy()
         main_ns, p_ns = main_times.astype("int64"), ptimes.astype("int64")
         half = sample_period_ns(main_times, spec) / 2
         rows = match_by_time(main_ns, p_ns, half) if np.isfinite(half) else np.full(n, -1)
@@ -168,7 +165,7 @@ def join_partner(
     values = {}
     for canon in join["columns"]:
         j = positions[canon]
-        column = _canonical_values(ptable, list(pcols[j]), canon, j, pspec)
+        column = canonical_values(ptable, list(pcols[j]), canon, j, pspec)
         out = np.full(n, np.nan)
         ok = rows >= 0
         out[ok] = column[rows[ok]]
