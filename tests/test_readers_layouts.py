@@ -411,3 +411,43 @@ def test_the_workflow_cleans_every_sheet_of_a_workbook_and_reruns_on_a_changed_s
     again = run_snakemake(proj, "-n", "results/lathe/clean")
     assert again.returncode == 0 and "Nothing to be done" not in again.stdout
     assert "clean" in again.stdout
+
+
+def test_the_workflow_joins_a_partner_and_reruns_when_only_the_partner_changes(tmp_path: Path):
+    import os
+
+    import yaml
+    from project_copy import copy_project, run_snakemake, settle
+
+    proj = copy_project(tmp_path / "proj")
+    config = yaml.safe_load((proj / "config.yaml").read_text(encoding="utf-8"))
+    spec = _pair_spec()
+    config["machines"] = {"rig": {"input": spec, "sample_period_s": 60}}
+    (proj / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+    folder = proj / "raw" / "rig"
+    folder.mkdir(parents=True)
+    truth = canonical_frame(45, seed=11)
+    main, partner = write_split_pair(folder, truth)
+    for path in (main, partner):
+        settle(path)
+
+    run = run_snakemake(proj, "results/rig/clean")
+    assert run.returncode == 0, run.stderr[-3000:]
+    clean = pd.read_parquet(proj / "results" / "rig" / "clean" / "temps_0312.parquet")
+    np.testing.assert_allclose(clean["disp_um"].to_numpy(), truth["disp_um"].to_numpy())
+    assert not (proj / "results" / "rig" / "clean" / "disp_0312.parquet").exists()
+
+    st = partner.stat()
+    partner.write_text(partner.read_text(encoding="utf-8").replace(",", ",1", 1), encoding="utf-8")
+    os.utime(partner, ns=(st.st_atime_ns, st.st_mtime_ns))
+    again = run_snakemake(proj, "-n", "results/rig/clean")
+    assert again.returncode == 0 and "Nothing to be done" not in again.stdout
+
+
+@pytest.mark.parametrize("sheet", ["Tag 01", "3.5 h", "a.b.xlsx", "x/y:z", "{w}%#1", "Ä" * 80, "  "])
+def test_a_sheet_logs_name_is_its_own_stem_and_log_id(sheet):
+    from rafi.method.runs import _stem
+    from rafi.readers.input_spec import log_id
+
+    name = sheet_log_name(sheet)
+    assert Path(name).stem == name and log_id(name) == name and _stem(name) == name

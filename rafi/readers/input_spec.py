@@ -5,9 +5,11 @@ included) before it runs any job; what that needs of the readers lives here, so 
 not import NumPy or pandas: :data:`INPUT_DEFAULTS` (the mapping's defaults, by format),
 :data:`INPUT_SCHEMA` (both from :mod:`rafi.contract`), :func:`normalise_input_spec` (raises
 :class:`rafi.errors.InputSpecError`), :func:`find_logs` (the raw files of a machine folder),
-:func:`discover_machines` (every machine's raw files, leaving out links out of ``raw_dir`` and
-files still being written: :mod:`rafi.readers.discovery`) and :func:`log_id` (the name of a raw
-file's outputs).
+:func:`discover_logs` (every machine's logs - a file, a sheet of a workbook, a file with its
+partner: :mod:`rafi.readers.log_sources` -, leaving out links out of ``raw_dir`` and files still
+being written: :mod:`rafi.readers.discovery`), :func:`discover_machines` (their raw files) and
+:func:`log_id` (the name of a raw file's outputs). The layouts beyond one header row, one sheet
+and one file are checked by :mod:`rafi.readers.input_layouts`.
 """
 
 from __future__ import annotations
