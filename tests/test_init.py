@@ -122,7 +122,9 @@ def test_german_workbook_proposes_the_shipped_mapping(b_survey):
     got, want = entry["input"], shipped["input"]
     for key in ("format", "pattern", "sheet", "header_row", "columns", "time"):
         assert got[key] == want[key], key
-    assert got["displacement"]["column"] == want["displacement"]["column"]
+    # four probes, one model each; the shipped machine qualifies Z1 alone
+    assert list(got["probes"]) == ["Z1", "Z2", "X1", "Y1"]  # the spindle axis first
+    assert got["probes"]["Z1"] == {"column": want["displacement"]["column"]}
     assert got["displacement"]["unit"] == want["displacement"]["unit"]
     assert "sign" not in got["displacement"]  # the sign is the user's: left as a CHECK
     assert entry["sample_period_s"] == shipped["sample_period_s"]
@@ -139,8 +141,9 @@ def test_german_workbook_unsure_items_are_marked_check(b_survey):
     assert sign == ["        # sign: -1"]  # commented out, the flip the data suggest
     assert "CHECK: it falls while the spindle heats" in block
     assert any(c.startswith("input.displacement.sign") for c in b_survey.checks)
-    others = [ln for ln in block.splitlines() if "other probe candidates" in ln]
-    assert others and all(f"Verlagerung {p} [µm]" in others[0] for p in ("X1", "Y1", "Z2"))
+    probes = [ln.strip() for ln in block.splitlines() if ": {column: " in ln]
+    assert probes == [f'{p}: {{column: "Verlagerung {p} [µm]"}}' for p in ("Z1", "Z2", "X1", "Y1")]
+    assert any(c.startswith("input.probes: 4 displacement columns") for c in b_survey.checks)
     assert [g.header for g in b_survey.probes][0] == "Verlagerung Z1 [µm]"
 
 
@@ -149,7 +152,7 @@ def test_german_workbook_reads_to_the_shipped_frame_after_the_docs_edit(b_survey
     block = config_block(b_survey).replace("# sign: -1", "sign: -1")
     config = {"machines": {"mcb": parse_block(block, "mcb"), "machining-center-b": shipped_b()}}
     validate_config(config)
-    mine = read_log(SHIPPED_B, machine_settings(config, "mcb")["input"])
+    mine = read_log(SHIPPED_B, machine_settings(config, "mcb@Z1")["input"])
     theirs = read_log(SHIPPED_B, machine_settings(config, "machining-center-b")["input"])
     pd.testing.assert_frame_equal(mine, theirs)
 
@@ -285,4 +288,4 @@ def test_fl_thermal_time_speed_temperatures_and_five_probes():
     assert s.min_constant[0] == 10800  # the tail's 1-2 h steps: one varying run (bench_realdata.py)
     entry = parse_block(config_block(s), "fl-thermal")
     validate_config({"machines": {"fl-thermal": entry}})
-    assert "ch2(um)" in config_block(s).split("other probe candidates:")[1].splitlines()[0]
+    assert entry["input"]["probes"] == {f"ch{i}": {"column": f"ch{i}(um)"} for i in range(1, 6)}

@@ -24,7 +24,44 @@ INPUT_DEFAULTS: dict = {
     "probes": {},
     "temperature_unit": "C",
     "keep_extra": True,
+    "join": None,
 }
+
+#: ``input.header_row`` of a file without a header row (YAML ``none`` or ``null``): the columns
+#: are then given by letter or 1-based position.
+NO_HEADER = "none"
+
+#: Defaults of ``input.join`` (docs/raw-format.md, "Temperatures and displacement in two files"):
+#: the partner of a raw file is the file named with ``replace[0]`` replaced by ``replace[1]``;
+#: the canonical ``columns`` come from it, matched ``by`` time or row; ``input`` overrides the
+#: machine's layout keys for the partner; a share of rows above ``max_unmatched`` without a
+#: partner row (``by: time``) is an error.
+JOIN_DEFAULTS: dict = {
+    "replace": None,
+    "by": "time",
+    "columns": ["disp_um"],
+    "max_unmatched": 0.02,
+    "input": {},
+}
+
+#: ``input.join.by``: match the partner's rows by their time (within half a sample period) or
+#: by their order (equal numbers of rows).
+JOIN_BY = ("time", "row")
+
+#: Keys of the machine's ``input:`` that ``input.join.input`` may override for the partner file.
+JOIN_LAYOUT_KEYS = (
+    "format",
+    "sheet",
+    "delimiter",
+    "decimal",
+    "encoding",
+    "header_row",
+    "skip_rows",
+    "columns",
+    "time",
+    "displacement",
+    "temperature_unit",
+)
 
 DEFAULT_PATTERN = {"native": "*.csv", "csv": "*.csv", "xlsx": "*.xlsx"}
 
@@ -83,7 +120,7 @@ INPUT_SCHEMA: dict = {
         },
         "decimal": {"enum": [".", ","]},
         "encoding": {"type": "string", "minLength": 1},
-        "header_row": {"type": "integer", "minimum": 1},
+        "header_row": {"anyOf": [{"type": "integer", "minimum": 1}, {"enum": [NO_HEADER, None]}]},
         "skip_rows": {"type": "integer", "minimum": 0},
         "sensors": {
             "type": ["array", "null"],
@@ -95,7 +132,9 @@ INPUT_SCHEMA: dict = {
         "columns": {
             "type": "object",
             "propertyNames": {"pattern": CANONICAL_RE},
-            "additionalProperties": {"type": "string", "minLength": 1},
+            "additionalProperties": {
+                "anyOf": [{"type": "string", "minLength": 1}, {"type": "integer", "minimum": 1}]
+            },
         },
         "time": {
             "type": "object",
@@ -147,5 +186,26 @@ INPUT_SCHEMA: dict = {
         },
         "temperature_unit": {"enum": ["C", "K"]},
         "keep_extra": {"type": "boolean"},
+        "join": {
+            "type": ["object", "null"],
+            "additionalProperties": False,
+            "required": ["replace"],
+            "properties": {
+                "replace": {
+                    "type": "array",
+                    "items": {"type": "string"},
+                    "minItems": 2,
+                    "maxItems": 2,
+                },
+                "by": {"enum": list(JOIN_BY)},
+                "columns": {
+                    "type": "array",
+                    "items": {"type": "string", "minLength": 1},
+                    "minItems": 1,
+                },
+                "max_unmatched": {"type": "number", "minimum": 0, "maximum": 1},
+                "input": {"type": "object", "propertyNames": {"enum": list(JOIN_LAYOUT_KEYS)}},
+            },
+        },
     },
 }

@@ -30,6 +30,7 @@ import pandas as pd
 import rafi.artefact
 import rafi.method.audit
 import rafi.method.clean
+import rafi.readers.log_sources
 import rafi.readers.logs
 from rafi.errors import RafiUserError, RawFormatError
 from rafi.readers.checks import check_file
@@ -84,6 +85,21 @@ def _as_bad_input(exc: Exception, src: Path) -> Exception:
     return RawFormatError(src, why, check=check)
 
 
+def _log_digest(file_sha: str, part: Mapping) -> str:
+    """The SHA-256 a log goes by (:func:`rafi.readers.log_sources.log_stamp`): the file's for a
+    whole file; else one of the file's, its sheet's name and its partner's content."""
+    if not part.get("sheet") and not part.get("partner"):
+        return file_sha
+    partner_stamp = None
+    if part.get("partner"):
+        try:
+            partner_stamp = "sha256:" + rafi.readers.logs.sha256_file(part["partner"])
+        except RawFormatError:
+            partner_stamp = "missing"
+    stamp = rafi.readers.log_sources.log_stamp("sha256:" + file_sha, part.get("sheet"), partner_stamp)
+    return stamp.removeprefix("sha256:")
+
+
 def clean_file(
     src: Path,
     outputs: Mapping[str, Path],
@@ -93,53 +109,70 @@ def clean_file(
     log: logging.Logger,
     say: Callable[[str], None] = print,
     sha: str | None = None,
+    part: Mapping | None = None,
+    name: str | None = None,
 ) -> str:
-    """Read, check and clean one raw file; write its outputs; return ``ok`` or ``quarantined``.
+    """Read, check and clean one raw log; write its outputs; return ``ok`` or ``quarantined``.
 
     ``say`` gets the progress lines (the rule's log); ``log`` the warnings. ``sha`` is the
-    file's SHA-256 if already known.
+    file's SHA-256 if already known. A log that is not a whole file has ``part`` (``sheet``,
+    ``partner``: :mod:`rafi.readers.log_sources`) and its ``name`` (default: the file's);
+    its ``sha256`` is then :func:`rafi.readers.log_sources.log_stamp`'s.
     """
     spec = settings.input_spec
     cfg = settings.clean
     digest = ""
+    part = dict(part or {})
+    name = name or src.name
 
     def quarantine(reason: str) -> str:
         say(f"  QUARANTINED: {reason}")
         sensors = spec.get("sensors") or rafi.method.audit.DEFAULT_SENSORS
-        _write(outputs, *rafi.method.audit.quarantined(src.name, digest, reason, sensors))
+        _write(outputs, *rafi.method.audit.quarantined(name, digest, reason, sensors))
         return "quarantined"
 
     try:
         digest = sha or rafi.readers.logs.sha256_file(src)
-        say(f"read {src} (format {spec.get('format', 'native')}, sha256 {digest[:12]})")
-        frame = rafi.readers.logs.read_log(src, spec)
+        digest = _log_digest(digest, part)
+        where = f", sheet {part['sheet']!r}" if part.get("sheet") else ""
+        where += f", partner {part['partner']}" if part.get("partner") else ""
+        say(f"read {src}{where} (format {spec.get('format', 'native')}, sha256 {digest[:12]})")
+        frame = rafi.readers.logs.read_log(
+            src, spec, sheet=part.get("sheet"), partner=part.get("partner"), name=name
+        )
         rows_in = len(frame)
         say(f"  {rows_in} rows, {frame.shape[1]} columns")
+        joined = frame.attrs.get("metadata", {}).get("join")
+        if joined:
+            say(
+                f"  joined {joined['columns']} of {joined['partner']} by {joined['by']}: "
+                f"{joined['unmatched_rows']} row(s) without a partner row"
+            )
         report = check_file(frame, src, **settings.checks)
         for w in report.warnings:
-            log.warning("%s: %s", src.name, w.detail)
+            log.warning("%s: %s", name, w.detail)
             say(f"  warning: {w.detail}")
         say(f"  checks: {len(report.warnings)} warning(s), probe sign {report.probe_sign:+d}")
         clean, actions = rafi.method.clean.clean_log(
             frame,
-            file=src.name,
+            file=name,
             sample_period_s=settings.sample_period_s,
             max_interpolate_gap_s=cfg["max_interpolate_gap_s"],
             spike_threshold=cfg["spike_threshold"],
             open_circuit_values=cfg["open_circuit_values"],
         )
         actions = rafi.method.audit.with_warnings(
-            actions, rafi.method.audit.warning_rows(src.name, report.warnings)
+            actions, rafi.method.audit.warning_rows(name, report.warnings)
         )
         summary = rafi.method.audit.summarise_audit(
-            src.name, digest, rows_in, clean, actions, probe_sign=report.probe_sign
+            name, digest, rows_in, clean, actions, probe_sign=report.probe_sign
         )
     except Exception as exc:  # noqa: BLE001 - any failure on one file quarantines that file
         if fail_mode:
             raise _as_bad_input(exc, src) from exc
-        reason = rafi.method.audit.quarantine_reason(exc, src.name)
+        reason = rafi.method.audit.quarantine_reason(exc, name)
         # a documented check needs no traceback; anything else keeps it in the log
-        log.warning("quarantined %s: %s", src.name, reason, exc_info=not isinstance(exc, RawFormatError))
+        log.warning("quarantined %s: %s", name, reason, exc_info=not isinstance(exc, RawFormatError))
         return quarantine(reason)
     counts = actions["action"].value_counts().to_dict() if len(actions) else {}
     say(f"  clean: {len(clean)} rows; actions: {counts or 'none'}")
@@ -156,8 +189,8 @@ def clean_file(
         )
         if fail_mode:
             raise RawFormatError(src, why, check="clean_table_unreadable") from exc
-        log.warning("quarantined %s: %s", src.name, why, exc_info=True)
-        return quarantine(f"{src.name}: {why} [clean_table_unreadable]")
+        log.warning("quarantined %s: %s", name, why, exc_info=True)
+        return quarantine(f"{name}: {why} [clean_table_unreadable]")
     return "ok"
 
 
@@ -168,17 +201,24 @@ def clean_machine(
     *,
     fail_mode: bool,
     log: logging.Logger,
+    parts: Mapping[str, Mapping] | None = None,
 ) -> dict[str, str]:
-    """Clean every raw file of a machine (``raw_paths``: log id -> path) into ``folder``.
+    """Clean every raw log of a machine (``raw_paths``: log id -> path) into ``folder``.
 
-    Returns log id -> ``ok`` or ``quarantined``.
+    ``parts`` (log id -> ``{sheet, partner}``) gives the logs that are not a whole file
+    (:func:`rafi.readers.input_spec.discover_logs`): a sheet of a workbook, a file joined with
+    its partner. Returns log id -> ``ok`` or ``quarantined``.
     """
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)
+    parts = parts or {}
     done: dict[str, str] = {}
     for stem in sorted(raw_paths):
         outputs = output_paths(folder, stem)
-        done[stem] = clean_file(Path(raw_paths[stem]), outputs, settings, fail_mode=fail_mode, log=log)
+        part = parts.get(stem) or {}
+        src = Path(raw_paths[stem])
+        name = stem if part.get("sheet") else src.name
+        done[stem] = clean_file(src, outputs, settings, fail_mode=fail_mode, log=log, part=part, name=name)
         print(f"wrote {outputs['parquet']}", flush=True)
         print(f"{stem}: {done[stem]}", flush=True)
     return done

@@ -92,7 +92,10 @@ def copies_to_keep(
 
 
 def duplicate_keepers(
-    raw_paths: Mapping[str, str | os.PathLike], stamps: Mapping[str, str], registry: str | os.PathLike
+    raw_paths: Mapping[str, str | os.PathLike],
+    stamps: Mapping[str, str],
+    registry: str | os.PathLike,
+    names: Mapping[str, str] | None = None,
 ) -> dict[str, str]:
     """The ``keep`` param of rule ``input_status``: :func:`copies_to_keep` of one machine.
 
@@ -104,9 +107,13 @@ def duplicate_keepers(
         ``log id -> raw stamp`` (``sha256:<hex>``, or ``unreadable:...``: left out).
     registry : path
         The machine's registry folder (its champion's training files).
+    names : mapping, optional
+        ``log id -> the log's name`` (its ``file`` in the audit; default: the raw file's name;
+        a sheet of a workbook goes by its log id, ``rafi.readers.log_sources.log_name``).
     """
+    names = {stem: (names or {}).get(stem) or Path(path).name for stem, path in raw_paths.items()}
     contents = {
-        Path(raw_paths[stem]).name: stamp[len(STAMP_PREFIX) :]
+        names[stem]: stamp[len(STAMP_PREFIX) :]
         for stem, stamp in stamps.items()
         if stem in raw_paths and str(stamp).startswith(STAMP_PREFIX)
     }
@@ -114,7 +121,7 @@ def duplicate_keepers(
     duplicated = {file: sha for file, sha in contents.items() if held[sha] > 1}
     if not duplicated:
         return {}
-    paths = {Path(p).name: Path(p) for p in raw_paths.values()}
+    paths = {names[stem]: Path(p) for stem, p in raw_paths.items()}
     mtimes, links = {}, []
     for file in duplicated:
         try:

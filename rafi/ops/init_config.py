@@ -153,11 +153,14 @@ def _displacement_keys(out: _Lines, s: Survey) -> None:
 
 
 def probe_names(headers: list[str]) -> list[str]:
-    """A probe name for every displacement header: its first word (``ch1(um)`` -> ``ch1``,
-    ``X displacement`` -> ``X``) where that is a valid, unique name, else ``P<k>``."""
+    """A probe name for every displacement header: its first word that the other headers do not
+    share (``ch1(um)`` -> ``ch1``, ``Verlagerung Z1 [µm]`` -> ``Z1``) where that is a valid, unique
+    name, else ``P<k>``."""
     from rafi.contract import PROBE_NAME_RE
 
-    words = [(re.match(r"[A-Za-z][A-Za-z0-9_]*", h.strip()) or [""])[0][:16] for h in headers]
+    tokens = [re.findall(r"[A-Za-z][A-Za-z0-9_]*", h) for h in headers]
+    shared = set.intersection(*(set(t) for t in tokens)) if len(tokens) > 1 else set()
+    words = [next((w[:16] for w in t if w not in shared), "") for t in tokens]
     return [
         w if re.match(PROBE_NAME_RE, w) and words.count(w) == 1 else f"P{k + 1}" for k, w in enumerate(words)
     ]

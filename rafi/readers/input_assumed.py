@@ -173,3 +173,13 @@ def check_period(spec: dict, sample_period_s: float) -> None:
             f"{period:g} s differs from the machine's sample_period_s {float(sample_period_s):g} s; "
             f"set sample_period_s: {period:g} for this machine",
         )
+
+
+def log_speed(log_name: str | None, file_name: str, spec: dict) -> tuple[float, str] | None:
+    """:func:`constant_speed` of a log that is not a whole file (a sheet of a workbook,
+    docs/raw-format.md): a glob matching the log's name wins, then one matching the file
+    name, then ``speed.constant_rpm``."""
+    found = constant_speed(log_name, spec) if log_name is not None and log_name != file_name else None
+    if found is None or found[1] == "input.speed.constant_rpm":
+        found = constant_speed(file_name, spec) or found
+    return found

@@ -5,9 +5,11 @@ included) before it runs any job; what that needs of the readers lives here, so 
 not import NumPy or pandas: :data:`INPUT_DEFAULTS` (the mapping's defaults, by format),
 :data:`INPUT_SCHEMA` (both from :mod:`rafi.contract`), :func:`normalise_input_spec` (raises
 :class:`rafi.errors.InputSpecError`), :func:`find_logs` (the raw files of a machine folder),
-:func:`discover_machines` (every machine's raw files, leaving out links out of ``raw_dir`` and
-files still being written: :mod:`rafi.readers.discovery`) and :func:`log_id` (the name of a raw
-file's outputs).
+:func:`discover_logs` (every machine's logs - a file, a sheet of a workbook, a file with its
+partner: :mod:`rafi.readers.log_sources` -, leaving out links out of ``raw_dir`` and files still
+being written: :mod:`rafi.readers.discovery`), :func:`discover_machines` (their raw files) and
+:func:`log_id` (the name of a raw file's outputs). The layouts beyond one header row, one sheet
+and one file are checked by :mod:`rafi.readers.input_layouts`.
 """
 
 from __future__ import annotations
@@ -15,7 +17,6 @@ from __future__ import annotations
 import codecs
 import copy
 import datetime as dt
-import hashlib
 import math
 import os
 import re
@@ -38,9 +39,8 @@ from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of thi
     SENSOR_NAME_RE,
     TIME_KINDS,
 )
-from rafi.errors import InputSpecError, RawFormatError, bound_message, short_path
+from rafi.errors import InputSpecError, bound_message, short_path
 from rafi.readers.discovery import (
-    NAME_MAX_BYTES,
     is_inside,
     link_warning,
     not_a_file,
@@ -50,7 +50,17 @@ from rafi.readers.discovery import (
     settling_warning,
     split_outside,
 )
-from rafi.readers.input_assumed import check_no_time_column, check_speed, constant_speed, has_constant_speed
+from rafi.readers.input_assumed import check_no_time_column, check_speed, has_constant_speed, log_speed
+from rafi.readers.input_layouts import (
+    check_column_refs,
+    check_header_row,
+    check_join,
+    check_sheet,
+    partner_columns,
+    partner_layout,
+    ref_key,
+)
+from rafi.readers.log_sources import expand_logs, log_id, log_name  # noqa: F401 (log_id: this module's API)
 
 # --------------------------------------------------------------------------- the input: mapping
 
@@ -88,6 +98,7 @@ def normalise_input_spec(spec: dict | None) -> dict:
     spec = {} if spec is None else spec
     out = merge_input_defaults(spec)
     check_format(out, spec)
+    check_join(out)
     check_text_layout(out)
     check_sensors(out)
     check_columns(out)
@@ -166,14 +177,7 @@ def check_format(out: dict, spec: dict) -> None:
 def check_text_layout(out: dict) -> None:
     """``sheet``, ``delimiter`` (``tab`` becomes a tab), ``decimal``, ``encoding``, ``header_row``
     and ``skip_rows``: how the file's text is read. ``out`` is changed in place."""
-    sheet = out["sheet"]
-    if (
-        isinstance(sheet, bool)
-        or not isinstance(sheet, (str, int))
-        or (isinstance(sheet, int) and sheet < 0)
-        or (isinstance(sheet, str) and not sheet)
-    ):
-        raise _spec_error("sheet", f"{sheet!r}: expected a sheet name or a 0-based index")
+    check_sheet(out)
     delim = out["delimiter"]
     if delim in ("tab", "\\t"):
         delim = out["delimiter"] = "\t"
@@ -192,10 +196,10 @@ def check_text_layout(out: dict) -> None:
         raise _spec_error(
             "encoding", f"unknown encoding {out['encoding']!r} (e.g. utf-8, latin-1, cp1252)"
         ) from None
-    for key, low in (("header_row", 1), ("skip_rows", 0)):
-        v = out[key]
-        if isinstance(v, bool) or not isinstance(v, int) or v < low:
-            raise _spec_error(key, f"{v!r}: expected an integer >= {low}")
+    check_header_row(out)
+    v = out["skip_rows"]
+    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+        raise _spec_error("skip_rows", f"{v!r}: expected an integer >= 0")
 
 
 def sensor_name_problem(name) -> str | None:
@@ -248,24 +252,27 @@ def check_sensors(out: dict) -> None:
 
 def check_columns(out: dict) -> None:
     """``columns`` maps the machine's columns (time, speed_rpm, its sensors, disp_um) to header
-    texts, ``displacement`` names one channel in one place with a known unit and sign, and no
-    header feeds two columns."""
+    texts (or, :mod:`rafi.readers.input_layouts`, column letters and positions), ``displacement``
+    names one channel in one place with a known unit and sign, and no column feeds two columns."""
     columns = out["columns"]
     known = (*NON_SENSOR_COLUMNS, *out["sensors"])
-    for canon, theirs in columns.items():
+    for canon in columns:
         if canon not in known:
             raise _spec_error(
                 f"columns.{canon}",
                 f"not a column of this machine; map {', '.join(NON_SENSOR_COLUMNS)} and the sensors "
                 f"of input.sensors ({', '.join(out['sensors'])}) to your headers",
             )
-        if not isinstance(theirs, str) or not theirs.strip():
-            raise _spec_error(f"columns.{canon}", f"{theirs!r}: expected your header text")
+    if out["join"] is not None:
+        for canon in out["join"]["columns"]:
+            if canon not in known:
+                raise _spec_error("join.columns", f"{canon!r} is not a column of this machine")
+    resolved = resolve_columns(out)
+    check_column_refs(out, list(resolved))
+    header = out["header_row"] is not None
     disp = out["displacement"]
-    if disp["column"] is not None:
-        if not isinstance(disp["column"], str) or not disp["column"].strip():
-            raise _spec_error("displacement.column", f"{disp['column']!r}: expected a header text")
-        if "disp_um" in columns and norm_header(columns["disp_um"]) != norm_header(disp["column"]):
+    if disp["column"] is not None and "disp_um" in columns:
+        if ref_key(columns["disp_um"], header) != ref_key(disp["column"], header):
             raise _spec_error(
                 "displacement.column",
                 "conflicts with columns.disp_um; give the target channel in one place only",
@@ -274,13 +281,13 @@ def check_columns(out: dict) -> None:
         raise _spec_error("displacement.unit", f"{disp['unit']!r}: expected um or mm")
     if isinstance(disp["sign"], bool) or disp["sign"] not in (1, -1):
         raise _spec_error("displacement.sign", f"{disp['sign']!r}: expected 1 or -1")
-    resolved = resolve_columns(out)
-    dup = first_duplicate([norm_header(v) for v in resolved.values()])
+    keys = {canon: ref_key(value, header) for canon, value in resolved.items()}
+    dup = first_duplicate(list(keys.values()))
     if dup is not None:
-        names = [k for k, v in resolved.items() if norm_header(v) == dup]
+        names = [k for k, v in keys.items() if v == dup]
         raise _spec_error(
             "columns",
-            f"header {dup!r} is mapped to {' and '.join(names)}; each header can feed one canonical column",
+            f"{dup} is mapped to {' and '.join(names)}; each column can feed one canonical column",
         )
 
 
@@ -297,7 +304,11 @@ def check_probes(out: dict) -> None:
         raise _spec_error("probes", f"expected a mapping of probe names to columns, got {probes!r}")
     if probes and out["format"] == "native":
         raise _spec_error("probes", "needs format csv or xlsx: a native log has one displacement, disp_um")
-    if probes and out["displacement"]["column"] is not None:
+    one_probe = (
+        len(probes) == 1
+        and (next(iter(probes.values())) or {}).get("column") == out["displacement"]["column"]
+    )  # the mapping of one probe of a machine (probe_spec), read again
+    if probes and out["displacement"]["column"] is not None and not one_probe:
         raise _spec_error(
             "displacement.column", "with input.probes, each probe names its column there; remove this one"
         )
@@ -335,7 +346,8 @@ def check_probes(out: dict) -> None:
 
 def probe_spec(spec: dict, probe: str) -> dict:
     """The normalised ``input:`` mapping ``spec`` reading probe ``probe`` as its displacement
-    (``displacement`` = the probe's column, unit and sign); a new dict.
+    (``displacement`` = the probe's column, unit and sign; ``probes`` = that probe only); a new
+    dict, which normalises to itself.
 
     Raises
     ------
@@ -348,7 +360,38 @@ def probe_spec(spec: dict, probe: str) -> dict:
     out = copy.deepcopy(spec)
     chosen = spec["probes"][probe]
     out["displacement"] = {key: chosen[key] for key in ("column", "unit", "sign")}
+    out["probes"] = {probe: dict(chosen)}
     return out
+
+
+def partner_input_spec(spec: dict) -> tuple[dict, list[str]]:
+    """The normalised mapping the partner file of a ``join`` is read with, and the canonical
+    columns read from it (:func:`rafi.readers.input_layouts.partner_layout`).
+
+    Raises
+    ------
+    InputSpecError
+        Naming the ``input.join.input`` key that is wrong for the partner.
+    """
+    wanted = partner_columns(spec)
+    raw = partner_layout(spec)
+    out = merge_input_defaults(raw)
+    try:
+        check_format(out, raw)
+        check_sheet(out)
+        check_text_layout(out)
+        check_time(out)
+        check_no_time_column(out)
+        if out["displacement"]["unit"] not in ("um", "mm"):
+            raise _spec_error("displacement.unit", f"{out['displacement']['unit']!r}: expected um or mm")
+        if isinstance(out["displacement"]["sign"], bool) or out["displacement"]["sign"] not in (1, -1):
+            raise _spec_error("displacement.sign", f"{out['displacement']['sign']!r}: expected 1 or -1")
+        check_column_refs(out, wanted)
+    except InputSpecError as exc:
+        raise InputSpecError(str(exc).replace("input.", "input.join.input.", 1)) from None
+    out["join"] = None
+    out["sensors"], out["probes"] = list(spec["sensors"]), {}
+    return out, wanted
 
 
 def check_time(out: dict) -> None:
@@ -395,8 +438,9 @@ def _is_default(key: str, value) -> bool:
 def resolve_columns(spec: dict) -> dict[str, str]:
     """Canonical name -> the header text to look for (identity where not mapped).
 
-    ``time`` is left out when ``time.kind`` is ``none`` and ``speed_rpm`` when the speed is a
-    configured constant: those columns are not read from the file.
+    ``time`` is left out when ``time.kind`` is ``none``, ``speed_rpm`` when the speed is a
+    configured constant and the columns of ``join.columns``: those columns are not read from
+    the file.
     """
     names = ("time", "speed_rpm", *spec["sensors"], "disp_um")
     cols = {name: spec["columns"].get(name, name) for name in names}
@@ -406,6 +450,8 @@ def resolve_columns(spec: dict) -> dict[str, str]:
         del cols["speed_rpm"]
     if spec["displacement"]["column"] is not None:
         cols["disp_um"] = spec["displacement"]["column"]
+    for canon in (spec.get("join") or {}).get("columns", ()):
+        cols.pop(canon, None)  # read from the partner file
     return cols
 
 
@@ -488,31 +534,6 @@ def scan_logs(
 # --------------------------------------------------------------------------- nightly and gates
 
 
-def _percent(char: str) -> str:
-    return "".join(f"%{b:02X}" for b in char.encode("utf-8", "surrogateescape"))
-
-
-def log_id(stem: str) -> str:
-    """The name of a raw file's outputs (``clean/<log id>.parquet``): its stem, with ``%``,
-    ``{``, ``}`` and control characters percent-encoded.
-
-    Snakemake reads ``{name}`` in any path as a wildcard and has no escape for it, so a raw
-    file called ``log_{date}.csv`` gets the outputs ``clean/log_%7Bdate%7D.*``; a line break
-    becomes ``%0A``. Every other character (spaces, unicode) is kept as it is. A stem whose
-    encoding is longer than ``NAME_MAX_BYTES`` (150) bytes, or ends in a run Snakemake refuses
-    as a wildcard value (a substring repeated 20 or more times, ``log_000...0``), is cut to
-    100 bytes and gets ``%~`` and 12 hex digits of the SHA-256 of the stem: ``%~`` never occurs
-    in a plain id, so two stems never share an id.
-    """
-    text = "".join(_percent(c) if c in "%{}" or ord(c) < 32 or ord(c) == 127 else c for c in stem)
-    if len(text.encode("utf-8", "surrogateescape")) <= NAME_MAX_BYTES and safe_name_problem(text) is None:
-        return text
-    digest = hashlib.sha256(stem.encode("utf-8", "surrogateescape")).hexdigest()[:12]
-    head = text.encode("utf-8", "surrogateescape")[:100].decode("utf-8", "ignore")
-    head = re.sub(r"%[0-9A-F]?$", "", head)  # do not cut an escape in two
-    return f"{head}%~{digest}"
-
-
 def has_braces(path: str | os.PathLike) -> bool:
     """True if ``path`` holds ``{`` or ``}`` (Snakemake cannot name it as an input)."""
     text = str(path)
@@ -527,7 +548,21 @@ def discover_machines(
     settle_s: float = 0,
     now: float | None = None,
 ) -> tuple[dict[str, dict[str, str]], list[str]]:
-    """The machines under ``raw_dir`` and their raw files, as the workflow plans them.
+    """The machines under ``raw_dir`` and their raw files, as the workflow plans them:
+    :func:`discover_logs` with each log's raw file only (``machine -> {log id: raw path}``)."""
+    found, warnings = discover_logs(raw_dir, input_spec_of, configured, settle_s=settle_s, now=now)
+    return {m: {key: src["path"] for key, src in logs.items()} for m, logs in found.items()}, warnings
+
+
+def discover_logs(
+    raw_dir: str | os.PathLike,
+    input_spec_of,
+    configured: Iterable[str] = (),
+    *,
+    settle_s: float = 0,
+    now: float | None = None,
+) -> tuple[dict[str, dict[str, dict]], list[str]]:
+    """The machines under ``raw_dir`` and their logs, as the workflow plans them.
 
     Parameters
     ----------
@@ -546,7 +581,9 @@ def discover_machines(
     Returns
     -------
     machines : dict
-        ``machine -> {log id: raw path}``, machines sorted; a folder with no usable file, a
+        ``machine -> {log id: log source}``, machines sorted; a log source is
+        ``{"path", "sheet", "partner"}`` (:func:`rafi.readers.log_sources.expand_logs`: a file,
+        a sheet of a workbook, a file joined with its partner). A folder with no usable file, a
         hidden folder and a folder whose name holds a brace are left out, and so are links
         whose target lies outside ``raw_dir`` (a linked machine folder included) and files
         still settling.
@@ -557,13 +594,14 @@ def discover_machines(
     Raises
     ------
     rafi.errors.InputSpecError
-        A machine's ``input:`` mapping is invalid, or two globs of its
-        ``speed.constant_rpm_by_file`` with different speeds match one file (names the machine).
+        A machine's ``input:`` mapping is invalid, two globs of its
+        ``speed.constant_rpm_by_file`` with different speeds match one log, or its sheet
+        pattern matches no sheet of any workbook (names the machine).
     rafi.errors.RawFormatError
-        Two raw files of a machine share a stem, so their outputs would collide.
+        Two logs of a machine share an id (two raw files a stem), so their outputs would collide.
     """
     root = Path(raw_dir)
-    found: dict[str, dict[str, str]] = {}
+    found: dict[str, dict[str, dict]] = {}
     warnings: list[str] = []
     if not root.is_dir():
         return found, [f"raw_dir {str(root)!r} does not exist; no machines to process"]
@@ -586,35 +624,28 @@ def discover_machines(
         try:
             paths, refused = scan_logs(folder, spec, root)
             normalised = normalise_input_spec(spec)
+            waiting = settling_files(paths, settle_s, now)
+            left_out = {path for path, _ in waiting}
+            logs, notes = expand_logs([p for p in paths if p not in left_out], normalised)
             if has_constant_speed(normalised):
-                for path in paths:  # two speed globs with different speeds: stop while planning
-                    constant_speed(path.name, normalised)
+                for key, src in logs.items():  # two speed globs with different speeds: stop while planning
+                    log_speed(log_name(key, src), Path(src["path"]).name, normalised)
         except InputSpecError as exc:
             raise InputSpecError(f"machine {machine!r}: {exc}") from None
         warnings += refused
-        waiting = settling_files(paths, settle_s, now)
         for path, age in waiting:
             warnings.append(settling_warning(path, age, settle_s))
-        left_out = {path for path, _ in waiting}
-        paths = [p for p in paths if p not in left_out]
-        files: dict[str, str] = {}
-        for path in paths:
-            key = log_id(path.stem)
-            if key in files:
-                raise RawFormatError(
-                    path,
-                    f"same stem {path.stem!r} as {files[key]}; their outputs "
-                    f"(results/<machine>/clean/<stem>.*) would collide - rename one of them",
-                )
-            files[key] = str(path)
-        if not files:
-            pattern = normalise_input_spec(spec)["pattern"]
+        warnings += notes
+        if not logs:
+            pattern = normalised["pattern"]
             why = f"no file matches input.pattern {pattern!r}"
             if refused or waiting:
                 why = f"no usable file ({len(refused)} refused link(s), {len(waiting)} settling)"
+            elif paths:
+                why = f"no log in the {len(paths)} file(s) matching input.pattern {pattern!r}"
             warnings.append(f"skipping machine folder {folder}: {why}")
             continue
-        found[machine] = files
+        found[machine] = logs
     names = {p.name for p in folders}
     for machine in sorted(set(configured) - names):
         warnings.append(f"config has settings for machine {machine!r} but {root / machine} does not exist")

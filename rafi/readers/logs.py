@@ -32,7 +32,14 @@ def sha256_file(path: str | os.PathLike) -> str:
     return digest.hexdigest()
 
 
-def read_log(path: str | os.PathLike, input_spec: dict | None = None) -> pd.DataFrame:
+def read_log(
+    path: str | os.PathLike,
+    input_spec: dict | None = None,
+    *,
+    sheet: str | None = None,
+    partner: str | os.PathLike | None = None,
+    name: str | None = None,
+) -> pd.DataFrame:
     """Read one raw log as its machine's ``input:`` mapping says; return the canonical frame.
 
     Parameters
@@ -44,6 +51,9 @@ def read_log(path: str | os.PathLike, input_spec: dict | None = None) -> pd.Data
         "Bringing your own layout"). ``None`` or ``{"format": "native"}`` reads the
         native format with :func:`read_raw_log`; ``csv`` and ``xlsx`` go through
         :func:`rafi.readers.mapped.read_mapped`.
+    sheet, partner, name : optional
+        A log that is not a whole file (:mod:`rafi.readers.log_sources`): its sheet (when
+        ``input.sheet`` is a pattern), its partner file (``input.join``) and its name.
 
     Returns
     -------
@@ -69,4 +79,4 @@ def read_log(path: str | os.PathLike, input_spec: dict | None = None) -> pd.Data
         if spec.get("sample_period_s") is not None:
             frame.attrs["metadata"].setdefault("sample_period_s", float(spec["sample_period_s"]))
         return frame
-    return formats.read_mapped(path, spec)
+    return formats.read_mapped(path, spec, sheet=sheet, partner=partner, name=name)

@@ -21,23 +21,19 @@ mapping that is itself wrong raises :class:`rafi.errors.InputSpecError`.
 
 from __future__ import annotations
 
-import difflib
 import hashlib
 import os
-import re
-import unicodedata
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from rafi.errors import RawFormatError
-from rafi.readers.input_assumed import constant_speed, has_constant_speed
+from rafi.readers.input_assumed import has_constant_speed, log_speed
+from rafi.readers.input_layouts import is_sheet_pattern
 from rafi.readers.input_spec import (
     _spec_error,
-    norm_header,
     normalise_input_spec,
-    resolve_columns,
 )
 from rafi.readers.mapped_cells import (
     Table,
@@ -45,227 +41,43 @@ from rafi.readers.mapped_cells import (
     numeric,
     text,
 )
+from rafi.readers.mapped_columns import canonical_values as _canonical_values
+from rafi.readers.mapped_columns import (
+    closest_headers,  # noqa: F401 (this module's API)
+    column_label,
+    sanitise_name,
+)
+from rafi.readers.mapped_columns import column_positions as _column_positions
+from rafi.readers.mapped_columns import frame_times as _frame_times
+from rafi.readers.mapped_join import join_partner
 from rafi.readers.mapped_tables import read_table
-from rafi.readers.mapped_time import assumed_notes, row_times, row_times_error, timestamps
+from rafi.readers.mapped_time import assumed_notes
 from rafi.readers.parsing import (
     numeric_columns,
     read_file_bytes,
     to_naive_ns,
 )
 
-# --------------------------------------------------------------------------- the mapping
 
+def _file_speed(path: Path, spec: dict, name: str | None = None) -> tuple[float, str] | None:
+    """The log's configured constant speed and its key; None when the speed is read from a column.
 
-def sanitise_name(header: str) -> str:
-    """A header as a snake_case ASCII column name: ``'Verlagerung X1 [µm]'`` -> ``'verlagerung_x1_um'``."""
-    text = norm_header(header).replace("µ", "u").replace("μ", "u").replace("°", "")
-    text = text.replace("ß", "ss").replace("%", "pct")
-    text = unicodedata.normalize("NFKD", text).encode("ascii", "ignore").decode("ascii")
-    text = re.sub(r"[^0-9a-zA-Z]+", "_", text).strip("_").lower()
-    if not text:
-        return "column"
-    if text[0].isdigit():
-        text = "c_" + text
-    return text
-
-
-def _simple(text: str) -> str:
-    return re.sub(r"[\W_]+", "", sanitise_name(text)).casefold()
-
-
-def closest_headers(wanted: str, available: list[str], n: int = 3) -> list[str]:
-    """The ``n`` available headers most like ``wanted`` (difflib ratio, units/case/punctuation
-    differences forgiven first): ``'Temperatur 3 [°C]'`` finds ``'Temperatur 3 [C]'``."""
-    sw = _simple(wanted)
-
-    def score(h: str) -> float:
-        sh = _simple(h)
-        exact = 1.0 if sh == sw and sw else 0.0
-        return exact + max(
-            difflib.SequenceMatcher(None, wanted, h).ratio(), difflib.SequenceMatcher(None, sw, sh).ratio()
-        )
-
-    ranked = sorted(available, key=score, reverse=True)
-    return [h for h in ranked[:n] if score(h) >= 0.4]
-
-
-# --------------------------------------------------------------------------- main entry
-
-
-def _file_speed(path: Path, spec: dict) -> tuple[float, str] | None:
-    """The file's configured constant speed and its key; None when the speed is read from a column."""
+    ``name`` is the log's name (a sheet-log's id, docs/raw-format.md), matched first; then the
+    file name."""
     if not has_constant_speed(spec):
         return None
-    found = constant_speed(path.name, spec)
+    found = log_speed(name, path.name, spec)
     if found is None:
         globs = ", ".join(repr(g) for g in spec["speed"]["constant_rpm_by_file"])
         raise RawFormatError(
             path,
             f"no speed for this file: the mapping reads no speed column and no glob of "
-            f"input.speed.constant_rpm_by_file ({globs}) matches the file name {path.name!r}; "
+            f"input.speed.constant_rpm_by_file ({globs}) matches the "
+            + (f"log name {name!r} or the " if name and name != path.name else "")
+            + f"file name {path.name!r}; "
             "add a glob that matches it, or set input.speed.constant_rpm for the machine",
         )
     return found
-
-
-def _header_not_found(table: Table, spec: dict, canon: str, theirs: str) -> RawFormatError:
-    """The error for a mapped header missing from the file, with the closest headers it has.
-
-    Parameters
-    ----------
-    table : Table
-        The file.
-    spec : dict
-        The normalised ``input:`` mapping (says which key named the header).
-    canon : str
-        The canonical column sought.
-    theirs : str
-        The header the mapping gives for it.
-
-    Returns
-    -------
-    RawFormatError
-        Naming the header, the mapping key and the closest (else the first eight) headers.
-    """
-    candidates = [h for h in table.header if h]
-    close = closest_headers(norm_header(theirs), candidates)
-    if close:
-        hint = "closest: " + ", ".join(repr(c) for c in close)
-    else:
-        hint = (
-            "available: "
-            + ", ".join(repr(c) for c in candidates[:8])
-            + (", ..." if len(candidates) > 8 else "")
-        )
-    where = (
-        "input.displacement.column"
-        if (canon == "disp_um" and spec["displacement"]["column"])
-        else f"input.columns.{canon}"
-    )
-    return RawFormatError(
-        table.path,
-        f"header {theirs!r} ({where}) not found in the header row; {hint}",
-        line=table.header_row,
-        column=theirs,
-        sheet=table.sheet,
-    )
-
-
-def _column_positions(table: Table, spec: dict) -> dict[str, int]:
-    """Where each canonical column the mapping reads is in the file.
-
-    Parameters
-    ----------
-    table : Table
-        The file.
-    spec : dict
-        The normalised ``input:`` mapping.
-
-    Returns
-    -------
-    dict
-        Canonical column -> 0-based column index, for every column the mapping reads
-        from the file (:func:`rafi.readers.input_spec.resolve_columns`).
-
-    Raises
-    ------
-    RawFormatError
-        When a mapped header is not in the file, or is there more than once.
-    """
-    positions: dict[str, int] = {}
-    for canon, theirs in resolve_columns(spec).items():
-        key = norm_header(theirs)
-        hits = [j for j, h in enumerate(table.header) if h == key]
-        if not hits:
-            raise _header_not_found(table, spec, canon, theirs)
-        if len(hits) > 1:
-            raise RawFormatError(
-                table.path,
-                f"header {theirs!r} appears {len(hits)} times "
-                f"(columns {', '.join(excel_column(j) for j in hits)}); "
-                f"cannot tell which one is {canon}",
-                line=table.header_row,
-                column=theirs,
-                sheet=table.sheet,
-            )
-        positions[canon] = hits[0]
-    return positions
-
-
-def _frame_times(table: Table, cols: list[tuple], positions: dict[str, int], spec: dict) -> pd.Series:
-    """The time of each data row: from the time column, or row k at ``time.start + k * time.period_s``.
-
-    Parameters
-    ----------
-    table : Table
-        The file.
-    cols : list of tuple
-        The cells of each column, in row order.
-    positions : dict
-        Canonical column -> 0-based column index.
-    spec : dict
-        The normalised ``input:`` mapping.
-
-    Returns
-    -------
-    pandas.Series
-        Naive timestamps, one per row.
-
-    Raises
-    ------
-    RawFormatError
-        At the first cell that is not a time, or when the rows of a file without a time
-        column would end after 2261.
-    """
-    if spec["time"]["kind"] == "none":
-        problem = row_times_error(len(table.rows), spec)
-        if problem:
-            raise RawFormatError(table.path, problem, line=table.row_numbers[-1], sheet=table.sheet)
-        return row_times(len(table.rows), spec)
-    j = positions["time"]
-    return timestamps(table, list(cols[j]), spec, table.header[j], j)
-
-
-def _canonical_values(table: Table, column: list, canon: str, col_index: int, spec: dict) -> np.ndarray:
-    """One numeric canonical column in the canonical unit and sign (um, deg C, r/min).
-
-    Parameters
-    ----------
-    table : Table
-        The file.
-    column : list
-        The column's cells, in row order.
-    canon : str
-        The canonical column (``speed_rpm``, a sensor of ``spec["sensors"]`` or ``disp_um``).
-    col_index : int
-        0-based index of the column in the file.
-    spec : dict
-        The normalised ``input:`` mapping (``decimal``, ``displacement.unit`` and
-        ``sign``, ``temperature_unit``).
-
-    Returns
-    -------
-    numpy.ndarray
-        ``float64``; empty cells NaN; a displacement in mm times 1000 and by its sign
-        (never -0.0), a temperature in K minus 273.15.
-
-    Raises
-    ------
-    RawFormatError
-        At the first cell that is not a number.
-    """
-    unit = {"speed_rpm": "r/min", "disp_um": spec["displacement"]["unit"]}.get(
-        canon, "deg " + spec["temperature_unit"]
-    )
-    values = numeric(
-        table, column, spec["decimal"], table.header[col_index], col_index, f"a number ({unit}) for {canon}"
-    )
-    if canon == "disp_um":
-        values = values * (1000.0 if spec["displacement"]["unit"] == "mm" else 1.0)
-        values = values * spec["displacement"]["sign"] + 0.0  # no -0.0
-    elif canon in spec["sensors"] and spec["temperature_unit"] == "K":
-        values = values - 273.15
-    return values.astype("float64")
 
 
 def _add_extra_columns(
@@ -336,7 +148,7 @@ def _mapped_metadata(
     meta: dict = {"format": spec["format"]}
     if table.sheet is not None:
         meta["sheet"] = table.sheet
-    meta["columns"] = {canon: table.header[j] for canon, j in positions.items()}
+    meta["columns"] = {canon: column_label(table, j) for canon, j in positions.items()}
     if spec["sample_period_s"] is not None:
         meta["sample_period_s"] = spec["sample_period_s"]
     assumed = assumed_notes(spec, speed=speed)
@@ -345,7 +157,14 @@ def _mapped_metadata(
     return meta
 
 
-def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
+def read_mapped(
+    path: str | os.PathLike,
+    input_spec: dict,
+    *,
+    sheet: str | None = None,
+    partner: str | os.PathLike | None = None,
+    name: str | None = None,
+) -> pd.DataFrame:
     """Read a csv or xlsx log with a machine's ``input:`` mapping into the canonical frame.
 
     Parameters
@@ -376,17 +195,31 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
     ------
     RawFormatError
         Naming file, sheet (xlsx), line/row and the column as written in the file; also a
-        file with no configured constant speed when the mapping reads no speed column.
+        file with no configured constant speed when the mapping reads no speed column, and a
+        missing partner file or one whose rows do not agree (``input.join``).
     InputSpecError
         If the mapping is invalid (two speed globs with different speeds match the file
-        included).
+        included), or ``input.sheet`` is a pattern and no ``sheet`` is given.
+
+    Notes
+    -----
+    ``sheet`` is the sheet to read when ``input.sheet`` is a pattern (each matching sheet is a
+    log of its own, :mod:`rafi.readers.log_sources`); ``partner`` the partner file of an
+    ``input.join`` (:mod:`rafi.readers.mapped_join`: its ``join.columns`` replace this file's);
+    ``name`` the log's name, matched by ``speed.constant_rpm_by_file`` before the file name.
     """
     path = Path(path)
     spec = normalise_input_spec(input_spec)
     if spec["format"] not in ("csv", "xlsx"):
         raise _spec_error("format", f"read_mapped reads csv or xlsx, not {spec['format']!r}")
+    if sheet is not None:
+        spec["sheet"] = sheet
+    elif is_sheet_pattern(spec["sheet"]):
+        raise _spec_error("sheet", f"{spec['sheet']!r} is a pattern: give the sheet of the log to read")
+    if spec["join"] is not None and partner is None:
+        raise _spec_error("join", "the mapping joins a partner file: give the partner of the log to read")
     raw = read_file_bytes(path)
-    speed = _file_speed(path, spec)
+    speed = _file_speed(path, spec, name)
     table = read_table(path, raw, spec)
     positions = _column_positions(table, spec)
     if not table.rows:
@@ -396,8 +229,13 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
     index = pd.Index(table.row_numbers, name="line", dtype="int64")
     frame = pd.DataFrame(index=index)
     frame["time"] = to_naive_ns(_frame_times(table, cols, positions, spec)).to_numpy()
+    joined, join_meta = {}, None
+    if spec["join"] is not None:
+        joined, join_meta = join_partner(table, frame["time"].to_numpy(), spec, Path(partner))
     for canon in numeric_columns(spec["sensors"]):
-        if canon == "speed_rpm" and speed is not None:
+        if canon in joined:
+            frame[canon] = joined[canon]
+        elif canon == "speed_rpm" and speed is not None:
             frame[canon] = np.full(len(index), speed[0], dtype="float64")
         else:
             j = positions[canon]
@@ -406,6 +244,8 @@ def read_mapped(path: str | os.PathLike, input_spec: dict) -> pd.DataFrame:
         _add_extra_columns(frame, table, cols, positions, spec)
 
     frame.attrs["metadata"] = _mapped_metadata(spec, table, positions, speed)
+    if join_meta is not None:
+        frame.attrs["metadata"]["join"] = join_meta
     frame.attrs["source"] = str(path)
     frame.attrs["sha256"] = hashlib.sha256(raw).hexdigest()
     return frame

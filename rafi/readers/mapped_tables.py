@@ -77,27 +77,31 @@ def read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
     )
     lines = split_lines(text)
     hr = spec["header_row"]
-    if hr > len(lines) or not lines[hr - 1].strip():
-        raise RawFormatError(
-            path,
-            f"no header at line {hr} (input.header_row); the file has {len(lines)} line(s)",
-            line=min(hr, max(len(lines), 1)),
-        )
     delim = spec["delimiter"]
-    header = [h.strip() for h in split_fields(path, lines[hr - 1], hr, delim)]
-    check_fields(path, header, hr)
-    check_column_count(path, header, hr)
-    if len(header) == 1:
-        for other in (";", ",", "\t", "|"):
-            if other != delim and other in header[0]:
-                raise RawFormatError(
-                    path,
-                    f"header is separated by {other!r}, not by the "
-                    f"configured delimiter {delim!r}; set input.delimiter",
-                    line=hr,
-                )
+    if hr is None:  # no header row: as many (unnamed) columns as the first data line has fields
+        first_data = spec["skip_rows"]  # 0-based index of the first data line
+        first = next((i for i in range(first_data, len(lines)) if lines[i].strip()), None)
+        if first is None:
+            raise RawFormatError(
+                path, f"no data line after the {first_data} skipped line(s) (input.skip_rows)", line=1
+            )
+        fields = split_fields(path, lines[first], first + 1, delim)
+        check_column_count(path, fields, first + 1)
+        _check_delimiter(path, fields, delim, first + 1, "the first data line")
+        header = [""] * len(fields)
+    else:
+        if hr > len(lines) or not lines[hr - 1].strip():
+            raise RawFormatError(
+                path,
+                f"no header at line {hr} (input.header_row); the file has {len(lines)} line(s)",
+                line=min(hr, max(len(lines), 1)),
+            )
+        header = [h.strip() for h in split_fields(path, lines[hr - 1], hr, delim)]
+        check_fields(path, header, hr)
+        check_column_count(path, header, hr)
+        _check_delimiter(path, header, delim, hr, "header")
+        first_data = hr + spec["skip_rows"]  # 0-based index of the first data line
     rows, numbers = [], []
-    first_data = hr + spec["skip_rows"]  # 0-based index of the first data line
     for i in range(first_data, len(lines)):
         line = lines[i]
         if not line.strip():
@@ -109,7 +113,7 @@ def read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
         if len(fields) > len(header) and not any(f.strip() for f in fields[len(header) :]):
             fields = fields[: len(header)]
         if len(fields) != len(header):
-            if [norm_header(f) for f in fields] == [norm_header(h) for h in header]:
+            if hr is not None and [norm_header(f) for f in fields] == [norm_header(h) for h in header]:
                 raise RawFormatError(
                     path,
                     "the header line is repeated inside the data; expected one header only",
@@ -131,6 +135,20 @@ def read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
         rows.append(fields)
         numbers.append(line_no)
     return Table(path, header, rows, numbers, hr, None)
+
+
+def _check_delimiter(path: Path, fields: list[str], delim: str, line_no: int, what: str) -> None:
+    """A line read as one field but holding another delimiter: ``input.delimiter`` is wrong."""
+    if len(fields) != 1:
+        return
+    for other in (";", ",", "\t", "|"):
+        if other != delim and other in fields[0]:
+            raise RawFormatError(
+                path,
+                f"{what} is separated by {other!r}, not by the configured delimiter {delim!r}; "
+                "set input.delimiter",
+                line=line_no,
+            )
 
 
 def read_xlsx_table(path: Path, raw: bytes, spec: dict) -> Table:
@@ -193,6 +211,10 @@ def read_xlsx_table(path: Path, raw: bytes, spec: dict) -> Table:
                         line=row_no,
                         sheet=name,
                     )
+                if hr is None:  # no header row: every row after skip_rows is data
+                    if row_no > spec["skip_rows"]:
+                        _keep_row(path, name, list(values), row_no, rows, numbers)
+                    continue
                 if row_no < hr:
                     continue
                 values = list(values)
@@ -233,7 +255,9 @@ def read_xlsx_table(path: Path, raw: bytes, spec: dict) -> Table:
             raise RawFormatError(
                 path, f"cannot read the sheet ({type(exc).__name__}: {quote(exc)})", sheet=name
             ) from None
-        if not header:
+        if hr is None:
+            header = _pad_rows(path, name, rows, spec["skip_rows"])
+        elif not header:
             raise RawFormatError(
                 path,
                 f"no header in row {hr} (input.header_row); the sheet is empty there",
@@ -245,3 +269,29 @@ def read_xlsx_table(path: Path, raw: bytes, spec: dict) -> Table:
         return table
     finally:
         wb.close()
+
+
+def _keep_row(path: Path, sheet: str, values: list, row_no: int, rows: list, numbers: list) -> None:
+    """A data row of a sheet without a header row: kept (trailing empty cells dropped) unless blank."""
+    while values and (values[-1] is None or (isinstance(values[-1], str) and not values[-1].strip())):
+        values.pop()
+    if not values:
+        return
+    check_fields(path, values, row_no, None, sheet=sheet)
+    check_column_count(path, values, row_no, sheet=sheet)
+    rows.append(values)
+    numbers.append(row_no)
+
+
+def _pad_rows(path: Path, sheet: str, rows: list[list], skip_rows: int) -> list[str]:
+    """The unnamed header of a sheet without a header row (as wide as its widest row); the
+    shorter rows are padded with empty cells in place."""
+    if not rows:
+        raise RawFormatError(
+            path, f"no data row after the {skip_rows} skipped row(s) (input.skip_rows)", line=1, sheet=sheet
+        )
+    width = max(len(r) for r in rows)
+    header = [""] * width
+    for r in rows:
+        r.extend([None] * (width - len(r)))
+    return header

@@ -11,8 +11,10 @@
 #   constants  RUN (run settings), RAW_DIR, RESULTS_DIR, REPORTS_DIR, LOGS_DIR, MACHINES
 #   settings   machine_config(machine) (rafi.settings.machine_settings), model_provenance(machine),
 #              nightly_settings(machine), qualification_gates(machine), replay_settings(machine)
-#   raw files  raw_files(machine), raw_links(machine), machine_raw_paths(wildcards),
-#              machine_raw_inputs(wildcards), machine_raw_stamps(wildcards)
+#   raw files  LOGS, RAW, raw_files(machine), partner_files(machine), raw_links(machine),
+#              machine_raw_paths(wildcards), machine_raw_parts(wildcards),
+#              machine_log_names(wildcards), machine_raw_inputs(wildcards),
+#              machine_raw_stamps(wildcards)
 #   paths      out(name, machine="{machine}", **fields) (a name of rafi.contract.RESULT_FILES),
 #              outs(names, machine), registry_dir(machine), report_paths(machine="{machine}"),
 #              log_path(step), bench_path(step), skipped_page_path(machine), INPUT_CHECK,
@@ -39,7 +41,8 @@ import rafi.settings as _settings
 from rafi import contract
 from rafi.errors import InputSpecError, RafiUserError, RawFormatError, SettingsError
 from rafi.family import prior as _prior
-from rafi.readers.input_spec import discover_machines, has_braces
+from rafi.readers.input_spec import discover_logs, has_braces
+from rafi.readers.log_sources import log_name, log_stamp
 from rafi.readers.quarantine import (
     is_skipped,
     present_statuses,
@@ -127,12 +130,13 @@ def replay_settings(machine):
 
 
 def _discover():
-    """Machine -> {log id: raw path} (``rafi.readers.input_spec.discover_machines``), read anew
-    on every invocation, so a new folder or file is picked up without editing the config. A
-    link out of ``raw_dir`` is refused and a file modified less than ``settle_s`` seconds ago
-    waits for the next run (each with a warning line: link_outside_raw, settling)."""
+    """Machine -> {log id: log source} (``rafi.readers.input_spec.discover_logs``: a raw file, a
+    sheet of a workbook, a file with its partner), read anew on every invocation, so a new
+    folder or file is picked up without editing the config. A link out of ``raw_dir`` is
+    refused and a file modified less than ``settle_s`` seconds ago waits for the next run (each
+    with a warning line: link_outside_raw, settling)."""
     try:
-        found, warnings = discover_machines(
+        found, warnings = discover_logs(
             RAW_DIR,
             lambda m: machine_config(m)["input"],
             configured=config.get("machines") or {},
@@ -155,7 +159,10 @@ def _by_unit(found):
         raise WorkflowError(f"RAFI: {exc}") from None
 
 
-RAW = _discover()
+LOGS = _discover()
+
+#: Machine -> {log id: raw path} (a sheet-log: its workbook; a joined log: its own file).
+RAW = {m: {key: src["path"] for key, src in logs.items()} for m, logs in LOGS.items()}
 
 #: What to qualify: the folders of ``raw_dir`` holding at least one matching file, a machine with
 #: several probes as one unit per probe (``<machine>@<probe>``).
@@ -163,42 +170,77 @@ MACHINES = sorted(RAW)
 
 
 def raw_files(machine):
-    """Raw log paths of ``machine`` (those matching its ``input.pattern``), sorted."""
-    return sorted(RAW.get(machine, {}).values())
+    """Raw log paths of ``machine`` (those matching its ``input.pattern``; a workbook of several
+    sheet-logs once), sorted."""
+    return sorted(set(RAW.get(machine, {}).values()))
+
+
+def partner_files(machine):
+    """The partner files of ``machine``'s logs (``input.join``) that exist, sorted."""
+    found = {src["partner"] for src in LOGS.get(machine, {}).values() if src["partner"]}
+    return sorted(p for p in found if Path(p).is_file())
 
 
 def raw_links(machine):
-    """Names of the raw files of ``machine`` that are symbolic links (inside ``raw_dir``)."""
-    return sorted(Path(p).name for p in raw_files(machine) if Path(p).is_symlink())
+    """Names of the logs of ``machine`` whose raw file is a symbolic link (inside ``raw_dir``)."""
+    logs = LOGS.get(machine, {})
+    return sorted(log_name(key, src) for key, src in logs.items() if Path(src["path"]).is_symlink())
 
 
 def machine_raw_paths(wildcards):
-    """Param of the clean step: log id -> raw path of every raw file of ``{machine}``."""
+    """Param of the clean step: log id -> raw path of every log of ``{machine}``."""
     return {stem: str(path) for stem, path in sorted(RAW.get(wildcards.machine, {}).items())}
 
 
+def machine_raw_parts(wildcards):
+    """Param of the clean step: log id -> ``{sheet, partner}`` of the logs of ``{machine}`` that
+    are not a whole file (``{}`` for a machine of plain files)."""
+    return {
+        key: {"sheet": src["sheet"], "partner": src["partner"]}
+        for key, src in sorted(LOGS.get(wildcards.machine, {}).items())
+        if src["sheet"] is not None or src["partner"] is not None
+    }
+
+
+def machine_log_names(wildcards):
+    """Log id -> the name each log of ``{machine}`` goes by in the audit (its ``file``)."""
+    return {key: log_name(key, src) for key, src in sorted(LOGS.get(wildcards.machine, {}).items())}
+
+
 def machine_raw_inputs(wildcards):
-    """Input function (clean step): the raw files of ``{machine}`` except those whose path holds
-    braces, which Snakemake would read as wildcards (``machine_raw_stamps`` follows them)."""
-    return [p for p in raw_files(wildcards.machine) if not has_braces(p)]
+    """Input function (clean step): the raw files of ``{machine}`` and the partner files of its
+    logs, except those whose path holds braces, which Snakemake would read as wildcards
+    (``machine_raw_stamps`` follows them)."""
+    machine = wildcards.machine
+    return [p for p in raw_files(machine) + partner_files(machine) if not has_braces(p)]
 
 
 _RAW_STAMPS = {}
 
 
 def machine_raw_stamps(wildcards):
-    """Param of the clean step: log id -> content hash (``sha256:<hex>``, or
-    ``unreadable:<errno>``) of every raw file of ``{machine}``. Snakemake compares modification
-    times only; with the hash as a param, its ``params`` trigger re-runs the machine's clean job
-    when a file's content changed even with its size and mtime kept (``cp -p``, ``rsync -t``).
-    Computed once per invocation for every raw file, through the stat-keyed cache
+    """Param of the clean step: log id -> content stamp (``sha256:<hex>``, or
+    ``unreadable:<errno>``) of every log of ``{machine}``: its raw file's content hash, combined
+    with its sheet's name and its partner's hash for a log that is not a whole file
+    (``rafi.readers.log_sources.log_stamp``). Snakemake compares modification times only; with
+    the hash as a param, its ``params`` trigger re-runs the machine's clean job when a file's
+    content changed even with its size and mtime kept (``cp -p``, ``rsync -t``). Computed once
+    per invocation for every raw and partner file, through the stat-keyed cache
     ``results/.raw_hashes.json`` (``rafi.ops.raw_hashes``: an unchanged file is not read
     again; a dry run does not write the cache)."""
     if not _RAW_STAMPS:
         paths = [p for m in MACHINES for p in raw_files(m)]
+        paths += [src["partner"] for m in MACHINES for src in LOGS[m].values() if src["partner"]]
         cache = Path(RESULTS_DIR) / _RAW_HASH_CACHE
         _RAW_STAMPS.update(raw_stamps(paths, cache, write=not workflow.output_settings.dryrun))
-    return {stem: _RAW_STAMPS[str(path)] for stem, path in sorted(RAW.get(wildcards.machine, {}).items())}
+    return {
+        key: log_stamp(
+            _RAW_STAMPS[src["path"]],
+            src["sheet"],
+            _RAW_STAMPS[src["partner"]] if src["partner"] else None,
+        )
+        for key, src in sorted(LOGS.get(wildcards.machine, {}).items())
+    }
 
 
 # --------------------------------------------------------------------------- paths

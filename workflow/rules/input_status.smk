@@ -48,7 +48,12 @@ checkpoint input_status:
         links=lambda w: raw_links(w.machine),
         # of byte-identical files, the one that stays: the champion's, else the oldest
         # (rafi.ops.duplicates; {} without duplicates)
-        keep=lambda w: duplicate_keepers(machine_raw_paths(w), machine_raw_stamps(w), registry_dir(w.machine)),
+        keep=lambda w: duplicate_keepers(
+            machine_raw_paths(w),
+            machine_raw_stamps(w),
+            registry_dir(w.machine),
+            names=machine_log_names(w),
+        ),
     script:
         "../scripts/input_status.py"
 

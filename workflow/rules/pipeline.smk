@@ -41,6 +41,8 @@ rule clean:
     params:
         code=code_version("clean"),
         raw_paths=machine_raw_paths,
+        # the logs that are not a whole file: a sheet of a workbook, a file with its partner
+        raw_parts=machine_raw_parts,
         # content hashes: a file edited with its size and mtime kept re-runs the job
         raw_stamps=machine_raw_stamps,
         input_spec=lambda w: machine_config(w.machine)["input"],

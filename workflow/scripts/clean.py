@@ -20,6 +20,13 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     )
     # on_bad_input is a run mode, not a param: the outputs are the same in both modes
     fail_mode = run_settings(smk.config)["on_bad_input"] == "fail"
-    done = clean_machine(smk.params.raw_paths, smk.output.folder, settings, fail_mode=fail_mode, log=log)
+    done = clean_machine(
+        smk.params.raw_paths,
+        smk.output.folder,
+        settings,
+        fail_mode=fail_mode,
+        log=log,
+        parts=smk.params.raw_parts,
+    )
     counts = {s: list(done.values()).count(s) for s in ("ok", "quarantined")}
     print(f"{len(done)} raw file(s): {counts['ok']} cleaned, {counts['quarantined']} quarantined", flush=True)
