@@ -56,6 +56,7 @@ import time
 from pathlib import Path
 
 from rafi.artefact import now_iso
+from rafi.cli import add_config_option
 from rafi.errors import LockHeld, RegistryError, SettingsError
 from rafi.ops import snakemake_api
 from rafi.ops.lock import (
@@ -115,11 +116,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--dry-run", action="store_true", help="only show what would run (no lock, nothing written)"
     )
     parser.add_argument("--machine", help="only this machine (folder under raw/)")
-    parser.add_argument(
-        "--config-file",
-        default="config.yaml",
-        help="pipeline config (default config.yaml, relative to --directory)",
-    )
+    add_config_option(parser, relative_to="--directory")
     parser.add_argument("--directory", default=".", help="project directory (default .)")
     parser.add_argument(
         "--promote",
@@ -146,7 +143,7 @@ def run(args) -> int:
     directory = Path(args.directory).resolve()
     args.directory = directory
     try:
-        config = load_config(directory, args.config_file)
+        config = load_config(directory, args.config)
         paths = Paths.from_config(directory, config)
     except OSError as exc:
         print(f"rafi nightly: cannot read config: {exc}", file=sys.stderr)
@@ -314,7 +311,7 @@ def _dry_run(args, paths: Paths, overrides: dict) -> int:
     with open(os.devnull, "w", encoding="utf-8") as sink, snakemake_api.output_to(sink):
         outcome = snakemake_api.run(
             args.directory,
-            config_path(args.directory, args.config_file),
+            config_path(args.directory, args.config),
             overrides,
             cores=args.cores,
             dry_run=True,
@@ -366,13 +363,13 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
     _say_settling(args)
     # a night that left a settling file out must not let the next one take the fast path
     remember = not args.settling
-    fp = None if args.full_check else fingerprint(args.config_file, paths, overrides, scope)
+    fp = None if args.full_check else fingerprint(args.config, paths, overrides, scope)
     if fp is not None and read_state(paths, scope).get("fingerprint") == fp:
         # nothing changed since the last successful night: no need to ask Snakemake
         return _nothing_new(paths, machines, started)
     # One Snakemake run, no separate dry run (it would build the job graph twice): Snakemake
     # itself schedules no job when no new data arrived.
-    cfg = config_path(paths.directory, args.config_file)
+    cfg = config_path(paths.directory, args.config)
     print(
         f"rafi nightly: snakemake --cores {args.cores} --rerun-incomplete --keep-going "
         f"{'' if every else '--nolock '}--configfile {cfg} "
@@ -393,7 +390,7 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
             if not outcome.ok and not outcome.failed:  # it failed before any job: say why
                 print(f"rafi nightly: the pipeline cannot be planned: {outcome.error}", file=console_err)
     if outcome.ok and remember:
-        write_state(paths, fingerprint(args.config_file, paths, overrides, scope), scope)
+        write_state(paths, fingerprint(args.config, paths, overrides, scope), scope)
     else:
         clear_state(paths, scope)
     if not every or not outcome.ok:  # else rule fleet_index has written it
