@@ -36,8 +36,10 @@ from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of thi
 from rafi.errors import InputSpecError, RawFormatError, bound_message, short_path
 from rafi.readers.discovery import (
     NAME_MAX_BYTES,
+    SKIP_PREFIX,
     is_inside,
     link_warning,
+    no_match_reason,
     not_a_file,
     not_a_file_warning,
     safe_name_problem,
@@ -482,10 +484,10 @@ def discover_machines(
             files[key] = str(path)
         if not files:
             pattern = normalise_input_spec(spec)["pattern"]
-            why = f"no file matches input.pattern {pattern!r}"
+            why = no_match_reason(folder, pattern, machine)
             if refused or waiting:
                 why = f"no usable file ({len(refused)} refused link(s), {len(waiting)} settling)"
-            warnings.append(f"skipping machine folder {folder}: {why}")
+            warnings.append(f"{SKIP_PREFIX}{folder}: {why}")
             continue
         found[machine] = files
     names = {p.name for p in folders}
