@@ -33,12 +33,13 @@ Returned alone, before any decision:
   75  another nightly run holds the lock, or a live Snakemake run works in the project and
       holds Snakemake's lock (EX_TEMPFAIL: try again later; the message names the pid)
 
-Output lines (stdout): `lock ... acquired`, `cleared a stale Snakemake lock (...)`, `waits
-for the next night (still being written?): <file> ...`, `snakemake --cores ... -- nightly (log
-...)`, `[i/n] done <rule> (...)` / `FAILED <rule>`, `nothing new since ...`, one status line
-per machine, `INPUT REJECTED: ...`, `N job(s) in T s; exit C`. Errors (stderr): `another
-nightly run is in progress ...`, `Snakemake is running in <dir> (pid N: ...) ...`, `cannot
-write <path>: <strerror> (<ERRNO>); ...; exiting with 73`.
+Output lines (stdout): `lock ... acquired`, `cleared a stale Snakemake lock (...)`, `waits for
+the next night (still being written?): <file> ...`, `snakemake --cores ... -- nightly (log
+...)`, `[i/n] done <rule> (...)` / `FAILED <rule>`, `nothing new since ...`, one status line per
+machine, `INPUT REJECTED: ...`, the end-of-run lines of the workflow (`RAFI: outcome of this run
+...`, one per machine: PASS / FAIL / skipped; rafi.ops.outcome), `N job(s) in T s; exit C`.
+Errors (stderr): `another nightly run is in progress ...`, `Snakemake is running in <dir> (pid
+N: ...) ...`, `cannot write <path>: <strerror> (<ERRNO>); ...; exiting with 73`.
 
 Examples:
   rafi nightly --cores 2                   # cron / systemd
@@ -67,7 +68,8 @@ from rafi.ops.lock import (
     night_locks,
     snakemake_lock_files,
 )
-from rafi.ops.project import Paths, config_path, load_config, settling
+from rafi.ops.outcome import RunFiles, outcome_lines, read_outcome
+from rafi.ops.project import Paths, config_path, load_config, settling, unmatched_folders
 from rafi.ops.state import clear_state, fingerprint, log_name, read_state, write_state
 from rafi.ops.status import (
     EXIT_CANTCREAT,
@@ -165,6 +167,7 @@ def run(args) -> int:
     args.reports_dir = directory / str(run_settings(config)["reports_dir"])
     args.settle_s = float(overrides["settle_s"])
     args.settling = settling(paths, config, machines, args.settle_s)
+    args.unmatched = unmatched_folders(paths, config, machines)
 
     if args.dry_run:
         return _dry_run(args, paths, overrides)
@@ -412,11 +415,27 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
             return _os_error(exc, paths.results_dir)
     statuses = [machine_status(paths, m, night_start) for m in machines]
     code = _report(statuses, pipeline_failed=not outcome.ok)
+    _say_outcomes(args, paths, machines, night_start)
     print(
         f"rafi nightly: {len(outcome.ran)} job(s) in {time.time() - started:.1f} s; "
         f"exit {code} (log {log_file})"
     )
     return code
+
+
+def _say_outcomes(args, paths: Paths, machines: list[str], since: float) -> None:
+    """The end-of-run lines of the workflow (:mod:`rafi.ops.outcome`), on the terminal: one per
+    machine, PASS / FAIL / skipped, the model offered, why it failed, the report."""
+    files = RunFiles(
+        str(paths.results_dir),
+        str(getattr(args, "reports_dir", paths.directory / "reports")),
+        str(paths.directory / "logs"),
+        since,
+        failures_said_below=False,
+    )
+    skipped = getattr(args, "unmatched", {})
+    for line in outcome_lines([(m, None) for m in machines], lambda m, p: read_outcome(m, p, files, skipped)):
+        print(line)
 
 
 def _refresh_fleet_page(paths: Paths, reports_dir: Path) -> None:
