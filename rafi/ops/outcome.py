@@ -10,7 +10,7 @@ lines")::
         warning (runs): log x.csv holds 6 runs of one continuous recording ...
       lathe-c: skipped - no file matches input.pattern '*.csv'; the folder holds ...
       tapping-center-a: PASS - model offered: dynamic 92289bc7cc53, promoted; report ...
-      mill-d: not judged in this run (no decision built; last decision 2026-11-20T02:00:00Z)
+      mill-d: not judged in this run (no decision built; the last is of 2026-11-20T02:00:00Z)
 
 (each entry is one line; wrapped here). PASS: the model offered passed every qualification gate
 (``decision.json`` ``gates_passed``); whether it was promoted is said after it. FAIL: it failed
@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rafi.contract import REGISTRY_DIR, result_file
-from rafi.ops.run_messages import log_warnings, step_failed
+from rafi.ops.run_messages import MARKER, log_warnings, step_failed
 
 #: The docs section on these lines.
 DOCS = "docs/operations.md#end-of-run-lines"
@@ -168,16 +168,24 @@ def failed_step_outcome(
     machine: str,
     step: str,
     log: str,
+    line: str | None = None,
     *,
-    said_below: bool,
+    said_below: bool = False,
     probe: str | None = None,
     warnings: Iterable[str] = (),
 ) -> Outcome:
-    """A machine a step of which failed in this run: its message is among the failure lines
-    printed below (``said_below``), else in its ``log``."""
-    where = "its message is below" if said_below else f"details in {log}"
+    """A machine a step of which failed in this run. ``line``: the failure line its log ended
+    with (bad input; None after a traceback: the ``log`` has the details); ``said_below``: the
+    failure lines are printed after these lines (the Snakefile's ``say_failures``), so the
+    message is not repeated here."""
+    if line is None:
+        why = f" (details in {log})"
+    elif said_below:
+        why = " (its message is below)"
+    else:
+        why = ": " + line.split(MARKER, 1)[-1]
     return Outcome(
-        machine, "FAIL", f"step {step} failed ({where}); no model offered", probe, None, tuple(warnings)
+        machine, "FAIL", f"step {step} failed{why}; no model offered", probe, None, tuple(warnings)
     )
 
 
@@ -185,7 +193,7 @@ def not_judged_outcome(
     machine: str, last_time: str | None = None, *, probe: str | None = None, warnings: Iterable[str] = ()
 ) -> Outcome:
     """A machine whose decision was not built in this run (``last_time``: that of the one in place)."""
-    last = f"; last decision {last_time}" if last_time else "; no decision yet"
+    last = f"; the last is of {last_time}" if last_time else "; none yet"
     return Outcome(
         machine, "not judged", f"in this run (no decision built{last})", probe, None, tuple(warnings)
     )
@@ -264,16 +272,21 @@ def machine_warnings(logs_dir: str | os.PathLike, machine: str) -> list[str]:
     return [w for log in sorted(folder.glob("*.log")) for w in log_warnings(log)]
 
 
-def failed_step(logs_dir: str | os.PathLike, machine: str, since: float) -> tuple[str, str, bool] | None:
-    """The first step of ``machine`` whose log this run wrote and that failed: ``(step, log,
-    has a failure line)``, or None."""
+def failed_step(
+    logs_dir: str | os.PathLike, machine: str, since: float
+) -> tuple[str, str, str | None] | None:
+    """The step of ``machine`` whose log this run wrote and that failed: ``(step, log, failure
+    line or None)`` - the first (in path order) that ended with a failure line, else the first
+    that ended without its done line - or None."""
+    found = []
     for log in sorted((Path(logs_dir) / machine).glob("*.log")):
-        if not _fresh(log, since):
-            continue
-        failed, line = step_failed(log)
-        if failed:
-            return log.stem, str(log), line is not None
-    return None
+        if _fresh(log, since):
+            failed, line = step_failed(log)
+            if failed:
+                found.append((line is None, log.stem, str(log), line))
+    if not found:
+        return None
+    return min(found)[1:]
 
 
 def read_outcome(
@@ -301,9 +314,10 @@ def read_outcome(
         )
     failed = failed_step(files.logs_dir, machine, files.since)
     if failed is not None:
-        step, log, has_line = failed
-        below = has_line and files.failures_said_below
-        return failed_step_outcome(machine, step, log, said_below=below, probe=probe, warnings=warnings)
+        step, log, line = failed
+        return failed_step_outcome(
+            machine, step, log, line, said_below=files.failures_said_below, probe=probe, warnings=warnings
+        )
     decision_path = results / result_file("decision")
     decision = _json(decision_path)
     if decision is None or not _fresh(decision_path, files.since):

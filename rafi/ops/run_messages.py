@@ -94,12 +94,15 @@ def log_warnings(log_file: str | os.PathLike) -> list[str]:
 def step_failed(log_file: str | os.PathLike) -> tuple[bool, str | None]:
     """Did the job whose log this is fail? ``(failed, failure line)``: a log that ends with a
     failure line (bad input) failed with it; a log without its ``[<step>] done in`` line (a
-    traceback) failed with no line; a log that cannot be read says nothing (``False``)."""
+    traceback) failed with no line; an empty log (the step never began) or one that cannot be
+    read says nothing (``False``)."""
     try:
         with open(log_file, encoding="utf-8", errors="replace") as fh:
             lines = [line.rstrip("\n") for line in fh if line.strip()]
     except OSError:
         return False, None
-    if lines and is_failure_line(lines[-1]):
+    if not lines:  # the step never began (a step after a failed one of the same job)
+        return False, None
+    if is_failure_line(lines[-1]):
         return True, lines[-1]
     return not any(DONE_MARKER in line for line in lines), None
