@@ -100,7 +100,8 @@ def training_speed_problems(
             f"The logs hold {speeds_found(table, tolerance_rpm)}. Set training_speeds_rpm to the "
             "speeds the machine was trained at, or give training windows"
         )
-    trained = training["speed_rpm"].astype(float).to_numpy()
+    spinning = training[training["kind"].astype(str) != "idle"] if "kind" in training else training
+    trained = spinning["speed_rpm"].astype(float).to_numpy()
     missing = [s for s in configured if not (np.abs(trained - s) <= tolerance_rpm + 1e-9).any()]
     if not missing:
         return []
