@@ -63,10 +63,12 @@ class Outcome:
 
 
 def _num(value) -> str:
+    """A measurement for a line: two decimals, ``?`` where there is none (None, NaN, text)."""
     try:
-        return f"{float(value):.2f}"
+        v = float(value)
     except (TypeError, ValueError):
         return "?"
+    return "?" if v != v else f"{v:.2f}"
 
 
 def _limit(value, unit: str) -> str:
@@ -113,7 +115,8 @@ def failed_gate_words(verdict: Iterable[dict]) -> list[str]:
         else:
             words.append(
                 f"{what} {verb} {_limit(worst.get('limit'), unit)} {runs} (worst "
-                f"{_limit(_num(worst.get('measured')), unit)}, run {worst.get('run_id')})"
+                f"{_num(worst.get('measured'))} {unit}".rstrip()
+                + f", run {worst.get('run_id')})"
             )
     return words
 
@@ -247,7 +250,7 @@ class RunFiles:
     reports_dir: str
     logs_dir: str
     since: float
-    failures_said_below: bool = True
+    failures_said_below: bool = False
 
 
 def _fresh(path: Path, since: float) -> bool:
