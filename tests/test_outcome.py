@@ -269,3 +269,26 @@ def test_the_docs_anchors_the_messages_name_are_headings(doc):
         if line.startswith("#")
     ]
     assert anchor in headings
+
+
+def test_rafi_nightly_prints_the_lines_and_names_a_folder_without_a_matching_file(tmp_path: Path, capsys):
+    from argparse import Namespace
+
+    from rafi.ops import nightly
+    from rafi.ops.project import Paths, unmatched_folders
+
+    _touch(tmp_path / "raw" / "fl" / "probe.xlsx")
+    _touch(tmp_path / "raw" / "m" / "a.csv")
+    paths = Paths(tmp_path, tmp_path / "raw", tmp_path / "results")
+    unmatched = unmatched_folders(paths, {}, ["fl", "m"])
+    assert list(unmatched) == ["fl"] and unmatched["fl"].startswith("no file matches input.pattern '*.csv'")
+    registry = tmp_path / "results" / "m" / "registry"
+    (registry / "models").mkdir(parents=True)
+    (registry / "decision.json").write_text(json.dumps(_decision(True)))
+    (registry / "models" / f"{CANDIDATE}.json").write_text(json.dumps({"kind": "dynamic"}))
+    args = Namespace(reports_dir=tmp_path / "reports", unmatched=unmatched)
+    nightly._say_outcomes(args, paths, ["fl", "m"], since=time.time() - 60)
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith("RAFI: outcome of this run")
+    assert out[1] == f"  fl: skipped - {unmatched['fl']}"
+    assert out[2] == "  m: PASS - model offered: dynamic 92289bc7cc53, promoted; no report built in this run"

@@ -325,7 +325,10 @@ def read_outcome(
     decision = _json(decision_path)
     if decision is None or not _fresh(decision_path, files.since):
         return not_judged_outcome(machine, (decision or {}).get("time"), probe=probe, warnings=warnings)
-    model = _json(results / REGISTRY_DIR / "models" / f"{decision.get('candidate_id')}.json") or {}
+    from rafi.ops.registry import Registry  # NumPy: not while the workflow plans
+
+    registry = Registry(results / REGISTRY_DIR, machine)
+    model = _json(registry.model_path(str(decision.get("candidate_id")))) or {}
     html = Path(files.reports_dir) / machine / "qualification.html"
     report = report_words(str(html), html.is_file(), _fresh(html, files.since))
     return decision_outcome(
