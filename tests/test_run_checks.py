@@ -231,3 +231,14 @@ def test_log_spans_from_t_s_or_time():
     )
     assert spans["a"][0] == 30.0 and spans["a"][1][0] == np.datetime64("2026-01-01")
     assert spans["b"] == (20.0, None) and "c" not in spans
+
+
+def test_rank_without_a_training_run_is_a_user_error_naming_the_key(singles):
+    from rafi.method.rank import rank_sensors
+
+    frames, _ = singles
+    table, frame = _runs(frames, training_speeds_rpm=[1000])
+    with pytest.raises(
+        RafiUserError, match=r"^training_speeds_rpm: the runs table has no constant-speed run"
+    ):
+        rank_sensors(table, frame)

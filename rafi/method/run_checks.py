@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.errors import SettingsError
+from rafi.method.rank import speed_training_runs
 from rafi.method.windows import applies_to, check_windows, describe_window, window_interval
 
 #: How many names a message lists before ``... (N more)``.
@@ -87,12 +88,13 @@ def training_speed_problems(
     Raises
     ------
     SettingsError
-        No run has the role ``training`` and a speed: names ``training_speeds_rpm``, the configured
-        speeds and the speeds the logs hold (:func:`speeds_found`).
+        No constant-speed run has the role ``training`` (the runs RAFI as published learns from,
+        :func:`rafi.method.rank.speed_training_runs`): names ``training_speeds_rpm``, the
+        configured speeds and the speeds the logs hold (:func:`speeds_found`).
     """
     configured = [float(s) for s in training_speeds_rpm or []]
     speeds = ", ".join(_rpm(s) for s in configured) or "none"
-    training = table[(table["role"].astype(str) == "training") & table["speed_rpm"].notna()]
+    training = speed_training_runs(table).dropna(subset=["speed_rpm"])
     if training.empty:
         raise SettingsError(
             f"training_speeds_rpm: no training run on machine {machine}: no run at {speeds} r/min "
@@ -100,8 +102,7 @@ def training_speed_problems(
             f"The logs hold {speeds_found(table, tolerance_rpm)}. Set training_speeds_rpm to the "
             "speeds the machine was trained at, or give training windows"
         )
-    spinning = training[training["kind"].astype(str) != "idle"] if "kind" in training else training
-    trained = spinning["speed_rpm"].astype(float).to_numpy()
+    trained = training["speed_rpm"].astype(float).to_numpy()
     missing = [s for s in configured if not (np.abs(trained - s) <= tolerance_rpm + 1e-9).any()]
     if not missing:
         return []
