@@ -165,7 +165,10 @@ def test_job_log_lines(tmp_path: Path):
 
 def _tree(tmp_path: Path):
     files = RunFiles(
-        str(tmp_path / "results"), str(tmp_path / "reports"), str(tmp_path / "logs"), since=time.time()
+        str(tmp_path / "results"),
+        str(tmp_path / "reports"),
+        str(tmp_path / "logs"),
+        since=time.time() - 1,  # the file system clock is coarser
     )
     for sub in ("results/m/registry/models", "reports/m", "logs/m"):
         (tmp_path / sub).mkdir(parents=True)
