@@ -45,11 +45,15 @@ rule tables:
         all_pipeline_tables(),
 
 
-# A run that rejected input (a quarantined file, a skipped machine) says so at its end.
+# A run that rejected input (a quarantined file, a skipped machine) says so at its end; then one
+# line per machine: PASS / FAIL / skipped, the model offered, why it failed, the report
+# (docs/operations.md, "End-of-run lines"); then the one-line message of every failed job.
 onsuccess:
     say_rejected_input()
+    say_outcomes()
 
 
 onerror:
     say_rejected_input()
+    say_outcomes(failed=True)
     say_failures()

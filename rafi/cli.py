@@ -41,6 +41,22 @@ COMMANDS = {
 }
 
 
+#: The option naming the pipeline config, the same on every command; ``--config-file`` (the
+#: spelling of ``rafi nightly`` and ``rafi status`` before issue 45) is kept as a hidden alias.
+CONFIG_OPTION = "--config"
+CONFIG_ALIAS = "--config-file"
+
+
+def add_config_option(parser: argparse.ArgumentParser, relative_to: str | None = None) -> None:
+    """Add ``--config PATH`` (default ``config.yaml``; ``args.config``) to a command's ``parser``,
+    with the hidden alias ``--config-file``. ``relative_to``: the option the path is relative
+    to, named in the help (e.g. ``--directory``)."""
+    where = f", relative to {relative_to}" if relative_to else ""
+    text = f"pipeline config (default config.yaml{where})"
+    parser.add_argument(CONFIG_OPTION, dest="config", default="config.yaml", help=text)
+    parser.add_argument(CONFIG_ALIAS, dest="config", default=argparse.SUPPRESS, help=argparse.SUPPRESS)
+
+
 _ROLE = re.compile(r":[a-z]+:`~?(?:[\w.]*\.)?([^`]+)`")
 
 

@@ -264,7 +264,9 @@ A key in the wrong place (a per-machine section at the top level) is refused wit
 
 def add_arguments(parser) -> None:
     """``rafi settings``: print the effective settings of a machine."""
-    parser.add_argument("--config", default="config.yaml", help="config file (default: config.yaml)")
+    from rafi.cli import add_config_option
+
+    add_config_option(parser)
     parser.add_argument("--machine", help="a machine folder under raw_dir (default: the run settings)")
 
 

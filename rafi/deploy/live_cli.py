@@ -26,6 +26,7 @@ import time
 import traceback
 from pathlib import Path
 
+from rafi.cli import add_config_option
 from rafi.errors import EX_USAGE, RafiUserError, SettingsError
 
 EX_UNAVAILABLE = 69
@@ -35,7 +36,7 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--machine", required=True, help="the machine (its settings and results/<machine>/registry)"
     )
-    parser.add_argument("--config", default="config.yaml", help="config file (default: config.yaml)")
+    add_config_option(parser)
     parser.add_argument(
         "--model",
         default="champion",

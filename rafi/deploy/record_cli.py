@@ -29,6 +29,7 @@ import sys
 from collections.abc import Mapping
 from pathlib import Path
 
+from rafi.cli import add_config_option
 from rafi.errors import SettingsError, short_path
 
 EX_UNAVAILABLE = 69
@@ -49,7 +50,7 @@ def parse_duration(text: str) -> float:
 
 def add_arguments(parser) -> None:
     parser.add_argument("--machine", required=True, help="the machine (named under machines: in the config)")
-    parser.add_argument("--config", default="config.yaml", help="config file (default: config.yaml)")
+    add_config_option(parser)
     parser.add_argument(
         "--follow", metavar="DAQFILE", help="read the samples from this native CSV file as a DAQ writes it"
     )

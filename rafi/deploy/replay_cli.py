@@ -19,6 +19,7 @@ import math
 import re
 from pathlib import Path
 
+from rafi.cli import add_config_option
 from rafi.errors import ReplayError
 
 MODEL_CHOICES = ("candidate", "champion")
@@ -41,7 +42,7 @@ def add_arguments(parser) -> None:
         help="a run id of runs.csv (repeatable; default: the runs whose role is in deploy.replay_roles)",
     )
     parser.add_argument("--out", help="output folder (default: <results_dir>/<machine>/deploy/replay)")
-    parser.add_argument("--config", default="config.yaml", help="config file (default: config.yaml)")
+    add_config_option(parser)
 
 
 def _load_model(spec: str, machine: str, results_dir: Path, settings: dict) -> tuple[dict, str]:

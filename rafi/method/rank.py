@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from rafi.errors import SettingsError
 from rafi.sensors import run_sensors
 from rafi.settings import MACHINE_DEFAULTS
 
@@ -113,7 +114,10 @@ def training_speed_groups(
     Raises
     ------
     ValueError
-        If there are no training runs.
+        If ``runs_table`` lacks a column.
+    rafi.errors.SettingsError
+        If there are no training runs (the workflow's runs step says so earlier, with the speeds
+        the logs hold: :func:`rafi.method.run_checks.training_speed_problems`).
     """
     for col in ("run_id", "role", "speed_rpm"):
         if col not in runs_table.columns:
@@ -121,7 +125,11 @@ def training_speed_groups(
     train = speed_training_runs(runs_table)[["run_id", "speed_rpm"]]
     train = train.dropna(subset=["speed_rpm"])
     if train.empty:
-        raise ValueError("runs_table has no runs with role 'training' (and a speed)")
+        raise SettingsError(
+            "training_speeds_rpm: the runs table has no constant-speed run with role 'training' "
+            "(and a speed): set training_speeds_rpm to the speeds the machine was trained at, or "
+            "give training windows (runs.windows)"
+        )
     train = train.sort_values(["speed_rpm", "run_id"], kind="stable")
     groups: list[tuple[list[float], list[str]]] = []
     for run_id, speed in zip(train["run_id"].astype(str), train["speed_rpm"].astype(float)):

@@ -52,7 +52,7 @@ class Window:
     text: str  # the window as configured, for people
 
 
-def _describe(spec: Mapping) -> str:
+def describe_window(spec: Mapping) -> str:
     unit = spec.get("unit", "elapsed_s")
     start, end = spec.get("start"), spec.get("end")
     if unit == "fraction":
@@ -104,6 +104,44 @@ def check_windows(windows: Sequence[Mapping] | None) -> list[dict]:
     return out
 
 
+def applies_to(spec: Mapping, log_name: str) -> bool:
+    """Does the window ``spec`` (:func:`check_windows`) apply to the log ``log_name`` (its ``log``
+    glob on the file name; every log without one)?"""
+    return fnmatch.fnmatch(log_name, str(spec.get("log", "*")))
+
+
+def window_interval(
+    spec: Mapping, k: int, log_name: str, span: float, times: np.ndarray | None
+) -> tuple[float, float]:
+    """Where the ``k``-th window ``spec`` (:func:`check_windows`) lies on the clock of the log
+    ``log_name`` (``span``: seconds from its first to its last sample; ``times``: its clock per
+    sample, ``NaT`` or None without one): ``(start_s, end_s)``, seconds since the log's first
+    sample (``inf`` for an open end).
+
+    Raises
+    ------
+    SettingsError
+        A ``time`` window on a log without a clock.
+    """
+    start, end, unit = spec.get("start"), spec.get("end"), spec["unit"]
+    if unit == "fraction":
+        a = 0.0 if start is None else float(start) * span
+        b = np.inf if end is None or float(end) >= 1 else float(end) * span
+    elif unit == "elapsed_s":
+        a = 0.0 if start is None else float(start)
+        b = np.inf if end is None else float(end)
+    else:
+        if times is None or not len(times) or pd.isna(times[0]):
+            raise SettingsError(
+                f"runs.windows[{k}]: unit 'time' but log {log_name} has no clock (no time column "
+                "or start time): give the window in elapsed_s or fraction"
+            )
+        t0 = pd.Timestamp(times[0])
+        a = 0.0 if start is None else (pd.Timestamp(str(start)) - t0).total_seconds()
+        b = np.inf if end is None else (pd.Timestamp(str(end)) - t0).total_seconds()
+    return float(a), float(b)
+
+
 def resolve_windows(
     windows: Sequence[Mapping] | None, log_name: str, t_s: np.ndarray, times: np.ndarray | None
 ) -> list[Window]:
@@ -133,27 +171,12 @@ def resolve_windows(
     out = []
     span = float(t_s[-1] - t_s[0]) if len(t_s) else 0.0
     for k, spec in enumerate(check_windows(windows)):
-        if not fnmatch.fnmatch(log_name, str(spec.get("log", "*"))):
+        if not applies_to(spec, log_name):
             continue
-        start, end, unit = spec.get("start"), spec.get("end"), spec["unit"]
-        if unit == "fraction":
-            a = 0.0 if start is None else float(start) * span
-            b = np.inf if end is None or float(end) >= 1 else float(end) * span
-        elif unit == "elapsed_s":
-            a = 0.0 if start is None else float(start)
-            b = np.inf if end is None else float(end)
-        else:
-            if times is None or not len(times) or pd.isna(times[0]):
-                raise SettingsError(
-                    f"runs.windows[{k}]: unit 'time' but log {log_name} has no clock (no time column "
-                    "or start time): give the window in elapsed_s or fraction"
-                )
-            t0 = pd.Timestamp(times[0])
-            a = 0.0 if start is None else (pd.Timestamp(str(start)) - t0).total_seconds()
-            b = np.inf if end is None else (pd.Timestamp(str(end)) - t0).total_seconds()
+        a, b = window_interval(spec, k, log_name, span, times)
         if b <= a:
-            raise SettingsError(f"runs.windows[{k}] ({_describe(spec)}): end is not after start")
-        out.append(Window(spec["role"], float(a), float(b), _describe(spec)))
+            raise SettingsError(f"runs.windows[{k}] ({describe_window(spec)}): end is not after start")
+        out.append(Window(spec["role"], float(a), float(b), describe_window(spec)))
     out.sort(key=lambda w: w.start_s)
     for w1, w2 in zip(out, out[1:]):
         if w2.start_s < w1.end_s:

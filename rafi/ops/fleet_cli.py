@@ -29,6 +29,7 @@ import json
 import sys
 from pathlib import Path
 
+from rafi.cli import add_config_option
 from rafi.errors import SettingsError
 from rafi.ops.fleet import exit_code, fleet_overview
 from rafi.ops.project import Paths, load_config
@@ -39,11 +40,7 @@ from rafi.settings import run_settings
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The options of ``rafi status``."""
     parser.add_argument("--directory", default=".", help="project directory (default .)")
-    parser.add_argument(
-        "--config-file",
-        default="config.yaml",
-        help="pipeline config (default config.yaml, relative to --directory)",
-    )
+    add_config_option(parser, relative_to="--directory")
     parser.add_argument("--machine", action="append", help="only this machine (repeatable)")
     parser.add_argument("--json", action="store_true", help="print one JSON document instead of the table")
     parser.add_argument("--html", metavar="PATH", help="also write the fleet overview page to PATH")
@@ -122,7 +119,7 @@ def run(args) -> int:
 
     directory = Path(args.directory).resolve()
     try:
-        config = load_config(directory, args.config_file)
+        config = load_config(directory, args.config)
         paths = Paths.from_config(directory, config)
         reports_dir = directory / str(run_settings(config)["reports_dir"])
     except (OSError, SettingsError) as exc:

@@ -33,12 +33,13 @@ Returned alone, before any decision:
   75  another nightly run holds the lock, or a live Snakemake run works in the project and
       holds Snakemake's lock (EX_TEMPFAIL: try again later; the message names the pid)
 
-Output lines (stdout): `lock ... acquired`, `cleared a stale Snakemake lock (...)`, `waits
-for the next night (still being written?): <file> ...`, `snakemake --cores ... -- nightly (log
-...)`, `[i/n] done <rule> (...)` / `FAILED <rule>`, `nothing new since ...`, one status line
-per machine, `INPUT REJECTED: ...`, `N job(s) in T s; exit C`. Errors (stderr): `another
-nightly run is in progress ...`, `Snakemake is running in <dir> (pid N: ...) ...`, `cannot
-write <path>: <strerror> (<ERRNO>); ...; exiting with 73`.
+Output lines (stdout): `lock ... acquired`, `cleared a stale Snakemake lock (...)`, `waits for
+the next night (still being written?): <file> ...`, `snakemake --cores ... -- nightly (log
+...)`, `[i/n] done <rule> (...)` / `FAILED <rule>`, `nothing new since ...`, one status line per
+machine, `INPUT REJECTED: ...`, the end-of-run lines of the workflow (`RAFI: outcome of this run
+...`, one per machine: PASS / FAIL / skipped; rafi.ops.outcome), `N job(s) in T s; exit C`.
+Errors (stderr): `another nightly run is in progress ...`, `Snakemake is running in <dir> (pid
+N: ...) ...`, `cannot write <path>: <strerror> (<ERRNO>); ...; exiting with 73`.
 
 Examples:
   rafi nightly --cores 2                   # cron / systemd
@@ -56,6 +57,7 @@ import time
 from pathlib import Path
 
 from rafi.artefact import now_iso
+from rafi.cli import add_config_option
 from rafi.errors import LockHeld, RegistryError, SettingsError
 from rafi.ops import snakemake_api
 from rafi.ops.lock import (
@@ -66,7 +68,8 @@ from rafi.ops.lock import (
     night_locks,
     snakemake_lock_files,
 )
-from rafi.ops.project import Paths, config_path, load_config, settling
+from rafi.ops.outcome import RunFiles, outcome_lines, read_outcome
+from rafi.ops.project import Paths, config_path, load_config, settling, unmatched_folders
 from rafi.ops.state import clear_state, fingerprint, log_name, read_state, write_state
 from rafi.ops.status import (
     EXIT_CANTCREAT,
@@ -115,11 +118,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--dry-run", action="store_true", help="only show what would run (no lock, nothing written)"
     )
     parser.add_argument("--machine", help="only this machine (folder under raw/)")
-    parser.add_argument(
-        "--config-file",
-        default="config.yaml",
-        help="pipeline config (default config.yaml, relative to --directory)",
-    )
+    add_config_option(parser, relative_to="--directory")
     parser.add_argument("--directory", default=".", help="project directory (default .)")
     parser.add_argument(
         "--promote",
@@ -146,7 +145,7 @@ def run(args) -> int:
     directory = Path(args.directory).resolve()
     args.directory = directory
     try:
-        config = load_config(directory, args.config_file)
+        config = load_config(directory, args.config)
         paths = Paths.from_config(directory, config)
     except OSError as exc:
         print(f"rafi nightly: cannot read config: {exc}", file=sys.stderr)
@@ -168,6 +167,7 @@ def run(args) -> int:
     args.reports_dir = directory / str(run_settings(config)["reports_dir"])
     args.settle_s = float(overrides["settle_s"])
     args.settling = settling(paths, config, machines, args.settle_s)
+    args.unmatched = unmatched_folders(paths, config, machines)
 
     if args.dry_run:
         return _dry_run(args, paths, overrides)
@@ -314,7 +314,7 @@ def _dry_run(args, paths: Paths, overrides: dict) -> int:
     with open(os.devnull, "w", encoding="utf-8") as sink, snakemake_api.output_to(sink):
         outcome = snakemake_api.run(
             args.directory,
-            config_path(args.directory, args.config_file),
+            config_path(args.directory, args.config),
             overrides,
             cores=args.cores,
             dry_run=True,
@@ -366,13 +366,13 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
     _say_settling(args)
     # a night that left a settling file out must not let the next one take the fast path
     remember = not args.settling
-    fp = None if args.full_check else fingerprint(args.config_file, paths, overrides, scope)
+    fp = None if args.full_check else fingerprint(args.config, paths, overrides, scope)
     if fp is not None and read_state(paths, scope).get("fingerprint") == fp:
         # nothing changed since the last successful night: no need to ask Snakemake
         return _nothing_new(paths, machines, started)
     # One Snakemake run, no separate dry run (it would build the job graph twice): Snakemake
     # itself schedules no job when no new data arrived.
-    cfg = config_path(paths.directory, args.config_file)
+    cfg = config_path(paths.directory, args.config)
     print(
         f"rafi nightly: snakemake --cores {args.cores} --rerun-incomplete --keep-going "
         f"{'' if every else '--nolock '}--configfile {cfg} "
@@ -393,7 +393,7 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
             if not outcome.ok and not outcome.failed:  # it failed before any job: say why
                 print(f"rafi nightly: the pipeline cannot be planned: {outcome.error}", file=console_err)
     if outcome.ok and remember:
-        write_state(paths, fingerprint(args.config_file, paths, overrides, scope), scope)
+        write_state(paths, fingerprint(args.config, paths, overrides, scope), scope)
     else:
         clear_state(paths, scope)
     if not every or not outcome.ok:  # else rule fleet_index has written it
@@ -415,11 +415,27 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
             return _os_error(exc, paths.results_dir)
     statuses = [machine_status(paths, m, night_start) for m in machines]
     code = _report(statuses, pipeline_failed=not outcome.ok)
+    _say_outcomes(args, paths, machines, night_start)
     print(
         f"rafi nightly: {len(outcome.ran)} job(s) in {time.time() - started:.1f} s; "
         f"exit {code} (log {log_file})"
     )
     return code
+
+
+def _say_outcomes(args, paths: Paths, machines: list[str], since: float) -> None:
+    """The end-of-run lines of the workflow (:mod:`rafi.ops.outcome`), on the terminal: one per
+    machine, PASS / FAIL / skipped, the model offered, why it failed, the report."""
+    files = RunFiles(
+        str(paths.results_dir),
+        str(getattr(args, "reports_dir", paths.directory / "reports")),
+        str(paths.directory / "logs"),
+        since,
+        failures_said_below=False,
+    )
+    skipped = getattr(args, "unmatched", {})
+    for line in outcome_lines([(m, None) for m in machines], lambda m, p: read_outcome(m, p, files, skipped)):
+        print(line)
 
 
 def _refresh_fleet_page(paths: Paths, reports_dir: Path) -> None:

@@ -22,6 +22,7 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
+from rafi.cli import add_config_option
 from rafi.errors import SettingsError, short_path
 
 #: Default budget of recorded machine time, h.
@@ -30,7 +31,7 @@ DEFAULT_HOURS = 4.0
 
 def add_arguments(parser) -> None:
     parser.add_argument("--machine", required=True, help="the machine (named under machines: in the config)")
-    parser.add_argument("--config", default="config.yaml", help="config file (default: config.yaml)")
+    add_config_option(parser)
     parser.add_argument(
         "--hours",
         type=float,

@@ -86,6 +86,22 @@ def raw_logs(paths: Paths, config: dict, machine: str) -> list[Path]:
         return sorted(p for p in folder.glob("*") if p.is_file() and not p.name.startswith("."))
 
 
+def unmatched_folders(paths: Paths, config: dict, machines: list[str]) -> dict[str, str]:
+    """Machine -> why, of the ``machines`` none of whose files matches its ``input.pattern``
+    (the run skips them; :func:`rafi.readers.discovery.no_match_reason`)."""
+    from rafi.readers.discovery import no_match_reason
+
+    found = {}
+    for machine in machines:
+        try:
+            pattern = machine_settings(config, machine)["input"]["pattern"]
+        except (InputSpecError, SettingsError, KeyError):
+            continue
+        if not raw_logs(paths, config, machine):
+            found[machine] = no_match_reason(paths.raw_dir / machine, pattern, machine)
+    return found
+
+
 def _settling_function():
     """``settling_files(paths, settle_s, now) -> [(path, age_s)]`` of the readers (None if absent)."""
     for module in ("rafi.readers.discovery", "rafi.readers.input_spec"):

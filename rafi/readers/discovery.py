@@ -131,6 +131,56 @@ def settling_warning(path: str | os.PathLike, age_s: float, settle_s: float) -> 
     )
 
 
+#: How the warning about a machine folder that discovery leaves out starts (``discover_machines``).
+SKIP_PREFIX = "skipping machine folder "
+#: The section of the docs on reading a format or layout other than the native CSV.
+FOREIGN_FORMAT_DOCS = "docs/raw-format.md#bringing-your-own-layout"
+#: How many entries of a folder :func:`folder_contents` looks at, at most.
+SCAN_LIMIT = 10_000
+
+
+def folder_contents(folder: str | os.PathLike, shown: int = 5) -> str:
+    """What a machine folder holds, in words, for the warning of a folder no file of which matches
+    ``input.pattern``: the number of files, the first ``shown`` names (sorted; sub-folders
+    searched, hidden names left out) and each extension with its count.
+
+    ``"3 file(s): a.xlsx, b.xlsx, notes.txt (.xlsx 2, .txt 1)"``, ``"no file"`` for an empty
+    folder; only the first ``SCAN_LIMIT`` entries are looked at (``"at least"`` then). Names
+    only: nothing is opened.
+    """
+    root = Path(folder)
+    names, seen = [], 0
+    for dirpath, dirnames, filenames in os.walk(root):
+        dirnames[:] = sorted(d for d in dirnames if not d.startswith("."))
+        for name in filenames:
+            seen += 1
+            if not name.startswith("."):
+                names.append((Path(dirpath) / name).relative_to(root).as_posix())
+        if seen >= SCAN_LIMIT:
+            break
+    if not names:
+        return "no file"
+    names.sort()
+    counts: dict[str, int] = {}
+    for name in names:
+        ext = Path(name).suffix.lower() or "(no extension)"
+        counts[ext] = counts.get(ext, 0) + 1
+    exts = ", ".join(f"{ext} {n}" for ext, n in sorted(counts.items(), key=lambda kv: (-kv[1], kv[0])))
+    more = f", ... ({len(names) - shown} more)" if len(names) > shown else ""
+    at_least = "at least " if seen >= SCAN_LIMIT else ""
+    return f"{at_least}{len(names)} file(s): {', '.join(names[:shown])}{more} ({exts})"
+
+
+def no_match_reason(folder: str | os.PathLike, pattern, machine: str) -> str:
+    """Why discovery skips a machine folder none of whose files matches ``input.pattern``, what
+    the folder holds (:func:`folder_contents`) and where the docs say how to read another format."""
+    return bound_message(
+        f"no file matches input.pattern {pattern!r}; the folder holds {folder_contents(folder)}. "
+        f"A format or layout other than the native CSV needs machines.{machine}.input in the "
+        f"config: {FOREIGN_FORMAT_DOCS}"
+    )
+
+
 _KIND_WORDS = (
     (stat.S_ISDIR, "a folder"),
     (stat.S_ISFIFO, "a FIFO (named pipe)"),

@@ -41,8 +41,10 @@ from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of thi
 )
 from rafi.errors import InputSpecError, bound_message, short_path
 from rafi.readers.discovery import (
+    SKIP_PREFIX,
     is_inside,
     link_warning,
+    no_match_reason,
     not_a_file,
     not_a_file_warning,
     safe_name_problem,
@@ -638,12 +640,12 @@ def discover_logs(
         warnings += notes
         if not logs:
             pattern = normalised["pattern"]
-            why = f"no file matches input.pattern {pattern!r}"
+            why = no_match_reason(folder, pattern, machine)
             if refused or waiting:
                 why = f"no usable file ({len(refused)} refused link(s), {len(waiting)} settling)"
             elif paths:
                 why = f"no log in the {len(paths)} file(s) matching input.pattern {pattern!r}"
-            warnings.append(f"skipping machine folder {folder}: {why}")
+            warnings.append(f"{SKIP_PREFIX}{folder}: {why}")
             continue
         found[machine] = logs
     names = {p.name for p in folders}

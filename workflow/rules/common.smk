@@ -23,7 +23,8 @@
 #   targets    machine_targets(machine, what), all_pipeline_tables(), all_targets(),
 #              nightly_targets() (input functions: they wait for the checkpoint input_status)
 #   registry   candidate_model(wildcards), compare_prior(wildcards)
-#   messages   say_rejected_input(), say_failures() (onsuccess/onerror of the Snakefile)
+#   messages   say_rejected_input(), say_outcomes(), say_failures() (onsuccess/onerror of the
+#              Snakefile)
 #   report     workflow/rules/report_common.smk
 
 import logging
@@ -52,7 +53,9 @@ from rafi.readers.quarantine import (
 )
 from rafi.ops.code_deps import code_version as _code_version
 from rafi.ops.raw_hashes import CACHE_NAME as _RAW_HASH_CACHE, raw_stamps
+from rafi.ops.outcome import RunFiles, outcome_lines, read_outcome, skipped_folders
 from rafi.ops.run_messages import failure_lines
+from rafi.readers.discovery import SKIP_PREFIX
 from snakemake.utils import validate
 
 try:
@@ -146,6 +149,7 @@ def _discover():
         raise WorkflowError(f"RAFI: {exc}") from None
     for warning in warnings:
         _log.warning("RAFI: %s", warning)
+    SKIPPED_FOLDERS.update(skipped_folders(warnings, SKIP_PREFIX))
     return _by_unit(found)
 
 
@@ -159,6 +163,9 @@ def _by_unit(found):
         raise WorkflowError(f"RAFI: {exc}") from None
 
 
+#: Machine -> why, of the machine folders discovery left out (said again at the end of the run).
+SKIPPED_FOLDERS = {}
+#: Unit -> {log id: log source}.
 LOGS = _discover()
 
 #: Machine -> {log id: raw path} (a sheet-log: its workbook; a joined log: its own file).
@@ -450,6 +457,28 @@ def say_rejected_input():
     message = rejected_input_message()
     if message:
         snakemake_logger.warning(message)
+
+
+def outcome_rows():
+    """The ``(machine, probe)`` rows of the end-of-run lines: every machine of the run (those of
+    ``nightly_machines`` when it is set) and every machine folder discovery skipped; one row per
+    machine (probe None) until a machine has several probes."""
+    machines = set(_nightly_machines())
+    if not RUN["nightly_machines"]:
+        machines |= set(SKIPPED_FOLDERS)
+    return [(m, None) for m in sorted(machines)]
+
+
+def say_outcomes(failed=False):
+    """onsuccess/onerror (``failed``) of the Snakefile: one line per machine
+    (``rafi.ops.outcome``): PASS / FAIL / skipped / not judged in this run, the model offered,
+    why it failed, the report, and the warnings of its job logs. After a failure, say_failures
+    prints the failed jobs' lines below them (unless ``debug``)."""
+    below = failed and not _settings.truthy(RUN["debug"])
+    files = RunFiles(RESULTS_DIR, REPORTS_DIR, LOGS_DIR, STARTED, failures_said_below=below)
+    lines = outcome_lines(outcome_rows(), lambda m, p: read_outcome(m, p, files, SKIPPED_FOLDERS))
+    if lines:
+        print("\n" + "\n".join(lines), file=sys.stderr, flush=True)
 
 
 def say_failures():

@@ -115,6 +115,8 @@ rule method:
         runs=lambda w: machine_config(w.machine)["runs"],
         reference=lambda w: machine_config(w.machine)["reference"],
         probe_sign=lambda w: machine_config(w.machine)["checks"]["probe_sign"],
+        # its globs must match a file (rafi.method.run_checks)
+        speed_by_file=lambda w: machine_config(w.machine)["input"]["speed"]["constant_rpm_by_file"],
         # equilibrium, rank
         equilibrium=lambda w: machine_config(w.machine)["equilibrium"],
         rank=lambda w: machine_config(w.machine)["rank"],

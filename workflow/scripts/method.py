@@ -40,8 +40,10 @@ def runs_step(smk, log):
 
     import rafi.artefact
     from rafi.method.audit import stack_summaries
+    from rafi.method.run_checks import check_runs, log_spans
     from rafi.method.runs import find_runs
     from rafi.ops.clean_job import files_in, output_paths
+    from rafi.ops.run_messages import warning_line
     from rafi.readers.input_spec import log_id
     from rafi.readers.quarantine import read_input_status
 
@@ -92,6 +94,22 @@ def runs_step(smk, log):
         reference_window_s=smk.params.reference["window_s"],
     )
     print(f"{len(table)} runs; roles: {table['role'].value_counts().to_dict()}", flush=True)
+    # the config against the runs: an entry matching nothing stops here naming its key; a
+    # suspicious setting is a warning line (repeated in the end-of-run lines)
+    warnings = check_runs(
+        table,
+        log_spans(frames),
+        machine=smk.wildcards.machine,
+        runs=cfg,
+        reference_rule=smk.params.reference["rule"],
+        training_speeds_rpm=smk.params.training_speeds_rpm,
+        speed_tolerance_rpm=smk.params.speed_tolerance_rpm,
+        all_files=audit["file"].astype(str),
+        speed_by_file=smk.params.speed_by_file,
+    )
+    wildcards = ", ".join(f"{k}={v}" for k, v in smk.wildcards.items())
+    for warning in warnings:
+        print(warning_line("runs", wildcards, warning), flush=True)
     rafi.artefact.write_csv_atomic(table, smk.output.table)
     rafi.artefact.write_parquet_atomic(frame, smk.output.frame)
 
