@@ -89,7 +89,7 @@ def test_each_layout_reads_back_with_its_config(tmp_path, name):
 
 # --------------------------------------------------------------------------- end to end
 
-E2E_LAYOUTS = ("sensors-4", "sensors-6-diameter", "sensors-22", "sensors-40")
+E2E_LAYOUTS = ("sensors-4", "sensors-6-diameter", "sensors-22", "sensors-40", "probes-xyz")
 
 
 def init_proposal(proj: Path, machine: str, files: list[Path]) -> dict:
@@ -100,7 +100,7 @@ def init_proposal(proj: Path, machine: str, files: list[Path]) -> dict:
 
 
 @pytest.mark.slow
-def test_machines_of_4_to_40_sensors_run_end_to_end_from_rafi_inits_proposal(tmp_path):
+def test_machines_of_4_to_40_sensors_and_three_probes_run_end_to_end_from_rafi_inits_proposal(tmp_path):
     proj = copy_project(tmp_path / "proj", config=False)
     config = {"machines": {}}
     for name in E2E_LAYOUTS:
@@ -112,9 +112,15 @@ def test_machines_of_4_to_40_sensors_run_end_to_end_from_rafi_inits_proposal(tmp
     done = run_snakemake(proj, cores=2, timeout=1500)
     assert done.returncode == 0, done.stderr[-3000:]
 
-    for name in E2E_LAYOUTS:
+    probes = {"dX": "dX [um]", "dY": "dY [um]", "dZ": "dZ [um]"}  # rafi init's names for them
+    assert config["machines"]["probes-xyz"]["input"]["probes"] == {
+        p: {"column": c} for p, c in probes.items()
+    }
+    units = [n for n in E2E_LAYOUTS if n != "probes-xyz"] + [f"probes-xyz@{p}" for p in probes]
+    for unit in units:
+        name = unit.split("@")[0]
         sensors = LAYOUTS[name].sensors
-        results = proj / "results" / name
+        results = proj / "results" / unit
         runs = pd.read_parquet(results / "runs.parquet")
         assert run_sensors(runs) == sensors
         keys = pd.read_csv(results / "rank" / "key_sensors.csv")["sensor"].tolist()
@@ -133,9 +139,18 @@ def test_machines_of_4_to_40_sensors_run_end_to_end_from_rafi_inits_proposal(tmp
         assert len(replay) > 0
         audit = pd.read_csv(results / "audit.csv")
         assert (audit["status"] == "ok").all()
-        html = (proj / "reports" / name / "qualification.html").read_text(encoding="utf-8")
+        html = (proj / "reports" / unit / "qualification.html").read_text(encoding="utf-8")
         assert keys[0] in html
-        assert (proj / "reports" / name / "qualification.pdf").stat().st_size > 10_000
+        assert (proj / "reports" / unit / "qualification.pdf").stat().st_size > 10_000
+    # several probes: one report, every probe's verdict on its first page, a section per probe
+    page = (proj / "reports" / "probes-xyz" / "qualification.html").read_text(encoding="utf-8")
+    for probe, column in probes.items():
+        assert f'id="probe-{probe}"' in page and column in page
+        assert f"../probes-xyz@{probe}/qualification.html" in page
+    # the Y probe moves against the spindle's growth, with its own (negative) gain: its model says so
+    y_model = json.loads((proj / "results" / "probes-xyz@dY" / "comparison" / "best_model.json").read_text())
+    z_model = json.loads((proj / "results" / "probes-xyz@dZ" / "comparison" / "best_model.json").read_text())
+    assert y_model["model_id"] != z_model["model_id"]
     assert {p: p.read_bytes() for p in (proj / "raw").rglob("*") if p.is_file()} == raw_before
     again = run_snakemake(proj, "-n", cores=2)
     assert "Nothing to be done" in again.stdout + again.stderr

@@ -413,6 +413,7 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
         "outside": None,
         "n_samples": None,
         "probe": (settings["report"].get("instruments") or {}).get("probe") or "",
+        "measured": probe_words(settings),
     }
     runs = res.get("runs_csv")
     if runs is not None and "role" in runs:
@@ -531,3 +532,19 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
     out["interval"] = judged_interval(res, after, verdict, registry_dir) if after else None
     out.update(judged=judged, rafi=rafi_v, subject=f"model {judged['id']} ({judged['kind']}) on the machine")
     return out
+
+
+def probe_words(settings: dict) -> str:
+    """Where the probe measured, in words: its ``description`` (``input.probes``), else its
+    channel and, on the paper's rig, the spindle axis; e.g. ``"on channel 'ch1(um)'"``."""
+    inp = settings.get("input") or {}
+    disp = inp.get("displacement") or {}
+    probes = inp.get("probes") or {}
+    for name, probe in probes.items():
+        if probe.get("column") == disp.get("column"):
+            described = f": {probe['description']}" if probe.get("description") else ""
+            return f"on probe {name} (channel '{probe['column']}'{described})"
+    if settings.get("report", {}).get("paper_rig"):
+        return "on the spindle axis (Z)"
+    column = disp.get("column")
+    return f"on channel '{column}'" if column else "on the machine's displacement channel (disp_um)"

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -29,7 +29,7 @@ LAYOUT_SAMPLE_S = 30.0
 LAYOUT_TRAINING_RPM = (3000, 9000, 15000)
 LAYOUT_VALIDATION_RPM = 6000
 #: Hours of each constant-speed run.
-LAYOUT_RUN_H = 3.0
+LAYOUT_RUN_H = 2.0
 
 
 @dataclass(frozen=True)
@@ -47,7 +47,7 @@ class Layout:
     displacement_unit: str = "um"
     displacement_sign: int = 1
     delimiter: str = ","
-    extra: dict = field(default_factory=dict)
+    probes: tuple[tuple[str, str, float, float], ...] = ()  # name, header, gain, lag (s)
 
 
 def _derived(n_extra: int, seed: int) -> list[tuple[str, str, float]]:
@@ -98,6 +98,15 @@ def _layouts() -> dict[str, Layout]:
             tuple(twin + _derived(6, 22)),
             "native",
         ),
+        "probes-xyz": Layout(
+            "probes-xyz",
+            "a machining centre tested after ISO 230-3: 8 temperatures, probes in X, Y and Z, CSV",
+            tuple(f"T{i}" for i in range(1, 9)),
+            tuple((s, s, 1.0) for s in ("T6", "T8", "T9", "T13", "T1", "T4", "T11", "T16")),
+            "csv",
+            headers=tuple(f"T{i} [C]" for i in range(1, 9)),
+            probes=(("X", "dX [um]", 0.25, 900.0), ("Y", "dY [um]", -0.4, 300.0), ("Z", "dZ [um]", 1.0, 0.0)),
+        ),
         "sensors-40": Layout(
             "sensors-40",
             "a rig with 40 thermocouple channels, CSV with its own headers",
@@ -137,6 +146,10 @@ def layout_frame(layout: Layout, log: pd.DataFrame, seed: int) -> pd.DataFrame:
         value = _lowpass(mix, LAYOUT_SAMPLE_S, 600.0) + rng.normal(0.0, 0.02, len(mix))
         out[name] = np.round(value, 2)
     out["disp_um"] = log["disp_um"].to_numpy(dtype=float)
+    disp = out["disp_um"].to_numpy()
+    for name, _header, gain, lag_s in layout.probes:
+        moved = gain * (_lowpass(disp - disp[0], LAYOUT_SAMPLE_S, lag_s) if lag_s > 0 else disp - disp[0])
+        out[f"probe_{name}"] = np.round(moved + rng.normal(0.0, 0.05, len(disp)), 3)
     return out
 
 
@@ -172,7 +185,11 @@ def _write_csv(frame: pd.DataFrame, path: Path, layout: Layout) -> None:
     table["Drehzahl [1/min]"] = frame["speed_rpm"].round(0).astype(int)
     for header, name in zip(layout.headers, layout.sensors):
         table[header] = frame[name].round(2)
-    table[layout.displacement_header] = np.round(disp, 6 if layout.displacement_unit == "mm" else 3)
+    if layout.probes:
+        for name, header, _gain, _lag in layout.probes:
+            table[header] = frame[f"probe_{name}"]
+    else:
+        table[layout.displacement_header] = np.round(disp, 6 if layout.displacement_unit == "mm" else 3)
     write_text_atomic(path, table.to_csv(index=False, sep=layout.delimiter, lineterminator="\n"))
 
 
@@ -225,6 +242,9 @@ def layout_config(name: str) -> dict:
             "sign": layout.displacement_sign,
         },
     }
+    if layout.probes:
+        block["input"]["displacement"] = {"unit": "um"}
+        block["input"]["probes"] = {name: {"column": header} for name, header, _g, _l in layout.probes}
     return block
 
 

@@ -89,6 +89,7 @@ LOGS_DIR = "logs"
 
 wildcard_constraints:
     machine=r"[^/]+",
+    folder=r"[^/@]+",
     stem=r"[^/]+",
 
 
@@ -174,6 +175,15 @@ RAW = {m: {key: src["path"] for key, src in logs.items()} for m, logs in LOGS.it
 #: What to qualify: the folders of ``raw_dir`` holding at least one matching file, a machine with
 #: several probes as one unit per probe (``<machine>@<probe>``).
 MACHINES = sorted(RAW)
+
+#: Machine folder -> its probes, of the machines with several probes (``input.probes``).
+PROBES = {}
+for _unit in MACHINES:
+    _folder, _probe = _settings.split_unit(_unit)
+    if _probe is not None:
+        PROBES.setdefault(_folder, []).append(_probe)
+
+unit_name = _settings.unit_name
 
 
 def raw_files(machine):
@@ -417,10 +427,23 @@ def all_pipeline_tables():
     return [machine_targets(m, "tables") for m in MACHINES]
 
 
+def probes_report_targets(folder):
+    """Input function: the report of machine ``folder`` with several probes (rule probes_report),
+    once every probe has a report (none while one of them is skipped)."""
+
+    def _targets(wildcards):
+        if any(machine_skipped(unit_name(folder, p)) for p in PROBES[folder]):
+            return []
+        return list(report_paths(folder).values())
+
+    return _targets
+
+
 def all_targets():
     """Input functions (one per machine), ``INPUT_CHECK`` and the fleet overview: everything
-    (``rule all``)."""
-    return [machine_targets(m, "all") for m in MACHINES] + [INPUT_CHECK, FLEET_INDEX]
+    (``rule all``); a machine with several probes also gets its report of every probe."""
+    probes = [probes_report_targets(f) for f in sorted(PROBES)]
+    return [machine_targets(m, "all") for m in MACHINES] + probes + [INPUT_CHECK, FLEET_INDEX]
 
 
 def nightly_targets():

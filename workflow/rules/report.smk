@@ -105,3 +105,35 @@ rule skipped_report:
         code=code_version("skipped_report"),
     script:
         "../scripts/skipped_report.py"
+
+
+# A machine with several probes (input.probes): one page with every probe's verdict, then each
+# probe's own report (the PDF holds their pages). Its folder name is a machine's, so it would
+# also match rule report's output: the ruleorder says which rule makes it.
+ruleorder: probes_report > report
+
+
+rule probes_report:
+    """Qualification report of a machine with several probes: every probe's verdict on page 1,
+    a section per probe, then each probe's own report."""
+    input:
+        unpack(probes_report_inputs),
+    output:
+        html=report(
+            f"{REPORTS_DIR}/{{folder}}/qualification.html",
+            caption="../report/probes.rst",
+            category="Qualification",
+            subcategory="{folder}",
+            labels={"machine": "{folder}", "file": "qualification.html"},
+        ),
+        pdf=f"{REPORTS_DIR}/{{folder}}/qualification.pdf",
+    log:
+        f"{LOGS_DIR}/{{folder}}/probes_report.log",
+    conda:
+        "../envs/rafi.yaml"
+    params:
+        code=code_version("probes_report"),
+        probes=lambda w: PROBES[w.folder],
+        settings=lambda w: {p: machine_config(unit_name(w.folder, p)) for p in PROBES[w.folder]},
+    script:
+        "../scripts/probes_report.py"

@@ -53,6 +53,21 @@ def report_inputs(wildcards):
     return inputs
 
 
+def probes_report_inputs(wildcards):
+    """Named inputs of rule probes_report: every probe's comparison summary, per-run table and
+    registry decision (``summary_<probe>``, ...) and, as ``reports``, every probe's report (HTML)
+    in the order of ``input.probes``."""
+    folder = wildcards.folder
+    inputs = {}
+    for probe in PROBES[folder]:
+        unit = unit_name(folder, probe)
+        inputs[f"summary_{probe}"] = out("comparison", unit)
+        inputs[f"per_run_{probe}"] = out("comparison_per_run", unit)
+        inputs[f"decision_{probe}"] = out("decision", unit)
+    inputs["reports"] = [report_paths(unit_name(folder, p))["html"] for p in PROBES[folder]]
+    return inputs
+
+
 def report_settings(machine):
     """``report:`` of ``machine`` (its effective settings)."""
     return machine_config(machine)["report"]

@@ -1,0 +1,118 @@
+"""The qualification report of a machine with several probes: the verdict of every probe on its
+first page, then a section per probe, then every probe's own report (the PDF holds their pages).
+
+A machine of ``input.probes`` is qualified one probe at a time (``<machine>@<probe>``: its own
+model, chosen by the same training-run cross-validation, its registry and its report). This page
+puts them together for the engineer who signs: nothing here is computed anew, every number is
+read from the tables of the probes' own runs.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Mapping
+from pathlib import Path
+
+import pandas as pd
+
+from rafi.report.format import fmt_num
+
+
+def _json(path) -> dict:
+    with open(path, encoding="utf-8") as fh:
+        return json.load(fh)
+
+
+def probe_row(probe: str, settings: Mapping, paths: Mapping[str, str], report_href: str) -> dict:
+    """What the first page says of one probe, from its unit's tables.
+
+    Parameters
+    ----------
+    probe : str
+        The probe's name (a key of ``input.probes``).
+    settings : Mapping
+        The unit's effective settings (``rafi.settings.machine_settings`` of ``<machine>@<probe>``).
+    paths : Mapping
+        ``summary`` (comparison/summary.csv), ``per_run`` (comparison/per_run.csv) and
+        ``decision`` (registry/decision.json) of the unit.
+    report_href : str
+        The probe's own report, relative to this page.
+
+    Returns
+    -------
+    dict
+        ``probe``, ``channel``, ``description``, ``unit``/``sign`` (as configured), ``verdict``
+        (``PASS`` / ``FAIL``: the offered model's gates on the validation runs), ``model`` (its
+        kind), ``worst_um`` / ``before_um`` (its worst validation residual and the worst
+        uncompensated displacement), ``decision`` (the registry's), ``runs`` (one dict per
+        validation run of the offered model) and ``href``.
+    """
+    disp = settings["input"]["displacement"]
+    described = (settings["input"].get("probes") or {}).get(probe, {}).get("description")
+    summary = pd.read_csv(paths["summary"])
+    offered = summary[summary["champion"].astype(bool)]
+    row = offered.iloc[0] if len(offered) else None
+    per_run = pd.read_csv(paths["per_run"])
+    runs = []
+    if row is not None:
+        mine = per_run[per_run["model"].astype(str) == str(row["model"])]
+        for _, r in mine.iterrows():
+            runs.append(
+                {
+                    "run": str(r["run_id"]),
+                    "before": fmt_num(r.get("max_abs_before_um"), 2),
+                    "after": fmt_num(r.get("max_abs_after_um"), 2),
+                }
+            )
+    decision = _json(paths["decision"])
+    passed = bool(row["passed"]) if row is not None else False
+    return {
+        "probe": probe,
+        "channel": disp["column"],
+        "description": described or "",
+        "unit": disp["unit"],
+        "sign": disp["sign"],
+        "verdict": "PASS" if passed else "FAIL",
+        "model": str(row["kind"]) if row is not None else "none",
+        "worst_um": fmt_num(row["max_abs_after_um"], 2) if row is not None else "",
+        "before_um": fmt_num(row["max_abs_before_um"], 2) if row is not None else "",
+        "decision": str(decision.get("decision", "")),
+        "runs": runs,
+        "href": report_href,
+    }
+
+
+def probes_context(machine: str, rows: list[dict]) -> dict:
+    """The template's context: the machine, its probes' rows and the machine's verdict (PASS only
+    when every probe passes)."""
+    return {
+        "machine": machine,
+        "probes": rows,
+        "verdict": "PASS" if rows and all(r["verdict"] == "PASS" for r in rows) else "FAIL",
+        "n_pass": sum(r["verdict"] == "PASS" for r in rows),
+    }
+
+
+def render_probes_html(ctx: dict) -> str:
+    """The page as HTML (jinja2, ``templates/probes.html.j2``)."""
+    import jinja2
+
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("rafi.report", "templates"),
+        autoescape=jinja2.select_autoescape(["html", "j2"]),
+        undefined=jinja2.StrictUndefined,
+    )
+    return env.get_template("probes.html.j2").render(**ctx)
+
+
+def render_probes_pdf(html: str, probe_reports: list[str | Path]) -> bytes:
+    """The PDF: this page, then every page of each probe's own report (its HTML, rendered again
+    by WeasyPrint: the figures are embedded, so the HTML stands alone)."""
+    from weasyprint import HTML
+
+    cover = HTML(string=html).render()
+    pages = list(cover.pages)
+    for path in probe_reports:
+        text = Path(path).read_text(encoding="utf-8")
+        pages += HTML(string=text, base_url=str(Path(path).parent)).render().pages
+    return cover.copy(pages).write_pdf()

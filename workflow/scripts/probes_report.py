@@ -1,0 +1,26 @@
+"""Rule probes_report: the probes' tables and reports -> reports/<machine>/qualification.{html,pdf}
+of a machine with several probes (rafi.report.probes_page)."""
+
+from _glue import step
+
+with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
+    import os
+
+    from rafi.artefact import write_bytes_atomic, write_text_atomic
+    from rafi.report.probes_page import probe_row, probes_context, render_probes_html, render_probes_pdf
+
+    smk = snakemake  # noqa: F821
+    page_dir = os.path.dirname(smk.output.html)
+    rows = []
+    for probe, html in zip(smk.params.probes, smk.input.reports):
+        paths = {key: smk.input[f"{key}_{probe}"] for key in ("summary", "per_run", "decision")}
+        href = os.path.relpath(html, page_dir)
+        rows.append(probe_row(probe, smk.params.settings[probe], paths, href))
+    ctx = probes_context(smk.wildcards.folder, rows)
+    html = render_probes_html(ctx)
+    pdf = render_probes_pdf(html, list(smk.input.reports))
+    write_text_atomic(smk.output.html, html)
+    write_bytes_atomic(smk.output.pdf, pdf)
+    print(
+        f"{ctx['verdict']}: {ctx['n_pass']} of {len(rows)} probe(s) pass; wrote {smk.output.html}", flush=True
+    )
