@@ -47,7 +47,7 @@ from rafi.readers.mapped_cells import (
     text,
 )
 from rafi.readers.mapped_tables import read_table
-from rafi.readers.mapped_time import assumed_notes, row_times, row_times_error, timestamps
+from rafi.readers.mapped_time import assumed_notes, has_clock, row_times, row_times_error, timestamps
 from rafi.readers.parsing import (
     NUMERIC_COLUMNS,
     read_file_bytes,
@@ -332,7 +332,8 @@ def _mapped_metadata(
     -------
     dict
         ``format``, ``sheet`` (xlsx), ``columns`` (canonical -> header used),
-        ``sample_period_s`` (when the mapping gives it) and ``assumed`` (when not empty).
+        ``sample_period_s`` (when the mapping gives it), ``assumed`` (when not empty) and
+        ``clock`` ``False`` when the times are not dates (:func:`has_clock`).
     """
     meta: dict = {"format": spec["format"]}
     if table.sheet is not None:
@@ -343,6 +344,8 @@ def _mapped_metadata(
     assumed = assumed_notes(spec, speed=speed)
     if assumed:
         meta["assumed"] = assumed
+    if not has_clock(spec):
+        meta["clock"] = False  # elapsed times from NO_CLOCK_EPOCH: no date (rafi.method.runs)
     return meta
 
 
