@@ -22,7 +22,7 @@ from hypothesis import strategies as st
 from project_copy import copy_project, run_snakemake
 
 from rafi import REQUIRED_COLUMNS
-from rafi.contract.input import NO_CLOCK_EPOCH
+from rafi.contract import NO_CLOCK_EPOCH
 from rafi.errors import InputSpecError, RawFormatError
 from rafi.method.clean import clean_log
 from rafi.readers.checks import check_file, check_log

@@ -32,6 +32,7 @@ from rafi.contract.input import (
     INPUT_DEFAULTS,
     INPUT_SCHEMA,
     NATIVE_KEYS,
+    NO_CLOCK_EPOCH,
     TIME_KINDS,
 )
 from rafi.contract.keys import Section, Setting
@@ -82,6 +83,7 @@ __all__ = [
     "TABLES_BEGIN",
     "TABLES_END",
     "TIME_KINDS",
+    "NO_CLOCK_EPOCH",
     "Section",
     "Setting",
     "config_schema",

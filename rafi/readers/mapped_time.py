@@ -24,7 +24,7 @@ import datetime as dt
 import numpy as np
 import pandas as pd
 
-from rafi.contract.input import NO_CLOCK_EPOCH
+from rafi.contract import NO_CLOCK_EPOCH
 from rafi.readers.mapped_cells import Table, numeric
 from rafi.readers.parsing import TIME_MAX, TIME_MIN
 
