@@ -305,6 +305,19 @@ def test_residual_statement_numbers_come_from_the_tables():
     assert (st["outside"], st["n_samples"]) == (120, 2520) and st["probe"] == "KJ2 inductive"
     no_noise = _validation_summary().drop(columns="noise_floor_um")
     assert residual_statement({"validation_summary": no_noise, "runs_csv": runs}, _settings()) is None
+    # one training speed is printed once, never "3 000-3 000 r/min"
+    one = {"validation_summary": _validation_summary(), "runs_csv": runs.iloc[[1, 3]]}
+    assert residual_statement(one, _settings())["speeds"] == "3\u00a0000\u00a0r/min"
+
+
+def test_one_trained_speed_is_printed_once_in_the_deployed_section_and_the_comparison():
+    from rafi.report.comparison_section import _trained_speeds
+    from rafi.report.deployed_section import _speed_span
+
+    assert _speed_span([3000.0, 3000.0]) == "3\u00a0000 r/min"
+    assert _speed_span([3000.0, 18000.0]) == "3\u00a0000 \u2026 18\u00a0000 r/min"
+    assert _trained_speeds([3000.0, 3000.0]) == "trained speed 3\u00a0000"
+    assert _trained_speeds([9000.0, 3000.0, 18000.0]) == "trained speeds 3\u00a0000\u201318\u00a0000"
 
 
 def test_worst_residual_of_a_decision_carries_its_runs_noise_floor():
