@@ -336,7 +336,7 @@ def test_defaults():
     assert spec["pattern"] == "*.xlsx" and spec["sheet"] == 0 and spec["header_row"] == 1
     assert spec["time"] == {
         "kind": "timestamp",
-        "start": "2000-01-01T00:00:00",
+        "start": None,
         "format": None,
         "period_s": None,
     }

@@ -22,9 +22,10 @@ from hypothesis import strategies as st
 from project_copy import copy_project, run_snakemake
 
 from rafi import REQUIRED_COLUMNS
+from rafi.contract import NO_CLOCK_EPOCH
 from rafi.errors import InputSpecError, RawFormatError
 from rafi.method.clean import clean_log
-from rafi.readers.checks import check_log
+from rafi.readers.checks import check_file, check_log
 from rafi.readers.input_assumed import constant_speed
 from rafi.readers.input_spec import INPUT_SCHEMA, discover_machines, normalise_input_spec
 from rafi.readers.logs import read_log
@@ -127,8 +128,31 @@ def test_start_is_optional_and_blank_lines_are_not_samples(tmp_path):
     path.write_text("\n".join(text[:3] + [""] + text[3:]) + "\n", encoding="utf-8")
     frame = read_log(path, bare_spec(60.0, constant_rpm=1500))
     assert list(frame.index) == [2, 3, 5, 6, 7, 8]  # the blank line 4 is skipped, not a sample
-    assert list(frame["time"]) == list(pd.date_range("2000-01-01", periods=6, freq="60s"))
-    assert "a nominal date" in frame.attrs["metadata"]["assumed"]["time"]
+    # no time.start: the times count from NO_CLOCK_EPOCH for the arithmetic, and are no date
+    assert list(frame["time"]) == list(pd.date_range(NO_CLOCK_EPOCH, periods=6, freq="60s"))
+    assert frame.attrs["metadata"]["clock"] is False
+    assert "no date (input.time.start not set)" in frame.attrs["metadata"]["assumed"]["time"]
+    dated = read_log(path, bare_spec(60.0, "2026-01-01", constant_rpm=1500))
+    assert "clock" not in dated.attrs["metadata"]
+    assert "no date" not in dated.attrs["metadata"]["assumed"]["time"]
+
+
+def test_elapsed_seconds_without_a_start_are_no_clock_and_with_one_are_dates(tmp_path):
+    log = generated(30, 60.0, 1500.0, "2026-01-01")
+    elapsed = log.assign(time=np.arange(len(log)) * 60.0 - 300.0)  # 5 min of pre-trigger samples
+    path = tmp_path / "elapsed.csv"
+    elapsed.to_csv(path, index=False)
+    frame = read_log(path, {"format": "csv", "time": {"kind": "elapsed_s"}})
+    assert frame.attrs["metadata"]["clock"] is False
+    assert frame["time"].iloc[0] == pd.Timestamp(NO_CLOCK_EPOCH) - pd.Timedelta(seconds=300)
+    # before the epoch, but a log without a clock has none to be unset
+    assert "clock_unset" not in [w.check for w in check_file(frame, path).warnings]
+    dated = read_log(path, {"format": "csv", "time": {"kind": "elapsed_s", "start": "2026-03-02T06:00"}})
+    assert "clock" not in dated.attrs["metadata"]
+    assert dated["time"].iloc[0] == pd.Timestamp("2026-03-02T05:55")
+    unset = frame.copy()
+    unset.attrs = {**frame.attrs, "metadata": {**frame.attrs["metadata"], "clock": True}}
+    assert "clock_unset" in [w.check for w in check_file(unset, path).warnings]  # the check can fire
 
 
 # --------------------------------------------------------------------------- speed per file

@@ -302,7 +302,11 @@ def test_why_rafi_fails_is_computed_from_the_runs():
     res = {"model": {"speeds": [{"speed_rpm": 3000}, {"speed_rpm": 9000}]}}
     f = rafi_failure(bad, res, {"reference": {"rule": "log_start"}})
     assert (f["n"], f["n_extrapolated"], f["max_temp_pct"]) == (2, 1, 25.0)
-    assert f["max_speed_pct"] is None and f["trained_speeds"] == [3000.0, 9000.0] and f["log_start"]
+    assert (
+        f["max_speed_pct"] is None
+        and f["trained_speeds"] == "trained speeds 3\u00a0000\u20139\u00a0000"
+        and f["log_start"]
+    )
     assert [r["outside_temp_pct"] for r in f["runs"]] == [25.0, 5.0]
     frames = {"rafi": "rafi", "passed": pd.DataFrame({"rafi": [False], "ridge": [True]})}
     beside = champion_beside_rafi(frames, "ridge", "ridge")

@@ -197,7 +197,9 @@ def test_section_with_ambient_sensor_and_instruments(synthetic):
     assert a[1] == "2026-01-05 08:00:00" and a[2] == "10:13:20" and a[5] == "10\u00a0s"
     assert a[-3:] == ["20.00", "21.50", "1.50"]
     b = [c["text"] for c in logs["rows"][1]]
-    assert b[1] == b[2] == "\u2013" and b[5] == "5\u00a0s" and b[-1] == "0.00"
+    # log B has no clock: its span in hours since its first sample (200 steps of 5 s), no date
+    assert (b[1], b[2]) == ("+0.00\u00a0h", "+0.28\u00a0h") and b[5] == "5\u00a0s" and b[-1] == "0.00"
+    assert ctx["no_clock"] == ["b.csv"] and "b.csv has elapsed" in html
     assert len(per_run["headers"]) == len(per_run["widths"]) == len(per_run["rows"][0])
     assert len(logs["headers"]) == len(logs["widths"]) == len(logs["rows"][0])
     drift = [r[-2]["html"] for r in per_run["rows"]]
@@ -223,6 +225,25 @@ def test_section_one_run_per_log_is_one_table(synthetic):
     variation = next(v for h, v in row.items() if h.startswith("environmental"))
     assert variation == "0.75"
     assert "Logs and the thermal drift of their runs" in _render_section(ctx)
+
+
+def test_a_log_without_a_clock_shows_hours_since_its_first_sample_never_a_date():
+    """An elapsed-seconds log without input.time.start: runs.parquet's time is NaT (rafi.method.runs)
+    and every span is hours on the log's clock (log_t_s), whatever the epoch behind the times."""
+    cut = [("c#1", 0, 359), ("c#2", 360, 720)]
+    log = _log("c.csv", 721, 20, cut, clock=False, dz_amp={"c#1": 1, "c#2": 2})
+    runs = pd.DataFrame(
+        {"run_id": ["c#1", "c#2"], "file": ["c.csv"] * 2, "role": ["training", "validation_single"]}
+    )
+    ctx = section_test_record({"runs_parquet": log, "runs_csv": runs}, _settings())
+    html = _render_section(ctx)
+    (logs,) = html_tables(html, "num test-logs")
+    (per_run,) = html_tables(html, "num test-runs")
+    assert [c["text"] for c in logs["rows"][0]][1:3] == ["+0.00\u00a0h", "+4.00\u00a0h"]  # 720 x 20 s
+    spans = [[c["text"] for c in row][3:5] for row in per_run["rows"]]
+    assert spans == [["+0.00\u00a0h", "+1.99\u00a0h"], ["+2.00\u00a0h", "+4.00\u00a0h"]]  # 359, 360 x 20 s
+    assert "the log has elapsed" in html and "input.time.start" in html
+    assert "Times are the logged clock" not in html and not re.search(r"\b(19|20)\d\d-\d\d-\d\d", html)
 
 
 def test_section_without_runs_parquet_still_lists_the_conditions():
@@ -284,6 +305,19 @@ def test_residual_statement_numbers_come_from_the_tables():
     assert (st["outside"], st["n_samples"]) == (120, 2520) and st["probe"] == "KJ2 inductive"
     no_noise = _validation_summary().drop(columns="noise_floor_um")
     assert residual_statement({"validation_summary": no_noise, "runs_csv": runs}, _settings()) is None
+    # one training speed is printed once, never "3 000-3 000 r/min"
+    one = {"validation_summary": _validation_summary(), "runs_csv": runs.iloc[[1, 3]]}
+    assert residual_statement(one, _settings())["speeds"] == "3\u00a0000\u00a0r/min"
+
+
+def test_one_trained_speed_is_printed_once_in_the_deployed_section_and_the_comparison():
+    from rafi.report.comparison_section import _trained_speeds
+    from rafi.report.deployed_section import _speed_span
+
+    assert _speed_span([3000.0, 3000.0]) == "3\u00a0000 r/min"
+    assert _speed_span([3000.0, 18000.0]) == "3\u00a0000 \u2026 18\u00a0000 r/min"
+    assert _trained_speeds([3000.0, 3000.0]) == "trained speed 3\u00a0000"
+    assert _trained_speeds([9000.0, 3000.0, 18000.0]) == "trained speeds 3\u00a0000\u201318\u00a0000"
 
 
 def test_worst_residual_of_a_decision_carries_its_runs_noise_floor():

@@ -422,3 +422,25 @@ def test_window_applies_to_matching_logs_only():
     table, _ = runs({"a": a, "b": b}, windows=windows)
     assert (table.loc[table["file"] == "b", "role"] == "excluded").all()
     assert (table.loc[table["file"] == "a", "role_source"] != "window").all()
+
+
+# --------------------------------------------------------------------------- no clock
+
+
+def test_a_log_without_a_clock_gives_runs_without_clock_times(tmp_path):
+    """A clean frame the reader marked as having no clock (elapsed seconds without
+    input.time.start: ``attrs['metadata']['clock']`` False), read back from its Parquet file as
+    rule runs reads it: the runs carry no start/end time and runs.parquet no time, but the same
+    spans on the log's clock as the dated log."""
+    frame, _ = schedule_log(CONTINUOUS[:3])
+    path = tmp_path / "log.parquet"
+    undated = frame.copy()
+    undated.attrs = {"metadata": {"clock": False}}
+    undated.to_parquet(path)
+    table, rf = runs({"log": pd.read_parquet(path)})
+    dated_table, dated_rf = runs({"log": frame})
+    assert (table["start_time"] == "").all() and (table["end_time"] == "").all()
+    assert (dated_table["start_time"] != "").all()
+    assert rf["time"].isna().all() and dated_rf["time"].notna().all()
+    cols = ["run_id", "start_s", "end_s", "role"]
+    pd.testing.assert_frame_equal(table[cols], dated_table[cols])

@@ -17,7 +17,7 @@ INPUT_DEFAULTS: dict = {
     "skip_rows": 0,
     "sensors": None,
     "columns": {},
-    "time": {"kind": "timestamp", "start": "2000-01-01T00:00:00", "format": None, "period_s": None},
+    "time": {"kind": "timestamp", "start": None, "format": None, "period_s": None},
     "speed": {"constant_rpm": None, "constant_rpm_by_file": {}},
     "sample_period_s": None,
     "displacement": {"column": None, "unit": "um", "sign": 1},
@@ -68,6 +68,12 @@ DEFAULT_PATTERN = {"native": "*.csv", "csv": "*.csv", "xlsx": "*.xlsx"}
 #: ``input.time.kind``: a column of timestamps, a column of elapsed seconds, or no time column
 #: (row k of the file at ``start + k * period_s``).
 TIME_KINDS = ("timestamp", "elapsed_s", "none")
+
+#: ``input.time.start`` left out (``None``) with ``elapsed_s`` or ``none``: the log has no clock.
+#: Its times are counted from this instant for the arithmetic only (never shown as a date): the
+#: frame's ``attrs['metadata']['clock']`` is ``False``, the runs have no clock time and the report
+#: shows hours since the log's first sample.
+NO_CLOCK_EPOCH = "2000-01-01T00:00:00"
 
 #: Keys meaningful for the native format (everything else is for csv/xlsx).
 NATIVE_KEYS = {"format", "pattern", "sample_period_s", "sensors"}
@@ -141,7 +147,7 @@ INPUT_SCHEMA: dict = {
             "additionalProperties": False,
             "properties": {
                 "kind": {"enum": list(TIME_KINDS)},
-                "start": {"type": "string", "minLength": 1},
+                "start": {"type": ["string", "null"], "minLength": 1},
                 "format": {"type": ["string", "null"]},
                 "period_s": {"type": "number", "exclusiveMinimum": 0},
             },

@@ -346,7 +346,8 @@ class LogArrays:
 
 def log_arrays(frame: pd.DataFrame) -> LogArrays:
     """The :class:`LogArrays` of a clean frame (``t_s`` from ``time`` and one segment where the
-    frame has no such column)."""
+    frame has no such column); no clock (``NaT``) where the reader marked the log as having none
+    (``attrs['metadata']['clock']`` False: elapsed seconds without ``input.time.start``)."""
     n_rows = len(frame)
     if "t_s" in frame:
         t_s = frame["t_s"].to_numpy(dtype=float)
@@ -356,9 +357,11 @@ def log_arrays(frame: pd.DataFrame) -> LogArrays:
     seg = frame["segment"].to_numpy(dtype="int64") if "segment" in frame else np.zeros(n_rows, "int64")
     sensors = frame_sensors(frame)
     temps = np.column_stack([frame[s].to_numpy(dtype=float, na_value=np.nan) for s in sensors])
+    meta = frame.attrs.get("metadata")
+    clock = "time" in frame and not (isinstance(meta, dict) and meta.get("clock") is False)
     times = (
         frame["time"].to_numpy(dtype="datetime64[ns]")
-        if "time" in frame
+        if clock
         else np.full(n_rows, np.datetime64("NaT"), dtype="datetime64[ns]")
     )
     return LogArrays(

@@ -320,7 +320,8 @@ def check_file(
         sig, where, training_speeds_rpm, speed_tolerance_rpm, check_low=not speed_unit
     )
     report.warnings += units.metadata_machine(meta, machine)
-    report.warnings += units.clock_unset(frame["time"], where, lines)
+    if meta.get("clock") is not False:  # a log without a clock has none to be unset
+        report.warnings += units.clock_unset(frame["time"], where, lines)
     report.probe_sign = channels.probe_sign(sig)
     return report
 

@@ -22,6 +22,7 @@ from rafi.readers.checks_base import (
     start_level,
     whole_log_warning,
 )
+from rafi.readers.checks_jumps import displacement_jumps
 
 #: Coolest sensor's start level above this (in the file's numbers) -> deg F.
 DEGF_ABOVE = 40.0
@@ -65,11 +66,6 @@ GLITCH_MEDIAN_ROWS = 7
 #: The displacement's level stepping by this much (um) to 1/1000 of its level before (or back):
 #: the logger switched between um and mm part way.
 MM_STEP_UM = 2.0
-#: The displacement's level stepping by this much (um) and this share of its 2nd-98th percentile
-#: range from one row to the next (thermal growth is slow): a bumped or re-zeroed probe (warning);
-#: to minus its level before (within 10 %, or 1 um): a probe whose sign flips (error).
-JUMP_UM = 5.0
-JUMP_SHARE = 0.25
 #: Plausible thermal growth per kelvin of the hottest sensor's change (um/K): outside -> warning
 #: (inches, mils, a wrong scale factor).
 GROWTH_PER_K_UM = (0.2, 15.0)
@@ -376,7 +372,7 @@ def displacement_unit(
             column="disp_um",
         )
     _mm_step(sig, where)
-    jumps = _jumps(sig, where, spread)
+    jumps = displacement_jumps(sig, where, spread)
     if rise < mm_min_temp_rise_k or spread <= 0:
         return jumps
     per_k = spread / rise
@@ -399,36 +395,6 @@ def displacement_unit(
         ),
         *jumps,
     ]
-
-
-def _jumps(sig: Signals, where: Where, spread: float) -> list[CheckWarning]:
-    """The displacement's level jumping from one row to the next (by :data:`JUMP_UM` and
-    :data:`JUMP_SHARE` of ``spread``): error if it jumps to minus its level (the probe's sign
-    flips part way), else a warning (a bumped or re-zeroed probe)."""
-    label = where.label("disp_um")
-    for k, b, a in level_steps(sig.values["disp_um"], max(JUMP_UM, JUMP_SHARE * spread)):
-        line = int(sig.lines[k])
-        if abs(a + b) <= max(1.0, 0.1 * abs(b)):
-            raise where.check_error(
-                "probe_sign",
-                f"{label} jumps from {fmt(b)} to {fmt(a)} um at line {line}: the probe's sign flips "
-                "there (thermal growth does not jump); write one sign for the whole log",
-                line=line,
-                column="disp_um",
-            )
-        return [
-            CheckWarning(
-                "displacement_step",
-                "disp_um",
-                f"{label} jumps from {fmt(b)} to {fmt(a)} um at line {line} ({fmt(abs(a - b))} um from "
-                f"one row to the next, {100 * abs(a - b) / spread:.0f} % of its range; thermal growth "
-                "does not jump): a bumped or re-zeroed probe, or a changed offset; the rows after it "
-                "are not comparable with the rows before",
-                line,
-                line,
-            )
-        ]
-    return []
 
 
 def _mm_step(sig: Signals, where: Where) -> None:

@@ -5,7 +5,8 @@ spindle speed with no speed column. The mapping then gives what the file does no
 (``docs/raw-format.md``, "Logs without a time or speed column"):
 
 * ``time: {kind: none, period_s: 60, start: "2026-03-02T06:00:00"}``: data row k of a file is
-  at ``start + k * period_s`` (``start`` optional: a nominal 2000-01-01 otherwise);
+  at ``start + k * period_s`` (``start`` optional: without it the log has no clock,
+  :func:`rafi.readers.mapped_time.has_clock`);
 * ``speed: {constant_rpm: 3000}`` for every file of the machine, and/or
   ``speed: {constant_rpm_by_file: {"<glob on the file name>": 3000}}`` per file (a matching
   glob wins over ``constant_rpm``); no speed column is read then.

@@ -397,12 +397,13 @@ def partner_input_spec(spec: dict) -> tuple[dict, list[str]]:
 
 
 def check_time(out: dict) -> None:
-    """``time.kind``, ``time.start`` (ISO 8601 within pandas' range), ``time.format`` (a strptime
-    format) and ``sample_period_s`` (a positive number, made a float). ``out`` is changed in place."""
+    """``time.kind``, ``time.start`` (ISO 8601 within pandas' range, or None: no clock),
+    ``time.format`` (a strptime format) and ``sample_period_s`` (a positive number, made a
+    float). ``out`` is changed in place."""
     tm = out["time"]
     if tm["kind"] not in TIME_KINDS:
         raise _spec_error("time.kind", f"{tm['kind']!r}: expected timestamp, elapsed_s or none")
-    if not _plain_start_ok(str(tm["start"])):
+    if tm["start"] is not None and not _plain_start_ok(str(tm["start"])):
         import pandas as pd
 
         from rafi.readers.parsing import TIME_MAX, TIME_MIN
@@ -415,7 +416,7 @@ def check_time(out: dict) -> None:
             start = start.tz_convert(None)
         if not (TIME_MIN <= start <= TIME_MAX):
             raise _spec_error("time.start", f"{tm['start']!r} is outside 1678..2261")
-    tm["start"] = str(tm["start"])
+    tm["start"] = None if tm["start"] is None else str(tm["start"])
     if tm["format"] is not None and (not isinstance(tm["format"], str) or "%" not in tm["format"]):
         raise _spec_error(
             "time.format", f"{tm['format']!r}: expected a strptime format such as '%d.%m.%Y %H:%M:%S'"

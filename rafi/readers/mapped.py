@@ -51,7 +51,7 @@ from rafi.readers.mapped_columns import column_positions as _column_positions
 from rafi.readers.mapped_columns import frame_times as _frame_times
 from rafi.readers.mapped_join import join_partner
 from rafi.readers.mapped_tables import read_table
-from rafi.readers.mapped_time import assumed_notes
+from rafi.readers.mapped_time import assumed_notes, has_clock
 from rafi.readers.parsing import (
     numeric_columns,
     read_file_bytes,
@@ -143,7 +143,8 @@ def _mapped_metadata(
     -------
     dict
         ``format``, ``sheet`` (xlsx), ``columns`` (canonical -> header used),
-        ``sample_period_s`` (when the mapping gives it) and ``assumed`` (when not empty).
+        ``sample_period_s`` (when the mapping gives it), ``assumed`` (when not empty) and
+        ``clock`` ``False`` when the times are not dates (:func:`has_clock`).
     """
     meta: dict = {"format": spec["format"]}
     if table.sheet is not None:
@@ -154,6 +155,8 @@ def _mapped_metadata(
     assumed = assumed_notes(spec, speed=speed)
     if assumed:
         meta["assumed"] = assumed
+    if not has_clock(spec):
+        meta["clock"] = False  # elapsed times from NO_CLOCK_EPOCH: no date (rafi.method.runs)
     return meta
 
 

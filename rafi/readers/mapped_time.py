@@ -9,6 +9,10 @@
   period and never misses one. The times are *assumed*, not measured, and the frame says so
   in ``attrs['metadata']['assumed']`` (see :func:`assumed_notes`).
 
+Without ``time.start`` an ``elapsed_s`` or ``none`` log has no clock (:func:`has_clock`): its
+times count from :data:`rafi.contract.input.NO_CLOCK_EPOCH` for the arithmetic, and the frame says
+``attrs['metadata']['clock'] = False`` so that no later step shows them as dates.
+
 The speed of a log without a speed column is a configured constant
 (:func:`rafi.readers.input_spec.constant_speed`); its note is worded here too.
 """
@@ -20,7 +24,7 @@ import datetime as dt
 import numpy as np
 import pandas as pd
 
-from rafi.readers.input_spec import INPUT_DEFAULTS
+from rafi.contract import NO_CLOCK_EPOCH
 from rafi.readers.mapped_cells import Table, numeric
 from rafi.readers.parsing import TIME_MAX, TIME_MIN
 
@@ -104,16 +108,14 @@ def _elapsed_times(table: Table, values: list, spec: dict, column: str, col_inde
             column=column,
             col_index=col_index,
         )
-    start = pd.Timestamp(tm["start"])
-    if start.tzinfo is not None:
-        start = start.tz_convert(None)
+    start = _start(spec)
     lo = (TIME_MIN - start).total_seconds()
     hi = (TIME_MAX - start).total_seconds()
     bad = (sec < lo) | (sec > hi)
     if bad.any():
         k = int(np.argmax(bad))
         raise table.error(
-            f"{values[k]!r} seconds from {tm['start']} is outside the supported years 1678..2261",
+            f"{values[k]!r} seconds from {_start_text(tm)} is outside the supported years 1678..2261",
             row=table.row_numbers[k],
             column=column,
             col_index=col_index,
@@ -236,9 +238,33 @@ def _cell_times(
     return pd.Series(pd.DatetimeIndex(parsed))
 
 
+def has_clock(spec: dict) -> bool:
+    """Whether a mapped log's times are dates: a timestamp column, or ``time.start`` given.
+
+    Parameters
+    ----------
+    spec : dict
+        The normalised ``input:`` mapping.
+
+    Returns
+    -------
+    bool
+        False for elapsed seconds or no time column without ``time.start``: the times are counted
+        from :data:`rafi.contract.input.NO_CLOCK_EPOCH` and mean nothing as dates.
+    """
+    tm = spec["time"]
+    return tm["kind"] == "timestamp" or tm["start"] is not None
+
+
 def _start(spec: dict) -> pd.Timestamp:
-    start = pd.Timestamp(spec["time"]["start"])
+    """``time.start`` as a naive timestamp; :data:`NO_CLOCK_EPOCH` when it is not set."""
+    given = spec["time"]["start"]
+    start = pd.Timestamp(NO_CLOCK_EPOCH if given is None else given)
     return start.tz_convert(None) if start.tzinfo is not None else start
+
+
+def _start_text(tm: dict) -> str:
+    return "the log's first sample (input.time.start not set)" if tm["start"] is None else str(tm["start"])
 
 
 def row_times(n_rows: int, spec: dict) -> pd.Series:
@@ -268,7 +294,7 @@ def row_times_error(n_rows: int, spec: dict) -> str | None:
     span_s = (n_rows - 1) * float(tm["period_s"])
     if span_s > (TIME_MAX - _start(spec)).total_seconds():
         return (
-            f"{n_rows} rows of {tm['period_s']:g} s from {tm['start']} (input.time.start, "
+            f"{n_rows} rows of {tm['period_s']:g} s from {_start_text(tm)} (input.time.start, "
             "input.time.period_s) end after the supported year 2261"
         )
     return None
@@ -295,11 +321,13 @@ def assumed_notes(spec: dict, *, speed: tuple[float, str] | None) -> dict[str, s
     notes: dict[str, str] = {}
     tm = spec["time"]
     if tm["kind"] == "none":
-        nominal = tm["start"] == INPUT_DEFAULTS["time"]["start"]
-        start = f"{tm['start']} (input.time.start not set: a nominal date)" if nominal else tm["start"]
+        start = "the log's start" if tm["start"] is None else tm["start"]
+        undated = ""
+        if tm["start"] is None:
+            undated = "; no date (input.time.start not set): times are hours since the log's start"
         notes["time"] = (
             f"no time column: row k of the file is taken to be at {start} + k x {tm['period_s']:g} s "
-            "(input.time.kind none, input.time.period_s); a missing row cannot be seen"
+            f"(input.time.kind none, input.time.period_s); a missing row cannot be seen{undated}"
         )
     if speed is not None:
         rpm, source = speed

@@ -13,7 +13,7 @@ import pandas as pd
 from rafi.family.forward_folds import MIN_TRAIN, horizon_of, is_forward
 from rafi.family.selection import selection_rule
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
-from rafi.report.format import isnum, truthy
+from rafi.report.format import fmt_num, isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, shared_level
 
@@ -208,7 +208,8 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
         ``outside_temp_pct``, ``outside_speed_pct``), ``n``, ``n_extrapolated`` (runs with at
         least :data:`EXTRAPOLATED_PCT` % of the samples outside the trained temperature range),
         ``extrapolated_pct``, ``max_temp_pct``, ``max_speed_pct`` (``None`` unless some sample
-        is outside the trained speeds), ``trained_speeds`` (``[lo, hi]`` r/min or ``None``),
+        is outside the trained speeds), ``trained_speeds`` (``trained speeds 3 000–18 000`` or
+        ``trained speed 3 000``, r/min, or ``None``),
         ``key_sensor_r`` (largest |r| between two key sensors, ``None`` unknown) and
         ``log_start`` (``reference.rule`` is ``log_start``).
     """
@@ -234,10 +235,18 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
         "extrapolated_pct": EXTRAPOLATED_PCT,
         "max_temp_pct": _finite_max(t_share),
         "max_speed_pct": max_speed if max_speed is not None and max_speed > 0 else None,
-        "trained_speeds": [min(speeds), max(speeds)] if speeds else None,
+        "trained_speeds": _trained_speeds(speeds),
         "key_sensor_r": r_max if isnum(r_max) else None,
         "log_start": settings["reference"]["rule"] == "log_start",
     }
+
+
+def _trained_speeds(speeds: list) -> str | None:
+    """RAFI's trained speeds as the failure explanation words them: a range, or one speed once."""
+    if not speeds:
+        return None
+    lo, hi = fmt_num(min(speeds), 0), fmt_num(max(speeds), 0)
+    return f"trained speed {lo}" if lo == hi else f"trained speeds {lo}\u2013{hi}"
 
 
 def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward: str = "") -> dict:

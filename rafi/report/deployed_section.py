@@ -345,6 +345,15 @@ def sensors_left_out_text(art: dict, runs_table, runs_frame) -> str:
     return "; ".join(f"{s}: {why}" for s, why in reasons.items() if s not in used)
 
 
+def _speed_span(speeds) -> str:
+    """The trained speed range ``[lo, hi]`` as the section writes it (``3 000 … 18 000 r/min``);
+    one speed once (``3 000 r/min``); an en dash for none."""
+    if not speeds:
+        return "\u2013"
+    lo, hi = fmt_num(speeds[0], 0), fmt_num(speeds[1], 0)
+    return f"{lo} r/min" if lo == hi else f"{lo} \u2026 {hi} r/min"
+
+
 def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
     """The section's context, or ``None`` without a comparison champion and its artefact.
 
@@ -423,7 +432,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "inputs": [{"input": a, "how": b} for a, b in inputs],
         "train_runs": ", ".join(train_runs),
         "n_train": len(train_runs),
-        "speeds": (f"{fmt_num(speeds[0], 0)} \u2026 {fmt_num(speeds[1], 0)} r/min" if speeds else "\u2013"),
+        "speeds": _speed_span(speeds),
         "rises": rises,
         "n_terms": len(terms),
         "equation": equation,

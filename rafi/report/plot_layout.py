@@ -18,11 +18,15 @@ import numpy as np  # noqa: E402
 from matplotlib.font_manager import FontProperties  # noqa: E402
 from PIL import Image  # noqa: E402
 
+from rafi.report.fonts import matplotlib_families  # noqa: E402
+
 #: Figure width that fills the A4 content box (180 mm) at 100 % image width.
 PAGE_WIDTH_IN = 7.0
 
+#: The figures' style; ``font.family`` is DejaVu Sans, then the installed CJK fonts (a log's
+#: Chinese, Japanese or Korean headers in a label are drawn, not boxes: rafi.report.fonts).
 STYLE = {
-    "font.family": "DejaVu Sans",
+    "font.family": matplotlib_families(),
     "font.size": 7.5,
     "axes.titlesize": 8,
     "axes.labelsize": 7.5,

@@ -24,7 +24,9 @@ def _environment(template_cache: str | os.PathLike | None = None):
     is keyed by the template's name and used only while its source is unchanged), so only the
     first report job of a run compiles them (about 0.3 s)."""
     import jinja2
+    import markupsafe
 
+    from rafi.report import fonts
     from rafi.report.format import FILTERS
 
     cache = None
@@ -40,13 +42,22 @@ def _environment(template_cache: str | os.PathLike | None = None):
         bytecode_cache=cache,
     )
     env.filters.update(FILTERS)
+    # the CJK families every font stack of the CSS ends in (rafi.report.fonts)
+    env.globals["cjk_fonts"] = markupsafe.Markup(fonts.css_families())
     return env
 
 
 def render_html(ctx: dict, *, template_cache: str | os.PathLike | None = None) -> str:
     """Render the qualification report HTML (self-contained); ``template_cache``: see
-    :func:`_environment`."""
-    return _environment(template_cache).get_template("qualification.html.j2").render(**ctx)
+    :func:`_environment`. Where the text holds CJK characters and no CJK font is installed the
+    report is rendered again with a note saying so (``font_note``,
+    :func:`rafi.report.fonts.missing_font_note`)."""
+    from rafi.report import fonts
+
+    template = _environment(template_cache).get_template("qualification.html.j2")
+    html = template.render({**ctx, "font_note": None})
+    note = fonts.missing_font_note(html)
+    return html if note is None else template.render({**ctx, "font_note": note})
 
 
 def render_pdf(html: str, base_url: str | None = None, *, attach: dict | None = None) -> bytes:

@@ -60,6 +60,8 @@ RUN_COLUMNS = [
     "speed_max_rpm",
     "first_time",
     "last_time",
+    "first_s",
+    "last_s",
     "duration_s",
     "dz_min_um",
     "dz_max_um",
@@ -179,6 +181,8 @@ def run_record(frame: pd.DataFrame, runs: pd.DataFrame | None, ambient: str | No
         lo, hi = (float(dz.min()), float(dz.max())) if len(dz) else (np.nan, np.nan)
         speed = pd.to_numeric(g["speed_rpm"], errors="coerce") if "speed_rpm" in g else pd.Series(dtype=float)
         first, last = _times(g)
+        on_log = pd.to_numeric(g["log_t_s"], errors="coerce") if "log_t_s" in g else pd.Series(dtype=float)
+        first_s, last_s = (on_log.min(), on_log.max()) if on_log.notna().any() else (np.nan, np.nan)
         t = pd.to_numeric(g["t_s"], errors="coerce") if "t_s" in g else pd.Series(dtype=float)
         dur = m.get("duration_s")
         if not isnum(dur) and len(t):
@@ -200,6 +204,8 @@ def run_record(frame: pd.DataFrame, runs: pd.DataFrame | None, ambient: str | No
                 m.get("speed_max_rpm", speed.max() if len(speed) else np.nan),
                 first,
                 last,
+                first_s,
+                last_s,
                 dur,
                 lo,
                 hi,
@@ -279,6 +285,17 @@ def instrument_record(
     return {"fields": fields, "positions": positions, "calibration": cal, "missing": missing}
 
 
+def has_time(t) -> bool:
+    """Whether ``t`` is a logged clock time (not ``None`` or ``NaT``)."""
+    return t is not None and not pd.isna(t)
+
+
+def fmt_elapsed(seconds) -> str:
+    """Seconds since a log's first sample as the report shows them for a log without a clock:
+    ``+12.50 h``; an en dash for none."""
+    return fmt_num(float(seconds) / 3600.0, 2, "h", signed=True) if isnum(seconds) else DASH
+
+
 def _day(t) -> dt.date | None:
     return None if t is None or pd.isna(t) else pd.Timestamp(t).date()
 
@@ -347,7 +364,10 @@ def _percent(widths) -> list:
 
 def _span(r: dict) -> dict:
     """The first and last sample of a log or run as the tables show them (the last one without
-    its date when on the day of the first)."""
+    its date when on the day of the first); hours since the log's first sample where the log has
+    no clock (:func:`fmt_elapsed`), never a date."""
+    if not has_time(r["first_time"]) and not has_time(r["last_time"]):
+        return {"first_sample": fmt_elapsed(r.get("first_s")), "last_sample": fmt_elapsed(r.get("last_s"))}
     return {
         "first_sample": _fmt_time(r["first_time"]),
         "last_sample": _fmt_time(r["last_time"], _day(r["first_time"])),
@@ -405,7 +425,8 @@ def section_test_record(res: dict, settings: dict) -> dict:
         ``None`` too when each log is one run, ``logs_one_run``: then the logs carry the run's
         role, speed and drift) and their ``logs_widths`` / ``runs_widths``, ``ambient`` (the
         sensor or ``None``), ``ambient_missing`` (logs where the named sensor has no reading),
-        ``period_note`` (the configured period differs from the one found), ``instruments``
+        ``period_note`` (the configured period differs from the one found), ``no_clock`` (logs
+        without a clock: their spans are hours since their first sample), ``instruments``
         (``label``, ``value`` or ``None``), ``positions`` (one or two lists of ``sensor``,
         ``position`` or ``None``, ``role``), ``calibration`` (``instrument``, ``date``,
         ``flag``, ``flagged``; or ``None``) and ``missing``.
@@ -425,6 +446,7 @@ def section_test_record(res: dict, settings: dict) -> dict:
         "period_note": "",
         "n_logs": 0,
         "n_runs": 0,
+        "no_clock": [],
     }
     sensors: list = []
     last_log = None
@@ -433,6 +455,7 @@ def section_test_record(res: dict, settings: dict) -> dict:
         logs = log_record(frame, ambient)
         out["n_logs"] = len(logs)
         sensors = _logged_sensors(frame)
+        out["no_clock"] = [str(lg) for lg, t in zip(logs["log"], logs["first_time"]) if not has_time(t)]
         ends = [t for t in logs["last_time"] if t is not None and pd.notna(t)]
         last_log = max(ends) if ends else None
         rr = run_record(frame, runs, ambient)

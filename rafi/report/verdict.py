@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi.report.format import fmt_num, short_id, truthy
+from rafi.report.format import fmt_num, fmt_speed_range, short_id, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import interval_block, worst_run_interval
 
@@ -424,7 +424,7 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
         lo = nominal.where(~varying, pd.to_numeric(tr.get("speed_min_rpm", nominal), errors="coerce")).min()
         hi = nominal.where(~varying, pd.to_numeric(tr.get("speed_max_rpm", nominal), errors="coerce")).max()
         if pd.notna(lo) and pd.notna(hi):
-            out["speeds"] = f"{fmt_num(lo, 0)}\u2013{fmt_num(hi, 0, 'r/min')}"
+            out["speeds"] = fmt_speed_range(lo, hi)  # one training speed: printed once
     summ = res.get("validation_summary")
     if summ is not None and {"n_outside_temp_range", "n_samples"} <= set(summ.columns):
         out["outside"] = int(pd.to_numeric(summ["n_outside_temp_range"], errors="coerce").fillna(0).sum())
