@@ -14,7 +14,7 @@ import yaml
 from project_copy import copy_project, run_rafi, run_snakemake
 
 from rafi.errors import InputSpecError
-from rafi.readers.input_spec import normalise_input_spec
+from rafi.readers.input_spec import normalise_input_spec, probe_spec
 from rafi.readers.logs import read_log
 from rafi.sensors import DEFAULT_SENSORS, frame_sensors, run_sensors
 from rafi.twin.layouts import LAYOUTS, layout_config, layout_frame, write_layout
@@ -79,9 +79,11 @@ def test_a_layout_derives_its_extra_sensors_from_two_of_the_twins():
 @pytest.mark.parametrize("name", sorted(LAYOUTS))
 def test_each_layout_reads_back_with_its_config(tmp_path, name):
     files = write_layout(name, tmp_path)
-    spec = layout_config(name)["input"]
-    frame = read_log(files[0], spec)
     layout = LAYOUTS[name]
+    spec = normalise_input_spec(layout_config(name)["input"])
+    if layout.probes:  # read as its Z probe's unit reads it
+        spec = probe_spec(spec, "Z")
+    frame = read_log(files[0], spec)
     assert frame_sensors(frame) == layout.sensors
     assert frame["speed_rpm"].max() == pytest.approx(3000, abs=5)
     assert frame["disp_um"].abs().max() > 5.0  # um after the unit and sign of the mapping
