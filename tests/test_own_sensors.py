@@ -17,6 +17,7 @@ from rafi.errors import InputSpecError
 from rafi.readers.input_spec import normalise_input_spec, probe_spec
 from rafi.readers.logs import read_log
 from rafi.sensors import DEFAULT_SENSORS, frame_sensors, run_sensors
+from rafi.settings import machine_settings
 from rafi.twin.layouts import LAYOUTS, layout_config, layout_frame, write_layout
 
 # --------------------------------------------------------------------------- resolution
@@ -121,7 +122,8 @@ def test_machines_of_4_to_40_sensors_and_three_probes_run_end_to_end_from_rafi_i
     units = [n for n in E2E_LAYOUTS if n != "probes-xyz"] + [f"probes-xyz@{p}" for p in probes]
     for unit in units:
         name = unit.split("@")[0]
-        sensors = LAYOUTS[name].sensors
+        sensors = tuple(machine_settings(config, unit)["input"]["sensors"])  # rafi init's names
+        assert len(sensors) == len(LAYOUTS[name].sensors)
         results = proj / "results" / unit
         runs = pd.read_parquet(results / "runs.parquet")
         assert run_sensors(runs) == sensors
