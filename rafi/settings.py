@@ -161,7 +161,9 @@ def machine_settings(config: Mapping, machine: str) -> dict:
         ``config.yaml`` as loaded (validated against ``workflow/schemas/config.schema.yaml``).
     machine : str
         Folder name under ``raw_dir``; or ``<folder>@<probe>``, a probe of its ``input.probes``
-        (:func:`split_unit`), whose column, unit and sign then are ``input.displacement``.
+        (:func:`split_unit`), whose column, unit and sign then are ``input.displacement`` and
+        over which ``machines.<folder>@<probe>`` is merged (what one probe changes: its deploy
+        target, its gates; not its input).
 
     Returns
     -------
@@ -177,8 +179,17 @@ def machine_settings(config: Mapping, machine: str) -> dict:
     """
     check_layout(config)
     folder, probe = split_unit(machine)
+    machines = config.get("machines") or {}
     merged = deep_merge(MACHINE_DEFAULTS, config.get("defaults"))
-    merged = deep_merge(merged, (config.get("machines") or {}).get(folder))
+    merged = deep_merge(merged, machines.get(folder))
+    if probe is not None:  # what this probe changes (machines.<machine>@<probe>), its input aside
+        own = dict(machines.get(machine) or {})
+        if "input" in own:
+            raise SettingsError(
+                f"machines.{machine}.input: a probe reads its machine's files; give its column, unit "
+                f"and sign in machines.{folder}.input.probes.{probe}"
+            )
+        merged = deep_merge(merged, own)
     merged["input"] = normalise_input_spec(merged["input"])
     if probe is not None:
         try:

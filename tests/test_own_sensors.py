@@ -158,3 +158,74 @@ def test_machines_of_4_to_40_sensors_and_three_probes_run_end_to_end_from_rafi_i
     assert {p: p.read_bytes() for p in (proj / "raw").rglob("*") if p.is_file()} == raw_before
     again = run_snakemake(proj, "-n", cores=2)
     assert "Nothing to be done" in again.stdout + again.stderr
+
+
+# --------------------------------------------------------------------------- probes
+
+
+def test_a_probe_is_a_unit_with_its_column_and_its_own_settings():
+    from rafi.errors import SettingsError
+    from rafi.settings import machine_units, split_unit, unit_name
+
+    config = {
+        "machines": {
+            "lathe": {
+                "input": {"format": "csv", "probes": {"X": "dx [um]", "Z": {"column": "dz", "sign": -1}}}
+            },
+            "lathe@Z": {"deploy": {"clamp_um": [-5.0, 5.0]}},
+        }
+    }
+    assert machine_units(config, "lathe") == ["lathe@X", "lathe@Z"]
+    assert split_unit("lathe@Z") == ("lathe", "Z") and unit_name("lathe", None) == "lathe"
+    z = machine_settings(config, "lathe@Z")
+    assert z["input"]["displacement"] == {"column": "dz", "unit": "um", "sign": -1}
+    assert z["deploy"]["clamp_um"] == [-5.0, 5.0]
+    assert machine_settings(config, "lathe@X")["deploy"]["clamp_um"] != [-5.0, 5.0]
+    assert normalise_input_spec(z["input"]) == z["input"]  # a probe's mapping reads back as itself
+    with pytest.raises(SettingsError, match="no probe 'Y'"):
+        machine_settings(config, "lathe@Y")
+    config["machines"]["lathe@X"] = {"input": {"format": "csv"}}
+    with pytest.raises(SettingsError, match=r"machines.lathe@X.input: a probe reads its machine's files"):
+        machine_settings(config, "lathe@X")
+
+
+@pytest.mark.parametrize(
+    ("spec", "key"),
+    [
+        (
+            {"format": "csv", "probes": {"X": {"column": "a"}}, "displacement": {"column": "b"}},
+            "displacement.column",
+        ),
+        ({"probes": {"X": {"column": "a"}}}, "input.probes"),  # native: one disp_um
+        ({"format": "csv", "probes": {"1X": {"column": "a"}}}, "input.probes.1X"),
+        ({"format": "csv", "probes": {"X": {"column": "a", "unit": "cm"}}}, "input.probes.X.unit"),
+        ({"format": "csv", "probes": {"X": {"column": "a", "gain": 2}}}, "input.probes.X.gain"),
+    ],
+)
+def test_bad_probes_name_the_key(spec, key):
+    with pytest.raises(InputSpecError, match=key.replace(".", r"\.")):
+        normalise_input_spec(spec)
+
+
+def test_the_report_says_where_the_probe_measured():
+    from rafi.report.verdict import probe_words
+
+    probe = {"column": "dz", "unit": "um", "sign": 1, "description": "spindle nose, axial"}
+    spec = {"displacement": {"column": "dz"}, "probes": {"Z": probe}}
+    assert probe_words({"input": spec, "report": {}}) == "on probe Z (channel 'dz': spindle nose, axial)"
+    assert (
+        probe_words({"input": {"displacement": {"column": "Ø [mm]"}}, "report": {}}) == "on channel 'Ø [mm]'"
+    )
+    assert (
+        probe_words({"input": {"displacement": {}}, "report": {"paper_rig": True}})
+        == "on the spindle axis (Z)"
+    )
+
+
+def test_record_refuses_a_machine_it_cannot_record_for():
+    from rafi.deploy.record_cli import _check_layout
+    from rafi.errors import SettingsError
+
+    _check_layout("a", normalise_input_spec(None))  # the paper's rig: recorded as native
+    with pytest.raises(SettingsError, match="machines.b.input: the machine has its own sensors"):
+        _check_layout("b", normalise_input_spec({"sensors": ["front", "rear"]}))

@@ -52,7 +52,10 @@ def config_schema() -> dict:
     properties["defaults"] = {"$ref": "#/$defs/machine_settings"}
     properties["machines"] = {
         "type": ["object", "null"],
-        "description": "machine folder name -> partial settings deep-merged over `defaults`",
+        "description": (
+            "machine folder name -> partial settings deep-merged over `defaults`; "
+            "`<machine>@<probe>` -> what one probe of it changes (e.g. its deploy target)"
+        ),
         "additionalProperties": {"anyOf": [{"$ref": "#/$defs/machine_settings"}, {"type": "null"}]},
     }
     return {

@@ -132,6 +132,22 @@ def _channels(opcua: dict, record: dict, log) -> tuple[dict, dict]:
     return channels, where
 
 
+def _check_layout(machine: str, spec: dict) -> None:
+    """A recording is a native log of ``T1..T16`` and one probe: refuse, in one line, a machine
+    whose logs the pipeline reads otherwise (its own sensors, several probes), rather than write
+    a file its runs would never read."""
+    from rafi.sensors import DEFAULT_SENSORS
+
+    if tuple(spec["sensors"]) != DEFAULT_SENSORS or spec["probes"]:
+        what = (
+            "several probes" if spec["probes"] else f"its own sensors ({', '.join(spec['sensors'][:6])}, ...)"
+        )
+        raise SettingsError(
+            f"machines.{machine}.input: the machine has {what}; rafi record writes the native layout "
+            "of T1..T16 and one probe only: record with the machine's own logger (docs/record.md)"
+        )
+
+
 def build(args, *, log=print, environ=None):
     """The recorder of ``rafi record`` and the OPC UA link to connect and close (None without one).
 
@@ -150,6 +166,7 @@ def build(args, *, log=print, environ=None):
     _check_args(args)
     config_path = Path(args.config)
     config, settings = read_machine_config(config_path, args.machine)
+    _check_layout(args.machine, settings["input"])
     project = config_path.resolve().parent
     record, period = settings["record"], float(settings["sample_period_s"])
     folder = project / run_settings(config)["raw_dir"] / args.machine

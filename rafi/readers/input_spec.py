@@ -35,6 +35,7 @@ from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of thi
     NON_SENSOR_COLUMNS,
     PROBE_KEYS,
     PROBE_NAME_RE,
+    PROBE_SEPARATOR,
     RESERVED_NAMES,
     SENSOR_NAME_RE,
     TIME_KINDS,
@@ -650,6 +651,6 @@ def discover_logs(
             continue
         found[machine] = logs
     names = {p.name for p in folders}
-    for machine in sorted(set(configured) - names):
+    for machine in sorted(m for m in set(configured) - names if PROBE_SEPARATOR not in str(m)):
         warnings.append(f"config has settings for machine {machine!r} but {root / machine} does not exist")
     return found, warnings
