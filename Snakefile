@@ -4,8 +4,10 @@
 #   snakemake --cores 2 tables           # the tables of docs/design.md only
 #   snakemake --cores 2 --config on_bad_input=quarantine   # carry on past a bad raw file
 #
-# Machines are the folders of `raw_dir`; a machine's settings are rafi/settings.py's defaults,
-# deep-merged with `defaults:` and `machines.<name>:` of config.yaml (rafi.settings.machine_settings).
+# Machines are the folders of `raw_dir` (a machine with several probes: one unit per probe,
+# <machine>@<probe>). Every setting has its default in one place, rafi/contract/ (RUN_SETTINGS in
+# run.py, MACHINE_SETTINGS in machine.py, INPUT_DEFAULTS in input.py), which rafi/settings.py
+# merges with `defaults:` and `machines: <name>:` of config.yaml (rafi.settings.machine_settings).
 # Outputs: docs/design.md. Helpers (functions only): workflow/rules/common.smk; the
 # method's steps: pipeline.smk; the model family: compare.smk; champion/challenger:
 # registry.smk; the replay of recorded runs through the compensator with its limits (the

@@ -31,9 +31,9 @@ pipeline would offer) and, as a larger sample of the calibration alone, for ever
 
 The variants (:data:`VARIANTS`):
 
-* ``every_unit`` (shipped until session 16, ``models: interval_forward_units: true``): every
+* ``every_unit`` (shipped until 2026-11-26, ``models: interval_forward_units: true``): every
   inner OOF unit (whole-run and forward), the correction leaving out a run with all its units;
-* ``whole_run`` (the default since session 16): the whole-run units only (forward units are
+* ``whole_run`` (the default since 2026-11-26): the whole-run units only (forward units are
   fitted on fewer runs; :func:`rafi.family.interval_fit.whole_run_units`);
 * ``learning_curve``: every unit, each unit's residuals scaled to what a model fitted on all the
   calibration's training runs would show (:func:`learning_curve_factors`).

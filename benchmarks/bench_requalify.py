@@ -27,7 +27,7 @@ is; ``floor``: the noise floor (max |measured - true displacement rise| over the
 runs: what a perfect model would still show). Nothing is chosen on validation runs: every
 choice is the CV on the training runs; the validation runs are only scored.
 
-Output: progress on stderr, a markdown table on stdout (the README's), and
+Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change). The runs are simulated clean at
 ``--sample-period`` (default 20 s) to keep it fast on two shared cores: minutes in all.
 """
@@ -194,7 +194,7 @@ def _met(row: dict, limit: float) -> bool:
 
 
 def markdown(results: list[dict]) -> str:
-    """The README's table: one row per scenario and budget."""
+    """docs/results.md's table: one row per scenario and budget."""
 
     def um(v):
         return "-" if v is None or not math.isfinite(v) else f"{v:.2f}"

@@ -31,7 +31,7 @@ beside it; ``oracle`` is the best kind per outer fold (a floor no rule can beat)
 
 The rules (:data:`RULES`), every one a function of training-run CV rows alone:
 
-* ``mean_max`` (the rule before session 13, :func:`rafi.family.selection.choose_champion` on
+* ``mean_max`` (the rule before the forward folds, :func:`rafi.family.selection.choose_champion` on
   whole-run rows): the lowest mean over the held-out runs of the max |residual|;
 * ``mean_max_forward`` (the current rule: the same function on the whole-run and the forward
   rows, :data:`FORWARD`): the lowest mean of the whole-run and the forward scores where the inner

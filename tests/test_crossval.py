@@ -181,7 +181,7 @@ def test_golden_comparison_table():
     History: regenerated when kind ``grey_box`` joined the family (issue 7). The rows of
     rafi, rafi_linear, ridge_global and dynamic did not change (same numbers); grey_box rows
     were appended; the champion stays dynamic (worst case 0.177 um vs grey_box 0.180 um).
-    Regenerated in session 2 when grey_box's defaults became filter_search=all and CV-chosen
+    Regenerated on 2026-11-21 (issue 7) when grey_box's defaults became filter_search=all and CV-chosen
     draw-in lags (and the ridge alpha grid 1-2-5 per decade): only the grey_box rows moved
     (worst case 0.180 -> 0.183 um); the champion stays dynamic.
     Regenerated in issue 12: ``champion`` is false on every row (compare_models no longer
@@ -191,10 +191,10 @@ def test_golden_comparison_table():
     fitted without their prediction interval); no other value moved.
     Regenerated in issue 25 when ``dynamic`` got its heat-input history (``heat_input``, default
     true): only the dynamic rows moved (worst case 0.1766 -> 0.1776 um, per run -0.007 to +0.005 um).
-    Regenerated in session 12 when the heat input became the default and ``speed_gain: cv`` offers
+    Regenerated on 2026-11-26 (issue 25) when the heat input became the default and ``speed_gain: cv`` offers
     ``dynamic`` no gain beside it: only the dynamic rows moved (worst case 0.1766 -> 0.1776 um, per
     run -0.007 to +0.005 um).
-    Regenerated in session 21: ``n_unpredicted`` / ``unpredicted_inputs`` appended (0 and empty: no
+    Regenerated on 2026-11-27: ``n_unpredicted`` / ``unpredicted_inputs`` appended (0 and empty: no
     input is missing in these data); no other value moved.
     """
     table, frame = _golden_data()

@@ -166,7 +166,7 @@ def test_the_calibration_folds_read_as_words():
     iv = interval_context({"interval": block})
     assert iv["scheme"] == "leave-one-run-out and forward folds, 2 runs ahead" and iv["forward"] == 2
     assert "_" not in iv["scheme"] and "+" not in iv["scheme"]
-    assert not iv["by_run"]  # an artefact calibrated unit by unit (before session 15) says nothing
+    assert not iv["by_run"]  # an artefact calibrated unit by unit (before 2026-11-26) says nothing
     block["calibration"]["left_out"] = "run"
     iv = interval_context({"interval": block})
     assert iv["by_run"] and "left out" not in dict(iv["other"])

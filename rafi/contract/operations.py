@@ -109,7 +109,7 @@ OPERATIONS_SETTINGS: dict = {
                     "the ridge kinds (`ridge_global`, `dynamic`, `grey_box`) also choose their own"
                     " hyperparameters on the mean of the whole-run and the forward scores"
                     " (`cv_forward_runs`), as the selection compares the kinds; off by default: on the"
-                    " training runs it was not better everywhere (`docs/decisions.md`, session 14)"
+                    " training runs it was not better everywhere (`docs/decisions.md`, 2026-11-26)"
                 ),
             ),
             "interval_level": Setting(
@@ -129,7 +129,7 @@ OPERATIONS_SETTINGS: dict = {
                     "the prediction intervals also calibrate on the runs the forward folds hold out"
                     " (`cv_forward_runs`); off by default: judged one level up with refits on the"
                     " training runs, the whole-run folds alone came closer to the level (`docs/decisions.md`,"
-                    " session 16)"
+                    " 2026-11-26)"
                 ),
             ),
             "interval_transient_s": Setting(

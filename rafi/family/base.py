@@ -2,7 +2,8 @@
 
 Conventions (those of scikit-learn): ``__init__`` takes keyword arguments only and stores
 them as given; a default, where there is one, is read from
-:data:`rafi.settings.MACHINE_DEFAULTS` (the one place a setting's default is written).
+:data:`rafi.settings.MACHINE_DEFAULTS`, the defaults of ``rafi/contract/`` (the one place a
+setting's default is written).
 ``fit(runs_table, runs_frame)`` checks the hyperparameters, uses **only** the runs whose
 ``role`` is ``training`` and is the only method that sets a fitted attribute (name ending in
 ``_``). ``from_dict`` builds a fitted model from its artefact explicitly: the constructor

@@ -71,7 +71,7 @@ def calibration_units(
     else the whole-run (time-block) units alone (:func:`whole_run_units`, scheme ``whole``). The
     forward units are fitted on fewer runs than the whole-run folds: judged one level up with
     refits on the training runs (``benchmarks/bench_interval_refit.py``) the whole-run units
-    alone came closer to the nominal level (``docs/decisions.md``, session 16).
+    alone came closer to the nominal level (``docs/decisions.md``, 2026-11-26).
     """
     if options["interval_forward_units"]:
         return oof, calibration_scheme(cv, whole)

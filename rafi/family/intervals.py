@@ -307,7 +307,7 @@ def calibrate(
         Measure the level correction leaving out every unit of the held-out unit's run
         (:func:`corrected_level` with ``groups`` :func:`~rafi.family.forward_folds.unit_run`: a run
         held out by the whole-run and the forward folds is several units). False: unit by unit,
-        the correction before session 15 (``benchmarks/bench_interval_groups.py`` compares them).
+        the correction before 2026-11-26 (``benchmarks/bench_interval_groups.py`` compares them).
         Recorded as ``calibration.left_out: run`` (``time block`` under time-blocked folds).
 
     Returns
