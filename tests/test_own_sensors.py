@@ -13,10 +13,10 @@ import pytest
 import yaml
 from project_copy import copy_project, run_rafi, run_snakemake
 
+from rafi.contract.sensors import DEFAULT_SENSORS, frame_sensors, run_sensors
 from rafi.errors import InputSpecError
 from rafi.readers.input_spec import normalise_input_spec, probe_spec
 from rafi.readers.logs import read_log
-from rafi.sensors import DEFAULT_SENSORS, frame_sensors, run_sensors
 from rafi.settings import machine_settings
 from rafi.twin.layouts import LAYOUTS, layout_config, layout_frame, write_layout
 

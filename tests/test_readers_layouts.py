@@ -24,13 +24,13 @@ from layout_files import (
 )
 
 from rafi.contract.input import INPUT_SCHEMA
+from rafi.contract.sensors import DEFAULT_SENSORS as SENSORS
 from rafi.errors import InputSpecError, RawFormatError
 from rafi.ops.clean_job import CleanSettings, clean_machine
 from rafi.readers.input_spec import discover_logs, normalise_input_spec
 from rafi.readers.log_sources import log_stamp, sheet_log_name, xlsx_sheet_names
 from rafi.readers.logs import read_log
 from rafi.readers.mapped import read_mapped
-from rafi.sensors import DEFAULT_SENSORS as SENSORS
 
 
 def _canonical(frame: pd.DataFrame) -> pd.DataFrame:

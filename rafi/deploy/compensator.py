@@ -91,10 +91,10 @@ import numpy as np
 
 from rafi.artefact import model_id_verifies
 from rafi.contract import MODEL_KINDS
+from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
 from rafi.deploy.streaming import LowpassBank, ReferenceWindow
 from rafi.method.fuzzy import triangular_weights
-from rafi.sensors import DEFAULT_SENSORS
 
 __all__ = ["KINDS", "STATUSES", "Compensator", "Step", "parse_exponents"]
 

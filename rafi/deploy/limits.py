@@ -85,10 +85,10 @@ from typing import NamedTuple
 
 import numpy as np
 
+from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.deploy.compensator import Compensator
 from rafi.errors import SettingsError, TargetError
 from rafi.method.fuzzy import triangular_weights
-from rafi.sensors import DEFAULT_SENSORS
 
 __all__ = ["STATUSES", "Command", "Limits", "SafeCompensator"]
 

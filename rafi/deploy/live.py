@@ -38,8 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError, TargetError
-from rafi.sensors import DEFAULT_SENSORS
 
 __all__ = ["LiveLoop", "LogFollower", "TARGET_KINDS", "build_target", "check_target_limits"]
 

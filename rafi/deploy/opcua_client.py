@@ -38,6 +38,7 @@ from collections.abc import Callable, Mapping
 
 import numpy as np
 
+from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.deploy.opcua_credentials import (
     ENV_CREDENTIALS,
     ENV_PASSWORD,
@@ -50,7 +51,7 @@ from rafi.deploy.opcua_log import LibraryLogRouter, route_library_log, unroute_l
 from rafi.deploy.opcua_loop import LoopThread, call_within
 from rafi.deploy.opcua_security import check_security_settings, load_security, plaintext_notice, secure_client
 from rafi.errors import RafiUserError, SettingsError
-from rafi.sensors import DEFAULT_SENSORS
+from rafi.readers.input_spec import sensor_name_problem
 
 __all__ = [
     "ENV_CREDENTIALS",
@@ -86,24 +87,6 @@ OPCUA_DEFAULTS = {
 #: The session timeout asked of the server: a session of a client that died is freed after it
 #: (a SINUMERIK has few session slots); the client's watchdog reads every second meanwhile.
 SESSION_TIMEOUT_MS = 60_000
-
-#: Inputs the loop reads on the paper's rig: the speed and its 16 temperatures (any machine's
-#: sensor names are inputs: :func:`input_name_problem`).
-INPUT_NAMES = ("speed_rpm", *DEFAULT_SENSORS)
-
-
-def input_name_problem(name) -> str | None:
-    """Why ``name`` cannot be an input of ``deploy.opcua.inputs`` (``speed_rpm`` or a sensor
-    name: :func:`rafi.readers.input_spec.sensor_name_problem`), or None."""
-    from rafi.readers.input_spec import sensor_name_problem
-
-    if name == "speed_rpm":
-        return None
-    problem = sensor_name_problem(name)
-    return (
-        f"not an input ({problem}); the inputs are speed_rpm and the machine's sensors" if problem else None
-    )
-
 
 #: Status codes that no reconnecting cures: the loop stops with a message.
 _FATAL = {
@@ -219,9 +202,8 @@ def opcua_settings(block: Mapping | None, *, need_inputs: bool = True, project_d
     parsed = {}
     for name, spec in inputs.items():
         where = f"deploy.opcua.inputs.{name}"
-        problem = input_name_problem(name)
-        if problem:
-            raise SettingsError(f"{where}: {problem}")
+        if name != "speed_rpm" and sensor_name_problem(name):
+            raise SettingsError(f"{where}: not an input: {sensor_name_problem(name)}")
         scale, offset = 1.0, 0.0
         if isinstance(spec, Mapping):
             extra = sorted(set(spec) - {"node", "scale", "offset"})

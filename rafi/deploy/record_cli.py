@@ -136,7 +136,7 @@ def _check_layout(machine: str, spec: dict) -> None:
     """A recording is a native log of ``T1..T16`` and one probe: refuse, in one line, a machine
     whose logs the pipeline reads otherwise (its own sensors, several probes), rather than write
     a file its runs would never read."""
-    from rafi.sensors import DEFAULT_SENSORS
+    from rafi.contract.sensors import DEFAULT_SENSORS
 
     if tuple(spec["sensors"]) != DEFAULT_SENSORS or spec["probes"]:
         what = (

@@ -29,9 +29,9 @@ from collections import Counter
 import numpy as np
 import pandas as pd
 
+from rafi.contract.sensors import run_sensors
 from rafi.deploy.limits import STATUSES, SafeCompensator
 from rafi.deploy.metrics import fault_groups, fault_groups_text
-from rafi.sensors import run_sensors
 
 __all__ = [
     "COLUMNS",

@@ -12,7 +12,7 @@ from collections.abc import Sequence
 import numpy as np
 import pandas as pd
 
-from rafi.sensors import run_sensors
+from rafi.contract.sensors import run_sensors
 
 SPEED_SCALE_RPM = 1000.0  # speed features are in krpm and krpm^2
 SPEED_POWER_SCALE_RPM = 10000.0  # speed-power features use (n / 10000 r/min)^p

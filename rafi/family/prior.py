@@ -278,9 +278,9 @@ def prior_param(
 
 
 def available_sensors(runs_frame) -> list[str]:
-    """The sensors (:func:`rafi.sensors.run_sensors`) whose rise column ``d<s>`` has a finite value
+    """The sensors (:func:`rafi.contract.sensors.run_sensors`) whose rise column ``d<s>`` has a finite value
     in ``runs_frame``."""
-    from rafi.sensors import run_sensors
+    from rafi.contract.sensors import run_sensors
 
     return [s for s in run_sensors(runs_frame) if bool(runs_frame[f"d{s}"].notna().any())]
 

@@ -16,9 +16,9 @@ from collections.abc import Iterable, Sequence
 
 import pandas as pd
 
+from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RawFormatError
 from rafi.method.clean import AUDIT_COLUMNS
-from rafi.sensors import DEFAULT_SENSORS
 
 #: Columns of the per-file summary (``audit.csv``), in order.
 SUMMARY_COLUMNS = (

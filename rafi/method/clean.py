@@ -64,6 +64,7 @@ from collections.abc import Iterable, Sequence
 import numpy as np
 import pandas as pd
 
+from rafi.contract.sensors import frame_sensors
 from rafi.errors import RawFormatError
 from rafi.method.clean_steps import (  # noqa: F401 (the step constants: part of this module's API)
     MAD_TO_SIGMA,
@@ -84,7 +85,6 @@ from rafi.method.clean_steps import (  # noqa: F401 (the step constants: part of
     snap_to_grid,
     sort_by_time,
 )
-from rafi.sensors import frame_sensors
 from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES  # noqa: F401 (named in the docstrings)
 
 #: Columns of the audit table, in order (``docs/design.md``).

@@ -17,8 +17,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RawFormatError
-from rafi.sensors import DEFAULT_SENSORS
 from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
 
 #: Columns checked for open-circuit values and spikes (value columns 1..16+1).

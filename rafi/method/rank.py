@@ -37,8 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
+from rafi.contract.sensors import run_sensors
 from rafi.errors import SettingsError
-from rafi.sensors import run_sensors
 from rafi.settings import MACHINE_DEFAULTS
 
 __all__ = [

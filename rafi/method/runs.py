@@ -62,6 +62,12 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from rafi.contract.sensors import (  # noqa: F401 (runs_frame_columns: this module's API)
+    DEFAULT_SENSORS,
+    common_sensors,
+    frame_sensors,
+    runs_frame_columns,
+)
 from rafi.method.speed_runs import (  # noqa: F401 (the segmentation constants: part of this module's API)
     RAMP_MAX_SAMPLES,
     SPEED_SMOOTH_S,
@@ -80,7 +86,6 @@ from rafi.method.windows import (
     schedule_cooldowns,
     window_of,
 )
-from rafi.sensors import DEFAULT_SENSORS, frame_sensors
 from rafi.settings import MACHINE_DEFAULTS
 
 #: Roles a run can have (``docs/design.md``).
@@ -107,23 +112,6 @@ RUNS_TABLE_COLUMNS = (
     "start_time",
     "end_time",
 )
-
-
-def runs_frame_columns(sensors=DEFAULT_SENSORS) -> tuple[str, ...]:
-    """Columns of ``runs.parquet`` of a machine with ``sensors``, in order."""
-    return (
-        "run_id",
-        "t_s",
-        "time",
-        "speed_rpm",
-        *sensors,
-        "disp_um",
-        *(f"d{s}" for s in sensors),
-        "dz_um",
-        "log",
-        "log_t_s",
-        "segment",
-    )
 
 
 #: :func:`runs_frame_columns` of the paper's rig.
@@ -246,18 +234,6 @@ def find_runs(
         rows += log_rows
         samples += log_samples
     return runs_table(rows), stack_runs(samples, sensors)
-
-
-def common_sensors(clean_frames: dict) -> tuple[str, ...]:
-    """The sensors every clean frame of a machine has (:func:`rafi.sensors.frame_sensors`; the
-    paper rig's without a frame); ValueError naming the logs if two frames differ."""
-    found = {key: frame_sensors(frame) for key, frame in sorted(clean_frames.items())}
-    distinct = sorted(set(found.values()))
-    if len(distinct) > 1:
-        first = {sensors: key for key, sensors in reversed(found.items())}
-        shown = "; ".join(f"{first[s]}: {', '.join(s)}" for s in distinct[:2])
-        raise ValueError(f"the clean logs of one machine have different sensors ({shown})")
-    return distinct[0] if distinct else DEFAULT_SENSORS
 
 
 @dataclass(frozen=True)

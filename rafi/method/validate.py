@@ -57,10 +57,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from rafi.contract.sensors import run_sensors
 from rafi.method import paper
 from rafi.method.noise import expected_max_abs_noise, white_noise_sigma
 from rafi.method.paper import paper_value
-from rafi.sensors import run_sensors
 from rafi.settings import GATE_KEYS
 
 __all__ = [
@@ -129,7 +129,7 @@ def input_sensors(model) -> list[str] | None:
 
 def inputs_without_value(sub: pd.DataFrame, missing: np.ndarray, sensors: list[str] | None) -> str:
     """The inputs with no value on the rows ``missing`` of the run frame ``sub``: each sensor of
-    ``sensors`` (every sensor of ``sub`` when ``None``: :func:`rafi.sensors.run_sensors`) whose
+    ``sensors`` (every sensor of ``sub`` when ``None``: :func:`rafi.contract.sensors.run_sensors`) whose
     rise is NaN on at
     least one of them, then ``speed`` if the speed is; joined by ``", "``."""
     if not missing.any():

@@ -17,9 +17,9 @@ import re
 
 import yaml
 
+from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError
 from rafi.ops.init_survey import Survey
-from rafi.sensors import DEFAULT_SENSORS
 from rafi.settings import machine_settings, validate_config
 
 #: Column at which line comments start (when the text is shorter).

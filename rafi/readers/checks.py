@@ -39,10 +39,10 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
+from rafi.contract.sensors import frame_sensors
 from rafi.readers import checks_channels as channels
 from rafi.readers import checks_units as units
 from rafi.readers.checks_base import CheckWarning, Signals, Where
-from rafi.sensors import frame_sensors
 from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
 
 #: Every check id of the per-file checks (docs/raw-format.md, "Checks").

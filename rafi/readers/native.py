@@ -22,6 +22,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.artefact import write_text_atomic
+from rafi.contract.sensors import DEFAULT_SENSORS, canonical_columns, frame_sensors
 from rafi.errors import RawFormatError, quote
 from rafi.readers.parsing import (
     _INNER_SPACE,
@@ -40,7 +41,6 @@ from rafi.readers.parsing import (
     split_lines,
     to_naive_ns,
 )
-from rafi.sensors import DEFAULT_SENSORS, canonical_columns, frame_sensors
 
 #: Metadata keys with a documented meaning; any other ``# key: value`` is kept as text.
 KNOWN_METADATA = {"machine", "run_id", "sample_period_s", "notes"}
@@ -145,7 +145,7 @@ def _check_header(
     line_no : int
         1-based line of the header.
     required : tuple of str
-        The canonical columns of the machine (:func:`rafi.sensors.canonical_columns`).
+        The canonical columns of the machine (:func:`rafi.contract.sensors.canonical_columns`).
 
     Raises
     ------

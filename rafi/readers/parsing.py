@@ -25,8 +25,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import QUOTE_MAX_CHARS, RawFormatError, quote
-from rafi.sensors import DEFAULT_SENSORS
 
 
 def numeric_columns(sensors=DEFAULT_SENSORS) -> tuple[str, ...]:

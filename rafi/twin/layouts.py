@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi.sensors import DEFAULT_SENSORS
+from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.twin.schedules import constant_schedule, multi_condition_schedule, with_rest
 from rafi.twin.simulate import simulate_run
 

@@ -15,7 +15,15 @@ from collections.abc import Iterable, Sequence
 
 from rafi.contract.input import DEFAULT_SENSORS
 
-__all__ = ["DEFAULT_SENSORS", "canonical_columns", "frame_sensors", "rise_columns", "run_sensors"]
+__all__ = [
+    "DEFAULT_SENSORS",
+    "canonical_columns",
+    "common_sensors",
+    "frame_sensors",
+    "rise_columns",
+    "run_sensors",
+    "runs_frame_columns",
+]
 
 
 def canonical_columns(sensors: Sequence[str] = DEFAULT_SENSORS) -> tuple[str, ...]:
@@ -67,3 +75,32 @@ def run_sensors(columns: Iterable[str] | object) -> tuple[str, ...]:
 def rise_columns(sensors: Iterable[str]) -> list[str]:
     """The rise column of every sensor: ``d<s>``."""
     return [f"d{s}" for s in sensors]
+
+
+def runs_frame_columns(sensors=DEFAULT_SENSORS) -> tuple[str, ...]:
+    """Columns of ``runs.parquet`` of a machine with ``sensors``, in order."""
+    return (
+        "run_id",
+        "t_s",
+        "time",
+        "speed_rpm",
+        *sensors,
+        "disp_um",
+        *(f"d{s}" for s in sensors),
+        "dz_um",
+        "log",
+        "log_t_s",
+        "segment",
+    )
+
+
+def common_sensors(clean_frames: dict) -> tuple[str, ...]:
+    """The sensors every clean frame of a machine has (:func:`frame_sensors`; the
+    paper rig's without a frame); ValueError naming the logs if two frames differ."""
+    found = {key: frame_sensors(frame) for key, frame in sorted(clean_frames.items())}
+    distinct = sorted(set(found.values()))
+    if len(distinct) > 1:
+        first = {sensors: key for key, sensors in reversed(found.items())}
+        shown = "; ".join(f"{first[s]}: {', '.join(s)}" for s in distinct[:2])
+        raise ValueError(f"the clean logs of one machine have different sensors ({shown})")
+    return distinct[0] if distinct else DEFAULT_SENSORS
