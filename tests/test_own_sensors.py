@@ -229,3 +229,16 @@ def test_record_refuses_a_machine_it_cannot_record_for():
     _check_layout("a", normalise_input_spec(None))  # the paper's rig: recorded as native
     with pytest.raises(SettingsError, match="machines.b.input: the machine has its own sensors"):
         _check_layout("b", normalise_input_spec({"sensors": ["front", "rear"]}))
+
+
+def test_init_preview_of_a_machine_with_probes_lists_its_runs_once(tmp_path):
+    from rafi.ops.init_preview import preview
+
+    write_layout("probes-xyz", tmp_path / "raw", machine="xyz")
+    config = {"raw_dir": str(tmp_path / "raw"), "machines": {"xyz": layout_config("probes-xyz")}}
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump(config), encoding="utf-8")
+    lines = preview(str(path), "xyz")
+    assert lines[1].strip().startswith("probes: X, Y, Z")
+    assert any("train_03000rpm" in line and "training" in line for line in lines)
+    assert preview(str(path), "xyz@Y")[2:] == lines[3:]  # one probe: the same runs

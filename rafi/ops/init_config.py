@@ -149,7 +149,12 @@ def _displacement_keys(out: _Lines, s: Survey) -> None:
     if several:
         out.add(6, "probes:", f"{len(s.probes)} displacement columns: one model and one verdict per probe")
         for name, guess in zip(probe_names([g.header for g in s.probes]), s.probes):
-            out.add(8, f"{name}: {{column: {q(guess.header)}}}")
+            if guess.unit in ("um", "mm") and guess.unit != first.unit:  # its own, not the first's
+                out.add(8, f"{name}: {{column: {q(guess.header)}, unit: {guess.unit}}}", guess.why)
+            elif guess.unit not in ("um", "mm"):
+                out.add(8, f"{name}: {{column: {q(guess.header)}}}", f"CHECK: {guess.check or 'um or mm?'}")
+            else:
+                out.add(8, f"{name}: {{column: {q(guess.header)}}}")
 
 
 def probe_names(headers: list[str]) -> list[str]:

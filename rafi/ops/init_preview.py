@@ -146,10 +146,14 @@ def preview(config_path: str, machine: str) -> list[str]:
         refused by the segmentation (a bad window: the message names the key).
     """
     from rafi.readers.input_spec import scan_logs
-    from rafi.settings import read_machine_config, run_settings
+    from rafi.settings import machine_settings, read_machine_config, run_settings, split_unit, unit_name
 
     config, settings = read_machine_config(config_path, machine)
-    folder = Path(run_settings(config)["raw_dir"]) / machine
+    folder_name, probe = split_unit(machine)
+    probes = list(settings["input"]["probes"])
+    if probe is None and len(probes) > 1:  # the runs do not depend on the probe: its first one's
+        settings = machine_settings(config, unit_name(folder_name, probes[0]))
+    folder = Path(run_settings(config)["raw_dir"]) / folder_name
     paths, refused = scan_logs(folder, settings["input"]) if folder.is_dir() else ([], [])
     if not paths:
         raise SettingsError(
@@ -157,6 +161,8 @@ def preview(config_path: str, machine: str) -> list[str]:
         )
     frames, problems = clean_frames(paths, settings)
     out = [f"rafi init --preview: machine {machine}, {len(paths)} file(s) in {folder}"]
+    if probe is None and len(probes) > 1:
+        out.append(f"  probes: {', '.join(probes)} (one model each; the runs below are every probe's)")
     out += [f"  {line}" for line in refused + problems]
     if not frames:
         return out + ["no file could be read: nothing to segment"]
