@@ -7,7 +7,7 @@ controller PC. ``docs/deploy.md`` describes it for a controls engineer.
 Use::
 
     comp = Compensator.from_artefact(json.load(open("best_model.json")))
-    for t_s, speed_rpm, temps in samples:          # temps: T1..T16 (degC), NaN = missing
+    for t_s, speed_rpm, temps in samples:          # temps: the machine's sensors (degC), NaN = missing
         out = comp.step(t_s, speed_rpm, temps)     # out.compensation_um, out.status
 
 What it does per sample

@@ -67,7 +67,7 @@ __all__ = [
 #: The keys of ``deploy.opcua`` and their defaults (``endpoint`` is required).
 OPCUA_DEFAULTS = {
     "endpoint": None,  # opc.tcp://host:4840
-    "inputs": {},  # speed_rpm / T1..T16 -> node id, or {node, scale, offset}
+    "inputs": {},  # speed_rpm / the sensors -> node id, or {node, scale, offset}
     "node_prefix": "ns=2;s=",  # put before a node name that is not a full node id
     "credentials_file": None,  # outside the project; RAFI_OPCUA_CREDENTIALS overrides it
     "timeout_s": 5.0,  # per request

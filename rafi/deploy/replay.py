@@ -2,7 +2,7 @@
 
 Offline (pandas is used here; the compensator itself stays NumPy only). A log of ``rule runs``'
 frame (``results/<machine>/runs.parquet``: ``log``, ``log_t_s``, ``run_id``, ``segment``,
-``speed_rpm``, ``T1..T16``, ``dz_um``) is fed one sample at a time, in ``log_t_s`` order, through
+``speed_rpm``, the sensors, ``dz_um``) is fed one sample at a time, in ``log_t_s`` order, through
 a :class:`rafi.deploy.limits.SafeCompensator` with the machine's limits in force, powered on at
 the log's first sample. The controller is told where a reference is captured exactly as
 ``tests/test_compensator.py`` tells the bare compensator: ``capture_reference()`` at the first

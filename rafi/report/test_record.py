@@ -340,9 +340,10 @@ def with_log_clock(frame: pd.DataFrame, runs: pd.DataFrame | None) -> pd.DataFra
 
 
 def _logged_sensors(frame: pd.DataFrame) -> list:
-    names = [c for c in frame.columns if len(c) > 1 and c[0] == "T" and c[1:].isdigit()]
-    names = [c for c in names if pd.to_numeric(frame[c], errors="coerce").notna().any()]
-    return sorted(names, key=lambda s: int(s[1:]))
+    """The machine's sensors (:func:`rafi.contract.sensors.run_sensors`) with a value, in order."""
+    from rafi.contract.sensors import run_sensors
+
+    return [c for c in run_sensors(frame) if pd.to_numeric(frame[c], errors="coerce").notna().any()]
 
 
 def _speed_text(r: dict) -> str:
