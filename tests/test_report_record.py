@@ -45,6 +45,7 @@ def _log(name, n, period, runs, *, clock=True, amb=(20.0, 21.5), dz_amp=None, st
             "speed_rpm": 0.0,
         }
     )
+    frame["dT1"], frame["dT16"] = frame["T1"] - 25.0, frame["T16"] - amb[0]  # as runs.parquet: each rise
     frame["run_id"] = ""
     frame["t_s"] = np.nan
     frame["dz_um"] = np.nan

@@ -254,7 +254,8 @@ PRESENTATION_SETTINGS: dict = {
                 shown="none",
                 doc=(
                     "the OPC UA connection of `rafi deploy`: `endpoint` (required), `inputs` (`speed_rpm`, "
-                    "the machine's sensors: a node id or `{node, scale, offset}`), `node_prefix`, `credentials_file`, "
+                    "the machine's sensors: a node id or `{node, scale, offset}`), `node_prefix`, "
+                    "`credentials_file`, "
                     "`timeout_s`, `reconnect_min_s`, `reconnect_max_s`; security: `security_policy` (none, "
                     "`Basic256Sha256`, `Aes128_Sha256_RsaOaep`, `Aes256_Sha256_RsaPss`), `security_mode` "
                     "(`SignAndEncrypt`, `Sign`), `certificate`, `private_key`, and whom to trust: "
