@@ -55,6 +55,7 @@ from rafi.readers.discovery import (
 )
 from rafi.readers.input_assumed import check_no_time_column, check_speed, has_constant_speed, log_speed
 from rafi.readers.input_channels import (  # noqa: F401 (probe_spec, sensor_name_problem: this module's API)
+    _spec_error,
     check_probes,
     check_sensors,
     first_duplicate,
@@ -73,10 +74,6 @@ from rafi.readers.input_layouts import (
 from rafi.readers.log_sources import expand_logs, log_id, log_name  # noqa: F401 (log_id: this module's API)
 
 # --------------------------------------------------------------------------- the input: mapping
-
-
-def _spec_error(key: str, message: str) -> InputSpecError:
-    return InputSpecError(f"input.{key}: {message}")
 
 
 def normalise_input_spec(spec: dict | None) -> dict:

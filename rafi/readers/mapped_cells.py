@@ -20,18 +20,9 @@ from pathlib import Path
 import numpy as np
 
 from rafi.errors import RawFormatError, quote
+from rafi.readers.input_layouts import column_label as excel_column  # noqa: F401 (this module's API)
 from rafi.readers.input_spec import norm_header
 from rafi.readers.parsing import FILE_MAX_BYTES
-
-
-def excel_column(index0: int) -> str:
-    """0-based column index -> Excel letters (0 -> A, 26 -> AA)."""
-    letters = ""
-    n = index0 + 1
-    while n:
-        n, rem = divmod(n - 1, 26)
-        letters = chr(65 + rem) + letters
-    return letters
 
 
 class Table:
