@@ -16,9 +16,10 @@ from project_copy import copy_project, run_rafi, run_snakemake
 from rafi.contract.sensors import DEFAULT_SENSORS, frame_sensors, run_sensors
 from rafi.errors import InputSpecError
 from rafi.readers.input_spec import normalise_input_spec, probe_spec
+from rafi.readers.log_sources import expand_logs
 from rafi.readers.logs import read_log
 from rafi.settings import machine_settings
-from rafi.twin.layouts import LAYOUTS, layout_config, layout_frame, write_layout
+from rafi.twin.layouts import DAILY_SHEETS, LAYOUTS, layout_config, layout_frame, write_layout
 
 # --------------------------------------------------------------------------- resolution
 
@@ -84,8 +85,11 @@ def test_each_layout_reads_back_with_its_config(tmp_path, name):
     spec = normalise_input_spec(layout_config(name)["input"])
     if layout.probes:  # read as its Z probe's unit reads it
         spec = probe_spec(spec, "Z")
-    frame = read_log(files[0], spec)
+    logs, _ = expand_logs(files, spec)
+    source = next(iter(logs.values()))
+    frame = read_log(source["path"], spec, sheet=source["sheet"], partner=source["partner"])
     assert frame_sensors(frame) == layout.sensors
+    assert len(logs) == (DAILY_SHEETS if name == "sheets-18" else 5)  # a sheet a day; a log per pair
     assert frame["speed_rpm"].max() == pytest.approx(3000, abs=5)
     assert frame["disp_um"].abs().max() > 5.0  # um after the unit and sign of the mapping
 
