@@ -22,7 +22,8 @@ def _difference(a: str, b: str) -> tuple[str, str]:
 
 def pair_parts(mains: list[str], partners: list[str]) -> tuple[str, str] | None:
     """``(x, y)`` such that every name of ``mains`` with ``x`` replaced by ``y`` is a name of
-    ``partners`` and every partner is reached so; None when no such texts exist.
+    ``partners`` and every partner is reached so, and the names share more than their suffix;
+    None when no such texts exist.
 
     Parameters
     ----------
@@ -41,6 +42,8 @@ def pair_parts(mains: list[str], partners: list[str]) -> tuple[str, str] | None:
         x, y = _word(mains[0], partner, x, y)
         if not x or not y or any(y in m for m in mains):
             continue
+        if not any(c.isalnum() for m in mains for c in os.path.splitext(m)[0].replace(x, "")):
+            continue  # nothing of the names shared but the suffix: not a pair by name
         if sorted(m.replace(x, y) for m in mains) == sorted(partners):
             return x, y
     return None
