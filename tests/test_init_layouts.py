@@ -81,6 +81,7 @@ def test_a_headerless_workbook_gets_header_row_none_and_its_columns_by_letter(tm
     assert entry["input"]["displacement"]["column"] == truth["columns"]["disp_um"]
     assert list(columns)[2:] == [f"T{k}" for k in range(1, 7)]  # no header to name them by
     assert any(c.startswith("input.columns: no header row") for c in s.checks)
+    assert "# CHECK: no header row" in config_block(s)
     assert any("no header row" in line for line in findings(s))
     frames = read_proposal(entry, files)
     assert len(frames) == len(files)

@@ -216,6 +216,8 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
         out.add(6, f"header_row: {lay['header_row']}")
         if lay.get("skip_rows"):
             out.add(6, f"skip_rows: {lay['skip_rows']}", "label rows (units) after the header")
+    if table.headerless:
+        out.note(6, "CHECK: no header row: each column's role is from its content alone; check the letters")
     out.add(6, "columns:")
     if s.time is not None:
         out.add(8, f"time: {q(s.time.header)}")
