@@ -16,9 +16,10 @@ from project_copy import copy_project, run_rafi, run_snakemake
 from rafi.contract.sensors import DEFAULT_SENSORS, frame_sensors, run_sensors
 from rafi.errors import InputSpecError
 from rafi.readers.input_spec import normalise_input_spec, probe_spec
+from rafi.readers.log_sources import expand_logs
 from rafi.readers.logs import read_log
 from rafi.settings import machine_settings
-from rafi.twin.layouts import LAYOUTS, layout_config, layout_frame, write_layout
+from rafi.twin.layouts import DAILY_SHEETS, LAYOUTS, layout_config, layout_frame, write_layout
 
 # --------------------------------------------------------------------------- resolution
 
@@ -84,8 +85,11 @@ def test_each_layout_reads_back_with_its_config(tmp_path, name):
     spec = normalise_input_spec(layout_config(name)["input"])
     if layout.probes:  # read as its Z probe's unit reads it
         spec = probe_spec(spec, "Z")
-    frame = read_log(files[0], spec)
+    logs, _ = expand_logs(files, spec)
+    source = next(iter(logs.values()))
+    frame = read_log(source["path"], spec, sheet=source["sheet"], partner=source["partner"])
     assert frame_sensors(frame) == layout.sensors
+    assert len(logs) == (DAILY_SHEETS if name == "sheets-18" else 5)  # a sheet a day; a log per pair
     assert frame["speed_rpm"].max() == pytest.approx(3000, abs=5)
     assert frame["disp_um"].abs().max() > 5.0  # um after the unit and sign of the mapping
 
@@ -100,6 +104,37 @@ def init_proposal(proj: Path, machine: str, files: list[Path]) -> dict:
     done = run_rafi(proj, "init", "--machine", machine, *map(str, files))
     assert done.returncode == 0, done.stderr
     return yaml.safe_load(done.stdout)["machines"][machine]
+
+
+def check_unit(proj: Path, config: dict, unit: str) -> None:
+    """What a unit of a twin layout run end to end must hold: rafi init's sensors in runs.parquet,
+    key sensors among them (one of the twin's heated T6, T8, T9 included), a champion that halves
+    the worst error, a replay, a clean audit and a report naming the first key sensor."""
+    name = unit.split("@")[0]
+    sensors = tuple(machine_settings(config, unit)["input"]["sensors"])  # rafi init's names
+    assert len(sensors) == len(LAYOUTS[name].sensors)
+    results = proj / "results" / unit
+    runs = pd.read_parquet(results / "runs.parquet")
+    assert run_sensors(runs) == sensors
+    keys = pd.read_csv(results / "rank" / "key_sensors.csv")["sensor"].tolist()
+    assert keys and set(keys) <= set(sensors)
+    # the twin's heat goes through its T6, T8, T9: the layouts' names of those must be found
+    twin_keys = {
+        s for s, (a, b, _) in zip(sensors, LAYOUTS[name].sources) if a == b and a in ("T6", "T8", "T9")
+    }
+    assert set(keys) & twin_keys
+    best = json.loads((results / "comparison" / "best_model.json").read_text())
+    assert set(best["key_sensors"]) <= set(sensors)
+    summary = pd.read_csv(results / "comparison" / "summary.csv")
+    offered = summary[summary["champion"]].iloc[0]
+    assert offered["max_abs_after_um"] < 0.5 * offered["max_abs_before_um"]
+    replay = pd.read_csv(results / "deploy" / "replay_summary.csv")
+    assert len(replay) > 0
+    audit = pd.read_csv(results / "audit.csv")
+    assert (audit["status"] == "ok").all()
+    html = (proj / "reports" / unit / "qualification.html").read_text(encoding="utf-8")
+    assert keys[0] in html
+    assert (proj / "reports" / unit / "qualification.pdf").stat().st_size > 10_000
 
 
 @pytest.mark.slow
@@ -121,31 +156,7 @@ def test_machines_of_4_to_40_sensors_and_three_probes_run_end_to_end_from_rafi_i
     }
     units = [n for n in E2E_LAYOUTS if n != "probes-xyz"] + [f"probes-xyz@{p}" for p in probes]
     for unit in units:
-        name = unit.split("@")[0]
-        sensors = tuple(machine_settings(config, unit)["input"]["sensors"])  # rafi init's names
-        assert len(sensors) == len(LAYOUTS[name].sensors)
-        results = proj / "results" / unit
-        runs = pd.read_parquet(results / "runs.parquet")
-        assert run_sensors(runs) == sensors
-        keys = pd.read_csv(results / "rank" / "key_sensors.csv")["sensor"].tolist()
-        assert keys and set(keys) <= set(sensors)
-        # the twin's heat goes through its T6, T8, T9: the layouts' names of those must be found
-        twin_keys = {
-            s for s, (a, b, _) in zip(sensors, LAYOUTS[name].sources) if a == b and a in ("T6", "T8", "T9")
-        }
-        assert set(keys) & twin_keys
-        best = json.loads((results / "comparison" / "best_model.json").read_text())
-        assert set(best["key_sensors"]) <= set(sensors)
-        summary = pd.read_csv(results / "comparison" / "summary.csv")
-        offered = summary[summary["champion"]].iloc[0]
-        assert offered["max_abs_after_um"] < 0.5 * offered["max_abs_before_um"]
-        replay = pd.read_csv(results / "deploy" / "replay_summary.csv")
-        assert len(replay) > 0
-        audit = pd.read_csv(results / "audit.csv")
-        assert (audit["status"] == "ok").all()
-        html = (proj / "reports" / unit / "qualification.html").read_text(encoding="utf-8")
-        assert keys[0] in html
-        assert (proj / "reports" / unit / "qualification.pdf").stat().st_size > 10_000
+        check_unit(proj, config, unit)
     # several probes: one report, every probe's verdict on its first page, a section per probe
     page = (proj / "reports" / "probes-xyz" / "qualification.html").read_text(encoding="utf-8")
     for probe, column in probes.items():
@@ -158,6 +169,44 @@ def test_machines_of_4_to_40_sensors_and_three_probes_run_end_to_end_from_rafi_i
     assert {p: p.read_bytes() for p in (proj / "raw").rglob("*") if p.is_file()} == raw_before
     again = run_snakemake(proj, "-n", cores=2)
     assert "Nothing to be done" in again.stdout + again.stderr
+
+
+#: The workbook and file layouts of issue 45: no header row, a sheet a day, two files a run.
+E2E_FILE_LAYOUTS = ("headerless-xlsx", "sheets-18", "two-files")
+
+
+@pytest.mark.slow
+def test_a_headerless_workbook_18_daily_sheets_and_two_files_a_run_end_to_end_from_rafi_inits_proposal(
+    tmp_path,
+):
+    proj = copy_project(tmp_path / "proj", config=False)
+    config = {"machines": {}}
+    for name in E2E_FILE_LAYOUTS:
+        files = write_layout(name, proj / "raw")
+        config["machines"][name] = init_proposal(proj, name, files)
+    truth = {name: layout_config(name)["input"] for name in E2E_FILE_LAYOUTS}
+    proposed = {name: config["machines"][name]["input"] for name in E2E_FILE_LAYOUTS}
+    assert normalise_input_spec(proposed["headerless-xlsx"])["header_row"] is None
+    assert (
+        list(proposed["headerless-xlsx"]["columns"].values())
+        == list(truth["headerless-xlsx"]["columns"].values())[:-1]
+    )
+    assert proposed["headerless-xlsx"]["displacement"]["column"] == "I"
+    assert proposed["sheets-18"]["sheet"] == truth["sheets-18"]["sheet"]
+    assert proposed["two-files"]["join"] == truth["two-files"]["join"]
+    (proj / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False, allow_unicode=True))
+    raw_before = {p: p.read_bytes() for p in (proj / "raw").rglob("*") if p.is_file()}
+
+    done = run_snakemake(proj, cores=2, timeout=1500)
+    assert done.returncode == 0, done.stderr[-3000:]
+    for name in E2E_FILE_LAYOUTS:
+        check_unit(proj, config, name)
+    # a log per sheet (named after it) and per pair of files (named after the temperatures' file)
+    audit = pd.read_csv(proj / "results" / "sheets-18" / "audit.csv")
+    assert sorted(audit["file"]) == [f"Tag {d:02d}" for d in range(1, DAILY_SHEETS + 1)]
+    audit = pd.read_csv(proj / "results" / "two-files" / "audit.csv")
+    assert len(audit) == 5 and all("temps" in f for f in audit["file"])
+    assert {p: p.read_bytes() for p in (proj / "raw").rglob("*") if p.is_file()} == raw_before
 
 
 # --------------------------------------------------------------------------- probes

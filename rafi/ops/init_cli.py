@@ -80,18 +80,30 @@ def _table(rows: list[list[str]]) -> list[str]:
 
 def findings(s) -> list[str]:
     """What ``rafi init`` found, as the lines it prints (``s``: a :class:`rafi.ops.init_survey.Survey`)."""
-    out = [f"rafi init: machine {s.machine}, {len(s.tables)} file(s)"]
+    out = [f"rafi init: machine {s.machine}, {len({t.path for t in s.tables})} file(s)"]
+    shown = set()
     for t in s.tables:
+        if t.path in shown:
+            continue
+        shown.add(t.path)
         where = f", sheet {t.layout['sheet']!r}" if t.format == "xlsx" else ""
-        out.append(
-            f"  {t.path.name}: {t.format}{where}, header row {t.layout['header_row']}, {t.n_rows} rows"
+        header = (
+            "no header row (columns by letter)" if t.headerless else f"header row {t.layout['header_row']}"
         )
+        out.append(f"  {t.path.name}: {t.format}{where}, {header}, {t.n_rows} rows")
         for sh in t.sheets:
             out.append(f"    sheet {sh.name!r}: {sh.kind}, {sh.rows} rows, {sh.columns} columns")
+    if len(s.first.sheet_group) > 1:
+        glob = f"input.sheet: {s.sheet_glob!r}" if s.sheet_glob else "no pattern matches only them"
+        out.append(f"  {len(s.first.sheet_group)} sheets share one layout, each a log ({glob})")
     out += [f"  note: {n}" for n in s.notes]
     rows = [["col", "header", "role", "unit", "confidence", "why"]]
     rows += [[g.letter, g.header, g.role, g.unit or "-", g.confidence, g.why] for g in s.guesses]
-    out += ["columns (of the first file):", *_table(rows)]
+    out += [f"columns (of {s.first.name}):", *_table(rows)]
+    if s.join:
+        rows = [["col", "header", "role", "unit", "confidence", "why"]]
+        rows += [[g.letter, g.header, g.role, g.unit or "-", g.confidence, g.why] for g in s.partner_guesses]
+        out += [f"columns of its partner {s.partner.path.name}:", *_table(rows)]
     if s.time is None:
         out.append("sample period: no time column; give it (--period-s), it is left for you in the block")
     elif s.period_s is not None:
@@ -132,10 +144,10 @@ def run(args) -> int:
         return 0
     from rafi.ops.init_config import add_machine, config_block, parse_block
     from rafi.ops.init_survey import survey
-    from rafi.readers.infer_files import read_unknown
+    from rafi.readers.infer_files import read_unknown_logs
 
     paths = log_paths(args.paths)
-    s = survey(args.machine, [read_unknown(p) for p in paths])
+    s = survey(args.machine, [t for p in paths for t in read_unknown_logs(p)])
     block = config_block(s, period_s=args.period_s)
     parse_block(block, args.machine)
     if not args.write:

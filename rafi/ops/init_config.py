@@ -19,6 +19,7 @@ import yaml
 
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError
+from rafi.ops.init_pairs import main_pattern
 from rafi.ops.init_survey import Survey
 from rafi.settings import machine_settings, validate_config
 
@@ -121,7 +122,7 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
             out.add(8, f"format: {q(s.time_format)}")
         return
     out.add(8, "kind: elapsed_s", f"{s.time.header!r}: {s.time.why}")
-    hint = s.tables[0].start_hint
+    hint = s.first.start_hint
     if hint:
         out.add(8, f"start: {q(hint[0])}", f"from {hint[1]}")
     else:
@@ -184,7 +185,7 @@ def _temperature_unit(out: _Lines, s: Survey) -> None:
 
 def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     """input: (indent 4)."""
-    table = s.tables[0]
+    table = s.first
     out.add(4, "input:")
     if s.format == "native":
         header = table.header
@@ -196,24 +197,27 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
         return
     ext = table.path.suffix.lower() or ".csv"
     out.add(6, f"format: {s.format}")
-    out.add(6, f"pattern: {q('*' + ext)}")
+    if s.join:
+        names = [t.path.name for t in s.logs]
+        why = f"the files holding {s.join[0]!r}; their partners are joined (join: below)"
+        out.add(6, f"pattern: {q(main_pattern(s.join[0], names, ext))}", why)
+    else:
+        out.add(6, f"pattern: {q('*' + ext)}")
     lay = table.layout
     if s.format == "xlsx":
-        sheets = ", ".join(
-            f"{x.name} ({x.kind}{f', {x.rows} rows' if x.kind == 'data' else ''})" for x in table.sheets
-        )
-        out.add(6, f"sheet: {q(lay['sheet'])}", f"sheets: {sheets}")
+        _sheet_key(out, s)
     else:
-        delim = "tab" if lay["delimiter"] == "\t" else lay["delimiter"]
-        if delim != ",":
-            out.add(6, f"delimiter: {q(delim)}")
-        if lay["decimal"] != ".":
-            out.add(6, f"decimal: {q(lay['decimal'])}")
-        if lay["encoding"] != "utf-8":
-            out.add(6, f"encoding: {lay['encoding']}")
-    out.add(6, f"header_row: {lay['header_row']}")
-    if lay.get("skip_rows"):
-        out.add(6, f"skip_rows: {lay['skip_rows']}", "label rows (units) after the header")
+        _text_keys(out, lay)
+    if table.headerless:
+        out.add(6, "header_row: none", "no header row: the columns are given by letter")
+        if lay.get("skip_rows"):
+            out.add(6, f"skip_rows: {lay['skip_rows']}", "lines above the first row of numbers")
+    else:
+        out.add(6, f"header_row: {lay['header_row']}")
+        if lay.get("skip_rows"):
+            out.add(6, f"skip_rows: {lay['skip_rows']}", "label rows (units) after the header")
+    if table.headerless:
+        out.note(6, "CHECK: no header row: each column's role is from its content alone; check the letters")
     out.add(6, "columns:")
     if s.time is not None:
         out.add(8, f"time: {q(s.time.header)}")
@@ -227,7 +231,67 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     if s.speed is None:
         _speed_keys(out, s)
     _displacement_keys(out, s)
+    if s.join:
+        _join_keys(out, s)
     _temperature_unit(out, s)
+
+
+def _text_keys(out: _Lines, lay: dict) -> None:
+    """delimiter, decimal, encoding of a text file where they are not the defaults (indent 6)."""
+    delim = "tab" if lay["delimiter"] == "\t" else lay["delimiter"]
+    if delim != ",":
+        out.add(6, f"delimiter: {q(delim)}")
+    if lay["decimal"] != ".":
+        out.add(6, f"decimal: {q(lay['decimal'])}")
+    if lay["encoding"] != "utf-8":
+        out.add(6, f"encoding: {lay['encoding']}")
+
+
+def _sheet_key(out: _Lines, s: Survey) -> None:
+    """input.sheet: the sheet, or a pattern when several sheets share the layout (indent 6)."""
+    table = s.first
+    sheets = ", ".join(
+        f"{x.name} ({x.kind}{f', {x.rows} rows' if x.kind == 'data' else ''})" for x in table.sheets[:6]
+    ) + (f", ... ({len(table.sheets)} sheets)" if len(table.sheets) > 6 else "")
+    group = table.sheet_group
+    if len(group) > 1 and s.sheet_glob is not None:
+        others = [x.name for x in table.sheets if x.name not in group]
+        but = f"; not {', '.join(others)}" if others else ""
+        out.note(6, f"{len(group)} sheets of one layout: each matching sheet is a log, named after it{but}")
+        out.add(6, f"sheet: {q(s.sheet_glob)}", f"sheets: {sheets}")
+    elif len(group) > 1:
+        out.add(6, f"sheet: {q(table.layout['sheet'])}", "CHECK: a pattern for the sheets of this layout?")
+        out.note(6, f"sheets of this layout: {', '.join(group)}")
+    else:
+        out.add(6, f"sheet: {q(table.layout['sheet'])}", f"sheets: {sheets}")
+
+
+def _join_keys(out: _Lines, s: Survey) -> None:
+    """input.join: the partner file of every log (indent 6)."""
+    partner, main = s.partner, s.first
+    example = f"{main.path.name} + {main.path.name.replace(*s.join)}"
+    out.add(6, "join:", "temperatures and displacement in two files")
+    out.add(8, f"replace: [{q(s.join[0])}, {q(s.join[1])}]", example)
+    if s.join_by == "time":
+        out.add(8, "by: time", "each row takes the partner's row nearest its time")
+    else:
+        out.add(8, "by: row", "CHECK: no time column in both files: row k takes the partner's row k")
+    own = {}
+    if partner.format != main.format:
+        own["format"] = partner.format
+    if partner.format == "csv" and main.format == "csv":
+        own.update(
+            {k: partner.layout[k] for k in ("delimiter", "decimal") if partner.layout[k] != main.layout[k]}
+        )
+    if partner.layout.get("header_row") != main.layout.get("header_row"):
+        own["header_row"] = "none" if partner.headerless else partner.layout["header_row"]
+    time = next((g for g in s.partner_guesses if g.role == "time"), None)
+    if s.join_by == "time" and time is not None and time.header != s.time.header:
+        own["columns"] = f"{{time: {q(time.header)}, disp_um: {q(s.probes[0].header)}}}"
+    if own:
+        out.add(8, "input:", f"{partner.path.name}'s own layout")
+        for key, value in own.items():
+            out.add(10, f"{key}: {value if key in ('columns', 'header_row') else q(value)}")
 
 
 def _speed_keys(out: _Lines, s: Survey) -> None:
@@ -257,8 +321,9 @@ def config_block(s: Survey, *, period_s: float | None = None) -> str:
     """
     period = period_s if period_s is not None else (s.period_s if s.regular_share >= 0.9 else None)
     out = _Lines()
-    files = ", ".join(t.path.name for t in s.tables[:3]) + (", ..." if len(s.tables) > 3 else "")
-    out.note(2, f"proposed by rafi init from {len(s.tables)} file(s): {files}")
+    names = list(dict.fromkeys(t.path.name for t in s.tables))
+    files = ", ".join(names[:3]) + (", ..." if len(names) > 3 else "")
+    out.note(2, f"proposed by rafi init from {len(names)} file(s): {files}")
     out.note(2, "lines marked CHECK need your decision (commented-out keys keep their defaults)")
     out.add(2, f"{s.machine}:")
     _method_keys(out, s, period)

@@ -10,7 +10,7 @@ the block, :mod:`rafi.ops.init_cli` prints the findings.
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -25,6 +25,7 @@ from rafi.ops.init_layout import (
     sample_period,
     speed_steps,
 )
+from rafi.ops.init_pairs import pair_parts, sheet_glob
 from rafi.readers.infer import ColumnGuess, guess_columns, sensor_names, to_numbers, to_times
 from rafi.readers.infer_files import RawTable
 
@@ -76,6 +77,19 @@ class Survey:
         What the user must decide, one sentence each, starting with the key.
     notes : list of str
         Other findings (files with another header, other sheets).
+    sheet_glob : str or None
+        ``input.sheet`` as a pattern when several sheets of a workbook share one layout (each a
+        log); None for one sheet, or when no pattern matches exactly those sheets (then a check).
+    partner : RawTable or None
+        The first partner file when the files come in pairs (``join``), else None.
+    partner_guesses : list of ColumnGuess
+        The partner's columns.
+    join : tuple of str or None
+        ``input.join.replace``: the texts that tell a log's file from its partner's.
+    join_by : str
+        ``time`` when both files have a time column, else ``row``.
+    logs : list of RawTable
+        The tables surveyed as logs (of the first log's layout; partners not among them).
     """
 
     machine: str
@@ -98,10 +112,21 @@ class Survey:
     speed_by_file: dict = field(default_factory=dict)
     checks: list = field(default_factory=list)
     notes: list = field(default_factory=list)
+    sheet_glob: str | None = None
+    partner: RawTable | None = None
+    partner_guesses: list = field(default_factory=list)
+    join: tuple | None = None
+    join_by: str = "time"
+    logs: list = field(default_factory=list)
+
+    @property
+    def first(self) -> RawTable:
+        """The first log surveyed (its columns are :attr:`guesses`)."""
+        return self.logs[0] if self.logs else self.tables[0]
 
     @property
     def format(self) -> str:
-        return self.tables[0].format
+        return self.first.format
 
     @property
     def temperatures(self) -> list[ColumnGuess]:
@@ -160,22 +185,62 @@ def _speeds_from_names(names: list[str]) -> dict[str, float]:
     return out
 
 
+def _probe_cells(survey: Survey, table: RawTable) -> np.ndarray | None:
+    """The first probe's values beside ``table``'s rows: its own column, or its partner file's
+    (row by row, when the two have as many rows; else None)."""
+    if survey.join is None:
+        return to_numbers(table.columns[survey.probes[0].index], table.layout.get("decimal", "."))
+    name = table.path.name.replace(*survey.join)
+    partner = next((t for t in survey.tables if t.path.name == name), None)
+    if partner is None or partner.n_rows != table.n_rows:
+        return None
+    return to_numbers(partner.columns[survey.probes[0].index], partner.layout.get("decimal", "."))
+
+
+def _guesses(table: RawTable) -> list[ColumnGuess]:
+    """Every column's guess; a table without a header row is guessed by content alone and its
+    columns are named by letter."""
+    if not table.headerless:
+        return guess_columns(table.header, table.columns, table.layout.get("decimal", "."), table.labels)
+    guesses = guess_columns([""] * len(table.header), table.columns, table.layout.get("decimal", "."))
+    return [replace(g, header=g.letter) for g in guesses]
+
+
+def _pairs(tables: list[RawTable]) -> tuple[list[RawTable], list[RawTable], tuple | None]:
+    """``(logs, partners, replace)``: the files of the layout with temperatures and those of the
+    layout with the displacement when they come in pairs by name, else ``(tables, [], None)``."""
+    groups: dict = {}
+    for t in tables:
+        groups.setdefault((tuple(t.header), t.format), []).append(t)
+    if len(groups) != 2:
+        return tables, [], None
+    roles = {key: {g.role for g in _guesses(group[0])} for key, group in groups.items()}
+    mains = [k for k, r in roles.items() if "temperature" in r and "displacement" not in r]
+    partners = [k for k, r in roles.items() if "displacement" in r and "temperature" not in r]
+    if len(mains) != 1 or len(partners) != 1:
+        return tables, [], None
+    logs, others = groups[mains[0]], groups[partners[0]]
+    parts = pair_parts([t.path.name for t in logs], [t.path.name for t in others])
+    return (logs, others, parts) if parts else (tables, [], None)
+
+
 def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
     """Period, steps and the probe's sign of every table (``survey`` is filled in)."""
     periods, shares = [], []
     for table in tables:
         t, s = _time_and_speed(table, survey.guesses, survey)
         if t is None:
-            survey.shapes.append(LogShape(table.path.name, table.n_rows, None, 0.0, ()))
+            survey.shapes.append(LogShape(table.name, table.n_rows, None, 0.0, ()))
             continue
         period, share = sample_period(t)
         periods.append(period)
         shares.append(share)
         steps = tuple(speed_steps(t, s, period)) if s is not None and period else ()
-        survey.shapes.append(LogShape(table.path.name, table.n_rows, period, share, steps))
+        survey.shapes.append(LogShape(table.name, table.n_rows, period, share, steps))
         if survey.sign is None and survey.probes and s is not None:
-            d = to_numbers(table.columns[survey.probes[0].index], table.layout.get("decimal", "."))
-            survey.sign, survey.sign_why = probe_sign(t, s, d)
+            d = _probe_cells(survey, table)
+            if d is not None:
+                survey.sign, survey.sign_why = probe_sign(t, s, d)
     if periods:
         survey.period_s = float(np.median(periods))
         survey.regular_share = float(min(shares))
@@ -195,10 +260,13 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
     -------
     Survey
     """
-    first = tables[0]
-    guesses = guess_columns(first.header, first.columns, first.layout.get("decimal", "."), first.labels)
+    logs, partners, parts = _pairs(tables)
+    first = logs[0]
+    guesses = _guesses(first)
     temps = [g for g in guesses if g.role == "temperature"]
-    names = sensor_names([g.header for g in temps])
+    names = sensor_names([g.header for g in temps]) if not first.headerless else []
+    names = names or [f"T{k}" for k in range(1, len(temps) + 1)]
+    partner_guesses = _guesses(partners[0]) if partners else []
     out = Survey(
         machine=machine,
         tables=tables,
@@ -206,13 +274,26 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         sensors=dict(zip(names, (g.header for g in temps))),
         time=next((g for g in guesses if g.role == "time"), None),
         speed=next((g for g in guesses if g.role == "speed"), None),
-        probes=_axis_first([g for g in guesses if g.role == "displacement"]),
+        probes=_axis_first([g for g in partner_guesses or guesses if g.role == "displacement"]),
+        partner=partners[0] if partners else None,
+        partner_guesses=partner_guesses,
+        join=parts,
     )
-    for table in tables[1:]:
+    if parts:
+        out.notes.append(
+            f"{len(logs)} pair(s) of files by name: {parts[0]!r} holds the temperatures, {parts[1]!r} "
+            f"the displacement ({logs[0].path.name} + {logs[0].path.name.replace(*parts)}): joined"
+        )
+        has_time = any(g.role == "time" for g in partner_guesses)
+        out.join_by = "time" if out.time is not None and has_time else "row"
+    for table in logs[1:] if parts else tables[1:]:
         if table.header != first.header or table.format != first.format:
             out.notes.append(f"{table.path.name}: another layout than {first.path.name}; it is not surveyed")
-    same = [t for t in tables if t.header == first.header and t.format == first.format]
-    out.notes += [n for t in same for n in t.notes]
+    same = [t for t in logs if t.header == first.header and t.format == first.format]
+    out.logs = same
+    if len(first.sheet_group) > 1:
+        out.sheet_glob = sheet_glob(list(first.sheet_group), [x.name for x in first.sheets])
+    out.notes += list(dict.fromkeys(n for t in same for n in t.notes))  # once, not once a file
     _log_shapes(out, same)
     if any(s.steps for s in out.shapes):
         out.kind, out.kind_why = log_kind(out.shapes)
@@ -228,6 +309,20 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
 def _checks(s: Survey) -> list[str]:
     """What the user must decide, one sentence each (key first)."""
     out = [f"column {g.letter} {g.header!r}: {g.check}" for g in s.guesses if g.check]
+    if s.join:
+        out += [
+            f"column {g.letter} of {s.partner.path.name}: {g.check}" for g in s.partner_guesses if g.check
+        ]
+    if s.first.headerless:
+        out.append(
+            "input.columns: no header row; each column's role is from its content alone: check the letters"
+        )
+    group = s.first.sheet_group
+    if len(group) > 1 and s.sheet_glob is None:
+        out.append(
+            f"input.sheet: {len(group)} sheets share one layout but no pattern matches only them; "
+            "give a pattern (each matching sheet is a log) or read one sheet"
+        )
     if s.training.get("speeds"):
         out.append("training_speeds_rpm: decide which speeds train; the others validate")
     if s.format == "native":
@@ -238,7 +333,7 @@ def _checks(s: Survey) -> list[str]:
         out.append(
             f"sample_period_s: the time steps are irregular ({s.regular_share:.0%} regular); give the period"
         )
-    if s.time is not None and s.time.unit != "timestamp" and not s.tables[0].start_hint:
+    if s.time is not None and s.time.unit != "timestamp" and not s.first.start_hint:
         out.append("input.time.start: elapsed seconds with no start date found; give when second 0 was")
     if s.speed is None and not s.speed_by_file:
         out.append("input.speed: no speed column; give constant_rpm or constant_rpm_by_file")

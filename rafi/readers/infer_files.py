@@ -33,6 +33,9 @@ ENCODINGS = ("utf-8", "cp1252")
 #: Lines (rows) looked at to find the header.
 HEAD_LINES = 40
 
+#: Rows of numbers in a row, from the top, that make a file one without a header row.
+HEADERLESS_DATA_ROWS = 5
+
 
 @dataclass(frozen=True)
 class SheetInfo:
@@ -73,6 +76,9 @@ class RawTable:
         What the reading noticed (other data sheets, a units row).
     labels : list of str
         Per column, the text of the label rows after the header (units), else empty.
+    sheet_group : tuple of str
+        A workbook's data sheets sharing this sheet's header, this one included (workbook
+        order); empty for a text file.
     """
 
     path: Path
@@ -85,11 +91,22 @@ class RawTable:
     start_hint: tuple | None = None
     notes: list = field(default_factory=list)
     labels: list = field(default_factory=list)
+    sheet_group: tuple = ()
 
     @property
     def n_rows(self) -> int:
         """Data rows."""
         return len(self.columns[0]) if self.columns else 0
+
+    @property
+    def headerless(self) -> bool:
+        """No header row: the columns are named by their letters."""
+        return self.layout.get("header_row", 1) is None
+
+    @property
+    def name(self) -> str:
+        """The log's name: the sheet's, for one of several sheets of a workbook; else the file's."""
+        return self.layout["sheet"] if len(self.sheet_group) > 1 else self.path.name
 
 
 def _is_number(text) -> bool:
@@ -134,6 +151,21 @@ def header_position(rows: list) -> tuple[int, int] | None:
     return None
 
 
+def headerless_start(rows: list) -> int | None:
+    """Index of the first of :data:`HEADERLESS_DATA_ROWS` rows of numbers in a row (the data of a
+    file without a header row, after a preamble of at most :data:`HEAD_LINES` rows), or None."""
+    for k in range(min(HEAD_LINES, len(rows))):
+        nxt = rows[k : k + HEADERLESS_DATA_ROWS]
+        if len(nxt) == min(HEADERLESS_DATA_ROWS, len(rows)) and all(_data_row(r) for r in nxt):
+            return k
+    return None
+
+
+def letter_header(n: int) -> list[str]:
+    """Column names of a table without a header row: its Excel letters (A, B, ..., AA)."""
+    return [excel_column(j) for j in range(n)]
+
+
 # --------------------------------------------------------------------------- text files
 
 
@@ -144,7 +176,8 @@ def sniff_text(lines: list[str]) -> dict:
     -------
     dict
         ``delimiter``, ``decimal``, ``header_row`` (1-based), ``skip_rows`` (label lines after
-        the header, e.g. units); ``header_row`` None when no header was found.
+        the header, e.g. units); ``header_row`` None when no header was found, and then
+        ``headerless`` True when the lines are numbers from the top (after ``skip_rows`` lines).
     """
     body = [(i, ln) for i, ln in enumerate(lines[: HEAD_LINES * 5]) if ln.strip() and not ln.startswith("#")]
     best, score = ",", -1
@@ -163,11 +196,13 @@ def sniff_text(lines: list[str]) -> dict:
     rows = [[f.strip() for f in ln.split(best)] for _, ln in body]
     found = header_position(rows)
     header_row = body[found[0]][0] + 1 if found else None
+    start = headerless_start(rows) if found is None else None
     return {
         "delimiter": best,
         "decimal": decimal,
         "header_row": header_row,
-        "skip_rows": found[1] if found else 0,
+        "skip_rows": found[1] if found else (body[start][0] if start is not None else 0),
+        "headerless": start is not None,
     }
 
 
@@ -207,7 +242,7 @@ def _read_text(path: Path, raw: bytes) -> RawTable:
             continue
     lines = split_lines(text)
     found = sniff_text(lines)
-    if found["header_row"] is None:
+    if found["header_row"] is None and not found["headerless"]:
         raise RawFormatError(path, "no header line followed by rows of numbers in the first lines")
     spec = {
         "format": "csv",
@@ -219,18 +254,25 @@ def _read_text(path: Path, raw: bytes) -> RawTable:
     }
     table = read_csv_table(path, raw, spec)
     meta = _metadata(lines)
-    below = [ln for ln in lines[spec["header_row"] :] if ln.strip()][: spec["skip_rows"]]
-    labels = _labels([ln.split(spec["delimiter"]) for ln in below], len(table.header))
-    native = _native_header(list(table.header)) and found["delimiter"] == ","
+    if found["headerless"]:
+        header = letter_header(len(table.header))
+        labels = [""] * len(header)
+        notes = ["no header row: the columns are named by their letters (A, B, ...)"]
+    else:
+        header = list(table.header)
+        below = [ln for ln in lines[spec["header_row"] :] if ln.strip()][: spec["skip_rows"]]
+        labels = _labels([ln.split(spec["delimiter"]) for ln in below], len(header))
+        notes = [f"{spec['skip_rows']} label row(s) after the header skipped"] if spec["skip_rows"] else []
+    native = _native_header(header) and found["delimiter"] == ","
     layout = {k: spec[k] for k in ("delimiter", "decimal", "encoding", "header_row", "skip_rows")}
     return RawTable(
         path,
         "native" if native else "csv",
         layout,
-        list(table.header),
-        [list(c) for c in zip(*table.rows)] if table.rows else [[] for _ in table.header],
+        header,
+        [list(c) for c in zip(*table.rows)] if table.rows else [[] for _ in header],
         meta=meta,
-        notes=[f"{spec['skip_rows']} label row(s) after the header skipped"] if spec["skip_rows"] else [],
+        notes=notes,
         labels=labels,
     )
 
@@ -261,7 +303,32 @@ def _start_in(name: str, rows: list[list]) -> tuple[str, str] | None:
     return None
 
 
-def _read_workbook(path: Path, raw: bytes) -> RawTable:
+def _sheet_table(name: str, rows: list[list]) -> tuple | None:
+    """``(header row or None, skip, header, data rows, labels)`` of a sheet holding data: under
+    a header row, or rows of numbers from the top (no header row: the columns by letter)."""
+    found = header_position(rows)
+    if found is not None:
+        k, skip = found
+        header = [norm_header("" if v is None else v) for v in rows[k]]
+        while header and not header[-1]:
+            header.pop()
+        first, row, labels = k + 1 + skip, k + 1, _labels(rows[k + 1 : k + 1 + skip], len(header))
+    else:
+        start = headerless_start(rows)
+        if start is None:
+            return None
+        width = max(len(r) for r in rows[start : start + HEAD_LINES])
+        header, first, row, skip, labels = letter_header(width), start, None, start, [""] * width
+    data = [r[: len(header)] + [None] * (len(header) - len(r)) for r in rows[first:]]
+    data = [r for r in data if any(c is not None and str(c).strip() != "" for c in r)]
+    while header and row is None and all(r[-1] is None for r in data):  # empty columns at the right
+        header.pop()
+        data = [r[:-1] for r in data]
+    return row, skip, header, data, labels
+
+
+def _read_workbook(path: Path, raw: bytes) -> list[RawTable]:
+    """The largest data sheet of a workbook, then every other data sheet with its header."""
     import openpyxl
 
     from rafi.readers.mapped_cells import check_zip_sizes
@@ -277,37 +344,56 @@ def _read_workbook(path: Path, raw: bytes) -> RawTable:
         wb.close()
     sheets, tables, start = [], {}, None
     for name, rows in read.items():
-        found = header_position(rows)
+        found = _sheet_table(name, rows)
         if found is None:
             kind = "empty" if not any(any(c is not None for c in r) for r in rows) else "info"
             sheets.append(SheetInfo(name, len(rows), max((len(r) for r in rows), default=0), kind))
             start = start or (_start_in(name, rows) if kind == "info" else None)
             continue
-        k, skip = found
-        header = [norm_header("" if v is None else v) for v in rows[k]]
-        while header and not header[-1]:
-            header.pop()
-        data = [r[: len(header)] + [None] * (len(header) - len(r)) for r in rows[k + 1 + skip :]]
-        data = [r for r in data if any(c is not None and str(c).strip() != "" for c in r)]
-        sheets.append(SheetInfo(name, len(data), len(header), "data", tuple(header)))
-        tables[name] = (k + 1, skip, header, data, _labels(rows[k + 1 : k + 1 + skip], len(header)))
+        tables[name] = found
+        sheets.append(SheetInfo(name, len(found[3]), len(found[2]), "data", tuple(found[2])))
     if not tables:
-        raise RawFormatError(path, "no sheet holds a header row followed by rows of numbers")
-    name = max(tables, key=lambda n: len(tables[n][3]))
-    header_row, skip, header, data, labels = tables[name]
-    twins = [s.name for s in sheets if s.kind == "data" and s.name != name and list(s.header) == header]
+        raise RawFormatError(path, "no sheet holds rows of numbers (under a header row or from the top)")
+    first = max(tables, key=lambda n: len(tables[n][3]))
+    group = [n for n in tables if n == first or tables[n][2] == tables[first][2]]
+    twins = [n for n in group if n != first]
     notes = [f"{len(twins)} other sheet(s) with the same header: {', '.join(twins)}"] if twins else []
-    return RawTable(
-        path,
-        "xlsx",
-        {"sheet": name, "header_row": header_row, "skip_rows": skip},
-        header,
-        [list(c) for c in zip(*data)] if data else [[] for _ in header],
-        sheets=sheets,
-        start_hint=start,
-        notes=notes,
-        labels=labels,
-    )
+    if tables[first][0] is None:
+        notes.append("no header row: the columns are named by their letters (A, B, ...)")
+    out = []
+    for name in [first, *twins]:
+        header_row, skip, header, data, labels = tables[name]
+        out.append(
+            RawTable(
+                path,
+                "xlsx",
+                {"sheet": name, "header_row": header_row, "skip_rows": skip},
+                header,
+                [list(c) for c in zip(*data)] if data else [[] for _ in header],
+                sheets=sheets,
+                start_hint=start,
+                notes=notes if name == first else [],
+                labels=labels,
+                sheet_group=tuple(group),
+            )
+        )
+    return out
+
+
+def read_unknown_logs(path: str | os.PathLike) -> list[RawTable]:
+    """Every log of one file of unknown layout: the file, or every data sheet of a workbook that
+    shares its largest sheet's header (the largest first, then the others in workbook order).
+
+    Raises
+    ------
+    RawFormatError
+        As :func:`read_unknown`.
+    """
+    path = Path(path)
+    raw = read_file_bytes(path)
+    if raw[:2] == b"PK":
+        return _read_workbook(path, raw)
+    return [_read_text(path, raw)]
 
 
 def read_unknown(path: str | os.PathLike) -> RawTable:
@@ -318,8 +404,4 @@ def read_unknown(path: str | os.PathLike) -> RawTable:
     RawFormatError
         The file cannot be read, or holds no header followed by rows of numbers.
     """
-    path = Path(path)
-    raw = read_file_bytes(path)
-    if raw[:2] == b"PK":
-        return _read_workbook(path, raw)
-    return _read_text(path, raw)
+    return read_unknown_logs(path)[0]

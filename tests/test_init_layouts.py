@@ -1,0 +1,191 @@
+"""``rafi init`` on the workbook and file layouts of issue 45: files without a header row, a
+workbook of one test per sheet, temperatures and displacement in two files a run.
+
+The files are the twin's (:mod:`rafi.twin.layouts`, whose ``layout_config`` is the truth) and
+the readers' test generators (tests/layout_files.py); each proposal is read back with the
+pipeline's own readers.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import openpyxl
+import pytest
+from layout_files import canonical_frame, write_daily_workbook, write_headerless_csv, write_split_pair
+
+from rafi.ops.init_cli import findings
+from rafi.ops.init_config import config_block, parse_block
+from rafi.ops.init_pairs import main_pattern, pair_parts, sheet_glob
+from rafi.ops.init_survey import survey
+from rafi.readers.infer_files import read_unknown, read_unknown_logs
+from rafi.readers.input_spec import normalise_input_spec
+from rafi.readers.log_sources import expand_logs
+from rafi.readers.logs import read_log
+from rafi.readers.mapped_cells import excel_column
+from rafi.twin.layouts import DAILY_SHEETS, LAYOUTS, PAIR_PARTS, layout_config, write_layout
+
+
+def propose(machine: str, files: list[Path]) -> tuple[object, dict]:
+    """The survey of ``files`` and the ``machines.<machine>`` entry rafi init proposes for them."""
+    s = survey(machine, [t for f in files for t in read_unknown_logs(f)])
+    return s, parse_block(config_block(s), machine)
+
+
+def read_proposal(entry: dict, files: list[Path]) -> list:
+    """Every log the proposal's ``input`` finds among ``files``, read as the pipeline reads it."""
+    spec = normalise_input_spec(entry["input"])
+    matching = [f for f in files if Path(f).match(spec["pattern"])]
+    logs, _ = expand_logs(sorted(matching), spec)
+    return [read_log(x["path"], spec, sheet=x["sheet"], partner=x["partner"]) for x in logs.values()]
+
+
+# --------------------------------------------------------------------------- names
+
+
+def test_pair_parts_finds_the_texts_that_tell_a_file_from_its_partner():
+    mains = ["temps_0312.csv", "temps_0313.csv"]
+    assert pair_parts(mains, ["disp_0313.csv", "disp_0312.csv"]) == ("temps", "disp")
+    # whole words: the common 'temp' of the two names belongs to the texts
+    assert pair_parts(["run1_temperatures.csv"], ["run1_tempdisp.csv"]) == ("temperatures", "tempdisp")
+    assert pair_parts(mains, ["disp_0312.csv"]) is None  # a partner missing
+    assert pair_parts(mains, ["disp_0312.csv", "disp_9999.csv"]) is None  # not partners by name
+    assert main_pattern("temps", mains, ".csv") == "temps*.csv"
+    assert main_pattern("temps", ["a_temps.csv", "temps_b.csv"], ".csv") == "*temps*.csv"
+
+
+def test_sheet_glob_matches_exactly_the_log_sheets():
+    days = [f"Tag {d:02d}" for d in range(1, 19)]
+    assert sheet_glob(days, days) == "*"
+    assert sheet_glob(days, ["Info", *days]) == "Tag *"
+    assert sheet_glob(["Tag 01", "Tag 02"], ["Tag 01", "Tag 02", "Tag 03"]) is None  # Tag 03 differs
+    assert sheet_glob(["Mon", "Tue"], ["Mon", "Tue", "Notes"]) is None  # no common start
+
+
+# --------------------------------------------------------------------------- no header row
+
+
+def test_a_headerless_workbook_gets_header_row_none_and_its_columns_by_letter(tmp_path):
+    files = write_layout("headerless-xlsx", tmp_path)
+    table = read_unknown(files[0])
+    assert table.headerless and table.header == list("ABCDEFGHI")
+    s, entry = propose("rig", files)
+    truth = layout_config("headerless-xlsx")["input"]
+    assert normalise_input_spec(entry["input"])["header_row"] is None
+    columns = entry["input"]["columns"]
+    assert (
+        columns["time"] == truth["columns"]["time"] and columns["speed_rpm"] == truth["columns"]["speed_rpm"]
+    )
+    assert [v for k, v in columns.items() if k not in ("time", "speed_rpm")] == list("CDEFGH")
+    assert entry["input"]["displacement"]["column"] == truth["columns"]["disp_um"]
+    assert list(columns)[2:] == [f"T{k}" for k in range(1, 7)]  # no header to name them by
+    assert any(c.startswith("input.columns: no header row") for c in s.checks)
+    assert "# CHECK: no header row" in config_block(s)
+    assert any("no header row" in line for line in findings(s))
+    frames = read_proposal(entry, files)
+    assert len(frames) == len(files)
+    expected = openpyxl.load_workbook(sorted(files)[0], read_only=True).active  # the first log
+    first = next(expected.iter_rows(values_only=True))
+    assert frames[0]["disp_um"].iloc[0] == pytest.approx(first[-1])
+    assert frames[0]["speed_rpm"].iloc[0] == pytest.approx(first[1])
+
+
+def test_a_headerless_csv_behind_a_preamble_is_read_from_its_first_row_of_numbers(tmp_path):
+    frame = canonical_frame(60, seed=3)
+    path = tmp_path / "log.csv"
+    positions = write_headerless_csv(path, frame, preamble=2)
+    table = read_unknown(path)
+    assert table.headerless and table.layout["skip_rows"] == 2 and table.n_rows == 60
+    s, entry = propose("rig", [path])
+    assert entry["input"]["header_row"] == "none" and entry["input"]["skip_rows"] == 2
+    time = excel_column(positions["time"] - 1)  # the last column, written first in time
+    assert entry["input"]["columns"]["time"] == time
+    # one speed all along, no header to say so: not taken for a speed, left to the user
+    assert "speed_rpm" not in entry["input"]["columns"]
+    assert any(c.startswith("input.speed:") for c in s.checks)
+
+
+def test_a_file_with_a_header_is_not_taken_for_a_headerless_one(tmp_path):
+    files = write_layout("sensors-6-diameter", tmp_path)
+    table = read_unknown(files[0])
+    assert not table.headerless and table.layout["header_row"] == 1
+
+
+# --------------------------------------------------------------------------- sheets
+
+
+def test_a_workbook_of_daily_sheets_gets_a_sheet_pattern_and_every_sheet_is_a_log(tmp_path):
+    files = write_layout("sheets-18", tmp_path)
+    tables = read_unknown_logs(files[0])
+    assert sorted(t.name for t in tables) == [f"Tag {d:02d}" for d in range(1, DAILY_SHEETS + 1)]
+    s, entry = propose("tc", files)
+    assert entry["input"]["sheet"] == "Tag *"  # the Info sheet is not a log
+    assert len(s.shapes) == DAILY_SHEETS  # every sheet's speed steps were looked at
+    assert sorted(entry["training_speeds_rpm"]) == [3000, 6000, 9000, 15000]  # no sheet says 'train'
+    assert any("18 sheets share one layout" in line for line in findings(s))
+    frames = read_proposal(entry, files)
+    assert len(frames) == DAILY_SHEETS
+    assert all(len(f.columns.intersection(["disp_um", "speed_rpm"])) == 2 for f in frames)
+
+
+def test_sheets_of_one_layout_without_a_pattern_leave_the_sheet_to_check(tmp_path):
+    path = tmp_path / "book.xlsx"
+    write_daily_workbook(path, days=3, extra_sheets=("Notes",))
+    wb = openpyxl.load_workbook(path)
+    wb["Tag 03"].title = "Montag"
+    wb.save(path)
+    s, entry = propose("tc", [path])
+    assert s.sheet_glob is None
+    assert entry["input"]["sheet"] in ("Tag 01", "Tag 02", "Montag")
+    assert any(c.startswith("input.sheet:") for c in s.checks)
+
+
+def test_every_sheet_is_a_log_when_every_sheet_holds_one(tmp_path):
+    path = tmp_path / "book.xlsx"
+    write_daily_workbook(path, days=4, extra_sheets=())
+    s, entry = propose("tc", [path])
+    assert entry["input"]["sheet"] == "*"
+
+
+# --------------------------------------------------------------------------- two files
+
+
+def test_files_in_pairs_by_name_are_joined(tmp_path):
+    files = write_layout("two-files", tmp_path)
+    s, entry = propose("tc", files)
+    truth = layout_config("two-files")["input"]
+    assert entry["input"]["join"] == truth["join"]
+    assert entry["input"]["displacement"]["column"] == LAYOUTS["two-files"].displacement_header
+    assert [Path(f).name for f in files if Path(f).match(entry["input"]["pattern"])] == [
+        Path(f).name for f in files if Path(f).name.startswith(PAIR_PARTS[0])
+    ]
+    assert s.sign == 1  # the probe's direction read from the partner, row beside row
+    frames = read_proposal(entry, files)
+    assert len(frames) == 5
+    assert frames[0]["disp_um"].abs().max() > 5.0
+
+
+def test_split_pair_with_its_own_headers_names_the_partners_columns(tmp_path):
+    frame = canonical_frame(60, seed=1)
+    frame["disp_um"] = np.round(np.linspace(0, 20, 60), 3)  # a smooth warm-up
+    main, partner = write_split_pair(tmp_path, frame, stem="0312")
+    main2, partner2 = write_split_pair(
+        tmp_path, canonical_frame(60, seed=2, start="2026-03-03 06:00"), stem="0313"
+    )
+    s, entry = propose("tc", [main, partner, main2, partner2])
+    join = entry["input"]["join"]
+    assert join["replace"] == ["temps", "disp"] and join["by"] == "time"
+    assert join["input"]["columns"] == {"time": "Zeit", "disp_um": "Weg [um]"}  # the partner's time header
+    frames = read_proposal(entry, [main, partner, main2, partner2])
+    assert len(frames) == 2
+    assert frames[0]["disp_um"].to_numpy() == pytest.approx(frame["disp_um"].to_numpy())
+
+
+def test_files_of_two_layouts_not_in_pairs_are_not_joined(tmp_path):
+    frame = canonical_frame(60, seed=1)
+    main, partner = write_split_pair(tmp_path, frame, stem="0312")
+    other = partner.rename(tmp_path / "weg_9999.csv")
+    s, _ = propose("tc", [main, other])
+    assert s.join is None
+    assert any("another layout" in n for n in s.notes)
