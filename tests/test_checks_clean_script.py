@@ -30,6 +30,7 @@ def _smk(tmp_path: Path, raw: Path, mode: str = "quarantine") -> SimpleNamespace
     return SimpleNamespace(
         params=SimpleNamespace(
             raw_paths={raw.stem: str(raw)},
+            raw_parts={},  # plain files: no sheet-log, no joined partner
             input_spec={"format": "native"},
             sample_period_s=5,
             clean={

@@ -51,6 +51,7 @@ CROSS_MACHINE = {
     "nightly": "target rule",
     "input_check": "reads every machine's input_status.json",
     "fleet_index": "reads every machine's state",
+    "probes_report": "reads every probe's report of a machine with several probes (as fleet_index)",
 }
 #: Result files that carry the run's identity (model ids hash the creation time and code
 #: version; the registry and the reports show them): compared by `rafi diff`, not byte for byte.
