@@ -54,9 +54,9 @@ def report_inputs(wildcards):
 
 
 def probes_report_inputs(wildcards):
-    """Named inputs of rule probes_report: every probe's comparison summary, per-run table and
-    registry decision (``summary_<probe>``, ...) and, as ``reports``, every probe's report (HTML)
-    in the order of ``input.probes``."""
+    """Named inputs of the report of a machine with several probes (``probes_report``), every
+    probe's comparison summary, per-run table and registry decision (``summary_<probe>``, ...)
+    and, as ``reports``, every probe's report (HTML) in the order of ``input.probes``."""
     folder = wildcards.folder
     inputs = {}
     for probe in PROBES[folder]:
