@@ -144,6 +144,16 @@ def unit_name(machine: str, probe: str | None) -> str:
     return machine if probe is None else f"{machine}{PROBE_SEPARATOR}{probe}"
 
 
+def probes_by_machine(units) -> dict[str, list[str]]:
+    """Machine -> its probes in order, of the units (:func:`split_unit`) that are probes."""
+    out: dict[str, list[str]] = {}
+    for unit in units:
+        machine, probe = split_unit(unit)
+        if probe is not None:
+            out.setdefault(machine, []).append(probe)
+    return out
+
+
 def machine_units(config: Mapping, machine: str) -> list[str]:
     """What the pipeline qualifies of ``machine``: one unit per probe of its ``input.probes``
     (``<machine>@<probe>``, in the mapping's order), else the machine itself."""

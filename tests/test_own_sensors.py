@@ -291,3 +291,26 @@ def test_init_preview_of_a_machine_with_probes_lists_its_runs_once(tmp_path):
     assert lines[1].strip().startswith("probes: X, Y, Z")
     assert any("train_03000rpm" in line and "training" in line for line in lines)
     assert preview(str(path), "xyz@Y")[2:] == lines[3:]  # one probe: the same runs
+
+
+def test_probes_by_machine_groups_the_units_of_several_probes():
+    from rafi.settings import probes_by_machine
+
+    units = ["a", "fl@ch1", "fl@ch2", "xyz@Z"]
+    assert probes_by_machine(units) == {"fl": ["ch1", "ch2"], "xyz": ["Z"]}
+
+
+@pytest.mark.slow
+def test_a_night_of_a_machine_with_probes_says_every_probe(tmp_path):
+    from project_copy import run_nightly, settle
+
+    proj = copy_project(tmp_path / "proj", config=False)
+    for path in write_layout("probes-xyz", proj / "raw", machine="xyz"):
+        settle(path)
+    config = {"machines": {"xyz": layout_config("probes-xyz")}}
+    (proj / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+    done = run_nightly(proj, "--machine", "xyz")
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-2000:]
+    for probe in ("X", "Y", "Z"):
+        assert (proj / "results" / f"xyz@{probe}" / "registry" / "decision.json").is_file()
+        assert f"xyz@{probe}: PASS - model offered" in done.stdout, done.stdout

@@ -413,14 +413,31 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
             check_writable(paths.results_dir)
         except OSError as exc:
             return _os_error(exc, paths.results_dir)
-    statuses = [machine_status(paths, m, night_start) for m in machines]
+    units = _units(args, machines)
+    statuses = [machine_status(paths, m, night_start) for m in units]
     code = _report(statuses, pipeline_failed=not outcome.ok)
-    _say_outcomes(args, paths, machines, night_start)
+    _say_outcomes(args, paths, units, night_start)
     print(
         f"rafi nightly: {len(outcome.ran)} job(s) in {time.time() - started:.1f} s; "
         f"exit {code} (log {log_file})"
     )
     return code
+
+
+def _units(args, machines: list[str]) -> list[str]:
+    """What the night qualified of ``machines``: a machine with several probes as one unit per
+    probe (:func:`rafi.settings.machine_units`; a machine the config cannot resolve as itself)."""
+    from rafi.errors import RafiUserError
+    from rafi.settings import machine_units
+
+    config = load_config(args.directory, args.config)
+    out = []
+    for machine in machines:
+        try:
+            out += machine_units(config, machine)
+        except RafiUserError:
+            out.append(machine)  # its failure is the pipeline's to report
+    return out
 
 
 def _say_outcomes(args, paths: Paths, machines: list[str], since: float) -> None:

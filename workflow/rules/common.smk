@@ -177,11 +177,7 @@ RAW = {m: {key: src["path"] for key, src in logs.items()} for m, logs in LOGS.it
 MACHINES = sorted(RAW)
 
 #: Machine folder -> its probes, of the machines with several probes (``input.probes``).
-PROBES = {}
-for _unit in MACHINES:
-    _folder, _probe = _settings.split_unit(_unit)
-    if _probe is not None:
-        PROBES.setdefault(_folder, []).append(_probe)
+PROBES = _settings.probes_by_machine(MACHINES)
 
 unit_name = _settings.unit_name
 
@@ -368,7 +364,7 @@ def _nightly_machines():
     if not only:
         return MACHINES
     only = [only] if isinstance(only, str) else list(only)
-    return [m for m in MACHINES if m in only]
+    return [m for m in MACHINES if m in only or _settings.split_unit(m)[0] in only]
 
 
 # --------------------------------------------------------------------------- machine-level quarantine
