@@ -314,3 +314,6 @@ def test_a_night_of_a_machine_with_probes_says_every_probe(tmp_path):
     for probe in ("X", "Y", "Z"):
         assert (proj / "results" / f"xyz@{probe}" / "registry" / "decision.json").is_file()
         assert f"xyz@{probe}: PASS - model offered" in done.stdout, done.stdout
+    status = run_rafi(proj, "status", "--directory", str(proj), "--json")
+    rows = {row["machine"] for row in json.loads(status.stdout)["machines"]}
+    assert rows == {"xyz@X", "xyz@Y", "xyz@Z"}, status.stderr

@@ -32,7 +32,7 @@ from pathlib import Path
 from rafi.cli import add_config_option
 from rafi.errors import SettingsError
 from rafi.ops.fleet import exit_code, fleet_overview
-from rafi.ops.project import Paths, load_config
+from rafi.ops.project import Paths, load_config, units
 from rafi.ops.status import EXIT_CANTCREAT, EXIT_USAGE, short_id
 from rafi.settings import run_settings
 
@@ -134,7 +134,7 @@ def run(args) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
-    rows = fleet_overview(paths, reports_dir, args.machine or machines)
+    rows = fleet_overview(paths, reports_dir, units(config, args.machine or machines))
     for r in rows:
         r["report_path"] = str(reports_dir / r["report"]) if r["report"] else None
     if args.html:

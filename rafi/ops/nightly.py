@@ -69,7 +69,7 @@ from rafi.ops.lock import (
     snakemake_lock_files,
 )
 from rafi.ops.outcome import RunFiles, outcome_lines, read_outcome
-from rafi.ops.project import Paths, config_path, load_config, settling, unmatched_folders
+from rafi.ops.project import Paths, config_path, load_config, settling, units, unmatched_folders
 from rafi.ops.state import clear_state, fingerprint, log_name, read_state, write_state
 from rafi.ops.status import (
     EXIT_CANTCREAT,
@@ -413,31 +413,15 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
             check_writable(paths.results_dir)
         except OSError as exc:
             return _os_error(exc, paths.results_dir)
-    units = _units(args, machines)
-    statuses = [machine_status(paths, m, night_start) for m in units]
+    qualified = units(load_config(args.directory, args.config), machines)
+    statuses = [machine_status(paths, m, night_start) for m in qualified]
     code = _report(statuses, pipeline_failed=not outcome.ok)
-    _say_outcomes(args, paths, units, night_start)
+    _say_outcomes(args, paths, qualified, night_start)
     print(
         f"rafi nightly: {len(outcome.ran)} job(s) in {time.time() - started:.1f} s; "
         f"exit {code} (log {log_file})"
     )
     return code
-
-
-def _units(args, machines: list[str]) -> list[str]:
-    """What the night qualified of ``machines``: a machine with several probes as one unit per
-    probe (:func:`rafi.settings.machine_units`; a machine the config cannot resolve as itself)."""
-    from rafi.errors import RafiUserError
-    from rafi.settings import machine_units
-
-    config = load_config(args.directory, args.config)
-    out = []
-    for machine in machines:
-        try:
-            out += machine_units(config, machine)
-        except RafiUserError:
-            out.append(machine)  # its failure is the pipeline's to report
-    return out
 
 
 def _say_outcomes(args, paths: Paths, machines: list[str], since: float) -> None:

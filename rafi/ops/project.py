@@ -74,6 +74,22 @@ class Paths:
         return self.results_dir / machine / REGISTRY_DIR
 
 
+def units(config: dict, machines: list[str]) -> list[str]:
+    """What is qualified of ``machines``: a machine with several probes as one unit per probe
+    (:func:`rafi.settings.machine_units`); a machine whose settings do not resolve as itself (the
+    pipeline reports its mistake)."""
+    from rafi.errors import RafiUserError
+    from rafi.settings import machine_units
+
+    out = []
+    for machine in machines:
+        try:
+            out += machine_units(config, machine)
+        except RafiUserError:
+            out.append(machine)
+    return out
+
+
 def raw_logs(paths: Paths, config: dict, machine: str) -> list[Path]:
     """The raw files of ``machine`` the pipeline reads (its ``input.pattern``; every visible
     file of the folder if the machine's settings cannot be resolved)."""
