@@ -120,15 +120,15 @@ rule probes_report:
         unpack(probes_report_inputs),
     output:
         html=report(
-            f"{REPORTS_DIR}/{{folder}}/qualification.html",
+            report_paths("{folder}")["html"],
             caption="../report/probes.rst",
             category="Qualification",
             subcategory="{folder}",
             labels={"machine": "{folder}", "file": "qualification.html"},
         ),
-        pdf=f"{REPORTS_DIR}/{{folder}}/qualification.pdf",
+        pdf=report_paths("{folder}")["pdf"],
     log:
-        f"{LOGS_DIR}/{{folder}}/probes_report.log",
+        log_path("probes_report", "{folder}"),
     conda:
         "../envs/rafi.yaml"
     params:
