@@ -12,8 +12,11 @@ METHOD_SETTINGS: dict = {
         shown="native format",
         doc=(
             "how the raw files are found and read: `docs/raw-format.md` (`format`, `pattern`, `sheet`, "
-            "`delimiter`, `decimal`, `encoding`, `header_row`, `skip_rows`, `columns`, `time`, `speed`, "
-            "`sample_period_s`, `displacement`, `temperature_unit`, `keep_extra`). A log without a time "
+            "`delimiter`, `decimal`, `encoding`, `header_row`, `skip_rows`, `sensors`, `columns`, `time`, "
+            "`speed`, `sample_period_s`, `displacement`, `probes`, `join`, `temperature_unit`, "
+            "`keep_extra`). The machine's sensors: `sensors` (1 to 64 names), else the sensor keys of "
+            "`columns`, else T1..T16; several displacement probes: `probes` (name -> column, unit, sign, "
+            "description), each qualified as `<machine>@<probe>`. A log without a time "
             "column: `time: {kind: none, period_s: ...}` (row k at `time.start + k * period_s`); without a "
             "speed column: `speed.constant_rpm` and/or `speed.constant_rpm_by_file` (glob on the file name "
             '-> r/min); raw-format.md, "Logs without a time or speed column"'
