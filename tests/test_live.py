@@ -712,3 +712,67 @@ def test_the_loop_logs_and_exposes_the_models_interval_and_its_fault():
         f"(model {last.model_um:+.3f} um in [{last.lower_um:+.3f}, {last.upper_um:+.3f}] settled)"
         in written[-1]
     )
+
+
+def test_rafi_deploy_of_one_probe_reads_the_machines_own_sensors_into_that_probes_target(tmp_path):
+    """A machine with its own sensors and two probes: `rafi deploy --machine lathe@Z` loads the Z
+    probe's champion, follows a log of the machine's sensor columns, and writes to the Z probe's
+    own target (`machines.lathe@Z.deploy.target`); the commands equal the oracle's."""
+    import argparse
+    from datetime import datetime, timedelta
+
+    import yaml
+
+    from rafi.deploy import live_cli
+
+    own = dict(zip(KEY, ("front", "rear", "motor")))  # the twin's T6, T8, T9 under the lathe's names
+    model = artefact()
+    model["key_sensors"] = [own[s] for s in KEY]
+    model["features"] = [f"d{own[s]}@0s" for s in KEY]
+    model["regressor_ranges"] = {own[s]: r for s, r in model["regressor_ranges"].items()}
+    model["machine"] = "lathe@Z"
+    del model["model_id"]
+    model["model_id"] = compute_model_id(model)
+    make_registry(tmp_path / "results" / "lathe@Z" / "registry", model)
+    (tmp_path / "out").mkdir()
+    config = {
+        "machines": {
+            "lathe": {
+                "input": {
+                    "format": "csv",
+                    "sensors": ["spare", "front", "rear", "motor"],
+                    "probes": {"X": {"column": "dx"}, "Z": {"column": "dz", "sign": -1}},
+                },
+                "deploy": dict(DEPLOY, target={"kind": "csv", "axis": "X", "path": "out/x.csv"}),
+            },
+            "lathe@Z": {"deploy": {"target": {"kind": "csv", "axis": "Z", "path": "out/z.csv"}}},
+        }
+    }
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config))
+    log = tmp_path / "live.csv"
+    log.write_text("time,speed_rpm,spare,front,rear,motor,dz\n")
+    args = argparse.Namespace(
+        machine="lathe@Z", config=str(tmp_path / "config.yaml"), model=None, follow=str(log), dry_run=False
+    )
+    loop, link = live_cli.build(args, log=lambda m: None, environ={})
+    rows = scenario()[:30]
+    start = datetime(2026, 3, 1, 8)
+    fed = []
+
+    def append(i):
+        speed, temps = rows[i]
+        stamp = start + timedelta(seconds=DT * i)
+        mine = [temps[SENSORS.index(s)] for s in KEY]
+        with open(log, "a") as fh:
+            fh.write(f"{stamp.isoformat()},{speed:g},99.0," + ",".join(f"{t:.2f}" for t in mine) + ",\n")
+        fed.append((stamp.replace(tzinfo=None).timestamp(), speed, np.round(temps, 2)))
+
+    loop.clock, loop.sleep = (lambda: 0.0), (lambda s: append(len(fed)))
+    assert loop.source.read() == []  # the follower starts at the end of the file (tail -f)
+    append(0)
+    loop.run(max_cycles=len(rows))
+    assert not (tmp_path / "out" / "x.csv").exists()  # the X probe's target is not this process's
+    lines = (tmp_path / "out" / "z.csv").read_text().splitlines()
+    assert lines[0] == "time_s,Z_um,status" and len(lines) == len(rows) + 1
+    got = [float(line.split(",")[1]) for line in lines[1:]]
+    assert got == pytest.approx([c for c, _ in expected_commands(fed)], abs=1e-9)
