@@ -317,3 +317,14 @@ def test_a_night_of_a_machine_with_probes_says_every_probe(tmp_path):
     status = run_rafi(proj, "status", "--directory", str(proj), "--json")
     rows = {row["machine"] for row in json.loads(status.stdout)["machines"]}
     assert rows == {"xyz@X", "xyz@Y", "xyz@Z"}, status.stderr
+
+
+def test_a_folder_named_like_a_probe_is_skipped_with_a_reason(tmp_path):
+    from rafi.readers.input_spec import discover_logs
+
+    for name in ("lathe@Z", "lathe"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "a.csv").write_text("time,speed_rpm,T1,disp_um\n")
+    found, warnings = discover_logs(tmp_path, lambda m: None)
+    assert list(found) == ["lathe"]
+    assert any("lathe@Z" in w and "cannot hold '@'" in w for w in warnings), warnings

@@ -489,6 +489,12 @@ def discover_logs(
         if has_braces(machine):
             warnings.append(f"skipping machine folder {folder}: a machine name cannot hold {{ or }}")
             continue
+        if PROBE_SEPARATOR in machine:
+            warnings.append(
+                f"skipping machine folder {folder}: a machine name cannot hold {PROBE_SEPARATOR!r} "
+                "(it names a probe of a machine: <machine>@<probe>); rename the folder"
+            )
+            continue
         problem = safe_name_problem(machine)
         if problem is not None:
             warnings.append(
