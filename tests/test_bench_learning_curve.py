@@ -12,6 +12,7 @@ import pytest
 from bench_loader import load_bench
 
 from rafi.method.runs import find_runs
+from rafi.ops.init_preview import runs_arguments
 from rafi.settings import machine_settings, validate_config
 from rafi.twin.synthetic_logs import schedule_log
 
@@ -51,24 +52,7 @@ def _runs(log, cut_s: float):
     machine = rd.machine_name("ch3")
     config = {"machines": {machine: bench.curve_config("ch3", cut_s)}}
     validate_config(config)
-    merged = machine_settings(config, machine)
-    runs = merged["runs"]
-    return find_runs(
-        {"data": log},
-        {},
-        training_speeds_rpm=merged["training_speeds_rpm"],
-        speed_tolerance_rpm=merged["speed_tolerance_rpm"],
-        idle_below_rpm=runs["idle_below_rpm"],
-        min_run_s=runs["min_run_s"],
-        min_constant_s=runs["min_constant_s"],
-        overrides=runs["overrides"],
-        max_leading_rest_s=runs["max_leading_rest_s"],
-        windows=runs["windows"],
-        idle_training=runs["idle_training"],
-        allow_training_after_validation=runs["allow_training_after_validation"],
-        reference_rule=merged["reference"]["rule"],
-        reference_window_s=merged["reference"]["window_s"],
-    )
+    return find_runs({"data": log}, {}, **runs_arguments(machine_settings(config, machine)))
 
 
 def _log_times(table: pd.DataFrame, frame: pd.DataFrame, roles) -> np.ndarray:

@@ -45,27 +45,27 @@ def clean_frames(paths: list[Path], settings: Mapping) -> tuple[dict, list[str]]
     return frames, problems
 
 
+def runs_arguments(settings: Mapping) -> dict:
+    """The keyword arguments of :func:`rafi.method.runs.find_runs` from a machine's effective settings
+    (:func:`rafi.settings.machine_settings`): what the workflow's runs step passes as params."""
+    runs = settings["runs"]
+    keys = ("idle_below_rpm", "min_run_s", "min_constant_s", "overrides", "max_leading_rest_s", "windows")
+    return {
+        "training_speeds_rpm": settings["training_speeds_rpm"],
+        "speed_tolerance_rpm": settings["speed_tolerance_rpm"],
+        **{key: runs[key] for key in keys},
+        "idle_training": runs["idle_training"],
+        "allow_training_after_validation": runs["allow_training_after_validation"],
+        "reference_rule": settings["reference"]["rule"],
+        "reference_window_s": settings["reference"]["window_s"],
+    }
+
+
 def segment(frames: Mapping, settings: Mapping) -> pd.DataFrame:
     """The runs table :func:`rafi.method.runs.find_runs` gives with the machine's settings."""
     from rafi.method.runs import find_runs
 
-    runs = settings["runs"]
-    table, _ = find_runs(
-        dict(frames),
-        {},
-        training_speeds_rpm=settings["training_speeds_rpm"],
-        speed_tolerance_rpm=settings["speed_tolerance_rpm"],
-        idle_below_rpm=runs["idle_below_rpm"],
-        min_run_s=runs["min_run_s"],
-        min_constant_s=runs["min_constant_s"],
-        overrides=runs["overrides"],
-        max_leading_rest_s=runs["max_leading_rest_s"],
-        windows=runs["windows"],
-        idle_training=runs["idle_training"],
-        allow_training_after_validation=runs["allow_training_after_validation"],
-        reference_rule=settings["reference"]["rule"],
-        reference_window_s=settings["reference"]["window_s"],
-    )
+    table, _ = find_runs(dict(frames), {}, **runs_arguments(settings))
     return table
 
 
