@@ -81,13 +81,18 @@ def temps16(key_values) -> np.ndarray:
     return out
 
 
-def expected_commands(samples, s=DEPLOY, coef=COEF, *, start=None, resumes=None) -> list[tuple[float, str]]:
+def expected_commands(
+    samples, s=DEPLOY, coef=COEF, *, start=None, resumes=None, restarts=None
+) -> list[tuple[float, str]]:
     """(command um, status) per sample by the documented rules, for the model c . (T - T0).
 
     ``start``: the value the controller holds at start (None: not known, ``safe_um``);
     ``resumes``: {sample index: the value read from the controller before that sample} (after a
-    reconnect). A hold keeps the last command sent in ``ok`` or ``referencing`` state, or the
-    value read."""
+    reconnect); ``restarts``: {sample index: the value the controller holds} where the process
+    starts again with its stored session (docs/deploy.md, "A restart": the command starts from
+    that value and does not move at that sample; the reference, its window and the fault timer
+    go on; the stuck watch starts afresh). A hold keeps the last command sent in ``ok`` or
+    ``referencing`` state, or the value read."""
     lo, hi = s["clamp_um"]
     vlo, vhi = s["temp_valid_c"]
     t0, ref, window, last_t = None, None, [], None
@@ -98,6 +103,10 @@ def expected_commands(samples, s=DEPLOY, coef=COEF, *, start=None, resumes=None)
     for index, (t, n, temps) in enumerate(samples):
         if resumes and index in resumes:
             cmd = good = resumes[index]
+        if restarts and index in restarts:
+            cmd = good = restarts[index]
+            last_t = None
+            since, value, others = [None] * 3, [None] * 3, [None] * 3
         key = np.array([temps[SENSORS.index(k)] for k in KEY], dtype=float)
         causes = []
         fed = key.copy()

@@ -289,6 +289,25 @@ PRESENTATION_SETTINGS: dict = {
                     "and ramps to it (docs/deploy.md, Transitions)"
                 ),
             ),
+            "cold_band_k": Setting(
+                default=0.5,
+                schema=POSITIVE,
+                shown="0.5",
+                doc=(
+                    "`rafi deploy` started again keeps the stored session's reference unless the machine "
+                    "is cold: every sensor the model reads at most this much (K) above its temperature in "
+                    'that reference (docs/deploy.md, "A restart")'
+                ),
+            ),
+            "session_max_age_h": Setting(
+                default=24,
+                schema=POSITIVE,
+                shown="24",
+                doc=(
+                    "... and unless the stored session is older than this (h): the shop's temperature "
+                    "may have moved since, so the reference is captured anew"
+                ),
+            ),
             "replay_roles": Setting(
                 default=["validation_multi"],
                 schema={

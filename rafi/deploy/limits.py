@@ -260,7 +260,10 @@ class SafeCompensator:
         the replay of any model uses this too.
         """
         self.sensors_ = tuple(sensors)
+        self._artefact = artefact
         self._install(Compensator.from_artefact(artefact, sensors=self.sensors_, input_rule=self._input_rule))
+        self._offered = None
+        self.session_note_: str | None = None
         self.command_um_ = 0.0
         self.held_um_ = 0.0
         self.reference_temperatures_: np.ndarray | None = None
@@ -306,6 +309,7 @@ class SafeCompensator:
         fades with the filter's time constant). The fault timer and the hold value carry on.
         """
         comp = Compensator.from_artefact(artefact, sensors=self.sensors_, input_rule=self._input_rule)
+        self._artefact = artefact
         if self.reference_temperatures_ is not None:
             comp.set_reference(self.reference_temperatures_, self.reference_speed_rpm_)
         self._install(comp)
@@ -317,6 +321,83 @@ class SafeCompensator:
         (:meth:`Compensator.capture_reference`); it becomes the session's reference."""
         self.compensator_.capture_reference()
         self._window_rows = []
+
+    # ------------------------------------------------------------------ across a restart
+    def session_state(self) -> dict:
+        """The session as JSON (:mod:`rafi.deploy.session`): the session's reference (or the
+        rows of its window so far), the fault timer and the model's own state; times in the
+        sample clock (``clock_s``: the last sample's)."""
+        from rafi.deploy.session import _json_number, _list, compensator_state
+
+        ref = self.reference_temperatures_
+        return {
+            "sensors": list(self.sensors_),
+            "clock_s": _json_number(self.compensator_.t_prev_s),
+            "reference": None
+            if ref is None
+            else {"temperatures": _list(ref), "speed_rpm": _json_number(self.reference_speed_rpm_)},
+            "reference_rows": [[t, _json_number(n), _list(temps)] for t, n, temps in self._window_rows],
+            "fault_since_s": _json_number(self._bad_since),
+            "model": compensator_state(self.compensator_),
+        }
+
+    def offer_session(self, state: dict | None, *, why: str = "", decide) -> SafeCompensator:
+        """Offer a stored session to the next sample (:mod:`rafi.deploy.session`).
+
+        ``decide(temperatures) -> Decision`` tells, from the first sample's temperatures,
+        whether to keep it; kept, it is restored at that sample (:meth:`_resume`), else the
+        reference is captured anew. :attr:`session_note_` then says which, and why (``why``:
+        the reason there is no ``state``)."""
+        self._offered = (state, why, decide)
+        self.session_note_ = None
+        return self
+
+    def _resume(self, t: float, temperatures) -> None:
+        from rafi.deploy.session import restore_compensator
+
+        state, why, decide = self._offered
+        self._offered = None
+        if state is None:
+            self.session_note_ = f"reference captured anew: {why}"
+            return
+        decision = decide(np.asarray(temperatures, dtype=float))
+        if not decision.keep:
+            self.session_note_ = f"reference captured anew: {decision.reason}"
+            return
+        clock_s = state.get("clock_s")
+        shift = 0.0 if decision.gap_s is None or clock_s is None else (t - decision.gap_s) - float(clock_s)
+        comp, ref = self.compensator_, state.get("reference")
+        try:
+            if state["model"].get("model_id") == comp.model_id:
+                restore_compensator(comp, state["model"], shift)
+                how = "the model's reference and filters go on"
+            elif ref is not None:
+                comp.set_reference(np.array(ref["temperatures"], dtype=float), float(ref["speed_rpm"]))
+                how = f"model {comp.model_id[:12]} is new since: its filters start settled"
+            else:
+                self.session_note_ = (
+                    "reference captured anew: the stored reference window was another model's"
+                )
+                return
+        except (ValueError, KeyError, TypeError) as exc:
+            self._install(
+                Compensator.from_artefact(self._artefact, sensors=self.sensors_, input_rule=self._input_rule)
+            )
+            self.session_note_ = f"reference captured anew: the stored session does not fit the model ({exc})"
+            return
+        if ref is not None:
+            self.reference_temperatures_ = np.array(
+                [np.nan if v is None else v for v in ref["temperatures"]], dtype=float
+            )
+            self.reference_speed_rpm_ = np.nan if ref["speed_rpm"] is None else float(ref["speed_rpm"])
+        self._window_rows = [
+            (float(row[0]) + shift, np.nan if row[1] is None else float(row[1]),
+             np.array([np.nan if v is None else v for v in row[2]], dtype=float))
+            for row in state.get("reference_rows") or []
+        ]  # fmt: skip
+        since = state.get("fault_since_s")
+        self._bad_since = None if since is None else float(since) + shift
+        self.session_note_ = f"reference kept from {decision.reason}; {how}"
 
     # ------------------------------------------------------------------ internals
     def _install(self, comp: Compensator) -> None:
@@ -445,6 +526,8 @@ class SafeCompensator:
         t = float(t_s)
         if not hasattr(self, "compensator_"):
             return Command(t, 0.0, "off", float("nan"), float("nan"), False, False, "", False, False)
+        if self._offered is not None:
+            self._resume(t, temperatures)
         collecting = self.compensator_.window is not None
         out = self.compensator_.step(t, speed_rpm, temperatures)
         if collecting:

@@ -165,6 +165,12 @@ def check_target_limits(target, axis: str, limits) -> None:
 # --------------------------------------------------------------------------- the log follower
 
 
+def signed_um(value: float) -> str:
+    """``+1.234``: three decimals with a sign, never ``-0.000``."""
+    rounded = round(float(value), 3)
+    return f"{rounded + 0.0 if rounded == 0 else rounded:+.3f}"
+
+
 def _number(text: str) -> float:
     text = text.strip().strip('"').strip()
     if not text:
@@ -344,6 +350,9 @@ class LiveLoop:
         Told every cycle, reconnect and new champion (Prometheus, ``docs/service.md``).
     notify : rafi.deploy.sd_notify.SdNotify, optional
         systemd's watchdog, kicked after every cycle.
+    session : rafi.deploy.session.SessionKeeper, optional
+        The session kept across a restart: offered to the compensator at start, saved as the
+        loop runs and when it ends (``docs/deploy.md``, "A restart").
 
     Attributes
     ----------
@@ -354,7 +363,7 @@ class LiveLoop:
     def __init__(
         self, source, safe, target, *, axis: str, interval_s: float, link=None,
         clock: Callable[[], float] = time.monotonic, sleep: Callable[[float], None] = time.sleep,
-        log: Callable[[str], None] = print, champion=None, metrics=None, notify=None,
+        log: Callable[[str], None] = print, champion=None, metrics=None, notify=None, session=None,
     ):  # fmt: skip
         if not (isinstance(interval_s, (int, float)) and math.isfinite(interval_s) and interval_s > 0):
             raise SettingsError(f"deploy.interval_s is {interval_s!r}; expected seconds above 0")
@@ -362,6 +371,7 @@ class LiveLoop:
         self.interval_s = float(interval_s)
         self.link, self.clock, self.sleep, self.log = link, clock, sleep, log
         self.champion, self.metrics, self.notify = champion, metrics, notify
+        self.session = session
         self.cycles = 0
         self.writes = 0
         self.outage_cycles = 0
@@ -382,18 +392,20 @@ class LiveLoop:
     def _start_from_controller(self) -> None:
         """Read the value the target holds and start (or resume) the command from it."""
         value = self.target.read_current_um()[self.axis]
-        shown = "not known" if value is None else f"{value:+.3f} um"
+        shown = "not known" if value is None else f"{signed_um(value)} um"
         if self._read_back == "start":
             self.safe.start_from(value)
-            start = f"{self.safe.command_um_:+.3f} um" + (" (deploy.safe_um)" if value is None else "")
+            start = f"{signed_um(self.safe.command_um_)} um" + (" (deploy.safe_um)" if value is None else "")
             self.log(f"{self.target.name} axis {self.axis} holds {shown}: the command starts from {start}")
+            if self.session is not None:
+                self.session.offer(self.safe)
         else:
             before = self.safe.command_um_
             self.safe.resume_from(value)
             if value is not None and value != before:
                 self.log(
                     f"{self.target.name} axis {self.axis} holds {shown} after the outage (last command "
-                    f"{before:+.3f} um): the command goes on from it"
+                    f"{signed_um(before)} um): the command goes on from it"
                 )
         self._read_back = None
 
@@ -410,6 +422,25 @@ class LiveLoop:
             f"new champion {self.model_id[:12]} replaces {old[:12]}: the command goes from "
             f"{self.safe.command_um_:+.3f} um to its value at the rate limit"
         )
+
+    def _session_news(self) -> None:
+        """Log how the session started (kept or anew), once; save it when due."""
+        note = getattr(self.safe, "session_note_", None)
+        if note:
+            self.safe.session_note_ = None
+            self.log(note)
+        self._save_session()
+
+    def _save_session(self, *, force: bool = False) -> None:
+        if self.session is None:
+            return
+        try:
+            self.session.save(self.safe, force=force)
+        except OSError as exc:  # a full disk must not stop the compensation: said once per cause
+            message = f"the session cannot be saved ({exc}): a restart will capture its reference anew"
+            if message != getattr(self, "_save_problem", None):
+                self._save_problem = message
+                self.log(message)
 
     def _quiet(self, now: float, why: str) -> None:
         if self._quiet_since is None:
@@ -453,6 +484,7 @@ class LiveLoop:
             command = None
             for t_s, speed_rpm, temperatures in samples:
                 command = self.safe.step(t_s, speed_rpm, temperatures)
+                self._session_news()
             if command is None:
                 self._quiet(now, "no new sample")
                 return
@@ -485,7 +517,7 @@ class LiveLoop:
         if math.isfinite(lower) and math.isfinite(upper):  # the model's interval (docs/deploy.md)
             model += f" in [{lower:+.3f}, {upper:+.3f}] {command.interval_cell}"
         self.log(
-            f"{datetime.now().isoformat(timespec='seconds')} {command.status:<11} {value:+9.3f} um "
+            f"{datetime.now().isoformat(timespec='seconds')} {command.status:<11} {signed_um(value):>9} um "
             f"({model}){flags}{'  ' + command.fault if command.fault else ''}"
         )
 
@@ -510,5 +542,6 @@ class LiveLoop:
                     next_t, wait = self.clock(), 0.0
                 self.sleep(wait)
         finally:
+            self._save_session(force=True)
             self.target.close()
         return self.writes

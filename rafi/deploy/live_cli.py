@@ -170,6 +170,7 @@ def build(args, *, log=print, environ=None):
         source, safe, target, axis=axis, interval_s=limits.interval_s,
         link=link if (link is not None and (not args.follow or sink is link)) else None,
         log=log, champion=watch, metrics=metrics, notify=SdNotify(log=log),
+        session=_session(args, config, project, deploy),
     )  # fmt: skip
     loop.model_id = artefact["model_id"]
     loop.preflight_spec = None
@@ -178,6 +179,23 @@ def build(args, *, log=print, environ=None):
         inputs = {} if args.follow else {name: spec[0] for name, spec in link.inputs.items()}
         loop.preflight_spec = dict(inputs=inputs, outputs=outputs, write=not args.dry_run, user=user)
     return loop, link
+
+
+def _session(args, config: dict, project: Path, deploy: dict):
+    """The session kept across a restart (``results/<unit>/deploy/session.json``; a dry run
+    reads it and writes nothing)."""
+    from rafi.deploy.session import SessionFile, SessionKeeper, session_path
+    from rafi.settings import run_settings
+
+    path = session_path(project / run_settings(config)["results_dir"], args.machine)
+    return SessionKeeper(
+        SessionFile(path, write=not args.dry_run),
+        unit=args.machine,
+        clock="log" if args.follow else "session",
+        cold_band_k=deploy["cold_band_k"],
+        max_age_h=deploy["session_max_age_h"],
+        wall=time.time,
+    )
 
 
 def _plural(n: int, word: str) -> str:
