@@ -117,7 +117,7 @@ def _stored(**over) -> dict:
         "schema": SCHEMA,
         "unit": "m1",
         "sensors": list(SENSORS),
-        "saved_at_s": START_WALL,
+        "last_sample_at_s": START_WALL,
         "clock": "session",
         "clock_s": 100.0,
         "reference": {"temperatures": [20.0] * 16, "speed_rpm": 0.0},
@@ -185,7 +185,7 @@ def test_the_file_is_written_whole_and_a_broken_one_only_means_anew(tmp_path):
         file.save(_stored(clock_s=math.nan))
     assert file.load()[0] == _stored()  # the old file stays whole
     for text, why in (("{", "is not JSON"), ('{"schema": "x"}', "is not a rafi.deploy-session/1"),
-                      (json.dumps(_stored(saved_at_s="yesterday")), "has no saved_at_s")):  # fmt: skip
+                      (json.dumps(_stored(last_sample_at_s="yesterday")), "has no last_sample_at_s")):  # fmt: skip
         file.path.write_text(text)
         state, reason = file.load()
         assert state is None and why in reason
@@ -270,7 +270,7 @@ def test_the_scenario_reaches_every_phase():
 def test_a_restart_in_every_phase_goes_on_as_the_documented_rules_say(tmp_path, phase, clock, origin):
     cut = _phase_cuts()[phase]
     got, held, note = _run_with_restart(tmp_path, cut, clock=clock, origin=origin)
-    assert note.startswith("reference kept from the session saved 5 s ago")
+    assert note.startswith("reference kept from the session of 5 s ago")
     want = expected_commands(_samples(), restarts={cut: held})
     assert [c.command_um for c in got] == pytest.approx([c for c, _ in want], abs=1e-9)
     assert [c.status for c in got] == [s for _, s in want]

@@ -242,14 +242,14 @@ def decide(
     window = (state.get("model") or {}).get("window") or {}
     if state.get("reference") is None and not window.get("values"):
         return Decision(False, "the stored session had not started its reference")
-    age = now_s - float(state["saved_at_s"])
+    age = now_s - float(state["last_sample_at_s"])
     if age < 0:
         return Decision(False, f"the clock reads {_age(-age)} before the stored session was saved")
     if age > max_age_h * 3600.0:
         return Decision(
             False, f"the stored session is {_age(age)} old (deploy.session_max_age_h: {max_age_h:g})"
         )
-    saved = f"the session saved {_age(age)} ago"
+    saved = f"the session of {_age(age)} ago"
     gap = None if clock == "log" and state.get("clock") == "log" else age
     reference = (state.get("reference") or {}).get("temperatures")
     if temperatures is None or reference is None:
@@ -306,8 +306,8 @@ class SessionFile:
             return None, f"{self.path} is not JSON ({exc})"
         if not isinstance(state, dict) or state.get("schema") != SCHEMA:
             return None, f"{self.path} is not a {SCHEMA} file"
-        if not isinstance(state.get("saved_at_s"), (int, float)):
-            return None, f"{self.path} has no saved_at_s"
+        if not isinstance(state.get("last_sample_at_s"), (int, float)):
+            return None, f"{self.path} has no last_sample_at_s"
         return state, ""
 
     def save(self, state: dict) -> None:
@@ -372,6 +372,8 @@ class SessionKeeper:
         self.max_age_h = float(max_age_h)
         self.wall = wall
         self._saved_at = -math.inf
+        self._sample_t: float | None = None  # the last sample seen, in the sample clock ...
+        self._sample_wall = math.nan  # ... and the wall clock when it was stepped
         self._had_reference = False
 
     def offer(self, safe) -> None:
@@ -399,15 +401,23 @@ class SessionKeeper:
 
     def save(self, safe, *, force: bool = False) -> None:
         """Save the session if :data:`SAVE_EVERY_S` passed, the reference was just set, or
-        ``force`` (the loop stops); nothing before the first sample."""
+        ``force`` (the loop stops); nothing before the first sample. Called after every
+        sample: the wall clock of the last sample is what a restart measures its gap from."""
         if not hasattr(safe, "compensator_") or safe.compensator_.t_prev_s is None:
             return
         now = self.wall()
+        if safe.compensator_.t_prev_s != self._sample_t:
+            self._sample_t, self._sample_wall = safe.compensator_.t_prev_s, now
         has_reference = safe.reference_temperatures_ is not None
         due = force or now - self._saved_at >= SAVE_EVERY_S or has_reference != self._had_reference
         if not due:
             return
-        state = {"schema": SCHEMA, "unit": self.unit, "saved_at": stamp(now), "saved_at_s": now}
+        state = {
+            "schema": SCHEMA,
+            "unit": self.unit,
+            "last_sample_at": stamp(self._sample_wall),
+            "last_sample_at_s": self._sample_wall,
+        }
         state.update(clock=self.clock, **safe.session_state())
         self.file.save(state)
         self._saved_at, self._had_reference = now, has_reference
