@@ -121,7 +121,6 @@ def test_a_recording_is_read_natively_with_the_machines_sensors():
     assert recording_spec(spec) == {"format": "native", "sensors": list(SENSORS16), "sample_period_s": 15.0}
     own = normalise_input_spec({"format": "csv", "columns": {"time": "Zeit", "front": "V [C]", "rear": "H"}})
     assert recording_spec(own) == {"format": "native", "sensors": ["front", "rear"]}
-    assert recording_spec({"format": "xlsx", "sensors": ["a"]}) == {"format": "native", "sensors": ["a"]}
     assert normalise_input_spec(recording_spec(spec))["format"] == "native"
 
 
@@ -173,6 +172,18 @@ def test_a_mapped_csv_machine_reads_its_own_csv_files_by_the_mapping_and_recordi
     assert logs[own.stem]["recording"] is False and logs[rec.stem]["recording"] is True
     assert read_log(own, spec)["speed_rpm"].tolist() == [0.0]
     assert read_log(rec, recording_spec(normalise_input_spec(spec)))["speed_rpm"].tolist() == [2500.0]
+
+
+def test_rafi_nightly_counts_a_recording_as_a_file_of_the_mapped_machine(tmp_path):
+    from rafi.ops.project import Paths, raw_logs, unmatched_folders
+
+    config = {"machines": {MAPPED: {"input": mapped_spec()}}}
+    paths = Paths(tmp_path, tmp_path / "raw", tmp_path / "results")
+    folder = tmp_path / "raw" / MAPPED
+    folder.mkdir(parents=True)
+    assert MAPPED in unmatched_folders(paths, config, [MAPPED])  # an empty folder: skipped
+    rec = recorded(folder, "rec_20261016T080000Z")
+    assert raw_logs(paths, config, MAPPED) == [rec] and unmatched_folders(paths, config, [MAPPED]) == {}
 
 
 def test_a_machine_with_several_probes_has_no_recordings(tmp_path):

@@ -34,6 +34,7 @@ import rafi.readers.log_sources
 import rafi.readers.logs
 from rafi.errors import RafiUserError, RawFormatError
 from rafi.readers.checks import check_file
+from rafi.readers.input_spec import normalise_input_spec
 from rafi.readers.recordings import recording_spec
 
 #: The per-file outputs of the clean step: key -> suffix after the file's log id
@@ -124,7 +125,9 @@ def clean_file(
     """
     part = dict(part or {})
     # a file rafi record wrote is a native log whatever the machine's own format
-    spec = recording_spec(settings.input_spec) if part.get("recording") else settings.input_spec
+    spec = settings.input_spec
+    if part.get("recording"):
+        spec = recording_spec(normalise_input_spec(spec))
     cfg = settings.clean
     digest = ""
     name = name or src.name

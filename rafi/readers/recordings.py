@@ -145,17 +145,14 @@ def recording_spec(spec: dict) -> dict:
     Parameters
     ----------
     spec : dict
-        The machine's ``input:`` mapping (normalised here if it is not yet).
+        The machine's normalised ``input:`` mapping
+        (:func:`rafi.readers.input_spec.normalise_input_spec`: ``sensors`` resolved).
 
     Returns
     -------
     dict
         A native mapping for :func:`rafi.readers.logs.read_log`.
     """
-    if "sensors" not in spec or spec["sensors"] is None:
-        from rafi.readers.input_spec import normalise_input_spec  # it imports this module
-
-        spec = normalise_input_spec(spec)
     out = {"format": "native", "sensors": list(spec["sensors"])}
     if spec.get("sample_period_s") is not None:
         out["sample_period_s"] = spec["sample_period_s"]
