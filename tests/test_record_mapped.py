@@ -347,6 +347,46 @@ def mapped_project(tmp_path: Path, server) -> Path:
     return proj
 
 
+def test_a_machine_with_its_own_sensors_records_them_from_opc_ua(server, tmp_path):
+    """deploy.opcua.inputs names the machine's own sensors: each is a column of the recording,
+    with the value of its node; an unset sensor is an empty column (one line says so)."""
+    from opcua_server import DISP_NODE, SPEED_NODE, as_read, temp_node
+
+    nodes = {"front": 1, "rear": 9, "motor": 2}  # T1 (Int16, 0.1 degC), T9 (Float), T2
+    inputs = {"speed_rpm": SPEED_NODE}
+    inputs |= {name: {"node": temp_node(i)[0], "scale": temp_node(i)[2]} for name, i in nodes.items()}
+    opcua = {"endpoint": server.endpoint, "inputs": inputs, "timeout_s": 3, "allow_insecure": True}
+    block = {
+        "sample_period_s": 5,
+        "input": {"sensors": [*nodes, "housing"]},
+        "deploy": {"opcua": opcua},
+        "record": {"displacement": DISP_NODE},
+    }
+    path = write_config(tmp_path, "lathe", block)
+    lines: list[str] = []
+    recorder, link = record_cli.build(args_for(path, "lathe", duration="15s"), log=lines.append, environ={})
+    temps = np.array([20.0 + 0.37 * i for i in range(16)])
+    clock = [0.0]
+    recorder.clock = recorder.files.clock = link.clock = lambda: clock[0]
+    recorder.wall = lambda: 1792137600.0 + clock[0]
+    recorder.sleep = lambda seconds: clock.__setitem__(0, clock[0] + seconds)
+    try:
+        link.connect()
+        server.set_inputs(3000.0, temps, 4.25)
+        record_cli.preflight(recorder, link)
+        (final,) = recorder.run()
+    finally:
+        link.close()
+    assert "deploy.opcua.inputs has no node for housing: recorded as missing" in " ".join(lines)
+    frame = read_raw_log(final, [*nodes, "housing"])
+    assert list(frame.columns) == ["time", "speed_rpm", "front", "rear", "motor", "housing", "disp_um"]
+    read = as_read(temps)
+    assert len(frame) == 3 and frame["speed_rpm"].tolist() == [3000.0] * 3 and frame["housing"].isna().all()
+    for name, i in nodes.items():
+        np.testing.assert_allclose(frame[name].to_numpy(), [read[i - 1]] * 3, atol=1e-6)
+    assert frame["disp_um"].tolist() == [4.25] * 3 and is_recording(final)
+
+
 def test_a_recording_of_the_mapped_machine_is_cleaned_by_the_real_snakefile(server, tmp_path):
     from opcua_server import as_read
 
