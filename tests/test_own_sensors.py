@@ -271,13 +271,28 @@ def test_the_report_says_where_the_probe_measured():
     )
 
 
-def test_record_refuses_a_machine_it_cannot_record_for():
-    from rafi.deploy.record_cli import _check_layout
+def test_record_writes_the_machines_own_sensors_and_refuses_several_probes():
+    from rafi.deploy.record_cli import recorded_columns
     from rafi.errors import SettingsError
 
-    _check_layout("a", normalise_input_spec(None))  # the paper's rig: recorded as native
-    with pytest.raises(SettingsError, match="machines.b.input: the machine has its own sensors"):
-        _check_layout("b", normalise_input_spec({"sensors": ["front", "rear"]}))
+    assert recorded_columns("a", normalise_input_spec(None)) == (
+        "time",
+        "speed_rpm",
+        *DEFAULT_SENSORS,
+        "disp_um",
+    )
+    own = normalise_input_spec({"sensors": ["front", "rear"]})
+    assert recorded_columns("b", own) == ("time", "speed_rpm", "front", "rear", "disp_um")
+    mapped = normalise_input_spec({"format": "csv", "columns": {"time": "Zeit", "motor": "M [C]"}})
+    assert recorded_columns("c", mapped) == ("time", "speed_rpm", "motor", "disp_um")
+    probes = normalise_input_spec({"format": "csv", "probes": {"X": "x", "Y": "y"}})
+    with pytest.raises(SettingsError) as caught:
+        recorded_columns("d", probes)
+    assert str(caught.value) == (
+        "machines.d.input.probes: the machine has several probes (X, Y); rafi record writes one "
+        "displacement column (disp_um), not one per probe: record with the machine's own logger "
+        "(docs/record.md)"
+    )
 
 
 def test_init_preview_of_a_machine_with_probes_lists_its_runs_once(tmp_path):

@@ -30,7 +30,7 @@ import re
 import signal
 import threading
 import time
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from contextlib import contextmanager
 from datetime import UTC, datetime
 from pathlib import Path
@@ -63,15 +63,21 @@ class OpcUaSource:
     link : OpcUaLink
         The session.
     channels : mapping
-        Column (``speed_rpm``, ``T1``..``T16``, ``disp_um``) -> ``(node id, scale, offset)``; a
-        column without a node is written empty.
+        Column (``speed_rpm``, a sensor, ``disp_um``) -> ``(node id, scale, offset)``; a column
+        without a node is written empty.
     where : mapping
         Column -> the setting that names its node (for the messages).
+    columns : sequence of str
+        The file's columns (``time``, ``speed_rpm``, the machine's sensors, ``disp_um``).
     """
 
-    def __init__(self, link, channels: Mapping[str, tuple[str, float, float]], where: Mapping[str, str]):
+    def __init__(
+        self, link, channels: Mapping[str, tuple[str, float, float]], where: Mapping[str, str],
+        columns: Sequence[str] = COLUMNS,
+    ):  # fmt: skip
         self.link = link
-        self.columns = [c for c in COLUMNS[1:] if c in channels]
+        self.file_columns = tuple(columns)
+        self.columns = [c for c in self.file_columns[1:] if c in channels]
         self.channels = dict(channels)
         self.where = dict(where)
         self.period_s = 1.0
@@ -99,7 +105,14 @@ class OpcUaSource:
         for column, (value, vtype, _status) in zip(self.columns, values):
             _, scale, offset = self.channels[column]
             by_column[column] = format_value(value, vtype, scale, offset)
-        return [[format_time(wall_s, self.period_s), *(by_column.get(c, "") for c in COLUMNS[1:])]]
+        return [[format_time(wall_s, self.period_s), *(by_column.get(c, "") for c in self.file_columns[1:])]]
+
+
+def _sensor_words(sensors: Sequence[str]) -> str:
+    """``T1..T16`` for the paper rig's sensors, else the names (the first six, then ``...``)."""
+    if tuple(sensors) == COLUMNS[2:-1]:
+        return f"{sensors[0]}..{sensors[-1]}"
+    return ", ".join(sensors[:6]) + (", ..." if len(sensors) > 6 else "")
 
 
 def _clean_number(text: str) -> str:
@@ -115,7 +128,7 @@ class DaqFollower:
     """Follow a DAQ's native-format CSV file as it is written (``--follow``).
 
     ``tail -f`` style: only complete lines are read; ``#`` lines are skipped; the first other
-    line is the header, which must name ``time`` and ``speed_rpm`` (``T1``..``T16`` and
+    line is the header, which must name ``time`` and ``speed_rpm`` (the machine's sensors and
     ``disp_um`` where present; other columns are not recorded). A field that is not a number is
     recorded as missing; a line whose time is unreadable or not later than the one before is
     skipped (counted, logged once per 100). A file that is replaced or shortened is followed
@@ -129,10 +142,16 @@ class DaqFollower:
         Record the lines already in the file too (default: only those appended from now on).
     log : callable
         ``log(line)``.
+    columns : sequence of str
+        The recorded file's columns (``time``, ``speed_rpm``, the machine's sensors, ``disp_um``).
     """
 
-    def __init__(self, path, *, from_start: bool = False, log: Callable[[str], None] = print):
+    def __init__(
+        self, path, *, from_start: bool = False, log: Callable[[str], None] = print,
+        columns: Sequence[str] = COLUMNS,
+    ):  # fmt: skip
         self.path = Path(path)
+        self.columns = tuple(columns)
         self.from_start = from_start
         self.log = log
         self.skipped = 0
@@ -184,10 +203,10 @@ class DaqFollower:
             raise RawFormatError(
                 self.path,
                 f"the header has no column {missing[0]!r}; a followed DAQ file is in the native format "
-                "(time, speed_rpm, T1..T16, disp_um; docs/raw-format.md)",
+                f"(time, speed_rpm, {_sensor_words(self.columns[2:-1])}, disp_um; docs/raw-format.md)",
                 column=missing[0],
             )
-        self._index = {name: i for i, name in enumerate(names) if name in COLUMNS}
+        self._index = {name: i for i, name in enumerate(names) if name in self.columns}
 
     def _skip(self, why: str) -> None:
         self.skipped += 1
@@ -221,7 +240,7 @@ class DaqFollower:
                 continue
             self._last_time = stamp
             row = [text]
-            for column in COLUMNS[1:]:
+            for column in self.columns[1:]:
                 i = self._index.get(column)
                 row.append(_clean_number(fields[i]) if i is not None and i < len(fields) else "")
             rows.append(row)

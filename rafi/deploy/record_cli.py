@@ -89,6 +89,7 @@ def _node(spec, prefix: str, where: str) -> tuple[str, float, float]:
 
 
 def _check_args(args) -> None:
+    from rafi.contract import PROBE_SEPARATOR
     from rafi.deploy.record_plan import RUN_NAME
     from rafi.readers.discovery import safe_name_problem
 
@@ -96,6 +97,11 @@ def _check_args(args) -> None:
     if problem or args.machine.startswith(".") or re.search(r"[/\\{}]", args.machine):
         raise SettingsError(
             f"--machine {args.machine!r} cannot name a folder of raw_dir ({problem or 'its form'})"
+        )
+    if PROBE_SEPARATOR in args.machine:
+        raise SettingsError(
+            f"--machine {args.machine!r} names a probe of a machine (<machine>@<probe>); a recording "
+            "belongs to the machine, whose folder its probes read: give the machine"
         )
     if not RUN_NAME.match(args.name):
         raise SettingsError(
@@ -114,9 +120,16 @@ def _check_args(args) -> None:
         raise SettingsError("--from-start goes with --follow")
 
 
-def _channels(opcua: dict, record: dict, log) -> tuple[dict, dict]:
-    from rafi import SENSORS
-
+def _channels(opcua: dict, record: dict, log, sensors) -> tuple[dict, dict]:
+    """The OPC UA node of each column (``speed_rpm``, the machine's ``sensors``, ``disp_um``) and
+    the setting that names it; an input that is not a column of the file is refused."""
+    stray = [name for name in opcua["inputs"] if name != "speed_rpm" and name not in sensors]
+    if stray:
+        raise SettingsError(
+            f"deploy.opcua.inputs.{stray[0]}: not a sensor of this machine (its sensors, "
+            f"input.sensors: {_names(sensors)}); rafi record writes a column per sensor of the machine: "
+            "name each input after its sensor"
+        )
     if record.get("displacement") is None:
         raise SettingsError(
             "record.displacement is not set: name the OPC UA node of the displacement probe "
@@ -126,26 +139,33 @@ def _channels(opcua: dict, record: dict, log) -> tuple[dict, dict]:
     where = {name: f"deploy.opcua.inputs.{name}" for name in channels}
     channels["disp_um"] = _node(record["displacement"], opcua["node_prefix"], "record.displacement")
     where["disp_um"] = "record.displacement"
-    unset = [s for s in SENSORS if s not in channels]
+    unset = [s for s in sensors if s not in channels]
     if unset:
         log(f"rafi record: deploy.opcua.inputs has no node for {', '.join(unset)}: recorded as missing")
     return channels, where
 
 
-def _check_layout(machine: str, spec: dict) -> None:
-    """A recording is a native log of ``T1..T16`` and one probe: refuse, in one line, a machine
-    whose logs the pipeline reads otherwise (its own sensors, several probes), rather than write
-    a file its runs would never read."""
-    from rafi.contract.sensors import DEFAULT_SENSORS
+def _names(names) -> str:
+    return ", ".join(names[:6]) + (f", ... ({len(names)} in all)" if len(names) > 6 else "")
 
-    if tuple(spec["sensors"]) != DEFAULT_SENSORS or spec["probes"]:
-        what = (
-            "several probes" if spec["probes"] else f"its own sensors ({', '.join(spec['sensors'][:6])}, ...)"
-        )
+
+def recorded_columns(machine: str, spec: dict) -> tuple[str, ...]:
+    """The columns of ``machine``'s recordings: ``time, speed_rpm, <its sensors>, disp_um``.
+
+    A recording is a native log (docs/raw-format.md) the pipeline reads beside the machine's own
+    logs whatever their format (:mod:`rafi.readers.recordings`). Refused, in one line, before
+    anything connects: a machine with several probes (``input.probes``), whose units would each
+    need their probe in a native file that has one displacement column.
+    """
+    from rafi.contract.sensors import canonical_columns
+
+    if spec["probes"]:
         raise SettingsError(
-            f"machines.{machine}.input: the machine has {what}; rafi record writes the native layout "
-            "of T1..T16 and one probe only: record with the machine's own logger (docs/record.md)"
+            f"machines.{machine}.input.probes: the machine has several probes "
+            f"({_names(list(spec['probes']))}); rafi record writes one displacement column (disp_um), "
+            "not one per probe: record with the machine's own logger (docs/record.md)"
         )
+    return canonical_columns(spec["sensors"])
 
 
 def build(args, *, log=print, environ=None):
@@ -161,12 +181,13 @@ def build(args, *, log=print, environ=None):
     from rafi.deploy.record_files import RecordingFiles, leftover_parts
     from rafi.deploy.record_plan import read_plan
     from rafi.deploy.sd_notify import SdNotify
+    from rafi.readers.recordings import RECORDED_BY
     from rafi.settings import read_machine_config, run_settings
 
     _check_args(args)
     config_path = Path(args.config)
     config, settings = read_machine_config(config_path, args.machine)
-    _check_layout(args.machine, settings["input"])
+    columns = recorded_columns(args.machine, settings["input"])
     project = config_path.resolve().parent
     record, period = settings["record"], float(settings["sample_period_s"])
     folder = project / run_settings(config)["raw_dir"] / args.machine
@@ -196,9 +217,9 @@ def build(args, *, log=print, environ=None):
         if notice:
             log(f"rafi record: {notice}")
         if not args.follow:
-            source = OpcUaSource(link, *_channels(opcua, record, log))
+            source = OpcUaSource(link, *_channels(opcua, record, log, columns[2:-1]), columns=columns)
     if args.follow:
-        source = DaqFollower(args.follow, from_start=args.from_start, log=log)
+        source = DaqFollower(args.follow, from_start=args.from_start, log=log, columns=columns)
     for part in leftover_parts(folder):
         log(
             f"rafi record: {short_path(part)} is a recording that was never closed (a crash or power "
@@ -208,12 +229,12 @@ def build(args, *, log=print, environ=None):
         "machine": args.machine,
         "sample_period_s": f"{period:g}",
         **({"notes": args.notes} if args.notes.strip() else {}),
-        "recorded_by": f"rafi record {__version__}",
+        "recorded_by": f"{RECORDED_BY} {__version__}",  # how the pipeline knows a recording
         "source": f"OPC UA {link.endpoint}" if not args.follow else f"DAQ file {args.follow}",
     }
     if plan is not None:
         metadata["plan"] = f"{Path(args.plan).name} ({len(plan.steps)} steps, {plan.total_s:g} s)"
-    files = RecordingFiles(folder, metadata, max_file_s=float(record["max_file_s"]), log=log)
+    files = RecordingFiles(folder, metadata, max_file_s=float(record["max_file_s"]), log=log, columns=columns)
     command = None
     if plan is not None:
         node = link.node_id(record["speed_command"])

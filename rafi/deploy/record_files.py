@@ -41,7 +41,9 @@ __all__ = [
     "leftover_parts",
 ]
 
-#: The columns of a recorded file, in order (docs/raw-format.md).
+#: The columns of a recorded file of a machine with the paper rig's sensors, in order
+#: (docs/raw-format.md); a machine with its own sensors records ``time, speed_rpm, <its
+#: sensors>, disp_um`` (``columns`` of :class:`RecordingFiles`).
 COLUMNS = ("time", "speed_rpm", *SENSORS, "disp_um")
 #: The temporary name of a file being written is ``.<final name>`` + this.
 PART_SUFFIX = ".part"
@@ -133,9 +135,11 @@ class RecordingFile:
     metadata : mapping
         The ``# key: value`` lines (``machine``, ``sample_period_s``, ``notes``, ...); ``run_id``
         is set to the stem.
+    columns : sequence of str
+        The header (``time``, ``speed_rpm``, the machine's sensors, ``disp_um``).
     """
 
-    def __init__(self, folder, stem: str, metadata: Mapping[str, object]):
+    def __init__(self, folder, stem: str, metadata: Mapping[str, object], columns: Sequence[str] = COLUMNS):
         self.folder = Path(folder)
         self.folder.mkdir(parents=True, exist_ok=True)
         self.rows = 0
@@ -154,7 +158,8 @@ class RecordingFile:
             break
         else:
             raise RafiUserError(f"{short_path(self.folder)}: 999 files named {stem}_N.csv exist already")
-        self._write(_metadata_lines({**metadata, "run_id": self.stem}) + ",".join(COLUMNS) + "\n")
+        self.columns = tuple(columns)
+        self._write(_metadata_lines({**metadata, "run_id": self.stem}) + ",".join(self.columns) + "\n")
         self.size, self.header_size = self._written, self._written
 
     def _write(self, text: str) -> None:
@@ -170,7 +175,7 @@ class RecordingFile:
         self._written = self.size + len(data)
 
     def write_row(self, fields: Sequence[str]) -> None:
-        """Append one row (``len(COLUMNS)`` fields, ``''`` for a missing value) in one write."""
+        """Append one row (``len(columns)`` fields, ``''`` for a missing value) in one write."""
         self._write(",".join(fields) + "\n")
         self.size = self._written
         self.rows += 1
@@ -247,14 +252,18 @@ class RecordingFiles:
         One line per file closed.
     clock : callable
         Seconds (the recorder's clock).
+    columns : sequence of str
+        The header of every file (default :data:`COLUMNS`).
     """
 
     def __init__(
         self, folder, metadata: Mapping[str, object], *, max_file_s: float = 86400.0,
         log: Callable[[str], None] = print, clock: Callable[[], float] = time.monotonic,
+        columns: Sequence[str] = COLUMNS,
     ):  # fmt: skip
         self.folder = Path(folder)
         self.metadata = dict(metadata)
+        self.columns = tuple(columns)
         self.max_file_s = float(max_file_s)
         self.log, self.clock = log, clock
         self.current: RecordingFile | None = None
@@ -281,7 +290,9 @@ class RecordingFiles:
             ):
                 self.close()
             if self.current is None:
-                self.current = RecordingFile(self.folder, f"{self.run}_{file_stamp(wall_s)}", self.metadata)
+                self.current = RecordingFile(
+                    self.folder, f"{self.run}_{file_stamp(wall_s)}", self.metadata, self.columns
+                )
                 self._opened_at = self.clock()
             self.current.write_row(fields)
             self.rows += 1

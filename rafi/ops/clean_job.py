@@ -34,6 +34,8 @@ import rafi.readers.log_sources
 import rafi.readers.logs
 from rafi.errors import RafiUserError, RawFormatError
 from rafi.readers.checks import check_file
+from rafi.readers.input_spec import normalise_input_spec
+from rafi.readers.recordings import recording_spec
 
 #: The per-file outputs of the clean step: key -> suffix after the file's log id
 #: (``clean_parquet``, ``clean_audit``, ``clean_summary`` of :data:`rafi.contract.RESULT_FILES`).
@@ -117,12 +119,17 @@ def clean_file(
     ``say`` gets the progress lines (the rule's log); ``log`` the warnings. ``sha`` is the
     file's SHA-256 if already known. A log that is not a whole file has ``part`` (``sheet``,
     ``partner``: :mod:`rafi.readers.log_sources`) and its ``name`` (default: the file's);
-    its ``sha256`` is then :func:`rafi.readers.log_sources.log_stamp`'s.
+    its ``sha256`` is then :func:`rafi.readers.log_sources.log_stamp`'s. A file ``rafi record``
+    wrote has ``part`` ``{"recording": True}``: it is read as a native file with the machine's
+    sensors (:func:`rafi.readers.recordings.recording_spec`), whatever ``input.format``.
     """
+    part = dict(part or {})
+    # a file rafi record wrote is a native log whatever the machine's own format
     spec = settings.input_spec
+    if part.get("recording"):
+        spec = recording_spec(normalise_input_spec(spec))
     cfg = settings.clean
     digest = ""
-    part = dict(part or {})
     name = name or src.name
 
     def quarantine(reason: str) -> str:
@@ -136,7 +143,8 @@ def clean_file(
         digest = _log_digest(digest, part)
         where = f", sheet {part['sheet']!r}" if part.get("sheet") else ""
         where += f", partner {part['partner']}" if part.get("partner") else ""
-        say(f"read {src}{where} (format {spec.get('format', 'native')}, sha256 {digest[:12]})")
+        what = "native: a recording of rafi record" if part.get("recording") else spec.get("format", "native")
+        say(f"read {src}{where} (format {what}, sha256 {digest[:12]})")
         frame = rafi.readers.logs.read_log(
             src, spec, sheet=part.get("sheet"), partner=part.get("partner"), name=name
         )

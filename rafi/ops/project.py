@@ -91,13 +91,17 @@ def units(config: dict, machines: list[str]) -> list[str]:
 
 
 def raw_logs(paths: Paths, config: dict, machine: str) -> list[Path]:
-    """The raw files of ``machine`` the pipeline reads (its ``input.pattern``; every visible
-    file of the folder if the machine's settings cannot be resolved)."""
+    """The raw files of ``machine`` the pipeline reads (its ``input.pattern`` and the recordings
+    of ``rafi record``: :mod:`rafi.readers.recordings`; every visible file of the folder if the
+    machine's settings cannot be resolved)."""
     from rafi.readers.input_spec import find_logs
+    from rafi.readers.recordings import find_recordings
 
     folder = paths.raw_dir / machine
     try:
-        return find_logs(folder, machine_settings(config, machine)["input"], paths.raw_dir)
+        spec = machine_settings(config, machine)["input"]
+        recorded, _ = find_recordings(folder, spec, paths.raw_dir) if folder.is_dir() else ([], [])
+        return sorted(set(find_logs(folder, spec, paths.raw_dir)) | set(recorded))
     except (InputSpecError, SettingsError, OSError):
         return sorted(p for p in folder.glob("*") if p.is_file() and not p.name.startswith("."))
 

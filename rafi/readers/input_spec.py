@@ -72,6 +72,7 @@ from rafi.readers.input_layouts import (
     ref_key,
 )
 from rafi.readers.log_sources import expand_logs, log_id, log_name  # noqa: F401 (log_id: this module's API)
+from rafi.readers.recordings import find_recordings
 
 # --------------------------------------------------------------------------- the input: mapping
 
@@ -460,11 +461,12 @@ def discover_logs(
     -------
     machines : dict
         ``machine -> {log id: log source}``, machines sorted; a log source is
-        ``{"path", "sheet", "partner"}`` (:func:`rafi.readers.log_sources.expand_logs`: a file,
-        a sheet of a workbook, a file joined with its partner). A folder with no usable file, a
-        hidden folder and a folder whose name holds a brace are left out, and so are links
-        whose target lies outside ``raw_dir`` (a linked machine folder included) and files
-        still settling.
+        ``{"path", "sheet", "partner", "recording"}`` (:func:`rafi.readers.log_sources.expand_logs`:
+        a file, a sheet of a workbook, a file joined with its partner, a file ``rafi record``
+        wrote - :mod:`rafi.readers.recordings` -, found whatever ``input.pattern``). A folder
+        with no usable file, a hidden folder and a folder whose name holds a brace are left
+        out, and so are links whose target lies outside ``raw_dir`` (a linked machine folder
+        included) and files still settling.
     warnings : list of str
         What was left out, and why; a refused link's line starts ``link_outside_raw:``, a
         settling file's ``settling:`` (``docs/raw-format.md``).
@@ -508,12 +510,19 @@ def discover_logs(
         try:
             paths, refused = scan_logs(folder, spec, root)
             normalised = normalise_input_spec(spec)
+            recorded, more = find_recordings(folder, normalised, root)
+            refused = list(dict.fromkeys(refused + more))  # a name of both: one line
+            paths = sorted(set(paths) | set(recorded))
             waiting = settling_files(paths, settle_s, now)
             left_out = {path for path, _ in waiting}
-            logs, notes = expand_logs([p for p in paths if p not in left_out], normalised)
+            use = [p for p in paths if p not in left_out]
+            logs, notes = expand_logs(
+                [p for p in use if p not in recorded], normalised, [p for p in use if p in recorded]
+            )
             if has_constant_speed(normalised):
                 for key, src in logs.items():  # two speed globs with different speeds: stop while planning
-                    log_speed(log_name(key, src), Path(src["path"]).name, normalised)
+                    if not src["recording"]:  # a recording has its own speed column
+                        log_speed(log_name(key, src), Path(src["path"]).name, normalised)
         except InputSpecError as exc:
             raise InputSpecError(f"machine {machine!r}: {exc}") from None
         warnings += refused

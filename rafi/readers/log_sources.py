@@ -10,10 +10,13 @@ files matching ``input.pattern``; :func:`expand_logs` turns them into logs
   where two files have a sheet of that name). The sheet names are read from
   ``xl/workbook.xml`` (:func:`xlsx_sheet_names`), without openpyxl;
 * with ``input.join``, the files whose name holds ``join.replace[0]`` are logs, each with its
-  partner (the name with ``replace[1]`` in its place); the partners are not logs themselves.
+  partner (the name with ``replace[1]`` in its place); the partners are not logs themselves;
+* a file ``rafi record`` wrote (:mod:`rafi.readers.recordings`) is one log, read as a native
+  file whatever the mapping says (no sheet, no partner).
 
 A log is a :data:`LogSource` dict: ``path`` (the raw file), ``sheet`` (None: the mapping's
-sheet) and ``partner`` (None: no join). Its content stamp (:func:`log_stamp`) combines the
+sheet), ``partner`` (None: no join) and ``recording`` (True: a recording, read with
+:func:`rafi.readers.recordings.recording_spec`). Its content stamp (:func:`log_stamp`) combines the
 file's, the sheet's name and the partner's: the clean step's ``raw_stamps`` param and the
 ``sha256`` of its audit row.
 """
@@ -31,7 +34,8 @@ from rafi.errors import InputSpecError, RawFormatError, bound_message, short_pat
 from rafi.readers.discovery import NAME_MAX_BYTES, safe_name_problem
 from rafi.readers.input_layouts import is_sheet_pattern
 
-#: A log of a machine: ``{"path": str, "sheet": str | None, "partner": str | None}``.
+#: A log of a machine: ``{"path": str, "sheet": str | None, "partner": str | None,
+#: "recording": bool}``.
 LogSource = dict
 
 #: Characters a sheet-log's name never holds: path separators, characters Windows refuses in
@@ -234,15 +238,20 @@ def _sheet_ids(pairs: list[tuple[Path, str | None]]) -> dict[tuple[Path, str | N
     return out
 
 
-def expand_logs(paths: list[Path], spec: dict) -> tuple[dict[str, LogSource], list[str]]:
+def expand_logs(
+    paths: list[Path], spec: dict, recordings: list[Path] = ()
+) -> tuple[dict[str, LogSource], list[str]]:
     """The logs of a machine's raw files (module docstring), by log id.
 
     Parameters
     ----------
     paths : list of Path
-        The raw files matching ``input.pattern`` (sorted).
+        The raw files matching ``input.pattern`` (sorted), recordings left out.
     spec : dict
         The machine's normalised ``input:`` mapping.
+    recordings : list of Path
+        The files ``rafi record`` wrote (:func:`rafi.readers.recordings.find_recordings`):
+        one log each, after the others.
 
     Returns
     -------
@@ -265,6 +274,8 @@ def expand_logs(paths: list[Path], spec: dict) -> tuple[dict[str, LogSource], li
     if spec.get("format") == "xlsx" and is_sheet_pattern(spec.get("sheet")):
         pairs, more = _sheet_logs(paths, spec)
         warnings += more
+    recorded = {Path(p) for p in recordings}
+    pairs += [(Path(p), None) for p in recordings]
     ids = _sheet_ids(pairs)
     logs: dict[str, LogSource] = {}
     for pair in pairs:
@@ -277,6 +288,9 @@ def expand_logs(paths: list[Path], spec: dict) -> tuple[dict[str, LogSource], li
                 f"{what} as {logs[key]['path']}; their outputs "
                 "(results/<machine>/clean/<stem>.*) would collide - rename one of them",
             )
+        if path in recorded:
+            logs[key] = {"path": str(path), "sheet": None, "partner": None, "recording": True}
+            continue
         partner = partner_of(path, spec)
         if partner is not None and not partner.exists():
             warnings.append(
@@ -285,5 +299,10 @@ def expand_logs(paths: list[Path], spec: dict) -> tuple[dict[str, LogSource], li
                     "the log will be quarantined until it is there"
                 )
             )
-        logs[key] = {"path": str(path), "sheet": sheet, "partner": None if partner is None else str(partner)}
+        logs[key] = {
+            "path": str(path),
+            "sheet": sheet,
+            "partner": None if partner is None else str(partner),
+            "recording": False,
+        }
     return logs, warnings

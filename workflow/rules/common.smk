@@ -207,12 +207,15 @@ def machine_raw_paths(wildcards):
 
 def machine_raw_parts(wildcards):
     """Param of the clean step: log id -> ``{sheet, partner}`` of the logs of ``{machine}`` that
-    are not a whole file (``{}`` for a machine of plain files)."""
-    return {
-        key: {"sheet": src["sheet"], "partner": src["partner"]}
-        for key, src in sorted(LOGS.get(wildcards.machine, {}).items())
-        if src["sheet"] is not None or src["partner"] is not None
-    }
+    are not a whole file, and ``{recording: true}`` of the files ``rafi record`` wrote (read as
+    native files: ``rafi.readers.recordings``); ``{}`` for a machine of plain files."""
+    parts = {}
+    for key, src in sorted(LOGS.get(wildcards.machine, {}).items()):
+        if src["recording"]:
+            parts[key] = {"recording": True}
+        elif src["sheet"] is not None or src["partner"] is not None:
+            parts[key] = {"sheet": src["sheet"], "partner": src["partner"]}
+    return parts
 
 
 def machine_log_names(wildcards):
