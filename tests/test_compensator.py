@@ -87,10 +87,18 @@ def _fit(kind, rule, table, frame):
         return _model(kind, rule).fit(table, frame)
 
 
-def _stream(artefact: dict, frame: pd.DataFrame, rule: str) -> pd.DataFrame:
+def _stream(
+    artefact: dict, frame: pd.DataFrame, rule: str, *, restart_at: int | None = None, origin: float = 0.0
+) -> pd.DataFrame:
     """Every log of ``frame`` through a fresh compensator (power-on at the log's first sample),
     ``capture_reference`` at the first sample of every run (``run_start``) or segment
-    (``log_start``): what the controller would be told."""
+    (``log_start``): what the controller would be told.
+
+    ``restart_at``: before that sample of every log the process "restarts": the compensator's
+    state goes through JSON into a fresh one (:mod:`rafi.deploy.session`) whose sample clock
+    starts at ``origin``."""
+    from rafi.deploy.session import compensator_state, restore_compensator
+
     out = []
     for _, log in frame.groupby("log", sort=False):
         log = log.sort_values("log_t_s")
@@ -100,11 +108,15 @@ def _stream(artefact: dict, frame: pd.DataFrame, rule: str) -> pd.DataFrame:
         temps = log[list(SENSORS)].to_numpy(dtype=float)
         t = log["log_t_s"].to_numpy(dtype=float)
         rpm = log["speed_rpm"].to_numpy(dtype=float)
-        rows = []
+        rows, shift = [], 0.0
         for k in range(len(log)):
+            if k == restart_at and k > 0:
+                state = json.loads(json.dumps(compensator_state(comp), allow_nan=False))
+                comp, shift = Compensator.from_artefact(artefact), origin - t[k]
+                restore_compensator(comp, state, shift)
             if starts[k] and k > 0:
                 comp.capture_reference()
-            s = comp.step(t[k], rpm[k], temps[k])
+            s = comp.step(t[k] + shift, rpm[k], temps[k])
             rows.append((s.compensation_um, s.status, s.outside_speed_range, s.outside_temp_range))
         out.append(pd.DataFrame(rows, index=log.index, columns=["um", "status", "out_speed", "out_temp"]))
     return pd.concat(out).loc[frame.index]

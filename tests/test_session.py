@@ -40,37 +40,6 @@ START_WALL = 1_800_000_000.0  # 2027-01-15: any wall clock serves
 # --------------------------------------------------------------------------- the model's state
 
 
-def _restarted_stream(art: dict, frame, rule: str, cut: int, origin: float):
-    """:func:`test_compensator._stream` with every log's compensator restarted before sample
-    ``cut`` of that log: its state goes through JSON into a fresh compensator, whose samples
-    carry a clock that starts at ``origin`` (a new process' monotonic clock)."""
-    import pandas as pd
-
-    out = []
-    for _, log in frame.groupby("log", sort=False):
-        log = log.sort_values("log_t_s")
-        comp = Compensator.from_artefact(art)
-        key = log["run_id"] if rule == "run_start" else log["segment"]
-        starts = key.ne(key.shift()).to_numpy()
-        temps = log[list(SENSORS)].to_numpy(dtype=float)
-        t = log["log_t_s"].to_numpy(dtype=float)
-        rpm = log["speed_rpm"].to_numpy(dtype=float)
-        shift = 0.0
-        rows = []
-        for k in range(len(log)):
-            if k == cut and k > 0:
-                state = json.loads(json.dumps(compensator_state(comp), allow_nan=False))
-                comp = Compensator.from_artefact(art)
-                shift = origin - t[k]
-                restore_compensator(comp, state, shift)
-            if starts[k] and k > 0:
-                comp.capture_reference()
-            s = comp.step(t[k] + shift, rpm[k], temps[k])
-            rows.append((s.compensation_um, s.status))
-        out.append(pd.DataFrame(rows, index=log.index, columns=["um", "status"]))
-    return pd.concat(out).loc[frame.index]
-
-
 @pytest.mark.parametrize("kind", ["dynamic", "grey_box", "rafi"])
 @pytest.mark.parametrize("cut", [2, 150, 420])  # inside the first window, mid-run, late
 def test_a_restarted_compensator_equals_the_uninterrupted_one_and_the_batch(data, kind, cut):
@@ -79,7 +48,7 @@ def test_a_restarted_compensator_equals_the_uninterrupted_one_and_the_batch(data
     art = json.loads(json.dumps(model.to_dict()))
     frame = time_ordered(frame)
     whole = _stream(art, frame, rule)
-    restarted = _restarted_stream(art, frame, rule, cut, origin=5.0e5)
+    restarted = _stream(art, frame, rule, restart_at=cut, origin=5.0e5)
     np.testing.assert_array_equal(restarted["status"].to_numpy(), whole["status"].to_numpy())
     want = model.predict_detail(frame)["predicted_um"].to_numpy(dtype=float)
     defined = ~_in_window(frame, rule) & np.isfinite(want)
@@ -184,8 +153,12 @@ def test_the_file_is_written_whole_and_a_broken_one_only_means_anew(tmp_path):
     with pytest.raises(ValueError):  # NaN is not JSON: the caller writes null
         file.save(_stored(clock_s=math.nan))
     assert file.load()[0] == _stored()  # the old file stays whole
-    for text, why in (("{", "is not JSON"), ('{"schema": "x"}', "is not a rafi.deploy-session/1"),
-                      (json.dumps(_stored(last_sample_at_s="yesterday")), "has no last_sample_at_s")):  # fmt: skip
+    broken = [
+        ("{", "is not JSON"),
+        ('{"schema": "x"}', "is not a rafi.deploy-session/1"),
+        (json.dumps(_stored(last_sample_at_s="yesterday")), "has no last_sample_at_s"),
+    ]
+    for text, why in broken:
         file.path.write_text(text)
         state, reason = file.load()
         assert state is None and why in reason
