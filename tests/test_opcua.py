@@ -173,7 +173,7 @@ def test_credentials_and_the_right_to_write(server):
     )
     with OpcUaLink(settings, user="seawriter", password="nope") as refused:  # closed: no thread left
         with pytest.raises(
-            RafiUserError, match="the login refused for user 'seawriter'.*wrong user or password"
+            RafiUserError, match="the login was refused for user 'seawriter'.*wrong user or password"
         ):
             refused.connect()
     before, value = len(server.client_writes()), server.value(server.sd_node())
