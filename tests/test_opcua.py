@@ -27,7 +27,7 @@ from test_live import DEPLOY, DT, artefact, expected_commands, make_registry, sc
 
 from rafi import SENSORS  # noqa: E402
 from rafi.deploy import live_cli  # noqa: E402
-from rafi.deploy.opcua_client import OpcUaLink, opcua_settings  # noqa: E402
+from rafi.deploy.opcua_client import OPCUA_DEFAULTS, OpcUaLink, opcua_settings  # noqa: E402
 from rafi.errors import RafiUserError, UnqualifiedModel  # noqa: E402
 
 INCR = 100000  # MD 10200: 0.01 um resolution
@@ -449,3 +449,209 @@ def test_a_stop_while_connecting_is_one_line_and_exit_0(tmp_path, signum):
     assert len(warnings) == 1 and "WARNING allow_insecure: the password" in warnings[0]
     # nothing else: no traceback, no "Task was destroyed but it is pending!", no asyncua line
     assert err == "", err
+
+
+def _deploy_process(args, *extra, env_extra=None):
+    """``rafi deploy`` of ``args`` in its own process, SIGINT as from a terminal."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import rafi
+
+    env = {**os.environ, **ENV, "PYTHONPATH": str(Path(rafi.__file__).parent.parent), **(env_extra or {})}
+    cmd = [sys.executable, "-m", "rafi.cli", "deploy", "--machine", "m1", "--config", args.config, *extra]
+    return subprocess.Popen(
+        cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+
+
+def test_a_stop_mid_write_says_the_phase_it_was_in_not_reconnecting(server, tmp_path):
+    """Ctrl-C arrives while the server handles the first write (the server sends it before it
+    answers): the line names the loop's phase then, not "reconnecting" (the link is closed with the
+    target only afterwards)."""
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    args = write_config(tmp_path, server)
+    node = server.sd_node()
+    proc = _deploy_process(args)
+    server.on_write = lambda w: proc.send_signal(signal.SIGINT) if w.node == node else None
+    try:
+        out, err = proc.communicate(timeout=120)
+    finally:
+        server.on_write = None
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    stopped = [line for line in out.splitlines() if "stopped while" in line]
+    assert stopped == [
+        "rafi deploy: stopped while referencing (Ctrl-C); the target is closed, the last value stays "
+        "on the controller"
+    ], out
+    assert err == "", err
+
+
+@pytest.mark.parametrize("outage_cycles", [4, 14, 60])  # 20 s, 70 s and 300 s at 5 s a cycle
+def test_the_first_write_comes_in_the_first_cycle_after_the_server_is_back(server, tmp_path, outage_cycles):
+    """Whatever the outage's length, with the default reconnect settings: no session is tried
+    while the port does not answer (a TCP probe each cycle), and the cycle after the server is
+    back reconnects and writes. The metrics say ``outage`` meanwhile and have no model value while
+    referencing."""
+    from rafi.deploy.metrics import LoopMetrics
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    args = write_config(tmp_path, server)
+    config = yaml.safe_load(open(args.config))
+    opcua = config["machines"]["m1"]["deploy"]["opcua"]
+    del opcua["reconnect_min_s"], opcua["reconnect_max_s"]  # the defaults
+    open(args.config, "w").write(yaml.safe_dump(config))
+    rows = scenario()
+    loop, link = live_cli.build(args, log=lambda m: None, environ=ENV)
+    loop.metrics = metrics = LoopMetrics(machine="m1")
+    clock = [5000.0]
+    loop.clock = link.clock = lambda: clock[0]
+    first_down = 20
+    down = range(first_down, first_down + outage_cycles)
+    n = first_down + outage_cycles + 5
+    cycle, seen = [0], []
+
+    def gauge(name, **labels):
+        return metrics.registry.get_sample_value(name, {"machine": "m1", **labels})
+
+    def sleep(seconds):  # after cycle c: what the cycle left, then the world of cycle c + 1
+        status = loop.last_command.status if loop.last_command else None
+        outage = gauge("rafi_deploy_status", status="outage")
+        seen.append((cycle[0], len(sd_writes(server)), link.reconnect.tries, status, outage,
+                     gauge("rafi_deploy_model_um")))  # fmt: skip
+        clock[0] += seconds
+        cycle[0] += 1
+        c = cycle[0]
+        if c == down.start:
+            server.stop()
+        elif c == down.stop:
+            server.start()
+        if c not in down:
+            server.set_inputs(*rows[c % len(rows)])
+
+    loop.sleep = sleep
+    try:
+        link.connect()
+        server.set_inputs(*rows[0])
+        loop.run(max_cycles=n)
+    finally:
+        link.close()
+    writes = [w for _, w, *_ in seen]
+    tries = [t for _, _, t, *_ in seen]
+    back = down.stop
+    assert writes[first_down] == writes[first_down - 1]  # the cycle that lost the connection
+    assert len(set(writes[first_down:back])) == 1  # nothing written while the server was away
+    assert tries[back - 1] == tries[first_down - 1]  # no session tried while its port was closed
+    assert writes[back] == writes[back - 1] + 1  # the first cycle after its return writes
+    assert tries[back] == tries[back - 1] + 1 and link.reconnects == 1
+    outage = {c: o for c, _, _, _, o, _ in seen}
+    assert all(outage[c] == 1 for c in down) and outage[back] == 0 and outage[first_down - 1] == 0
+    referencing = [model for _, _, _, status, _, model in seen if status == "referencing"]
+    assert referencing and all(math.isnan(m) for m in referencing)  # 0 um is the reference, no value
+    assert any(math.isfinite(m) for _, _, _, status, _, m in seen if status == "ok")
+
+
+class _RefusingPort:
+    """Accepts every TCP connection and closes it: a probe (no byte sent) or an OPC UA session
+    (its Hello arrives first: counted in ``sessions``)."""
+
+    def __init__(self):
+        import socket
+        import threading
+
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(8)
+        self.endpoint = f"opc.tcp://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.sessions = self.probes = 0
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self):
+        while True:
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                return
+            with conn:
+                conn.settimeout(10)
+                try:
+                    hello = conn.recv(64)
+                except OSError:
+                    hello = b""
+                if hello.startswith(b"HEL"):
+                    self.sessions += 1
+                else:
+                    self.probes += 1
+
+    def close(self):
+        import socket
+
+        self.sock.shutdown(socket.SHUT_RDWR)
+        self.sock.close()
+        self._thread.join(10)
+
+
+def test_a_port_that_answers_but_refuses_sessions_is_not_hammered():
+    """Tried every second for 60 s: a session at the first try, then after 1, 2, 4, 8, 8 ... s
+    (reconnect_min_s doubling up to reconnect_max_s, the defaults), counted by the server."""
+    port = _RefusingPort()
+    clock = [0.0]
+    link = OpcUaLink(opcua_settings({"endpoint": port.endpoint, "inputs": inputs(), "timeout_s": 3}))
+    link.clock = lambda: clock[0]
+    try:
+        for second in range(60):
+            clock[0] = float(second)
+            assert link.try_reconnect() is False
+    finally:
+        link.close()
+        port.close()
+    expected, t, wait = [], 0.0, OPCUA_DEFAULTS["reconnect_min_s"]
+    while t < 60:
+        expected.append(t)
+        t, wait = t + wait, min(2 * wait, OPCUA_DEFAULTS["reconnect_max_s"])
+    assert port.sessions == len(expected) == 10  # at 0, 1, 3, 7, 15, 23, 31, 39, 47, 55 s
+    assert "closed the connection before the session was open" in link.last_error
+
+
+def test_a_failed_connect_says_why_and_never_connection_lost(tmp_path):
+    """Nothing ever connected: the port refused, or never answered (a full backlog drops the
+    handshake, as an unroutable address does), or closed the connection: said as such."""
+    import socket
+
+    refused = socket.socket()
+    refused.bind(("127.0.0.1", 0))
+    closed_port = refused.getsockname()[1]
+    refused.close()
+    full = socket.socket()
+    full.bind(("127.0.0.1", 0))
+    full.listen(0)
+    queued = socket.create_connection(full.getsockname(), timeout=5)  # fills the backlog
+    closing = _RefusingPort()
+    cases = {
+        f"opc.tcp://127.0.0.1:{closed_port}": f"127.0.0.1:{closed_port} refused the connection",
+        f"opc.tcp://127.0.0.1:{full.getsockname()[1]}": (
+            f"no answer from 127.0.0.1:{full.getsockname()[1]} within 1 s"
+        ),
+        closing.endpoint: "the server closed the connection before the session was open",
+    }
+    try:
+        for endpoint, why in cases.items():
+            log = []
+            settings = opcua_settings({"endpoint": endpoint, "inputs": inputs(), "timeout_s": 1})
+            link = OpcUaLink(settings, log=log.append)
+            with link, pytest.raises(ConnectionError) as failed:
+                link.connect()
+            message = str(failed.value)
+            assert message.startswith(f"OPC UA {endpoint}: cannot connect: {why}"), message
+            assert "connection lost" not in message and log == [] and link.losses == 0
+    finally:
+        queued.close()
+        full.close()
+        closing.close()

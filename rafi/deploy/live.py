@@ -349,6 +349,8 @@ class LiveLoop:
     ----------
     phase : str
         ``starting``, ``referencing``, ``running`` or ``reconnecting`` (for the stop message).
+    stopped_in : str or None
+        The phase when an exception (Ctrl-C) ended :meth:`run`, before the target was closed.
     """
 
     def __init__(
@@ -369,6 +371,7 @@ class LiveLoop:
         self._was_down = False
         self._read_back: str | None = "start"  # read the controller's value before stepping
         self._quiet_since: float | None = None
+        self.stopped_in: str | None = None
 
     @property
     def phase(self) -> str:
@@ -509,6 +512,9 @@ class LiveLoop:
                 if wait < 0:  # late (a slow server): start again from now, no burst of cycles
                     next_t, wait = self.clock(), 0.0
                 self.sleep(wait)
+        except BaseException:
+            self.stopped_in = self.phase  # before the target (and with it the link) is closed
+            raise
         finally:
             self.target.close()
         return self.writes

@@ -14,7 +14,9 @@ target is closed and the last value stays on the controller); 64 a settings mist
 machine, a wrong node, a node of the wrong type or not writable, missing credentials, a login
 the server refuses); 65 the model (no qualified model, another machine's model) or the
 controller's value (outside deploy.clamp_um) or a target that refuses the limits; 69 the
-controller cannot be reached at start (a connection lost later is retried, not an exit).
+controller cannot be reached at start (a connection lost later is retried, not an exit). With
+--wait-for-controller (the systemd unit passes it, docs/service.md) a controller that cannot be
+reached at start is waited for instead: tried every second, one line a minute, never exit 69.
 """
 
 from __future__ import annotations
@@ -52,6 +54,17 @@ def add_arguments(parser) -> None:
         help="compute and print, write nothing to the controller or the target file",
     )
     parser.add_argument("--cycles", type=int, help="stop after this many cycles (default: run until Ctrl-C)")
+    add_wait_option(parser)
+
+
+def add_wait_option(parser) -> None:
+    """``--wait-for-controller`` (``rafi deploy`` and ``rafi record``)."""
+    parser.add_argument(
+        "--wait-for-controller",
+        action="store_true",
+        help="if the controller cannot be reached at start, wait for it (a try every second, one line "
+        "a minute) instead of exiting 69; the systemd units pass it (docs/service.md)",
+    )
 
 
 def _load_model(args, config: dict, project: Path) -> tuple[dict, Path]:
@@ -120,7 +133,12 @@ def _link(args, deploy: dict, safe, kind, project: Path, log, environ):
         user, password = load_credentials(opcua, project_dir=project, environ=environ)
     if kind == "sinumerik" and not args.dry_run:
         require_credentials(user, opcua)
-    return OpcUaLink(opcua, user=user, password=password, log=log), user
+    return OpcUaLink(opcua, user=user, password=password, log=prefixed(log, "rafi deploy")), user
+
+
+def prefixed(log, prefix: str):
+    """``log`` with ``"<prefix>: "`` before each line (the link's lines, as the command's own)."""
+    return lambda message: log(f"{prefix}: {message}")
 
 
 def build(args, *, log=print, environ=None):
@@ -203,7 +221,17 @@ def _connect_and_check(loop, link, args, state: _State) -> int | None:
 
     state.phase = "connecting"
     try:
-        link.connect()
+        if getattr(args, "wait_for_controller", False):
+            from rafi.deploy.opcua_reconnect import wait_for_controller
+
+            def waiting() -> None:
+                state.phase = "waiting for the controller"
+                if loop.metrics is not None:
+                    loop.metrics.connection(False)
+
+            wait_for_controller(link, log=_print_line, notify=loop.notify, on_wait=waiting)
+        else:
+            link.connect()
         state.phase = "checking the nodes (preflight)"
         problems = preflight(link, **loop.preflight_spec)
         if problems:
@@ -218,6 +246,10 @@ def _connect_and_check(loop, link, args, state: _State) -> int | None:
         print(f"rafi deploy: {exc}", file=sys.stderr)
         return EX_UNAVAILABLE
     return None
+
+
+def _print_line(message: str) -> None:
+    print(f"rafi deploy: {message}", flush=True)
 
 
 class _State:
@@ -236,7 +268,9 @@ class _State:
 
 
 def _stopped_line(state: _State) -> str:
-    phase = state.loop.phase if state.phase == "running" and state.loop is not None else state.phase
+    phase = state.phase
+    if phase == "running" and state.loop is not None:  # where the loop was when it was stopped
+        phase = getattr(state.loop, "stopped_in", None) or state.loop.phase
     if state.target_opened:
         what = "the target is closed, the last value stays on the controller"
     else:

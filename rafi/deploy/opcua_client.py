@@ -288,7 +288,7 @@ class OpcUaLink:
         self._nodes: dict[str, object] = {}
         host, port = endpoint_address(self.endpoint)
         self.reconnect = ReconnectPolicy(
-            self.settings["reconnect_min_s"], self.settings["reconnect_max_s"], clock=self.clock,
+            self.settings["reconnect_min_s"], self.settings["reconnect_max_s"], clock=lambda: self.clock(),
             probe=probe or (lambda: port_problem(host, port, self.timeout_s)),
         )  # fmt: skip
         self._loop_thread = LoopThread(
