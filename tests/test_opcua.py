@@ -655,3 +655,110 @@ def test_a_failed_connect_says_why_and_never_connection_lost(tmp_path):
         queued.close()
         full.close()
         closing.close()
+
+
+class _Notify:
+    """What systemd would be told (rafi.deploy.sd_notify.SdNotify's calls)."""
+
+    def __init__(self):
+        self.calls = []
+
+    def ready(self, status=None):
+        self.calls.append(("ready", status))
+
+    def watchdog(self):
+        self.calls.append(("watchdog", None))
+
+
+def test_waiting_for_a_controller_that_boots_late(tmp_path):
+    """The server starts 130 s (of an injected clock) after the first try: one line when the wait
+    begins and one a minute, READY=1 with the waiting status, the watchdog fed at every try, no
+    session tried while the port is closed, connected at the first try after the server is up."""
+    from rafi.deploy.opcua_reconnect import wait_for_controller
+
+    late = SinumerikLikeServer(axis=3)  # not started yet
+    clock = [0.0]
+    log, notify = [], _Notify()
+    link = OpcUaLink(opcua_settings({"endpoint": late.endpoint, "inputs": inputs(), "timeout_s": 3}))
+    link.log = lambda m: log.append(f"link: {m}")
+    link.clock = lambda: clock[0]
+    steps = []
+
+    def sleep(seconds):
+        clock[0] += seconds
+        steps.append(clock[0])
+        if clock[0] == 130.0:
+            late.start()
+
+    try:
+        waited = wait_for_controller(
+            link, log=log.append, notify=notify, sleep=sleep, on_wait=lambda: log.append("on_wait")
+        )
+        assert link.connected and waited == 130.0 and steps[-1] == 130.0
+        assert link.read_inputs()["speed_rpm"] == 0.0
+    finally:
+        link.close()
+        late.close()
+    assert log[0].startswith("waiting for the controller (OPC UA " + late.endpoint + ": cannot connect: ")
+    assert "refused the connection" in log[0] and log[1] == "on_wait"
+    still = [line for line in log if line.startswith("still waiting")]
+    assert [line.split(" (")[0] for line in still] == [
+        "still waiting for the controller after 60 s",
+        "still waiting for the controller after 120 s",
+    ]
+    assert log[-1] == f"link: OPC UA {late.endpoint}: connected" and len(log) == 5
+    assert notify.calls[0] == ("ready", f"waiting for the controller at {late.endpoint}")
+    assert notify.calls[1:] == [("watchdog", None)] * len(steps)
+    assert link.reconnect.tries == 2 and link.reconnects == 0  # the first connect and the last
+
+
+def test_rafi_deploy_waits_for_a_late_controller_under_systemd(tmp_path):
+    """``rafi deploy --wait-for-controller`` (as the unit runs it) with the controller off: it
+    tells systemd it is up and waiting, feeds the watchdog, and once the server starts (when the
+    first watchdog ping arrived) connects, writes and ends its cycles with exit 0; without the
+    flag the same start is exit 69."""
+    import socket
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    late = SinumerikLikeServer(axis=3)
+    args = write_config(tmp_path, late)
+    proc = _deploy_process(args, "--cycles", "1")
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 69 and "refused the connection" in err, (out, err)
+    address = str(tmp_path / "notify")
+    datagrams = []
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sd:
+        sd.bind(address)
+        sd.settimeout(60)
+        proc = _deploy_process(
+            args, "--wait-for-controller", "--cycles", "2", env_extra={"NOTIFY_SOCKET": address}
+        )
+        try:
+            while not datagrams or datagrams[-1] != "WATCHDOG=1":
+                datagrams.append(sd.recv(4096).decode())
+            late.start()  # the controller boots now
+            out, err = proc.communicate(timeout=120)
+            sd.settimeout(0)
+            while True:
+                try:
+                    datagrams.append(sd.recv(4096).decode())
+                except BlockingIOError:
+                    break
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            writes = len(sd_writes(late))
+            late.close()
+    assert proc.returncode == 0, (out, err)
+    assert datagrams[0] == f"READY=1\nSTATUS=waiting for the controller at {late.endpoint}"
+    ready = [i for i, d in enumerate(datagrams) if d.startswith("READY=1\nSTATUS=model ")]
+    assert len(ready) == 1 and "WATCHDOG=1" in datagrams[1 : ready[0]]
+    assert writes == 2
+    lines = out.splitlines()
+    waiting = [
+        i for i, line in enumerate(lines) if line.startswith("rafi deploy: waiting for the controller (")
+    ]
+    connected = lines.index(f"rafi deploy: OPC UA {late.endpoint}: connected")
+    assert len(waiting) == 1 and waiting[0] < connected and "exit" not in out
+    assert err == "", err

@@ -29,6 +29,7 @@ import traceback
 from pathlib import Path
 
 from rafi.cli import add_config_option
+from rafi.deploy.opcua_reconnect import add_wait_option, prefixed
 from rafi.errors import EX_USAGE, RafiUserError, SettingsError
 
 EX_UNAVAILABLE = 69
@@ -55,16 +56,6 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument("--cycles", type=int, help="stop after this many cycles (default: run until Ctrl-C)")
     add_wait_option(parser)
-
-
-def add_wait_option(parser) -> None:
-    """``--wait-for-controller`` (``rafi deploy`` and ``rafi record``)."""
-    parser.add_argument(
-        "--wait-for-controller",
-        action="store_true",
-        help="if the controller cannot be reached at start, wait for it (a try every second, one line "
-        "a minute) instead of exiting 69; the systemd units pass it (docs/service.md)",
-    )
 
 
 def _load_model(args, config: dict, project: Path) -> tuple[dict, Path]:
@@ -134,11 +125,6 @@ def _link(args, deploy: dict, safe, kind, project: Path, log, environ):
     if kind == "sinumerik" and not args.dry_run:
         require_credentials(user, opcua)
     return OpcUaLink(opcua, user=user, password=password, log=prefixed(log, "rafi deploy")), user
-
-
-def prefixed(log, prefix: str):
-    """``log`` with ``"<prefix>: "`` before each line (the link's lines, as the command's own)."""
-    return lambda message: log(f"{prefix}: {message}")
 
 
 def build(args, *, log=print, environ=None):

@@ -27,7 +27,15 @@ import time
 from collections.abc import Callable
 from urllib.parse import urlsplit
 
-__all__ = ["DEFAULT_PORT", "ReconnectPolicy", "endpoint_address", "port_problem", "wait_for_controller"]
+__all__ = [
+    "DEFAULT_PORT",
+    "ReconnectPolicy",
+    "add_wait_option",
+    "endpoint_address",
+    "port_problem",
+    "prefixed",
+    "wait_for_controller",
+]
 
 #: The port of an ``opc.tcp://`` endpoint that names none (OPC UA's registered port).
 DEFAULT_PORT = 4840
@@ -225,3 +233,18 @@ def wait_for_controller(
             reported = now
             last = link.last_error or "the port does not answer"
             log(f"still waiting for the controller after {now - started:.0f} s ({last})")
+
+
+def add_wait_option(parser) -> None:
+    """Add ``--wait-for-controller`` (``rafi deploy`` and ``rafi record``) to an argparse parser."""
+    parser.add_argument(
+        "--wait-for-controller",
+        action="store_true",
+        help="if the controller cannot be reached at start, wait for it (a try every second, one line "
+        "a minute) instead of exiting 69; the systemd units pass it (docs/service.md)",
+    )
+
+
+def prefixed(log, prefix: str):
+    """``log`` with ``"<prefix>: "`` before each line (the link's lines, as the command's own)."""
+    return lambda message: log(f"{prefix}: {message}")

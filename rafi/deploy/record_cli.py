@@ -17,7 +17,8 @@ NC program, until Ctrl-C or --duration.
 Exit status: 0 done (the plan or --duration ended, or stopped by Ctrl-C / SIGTERM: the file is
 closed and renamed); 64 a settings, plan or credentials mistake, a node the server does not
 have, or a login or write the server refuses; 65 a followed DAQ file that is not in the native
-format; 69 the OPC UA server cannot be reached at start (a connection lost later is a gap).
+format; 69 the OPC UA server cannot be reached at start (a connection lost later is a gap);
+with --wait-for-controller (the systemd unit passes it, docs/service.md) it is waited for instead.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from rafi.cli import add_config_option
+from rafi.deploy.opcua_reconnect import add_wait_option, prefixed
 from rafi.errors import SettingsError, short_path
 
 EX_UNAVAILABLE = 69
@@ -69,6 +71,7 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--duration", help="stop after this long (4h, 90min, 300s); default: until Ctrl-C (or the plan's end)"
     )
+    add_wait_option(parser)
 
 
 def _node(spec, prefix: str, where: str) -> tuple[str, float, float]:
@@ -185,16 +188,12 @@ def build(args, *, log=print, environ=None):
     link = source = None
     if not args.follow or plan is not None:
         from rafi.deploy.opcua_client import OpcUaLink, load_credentials, opcua_settings
-        from rafi.deploy.opcua_security import plaintext_notice
 
         opcua = opcua_settings(
             settings["deploy"].get("opcua"), need_inputs=not args.follow, project_dir=project
         )
         user, password = load_credentials(opcua, project_dir=project, environ=environ)
-        link = OpcUaLink(opcua, user=user, password=password)  # the recorder logs the gaps
-        notice = plaintext_notice(opcua, user)  # the link's own log is silent: say it here
-        if notice:
-            log(f"rafi record: {notice}")
+        link = OpcUaLink(opcua, user=user, password=password, log=prefixed(log, "rafi record"))
         if not args.follow:
             source = OpcUaSource(link, *_channels(opcua, record, log))
     if args.follow:
@@ -260,7 +259,19 @@ def _record(args, recorder, link) -> int:
 
     if link is not None:
         try:
-            link.connect()
+            if getattr(args, "wait_for_controller", False):
+                from rafi.deploy.opcua_reconnect import wait_for_controller
+
+                def waiting() -> None:
+                    if recorder.metrics is not None:
+                        recorder.metrics.connection(False)
+
+                wait_for_controller(
+                    link, log=lambda m: print(f"rafi record: {m}", flush=True), notify=recorder.notify,
+                    on_wait=waiting,
+                )  # fmt: skip
+            else:
+                link.connect()
         except ConnectionError as exc:
             print(f"rafi record: {exc}", file=sys.stderr)
             return EX_UNAVAILABLE
