@@ -201,37 +201,43 @@ def _summary(loop, args, seconds: float) -> str:
 
 
 def _connect_and_check(loop, link, args, state: _State) -> int | None:
-    """Connect, run the preflight and, in a dry run, copy the controller's values into the dry
-    sink; an exit status to return, or None to go on."""
+    """Connect (or, with ``--wait-for-controller``, wait for the controller), run the preflight
+    and, in a dry run, copy the controller's values into the dry sink; an exit status to return,
+    or None to go on. Waiting, a connection lost during the preflight is waited for again."""
+    from rafi.deploy.opcua_reconnect import wait_for_controller
     from rafi.deploy.preflight import preflight
 
-    state.phase = "connecting"
-    try:
-        if getattr(args, "wait_for_controller", False):
-            from rafi.deploy.opcua_reconnect import wait_for_controller
+    wait = getattr(args, "wait_for_controller", False)
 
-            def waiting() -> None:
-                state.phase = "waiting for the controller"
-                if loop.metrics is not None:
-                    loop.metrics.connection(False)
+    def waiting() -> None:
+        state.phase = "waiting for the controller"
+        if loop.metrics is not None:
+            loop.metrics.connection(False)
 
-            wait_for_controller(link, log=_print_line, notify=loop.notify, on_wait=waiting)
-        else:
-            link.connect()
-        state.phase = "checking the nodes (preflight)"
-        problems = preflight(link, **loop.preflight_spec)
-        if problems:
-            for line in problems:
-                print(f"rafi deploy: preflight: {line}", file=sys.stderr)
-            print(f"rafi deploy: {_plural(len(problems), 'problem')}: nothing written", file=sys.stderr)
-            return EX_USAGE
-        if args.dry_run and hasattr(loop.target, "sink"):
-            for node in loop.preflight_spec["outputs"]:
-                loop.target.sink.start[node] = link.read_value(node)
-    except ConnectionError as exc:
-        print(f"rafi deploy: {exc}", file=sys.stderr)
-        return EX_UNAVAILABLE
-    return None
+    while True:
+        state.phase = "connecting"
+        try:
+            if wait:
+                wait_for_controller(link, log=_print_line, notify=loop.notify, on_wait=waiting)
+            else:
+                link.connect()
+            state.phase = "checking the nodes (preflight)"
+            problems = preflight(link, **loop.preflight_spec)
+            if problems:
+                for line in problems:
+                    print(f"rafi deploy: preflight: {line}", file=sys.stderr)
+                print(f"rafi deploy: {_plural(len(problems), 'problem')}: nothing written", file=sys.stderr)
+                return EX_USAGE
+            if args.dry_run and hasattr(loop.target, "sink"):
+                for node in loop.preflight_spec["outputs"]:
+                    loop.target.sink.start[node] = link.read_value(node)
+        except ConnectionError as exc:
+            if not wait:
+                print(f"rafi deploy: {exc}", file=sys.stderr)
+                return EX_UNAVAILABLE
+            _print_line(f"{exc}; waiting for the controller again")
+            continue
+        return None
 
 
 def _print_line(message: str) -> None:

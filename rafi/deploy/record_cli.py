@@ -254,28 +254,41 @@ def _stop_on_sigterm(signum, frame):
     raise KeyboardInterrupt
 
 
+def _connect(args, recorder, link) -> int | None:
+    """Connect (or, with ``--wait-for-controller``, wait for the server; a connection lost during
+    the preflight is then waited for again) and run the preflight; an exit status, or None."""
+    from rafi.deploy.opcua_reconnect import wait_for_controller
+
+    def say(message: str) -> None:
+        print(f"rafi record: {message}", flush=True)
+
+    def waiting() -> None:
+        if recorder.metrics is not None:
+            recorder.metrics.connection(False)
+
+    wait = getattr(args, "wait_for_controller", False)
+    while True:
+        try:
+            if wait:
+                wait_for_controller(link, log=say, notify=recorder.notify, on_wait=waiting)
+            else:
+                link.connect()
+            preflight(recorder, link)
+            return None
+        except ConnectionError as exc:
+            if not wait:
+                print(f"rafi record: {exc}", file=sys.stderr)
+                return EX_UNAVAILABLE
+            say(f"{exc}; waiting for the server again")
+
+
 def _record(args, recorder, link) -> int:
     from rafi.deploy.record import counted
 
     if link is not None:
-        try:
-            if getattr(args, "wait_for_controller", False):
-                from rafi.deploy.opcua_reconnect import wait_for_controller
-
-                def waiting() -> None:
-                    if recorder.metrics is not None:
-                        recorder.metrics.connection(False)
-
-                wait_for_controller(
-                    link, log=lambda m: print(f"rafi record: {m}", flush=True), notify=recorder.notify,
-                    on_wait=waiting,
-                )  # fmt: skip
-            else:
-                link.connect()
-        except ConnectionError as exc:
-            print(f"rafi record: {exc}", file=sys.stderr)
-            return EX_UNAVAILABLE
-        preflight(recorder, link)
+        status = _connect(args, recorder, link)
+        if status is not None:
+            return status
     source = f"OPC UA {link.endpoint}" if args.follow is None else short_path(args.follow)
     print(
         f"rafi record: {args.machine}: {source} every {recorder.period_s:g} s -> "
