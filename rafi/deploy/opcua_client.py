@@ -174,7 +174,9 @@ def opcua_settings(block: Mapping | None, *, need_inputs: bool = True, project_d
     out = {**OPCUA_DEFAULTS, **block}
     endpoint = out["endpoint"]
     if not isinstance(endpoint, str) or not endpoint.startswith("opc.tcp://"):
-        raise SettingsError(f"deploy.opcua.endpoint is {endpoint!r}; expected 'opc.tcp://host:port'")
+        from rafi.secret_mask import masked
+
+        raise SettingsError(f"deploy.opcua.endpoint is {masked(endpoint)!r}; expected 'opc.tcp://host:port'")
     if "@" in endpoint.split("//", 1)[1].split("/", 1)[0]:
         raise SettingsError(
             "deploy.opcua.endpoint holds a user name (user@host): credentials never go to config.yaml"
