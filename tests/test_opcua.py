@@ -508,7 +508,8 @@ def test_the_first_write_comes_in_the_first_cycle_after_the_server_is_back(serve
     del opcua["reconnect_min_s"], opcua["reconnect_max_s"]  # the defaults
     open(args.config, "w").write(yaml.safe_dump(config))
     rows = scenario()
-    loop, link = live_cli.build(args, log=lambda m: None, environ=ENV)
+    log = []
+    loop, link = live_cli.build(args, log=log.append, environ=ENV)
     loop.metrics = metrics = LoopMetrics(machine="m1")
     clock = [5000.0]
     loop.clock = link.clock = lambda: clock[0]
@@ -555,6 +556,14 @@ def test_the_first_write_comes_in_the_first_cycle_after_the_server_is_back(serve
     referencing = [model for _, _, _, status, _, model in seen if status == "referencing"]
     assert referencing and all(math.isnan(m) for m in referencing)  # 0 um is the reference, no value
     assert any(math.isfinite(m) for _, _, _, status, _, m in seen if status == "ok")
+    # the link's lines prefixed as the command's own, once per event; none of asyncua's
+    link_lines = [line for line in log if "OPC UA" in line]
+    assert [line.split(" (")[0] for line in link_lines] == [
+        f"rafi deploy: OPC UA {server.endpoint}: WARNING allow_insecure: the password of user 'seawriter' is "
+        "sent unencrypted",
+        f"rafi deploy: OPC UA {server.endpoint}: connection lost",
+        f"rafi deploy: OPC UA {server.endpoint}: reconnected",
+    ], link_lines
 
 
 class _RefusingPort:

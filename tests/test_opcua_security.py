@@ -338,6 +338,7 @@ def test_library_log_one_line_per_event_and_repeats_counted():
         return logging.LogRecord("asyncua.client", level, __file__, 1, message, None, None)
 
     router.handle(record("close_secure_channel was called but connection is closed"))  # debug: not shown
+    router.handle(record("close_session was called but connection is closed"))  # at every outage: neither
     router.handle(record("Requested session timeout to be 3600000ms, got 600000ms instead"))
     router.handle(record("ServiceFault (BadUserAccessDenied, diagnostics: DiagnosticInfo(...))"))
     router.handle(record("Sending plain-text password"))
