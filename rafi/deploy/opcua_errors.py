@@ -10,6 +10,8 @@ status names are looked up only when one is met).
 
 from __future__ import annotations
 
+import re
+
 from rafi.deploy.opcua_credentials import ENV_PASSWORD, ENV_USER
 from rafi.errors import RafiUserError
 
@@ -29,6 +31,8 @@ FATAL = {
 
 #: The statuses of a server that refuses a session without security (no certificate involved).
 UNENCRYPTED_REFUSED = ("BadSecurityModeRejected", "BadSecurityPolicyRejected")
+#: asyncua's own refusal to log in when the server lists no endpoint of security policy None.
+_NO_PLAIN_ENDPOINT = re.compile(r"^No matching endpoints: .*#None$")
 
 
 def status_name(exc: BaseException) -> str | None:
@@ -83,14 +87,16 @@ def refusal(
         None: not a refusal of this kind (a lost connection, to retry).
     """
     name = status_name(exc)
-    if name is None:
-        return None
-    if name in UNENCRYPTED_REFUSED and not secure:
+    text = str(exc)
+    if not secure and (name in UNENCRYPTED_REFUSED or _NO_PLAIN_ENDPOINT.match(text)):
+        why = name or "it offers no endpoint without security"
         return RafiUserError(
-            f"OPC UA {endpoint}: the server refuses unencrypted sessions ({name}): set "
+            f"OPC UA {endpoint}: the server refuses unencrypted sessions ({why}): set "
             "deploy.opcua.security_policy and security_mode, a client certificate (rafi certificate) "
             "and whom to trust (docs/deploy.md#security)"
         )
+    if name is None:
+        return None
     if name.startswith(("BadCertificate", "BadSecurity")):
         return RafiUserError(
             f"OPC UA {endpoint}: the server refused the client's certificate "
