@@ -458,7 +458,8 @@ def test_a_server_that_rejects_the_security_mode_is_said_apart_from_a_certificat
     for status in ("BadSecurityModeRejected", "BadSecurityPolicyRejected"):
         exc = ua.UaStatusCodeError(getattr(ua.StatusCodes, status))
         plain = str(refusal(exc, "the login", secure=False, **where))
-        assert plain.startswith("OPC UA opc.tcp://cnc:4840: the server refuses unencrypted sessions (" + status)
+        said = "OPC UA opc.tcp://cnc:4840: the server refuses unencrypted sessions ("
+        assert plain.startswith(said + status)
         assert "certificate (none)" not in plain
         secure = str(refusal(exc, "the login", secure=True, **{**where, "certificate": "/etc/rafi/c.der"}))
         assert "refused the client's certificate /etc/rafi/c.der" in secure and status in secure
