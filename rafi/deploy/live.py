@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from rafi.contract.sensors import DEFAULT_SENSORS
+from rafi.deploy.um_format import signed_um
 from rafi.errors import RafiUserError, SettingsError, TargetError
 
 __all__ = ["LiveLoop", "LogFollower", "TARGET_KINDS", "build_target", "check_target_limits"]
@@ -487,8 +488,9 @@ class LiveLoop:
         lower, upper = getattr(command, "lower_um", math.nan), getattr(command, "upper_um", math.nan)
         if math.isfinite(lower) and math.isfinite(upper):  # the model's interval (docs/deploy.md)
             model += f" in [{lower:+.3f}, {upper:+.3f}] {command.interval_cell}"
+        stamp = datetime.now().isoformat(timespec="seconds")
         self.log(
-            f"{datetime.now().isoformat(timespec='seconds')} {command.status:<11} {value:+9.3f} um "
+            f"{stamp} {command.status:<11} {signed_um(value, width=9)} um "
             f"({model}){flags}{'  ' + command.fault if command.fault else ''}"
         )
 
