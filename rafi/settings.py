@@ -120,8 +120,10 @@ def validate_config(config: Mapping) -> None:
     # the most specific error (best_match descends into anyOf/oneOf: machines.<name> is one)
     first = jsonschema.exceptions.best_match(validator.iter_errors(dict(config)))
     if first is not None:
+        from rafi.secret_mask import scrub
+
         where = ".".join(str(p) for p in first.absolute_path) or "top level"
-        raise SettingsError(f"config.yaml: {where}: {first.message}")
+        raise SettingsError(scrub(f"config.yaml: {where}: {first.message}", config))  # never a secret
 
 
 def run_settings(config: Mapping) -> dict:
@@ -296,6 +298,9 @@ def run(args) -> int:
 
     import yaml
 
+    from rafi.errors import EX_USAGE
+    from rafi.secret_mask import MASK, masked, secret_paths
+
     try:
         with open(args.config, encoding="utf-8") as fh:
             config = yaml.safe_load(fh) or {}
@@ -304,5 +309,16 @@ def run(args) -> int:
     except (OSError, yaml.YAMLError, SettingsError) as exc:
         print(f"rafi settings: {exc}", file=sys.stderr)
         return 2
-    yaml.safe_dump(shown, sys.stdout, sort_keys=False, allow_unicode=True)
+    yaml.safe_dump(masked(shown), sys.stdout, sort_keys=False, allow_unicode=True)
+    secrets = secret_paths(config)
+    if secrets:  # shown as MASK; rafi deploy / rafi record refuse the config
+        print(
+            f"rafi settings: {args.config}: {secrets[0]}"
+            f"{f' (and {len(secrets) - 1} more)' if len(secrets) > 1 else ''} holds a credential "
+            f"(shown as {MASK}): credentials never go to config.yaml, and rafi deploy and rafi record "
+            "refuse this config; move it to the environment or a credentials file "
+            "(docs/deploy.md#credentials)",
+            file=sys.stderr,
+        )
+        return EX_USAGE
     return 0

@@ -245,6 +245,9 @@ class SinumerikLikeServer:
             name, vtype, _ = temp_node(i)
             self.values[name] = (0 if vtype == ua.VariantType.Int16 else 0.0, vtype)
         self._server: Server | None = None
+        #: called with each client write (a :class:`Write`) in the server's thread, before the
+        #: client gets its answer: a test can act mid-write (send a signal to a client process)
+        self.on_write = None
         self._loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self._loop.run_forever, name="opcua-test-server", daemon=True)
         self._thread.start()
@@ -310,6 +313,8 @@ class SinumerikLikeServer:
                     (self.writes if code.is_good() else self.refused).append(rec)
                     if code.is_good():
                         self.values[name] = (dv.Value.Value, dv.Value.VariantType)
+                if self.on_write is not None:
+                    self.on_write(rec)
                 results.append(code)
             return results
 

@@ -785,3 +785,12 @@ def test_rafi_deploy_of_one_probe_reads_the_machines_own_sensors_into_that_probe
     assert lines[0] == "time_s,Z_um,status" and len(lines) == len(rows) + 1
     got = [float(line.split(",")[1]) for line in lines[1:]]
     assert got == pytest.approx([c for c, _ in expected_commands(fed)], abs=1e-9)
+
+
+def test_a_value_that_rounds_to_zero_is_printed_plus_zero():
+    from rafi.deploy.um_format import signed_um
+
+    assert [signed_um(v) for v in (-0.0, 0.0, -0.0004, 4e-13, -1e-12)] == ["+0.000"] * 5
+    assert [signed_um(v) for v in (-0.0006, 4.5125, -4.5)] == ["-0.001", "+4.513", "-4.500"]
+    assert signed_um(-0.0, width=9) == "   +0.000" and signed_um(1.5, digits=1) == "+1.5"
+    assert signed_um(float("nan")) == "+nan"

@@ -406,3 +406,23 @@ def test_without_prometheus_client_only_no_port_works(monkeypatch):
         SettingsError, match=r"^deploy\.metrics_port is set but prometheus_client is not installed"
     ):
         metrics_from_settings({"metrics_port": 9464}, machine="m1")
+
+
+def test_an_outage_is_a_status_and_referencing_has_no_model_value(served):
+    m = served(machine="m1")
+    # while referencing the compensator's 0 um is the reference, not a model value
+    m.cycle(command("referencing", cmd=0.0, model=0.0), written=True, step_seconds=0.004)
+    assert math.isnan(value(scrape(m.port), "rafi_deploy_model_um", machine="m1"))
+    m.cycle(command("ok", cmd=1.0, model=1.5), written=True, step_seconds=0.004)
+    m.connection(False)  # the loop: the link is down after this cycle
+    m.cycle(None, written=False, step_seconds=3.0)
+    s = scrape(m.port)
+    statuses = {dict(k[1])["status"]: v for k, v in s.items() if k[0] == "rafi_deploy_status"}
+    assert statuses["outage"] == 1 and sum(statuses.values()) == 1
+    assert value(s, "rafi_deploy_connected", machine="m1") == 0
+    m.reconnect()
+    m.cycle(command("ok", cmd=1.2, model=1.6), written=True, step_seconds=0.004)
+    s = scrape(m.port)
+    assert value(s, "rafi_deploy_status", machine="m1", status="ok") == 1
+    assert value(s, "rafi_deploy_status", machine="m1", status="outage") == 0
+    assert value(s, "rafi_deploy_model_um", machine="m1") == 1.6

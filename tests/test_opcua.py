@@ -27,7 +27,7 @@ from test_live import DEPLOY, DT, artefact, expected_commands, make_registry, sc
 
 from rafi import SENSORS  # noqa: E402
 from rafi.deploy import live_cli  # noqa: E402
-from rafi.deploy.opcua_client import OpcUaLink, opcua_settings  # noqa: E402
+from rafi.deploy.opcua_client import OPCUA_DEFAULTS, OpcUaLink, opcua_settings  # noqa: E402
 from rafi.errors import RafiUserError, UnqualifiedModel  # noqa: E402
 
 INCR = 100000  # MD 10200: 0.01 um resolution
@@ -173,7 +173,7 @@ def test_credentials_and_the_right_to_write(server):
     )
     with OpcUaLink(settings, user="seawriter", password="nope") as refused:  # closed: no thread left
         with pytest.raises(
-            RafiUserError, match="the login refused for user 'seawriter'.*wrong user or password"
+            RafiUserError, match="the login was refused for user 'seawriter'.*wrong user or password"
         ):
             refused.connect()
     before, value = len(server.client_writes()), server.value(server.sd_node())
@@ -448,4 +448,326 @@ def test_a_stop_while_connecting_is_one_line_and_exit_0(tmp_path, signum):
     )
     assert len(warnings) == 1 and "WARNING allow_insecure: the password" in warnings[0]
     # nothing else: no traceback, no "Task was destroyed but it is pending!", no asyncua line
+    assert err == "", err
+
+
+def _deploy_process(args, *extra, env_extra=None):
+    """``rafi deploy`` of ``args`` in its own process, SIGINT as from a terminal."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    import rafi
+
+    env = {**os.environ, **ENV, "PYTHONPATH": str(Path(rafi.__file__).parent.parent), **(env_extra or {})}
+    cmd = [sys.executable, "-m", "rafi.cli", "deploy", "--machine", "m1", "--config", args.config, *extra]
+    return subprocess.Popen(
+        cmd, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL),
+    )  # fmt: skip
+
+
+def test_a_stop_mid_write_says_the_phase_it_was_in_not_reconnecting(server, tmp_path):
+    """Ctrl-C arrives while the server handles the first write (the server sends it before it
+    answers): the line names the loop's phase then, not "reconnecting" (the link is closed with the
+    target only afterwards)."""
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    args = write_config(tmp_path, server)
+    node = server.sd_node()
+    proc = _deploy_process(args)
+    server.on_write = lambda w: proc.send_signal(signal.SIGINT) if w.node == node else None
+    try:
+        out, err = proc.communicate(timeout=120)
+    finally:
+        server.on_write = None
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 0, err
+    stopped = [line for line in out.splitlines() if "stopped while" in line]
+    assert stopped == [
+        "rafi deploy: stopped while referencing (Ctrl-C); the target is closed, the last value stays "
+        "on the controller"
+    ], out
+    assert err == "", err
+
+
+@pytest.mark.parametrize("outage_cycles", [4, 14, 60])  # 20 s, 70 s and 300 s at 5 s a cycle
+def test_the_first_write_comes_in_the_first_cycle_after_the_server_is_back(server, tmp_path, outage_cycles):
+    """Whatever the outage's length, with the default reconnect settings: no session is tried
+    while the port does not answer (a TCP probe each cycle), and the cycle after the server is
+    back reconnects and writes. The metrics say ``outage`` meanwhile and have no model value while
+    referencing."""
+    from rafi.deploy.metrics import LoopMetrics
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    args = write_config(tmp_path, server)
+    config = yaml.safe_load(open(args.config))
+    opcua = config["machines"]["m1"]["deploy"]["opcua"]
+    del opcua["reconnect_min_s"], opcua["reconnect_max_s"]  # the defaults
+    open(args.config, "w").write(yaml.safe_dump(config))
+    rows = scenario()
+    log = []
+    loop, link = live_cli.build(args, log=log.append, environ=ENV)
+    loop.metrics = metrics = LoopMetrics(machine="m1")
+    clock = [5000.0]
+    loop.clock = link.clock = lambda: clock[0]
+    first_down = 20
+    down = range(first_down, first_down + outage_cycles)
+    n = first_down + outage_cycles + 5
+    cycle, seen = [0], []
+
+    def gauge(name, **labels):
+        return metrics.registry.get_sample_value(name, {"machine": "m1", **labels})
+
+    def sleep(seconds):  # after cycle c: what the cycle left, then the world of cycle c + 1
+        status = loop.last_command.status if loop.last_command else None
+        outage = gauge("rafi_deploy_status", status="outage")
+        seen.append((cycle[0], len(sd_writes(server)), link.reconnect.tries, status, outage,
+                     gauge("rafi_deploy_model_um")))  # fmt: skip
+        clock[0] += seconds
+        cycle[0] += 1
+        c = cycle[0]
+        if c == down.start:
+            server.stop()
+        elif c == down.stop:
+            server.start()
+        if c not in down:
+            server.set_inputs(*rows[c % len(rows)])
+
+    loop.sleep = sleep
+    try:
+        link.connect()
+        server.set_inputs(*rows[0])
+        loop.run(max_cycles=n)
+    finally:
+        link.close()
+    writes = [w for _, w, *_ in seen]
+    tries = [t for _, _, t, *_ in seen]
+    back = down.stop
+    assert writes[first_down] == writes[first_down - 1]  # the cycle that lost the connection
+    assert len(set(writes[first_down:back])) == 1  # nothing written while the server was away
+    assert tries[back - 1] == tries[first_down - 1]  # no session tried while its port was closed
+    assert writes[back] == writes[back - 1] + 1  # the first cycle after its return writes
+    assert tries[back] == tries[back - 1] + 1 and link.reconnects == 1
+    outage = {c: o for c, _, _, _, o, _ in seen}
+    assert all(outage[c] == 1 for c in down) and outage[back] == 0 and outage[first_down - 1] == 0
+    referencing = [model for _, _, _, status, _, model in seen if status == "referencing"]
+    assert referencing and all(math.isnan(m) for m in referencing)  # 0 um is the reference, no value
+    assert any(math.isfinite(m) for _, _, _, status, _, m in seen if status == "ok")
+    # the link's lines prefixed as the command's own, once per event; none of asyncua's
+    link_lines = [line for line in log if "OPC UA" in line]
+    assert [line.split(" (")[0] for line in link_lines] == [
+        f"rafi deploy: OPC UA {server.endpoint}: WARNING allow_insecure: the password of user 'seawriter' is "
+        "sent unencrypted",
+        f"rafi deploy: OPC UA {server.endpoint}: connection lost",
+        f"rafi deploy: OPC UA {server.endpoint}: reconnected",
+    ], link_lines
+
+
+class _RefusingPort:
+    """Accepts every TCP connection and closes it: a probe (no byte sent) or an OPC UA session
+    (its Hello arrives first: counted in ``sessions``)."""
+
+    def __init__(self):
+        import socket
+        import threading
+
+        self.sock = socket.socket()
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.listen(8)
+        self.endpoint = f"opc.tcp://127.0.0.1:{self.sock.getsockname()[1]}"
+        self.sessions = self.probes = 0
+        self._thread = threading.Thread(target=self._serve, daemon=True)
+        self._thread.start()
+
+    def _serve(self):
+        while True:
+            try:
+                conn, _ = self.sock.accept()
+            except OSError:
+                return
+            with conn:
+                conn.settimeout(10)
+                try:
+                    hello = conn.recv(64)
+                except OSError:
+                    hello = b""
+                if hello.startswith(b"HEL"):
+                    self.sessions += 1
+                else:
+                    self.probes += 1
+
+    def close(self):
+        import socket
+
+        self.sock.shutdown(socket.SHUT_RDWR)
+        self.sock.close()
+        self._thread.join(10)
+
+
+def test_a_port_that_answers_but_refuses_sessions_is_not_hammered():
+    """Tried every second for 60 s: a session at the first try, then after 1, 2, 4, 8, 8 ... s
+    (reconnect_min_s doubling up to reconnect_max_s, the defaults), counted by the server."""
+    port = _RefusingPort()
+    clock = [0.0]
+    link = OpcUaLink(opcua_settings({"endpoint": port.endpoint, "inputs": inputs(), "timeout_s": 3}))
+    link.clock = lambda: clock[0]
+    try:
+        for second in range(60):
+            clock[0] = float(second)
+            assert link.try_reconnect() is False
+    finally:
+        link.close()
+        port.close()
+    expected, t, wait = [], 0.0, OPCUA_DEFAULTS["reconnect_min_s"]
+    while t < 60:
+        expected.append(t)
+        t, wait = t + wait, min(2 * wait, OPCUA_DEFAULTS["reconnect_max_s"])
+    assert port.sessions == len(expected) == 10  # at 0, 1, 3, 7, 15, 23, 31, 39, 47, 55 s
+    assert "closed the connection before the session was open" in link.last_error
+
+
+def test_a_failed_connect_says_why_and_never_connection_lost(tmp_path):
+    """Nothing ever connected: the port refused, or never answered (a full backlog drops the
+    handshake, as an unroutable address does), or closed the connection: said as such."""
+    import socket
+
+    refused = socket.socket()
+    refused.bind(("127.0.0.1", 0))
+    closed_port = refused.getsockname()[1]
+    refused.close()
+    full = socket.socket()
+    full.bind(("127.0.0.1", 0))
+    full.listen(0)
+    queued = socket.create_connection(full.getsockname(), timeout=5)  # fills the backlog
+    closing = _RefusingPort()
+    cases = {
+        f"opc.tcp://127.0.0.1:{closed_port}": f"127.0.0.1:{closed_port} refused the connection",
+        f"opc.tcp://127.0.0.1:{full.getsockname()[1]}": (
+            f"no answer from 127.0.0.1:{full.getsockname()[1]} within 1 s"
+        ),
+        closing.endpoint: "the server closed the connection before the session was open",
+    }
+    try:
+        for endpoint, why in cases.items():
+            log = []
+            settings = opcua_settings({"endpoint": endpoint, "inputs": inputs(), "timeout_s": 1})
+            link = OpcUaLink(settings, log=log.append)
+            with link, pytest.raises(ConnectionError) as failed:
+                link.connect()
+            message = str(failed.value)
+            assert message.startswith(f"OPC UA {endpoint}: cannot connect: {why}"), message
+            assert "connection lost" not in message and log == [] and link.losses == 0
+    finally:
+        queued.close()
+        full.close()
+        closing.close()
+
+
+class _Notify:
+    """What systemd would be told (rafi.deploy.sd_notify.SdNotify's calls)."""
+
+    def __init__(self):
+        self.calls = []
+
+    def ready(self, status=None):
+        self.calls.append(("ready", status))
+
+    def watchdog(self):
+        self.calls.append(("watchdog", None))
+
+
+def test_waiting_for_a_controller_that_boots_late(tmp_path):
+    """The server starts 130 s (of an injected clock) after the first try: one line when the wait
+    begins and one a minute, READY=1 with the waiting status, the watchdog fed at every try, no
+    session tried while the port is closed, connected at the first try after the server is up."""
+    from rafi.deploy.opcua_reconnect import wait_for_controller
+
+    late = SinumerikLikeServer(axis=3)  # not started yet
+    clock = [0.0]
+    log, notify = [], _Notify()
+    link = OpcUaLink(opcua_settings({"endpoint": late.endpoint, "inputs": inputs(), "timeout_s": 3}))
+    link.log = lambda m: log.append(f"link: {m}")
+    link.clock = lambda: clock[0]
+    steps = []
+
+    def sleep(seconds):
+        clock[0] += seconds
+        steps.append(clock[0])
+        if clock[0] == 130.0:
+            late.start()
+
+    try:
+        waited = wait_for_controller(
+            link, log=log.append, notify=notify, sleep=sleep, on_wait=lambda: log.append("on_wait")
+        )
+        assert link.connected and waited == 130.0 and steps[-1] == 130.0
+        assert link.read_inputs()["speed_rpm"] == 0.0
+    finally:
+        link.close()
+        late.close()
+    assert log[0].startswith("waiting for the controller (OPC UA " + late.endpoint + ": cannot connect: ")
+    assert "refused the connection" in log[0] and log[1] == "on_wait"
+    still = [line for line in log if line.startswith("still waiting")]
+    assert [line.split(" (")[0] for line in still] == [
+        "still waiting for the controller after 60 s",
+        "still waiting for the controller after 120 s",
+    ]
+    assert log[-1] == f"link: OPC UA {late.endpoint}: connected" and len(log) == 5
+    assert notify.calls[0] == ("ready", f"waiting for the controller at {late.endpoint}")
+    assert notify.calls[1:] == [("watchdog", None)] * len(steps)
+    assert link.reconnect.tries == 2 and link.reconnects == 0  # the first connect and the last
+
+
+def test_rafi_deploy_waits_for_a_late_controller_under_systemd(tmp_path):
+    """``rafi deploy --wait-for-controller`` (as the unit runs it) with the controller off: it
+    tells systemd it is up and waiting, feeds the watchdog, and once the server starts (when the
+    first watchdog ping arrived) connects, writes and ends its cycles with exit 0; without the
+    flag the same start is exit 69."""
+    import socket
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    late = SinumerikLikeServer(axis=3)
+    args = write_config(tmp_path, late)
+    proc = _deploy_process(args, "--cycles", "1")
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 69 and "refused the connection" in err, (out, err)
+    address = str(tmp_path / "notify")
+    datagrams = []
+    with socket.socket(socket.AF_UNIX, socket.SOCK_DGRAM) as sd:
+        sd.bind(address)
+        sd.settimeout(60)
+        proc = _deploy_process(
+            args, "--wait-for-controller", "--cycles", "2", env_extra={"NOTIFY_SOCKET": address}
+        )
+        try:
+            while not datagrams or datagrams[-1] != "WATCHDOG=1":
+                datagrams.append(sd.recv(4096).decode())
+            late.start()  # the controller boots now
+            out, err = proc.communicate(timeout=120)
+            sd.settimeout(0)
+            while True:
+                try:
+                    datagrams.append(sd.recv(4096).decode())
+                except BlockingIOError:
+                    break
+        finally:
+            if proc.poll() is None:
+                proc.kill()
+                proc.wait()
+            writes = len(sd_writes(late))
+            late.close()
+    assert proc.returncode == 0, (out, err)
+    assert datagrams[0] == f"READY=1\nSTATUS=waiting for the controller at {late.endpoint}"
+    ready = [i for i, d in enumerate(datagrams) if d.startswith("READY=1\nSTATUS=model ")]
+    assert len(ready) == 1 and "WATCHDOG=1" in datagrams[1 : ready[0]]
+    assert writes == 2
+    lines = out.splitlines()
+    waiting = [
+        i for i, line in enumerate(lines) if line.startswith("rafi deploy: waiting for the controller (")
+    ]
+    connected = lines.index(f"rafi deploy: OPC UA {late.endpoint}: connected")
+    assert len(waiting) == 1 and waiting[0] < connected and "exit" not in out
     assert err == "", err

@@ -322,7 +322,9 @@ def test_credentials_messages_say_where_they_were_looked_for(tmp_path):
 def test_a_wrong_password_gives_rafis_one_line_and_no_library_dump(secure_server, pki, caplog, capfd):
     log = []
     link = OpcUaLink(settings(secure_server, pki), user=USER, password="wrong", log=log.append)
-    with pytest.raises(RafiUserError, match="the login refused for user 'seawriter': BadUserAccessDenied"):
+    with pytest.raises(
+        RafiUserError, match="the login was refused for user 'seawriter': BadUserAccessDenied"
+    ):
         link.connect()
     link.close()
     assert log == []
@@ -338,6 +340,7 @@ def test_library_log_one_line_per_event_and_repeats_counted():
         return logging.LogRecord("asyncua.client", level, __file__, 1, message, None, None)
 
     router.handle(record("close_secure_channel was called but connection is closed"))  # debug: not shown
+    router.handle(record("close_session was called but connection is closed"))  # at every outage: neither
     router.handle(record("Requested session timeout to be 3600000ms, got 600000ms instead"))
     router.handle(record("ServiceFault (BadUserAccessDenied, diagnostics: DiagnosticInfo(...))"))
     router.handle(record("Sending plain-text password"))
@@ -420,6 +423,44 @@ def test_ctrl_c_or_sigterm_while_connecting_reaches_the_caller_and_leaves_nothin
     gc.collect()  # a task left pending would say so now ("Task was destroyed but it is pending!")
     leaked = [t for t in gc.get_objects() if isinstance(t, asyncio.Task) and not t.done()]
     assert [t for t in leaked if t.get_loop().is_closed()] == []  # (the test servers' loops run)
-    assert server.accepted == 1 and log == []
+    # try_reconnect probes the port first: a TCP connection closed at once, no byte sent
+    assert server.accepted == (1 if how == "connect" else 2) and log == []
     assert [r for r in library_records(caplog) if r.levelno >= logging.WARNING] == []
     assert capfd.readouterr().err == ""
+
+
+@pytest.mark.parametrize("user", [USER, None])
+def test_allow_insecure_against_an_encrypted_only_server_says_so_not_a_certificate(secure_server, user):
+    """No security_policy (allow_insecure for the password) against a server that offers only
+    encrypted endpoints: one line saying the server refuses unencrypted sessions, what to set;
+    no certificate is involved, so none is named."""
+    plain = settings(secure_server, allow_insecure=True)
+    before = len(secure_server.client_writes())
+    with OpcUaLink(plain, user=user, password=PASSWORD if user else None) as link:
+        with pytest.raises(RafiUserError) as refused:
+            link.connect()
+    message = str(refused.value)
+    assert message.startswith(f"OPC UA {secure_server.endpoint}: the server refuses unencrypted sessions (")
+    assert "set deploy.opcua.security_policy" in message and "certificate (none)" not in message
+    assert refused.value.exit_status == 64 and "\n" not in message
+    assert len(secure_server.client_writes()) == before
+
+
+def test_a_server_that_rejects_the_security_mode_is_said_apart_from_a_certificate_refusal():
+    """A server that lists an unencrypted endpoint but rejects the session (as a SINUMERIK
+    configured for encryption only does: BadSecurityModeRejected) is the same "unencrypted"
+    refusal without a policy; with one, the status is a certificate or policy matter."""
+    from asyncua import ua
+
+    from rafi.deploy.opcua_errors import refusal
+
+    where = dict(endpoint="opc.tcp://cnc:4840", user="seawriter", certificate=None)
+    for status in ("BadSecurityModeRejected", "BadSecurityPolicyRejected"):
+        exc = ua.UaStatusCodeError(getattr(ua.StatusCodes, status))
+        plain = str(refusal(exc, "the login", secure=False, **where))
+        said = "OPC UA opc.tcp://cnc:4840: the server refuses unencrypted sessions ("
+        assert plain.startswith(said + status)
+        assert "certificate (none)" not in plain
+        secure = str(refusal(exc, "the login", secure=True, **{**where, "certificate": "/etc/rafi/c.der"}))
+        assert "refused the client's certificate /etc/rafi/c.der" in secure and status in secure
+    assert refusal(ConnectionRefusedError(111, "refused"), "the login", secure=False, **where) is None

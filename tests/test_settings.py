@@ -265,3 +265,49 @@ def test_the_workflow_names_the_key_of_a_machine_setting_the_schema_refuses(tmp_
     assert done.returncode != 0
     assert "RAFI: config.yaml: machines.m.input.temperature_unit: 'F' is not one of ['C', 'K']" in out
     assert "not valid under any of the given schemas" not in out
+
+
+SECRET = "hunter2-Xq7"
+
+
+@pytest.mark.parametrize("debug", [[], ["--debug"]])
+def test_rafi_settings_never_prints_a_credential_and_says_the_config_is_refused(tmp_path, capsys, debug):
+    from rafi.cli import main
+
+    opcua = {"endpoint": f"opc.tcp://bob:{SECRET}@10.0.0.5:4840", "password": SECRET, "User": "bob"}
+    path = tmp_path / "config.yaml"
+    path.write_text(yaml.safe_dump({"machines": {"m1": {"deploy": {"opcua": opcua}}}}))
+    assert main([*debug, "settings", "--machine", "m1", "--config", str(path)]) == 64
+    out, err = capsys.readouterr()
+    assert SECRET not in out + err and "bob" not in out + err
+    shown = yaml.safe_load(out)["deploy"]["opcua"]
+    assert shown == {"endpoint": "opc.tcp://***@10.0.0.5:4840", "password": "***", "User": "***"}
+    assert err.count("\n") == 1
+    assert re.search(r"machines\.m1\.deploy\.opcua\.\w+ \(and 2 more\) holds a credential", err)
+    assert "rafi deploy and rafi record refuse this config" in err
+    # a schema error that quotes a block with a credential in it
+    path.write_text(yaml.safe_dump({"machines": {"m1": {"deploy": {"interval_s": {"password": SECRET}}}}}))
+    assert main([*debug, "settings", "--machine", "m1", "--config", str(path)]) == 2
+    out, err = capsys.readouterr()
+    assert SECRET not in out + err and "machines.m1.deploy.interval_s: {'password': '***'}" in err
+
+
+@pytest.mark.parametrize("debug", [[], ["--debug"]])
+def test_rafi_deploy_refuses_a_credential_in_config_yaml_without_printing_it(tmp_path, capsys, debug):
+    from test_live import artefact, make_registry
+
+    from rafi.cli import main
+
+    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    for opcua in (
+        {"endpoint": "opc.tcp://10.0.0.5:4840", "password": SECRET},
+        {"endpoint": f"opc.tcp://bob:{SECRET}@10.0.0.5:4840"},
+        {"endpoint": f"http://bob:{SECRET}@10.0.0.5:4840"},
+    ):
+        deploy = {"opcua": opcua, "target": {"kind": "csv", "axis": "Z", "path": "out.csv"}}
+        path = tmp_path / "config.yaml"
+        path.write_text(yaml.safe_dump({"machines": {"m1": {"deploy": deploy}}}))
+        assert main([*debug, "deploy", "--machine", "m1", "--config", str(path), "--cycles", "1"]) == 64
+        out, err = capsys.readouterr()
+        assert SECRET not in out + err and "bob" not in out + err
+        assert "deploy.opcua.endpoint" in err or "deploy.opcua.password: credentials never go" in err

@@ -87,3 +87,15 @@ def test_the_command_line_is_one_rafi_accepts(name):
         f"{PROJECT}/config.yaml",
     )
     assert getattr(args, "cycles", None) is None and not getattr(args, "dry_run", False)
+    assert args.wait_for_controller  # a controller that boots later than the PC is waited for
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_restarts_never_leave_the_unit_failed_for_good(name):
+    """No start limit (StartLimitIntervalSec=0), or one that restarts RestartSec apart can never
+    reach: StartLimitBurst starts need at least (burst - 1) x RestartSec."""
+    parsed = unit(name)
+    interval = float(parsed["Unit"].get("StartLimitIntervalSec", "10"))
+    burst = int(parsed["Unit"].get("StartLimitBurst", "5"))
+    restart_s = float(parsed["Service"]["RestartSec"])
+    assert interval == 0 or (burst - 1) * restart_s > interval

@@ -39,6 +39,7 @@ from pathlib import Path
 import numpy as np
 
 from rafi.contract.sensors import DEFAULT_SENSORS
+from rafi.deploy.um_format import signed_um
 from rafi.errors import RafiUserError, SettingsError, TargetError
 
 __all__ = ["LiveLoop", "LogFollower", "TARGET_KINDS", "build_target", "check_target_limits"]
@@ -163,12 +164,6 @@ def check_target_limits(target, axis: str, limits) -> None:
 
 
 # --------------------------------------------------------------------------- the log follower
-
-
-def signed_um(value: float) -> str:
-    """``+1.234``: three decimals with a sign, never ``-0.000``."""
-    rounded = round(float(value), 3)
-    return f"{rounded + 0.0 if rounded == 0 else rounded:+.3f}"
 
 
 def _number(text: str) -> float:
@@ -358,6 +353,8 @@ class LiveLoop:
     ----------
     phase : str
         ``starting``, ``referencing``, ``running`` or ``reconnecting`` (for the stop message).
+    stopped_in : str or None
+        The phase when an exception (Ctrl-C) ended :meth:`run`, before the target was closed.
     """
 
     def __init__(
@@ -379,6 +376,7 @@ class LiveLoop:
         self._was_down = False
         self._read_back: str | None = "start"  # read the controller's value before stepping
         self._quiet_since: float | None = None
+        self.stopped_in: str | None = None
 
     @property
     def phase(self) -> str:
@@ -512,12 +510,14 @@ class LiveLoop:
             for name, on in (("clamped", command.clamped), ("rate limited", command.rate_limited))
             if on
         )
-        model = f"model {command.model_um:+.3f} um" if math.isfinite(command.model_um) else "model: no value"
+        finite = math.isfinite(command.model_um)
+        model = f"model {signed_um(command.model_um)} um" if finite else "model: no value"
         lower, upper = getattr(command, "lower_um", math.nan), getattr(command, "upper_um", math.nan)
         if math.isfinite(lower) and math.isfinite(upper):  # the model's interval (docs/deploy.md)
             model += f" in [{lower:+.3f}, {upper:+.3f}] {command.interval_cell}"
+        stamp = datetime.now().isoformat(timespec="seconds")
         self.log(
-            f"{datetime.now().isoformat(timespec='seconds')} {command.status:<11} {signed_um(value):>9} um "
+            f"{stamp} {command.status:<11} {signed_um(value, width=9)} um "
             f"({model}){flags}{'  ' + command.fault if command.fault else ''}"
         )
 
@@ -541,6 +541,9 @@ class LiveLoop:
                 if wait < 0:  # late (a slow server): start again from now, no burst of cycles
                     next_t, wait = self.clock(), 0.0
                 self.sleep(wait)
+        except BaseException:
+            self.stopped_in = self.phase  # before the target (and with it the link) is closed
+            raise
         finally:
             self._save_session(force=True)
             self.target.close()

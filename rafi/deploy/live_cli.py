@@ -14,7 +14,9 @@ target is closed and the last value stays on the controller); 64 a settings mist
 machine, a wrong node, a node of the wrong type or not writable, missing credentials, a login
 the server refuses); 65 the model (no qualified model, another machine's model) or the
 controller's value (outside deploy.clamp_um) or a target that refuses the limits; 69 the
-controller cannot be reached at start (a connection lost later is retried, not an exit).
+controller cannot be reached at start (a connection lost later is retried, not an exit). With
+--wait-for-controller (the systemd unit passes it, docs/service.md) a controller that cannot be
+reached at start is waited for instead: tried every second, one line a minute, never exit 69.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import traceback
 from pathlib import Path
 
 from rafi.cli import add_config_option
+from rafi.deploy.opcua_reconnect import add_wait_option, prefixed
 from rafi.errors import EX_USAGE, RafiUserError, SettingsError
 
 EX_UNAVAILABLE = 69
@@ -52,6 +55,7 @@ def add_arguments(parser) -> None:
         help="compute and print, write nothing to the controller or the target file",
     )
     parser.add_argument("--cycles", type=int, help="stop after this many cycles (default: run until Ctrl-C)")
+    add_wait_option(parser)
 
 
 def _load_model(args, config: dict, project: Path) -> tuple[dict, Path]:
@@ -120,7 +124,7 @@ def _link(args, deploy: dict, safe, kind, project: Path, log, environ):
         user, password = load_credentials(opcua, project_dir=project, environ=environ)
     if kind == "sinumerik" and not args.dry_run:
         require_credentials(user, opcua)
-    return OpcUaLink(opcua, user=user, password=password, log=log), user
+    return OpcUaLink(opcua, user=user, password=password, log=prefixed(log, "rafi deploy")), user
 
 
 def build(args, *, log=print, environ=None):
@@ -215,27 +219,47 @@ def _summary(loop, args, seconds: float) -> str:
 
 
 def _connect_and_check(loop, link, args, state: _State) -> int | None:
-    """Connect, run the preflight and, in a dry run, copy the controller's values into the dry
-    sink; an exit status to return, or None to go on."""
+    """Connect (or, with ``--wait-for-controller``, wait for the controller), run the preflight
+    and, in a dry run, copy the controller's values into the dry sink; an exit status to return,
+    or None to go on. Waiting, a connection lost during the preflight is waited for again."""
+    from rafi.deploy.opcua_reconnect import wait_for_controller
     from rafi.deploy.preflight import preflight
 
-    state.phase = "connecting"
-    try:
-        link.connect()
-        state.phase = "checking the nodes (preflight)"
-        problems = preflight(link, **loop.preflight_spec)
-        if problems:
-            for line in problems:
-                print(f"rafi deploy: preflight: {line}", file=sys.stderr)
-            print(f"rafi deploy: {_plural(len(problems), 'problem')}: nothing written", file=sys.stderr)
-            return EX_USAGE
-        if args.dry_run and hasattr(loop.target, "sink"):
-            for node in loop.preflight_spec["outputs"]:
-                loop.target.sink.start[node] = link.read_value(node)
-    except ConnectionError as exc:
-        print(f"rafi deploy: {exc}", file=sys.stderr)
-        return EX_UNAVAILABLE
-    return None
+    wait = getattr(args, "wait_for_controller", False)
+
+    def waiting() -> None:
+        state.phase = "waiting for the controller"
+        if loop.metrics is not None:
+            loop.metrics.connection(False)
+
+    while True:
+        state.phase = "connecting"
+        try:
+            if wait:
+                wait_for_controller(link, log=_print_line, notify=loop.notify, on_wait=waiting)
+            else:
+                link.connect()
+            state.phase = "checking the nodes (preflight)"
+            problems = preflight(link, **loop.preflight_spec)
+            if problems:
+                for line in problems:
+                    print(f"rafi deploy: preflight: {line}", file=sys.stderr)
+                print(f"rafi deploy: {_plural(len(problems), 'problem')}: nothing written", file=sys.stderr)
+                return EX_USAGE
+            if args.dry_run and hasattr(loop.target, "sink"):
+                for node in loop.preflight_spec["outputs"]:
+                    loop.target.sink.start[node] = link.read_value(node)
+        except ConnectionError as exc:
+            if not wait:
+                print(f"rafi deploy: {exc}", file=sys.stderr)
+                return EX_UNAVAILABLE
+            _print_line(f"{exc}; waiting for the controller again")
+            continue
+        return None
+
+
+def _print_line(message: str) -> None:
+    print(f"rafi deploy: {message}", flush=True)
 
 
 class _State:
@@ -254,7 +278,9 @@ class _State:
 
 
 def _stopped_line(state: _State) -> str:
-    phase = state.loop.phase if state.phase == "running" and state.loop is not None else state.phase
+    phase = state.phase
+    if phase == "running" and state.loop is not None:  # where the loop was when it was stopped
+        phase = getattr(state.loop, "stopped_in", None) or state.loop.phase
     if state.target_opened:
         what = "the target is closed, the last value stays on the controller"
     else:

@@ -20,12 +20,14 @@ metric                                 type     meaning
 =====================================  =======  ==============================================
 ``<p>_command_um``                     gauge    the command of the last cycle (um)
 ``<p>_model_um``                       gauge    the model's value (um); NaN when it has none
+                                                (referencing: 0 um is the reference, no value)
 ``<p>_interval_lower_um``              gauge    the model's prediction interval, lower end (um)
 ``<p>_interval_upper_um``              gauge    ... upper end (um); both NaN without an interval
 ``<p>_interval_half_width_um``         gauge    its half-width (um); NaN without an interval
 ``<p>_interval_cell{cell}``            gauge    1 for the interval's cell (``settled``,
                                                 ``transient``, ``outside``) of the last cycle
-``<p>_status{status}``                 gauge    1 for the status of the last cycle, 0 others
+``<p>_status{status}``                 gauge    1 for the status of the last cycle, 0 others;
+                                                ``outage`` while the controller is unreachable
 ``<p>_faults_total{cause}``            counter  cycles with a fault of this class
 ``<p>_limited_total{limit}``           counter  cycles where ``clamp`` / ``rate`` acted
 ``<p>_cycles_total``                   counter  cycles run
@@ -94,8 +96,10 @@ FAULT_CLASSES = {
 }
 #: The cells of the prediction interval (:data:`rafi.family.interval_rule.CELLS`).
 INTERVAL_CELLS = ("settled", "transient", "outside")
+#: The status of the deploy metrics while the link to the controller is down (nothing is written).
+OUTAGE = "outage"
 #: The statuses exposed from the start (others get their series when first seen).
-KNOWN_STATUSES = ("off", "referencing", "ok", "hold", "ramp")
+KNOWN_STATUSES = ("off", "referencing", "ok", "hold", "ramp", OUTAGE)
 #: Seconds per cycle: a cycle reads, computes and writes over OPC UA (ms), or waits for a
 #: reconnect (up to deploy.opcua.timeout_s).
 STEP_BUCKETS = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0)
@@ -326,6 +330,13 @@ class LoopMetrics(_Metrics):
         )
         self._info = Info(f"{prefix}_model", "the model in service", ("machine",), registry=self.registry)
 
+    def connection(self, up: bool) -> None:
+        """Whether the link to the controller is up now; down: the status is ``outage`` (until a
+        cycle after the reconnect gives a command's status)."""
+        super().connection(up)
+        if not up:
+            self.status(OUTAGE)
+
     def model(self, model_id: str) -> None:
         """The model now in service (a new champion replaces the previous one)."""
         self._labels(self._info).info({"model_id": str(model_id)})
@@ -372,7 +383,8 @@ class LoopMetrics(_Metrics):
         if command is not None:
             self._command.set(float(command.command_um))
             model = float(command.model_um)
-            self._model.set(model if math.isfinite(model) else math.nan)
+            valued = math.isfinite(model) and command.status != "referencing"  # 0 um: the reference
+            self._model.set(model if valued else math.nan)
             self.status(command.status)
             self.fault(command.fault)
             self.interval(command)

@@ -19,10 +19,12 @@ describes every setting for a controls engineer.
   ``../shared/docs/controllers.md``); the node's type is read once.
 * A lost connection raises the built-in :class:`ConnectionError` from a read or a write; the
   caller (:class:`rafi.deploy.live.LiveLoop`) then writes nothing and calls
-  :meth:`OpcUaLink.try_reconnect` on each cycle, which tries again after a bounded, doubling
-  back-off (``reconnect_min_s`` .. ``reconnect_max_s``). A refusal that reconnecting cannot
-  cure (credentials, the right to write, a wrong node or data type) is a
-  :class:`rafi.errors.RafiUserError` and stops the loop.
+  :meth:`OpcUaLink.try_reconnect` on each cycle, which probes the port and tries a session as
+  soon as it answers again, else after a short doubling back-off (``reconnect_min_s`` ..
+  ``reconnect_max_s``; :mod:`rafi.deploy.opcua_reconnect`). A refusal that reconnecting cannot
+  cure (credentials, the right to write, a wrong node or data type, a certificate, an
+  unencrypted session) is a :class:`rafi.errors.RafiUserError` (:mod:`rafi.deploy.opcua_errors`)
+  and stops the loop.
 * Ctrl-C / SIGTERM (a KeyboardInterrupt in the caller's thread) while a call waits: the call's
   task is cancelled on the link's event loop and KeyboardInterrupt goes on to the caller;
   while connecting, the link is closed too (its thread stopped, nothing left pending).
@@ -47,8 +49,10 @@ from rafi.deploy.opcua_credentials import (
     load_credentials,
     require_credentials,
 )
+from rafi.deploy.opcua_errors import refusal
 from rafi.deploy.opcua_log import LibraryLogRouter, route_library_log, unroute_library_log
 from rafi.deploy.opcua_loop import LoopThread, call_within
+from rafi.deploy.opcua_reconnect import ReconnectPolicy, endpoint_address, port_problem
 from rafi.deploy.opcua_security import check_security_settings, load_security, plaintext_notice, secure_client
 from rafi.errors import RafiUserError, SettingsError
 from rafi.readers.input_spec import sensor_name_problem
@@ -71,8 +75,10 @@ OPCUA_DEFAULTS = {
     "node_prefix": "ns=2;s=",  # put before a node name that is not a full node id
     "credentials_file": None,  # outside the project; RAFI_OPCUA_CREDENTIALS overrides it
     "timeout_s": 5.0,  # per request
-    "reconnect_min_s": 1.0,  # first wait after a lost connection
-    "reconnect_max_s": 60.0,  # the wait doubles up to this
+    # after a lost connection: a TCP probe of the port every cycle, a session as soon as it answers;
+    # while it answers but the session fails, these waits between sessions (opcua_reconnect)
+    "reconnect_min_s": 1.0,  # first wait after a failed session
+    "reconnect_max_s": 8.0,  # the wait doubles up to this
     # security (rafi.deploy.opcua_security; docs/deploy.md "Security")
     "security_policy": None,  # none, Basic256Sha256, Aes128_Sha256_RsaOaep, Aes256_Sha256_RsaPss
     "security_mode": "SignAndEncrypt",  # or Sign
@@ -87,18 +93,6 @@ OPCUA_DEFAULTS = {
 #: The session timeout asked of the server: a session of a client that died is freed after it
 #: (a SINUMERIK has few session slots); the client's watchdog reads every second meanwhile.
 SESSION_TIMEOUT_MS = 60_000
-
-#: Status codes that no reconnecting cures: the loop stops with a message.
-_FATAL = {
-    "BadUserAccessDenied": "the server refused the user (wrong user or password, or no right to do this)",
-    "BadIdentityTokenRejected": "the server does not accept this kind of login (anonymous or user/password)",
-    "BadIdentityTokenInvalid": "the server refused the login",
-    "BadNotWritable": "the node is not writable for this user (SINUMERIK: the user needs the SeaWrite right)",
-    "BadWriteNotSupported": "the server refused the write's form (data type or timestamps)",
-    "BadTypeMismatch": "the value's data type is not the node's",
-    "BadNodeIdUnknown": "the server has no such node",
-    "BadNodeIdInvalid": "the node id is not valid",
-}
 
 #: Variant types a compensation (a float) may be written as, exactly.
 _FLOAT_TYPES = ("Double", "Float")
@@ -180,7 +174,9 @@ def opcua_settings(block: Mapping | None, *, need_inputs: bool = True, project_d
     out = {**OPCUA_DEFAULTS, **block}
     endpoint = out["endpoint"]
     if not isinstance(endpoint, str) or not endpoint.startswith("opc.tcp://"):
-        raise SettingsError(f"deploy.opcua.endpoint is {endpoint!r}; expected 'opc.tcp://host:port'")
+        from rafi.secret_mask import masked
+
+        raise SettingsError(f"deploy.opcua.endpoint is {masked(endpoint)!r}; expected 'opc.tcp://host:port'")
     if "@" in endpoint.split("//", 1)[1].split("/", 1)[0]:
         raise SettingsError(
             "deploy.opcua.endpoint holds a user name (user@host): credentials never go to config.yaml"
@@ -226,19 +222,6 @@ def opcua_settings(block: Mapping | None, *, need_inputs: bool = True, project_d
 # --------------------------------------------------------------------------- the link
 
 
-def _status_name(exc: BaseException) -> str | None:
-    """The OPC UA status name of an asyncua error (``BadUserAccessDenied``), else None."""
-    code = getattr(exc, "code", None)
-    if code is None:
-        return None
-    try:
-        from asyncua.ua.status_codes import get_name_and_doc
-
-        return get_name_and_doc(code)[0]
-    except (ImportError, KeyError, TypeError):
-        return type(exc).__name__
-
-
 class OpcUaLink:
     """One OPC UA session: the live inputs, and a sink for the SINUMERIK target.
 
@@ -253,6 +236,10 @@ class OpcUaLink:
         and asyncua's own warnings (default: nothing).
     clock : callable
         Seconds, for the back-off (default ``time.monotonic``).
+    probe : callable, optional
+        ``probe() -> str | None``: why the endpoint's port does not answer, None if it does
+        (default: a TCP connection to it within ``timeout_s``,
+        :func:`rafi.deploy.opcua_reconnect.port_problem`).
     library_log_level : int
         asyncua's records at or above this level (after :data:`rafi.deploy.opcua_log.LEVELS`)
         go to ``log`` (default ``logging.WARNING``).
@@ -277,6 +264,7 @@ class OpcUaLink:
         password=None,
         log: Callable | None = None,
         clock=None,
+        probe: Callable[[], bool] | None = None,
         library_log_level: int = logging.WARNING,
     ):
         import time
@@ -295,11 +283,16 @@ class OpcUaLink:
         self.connected = False
         self.losses = 0
         self.reconnects = 0
+        self.ever_connected = False
+        self.last_error: str | None = None  # why the last try to connect failed
         self._client = None
         self._types: dict[str, object] = {}  # node id -> ua.VariantType
         self._nodes: dict[str, object] = {}
-        self._backoff = float(self.settings["reconnect_min_s"])
-        self._next_try = -math.inf
+        host, port = endpoint_address(self.endpoint)
+        self.reconnect = ReconnectPolicy(
+            self.settings["reconnect_min_s"], self.settings["reconnect_max_s"], clock=lambda: self.clock(),
+            probe=probe or (lambda: port_problem(host, port, self.timeout_s)),
+        )  # fmt: skip
         self._loop_thread = LoopThread(
             "rafi-opcua",
             on_start=lambda ident: route_library_log(ident, self._library_log),
@@ -321,20 +314,10 @@ class OpcUaLink:
 
     # -- connection ----------------------------------------------------------------------
     def _fatal(self, exc: BaseException, what: str) -> RafiUserError | None:
-        name = _status_name(exc)
-        if name is not None and name.startswith(("BadCertificate", "BadSecurity")):
-            return RafiUserError(
-                f"OPC UA {self.endpoint}: the server refused the client's certificate "
-                f"{self.settings.get('certificate') or '(none)'}: {name}: make the server trust it, or check "
-                "deploy.opcua.security_policy and security_mode (docs/deploy.md#security)"
-            )
-        if name in _FATAL:
-            who = f"user {self._user!r}" if self._user else "an anonymous session"
-            return RafiUserError(
-                f"OPC UA {self.endpoint}: {what} refused for {who}: {name}: {_FATAL[name]}. "
-                f"Credentials come from {ENV_USER}/{ENV_PASSWORD} or a credentials file (docs/deploy.md)"
-            )
-        return None
+        return refusal(
+            exc, what, endpoint=self.endpoint, user=self._user, certificate=self.settings.get("certificate"),
+            secure=self.security is not None,
+        )  # fmt: skip
 
     async def _connect(self):
         asyncua = _asyncua()
@@ -378,16 +361,26 @@ class OpcUaLink:
             fatal = self._fatal(exc, "the login")
             if fatal is not None:
                 raise fatal from None
-            raise ConnectionError(
-                f"OPC UA {self.endpoint}: cannot connect: {type(exc).__name__}: {exc}"
-            ) from None
+            self.reconnect.failed()
+            self.last_error = self._why_not(exc)
+            raise ConnectionError(f"OPC UA {self.endpoint}: cannot connect: {self.last_error}") from None
         except BaseException:
             self._loop_thread.stop(self.timeout_s)
             raise
         self._nodes = {}
-        self.connected = True
-        self._backoff = float(self.settings["reconnect_min_s"])
+        self.connected = self.ever_connected = True
+        self.reconnect.connected()
         return self
+
+    def _why_not(self, exc: BaseException) -> str:
+        """Why a session could not be opened: the port's problem if it does not answer (a TCP
+        probe), else the error (asyncua's "connection lost" said as what it means here)."""
+        problem = self.reconnect.check_port()
+        if problem is not None:
+            return problem
+        if isinstance(exc, ConnectionError) and str(exc) == "connection lost":
+            return "the server closed the connection before the session was open"
+        return f"{type(exc).__name__}: {exc}".rstrip(": ")
 
     def _drop_client(self) -> None:
         client, self._client = self._client, None
@@ -407,28 +400,33 @@ class OpcUaLink:
                 "nothing is written until it is back"
             )
         self._drop_client()
-        self._next_try = self.clock() + self._backoff
+        self.reconnect.lost()
         return ConnectionError(f"OPC UA {self.endpoint}: connection lost: {type(exc).__name__}: {exc}")
 
     def try_reconnect(self) -> bool:
-        """Try to connect again if the back-off has passed; True when connected.
+        """Try to connect (again) if the policy says so; True when connected.
 
-        The wait starts at ``reconnect_min_s`` and doubles after each failed try, up to
-        ``reconnect_max_s``. A refused login is not retried: RafiUserError.
+        A TCP probe of the port first: while it does not answer, no session is tried; as soon as
+        it answers again, one is; while it answers and sessions fail, they wait
+        ``reconnect_min_s`` doubling up to ``reconnect_max_s``
+        (:class:`rafi.deploy.opcua_reconnect.ReconnectPolicy`). A refused login is not retried:
+        RafiUserError.
         """
         if self.connected:
             return True
-        now = self.clock()
-        if now < self._next_try:
+        if not self.reconnect.due():
+            self.last_error = self.reconnect.problem or self.last_error
             return False
+        again = self.ever_connected
         try:
             self.connect()
         except ConnectionError:
-            self._backoff = min(self._backoff * 2, float(self.settings["reconnect_max_s"]))
-            self._next_try = now + self._backoff
             return False
-        self.reconnects += 1
-        self.log(f"OPC UA {self.endpoint}: reconnected")
+        if again:
+            self.reconnects += 1
+            self.log(f"OPC UA {self.endpoint}: reconnected")
+        else:
+            self.log(f"OPC UA {self.endpoint}: connected")
         return True
 
     # -- reading -------------------------------------------------------------------------

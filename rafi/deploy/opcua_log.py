@@ -2,8 +2,8 @@
 
 asyncua logs through :mod:`logging` (loggers ``asyncua.*``, and ``asyncuagds.*`` for its trust
 store); left alone, that goes to stderr as raw dumps next to rafi's one-line messages, several
-times per event (``close_secure_channel was called but connection is closed`` up to six times
-per outage, a ``ServiceFault (BadUserAccessDenied, diagnostics: ...)`` before rafi's own
+times per event (``close_session`` / ``close_secure_channel was called but connection is
+closed`` at every outage, a ``ServiceFault (BadUserAccessDenied, diagnostics: ...)`` before rafi's own
 message about the refused login). While an :class:`~rafi.deploy.opcua_client.OpcUaLink` is
 open, :func:`route_library_log` sends every record that its event-loop thread logs to an
 :class:`LibraryLogRouter` instead:
@@ -39,7 +39,7 @@ LEVELS: tuple[tuple[re.Pattern, int | None], ...] = tuple(
         # rafi prints its own warning (allow_insecure) or refuses the plain text before connecting
         (r"^Sending plain-text password", None),
         # normal while a connection ends or was lost: rafi logs "connection lost" once
-        (r"close_secure_channel was called but connection is closed", logging.DEBUG),
+        (r"close_(session|secure_channel) was called but connection is closed", logging.DEBUG),
         (r"^Requested session timeout to be", logging.DEBUG),
         # a refusal's raw dump: rafi's one-line message names the status and what to do
         (r"^ServiceFault \(", logging.DEBUG),

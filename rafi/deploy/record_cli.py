@@ -17,7 +17,8 @@ NC program, until Ctrl-C or --duration.
 Exit status: 0 done (the plan or --duration ended, or stopped by Ctrl-C / SIGTERM: the file is
 closed and renamed); 64 a settings, plan or credentials mistake, a node the server does not
 have, or a login or write the server refuses; 65 a followed DAQ file that is not in the native
-format; 69 the OPC UA server cannot be reached at start (a connection lost later is a gap).
+format; 69 the OPC UA server cannot be reached at start (a connection lost later is a gap);
+with --wait-for-controller (the systemd unit passes it, docs/service.md) it is waited for instead.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from collections.abc import Mapping
 from pathlib import Path
 
 from rafi.cli import add_config_option
+from rafi.deploy.opcua_reconnect import add_wait_option, prefixed
 from rafi.errors import SettingsError, short_path
 
 EX_UNAVAILABLE = 69
@@ -69,6 +71,7 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--duration", help="stop after this long (4h, 90min, 300s); default: until Ctrl-C (or the plan's end)"
     )
+    add_wait_option(parser)
 
 
 def _node(spec, prefix: str, where: str) -> tuple[str, float, float]:
@@ -206,16 +209,12 @@ def build(args, *, log=print, environ=None):
     link = source = None
     if not args.follow or plan is not None:
         from rafi.deploy.opcua_client import OpcUaLink, load_credentials, opcua_settings
-        from rafi.deploy.opcua_security import plaintext_notice
 
         opcua = opcua_settings(
             settings["deploy"].get("opcua"), need_inputs=not args.follow, project_dir=project
         )
         user, password = load_credentials(opcua, project_dir=project, environ=environ)
-        link = OpcUaLink(opcua, user=user, password=password)  # the recorder logs the gaps
-        notice = plaintext_notice(opcua, user)  # the link's own log is silent: say it here
-        if notice:
-            log(f"rafi record: {notice}")
+        link = OpcUaLink(opcua, user=user, password=password, log=prefixed(log, "rafi record"))
         if not args.follow:
             source = OpcUaSource(link, *_channels(opcua, record, log, columns[2:-1]), columns=columns)
     if args.follow:
@@ -276,16 +275,41 @@ def _stop_on_sigterm(signum, frame):
     raise KeyboardInterrupt
 
 
+def _connect(args, recorder, link) -> int | None:
+    """Connect (or, with ``--wait-for-controller``, wait for the server; a connection lost during
+    the preflight is then waited for again) and run the preflight; an exit status, or None."""
+    from rafi.deploy.opcua_reconnect import wait_for_controller
+
+    def say(message: str) -> None:
+        print(f"rafi record: {message}", flush=True)
+
+    def waiting() -> None:
+        if recorder.metrics is not None:
+            recorder.metrics.connection(False)
+
+    wait = getattr(args, "wait_for_controller", False)
+    while True:
+        try:
+            if wait:
+                wait_for_controller(link, log=say, notify=recorder.notify, on_wait=waiting)
+            else:
+                link.connect()
+            preflight(recorder, link)
+            return None
+        except ConnectionError as exc:
+            if not wait:
+                print(f"rafi record: {exc}", file=sys.stderr)
+                return EX_UNAVAILABLE
+            say(f"{exc}; waiting for the server again")
+
+
 def _record(args, recorder, link) -> int:
     from rafi.deploy.record import counted
 
     if link is not None:
-        try:
-            link.connect()
-        except ConnectionError as exc:
-            print(f"rafi record: {exc}", file=sys.stderr)
-            return EX_UNAVAILABLE
-        preflight(recorder, link)
+        status = _connect(args, recorder, link)
+        if status is not None:
+            return status
     source = f"OPC UA {link.endpoint}" if args.follow is None else short_path(args.follow)
     print(
         f"rafi record: {args.machine}: {source} every {recorder.period_s:g} s -> "
