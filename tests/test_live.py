@@ -451,9 +451,11 @@ def test_credentials_never_come_from_config_yaml(tmp_path, monkeypatch):
     )
 
 
-def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path):
+@pytest.mark.parametrize("session_folder", ["writable", "a file"])
+def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path, session_folder):
     """`rafi deploy --follow` with a CSV target: no OPC UA; each appended line gives one row,
-    equal to the oracle's command."""
+    equal to the oracle's command. The session is kept in results/m1/deploy/session.json; where
+    it cannot be written, the loop says so once and goes on."""
     import argparse
     from datetime import datetime, timedelta
 
@@ -470,7 +472,10 @@ def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path):
     args = argparse.Namespace(
         machine="m1", config=str(tmp_path / "config.yaml"), model=None, follow=str(log), dry_run=False
     )
-    loop, link = live_cli.build(args, log=lambda m: None, environ={})
+    if session_folder == "a file":
+        (tmp_path / "results" / "m1" / "deploy").write_text("not a folder")
+    said = []
+    loop, link = live_cli.build(args, log=said.append, environ={})
     assert link is None
     rows = scenario()[:40]
     start = datetime(2026, 3, 1, 8)
@@ -494,6 +499,15 @@ def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path):
     assert lines[0] == "time_s,Z_um,status" and len(lines) == len(rows) + 1
     got = [float(line.split(",")[1]) for line in lines[1:]]
     assert got == pytest.approx([c for c, _ in expected_commands(fed)], abs=1e-9)
+    problems = [m for m in said if "the session cannot be saved" in m]
+    if session_folder == "a file":
+        assert len(problems) == 1 and "a restart will capture its reference anew" in problems[0]
+    else:
+        stored = json.loads((tmp_path / "results" / "m1" / "deploy" / "session.json").read_text())
+        assert not problems and stored["clock"] == "log" and stored["clock_s"] == fed[-1][0]
+        assert stored["reference"] is not None and stored["unit"] == "m1"
+    why = "no stored session" if session_folder == "writable" else "session.json cannot be read"
+    assert any(m.startswith("reference captured anew: ") and why in m for m in said)
 
 
 def test_rafi_deploy_serves_its_metrics_while_it_runs(tmp_path):
