@@ -30,8 +30,9 @@ What it does per sample
    the reference state). :meth:`Compensator.set_reference` gives a reference instead (see there).
 3. **Evaluation.** The features and the model's own formula: the fuzzy blend of per-speed
    polynomials for ``rafi`` / ``rafi_linear`` (:func:`rafi.method.fuzzy.triangular_weights`),
-   ``features . coefficients`` for the ridge kinds; the out-of-range flags of the batch
-   ``predict_detail``.
+   ``features . coefficients`` for the ridge kinds, the features held inside the artefact's
+   training envelope (:mod:`rafi.family.envelope`; ``Step.outside_envelope`` says where); the
+   out-of-range flags of the batch ``predict_detail``.
 
 Equality with the batch prediction, and the exact differences
 -------------------------------------------------------------
@@ -94,6 +95,7 @@ from rafi.contract import MODEL_KINDS
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
 from rafi.deploy.streaming import LowpassBank, ReferenceWindow
+from rafi.family.envelope import bound_features, envelope_bounds
 from rafi.method.fuzzy import triangular_weights
 
 __all__ = ["KINDS", "STATUSES", "Compensator", "Step", "parse_exponents"]
@@ -129,6 +131,7 @@ class Step(NamedTuple):
     upper_um: float = float("nan")
     half_width_um: float = float("nan")
     interval_cell: str = ""
+    outside_envelope: bool = False
 
 
 def parse_exponents(terms: Sequence[str], n_vars: int) -> np.ndarray:
@@ -247,6 +250,7 @@ class Compensator:
         input_rule: Callable | None = None,
         output_rule: Callable | None = None,
         interval: StreamInterval | None = None,
+        envelope: tuple | None = None,
     ):
         self.kind = kind
         self.model_id = model_id
@@ -272,6 +276,8 @@ class Compensator:
         self.output_rule = output_rule
         self.window = window  # the reference window being captured (None: a reference in force)
         self.interval = interval
+        self.envelope = envelope
+        self._outside_envelope = False
         self._since_change_s = float("nan")
         self._reset_clock = False  # the next sample starts a reference window: reset the clock
         # run-time state: the last sample's time, the reference in force
@@ -401,6 +407,7 @@ class Compensator:
             ranges=np.array([rng[s] for s in sensors], dtype=float).reshape(p, 2),
             speed_range_rpm=tuple(float(v) for v in d["speed_range_rpm"]),
             banks=banks,
+            envelope=envelope_bounds(d.get("envelope"), len(names)),
         )
 
     # ------------------------------------------------------------------ reference
@@ -506,7 +513,8 @@ class Compensator:
             bounds = self.interval.bounds(float(value), since_change_s=self._since_change_s, outside=outside)
         if self.output_rule is not None:
             value, status = self.output_rule(t, raw, status, out_speed, out_temp)
-        return Step(t, float(value), status, float(raw), bool(out_speed), bool(out_temp), *bounds)
+        beyond, self._outside_envelope = self._outside_envelope, False
+        return Step(t, float(value), status, float(raw), bool(out_speed), bool(out_temp), *bounds, beyond)
 
     def _rafi(self, rises: np.ndarray, rpm: float) -> tuple[float, bool, bool]:
         """:meth:`rafi.method.model.RafiModel._evaluate` and its flags for one row."""
@@ -551,7 +559,9 @@ class Compensator:
             parts.append(filt[k * p :])
         if self.draw_in_lag_s is not None:
             parts.append(np.array([draw - (self.ref_speed_rpm / SPEED_SCALE_RPM) ** 2]))
-        pred = float(np.concatenate(parts) @ self.coef)
+        bounded, beyond = bound_features(np.concatenate(parts), self.envelope)  # rafi.family.envelope
+        self._outside_envelope = bool(beyond)
+        pred = float(bounded @ self.coef)
         lo, hi = self.ranges[:, 0], self.ranges[:, 1]
         out_temp = bool(((rises < lo) | (rises > hi)).any())
         out_speed = bool(rpm < self.speed_range_rpm[0] or rpm > self.speed_range_rpm[1])

@@ -38,6 +38,7 @@ import pandas as pd
 from rafi.artefact import compute_model_id, now_iso
 from rafi.family.base import FamilyModel, check_artefact, data_hashes
 from rafi.family.dynamic import DynamicRidge
+from rafi.family.envelope import join_envelope
 from rafi.family.grey_box import GreyBox
 from rafi.family.prior import RIDGE_KINDS
 from rafi.family.ridge import cv_folds, cv_scores, fit_rows_of, ridge_gram, rms_scale
@@ -259,6 +260,7 @@ class AdaptedPrior(FamilyModel):
             model.n_ = int(len(residual))
             model.cv_table_ = cv_table
             model.regressor_ranges_, model.speed_range_rpm_ = _joined_ranges(model, table, train)
+            model.envelope_ = join_envelope(getattr(model, "envelope_", None), model._design(train)[0])
         else:  # RafiModel: the per-speed records stay the prior's; the data are the new ones
             model.data = data
             model.created = now_iso()

@@ -12,6 +12,7 @@ import pandas as pd
 
 from rafi.family.base import CODE_VERSION, FamilyModel, check_artefact, data_hashes, finish_artefact, floats
 from rafi.family.crossval import split_runs, training_mask, training_runs
+from rafi.family.envelope import bound_features, envelope_bounds, fit_envelope
 from rafi.family.feature_memo import active_memo
 from rafi.family.features import (
     MIN_IDENTIFYING_RUNS,
@@ -366,6 +367,7 @@ class RidgeBase(FamilyModel):
             s: [float(x[:, i].min()), float(x[:, i].max())] for i, s in enumerate(sensors)
         }
         self.speed_range_rpm_ = [float(table["speed_rpm"].min()), float(table["speed_rpm"].max())]
+        self.envelope_ = fit_envelope(feats)
         self.rmse_um_ = float(np.sqrt(np.mean((y - feats @ self.coef_) ** 2)))
         self.n_ = int(len(y))
         self.cv_table_ = cv_table
@@ -391,9 +393,15 @@ class RidgeBase(FamilyModel):
         return self._design(frame)[0]
 
     def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
-        """``predicted_um`` and the out-of-range flags per row of ``frame`` (same index)."""
+        """``predicted_um`` and the out-of-range flags per row of ``frame`` (same index).
+
+        The prediction is from the features bounded to the training envelope
+        (:mod:`rafi.family.envelope`); ``unbounded_um`` is the free extrapolation and
+        ``outside_envelope`` marks the rows where a feature was bounded."""
         feats = self._design_of(frame)
-        pred = feats @ self.coef_
+        bounds = envelope_bounds(getattr(self, "envelope_", None), feats.shape[1])
+        bounded, beyond = bound_features(feats, bounds)
+        pred = bounded @ self.coef_
         x = frame[[rise_column(s) for s in self.sensors_]].to_numpy(dtype=float)
         lo = np.array([self.regressor_ranges_[s][0] for s in self.sensors_])
         hi = np.array([self.regressor_ranges_[s][1] for s in self.sensors_])
@@ -403,6 +411,8 @@ class RidgeBase(FamilyModel):
                 "predicted_um": pred,
                 "outside_speed_range": (n < self.speed_range_rpm_[0]) | (n > self.speed_range_rpm_[1]),
                 "outside_temp_range": ((x < lo) | (x > hi)).any(axis=1),
+                "outside_envelope": beyond,
+                "unbounded_um": feats @ self.coef_,
             },
             index=frame.index,
         )
@@ -480,6 +490,8 @@ class RidgeBase(FamilyModel):
             "data": self.data_,
             "code_version": CODE_VERSION,
         }
+        if getattr(self, "envelope_", None) is not None:  # the training envelope (rafi.family.envelope)
+            body["envelope"] = self.envelope_
         if getattr(self, "interval_", None) is not None:  # the prediction interval (rafi.family.intervals)
             body["interval"] = dict(self.interval_)
         if getattr(self, "adaptation_", None) is not None:  # an adapted prior (rafi.family.adapted)
@@ -515,6 +527,7 @@ class RidgeBase(FamilyModel):
         m.grid_edges_ = list(selected.get("grid_edges", []))
         m.time_blocks_ = selected.get("cv_folds")
         m.cv_forward_folds_ = int(selected.get("cv_forward_folds", 0))
+        m.envelope_ = d["envelope"] if isinstance(d.get("envelope"), dict) else None
         m.interval_ = d["interval"] if isinstance(d.get("interval"), dict) else None
         m.adaptation_ = d["adaptation"] if isinstance(d.get("adaptation"), dict) else None
         m._from_selected(selected)

@@ -1,0 +1,121 @@
+"""The training envelope of the ridge kinds (rafi.family.envelope): inside it nothing changes,
+outside it each feature is held at the envelope's edge, so a model never extrapolates freely.
+
+Known truth from the twin's logs (rafi.twin.synthetic_logs): a machine trained at 3000 and
+6000 r/min and tested for hours at 9000 r/min is hotter than ever in training; with the smallest
+penalty (the runaway's grid edge) every ridge kind, bounded, is better than no compensation on
+that run, and at most a fraction of a micrometre worse than its free extrapolation on this
+linear physics.
+"""
+
+from __future__ import annotations
+
+import json
+import warnings
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
+
+from rafi.deploy.compensator import Compensator
+from rafi.family.envelope import bound_features, envelope_bounds, fit_envelope, join_envelope
+from rafi.twin.synthetic_logs import schedule_log
+from rafi.twin.synthetic_runs import runs_of_logs, small_family_model
+
+RIDGE_KINDS = ["temperature_ridge", "dynamic", "ridge_global", "grey_box"]
+finite = st.floats(-1e3, 1e3, allow_nan=False)
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    train=arrays(float, st.tuples(st.integers(2, 20), st.integers(1, 5)), elements=finite),
+    test=st.lists(finite, min_size=5, max_size=5),
+    margin=st.floats(0, 3),
+)
+def test_inside_nothing_changes_outside_a_feature_sits_on_the_edge(train, test, margin):
+    env = fit_envelope(train, margin)
+    lo, hi = envelope_bounds(env, train.shape[1])
+    span = train.max(axis=0) - train.min(axis=0)
+    np.testing.assert_allclose(lo, train.min(axis=0) - margin * span)
+    np.testing.assert_allclose(hi, train.max(axis=0) + margin * span)
+    x = np.array(test[: train.shape[1]])
+    bounded, outside = bound_features(x[None, :], (lo, hi))
+    inside = (x >= lo) & (x <= hi)
+    assert bool(outside[0]) == (not inside.all())
+    np.testing.assert_array_equal(bounded[0][inside], x[inside])
+    np.testing.assert_array_equal(bounded[0][~inside], np.where(x < lo, lo, hi)[~inside])
+    bounded_train, out_train = bound_features(train, (lo, hi))
+    np.testing.assert_array_equal(bounded_train, train)  # the training rows are inside
+    assert not out_train.any()
+
+
+def test_nan_and_features_without_a_range_are_never_bounded():
+    env = fit_envelope(np.array([[1.0, np.nan], [3.0, np.nan]]), 1.0)
+    assert env["feature_ranges"] == [[1.0, 3.0], [None, None]]
+    bounds = envelope_bounds(json.loads(json.dumps(env)), 2)
+    bounded, outside = bound_features(np.array([[np.nan, 1e9], [9.0, -1e9]]), bounds)
+    assert np.isnan(bounded[0, 0]) and bounded[0, 1] == 1e9 and not outside[0]
+    assert bounded[1, 0] == 5.0 and outside[1]
+    assert envelope_bounds(None, 2) is None
+    with pytest.raises(ValueError, match="2 features, the model 3"):
+        envelope_bounds(env, 3)
+
+
+def test_an_adapted_model_stands_on_the_prior_envelope_and_its_new_data():
+    prior = fit_envelope(np.array([[0.0, 5.0], [2.0, 6.0]]), 1.0)
+    joined = join_envelope(prior, np.array([[-1.0, 5.5], [1.0, 9.0]]))
+    assert joined == {"margin": 1.0, "feature_ranges": [[-1.0, 2.0], [5.0, 9.0]]}
+    assert join_envelope(None, np.array([[1.0]]))["feature_ranges"] == [[1.0, 1.0]]
+
+
+@pytest.fixture(scope="module")
+def hotter_than_ever():
+    rest = (0, 180)
+    logs = {
+        f"train{i}.csv": schedule_log([rest, (speed, 2 * 3600), (0, 3600)], period_s=20, seed=i)[0]
+        for i, speed in enumerate((3000, 6000))
+    }
+    logs["test.csv"] = schedule_log([rest, (9000, 5 * 3600)], period_s=20, seed=9)[0]
+    table, frame = runs_of_logs(logs, training_speeds_rpm=[3000, 6000], reference_window_s=60)
+    assert set(table.loc[table["run_id"] == "test", "role"]) == {"validation_single"}
+    return table, frame
+
+
+@pytest.mark.parametrize("kind", RIDGE_KINDS)
+def test_outside_the_envelope_a_model_is_better_than_no_compensation(hotter_than_ever, kind):
+    table, frame = hotter_than_ever
+    model = small_family_model(
+        kind, reference_rule="run_start", reference_window_s=60, filter_restart_gap_s=3600, alphas=(1e-8,)
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model.fit(table, frame)
+    test = frame[frame["log"] == "test.csv"]
+    detail = model.predict_detail(test)
+    y = test["dz_um"].to_numpy(dtype=float)
+    ok = np.isfinite(detail["predicted_um"].to_numpy())
+    assert detail["outside_envelope"].to_numpy()[ok].mean() > 0.3  # the run does leave it
+    bounded = np.abs(y - detail["predicted_um"].to_numpy())[ok].mean()
+    free = np.abs(y - detail["unbounded_um"].to_numpy())[ok].mean()
+    none = np.abs(y)[ok].mean()
+    noise = 0.1  # the twin's displacement noise (schedule_log's noise_disp)
+    assert bounded <= none + noise and bounded < 0.5 * none
+    assert bounded <= free + 0.5 or kind == "temperature_ridge"  # its free extrapolation is the worse
+    # the artefact carries the envelope: the streaming compensator bounds as the batch code does
+    art = json.loads(json.dumps(model.to_dict()))
+    assert len(art["envelope"]["feature_ranges"]) == len(art["features"])
+    comp = Compensator.from_artefact(art)
+    sensors = [c for c in test.columns if c.startswith("T") and c[1:].isdigit()]
+    steps = [
+        comp.step(t, n, row)
+        for t, n, row in zip(
+            test["log_t_s"].to_numpy(), test["speed_rpm"].to_numpy(), test[sensors].to_numpy(dtype=float)
+        )
+    ]
+    streamed = np.array([s.outside_envelope for s in steps])
+    after = test["log_t_s"].to_numpy() >= test["log_t_s"].min() + 60.0  # after the reference window
+    np.testing.assert_array_equal(streamed[after], detail["outside_envelope"].to_numpy()[after])
+    got = np.array([s.compensation_um for s in steps])
+    np.testing.assert_allclose(got[after], detail["predicted_um"].to_numpy()[after], rtol=0, atol=1e-9)
