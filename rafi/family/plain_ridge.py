@@ -73,8 +73,10 @@ def with_plain_ridge(factories: dict, factory: Callable) -> dict:
 
 def _num(value) -> float:
     """``value`` as a float; NaN for a missing or non-numeric one."""
-    out = pd.to_numeric(pd.Series([value]), errors="coerce").iloc[0]
-    return float(out) if pd.notna(out) else np.nan
+    try:
+        return float(value) if value is not None and not isinstance(value, (bool, np.bool_)) else np.nan
+    except (TypeError, ValueError):
+        return np.nan
 
 
 def _margin(reference: float, value: float) -> tuple[float, float]:
