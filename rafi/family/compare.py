@@ -544,11 +544,11 @@ def run_family(
         "speed_tolerance_rpm": speed_tolerance_rpm,
     }
     factories = {kind: functools.partial(make_model, kind, **settings) for kind in options["enabled"]}
+    floor = functools.partial(make_model, PLAIN_RIDGE, **settings)  # always scored, offered if enabled
     if prior is not None:
         factories.update(adaptation_factories(prior, options=options, machine=machine, log=log))
         settings = {**settings, "prior": prior.get("model_id")}  # the CV memo's key covers the prior
-    candidates = list(factories)  # what the rule may offer; the plain ridge is always scored
-    factories = with_plain_ridge(factories, functools.partial(make_model, PLAIN_RIDGE, **settings))
+    candidates, factories = list(factories), with_plain_ridge(factories, floor)  # offered / scored
     models, cv, oof, memo, fit_table = _cross_validated(
         factories, runs_table, runs_frame, settings, rafi_model, cv_memo_dir, code_version, log
     )
