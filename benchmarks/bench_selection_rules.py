@@ -268,11 +268,13 @@ def machine_inputs(project: Path, machine: str) -> dict:
         "hac_maxlags": s["fit"]["hac_maxlags"],
         "speed_tolerance_rpm": s["speed_tolerance_rpm"],
     }
+    cv = pd.read_csv(res / RESULT_FILES["comparison_cv"])
     return {
         "factories": {k: functools.partial(make_model, k, **settings) for k in s["models"]["enabled"]},
         "table": pd.read_csv(res / RESULT_FILES["runs_csv"]),
         "frame": pd.read_parquet(res / RESULT_FILES["runs_parquet"]),
-        "cv": pd.read_csv(res / RESULT_FILES["comparison_cv"]),
+        # the enabled kinds' rows: not the plain ridge's when it is scored as the reference only
+        "cv": cv.loc[cv["model"].astype(str).isin(s["models"]["enabled"])].reset_index(drop=True),
     }
 
 

@@ -182,7 +182,9 @@ def test_run_family_with_a_prior_adds_three_candidates(states, dynamic_prior, tm
         res = _family(t2, f2, prior=dynamic_prior)
     assert _tables(base, tmp_path, "base") == _tables(none, tmp_path, "none")  # prior=None: no change
     summary = res["summary"].set_index("model")
-    assert set(summary.index) == {"rafi_linear", "dynamic", *CANDIDATES}
+    # and the plain ridge, scored as the reference (rafi.family.plain_ridge): last, not a candidate
+    assert set(summary.index) == {"rafi_linear", "dynamic", *CANDIDATES, "temperature_ridge"}
+    assert summary.index[-1] == "temperature_ridge" and summary["candidate"].sum() == len(summary) - 1
     assert (summary.loc[list(CANDIDATES), "kind"] == "dynamic").all()
     assert set(res["cv"]["model"]) == set(summary.index)
     assert summary.loc["prior_gain", "selected"].endswith(f"times {res['models']['prior_gain'].gain_:.4g}")

@@ -39,7 +39,8 @@ def family():
 def test_the_verdict_is_qualify_of_every_model_in_the_summarys_order(family):
     verdict, per_run, summary = family["verdict"], family["per_run"], family["summary"]
     assert list(verdict.columns) == VERDICT_COLUMNS
-    assert list(dict.fromkeys(verdict["model"])) == list(summary["model"]) == ENABLED
+    # the enabled kinds, then the plain ridge scored as the reference (rafi.family.plain_ridge)
+    assert list(dict.fromkeys(verdict["model"])) == list(summary["model"]) == [*ENABLED, "temperature_ridge"]
     n_runs = per_run.groupby("model")["run_id"].nunique()
     for name, model_id in zip(summary["model"], summary["model_id"]):
         rows = verdict[verdict["model"] == name].reset_index(drop=True)

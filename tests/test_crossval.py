@@ -253,7 +253,8 @@ def test_run_family_end_to_end():
         dynamic_max_taus=1,
     )
     s = res["summary"]
-    assert set(s["model"]) == {"rafi_linear", "ridge_global", "dynamic"}
+    # the enabled kinds and the plain ridge, scored in every comparison (rafi.family.plain_ridge)
+    assert set(s["model"]) == {"rafi_linear", "ridge_global", "dynamic", "temperature_ridge"}
     assert {"cv_rmse_um", "cv_max_abs_um", "selected"} <= set(s.columns)
     assert not any("time" in c for c in s.columns)  # timings go to the log only
     selected = dict(zip(s["model"], s["selected"]))
@@ -263,7 +264,7 @@ def test_run_family_end_to_end():
     assert res["champion"] in set(s["model"])
     assert res["best_artefact"]["kind"] == res["champion"]
     assert set(res["cv"]["test_runs"]) == set(table.loc[table["role"] == "training", "run_id"])
-    assert len(res["per_run"]) == 3 * 4 and set(res["residuals"]["model"]) == set(s["model"])
+    assert len(res["per_run"]) == 4 * 4 and set(res["residuals"]["model"]) == set(s["model"])
 
 
 def test_run_family_tables_are_identical_on_identical_inputs(tmp_path):

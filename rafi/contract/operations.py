@@ -55,7 +55,8 @@ OPERATIONS_SETTINGS: dict = {
                 shown="all five",
                 doc=(
                     "the model family (`docs/models.md`): `rafi`, `rafi_linear`, `ridge_global`, `dynamic`, "
-                    "`grey_box`; `temperature_ridge` (no speed input) on request"
+                    "`grey_box`; `temperature_ridge` (no speed input) offered on request, and scored in every"
+                    " comparison as the plain-ridge floor either way"
                 ),
             ),
             "prior": Setting(

@@ -43,6 +43,7 @@ from rafi.family.forward_folds import is_forward
 from rafi.family.grey_box import GreyBox
 from rafi.family.interval_fit import calibrate_family, calibration_units, stacked_oof
 from rafi.family.intervals import coverage_and_width, interval_columns
+from rafi.family.plain_ridge import PLAIN_RIDGE, floor_columns, with_plain_ridge
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
 from rafi.family.ridge_global import RidgeGlobal
@@ -497,10 +498,11 @@ def run_family(
 ) -> dict:
     """Fit, cross-validate, choose, then validate the enabled models (what ``rule compare`` runs).
 
-    Order (:data:`SELECTION_RULE`): every enabled kind is fitted on the training runs and
-    cross-validated by whole run on them (``options["cv"]``, nested: each fold re-chooses the
-    hyperparameters on its own training runs); the champion is chosen from those held-out
-    scores (:func:`choose_champion`; :func:`default_champion` when there is no fold); only
+    Order (:data:`SELECTION_RULE`): every enabled kind, and the plain ridge whether enabled or not
+    (:mod:`rafi.family.plain_ridge`), is fitted on the training runs and cross-validated by whole
+    run on them (``options["cv"]``, nested: each fold re-chooses the hyperparameters on its own
+    training runs); the champion is chosen among the candidates (the enabled kinds) from those
+    held-out scores (:func:`choose_champion`; :func:`default_champion` when there is no fold); only
     then is every model validated, once, on the validation runs, and the champion qualified
     against ``gates``. The champion is offered whether it passes or not: a failing champion
     means a FAIL verdict, never a second pick. Between the CV and the validation every model
@@ -524,7 +526,7 @@ def run_family(
     dict
         ``summary`` (one row per model: the validation worst cases, ``selected`` (what CV chose
         inside the model, :func:`describe_selection`), the columns of :func:`selection_table` and
-        those of :func:`cv_unpredicted`),
+        those of :func:`cv_unpredicted` and :func:`rafi.family.plain_ridge.floor_columns`),
         ``per_run``, ``verdict`` (every model's gates per validation run, :data:`VERDICT_COLUMNS`,
         in the order of ``summary``), ``residuals``, ``cv``, ``selection`` (:func:`selection_table`),
         ``champion`` (name of the model offered), ``champion_passed`` (its gates on the
@@ -542,9 +544,11 @@ def run_family(
         "speed_tolerance_rpm": speed_tolerance_rpm,
     }
     factories = {kind: functools.partial(make_model, kind, **settings) for kind in options["enabled"]}
+    floor = functools.partial(make_model, PLAIN_RIDGE, **settings)  # always scored, offered if enabled
     if prior is not None:
         factories.update(adaptation_factories(prior, options=options, machine=machine, log=log))
         settings = {**settings, "prior": prior.get("model_id")}  # the CV memo's key covers the prior
+    candidates, factories = list(factories), with_plain_ridge(factories, floor)  # offered / scored
     models, cv, oof, memo, fit_table = _cross_validated(
         factories, runs_table, runs_frame, settings, rafi_model, cv_memo_dir, code_version, log
     )
@@ -560,11 +564,11 @@ def run_family(
         log=log,
     )
     # the choice: training runs only, before any validation run is predicted
-    selection = selection_table(cv)
-    champion = choose_champion(cv)
+    selection = selection_table(cv, candidates)
+    champion = choose_champion(cv, candidates)
     basis = "cv"
     if champion is None:
-        champion, basis = default_champion(list(models)), "default"
+        champion, basis = default_champion(candidates), "default"
         log(f"no cross-validation fold: {champion} offered by the default rule")
     log(f"champion (chosen on the training runs): {champion}")
     table, residuals, verdict = compare_models(
@@ -575,7 +579,7 @@ def run_family(
         selected=summary["model"].map({k: describe_selection(m) for k, m in models.items()}),
     )
     summary = summary.merge(selection, on="model", how="left")
-    summary = summary.merge(cv_unpredicted(cv), on="model", how="left")
+    summary = floor_columns(summary.merge(cv_unpredicted(cv), on="model", how="left"), candidates, champion)
     per_run = table.loc[table["scope"] == "run"].drop(columns=["scope"])
     passed = bool(summary.loc[summary["model"] == champion, "passed"].astype(bool).all())
     return {

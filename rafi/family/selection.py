@@ -99,7 +99,7 @@ def _mean_if_complete(mx: np.ndarray) -> float:
     return float(np.mean(mx)) if len(mx) and np.isfinite(mx).all() else np.inf
 
 
-def selection_table(cv: pd.DataFrame) -> pd.DataFrame:
+def selection_table(cv: pd.DataFrame, candidates: Sequence[str] | None = None) -> pd.DataFrame:
     """The selection scores of every model from the outer folds of the CV on the training runs.
 
     Parameters
@@ -108,6 +108,10 @@ def selection_table(cv: pd.DataFrame) -> pd.DataFrame:
         :func:`rafi.family.crossval.cross_validate` rows of every model (``cv.csv``): one row per
         model, fold and held-out training run; rows whose ``scheme`` is a forward scheme
         (:mod:`rafi.family.forward_folds`) are the forward folds, the others the whole-run CV.
+    candidates : sequence of str, optional
+        The models the rule may offer (default: every model of ``cv``). The others (the plain
+        ridge scored as the reference only, :mod:`rafi.family.plain_ridge`) are scored the same
+        way but not ranked: they follow the candidates, with no ``selection_rank``.
 
     Returns
     -------
@@ -120,7 +124,8 @@ def selection_table(cv: pd.DataFrame) -> pd.DataFrame:
         NaN without forward folds), ``selection_score_um`` (the mean of the two means; the whole-run
         mean alone without forward folds) and ``selection_rank`` (1 = the champion). Ties (scores
         within :data:`TIE_UM`) go to the lower worst held-out run (same tolerance), then the
-        simpler kind (:data:`SIMPLICITY`), then the name.
+        simpler kind (:data:`SIMPLICITY`), then the name. ``selection_rank`` is an integer column
+        that may hold ``<NA>`` (a model outside ``candidates``).
     """
     if cv is None or not len(cv):
         return pd.DataFrame(columns=SELECTION_COLUMNS)
@@ -147,18 +152,23 @@ def selection_table(cv: pd.DataFrame) -> pd.DataFrame:
             }
         )
     t = pd.DataFrame(rows)
+    offered = t["model"].isin([str(c) for c in candidates]) if candidates is not None else t["model"].notna()
     t = t.assign(
+        _ref=~offered,
         _score=np.round(t["selection_score_um"] / TIE_UM),
         _worst=np.round(t["cv_max_abs_um"] / TIE_UM),
         _cx=t["model"].map(SIMPLICITY).fillna(len(SIMPLICITY)),
-    ).sort_values(["_score", "_worst", "_cx", "model"], kind="stable")
-    t["selection_rank"] = np.arange(1, len(t) + 1)
+    ).sort_values(["_ref", "_score", "_worst", "_cx", "model"], kind="stable")
+    rank = pd.array([pd.NA] * len(t), dtype="Int64")
+    rank[~t["_ref"].to_numpy()] = np.arange(1, int((~t["_ref"]).sum()) + 1)
+    t["selection_rank"] = rank
     return t[SELECTION_COLUMNS].reset_index(drop=True)
 
 
-def choose_champion(cv: pd.DataFrame) -> str | None:
-    """The model offered to the machine: rank 1 of :func:`selection_table` (``None`` without CV
-    scores, or when no model can predict every held-out run).
+def choose_champion(cv: pd.DataFrame, candidates: Sequence[str] | None = None) -> str | None:
+    """The model offered to the machine: rank 1 of :func:`selection_table` among ``candidates``
+    (default: every model of ``cv``; ``None`` without CV scores, or when no candidate can predict
+    every held-out run).
 
     Only the outer folds of the CV on the **training runs** enter (whole-run, and forward folds
     where they ran); validation results are not an argument, so they cannot change the choice
@@ -172,8 +182,8 @@ def choose_champion(cv: pd.DataFrame) -> str | None:
     is biased its own way (whole-run interpolates between training runs, forward folds train on
     fewer runs), so neither alone is the score.
     """
-    t = selection_table(cv)
-    if t.empty or not np.isfinite(t["selection_score_um"].iloc[0]):
+    t = selection_table(cv, candidates)
+    if t.empty or pd.isna(t["selection_rank"].iloc[0]) or not np.isfinite(t["selection_score_um"].iloc[0]):
         return None
     return str(t["model"].iloc[0])
 

@@ -16,6 +16,7 @@ from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.report.format import fmt_num, isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, shared_level
+from rafi.report.plain_ridge import PLAIN_RIDGE, section_plain_ridge
 
 
 def family_champion(summary: pd.DataFrame):
@@ -274,7 +275,7 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward
         the forward folds' held-out runs; ``None`` when they did not score it), ``worst_fold``
         (its worst whole-run held-out run), ``passed`` (its gates on the validation runs, touched
         once after the choice), ``validation_worst``, ``noise`` (the noise floor of that run) and
-        ``better_on_validation`` (models with a lower worst residual on the validation runs).
+        ``better_on_validation`` (candidates with a lower worst residual on the validation runs).
     """
     out = {
         "rule": selection_rule(scheme, forward),
@@ -301,12 +302,16 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward
     out["passed"] = truthy(r.get("passed", False))
     out["validation_worst"] = r.get("max_abs_after_um")
     out["noise"] = r.get("noise_floor_um")
+    offerable = summary["candidate"].map(truthy) if "candidate" in summary else pd.Series(True, summary.index)
     out["better_on_validation"] = [
         str(m)
-        for m, after in zip(
-            summary["model"].astype(str), pd.to_numeric(summary["max_abs_after_um"], errors="coerce")
+        for m, after, can in zip(
+            summary["model"].astype(str),
+            pd.to_numeric(summary["max_abs_after_um"], errors="coerce"),
+            offerable,
         )
         if m != champion
+        and can  # the plain ridge scored as the reference only is the passage's (rafi.report.plain_ridge)
         and isnum(after)
         and isnum(r.get("max_abs_after_um"))
         and after < float(r["max_abs_after_um"])
@@ -319,7 +324,9 @@ def model_rows(summary: pd.DataFrame, champion, on_machine) -> list[dict]:
     the score that chose, :func:`selection_score`; ``cv_mean_max_abs_um`` of the whole-run folds;
     ``cv_forward_mean_max_abs_um`` of the forward folds, ``None`` in an older ``summary.csv``),
     its validation numbers, the share of samples outside its trained temperature range, its gates
-    and ``is_champion``, ``on_machine``, ``is_rafi`` (the paper's reference)."""
+    and ``is_champion``, ``on_machine``, ``is_rafi`` (the paper's reference), ``is_plain_ridge``
+    (the floor, :mod:`rafi.family.plain_ridge`) and ``candidate`` (the rule may offer it; true in a
+    ``summary.csv`` without the column)."""
     rows = []
     for r in summary.to_dict("records"):
         name = str(r["model"])
@@ -344,6 +351,8 @@ def model_rows(summary: pd.DataFrame, champion, on_machine) -> list[dict]:
                 "is_champion": name == champion,
                 "on_machine": name == on_machine,
                 "is_rafi": str(r.get("kind")) == "rafi",
+                "is_plain_ridge": name == PLAIN_RIDGE,
+                "candidate": truthy(r.get("candidate", True)),
                 **coverage_fields(r),
             }
         )
@@ -434,7 +443,8 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         ``forward_folds``, ``horizon``), ``unpredicted`` and ``cv_unpredicted`` (:func:`unpredicted_models`),
         ``run_models`` and ``per_run`` (:func:`per_run_rows`), ``figure_bars``, ``rafi_fail``
         (:func:`rafi_failure` with ``champion``: :func:`champion_beside_rafi`) and
-        ``figures_resid``; the interval:
+        ``figures_resid``, ``plain_ridge`` (:func:`rafi.report.plain_ridge.section_plain_ridge`);
+        the interval:
         ``coverage`` (summary.csv has it), ``run_coverage`` (per_run.csv has it), ``band``
         (residuals.parquet has it) and ``interval_label`` (``90 % interval``).
     """
@@ -456,6 +466,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "models": rows,
         "kind_column": any(str(r.get("kind", "")) != str(r["model"]) for r in s.to_dict("records")),
         "selection": selection_context(s, fam_champ, *cv_schemes(cv_rows)),
+        "plain_ridge": section_plain_ridge(s),
         # the forward CV's column: only when some model was scored on forward folds
         "forward": any(isnum(r["cv_forward_mean_max_abs_um"]) for r in rows),
         "selected": [

@@ -242,6 +242,8 @@ def _cv_context(art: dict, summary: pd.DataFrame, cv: pd.DataFrame | None, name:
     s = summary.assign(model=summary["model"].astype(str))
     s = s.assign(_score=pd.to_numeric(s.apply(selection_score, axis=1), errors="coerce"))
     me = s[s["model"] == name].iloc[0]
+    if "candidate" in s:  # the plain ridge scored as the reference only was no candidate
+        s = s[s["candidate"].map(truthy) | (s["model"] == name)]
     others = [
         {**_fields(r | {"selection_score_um": r["_score"]}, _SCORE_FIELDS), "model": r["model"]}
         | {"rafi": str(r.get("kind")) == "rafi"}

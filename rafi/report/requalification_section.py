@@ -58,6 +58,7 @@ def _model_rows(summary: pd.DataFrame) -> list[dict]:
                 "worst_um": r.get("max_abs_after_um"),
                 "coverage_pct": 100 * float(r["coverage"]) if isnum(r.get("coverage")) else None,
                 "offered": truthy(r.get("champion")),
+                "candidate": truthy(r.get("candidate", True)),  # false: the plain ridge as reference only
             }
         )
     order = {"prior": 0, "adapted prior": 1, "from scratch": 2}
@@ -66,10 +67,11 @@ def _model_rows(summary: pd.DataFrame) -> list[dict]:
 
 def _best_by_cv(rows: list[dict], group: str) -> dict | None:
     """The row of ``group`` the selection would take there: the lowest CV score, or without any
-    CV score (no fold) the default rule's model (:func:`rafi.family.selection.default_champion`)."""
+    CV score (no fold) the default rule's model (:func:`rafi.family.selection.default_champion`);
+    candidates only (not the plain ridge scored as the reference, :mod:`rafi.family.plain_ridge`)."""
     from rafi.family.selection import default_champion
 
-    mine = [r for r in rows if r["group"] == group]
+    mine = [r for r in rows if r["group"] == group and r["candidate"]]
     scored = [r for r in mine if isnum(r["cv_um"])]
     if scored:
         return min(scored, key=lambda r: float(r["cv_um"]))

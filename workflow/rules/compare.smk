@@ -1,5 +1,6 @@
 # Model family comparison (docs/models.md): RAFI as published against rafi_linear,
-# ridge_global, dynamic and grey_box on the same validation runs and gates; whole-run CV on the
+# ridge_global, dynamic and grey_box on the same validation runs and gates, and the plain ridge
+# (temperature_ridge) always, offered only when enabled; whole-run CV on the
 # training runs only chooses the champion (best_model.json, passing or not); every model's gates
 # per validation run go to verdict.csv (the report reads them, it judges nothing).
 #

@@ -52,7 +52,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         prior=prior,
     )
     cols = ["model", "cv_mean_max_abs_um", "cv_forward_mean_max_abs_um", "selection_score_um"]
-    cols += ["selection_rank", "max_abs_after_um", "passed", "champion"]
+    cols += ["selection_rank", "max_abs_after_um", "passed", "champion", "candidate", "versus_plain_ridge"]
     print(result["summary"][cols].to_string(index=False), flush=True)
     print(
         f"champion {result['champion']} (chosen by {result['selection_basis']} on the training runs) "
