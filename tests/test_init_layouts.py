@@ -206,6 +206,9 @@ def test_daily_sheets_with_the_displacement_alone_in_a_one_column_partner_workbo
     assert spec["sheet"] == "*" and spec["join"] == {"replace": ["X", "Y"], "by": "row"}
     assert spec["displacement"]["column"] == "Dia Disp" and spec["time"]["kind"] == "none"
     assert len(spec["columns"]) == 4  # the four temperatures under their own names
+    said = "\n".join(findings(s))  # why each log is a run, and why the probe's sign is not read
+    assert "layout: separate runs (4 log(s) without a speed column or a clock" in said
+    assert "sign: the probe's convention is not in the data; without a speed column" in said
     spec["time"]["period_s"] = 60  # what the data cannot tell (a CHECK line)
     spec["speed"] = {"constant_rpm": 1000}
     frames = read_proposal({**entry, "sample_period_s": 60}, files)
