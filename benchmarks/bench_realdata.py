@@ -1,10 +1,26 @@
-"""Test error of the model family on a real log: CAIVIAC/FL_THERMAL, one machine per channel.
+"""Test error of the model family on every real log present: CAIVIAC/FL_THERMAL (one machine per
+channel) and the turning centre of ``--turning DIR``.
 
 Usage (from the repository root; see benchmarks/README.md)::
 
     python benchmarks/bench_realdata.py                          # 5 channels x 2 configurations
     python benchmarks/bench_realdata.py --channels ch3 --configs windows
     python benchmarks/bench_realdata.py --data PATH --cores 2 --keep /tmp/rd
+    python benchmarks/bench_realdata.py --logs turning-centre --turning DIR --out-dir /tmp/tc
+
+**Every real log present** (``--logs``, default both): a log whose data is absent is skipped with
+a line saying where it was looked for (the data is never shipped; CI needs neither); with none
+present the bench runs nothing and exits 0. The turning centre (``_realdata_turning``: 18 daily
+tests in two workbooks without a licence, days 1-12 train, 13-18 test) runs first; its results
+go to ``<out-dir>/<out>-turning-centre.json`` and ``.md`` and ``--out-dir`` must lie outside the
+repository (refused otherwise: they are derived from unlicensed rows). FL_THERMAL's go to
+``<out-dir>/<out>.json`` and ``.md`` (default ``benchmarks/results/realdata``).
+
+**Per test run** (``_realdata_runs``), for every log: the test MAE and largest error of the
+offered model, of every kind of the family, of the family's plain ridge ``temperature_ridge``
+(where the machine's models leave it out it is fitted alone in a second project with the same
+settings, :func:`add_plain_ridge`, so the offered model stays the one the shipped settings offer)
+and of no compensation, and the 90 % interval's coverage and mean width on the test rows.
 
 The data: ``data.xlsx`` of the public repository CAIVIAC/FL_THERMAL (MIT licence), a real 46 h
 spindle test, 15 s rows, 16 temperatures ``t1(°C)``..``t16(°C)``, the speed ``spindle(RPM)``,
@@ -56,8 +72,9 @@ Published test MAE (seq2seq-v2 with attention, the best of random forest, XGBoos
 seq2seq models; the repository's ``images/test_ch*``): :data:`PUBLISHED_UM`.
 
 Output: per configuration a table ``channel | published | plain ridge | every model | offered
-(kind)``, the automatic/windows ratio of the offered model, and per project the runs found and
-the input checks' warnings; also ``benchmarks/results/realdata.json`` and ``realdata.md``.
+(kind)``, the automatic/windows ratio of the offered model, per project the runs found and
+the input checks' warnings, and per channel and configuration the per-test-run tables; also
+``benchmarks/results/realdata.json`` and ``realdata.md`` (``--out-dir``, ``--out``).
 Exit status 0; a failed Snakemake run prints its last lines and the next channel runs.
 """
 
