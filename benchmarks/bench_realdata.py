@@ -1,10 +1,26 @@
-"""Test error of the model family on a real log: CAIVIAC/FL_THERMAL, one machine per channel.
+"""Test error of the model family on every real log present: CAIVIAC/FL_THERMAL (one machine per
+channel) and the turning centre of ``--turning DIR``.
 
 Usage (from the repository root; see benchmarks/README.md)::
 
     python benchmarks/bench_realdata.py                          # 5 channels x 2 configurations
     python benchmarks/bench_realdata.py --channels ch3 --configs windows
     python benchmarks/bench_realdata.py --data PATH --cores 2 --keep /tmp/rd
+    python benchmarks/bench_realdata.py --logs turning-centre --turning DIR --out-dir /tmp/tc
+
+**Every real log present** (``--logs``, default both): a log whose data is absent is skipped with
+a line saying where it was looked for (the data is never shipped; CI needs neither); with none
+present the bench runs nothing and exits 0. The turning centre (``_realdata_turning``: 18 daily
+tests in two workbooks without a licence, days 1-12 train, 13-18 test) runs first; its results
+go to ``<out-dir>/<out>-turning-centre.json`` and ``.md`` and ``--out-dir`` must lie outside the
+repository (refused otherwise: they are derived from unlicensed rows). FL_THERMAL's go to
+``<out-dir>/<out>.json`` and ``.md`` (default ``benchmarks/results/realdata``).
+
+**Per test run** (``_realdata_runs``), for every log: the test MAE and largest error of the
+offered model, of every kind of the family, of the family's plain ridge ``temperature_ridge``
+(where the machine's models leave it out it is fitted alone in a second project with the same
+settings, :func:`add_plain_ridge`, so the offered model stays the one the shipped settings offer)
+and of no compensation, and the 90 % interval's coverage and mean width on the test rows.
 
 The data: ``data.xlsx`` of the public repository CAIVIAC/FL_THERMAL (MIT licence), a real 46 h
 spindle test, 15 s rows, 16 temperatures ``t1(°C)``..``t16(°C)``, the speed ``spindle(RPM)``,
@@ -56,8 +72,9 @@ Published test MAE (seq2seq-v2 with attention, the best of random forest, XGBoos
 seq2seq models; the repository's ``images/test_ch*``): :data:`PUBLISHED_UM`.
 
 Output: per configuration a table ``channel | published | plain ridge | every model | offered
-(kind)``, the automatic/windows ratio of the offered model, and per project the runs found and
-the input checks' warnings; also ``benchmarks/results/realdata.json`` and ``realdata.md``.
+(kind)``, the automatic/windows ratio of the offered model, per project the runs found and
+the input checks' warnings, and per channel and configuration the per-test-run tables; also
+``benchmarks/results/realdata.json`` and ``realdata.md`` (``--out-dir``, ``--out``).
 Exit status 0; a failed Snakemake run prints its last lines and the next channel runs.
 """
 
@@ -85,10 +102,13 @@ for path in (ROOT, ROOT / "benchmarks"):
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))
 
-from _results import write_results  # noqa: E402
+from _realdata_runs import per_run, per_run_markdown  # noqa: E402
+from _results import OUT_DIR, write_results  # noqa: E402
 
 DATA_REL = Path("shared", "data", "fl-thermal", "data.xlsx")
 
+#: The real logs this bench runs when their data is present.
+LOGS = ("fl-thermal", "turning-centre")
 CHANNELS = ("ch1", "ch2", "ch3", "ch4", "ch5")
 CONFIGS = ("windows", "automatic")
 #: Published test MAE, um: seq2seq-v2, the best of the repository's four models.
@@ -104,6 +124,10 @@ SPLIT_S = 101_265.0
 TEST_LAST_ROW = 8891
 #: The pipeline's log_start reference window (reference.window_s).
 REFERENCE_WINDOW_S = 60.0
+#: The family's plain ridge (temperatures only), scored on every log; where the machine's
+#: models leave it out it is fitted alone in a second project (:func:`add_plain_ridge`).
+PLAIN_RIDGE = "temperature_ridge"
+RIDGE_RESIDUALS = "residuals_temperature_ridge.parquet"
 
 #: The plain ridge: rises from the mean of the first 300 s, filters, penalties, blocked CV.
 RIDGE_REST_S = 300.0
@@ -278,26 +302,86 @@ def write_project(proj: Path, data: Path, channel: str, config: str, entry: dict
     """A runnable project in ``proj`` for one channel and configuration; returns the machine.
     ``entry``: the machine's settings instead of :func:`machine_config` (``config`` then only
     labels the project)."""
+    machine = machine_name(channel)
+    write_project_files(
+        proj,
+        machine,
+        {"data.xlsx": data},
+        machine_config(channel, config) if entry is None else entry,
+        f"FL_THERMAL {channel}, roles '{config}'",
+    )
+    return machine
+
+
+def write_project_files(proj: Path, machine: str, files: dict, entry: dict, title: str) -> None:
+    """A runnable project in ``proj``: the code the jobs run (``Snakefile``, ``workflow/``,
+    ``rafi/``), ``files`` (name -> source) copied into ``raw/<machine>/`` and a ``config.yaml``
+    with ``entry`` as the machine's settings."""
     proj.mkdir(parents=True, exist_ok=True)
     shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
     for name in ("workflow", "rafi"):
         shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
-    machine = machine_name(channel)
     raw = proj / "raw" / machine
     raw.mkdir(parents=True)
-    shutil.copy2(data, raw / "data.xlsx")
+    for name, src in files.items():
+        shutil.copy2(src, raw / name)
     settings = {
         "raw_dir": "raw",
         "results_dir": "results",
         "reports_dir": "reports",
         "on_bad_input": "fail",
         "defaults": {},
-        "machines": {machine: machine_config(channel, config) if entry is None else entry},
+        "machines": {machine: entry},
     }
-    text = f"# bench_realdata.py: FL_THERMAL {channel}, roles '{config}'\n"
+    text = f"# bench_realdata.py: {title}\n"
     text += yaml.safe_dump(settings, allow_unicode=True, sort_keys=False)
     (proj / "config.yaml").write_text(text, encoding="utf-8")
-    return machine
+
+
+def enabled_kinds(entry: dict) -> list[str]:
+    """The kinds a machine's settings fit (``models.enabled``, else the default)."""
+    from rafi.settings import MACHINE_DEFAULTS
+
+    return list((entry.get("models") or {}).get("enabled") or MACHINE_DEFAULTS["models"]["enabled"])
+
+
+def ridge_entry(entry: dict) -> dict:
+    """``entry`` fitting the plain ridge ``temperature_ridge`` alone (its other settings kept)."""
+    return {**entry, "models": {**(entry.get("models") or {}), "enabled": [PLAIN_RIDGE]}}
+
+
+def add_plain_ridge(proj: Path, machine: str, files: dict, entry: dict, cores: int, title: str) -> str:
+    """When ``entry`` does not fit ``temperature_ridge``: a second project (``proj`` + ``-ridge``)
+    fitting it alone, its validation residuals copied beside the first project's as
+    ``comparison/`` :data:`RIDGE_RESIDUALS` (read by :func:`read_residuals`). Returns what
+    happened, one line."""
+    if PLAIN_RIDGE in enabled_kinds(entry):
+        return f"{PLAIN_RIDGE} fitted with the family"
+    other = proj.with_name(proj.name + "-ridge")
+    shutil.rmtree(other, ignore_errors=True)
+    try:
+        write_project_files(other, machine, files, ridge_entry(entry), f"{title}, {PLAIN_RIDGE} alone")
+        ok, wall, output = run_snakemake(other, machine, cores)
+        if not ok:
+            return f"{PLAIN_RIDGE} alone FAILED: " + " / ".join(output.splitlines()[-5:])
+        shutil.copy2(
+            other / "results" / machine / "comparison" / "residuals.parquet",
+            proj / "results" / machine / "comparison" / RIDGE_RESIDUALS,
+        )
+        return f"{PLAIN_RIDGE} alone in a second project, {wall:.0f} s"
+    finally:
+        shutil.rmtree(other, ignore_errors=True)
+
+
+def read_residuals(proj: Path, machine: str) -> pd.DataFrame:
+    """The project's validation residuals, with :func:`add_plain_ridge`'s rows if any."""
+    folder = proj / "results" / machine / "comparison"
+    residuals = pd.read_parquet(folder / "residuals.parquet")
+    extra = folder / RIDGE_RESIDUALS
+    if extra.is_file() and PLAIN_RIDGE not in set(residuals["model"].astype(str)):
+        more = pd.read_parquet(extra)
+        residuals = pd.concat([residuals, more[more["model"].astype(str) == PLAIN_RIDGE]], ignore_index=True)
+    return residuals
 
 
 def targets(machine: str) -> list[str]:
@@ -420,14 +504,38 @@ def project_facts(proj: Path, machine: str) -> dict:
     }
 
 
+def scored_rows(
+    residuals: pd.DataFrame, runs: pd.DataFrame, disp: np.ndarray, t_s: np.ndarray
+) -> pd.DataFrame:
+    """The residuals on the test rows as ``_realdata_runs``'s scored rows: the target the raw
+    ``disp`` minus the log_start reference (as :func:`score_family` scores)."""
+    disp = np.asarray(disp, dtype=float)
+    ref, test = reference_um(disp, t_s), test_rows(t_s)
+    parts = []
+    for model, part in residuals.groupby(residuals["model"].astype(str), sort=False):
+        rows = log_rows(part, runs)
+        keep = test[rows]
+        frame = {"run_id": part["run_id"].astype(str).to_numpy()[keep], "model": model}
+        frame["target_um"] = disp[rows[keep]] - ref
+        for col in ("predicted_um", "lower_um", "upper_um"):
+            if col in part:
+                frame[col] = part[col].to_numpy(dtype=float)[keep]
+        parts.append(pd.DataFrame(frame))
+    return pd.concat(parts, ignore_index=True)
+
+
 def project_scores(proj: Path, machine: str, frame: pd.DataFrame, channel: str) -> dict:
-    """:func:`score_family` of a project's residuals and its :func:`project_facts`."""
+    """:func:`score_family` of a project's residuals (with the plain ridge's of
+    :func:`add_plain_ridge`), its :func:`project_facts` and ``per_run``: the lines of
+    ``_realdata_runs.per_run`` over the test rows."""
     res = proj / "results" / machine
-    residuals = pd.read_parquet(res / "comparison" / "residuals.parquet")
+    residuals = read_residuals(proj, machine)
     runs = pd.read_csv(res / "runs.csv")
     t_s = frame[TIME_COL].to_numpy(dtype=float)
-    row = score_family(residuals, runs, frame[f"{channel}(um)"].to_numpy(dtype=float), t_s)
+    disp = frame[f"{channel}(um)"].to_numpy(dtype=float)
+    row = score_family(residuals, runs, disp, t_s)
     row.update(project_facts(proj, machine))
+    row["per_run"] = per_run(scored_rows(residuals, runs, disp, t_s)).to_dict("records")
     return row
 
 
@@ -440,12 +548,14 @@ def run_one(
     keep: Path | None,
     entry: dict | None = None,
     score=project_scores,
+    plain: bool = False,
 ) -> dict:
     """Build, run and score one project; the temporary folder goes unless ``keep``.
 
     ``entry``: the machine's settings instead of :func:`machine_config` (``config`` then only
     labels the project); ``score(proj, machine, frame, channel) -> dict``: what is added to the
-    row of a successful run (default :func:`project_scores`)."""
+    row of a successful run (default :func:`project_scores`); ``plain``: also fit the plain
+    ridge ``temperature_ridge`` where the settings leave it out (:func:`add_plain_ridge`)."""
     if keep is not None:
         proj = keep / f"{channel}-{config}"
         shutil.rmtree(proj, ignore_errors=True)
@@ -458,6 +568,11 @@ def run_one(
         if not ok:
             row["tail"] = "\n".join(output.splitlines()[-25:])
             return row
+        if plain:
+            used = machine_config(channel, config) if entry is None else entry
+            row["plain_ridge_run"] = add_plain_ridge(
+                proj, machine, {"data.xlsx": data}, used, cores, f"FL_THERMAL {channel}, roles '{config}'"
+            )
         row.update(score(proj, machine, frame, channel))
         return row
     finally:
@@ -536,6 +651,10 @@ def markdown(report: dict) -> str:
         for r in rows
     ]
     lines += ["", "## runs", "", *md_table(["channel", "config", "wall s", "offered", "selection"], body)]
+    for r in rows:
+        if r.get("ok") and r.get("per_run"):
+            lines += ["", f"## {r['channel']} {r['config']}: test MAE / max, um, per validation run", ""]
+            lines += per_run_markdown(pd.DataFrame(r["per_run"]), r["champion"])
     return "\n".join(lines) + "\n"
 
 
@@ -572,11 +691,44 @@ def progress(row: dict) -> str:
     )
 
 
-def main(argv: list[str] | None = None) -> int:
+def log_plan(logs: list[str], fl_data: Path, turning: Path | None) -> tuple[list[str], list[str]]:
+    """``(logs to run, a line per log skipped)``: a real log runs when its data is present
+    (FL_THERMAL's workbook; the turning centre's two workbooks in ``turning``), else it is
+    skipped with a line saying where it was looked for."""
+    import _realdata_turning as turning_centre
+
+    run, skipped = [], []
+    for log in logs:
+        if log == "fl-thermal":
+            present, where = fl_data.is_file(), f"no workbook at {fl_data} (--data)"
+        else:
+            present = turning_centre.present(turning)
+            names = " and ".join(turning_centre.FILES)
+            where = (
+                f"no {names} in {turning} (--turning DIR)" if turning else f"no --turning DIR with {names}"
+            )
+        (run if present else skipped).append(log if present else f"{log}: skipped, {where}")
+    return run, skipped
+
+
+def inside_repository(path: Path, root: Path = ROOT) -> bool:
+    """True when ``path`` lies in the repository ``root`` (the turning centre's results may not:
+    they are derived from rows without a licence)."""
+    return Path(path).resolve().is_relative_to(Path(root).resolve())
+
+
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument(
         "--data", type=Path, default=None, help="FL_THERMAL data.xlsx (default: ../shared/data/fl-thermal/)"
     )
+    parser.add_argument(
+        "--turning",
+        type=Path,
+        default=None,
+        help="a folder holding the turning centre's ACE_X.xlsx and ACE_Y.xlsx",
+    )
+    parser.add_argument("--logs", default=",".join(LOGS), help="the real logs to run, of " + ",".join(LOGS))
     parser.add_argument("--channels", default=",".join(CHANNELS), help="comma-separated, e.g. ch3,ch5")
     parser.add_argument("--configs", default=",".join(CONFIGS), help="windows,automatic")
     parser.add_argument("--cores", "--jobs", type=int, default=2, help="passed to snakemake --cores")
@@ -587,47 +739,63 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help='JSON: the machines\' models: settings, e.g. \'{"enabled": ["dynamic", "grey_box"]}\'',
     )
-    parser.add_argument("--out", default="realdata", help="file stem under benchmarks/results/")
+    parser.add_argument(
+        "--out", default="realdata", help="file stem (the turning centre's: <stem>-turning-centre)"
+    )
+    parser.add_argument(
+        "--out-dir",
+        type=Path,
+        default=None,
+        help="results folder (default benchmarks/results; the turning centre's: outside the repository)",
+    )
     args = parser.parse_args(argv)
-    channels = [c.strip() for c in args.channels.split(",") if c.strip()]
-    configs = [c.strip() for c in args.configs.split(",") if c.strip()]
-    for c in channels:
-        if c not in CHANNELS:
-            parser.error(f"unknown channel {c!r}; expected some of {', '.join(CHANNELS)}")
-    for c in configs:
-        if c not in CONFIGS:
-            parser.error(f"unknown configuration {c!r}; expected some of {', '.join(CONFIGS)}")
+    args.channels = [c.strip() for c in args.channels.split(",") if c.strip()]
+    args.configs = [c.strip() for c in args.configs.split(",") if c.strip()]
+    args.logs = [c.strip() for c in args.logs.split(",") if c.strip()]
+    for values, known, what in (
+        (args.channels, CHANNELS, "channel"),
+        (args.configs, CONFIGS, "configuration"),
+    ):
+        for c in values:
+            if c not in known:
+                parser.error(f"unknown {what} {c!r}; expected some of {', '.join(known)}")
+    for c in args.logs:
+        if c not in LOGS:
+            parser.error(f"unknown log {c!r}; expected some of {', '.join(LOGS)}")
     args.data = args.data or default_data()
-    if not args.data.is_file():
-        parser.error(f"no workbook at {args.data} (--data PATH: FL_THERMAL's data/data.xlsx)")
-    if args.keep is not None:
-        args.keep.mkdir(parents=True, exist_ok=True)
+    args.out_dir = args.out_dir or OUT_DIR
+    args.plan, args.skipped = log_plan(args.logs, args.data, args.turning)
+    if "turning-centre" in args.plan and inside_repository(args.out_dir):
+        parser.error(
+            f"--out-dir {args.out_dir} lies in the repository: the turning centre's results are derived "
+            "from data without a licence and are never written there; give a folder outside it"
+        )
+    return args
+
+
+def run_fl_thermal(args: argparse.Namespace, command: str) -> None:
+    """FL_THERMAL's channels and configurations (module docstring); writes ``<out>.json/.md``."""
     frame = read_workbook(args.data)
     t_s = frame[TIME_COL].to_numpy(dtype=float)
     temps = frame[[f"t{i}(°C)" for i in range(1, 17)]].to_numpy(dtype=float)
     ridge = {}
-    for ch in channels:
+    for ch in args.channels:
         ridge[ch] = plain_ridge(temps, frame[f"{ch}(um)"].to_numpy(dtype=float), t_s)
         print(
             f"{ch} plain ridge: test MAE {ridge[ch]['test_mae_um']:.2f} um (alpha {ridge[ch]['alpha']:.3g})",
             flush=True,
         )
     rows = []
-    for config in configs:
-        for ch in channels:
+    for config in args.configs:
+        for ch in args.channels:
             entry = None if args.models is None else {**machine_config(ch, config), "models": args.models}
-            row = run_one(args.data, frame, ch, config, args.cores, args.keep, entry)
+            row = run_one(args.data, frame, ch, config, args.cores, args.keep, entry, plain=True)
             rows.append(row)
             print(progress(row), flush=True)
     report = {
-        "date": dt.date.today().isoformat(),
-        "command": " ".join(
-            ["python benchmarks/bench_realdata.py", *(sys.argv[1:] if argv is None else argv)]
-        ),
-        "host": platform.node(),
-        "cpus": os.cpu_count(),
+        **host_facts(command),
         "data": str(args.data),
-        "configs": configs,
+        "configs": args.configs,
         "ridge": ridge,
         "runs": rows,
     }
@@ -636,7 +804,44 @@ def main(argv: list[str] | None = None) -> int:
     for r in rows:
         if r.get("ok"):
             print(describe(r))
-    write_results(args.out, report, text, ensure_ascii=False)
+    write_results(args.out, report, text, ensure_ascii=False, out_dir=args.out_dir)
+
+
+def run_turning_centre(args: argparse.Namespace, command: str) -> None:
+    """The turning centre (``_realdata_turning``); writes ``<out>-turning-centre.json/.md``."""
+    import _realdata_turning as turning_centre
+
+    result = turning_centre.run(args.turning, args.cores, args.keep, args.models)
+    report = {**host_facts(command), "data": str(args.turning), "turning": result}
+    text = turning_centre.markdown(report)
+    print("\n" + text, flush=True)
+    write_results(f"{args.out}-turning-centre", report, text, ensure_ascii=False, out_dir=args.out_dir)
+
+
+def host_facts(command: str) -> dict:
+    """Date, command, host and CPUs of a report."""
+    return {
+        "date": dt.date.today().isoformat(),
+        "command": command,
+        "host": platform.node(),
+        "cpus": os.cpu_count(),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
+    command = " ".join(["python benchmarks/bench_realdata.py", *(sys.argv[1:] if argv is None else argv)])
+    for line in args.skipped:
+        print(line, flush=True)
+    if not args.plan:
+        print("no real log present: nothing run", flush=True)
+        return 0
+    if args.keep is not None:
+        args.keep.mkdir(parents=True, exist_ok=True)
+    if "turning-centre" in args.plan:  # the smaller one first
+        run_turning_centre(args, command)
+    if "fl-thermal" in args.plan:
+        run_fl_thermal(args, command)
     return 0
 
 

@@ -128,3 +128,34 @@ def write_split_pair(
     partner = folder / f"disp_{stem}.csv"
     disp.iloc[::-1].to_csv(partner, index=False)
     return main, partner
+
+
+def write_sheet_pair(folder: Path, days: int = 4, *, rows: int = 60, seed: int = 0) -> dict:
+    """``rig_X.xlsx`` (one sheet per test day, ``Sheet1`` ..: four temperatures under their
+    header, no time and no speed column) and ``rig_Y.xlsx`` (the same sheets, one column
+    ``Dia Disp``: the displacement alone, smooth, starting far from 0). Returns sheet name ->
+    ``(temperatures, displacement)`` arrays as written."""
+    rng = np.random.default_rng(seed)
+    names = ["Room", "Bed", "Motor Rear", "Motor Front"]
+    wx, wy = openpyxl.Workbook(), openpyxl.Workbook()
+    wx.remove(wx.active)
+    wy.remove(wy.active)
+    truth = {}
+    for d in range(days):
+        sheet = f"Sheet{d + 1}"
+        n = rows + d
+        warm = 1.0 - np.exp(-np.arange(n) / 25.0)
+        temps = np.round(
+            20.0 + d * 0.3 + np.outer(warm, [0.5, 1.0, 6.0, 4.0]) + rng.normal(0, 0.01, (n, 4)), 2
+        )
+        disp = np.round(40.0 + 25.0 * warm + rng.normal(0, 0.05, n), 3)
+        xs, ys = wx.create_sheet(sheet), wy.create_sheet(sheet)
+        xs.append(names)
+        ys.append(["Dia Disp"])
+        for k in range(n):
+            xs.append([float(v) for v in temps[k]])
+            ys.append([float(disp[k])])
+        truth[sheet] = (temps, disp)
+    wx.save(folder / "rig_X.xlsx")
+    wy.save(folder / "rig_Y.xlsx")
+    return truth

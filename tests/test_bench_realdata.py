@@ -6,8 +6,10 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import openpyxl
 import pandas as pd
 import pytest
+import yaml
 from bench_loader import load_bench
 
 from rafi.readers.input_spec import normalise_input_spec
@@ -142,3 +144,197 @@ def test_the_machine_configuration_is_valid_settings(config):
         assert (
             merged["runs"]["min_constant_s"] == 10800 and merged["runs"]["idle_training"] == "schedule"
         )  # the default
+
+
+# --------------------------------------------------------------------------- every real log present
+
+runs_mod = load_bench("_realdata_runs")
+turning = load_bench("_realdata_turning")
+
+
+def _scored(seed: int = 0) -> pd.DataFrame:
+    """Two runs, two models: ``exact`` (predicts the target, a +-1 um interval), ``off`` (2 um
+    low, no interval)."""
+    rng = np.random.default_rng(seed)
+    parts = []
+    for run_id, n in (("a", 50), ("b", 30)):
+        target = rng.normal(0, 5, n)
+        parts.append(
+            pd.DataFrame(
+                {"run_id": run_id, "model": "exact", "target_um": target, "predicted_um": target}
+                | {"lower_um": target - 1.0, "upper_um": target + 1.0}
+            )
+        )
+        parts.append(
+            pd.DataFrame({"run_id": run_id, "model": "off", "target_um": target, "predicted_um": target - 2})
+        )
+    return pd.concat(parts, ignore_index=True)
+
+
+def test_per_run_scores_every_model_no_compensation_and_the_pooled_line():
+    scored = _scored()
+    table = runs_mod.per_run(scored).set_index(["run_id", "model"])
+    assert list(table.index.get_level_values(0).unique()) == ["a", "b", "all"]
+    assert table.loc[("a", "exact"), "mae_um"] == 0.0 and table.loc[("b", "off"), "max_um"] == pytest.approx(
+        2.0
+    )
+    assert table.loc[("all", "exact"), "coverage"] == 1.0 and table.loc[("all", "exact"), "width_um"] == 2.0
+    assert np.isnan(table.loc[("a", "off"), "coverage"])  # no interval: no coverage
+    for run_id in ("a", "b"):
+        target = scored.loc[(scored.run_id == run_id) & (scored.model == "off"), "target_um"].abs()
+        assert table.loc[(run_id, "none"), "mae_um"] == pytest.approx(target.mean())
+        assert table.loc[(run_id, "none"), "max_um"] == pytest.approx(target.max())
+    assert table.loc[("all", "none"), "rows"] == 80
+
+
+def test_per_run_interval_coverage_counts_the_rows_inside():
+    scored = _scored()
+    exact = scored["model"] == "exact"
+    scored.loc[exact & (scored.run_id == "a"), "upper_um"] -= np.r_[np.full(10, 1.5), np.zeros(40)]
+    table = runs_mod.per_run(scored).set_index(["run_id", "model"])
+    assert table.loc[("a", "exact"), "coverage"] == pytest.approx(40 / 50)
+    assert table.loc[("a", "exact"), "width_um"] == pytest.approx(2.0 - 15 / 50)
+    assert table.loc[("all", "exact"), "coverage"] == pytest.approx(70 / 80)
+
+
+def test_per_run_refuses_models_that_score_different_rows():
+    scored = _scored().drop(index=[0])
+    with pytest.raises(ValueError, match="run a: the models score different rows"):
+        runs_mod.per_run(scored)
+
+
+def test_the_per_run_tables_put_the_offered_model_first_and_no_compensation_last():
+    table = runs_mod.per_run(_scored())
+    lines = runs_mod.per_run_markdown(table, "off", {"my ridge": {"a": (1.5, 3.0)}})
+    head = [c.strip() for c in lines[0].strip("|").split("|")]
+    assert head == ["test run", "rows", "off (offered)", "exact", "my ridge", "no compensation"]
+    row_a = [c.strip() for c in lines[2].strip("|").split("|")]
+    assert row_a[:5] == ["a", "50", "2.00 / 2.00", "0.00 / 0.00", "1.50 / 3.00"]
+    row_all = [c.strip() for c in lines[4].strip("|").split("|")]
+    assert row_all[0] == "all" and row_all[4] == "- / -"  # the reference scored no pooled line
+    cover = [ln for ln in lines if ln.startswith("| a |")][1]
+    assert [c.strip() for c in cover.strip("|").split("|")] == ["a", "- / -", "100.0% / 2.00"]
+
+
+def test_a_real_log_whose_data_is_absent_is_skipped(tmp_path):
+    plan, skipped = bench.log_plan(list(bench.LOGS), tmp_path / "none.xlsx", None)
+    assert plan == [] and len(skipped) == 2
+    assert "fl-thermal: skipped, no workbook at" in skipped[0] and "--turning DIR" in skipped[1]
+    (tmp_path / "ACE_X.xlsx").write_bytes(b"")  # one of the two: still absent
+    plan, skipped = bench.log_plan(["turning-centre"], tmp_path / "none.xlsx", tmp_path)
+    assert plan == [] and "no ACE_X.xlsx and ACE_Y.xlsx in" in skipped[0]
+    (tmp_path / "ACE_Y.xlsx").write_bytes(b"")
+    (tmp_path / "data.xlsx").write_bytes(b"")
+    assert bench.log_plan(list(bench.LOGS), tmp_path / "data.xlsx", tmp_path) == (list(bench.LOGS), [])
+
+
+def test_without_any_real_log_the_bench_runs_nothing_and_succeeds(tmp_path, capsys):
+    assert bench.main(["--data", str(tmp_path / "none.xlsx"), "--out-dir", str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "no real log present: nothing run" in out and not (tmp_path / "out").exists()
+
+
+def test_the_turning_centres_results_are_never_written_into_the_repository(tmp_path, capsys):
+    for name in turning.FILES:
+        (tmp_path / name).write_bytes(b"")
+    assert bench.inside_repository(ROOT / "benchmarks" / "results") and not bench.inside_repository(tmp_path)
+    for out_dir in ([], ["--out-dir", str(ROOT / "benchmarks" / "results")]):
+        with pytest.raises(SystemExit):
+            bench.parse_args(["--logs", "turning-centre", "--turning", str(tmp_path), *out_dir])
+        assert "lies in the repository" in capsys.readouterr().err
+    args = bench.parse_args(
+        ["--logs", "turning-centre", "--turning", str(tmp_path), "--out-dir", str(tmp_path)]
+    )
+    assert args.plan == ["turning-centre"]
+
+
+def write_turning(folder: Path, rows: int = 30, seed: int = 0) -> list[tuple]:
+    """Generated workbooks of the turning centre's layout (its headers, 18 sheets ``Day 1`` ..),
+    a displacement that is 2 um per degree of the third sensor's rise from the day's start plus
+    an offset; days 13-18 run warmer (their temperatures beyond the training range). Returns
+    ``(temperatures, displacement)`` per day."""
+    rng = np.random.default_rng(seed)
+    wx, wy = openpyxl.Workbook(), openpyxl.Workbook()
+    wx.remove(wx.active)
+    wy.remove(wy.active)
+    truth = []
+    for d in range(turning.DAYS):
+        warm = 1.0 - np.exp(-np.arange(rows + d) / 10.0)
+        gain = 8.0 if d >= turning.TRAIN_DAYS else 4.0 + 0.2 * d
+        temps = 20.0 + np.outer(warm, np.linspace(1.0, gain, 6)) + rng.normal(0, 0.01, (rows + d, 6))
+        disp = 40.0 + 2.0 * (temps[:, 2] - temps[0, 2])
+        xs, ys = wx.create_sheet(f"Day {d + 1}"), wy.create_sheet(f"Day {d + 1}")
+        xs.append(list(turning.TEMPERATURES))
+        ys.append([turning.DISPLACEMENT])
+        for k in range(rows + d):
+            xs.append([float(v) for v in temps[k]])
+            ys.append([float(disp[k])])
+        truth.append((temps, disp))
+    wx.save(folder / turning.FILES[0])
+    wy.save(folder / turning.FILES[1])
+    return truth
+
+
+def test_the_turning_centres_configuration_is_read_by_the_projects_readers(tmp_path):
+    from rafi.ops.init_preview import preview
+
+    folder = tmp_path / "raw" / turning.MACHINE
+    folder.mkdir(parents=True)
+    truth = write_turning(folder)
+    days = turning.read_days(folder)
+    assert [d.name for d in days] == [f"Day {d}" for d in range(1, 19)]
+    assert all(np.allclose(d.disp, t[1]) and np.allclose(d.temps, t[0]) for d, t in zip(days, truth))
+    entry = turning.machine_config([d.name for d in days])
+    entry["runs"].update(min_run_s=600, min_constant_s=600)  # the generated days are short
+    settings = {"raw_dir": str(tmp_path / "raw"), "machines": {turning.MACHINE: entry}}
+    validate_config(settings)
+    config = tmp_path / "config.yaml"
+    config.write_text(yaml.safe_dump(settings), encoding="utf-8")
+    lines = preview(str(config), turning.MACHINE)
+    roles = {ln.split()[0] + " " + ln.split()[1]: ln for ln in lines if ln.startswith("  Day ")}
+    assert len(roles) == 18
+    assert all(" training " in roles[f"Day {d}"] for d in range(1, 13))
+    assert all(" validation_single " in roles[f"Day {d}"] for d in range(13, 19))
+
+
+def test_outside_range_counts_the_test_rows_beyond_every_training_row(tmp_path):
+    write_turning(tmp_path)
+    days = turning.read_days(tmp_path)
+    out = turning.outside_range(days)
+    assert [r["day"] for r in out] == [f"Day {d}" for d in range(13, 19)]
+    train = np.vstack([d.temps for d in days[:12]])
+    for r, day in zip(out, days[12:]):
+        beyond = (day.temps > train.max(axis=0)) | (day.temps < train.min(axis=0))
+        assert r["outside"] == beyond.any(axis=1).sum() > 0 and r["rows"] == len(day.disp)
+        assert "Spindle Front" in r["sensors"]  # the last sensor gains most on the warm days
+
+
+def test_the_independent_ridge_recovers_a_displacement_of_the_rises(tmp_path):
+    write_turning(tmp_path)
+    result = turning.plain_ridge_days(turning.read_days(tmp_path))
+    assert set(result["test"]) == {*(f"Day {d}" for d in range(13, 19)), "all"}
+    assert result["test"]["all"][0] < 0.1  # 2 um per degree of one rise: a ridge of the rises holds it
+
+
+def test_scored_rows_take_the_raw_displacement_from_the_runs_reference(tmp_path):
+    write_turning(tmp_path)
+    days = turning.read_days(tmp_path)
+    runs = pd.DataFrame({"run_id": ["Day 13", "Day 14"], "file": ["Day 13", "Day 14"], "start_s": [0.0, 0.0]})
+    parts = []
+    for day in days[12:14]:
+        measured = day.disp - day.disp[0]
+        for model, bias in (("a", 0.0), ("b", 1.0)):
+            parts.append(
+                pd.DataFrame(
+                    {"run_id": day.name, "model": model, "t_s": day.t_s, "measured_um": measured}
+                    | {"predicted_um": measured + bias}
+                )
+            )
+    scored, worst = turning.scored_rows(pd.concat(parts, ignore_index=True), runs, days)
+    assert worst == pytest.approx(0.0, abs=1e-9)
+    table = runs_mod.per_run(scored).set_index(["run_id", "model"])
+    assert table.loc[("all", "a"), "mae_um"] == pytest.approx(0.0, abs=1e-9)
+    assert table.loc[("all", "b"), "mae_um"] == pytest.approx(1.0)
+    assert table.loc[("Day 13", "none"), "max_um"] == pytest.approx(
+        np.abs(days[12].disp - days[12].disp[0]).max()
+    )

@@ -253,6 +253,7 @@ def test_no_time_column_leaves_the_period_to_the_user(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "input.time.period_s" in err and "nothing written" in err
     assert main([*args, "--period-s", "60"]) == 0
+    assert "input.time.period_s" not in capsys.readouterr().out  # given: not a CHECK line any more
     entry = yaml.safe_load(config.read_text(encoding="utf-8"))["machines"]["rig"]
     assert entry["sample_period_s"] == 60 and entry["input"]["time"]["period_s"] == 60
     frame = read_log(

@@ -13,7 +13,13 @@ from pathlib import Path
 import numpy as np
 import openpyxl
 import pytest
-from layout_files import canonical_frame, write_daily_workbook, write_headerless_csv, write_split_pair
+from layout_files import (
+    canonical_frame,
+    write_daily_workbook,
+    write_headerless_csv,
+    write_sheet_pair,
+    write_split_pair,
+)
 
 from rafi.ops.init_cli import findings
 from rafi.ops.init_config import config_block, parse_block
@@ -189,3 +195,24 @@ def test_files_of_two_layouts_not_in_pairs_are_not_joined(tmp_path):
     s, _ = propose("tc", [main, other])
     assert s.join is None
     assert any("another layout" in n for n in s.notes)
+
+
+def test_daily_sheets_with_the_displacement_alone_in_a_one_column_partner_workbook(tmp_path):
+    truth = write_sheet_pair(tmp_path, days=4)
+    files = [tmp_path / "rig_X.xlsx", tmp_path / "rig_Y.xlsx"]
+    (partner,) = {t.path for t in read_unknown_logs(files[1])}  # one column: still a table
+    s, entry = propose("tc", files)
+    spec = entry["input"]
+    assert spec["sheet"] == "*" and spec["join"] == {"replace": ["X", "Y"], "by": "row"}
+    assert spec["displacement"]["column"] == "Dia Disp" and spec["time"]["kind"] == "none"
+    assert len(spec["columns"]) == 4  # the four temperatures under their own names
+    said = "\n".join(findings(s))  # why each log is a run, and why the probe's sign is not read
+    assert "layout: separate runs (4 log(s) without a speed column or a clock" in said
+    assert "sign: the probe's convention is not in the data; without a speed column" in said
+    spec["time"]["period_s"] = 60  # what the data cannot tell (a CHECK line)
+    spec["speed"] = {"constant_rpm": 1000}
+    frames = read_proposal({**entry, "sample_period_s": 60}, files)
+    assert len(frames) == 4
+    for frame, (temps, disp) in zip(frames, truth.values()):
+        assert frame["disp_um"].to_numpy() == pytest.approx(disp)
+        assert frame[list(spec["columns"])].to_numpy() == pytest.approx(temps)

@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from layout_files import write_sheet_pair
 
 from rafi.cli import main
 from rafi.ops.init_preview import preview
@@ -77,6 +78,41 @@ def test_preview_window_beyond_the_log_and_a_machine_not_configured(tmp_path, ca
     assert main(["init", "--preview", "--machine", "other", "--config", str(config)]) == 64
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "'other' is not under machines:" in err
+
+
+def test_preview_reads_every_sheet_of_a_workbook_joined_with_its_partner(tmp_path):
+    folder = tmp_path / "raw" / "m"
+    folder.mkdir(parents=True)
+    truth = write_sheet_pair(folder, days=4, rows=60)
+    entry = {
+        "sample_period_s": 60,
+        "training_speeds_rpm": [1000],
+        "input": {
+            "format": "xlsx",
+            "pattern": "*X*.xlsx",
+            "sheet": "*",
+            "columns": {"room": "Room", "bed": "Bed", "rear": "Motor Rear", "front": "Motor Front"},
+            "time": {"kind": "none", "period_s": 60},
+            "speed": {"constant_rpm": 1000},
+            "displacement": {"column": "Dia Disp"},
+            "join": {"replace": ["X", "Y"], "by": "row"},
+        },
+        "runs": {
+            "min_constant_s": 1800,
+            "windows": [
+                {"role": "training", "log": "Sheet[1-3]"},
+                {"role": "validation", "log": "Sheet4"},
+            ],
+        },
+    }
+    config = tmp_path / "config.yaml"
+    config.write_text(yaml.safe_dump({"raw_dir": str(tmp_path / "raw"), "machines": {"m": entry}}), "utf-8")
+    lines = preview(str(config), "m")
+    runs = {ln.split()[0]: ln for ln in lines if ln.startswith("  Sheet")}
+    assert sorted(runs) == sorted(truth)  # one log per sheet, named after it
+    assert all("training" in runs[f"Sheet{d}"] for d in (1, 2, 3))
+    assert "validation_single" in runs["Sheet4"] and "+  1.05 h" in runs["Sheet4"]  # 63 rows of 60 s
+    assert warnings(lines) == []
 
 
 def test_stdout_is_the_block_and_stderr_the_findings(tmp_path, capsys):

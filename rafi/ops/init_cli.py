@@ -149,6 +149,8 @@ def run(args) -> int:
     paths = log_paths(args.paths)
     s = survey(args.machine, [t for p in paths for t in read_unknown_logs(p)])
     block = config_block(s, period_s=args.period_s)
+    if args.period_s is not None:  # given: no longer a question
+        s.checks = [c for c in s.checks if not c.startswith("input.time.period_s")]
     parse_block(block, args.machine)
     if not args.write:
         print("\n".join(findings(s)), file=sys.stderr)

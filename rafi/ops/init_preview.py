@@ -23,25 +23,35 @@ from rafi.errors import RafiUserError, SettingsError
 
 
 def clean_frames(paths: list[Path], settings: Mapping) -> tuple[dict, list[str]]:
-    """``{file name: clean frame}`` of the files that read and clean, and a line for each that does not."""
+    """``{log name: clean frame}`` of the logs that read and clean, and a line for each that does
+    not. The logs are the pipeline's (:func:`rafi.readers.log_sources.expand_logs`): a file, every
+    matching sheet of a workbook (``input.sheet`` a pattern), a file joined with its partner
+    (``input.join``); a file neither log nor partner, or without its partner, gets a line."""
     from rafi.method.clean import clean_log
+    from rafi.readers.input_spec import normalise_input_spec
+    from rafi.readers.log_sources import expand_logs, log_name
     from rafi.readers.logs import read_log
 
     frames, problems = {}, []
     cfg = settings["clean"]
-    for path in paths:
+    try:
+        logs, problems = expand_logs(list(paths), normalise_input_spec(settings["input"]))
+    except RafiUserError as exc:
+        return {}, [f"not read: {exc}"]
+    for key, src in logs.items():
+        name, path = log_name(key, src), Path(src["path"])
         try:
-            frame = read_log(path, settings["input"])
-            frames[path.name], _ = clean_log(
+            frame = read_log(path, settings["input"], sheet=src["sheet"], partner=src["partner"], name=name)
+            frames[name], _ = clean_log(
                 frame,
-                file=path.name,
+                file=name,
                 sample_period_s=settings["sample_period_s"],
                 max_interpolate_gap_s=cfg["max_interpolate_gap_s"],
                 spike_threshold=cfg["spike_threshold"],
                 open_circuit_values=cfg["open_circuit_values"],
             )
         except RafiUserError as exc:
-            problems.append(f"{path.name}: not read: {exc}")
+            problems.append(f"{name}: not read: {exc}")
     return frames, problems
 
 

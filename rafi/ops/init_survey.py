@@ -300,6 +300,12 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         out.training = propose_training([s for s in out.shapes if s.steps], out.kind)
         if out.kind == "continuous":  # separate runs: each file's step is its run, whatever its length
             out.min_constant = propose_min_constant([s for s in out.shapes if s.steps])
+    else:
+        out.kind_why = f"{len(out.shapes)} log(s) without a speed column or a clock: each log one run"
+    if out.sign is None and not out.sign_why:
+        out.sign_why = (
+            "without a speed column or a clock its direction while the spindle heats cannot be read"
+        )
     if out.speed is None:
         out.speed_by_file = _speeds_from_names([t.path.name for t in same])
     out.checks = _checks(out)

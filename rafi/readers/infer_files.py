@@ -124,29 +124,41 @@ def _is_number(text) -> bool:
     return True
 
 
-def _label_row(cells) -> bool:
-    """Mostly text (a header or a units row): at least two filled cells, no more than a fifth numbers."""
-    filled = [c for c in cells if c is not None and str(c).strip() != ""]
-    if len(filled) < 2:
+def _filled(cells) -> list:
+    return [c for c in cells if c is not None and str(c).strip() != ""]
+
+
+def _label_row(cells, least: int = 2) -> bool:
+    """Mostly text (a header or a units row): at least ``least`` filled cells, no more than a
+    fifth numbers."""
+    filled = _filled(cells)
+    if len(filled) < least:
         return False
     return sum(_is_number(c) for c in filled) <= len(filled) // 5
 
 
-def _data_row(cells) -> bool:
-    filled = [c for c in cells if c is not None and str(c).strip() != ""]
-    return len(filled) >= 2 and sum(_is_number(c) for c in filled) >= 0.6 * len(filled)
+def _data_row(cells, least: int = 2) -> bool:
+    filled = _filled(cells)
+    return len(filled) >= least and sum(_is_number(c) for c in filled) >= 0.6 * len(filled)
+
+
+def _least_filled(rows: list) -> int:
+    """Filled cells a header or data row needs: 2, or 1 when no row of the head holds more than
+    one (a one-column table: a displacement file of its own, the partner of a temperature file)."""
+    return 1 if max((len(_filled(r)) for r in rows[:HEAD_LINES]), default=0) == 1 else 2
 
 
 def header_position(rows: list) -> tuple[int, int] | None:
     """``(header index, label rows after it)`` of the first text row followed by data, or None."""
+    least = _least_filled(rows)
     for k, cells in enumerate(rows[:HEAD_LINES]):
-        if not _label_row(cells):
+        if not _label_row(cells, least):
             continue
         skip = 0
-        while k + 1 + skip < len(rows) and skip < 3 and _label_row(rows[k + 1 + skip]):
+        while k + 1 + skip < len(rows) and skip < 3 and _label_row(rows[k + 1 + skip], least):
             skip += 1
         nxt = [r for r in rows[k + 1 + skip : k + 6 + skip] if any(c not in (None, "") for c in r)]
-        if nxt and all(_data_row(r) for r in nxt):
+        if nxt and all(_data_row(r, least) for r in nxt):
             return k, skip
     return None
 
@@ -154,9 +166,10 @@ def header_position(rows: list) -> tuple[int, int] | None:
 def headerless_start(rows: list) -> int | None:
     """Index of the first of :data:`HEADERLESS_DATA_ROWS` rows of numbers in a row (the data of a
     file without a header row, after a preamble of at most :data:`HEAD_LINES` rows), or None."""
+    least = _least_filled(rows)
     for k in range(min(HEAD_LINES, len(rows))):
         nxt = rows[k : k + HEADERLESS_DATA_ROWS]
-        if len(nxt) == min(HEADERLESS_DATA_ROWS, len(rows)) and all(_data_row(r) for r in nxt):
+        if len(nxt) == min(HEADERLESS_DATA_ROWS, len(rows)) and all(_data_row(r, least) for r in nxt):
             return k
     return None
 
