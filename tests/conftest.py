@@ -6,10 +6,8 @@ Chromium, poppler-utils, Slurm or a private mount namespace is skipped with a on
 ``CI=true`` (``.ci/run``, which installs and starts them) the same test fails instead: CI runs every
 test, and a missing program there is a broken CI, not a reason to skip.
 
-The tests run on every core (pytest-xdist, ``--dist loadgroup`` in pyproject.toml): the tests of a
-module that share a module- or session-scoped fixture of that module (a pipeline run, a rendered
-report) go to one worker, so it is made once, and the slow tests (marker ``slow``) start first, so
-that no long test starts last and keeps one core busy while the others wait
+The tests run on every core (pytest-xdist, pyproject.toml); the slow ones (marker ``slow``) start
+first, so that no long test starts last and keeps one core busy while the other waits
 (:func:`pytest_collection_modifyitems`).
 """
 
@@ -77,28 +75,10 @@ def _root_logging_as_it_was():
     _ROOT.setLevel(_ROOT_LEVEL)
 
 
-def shared_fixture_module(item: pytest.Item) -> str | None:
-    """The module of ``item`` if ``item`` uses a fixture of wider than function scope defined in
-    its own module (which every worker running one of that module's tests would make again),
-    else None."""
-    module = item.nodeid.split("::", 1)[0]
-    info = getattr(item, "_fixtureinfo", None)
-    for defs in info.name2fixturedefs.values() if info else ():
-        if defs and defs[-1].scope != "function" and defs[-1].baseid == module:
-            return module
-    return None
-
-
-@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the xdist_group markers
 def pytest_collection_modifyitems(config, items):
-    """Group each module's tests that share a module-scoped fixture (marker ``xdist_group``, one
-    worker makes it once) and start the slow tests first: a test, or a group holding a slow test,
-    marked ``slow`` goes before every other, in collection order otherwise."""
-    unit = {}
-    for item in items:
-        module = shared_fixture_module(item)
-        if module is not None:
-            item.add_marker(pytest.mark.xdist_group(module))
-        unit[item.nodeid] = module or item.nodeid
-    slow = {unit[item.nodeid] for item in items if item.get_closest_marker("slow")}
-    items.sort(key=lambda item: unit[item.nodeid] not in slow)
+    """Start the slow tests first: the modules holding a test marked ``slow`` go before every
+    other, whole (their module-scoped fixtures are made once per worker), in collection order
+    otherwise. pytest-xdist's worksteal hands each worker a contiguous share and lets an idle one
+    take the tail of another's; a long test left at a tail would keep one core busy alone."""
+    slow = {item.nodeid.split("::", 1)[0] for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.nodeid.split("::", 1)[0] not in slow)
