@@ -6,9 +6,9 @@ Chromium, poppler-utils, Slurm or a private mount namespace is skipped with a on
 ``CI=true`` (``.ci/run``, which installs and starts them) the same test fails instead: CI runs every
 test, and a missing program there is a broken CI, not a reason to skip.
 
-The tests run on every core (pytest-xdist, pyproject.toml); the slow ones (marker ``slow``) start
-first, so that no long test starts last and keeps one core busy while the other waits
-(:func:`pytest_collection_modifyitems`).
+The tests run on every core (pytest-xdist, pyproject.toml: a module at a time per worker, in
+collection order); the modules with a slow test (marker ``slow``) start first, so that no long test
+starts last and keeps one core busy while the other waits (:func:`pytest_collection_modifyitems`).
 """
 
 from __future__ import annotations
@@ -77,8 +77,8 @@ def _root_logging_as_it_was():
 
 def pytest_collection_modifyitems(config, items):
     """Start the slow tests first: the modules holding a test marked ``slow`` go before every
-    other, whole (their module-scoped fixtures are made once per worker), in collection order
-    otherwise. pytest-xdist's worksteal hands each worker a contiguous share and lets an idle one
-    take the tail of another's; a long test left at a tail would keep one core busy alone."""
+    other, in collection order otherwise. pytest-xdist (``--dist loadfile
+    --no-loadscope-reorder``) gives a worker the next module when it is almost done with its
+    last, so the short modules at the end even out the two workers."""
     slow = {item.nodeid.split("::", 1)[0] for item in items if item.get_closest_marker("slow")}
     items.sort(key=lambda item: item.nodeid.split("::", 1)[0] not in slow)
