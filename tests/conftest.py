@@ -1,9 +1,14 @@
-"""What every test module shares: how a test that needs a system program behaves without it.
+"""What every test module shares: how a test that needs a system program behaves without it, and
+in which order the tests run.
 
 On a fresh machine (the README's test command, nothing installed beyond Python) a test that needs
 Chromium, poppler-utils, Slurm or a private mount namespace is skipped with a one-line reason. Under
 ``CI=true`` (``.ci/run``, which installs and starts them) the same test fails instead: CI runs every
 test, and a missing program there is a broken CI, not a reason to skip.
+
+The tests run on every core (pytest-xdist, pyproject.toml: a module at a time per worker, in
+collection order); the modules with a slow test (marker ``slow``) start first, so that no long test
+starts last and keeps one core busy while the other waits (:func:`pytest_collection_modifyitems`).
 """
 
 from __future__ import annotations
@@ -68,3 +73,12 @@ def _root_logging_as_it_was():
         if handler not in before and not type(handler).__module__.startswith("_pytest"):
             _ROOT.removeHandler(handler)
     _ROOT.setLevel(_ROOT_LEVEL)
+
+
+def pytest_collection_modifyitems(config, items):
+    """Start the slow tests first: the modules holding a test marked ``slow`` go before every
+    other, in collection order otherwise. pytest-xdist (``--dist loadfile
+    --no-loadscope-reorder``) gives a worker the next module when it is almost done with its
+    last, so the short modules at the end even out the two workers."""
+    slow = {item.nodeid.split("::", 1)[0] for item in items if item.get_closest_marker("slow")}
+    items.sort(key=lambda item: item.nodeid.split("::", 1)[0] not in slow)

@@ -444,6 +444,7 @@ def bad_project(tmp_path_factory) -> Path:
     return proj
 
 
+@pytest.mark.slow
 def test_a_user_error_in_a_job_shows_its_message_once_and_no_traceback(bad_project):
     done = run_snakemake(bad_project, "results/tapping-center-a/clean", "-q")
     out = done.stdout + done.stderr

@@ -112,6 +112,7 @@ def parallel(tmp_path_factory):
     return {"proj": proj, "held": held, "pids": (first.pid, second.pid), A: res_a, B: res_b}
 
 
+@pytest.mark.slow
 def test_two_machines_hold_their_locks_at_the_same_time_and_both_finish(parallel):
     proj, results = parallel["proj"], parallel["proj"] / "results"
     pid_a, pid_b = parallel["pids"]

@@ -60,6 +60,7 @@ def test_settling_lists_young_files_of_the_nights_machines(tmp_path):
     assert [p.name for p, _ in settling(paths, {}, ["m1", "m2"], 600, now)] == ["y.csv", "z.csv"]
 
 
+@pytest.mark.slow
 def test_a_night_names_the_files_that_wait_and_the_next_one_asks_snakemake(tmp_path):
     proj = project(tmp_path)
     (proj / "raw" / "m1" / "y.csv").write_text("time\n")

@@ -381,6 +381,7 @@ def test_the_schema_refuses_wrong_values(mapping):
 # --------------------------------------------------------------------------- the real Snakefile
 
 
+@pytest.mark.slow
 def test_the_workflow_cleans_every_sheet_of_a_workbook_and_reruns_on_a_changed_sheet(tmp_path: Path):
     import os
 
@@ -420,6 +421,7 @@ def test_the_workflow_cleans_every_sheet_of_a_workbook_and_reruns_on_a_changed_s
     assert "clean" in again.stdout
 
 
+@pytest.mark.slow
 def test_the_workflow_joins_a_partner_and_reruns_when_only_the_partner_changes(tmp_path: Path):
     import os
 

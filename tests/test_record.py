@@ -532,6 +532,7 @@ def scrape(recorder) -> dict:
     }
 
 
+@pytest.mark.slow
 def test_record_a_twin_log_from_opc_ua_and_qualify_it_with_snakemake(server, tmp_path):
     from opcua_server import SPEED_COMMAND_NODE
 

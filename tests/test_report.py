@@ -12,11 +12,14 @@ speed-range adaptation, reference.rule log_start) checks the same sections and w
 
 from __future__ import annotations
 
+import atexit
+import hashlib
 import json
 import re
 import shutil
 import subprocess
 import sys
+import tempfile
 from html.parser import HTMLParser
 from pathlib import Path
 
@@ -70,22 +73,53 @@ def _settings(machine: str = "tapping-center-a"):
     return cfg, machine_settings(cfg, machine)
 
 
+#: Figure folders drawn in this process, by what each was drawn from (:func:`_drawn_from`), kept
+#: in a folder of their own: most tests here change a table the figures do not read, and get a copy
+#: of the files drawing them again would give (drawing is most of a test's time).
+_DRAWN: dict[tuple, Path] = {}
+_DRAWN_DIR = Path(tempfile.mkdtemp(prefix="rafi-test-figures-"))
+atexit.register(shutil.rmtree, _DRAWN_DIR, ignore_errors=True)
+
+
+def _drawn_from(paths: dict, group: str, settings: dict) -> tuple:
+    """What figure group ``group`` is drawn from: its settings and the bytes of every input."""
+
+    def content(path: Path) -> str:
+        path, digest = Path(path), hashlib.sha256()
+        for f in sorted(path.rglob("*")) if path.is_dir() else [path]:
+            if f.is_file():
+                digest.update(str(f.relative_to(path.parent)).encode() + b"\0" + f.read_bytes())
+        return digest.hexdigest()
+
+    report = settings["report"]
+    shown = (report["figure_format"], list(report["coolant_sensors"]), settings["qualification"])
+    inputs = [content(paths[name]) for name in figures.FIGURE_GROUPS[group]]
+    return (group, json.dumps(shown, sort_keys=True, default=str), *inputs)
+
+
 def _upstream(results: Path, settings: dict) -> dict:
     """What rules report_tables and report_figures write before the report; the figure
-    folders (``comparison`` only when comparison/ exists)."""
+    folders (``comparison`` only when comparison/ exists). A group whose inputs and settings were
+    drawn before in this process is copied from that drawing (:data:`_DRAWN`)."""
     paths = write_upstream_tables(results)
     dirs = {}
     for group, folder in figure_dirs(results).items():
         if group == "comparison" and not (results / "comparison").is_dir():
             continue
-        figures.draw_group(
-            paths,
-            group,
-            folder,
-            figure_format=settings["report"]["figure_format"],
-            coolant_sensors=settings["report"]["coolant_sensors"],
-            gates=settings["qualification"],
-        )
+        key = _drawn_from(paths, group, settings)
+        if key not in _DRAWN:
+            figures.draw_group(
+                paths,
+                group,
+                folder,
+                figure_format=settings["report"]["figure_format"],
+                coolant_sensors=settings["report"]["coolant_sensors"],
+                gates=settings["qualification"],
+            )
+            _DRAWN[key] = _DRAWN_DIR / str(len(_DRAWN))
+            shutil.copytree(folder, _DRAWN[key])
+        else:
+            shutil.copytree(_DRAWN[key], folder, dirs_exist_ok=True)
         dirs[group] = folder
     return dirs
 
