@@ -99,6 +99,19 @@ def parse_seeds(text: str) -> list[int]:
     return list(range(int(text)))
 
 
+def seeds_text(seeds: list[int]) -> str:
+    """``0-5, 8, 10-11``: the seeds as ranges."""
+    parts, run = [], []
+    for s in sorted(seeds):
+        if run and s != run[-1] + 1:
+            parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else f"{run[0]}")
+            run = []
+        run.append(s)
+    if run:
+        parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else f"{run[0]}")
+    return ", ".join(parts)
+
+
 # ----------------------------------------------------------------------------- one machine
 
 
@@ -393,7 +406,7 @@ def main(argv: list[str] | None = None) -> int:
         "host": platform.node(),
         "cpus": os.cpu_count(),
         "seeds": [r["seed"] for r in results],
-        "seeds_text": args.seeds,
+        "seeds_text": seeds_text([r["seed"] for r in results]),
         "failed": failed,
         "rows": rows,
         "decision": decide(rows),
