@@ -354,6 +354,34 @@ def _sensor_truth(spec: SensorSpec) -> dict:
     }
 
 
+@dataclass(frozen=True)
+class Design:
+    """What a seed draws before any simulation (:func:`foreign_design`): the base network's name,
+    the machine's constants and sensors, its training speeds and its days."""
+
+    base: str
+    params: TwinParams
+    speeds: list[float]
+    days: list[Day]
+
+
+def foreign_design(seed: int) -> Design:
+    """The design of the foreign machine of ``seed``, cheap (no day simulated): the base network,
+    its spread constants (:func:`foreign_params`), 4-40 sensors (:func:`foreign_sensors`), the
+    training speeds (:func:`training_speeds`), a room level of 18-26 degC and the days
+    (:func:`plan_days`)."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 46]))
+    base = str(rng.choice(list(BASES)))
+    params = foreign_params(machine_params(base), rng)
+    params = replace(
+        params,
+        machine=f"foreign-{int(seed)}",
+        sensors=foreign_sensors(int(rng.integers(SENSOR_COUNT[0], SENSOR_COUNT[1] + 1)), rng),
+    )
+    speeds, lo = training_speeds(rng, base)
+    return Design(base, params, speeds, plan_days(rng, speeds, lo, float(rng.uniform(18.0, 26.0))))
+
+
 def foreign_machine(seed: int) -> ForeignMachine:
     """A foreign machine from ``seed``: its name ``foreign-<seed>``, config block, logs and truth.
 
@@ -371,16 +399,8 @@ def foreign_machine(seed: int) -> ForeignMachine:
         ``days`` (stem, role, kind, hours, speeds, room level), ``envelope`` (:func:`envelope`)
         and ``test_runs`` (per test day: its stem and kind and :func:`envelope_fractions`).
     """
-    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 46]))
-    base = str(rng.choice(list(BASES)))
-    params = foreign_params(machine_params(base), rng)
-    params = replace(
-        params,
-        machine=f"foreign-{int(seed)}",
-        sensors=foreign_sensors(int(rng.integers(SENSOR_COUNT[0], SENSOR_COUNT[1] + 1)), rng),
-    )
-    speeds, lo = training_speeds(rng, base)
-    days = plan_days(rng, speeds, lo, float(rng.uniform(18.0, 26.0)))
+    design = foreign_design(seed)
+    base, params, speeds, days = design.base, design.params, design.speeds, design.days
     logs = {d.stem: simulate_day(params, d, int(seed) * 1000 + k) for k, d in enumerate(days)}
     names = [s.name for s in params.sensors]
     env = envelope([logs[d.stem] for d in days if d.role == "training"], names, speeds, FOREIGN_SAMPLE_S)
