@@ -62,6 +62,9 @@ ENVELOPE_MARGIN_K = 0.1
 ENVELOPE_SPEED_TOL_RPM = 50.0
 #: The spindle stands below this (r/min): such rows have no speed to be outside (``idle_below_rpm``).
 IDLE_BELOW_RPM = 100.0
+#: Decimals of the temperatures and the displacement in the written logs.
+TEMP_DECIMALS = 2
+DISP_DECIMALS = 3
 #: A rise is measured from the median of the day's first seconds (the cold machine at rest).
 REFERENCE_S = REST_BEFORE_START_S
 
@@ -235,6 +238,8 @@ def simulate_day(params: TwinParams, day: Day, seed: int, dt: float = FOREIGN_SA
     """One day's log: a cold start (every node at the room's temperature) through
     :func:`rafi.twin.physics.integrate`; sensors with white and slow noise, quantised; the
     displacement from the probe's zero with white and slow noise; the speed with 1 r/min jitter.
+    Values as the file holds them (:data:`TEMP_DECIMALS`, :data:`DISP_DECIMALS`), so what is
+    computed from the frame (the envelope) is what a reader of the file computes.
 
     Returns
     -------
@@ -254,10 +259,10 @@ def simulate_day(params: TwinParams, day: Day, seed: int, dt: float = FOREIGN_SA
     a = np.exp(-dt / 600.0)
     slow = ar1(rng_noise.normal(0.0, params.temp_noise_c, temps.shape), a, np.sqrt(1 - a * a))
     temps = temps + rng_noise.normal(0.0, params.temp_noise_c, temps.shape) + slow
-    temps = np.round(temps / params.temp_quantum_c) * params.temp_quantum_c
+    temps = np.round(np.round(temps / params.temp_quantum_c) * params.temp_quantum_c, TEMP_DECIMALS)
     drift = ar1(rng_noise.normal(0.0, params.disp_noise_um * 0.5, n), a, np.sqrt(1 - a * a))
     disp = disp + rng_noise.normal(0.0, params.disp_noise_um, n) + drift
-    disp = np.round(disp / params.disp_quantum_um) * params.disp_quantum_um
+    disp = np.round(np.round(disp / params.disp_quantum_um) * params.disp_quantum_um, DISP_DECIMALS)
     jitter = np.round(rng_noise.normal(0.0, params.speed_jitter_rpm, n))
     frame = pd.DataFrame({"time": times, "speed_rpm": np.where(speeds > 0, speeds + jitter, 0.0)})
     for j, spec in enumerate(params.sensors):
@@ -462,7 +467,8 @@ def write_foreign(seed: int, out_dir: str | os.PathLike) -> tuple[ForeignMachine
     for stem, frame in machine.logs.items():
         meta = {"machine": machine.name, "run_id": stem, "sample_period_s": f"{FOREIGN_SAMPLE_S:g}"}
         path = folder / f"{stem}.csv"
-        write_text_atomic(path, format_raw_log(frame, meta, decimals={s: 2 for s in sensors}))
+        decimals = {"disp_um": DISP_DECIMALS, **{s: TEMP_DECIMALS for s in sensors}}
+        write_text_atomic(path, format_raw_log(frame, meta, decimals=decimals))
         written.append(path)
     config = {"raw_dir": "raw", "results_dir": "results", "reports_dir": "reports", "defaults": {}}
     config["machines"] = {machine.name: machine.config}
