@@ -5,6 +5,7 @@ Usage (from the repository root; see benchmarks/README.md)::
     python benchmarks/bench_foreign.py --seeds 6 --keep /tmp/foreign      # seeds 0-5
     python benchmarks/bench_foreign.py --seeds 0-23 --keep /tmp/foreign   # resumes: done seeds are read
     python benchmarks/bench_foreign.py --seeds 24 --keep /tmp/foreign --report-only
+    python benchmarks/bench_foreign.py --seeds 6 --keep /tmp/foreign-drift --setup-drift
 
 **The machines.** For each seed, :func:`rafi.twin.foreign.write_foreign` writes a foreign machine
 (4-40 own sensors, the twin's network with every constant drawn anew, one cold start a day at
@@ -13,6 +14,8 @@ a room 2-5 K warmer or colder, 1.2-1.4 x the top training speed, or a run twice 
 ``KEEP/seed-NNN/project/`` with ``Snakefile``, ``workflow/`` and a frozen ``rafi/``; its config
 enables every kind of the family (``temperature_ridge`` too). ``snakemake --cores N`` builds
 ``results/<m>/comparison/`` (the model family's fit, CV, choice and validation; no report).
+With ``--setup-drift`` the same machines' displacement also wanders by what no sensor sees
+(a slow walk of 0.5-3 um a machine: the probe's stand, the foundation), as on a real test.
 The test days are the pipeline's validation runs (``runs.windows`` by file name); the truth
 (``truth.json``) states per test day the fraction of its rows outside the training envelope.
 
@@ -115,10 +118,10 @@ def seeds_text(seeds: list[int]) -> str:
 # ----------------------------------------------------------------------------- one machine
 
 
-def make_project(seed: int, proj: Path) -> dict:
+def make_project(seed: int, proj: Path, setup_drift: bool = False) -> dict:
     """The foreign machine of ``seed`` as a runnable project in ``proj`` (every kind enabled);
     returns its truth."""
-    machine, _ = write_foreign(seed, proj)
+    machine, _ = write_foreign(seed, proj, setup_drift=setup_drift)
     shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
     for name in ("workflow", "rafi"):
         shutil.rmtree(proj / name, ignore_errors=True)
@@ -207,17 +210,21 @@ def choices(result: dict, kinds: list[str]) -> dict:
     return out
 
 
-def judge_seed(seed: int, keep: Path, cores: int, log=print) -> dict:
-    """The result of one seed: read from ``keep/seed-NNN/result.json`` if there, else made (the
-    project, the pipeline, both judges) and written there."""
+def judge_seed(seed: int, keep: Path, cores: int, log=print, setup_drift: bool = False) -> dict:
+    """The result of one seed: read from ``keep/seed-NNN/result.json`` if there (made with the
+    same ``setup_drift``, else a stop), else made (the project, the pipeline, both judges) and
+    written there."""
     folder = keep / f"seed-{seed:03d}"
     cached = folder / "result.json"
     if cached.is_file():
-        return json.loads(cached.read_text(encoding="utf-8"))
+        result = json.loads(cached.read_text(encoding="utf-8"))
+        if bool(result.get("setup_drift", False)) != setup_drift:
+            raise SystemExit(f"{cached} was made with setup_drift={not setup_drift}: use another --keep")
+        return result
     proj = folder / "project"
     shutil.rmtree(proj, ignore_errors=True)
     proj.mkdir(parents=True)
-    truth = make_project(seed, proj)
+    truth = make_project(seed, proj, setup_drift)
     machine = truth["machine"]
     pipeline_s = run_pipeline(proj, machine, cores)
     t0 = time.perf_counter()
@@ -235,6 +242,8 @@ def judge_seed(seed: int, keep: Path, cores: int, log=print) -> dict:
     result = {
         "seed": seed,
         "machine": machine,
+        "setup_drift": setup_drift,
+        "setup_drift_um": truth.get("setup_drift_um", 0.0),
         "sensors": len(truth["sensors"]),
         "training_days": sum(d["role"] == "training" for d in truth["days"]),
         "test_runs": truth["test_runs"],
@@ -379,6 +388,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--keep", type=Path, default=None, help="folder of the per-seed projects and results")
     parser.add_argument("--cores", type=int, default=2, help="snakemake --cores")
     parser.add_argument("--out", default="foreign_rules", help="file stem under benchmarks/results/")
+    parser.add_argument(
+        "--setup-drift",
+        action="store_true",
+        help="machines whose displacement also wanders by what no sensor sees (rafi simulate foreign "
+        "--setup-drift); use its own --keep",
+    )
     parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")
     args = parser.parse_args(argv)
     seeds = parse_seeds(args.seeds)
@@ -390,7 +405,8 @@ def main(argv: list[str] | None = None) -> int:
             continue
         print(f"seed {seed} ...", flush=True)
         try:
-            results.append(judge_seed(seed, keep, args.cores, log=lambda m: print(m, flush=True)))
+            log = lambda m: print(m, flush=True)  # noqa: E731
+            results.append(judge_seed(seed, keep, args.cores, log=log, setup_drift=args.setup_drift))
         except (SystemExit, Exception) as exc:  # one machine's failure is said; the next one runs
             failed.append(seed)
             print(f"seed {seed} failed: {exc}", flush=True)

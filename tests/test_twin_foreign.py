@@ -38,6 +38,18 @@ def test_a_seed_gives_the_same_machine_and_another_seed_another():
     assert not a.logs[next(iter(a.logs))].equals(c.logs[next(iter(c.logs))])
 
 
+def test_setup_drift_moves_only_the_displacement_of_the_same_machine():
+    plain, drifting = foreign_machine(5), foreign_machine(5, setup_drift=True)
+    assert plain.truth["setup_drift_um"] == 0 and 0.5 <= drifting.truth["setup_drift_um"] <= 3.0
+    assert plain.truth["sensors"] == drifting.truth["sensors"] and plain.config == drifting.config
+    moved = []
+    for stem, frame in plain.logs.items():
+        other = drifting.logs[stem]
+        pd.testing.assert_frame_equal(frame.drop(columns="disp_um"), other.drop(columns="disp_um"))
+        moved.append((frame["disp_um"] - other["disp_um"]).abs().max())
+    assert min(moved) > 0.1
+
+
 def test_designs_span_the_promised_ranges():
     designs = [foreign_design(s) for s in DESIGN_SEEDS]
     counts = [len(d.params.sensors) for d in designs]

@@ -239,6 +239,12 @@ def _add_foreign_mode(sub: argparse._SubParsersAction, formatter: type[argparse.
     )
     mode.add_argument("--seed", type=int, required=True, help="the machine's seed (its name: foreign-SEED)")
     mode.add_argument("--out", required=True, help="the project folder to write into")
+    mode.add_argument(
+        "--setup-drift",
+        action="store_true",
+        help="the displacement also wanders by what no sensor sees (probe stand, foundation): a slow "
+        "walk of 0.5-3 um, drawn per machine",
+    )
 
 
 def _run_foreign(args: argparse.Namespace) -> int:
@@ -247,7 +253,7 @@ def _run_foreign(args: argparse.Namespace) -> int:
 
     from rafi.twin.foreign import write_foreign
 
-    machine, paths = write_foreign(args.seed, args.out)
+    machine, paths = write_foreign(args.seed, args.out, setup_drift=args.setup_drift)
     for path in paths:
         print(path, file=sys.stderr)
     for run in machine.truth["test_runs"]:

@@ -62,6 +62,9 @@ ENVELOPE_MARGIN_K = 0.1
 ENVELOPE_SPEED_TOL_RPM = 50.0
 #: The spindle stands below this (r/min): such rows have no speed to be outside (``idle_below_rpm``).
 IDLE_BELOW_RPM = 100.0
+#: Setup drift (``setup_drift=True``): its standard deviation per machine (um) and time constant (s).
+SETUP_DRIFT_UM = (0.5, 3.0)
+SETUP_DRIFT_TAU_S = 7200.0
 #: Decimals of the temperatures and the displacement in the written logs.
 TEMP_DECIMALS = 2
 DISP_DECIMALS = 3
@@ -234,12 +237,17 @@ def plan_days(rng: np.random.Generator, speeds: list[float], lo: float, room_c: 
     return out
 
 
-def simulate_day(params: TwinParams, day: Day, seed: int, dt: float = FOREIGN_SAMPLE_S) -> pd.DataFrame:
+def simulate_day(
+    params: TwinParams, day: Day, seed: int, dt: float = FOREIGN_SAMPLE_S, setup_drift_um: float = 0.0
+) -> pd.DataFrame:
     """One day's log: a cold start (every node at the room's temperature) through
     :func:`rafi.twin.physics.integrate`; sensors with white and slow noise, quantised; the
     displacement from the probe's zero with white and slow noise; the speed with 1 r/min jitter.
     Values as the file holds them (:data:`TEMP_DECIMALS`, :data:`DISP_DECIMALS`), so what is
-    computed from the frame (the envelope) is what a reader of the file computes.
+    computed from the frame (the envelope) is what a reader of the file computes. With
+    ``setup_drift_um`` the displacement also wanders by what no sensor sees (the probe's stand,
+    the foundation): a slow AR(1) walk from 0 of that standard deviation and a time constant of
+    :data:`SETUP_DRIFT_TAU_S`, from its own random stream (the rest of the day is unchanged).
 
     Returns
     -------
@@ -262,6 +270,10 @@ def simulate_day(params: TwinParams, day: Day, seed: int, dt: float = FOREIGN_SA
     temps = np.round(np.round(temps / params.temp_quantum_c) * params.temp_quantum_c, TEMP_DECIMALS)
     drift = ar1(rng_noise.normal(0.0, params.disp_noise_um * 0.5, n), a, np.sqrt(1 - a * a))
     disp = disp + rng_noise.normal(0.0, params.disp_noise_um, n) + drift
+    if setup_drift_um > 0:
+        b = np.exp(-dt / SETUP_DRIFT_TAU_S)
+        rng_setup = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+        disp = disp + ar1(rng_setup.normal(0.0, setup_drift_um * np.sqrt(1 - b * b), n), b)
     disp = np.round(np.round(disp / params.disp_quantum_um) * params.disp_quantum_um, DISP_DECIMALS)
     jitter = np.round(rng_noise.normal(0.0, params.speed_jitter_rpm, n))
     frame = pd.DataFrame({"time": times, "speed_rpm": np.where(speeds > 0, speeds + jitter, 0.0)})
@@ -387,7 +399,7 @@ def foreign_design(seed: int) -> Design:
     return Design(base, params, speeds, plan_days(rng, speeds, lo, float(rng.uniform(18.0, 26.0))))
 
 
-def foreign_machine(seed: int) -> ForeignMachine:
+def foreign_machine(seed: int, setup_drift: bool = False) -> ForeignMachine:
     """A foreign machine from ``seed``: its name ``foreign-<seed>``, config block, logs and truth.
 
     Parameters
@@ -395,6 +407,10 @@ def foreign_machine(seed: int) -> ForeignMachine:
     seed : int
         Controls everything: the base network and its spread, the sensors, speeds, days, rooms
         and noise.
+    setup_drift : bool
+        The displacement also wanders by what no sensor sees (:func:`simulate_day`), with a
+        standard deviation drawn per machine from :data:`SETUP_DRIFT_UM` on a stream of its own:
+        the same machine and days as without, plus the drift.
 
     Returns
     -------
@@ -406,7 +422,13 @@ def foreign_machine(seed: int) -> ForeignMachine:
     """
     design = foreign_design(seed)
     base, params, speeds, days = design.base, design.params, design.speeds, design.days
-    logs = {d.stem: simulate_day(params, d, int(seed) * 1000 + k) for k, d in enumerate(days)}
+    drift_um = 0.0
+    if setup_drift:
+        drift_um = float(np.random.default_rng([int(seed), 46, 1]).uniform(*SETUP_DRIFT_UM))
+    logs = {
+        d.stem: simulate_day(params, d, int(seed) * 1000 + k, setup_drift_um=drift_um)
+        for k, d in enumerate(days)
+    }
     names = [s.name for s in params.sensors]
     env = envelope([logs[d.stem] for d in days if d.role == "training"], names, speeds, FOREIGN_SAMPLE_S)
     test_runs = [
@@ -419,6 +441,7 @@ def foreign_machine(seed: int) -> ForeignMachine:
         "machine": params.machine,
         "base": base,
         "sample_period_s": FOREIGN_SAMPLE_S,
+        "setup_drift_um": drift_um,
         "heat_w": {
             "bearing_front": params.bearing_front_w,
             "bearing_rear": params.bearing_rear_w,
@@ -447,18 +470,20 @@ def foreign_machine(seed: int) -> ForeignMachine:
     return ForeignMachine(params.machine, foreign_config(names, speeds), logs, truth)
 
 
-def write_foreign(seed: int, out_dir: str | os.PathLike) -> tuple[ForeignMachine, list[Path]]:
+def write_foreign(
+    seed: int, out_dir: str | os.PathLike, setup_drift: bool = False
+) -> tuple[ForeignMachine, list[Path]]:
     """Write the foreign machine of ``seed`` as a project's data: its logs as native CSVs in
     ``out_dir/raw/<name>/``, ``out_dir/config.yaml`` (that machine only) and
     ``out_dir/truth.json``; returns the machine and the files written (logs first). Beside
     ``Snakefile`` and ``workflow/`` (copied, or ``snakemake -s <Snakefile> -d out_dir``) the
-    folder is a project."""
+    folder is a project. ``setup_drift``: :func:`foreign_machine`."""
     import yaml
 
     from rafi.artefact import write_text_atomic
     from rafi.readers.native import format_raw_log
 
-    machine = foreign_machine(seed)
+    machine = foreign_machine(seed, setup_drift=setup_drift)
     out = Path(out_dir)
     folder = out / "raw" / machine.name
     folder.mkdir(parents=True, exist_ok=True)
