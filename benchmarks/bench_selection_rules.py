@@ -42,6 +42,9 @@ The rules (:data:`RULES`), every one a function of training-run CV rows alone:
 * ``one_se_simplest``: the one-standard-error rule, towards the simpler kind
   (:data:`rafi.family.selection.SIMPLICITY`) among those whose mean is within one standard
   error of the best mean;
+* ``ridge_floor`` (issue 46): the plain ridge ``temperature_ridge`` unless a kind beats it by
+  more than one standard error of the paired fold difference (:func:`rule_ridge_floor`; the
+  current rule without the plain ridge among the kinds);
 * ``without_<KIND>`` (with ``--without KIND``): the current rule on the same inner CV rows
   without that kind, so its paired difference to ``mean_max_forward`` says whether the kind
   earns its place in the family (without minus with);
@@ -58,7 +61,10 @@ The rules (:data:`RULES`), every one a function of training-run CV rows alone:
   and each held-out unit the same within it; a kind with no finite OOF prediction on a held-out
   unit gets 0, a sample where an entering kind is NaN is left out of the fit),
   the OOF samples coming from the same inner fits as the rules' CV rows (``cross_validate``
-  with ``oof=``, as the pipeline's ``rule compare``); scored like the ensemble.
+  with ``oof=``, as the pipeline's ``rule compare``); scored like the ensemble;
+* ``average_within_se`` (issue 46, not a choice of one kind): the plain mean of the predictions
+  of the kinds whose inner CV mean is within one standard error of the best
+  (:func:`within_se_weights`); scored like the ensemble.
 
 The scores of every rule on the machine's full training CV (what it would offer now) are
 printed beside (for ``stacked``: its weights on the full training CV, whose rows the bench
@@ -109,8 +115,11 @@ OUTER = "outer_held_out"
 SPEED_SCHEME = "speed_with_cooldown"
 ENSEMBLE = "cv_weighted_ensemble"
 STACKED = "stacked"
+AVERAGE = "average_within_se"
 #: The rules that are not a choice of one kind (scored from refits of every kind).
-BLENDS = (ENSEMBLE, STACKED)
+BLENDS = (ENSEMBLE, STACKED, AVERAGE)
+#: The plain ridge, the floor of ``ridge_floor``.
+PLAIN_RIDGE = "temperature_ridge"
 
 
 # ----------------------------------------------------------------------------- inner folds
@@ -205,6 +214,38 @@ def rule_one_se_simplest(cv: pd.DataFrame) -> str | None:
     return str(near.sort_values(["cx", "mean", "model"], kind="stable")["model"].iloc[0])
 
 
+def rule_ridge_floor(cv: pd.DataFrame) -> str | None:
+    """The plain ridge (:data:`PLAIN_RIDGE`) unless a kind beats it by more than one standard
+    error: a kind whose mean over the held-out runs of the paired difference (its max |residual|
+    minus the plain ridge's, run by run) is below minus the standard error of that difference
+    beats it; among those, the current rule's pick. Without the plain ridge among the rows (or
+    with a held-out run it cannot predict): the current rule."""
+    t = cv.assign(model=cv["model"].astype(str), test_runs=cv["test_runs"].astype(str))
+    table = t.pivot_table(index="test_runs", columns="model", values="max_abs_after_um", aggfunc="first")
+    if PLAIN_RIDGE not in table or len(table) < 2 or not np.isfinite(table[PLAIN_RIDGE]).all():
+        return choose_champion(cv)
+    beats = []
+    for kind in table.columns:
+        diff = (table[kind] - table[PLAIN_RIDGE]).to_numpy(dtype=float)
+        if kind != PLAIN_RIDGE and np.isfinite(diff).all():
+            if diff.mean() < -diff.std(ddof=1) / np.sqrt(len(diff)):
+                beats.append(kind)
+    return choose_champion(cv.loc[t["model"].isin(beats)]) if beats else PLAIN_RIDGE
+
+
+def within_se_weights(cv: pd.DataFrame) -> dict[str, float]:
+    """``average_within_se``: equal weights on the kinds whose mean fold max |residual| is within
+    one standard error (the best kind's) of the lowest mean (the set ``one_se_simplest`` picks
+    its simplest kind from)."""
+    t = fold_stats(cv)
+    t = t.loc[np.isfinite(t["mean"])]
+    if t.empty:
+        return {}
+    best = t.loc[t["mean"].idxmin()]
+    near = sorted(t.loc[t["mean"] <= best["mean"] + best["se"] + 1e-9, "model"])
+    return {k: 1.0 / len(near) for k in near}
+
+
 def rule_without(kind: str):
     """The current rule on CV rows without ``kind``: whether a kind earns its place in the family
     (``--without``; the paired difference to ``mean_max_forward`` is without minus with)."""
@@ -236,6 +277,7 @@ RULES = {
     "mean_max_forward": (("leave_one_run_out", FORWARD), rule_mean_max),
     "mean_plus_se": ("leave_one_run_out", rule_mean_plus_se),
     "one_se_simplest": ("leave_one_run_out", rule_one_se_simplest),
+    "ridge_floor": ("leave_one_run_out", rule_ridge_floor),
     "speed_folds": (SPEED_SCHEME, rule_mean_max),
 }
 
@@ -399,7 +441,8 @@ def judge_machine(project: Path, machine: str, log=print) -> dict:
         scores[ENSEMBLE] = ensemble_score(dz, preds, weights)
         stacked = stacked_rule(oofs, inputs["factories"], dz_at)
         scores[STACKED] = ensemble_score(dz, preds, positive(stacked))
-        picks.update({ENSEMBLE: ENSEMBLE, STACKED: STACKED})
+        scores[AVERAGE] = ensemble_score(dz, preds, within_se_weights(inner["leave_one_run_out"]))
+        picks.update({ENSEMBLE: ENSEMBLE, STACKED: STACKED, AVERAGE: AVERAGE})
         fold = {"held_out": held, "picks": picks, "scores": scores, "weights": weights}
         folds.append({**fold, "stacked_weights": stacked})
         log(f"  {machine} outer fold {held}: " + ", ".join(f"{r} {p}" for r, p in picks.items()))
@@ -408,14 +451,16 @@ def judge_machine(project: Path, machine: str, log=print) -> dict:
         check_rows(machine, full[sc], rows)
         full[sc] = rows
     offered = {rule: fn(rows_of(full, sc)) for rule, (sc, fn) in RULES.items()}
-    offered[ENSEMBLE] = weights_text(ensemble_weights(full_cv))
-    offered[STACKED] = weights_text(stacked_rule(full_oofs, inputs["factories"], dz_at))
+    blends = {ENSEMBLE: ensemble_weights(full_cv), AVERAGE: within_se_weights(full_cv)}
+    blends[STACKED] = stacked_rule(full_oofs, inputs["factories"], dz_at)
+    offered.update({rule: weights_text(w) for rule, w in blends.items()})
     return {
         "machine": machine,
         "project": str(project),
         "seconds": round(time.perf_counter() - t0, 1),
         "folds": folds,
         "offered_now": offered,
+        "offered_weights": blends,  # the blends' weights on the full training CV
         "full_stats": fold_stats(full_cv).drop(columns="cx").to_dict(orient="records"),
     }
 

@@ -116,6 +116,33 @@ def test_ensemble_weights_are_inverse_square_cv_losses(bench):
     assert score["max"] == pytest.approx(0.0, abs=1e-12)
 
 
+def test_ridge_floor_keeps_the_plain_ridge_unless_a_kind_beats_it_by_more_than_one_se(bench):
+    ridge = [3.0, 3.0, 3.0, 3.0]
+    # dynamic is better on average (2.5 < 3) but its paired differences (-2, -2, +1, +1) have
+    # mean -0.5 and standard error 0.866: not more than one SE -> the plain ridge
+    noisy = _cv({"temperature_ridge": ridge, "dynamic": [1.0, 1.0, 4.0, 4.0], "grey_box": [5.0] * 4})
+    assert bench.rule_mean_max(noisy) == "dynamic"
+    assert bench.rule_ridge_floor(noisy) == "temperature_ridge"
+    # grey_box better on every held-out run (-0.5 +- 0.05): it beats it; dynamic too, but grey_box's
+    # mean is the lower -> the current rule among those that beat the ridge
+    clear = _cv(
+        {"temperature_ridge": ridge, "dynamic": [2.7, 2.8, 2.7, 2.8], "grey_box": [2.4, 2.5, 2.6, 2.5]}
+    )
+    assert bench.rule_ridge_floor(clear) == "grey_box"
+    # without the plain ridge among the kinds, or with a run it cannot predict: the current rule
+    assert bench.rule_ridge_floor(_cv({"dynamic": [1.0, 1.0], "grey_box": [2.0, 2.0]})) == "dynamic"
+    broken = _cv({"temperature_ridge": [np.nan, 3.0], "dynamic": [4.0, 4.0], "grey_box": [5.0, 5.0]})
+    assert bench.rule_ridge_floor(broken) == "dynamic"
+
+
+def test_average_within_se_weighs_the_kinds_near_the_best_alike(bench):
+    # grey_box mean 5.0, SE 0.577: ridge_global (5.5) is near, rafi_linear (9.0) is not
+    cv = _cv({"grey_box": [4.0, 5.0, 6.0], "ridge_global": [4.5, 5.5, 6.5], "rafi_linear": [9.0, 9.0, 9.0]})
+    assert bench.within_se_weights(cv) == {"grey_box": 0.5, "ridge_global": 0.5}
+    assert bench.within_se_weights(_cv({"a": [1.0, 1.0], "b": [np.nan, 1.0]})) == {"a": 1.0}
+    assert bench.AVERAGE in bench.BLENDS and "ridge_floor" in bench.RULES
+
+
 def test_the_current_rule_reads_the_forward_rows_beside_the_whole_run_rows(bench):
     whole = _cv({"dynamic": [2.0, 2.0, 2.0], "grey_box": [3.0, 3.0, 3.0]})
     ahead = _cv({"dynamic": [9.0, 9.0], "grey_box": [4.0, 4.0]}).assign(scheme=bench.FORWARD, fold=0)

@@ -366,7 +366,7 @@ def test_help_documents_every_option():
     assert top.returncode == 0 and "rafi simulate shipped --out raw" in top.stdout
     sim = next(a for a in parser._subparsers._group_actions[0].choices.items() if a[0] == "simulate")[1]
     modes = sim._subparsers._group_actions[0].choices
-    assert set(modes) == {"shipped", "day", "hostile", "noise-floor", "plot", "layout"}
+    assert set(modes) == {"shipped", "day", "hostile", "noise-floor", "plot", "layout", "foreign"}
     for name, sub in modes.items():
         for action in sub._actions:
             if action.dest == "help":

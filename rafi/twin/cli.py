@@ -15,6 +15,9 @@ Modes:
   layout    write the logs of a machine that is not the paper's rig (its own sensors and
             files, docs/twin.md "Layouts") and print the config block that reads them:
               rafi simulate layout sensors-6-diameter --out /tmp/try/raw
+  foreign   write a random machine nobody tuned on (4-40 own sensors, test days partly outside
+            the training range) as a project's data: raw/, config.yaml and truth.json:
+              rafi simulate foreign --seed 7 --out /tmp/foreign-7
 
 Run "rafi simulate MODE --help" for the options of each mode.
 """
@@ -222,6 +225,48 @@ def _add_layout_mode(sub: argparse._SubParsersAction, formatter: type[argparse.H
     mode.add_argument("--seed", type=int, default=1, help="seed of the twin's runs")
 
 
+def _add_foreign_mode(sub: argparse._SubParsersAction, formatter: type[argparse.HelpFormatter]) -> None:
+    """``foreign``: a random machine, its config and the truth of its test days."""
+    mode = sub.add_parser(
+        "foreign",
+        formatter_class=formatter,
+        help="write a random foreign machine (own sensors, test days partly outside the training range)",
+        description="Write the foreign machine of a seed (rafi.twin.foreign: the twin's network with "
+        "every constant drawn anew, 4 to 40 sensors of its own, one cold start a day at 60 s, training "
+        "days then test days) into OUT: raw/<machine>/*.csv, config.yaml (that machine only) and "
+        "truth.json (per test day the fraction of rows outside the training envelope). With "
+        "Snakefile and workflow/ beside them (or snakemake -s <Snakefile> -d OUT) OUT is a project.",
+    )
+    mode.add_argument("--seed", type=int, required=True, help="the machine's seed (its name: foreign-SEED)")
+    mode.add_argument("--out", required=True, help="the project folder to write into")
+    mode.add_argument(
+        "--setup-drift",
+        action="store_true",
+        help="the displacement also wanders by what no sensor sees (probe stand, foundation): a slow "
+        "walk of 0.5-3 um, drawn per machine",
+    )
+
+
+def _run_foreign(args: argparse.Namespace) -> int:
+    """``rafi simulate foreign``: write the machine, print its config block and test days."""
+    import yaml
+
+    from rafi.twin.foreign import write_foreign
+
+    machine, paths = write_foreign(args.seed, args.out, setup_drift=args.setup_drift)
+    for path in paths:
+        print(path, file=sys.stderr)
+    for run in machine.truth["test_runs"]:
+        print(
+            f"{run['stem']} ({run['kind']}): {100 * run['outside_any']:.0f} % of {run['rows']} rows outside "
+            f"the training envelope (temperature {100 * run['outside_temperature']:.0f} %, rise "
+            f"{100 * run['outside_rise']:.0f} %, speed {100 * run['outside_speed']:.0f} %)",
+            file=sys.stderr,
+        )
+    print(yaml.safe_dump({"machines": {machine.name: machine.config}}, sort_keys=False))
+    return 0
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """The modes of ``rafi simulate`` and their options, added to ``parser``."""
     sub = parser.add_subparsers(dest="mode", metavar="MODE")
@@ -232,6 +277,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     _add_hostile_mode(sub, formatter)
     _add_plot_mode(sub, formatter)
     _add_layout_mode(sub, formatter)
+    _add_foreign_mode(sub, formatter)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -319,8 +365,10 @@ def run(args: argparse.Namespace) -> int:
             )
         )
         return 0
+    if mode == "foreign":
+        return _run_foreign(args)
     print(
-        "rafi simulate: choose a mode: shipped, day, hostile, noise-floor, plot or layout "
+        "rafi simulate: choose a mode: shipped, day, hostile, noise-floor, plot, layout or foreign "
         "(see rafi simulate --help)",
         file=sys.stderr,
     )

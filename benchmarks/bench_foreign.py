@@ -1,0 +1,439 @@
+"""Selection rules judged on foreign machines: dozens of random twins nobody here tuned on.
+
+Usage (from the repository root; see benchmarks/README.md)::
+
+    python benchmarks/bench_foreign.py --seeds 6 --keep /tmp/foreign      # seeds 0-5
+    python benchmarks/bench_foreign.py --seeds 0-23 --keep /tmp/foreign   # resumes: done seeds are read
+    python benchmarks/bench_foreign.py --seeds 24 --keep /tmp/foreign --report-only
+    python benchmarks/bench_foreign.py --seeds 6 --keep /tmp/foreign-drift --setup-drift
+
+**The machines.** For each seed, :func:`rafi.twin.foreign.write_foreign` writes a foreign machine
+(4-40 own sensors, the twin's network with every constant drawn anew, one cold start a day at
+60 s a row, 3-6 training days, then 3-4 test days of which at least one leaves the training range:
+a room 2-5 K warmer or colder, 1.2-1.4 x the top training speed, or a run twice as long) into
+``KEEP/seed-NNN/project/`` with ``Snakefile``, ``workflow/`` and a frozen ``rafi/``; its config
+enables every kind of the family (``temperature_ridge`` too). ``snakemake --cores N`` builds
+``results/<m>/comparison/`` (the model family's fit, CV, choice and validation; no report).
+With ``--setup-drift`` the same machines' displacement also wanders by what no sensor sees
+(a slow walk of 0.5-3 um a machine: the probe's stand, the foundation), as on a real test.
+The test days are the pipeline's validation runs (``runs.windows`` by file name); the truth
+(``truth.json``) states per test day the fraction of its rows outside the training envelope.
+
+**Two judges, each of every rule** (the rules of ``bench_selection_rules.py``: ``mean_max``,
+``mean_max_forward`` (the current rule; these machines have no forward folds, so it equals
+``mean_max``), ``mean_plus_se``, ``one_se_simplest``, ``ridge_floor``, ``speed_folds``,
+``cv_weighted_ensemble``, ``stacked``, ``average_within_se``):
+
+* **one level up on the training runs** (``bench_selection_rules.judge_machine``: outer leave one
+  training run out, the rule picks from the inner CV, its pick scored on the held-out run);
+* **on the test days**: the rule's choice on the full training CV (``comparison/cv.csv``; a kind,
+  or a blend's weights) scored on every test row from the pipeline's own validation residuals
+  (``comparison/residuals.parquet``; a blend is the weighted mean of the kinds' predictions). A
+  row a model cannot predict counts as uncompensated (the machine gets no correction there).
+
+**Criterion (fixed before the run, 2026-11-29):**
+
+* *test MAE* of a rule on a machine: mean |measured - predicted| over every row of its test days;
+* **primary**: the mean over machines of the rule's test MAE divided by the lowest test MAE of any
+  single kind on that machine (1.00 = the best kind in hindsight); lower is better;
+* **guard**: the share of all test runs (every machine) on which the rule's test MAE is above no
+  compensation's (mean |measured|); a rule fails the guard when its share is above the current
+  rule's;
+* **decision**: among the rules that pass the guard, the lowest primary; it replaces the current
+  rule only if its primary is below the current rule's by more than one standard error of the
+  per-machine paired difference of the ratios; otherwise the current rule stays;
+* shown, not deciding: the outer CV of the training runs (mean over machines of the rule's outer
+  mean max |residual| over the oracle's), the ratio on test runs inside and outside the envelope
+  (outside: at least half of the run's rows, ``outside_any``), every single kind always offered
+  (``kind:<name>``), and the pipeline's offered model (which must be ``mean_max_forward``'s pick).
+
+Per seed the result is cached in ``KEEP/seed-NNN/result.json`` (a rerun reads it: the bench can
+be stopped and resumed, or run in the background while more seeds are added). Output: a table
+per rule across seeds, ``benchmarks/results/<out>.json`` and ``<out>.md``. About 1-2 min a seed
+on 2 cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import datetime as dt
+import json
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+for path in (ROOT, ROOT / "benchmarks"):
+    if str(path) not in sys.path:
+        sys.path.insert(0, str(path))
+
+import bench_selection_rules as judge  # noqa: E402
+from _results import write_results  # noqa: E402
+
+from rafi.contract import RESULT_FILES  # noqa: E402
+from rafi.contract.operations import MODEL_KINDS  # noqa: E402
+from rafi.twin.foreign import write_foreign  # noqa: E402
+
+#: The current rule (what the pipeline offers).
+CURRENT = "mean_max_forward"
+#: A test run is "outside" when at least this share of its rows is outside the training envelope.
+OUTSIDE_SHARE = 0.5
+#: The pipeline's tables this bench reads (one job builds them all).
+TARGET = "comparison"
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"24"``: seeds 0-23; ``"5-9"``: 5 to 9; ``"1,4,7"``: those."""
+    text = text.strip()
+    if "," in text:
+        return [int(v) for v in text.split(",") if v.strip()]
+    if "-" in text:
+        a, b = text.split("-", 1)
+        return list(range(int(a), int(b) + 1))
+    return list(range(int(text)))
+
+
+def seeds_text(seeds: list[int]) -> str:
+    """``0-5, 8, 10-11``: the seeds as ranges."""
+    parts, run = [], []
+    for s in sorted(seeds):
+        if run and s != run[-1] + 1:
+            parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else f"{run[0]}")
+            run = []
+        run.append(s)
+    if run:
+        parts.append(f"{run[0]}-{run[-1]}" if len(run) > 1 else f"{run[0]}")
+    return ", ".join(parts)
+
+
+# ----------------------------------------------------------------------------- one machine
+
+
+def make_project(seed: int, proj: Path, setup_drift: bool = False) -> dict:
+    """The foreign machine of ``seed`` as a runnable project in ``proj`` (every kind enabled);
+    returns its truth."""
+    machine, _ = write_foreign(seed, proj, setup_drift=setup_drift)
+    shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
+    for name in ("workflow", "rafi"):
+        shutil.rmtree(proj / name, ignore_errors=True)
+        shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
+    config = yaml.safe_load((proj / "config.yaml").read_text(encoding="utf-8"))
+    config["defaults"] = {"models": {"enabled": list(MODEL_KINDS)}}
+    (proj / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+    return machine.truth
+
+
+def run_pipeline(proj: Path, machine: str, cores: int) -> float:
+    """``snakemake --cores N`` up to the comparison's tables; its wall seconds (a failure stops)."""
+    target = f"results/{machine}/{RESULT_FILES[TARGET]}"
+    env = {**os.environ, "PYTHONPATH": str(proj)}
+    t0 = time.perf_counter()
+    done = subprocess.run(
+        [sys.executable, "-m", "snakemake", "--cores", str(cores), target],
+        cwd=proj,
+        env=env,
+        capture_output=True,
+        text=True,
+    )
+    (proj / "bench-snakemake.log").write_text(done.stdout + done.stderr, encoding="utf-8")
+    if done.returncode != 0:
+        tail = "\n".join((done.stdout + done.stderr).splitlines()[-15:])
+        raise SystemExit(f"{machine}: snakemake failed\n{tail}")
+    return time.perf_counter() - t0
+
+
+def test_rows(proj: Path, machine: str, truth: dict) -> pd.DataFrame:
+    """The validation residuals of every kind on the test days: ``model``, ``day`` (the test
+    day's file stem), ``run_id``, ``t_s``, ``measured_um``, ``predicted_um``."""
+    res = proj / "results" / machine
+    runs = pd.read_csv(res / RESULT_FILES["runs_csv"])
+    day_of = dict(zip(runs["run_id"].astype(str), runs["file"].astype(str).str.rsplit(".", n=1).str[0]))
+    rows = pd.read_parquet(res / RESULT_FILES["comparison_residuals"])
+    rows = rows.assign(run_id=rows["run_id"].astype(str), model=rows["model"].astype(str))
+    rows["day"] = rows["run_id"].map(day_of)
+    tests = {r["stem"] for r in truth["test_runs"]}
+    return rows.loc[rows["day"].isin(tests), ["model", "day", "run_id", "t_s", "measured_um", "predicted_um"]]
+
+
+def blend_errors(rows: pd.DataFrame, weights: dict) -> pd.DataFrame:
+    """Per test row: ``day``, ``measured_um`` and the error of the weighted mean of the kinds'
+    predictions (``weights``: kind -> weight; one kind with weight 1 is that kind); a row where a
+    kind with a positive weight has no prediction is uncompensated (error = measured)."""
+    weights = {k: w for k, w in weights.items() if w > 0}
+    key = ["day", "run_id", "t_s"]
+    wide = rows.set_index([*key, "model"])["predicted_um"].unstack("model")
+    measured = rows.drop_duplicates(key).set_index(key)["measured_um"].reindex(wide.index)
+    pred = sum(w * wide[k] for k, w in weights.items())
+    error = (measured - pred).where(np.isfinite(pred), measured)
+    return pd.DataFrame({"measured_um": measured, "error_um": error}).reset_index()
+
+
+def scores_of(errors: pd.DataFrame) -> dict:
+    """Test MAE and max |error| of one choice over every test row and per test day, and no
+    compensation's (mean and max |measured|)."""
+    per_day = {
+        day: {
+            "mae": float(g["error_um"].abs().mean()),
+            "max": float(g["error_um"].abs().max()),
+            "none_mae": float(g["measured_um"].abs().mean()),
+            "none_max": float(g["measured_um"].abs().max()),
+        }
+        for day, g in errors.groupby("day")
+    }
+    return {
+        "mae": float(errors["error_um"].abs().mean()),
+        "max": float(errors["error_um"].abs().max()),
+        "none_mae": float(errors["measured_um"].abs().mean()),
+        "days": per_day,
+    }
+
+
+def choices(result: dict, kinds: list[str]) -> dict:
+    """What each rule offers on the full training CV (a kind or a blend's weights), plus every
+    kind always offered (``kind:<name>``)."""
+    out = {}
+    for rule, pick in result["offered_now"].items():
+        if rule in judge.BLENDS:
+            out[rule] = result["offered_weights"][rule]
+        elif pick:
+            out[rule] = {pick: 1.0}
+    out.update({f"kind:{k}": {k: 1.0} for k in kinds})
+    return out
+
+
+def judge_seed(seed: int, keep: Path, cores: int, log=print, setup_drift: bool = False) -> dict:
+    """The result of one seed: read from ``keep/seed-NNN/result.json`` if there (made with the
+    same ``setup_drift``, else a stop), else made (the project, the pipeline, both judges) and
+    written there."""
+    folder = keep / f"seed-{seed:03d}"
+    cached = folder / "result.json"
+    if cached.is_file():
+        result = json.loads(cached.read_text(encoding="utf-8"))
+        if bool(result.get("setup_drift", False)) != setup_drift:
+            raise SystemExit(f"{cached} was made with setup_drift={not setup_drift}: use another --keep")
+        return result
+    proj = folder / "project"
+    shutil.rmtree(proj, ignore_errors=True)
+    proj.mkdir(parents=True)
+    truth = make_project(seed, proj, setup_drift)
+    machine = truth["machine"]
+    pipeline_s = run_pipeline(proj, machine, cores)
+    t0 = time.perf_counter()
+    judged = judge.judge_machine(proj, machine, log=lambda m: None)
+    judge_s = time.perf_counter() - t0
+    summary = pd.read_csv(proj / "results" / machine / RESULT_FILES["comparison"])
+    offered = str(summary.loc[summary["champion"].astype(bool), "model"].iloc[0])
+    rows = test_rows(proj, machine, truth)
+    kinds = sorted(rows["model"].unique())
+    picks = choices(judged, kinds)
+    picks["offered"] = {offered: 1.0}
+    if offered != judged["offered_now"][CURRENT]:
+        log(f"{machine}: the pipeline offers {offered}, {CURRENT} {judged['offered_now'][CURRENT]}")
+    tests = {rule: scores_of(blend_errors(rows, w)) for rule, w in picks.items()}
+    result = {
+        "seed": seed,
+        "machine": machine,
+        "setup_drift": setup_drift,
+        "setup_drift_um": truth.get("setup_drift_um", 0.0),
+        "sensors": len(truth["sensors"]),
+        "training_days": sum(d["role"] == "training" for d in truth["days"]),
+        "test_runs": truth["test_runs"],
+        "offered": offered,
+        "choices": picks,
+        "test": tests,
+        "outer": judge.summarise(judged),
+        "seconds": {"pipeline": round(pipeline_s, 1), "judge": round(judge_s, 1)},
+    }
+    tmp = cached.with_suffix(".tmp")
+    tmp.write_text(json.dumps(result, indent=1, default=float), encoding="utf-8")
+    os.replace(tmp, cached)
+    log(seed_line(result))
+    return result
+
+
+def seed_line(r: dict) -> str:
+    """One line per seed: the machine, its test days' outside shares, the offered kind's and the
+    plain ridge's test MAE against no compensation."""
+    t = r["test"]
+    outside = " ".join(f"{100 * x['outside_any']:.0f}%" for x in r["test_runs"])
+    ridge = t.get("kind:temperature_ridge", {}).get("mae", np.nan)
+    best = min((k for k in t if k.startswith("kind:")), key=lambda k: t[k]["mae"])
+    return (
+        f"seed {r['seed']:3d} {r['sensors']:2d} sensors {r['training_days']} training days, test outside "
+        f"[{outside}]: offered {r['offered']} {t['offered']['mae']:.2f} um, plain ridge {ridge:.2f}, "
+        f"best {best[5:]} {t[best]['mae']:.2f}, none {t['offered']['none_mae']:.2f} "
+        f"({r['seconds']['pipeline']:.0f} + {r['seconds']['judge']:.0f} s)"
+    )
+
+
+# ----------------------------------------------------------------------------- across machines
+
+
+def rule_rows(results: list[dict]) -> list[dict]:
+    """Per rule (and per kind always offered, and the pipeline's offered model) across machines:
+    the primary, its paired difference to the current rule, the guard, inside/outside ratios and
+    the outer CV ratio (module docstring)."""
+    names = list(results[0]["test"])
+    best = [min(r["test"][k]["mae"] for k in r["test"] if k.startswith("kind:")) for r in results]
+    current = np.array([r["test"][CURRENT]["mae"] / b for r, b in zip(results, best)])
+    out = []
+    for name in names:
+        ratio = np.array([r["test"][name]["mae"] / b for r, b in zip(results, best)])
+        worse, n_runs, inside, outside, worse_out = 0, 0, [], [], 0
+        for r in results:
+            share = {x["stem"]: x["outside_any"] for x in r["test_runs"]}
+            for day, s in r["test"][name]["days"].items():
+                best_day = min(r["test"][k]["days"][day]["mae"] for k in r["test"] if k.startswith("kind:"))
+                is_out = share[day] >= OUTSIDE_SHARE
+                (outside if is_out else inside).append(s["mae"] / best_day)
+                n_runs += 1
+                if s["mae"] > s["none_mae"]:
+                    worse += 1
+                    worse_out += int(is_out)
+        diff = ratio - current
+        outer = [
+            next(x for x in r["outer"] if x["rule"] == name)["outer_mean_max_um"]
+            / next(x for x in r["outer"] if x["rule"] == "oracle")["outer_mean_max_um"]
+            for r in results
+            if any(x["rule"] == name for x in r["outer"])
+        ]
+        out.append(
+            {
+                "rule": name,
+                "machines": len(results),
+                "primary": float(ratio.mean()),
+                "primary_se": float(ratio.std(ddof=1) / np.sqrt(len(ratio))) if len(ratio) > 1 else np.nan,
+                "vs_current": float(diff.mean()),
+                "vs_current_se": float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.nan,
+                "median": float(np.median(ratio)),
+                "worst": float(ratio.max()),
+                "test_runs": n_runs,
+                "worse_than_none": worse,
+                "worse_than_none_outside": worse_out,
+                "guard_share": worse / n_runs if n_runs else np.nan,
+                "inside_ratio": float(np.mean(inside)) if inside else np.nan,
+                "outside_ratio": float(np.mean(outside)) if outside else np.nan,
+                "outer_ratio": float(np.mean(outer)) if outer else np.nan,
+            }
+        )
+    return out
+
+
+def decide(rows: list[dict]) -> dict:
+    """The criterion (module docstring): guard, then the lowest primary, then more than one
+    standard error below the current rule."""
+    by = {r["rule"]: r for r in rows}
+    cur = by[CURRENT]
+    rules = [r for r in rows if r["rule"] in judge.RULES or r["rule"] in judge.BLENDS]
+    passing = [r for r in rules if r["guard_share"] <= cur["guard_share"] + 1e-12]
+    best = min(passing, key=lambda r: r["primary"])
+    replaces = best["rule"] != CURRENT and -best["vs_current"] > (best["vs_current_se"] or 0.0)
+    return {
+        "passing_guard": [r["rule"] for r in passing],
+        "lowest_primary": best["rule"],
+        "kept": best["rule"] if replaces else CURRENT,
+        "replaces_current": bool(replaces),
+    }
+
+
+def markdown(report: dict) -> str:
+    """The report: the table per rule across machines, the decision, a line per seed."""
+    head = (
+        "| rule | primary: test MAE / best kind (SE) | vs current (SE) | median | worst | "
+        "test runs worse than none (outside) | inside runs | outside runs | outer CV / oracle |"
+    )
+    lines = [
+        f"# Selection rules on foreign machines ({report['date']})",
+        "",
+        f"Command: `{report['command']}`; host {report['host']}, {report['cpus']} CPUs; "
+        f"{len(report['seeds'])} machines (seeds {report['seeds_text']}"
+        + (f"; failed: {', '.join(map(str, report['failed']))}" if report["failed"] else "")
+        + ").",
+        "",
+        head,
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in report["rows"]:
+        lines.append(
+            f"| {r['rule']} | {r['primary']:.3f} ({r['primary_se']:.3f}) | {r['vs_current']:+.3f} "
+            f"({r['vs_current_se']:.3f}) | {r['median']:.3f} | {r['worst']:.2f} | "
+            f"{r['worse_than_none']}/{r['test_runs']} ({r['worse_than_none_outside']}) | "
+            f"{r['inside_ratio']:.3f} | {r['outside_ratio']:.3f} | {r['outer_ratio']:.3f} |"
+        )
+    d = report["decision"]
+    verdict = "replaces the current rule" if d["replaces_current"] else "the current rule stays"
+    lines += [
+        "",
+        f"Guard passed by: {', '.join(d['passing_guard'])}. Lowest primary among them: "
+        f"{d['lowest_primary']}. Kept: **{d['kept']}** "
+        f"({verdict}).",
+        "",
+        *[f"- {line}" for line in report["seed_lines"]],
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--seeds", default="24", help="N (seeds 0..N-1), A-B, or a comma-separated list")
+    parser.add_argument("--keep", type=Path, default=None, help="folder of the per-seed projects and results")
+    parser.add_argument("--cores", type=int, default=2, help="snakemake --cores")
+    parser.add_argument("--out", default="foreign_rules", help="file stem under benchmarks/results/")
+    parser.add_argument(
+        "--setup-drift",
+        action="store_true",
+        help="machines whose displacement also wanders by what no sensor sees (rafi simulate foreign "
+        "--setup-drift); use its own --keep",
+    )
+    parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")
+    args = parser.parse_args(argv)
+    seeds = parse_seeds(args.seeds)
+    keep = args.keep or Path(tempfile.mkdtemp(prefix="bench-foreign-"))
+    keep.mkdir(parents=True, exist_ok=True)
+    results, failed = [], []
+    for seed in seeds:
+        if args.report_only and not (keep / f"seed-{seed:03d}" / "result.json").is_file():
+            continue
+        print(f"seed {seed} ...", flush=True)
+        try:
+            log = lambda m: print(m, flush=True)  # noqa: E731
+            results.append(judge_seed(seed, keep, args.cores, log=log, setup_drift=args.setup_drift))
+        except (SystemExit, Exception) as exc:  # one machine's failure is said; the next one runs
+            failed.append(seed)
+            print(f"seed {seed} failed: {exc}", flush=True)
+    if not results:
+        print("no seed done", file=sys.stderr)
+        return 1
+    rows = rule_rows(results)
+    report = {
+        "date": dt.date.today().isoformat(),
+        "command": " ".join(
+            ["python benchmarks/bench_foreign.py", *(sys.argv[1:] if argv is None else argv)]
+        ),
+        "host": platform.node(),
+        "cpus": os.cpu_count(),
+        "seeds": [r["seed"] for r in results],
+        "seeds_text": seeds_text([r["seed"] for r in results]),
+        "failed": failed,
+        "rows": rows,
+        "decision": decide(rows),
+        "seed_lines": [seed_line(r) for r in results],
+        "machines": results,
+    }
+    text = markdown(report)
+    print("\n" + text)
+    write_results(args.out, report, text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,502 @@
+"""Foreign machines (``rafi simulate foreign``): random twins nobody here tuned on, with the truth
+of where their test days leave the training range.
+
+A foreign machine is the twin's thermal network (:mod:`rafi.twin.physics`) with every constant
+drawn anew from a seed: heat capacities (the time constants), conductances, heat sources,
+displacement gains, the centrifugal draw-in; 4 to 40 temperature sensors, each at its own place
+(a mix of one or two nodes and the room air), with its own lag, offset and name; its own room
+(level, daily swing, drift, wander); its own speeds. It is tested like the turning centre of
+issue 46: one log a day (a cold start at 60 s a row), training days first, then test days, some
+of which leave the training range (a hot or a cold room, a speed above the training speeds, a
+run longer than any training run). :func:`foreign_machine` returns the logs, the config block
+that reads them and the truth; :func:`envelope_fractions` states, per test day, the fraction of
+its rows outside the training envelope, computed from the generated logs.
+
+Pure: everything follows from the seed; only :func:`write_foreign` writes files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from rafi.twin.machines import AMBIENT, NODES, Ambient, SensorSpec, TwinParams, machine_params
+from rafi.twin.physics import ambient_series, displacement_truth, integrate, sensor_truth
+from rafi.twin.schedules import REST_BEFORE_START_S, Step, sample_schedule, with_rest
+from rafi.twin.signals import ar1
+
+#: Sample period of a foreign machine's logs (s): a plant logger's, like the turning centre's.
+FOREIGN_SAMPLE_S = 60.0
+#: Fewest and most temperature sensors of a foreign machine.
+SENSOR_COUNT = (4, 40)
+#: The base machines whose network a foreign machine spreads, with the speed range (r/min) its
+#: heat laws were written for.
+BASES = {"tapping-center-a": (3000.0, 18000.0), "machining-center-b": (1250.0, 6000.0)}
+#: How a test day may leave the training range (:func:`plan_days`).
+OUTSIDE_KINDS = ("hot_room", "cold_room", "over_speed", "long_run")
+#: A test day inside the training range: speed steps between the training speeds, the usual room.
+INSIDE_KIND = "steps"
+#: Nodes a sensor can sit on (the shaft turns: nobody glues a sensor to it), with the odds.
+PLACES = {
+    "front_bearing": 1.0,
+    "rear_bearing": 1.0,
+    "stator": 0.6,
+    "motor_base": 1.0,
+    "housing": 1.2,
+    "coolant": 0.8,
+    "tank": 0.5,
+    "head": 1.2,
+    "column": 0.8,
+}
+#: How sensors are named, one style a machine ("{place}" names it after its node).
+NAME_STYLES = ("T{i}", "TC{i:02d}", "Temp{i}", "ch{i:02d}", "sensor_{i}", "{place}_{i}")
+#: Envelope margin (K): a temperature or rise more than this beyond the training range is outside
+#: (about twice a sensor's noise, so a test day at the edge of the range is not outside by noise).
+ENVELOPE_MARGIN_K = 0.1
+#: A speed more than this (r/min) beyond the training speeds is outside (``speed_tolerance_rpm``).
+ENVELOPE_SPEED_TOL_RPM = 50.0
+#: The spindle stands below this (r/min): such rows have no speed to be outside (``idle_below_rpm``).
+IDLE_BELOW_RPM = 100.0
+#: Setup drift (``setup_drift=True``): its standard deviation per machine (um) and time constant (s).
+SETUP_DRIFT_UM = (0.5, 3.0)
+SETUP_DRIFT_TAU_S = 7200.0
+#: Decimals of the temperatures and the displacement in the written logs.
+TEMP_DECIMALS = 2
+DISP_DECIMALS = 3
+#: A rise is measured from the median of the day's first seconds (the cold machine at rest).
+REFERENCE_S = REST_BEFORE_START_S
+
+
+@dataclass(frozen=True)
+class Day:
+    """One logged day: its file stem, role (``training`` or ``test``), kind, schedule (at rest
+    first), room and start."""
+
+    stem: str
+    role: str
+    kind: str
+    schedule: tuple[Step, ...]
+    ambient: Ambient
+    start: pd.Timestamp
+
+
+@dataclass(frozen=True)
+class ForeignMachine:
+    """What :func:`foreign_machine` returns: the machine's name, its ``machines.<name>`` block,
+    its logs (file stem -> canonical frame: ``time``, ``speed_rpm``, the sensors, ``disp_um``)
+    and the truth (a JSON-able dict: constants, sensors, days, envelope, test runs)."""
+
+    name: str
+    config: dict
+    logs: dict[str, pd.DataFrame]
+    truth: dict
+
+
+def _factor(rng: np.random.Generator, sigma: float) -> float:
+    """A log-normal spread factor (clipped at 2 sigma)."""
+    return float(np.exp(sigma * np.clip(rng.standard_normal(), -2.0, 2.0)))
+
+
+def _law(rng: np.random.Generator, g: tuple, sigma: float) -> tuple:
+    return (g[0] * _factor(rng, sigma), g[1] * _factor(rng, sigma), g[2])
+
+
+def foreign_params(base: TwinParams, rng: np.random.Generator) -> TwinParams:
+    """``base``'s network with every constant spread (much wider than a sibling's): capacities and
+    conductances (the time constants), heat sources, coolant and cooler, displacement gains (a
+    sign may flip, nodes without a gain may get one), the draw-in; noise levels and quanta drawn."""
+    gains = {k: v * _factor(rng, 0.4) for k, v in base.disp_gain.items()}
+    for node in ("head", "column"):
+        if node in gains and rng.random() < 0.3:
+            gains[node] = -gains[node]
+    for node in ("front_bearing", "stator", "coolant"):
+        if rng.random() < 0.25:
+            gains[node] = float(rng.normal(0.0, 0.3))
+    return replace(
+        base,
+        capacity={k: v * _factor(rng, 0.4) for k, v in base.capacity.items()},
+        links={k: v * _factor(rng, 0.3) for k, v in base.links.items()},
+        speed_links={k: _law(rng, v, 0.3) for k, v in base.speed_links.items()},
+        to_ambient={k: _law(rng, v, 0.3) for k, v in base.to_ambient.items()},
+        coolant_flow_w_per_k=base.coolant_flow_w_per_k * _factor(rng, 0.3),
+        cooler_power_w=base.cooler_power_w * _factor(rng, 0.3),
+        bearing_front_w=base.bearing_front_w * _factor(rng, 0.35),
+        bearing_rear_w=base.bearing_rear_w * _factor(rng, 0.35),
+        motor_magnetising_w=base.motor_magnetising_w * _factor(rng, 0.35),
+        motor_iron_w=base.motor_iron_w * _factor(rng, 0.35),
+        rotor_w=base.rotor_w * _factor(rng, 0.35),
+        disp_gain=gains,
+        centrifugal_um=base.centrifugal_um * _factor(rng, 0.4),
+        temp_noise_c=float(rng.uniform(0.02, 0.06)),
+        disp_noise_um=float(rng.uniform(0.1, 0.4)),
+        disp_quantum_um=float(rng.choice([0.001, 0.01, 0.1])),
+        probe_offset_um=float(rng.uniform(0.0, 5.0)),
+    )
+
+
+def foreign_sensors(n: int, rng: np.random.Generator) -> tuple[SensorSpec, ...]:
+    """``n`` sensors at random places: a node (the first on one the displacement depends on),
+    with a chance of a second, always a share of the room air; one may be a room sensor. Lags
+    log-uniform 20-900 s, offsets about 0.2 K, named in one of :data:`NAME_STYLES`."""
+    places, odds = list(PLACES), np.array(list(PLACES.values()))
+    style = str(rng.choice(NAME_STYLES))
+    room_sensor = n > 4 and rng.random() < 0.5
+    out, seen = [], {}
+    for i in range(1, n + 1):
+        if room_sensor and i == n:
+            place, mix, lag = AMBIENT, {AMBIENT: 1.0}, 120.0
+        else:
+            place = str(rng.choice(["housing", "motor_base", "head"])) if i == 1 else None
+            place = place or str(rng.choice(places, p=odds / odds.sum()))
+            mix = {place: float(rng.uniform(0.5, 0.95))}
+            if rng.random() < 0.6:
+                other = str(rng.choice([p for p in places if p != place]))
+                mix[other] = float(rng.uniform(0.05, 0.4))
+            mix[AMBIENT] = float(rng.uniform(0.02, 0.3))
+            lag = float(np.exp(rng.uniform(np.log(20.0), np.log(900.0))))
+        total = sum(mix.values())
+        seen[place] = seen.get(place, 0) + 1  # "{place}_{i}" counts per place: housing_1, housing_2
+        name = style.format(i=seen[place] if "{place}" in style else i, place=place.replace("_", ""))
+        out.append(
+            SensorSpec(
+                name, place, tuple((k, v / total) for k, v in mix.items()), lag, float(rng.normal(0, 0.2))
+            )
+        )
+    return tuple(out)
+
+
+def _room(rng: np.random.Generator, room_c: float, shift_c: float = 0.0) -> Ambient:
+    """A day's room: the machine's level (+ ``shift_c``), its own swing, drift and wander."""
+    return Ambient(
+        base_c=room_c + shift_c + float(rng.normal(0.0, 0.7)),
+        daily_amplitude_c=float(rng.uniform(0.2, 1.2)),
+        peak_hour=float(rng.uniform(13.0, 17.0)),
+        drift_c_per_h=float(rng.normal(0.0, 0.15)),
+        wander_c=float(rng.uniform(0.03, 0.15)),
+    )
+
+
+def _steps(rng: np.random.Generator, lo: float, top: float) -> list[Step]:
+    """4-6 steps of 20-50 min at speeds between ``lo`` and ``top`` (one varying run)."""
+    k = int(rng.integers(4, 7))
+    return [
+        Step(60.0 * float(rng.uniform(20, 50)), float(np.round(rng.uniform(lo, top), -1))) for _ in range(k)
+    ]
+
+
+def training_speeds(rng: np.random.Generator, base: str) -> tuple[list[float], float]:
+    """2-4 evenly spaced training speeds from the base's lowest to 55-75 % of its highest
+    (rounded to 10 r/min), and the slowest speed a day may run at."""
+    lo, hi = BASES[base]
+    top = hi * float(rng.uniform(0.55, 0.75))
+    k = int(rng.integers(2, 5))
+    return [float(np.round(v, -1)) for v in np.linspace(lo, top, k)], lo
+
+
+def plan_days(rng: np.random.Generator, speeds: list[float], lo: float, room_c: float) -> list[Day]:
+    """Training days, then test days, one a day from 2026-06-01 (each a cold start after
+    :data:`REST_BEFORE_START_S` at rest).
+
+    Training: a 2-4 h constant run at each training speed, then 1-2 days of speed steps between
+    the training speeds. Test: 3-4 days, the first inside the range (:data:`INSIDE_KIND`), at
+    least one of :data:`OUTSIDE_KINDS` (a room 2-5 K warmer or colder than usual with speed
+    steps, 2-3 h at 1.2-1.4 x the top training speed, or the top speed for 1.8-2.5 x the longest
+    training run), the others either.
+    """
+    top = max(speeds)
+    plan: list[tuple[str, str, list[Step], float]] = []
+    hours = [float(rng.uniform(2.0, 4.0)) for _ in speeds]
+    plan += [("training", "constant", [Step(3600.0 * h, s)], 0.0) for s, h in zip(speeds, hours)]
+    plan += [("training", INSIDE_KIND, _steps(rng, lo, top), 0.0) for _ in range(int(rng.integers(1, 3)))]
+    n_test = int(rng.integers(3, 5))
+    kinds = [INSIDE_KIND, str(rng.choice(OUTSIDE_KINDS))]
+    kinds += [str(rng.choice((INSIDE_KIND, *OUTSIDE_KINDS))) for _ in range(n_test - 2)]
+    for kind in kinds:
+        if kind in ("hot_room", "cold_room"):
+            shift = float(rng.uniform(2.0, 5.0)) * (1 if kind == "hot_room" else -1)
+            plan.append(("test", kind, _steps(rng, lo, top), shift))
+        elif kind == "over_speed":
+            over = float(np.round(top * rng.uniform(1.2, 1.4), -1))
+            plan.append(("test", kind, [Step(3600.0 * float(rng.uniform(2.0, 3.0)), over)], 0.0))
+        elif kind == "long_run":
+            long_h = max(hours) * float(rng.uniform(1.8, 2.5))
+            plan.append(("test", kind, [Step(3600.0 * long_h, top)], 0.0))
+        else:
+            plan.append(("test", kind, _steps(rng, lo, top), 0.0))
+    day0 = pd.Timestamp("2026-06-01")
+    out = []
+    for d, (role, kind, steps, shift) in enumerate(plan, start=1):
+        start = day0 + pd.Timedelta(days=d - 1, hours=7, minutes=int(rng.integers(0, 60)))
+        stem = f"day{d:02d}_{'train' if role == 'training' else 'test'}"
+        out.append(Day(stem, role, kind, tuple(with_rest(steps)), _room(rng, room_c, shift), start))
+    return out
+
+
+def simulate_day(
+    params: TwinParams, day: Day, seed: int, dt: float = FOREIGN_SAMPLE_S, setup_drift_um: float = 0.0
+) -> pd.DataFrame:
+    """One day's log: a cold start (every node at the room's temperature) through
+    :func:`rafi.twin.physics.integrate`; sensors with white and slow noise, quantised; the
+    displacement from the probe's zero with white and slow noise; the speed with 1 r/min jitter.
+    Values as the file holds them (:data:`TEMP_DECIMALS`, :data:`DISP_DECIMALS`), so what is
+    computed from the frame (the envelope) is what a reader of the file computes. With
+    ``setup_drift_um`` the displacement also wanders by what no sensor sees (the probe's stand,
+    the foundation): a slow AR(1) walk from 0 of that standard deviation and a time constant of
+    :data:`SETUP_DRIFT_TAU_S`, from its own random stream (the rest of the day is unchanged).
+
+    Returns
+    -------
+    pandas.DataFrame
+        ``time``, ``speed_rpm``, one column per sensor of ``params``, ``disp_um``.
+    """
+    speeds = sample_schedule(day.schedule, dt)
+    n = len(speeds)
+    times = day.start + pd.to_timedelta(np.arange(n) * dt, unit="s")
+    rng_amb, rng_noise = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(2))
+    t_amb = ambient_series(day.ambient, times, rng_amb)
+    nodes, _ = integrate(params, speeds, t_amb, dt)
+    x_ref = np.full(len(NODES), t_amb[0])
+    zero = float(rng_noise.uniform(-1, 1) * params.probe_offset_um)
+    disp = displacement_truth(params, nodes, speeds, dt, x_ref) + zero
+    temps = sensor_truth(params, nodes, t_amb, dt)
+    a = np.exp(-dt / 600.0)
+    slow = ar1(rng_noise.normal(0.0, params.temp_noise_c, temps.shape), a, np.sqrt(1 - a * a))
+    temps = temps + rng_noise.normal(0.0, params.temp_noise_c, temps.shape) + slow
+    temps = np.round(np.round(temps / params.temp_quantum_c) * params.temp_quantum_c, TEMP_DECIMALS)
+    drift = ar1(rng_noise.normal(0.0, params.disp_noise_um * 0.5, n), a, np.sqrt(1 - a * a))
+    disp = disp + rng_noise.normal(0.0, params.disp_noise_um, n) + drift
+    if setup_drift_um > 0:
+        b = np.exp(-dt / SETUP_DRIFT_TAU_S)
+        rng_setup = np.random.default_rng(np.random.SeedSequence([int(seed), 7]))
+        disp = disp + ar1(rng_setup.normal(0.0, setup_drift_um * np.sqrt(1 - b * b), n), b)
+    disp = np.round(np.round(disp / params.disp_quantum_um) * params.disp_quantum_um, DISP_DECIMALS)
+    jitter = np.round(rng_noise.normal(0.0, params.speed_jitter_rpm, n))
+    frame = pd.DataFrame({"time": times, "speed_rpm": np.where(speeds > 0, speeds + jitter, 0.0)})
+    for j, spec in enumerate(params.sensors):
+        frame[spec.name] = temps[:, j]
+    frame["disp_um"] = disp
+    return frame
+
+
+def _rises(frame: pd.DataFrame, sensors: list[str], dt: float) -> np.ndarray:
+    """Every sensor's rise from the median of the day's first :data:`REFERENCE_S` seconds."""
+    values = frame[sensors].to_numpy(dtype=float)
+    k = max(1, int(round(REFERENCE_S / dt)))
+    return values - np.median(values[:k], axis=0)
+
+
+def envelope(train: list[pd.DataFrame], sensors: list[str], speeds: list[float], dt: float) -> dict:
+    """The training envelope: per sensor the lowest and highest temperature and rise over every
+    row of the training days, and the training speeds' range."""
+    temps = np.vstack([f[sensors].to_numpy(dtype=float) for f in train])
+    rises = np.vstack([_rises(f, sensors, dt) for f in train])
+    return {
+        "margin_k": ENVELOPE_MARGIN_K,
+        "speed_tolerance_rpm": ENVELOPE_SPEED_TOL_RPM,
+        "temperature_c": {
+            s: [float(temps[:, j].min()), float(temps[:, j].max())] for j, s in enumerate(sensors)
+        },
+        "rise_k": {s: [float(rises[:, j].min()), float(rises[:, j].max())] for j, s in enumerate(sensors)},
+        "speed_rpm": [float(min(speeds)), float(max(speeds))],
+    }
+
+
+def _beyond(values: np.ndarray, bounds: dict, sensors: list[str], margin: float) -> np.ndarray:
+    lo = np.array([bounds[s][0] for s in sensors]) - margin
+    hi = np.array([bounds[s][1] for s in sensors]) + margin
+    return ((values < lo) | (values > hi)).any(axis=1)
+
+
+def envelope_fractions(frame: pd.DataFrame, env: dict, sensors: list[str], dt: float) -> dict:
+    """The fraction of a day's rows outside the training envelope ``env`` (:func:`envelope`).
+
+    A row is outside in temperature when any sensor reads more than ``margin_k`` below its
+    training minimum or above its training maximum; in rise likewise with the rise from the
+    day's first :data:`REFERENCE_S` seconds; in speed when the spindle turns (at least
+    :data:`IDLE_BELOW_RPM`) more than ``speed_tolerance_rpm`` below the slowest or above the
+    fastest training speed. ``any``: outside in at least one of the three.
+
+    Returns
+    -------
+    dict
+        ``rows``, ``outside_temperature``, ``outside_rise``, ``outside_speed``, ``outside_any``
+        (fractions 0..1) and ``max_excess_k`` (the largest temperature excess beyond the range).
+    """
+    margin, tol = env["margin_k"], env["speed_tolerance_rpm"]
+    temps = frame[sensors].to_numpy(dtype=float)
+    t_out = _beyond(temps, env["temperature_c"], sensors, margin)
+    r_out = _beyond(_rises(frame, sensors, dt), env["rise_k"], sensors, margin)
+    speed = frame["speed_rpm"].to_numpy(dtype=float)
+    lo, hi = env["speed_rpm"]
+    s_out = (speed >= IDLE_BELOW_RPM) & ((speed < lo - tol) | (speed > hi + tol))
+    lo_t = np.array([env["temperature_c"][s][0] for s in sensors])
+    hi_t = np.array([env["temperature_c"][s][1] for s in sensors])
+    excess = np.maximum(np.maximum(lo_t - temps, temps - hi_t), 0.0).max()
+    return {
+        "rows": int(len(frame)),
+        "outside_temperature": float(t_out.mean()),
+        "outside_rise": float(r_out.mean()),
+        "outside_speed": float(s_out.mean()),
+        "outside_any": float((t_out | r_out | s_out).mean()),
+        "max_excess_k": float(excess),
+    }
+
+
+def foreign_config(sensors: list[str], speeds: list[float]) -> dict:
+    """The ``machines.<name>`` block that reads a foreign machine: 60 s rows, its training
+    speeds, its sensors (native CSV), roles by file name (``*_train*`` trains, ``*_test*``
+    validates: the test days)."""
+    return {
+        "sample_period_s": FOREIGN_SAMPLE_S,
+        "training_speeds_rpm": [int(s) for s in speeds],
+        "input": {"sensors": list(sensors)},
+        "runs": {
+            "windows": [{"role": "training", "log": "*_train*"}, {"role": "validation", "log": "*_test*"}]
+        },
+    }
+
+
+def _sensor_truth(spec: SensorSpec) -> dict:
+    return {
+        "name": spec.name,
+        "place": spec.position,
+        "mix": {k: round(v, 4) for k, v in spec.mix},
+        "lag_s": round(spec.lag_s, 1),
+        "offset_c": round(spec.offset_c, 3),
+    }
+
+
+@dataclass(frozen=True)
+class Design:
+    """What a seed draws before any simulation (:func:`foreign_design`): the base network's name,
+    the machine's constants and sensors, its training speeds and its days."""
+
+    base: str
+    params: TwinParams
+    speeds: list[float]
+    days: list[Day]
+
+
+def foreign_design(seed: int) -> Design:
+    """The design of the foreign machine of ``seed``, cheap (no day simulated): the base network,
+    its spread constants (:func:`foreign_params`), 4-40 sensors (:func:`foreign_sensors`), the
+    training speeds (:func:`training_speeds`), a room level of 18-26 degC and the days
+    (:func:`plan_days`)."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 46]))
+    base = str(rng.choice(list(BASES)))
+    params = foreign_params(machine_params(base), rng)
+    params = replace(
+        params,
+        machine=f"foreign-{int(seed)}",
+        sensors=foreign_sensors(int(rng.integers(SENSOR_COUNT[0], SENSOR_COUNT[1] + 1)), rng),
+    )
+    speeds, lo = training_speeds(rng, base)
+    return Design(base, params, speeds, plan_days(rng, speeds, lo, float(rng.uniform(18.0, 26.0))))
+
+
+def foreign_machine(seed: int, setup_drift: bool = False) -> ForeignMachine:
+    """A foreign machine from ``seed``: its name ``foreign-<seed>``, config block, logs and truth.
+
+    Parameters
+    ----------
+    seed : int
+        Controls everything: the base network and its spread, the sensors, speeds, days, rooms
+        and noise.
+    setup_drift : bool
+        The displacement also wanders by what no sensor sees (:func:`simulate_day`), with a
+        standard deviation drawn per machine from :data:`SETUP_DRIFT_UM` on a stream of its own:
+        the same machine and days as without, plus the drift.
+
+    Returns
+    -------
+    ForeignMachine
+        ``truth`` holds ``seed``, ``base``, the constants that matter (heat sources, capacities,
+        displacement gains), ``sensors`` (place, mix, lag, offset), ``training_speeds_rpm``,
+        ``days`` (stem, role, kind, hours, speeds, room level), ``envelope`` (:func:`envelope`)
+        and ``test_runs`` (per test day: its stem and kind and :func:`envelope_fractions`).
+    """
+    design = foreign_design(seed)
+    base, params, speeds, days = design.base, design.params, design.speeds, design.days
+    drift_um = 0.0
+    if setup_drift:
+        drift_um = float(np.random.default_rng([int(seed), 46, 1]).uniform(*SETUP_DRIFT_UM))
+    logs = {
+        d.stem: simulate_day(params, d, int(seed) * 1000 + k, setup_drift_um=drift_um)
+        for k, d in enumerate(days)
+    }
+    names = [s.name for s in params.sensors]
+    env = envelope([logs[d.stem] for d in days if d.role == "training"], names, speeds, FOREIGN_SAMPLE_S)
+    test_runs = [
+        {"stem": d.stem, "kind": d.kind, **envelope_fractions(logs[d.stem], env, names, FOREIGN_SAMPLE_S)}
+        for d in days
+        if d.role == "test"
+    ]
+    truth = {
+        "seed": int(seed),
+        "machine": params.machine,
+        "base": base,
+        "sample_period_s": FOREIGN_SAMPLE_S,
+        "setup_drift_um": drift_um,
+        "heat_w": {
+            "bearing_front": params.bearing_front_w,
+            "bearing_rear": params.bearing_rear_w,
+            "motor_magnetising": params.motor_magnetising_w,
+            "motor_iron": params.motor_iron_w,
+            "rotor": params.rotor_w,
+        },
+        "capacity_j_per_k": dict(params.capacity),
+        "disp_gain_um_per_k": dict(params.disp_gain),
+        "sensors": [_sensor_truth(s) for s in params.sensors],
+        "training_speeds_rpm": speeds,
+        "days": [
+            {
+                "stem": d.stem,
+                "role": d.role,
+                "kind": d.kind,
+                "hours": round(sum(s.duration_s for s in d.schedule) / 3600.0, 3),
+                "speeds_rpm": [s.speed_rpm for s in d.schedule if s.speed_rpm > 0],
+                "room_c": round(d.ambient.base_c, 3),
+            }
+            for d in days
+        ],
+        "envelope": env,
+        "test_runs": test_runs,
+    }
+    return ForeignMachine(params.machine, foreign_config(names, speeds), logs, truth)
+
+
+def write_foreign(
+    seed: int, out_dir: str | os.PathLike, setup_drift: bool = False
+) -> tuple[ForeignMachine, list[Path]]:
+    """Write the foreign machine of ``seed`` as a project's data: its logs as native CSVs in
+    ``out_dir/raw/<name>/``, ``out_dir/config.yaml`` (that machine only) and
+    ``out_dir/truth.json``; returns the machine and the files written (logs first). Beside
+    ``Snakefile`` and ``workflow/`` (copied, or ``snakemake -s <Snakefile> -d out_dir``) the
+    folder is a project. ``setup_drift``: :func:`foreign_machine`."""
+    import yaml
+
+    from rafi.artefact import write_text_atomic
+    from rafi.readers.native import format_raw_log
+
+    machine = foreign_machine(seed, setup_drift=setup_drift)
+    out = Path(out_dir)
+    folder = out / "raw" / machine.name
+    folder.mkdir(parents=True, exist_ok=True)
+    sensors = machine.config["input"]["sensors"]
+    written = []
+    for stem, frame in machine.logs.items():
+        meta = {"machine": machine.name, "run_id": stem, "sample_period_s": f"{FOREIGN_SAMPLE_S:g}"}
+        path = folder / f"{stem}.csv"
+        decimals = {"disp_um": DISP_DECIMALS, **{s: TEMP_DECIMALS for s in sensors}}
+        write_text_atomic(path, format_raw_log(frame, meta, decimals=decimals))
+        written.append(path)
+    config = {"raw_dir": "raw", "results_dir": "results", "reports_dir": "reports", "defaults": {}}
+    config["machines"] = {machine.name: machine.config}
+    write_text_atomic(out / "config.yaml", yaml.safe_dump(config, sort_keys=False))
+    write_text_atomic(out / "truth.json", json.dumps(machine.truth, indent=1) + "\n")
+    return machine, [*written, out / "config.yaml", out / "truth.json"]

@@ -1,0 +1,71 @@
+"""The pure parts of benchmarks/bench_foreign.py: the seeds, a blend's errors on the test rows, the
+scores and the criterion's decision (the experiment itself is a benchmark)."""
+
+from __future__ import annotations
+
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+from bench_loader import load_bench
+
+
+@pytest.fixture(scope="module")
+def bench():
+    yield load_bench("bench_foreign")
+    for name in ("bench_foreign", "bench_selection_rules"):
+        sys.modules.pop(name, None)
+
+
+def test_seeds_are_a_count_a_range_or_a_list_and_print_as_ranges(bench):
+    assert bench.parse_seeds("3") == [0, 1, 2]
+    assert bench.parse_seeds("5-8") == [5, 6, 7, 8]
+    assert bench.parse_seeds("1,4,7") == [1, 4, 7]
+    assert bench.seeds_text([0, 1, 2, 5, 7, 8]) == "0-2, 5, 7-8"
+
+
+def _rows(measured: list, predictions: dict) -> pd.DataFrame:
+    """Test rows of one day: every kind's prediction per row."""
+    return pd.DataFrame(
+        [
+            {"model": k, "day": "d1", "run_id": "d1", "t_s": 60.0 * i, "measured_um": m, "predicted_um": p}
+            for k, preds in predictions.items()
+            for i, (m, p) in enumerate(zip(measured, preds))
+        ]
+    )
+
+
+def test_a_blend_is_the_weighted_mean_and_an_unpredicted_row_counts_uncompensated(bench):
+    rows = _rows([0.0, 2.0, 4.0, 6.0], {"a": [1.0, 3.0, 5.0, np.nan], "b": [-1.0, 1.0, 3.0, 6.0]})
+    both = bench.blend_errors(rows, {"a": 0.5, "b": 0.5})
+    assert both["error_um"].tolist() == pytest.approx([0.0, 0.0, 0.0, 6.0])  # row 4: a has none
+    only_b = bench.blend_errors(rows, {"a": 0.0, "b": 1.0})  # a weight of 0 is no input
+    assert only_b["error_um"].tolist() == pytest.approx([1.0, 1.0, 1.0, 0.0])
+    s = bench.scores_of(both)
+    assert s["mae"] == pytest.approx(1.5) and s["max"] == pytest.approx(6.0)
+    assert s["none_mae"] == pytest.approx(3.0) and s["days"]["d1"]["none_max"] == pytest.approx(6.0)
+
+
+def _row(rule: str, primary: float, guard: float, diff: float = 0.0, se: float = 0.0) -> dict:
+    return {"rule": rule, "primary": primary, "guard_share": guard, "vs_current": diff, "vs_current_se": se}
+
+
+def test_the_decision_guards_then_takes_the_lowest_primary_only_beyond_one_se(bench):
+    current = _row(bench.CURRENT, 1.30, 0.05)
+    rows = [
+        current,
+        _row("cv_weighted_ensemble", 1.10, 0.10, -0.20, 0.05),  # best primary, fails the guard
+        _row("ridge_floor", 1.20, 0.05, -0.10, 0.04),  # passes, better by more than one SE
+        _row("one_se_simplest", 1.25, 0.00, -0.05, 0.08),
+        _row("kind:temperature_ridge", 1.00, 0.00, -0.3, 0.01),  # a kind always offered: not a rule
+    ]
+    d = bench.decide(rows)
+    assert (
+        "cv_weighted_ensemble" not in d["passing_guard"]
+        and "kind:temperature_ridge" not in d["passing_guard"]
+    )
+    assert d["lowest_primary"] == "ridge_floor" and d["kept"] == "ridge_floor" and d["replaces_current"]
+    rows[2] = _row("ridge_floor", 1.20, 0.05, -0.10, 0.12)  # within one SE: the current rule stays
+    d = bench.decide(rows)
+    assert d["lowest_primary"] == "ridge_floor" and d["kept"] == bench.CURRENT and not d["replaces_current"]
