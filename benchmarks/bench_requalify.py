@@ -90,8 +90,12 @@ def fit_family(runs: RunSet, settings: dict, key_sensors, machine: str, kinds=No
 
 
 def every_candidate(result: dict) -> dict:
-    """Per candidate: its CV mean max |residual| (what chose) and its validation worst (um)."""
-    s = result["summary"].set_index("model")
+    """Per candidate: its CV mean max |residual| (what chose) and its validation worst (um).
+    The plain ridge scored as a reference only (``candidate`` false) is not a candidate."""
+    s = result["summary"]
+    if "candidate" in s:
+        s = s[s["candidate"].astype(bool)]
+    s = s.set_index("model")
     cv = s["cv_mean_max_abs_um"] if "cv_mean_max_abs_um" in s else s["max_abs_after_um"] * math.nan
     return {
         m: {"cv_mean_max_abs_um": float(cv[m]), "validation_um": float(s.loc[m, "max_abs_after_um"])}
