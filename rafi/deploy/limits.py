@@ -327,17 +327,17 @@ class SafeCompensator:
         """The session as JSON (:mod:`rafi.deploy.session`): the session's reference (or the
         rows of its window so far), the fault timer and the model's own state; times in the
         sample clock (``clock_s``: the last sample's)."""
-        from rafi.deploy.session import _json_number, _list, compensator_state
+        from rafi.deploy.session import compensator_state, json_list, json_number
 
         ref = self.reference_temperatures_
         return {
             "sensors": list(self.sensors_),
-            "clock_s": _json_number(self.compensator_.t_prev_s),
+            "clock_s": json_number(self.compensator_.t_prev_s),
             "reference": None
             if ref is None
-            else {"temperatures": _list(ref), "speed_rpm": _json_number(self.reference_speed_rpm_)},
-            "reference_rows": [[t, _json_number(n), _list(temps)] for t, n, temps in self._window_rows],
-            "fault_since_s": _json_number(self._bad_since),
+            else {"temperatures": json_list(ref), "speed_rpm": json_number(self.reference_speed_rpm_)},
+            "reference_rows": [[t, json_number(n), json_list(temps)] for t, n, temps in self._window_rows],
+            "fault_since_s": json_number(self._bad_since),
             "model": compensator_state(self.compensator_),
         }
 
@@ -353,7 +353,7 @@ class SafeCompensator:
         return self
 
     def _resume(self, t: float, temperatures) -> None:
-        from rafi.deploy.session import restore_compensator
+        from rafi.deploy.session import json_array, json_float, restore_compensator
 
         state, why, decide = self._offered
         self._offered = None
@@ -372,7 +372,7 @@ class SafeCompensator:
                 restore_compensator(comp, state["model"], shift)
                 how = "the model's reference and filters go on"
             elif ref is not None:
-                comp.set_reference(np.array(ref["temperatures"], dtype=float), float(ref["speed_rpm"]))
+                comp.set_reference(json_array(ref["temperatures"]), json_float(ref["speed_rpm"]))
                 how = f"model {comp.model_id[:12]} is new since: its filters start settled"
             else:
                 self.session_note_ = (
@@ -386,15 +386,12 @@ class SafeCompensator:
             self.session_note_ = f"reference captured anew: the stored session does not fit the model ({exc})"
             return
         if ref is not None:
-            self.reference_temperatures_ = np.array(
-                [np.nan if v is None else v for v in ref["temperatures"]], dtype=float
-            )
-            self.reference_speed_rpm_ = np.nan if ref["speed_rpm"] is None else float(ref["speed_rpm"])
+            self.reference_temperatures_ = json_array(ref["temperatures"])
+            self.reference_speed_rpm_ = json_float(ref["speed_rpm"])
         self._window_rows = [
-            (float(row[0]) + shift, np.nan if row[1] is None else float(row[1]),
-             np.array([np.nan if v is None else v for v in row[2]], dtype=float))
-            for row in state.get("reference_rows") or []
-        ]  # fmt: skip
+            (float(t) + shift, json_float(n), json_array(temps))
+            for t, n, temps in state.get("reference_rows") or []
+        ]
         since = state.get("fault_since_s")
         self._bad_since = None if since is None else float(since) + shift
         self.session_note_ = f"reference kept from {decision.reason}; {how}"

@@ -43,6 +43,10 @@ import numpy as np
 
 __all__ = [
     "SAVE_EVERY_S",
+    "json_array",
+    "json_float",
+    "json_list",
+    "json_number",
     "SCHEMA",
     "Decision",
     "SessionFile",
@@ -68,7 +72,7 @@ def session_path(results_dir, unit: str) -> Path:
 # --------------------------------------------------------------------------- JSON of arrays
 
 
-def _list(values) -> list | None:
+def json_list(values) -> list | None:
     """An array as JSON (NaN -> null); None stays None."""
     if values is None:
         return None
@@ -76,11 +80,11 @@ def _list(values) -> list | None:
     return (
         [None if not math.isfinite(v) else float(v) for v in array.ravel()]
         if array.ndim <= 1
-        else [_list(row) for row in array]
+        else [json_list(row) for row in array]
     )
 
 
-def _array(values) -> np.ndarray | None:
+def json_array(values) -> np.ndarray | None:
     """JSON (null -> NaN) as a float array; None stays None."""
     if values is None:
         return None
@@ -93,11 +97,11 @@ def _nan(values):
     return math.nan if values is None else float(values)
 
 
-def _number(value) -> float:
+def json_float(value) -> float:
     return math.nan if value is None else float(value)
 
 
-def _json_number(value) -> float | None:
+def json_number(value) -> float | None:
     return None if value is None or not math.isfinite(float(value)) else float(value)
 
 
@@ -112,24 +116,24 @@ def compensator_state(comp) -> dict:
     clock = getattr(comp.interval, "clock", None)
     return {
         "model_id": comp.model_id,
-        "t_prev_s": _json_number(comp.t_prev_s),
-        "ref_values": _list(comp.ref_values),
-        "ref_speed_rpm": _json_number(comp.ref_speed_rpm),
+        "t_prev_s": json_number(comp.t_prev_s),
+        "ref_values": json_list(comp.ref_values),
+        "ref_speed_rpm": json_number(comp.ref_speed_rpm),
         "window": None
         if window is None
         else {
-            "t0_s": _json_number(window.t0_s),
-            "values": [_list(v) for v in window.values],
-            "speeds": [_json_number(v) for v in window.speeds],
+            "t0_s": json_number(window.t0_s),
+            "values": [json_list(v) for v in window.values],
+            "speeds": [json_number(v) for v in window.speeds],
         },
         "banks": {
-            name: {"state": _list(bank.state), "seen": [bool(s) for s in bank.seen]}
+            name: {"state": json_list(bank.state), "seen": [bool(s) for s in bank.seen]}
             for name, bank in comp.banks.items()
         },
         "change_clock": None
         if clock is None
-        else {"t_reset_s": _json_number(clock.t_reset_s), "anchor_rpm": _json_number(clock.anchor_rpm)},
-        "since_change_s": _json_number(comp._since_change_s),
+        else {"t_reset_s": json_number(clock.t_reset_s), "anchor_rpm": json_number(clock.anchor_rpm)},
+        "since_change_s": json_number(comp._since_change_s),
         "reset_clock": bool(comp._reset_clock),
     }
 
@@ -152,15 +156,15 @@ def restore_compensator(comp, state: dict, shift_s: float) -> None:
         raise ValueError(f"the stored filters {sorted(banks)} are not the model's {sorted(comp.banks)}")
     restored = {}
     for name, bank in comp.banks.items():
-        values = _array(banks[name]["state"]).reshape(bank.state.shape)
+        values = json_array(banks[name]["state"]).reshape(bank.state.shape)
         seen = np.array(banks[name]["seen"], dtype=bool).reshape(bank.seen.shape)
         restored[name] = (values, seen)
     for name, (values, seen) in restored.items():
         comp.banks[name].state, comp.banks[name].seen = values, seen
-    t_prev = _number(state.get("t_prev_s"))
+    t_prev = json_float(state.get("t_prev_s"))
     comp.t_prev_s = None if math.isnan(t_prev) else t_prev + shift_s
-    comp.ref_values = _array(state.get("ref_values"))
-    comp.ref_speed_rpm = _number(state.get("ref_speed_rpm"))
+    comp.ref_values = json_array(state.get("ref_values"))
+    comp.ref_speed_rpm = json_float(state.get("ref_speed_rpm"))
     window = state.get("window")
     comp.window = (
         None
@@ -168,15 +172,15 @@ def restore_compensator(comp, state: dict, shift_s: float) -> None:
         else ReferenceWindow(
             window_s=comp.window_s,
             t0_s=None if window["t0_s"] is None else float(window["t0_s"]) + shift_s,
-            values=[_array(v) for v in window["values"]],
-            speeds=[_number(v) for v in window["speeds"]],
+            values=[json_array(v) for v in window["values"]],
+            speeds=[json_float(v) for v in window["speeds"]],
         )
     )
     clock = state.get("change_clock")
     if clock is not None and comp.interval is not None:
-        comp.interval.clock.t_reset_s = _number(clock["t_reset_s"]) + shift_s
-        comp.interval.clock.anchor_rpm = _number(clock["anchor_rpm"])
-    comp._since_change_s = _number(state.get("since_change_s"))
+        comp.interval.clock.t_reset_s = json_float(clock["t_reset_s"]) + shift_s
+        comp.interval.clock.anchor_rpm = json_float(clock["anchor_rpm"])
+    comp._since_change_s = json_float(state.get("since_change_s"))
     comp._reset_clock = bool(state.get("reset_clock"))
 
 
@@ -254,7 +258,7 @@ def decide(
     reference = (state.get("reference") or {}).get("temperatures")
     if temperatures is None or reference is None:
         return Decision(True, saved, gap)
-    ref = _array(reference)
+    ref = json_array(reference)
     temps = np.asarray(temperatures, dtype=float)
     rises = {
         name: float(temps[i] - ref[i])
