@@ -20,7 +20,15 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from rafi.deploy.compensator import Compensator
-from rafi.family.envelope import bound_features, envelope_bounds, fit_envelope, join_envelope
+from rafi.family.envelope import (
+    OUTPUT_MARGIN,
+    bound_features,
+    bound_output,
+    envelope_bounds,
+    fit_envelope,
+    join_envelope,
+    output_bounds,
+)
 from rafi.twin.synthetic_logs import schedule_log
 from rafi.twin.synthetic_runs import runs_of_logs, small_family_model
 
@@ -35,7 +43,7 @@ finite = st.floats(-1e3, 1e3, allow_nan=False)
     margin=st.floats(0, 3),
 )
 def test_inside_nothing_changes_outside_a_feature_sits_on_the_edge(train, test, margin):
-    env = fit_envelope(train, margin)
+    env = fit_envelope(train, margin=margin)
     lo, hi = envelope_bounds(env, train.shape[1])
     span = train.max(axis=0) - train.min(axis=0)
     np.testing.assert_allclose(lo, train.min(axis=0) - margin * span)
@@ -52,7 +60,7 @@ def test_inside_nothing_changes_outside_a_feature_sits_on_the_edge(train, test, 
 
 
 def test_nan_and_features_without_a_range_are_never_bounded():
-    env = fit_envelope(np.array([[1.0, np.nan], [3.0, np.nan]]), 1.0)
+    env = fit_envelope(np.array([[1.0, np.nan], [3.0, np.nan]]), margin=1.0)
     assert env["feature_ranges"] == [[1.0, 3.0], [None, None]]
     bounds = envelope_bounds(json.loads(json.dumps(env)), 2)
     bounded, outside = bound_features(np.array([[np.nan, 1e9], [9.0, -1e9]]), bounds)
@@ -64,10 +72,37 @@ def test_nan_and_features_without_a_range_are_never_bounded():
 
 
 def test_an_adapted_model_stands_on_the_prior_envelope_and_its_new_data():
-    prior = fit_envelope(np.array([[0.0, 5.0], [2.0, 6.0]]), 1.0)
+    prior = fit_envelope(np.array([[0.0, 5.0], [2.0, 6.0]]), margin=1.0)
     joined = join_envelope(prior, np.array([[-1.0, 5.5], [1.0, 9.0]]))
     assert joined == {"margin": 1.0, "feature_ranges": [[-1.0, 2.0], [5.0, 9.0]]}
     assert join_envelope(None, np.array([[1.0]]))["feature_ranges"] == [[1.0, 1.0]]
+    with_output = fit_envelope(np.array([[0.0], [2.0]]), np.array([1.0, 4.0]))
+    joined = join_envelope(with_output, np.array([[3.0]]), np.array([-2.0]))
+    assert joined["output_range"] == [-2.0, 4.0] and joined["output_margin"] == OUTPUT_MARGIN
+    # a prior fitted before the output bound: the adapted model's range is its new data's
+    assert join_envelope(prior, np.array([[1.0, 5.0]]), np.array([2.0, 3.0]))["output_range"] == [2.0, 3.0]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    target=arrays(float, st.integers(2, 30), elements=finite),
+    predicted=arrays(float, st.integers(1, 10), elements=st.floats(-1e5, 1e5, allow_nan=False)),
+)
+def test_a_prediction_is_held_inside_the_training_range_widened_by_the_output_margin(target, predicted):
+    env = json.loads(json.dumps(fit_envelope(np.zeros((len(target), 1)), target)))
+    lo, hi = output_bounds(env)
+    span = target.max() - target.min()
+    np.testing.assert_allclose(
+        [lo, hi], [target.min() - OUTPUT_MARGIN * span, target.max() + OUTPUT_MARGIN * span]
+    )
+    held, outside = bound_output(predicted, (lo, hi))
+    inside = (predicted >= lo) & (predicted <= hi)
+    np.testing.assert_array_equal(outside, ~inside)
+    np.testing.assert_array_equal(held[inside], predicted[inside])
+    np.testing.assert_array_equal(held[~inside], np.where(predicted < lo, lo, hi)[~inside])
+    assert not bound_output(target, (lo, hi))[1].any()  # the training targets are inside
+    assert output_bounds({"margin": 1.0, "feature_ranges": []}) is None  # fitted before the bound
+    assert bound_output(np.array([np.nan]), (lo, hi))[1].tolist() == [False]
 
 
 @pytest.fixture(scope="module")
@@ -119,3 +154,42 @@ def test_outside_the_envelope_a_model_is_better_than_no_compensation(hotter_than
     np.testing.assert_array_equal(streamed[after], detail["outside_envelope"].to_numpy()[after])
     got = np.array([s.compensation_um for s in steps])
     np.testing.assert_allclose(got[after], detail["predicted_um"].to_numpy()[after], rtol=0, atol=1e-9)
+
+
+def _streamed(model, test):
+    comp = Compensator.from_artefact(json.loads(json.dumps(model.to_dict())))
+    sensors = [c for c in test.columns if c.startswith("T") and c[1:].isdigit()]
+    cols = (test["log_t_s"].to_numpy(), test["speed_rpm"].to_numpy(), test[sensors].to_numpy(dtype=float))
+    return [comp.step(t, n, row) for t, n, row in zip(*cols)]
+
+
+@pytest.mark.parametrize("kind", ["dynamic", "temperature_ridge"])
+def test_a_runaway_is_capped_at_the_output_bound_in_batch_and_stream(hotter_than_ever, kind):
+    """A fit gone wrong (its coefficients 40 x what the data gave, as a near-singular fit at the
+    grid's edge can make them) predicts far beyond anything trained: the prediction is held at the
+    training displacement range widened by the output margin, the same in the compensator."""
+    table, frame = hotter_than_ever
+    model = small_family_model(
+        kind, reference_rule="run_start", reference_window_s=60, filter_restart_gap_s=3600
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model.fit(table, frame)
+    model.coef_ = model.coef_ * 40.0
+    test = frame[frame["log"] == "test.csv"]
+    detail = model.predict_detail(test)
+    training = frame[frame["run_id"].isin(table.loc[table["role"] == "training", "run_id"])]
+    y = training["dz_um"].to_numpy(dtype=float)
+    lo, hi = y.min() - OUTPUT_MARGIN * np.ptp(y), y.max() + OUTPUT_MARGIN * np.ptp(y)
+    pred, free = detail["predicted_um"].to_numpy(), detail["unbounded_um"].to_numpy()
+    ok = np.isfinite(pred)
+    assert (np.abs(free[ok]) > hi).mean() > 0.5  # it does run away
+    assert pred[ok].min() >= lo - 1e-9 and pred[ok].max() <= hi + 1e-9
+    assert np.isclose(pred[ok].max(), hi) or np.isclose(pred[ok].min(), lo)
+    assert detail["outside_envelope"].to_numpy()[np.abs(free - pred) > 1e-9].all()
+    steps = _streamed(model, test)
+    after = test["log_t_s"].to_numpy() >= test["log_t_s"].min() + 60.0
+    got = np.array([s.compensation_um for s in steps])
+    np.testing.assert_allclose(got[after], pred[after], rtol=0, atol=1e-9)
+    streamed = np.array([s.outside_envelope for s in steps])
+    np.testing.assert_array_equal(streamed[after], detail["outside_envelope"].to_numpy()[after])

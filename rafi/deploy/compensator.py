@@ -30,8 +30,9 @@ What it does per sample
    the reference state). :meth:`Compensator.set_reference` gives a reference instead (see there).
 3. **Evaluation.** The features and the model's own formula: the fuzzy blend of per-speed
    polynomials for ``rafi`` / ``rafi_linear`` (:func:`rafi.method.fuzzy.triangular_weights`),
-   ``features . coefficients`` for the ridge kinds, the features held inside the artefact's
-   training envelope (:mod:`rafi.family.envelope`; ``Step.outside_envelope`` says where); the
+   ``features . coefficients`` for the ridge kinds, the features and the prediction held inside
+   the artefact's training envelope (:mod:`rafi.family.envelope`; ``Step.outside_envelope`` says
+   where); the
    out-of-range flags of the batch ``predict_detail``.
 
 Equality with the batch prediction, and the exact differences
@@ -95,7 +96,7 @@ from rafi.contract import MODEL_KINDS
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
 from rafi.deploy.streaming import LowpassBank, ReferenceWindow
-from rafi.family.envelope import bound_features, envelope_bounds
+from rafi.family.envelope import bound_features, bound_output, envelope_bounds, output_bounds
 from rafi.method.fuzzy import triangular_weights
 
 __all__ = ["KINDS", "STATUSES", "Compensator", "Step", "parse_exponents"]
@@ -251,6 +252,7 @@ class Compensator:
         output_rule: Callable | None = None,
         interval: StreamInterval | None = None,
         envelope: tuple | None = None,
+        output_bounds: tuple | None = None,
     ):
         self.kind = kind
         self.model_id = model_id
@@ -277,6 +279,7 @@ class Compensator:
         self.window = window  # the reference window being captured (None: a reference in force)
         self.interval = interval
         self.envelope = envelope
+        self.output_bounds = output_bounds
         self._outside_envelope = False
         self._since_change_s = float("nan")
         self._reset_clock = False  # the next sample starts a reference window: reset the clock
@@ -408,6 +411,7 @@ class Compensator:
             speed_range_rpm=tuple(float(v) for v in d["speed_range_rpm"]),
             banks=banks,
             envelope=envelope_bounds(d.get("envelope"), len(names)),
+            output_bounds=output_bounds(d.get("envelope")),
         )
 
     # ------------------------------------------------------------------ reference
@@ -560,8 +564,9 @@ class Compensator:
         if self.draw_in_lag_s is not None:
             parts.append(np.array([draw - (self.ref_speed_rpm / SPEED_SCALE_RPM) ** 2]))
         bounded, beyond = bound_features(np.concatenate(parts), self.envelope)  # rafi.family.envelope
-        self._outside_envelope = bool(beyond)
-        pred = float(bounded @ self.coef)
+        pred, beyond_output = bound_output(bounded @ self.coef, self.output_bounds)
+        self._outside_envelope = bool(beyond or beyond_output)
+        pred = float(pred)
         lo, hi = self.ranges[:, 0], self.ranges[:, 1]
         out_temp = bool(((rises < lo) | (rises > hi)).any())
         out_speed = bool(rpm < self.speed_range_rpm[0] or rpm > self.speed_range_rpm[1])

@@ -260,7 +260,9 @@ class AdaptedPrior(FamilyModel):
             model.n_ = int(len(residual))
             model.cv_table_ = cv_table
             model.regressor_ranges_, model.speed_range_rpm_ = _joined_ranges(model, table, train)
-            model.envelope_ = join_envelope(getattr(model, "envelope_", None), model._design(train)[0])
+            target = train["dz_um"].to_numpy(dtype=float)
+            prior_envelope = getattr(model, "envelope_", None)
+            model.envelope_ = join_envelope(prior_envelope, model._design(train)[0], target)
         else:  # RafiModel: the per-speed records stay the prior's; the data are the new ones
             model.data = data
             model.created = now_iso()

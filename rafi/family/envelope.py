@@ -6,8 +6,16 @@ training temperatures, where no compensation was 23 um (issue 46). So every ridg
 its fit, the range of each of its features over the training rows (a rise, a filtered rise, a
 speed term, a heat input), and predicts from the features *bounded* to that range widened by
 :data:`ENVELOPE_MARGIN` of its span on each side: inside the envelope nothing changes, outside it
-the model holds the value it has at the envelope's edge instead of extrapolating freely. The
-artefact carries the envelope (``envelope``: ``margin`` and ``feature_ranges``), so the streaming
+the model holds the value it has at the envelope's edge instead of extrapolating freely.
+
+A box per feature cannot catch a combination of in-range features the fit never saw (on the
+turning centre, features held exactly inside their training range still gave 172 um), so the
+prediction itself is also held inside the training displacement range (``output_range``) widened
+by :data:`OUTPUT_MARGIN` of its span on each side: a cap on the worst case, chosen one level up
+(``benchmarks/bench_envelope.py``) as the widest margin that costs nothing measurable.
+
+The artefact carries the envelope (``envelope``: ``margin``, ``feature_ranges`` and, from
+2026-11-29, ``output_margin`` and ``output_range``), so the streaming
 compensator bounds exactly as the batch code does (:mod:`rafi.deploy.compensator`); an artefact
 without it is evaluated unbounded, as it was fitted.
 
@@ -18,7 +26,16 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["ENVELOPE_MARGIN", "bound_features", "envelope_bounds", "fit_envelope", "join_envelope"]
+__all__ = [
+    "ENVELOPE_MARGIN",
+    "OUTPUT_MARGIN",
+    "bound_features",
+    "bound_output",
+    "envelope_bounds",
+    "fit_envelope",
+    "join_envelope",
+    "output_bounds",
+]
 
 #: The share of a feature's training span the envelope extends beyond it on each side. One span:
 #: on the twin's linear physics a test at 1.5 x the highest trained speed loses 0.03 um against the
@@ -26,32 +43,59 @@ __all__ = ["ENVELOPE_MARGIN", "bound_features", "envelope_bounds", "fit_envelope
 #: features leave their training range far (a runaway) is held at most one span beyond it.
 ENVELOPE_MARGIN = 1.0
 
+#: The share of the training displacement span the prediction may go beyond it on each side.
+#: Judged one level up (2026-11-29, ``benchmarks/bench_envelope.py``: whole-run CV of the training
+#: runs of 6 real logs and 22 foreign machines, and the foreign machines' test days): 2, 1 and 0.5
+#: spans cost nothing measurable (mean ratio to the free prediction 1.0000, 1.0000, 1.0001), a
+#: quarter of a span already 7 % (the foreign machines' physics does extrapolate); by the criterion
+#: written before the run the widest of those.
+OUTPUT_MARGIN = 2.0
 
-def fit_envelope(features: np.ndarray, margin: float = ENVELOPE_MARGIN) -> dict:
-    """The envelope of training ``features`` (rows x features) as the artefact records it.
+
+def _range(values: np.ndarray) -> list:
+    finite = values[np.isfinite(values)]
+    return [float(finite.min()), float(finite.max())] if finite.size else [None, None]
+
+
+def _join(a: list, b: list) -> list:
+    lows = [v for v in (a[0], b[0]) if v is not None]
+    highs = [v for v in (a[1], b[1]) if v is not None]
+    return [min(lows) if lows else None, max(highs) if highs else None]
+
+
+def fit_envelope(
+    features: np.ndarray, target: np.ndarray | None = None, margin: float = ENVELOPE_MARGIN
+) -> dict:
+    """The envelope of training ``features`` (rows x features) and, given, of the training
+    ``target`` (the displacement) as the artefact records it.
 
     A feature without a finite training value gets ``[null, null]`` (never bounded).
     """
     x = np.asarray(features, dtype=float)
-    ranges = []
-    for column in x.T:
-        finite = column[np.isfinite(column)]
-        ranges.append([float(finite.min()), float(finite.max())] if finite.size else [None, None])
-    return {"margin": float(margin), "feature_ranges": ranges}
+    env = {"margin": float(margin), "feature_ranges": [_range(column) for column in x.T]}
+    if target is not None:
+        env["output_margin"] = OUTPUT_MARGIN
+        env["output_range"] = _range(np.asarray(target, dtype=float))
+    return env
 
 
-def join_envelope(envelope: dict | None, features: np.ndarray) -> dict:
-    """``envelope`` (a prior's) joined with the range of new training ``features``: an adapted
-    model stands on both (:mod:`rafi.family.adapted`). Without a prior envelope: the new one."""
-    new = fit_envelope(features, ENVELOPE_MARGIN if not envelope else float(envelope["margin"]))
+def join_envelope(envelope: dict | None, features: np.ndarray, target: np.ndarray | None = None) -> dict:
+    """``envelope`` (a prior's) joined with the range of new training ``features`` and ``target``:
+    an adapted model stands on both (:mod:`rafi.family.adapted`). Without a prior envelope: the
+    new one."""
+    margin = ENVELOPE_MARGIN if not envelope else float(envelope["margin"])
+    new = fit_envelope(features, target, margin)
     if not envelope or len(envelope["feature_ranges"]) != len(new["feature_ranges"]):
         return new
-    joined = []
-    for (a, b), (c, d) in zip(envelope["feature_ranges"], new["feature_ranges"]):
-        lows = [v for v in (a, c) if v is not None]
-        highs = [v for v in (b, d) if v is not None]
-        joined.append([min(lows) if lows else None, max(highs) if highs else None])
-    return {"margin": new["margin"], "feature_ranges": joined}
+    joined = {
+        "margin": new["margin"],
+        "feature_ranges": [_join(a, b) for a, b in zip(envelope["feature_ranges"], new["feature_ranges"])],
+    }
+    if "output_range" in new:
+        prior = envelope.get("output_range", [None, None])
+        joined["output_margin"] = float(envelope.get("output_margin", OUTPUT_MARGIN))
+        joined["output_range"] = _join(prior, new["output_range"])
+    return joined
 
 
 def envelope_bounds(envelope: dict | None, n_features: int) -> tuple[np.ndarray, np.ndarray] | None:
@@ -85,3 +129,26 @@ def bound_features(features: np.ndarray, bounds) -> tuple[np.ndarray, np.ndarray
     with np.errstate(invalid="ignore"):
         outside = ((x < lo) | (x > hi)).any(axis=-1)
     return np.clip(x, lo, hi), outside
+
+
+def output_bounds(envelope: dict | None) -> tuple[float, float] | None:
+    """``(low, high)`` of a prediction: the training displacement range widened by the output
+    margin; None without one (an artefact fitted before it, or no finite training target)."""
+    rng = (envelope or {}).get("output_range")
+    if not rng or rng[0] is None or rng[1] is None:
+        return None
+    lo, hi = float(rng[0]), float(rng[1])
+    pad = float(envelope.get("output_margin", OUTPUT_MARGIN)) * (hi - lo)
+    return lo - pad, hi + pad
+
+
+def bound_output(predicted, bounds) -> tuple[np.ndarray, np.ndarray]:
+    """``predicted`` held inside ``bounds`` (:func:`output_bounds`) and whether it was outside
+    (NaN stays NaN and is never outside). Without bounds: unchanged."""
+    p = np.asarray(predicted, dtype=float)
+    if bounds is None:
+        return p, np.zeros(p.shape, dtype=bool)
+    lo, hi = bounds
+    with np.errstate(invalid="ignore"):
+        outside = (p < lo) | (p > hi)
+    return np.clip(p, lo, hi), outside

@@ -12,7 +12,7 @@ import pandas as pd
 
 from rafi.family.base import CODE_VERSION, FamilyModel, check_artefact, data_hashes, finish_artefact, floats
 from rafi.family.crossval import split_runs, training_mask, training_runs
-from rafi.family.envelope import bound_features, envelope_bounds, fit_envelope
+from rafi.family.envelope import bound_features, bound_output, envelope_bounds, fit_envelope, output_bounds
 from rafi.family.feature_memo import active_memo
 from rafi.family.features import (
     MIN_IDENTIFYING_RUNS,
@@ -367,7 +367,7 @@ class RidgeBase(FamilyModel):
             s: [float(x[:, i].min()), float(x[:, i].max())] for i, s in enumerate(sensors)
         }
         self.speed_range_rpm_ = [float(table["speed_rpm"].min()), float(table["speed_rpm"].max())]
-        self.envelope_ = fit_envelope(feats)
+        self.envelope_ = fit_envelope(feats, y)
         self.rmse_um_ = float(np.sqrt(np.mean((y - feats @ self.coef_) ** 2)))
         self.n_ = int(len(y))
         self.cv_table_ = cv_table
@@ -395,13 +395,15 @@ class RidgeBase(FamilyModel):
     def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
         """``predicted_um`` and the out-of-range flags per row of ``frame`` (same index).
 
-        The prediction is from the features bounded to the training envelope
-        (:mod:`rafi.family.envelope`); ``unbounded_um`` is the free extrapolation and
-        ``outside_envelope`` marks the rows where a feature was bounded."""
+        The prediction is from the features bounded to the training envelope and is itself held
+        inside the training displacement range widened by its margin (:mod:`rafi.family.envelope`);
+        ``unbounded_um`` is the free extrapolation and ``outside_envelope`` marks the rows where a
+        feature or the prediction was bounded."""
         feats = self._design_of(frame)
-        bounds = envelope_bounds(getattr(self, "envelope_", None), feats.shape[1])
-        bounded, beyond = bound_features(feats, bounds)
-        pred = bounded @ self.coef_
+        envelope = getattr(self, "envelope_", None)
+        bounded, beyond = bound_features(feats, envelope_bounds(envelope, feats.shape[1]))
+        pred, beyond_output = bound_output(bounded @ self.coef_, output_bounds(envelope))
+        beyond = beyond | beyond_output
         x = frame[[rise_column(s) for s in self.sensors_]].to_numpy(dtype=float)
         lo = np.array([self.regressor_ranges_[s][0] for s in self.sensors_])
         hi = np.array([self.regressor_ranges_[s][1] for s in self.sensors_])
