@@ -32,6 +32,7 @@ from rafi.contract import (
     RUN_SETTINGS,
     config_schema,
     defaults,
+    retired_setting,
 )
 from rafi.errors import InputSpecError, SettingsError
 from rafi.readers.input_assumed import check_period
@@ -111,11 +112,15 @@ def validate_config(config: Mapping) -> None:
     Raises
     ------
     SettingsError
-        Naming the first key the schema refuses (``machines.m.deploy.hold_s``) and why.
+        Naming the first key the schema refuses (``machines.m.deploy.hold_s``) and why; a
+        retired key (:data:`rafi.contract.RETIRED_SETTINGS`) with what replaced it.
     """
     import jsonschema
 
     check_layout(config)  # a misplaced section: say where it belongs, not only that it is unexpected
+    retired = retired_setting(config)  # a removed key: say what replaced it
+    if retired:
+        raise SettingsError(retired)
     validator = jsonschema.Draft202012Validator(config_schema())
     # the most specific error (best_match descends into anyOf/oneOf: machines.<name> is one)
     first = jsonschema.exceptions.best_match(validator.iter_errors(dict(config)))

@@ -43,12 +43,10 @@ REPORT = {"z": np.int64(3), "um": "\u00b5m", "x": [0.5]}
 @pytest.mark.parametrize(
     ("options", "expected"),
     [
-        # bench_selection_rules, bench_forward_folds: the defaults
+        # bench_selection_rules, bench_foreign, bench_plain_ridge: the defaults
         ({}, '{\n  "z": "3",\n  "um": "\\u00b5m",\n  "x": [\n    0.5\n  ]\n}'),
         # bench_realdata, bench_learning_curve
         ({"ensure_ascii": False}, '{\n  "z": "3",\n  "um": "\u00b5m",\n  "x": [\n    0.5\n  ]\n}'),
-        # bench_intervals
-        ({"indent": 1}, '{\n "z": "3",\n "um": "\\u00b5m",\n "x": [\n  0.5\n ]\n}'),
         # bench_pipeline, bench_fleet
         ({"final_newline": True}, '{\n  "z": "3",\n  "um": "\\u00b5m",\n  "x": [\n    0.5\n  ]\n}\n'),
         # bench_requalify

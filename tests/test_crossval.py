@@ -159,9 +159,7 @@ def _golden_models(table, frame):
         "rafi_linear": RafiLinear(key_sensors=key).fit(table, frame),
         "ridge_global": RidgeGlobal().fit(table, frame),
         "dynamic": DynamicRidge(taus_s=[0, 600, 1200, 2400], max_taus=1).fit(table, frame),
-        "grey_box": GreyBox(taus_s=[0, 600, 1200], speed_taus_s=[120, 600, 2400], max_speed_taus=1).fit(
-            table, frame
-        ),
+        "grey_box": GreyBox(taus_s=[0, 600, 1200], speed_taus_s=[120, 600, 2400]).fit(table, frame),
     }
 
 

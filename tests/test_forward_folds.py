@@ -182,7 +182,7 @@ def _family(table, frame, **changes):
     return selection_family(table, frame, enabled=["ridge_global", "rafi_linear"], **changes)
 
 
-def test_run_family_scores_forward_folds_and_calibrates_on_them_when_asked():
+def test_run_family_scores_forward_folds_and_calibrates_on_the_whole_run_units():
     table, frame = _continuous_log()
     res = _family(table, frame)
     cv = res["cv"]
@@ -191,18 +191,10 @@ def test_run_family_scores_forward_folds_and_calibrates_on_them_when_asked():
     for name, g in cv.loc[cv["scheme"] == "forward_2"].groupby("model"):
         assert sel.loc[name, "cv_forward_mean_max_abs_um"] == pytest.approx(g["max_abs_after_um"].mean())
     assert res["champion"] == sel["selection_score_um"].idxmin()
-    # by default the intervals calibrate on the whole-run units alone
+    # the intervals calibrate on the whole-run units alone
     block = res["models"][res["champion"]].to_dict()["interval"]["calibration"]
     assert block["scheme"] == "leave_one_run_out"
     assert block["n_runs"] == 6
-    both = _family(table, frame, interval_forward_units=True)
-    assert both["cv"].equals(cv) and both["champion"] == res["champion"]
-    block = both["models"][res["champion"]].to_dict()["interval"]["calibration"]
-    assert block["scheme"] == "leave_one_run_out+forward_2"
-    assert block["n_runs"] == 6 + 4  # six whole-run units, two forward folds of two runs
-
-    # by default the kinds choose their own hyperparameters on the whole-run folds alone
-    assert "cv_forward_folds" not in res["models"]["ridge_global"].to_dict()["selected"]
 
     off = _family(table, frame, cv_forward_runs=0)
     assert set(off["cv"]["scheme"]) == {"leave_one_run_out"}
@@ -222,44 +214,11 @@ def test_separate_files_get_no_forward_folds():
     assert set(_family(table, frame)["cv"]["scheme"]) == {"leave_one_run_out"}
 
 
-def test_hyperparameter_score_is_the_mean_of_the_whole_run_and_forward_scores():
-    from rafi.family.ridge import cv_folds, cv_scores
-
-    table, _ = _continuous_log()
-    train = table.loc[table["role"] == "training"]
-    rng = np.random.default_rng(3)
-    run_ids = np.repeat(train["run_id"].astype(str).to_numpy(), 40)
-    x = rng.normal(size=(len(run_ids), 3))
-    y = x @ np.array([1.0, -2.0, 0.5]) + rng.normal(scale=0.3, size=len(run_ids))
-    cols, alphas = np.arange(3), [1e-3, 1.0, 1e3]
-    whole = cv_folds(x, y, run_ids, table, "leave_one_run_out")
-    both = cv_folds(x, y, run_ids, table, "leave_one_run_out", forward="forward_2")
-    ahead = [f for f in both if f["scheme"] == 1]
-    assert len(whole) == 6 and len(ahead) == 2 and all(f["scheme"] == 0 for f in whole)
-    for metric in ("rmse", "max_abs"):
-        alone = cv_scores(whole, cols, alphas, metric)
-        expected = (alone + cv_scores(ahead, cols, alphas, metric)) / 2
-        np.testing.assert_allclose(cv_scores(both, cols, alphas, metric), expected, rtol=1e-12)
-        # the whole-run folds beside the forward ones are the whole-run folds alone
-        np.testing.assert_array_equal(
-            cv_scores([f for f in both if f["scheme"] == 0], cols, alphas, metric), alone
-        )
-
-
-def test_ridge_kinds_can_choose_their_hyperparameters_on_the_forward_folds_too():
+def test_ridge_kinds_choose_their_hyperparameters_on_the_whole_run_folds():
+    # the forward folds score the selection; a kind's own CV table is that of its whole-run folds
     table, frame = _continuous_log()
-    on = _family(table, frame, cv_forward_hyperparameters=True)
-    fitted = on["models"]["ridge_global"].to_dict()
-    assert fitted["selected"]["cv_forward_folds"] == 2
-    assert fitted["hyperparameters"]["forward_hyperparameters"] is True
-    # the kinds' CV tables record the combined score: each candidate's score is the mean of its
-    # whole-run and forward scores, so they differ from the whole-run-only fit's
-    off = _family(table, frame)["models"]["ridge_global"].to_dict()
-    assert [r["score_um"] for r in fitted["cv"]] != [r["score_um"] for r in off["cv"]]
-    # a kind without hyperparameter CV is untouched
-    base = _family(table, frame)["cv"]
-    linear = on["cv"].loc[on["cv"]["model"] == "rafi_linear"].reset_index(drop=True)
-    assert linear.equals(base.loc[base["model"] == "rafi_linear"].reset_index(drop=True))
-    # the artefact round-trips
-    again = type(on["models"]["ridge_global"]).from_dict(fitted)
-    assert again.forward_hyperparameters is True and again.cv_forward_folds_ == 2
+    res = _family(table, frame)
+    off = _family(table, frame, cv_forward_runs=0)
+    fitted, alone = res["models"]["ridge_global"].to_dict(), off["models"]["ridge_global"].to_dict()
+    assert fitted["cv"] == alone["cv"] and fitted["selected"]["alpha"] == alone["selected"]["alpha"]
+    assert "cv_forward_folds" not in fitted["selected"]

@@ -160,16 +160,13 @@ def test_the_min_coverage_gate():
     assert MACHINE_DEFAULTS["qualification"]["min_coverage"] is None
 
 
-def test_calibration_units_leave_out_the_forward_units_unless_asked():
+def test_calibration_units_leave_out_the_forward_units():
     oof = pd.DataFrame(
         {
             "unit": ["log#1", "f0:log#3", "f1:log#3", "log#3", "log#2@block1"],
             "residual_um": [1.0, 2.0, 3.0, 4.0, 5.0],
         }
     )
-    cv = pd.DataFrame({"scheme": ["leave_one_run_out", "forward_2"]})
-    samples, scheme = calibration_units(oof, cv, "leave_one_run_out", {"interval_forward_units": False})
+    samples, scheme = calibration_units(oof, "leave_one_run_out")
     assert list(samples["unit"]) == ["log#1", "log#3", "log#2@block1"] and scheme == "leave_one_run_out"
-    samples, scheme = calibration_units(oof, cv, "leave_one_run_out", {"interval_forward_units": True})
-    assert samples is oof and scheme == "leave_one_run_out+forward_2"
-    assert calibration_units(oof.iloc[:0], cv.iloc[:0], "time_blocks", OPTIONS)[1] == "time_blocks"
+    assert calibration_units(oof.iloc[:0], "time_blocks")[1] == "time_blocks"

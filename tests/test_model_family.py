@@ -12,6 +12,7 @@ import pandas as pd
 import pytest
 
 from rafi.artefact import compute_model_id
+from rafi.family.base import finish_artefact
 from rafi.family.compare import load_any, make_model, save_any
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.features import (
@@ -24,7 +25,6 @@ from rafi.family.features import (
     usable_sensors,
 )
 from rafi.family.grey_box import GreyBox
-from rafi.family.grids import resolve
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
 from rafi.family.ridge_global import RidgeGlobal
@@ -58,9 +58,9 @@ def fitted(data):
             "rafi_linear": RafiLinear(key_sensors=KEY).fit(table, frame),
             "ridge_global": RidgeGlobal(alphas=[1e-4, 1e-2, 1.0]).fit(table, frame),
             "dynamic": DynamicRidge(taus_s=[0, 600, 2400], max_taus=2, alphas=[1e-4, 1e-2]).fit(table, frame),
-            "grey_box": GreyBox(
-                taus_s=[0, 600], speed_taus_s=[120, 600], max_speed_taus=1, alphas=[1e-4, 1e-2]
-            ).fit(table, frame),
+            "grey_box": GreyBox(taus_s=[0, 600], speed_taus_s=[120, 600], alphas=[1e-4, 1e-2]).fit(
+                table, frame
+            ),
             "temperature_ridge": TemperatureRidge(taus_s=[0, 600, 2400], alphas=[1e-4, 1e-2]).fit(
                 table, frame
             ),
@@ -184,14 +184,13 @@ def test_grey_box_recovers_rise_lag_speed_power_filter_and_centrifugal_term():
     # dz = sum_i g_i L_1800(dT_i) + 4 um * L_300((n/1e4)^(5/3)) (an unmeasured fast part: no
     # sensor sees it) - 0.02 um/krpm^2 (n^2 - n0^2); every run starts 120 s at rest
     table, frame = _shaft_data()
+    # the truth's filter constants as the grids (every filter enters at once): CV keeps the
+    # heat-input block and the draw-in term, and the fit recovers their coefficients
     gb = GreyBox(
-        taus_s=[0, 600, 1800, 4800],
-        max_taus=1,
-        speed_taus_s=[60, 300, 1200, 3600],
-        max_speed_taus=1,
+        taus_s=[1800],
+        speed_taus_s=[300],
         speed_powers=[5 / 3],
         cv_metric="max_abs",
-        filter_search="subsets",
         centrifugal_lags_s=[0, 20],
     ).fit(table, frame)
     assert gb.taus_ == [1800.0] and gb.speed_taus_ == [300.0]
@@ -263,7 +262,7 @@ def test_grey_box_recovers_the_draw_in_lag_and_fits_every_filter_at_once():
     gb = GreyBox(
         taus_s=[0, 600], speed_taus_s=[120, 300, 1200], speed_powers=[5 / 3], centrifugal_lags_s=[0, 10, 60]
     ).fit(table, frame)
-    assert gb.filter_search == "all"
+    assert gb.to_dict()["hyperparameters"]["filter_search"] == "all"
     assert gb.centrifugal_lag_s_ == 10.0
     assert gb.taus_ == [0.0, 600.0] and gb.speed_taus_ == [120.0, 300.0, 1200.0]
     assert "L10s(n2_krpm2)" in gb.feature_names_
@@ -287,50 +286,20 @@ def test_grey_box_all_mode_may_leave_the_heat_input_terms_out():
     assert gb.speed_taus_ == list(best[0])
 
 
-@pytest.mark.parametrize("search", ["all", "subsets"])
-def test_grey_box_heat_input_always_keeps_the_heat_input_terms(search):
-    # the data where CV may drop them (above): under `always` no candidate is without them
+def test_grey_box_artefacts_keep_the_record_of_the_filter_search():
+    # the subset search and the opt-ins were retired (issue 49); the artefact records the filter
+    # search as before, so a grey_box's artefact and model id are unchanged
     table, _, spinning = _spinning(seed=6)
-    kw = {"taus_s": [0], "speed_taus_s": [300, 1200], "alphas": [1e-6, 1e-3], "filter_search": search}
-    gb = GreyBox(**kw, heat_input="always").fit(table, spinning)
-    assert {tuple(r["speed_taus_s"]) for r in gb.cv_table_} == (
-        {(300.0, 1200.0)} if search == "all" else {(300.0,), (1200.0,), (300.0, 1200.0)}
-    )
-    assert gb.speed_taus_ and gb.feature_names_[-1].startswith("L")
-    # the artefact records the setting and gives the same model back; the default records nothing
+    gb = GreyBox(taus_s=[0], speed_taus_s=[300, 1200], alphas=[1e-6, 1e-3]).fit(table, spinning)
     art = json.loads(json.dumps(gb.to_dict()))
-    assert art["hyperparameters"]["heat_input"] == "always"
-    again = load_any(art)
-    assert again.heat_input == "always"
-    np.testing.assert_array_equal(again.predict(spinning), gb.predict(spinning))
-    plain = GreyBox(**kw).fit(table, spinning).to_dict()["hyperparameters"]
-    assert "heat_input" not in plain and "slow_rises" not in plain
-
-
-def test_grey_box_slow_rises_reach_the_run_length():
-    # the auto rule: 0 and 24 P .. L/24 (ratio 5), or under slow_rises 24 P .. L
-    assert resolve("grey_box_taus_s", "auto", 15.0, 14400.0) == [0.0, 360.0]
-    slow = resolve("grey_box_taus_s", "auto", 15.0, 14400.0, "grey_box_slow_taus_s")
-    assert slow == [0.0, 360.0, 1800.0, 9000.0]
-    table, frame = make_synthetic_runs(seed=3, sample_s=60.0, n_sensors=2, noise_um=0.02)
-    fast, slow = (
-        GreyBox(speed_taus_s=[300], alphas=[1e-3], slow_rises=flag).fit(table, frame)
-        for flag in (False, True)
-    )
-    period, run_s = slow.data_scales_["sample_period_s"], slow.data_scales_["run_length_s"]
-    assert slow.grids_["grey_box_taus_s"] == resolve(
-        "grey_box_taus_s", "auto", period, run_s, "grey_box_slow_taus_s"
-    )
-    assert fast.grids_["grey_box_taus_s"] == resolve("grey_box_taus_s", "auto", period, run_s)
-    assert max(fast.grids_["grey_box_taus_s"]) < run_s / 5 < max(slow.grids_["grey_box_taus_s"]) <= run_s
-    assert slow.taus_ == slow.grids_["grey_box_taus_s"]  # filter_search all: every one in the model
-    assert slow.to_dict()["hyperparameters"]["slow_rises"] is True
-    # make_model hands both settings to the kind
-    options = {**MACHINE_DEFAULTS["models"], "grey_box_slow_rises": True, "grey_box_heat_input": "always"}
-    gb = make_model(
-        "grey_box", key_sensors=KEY, terms=SMALL_TERMS, reference={}, machine=None, options=options
-    )
-    assert gb.slow_rises is True and gb.heat_input == "always"
+    hyper = art["hyperparameters"]
+    assert (hyper["max_taus"], hyper["max_speed_taus"], hyper["filter_search"]) == (1, 2, "all")
+    assert "heat_input" not in hyper and "slow_rises" not in hyper
+    # an artefact made under the retired opt-ins still loads as the model it describes
+    body = {k: v for k, v in art.items() if k not in ("schema", "created", "model_id")}
+    body["hyperparameters"] = {**hyper, "heat_input": "always", "slow_rises": True}
+    old = load_any(finish_artefact(body))
+    np.testing.assert_array_equal(old.predict(spinning), gb.predict(spinning))
 
 
 def test_grey_box_drops_the_unidentifiable_centrifugal_term():
@@ -341,7 +310,7 @@ def test_grey_box_drops_the_unidentifiable_centrifugal_term():
     )
     spinning = frame[frame["t_s"] >= 120.0].copy()
     spinning["speed_rpm"] += np.random.default_rng(0).normal(0, 2.0, len(spinning))
-    gb = GreyBox(taus_s=[0], speed_taus_s=[300], max_speed_taus=1, alphas=[1e-3]).fit(table, spinning)
+    gb = GreyBox(taus_s=[0], speed_taus_s=[300], alphas=[1e-3]).fit(table, spinning)
     assert not gb.instantaneous_ and "n2_krpm2" not in gb.feature_names_
     assert gb.to_dict()["selected"]["instantaneous_n2"] is False
 
@@ -493,7 +462,6 @@ def test_fit_uses_training_runs_only(data, fitted):
             "dynamic_taus_s": [0, 600, 2400],
             "grey_box_taus_s": [0, 600],
             "grey_box_speed_taus_s": [120, 600],
-            "grey_box_max_speed_taus": 1,
         }
         a = make_model(kind, **settings, options=opts)
         b = make_model(kind, **settings, options=opts)
@@ -581,8 +549,6 @@ def test_constructor_only_stores_its_arguments(cls):
     [
         (RidgeGlobal, {"speed_gain": "sometimes"}),
         (RidgeGlobal, {"cv_metric": "mae"}),
-        (GreyBox, {"filter_search": "some"}),
-        (GreyBox, {"heat_input": "sometimes"}),
         (GreyBox, {"centrifugal_lags_s": [-5.0]}),
     ],
 )

@@ -136,6 +136,38 @@ def test_validate_config_names_the_key_jsonschema_refuses(config, where):
     validate_config(CONFIG)  # the shipped config passes
 
 
+@pytest.mark.parametrize(("section", "key"), sorted(contract.RETIRED_SETTINGS))
+@pytest.mark.parametrize("place", ["defaults", "machines.m"])
+def test_a_retired_setting_is_refused_in_one_line_naming_what_replaced_it(section, key, place):
+    assert key not in MACHINE_DEFAULTS[section]  # gone from the defaults, the schema, the docs
+    assert f"`{section}.{key}`" not in (ROOT / "docs" / "settings.md").read_text(encoding="utf-8")
+    block = {section: {key: True}}
+    config = {"defaults": block} if place == "defaults" else {"machines": {"m": block}}
+    with pytest.raises(SettingsError) as caught:
+        validate_config(config)
+    message = str(caught.value)
+    assert "\n" not in message
+    assert message.startswith(f"config.yaml: {place}.{section}.{key} was removed on 2026-11-29 (issue 49): ")
+    assert message.endswith(contract.RETIRED_SETTINGS[(section, key)])
+
+
+def test_the_workflow_refuses_a_retired_setting_with_its_line(tmp_path):
+    import sys
+
+    sys.path.insert(0, str(ROOT / "tests"))
+    from project_copy import copy_project, run_snakemake
+
+    proj = copy_project(tmp_path / "proj", config=False)
+    config = {"defaults": {"models": {"interval_forward_units": True}}, "machines": {"m": None}}
+    (proj / "config.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+    done = run_snakemake(proj, "-n")
+    assert done.returncode != 0
+    assert (
+        "RAFI: config.yaml: defaults.models.interval_forward_units was removed on 2026-11-29 (issue 49): "
+        + contract.RETIRED_SETTINGS[("models", "interval_forward_units")]
+    ) in done.stdout + done.stderr
+
+
 def test_limits_and_replay_keys_come_from_the_contract():
     from dataclasses import fields
 

@@ -9,6 +9,7 @@ file under ``results/<machine>/`` or a settings key derives from here:
   config schema (``workflow/schemas/config.schema.yaml``, written by :func:`schema_yaml`) and the
   tables of ``docs/settings.md`` (:func:`settings_tables`); ``python -m rafi.contract`` rewrites
   both, and a test fails when either is stale;
+- :data:`RETIRED_SETTINGS`: keys removed, each with what replaced it (:func:`retired_setting`);
 - :data:`LIMIT_KEYS` (the ``deploy:`` keys of :class:`rafi.deploy.limits.Limits`) and
   :data:`REPLAY_KEYS` (what the replay rule depends on).
 """
@@ -65,6 +66,7 @@ from rafi.contract.results import (
     RUN_FILES,
     result_file,
 )
+from rafi.contract.retired import RETIRED_SETTINGS, retired_setting
 from rafi.contract.run import RUN_SETTINGS
 
 __all__ = [
@@ -102,6 +104,7 @@ __all__ = [
     "REPORT_OPTIONAL",
     "REPORT_REQUIRED",
     "RESULT_FILES",
+    "RETIRED_SETTINGS",
     "RUN_FILES",
     "RUN_SETTINGS",
     "TABLES_BEGIN",
@@ -113,6 +116,7 @@ __all__ = [
     "config_schema",
     "defaults",
     "result_file",
+    "retired_setting",
     "schema_yaml",
     "settings_tables",
     "with_settings_tables",

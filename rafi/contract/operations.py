@@ -102,17 +102,6 @@ OPERATIONS_SETTINGS: dict = {
                     " (`docs/models.md`, Forward folds); 0 = whole-run CV only"
                 ),
             ),
-            "cv_forward_hyperparameters": Setting(
-                default=False,
-                schema={"type": "boolean"},
-                shown="`false`",
-                doc=(
-                    "the ridge kinds (`ridge_global`, `dynamic`, `grey_box`) also choose their own"
-                    " hyperparameters on the mean of the whole-run and the forward scores"
-                    " (`cv_forward_runs`), as the selection compares the kinds; off by default: on the"
-                    " training runs it was not better everywhere (`docs/decisions.md`, 2026-11-26)"
-                ),
-            ),
             "interval_level": Setting(
                 default=0.9,
                 schema={"type": "number", "exclusiveMinimum": 0, "exclusiveMaximum": 1},
@@ -120,17 +109,6 @@ OPERATIONS_SETTINGS: dict = {
                 doc=(
                     "nominal coverage of every model's prediction interval, calibrated on the whole-run CV"
                     " residuals (`docs/models.md`, Prediction intervals)"
-                ),
-            ),
-            "interval_forward_units": Setting(
-                default=False,
-                schema={"type": "boolean"},
-                shown="`false`",
-                doc=(
-                    "the prediction intervals also calibrate on the runs the forward folds hold out"
-                    " (`cv_forward_runs`); off by default: judged one level up with refits on the"
-                    " training runs, the whole-run folds alone came closer to the level (`docs/decisions.md`,"
-                    " 2026-11-26)"
                 ),
             ),
             "interval_transient_s": Setting(
@@ -245,45 +223,6 @@ OPERATIONS_SETTINGS: dict = {
                     "heat-input filters; `auto`: 12 P .. L/6, ratio 3 (60, 180, 540, 1600 s at 5 s and 4 h);"
                     " or a list"
                 ),
-            ),
-            "grey_box_slow_rises": Setting(
-                default=False,
-                schema={"type": "boolean"},
-                shown="`false`",
-                doc=(
-                    "`true`: the `auto` rise filters of `grey_box` reach the median training-run length "
-                    "(24 P .. L, ratio 5) instead of L/24, for a structure (housing, column) whose "
-                    "displacement lags its temperatures by hours"
-                ),
-            ),
-            "grey_box_heat_input": Setting(
-                default="cv",
-                schema={"enum": ["cv", "always"]},
-                shown="`cv`",
-                doc=(
-                    "`cv`: the heat-input filters of `grey_box` are in or out by CV (`filter_search: all`;"
-                    " `subsets`: from none); `always`: always in (at least one filter), so that a fold "
-                    "whose training speeds are all below the held-out speed cannot drop the only term "
-                    "that scales with speed"
-                ),
-            ),
-            "grey_box_filter_search": Setting(
-                default="all",
-                schema={"enum": ["all", "subsets"]},
-                shown="`all`",
-                doc="`all` filters at once with the ridge penalty by CV, or `subsets`",
-            ),
-            "grey_box_max_taus": Setting(
-                default=1,
-                schema={"type": "integer", "minimum": 1},
-                shown="1",
-                doc="(`subsets` only)",
-            ),
-            "grey_box_max_speed_taus": Setting(
-                default=2,
-                schema={"type": "integer", "minimum": 0},
-                shown="2",
-                doc="(`subsets` only)",
             ),
             "grey_box_centrifugal_lags_s": Setting(
                 default="auto",

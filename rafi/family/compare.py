@@ -106,8 +106,6 @@ def make_model(
     common = {"reference": reference, "machine": machine, "speed_tolerance_rpm": speed_tolerance_rpm}
     ridge = {"alphas": o["ridge_alphas"], "cv": o["cv"], "speed_reference": o["speed_reference"], **common}
     ridge["filter_restart_gap_s"] = o["filter_restart_gap_s"]
-    ridge["cv_forward_runs"] = o["cv_forward_runs"]
-    ridge["forward_hyperparameters"] = o["cv_forward_hyperparameters"]
     if kind == "rafi":
         return PublishedRafi(key_sensors=key_sensors, terms=terms, hac_maxlags=hac_maxlags, **common)
     if kind == "rafi_linear":
@@ -134,13 +132,8 @@ def make_model(
     if kind == "grey_box":
         return GreyBox(
             taus_s=o["grey_box_taus_s"],
-            max_taus=o["grey_box_max_taus"],
             speed_taus_s=o["grey_box_speed_taus_s"],
-            max_speed_taus=o["grey_box_max_speed_taus"],
             speed_powers=o["grey_box_speed_powers"],
-            filter_search=o["grey_box_filter_search"],
-            slow_rises=o["grey_box_slow_rises"],
-            heat_input=o["grey_box_heat_input"],
             centrifugal_lags_s=o["grey_box_centrifugal_lags_s"],
             cv_metric=o["grey_box_cv_metric"],
             **ridge,
@@ -553,7 +546,7 @@ def run_family(
         factories, runs_table, runs_frame, settings, rafi_model, cv_memo_dir, code_version, log
     )
     # every model's prediction interval, from its own OOF residuals (RAFI's model.json keeps its own)
-    samples, calibrated_on = calibration_units(oof, cv, scheme_of(fit_table, options["cv"]), options)
+    samples, calibrated_on = calibration_units(oof, scheme_of(fit_table, options["cv"]))
     calibrate_family(
         models,
         samples,

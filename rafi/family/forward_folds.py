@@ -11,9 +11,10 @@ Only runs inside **one log** (the runs table's ``file``) have a time order that 
 runs of separate files (cold starts, other days) give no forward fold, and a data set without a
 log of ``MIN_TRAIN + horizon`` training runs is judged by the whole-run CV alone.
 
-Why at least three runs before an origin: on the real log of ``benchmarks/bench_forward_folds.py``
-one or two training runs train nothing sane (the penalty at the lower grid edge, predictions of
-20-400 um), which would score the kinds on a situation no deployment is in.
+Why at least three runs before an origin: on the real log FL_THERMAL (the forward-folds study,
+``docs/decisions.md``, 2026-11-26) one or two training runs train nothing sane (the penalty at
+the lower grid edge, predictions of 20-400 um), which would score the kinds on a situation no
+deployment is in.
 """
 
 from __future__ import annotations

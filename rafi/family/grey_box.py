@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Sequence
 
@@ -16,8 +15,10 @@ from rafi.family.whole_log import filtered_rises, heat_input, lowpass_log, unsor
 from rafi.settings import MACHINE_DEFAULTS
 
 MODELS = MACHINE_DEFAULTS["models"]
-FILTER_SEARCHES = ("all", "subsets")
-HEAT_INPUT = ("cv", "always")
+#: What the artefact records of the filter search: every filter constant at once (since issue 7;
+#: the subset search and its limits were retired on 2026-11-29, issue 49). Recorded unchanged so
+#: that the artefacts, and so the model ids, of every grey_box stay as they were.
+FILTER_SEARCH_RECORD = {"max_taus": 1, "max_speed_taus": 2, "filter_search": "all"}
 
 
 class GreyBox(RidgeBase):
@@ -47,38 +48,26 @@ class GreyBox(RidgeBase):
     identify it (the reference absorbs the draw-in), so it is left out rather than fitted to
     speed jitter. ``ridge_global`` and ``dynamic`` apply the same rule to their speed terms.
 
-    Chosen jointly by whole-run CV on the training runs only (``cv_metric``, default
-    ``max_abs``): the set of rise filter constants (subsets of ``taus_s``, at most
-    ``max_taus``), the set of speed filter constants (subsets of ``speed_taus_s``, at most
-    ``max_speed_taus``) and ``alpha``.
+    Every rise filter constant and every heat-input filter constant at once; chosen jointly by
+    whole-run CV on the training runs only (``cv_metric``, default ``max_abs``): the heat-input
+    block in or out, the draw-in lag and ``alpha``.
 
     Parameters
     ----------
-    taus_s, max_taus : sequence of float or "auto", int
-        Rise filter constants and, for ``filter_search: subsets``, the most chosen at once
-        (``models: grey_box_taus_s``, ``grey_box_max_taus``); ``auto``: from the sample period
+    taus_s : sequence of float or "auto"
+        Rise filter constants (``models: grey_box_taus_s``); ``auto``: from the sample period
         and the median training-run length (:mod:`rafi.family.grids`).
-    speed_taus_s, max_speed_taus : sequence of float or "auto", int
-        Heat-input filter constants (``models: grey_box_speed_taus_s``, ``grey_box_max_speed_taus``).
+    speed_taus_s : sequence of float or "auto"
+        Heat-input filter constants (``models: grey_box_speed_taus_s``).
     speed_powers : sequence of float
         The powers ``p`` of ``(n/10^4)^p`` (``models: grey_box_speed_powers``).
-    filter_search : str
-        ``all``: every filter constant at once, the heat-input block in or out by CV;
-        ``subsets``: CV over subsets (``models: grey_box_filter_search``).
-    slow_rises : bool
-        ``auto`` rise filters up to the median training-run length instead of a 24th of it
-        (``models: grey_box_slow_rises``; :data:`rafi.family.grids.AUTO_RULES`).
-    heat_input : str
-        ``cv``: the heat-input filters may be left out by CV; ``always``: never all of them
-        (``models: grey_box_heat_input``).
     centrifugal_lags_s : sequence of float or "auto"
         First-order lags of the ``n^2`` draw-in term to choose from (``models: grey_box_centrifugal_lags_s``).
     cv_metric : str
         ``rmse`` or ``max_abs`` (``models: grey_box_cv_metric``).
     **others
-        ``sensors``, ``alphas``, ``cv``, ``cv_forward_runs``, ``forward_hyperparameters``,
-        ``speed_terms``, ``speed_reference``, ``reference``, ``machine``, ``speed_tolerance_rpm``,
-        ``filter_restart_gap_s`` as
+        ``sensors``, ``alphas``, ``cv``, ``speed_terms``, ``speed_reference``, ``reference``,
+        ``machine``, ``speed_tolerance_rpm``, ``filter_restart_gap_s`` as
         :class:`rafi.family.ridge_global.RidgeGlobal`.
     """
 
@@ -88,20 +77,13 @@ class GreyBox(RidgeBase):
         self,
         *,
         taus_s: Sequence[float] = MODELS["grey_box_taus_s"],
-        max_taus: int = MODELS["grey_box_max_taus"],
         speed_taus_s: Sequence[float] = MODELS["grey_box_speed_taus_s"],
-        max_speed_taus: int = MODELS["grey_box_max_speed_taus"],
         speed_powers: Sequence[float] = MODELS["grey_box_speed_powers"],
-        filter_search: str = MODELS["grey_box_filter_search"],
-        slow_rises: bool = MODELS["grey_box_slow_rises"],
-        heat_input: str = MODELS["grey_box_heat_input"],
         centrifugal_lags_s: Sequence[float] = MODELS["grey_box_centrifugal_lags_s"],
         cv_metric: str = MODELS["grey_box_cv_metric"],
         sensors: Sequence[str] | None = None,
         alphas: Sequence[float] = MODELS["ridge_alphas"],
         cv: str = MODELS["cv"],
-        cv_forward_runs: int = MODELS["cv_forward_runs"],
-        forward_hyperparameters: bool = MODELS["cv_forward_hyperparameters"],
         speed_terms: bool = True,
         speed_reference: str = MODELS["speed_reference"],
         reference: dict = MACHINE_DEFAULTS["reference"],
@@ -110,20 +92,13 @@ class GreyBox(RidgeBase):
         filter_restart_gap_s: float = MODELS["filter_restart_gap_s"],
     ):
         self.taus_s = taus_s
-        self.max_taus = max_taus
         self.speed_taus_s = speed_taus_s
-        self.max_speed_taus = max_speed_taus
         self.speed_powers = speed_powers
-        self.filter_search = filter_search
-        self.slow_rises = slow_rises
-        self.heat_input = heat_input
         self.centrifugal_lags_s = centrifugal_lags_s
         self.cv_metric = cv_metric
         self.sensors = sensors
         self.alphas = alphas
         self.cv = cv
-        self.cv_forward_runs = cv_forward_runs
-        self.forward_hyperparameters = forward_hyperparameters
         self.speed_terms = speed_terms
         self.speed_reference = speed_reference
         self.reference = reference
@@ -145,9 +120,6 @@ class GreyBox(RidgeBase):
             "grey_box_centrifugal_lags_s": self.centrifugal_lags_s,
         }
 
-    def _auto_rule(self, name: str) -> str:
-        return "grey_box_slow_taus_s" if name == "grey_box_taus_s" and self.slow_rises else name
-
     def _rise_taus(self) -> list[float]:
         return list(self.grids_["grey_box_taus_s"])
 
@@ -167,10 +139,6 @@ class GreyBox(RidgeBase):
 
     def _check_params(self) -> None:
         super()._check_params()
-        if self.filter_search not in FILTER_SEARCHES:
-            raise ValueError(f"filter_search={self.filter_search!r}: use all or subsets")
-        if self.heat_input not in HEAT_INPUT:
-            raise ValueError(f"heat_input={self.heat_input!r}: use cv or always")
         lags = self.centrifugal_lags_s
         if not isinstance(lags, str) and len(lags) and min(float(v) for v in lags) < 0:
             raise ValueError(f"centrifugal_lags_s={self.centrifugal_lags_s!r}: lags must be >= 0")
@@ -232,34 +200,12 @@ class GreyBox(RidgeBase):
         )
 
     def _filter_sets(self) -> tuple[list, list]:
-        """Candidate (rise tau indices, speed tau indices) sets. ``all``: every rise filter at
-        once, with every heat-input filter at once or with none (the ridge penalty sorts out
-        redundant constants; CV decides whether the heat-input terms help at all, e.g. they do
-        not for runs referenced while already spinning). ``subsets``: every subset of at most
-        ``max_taus`` / ``max_speed_taus`` of them. ``heat_input: always`` drops the candidate
-        without heat-input filters (when there are any): the heat input is the only term that
-        scales with speed, and a CV whose held-out speeds lie between the training speeds cannot
-        tell that a fold beyond them needs it."""
+        """Candidate (rise tau indices, speed tau indices) sets: every rise filter at once, with
+        every heat-input filter at once or with none (the ridge penalty sorts out redundant
+        constants; CV decides whether the heat-input terms help at all, e.g. they do not for runs
+        referenced while already spinning)."""
         n_rise, n_speed = len(self._rise_taus()), len(self._speed_taus())
-        if self.filter_search == "all":
-            return [tuple(range(n_rise))], self._heat_sets([(), tuple(range(n_speed))])
-        rise_sets = [
-            c
-            for k in range(1, max(1, int(self.max_taus)) + 1)
-            for c in itertools.combinations(range(n_rise), k)
-        ]
-        speed_sets = [
-            c
-            for k in range(0, int(self.max_speed_taus) + 1)
-            for c in itertools.combinations(range(n_speed), k)
-        ]
-        return rise_sets, self._heat_sets(speed_sets)
-
-    def _heat_sets(self, speed_sets: list) -> list:
-        """``speed_sets`` without the empty set under ``heat_input: always`` (if any is left)."""
-        if self.heat_input != "always":
-            return speed_sets
-        return [c for c in speed_sets if c] or speed_sets
+        return [tuple(range(n_rise))], [(), tuple(range(n_speed))]
 
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """Choose the filter constants, the draw-in lag and ``alpha`` by whole-run CV on the
@@ -321,32 +267,24 @@ class GreyBox(RidgeBase):
         return self._fit_final(table, frame, rows, sensors, taus, alpha, cv_table, design)
 
     def _chosen(self) -> dict:
-        """What CV chose among grid values: with ``filter_search: all`` every filter constant
-        is in the model (nothing chosen, no edge); the draw-in lag only if the term is used."""
+        """What CV chose among grid values: every filter constant is in the model (nothing
+        chosen, no edge); the draw-in lag only if the term is used."""
         out = {"alpha": self.alpha_}
-        if self.filter_search == "subsets":
-            out["grey_box_taus_s"] = self.taus_
-            out["grey_box_speed_taus_s"] = self.speed_taus_
         if self.instantaneous_:
             out["grey_box_centrifugal_lags_s"] = self.centrifugal_lag_s_
         return out
 
     # -- artefact
     def _hyper(self) -> dict:
-        # the two opt-in keys only when set: the artefacts of the defaults are unchanged
-        opt_in = {"slow_rises": True} if self.slow_rises else {}
-        if self.heat_input != "cv":
-            opt_in["heat_input"] = self.heat_input
         return {
             **super()._hyper(),
-            **opt_in,
             "speed_gain": False,  # no speed-gain products (a key of every ridge kind's artefact)
             "taus_s": self._given(self.taus_s),
-            "max_taus": int(self.max_taus),
+            "max_taus": FILTER_SEARCH_RECORD["max_taus"],
             "speed_taus_s": self._given(self.speed_taus_s),
-            "max_speed_taus": int(self.max_speed_taus),
+            "max_speed_taus": FILTER_SEARCH_RECORD["max_speed_taus"],
             "speed_powers": self._powers(),
-            "filter_search": self.filter_search,
+            "filter_search": FILTER_SEARCH_RECORD["filter_search"],
             "centrifugal_lags_s": self._given(self.centrifugal_lags_s),
         }
 

@@ -29,8 +29,6 @@ AUTO = "auto"
 #:   fastest lag a few samples resolve, up to L, the slowest one a run identifies;
 #: * ``grey_box_taus_s``: 0 and rise filters from 24 P to L / 24, ratio 5 (the shipped
 #:   ``[0, 120, 600]`` at 5 s and 4 h; every one enters the model at once);
-#: * ``grey_box_slow_taus_s``: ``grey_box_taus_s`` under ``grey_box_slow_rises``: 0 and rise
-#:   filters from 24 P up to L, ratio 5 (0, 360, 1800, 9000 s at 15 s and 4 h);
 #: * ``grey_box_speed_taus_s``: heat-input filters from 12 P to L / 6, ratio 3 (at 5 s and 4 h
 #:   60, 180, 540, 1600 s; the shipped list was 60, 180, 600, 2400);
 #: * ``grey_box_centrifugal_lags_s``: 0, P, 2 P, 4 P (the draw-in follows within seconds, so
@@ -38,7 +36,6 @@ AUTO = "auto"
 AUTO_RULES = {
     "dynamic_taus_s": ((0.0,), ("P", 4.0), ("L", 1.0), 3.0),
     "grey_box_taus_s": ((0.0,), ("P", 24.0), ("L", 1.0 / 24.0), 5.0),
-    "grey_box_slow_taus_s": ((0.0,), ("P", 24.0), ("L", 1.0), 5.0),
     "grey_box_speed_taus_s": ((), ("P", 12.0), ("L", 1.0 / 6.0), 3.0),
     "grey_box_centrifugal_lags_s": ((0.0,), ("P", 1.0), ("P", 4.0), 2.0),
 }
@@ -68,14 +65,14 @@ def _round2(v: float) -> float:
     return float(round(v / 10**e) * 10**e)
 
 
-def resolve(name: str, value, period_s: float, run_s: float, rule: str | None = None) -> list[float]:
-    """The grid of setting ``name``: ``value`` as floats, or the ``auto`` grid by the rule of
-    :data:`AUTO_RULES` named ``rule`` (default: ``name``)."""
+def resolve(name: str, value, period_s: float, run_s: float) -> list[float]:
+    """The grid of setting ``name``: ``value`` as floats, or the ``auto`` grid by its rule in
+    :data:`AUTO_RULES`."""
     if not (isinstance(value, str) and value == AUTO):
         if isinstance(value, str):
             raise ValueError(f"{name}={value!r}: give a list of numbers or auto")
         return [float(v) for v in value]
-    lead, (lo_unit, lo_k), (hi_unit, hi_k), ratio = AUTO_RULES[rule or name]
+    lead, (lo_unit, lo_k), (hi_unit, hi_k), ratio = AUTO_RULES[name]
     scale = {"P": float(period_s), "L": float(run_s)}
     lo, hi = lo_k * scale[lo_unit], hi_k * scale[hi_unit]
     values, v = [_round2(lo)], lo

@@ -4,24 +4,22 @@
 Both calibrate on the model's own out-of-fold residuals of the whole-run cross-validation
 (:func:`rafi.family.crossval.cross_validate` with ``oof=``; time blocks for a single-run log), with
 :func:`rafi.family.intervals.calibrate` and the settings ``models: interval_level``,
-``interval_transient_s`` and ``interval_min_runs``. With ``models: interval_forward_units`` the
-forward folds' held-out runs calibrate too (``models: cv_forward_runs``,
-:mod:`rafi.family.forward_folds`; each held-out run of each forward fold is one more unit); off by
-default (:func:`calibration_units`).
+``interval_transient_s`` and ``interval_min_runs``. The forward folds' held-out runs
+(``models: cv_forward_runs``, :mod:`rafi.family.forward_folds`) score the selection but do not
+calibrate (:func:`calibration_units`; ``docs/decisions.md``, 2026-11-26).
 """
 
 from __future__ import annotations
 
 import pandas as pd
 
-from rafi.family.crossval import cross_validate, cv_data, cv_schemes, scheme_of
-from rafi.family.forward_folds import configured_scheme, is_forward, unit_run
+from rafi.family.crossval import cross_validate, cv_data, scheme_of
+from rafi.family.forward_folds import unit_run
 from rafi.family.intervals import OOF_COLUMNS, calibrate, set_interval
 
 __all__ = [
     "interval_options",
     "stacked_oof",
-    "calibration_scheme",
     "whole_run_units",
     "calibration_units",
     "calibrate_family",
@@ -46,13 +44,6 @@ def stacked_oof(parts: list) -> pd.DataFrame:
     return pd.concat(parts, ignore_index=True)[OOF_COLUMNS]
 
 
-def calibration_scheme(cv: pd.DataFrame, whole: str) -> str:
-    """The folds the OOF residuals of ``cv`` come from: ``whole`` (the whole-run or time-block
-    scheme), with ``+forward_<h>`` when forward folds ran."""
-    forward = sorted({str(s) for s in cv["scheme"] if is_forward(s)}) if len(cv) else []
-    return "+".join([whole, *forward])
-
-
 def whole_run_units(oof: pd.DataFrame) -> pd.DataFrame:
     """The OOF samples of the whole-run (or time-block) units: those of the forward folds
     (``f<fold>:<run>``, :func:`rafi.family.forward_folds.fold_unit`) left out."""
@@ -62,19 +53,13 @@ def whole_run_units(oof: pd.DataFrame) -> pd.DataFrame:
     return oof.loc[unit_run(units) == units]
 
 
-def calibration_units(
-    oof: pd.DataFrame, cv: pd.DataFrame, whole: str, options: dict
-) -> tuple[pd.DataFrame, str]:
-    """The OOF samples the intervals calibrate on and the scheme the calibration records.
-
-    Every unit with ``options["interval_forward_units"]`` (scheme :func:`calibration_scheme`);
-    else the whole-run (time-block) units alone (:func:`whole_run_units`, scheme ``whole``). The
-    forward units are fitted on fewer runs than the whole-run folds: judged one level up with
-    refits on the training runs (``benchmarks/bench_interval_refit.py``) the whole-run units
-    alone came closer to the nominal level (``docs/decisions.md``, 2026-11-26).
+def calibration_units(oof: pd.DataFrame, whole: str) -> tuple[pd.DataFrame, str]:
+    """The OOF samples the intervals calibrate on and the scheme the calibration records: the
+    whole-run (time-block) units alone (:func:`whole_run_units`, scheme ``whole``). The forward
+    units are fitted on fewer runs than the whole-run folds: judged one level up with refits on
+    the training runs, the whole-run units alone came closer to the nominal level
+    (``docs/decisions.md``, 2026-11-26).
     """
-    if options["interval_forward_units"]:
-        return oof, calibration_scheme(cv, whole)
     return whole_run_units(oof), whole
 
 
@@ -154,18 +139,12 @@ def rafi_interval(
     :class:`~rafi.method.model.RafiModel`): RAFI's own whole-run CV on the training runs, each
     fold fitting ``factory()`` (a :class:`~rafi.family.published.PublishedRafi` with the
     machine's settings), under ``models: cv`` (time-blocked folds when the training runs give no
-    whole-run fold, :func:`rafi.family.crossval.cv_data`) and on the forward folds when there are
-    any. Returns the block (``None``: no fold,
+    whole-run fold, :func:`rafi.family.crossval.cv_data`). Returns the block (``None``: no fold,
     no interval)."""
     table, frame = cv_data(runs_table, runs_frame, options, log=log)
     oof: list = []
-    forward = configured_scheme(options) if options["interval_forward_units"] else None
-    schemes = cv_schemes(table, options["cv"], forward)
-    cv = pd.concat(
-        [cross_validate(factory, table, frame, scheme, name="rafi", oof=oof) for scheme in schemes],
-        ignore_index=True,
-    )
-    samples, scheme = calibration_units(stacked_oof(oof), cv, scheme_of(table, options["cv"]), options)
+    cross_validate(factory, table, frame, options["cv"], name="rafi", oof=oof)
+    samples, scheme = calibration_units(stacked_oof(oof), scheme_of(table, options["cv"]))
     block = calibrate(
         samples, tolerance_rpm=float(speed_tolerance_rpm), scheme=scheme, **interval_options(options)
     )

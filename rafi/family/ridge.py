@@ -22,7 +22,6 @@ from rafi.family.features import (
     speed_change_evidence,
     usable_sensors,
 )
-from rafi.family.forward_folds import scheme_name
 from rafi.family.grids import data_scales, edge_flags, resolve
 from rafi.family.time_blocks import blocks_text, max_filter_s, unit_column
 from rafi.family.whole_log import has_whole_logs, layout, rows_of_logs
@@ -85,15 +84,10 @@ def cv_folds(
     table: pd.DataFrame,
     scheme: str,
     shared_key=None,
-    forward: str | None = None,
 ) -> list:
     """Per whole-run fold of ``scheme``, once per fit: the training runs' ``X'X``, ``X'y`` and
     sample count (sums of per-run parts), the test runs' rows of ``X`` and ``y`` (for
     ``max_abs``) and their ``X'X``, ``X'y``, ``y'y`` (for ``rmse``).
-
-    ``forward``: a forward scheme (:mod:`rafi.family.forward_folds`, ``forward_2``) whose folds
-    follow, each marked ``"scheme": 1`` (the whole-run ones ``0``): :func:`cv_scores` then scores
-    the mean of the two schemes, the selection's own criterion (:mod:`rafi.family.selection`).
 
     ``shared_key``: the feature memo's key of ``feats`` when they came from the active memo
     (:class:`rafi.family.feature_memo.FeatureMemo`); each run's Gram matrices are then computed
@@ -105,10 +99,7 @@ def cv_folds(
     else:
         gram = {r: memo.run_gram(shared_key, r, lambda i=i: run_gram(feats, y, i)) for r, i in rows.items()}
     folds = []
-    splits = [(0, f) for f in split_runs(table, scheme)]
-    if forward:
-        splits += [(1, f) for f in split_runs(table, forward)]
-    for tag, (train_ids, test_ids) in splits:
+    for train_ids, test_ids in split_runs(table, scheme):
         train_runs = tuple(r for r in train_ids if r in gram)
         train = [gram[r] for r in train_runs]
         te = [rows[r] for r in test_ids if r in rows]
@@ -126,7 +117,6 @@ def cv_folds(
                 "g_test": sum(t[0] for t in test),
                 "c_test": sum(t[1] for t in test),
                 "yy_test": float(y[te] @ y[te]),
-                "scheme": tag,
                 # which sums g, c, n are: the same runs give the same sums in every fit sharing
                 # the run Grams (a pair of runs held out in the outer and the inner CV, either way)
                 "solution_key": (shared_key, train_runs) if memo is not None else None,
@@ -160,17 +150,7 @@ def _fold_solution(fold: dict, cols: np.ndarray, alphas: Sequence[float]) -> np.
 def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
     """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds:
     ``rmse`` over every held-out sample, or ``max_abs``, the mean over folds of the held-out
-    runs' max |residual|. With forward folds among ``folds`` (:func:`cv_folds` ``forward=``), the
-    mean of the whole-run and the forward scores."""
-    schemes = sorted({f["scheme"] for f in folds})
-    if len(schemes) < 2:
-        return _scheme_scores(folds, cols, alphas, metric)
-    parts = [_scheme_scores([f for f in folds if f["scheme"] == k], cols, alphas, metric) for k in schemes]
-    return np.mean(parts, axis=0)
-
-
-def _scheme_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
-    """:func:`cv_scores` over the folds of one scheme."""
+    runs' max |residual|."""
     sq = np.zeros(len(alphas))
     fold_max, count = [], 0
     ix = np.ix_(cols, cols)
@@ -232,10 +212,6 @@ class RidgeBase(FamilyModel):
         """Setting name -> value (a list or ``auto``) of the filter grids of this kind."""
         return {}
 
-    def _auto_rule(self, name: str) -> str:
-        """The :data:`rafi.family.grids.AUTO_RULES` rule of grid ``name`` under ``auto``."""
-        return name
-
     def _resolve_grids(self, frame: pd.DataFrame, max_filter_s: float | None = None) -> None:
         """Set ``data_scales_`` (sample period, median run length of the training rows ``frame``)
         and ``grids_`` (every grid as used: ``alpha`` and the kind's filter grids; under
@@ -245,7 +221,7 @@ class RidgeBase(FamilyModel):
         self.data_scales_ = {"sample_period_s": period, "run_length_s": run_s}
         self.grids_ = {"alpha": self._alphas()}
         for name, value in self._grid_settings().items():
-            grid = resolve(name, value, period, run_s, self._auto_rule(name))
+            grid = resolve(name, value, period, run_s)
             if max_filter_s is not None and name.endswith("taus_s"):
                 grid = [v for v in grid if v <= max_filter_s * (1 + 1e-9)]
             self.grids_[name] = grid
@@ -293,14 +269,10 @@ class RidgeBase(FamilyModel):
         return table, frame, rows, sensors
 
     def _cv_folds(self, feats: np.ndarray, y: np.ndarray, run_ids: np.ndarray, table: pd.DataFrame, key=None):
-        """:func:`cv_folds` of the hyperparameter CV: ``cv``'s folds and, where the training runs
-        give any, the forward folds of ``cv_forward_runs`` (0: none), so the kind's own choice is
-        made on the criterion the selection compares the kinds by. Sets ``cv_forward_folds_``."""
-        horizon = int(self.cv_forward_runs) if self.forward_hyperparameters else 0
-        forward = scheme_name(horizon) if horizon > 0 else None
-        folds = cv_folds(feats, y, run_ids, table, self.cv, shared_key=key, forward=forward)
-        self.cv_forward_folds_ = sum(1 for f in folds if f["scheme"] == 1)
-        return folds
+        """:func:`cv_folds` of the hyperparameter CV: ``cv``'s whole-run (or time-block) folds.
+        The kinds choose their own hyperparameters there; the forward folds score the selection
+        only (``docs/decisions.md``, 2026-11-26)."""
+        return cv_folds(feats, y, run_ids, table, self.cv, shared_key=key)
 
     @staticmethod
     def _cv_units(train: pd.DataFrame) -> np.ndarray:
@@ -431,15 +403,7 @@ class RidgeBase(FamilyModel):
             "speed_reference": self.speed_reference,
             "speed_tolerance_rpm": float(self.speed_tolerance_rpm),
             "filter_restart_gap_s": float(self.filter_restart_gap_s),
-            **self._forward_hyper(),
         }
-
-    def _forward_hyper(self) -> dict:
-        """``forward_hyperparameters`` and ``cv_forward_runs`` when the first is on: only then do
-        they change the fit (the artefacts of the default stay as they were before the setting)."""
-        if not self.forward_hyperparameters:
-            return {}
-        return {"forward_hyperparameters": True, "cv_forward_runs": int(self.cv_forward_runs)}
 
     def _selected(self) -> dict:
         """What CV chose, as recorded in the artefact (``selected``; ``cv_folds`` only when the
@@ -456,8 +420,6 @@ class RidgeBase(FamilyModel):
         }
         if getattr(self, "time_blocks_", None):
             out["cv_folds"] = dict(self.time_blocks_)
-        if getattr(self, "cv_forward_folds_", 0):
-            out["cv_forward_folds"] = int(self.cv_forward_folds_)
         return out
 
     def _filter_text(self) -> dict:
@@ -528,7 +490,6 @@ class RidgeBase(FamilyModel):
         m.data_scales_ = dict(selected.get("data_scales", {}))
         m.grid_edges_ = list(selected.get("grid_edges", []))
         m.time_blocks_ = selected.get("cv_folds")
-        m.cv_forward_folds_ = int(selected.get("cv_forward_folds", 0))
         m.envelope_ = d["envelope"] if isinstance(d.get("envelope"), dict) else None
         m.interval_ = d["interval"] if isinstance(d.get("interval"), dict) else None
         m.adaptation_ = d["adaptation"] if isinstance(d.get("adaptation"), dict) else None

@@ -38,11 +38,6 @@ class RidgeGlobal(RidgeBase):
         Ridge penalties to choose from (``models: ridge_alphas``).
     cv : str
         Whole-run CV scheme (``models: cv``).
-    cv_forward_runs : int
-        Forward folds hold out this many runs (``models: cv_forward_runs``; 0: none).
-    forward_hyperparameters : bool
-        Choose the hyperparameters on the mean of the whole-run and the forward scores
-        (``models: cv_forward_hyperparameters``); else on the whole-run folds alone.
     cv_metric : str
         ``rmse`` or ``max_abs`` (``models: cv_metric``).
     speed_terms : bool
@@ -71,8 +66,6 @@ class RidgeGlobal(RidgeBase):
         alphas: Sequence[float] = MODELS["ridge_alphas"],
         cv: str = MODELS["cv"],
         cv_metric: str = MODELS["cv_metric"],
-        cv_forward_runs: int = MODELS["cv_forward_runs"],
-        forward_hyperparameters: bool = MODELS["cv_forward_hyperparameters"],
         speed_terms: bool = True,
         speed_gain: bool | str = MODELS["speed_gain"],
         speed_reference: str = MODELS["speed_reference"],
@@ -85,8 +78,6 @@ class RidgeGlobal(RidgeBase):
         self.alphas = alphas
         self.cv = cv
         self.cv_metric = cv_metric
-        self.cv_forward_runs = cv_forward_runs
-        self.forward_hyperparameters = forward_hyperparameters
         self.speed_terms = speed_terms
         self.speed_gain = speed_gain
         self.speed_reference = speed_reference

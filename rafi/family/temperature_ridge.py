@@ -27,8 +27,7 @@ class TemperatureRidge(DynamicRidge):
     ----------
     taus_s : sequence of float
         The filter time constants, every one used (``models: temperature_ridge_taus_s``).
-    sensors, alphas, cv, cv_metric, cv_forward_runs, forward_hyperparameters, reference, machine,
-    speed_tolerance_rpm, filter_restart_gap_s
+    sensors, alphas, cv, cv_metric, reference, machine, speed_tolerance_rpm, filter_restart_gap_s
         As :class:`rafi.family.ridge_global.RidgeGlobal`.
     """
 
@@ -42,8 +41,6 @@ class TemperatureRidge(DynamicRidge):
         alphas: Sequence[float] = MODELS["ridge_alphas"],
         cv: str = MODELS["cv"],
         cv_metric: str = MODELS["cv_metric"],
-        cv_forward_runs: int = MODELS["cv_forward_runs"],
-        forward_hyperparameters: bool = MODELS["cv_forward_hyperparameters"],
         reference: dict = MACHINE_DEFAULTS["reference"],
         machine: str | None = None,
         speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
@@ -54,8 +51,6 @@ class TemperatureRidge(DynamicRidge):
         self.alphas = alphas
         self.cv = cv
         self.cv_metric = cv_metric
-        self.cv_forward_runs = cv_forward_runs
-        self.forward_hyperparameters = forward_hyperparameters
         self.reference = reference
         self.machine = machine
         self.speed_tolerance_rpm = speed_tolerance_rpm
@@ -90,7 +85,7 @@ class TemperatureRidge(DynamicRidge):
         return {"alpha": self.alpha_}
 
     def _hyper(self) -> dict:
-        hyper = {
+        return {
             "sensors": None if self.sensors is None else list(self.sensors),
             "alphas": self._alphas(),
             "cv": self.cv,
@@ -99,7 +94,6 @@ class TemperatureRidge(DynamicRidge):
             "speed_tolerance_rpm": float(self.speed_tolerance_rpm),
             "filter_restart_gap_s": float(self.filter_restart_gap_s),
         }
-        return {**hyper, **self._forward_hyper()}
 
     @classmethod
     def from_dict(cls, d: dict):

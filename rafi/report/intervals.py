@@ -192,8 +192,9 @@ def _calibration_rows(cal: dict, half: dict) -> list[dict]:
 def calibration_folds(scheme) -> tuple[str, int]:
     """The folds a calibration record's ``scheme`` names, in words, and the forward horizon.
 
-    ``leave_one_run_out`` -> ``("leave-one-run-out", 0)``; the schemes joined by ``+`` when the
-    forward folds calibrated too (:func:`rafi.family.compare.calibration_scheme`):
+    ``leave_one_run_out`` -> ``("leave-one-run-out", 0)``; the schemes joined by ``+`` where the
+    forward folds calibrated too (an artefact made under the retired
+    ``models.interval_forward_units``, or before 2026-11-26, still in a registry):
     ``leave_one_run_out+forward_2`` -> ``("leave-one-run-out and forward folds, 2 runs ahead", 2)``.
     """
     parts = [p for p in str(scheme or "").split("+") if p]
