@@ -106,6 +106,7 @@ from rafi.family.compare import make_model  # noqa: E402
 from rafi.family.feature_memo import sharing_features  # noqa: E402
 from rafi.family.forward_folds import configured_scheme, is_forward  # noqa: E402
 from rafi.family.interval_fit import stacked_oof  # noqa: E402
+from rafi.family.plain_ridge import PLAIN_RIDGE  # noqa: E402
 from rafi.family.selection import SIMPLICITY, choose_champion  # noqa: E402
 from rafi.family.whole_log import rows_of_logs  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS, machine_settings  # noqa: E402
@@ -118,8 +119,6 @@ STACKED = "stacked"
 AVERAGE = "average_within_se"
 #: The rules that are not a choice of one kind (scored from refits of every kind).
 BLENDS = (ENSEMBLE, STACKED, AVERAGE)
-#: The plain ridge, the floor of ``ridge_floor``.
-PLAIN_RIDGE = "temperature_ridge"
 
 
 # ----------------------------------------------------------------------------- inner folds
@@ -311,12 +310,14 @@ def machine_inputs(project: Path, machine: str) -> dict:
         "speed_tolerance_rpm": s["speed_tolerance_rpm"],
     }
     cv = pd.read_csv(res / RESULT_FILES["comparison_cv"])
+    # every enabled kind and the plain ridge, a candidate of every rule (as on the foreign machines,
+    # whose configs enable every kind): ``ridge_floor`` needs it, and the rules are compared alike
+    kinds = list(dict.fromkeys([*s["models"]["enabled"], PLAIN_RIDGE]))
     return {
-        "factories": {k: functools.partial(make_model, k, **settings) for k in s["models"]["enabled"]},
+        "factories": {k: functools.partial(make_model, k, **settings) for k in kinds},
         "table": pd.read_csv(res / RESULT_FILES["runs_csv"]),
         "frame": pd.read_parquet(res / RESULT_FILES["runs_parquet"]),
-        # the enabled kinds' rows: not the plain ridge's when it is scored as the reference only
-        "cv": cv.loc[cv["model"].astype(str).isin(s["models"]["enabled"])].reset_index(drop=True),
+        "cv": cv.loc[cv["model"].astype(str).isin(kinds)].reset_index(drop=True),
     }
 
 
@@ -484,8 +485,8 @@ def summarise(result: dict) -> list[dict]:
         if rule == "oracle":
             kinds = [m for m in folds[0]["scores"] if m not in BLENDS]
             picks = [min(kinds, key=lambda m, f=f: f["scores"][m]["max"]) for f in folds]
-        else:
-            picks = [f["picks"][rule] for f in folds]
+        else:  # a rule that cannot choose in a fold (no speed folds on one speed): the current rule's
+            picks = [f["picks"][rule] or f["picks"]["mean_max_forward"] for f in folds]
         mx = np.array([f["scores"][p]["max"] for f, p in zip(folds, picks)])
         rmse = np.array([f["scores"][p]["rmse"] for f, p in zip(folds, picks)])
         rows.append(
