@@ -249,7 +249,8 @@ def _heat_reason(i: int, speed: float, speeds: list[float], view: Mapping | None
         width = f"; its interval there is the outside cell, +/-{half:.3g} um" if half is not None else ""
         return f"a speed the prior never trained at ({_trained_text(view)}){width}"
     where = (
-        "the highest speed: the largest heat input, the best-conditioned run for a gain on the prior"
+        "the highest speed: the largest heat input, the best-conditioned single run"
+        + (" for a gain on the prior" if view else "")
         if speed == max(speeds)
         else "the lowest speed: with the highest, the range in use is spanned"
         if speed == min(speeds)
