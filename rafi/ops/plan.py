@@ -263,6 +263,59 @@ def _heat_reason(i: int, speed: float, speeds: list[float], view: Mapping | None
     return where
 
 
+def _extras(left, k, n_cool, run_s, speeds, uncertainty, view) -> tuple[list[float], list[float]]:
+    """The time each heat-up and cool-down gets beyond ``run_s`` (:func:`plan_programme`, step 3)."""
+    heat_extra, cool_extra = [0.0] * k, [0.0] * n_cool
+    tau = (view or {}).get("slowest_tau_s")
+    if tau:  # the prior's slowest time constant: a heat-up and a cool-down long enough to see it
+        want = min(TAU_SPAN * float(tau), MAX_RUN_S) - run_s
+        for extra in (heat_extra, cool_extra):
+            if extra:
+                extra[0] = max(0.0, min(want, math.floor(left / QUANTUM_S + 1e-9) * QUANTUM_S))
+                left -= extra[0]
+    weights = _weights(speeds, uncertainty if uncertainty is not None else _view_uncertainty(speeds, view))
+    shared = _share(left, weights, [MAX_RUN_S - run_s - e for e in heat_extra])
+    heat_extra = [a + b for a, b in zip(heat_extra, shared)]
+    left -= sum(shared)
+    shared = _share(left, [1.0] * n_cool, [MAX_RUN_S - run_s - e for e in cool_extra])
+    return heat_extra, [a + b for a, b in zip(cool_extra, shared)]
+
+
+def _rows(speeds, heat_extra, cool_extra, run_s, rest_s, view) -> list[tuple]:
+    """``(speed_rpm, duration_s, note, reason, kind)`` of every step."""
+    k, n_cool, tau = len(speeds), len(cool_extra), (view or {}).get("slowest_tau_s")
+    rows = [
+        (
+            0.0,
+            rest_s,
+            "rest before start (cold machine at rest: the reference)",
+            f"the reference: the cold machine at rest, {rest_s:g} s (the first heat-up's rest before start)",
+            "rest",
+        )
+    ]
+    for i, speed in enumerate(speeds):
+        heat = run_s + heat_extra[i]
+        reason = _heat_reason(i, speed, speeds, view)
+        if tau and i == 0 and heat_extra[0] > 0:
+            reason += f"; long enough to see the prior's slowest time constant ({float(tau):g} s) change"
+        rows.append(
+            (speed, heat, f"heat-up {i + 1} of {k}: {speed:g} r/min, {heat / 60:g} min", reason, "heat-up")
+        )
+        if i < n_cool:
+            cool = run_s + cool_extra[i]
+            why = "spindle stopped: the machine cooling, a run of its own between the heat-ups (a CV fold)"
+            if i == k - 1:
+                why = "spindle stopped: the final cool-down (a CV fold)"
+            if tau and i == 0 and cool_extra[0] > 0:
+                why += (
+                    f"; long enough to see the prior's slowest time constant ({float(tau):g} s) as it cools"
+                )
+            rows.append(
+                (0.0, cool, f"cool-down {i + 1}: spindle stopped, {cool / 60:g} min", why, "cool-down")
+            )
+    return rows
+
+
 def plan_programme(
     *,
     speeds_rpm: Sequence[float],
@@ -277,46 +330,34 @@ def plan_programme(
 ) -> pd.DataFrame:
     """The test programme of a re-qualification that fits in ``budget_h`` hours of machine time.
 
-    The programme is ONE recording (``run`` = ``name`` on every step): the pipeline cuts it
-    into runs (heat-ups and cool-downs) and, because they are one log, the family's filters
-    carry the machine's state from one run to the next (docs/models.md, "Whole-log dynamics"):
-    a heat-up that starts warm after a short cool-down is modelled as such. The rule, step by
-    step (every run lasts ``run_s = max(min_run_s, transient_s)`` or more: shorter runs are
-    excluded by the pipeline, and the first ``transient_s`` of a run, the interval's transient
-    cell, is where a prior is least sure). ``prior`` is :func:`prior_view` of the prior's
-    artefact; without one (or one that says nothing of its speeds and time constants) steps 1
-    and 3 reduce to spreading the speeds and sharing the time equally.
+    ONE recording (``run`` = ``name`` on every step): the pipeline cuts it into runs and the
+    family's filters carry the machine's state from one run to the next (docs/models.md,
+    "Whole-log dynamics"). Every run lasts ``run_s = max(min_run_s, transient_s)`` or more
+    (shorter runs are excluded; the first ``transient_s`` of a run is where a prior is least
+    sure). ``prior`` is :func:`prior_view` of the prior; without one, steps 1 and 3 reduce to
+    spreading the speeds and sharing the time equally. The rule:
 
-    1. **Speeds**: the machine's training speeds ``speeds_rpm`` inside ``speed_range`` (the
-       range in use; none: all). First the speeds the prior **never trained at** (no trained
-       speed within ``tolerance_rpm``; for a kind that records only a range, outside it): where
-       the prior is least sure. Each group is taken in the order of :func:`spread_order`:
-       highest, lowest, then the middle of the widest gap left (the trained speeds after the
-       untrained ones: farthest from those already taken). Without untrained speeds the highest
-       comes first, because its heat-up moves the spindle most (the best-conditioned single run
-       for a gain on the prior), the lowest second so two speeds already span the range.
-    2. **How many**: ``k`` heat-ups, the most (at most one per speed) with
-       ``rest_s + k run_s + (k - 1) run_s <= budget``: ``rest_s`` at rest first (the reference
-       window falls on the cold machine at rest; :func:`plan_limits` keeps it under
-       ``runs.max_leading_rest_s``), then the heat-ups, each but the last followed by a
-       cool-down (speed 0) of ``run_s``. A final cool-down is added when ``run_s`` is left over
-       and ``k >= 2`` (with one heat-up, a fold that holds it out would have no run at a speed to
-       learn from). Heat-ups and cool-downs are the whole-run CV's folds (``k = 2`` already gives
-       3 runs); with ``runs.idle_training: true`` (or a training window over the recording) the
-       cool-downs train.
-    3. **How long**: with a prior whose slowest filter time constant is ``tau``
-       (``slowest_tau_s``), the time left over goes first to the first heat-up, then to the
-       cool-down after it, each up to ``TAU_SPAN`` (2) ``tau`` (and ``MAX_RUN_S``): long enough
-       to see a repair move the time constants (``prior_time``). What is left goes to the
-       heat-ups in proportion to ``uncertainty`` (speed -> how unsure the prior is there; none:
-       the prior's interval half width, ``outside`` at an untrained speed and ``settled`` at a
-       trained one; a speed it does not name counts as the worst it names; no interval: equal
-       shares), no heat-up beyond ``MAX_RUN_S`` (4 h); extra time is given in whole minutes.
-       What the heat-ups cannot take goes to the cool-downs in equal shares, whole minutes, up
-       to 4 h each; the rest (under a minute per run, or beyond 4 h) is not used.
-    4. **Order**: the heat-ups run in the order of step 1, so the speed jumps are large (the
-       dynamics are excited) and a programme stopped early still holds where the prior is least
-       sure and the most spread speeds.
+    1. **Speeds**: the training speeds ``speeds_rpm`` inside ``speed_range`` (none: all). First
+       those the prior **never trained at** (no trained speed within ``tolerance_rpm``; for a
+       kind that records only a range, outside it), in the order of :func:`spread_order`
+       (highest, lowest, then the middle of the widest gap left), then the trained ones,
+       farthest from those taken first. The highest comes first among equals: its heat-up moves
+       the spindle most (the best-conditioned run for a gain); the lowest second spans the range.
+    2. **How many**: ``k`` heat-ups, the most (one per speed at most) with
+       ``rest_s + k run_s + (k - 1) run_s <= budget``: ``rest_s`` at rest first (the reference;
+       :func:`plan_limits` keeps it under ``runs.max_leading_rest_s``), then the heat-ups, each
+       but the last followed by a cool-down (0 r/min) of ``run_s``; a final cool-down when
+       ``run_s`` is left over and ``k >= 2``. Heat-ups and cool-downs are the whole-run CV's folds.
+    3. **How long**: with a prior whose slowest time constant is ``tau`` (``slowest_tau_s``), the
+       time left goes first to the first heat-up, then to the cool-down after it, each up to
+       ``TAU_SPAN`` (2) ``tau``: long enough to see a repair move the time constants. The rest
+       goes to the heat-ups in proportion to ``uncertainty`` (speed -> how unsure; none: the
+       prior's interval half width, ``outside`` at an untrained speed, ``settled`` at a trained
+       one; a speed not named counts as the worst named; no interval: equal shares), none beyond
+       ``MAX_RUN_S`` (4 h), in whole minutes; what they cannot take goes to the cool-downs in
+       equal shares, whole minutes, up to 4 h each; the rest is not used.
+    4. **Order**: the heat-ups run in the order of step 1 (large speed jumps; a programme stopped
+       early holds where the prior is least sure and the most spread speeds).
 
     Every step carries its ``reason`` (the rule that put it there, in words).
 
@@ -347,10 +388,8 @@ def plan_programme(
     pandas.DataFrame
         One row per step, columns :data:`PLAN_TABLE_COLUMNS`: ``speed_rpm``, ``duration_s``,
         ``run`` (``name``), ``note``, ``reason``, then ``step`` (1, 2, ...), ``kind`` (``rest``,
-        ``heat-up``, ``cool-down``) and ``start_h`` (from the plan's start). ``attrs`` holds
-        ``budget_h``, ``total_h``, ``speeds_rpm`` (the speeds taken, in order) and
-        ``untrained_rpm`` (those the prior never trained at).
-        :func:`plan_csv` writes the record format's columns.
+        ``heat-up``, ``cool-down``), ``start_h``. ``attrs``: ``budget_h``, ``total_h``,
+        ``speeds_rpm`` (taken, in order), ``untrained_rpm`` (those the prior never trained at).
 
     Raises
     ------
@@ -382,49 +421,8 @@ def plan_programme(
     left = budget_s - rest_s - k * run_s - n_cool * run_s
     if k > 1 and left >= run_s - 1e-9:
         n_cool, left = k, left - run_s
-    heat_extra, cool_extra = [0.0] * k, [0.0] * n_cool
-    tau = (prior or {}).get("slowest_tau_s")
-    if tau:  # the prior's slowest time constant: a heat-up and a cool-down long enough to see it
-        want = min(TAU_SPAN * float(tau), MAX_RUN_S) - run_s
-        for extra in (heat_extra, cool_extra):
-            if extra:
-                extra[0] = max(0.0, min(want, math.floor(left / QUANTUM_S + 1e-9) * QUANTUM_S))
-                left -= extra[0]
-    weights = _weights(speeds, uncertainty if uncertainty is not None else _view_uncertainty(speeds, prior))
-    shared = _share(left, weights, [MAX_RUN_S - run_s - e for e in heat_extra])
-    heat_extra = [a + b for a, b in zip(heat_extra, shared)]
-    left -= sum(shared)
-    shared = _share(left, [1.0] * n_cool, [MAX_RUN_S - run_s - e for e in cool_extra])
-    cool_extra = [a + b for a, b in zip(cool_extra, shared)]
-    rows = [
-        (
-            0.0,
-            rest_s,
-            "rest before start (cold machine at rest: the reference)",
-            f"the reference: the cold machine at rest, {rest_s:g} s (the first heat-up's rest before start)",
-            "rest",
-        )
-    ]
-    for i, speed in enumerate(speeds):
-        heat = run_s + heat_extra[i]
-        reason = _heat_reason(i, speed, speeds, prior)
-        if tau and i == 0 and heat_extra[0] > 0:
-            reason += f"; long enough to see the prior's slowest time constant ({float(tau):g} s) change"
-        rows.append(
-            (speed, heat, f"heat-up {i + 1} of {k}: {speed:g} r/min, {heat / 60:g} min", reason, "heat-up")
-        )
-        if i < n_cool:
-            cool = run_s + cool_extra[i]
-            why = "spindle stopped: the machine cooling, a run of its own between the heat-ups (a CV fold)"
-            if i == k - 1:
-                why = "spindle stopped: the final cool-down (a CV fold)"
-            if tau and i == 0 and cool_extra[0] > 0:
-                why += (
-                    f"; long enough to see the prior's slowest time constant ({float(tau):g} s) as it cools"
-                )
-            rows.append(
-                (0.0, cool, f"cool-down {i + 1}: spindle stopped, {cool / 60:g} min", why, "cool-down")
-            )
+    heat_extra, cool_extra = _extras(left, k, n_cool, run_s, speeds, uncertainty, prior)
+    rows = _rows(speeds, heat_extra, cool_extra, run_s, rest_s, prior)
     plan = pd.DataFrame(rows, columns=["speed_rpm", "duration_s", "note", "reason", "kind"])
     plan.insert(2, "run", str(name))
     plan.insert(5, "step", range(1, len(plan) + 1))
