@@ -7,13 +7,25 @@ from __future__ import annotations
 
 import math
 
+import pandas as pd
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from rafi.deploy.record_plan import read_plan
-from rafi.errors import RafiUserError
-from rafi.ops.plan import MAX_RUN_S, PLAN_TABLE_COLUMNS, REST_S, plan_csv, plan_programme, spread_order
+from rafi.errors import RafiUserError, SettingsError
+from rafi.ops.plan import (
+    MAX_RUN_S,
+    PLAN_TABLE_COLUMNS,
+    REST_S,
+    plan_csv,
+    plan_limits,
+    plan_programme,
+    plan_text,
+    prior_view,
+    spread_order,
+)
+from rafi.settings import machine_settings
 
 PAPER = [3000, 6000, 9000, 12000, 15000, 18000]
 
@@ -127,3 +139,122 @@ def test_every_plan_fits_its_budget_and_range_and_reads_back(
     assert [(s.speed_rpm, s.duration_s, s.run) for s in steps] == list(
         zip(plan["speed_rpm"], plan["duration_s"], plan["run"])
     )
+
+
+def _view(speeds=None, speed_range=None, tau=None, half=None):
+    """A :func:`prior_view` of an artefact that says what is given."""
+    artefact = {"kind": "dynamic" if speeds is None else "rafi", "model_id": "0" * 64, "machine": "m"}
+    if speeds is not None:
+        artefact["speeds"] = [{"speed_rpm": s} for s in speeds]
+    if speed_range is not None:
+        artefact["speed_range_rpm"] = list(speed_range)
+    if tau is not None:
+        artefact["selected"] = {"taus_s": [0, tau / 2], "speed_taus_s": [tau]}
+    if half is not None:
+        artefact["interval"] = {"half_width_um": half}
+    return prior_view(artefact, tolerance_rpm=50)
+
+
+def test_two_priors_trained_at_other_speeds_give_plans_at_other_speeds_and_no_prior_the_plain_one():
+    plain = plan_programme(speeds_rpm=PAPER, budget_h=4)
+    low = plan_programme(speeds_rpm=PAPER, budget_h=4, prior=_view(speeds=[3000, 6000, 9000]))
+    high = plan_programme(speeds_rpm=PAPER, budget_h=4, prior=_view(speeds=[12000, 15000, 18000]))
+    everywhere = plan_programme(speeds_rpm=PAPER, budget_h=4, prior=_view(speeds=PAPER))
+    # the speeds the prior never had come first, spread; then the trained ones, farthest first
+    assert low.attrs["speeds_rpm"] == [18000, 12000, 15000, 3000] and low.attrs["untrained_rpm"] == [
+        18000,
+        12000,
+        15000,
+    ]
+    assert high.attrs["speeds_rpm"] == [9000, 3000, 6000, 18000]
+    assert everywhere.attrs["speeds_rpm"] == plain.attrs["speeds_rpm"] == [18000, 3000, 9000, 6000]
+    assert everywhere.attrs["untrained_rpm"] == []
+    # a kind that records a range only: outside the range is untrained (its tolerance included)
+    ranged = plan_programme(speeds_rpm=PAPER, budget_h=4, prior=_view(speed_range=(0, 11980)))
+    assert ranged.attrs["untrained_rpm"] == [18000, 15000]
+    for plan in (low, high, ranged):
+        assert plan["duration_s"].sum() <= 4 * 3600
+    heat = low[low["kind"] == "heat-up"]
+    assert (
+        heat["reason"]
+        .iloc[0]
+        .startswith("a speed the prior never trained at (trained at 3000, 6000, 9000 r/min)")
+    )
+    assert "trained by the prior" in heat["reason"].iloc[-1]
+    assert "prior" not in " ".join(plain["reason"])  # no prior: the reasons do not invent one
+
+
+def test_the_interval_buys_time_where_the_prior_is_least_sure():
+    half = {"settled": 1.0, "transient": 2.0, "outside": 4.0}
+    plan = plan_programme(speeds_rpm=PAPER, budget_h=6, prior=_view(speeds=[3000, 6000, 9000], half=half))
+    heat = plan[plan["kind"] == "heat-up"].set_index("speed_rpm")["duration_s"]
+    untrained = [s for s in heat.index if s > 9000]
+    assert untrained and all(heat[s] > heat[t] for s in untrained for t in heat.index if t <= 9000)
+    assert "outside cell, +/-4 um" in plan.loc[plan["kind"] == "heat-up", "reason"].iloc[0]
+
+
+def test_the_slowest_time_constant_gets_a_heat_up_and_a_cool_down_of_two_of_it_first():
+    tau, limits = 2400.0, plan_limits(machine_settings({}, "tapping-center-a"))  # runs of 1 h at least
+    plan = plan_programme(speeds_rpm=PAPER, budget_h=4, prior=_view(speeds=PAPER, tau=tau), **limits)
+    plain = plan_programme(speeds_rpm=PAPER, budget_h=4, **limits)
+    rows = plan.reset_index(drop=True)
+    assert list(rows["kind"][:3]) == ["rest", "heat-up", "cool-down"]
+    assert rows["duration_s"][1] >= 2 * tau and rows["duration_s"][2] >= 2 * tau
+    assert rows["duration_s"][2] > plain["duration_s"].iloc[2] < 2 * tau  # without the prior: too short
+    assert "slowest time constant (2400 s)" in rows["reason"][1] and "as it cools" in rows["reason"][2]
+    assert plan["duration_s"].sum() <= 4 * 3600
+    # a short budget gives what it has, never more
+    short = plan_programme(speeds_rpm=PAPER, budget_h=1.2, prior=_view(speeds=PAPER, tau=tau), **limits)
+    assert short["duration_s"].sum() <= 1.2 * 3600 and list(short["kind"]) == ["rest", "heat-up"]
+
+
+def test_the_rest_comes_from_the_resolved_settings_and_stays_under_the_leading_rest_limit():
+    settings = machine_settings({}, "tapping-center-a")
+    assert plan_limits(settings)["rest_s"] == REST_S < settings["runs"]["max_leading_rest_s"]
+    tight = {**settings, "runs": {**settings["runs"], "max_leading_rest_s": 150}}
+    rest = plan_limits(tight)["rest_s"]
+    assert settings["reference"]["window_s"] <= rest < 150
+    assert plan_programme(speeds_rpm=PAPER, budget_h=2, **plan_limits(tight))["duration_s"].iloc[0] == rest
+    with pytest.raises(SettingsError, match=r"^runs.max_leading_rest_s 100 s leaves the plan no rest") as err:
+        plan_limits({**settings, "runs": {**settings["runs"], "max_leading_rest_s": 100}})
+    assert "\n" not in str(err.value)
+
+
+def test_every_step_says_why_it_is_there_in_the_csv_and_the_printed_programme(tmp_path):
+    plan = plan_programme(speeds_rpm=PAPER, budget_h=4, prior=_view(speeds=[3000], tau=1800))
+    path = tmp_path / "plan.csv"
+    path.write_text(plan_csv(plan), encoding="utf-8")
+    read = pd.read_csv(path, comment="#")
+    assert list(read.columns) == ["speed_rpm", "duration_s", "run", "note", "reason"]
+    assert read["reason"].str.len().min() > 20 and list(read["reason"]) == list(plan["reason"])
+    assert len(read_plan(path).steps) == len(plan)
+    text = plan_text(plan).splitlines()
+    assert len(text) == len(plan) + 1 and all(r in line for r, line in zip(plan["reason"], text[1:]))
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    speeds=st.lists(st.integers(1, 40).map(lambda v: v * 500.0), min_size=1, max_size=9),
+    trained=st.lists(st.integers(1, 40).map(lambda v: v * 500.0), min_size=1, max_size=6),
+    budget_h=st.floats(0.6, 30.0),
+    tau=st.one_of(st.none(), st.floats(60.0, 30000.0)),
+)
+def test_a_prior_never_takes_the_plan_beyond_its_budget_or_under_the_shortest_run(
+    speeds, trained, budget_h, tau
+):
+    try:
+        plan = plan_programme(
+            speeds_rpm=speeds,
+            budget_h=budget_h,
+            min_run_s=1800,
+            transient_s=1800,
+            prior=_view(trained, tau=tau),
+        )
+    except RafiUserError:
+        assert budget_h * 3600 < REST_S + 1800
+        return
+    assert plan["duration_s"].sum() <= budget_h * 3600 + 1e-6
+    assert all(seconds >= 1800 for seconds in pipeline_runs(plan))
+    assert plan["duration_s"].max() <= MAX_RUN_S
+    untrained = [s for s in plan.attrs["speeds_rpm"] if all(abs(s - t) > 50 for t in trained)]
+    assert plan.attrs["speeds_rpm"][: len(untrained)] == untrained  # least sure first

@@ -9,8 +9,7 @@ from report_fixture import FIXTURE, ROOT
 
 from rafi.cli import main
 from rafi.deploy.record_plan import read_plan
-from rafi.ops.plan import plan_limits
-from rafi.ops.plan_cli import speed_uncertainty, trained_speed_range
+from rafi.ops.plan import plan_limits, plan_programme, prior_view
 from rafi.settings import machine_settings, read_machine_config
 
 MACHINE = "tapping-center-a"
@@ -77,13 +76,27 @@ def test_the_prior_is_least_sure_outside_its_trained_speeds():
     settings = machine_settings({}, MACHINE)
     prior = {
         "kind": "dynamic",
+        "model_id": "ab" * 32,
+        "machine": "m",
         "speed_range_rpm": [3000.0, 9000.0],
+        "selected": {"taus_s": [0, 600], "speed_taus_s": [1200]},
         "interval": {"half_width_um": {"settled": 1.0, "transient": 2.0, "outside": 5.0}},
     }
-    assert trained_speed_range(prior) == (3000.0, 9000.0)
-    got = speed_uncertainty(prior, [3000, 6000, 9000, 12000])
-    assert got == {3000.0: 1.0, 6000.0: 1.0, 9000.0: 1.0, 12000.0: 5.0}
-    assert speed_uncertainty({"kind": "rafi"}, [3000]) is None and speed_uncertainty(None, [3000]) is None
-    rafi_prior = {"speeds": [{"speed_rpm": 3000}, {"speed_rpm": 18000}]}
-    assert trained_speed_range(rafi_prior) == (3000.0, 18000.0) and trained_speed_range(None) == (None, None)
+    view = prior_view(prior, tolerance_rpm=50)
+    assert view["speed_range_rpm"] == (3000.0, 9000.0) and view["trained_speeds_rpm"] is None
+    assert view["slowest_tau_s"] == 1200 and view["label"] == f"prior {'ab' * 6} (dynamic of m)"
+    plan = plan_programme(
+        speeds_rpm=[3000, 6000, 9000, 12000], budget_h=4, prior=view, **plan_limits(settings)
+    )
+    assert plan.attrs["speeds_rpm"][0] == 12000 and plan.attrs["untrained_rpm"] == [12000]
+    assert (
+        "never trained at (trained over 3000-9000 r/min); its interval there is the outside cell, +/-5"
+        in (plan["reason"].iloc[1])
+    )
+    rafi_prior = prior_view({"speeds": [{"speed_rpm": 3000}, {"speed_rpm": 18000}]})
+    assert rafi_prior["trained_speeds_rpm"] == [3000.0, 18000.0] and rafi_prior["speed_range_rpm"] == (
+        3000,
+        18000,
+    )
+    assert prior_view(None) is None and prior_view({"kind": "rafi"})["half_width_um"] == {}
     assert settings["runs"]["min_constant_s"] >= settings["runs"]["min_run_s"]

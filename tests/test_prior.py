@@ -15,7 +15,6 @@ from rafi.family.prior import (
     choose_prior,
     prior_chain,
     prior_param,
-    probe_sign_of,
     registry_meta,
     resolved_prior,
     seen_data,
@@ -104,60 +103,55 @@ def test_a_required_prior_that_does_not_exist_names_the_registry(tmp_path, linea
             {"sensors_available": ["T1", "T2", "T4", "T5"]},
             r"sensor\(s\) T3 it reads have no data here; a replaced",
         ),
-        ({"probe_sign_now": -1}, r"probe sign \+1 when it was qualified, -1 now .*a changed probe mounting"),
-        (
-            {"reference": {"rule": "log_start", "window_s": 60}},
-            r"reference.rule run_start in the prior, log_start",
-        ),
-        ({"reference": {"rule": "run_start", "window_s": 120}}, r"reference.window_s 60 in the prior, 120"),
+        ({"unit": "m2@Z"}, r"qualified for probe X \(m@X\), this is probe Z \(m2@Z\); another axis"),
     ],
 )
 def test_an_incompatible_prior_says_what_differs(lineage, change, message):
     grand, _, _, _ = lineage
-    ok = {
-        "sensors_available": ["T1", "T2", "T3", "T4", "T5"],
-        "reference": {"rule": "run_start", "window_s": 60.0},
-        "probe_sign_prior": 1,
-        "probe_sign_now": 1,
-    }
-    check_compatible(grand, **ok)  # compatible: no error
+    prior = {**grand, "machine": "m@X"}
+    ok = {"sensors_available": ["T1", "T2", "T3", "T4", "T5"], "unit": "m2@X"}
+    check_compatible(prior, **ok)  # compatible: no error
+    check_compatible(prior, sensors_available=ok["sensors_available"], unit="m2")  # one probe: maps
     with pytest.raises(PriorIncompatible, match=rf"^prior {grand['model_id'][:12]}: {message}") as e:
-        check_compatible(grand, **{**ok, **change})
+        check_compatible(prior, **{**ok, **change})
     assert e.value.exit_status == EX_DATAERR and "\n" not in str(e.value)
 
 
-def test_the_probe_sign_comes_from_the_meta_else_the_settings():
-    assert probe_sign_of({"config": {"input": {"displacement": {"sign": -1}}}}, 1) == -1
-    assert probe_sign_of({"config": {}}, -1) == -1
-    assert probe_sign_of(None, 1) == 1
+def test_the_registry_keeps_the_sign_the_logs_were_read_with_as_provenance():
     rafi_like = {"config": {"input": {"displacement": {"sign": -1}}}, "model_id": "x"}
     assert "config" not in registry_meta(rafi_like, 1)  # the artefact's own snapshot is kept
+    assert registry_meta({"model_id": "y"}, -1)["config"]["input"]["displacement"]["sign"] == -1
 
 
 def test_the_planning_param_and_the_job_agree(tmp_path, lineage):
     grand, adapted, s1, s2 = lineage
     reg = _registry(tmp_path, "m", [grand, adapted], adapted, sign=-1)
-
-    def signs(name):
-        return -1
-
     # the raw files are state 2's: the champion is skipped while planning already
-    param = prior_param(tmp_path, "m", "auto", s2[0]["sha256"], signs)
+    param = prior_param(tmp_path, "m", "auto", s2[0]["sha256"])
     assert param["chain"] == [grand["model_id"]] and param["registry"] == str(reg.root)
-    assert param["probe_sign"] == {grand["model_id"]: -1} and param["probe_sign_now"] == -1
     said = []
-    prior = resolved_prior(param, s2[0], s2[1], reference=REFERENCE, log=said.append)
+    prior = resolved_prior(param, s2[0], s2[1], unit="m", log=said.append)
     assert prior == grand and said[0].startswith(f"prior {grand['model_id'][:12]}")
     # every model saw the raw files: an empty param, the same as without a registry
-    empty = prior_param(tmp_path, "m", "auto", pd.concat([s1[0], s2[0]])["sha256"], signs)
+    empty = prior_param(tmp_path, "m", "auto", pd.concat([s1[0], s2[0]])["sha256"])
     assert empty["chain"] == [] and empty["registry"] is None
-    assert empty == prior_param(tmp_path / "none", "m", "auto", [], signs)  # as without a registry
-    assert resolved_prior(empty, s2[0], s2[1], reference=REFERENCE, log=said.append) is None
+    assert empty == prior_param(tmp_path / "none", "m", "auto", [])  # as without a registry
+    assert resolved_prior(empty, s2[0], s2[1], log=said.append) is None
     assert said[-1].startswith("no prior: the registry of m has no champion, or every model")
-    # the machine's probe was turned round since: refused with one line
-    flipped = {**param, "probe_sign_now": 1}
-    with pytest.raises(PriorIncompatible, match="probe sign -1 when it was qualified, \\+1 now"):
-        resolved_prior(flipped, s2[0], s2[1], reference=REFERENCE, log=said.append)
+    # a sensor the prior reads has no data here: refused with one line
+    blind = s2[1].assign(dT3=float("nan"))
+    with pytest.raises(PriorIncompatible, match="sensor\\(s\\) T3 it reads have no data here"):
+        resolved_prior(param, s2[0], blind, log=said.append)
+
+
+def test_a_sibling_with_several_probes_serves_the_same_probe(tmp_path, lineage):
+    grand, _, _, _ = lineage
+    _registry(tmp_path, "sib@Z", [grand], grand)
+    chain = prior_chain(tmp_path, "m@Z", {"machine": "sib"})
+    assert [c["model_id"] for c in chain] == [grand["model_id"]]
+    assert prior_param(tmp_path, "m@Z", {"machine": "sib"}, [])["source"] == "sib@Z"
+    with pytest.raises(PriorUnavailable, match=r"sib/registry has no champion"):
+        prior_chain(tmp_path, "m", {"machine": "sib"})  # one probe here: the sibling's own registry
 
 
 def test_status_shows_the_parent():

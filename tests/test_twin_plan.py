@@ -47,3 +47,16 @@ def test_a_plan_mistake_is_one_line_and_exit_64(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert err.count("\n") == 0 and "line 2" in err and "duration_s" in err
     assert not (tmp_path / "raw").exists()
+
+
+def test_a_recording_that_starts_at_rest_is_logged_as_the_plan_says_without_a_second_rest(tmp_path):
+    plan_path = tmp_path / "plan.csv"
+    plan_path.write_text("speed_rpm,duration_s,run\n0,180,r\n18000,3600,r\n0,1800,r\n", encoding="utf-8")
+    ((stem, schedule, _),) = plan_runs(read_plan(plan_path))
+    # the plan's 180 s rest is the whole rest: with the twin's own 180 s it would be 360 s, above
+    # runs.max_leading_rest_s (300 s), and the pipeline would cut it as a run of its own
+    assert stem == "r" and [(s.duration_s, s.speed_rpm) for s in schedule] == [
+        (180.0, 0.0),
+        (3600.0, 18000.0),
+        (1800.0, 0.0),
+    ]

@@ -4,7 +4,8 @@ One step per line: ``speed_rpm`` (the speed command, r/min, 0 or more) held for 
 seconds (above 0). An optional ``run`` column names the recording a step belongs to:
 consecutive steps with the same name go into one file, a step with an empty ``run`` is not
 recorded (a cool-down between two cold starts); without the column the whole plan is one
-recording. An optional ``note`` column is free text for the reader of the plan. Lines starting
+recording. Optional ``note`` and ``reason`` columns are free text for the reader of the plan
+(``rafi plan`` writes why each step is there in ``reason``). Lines starting
 with ``#`` and blank lines are ignored. Every mistake is one line naming the file, the line and
 the column (:func:`read_plan`). Standard library only.
 """
@@ -22,7 +23,7 @@ from rafi.errors import RafiUserError, quote, short_path
 __all__ = ["PLAN_COLUMNS", "Plan", "PlanStep", "RUN_NAME", "read_plan"]
 
 #: The columns a plan may have (``speed_rpm`` and ``duration_s`` are required).
-PLAN_COLUMNS = ("speed_rpm", "duration_s", "run", "note")
+PLAN_COLUMNS = ("speed_rpm", "duration_s", "run", "note", "reason")
 #: What a recording's name may be: it starts the file name (``<run>_<start>.csv``).
 RUN_NAME = re.compile(r"^[A-Za-z0-9][A-Za-z0-9._-]{0,79}$")
 #: A plan longer than this is refused (a mistyped unit: hours written as seconds x 3600 twice).
@@ -181,7 +182,8 @@ def read_plan(path, *, default_run: str = "rec", max_speed_rpm: float | None = N
             raise _error(path, f"more than {MAX_STEPS} steps", number)
     if header is None or not steps:
         raise _error(
-            path, "no steps; expected a header 'speed_rpm,duration_s[,run][,note]' and one line per step"
+            path,
+            "no steps; expected a header 'speed_rpm,duration_s[,run][,note][,reason]' and one line per step",
         )
     plan = Plan(str(path), tuple(steps))
     if plan.total_s > MAX_PLAN_S:

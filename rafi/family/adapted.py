@@ -83,6 +83,13 @@ class AdaptedPrior(FamilyModel):
         ``rmse`` or ``max_abs`` (``models: cv_metric``).
     machine : str or None
         Machine name recorded in the artefact (None: the prior's).
+    reference : dict or None
+        This machine's ``reference:`` settings (``rule``, ``window_s``; None: the prior's). The
+        reference is how this machine's logs are cut and referenced, not physics: the prior's
+        features are computed under it (its filters over each run from cold under ``run_start``,
+        over the whole log under ``log_start``) and the adapted artefact carries it, so a prior
+        qualified on a continuous log serves a machine logged as cold-start files and the
+        reverse (``docs/operations.md``, "Layouts are not physics").
 
     Attributes
     ----------
@@ -109,6 +116,7 @@ class AdaptedPrior(FamilyModel):
         cv: str = MODELS["cv"],
         cv_metric: str = MODELS["cv_metric"],
         machine: str | None = None,
+        reference: dict | None = None,
     ):
         self.prior = prior
         self.method = method
@@ -116,6 +124,7 @@ class AdaptedPrior(FamilyModel):
         self.cv = cv
         self.cv_metric = cv_metric
         self.machine = machine
+        self.reference = reference
 
     @property
     def kind(self) -> str:
@@ -140,13 +149,17 @@ class AdaptedPrior(FamilyModel):
         """A fresh fitted model of the prior (the one whose coefficients change): the ridge kinds'
         own class, RAFI's :class:`~rafi.method.model.RafiModel` for ``rafi`` / ``rafi_linear``."""
         if self.kind in RIDGE_KINDS:
-            return RIDGE_CLASSES[self.kind].from_dict(self.prior)
-        if self.kind in ("rafi", "rafi_linear"):
+            model = RIDGE_CLASSES[self.kind].from_dict(self.prior)
+        elif self.kind in ("rafi", "rafi_linear"):
             from rafi.method.model import RafiModel
 
             check_artefact(self.prior, self.kind)  # refused if edited (its id is under its own kind)
-            return RafiModel.from_dict({**self.prior, "kind": "rafi"}, verify_id=False)
-        raise ValueError(f"a prior of kind {self.kind!r} cannot be adapted")
+            model = RafiModel.from_dict({**self.prior, "kind": "rafi"}, verify_id=False)
+        else:
+            raise ValueError(f"a prior of kind {self.kind!r} cannot be adapted")
+        if self.reference is not None:  # this machine's logs' reference (``reference``)
+            model.reference = {**(model.reference or {}), **dict(self.reference)}
+        return model
 
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """Re-fit the prior on the training runs of ``runs_table`` by ``method``; returns ``self``."""
@@ -382,9 +395,12 @@ def _joined_ranges(model, table: pd.DataFrame, train: pd.DataFrame):
     return ranges, [float(min(lo, speeds.min())), float(max(hi, speeds.max()))]
 
 
-def adaptation_factories(prior: dict, *, options: dict, machine: str | None, log=print) -> dict:
+def adaptation_factories(
+    prior: dict, *, options: dict, machine: str | None, reference: dict | None = None, log=print
+) -> dict:
     """Name -> factory of the adaptation candidates of ``prior`` (:data:`CANDIDATES`; ``prior_ridge``
-    only for a ridge kind), built from the machine's ``models:`` settings ``options``."""
+    only for a ridge kind), built from the machine's ``models:`` settings ``options`` and its
+    ``reference:`` settings (:class:`AdaptedPrior`, ``reference``)."""
     names = [n for n in CANDIDATES if CANDIDATES[n] not in RIDGE_METHODS or prior.get("kind") in RIDGE_KINDS]
     if "prior_ridge" not in names:
         log(
@@ -392,6 +408,7 @@ def adaptation_factories(prior: dict, *, options: dict, machine: str | None, log
             "(its filter constants and a ridge towards it need a ridge kind)"
         )
     common = {"alphas": options["prior_ridge_alphas"], "cv": options["cv"], "cv_metric": options["cv_metric"]}
+    common["reference"] = reference
     return {
         n: functools.partial(AdaptedPrior, prior=prior, method=CANDIDATES[n], machine=machine, **common)
         for n in names

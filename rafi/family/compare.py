@@ -539,7 +539,8 @@ def run_family(
     factories = {kind: functools.partial(make_model, kind, **settings) for kind in options["enabled"]}
     floor = functools.partial(make_model, PLAIN_RIDGE, **settings)  # always scored, offered if enabled
     if prior is not None:
-        factories.update(adaptation_factories(prior, options=options, machine=machine, log=log))
+        adapt = {"options": options, "machine": machine, "reference": reference}  # this machine's reference
+        factories.update(adaptation_factories(prior, **adapt, log=log))
         settings = {**settings, "prior": prior.get("model_id")}  # the CV memo's key covers the prior
     candidates, factories = list(factories), with_plain_ridge(factories, floor)  # offered / scored
     models, cv, oof, memo, fit_table = _cross_validated(

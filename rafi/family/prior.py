@@ -7,8 +7,11 @@ the adaptation family (:mod:`rafi.family.adapted`) starts from, and whether it m
 * :func:`choose_prior` applies the honesty rule: the first artefact of the chain that has seen
   none of the current runs (:func:`seen_data`: its ``data`` and its ``adaptation.prior_data``,
   against every current run's ``sha256``, training or validation).
-* :func:`check_compatible` refuses a prior whose sensors, probe sign or reference rule differ
-  (:class:`rafi.errors.PriorIncompatible`, one line).
+* :func:`check_compatible` refuses a prior whose sensors have no data here or that was qualified
+  for another probe (:class:`rafi.errors.PriorIncompatible`, one line). Only physics is compared:
+  the probe's sign and the reference rule are properties of the logs (the readers apply
+  ``input.displacement.sign``, every reference rule measures from the cold machine at rest), and
+  the adapted model takes this machine's (:class:`rafi.family.adapted.AdaptedPrior`).
 * :func:`prior_param` is what ``rule compare`` gets while Snakemake plans: the chain from its
   first model disjoint from the machine's raw files (ids only), so that promoting a champion
   trained on these logs changes nothing the workflow sees.
@@ -18,9 +21,8 @@ Standard library only at import (``workflow/rules/common.smk`` imports it while 
 
 from __future__ import annotations
 
-import json
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from pathlib import Path
 
 from rafi.errors import PriorIncompatible, PriorUnavailable, RegistryError
@@ -33,7 +35,7 @@ __all__ = [
     "seen_data",
     "choose_prior",
     "prior_sensors",
-    "probe_sign_of",
+    "prior_probe",
     "check_compatible",
     "prior_param",
     "available_sensors",
@@ -73,6 +75,22 @@ def _registry(results_dir: str | os.PathLike, machine: str):
     return Registry(registry_dir(results_dir, machine), machine)
 
 
+def source_unit(results_dir: str | os.PathLike, setting, machine: str) -> tuple[str, str]:
+    """``(mode, source)`` of :func:`prior_source`, a sibling's name mapped to its unit of the same
+    probe: for a unit ``a@Z`` of a machine with several probes, ``{machine: b}`` is ``b@Z`` when
+    ``results_dir`` holds that unit's registry (``b`` qualified per probe), else ``b``."""
+    from rafi.ops.registry import registry_dir
+    from rafi.settings import split_unit, unit_name
+
+    mode, source = prior_source(setting, machine)
+    probe = split_unit(machine)[1]
+    if mode == "sibling" and probe is not None and split_unit(source)[1] is None:
+        unit = unit_name(source, probe)
+        if Path(registry_dir(results_dir, unit)).is_dir():
+            return mode, unit
+    return mode, source
+
+
 def prior_chain(results_dir: str | os.PathLike, machine: str, setting) -> list[dict]:
     """The candidate priors of ``machine`` under ``models: prior`` = ``setting``, in order.
 
@@ -84,7 +102,8 @@ def prior_chain(results_dir: str | os.PathLike, machine: str, setting) -> list[d
         The machine being qualified.
     setting : str or dict
         ``auto`` (the champion chain when the registry has a champion, else none), ``none``,
-        ``champion`` (required) or ``{machine: <name>}`` (a sibling's champion chain, required).
+        ``champion`` (required) or ``{machine: <name>}`` (a sibling's champion chain, required;
+        of the same probe, :func:`source_unit`).
 
     Returns
     -------
@@ -97,7 +116,7 @@ def prior_chain(results_dir: str | os.PathLike, machine: str, setting) -> list[d
     PriorUnavailable
         ``champion`` or a sibling without a champion (the message names the registry path).
     """
-    mode, source = prior_source(setting, machine)
+    mode, source = source_unit(results_dir, setting, machine)
     if mode == "none":
         return []
     reg = _registry(results_dir, source)
@@ -179,24 +198,25 @@ def prior_sensors(prior: dict) -> list[str]:
     return [str(s) for s in prior.get("key_sensors") or []]
 
 
-def probe_sign_of(meta: dict | None, settings_sign) -> int:
-    """The displacement sign (``input.displacement.sign``) a registered model was qualified with:
-    its meta's config snapshot when that holds one, else ``settings_sign`` (the machine's
-    settings)."""
-    config = (meta or {}).get("config") or {}
-    sign = ((config.get("input") or {}).get("displacement") or {}).get("sign")
-    return int(sign if sign is not None else settings_sign)
+def prior_probe(prior: dict) -> str | None:
+    """The probe a prior was qualified for: the part after ``@`` of its ``machine`` (a unit of a
+    machine with several probes, ``spindle-7@Z``), else ``None`` (a machine with one probe)."""
+    from rafi.settings import split_unit
+
+    return split_unit(str(prior.get("machine") or ""))[1]
 
 
-def check_compatible(
-    prior: dict,
-    *,
-    sensors_available: Iterable[str],
-    reference: dict,
-    probe_sign_prior: int,
-    probe_sign_now: int,
-) -> None:
+def check_compatible(prior: dict, *, sensors_available: Iterable[str], unit: str | None = None) -> None:
     """Raise :class:`rafi.errors.PriorIncompatible` unless ``prior`` can be applied here.
+
+    Only physics is compared: the sensors the prior reads must have data here (the names map:
+    ``input.columns`` maps any header to a sensor name), and a prior qualified for one probe of a
+    machine with several (``<machine>@<probe>``) serves the same probe only. The displacement
+    sign and the reference rule are not compared: they describe how the logs were written (the
+    readers multiply by ``input.displacement.sign``, so every model is fitted in the physical
+    convention; ``log_start`` in a continuous log and ``run_start`` on cold-start files both
+    measure from the cold machine at rest), and the adapted model takes this machine's reference
+    (:class:`rafi.family.adapted.AdaptedPrior`, ``reference``).
 
     Parameters
     ----------
@@ -204,12 +224,11 @@ def check_compatible(
         The prior's artefact.
     sensors_available : iterable of str
         The sensors with data in the current runs (``T1`` ...).
-    reference : dict
-        The machine's ``reference:`` settings (``rule``, ``window_s``).
-    probe_sign_prior, probe_sign_now : int
-        The displacement sign the prior was qualified with (:func:`probe_sign_of`) and the
-        machine's now (``input.displacement.sign``).
+    unit : str, optional
+        The unit being qualified (``machine`` or ``machine@probe``); None: the probe is not checked.
     """
+    from rafi.settings import split_unit
+
     pid = str(prior.get("model_id", "?"))[:12]
     missing = [s for s in prior_sensors(prior) if s not in set(map(str, sensors_available))]
     if missing:
@@ -217,63 +236,35 @@ def check_compatible(
             f"prior {pid}: sensor(s) {', '.join(missing)} it reads have no data here; a replaced or "
             "renamed sensor? (map it in input.columns, or set models.prior: none)"
         )
-    if int(probe_sign_prior) != int(probe_sign_now):
+    probe_prior = prior_probe(prior)
+    probe_now = split_unit(unit)[1] if unit else None
+    if probe_prior is not None and probe_now is not None and probe_prior != probe_now:
         raise PriorIncompatible(
-            f"prior {pid}: probe sign {int(probe_sign_prior):+d} when it was qualified, "
-            f"{int(probe_sign_now):+d} now (input.displacement.sign); a changed probe mounting?"
+            f"prior {pid}: qualified for probe {probe_prior} ({prior.get('machine')}), this is probe "
+            f"{probe_now} ({unit}); another axis is other physics (name the same probe, or set "
+            "models.prior: none)"
         )
-    ref_prior = prior.get("reference") or {}
-    for key in ("rule", "window_s"):
-        a, b = ref_prior.get(key), reference.get(key)
-        if a is not None and b is not None and str(a) != str(b) and _as_float(a) != _as_float(b):
-            raise PriorIncompatible(
-                f"prior {pid}: reference.{key} {a} in the prior, {b} in this machine's settings; "
-                "a different reference rule (use the prior's, or set models.prior: none)"
-            )
 
 
-def _as_float(value):
-    try:
-        return float(value)
-    except (TypeError, ValueError):
-        return value
-
-
-def prior_param(
-    results_dir: str | os.PathLike,
-    machine: str,
-    setting,
-    raw_hashes: Iterable[str],
-    settings_sign: Callable[[str], int],
-) -> dict:
+def prior_param(results_dir: str | os.PathLike, machine: str, setting, raw_hashes: Iterable[str]) -> dict:
     """The param ``prior`` of ``rule compare``, resolved while Snakemake plans.
 
     ``chain`` holds the ids of :func:`prior_chain` from its first model that has seen none of
-    ``raw_hashes`` (the sha256 of the machine's raw files); ``probe_sign`` the displacement sign
-    each was qualified with (:func:`probe_sign_of`; ``settings_sign(name)`` reads a machine's
-    ``input.displacement.sign``), ``probe_sign_now`` the machine's own (only with a chain). Nothing
-    else: a champion trained on these logs must leave the param as it was without one (no
-    re-run after a promotion). The
+    ``raw_hashes`` (the sha256 of the machine's raw files). Nothing else: a champion trained on
+    these logs must leave the param as it was without one (no re-run after a promotion). The
     job loads the artefacts from ``registry`` and chooses again on ``runs.csv``
     (:func:`resolved_prior`).
     """
-    mode, source = prior_source(setting, machine)
+    mode, source = source_unit(results_dir, setting, machine)
     chain = prior_chain(results_dir, machine, setting)
     k = _first_disjoint(chain, {str(h) for h in raw_hashes})
     eligible = chain[k:] if k is not None else []
     reg = _registry(results_dir, source)
-    signs = {}
-    for artefact in eligible:
-        model_id = str(artefact["model_id"])
-        meta = _read_json(reg.meta_path(model_id))
-        signs[model_id] = probe_sign_of(meta, settings_sign(str(artefact.get("machine") or source)))
     return {
         "mode": mode,
         "source": source,
         "registry": str(reg.root) if eligible else None,
         "chain": [str(a["model_id"]) for a in eligible],
-        "probe_sign": signs,
-        "probe_sign_now": int(settings_sign(machine)) if eligible else None,
     }
 
 
@@ -285,13 +276,15 @@ def available_sensors(runs_frame) -> list[str]:
     return [s for s in run_sensors(runs_frame) if bool(runs_frame[f"d{s}"].notna().any())]
 
 
-def resolved_prior(param: dict | None, runs_table, runs_frame, *, reference: dict, log=print) -> dict | None:
+def resolved_prior(
+    param: dict | None, runs_table, runs_frame, *, unit: str | None = None, log=print
+) -> dict | None:
     """The prior ``rule compare`` adapts (:func:`prior_param` = ``param``), or ``None``.
 
     Loads the chain's artefacts from the registry (verified), chooses the first that learnt
     from none of the runs of ``runs_table`` (:func:`choose_prior`) and checks it against
-    ``runs_frame``'s sensors, the machine's ``reference`` settings and probe sign
-    (:func:`check_compatible`, which raises). The reason goes to ``log``.
+    ``runs_frame``'s sensors and the probe of ``unit`` (the unit qualified:
+    :func:`check_compatible`, which raises). The reason goes to ``log``.
     """
     from rafi.ops.registry import Registry
 
@@ -313,18 +306,9 @@ def resolved_prior(param: dict | None, runs_table, runs_frame, *, reference: dic
         check_compatible(
             prior,
             sensors_available=available_sensors(runs_frame),
-            reference=reference,
-            probe_sign_prior=int(param["probe_sign"][prior["model_id"]]),
-            probe_sign_now=int(param["probe_sign_now"]),
+            unit=unit,
         )
     return prior
-
-
-def _read_json(path: Path) -> dict | None:
-    try:
-        return json.loads(Path(path).read_text(encoding="utf-8"))
-    except (OSError, ValueError):
-        return None
 
 
 def parent_of(artefact: dict) -> str | None:
@@ -335,9 +319,10 @@ def parent_of(artefact: dict) -> str | None:
 
 
 def registry_meta(artefact: dict, displacement_sign: int | None) -> dict:
-    """What the registry's ``models/<id>.meta.json`` adds for a later prior: ``parent`` (an adapted
-    model only) and a ``config`` snapshot holding the displacement sign the model was qualified
-    with (``input.displacement.sign``, added when the artefact's own ``config`` lacks it)."""
+    """What the registry's ``models/<id>.meta.json`` adds: ``parent`` (an adapted model only) and a
+    ``config`` snapshot holding the displacement sign the model's logs were read with
+    (``input.displacement.sign``, added when the artefact's own ``config`` lacks it; provenance
+    only: a later prior does not compare it, :func:`check_compatible`)."""
     out = {}
     parent = parent_of(artefact)
     if parent:

@@ -1,20 +1,23 @@
 """``rafi plan``: the shortest test programme that re-qualifies a machine from a prior.
 
 The programme (:func:`rafi.ops.plan.plan_programme`, ``docs/operations.md``, "Re-qualification
-in hours") is built from:
+in hours" and "A programme shaped by the prior") is built from:
 
 * the **prior**: the model the re-qualification starts from, resolved as rule compare resolves
-  it (``models.prior``, :func:`rafi.family.prior.prior_chain`; ``--prior`` overrides it here);
+  it (``models.prior``, :func:`rafi.family.prior.prior_chain`; ``--prior`` overrides it here),
+  read by :func:`rafi.ops.plan.prior_view`: the speeds it was trained at, its interval's half
+  widths, its slowest time constant;
 * the **speeds**: the machine's ``training_speeds_rpm`` inside ``--speed-range`` (the range the
-  machine is used in: paper item 10, retrain only what is used);
-* **where the prior is least sure**: a speed outside the prior's trained speed range falls in the
-  interval's ``outside`` cell, one inside it in ``settled`` (after ``transient_s`` of
-  ``transient``): the prior's half widths of those cells weigh the time each speed gets;
+  machine is used in: paper item 10), those the prior never trained at first;
+* the machine's **resolved settings**: the shortest run (``runs.min_run_s``,
+  ``runs.min_constant_s``), the rest before the first heat-up (under
+  ``runs.max_leading_rest_s``), the speed tolerance;
 * the **budget**: ``--hours`` of recorded machine time (default 4).
 
-It prints the programme as a table and writes it as a test plan CSV (``docs/record.md``, "The
-test plan") that ``rafi record --plan`` follows on the machine and ``rafi simulate day --plan``
-follows on the twin. The file is checked by reading it back with the recorder's own reader.
+It prints the programme, one step a line with the reason it is there, and writes it as a test
+plan CSV (``docs/record.md``, "The test plan") that ``rafi record --plan`` follows on the machine
+and ``rafi simulate day --plan`` follows on the twin. The file is checked by reading it back with
+the recorder's own reader.
 """
 
 from __future__ import annotations
@@ -60,37 +63,11 @@ def prior_setting(text: str | None, configured):
     return text if text in ("auto", "champion", "none") else {"machine": text}
 
 
-def speed_uncertainty(prior: dict | None, speeds) -> dict | None:
-    """``speed -> half width (um)`` of the prior's interval cell each speed falls in, or ``None``
-    (no prior, or a prior without an interval): ``outside`` beyond the prior's trained speed
-    range, ``settled`` inside it."""
-    block = (prior or {}).get("interval") or {}
-    half = block.get("half_width_um") or {}
-    if not half:
-        return None
-    lo, hi = trained_speed_range(prior)
-    return {
-        float(s): float(half["outside"] if lo is None or not lo <= float(s) <= hi else half["settled"])
-        for s in speeds
-    }
-
-
-def trained_speed_range(prior: dict | None) -> tuple[float | None, float | None]:
-    """The prior's trained speed range, r/min (``(None, None)`` when the artefact does not say)."""
-    if not prior:
-        return None, None
-    if prior.get("speed_range_rpm"):
-        lo, hi = prior["speed_range_rpm"]
-        return float(lo), float(hi)
-    speeds = [float(s["speed_rpm"]) for s in prior.get("speeds") or [] if "speed_rpm" in s]
-    return (min(speeds), max(speeds)) if speeds else (None, None)
-
-
 def run(args) -> int:
     from rafi.artefact import write_text_atomic
     from rafi.deploy.record_plan import read_plan
     from rafi.family.prior import prior_chain
-    from rafi.ops.plan import PLAN_TABLE_COLUMNS, plan_csv, plan_limits, plan_programme
+    from rafi.ops.plan import plan_csv, plan_limits, plan_programme, plan_text, prior_view
     from rafi.settings import read_machine_config, run_settings
 
     if not math.isfinite(args.hours) or args.hours <= 0:
@@ -116,7 +93,7 @@ def run(args) -> int:
         speeds_rpm=speeds,
         budget_h=float(args.hours),
         speed_range=tuple(args.speed_range) if args.speed_range else None,
-        uncertainty=speed_uncertainty(prior, speeds),
+        prior=prior_view(prior, tolerance_rpm=float(settings["speed_tolerance_rpm"])),
         name=f"requal_{args.machine}"[:80],
         **limits,
     )
@@ -124,7 +101,7 @@ def run(args) -> int:
     write_text_atomic(out, plan_csv(table))
     plan = read_plan(out)  # the recorder's own reader accepts what was written
     print(plan_header(args.machine, prior, plan.total_s, out))
-    print(table[list(PLAN_TABLE_COLUMNS)].to_string(index=False))
+    print(plan_text(table))
     return 0
 
 

@@ -66,9 +66,13 @@ def plan_runs(plan) -> list[tuple[str, list, str]]:
     ``rafi record --plan``: :class:`rafi.deploy.record_plan.Plan`), for tapping-center-a.
 
     Consecutive steps with the same ``run`` are one recording; a step without a run is not
-    recorded. The twin starts each recording cold after ``REST_BEFORE_START_S`` at rest, as the
-    shipped logs do: an unrecorded step between two recordings stands for a cool-down long enough
-    to reach the room's temperature (``docs/twin.md``).
+    recorded. Each recording starts cold (an unrecorded step between two recordings stands for a
+    cool-down long enough to reach the room's temperature, ``docs/twin.md``). A recording whose
+    first step is at rest (0 r/min: the rest ``rafi plan`` writes, within
+    ``runs.max_leading_rest_s``) is logged as the plan says, as ``rafi record --plan`` logs it;
+    one that starts at a speed gets ``REST_BEFORE_START_S`` at rest first, as the shipped logs
+    do (never both: a rest of the plan's and the twin's together could exceed
+    ``runs.max_leading_rest_s`` and be cut as a run of its own).
     """
     runs: list[tuple[str, list, str]] = []
     last = None
@@ -80,7 +84,10 @@ def plan_runs(plan) -> list[tuple[str, list, str]]:
             runs.append((step.run, [], f"plan {Path(plan.path).name}, recording {step.run}"))
             last = step.run
         runs[-1][1].append((float(step.duration_s), float(step.speed_rpm)))
-    return [(stem, with_rest(schedule_from_pairs(steps)), desc) for stem, steps, desc in runs]
+    return [
+        (stem, with_rest(schedule_from_pairs(steps), 0.0 if steps[0][1] == 0 else REST_BEFORE_START_S), desc)
+        for stem, steps, desc in runs
+    ]
 
 
 def _plan_steps_b(plan) -> list[tuple[float, float, str]]:

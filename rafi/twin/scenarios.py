@@ -342,19 +342,26 @@ def simulate_runs(
     )
 
 
-def plan_pieces(plan: pd.DataFrame, dt: float) -> list[tuple[str, list[tuple[str, float, int, int]]]]:
+def plan_pieces(
+    plan: pd.DataFrame, dt: float, max_leading_rest_s: float | None = None
+) -> list[tuple[str, list[tuple[str, float, int, int]]]]:
     """The logs and runs the pipeline cuts from ``plan`` (the :func:`rafi.method.runs.find_runs` rules
     for a clean log of held speeds).
 
     Each recording (consecutive steps of one ``run``) is a log; in it, consecutive steps at one
-    speed form a run, and a first idle piece shorter than 300 s (``runs.max_leading_rest_s``)
-    is the rest before the next run's start. Steps are rounded to whole samples.
+    speed form a run, and a first idle piece shorter than ``max_leading_rest_s``
+    (``runs.max_leading_rest_s``; None: its default) is the rest before the next run's start.
+    Steps are rounded to whole samples.
 
     Returns
     -------
     list of (log name, [(run suffix, speed_rpm, first_sample, n_samples), ...])
         Sample positions count from the plan's start.
     """
+    if max_leading_rest_s is None:
+        from rafi.settings import MACHINE_DEFAULTS
+
+        max_leading_rest_s = float(MACHINE_DEFAULTS["runs"]["max_leading_rest_s"])
     names = [str(r) if isinstance(r, str) else "" for r in plan["run"]]
     counts = [int(round(float(d) / dt)) for d in plan["duration_s"]]
     speeds = [float(v) for v in plan["speed_rpm"]]
@@ -364,7 +371,7 @@ def plan_pieces(plan: pd.DataFrame, dt: float) -> list[tuple[str, list[tuple[str
         pieces, rest = [], 0
         for speed, same in itertools.groupby(idx, key=speeds.__getitem__):
             n = sum(counts[i] for i in same)
-            if speed == 0 and not pieces and rest == 0 and n * dt < 300.0:
+            if speed == 0 and not pieces and rest == 0 and n * dt < max_leading_rest_s:
                 rest = n
             else:
                 pieces.append((speed, first - rest, n + rest))

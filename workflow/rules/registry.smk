@@ -47,7 +47,7 @@ rule decide:
         nightly=lambda w: nightly_settings(w.machine),
         speed_tolerance_rpm=lambda w: machine_config(w.machine)["speed_tolerance_rpm"],
         registry=lambda w: registry_dir(w.machine),
-        # kept in the meta of the models it registers (a later prior's probe-sign check)
+        # kept in the meta of the models it registers (provenance: how the logs were read)
         displacement_sign=lambda w: machine_config(w.machine)["input"]["displacement"]["sign"],
     script:
         "../scripts/registry_decide.py"

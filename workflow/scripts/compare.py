@@ -29,7 +29,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         smk.params.prior,
         table,
         frame,
-        reference=smk.params.reference,
+        unit=smk.params.machine,
         log=lambda m: print(m, flush=True),
     )
     with open(smk.input.key_sensors, encoding="utf-8") as fh:
