@@ -1,4 +1,4 @@
-"""The steps of rafi.method.clean_steps one by one, each against data built with its truth."""
+"""The steps of rafi.method.clean one by one, each against data built with its truth."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from rafi.errors import RawFormatError
-from rafi.method.clean_steps import (
+from rafi.method.clean import (
     MAX_SPIKE_SAMPLES,
     SENSOR_COLUMNS,
     SENSOR_END,

@@ -23,7 +23,7 @@ from rafi.errors import RawFormatError
 from rafi.readers.discovery import periodic_tail, safe_name_problem
 from rafi.readers.input_spec import discover_machines, log_id
 from rafi.readers.logs import read_log, sha256_file
-from rafi.readers.mapped_cells import check_zip_sizes
+from rafi.readers.mapped_table import check_zip_sizes
 
 ROOT = Path(__file__).resolve().parents[1]
 SHIPPED = ROOT / "raw" / "tapping-center-a" / "train_03000rpm.csv"

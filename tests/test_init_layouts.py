@@ -29,7 +29,7 @@ from rafi.readers.infer_files import read_unknown, read_unknown_logs
 from rafi.readers.input_spec import normalise_input_spec
 from rafi.readers.log_sources import expand_logs
 from rafi.readers.logs import read_log
-from rafi.readers.mapped_cells import excel_column
+from rafi.readers.mapped_table import excel_column
 from rafi.twin.layouts import DAILY_SHEETS, LAYOUTS, PAIR_PARTS, layout_config, write_layout
 
 

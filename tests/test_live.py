@@ -81,7 +81,8 @@ def temps16(key_values) -> np.ndarray:
     return out
 
 
-def expected_commands(
+# the oracle: the documented rules as one plain loop, on purpose not shaped like rafi.deploy.live
+def expected_commands(  # noqa: C901, PLR0912
     samples, s=DEPLOY, coef=COEF, *, start=None, resumes=None, restarts=None
 ) -> list[tuple[float, str]]:
     """(command um, status) per sample by the documented rules, for the model c . (T - T0).

@@ -1,26 +1,29 @@
 """Snakemake's lock in a project: which processes count as a live Snakemake run there
-(read from a fake ``/proc``), and clearing a stale lock."""
+(psutil's process table replaced by a made-up one), and clearing a stale lock."""
 
 from __future__ import annotations
 
 import os
 from pathlib import Path
+from types import SimpleNamespace
 
 import pytest
 
 from rafi.ops import lock as L
 
 
-def fake_proc(root: Path, procs: dict[int, tuple[list[str], Path]]) -> Path:
-    """A ``/proc`` with ``<pid>/cmdline`` (NUL-separated) and ``<pid>/cwd`` (a link)."""
-    proc = root / "proc"
-    for pid, (argv, cwd) in procs.items():
-        d = proc / str(pid)
-        d.mkdir(parents=True)
-        (d / "cmdline").write_bytes(b"\0".join(a.encode() for a in argv) + b"\0")
-        os.symlink(cwd, d / "cwd")
-    (proc / "self").mkdir(parents=True, exist_ok=True)  # not a pid: ignored
-    return proc
+def fake_processes(monkeypatch, procs: dict[int, tuple[list[str], Path | None]]) -> None:
+    """psutil's process table as ``{pid: (argv, cwd)}``; a cwd of None is one psutil may not
+    read (``ad_value``)."""
+
+    def process_iter(attrs, ad_value):
+        assert {"pid", "cmdline", "cwd"} <= set(attrs) and ad_value is None
+        for pid, (argv, cwd) in procs.items():
+            yield SimpleNamespace(
+                info={"pid": pid, "cmdline": argv, "cwd": None if cwd is None else str(cwd)}
+            )
+
+    monkeypatch.setattr(L.psutil, "process_iter", process_iter)
 
 
 @pytest.mark.parametrize(
@@ -41,24 +44,23 @@ def fake_proc(root: Path, procs: dict[int, tuple[list[str], Path]]) -> Path:
         (["/venv/bin/rafi", "simulate", "day"], "proj", False),
     ],
 )
-def test_which_processes_are_a_snakemake_run_in_the_project(tmp_path, argv, where, counts):
+def test_which_processes_are_a_snakemake_run_in_the_project(tmp_path, monkeypatch, argv, where, counts):
     proj, other = tmp_path / "proj", tmp_path / "other"
     proj.mkdir()
     other.mkdir()
     argv = [a.replace("PROJ", str(proj)) for a in argv]
     cwd = {"proj": proj, "other": other, "base": tmp_path}[where]
-    proc = fake_proc(tmp_path, {4242: (argv, cwd)})
-    found = L.live_snakemake_processes(proj, proc=proc)
+    fake_processes(monkeypatch, {4242: (argv, cwd)})
+    found = L.live_snakemake_processes(proj)
     assert found == ([(4242, " ".join(argv))] if counts else [])
 
 
-def test_unreadable_process_entries_are_skipped(tmp_path):
+def test_unreadable_process_entries_are_skipped(tmp_path, monkeypatch):
     proj = tmp_path / "proj"
     proj.mkdir()
-    proc = fake_proc(tmp_path, {7: (["snakemake"], proj), 8: (["snakemake"], proj)})
-    (proc / "8" / "cwd").unlink()  # another user's process: its cwd cannot be read
-    assert L.live_snakemake_processes(proj, proc=proc) == [(7, "snakemake")]
-    assert L.live_snakemake_processes(proj, proc=tmp_path / "no-proc") == []
+    # 8: another user's process (its cwd cannot be read); 9: a kernel thread (no command line)
+    fake_processes(monkeypatch, {7: (["snakemake"], proj), 8: (["snakemake"], None), 9: (None, proj)})
+    assert L.live_snakemake_processes(proj) == [(7, "snakemake")]
 
 
 def test_this_process_is_never_a_foreign_run(tmp_path):

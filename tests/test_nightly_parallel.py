@@ -256,19 +256,18 @@ def test_night_locks_are_all_or_none(tmp_path):
         assert L.holder_pids(results) == {os.getpid()}
 
 
-def _proc_with_stat(root: Path, tree: dict[int, int]) -> Path:
-    """A fake ``/proc`` with ``<pid>/stat`` naming each pid's parent."""
-    for pid, parent in tree.items():
-        d = root / "proc" / str(pid)
-        d.mkdir(parents=True)
-        (d / "stat").write_text(f"{pid} (python3 x) S {parent} 1 1 0 -1\n")
-    return root / "proc"
-
-
-def test_a_job_of_another_night_is_coordinated(tmp_path):
-    # 100 = rafi nightly --machine a (holds its lock); 200 = sh -c of one of its jobs; 300 = the
-    # job script; 400 = a snakemake someone started by hand (parent: a login shell, 40)
-    proc = _proc_with_stat(tmp_path, {100: 1, 200: 100, 300: 200, 400: 40, 40: 1})
-    assert L.coordinated_with(300, {100}, proc=proc) and L.coordinated_with(100, {100}, proc=proc)
-    assert not L.coordinated_with(400, {100}, proc=proc)
-    assert not L.coordinated_with(300, set(), proc=proc)
+def test_a_job_of_another_night_is_coordinated():
+    # real processes: a "night" (python) whose job is a shell running a script (sleep), and a
+    # sleep someone started by hand (its parent: this test, not the night)
+    night_code = "import subprocess; subprocess.run(['sh', '-c', 'sleep 60 & echo $!; wait'])\n"
+    night = subprocess.Popen(
+        [sys.executable, "-c", night_code], stdout=subprocess.PIPE, text=True, start_new_session=True
+    )
+    stranger = subprocess.Popen(["sleep", "60"], start_new_session=True)
+    try:
+        job = int(night.stdout.readline())
+        assert L.coordinated_with(job, {night.pid}) and L.coordinated_with(night.pid, {night.pid})
+        assert not L.coordinated_with(stranger.pid, {night.pid})
+        assert not L.coordinated_with(job, set())
+    finally:
+        _kill(night, stranger)

@@ -1,4 +1,4 @@
-"""The steps of the readers (rafi.readers.native, mapped, mapped_tables, mapped_time), one at a time.
+"""The steps of the readers (rafi.readers.native, mapped, mapped_table, mapped_time), one at a time.
 
 Each input is built here from known values, so every test knows what the step must return.
 """
@@ -21,8 +21,7 @@ from rafi.readers.mapped import (
     _column_positions,
     _mapped_metadata,
 )
-from rafi.readers.mapped_cells import Table
-from rafi.readers.mapped_tables import read_csv_table, read_table
+from rafi.readers.mapped_table import Table, read_csv_table, read_table
 from rafi.readers.mapped_time import _cell_time, _cell_times, _elapsed_times, _text_times
 from rafi.readers.native import _check_header, _parse_times, _parse_values, _split_rows
 

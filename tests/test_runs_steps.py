@@ -10,15 +10,19 @@ import pytest
 from rafi.method.runs import (
     RUNS_FRAME_COLUMNS,
     LogArrays,
+    RunSpan,
     assign_role,
+    cut_at,
     log_arrays,
     reference_state,
     run_rules,
     run_samples,
+    segment_runs,
+    speed_pieces,
     speed_statistics,
+    split_log,
     stack_runs,
 )
-from rafi.method.speed_runs import RunSpan, cut_at, segment_runs, speed_pieces, split_log
 from rafi.method.windows import Window
 from rafi.twin.synthetic_logs import FIND_RUNS_KWARGS
 

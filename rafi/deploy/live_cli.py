@@ -104,7 +104,7 @@ class _DryTarget:
         self.target = Dry(target.axes)
 
 
-def _link(args, deploy: dict, safe, kind, project: Path, log, environ):
+def _link(args, deploy: dict, safe, kind, *, project: Path, log, environ):
     """The OPC UA link of ``rafi deploy`` (None without OPC UA) and the user, checked."""
     needs_link = not args.follow or (kind == "sinumerik" and not args.dry_run)
     if not needs_link:
@@ -159,7 +159,7 @@ def build(args, *, log=print, environ=None):
 
     target_block = deploy.get("target")
     kind = (target_block or {}).get("kind") if isinstance(target_block, dict) else None
-    link, user = _link(args, deploy, safe, kind, project, log, environ)
+    link, user = _link(args, deploy, safe, kind, project=project, log=log, environ=environ)
     sink = DrySink() if args.dry_run else link
     target, axis = build_target(target_block, sink=sink, project_dir=project)
     check_target_limits(target, axis, limits)

@@ -157,30 +157,9 @@ def opcua_settings(block: Mapping | None, *, need_inputs: bool = True, project_d
         A missing endpoint, an unknown key, a user name or password in the block (they belong
         in the environment or a credentials file), a malformed input, a security setting.
     """
-    if block is None:
-        raise SettingsError("deploy.opcua is not set: the live loop needs at least deploy.opcua.endpoint")
-    if not isinstance(block, Mapping):
-        raise SettingsError(f"deploy.opcua is {type(block).__name__}; expected a mapping")
-    secrets = [k for k in block if str(k).lower() in SECRET_KEYS]
-    if secrets:
-        raise SettingsError(
-            f"deploy.opcua.{secrets[0]}: credentials never go to config.yaml; set the environment "
-            f"variables {ENV_USER} and {ENV_PASSWORD}, or name a credentials file outside the "
-            f"project (mode 600) in {ENV_CREDENTIALS} or deploy.opcua.credentials_file (docs/deploy.md)"
-        )
-    unknown = sorted(str(k) for k in block if k not in OPCUA_DEFAULTS)
-    if unknown:
-        raise SettingsError(f"deploy.opcua.{unknown[0]} is not a setting; known: {sorted(OPCUA_DEFAULTS)}")
+    _check_keys(block)
     out = {**OPCUA_DEFAULTS, **block}
-    endpoint = out["endpoint"]
-    if not isinstance(endpoint, str) or not endpoint.startswith("opc.tcp://"):
-        from rafi.secret_mask import masked
-
-        raise SettingsError(f"deploy.opcua.endpoint is {masked(endpoint)!r}; expected 'opc.tcp://host:port'")
-    if "@" in endpoint.split("//", 1)[1].split("/", 1)[0]:
-        raise SettingsError(
-            "deploy.opcua.endpoint holds a user name (user@host): credentials never go to config.yaml"
-        )
+    _check_endpoint(out["endpoint"])
     if not isinstance(out["node_prefix"], str):
         raise SettingsError(
             f"deploy.opcua.node_prefix is {out['node_prefix']!r}; expected text such as 'ns=2;s='"
@@ -195,28 +174,62 @@ def opcua_settings(block: Mapping | None, *, need_inputs: bool = True, project_d
     inputs = out["inputs"] or {}
     if not isinstance(inputs, Mapping):
         raise SettingsError("deploy.opcua.inputs must map speed_rpm and the machine's sensors to node ids")
-    parsed = {}
-    for name, spec in inputs.items():
-        where = f"deploy.opcua.inputs.{name}"
-        if name != "speed_rpm" and sensor_name_problem(name):
-            raise SettingsError(f"{where}: not an input: {sensor_name_problem(name)}")
-        scale, offset = 1.0, 0.0
-        if isinstance(spec, Mapping):
-            extra = sorted(set(spec) - {"node", "scale", "offset"})
-            if extra:
-                raise SettingsError(f"{where}.{extra[0]} is not a setting; known: node, scale, offset")
-            scale, offset = spec.get("scale", 1.0), spec.get("offset", 0.0)
-            for key, v in (("scale", scale), ("offset", offset)):
-                if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
-                    raise SettingsError(f"{where}.{key} is {v!r}; expected a finite number")
-            if scale == 0:
-                raise SettingsError(f"{where}.scale is 0")
-            spec = spec.get("node")
-        parsed[name] = (_node_id(spec, out["node_prefix"], where), float(scale), float(offset))
+    parsed = {name: _input_node(name, spec, out["node_prefix"]) for name, spec in inputs.items()}
     if need_inputs and "speed_rpm" not in parsed:
         raise SettingsError("deploy.opcua.inputs has no speed_rpm node (the spindle speed)")
     out["inputs"] = parsed
     return check_security_settings(out, project_dir)
+
+
+def _check_keys(block) -> None:
+    """``deploy.opcua`` is a mapping of known keys, none of them a credential."""
+    if block is None:
+        raise SettingsError("deploy.opcua is not set: the live loop needs at least deploy.opcua.endpoint")
+    if not isinstance(block, Mapping):
+        raise SettingsError(f"deploy.opcua is {type(block).__name__}; expected a mapping")
+    secrets = [k for k in block if str(k).lower() in SECRET_KEYS]
+    if secrets:
+        raise SettingsError(
+            f"deploy.opcua.{secrets[0]}: credentials never go to config.yaml; set the environment "
+            f"variables {ENV_USER} and {ENV_PASSWORD}, or name a credentials file outside the "
+            f"project (mode 600) in {ENV_CREDENTIALS} or deploy.opcua.credentials_file (docs/deploy.md)"
+        )
+    unknown = sorted(str(k) for k in block if k not in OPCUA_DEFAULTS)
+    if unknown:
+        raise SettingsError(f"deploy.opcua.{unknown[0]} is not a setting; known: {sorted(OPCUA_DEFAULTS)}")
+
+
+def _check_endpoint(endpoint) -> None:
+    """``opc.tcp://host:port/...``, without a user name."""
+    if not isinstance(endpoint, str) or not endpoint.startswith("opc.tcp://"):
+        from rafi.secret_mask import masked
+
+        raise SettingsError(f"deploy.opcua.endpoint is {masked(endpoint)!r}; expected 'opc.tcp://host:port'")
+    if "@" in endpoint.split("//", 1)[1].split("/", 1)[0]:
+        raise SettingsError(
+            "deploy.opcua.endpoint holds a user name (user@host): credentials never go to config.yaml"
+        )
+
+
+def _input_node(name: str, spec, prefix: str) -> tuple[str, float, float]:
+    """``(node_id, scale, offset)`` of the input ``name``: ``spec`` is a node id, or a mapping of
+    ``node``, ``scale`` and ``offset``."""
+    where = f"deploy.opcua.inputs.{name}"
+    if name != "speed_rpm" and sensor_name_problem(name):
+        raise SettingsError(f"{where}: not an input: {sensor_name_problem(name)}")
+    scale, offset = 1.0, 0.0
+    if isinstance(spec, Mapping):
+        extra = sorted(set(spec) - {"node", "scale", "offset"})
+        if extra:
+            raise SettingsError(f"{where}.{extra[0]} is not a setting; known: node, scale, offset")
+        scale, offset = spec.get("scale", 1.0), spec.get("offset", 0.0)
+        for key, v in (("scale", scale), ("offset", offset)):
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v):
+                raise SettingsError(f"{where}.{key} is {v!r}; expected a finite number")
+        if scale == 0:
+            raise SettingsError(f"{where}.scale is 0")
+        spec = spec.get("node")
+    return _node_id(spec, prefix, where), float(scale), float(offset)
 
 
 # --------------------------------------------------------------------------- the link

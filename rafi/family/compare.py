@@ -436,7 +436,9 @@ def fit_and_cross_validate(
     return models, pd.concat(cv_parts, ignore_index=True) if cv_parts else pd.DataFrame()
 
 
-def _cross_validated(factories, runs_table, runs_frame, settings, rafi_model, cv_memo_dir, code_version, log):
+def _cross_validated(
+    factories, runs_table, runs_frame, settings, *, rafi_model, cv_memo_dir, code_version, log
+):
     """The fitted models, CV rows and OOF samples of :func:`run_family`, from the memo
     (:mod:`rafi.family.cv_memo`) when it holds this CV (its rows and its OOF samples), else
     computed (and stored). Returns ``models, cv, oof, memo, fit_table``."""
@@ -544,7 +546,14 @@ def run_family(
         settings = {**settings, "prior": prior.get("model_id")}  # the CV memo's key covers the prior
     candidates, factories = list(factories), with_plain_ridge(factories, floor)  # offered / scored
     models, cv, oof, memo, fit_table = _cross_validated(
-        factories, runs_table, runs_frame, settings, rafi_model, cv_memo_dir, code_version, log
+        factories,
+        runs_table,
+        runs_frame,
+        settings,
+        rafi_model=rafi_model,
+        cv_memo_dir=cv_memo_dir,
+        code_version=code_version,
+        log=log,
     )
     # every model's prediction interval, from its own OOF residuals (RAFI's model.json keeps its own)
     samples, calibrated_on = calibration_units(oof, scheme_of(fit_table, options["cv"]))

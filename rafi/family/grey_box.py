@@ -264,7 +264,9 @@ class GreyBox(RidgeBase):
         self.speed_taus_ = staus
         self.centrifugal_lag_s_ = float(lag)
         design = self._chosen_design(feats, names, cols, frame, key)
-        return self._fit_final(table, frame, rows, sensors, taus, alpha, cv_table, design)
+        return self._fit_final(
+            table, frame, rows, sensors, taus, alpha=alpha, cv_table=cv_table, design=design
+        )
 
     def _chosen(self) -> dict:
         """What CV chose among grid values: every filter constant is in the model (nothing

@@ -83,6 +83,7 @@ def cv_folds(
     run_ids: np.ndarray,
     table: pd.DataFrame,
     scheme: str,
+    *,
     shared_key=None,
 ) -> list:
     """Per whole-run fold of ``scheme``, once per fit: the training runs' ``X'X``, ``X'y`` and
@@ -314,7 +315,7 @@ class RidgeBase(FamilyModel):
         # C order, as _design returns them: the matrix products of the fit sum in the same order
         return np.ascontiguousarray(feats[:, columns]), [names[c] for c in columns]
 
-    def _fit_final(self, table, frame, rows, sensors, taus, alpha, cv_table, design=None):
+    def _fit_final(self, table, frame, rows, sensors, taus, *, alpha, cv_table, design=None):
         """Fit the chosen model on every training run (the selection attributes of the subclass,
         e.g. ``speed_gain_``, are set before); ``rows`` marks the training rows of ``frame``;
         ``design``: the chosen features of those rows and their names (else :meth:`_design`)."""

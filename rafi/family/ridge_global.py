@@ -171,7 +171,9 @@ class RidgeGlobal(RidgeBase):
         _, taus, alpha, gain, cols = best
         self.speed_gain_ = bool(gain)
         design = self._chosen_design(all_feats, all_names, cols, frame, key)
-        return self._fit_final(table, frame, rows, sensors, taus, alpha, cv_table, design)
+        return self._fit_final(
+            table, frame, rows, sensors, taus, alpha=alpha, cv_table=cv_table, design=design
+        )
 
     def _hyper(self) -> dict:
         return {**super()._hyper(), "speed_gain": self.speed_gain}

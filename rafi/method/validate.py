@@ -145,7 +145,7 @@ def inputs_without_value(sub: pd.DataFrame, missing: np.ndarray, sensors: list[s
     return ", ".join(names)
 
 
-def _run_summary(run_id, role, speed, duration, detail, measured, t_s, bounds, sub, sensors) -> dict:
+def _run_summary(run_id, role, speed, duration, *, detail, measured, t_s, bounds, sub, sensors) -> dict:
     pred = detail["predicted_um"].to_numpy(dtype=float)
     resid = measured - pred
     ok = np.isfinite(measured) & np.isfinite(pred)
@@ -302,12 +302,12 @@ def validate_runs(
                 str(run["role"]),
                 speed,
                 run.get("duration_s"),
-                detail,
-                measured,
-                t_s,
-                bounds,
-                sub,
-                sensors,
+                detail=detail,
+                measured=measured,
+                t_s=t_s,
+                bounds=bounds,
+                sub=sub,
+                sensors=sensors,
             )
         )
         pred = detail["predicted_um"].to_numpy(dtype=float)

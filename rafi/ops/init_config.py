@@ -188,12 +188,7 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     table = s.first
     out.add(4, "input:")
     if s.format == "native":
-        header = table.header
-        sensors = header[2 : header.index("disp_um")]
-        out.add(6, "format: native", "the project's own layout: time, speed_rpm, the sensors, disp_um")
-        if tuple(sensors) != DEFAULT_SENSORS:
-            why = f"{len(sensors)} temperature columns of the header"
-            out.add(6, f"sensors: [{', '.join(sensors)}]", why)
+        _native_keys(out, table.header)
         return
     ext = table.path.suffix.lower() or ".csv"
     out.add(6, f"format: {s.format}")
@@ -203,21 +198,45 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
         out.add(6, f"pattern: {q(main_pattern(s.join[0], names, ext))}", why)
     else:
         out.add(6, f"pattern: {q('*' + ext)}")
-    lay = table.layout
     if s.format == "xlsx":
         _sheet_key(out, s)
     else:
-        _text_keys(out, lay)
-    if table.headerless:
+        _text_keys(out, table.layout)
+    _header_keys(out, table.headerless, table.layout)
+    _column_keys(out, s)
+    _time_keys(out, s, period)
+    if s.speed is None:
+        _speed_keys(out, s)
+    _displacement_keys(out, s)
+    if s.join:
+        _join_keys(out, s)
+    _temperature_unit(out, s)
+
+
+def _native_keys(out: _Lines, header: list[str]) -> None:
+    """format: native, and the sensors where they are not the paper's rig's (indent 6)."""
+    sensors = header[2 : header.index("disp_um")]
+    out.add(6, "format: native", "the project's own layout: time, speed_rpm, the sensors, disp_um")
+    if tuple(sensors) != DEFAULT_SENSORS:
+        why = f"{len(sensors)} temperature columns of the header"
+        out.add(6, f"sensors: [{', '.join(sensors)}]", why)
+
+
+def _header_keys(out: _Lines, headerless: bool, lay: dict) -> None:
+    """header_row and skip_rows (indent 6)."""
+    if headerless:
         out.add(6, "header_row: none", "no header row: the columns are given by letter")
         if lay.get("skip_rows"):
             out.add(6, f"skip_rows: {lay['skip_rows']}", "lines above the first row of numbers")
-    else:
-        out.add(6, f"header_row: {lay['header_row']}")
-        if lay.get("skip_rows"):
-            out.add(6, f"skip_rows: {lay['skip_rows']}", "label rows (units) after the header")
-    if table.headerless:
         out.note(6, "CHECK: no header row: each column's role is from its content alone; check the letters")
+        return
+    out.add(6, f"header_row: {lay['header_row']}")
+    if lay.get("skip_rows"):
+        out.add(6, f"skip_rows: {lay['skip_rows']}", "label rows (units) after the header")
+
+
+def _column_keys(out: _Lines, s: Survey) -> None:
+    """columns: the time, speed and sensor columns found (indent 6, the columns at 8)."""
     out.add(6, "columns:")
     if s.time is not None:
         out.add(8, f"time: {q(s.time.header)}")
@@ -227,13 +246,6 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
         out.add(8, f"{name}: {q(header)}")
     if not s.sensors:
         out.note(8, "CHECK: no temperature column found; map your sensors here (name: header)")
-    _time_keys(out, s, period)
-    if s.speed is None:
-        _speed_keys(out, s)
-    _displacement_keys(out, s)
-    if s.join:
-        _join_keys(out, s)
-    _temperature_unit(out, s)
 
 
 def _text_keys(out: _Lines, lay: dict) -> None:

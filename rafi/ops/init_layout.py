@@ -3,7 +3,7 @@
 Pure functions on arrays (the time and speed columns :mod:`rafi.readers.infer` found):
 :func:`elapsed_seconds` (a time column as seconds since the first row), :func:`sample_period`
 (the median step and how regular the steps are), :func:`speed_steps` (the pipeline's own
-cutting, :func:`rafi.method.speed_runs.segment_runs`, with short pieces kept as steps),
+cutting, :func:`rafi.method.runs.segment_runs`, with short pieces kept as steps),
 :func:`log_kind` (one continuous log with cool-downs, or separate runs each starting cold) and
 the proposals that follow from them: :func:`propose_training` (training speeds and, for a
 continuous log, a chronological split) and :func:`propose_min_constant` (``runs.min_constant_s``
@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from rafi.method.speed_runs import segment_runs
+from rafi.method.runs import segment_runs
 from rafi.settings import MACHINE_DEFAULTS
 
 #: A step is "main" (a candidate training or validation run) when it lasts at least this share

@@ -1,6 +1,6 @@
 """The nightly locks and Snakemake's own lock in the project (``.snakemake/locks``).
 
-Nightly locks are exclusive, non-blocking ``flock`` s. A night for one machine (``rafi nightly
+Nightly locks are exclusive, non-blocking ``flock`` s (filelock). A night for one machine (``rafi nightly
 --machine M``) takes ``results/.nightly.M.lock`` only, so nights for different machines
 run at the same time and two for the same machine refuse each other. A night for every machine
 takes the fleet lock ``results/.nightly.lock`` and then every machine's lock, in sorted order
@@ -11,11 +11,13 @@ cleared (:func:`clear_stale_snakemake_lock`).
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import re
 from collections.abc import Iterable
 from pathlib import Path
+
+import filelock
+import psutil
 
 from rafi.artefact import now_iso
 from rafi.errors import LockHeld
@@ -28,7 +30,8 @@ MACHINE_LOCK = ".nightly.{machine}.lock"
 
 
 class NightlyLock:
-    """Exclusive, non-blocking ``flock`` on ``path``, as a context manager.
+    """Exclusive, non-blocking ``flock`` on ``path`` (:class:`filelock.UnixFileLock`), as a
+    context manager.
 
     The kernel releases a flock when its process dies, so a crashed night never leaves a
     stale lock. The file itself is kept (deleting lock files races); while held it holds
@@ -47,35 +50,18 @@ class NightlyLock:
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
-        self._fd: int | None = None
+        self._lock: filelock.UnixFileLock | None = None
 
     def __enter__(self) -> NightlyLock:
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        fd = os.open(self.path, os.O_RDWR | os.O_CREAT, 0o644)
+        lock = _flock(self.path, on_acquired=_write_holder)
         try:
-            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            try:
-                holder = os.pread(fd, 4096, 0).decode("utf-8", "replace")
-            finally:
-                os.close(fd)
-            raise LockHeld(self.path, holder) from None
-        except BaseException:
-            os.close(fd)
-            raise
-        self._fd = fd
-        # Written in place on the locked descriptor, not through rafi.artefact's atomic
-        # replace: a renamed-over lock file would be a new inode that a second night could
-        # lock while this one still holds the old one.
-        text = f"pid={os.getpid()} started={now_iso()} host={os.uname().nodename}\n".encode()
-        try:
-            os.ftruncate(fd, 0)
-            os.pwrite(fd, text, 0)
-            os.fsync(fd)
-        except OSError as exc:  # a full disk: say which file (closing the descriptor unlocks)
-            self._fd = None
-            os.close(fd)
+            lock.acquire()
+        except filelock.Timeout:
+            raise LockHeld(self.path, _text(self.path)) from None
+        except OSError as exc:  # a full disk: say which file (the lock was not taken)
             raise OSError(exc.errno, exc.strerror, str(self.path)) from None
+        self._lock = lock
         return self
 
     def __exit__(self, *exc) -> None:
@@ -83,15 +69,30 @@ class NightlyLock:
 
     def release(self) -> None:
         """Empty the file and drop the lock (idempotent)."""
-        if self._fd is None:
+        if self._lock is None:
             return
-        fd, self._fd = self._fd, None
+        lock, self._lock = self._lock, None
         try:
             with contextlib.suppress(OSError):
-                os.ftruncate(fd, 0)
-            fcntl.flock(fd, fcntl.LOCK_UN)
+                os.truncate(self.path, 0)  # still this inode: filelock never replaces the file
         finally:
-            os.close(fd)
+            lock.release(force=True)
+
+
+def _flock(path: Path, on_acquired=None) -> filelock.UnixFileLock:
+    """A non-blocking flock on ``path``; never the soft (marker-file) fallback, which would
+    outlive a killed night."""
+    return filelock.UnixFileLock(path, timeout=0, mode=0o644, fallback_to_soft=False, on_acquired=on_acquired)
+
+
+def _write_holder(fd: int) -> None:
+    """Name the holder in the lock file, in place on the locked descriptor (not through
+    rafi.artefact's atomic replace: a renamed-over lock file would be a new inode that a second
+    night could lock while this one still holds the old one)."""
+    text = f"pid={os.getpid()} started={now_iso()} host={os.uname().nodename}\n".encode()
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, text, 0)
+    os.fsync(fd)
 
 
 def machine_lock_path(results_dir: str | os.PathLike, machine: str) -> Path:
@@ -151,25 +152,25 @@ def holder_pids(results_dir: str | os.PathLike) -> set[int]:
     files = [root / LOCK_NAME]
     with contextlib.suppress(OSError):
         files += sorted(root.glob(MACHINE_LOCK.format(machine="?*")))
-    pids = set()
-    for path in files:
-        with contextlib.suppress(OSError):
-            text = path.read_text(encoding="utf-8", errors="replace")
-            pids.update(int(m) for m in _PID.findall(text))
-    return pids
+    return {int(m) for path in files for m in _PID.findall(_text(path))}
+
+
+def _text(path: Path) -> str:
+    """What a lock file says (empty if it cannot be read)."""
+    with contextlib.suppress(OSError):
+        return path.read_text(encoding="utf-8", errors="replace")
+    return ""
 
 
 def lock_is_free(path: str | os.PathLike) -> bool:
     """True if nobody holds the flock on ``path`` (a probe, for tests and status)."""
-    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o644)
+    lock = _flock(Path(path))
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        fcntl.flock(fd, fcntl.LOCK_UN)
-        return True
-    except BlockingIOError:
+        lock.acquire()
+    except filelock.Timeout:
         return False
-    finally:
-        os.close(fd)
+    lock.release(force=True)
+    return True
 
 
 # --------------------------------------------------------------------------- Snakemake's lock
@@ -178,7 +179,7 @@ def lock_is_free(path: str | os.PathLike) -> bool:
 # <n>.output.lock (the files its run reads and writes) and deletes them when it ends. A run
 # killed with SIGKILL cannot delete them, and every later run then refuses to start
 # ("Directory cannot be locked") until someone runs `snakemake --unlock`. The files name no
-# process, so whether a lock is still in use is decided from the processes themselves: a
+# process, so whether a lock is still in use is decided from the processes themselves (psutil): a
 # Snakemake run (or one of its job scripts) whose working directory is the project.
 
 SNAKEMAKE_LOCK_DIR = Path(".snakemake") / "locks"
@@ -222,40 +223,26 @@ def _workdirs(argv: list[str], cwd: str) -> set[str]:
     return dirs
 
 
-def _ancestors() -> set[int]:
-    """This process and its parents (never counted as a foreign Snakemake run)."""
-    return set(_parent_chain(os.getpid(), "/proc"))
+def _parent_chain(pid: int) -> list[int]:
+    """``pid`` and its parents (as far as they can be read)."""
+    try:
+        return [pid, *(p.pid for p in psutil.Process(pid).parents())]
+    except psutil.Error:
+        return [pid]
 
 
-def _parent_chain(pid: int, proc: str | os.PathLike) -> list[int]:
-    """``pid`` and its parents, read from ``<proc>/<pid>/stat`` (as far as readable)."""
-    chain: list[int] = []
-    while pid > 1 and pid not in chain:
-        chain.append(pid)
-        try:
-            with open(os.path.join(proc, str(pid), "stat"), encoding="utf-8", errors="replace") as fh:
-                pid = int(fh.read().rsplit(")", 1)[1].split()[1])
-        except (OSError, ValueError, IndexError):
-            break
-    return chain
-
-
-def live_snakemake_processes(
-    directory: str | os.PathLike, proc: str | os.PathLike = "/proc"
-) -> list[tuple[int, str]]:
+def live_snakemake_processes(directory: str | os.PathLike) -> list[tuple[int, str]]:
     """Processes running Snakemake (or one of its job scripts) in ``directory``.
 
     A process counts if its command line runs Snakemake (see :func:`_is_snakemake`) and its
-    current directory (``/proc/<pid>/cwd``) or its ``--directory`` argument is ``directory``.
-    Processes whose current directory cannot be read (another user's, for a non-root user) are
-    not counted. This process and its parents never count.
+    current directory or its ``--directory`` argument is ``directory``. Processes whose current
+    directory cannot be read (another user's, for a non-root user) are not counted. This process
+    and its parents never count.
 
     Parameters
     ----------
     directory : path
         The project (Snakemake's working directory).
-    proc : path
-        The proc file system (a test may pass a fake one).
 
     Returns
     -------
@@ -263,33 +250,21 @@ def live_snakemake_processes(
         ``(pid, command line)``, sorted by pid; the command line cut to 200 characters.
     """
     target = os.path.realpath(directory)
-    skip = _ancestors() if Path(proc) == Path("/proc") else set()
+    skip = set(_parent_chain(os.getpid()))
     found = []
-    try:
-        entries = [e for e in os.listdir(proc) if e.isdigit()]
-    except OSError:
-        entries = []
-    for entry in entries:
-        pid = int(entry)
-        if pid in skip:
-            continue
-        try:
-            with open(os.path.join(proc, entry, "cmdline"), "rb") as fh:
-                argv = [a.decode("utf-8", "replace") for a in fh.read().split(b"\0") if a]
-            if not argv or not _is_snakemake(argv):
-                continue
-            cwd = os.readlink(os.path.join(proc, entry, "cwd"))
-        except OSError:
+    for process in psutil.process_iter(["pid", "cmdline", "cwd"], ad_value=None):
+        pid, argv, cwd = process.info["pid"], process.info["cmdline"], process.info["cwd"]
+        if pid in skip or not argv or not cwd or not _is_snakemake(argv):
             continue
         if target in _workdirs(argv, cwd):
             found.append((pid, " ".join(argv)[:200]))
     return sorted(found)
 
 
-def coordinated_with(pid: int, coordinated: Iterable[int], proc: str | os.PathLike = "/proc") -> bool:
+def coordinated_with(pid: int, coordinated: Iterable[int]) -> bool:
     """``pid`` is one of ``coordinated`` (nights holding nightly locks here, :func:`holder_pids`)
     or descends from one (a job script of such a night)."""
-    return not set(coordinated).isdisjoint(_parent_chain(pid, proc))
+    return not set(coordinated).isdisjoint(_parent_chain(pid))
 
 
 def clear_stale_snakemake_lock(
@@ -321,7 +296,7 @@ def clear_stale_snakemake_lock(
     if not files:
         return [], []
     # another night (or its job) works under its own nightly locks: not a foreign run
-    coordinated = set(coordinated) - _ancestors()
+    coordinated = set(coordinated) - set(_parent_chain(os.getpid()))
     live = [
         (pid, cmd)
         for pid, cmd in live_snakemake_processes(directory)

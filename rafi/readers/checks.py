@@ -119,7 +119,7 @@ def _values(frame: pd.DataFrame, where: Where, open_circuit_values) -> dict[str,
     return values
 
 
-def _check_time(frame, where, t, lines, sample_period_s, backwards_tolerance_samples, min_run_s) -> None:
+def _check_time(frame, where, t, lines, *, sample_period_s, backwards_tolerance_samples, min_run_s) -> None:
     steps = np.diff(t)
     limit = backwards_tolerance_samples * sample_period_s
     back = np.flatnonzero(steps < -limit)
@@ -296,7 +296,15 @@ def check_file(
     report = CheckReport()
     report.warnings += channels.sparse_channel(sig, where)
     report.warnings += units.metadata_period(sig, where, meta.get("sample_period_s"), sample_period_s)
-    _check_time(frame, where, t, lines, period, backwards_tolerance_samples, min_run_s)
+    _check_time(
+        frame,
+        where,
+        t,
+        lines,
+        sample_period_s=period,
+        backwards_tolerance_samples=backwards_tolerance_samples,
+        min_run_s=min_run_s,
+    )
     units.temperature_unit(sig, where)
     _check_ranges(values, where, lines, max_speed_rpm, temp_range_c, open_circuit_values)
     if np.sum(~np.isnan(values["disp_um"])) >= min_samples:

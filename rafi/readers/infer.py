@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from rafi.readers.mapped_cells import excel_column
+from rafi.readers.mapped_table import excel_column
 
 #: Roles a column can get.
 ROLES = ("time", "speed", "temperature", "displacement", "other", "text", "empty")

@@ -5,7 +5,7 @@ decimal mark, an xlsx workbook) and returns a :class:`RawTable`: the layout it f
 ``input:`` keys would say it), every sheet of a workbook with what it holds, and the header and
 cells of the data table. Nothing is assumed about the columns here; :mod:`rafi.readers.infer`
 says what they hold. The csv text is split by the project's own reader
-(:func:`rafi.readers.mapped_tables.read_csv_table`) with the layout found, so a file that
+(:func:`rafi.readers.mapped_table.read_csv_table`) with the layout found, so a file that
 ``rafi init`` reads is one the pipeline reads with the proposed mapping.
 """
 
@@ -20,8 +20,7 @@ from pathlib import Path
 
 from rafi.errors import RawFormatError, quote
 from rafi.readers.input_spec import norm_header
-from rafi.readers.mapped_cells import excel_column
-from rafi.readers.mapped_tables import read_csv_table
+from rafi.readers.mapped_table import excel_column, read_csv_table
 from rafi.readers.parsing import read_file_bytes, split_lines
 
 #: Delimiters tried on a text file, in order of preference on a tie.
@@ -344,7 +343,7 @@ def _read_workbook(path: Path, raw: bytes) -> list[RawTable]:
     """The largest data sheet of a workbook, then every other data sheet with its header."""
     import openpyxl
 
-    from rafi.readers.mapped_cells import check_zip_sizes
+    from rafi.readers.mapped_table import check_zip_sizes
 
     check_zip_sizes(path, raw)
     try:

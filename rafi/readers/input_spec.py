@@ -487,59 +487,69 @@ def discover_logs(
         return found, [f"raw_dir {str(root)!r} does not exist; no machines to process"]
     folders = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("."))
     for folder in folders:
-        machine = folder.name
-        if has_braces(machine):
-            warnings.append(f"skipping machine folder {folder}: a machine name cannot hold {{ or }}")
+        refusal = _folder_refusal(folder, root)
+        if refusal is not None:
+            warnings.append(refusal)
             continue
-        if PROBE_SEPARATOR in machine:
-            warnings.append(
-                f"skipping machine folder {folder}: a machine name cannot hold {PROBE_SEPARATOR!r} "
-                "(it names a probe of a machine: <machine>@<probe>); rename the folder"
-            )
-            continue
-        problem = safe_name_problem(machine)
-        if problem is not None:
-            warnings.append(
-                bound_message(f"skipping machine folder {short_path(folder)}: {problem}; rename the folder")
-            )
-            continue
-        if not is_inside(folder, root):
-            warnings.append(link_warning(folder, root))
-            continue
-        spec = input_spec_of(machine)
-        try:
-            paths, refused = scan_logs(folder, spec, root)
-            normalised = normalise_input_spec(spec)
-            recorded, more = find_recordings(folder, normalised, root)
-            refused = list(dict.fromkeys(refused + more))  # a name of both: one line
-            paths = sorted(set(paths) | set(recorded))
-            waiting = settling_files(paths, settle_s, now)
-            left_out = {path for path, _ in waiting}
-            use = [p for p in paths if p not in left_out]
-            logs, notes = expand_logs(
-                [p for p in use if p not in recorded], normalised, [p for p in use if p in recorded]
-            )
-            if has_constant_speed(normalised):
-                for key, src in logs.items():  # two speed globs with different speeds: stop while planning
-                    if not src["recording"]:  # a recording has its own speed column
-                        log_speed(log_name(key, src), Path(src["path"]).name, normalised)
-        except InputSpecError as exc:
-            raise InputSpecError(f"machine {machine!r}: {exc}") from None
-        warnings += refused
-        for path, age in waiting:
-            warnings.append(settling_warning(path, age, settle_s))
-        warnings += notes
-        if not logs:
-            pattern = normalised["pattern"]
-            why = no_match_reason(folder, pattern, machine)
-            if refused or waiting:
-                why = f"no usable file ({len(refused)} refused link(s), {len(waiting)} settling)"
-            elif paths:
-                why = f"no log in the {len(paths)} file(s) matching input.pattern {pattern!r}"
-            warnings.append(f"{SKIP_PREFIX}{folder}: {why}")
-            continue
-        found[machine] = logs
+        logs, more = _machine_logs(folder, input_spec_of(folder.name), root, settle_s, now)
+        warnings += more
+        if logs:
+            found[folder.name] = logs
     names = {p.name for p in folders}
     for machine in sorted(m for m in set(configured) - names if PROBE_SEPARATOR not in str(m)):
         warnings.append(f"config has settings for machine {machine!r} but {root / machine} does not exist")
     return found, warnings
+
+
+def _folder_refusal(folder: Path, root: Path) -> str | None:
+    """Why the machine folder ``folder`` is skipped (its name, or a link leaving ``root``), or None."""
+    machine = folder.name
+    if has_braces(machine):
+        return f"skipping machine folder {folder}: a machine name cannot hold {{ or }}"
+    if PROBE_SEPARATOR in machine:
+        return (
+            f"skipping machine folder {folder}: a machine name cannot hold {PROBE_SEPARATOR!r} "
+            "(it names a probe of a machine: <machine>@<probe>); rename the folder"
+        )
+    problem = safe_name_problem(machine)
+    if problem is not None:
+        return bound_message(f"skipping machine folder {short_path(folder)}: {problem}; rename the folder")
+    if not is_inside(folder, root):
+        return link_warning(folder, root)
+    return None
+
+
+def _machine_logs(
+    folder: Path, spec: dict, root: Path, settle_s: float, now: float | None
+) -> tuple[dict[str, dict], list[str]]:
+    """The logs of one machine folder (see :func:`discover_logs`) and the warnings about it: the
+    files refused or settling, and the line that skips the machine when it has no log."""
+    machine = folder.name
+    try:
+        paths, refused = scan_logs(folder, spec, root)
+        normalised = normalise_input_spec(spec)
+        recorded, more = find_recordings(folder, normalised, root)
+        refused = list(dict.fromkeys(refused + more))  # a name of both: one line
+        paths = sorted(set(paths) | set(recorded))
+        waiting = settling_files(paths, settle_s, now)
+        left_out = {path for path, _ in waiting}
+        use = [p for p in paths if p not in left_out]
+        logs, notes = expand_logs(
+            [p for p in use if p not in recorded], normalised, [p for p in use if p in recorded]
+        )
+        if has_constant_speed(normalised):
+            for key, src in logs.items():  # two speed globs with different speeds: stop while planning
+                if not src["recording"]:  # a recording has its own speed column
+                    log_speed(log_name(key, src), Path(src["path"]).name, normalised)
+    except InputSpecError as exc:
+        raise InputSpecError(f"machine {machine!r}: {exc}") from None
+    warnings = [*refused, *(settling_warning(path, age, settle_s) for path, age in waiting), *notes]
+    if not logs:
+        pattern = normalised["pattern"]
+        why = no_match_reason(folder, pattern, machine)
+        if refused or waiting:
+            why = f"no usable file ({len(refused)} refused link(s), {len(waiting)} settling)"
+        elif paths:
+            why = f"no log in the {len(paths)} file(s) matching input.pattern {pattern!r}"
+        warnings.append(f"{SKIP_PREFIX}{folder}: {why}")
+    return logs, warnings

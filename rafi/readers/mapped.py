@@ -11,8 +11,8 @@ or row (xlsx, as Excel shows it) of each record.
 A file without a time column (``time.kind: none``) gets the times ``time.start + k *
 time.period_s`` (:mod:`rafi.readers.mapped_time`); a file without a speed column its
 configured constant speed (:mod:`rafi.readers.input_assumed`); both are recorded in
-``attrs['metadata']['assumed']``. The file's header and rows are read by
-:mod:`rafi.readers.mapped_tables`, its cells parsed by :mod:`rafi.readers.mapped_cells`.
+``attrs['metadata']['assumed']``. The file's header and rows are read, and its cells
+parsed, by :mod:`rafi.readers.mapped_table`.
 
 Every problem with a file raises :class:`rafi.errors.RawFormatError` naming the
 file, the sheet (xlsx), the line/row and the column as written in the file. A
@@ -35,12 +35,6 @@ from rafi.readers.input_spec import (
     _spec_error,
     normalise_input_spec,
 )
-from rafi.readers.mapped_cells import (
-    Table,
-    excel_column,
-    numeric,
-    text,
-)
 from rafi.readers.mapped_columns import canonical_values as _canonical_values
 from rafi.readers.mapped_columns import (
     closest_headers,  # noqa: F401 (this module's API)
@@ -50,7 +44,13 @@ from rafi.readers.mapped_columns import (
 from rafi.readers.mapped_columns import column_positions as _column_positions
 from rafi.readers.mapped_columns import frame_times as _frame_times
 from rafi.readers.mapped_join import join_partner
-from rafi.readers.mapped_tables import read_table
+from rafi.readers.mapped_table import (
+    Table,
+    excel_column,
+    numeric,
+    read_table,
+    text,
+)
 from rafi.readers.mapped_time import assumed_notes, has_clock
 from rafi.readers.parsing import (
     numeric_columns,

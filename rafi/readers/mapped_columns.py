@@ -18,7 +18,7 @@ import pandas as pd
 from rafi.errors import RawFormatError
 from rafi.readers.input_layouts import column_index
 from rafi.readers.input_spec import norm_header, resolve_columns
-from rafi.readers.mapped_cells import Table, excel_column, numeric
+from rafi.readers.mapped_table import Table, excel_column, numeric
 from rafi.readers.mapped_time import row_times, row_times_error, timestamps
 
 # --------------------------------------------------------------------------- the mapping

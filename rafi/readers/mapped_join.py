@@ -22,9 +22,8 @@ import pandas as pd
 from rafi.errors import RawFormatError
 from rafi.readers.input_layouts import is_sheet_pattern
 from rafi.readers.input_spec import partner_input_spec
-from rafi.readers.mapped_cells import Table
 from rafi.readers.mapped_columns import canonical_values, column_positions, frame_times
-from rafi.readers.mapped_tables import read_table
+from rafi.readers.mapped_table import Table, read_table
 from rafi.readers.parsing import read_file_bytes, to_naive_ns
 
 

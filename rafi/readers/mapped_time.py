@@ -25,7 +25,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.contract import NO_CLOCK_EPOCH
-from rafi.readers.mapped_cells import Table, numeric
+from rafi.readers.mapped_table import Table, numeric
 from rafi.readers.parsing import TIME_MAX, TIME_MIN
 
 

@@ -50,7 +50,7 @@ METADATA_MAX_CHARS = 64 * 1024
 
 #: Largest raw file, in bytes (check ``file_too_large``): 256 MiB. Reading a native file takes
 #: about 16 times its size in memory (a 90 MB file peaks at 1.5 GB); an xlsx workbook's sheets
-#: may inflate to at most this many bytes too (``rafi.readers.mapped_cells.check_zip_sizes``).
+#: may inflate to at most this many bytes too (``rafi.readers.mapped_table.check_zip_sizes``).
 FILE_MAX_BYTES = 256 * 1024 * 1024
 
 #: Most columns of a header (check ``too_many_columns``): 1024. A log has 19 required

@@ -122,13 +122,7 @@ def build_context(
     ctx["fig_replay0"] = len(ctx["deployed"]["figures"]) if ctx["deployed"] else 0
     ctx["fig_offset"] = ctx["fig_replay0"] + (len(ctx["replay"]["runs"]) if ctx["replay"] else 0)
     ctx["figures_used"] = list(figs.used)
-    ctx["verdict"]["quarantined"] = len(ctx["data"]["quarantined"])
-    ctx["verdict"]["unconfirmed_warnings"] = sum(not w["confirmed"] for w in ctx["data"]["warnings"])
-    seg = ctx["segmentation"] or {}
-    ctx["verdict"]["allow_late"] = bool(seg.get("allow_late"))
-    ctx["verdict"]["late"] = list(seg.get("late") or [])
-    ctx["verdict"]["selection"] = (ctx["comparison"] or {}).get("selection")
-    ctx["verdict"]["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
+    _verdict_findings(ctx)
     # the folds the family's CV used (time blocks when the training data hold no whole-run fold)
     # and whether forward-in-time folds scored the models too
     sel = ctx["verdict"]["selection"] or {}
@@ -149,25 +143,36 @@ def build_context(
     ctx["champion_id"] = dec.get("champion_id_after") or ""
     ctx["code_version"] = model.get("code_version", "")
 
-    present = {
-        **dict.fromkeys(SECTION_TITLES, True),
-        "fuzzy": ctx["fuzzy"] is not None,
-        "segmentation": ctx["segmentation"] is not None,
-        "registry": ctx["registry"] is not None,
-        "comparison": ctx["comparison"] is not None,
-        "replay": ctx["replay"] is not None,
-        "deployed": ctx["deployed"] is not None,
-        "requalification": ctx["requalification"] is not None,
-    }
-    n = 0
-    for sid, title in SECTION_TITLES.items():
-        if present[sid]:
-            n += 1
-            if sid == "replay":
-                title = section_title(ctx["replay"], title)
-            if sid == "deployed":
-                title = f"{title}: {ctx['deployed']['kind']}"
-            ctx["sections"].append({"id": sid, "number": n, "title": title})
+    ctx["sections"] = numbered_sections(ctx)
     ctx["section_by_id"] = {s["id"]: s for s in ctx["sections"]}
     ctx["build_seconds"] = time.perf_counter() - t0
     return ctx
+
+
+def _verdict_findings(ctx: dict) -> None:
+    """What the verdict box adds from the sections: quarantined files, unconfirmed warnings,
+    late training data, the selection, a recalibration due (set in ``ctx["verdict"]``)."""
+    verdict = ctx["verdict"]
+    verdict["quarantined"] = len(ctx["data"]["quarantined"])
+    verdict["unconfirmed_warnings"] = sum(not w["confirmed"] for w in ctx["data"]["warnings"])
+    seg = ctx["segmentation"] or {}
+    verdict["allow_late"] = bool(seg.get("allow_late"))
+    verdict["late"] = list(seg.get("late") or [])
+    verdict["selection"] = (ctx["comparison"] or {}).get("selection")
+    verdict["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
+
+
+def numbered_sections(ctx: dict) -> list[dict]:
+    """The sections the report has (``{"id", "number", "title"}``, in :data:`SECTION_TITLES`
+    order): the optional ones only when their context is not None."""
+    optional = ("fuzzy", "segmentation", "registry", "comparison", "replay", "deployed", "requalification")
+    sections = []
+    for sid, title in SECTION_TITLES.items():
+        if sid in optional and ctx[sid] is None:
+            continue
+        if sid == "replay":
+            title = section_title(ctx["replay"], title)
+        if sid == "deployed":
+            title = f"{title}: {ctx['deployed']['kind']}"
+        sections.append({"id": sid, "number": len(sections) + 1, "title": title})
+    return sections

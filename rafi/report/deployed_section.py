@@ -376,53 +376,23 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         return None
     row = summary[summary["model"].astype(str) == name].iloc[0]
     mid = str(row.get("model_id", ""))
-    art = None
-    for cand in (res.get("best_model"), res.get("model")):
-        if isinstance(cand, dict) and str(cand.get("model_id", "")) == mid:
-            art = cand
-            break
+    art = next(
+        (
+            c
+            for c in (res.get("best_model"), res.get("model"))
+            if isinstance(c, dict) and str(c.get("model_id", "")) == mid
+        ),
+        None,
+    )
     if art is None:
         return None
     kind = str(art.get("kind", row.get("kind", "")))
     rafi_like = kind in ("rafi", "rafi_linear")
-    if rafi_like:
-        blocks, terms = rafi_tables(art)
-        equation, inputs = rafi_equation(art), rafi_inputs(art)
-    else:
-        blocks, terms = ridge_tables(art)
-        equation, inputs = ridge_equation(art), ridge_inputs(art)
-        left_out = sensors_left_out_text(art, res.get("runs_csv"), res.get("runs_parquet"))
-        if left_out:
-            inputs.insert(1, ("sensors left out (training rows)", left_out))
-    speeds = art.get("speed_range_rpm")
-    if speeds is None and rafi_like:
-        sp = [float(s["speed_rpm"]) for s in art.get("speeds") or []]
-        speeds = [min(sp), max(sp)] if sp else None
-    if rafi_like:
-        rng = {}
-        for s in art.get("speeds") or []:
-            for k, (lo, hi) in (s.get("regressor_ranges") or {}).items():
-                a, b = rng.get(k, (np.inf, -np.inf))
-                rng[k] = (min(a, lo), max(b, hi))
-    else:
-        rng = art.get("regressor_ranges") or {}
-    rises = ", ".join(f"{k} {fmt_num(v[0], 1)} \u2026 {fmt_num(v[1], 1)}" for k, v in rng.items())
-    if not rafi_like:
-        rises = "in the last column of the temperature terms"
-    train_runs = [str(r) for r in art.get("train_runs") or []]
-    n_fit = art.get("n")
-    if rafi_like:  # per training speed in RAFI's artefact
-        train_runs = [str(r) for s in art.get("speeds") or [] for r in s.get("train_runs") or []]
-        n_fit = sum(int(s.get("n") or 0) for s in art.get("speeds") or [])
+    parts = _rafi_parts(art) if rafi_like else _ridge_parts(art, res)
+    blocks, terms, equation, inputs = parts["blocks"], parts["terms"], parts["equation"], parts["inputs"]
+    train_runs = parts["train_runs"]
     validation = _validation_rows(res.get("comparison_per_run"), name)
-    figures = []
-    k = 1
-    while True:
-        f = figs.get("comparison", deployed_figure_key(k))
-        if f is None:
-            break
-        figures.append(f)
-        k += 1
+    figures = _figures(figs)
     on_machine = None if not champion_after else str(champion_after) == mid
     return {
         "name": name,
@@ -434,14 +404,14 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "inputs": [{"input": a, "how": b} for a, b in inputs],
         "train_runs": ", ".join(train_runs),
         "n_train": len(train_runs),
-        "speeds": _speed_span(speeds),
-        "rises": rises,
+        "speeds": _speed_span(parts["speeds"]),
+        "rises": parts["rises"],
         "n_terms": len(terms),
         "equation": equation,
         "blocks": blocks,
         "terms": terms,
         "rmse": fmt_num(art.get("rmse_um"), 3, UM) if not rafi_like else "",
-        "n_fit": fmt_num(n_fit, 0),
+        "n_fit": fmt_num(parts["n_fit"], 0),
         "cv": _cv_context(art, summary, res.get("comparison_cv"), name),
         "passed": truthy(row.get("passed", False)),
         "worst": fmt_num(row.get("max_abs_after_um"), 2, UM),
@@ -459,3 +429,57 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "coverage": any(r["coverage_pct"] is not None for r in validation or []),
         "coverage_all": coverage_fields(row),
     }
+
+
+def _rafi_parts(art: dict) -> dict:
+    """What the section shows of RAFI's artefact (one model per training speed): its tables,
+    equation, inputs, speed span, rises seen in training, training runs and rows."""
+    blocks, terms = rafi_tables(art)
+    speeds = art.get("speeds") or []
+    span = art.get("speed_range_rpm")
+    if span is None and speeds:
+        sp = [float(s["speed_rpm"]) for s in speeds]
+        span = [min(sp), max(sp)]
+    rng = {}
+    for s in speeds:
+        for k, (lo, hi) in (s.get("regressor_ranges") or {}).items():
+            a, b = rng.get(k, (np.inf, -np.inf))
+            rng[k] = (min(a, lo), max(b, hi))
+    return {
+        "blocks": blocks,
+        "terms": terms,
+        "equation": rafi_equation(art),
+        "inputs": rafi_inputs(art),
+        "speeds": span,
+        "rises": ", ".join(f"{k} {fmt_num(v[0], 1)} \u2026 {fmt_num(v[1], 1)}" for k, v in rng.items()),
+        "train_runs": [str(r) for s in speeds for r in s.get("train_runs") or []],
+        "n_fit": sum(int(s.get("n") or 0) for s in speeds),
+    }
+
+
+def _ridge_parts(art: dict, res: dict) -> dict:
+    """What the section shows of a ridge-like artefact (one model for every speed): as
+    :func:`_rafi_parts`, and the sensors its training rows left out."""
+    blocks, terms = ridge_tables(art)
+    inputs = ridge_inputs(art)
+    left_out = sensors_left_out_text(art, res.get("runs_csv"), res.get("runs_parquet"))
+    if left_out:
+        inputs.insert(1, ("sensors left out (training rows)", left_out))
+    return {
+        "blocks": blocks,
+        "terms": terms,
+        "equation": ridge_equation(art),
+        "inputs": inputs,
+        "speeds": art.get("speed_range_rpm"),
+        "rises": "in the last column of the temperature terms",
+        "train_runs": [str(r) for r in art.get("train_runs") or []],
+        "n_fit": art.get("n"),
+    }
+
+
+def _figures(figs) -> list:
+    """The section's figure files, numbered from 1 (:func:`deployed_figure_key`) until one is missing."""
+    figures = []
+    while (f := figs.get("comparison", deployed_figure_key(len(figures) + 1))) is not None:
+        figures.append(f)
+    return figures

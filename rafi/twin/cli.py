@@ -282,94 +282,122 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Carry out the ``rafi simulate`` mode of ``args`` and return the exit status."""
-    mode = getattr(args, "mode", None)
-    if mode == "shipped":
-        from rafi.twin.writers import write_shipped
-
-        machines = args.machine or ["tapping-center-a", "machining-center-b"]
-        for path in write_shipped(args.out, machines=machines):
-            print(path)
-        return 0
-    if mode == "day":
-        from rafi.deploy.record_plan import read_plan
-        from rafi.twin.day import write_day
-
-        try:
-            plan = read_plan(args.plan) if args.plan else None
-            paths = write_day(
-                args.out,
-                machine=args.machine,
-                seed=args.seed,
-                date=args.date,
-                ambient_shift=args.ambient_shift,
-                sensor_drift=dict(args.sensor_drift),
-                wear=args.wear,
-                speeds=args.speeds,
-                validation_speeds=args.validation_speeds,
-                multi=args.multi,
-                hours=args.hours,
-                defects=not args.no_defects,
-                stuck_displacement=args.stuck_displacement,
-                plan=plan,
-                sibling=args.sibling,
-                name=args.name,
-            )
-        except (FileExistsError, ValueError) as exc:
-            print(f"rafi simulate day: {exc}", file=sys.stderr)
-            return 1
-        for path in paths:
-            print(path)
-        return 0
-    if mode == "noise-floor":
-        from rafi.twin.calibration import noise_floor
-
-        table = noise_floor(args.machine)
-        print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
-        return 0
-    if mode == "hostile":
-        from rafi.twin.hostile_files import write_hostile_corpus
-
-        out, shipped = Path(args.out).resolve(), Path(args.shipped).resolve()
-        if out == shipped:
-            print("rafi simulate hostile: --out must not be the shipped folder", file=sys.stderr)
-            return 2
-        cases = write_hostile_corpus(
-            shipped, out, out.parent.parent / "outside-raw", long_bytes=args.long_bytes
-        )
-        for case in cases:
-            print(f"{out / case.file}\t{case.check}\t{case.outcome}\t{case.what}")
-        return 0
-    if mode == "plot":
-        from rafi.twin.plots import plot_runs
-
-        folder = Path(args.folder)
-        files = sorted(folder.glob(args.pattern))
-        if not files:
-            print(f"rafi simulate plot: no files match {args.pattern!r} in {folder}", file=sys.stderr)
-            return 1
-        sensors = [s.strip() for s in args.sensors.split(",") if s.strip()]
-        for path in plot_runs(files, args.out, sensors=sensors):
-            print(path)
-        return 0
-    if mode == "layout":
-        import yaml
-
-        from rafi.twin.layouts import LAYOUTS, layout_config, write_layout
-
-        machine = args.machine or LAYOUTS[args.layout].name
-        for path in write_layout(args.layout, args.out, seed=args.seed, machine=machine):
-            print(path, file=sys.stderr)
+    mode = _MODES.get(getattr(args, "mode", None))
+    if mode is None:
         print(
-            yaml.safe_dump(
-                {"machines": {machine: layout_config(args.layout)}}, sort_keys=False, allow_unicode=True
-            )
+            "rafi simulate: choose a mode: shipped, day, hostile, noise-floor, plot, layout or foreign "
+            "(see rafi simulate --help)",
+            file=sys.stderr,
         )
-        return 0
-    if mode == "foreign":
-        return _run_foreign(args)
+        return 2
+    return mode(args)
+
+
+def _run_shipped(args: argparse.Namespace) -> int:
+    """rafi simulate shipped."""
+    from rafi.twin.writers import write_shipped
+
+    machines = args.machine or ["tapping-center-a", "machining-center-b"]
+    for path in write_shipped(args.out, machines=machines):
+        print(path)
+    return 0
+
+
+def _run_day(args: argparse.Namespace) -> int:
+    """rafi simulate day."""
+    from rafi.deploy.record_plan import read_plan
+    from rafi.twin.day import write_day
+
+    try:
+        plan = read_plan(args.plan) if args.plan else None
+        paths = write_day(
+            args.out,
+            machine=args.machine,
+            seed=args.seed,
+            date=args.date,
+            ambient_shift=args.ambient_shift,
+            sensor_drift=dict(args.sensor_drift),
+            wear=args.wear,
+            speeds=args.speeds,
+            validation_speeds=args.validation_speeds,
+            multi=args.multi,
+            hours=args.hours,
+            defects=not args.no_defects,
+            stuck_displacement=args.stuck_displacement,
+            plan=plan,
+            sibling=args.sibling,
+            name=args.name,
+        )
+    except (FileExistsError, ValueError) as exc:
+        print(f"rafi simulate day: {exc}", file=sys.stderr)
+        return 1
+    for path in paths:
+        print(path)
+    return 0
+
+
+def _run_noise_floor(args: argparse.Namespace) -> int:
+    """rafi simulate noise-floor."""
+    from rafi.twin.calibration import noise_floor
+
+    table = noise_floor(args.machine)
+    print(table.to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    return 0
+
+
+def _run_hostile(args: argparse.Namespace) -> int:
+    """rafi simulate hostile."""
+    from rafi.twin.hostile_files import write_hostile_corpus
+
+    out, shipped = Path(args.out).resolve(), Path(args.shipped).resolve()
+    if out == shipped:
+        print("rafi simulate hostile: --out must not be the shipped folder", file=sys.stderr)
+        return 2
+    cases = write_hostile_corpus(shipped, out, out.parent.parent / "outside-raw", long_bytes=args.long_bytes)
+    for case in cases:
+        print(f"{out / case.file}\t{case.check}\t{case.outcome}\t{case.what}")
+    return 0
+
+
+def _run_plot(args: argparse.Namespace) -> int:
+    """rafi simulate plot."""
+    from rafi.twin.plots import plot_runs
+
+    folder = Path(args.folder)
+    files = sorted(folder.glob(args.pattern))
+    if not files:
+        print(f"rafi simulate plot: no files match {args.pattern!r} in {folder}", file=sys.stderr)
+        return 1
+    sensors = [s.strip() for s in args.sensors.split(",") if s.strip()]
+    for path in plot_runs(files, args.out, sensors=sensors):
+        print(path)
+    return 0
+
+
+def _run_layout(args: argparse.Namespace) -> int:
+    """rafi simulate layout."""
+    import yaml
+
+    from rafi.twin.layouts import LAYOUTS, layout_config, write_layout
+
+    machine = args.machine or LAYOUTS[args.layout].name
+    for path in write_layout(args.layout, args.out, seed=args.seed, machine=machine):
+        print(path, file=sys.stderr)
     print(
-        "rafi simulate: choose a mode: shipped, day, hostile, noise-floor, plot, layout or foreign "
-        "(see rafi simulate --help)",
-        file=sys.stderr,
+        yaml.safe_dump(
+            {"machines": {machine: layout_config(args.layout)}}, sort_keys=False, allow_unicode=True
+        )
     )
-    return 2
+    return 0
+
+
+#: ``rafi simulate <mode>`` -> the function that carries it out.
+_MODES = {
+    "shipped": _run_shipped,
+    "day": _run_day,
+    "noise-floor": _run_noise_floor,
+    "hostile": _run_hostile,
+    "plot": _run_plot,
+    "layout": _run_layout,
+    "foreign": _run_foreign,
+}

@@ -52,8 +52,28 @@ def plan_defects(rates: DefectRates, n: int, dt: float, rng: np.random.Generator
     cells : list of dict
         Cell defects (spikes, dropouts) by written row.
     """
+    keep = _kept_rows(rates, n, dt, rng, records)
+    order, kinds = _written_rows(rates, np.flatnonzero(keep), rng, records)
+    _swap_rows(rates, n, order, kinds, rng, records)
+    cells = _spikes(rates, n, kinds, rng)
+    if rates.dropout_prob > 0 and rng.random() < rates.dropout_prob:
+        lo, hi = rates.dropout_s
+        length = max(int(round(rng.uniform(lo, hi) / dt)), 1)
+        p = int(rng.integers(int(0.05 * len(order)), int(0.95 * len(order)) - length))
+        col = SENSORS[int(rng.integers(0, 16))]
+        style = ["", *OPEN_CIRCUIT_VALUES][int(rng.integers(0, 3))]
+        cells.append(dict(kind="dropout", pos=p, n_rows=length, column=col, style=style))
+    return order, records, cells
+
+
+#: The first and last rows of a log are never a defect.
+_PROTECT = 3
+
+
+def _kept_rows(rates: DefectRates, n: int, dt: float, rng: np.random.Generator, records: list) -> np.ndarray:
+    """Which of the ``n`` source samples are written: a logger restart's gap and single missing
+    rows left out (recorded in ``records``)."""
     keep = np.ones(n, dtype=bool)
-    protect = 3  # first/last rows untouched
     if rates.restart_gap_prob > 0 and rng.random() < rates.restart_gap_prob:
         lo, hi = rates.restart_gap_s
         length = max(int(round(rng.uniform(lo, hi) / dt)), 1)
@@ -64,15 +84,20 @@ def plan_defects(rates: DefectRates, n: int, dt: float, rng: np.random.Generator
         )
     if rates.missing_row > 0:
         cand = rng.random(n) < rates.missing_row
-        cand[:protect] = cand[-protect:] = False
+        cand[:_PROTECT] = cand[-_PROTECT:] = False
         for p in np.flatnonzero(cand & keep):
             if not keep[p - 1] or not keep[p + 1]:
                 continue
             keep[p] = False
             records.append(defect_record("missing_row", int(p), 1, "sample not written"))
-    src = np.flatnonzero(keep)
+    return keep
+
+
+def _written_rows(rates: DefectRates, src: np.ndarray, rng: np.random.Generator, records: list) -> tuple:
+    """``(order, kinds)``: the source sample of each written row, some written twice, and what
+    each row is (``""`` plain, ``"dup0"``/``"dup"`` the first and second of a duplicate)."""
     dup = rng.random(len(src)) < rates.duplicate_row if rates.duplicate_row > 0 else np.zeros(len(src), bool)
-    dup[:protect] = dup[-protect:] = False
+    dup[:_PROTECT] = dup[-_PROTECT:] = False
     order_l: list[int] = []
     kind_l: list[str] = []
     for i, s in enumerate(src):
@@ -83,13 +108,18 @@ def plan_defects(rates: DefectRates, n: int, dt: float, rng: np.random.Generator
             kind_l.append("dup")
             kind_l[-2] = "dup0"
             records.append(defect_record("duplicate_row", int(s), 1, "row written twice"))
-    order = np.asarray(order_l)
-    kinds = np.asarray(kind_l, dtype=object)
-    # swaps of two adjacent, consecutive, plain rows
+    return np.asarray(order_l), np.asarray(kind_l, dtype=object)
+
+
+def _swap_rows(
+    rates: DefectRates, n: int, order: np.ndarray, kinds: np.ndarray, rng: np.random.Generator, records: list
+) -> None:
+    """Swap two adjacent, consecutive, plain rows, about ``swap_per_1000_rows`` times per 1000
+    samples (``order`` and ``kinds`` changed in place)."""
     n_swap = rng.poisson(rates.swap_per_1000_rows * n / 1000.0) if rates.swap_per_1000_rows > 0 else 0
     for _ in range(n_swap):
         for _try in range(20):
-            p = int(rng.integers(protect, len(order) - protect - 1))
+            p = int(rng.integers(_PROTECT, len(order) - _PROTECT - 1))
             if (kinds[p - 1 : p + 3] == "").all() and order[p + 1] == order[p] + 1:
                 order[p], order[p + 1] = order[p + 1], order[p]
                 kinds[p] = kinds[p + 1] = "swap"
@@ -99,11 +129,16 @@ def plan_defects(rates: DefectRates, n: int, dt: float, rng: np.random.Generator
                     )
                 )
                 break
+
+
+def _spikes(rates: DefectRates, n: int, kinds: np.ndarray, rng: np.random.Generator) -> list[dict]:
+    """Single-sample spikes on plain rows (a sensor, or now and then the displacement), about
+    ``spike_per_1000_rows`` per 1000 samples (``kinds`` marked in place)."""
     cells: list[dict] = []
     n_spike = rng.poisson(rates.spike_per_1000_rows * n / 1000.0) if rates.spike_per_1000_rows > 0 else 0
     for _ in range(n_spike):
         for _try in range(20):
-            p = int(rng.integers(protect, len(order) - protect))
+            p = int(rng.integers(_PROTECT, len(kinds) - _PROTECT))
             if kinds[p] == "":
                 break
         kinds[p] = "spike"
@@ -114,14 +149,7 @@ def plan_defects(rates: DefectRates, n: int, dt: float, rng: np.random.Generator
             col = SENSORS[int(rng.integers(0, 16))]
             delta = float(rng.choice([-1, 1]) * rng.uniform(3.0, 15.0))
         cells.append(dict(kind="spike", pos=p, n_rows=1, column=col, delta=delta))
-    if rates.dropout_prob > 0 and rng.random() < rates.dropout_prob:
-        lo, hi = rates.dropout_s
-        length = max(int(round(rng.uniform(lo, hi) / dt)), 1)
-        p = int(rng.integers(int(0.05 * len(order)), int(0.95 * len(order)) - length))
-        col = SENSORS[int(rng.integers(0, 16))]
-        style = ["", *OPEN_CIRCUIT_VALUES][int(rng.integers(0, 3))]
-        cells.append(dict(kind="dropout", pos=p, n_rows=length, column=col, style=style))
-    return order, records, cells
+    return cells
 
 
 def apply_defects(records, cells, log: pd.DataFrame, order: np.ndarray, times) -> pd.DataFrame:

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.contract.sensors import DEFAULT_SENSORS
-from rafi.readers.mapped_cells import excel_column
+from rafi.readers.mapped_table import excel_column
 from rafi.twin.schedules import constant_schedule, multi_condition_schedule, with_rest
 from rafi.twin.simulate import simulate_run
 

@@ -51,7 +51,7 @@ def simulate_spec(spec: RunSpec, **overrides) -> TwinRun:
     return simulate_run(spec.schedule, **{**kwargs, **overrides})
 
 
-def _spec_a(i, file, desc, schedule, start, base_c, drift):
+def _spec_a(i, file, desc, schedule, *, start, base_c, drift):
     return RunSpec(
         "tapping-center-a",
         file,
@@ -85,9 +85,9 @@ def shipped_specs(machine: str = "tapping-center-a") -> list[RunSpec]:
                     f"train_{sp:05d}rpm.csv",
                     f"training run, 4 h at {sp} r/min, cold start after {rest:g} s at rest",
                     with_rest(constant_schedule(sp, 4 * h)),
-                    start,
-                    base,
-                    drift,
+                    start=start,
+                    base_c=base,
+                    drift=drift,
                 )
             )
         valid = [
@@ -104,9 +104,9 @@ def shipped_specs(machine: str = "tapping-center-a") -> list[RunSpec]:
                     f"valid_{sp:05d}rpm.csv",
                     f"validation run, {hours:g} h at {sp} r/min, cold start after {rest:g} s at rest",
                     with_rest(constant_schedule(sp, hours * h)),
-                    start,
-                    base,
-                    drift,
+                    start=start,
+                    base_c=base,
+                    drift=drift,
                 )
             )
         specs.append(
@@ -116,9 +116,9 @@ def shipped_specs(machine: str = "tapping-center-a") -> list[RunSpec]:
                 f"multi-condition validation run, {rest:g} s at rest, then 4.5 h of speed steps "
                 + ", ".join(f"{n} r/min {m} min" for m, n in MULTI_CONDITION_A),
                 with_rest(multi_condition_schedule()),
-                "2026-03-17T08:00:00",
-                22.3,
-                0.02,
+                start="2026-03-17T08:00:00",
+                base_c=22.3,
+                drift=0.02,
             )
         )
         return specs

@@ -85,6 +85,7 @@ def _node_frame(
     speeds: np.ndarray,
     ambient: np.ndarray,
     nodes: np.ndarray,
+    *,
     cooler: np.ndarray,
     disp_thermal: np.ndarray,
     disp_all: np.ndarray,
@@ -262,7 +263,9 @@ def simulate_run(
     disp_true = z_all + zero
     temps_true = sensor_truth(params, nodes, t_amb, dt, sensor_drift)
     truth = _canonical(times, speeds, temps_true, disp_true)
-    node_frame = _node_frame(truth["time"], dt, speeds, t_amb, nodes, cooler, z_th, z_all)
+    node_frame = _node_frame(
+        truth["time"], dt, speeds, t_amb, nodes, cooler=cooler, disp_thermal=z_th, disp_all=z_all
+    )
 
     # the logger: noise and quantisation (per true sample, so duplicates are copies)
     if noise:

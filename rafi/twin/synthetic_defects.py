@@ -18,7 +18,7 @@ import numpy as np
 import pandas as pd
 
 from rafi import SENSORS
-from rafi.method.clean_steps import MAX_SPIKE_SAMPLES
+from rafi.method.clean import MAX_SPIKE_SAMPLES
 from rafi.twin.defects import OPEN_CIRCUIT_VALUES
 
 #: The open-circuit code injected (the logger's first one).
@@ -314,7 +314,7 @@ def inject_defects(
     spikes : int
         Single-sample spikes (temperatures and ``disp_um``).
     bursts : int
-        Spikes of 2..``rafi.method.clean_steps.MAX_SPIKE_SAMPLES`` consecutive samples, all
+        Spikes of 2..``rafi.method.clean.MAX_SPIKE_SAMPLES`` consecutive samples, all
         moved by the same amount (kind ``spike``, ``n_rows`` = their number).
     dropouts : int
         Runs of 1..``max_gap_s / period_s - 1`` empty values in one sensor

@@ -101,7 +101,7 @@ def _run_row(run_id: str, role: str, speed_rpm: float, **columns) -> dict:
     }
 
 
-def _run(rng, run_id, speed, t, sigma, rho, faults, truth_fn):
+def _run(rng, run_id, speed, t, *, sigma, rho, faults, truth_fn):
     n = t.size
     f = speed / 9000.0
     heat = lambda amp, tau: step_response(t, amp, tau)  # noqa: E731
@@ -181,7 +181,7 @@ def make_runs(
     frames, rows = [], []
 
     def add(run_id, speed, role, truth_fn, faults):
-        fr = _run(rng, run_id, speed, t, sigma, rho, faults, truth_fn)
+        fr = _run(rng, run_id, speed, t, sigma=sigma, rho=rho, faults=faults, truth_fn=truth_fn)
         frames.append(fr)
         rows.append(
             _run_row(
