@@ -7,8 +7,13 @@ the adaptation family (:mod:`rafi.family.adapted`) starts from, and whether it m
 * :func:`choose_prior` applies the honesty rule: the first artefact of the chain that has seen
   none of the current runs (:func:`seen_data`: its ``data`` and its ``adaptation.prior_data``,
   against every current run's ``sha256``, training or validation).
+* :func:`prior_origin` / :func:`check_origin`: where the prior comes from (this machine, a
+  sibling declared in ``models.prior_siblings``, or elsewhere); a prior from elsewhere is
+  refused (:class:`rafi.errors.PriorForeign`, one line naming its id, its machine and the key);
 * :func:`check_compatible` refuses a prior whose sensors, probe sign or reference rule differ
-  (:class:`rafi.errors.PriorIncompatible`, one line).
+  (:class:`rafi.errors.PriorIncompatible`, one line);
+* :func:`prior_qualification` is the prior's own qualification (its promotion in its registry:
+  date, worst validation residual, training speeds), for the fitness figures and the report.
 * :func:`prior_param` is what ``rule compare`` gets while Snakemake plans: the chain from its
   first model disjoint from the machine's raw files (ids only), so that promoting a champion
   trained on these logs changes nothing the workflow sees.
@@ -23,13 +28,18 @@ import os
 from collections.abc import Callable, Iterable
 from pathlib import Path
 
-from rafi.errors import PriorIncompatible, PriorUnavailable, RegistryError
+from rafi.errors import PriorForeign, PriorIncompatible, PriorUnavailable, RegistryError
 
 __all__ = [
     "PRIOR_MODES",
     "RIDGE_KINDS",
+    "ORIGINS",
     "prior_source",
     "prior_chain",
+    "prior_origin",
+    "check_origin",
+    "prior_qualification",
+    "prior_record",
     "seen_data",
     "choose_prior",
     "prior_sensors",
@@ -46,6 +56,8 @@ __all__ = [
 PRIOR_MODES = ("auto", "none", "champion")
 #: The kinds whose prediction is ``features @ coefficients`` (``prior_ridge`` is offered for these).
 RIDGE_KINDS = ("ridge_global", "dynamic", "grey_box", "temperature_ridge")
+#: Where a prior may come from (:func:`prior_origin`), in the words of the fitness block.
+ORIGINS = ("this machine", "declared sibling")
 #: A guard against a corrupt registry whose parents form a very long chain.
 MAX_CHAIN = 100
 
@@ -179,6 +191,77 @@ def prior_sensors(prior: dict) -> list[str]:
     return [str(s) for s in prior.get("key_sensors") or []]
 
 
+def _machine_part(name: str) -> str:
+    from rafi.settings import split_unit
+
+    return split_unit(name)[0]
+
+
+def prior_origin(prior_machine: str | None, machine: str, siblings: Iterable[str] = ()) -> str | None:
+    """Where a prior of ``prior_machine`` comes from, for ``machine``: ``"this machine"`` (the
+    same unit), ``"declared sibling"`` (the unit, or its machine, is in ``siblings``:
+    ``models.prior_siblings``) or ``None`` (elsewhere: refused by :func:`check_origin`).
+
+    A probe unit ``m@X`` is its own machine: a prior of ``m@Y`` for it is a sibling only when
+    declared (``m@Y``, or ``m`` for every probe of ``m``).
+    """
+    if not prior_machine:
+        return None
+    if str(prior_machine) == str(machine):
+        return ORIGINS[0]
+    declared = {str(s) for s in siblings or ()}
+    if str(prior_machine) in declared or _machine_part(str(prior_machine)) in declared:
+        return ORIGINS[1]
+    return None
+
+
+def check_origin(prior: dict, machine: str, siblings: Iterable[str] = (), source: str | None = None) -> str:
+    """The origin of ``prior`` (:func:`prior_origin`; its machine: the artefact's ``machine``,
+    else ``source``, the registry it was read from); raise :class:`rafi.errors.PriorForeign`
+    (one line: the prior's id, its machine, the key to set) for a prior from elsewhere."""
+    prior_machine = str(prior.get("machine") or source or "")
+    origin = prior_origin(prior_machine, machine, siblings)
+    if origin is None:
+        pid = str(prior.get("model_id", "?"))[:12]
+        raise PriorForeign(
+            f"prior {pid} is a model of {prior_machine or 'an unnamed machine'}, neither {machine} nor a "
+            f"declared sibling of it; if the two are of one design set models.prior_siblings: "
+            f"[{_machine_part(prior_machine) or '<machine>'}] in {machine}'s settings, else models.prior: none"
+        )
+    return origin
+
+
+def prior_qualification(registry_root: str | os.PathLike, prior: dict) -> dict:
+    """The prior's own qualification, from its registry (``registry_root``): ``model_id``,
+    ``machine``, ``kind``, ``promoted`` (time of the decision that made it champion, or
+    ``None``), ``max_residual_um`` and ``n_runs`` (its worst validation residual at that
+    decision) and ``speeds_rpm`` (the speeds it was trained at: its per-speed models, else its
+    promotion's ``training.speeds_rpm``, else ``None``)."""
+    from rafi.artefact import read_jsonl
+    from rafi.ops.registry import promotion_record
+
+    model_id = str(prior.get("model_id") or "")
+    history = []
+    try:
+        history = read_jsonl(Path(registry_root) / "history.jsonl")
+    except (OSError, ValueError):
+        pass
+    record = promotion_record(history, model_id) or {}
+    summary = record.get("candidate_summary") if record.get("candidate_id") == model_id else None
+    speeds = [float(s["speed_rpm"]) for s in prior.get("speeds") or [] if "speed_rpm" in s]
+    if not speeds:
+        speeds = list(((record.get("training") or {}).get("speeds_rpm")) or [])
+    return {
+        "model_id": model_id,
+        "machine": prior.get("machine"),
+        "kind": prior.get("kind"),
+        "promoted": record.get("time"),
+        "max_residual_um": (summary or {}).get("max_residual_um"),
+        "n_runs": (summary or {}).get("n_runs"),
+        "speeds_rpm": sorted({float(s) for s in speeds}) or None,
+    }
+
+
 def probe_sign_of(meta: dict | None, settings_sign) -> int:
     """The displacement sign (``input.displacement.sign``) a registered model was qualified with:
     its meta's config snapshot when that holds one, else ``settings_sign`` (the machine's
@@ -245,13 +328,15 @@ def prior_param(
     setting,
     raw_hashes: Iterable[str],
     settings_sign: Callable[[str], int],
+    siblings: Iterable[str] = (),
 ) -> dict:
     """The param ``prior`` of ``rule compare``, resolved while Snakemake plans.
 
     ``chain`` holds the ids of :func:`prior_chain` from its first model that has seen none of
     ``raw_hashes`` (the sha256 of the machine's raw files); ``probe_sign`` the displacement sign
     each was qualified with (:func:`probe_sign_of`; ``settings_sign(name)`` reads a machine's
-    ``input.displacement.sign``), ``probe_sign_now`` the machine's own (only with a chain). Nothing
+    ``input.displacement.sign``), ``probe_sign_now`` the machine's own (only with a chain),
+    ``machine`` and ``siblings`` (``models.prior_siblings``: :func:`check_origin`). Nothing
     else: a champion trained on these logs must leave the param as it was without one (no
     re-run after a promotion). The
     job loads the artefacts from ``registry`` and chooses again on ``runs.csv``
@@ -274,6 +359,8 @@ def prior_param(
         "chain": [str(a["model_id"]) for a in eligible],
         "probe_sign": signs,
         "probe_sign_now": int(settings_sign(machine)) if eligible else None,
+        "machine": machine,
+        "siblings": sorted({str(s) for s in siblings or ()}),
     }
 
 
@@ -289,8 +376,9 @@ def resolved_prior(param: dict | None, runs_table, runs_frame, *, reference: dic
     """The prior ``rule compare`` adapts (:func:`prior_param` = ``param``), or ``None``.
 
     Loads the chain's artefacts from the registry (verified), chooses the first that learnt
-    from none of the runs of ``runs_table`` (:func:`choose_prior`) and checks it against
-    ``runs_frame``'s sensors, the machine's ``reference`` settings and probe sign
+    from none of the runs of ``runs_table`` (:func:`choose_prior`), refuses one from elsewhere
+    than this machine or a declared sibling (:func:`check_origin`, which raises) and checks it
+    against ``runs_frame``'s sensors, the machine's ``reference`` settings and probe sign
     (:func:`check_compatible`, which raises). The reason goes to ``log``.
     """
     from rafi.ops.registry import Registry
@@ -310,6 +398,9 @@ def resolved_prior(param: dict | None, runs_table, runs_frame, *, reference: dic
     prior, reason = choose_prior([reg.load_model_dict(i) for i in ids], runs_table)
     log(reason)
     if prior is not None:
+        if param.get("machine"):  # a param of before the origin check names no machine
+            origin = check_origin(prior, param["machine"], param.get("siblings") or (), param.get("source"))
+            log(f"prior {str(prior.get('model_id', ''))[:12]} comes from {origin}")
         check_compatible(
             prior,
             sensors_available=available_sensors(runs_frame),
@@ -318,6 +409,23 @@ def resolved_prior(param: dict | None, runs_table, runs_frame, *, reference: dic
             probe_sign_now=int(param["probe_sign_now"]),
         )
     return prior
+
+
+def prior_record(param: dict | None, prior: dict | None) -> dict | None:
+    """What the fitness block of an adaptation of ``prior`` needs from the compare param
+    (:func:`prior_param` = ``param``): ``origin`` (:func:`prior_origin`; ``None`` for a param
+    without the machine) and ``qualification`` (:func:`prior_qualification` from its registry).
+    ``None`` without a prior."""
+    if prior is None:
+        return None
+    param = param or {}
+    origin = None
+    if param.get("machine"):
+        machine_of_prior = str(prior.get("machine") or param.get("source") or "")
+        origin = prior_origin(machine_of_prior, param["machine"], param.get("siblings") or ())
+    registry = param.get("registry")
+    qualification = prior_qualification(registry, prior) if registry else None
+    return {"origin": origin, "qualification": qualification}
 
 
 def _read_json(path: Path) -> dict | None:
