@@ -204,7 +204,7 @@ class AdaptedPrior(FamilyModel):
         self.model_ = model
         return self
 
-    def _fitness(self, table: pd.DataFrame, train: pd.DataFrame, before: np.ndarray, after: np.ndarray) -> dict:
+    def _fitness(self, table: pd.DataFrame, train: pd.DataFrame, before: np.ndarray, after: np.ndarray):
         """The ``fitness`` block of this adaptation (:func:`rafi.family.prior_fitness.fitness_block`):
         the new training runs' speeds and rises against the prior's."""
         from rafi.family.features import rise_column

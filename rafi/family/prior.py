@@ -223,10 +223,11 @@ def check_origin(prior: dict, machine: str, siblings: Iterable[str] = (), source
     origin = prior_origin(prior_machine, machine, siblings)
     if origin is None:
         pid = str(prior.get("model_id", "?"))[:12]
+        name = _machine_part(prior_machine) or "<machine>"
         raise PriorForeign(
             f"prior {pid} is a model of {prior_machine or 'an unnamed machine'}, neither {machine} nor a "
-            f"declared sibling of it; if the two are of one design set models.prior_siblings: "
-            f"[{_machine_part(prior_machine) or '<machine>'}] in {machine}'s settings, else models.prior: none"
+            f"declared sibling of it; if the two are of one design set models.prior_siblings: [{name}] "
+            f"in {machine}'s settings, else models.prior: none"
         )
     return origin
 

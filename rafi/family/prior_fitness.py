@@ -63,7 +63,8 @@ def prior_rise_ranges(prior: Mapping) -> dict[str, list[float]]:
     """Sensor -> the range of temperature rise (K) the prior was trained on: ``regressor_ranges``
     (ridge kinds), else the union of its per-speed models' (``rafi`` kinds)."""
     out: dict[str, list[float]] = {}
-    blocks = [prior.get("regressor_ranges") or {}] + [s.get("regressor_ranges") or {} for s in prior.get("speeds") or []]
+    blocks = [prior.get("regressor_ranges") or {}]
+    blocks += [s.get("regressor_ranges") or {} for s in prior.get("speeds") or []]
     for block in blocks:
         for sensor, pair in block.items():
             lo, hi = (float(v) for v in pair)
@@ -233,9 +234,9 @@ def fitness_warnings(block: Mapping) -> list[dict]:
             {
                 "check": "prior_speeds",
                 "message": (
-                    f"the prior's speed(s) {', '.join(f'{s:g}' for s in only)} r/min have no new training run "
-                    f"(tested here: {', '.join(f'{s:g}' for s in tested) or 'none'} r/min); there the model "
-                    "is the prior's alone"
+                    f"the prior's speed(s) {', '.join(f'{s:g}' for s in only)} r/min have no new training "
+                    f"run (tested here: {', '.join(f'{s:g}' for s in tested) or 'none'} r/min); there the "
+                    "model is the prior's alone"
                 ),
             }
         )
