@@ -389,7 +389,14 @@ def decide(
         "schema": DECISION_SCHEMA,
         "machine": machine,
         "candidate_id": candidate.model_id,
-        **({"candidate_parent": parent_of(candidate.model)} if parent_of(candidate.model) else {}),
+        **(
+            {
+                "candidate_parent": parent_of(candidate.model),
+                "candidate_parent_machine": (candidate.model.get("adaptation") or {}).get("parent_machine"),
+            }
+            if parent_of(candidate.model)
+            else {}
+        ),
         "champion_id_before": champion.model_id,
         "champion_id_after": candidate.model_id if decision == "promoted" else champion.model_id,
         "decision": decision,
