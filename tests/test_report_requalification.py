@@ -236,6 +236,7 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
     best_path = results / "comparison" / "best_model.json"
     best = json.loads(best_path.read_text(encoding="utf-8"))
     best["adaptation"]["fitness"] = block
+    best["model_id"] = "1" * 64  # the row prior_gain of summary.csv (_add_candidates): the model shown
     best_path.write_text(json.dumps(best), encoding="utf-8")
     ctx = _context(results)
     text = " ".join(html.unescape(_text(render_html(ctx))).replace("\u00a0", " ").split())
@@ -248,6 +249,8 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
     assert "tested here 3 000 r/min (range 3 000 r/min); the prior's 3 000, 9 000, 18 000 r/min" in text
     assert "(range 0–18 000 r/min); covered by the prior alone: 9 000, 18 000 r/min" in text
     assert "prediction moved by 76.0 % of its size" in text
+    # the model's section: its speeds, each range said as what it is
+    assert "speeds 3 000 r/min tested here, 0 … 18 000 r/min covered by the prior" in text
     assert f"confirm with {{file: {PARENT[:12]}, check: prior_adaptation}}" in text
     assert f"confirm with {{file: {PARENT[:12]}, check: prior_speeds}}" in text
     table = next(t for t in html_tables(render_html(ctx)) if any("tested here" in h for h in t["headers"]))
