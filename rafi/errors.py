@@ -305,6 +305,13 @@ class PriorUnavailable(RafiUserError):
     the message names the setting, the registry path and what to do."""
 
 
+class PriorForeign(RafiUserError):
+    """The prior (``models.prior``, ``rafi.family.prior``) is a model of another machine that is
+    not declared a sibling of this one (``models.prior_siblings``): a setting to set (or a prior
+    to drop), hence ``EX_USAGE`` (64). The one-line message names the prior's model id, its
+    machine and the key to set."""
+
+
 class PriorIncompatible(RafiUserError):
     """The prior (``models.prior``, ``rafi.family.prior``) cannot be applied to this machine's
     data: a temperature sensor it reads is missing, the probe sign or the reference rule

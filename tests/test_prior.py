@@ -160,6 +160,7 @@ def test_status_shows_the_parent():
         "champion_id_after": "a" * 64,
         "candidate_id": "a" * 64,
         "candidate_parent": "b" * 64,
+        "candidate_parent_machine": "sib",
     }
     line = MachineStatus("m", d, [], tonight=True).line()
-    assert "(adapted from bbbbbbbbbbbb)" in line
+    assert "(adapted from bbbbbbbbbbbb of sib)" in line

@@ -10,6 +10,7 @@ shows is checked against those files, the coefficient moves against numpy on the
 
 from __future__ import annotations
 
+import html
 import json
 import re
 
@@ -200,3 +201,57 @@ def test_with_forward_folds_the_section_compares_by_the_selection_score(tmp_path
     text = _text(html)
     assert "Whole-run cross-validation and forward-in-time folds on the new training runs chose" in text
     assert "the from-scratch fit the selection takes on the same data (rafi_linear)" in text
+
+
+def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_path):
+    """The fitness block (rafi.family.prior_fitness, from known inputs) as the section states it."""
+    from rafi.family.prior_fitness import fitness_block
+
+    results = copy_fixture(tmp_path)
+    _add_candidates(results, offered="prior_gain")
+    prior = {
+        "model_id": PARENT,
+        "machine": "tapping-center-a",
+        "kind": "dynamic",
+        "speed_range_rpm": [0.0, 18000.0],
+        "regressor_ranges": {"T1": [0.0, 9.0]},
+    }
+    qualification = {"promoted": "2026-11-01T02:03:04Z", "max_residual_um": 1.234, "n_runs": 3}
+    qualification["speeds_rpm"] = [3000, 9000, 18000]
+    block = fitness_block(
+        prior,
+        qualification=qualification,
+        origin="declared sibling",
+        method="gain",
+        gain=1.76,
+        time_factor=None,
+        alpha=None,
+        coefficient_change=CHANGE,
+        prior_prediction=np.array([1.0, 2.0]),
+        new_prediction=np.array([1.76, 3.52]),
+        tested_speeds_rpm=[3000, 3000],
+        tested_rises={"T1": [0.0, 4.0]},
+        speed_tolerance_rpm=50,
+    )
+    best_path = results / "comparison" / "best_model.json"
+    best = json.loads(best_path.read_text(encoding="utf-8"))
+    best["adaptation"]["fitness"] = block
+    best["model_id"] = "1" * 64  # the row prior_gain of summary.csv (_add_candidates): the model shown
+    best_path.write_text(json.dumps(best), encoding="utf-8")
+    ctx = _context(results)
+    text = " ".join(html.unescape(_text(render_html(ctx))).replace("\u00a0", " ").split())
+    who = f"The prior: model {PARENT[:12]} (dynamic) of tapping-center-a , a sibling declared in"
+    assert f"{who} models.prior_siblings" in text
+    assert (
+        "Its own qualification: promoted 2026-11-01T02:03:04Z, worst validation residual 1.23 µm on 3 runs"
+        in text
+    )
+    assert "tested here 3 000 r/min (range 3 000 r/min); the prior's 3 000, 9 000, 18 000 r/min" in text
+    assert "(range 0–18 000 r/min); covered by the prior alone: 9 000, 18 000 r/min" in text
+    assert "prediction moved by 76.0 % of its size" in text
+    # the model's section: its speeds, each range said as what it is
+    assert "speeds 3 000 r/min tested here, 0 … 18 000 r/min covered by the prior" in text
+    assert f"confirm with {{file: {PARENT[:12]}, check: prior_adaptation}}" in text
+    assert f"confirm with {{file: {PARENT[:12]}, check: prior_speeds}}" in text
+    table = next(t for t in html_tables(render_html(ctx)) if any("tested here" in h for h in t["headers"]))
+    assert [list(r.values()) for r in table["records"]] == [["T1", "0.0 … 4.0", "0.0 … 9.0", "4.0 … 9.0"]]

@@ -5,10 +5,12 @@ Night 1 qualifies a machine on three shipped training runs and one validation ru
 is the prior. A sibling of the same series is then configured with ``models.prior: {machine:
 ...}`` (docs/operations.md, "Re-qualification in hours"), ``rafi plan`` writes its 2 h programme,
 the twin with the sibling's build spread (``rafi simulate day --sibling``) runs it and one
-validation run, and night 2 starts the sibling from the prior: the
-programme is one heat-up (no whole-run CV fold), so the prior with one gain is offered
-(:func:`rafi.family.selection.default_champion`), judged by the same gates, and promoted with
-its parent recorded.
+validation run. Night 2 refuses the prior in one line: the first machine is not declared a
+sibling (``models.prior_siblings``, issue 47). Declared, night 3 starts the sibling from the
+prior: the programme is one heat-up (no whole-run CV fold), so the prior with one gain is offered
+(:func:`rafi.family.selection.default_champion`), judged by the same gates, and held back by the
+prior's fitness warning (the prior's speeds the heat-up does not cover); confirmed in
+``checks.confirmed``, night 4 promotes it with its parent recorded.
 """
 
 from __future__ import annotations
@@ -84,7 +86,28 @@ def test_plan_twin_night_gives_a_requalified_sibling_with_its_parent(tmp_path):
     for path in new_files:
         settle(path)
 
-    # night 2: the sibling's first model is the prior adapted to its 2 h, promoted with its parent
+    # night 2: the first machine is not declared a sibling: its prior is refused in one line
+    night = run_nightly(proj)
+    out = night.stdout + night.stderr
+    assert night.returncode == 1, out
+    refused = [line for line in out.splitlines() if f"prior {prior_id[:12]} is a model of {MACHINE}" in line]
+    assert refused and all(f"models.prior_siblings: [{MACHINE}]" in line for line in refused), out
+    assert not (proj / "results" / SIBLING / "registry" / "decision.json").exists()
+
+    # night 3: declared; the adapted prior passes the gates, its fitness warning holds it back
+    cfg = yaml.safe_load((proj / "config.yaml").read_text(encoding="utf-8"))
+    cfg["machines"][SIBLING]["models"]["prior_siblings"] = [MACHINE]
+    (proj / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+    night = run_nightly(proj)
+    assert night.returncode in (2, 4), night.stdout + night.stderr
+    held = _decision(proj, SIBLING)
+    assert held["decision"] == "rejected" and held["blocked_by"] == ["prior_fitness"], held["reasons"]
+    checks = [w["check"] for w in held["prior_fitness"]["blocking"]]
+    assert "prior_speeds" in checks  # the heat-up covers one of the prior's three speeds
+
+    # night 4: confirmed in checks.confirmed (the prior's id): promoted with its parent
+    cfg["machines"][SIBLING]["checks"] = {"confirmed": [{"file": prior_id[:12], "check": c} for c in checks]}
+    (proj / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
     night = run_nightly(proj)
     assert night.returncode in (0, 4), night.stdout + night.stderr
     second = _decision(proj, SIBLING)
@@ -104,5 +127,8 @@ def test_plan_twin_night_gives_a_requalified_sibling_with_its_parent(tmp_path):
     assert set(adaptation["prior_data"]) >= set(TRAIN[:3])
     summary = (proj / "results" / SIBLING / "comparison" / "summary.csv").read_text(encoding="utf-8")
     assert all(f"\n{name}," in summary for name in ("prior", "prior_gain"))
+    assert adaptation["fitness"]["origin"] == "declared sibling"
+    assert adaptation["fitness"]["prior"]["promoted"] == first["time"]
     status = run_rafi(proj, "status", "--machine", SIBLING)
-    assert f"(adapted from {prior_id[:12]})" in status.stdout, status.stdout + status.stderr
+    assert f"(adapted from {prior_id[:12]} of {MACHINE})" in status.stdout, status.stdout + status.stderr
+    assert f"prior:            {prior_id[:12]} of {MACHINE}, declared sibling" in status.stdout

@@ -80,6 +80,18 @@ OPERATIONS_SETTINGS: dict = {
                     "sibling's champion chain); a model that learnt from any current run is skipped"
                 ),
             ),
+            "prior_siblings": Setting(
+                default=[],
+                schema={"type": "array", "items": {"type": "string", "minLength": 1}, "uniqueItems": True},
+                shown="none",
+                doc=(
+                    "the machines declared siblings of this one (same design, sensors and probe map): a "
+                    "prior that is a model of another machine (`models.prior: {machine: <name>}`) must be"
+                    " of one of these, or the re-qualification stops (`PriorForeign`, one line; "
+                    "`docs/models.md`, Re-qualification from a prior). A name is a machine (every probe"
+                    " of it) or a probe unit `<machine>@<probe>`"
+                ),
+            ),
             "cv": Setting(
                 default="leave_one_run_out",
                 schema={"enum": ["leave_one_run_out", "leave_one_speed_out"]},

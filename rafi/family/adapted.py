@@ -24,7 +24,10 @@ by the one factor of ``prior_time``; the from-scratch kinds beside re-choose tho
 artefact is one of the **prior's kind** (same features and hyperparameters, new coefficients;
 ``prior_time``: scaled filter constants), so ``rafi.family.compare.load_any``, the streaming
 compensator and the intervals run it unchanged; it carries the block
-``adaptation`` (:data:`ADAPTATION_SCHEMA`) and its ``data`` are the new training data.
+``adaptation`` (:data:`ADAPTATION_SCHEMA`) and its ``data`` are the new training data. The block's
+``fitness`` (:func:`rafi.family.prior_fitness.fitness_block`) says where the prior comes from, its
+own qualification, how far the adaptation moved it and which speeds and temperature rises the new
+data cover against those only the prior covers; its ``warnings`` block promotion until confirmed.
 """
 
 from __future__ import annotations
@@ -40,7 +43,8 @@ from rafi.family.base import FamilyModel, check_artefact, data_hashes
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.envelope import join_envelope
 from rafi.family.grey_box import GreyBox
-from rafi.family.prior import RIDGE_KINDS
+from rafi.family.prior import RIDGE_KINDS, prior_sensors
+from rafi.family.prior_fitness import fitness_block
 from rafi.family.ridge import cv_folds, cv_scores, fit_rows_of, ridge_gram, rms_scale
 from rafi.family.ridge_global import RidgeGlobal
 from rafi.family.temperature_ridge import TemperatureRidge
@@ -90,6 +94,13 @@ class AdaptedPrior(FamilyModel):
         over the whole log under ``log_start``) and the adapted artefact carries it, so a prior
         qualified on a continuous log serves a machine logged as cold-start files and the
         reverse (``docs/operations.md``, "Layouts are not physics").
+    origin : str or None
+        Where the prior comes from (:func:`rafi.family.prior.check_origin`: ``this machine`` or
+        ``declared sibling``; None: not checked, a prior given in-process).
+    qualification : dict or None
+        The prior's own qualification (:func:`rafi.family.prior.prior_qualification`).
+    speed_tolerance_rpm : float
+        A speed of the prior within this of a new training run's is covered (the fitness block).
 
     Attributes
     ----------
@@ -105,6 +116,8 @@ class AdaptedPrior(FamilyModel):
         ``name``, ``prior``, ``new`` per coefficient.
     grid_edges_ : list of str
         ``alpha`` at an edge of its grid.
+    fitness_ : dict
+        The ``fitness`` block (:func:`rafi.family.prior_fitness.fitness_block`).
     """
 
     def __init__(
@@ -117,6 +130,9 @@ class AdaptedPrior(FamilyModel):
         cv_metric: str = MODELS["cv_metric"],
         machine: str | None = None,
         reference: dict | None = None,
+        origin: str | None = None,
+        qualification: dict | None = None,
+        speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
     ):
         self.prior = prior
         self.method = method
@@ -125,6 +141,9 @@ class AdaptedPrior(FamilyModel):
         self.cv_metric = cv_metric
         self.machine = machine
         self.reference = reference
+        self.origin = origin
+        self.qualification = qualification
+        self.speed_tolerance_rpm = speed_tolerance_rpm
 
     @property
     def kind(self) -> str:
@@ -172,6 +191,7 @@ class AdaptedPrior(FamilyModel):
         before = np.array(model.coef_, dtype=float)
         pred = x @ before if ridge_kind else np.asarray(model.predict(frame.loc[rows]), dtype=float)
         ok = np.isfinite(pred) & np.isfinite(y)
+        prior_prediction = pred.copy()  # the prior's own, for the fitness block
         self.gain_ = self.alpha_chosen_ = self.time_factor_ = None
         self.grid_edges_, cv_table = [], []
         if self.method == "time":
@@ -189,11 +209,41 @@ class AdaptedPrior(FamilyModel):
             delta, cv_table = self._ridge(x[ok], y[ok] - pred[ok], units[ok], table)
             model.coef_ = before + delta
         after = np.asarray(model.coef_, dtype=float)
-        residual = y[ok] - (x[ok] @ after if ridge_kind else pred[ok] * (self.gain_ or 1.0))
+        new_prediction = x @ after if ridge_kind else pred * (self.gain_ or 1.0)
+        residual = y[ok] - new_prediction[ok]
         self.coefficient_change_ = _coefficient_change(model, self.kind, before, after)
+        self.fitness_ = self._fitness(table, frame.loc[rows], prior_prediction, new_prediction)
         self._restamp(model, table, frame.loc[rows], residual, cv_table)
         self.model_ = model
         return self
+
+    def _fitness(self, table: pd.DataFrame, train: pd.DataFrame, before: np.ndarray, after: np.ndarray):
+        """The ``fitness`` block of this adaptation (:func:`rafi.family.prior_fitness.fitness_block`):
+        the new training runs' speeds and rises against the prior's."""
+        from rafi.family.features import rise_column
+
+        rises = {}
+        for sensor in prior_sensors(self.prior):
+            column = rise_column(sensor)
+            values = train[column].to_numpy(dtype=float) if column in train else np.array([])
+            values = values[np.isfinite(values)]
+            if values.size:
+                rises[sensor] = [float(values.min()), float(values.max())]
+        return fitness_block(
+            self.prior,
+            qualification=self.qualification,
+            origin=self.origin,
+            method=self.method,
+            gain=self.gain_,
+            time_factor=self.time_factor_,
+            alpha=self.alpha_chosen_,
+            coefficient_change=self.coefficient_change_,
+            prior_prediction=before,
+            new_prediction=after,
+            tested_speeds_rpm=table["speed_rpm"].astype(float).tolist(),
+            tested_rises=rises,
+            speed_tolerance_rpm=float(self.speed_tolerance_rpm),
+        )
 
     def _time(self, frame: pd.DataFrame, rows: np.ndarray, y: np.ndarray, units: np.ndarray):
         """The prior with its time constants scaled by the factor of :data:`TIME_FACTORS` that
@@ -261,6 +311,7 @@ class AdaptedPrior(FamilyModel):
             "time_factor": self.time_factor_,
             "prior_data": _lineage_data(self.prior),
             "coefficient_change": self.coefficient_change_,
+            "fitness": self.fitness_,
         }
         model.interval_ = None  # the prior's interval is not this model's (calibrate_family sets one)
         model.adaptation_ = block
@@ -396,11 +447,20 @@ def _joined_ranges(model, table: pd.DataFrame, train: pd.DataFrame):
 
 
 def adaptation_factories(
-    prior: dict, *, options: dict, machine: str | None, reference: dict | None = None, log=print
+    prior: dict,
+    *,
+    options: dict,
+    machine: str | None,
+    reference: dict | None = None,
+    log=print,
+    origin: str | None = None,
+    qualification: dict | None = None,
+    speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
 ) -> dict:
     """Name -> factory of the adaptation candidates of ``prior`` (:data:`CANDIDATES`; ``prior_ridge``
     only for a ridge kind), built from the machine's ``models:`` settings ``options`` and its
-    ``reference:`` settings (:class:`AdaptedPrior`, ``reference``)."""
+    ``reference:`` settings (:class:`AdaptedPrior`, ``reference``); ``origin``, ``qualification``
+    and ``speed_tolerance_rpm`` go to each candidate's fitness block."""
     names = [n for n in CANDIDATES if CANDIDATES[n] not in RIDGE_METHODS or prior.get("kind") in RIDGE_KINDS]
     if "prior_ridge" not in names:
         log(
@@ -409,6 +469,7 @@ def adaptation_factories(
         )
     common = {"alphas": options["prior_ridge_alphas"], "cv": options["cv"], "cv_metric": options["cv_metric"]}
     common["reference"] = reference
+    common |= {"origin": origin, "qualification": qualification, "speed_tolerance_rpm": speed_tolerance_rpm}
     return {
         n: functools.partial(AdaptedPrior, prior=prior, method=CANDIDATES[n], machine=machine, **common)
         for n in names

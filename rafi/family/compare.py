@@ -490,6 +490,7 @@ def run_family(
     code_version: str | None = None,
     log=print,
     prior: dict | None = None,
+    prior_origin: dict | None = None,
 ) -> dict:
     """Fit, cross-validate, choose, then validate the enabled models (what ``rule compare`` runs).
 
@@ -515,6 +516,8 @@ def run_family(
     holds this CV's key, and are stored there when computed. With ``prior`` (an artefact,
     :mod:`rafi.family.prior`) the adaptation candidates ``prior``, ``prior_gain``, ``prior_ridge``
     join the kinds (:func:`rafi.family.adapted.adaptation_factories`); the memo key covers its id.
+    ``prior_origin`` (``origin`` and ``qualification``: :func:`rafi.family.prior.prior_record`)
+    goes to the candidates' fitness block.
 
     Returns
     -------
@@ -541,8 +544,19 @@ def run_family(
     factories = {kind: functools.partial(make_model, kind, **settings) for kind in options["enabled"]}
     floor = functools.partial(make_model, PLAIN_RIDGE, **settings)  # always scored, offered if enabled
     if prior is not None:
-        adapt = {"options": options, "machine": machine, "reference": reference}  # this machine's reference
-        factories.update(adaptation_factories(prior, **adapt, log=log))
+        origin = prior_origin or {}
+        factories.update(
+            adaptation_factories(
+                prior,
+                options=options,
+                machine=machine,
+                reference=reference,  # this machine's reference
+                log=log,
+                origin=origin.get("origin"),
+                qualification=origin.get("qualification"),
+                speed_tolerance_rpm=speed_tolerance_rpm,
+            )
+        )
         settings = {**settings, "prior": prior.get("model_id")}  # the CV memo's key covers the prior
     candidates, factories = list(factories), with_plain_ridge(factories, floor)  # offered / scored
     models, cv, oof, memo, fit_table = _cross_validated(

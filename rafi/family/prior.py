@@ -12,6 +12,11 @@ the adaptation family (:mod:`rafi.family.adapted`) starts from, and whether it m
   the probe's sign and the reference rule are properties of the logs (the readers apply
   ``input.displacement.sign``, every reference rule measures from the cold machine at rest), and
   the adapted model takes this machine's (:class:`rafi.family.adapted.AdaptedPrior`).
+* :func:`prior_origin` / :func:`check_origin`: where the prior comes from (this machine, a
+  sibling declared in ``models.prior_siblings``, or elsewhere); a prior from elsewhere is
+  refused (:class:`rafi.errors.PriorForeign`, one line naming its id, its machine and the key);
+* :func:`prior_qualification` is the prior's own qualification (its promotion in its registry:
+  date, worst validation residual, training speeds), for the fitness figures and the report.
 * :func:`prior_param` is what ``rule compare`` gets while Snakemake plans: the chain from its
   first model disjoint from the machine's raw files (ids only), so that promoting a champion
   trained on these logs changes nothing the workflow sees.
@@ -25,13 +30,18 @@ import os
 from collections.abc import Iterable
 from pathlib import Path
 
-from rafi.errors import PriorIncompatible, PriorUnavailable, RegistryError
+from rafi.errors import PriorForeign, PriorIncompatible, PriorUnavailable, RegistryError
 
 __all__ = [
     "PRIOR_MODES",
     "RIDGE_KINDS",
+    "ORIGINS",
     "prior_source",
     "prior_chain",
+    "prior_origin",
+    "check_origin",
+    "prior_qualification",
+    "prior_record",
     "seen_data",
     "choose_prior",
     "prior_sensors",
@@ -48,6 +58,8 @@ __all__ = [
 PRIOR_MODES = ("auto", "none", "champion")
 #: The kinds whose prediction is ``features @ coefficients`` (``prior_ridge`` is offered for these).
 RIDGE_KINDS = ("ridge_global", "dynamic", "grey_box", "temperature_ridge")
+#: Where a prior may come from (:func:`prior_origin`), in the words of the fitness block.
+ORIGINS = ("this machine", "declared sibling")
 #: A guard against a corrupt registry whose parents form a very long chain.
 MAX_CHAIN = 100
 
@@ -206,6 +218,78 @@ def prior_probe(prior: dict) -> str | None:
     return split_unit(str(prior.get("machine") or ""))[1]
 
 
+def _machine_part(name: str) -> str:
+    from rafi.settings import split_unit
+
+    return split_unit(name)[0]
+
+
+def prior_origin(prior_machine: str | None, machine: str, siblings: Iterable[str] = ()) -> str | None:
+    """Where a prior of ``prior_machine`` comes from, for ``machine``: ``"this machine"`` (the
+    same unit), ``"declared sibling"`` (the unit, or its machine, is in ``siblings``:
+    ``models.prior_siblings``) or ``None`` (elsewhere: refused by :func:`check_origin`).
+
+    A probe unit ``m@X`` is its own machine: a prior of ``m@Y`` for it is a sibling only when
+    declared (``m@Y``, or ``m`` for every probe of ``m``).
+    """
+    if not prior_machine:
+        return None
+    if str(prior_machine) == str(machine):
+        return ORIGINS[0]
+    declared = {str(s) for s in siblings or ()}
+    if str(prior_machine) in declared or _machine_part(str(prior_machine)) in declared:
+        return ORIGINS[1]
+    return None
+
+
+def check_origin(prior: dict, machine: str, siblings: Iterable[str] = (), source: str | None = None) -> str:
+    """The origin of ``prior`` (:func:`prior_origin`; its machine: the artefact's ``machine``,
+    else ``source``, the registry it was read from); raise :class:`rafi.errors.PriorForeign`
+    (one line: the prior's id, its machine, the key to set) for a prior from elsewhere."""
+    prior_machine = str(prior.get("machine") or source or "")
+    origin = prior_origin(prior_machine, machine, siblings)
+    if origin is None:
+        pid = str(prior.get("model_id", "?"))[:12]
+        name = _machine_part(prior_machine) or "<machine>"
+        raise PriorForeign(
+            f"prior {pid} is a model of {prior_machine or 'an unnamed machine'}, neither {machine} nor a "
+            f"declared sibling of it; if the two are of one design set models.prior_siblings: [{name}] "
+            f"in {machine}'s settings, else models.prior: none"
+        )
+    return origin
+
+
+def prior_qualification(registry_root: str | os.PathLike, prior: dict) -> dict:
+    """The prior's own qualification, from its registry (``registry_root``): ``model_id``,
+    ``machine``, ``kind``, ``promoted`` (time of the decision that made it champion, or
+    ``None``), ``max_residual_um`` and ``n_runs`` (its worst validation residual at that
+    decision) and ``speeds_rpm`` (the speeds it was trained at: its per-speed models, else its
+    promotion's ``training.speeds_rpm``, else ``None``)."""
+    from rafi.artefact import read_jsonl
+    from rafi.ops.registry import promotion_record
+
+    model_id = str(prior.get("model_id") or "")
+    history = []
+    try:
+        history = read_jsonl(Path(registry_root) / "history.jsonl")
+    except (OSError, ValueError):
+        pass
+    record = promotion_record(history, model_id) or {}
+    summary = record.get("candidate_summary") if record.get("candidate_id") == model_id else None
+    speeds = [float(s["speed_rpm"]) for s in prior.get("speeds") or [] if "speed_rpm" in s]
+    if not speeds:
+        speeds = list(((record.get("training") or {}).get("speeds_rpm")) or [])
+    return {
+        "model_id": model_id,
+        "machine": prior.get("machine"),
+        "kind": prior.get("kind"),
+        "promoted": record.get("time"),
+        "max_residual_um": (summary or {}).get("max_residual_um"),
+        "n_runs": (summary or {}).get("n_runs"),
+        "speeds_rpm": sorted({float(s) for s in speeds}) or None,
+    }
+
+
 def check_compatible(prior: dict, *, sensors_available: Iterable[str], unit: str | None = None) -> None:
     """Raise :class:`rafi.errors.PriorIncompatible` unless ``prior`` can be applied here.
 
@@ -246,11 +330,18 @@ def check_compatible(prior: dict, *, sensors_available: Iterable[str], unit: str
         )
 
 
-def prior_param(results_dir: str | os.PathLike, machine: str, setting, raw_hashes: Iterable[str]) -> dict:
+def prior_param(
+    results_dir: str | os.PathLike,
+    machine: str,
+    setting,
+    raw_hashes: Iterable[str],
+    siblings: Iterable[str] = (),
+) -> dict:
     """The param ``prior`` of ``rule compare``, resolved while Snakemake plans.
 
     ``chain`` holds the ids of :func:`prior_chain` from its first model that has seen none of
-    ``raw_hashes`` (the sha256 of the machine's raw files). Nothing else: a champion trained on
+    ``raw_hashes`` (the sha256 of the machine's raw files); ``machine`` and ``siblings``
+    (``models.prior_siblings``: :func:`check_origin`). Nothing else: a champion trained on
     these logs must leave the param as it was without one (no re-run after a promotion). The
     job loads the artefacts from ``registry`` and chooses again on ``runs.csv``
     (:func:`resolved_prior`).
@@ -265,6 +356,8 @@ def prior_param(results_dir: str | os.PathLike, machine: str, setting, raw_hashe
         "source": source,
         "registry": str(reg.root) if eligible else None,
         "chain": [str(a["model_id"]) for a in eligible],
+        "machine": machine,
+        "siblings": sorted({str(s) for s in siblings or ()}),
     }
 
 
@@ -282,8 +375,9 @@ def resolved_prior(
     """The prior ``rule compare`` adapts (:func:`prior_param` = ``param``), or ``None``.
 
     Loads the chain's artefacts from the registry (verified), chooses the first that learnt
-    from none of the runs of ``runs_table`` (:func:`choose_prior`) and checks it against
-    ``runs_frame``'s sensors and the probe of ``unit`` (the unit qualified:
+    from none of the runs of ``runs_table`` (:func:`choose_prior`), refuses one from elsewhere
+    than this machine or a declared sibling (:func:`check_origin`, which raises) and checks it
+    against ``runs_frame``'s sensors and the probe of ``unit`` (the unit qualified:
     :func:`check_compatible`, which raises). The reason goes to ``log``.
     """
     from rafi.ops.registry import Registry
@@ -303,12 +397,32 @@ def resolved_prior(
     prior, reason = choose_prior([reg.load_model_dict(i) for i in ids], runs_table)
     log(reason)
     if prior is not None:
+        if param.get("machine"):  # a param of before the origin check names no machine
+            origin = check_origin(prior, param["machine"], param.get("siblings") or (), param.get("source"))
+            log(f"prior {str(prior.get('model_id', ''))[:12]} comes from {origin}")
         check_compatible(
             prior,
             sensors_available=available_sensors(runs_frame),
             unit=unit,
         )
     return prior
+
+
+def prior_record(param: dict | None, prior: dict | None) -> dict | None:
+    """What the fitness block of an adaptation of ``prior`` needs from the compare param
+    (:func:`prior_param` = ``param``): ``origin`` (:func:`prior_origin`; ``None`` for a param
+    without the machine) and ``qualification`` (:func:`prior_qualification` from its registry).
+    ``None`` without a prior."""
+    if prior is None:
+        return None
+    param = param or {}
+    origin = None
+    if param.get("machine"):
+        machine_of_prior = str(prior.get("machine") or param.get("source") or "")
+        origin = prior_origin(machine_of_prior, param["machine"], param.get("siblings") or ())
+    registry = param.get("registry")
+    qualification = prior_qualification(registry, prior) if registry else None
+    return {"origin": origin, "qualification": qualification}
 
 
 def parent_of(artefact: dict) -> str | None:

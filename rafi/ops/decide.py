@@ -46,6 +46,8 @@ from rafi.ops.provenance import (
     data_change_reasons,
     files_of,
     input_warnings,
+    prior_warning_reason,
+    prior_warnings,
     speed_coverage,
     trained_speeds,
     training_data_changes,
@@ -127,11 +129,15 @@ class DecisionSettings:
         ``"noise"``; ``drift_margin_um``; ``drift_false_alarm``).
     speed_tolerance_rpm : float
         Coverage of the champion's training speeds: within this many r/min.
+    confirmed : tuple of mapping
+        ``checks.confirmed``: the warnings a person has looked at (here: a prior's fitness
+        warnings, :func:`rafi.ops.provenance.prior_warnings`).
     """
 
     gates: Mapping[str, Any]
     nightly: Mapping[str, Any]
     speed_tolerance_rpm: float = 50.0
+    confirmed: tuple = ()
 
     @property
     def champion_margin(self):
@@ -190,6 +196,8 @@ class Provenance:
         :func:`rafi.ops.provenance.training_data_changes` of those files.
     warnings : dict
         :func:`rafi.ops.provenance.input_warnings` of tonight's input status.
+    prior : dict
+        :func:`rafi.ops.provenance.prior_warnings` of the candidate (an adapted prior's fitness).
     """
 
     tonight: dict
@@ -198,6 +206,7 @@ class Provenance:
     champion_data: dict
     changes: dict
     warnings: dict
+    prior: dict = field(default_factory=lambda: {"blocking": [], "confirmed": []})
 
 
 @dataclass(frozen=True)
@@ -207,9 +216,11 @@ class Blocking:
     Attributes
     ----------
     names : list of str
-        ``blocked_by`` of ``decision.json``: ``relative_gate``, ``coverage``, ``input_warnings``.
+        ``blocked_by`` of ``decision.json``: ``relative_gate``, ``coverage``, ``input_warnings``,
+        ``prior_fitness``.
     reasons : list of str
-        The reason lines of the coverage and the input warnings (the relative gate has its own).
+        The reason lines of the coverage, the input warnings and the prior's fitness warnings
+        (the relative gate has its own).
     """
 
     names: list[str]
@@ -233,13 +244,16 @@ def check_provenance(
     runs_table: pd.DataFrame,
     input_status: dict | None,
     speed_tolerance_rpm: float,
+    *,
+    confirmed=(),
 ) -> Provenance:
     """What the candidate was trained on against what the champion was, and tonight's input.
 
     The champion's training speeds come from its artefact, else its ``promotion`` record
     (:func:`rafi.ops.provenance.champion_speeds`), its training files from its artefact's
     ``data``, else the promotion's ``data_files``. ``input_status`` (``input_status.json``)
-    says why a training file is missing and carries the input warnings.
+    says why a training file is missing and carries the input warnings; ``confirmed``
+    (``checks.confirmed``) confirms a prior's fitness warnings.
     """
     tonight = files_of(runs_table)
     status = input_status or {}
@@ -259,6 +273,7 @@ def check_provenance(
         champion_data=champion_data,
         changes=training_data_changes(champion_data, tonight, status.get("rejected"), status.get("usable")),
         warnings=input_warnings(status, tonight),
+        prior=prior_warnings(candidate_model, confirmed),
     )
 
 
@@ -266,15 +281,18 @@ def blocking_checks(
     comparison: ChampionComparison, provenance: Provenance, champion_id: str | None
 ) -> Blocking:
     """Which checks block a promotion: the relative gate (worse than the champion on a run), the
-    coverage of the champion's training speeds, an unconfirmed input warning on tonight's data."""
+    coverage of the champion's training speeds, an unconfirmed input warning on tonight's data, an
+    unconfirmed fitness warning of the prior the candidate was adapted from."""
     hits = (
         ("relative_gate", len(comparison.worse) > 0),
         ("coverage", provenance.coverage["blocking"]),
         ("input_warnings", bool(provenance.warnings["blocking"])),
+        ("prior_fitness", bool(provenance.prior["blocking"])),
     )
     reasons = coverage_reasons(provenance.coverage, champion_id) + [
         warning_reason(w) for w in provenance.warnings["blocking"]
     ]
+    reasons += [prior_warning_reason(w) for w in provenance.prior["blocking"]]
     return Blocking(names=[name for name, hit in hits if hit], reasons=reasons)
 
 
@@ -350,7 +368,13 @@ def decide(
     passed, gate_reasons, measured = gate_outcome(candidate.summary, candidate.verdict, settings.gates)
     comparison = compare_with_champion(champion, candidate.summary, settings.champion_margin)
     provenance = check_provenance(
-        candidate.model, champion, promotion, runs_table, input_status, settings.speed_tolerance_rpm
+        candidate.model,
+        champion,
+        promotion,
+        runs_table,
+        input_status,
+        settings.speed_tolerance_rpm,
+        confirmed=settings.confirmed,
     )
     blocking = blocking_checks(comparison, provenance, champion.model_id)
     decision, reasons = promotion_decision(
@@ -366,7 +390,14 @@ def decide(
         "schema": DECISION_SCHEMA,
         "machine": machine,
         "candidate_id": candidate.model_id,
-        **({"candidate_parent": parent_of(candidate.model)} if parent_of(candidate.model) else {}),
+        **(
+            {
+                "candidate_parent": parent_of(candidate.model),
+                "candidate_parent_machine": (candidate.model.get("adaptation") or {}).get("parent_machine"),
+            }
+            if parent_of(candidate.model)
+            else {}
+        ),
         "champion_id_before": champion.model_id,
         "champion_id_after": candidate.model_id if decision == "promoted" else champion.model_id,
         "decision": decision,
@@ -386,6 +417,7 @@ def decide(
         "relative_gate": relative_gate_record(comparison.table, champion.model_id, comparison.margin),
         "coverage": provenance.coverage,
         "input_warnings": provenance.warnings,
+        "prior_fitness": provenance.prior,
         "retrained_speeds": candidate.retrained_speeds or [],
         "adaptation": candidate.adaptation or {"retrain_speed_range_rpm": None, "mode": "full"},
         "training": provenance.candidate_training,
@@ -502,6 +534,7 @@ def run_decide(
     input_status_path: str | os.PathLike | None = None,
     speed_tolerance_rpm: float = 50.0,
     displacement_sign: int | None = None,
+    confirmed=(),
 ) -> dict:
     """Judge tonight's candidate, update the registry, write decision.json + comparison.csv.
 
@@ -513,6 +546,7 @@ def run_decide(
     promotion until confirmed; its ``rejected`` files explain a vanished training file).
     ``speed_tolerance_rpm``: the machine's speed tolerance (coverage of the champion's speeds).
     ``displacement_sign``: the machine's ``input.displacement.sign``, kept in the model's meta.
+    ``confirmed``: ``checks.confirmed`` (confirms a prior's fitness warnings).
 
     Order of writes (each atomic): models/<id>.json (write-once) -> history.jsonl (append)
     -> champion.json (replace, only on promotion) -> comparison.csv -> decision.json. The
@@ -525,6 +559,7 @@ def run_decide(
         gates={k: gates[k] for k in GATE_KEYS},  # the machine's resolved settings: every key present
         nightly=nightly,
         speed_tolerance_rpm=speed_tolerance_rpm,
+        confirmed=tuple(confirmed or ()),
     )
     validate_runs = validate_runs or _validate_runs
     qualify = qualify or _qualify

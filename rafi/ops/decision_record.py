@@ -183,6 +183,7 @@ def history_record(record: dict, tonight: dict[str, str], time: str) -> dict:
     line = {k: record[k] for k in HISTORY_FIELDS}
     if record.get("candidate_parent"):  # a re-qualified prior: the model it was adapted from
         line["candidate_parent"] = record["candidate_parent"]
+        line["candidate_parent_machine"] = record.get("candidate_parent_machine")
     line["data_files"] = tonight
     line["vanished"] = record["data"]["vanished"]
     line["changed"] = record["data"]["changed"]

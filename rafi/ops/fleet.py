@@ -15,7 +15,12 @@ nights wrote; nothing is computed anew:
   which are not in service unless promoted. After a rollback there is none until the next
   night scores the model;
 * drift and recalibration due: ``decision.json`` ``drift`` (the max-residual check, and under
-  ``interval`` the interval test with its evidence) and ``recalibration_due``;
+  ``interval`` the interval test with its evidence) and ``recalibration_due``, when that decision
+  checked the model in service (its ``champion_id_before``); after a promotion or a rollback the
+  check was of the model replaced, so the row says ``not_checked`` until the next decision;
+* the prior of a model in service re-qualified from one: its ``adaptation`` block (the prior's
+  id and machine, where it comes from, its own qualification and the fitness figures:
+  :func:`prior_summary`);
 * quarantined files and whether the machine was skipped: ``audit.csv`` and
   ``input_status.json`` (:func:`rafi.ops.status.machine_status`);
 * its page: ``reports/<m>/qualification.html``, or ``reports/<m>/skipped.html`` for a skipped
@@ -168,14 +173,31 @@ INTERVAL_KEYS = (
 )
 
 
-def _drift(decision: dict | None) -> dict | None:
+#: The drift keys a row repeats (``decision.json`` ``drift``).
+DRIFT_KEYS = ("status", "degradation_um", "new_max_residual_um", "reference_max_residual_um", "limit_um")
+
+
+def _drift(decision: dict | None, champion_id: str | None = None) -> dict | None:
     """Both drift checks of ``decision.json``: the max-residual one (its keys at the top) and the
     interval test (``interval``: :data:`INTERVAL_KEYS` and ``text``, its evidence in words; None
-    in a decision from before the test)."""
+    in a decision from before the test).
+
+    The checks are of the decision's ``champion_id_before``; when that is not ``champion_id``
+    (the model in service was promoted by that decision, or rolled back to after it) they are
+    not this model's: ``status`` ``not_checked``, ``checked_model`` the model they were of, no
+    figures and no interval."""
     drift = (decision or {}).get("drift")
     if not isinstance(drift, dict):
         return None
-    keys = ("status", "degradation_um", "new_max_residual_um", "reference_max_residual_um", "limit_um")
+    checked = (decision or {}).get("champion_id_before")
+    if champion_id and checked != champion_id:
+        return {k: None for k in DRIFT_KEYS} | {
+            "status": "not_checked",
+            "checked_model": checked,
+            "new_runs": [],
+            "interval": None,
+        }
+    keys = DRIFT_KEYS
     out = {k: drift.get(k) for k in keys} | {"new_runs": list(drift.get("new_runs") or [])}
     interval = drift.get("interval")
     out["interval"] = (
@@ -184,6 +206,35 @@ def _drift(decision: dict | None) -> dict | None:
         else None
     )
     return out
+
+
+def prior_summary(artefact: dict | None) -> dict | None:
+    """The prior of a model re-qualified from one, from its ``adaptation`` block: ``id``,
+    ``machine``, ``origin`` (``this machine`` / ``declared sibling``; None: not recorded),
+    ``promoted`` / ``max_residual_um`` / ``n_runs`` (its own qualification), ``method``,
+    ``gain``, ``time_factor``, ``largest_coefficient_change``, ``prediction_change``,
+    ``speeds_tested_rpm``, ``speeds_prior_only_rpm`` and ``warnings`` (the fitness block,
+    :mod:`rafi.family.prior_fitness`; the figures are None for a model without one). None for a
+    model that is not an adapted prior."""
+    block = (artefact or {}).get("adaptation")
+    if not isinstance(block, dict) or not block.get("parent"):
+        return None
+    fit = block.get("fitness") if isinstance(block.get("fitness"), dict) else {}
+    own = fit.get("prior") or {}
+    keys = ("largest_coefficient_change", "prediction_change", "speeds_tested_rpm", "speeds_prior_only_rpm")
+    return {
+        "id": block.get("parent"),
+        "machine": block.get("parent_machine") or own.get("machine"),
+        "origin": fit.get("origin"),
+        "promoted": own.get("promoted"),
+        "max_residual_um": own.get("max_residual_um"),
+        "n_runs": own.get("n_runs"),
+        "method": block.get("method"),
+        "gain": block.get("gain"),
+        "time_factor": block.get("time_factor"),
+        **{k: fit.get(k) for k in keys},
+        "warnings": [str(w.get("check")) for w in fit.get("warnings") or []],
+    }
 
 
 def _page(reports_dir: Path, machine: str, skipped: bool) -> str | None:
@@ -217,21 +268,23 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     dict
         ``machine``, ``state``, ``rank``, ``attention`` (every state that applies, most urgent
         first, with a short text each), ``champion`` (``id``, ``kind``, ``parent``: the prior it was
-        re-qualified from or ``None``, ``since``, ``reason``;
-        or None), ``last_decision`` (``decision``, ``time``, ``candidate_id``, ``reasons``,
-        ``source``; or None), ``worst_residual`` (:func:`champion_residual`), ``drift``,
-        ``recalibration_due``, ``quarantined`` (list of ``file (reason)``), ``skipped``,
-        ``report`` (path relative to ``reports_dir``, or None), ``exit_code``.
+        re-qualified from or ``None``, ``parent_machine``, ``prior`` (:func:`prior_summary`),
+        ``since``, ``reason``; or None), ``last_decision`` (``decision``, ``time``,
+        ``candidate_id``, ``reasons``, ``source``; or None), ``worst_residual``
+        (:func:`champion_residual`), ``drift``, ``recalibration_due``, ``quarantined`` (list of
+        ``file (reason)``), ``skipped``, ``report`` (path relative to ``reports_dir``, or None),
+        ``exit_code``.
     """
     reports_dir = Path(reports_dir)
     reg = paths.registry(machine)
     champion = _read_json(reg / "champion.json")
     champion_id = (champion or {}).get("model_id")
-    kind = parent = None
+    kind = parent = prior = None
     if champion_id and "/" not in champion_id and not champion_id.startswith("."):
         artefact = _read_json(reg / "models" / f"{champion_id}.json") or {}
         kind = artefact.get("kind") or None
         parent = (artefact.get("adaptation") or {}).get("parent") or None
+        prior = prior_summary(artefact)
     decision = _read_json(reg / "decision.json")
     last = None
     if decision:
@@ -260,8 +313,9 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
         attention.append(
             ("failed", "decision.json is older than audit.csv: the last run stopped before the decision")
         )
-    recal = bool((decision or {}).get("recalibration_due"))
-    drift = _drift(decision)
+    drift = _drift(decision, champion_id)
+    # the decision's verdict on the model it checked: not the model in service after a promotion
+    recal = bool((decision or {}).get("recalibration_due")) and (drift or {}).get("status") != "not_checked"
     if recal:
         interval = (drift or {}).get("interval") or {}
         if interval.get("detected"):
@@ -292,6 +346,8 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
                 "id": champion_id,
                 "kind": kind,
                 "parent": parent,
+                "parent_machine": (prior or {}).get("machine"),
+                "prior": prior,
                 "since": champion.get("since"),
                 "reason": champion.get("reason"),
             }

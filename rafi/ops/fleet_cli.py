@@ -65,10 +65,17 @@ def describe_drift(drift: dict | None, *, has_champion: bool) -> str:
     ``no_champion`` is the status of a decision taken while the machine had no champion (the
     decision that promoted the first one): drift is checked from the next decision on, so it
     reads "not checked yet" under a model in service, and "no model in service" otherwise.
+    ``not_checked`` (:func:`rafi.ops.fleet.machine_overview`): the last decision checked another
+    model (the one the model in service replaced), so none of its figures is shown.
     """
     if not drift:
         return "-"
     status = str(drift["status"])
+    if status == "not_checked":
+        if drift.get("checked_model"):
+            replaced = short_id(drift["checked_model"])
+            return f"not checked yet (the last check was of {replaced}, the model replaced)"
+        return "not checked yet (the model was promoted by the last decision)"
     if status == "no_champion":
         return "not checked yet (the model was promoted by the last decision)" if has_champion else "-"
     text = DRIFT_WORDS.get(status, status)
@@ -76,6 +83,44 @@ def describe_drift(drift: dict | None, *, has_champion: bool) -> str:
         limit = _num(drift.get("limit_um"), " um")
         text += f", +{_num(drift['degradation_um'], ' um')} (limit {limit})"
     return text
+
+
+def _speeds(values) -> str:
+    return ", ".join(f"{float(v):g}" for v in values or []) or "none"
+
+
+def describe_prior(prior: dict | None) -> list[str]:
+    """The lines naming the prior of a model in service re-qualified from one
+    (:func:`rafi.ops.fleet.prior_summary`): its id and machine, where it comes from, its own
+    qualification; how far the adaptation moved it; the speeds tested here and those only it covers."""
+    if not prior:
+        return []
+    origin = f", {prior['origin']}" if prior.get("origin") else ""
+    own = []
+    if prior.get("promoted"):
+        own.append(f"promoted {prior['promoted']}")
+    if prior.get("max_residual_um") is not None:
+        runs = f" on {prior['n_runs']} validation run(s)" if prior.get("n_runs") else ""
+        own.append(f"worst {_num(prior['max_residual_um'], ' um')}{runs}")
+    first = f"{short_id(prior['id'])} of {prior.get('machine') or '?'}{origin}"
+    first += f" ({'; '.join(own)})" if own else " (its own qualification not recorded)"
+    moved = [str(prior.get("method") or "?")]
+    if prior.get("gain") is not None:
+        moved.append(f"gain {float(prior['gain']):.3g}")
+    if prior.get("time_factor") is not None:
+        moved.append(f"time factor {float(prior['time_factor']):g}")
+    big = prior.get("largest_coefficient_change")
+    if big:
+        moved.append(f"largest coefficient change {100 * float(big['relative']):+.0f} % ({big['name']})")
+    lines = [f"  prior:            {first}", f"  adaptation:       {', '.join(moved)}"]
+    if prior.get("speeds_tested_rpm") is not None:
+        lines.append(
+            f"  speeds:           tested here {_speeds(prior['speeds_tested_rpm'])} r/min; the prior's "
+            f"alone {_speeds(prior.get('speeds_prior_only_rpm'))}"
+        )
+    if prior.get("warnings"):
+        lines.append(f"  prior warnings:   {', '.join(prior['warnings'])} (confirmed in checks.confirmed)")
+    return lines
 
 
 def format_rows(rows: list[dict]) -> str:
@@ -87,7 +132,7 @@ def format_rows(rows: list[dict]) -> str:
         ch = r["champion"]
         model = f"{short_id(ch['id'])} {ch['kind'] or '?'} since {ch['since']}" if ch else "none"
         if ch and ch.get("parent"):
-            model += f" (adapted from {short_id(ch['parent'])})"
+            model += f" (adapted from {short_id(ch['parent'])} of {ch.get('parent_machine') or '?'})"
         last = r["last_decision"]
         decided = f"{last['decision']} at {last['time']}" if last else "none"
         worst = r["worst_residual"]
@@ -101,6 +146,7 @@ def format_rows(rows: list[dict]) -> str:
         for a in r["attention"]:
             lines.append(f"  ! {a['text']}")
         lines.append(f"  model in service: {model}")
+        lines += describe_prior((ch or {}).get("prior"))
         lines.append(f"  last decision:    {decided}")
         lines.append(f"  worst residual:   {resid}")
         due = "YES" if r["recalibration_due"] else "no"

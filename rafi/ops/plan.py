@@ -263,7 +263,7 @@ def _heat_reason(i: int, speed: float, speeds: list[float], view: Mapping | None
     return where
 
 
-def _extras(left, k, n_cool, run_s, speeds, uncertainty, view) -> tuple[list[float], list[float]]:
+def _extras(left, k, n_cool, run_s, speeds, *, uncertainty, view) -> tuple[list[float], list[float]]:
     """The time each heat-up and cool-down gets beyond ``run_s`` (:func:`plan_programme`, step 3)."""
     heat_extra, cool_extra = [0.0] * k, [0.0] * n_cool
     tau = (view or {}).get("slowest_tau_s")
@@ -421,7 +421,7 @@ def plan_programme(
     left = budget_s - rest_s - k * run_s - n_cool * run_s
     if k > 1 and left >= run_s - 1e-9:
         n_cool, left = k, left - run_s
-    heat_extra, cool_extra = _extras(left, k, n_cool, run_s, speeds, uncertainty, prior)
+    heat_extra, cool_extra = _extras(left, k, n_cool, run_s, speeds, uncertainty=uncertainty, view=prior)
     rows = _rows(speeds, heat_extra, cool_extra, run_s, rest_s, prior)
     plan = pd.DataFrame(rows, columns=["speed_rpm", "duration_s", "note", "reason", "kind"])
     plan.insert(2, "run", str(name))

@@ -6,7 +6,10 @@
 * :func:`training_data_changes`: training files of the champion that are gone from tonight's
   data or whose content changed (reported, not blocking: the other gates judge the result);
 * :func:`input_warnings`: the plausibility warnings of ``input_status.json`` on files tonight's
-  data uses; an unconfirmed one blocks promotion.
+  data uses; an unconfirmed one blocks promotion;
+* :func:`prior_warnings`: the fitness warnings of a candidate adapted from a prior
+  (:mod:`rafi.family.prior_fitness`); an unconfirmed one blocks promotion likewise, confirmed in
+  the same ``checks.confirmed`` as ``{file: <the prior's model id>, check: <check id>}``.
 
 Pure functions on dicts and frames; no I/O.
 """
@@ -263,4 +266,52 @@ def warning_reason(w: dict) -> str:
     return (
         f"input warning not confirmed: {file} {w.get('check')}: {w.get('message')}; "
         "confirm it in config checks.confirmed or fix the file"
+    )
+
+
+def prior_warnings(candidate_model: dict | None, confirmed=()) -> dict:
+    """The fitness warnings of a candidate adapted from a prior (``adaptation.fitness.warnings``,
+    :func:`rafi.family.prior_fitness.fitness_warnings`), split by ``checks.confirmed``
+    (``confirmed``): an entry ``{file: <the prior's model id, its first 12 characters or a
+    glob>, check: prior_adaptation | prior_speeds}`` confirms it.
+
+    Returns
+    -------
+    dict
+        ``blocking`` and ``confirmed``, each a list of ``{prior, machine, check, message,
+        confirmed}`` (``prior``: the prior's model id); both empty for a candidate that is not
+        an adapted prior, or one without a fitness block.
+    """
+    from rafi.readers.checks_machine import is_confirmed
+
+    out: dict[str, list] = {"blocking": [], "confirmed": []}
+    adaptation = (candidate_model or {}).get("adaptation")
+    fitness = adaptation.get("fitness") if isinstance(adaptation, dict) else None
+    if not isinstance(fitness, dict):
+        return out
+    prior = str(adaptation.get("parent") or (fitness.get("prior") or {}).get("model_id") or "")
+    machine = adaptation.get("parent_machine") or (fitness.get("prior") or {}).get("machine")
+    for w in fitness.get("warnings") or []:
+        check = str(w.get("check"))
+        ok = bool(prior) and (
+            is_confirmed(prior, check, confirmed) or is_confirmed(prior[:12], check, confirmed)
+        )
+        rec = {
+            "prior": prior,
+            "machine": machine,
+            "check": check,
+            "message": w.get("message"),
+            "confirmed": ok,
+        }
+        out["confirmed" if ok else "blocking"].append(rec)
+    return out
+
+
+def prior_warning_reason(w: dict) -> str:
+    """The reason line of a blocking fitness warning (:func:`prior_warnings`)."""
+    pid = str(w.get("prior") or "")[:12]
+    return (
+        f"prior fitness not confirmed: prior {pid} of {w.get('machine')}: {w.get('message')}; "
+        f"confirm it in config checks.confirmed ({{file: {pid}, check: {w.get('check')}}}) or record "
+        "the runs it lacks"
     )

@@ -140,7 +140,8 @@ class MachineStatus:
         if d.get("decision") in ("promoted", "rejected"):
             text += f", candidate {short_id(d.get('candidate_id'))}"
             if d.get("candidate_parent"):
-                text += f" (adapted from {short_id(d.get('candidate_parent'))})"
+                of = d.get("candidate_parent_machine") or "?"
+                text += f" (adapted from {short_id(d.get('candidate_parent'))} of {of})"
         sp = [str(s.get("speed_rpm")) for s in d.get("retrained_speeds") or []]
         if sp and d.get("decision") == "promoted":
             text += f", retrained speeds {', '.join(sp)} r/min"

@@ -356,6 +356,17 @@ def _speed_span(speeds) -> str:
     return f"{lo} r/min" if lo == hi else f"{lo} \u2026 {hi} r/min"
 
 
+def _adapted_span(art: dict) -> str | None:
+    """An adapted prior's speeds, each range said as what it is: tested here (the new training
+    runs) and covered by the prior (``adaptation.fitness``, :mod:`rafi.family.prior_fitness`);
+    ``None`` for any other model."""
+    fit = (art.get("adaptation") or {}).get("fitness") if isinstance(art.get("adaptation"), dict) else None
+    if not isinstance(fit, dict) or fit.get("speed_range_tested_rpm") is None:
+        return None
+    tested, prior = _speed_span(fit["speed_range_tested_rpm"]), _speed_span(fit.get("speed_range_prior_rpm"))
+    return f"{tested} tested here, {prior} covered by the prior"
+
+
 def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
     """The section's context, or ``None`` without a comparison champion and its artefact.
 
@@ -404,7 +415,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "inputs": [{"input": a, "how": b} for a, b in inputs],
         "train_runs": ", ".join(train_runs),
         "n_train": len(train_runs),
-        "speeds": _speed_span(parts["speeds"]),
+        "speeds": _adapted_span(art) or _speed_span(parts["speeds"]),
         "rises": parts["rises"],
         "n_terms": len(terms),
         "equation": equation,

@@ -8,6 +8,10 @@ Shown when ``comparison/summary.csv`` holds the adaptation candidates (``prior``
 * the prior and how far each coefficient moved: the ``adaptation`` block of the offered model
   (``comparison/best_model.json``) - ``parent``, ``parent_machine``, ``method``, ``gain``,
   ``time_factor``, ``alpha`` and ``coefficient_change`` (``name``, ``prior``, ``new`` per coefficient);
+* the prior's fitness: the block's ``fitness`` (:mod:`rafi.family.prior_fitness`) - where the
+  prior comes from (this machine or a declared sibling), its own qualification, how far the
+  prediction moved, the speeds and temperature rises tested here against those only the prior
+  covers, and the warnings that block promotion until confirmed (:func:`fitness_context`);
 * the comparison: every model's row of ``comparison/summary.csv`` - the prior unchanged, the
   adapted prior and the from-scratch family on the same data, each with its selection score on
   the new training runs (what chose: the whole-run CV score, or with forward-in-time folds the
@@ -25,7 +29,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.report.comparison_section import selection_score
-from rafi.report.format import fmt_num, fmt_speed, isnum, short_id
+from rafi.report.format import fmt_num, fmt_speed, fmt_speed_range, isnum, short_id
 from rafi.settings import truthy
 
 #: The adaptation candidates, in the order the section lists them, and what each is.
@@ -140,6 +144,55 @@ def coefficient_moves(change, shown: int = MOVES_SHOWN) -> dict | None:
     }
 
 
+def _speeds(values) -> str:
+    """Speeds as ``3 000, 9 000 r/min`` (``none`` without one)."""
+    values = list(values or [])
+    return ", ".join(fmt_num(v, 0) for v in values) + "\u00a0r/min" if values else "none"
+
+
+def _range(pair, digits: int = 1) -> str:
+    return f"{fmt_num(pair[0], digits)} … {fmt_num(pair[1], digits)}" if pair else "–"
+
+
+def fitness_context(block: dict | None) -> dict | None:
+    """The prior's fitness (the adaptation block's ``fitness``) as the section shows it, or
+    ``None`` without one: ``origin``, ``prior`` (its own qualification: ``id``, ``machine``,
+    ``kind``, ``promoted``, ``max_residual_um``, ``n_runs``), ``prediction_change`` and
+    ``largest`` (:func:`rafi.family.prior_fitness.fitness_block`), ``speeds_tested``,
+    ``speeds_prior``, ``speeds_prior_only`` and the two ranges (text), ``temperature`` (rows:
+    ``sensor``, ``tested``, ``prior``, ``prior_only``, text in K), ``bounds`` and ``warnings``
+    (``check``, ``message``, ``confirm``: the ``checks.confirmed`` entry that confirms it)."""
+    fit = (block or {}).get("fitness")
+    if not isinstance(fit, dict):
+        return None
+    own = dict(fit.get("prior") or {})
+    pid = short_id(own.get("model_id") or (block or {}).get("parent") or "")
+    return {
+        "origin": fit.get("origin"),
+        "prior": {**own, "id": pid},
+        "prediction_change": fit.get("prediction_change"),
+        "largest": fit.get("largest_coefficient_change"),
+        "speeds_tested": _speeds(fit.get("speeds_tested_rpm")),
+        "speeds_prior": _speeds(fit.get("speeds_prior_rpm")) if fit.get("speeds_prior_rpm") else None,
+        "speeds_prior_only": _speeds(fit.get("speeds_prior_only_rpm")),
+        "range_tested": fmt_speed_range(*(fit.get("speed_range_tested_rpm") or [None, None])),
+        "range_prior": fmt_speed_range(*(fit.get("speed_range_prior_rpm") or [None, None])),
+        "temperature": [
+            {
+                "sensor": t.get("sensor"),
+                "tested": _range(t.get("tested")),
+                "prior": _range(t.get("prior")),
+                "prior_only": "; ".join(_range(r) for r in t.get("prior_only") or []) or "none",
+            }
+            for t in fit.get("temperature") or []
+        ],
+        "bounds": fit.get("bounds") or {},
+        "warnings": [
+            {**w, "confirm": f"{{file: {pid}, check: {w.get('check')}}}"} for w in fit.get("warnings") or []
+        ],
+    }
+
+
 def section_requalification(res: dict) -> dict | None:
     """The context of the re-qualification section, or ``None`` when no prior was a candidate.
 
@@ -152,7 +205,7 @@ def section_requalification(res: dict) -> dict | None:
         ``scratch`` (the from-scratch model CV ranks first), ``new_data`` (:func:`new_data`),
         ``adaptation`` (the offered model's block or ``None``: the prior lost), ``parent``
         (short id), ``moves`` (:func:`coefficient_moves`) and ``sentence`` (the comparison in
-        one sentence, every number from the rows).
+        one sentence, every number from the rows), ``fitness`` (:func:`fitness_context`).
     """
     summ = res.get("comparison")
     if summ is None or "model" not in summ or not summ["model"].astype(str).isin(list(CANDIDATES)).any():
@@ -173,6 +226,7 @@ def section_requalification(res: dict) -> dict | None:
         "parent": short_id(block.get("parent", "")) if block else "",
         "parent_machine": (block or {}).get("parent_machine") or "",
         "moves": coefficient_moves((block or {}).get("coefficient_change")),
+        "fitness": fitness_context(block),
         "sentence": comparison_sentence(offered, prior_row, scratch),
         "cv": any(isnum(r["cv_um"]) for r in rows),
         "forward": any(isnum(r["cv_forward_um"]) for r in rows),

@@ -345,8 +345,8 @@ def candidate_model(wildcards):
 def compare_prior(wildcards):
     """Param ``prior`` of the compare job, from ``models.prior`` by
     ``rafi.family.prior.prior_param``. It is the registry's prior chain from its first model
-    that learnt from none of the machine's raw files (ids and the registry path). The registry
-    files are read, not inputs: a
+    that learnt from none of the machine's raw files (ids, the registry path, the machine and its
+    declared siblings). The registry files are read, not inputs: a
     champion trained on these logs changes nothing here, so promoting one re-runs nothing."""
     machine = wildcards.machine
     current = [s.split(":", 1)[1] for s in machine_raw_stamps(wildcards).values() if s.startswith("sha256:")]
@@ -356,6 +356,7 @@ def compare_prior(wildcards):
             machine,
             machine_config(machine)["models"]["prior"],
             current,
+            siblings=machine_config(machine)["models"]["prior_siblings"],
         )
     except RafiUserError as exc:
         raise WorkflowError(f"RAFI: {exc}") from None

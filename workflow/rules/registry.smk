@@ -3,7 +3,8 @@
 #   candidate model (config nightly.candidate = family's best model or fit's model.json)
 #     + runs.csv, runs.parquet, validation/summary.csv and residuals.parquet (reused when the
 #     candidate is the fitted model; the residuals feed the interval drift test), input_status.json
-#     (its warnings block promotion until confirmed)  ->  registry/decision.json and
+#     (its warnings block promotion until confirmed, as do the fitness warnings of a candidate
+#     adapted from a prior: checks.confirmed)  ->  registry/decision.json and
 #     registry/comparison.csv
 #
 # The registry's own files are side effects, not outputs: see the note in common.smk.
@@ -49,6 +50,8 @@ rule decide:
         registry=lambda w: registry_dir(w.machine),
         # kept in the meta of the models it registers (provenance: how the logs were read)
         displacement_sign=lambda w: machine_config(w.machine)["input"]["displacement"]["sign"],
+        # the warnings a person has looked at: a prior's fitness warnings block promotion until here
+        confirmed=lambda w: machine_config(w.machine)["checks"]["confirmed"],
     script:
         "../scripts/registry_decide.py"
 

@@ -12,7 +12,9 @@ The CV rows are memoised by content in ``results/<machine>/.cv_memo/`` (not an o
 
 ``params.prior`` (``models.prior``, resolved while planning) names the registry's candidate
 priors; the job chooses the first that learnt from none of these runs, checks it
-(:func:`rafi.family.prior.resolved_prior`) and the adaptation candidates join the family."""
+(:func:`rafi.family.prior.resolved_prior`: a prior of another machine not declared a sibling stops
+the job with one line) and the adaptation candidates join the family, each with its fitness block
+(the prior's origin and qualification: :func:`rafi.family.prior.prior_record`)."""
 
 import json
 
@@ -21,7 +23,7 @@ from _glue import as_table, read_runs, step
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import rafi.artefact
     from rafi.family.compare import load_any, run_family
-    from rafi.family.prior import resolved_prior
+    from rafi.family.prior import prior_record, resolved_prior
 
     smk = snakemake  # noqa: F821
     table, frame = read_runs(smk)
@@ -50,6 +52,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         code_version=smk.params.code,
         log=lambda m: print(m, flush=True),
         prior=prior,
+        prior_origin=prior_record(smk.params.prior, prior),
     )
     cols = ["model", "cv_mean_max_abs_um", "cv_forward_mean_max_abs_um", "selection_score_um"]
     cols += ["selection_rank", "max_abs_after_um", "passed", "champion", "candidate", "versus_plain_ridge"]

@@ -26,6 +26,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
         input_status_path=smk.input.status,
         speed_tolerance_rpm=float(smk.params.speed_tolerance_rpm),
         displacement_sign=int(smk.params.displacement_sign),
+        confirmed=list(smk.params.confirmed),
     )
     print(
         f"decision: {record['decision']} (candidate {record['candidate_id'][:12]}, champion "

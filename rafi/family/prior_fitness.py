@@ -1,0 +1,243 @@
+"""The prior's fitness: how far a re-qualification moved its prior, and where this machine's new
+data stand against what the prior alone covers (``docs/models.md``, "Re-qualification from a
+prior", "The prior's fitness").
+
+:func:`fitness_block` is pure: the prior's artefact, its own qualification
+(:func:`rafi.family.prior.prior_qualification`), where it comes from
+(:func:`rafi.family.prior.prior_origin`), what the adaptation chose and the new training data's
+speeds and temperature rises in, the ``fitness`` block of the adapted artefact's ``adaptation``
+out (covered by the ``model_id``; the same inputs give the same bytes). Its ``warnings`` block
+promotion until confirmed in ``checks.confirmed`` (:func:`fitness_warnings`, read by rule
+``decide``):
+
+* ``prior_adaptation``: the adaptation moved the prior beyond :data:`BOUNDS` (a gain, a time
+  factor at an edge of its grid, or a prediction moved by more than half its size);
+* ``prior_speeds``: a speed the prior was trained at that no new training run covers (within the
+  machine's ``speed_tolerance_rpm``): there the model is the prior's alone, untested here.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+
+import numpy as np
+
+__all__ = ["BOUNDS", "CHECKS", "fitness_block", "fitness_warnings", "prior_speed_range", "prior_rise_ranges"]
+
+#: The bounds of an adaptation that needs no confirmation (``docs/models.md``, "The prior's
+#: fitness"). ``gain``: one gain between 2/3 and 3/2 (symmetric in ratio; a sibling's build spread
+#: and a repair moved the twin's gains by 1.2-1.35, the foreign prior of issue 47 needed 1.76);
+#: ``time_factor``: inside the grid of ``prior_time`` (0.5 and 2 are its edges: the true factor may
+#: lie beyond); ``prediction_change``: the RMS of the prediction's move over the new training
+#: samples, relative to the prior's own prediction there (a gain ``b`` moves it by ``|b - 1|``, so
+#: 0.5 is the gain bound's upper side for every method, ``prior_ridge`` included).
+BOUNDS = {"gain": (0.67, 1.5), "time_factor": (0.71, 1.41), "prediction_change": 0.5}
+#: The check ids of the fitness warnings (``checks.confirmed``: ``{file: <prior id>, check: <id>}``).
+CHECKS = ("prior_adaptation", "prior_speeds")
+
+
+def _finite(values: Iterable) -> list[float]:
+    out = []
+    for v in values:
+        try:
+            f = float(v)
+        except (TypeError, ValueError):
+            continue
+        if math.isfinite(f):
+            out.append(f)
+    return out
+
+
+def prior_speed_range(prior: Mapping) -> list[float] | None:
+    """The prior's speed range (r/min): its artefact's ``speed_range_rpm``, else its per-speed
+    models' extremes (``rafi`` kinds), else ``None``."""
+    if prior.get("speed_range_rpm"):
+        lo, hi = prior["speed_range_rpm"]
+        return [float(lo), float(hi)]
+    speeds = _finite(s.get("speed_rpm") for s in prior.get("speeds") or [])
+    return [min(speeds), max(speeds)] if speeds else None
+
+
+def prior_rise_ranges(prior: Mapping) -> dict[str, list[float]]:
+    """Sensor -> the range of temperature rise (K) the prior was trained on: ``regressor_ranges``
+    (ridge kinds), else the union of its per-speed models' (``rafi`` kinds)."""
+    out: dict[str, list[float]] = {}
+    blocks = [prior.get("regressor_ranges") or {}]
+    blocks += [s.get("regressor_ranges") or {} for s in prior.get("speeds") or []]
+    for block in blocks:
+        for sensor, pair in block.items():
+            lo, hi = (float(v) for v in pair)
+            old = out.get(str(sensor))
+            out[str(sensor)] = [min(lo, old[0]), max(hi, old[1])] if old else [lo, hi]
+    return out
+
+
+def _outside(prior: list[float] | None, tested: list[float] | None) -> list[list[float]]:
+    """The parts of the interval ``prior`` that ``tested`` does not reach."""
+    if not prior:
+        return []
+    if not tested:
+        return [list(prior)]
+    out = []
+    if prior[0] < tested[0]:
+        out.append([prior[0], min(prior[1], tested[0])])
+    if prior[1] > tested[1]:
+        out.append([max(prior[0], tested[1]), prior[1]])
+    return out
+
+
+def _largest_change(change: list[dict]) -> dict | None:
+    """The coefficient that moved most relative to its prior value (``|prior|`` above 0)."""
+    best = None
+    for c in change or []:
+        a, b = float(c["prior"]), float(c["new"])
+        if a == 0 or not (math.isfinite(a) and math.isfinite(b)):
+            continue
+        rel = (b - a) / abs(a)
+        if best is None or abs(rel) > abs(best["relative"]):
+            best = {"name": str(c["name"]), "prior": a, "new": b, "relative": rel}
+    return best
+
+
+def _prediction_change(before: np.ndarray, after: np.ndarray) -> float | None:
+    before, after = np.asarray(before, dtype=float), np.asarray(after, dtype=float)
+    ok = np.isfinite(before) & np.isfinite(after)
+    size = float(np.sqrt(np.mean(before[ok] ** 2))) if ok.any() else 0.0
+    if size <= 0:
+        return None
+    return float(np.sqrt(np.mean((after[ok] - before[ok]) ** 2))) / size
+
+
+def fitness_block(
+    prior: Mapping,
+    *,
+    qualification: Mapping | None,
+    origin: str | None,
+    method: str,
+    gain: float | None,
+    time_factor: float | None,
+    alpha: float | None,
+    coefficient_change: list[dict],
+    prior_prediction: np.ndarray,
+    new_prediction: np.ndarray,
+    tested_speeds_rpm: Iterable[float],
+    tested_rises: Mapping[str, list[float]],
+    speed_tolerance_rpm: float,
+) -> dict:
+    """The ``fitness`` block of an adapted artefact (module docstring).
+
+    Parameters
+    ----------
+    prior : mapping
+        The prior's artefact.
+    qualification : mapping or None
+        :func:`rafi.family.prior.prior_qualification` (``None``: not known, e.g. a prior given
+        in-process; its speeds are then the ends of its speed range).
+    origin : str or None
+        ``this machine``, ``declared sibling`` (:func:`rafi.family.prior.prior_origin`) or
+        ``None`` (not checked: a prior given in-process).
+    method, gain, time_factor, alpha, coefficient_change
+        What the adaptation chose (:class:`rafi.family.adapted.AdaptedPrior`).
+    prior_prediction, new_prediction : array
+        The prior's and the adapted model's prediction (um) on the new training samples.
+    tested_speeds_rpm : iterable of float
+        The speeds of the new training runs.
+    tested_rises : mapping
+        Sensor -> ``[lo, hi]`` of the temperature rise (K) on the new training samples.
+    speed_tolerance_rpm : float
+        A prior speed within this of a tested one is covered (``speed_tolerance_rpm``).
+
+    Returns
+    -------
+    dict
+        ``origin``, ``prior`` (its qualification), ``method``, ``gain``, ``time_factor``,
+        ``alpha``, ``largest_coefficient_change`` (``name``, ``prior``, ``new``, ``relative``),
+        ``prediction_change``, ``speeds_tested_rpm``, ``speed_range_tested_rpm``,
+        ``speeds_prior_rpm`` (``None``: only its range is known), ``speed_range_prior_rpm``,
+        ``speeds_prior_only_rpm``, ``temperature`` (per sensor: ``tested``, ``prior``,
+        ``prior_only`` ranges), ``bounds`` (:data:`BOUNDS`) and ``warnings``
+        (:func:`fitness_warnings`).
+    """
+    qual = dict(qualification or {})
+    tested = sorted(set(_finite(tested_speeds_rpm)))
+    tol = float(speed_tolerance_rpm)
+    prior_range = prior_speed_range(prior)
+    prior_speeds = sorted(set(_finite(qual.get("speeds_rpm") or []))) or None
+    ends = prior_speeds if prior_speeds is not None else (prior_range or [])
+    prior_only = sorted({s for s in ends if not any(abs(s - t) <= tol for t in tested)})
+    ranges = prior_rise_ranges(prior)
+    temperature = []
+    for sensor in sorted(set(ranges) | set(tested_rises)):
+        here = [float(v) for v in tested_rises[sensor]] if sensor in tested_rises else None
+        there = ranges.get(sensor)
+        temperature.append(
+            {"sensor": sensor, "tested": here, "prior": there, "prior_only": _outside(there, here)}
+        )
+    block = {
+        "origin": origin,
+        "prior": {
+            "model_id": str(prior.get("model_id") or ""),
+            "machine": prior.get("machine"),
+            "kind": prior.get("kind"),
+            "promoted": qual.get("promoted"),
+            "max_residual_um": qual.get("max_residual_um"),
+            "n_runs": qual.get("n_runs"),
+        },
+        "method": method,
+        "gain": gain,
+        "time_factor": time_factor,
+        "alpha": alpha,
+        "largest_coefficient_change": _largest_change(coefficient_change),
+        "prediction_change": _prediction_change(prior_prediction, new_prediction),
+        "speeds_tested_rpm": tested,
+        "speed_range_tested_rpm": [tested[0], tested[-1]] if tested else None,
+        "speeds_prior_rpm": prior_speeds,
+        "speed_range_prior_rpm": prior_range,
+        "speeds_prior_only_rpm": prior_only,
+        "temperature": temperature,
+        "bounds": {k: list(v) if isinstance(v, tuple) else v for k, v in BOUNDS.items()},
+    }
+    block["warnings"] = fitness_warnings(block)
+    return block
+
+
+def fitness_warnings(block: Mapping) -> list[dict]:
+    """The fitness warnings of a ``fitness`` block: ``[{check, message}]`` (:data:`CHECKS`), one
+    line each, none when the adaptation is inside :data:`BOUNDS` and the new data cover every
+    speed of the prior."""
+    out = []
+    moved = []
+    gain, factor, change = block.get("gain"), block.get("time_factor"), block.get("prediction_change")
+    lo, hi = BOUNDS["gain"]
+    if gain is not None and not lo <= float(gain) <= hi:
+        moved.append(f"gain {float(gain):.3g} outside [{lo:g}, {hi:g}]")
+    lo, hi = BOUNDS["time_factor"]
+    if factor is not None and not lo <= float(factor) <= hi:
+        moved.append(f"time factor {float(factor):g} outside [{lo:g}, {hi:g}]")
+    if change is not None and float(change) > BOUNDS["prediction_change"]:
+        moved.append(
+            f"prediction moved by {100 * float(change):.0f} % of its size "
+            f"(more than {100 * BOUNDS['prediction_change']:g} %)"
+        )
+    if moved:
+        out.append(
+            {
+                "check": "prior_adaptation",
+                "message": "the adaptation moved the prior beyond its bounds: " + "; ".join(moved),
+            }
+        )
+    only = block.get("speeds_prior_only_rpm") or []
+    if only:
+        tested = block.get("speeds_tested_rpm") or []
+        out.append(
+            {
+                "check": "prior_speeds",
+                "message": (
+                    f"the prior's speed(s) {', '.join(f'{s:g}' for s in only)} r/min have no new training "
+                    f"run (tested here: {', '.join(f'{s:g}' for s in tested) or 'none'} r/min); there the "
+                    "model is the prior's alone"
+                ),
+            }
+        )
+    return out

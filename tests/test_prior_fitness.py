@@ -1,0 +1,296 @@
+"""The prior's fitness, stated and gated (issue 47): where a prior comes from, how far the
+adaptation moved it, which speeds the new data cover, and the registry's decision on it.
+
+Machine ``m-a`` is qualified on the generator's runs at six speeds through the real decision
+(:func:`rafi.ops.decide.run_decide`: its promotion is the prior's own qualification); machine
+``m-b`` asks for ``m-a``'s champion as its prior (``models.prior: {machine: m-a}``) with runs at
+two speeds, its displacement ``factor`` times ``m-a``'s (the truth of a gain adaptation). Every
+figure checked is known from the generator: the gain is ``factor``, the speeds are the ones the
+runs were made at.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+
+import pytest
+
+from rafi.artefact import json_text
+from rafi.errors import EX_USAGE, PriorForeign
+from rafi.family.adapted import AdaptedPrior
+from rafi.family.dynamic import DynamicRidge
+from rafi.family.prior import prior_origin, prior_param, prior_record, resolved_prior
+from rafi.family.prior_fitness import BOUNDS, fitness_warnings
+from rafi.ops import decide as D
+from rafi.ops import fleet as F
+from rafi.ops import fleet_cli
+from rafi.ops.project import Paths
+from rafi.ops.registry import registry_dir
+from rafi.settings import MACHINE_DEFAULTS
+from rafi.twin.synthetic_runs import machine_state
+
+REFERENCE = {"rule": "run_start", "window_s": 60}
+PRIOR_SPEEDS = (3000, 6000, 9000, 12000, 15000, 18000)
+NEW_SPEEDS = (9000, 12000)
+
+
+def _state(seed, prefix, factor=1.0, speeds=PRIOR_SPEEDS):
+    return machine_state(
+        seed=seed,
+        prefix=prefix,
+        factor=factor,
+        duration_s=2 * 3600.0,
+        sample_s=120.0,
+        multi=False,
+        train_speeds=speeds,
+        validation_speeds=(10500,),
+    )
+
+
+def _decide(tmp_path, machine, artefact, state, confirmed=()):
+    """The real decision of ``artefact`` on ``state``'s runs (``results/<machine>/registry``)."""
+    work = tmp_path / f"work-{machine}"
+    work.mkdir(exist_ok=True)
+    (work / "model.json").write_text(json_text(artefact), encoding="utf-8")
+    state[0].to_csv(work / "runs.csv", index=False)
+    state[1].to_parquet(work / "runs.parquet")
+    reg = registry_dir(tmp_path / "results", machine)
+    return D.run_decide(
+        machine=machine,
+        candidate_path=work / "model.json",
+        runs_csv=work / "runs.csv",
+        runs_parquet=work / "runs.parquet",
+        registry_root=reg,
+        decision_path=reg / "decision.json",
+        comparison_path=reg / "comparison.csv",
+        gates=MACHINE_DEFAULTS["qualification"],
+        nightly=MACHINE_DEFAULTS["nightly"],
+        log=lambda m: None,
+        displacement_sign=1,
+        confirmed=confirmed,
+    )
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    """``m-a`` qualified (its champion is the prior), and the runs of ``m-b``."""
+    tmp_path = tmp_path_factory.mktemp("fitness")
+    s1 = _state(0, "a-")
+    prior = DynamicRidge(taus_s=[0, 600], max_taus=1, alphas=[1e-4], reference=REFERENCE, machine="m-a")
+    prior = prior.fit(*s1).to_dict()
+    first = _decide(tmp_path, "m-a", prior, s1)
+    assert first["decision"] == "promoted", first["reasons"]
+    return tmp_path, prior, first
+
+
+def _param(root, siblings=(), state=None):
+    hashes = state[0]["sha256"] if state is not None else []
+    return prior_param(root / "results", "m-b", {"machine": "m-a"}, hashes, siblings=siblings)
+
+
+def test_a_prior_of_an_undeclared_machine_is_refused_in_one_line(project):
+    root, prior, _ = project
+    s2 = _state(1, "b-", 1.2, NEW_SPEEDS)
+    with pytest.raises(PriorForeign) as e:
+        resolved_prior(_param(root, state=s2), s2[0], s2[1], reference=REFERENCE, log=lambda m: None)
+    text = str(e.value)
+    assert "\n" not in text and e.value.exit_status == EX_USAGE
+    assert text.startswith(f"prior {prior['model_id'][:12]} is a model of m-a, neither m-b nor a declared")
+    assert "models.prior_siblings: [m-a]" in text
+    # declared a sibling (the machine, or the probe unit): accepted
+    said = []
+    for siblings in (["m-a"], ["m-a@X", "m-a"]):
+        got = resolved_prior(_param(root, siblings, s2), s2[0], s2[1], reference=REFERENCE, log=said.append)
+        assert got["model_id"] == prior["model_id"]
+    assert f"prior {prior['model_id'][:12]} comes from declared sibling" in said
+
+
+def test_where_a_prior_comes_from():
+    assert prior_origin("m", "m") == "this machine"
+    assert prior_origin("a", "b", ["a"]) == "declared sibling"
+    assert prior_origin("a@Z", "b@Z", ["a"]) == "declared sibling"  # every probe of a declared machine
+    assert prior_origin("a@Z", "b@Z", ["a@X"]) is None
+    assert prior_origin("m@X", "m@Y") is None  # another probe is another unit: declared or refused
+    assert prior_origin("a", "b") is None and prior_origin(None, "b", ["a"]) is None
+
+
+def _adapted(project, factor, speeds, method="gain"):
+    root, prior, _ = project
+    s2 = _state(1, "b-", factor, speeds)
+    record = prior_record(_param(root, ["m-a"], s2), prior)
+    model = AdaptedPrior(
+        prior=prior,
+        method=method,
+        machine="m-b",
+        origin=record["origin"],
+        qualification=record["qualification"],
+        speed_tolerance_rpm=50,
+    )
+    return model.fit(*s2), s2
+
+
+def test_the_fitness_figures_are_the_generators_truth(project):
+    root, prior, first = project
+    fit, _ = _adapted(project, 1.8, NEW_SPEEDS)
+    block = fit.to_dict()["adaptation"]["fitness"]
+    assert block["origin"] == "declared sibling"
+    # the prior's own qualification: its promotion in m-a's registry
+    own = block["prior"]
+    assert (own["model_id"], own["machine"], own["kind"]) == (prior["model_id"], "m-a", "dynamic")
+    assert own["promoted"] == first["time"]
+    assert own["max_residual_um"] == pytest.approx(first["candidate_summary"]["max_residual_um"])
+    # how far it moved: one gain, the generator's factor
+    assert block["method"] == "gain" and block["gain"] == pytest.approx(1.8, rel=0.02)
+    assert block["prediction_change"] == pytest.approx(0.8, rel=0.03)
+    assert block["largest_coefficient_change"]["relative"] == pytest.approx(0.8, rel=0.03)
+    # speeds: tested here, the prior's, the prior's alone (two ranges, each said as such)
+    assert block["speeds_tested_rpm"] == [9000.0, 12000.0]
+    assert block["speed_range_tested_rpm"] == [9000.0, 12000.0]
+    assert block["speeds_prior_rpm"] == [float(s) for s in PRIOR_SPEEDS]
+    assert block["speed_range_prior_rpm"] == prior["speed_range_rpm"]
+    assert block["speeds_prior_only_rpm"] == [3000.0, 6000.0, 15000.0, 18000.0]
+    # temperatures: every sensor the prior reads, the prior's rise beyond the new data's
+    rises = {t["sensor"]: t for t in block["temperature"]}
+    assert set(rises) == set(prior["key_sensors"])
+    for sensor, t in rises.items():
+        assert t["prior"] == prior["regressor_ranges"][sensor]
+        assert t["tested"][1] < t["prior"][1] and t["prior_only"][-1] == [t["tested"][1], t["prior"][1]]
+    assert [w["check"] for w in block["warnings"]] == ["prior_adaptation", "prior_speeds"]
+    lo, hi = BOUNDS["gain"]
+    assert f"gain {block['gain']:.3g} outside [{lo:g}, {hi:g}]" in block["warnings"][0]["message"]
+    assert "3000, 6000, 15000, 18000 r/min have no new training run" in block["warnings"][1]["message"]
+    # the same inputs, the same bytes
+    again, _ = _adapted(project, 1.8, NEW_SPEEDS)
+    assert json_text(again.to_dict()["adaptation"]) == json_text(fit.to_dict()["adaptation"])
+
+
+def test_an_adaptation_inside_its_bounds_on_the_priors_speeds_warns_of_nothing(project):
+    fit, _ = _adapted(project, 1.2, PRIOR_SPEEDS)
+    block = fit.to_dict()["adaptation"]["fitness"]
+    assert block["gain"] == pytest.approx(1.2, rel=0.02) and block["speeds_prior_only_rpm"] == []
+    assert block["warnings"] == []
+    # the bounds, each alone
+    assert fitness_warnings({"time_factor": 2.0})[0]["message"].endswith("time factor 2 outside [0.71, 1.41]")
+    assert fitness_warnings({"time_factor": 1.41, "gain": 0.67, "prediction_change": 0.5}) == []
+    assert "prediction moved by 60 %" in fitness_warnings({"prediction_change": 0.6})[0]["message"]
+
+
+def test_the_fitness_warnings_block_promotion_until_confirmed(project, tmp_path):
+    root, prior, _ = project
+    fit, s2 = _adapted(project, 1.8, NEW_SPEEDS)
+    artefact = fit.to_dict()
+    pid = prior["model_id"][:12]
+    rec = _decide(tmp_path, "m-b", artefact, s2)
+    assert rec["decision"] == "rejected" and rec["gates_passed"], rec["reasons"]
+    assert rec["blocked_by"] == ["prior_fitness"]
+    lines = [r for r in rec["reasons"] if r.startswith("prior fitness not confirmed")]
+    assert len(lines) == 2 and all(f"prior {pid} of m-a" in r for r in lines)
+    assert f"{{file: {pid}, check: prior_adaptation}}" in lines[0]
+    # one confirmed, the other still blocks
+    half = [{"file": pid, "check": "prior_adaptation"}]
+    rec = _decide(tmp_path, "m-b", artefact, s2, confirmed=half)
+    assert rec["decision"] == "rejected" and rec["blocked_by"] == ["prior_fitness"]
+    assert [w["check"] for w in rec["prior_fitness"]["confirmed"]] == ["prior_adaptation"]
+    # both confirmed (the full id or a glob of it): promoted
+    both = [
+        {"file": prior["model_id"], "check": "prior_adaptation"},
+        {"file": f"{pid}*", "check": "prior_speeds"},
+    ]
+    rec = _decide(tmp_path, "m-b", artefact, s2, confirmed=both)
+    assert rec["decision"] == "promoted", rec["reasons"]
+    assert rec["candidate_parent"] == prior["model_id"] and rec["candidate_parent_machine"] == "m-a"
+
+
+def _project_files(root, machine):
+    """What rafi status needs besides the registry: the raw folder and an audit older than the
+    decision."""
+    (root / "raw" / machine).mkdir(parents=True, exist_ok=True)
+    (root / "raw" / machine / "day1.csv").write_text("time\n")
+    res = root / "results" / machine
+    (res / "audit.csv").write_text("file,status,reason\nday1.csv,ok,\n")
+    (res / "input_status.json").write_text(
+        json.dumps({"machine": machine, "status": "usable", "rejected": []})
+    )
+    decision = res / "registry" / "decision.json"
+    stamp = decision.stat().st_mtime - 10
+    os.utime(res / "audit.csv", (stamp, stamp))
+
+
+def _status(root, machine, capsys) -> str:
+    """What ``rafi status --machine <machine>`` prints."""
+    parser = argparse.ArgumentParser()
+    fleet_cli.add_arguments(parser)
+    (root / "config.yaml").write_text("raw_dir: raw\nresults_dir: results\nreports_dir: reports\n")
+    capsys.readouterr()
+    fleet_cli.run(parser.parse_args(["--directory", str(root), "--machine", machine]))
+    return capsys.readouterr().out
+
+
+def test_status_names_the_prior_its_machine_and_its_fitness(project, tmp_path, capsys):
+    root, prior, first = project
+    fit, s2 = _adapted(project, 1.8, NEW_SPEEDS)
+    pid = prior["model_id"][:12]
+    confirmed = [{"file": pid, "check": c} for c in ("prior_adaptation", "prior_speeds")]
+    rec = _decide(tmp_path, "m-b", fit.to_dict(), s2, confirmed=confirmed)
+    assert rec["decision"] == "promoted"
+    _project_files(tmp_path, "m-b")
+    rows = F.fleet_overview(Paths.from_config(tmp_path, {}), tmp_path / "reports", ["m-b"])
+    champion = rows[0]["champion"]
+    assert champion["parent"] == prior["model_id"] and champion["parent_machine"] == "m-a"
+    assert champion["prior"]["origin"] == "declared sibling"
+    assert champion["prior"]["promoted"] == first["time"]
+    lines = _status(tmp_path, "m-b", capsys).splitlines()
+    assert f"(adapted from {pid} of m-a)" in lines[1]
+    own = f"{pid} of m-a, declared sibling (promoted {first['time']}; worst "
+    assert lines[2].startswith(f"  prior:            {own}")
+    gain = champion["prior"]["gain"]
+    assert lines[3].startswith(f"  adaptation:       gain, gain {gain:.3g}, largest coefficient change +")
+    speeds = "tested here 9000, 12000 r/min; the prior's alone 3000, 6000, 15000, 18000"
+    assert lines[4] == f"  speeds:           {speeds}"
+    assert "prior_adaptation, prior_speeds" in lines[5]
+    # the first promotion checked no model in service: said once, no contradiction below it
+    text = "\n".join(lines)
+    assert "drift:            not checked yet (the model was promoted by the last decision)" in text
+    assert "no model in service" not in text and "interval drift" not in text
+
+
+def test_status_after_a_promotion_shows_no_drift_of_the_replaced_champion(tmp_path, capsys):
+    """A promotion replacing a degraded champion: its drift figures are the replaced model's."""
+    old, new = "a" * 64, "b" * 64
+    reg = tmp_path / "results" / "m" / "registry"
+    (reg / "models").mkdir(parents=True)
+    (reg / "champion.json").write_text(json.dumps({"model_id": new, "since": "2026-11-29T00:00:00Z"}))
+    (reg / "models" / f"{new}.json").write_text(json.dumps({"model_id": new, "kind": "grey_box"}))
+    interval = {"status": "recalibration_due", "detected": True, "n": 40, "k": 20, "level": 0.9}
+    interval |= {
+        "expected_k": 4.0,
+        "p_value": 0.0,
+        "false_alarm": 0.01,
+        "decorrelation_s": 600,
+        "per_run": {},
+    }
+    decision = {
+        "decision": "promoted",
+        "time": "2026-11-29T00:00:00Z",
+        "candidate_id": new,
+        "champion_id_before": old,
+        "champion_id_after": new,
+        "recalibration_due": False,
+        "drift": {"status": "degraded", "detected": True, "degradation_um": 4.53, "limit_um": 2.0},
+    }
+    decision["drift"]["interval"] = interval
+    (reg / "decision.json").write_text(json.dumps(decision))
+    _project_files(tmp_path, "m")
+    rows = F.fleet_overview(Paths.from_config(tmp_path, {}), tmp_path / "reports", ["m"])
+    assert rows[0]["state"] == "ok" and not rows[0]["recalibration_due"]
+    assert rows[0]["drift"]["status"] == "not_checked" and rows[0]["drift"]["checked_model"] == old
+    text = _status(tmp_path, rows[0]["machine"], capsys)
+    assert "4.53" not in text and "degraded" not in text and "interval drift" not in text
+    assert "not checked yet (the last check was of aaaaaaaaaaaa, the model replaced)" in text
+    # the model in service kept after a night: its own drift again
+    decision |= {"decision": "kept", "champion_id_before": new, "candidate_id": new}
+    (reg / "decision.json").write_text(json.dumps(decision))
+    rows = F.fleet_overview(Paths.from_config(tmp_path, {}), tmp_path / "reports", ["m"])
+    assert "degraded, +4.53 um" in _status(tmp_path, "m", capsys)
