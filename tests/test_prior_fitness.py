@@ -94,7 +94,7 @@ def test_a_prior_of_an_undeclared_machine_is_refused_in_one_line(project):
     root, prior, _ = project
     s2 = _state(1, "b-", 1.2, NEW_SPEEDS)
     with pytest.raises(PriorForeign) as e:
-        resolved_prior(_param(root, state=s2), s2[0], s2[1], reference=REFERENCE, log=lambda m: None)
+        resolved_prior(_param(root, state=s2), s2[0], s2[1], log=lambda m: None)
     text = str(e.value)
     assert "\n" not in text and e.value.exit_status == EX_USAGE
     assert text.startswith(f"prior {prior['model_id'][:12]} is a model of m-a, neither m-b nor a declared")
@@ -102,7 +102,7 @@ def test_a_prior_of_an_undeclared_machine_is_refused_in_one_line(project):
     # declared a sibling (the machine, or the probe unit): accepted
     said = []
     for siblings in (["m-a"], ["m-a@X", "m-a"]):
-        got = resolved_prior(_param(root, siblings, s2), s2[0], s2[1], reference=REFERENCE, log=said.append)
+        got = resolved_prior(_param(root, siblings, s2), s2[0], s2[1], log=said.append)
         assert got["model_id"] == prior["model_id"]
     assert f"prior {prior['model_id'][:12]} comes from declared sibling" in said
 
