@@ -809,3 +809,50 @@ def test_a_value_that_rounds_to_zero_is_printed_plus_zero():
     assert [signed_um(v) for v in (-0.0006, 4.5125, -4.5)] == ["-0.001", "+4.513", "-4.500"]
     assert signed_um(-0.0, width=9) == "   +0.000" and signed_um(1.5, digits=1) == "+1.5"
     assert signed_um(float("nan")) == "+nan"
+
+
+def test_the_progress_line_says_when_the_model_was_held_at_its_envelope_edge():
+    """The flag of ``Command.outside_envelope`` is in the write's progress line, and only there."""
+    from rafi.deploy.limits import Command
+
+    clock, lines, written = [0.0], [], []
+    held = [False, True, False]
+
+    class Source:
+        def read(self, now):
+            return [(now, 6000.0, temps16([20, 21, 22]))]
+
+        def after_outage(self, samples):
+            return samples
+
+    class Safe:
+        limits = Limits.from_settings(DEPLOY)
+        command_um_ = 0.0
+
+        def start_from(self, value):
+            pass
+
+        def step(self, t, n, temps):
+            out = Command(t, 1.0, "ok", 1.0, 1.0, False, False, "", False, True)
+            return out._replace(outside_envelope=held[len(written)])
+
+    class Target:
+        is_open, name = True, "fake"
+
+        def read_current_um(self):
+            return {"Z": 0.0}
+
+        def write(self, t, values, status):
+            written.append(t)
+
+        def close(self):
+            pass
+
+    def sleep(s):
+        clock[0] += s
+
+    loop = LiveLoop(Source(), Safe(), Target(), axis="Z", interval_s=DT, clock=lambda: clock[0], sleep=sleep,
+                    log=lines.append)  # fmt: skip
+    assert loop.run(max_cycles=3) == 3
+    writes = [line for line in lines if " um (model " in line]
+    assert ["[held at the envelope's edge]" in line for line in writes] == held

@@ -63,8 +63,9 @@ def value(samples: dict, name: str, **labels) -> float:
     return samples[(name, frozenset(labels.items()))]
 
 
-def command(status="ok", cmd=1.0, model=1.0, fault="", clamped=False, rate=False) -> Command:
-    return Command(0.0, cmd, status, model, model, clamped, rate, fault, False, status != "off")
+def command(status="ok", cmd=1.0, model=1.0, fault="", clamped=False, rate=False, envelope=False) -> Command:
+    c = Command(0.0, cmd, status, model, model, clamped, rate, fault, False, status != "off")
+    return c._replace(outside_envelope=envelope)
 
 
 class Clock:
@@ -174,6 +175,7 @@ def test_the_loop_metrics_read_over_http(served):
     m = served(machine="m1", interval_s=5.0, clock=clock)
     before = scrape(m.port)
     assert value(before, "rafi_deploy_writes_total", machine="m1") == 0
+    assert value(before, "rafi_deploy_outside_envelope_total", machine="m1") == 0
     assert math.isnan(value(before, "rafi_deploy_model_um", machine="m1"))
     assert {value(before, "rafi_deploy_status", machine="m1", status=s) for s in ("off", "ok", "ramp")} == {0}
 
@@ -181,7 +183,7 @@ def test_the_loop_metrics_read_over_http(served):
     m.connection(True)
     m.cycle(command("referencing", cmd=0.0, model=NAN), written=True, step_seconds=0.004)
     clock.t += 5.0
-    m.cycle(command("ok", cmd=1.25, model=3.0, rate=True), written=True, step_seconds=0.006)
+    m.cycle(command("ok", cmd=1.25, model=3.0, rate=True, envelope=True), written=True, step_seconds=0.006)
     clock.t += 5.0
     m.connection(False)
     m.cycle(None, written=False, step_seconds=2.0)  # the controller unreachable
@@ -216,6 +218,7 @@ def test_the_loop_metrics_read_over_http(served):
     assert value(s, "rafi_deploy_limited_total", machine="m1", limit="rate") == 1
     assert value(s, "rafi_deploy_limited_total", machine="m1", limit="clamp") == 1
     assert value(s, "rafi_deploy_cycles_total", machine="m1") == 5
+    assert value(s, "rafi_deploy_outside_envelope_total", machine="m1") == 1
     assert value(s, "rafi_deploy_writes_total", machine="m1") == 3
     assert value(s, "rafi_deploy_reconnects_total", machine="m1") == 1
     assert value(s, "rafi_deploy_connected", machine="m1") == 1

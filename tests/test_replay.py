@@ -359,3 +359,68 @@ def test_rule_replay_and_rafi_replay_on_a_trimmed_project(tmp_path):
     assert done.returncode == 64 and done.stderr.startswith(
         "rafi replay: unknown machine nosuch; config.yaml has:"
     )
+
+
+@pytest.fixture(scope="module")
+def beyond_training():
+    """Trained at 3000 and 6000 r/min; validated at 4500 r/min (inside what was trained) and for
+    hours at 9000 r/min (hotter than ever: tests/test_envelope.py's ``hotter_than_ever``)."""
+    from rafi.twin.synthetic_logs import schedule_log
+    from rafi.twin.synthetic_runs import runs_of_logs
+
+    rest = (0, 180)
+    logs = {
+        f"train{i}.csv": schedule_log([rest, (speed, 2 * 3600), (0, 3600)], period_s=20, seed=i)[0]
+        for i, speed in enumerate((3000, 6000))
+    }
+    logs["inside.csv"] = schedule_log([rest, (4500, 3600)], period_s=20, seed=7)[0]
+    logs["hot.csv"] = schedule_log([rest, (9000, 5 * 3600)], period_s=20, seed=9)[0]
+    table, frame = runs_of_logs(logs, training_speeds_rpm=[3000, 6000], reference_window_s=60)
+    roles = table.set_index("run_id")["role"]
+    assert roles["inside"].startswith("validation") and roles["hot"].startswith("validation")
+    return table, time_ordered(frame)
+
+
+@pytest.mark.parametrize("runaway", [False, True])
+def test_samples_held_at_the_envelope_edge_are_the_same_in_validation_and_replay(beyond_training, runaway):
+    """A ridge whose inputs leave the training envelope (9000 r/min, trained to 6000) or whose fit
+    ran away (its coefficients x 40, as in tests/test_envelope.py) is held at the envelope's edge
+    on the same samples in the batch validation and in the replay after the reference window; a
+    run inside the envelope has none."""
+    import warnings
+
+    from rafi.method.validate import validate_runs
+    from rafi.twin.synthetic_runs import small_family_model
+
+    table, frame = beyond_training
+    model = small_family_model(
+        "dynamic",
+        reference_rule="run_start",
+        reference_window_s=60,
+        filter_restart_gap_s=3600,
+        alphas=(1e-8,),
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model.fit(table, frame)
+    if runaway:
+        model.coef_ = model.coef_ * 40.0
+    summary, residuals = validate_runs(model, table, frame)
+    runs = ["inside", "hot"]
+    replayed = replay_runs(frame, runs, _artefact(model), OPEN)
+    counts = summary_frame(replay_summary(replayed)).set_index("run_id")["n_outside_envelope"]
+    batch = summary.set_index("run_id")["n_outside_envelope"]
+    for rid in runs:
+        rep = replayed[replayed["run_id"] == rid]
+        res = residuals[residuals["run_id"] == rid]
+        np.testing.assert_array_equal(rep["t_s"].to_numpy(), res["t_s"].to_numpy())
+        after = rep["status"].to_numpy() != "referencing"
+        assert not rep["outside_envelope"].to_numpy()[~after].any()  # 0 um at the reference
+        np.testing.assert_array_equal(
+            rep["outside_envelope"].to_numpy()[after], res["outside_envelope"].to_numpy()[after]
+        )
+        assert counts[rid] == int(res["outside_envelope"].to_numpy()[after].sum())
+        assert batch[rid] == int(res["outside_envelope"].sum())  # every sample is measured here
+    assert counts["hot"] > 0.3 * (replayed["run_id"] == "hot").sum()  # most of the hot run is held
+    if not runaway:
+        assert counts["inside"] == 0 and batch["inside"] == 0

@@ -534,3 +534,106 @@ def test_training_figure_labels_stay_inside_the_figure_and_apart():
     h, w = grey.shape
     middle = grey[int(0.12 * h) :, int(0.4 * w) : int(0.6 * w)]  # below the legend
     assert (middle > 250).all(axis=0).any()
+
+
+# --------------------------------------------------------------------------- held at the envelope's edge
+
+
+def _held_fixture_html(tmp_path: Path, *, held: bool) -> tuple[str, pd.DataFrame, pd.DataFrame]:
+    """The fixture's report; ``held``: with the envelope flags of issue 46 added as the pipeline
+    writes them (``n_outside_envelope`` in validation/summary.csv, ``outside_envelope`` in
+    comparison/residuals.parquet: set for model dynamic above 10 000 r/min, one such sample
+    without a measurement). Returns the HTML and the two edited tables."""
+    results = copy_fixture(tmp_path)
+    summary = pd.read_csv(results / "validation" / "summary.csv")
+    resid = pd.read_parquet(results / "comparison" / "residuals.parquet")
+    if held:
+        summary["n_outside_envelope"] = np.where(
+            np.arange(len(summary)) % 2 == 1, summary["n_samples"] // 3, 0
+        )
+        summary.to_csv(results / "validation" / "summary.csv", index=False)
+        resid["outside_envelope"] = (resid["model"] == "dynamic") & (resid["speed_rpm"] > 10000)
+        first = resid.index[resid["outside_envelope"]][0]
+        resid.loc[first, "measured_um"] = np.nan  # not measured: not counted
+        resid.to_parquet(results / "comparison" / "residuals.parquet")
+    paths = write_upstream_tables(results)
+    ctx = build_context(
+        paths,
+        empty_figure_dirs(results),
+        machine="tapping-center-a",
+        settings=machine_settings(CONFIG, "tapping-center-a"),
+    )
+    return render_html(ctx), summary, resid
+
+
+def test_the_report_says_per_run_the_samples_held_at_the_envelope_edge_only_when_some_were(tmp_path):
+    from rafi.report.envelope_text import MEANING
+
+    html, summary, resid = _held_fixture_html(tmp_path / "held", held=True)
+    text = _text(html)
+    # validation: the runs with held samples, from validation/summary.csv, and what it means
+    held = summary[summary["n_outside_envelope"] > 0]
+    assert len(held) and len(held) < len(summary)
+    said = "; ".join(
+        f"{r.n_outside_envelope} of {r.n_samples} samples of run {r.run_id}" for r in held.itertuples()
+    )
+    assert f"Held at the training envelope's edge: {said}. {MEANING}" in text
+    (table,) = [t for t in html_tables(html) if "held at the training envelope's edge" in t["headers"]]
+    got = {r["run"]: int(r["held at the training envelope's edge"]) for r in table["records"]}
+    assert got == dict(zip(summary["run_id"], summary["n_outside_envelope"]))
+    # comparison: per model and run, counted over the measured samples of residuals.parquet
+    ok = resid["outside_envelope"] & resid["measured_um"].notna() & resid["predicted_um"].notna()
+    mine = resid[resid["model"] == "dynamic"]
+    runs = [
+        f"{int(ok[g.index].sum())} of {int((g['measured_um'].notna() & g['predicted_um'].notna()).sum())} "
+        f"samples of run {rid}"
+        for rid, g in mine.groupby("run_id", sort=False)
+        if ok[g.index].any()
+    ]
+    assert len(runs) >= 2
+    assert f"on the validation runs: dynamic on {', '.join(runs)}. {MEANING}" in text
+    # the fixture as it is (a model without an envelope, tables written before the columns): nothing
+    plain = _text(_held_fixture_html(tmp_path / "plain", held=False)[0])
+    assert "envelope's edge" not in plain and "training envelope" not in plain
+
+
+def test_the_replay_says_the_samples_held_at_the_envelope_edge_only_when_some_were():
+    from rafi.report.envelope_text import MEANING
+    from rafi.report.replay_section import section_replay
+
+    settings = machine_settings(CONFIG, "tapping-center-a")
+    summary = pd.DataFrame(
+        {
+            "model_id": ["abc"] * 3,
+            "kind": ["dynamic"] * 3,
+            "reference_rule": ["run_start"] * 3,
+            "run_id": ["cool", "hot", "warm"],
+            "log": ["a.csv", "b.csv", "c.csv"],
+            "n_samples": [100, 240, 90],
+            **{f"n_{s}": [0, 0, 0] for s in ("off", "referencing", "hold", "ramp")},
+            "n_ok": [100, 240, 90],
+            "n_clamped": [0, 0, 0],
+            "n_rate_limited": [0, 0, 0],
+            "n_fault": [0, 0, 0],
+            "n_outside_range": [0, 0, 0],
+            "n_outside_envelope": [0, 173, 4],
+            "faults": ["", "", ""],
+            "max_abs_command_minus_model_um": [0.0] * 3,
+            "max_abs_measured_um": [9.0] * 3,
+            "max_abs_residual_model_um": [1.0] * 3,
+            "max_abs_residual_um": [1.0] * 3,
+        }
+    )
+    ids = ("replay",)
+    base = {"section_by_id": {s: {"id": s, "number": 1, "title": s} for s in ids}, "fig_replay0": 0}
+
+    def text(s):
+        rp = section_replay({"replay_summary": s}, settings, _Figs(), None)
+        return _text(_section("replay", replay=rp, **base))
+
+    said = (
+        "held at its training envelope's edge on 173 of 240 samples of run hot; 4 of 90 samples of run warm."
+    )
+    assert said in text(summary) and MEANING in text(summary)
+    for quiet in (summary.assign(n_outside_envelope=0), summary.drop(columns="n_outside_envelope")):
+        assert "envelope" not in text(quiet)

@@ -84,6 +84,39 @@ def test_summary_by_hand():
     np.testing.assert_allclose(good["predicted_um"], [0, 2, 4, 6])
     np.testing.assert_allclose(good["residual_um"], [0, 0.5, -0.5, 1])
     assert list(good["outside_temp_range"]) == [False, False, False, True]
+    # RAFI has no training envelope: nothing is held at its edge
+    assert (summary["n_outside_envelope"] == 0).all() and not residuals["outside_envelope"].any()
+
+
+class _Enveloped:
+    """RAFI with an ``outside_envelope`` column set where ``dT6 >= 2`` (as a ridge kind's
+    ``predict_detail`` has it), NaN on the run ``bad`` (a detail that does not know)."""
+
+    def __init__(self, inner):
+        self.inner = inner
+
+    def predict_detail(self, frame):
+        out = self.inner.predict_detail(frame)
+        flags = pd.Series(frame["dT6"].to_numpy() >= 2, index=out.index, dtype=object)
+        flags[frame["run_id"].to_numpy() == "bad"] = np.nan
+        return out.assign(outside_envelope=flags)
+
+
+def test_samples_held_at_the_envelope_edge_are_flagged_and_counted_where_measured():
+    m, table, frame = hand_case()
+    good = frame["run_id"] == "good"
+    frame.loc[good & (frame["t_s"] == 15.0), "dz_um"] = np.nan  # dT6 = 3: flagged, but not measured
+    summary, residuals = validate_runs(_Enveloped(m), table, frame)
+    s = summary.set_index("run_id")["n_outside_envelope"]
+    # good: dT6 0 1 2 3 -> flagged at 2 and 3, the last without a measurement; idle: 3 2 1 0
+    assert s.to_dict() == {"good": 1, "bad": 0, "idle": 2}
+    assert summary["n_outside_envelope"].dtype == np.int64
+    by_run = residuals.groupby("run_id", sort=False)["outside_envelope"].apply(list).to_dict()
+    assert by_run == {
+        "good": [False, False, True, True],
+        "bad": [False] * 4,  # NaN: not known to be held
+        "idle": [True, True, False, False],
+    }
 
 
 def test_missing_samples_are_skipped_in_metrics():

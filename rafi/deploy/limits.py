@@ -76,6 +76,12 @@ The interval a :class:`Command` reports (``lower_um``, ``upper_um``, ``half_widt
 (where the command is not the model's value, and no interval is claimed for it); the fault
 says why the command left the model. NaN / ``""`` without a block, without a model value, and
 while off.
+
+``outside_envelope`` says the model's value was held at its training envelope's edge (a feature
+or the prediction beyond the training range widened by its margin, :mod:`rafi.family.envelope`;
+ridge kinds only, False for ``rafi`` / ``rafi_linear``, while referencing and while off). It is
+not a fault: the value is the model's, bounded; "outside the trained range" (rule 4) is the
+limit that acts.
 """
 
 from __future__ import annotations
@@ -162,7 +168,10 @@ class Limits:
 
 class Command(NamedTuple):
     """What :meth:`SafeCompensator.step` returns for one sample (module docstring; the
-    interval fields are the model's interval, NaN / ``""`` without one)."""
+    interval fields are the model's interval, NaN / ``""`` without one; ``outside_envelope``
+    the compensator's :attr:`rafi.deploy.compensator.Step.outside_envelope`: the model's value
+    was held at its training envelope's edge, :mod:`rafi.family.envelope`; informational, not
+    a fault: the value is the model's)."""
 
     t_s: float
     command_um: float
@@ -178,6 +187,7 @@ class Command(NamedTuple):
     upper_um: float = float("nan")
     half_width_um: float = float("nan")
     interval_cell: str = ""
+    outside_envelope: bool = False
 
 
 class _SensorWatch:
@@ -546,5 +556,16 @@ class SafeCompensator:
         faults = "; ".join(causes)
         interval = (out.lower_um, out.upper_um, out.half_width_um, out.interval_cell)
         return Command(
-            t, command, status, model, raw, clamped, rate_limited, faults, bool(outside), True, *interval
+            t,
+            command,
+            status,
+            model,
+            raw,
+            clamped,
+            rate_limited,
+            faults,
+            bool(outside),
+            True,
+            *interval,
+            bool(out.outside_envelope),
         )

@@ -507,7 +507,11 @@ class LiveLoop:
         self._quiet_since = None
         flags = "".join(
             f" [{name}]"
-            for name, on in (("clamped", command.clamped), ("rate limited", command.rate_limited))
+            for name, on in (
+                ("clamped", command.clamped),
+                ("rate limited", command.rate_limited),
+                ("held at the envelope's edge", getattr(command, "outside_envelope", False)),
+            )
             if on
         )
         finite = math.isfinite(command.model_um)

@@ -30,6 +30,9 @@ metric                                 type     meaning
                                                 ``outage`` while the controller is unreachable
 ``<p>_faults_total{cause}``            counter  cycles with a fault of this class
 ``<p>_limited_total{limit}``           counter  cycles where ``clamp`` / ``rate`` acted
+``<p>_outside_envelope_total``         counter  cycles whose model value was held at its
+                                                training envelope's edge (not a fault:
+                                                ``Command.outside_envelope``)
 ``<p>_cycles_total``                   counter  cycles run
 ``<p>_writes_total``                   counter  successful writes to the target
 ``<p>_reconnects_total``               counter  successful reconnects to the controller
@@ -312,6 +315,9 @@ class LoopMetrics(_Metrics):
         self._limited = self._counter("limited", "cycles where this limit acted (clamp, rate)", "limit")
         for limit in ("clamp", "rate"):
             self._labels(self._limited, limit=limit)
+        self._envelope = self._counter(
+            "outside_envelope", "cycles whose model value was held at its training envelope's edge"
+        )
         self._cycles = self._counter("cycles", "cycles run")
         self._writes = self._counter("writes", "successful writes to the target")
         self._age(
@@ -391,6 +397,8 @@ class LoopMetrics(_Metrics):
             for limit, acted in (("clamp", command.clamped), ("rate", command.rate_limited)):
                 if acted:
                     self._labels(self._limited, limit=limit).inc()
+            if getattr(command, "outside_envelope", False):
+                self._envelope.inc()
         if written:
             self._writes.inc()
             self._last_write = self.clock()

@@ -61,6 +61,7 @@ COLUMNS = (
     "rate_limited",
     "fault",
     "outside_range",
+    "outside_envelope",
     "residual_um",
 )
 
@@ -80,6 +81,7 @@ SUMMARY_COLUMNS = (
     "n_rate_limited",
     "n_fault",
     "n_outside_range",
+    "n_outside_envelope",
     "faults",
     "max_abs_command_minus_model_um",
     "max_abs_measured_um",
@@ -142,7 +144,8 @@ def replay_log(
         interval (around ``model_um``; NaN / ``""`` without the artefact's ``interval`` block or
         a model value), ``command_um`` what would be written, ``residual_um`` =
         ``measured_um - command_um``; ``status``, ``clamped``, ``rate_limited``, ``fault``,
-        ``outside_range`` as the safe compensator's command says.
+        ``outside_range`` and ``outside_envelope`` (the model's value held at its training
+        envelope's edge, :mod:`rafi.family.envelope`) as the safe compensator's command says.
 
     Raises
     ------
@@ -186,6 +189,7 @@ def replay_log(
                 bool(c.rate_limited),
                 str(c.fault or ""),
                 bool(c.outside_range),
+                bool(c.outside_envelope),
             )
         )
     got = pd.DataFrame(rows, columns=list(COLUMNS[COLUMNS.index("model_um") : COLUMNS.index("residual_um")]))
@@ -271,6 +275,11 @@ def _max_abs(values) -> float:
     return float(v.max()) if len(v) else float("nan")
 
 
+def _count(g: pd.DataFrame, column: str) -> int:
+    """Samples where the flag ``column`` is set (0 in a table written before the column)."""
+    return int(g[column].astype(bool).sum()) if column in g else 0
+
+
 def _coverage(g: pd.DataFrame) -> dict:
     """``coverage`` and ``interval_width_um`` of one run's replay rows (:func:`replay_summary`)."""
     lower, upper = g["lower_um"].to_numpy(dtype=float), g["upper_um"].to_numpy(dtype=float)
@@ -297,7 +306,9 @@ def replay_summary(table: pd.DataFrame) -> dict:
         ``run_id -> dict`` (runs in table order) with the keys of :data:`SUMMARY_COLUMNS`:
         ``n_samples``; ``n_<status>`` per status of :data:`REPLAY_STATUSES` (a status not
         listed there is counted too, as ``n_<status>``); ``n_clamped``, ``n_rate_limited``,
-        ``n_fault`` (samples with a fault), ``n_outside_range``; ``faults`` (per fault class of
+        ``n_fault`` (samples with a fault), ``n_outside_range``, ``n_outside_envelope`` (samples
+        whose model value was held at the training envelope's edge; 0 for a table without the
+        column, written before it); ``faults`` (per fault class of
         :func:`rafi.deploy.metrics.fault_classes`, in order of first appearance: the samples with
         a cause of the class and the first such cause, ``"missing: 4 (first: T8 missing); ..."``,
         :func:`rafi.deploy.metrics.fault_groups_text`: one entry per class, however many
@@ -324,6 +335,7 @@ def replay_summary(table: pd.DataFrame) -> dict:
             n_rate_limited=int(g["rate_limited"].astype(bool).sum()),
             n_fault=int((g["fault"].astype(str) != "").sum()),
             n_outside_range=int(g["outside_range"].astype(bool).sum()),
+            n_outside_envelope=_count(g, "outside_envelope"),
             faults=fault_groups_text(fault_groups(g["fault"].astype(str))),
             max_abs_command_minus_model_um=_max_abs(command - model),
             max_abs_measured_um=_max_abs(measured),

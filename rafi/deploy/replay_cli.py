@@ -117,6 +117,12 @@ def _interval_text(row: dict) -> str:
     return f"; the model's interval (median width {width:.2f} um) held the measurement on {coverage:.0%}"
 
 
+def _envelope_text(row: dict) -> str:
+    """The samples whose model value was held at the training envelope's edge, empty without."""
+    n = row.get("n_outside_envelope")
+    return f"; model held at its training envelope's edge on {n}" if n else ""
+
+
 def summary_lines(summary, limits) -> list[str]:
     """What ``rafi replay`` prints per run: counts per status and what each limit did."""
     from rafi.deploy.replay import REPLAY_STATUSES
@@ -131,6 +137,7 @@ def summary_lines(summary, limits) -> list[str]:
             f"rate limit {limits.rate_um_per_s:g} um/s on {r['n_rate_limited']}, "
             f"fault rule (hold/ramp) on {r['n_hold'] + r['n_ramp']}"
             + (f" [{r['faults']}]" if r["faults"] else "")
+            + _envelope_text(r)
             + f"; max |command - model| {r['max_abs_command_minus_model_um']:.2f} um; max |residual| "
             f"{r['max_abs_residual_um']:.2f} um with the limits, {r['max_abs_residual_model_um']:.2f} um "
             f"without (uncompensated {r['max_abs_measured_um']:.2f} um)" + _interval_text(r)

@@ -12,6 +12,10 @@ leak). Per run, over the samples where both ``dz_um`` and the prediction exist:
   if ``before`` is 0),
 * ``rmse_before_um`` / ``rmse_after_um``, ``n_samples``, ``n_outside_temp_range``,
   ``n_outside_speed_range``, ``worse_than_uncompensated`` (``after > before``),
+* ``n_outside_envelope``: samples whose prediction was held at the model's training envelope's
+  edge (an input it reads, or the prediction, beyond the training range widened by its margin:
+  :mod:`rafi.family.envelope`); 0 for a model whose ``predict_detail`` has no
+  ``outside_envelope`` (``rafi``, ``rafi_linear``),
 * ``n_unpredicted``: samples with a measured ``dz`` where the model gives no value (an input it
   reads is missing there: a sensor's dropout, a missing speed), left out of every figure above;
   ``unpredicted_inputs``: the inputs with no value on those samples (``"T11"``, ``"T8, speed"``;
@@ -25,7 +29,8 @@ leak). Per run, over the samples where both ``dz_um`` and the prediction exist:
   measurement and interval that lie inside the model's prediction interval, and the median width
   of that interval (:mod:`rafi.family.intervals`; NaN for a model without an interval).
 
-The residuals carry the interval per sample: ``lower_um`` / ``upper_um`` (bounds for the measured
+The residuals carry ``outside_envelope`` per sample (False where the model's detail has no such
+column) and the interval per sample: ``lower_um`` / ``upper_um`` (bounds for the measured
 displacement change, the convention of ``predicted_um``) and ``interval_cell`` (``settled``,
 ``transient`` or ``outside``; empty without an interval).
 
@@ -92,6 +97,7 @@ SUMMARY_COLUMNS = [
     "n_samples",
     "n_outside_temp_range",
     "n_outside_speed_range",
+    "n_outside_envelope",
     "n_unpredicted",
     "unpredicted_inputs",
     "worse_than_uncompensated",
@@ -110,6 +116,7 @@ RESIDUAL_COLUMNS = [
     "residual_um",
     "outside_temp_range",
     "outside_speed_range",
+    "outside_envelope",
     "lower_um",
     "upper_um",
     "interval_cell",
@@ -143,6 +150,14 @@ def inputs_without_value(sub: pd.DataFrame, missing: np.ndarray, sensors: list[s
     if np.isnan(sub["speed_rpm"].to_numpy(dtype=float, na_value=np.nan)[missing]).any():
         names.append("speed")
     return ", ".join(names)
+
+
+def _envelope_flags(detail: pd.DataFrame) -> np.ndarray:
+    """``detail``'s ``outside_envelope`` as booleans (NaN: False); all False without the column
+    (a model without a training envelope)."""
+    if "outside_envelope" not in detail.columns:
+        return np.zeros(len(detail), dtype=bool)
+    return detail["outside_envelope"].fillna(False).to_numpy(dtype=bool)
 
 
 def _run_summary(run_id, role, speed, duration, *, detail, measured, t_s, bounds, sub, sensors) -> dict:
@@ -182,6 +197,7 @@ def _run_summary(run_id, role, speed, duration, *, detail, measured, t_s, bounds
         "n_samples": n,
         "n_outside_temp_range": int(detail["outside_temp_range"].to_numpy()[ok].sum()),
         "n_outside_speed_range": int(detail["outside_speed_range"].to_numpy()[ok].sum()),
+        "n_outside_envelope": int(_envelope_flags(detail)[ok].sum()),
         "n_unpredicted": int(unpredicted.sum()),
         "unpredicted_inputs": inputs_without_value(sub, unpredicted, sensors),
         "worse_than_uncompensated": bool(n and after > before),
@@ -322,6 +338,7 @@ def validate_runs(
                     "residual_um": measured - pred,
                     "outside_temp_range": detail["outside_temp_range"].to_numpy(dtype=bool),
                     "outside_speed_range": detail["outside_speed_range"].to_numpy(dtype=bool),
+                    "outside_envelope": _envelope_flags(detail),
                     "lower_um": bounds["lower_um"].to_numpy(dtype=float),
                     "upper_um": bounds["upper_um"].to_numpy(dtype=float),
                     "interval_cell": bounds["interval_cell"].to_numpy(dtype=object),
@@ -342,6 +359,7 @@ def validate_runs(
             "n_samples": "int64",
             "n_outside_temp_range": "int64",
             "n_outside_speed_range": "int64",
+            "n_outside_envelope": "int64",
             "n_unpredicted": "int64",
             "unpredicted_inputs": "object",
             "worse_than_uncompensated": "bool",

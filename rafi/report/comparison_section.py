@@ -13,6 +13,7 @@ import pandas as pd
 from rafi.family.forward_folds import MIN_TRAIN, horizon_of, is_forward
 from rafi.family.selection import selection_rule
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
+from rafi.report.envelope_text import MEANING, held_by_model
 from rafi.report.format import fmt_num, isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, shared_level
@@ -446,7 +447,11 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         ``figures_resid``, ``plain_ridge`` (:func:`rafi.report.plain_ridge.section_plain_ridge`);
         the interval:
         ``coverage`` (summary.csv has it), ``run_coverage`` (per_run.csv has it), ``band``
-        (residuals.parquet has it) and ``interval_label`` (``90 % interval``).
+        (residuals.parquet has it) and ``interval_label`` (``90 % interval``);
+        ``envelope`` (per model, the validation runs with samples held at its training
+        envelope's edge, from ``comparison/residuals.parquet``:
+        :func:`rafi.report.envelope_text.held_by_model`; empty when none were) and
+        ``envelope_meaning``.
     """
     summ = res.get("comparison")
     if summ is None or not len(summ):
@@ -487,6 +492,8 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "run_coverage": False,
         "band": has_band(res.get("comparison_residuals")),
         "interval_label": band_label(shared_level(res.get("model"), res.get("best_model"))),
+        "envelope": held_by_model(res.get("comparison_residuals")),
+        "envelope_meaning": MEANING,
     }
     pr = res.get("comparison_per_run")
     if pr is None or not len(pr):

@@ -14,6 +14,7 @@ import pandas as pd
 
 from rafi.method.paper import MULTI_CONDITION, RESIDUAL_UM, RMSE_UM
 from rafi.report.data_sections import paper_value
+from rafi.report.envelope_text import MEANING, held_runs
 from rafi.report.format import isnum, records, short_id, speed_key, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, interval_block
@@ -244,7 +245,9 @@ def single_rows(single: pd.DataFrame, noise: dict) -> list[dict]:
 
 def range_rows(summary: pd.DataFrame) -> list[dict]:
     """Every validation run's samples outside the trained temperature and speed ranges, the
-    share outside the temperature range (%) and ``worse`` (than uncompensated)."""
+    share outside the temperature range (%), ``n_outside_envelope`` (samples held at the
+    training envelope's edge; 0 in a summary written before the column) and ``worse`` (than
+    uncompensated)."""
     rows = []
     for r in summary.itertuples(index=False):
         n = r.n_samples
@@ -256,6 +259,7 @@ def range_rows(summary: pd.DataFrame) -> list[dict]:
                 "n_outside_temp_range": r.n_outside_temp_range,
                 "n_outside_speed_range": r.n_outside_speed_range,
                 "outside_temp_pct": 100 * (r.n_outside_temp_range + 0) / n if isnum(n) and n else np.nan,
+                "n_outside_envelope": getattr(r, "n_outside_envelope", 0),
                 "worse": truthy(getattr(r, "worse_than_uncompensated", False)),
             }
         )
@@ -323,6 +327,9 @@ def section_validation(res: dict, figs, *, paper: bool = False) -> dict:
         ``band``: ``validation/residuals.parquet`` has the interval (the figures draw it);
         ``interval``: ``label`` (``90 % interval``) and ``level_pct`` of ``model.json``'s
         interval block (``None`` without one).
+        ``envelope``: the runs with samples held at the training envelope's edge
+        (:func:`rafi.report.envelope_text.held_runs`; empty when none were) and
+        ``envelope_meaning`` (:data:`rafi.report.envelope_text.MEANING`).
     """
     summ = res["validation_summary"]
     resid = res["residuals"]
@@ -338,6 +345,8 @@ def section_validation(res: dict, figs, *, paper: bool = False) -> dict:
         "coverage": has_coverage(summ),
         "band": has_band(resid),
         "interval": None,
+        "envelope": held_runs(summ),
+        "envelope_meaning": MEANING,
     }
     block = interval_block(res.get("model"))
     if block is not None:

@@ -15,6 +15,7 @@ import pandas as pd
 from markupsafe import Markup, escape
 
 from rafi.deploy.metrics import fault_classes, fault_groups, fault_groups_text
+from rafi.report.envelope_text import MEANING, held_runs
 from rafi.report.format import fmt_num, isnum, records, short_id
 from rafi.report.intervals import band_label, coverage_fields, has_coverage, replayed_level
 
@@ -158,4 +159,7 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
         "worst_with": fmt_num(pd.to_numeric(s["max_abs_residual_um"]).max(), 2, UM),
         "worst_without": fmt_num(pd.to_numeric(s["max_abs_residual_model_um"]).max(), 2, UM),
         "reference": REFERENCE_TEXT.get(rule, "as the model was trained"),
+        # the runs with samples held at the model's training envelope's edge (none: not said)
+        "envelope": held_runs(s),
+        "envelope_meaning": MEANING,
     }
