@@ -194,6 +194,8 @@ def test_golden_comparison_table():
     run -0.007 to +0.005 um).
     Regenerated on 2026-11-27: ``n_unpredicted`` / ``unpredicted_inputs`` appended (0 and empty: no
     input is missing in these data); no other value moved.
+    Column ``n_outside_envelope`` inserted on 2026-11-29 (issue 46; 0: the RAFI kinds have no
+    envelope and these ridge rows stay inside theirs); no other value moved.
     """
     table, frame = _golden_data()
     got = compare_models(_golden_models(table, frame), table, frame, GATES)
@@ -205,7 +207,13 @@ def test_golden_comparison_table():
         assert got[col].astype(str).tolist() == want[col].astype(str).tolist(), col
     for col in ["passed", "champion", "worse_than_uncompensated"]:
         assert got[col].astype(bool).tolist() == want[col].astype(bool).tolist(), col
-    for col in ["n_samples", "n_outside_temp_range", "n_outside_speed_range", "n_unpredicted"]:
+    for col in [
+        "n_samples",
+        "n_outside_temp_range",
+        "n_outside_speed_range",
+        "n_outside_envelope",
+        "n_unpredicted",
+    ]:
         assert got[col].astype(int).tolist() == want[col].astype(int).tolist(), col
     assert got["unpredicted_inputs"].tolist() == want["unpredicted_inputs"].fillna("").tolist()
     for col in [

@@ -193,3 +193,42 @@ def test_a_runaway_is_capped_at_the_output_bound_in_batch_and_stream(hotter_than
     np.testing.assert_allclose(got[after], pred[after], rtol=0, atol=1e-9)
     streamed = np.array([s.outside_envelope for s in steps])
     np.testing.assert_array_equal(streamed[after], detail["outside_envelope"].to_numpy()[after])
+
+
+def test_beyond_the_trained_range_the_interval_widens_the_same_in_batch_and_stream(hotter_than_ever):
+    """The 9000 r/min run lies beyond the trained speeds and rises: its interval is the cell's
+    half-width times 1 + slope x excess, the excess measured from the training ranges; the
+    streaming compensator gives the same bounds (after the reference window)."""
+    from rafi.family.interval_rule import EXCESS_SLOPE, INTERVAL_SCHEMA
+    from rafi.family.intervals import interval_columns, set_interval
+
+    table, frame = hotter_than_ever
+    model = small_family_model(
+        "dynamic", reference_rule="run_start", reference_window_s=60, filter_restart_gap_s=3600
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model.fit(table, frame)
+    block = {
+        "schema": INTERVAL_SCHEMA,
+        "level": 0.9,
+        "transient_s": 600.0,
+        "tolerance_rpm": 50.0,
+        "half_width_um": {"settled": 0.5, "transient": 0.8, "outside": 1.0},
+        "excess_slope": EXCESS_SLOPE,
+    }
+    set_interval(model, block)
+    test = frame[frame["log"] == "test.csv"]
+    detail = model.predict_detail(test)
+    excess = detail["range_excess"].to_numpy()
+    speed_excess = (9000 - 6000) / 6000  # the speed alone: half a trained span beyond 6000 r/min
+    assert excess.max() >= speed_excess - 1e-9 and excess.min() >= 0
+    outside = (detail["outside_temp_range"] | detail["outside_speed_range"]).to_numpy()
+    batch = interval_columns(model, test, detail["predicted_um"].to_numpy(), outside, excess=excess)
+    half = (batch["upper_um"] - batch["lower_um"]).to_numpy() / 2
+    np.testing.assert_allclose(half[outside], 1.0 * (1 + EXCESS_SLOPE * excess[outside]), rtol=1e-12)
+    assert half[outside].max() > 1.0 + EXCESS_SLOPE * 0.4  # it does widen
+    steps = _streamed(model, test)
+    after = test["log_t_s"].to_numpy() >= test["log_t_s"].min() + 60.0
+    streamed_half = np.array([s.half_width_um for s in steps])
+    np.testing.assert_allclose(streamed_half[after], half[after], rtol=0, atol=1e-9)

@@ -82,9 +82,16 @@ def test_validation_gives_bounds_coverage_and_width(syn, calibrated):
     bounds = functools.partial(interval_columns, model)
     summary, residuals = validate_runs(model, syn.runs_table, syn.runs_frame, bounds=bounds)
     assert list(summary.columns) == SUMMARY_COLUMNS and list(residuals.columns) == RESIDUAL_COLUMNS
-    h = model.to_dict()["interval"]["half_width_um"]
+    block = model.to_dict()["interval"]
+    h = block["half_width_um"]
     width = residuals["upper_um"] - residuals["lower_um"]
-    np.testing.assert_allclose(width, 2 * residuals["interval_cell"].map(h), rtol=0, atol=1e-12)
+    # beyond the trained range the half-width grows with the excess (interval_rule.widening)
+    frame = syn.runs_frame.assign(range_excess=model.predict_detail(syn.runs_frame)["range_excess"])
+    excess = residuals.merge(frame[["run_id", "t_s", "range_excess"]], on=["run_id", "t_s"], how="left")
+    stretch = 1 + block["excess_slope"] * excess["range_excess"].to_numpy()
+    assert (excess["range_excess"] > 0).any() and (excess["range_excess"] == 0).any()  # both kinds of rows
+    assert (residuals.loc[excess["range_excess"].to_numpy() > 0, "interval_cell"] == "outside").all()
+    np.testing.assert_allclose(width, 2 * residuals["interval_cell"].map(h) * stretch, rtol=0, atol=1e-12)
     np.testing.assert_allclose((residuals["upper_um"] + residuals["lower_um"]) / 2, residuals["predicted_um"])
     for run_id, rows in residuals.groupby("run_id"):
         inside = (rows["measured_um"] >= rows["lower_um"]) & (rows["measured_um"] <= rows["upper_um"])

@@ -96,7 +96,14 @@ from rafi.contract import MODEL_KINDS
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
 from rafi.deploy.streaming import LowpassBank, ReferenceWindow
-from rafi.family.envelope import bound_features, bound_output, envelope_bounds, output_bounds
+from rafi.family.envelope import (
+    bound_features,
+    bound_output,
+    envelope_bounds,
+    input_spans,
+    output_bounds,
+    range_excess,
+)
 from rafi.method.fuzzy import triangular_weights
 
 __all__ = ["KINDS", "STATUSES", "Compensator", "Step", "parse_exponents"]
@@ -281,6 +288,7 @@ class Compensator:
         self.envelope = envelope
         self.output_bounds = output_bounds
         self._outside_envelope = False
+        self._excess = 0.0  # the last row's range_excess (a ridge kind's; the interval widens with it)
         self._since_change_s = float("nan")
         self._reset_clock = False  # the next sample starts a reference window: reset the clock
         # run-time state: the last sample's time, the reference in force
@@ -514,7 +522,10 @@ class Compensator:
         bounds = NO_INTERVAL
         if self.interval is not None:
             outside = bool(out_speed or out_temp)
-            bounds = self.interval.bounds(float(value), since_change_s=self._since_change_s, outside=outside)
+            bounds = self.interval.bounds(
+                float(value), since_change_s=self._since_change_s, outside=outside, excess=self._excess
+            )
+        self._excess = 0.0
         if self.output_rule is not None:
             value, status = self.output_rule(t, raw, status, out_speed, out_temp)
         beyond, self._outside_envelope = self._outside_envelope, False
@@ -570,6 +581,9 @@ class Compensator:
         lo, hi = self.ranges[:, 0], self.ranges[:, 1]
         out_temp = bool(((rises < lo) | (rises > hi)).any())
         out_speed = bool(rpm < self.speed_range_rpm[0] or rpm > self.speed_range_rpm[1])
+        ranges = np.vstack([self.ranges, np.asarray(self.speed_range_rpm, dtype=float)[None, :]])
+        row = np.append(rises, rpm)[None, :]
+        self._excess = float(range_excess(row, ranges, input_spans(ranges, speed_last=True))[0])
         return pred, out_speed, out_temp
 
     # ------------------------------------------------------------------ introspection

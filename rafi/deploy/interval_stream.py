@@ -19,7 +19,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from rafi.family.interval_rule import CELLS, ChangeClock, half_width_um, interval_cell
+from rafi.family.interval_rule import CELLS, ChangeClock, half_width_um, interval_cell, widening
 
 __all__ = ["NO_INTERVAL", "Bounds", "StreamInterval"]
 
@@ -76,10 +76,11 @@ class StreamInterval:
         """Advance the change clock by one sample; seconds since its last reset."""
         return self.clock.update(t_s, speed_rpm, reset=reset)
 
-    def bounds(self, value_um: float, *, since_change_s: float, outside: bool) -> Bounds:
-        """The interval around ``value_um`` (:data:`NO_INTERVAL` when it is not finite)."""
+    def bounds(self, value_um: float, *, since_change_s: float, outside: bool, excess: float = 0.0) -> Bounds:
+        """The interval around ``value_um`` (:data:`NO_INTERVAL` when it is not finite); ``excess``
+        widens it beyond the trained range (:func:`rafi.family.interval_rule.widening`)."""
         if not math.isfinite(value_um):
             return NO_INTERVAL
         cell = interval_cell(since_change_s=since_change_s, outside=outside, transient_s=self.transient_s)
-        h = self.half_widths[cell]
+        h = self.half_widths[cell] * float(widening(self.block, excess))
         return Bounds(value_um - h, value_um + h, h, cell)

@@ -364,8 +364,16 @@ def _held_out(detail: pd.DataFrame, dz: np.ndarray, unit_of: np.ndarray, positio
             "unit": unit_of[mine],
             "residual_um": (dz - detail["predicted_um"].to_numpy(dtype=float))[mine],
             "outside": outside[mine],
+            "excess": _excess(detail)[mine],
         }
     )
+
+
+def _excess(detail: pd.DataFrame) -> np.ndarray:
+    """``range_excess`` of ``predict_detail`` (0 for a kind without it: the RAFI kinds)."""
+    if "range_excess" not in detail.columns:
+        return np.zeros(len(detail))
+    return np.nan_to_num(detail["range_excess"].to_numpy(dtype=float))
 
 
 def cv_data(runs_table: pd.DataFrame, runs_frame: pd.DataFrame, options: dict, *, log=print):

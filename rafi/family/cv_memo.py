@@ -43,7 +43,7 @@ __all__ = [
 ]
 
 #: Changes when the memo's layout or key changes (old entries are then never read).
-MEMO_FORMAT = "rafi.cv_memo/4"
+MEMO_FORMAT = "rafi.cv_memo/5"
 #: Entries kept per folder, the newest by modification time.
 KEEP = 8
 

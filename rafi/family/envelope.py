@@ -35,6 +35,7 @@ __all__ = [
     "fit_envelope",
     "join_envelope",
     "output_bounds",
+    "range_excess",
 ]
 
 #: The share of a feature's training span the envelope extends beyond it on each side. One span:
@@ -50,6 +51,10 @@ ENVELOPE_MARGIN = 1.0
 #: quarter of a span already 7 % (the foreign machines' physics does extrapolate); by the criterion
 #: written before the run the widest of those.
 OUTPUT_MARGIN = 2.0
+
+#: The smallest span (K) a rise's excess beyond its training range is measured in
+#: (:func:`range_excess`): a sensor that barely moved in training is not "far outside" by 0.01 K.
+MIN_SPAN_K = 0.1
 
 
 def _range(values: np.ndarray) -> list:
@@ -152,3 +157,29 @@ def bound_output(predicted, bounds) -> tuple[np.ndarray, np.ndarray]:
     with np.errstate(invalid="ignore"):
         outside = (p < lo) | (p > hi)
     return np.clip(p, lo, hi), outside
+
+
+def range_excess(values: np.ndarray, ranges: np.ndarray, spans: np.ndarray) -> np.ndarray:
+    """Per row, how far ``values`` (rows x inputs) lie beyond their training ``ranges``
+    (inputs x 2), in training ``spans`` (per input): the largest of ``(low - x) / span`` and
+    ``(x - high) / span`` over the inputs, 0 inside every range. NaN counts as inside. The
+    prediction interval widens with it (:mod:`rafi.family.interval_rule`)."""
+    x = np.asarray(values, dtype=float)
+    rng = np.asarray(ranges, dtype=float).reshape(-1, 2)
+    span = np.asarray(spans, dtype=float)
+    with np.errstate(invalid="ignore"):
+        beyond = np.maximum(rng[:, 0] - x, x - rng[:, 1]) / span
+    beyond = np.where(np.isfinite(beyond), np.maximum(beyond, 0.0), 0.0)
+    return beyond.max(axis=-1) if beyond.shape[-1] else np.zeros(beyond.shape[:-1])
+
+
+def input_spans(ranges: np.ndarray, *, speed_last: bool) -> np.ndarray:
+    """The span each input's excess is measured in (:func:`range_excess`): its training range,
+    at least :data:`MIN_SPAN_K` for a temperature rise; the speed (the last input when
+    ``speed_last``) in its trained range or, trained at one speed, in that speed."""
+    rng = np.asarray(ranges, dtype=float).reshape(-1, 2)
+    span = np.maximum(rng[:, 1] - rng[:, 0], MIN_SPAN_K)
+    if speed_last and len(span):
+        lo, hi = rng[-1]
+        span[-1] = max(hi - lo, abs(hi), 1.0)
+    return span

@@ -29,7 +29,14 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.forward_folds import unit_run
-from rafi.family.interval_rule import CELLS, INTERVAL_SCHEMA, interval_cell, since_change
+from rafi.family.interval_rule import (
+    CELLS,
+    EXCESS_SLOPE,
+    INTERVAL_SCHEMA,
+    interval_cell,
+    since_change,
+    widening,
+)
 from rafi.family.whole_log import layout, unsort
 from rafi.method.validate import coverage_and_width  # noqa: F401 - re-exported: defined beside validate_runs
 
@@ -54,7 +61,7 @@ __all__ = [
 
 METHOD = "split_conformal_by_run"
 #: The OOF samples a calibration reads (:func:`rafi.family.crossval.cross_validate` ``oof=``).
-OOF_COLUMNS = ["model", "unit", "run_id", "t_s", "residual_um", "since_change_s", "outside"]
+OOF_COLUMNS = ["model", "unit", "run_id", "t_s", "residual_um", "since_change_s", "outside", "excess"]
 #: Pooled autocorrelation of the exceedance indicators below which they count as independent.
 DECORRELATION_ACF = 0.1
 #: Grid step of the corrected level (:func:`corrected_level`).
@@ -137,6 +144,7 @@ def oof_samples(folds: list[pd.DataFrame], frame: pd.DataFrame, artefact: dict, 
             "residual_um": parts["residual_um"].to_numpy(dtype=float),
             "since_change_s": since[pos],
             "outside": parts["outside"].to_numpy(dtype=bool),
+            "excess": parts["excess"].to_numpy(dtype=float) if "excess" in parts else np.zeros(len(parts)),
         }
     )
     return out[OOF_COLUMNS]
@@ -321,7 +329,9 @@ def calibrate(
     if not ok.any():
         return None
     data = oof.loc[ok]
-    a = np.abs(res[ok])
+    excess = data["excess"].to_numpy(dtype=float) if "excess" in data else np.zeros(len(data))
+    stretch = 1.0 + EXCESS_SLOPE * np.maximum(np.nan_to_num(excess), 0.0)  # interval_rule.widening
+    a = np.abs(res[ok]) / stretch  # a normalised score: the half-width grows by the same factor
     units = data["unit"].astype(str).to_numpy()
     cells = _cell_of(data, transient_s)
     lam = corrected_level(a, units, level, groups=unit_run(units) if by_run else None)
@@ -347,6 +357,7 @@ def calibrate(
         "transient_s": float(transient_s),
         "tolerance_rpm": float(tolerance_rpm),
         "half_width_um": {c: float(half[c]) for c in CELLS},
+        "excess_slope": EXCESS_SLOPE,
         "decorrelation_s": float(decorrelation_s(data, a > h, res[ok])),
         "calibration": {
             "scheme": str(scheme),
@@ -387,12 +398,17 @@ def set_interval(model, block: dict | None):
 
 
 def interval_columns(
-    model, frame: pd.DataFrame, predicted_um: np.ndarray, outside: np.ndarray
+    model,
+    frame: pd.DataFrame,
+    predicted_um: np.ndarray,
+    outside: np.ndarray,
+    excess: np.ndarray | None = None,
 ) -> pd.DataFrame:
     """``lower_um``, ``upper_um``, ``interval_cell`` per row of ``frame`` (its order and index).
 
     ``model`` is a fitted model or an artefact dict; without an interval block the bounds are NaN
-    and the cell is empty. A NaN prediction gives NaN bounds (its cell is still named). With
+    and the cell is empty. ``excess`` (``range_excess`` of ``predict_detail``) widens the interval
+    beyond the trained range. A NaN prediction gives NaN bounds (its cell is still named). With
     ``functools.partial(interval_columns, model)`` it is the ``bounds`` of
     :func:`rafi.method.validate.validate_runs`.
     """
@@ -413,6 +429,8 @@ def interval_columns(
         interval_cell(since_change_s=s, outside=o, transient_s=transient) for s, o in zip(since, outside)
     ]
     h = np.array([float(block["half_width_um"][c]) for c in cells])
+    if excess is not None:  # beyond the trained range the interval widens (interval_rule.widening)
+        h = h * widening(block, excess)
     pred = np.asarray(predicted_um, dtype=float)
     return pd.DataFrame(
         {"lower_um": pred - h, "upper_um": pred + h, "interval_cell": cells}, index=frame.index

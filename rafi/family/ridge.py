@@ -12,7 +12,15 @@ import pandas as pd
 
 from rafi.family.base import CODE_VERSION, FamilyModel, check_artefact, data_hashes, finish_artefact, floats
 from rafi.family.crossval import split_runs, training_mask, training_runs
-from rafi.family.envelope import bound_features, bound_output, envelope_bounds, fit_envelope, output_bounds
+from rafi.family.envelope import (
+    bound_features,
+    bound_output,
+    envelope_bounds,
+    fit_envelope,
+    input_spans,
+    output_bounds,
+    range_excess,
+)
 from rafi.family.feature_memo import active_memo
 from rafi.family.features import (
     MIN_IDENTIFYING_RUNS,
@@ -371,7 +379,9 @@ class RidgeBase(FamilyModel):
         The prediction is from the features bounded to the training envelope and is itself held
         inside the training displacement range widened by its margin (:mod:`rafi.family.envelope`);
         ``unbounded_um`` is the free extrapolation and ``outside_envelope`` marks the rows where a
-        feature or the prediction was bounded."""
+        feature or the prediction was bounded; ``range_excess`` is how far the row's key sensor
+        rises and speed lie beyond their training ranges, in training spans
+        (:func:`rafi.family.envelope.range_excess`; the interval widens with it)."""
         feats = self._design_of(frame)
         envelope = getattr(self, "envelope_", None)
         bounded, beyond = bound_features(feats, envelope_bounds(envelope, feats.shape[1]))
@@ -381,6 +391,9 @@ class RidgeBase(FamilyModel):
         lo = np.array([self.regressor_ranges_[s][0] for s in self.sensors_])
         hi = np.array([self.regressor_ranges_[s][1] for s in self.sensors_])
         n = frame["speed_rpm"].to_numpy(dtype=float)
+        speed_lo, speed_hi = self.speed_range_rpm_
+        ranges = np.column_stack([np.append(lo, speed_lo), np.append(hi, speed_hi)])
+        excess = range_excess(np.column_stack([x, n]), ranges, input_spans(ranges, speed_last=True))
         return pd.DataFrame(
             {
                 "predicted_um": pred,
@@ -388,6 +401,7 @@ class RidgeBase(FamilyModel):
                 "outside_temp_range": ((x < lo) | (x > hi)).any(axis=1),
                 "outside_envelope": beyond,
                 "unbounded_um": feats @ self.coef_,
+                "range_excess": excess,
             },
             index=frame.index,
         )

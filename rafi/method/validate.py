@@ -269,8 +269,9 @@ def validate_runs(
     runs_frame : pandas.DataFrame
         Stacked samples with ``run_id``, ``t_s``, ``speed_rpm``, the rises and ``dz_um``.
     bounds : callable, optional
-        ``bounds(frame, predicted_um, outside)`` -> ``lower_um``, ``upper_um``, ``interval_cell``
-        per row of the time-ordered frame: the model's prediction interval
+        ``bounds(frame, predicted_um, outside[, excess=])`` -> ``lower_um``, ``upper_um``,
+        ``interval_cell`` per row of the time-ordered frame (``excess``: the detail's
+        ``range_excess`` where the model gives it): the model's prediction interval
         (``functools.partial(rafi.family.intervals.interval_columns, model)``). Without it the
         bounds, ``coverage`` and ``interval_width_um`` are NaN.
 
@@ -297,7 +298,11 @@ def validate_runs(
         outside = whole["outside_temp_range"].to_numpy(dtype=bool) | whole["outside_speed_range"].to_numpy(
             dtype=bool
         )
-        intervals = (bounds or _no_interval)(frame, whole["predicted_um"].to_numpy(dtype=float), outside)
+        predicted = whole["predicted_um"].to_numpy(dtype=float)
+        if bounds is not None and "range_excess" in whole.columns:  # the interval widens beyond the range
+            intervals = bounds(frame, predicted, outside, excess=whole["range_excess"].to_numpy(dtype=float))
+        else:
+            intervals = (bounds or _no_interval)(frame, predicted, outside)
         intervals = intervals.reset_index(drop=True)
         frame_ids = frame["run_id"].astype(str).to_numpy()
     for _, run in val.iterrows():

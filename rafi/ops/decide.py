@@ -14,6 +14,7 @@ evaluates both models, and updates the registry (``rafi.ops.registry``).
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from collections.abc import Callable, Mapping
@@ -511,7 +512,7 @@ def _read_json(path: str | os.PathLike | None) -> dict | None:
 
 def _validate_runs(model, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
     """``validate_runs`` with the model's prediction interval (``coverage``: the gate ``min_coverage``)."""
-    return validate_runs(model, runs_table, runs_frame, bounds=lambda *a: interval_columns(model, *a))
+    return validate_runs(model, runs_table, runs_frame, bounds=functools.partial(interval_columns, model))
 
 
 def run_decide(
