@@ -100,9 +100,8 @@ from rafi.family.envelope import (
     bound_features,
     bound_output,
     envelope_bounds,
-    input_spans,
+    key_range_excess,
     output_bounds,
-    range_excess,
 )
 from rafi.method.fuzzy import triangular_weights
 
@@ -581,9 +580,7 @@ class Compensator:
         lo, hi = self.ranges[:, 0], self.ranges[:, 1]
         out_temp = bool(((rises < lo) | (rises > hi)).any())
         out_speed = bool(rpm < self.speed_range_rpm[0] or rpm > self.speed_range_rpm[1])
-        ranges = np.vstack([self.ranges, np.asarray(self.speed_range_rpm, dtype=float)[None, :]])
-        row = np.append(rises, rpm)[None, :]
-        self._excess = float(range_excess(row, ranges, input_spans(ranges, speed_last=True))[0])
+        self._excess = float(key_range_excess(rises[None, :], [rpm], self.ranges, self.speed_range_rpm)[0])
         return pred, out_speed, out_temp
 
     # ------------------------------------------------------------------ introspection

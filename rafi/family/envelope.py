@@ -34,6 +34,7 @@ __all__ = [
     "envelope_bounds",
     "fit_envelope",
     "join_envelope",
+    "key_range_excess",
     "output_bounds",
     "range_excess",
 ]
@@ -183,3 +184,16 @@ def input_spans(ranges: np.ndarray, *, speed_last: bool) -> np.ndarray:
         lo, hi = rng[-1]
         span[-1] = max(hi - lo, abs(hi), 1.0)
     return span
+
+
+def key_range_excess(rises: np.ndarray, speed_rpm: np.ndarray, rise_ranges, speed_range) -> np.ndarray:
+    """:func:`range_excess` of the key sensors' ``rises`` (rows x sensors, ranges per sensor) and
+    the speed together, the speed measured in :func:`input_spans`' way: a ridge kind's
+    ``range_excess``, the same in ``predict_detail`` and the streaming compensator."""
+    ranges = np.vstack(
+        [np.asarray(rise_ranges, dtype=float).reshape(-1, 2), np.asarray(speed_range, dtype=float)]
+    )
+    values = np.column_stack(
+        [np.atleast_2d(np.asarray(rises, dtype=float)), np.asarray(speed_rpm, dtype=float)]
+    )
+    return range_excess(values, ranges, input_spans(ranges, speed_last=True))

@@ -330,8 +330,7 @@ def calibrate(
         return None
     data = oof.loc[ok]
     excess = data["excess"].to_numpy(dtype=float) if "excess" in data else np.zeros(len(data))
-    stretch = 1.0 + EXCESS_SLOPE * np.maximum(np.nan_to_num(excess), 0.0)  # interval_rule.widening
-    a = np.abs(res[ok]) / stretch  # a normalised score: the half-width grows by the same factor
+    a = np.abs(res[ok]) / widening({"excess_slope": EXCESS_SLOPE}, excess)  # a normalised score
     units = data["unit"].astype(str).to_numpy()
     cells = _cell_of(data, transient_s)
     lam = corrected_level(a, units, level, groups=unit_run(units) if by_run else None)

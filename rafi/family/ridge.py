@@ -17,9 +17,8 @@ from rafi.family.envelope import (
     bound_output,
     envelope_bounds,
     fit_envelope,
-    input_spans,
+    key_range_excess,
     output_bounds,
-    range_excess,
 )
 from rafi.family.feature_memo import active_memo
 from rafi.family.features import (
@@ -391,9 +390,7 @@ class RidgeBase(FamilyModel):
         lo = np.array([self.regressor_ranges_[s][0] for s in self.sensors_])
         hi = np.array([self.regressor_ranges_[s][1] for s in self.sensors_])
         n = frame["speed_rpm"].to_numpy(dtype=float)
-        speed_lo, speed_hi = self.speed_range_rpm_
-        ranges = np.column_stack([np.append(lo, speed_lo), np.append(hi, speed_hi)])
-        excess = range_excess(np.column_stack([x, n]), ranges, input_spans(ranges, speed_last=True))
+        excess = key_range_excess(x, n, np.column_stack([lo, hi]), self.speed_range_rpm_)
         return pd.DataFrame(
             {
                 "predicted_um": pred,
