@@ -98,7 +98,7 @@ def test_each_rule_picks_by_its_own_text(bench):
     # one SE of grey_box's folds: std([0.5, 1, 1.5]) / sqrt(3) = 0.289 -> bound 1.289: prior_time is
     # within, prior_gain (1.4) is not, so the simplest within is prior_time
     assert bench.rule_pick("cv", CANDS) == "grey_box"
-    assert bench.rule_pick("cv", CANDS, "prior_gain") == "prior_gain"  # the product's pick as recorded
+    assert bench.rule_pick("cv", CANDS, "prior_gain") == "grey_box"  # recomputed, not the recorded pick
     assert bench.rule_pick("one_se_simplest", CANDS) == "prior_time"
     assert bench.rule_pick("mean_and_worst", CANDS) == "prior_time"  # 0.5 (0.2 + 1.2) = 0.7 lowest
     assert bench.rule_pick("adaptations_only", CANDS) == "prior_time"
@@ -108,7 +108,19 @@ def test_each_rule_picks_by_its_own_text(bench):
         bench.rule_pick("best_on_validation", CANDS)
 
 
-def random_result(seed: int, prior_choice: str, full_mae: float = 0.5, full_worst: float = 2.0) -> dict:
+#: The same candidates where the CV's max score alone picks prior_gain (grey_box's folds worse).
+CANDS_GAIN = CANDS | {
+    "grey_box": cand(2.0, [1.5, 2.0, 2.5], 0.9, 1.0, 4.0),
+    "prior_time": cand(1.5, [1.5, 1.5, 1.5], 0.2, 0.45, 2.1),
+}
+#: grey_box picked by the CV and within 15 % (ratios 1.1 ; 1.1), prior_time closer (0.9 ; 1.05).
+CANDS_BOTH_PASS = CANDS | {"grey_box": cand(1.0, [0.5, 1.0, 1.5], 0.9, 0.55, 2.2)}
+
+
+def random_result(
+    seed: int, prior_choice: str, cands=None, full_mae: float = 0.5, full_worst: float = 2.0
+) -> dict:
+    cands = cands or CANDS
     return {
         "seed": seed,
         "machine": "tapping-center-a",
@@ -118,21 +130,21 @@ def random_result(seed: int, prior_choice: str, full_mae: float = 0.5, full_wors
         "full_um": full_worst,
         "full_choice": "dynamic",
         "prior_choice": prior_choice,
-        "prior_mae_um": CANDS[prior_choice]["validation_mae_um"],
-        "prior_um": CANDS[prior_choice]["validation_um"],
+        "prior_mae_um": cands[prior_choice]["validation_mae_um"],
+        "prior_um": cands[prior_choice]["validation_um"],
         "scratch_choice": "grey_box",
         "scratch_mae_um": 1.0,
         "scratch_um": 4.0,
         "unchanged_mae_um": 2.0,
         "unchanged_um": 5.0,
-        "candidates": CANDS,
+        "candidates": cands,
     }
 
 
 def test_rules_are_judged_by_the_share_within_15_percent_on_both_then_the_mean_ratio(bench):
     # full 0.5 ; 2.0 -> limits 0.575 ; 2.3: prior_gain (0.5 ; 2.0) and prior_time (0.45 ; 2.1) pass,
     # grey_box (1.0 ; 4.0) does not
-    results = [random_result(0, "grey_box"), random_result(1, "prior_gain")]
+    results = [random_result(0, "grey_box"), random_result(1, "prior_gain", CANDS_GAIN)]
     judged = bench.judge_rules(results)
     cv, se = judged["rules"]["cv"], judged["rules"]["one_se_simplest"]
     assert cv["share"] == 0.5 and cv["failed"] == [0] and cv["picks"] == {0: "grey_box", 1: "prior_gain"}
@@ -142,11 +154,17 @@ def test_rules_are_judged_by_the_share_within_15_percent_on_both_then_the_mean_r
         and judged["winner"] in {"one_se_simplest", "mean_and_worst"}
     )
     assert math.isclose(cv["mean_ratio"], 0.5 * (0.5 * (2 + 2) + 0.5 * (1 + 1)))
-    # same share: the lower mean ratio wins; the product's rule stays on a full tie
-    same = bench.judge_rules([random_result(1, "prior_gain")], rules=("cv", "adaptations_only"))
+    # same share: the lower mean ratio wins (prior_time 0.9 ; 1.05 against grey_box 1.1 ; 1.1)
+    same = bench.judge_rules(
+        [random_result(1, "grey_box", CANDS_BOTH_PASS)], rules=("cv", "adaptations_only")
+    )
+    assert same["rules"]["cv"]["share"] == same["rules"]["adaptations_only"]["share"] == 1.0
     assert same["rules"]["adaptations_only"]["mean_ratio"] < same["rules"]["cv"]["mean_ratio"]
     assert same["winner"] == "adaptations_only"
-    tie = bench.judge_rules([random_result(1, "prior_time")], rules=("cv", "adaptations_only"))
+    # the product's rule stays on a full tie (both pick prior_gain)
+    only_gain = {m: c for m, c in CANDS_GAIN.items() if m != "prior_time"}
+    tie = bench.judge_rules([random_result(1, "prior_gain", only_gain)], rules=("cv", "adaptations_only"))
+    assert tie["rules"]["adaptations_only"]["picks"] == tie["rules"]["cv"]["picks"] == {1: "prior_gain"}
     assert tie["winner"] == "cv"
 
 
