@@ -227,36 +227,3 @@ def test_an_unknown_method_is_refused(dynamic_prior, states):
     _, (t2, f2) = states
     with pytest.raises(ValueError, match="method='offset'"):
         AdaptedPrior(prior=dynamic_prior, method="offset").fit(t2, f2)
-
-
-def test_with_a_prior_the_champion_is_ranked_by_the_mean_of_cv_rmse_and_max():
-    """prior_selection (issue 47): hand-made CV scores where the max |residual| alone and the mean
-    with the RMSE disagree; the non-candidate row stays unranked and last."""
-    import pandas as pd
-
-    from rafi.family.adapted import prior_selection
-    from rafi.family.selection import SELECTION_COLUMNS
-
-    def row(model, score, rmse, worst, rank):
-        return dict.fromkeys(SELECTION_COLUMNS, 0) | {
-            "model": model,
-            "cv_mean_max_abs_um": score,
-            "selection_score_um": score,
-            "cv_rmse_um": rmse,
-            "cv_max_abs_um": worst,
-            "selection_rank": rank,
-        }
-
-    table = pd.DataFrame(
-        [
-            row("grey_box", 1.0, 0.9, 2.0, 1),  # best max alone; mean 0.95
-            row("prior_gain", 1.1, 0.3, 1.5, 2),  # mean 0.70: the champion with a prior
-            row("dynamic", 1.2, 0.2, 1.4, 3),  # mean 0.70 too: a tie, the lower worst run wins
-            row("temperature_ridge", 0.1, 0.1, 0.1, pd.NA),  # the plain ridge: never ranked
-        ]
-    ).astype({"selection_rank": "Int64"})
-    out = prior_selection(table)
-    assert list(out["model"]) == ["dynamic", "prior_gain", "grey_box", "temperature_ridge"]
-    assert list(out["selection_rank"].iloc[:3]) == [1, 2, 3] and pd.isna(out["selection_rank"].iloc[3])
-    assert out["selection_score_um"].tolist()[:3] == pytest.approx([0.7, 0.7, 0.95])
-    assert list(out.columns) == list(table.columns)

@@ -43,20 +43,11 @@ from rafi.family.grey_box import GreyBox
 from rafi.family.prior import RIDGE_KINDS
 from rafi.family.ridge import cv_folds, cv_scores, fit_rows_of, ridge_gram, rms_scale
 from rafi.family.ridge_global import RidgeGlobal
-from rafi.family.selection import SIMPLICITY, TIE_UM
 from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.time_blocks import unit_column
 from rafi.settings import MACHINE_DEFAULTS
 
-__all__ = [
-    "ADAPTATION_SCHEMA",
-    "METHODS",
-    "CANDIDATES",
-    "PRIOR_SELECTION_RULE",
-    "AdaptedPrior",
-    "adaptation_factories",
-    "prior_selection",
-]
+__all__ = ["ADAPTATION_SCHEMA", "METHODS", "CANDIDATES", "AdaptedPrior", "adaptation_factories"]
 
 MODELS = MACHINE_DEFAULTS["models"]
 ADAPTATION_SCHEMA = "rafi.adaptation/1"
@@ -422,53 +413,3 @@ def adaptation_factories(
         n: functools.partial(AdaptedPrior, prior=prior, method=CANDIDATES[n], machine=machine, **common)
         for n in names
     }
-
-
-#: How the champion is chosen when a prior is offered (:func:`prior_selection`), for people.
-PRIOR_SELECTION_RULE = (
-    "With a prior, every candidate (the adaptations and the kinds from scratch) is scored by the mean "
-    "of its cross-validation's pooled RMSE and its selection score (the mean held-out max |residual|): "
-    "a few folds' worst residuals alone miss a model that is off everywhere by a little."
-)
-
-
-def prior_selection(selection: pd.DataFrame) -> pd.DataFrame:
-    """The selection table of a fit with a prior, re-scored and re-ranked (issue 47).
-
-    ``selection_score_um`` becomes the mean of ``cv_rmse_um`` (pooled over the whole-run folds)
-    and the score :func:`rafi.family.selection.selection_table` gave (the mean held-out max
-    |residual|, with the forward folds' where they ran); the ranks follow it with the same ties
-    (:data:`rafi.family.selection.TIE_UM`: then the lower worst held-out run, the simpler kind,
-    the name). Judged one level up on 40 random re-qualification scenarios at 4 h of new data
-    (``benchmarks/bench_requalify.py --random 40``, 2026-11-29): the same share within 15 % of the
-    full plan on both MAE and worst residual as the max |residual| alone, a lower mean ratio
-    (1.317 against 1.374); the criterion was written down before the run.
-
-    Parameters
-    ----------
-    selection : pandas.DataFrame
-        :func:`rafi.family.selection.selection_table` of the fit (its rows unranked, ``<NA>``,
-        are not candidates and stay last).
-
-    Returns
-    -------
-    pandas.DataFrame
-        The same columns, best first; rank 1 is the champion.
-    """
-    if selection is None or not len(selection):
-        return selection
-    t = selection.copy()
-    rmse = pd.to_numeric(t["cv_rmse_um"], errors="coerce")
-    score = pd.to_numeric(t["selection_score_um"], errors="coerce")
-    t["selection_score_um"] = np.where(np.isfinite(rmse) & np.isfinite(score), 0.5 * (rmse + score), np.inf)
-    ref = t["selection_rank"].isna().to_numpy()
-    t = t.assign(
-        _ref=ref,
-        _score=np.round(t["selection_score_um"] / TIE_UM),
-        _worst=np.round(pd.to_numeric(t["cv_max_abs_um"], errors="coerce") / TIE_UM),
-        _cx=t["model"].map(SIMPLICITY).fillna(len(SIMPLICITY)),
-    ).sort_values(["_ref", "_score", "_worst", "_cx", "model"], kind="stable")
-    rank = pd.array([pd.NA] * len(t), dtype="Int64")
-    rank[~t["_ref"].to_numpy()] = np.arange(1, int((~t["_ref"]).sum()) + 1)
-    t["selection_rank"] = rank
-    return t[list(selection.columns)].reset_index(drop=True)

@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.artefact import json_text, write_text_atomic
-from rafi.family.adapted import adaptation_factories, prior_selection
+from rafi.family.adapted import adaptation_factories
 from rafi.family.crossval import (  # noqa: F401 - cv_data re-exported (it lived here)
     cross_validate,
     cv_data,
@@ -560,10 +560,6 @@ def run_family(
     # the choice: training runs only, before any validation run is predicted
     selection = selection_table(cv, candidates)
     champion = choose_champion(cv, candidates)
-    if prior is not None and champion is not None:  # with a prior: the mean of RMSE and max (issue 47)
-        rescored = prior_selection(selection)
-        if np.isfinite(rescored["selection_score_um"].iloc[0]):
-            selection, champion = rescored, str(rescored["model"].iloc[0])
     basis = "cv"
     if champion is None:
         champion, basis = default_champion(candidates), "default"
