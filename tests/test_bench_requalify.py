@@ -51,10 +51,141 @@ def test_the_table_has_one_row_per_budget_and_the_comparisons_once_per_scenario(
     lines = bench.markdown([result(2.2)]).splitlines()
     assert len(lines) == 4 and lines[0].count("|") == lines[2].count("|") == lines[3].count("|") == 11
     assert (
-        "| season | 4.00 | 7 | 6.00 | grey_box | 2.20 | prior_gain | 2.00 (grey_box) | 2.50 | 0.70 |"
-        == lines[2]
+        "| season | 4.00 | 7 | - ; 6.00 | grey_box | - ; 2.20 | prior_gain | - ; 2.00 (grey_box) "
+        "| - ; 2.50 | 0.70 |" == lines[2]
     )
-    assert lines[3].startswith("|  | 4.00 | 7 | 2.10 |")
+    assert lines[3].startswith("|  | 4.00 | 7 | - ; 2.10 |")
+    with_mae = result(2.2) | {"full_mae_um": 0.5, "unchanged_mae_um": 0.9}
+    with_mae["hours"][0] |= {"prior_mae_um": 0.55, "scratch_mae_um": 1.5}
+    assert bench.markdown([with_mae]).splitlines()[2] == (
+        "| season | 4.00 | 7 | 1.50 ; 6.00 | grey_box | 0.55 ; 2.20 | prior_gain | 0.50 ; 2.00 (grey_box) "
+        "| 0.90 ; 2.50 | 0.70 |"
+    )
+
+
+def test_the_verdict_needs_the_mae_within_15_percent_too_when_measured(bench):
+    res = result(2.2) | {"full_mae_um": 0.5}
+    res["hours"][0]["prior_mae_um"] = 0.57  # the worst within (2.2 <= 2.3), the MAE within (<= 0.575)
+    assert bench.verdict(res).startswith(
+        "met at 4 h (full plan MAE 0.50 ; worst 2.00 um, 15 % limit 0.57 ; 2.30"
+    )
+    res["hours"][0]["prior_mae_um"] = 0.6  # the MAE beyond 0.575
+    assert bench.verdict(res).startswith(
+        "NOT met"
+    ) and "4 h: MAE 0.60 ; worst 2.20 um, NOT within" in bench.verdict(res)
+
+
+def cand(score, folds, rmse, mae, worst) -> dict:
+    return {
+        "selection_score_um": score,
+        "cv_mean_max_abs_um": score,
+        "cv_fold_max_abs_um": folds,
+        "cv_rmse_um": rmse,
+        "validation_mae_um": mae,
+        "validation_um": worst,
+    }
+
+
+CANDS = {  # hand-made: the CV's best is grey_box; prior_gain is within one SE of it; prior_time second
+    "grey_box": cand(1.0, [0.5, 1.0, 1.5], 0.9, 1.0, 4.0),
+    "prior_gain": cand(1.4, [1.4, 1.4, 1.4], 0.3, 0.5, 2.0),
+    "prior_time": cand(1.2, [1.2, 1.2, 1.2], 0.2, 0.45, 2.1),
+    "prior": cand(3.0, [3.0, 3.0, 3.0], 2.0, 2.0, 5.0),
+}
+
+
+def test_each_rule_picks_by_its_own_text(bench):
+    # one SE of grey_box's folds: std([0.5, 1, 1.5]) / sqrt(3) = 0.289 -> bound 1.289: prior_time is
+    # within, prior_gain (1.4) is not, so the simplest within is prior_time
+    assert bench.rule_pick("cv", CANDS) == "grey_box"
+    assert bench.rule_pick("cv", CANDS, "prior_gain") == "grey_box"  # recomputed, not the recorded pick
+    assert bench.rule_pick("one_se_simplest", CANDS) == "prior_time"
+    assert bench.rule_pick("mean_and_worst", CANDS) == "prior_time"  # 0.5 (0.2 + 1.2) = 0.7 lowest
+    assert bench.rule_pick("adaptations_only", CANDS) == "prior_time"
+    wide = CANDS | {"grey_box": cand(1.0, [0.1, 1.0, 1.9], 0.9, 1.0, 4.0)}  # SE 0.52: prior_gain within
+    assert bench.rule_pick("one_se_simplest", wide) == "prior_gain"
+    with pytest.raises(ValueError, match="unknown rule"):
+        bench.rule_pick("best_on_validation", CANDS)
+
+
+#: The same candidates where the CV's max score alone picks prior_gain (grey_box's folds worse).
+CANDS_GAIN = CANDS | {
+    "grey_box": cand(2.0, [1.5, 2.0, 2.5], 0.9, 1.0, 4.0),
+    "prior_time": cand(1.5, [1.5, 1.5, 1.5], 0.2, 0.45, 2.1),
+}
+#: grey_box picked by the CV and within 15 % (ratios 1.1 ; 1.1), prior_time closer (0.9 ; 1.05).
+CANDS_BOTH_PASS = CANDS | {"grey_box": cand(1.0, [0.5, 1.0, 1.5], 0.9, 0.55, 2.2)}
+
+
+def random_result(
+    seed: int, prior_choice: str, cands=None, full_mae: float = 0.5, full_worst: float = 2.0
+) -> dict:
+    cands = cands or CANDS
+    return {
+        "seed": seed,
+        "machine": "tapping-center-a",
+        "change": "season",
+        "truth": {"change": "season", "room_shift_c": 3.0, "daily_amplitude_c": 1.0, "cooler_offset_c": -0.5},
+        "full_mae_um": full_mae,
+        "full_um": full_worst,
+        "full_choice": "dynamic",
+        "prior_choice": prior_choice,
+        "prior_mae_um": cands[prior_choice]["validation_mae_um"],
+        "prior_um": cands[prior_choice]["validation_um"],
+        "scratch_choice": "grey_box",
+        "scratch_mae_um": 1.0,
+        "scratch_um": 4.0,
+        "unchanged_mae_um": 2.0,
+        "unchanged_um": 5.0,
+        "candidates": cands,
+    }
+
+
+def test_rules_are_judged_by_the_share_within_15_percent_on_both_then_the_mean_ratio(bench):
+    # full 0.5 ; 2.0 -> limits 0.575 ; 2.3: prior_gain (0.5 ; 2.0) and prior_time (0.45 ; 2.1) pass,
+    # grey_box (1.0 ; 4.0) does not
+    results = [random_result(0, "grey_box"), random_result(1, "prior_gain", CANDS_GAIN)]
+    judged = bench.judge_rules(results)
+    cv, se = judged["rules"]["cv"], judged["rules"]["one_se_simplest"]
+    assert cv["share"] == 0.5 and cv["failed"] == [0] and cv["picks"] == {0: "grey_box", 1: "prior_gain"}
+    assert (
+        se["share"] == 1.0
+        and se["failed"] == []
+        and judged["winner"] in {"one_se_simplest", "mean_and_worst"}
+    )
+    assert math.isclose(cv["mean_ratio"], 0.5 * (0.5 * (2 + 2) + 0.5 * (1 + 1)))
+    # same share: the lower mean ratio wins (prior_time 0.9 ; 1.05 against grey_box 1.1 ; 1.1)
+    same = bench.judge_rules(
+        [random_result(1, "grey_box", CANDS_BOTH_PASS)], rules=("cv", "adaptations_only")
+    )
+    assert same["rules"]["cv"]["share"] == same["rules"]["adaptations_only"]["share"] == 1.0
+    assert same["rules"]["adaptations_only"]["mean_ratio"] < same["rules"]["cv"]["mean_ratio"]
+    assert same["winner"] == "adaptations_only"
+    # the product's rule stays on a full tie (both pick prior_gain)
+    only_gain = {m: c for m, c in CANDS_GAIN.items() if m != "prior_time"}
+    tie = bench.judge_rules([random_result(1, "prior_gain", only_gain)], rules=("cv", "adaptations_only"))
+    assert tie["rules"]["adaptations_only"]["picks"] == tie["rules"]["cv"]["picks"] == {1: "prior_gain"}
+    assert tie["winner"] == "cv"
+
+
+def test_the_random_table_says_which_scenarios_fail_and_the_share_that_pass(bench):
+    results = [random_result(0, "grey_box"), random_result(1, "prior_gain"), random_result(2, "prior_time")]
+    lines = bench.random_markdown(results).splitlines()
+    assert len(lines) == 2 + 3 + 2 and all(line.count("|") == 12 for line in lines[:5])
+    assert lines[2].startswith("| 0 | tapping-center-a | season | room +3.0 K, swing 1.0 K, cooler -0.5 K |")
+    assert lines[2].endswith("| 2.00 ; 2.00 | grey_box | 1.00 ; 4.00 (grey_box) | 2.00 ; 5.00 | **NO** |")
+    assert lines[3].endswith("| yes |") and lines[4].endswith("| yes |")
+    assert (
+        lines[-1] == "Within 15 % of the full plan on both MAE and worst: 2 of 3 scenarios (67 %); fail: 0."
+    )
+
+
+def test_seeds_come_from_random_n_and_a_range(bench):
+    assert bench.parse_seeds(3, None) == [0, 1, 2]
+    assert bench.parse_seeds(None, "5-7") == [5, 6, 7] and bench.parse_seeds(None, "4") == [4]
+    assert bench.parse_seeds(2, "1-3") == [0, 1, 2, 3]
+    with pytest.raises(ValueError, match="A <= B"):
+        bench.parse_seeds(None, "7-5")
 
 
 def test_a_tiny_run_writes_the_table_and_the_json(bench, tmp_path, capsys):
