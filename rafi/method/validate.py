@@ -242,7 +242,7 @@ def coverage_and_width(measured, lower, upper) -> tuple[float, float]:
     return float(inside.mean()), float(np.median(hi[ok] - lo[ok]))
 
 
-def _no_interval(frame: pd.DataFrame, predicted_um, outside) -> pd.DataFrame:
+def _no_interval(frame: pd.DataFrame, predicted_um, outside, excess=None) -> pd.DataFrame:
     n = len(frame)
     return pd.DataFrame(
         {"lower_um": np.full(n, np.nan), "upper_um": np.full(n, np.nan), "interval_cell": [""] * n}
@@ -269,9 +269,9 @@ def validate_runs(
     runs_frame : pandas.DataFrame
         Stacked samples with ``run_id``, ``t_s``, ``speed_rpm``, the rises and ``dz_um``.
     bounds : callable, optional
-        ``bounds(frame, predicted_um, outside[, excess=])`` -> ``lower_um``, ``upper_um``,
+        ``bounds(frame, predicted_um, outside, excess=)`` -> ``lower_um``, ``upper_um``,
         ``interval_cell`` per row of the time-ordered frame (``excess``: the detail's
-        ``range_excess`` where the model gives it): the model's prediction interval
+        ``range_excess``, None for a model without it): the model's prediction interval
         (``functools.partial(rafi.family.intervals.interval_columns, model)``). Without it the
         bounds, ``coverage`` and ``interval_width_um`` are NaN.
 
@@ -299,10 +299,8 @@ def validate_runs(
             dtype=bool
         )
         predicted = whole["predicted_um"].to_numpy(dtype=float)
-        if bounds is not None and "range_excess" in whole.columns:  # the interval widens beyond the range
-            intervals = bounds(frame, predicted, outside, excess=whole["range_excess"].to_numpy(dtype=float))
-        else:
-            intervals = (bounds or _no_interval)(frame, predicted, outside)
+        excess = whole["range_excess"].to_numpy(dtype=float) if "range_excess" in whole.columns else None
+        intervals = (bounds or _no_interval)(frame, predicted, outside, excess=excess)
         intervals = intervals.reset_index(drop=True)
         frame_ids = frame["run_id"].astype(str).to_numpy()
     for _, run in val.iterrows():
