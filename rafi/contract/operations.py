@@ -103,6 +103,16 @@ OPERATIONS_SETTINGS: dict = {
                     "switch is gone)"
                 ),
             ),
+            "offer": Setting(
+                default="best",
+                schema={"enum": ["best", "ensemble"]},
+                shown="`best`",
+                doc=(
+                    "what is offered to the machine: `best` (the kind with the lowest selection score"
+                    " on the training runs) or `ensemble` (every kind blended with weights from the "
+                    "whole-run CV, `docs/models.md`, The CV-weighted ensemble); without a prior only"
+                ),
+            ),
             "cv_forward_runs": Setting(
                 default=2,
                 schema={"type": "integer", "minimum": 0},

@@ -37,6 +37,7 @@ from rafi.family.crossval import (  # noqa: F401 - cv_data re-exported (it lived
 from rafi.family.cv_memo import cv_memo_key, read_cv, read_oof, write_cv, write_oof
 from rafi.family.describe import describe_selection, fitted_text
 from rafi.family.dynamic import DynamicRidge
+from rafi.family.ensemble import ENSEMBLE, WeightedEnsemble, cv_weights, ensemble_cv_rows, ensemble_oof
 from rafi.family.feature_memo import sharing_features
 from rafi.family.forward_folds import configured_scheme as forward_scheme
 from rafi.family.forward_folds import is_forward
@@ -156,7 +157,9 @@ def load_any(source):
         return RafiModel.from_dict(source)
     if kind in KINDS:
         return KINDS[kind].from_dict(source)
-    raise ValueError(f"unknown model kind {kind!r}; known: {sorted(KINDS)}")
+    if kind == ENSEMBLE:
+        return WeightedEnsemble.from_dict(source)
+    raise ValueError(f"unknown model kind {kind!r}; known: {sorted([*KINDS, ENSEMBLE])}")
 
 
 def save_any(model, path) -> None:
@@ -475,6 +478,32 @@ def _cross_validated(
     return models, cv, oof, memo, fit_table
 
 
+def with_ensemble(models: dict, cv: pd.DataFrame, oof: pd.DataFrame, members, *, machine, log=print):
+    """``models``, ``cv`` and ``oof`` with the CV-weighted ensemble of ``members``
+    (:mod:`rafi.family.ensemble`): its model, its CV rows and its OOF samples, blended from the
+    members' own. Unchanged when fewer than two members have a finite CV score."""
+    weights = cv_weights(cv, [m for m in dict.fromkeys(members) if m in models])
+    if not weights:
+        return models, cv, oof
+    blended = ensemble_oof(oof, weights)
+    log(f"{ENSEMBLE}: " + ", ".join(f"{k} {w:.3f}" for k, w in weights.items()))
+    models = {**models, ENSEMBLE: WeightedEnsemble.from_fitted(models, weights, machine=machine)}
+    cv = pd.concat([cv, ensemble_cv_rows(cv, blended)], ignore_index=True)
+    return models, cv, pd.concat([oof, blended], ignore_index=True)
+
+
+def offered_first(selection: pd.DataFrame, offered: str) -> pd.DataFrame:
+    """``selection`` with the ``offered`` model's row first and the ranks renumbered in that order
+    (a model offered by a rule other than the lowest score is rank 1 all the same)."""
+    mine = selection["model"].astype(str) == offered
+    out = pd.concat([selection.loc[mine], selection.loc[~mine]], ignore_index=True)
+    ranked = out["selection_rank"].notna().to_numpy()
+    rank = pd.array([pd.NA] * len(out), dtype="Int64")
+    rank[ranked] = np.arange(1, int(ranked.sum()) + 1)
+    out["selection_rank"] = rank
+    return out
+
+
 def run_family(
     runs_table: pd.DataFrame,
     runs_frame: pd.DataFrame,
@@ -571,6 +600,9 @@ def run_family(
         code_version=code_version,
         log=log,
     )
+    offer_ensemble = options["offer"] == ENSEMBLE and prior is None  # judged from scratch only
+    members = [*options["enabled"], PLAIN_RIDGE] if offer_ensemble else []
+    models, cv, oof = with_ensemble(models, cv, oof, members, machine=machine, log=log)
     # every model's prediction interval, from its own OOF residuals (RAFI's model.json keeps its own)
     samples, calibrated_on = calibration_units(oof, scheme_of(fit_table, options["cv"]))
     calibrate_family(
@@ -586,6 +618,8 @@ def run_family(
     selection = selection_table(cv, candidates)
     champion = choose_champion(cv, candidates)
     basis = "cv"
+    if ENSEMBLE in models:
+        champion, selection = ENSEMBLE, offered_first(selection_table(cv, [*candidates, ENSEMBLE]), ENSEMBLE)
     if champion is None:
         champion, basis = default_champion(candidates), "default"
         log(f"no cross-validation fold: {champion} offered by the default rule")
