@@ -7,6 +7,7 @@ the expected attention order, residuals, exit codes and links follow from the fi
 from __future__ import annotations
 
 import argparse
+import html
 import json
 import os
 import re
@@ -375,3 +376,61 @@ def test_the_drift_line_under_a_model_in_service(drift, has_champion, expected):
     # a decision that promoted the first champion had none to check: "no_champion" under
     # "model in service: <id>" read as a contradiction
     assert fleet_cli.describe_drift(drift, has_champion=has_champion) == expected
+
+
+def _cells(page: str, machine: str) -> dict:
+    """The visible text of ``machine``'s row of the fleet page, header -> cell."""
+    head = re.search(r"<thead>(.*?)</thead>", page, flags=re.S).group(1)
+    headers = [re.sub(r"<[^>]+>", "", h) for h in re.findall(r"<th>(.*?)</th>", head, flags=re.S)]
+    row = re.search(rf"<tr>\s*<td><strong>{re.escape(machine)}</strong>(.*?)</tr>", page, flags=re.S)
+    cells = [f"<strong>{machine}</strong>", *re.findall(r"<td[^>]*>(.*?)</td>", row.group(1), flags=re.S)]
+    text = [" ".join(html.unescape(re.sub(r"<[^>]+>", " ", c)).split()) for c in cells]
+    return dict(zip(headers, text, strict=True))
+
+
+def test_the_page_says_in_words_why_drift_was_not_checked(fleet):
+    """A model promoted (or rolled back to) by the last decision was not what that decision
+    checked: the page says so in a sentence, as rafi status does, never the status key, and shows
+    none of the replaced model's figures."""
+    root = fleet
+    old = _decision("kept", "Z", "Z")["drift"] | {
+        "status": "degraded",
+        "degradation_um": 4.53,
+        "detected": True,
+    }
+    old["interval"] = {"status": "recalibration_due", "detected": True, "n": 40, "k": 20, "level": 0.9}
+    _machine(
+        root, "swap-m", champion="C",
+        decision=_decision("promoted", "Z", "C", candidate_summary=_summary("v1", 1.25), drift=old),
+    )  # fmt: skip
+    # the model in service is re-qualified from a prior of another machine
+    model = root / "results" / "swap-m" / "registry" / "models" / f"{ID['C']}.json"
+    _json(
+        model,
+        {
+            "model_id": ID["C"],
+            "kind": "grey_box",
+            "adaptation": {"parent": ID["Q"], "parent_machine": "quar-m"},
+        },
+    )
+    paths = Paths.from_config(root, {})
+    page = write_fleet_page(
+        paths, root / "reports", rows=lambda: F.fleet_overview(paths, root / "reports")
+    ).read_text()
+    for key in ("not_checked", "no_champion", "no_new_runs"):
+        assert key not in page
+    swap = _cells(page, "swap-m")
+    assert swap["drift"] == f"not checked yet (the last check was of {ID['Z'][:12]}, the model replaced)"
+    assert swap["interval drift"] == "-" and "4.53" not in page and swap["state"] == "ok"
+    assert swap["model in service"].endswith(f"adapted from {ID['Q'][:12]} of quar-m")
+    assert _cells(page, "ok-m")["drift"] == "not checked yet (the model was promoted by the last decision)"
+    assert _cells(page, "rolled-m")["drift"] == (
+        f"not checked yet (the last check was of {ID['X'][:12]}, the model replaced)"
+    )
+    # a model checked by the last decision: its own figures, the same words as rafi status
+    assert _cells(page, "recal-m")["drift"] == "degraded, +3.10 um (limit 2.00 um) recalibration due"
+    assert _cells(page, "rej-m")["drift"] == "ok, +0.10 um (limit 2.00 um)"
+    rows = {r["machine"]: r for r in F.fleet_overview(paths, root / "reports")}
+    for name in ("swap-m", "recal-m", "ok-m"):
+        text = fleet_cli.format_rows([rows[name] | {"report_path": None}])
+        assert f"drift:            {rows[name]['drift']['text']}; recalibration due" in text

@@ -60,6 +60,7 @@ from rafi.ops.status import (
     interval_evidence,
     machine_status,
     most_severe,
+    short_id,
 )
 
 #: Attention rank of each state (lower: more urgent).
@@ -175,6 +176,54 @@ INTERVAL_KEYS = (
 
 #: The drift keys a row repeats (``decision.json`` ``drift``).
 DRIFT_KEYS = ("status", "degradation_um", "new_max_residual_um", "reference_max_residual_um", "limit_um")
+
+
+#: What a drift status means, in words (``rafi.ops.drift.check_drift``; ``not_checked``: :func:`_drift`).
+DRIFT_WORDS = {
+    "ok": "ok",
+    "degraded": "degraded",
+    "no_new_runs": "no new validation runs since the last check",
+    "no_reference": "no reference residual at promotion: not checked",
+}
+
+
+def describe_drift(drift: dict | None, *, has_champion: bool) -> str:
+    """The max-residual drift check of a row in words (``rafi status`` and the fleet page).
+
+    ``no_champion`` is the status of a decision taken while the machine had no champion (the
+    decision that promoted the first one): drift is checked from the next decision on, so it
+    reads "not checked yet" under a model in service, and "-" otherwise (no model in service).
+    ``not_checked`` (:func:`_drift`): the last decision checked another model (the one the model
+    in service replaced), so none of its figures is shown.
+
+    Parameters
+    ----------
+    drift : dict or None
+        A row's ``drift`` (:func:`_drift`).
+    has_champion : bool
+        The machine has a model in service.
+
+    Returns
+    -------
+    str
+        E.g. ``"degraded, +3.10 um (limit 2.00 um)"``; ``"-"`` when there is nothing to say.
+    """
+    if not drift:
+        return "-"
+    status = str(drift["status"])
+    if status == "not_checked":
+        if drift.get("checked_model"):
+            replaced = short_id(drift["checked_model"])
+            return f"not checked yet (the last check was of {replaced}, the model replaced)"
+        return "not checked yet (the model was promoted by the last decision)"
+    if status == "no_champion":
+        return "not checked yet (the model was promoted by the last decision)" if has_champion else "-"
+    text = DRIFT_WORDS.get(status, status.replace("_", " "))
+    degradation = _num(drift.get("degradation_um"))
+    if degradation is not None:
+        limit = _num(drift.get("limit_um"))
+        text += f", {degradation:+.2f} um (limit {'-' if limit is None else f'{limit:.2f} um'})"
+    return text
 
 
 def _drift(decision: dict | None, champion_id: str | None = None) -> dict | None:
@@ -314,6 +363,8 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
             ("failed", "decision.json is older than audit.csv: the last run stopped before the decision")
         )
     drift = _drift(decision, champion_id)
+    if drift is not None:
+        drift["text"] = describe_drift(drift, has_champion=bool(champion_id))
     # the decision's verdict on the model it checked: not the model in service after a promotion
     recal = bool((decision or {}).get("recalibration_due")) and (drift or {}).get("status") != "not_checked"
     if recal:

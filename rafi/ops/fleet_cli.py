@@ -31,7 +31,7 @@ from pathlib import Path
 
 from rafi.cli import add_config_option
 from rafi.errors import SettingsError
-from rafi.ops.fleet import exit_code, fleet_overview
+from rafi.ops.fleet import describe_drift, exit_code, fleet_overview
 from rafi.ops.project import Paths, load_config, units
 from rafi.ops.status import EXIT_CANTCREAT, EXIT_USAGE, short_id
 from rafi.settings import run_settings
@@ -48,41 +48,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _num(value, unit: str = "") -> str:
     return "-" if value is None else f"{float(value):.2f}{unit}"
-
-
-#: What a drift status means, for the status text (``rafi.ops.drift.check_drift``).
-DRIFT_WORDS = {
-    "ok": "ok",
-    "degraded": "degraded",
-    "no_new_runs": "no new validation runs since the last check",
-    "no_reference": "no reference residual at promotion: not checked",
-}
-
-
-def describe_drift(drift: dict | None, *, has_champion: bool) -> str:
-    """The drift line of one machine.
-
-    ``no_champion`` is the status of a decision taken while the machine had no champion (the
-    decision that promoted the first one): drift is checked from the next decision on, so it
-    reads "not checked yet" under a model in service, and "no model in service" otherwise.
-    ``not_checked`` (:func:`rafi.ops.fleet.machine_overview`): the last decision checked another
-    model (the one the model in service replaced), so none of its figures is shown.
-    """
-    if not drift:
-        return "-"
-    status = str(drift["status"])
-    if status == "not_checked":
-        if drift.get("checked_model"):
-            replaced = short_id(drift["checked_model"])
-            return f"not checked yet (the last check was of {replaced}, the model replaced)"
-        return "not checked yet (the model was promoted by the last decision)"
-    if status == "no_champion":
-        return "not checked yet (the model was promoted by the last decision)" if has_champion else "-"
-    text = DRIFT_WORDS.get(status, status)
-    if drift.get("degradation_um") is not None:
-        limit = _num(drift.get("limit_um"), " um")
-        text += f", +{_num(drift['degradation_um'], ' um')} (limit {limit})"
-    return text
 
 
 def _speeds(values) -> str:
@@ -141,7 +106,6 @@ def format_rows(rows: list[dict]) -> str:
             if worst
             else "-"
         )
-        drift_text = describe_drift(r["drift"], has_champion=bool(ch))
         lines.append(f"{r['machine']}: {r['state'].upper()}")
         for a in r["attention"]:
             lines.append(f"  ! {a['text']}")
@@ -150,7 +114,8 @@ def format_rows(rows: list[dict]) -> str:
         lines.append(f"  last decision:    {decided}")
         lines.append(f"  worst residual:   {resid}")
         due = "YES" if r["recalibration_due"] else "no"
-        lines.append(f"  drift:            {drift_text}; recalibration due: {due}")
+        drift = describe_drift(r["drift"], has_champion=bool(ch))
+        lines.append(f"  drift:            {drift}; recalibration due: {due}")
         interval = (r["drift"] or {}).get("interval")
         if interval:
             lines.append(f"  interval drift:   {interval['text']}")
