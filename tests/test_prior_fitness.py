@@ -29,7 +29,7 @@ from rafi.ops import fleet_cli
 from rafi.ops.project import Paths
 from rafi.ops.registry import registry_dir
 from rafi.settings import MACHINE_DEFAULTS
-from rafi.twin.synthetic_runs import machine_state
+from rafi.twin.synthetic_runs import machine_state, small_family_model
 
 REFERENCE = {"rule": "run_start", "window_s": 60}
 PRIOR_SPEEDS = (3000, 6000, 9000, 12000, 15000, 18000)
@@ -294,3 +294,44 @@ def test_status_after_a_promotion_shows_no_drift_of_the_replaced_champion(tmp_pa
     (reg / "decision.json").write_text(json.dumps(decision))
     rows = F.fleet_overview(Paths.from_config(tmp_path, {}), tmp_path / "reports", ["m"])
     assert "degraded, +4.53 um" in _status(tmp_path, "m", capsys)
+
+
+@pytest.mark.parametrize(
+    ("kind", "method"),
+    [
+        ("ridge_global", "ridge"),
+        ("dynamic", "time"),
+        ("grey_box", "gain"),
+        ("grey_box", "time"),
+        ("grey_box", "ridge"),
+    ],
+)
+def test_the_speed_range_is_the_tested_and_the_priors_each_said_as_such_for_every_ridge_kind(kind, method):
+    """A prior trained at 3000-12000 r/min, new runs at 9000 and 15000: the artefact stands on
+    3000-15000 (the compensator's range), of which 9000-15000 tested here and 3000-12000 the
+    prior's, 3000, 6000 and 12000 without a new run, whatever the prior's kind and the adaptation."""
+    prior_speeds, new_speeds = (3000, 6000, 9000, 12000), (9000, 15000)
+    model = small_family_model(
+        kind, reference_rule="run_start", reference_window_s=60, filter_restart_gap_s=3600
+    )
+    model.machine = "m-a"
+    prior = model.fit(*_state(0, "a-", speeds=prior_speeds)).to_dict()
+    assert prior["kind"] == kind and prior["speed_range_rpm"] == [3000.0, 12000.0]
+    adapted = AdaptedPrior(
+        prior=prior, method=method, machine="m-b", origin="declared sibling",
+        qualification={"speeds_rpm": list(prior_speeds)}, speed_tolerance_rpm=50,
+    ).fit(*_state(1, "b-", 1.2, new_speeds))  # fmt: skip
+    art = adapted.to_dict()
+    block = art["adaptation"]["fitness"]
+    assert art["kind"] == kind and block["method"] == method
+    assert art["speed_range_rpm"] == [3000.0, 15000.0]
+    assert block["speeds_tested_rpm"] == [9000.0, 15000.0] and block["speed_range_tested_rpm"] == [
+        9000.0,
+        15000.0,
+    ]
+    assert block["speeds_prior_rpm"] == [3000.0, 6000.0, 9000.0, 12000.0]
+    assert block["speed_range_prior_rpm"] == [3000.0, 12000.0]
+    assert block["speeds_prior_only_rpm"] == [3000.0, 6000.0, 12000.0]
+    assert [w["check"] for w in block["warnings"] if w["check"] == "prior_speeds"] == ["prior_speeds"]
+    # the stored artefact reads back with the same ranges (the compensator flags by the union)
+    assert type(adapted.model_).from_dict(art).speed_range_rpm_ == [3000.0, 15000.0]
