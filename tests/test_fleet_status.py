@@ -424,8 +424,10 @@ def test_the_page_says_in_words_why_drift_was_not_checked(fleet):
     assert swap["interval drift"] == "-" and "4.53" not in page and swap["state"] == "ok"
     assert swap["model in service"].endswith(f"adapted from {ID['Q'][:12]} of quar-m")
     assert _cells(page, "ok-m")["drift"] == "not checked yet (the model was promoted by the last decision)"
-    assert _cells(page, "rolled-m")["drift"] == (
-        f"not checked yet (the last check was of {ID['X'][:12]}, the model replaced)"
+    # a rollback keeps the drift block of the decision before it: not the model in service's
+    assert (
+        _cells(page, "rolled-m")["drift"]
+        == "not checked yet (the model was rolled back to after the last check)"
     )
     # a model checked by the last decision: its own figures, the same words as rafi status
     assert _cells(page, "recal-m")["drift"] == "degraded, +3.10 um (limit 2.00 um) recalibration due"

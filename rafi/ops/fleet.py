@@ -194,7 +194,8 @@ def describe_drift(drift: dict | None, *, has_champion: bool) -> str:
     decision that promoted the first one): drift is checked from the next decision on, so it
     reads "not checked yet" under a model in service, and "-" otherwise (no model in service).
     ``not_checked`` (:func:`_drift`): the last decision checked another model (the one the model
-    in service replaced), so none of its figures is shown.
+    in service replaced), or the model was rolled back to after it, so none of its figures is
+    shown.
 
     Parameters
     ----------
@@ -212,6 +213,8 @@ def describe_drift(drift: dict | None, *, has_champion: bool) -> str:
         return "-"
     status = str(drift["status"])
     if status == "not_checked":
+        if drift.get("rolled_back"):
+            return "not checked yet (the model was rolled back to after the last check)"
         if drift.get("checked_model"):
             replaced = short_id(drift["checked_model"])
             return f"not checked yet (the last check was of {replaced}, the model replaced)"
@@ -234,15 +237,19 @@ def _drift(decision: dict | None, champion_id: str | None = None) -> dict | None
     The checks are of the decision's ``champion_id_before``; when that is not ``champion_id``
     (the model in service was promoted by that decision, or rolled back to after it) they are
     not this model's: ``status`` ``not_checked``, ``checked_model`` the model they were of, no
-    figures and no interval."""
+    figures and no interval. A rollback (``rafi.ops.registry``) keeps the drift block of the
+    decision before it, whose checked model it does not record: ``not_checked`` with
+    ``rolled_back`` True and ``checked_model`` None."""
     drift = (decision or {}).get("drift")
     if not isinstance(drift, dict):
         return None
     checked = (decision or {}).get("champion_id_before")
-    if champion_id and checked != champion_id:
+    rolled_back = (decision or {}).get("decision") == "rolled_back"
+    if champion_id and (checked != champion_id or rolled_back):
         return {k: None for k in DRIFT_KEYS} | {
             "status": "not_checked",
-            "checked_model": checked,
+            "checked_model": None if rolled_back else checked,
+            "rolled_back": rolled_back,
             "new_runs": [],
             "interval": None,
         }
