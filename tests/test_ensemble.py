@@ -164,3 +164,21 @@ def test_best_offers_one_kind_and_builds_no_ensemble():
 def test_fit_is_refused():
     with pytest.raises(TypeError, match="from_fitted"):
         WeightedEnsemble().fit(None, None)
+
+
+def test_every_member_is_held_inside_two_training_spans_before_the_blend(offered):
+    table, frame, res = offered
+    ens = res["models"][ENSEMBLE]
+    train = frame["run_id"].isin(table.loc[table["role"] == "training", "run_id"])
+    lo, hi = frame.loc[train, "dz_um"].min(), frame.loc[train, "dz_um"].max()
+    assert ens.envelope_["output_range"] == pytest.approx([lo, hi])
+    far = frame.loc[train].copy()
+    rises = [c for c in far.columns if c.startswith("dT")]
+    far[rises] = far[rises] * 8.0  # the key sensors far beyond their training rises
+    members = np.column_stack([res["models"][n].predict(far) for n in ens.weights_])
+    pad = 2.0 * (hi - lo)
+    assert (np.abs(members) > hi + pad).any(), "some member runs away there (the case under test)"
+    expected = blend(np.clip(members, lo - pad, hi + pad), list(ens.weights_.values()))
+    detail = ens.predict_detail(far)
+    np.testing.assert_allclose(detail["predicted_um"], expected, rtol=1e-12, atol=1e-9)
+    assert detail["outside_envelope"].to_numpy()[(members > hi + pad).any(axis=1)].all()

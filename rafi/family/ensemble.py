@@ -12,18 +12,25 @@ The prediction of a row is the weighted mean of the members' predictions over th
 have a value there (:func:`blend`: the weights of the others are set aside and the rest
 renormalised; no member with a value, no value). The flags are any member's; ``range_excess`` the
 largest member's. The members are the fitted models themselves: each keeps its own filters,
-reference, envelope and output cap.
+reference, envelope and output cap. The ridge kinds cap their own prediction at the training
+displacement range widened by :data:`rafi.family.envelope.OUTPUT_MARGIN` spans; RAFI's kinds, the
+paper's method, do not, so the ensemble holds **every** member's prediction inside that same
+range (``envelope.output_range`` of its artefact, a ridge member's) before it blends: no member
+runs away inside the offered model (``outside_envelope`` marks the rows where one was held).
 
 Its CV figures (:func:`ensemble_oof`, :func:`ensemble_cv_rows`) are the members' out-of-fold
 residuals blended with the weights chosen from the same CV: optimistic by the choice of a handful
-of weights (the one-level-up judge above is the honest figure). Its prediction interval is
+of weights (the one-level-up judge above is the honest figure), and without the cap on RAFI's
+kinds (a fold's own training range is not in the OOF samples; a held-out training run seldom
+leaves two spans). Its prediction interval is
 calibrated on those blended residuals like every kind's on its own.
 
 Artefact (``kind: ensemble``): ``weights`` (member name -> weight, summing to 1), ``members``
 (name -> the member's own ``rafi.model/1`` artefact, with its own ``model_id``), and the union of
 the members' ``key_sensors``, ``regressor_ranges``, ``speed_range_rpm``, ``train_runs`` and
 ``data``; ``hyperparameters: filter_restart_gap_s`` is the shortest member's (the interval's change
-clock restarts with the first member that restarts).
+clock restarts with the first member that restarts); ``envelope`` (``output_range``,
+``output_margin``: the bound every member's prediction is held in; absent when no member has one).
 """
 
 from __future__ import annotations
@@ -32,6 +39,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.base import CODE_VERSION, FamilyModel, check_artefact, finish_artefact
+from rafi.family.envelope import OUTPUT_MARGIN, bound_output, output_bounds
 from rafi.family.forward_folds import is_forward
 
 __all__ = [
@@ -243,6 +251,8 @@ class WeightedEnsemble(FamilyModel):
         m.members_ = {n: members[n] for n in names}
         m.weights_ = {n: float(weights[n]) / total for n in names}
         m.interval_ = None
+        bounds = [_output_part(getattr(members[n], "envelope_", None)) for n in names]
+        m.envelope_ = next((b for b in bounds if b is not None), None)
         m.grid_edges_ = [f"{n}: {e}" for n in names for e in getattr(members[n], "grid_edges_", [])]
         return m
 
@@ -250,7 +260,11 @@ class WeightedEnsemble(FamilyModel):
         """``predicted_um`` (the blend), the members' flags (any) and ``range_excess`` (largest)."""
         details = [self.members_[n].predict_detail(frame) for n in self.weights_]
         w = np.array(list(self.weights_.values()))
-        pred = blend(np.column_stack([d["predicted_um"].to_numpy(dtype=float) for d in details]), w)
+        held, beyond = bound_output(
+            np.column_stack([d["predicted_um"].to_numpy(dtype=float) for d in details]),
+            output_bounds(self.envelope_),
+        )
+        pred = blend(held, w)
         unbounded = np.column_stack(
             [d.get("unbounded_um", d["predicted_um"]).to_numpy(dtype=float) for d in details]
         )
@@ -269,7 +283,7 @@ class WeightedEnsemble(FamilyModel):
                 "predicted_um": pred,
                 "outside_speed_range": any_of("outside_speed_range"),
                 "outside_temp_range": any_of("outside_temp_range"),
-                "outside_envelope": any_of("outside_envelope"),
+                "outside_envelope": any_of("outside_envelope") | beyond.any(axis=1),
                 "unbounded_um": blend(unbounded, w),
                 "range_excess": excess.max(axis=1),
             },
@@ -306,6 +320,8 @@ class WeightedEnsemble(FamilyModel):
             "data": dict(sorted(data.items())),
             "code_version": CODE_VERSION,
         }
+        if self.envelope_ is not None:
+            body["envelope"] = self.envelope_
         if getattr(self, "interval_", None) is not None:
             body["interval"] = self.interval_
         return finish_artefact(body)
@@ -319,11 +335,20 @@ class WeightedEnsemble(FamilyModel):
         members = {n: load_any(a) for n, a in d["members"].items()}
         m = cls.from_fitted(members, d["weights"], machine=d.get("machine"))
         m.interval_ = d.get("interval")
+        m.envelope_ = _output_part(d.get("envelope"))
         return m
 
     def heaviest_member(self) -> str:
         """The member with the largest weight (the first of equals)."""
         return max(self.weights_, key=lambda n: self.weights_[n])
+
+
+def _output_part(envelope: dict | None) -> dict | None:
+    """The output bound of a member's envelope (``output_range``, ``output_margin``), or None."""
+    if output_bounds(envelope) is None:
+        return None
+    margin = float(envelope.get("output_margin", OUTPUT_MARGIN))
+    return {"output_range": [float(v) for v in envelope["output_range"]], "output_margin": margin}
 
 
 def _ranges_of(artefact: dict) -> dict:
