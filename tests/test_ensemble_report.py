@@ -184,3 +184,30 @@ def test_a_requalification_from_an_ensemble_adapts_its_heaviest_member(offered):
         if lo is not None:
             assert fit["speed_range_prior_rpm"] == [float(lo), float(hi)]
         assert f"through its heaviest member {name}" in describe_selection(res["models"][cand])
+
+
+# --------------------------------------------------------------------------- rafi status
+
+
+def test_rafi_status_words_an_ensemble_and_an_ensemble_prior(offered):
+    from rafi.ops.fleet import ensemble_weights, prior_summary
+    from rafi.ops.fleet_cli import _members, describe_prior
+
+    art = offered["best_artefact"]
+    name = _heaviest_by_hand(art["weights"])
+    weights = ensemble_weights(art)
+    assert weights == art["weights"] and next(iter(weights)) == name
+    assert list(weights.values()) == sorted(weights.values(), reverse=True)
+    assert (
+        _members({"members": weights})
+        == f" of {len(weights)} members, heaviest {name} {art['weights'][name]:.3f}"
+    )
+    assert ensemble_weights(art["members"][name]) is None and _members({"members": None}) == ""
+    adapted = _run(prior=art)["models"]["prior_gain"].to_dict()
+    summary = prior_summary(adapted)
+    assert summary["id"] == art["model_id"] and summary["member"]["name"] == name
+    first = describe_prior(summary)[0]
+    assert (
+        f"an ensemble, adapted through its heaviest member {name} (weight {art['weights'][name]:.3f})"
+        in first
+    )
