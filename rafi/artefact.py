@@ -93,13 +93,21 @@ def _names_to_hashes(value, names: dict[str, str]):
 def identity_content(model_dict: dict) -> dict:
     """What a model id hashes: the artefact's content, without provenance.
 
-    ``model_id`` and ``created`` are left out, and the training files' names are replaced by
-    their content: ``data`` (``file -> sha256``) becomes the sorted list of the hashes, and every
-    string naming a training file - its name, its log id (the run of a one-run file, e.g. in
-    ``train_runs``) or a run ``<log id>#<k>`` - becomes the file's SHA-256 (``#<k>`` kept). So a
-    training file renamed, or a byte-identical copy trained on in its place, gives the same id.
+    ``model_id`` and ``created`` are left out (and the ``created`` of each of an ensemble's
+    ``members``, :mod:`rafi.family.ensemble`, which keep their own ``model_id``), and the
+    training files' names are replaced by their content: ``data`` (``file -> sha256``) becomes
+    the sorted list of the hashes, and every string naming a training file - its name, its log id
+    (the run of a one-run file, e.g. in ``train_runs``) or a run ``<log id>#<k>`` - becomes the
+    file's SHA-256 (``#<k>`` kept). So a training file renamed, or a byte-identical copy trained
+    on in its place, gives the same id.
     """
     content = {k: v for k, v in model_dict.items() if k not in PROVENANCE_FIELDS}
+    members = content.get("members")
+    if isinstance(members, dict):  # an ensemble's members: when each was written is not the model
+        content["members"] = {
+            n: {k: v for k, v in a.items() if k != "created"} if isinstance(a, dict) else a
+            for n, a in members.items()
+        }
     data = content.get("data")
     if not isinstance(data, dict) or not data:
         return content

@@ -205,6 +205,7 @@ def test_what_each_row_says(fleet):
     assert rows["recal-m"]["champion"] == {
         "id": ID["Y"],
         "kind": "grey_box",
+        "members": None,  # not an ensemble (tests/test_ensemble_report.py: one that is)
         "parent": None,  # not re-qualified from a prior (tests/test_requalify_e2e.py: one that is)
         "parent_machine": None,
         "prior": None,  # tests/test_prior_fitness.py: a model in service that has one

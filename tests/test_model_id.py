@@ -122,3 +122,22 @@ def test_a_registry_keeps_its_former_ids(tmp_path):
     reg.model_path(old["model_id"]).write_text(artefact.json_text({**old, "machine": "other"}))
     with pytest.raises(RegistryError, match="the registry file was modified"):
         reg.load_model_dict(old["model_id"])
+
+
+def test_an_ensembles_id_ignores_when_its_members_were_written():
+    """Each ``to_dict`` of a member stamps a new ``created``: the ensemble's id must not follow it
+    (rafi.family.ensemble: the same members and weights are the same model)."""
+    member = rafi_model(NAMES)
+
+    def ensemble(created: str, coefficient: float = 1.0) -> dict:
+        m = rafi_model(NAMES, coefficient=coefficient)
+        body = {"kind": "ensemble", "weights": {"a": 0.6, "b": 0.4}, "data": dict(member["data"])}
+        body["members"] = {"a": {**m, "created": created}, "b": {**member, "created": created}}
+        return {**body, "model_id": artefact.compute_model_id(body)}
+
+    first, later = ensemble("2026-01-01T00:00:00Z"), ensemble("2030-06-01T00:00:01Z")
+    assert first["model_id"] == later["model_id"]
+    assert artefact.model_id_verifies(later) and artefact.model_id_verifies({**first, "created": "x"})
+    assert ensemble("2026-01-01T00:00:00Z", coefficient=1.5)["model_id"] != first["model_id"]
+    reweighted = {**first, "weights": {"a": 0.5, "b": 0.5}}
+    assert not artefact.model_id_verifies(reweighted)

@@ -19,6 +19,12 @@ from-scratch kinds (:func:`adaptation_factories`; names in ``comparison/*.csv``)
   ``X`` (scaled to unit RMS): a ridge penalised towards the prior's coefficients, its strength
   ``alpha`` chosen by whole-run CV inside the training runs (nested) on ``models: prior_ridge_alphas``.
 
+A prior that is a CV-weighted ensemble (:mod:`rafi.family.ensemble`) is adapted through its
+heaviest member (:func:`rafi.family.prior.prior_base`): the candidates re-fit that member and the
+adapted artefact is of its kind; the block's ``parent`` is the ensemble (the registry's model) and
+its ``member`` names the member re-fitted (``name``, ``kind``, ``model_id``, ``weight``,
+``n_members``).
+
 What is never re-fitted: the prior's sensors and terms, and its filter time constants other than
 by the one factor of ``prior_time``; the from-scratch kinds beside re-choose those. The fitted
 artefact is one of the **prior's kind** (same features and hyperparameters, new coefficients;
@@ -43,7 +49,7 @@ from rafi.family.base import FamilyModel, check_artefact, data_hashes
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.envelope import join_envelope
 from rafi.family.grey_box import GreyBox
-from rafi.family.prior import RIDGE_KINDS, prior_sensors
+from rafi.family.prior import RIDGE_KINDS, ensemble_member, prior_base, prior_sensors
 from rafi.family.prior_fitness import fitness_block
 from rafi.family.ridge import cv_folds, cv_scores, fit_rows_of, ridge_gram, rms_scale
 from rafi.family.ridge_global import RidgeGlobal
@@ -146,9 +152,15 @@ class AdaptedPrior(FamilyModel):
         self.speed_tolerance_rpm = speed_tolerance_rpm
 
     @property
+    def base(self) -> dict:
+        """The artefact re-fitted: the prior, or a CV-weighted ensemble prior's heaviest member
+        (:func:`rafi.family.prior.prior_base`)."""
+        return prior_base(self.prior)
+
+    @property
     def kind(self) -> str:
-        """The prior's kind: the adapted artefact is one of that kind."""
-        return str(self.prior.get("kind"))
+        """The kind of the artefact re-fitted (:attr:`base`): the adapted artefact is one of that kind."""
+        return str(self.base.get("kind"))
 
     def __repr__(self) -> str:
         pid = str(self.prior.get("model_id", ""))[:12]
@@ -167,13 +179,14 @@ class AdaptedPrior(FamilyModel):
     def _base(self):
         """A fresh fitted model of the prior (the one whose coefficients change): the ridge kinds'
         own class, RAFI's :class:`~rafi.method.model.RafiModel` for ``rafi`` / ``rafi_linear``."""
+        base = self.base
         if self.kind in RIDGE_KINDS:
-            model = RIDGE_CLASSES[self.kind].from_dict(self.prior)
+            model = RIDGE_CLASSES[self.kind].from_dict(base)
         elif self.kind in ("rafi", "rafi_linear"):
             from rafi.method.model import RafiModel
 
-            check_artefact(self.prior, self.kind)  # refused if edited (its id is under its own kind)
-            model = RafiModel.from_dict({**self.prior, "kind": "rafi"}, verify_id=False)
+            check_artefact(base, self.kind)  # refused if edited (its id is under its own kind)
+            model = RafiModel.from_dict({**base, "kind": "rafi"}, verify_id=False)
         else:
             raise ValueError(f"a prior of kind {self.kind!r} cannot be adapted")
         if self.reference is not None:  # this machine's logs' reference (``reference``)
@@ -231,6 +244,7 @@ class AdaptedPrior(FamilyModel):
                 rises[sensor] = [float(values.min()), float(values.max())]
         return fitness_block(
             self.prior,
+            base=self.base,
             qualification=self.qualification,
             origin=self.origin,
             method=self.method,
@@ -313,6 +327,9 @@ class AdaptedPrior(FamilyModel):
             "coefficient_change": self.coefficient_change_,
             "fitness": self.fitness_,
         }
+        member = ensemble_member(self.prior)
+        if member is not None:  # a CV-weighted ensemble prior: the member re-fitted (parent: the ensemble)
+            block["member"] = member
         model.interval_ = None  # the prior's interval is not this model's (calibrate_family sets one)
         model.adaptation_ = block
         if self.machine is not None:
@@ -353,7 +370,14 @@ class AdaptedPrior(FamilyModel):
             else "ridge",
         }[self.method]
         pid = str(self.prior.get("model_id", ""))[:12]
-        text = f"prior {pid} ({self.kind} of {self.prior.get('machine')}) {what}"
+        member = ensemble_member(self.prior)
+        if member is not None:
+            text = (
+                f"prior {pid} (ensemble of {self.prior.get('machine')}) through its heaviest member "
+                f"{member['name']} ({self.kind}, weight {member['weight']:.3f}) {what}"
+            )
+        else:
+            text = f"prior {pid} ({self.kind} of {self.prior.get('machine')}) {what}"
         return text + ("; AT A GRID EDGE: " + "; ".join(self.grid_edges_) if self.grid_edges_ else "")
 
     # -- artefact
@@ -461,10 +485,17 @@ def adaptation_factories(
     only for a ridge kind), built from the machine's ``models:`` settings ``options`` and its
     ``reference:`` settings (:class:`AdaptedPrior`, ``reference``); ``origin``, ``qualification``
     and ``speed_tolerance_rpm`` go to each candidate's fitness block."""
-    names = [n for n in CANDIDATES if CANDIDATES[n] not in RIDGE_METHODS or prior.get("kind") in RIDGE_KINDS]
+    kind = prior_base(prior).get("kind")  # an ensemble prior: its heaviest member's
+    names = [n for n in CANDIDATES if CANDIDATES[n] not in RIDGE_METHODS or kind in RIDGE_KINDS]
+    member = ensemble_member(prior)
+    if member is not None:
+        log(
+            f"the prior is a CV-weighted ensemble of {member['n_members']} members: adapted through its "
+            f"heaviest, {member['name']} ({kind}, weight {member['weight']:.3f})"
+        )
     if "prior_ridge" not in names:
         log(
-            f"prior_time and prior_ridge not offered: the prior is of kind {prior.get('kind')} "
+            f"prior_time and prior_ridge not offered: the prior is of kind {kind} "
             "(its filter constants and a ridge towards it need a ridge kind)"
         )
     common = {"alphas": options["prior_ridge_alphas"], "cv": options["cv"], "cv_metric": options["cv_metric"]}

@@ -4,18 +4,33 @@ job's log (:func:`fitted_text`)."""
 
 from __future__ import annotations
 
+from rafi.family.ensemble import ENSEMBLE
 from rafi.family.grey_box import GreyBox
 from rafi.family.time_blocks import hours
 
-__all__ = ["describe_selection", "fitted_text"]
+__all__ = ["describe_selection", "fitted_text", "ensemble_text"]
 
 
 def _seconds(values) -> str:
     return "/".join(f"{float(v):g}" for v in values) + " s"
 
 
+def ensemble_text(weights: dict) -> str:
+    """An ensemble's members by weight, heaviest first: ``temperature_ridge 0.324, dynamic 0.239``
+    (three decimals; the order of ``weights`` among equals)."""
+    ordered = sorted(weights.items(), key=lambda kv: -float(kv[1]))
+    return ", ".join(f"{name} {float(w):.3f}" for name, w in ordered)
+
+
 def describe_selection(model) -> str:
     """What cross-validation chose for a fitted model of the family, in one line for people."""
+    if getattr(model, "kind", None) == ENSEMBLE:  # rafi.family.ensemble: weights, not hyperparameters
+        edged = sorted({e.split(":", 1)[0] for e in getattr(model, "grid_edges_", []) or []})
+        edge = f"; member(s) at a grid edge: {', '.join(edged)}" if edged else ""
+        return (
+            f"CV weights of its {len(model.weights_)} members (1/s^2, s its whole-run CV mean max "
+            f"|residual|): {ensemble_text(model.weights_)}; each member as CV chose it{edge}"
+        )
     if hasattr(model, "describe"):  # an adapted prior (rafi.family.adapted)
         return model.describe()
     if not hasattr(model, "alpha_"):
@@ -54,6 +69,8 @@ def describe_selection(model) -> str:
 
 def fitted_text(model) -> str:
     """What CV chose, for the job's log."""
+    if getattr(model, "kind", None) == ENSEMBLE:
+        return f" weights {ensemble_text(model.weights_)}"
     if hasattr(model, "describe"):
         return " " + model.describe()
     text = f" alpha={model.alpha_:g} taus_s={model.taus_}" if hasattr(model, "alpha_") else ""

@@ -19,7 +19,10 @@ with a finite score is never beaten by more than a tie: the offered model's scor
 plain ridge's (equal within :data:`rafi.family.selection.TIE_UM`, the tie-breakers then decide).
 So the offered model trails the plain ridge on the training runs only when the plain ridge is not
 enabled (``not_enabled``), on a tie (``tie``) or without a CV score (``no_cv``);
-``tests/test_plain_ridge.py`` checks that no other case occurs.
+``tests/test_plain_ridge.py`` checks that no other case occurs. Under ``models: offer: ensemble``
+the CV-weighted ensemble (:mod:`rafi.family.ensemble`, the plain ridge one of its members) is
+offered whatever its own score: where it does not beat the plain ridge the reason is
+``ensemble``.
 """
 
 from __future__ import annotations
@@ -29,6 +32,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 import pandas as pd
 
+from rafi.family.ensemble import ENSEMBLE
 from rafi.family.selection import SIMPLICITY, TIE_UM
 
 __all__ = [
@@ -61,6 +65,10 @@ REASONS = {
     "not_enabled": "the plain ridge is not among the enabled kinds: scored as the reference only",
     "tie": "equal selection scores within TIE_UM: the tie-breakers chose",
     "no_cv": "no CV score: the default rule offered the model",
+    "ensemble": (
+        "the CV-weighted ensemble, offered under models.offer: ensemble whatever its own score "
+        "(the plain ridge among its members)"
+    ),
     "other": "offered with a higher selection score than a candidate plain ridge (not the current rule)",
 }
 
@@ -115,6 +123,8 @@ def versus_plain_ridge(champion: dict, ridge: dict) -> str:
         return "no_cv"
     if not np.isfinite(floor) or np.round(mine / TIE_UM) < np.round(floor / TIE_UM):
         return "beats"  # also a plain ridge that cannot predict some held-out run
+    if str(champion.get("kind") or name) == ENSEMBLE:  # offered by models.offer, not by its score
+        return "ensemble"
     if not bool(ridge.get("candidate", True)):
         return "not_enabled"
     # a candidate plain ridge with a finite, lower score is offered instead: never reached by

@@ -17,6 +17,14 @@ the adaptation family (:mod:`rafi.family.adapted`) starts from, and whether it m
   refused (:class:`rafi.errors.PriorForeign`, one line naming its id, its machine and the key);
 * :func:`prior_qualification` is the prior's own qualification (its promotion in its registry:
   date, worst validation residual, training speeds), for the fitness figures and the report.
+* :func:`prior_base`: what the adaptation re-fits. A prior that is a CV-weighted ensemble
+  (:mod:`rafi.family.ensemble`, the champion of a machine qualified under ``models: offer:
+  ensemble``) is adapted through its heaviest member (the largest weight): the adaptation family
+  re-fits one model's coefficients and time constants, and a gain or a ridge on a blend of six
+  kinds would be six adaptations in one. The prior stays the ensemble everywhere else (its
+  id is the adapted model's ``adaptation.parent``, its registry record is its qualification, its
+  ``data`` is what it learnt from); :func:`ensemble_member` says which member, for the fitness
+  block and the report.
 * :func:`prior_param` is what ``rule compare`` gets while Snakemake plans: the chain from its
   first model disjoint from the machine's raw files (ids only), so that promoting a champion
   trained on these logs changes nothing the workflow sees.
@@ -44,6 +52,9 @@ __all__ = [
     "prior_record",
     "seen_data",
     "choose_prior",
+    "ENSEMBLE_KIND",
+    "prior_base",
+    "ensemble_member",
     "prior_sensors",
     "prior_probe",
     "check_compatible",
@@ -60,6 +71,9 @@ PRIOR_MODES = ("auto", "none", "champion")
 RIDGE_KINDS = ("ridge_global", "dynamic", "grey_box", "temperature_ridge")
 #: Where a prior may come from (:func:`prior_origin`), in the words of the fitness block.
 ORIGINS = ("this machine", "declared sibling")
+#: The kind of a CV-weighted ensemble's artefact (:data:`rafi.family.ensemble.ENSEMBLE`; spelt out
+#: here, this module imports the standard library only).
+ENSEMBLE_KIND = "ensemble"
 #: A guard against a corrupt registry whose parents form a very long chain.
 MAX_CHAIN = 100
 
@@ -199,15 +213,61 @@ def choose_prior(chain: list[dict], runs_table) -> tuple[dict | None, str]:
         return None, f"no prior: {who} learnt from some of these logs"
     prior = chain[k]
     skipped = f"; {k} newer model(s) of the chain learnt from these logs" if k else ""
+    member = ensemble_member(prior) if prior.get("kind") == ENSEMBLE_KIND else None
+    through = (
+        f"; adapted through its heaviest member {member['name']} ({member['kind']}, weight "
+        f"{member['weight']:.3f} of {member['n_members']})"
+        if member
+        else ""
+    )
     return prior, (
         f"prior {str(prior.get('model_id', ''))[:12]} ({prior.get('kind')} of {prior.get('machine')}, "
-        f"trained on {len(seen_data(prior))} other log(s)){skipped}"
+        f"trained on {len(seen_data(prior))} other log(s)){through}{skipped}"
     )
 
 
+def _heaviest(weights: dict) -> str | None:
+    """The name with the largest weight, the first of equals
+    (:meth:`rafi.family.ensemble.WeightedEnsemble.heaviest_member`)."""
+    return max(weights, key=lambda n: float(weights[n])) if weights else None
+
+
+def prior_base(prior: dict) -> dict:
+    """The artefact a re-qualification re-fits: ``prior`` itself, or for a CV-weighted ensemble
+    (``kind: ensemble``) its heaviest member's own artefact (module docstring)."""
+    if prior.get("kind") != ENSEMBLE_KIND:
+        return prior
+    name = _heaviest(prior.get("weights") or {})
+    members = prior.get("members") or {}
+    if name is None or not isinstance(members.get(name), dict):
+        raise PriorIncompatible(
+            f"prior {str(prior.get('model_id', '?'))[:12]}: an ensemble without its members' artefacts "
+            "(weights and members); set models.prior: none"
+        )
+    return members[name]
+
+
+def ensemble_member(prior: dict) -> dict | None:
+    """For a CV-weighted ensemble prior, the member the adaptation re-fits (:func:`prior_base`):
+    ``name``, ``kind``, ``model_id``, ``weight`` and ``n_members``; ``None`` for any other prior."""
+    if prior.get("kind") != ENSEMBLE_KIND:
+        return None
+    weights = prior.get("weights") or {}
+    name = _heaviest(weights)
+    base = prior_base(prior)
+    return {
+        "name": name,
+        "kind": base.get("kind"),
+        "model_id": str(base.get("model_id") or ""),
+        "weight": float(weights[name]),
+        "n_members": len(weights),
+    }
+
+
 def prior_sensors(prior: dict) -> list[str]:
-    """The temperature sensors a prior reads (its ``key_sensors``)."""
-    return [str(s) for s in prior.get("key_sensors") or []]
+    """The temperature sensors a prior reads (its ``key_sensors``; an ensemble's: those of the
+    member the adaptation re-fits, :func:`prior_base`)."""
+    return [str(s) for s in prior_base(prior).get("key_sensors") or []]
 
 
 def prior_probe(prior: dict) -> str | None:

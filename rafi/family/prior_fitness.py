@@ -112,6 +112,7 @@ def _prediction_change(before: np.ndarray, after: np.ndarray) -> float | None:
 def fitness_block(
     prior: Mapping,
     *,
+    base: Mapping | None = None,
     qualification: Mapping | None,
     origin: str | None,
     method: str,
@@ -131,6 +132,10 @@ def fitness_block(
     ----------
     prior : mapping
         The prior's artefact.
+    base : mapping, optional
+        The artefact re-fitted when it is not ``prior`` itself: a CV-weighted ensemble prior's
+        heaviest member (:func:`rafi.family.prior.prior_base`). Its speed and rise ranges are what
+        the prior covers; the block's ``prior`` then also names it (``member``).
     qualification : mapping or None
         :func:`rafi.family.prior.prior_qualification` (``None``: not known, e.g. a prior given
         in-process; its speeds are then the ends of its speed range).
@@ -160,13 +165,14 @@ def fitness_block(
         (:func:`fitness_warnings`).
     """
     qual = dict(qualification or {})
+    base = prior if base is None else base
     tested = sorted(set(_finite(tested_speeds_rpm)))
     tol = float(speed_tolerance_rpm)
-    prior_range = prior_speed_range(prior)
+    prior_range = prior_speed_range(base)
     prior_speeds = sorted(set(_finite(qual.get("speeds_rpm") or []))) or None
     ends = prior_speeds if prior_speeds is not None else (prior_range or [])
     prior_only = sorted({s for s in ends if not any(abs(s - t) <= tol for t in tested)})
-    ranges = prior_rise_ranges(prior)
+    ranges = prior_rise_ranges(base)
     temperature = []
     for sensor in sorted(set(ranges) | set(tested_rises)):
         here = [float(v) for v in tested_rises[sensor]] if sensor in tested_rises else None
@@ -198,6 +204,8 @@ def fitness_block(
         "temperature": temperature,
         "bounds": {k: list(v) if isinstance(v, tuple) else v for k, v in BOUNDS.items()},
     }
+    if base is not prior:  # the member of an ensemble prior that was re-fitted
+        block["prior"]["member"] = {"kind": base.get("kind"), "model_id": str(base.get("model_id") or "")}
     block["warnings"] = fitness_warnings(block)
     return block
 

@@ -290,7 +290,17 @@ def prior_summary(artefact: dict | None) -> dict | None:
         "time_factor": block.get("time_factor"),
         **{k: fit.get(k) for k in keys},
         "warnings": [str(w.get("check")) for w in fit.get("warnings") or []],
+        "member": block.get("member") if isinstance(block.get("member"), dict) else None,
     }
+
+
+def ensemble_weights(artefact: dict | None) -> dict | None:
+    """A CV-weighted ensemble's members and weights (``kind: ensemble``,
+    :mod:`rafi.family.ensemble`), heaviest first; None for any other model."""
+    if (artefact or {}).get("kind") != "ensemble" or not isinstance(artefact.get("weights"), dict):
+        return None
+    weights = {str(k): float(v) for k, v in artefact["weights"].items()}
+    return dict(sorted(weights.items(), key=lambda kv: -kv[1]))
 
 
 def _page(reports_dir: Path, machine: str, skipped: bool) -> str | None:
@@ -323,7 +333,8 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     -------
     dict
         ``machine``, ``state``, ``rank``, ``attention`` (every state that applies, most urgent
-        first, with a short text each), ``champion`` (``id``, ``kind``, ``parent``: the prior it was
+        first, with a short text each), ``champion`` (``id``, ``kind``, ``members``: an ensemble's
+        weights, heaviest first, :func:`ensemble_weights`, else None; ``parent``: the prior it was
         re-qualified from or ``None``, ``parent_machine``, ``prior`` (:func:`prior_summary`),
         ``since``, ``reason``; or None), ``last_decision`` (``decision``, ``time``,
         ``candidate_id``, ``reasons``, ``source``; or None), ``worst_residual``
@@ -335,12 +346,13 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     reg = paths.registry(machine)
     champion = _read_json(reg / "champion.json")
     champion_id = (champion or {}).get("model_id")
-    kind = parent = prior = None
+    kind = parent = prior = members = None
     if champion_id and "/" not in champion_id and not champion_id.startswith("."):
         artefact = _read_json(reg / "models" / f"{champion_id}.json") or {}
         kind = artefact.get("kind") or None
         parent = (artefact.get("adaptation") or {}).get("parent") or None
         prior = prior_summary(artefact)
+        members = ensemble_weights(artefact)
     decision = _read_json(reg / "decision.json")
     last = None
     if decision:
@@ -403,6 +415,7 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
             {
                 "id": champion_id,
                 "kind": kind,
+                "members": members,
                 "parent": parent,
                 "parent_machine": (prior or {}).get("machine"),
                 "prior": prior,

@@ -54,6 +54,16 @@ def _speeds(values) -> str:
     return ", ".join(f"{float(v):g}" for v in values or []) or "none"
 
 
+def _members(champion: dict) -> str:
+    """`` of 6 members, heaviest temperature_ridge 0.324`` for a CV-weighted ensemble
+    (``members``, :func:`rafi.ops.fleet.ensemble_weights`), else ``""``."""
+    members = champion.get("members") or {}
+    if not members:
+        return ""
+    name, weight = next(iter(members.items()))
+    return f" of {len(members)} members, heaviest {name} {float(weight):.3f}"
+
+
 def describe_prior(prior: dict | None) -> list[str]:
     """The lines naming the prior of a model in service re-qualified from one
     (:func:`rafi.ops.fleet.prior_summary`): its id and machine, where it comes from, its own
@@ -69,6 +79,12 @@ def describe_prior(prior: dict | None) -> list[str]:
         own.append(f"worst {_num(prior['max_residual_um'], ' um')}{runs}")
     first = f"{short_id(prior['id'])} of {prior.get('machine') or '?'}{origin}"
     first += f" ({'; '.join(own)})" if own else " (its own qualification not recorded)"
+    member = prior.get("member") or {}
+    if member.get("name"):  # a CV-weighted ensemble prior: the member re-fitted
+        first += (
+            f"; an ensemble, adapted through its heaviest member {member['name']} "
+            f"(weight {float(member.get('weight') or 0):.3f})"
+        )
     moved = [str(prior.get("method") or "?")]
     if prior.get("gain") is not None:
         moved.append(f"gain {float(prior['gain']):.3g}")
@@ -95,7 +111,9 @@ def format_rows(rows: list[dict]) -> str:
     lines = []
     for r in rows:
         ch = r["champion"]
-        model = f"{short_id(ch['id'])} {ch['kind'] or '?'} since {ch['since']}" if ch else "none"
+        model = (
+            f"{short_id(ch['id'])} {ch['kind'] or '?'}{_members(ch)} since {ch['since']}" if ch else "none"
+        )
         if ch and ch.get("parent"):
             model += f" (adapted from {short_id(ch['parent'])} of {ch.get('parent_machine') or '?'})"
         last = r["last_decision"]

@@ -13,6 +13,7 @@ import pandas as pd
 from rafi.family.forward_folds import MIN_TRAIN, horizon_of, is_forward
 from rafi.family.selection import selection_rule
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
+from rafi.report.ensemble_section import ensemble_context
 from rafi.report.envelope_text import MEANING, held_by_model
 from rafi.report.format import fmt_num, isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
@@ -451,7 +452,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         ``envelope`` (per model, the validation runs with samples held at its training
         envelope's edge, from ``comparison/residuals.parquet``:
         :func:`rafi.report.envelope_text.held_by_model`; empty when none were) and
-        ``envelope_meaning``.
+        ``envelope_meaning``; ``ensemble``: :func:`rafi.report.ensemble_section.ensemble_context`
+        of the offered artefact (``best_model``, when its id is in the summary; ``None`` unless it
+        is the CV-weighted ensemble), which also gives ``selection`` its ``rule`` and ``ensemble``.
     """
     summ = res.get("comparison")
     if summ is None or not len(summ):
@@ -465,6 +468,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
     cv_rows = res.get("comparison_cv")
     cvs = _cv_stats(cv_rows)
     rows = model_rows(s, fam_champ, on_machine)
+    best, ids = res.get("best_model"), set(s["model_id"].astype(str)) if "model_id" in s else set()
+    offered = best if isinstance(best, dict) and str(best.get("model_id", "")) in ids else None
+    ensemble = ensemble_context(offered, s, *cv_schemes(cv_rows))
     out = {
         "champion": fam_champ,
         "on_machine": on_machine,
@@ -472,6 +478,8 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "kind_column": any(str(r.get("kind", "")) != str(r["model"]) for r in s.to_dict("records")),
         "selection": selection_context(s, fam_champ, *cv_schemes(cv_rows)),
         "plain_ridge": section_plain_ridge(s),
+        # the CV-weighted ensemble offered under models: offer: ensemble (rafi.report.ensemble_section)
+        "ensemble": ensemble,
         # the forward CV's column: only when some model was scored on forward folds
         "forward": any(isnum(r["cv_forward_mean_max_abs_um"]) for r in rows),
         "selected": [
@@ -495,6 +503,8 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "envelope": held_by_model(res.get("comparison_residuals")),
         "envelope_meaning": MEANING,
     }
+    if ensemble is not None:  # offered by models: offer, not by the lowest score: the rule says so
+        out["selection"] |= {"rule": ensemble["selection_rule"], "ensemble": ensemble}
     pr = res.get("comparison_per_run")
     if pr is None or not len(pr):
         return out

@@ -32,6 +32,7 @@ from rafi.report.deployed_terms import (
     ridge_inputs,
     ridge_tables,
 )
+from rafi.report.ensemble_section import ensemble_context
 from rafi.report.format import fmt_num, fmt_sig, isnum, plain, short_id, truthy
 from rafi.report.intervals import (
     band_columns,
@@ -53,6 +54,12 @@ KIND_CLASSES = {
     "grey_box": ("rafi.family.grey_box", "GreyBox"),
     "temperature_ridge": ("rafi.family.temperature_ridge", "TemperatureRidge"),
 }
+
+#: What the section says an offered ensemble is (its class has no kind description of one kind).
+ENSEMBLE_DESCRIPTION = (
+    "The CV-weighted ensemble: the weighted mean of the predictions of the family's kinds, each "
+    "weighted by its whole-run cross-validation score on the training runs (models: offer: ensemble)."
+)
 
 #: At most this many validation runs per residual figure (3 rows of 2 panels: one page).
 RUNS_PER_FIGURE = 6
@@ -399,7 +406,11 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         return None
     kind = str(art.get("kind", row.get("kind", "")))
     rafi_like = kind in ("rafi", "rafi_linear")
-    parts = _rafi_parts(art) if rafi_like else _ridge_parts(art, res)
+    ensemble = ensemble_context(art, summary, *cv_schemes(res.get("comparison_cv")))
+    if ensemble is not None:
+        parts = _ensemble_parts(art, ensemble)
+    else:
+        parts = _rafi_parts(art) if rafi_like else _ridge_parts(art, res)
     blocks, terms, equation, inputs = parts["blocks"], parts["terms"], parts["equation"], parts["inputs"]
     train_runs = parts["train_runs"]
     validation = _validation_rows(res.get("comparison_per_run"), name)
@@ -410,8 +421,9 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "kind": kind,
         "model_id": mid,
         "short_id": short_id(mid),
-        "description": kind_description(kind),
-        "inputs_text": str(art.get("inputs", "")),
+        "description": kind_description(kind) if ensemble is None else ENSEMBLE_DESCRIPTION,
+        "inputs_text": str(art.get("inputs", "")) or parts.get("inputs_text", ""),
+        "ensemble": ensemble,
         "inputs": [{"input": a, "how": b} for a, b in inputs],
         "train_runs": ", ".join(train_runs),
         "n_train": len(train_runs),
@@ -465,6 +477,24 @@ def _rafi_parts(art: dict) -> dict:
         "rises": ", ".join(f"{k} {fmt_num(v[0], 1)} \u2026 {fmt_num(v[1], 1)}" for k, v in rng.items()),
         "train_runs": [str(r) for s in speeds for r in s.get("train_runs") or []],
         "n_fit": sum(int(s.get("n") or 0) for s in speeds),
+    }
+
+
+def _ensemble_parts(art: dict, ensemble: dict) -> dict:
+    """What the section shows of an ensemble's artefact (:mod:`rafi.family.ensemble`): no
+    coefficients of its own (each member's are its own), the blend as its equation, the union of
+    the members' sensors and speeds."""
+    sensors = ", ".join(str(s) for s in art.get("key_sensors") or [])
+    return {
+        "blocks": [],
+        "terms": [],
+        "equation": [ensemble["equation"]],
+        "inputs": [("temperature sensors (any member's)", sensors), ("members", str(ensemble["n"]))],
+        "inputs_text": f"temperature sensors {sensors} and the spindle speed, each member its own",
+        "speeds": art.get("speed_range_rpm"),
+        "rises": "as each member was trained",
+        "train_runs": [str(r) for r in art.get("train_runs") or []],
+        "n_fit": None,
     }
 
 

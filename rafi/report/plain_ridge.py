@@ -89,6 +89,12 @@ def floor_reason(facts: dict | None) -> str:
             f"No cross-validation fold scored the models, so the default rule offered {name}, without "
             "a comparison with the plain ridge on the training runs."
         )
+    if reason == "ensemble":
+        return (
+            f"{lead}: models: offer is ensemble on this machine, which offers the CV-weighted blend of "
+            "every kind whatever its own CV score (the rule judged one level up, across real logs and "
+            "foreign machines, not on this machine's folds); the plain ridge is one of its members."
+        )
     if reason == "other":
         return f"{lead}, although the plain ridge is enabled and scores lower: not the rule stated above."
     return ""

@@ -193,6 +193,16 @@ def fitness_context(block: dict | None) -> dict | None:
     }
 
 
+def ensemble_prior(block: dict | None) -> dict | None:
+    """The member of a CV-weighted ensemble prior that the adaptation re-fitted (the adaptation
+    block's ``member``: ``name``, ``kind``, ``model_id`` short, ``weight``, ``n_members``), or
+    ``None`` for any other prior."""
+    member = (block or {}).get("member")
+    if not isinstance(member, dict) or not member.get("name"):
+        return None
+    return {**member, "model_id": short_id(str(member.get("model_id") or ""))}
+
+
 def section_requalification(res: dict) -> dict | None:
     """The context of the re-qualification section, or ``None`` when no prior was a candidate.
 
@@ -205,7 +215,8 @@ def section_requalification(res: dict) -> dict | None:
         ``scratch`` (the from-scratch model CV ranks first), ``new_data`` (:func:`new_data`),
         ``adaptation`` (the offered model's block or ``None``: the prior lost), ``parent``
         (short id), ``moves`` (:func:`coefficient_moves`) and ``sentence`` (the comparison in
-        one sentence, every number from the rows), ``fitness`` (:func:`fitness_context`).
+        one sentence, every number from the rows), ``fitness`` (:func:`fitness_context`),
+        ``member`` (:func:`ensemble_prior`: the member of an ensemble prior that was re-fitted).
     """
     summ = res.get("comparison")
     if summ is None or "model" not in summ or not summ["model"].astype(str).isin(list(CANDIDATES)).any():
@@ -227,6 +238,8 @@ def section_requalification(res: dict) -> dict | None:
         "parent_machine": (block or {}).get("parent_machine") or "",
         "moves": coefficient_moves((block or {}).get("coefficient_change")),
         "fitness": fitness_context(block),
+        # a CV-weighted ensemble prior: the member re-fitted (rafi.family.prior.prior_base)
+        "member": ensemble_prior(block),
         "sentence": comparison_sentence(offered, prior_row, scratch),
         "cv": any(isnum(r["cv_um"]) for r in rows),
         "forward": any(isnum(r["cv_forward_um"]) for r in rows),
