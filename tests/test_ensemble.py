@@ -131,7 +131,7 @@ def test_its_artefact_round_trips_and_refuses_an_edit(offered):
     assert again.to_dict()["members"].keys() == art["members"].keys()
     edited = {**art, "weights": {k: 1.0 / len(art["weights"]) for k in art["weights"]}}
     with pytest.raises(ValueError, match="model_id"):
-        WeightedEnsemble.from_dict(edited)
+        load_any(edited)
 
 
 def test_its_cv_rows_are_those_of_refitted_members_blended(offered):

@@ -158,7 +158,7 @@ def load_any(source):
     if kind in KINDS:
         return KINDS[kind].from_dict(source)
     if kind == ENSEMBLE:
-        return WeightedEnsemble.from_dict(source)
+        return WeightedEnsemble.from_dict(source, load=load_any)
     raise ValueError(f"unknown model kind {kind!r}; known: {sorted([*KINDS, ENSEMBLE])}")
 
 
@@ -632,7 +632,8 @@ def run_family(
         selected=summary["model"].map({k: describe_selection(m) for k, m in models.items()}),
     )
     summary = summary.merge(selection, on="model", how="left")
-    summary = floor_columns(summary.merge(cv_unpredicted(cv), on="model", how="left"), candidates, champion)
+    offered = [*candidates, ENSEMBLE] if ENSEMBLE in models else candidates
+    summary = floor_columns(summary.merge(cv_unpredicted(cv), on="model", how="left"), offered, champion)
     per_run = table.loc[table["scope"] == "run"].drop(columns=["scope"])
     passed = bool(summary.loc[summary["model"] == champion, "passed"].astype(bool).all())
     return {

@@ -327,12 +327,12 @@ class WeightedEnsemble(FamilyModel):
         return finish_artefact(body)
 
     @classmethod
-    def from_dict(cls, d: dict) -> WeightedEnsemble:
-        """The ensemble from its artefact (refused if edited; every member by its own kind)."""
-        from rafi.family.compare import load_any
-
+    def from_dict(cls, d: dict, *, load) -> WeightedEnsemble:
+        """The ensemble from its artefact (refused if edited); ``load`` reads each member's artefact
+        by its own kind (:func:`rafi.family.compare.load_any`, which passes itself: this module
+        does not import the kinds)."""
         check_artefact(d, cls.kind)
-        members = {n: load_any(a) for n, a in d["members"].items()}
+        members = {n: load(a) for n, a in d["members"].items()}
         m = cls.from_fitted(members, d["weights"], machine=d.get("machine"))
         m.interval_ = d.get("interval")
         m.envelope_ = _output_part(d.get("envelope"))
