@@ -129,8 +129,11 @@ def _stream(
             if starts[k] and k > 0:
                 comp.capture_reference()
             s = comp.step(t[k] + shift, rpm[k], temps[k])
-            rows.append((s.compensation_um, s.status, s.outside_speed_range, s.outside_temp_range))
-        out.append(pd.DataFrame(rows, index=log.index, columns=["um", "status", "out_speed", "out_temp"]))
+            rows.append(
+                (s.compensation_um, s.status, s.outside_speed_range, s.outside_temp_range, s.lower_um)
+            )
+        columns = ["um", "status", "out_speed", "out_temp", "lower_um"]
+        out.append(pd.DataFrame(rows, index=log.index, columns=columns))
     return pd.concat(out).loc[frame.index]
 
 
