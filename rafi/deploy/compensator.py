@@ -73,6 +73,14 @@ the batch code resets it at the layout's restarts and at each reference group's 
 on the log fed as above the interval equals the batch one to 1e-9 um wherever the compensation
 does. Without the block, or without a value, the bounds are NaN and the cell ``""``.
 
+The ensemble
+------------
+An artefact of kind ``ensemble`` (:mod:`rafi.family.ensemble`) gives an
+:class:`~rafi.deploy.ensemble_stream.EnsembleCompensator`: one compensator of this module per
+member (its own filters, reference window, envelope and output cap), blended with the weights
+over the members that have a value, the flags any member's, the ensemble's own interval; the
+hooks below run once, around the blend. It equals the batch prediction as above.
+
 Limits and fault rules (not yet)
 --------------------------------
 Clamp, rate limit, sensor faults and the trained range are issue 14's next step. The hooks:

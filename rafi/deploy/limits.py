@@ -36,7 +36,9 @@ The rules, per sample, in this order
    the speed models in use) by more than ``range_margin_k``, or a speed above the highest
    trained speed by more than ``speed_margin_rpm``. Speeds below the trained ones are not
    outside: the machine at rest cooling down is normal service, and every model of the family
-   extrapolates to rest by its own rule (``docs/models.md``).
+   extrapolates to rest by its own rule (``docs/models.md``). An ensemble
+   (:mod:`rafi.deploy.ensemble_stream`) is outside where any of its members is, each judged by
+   its own ranges and reference; the sensor checks (2) cover every sensor a member reads.
 5. **Interval too wide** (``max_interval_um``, off by default): the model's prediction
    interval (the artefact's ``interval`` block, :mod:`rafi.deploy.interval_stream`) is wider
    (``upper - lower``) than ``max_interval_um``; cause ``interval_wide: <width> um wider than
@@ -79,7 +81,8 @@ while off.
 
 ``outside_envelope`` says the model's value was held at its training envelope's edge (a feature
 or the prediction beyond the training range widened by its margin, :mod:`rafi.family.envelope`;
-ridge kinds only, False for ``rafi`` / ``rafi_linear``, while referencing and while off). It is
+ridge kinds only, False for ``rafi`` / ``rafi_linear``, while referencing and while off; an
+ensemble's: any member's). It is
 not a fault: the value is the model's, bounded; "outside the trained range" (rule 4) is the
 limit that acts.
 """
