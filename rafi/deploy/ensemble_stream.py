@@ -36,6 +36,7 @@ to 1e-9 um after the reference windows (``tests/test_compensator.py``,
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 
 import numpy as np
@@ -47,19 +48,19 @@ from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
 __all__ = ["EnsembleCompensator", "blend_row", "ensemble_weights"]
 
 
-def blend_row(values: np.ndarray, weights: np.ndarray) -> float:
+def blend_row(values, weights) -> float:
     """The weighted mean of the finite ``values`` (NaN when none is finite).
 
-    The operations of :func:`rafi.family.ensemble.blend` for one row: ``sum_k w_k v_k / sum_k
-    w_k`` over the finite ``v_k``.
+    The rule of :func:`rafi.family.ensemble.blend` for one row, ``sum_k w_k v_k / sum_k w_k``
+    over the finite ``v_k``, in plain floats (a handful of members: a NumPy call per operation
+    would cost more than the sums).
     """
-    v = np.asarray(values, dtype=float)
-    w = np.asarray(weights, dtype=float)
-    have = np.isfinite(v)
-    total = np.where(have, w, 0.0).sum()
-    if not total > 0:
-        return float("nan")
-    return float(np.where(have, w * np.where(have, v, 0.0), 0.0).sum() / total)
+    num = total = 0.0
+    for v, w in zip(values, weights):
+        if math.isfinite(v):
+            num += w * v
+            total += w
+    return num / total if total > 0 else float("nan")
 
 
 def ensemble_weights(d: dict) -> dict[str, float]:
@@ -109,7 +110,7 @@ class EnsembleCompensator:
         The machine's sensors (the order of every sample's temperatures).
     members : dict
         Member name -> its :class:`~rafi.deploy.compensator.Compensator` (no hooks, no interval).
-    weights : ndarray
+    weights : list of float
         The members' weights, in the order of ``members`` (summing to 1).
     window_s : float
         The ensemble's ``reference.window_s``.
@@ -138,7 +139,7 @@ class EnsembleCompensator:
         model_id: str,
         sensors: tuple,
         members: dict,
-        weights: np.ndarray,
+        weights: list,
         window_s: float,
         restart_gap_s: float,
         input_rule: Callable | None = None,
@@ -203,7 +204,7 @@ class EnsembleCompensator:
             model_id=str(d.get("model_id", "")),
             sensors=sensors,
             members=members,
-            weights=np.array(list(weights.values()), dtype=float),
+            weights=list(weights.values()),
             window_s=float((d.get("reference") or {}).get("window_s", 0.0)),
             restart_gap_s=float(hyper.get("filter_restart_gap_s", float("inf"))),
             input_rule=input_rule,
@@ -221,7 +222,8 @@ class EnsembleCompensator:
     @property
     def ref_values(self) -> np.ndarray | None:
         """Every member's reference values, concatenated in member order (None while any member
-        collects its window)."""
+        collects its window). Each member's own (``members[name].ref_values``) goes with its own
+        ``sensor_index``; this one only says whether every reference is in force."""
         refs = [m.ref_values for m in self.members.values()]
         return None if any(r is None for r in refs) else np.concatenate(refs)
 
@@ -257,7 +259,7 @@ class EnsembleCompensator:
         steps = [m.step(t, rpm, temps) for m in self.members.values()]
         if any(s.status == "referencing" for s in steps):
             return self._finish(t, 0.0, "referencing", (False, False, False), 0.0)
-        raw = blend_row(np.array([s.raw_um for s in steps]), self.weights)
+        raw = blend_row([s.raw_um for s in steps], self.weights)
         status = "ok" if np.isfinite(raw) else "no_value"
         if forced is not None:
             status = forced
@@ -266,7 +268,8 @@ class EnsembleCompensator:
             any(s.outside_temp_range for s in steps),
             any(s.outside_envelope for s in steps),
         )
-        return self._finish(t, raw, status, flags, max(float(np.nan_to_num(s.range_excess)) for s in steps))
+        excess = max(0.0 if math.isnan(s.range_excess) else s.range_excess for s in steps)
+        return self._finish(t, raw, status, flags, excess)
 
     def _finish(self, t: float, raw: float, status: str, flags: tuple, excess: float) -> Step:
         """The step's value, interval and hooks; ``flags``: outside the speed range, the
