@@ -9,8 +9,10 @@ Usage::
 Without ``--artefact`` every kind is fitted with its default hyperparameters (``auto`` grids,
 ``grey_box`` with every filter constant) on three synthetic 4 h logs at 5 s sampling
 (``rafi.twin.synthetic_logs.schedule_log``, cold start at rest, 3000/6000/9000 r/min,
-reference ``run_start`` over 60 s). Each compensator then runs a multi-speed log, sample by
-sample (``--steps`` samples, the log repeated), after a warm-up of 200 samples.
+reference ``run_start`` over 60 s), and the ensemble of those five (equal weights,
+``rafi.family.ensemble``: one compensator per member, blended). Each compensator then runs a
+multi-speed log, sample by sample (``--steps`` samples, the log repeated), after a warm-up of
+200 samples.
 
 Prints one row per model: the features, median / 99th percentile / max time per
 ``Compensator.step`` (us; target < 1000 us) and per ``SafeCompensator.step`` (the same model
@@ -75,6 +77,8 @@ def _fitted_artefacts() -> dict:
         "dynamic": DynamicRidge(reference=ref),
         "grey_box": GreyBox(reference=ref),
     }
+    from rafi.family.ensemble import WeightedEnsemble
+
     out = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -82,7 +86,16 @@ def _fitted_artefacts() -> dict:
             t0 = time.perf_counter()
             out[kind] = json.loads(json.dumps(m.fit(table, frame).to_dict()))
             print(f"fitted {kind} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    ensemble = WeightedEnsemble.from_fitted(models, dict.fromkeys(models, 1.0))
+    out["ensemble"] = json.loads(json.dumps(ensemble.to_dict()))
     return out
+
+
+def n_features(artefact: dict) -> int:
+    """The features (ridge kinds) or terms (RAFI) of a model; an ensemble's: its members' together."""
+    if artefact.get("kind") == "ensemble":
+        return sum(n_features(m) for m in artefact["members"].values())
+    return len(artefact.get("features", artefact.get("terms", [])))
 
 
 def _inputs(steps: int):
@@ -134,7 +147,7 @@ def bench(name: str, artefact: dict, steps: int) -> dict:
     return {
         "model": name,
         "kind": comp.kind,
-        "features": len(artefact.get("features", artefact.get("terms", []))),
+        "features": n_features(artefact),
         "median_us": float(np.median(us)),
         "p99_us": float(np.percentile(us, 99)),
         "max_us": float(us.max()),

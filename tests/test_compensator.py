@@ -1,4 +1,5 @@
-"""The streaming compensator (rafi.deploy): streaming equals batch for every model kind."""
+"""The streaming compensator (rafi.deploy): streaming equals batch for every model kind and for
+the CV-weighted ensemble of them all."""
 
 from __future__ import annotations
 
@@ -13,8 +14,9 @@ import pytest
 
 from rafi import SENSORS
 from rafi.contract import MODEL_KINDS
-from rafi.deploy.compensator import Compensator, parse_exponents
+from rafi.deploy.compensator import ENSEMBLE, Compensator, parse_exponents
 from rafi.deploy.streaming import LowpassBank
+from rafi.family.ensemble import WeightedEnsemble
 from rafi.method.model import parse_terms
 from rafi.method.validate import time_ordered
 from rafi.twin.synthetic_logs import schedule_log
@@ -82,9 +84,19 @@ def _model(kind: str, rule: str):
 
 
 def _fit(kind, rule, table, frame):
+    """A fitted model of ``kind``; ``ensemble``: the ensemble of every kind (:func:`_ensemble`)."""
+    if kind == ENSEMBLE:
+        return _ensemble(rule, table, frame)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # statsmodels conditioning warnings of fit_rafi
         return _model(kind, rule).fit(table, frame)
+
+
+def _ensemble(rule, table, frame) -> WeightedEnsemble:
+    """The ensemble of every kind, fitted as above, with unequal weights 1 : 2 : ... : 6 (what
+    the CV would give is any such set; the blend's arithmetic is what the stream must repeat)."""
+    members = {kind: _fit(kind, rule, table, frame) for kind in KINDS}
+    return WeightedEnsemble.from_fitted(members, {kind: float(i + 1) for i, kind in enumerate(KINDS)})
 
 
 def _stream(
@@ -117,8 +129,11 @@ def _stream(
             if starts[k] and k > 0:
                 comp.capture_reference()
             s = comp.step(t[k] + shift, rpm[k], temps[k])
-            rows.append((s.compensation_um, s.status, s.outside_speed_range, s.outside_temp_range))
-        out.append(pd.DataFrame(rows, index=log.index, columns=["um", "status", "out_speed", "out_temp"]))
+            rows.append(
+                (s.compensation_um, s.status, s.outside_speed_range, s.outside_temp_range, s.lower_um)
+            )
+        columns = ["um", "status", "out_speed", "out_temp", "lower_um"]
+        out.append(pd.DataFrame(rows, index=log.index, columns=columns))
     return pd.concat(out).loc[frame.index]
 
 
@@ -163,6 +178,59 @@ def test_streaming_equals_batch_for_every_kind(data, kind):
         assert np.array_equal(got[flag].to_numpy()[after], batch[col].to_numpy(dtype=bool)[after])
     # the compensation is not trivially zero: the models compensate microns
     assert np.abs(want[defined]).max() > 5.0
+
+
+def test_streaming_equals_batch_for_the_ensemble_of_every_kind(data):
+    """Every member its own compensator (filters, reference window, envelope), blended with the
+    weights over the members with a value: the batch ``WeightedEnsemble.predict_detail``."""
+    rule, table, frame = data
+    model = _ensemble(rule, table, frame)
+    artefact = json.loads(json.dumps(model.to_dict()))
+    comp = Compensator.from_artefact(artefact)
+    assert comp.kind == ENSEMBLE and list(comp.members) == KINDS
+    assert comp.state_nbytes == sum(m.state_nbytes for m in comp.members.values()) > 0
+    frame = time_ordered(frame)
+    batch = model.predict_detail(frame)
+    got = _stream(artefact, frame, rule)
+    want = batch["predicted_um"].to_numpy(dtype=float)
+    window = _in_window(frame, rule)
+    status = got["status"].to_numpy()
+    assert (status[window] == "referencing").all() and (got["um"].to_numpy()[window] == 0.0).all()
+    after = ~window
+    # every sample has a member with a value: the drop-out and the missing speed are blended
+    # over the members that still have one (the weights of the others set aside)
+    assert np.isfinite(want[after]).all() and (status[after] == "ok").all()
+    members = np.column_stack([m.predict(frame) for m in model.members_.values()])
+    assert (after & np.isnan(members).any(axis=1)).sum() == 5
+    np.testing.assert_allclose(got["um"].to_numpy()[after], want[after], rtol=0, atol=1e-9)
+    for flag, col in (("out_speed", "outside_speed_range"), ("out_temp", "outside_temp_range")):
+        assert np.array_equal(got[flag].to_numpy()[after], batch[col].to_numpy(dtype=bool)[after])
+    assert got["out_temp"].to_numpy()[after].any() and np.abs(want[after]).max() > 5.0
+    # the blend is not any one member's value
+    for k in range(members.shape[1]):
+        assert np.nanmax(np.abs(members[after, k] - want[after])) > 0.01
+
+
+def test_an_ensemble_refuses_a_member_it_cannot_run(data):
+    rule, table, frame = data
+    d = json.loads(json.dumps(_ensemble(rule, table, frame).to_dict()))
+    from rafi.artefact import compute_model_id
+
+    def rewritten(**changes):
+        out = {**d, **changes}
+        out["model_id"] = compute_model_id(out)
+        return out
+
+    nested = rewritten(members={**d["members"], "rafi": {**d, "kind": ENSEMBLE}})
+    with pytest.raises(ValueError, match="member 'rafi' is of kind 'ensemble'"):
+        Compensator.from_artefact(nested)
+    edited = {**d["members"]["dynamic"], "coefficients": [0.0] * len(d["members"]["dynamic"]["coefficients"])}
+    with pytest.raises(ValueError, match="ensemble member 'dynamic': model_id"):
+        Compensator.from_artefact(rewritten(members={**d["members"], "dynamic": edited}))
+    with pytest.raises(ValueError, match="not among its members"):
+        Compensator.from_artefact(rewritten(weights={**d["weights"], "neural_net": 0.1}))
+    with pytest.raises(ValueError, match="T6.*do not include"):
+        Compensator.from_artefact(d, sensors=[s for s in SENSORS if s != "T6"])
 
 
 def test_the_filters_restart_after_a_long_gap_and_carry_through_a_short_one():
@@ -221,6 +289,7 @@ def test_the_compensator_runs_without_pandas_statsmodels_or_snakemake():
     code = (
         "import sys, json\n"
         "import rafi.deploy.compensator as c\n"
+        "import rafi.deploy.ensemble_stream as e\n"
         "bad = [m for m in ('pandas', 'statsmodels', 'snakemake', 'scipy', 'sklearn') if m in sys.modules]\n"
         "print(json.dumps(bad))\n"
     )

@@ -130,6 +130,39 @@ def test_streaming_intervals_equal_the_batch_ones(data, kind):
     assert set(cells[window]) <= {"transient", "settled"}
 
 
+def test_streaming_intervals_equal_the_batch_ones_for_an_ensemble(data):
+    """The ensemble's own block, its own change clock (reset at the shortest member's restart
+    gap and at every capture), ``outside`` where any member is, widened by the largest member's
+    range excess: the batch ``interval_columns`` of the ensemble (what validation reports)."""
+    from rafi.family.interval_rule import EXCESS_SLOPE
+    from rafi.family.intervals import interval_columns
+
+    rule, table, frame = data
+    model = _fit("ensemble", rule, table, frame)
+    artefact = with_interval(model.to_dict(), {**BLOCK, "excess_slope": EXCESS_SLOPE})
+    assert Compensator.from_artefact(artefact).restart_gap_s == min(
+        m.get("hyperparameters", {}).get("filter_restart_gap_s", np.inf) for m in artefact["members"].values()
+    )
+    got = stream(artefact, frame, rule)
+    detail = model.predict_detail(frame)
+    outside = (detail["outside_speed_range"] | detail["outside_temp_range"]).to_numpy(dtype=bool)
+    excess = detail["range_excess"].to_numpy(dtype=float)
+    want = interval_columns(
+        artefact, frame, detail["predicted_um"].to_numpy(dtype=float), outside, excess=excess
+    )
+    after = ~_in_window(frame, rule)
+    assert np.isfinite(detail["predicted_um"].to_numpy()[after]).all()
+    cells = got["interval_cell"].to_numpy()
+    np.testing.assert_array_equal(cells[after], want["interval_cell"].to_numpy()[after])
+    for col in ("lower_um", "upper_um"):
+        np.testing.assert_allclose(got[col].to_numpy()[after], want[col].to_numpy()[after], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(got["range_excess"].to_numpy()[after], excess[after], rtol=0, atol=1e-12)
+    # every cell is met, and the excess widens some intervals
+    counts = pd.Series(cells[after]).value_counts()
+    assert set(counts.index) == {"settled", "transient", "outside"} and counts.min() > 20
+    assert (excess[after] > 0.1).sum() > 20
+
+
 def test_the_clock_resets_at_a_restart_a_capture_and_a_speed_move():
     """Known truth on a hand-written series: the cells follow the documented resets."""
     from test_limits import artefact as hand_artefact

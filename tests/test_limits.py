@@ -334,6 +334,58 @@ def test_a_swapped_model_compensates_from_the_session_reference():
     assert steps[-1].command_um == pytest.approx(expected)
 
 
+def ensemble(members: dict, weights: dict) -> dict:
+    """A hand-written ensemble artefact of the ``members`` (name -> artefact) with ``weights``."""
+    d = {
+        "schema": "rafi.model/1",
+        "kind": "ensemble",
+        "key_sensors": list(dict.fromkeys(s for a in members.values() for s in a["key_sensors"])),
+        "reference": {"rule": "run_start", "window_s": WINDOW},
+        "weights": weights,
+        "members": members,
+        "hyperparameters": {"filter_restart_gap_s": 3600},
+    }
+    d["model_id"] = compute_model_id(d)
+    return d
+
+
+def t1_model(coef=(3.0, 1.0, -2.0)) -> dict:
+    """A ridge_global on T1, T8, T9."""
+    d = dict(artefact(), key_sensors=["T1", "T8", "T9"], coefficients=list(coef))
+    d["features"] = [f"d{s}@0s" for s in d["key_sensors"]]
+    d["regressor_ranges"] = {s: [-1, 10] for s in d["key_sensors"]}
+    d["model_id"] = compute_model_id(d)
+    return d
+
+
+def test_an_ensemble_blends_its_members_is_swapped_in_bumplessly_and_checks_every_sensor_they_read():
+    """Known truth: the weighted mean of two hand-written ridges (weights 1 : 3), each from the
+    session's reference; a sensor only one member reads is checked, and without it the bare
+    ensemble is the other member alone."""
+    from rafi.deploy.compensator import Compensator
+
+    ens = ensemble({"a": artefact(), "b": t1_model()}, {"a": 1.0, "b": 3.0})
+    safe = SafeCompensator(limits=limits(rate_um_per_s=0.1)).load(artefact())  # 1 um a sample
+    run(safe, warm(N_REF, 20, rate_k_per_sample=0.05))
+    before = safe.command_um_
+    safe.swap(ens)
+    assert safe.compensator_.kind == "ensemble"
+    warm_now = temps16(BASE + 1.0)
+    warm_now[0] = 27.0  # T1 2 K above its power-on 25 degC
+    steps = [safe.step((N_REF + 20 + i) * DT, 6000.0, warm_now) for i in range(40)]
+    a, b = float(COEF @ [1.0, 1.0, 1.0]), 3.0 * 2.0 + 1.0 * 1.0 - 2.0 * 1.0
+    assert steps[0].status == "ok" and steps[0].model_um == pytest.approx(0.25 * a + 0.75 * b)
+    assert abs(steps[0].command_um - before) <= 1.0 + 1e-12
+    assert steps[-1].command_um == pytest.approx(0.25 * a + 0.75 * b)
+    no_t1 = warm_now.copy()
+    no_t1[0] = np.nan
+    held = safe.step((N_REF + 60) * DT, 6000.0, no_t1)
+    assert held.status == "hold" and held.fault == "T1 missing"
+    bare = Compensator.from_artefact(ens)
+    bare.set_reference(temps16(BASE), 6000.0)
+    assert bare.step(0.0, 6000.0, no_t1).compensation_um == pytest.approx(a)
+
+
 # ------------------------------------------------------------------ the interval fault (issue 26)
 #: 2 um wide settled, 4 um in the 100 s after a reset of the change clock, 10 um outside.
 INTERVAL = {

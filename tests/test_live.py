@@ -452,19 +452,27 @@ def test_credentials_never_come_from_config_yaml(tmp_path, monkeypatch):
     )
 
 
-@pytest.mark.parametrize("session_folder", ["writable", "a file"])
-def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path, session_folder):
+@pytest.mark.parametrize(
+    ("session_folder", "champion"), [("writable", "single"), ("a file", "single"), ("writable", "ensemble")]
+)
+def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path, session_folder, champion):
     """`rafi deploy --follow` with a CSV target: no OPC UA; each appended line gives one row,
     equal to the oracle's command. The session is kept in results/m1/deploy/session.json; where
-    it cannot be written, the loop says so once and goes on."""
+    it cannot be written, the loop says so once and goes on. An ensemble champion (two members,
+    0.5 and 1.5 times the oracle's coefficients, equal weights: the oracle's model) runs the same."""
     import argparse
     from datetime import datetime, timedelta
 
     import yaml
+    from test_limits import ensemble
 
     from rafi.deploy import live_cli
 
-    make_registry(tmp_path / "results" / "m1" / "registry", artefact())
+    model = artefact()
+    if champion == "ensemble":
+        halves = {"low": artefact(coef=0.5 * np.asarray(COEF)), "high": artefact(coef=1.5 * np.asarray(COEF))}
+        model = ensemble(halves, {"low": 1.0, "high": 1.0})
+    make_registry(tmp_path / "results" / "m1" / "registry", model)
     block = dict(DEPLOY, target={"kind": "csv", "axis": "Z", "path": "out/commands.csv"})
     (tmp_path / "out").mkdir()
     (tmp_path / "config.yaml").write_text(yaml.safe_dump({"machines": {"m1": {"deploy": block}}}))
@@ -507,6 +515,7 @@ def test_rafi_deploy_follows_a_log_into_a_csv_target(tmp_path, session_folder):
         stored = json.loads((tmp_path / "results" / "m1" / "deploy" / "session.json").read_text())
         assert not problems and stored["clock"] == "log" and stored["clock_s"] == fed[-1][0]
         assert stored["reference"] is not None and stored["unit"] == "m1"
+        assert list(stored["model"].get("members", [])) == ([] if champion == "single" else ["low", "high"])
     why = "no stored session" if session_folder == "writable" else "session.json cannot be read"
     assert any(m.startswith("reference captured anew: ") and why in m for m in said)
 

@@ -150,7 +150,7 @@ def test_temperature_ridge_is_a_kind_of_the_settings_the_report_and_the_controll
     from rafi.family.selection import SIMPLICITY
     from rafi.report.deployed_section import KIND_CLASSES
 
-    assert "temperature_ridge" in MODEL_KINDS and tuple(CONTROLLER_KINDS) == tuple(MODEL_KINDS)
+    assert "temperature_ridge" in MODEL_KINDS and tuple(CONTROLLER_KINDS) == (*MODEL_KINDS, "ensemble")
     assert set(FAMILY_KINDS) == set(MODEL_KINDS) == set(SIMPLICITY) == set(KIND_CLASSES)
     options = dict(MACHINE_DEFAULTS["models"], temperature_ridge_taus_s=[0, 1200])
     model = make_model(

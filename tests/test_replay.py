@@ -72,8 +72,10 @@ def _replay_every_log(frame, artefact, limits, rule=None):
     return pd.concat(out).loc[frame.index]
 
 
-@pytest.mark.parametrize("kind", ["rafi_linear", "grey_box"])
+@pytest.mark.parametrize("kind", ["rafi_linear", "grey_box", "ensemble"])
 def test_wide_open_limits_replay_the_batch_prediction(data, kind):
+    """Any kind, and the CV-weighted ensemble of every kind (each member its own compensator,
+    the fault rules once on the union of the sensors they read)."""
     rule, table, frame = data
     model = _fit(kind, rule, table, frame)
     got = _replay_every_log(frame, _artefact(model), OPEN)
@@ -103,6 +105,43 @@ def test_wide_open_limits_replay_the_batch_prediction(data, kind):
         got["residual_um"], got["measured_um"] - got["command_um"], rtol=0, atol=0
     )  # the definition
     np.testing.assert_array_equal(got["measured_um"].to_numpy(), frame["dz_um"].to_numpy())
+    summary = summary_frame(replay_summary(got), artefact=art)
+    assert (summary["kind"] == kind).all() and (summary["model_id"] == art["model_id"]).all()
+
+
+def test_an_ensemble_is_outside_the_trained_range_where_any_member_is(data):
+    """Rule 4 for an ensemble: each member judged by its own ranges and reference, alone. The
+    oracle is every member replayed on its own with the same limits: the ensemble is outside on
+    exactly the samples where some member is, names the union of their sensors, and the speed
+    against the lowest trained top a member names."""
+    import re
+
+    rule, table, frame = data
+    model = _fit("ensemble", rule, table, frame)
+    art = _artefact(model)
+    limits = dataclasses.replace(OPEN, range_margin_k=0.3, speed_margin_rpm=-1500.0)
+    ens = _replay_every_log(frame, art, limits)
+    alone = [_replay_every_log(frame, a, limits) for a in art["members"].values()]
+
+    def named(table):
+        causes = table["fault"].fillna("").to_numpy()
+        sensors = [set(re.findall(r"(T\d+) rise", c)) for c in causes]
+        tops = [[float(v) for v in re.findall(r"above trained (\d+) r/min", c)] for c in causes]
+        return sensors, tops
+
+    ok = (ens["status"] != "referencing").to_numpy()
+    for m in alone:  # every member's reference windows are the ensemble's
+        np.testing.assert_array_equal(m["status"].to_numpy() == "referencing", ~ok)
+    either = np.logical_or.reduce([m["outside_range"].to_numpy() for m in alone])
+    np.testing.assert_array_equal(ens["outside_range"].to_numpy(), either)
+    assert 0.05 < either[ok].mean() < 0.95  # both kinds of sample are there
+    sensors, tops = named(ens)
+    member_sensors, member_tops = zip(*(named(m) for m in alone))
+    for k in np.flatnonzero(ok):
+        assert sensors[k] == set().union(*(ms[k] for ms in member_sensors))
+        theirs = [v for mt in member_tops for v in mt[k]]
+        assert tops[k] == ([min(theirs)] if theirs else [])
+    assert any(tops) and any(sensors)
 
 
 def _expected_commands(t, target, limits):

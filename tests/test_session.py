@@ -57,6 +57,30 @@ def test_a_restarted_compensator_equals_the_uninterrupted_one_and_the_batch(data
     np.testing.assert_allclose(got, whole["um"].to_numpy(), rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("cut", [2, 420])
+def test_a_restarted_ensemble_equals_the_uninterrupted_one_and_the_batch(data, cut):
+    """The ensemble's state is every member's (reference, window, filters) and its own change
+    clock: restored at any sample, it goes on as the uninterrupted one, the interval too."""
+    from test_interval_stream import with_interval
+
+    rule, table, frame = data
+    model = _fit("ensemble", rule, table, frame)
+    art = with_interval(model.to_dict())
+    frame = time_ordered(frame)
+    state = compensator_state(Compensator.from_artefact(art))
+    assert list(state["members"]) == list(model.weights_) and state["change_clock"] is not None
+    whole = _stream(art, frame, rule)
+    restarted = _stream(art, frame, rule, restart_at=cut, origin=5.0e5)
+    np.testing.assert_array_equal(restarted["status"].to_numpy(), whole["status"].to_numpy())
+    want = model.predict_detail(frame)["predicted_um"].to_numpy(dtype=float)
+    after = ~_in_window(frame, rule)
+    np.testing.assert_allclose(restarted["um"].to_numpy()[after], want[after], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(restarted["um"].to_numpy(), whole["um"].to_numpy(), rtol=0, atol=1e-9)
+    lower = whole["lower_um"].to_numpy()
+    assert np.isfinite(lower).all()  # the ensemble's interval, around 0 um while referencing
+    np.testing.assert_allclose(restarted["lower_um"].to_numpy(), lower, rtol=0, atol=1e-9)
+
+
 @pytest.fixture(scope="module", params=["run_start", "log_start"])
 def data(request):
     from test_compensator import _find_runs, _logs
@@ -307,3 +331,65 @@ def test_a_cold_machine_and_an_old_session_capture_the_reference_anew(tmp_path):
     keeper.offer(safe.start_from(0.0))
     assert safe.step(*samples[25]).status == "referencing"
     assert "30.0 h old" in safe.session_note_
+
+
+@pytest.mark.parametrize("cut", [2, 300])  # inside the first reference window; late in a run, warm
+def test_a_safe_ensemble_restarted_through_the_session_file_goes_on_as_if_uninterrupted(tmp_path, cut):
+    """``rafi deploy`` with an ensemble champion, stopped and started again (the session file,
+    a followed log's clock): from the restart on, the model's value, its interval, the faults and
+    the statuses are those of the loop that never stopped."""
+    from test_compensator import _find_runs, _logs
+    from test_interval_stream import with_interval
+
+    from rafi.settings import MACHINE_DEFAULTS
+
+    rule = "run_start"
+    table, frame = _find_runs(_logs(), [3000, 6000, 9000], rule)
+    art = with_interval(_fit("ensemble", rule, table, frame).to_dict())
+    log = frame[frame["log"] == "multi.csv"].sort_values("log_t_s")
+    starts = log["run_id"].ne(log["run_id"].shift()).to_numpy()
+    t, rpm = log["log_t_s"].to_numpy(dtype=float), log["speed_rpm"].to_numpy(dtype=float)
+    temps = log[list(SENSORS)].to_numpy(dtype=float)
+    limits = Limits.from_settings({**MACHINE_DEFAULTS["deploy"], "interval_s": 20.0, "range_margin_k": 0.2})
+
+    def keeper(wall):
+        return SessionKeeper(
+            SessionFile(tmp_path / "s.json"),
+            unit="m1",
+            clock="log",
+            cold_band_k=0.05,
+            max_age_h=24,
+            wall=wall,
+        )
+
+    def run(safe, ks, keep, wall):
+        out = []
+        for k in ks:
+            wall.t = START_WALL + t[k]
+            if starts[k] and k > 0:
+                safe.capture_reference()
+            out.append(safe.step(t[k], rpm[k], temps[k]))
+            keep.save(safe)
+        return out
+
+    wall = _Clock(START_WALL)
+    whole = run(SafeCompensator(limits=limits).load(art).start_from(0.0), range(len(t)), keeper(wall), wall)
+    wall = _Clock(START_WALL)
+    first, keep = SafeCompensator(limits=limits).load(art).start_from(0.0), keeper(wall)
+    keep.offer(first)
+    before = run(first, range(cut), keep, wall)
+    keep.save(first, force=True)
+    stored = json.loads((tmp_path / "s.json").read_text())
+    assert list(stored["model"]["members"]) == list(art["weights"])
+    wall.t += 1.0
+    second, keep = SafeCompensator(limits=limits).load(art).start_from(before[-1].command_um), keeper(wall)
+    keep.offer(second)
+    after = run(second, range(cut, len(t)), keep, wall)
+    assert second.session_note_.startswith("reference kept from the session of")
+    got, want = before + after, whole
+    for col in ("model_um", "lower_um", "upper_um"):
+        np.testing.assert_allclose([getattr(c, col) for c in got], [getattr(c, col) for c in want], atol=1e-9)
+    assert [c.status for c in got] == [c.status for c in want]
+    assert [c.fault for c in got] == [c.fault for c in want]
+    # the scenario reaches the rules the ensemble feeds: outside the trained range, a fault
+    assert any(c.outside_range for c in want) and any(c.status == "hold" for c in want)

@@ -73,6 +73,14 @@ the batch code resets it at the layout's restarts and at each reference group's 
 on the log fed as above the interval equals the batch one to 1e-9 um wherever the compensation
 does. Without the block, or without a value, the bounds are NaN and the cell ``""``.
 
+The ensemble
+------------
+An artefact of kind ``ensemble`` (:mod:`rafi.family.ensemble`) gives an
+:class:`~rafi.deploy.ensemble_stream.EnsembleCompensator`: one compensator of this module per
+member (its own filters, reference window, envelope and output cap), blended with the weights
+over the members that have a value, the flags any member's, the ensemble's own interval; the
+hooks below run once, around the blend. It equals the batch prediction as above.
+
 Limits and fault rules (not yet)
 --------------------------------
 Clamp, rate limit, sensor faults and the trained range are issue 14's next step. The hooks:
@@ -87,7 +95,7 @@ of every step are informational (as in the batch ``predict_detail``).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
 import numpy as np
 
@@ -105,11 +113,18 @@ from rafi.family.envelope import (
 )
 from rafi.method.fuzzy import triangular_weights
 
-__all__ = ["KINDS", "STATUSES", "Compensator", "Step", "parse_exponents"]
+if TYPE_CHECKING:
+    from rafi.deploy.ensemble_stream import EnsembleCompensator
+
+__all__ = ["ENSEMBLE", "KINDS", "MEMBER_KINDS", "STATUSES", "Compensator", "Step", "parse_exponents"]
 
 SCHEMA = "rafi.model/1"
-#: Model kinds the compensator evaluates.
-KINDS = MODEL_KINDS
+#: The kind of the CV-weighted ensemble's artefact (``rafi.family.ensemble.ENSEMBLE``).
+ENSEMBLE = "ensemble"
+#: The single model kinds the compensator evaluates, each on its own or as an ensemble's member.
+MEMBER_KINDS = MODEL_KINDS
+#: Every artefact kind the compensator evaluates (:mod:`rafi.deploy.ensemble_stream` runs an ensemble).
+KINDS = (*MEMBER_KINDS, ENSEMBLE)
 #: Status values of a step (``docs/deploy.md``).
 STATUSES = {
     "referencing": "collecting the reference window; compensation 0 um (the reference state)",
@@ -126,6 +141,9 @@ class Step(NamedTuple):
     ``lower_um`` / ``upper_um`` / ``half_width_um`` / ``interval_cell``: the prediction interval
     of the model's value (:mod:`rafi.deploy.interval_stream`; around 0 um while referencing);
     NaN / ``""`` when the artefact has no ``interval`` block or the model has no value.
+    ``range_excess``: how far the sample lies beyond the trained range
+    (:func:`rafi.family.envelope.key_range_excess`; the ridge kinds', 0 for ``rafi`` /
+    ``rafi_linear`` and while referencing), the factor that widens the interval.
     """
 
     t_s: float
@@ -139,6 +157,7 @@ class Step(NamedTuple):
     half_width_um: float = float("nan")
     interval_cell: str = ""
     outside_envelope: bool = False
+    range_excess: float = 0.0
 
 
 def parse_exponents(terms: Sequence[str], n_vars: int) -> np.ndarray:
@@ -304,11 +323,13 @@ class Compensator:
         sensors=DEFAULT_SENSORS,
         input_rule: Callable | None = None,
         output_rule: Callable | None = None,
-    ) -> Compensator:
+    ) -> Compensator | EnsembleCompensator:
         """A compensator for the fitted model ``d`` (a ``rafi.model/1`` artefact of a kind in
         :data:`KINDS`; an edited artefact is refused), capturing its reference from the first
         sample on. ``sensors``: the machine's sensors, the order in which the temperatures
-        arrive (its ``input.sensors``).
+        arrive (its ``input.sensors``). An ensemble's artefact gives an
+        :class:`~rafi.deploy.ensemble_stream.EnsembleCompensator` (the same public surface: one
+        compensator per member, blended).
 
         Raises
         ------
@@ -317,6 +338,12 @@ class Compensator:
             a sensor that is not one of ``sensors``.
         """
         kind = _check(d)
+        if kind == ENSEMBLE:
+            from rafi.deploy.ensemble_stream import EnsembleCompensator
+
+            return EnsembleCompensator.from_artefact(
+                d, sensors=sensors, input_rule=input_rule, output_rule=output_rule
+            )
         sensors = tuple(sensors)
         missing = [s for s in d.get("key_sensors", []) if s not in sensors]
         if missing:
@@ -524,11 +551,21 @@ class Compensator:
             bounds = self.interval.bounds(
                 float(value), since_change_s=self._since_change_s, outside=outside, excess=self._excess
             )
-        self._excess = 0.0
+        excess, self._excess = self._excess, 0.0
         if self.output_rule is not None:
             value, status = self.output_rule(t, raw, status, out_speed, out_temp)
         beyond, self._outside_envelope = self._outside_envelope, False
-        return Step(t, float(value), status, float(raw), bool(out_speed), bool(out_temp), *bounds, beyond)
+        return Step(
+            t,
+            float(value),
+            status,
+            float(raw),
+            bool(out_speed),
+            bool(out_temp),
+            *bounds,
+            beyond,
+            float(excess),
+        )
 
     def _rafi(self, rises: np.ndarray, rpm: float) -> tuple[float, bool, bool]:
         """:meth:`rafi.method.model.RafiModel._evaluate` and its flags for one row."""

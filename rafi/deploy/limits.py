@@ -36,7 +36,9 @@ The rules, per sample, in this order
    the speed models in use) by more than ``range_margin_k``, or a speed above the highest
    trained speed by more than ``speed_margin_rpm``. Speeds below the trained ones are not
    outside: the machine at rest cooling down is normal service, and every model of the family
-   extrapolates to rest by its own rule (``docs/models.md``).
+   extrapolates to rest by its own rule (``docs/models.md``). An ensemble
+   (:mod:`rafi.deploy.ensemble_stream`) is outside where any of its members is, each judged by
+   its own ranges and reference; the sensor checks (2) cover every sensor a member reads.
 5. **Interval too wide** (``max_interval_um``, off by default): the model's prediction
    interval (the artefact's ``interval`` block, :mod:`rafi.deploy.interval_stream`) is wider
    (``upper - lower``) than ``max_interval_um``; cause ``interval_wide: <width> um wider than
@@ -79,7 +81,8 @@ while off.
 
 ``outside_envelope`` says the model's value was held at its training envelope's edge (a feature
 or the prediction beyond the training range widened by its margin, :mod:`rafi.family.envelope`;
-ridge kinds only, False for ``rafi`` / ``rafi_linear``, while referencing and while off). It is
+ridge kinds only, False for ``rafi`` / ``rafi_linear``, while referencing and while off; an
+ensemble's: any member's). It is
 not a fault: the value is the model's, bounded; "outside the trained range" (rule 4) is the
 limit that acts.
 """
@@ -92,7 +95,7 @@ from typing import NamedTuple
 import numpy as np
 
 from rafi.contract.sensors import DEFAULT_SENSORS
-from rafi.deploy.compensator import Compensator
+from rafi.deploy.compensator import ENSEMBLE, Compensator
 from rafi.errors import SettingsError, TargetError
 from rafi.method.fuzzy import triangular_weights
 
@@ -430,11 +433,10 @@ class SafeCompensator:
         if not np.isfinite(rpm):
             faults.append("speed missing")
         self._faults = faults
-        self._fed = fed
-        if np.array_equal(fed, temps[idx], equal_nan=True):
-            return rpm, temps, None
-        temps = temps.copy()
-        temps[idx] = fed
+        if not np.array_equal(fed, temps[idx], equal_nan=True):
+            temps = temps.copy()
+            temps[idx] = fed
+        self._fed = temps  # every sensor as the model is fed (out of range -> NaN)
         return rpm, temps, None
 
     def _note_reference(self, t: float, rpm: float, temperatures, status: str) -> None:
@@ -462,13 +464,33 @@ class SafeCompensator:
     def _outside(self, rpm: float) -> list[str]:
         """Causes of "outside the trained range" for the current sample (rises beyond the
         training range by more than ``range_margin_k``; a speed above the trained speeds by
-        more than ``speed_margin_rpm``)."""
-        comp, lim = self.compensator_, self.limits
-        out = []
+        more than ``speed_margin_rpm``). An ensemble is outside where any of its members is,
+        each judged by its own ranges and reference (its value blends every member's); a
+        sensor is named once, the speed against the lowest trained top that it passes."""
+        comp = self.compensator_
+        members = comp.members.values() if comp.kind == ENSEMBLE else (comp,)
+        rises: dict[str, str] = {}
+        tops: list[float] = []
+        for member in members:
+            beyond, top = self._outside_of(member, rpm)
+            for name, text in beyond:
+                rises.setdefault(name, text)
+            if np.isfinite(rpm) and abs(rpm) > top + self.limits.speed_margin_rpm:
+                tops.append(top)
+        out = list(rises.values())
+        if tops:
+            out.append(f"speed {abs(rpm):.0f} r/min above trained {min(tops):.0f} r/min")
+        return out
+
+    def _outside_of(self, comp: Compensator, rpm: float) -> tuple[list[tuple[str, str]], float]:
+        """One model kind's compensator: its key sensors whose rise is beyond their training range
+        by more than ``range_margin_k`` (name, cause) and its highest trained speed (inf before
+        its reference is in force: nothing is judged then)."""
+        lim = self.limits
         if comp.ref_values is None:
-            return out
+            return [], float("inf")
         p = len(comp.sensor_index)
-        rises = self._fed - comp.ref_values[:p]
+        rises = self._fed[comp.sensor_index] - comp.ref_values[:p]
         if comp.exponents is not None:  # RAFI: the ranges of the speed models in use
             top = float(comp.speeds_rpm.max())
             weights, _ = triangular_weights(
@@ -482,11 +504,11 @@ class SafeCompensator:
             lo, hi = comp.ranges[:, 0], comp.ranges[:, 1]
         with np.errstate(invalid="ignore"):
             beyond = (rises < lo - lim.range_margin_k) | (rises > hi + lim.range_margin_k)
-        for i in np.flatnonzero(beyond):
-            out.append(f"{comp.sensors[comp.sensor_index[i]]} rise {rises[i]:.3g} K outside trained range")
-        if np.isfinite(rpm) and abs(rpm) > top + lim.speed_margin_rpm:
-            out.append(f"speed {abs(rpm):.0f} r/min above trained {top:.0f} r/min")
-        return out
+        names = [comp.sensors[comp.sensor_index[i]] for i in np.flatnonzero(beyond)]
+        causes = [
+            (name, f"{name} rise {r:.3g} K outside trained range") for name, r in zip(names, rises[beyond])
+        ]
+        return causes, float(top)
 
     def _interval_wide(self, out) -> list[str]:
         """The cause of rule 5 for the model's step ``out`` (empty: off, no interval, or narrow)."""

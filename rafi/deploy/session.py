@@ -41,6 +41,8 @@ from pathlib import Path
 
 import numpy as np
 
+from rafi.deploy.compensator import ENSEMBLE
+
 __all__ = [
     "SAVE_EVERY_S",
     "json_array",
@@ -111,46 +113,77 @@ def json_number(value) -> float | None:
 def compensator_state(comp) -> dict:
     """The run-time state of a :class:`~rafi.deploy.compensator.Compensator` as JSON: its
     reference (or the window being collected), its filters and the interval's change clock;
-    every time in the compensator's sample clock."""
-    window = comp.window
+    every time in the compensator's sample clock. An ensemble
+    (:class:`~rafi.deploy.ensemble_stream.EnsembleCompensator`) has, instead of a reference and
+    filters, ``members``: each member's state by name (its own reference, window and filters)."""
     clock = getattr(comp.interval, "clock", None)
-    return {
-        "model_id": comp.model_id,
-        "t_prev_s": json_number(comp.t_prev_s),
-        "ref_values": json_list(comp.ref_values),
-        "ref_speed_rpm": json_number(comp.ref_speed_rpm),
-        "window": None
-        if window is None
-        else {
-            "t0_s": json_number(window.t0_s),
-            "values": [json_list(v) for v in window.values],
-            "speeds": [json_number(v) for v in window.speeds],
-        },
-        "banks": {
-            name: {"state": json_list(bank.state), "seen": [bool(s) for s in bank.seen]}
-            for name, bank in comp.banks.items()
-        },
-        "change_clock": None
+    out = {"model_id": comp.model_id, "t_prev_s": json_number(comp.t_prev_s)}
+    if comp.kind == ENSEMBLE:
+        out["members"] = {name: compensator_state(m) for name, m in comp.members.items()}
+    else:
+        window = comp.window
+        out.update(
+            ref_values=json_list(comp.ref_values),
+            ref_speed_rpm=json_number(comp.ref_speed_rpm),
+            window=None
+            if window is None
+            else {
+                "t0_s": json_number(window.t0_s),
+                "values": [json_list(v) for v in window.values],
+                "speeds": [json_number(v) for v in window.speeds],
+            },
+            banks={
+                name: {"state": json_list(bank.state), "seen": [bool(s) for s in bank.seen]}
+                for name, bank in comp.banks.items()
+            },
+        )
+    out.update(
+        change_clock=None
         if clock is None
         else {"t_reset_s": json_number(clock.t_reset_s), "anchor_rpm": json_number(clock.anchor_rpm)},
-        "since_change_s": json_number(comp._since_change_s),
-        "reset_clock": bool(comp._reset_clock),
-    }
+        since_change_s=json_number(comp._since_change_s),
+        reset_clock=bool(comp._reset_clock),
+    )
+    return out
 
 
 def restore_compensator(comp, state: dict, shift_s: float) -> None:
     """Give ``comp`` (a fresh compensator of the same model) the stored ``state``, every time
-    moved by ``shift_s`` (the new sample clock = the stored one + ``shift_s``).
+    moved by ``shift_s`` (the new sample clock = the stored one + ``shift_s``); an ensemble's
+    members each get their own.
 
     Raises
     ------
     ValueError
-        The state does not fit the model (another model, another number of features).
+        The state does not fit the model (another model, other members, another number of
+        features).
     """
-    from rafi.deploy.streaming import ReferenceWindow
-
     if state.get("model_id") != comp.model_id:
         raise ValueError(f"the stored state is of model {state.get('model_id')}, not {comp.model_id}")
+    if comp.kind == ENSEMBLE:
+        members = state.get("members") or {}
+        if list(members) != list(comp.members):
+            raise ValueError(
+                f"the stored members {list(members)} are not the ensemble's {list(comp.members)}"
+            )
+        for name, member in comp.members.items():
+            restore_compensator(member, members[name], shift_s)
+    else:
+        _restore_single(comp, state, shift_s)
+    t_prev = json_float(state.get("t_prev_s"))
+    comp.t_prev_s = None if math.isnan(t_prev) else t_prev + shift_s
+    clock = state.get("change_clock")
+    if clock is not None and comp.interval is not None:
+        comp.interval.clock.t_reset_s = json_float(clock["t_reset_s"]) + shift_s
+        comp.interval.clock.anchor_rpm = json_float(clock["anchor_rpm"])
+    comp._since_change_s = json_float(state.get("since_change_s"))
+    comp._reset_clock = bool(state.get("reset_clock"))
+
+
+def _restore_single(comp, state: dict, shift_s: float) -> None:
+    """The reference, window and filters of one model kind's compensator."""
+    from rafi.deploy.streaming import ReferenceWindow
+
     banks = state.get("banks") or {}
     if set(banks) != set(comp.banks):
         raise ValueError(f"the stored filters {sorted(banks)} are not the model's {sorted(comp.banks)}")
@@ -161,8 +194,6 @@ def restore_compensator(comp, state: dict, shift_s: float) -> None:
         restored[name] = (values, seen)
     for name, (values, seen) in restored.items():
         comp.banks[name].state, comp.banks[name].seen = values, seen
-    t_prev = json_float(state.get("t_prev_s"))
-    comp.t_prev_s = None if math.isnan(t_prev) else t_prev + shift_s
     comp.ref_values = json_array(state.get("ref_values"))
     comp.ref_speed_rpm = json_float(state.get("ref_speed_rpm"))
     window = state.get("window")
@@ -176,12 +207,14 @@ def restore_compensator(comp, state: dict, shift_s: float) -> None:
             speeds=[json_float(v) for v in window["speeds"]],
         )
     )
-    clock = state.get("change_clock")
-    if clock is not None and comp.interval is not None:
-        comp.interval.clock.t_reset_s = json_float(clock["t_reset_s"]) + shift_s
-        comp.interval.clock.anchor_rpm = json_float(clock["anchor_rpm"])
-    comp._since_change_s = json_float(state.get("since_change_s"))
-    comp._reset_clock = bool(state.get("reset_clock"))
+
+
+def _window_started(model: dict) -> bool:
+    """Whether a stored model state (an ensemble's: any member's) has samples in a reference
+    window being collected."""
+    if (model.get("window") or {}).get("values"):
+        return True
+    return any(_window_started(m or {}) for m in (model.get("members") or {}).values())
 
 
 # --------------------------------------------------------------------------- keep or anew
@@ -243,8 +276,7 @@ def decide(
         return Decision(False, "no stored session")
     if state.get("unit") != unit or list(state.get("sensors") or []) != list(sensors):
         return Decision(False, f"the stored session is of {state.get('unit')!r} with other sensors")
-    window = (state.get("model") or {}).get("window") or {}
-    if state.get("reference") is None and not window.get("values"):
+    if state.get("reference") is None and not _window_started(state.get("model") or {}):
         return Decision(False, "the stored session had not started its reference")
     age = now_s - float(state["last_sample_at_s"])
     if age < 0:
