@@ -232,3 +232,43 @@ def test_beyond_the_trained_range_the_interval_widens_the_same_in_batch_and_stre
     after = test["log_t_s"].to_numpy() >= test["log_t_s"].min() + 60.0
     streamed_half = np.array([s.half_width_um for s in steps])
     np.testing.assert_allclose(streamed_half[after], half[after], rtol=0, atol=1e-9)
+
+
+def test_an_ensemble_holds_a_member_without_its_own_cap_in_batch_and_stream(hotter_than_ever):
+    """An ensemble's member that does not cap itself (RAFI's kinds; here a ridge kind whose
+    artefact predates the output bound, run away 40 x) is held at the training displacement range
+    widened by the output margin before the blend, the same in the compensator; the run is still
+    better compensated than not at all."""
+    from rafi.family.ensemble import WeightedEnsemble, blend
+
+    table, frame = hotter_than_ever
+    members = {}
+    for kind in ("dynamic", "temperature_ridge"):
+        members[kind] = small_family_model(
+            kind, reference_rule="run_start", reference_window_s=60, filter_restart_gap_s=3600
+        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            members[kind].fit(table, frame)
+    wild = members["temperature_ridge"]
+    wild.coef_ = wild.coef_ * 40.0
+    wild.envelope_ = {k: v for k, v in wild.envelope_.items() if k not in ("output_range", "output_margin")}
+    ensemble = WeightedEnsemble.from_fitted(members, {"dynamic": 0.7, "temperature_ridge": 0.3})
+    test = frame[frame["log"] == "test.csv"]
+    training = frame[frame["run_id"].isin(table.loc[table["role"] == "training", "run_id"])]
+    y = training["dz_um"].to_numpy(dtype=float)
+    lo, hi = y.min() - OUTPUT_MARGIN * np.ptp(y), y.max() + OUTPUT_MARGIN * np.ptp(y)
+    each = np.column_stack([members[k].predict(test) for k in ("dynamic", "temperature_ridge")])
+    assert (np.abs(each[:, 1]) > hi).mean() > 0.5  # the uncapped member does run away
+    detail = ensemble.predict_detail(test)
+    expected = blend(np.clip(each, lo, hi), [0.7, 0.3])
+    np.testing.assert_allclose(detail["predicted_um"], expected, rtol=1e-12, atol=1e-9)
+    dz = test["dz_um"].to_numpy(dtype=float)
+    ok = np.isfinite(detail["predicted_um"].to_numpy())
+    assert np.abs(dz - detail["predicted_um"].to_numpy())[ok].mean() < np.abs(dz)[ok].mean()
+    steps = _streamed(ensemble, test)
+    after = test["log_t_s"].to_numpy() >= test["log_t_s"].min() + 60.0
+    got = np.array([s.compensation_um for s in steps])
+    np.testing.assert_allclose(got[after], detail["predicted_um"].to_numpy()[after], rtol=0, atol=1e-9)
+    streamed = np.array([s.outside_envelope for s in steps])
+    np.testing.assert_array_equal(streamed[after], detail["outside_envelope"].to_numpy()[after])

@@ -95,14 +95,14 @@ of every step are informational (as in the batch ``predict_detail``).
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING, NamedTuple
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from rafi.artefact import model_id_verifies
-from rafi.contract import MODEL_KINDS
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
+from rafi.deploy.step import ENSEMBLE, KINDS, MEMBER_KINDS, STATUSES, Step
 from rafi.deploy.streaming import LowpassBank, ReferenceWindow
 from rafi.family.envelope import (
     bound_features,
@@ -119,45 +119,8 @@ if TYPE_CHECKING:
 __all__ = ["ENSEMBLE", "KINDS", "MEMBER_KINDS", "STATUSES", "Compensator", "Step", "parse_exponents"]
 
 SCHEMA = "rafi.model/1"
-#: The kind of the CV-weighted ensemble's artefact (``rafi.family.ensemble.ENSEMBLE``).
-ENSEMBLE = "ensemble"
-#: The single model kinds the compensator evaluates, each on its own or as an ensemble's member.
-MEMBER_KINDS = MODEL_KINDS
-#: Every artefact kind the compensator evaluates (:mod:`rafi.deploy.ensemble_stream` runs an ensemble).
-KINDS = (*MEMBER_KINDS, ENSEMBLE)
-#: Status values of a step (``docs/deploy.md``).
-STATUSES = {
-    "referencing": "collecting the reference window; compensation 0 um (the reference state)",
-    "ok": "the model's value",
-    "no_value": "the model has no value (a needed input is missing); compensation NaN",
-}
 SPEED_SCALE_RPM = 1000.0  # rafi.family.features.SPEED_SCALE_RPM
 SPEED_POWER_SCALE_RPM = 10000.0  # rafi.family.features.SPEED_POWER_SCALE_RPM
-
-
-class Step(NamedTuple):
-    """The result of one :meth:`Compensator.step`.
-
-    ``lower_um`` / ``upper_um`` / ``half_width_um`` / ``interval_cell``: the prediction interval
-    of the model's value (:mod:`rafi.deploy.interval_stream`; around 0 um while referencing);
-    NaN / ``""`` when the artefact has no ``interval`` block or the model has no value.
-    ``range_excess``: how far the sample lies beyond the trained range
-    (:func:`rafi.family.envelope.key_range_excess`; the ridge kinds', 0 for ``rafi`` /
-    ``rafi_linear`` and while referencing), the factor that widens the interval.
-    """
-
-    t_s: float
-    compensation_um: float
-    status: str
-    raw_um: float
-    outside_speed_range: bool
-    outside_temp_range: bool
-    lower_um: float = float("nan")
-    upper_um: float = float("nan")
-    half_width_um: float = float("nan")
-    interval_cell: str = ""
-    outside_envelope: bool = False
-    range_excess: float = 0.0
 
 
 def parse_exponents(terms: Sequence[str], n_vars: int) -> np.ndarray:
@@ -342,7 +305,7 @@ class Compensator:
             from rafi.deploy.ensemble_stream import EnsembleCompensator
 
             return EnsembleCompensator.from_artefact(
-                d, sensors=sensors, input_rule=input_rule, output_rule=output_rule
+                d, sensors=sensors, input_rule=input_rule, output_rule=output_rule, member=cls.from_artefact
             )
         sensors = tuple(sensors)
         missing = [s for s in d.get("key_sensors", []) if s not in sensors]

@@ -16,7 +16,10 @@ Per sample
    :meth:`~EnsembleCompensator.capture_reference` / :meth:`~EnsembleCompensator.set_reference`.
 3. While any member collects its reference window the status is ``referencing`` and the value
    0 um (the members of a qualification share the reference settings, so they finish together).
-   Then the value is the weighted mean of the members' raw values over the members that have
+   Then every member's raw value is held inside the ensemble's output bound (its artefact's
+   ``envelope``: the training displacement range widened by two spans, which RAFI's kinds do not
+   apply themselves; a value so held counts as ``outside_envelope``), and the value is the
+   weighted mean of those over the members that have
    one (:func:`blend_row`, the rule of :func:`rafi.family.ensemble.blend`), ``no_value`` where
    none has; ``outside_speed_range`` / ``outside_temp_range`` / ``outside_envelope`` are any
    member's, ``range_excess`` the largest member's.
@@ -42,8 +45,9 @@ from collections.abc import Callable
 import numpy as np
 
 from rafi.contract.sensors import DEFAULT_SENSORS
-from rafi.deploy.compensator import ENSEMBLE, MEMBER_KINDS, Compensator, Step
 from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
+from rafi.deploy.step import ENSEMBLE, MEMBER_KINDS, Step
+from rafi.family.envelope import output_bounds
 
 __all__ = ["EnsembleCompensator", "blend_row", "ensemble_weights"]
 
@@ -120,6 +124,9 @@ class EnsembleCompensator:
         The hooks of :mod:`rafi.deploy.compensator`, run once for the ensemble.
     interval : StreamInterval or None
         The ensemble artefact's own interval.
+    output_bounds : tuple of float or None
+        ``(low, high)`` every member's raw value is held in (:func:`rafi.family.envelope.output_bounds`
+        of the artefact's ``envelope``); None: no bound.
 
     Attributes
     ----------
@@ -145,6 +152,7 @@ class EnsembleCompensator:
         input_rule: Callable | None = None,
         output_rule: Callable | None = None,
         interval: StreamInterval | None = None,
+        output_bounds: tuple | None = None,
     ):
         self.model_id = model_id
         self.sensors = sensors
@@ -155,6 +163,7 @@ class EnsembleCompensator:
         self.input_rule = input_rule
         self.output_rule = output_rule
         self.interval = interval
+        self.output_bounds = output_bounds
         read = dict.fromkeys(int(i) for m in members.values() for i in m.sensor_index)
         self.sensor_index = np.array(list(read), dtype=int)
         self._since_change_s = float("nan")
@@ -169,10 +178,13 @@ class EnsembleCompensator:
         sensors=DEFAULT_SENSORS,
         input_rule: Callable | None = None,
         output_rule: Callable | None = None,
+        member: Callable,
     ) -> EnsembleCompensator:
         """The ensemble of artefact ``d`` (kind ``ensemble``, already checked by
         :meth:`Compensator.from_artefact`: schema and ``model_id``); every member is checked as
-        an artefact of its own (schema, kind, ``model_id``, features).
+        an artefact of its own (schema, kind, ``model_id``, features). ``member(artefact,
+        sensors=...)`` builds one member's compensator (:meth:`Compensator.from_artefact`, which
+        passes itself: this module does not import it).
 
         Raises
         ------
@@ -194,7 +206,7 @@ class EnsembleCompensator:
         members = {}
         for name in weights:
             try:
-                comp = Compensator.from_artefact(d["members"][name], sensors=sensors)
+                comp = member(d["members"][name], sensors=sensors)
             except ValueError as exc:
                 raise ValueError(f"ensemble member {name!r}: {exc}") from None
             comp.interval = None  # the ensemble's own interval is the one in force
@@ -210,6 +222,7 @@ class EnsembleCompensator:
             input_rule=input_rule,
             output_rule=output_rule,
             interval=StreamInterval.from_artefact(d),
+            output_bounds=output_bounds(d.get("envelope")),
         )
 
     # ------------------------------------------------------------------ reference
@@ -259,14 +272,20 @@ class EnsembleCompensator:
         steps = [m.step(t, rpm, temps) for m in self.members.values()]
         if any(s.status == "referencing" for s in steps):
             return self._finish(t, 0.0, "referencing", (False, False, False), 0.0)
-        raw = blend_row([s.raw_um for s in steps], self.weights)
+        values = [s.raw_um for s in steps]
+        held = False
+        if self.output_bounds is not None:
+            lo, hi = self.output_bounds
+            held = any(v < lo or v > hi for v in values)  # NaN is neither
+            values = [min(max(v, lo), hi) if math.isfinite(v) else v for v in values]
+        raw = blend_row(values, self.weights)
         status = "ok" if np.isfinite(raw) else "no_value"
         if forced is not None:
             status = forced
         flags = (
             any(s.outside_speed_range for s in steps),
             any(s.outside_temp_range for s in steps),
-            any(s.outside_envelope for s in steps),
+            held or any(s.outside_envelope for s in steps),
         )
         excess = max(0.0 if math.isnan(s.range_excess) else s.range_excess for s in steps)
         return self._finish(t, raw, status, flags, excess)
