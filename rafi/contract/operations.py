@@ -104,9 +104,9 @@ OPERATIONS_SETTINGS: dict = {
                 ),
             ),
             "offer": Setting(
-                default="best",
+                default="ensemble",
                 schema={"enum": ["best", "ensemble"]},
-                shown="`best`",
+                shown="`ensemble`",
                 doc=(
                     "what is offered to the machine: `best` (the kind with the lowest selection score"
                     " on the training runs) or `ensemble` (every kind blended with weights from the "
