@@ -198,9 +198,10 @@ def test_a_tiny_run_writes_the_table_and_the_json(bench, tmp_path, capsys):
     assert (
         row["training_runs"] == 1  # one heat-up, no cool-down
         and row["speeds_rpm"] == [18000.0]
-        and row["scratch_choice"] == "ridge_global"
+        and row["scratch_choice"] == "ridge_global"  # one run, no fold: the default rule's first kind
     )
-    assert res["full_choice"] == "ridge_global" and 0 < res["floor_um"] < res["full_um"] < row["scratch_um"]
+    # the full plan has folds: ridge_global and the plain ridge, blended (the default offer)
+    assert res["full_choice"] == "ensemble" and 0 < res["floor_um"] < res["full_um"] < row["scratch_um"]
     assert math.isfinite(res["unchanged_um"]) and math.isfinite(row["prior_um"]) and row["prior_choice"]
     assert sorted(float(k) for k in res["prior_cv_by_speed_um"]) == [3000, 6000, 9000, 12000, 15000, 18000]
     assert set(row["candidates"]) == {"ridge_global", "prior", "prior_gain", "prior_time", "prior_ridge"}

@@ -259,8 +259,9 @@ def test_run_family_end_to_end():
         dynamic_max_taus=1,
     )
     s = res["summary"]
-    # the enabled kinds and the plain ridge, scored in every comparison (rafi.family.plain_ridge)
-    assert set(s["model"]) == {"rafi_linear", "ridge_global", "dynamic", "temperature_ridge"}
+    # the enabled kinds and the plain ridge, scored in every comparison (rafi.family.plain_ridge),
+    # and their CV-weighted ensemble (offered by default)
+    assert set(s["model"]) == {"rafi_linear", "ridge_global", "dynamic", "temperature_ridge", "ensemble"}
     assert {"cv_rmse_um", "cv_max_abs_um", "selected"} <= set(s.columns)
     assert not any("time" in c for c in s.columns)  # timings go to the log only
     selected = dict(zip(s["model"], s["selected"]))
@@ -270,7 +271,7 @@ def test_run_family_end_to_end():
     assert res["champion"] in set(s["model"])
     assert res["best_artefact"]["kind"] == res["champion"]
     assert set(res["cv"]["test_runs"]) == set(table.loc[table["role"] == "training", "run_id"])
-    assert len(res["per_run"]) == 4 * 4 and set(res["residuals"]["model"]) == set(s["model"])
+    assert len(res["per_run"]) == 5 * 4 and set(res["residuals"]["model"]) == set(s["model"])
 
 
 def test_run_family_tables_are_identical_on_identical_inputs(tmp_path):

@@ -152,6 +152,13 @@ def test_its_cv_rows_are_those_of_refitted_members_blended(offered):
         assert got == pytest.approx(np.nanmax(np.abs(r)), rel=1e-9, abs=1e-9), held
 
 
+def test_the_ensemble_is_offered_by_default():
+    assert MACHINE_DEFAULTS["models"]["offer"] == ENSEMBLE
+    table, frame = _data()
+    res = run_family(table, frame, **SETTINGS, gates=GATES, options=_options(), log=lambda m: None)
+    assert res["champion"] == ENSEMBLE
+
+
 def test_best_offers_one_kind_and_builds_no_ensemble():
     table, frame = _data()
     res = run_family(

@@ -226,7 +226,8 @@ def _family(table, frame, options):
 @pytest.fixture(scope="module")
 def disabled():
     """run_family with the settings of a machine whose config leaves temperature_ridge out."""
-    config = {"machines": {"m": {"models": {"enabled": ["rafi_linear", "ridge_global"]}}}}
+    # the best kind offered (the default blend has the plain ridge as a member: tests/test_ensemble.py)
+    config = {"machines": {"m": {"models": {"enabled": ["rafi_linear", "ridge_global"], "offer": "best"}}}}
     options = machine_settings(config, "m")["models"]
     assert PLAIN_RIDGE not in options["enabled"]
     return _family(*_golden(), options)
@@ -274,7 +275,7 @@ def test_the_reference_changes_neither_the_choice_nor_the_candidates_scores(disa
 
 
 def test_enabled_it_is_a_candidate_like_any_kind():
-    options = {**MACHINE_DEFAULTS["models"], "enabled": ["rafi_linear", PLAIN_RIDGE]}
+    options = {**MACHINE_DEFAULTS["models"], "enabled": ["rafi_linear", PLAIN_RIDGE], "offer": "best"}
     s = _family(*_golden(), options)["summary"].set_index("model")
     assert list(s.index) == ["rafi_linear", PLAIN_RIDGE]  # fitted once
     assert s["candidate"].all() and sorted(s["selection_rank"]) == [1, 2]

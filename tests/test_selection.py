@@ -52,7 +52,8 @@ def _family(table, frame, gates=GATES, **changes):
         reference=MACHINE_DEFAULTS["reference"],
         machine="synthetic",
         gates=gates,
-        options={**MACHINE_DEFAULTS["models"], "enabled": ENABLED, **changes},
+        # the rule under test offers one kind: `best` (the default blend: tests/test_ensemble.py)
+        options={**MACHINE_DEFAULTS["models"], "enabled": ENABLED, "offer": "best", **changes},
         log=lambda m: None,
     )
 

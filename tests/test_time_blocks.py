@@ -423,5 +423,6 @@ def test_the_pipeline_offers_a_model_chosen_on_time_blocks_for_a_single_run_log(
     assert json.loads((out / "best_model.json").read_text())["kind"] == champion
     assert "4 time blocks with 3 h guard gaps" in (proj / "logs" / "spindle-d" / "compare.log").read_text()
     report = " ".join((proj / "reports" / "spindle-d" / "qualification.html").read_text().split())
-    assert "chosen by time-blocked CV on the training data only" in report
+    assert "weighted from those held-out scores" in report  # the ensemble, offered by default
+    assert "by held-out time blocks of the training data" in report
     assert "whole-run CV on the training runs" not in report

@@ -57,8 +57,9 @@ ENSEMBLE = "ensemble"
 
 #: The weighting, for people (the artefact and the report state it).
 WEIGHT_RULE = (
-    "weights proportional to 1 / s^2, s = the kind's mean over the whole-run held-out training runs "
-    "of the max |residual|; each row blends the members that have a value there"
+    "weights proportional to 1 / s^2, s = the kind's mean over the held-out training runs (time "
+    "blocks, where the training data hold too few runs) of the max |residual|; each row blends the "
+    "members that have a value there"
 )
 
 
@@ -292,7 +293,8 @@ class WeightedEnsemble(FamilyModel):
 
     def to_dict(self) -> dict:
         """The ``rafi.model/1`` artefact: the members' own artefacts and the weights."""
-        arts = {n: m.to_dict() for n, m in self.members_.items()}
+        # a member's ``created`` is when this artefact was written, not part of the member
+        arts = {n: _without_created(m.to_dict()) for n, m in self.members_.items()}
         first = next(iter(arts.values()))
         sensors = list(dict.fromkeys(s for a in arts.values() for s in a.get("key_sensors", [])))
         speeds = [a["speed_range_rpm"] for a in arts.values() if a.get("speed_range_rpm") is not None]
@@ -341,6 +343,11 @@ class WeightedEnsemble(FamilyModel):
     def heaviest_member(self) -> str:
         """The member with the largest weight (the first of equals)."""
         return max(self.weights_, key=lambda n: self.weights_[n])
+
+
+def _without_created(artefact: dict) -> dict:
+    """``artefact`` without its ``created`` stamp (its ``model_id`` does not cover it)."""
+    return {k: v for k, v in artefact.items() if k != "created"}
 
 
 def _output_part(envelope: dict | None) -> dict | None:

@@ -73,6 +73,11 @@ def ensemble_rule(scheme: str = "", forward: str = "") -> str:
     if str(scheme) == "time_blocks":
         text = text.replace(
             "by whole run on the training runs only", "by held-out time blocks of the training data"
+        ).replace(
+            "(each training run, or speed under leave_one_speed_out, held out in turn; every kind refitted "
+            "on the others,",
+            "(each time block held out in turn, without the guard gaps beside it; every kind refitted on "
+            "the other blocks,",
         )
     if is_forward(forward):
         runs = "run" if horizon_of(forward) == 1 else f"{horizon_of(forward)} runs"
