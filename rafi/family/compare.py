@@ -615,11 +615,12 @@ def run_family(
         log=log,
     )
     # the choice: training runs only, before any validation run is predicted
-    selection = selection_table(cv, candidates)
+    offered = [*candidates, ENSEMBLE] if ENSEMBLE in models else candidates
+    selection = selection_table(cv, offered)
     champion = choose_champion(cv, candidates)
     basis = "cv"
     if ENSEMBLE in models:
-        champion, selection = ENSEMBLE, offered_first(selection_table(cv, [*candidates, ENSEMBLE]), ENSEMBLE)
+        champion, selection = ENSEMBLE, offered_first(selection, ENSEMBLE)
     if champion is None:
         champion, basis = default_champion(candidates), "default"
         log(f"no cross-validation fold: {champion} offered by the default rule")
@@ -632,7 +633,6 @@ def run_family(
         selected=summary["model"].map({k: describe_selection(m) for k, m in models.items()}),
     )
     summary = summary.merge(selection, on="model", how="left")
-    offered = [*candidates, ENSEMBLE] if ENSEMBLE in models else candidates
     summary = floor_columns(summary.merge(cv_unpredicted(cv), on="model", how="left"), offered, champion)
     per_run = table.loc[table["scope"] == "run"].drop(columns=["scope"])
     passed = bool(summary.loc[summary["model"] == champion, "passed"].astype(bool).all())

@@ -40,7 +40,7 @@ import pandas as pd
 
 from rafi.family.base import CODE_VERSION, FamilyModel, check_artefact, finish_artefact
 from rafi.family.envelope import OUTPUT_MARGIN, bound_output, output_bounds
-from rafi.family.forward_folds import is_forward
+from rafi.family.forward_folds import fold_unit, is_forward
 
 __all__ = [
     "ENSEMBLE",
@@ -191,8 +191,6 @@ def ensemble_cv_rows(cv: pd.DataFrame, oof: pd.DataFrame, name: str = ENSEMBLE) 
 
 def _unit(row: dict) -> str:
     """The OOF unit of one CV row: the held-out run, or ``f<fold>:<run>`` in a forward fold."""
-    from rafi.family.forward_folds import fold_unit
-
     run = str(row["test_runs"])
     return fold_unit(int(row["fold"]), run) if is_forward(str(row["scheme"])) else run
 
