@@ -164,15 +164,22 @@ def test_rows(proj: Path, machine: str, truth: dict) -> pd.DataFrame:
     return rows.loc[rows["day"].isin(tests), ["model", "day", "run_id", "t_s", "measured_um", "predicted_um"]]
 
 
-def blend_errors(rows: pd.DataFrame, weights: dict) -> pd.DataFrame:
-    """Per test row: ``day``, ``measured_um`` and the error of the weighted mean of the kinds'
-    predictions (``weights``: kind -> weight; one kind with weight 1 is that kind); a row where a
-    kind with a positive weight has no prediction is uncompensated (error = measured)."""
+def blend_errors(rows: pd.DataFrame, weights: dict, median: bool = False) -> pd.DataFrame:
+    """Per test row: ``day``, ``measured_um`` and the error of the weighted mean (``median``: the
+    weighted median, ``judge.blend_median``) of the kinds' predictions (``weights``: kind ->
+    weight; one kind with weight 1 is that kind); a row where a kind with a positive weight has no
+    prediction is uncompensated (error = measured)."""
     weights = {k: w for k, w in weights.items() if w > 0}
     key = ["day", "run_id", "t_s"]
     wide = rows.set_index([*key, "model"])["predicted_um"].unstack("model")
     measured = rows.drop_duplicates(key).set_index(key)["measured_um"].reindex(wide.index)
-    pred = sum(w * wide[k] for k, w in weights.items())
+    if median:
+        matrix = np.column_stack([wide[k].to_numpy(dtype=float) for k in weights])
+        value = judge.blend_median(matrix, np.array(list(weights.values())))
+        value[~np.isfinite(matrix).all(axis=1)] = np.nan  # as the mean: a kind without a value
+        pred = pd.Series(value, index=wide.index)
+    else:
+        pred = sum(w * wide[k] for k, w in weights.items())
     error = (measured - pred).where(np.isfinite(pred), measured)
     return pd.DataFrame({"measured_um": measured, "error_um": error}).reset_index()
 
@@ -238,7 +245,7 @@ def judge_seed(seed: int, keep: Path, cores: int, log=print, setup_drift: bool =
     picks["offered"] = {offered: 1.0}
     if offered != judged["offered_now"][CURRENT]:
         log(f"{machine}: the pipeline offers {offered}, {CURRENT} {judged['offered_now'][CURRENT]}")
-    tests = {rule: scores_of(blend_errors(rows, w)) for rule, w in picks.items()}
+    tests = {rule: scores_of(blend_errors(rows, w, median=rule == judge.MEDIAN)) for rule, w in picks.items()}
     result = {
         "seed": seed,
         "machine": machine,

@@ -64,7 +64,10 @@ The rules (:data:`RULES`), every one a function of training-run CV rows alone:
   with ``oof=``, as the pipeline's ``rule compare``); scored like the ensemble;
 * ``average_within_se`` (issue 46, not a choice of one kind): the plain mean of the predictions
   of the kinds whose inner CV mean is within one standard error of the best
-  (:func:`within_se_weights`); scored like the ensemble.
+  (:func:`within_se_weights`); scored like the ensemble;
+* ``cv_weighted_median`` (2026-11-29, issue 46): ``cv_weighted_ensemble``'s weights, the weighted
+  median of the predictions (:func:`blend_median`) instead of their mean: robust to a member
+  that runs away; scored like the ensemble.
 
 The scores of every rule on the machine's full training CV (what it would offer now) are
 printed beside (for ``stacked``: its weights on the full training CV, whose rows the bench
@@ -117,8 +120,10 @@ SPEED_SCHEME = "speed_with_cooldown"
 ENSEMBLE = "cv_weighted_ensemble"
 STACKED = "stacked"
 AVERAGE = "average_within_se"
+#: The CV-weighted ensemble's weights with the weighted median of the members instead of their mean.
+MEDIAN = "cv_weighted_median"
 #: The rules that are not a choice of one kind (scored from refits of every kind).
-BLENDS = (ENSEMBLE, STACKED, AVERAGE)
+BLENDS = (ENSEMBLE, STACKED, AVERAGE, MEDIAN)
 
 
 # ----------------------------------------------------------------------------- inner folds
@@ -388,9 +393,51 @@ def held_out_predictions(factories: dict, table: pd.DataFrame, frame: pd.DataFra
     return needed["dz_um"].to_numpy(dtype=float)[mine], preds
 
 
-def ensemble_score(dz: np.ndarray, preds: dict, weights: dict) -> dict:
-    """Max |residual| and RMSE of the weighted mean of the predictions on one held-out run."""
-    pred = sum(w * preds[k] for k, w in weights.items())
+def blend_median(predictions: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """The weighted median of each row over its finite entries (the ``cv_weighted_median`` blend).
+
+    Parameters
+    ----------
+    predictions : ndarray, shape (n, k)
+        One column per member.
+    weights : ndarray, shape (k,)
+        Non-negative weights.
+
+    Returns
+    -------
+    ndarray, shape (n,)
+        Per row, with the finite ``p_k`` sorted and ``c`` the cumulative share of their weights:
+        the first ``p`` whose ``c`` exceeds 1/2, the mean of it and the next where ``c`` is 1/2
+        exactly (the ordinary median with equal weights); NaN where none is finite.
+    """
+    p = np.asarray(predictions, dtype=float)
+    w = np.broadcast_to(np.asarray(weights, dtype=float), p.shape)
+    have = np.isfinite(p)
+    order = np.argsort(np.where(have, p, np.inf), axis=1, kind="stable")
+    ps = np.take_along_axis(p, order, axis=1)
+    ws = np.take_along_axis(np.where(have, w, 0.0), order, axis=1)
+    total = ws.sum(axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        share = np.cumsum(ws, axis=1) / total
+    tol = 1e-12
+    first = np.argmax(share >= 0.5 - tol, axis=1)  # the first member reaching one half
+    rows = np.arange(p.shape[0])
+    at = ps[rows, first]
+    above = np.where((share > 0.5 + tol) & np.isfinite(ps), ps, np.inf).min(axis=1)  # the next value
+    exact = np.abs(share[rows, first] - 0.5) <= tol
+    out = np.where(exact & np.isfinite(above), 0.5 * (at + above), at)
+    return np.where(total[:, 0] > 0, out, np.nan)
+
+
+def ensemble_score(dz: np.ndarray, preds: dict, weights: dict, median: bool = False) -> dict:
+    """Max |residual| and RMSE of the weighted mean (``median``: the weighted median,
+    :func:`blend_median`) of the predictions on one held-out run."""
+    if median:
+        kinds = [k for k, w in weights.items() if w > 0]
+        matrix = np.column_stack([preds[k] for k in kinds])
+        pred = blend_median(matrix, np.array([weights[k] for k in kinds]))
+    else:
+        pred = sum(w * preds[k] for k, w in weights.items())
     r = dz - pred
     ok = np.isfinite(r)
     return {"max": float(np.max(np.abs(r[ok]))), "rmse": float(np.sqrt(np.mean(r[ok] ** 2)))}
@@ -440,10 +487,11 @@ def judge_machine(project: Path, machine: str, log=print) -> dict:
                 raise SystemExit(f"{machine} {m} {held}: refit {check} um != cv.csv {scores[m]['max']} um")
         weights = ensemble_weights(inner["leave_one_run_out"])
         scores[ENSEMBLE] = ensemble_score(dz, preds, weights)
+        scores[MEDIAN] = ensemble_score(dz, preds, weights, median=True)
         stacked = stacked_rule(oofs, inputs["factories"], dz_at)
         scores[STACKED] = ensemble_score(dz, preds, positive(stacked))
         scores[AVERAGE] = ensemble_score(dz, preds, within_se_weights(inner["leave_one_run_out"]))
-        picks.update({ENSEMBLE: ENSEMBLE, STACKED: STACKED, AVERAGE: AVERAGE})
+        picks.update({b: b for b in BLENDS})
         fold = {"held_out": held, "picks": picks, "scores": scores, "weights": weights}
         folds.append({**fold, "stacked_weights": stacked})
         log(f"  {machine} outer fold {held}: " + ", ".join(f"{r} {p}" for r, p in picks.items()))
@@ -453,6 +501,7 @@ def judge_machine(project: Path, machine: str, log=print) -> dict:
         full[sc] = rows
     offered = {rule: fn(rows_of(full, sc)) for rule, (sc, fn) in RULES.items()}
     blends = {ENSEMBLE: ensemble_weights(full_cv), AVERAGE: within_se_weights(full_cv)}
+    blends[MEDIAN] = blends[ENSEMBLE]
     blends[STACKED] = stacked_rule(full_oofs, inputs["factories"], dz_at)
     offered.update({rule: weights_text(w) for rule, w in blends.items()})
     return {

@@ -47,6 +47,16 @@ def test_a_blend_is_the_weighted_mean_and_an_unpredicted_row_counts_uncompensate
     assert s["none_mae"] == pytest.approx(3.0) and s["days"]["d1"]["none_max"] == pytest.approx(6.0)
 
 
+def test_a_median_blend_takes_the_middle_member_and_an_unpredicted_row_counts_uncompensated(bench):
+    rows = _rows(
+        [0.0, 2.0, 4.0],
+        {"a": [0.0, 2.5, 4.0], "b": [1.0, 2.0, np.nan], "c": [90.0, -50.0, 4.0]},
+    )
+    got = bench.blend_errors(rows, {"a": 0.3, "b": 0.4, "c": 0.3}, median=True)
+    # row 1: 0 (0.3), 1 (0.4), 90 (0.3) -> 1; row 2: -50, 2, 2.5 -> 2; row 3: b has none
+    assert got["error_um"].tolist() == pytest.approx([-1.0, 0.0, 4.0])
+
+
 def _row(rule: str, primary: float, guard: float, diff: float = 0.0, se: float = 0.0) -> dict:
     return {"rule": rule, "primary": primary, "guard_share": guard, "vs_current": diff, "vs_current_se": se}
 

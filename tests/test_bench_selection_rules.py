@@ -281,3 +281,33 @@ def test_a_fold_a_kind_cannot_fit_counts_as_predicting_zero(stacking):
     w = stacking.stacked_weights({"leave_one_run_out": oof}, ["rafi", "grey_box"], dz)
     # min over w of (2 (1 - w))^2 + (8 w - 4)^2 (both units weigh the same): w = 9 / 17
     assert w["rafi"] == pytest.approx(9 / 17, abs=1e-6)
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_the_weighted_median_blend_is_statsmodels_weighted_median(bench, seed):
+    from statsmodels.stats.weightstats import DescrStatsW
+
+    rng = np.random.default_rng(seed)
+    predictions = rng.normal(size=(400, 5))
+    predictions[rng.random(predictions.shape) < 0.3] = np.nan
+    # integer weights make exact halves (the two middle values are averaged), zeros are left out
+    weights = rng.random(5) if seed == 0 else rng.integers(0, 3, 5).astype(float)
+    got = bench.blend_median(predictions, weights)
+    for row, value in zip(predictions, got):
+        usable = np.isfinite(row) & (weights > 0)
+        if not usable.any():
+            assert np.isnan(value)
+            continue
+        oracle = DescrStatsW(row[usable], weights=weights[usable]).quantile([0.5], return_pandas=False)[0]
+        assert value == pytest.approx(oracle, abs=1e-12)
+
+
+def test_the_weighted_median_blend_holds_against_one_member_running_away(bench):
+    sane = np.array([[1.0, 1.2, 0.9, 500.0]])
+    assert bench.blend_median(sane, np.array([0.4, 0.25, 0.15, 0.2]))[0] == pytest.approx(1.0)
+    assert (
+        bench.ensemble_score(
+            np.array([1.0]), {"a": np.array([1.0]), "b": np.array([99.0])}, {"a": 0.6, "b": 0.4}, median=True
+        )["max"]
+        == 0.0
+    )
