@@ -322,7 +322,7 @@ def _extras(left, k, n_cool, run_s, speeds, *, uncertainty, view) -> tuple[list[
     heat_extra, cool_extra = [0.0] * k, [0.0] * n_cool
     tau = (view or {}).get("slowest_tau_s")
     if tau:  # the prior's slowest time constant: a heat-up and a cool-down long enough to see it
-        want = min(TAU_SPAN * float(tau), MAX_RUN_S) - run_s
+        want = math.floor((min(TAU_SPAN * float(tau), MAX_RUN_S) - run_s) / QUANTUM_S + 1e-9) * QUANTUM_S
         for extra in (heat_extra, cool_extra):
             if extra:
                 extra[0] = max(0.0, min(want, math.floor(left / QUANTUM_S + 1e-9) * QUANTUM_S))
