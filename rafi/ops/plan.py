@@ -403,7 +403,7 @@ def plan_programme(
        ``run_s`` is left over and ``k >= 2``. Heat-ups and cool-downs are the whole-run CV's folds.
     3. **How long**: with a prior whose slowest time constant is ``tau`` (``slowest_tau_s``), the
        time left goes first to the first heat-up, then to the cool-down after it, each up to
-       ``TAU_SPAN`` (2) ``tau``: long enough to see a repair move the time constants. The rest
+       ``TAU_SPAN`` (2) ``tau`` (whole minutes, not beyond): long enough to see a repair move the time constants. The rest
        goes to the heat-ups in proportion to ``uncertainty`` (speed -> how unsure; none: the
        prior's interval half width, ``outside`` at an untrained speed, ``settled`` at a trained
        one; a speed not named counts as the worst named; no interval: equal shares), none beyond
