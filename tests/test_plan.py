@@ -206,6 +206,10 @@ def test_the_slowest_time_constant_gets_a_heat_up_and_a_cool_down_of_two_of_it_f
     # a short budget gives what it has, never more
     short = plan_programme(speeds_rpm=PAPER, budget_h=1.2, prior=_view(speeds=PAPER, tau=tau), **limits)
     assert short["duration_s"].sum() <= 1.2 * 3600 and list(short["kind"]) == ["rest", "heat-up"]
+    # a time constant of no whole minutes: up to two of it, in whole minutes (2 x 1234.5 s = 41.15 min)
+    odd = plan_programme(speeds_rpm=PAPER, budget_h=2.5, prior=_view(speeds=PAPER, tau=1234.5))
+    assert odd["kind"].iloc[2] == "cool-down" and odd["duration_s"].iloc[2] == 41 * 60.0
+    assert all(float(d / 60).is_integer() for d in odd["duration_s"])  # the rest is 180 s
 
 
 def test_the_rest_comes_from_the_resolved_settings_and_stays_under_the_leading_rest_limit():
@@ -256,5 +260,8 @@ def test_a_prior_never_takes_the_plan_beyond_its_budget_or_under_the_shortest_ru
     assert plan["duration_s"].sum() <= budget_h * 3600 + 1e-6
     assert all(seconds >= 1800 for seconds in pipeline_runs(plan))
     assert plan["duration_s"].max() <= MAX_RUN_S
+    # extra time, the time constant's included, in whole minutes beyond the shortest run
+    extra = plan.loc[plan["kind"] != "rest", "duration_s"] - 1800
+    assert all(math.isclose(e / 60, round(e / 60), abs_tol=1e-9) for e in extra)
     untrained = [s for s in plan.attrs["speeds_rpm"] if all(abs(s - t) > 50 for t in trained)]
     assert plan.attrs["speeds_rpm"][: len(untrained)] == untrained  # least sure first

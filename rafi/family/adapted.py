@@ -50,7 +50,7 @@ from rafi.family.dynamic import DynamicRidge
 from rafi.family.envelope import join_envelope
 from rafi.family.grey_box import GreyBox
 from rafi.family.prior import RIDGE_KINDS, ensemble_member, prior_base, prior_sensors
-from rafi.family.prior_fitness import fitness_block
+from rafi.family.prior_fitness import fitness_block, prior_speed_range
 from rafi.family.ridge import cv_folds, cv_scores, fit_rows_of, ridge_gram, rms_scale
 from rafi.family.ridge_global import RidgeGlobal
 from rafi.family.temperature_ridge import TemperatureRidge
@@ -347,6 +347,7 @@ class AdaptedPrior(FamilyModel):
         else:  # RafiModel: the per-speed records stay the prior's; the data are the new ones
             model.data = data
             model.created = now_iso()
+            model.speed_range_rpm_ = _joined_speed_range(prior_speed_range(self.base), table)
 
     # -- evaluation
     def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
@@ -465,9 +466,17 @@ def _joined_ranges(model, table: pd.DataFrame, train: pd.DataFrame):
         lo, hi = model.regressor_ranges_[s]
         finite = x[np.isfinite(x)]
         ranges[s] = [float(min(lo, finite.min())), float(max(hi, finite.max()))] if finite.size else [lo, hi]
-    speeds = table["speed_rpm"].astype(float)
-    lo, hi = model.speed_range_rpm_
-    return ranges, [float(min(lo, speeds.min())), float(max(hi, speeds.max()))]
+    return ranges, _joined_speed_range(model.speed_range_rpm_, table)
+
+
+def _joined_speed_range(prior_range, table: pd.DataFrame) -> list[float] | None:
+    """The prior's speed range ``[lo, hi]`` (None: unknown) joined with the new training runs'
+    speeds: the range the adapted model stands on (the artefact's ``speed_range_rpm``; tested here
+    and covered by the prior are the fitness block's ``speed_range_tested_rpm`` and
+    ``speed_range_prior_rpm``)."""
+    speeds = [float(s) for s in table["speed_rpm"].astype(float) if np.isfinite(s)]
+    ends = [float(v) for v in (prior_range or [])] + speeds
+    return [min(ends), max(ends)] if ends else None
 
 
 def adaptation_factories(

@@ -23,7 +23,15 @@ from collections.abc import Iterable, Mapping
 
 import numpy as np
 
-__all__ = ["BOUNDS", "CHECKS", "fitness_block", "fitness_warnings", "prior_speed_range", "prior_rise_ranges"]
+__all__ = [
+    "BOUNDS",
+    "CHECKS",
+    "fitness_block",
+    "fitness_warnings",
+    "prior_speed_range",
+    "prior_trained_speeds",
+    "prior_rise_ranges",
+]
 
 #: The bounds of an adaptation that needs no confirmation (``docs/models.md``, "The prior's
 #: fitness"). ``gain``: one gain between 2/3 and 3/2 (symmetric in ratio; a sibling's build spread
@@ -57,6 +65,20 @@ def prior_speed_range(prior: Mapping) -> list[float] | None:
         return [float(lo), float(hi)]
     speeds = _finite(s.get("speed_rpm") for s in prior.get("speeds") or [])
     return [min(speeds), max(speeds)] if speeds else None
+
+
+def prior_trained_speeds(prior: Mapping, base: Mapping | None = None) -> list[float]:
+    """The speeds (r/min) of the per-speed models the prior (or ``base``, the artefact re-fitted)
+    records: RAFI's kinds; for a CV-weighted ensemble prior whose ``base`` has none, its members'
+    (they trained on the same runs); empty when no artefact records them."""
+    from rafi.family.prior import ENSEMBLE_KIND
+
+    base = prior if base is None else base
+    speeds = _finite(s.get("speed_rpm") for s in base.get("speeds") or [])
+    if not speeds and prior.get("kind") == ENSEMBLE_KIND:
+        members = [m for m in (prior.get("members") or {}).values() if isinstance(m, Mapping)]
+        speeds = _finite(s.get("speed_rpm") for m in members for s in m.get("speeds") or [])
+    return sorted(set(speeds))
 
 
 def prior_rise_ranges(prior: Mapping) -> dict[str, list[float]]:
@@ -138,7 +160,8 @@ def fitness_block(
         the prior covers; the block's ``prior`` then also names it (``member``).
     qualification : mapping or None
         :func:`rafi.family.prior.prior_qualification` (``None``: not known, e.g. a prior given
-        in-process; its speeds are then the ends of its speed range).
+        in-process). The prior's speeds are its (or ``base``'s) per-speed models', else the
+        qualification's ``speeds_rpm``, else the ends of its speed range.
     origin : str or None
         ``this machine``, ``declared sibling`` (:func:`rafi.family.prior.prior_origin`) or
         ``None`` (not checked: a prior given in-process).
@@ -169,7 +192,8 @@ def fitness_block(
     tested = sorted(set(_finite(tested_speeds_rpm)))
     tol = float(speed_tolerance_rpm)
     prior_range = prior_speed_range(base)
-    prior_speeds = sorted(set(_finite(qual.get("speeds_rpm") or []))) or None
+    prior_speeds = sorted(set(prior_trained_speeds(prior, base) or _finite(qual.get("speeds_rpm") or [])))
+    prior_speeds = prior_speeds or None
     ends = prior_speeds if prior_speeds is not None else (prior_range or [])
     prior_only = sorted({s for s in ends if not any(abs(s - t) <= tol for t in tested)})
     ranges = prior_rise_ranges(base)

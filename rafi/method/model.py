@@ -258,6 +258,11 @@ class RafiModel:
         self.interval_: dict | None = None
         #: The ``adaptation`` block of a re-qualified prior (``rafi.family.adapted``), or None.
         self.adaptation_: dict | None = None
+        #: A re-qualified prior's ``speed_range_rpm`` (``rafi.family.adapted``): the prior's speeds
+        #: joined with the new runs', for people (what was tested here and what the prior covers
+        #: are the ``adaptation.fitness`` block's); None otherwise. The out-of-range flag stays the
+        #: per-speed models'.
+        self.speed_range_rpm_: list[float] | None = None
 
     # ------------------------------------------------------------------ building
     def add_speed_model(
@@ -424,6 +429,8 @@ class RafiModel:
             content["interval"] = dict(self.interval_)
         if self.adaptation_ is not None:  # a re-qualified prior (rafi.family.adapted)
             content["adaptation"] = dict(self.adaptation_)
+        if self.speed_range_rpm_ is not None:  # absent in older artefacts and unadapted models
+            content["speed_range_rpm"] = [float(v) for v in self.speed_range_rpm_]
         return content
 
     @property
@@ -496,6 +503,8 @@ class RafiModel:
             model.interval_ = d["interval"]
         if isinstance(d.get("adaptation"), dict):
             model.adaptation_ = d["adaptation"]
+        if d.get("speed_range_rpm") is not None:
+            model.speed_range_rpm_ = [float(v) for v in d["speed_range_rpm"]]
         if verify_id and "model_id" in d and not model_id_verifies(model._content(), d["model_id"]):
             raise ValueError(
                 f"model_id {d['model_id']} does not match the content "

@@ -83,8 +83,38 @@ def plan_limits(settings: Mapping) -> dict:
     }
 
 
+def _selected_taus(artefact: Mapping) -> list[float]:
+    """The filter time constants and draw-in lag of an artefact's ``selected`` (s, finite, > 0)."""
+    selected = artefact.get("selected") or {}
+    taus = [float(t) for t in list(selected.get("taus_s") or []) + list(selected.get("speed_taus_s") or [])]
+    if selected.get("centrifugal_lag_s") is not None:
+        taus.append(float(selected["centrifugal_lag_s"]))
+    return [t for t in taus if math.isfinite(t) and t > 0]
+
+
+def _trained_speeds(artefact: Mapping) -> list[float]:
+    """The speeds of an artefact's per-speed records (RAFI's kinds; none for the others)."""
+    return [float(s["speed_rpm"]) for s in artefact.get("speeds") or [] if "speed_rpm" in s]
+
+
+def _speed_range(artefact: Mapping) -> tuple[float, float] | None:
+    """An artefact's ``speed_range_rpm``, else the extremes of its per-speed records, else None."""
+    if artefact.get("speed_range_rpm"):
+        lo, hi = (float(v) for v in artefact["speed_range_rpm"])
+        return lo, hi
+    speeds = _trained_speeds(artefact)
+    return (min(speeds), max(speeds)) if speeds else None
+
+
 def prior_view(prior: Mapping | None, *, tolerance_rpm: float = 0.0) -> dict | None:
     """What :func:`plan_programme` reads of a prior's artefact (None: no prior).
+
+    A CV-weighted ensemble (``kind: ensemble``, :mod:`rafi.family.ensemble`) is read whole: its
+    trained speeds are the union of its members' per-speed records, its speed range the union of
+    its own and its members' ranges, its interval its own (calibrated on the blend, not a
+    member's); its time constants are those of the member the adaptation re-fits, the heaviest
+    (:func:`rafi.family.prior.prior_base`: ``prior_time`` scales that member's filters; an
+    ensemble has none of its own).
 
     Parameters
     ----------
@@ -97,34 +127,43 @@ def prior_view(prior: Mapping | None, *, tolerance_rpm: float = 0.0) -> dict | N
     -------
     dict or None
         ``label`` (``prior <id> (<kind> of <machine>)``), ``trained_speeds_rpm`` (RAFI's
-        per-speed records; None for the other kinds, which record a range only),
-        ``speed_range_rpm`` (``(low, high)`` or None), ``half_width_um`` (the interval's
-        ``settled`` / ``transient`` / ``outside`` half widths, empty without an interval),
-        ``slowest_tau_s`` (the longest filter time constant or draw-in lag of ``selected``; None
-        for kinds without) and ``tolerance_rpm``.
+        per-speed records, an ensemble's: its members'; None for the other kinds, which record a
+        range only), ``speed_range_rpm`` (``(low, high)`` or None), ``half_width_um`` (the
+        interval's ``settled`` / ``transient`` / ``outside`` half widths, empty without an
+        interval), ``slowest_tau_s`` (the longest filter time constant or draw-in lag of
+        ``selected``; None for kinds without), ``tau_member`` (an ensemble's member that
+        ``slowest_tau_s`` is of, else None), ``members`` (an ensemble's member count, else None)
+        and ``tolerance_rpm``.
+
+    Raises
+    ------
+    PriorIncompatible
+        An ensemble without its members' artefacts.
     """
     if not prior:
         return None
-    speeds = [float(s["speed_rpm"]) for s in prior.get("speeds") or [] if "speed_rpm" in s]
-    if prior.get("speed_range_rpm"):
-        lo, hi = (float(v) for v in prior["speed_range_rpm"])
-        speed_range = (lo, hi)
-    else:
-        speed_range = (min(speeds), max(speeds)) if speeds else None
-    selected = prior.get("selected") or {}
-    taus = [float(t) for t in list(selected.get("taus_s") or []) + list(selected.get("speed_taus_s") or [])]
-    if selected.get("centrifugal_lag_s") is not None:
-        taus.append(float(selected["centrifugal_lag_s"]))
-    taus = [t for t in taus if math.isfinite(t) and t > 0]
+    from rafi.family.prior import ENSEMBLE_KIND, ensemble_member, prior_base
+
+    parts = [prior]
+    member = None
+    if prior.get("kind") == ENSEMBLE_KIND:
+        member = ensemble_member(prior)  # refused (one line) without the members' artefacts
+        parts += [m for m in (prior.get("members") or {}).values() if isinstance(m, dict)]
+    speeds = sorted({s for part in parts for s in _trained_speeds(part)})
+    ranges = [r for r in (_speed_range(part) for part in parts) if r is not None]
+    speed_range = (min(r[0] for r in ranges), max(r[1] for r in ranges)) if ranges else None
+    taus = _selected_taus(prior_base(prior))
     half = ((prior.get("interval") or {}).get("half_width_um")) or {}
     who = f"prior {str(prior.get('model_id', ''))[:12]} ({prior.get('kind', '?')}"
     who += f" of {prior.get('machine')})" if prior.get("machine") else ")"
     return {
         "label": who,
-        "trained_speeds_rpm": sorted(set(speeds)) or None,
+        "trained_speeds_rpm": speeds or None,
         "speed_range_rpm": speed_range,
         "half_width_um": {str(k): float(v) for k, v in half.items() if v is not None},
         "slowest_tau_s": max(taus) if taus else None,
+        "tau_member": member["name"] if member and taus else None,
+        "members": member["n_members"] if member else None,
         "tolerance_rpm": float(tolerance_rpm),
     }
 
@@ -145,11 +184,25 @@ def _untrained(speed: float, view: Mapping | None) -> bool:
 
 
 def _trained_text(view: Mapping) -> str:
+    who = f"its {view['members']} members " if view.get("members") else ""
     trained = view.get("trained_speeds_rpm")
     if trained:
-        return "trained at " + ", ".join(f"{s:g}" for s in trained) + " r/min"
+        return who + "trained at " + ", ".join(f"{s:g}" for s in trained) + " r/min"
     lo, hi = view["speed_range_rpm"]
-    return f"trained over {lo:g}-{hi:g} r/min"
+    return who + f"trained over {lo:g}-{hi:g} r/min"
+
+
+def _interval_text(view: Mapping) -> str:
+    """Whose interval a reason quotes: the prior's, an ensemble's own (not a member's)."""
+    return "the ensemble's own interval" if view.get("members") else "its interval"
+
+
+def _tau_text(view: Mapping) -> str:
+    """The prior's slowest time constant as a reason names it (an ensemble's: of which member)."""
+    tau = f"{float(view['slowest_tau_s']):g} s"
+    if view.get("tau_member"):
+        tau += f", of its heaviest member {view['tau_member']}: the one the adaptation re-fits"
+    return f"the prior's slowest time constant ({tau})"
 
 
 def spread_order(speeds: Sequence[float], taken: Sequence[float] = ()) -> list[float]:
@@ -246,7 +299,8 @@ def _heat_reason(i: int, speed: float, speeds: list[float], view: Mapping | None
     """Why heat-up ``i`` (0-based) runs at ``speed``."""
     if view and _untrained(speed, view):
         half = (view.get("half_width_um") or {}).get("outside")
-        width = f"; its interval there is the outside cell, +/-{half:.3g} um" if half is not None else ""
+        cell = f"; {_interval_text(view)} there is the outside cell"
+        width = f"{cell}, +/-{half:.3g} um" if half is not None else ""
         return f"a speed the prior never trained at ({_trained_text(view)}){width}"
     where = (
         "the highest speed: the largest heat input, the best-conditioned single run"
@@ -258,7 +312,7 @@ def _heat_reason(i: int, speed: float, speeds: list[float], view: Mapping | None
     )
     if view and (view.get("trained_speeds_rpm") or view.get("speed_range_rpm")):
         half = (view.get("half_width_um") or {}).get("settled")
-        width = f", interval +/-{half:.3g} um" if half is not None else ""
+        width = f", {_interval_text(view).removeprefix('its ')} +/-{half:.3g} um" if half is not None else ""
         return f"{where} (trained by the prior{width})"
     return where
 
@@ -268,7 +322,7 @@ def _extras(left, k, n_cool, run_s, speeds, *, uncertainty, view) -> tuple[list[
     heat_extra, cool_extra = [0.0] * k, [0.0] * n_cool
     tau = (view or {}).get("slowest_tau_s")
     if tau:  # the prior's slowest time constant: a heat-up and a cool-down long enough to see it
-        want = min(TAU_SPAN * float(tau), MAX_RUN_S) - run_s
+        want = math.floor((min(TAU_SPAN * float(tau), MAX_RUN_S) - run_s) / QUANTUM_S + 1e-9) * QUANTUM_S
         for extra in (heat_extra, cool_extra):
             if extra:
                 extra[0] = max(0.0, min(want, math.floor(left / QUANTUM_S + 1e-9) * QUANTUM_S))
@@ -297,7 +351,7 @@ def _rows(speeds, heat_extra, cool_extra, run_s, rest_s, view) -> list[tuple]:
         heat = run_s + heat_extra[i]
         reason = _heat_reason(i, speed, speeds, view)
         if tau and i == 0 and heat_extra[0] > 0:
-            reason += f"; long enough to see the prior's slowest time constant ({float(tau):g} s) change"
+            reason += f"; long enough to see {_tau_text(view)} change"
         rows.append(
             (speed, heat, f"heat-up {i + 1} of {k}: {speed:g} r/min, {heat / 60:g} min", reason, "heat-up")
         )
@@ -307,9 +361,7 @@ def _rows(speeds, heat_extra, cool_extra, run_s, rest_s, view) -> list[tuple]:
             if i == k - 1:
                 why = "spindle stopped: the final cool-down (a CV fold)"
             if tau and i == 0 and cool_extra[0] > 0:
-                why += (
-                    f"; long enough to see the prior's slowest time constant ({float(tau):g} s) as it cools"
-                )
+                why += f"; long enough to see {_tau_text(view)} as it cools"
             rows.append(
                 (0.0, cool, f"cool-down {i + 1}: spindle stopped, {cool / 60:g} min", why, "cool-down")
             )
@@ -339,7 +391,8 @@ def plan_programme(
 
     1. **Speeds**: the training speeds ``speeds_rpm`` inside ``speed_range`` (none: all). First
        those the prior **never trained at** (no trained speed within ``tolerance_rpm``; for a
-       kind that records only a range, outside it), in the order of :func:`spread_order`
+       kind that records only a range, outside it; a CV-weighted ensemble's trained speeds are
+       its members', :func:`prior_view`), in the order of :func:`spread_order`
        (highest, lowest, then the middle of the widest gap left), then the trained ones,
        farthest from those taken first. The highest comes first among equals: its heat-up moves
        the spindle most (the best-conditioned run for a gain); the lowest second spans the range.
@@ -350,7 +403,7 @@ def plan_programme(
        ``run_s`` is left over and ``k >= 2``. Heat-ups and cool-downs are the whole-run CV's folds.
     3. **How long**: with a prior whose slowest time constant is ``tau`` (``slowest_tau_s``), the
        time left goes first to the first heat-up, then to the cool-down after it, each up to
-       ``TAU_SPAN`` (2) ``tau``: long enough to see a repair move the time constants. The rest
+       ``TAU_SPAN`` (2) ``tau`` (whole minutes, not beyond): long enough to see a repair move the time constants. The rest
        goes to the heat-ups in proportion to ``uncertainty`` (speed -> how unsure; none: the
        prior's interval half width, ``outside`` at an untrained speed, ``settled`` at a trained
        one; a speed not named counts as the worst named; no interval: equal shares), none beyond

@@ -6,7 +6,8 @@ in hours" and "A programme shaped by the prior") is built from:
 * the **prior**: the model the re-qualification starts from, resolved as rule compare resolves
   it (``models.prior``, :func:`rafi.family.prior.prior_chain`; ``--prior`` overrides it here),
   read by :func:`rafi.ops.plan.prior_view`: the speeds it was trained at, its interval's half
-  widths, its slowest time constant;
+  widths, its slowest time constant (a CV-weighted ensemble read whole: its members' speeds and
+  ranges, its own interval, the time constants of the member the adaptation re-fits);
 * the **speeds**: the machine's ``training_speeds_rpm`` inside ``--speed-range`` (the range the
   machine is used in: paper item 10), those the prior never trained at first;
 * the machine's **resolved settings**: the shortest run (``runs.min_run_s``,
@@ -107,8 +108,12 @@ def run(args) -> int:
 
 def plan_header(machine: str, prior: dict | None, total_s: float, out: Path) -> str:
     """The lines above the table: the prior, the length, the file and what to do with it."""
+    from rafi.family.prior import ENSEMBLE_KIND
+
     if prior:
         who = f"prior {str(prior.get('model_id', ''))[:12]} ({prior.get('kind', '?')}"
+        if prior.get("kind") == ENSEMBLE_KIND:  # read whole: its members' speeds, its own interval
+            who += f" of {len(prior.get('weights') or {})} members"
         who += f", champion of {prior.get('machine')})" if prior.get("machine") else ")"
     else:
         who = "no prior (the programme of a first qualification in the same budget)"
