@@ -20,6 +20,7 @@ from rafi.artefact import compute_model_id, model_id_verifies
 from rafi.deploy.compensator import Compensator
 from rafi.family.adapted import AdaptedPrior
 from rafi.family.compare import load_any, make_model, run_family
+from rafi.family.ensemble import WeightedEnsemble
 from rafi.settings import MACHINE_DEFAULTS
 from rafi.twin.synthetic_runs import machine_state
 
@@ -60,6 +61,20 @@ def states():
 def _prior(kind: str, table, frame) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # statsmodels' conditioning warnings of RAFI's fits
+        if kind == "ensemble_rafi":  # made before RAFI's kinds left the ensemble (NOT_MEMBERS)
+            res = run_family(
+                table,
+                frame,
+                key_sensors=SENSORS,
+                terms=MACHINE_DEFAULTS["fit"]["terms"],
+                reference=REFERENCE,
+                machine="old",
+                gates=MACHINE_DEFAULTS["qualification"],
+                options={**OPTIONS, "enabled": ENSEMBLES[kind], "offer": "best"},
+                log=lambda m: None,
+            )
+            weights = {"rafi": 0.6, "rafi_linear": 0.4}
+            return WeightedEnsemble.from_fitted(res["models"], weights, machine="old").to_dict()
         if kind in ENSEMBLES:
             res = run_family(
                 table,
@@ -113,8 +128,8 @@ def test_every_adapted_artefact_says_what_was_tested_here_and_what_the_prior_cov
     assert fit["speed_range_prior_rpm"] == [min(PRIOR_SPEEDS), max(PRIOR_SPEEDS)]
     assert art["speed_range_rpm"] == [min(NEW_SPEEDS), max(PRIOR_SPEEDS)]
     # the prior's own speeds where an artefact records them (RAFI's per-speed models, an
-    # ensemble's RAFI member); the speeds only the prior covers are a warning
-    records_speeds = kind in ("rafi", "rafi_linear", "ensemble_rafi")
+    # ensemble's own record or its RAFI member's); the speeds only the prior covers are a warning
+    records_speeds = kind in ("rafi", "rafi_linear", "ensemble_rafi", "ensemble_ridge")
     if records_speeds:
         assert fit["speeds_prior_rpm"] == list(PRIOR_SPEEDS)
         assert fit["speeds_prior_only_rpm"] == [12000.0, 18000.0]

@@ -21,7 +21,7 @@ from hypothesis.extra.numpy import arrays
 
 from rafi.family import crossval
 from rafi.family.compare import load_any, make_model, run_family
-from rafi.family.ensemble import ENSEMBLE, WeightedEnsemble, blend, cv_weights
+from rafi.family.ensemble import ENSEMBLE, NOT_MEMBERS, WeightedEnsemble, blend, cv_weights, ensemble_members
 from rafi.family.plain_ridge import PLAIN_RIDGE
 from rafi.settings import MACHINE_DEFAULTS
 
@@ -82,6 +82,19 @@ def test_weights_are_inverse_squared_mean_whole_run_scores():
     assert cv_weights(cv, ["a", "c"]) == {}  # one member with a score: no blend
 
 
+def test_the_members_are_the_enabled_kinds_but_rafis_and_the_plain_ridge():
+    assert NOT_MEMBERS == ("rafi", "rafi_linear")
+    everything = ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box"]
+    assert ensemble_members(everything, floor=PLAIN_RIDGE) == [
+        "ridge_global",
+        "dynamic",
+        "grey_box",
+        PLAIN_RIDGE,
+    ]
+    assert ensemble_members([PLAIN_RIDGE, "dynamic"], floor=PLAIN_RIDGE) == [PLAIN_RIDGE, "dynamic"]
+    assert ensemble_members(["rafi"], floor=PLAIN_RIDGE) == [PLAIN_RIDGE]  # one member: no blend
+
+
 @settings(max_examples=200, deadline=None)
 @given(
     arrays(np.float64, (7, 3), elements=st.one_of(st.floats(-50, 50), st.just(np.nan))),
@@ -102,7 +115,9 @@ def test_the_ensemble_is_offered_and_ranked_first(offered):
     sel = res["selection"]
     assert sel["model"].iloc[0] == ENSEMBLE and sel["selection_rank"].iloc[0] == 1
     ens = res["models"][ENSEMBLE]
-    assert set(ens.weights_) == {*ENABLED, PLAIN_RIDGE}
+    # RAFI's kinds are fitted and scored as always, and not blended (NOT_MEMBERS)
+    assert set(ens.weights_) == {"ridge_global", "dynamic", PLAIN_RIDGE}
+    assert {"rafi_linear", *ens.weights_} <= set(res["summary"]["model"])
     assert sum(ens.weights_.values()) == pytest.approx(1.0)
     assert res["best_artefact"]["kind"] == ENSEMBLE and res["best_artefact"].get("interval")
 
@@ -175,7 +190,10 @@ def test_fit_is_refused():
 
 def test_every_member_is_held_inside_two_training_spans_before_the_blend(offered):
     table, frame, res = offered
-    ens = res["models"][ENSEMBLE]
+    # an ensemble that holds a member without its own cap (RAFI's linear kind; artefacts made
+    # before NOT_MEMBERS hold one)
+    weights = {**res["models"][ENSEMBLE].weights_, "rafi_linear": 0.2}
+    ens = WeightedEnsemble.from_fitted(res["models"], weights, machine="synthetic")
     train = frame["run_id"].isin(table.loc[table["role"] == "training", "run_id"])
     lo, hi = frame.loc[train, "dz_um"].min(), frame.loc[train, "dz_um"].max()
     assert ens.envelope_["output_range"] == pytest.approx([lo, hi])

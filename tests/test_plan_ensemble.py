@@ -79,8 +79,10 @@ def test_the_view_reads_the_whole_ensemble(ensemble):
     art, trained = ensemble
     name, member = _heaviest(art)
     view = prior_view(art, tolerance_rpm=TOLERANCE)
-    # the speeds its training had: a RAFI member's per-speed records (the ensemble has none itself)
-    assert any(m.get("speeds") for m in art["members"].values()) and "speeds" not in art
+    # the speeds its training had: the ensemble's own record (its members, ridge kinds, record a
+    # range only; RAFI's kinds are not members)
+    assert art["trained_speeds_rpm"] == trained
+    assert not any(m.get("speeds") for m in art["members"].values()) and "speeds" not in art
     assert view["trained_speeds_rpm"] == trained
     assert view["speed_range_rpm"] == (trained[0], trained[-1])
     # its own interval, calibrated on the blend: not the heaviest member's

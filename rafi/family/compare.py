@@ -26,6 +26,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.artefact import json_text, write_text_atomic
+from rafi.errors import SettingsError
 from rafi.family.adapted import adaptation_factories
 from rafi.family.crossval import (  # noqa: F401 - cv_data re-exported (it lived here)
     cross_validate,
@@ -37,7 +38,14 @@ from rafi.family.crossval import (  # noqa: F401 - cv_data re-exported (it lived
 from rafi.family.cv_memo import cv_memo_key, read_cv, read_oof, write_cv, write_oof
 from rafi.family.describe import describe_selection, fitted_text
 from rafi.family.dynamic import DynamicRidge
-from rafi.family.ensemble import ENSEMBLE, WeightedEnsemble, cv_weights, ensemble_cv_rows, ensemble_oof
+from rafi.family.ensemble import (
+    ENSEMBLE,
+    WeightedEnsemble,
+    cv_weights,
+    ensemble_cv_rows,
+    ensemble_members,
+    ensemble_oof,
+)
 from rafi.family.feature_memo import sharing_features
 from rafi.family.forward_folds import configured_scheme as forward_scheme
 from rafi.family.forward_folds import is_forward
@@ -57,6 +65,7 @@ from rafi.family.selection import (  # noqa: F401 - re-exported: the selection r
 )
 from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.whole_log import rows_of_logs
+from rafi.method.rank import training_speed_groups
 from rafi.method.validate import qualify, validate_runs
 from rafi.settings import MACHINE_DEFAULTS
 
@@ -478,18 +487,33 @@ def _cross_validated(
     return models, cv, oof, memo, fit_table
 
 
-def with_ensemble(models: dict, cv: pd.DataFrame, oof: pd.DataFrame, members, *, machine, log=print):
+def with_ensemble(
+    models: dict, cv: pd.DataFrame, oof: pd.DataFrame, members, *, machine, trained_speeds_rpm=None, log=print
+):
     """``models``, ``cv`` and ``oof`` with the CV-weighted ensemble of ``members``
-    (:mod:`rafi.family.ensemble`): its model, its CV rows and its OOF samples, blended from the
-    members' own. Unchanged when fewer than two members have a finite CV score."""
+    (:mod:`rafi.family.ensemble`; ``trained_speeds_rpm`` recorded in it): its model, its CV rows
+    and its OOF samples, blended from the members' own. Unchanged when fewer than two members have
+    a finite CV score."""
     weights = cv_weights(cv, [m for m in dict.fromkeys(members) if m in models])
     if not weights:
         return models, cv, oof
     blended = ensemble_oof(oof, weights)
     log(f"{ENSEMBLE}: " + ", ".join(f"{k} {w:.3f}" for k, w in weights.items()))
-    models = {**models, ENSEMBLE: WeightedEnsemble.from_fitted(models, weights, machine=machine)}
+    ensemble = WeightedEnsemble.from_fitted(
+        models, weights, machine=machine, trained_speeds_rpm=trained_speeds_rpm
+    )
+    models = {**models, ENSEMBLE: ensemble}
     cv = pd.concat([cv, ensemble_cv_rows(cv, blended)], ignore_index=True)
     return models, cv, pd.concat([oof, blended], ignore_index=True)
+
+
+def trained_speeds(runs_table: pd.DataFrame) -> list[float] | None:
+    """The speeds of the constant training runs as RAFI groups them
+    (:func:`rafi.method.rank.training_speed_groups`), increasing; None where there is none."""
+    try:
+        return [float(v) for v in training_speed_groups(runs_table)]
+    except SettingsError:
+        return None
 
 
 def offered_first(selection: pd.DataFrame, offered: str) -> pd.DataFrame:
@@ -601,8 +625,11 @@ def run_family(
         log=log,
     )
     offer_ensemble = options["offer"] == ENSEMBLE and prior is None  # judged from scratch only
-    members = [*options["enabled"], PLAIN_RIDGE] if offer_ensemble else []
-    models, cv, oof = with_ensemble(models, cv, oof, members, machine=machine, log=log)
+    members = ensemble_members(options["enabled"], floor=PLAIN_RIDGE) if offer_ensemble else []
+    speeds = trained_speeds(runs_table) if members else None
+    models, cv, oof = with_ensemble(
+        models, cv, oof, members, machine=machine, trained_speeds_rpm=speeds, log=log
+    )
     # every model's prediction interval, from its own OOF residuals (RAFI's model.json keeps its own)
     samples, calibrated_on = calibration_units(oof, scheme_of(fit_table, options["cv"]))
     calibrate_family(

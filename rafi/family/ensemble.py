@@ -6,7 +6,8 @@ its CV score, on 22 foreign machines and on 5 of the 6 real-log channels. The we
 ``w_k ~ 1 / s_k^2``, ``s_k`` the kind's mean over the whole-run held-out runs of the max |residual|
 (``comparison/cv.csv``, the forward folds left out), over the kinds with a finite, positive score
 (:func:`cv_weights`): an inverse-variance weighting with the CV loss as the scale, fixed before any
-validation run is predicted.
+validation run is predicted. The members (:func:`ensemble_members`) are the enabled kinds but RAFI's
+two (:data:`NOT_MEMBERS`, fitted, scored and reported as always, not blended), and the plain ridge.
 
 The prediction of a row is the weighted mean of the members' predictions over the members that
 have a value there (:func:`blend`: the weights of the others are set aside and the rest
@@ -28,7 +29,8 @@ calibrated on those blended residuals like every kind's on its own.
 Artefact (``kind: ensemble``): ``weights`` (member name -> weight, summing to 1), ``members``
 (name -> the member's own ``rafi.model/1`` artefact, with its own ``model_id``), and the union of
 the members' ``key_sensors``, ``regressor_ranges``, ``speed_range_rpm``, ``train_runs`` and
-``data``; ``hyperparameters: filter_restart_gap_s`` is the shortest member's (the interval's change
+``data``; ``trained_speeds_rpm`` (the constant training runs' speeds, where there are any);
+``hyperparameters: filter_restart_gap_s`` is the shortest member's (the interval's change
 clock restarts with the first member that restarts); ``envelope`` (``output_range``,
 ``output_margin``: the bound every member's prediction is held in; absent when no member has one).
 """
@@ -44,9 +46,11 @@ from rafi.family.forward_folds import fold_unit, is_forward
 
 __all__ = [
     "ENSEMBLE",
+    "NOT_MEMBERS",
     "WEIGHT_RULE",
     "WeightedEnsemble",
     "cv_weights",
+    "ensemble_members",
     "blend",
     "ensemble_oof",
     "ensemble_cv_rows",
@@ -61,6 +65,20 @@ WEIGHT_RULE = (
     "blocks, where the training data hold too few runs) of the max |residual|; each row blends the "
     "members that have a value there"
 )
+
+
+#: The kinds fitted, scored and reported in every comparison but not blended: RAFI's per-speed
+#: OLS, the paper's method, and its linear-in-speed variant. Judged one level up
+#: (``docs/decisions.md``, 2026-11-29, "a robust blend and fewer members"): without them the
+#: ensemble was as good on foreign machines (within one SE) and better on FL_THERMAL's training
+#: runs, with two members fewer to run on the machine.
+NOT_MEMBERS = ("rafi", "rafi_linear")
+
+
+def ensemble_members(enabled, *, floor: str) -> list[str]:
+    """The models the ensemble may blend: the ``enabled`` kinds but :data:`NOT_MEMBERS`, then the
+    plain ridge ``floor`` (a member even where it is not enabled), each once, in that order."""
+    return list(dict.fromkeys([*(k for k in enabled if k not in NOT_MEMBERS), floor]))
 
 
 def cv_weights(cv: pd.DataFrame, members) -> dict[str, float]:
@@ -237,10 +255,14 @@ class WeightedEnsemble(FamilyModel):
         raise TypeError("a WeightedEnsemble is built from fitted members (from_fitted), not fitted")
 
     @classmethod
-    def from_fitted(cls, members: dict, weights: dict, *, machine: str | None = None) -> WeightedEnsemble:
+    def from_fitted(
+        cls, members: dict, weights: dict, *, machine: str | None = None, trained_speeds_rpm=None
+    ) -> WeightedEnsemble:
         """The ensemble of the fitted ``members`` (name -> model) with ``weights`` (name -> weight).
 
         Only the members named in ``weights`` enter; the weights are renormalised to sum to 1.
+        ``trained_speeds_rpm``: the speeds of the constant training runs (RAFI's speed groups),
+        recorded for people and ``rafi plan`` (its members record a range only); None: not said.
         """
         names = [n for n in weights if n in members]
         if len(names) < 2:
@@ -253,6 +275,7 @@ class WeightedEnsemble(FamilyModel):
         bounds = [_output_part(getattr(members[n], "envelope_", None)) for n in names]
         m.envelope_ = next((b for b in bounds if b is not None), None)
         m.grid_edges_ = [f"{n}: {e}" for n in names for e in getattr(members[n], "grid_edges_", [])]
+        m.trained_speeds_rpm_ = None if trained_speeds_rpm is None else [float(v) for v in trained_speeds_rpm]
         return m
 
     def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
@@ -320,6 +343,8 @@ class WeightedEnsemble(FamilyModel):
             "data": dict(sorted(data.items())),
             "code_version": CODE_VERSION,
         }
+        if getattr(self, "trained_speeds_rpm_", None) is not None:
+            body["trained_speeds_rpm"] = list(self.trained_speeds_rpm_)
         if self.envelope_ is not None:
             body["envelope"] = self.envelope_
         if getattr(self, "interval_", None) is not None:
@@ -333,7 +358,9 @@ class WeightedEnsemble(FamilyModel):
         does not import the kinds)."""
         check_artefact(d, cls.kind)
         members = {n: load(a) for n, a in d["members"].items()}
-        m = cls.from_fitted(members, d["weights"], machine=d.get("machine"))
+        m = cls.from_fitted(
+            members, d["weights"], machine=d.get("machine"), trained_speeds_rpm=d.get("trained_speeds_rpm")
+        )
         m.interval_ = d.get("interval")
         m.envelope_ = _output_part(d.get("envelope"))
         return m

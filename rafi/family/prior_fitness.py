@@ -69,8 +69,9 @@ def prior_speed_range(prior: Mapping) -> list[float] | None:
 
 def prior_trained_speeds(prior: Mapping, base: Mapping | None = None) -> list[float]:
     """The speeds (r/min) of the per-speed models the prior (or ``base``, the artefact re-fitted)
-    records: RAFI's kinds; for a CV-weighted ensemble prior whose ``base`` has none, its members'
-    (they trained on the same runs); empty when no artefact records them."""
+    records: RAFI's kinds; for a CV-weighted ensemble prior whose ``base`` has none, its own
+    ``trained_speeds_rpm`` and its members' (they trained on the same runs); empty when no
+    artefact records them."""
     from rafi.family.prior import ENSEMBLE_KIND
 
     base = prior if base is None else base
@@ -78,6 +79,7 @@ def prior_trained_speeds(prior: Mapping, base: Mapping | None = None) -> list[fl
     if not speeds and prior.get("kind") == ENSEMBLE_KIND:
         members = [m for m in (prior.get("members") or {}).values() if isinstance(m, Mapping)]
         speeds = _finite(s.get("speed_rpm") for m in members for s in m.get("speeds") or [])
+        speeds += _finite(prior.get("trained_speeds_rpm") or [])
     return sorted(set(speeds))
 
 

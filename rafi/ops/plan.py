@@ -93,8 +93,10 @@ def _selected_taus(artefact: Mapping) -> list[float]:
 
 
 def _trained_speeds(artefact: Mapping) -> list[float]:
-    """The speeds of an artefact's per-speed records (RAFI's kinds; none for the others)."""
-    return [float(s["speed_rpm"]) for s in artefact.get("speeds") or [] if "speed_rpm" in s]
+    """The speeds of an artefact's per-speed records (RAFI's kinds) and its ``trained_speeds_rpm``
+    (an ensemble's own record); none for the other kinds."""
+    records = [float(s["speed_rpm"]) for s in artefact.get("speeds") or [] if "speed_rpm" in s]
+    return records + [float(v) for v in artefact.get("trained_speeds_rpm") or []]
 
 
 def _speed_range(artefact: Mapping) -> tuple[float, float] | None:
@@ -110,7 +112,7 @@ def prior_view(prior: Mapping | None, *, tolerance_rpm: float = 0.0) -> dict | N
     """What :func:`plan_programme` reads of a prior's artefact (None: no prior).
 
     A CV-weighted ensemble (``kind: ensemble``, :mod:`rafi.family.ensemble`) is read whole: its
-    trained speeds are the union of its members' per-speed records, its speed range the union of
+    trained speeds are its own record and its members' per-speed records, its speed range the union of
     its own and its members' ranges, its interval its own (calibrated on the blend, not a
     member's); its time constants are those of the member the adaptation re-fits, the heaviest
     (:func:`rafi.family.prior.prior_base`: ``prior_time`` scales that member's filters; an
@@ -403,7 +405,8 @@ def plan_programme(
        ``run_s`` is left over and ``k >= 2``. Heat-ups and cool-downs are the whole-run CV's folds.
     3. **How long**: with a prior whose slowest time constant is ``tau`` (``slowest_tau_s``), the
        time left goes first to the first heat-up, then to the cool-down after it, each up to
-       ``TAU_SPAN`` (2) ``tau`` (whole minutes, not beyond): long enough to see a repair move the time constants. The rest
+       ``TAU_SPAN`` (2) ``tau`` (whole minutes, not beyond): long enough to see a repair move the
+       time constants. The rest
        goes to the heat-ups in proportion to ``uncertainty`` (speed -> how unsure; none: the
        prior's interval half width, ``outside`` at an untrained speed, ``settled`` at a trained
        one; a speed not named counts as the worst named; no interval: equal shares), none beyond
