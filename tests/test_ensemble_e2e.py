@@ -21,7 +21,7 @@ import pytest
 from conftest import which_or_skip
 
 from rafi.artefact import compute_model_id
-from rafi.family.ensemble import ENSEMBLE, WEIGHT_RULE
+from rafi.family.ensemble import ENSEMBLE, NOT_MEMBERS, WEIGHT_RULE
 from rafi.family.plain_ridge import PLAIN_RIDGE
 from rafi.settings import MACHINE_DEFAULTS
 from tests.project_copy import copy_project, copy_settled, run_rafi, run_snakemake
@@ -70,7 +70,8 @@ def test_the_ensemble_is_offered_with_the_weights_of_its_cv(project):
     res = _results(project)
     art = json.loads((res / "comparison" / "best_model.json").read_text())
     assert art["kind"] == ENSEMBLE and art["model_id"] == compute_model_id(art)
-    assert set(art["weights"]) == {*MACHINE_DEFAULTS["models"]["enabled"], PLAIN_RIDGE}
+    members = {*MACHINE_DEFAULTS["models"]["enabled"], PLAIN_RIDGE} - set(NOT_MEMBERS)
+    assert set(art["weights"]) == members and len(members) == 4
     oracle = _oracle_weights(pd.read_csv(res / "comparison" / "cv.csv"), art["weights"])
     assert art["weights"] == pytest.approx(oracle, rel=1e-9)
     summary = pd.read_csv(res / "comparison" / "summary.csv").set_index("model")
@@ -113,7 +114,7 @@ def test_the_report_states_the_ensemble_its_members_weights_and_rule(project):
     art = json.loads((res / "comparison" / "best_model.json").read_text())
     page = (project / "reports" / MACHINE / "qualification.html").read_text(encoding="utf-8")
     verdict = _text(re.search(r'<p class="rafi-line"><b>How the model offered.*?</p>', page, re.S).group(0))
-    assert "the CV-weighted ensemble of 6 kinds" in verdict and "models: offer: ensemble" in verdict
+    assert "the CV-weighted ensemble of 4 kinds" in verdict and "models: offer: ensemble" in verdict
     block = _text(re.search(r'<div class="keep" id="ensemble">(.*?)</div>', page, re.S).group(1))
     assert WEIGHT_RULE in block and "judged one level up" in block.lower()
     assert "docs/decisions.md, 2026-11-29" in block and "slightly optimistic" in block
@@ -125,7 +126,7 @@ def test_the_report_states_the_ensemble_its_members_weights_and_rule(project):
     positions = [block.index(f" {art['weights'][m]:.3f} ") for m in ordered]
     assert positions == sorted(positions)
     rule = _text(re.search(r"<b>Selection rule\.</b>(.*?)</p>", page, re.S).group(1))
-    assert "the CV-weighted ensemble of every kind" in rule and "lowest mean" not in rule
+    assert "the CV-weighted ensemble of the ridge kinds" in rule and "lowest mean" not in rule
     ridge = _text(re.search(r'<p id="plain-ridge">(.*?)</p>', page, re.S).group(1))
     assert "The offered model (ensemble)" in ridge
     assert f"a member of the ensemble offered (weight {art['weights'][PLAIN_RIDGE]:.3f})" in ridge

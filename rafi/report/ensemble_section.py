@@ -31,8 +31,9 @@ __all__ = [
 
 #: The selection rule under ``models: offer: ensemble``, for people (the comparison states it).
 ENSEMBLE_RULE = (
-    "the CV-weighted ensemble of every kind (models: offer: ensemble): each kind, the plain ridge "
-    "among them, is cross-validated by whole run on the training runs only (each training run, or "
+    "the CV-weighted ensemble of the ridge kinds (models: offer: ensemble; RAFI's two kinds are "
+    "scored beside it, not blended): each kind, the plain ridge among them, is cross-validated by "
+    "whole run on the training runs only (each training run, or "
     "speed under leave_one_speed_out, held out in turn; every kind refitted on the others, its own "
     "hyperparameters chosen by an inner cross-validation on them) and weighted from those held-out "
     "scores ({rule}); the ensemble is offered whatever its own score, so its rank 1 is the offer, "
