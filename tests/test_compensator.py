@@ -249,6 +249,34 @@ def test_the_filters_restart_after_a_long_gap_and_carry_through_a_short_one():
     assert held[0] == y[-1][0] and np.isnan(held[1])  # a NaN input holds the state
 
 
+def test_the_filters_follow_a_change_of_step_length():
+    """Known truth for steps of any length: ``y_k = x + (y_(k-1) - x) exp(-dt_k / tau)``; the
+    bank keeps the coefficients of the last step length, so a step of another length (and back)
+    must use its own."""
+    tau = 300.0
+    bank = LowpassBank.create([tau], 1)
+    y = bank.update(np.array([2.0]), 0.0)[0]
+    assert y == 2.0
+    for dt in [5.0, 5.0, 7.0, 5.0, 60.0, 60.0, 5.0]:
+        want = 5.0 + (y - 5.0) * np.exp(-dt / tau)
+        y = bank.update(np.array([5.0]), dt)[0]
+        assert y == pytest.approx(want, abs=1e-12)
+
+
+def test_the_weights_of_a_held_speed_are_those_of_the_speed(data):
+    """RAFI's weights are kept for a held speed: every speed, held or new, gets the weights of
+    rafi.method.fuzzy.triangular_weights (the batch code's function)."""
+    from rafi.method.fuzzy import triangular_weights
+
+    rule, table, frame = data
+    comp = Compensator.from_artefact(_fit("rafi", rule, table, frame).to_dict())
+    for rpm in [3000.0, 3000.0, 4500.0, 4500.0, 3000.0, np.nan, 17999.0]:
+        w, out = comp.speed_weights(rpm)
+        want_w, want_out = triangular_weights([rpm], comp.speeds_rpm, tolerance_rpm=comp.speed_range_rpm[0])
+        np.testing.assert_array_equal(w, want_w)
+        np.testing.assert_array_equal(out, want_out)
+
+
 def test_a_given_reference_equals_the_captured_one():
     """ridge_global without filters: ``set_reference`` with the window medians gives the same
     numbers as capturing the window."""

@@ -92,3 +92,18 @@ def test_weights_are_a_partition_of_unity(centres, speeds):
     # linear reproduction: the blend of the centres is the speed clipped to the range
     np.testing.assert_allclose(w @ c, np.clip(s, c.min(), c.max()), rtol=1e-9, atol=1e-6)
     np.testing.assert_array_equal(out, (s < c.min()) | (s > c.max()))
+
+
+def test_prepared_centres_give_the_same_weights():
+    """The streaming compensator prepares the centres once (``prepared=``): the same weights and
+    flags, bit for bit, as preparing them on each call, centres in any order."""
+    from rafi.method.fuzzy import prepare_centres
+
+    centres = [9000, 3000, 18000, 6000]
+    prepared = prepare_centres(centres)
+    rng = np.random.default_rng(7)
+    for s in [*rng.uniform(0, 20000, 50), 3000.0, 18000.0, np.nan, -0.0]:
+        w, out = triangular_weights([s], centres, tolerance_rpm=50.0)
+        wp, outp = triangular_weights([s], centres, tolerance_rpm=50.0, prepared=prepared)
+        np.testing.assert_array_equal(wp, w)
+        np.testing.assert_array_equal(outp, out)

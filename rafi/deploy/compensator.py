@@ -94,6 +94,7 @@ of every step are informational (as in the batch ``predict_detail``).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING
 
@@ -108,10 +109,11 @@ from rafi.family.envelope import (
     bound_features,
     bound_output,
     envelope_bounds,
-    key_range_excess,
+    input_spans,
     output_bounds,
+    range_excess,
 )
-from rafi.method.fuzzy import triangular_weights
+from rafi.method.fuzzy import prepare_centres, triangular_weights
 
 if TYPE_CHECKING:
     from rafi.deploy.ensemble_stream import EnsembleCompensator
@@ -276,6 +278,12 @@ class Compensator:
         self.t_prev_s: float | None = None
         self.ref_values: np.ndarray | None = None
         self.ref_speed_rpm: float = float("nan")
+        # constants of the artefact computed on first use, not per sample (the same operations):
+        # the fuzzy weights of the last speed seen (a log holds a speed for many samples) and a
+        # ridge kind's range_excess inputs (rafi.family.envelope.key_range_excess)
+        self._speed_memo: tuple | None = None
+        self._centres: tuple | None = None  # rafi.method.fuzzy.prepare_centres of speeds_rpm
+        self._excess_inputs: tuple[np.ndarray, np.ndarray] | None = None
 
     # ------------------------------------------------------------------ creation
     @classmethod
@@ -535,7 +543,7 @@ class Compensator:
         x = rises[None, :]
         per_speed = _design(x, self.exponents) @ self.coef.T
         speed = np.array([rpm])
-        weights, outside = triangular_weights(speed, self.speeds_rpm, tolerance_rpm=self.speed_range_rpm[0])
+        weights, outside = self.speed_weights(rpm)
         active = weights > 0
         contrib = np.where(active, weights * np.where(active, per_speed, 0.0), 0.0)
         pred = contrib.sum(axis=1)
@@ -580,8 +588,41 @@ class Compensator:
         lo, hi = self.ranges[:, 0], self.ranges[:, 1]
         out_temp = bool(((rises < lo) | (rises > hi)).any())
         out_speed = bool(rpm < self.speed_range_rpm[0] or rpm > self.speed_range_rpm[1])
-        self._excess = float(key_range_excess(rises[None, :], [rpm], self.ranges, self.speed_range_rpm)[0])
+        if self._excess_inputs is None:  # key_range_excess's ranges and spans, once
+            ranges = np.vstack([self.ranges.reshape(-1, 2), np.asarray(self.speed_range_rpm, dtype=float)])
+            self._excess_inputs = (ranges, input_spans(ranges, speed_last=True))
+        values = np.append(rises, rpm)[None, :]  # key_range_excess's rises and speed as one row
+        self._excess = float(range_excess(values, *self._excess_inputs)[0])
         return pred, out_speed, out_temp
+
+    def speed_weights(self, rpm: float) -> tuple[np.ndarray, np.ndarray]:
+        """RAFI's fuzzy weights ``(1, k)`` and outside flag ``(1,)`` of one speed
+        (:func:`rafi.method.fuzzy.triangular_weights` with the artefact's speed tolerance),
+        read-only; those of the last speed asked are kept, so a held speed costs nothing."""
+        key = (rpm, math.copysign(1.0, rpm))  # NaN never matches: computed again
+        if self._speed_memo is None or self._speed_memo[0] != key:
+            if self._centres is None:
+                self._centres = prepare_centres(self.speeds_rpm)
+            tol = self.speed_range_rpm[0]
+            weights, outside = triangular_weights(
+                np.array([rpm]), self.speeds_rpm, tolerance_rpm=tol, prepared=self._centres
+            )
+            weights.setflags(write=False)
+            outside.setflags(write=False)
+            self._speed_memo = (key, weights, outside, None)
+        return self._speed_memo[1], self._speed_memo[2]
+
+    def rise_bounds(self, rpm: float) -> tuple[np.ndarray, np.ndarray]:
+        """RAFI's trained range ``(low, high)`` of each key sensor's rise at one speed: over the
+        speed models in use there (every one where none is), tolerance applied; kept with
+        :meth:`speed_weights`."""
+        weights, _ = self.speed_weights(rpm)
+        memo = self._speed_memo
+        if memo[3] is None:
+            active = weights[0] > 0
+            ranges = self.ranges[active] if active.any() else self.ranges
+            self._speed_memo = (*memo[:3], (ranges[:, :, 0].min(axis=0), ranges[:, :, 1].max(axis=0)))
+        return self._speed_memo[3]
 
     # ------------------------------------------------------------------ introspection
     @property

@@ -97,7 +97,6 @@ import numpy as np
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.deploy.compensator import ENSEMBLE, Compensator
 from rafi.errors import SettingsError, TargetError
-from rafi.method.fuzzy import triangular_weights
 
 __all__ = ["STATUSES", "Command", "Limits", "SafeCompensator"]
 
@@ -493,12 +492,7 @@ class SafeCompensator:
         rises = self._fed[comp.sensor_index] - comp.ref_values[:p]
         if comp.exponents is not None:  # RAFI: the ranges of the speed models in use
             top = float(comp.speeds_rpm.max())
-            weights, _ = triangular_weights(
-                np.array([rpm]), comp.speeds_rpm, tolerance_rpm=comp.speed_range_rpm[0]
-            )
-            active = weights[0] > 0
-            ranges = comp.ranges[active] if active.any() else comp.ranges
-            lo, hi = ranges[:, :, 0].min(axis=0), ranges[:, :, 1].max(axis=0)
+            lo, hi = comp.rise_bounds(rpm)
         else:
             top = comp.speed_range_rpm[1]
             lo, hi = comp.ranges[:, 0], comp.ranges[:, 1]

@@ -15,6 +15,7 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 from collections.abc import Sequence
 
@@ -45,6 +46,10 @@ class LowpassBank:
         self.n_columns = n_columns
         self.state = state
         self.seen = seen
+        # constants of the filter constants, and the decay / gain of the last step length (a
+        # log samples at a fixed period: computed once, not per sample; the same operations)
+        self._through = self.taus_s[:, 0] <= 0
+        self._step: tuple[tuple, np.ndarray, np.ndarray] | None = None
 
     @classmethod
     def create(cls, taus_s: Sequence[float], n_columns: int) -> LowpassBank:
@@ -71,19 +76,30 @@ class LowpassBank:
         """Advance by ``dt_s`` (clipped at 0) with the inputs ``values``; the filtered values."""
         x = np.asarray(values, dtype=float)
         finite = np.isfinite(x)
-        with np.errstate(divide="ignore", invalid="ignore"):  # tau = 0: overwritten below
-            inc = max(float(dt_s), 0.0) / np.where(self.taus_s > 0, self.taus_s, 0.0)  # (n_taus, 1)
-        new = np.exp(-inc) * self.state + (-np.expm1(-inc)) * x[None, :]
+        decay, gain = self._coefficients(float(dt_s))
+        new = decay * self.state + gain * x[None, :]
         self.state = np.where(finite[None, :], new, self.state)
         first = finite & ~self.seen
         if first.any():
             self.state[:, first] = x[first][None, :]
         self.seen |= finite
         out = np.where(self.seen[None, :], self.state, np.nan)
-        through = self.taus_s[:, 0] <= 0
+        through = self._through
         if through.any():  # tau = 0: the input itself, NaN included (lowpass_log's pass-through)
             out[through] = x[None, :]
         return out.ravel()
+
+    def _coefficients(self, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
+        """``(exp(-dt/tau), -expm1(-dt/tau))`` per filter (n_taus, 1) for a step of ``dt_s``,
+        kept for the next step of the same length."""
+        key = (dt_s, math.copysign(1.0, dt_s))  # -0.0 is its own step (the sign of a zero gain)
+        if self._step is not None and self._step[0] == key:
+            return self._step[1], self._step[2]
+        with np.errstate(divide="ignore", invalid="ignore"):  # tau = 0: overwritten in update
+            inc = max(dt_s, 0.0) / np.where(self.taus_s > 0, self.taus_s, 0.0)  # (n_taus, 1)
+        decay, gain = np.exp(-inc), -np.expm1(-inc)
+        self._step = (key, decay, gain)
+        return decay, gain
 
     @property
     def nbytes(self) -> int:

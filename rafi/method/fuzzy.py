@@ -38,11 +38,12 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["triangular_weights", "membership_curves"]
+__all__ = ["prepare_centres", "triangular_weights", "membership_curves"]
 
 
-def _centres(centres_rpm) -> tuple[np.ndarray, np.ndarray]:
-    """Validate centres; return (sorted centres, order that sorts the input)."""
+def prepare_centres(centres_rpm) -> tuple[np.ndarray, np.ndarray]:
+    """Validate centres; return (sorted centres, order that sorts the input): the ``prepared``
+    argument of :func:`triangular_weights` for a caller that weighs one sample at a time."""
     c = np.asarray(centres_rpm, dtype=float).ravel()
     if c.size == 0:
         raise ValueError("centres_rpm is empty; at least one training speed is needed")
@@ -56,7 +57,7 @@ def _centres(centres_rpm) -> tuple[np.ndarray, np.ndarray]:
 
 
 def triangular_weights(
-    speed_rpm, centres_rpm, *, tolerance_rpm: float = 0.0
+    speed_rpm, centres_rpm, *, tolerance_rpm: float = 0.0, prepared: tuple | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Triangular fuzzy membership weights of each sample's speed in each training speed.
 
@@ -71,6 +72,9 @@ def triangular_weights(
         A sample is flagged ``outside`` only if its speed lies more than this
         below the lowest or above the highest centre (measured speeds jitter by a
         few r/min around a set point). The weights do not depend on it.
+    prepared : tuple, optional
+        :func:`prepare_centres` of ``centres_rpm``, computed once by the caller (the streaming
+        compensator weighs one sample at a time); default: computed here.
 
     Returns
     -------
@@ -86,7 +90,7 @@ def triangular_weights(
     >>> w.round(4).tolist(), out.tolist()
     ([[0.6667, 0.3333, 0.0]], [False])
     """
-    cs, order = _centres(centres_rpm)
+    cs, order = prepare_centres(centres_rpm) if prepared is None else prepared
     s = np.atleast_1d(np.asarray(speed_rpm, dtype=float)).ravel()
     n, k = s.size, cs.size
     weights_sorted = np.zeros((n, k))

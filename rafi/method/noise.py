@@ -24,7 +24,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy.special import erfc
 
 __all__ = ["MIN_DIFFERENCES", "white_noise_sigma", "expected_max_abs_noise", "noise_floor"]
 
@@ -85,6 +84,8 @@ def expected_max_abs_noise(sigma: float, n: int, *, points: int = 4001) -> float
         return float("nan")
     if sigma == 0.0:
         return 0.0
+    from scipy.special import erfc  # here, not at the top: importing SciPy costs every job ~0.3 s
+
     x = np.linspace(0.0, 12.0, int(points))
     # erf(z)^n = exp(n * log1p(-erfc(z))), accurate where erf is close to 1
     with np.errstate(divide="ignore"):
