@@ -158,7 +158,8 @@ def ensemble_oof(oof: pd.DataFrame, weights: dict, name: str = ENSEMBLE) -> pd.D
     values = ["residual_um", "since_change_s", "excess"]
     wide = mine.assign(model=mine["model"].astype(str)).set_index([*key, "model"])[values].unstack("model")
     flags = mine.assign(outside=mine["outside"].astype(bool)).groupby(key, sort=True)["outside"].any()
-    present = [n for n in names if n in set(mine["model"].astype(str))]
+    seen = set(mine["model"].astype(str).unique())
+    present = [n for n in names if n in seen]
     residual = blend(wide["residual_um"][present].to_numpy(dtype=float), [weights[n] for n in present])
     out = pd.DataFrame(
         {
