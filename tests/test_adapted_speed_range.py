@@ -61,21 +61,10 @@ def states():
 def _prior(kind: str, table, frame) -> dict:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # statsmodels' conditioning warnings of RAFI's fits
-        if kind == "ensemble_rafi":  # made before RAFI's kinds left the ensemble (NOT_MEMBERS)
-            res = run_family(
-                table,
-                frame,
-                key_sensors=SENSORS,
-                terms=MACHINE_DEFAULTS["fit"]["terms"],
-                reference=REFERENCE,
-                machine="old",
-                gates=MACHINE_DEFAULTS["qualification"],
-                options={**OPTIONS, "enabled": ENSEMBLES[kind], "offer": "best"},
-                log=lambda m: None,
-            )
-            weights = {"rafi": 0.6, "rafi_linear": 0.4}
-            return WeightedEnsemble.from_fitted(res["models"], weights, machine="old").to_dict()
         if kind in ENSEMBLES:
+            # RAFI's kinds are not members of a new ensemble (NOT_MEMBERS): theirs is built from
+            # their fits, as an artefact made before that holds them
+            offer = "best" if kind == "ensemble_rafi" else "ensemble"
             res = run_family(
                 table,
                 frame,
@@ -84,9 +73,12 @@ def _prior(kind: str, table, frame) -> dict:
                 reference=REFERENCE,
                 machine="old",
                 gates=MACHINE_DEFAULTS["qualification"],
-                options={**OPTIONS, "enabled": ENSEMBLES[kind], "offer": "ensemble"},
+                options={**OPTIONS, "enabled": ENSEMBLES[kind], "offer": offer},
                 log=lambda m: None,
             )
+            if kind == "ensemble_rafi":
+                weights = {"rafi": 0.6, "rafi_linear": 0.4}
+                return WeightedEnsemble.from_fitted(res["models"], weights, machine="old").to_dict()
             art = res["best_artefact"]
             assert art["kind"] == "ensemble"
             return art
