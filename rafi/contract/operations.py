@@ -109,8 +109,9 @@ OPERATIONS_SETTINGS: dict = {
                 shown="`ensemble`",
                 doc=(
                     "what is offered to the machine: `best` (the kind with the lowest selection score"
-                    " on the training runs) or `ensemble` (every kind blended with weights from the "
-                    "whole-run CV, `docs/models.md`, The CV-weighted ensemble); without a prior only"
+                    " on the training runs) or `ensemble` (the enabled kinds but RAFI's two, and the "
+                    "plain ridge, blended with weights from the whole-run CV, `docs/models.md`, The "
+                    "CV-weighted ensemble); without a prior only"
                 ),
             ),
             "cv_forward_runs": Setting(
