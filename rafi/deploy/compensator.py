@@ -109,9 +109,9 @@ from rafi.family.envelope import (
     bound_features,
     bound_output,
     envelope_bounds,
-    input_spans,
+    key_range_excess,
+    key_range_inputs,
     output_bounds,
-    range_excess,
 )
 from rafi.method.fuzzy import prepare_centres, triangular_weights
 
@@ -589,10 +589,11 @@ class Compensator:
         out_temp = bool(((rises < lo) | (rises > hi)).any())
         out_speed = bool(rpm < self.speed_range_rpm[0] or rpm > self.speed_range_rpm[1])
         if self._excess_inputs is None:  # key_range_excess's ranges and spans, once
-            ranges = np.vstack([self.ranges.reshape(-1, 2), np.asarray(self.speed_range_rpm, dtype=float)])
-            self._excess_inputs = (ranges, input_spans(ranges, speed_last=True))
-        values = np.append(rises, rpm)[None, :]  # key_range_excess's rises and speed as one row
-        self._excess = float(range_excess(values, *self._excess_inputs)[0])
+            self._excess_inputs = key_range_inputs(self.ranges, self.speed_range_rpm)
+        excess = key_range_excess(
+            rises[None, :], [rpm], self.ranges, self.speed_range_rpm, inputs=self._excess_inputs
+        )
+        self._excess = float(excess[0])
         return pred, out_speed, out_temp
 
     def speed_weights(self, rpm: float) -> tuple[np.ndarray, np.ndarray]:

@@ -35,6 +35,7 @@ __all__ = [
     "fit_envelope",
     "join_envelope",
     "key_range_excess",
+    "key_range_inputs",
     "output_bounds",
     "range_excess",
 ]
@@ -186,14 +187,25 @@ def input_spans(ranges: np.ndarray, *, speed_last: bool) -> np.ndarray:
     return span
 
 
-def key_range_excess(rises: np.ndarray, speed_rpm: np.ndarray, rise_ranges, speed_range) -> np.ndarray:
-    """:func:`range_excess` of the key sensors' ``rises`` (rows x sensors, ranges per sensor) and
-    the speed together, the speed measured in :func:`input_spans`' way: a ridge kind's
-    ``range_excess``, the same in ``predict_detail`` and the streaming compensator."""
+def key_range_inputs(rise_ranges, speed_range) -> tuple[np.ndarray, np.ndarray]:
+    """The ranges and spans :func:`key_range_excess` measures against: the key sensors' rise
+    ranges then the speed range, the speed's span in :func:`input_spans`' way (constants of an
+    artefact: the streaming compensator computes them once)."""
     ranges = np.vstack(
         [np.asarray(rise_ranges, dtype=float).reshape(-1, 2), np.asarray(speed_range, dtype=float)]
     )
+    return ranges, input_spans(ranges, speed_last=True)
+
+
+def key_range_excess(
+    rises: np.ndarray, speed_rpm: np.ndarray, rise_ranges, speed_range, *, inputs=None
+) -> np.ndarray:
+    """:func:`range_excess` of the key sensors' ``rises`` (rows x sensors, ranges per sensor) and
+    the speed together, the speed measured in :func:`input_spans`' way: a ridge kind's
+    ``range_excess``, the same in ``predict_detail`` and the streaming compensator (``inputs``:
+    :func:`key_range_inputs` of the ranges, computed once by the caller; default: here)."""
+    ranges, spans = key_range_inputs(rise_ranges, speed_range) if inputs is None else inputs
     values = np.column_stack(
         [np.atleast_2d(np.asarray(rises, dtype=float)), np.asarray(speed_rpm, dtype=float)]
     )
-    return range_excess(values, ranges, input_spans(ranges, speed_last=True))
+    return range_excess(values, ranges, spans)
