@@ -8,11 +8,12 @@ speed term, a heat input), and predicts from the features *bounded* to that rang
 :data:`ENVELOPE_MARGIN` of its span on each side: inside the envelope nothing changes, outside it
 the model holds the value it has at the envelope's edge instead of extrapolating freely.
 
-A box per feature cannot catch a combination of in-range features the fit never saw (on the
-turning centre, features held exactly inside their training range still gave 172 um), so the
-prediction itself is also held inside the training displacement range (``output_range``) widened
-by :data:`OUTPUT_MARGIN` of its span on each side: a cap on the worst case, chosen one level up
-(``benchmarks/bench_envelope.py``) as the widest margin that costs nothing measurable.
+A box per feature cannot catch a combination of in-range features the fit never saw (on the turning
+centre, features held exactly inside their training range still gave 172 um), so the prediction
+itself is also held inside the training displacement range (``output_range``) widened by
+:data:`OUTPUT_MARGIN` of its span on each side: a cap on the worst case, chosen one level up (a
+study archived 2026-11-29: ``git show 62841e2:benchmarks/bench_envelope.py``) as the widest margin
+that costs nothing measurable.
 
 The artefact carries the envelope (``envelope``: ``margin``, ``feature_ranges`` and, from
 2026-11-29, ``output_margin`` and ``output_range``), so the streaming
@@ -47,7 +48,7 @@ __all__ = [
 ENVELOPE_MARGIN = 1.0
 
 #: The share of the training displacement span the prediction may go beyond it on each side.
-#: Judged one level up (2026-11-29, ``benchmarks/bench_envelope.py``: whole-run CV of the training
+#: Judged one level up (2026-11-29, an archived study, ``docs/decisions.md``: whole-run CV of the training
 #: runs of 6 real logs and 22 foreign machines, and the foreign machines' test days): 2, 1 and 0.5
 #: spans cost nothing measurable (mean ratio to the free prediction 1.0000, 1.0000, 1.0001), a
 #: quarter of a span already 7 % (the foreign machines' physics does extrapolate); by the criterion
