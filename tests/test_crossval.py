@@ -420,3 +420,31 @@ def test_a_fold_with_nothing_rafi_learns_from_is_scored_as_no_compensation():
     assert set(oof[0]["run_id"]) == set(
         table.loc[cool, "run_id"]
     )  # out-of-fold samples: the fitted fold only
+
+
+@pytest.mark.parametrize("factory", [PublishedRafi, RafiLinear])
+def test_rafi_solves_each_speed_once_across_the_folds(factory, monkeypatch):
+    """Known truth: every fold solving each of its speeds on its own (no memo). Leaving one run
+    out, a speed's samples are the same in every fold that keeps its runs, so with the fold's
+    scope sharing solutions each speed is solved once and every fold is bit-identical."""
+    import contextlib
+
+    import rafi.method.fit as fit_module
+    from rafi.family import crossval
+
+    table, frame = make_synthetic_runs(
+        seed=3, sample_s=120.0, n_sensors=3, train_speeds=(3000, 6000, 9000, 12000)
+    )
+    speeds = table.loc[table["role"] == "training"].groupby("speed_rpm")["run_id"].nunique()
+    assert (speeds == 1).all() and len(speeds) == 4  # one run per speed: a fold drops one speed
+    make = functools.partial(factory, key_sensors=["T1", "T2", "T3"])
+    solved: list = []
+    solve = fit_module._ols_coefficients
+    monkeypatch.setattr(fit_module, "_ols_coefficients", lambda y, d: solved.append(d.shape) or solve(y, d))
+    shared = cross_validate(make, table, frame)
+    assert len(solved) == len(speeds)
+    solved.clear()
+    monkeypatch.setattr(crossval, "sharing_features", lambda frame: contextlib.nullcontext())
+    alone = cross_validate(make, table, frame)
+    assert len(solved) == len(speeds) * (len(speeds) - 1)
+    pd.testing.assert_frame_equal(shared, alone, check_exact=True)

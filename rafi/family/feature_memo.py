@@ -95,8 +95,10 @@ class FeatureMemo:
         return self._grams[(key, run_id)]
 
     def solution(self, key: Hashable, compute: Callable):
-        """``compute()`` (a CV fold's ridge coefficients), once per ``key`` (the memo key of the
-        features, the fold's training runs, the candidate's columns and the penalties)."""
+        """``compute()`` (a CV fold's ridge coefficients, or one speed's OLS coefficients of RAFI's
+        kinds), once per ``key`` (for the ridge kinds the memo key of the features, the fold's
+        training runs, the candidate's columns and the penalties; for RAFI a digest of the speed's
+        samples and design, :func:`rafi.method.fit.fit_speed`)."""
         if key not in self._solutions:
             self._solutions[key] = compute()
         return self._solutions[key]

@@ -10,6 +10,7 @@ import pandas as pd
 from rafi.artefact import compute_model_id
 from rafi.family.base import FamilyModel, check_artefact
 from rafi.family.crossval import training_runs
+from rafi.family.feature_memo import active_memo
 from rafi.settings import MACHINE_DEFAULTS
 
 
@@ -80,6 +81,8 @@ class PublishedRafi(FamilyModel):
             machine=self.machine,
             speed_tolerance_rpm=float(self.speed_tolerance_rpm),
             diagnostics=False,
+            # the CV folds that keep a speed's runs share its solution (the fit's scope)
+            solutions=active_memo(),
         )
         self.model_ = res.model
         self.train_runs_ = sorted(map(str, table["run_id"]))

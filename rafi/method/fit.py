@@ -33,6 +33,7 @@ regressor that is an exact combination of the others gets ``inf``).
 
 from __future__ import annotations
 
+import hashlib
 import math
 import warnings
 from dataclasses import dataclass
@@ -125,6 +126,7 @@ def fit_speed(
     groups=None,
     hac_maxlags: int = MACHINE_DEFAULTS["fit"]["hac_maxlags"],
     diagnostics: bool = True,
+    solutions=None,
 ) -> dict:
     """Fit one speed's OLS and compute its coefficient table and diagnostics.
 
@@ -146,6 +148,9 @@ def fit_speed(
         importing it), for refits whose diagnostics nobody reads (cross-validation folds,
         the model family's RAFI variants). ``se`` .. ``p_hac`` are then NaN, ``vif`` is
         empty, ``diagnostics`` holds only ``n`` and ``rmse_um``, and ``result`` is None.
+    solutions : object, optional
+        With ``diagnostics=False``: a memo of solutions (``solution(key, compute)``) shared
+        by the fits of one scope; see :func:`_coefficients_only`.
 
     Returns
     -------
@@ -158,7 +163,7 @@ def fit_speed(
     terms = list(terms)
     exps, design, groups = _checked_design(x, terms, groups)
     if not diagnostics:
-        return _coefficients_only(y, design)
+        return _coefficients_only(y, design, solutions)
 
     from statsmodels.regression.linear_model import OLS
 
@@ -226,9 +231,23 @@ def _checked_design(x, terms: list[str], groups) -> tuple[list, np.ndarray, np.n
     return exps, design, groups
 
 
-def _coefficients_only(y: np.ndarray, design: np.ndarray) -> dict:
-    """:func:`fit_speed`'s result without diagnostics: coefficients, residuals, ``n``, RMSE."""
-    coef = _ols_coefficients(y, design)
+def _coefficients_only(y: np.ndarray, design: np.ndarray, solutions=None) -> dict:
+    """:func:`fit_speed`'s result without diagnostics: coefficients, residuals, ``n``, RMSE.
+
+    With ``solutions`` (an object with ``solution(key, compute)``, e.g. the
+    :class:`rafi.family.feature_memo.FeatureMemo` of a fit's scope) the coefficients are computed
+    once per content of ``y`` and ``design``: the CV folds that keep a speed's runs refit the
+    same samples, and the pseudo-inverse is most of a fold's time. The same function on the same
+    bytes, so the coefficients are identical to the last bit."""
+    if solutions is None:
+        coef = _ols_coefficients(y, design)
+    else:
+        digest = hashlib.blake2b(digest_size=20)
+        for a in (y, design):
+            a = np.ascontiguousarray(a, dtype=float)
+            digest.update(repr(a.shape).encode())
+            digest.update(a.tobytes())
+        coef = solutions.solution(("rafi_ols", digest.hexdigest()), lambda: _ols_coefficients(y, design))
     fitted = design @ coef
     resid = y - fitted
     nan = np.full(design.shape[1], np.nan)
@@ -299,6 +318,7 @@ def fit_rafi(
     speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
     config: dict | None = None,
     diagnostics: bool = True,
+    solutions=None,
 ) -> FitResult:
     """Fit the RAFI model: one OLS per training speed on the key sensors' rises.
 
@@ -329,6 +349,9 @@ def fit_rafi(
     diagnostics : bool, default True
         False: coefficients only (:func:`fit_speed`); the model is the same, the
         coefficient table's standard errors and the diagnostics are NaN, ``vif`` is empty.
+    solutions : object, optional
+        With ``diagnostics=False``: the per-speed solutions shared by the fits of one scope
+        (:func:`fit_speed`); the CV of the model family passes its feature memo.
 
     Returns
     -------
@@ -365,7 +388,15 @@ def fit_rafi(
     for speed, ids in groups.items():
         x, y, runs = speed_samples(runs_frame, ids, xcols, speed)
         try:
-            fit = fit_speed(y, x, terms, groups=runs, hac_maxlags=hac_maxlags, diagnostics=diagnostics)
+            fit = fit_speed(
+                y,
+                x,
+                terms,
+                groups=runs,
+                hac_maxlags=hac_maxlags,
+                diagnostics=diagnostics,
+                solutions=solutions,
+            )
         except ValueError as exc:
             raise ValueError(f"fit at {speed} r/min: {exc}") from None
         coefs, diag, vifs = speed_rows(speed, terms, fit)
