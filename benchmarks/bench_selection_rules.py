@@ -51,10 +51,11 @@ The rules (:data:`RULES`), every one a function of training-run CV rows alone:
 * ``speed_folds``: ``mean_max`` on other inner folds, one per training speed with the
   cool-downs that follow its runs (:func:`speed_with_cooldown_folds`): folds that look like a
   validation at an unseen speed followed by its cool-down;
-* ``cv_weighted_ensemble`` (not a choice of one kind): the weighted mean of every kind's
-  prediction, weights proportional to 1 / (inner CV mean max |residual|)^2
-  (:func:`ensemble_weights`); scored on the held-out run from refits of every kind on the
-  outer-training runs (:func:`held_out_predictions`, checked against ``comparison/cv.csv``);
+* ``cv_weighted_ensemble`` (not a choice of one kind): the product's ensemble, the weighted mean
+  of its members' predictions (every kind but RAFI's two, and the plain ridge), weights
+  proportional to 1 / (inner CV mean max |residual|)^2 (:func:`ensemble_weights`); scored on
+  the held-out run from refits of every kind on the outer-training runs
+  (:func:`held_out_predictions`, checked against ``comparison/cv.csv``);
 * ``stacked`` (the super learner, not a choice of one kind): weights ``w >= 0``, ``sum w = 1``
   minimising the squared error of the weighted inner out-of-fold predictions (:mod:`_stacking`:
   the inner whole-run and forward folds of :data:`STACK_SCHEMES`, each scheme weighing the same
@@ -106,6 +107,7 @@ from _stacking import stacked_weights  # noqa: E402
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.family import crossval  # noqa: E402
 from rafi.family.compare import make_model  # noqa: E402
+from rafi.family.ensemble import cv_weights, ensemble_members  # noqa: E402
 from rafi.family.feature_memo import sharing_features  # noqa: E402
 from rafi.family.forward_folds import configured_scheme, is_forward  # noqa: E402
 from rafi.family.interval_fit import stacked_oof  # noqa: E402
@@ -261,12 +263,19 @@ def rule_without(kind: str):
 
 
 def ensemble_weights(cv: pd.DataFrame) -> dict[str, float]:
-    """The CV-weighted ensemble's weights: proportional to 1 / (mean fold max |residual|)^2 over
-    the kinds with a finite score (an inverse-variance weighting with the CV loss as the scale)."""
+    """The product's ensemble weights on whole-run CV rows: :func:`rafi.family.ensemble.cv_weights`
+    (proportional to 1 / (mean fold max |residual|)^2) over the members
+    :func:`rafi.family.ensemble.ensemble_members` takes from the kinds of ``cv`` (RAFI's kinds
+    are scored, not blended). Where fewer than two members have a finite score the product
+    offers one kind: the member with the finite score alone (empty when none has one)."""
+    members = ensemble_members(sorted(set(cv["model"].astype(str))), floor=PLAIN_RIDGE)
+    whole = cv if "scheme" in cv.columns else cv.assign(scheme="leave_one_run_out")
+    weights = cv_weights(whole, members)
+    if weights:
+        return weights
     t = fold_stats(cv)
-    t = t.loc[np.isfinite(t["mean"]) & (t["mean"] > 0)]
-    w = 1.0 / t["mean"].to_numpy() ** 2
-    return dict(zip(t["model"], w / w.sum()))
+    t = t.loc[np.isfinite(t["mean"]) & (t["mean"] > 0) & t["model"].isin(members)]
+    return {str(t["model"].iloc[0]): 1.0} if len(t) else {}
 
 
 #: The forward scheme of the current rule (from the default ``models: cv_forward_runs``).
