@@ -6,6 +6,7 @@ Usage (from the repository root; see benchmarks/README.md)::
     python benchmarks/bench_foreign.py --seeds 0-23 --keep /tmp/foreign   # resumes: done seeds are read
     python benchmarks/bench_foreign.py --seeds 24 --keep /tmp/foreign --report-only
     python benchmarks/bench_foreign.py --seeds 6 --keep /tmp/foreign-drift --setup-drift
+    python benchmarks/bench_foreign.py --seeds 0-23 --keep /tmp/foreign --report-only --rescore
 
 **The machines.** For each seed, :func:`rafi.twin.foreign.write_foreign` writes a foreign machine
 (4-40 own sensors, the twin's network with every constant drawn anew, one cold start a day at
@@ -20,9 +21,12 @@ The test days are the pipeline's validation runs (``runs.windows`` by file name)
 (``truth.json``) states per test day the fraction of its rows outside the training envelope.
 
 **Two judges, each of every rule** (the rules of ``bench_selection_rules.py``: ``mean_max``,
-``mean_max_forward`` (the current rule; these machines have no forward folds, so it equals
-``mean_max``), ``mean_plus_se``, ``one_se_simplest``, ``ridge_floor``, ``speed_folds``,
-``cv_weighted_ensemble``, ``stacked``, ``average_within_se``):
+``mean_max_forward`` (the one-kind rule, ``models.offer: best``; these machines have no forward
+folds, so it equals ``mean_max``), ``mean_plus_se``, ``one_se_simplest``, ``ridge_floor``,
+``speed_folds``, ``cv_weighted_ensemble`` (the current rule: the product's ensemble since
+2026-11-29), ``stacked``, ``average_within_se``, ``cv_weighted_median``; and on the test days only
+``ensemble_handoff``: the ensemble's weights, each member's handed to the plain ridge on the rows
+where that member is outside its training range or envelope):
 
 * **one level up on the training runs** (``bench_selection_rules.judge_machine``: outer leave one
   training run out, the rule picks from the inner CV, its pick scored on the held-out run);
@@ -45,10 +49,11 @@ The test days are the pipeline's validation runs (``runs.windows`` by file name)
 * shown, not deciding: the outer CV of the training runs (mean over machines of the rule's outer
   mean max |residual| over the oracle's), the ratio on test runs inside and outside the envelope
   (outside: at least half of the run's rows, ``outside_any``), every single kind always offered
-  (``kind:<name>``), and the pipeline's offered model (which must be ``mean_max_forward``'s pick).
+  (``kind:<name>``), and the pipeline's offered model (the ensemble).
 
 Per seed the result is cached in ``KEEP/seed-NNN/result.json`` (a rerun reads it: the bench can
-be stopped and resumed, or run in the background while more seeds are added). Output: a table
+be stopped and resumed, or run in the background while more seeds are added); ``--rescore``
+scores the cached seeds' test days anew from their kept projects (a rule added since). Output: a table
 per rule across seeds, ``benchmarks/results/<out>.json`` and ``<out>.md``. About 1-2 min a seed
 on 2 cores.
 """
@@ -81,10 +86,18 @@ from _results import write_results  # noqa: E402
 
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.contract.operations import MODEL_KINDS  # noqa: E402
+from rafi.family.ensemble import ENSEMBLE as ENSEMBLE_MODEL  # noqa: E402
 from rafi.twin.foreign import write_foreign  # noqa: E402
 
-#: The current rule (what the pipeline offers).
-CURRENT = "mean_max_forward"
+#: The current rule (what the pipeline offers: the CV-weighted ensemble since 2026-11-29).
+CURRENT = judge.ENSEMBLE
+#: The ensemble handing a member's weight to the plain ridge on the rows where that member is
+#: outside (:func:`handoff_weights`; judged on the test days only: the outer CV of the training
+#: runs has no per-row flags).
+HANDOFF = "ensemble_handoff"
+#: The per-row flags that make a member "outside" for :data:`HANDOFF` (any of them, where the
+#: residuals have it: ``outside_envelope`` is there since 2026-11-29).
+OUTSIDE_FLAGS = ("outside_temp_range", "outside_speed_range", "outside_envelope")
 #: A test run is "outside" when at least this share of its rows is outside the training envelope.
 OUTSIDE_SHARE = 0.5
 #: The pipeline's tables this bench reads (one job builds them all).
@@ -161,19 +174,45 @@ def test_rows(proj: Path, machine: str, truth: dict) -> pd.DataFrame:
     rows = rows.assign(run_id=rows["run_id"].astype(str), model=rows["model"].astype(str))
     rows["day"] = rows["run_id"].map(day_of)
     tests = {r["stem"] for r in truth["test_runs"]}
-    return rows.loc[rows["day"].isin(tests), ["model", "day", "run_id", "t_s", "measured_um", "predicted_um"]]
+    flags = rows[[c for c in OUTSIDE_FLAGS if c in rows.columns]].astype(bool).any(axis=1)
+    rows = rows.assign(outside=flags)
+    cols = ["model", "day", "run_id", "t_s", "measured_um", "predicted_um", "outside"]
+    return rows.loc[rows["day"].isin(tests), cols]
 
 
-def blend_errors(rows: pd.DataFrame, weights: dict, median: bool = False) -> pd.DataFrame:
+def handoff_weights(weights: dict, outside: pd.DataFrame, floor: str = judge.PLAIN_RIDGE) -> pd.DataFrame:
+    """Per row, the ensemble's weights with the weight of every member that is outside on that
+    row (``outside``: rows x members, bool) handed to the plain ridge ``floor`` (itself never
+    handed on); rows x members, each row summing to the weights' sum."""
+    table = pd.DataFrame(
+        {
+            k: np.where(outside[k].fillna(False).to_numpy(dtype=bool) & (k != floor), 0.0, w)
+            for k, w in weights.items()
+        },
+        index=outside.index,
+    )
+    base = table[floor] if floor in table else 0.0
+    table[floor] = base + (sum(weights.values()) - table.sum(axis=1))
+    return table
+
+
+def blend_errors(
+    rows: pd.DataFrame, weights: dict, median: bool = False, handoff: bool = False
+) -> pd.DataFrame:
     """Per test row: ``day``, ``measured_um`` and the error of the weighted mean (``median``: the
-    weighted median, ``judge.blend_median``) of the kinds' predictions (``weights``: kind ->
-    weight; one kind with weight 1 is that kind); a row where a kind with a positive weight has no
-    prediction is uncompensated (error = measured)."""
+    weighted median, ``judge.blend_median``; ``handoff``: per-row weights of
+    :func:`handoff_weights`) of the kinds' predictions (``weights``: kind -> weight; one kind with
+    weight 1 is that kind); a row where a kind with a positive weight has no prediction is
+    uncompensated (error = measured)."""
     weights = {k: w for k, w in weights.items() if w > 0}
     key = ["day", "run_id", "t_s"]
     wide = rows.set_index([*key, "model"])["predicted_um"].unstack("model")
     measured = rows.drop_duplicates(key).set_index(key)["measured_um"].reindex(wide.index)
-    if median:
+    if handoff:
+        outside = rows.set_index([*key, "model"])["outside"].unstack("model").reindex(wide.index)
+        per_row = handoff_weights(weights, outside)
+        pred = sum(per_row[k] * wide[k] for k in per_row.columns)
+    elif median:
         matrix = np.column_stack([wide[k].to_numpy(dtype=float) for k in weights])
         value = judge.blend_median(matrix, np.array(list(weights.values())))
         value[~np.isfinite(matrix).all(axis=1)] = np.nan  # as the mean: a kind without a value
@@ -213,8 +252,34 @@ def choices(result: dict, kinds: list[str]) -> dict:
             out[rule] = result["offered_weights"][rule]
         elif pick:
             out[rule] = {pick: 1.0}
+    if judge.ENSEMBLE in out:
+        out[HANDOFF] = out[judge.ENSEMBLE]
     out.update({f"kind:{k}": {k: 1.0} for k in kinds})
     return out
+
+
+def test_scores(rows: pd.DataFrame, picks: dict) -> dict:
+    """Every choice's :func:`scores_of` on the test rows."""
+    return {
+        rule: scores_of(blend_errors(rows, w, median=rule == judge.MEDIAN, handoff=rule == HANDOFF))
+        for rule, w in picks.items()
+    }
+
+
+def rescored(result: dict, folder: Path) -> dict:
+    """``result`` with its test scores made anew from its kept project (the blends' weights from
+    the project's ``comparison/cv.csv`` by today's :func:`bench_selection_rules.ensemble_weights`),
+    so a rule added since it ran is judged without running the pipeline again."""
+    proj, machine = folder / "project", result["machine"]
+    truth = json.loads((proj / "truth.json").read_text(encoding="utf-8"))
+    cv = pd.read_csv(proj / "results" / machine / RESULT_FILES["comparison_cv"])
+    whole = cv.loc[cv["scheme"].astype(str) == "leave_one_run_out"]
+    rows = test_rows(proj, machine, truth)
+    picks = {k: v for k, v in result["choices"].items() if not k.startswith("kind:")}
+    weights = judge.ensemble_weights(whole)
+    picks.update({judge.ENSEMBLE: weights, judge.MEDIAN: weights, HANDOFF: weights})
+    picks.update({f"kind:{k}": {k: 1.0} for k in sorted(rows["model"].unique())})
+    return {**result, "choices": picks, "test": test_scores(rows, picks), "rescored": True}
 
 
 def judge_seed(seed: int, keep: Path, cores: int, log=print, setup_drift: bool = False) -> dict:
@@ -243,9 +308,9 @@ def judge_seed(seed: int, keep: Path, cores: int, log=print, setup_drift: bool =
     kinds = sorted(rows["model"].unique())
     picks = choices(judged, kinds)
     picks["offered"] = {offered: 1.0}
-    if offered != judged["offered_now"][CURRENT]:
-        log(f"{machine}: the pipeline offers {offered}, {CURRENT} {judged['offered_now'][CURRENT]}")
-    tests = {rule: scores_of(blend_errors(rows, w, median=rule == judge.MEDIAN)) for rule, w in picks.items()}
+    if offered != ENSEMBLE_MODEL:
+        log(f"{machine}: the pipeline offers {offered}, not its ensemble (fewer than two members scored)")
+    tests = test_scores(rows, picks)
     result = {
         "seed": seed,
         "machine": machine,
@@ -340,7 +405,7 @@ def decide(rows: list[dict]) -> dict:
     standard error below the current rule."""
     by = {r["rule"]: r for r in rows}
     cur = by[CURRENT]
-    rules = [r for r in rows if r["rule"] in judge.RULES or r["rule"] in judge.BLENDS]
+    rules = [r for r in rows if r["rule"] in judge.RULES or r["rule"] in (*judge.BLENDS, HANDOFF)]
     passing = [r for r in rules if r["guard_share"] <= cur["guard_share"] + 1e-12]
     best = min(passing, key=lambda r: r["primary"])
     replaces = best["rule"] != CURRENT and -best["vs_current"] > (best["vs_current_se"] or 0.0)
@@ -402,6 +467,12 @@ def main(argv: list[str] | None = None) -> int:
         "--setup-drift); use its own --keep",
     )
     parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")
+    parser.add_argument(
+        "--rescore",
+        action="store_true",
+        help="score the test days of seeds already done anew from their kept projects (a rule added "
+        "since they ran; the blends' weights by today's judge), without running the pipeline",
+    )
     args = parser.parse_args(argv)
     seeds = parse_seeds(args.seeds)
     keep = args.keep or Path(tempfile.mkdtemp(prefix="bench-foreign-"))
@@ -413,7 +484,10 @@ def main(argv: list[str] | None = None) -> int:
         print(f"seed {seed} ...", flush=True)
         try:
             log = lambda m: print(m, flush=True)  # noqa: E731
-            results.append(judge_seed(seed, keep, args.cores, log=log, setup_drift=args.setup_drift))
+            result = judge_seed(seed, keep, args.cores, log=log, setup_drift=args.setup_drift)
+            if args.rescore:
+                result = rescored(result, keep / f"seed-{seed:03d}")
+            results.append(result)
         except (SystemExit, Exception) as exc:  # one machine's failure is said; the next one runs
             failed.append(seed)
             print(f"seed {seed} failed: {exc}", flush=True)

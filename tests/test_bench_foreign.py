@@ -57,6 +57,24 @@ def test_a_median_blend_takes_the_middle_member_and_an_unpredicted_row_counts_un
     assert got["error_um"].tolist() == pytest.approx([-1.0, 0.0, 4.0])
 
 
+def test_the_handoff_gives_an_outside_members_weight_to_the_plain_ridge_row_by_row(bench):
+    """Known truth by hand: on a row where ``dynamic`` is outside its weight goes to the plain ridge;
+    the plain ridge itself is never handed on; inside, the ensemble's weights."""
+    rows = _rows(
+        [0.0, 2.0, 4.0],
+        {"dynamic": [0.0, 90.0, 4.0], "grey_box": [1.0, 2.0, 3.0], "temperature_ridge": [2.0, 2.0, 5.0]},
+    )
+    outside = {("dynamic", 1): True, ("temperature_ridge", 2): True, ("grey_box", 2): True}
+    rows["outside"] = [outside.get((m, i % 3), False) for i, m in enumerate(rows["model"])]
+    w = {"dynamic": 0.5, "grey_box": 0.25, "temperature_ridge": 0.25}
+    got = bench.blend_errors(rows, w, handoff=True)["error_um"].to_numpy()
+    # row 0: inside, 0.25 * 1 + 0.25 * 2 = 0.75; row 1: dynamic's 0.5 to the ridge: 0.25 * 2 + 0.75 * 2
+    # = 2; row 2: grey_box's 0.25 to the ridge (itself outside, kept): 0.5 * 4 + 0.5 * 5 = 4.5
+    assert got == pytest.approx([-0.75, 0.0, -0.5])
+    plain = bench.blend_errors(rows, w)["error_um"].to_numpy()
+    assert plain[1] == pytest.approx(2.0 - (45.0 + 0.5 + 0.5))  # the runaway carries its weight
+
+
 def _row(rule: str, primary: float, guard: float, diff: float = 0.0, se: float = 0.0) -> dict:
     return {"rule": rule, "primary": primary, "guard_share": guard, "vs_current": diff, "vs_current_se": se}
 
@@ -65,16 +83,13 @@ def test_the_decision_guards_then_takes_the_lowest_primary_only_beyond_one_se(be
     current = _row(bench.CURRENT, 1.30, 0.05)
     rows = [
         current,
-        _row("cv_weighted_ensemble", 1.10, 0.10, -0.20, 0.05),  # best primary, fails the guard
+        _row("mean_max_forward", 1.10, 0.10, -0.20, 0.05),  # best primary, fails the guard
         _row("ridge_floor", 1.20, 0.05, -0.10, 0.04),  # passes, better by more than one SE
         _row("one_se_simplest", 1.25, 0.00, -0.05, 0.08),
         _row("kind:temperature_ridge", 1.00, 0.00, -0.3, 0.01),  # a kind always offered: not a rule
     ]
     d = bench.decide(rows)
-    assert (
-        "cv_weighted_ensemble" not in d["passing_guard"]
-        and "kind:temperature_ridge" not in d["passing_guard"]
-    )
+    assert "mean_max_forward" not in d["passing_guard"] and "kind:temperature_ridge" not in d["passing_guard"]
     assert d["lowest_primary"] == "ridge_floor" and d["kept"] == "ridge_floor" and d["replaces_current"]
     rows[2] = _row("ridge_floor", 1.20, 0.05, -0.10, 0.12)  # within one SE: the current rule stays
     d = bench.decide(rows)
