@@ -180,6 +180,12 @@ def test_rows(proj: Path, machine: str, truth: dict) -> pd.DataFrame:
     return rows.loc[rows["day"].isin(tests), cols]
 
 
+def single_kinds(rows: pd.DataFrame) -> list[str]:
+    """The kinds of the family in the test rows: every model but the pipeline's ensemble (a blend,
+    scored as ``offered``), so the primary's "best single kind" is one kind."""
+    return sorted(set(rows["model"].astype(str)) - {ENSEMBLE_MODEL})
+
+
 def handoff_weights(weights: dict, outside: pd.DataFrame, floor: str = judge.PLAIN_RIDGE) -> pd.DataFrame:
     """Per row, the ensemble's weights with the weight of every member that is outside on that
     row (``outside``: rows x members, bool) handed to the plain ridge ``floor`` (itself never
@@ -278,7 +284,7 @@ def rescored(result: dict, folder: Path) -> dict:
     picks = {k: v for k, v in result["choices"].items() if not k.startswith("kind:")}
     weights = judge.ensemble_weights(whole)
     picks.update({judge.ENSEMBLE: weights, judge.MEDIAN: weights, HANDOFF: weights})
-    picks.update({f"kind:{k}": {k: 1.0} for k in sorted(rows["model"].unique())})
+    picks.update({f"kind:{k}": {k: 1.0} for k in single_kinds(rows)})
     return {**result, "choices": picks, "test": test_scores(rows, picks), "rescored": True}
 
 
@@ -305,7 +311,7 @@ def judge_seed(seed: int, keep: Path, cores: int, log=print, setup_drift: bool =
     summary = pd.read_csv(proj / "results" / machine / RESULT_FILES["comparison"])
     offered = str(summary.loc[summary["champion"].astype(bool), "model"].iloc[0])
     rows = test_rows(proj, machine, truth)
-    kinds = sorted(rows["model"].unique())
+    kinds = single_kinds(rows)
     picks = choices(judged, kinds)
     picks["offered"] = {offered: 1.0}
     if offered != ENSEMBLE_MODEL:

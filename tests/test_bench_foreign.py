@@ -94,3 +94,8 @@ def test_the_decision_guards_then_takes_the_lowest_primary_only_beyond_one_se(be
     rows[2] = _row("ridge_floor", 1.20, 0.05, -0.10, 0.12)  # within one SE: the current rule stays
     d = bench.decide(rows)
     assert d["lowest_primary"] == "ridge_floor" and d["kept"] == bench.CURRENT and not d["replaces_current"]
+
+
+def test_the_best_single_kind_is_never_the_pipelines_ensemble(bench):
+    rows = _rows([1.0, 2.0], {"ensemble": [1.0, 2.0], "dynamic": [0.0, 0.0], "grey_box": [1.0, 1.0]})
+    assert bench.single_kinds(rows) == ["dynamic", "grey_box"]
