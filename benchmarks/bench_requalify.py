@@ -69,6 +69,29 @@ every margin is one scenario or a tie-break, so no rule is put in the product: t
 ``cv`` stays. Even the pick made with hindsight on the validation runs is within 15 % on both
 in 22 of 50: no choice among these candidates reaches the 80 % target at 4 h.
 
+**One shared adaptation over the whole ensemble prior** (issue 47; criterion written 2026-11-29
+before any scenario was scored with them). Two candidates beside today's, offered only when the
+prior is a CV-weighted ensemble (:data:`rafi.family.adapted.ENSEMBLE_CANDIDATES`): every member
+keeps its coefficients and the prior's weights, and
+
+* ``prior_shared_gain``: the blended prediction times one gain ``g`` (least squares through the
+  reference on the new training runs, as ``prior_gain`` for one member);
+* ``prior_shared_time``: every member's filter time constants times one factor (``prior_time``'s
+  grid and whole-run CV) and the blend times one gain.
+
+Each is judged by what it would put in the product: the product's CV rule choosing among today's
+candidates plus ``prior_shared_gain`` (candidate A), plus both (candidate B), against the same
+rule among today's candidates only ("today"), all from the same run (each candidate's CV does not
+depend on the others). Developed on seeds 0-11, confirmed on seeds 12-23. A candidate is adopted
+only if, **on seeds 12-23**, (1) its share of scenarios within 15 % of the full plan from scratch
+on both the validation MAE and the worst residual is **strictly higher** than today's, and (2)
+the mean over those scenarios of the MAE ratio (4 h with the prior / full plan) is not higher than
+today's by more than **one standard error** (the standard error of the mean of the per-scenario
+differences, candidate minus today; ``judge_shared``). Between A and B, both adopted: the higher
+share on 12-23, then the lower mean MAE ratio, then A (the simpler). Otherwise neither enters
+the product. Seeds 0-11 are only for developing; nothing is changed after the confirmation seeds
+are scored.
+
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:
 ``requalify_random.json`` and ``.md``). The runs are simulated clean at ``--sample-period``
