@@ -123,7 +123,7 @@ for path in (ROOT, ROOT / "benchmarks"):
 from _results import write_results  # noqa: E402
 
 from rafi.artefact import write_text_atomic  # noqa: E402
-from rafi.family.adapted import CANDIDATES as ADAPTATIONS  # noqa: E402
+from rafi.family.adapted import CANDIDATES, ENSEMBLE_CANDIDATES  # noqa: E402
 from rafi.family.compare import compare_models, load_any, run_family  # noqa: E402
 from rafi.family.selection import SIMPLICITY, selection_table  # noqa: E402
 from rafi.ops.plan import plan_limits, plan_programme, prior_view  # noqa: E402
@@ -139,7 +139,19 @@ TAKES_PRIOR = "prior" in inspect.signature(run_family).parameters
 #: The adaptation candidates, simplest first (fewest numbers fitted on the new data: none, one
 #: gain, a gain and a time factor, a ridge towards every coefficient); the from-scratch kinds
 #: follow in :data:`rafi.family.selection.SIMPLICITY`'s order.
-ADAPTATION_ORDER = ("prior", "prior_gain", "prior_time", "prior_ridge")
+ADAPTATION_ORDER = (
+    "prior",
+    "prior_gain",
+    "prior_shared_gain",
+    "prior_time",
+    "prior_shared_time",
+    "prior_ridge",
+)
+#: Every adaptation candidate (one model of the prior, or an ensemble prior as a whole).
+ADAPTATIONS = {**CANDIDATES, **ENSEMBLE_CANDIDATES}
+#: The judgement of the shared adaptations (module docstring, "One shared adaptation"): name ->
+#: the candidates it adds to today's.
+SHARED = {"A: + prior_shared_gain": ("prior_shared_gain",), "B: + both": tuple(ENSEMBLE_CANDIDATES)}
 #: The rules judged one level up on the random scenarios (module docstring, "The choice among
 #: adaptations"): name -> what it does, for the record.
 RULES = {
@@ -651,6 +663,77 @@ def rules_markdown(judged: dict) -> str:
     return "\n".join(lines)
 
 
+def judge_shared(results: list[dict], added=SHARED) -> dict:
+    """The shared adaptations judged (module docstring, "One shared adaptation"): for today's
+    candidates (every candidate but :data:`ENSEMBLE_CANDIDATES`) and each of ``added`` (today's
+    plus those), the product's CV pick per scenario, the share within 15 % on MAE, on worst and on
+    both, the mean MAE ratio, and against today the mean and standard error of the per-scenario
+    MAE ratio differences; ``adopted``: the criterion holds on ``results``."""
+
+    def picks(extra: tuple) -> dict:
+        out = {}
+        for res in results:
+            pool = {m: c for m, c in res["candidates"].items() if m not in ENSEMBLE_CANDIDATES or m in extra}
+            out[res["seed"]] = _lowest(pool, lambda c: c["selection_score_um"])
+        return out
+
+    def row(extra: tuple) -> dict:
+        chosen = picks(extra)
+        r = [ratios(res, chosen[res["seed"]]) for res in results]
+        n = max(len(r), 1)
+        return {
+            "picks": chosen,
+            "mae_ratio": [m for m, _ in r],
+            "worst_ratio": [w for _, w in r],
+            "share_mae": sum(m <= 1 + TARGET_FRACTION for m, _ in r) / n,
+            "share_worst": sum(w <= 1 + TARGET_FRACTION for _, w in r) / n,
+            "share_both": sum(passes(m, w) for m, w in r) / n,
+            "mean_mae_ratio": float(np.mean([m for m, _ in r])) if r else math.nan,
+        }
+
+    today = row(())
+    out = {"today": today}
+    for name, extra in added.items():
+        v = row(tuple(extra))
+        d = np.array(v["mae_ratio"]) - np.array(today["mae_ratio"])
+        v["mean_mae_difference"] = float(d.mean()) if d.size else math.nan
+        v["se_mae_difference"] = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
+        v["adopted"] = bool(
+            v["share_both"] > today["share_both"] and v["mean_mae_difference"] <= v["se_mae_difference"]
+        )
+        out[name] = v
+    return out
+
+
+def shared_markdown(judged: dict) -> str:
+    """The shared adaptations' judgement: one row per candidate set, then the picks per scenario."""
+    lines = [
+        "| candidates | within 15 % on MAE | on worst | on both | mean MAE ratio | vs today: mean difference "
+        "(SE) | criterion holds |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name, v in judged.items():
+        diff = (
+            f"{v['mean_mae_difference']:+.3f} ({v['se_mae_difference']:.3f})"
+            if "mean_mae_difference" in v
+            else "-"
+        )
+        held = ("yes" if v["adopted"] else "no") if "adopted" in v else "-"
+        lines.append(
+            f"| {name} | {100 * v['share_mae']:.0f} % | {100 * v['share_worst']:.0f} % "
+            f"| {100 * v['share_both']:.0f} % | {v['mean_mae_ratio']:.3f} | {diff} | {held} |"
+        )
+    lines += ["", "| seed | " + " | ".join(f"{n}: pick, ratios MAE ; worst" for n in judged) + " |"]
+    lines.append("|---|" + "---|" * len(judged))
+    for seed in judged["today"]["picks"]:
+        i = list(judged["today"]["picks"]).index(seed)
+        cells = [
+            f"{v['picks'][seed]} {v['mae_ratio'][i]:.2f} ; {v['worst_ratio'][i]:.2f}" for v in judged.values()
+        ]
+        lines.append(f"| {seed} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
 def run_random(seeds: list[int], args, settings: dict) -> list[dict]:
     """Every random scenario of ``seeds``; with ``--keep DIR`` each result is ``DIR/seed-<n>.json``,
     read back instead of run again (so a stopped run resumes)."""
@@ -744,6 +827,8 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
     table = random_markdown(results)
     judged = judge_rules(results)
     rules = rules_markdown(judged)
+    shared = judge_shared(results)
+    rules += "\n\n" + shared_markdown(shared)
     print(table)
     print()
     print(rules)
@@ -755,6 +840,7 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
         "seconds": round(time.perf_counter() - started, 1),
         "scenarios": results,
         "rules": judged,
+        "shared": shared,
         "markdown": table + "\n\n" + rules,
     }
     out = Path(args.json)

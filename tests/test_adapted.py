@@ -227,3 +227,89 @@ def test_an_unknown_method_is_refused(dynamic_prior, states):
     _, (t2, f2) = states
     with pytest.raises(ValueError, match="method='offset'"):
         AdaptedPrior(prior=dynamic_prior, method="offset").fit(t2, f2)
+
+
+# --------------------------------------------------------------------------- one shared adaptation
+
+
+def _ensemble_prior(table, frame, **dynamic) -> dict:
+    """A CV-weighted ensemble prior of two ridge kinds of the product fitted on ``table`` /
+    ``frame`` (weights 0.6 / 0.4): both describe the generator's lag model (a member that does not,
+    ``temperature_ridge`` without lags here, pulls a gain fitted on the blend away from the truth:
+    averaging two models that disagree shrinks the blend)."""
+    from rafi.family.ensemble import WeightedEnsemble
+    from rafi.family.grey_box import GreyBox
+
+    members = {
+        "dynamic": DynamicRidge(
+            **({"taus_s": [0, 600, 1800], "max_taus": 2, "alphas": [1e-6, 1e-4]} | dynamic),
+            reference=REFERENCE,
+        ),
+        "grey_box": GreyBox(reference=REFERENCE),
+    }
+    fitted = {n: m.fit(table, frame) for n, m in members.items()}
+    return WeightedEnsemble.from_fitted(fitted, {"dynamic": 0.6, "grey_box": 0.4}, machine="m").to_dict()
+
+
+def test_a_shared_gain_over_an_ensemble_prior_recovers_the_scale(states):
+    """Truth: state 2 is state 1's displacement times 1.2. An ensemble prior fitted on state 1
+    adapted by one shared gain on state 2: the gain is 1.2 within 1 %, every member keeps its
+    weight and its coefficients times that gain, the artefact reads back as it predicts."""
+    from rafi.family.adapted import ENSEMBLE_CANDIDATES, SharedAdaptedEnsemble
+
+    (t1, f1), (t2, f2) = states
+    prior = _ensemble_prior(t1, f1)
+    shared = SharedAdaptedEnsemble(prior=prior, method="shared_gain").fit(t2, f2)
+    assert shared.gain_ == pytest.approx(SCALE, abs=0.012) and shared.time_factor_ is None
+    art = json.loads(json.dumps(shared.to_dict()))
+    assert art["kind"] == "ensemble" and art["weights"] == pytest.approx(prior["weights"])
+    for name, member in art["members"].items():
+        want = np.array(prior["members"][name]["coefficients"]) * shared.gain_
+        np.testing.assert_allclose(member["coefficients"], want)
+    block = art["adaptation"]
+    assert block["method"] == "shared_gain" and block["parent"] == prior["model_id"]
+    assert block["gain"] == shared.gain_ and block["fitness"]["gain"] == shared.gain_
+    assert model_id_verifies(art) and art["model_id"] != prior["model_id"]
+    np.testing.assert_allclose(load_any(art).predict(f2), shared.predict(f2), equal_nan=True)
+    # the same machine: the gain stays near 1
+    same = SharedAdaptedEnsemble(prior=prior, method="shared_gain").fit(*_state(2, 1.0, "s3-"))
+    assert same.gain_ == pytest.approx(1.0, abs=0.012)
+    factories = adaptation_factories(
+        prior, options=MACHINE_DEFAULTS["models"], machine="m", log=lambda m: None
+    )
+    assert set(ENSEMBLE_CANDIDATES) <= set(factories)
+    with pytest.raises(ValueError, match="ensemble prior"):
+        SharedAdaptedEnsemble(prior=prior["members"]["dynamic"], method="shared_gain").fit(t2, f2)
+
+
+def test_a_shared_time_factor_over_an_ensemble_prior_finds_a_slower_machine():
+    """Truth: the new machine's displacement lags its sensors twice as long (tau_lag 2400 s, the
+    prior's 1200 s). ``shared_time`` scales every member's filter constants by the CV's factor (2
+    of TIME_FACTORS) and the blend by one gain; its held-out error is well below the shared gain's
+    alone, and the same machine again keeps its constants and a gain near 1."""
+    from rafi.family.adapted import SharedAdaptedEnsemble
+
+    s1 = machine_state(seed=0, prefix="s1-", duration_s=3 * 3600.0, sample_s=60.0, tau_lag_s=1200.0)
+    s2 = machine_state(seed=1, prefix="s2-", duration_s=3 * 3600.0, sample_s=60.0, tau_lag_s=2400.0)
+    prior = _ensemble_prior(*s1)
+    timed = SharedAdaptedEnsemble(prior=prior, method="shared_time").fit(*s2)
+    assert timed.time_factor_ == 2.0
+    art = json.loads(json.dumps(timed.to_dict()))
+    assert art["adaptation"]["time_factor"] == 2.0 and model_id_verifies(art)
+    for name, member in art["members"].items():
+        before = prior["members"][name]["selected"]["taus_s"]
+        assert member["selected"]["taus_s"] == pytest.approx([2.0 * t for t in before])
+        np.testing.assert_allclose(
+            member["coefficients"], np.array(prior["members"][name]["coefficients"]) * timed.gain_
+        )
+    score = {}
+    for method in ("shared_gain", "shared_time"):
+        factory = functools.partial(SharedAdaptedEnsemble, prior=prior, method=method)
+        score[method] = cross_validate(factory, *s2, "leave_one_run_out", name=method)[
+            "max_abs_after_um"
+        ].mean()
+    assert score["shared_time"] < 0.7 * score["shared_gain"], score
+    same = SharedAdaptedEnsemble(prior=prior, method="shared_time").fit(
+        *machine_state(seed=2, prefix="s3-", duration_s=3 * 3600.0, sample_s=60.0, tau_lag_s=1200.0)
+    )
+    assert same.time_factor_ in (0.71, 1.0, 1.41) and same.gain_ == pytest.approx(1.0, abs=0.1)

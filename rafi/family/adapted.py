@@ -57,13 +57,27 @@ from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.time_blocks import unit_column
 from rafi.settings import MACHINE_DEFAULTS
 
-__all__ = ["ADAPTATION_SCHEMA", "METHODS", "CANDIDATES", "AdaptedPrior", "adaptation_factories"]
+__all__ = [
+    "ADAPTATION_SCHEMA",
+    "METHODS",
+    "CANDIDATES",
+    "ENSEMBLE_CANDIDATES",
+    "AdaptedPrior",
+    "SharedAdaptedEnsemble",
+    "adaptation_factories",
+]
 
 MODELS = MACHINE_DEFAULTS["models"]
 ADAPTATION_SCHEMA = "rafi.adaptation/1"
 METHODS = ("as_is", "gain", "time", "ridge")
 #: The candidates' names in the family's tables -> their method.
 CANDIDATES = {"prior": "as_is", "prior_gain": "gain", "prior_time": "time", "prior_ridge": "ridge"}
+#: The candidates offered only for a CV-weighted ensemble prior -> their method
+#: (:class:`SharedAdaptedEnsemble`: one gain, or one time factor and one gain, shared by every member;
+#: issue 47).
+ENSEMBLE_CANDIDATES = {"prior_shared_gain": "shared_gain", "prior_shared_time": "shared_time"}
+#: The shared methods of :class:`SharedAdaptedEnsemble`.
+SHARED_METHODS = tuple(ENSEMBLE_CANDIDATES.values())
 #: The methods that need a prior of a ridge kind (features @ coefficients, filter constants).
 RIDGE_METHODS = ("time", "ridge")
 #: The factors ``time`` scales the prior's filter time constants by (steps of sqrt 2).
@@ -195,6 +209,15 @@ class AdaptedPrior(FamilyModel):
 
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """Re-fit the prior on the training runs of ``runs_table`` by ``method``; returns ``self``."""
+        return self._fit(runs_table, runs_frame)
+
+    def fit_fixed(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, gain: float, time_factor=None):
+        """As :meth:`fit` with ``gain`` (``gain`` and ``time``) and ``time_factor`` (``time``) given,
+        not fitted: a member of an ensemble prior adapted by one gain and factor shared by every
+        member (:class:`SharedAdaptedEnsemble`); returns ``self``."""
+        return self._fit(runs_table, runs_frame, fixed={"gain": float(gain), "time_factor": time_factor})
+
+    def _fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, fixed: dict | None = None):
         self._check_params()
         model = self._base()
         table, frame, rows = _training_rows(runs_table, runs_frame)
@@ -208,14 +231,17 @@ class AdaptedPrior(FamilyModel):
         self.gain_ = self.alpha_chosen_ = self.time_factor_ = None
         self.grid_edges_, cv_table = [], []
         if self.method == "time":
-            units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
-            model, x, cv_table = self._time(frame, rows, y, units)
+            if fixed is not None:
+                model, x = self._retimed_design(float(fixed["time_factor"]), frame, rows)
+            else:
+                units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
+                model, x, cv_table = self._time(frame, rows, y, units)
             pred = x @ before
             ok = np.isfinite(pred) & np.isfinite(y)
-            self.gain_ = _gain(pred[ok], y[ok])
+            self.gain_ = fixed["gain"] if fixed is not None else _gain(pred[ok], y[ok])
             model.coef_ = before * self.gain_
         elif self.method == "gain":
-            self.gain_ = _gain(pred[ok], y[ok])
+            self.gain_ = fixed["gain"] if fixed is not None else _gain(pred[ok], y[ok])
             model.coef_ = before * self.gain_
         elif self.method == "ridge":
             units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
@@ -287,6 +313,14 @@ class AdaptedPrior(FamilyModel):
             for f, s in zip(TIME_FACTORS, scores)
         ]
         return model, x, table
+
+    def _retimed_design(self, factor: float, frame: pd.DataFrame, rows: np.ndarray):
+        """The prior with its time constants times ``factor`` (given) and its training design."""
+        self.time_factor_ = float(factor)
+        model = _retimed(self._base(), factor)
+        feats, names = model._design(frame)
+        model.feature_names_ = list(names)
+        return model, np.asarray(feats, dtype=float)[rows]
 
     def _ridge(self, x: np.ndarray, r: np.ndarray, units: np.ndarray, table: pd.DataFrame):
         """``delta`` of ``ridge`` and its CV table: ``alpha`` by whole-run CV on the training
@@ -389,6 +423,263 @@ class AdaptedPrior(FamilyModel):
             d["kind"] = self.kind
             d["model_id"] = compute_model_id(d)
         return d
+
+
+class SharedAdaptedEnsemble(FamilyModel):
+    """A CV-weighted ensemble prior (:mod:`rafi.family.ensemble`) re-qualified as a whole: every
+    member keeps its coefficients and the prior's weights, and one gain (``shared_gain``), or one
+    factor on every member's filter time constants and one gain (``shared_time``), is shared by
+    all of them (issue 47).
+
+    ``shared_gain``: ``g = sum(p y) / sum(p p)`` over the new training samples, ``p`` the prior's
+    blended prediction, ``y`` the measured displacement change (least squares through the
+    reference, as ``prior_gain`` for one model). ``shared_time``: every ridge member's time
+    constants (rise filters, heat-input filters, draw-in lag; RAFI's kinds have none) times the
+    factor of :data:`TIME_FACTORS` the whole-run CV prefers (each training unit held out, ``g``
+    fitted on the others, as ``prior_time``), then ``g`` on every training sample. The blend of
+    the members times ``g`` is every member's coefficients times ``g``: the adapted artefact is a
+    ``kind: ensemble`` of the members so adapted (each an :class:`AdaptedPrior` with the shared
+    gain and factor given, its own ``adaptation`` block), with the prior's weights and this
+    adaptation's block on the ensemble, so the compensator, the replay and the intervals run it
+    as any ensemble.
+
+    Parameters
+    ----------
+    prior : dict
+        The ensemble prior's artefact (``kind: ensemble`` with ``weights`` and ``members``).
+    method : {"shared_gain", "shared_time"}
+        What is shared (:data:`SHARED_METHODS`).
+    cv, cv_metric, machine, reference, origin, qualification, speed_tolerance_rpm
+        As :class:`AdaptedPrior`.
+    alphas : sequence of float
+        Not used (the factories pass every candidate the same settings).
+
+    Attributes
+    ----------
+    model_ : WeightedEnsemble
+        The adapted ensemble.
+    gain_ : float
+        The shared gain ``g``.
+    time_factor_ : float or None
+        The shared time factor (``shared_time``).
+    alpha_chosen_ : None
+        No ridge.
+    coefficient_change_ : list of dict
+        ``name`` (``<member>: <coefficient>``), ``prior``, ``new``.
+    grid_edges_ : list of str
+        The time factor at an edge of :data:`TIME_FACTORS`.
+    fitness_ : dict
+        The ``fitness`` block (:func:`rafi.family.prior_fitness.fitness_block`).
+    """
+
+    kind = "ensemble"
+
+    def __init__(
+        self,
+        *,
+        prior: dict,
+        method: str = "shared_gain",
+        alphas: Sequence[float] = MODELS["prior_ridge_alphas"],
+        cv: str = MODELS["cv"],
+        cv_metric: str = MODELS["cv_metric"],
+        machine: str | None = None,
+        reference: dict | None = None,
+        origin: str | None = None,
+        qualification: dict | None = None,
+        speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
+    ):
+        self.prior = prior
+        self.method = method
+        self.alphas = alphas
+        self.cv = cv
+        self.cv_metric = cv_metric
+        self.machine = machine
+        self.reference = reference
+        self.origin = origin
+        self.qualification = qualification
+        self.speed_tolerance_rpm = speed_tolerance_rpm
+
+    def __repr__(self) -> str:
+        pid = str(self.prior.get("model_id", ""))[:12]
+        return f"SharedAdaptedEnsemble(prior={pid!r}, method={self.method!r})"
+
+    def _check_params(self) -> tuple[dict, dict]:
+        if self.method not in SHARED_METHODS:
+            raise ValueError(f"method={self.method!r}: use one of {', '.join(SHARED_METHODS)}")
+        weights = {str(k): float(v) for k, v in (self.prior.get("weights") or {}).items()}
+        arts = self.prior.get("members") or {}
+        if self.prior.get("kind") != "ensemble" or len(weights) < 2 or any(n not in arts for n in weights):
+            raise ValueError(
+                f"method={self.method!r} needs a CV-weighted ensemble prior with its members' artefacts, "
+                f"not kind {self.prior.get('kind')!r}"
+            )
+        return weights, arts
+
+    def _member(self, art: dict, method: str) -> AdaptedPrior:
+        """An :class:`AdaptedPrior` of one member (its gain and factor given by :meth:`fit`)."""
+        return AdaptedPrior(
+            prior=art,
+            method=method,
+            cv=self.cv,
+            cv_metric=self.cv_metric,
+            machine=self.machine,
+            reference=self.reference,
+            origin=self.origin,
+            qualification=self.qualification,
+            speed_tolerance_rpm=self.speed_tolerance_rpm,
+        )
+
+    def _blend(self, weights: dict, arts: dict, factor: float, frame: pd.DataFrame) -> np.ndarray:
+        """The prior's blended prediction on ``frame`` with every ridge member's time constants
+        times ``factor`` (the ensemble's own bound and blend, :class:`WeightedEnsemble`)."""
+        from rafi.family.ensemble import WeightedEnsemble
+
+        models = {}
+        for name in weights:
+            model = self._member(arts[name], "as_is")._base()
+            models[name] = _retimed(model, factor) if arts[name].get("kind") in RIDGE_KINDS else model
+        ensemble = WeightedEnsemble.from_fitted(models, weights, machine=self.prior.get("machine"))
+        return np.asarray(ensemble.predict(frame), dtype=float)
+
+    def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        """Fit the shared gain (and time factor) on the training runs of ``runs_table``; returns ``self``."""
+        from rafi.family.ensemble import WeightedEnsemble
+
+        weights, arts = self._check_params()
+        table, frame, rows = _training_rows(runs_table, runs_frame)
+        y = frame.loc[rows, "dz_um"].to_numpy(dtype=float)
+        prior_prediction = self._blend(weights, arts, 1.0, frame)[rows]
+        self.time_factor_, self.alpha_chosen_, self.grid_edges_, cv_table = None, None, [], []
+        factor, pred = 1.0, prior_prediction
+        if self.method == "shared_time":
+            units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
+            preds = [pred if f == 1.0 else self._blend(weights, arts, f, frame)[rows] for f in TIME_FACTORS]
+            scores = [_held_out_gain_score(p, y, units, self.cv_metric) for p in preds]
+            finite = [v for v in scores if np.isfinite(v)]
+            best = TIME_FACTORS.index(1.0)
+            if finite:  # ties go to the factor nearest 1 (the prior's own constants)
+                best = min(
+                    range(len(scores)),
+                    key=lambda i: (
+                        np.round(scores[i] / 1e-9) if np.isfinite(scores[i]) else np.inf,
+                        abs(np.log(TIME_FACTORS[i])),
+                    ),
+                )
+                if best in (0, len(TIME_FACTORS) - 1):
+                    self.grid_edges_ = [
+                        f"prior_shared_time factor {TIME_FACTORS[best]:g} at an edge of {list(TIME_FACTORS)}"
+                    ]
+            factor, pred = float(TIME_FACTORS[best]), preds[best]
+            self.time_factor_ = factor
+            cv_table = [
+                {"factor": f, "score_um": float(v) if np.isfinite(v) else None}
+                for f, v in zip(TIME_FACTORS, scores)
+            ]
+        ok = np.isfinite(pred) & np.isfinite(y)
+        self.gain_ = _gain(pred[ok], y[ok])
+        members = {}
+        for name in weights:
+            ridge = arts[name].get("kind") in RIDGE_KINDS
+            method = "time" if self.method == "shared_time" and ridge else "gain"
+            sub = self._member(arts[name], method)
+            members[name] = sub.fit_fixed(runs_table, runs_frame, gain=self.gain_, time_factor=factor)
+        self.members_ = members
+        machine = self.machine if self.machine is not None else self.prior.get("machine")
+        # a ridge member: its adapted model (envelope and bound); RAFI's: the adapted wrapper (its kind)
+        fitted = {n: m.model_ if m.kind in RIDGE_KINDS else m for n, m in members.items()}
+        model = WeightedEnsemble.from_fitted(
+            fitted,
+            weights,
+            machine=machine,
+            trained_speeds_rpm=_joined_trained_speeds(self.prior, table),
+        )
+        new_prediction = np.asarray(model.predict(frame), dtype=float)[rows]
+        self.coefficient_change_ = [
+            {**c, "name": f"{n}: {c['name']}"} for n, m in members.items() for c in m.coefficient_change_
+        ]
+        self.fitness_ = self._fitness(table, frame.loc[rows], prior_prediction, new_prediction)
+        self.cv_table_ = cv_table
+        self.adaptation_ = {
+            "schema": ADAPTATION_SCHEMA,
+            "method": self.method,
+            "parent": self.prior.get("model_id"),
+            "parent_machine": self.prior.get("machine"),
+            "gain": self.gain_,
+            "alpha": None,
+            "time_factor": self.time_factor_,
+            "prior_data": _lineage_data(self.prior),
+            "members": {
+                n: {"kind": arts[n].get("kind"), "model_id": arts[n].get("model_id")} for n in weights
+            },
+            "cv": cv_table,
+            "fitness": self.fitness_,
+        }
+        self.model_ = model
+        return self
+
+    def _fitness(self, table: pd.DataFrame, train: pd.DataFrame, before: np.ndarray, after: np.ndarray):
+        """The ``fitness`` block: the new training runs' speeds and rises against the ensemble's."""
+        from rafi.family.features import rise_column
+
+        rises = {}
+        for sensor in self.prior.get("key_sensors") or []:
+            column = rise_column(sensor)
+            values = train[column].to_numpy(dtype=float) if column in train else np.array([])
+            values = values[np.isfinite(values)]
+            if values.size:
+                rises[sensor] = [float(values.min()), float(values.max())]
+        return fitness_block(
+            self.prior,
+            qualification=self.qualification,
+            origin=self.origin,
+            method=self.method,
+            gain=self.gain_,
+            time_factor=self.time_factor_,
+            alpha=None,
+            coefficient_change=self.coefficient_change_,
+            prior_prediction=before,
+            new_prediction=after,
+            tested_speeds_rpm=table["speed_rpm"].astype(float).tolist(),
+            tested_rises=rises,
+            speed_tolerance_rpm=float(self.speed_tolerance_rpm),
+        )
+
+    def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """The adapted ensemble's ``predict_detail``."""
+        return self.model_.predict_detail(frame)
+
+    def predict(self, frame: pd.DataFrame) -> np.ndarray:
+        """The adapted ensemble's prediction (um) per row of ``frame``."""
+        return np.asarray(self.model_.predict(frame), dtype=float)
+
+    def describe(self) -> str:
+        """What the adaptation chose, in one line for people."""
+        pid = str(self.prior.get("model_id", ""))[:12]
+        n = len(self.prior.get("weights") or {})
+        what = f"blend times {self.gain_:.4g}"
+        if self.time_factor_ is not None:
+            what = f"every member's time constants times {self.time_factor_:g}, {what}"
+        text = (
+            f"prior {pid} (ensemble of {self.prior.get('machine')}, {n} members, the prior's weights) {what}"
+        )
+        return text + ("; AT A GRID EDGE: " + "; ".join(self.grid_edges_) if self.grid_edges_ else "")
+
+    def to_dict(self) -> dict:
+        """The adapted artefact: a ``kind: ensemble`` of the adapted members with the ``adaptation`` block."""
+        d = self.model_.to_dict()
+        d["adaptation"] = self.adaptation_
+        d["model_id"] = compute_model_id(d)
+        return d
+
+
+def _joined_trained_speeds(prior: dict, table: pd.DataFrame) -> list[float] | None:
+    """The prior's ``trained_speeds_rpm`` joined with the new constant training runs' speeds."""
+    from rafi.family.compare import trained_speeds
+
+    new = trained_speeds(table) or []
+    old = [float(v) for v in prior.get("trained_speeds_rpm") or []]
+    both = sorted(set(old) | set(new))
+    return both or None
 
 
 def _gain(pred: np.ndarray, y: np.ndarray) -> float:
@@ -510,7 +801,16 @@ def adaptation_factories(
     common = {"alphas": options["prior_ridge_alphas"], "cv": options["cv"], "cv_metric": options["cv_metric"]}
     common["reference"] = reference
     common |= {"origin": origin, "qualification": qualification, "speed_tolerance_rpm": speed_tolerance_rpm}
-    return {
+    out = {
         n: functools.partial(AdaptedPrior, prior=prior, method=CANDIDATES[n], machine=machine, **common)
         for n in names
     }
+    if member is not None:  # an ensemble prior: also adapted as a whole (one shared gain / factor)
+        arts = (prior.get("members") or {}).values()
+        timed = any(isinstance(a, dict) and a.get("kind") in RIDGE_KINDS for a in arts)
+        shared = [n for n in ENSEMBLE_CANDIDATES if ENSEMBLE_CANDIDATES[n] != "shared_time" or timed]
+        for n in shared:
+            out[n] = functools.partial(
+                SharedAdaptedEnsemble, prior=prior, method=ENSEMBLE_CANDIDATES[n], machine=machine, **common
+            )
+    return out
