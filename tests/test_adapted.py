@@ -313,3 +313,27 @@ def test_a_shared_time_factor_over_an_ensemble_prior_finds_a_slower_machine():
         *machine_state(seed=2, prefix="s3-", duration_s=3 * 3600.0, sample_s=60.0, tau_lag_s=1200.0)
     )
     assert same.time_factor_ in (0.71, 1.0, 1.41) and same.gain_ == pytest.approx(1.0, abs=0.1)
+
+
+def test_run_family_offers_the_shared_adaptations_of_an_ensemble_prior(states):
+    """With an ensemble prior, the family's CV scores ``prior_shared_gain`` and
+    ``prior_shared_time`` beside today's candidates (the heaviest member's), each with its own
+    interval; the shared gain's artefact is an ensemble with the adaptation block."""
+    from rafi.family.adapted import ENSEMBLE_CANDIDATES
+
+    (t1, f1), (t2, f2) = states
+    prior = _ensemble_prior(t1, f1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = _family(t2, f2, prior=prior)
+    summary = res["summary"].set_index("model")
+    assert {*CANDIDATES, *ENSEMBLE_CANDIDATES} <= set(summary.index)
+    assert (summary.loc[list(ENSEMBLE_CANDIDATES), "kind"] == "ensemble").all()
+    assert summary.loc["prior_shared_gain", "selected"].endswith(
+        f"blend times {res['models']['prior_shared_gain'].gain_:.4g}"
+    )
+    assert set(res["cv"]["model"]) >= set(ENSEMBLE_CANDIDATES)
+    for name in ENSEMBLE_CANDIDATES:
+        art = res["models"][name].to_dict()
+        assert art["interval"]["schema"] == "rafi.interval/1" and model_id_verifies(art)
+        assert art["adaptation"]["parent"] == prior["model_id"]

@@ -457,7 +457,9 @@ class SharedAdaptedEnsemble(FamilyModel):
     Attributes
     ----------
     model_ : WeightedEnsemble
-        The adapted ensemble.
+        The adapted ensemble (``weights_``, ``members_``, ``envelope_``: its own).
+    adapted_members_ : dict
+        Name -> the member's :class:`AdaptedPrior` (the shared gain and factor given).
     gain_ : float
         The shared gain ``g``.
     time_factor_ : float or None
@@ -583,7 +585,7 @@ class SharedAdaptedEnsemble(FamilyModel):
             method = "time" if self.method == "shared_time" and ridge else "gain"
             sub = self._member(arts[name], method)
             members[name] = sub.fit_fixed(runs_table, runs_frame, gain=self.gain_, time_factor=factor)
-        self.members_ = members
+        self.adapted_members_ = members
         machine = self.machine if self.machine is not None else self.prior.get("machine")
         # a ridge member: its adapted model (envelope and bound); RAFI's: the adapted wrapper (its kind)
         fitted = {n: m.model_ if m.kind in RIDGE_KINDS else m for n, m in members.items()}
@@ -643,6 +645,21 @@ class SharedAdaptedEnsemble(FamilyModel):
             tested_rises=rises,
             speed_tolerance_rpm=float(self.speed_tolerance_rpm),
         )
+
+    @property
+    def weights_(self) -> dict:
+        """The adapted ensemble's weights (the prior's)."""
+        return self.model_.weights_
+
+    @property
+    def members_(self) -> dict:
+        """The adapted ensemble's fitted members (name -> model)."""
+        return self.model_.members_
+
+    @property
+    def envelope_(self):
+        """The adapted ensemble's output bound."""
+        return self.model_.envelope_
 
     def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
         """The adapted ensemble's ``predict_detail``."""
