@@ -337,3 +337,34 @@ def test_run_family_offers_the_shared_adaptations_of_an_ensemble_prior(states):
         art = res["models"][name].to_dict()
         assert art["interval"]["schema"] == "rafi.interval/1" and model_id_verifies(art)
         assert art["adaptation"]["parent"] == prior["model_id"]
+
+
+@pytest.mark.parametrize("method", ["shared_gain", "shared_time"])
+def test_a_shared_adaptation_streams_and_replays_as_it_predicts(method):
+    """An ensemble of every kind (test_compensator's, RAFI's kinds included: they take the gain,
+    not the factor) adapted by a shared gain or time factor on the same runs with the displacement
+    times 1.2: its artefact runs in the streaming compensator and in the replay with the limits
+    wide open unchanged, equal to the batch prediction after the reference window."""
+    from test_compensator import _ensemble
+    from test_replay import OPEN, _replay_every_log
+
+    from rafi.family.adapted import SharedAdaptedEnsemble
+
+    rule = "run_start"
+    table, frame = _find_runs(_logs(), [3000, 6000, 9000], rule)
+    prior = _ensemble(rule, table, frame).to_dict()
+    newer = time_ordered(frame.assign(dz_um=frame["dz_um"] * SCALE))
+    adapted = SharedAdaptedEnsemble(prior=prior, method=method).fit(table, newer)
+    assert adapted.gain_ == pytest.approx(SCALE, abs=0.05)  # the same runs: the ensemble's own fit
+    artefact = json.loads(json.dumps(adapted.to_dict()))
+    assert artefact["kind"] == "ensemble" and artefact["adaptation"]["method"] == method
+    Compensator.from_artefact(artefact)  # verifies the id, checks the features
+    want = adapted.predict_detail(newer)["predicted_um"].to_numpy(dtype=float)
+    got = _stream(artefact, newer, rule)["um"].to_numpy()
+    defined = ~_in_window(newer, rule) & np.isfinite(want)
+    assert defined.sum() > 0.9 * len(newer) and np.abs(want[defined]).max() > 5.0
+    np.testing.assert_allclose(got[defined], want[defined], rtol=0, atol=1e-9)
+    replayed = _replay_every_log(newer, artefact, OPEN)
+    ok = defined & (replayed["status"].to_numpy() == "ok")
+    assert ok.sum() > 0.9 * len(newer)
+    np.testing.assert_allclose(replayed["command_um"].to_numpy(dtype=float)[ok], want[ok], rtol=0, atol=1e-9)
