@@ -91,6 +91,9 @@ differences, candidate minus today; ``judge_shared``). Between A and B, both ado
 share on 12-23, then the lower mean MAE ratio, then A (the simpler). Otherwise neither enters
 the product. Seeds 0-11 are only for developing; nothing is changed after the confirmation seeds
 are scored.
+Development, seeds 0-11 (2026-11-29, ``--seeds 0-11 --keep``, nothing changed after it): today 4 of
+12 within 15 % on both (mean MAE ratio 1.595); A 7 of 12 (1.305; difference -0.290, SE 0.139); B
+the same picks as A (the CV never took ``prior_shared_time``).
 
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:
