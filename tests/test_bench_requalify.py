@@ -205,7 +205,16 @@ def test_a_tiny_run_writes_the_table_and_the_json(bench, tmp_path, capsys):
     assert res["full_choice"] == "ensemble" and 0 < res["floor_um"] < res["full_um"] < row["scratch_um"]
     assert math.isfinite(res["unchanged_um"]) and math.isfinite(row["prior_um"]) and row["prior_choice"]
     assert sorted(float(k) for k in res["prior_cv_by_speed_um"]) == [3000, 6000, 9000, 12000, 15000, 18000]
-    assert set(row["candidates"]) == {"ridge_global", "prior", "prior_gain", "prior_time", "prior_ridge"}
+    # the prior is an ensemble (ridge_global and the plain ridge): adapted as a whole too
+    assert set(row["candidates"]) == {
+        "ridge_global",
+        "prior",
+        "prior_gain",
+        "prior_time",
+        "prior_ridge",
+        "prior_shared_gain",
+        "prior_shared_time",
+    }
     printed = capsys.readouterr().out
     assert record["markdown"] in printed and "replaced_sensor:" in printed
 
