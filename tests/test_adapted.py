@@ -232,7 +232,7 @@ def test_an_unknown_method_is_refused(dynamic_prior, states):
 # --------------------------------------------------------------------------- one shared adaptation
 
 
-def _ensemble_prior(table, frame, **dynamic) -> dict:
+def _ensemble_prior(table, frame) -> dict:
     """A CV-weighted ensemble prior of two ridge kinds of the product fitted on ``table`` /
     ``frame`` (weights 0.6 / 0.4): both describe the generator's lag model (a member that does not,
     ``temperature_ridge`` without lags here, pulls a gain fitted on the blend away from the truth:
@@ -241,10 +241,7 @@ def _ensemble_prior(table, frame, **dynamic) -> dict:
     from rafi.family.grey_box import GreyBox
 
     members = {
-        "dynamic": DynamicRidge(
-            **({"taus_s": [0, 600, 1800], "max_taus": 2, "alphas": [1e-6, 1e-4]} | dynamic),
-            reference=REFERENCE,
-        ),
+        "dynamic": DynamicRidge(taus_s=[0, 600, 1800], max_taus=2, alphas=[1e-6, 1e-4], reference=REFERENCE),
         "grey_box": GreyBox(reference=REFERENCE),
     }
     fitted = {n: m.fit(table, frame) for n, m in members.items()}
@@ -282,43 +279,10 @@ def test_a_shared_gain_over_an_ensemble_prior_recovers_the_scale(states):
         SharedAdaptedEnsemble(prior=prior["members"]["dynamic"], method="shared_gain").fit(t2, f2)
 
 
-def test_a_shared_time_factor_over_an_ensemble_prior_finds_a_slower_machine():
-    """Truth: the new machine's displacement lags its sensors twice as long (tau_lag 2400 s, the
-    prior's 1200 s). ``shared_time`` scales every member's filter constants by the CV's factor (2
-    of TIME_FACTORS) and the blend by one gain; its held-out error is well below the shared gain's
-    alone, and the same machine again keeps its constants and a gain near 1."""
-    from rafi.family.adapted import SharedAdaptedEnsemble
-
-    s1 = machine_state(seed=0, prefix="s1-", duration_s=3 * 3600.0, sample_s=60.0, tau_lag_s=1200.0)
-    s2 = machine_state(seed=1, prefix="s2-", duration_s=3 * 3600.0, sample_s=60.0, tau_lag_s=2400.0)
-    prior = _ensemble_prior(*s1)
-    timed = SharedAdaptedEnsemble(prior=prior, method="shared_time").fit(*s2)
-    assert timed.time_factor_ == 2.0
-    art = json.loads(json.dumps(timed.to_dict()))
-    assert art["adaptation"]["time_factor"] == 2.0 and model_id_verifies(art)
-    for name, member in art["members"].items():
-        before = prior["members"][name]["selected"]["taus_s"]
-        assert member["selected"]["taus_s"] == pytest.approx([2.0 * t for t in before])
-        np.testing.assert_allclose(
-            member["coefficients"], np.array(prior["members"][name]["coefficients"]) * timed.gain_
-        )
-    score = {}
-    for method in ("shared_gain", "shared_time"):
-        factory = functools.partial(SharedAdaptedEnsemble, prior=prior, method=method)
-        score[method] = cross_validate(factory, *s2, "leave_one_run_out", name=method)[
-            "max_abs_after_um"
-        ].mean()
-    assert score["shared_time"] < 0.7 * score["shared_gain"], score
-    same = SharedAdaptedEnsemble(prior=prior, method="shared_time").fit(
-        *machine_state(seed=2, prefix="s3-", duration_s=3 * 3600.0, sample_s=60.0, tau_lag_s=1200.0)
-    )
-    assert same.time_factor_ in (0.71, 1.0, 1.41) and same.gain_ == pytest.approx(1.0, abs=0.1)
-
-
-def test_run_family_offers_the_shared_adaptations_of_an_ensemble_prior(states):
-    """With an ensemble prior, the family's CV scores ``prior_shared_gain`` and
-    ``prior_shared_time`` beside today's candidates (the heaviest member's), each with its own
-    interval; the shared gain's artefact is an ensemble with the adaptation block."""
+def test_run_family_offers_the_shared_gain_of_an_ensemble_prior(states):
+    """With an ensemble prior, the family's CV scores ``prior_shared_gain`` beside the heaviest
+    member's candidates, with its own interval; its artefact is an ensemble with the adaptation
+    block."""
     from rafi.family.adapted import ENSEMBLE_CANDIDATES
 
     (t1, f1), (t2, f2) = states
@@ -339,12 +303,11 @@ def test_run_family_offers_the_shared_adaptations_of_an_ensemble_prior(states):
         assert art["adaptation"]["parent"] == prior["model_id"]
 
 
-@pytest.mark.parametrize("method", ["shared_gain", "shared_time"])
-def test_a_shared_adaptation_streams_and_replays_as_it_predicts(method):
-    """An ensemble of every kind (test_compensator's, RAFI's kinds included: they take the gain,
-    not the factor) adapted by a shared gain or time factor on the same runs with the displacement
-    times 1.2: its artefact runs in the streaming compensator and in the replay with the limits
-    wide open unchanged, equal to the batch prediction after the reference window."""
+def test_a_shared_gain_artefact_streams_and_replays_as_it_predicts():
+    """An ensemble of every kind (test_compensator's, RAFI's kinds included) adapted by a shared
+    gain on the same runs with the displacement times 1.2: its artefact runs in the streaming
+    compensator and in the replay with the limits wide open unchanged, equal to the batch
+    prediction after the reference window."""
     from test_compensator import _ensemble
     from test_replay import OPEN, _replay_every_log
 
@@ -354,10 +317,10 @@ def test_a_shared_adaptation_streams_and_replays_as_it_predicts(method):
     table, frame = _find_runs(_logs(), [3000, 6000, 9000], rule)
     prior = _ensemble(rule, table, frame).to_dict()
     newer = time_ordered(frame.assign(dz_um=frame["dz_um"] * SCALE))
-    adapted = SharedAdaptedEnsemble(prior=prior, method=method).fit(table, newer)
+    adapted = SharedAdaptedEnsemble(prior=prior, method="shared_gain").fit(table, newer)
     assert adapted.gain_ == pytest.approx(SCALE, abs=0.05)  # the same runs: the ensemble's own fit
     artefact = json.loads(json.dumps(adapted.to_dict()))
-    assert artefact["kind"] == "ensemble" and artefact["adaptation"]["method"] == method
+    assert artefact["kind"] == "ensemble" and artefact["adaptation"]["method"] == "shared_gain"
     Compensator.from_artefact(artefact)  # verifies the id, checks the features
     want = adapted.predict_detail(newer)["predicted_um"].to_numpy(dtype=float)
     got = _stream(artefact, newer, rule)["um"].to_numpy()

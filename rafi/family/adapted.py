@@ -1,8 +1,9 @@
 """The adaptation family: a prior (a fitted artefact of the family, :mod:`rafi.family.prior`)
 re-qualified on new data (``docs/models.md``, "Re-qualification from a prior").
 
-Four candidates, each cross-validated by whole run on the new training runs beside the
-from-scratch kinds (:func:`adaptation_factories`; names in ``comparison/*.csv``):
+Four candidates (five with an ensemble prior), each cross-validated by whole run on the new
+training runs beside the from-scratch kinds (:func:`adaptation_factories`; names in
+``comparison/*.csv``):
 
 * ``prior``       - the prior as it is (``method="as_is"``: nothing fitted);
 * ``prior_gain``  - every coefficient of the prior times one gain ``b``
@@ -20,10 +21,18 @@ from-scratch kinds (:func:`adaptation_factories`; names in ``comparison/*.csv``)
   ``alpha`` chosen by whole-run CV inside the training runs (nested) on ``models: prior_ridge_alphas``.
 
 A prior that is a CV-weighted ensemble (:mod:`rafi.family.ensemble`) is adapted through its
-heaviest member (:func:`rafi.family.prior.prior_base`): the candidates re-fit that member and the
-adapted artefact is of its kind; the block's ``parent`` is the ensemble (the registry's model) and
-its ``member`` names the member re-fitted (``name``, ``kind``, ``model_id``, ``weight``,
-``n_members``).
+heaviest member (:func:`rafi.family.prior.prior_base`): the four candidates re-fit that member and
+the adapted artefact is of its kind; the block's ``parent`` is the ensemble (the registry's model)
+and its ``member`` names the member re-fitted (``name``, ``kind``, ``model_id``, ``weight``,
+``n_members``). And it is adapted as a whole by a fifth candidate:
+
+* ``prior_shared_gain`` - every member keeps its coefficients and the prior's weights, the blend
+  times one gain ``g`` fitted as ``prior_gain``'s on the prior's blended prediction
+  (:class:`SharedAdaptedEnsemble`, ``method="shared_gain"``): an artefact ``kind: ensemble``
+  whose members' coefficients are the prior's times ``g``, the block on the ensemble (no
+  ``member``; ``members`` names the prior's). Judged on random re-qualification scenarios
+  (issue 47, ``benchmarks/bench_requalify.py``); one time factor shared too (``prior_time``'s
+  way over every member) was judged beside it and is not offered.
 
 What is never re-fitted: the prior's sensors and terms, and its filter time constants other than
 by the one factor of ``prior_time``; the from-scratch kinds beside re-choose those. The fitted
@@ -73,9 +82,9 @@ METHODS = ("as_is", "gain", "time", "ridge")
 #: The candidates' names in the family's tables -> their method.
 CANDIDATES = {"prior": "as_is", "prior_gain": "gain", "prior_time": "time", "prior_ridge": "ridge"}
 #: The candidates offered only for a CV-weighted ensemble prior -> their method
-#: (:class:`SharedAdaptedEnsemble`: one gain, or one time factor and one gain, shared by every member;
-#: issue 47).
-ENSEMBLE_CANDIDATES = {"prior_shared_gain": "shared_gain", "prior_shared_time": "shared_time"}
+#: (:class:`SharedAdaptedEnsemble`: one gain shared by every member; issue 47. One time factor
+#: shared too was judged beside it and not offered: ``benchmarks/bench_requalify.py``).
+ENSEMBLE_CANDIDATES = {"prior_shared_gain": "shared_gain"}
 #: The shared methods of :class:`SharedAdaptedEnsemble`.
 SHARED_METHODS = tuple(ENSEMBLE_CANDIDATES.values())
 #: The methods that need a prior of a ridge kind (features @ coefficients, filter constants).
@@ -211,13 +220,15 @@ class AdaptedPrior(FamilyModel):
         """Re-fit the prior on the training runs of ``runs_table`` by ``method``; returns ``self``."""
         return self._fit(runs_table, runs_frame)
 
-    def fit_fixed(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, gain: float, time_factor=None):
-        """As :meth:`fit` with ``gain`` (``gain`` and ``time``) and ``time_factor`` (``time``) given,
-        not fitted: a member of an ensemble prior adapted by one gain and factor shared by every
-        member (:class:`SharedAdaptedEnsemble`); returns ``self``."""
-        return self._fit(runs_table, runs_frame, fixed={"gain": float(gain), "time_factor": time_factor})
+    def fit_gain(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, gain: float):
+        """As :meth:`fit` (``method="gain"``) with the gain given, not fitted: a member of an
+        ensemble prior adapted by one gain shared by every member (:class:`SharedAdaptedEnsemble`);
+        returns ``self``."""
+        if self.method != "gain":
+            raise ValueError(f"fit_gain needs method='gain', not {self.method!r}")
+        return self._fit(runs_table, runs_frame, gain=float(gain))
 
-    def _fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, fixed: dict | None = None):
+    def _fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, gain: float | None = None):
         self._check_params()
         model = self._base()
         table, frame, rows = _training_rows(runs_table, runs_frame)
@@ -231,17 +242,14 @@ class AdaptedPrior(FamilyModel):
         self.gain_ = self.alpha_chosen_ = self.time_factor_ = None
         self.grid_edges_, cv_table = [], []
         if self.method == "time":
-            if fixed is not None:
-                model, x = self._retimed_design(float(fixed["time_factor"]), frame, rows)
-            else:
-                units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
-                model, x, cv_table = self._time(frame, rows, y, units)
+            units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
+            model, x, cv_table = self._time(frame, rows, y, units)
             pred = x @ before
             ok = np.isfinite(pred) & np.isfinite(y)
-            self.gain_ = fixed["gain"] if fixed is not None else _gain(pred[ok], y[ok])
+            self.gain_ = _gain(pred[ok], y[ok])
             model.coef_ = before * self.gain_
         elif self.method == "gain":
-            self.gain_ = fixed["gain"] if fixed is not None else _gain(pred[ok], y[ok])
+            self.gain_ = gain if gain is not None else _gain(pred[ok], y[ok])
             model.coef_ = before * self.gain_
         elif self.method == "ridge":
             units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
@@ -313,14 +321,6 @@ class AdaptedPrior(FamilyModel):
             for f, s in zip(TIME_FACTORS, scores)
         ]
         return model, x, table
-
-    def _retimed_design(self, factor: float, frame: pd.DataFrame, rows: np.ndarray):
-        """The prior with its time constants times ``factor`` (given) and its training design."""
-        self.time_factor_ = float(factor)
-        model = _retimed(self._base(), factor)
-        feats, names = model._design(frame)
-        model.feature_names_ = list(names)
-        return model, np.asarray(feats, dtype=float)[rows]
 
     def _ridge(self, x: np.ndarray, r: np.ndarray, units: np.ndarray, table: pd.DataFrame):
         """``delta`` of ``ridge`` and its CV table: ``alpha`` by whole-run CV on the training
@@ -427,27 +427,24 @@ class AdaptedPrior(FamilyModel):
 
 class SharedAdaptedEnsemble(FamilyModel):
     """A CV-weighted ensemble prior (:mod:`rafi.family.ensemble`) re-qualified as a whole: every
-    member keeps its coefficients and the prior's weights, and one gain (``shared_gain``), or one
-    factor on every member's filter time constants and one gain (``shared_time``), is shared by
-    all of them (issue 47).
+    member keeps its coefficients and the prior's weights, and one gain is shared by all of them
+    (``shared_gain``, the candidate ``prior_shared_gain``; issue 47).
 
-    ``shared_gain``: ``g = sum(p y) / sum(p p)`` over the new training samples, ``p`` the prior's
-    blended prediction, ``y`` the measured displacement change (least squares through the
-    reference, as ``prior_gain`` for one model). ``shared_time``: every ridge member's time
-    constants (rise filters, heat-input filters, draw-in lag; RAFI's kinds have none) times the
-    factor of :data:`TIME_FACTORS` the whole-run CV prefers (each training unit held out, ``g``
-    fitted on the others, as ``prior_time``), then ``g`` on every training sample. The blend of
-    the members times ``g`` is every member's coefficients times ``g``: the adapted artefact is a
-    ``kind: ensemble`` of the members so adapted (each an :class:`AdaptedPrior` with the shared
-    gain and factor given, its own ``adaptation`` block), with the prior's weights and this
-    adaptation's block on the ensemble, so the compensator, the replay and the intervals run it
-    as any ensemble.
+    ``g = sum(p y) / sum(p p)`` over the new training samples, ``p`` the prior's blended
+    prediction (its own bound and blend), ``y`` the measured displacement change: least squares
+    through the reference, as ``prior_gain`` for one model. The blend of the members times ``g``
+    is every member's coefficients times ``g``: the adapted artefact is a ``kind: ensemble`` of
+    the members so adapted (each an :class:`AdaptedPrior` with the shared gain given, its own
+    ``adaptation`` block, its envelope joined with the new data), with the prior's weights and
+    this adaptation's block on the ensemble, so the compensator, the replay and the intervals run
+    it as any ensemble. A gain fitted on a blend is the truth's only where the members agree with
+    it: averaging members that disagree shrinks the blend and the gain grows to make up for it.
 
     Parameters
     ----------
     prior : dict
         The ensemble prior's artefact (``kind: ensemble`` with ``weights`` and ``members``).
-    method : {"shared_gain", "shared_time"}
+    method : {"shared_gain"}
         What is shared (:data:`SHARED_METHODS`).
     cv, cv_metric, machine, reference, origin, qualification, speed_tolerance_rpm
         As :class:`AdaptedPrior`.
@@ -459,17 +456,15 @@ class SharedAdaptedEnsemble(FamilyModel):
     model_ : WeightedEnsemble
         The adapted ensemble (``weights_``, ``members_``, ``envelope_``: its own).
     adapted_members_ : dict
-        Name -> the member's :class:`AdaptedPrior` (the shared gain and factor given).
+        Name -> the member's :class:`AdaptedPrior` (the shared gain given).
     gain_ : float
         The shared gain ``g``.
-    time_factor_ : float or None
-        The shared time factor (``shared_time``).
-    alpha_chosen_ : None
-        No ridge.
+    time_factor_, alpha_chosen_ : None
+        Nothing else fitted.
     coefficient_change_ : list of dict
         ``name`` (``<member>: <coefficient>``), ``prior``, ``new``.
     grid_edges_ : list of str
-        The time factor at an edge of :data:`TIME_FACTORS`.
+        Empty (no grid).
     fitness_ : dict
         The ``fitness`` block (:func:`rafi.family.prior_fitness.fitness_block`).
     """
@@ -518,7 +513,7 @@ class SharedAdaptedEnsemble(FamilyModel):
         return weights, arts
 
     def _member(self, art: dict, method: str) -> AdaptedPrior:
-        """An :class:`AdaptedPrior` of one member (its gain and factor given by :meth:`fit`)."""
+        """An :class:`AdaptedPrior` of one member (its gain given by :meth:`fit`)."""
         return AdaptedPrior(
             prior=art,
             method=method,
@@ -531,60 +526,29 @@ class SharedAdaptedEnsemble(FamilyModel):
             speed_tolerance_rpm=self.speed_tolerance_rpm,
         )
 
-    def _blend(self, weights: dict, arts: dict, factor: float, frame: pd.DataFrame) -> np.ndarray:
-        """The prior's blended prediction on ``frame`` with every ridge member's time constants
-        times ``factor`` (the ensemble's own bound and blend, :class:`WeightedEnsemble`)."""
+    def _blend(self, weights: dict, arts: dict, frame: pd.DataFrame) -> np.ndarray:
+        """The prior's blended prediction on ``frame`` (its own bound and blend)."""
         from rafi.family.ensemble import WeightedEnsemble
 
-        models = {}
-        for name in weights:
-            model = self._member(arts[name], "as_is")._base()
-            models[name] = _retimed(model, factor) if arts[name].get("kind") in RIDGE_KINDS else model
+        models = {name: self._member(arts[name], "as_is")._base() for name in weights}
         ensemble = WeightedEnsemble.from_fitted(models, weights, machine=self.prior.get("machine"))
         return np.asarray(ensemble.predict(frame), dtype=float)
 
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
-        """Fit the shared gain (and time factor) on the training runs of ``runs_table``; returns ``self``."""
+        """Fit the shared gain on the training runs of ``runs_table``; returns ``self``."""
         from rafi.family.ensemble import WeightedEnsemble
 
         weights, arts = self._check_params()
         table, frame, rows = _training_rows(runs_table, runs_frame)
         y = frame.loc[rows, "dz_um"].to_numpy(dtype=float)
-        prior_prediction = self._blend(weights, arts, 1.0, frame)[rows]
-        self.time_factor_, self.alpha_chosen_, self.grid_edges_, cv_table = None, None, [], []
-        factor, pred = 1.0, prior_prediction
-        if self.method == "shared_time":
-            units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
-            preds = [pred if f == 1.0 else self._blend(weights, arts, f, frame)[rows] for f in TIME_FACTORS]
-            scores = [_held_out_gain_score(p, y, units, self.cv_metric) for p in preds]
-            finite = [v for v in scores if np.isfinite(v)]
-            best = TIME_FACTORS.index(1.0)
-            if finite:  # ties go to the factor nearest 1 (the prior's own constants)
-                best = min(
-                    range(len(scores)),
-                    key=lambda i: (
-                        np.round(scores[i] / 1e-9) if np.isfinite(scores[i]) else np.inf,
-                        abs(np.log(TIME_FACTORS[i])),
-                    ),
-                )
-                if best in (0, len(TIME_FACTORS) - 1):
-                    self.grid_edges_ = [
-                        f"prior_shared_time factor {TIME_FACTORS[best]:g} at an edge of {list(TIME_FACTORS)}"
-                    ]
-            factor, pred = float(TIME_FACTORS[best]), preds[best]
-            self.time_factor_ = factor
-            cv_table = [
-                {"factor": f, "score_um": float(v) if np.isfinite(v) else None}
-                for f, v in zip(TIME_FACTORS, scores)
-            ]
-        ok = np.isfinite(pred) & np.isfinite(y)
-        self.gain_ = _gain(pred[ok], y[ok])
-        members = {}
-        for name in weights:
-            ridge = arts[name].get("kind") in RIDGE_KINDS
-            method = "time" if self.method == "shared_time" and ridge else "gain"
-            sub = self._member(arts[name], method)
-            members[name] = sub.fit_fixed(runs_table, runs_frame, gain=self.gain_, time_factor=factor)
+        prior_prediction = self._blend(weights, arts, frame)[rows]
+        self.time_factor_, self.alpha_chosen_, self.grid_edges_ = None, None, []
+        ok = np.isfinite(prior_prediction) & np.isfinite(y)
+        self.gain_ = _gain(prior_prediction[ok], y[ok])
+        members = {
+            name: self._member(arts[name], "gain").fit_gain(runs_table, runs_frame, gain=self.gain_)
+            for name in weights
+        }
         self.adapted_members_ = members
         machine = self.machine if self.machine is not None else self.prior.get("machine")
         # a ridge member: its adapted model (envelope and bound); RAFI's: the adapted wrapper (its kind)
@@ -600,7 +564,6 @@ class SharedAdaptedEnsemble(FamilyModel):
             {**c, "name": f"{n}: {c['name']}"} for n, m in members.items() for c in m.coefficient_change_
         ]
         self.fitness_ = self._fitness(table, frame.loc[rows], prior_prediction, new_prediction)
-        self.cv_table_ = cv_table
         self.adaptation_ = {
             "schema": ADAPTATION_SCHEMA,
             "method": self.method,
@@ -613,7 +576,6 @@ class SharedAdaptedEnsemble(FamilyModel):
             "members": {
                 n: {"kind": arts[n].get("kind"), "model_id": arts[n].get("model_id")} for n in weights
             },
-            "cv": cv_table,
             "fitness": self.fitness_,
         }
         self.model_ = model
@@ -674,12 +636,9 @@ class SharedAdaptedEnsemble(FamilyModel):
         pid = str(self.prior.get("model_id", ""))[:12]
         n = len(self.prior.get("weights") or {})
         what = f"blend times {self.gain_:.4g}"
-        if self.time_factor_ is not None:
-            what = f"every member's time constants times {self.time_factor_:g}, {what}"
-        text = (
+        return (
             f"prior {pid} (ensemble of {self.prior.get('machine')}, {n} members, the prior's weights) {what}"
         )
-        return text + ("; AT A GRID EDGE: " + "; ".join(self.grid_edges_) if self.grid_edges_ else "")
 
     def to_dict(self) -> dict:
         """The adapted artefact: a ``kind: ensemble`` of the adapted members with the ``adaptation`` block."""
@@ -822,11 +781,8 @@ def adaptation_factories(
         n: functools.partial(AdaptedPrior, prior=prior, method=CANDIDATES[n], machine=machine, **common)
         for n in names
     }
-    if member is not None:  # an ensemble prior: also adapted as a whole (one shared gain / factor)
-        arts = (prior.get("members") or {}).values()
-        timed = any(isinstance(a, dict) and a.get("kind") in RIDGE_KINDS for a in arts)
-        shared = [n for n in ENSEMBLE_CANDIDATES if ENSEMBLE_CANDIDATES[n] != "shared_time" or timed]
-        for n in shared:
+    if member is not None:  # an ensemble prior: also adapted as a whole (one shared gain)
+        for n in ENSEMBLE_CANDIDATES:
             out[n] = functools.partial(
                 SharedAdaptedEnsemble, prior=prior, method=ENSEMBLE_CANDIDATES[n], machine=machine, **common
             )

@@ -39,8 +39,6 @@ CANDIDATES = {
     "prior_time": "the prior with its filter time constants scaled by one factor (by CV) and one gain",
     "prior_ridge": "the prior's coefficients moved by a ridge penalised towards them (strength by CV)",
     "prior_shared_gain": "the ensemble prior as a whole, its blend times one gain fitted on the new data",
-    "prior_shared_time": "the ensemble prior as a whole, every member's filter time constants scaled by one "
-    "factor (by CV) and the blend times one gain",
 }
 #: How many of the largest coefficient moves the section tabulates.
 MOVES_SHOWN = 12
