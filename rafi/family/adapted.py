@@ -642,10 +642,8 @@ class SharedAdaptedEnsemble(FamilyModel):
 
     def to_dict(self) -> dict:
         """The adapted artefact: a ``kind: ensemble`` of the adapted members with the ``adaptation`` block."""
-        d = self.model_.to_dict()
-        d["adaptation"] = self.adaptation_
-        d["model_id"] = compute_model_id(d)
-        return d
+        self.model_.adaptation_ = self.adaptation_
+        return self.model_.to_dict()
 
 
 def _joined_trained_speeds(prior: dict, table: pd.DataFrame) -> list[float] | None:
