@@ -227,3 +227,107 @@ def test_an_unknown_method_is_refused(dynamic_prior, states):
     _, (t2, f2) = states
     with pytest.raises(ValueError, match="method='offset'"):
         AdaptedPrior(prior=dynamic_prior, method="offset").fit(t2, f2)
+
+
+# --------------------------------------------------------------------------- one shared adaptation
+
+
+def _ensemble_prior(table, frame) -> dict:
+    """A CV-weighted ensemble prior of two ridge kinds of the product fitted on ``table`` /
+    ``frame`` (weights 0.6 / 0.4): both describe the generator's lag model (a member that does not,
+    ``temperature_ridge`` without lags here, pulls a gain fitted on the blend away from the truth:
+    averaging two models that disagree shrinks the blend)."""
+    from rafi.family.ensemble import WeightedEnsemble
+    from rafi.family.grey_box import GreyBox
+
+    members = {
+        "dynamic": DynamicRidge(taus_s=[0, 600, 1800], max_taus=2, alphas=[1e-6, 1e-4], reference=REFERENCE),
+        "grey_box": GreyBox(reference=REFERENCE),
+    }
+    fitted = {n: m.fit(table, frame) for n, m in members.items()}
+    return WeightedEnsemble.from_fitted(fitted, {"dynamic": 0.6, "grey_box": 0.4}, machine="m").to_dict()
+
+
+def test_a_shared_gain_over_an_ensemble_prior_recovers_the_scale(states):
+    """Truth: state 2 is state 1's displacement times 1.2. An ensemble prior fitted on state 1
+    adapted by one shared gain on state 2: the gain is 1.2 within 1 %, every member keeps its
+    weight and its coefficients times that gain, the artefact reads back as it predicts."""
+    from rafi.family.adapted import ENSEMBLE_CANDIDATES, SharedAdaptedEnsemble
+
+    (t1, f1), (t2, f2) = states
+    prior = _ensemble_prior(t1, f1)
+    shared = SharedAdaptedEnsemble(prior=prior, method="shared_gain").fit(t2, f2)
+    assert shared.gain_ == pytest.approx(SCALE, abs=0.012) and shared.time_factor_ is None
+    art = json.loads(json.dumps(shared.to_dict()))
+    assert art["kind"] == "ensemble" and art["weights"] == pytest.approx(prior["weights"])
+    for name, member in art["members"].items():
+        want = np.array(prior["members"][name]["coefficients"]) * shared.gain_
+        np.testing.assert_allclose(member["coefficients"], want)
+    block = art["adaptation"]
+    assert block["method"] == "shared_gain" and block["parent"] == prior["model_id"]
+    assert block["gain"] == shared.gain_ and block["fitness"]["gain"] == shared.gain_
+    assert model_id_verifies(art) and art["model_id"] != prior["model_id"]
+    np.testing.assert_allclose(load_any(art).predict(f2), shared.predict(f2), equal_nan=True)
+    # the same machine: the gain stays near 1
+    same = SharedAdaptedEnsemble(prior=prior, method="shared_gain").fit(*_state(2, 1.0, "s3-"))
+    assert same.gain_ == pytest.approx(1.0, abs=0.012)
+    factories = adaptation_factories(
+        prior, options=MACHINE_DEFAULTS["models"], machine="m", log=lambda m: None
+    )
+    assert set(ENSEMBLE_CANDIDATES) <= set(factories)
+    with pytest.raises(ValueError, match="ensemble prior"):
+        SharedAdaptedEnsemble(prior=prior["members"]["dynamic"], method="shared_gain").fit(t2, f2)
+
+
+def test_run_family_offers_the_shared_gain_of_an_ensemble_prior(states):
+    """With an ensemble prior, the family's CV scores ``prior_shared_gain`` beside the heaviest
+    member's candidates, with its own interval; its artefact is an ensemble with the adaptation
+    block."""
+    from rafi.family.adapted import ENSEMBLE_CANDIDATES
+
+    (t1, f1), (t2, f2) = states
+    prior = _ensemble_prior(t1, f1)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        res = _family(t2, f2, prior=prior)
+    summary = res["summary"].set_index("model")
+    assert {*CANDIDATES, *ENSEMBLE_CANDIDATES} <= set(summary.index)
+    assert (summary.loc[list(ENSEMBLE_CANDIDATES), "kind"] == "ensemble").all()
+    assert summary.loc["prior_shared_gain", "selected"].endswith(
+        f"blend times {res['models']['prior_shared_gain'].gain_:.4g}"
+    )
+    assert set(res["cv"]["model"]) >= set(ENSEMBLE_CANDIDATES)
+    for name in ENSEMBLE_CANDIDATES:
+        art = res["models"][name].to_dict()
+        assert art["interval"]["schema"] == "rafi.interval/1" and model_id_verifies(art)
+        assert art["adaptation"]["parent"] == prior["model_id"]
+
+
+def test_a_shared_gain_artefact_streams_and_replays_as_it_predicts():
+    """An ensemble of every kind (test_compensator's, RAFI's kinds included) adapted by a shared
+    gain on the same runs with the displacement times 1.2: its artefact runs in the streaming
+    compensator and in the replay with the limits wide open unchanged, equal to the batch
+    prediction after the reference window."""
+    from test_compensator import _ensemble
+    from test_replay import OPEN, _replay_every_log
+
+    from rafi.family.adapted import SharedAdaptedEnsemble
+
+    rule = "run_start"
+    table, frame = _find_runs(_logs(), [3000, 6000, 9000], rule)
+    prior = _ensemble(rule, table, frame).to_dict()
+    newer = time_ordered(frame.assign(dz_um=frame["dz_um"] * SCALE))
+    adapted = SharedAdaptedEnsemble(prior=prior, method="shared_gain").fit(table, newer)
+    assert adapted.gain_ == pytest.approx(SCALE, abs=0.05)  # the same runs: the ensemble's own fit
+    artefact = json.loads(json.dumps(adapted.to_dict()))
+    assert artefact["kind"] == "ensemble" and artefact["adaptation"]["method"] == "shared_gain"
+    Compensator.from_artefact(artefact)  # verifies the id, checks the features
+    want = adapted.predict_detail(newer)["predicted_um"].to_numpy(dtype=float)
+    got = _stream(artefact, newer, rule)["um"].to_numpy()
+    defined = ~_in_window(newer, rule) & np.isfinite(want)
+    assert defined.sum() > 0.9 * len(newer) and np.abs(want[defined]).max() > 5.0
+    np.testing.assert_allclose(got[defined], want[defined], rtol=0, atol=1e-9)
+    replayed = _replay_every_log(newer, artefact, OPEN)
+    ok = defined & (replayed["status"].to_numpy() == "ok")
+    assert ok.sum() > 0.9 * len(newer)
+    np.testing.assert_allclose(replayed["command_um"].to_numpy(dtype=float)[ok], want[ok], rtol=0, atol=1e-9)

@@ -150,3 +150,27 @@ def test_an_adapted_rafi_artefact_written_before_the_range_still_loads(states):
         load_any(edited)
     # a RAFI model fitted from scratch carries no range of its own (its per-speed models say it)
     assert "speed_range_rpm" not in prior
+
+
+@pytest.mark.parametrize("kind", list(ENSEMBLES))
+def test_a_shared_gain_artefact_says_what_was_tested_here_and_what_the_prior_covers(states, kind):
+    """An ensemble prior adapted as a whole (``prior_shared_gain``, RAFI's members too): the
+    ensemble artefact stands on the prior's range joined with the new speeds, its fitness block
+    says each as such and warns of the speeds only the prior covers."""
+    from rafi.family.adapted import SharedAdaptedEnsemble
+
+    (t1, f1), (t2, f2) = states
+    prior = _prior(kind, t1, f1)
+    adapted = SharedAdaptedEnsemble(prior=prior, method="shared_gain", machine="new").fit(t2, f2)
+    art = json.loads(json.dumps(adapted.to_dict()))
+    assert art["kind"] == "ensemble" and model_id_verifies(art) and art["machine"] == "new"
+    assert art["weights"] == pytest.approx(prior["weights"])
+    fit = art["adaptation"]["fitness"]
+    assert fit["speed_range_tested_rpm"] == [min(NEW_SPEEDS), max(NEW_SPEEDS)]
+    assert fit["speed_range_prior_rpm"] == [min(PRIOR_SPEEDS), max(PRIOR_SPEEDS)]
+    assert art["speed_range_rpm"] == [min(NEW_SPEEDS), max(PRIOR_SPEEDS)]
+    assert 18000.0 in fit["speeds_prior_only_rpm"]
+    assert "prior_speeds" in {w["check"] for w in fit["warnings"]}
+    again = load_any(art)
+    assert again.to_dict()["model_id"] == art["model_id"]
+    Compensator.from_artefact(art)

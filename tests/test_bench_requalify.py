@@ -8,6 +8,7 @@ import math
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 from bench_loader import load_bench
 
@@ -204,6 +205,57 @@ def test_a_tiny_run_writes_the_table_and_the_json(bench, tmp_path, capsys):
     assert res["full_choice"] == "ensemble" and 0 < res["floor_um"] < res["full_um"] < row["scratch_um"]
     assert math.isfinite(res["unchanged_um"]) and math.isfinite(row["prior_um"]) and row["prior_choice"]
     assert sorted(float(k) for k in res["prior_cv_by_speed_um"]) == [3000, 6000, 9000, 12000, 15000, 18000]
-    assert set(row["candidates"]) == {"ridge_global", "prior", "prior_gain", "prior_time", "prior_ridge"}
+    # the prior is an ensemble (ridge_global and the plain ridge): adapted as a whole too
+    assert set(row["candidates"]) == {
+        "ridge_global",
+        "prior",
+        "prior_gain",
+        "prior_time",
+        "prior_ridge",
+        "prior_shared_gain",
+    }
     printed = capsys.readouterr().out
     assert record["markdown"] in printed and "replaced_sensor:" in printed
+
+
+def test_the_shared_adaptations_are_judged_against_today_by_share_and_mae_ratio(bench):
+    """Hand-made scenarios (full plan MAE 1, worst 1): the product's CV picks among today's
+    candidates, then with the shared gain, then with both; the shares, the mean MAE ratio and the
+    paired difference against today are those computed here by hand."""
+
+    def c(score, mae, worst):
+        return {"selection_score_um": score, "validation_mae_um": mae, "validation_um": worst}
+
+    def scenario(seed, **cands):
+        return {"seed": seed, "full_mae_um": 1.0, "full_um": 1.0, "candidates": cands}
+
+    results = [  # today: prior_gain in all three; A takes the shared gain in 0 and 1; B the time in 2
+        scenario(0, prior_gain=c(2.0, 1.3, 1.0), prior_shared_gain=c(1.0, 1.1, 1.1)),
+        scenario(1, prior_gain=c(2.0, 1.0, 1.0), prior_shared_gain=c(1.0, 1.2, 1.0)),
+        scenario(
+            2,
+            prior_gain=c(2.0, 1.1, 1.1),
+            prior_shared_gain=c(3.0, 1.0, 1.0),
+            prior_shared_time=c(1.0, 2.0, 2.0),
+        ),
+    ]
+    judged = bench.judge_shared(results)
+    today, a, b = judged["today"], judged["A: + prior_shared_gain"], judged["B: + both"]
+    assert today["picks"] == {0: "prior_gain", 1: "prior_gain", 2: "prior_gain"}
+    assert a["picks"] == {0: "prior_shared_gain", 1: "prior_shared_gain", 2: "prior_gain"}
+    assert b["picks"][2] == "prior_shared_time"
+    assert (today["share_mae"], today["share_worst"], today["share_both"]) == (
+        pytest.approx(2 / 3),
+        1.0,
+        pytest.approx(2 / 3),
+    )
+    assert (a["share_mae"], a["share_both"]) == (pytest.approx(2 / 3), pytest.approx(2 / 3))
+    diffs = [1.1 - 1.3, 1.2 - 1.0, 0.0]  # A minus today, per scenario
+    assert a["mean_mae_difference"] == pytest.approx(sum(diffs) / 3)
+    assert a["se_mae_difference"] == pytest.approx(float(np.std(diffs, ddof=1) / np.sqrt(3)))
+    assert not a["adopted"]  # the same share: not strictly higher
+    assert b["share_both"] == pytest.approx(1 / 3) and not b["adopted"]
+    better = [scenario(3, prior_gain=c(2.0, 1.3, 1.0), prior_shared_gain=c(1.0, 1.0, 1.0))]
+    assert bench.judge_shared(results[:2] + better)["A: + prior_shared_gain"]["adopted"]
+    table = bench.shared_markdown(judged)
+    assert "| today | 67 % | 100 % | 67 % |" in table and "| 2 | prior_gain 1.10 ; 1.10 |" in table

@@ -1,8 +1,9 @@
 """The adaptation family: a prior (a fitted artefact of the family, :mod:`rafi.family.prior`)
 re-qualified on new data (``docs/models.md``, "Re-qualification from a prior").
 
-Four candidates, each cross-validated by whole run on the new training runs beside the
-from-scratch kinds (:func:`adaptation_factories`; names in ``comparison/*.csv``):
+Four candidates (five with an ensemble prior), each cross-validated by whole run on the new
+training runs beside the from-scratch kinds (:func:`adaptation_factories`; names in
+``comparison/*.csv``):
 
 * ``prior``       - the prior as it is (``method="as_is"``: nothing fitted);
 * ``prior_gain``  - every coefficient of the prior times one gain ``b``
@@ -20,10 +21,18 @@ from-scratch kinds (:func:`adaptation_factories`; names in ``comparison/*.csv``)
   ``alpha`` chosen by whole-run CV inside the training runs (nested) on ``models: prior_ridge_alphas``.
 
 A prior that is a CV-weighted ensemble (:mod:`rafi.family.ensemble`) is adapted through its
-heaviest member (:func:`rafi.family.prior.prior_base`): the candidates re-fit that member and the
-adapted artefact is of its kind; the block's ``parent`` is the ensemble (the registry's model) and
-its ``member`` names the member re-fitted (``name``, ``kind``, ``model_id``, ``weight``,
-``n_members``).
+heaviest member (:func:`rafi.family.prior.prior_base`): the four candidates re-fit that member and
+the adapted artefact is of its kind; the block's ``parent`` is the ensemble (the registry's model)
+and its ``member`` names the member re-fitted (``name``, ``kind``, ``model_id``, ``weight``,
+``n_members``). And it is adapted as a whole by a fifth candidate:
+
+* ``prior_shared_gain`` - every member keeps its coefficients and the prior's weights, the blend
+  times one gain ``g`` fitted as ``prior_gain``'s on the prior's blended prediction
+  (:class:`SharedAdaptedEnsemble`, ``method="shared_gain"``): an artefact ``kind: ensemble``
+  whose members' coefficients are the prior's times ``g``, the block on the ensemble (no
+  ``member``; ``members`` names the prior's). Judged on random re-qualification scenarios
+  (issue 47, ``benchmarks/bench_requalify.py``); one time factor shared too (``prior_time``'s
+  way over every member) was judged beside it and is not offered.
 
 What is never re-fitted: the prior's sensors and terms, and its filter time constants other than
 by the one factor of ``prior_time``; the from-scratch kinds beside re-choose those. The fitted
@@ -57,13 +66,27 @@ from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.time_blocks import unit_column
 from rafi.settings import MACHINE_DEFAULTS
 
-__all__ = ["ADAPTATION_SCHEMA", "METHODS", "CANDIDATES", "AdaptedPrior", "adaptation_factories"]
+__all__ = [
+    "ADAPTATION_SCHEMA",
+    "METHODS",
+    "CANDIDATES",
+    "ENSEMBLE_CANDIDATES",
+    "AdaptedPrior",
+    "SharedAdaptedEnsemble",
+    "adaptation_factories",
+]
 
 MODELS = MACHINE_DEFAULTS["models"]
 ADAPTATION_SCHEMA = "rafi.adaptation/1"
 METHODS = ("as_is", "gain", "time", "ridge")
 #: The candidates' names in the family's tables -> their method.
 CANDIDATES = {"prior": "as_is", "prior_gain": "gain", "prior_time": "time", "prior_ridge": "ridge"}
+#: The candidates offered only for a CV-weighted ensemble prior -> their method
+#: (:class:`SharedAdaptedEnsemble`: one gain shared by every member; issue 47. One time factor
+#: shared too was judged beside it and not offered: ``benchmarks/bench_requalify.py``).
+ENSEMBLE_CANDIDATES = {"prior_shared_gain": "shared_gain"}
+#: The shared methods of :class:`SharedAdaptedEnsemble`.
+SHARED_METHODS = tuple(ENSEMBLE_CANDIDATES.values())
 #: The methods that need a prior of a ridge kind (features @ coefficients, filter constants).
 RIDGE_METHODS = ("time", "ridge")
 #: The factors ``time`` scales the prior's filter time constants by (steps of sqrt 2).
@@ -195,6 +218,17 @@ class AdaptedPrior(FamilyModel):
 
     def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
         """Re-fit the prior on the training runs of ``runs_table`` by ``method``; returns ``self``."""
+        return self._fit(runs_table, runs_frame)
+
+    def fit_gain(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, gain: float):
+        """As :meth:`fit` (``method="gain"``) with the gain given, not fitted: a member of an
+        ensemble prior adapted by one gain shared by every member (:class:`SharedAdaptedEnsemble`);
+        returns ``self``."""
+        if self.method != "gain":
+            raise ValueError(f"fit_gain needs method='gain', not {self.method!r}")
+        return self._fit(runs_table, runs_frame, gain=float(gain))
+
+    def _fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, gain: float | None = None):
         self._check_params()
         model = self._base()
         table, frame, rows = _training_rows(runs_table, runs_frame)
@@ -215,7 +249,7 @@ class AdaptedPrior(FamilyModel):
             self.gain_ = _gain(pred[ok], y[ok])
             model.coef_ = before * self.gain_
         elif self.method == "gain":
-            self.gain_ = _gain(pred[ok], y[ok])
+            self.gain_ = gain if gain is not None else _gain(pred[ok], y[ok])
             model.coef_ = before * self.gain_
         elif self.method == "ridge":
             units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
@@ -391,6 +425,237 @@ class AdaptedPrior(FamilyModel):
         return d
 
 
+class SharedAdaptedEnsemble(FamilyModel):
+    """A CV-weighted ensemble prior (:mod:`rafi.family.ensemble`) re-qualified as a whole: every
+    member keeps its coefficients and the prior's weights, and one gain is shared by all of them
+    (``shared_gain``, the candidate ``prior_shared_gain``; issue 47).
+
+    ``g = sum(p y) / sum(p p)`` over the new training samples, ``p`` the prior's blended
+    prediction (its own bound and blend), ``y`` the measured displacement change: least squares
+    through the reference, as ``prior_gain`` for one model. The blend of the members times ``g``
+    is every member's coefficients times ``g``: the adapted artefact is a ``kind: ensemble`` of
+    the members so adapted (each an :class:`AdaptedPrior` with the shared gain given, its own
+    ``adaptation`` block, its envelope joined with the new data), with the prior's weights and
+    this adaptation's block on the ensemble, so the compensator, the replay and the intervals run
+    it as any ensemble. A gain fitted on a blend is the truth's only where the members agree with
+    it: averaging members that disagree shrinks the blend and the gain grows to make up for it.
+
+    Parameters
+    ----------
+    prior : dict
+        The ensemble prior's artefact (``kind: ensemble`` with ``weights`` and ``members``).
+    method : {"shared_gain"}
+        What is shared (:data:`SHARED_METHODS`).
+    cv, cv_metric, machine, reference, origin, qualification, speed_tolerance_rpm
+        As :class:`AdaptedPrior`.
+    alphas : sequence of float
+        Not used (the factories pass every candidate the same settings).
+
+    Attributes
+    ----------
+    model_ : WeightedEnsemble
+        The adapted ensemble (``weights_``, ``members_``, ``envelope_``: its own).
+    adapted_members_ : dict
+        Name -> the member's :class:`AdaptedPrior` (the shared gain given).
+    gain_ : float
+        The shared gain ``g``.
+    time_factor_, alpha_chosen_ : None
+        Nothing else fitted.
+    coefficient_change_ : list of dict
+        ``name`` (``<member>: <coefficient>``), ``prior``, ``new``.
+    grid_edges_ : list of str
+        Empty (no grid).
+    fitness_ : dict
+        The ``fitness`` block (:func:`rafi.family.prior_fitness.fitness_block`).
+    """
+
+    kind = "ensemble"
+
+    def __init__(
+        self,
+        *,
+        prior: dict,
+        method: str = "shared_gain",
+        alphas: Sequence[float] = MODELS["prior_ridge_alphas"],
+        cv: str = MODELS["cv"],
+        cv_metric: str = MODELS["cv_metric"],
+        machine: str | None = None,
+        reference: dict | None = None,
+        origin: str | None = None,
+        qualification: dict | None = None,
+        speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
+    ):
+        self.prior = prior
+        self.method = method
+        self.alphas = alphas
+        self.cv = cv
+        self.cv_metric = cv_metric
+        self.machine = machine
+        self.reference = reference
+        self.origin = origin
+        self.qualification = qualification
+        self.speed_tolerance_rpm = speed_tolerance_rpm
+
+    def __repr__(self) -> str:
+        pid = str(self.prior.get("model_id", ""))[:12]
+        return f"SharedAdaptedEnsemble(prior={pid!r}, method={self.method!r})"
+
+    def _check_params(self) -> tuple[dict, dict]:
+        if self.method not in SHARED_METHODS:
+            raise ValueError(f"method={self.method!r}: use one of {', '.join(SHARED_METHODS)}")
+        weights = {str(k): float(v) for k, v in (self.prior.get("weights") or {}).items()}
+        arts = self.prior.get("members") or {}
+        if self.prior.get("kind") != "ensemble" or len(weights) < 2 or any(n not in arts for n in weights):
+            raise ValueError(
+                f"method={self.method!r} needs a CV-weighted ensemble prior with its members' artefacts, "
+                f"not kind {self.prior.get('kind')!r}"
+            )
+        return weights, arts
+
+    def _member(self, art: dict, method: str) -> AdaptedPrior:
+        """An :class:`AdaptedPrior` of one member (its gain given by :meth:`fit`)."""
+        return AdaptedPrior(
+            prior=art,
+            method=method,
+            cv=self.cv,
+            cv_metric=self.cv_metric,
+            machine=self.machine,
+            reference=self.reference,
+            origin=self.origin,
+            qualification=self.qualification,
+            speed_tolerance_rpm=self.speed_tolerance_rpm,
+        )
+
+    def _blend(self, weights: dict, arts: dict, frame: pd.DataFrame) -> np.ndarray:
+        """The prior's blended prediction on ``frame`` (its own bound and blend)."""
+        from rafi.family.ensemble import WeightedEnsemble
+
+        models = {name: self._member(arts[name], "as_is")._base() for name in weights}
+        ensemble = WeightedEnsemble.from_fitted(models, weights, machine=self.prior.get("machine"))
+        return np.asarray(ensemble.predict(frame), dtype=float)
+
+    def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
+        """Fit the shared gain on the training runs of ``runs_table``; returns ``self``."""
+        from rafi.family.ensemble import WeightedEnsemble
+
+        weights, arts = self._check_params()
+        table, frame, rows = _training_rows(runs_table, runs_frame)
+        y = frame.loc[rows, "dz_um"].to_numpy(dtype=float)
+        prior_prediction = self._blend(weights, arts, frame)[rows]
+        self.time_factor_, self.alpha_chosen_, self.grid_edges_ = None, None, []
+        ok = np.isfinite(prior_prediction) & np.isfinite(y)
+        self.gain_ = _gain(prior_prediction[ok], y[ok])
+        members = {
+            name: self._member(arts[name], "gain").fit_gain(runs_table, runs_frame, gain=self.gain_)
+            for name in weights
+        }
+        self.adapted_members_ = members
+        machine = self.machine if self.machine is not None else self.prior.get("machine")
+        # a ridge member: its adapted model (envelope and bound); RAFI's: the adapted wrapper (its kind)
+        fitted = {n: m.model_ if m.kind in RIDGE_KINDS else m for n, m in members.items()}
+        model = WeightedEnsemble.from_fitted(
+            fitted,
+            weights,
+            machine=machine,
+            trained_speeds_rpm=_joined_trained_speeds(self.prior, table),
+        )
+        new_prediction = np.asarray(model.predict(frame), dtype=float)[rows]
+        self.coefficient_change_ = [
+            {**c, "name": f"{n}: {c['name']}"} for n, m in members.items() for c in m.coefficient_change_
+        ]
+        self.fitness_ = self._fitness(table, frame.loc[rows], prior_prediction, new_prediction)
+        self.adaptation_ = {
+            "schema": ADAPTATION_SCHEMA,
+            "method": self.method,
+            "parent": self.prior.get("model_id"),
+            "parent_machine": self.prior.get("machine"),
+            "gain": self.gain_,
+            "alpha": None,
+            "time_factor": self.time_factor_,
+            "prior_data": _lineage_data(self.prior),
+            "members": {
+                n: {"kind": arts[n].get("kind"), "model_id": arts[n].get("model_id")} for n in weights
+            },
+            "fitness": self.fitness_,
+        }
+        self.model_ = model
+        return self
+
+    def _fitness(self, table: pd.DataFrame, train: pd.DataFrame, before: np.ndarray, after: np.ndarray):
+        """The ``fitness`` block: the new training runs' speeds and rises against the ensemble's."""
+        from rafi.family.features import rise_column
+
+        rises = {}
+        for sensor in self.prior.get("key_sensors") or []:
+            column = rise_column(sensor)
+            values = train[column].to_numpy(dtype=float) if column in train else np.array([])
+            values = values[np.isfinite(values)]
+            if values.size:
+                rises[sensor] = [float(values.min()), float(values.max())]
+        return fitness_block(
+            self.prior,
+            qualification=self.qualification,
+            origin=self.origin,
+            method=self.method,
+            gain=self.gain_,
+            time_factor=self.time_factor_,
+            alpha=None,
+            coefficient_change=self.coefficient_change_,
+            prior_prediction=before,
+            new_prediction=after,
+            tested_speeds_rpm=table["speed_rpm"].astype(float).tolist(),
+            tested_rises=rises,
+            speed_tolerance_rpm=float(self.speed_tolerance_rpm),
+        )
+
+    @property
+    def weights_(self) -> dict:
+        """The adapted ensemble's weights (the prior's)."""
+        return self.model_.weights_
+
+    @property
+    def members_(self) -> dict:
+        """The adapted ensemble's fitted members (name -> model)."""
+        return self.model_.members_
+
+    @property
+    def envelope_(self):
+        """The adapted ensemble's output bound."""
+        return self.model_.envelope_
+
+    def predict_detail(self, frame: pd.DataFrame) -> pd.DataFrame:
+        """The adapted ensemble's ``predict_detail``."""
+        return self.model_.predict_detail(frame)
+
+    def predict(self, frame: pd.DataFrame) -> np.ndarray:
+        """The adapted ensemble's prediction (um) per row of ``frame``."""
+        return np.asarray(self.model_.predict(frame), dtype=float)
+
+    def describe(self) -> str:
+        """What the adaptation chose, in one line for people."""
+        pid = str(self.prior.get("model_id", ""))[:12]
+        n = len(self.prior.get("weights") or {})
+        what = f"blend times {self.gain_:.4g}"
+        return (
+            f"prior {pid} (ensemble of {self.prior.get('machine')}, {n} members, the prior's weights) {what}"
+        )
+
+    def to_dict(self) -> dict:
+        """The adapted artefact: a ``kind: ensemble`` of the adapted members with the ``adaptation`` block."""
+        self.model_.adaptation_ = self.adaptation_
+        return self.model_.to_dict()
+
+
+def _joined_trained_speeds(prior: dict, table: pd.DataFrame) -> list[float] | None:
+    """The prior's ``trained_speeds_rpm`` joined with the new constant training runs' speeds."""
+    from rafi.family.compare import trained_speeds
+
+    new = trained_speeds(table) or []
+    old = [float(v) for v in prior.get("trained_speeds_rpm") or []]
+    both = sorted(set(old) | set(new))
+    return both or None
+
+
 def _gain(pred: np.ndarray, y: np.ndarray) -> float:
     """Least-squares gain of ``y`` on ``pred`` without intercept (1 when ``pred`` is all 0)."""
     denominator = float(pred @ pred)
@@ -510,7 +775,13 @@ def adaptation_factories(
     common = {"alphas": options["prior_ridge_alphas"], "cv": options["cv"], "cv_metric": options["cv_metric"]}
     common["reference"] = reference
     common |= {"origin": origin, "qualification": qualification, "speed_tolerance_rpm": speed_tolerance_rpm}
-    return {
+    out = {
         n: functools.partial(AdaptedPrior, prior=prior, method=CANDIDATES[n], machine=machine, **common)
         for n in names
     }
+    if member is not None:  # an ensemble prior: also adapted as a whole (one shared gain)
+        for n in ENSEMBLE_CANDIDATES:
+            out[n] = functools.partial(
+                SharedAdaptedEnsemble, prior=prior, method=ENSEMBLE_CANDIDATES[n], machine=machine, **common
+            )
+    return out

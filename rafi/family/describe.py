@@ -24,6 +24,8 @@ def ensemble_text(weights: dict) -> str:
 
 def describe_selection(model) -> str:
     """What cross-validation chose for a fitted model of the family, in one line for people."""
+    if hasattr(model, "describe"):  # an adapted prior (rafi.family.adapted), an adapted ensemble too
+        return model.describe()
     if getattr(model, "kind", None) == ENSEMBLE:  # rafi.family.ensemble: weights, not hyperparameters
         edged = sorted({e.split(":", 1)[0] for e in getattr(model, "grid_edges_", []) or []})
         edge = f"; member(s) at a grid edge: {', '.join(edged)}" if edged else ""
@@ -31,8 +33,6 @@ def describe_selection(model) -> str:
             f"CV weights of its {len(model.weights_)} members (1/s^2, s its whole-run CV mean max "
             f"|residual|): {ensemble_text(model.weights_)}; each member as CV chose it{edge}"
         )
-    if hasattr(model, "describe"):  # an adapted prior (rafi.family.adapted)
-        return model.describe()
     if not hasattr(model, "alpha_"):
         return "nothing to choose (one OLS per training speed, fuzzy blend)"
     parts = [
@@ -69,10 +69,10 @@ def describe_selection(model) -> str:
 
 def fitted_text(model) -> str:
     """What CV chose, for the job's log."""
+    if hasattr(model, "describe"):  # an adapted prior, an adapted ensemble too
+        return " " + model.describe()
     if getattr(model, "kind", None) == ENSEMBLE:
         return f" weights {ensemble_text(model.weights_)}"
-    if hasattr(model, "describe"):
-        return " " + model.describe()
     text = f" alpha={model.alpha_:g} taus_s={model.taus_}" if hasattr(model, "alpha_") else ""
     if isinstance(model, GreyBox):
         text += (

@@ -32,7 +32,9 @@ the members' ``key_sensors``, ``regressor_ranges``, ``speed_range_rpm``, ``train
 ``data``; ``trained_speeds_rpm`` (the constant training runs' speeds, where there are any);
 ``hyperparameters: filter_restart_gap_s`` is the shortest member's (the interval's change
 clock restarts with the first member that restarts); ``envelope`` (``output_range``,
-``output_margin``: the bound every member's prediction is held in; absent when no member has one).
+``output_margin``: the bound every member's prediction is held in; absent when no member has one);
+``adaptation``: an ensemble prior re-qualified as a whole
+(:class:`~rafi.family.adapted.SharedAdaptedEnsemble`), kept as read.
 """
 
 from __future__ import annotations
@@ -350,6 +352,8 @@ class WeightedEnsemble(FamilyModel):
             body["envelope"] = self.envelope_
         if getattr(self, "interval_", None) is not None:
             body["interval"] = self.interval_
+        if getattr(self, "adaptation_", None) is not None:  # an ensemble prior adapted as a whole
+            body["adaptation"] = dict(self.adaptation_)
         return finish_artefact(body)
 
     @classmethod
@@ -364,6 +368,7 @@ class WeightedEnsemble(FamilyModel):
         )
         m.interval_ = d.get("interval")
         m.envelope_ = _output_part(d.get("envelope"))
+        m.adaptation_ = d["adaptation"] if isinstance(d.get("adaptation"), dict) else None
         return m
 
     def heaviest_member(self) -> str:

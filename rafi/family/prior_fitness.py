@@ -59,11 +59,14 @@ def _finite(values: Iterable) -> list[float]:
 
 def prior_speed_range(prior: Mapping) -> list[float] | None:
     """The prior's speed range (r/min): its artefact's ``speed_range_rpm``, else its per-speed
-    models' extremes (``rafi`` kinds), else ``None``."""
+    models' extremes (``rafi`` kinds), else (a CV-weighted ensemble of RAFI's kinds, which record
+    speeds, not a range) its members' joined, else ``None``."""
     if prior.get("speed_range_rpm"):
         lo, hi = prior["speed_range_rpm"]
         return [float(lo), float(hi)]
     speeds = _finite(s.get("speed_rpm") for s in prior.get("speeds") or [])
+    members = [m for m in (prior.get("members") or {}).values() if isinstance(m, Mapping)]
+    speeds += [v for m in members for v in prior_speed_range(m) or []]
     return [min(speeds), max(speeds)] if speeds else None
 
 

@@ -38,6 +38,7 @@ CANDIDATES = {
     "prior_gain": "the prior with one gain on every coefficient, fitted on the new data",
     "prior_time": "the prior with its filter time constants scaled by one factor (by CV) and one gain",
     "prior_ridge": "the prior's coefficients moved by a ridge penalised towards them (strength by CV)",
+    "prior_shared_gain": "the ensemble prior as a whole, its blend times one gain fitted on the new data",
 }
 #: How many of the largest coefficient moves the section tabulates.
 MOVES_SHOWN = 12
