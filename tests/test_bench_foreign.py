@@ -79,3 +79,18 @@ def test_the_decision_guards_then_takes_the_lowest_primary_only_beyond_one_se(be
     rows[2] = _row("ridge_floor", 1.20, 0.05, -0.10, 0.12)  # within one SE: the current rule stays
     d = bench.decide(rows)
     assert d["lowest_primary"] == "ridge_floor" and d["kept"] == bench.CURRENT and not d["replaces_current"]
+
+
+def test_a_kept_seed_made_with_other_realism_is_refused_not_mixed(bench, tmp_path):
+    import json
+
+    folder = tmp_path / "seed-003"
+    folder.mkdir()
+    (folder / "result.json").write_text(json.dumps({"seed": 3, "setup_drift": False}))
+    with pytest.raises(SystemExit, match="realism"):
+        bench.judge_seed(3, tmp_path, 1, realism=("convection",))
+    assert bench.judge_seed(3, tmp_path, 1)["seed"] == 3  # the plain machine's result is read
+    (folder / "result.json").write_text(json.dumps({"seed": 3, "realism": ["convection"]}))
+    with pytest.raises(SystemExit, match="realism"):
+        bench.judge_seed(3, tmp_path, 1)
+    assert bench.judge_seed(3, tmp_path, 1, realism=("convection",))["seed"] == 3

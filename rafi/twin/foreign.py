@@ -12,6 +12,35 @@ run longer than any training run). :func:`foreign_machine` returns the logs, the
 that reads them and the truth; :func:`envelope_fractions` states, per test day, the fraction of
 its rows outside the training envelope, computed from the generated logs.
 
+**Realism** (``realism=``, ``rafi simulate foreign --realism all``; default none). The twin's
+physics is linear: every sensor and the displacement are linear responses of the same few drives
+(the speed's heat, the room), so a fit on strongly collinear temperatures extrapolates honestly
+on its test days. Real machines break that; the turning centre of issue 46 made a ridge on
+filtered rises run away on test days whose temperatures lay outside the training range. Four
+effects a real machine has and the twin has not, each drawn per machine by
+:func:`foreign_realism` on a stream of its own (the machine, its days and every noise stay those
+of the plain machine), each with its reason:
+
+* ``hidden_source``: a heat source nobody put a sensor on - a hydraulic unit or a neighbouring
+  machine beside the column, a counterbalance or the sun on the head, a rotary union at the
+  spindle's rear (:data:`HIDDEN_SOURCE_NODES`) - cycling on its own thermostat (period 20-120
+  min), strong enough to raise its node 1-4 K; on the training days at about one level, on each
+  test day lower or higher (another shift, another job). It moves the displacement and only the
+  sensors near its node: a direction of the temperatures the training days did not show.
+* ``convection``: still air takes heat away as ``dT ** 1.2-1.33`` (free convection), not
+  linearly: a machine hotter than on any training day loses more than the linear law says, so
+  the ratios between its temperatures shift where the fit extrapolates.
+* ``fixed_chiller``: many oil coolers hold a fixed set point (here the training days' room
+  plus the cooler's offset) instead of tracking the room: on a warmer or colder day the coolant
+  sits elsewhere relative to the structure and the room than on any training day.
+* ``sensor_mount``: from one test day on, 1-3 sensors were knocked off and re-glued (a magnet
+  moved, a cable pulled): another lag (x 0.3-3) and another share of the room air.
+
+``truth["realism"]`` records what was drawn and per day the mean and largest contribution (um);
+:attr:`ForeignMachine.parts` holds the noise-free contributions row by row
+(:func:`simulate_day_parts`). Without ``realism`` nothing of this is drawn: the logs are byte for
+byte those of the plain machine.
+
 Pure: everything follows from the seed; only :func:`write_foreign` writes files.
 """
 
@@ -75,6 +104,8 @@ SETUP_DRIFT_TAU_S = 7200.0
 #: What ``realism=`` can add to a machine, in the order drawn (the module's docstring says why each
 #: happens on real machines and not in the linear twin).
 REALISM_EFFECTS = ("hidden_source", "convection", "fixed_chiller", "sensor_mount")
+#: The effects that change the nodes' temperatures (the others change what a sensor reads).
+NODE_EFFECTS = ("hidden_source", "convection", "fixed_chiller")
 #: Nodes an unobserved heat source may heat, and what it stands for there.
 HIDDEN_SOURCE_NODES = {
     "column": "a hydraulic unit or a neighbouring machine beside the column",
@@ -435,9 +466,10 @@ def simulate_day_parts(
     :data:`SETUP_DRIFT_TAU_S`, from its own random stream (the rest of the day is unchanged).
 
     With ``realism`` (:func:`foreign_realism`; ``days``: the machine's days, for a reseat) the
-    nodes come from :func:`rafi.twin.physics.integrate_realistic` (the hidden source's heat, the
-    convection law, the fixed chiller) and the sensors are those of the day; every noise is the
-    same draw as without.
+    nodes come from :func:`rafi.twin.physics.integrate_realistic` when an effect of
+    :data:`NODE_EFFECTS` is drawn (the hidden source's heat, the convection law, the fixed
+    chiller; else from :func:`rafi.twin.physics.integrate`), and the sensors are those of the day;
+    every noise is the same draw as without.
 
     Returns
     -------
@@ -460,11 +492,13 @@ def simulate_day_parts(
         specs = params
     else:
         specs = replace(params, sensors=realism.sensors_on(params, day, days or [day]))
-        extra = hidden_source_w(realism, day, n, dt)
-        kw = {"convection_exponent": realism.convection_exponent, "cooler_set_c": realism.cooler_set_c}
-        nodes, _ = integrate_realistic(params, speeds, t_amb, dt, extra_w=extra, **kw)
-        without, _ = integrate_realistic(params, speeds, t_amb, dt, **kw)
         linear, _ = integrate(params, speeds, t_amb, dt)
+        nodes = without = linear
+        if set(realism.effects) & set(NODE_EFFECTS):
+            extra = hidden_source_w(realism, day, n, dt)
+            kw = {"convection_exponent": realism.convection_exponent, "cooler_set_c": realism.cooler_set_c}
+            nodes, _ = integrate_realistic(params, speeds, t_amb, dt, extra_w=extra, **kw)
+            without, _ = integrate_realistic(params, speeds, t_amb, dt, **kw)
         full = displacement_truth(params, nodes, speeds, dt, x_ref)
         parts = pd.DataFrame(
             {
