@@ -20,7 +20,8 @@ With ``--setup-drift`` the same machines' displacement also wanders by what no s
 With ``--realism all`` (or a subset) the same machines also have what real machines have and the
 linear twin has not (``rafi simulate foreign --realism``: an unobserved heat source at another
 level on test days, a convection law ~ dT^1.25, a chiller at a fixed set point, sensors reseated
-from one test day on); ``result.json`` keeps what was drawn (``realism_truth``).
+from one test day on, test days starting warm); ``result.json`` keeps what was drawn
+(``realism_truth``).
 The test days are the pipeline's validation runs (``runs.windows`` by file name); the truth
 (``truth.json``) states per test day the fraction of its rows outside the training envelope.
 
@@ -417,7 +418,8 @@ def main(argv: list[str] | None = None) -> int:
         "--realism",
         default="none",
         help="machines with what real machines do and the twin does not (rafi simulate foreign "
-        "--realism: 'all' or hidden_source,convection,fixed_chiller,sensor_mount); use its own --keep",
+        "--realism: 'all' or a subset of hidden_source,convection,fixed_chiller,sensor_mount,warm_start); "
+        "use its own --keep",
     )
     parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")
     args = parser.parse_args(argv)

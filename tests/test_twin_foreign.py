@@ -201,6 +201,7 @@ def test_realism_keeps_the_machine_and_its_noise_and_adds_exactly_the_stated_con
         "convection",
         "fixed_chiller",
         "sensor_mount",
+        "warm_start",
     ]
     quantum = foreign_design(REAL_SEED).params.disp_quantum_um  # the logs' displacement step
     for stem, frame in plain.logs.items():
@@ -315,3 +316,29 @@ def test_rafi_simulate_foreign_realism_writes_what_was_drawn_and_refuses_an_unkn
     assert main(["simulate", "foreign", "--seed", "2", "--out", str(tmp_path / "x"), "--realism", "sun"]) == 2
     err = capsys.readouterr().err
     assert "sun" in err and "hidden_source" in err and not (tmp_path / "x").exists()
+
+
+def test_a_warm_start_begins_where_the_previous_day_left_after_its_rest_and_training_days_stay_cold():
+    from rafi.twin.foreign import night
+    from rafi.twin.machines import NODE_INDEX
+
+    plain, warm = foreign_machine(REAL_SEED), foreign_machine(REAL_SEED, realism=("warm_start",))
+    rest = warm.truth["realism"]["warm_start"]["rest_h"]
+    roles = {d["stem"]: d["role"] for d in plain.truth["days"]}
+    assert rest and all(roles[stem] == "test" and 1.0 <= h <= 10.0 for stem, h in rest.items())
+    quantum = foreign_design(REAL_SEED).params.disp_quantum_um
+    for stem, frame in plain.logs.items():
+        if stem not in rest:
+            pd.testing.assert_frame_equal(frame, warm.logs[stem])  # cold as without
+            continue
+        part = warm.parts[stem]["realism_um"].to_numpy()
+        assert part[0] == pytest.approx(0.0, abs=1e-9)  # the probe zeroed on the warm machine
+        added = (warm.logs[stem]["disp_um"] - frame["disp_um"]).to_numpy()
+        assert np.abs(added - part).max() <= quantum + 1e-9
+    # the night: a hot machine cools toward the room, the heavy column slowest
+    params = foreign_design(REAL_SEED).params
+    hot = np.full(len(NODE_INDEX), 30.0)
+    after = night(params, hot, 20.0, 3.0)
+    assert (after < 30.0).all() and (after > 20.0).any()
+    column, housing = NODE_INDEX["column"], NODE_INDEX["housing"]
+    assert after[column] - 20.0 > after[housing] - 20.0

@@ -16,10 +16,10 @@ its rows outside the training envelope, computed from the generated logs.
 physics is linear: every sensor and the displacement are linear responses of the same few drives
 (the speed's heat, the room), so a fit on strongly collinear temperatures extrapolates honestly
 on its test days. Real machines break that; the turning centre of issue 46 made a ridge on
-filtered rises run away on test days whose temperatures lay outside the training range. Four
+filtered rises run away on test days whose temperatures lay outside the training range. Five
 effects a real machine has and the twin has not, each drawn per machine by
 :func:`foreign_realism` on a stream of its own (the machine, its days and every noise stay those
-of the plain machine), each with its reason:
+of the plain machine), each with its reason (``all``: the five):
 
 * ``hidden_source``: a heat source nobody put a sensor on - a hydraulic unit or a neighbouring
   machine beside the column, a counterbalance or the sun on the head, a rotary union at the
@@ -35,6 +35,11 @@ of the plain machine), each with its reason:
   sits elsewhere relative to the structure and the room than on any training day.
 * ``sensor_mount``: from one test day on, 1-3 sensors were knocked off and re-glued (a magnet
   moved, a cable pulled): another lag (x 0.3-3) and another share of the room air.
+* ``warm_start``: the training runs were cold starts (the machine stood overnight), but a test
+  part is made when the machine is free: most test days start after only 1-10 h at rest, the
+  heavy column and head still warm from the day before while the fast nodes have cooled, and the
+  probe is zeroed on the warm machine. Its slow and fast temperatures then move in a
+  combination no cold start shows.
 
 ``truth["realism"]`` records what was drawn and per day the mean and largest contribution (um);
 :attr:`ForeignMachine.parts` holds the noise-free contributions row by row
@@ -103,7 +108,7 @@ SETUP_DRIFT_UM = (0.5, 3.0)
 SETUP_DRIFT_TAU_S = 7200.0
 #: What ``realism=`` can add to a machine, in the order drawn (the module's docstring says why each
 #: happens on real machines and not in the linear twin).
-REALISM_EFFECTS = ("hidden_source", "convection", "fixed_chiller", "sensor_mount")
+REALISM_EFFECTS = ("hidden_source", "convection", "fixed_chiller", "sensor_mount", "warm_start")
 #: The effects that change the nodes' temperatures (the others change what a sensor reads).
 NODE_EFFECTS = ("hidden_source", "convection", "fixed_chiller")
 #: Nodes an unobserved heat source may heat, and what it stands for there.
@@ -131,6 +136,10 @@ MOUNT_LAG_FACTOR = (0.3, 3.0)
 MOUNT_AMBIENT_SHARE = (0.02, 0.5)
 #: Bounds of a reseated sensor's lag (s).
 MOUNT_LAG_S = (20.0, 1800.0)
+#: A test day starts warm with this chance: the machine stood only a few hours (log-uniform
+#: between these, h) since the previous day's end, at the new day's room temperature.
+WARM_START_SHARE = 0.6
+WARM_REST_H = (1.0, 10.0)
 #: Decimals of the temperatures and the displacement in the written logs.
 TEMP_DECIMALS = 2
 DISP_DECIMALS = 3
@@ -309,8 +318,9 @@ def plan_days(rng: np.random.Generator, speeds: list[float], lo: float, room_c: 
 @dataclass(frozen=True)
 class Realism:
     """What ``realism=`` drew for one machine (:func:`foreign_realism`): the effects and their
-    constants; per day (file stem) the hidden source's level, period, duty and phase, and the
-    sensors as mounted that day (only the days after a reseat)."""
+    constants; per day (file stem) the hidden source's level, period, duty and phase, the
+    sensors as mounted that day (only the days after a reseat) and the hours the machine stood
+    before a warm start (only the days that start warm)."""
 
     effects: tuple[str, ...]
     source_node: str = ""
@@ -320,6 +330,7 @@ class Realism:
     cooler_set_c: float | None = None
     mount_from: str = ""
     mounted: tuple[SensorSpec, ...] = ()
+    warm_rest_h: dict = field(default_factory=dict)
 
     def sensors_on(self, params: TwinParams, day: Day, days: list[Day]) -> tuple[SensorSpec, ...]:
         """The sensors as they read on ``day``: reseated ones from :attr:`mount_from` on."""
@@ -378,6 +389,9 @@ def foreign_realism(seed: int, design: Design, effects: tuple[str, ...]) -> Real
     exponent (:data:`CONVECTION_EXPONENT`). ``fixed_chiller``: the set point, the training days'
     mean room plus the machine's cooler offset. ``sensor_mount``: the first test day on which
     :data:`MOUNT_SENSORS` sensors (not a room sensor) read reseated (:func:`_reseat`).
+    ``warm_start``: each test day with the chance :data:`WARM_START_SHARE` starts after only
+    :data:`WARM_REST_H` hours at rest. Drawn in this order, so an effect's constants do not depend
+    on which effects follow it.
     """
     effects = tuple(e for e in REALISM_EFFECTS if e in effects)
     if not effects:
@@ -415,6 +429,12 @@ def foreign_realism(seed: int, design: Design, effects: tuple[str, ...]) -> Real
         chosen = set(int(j) for j in rng.choice(movable, size=k, replace=False))
         mounted = tuple(_reseat(spec, rng) if j in chosen else spec for j, spec in enumerate(params.sensors))
         out.update(mount_from=str(rng.choice(tests)), mounted=mounted)
+    if "warm_start" in effects:
+        warm = {}
+        for d in days:
+            if d.role == "test" and rng.random() < WARM_START_SHARE:
+                warm[d.stem] = float(np.exp(rng.uniform(*np.log(WARM_REST_H))))
+        out["warm_rest_h"] = warm
     return Realism(**out)
 
 
@@ -455,7 +475,8 @@ def simulate_day_parts(
     *,
     realism: Realism | None = None,
     days: list[Day] | None = None,
-) -> tuple[pd.DataFrame, pd.DataFrame | None]:
+    warm_from: np.ndarray | None = None,
+) -> tuple[pd.DataFrame, pd.DataFrame | None, np.ndarray]:
     """One day's log: a cold start (every node at the room's temperature) through
     :func:`rafi.twin.physics.integrate`; sensors with white and slow noise, quantised; the
     displacement from the probe's zero with white and slow noise; the speed with 1 r/min jitter.
@@ -469,7 +490,9 @@ def simulate_day_parts(
     nodes come from :func:`rafi.twin.physics.integrate_realistic` when an effect of
     :data:`NODE_EFFECTS` is drawn (the hidden source's heat, the convection law, the fixed
     chiller; else from :func:`rafi.twin.physics.integrate`), and the sensors are those of the day;
-    every noise is the same draw as without.
+    every noise is the same draw as without. A day of ``realism.warm_rest_h`` with ``warm_from``
+    (the nodes at the previous day's end) starts warm: those nodes after that many hours at rest
+    in the day's first room temperature (:func:`night`), the probe zeroed on the warm machine.
 
     Returns
     -------
@@ -478,7 +501,8 @@ def simulate_day_parts(
         with ``realism``, its parts (noise-free, per row): ``time``, ``realism_um`` (the
         displacement minus the linear twin's: every effect's contribution), ``hidden_source_um``
         (the displacement minus that without the hidden source) and ``hidden_source:<sensor>``
-        (each sensor's reading minus that without the hidden source, K); else ``None``.
+        (each sensor's reading minus that without the hidden source, K); else ``None``; and the
+        nodes' temperatures at the day's last sample (for the next day's warm start).
     """
     speeds = sample_schedule(day.schedule, dt)
     n = len(speeds)
@@ -494,19 +518,23 @@ def simulate_day_parts(
         specs = replace(params, sensors=realism.sensors_on(params, day, days or [day]))
         linear, _ = integrate(params, speeds, t_amb, dt)
         nodes = without = linear
-        if set(realism.effects) & set(NODE_EFFECTS):
+        ref = x_ref
+        kw = {"convection_exponent": realism.convection_exponent, "cooler_set_c": realism.cooler_set_c}
+        if warm_from is not None and day.stem in realism.warm_rest_h:
+            ref = night(params, warm_from, float(t_amb[0]), realism.warm_rest_h[day.stem], dt, **kw)
+        if set(realism.effects) & set(NODE_EFFECTS) or ref is not x_ref:
             extra = hidden_source_w(realism, day, n, dt)
-            kw = {"convection_exponent": realism.convection_exponent, "cooler_set_c": realism.cooler_set_c}
-            nodes, _ = integrate_realistic(params, speeds, t_amb, dt, extra_w=extra, **kw)
-            without, _ = integrate_realistic(params, speeds, t_amb, dt, **kw)
-        full = displacement_truth(params, nodes, speeds, dt, x_ref)
+            nodes, _ = integrate_realistic(params, speeds, t_amb, dt, extra_w=extra, x0=ref, **kw)
+            without, _ = integrate_realistic(params, speeds, t_amb, dt, x0=ref, **kw)
+        full = displacement_truth(params, nodes, speeds, dt, ref)
         parts = pd.DataFrame(
             {
                 "time": times,
                 "realism_um": full - displacement_truth(params, linear, speeds, dt, x_ref),
-                "hidden_source_um": full - displacement_truth(params, without, speeds, dt, x_ref),
+                "hidden_source_um": full - displacement_truth(params, without, speeds, dt, ref),
             }
         )
+        x_ref = ref  # the probe is zeroed on the machine as it starts
         seen = sensor_truth(specs, nodes, t_amb, dt) - sensor_truth(specs, without, t_amb, dt)
         for j, spec in enumerate(specs.sensors):
             parts[f"hidden_source:{spec.name}"] = seen[:, j]
@@ -529,7 +557,26 @@ def simulate_day_parts(
     for j, spec in enumerate(params.sensors):
         frame[spec.name] = temps[:, j]
     frame["disp_um"] = disp
-    return frame, parts
+    return frame, parts, nodes[-1]
+
+
+def night(
+    params: TwinParams,
+    nodes: np.ndarray,
+    room_c: float,
+    hours: float,
+    dt: float = FOREIGN_SAMPLE_S,
+    *,
+    convection_exponent: float | None = None,
+    cooler_set_c: float | None = None,
+) -> np.ndarray:
+    """The nodes' temperatures after ``hours`` at rest from ``nodes`` in a room at ``room_c``
+    (the cooler's thermostat on, ``convection_exponent`` and ``cooler_set_c`` as
+    :func:`rafi.twin.physics.integrate_realistic`)."""
+    m = max(1, int(round(3600.0 * hours / dt)))
+    kw = {"convection_exponent": convection_exponent, "cooler_set_c": cooler_set_c}
+    out, _ = integrate_realistic(params, np.zeros(m + 1), np.full(m + 1, room_c), dt, x0=nodes, **kw)
+    return out[-1]
 
 
 def _rises(frame: pd.DataFrame, sensors: list[str], dt: float) -> np.ndarray:
@@ -688,14 +735,15 @@ def foreign_machine(
     if unknown:
         raise ValueError(f"unknown realism effect(s) {sorted(unknown)}; known: {', '.join(REALISM_EFFECTS)}")
     real = foreign_realism(seed, design, effects) if effects else None
-    made = {
-        d.stem: simulate_day_parts(
-            params, d, int(seed) * 1000 + k, setup_drift_um=drift_um, realism=real, days=days
+    logs, parts, end = {}, {}, None
+    for k, d in enumerate(days):
+        seed_k = int(seed) * 1000 + k
+        frame, part, end = simulate_day_parts(
+            params, d, seed_k, setup_drift_um=drift_um, realism=real, days=days, warm_from=end
         )
-        for k, d in enumerate(days)
-    }
-    logs = {stem: frame for stem, (frame, _) in made.items()}
-    parts = {stem: part for stem, (_, part) in made.items() if part is not None}
+        logs[d.stem] = frame
+        if part is not None:
+            parts[d.stem] = part
     names = [s.name for s in params.sensors]
     env = envelope([logs[d.stem] for d in days if d.role == "training"], names, speeds, FOREIGN_SAMPLE_S)
     test_runs = [
@@ -743,7 +791,8 @@ def realism_truth(real: Realism, params: TwinParams, days: list[Day], parts: dic
     """What ``realism`` drew, JSON-able: ``effects``; per effect its constants
     (``hidden_source``: node, what it stands for, power and per day level, period, duty;
     ``convection``: exponent; ``fixed_chiller``: set point; ``sensor_mount``: from which day,
-    each reseated sensor's lag and room share before and after); ``days``: per day the mean and
+    each reseated sensor's lag and room share before and after; ``warm_start``: the hours at rest
+    before each warm day); ``days``: per day the mean and
     largest |contribution| (um) of every effect together and of the hidden source alone."""
     out: dict = {"effects": list(real.effects)}
     if "hidden_source" in real.effects:
@@ -778,6 +827,8 @@ def realism_truth(real: Realism, params: TwinParams, days: list[Day], parts: dic
             if a != b
         ]
         out["sensor_mount"] = {"from_day": real.mount_from, "sensors": moved}
+    if "warm_start" in real.effects:
+        out["warm_start"] = {"rest_h": {stem: round(h, 3) for stem, h in real.warm_rest_h.items()}}
     out["days"] = {
         d.stem: {
             "realism_mae_um": round(float(parts[d.stem]["realism_um"].abs().mean()), 4),

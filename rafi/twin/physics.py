@@ -175,8 +175,9 @@ def integrate_realistic(
     extra_w: np.ndarray | None = None,
     convection_exponent: float | None = None,
     cooler_set_c: float | None = None,
+    x0: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`integrate` (a cold start, no wear) with what the linear network leaves out.
+    """:func:`integrate` (no wear) with what the linear network leaves out.
 
     Parameters
     ----------
@@ -194,6 +195,8 @@ def integrate_realistic(
     cooler_set_c : float, optional
         The oil cooler's thermostat holds this fixed set point (degC) instead of the room's
         temperature plus ``params.cooler_offset_c``.
+    x0 : numpy.ndarray, optional
+        The nodes' temperatures at the first sample (default: every node at the room's).
 
     Returns
     -------
@@ -201,7 +204,7 @@ def integrate_realistic(
         Node temperatures (n x nodes) and the cooler state, as :func:`integrate`.
     """
     n = len(speeds)
-    x = np.full(_N, t_amb[0])
+    x = np.full(_N, t_amb[0]) if x0 is None else np.array(x0, dtype=float)
     extra = np.zeros((n, _N)) if extra_w is None else np.asarray(extra_w, dtype=float)
     natural = {node: law for node, law in params.to_ambient.items() if law[0] > 0}
     cache: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
