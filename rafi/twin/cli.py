@@ -255,7 +255,7 @@ def _add_foreign_mode(sub: argparse._SubParsersAction, formatter: type[argparse.
         "motor base, at another level on test days), convection (still-air heat loss ~ dT^1.2-1.33), "
         "fixed_chiller (the oil cooler holds a fixed set point instead of tracking the room), "
         "sensor_mount (1-3 sensors reseated from one test day on: other lag, other share of room air), "
-        "warm_start (most test days start after only 1-10 h at rest, still warm from the day before); "
+        "warm_start (a test day, 60 %%, starts after only 1-10 h at rest, still warm from the day before); "
         "truth.json says what was drawn and each day's contribution; 'none' gives the plain machine",
     )
 

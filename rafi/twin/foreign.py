@@ -36,7 +36,7 @@ of the plain machine), each with its reason (``all``: the five):
 * ``sensor_mount``: from one test day on, 1-3 sensors were knocked off and re-glued (a magnet
   moved, a cable pulled): another lag (x 0.3-3) and another share of the room air.
 * ``warm_start``: the training runs were cold starts (the machine stood overnight), but a test
-  part is made when the machine is free: most test days start after only 1-10 h at rest, the
+  part is made when the machine is free: a test day (60 %) starts after only 1-10 h at rest, the
   heavy column and head still warm from the day before while the fast nodes have cooled, and the
   probe is zeroed on the warm machine. Its slow and fast temperatures then move in a
   combination no cold start shows.
