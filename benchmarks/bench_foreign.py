@@ -7,6 +7,7 @@ Usage (from the repository root; see benchmarks/README.md)::
     python benchmarks/bench_foreign.py --seeds 24 --keep /tmp/foreign --report-only
     python benchmarks/bench_foreign.py --seeds 6 --keep /tmp/foreign-drift --setup-drift
     python benchmarks/bench_foreign.py --seeds 0-23 --keep /tmp/foreign --report-only --rescore
+    python benchmarks/bench_foreign.py --seeds 10 --keep /tmp/foreign-real --realism all
 
 **The machines.** For each seed, :func:`rafi.twin.foreign.write_foreign` writes a foreign machine
 (4-40 own sensors, the twin's network with every constant drawn anew, one cold start a day at
@@ -17,6 +18,11 @@ enables every kind of the family (``temperature_ridge`` too). ``snakemake --core
 ``results/<m>/comparison/`` (the model family's fit, CV, choice and validation; no report).
 With ``--setup-drift`` the same machines' displacement also wanders by what no sensor sees
 (a slow walk of 0.5-3 um a machine: the probe's stand, the foundation), as on a real test.
+With ``--realism all`` (or a subset) the same machines also have what real machines have and the
+linear twin has not (``rafi simulate foreign --realism``: an unobserved heat source at another
+level on test days, a convection law ~ dT^1.25, a chiller at a fixed set point, sensors reseated
+from one test day on, test days starting warm); ``result.json`` keeps what was drawn
+(``realism_truth``).
 The test days are the pipeline's validation runs (``runs.windows`` by file name); the truth
 (``truth.json``) states per test day the fraction of its rows outside the training envelope.
 
@@ -87,7 +93,7 @@ from _results import write_results  # noqa: E402
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.contract.operations import MODEL_KINDS  # noqa: E402
 from rafi.family.ensemble import ENSEMBLE as ENSEMBLE_MODEL  # noqa: E402
-from rafi.twin.foreign import write_foreign  # noqa: E402
+from rafi.twin.foreign import parse_realism, write_foreign  # noqa: E402
 
 #: The current rule (what the pipeline offers: the CV-weighted ensemble since 2026-11-29).
 CURRENT = judge.ENSEMBLE
@@ -131,10 +137,10 @@ def seeds_text(seeds: list[int]) -> str:
 # ----------------------------------------------------------------------------- one machine
 
 
-def make_project(seed: int, proj: Path, setup_drift: bool = False) -> dict:
-    """The foreign machine of ``seed`` as a runnable project in ``proj`` (every kind enabled);
-    returns its truth."""
-    machine, _ = write_foreign(seed, proj, setup_drift=setup_drift)
+def make_project(seed: int, proj: Path, setup_drift: bool = False, realism: tuple[str, ...] = ()) -> dict:
+    """The foreign machine of ``seed`` as a runnable project in ``proj`` (every kind enabled;
+    ``realism``: :func:`rafi.twin.foreign.foreign_machine`); returns its truth."""
+    machine, _ = write_foreign(seed, proj, setup_drift=setup_drift, realism=realism)
     shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
     for name in ("workflow", "rafi"):
         shutil.rmtree(proj / name, ignore_errors=True)
@@ -288,21 +294,27 @@ def rescored(result: dict, folder: Path) -> dict:
     return {**result, "choices": picks, "test": test_scores(rows, picks), "rescored": True}
 
 
-def judge_seed(seed: int, keep: Path, cores: int, log=print, setup_drift: bool = False) -> dict:
+def judge_seed(
+    seed: int, keep: Path, cores: int, log=print, setup_drift: bool = False, realism: tuple[str, ...] = ()
+) -> dict:
     """The result of one seed: read from ``keep/seed-NNN/result.json`` if there (made with the
-    same ``setup_drift``, else a stop), else made (the project, the pipeline, both judges) and
-    written there."""
+    same ``setup_drift`` and ``realism``, else a stop), else made (the project, the pipeline, both
+    judges) and written there."""
     folder = keep / f"seed-{seed:03d}"
     cached = folder / "result.json"
     if cached.is_file():
         result = json.loads(cached.read_text(encoding="utf-8"))
         if bool(result.get("setup_drift", False)) != setup_drift:
             raise SystemExit(f"{cached} was made with setup_drift={not setup_drift}: use another --keep")
+        if list(result.get("realism", [])) != list(realism):
+            raise SystemExit(
+                f"{cached} was made with realism={result.get('realism', [])}: use another --keep"
+            )
         return result
     proj = folder / "project"
     shutil.rmtree(proj, ignore_errors=True)
     proj.mkdir(parents=True)
-    truth = make_project(seed, proj, setup_drift)
+    truth = make_project(seed, proj, setup_drift, realism)
     machine = truth["machine"]
     pipeline_s = run_pipeline(proj, machine, cores)
     t0 = time.perf_counter()
@@ -322,6 +334,7 @@ def judge_seed(seed: int, keep: Path, cores: int, log=print, setup_drift: bool =
         "machine": machine,
         "setup_drift": setup_drift,
         "setup_drift_um": truth.get("setup_drift_um", 0.0),
+        **({"realism": list(realism), "realism_truth": truth["realism"]} if realism else {}),
         "sensors": len(truth["sensors"]),
         "training_days": sum(d["role"] == "training" for d in truth["days"]),
         "test_runs": truth["test_runs"],
@@ -472,6 +485,13 @@ def main(argv: list[str] | None = None) -> int:
         help="machines whose displacement also wanders by what no sensor sees (rafi simulate foreign "
         "--setup-drift); use its own --keep",
     )
+    parser.add_argument(
+        "--realism",
+        default="none",
+        help="machines with what real machines do and the twin does not (rafi simulate foreign "
+        "--realism: 'all' or a subset of hidden_source,convection,fixed_chiller,sensor_mount,warm_start); "
+        "use its own --keep",
+    )
     parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")
     parser.add_argument(
         "--rescore",
@@ -481,6 +501,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     args = parser.parse_args(argv)
     seeds = parse_seeds(args.seeds)
+    realism = parse_realism(args.realism)
     keep = args.keep or Path(tempfile.mkdtemp(prefix="bench-foreign-"))
     keep.mkdir(parents=True, exist_ok=True)
     results, failed = [], []
@@ -490,7 +511,9 @@ def main(argv: list[str] | None = None) -> int:
         print(f"seed {seed} ...", flush=True)
         try:
             log = lambda m: print(m, flush=True)  # noqa: E731
-            result = judge_seed(seed, keep, args.cores, log=log, setup_drift=args.setup_drift)
+            result = judge_seed(
+                seed, keep, args.cores, log=log, setup_drift=args.setup_drift, realism=realism
+            )
             if args.rescore:
                 result = rescored(result, keep / f"seed-{seed:03d}")
             results.append(result)

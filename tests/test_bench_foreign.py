@@ -99,3 +99,18 @@ def test_the_decision_guards_then_takes_the_lowest_primary_only_beyond_one_se(be
 def test_the_best_single_kind_is_never_the_pipelines_ensemble(bench):
     rows = _rows([1.0, 2.0], {"ensemble": [1.0, 2.0], "dynamic": [0.0, 0.0], "grey_box": [1.0, 1.0]})
     assert bench.single_kinds(rows) == ["dynamic", "grey_box"]
+
+
+def test_a_kept_seed_made_with_other_realism_is_refused_not_mixed(bench, tmp_path):
+    import json
+
+    folder = tmp_path / "seed-003"
+    folder.mkdir()
+    (folder / "result.json").write_text(json.dumps({"seed": 3, "setup_drift": False}))
+    with pytest.raises(SystemExit, match="realism"):
+        bench.judge_seed(3, tmp_path, 1, realism=("convection",))
+    assert bench.judge_seed(3, tmp_path, 1)["seed"] == 3  # the plain machine's result is read
+    (folder / "result.json").write_text(json.dumps({"seed": 3, "realism": ["convection"]}))
+    with pytest.raises(SystemExit, match="realism"):
+        bench.judge_seed(3, tmp_path, 1)
+    assert bench.judge_seed(3, tmp_path, 1, realism=("convection",))["seed"] == 3

@@ -7,6 +7,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 import pytest
 import yaml
@@ -153,3 +154,191 @@ def test_the_pipeline_reads_a_foreign_machine_with_its_roles_and_sensors(tmp_pat
             assert speed == pytest.approx(d["speeds_rpm"][0], abs=5)
     frame = pd.read_parquet(proj / "results" / machine / "runs.parquet")
     assert list(run_sensors(frame)) == [s["name"] for s in truth["sensors"]]
+
+
+# ----------------------------------------------------------------------------- realism
+#: Seed 4: three training days, two hot-room test days (the fixed chiller shows), small and quick.
+REAL_SEED = 4
+
+
+@pytest.fixture(scope="module")
+def plain_and_real() -> tuple:
+    """Seed 4 without realism, with every effect, with the hidden source alone, with the reseat alone."""
+    return (
+        foreign_machine(REAL_SEED),
+        foreign_machine(REAL_SEED, realism="all"),
+        foreign_machine(REAL_SEED, realism=("hidden_source",)),
+        foreign_machine(REAL_SEED, realism=("sensor_mount",)),
+    )
+
+
+def test_realism_off_draws_nothing_and_the_realistic_integrator_without_effects_is_the_linear_one():
+    from rafi.twin.foreign import Day
+    from rafi.twin.physics import integrate, integrate_realistic
+
+    plain, none = foreign_machine(2), foreign_machine(2, realism="none")
+    assert "realism" not in plain.truth and plain.parts == {} and plain.truth == none.truth
+    for stem, frame in plain.logs.items():
+        pd.testing.assert_frame_equal(frame, none.logs[stem])
+    design = foreign_design(2)
+    day: Day = design.days[-1]
+    speeds = np.repeat([0.0, 4000.0, 6000.0], 120)
+    room = np.full(len(speeds), day.ambient.base_c)
+    linear, cool_a = integrate(design.params, speeds, room, 60.0)
+    same, cool_b = integrate_realistic(design.params, speeds, room, 60.0)
+    np.testing.assert_allclose(same, linear, atol=1e-9)
+    assert (cool_a == cool_b).all()
+    unit, _ = integrate_realistic(design.params, speeds, room, 60.0, convection_exponent=1.0)
+    np.testing.assert_allclose(unit, linear, atol=1e-9)  # dT ** 1: the linear law
+
+
+def test_realism_keeps_the_machine_and_its_noise_and_adds_exactly_the_stated_contribution(plain_and_real):
+    plain, real, _, _ = plain_and_real
+    assert real.config == plain.config and real.truth["sensors"] == plain.truth["sensors"]
+    assert real.truth["days"] == plain.truth["days"]
+    assert real.truth["realism"]["effects"] == [
+        "hidden_source",
+        "convection",
+        "fixed_chiller",
+        "sensor_mount",
+        "warm_start",
+    ]
+    quantum = foreign_design(REAL_SEED).params.disp_quantum_um  # the logs' displacement step
+    for stem, frame in plain.logs.items():
+        other = real.logs[stem]
+        pd.testing.assert_series_equal(frame["speed_rpm"], other["speed_rpm"])
+        added = (other["disp_um"] - frame["disp_um"]).to_numpy()
+        stated = real.parts[stem]["realism_um"].to_numpy()
+        assert np.abs(added - stated).max() <= quantum + 1e-9, stem  # the same noise: only the effects differ
+        day = real.truth["realism"]["days"][stem]
+        assert day["realism_mae_um"] == pytest.approx(np.abs(stated).mean(), abs=1e-4)
+    test_days = [r["stem"] for r in real.truth["test_runs"]]
+    assert max(real.truth["realism"]["days"][s]["realism_mae_um"] for s in test_days) > 1.0
+
+
+def test_the_hidden_source_is_nonzero_on_test_days_at_another_level_and_seen_by_the_log(plain_and_real):
+    plain, _, hidden, _ = plain_and_real
+    source = hidden.truth["realism"]["hidden_source"]
+    roles = {d["stem"]: d["role"] for d in plain.truth["days"]}
+    for stem, day in source["days"].items():
+        low_or_high = 0.2 <= day["level"] <= 0.5 or 1.6 <= day["level"] <= 2.5
+        assert 0.8 <= day["level"] <= 1.2 if roles[stem] == "training" else low_or_high, stem
+    node = source["node"]
+    params = foreign_design(REAL_SEED).params  # the logs' steps of displacement and temperature
+    quantum, step_c = params.disp_quantum_um, params.temp_quantum_c
+    for stem, part in hidden.parts.items():
+        assert part["hidden_source_um"].abs().mean() > 0.05, stem  # on every day, test days too
+        # alone, the source is the whole contribution, and the log shows it against the plain one
+        np.testing.assert_allclose(part["hidden_source_um"], part["realism_um"], atol=1e-9)
+        added = hidden.logs[stem]["disp_um"] - plain.logs[stem]["disp_um"]
+        assert np.abs(added.to_numpy() - part["hidden_source_um"].to_numpy()).max() <= quantum + 1e-9
+        for s in hidden.truth["sensors"]:
+            seen = hidden.logs[stem][s["name"]] - plain.logs[stem][s["name"]]
+            stated = part[f"hidden_source:{s['name']}"]
+            assert np.abs(seen.to_numpy() - stated.to_numpy()).max() <= step_c + 1e-9, (stem, s["name"])
+    # the sensor most on the source's node sees it on the day the source runs highest; not every
+    # sensor sees as much (partially observed)
+    high = max(source["days"], key=lambda stem: source["days"][stem]["level"])
+    effect = {
+        s["name"]: hidden.parts[high][f"hidden_source:{s['name']}"].abs().max()
+        for s in hidden.truth["sensors"]
+    }
+    on_node = max(hidden.truth["sensors"], key=lambda s: s["mix"].get(node, 0.0))["name"]
+    assert effect[on_node] > 0.1
+    assert min(effect.values()) < 0.5 * effect[on_node]
+
+
+def test_reseated_sensors_read_otherwise_from_their_day_on_and_nothing_else_changes(plain_and_real):
+    plain, _, _, mount = plain_and_real
+    drawn = mount.truth["realism"]["sensor_mount"]
+    moved = {s["name"] for s in drawn["sensors"]}
+    assert 1 <= len(moved) <= 3
+    for s in drawn["sensors"]:
+        assert s["lag_s"][0] != s["lag_s"][1] and s["ambient_share"][0] != s["ambient_share"][1]
+    stems = list(plain.logs)
+    start = stems.index(drawn["from_day"])
+    for k, stem in enumerate(stems):
+        a, b = plain.logs[stem], mount.logs[stem]
+        if k < start:
+            pd.testing.assert_frame_equal(a, b)
+            continue
+        pd.testing.assert_frame_equal(a.drop(columns=list(moved)), b.drop(columns=list(moved)))
+        for name in moved:
+            assert (a[name] - b[name]).abs().max() > 0.02, (stem, name)
+
+
+def test_convection_cools_a_hot_machine_and_a_fixed_chiller_holds_its_set_point():
+    from rafi.twin.machines import NODE_INDEX
+    from rafi.twin.physics import CONVECTION_REF_K, integrate, integrate_realistic
+
+    design = foreign_design(1)
+    params = design.params
+    speeds = np.full(600, max(design.speeds))  # 10 h at 60 s at the top speed: near the steady state
+    room = np.full(len(speeds), 22.0)
+    linear, _ = integrate(params, speeds, room, 60.0)
+    convect, _ = integrate_realistic(params, speeds, room, 60.0, convection_exponent=1.3)
+    for node in ("motor_base", "housing"):  # losing to still air and hotter than 2 K
+        i = NODE_INDEX[node]
+        rise_lin, rise_conv = linear[-1, i] - 22.0, convect[-1, i] - 22.0
+        assert rise_lin > CONVECTION_REF_K  # hotter than where the two laws agree ...
+        assert rise_conv < rise_lin - 0.1  # ... it loses more than the linear law says
+    tank = NODE_INDEX["tank"]
+    rest = np.zeros(600)
+    warm = np.full(600, 26.0)
+    tracking, _ = integrate(params, rest, warm, 60.0)
+    fixed, cooler = integrate_realistic(params, rest, warm, 60.0, cooler_set_c=23.0)
+    assert abs(tracking[-120:, tank].mean() - 26.0) < 0.5  # tracks the room: it stays at 26
+    assert abs(fixed[-120:, tank].mean() - 23.0) < params.cooler_hysteresis_c  # holds 23 degC
+    assert cooler[-120:].any() and not cooler[-120:].all()  # by cycling
+
+
+def test_realism_is_deterministic_per_seed_and_drawn_anew_per_seed():
+    a, b, c = (foreign_machine(s, realism=("hidden_source", "convection")) for s in (REAL_SEED, REAL_SEED, 0))
+    assert a.truth == b.truth
+    for stem in a.logs:
+        pd.testing.assert_frame_equal(a.logs[stem], b.logs[stem])
+        pd.testing.assert_frame_equal(a.parts[stem], b.parts[stem])
+    assert a.truth["realism"]["hidden_source"] != c.truth["realism"]["hidden_source"]
+    assert a.truth["realism"]["convection"] != c.truth["realism"]["convection"]
+
+
+def test_rafi_simulate_foreign_realism_writes_what_was_drawn_and_refuses_an_unknown_effect(tmp_path, capsys):
+    from rafi.cli import main
+
+    assert (
+        main(["simulate", "foreign", "--seed", "2", "--out", str(tmp_path), "--realism", "convection"]) == 0
+    )
+    truth = json.loads((tmp_path / "truth.json").read_text())
+    assert (
+        truth["realism"]["effects"] == ["convection"]
+        and 1.2 <= truth["realism"]["convection"]["exponent"] <= 1.33
+    )
+    assert main(["simulate", "foreign", "--seed", "2", "--out", str(tmp_path / "x"), "--realism", "sun"]) == 2
+    err = capsys.readouterr().err
+    assert "sun" in err and "hidden_source" in err and not (tmp_path / "x").exists()
+
+
+def test_a_warm_start_begins_where_the_previous_day_left_after_its_rest_and_training_days_stay_cold():
+    from rafi.twin.foreign import night
+    from rafi.twin.machines import NODE_INDEX
+
+    plain, warm = foreign_machine(REAL_SEED), foreign_machine(REAL_SEED, realism=("warm_start",))
+    rest = warm.truth["realism"]["warm_start"]["rest_h"]
+    roles = {d["stem"]: d["role"] for d in plain.truth["days"]}
+    assert rest and all(roles[stem] == "test" and 1.0 <= h <= 10.0 for stem, h in rest.items())
+    quantum = foreign_design(REAL_SEED).params.disp_quantum_um
+    for stem, frame in plain.logs.items():
+        if stem not in rest:
+            pd.testing.assert_frame_equal(frame, warm.logs[stem])  # cold as without
+            continue
+        part = warm.parts[stem]["realism_um"].to_numpy()
+        assert part[0] == pytest.approx(0.0, abs=1e-9)  # the probe zeroed on the warm machine
+        added = (warm.logs[stem]["disp_um"] - frame["disp_um"]).to_numpy()
+        assert np.abs(added - part).max() <= quantum + 1e-9
+    # the night: a hot machine cools toward the room, the heavy column slowest
+    params = foreign_design(REAL_SEED).params
+    hot = np.full(len(NODE_INDEX), 30.0)
+    after = night(params, hot, 20.0, 3.0)
+    assert (after < 30.0).all() and (after > 20.0).any()
+    column, housing = NODE_INDEX["column"], NODE_INDEX["housing"]
+    assert after[column] - 20.0 > after[housing] - 20.0

@@ -245,15 +245,33 @@ def _add_foreign_mode(sub: argparse._SubParsersAction, formatter: type[argparse.
         help="the displacement also wanders by what no sensor sees (probe stand, foundation): a slow "
         "walk of 0.5-3 um, drawn per machine",
     )
+    mode.add_argument(
+        "--realism",
+        default="none",
+        metavar="EFFECTS",
+        help="add what real machines do and the linear twin does not, drawn per machine on a stream of "
+        "its own (same machine, days and noise): 'all' or a comma-separated subset of hidden_source (an "
+        "unobserved heat source - hydraulics, a neighbouring machine - cycling into the column, head or "
+        "motor base, at another level on test days), convection (still-air heat loss ~ dT^1.2-1.33), "
+        "fixed_chiller (the oil cooler holds a fixed set point instead of tracking the room), "
+        "sensor_mount (1-3 sensors reseated from one test day on: other lag, other share of room air), "
+        "warm_start (a test day, 60 %%, starts after only 1-10 h at rest, still warm from the day before); "
+        "truth.json says what was drawn and each day's contribution; 'none' gives the plain machine",
+    )
 
 
 def _run_foreign(args: argparse.Namespace) -> int:
     """``rafi simulate foreign``: write the machine, print its config block and test days."""
     import yaml
 
-    from rafi.twin.foreign import write_foreign
+    from rafi.twin.foreign import parse_realism, write_foreign
 
-    machine, paths = write_foreign(args.seed, args.out, setup_drift=args.setup_drift)
+    try:
+        effects = parse_realism(args.realism)
+    except ValueError as exc:
+        print(f"rafi simulate foreign: --realism: {exc}", file=sys.stderr)
+        return 2
+    machine, paths = write_foreign(args.seed, args.out, setup_drift=args.setup_drift, realism=effects)
     for path in paths:
         print(path, file=sys.stderr)
     for run in machine.truth["test_runs"]:

@@ -12,6 +12,40 @@ run longer than any training run). :func:`foreign_machine` returns the logs, the
 that reads them and the truth; :func:`envelope_fractions` states, per test day, the fraction of
 its rows outside the training envelope, computed from the generated logs.
 
+**Realism** (``realism=``, ``rafi simulate foreign --realism all``; default none). The twin's
+physics is linear: every sensor and the displacement are linear responses of the same few drives
+(the speed's heat, the room), so a fit on strongly collinear temperatures extrapolates honestly
+on its test days. Real machines break that; the turning centre of issue 46 made a ridge on
+filtered rises run away on test days whose temperatures lay outside the training range. Five
+effects a real machine has and the twin has not, each drawn per machine by
+:func:`foreign_realism` on a stream of its own (the machine, its days and every noise stay those
+of the plain machine), each with its reason (``all``: the five):
+
+* ``hidden_source``: a heat source nobody put a sensor on - a hydraulic unit or a neighbouring
+  machine beside the column, a counterbalance or the sun on the head, a rotary union at the
+  spindle's rear (:data:`HIDDEN_SOURCE_NODES`) - cycling on its own thermostat (period 20-120
+  min), strong enough to raise its node 1-4 K; on the training days at about one level, on each
+  test day lower or higher (another shift, another job). It moves the displacement and only the
+  sensors near its node: a direction of the temperatures the training days did not show.
+* ``convection``: still air takes heat away as ``dT ** 1.2-1.33`` (free convection), not
+  linearly: a machine hotter than on any training day loses more than the linear law says, so
+  the ratios between its temperatures shift where the fit extrapolates.
+* ``fixed_chiller``: many oil coolers hold a fixed set point (here the training days' room
+  plus the cooler's offset) instead of tracking the room: on a warmer or colder day the coolant
+  sits elsewhere relative to the structure and the room than on any training day.
+* ``sensor_mount``: from one test day on, 1-3 sensors were knocked off and re-glued (a magnet
+  moved, a cable pulled): another lag (x 0.3-3) and another share of the room air.
+* ``warm_start``: the training runs were cold starts (the machine stood overnight), but a test
+  part is made when the machine is free: a test day (60 %) starts after only 1-10 h at rest, the
+  heavy column and head still warm from the day before while the fast nodes have cooled, and the
+  probe is zeroed on the warm machine. Its slow and fast temperatures then move in a
+  combination no cold start shows.
+
+``truth["realism"]`` records what was drawn and per day the mean and largest contribution (um);
+:attr:`ForeignMachine.parts` holds the noise-free contributions row by row
+(:func:`simulate_day_parts`). Without ``realism`` nothing of this is drawn: the logs are byte for
+byte those of the plain machine.
+
 Pure: everything follows from the seed; only :func:`write_foreign` writes files.
 """
 
@@ -19,14 +53,21 @@ from __future__ import annotations
 
 import json
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from rafi.twin.machines import AMBIENT, NODES, Ambient, SensorSpec, TwinParams, machine_params
-from rafi.twin.physics import ambient_series, displacement_truth, integrate, sensor_truth
+from rafi.twin.physics import (
+    ambient_series,
+    displacement_truth,
+    integrate,
+    integrate_realistic,
+    sensor_truth,
+    system_matrices,
+)
 from rafi.twin.schedules import REST_BEFORE_START_S, Step, sample_schedule, with_rest
 from rafi.twin.signals import ar1
 
@@ -65,6 +106,40 @@ IDLE_BELOW_RPM = 100.0
 #: Setup drift (``setup_drift=True``): its standard deviation per machine (um) and time constant (s).
 SETUP_DRIFT_UM = (0.5, 3.0)
 SETUP_DRIFT_TAU_S = 7200.0
+#: What ``realism=`` can add to a machine, in the order drawn (the module's docstring says why each
+#: happens on real machines and not in the linear twin).
+REALISM_EFFECTS = ("hidden_source", "convection", "fixed_chiller", "sensor_mount", "warm_start")
+#: The effects that change the nodes' temperatures (the others change what a sensor reads).
+NODE_EFFECTS = ("hidden_source", "convection", "fixed_chiller")
+#: Nodes an unobserved heat source may heat, and what it stands for there.
+HIDDEN_SOURCE_NODES = {
+    "column": "a hydraulic unit or a neighbouring machine beside the column",
+    "head": "a hydraulic counterbalance or clamp in the head, or sun on the headstock",
+    "motor_base": "a rotary union or tool-clamp cylinder at the spindle's rear",
+}
+#: The source's power at its training level: the steady rise (K) it alone would give its node at
+#: rest (drawn per machine).
+HIDDEN_SOURCE_RISE_K = (1.0, 4.0)
+#: It cycles on and off (its own thermostat): period (min) and the share of it on, drawn per day.
+HIDDEN_SOURCE_PERIOD_MIN = (20.0, 120.0)
+HIDDEN_SOURCE_DUTY = (0.3, 0.8)
+#: Its level (times the training level) on a training day, and on a test day either lower or
+#: higher (half each): the neighbour works another shift, the hydraulics another job.
+HIDDEN_SOURCE_TRAINING_LEVEL = (0.8, 1.2)
+HIDDEN_SOURCE_TEST_LEVELS = ((0.2, 0.5), (1.6, 2.5))
+#: Exponent of the still-air heat loss ``dT ** n`` (free convection: about 1.25), drawn per machine.
+CONVECTION_EXPONENT = (1.2, 1.33)
+#: Sensors reseated (knocked off, re-glued) from one test day on: how many (at most a fifth of
+#: the sensors, at least one), their lag's factor and their new share of the room air.
+MOUNT_SENSORS = (1, 3)
+MOUNT_LAG_FACTOR = (0.3, 3.0)
+MOUNT_AMBIENT_SHARE = (0.02, 0.5)
+#: Bounds of a reseated sensor's lag (s).
+MOUNT_LAG_S = (20.0, 1800.0)
+#: A test day starts warm with this chance: the machine stood only a few hours (log-uniform
+#: between these, h) since the previous day's end, at the new day's room temperature.
+WARM_START_SHARE = 0.6
+WARM_REST_H = (1.0, 10.0)
 #: Decimals of the temperatures and the displacement in the written logs.
 TEMP_DECIMALS = 2
 DISP_DECIMALS = 3
@@ -88,13 +163,16 @@ class Day:
 @dataclass(frozen=True)
 class ForeignMachine:
     """What :func:`foreign_machine` returns: the machine's name, its ``machines.<name>`` block,
-    its logs (file stem -> canonical frame: ``time``, ``speed_rpm``, the sensors, ``disp_um``)
-    and the truth (a JSON-able dict: constants, sensors, days, envelope, test runs)."""
+    its logs (file stem -> canonical frame: ``time``, ``speed_rpm``, the sensors, ``disp_um``),
+    the truth (a JSON-able dict: constants, sensors, days, envelope, test runs) and, with
+    ``realism``, the parts (file stem -> what the effects added, noise-free)."""
 
     name: str
     config: dict
     logs: dict[str, pd.DataFrame]
     truth: dict
+    #: With ``realism``: per day the noise-free ground truth of what it added (:func:`simulate_day_parts`).
+    parts: dict[str, pd.DataFrame] = field(default_factory=dict)
 
 
 def _factor(rng: np.random.Generator, sigma: float) -> float:
@@ -237,9 +315,168 @@ def plan_days(rng: np.random.Generator, speeds: list[float], lo: float, room_c: 
     return out
 
 
+@dataclass(frozen=True)
+class Realism:
+    """What ``realism=`` drew for one machine (:func:`foreign_realism`): the effects and their
+    constants; per day (file stem) the hidden source's level, period, duty and phase, the
+    sensors as mounted that day (only the days after a reseat) and the hours the machine stood
+    before a warm start (only the days that start warm)."""
+
+    effects: tuple[str, ...]
+    source_node: str = ""
+    source_w: float = 0.0
+    source_days: dict = field(default_factory=dict)
+    convection_exponent: float | None = None
+    cooler_set_c: float | None = None
+    mount_from: str = ""
+    mounted: tuple[SensorSpec, ...] = ()
+    warm_rest_h: dict = field(default_factory=dict)
+
+    def sensors_on(self, params: TwinParams, day: Day, days: list[Day]) -> tuple[SensorSpec, ...]:
+        """The sensors as they read on ``day``: reseated ones from :attr:`mount_from` on."""
+        stems = [d.stem for d in days]
+        if self.mount_from and stems.index(day.stem) >= stems.index(self.mount_from):
+            return self.mounted
+        return params.sensors
+
+
+def parse_realism(text: str | None) -> tuple[str, ...]:
+    """``"all"``, ``"none"`` or a comma-separated subset of :data:`REALISM_EFFECTS` (in their
+    order); an unknown name raises ``ValueError`` naming the known ones."""
+    text = (text or "").strip()
+    if text in ("", "none"):
+        return ()
+    if text == "all":
+        return REALISM_EFFECTS
+    names = {v.strip() for v in text.split(",") if v.strip()}
+    unknown = sorted(names - set(REALISM_EFFECTS))
+    if unknown:
+        raise ValueError(
+            f"unknown realism effect(s) {', '.join(unknown)}; expected 'all', 'none' or a comma-separated "
+            f"subset of {', '.join(REALISM_EFFECTS)}"
+        )
+    return tuple(e for e in REALISM_EFFECTS if e in names)
+
+
+def _steady_rise_k_per_w(params: TwinParams, node: str) -> float:
+    """The steady rise (K) of ``node`` per W into it, the spindle at rest, room and cooler off."""
+    A, _ = system_matrices(params, 0.0, 0.0)
+    cap = np.array([params.capacity[nm] for nm in NODES])
+    i = NODES.index(node)
+    e = np.zeros(len(NODES))
+    e[i] = 1.0 / cap[i]
+    return float(np.linalg.solve(-A, e)[i])
+
+
+def _reseat(spec: SensorSpec, rng: np.random.Generator) -> SensorSpec:
+    """``spec`` knocked off and re-glued: its lag times :data:`MOUNT_LAG_FACTOR`, its share of the
+    room air drawn anew (:data:`MOUNT_AMBIENT_SHARE`), the nodes keeping their proportions."""
+    lag = float(np.clip(spec.lag_s * np.exp(rng.uniform(*np.log(MOUNT_LAG_FACTOR))), *MOUNT_LAG_S))
+    air = float(rng.uniform(*MOUNT_AMBIENT_SHARE))
+    nodes = {k: v for k, v in spec.mix if k != AMBIENT}
+    total = sum(nodes.values())
+    mix = tuple((k, (1.0 - air) * v / total) for k, v in nodes.items()) + ((AMBIENT, air),)
+    return replace(spec, mix=mix, lag_s=lag)
+
+
+def foreign_realism(seed: int, design: Design, effects: tuple[str, ...]) -> Realism:
+    """The constants of ``effects`` (of :data:`REALISM_EFFECTS`) for the machine of ``seed``, from
+    a stream of their own (the machine and its days are those without them).
+
+    ``hidden_source``: a node of :data:`HIDDEN_SOURCE_NODES`, a power giving it a steady rise of
+    :data:`HIDDEN_SOURCE_RISE_K` at rest; per day its level (:data:`HIDDEN_SOURCE_TRAINING_LEVEL`,
+    test days :data:`HIDDEN_SOURCE_TEST_LEVELS`), period, duty and phase. ``convection``: the
+    exponent (:data:`CONVECTION_EXPONENT`). ``fixed_chiller``: the set point, the training days'
+    mean room plus the machine's cooler offset. ``sensor_mount``: the first test day on which
+    :data:`MOUNT_SENSORS` sensors (not a room sensor) read reseated (:func:`_reseat`).
+    ``warm_start``: each test day with the chance :data:`WARM_START_SHARE` starts after only
+    :data:`WARM_REST_H` hours at rest. Drawn in this order, so an effect's constants do not depend
+    on which effects follow it.
+    """
+    effects = tuple(e for e in REALISM_EFFECTS if e in effects)
+    if not effects:
+        return Realism(())
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 46, 2]))
+    params, days = design.params, design.days
+    out: dict = {"effects": effects}
+    if "hidden_source" in effects:
+        node = str(rng.choice(list(HIDDEN_SOURCE_NODES)))
+        power = float(rng.uniform(*HIDDEN_SOURCE_RISE_K)) / _steady_rise_k_per_w(params, node)
+        per_day = {}
+        for d in days:
+            if d.role == "training":
+                level = float(rng.uniform(*HIDDEN_SOURCE_TRAINING_LEVEL))
+            else:
+                level = float(rng.uniform(*HIDDEN_SOURCE_TEST_LEVELS[int(rng.integers(0, 2))]))
+            period = 60.0 * float(rng.uniform(*HIDDEN_SOURCE_PERIOD_MIN))
+            per_day[d.stem] = {
+                "level": level,
+                "period_s": period,
+                "duty": float(rng.uniform(*HIDDEN_SOURCE_DUTY)),
+                "phase_s": float(rng.uniform(0.0, period)),
+            }
+        out.update(source_node=node, source_w=power, source_days=per_day)
+    if "convection" in effects:
+        out["convection_exponent"] = float(rng.uniform(*CONVECTION_EXPONENT))
+    if "fixed_chiller" in effects:
+        rooms = [d.ambient.base_c for d in days if d.role == "training"]
+        out["cooler_set_c"] = float(np.mean(rooms)) + params.cooler_offset_c
+    if "sensor_mount" in effects:
+        tests = [d.stem for d in days if d.role == "test"]
+        movable = [j for j, spec in enumerate(params.sensors) if spec.position != AMBIENT]
+        k = int(rng.integers(MOUNT_SENSORS[0], MOUNT_SENSORS[1] + 1))
+        k = max(1, min(k, len(params.sensors) // 5, len(movable)))
+        chosen = set(int(j) for j in rng.choice(movable, size=k, replace=False))
+        mounted = tuple(_reseat(spec, rng) if j in chosen else spec for j, spec in enumerate(params.sensors))
+        out.update(mount_from=str(rng.choice(tests)), mounted=mounted)
+    if "warm_start" in effects:
+        warm = {}
+        for d in days:
+            if d.role == "test" and rng.random() < WARM_START_SHARE:
+                warm[d.stem] = float(np.exp(rng.uniform(*np.log(WARM_REST_H))))
+        out["warm_rest_h"] = warm
+    return Realism(**out)
+
+
+def hidden_source_w(realism: Realism, day: Day, n: int, dt: float) -> np.ndarray:
+    """The hidden source's heat (W) into each node at each of ``n`` samples of ``day`` (n x
+    nodes): on for ``duty`` of every ``period_s`` from ``phase_s``, at ``level`` times
+    :attr:`Realism.source_w`; zeros without the effect."""
+    out = np.zeros((n, len(NODES)))
+    if "hidden_source" not in realism.effects:
+        return out
+    p = realism.source_days[day.stem]
+    t = np.arange(n) * dt + p["phase_s"]
+    on = np.mod(t, p["period_s"]) < p["duty"] * p["period_s"]
+    out[:, NODES.index(realism.source_node)] = np.where(on, p["level"] * realism.source_w, 0.0)
+    return out
+
+
 def simulate_day(
-    params: TwinParams, day: Day, seed: int, dt: float = FOREIGN_SAMPLE_S, setup_drift_um: float = 0.0
+    params: TwinParams,
+    day: Day,
+    seed: int,
+    dt: float = FOREIGN_SAMPLE_S,
+    setup_drift_um: float = 0.0,
+    *,
+    realism: Realism | None = None,
+    days: list[Day] | None = None,
 ) -> pd.DataFrame:
+    """One day's log (:func:`simulate_day_parts` without the parts)."""
+    return simulate_day_parts(params, day, seed, dt, setup_drift_um, realism=realism, days=days)[0]
+
+
+def simulate_day_parts(
+    params: TwinParams,
+    day: Day,
+    seed: int,
+    dt: float = FOREIGN_SAMPLE_S,
+    setup_drift_um: float = 0.0,
+    *,
+    realism: Realism | None = None,
+    days: list[Day] | None = None,
+    warm_from: np.ndarray | None = None,
+) -> tuple[pd.DataFrame, pd.DataFrame | None, np.ndarray]:
     """One day's log: a cold start (every node at the room's temperature) through
     :func:`rafi.twin.physics.integrate`; sensors with white and slow noise, quantised; the
     displacement from the probe's zero with white and slow noise; the speed with 1 r/min jitter.
@@ -249,21 +486,61 @@ def simulate_day(
     the foundation): a slow AR(1) walk from 0 of that standard deviation and a time constant of
     :data:`SETUP_DRIFT_TAU_S`, from its own random stream (the rest of the day is unchanged).
 
+    With ``realism`` (:func:`foreign_realism`; ``days``: the machine's days, for a reseat) the
+    nodes come from :func:`rafi.twin.physics.integrate_realistic` when an effect of
+    :data:`NODE_EFFECTS` is drawn (the hidden source's heat, the convection law, the fixed
+    chiller; else from :func:`rafi.twin.physics.integrate`), and the sensors are those of the day;
+    every noise is the same draw as without. A day of ``realism.warm_rest_h`` with ``warm_from``
+    (the nodes at the previous day's end) starts warm: those nodes after that many hours at rest
+    in the day's first room temperature (:func:`night`), the probe zeroed on the warm machine.
+
     Returns
     -------
-    pandas.DataFrame
-        ``time``, ``speed_rpm``, one column per sensor of ``params``, ``disp_um``.
+    tuple
+        The log (``time``, ``speed_rpm``, one column per sensor of ``params``, ``disp_um``) and,
+        with ``realism``, its parts (noise-free, per row): ``time``, ``realism_um`` (the
+        displacement minus the linear twin's: every effect's contribution), ``hidden_source_um``
+        (the displacement minus that without the hidden source) and ``hidden_source:<sensor>``
+        (each sensor's reading minus that without the hidden source, K); else ``None``; and the
+        nodes' temperatures at the day's last sample (for the next day's warm start).
     """
     speeds = sample_schedule(day.schedule, dt)
     n = len(speeds)
     times = day.start + pd.to_timedelta(np.arange(n) * dt, unit="s")
     rng_amb, rng_noise = (np.random.default_rng(s) for s in np.random.SeedSequence(int(seed)).spawn(2))
     t_amb = ambient_series(day.ambient, times, rng_amb)
-    nodes, _ = integrate(params, speeds, t_amb, dt)
     x_ref = np.full(len(NODES), t_amb[0])
+    parts = None
+    if realism is None or not realism.effects:
+        nodes, _ = integrate(params, speeds, t_amb, dt)
+        specs = params
+    else:
+        specs = replace(params, sensors=realism.sensors_on(params, day, days or [day]))
+        linear, _ = integrate(params, speeds, t_amb, dt)
+        nodes = without = linear
+        ref = x_ref
+        kw = {"convection_exponent": realism.convection_exponent, "cooler_set_c": realism.cooler_set_c}
+        if warm_from is not None and day.stem in realism.warm_rest_h:
+            ref = night(params, warm_from, float(t_amb[0]), realism.warm_rest_h[day.stem], dt, **kw)
+        if set(realism.effects) & set(NODE_EFFECTS) or ref is not x_ref:
+            extra = hidden_source_w(realism, day, n, dt)
+            nodes, _ = integrate_realistic(params, speeds, t_amb, dt, extra_w=extra, x0=ref, **kw)
+            without, _ = integrate_realistic(params, speeds, t_amb, dt, x0=ref, **kw)
+        full = displacement_truth(params, nodes, speeds, dt, ref)
+        parts = pd.DataFrame(
+            {
+                "time": times,
+                "realism_um": full - displacement_truth(params, linear, speeds, dt, x_ref),
+                "hidden_source_um": full - displacement_truth(params, without, speeds, dt, ref),
+            }
+        )
+        x_ref = ref  # the probe is zeroed on the machine as it starts
+        seen = sensor_truth(specs, nodes, t_amb, dt) - sensor_truth(specs, without, t_amb, dt)
+        for j, spec in enumerate(specs.sensors):
+            parts[f"hidden_source:{spec.name}"] = seen[:, j]
     zero = float(rng_noise.uniform(-1, 1) * params.probe_offset_um)
     disp = displacement_truth(params, nodes, speeds, dt, x_ref) + zero
-    temps = sensor_truth(params, nodes, t_amb, dt)
+    temps = sensor_truth(specs, nodes, t_amb, dt)
     a = np.exp(-dt / 600.0)
     slow = ar1(rng_noise.normal(0.0, params.temp_noise_c, temps.shape), a, np.sqrt(1 - a * a))
     temps = temps + rng_noise.normal(0.0, params.temp_noise_c, temps.shape) + slow
@@ -280,7 +557,26 @@ def simulate_day(
     for j, spec in enumerate(params.sensors):
         frame[spec.name] = temps[:, j]
     frame["disp_um"] = disp
-    return frame
+    return frame, parts, nodes[-1]
+
+
+def night(
+    params: TwinParams,
+    nodes: np.ndarray,
+    room_c: float,
+    hours: float,
+    dt: float = FOREIGN_SAMPLE_S,
+    *,
+    convection_exponent: float | None = None,
+    cooler_set_c: float | None = None,
+) -> np.ndarray:
+    """The nodes' temperatures after ``hours`` at rest from ``nodes`` in a room at ``room_c``
+    (the cooler's thermostat on, ``convection_exponent`` and ``cooler_set_c`` as
+    :func:`rafi.twin.physics.integrate_realistic`)."""
+    m = max(1, int(round(3600.0 * hours / dt)))
+    kw = {"convection_exponent": convection_exponent, "cooler_set_c": cooler_set_c}
+    out, _ = integrate_realistic(params, np.zeros(m + 1), np.full(m + 1, room_c), dt, x0=nodes, **kw)
+    return out[-1]
 
 
 def _rises(frame: pd.DataFrame, sensors: list[str], dt: float) -> np.ndarray:
@@ -399,7 +695,9 @@ def foreign_design(seed: int) -> Design:
     return Design(base, params, speeds, plan_days(rng, speeds, lo, float(rng.uniform(18.0, 26.0))))
 
 
-def foreign_machine(seed: int, setup_drift: bool = False) -> ForeignMachine:
+def foreign_machine(
+    seed: int, setup_drift: bool = False, realism: tuple[str, ...] | str = ()
+) -> ForeignMachine:
     """A foreign machine from ``seed``: its name ``foreign-<seed>``, config block, logs and truth.
 
     Parameters
@@ -411,6 +709,11 @@ def foreign_machine(seed: int, setup_drift: bool = False) -> ForeignMachine:
         The displacement also wanders by what no sensor sees (:func:`simulate_day`), with a
         standard deviation drawn per machine from :data:`SETUP_DRIFT_UM` on a stream of its own:
         the same machine and days as without, plus the drift.
+    realism : tuple of str or str
+        Effects of :data:`REALISM_EFFECTS` (or a text for :func:`parse_realism`: ``"all"``) that
+        real machines have and the linear twin has not (the module's docstring), drawn by
+        :func:`foreign_realism` on a stream of their own: the same machine, days and noise as
+        without, plus the effects. Default none: the logs are those of the plain machine.
 
     Returns
     -------
@@ -418,17 +721,29 @@ def foreign_machine(seed: int, setup_drift: bool = False) -> ForeignMachine:
         ``truth`` holds ``seed``, ``base``, the constants that matter (heat sources, capacities,
         displacement gains), ``sensors`` (place, mix, lag, offset), ``training_speeds_rpm``,
         ``days`` (stem, role, kind, hours, speeds, room level), ``envelope`` (:func:`envelope`)
-        and ``test_runs`` (per test day: its stem and kind and :func:`envelope_fractions`).
+        and ``test_runs`` (per test day: its stem and kind and :func:`envelope_fractions`);
+        with ``realism`` also ``realism`` (:func:`realism_truth`), and ``parts`` holds per day
+        the noise-free contributions (:func:`simulate_day_parts`).
     """
     design = foreign_design(seed)
     base, params, speeds, days = design.base, design.params, design.speeds, design.days
     drift_um = 0.0
     if setup_drift:
         drift_um = float(np.random.default_rng([int(seed), 46, 1]).uniform(*SETUP_DRIFT_UM))
-    logs = {
-        d.stem: simulate_day(params, d, int(seed) * 1000 + k, setup_drift_um=drift_um)
-        for k, d in enumerate(days)
-    }
+    effects = parse_realism(realism) if isinstance(realism, str) else tuple(realism)
+    unknown = set(effects) - set(REALISM_EFFECTS)
+    if unknown:
+        raise ValueError(f"unknown realism effect(s) {sorted(unknown)}; known: {', '.join(REALISM_EFFECTS)}")
+    real = foreign_realism(seed, design, effects) if effects else None
+    logs, parts, end = {}, {}, None
+    for k, d in enumerate(days):
+        seed_k = int(seed) * 1000 + k
+        frame, part, end = simulate_day_parts(
+            params, d, seed_k, setup_drift_um=drift_um, realism=real, days=days, warm_from=end
+        )
+        logs[d.stem] = frame
+        if part is not None:
+            parts[d.stem] = part
     names = [s.name for s in params.sensors]
     env = envelope([logs[d.stem] for d in days if d.role == "training"], names, speeds, FOREIGN_SAMPLE_S)
     test_runs = [
@@ -467,23 +782,79 @@ def foreign_machine(seed: int, setup_drift: bool = False) -> ForeignMachine:
         "envelope": env,
         "test_runs": test_runs,
     }
-    return ForeignMachine(params.machine, foreign_config(names, speeds), logs, truth)
+    if real is not None:
+        truth["realism"] = realism_truth(real, params, days, parts)
+    return ForeignMachine(params.machine, foreign_config(names, speeds), logs, truth, parts)
+
+
+def realism_truth(real: Realism, params: TwinParams, days: list[Day], parts: dict[str, pd.DataFrame]) -> dict:
+    """What ``realism`` drew, JSON-able: ``effects``; per effect its constants
+    (``hidden_source``: node, what it stands for, power and per day level, period, duty;
+    ``convection``: exponent; ``fixed_chiller``: set point; ``sensor_mount``: from which day,
+    each reseated sensor's lag and room share before and after; ``warm_start``: the hours at rest
+    before each warm day); ``days``: per day the mean and
+    largest |contribution| (um) of every effect together and of the hidden source alone."""
+    out: dict = {"effects": list(real.effects)}
+    if "hidden_source" in real.effects:
+        out["hidden_source"] = {
+            "node": real.source_node,
+            "stands_for": HIDDEN_SOURCE_NODES[real.source_node],
+            "power_w": round(real.source_w, 3),
+            "days": {
+                stem: {
+                    "level": round(p["level"], 4),
+                    "period_min": round(p["period_s"] / 60.0, 2),
+                    "duty": round(p["duty"], 4),
+                }
+                for stem, p in real.source_days.items()
+            },
+        }
+    if "convection" in real.effects:
+        out["convection"] = {"exponent": round(real.convection_exponent, 4)}
+    if "fixed_chiller" in real.effects:
+        out["fixed_chiller"] = {"set_c": round(real.cooler_set_c, 3)}
+    if "sensor_mount" in real.effects:
+        moved = [
+            {
+                "name": a.name,
+                "lag_s": [round(a.lag_s, 1), round(b.lag_s, 1)],
+                "ambient_share": [
+                    round(dict(a.mix).get(AMBIENT, 0.0), 4),
+                    round(dict(b.mix).get(AMBIENT, 0.0), 4),
+                ],
+            }
+            for a, b in zip(params.sensors, real.mounted)
+            if a != b
+        ]
+        out["sensor_mount"] = {"from_day": real.mount_from, "sensors": moved}
+    if "warm_start" in real.effects:
+        out["warm_start"] = {"rest_h": {stem: round(h, 3) for stem, h in real.warm_rest_h.items()}}
+    out["days"] = {
+        d.stem: {
+            "realism_mae_um": round(float(parts[d.stem]["realism_um"].abs().mean()), 4),
+            "realism_max_um": round(float(parts[d.stem]["realism_um"].abs().max()), 4),
+            "hidden_source_mae_um": round(float(parts[d.stem]["hidden_source_um"].abs().mean()), 4),
+        }
+        for d in days
+    }
+    return out
 
 
 def write_foreign(
-    seed: int, out_dir: str | os.PathLike, setup_drift: bool = False
+    seed: int, out_dir: str | os.PathLike, setup_drift: bool = False, realism: tuple[str, ...] | str = ()
 ) -> tuple[ForeignMachine, list[Path]]:
     """Write the foreign machine of ``seed`` as a project's data: its logs as native CSVs in
     ``out_dir/raw/<name>/``, ``out_dir/config.yaml`` (that machine only) and
     ``out_dir/truth.json``; returns the machine and the files written (logs first). Beside
     ``Snakefile`` and ``workflow/`` (copied, or ``snakemake -s <Snakefile> -d out_dir``) the
-    folder is a project. ``setup_drift``: :func:`foreign_machine`."""
+    folder is a project. ``setup_drift``, ``realism``: :func:`foreign_machine` (the parts are
+    not written; ``truth.json`` says what was drawn)."""
     import yaml
 
     from rafi.artefact import write_text_atomic
     from rafi.readers.native import format_raw_log
 
-    machine = foreign_machine(seed, setup_drift=setup_drift)
+    machine = foreign_machine(seed, setup_drift=setup_drift, realism=realism)
     out = Path(out_dir)
     folder = out / "raw" / machine.name
     folder.mkdir(parents=True, exist_ok=True)

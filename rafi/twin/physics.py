@@ -12,6 +12,8 @@ when the speed changes).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pandas as pd
 from scipy.linalg import expm
@@ -137,6 +139,107 @@ def integrate(
             on = False
         cooler[k] = on
         x = Phi @ x + Gam @ np.array([t_amb[k], 1.0, 1.0 if on else 0.0])
+    return out, cooler
+
+
+#: Natural convection (``integrate_realistic``): the still-air loss of a node equals the linear
+#: law's at this rise above the room (K), and its rise is taken as at least the floor (K), so the
+#: loss of a node at room temperature stays finite.
+CONVECTION_REF_K = 2.0
+CONVECTION_FLOOR_K = 0.3
+#: Steps of the convection factor the discretisation is cached at (relative).
+CONVECTION_QUANTUM = 0.01
+
+
+def _discrete_with_heat(
+    params: TwinParams, speed_rpm: float, dt: float, wear: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`discrete_system` plus ``Psi``: the state's response to a heat input (W) per node
+    held over the step (zero-order hold, exact)."""
+    A, B = system_matrices(params, speed_rpm, wear)
+    cap = np.array([params.capacity[nm] for nm in NODES])
+    M = np.zeros((2 * _N + 3, 2 * _N + 3))
+    M[:_N, :_N] = A
+    M[:_N, _N : _N + 3] = B
+    M[:_N, _N + 3 :] = np.diag(1.0 / cap)
+    E = expm(M * dt)
+    return E[:_N, :_N], E[:_N, _N : _N + 3], E[:_N, _N + 3 :]
+
+
+def integrate_realistic(
+    params: TwinParams,
+    speeds: np.ndarray,
+    t_amb: np.ndarray,
+    dt: float,
+    *,
+    extra_w: np.ndarray | None = None,
+    convection_exponent: float | None = None,
+    cooler_set_c: float | None = None,
+    x0: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`integrate` (no wear) with what the linear network leaves out.
+
+    Parameters
+    ----------
+    params, speeds, t_amb, dt
+        As :func:`integrate`.
+    extra_w : numpy.ndarray, optional
+        Heat (W) into each node at each sample (n x nodes), held over the step: a source no
+        sensor is meant for (a hydraulic unit, a neighbouring machine).
+    convection_exponent : float, optional
+        Natural convection loses heat as ``dT ** exponent`` (about 1.25 for free convection from
+        a vertical plate): the still-air part ``G0`` of every node's conductance to the room is
+        scaled by ``(max(|dT|, CONVECTION_FLOOR_K) / CONVECTION_REF_K) ** (exponent - 1)``, ``dT``
+        the node's rise above the room at the sample (quantised to :data:`CONVECTION_QUANTUM`);
+        the part that grows with speed (forced by the rotation) stays linear.
+    cooler_set_c : float, optional
+        The oil cooler's thermostat holds this fixed set point (degC) instead of the room's
+        temperature plus ``params.cooler_offset_c``.
+    x0 : numpy.ndarray, optional
+        The nodes' temperatures at the first sample (default: every node at the room's).
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        Node temperatures (n x nodes) and the cooler state, as :func:`integrate`.
+    """
+    n = len(speeds)
+    x = np.full(_N, t_amb[0]) if x0 is None else np.array(x0, dtype=float)
+    extra = np.zeros((n, _N)) if extra_w is None else np.asarray(extra_w, dtype=float)
+    natural = {node: law for node, law in params.to_ambient.items() if law[0] > 0}
+    cache: dict[tuple, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+    out = np.empty((n, _N))
+    cooler = np.zeros(n, dtype=bool)
+    on = False
+    half = params.cooler_hysteresis_c / 2
+    it = _I["tank"]
+    for k in range(n):
+        out[k] = x
+        sp = float(speeds[k])
+        factors: tuple = ()
+        if convection_exponent is not None:
+            rise = np.maximum(np.abs(x - t_amb[k]), CONVECTION_FLOOR_K) / CONVECTION_REF_K
+            factors = tuple(
+                round(float(rise[_I[node]] ** (convection_exponent - 1.0)) / CONVECTION_QUANTUM)
+                for node in natural
+            )
+        key = (sp, factors)
+        if key not in cache:
+            scaled = params
+            if factors:
+                laws = dict(params.to_ambient)
+                for (node, (g0, g1, e)), f in zip(natural.items(), factors):
+                    laws[node] = (g0 * f * CONVECTION_QUANTUM, g1, e)
+                scaled = replace(params, to_ambient=laws)
+            cache[key] = _discrete_with_heat(scaled, sp, dt, 0.0)
+        Phi, Gam, Psi = cache[key]
+        sp_set = t_amb[k] + params.cooler_offset_c if cooler_set_c is None else cooler_set_c
+        if x[it] > sp_set + half:
+            on = True
+        elif x[it] < sp_set - half:
+            on = False
+        cooler[k] = on
+        x = Phi @ x + Gam @ np.array([t_amb[k], 1.0, 1.0 if on else 0.0]) + Psi @ extra[k]
     return out, cooler
 
 
