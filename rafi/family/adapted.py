@@ -64,6 +64,7 @@ from rafi.family.ridge import cv_folds, cv_scores, fit_rows_of, ridge_gram, rms_
 from rafi.family.ridge_global import RidgeGlobal
 from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.time_blocks import unit_column
+from rafi.method.rank import trained_speeds
 from rafi.settings import MACHINE_DEFAULTS
 
 __all__ = [
@@ -648,8 +649,6 @@ class SharedAdaptedEnsemble(FamilyModel):
 
 def _joined_trained_speeds(prior: dict, table: pd.DataFrame) -> list[float] | None:
     """The prior's ``trained_speeds_rpm`` joined with the new constant training runs' speeds."""
-    from rafi.family.compare import trained_speeds
-
     new = trained_speeds(table) or []
     old = [float(v) for v in prior.get("trained_speeds_rpm") or []]
     both = sorted(set(old) | set(new))

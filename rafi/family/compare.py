@@ -26,7 +26,6 @@ import numpy as np
 import pandas as pd
 
 from rafi.artefact import json_text, write_text_atomic
-from rafi.errors import SettingsError
 from rafi.family.adapted import adaptation_factories
 from rafi.family.crossval import (  # noqa: F401 - cv_data re-exported (it lived here)
     cross_validate,
@@ -65,7 +64,7 @@ from rafi.family.selection import (  # noqa: F401 - re-exported: the selection r
 )
 from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.whole_log import rows_of_logs
-from rafi.method.rank import training_speed_groups
+from rafi.method.rank import trained_speeds
 from rafi.method.validate import qualify, validate_runs
 from rafi.settings import MACHINE_DEFAULTS
 
@@ -505,15 +504,6 @@ def with_ensemble(
     models = {**models, ENSEMBLE: ensemble}
     cv = pd.concat([cv, ensemble_cv_rows(cv, blended)], ignore_index=True)
     return models, cv, pd.concat([oof, blended], ignore_index=True)
-
-
-def trained_speeds(runs_table: pd.DataFrame) -> list[float] | None:
-    """The speeds of the constant training runs as RAFI groups them
-    (:func:`rafi.method.rank.training_speed_groups`), increasing; None where there is none."""
-    try:
-        return [float(v) for v in training_speed_groups(runs_table)]
-    except SettingsError:
-        return None
 
 
 def offered_first(selection: pd.DataFrame, offered: str) -> pd.DataFrame:

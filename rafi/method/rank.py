@@ -141,6 +141,15 @@ def training_speed_groups(
     return {int(round(float(np.median(s)))): ids for s, ids in groups}
 
 
+def trained_speeds(runs_table: pd.DataFrame) -> list[float] | None:
+    """The speeds of the constant training runs as RAFI groups them
+    (:func:`training_speed_groups`), increasing; None where there is none."""
+    try:
+        return [float(v) for v in training_speed_groups(runs_table)]
+    except SettingsError:
+        return None
+
+
 def _sensor_columns(runs_frame: pd.DataFrame) -> list[str]:
     return list(run_sensors(runs_frame))
 
