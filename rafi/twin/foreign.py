@@ -452,20 +452,6 @@ def hidden_source_w(realism: Realism, day: Day, n: int, dt: float) -> np.ndarray
     return out
 
 
-def simulate_day(
-    params: TwinParams,
-    day: Day,
-    seed: int,
-    dt: float = FOREIGN_SAMPLE_S,
-    setup_drift_um: float = 0.0,
-    *,
-    realism: Realism | None = None,
-    days: list[Day] | None = None,
-) -> pd.DataFrame:
-    """One day's log (:func:`simulate_day_parts` without the parts)."""
-    return simulate_day_parts(params, day, seed, dt, setup_drift_um, realism=realism, days=days)[0]
-
-
 def simulate_day_parts(
     params: TwinParams,
     day: Day,
@@ -706,7 +692,7 @@ def foreign_machine(
         Controls everything: the base network and its spread, the sensors, speeds, days, rooms
         and noise.
     setup_drift : bool
-        The displacement also wanders by what no sensor sees (:func:`simulate_day`), with a
+        The displacement also wanders by what no sensor sees (:func:`simulate_day_parts`), with a
         standard deviation drawn per machine from :data:`SETUP_DRIFT_UM` on a stream of its own:
         the same machine and days as without, plus the drift.
     realism : tuple of str or str
