@@ -137,16 +137,23 @@ def seeds_text(seeds: list[int]) -> str:
 # ----------------------------------------------------------------------------- one machine
 
 
-def make_project(seed: int, proj: Path, setup_drift: bool = False, realism: tuple[str, ...] = ()) -> dict:
+def make_project(
+    seed: int,
+    proj: Path,
+    setup_drift: bool = False,
+    realism: tuple[str, ...] = (),
+    models: dict | None = None,
+) -> dict:
     """The foreign machine of ``seed`` as a runnable project in ``proj`` (every kind enabled;
-    ``realism``: :func:`rafi.twin.foreign.foreign_machine`); returns its truth."""
+    ``realism``: :func:`rafi.twin.foreign.foreign_machine`; ``models``: more ``models:``
+    settings of every machine, a variant judged against the defaults); returns its truth."""
     machine, _ = write_foreign(seed, proj, setup_drift=setup_drift, realism=realism)
     shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
     for name in ("workflow", "rafi"):
         shutil.rmtree(proj / name, ignore_errors=True)
         shutil.copytree(ROOT / name, proj / name, ignore=shutil.ignore_patterns("__pycache__"))
     config = yaml.safe_load((proj / "config.yaml").read_text(encoding="utf-8"))
-    config["defaults"] = {"models": {"enabled": list(MODEL_KINDS)}}
+    config["defaults"] = {"models": {"enabled": list(MODEL_KINDS), **(models or {})}}
     (proj / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
     return machine.truth
 
@@ -295,11 +302,17 @@ def rescored(result: dict, folder: Path) -> dict:
 
 
 def judge_seed(
-    seed: int, keep: Path, cores: int, log=print, setup_drift: bool = False, realism: tuple[str, ...] = ()
+    seed: int,
+    keep: Path,
+    cores: int,
+    log=print,
+    setup_drift: bool = False,
+    realism: tuple[str, ...] = (),
+    models: dict | None = None,
 ) -> dict:
     """The result of one seed: read from ``keep/seed-NNN/result.json`` if there (made with the
-    same ``setup_drift`` and ``realism``, else a stop), else made (the project, the pipeline, both
-    judges) and written there."""
+    same ``setup_drift``, ``realism`` and ``models``, else a stop), else made (the project, the
+    pipeline, both judges) and written there."""
     folder = keep / f"seed-{seed:03d}"
     cached = folder / "result.json"
     if cached.is_file():
@@ -310,11 +323,13 @@ def judge_seed(
             raise SystemExit(
                 f"{cached} was made with realism={result.get('realism', [])}: use another --keep"
             )
+        if dict(result.get("models", {})) != dict(models or {}):
+            raise SystemExit(f"{cached} was made with models={result.get('models', {})}: use another --keep")
         return result
     proj = folder / "project"
     shutil.rmtree(proj, ignore_errors=True)
     proj.mkdir(parents=True)
-    truth = make_project(seed, proj, setup_drift, realism)
+    truth = make_project(seed, proj, setup_drift, realism, models)
     machine = truth["machine"]
     pipeline_s = run_pipeline(proj, machine, cores)
     t0 = time.perf_counter()
@@ -335,6 +350,7 @@ def judge_seed(
         "setup_drift": setup_drift,
         "setup_drift_um": truth.get("setup_drift_um", 0.0),
         **({"realism": list(realism), "realism_truth": truth["realism"]} if realism else {}),
+        **({"models": dict(models)} if models else {}),
         "sensors": len(truth["sensors"]),
         "training_days": sum(d["role"] == "training" for d in truth["days"]),
         "test_runs": truth["test_runs"],
@@ -492,6 +508,13 @@ def main(argv: list[str] | None = None) -> int:
         "--realism: 'all' or a subset of hidden_source,convection,fixed_chiller,sensor_mount,warm_start); "
         "use its own --keep",
     )
+    parser.add_argument(
+        "--models",
+        type=json.loads,
+        default=None,
+        help='more models: settings of every machine as JSON, e.g. \'{"ridge_alpha_rule": "one_se"}\' '
+        "(a variant judged against the defaults); use its own --keep",
+    )
     parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")
     parser.add_argument(
         "--rescore",
@@ -512,7 +535,13 @@ def main(argv: list[str] | None = None) -> int:
         try:
             log = lambda m: print(m, flush=True)  # noqa: E731
             result = judge_seed(
-                seed, keep, args.cores, log=log, setup_drift=args.setup_drift, realism=realism
+                seed,
+                keep,
+                args.cores,
+                log=log,
+                setup_drift=args.setup_drift,
+                realism=realism,
+                models=args.models,
             )
             if args.rescore:
                 result = rescored(result, keep / f"seed-{seed:03d}")

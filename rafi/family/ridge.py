@@ -34,6 +34,9 @@ from rafi.family.time_blocks import blocks_text, max_filter_s, unit_column
 from rafi.family.whole_log import has_whole_logs, layout, rows_of_logs
 
 CV_METRICS = ("rmse", "max_abs")
+#: How the penalty is chosen among ``ridge_alphas`` for the design CV chose (``models:
+#: ridge_alpha_rule``): the lowest CV score, or the largest penalty within one standard error.
+ALPHA_RULES = ("min", "one_se")
 
 #: How the filters start and what a filtered feature is relative to (the artefact's ``filter``).
 FILTER_STATE_TEXT = {
@@ -183,6 +186,47 @@ def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: st
     return np.mean(fold_max, axis=0) if fold_max else np.zeros(len(alphas))
 
 
+def cv_fold_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
+    """Per fold (rows) and alpha (columns): the held-out runs' RMSE (``rmse``) or max
+    |residual| (``max_abs``) of the feature columns ``cols``; folds without a training sample
+    are left out. The scores :func:`cv_scores` pools."""
+    ix = np.ix_(cols, cols)
+    out = []
+    for fold in folds:
+        b = fold_solution(fold, cols, alphas)
+        if b is None:
+            continue
+        if metric == "rmse":
+            sq = (
+                fold["yy_test"]
+                - 2.0 * (fold["c_test"][cols] @ b)
+                + np.einsum("ia,ij,ja->a", b, fold["g_test"][ix], b)
+            )
+            out.append(np.sqrt(np.clip(sq, 0.0, None) / max(len(fold["y_test"]), 1)))
+        else:
+            res = fold["y_test"][:, None] - fold["x_test"][:, cols] @ b
+            out.append(np.max(np.abs(res), axis=0))
+    return np.array(out).reshape(len(out), len(alphas))
+
+
+def one_se_alpha(scores: np.ndarray, fold_scores: np.ndarray, alphas: Sequence[float]) -> float:
+    """The largest penalty whose CV score is within one standard error of the best score
+    (the "one standard error" rule of Hastie, Tibshirani and Friedman, *The Elements of
+    Statistical Learning*, 7.10, as glmnet's ``lambda.1se``).
+
+    ``scores``: the pooled CV score per alpha (lower is better); ``fold_scores``: the folds'
+    scores (folds x alphas); the standard error is that of the best alpha's fold scores,
+    ``std(ddof=1) / sqrt(k)``. With fewer than two folds the best alpha is kept."""
+    alphas = np.asarray(alphas, dtype=float)
+    best = int(np.argmin(scores))  # the first lowest, as the kinds' searches take it
+    k = fold_scores.shape[0]
+    if k < 2:
+        return float(alphas[best])
+    se = float(np.std(fold_scores[:, best], ddof=1) / np.sqrt(k))
+    within = np.asarray(scores) <= scores[best] + se + 1e-12
+    return float(np.max(alphas[within]))
+
+
 class RidgeBase(FamilyModel):
     """Base of the ridge kinds. A subclass defines ``__init__`` (its hyperparameters, among them
     ``sensors``, ``alphas``, ``cv``, ``cv_metric``, ``speed_terms``, ``speed_reference``,
@@ -200,6 +244,19 @@ class RidgeBase(FamilyModel):
     def _check_params(self) -> None:
         if self.cv_metric not in CV_METRICS:
             raise ValueError(f"cv_metric {self.cv_metric!r}: use rmse or max_abs")
+        if self.alpha_rule not in ALPHA_RULES:
+            raise ValueError(f"alpha_rule {self.alpha_rule!r}: use min or one_se")
+
+    def _penalty(self, folds: list, cols: np.ndarray, alphas: Sequence[float], best_alpha: float) -> float:
+        """The penalty of the design CV chose: ``best_alpha`` (``alpha_rule: min``) or the
+        largest within one standard error of the folds' scores (``one_se``, :func:`one_se_alpha`)."""
+        if self.alpha_rule == "min":
+            return best_alpha
+        return one_se_alpha(
+            cv_scores(folds, cols, alphas, self.cv_metric),
+            cv_fold_scores(folds, cols, alphas, self.cv_metric),
+            alphas,
+        )
 
     def _alphas(self) -> list[float]:
         return [float(a) for a in self.alphas]
@@ -415,7 +472,7 @@ class RidgeBase(FamilyModel):
             "speed_reference": self.speed_reference,
             "speed_tolerance_rpm": float(self.speed_tolerance_rpm),
             "filter_restart_gap_s": float(self.filter_restart_gap_s),
-        }
+        } | ({"alpha_rule": self.alpha_rule} if self.alpha_rule != "min" else {})
 
     def _selected(self) -> dict:
         """What CV chose, as recorded in the artefact (``selected``; ``cv_folds`` only when the
