@@ -114,3 +114,26 @@ def test_a_kept_seed_made_with_other_realism_is_refused_not_mixed(bench, tmp_pat
     with pytest.raises(SystemExit, match="realism"):
         bench.judge_seed(3, tmp_path, 1)
     assert bench.judge_seed(3, tmp_path, 1, realism=("convection",))["seed"] == 3
+
+
+def test_a_kept_seed_made_with_other_models_settings_is_refused_and_a_variant_reaches_the_config(
+    bench, tmp_path
+):
+    import json
+
+    import yaml
+
+    folder = tmp_path / "seed-004"
+    folder.mkdir()
+    (folder / "result.json").write_text(json.dumps({"seed": 4}))
+    variant = {"ridge_alpha_rule": "one_se"}
+    with pytest.raises(SystemExit, match="models"):
+        bench.judge_seed(4, tmp_path, 1, models=variant)
+    (folder / "result.json").write_text(json.dumps({"seed": 4, "models": variant}))
+    with pytest.raises(SystemExit, match="models"):
+        bench.judge_seed(4, tmp_path, 1)
+    assert bench.judge_seed(4, tmp_path, 1, models=variant)["seed"] == 4
+    proj = tmp_path / "project"
+    bench.make_project(4, proj, models=variant)
+    defaults = yaml.safe_load((proj / "config.yaml").read_text(encoding="utf-8"))["defaults"]["models"]
+    assert defaults["ridge_alpha_rule"] == "one_se" and "temperature_ridge" in defaults["enabled"]
