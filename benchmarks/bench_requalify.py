@@ -103,6 +103,29 @@ taken out). Over all 24: today 8, A 12 (50 %): better, by one scenario on the co
 seeds, and far from the 80 % target; with hindsight a candidate within 15 % on both exists in 11
 of 24 today, 14 with the shared ones.
 
+**The members re-weighted** (issue 47; criterion written 2026-11-29 before any scenario was
+scored with it). One candidate beside today's (today's = every candidate the product offers,
+``prior_shared_gain`` included), offered only for a CV-weighted ensemble prior:
+
+* ``prior_member_weights``: every member keeps its coefficients, the members' weights are
+  re-fitted on the new training runs: non-negative least squares (no intercept) of the measured
+  displacement change on the members' predictions, shrunk towards the prior's weights times the
+  shared gain ``g`` (a ridge on the weights towards ``g w_prior``, its strength chosen by whole-run
+  CV on the new training runs on a small grid that includes infinity, i.e. ``prior_shared_gain``
+  itself; no fold: the shared gain). After a repair that moves the time constants, members of
+  other lags can be re-weighted to follow.
+
+It is judged by what it would put in the product: the product's CV rule choosing among today's
+candidates plus ``prior_member_weights`` (candidate C) against the same rule among today's only
+(``judge_member_weights``), from the same run. It is adopted only if **both** on the development
+seeds 0-11 **and** on the confirmation seeds 24-35 (new, never run before this criterion was
+written), (1) its share of scenarios within 15 % of the full plan from scratch on both the
+validation MAE and the worst residual is **strictly higher** than today's, and (2) the mean over
+those scenarios of the MAE ratio (4 h with the prior / full plan) is not higher than today's by
+more than **one standard error** of the per-scenario differences (candidate minus today).
+Otherwise it does not enter the product (its code: the tag ``study/issue47-member-weights``).
+Nothing is changed after the confirmation seeds are scored.
+
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:
 ``requalify_random.json`` and ``.md``). The runs are simulated clean at ``--sample-period``
