@@ -177,6 +177,7 @@ ADAPTATION_ORDER = (
     "prior",
     "prior_gain",
     "prior_shared_gain",
+    "prior_member_weights",
     "prior_time",
     "prior_shared_time",
     "prior_ridge",
@@ -184,9 +185,12 @@ ADAPTATION_ORDER = (
 #: The shared adaptations judged (module docstring, "One shared adaptation"): the product offers
 #: ``prior_shared_gain`` (:data:`rafi.family.adapted.ENSEMBLE_CANDIDATES`); ``prior_shared_time``
 #: was judged beside it and stands in the kept records of that judgement only.
-JUDGED_SHARED = (*ENSEMBLE_CANDIDATES, "prior_shared_time")
+JUDGED_SHARED = ("prior_shared_gain", "prior_shared_time")
+#: The members re-weighted (module docstring, "The members re-weighted"): judged against today's
+#: candidates (every one the product offers but it).
+MEMBER_WEIGHTS = "prior_member_weights"
 #: Every adaptation candidate (one model of the prior, or an ensemble prior as a whole).
-ADAPTATIONS = (*CANDIDATES, *JUDGED_SHARED)
+ADAPTATIONS = (*CANDIDATES, *dict.fromkeys([*ENSEMBLE_CANDIDATES, *JUDGED_SHARED]))
 #: The judgement of the shared adaptations: name -> the candidates it adds to today's.
 SHARED = {"A: + prior_shared_gain": ("prior_shared_gain",), "B: + both": JUDGED_SHARED}
 #: The rules judged one level up on the random scenarios (module docstring, "The choice among
@@ -700,17 +704,18 @@ def rules_markdown(judged: dict) -> str:
     return "\n".join(lines)
 
 
-def judge_shared(results: list[dict], added=SHARED) -> dict:
+def judge_shared(results: list[dict], added=SHARED, judged=(*JUDGED_SHARED, MEMBER_WEIGHTS)) -> dict:
     """The shared adaptations judged (module docstring, "One shared adaptation"): for today's
     candidates (every candidate but :data:`JUDGED_SHARED`) and each of ``added`` (today's
     plus those), the product's CV pick per scenario, the share within 15 % on MAE, on worst and on
     both, the mean MAE ratio, and against today the mean and standard error of the per-scenario
-    MAE ratio differences; ``adopted``: the criterion holds on ``results``."""
+    MAE ratio differences; ``adopted``: the criterion holds on ``results``. ``judged``: the
+    candidates outside today's set (in a pool only where ``added`` names them)."""
 
     def picks(extra: tuple) -> dict:
         out = {}
         for res in results:
-            pool = {m: c for m, c in res["candidates"].items() if m not in JUDGED_SHARED or m in extra}
+            pool = {m: c for m, c in res["candidates"].items() if m not in judged or m in extra}
             out[res["seed"]] = _lowest(pool, lambda c: c["selection_score_um"])
         return out
 
@@ -740,6 +745,17 @@ def judge_shared(results: list[dict], added=SHARED) -> dict:
         )
         out[name] = v
     return out
+
+
+def judge_member_weights(results: list[dict]) -> dict:
+    """``prior_member_weights`` judged (module docstring, "The members re-weighted") on one half of
+    the seeds: today's candidates (every one the product offers, ``prior_shared_gain`` included)
+    against today's plus it, as :func:`judge_shared` judges (the same rows and criterion)."""
+    return judge_shared(
+        results,
+        {f"C: + {MEMBER_WEIGHTS}": (MEMBER_WEIGHTS,)},
+        judged=("prior_shared_time", MEMBER_WEIGHTS),
+    )
 
 
 def shared_markdown(judged: dict) -> str:
@@ -866,6 +882,8 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
     rules = rules_markdown(judged)
     shared = judge_shared(results)
     rules += "\n\n" + shared_markdown(shared)
+    member_weights = judge_member_weights(results)
+    rules += "\n\n" + shared_markdown(member_weights)
     print(table)
     print()
     print(rules)
@@ -878,6 +896,7 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
         "scenarios": results,
         "rules": judged,
         "shared": shared,
+        "member_weights": member_weights,
         "markdown": table + "\n\n" + rules,
     }
     out = Path(args.json)
