@@ -125,6 +125,19 @@ those scenarios of the MAE ratio (4 h with the prior / full plan) is not higher 
 more than **one standard error** of the per-scenario differences (candidate minus today).
 Otherwise it does not enter the product (its code: the tag ``study/issue47-member-weights``).
 Nothing is changed after the confirmation seeds are scored.
+Development, seeds 0-11 (2026-11-29, ``--seeds 0-11 --keep``): today 7 of 12 within 15 % on both
+(on MAE 7, on worst 9; mean MAE ratio 1.305); C 7 of 12 (on MAE 7, on worst 9; 1.313, difference
++0.009, SE 0.031): the CV took ``prior_member_weights`` in 4 (seeds 1, 5, 7, 8), none of which
+changed side. Confirmation, seeds 24-35 (``--seeds 24-35 --keep``, the same code):
+today 3 of 12 (on MAE 7, on worst 4; 1.613); C 4 of 12 (on MAE 7, on worst 5; 1.621, difference
++0.008, SE 0.008): seed 28 (a repair) passes with it. The share is not strictly higher on the
+development seeds: **``prior_member_weights`` is not offered** (its code: the tag
+``study/issue47-member-weights``). With hindsight it is within 15 % on both in 7 of 12 and 5 of
+12, where some other candidate is in 8 and 5 (it alone: seed 28): the members of an ensemble
+prior are near-collinear on a few hours of new data (the CV chose the infinite strength, the
+shared gain itself, in 9 of 24), and on the repairs (1, 3, 7, 30, 33, 35) no weighting of the
+prior's lags reaches the faster time constants. Seeds 24-35 are harder for today's product too:
+3 of 12 (seeds 0-11: 7, 12-23: 5; 15 of 36 in all).
 
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:

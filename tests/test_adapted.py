@@ -331,3 +331,101 @@ def test_a_shared_gain_artefact_streams_and_replays_as_it_predicts():
     ok = defined & (replayed["status"].to_numpy() == "ok")
     assert ok.sum() > 0.9 * len(newer)
     np.testing.assert_allclose(replayed["command_um"].to_numpy(dtype=float)[ok], want[ok], rtol=0, atol=1e-9)
+
+
+# --------------------------------------------------------------------------- the members re-weighted
+
+
+def _member_predictions(prior: dict, frame) -> np.ndarray:
+    """The prior's members' own predictions on ``frame``, one column per member (read back from
+    the artefact: the truth of a machine that is a known mix of them)."""
+    ensemble = load_any(prior)
+    return np.column_stack([ensemble.members_[n].predict(frame) for n in prior["weights"]])
+
+
+def test_member_weights_recover_a_known_mix_of_the_members(states):
+    """Truth: the new machine's displacement is 1.4 x the dynamic member's prediction plus 0.3 x
+    the grey box's (a non-negative mix the prior's weights 0.6 / 0.4 times any one gain cannot
+    give). The re-fitted weights are the mix within 1e-6 um of prediction and 1e-4 of weight,
+    the CV takes a finite ridge strength, the artefact is an ensemble whose weights are the mix's
+    share and whose members are the prior's times the mix's sum, and it predicts the truth where
+    the shared gain cannot."""
+    from rafi.family.adapted import MemberWeightedEnsemble, SharedAdaptedEnsemble
+
+    (t1, f1), (t2, f2) = states
+    prior = _ensemble_prior(t1, f1)
+    truth = np.array([1.4, 0.3])
+    new = f2.assign(dz_um=_member_predictions(prior, f2) @ truth)
+    fitted = MemberWeightedEnsemble(prior=prior).fit(t2, new)
+    assert list(fitted.member_weights_.values()) == pytest.approx(list(truth), abs=1e-4)
+    assert np.isfinite(fitted.alpha_chosen_) and fitted.gain_ == pytest.approx(truth.sum(), abs=1e-4)
+    art = json.loads(json.dumps(fitted.to_dict()))
+    assert art["kind"] == "ensemble" and model_id_verifies(art)
+    assert list(art["weights"].values()) == pytest.approx(list(truth / truth.sum()), abs=1e-4)
+    for name, member in art["members"].items():
+        want = np.array(prior["members"][name]["coefficients"]) * fitted.gain_
+        np.testing.assert_allclose(member["coefficients"], want)
+    block = art["adaptation"]
+    assert block["method"] == "member_weights" and block["parent"] == prior["model_id"]
+    assert block["weights_prior"] == pytest.approx(prior["weights"]) and block["alpha"] is not None
+    rows = new["run_id"].isin(t2.loc[t2["role"] != "training", "run_id"]).to_numpy()
+    got = load_any(art).predict(new)
+    np.testing.assert_allclose(got, fitted.predict(new), equal_nan=True)
+    ok = rows & np.isfinite(got)
+    err = np.abs(got[ok] - new["dz_um"].to_numpy()[ok]).max()
+    shared = SharedAdaptedEnsemble(prior=prior).fit(t2, new).predict(new)
+    assert err < 1e-6 < np.abs(shared[ok] - new["dz_um"].to_numpy()[ok]).max()
+    assert "re-weighted: dynamic 0.60->1.40, grey_box 0.40->0.30" in fitted.describe()
+
+
+def test_member_weights_without_a_fold_are_the_shared_gain_exactly(states):
+    """One training run (no fold): the strength is infinite and the adapted ensemble is the shared
+    gain's, weight for weight and sample for sample."""
+    from rafi.family.adapted import MemberWeightedEnsemble, SharedAdaptedEnsemble
+
+    (t1, f1), (t2, f2) = states
+    prior = _ensemble_prior(t1, f1)
+    first = t2.loc[t2["role"] == "training", "run_id"].iloc[0]
+    one = t2.loc[(t2["role"] != "training") | (t2["run_id"] == first)]
+    frame = f2.assign(dz_um=_member_predictions(prior, f2) @ np.array([1.4, 0.3]))
+    fitted = MemberWeightedEnsemble(prior=prior).fit(one, frame)
+    shared = SharedAdaptedEnsemble(prior=prior).fit(one, frame)
+    assert fitted.alpha_chosen_ == np.inf and fitted.adaptation_["alpha"] is None
+    assert fitted.gain_ == pytest.approx(shared.gain_, rel=1e-12)
+    assert fitted.to_dict()["weights"] == pytest.approx(shared.to_dict()["weights"], rel=1e-12)
+    np.testing.assert_allclose(fitted.predict(frame), shared.predict(frame), rtol=1e-12, atol=1e-12)
+    with pytest.raises(ValueError, match="member_weights"):
+        MemberWeightedEnsemble(prior=prior, method="shared_gain").fit(one, frame)
+
+
+def test_a_member_weights_artefact_streams_and_replays_as_it_predicts():
+    """An ensemble of every kind (test_compensator's, RAFI's kinds included) re-weighted on the
+    same runs with a displacement that is another mix of its members: its artefact runs in the
+    streaming compensator and in the replay with the limits wide open unchanged, equal to the
+    batch prediction after the reference window."""
+    from test_compensator import _ensemble
+    from test_replay import OPEN, _replay_every_log
+
+    from rafi.family.adapted import MemberWeightedEnsemble
+
+    rule = "run_start"
+    table, frame = _find_runs(_logs(), [3000, 6000, 9000], rule)
+    prior = _ensemble(rule, table, frame).to_dict()
+    p = _member_predictions(prior, frame)
+    mix = np.linspace(1.5, 0.0, p.shape[1])  # the first member heavy, the last out
+    newer = time_ordered(frame.assign(dz_um=np.nansum(p * mix, axis=1)))
+    adapted = MemberWeightedEnsemble(prior=prior).fit(table, newer)
+    artefact = json.loads(json.dumps(adapted.to_dict()))
+    assert artefact["kind"] == "ensemble" and artefact["adaptation"]["method"] == "member_weights"
+    moved = np.array(list(artefact["weights"].values())) - np.array(list(prior["weights"].values()))
+    assert np.abs(moved).max() > 0.05  # the weights did move
+    Compensator.from_artefact(artefact)  # verifies the id, checks the features
+    want = adapted.predict_detail(newer)["predicted_um"].to_numpy(dtype=float)
+    got = _stream(artefact, newer, rule)["um"].to_numpy()
+    defined = ~_in_window(newer, rule) & np.isfinite(want)
+    assert defined.sum() > 0.9 * len(newer) and np.abs(want[defined]).max() > 5.0
+    np.testing.assert_allclose(got[defined], want[defined], rtol=0, atol=1e-9)
+    replayed = _replay_every_log(newer, artefact, OPEN)
+    ok = defined & (replayed["status"].to_numpy() == "ok")
+    assert ok.sum() > 0.9 * len(newer)
+    np.testing.assert_allclose(replayed["command_um"].to_numpy(dtype=float)[ok], want[ok], rtol=0, atol=1e-9)
