@@ -128,16 +128,16 @@ Nothing is changed after the confirmation seeds are scored.
 Development, seeds 0-11 (2026-11-29, ``--seeds 0-11 --keep``): today 7 of 12 within 15 % on both
 (on MAE 7, on worst 9; mean MAE ratio 1.305); C 7 of 12 (on MAE 7, on worst 9; 1.313, difference
 +0.009, SE 0.031): the CV took ``prior_member_weights`` in 4 (seeds 1, 5, 7, 8), none of which
-changed side. Confirmation, seeds 24-35 (``--seeds 24-35 --keep``, the same code):
-today 3 of 12 (on MAE 7, on worst 4; 1.613); C 4 of 12 (on MAE 7, on worst 5; 1.621, difference
-+0.008, SE 0.008): seed 28 (a repair) passes with it. The share is not strictly higher on the
-development seeds: **``prior_member_weights`` is not offered** (its code: the tag
-``study/issue47-member-weights``). With hindsight it is within 15 % on both in 7 of 12 and 5 of
-12, where some other candidate is in 8 and 5 (it alone: seed 28): the members of an ensemble
-prior are near-collinear on a few hours of new data (the CV chose the infinite strength, the
-shared gain itself, in 9 of 24), and on the repairs (1, 3, 7, 30, 33, 35) no weighting of the
-prior's lags reaches the faster time constants. Seeds 24-35 are harder for today's product too:
-3 of 12 (seeds 0-11: 7, 12-23: 5; 15 of 36 in all).
+changed side. Confirmation, seeds 24-35 (``--seeds 24-35 --keep``, the same code): today 3 of 12
+(on MAE 7, on worst 4; 1.613); C 4 of 12 (on MAE 7, on worst 5; 1.621, difference +0.008, SE
+0.008): seed 28 (a repair) passes with it. The share is not strictly higher on the development
+seeds: **``prior_member_weights`` is not offered** (its code, its tests and
+``judge_member_weights``: the tag ``study/issue47-member-weights``). With hindsight it is within
+15 % on both in 7 of 12 and 5 of 12, where some other candidate is in 8 and 5 (it alone: seed 28): the
+members of an ensemble prior are near-collinear on a few hours of new data (the CV chose the
+infinite strength, the shared gain itself, in 9 of 24), and on the repairs (1, 3, 7, 30, 33, 35) no
+weighting of the prior's lags reaches the faster time constants. Seeds 24-35 are harder for today's
+product too: 3 of 12 (seeds 0-11: 7, 12-23: 5; 15 of 36 in all).
 
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:
@@ -190,7 +190,6 @@ ADAPTATION_ORDER = (
     "prior",
     "prior_gain",
     "prior_shared_gain",
-    "prior_member_weights",
     "prior_time",
     "prior_shared_time",
     "prior_ridge",
@@ -198,12 +197,9 @@ ADAPTATION_ORDER = (
 #: The shared adaptations judged (module docstring, "One shared adaptation"): the product offers
 #: ``prior_shared_gain`` (:data:`rafi.family.adapted.ENSEMBLE_CANDIDATES`); ``prior_shared_time``
 #: was judged beside it and stands in the kept records of that judgement only.
-JUDGED_SHARED = ("prior_shared_gain", "prior_shared_time")
-#: The members re-weighted (module docstring, "The members re-weighted"): judged against today's
-#: candidates (every one the product offers but it).
-MEMBER_WEIGHTS = "prior_member_weights"
+JUDGED_SHARED = (*ENSEMBLE_CANDIDATES, "prior_shared_time")
 #: Every adaptation candidate (one model of the prior, or an ensemble prior as a whole).
-ADAPTATIONS = (*CANDIDATES, *dict.fromkeys([*ENSEMBLE_CANDIDATES, *JUDGED_SHARED]))
+ADAPTATIONS = (*CANDIDATES, *JUDGED_SHARED)
 #: The judgement of the shared adaptations: name -> the candidates it adds to today's.
 SHARED = {"A: + prior_shared_gain": ("prior_shared_gain",), "B: + both": JUDGED_SHARED}
 #: The rules judged one level up on the random scenarios (module docstring, "The choice among
@@ -717,18 +713,17 @@ def rules_markdown(judged: dict) -> str:
     return "\n".join(lines)
 
 
-def judge_shared(results: list[dict], added=SHARED, judged=(*JUDGED_SHARED, MEMBER_WEIGHTS)) -> dict:
+def judge_shared(results: list[dict], added=SHARED) -> dict:
     """The shared adaptations judged (module docstring, "One shared adaptation"): for today's
     candidates (every candidate but :data:`JUDGED_SHARED`) and each of ``added`` (today's
     plus those), the product's CV pick per scenario, the share within 15 % on MAE, on worst and on
     both, the mean MAE ratio, and against today the mean and standard error of the per-scenario
-    MAE ratio differences; ``adopted``: the criterion holds on ``results``. ``judged``: the
-    candidates outside today's set (in a pool only where ``added`` names them)."""
+    MAE ratio differences; ``adopted``: the criterion holds on ``results``."""
 
     def picks(extra: tuple) -> dict:
         out = {}
         for res in results:
-            pool = {m: c for m, c in res["candidates"].items() if m not in judged or m in extra}
+            pool = {m: c for m, c in res["candidates"].items() if m not in JUDGED_SHARED or m in extra}
             out[res["seed"]] = _lowest(pool, lambda c: c["selection_score_um"])
         return out
 
@@ -758,17 +753,6 @@ def judge_shared(results: list[dict], added=SHARED, judged=(*JUDGED_SHARED, MEMB
         )
         out[name] = v
     return out
-
-
-def judge_member_weights(results: list[dict]) -> dict:
-    """``prior_member_weights`` judged (module docstring, "The members re-weighted") on one half of
-    the seeds: today's candidates (every one the product offers, ``prior_shared_gain`` included)
-    against today's plus it, as :func:`judge_shared` judges (the same rows and criterion)."""
-    return judge_shared(
-        results,
-        {f"C: + {MEMBER_WEIGHTS}": (MEMBER_WEIGHTS,)},
-        judged=("prior_shared_time", MEMBER_WEIGHTS),
-    )
 
 
 def shared_markdown(judged: dict) -> str:
@@ -895,8 +879,6 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
     rules = rules_markdown(judged)
     shared = judge_shared(results)
     rules += "\n\n" + shared_markdown(shared)
-    member_weights = judge_member_weights(results)
-    rules += "\n\n" + shared_markdown(member_weights)
     print(table)
     print()
     print(rules)
@@ -909,7 +891,6 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
         "scenarios": results,
         "rules": judged,
         "shared": shared,
-        "member_weights": member_weights,
         "markdown": table + "\n\n" + rules,
     }
     out = Path(args.json)

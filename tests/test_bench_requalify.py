@@ -213,7 +213,6 @@ def test_a_tiny_run_writes_the_table_and_the_json(bench, tmp_path, capsys):
         "prior_time",
         "prior_ridge",
         "prior_shared_gain",
-        "prior_member_weights",
     }
     printed = capsys.readouterr().out
     assert record["markdown"] in printed and "replaced_sensor:" in printed
@@ -260,40 +259,3 @@ def test_the_shared_adaptations_are_judged_against_today_by_share_and_mae_ratio(
     assert bench.judge_shared(results[:2] + better)["A: + prior_shared_gain"]["adopted"]
     table = bench.shared_markdown(judged)
     assert "| today | 67 % | 100 % | 67 % |" in table and "| 2 | prior_gain 1.10 ; 1.10 |" in table
-
-
-def test_the_members_re_weighted_are_judged_against_today_with_the_shared_gain(bench):
-    """Hand-made scenarios (full plan MAE 1, worst 1): today's candidates hold the shared gain
-    (and not the shared time factor); candidate C adds ``prior_member_weights``. The picks, the
-    shares and the paired MAE difference are those computed here by hand."""
-
-    def c(score, mae, worst):
-        return {"selection_score_um": score, "validation_mae_um": mae, "validation_um": worst}
-
-    def scenario(seed, **cands):
-        return {"seed": seed, "full_mae_um": 1.0, "full_um": 1.0, "candidates": cands}
-
-    results = [  # today: the shared gain in 0 and 1, prior_gain in 2; C: the member weights in 0 and 2
-        scenario(
-            0,
-            prior_gain=c(3.0, 1.0, 1.0),
-            prior_shared_gain=c(2.0, 1.5, 1.0),
-            prior_member_weights=c(1.0, 1.1, 1.1),
-            prior_shared_time=c(0.5, 1.0, 1.0),
-        ),
-        scenario(1, prior_shared_gain=c(1.0, 1.0, 1.0), prior_member_weights=c(2.0, 2.0, 2.0)),
-        scenario(2, prior_gain=c(2.0, 1.3, 1.0), prior_member_weights=c(1.0, 1.2, 1.0)),
-    ]
-    judged = bench.judge_member_weights(results)
-    today, cw = judged["today"], judged["C: + prior_member_weights"]
-    assert today["picks"] == {0: "prior_shared_gain", 1: "prior_shared_gain", 2: "prior_gain"}
-    assert cw["picks"] == {0: "prior_member_weights", 1: "prior_shared_gain", 2: "prior_member_weights"}
-    assert today["share_both"] == pytest.approx(1 / 3) and cw["share_both"] == pytest.approx(2 / 3)
-    diffs = [1.1 - 1.5, 0.0, 1.2 - 1.3]
-    assert cw["mean_mae_difference"] == pytest.approx(sum(diffs) / 3)
-    assert cw["se_mae_difference"] == pytest.approx(float(np.std(diffs, ddof=1) / np.sqrt(3)))
-    assert cw["adopted"]
-    # the shared adaptations' own judgement never sees the member weights
-    assert bench.judge_shared(results)["today"]["picks"][0] == "prior_gain"
-    worse = [scenario(3, prior_gain=c(2.0, 1.0, 1.0), prior_member_weights=c(1.0, 3.0, 1.0))]
-    assert not bench.judge_member_weights(results + worse)["C: + prior_member_weights"]["adopted"]

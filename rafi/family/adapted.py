@@ -48,17 +48,15 @@ data cover against those only the prior covers; its ``warnings`` block promotion
 from __future__ import annotations
 
 import functools
-import math
 from collections.abc import Sequence
 
 import numpy as np
 import pandas as pd
-from scipy.optimize import nnls
 
 from rafi.artefact import compute_model_id, now_iso
 from rafi.family.base import FamilyModel, check_artefact, data_hashes
 from rafi.family.dynamic import DynamicRidge
-from rafi.family.envelope import bound_output, join_envelope, output_bounds
+from rafi.family.envelope import join_envelope
 from rafi.family.grey_box import GreyBox
 from rafi.family.prior import RIDGE_KINDS, ensemble_member, prior_base, prior_sensors
 from rafi.family.prior_fitness import fitness_block, prior_speed_range
@@ -76,7 +74,6 @@ __all__ = [
     "ENSEMBLE_CANDIDATES",
     "AdaptedPrior",
     "SharedAdaptedEnsemble",
-    "MemberWeightedEnsemble",
     "adaptation_factories",
 ]
 
@@ -88,15 +85,9 @@ CANDIDATES = {"prior": "as_is", "prior_gain": "gain", "prior_time": "time", "pri
 #: The candidates offered only for a CV-weighted ensemble prior -> their method
 #: (:class:`SharedAdaptedEnsemble`: one gain shared by every member; issue 47. One time factor
 #: shared too was judged beside it and not offered: ``benchmarks/bench_requalify.py``).
-ENSEMBLE_CANDIDATES = {"prior_shared_gain": "shared_gain", "prior_member_weights": "member_weights"}
+ENSEMBLE_CANDIDATES = {"prior_shared_gain": "shared_gain"}
 #: The shared methods of :class:`SharedAdaptedEnsemble`.
-SHARED_METHODS = ("shared_gain",)
-#: The methods of :class:`MemberWeightedEnsemble`.
-MEMBER_WEIGHT_METHODS = ("member_weights",)
-#: The strengths of ``member_weights``' ridge towards the shared gain's weights, relative to the
-#: mean energy of one member's prediction on the training samples (``inf``: the shared gain itself),
-#: chosen by whole-run CV on the new training runs (a module constant: issue 47's study).
-MEMBER_WEIGHT_ALPHAS = (0.0, 0.001, 0.01, 0.1, 1.0, float("inf"))
+SHARED_METHODS = tuple(ENSEMBLE_CANDIDATES.values())
 #: The methods that need a prior of a ridge kind (features @ coefficients, filter constants).
 RIDGE_METHODS = ("time", "ridge")
 #: The factors ``time`` scales the prior's filter time constants by (steps of sqrt 2).
@@ -510,12 +501,9 @@ class SharedAdaptedEnsemble(FamilyModel):
         pid = str(self.prior.get("model_id", ""))[:12]
         return f"SharedAdaptedEnsemble(prior={pid!r}, method={self.method!r})"
 
-    #: The methods this class fits.
-    methods = SHARED_METHODS
-
     def _check_params(self) -> tuple[dict, dict]:
-        if self.method not in self.methods:
-            raise ValueError(f"method={self.method!r}: use one of {', '.join(self.methods)}")
+        if self.method not in SHARED_METHODS:
+            raise ValueError(f"method={self.method!r}: use one of {', '.join(SHARED_METHODS)}")
         weights = {str(k): float(v) for k, v in (self.prior.get("weights") or {}).items()}
         arts = self.prior.get("members") or {}
         if self.prior.get("kind") != "ensemble" or len(weights) < 2 or any(n not in arts for n in weights):
@@ -659,222 +647,6 @@ class SharedAdaptedEnsemble(FamilyModel):
         return self.model_.to_dict()
 
 
-class MemberWeightedEnsemble(SharedAdaptedEnsemble):
-    """A CV-weighted ensemble prior re-qualified by re-fitting its members' weights: every member
-    keeps its coefficients, the weights are fitted on the new training runs (``member_weights``,
-    the candidate ``prior_member_weights``; issue 47).
-
-    ``w = argmin_{w >= 0} |y - P w|^2 + lam |w - g w_prior|^2``: non-negative least squares
-    (:func:`scipy.optimize.nnls`, no intercept, as ``prior_gain``) of the measured displacement
-    change ``y`` on the members' predictions ``P`` (each held in the prior's bound, as the blend
-    holds them), shrunk towards the prior's weights times the shared gain ``g``
-    (:class:`SharedAdaptedEnsemble`'s). ``lam = alpha * mean_k(P_k . P_k)``, ``alpha`` of
-    ``weight_alphas`` chosen by whole-run CV on the new training runs (each unit held out in
-    turn, ``g`` and ``w`` fitted on the others; ties to the larger ``alpha``); ``alpha = inf`` is
-    the shared gain itself, and so is a programme without a fold. After a repair that moves the
-    time constants, the members of other lags can be re-weighted to follow.
-
-    The artefact is an ordinary ``kind: ensemble``: with ``S = sum(w)``, every member's
-    coefficients times ``S`` (each an :class:`AdaptedPrior` with that gain given, as the shared
-    gain's) and the weights ``w / S`` (summing to 1), so the blend is ``sum_k w_k p_k`` where every
-    member has a value and the compensator, the replay and the intervals run it unchanged. The
-    block on the ensemble holds ``weights_prior``, ``weights`` (``w``), ``shared_gain`` (``g``) and
-    ``alpha`` (None: the shared gain).
-
-    Parameters
-    ----------
-    prior : dict
-        The ensemble prior's artefact (``kind: ensemble`` with ``weights`` and ``members``).
-    method : {"member_weights"}
-        :data:`MEMBER_WEIGHT_METHODS`.
-    weight_alphas : sequence of float
-        The ridge strengths the CV chooses among (:data:`MEMBER_WEIGHT_ALPHAS`; ``inf`` allowed).
-    alphas, cv, cv_metric, machine, reference, origin, qualification, speed_tolerance_rpm
-        As :class:`SharedAdaptedEnsemble`.
-
-    Attributes
-    ----------
-    model_ : WeightedEnsemble
-        The adapted ensemble.
-    adapted_members_ : dict
-        Name -> the member's :class:`AdaptedPrior` (gain ``S`` given).
-    member_weights_ : dict
-        Name -> ``w_k`` (the fitted weight; the blend's overall gain is their sum).
-    shared_gain_ : float
-        ``g``.
-    gain_ : float
-        ``S = sum(w)``, the members' coefficients' factor.
-    alpha_chosen_ : float
-        The chosen ``alpha`` (``inf``: the shared gain).
-    time_factor_ : None
-    cv_table_ : list of dict
-        ``alpha``, ``score_um`` per strength (None without a fold).
-    coefficient_change_, grid_edges_, fitness_
-        As :class:`SharedAdaptedEnsemble`.
-    """
-
-    methods = MEMBER_WEIGHT_METHODS
-
-    def __init__(
-        self,
-        *,
-        prior: dict,
-        method: str = "member_weights",
-        weight_alphas: Sequence[float] = MEMBER_WEIGHT_ALPHAS,
-        alphas: Sequence[float] = MODELS["prior_ridge_alphas"],
-        cv: str = MODELS["cv"],
-        cv_metric: str = MODELS["cv_metric"],
-        machine: str | None = None,
-        reference: dict | None = None,
-        origin: str | None = None,
-        qualification: dict | None = None,
-        speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
-    ):
-        self.prior = prior
-        self.method = method
-        self.weight_alphas = weight_alphas
-        self.alphas = alphas
-        self.cv = cv
-        self.cv_metric = cv_metric
-        self.machine = machine
-        self.reference = reference
-        self.origin = origin
-        self.qualification = qualification
-        self.speed_tolerance_rpm = speed_tolerance_rpm
-
-    def __repr__(self) -> str:
-        pid = str(self.prior.get("model_id", ""))[:12]
-        return f"MemberWeightedEnsemble(prior={pid!r}, method={self.method!r})"
-
-    def _predictions(self, weights: dict, arts: dict, frame: pd.DataFrame) -> np.ndarray:
-        """The prior's members' predictions on ``frame`` (one column per member of ``weights``),
-        each held in the prior's bound as its blend holds them."""
-        from rafi.family.ensemble import WeightedEnsemble
-
-        models = {name: self._member(arts[name], "as_is")._base() for name in weights}
-        ensemble = WeightedEnsemble.from_fitted(models, weights, machine=self.prior.get("machine"))
-        columns = [np.asarray(ensemble.members_[n].predict(frame), dtype=float) for n in weights]
-        held, _ = bound_output(np.column_stack(columns), output_bounds(ensemble.envelope_))
-        return held
-
-    def _choose_alpha(self, p: np.ndarray, y: np.ndarray, units: np.ndarray, w0: np.ndarray):
-        """``alpha`` of :attr:`weight_alphas` by whole-run CV (each unit held out, ``g`` and ``w``
-        fitted on the others; the held-out error by ``cv_metric``, mean over units) and the CV
-        table; no fold (fewer than two units): ``inf``, the shared gain."""
-        alphas = [float(a) for a in self.weight_alphas]
-        names = sorted(set(units))
-        if len(names) < 2:
-            return math.inf, [{"alpha": a, "score_um": None} for a in alphas]
-        scores = []
-        for alpha in alphas:
-            errors = []
-            for name in names:
-                test, train = units == name, units != name
-                w = _member_weights(p[train], y[train], w0, alpha)
-                r = y[test] - p[test] @ w
-                rmse = self.cv_metric == "rmse"
-                errors.append(float(np.sqrt(np.mean(r**2))) if rmse else float(np.max(np.abs(r))))
-            scores.append(float(np.mean(errors)))
-        # ties go to the larger alpha (nearer the shared gain)
-        best = min(range(len(alphas)), key=lambda i: (np.round(scores[i] / 1e-9), -alphas[i]))
-        table = [{"alpha": a if math.isfinite(a) else None, "score_um": s} for a, s in zip(alphas, scores)]
-        return alphas[best], table
-
-    def fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame):
-        """Fit the members' weights on the training runs of ``runs_table``; returns ``self``."""
-        from rafi.family.ensemble import WeightedEnsemble, blend
-
-        weights, arts = self._check_params()
-        names = list(weights)
-        w0 = np.array([weights[n] for n in names], dtype=float)
-        w0 = w0 / w0.sum()
-        table, frame, rows = _training_rows(runs_table, runs_frame)
-        y = frame.loc[rows, "dz_um"].to_numpy(dtype=float)
-        p = self._predictions(weights, arts, frame)[rows]
-        prior_prediction = blend(p, w0)
-        ok = np.isfinite(y) & np.isfinite(p).all(axis=1)
-        units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
-        self.time_factor_, self.grid_edges_ = None, []
-        self.shared_gain_ = _gain(prior_prediction[ok], y[ok])
-        self.alpha_chosen_, self.cv_table_ = self._choose_alpha(p[ok], y[ok], units[ok], w0)
-        w = _member_weights(p[ok], y[ok], w0, self.alpha_chosen_)
-        total = float(w.sum())
-        if not total > 0:  # nothing fitted (every weight 0): the shared gain
-            self.alpha_chosen_ = math.inf
-            w = _member_weights(p[ok], y[ok], w0, math.inf)
-            total = float(w.sum())
-        scored = len(self.cv_table_) > 1 and self.cv_table_[0]["score_um"] is not None
-        if scored and self.alpha_chosen_ == min(float(a) for a in self.weight_alphas):
-            self.grid_edges_ = [f"prior_member_weights alpha {self.alpha_chosen_:g} at an edge of its grid"]
-        self.member_weights_ = {n: float(v) for n, v in zip(names, w)}
-        self.gain_ = total
-        members = {
-            n: self._member(arts[n], "gain").fit_gain(runs_table, runs_frame, gain=total) for n in names
-        }
-        self.adapted_members_ = members
-        machine = self.machine if self.machine is not None else self.prior.get("machine")
-        fitted = {n: m.model_ if m.kind in RIDGE_KINDS else m for n, m in members.items()}
-        share = {n: float(v) / total for n, v in zip(names, w)}
-        model = WeightedEnsemble.from_fitted(
-            fitted, share, machine=machine, trained_speeds_rpm=_joined_trained_speeds(self.prior, table)
-        )
-        new_prediction = np.asarray(model.predict(frame), dtype=float)[rows]
-        self.coefficient_change_ = [
-            {**c, "name": f"{n}: {c['name']}"} for n, m in members.items() for c in m.coefficient_change_
-        ]
-        alpha = self.alpha_chosen_ if math.isfinite(self.alpha_chosen_) else None
-        self.fitness_ = self._fitness(table, frame.loc[rows], prior_prediction, new_prediction)
-        self.fitness_["alpha"] = alpha
-        self.adaptation_ = {
-            "schema": ADAPTATION_SCHEMA,
-            "method": self.method,
-            "parent": self.prior.get("model_id"),
-            "parent_machine": self.prior.get("machine"),
-            "gain": self.gain_,
-            "alpha": alpha,
-            "time_factor": None,
-            "shared_gain": self.shared_gain_,
-            "weights_prior": {n: float(v) for n, v in zip(names, w0)},
-            "weights": dict(self.member_weights_),
-            "cv_table": self.cv_table_,
-            "prior_data": _lineage_data(self.prior),
-            "members": {n: {"kind": arts[n].get("kind"), "model_id": arts[n].get("model_id")} for n in names},
-            "fitness": self.fitness_,
-        }
-        self.model_ = model
-        return self
-
-    def describe(self) -> str:
-        """What the adaptation chose, in one line for people."""
-        pid = str(self.prior.get("model_id", ""))[:12]
-        n = len(self.prior.get("weights") or {})
-        prior_w = self.adaptation_["weights_prior"]
-        moves = ", ".join(f"{k} {prior_w[k]:.2f}->{v:.2f}" for k, v in self.member_weights_.items())
-        how = (
-            f"ridge towards the shared gain {self.shared_gain_:.4g}, alpha {self.alpha_chosen_:g}"
-            if math.isfinite(self.alpha_chosen_)
-            else f"the shared gain {self.shared_gain_:.4g} (alpha inf)"
-        )
-        head = f"prior {pid} (ensemble of {self.prior.get('machine')}, {n} members)"
-        text = f"{head} re-weighted: {moves}; {how}"
-        return text + ("; AT A GRID EDGE: " + "; ".join(self.grid_edges_) if self.grid_edges_ else "")
-
-
-def _member_weights(p: np.ndarray, y: np.ndarray, w0: np.ndarray, alpha: float) -> np.ndarray:
-    """``argmin_{w >= 0} |y - p w|^2 + lam |w - g w0|^2``, ``g`` the gain of ``y`` on ``p w0``
-    (:func:`_gain`), ``lam = alpha * mean_k(p_k . p_k)``; ``alpha = inf``: ``g w0``."""
-    w0 = np.asarray(w0, dtype=float)
-    target = _gain(p @ w0, y) * w0
-    if not math.isfinite(alpha):
-        return target
-    lam = float(alpha) * float(np.mean(np.sum(p * p, axis=0)))
-    k = p.shape[1]
-    a = np.vstack([p, math.sqrt(lam) * np.eye(k)]) if lam > 0 else p
-    b = np.concatenate([y, math.sqrt(lam) * target]) if lam > 0 else y
-    w, _ = nnls(a, b)
-    return np.asarray(w, dtype=float)
-
-
 def _joined_trained_speeds(prior: dict, table: pd.DataFrame) -> list[float] | None:
     """The prior's ``trained_speeds_rpm`` joined with the new constant training runs' speeds."""
     new = trained_speeds(table) or []
@@ -1007,7 +779,8 @@ def adaptation_factories(
         for n in names
     }
     if member is not None:  # an ensemble prior: also adapted as a whole (one shared gain)
-        for n, method in ENSEMBLE_CANDIDATES.items():
-            cls = MemberWeightedEnsemble if method in MEMBER_WEIGHT_METHODS else SharedAdaptedEnsemble
-            out[n] = functools.partial(cls, prior=prior, method=method, machine=machine, **common)
+        for n in ENSEMBLE_CANDIDATES:
+            out[n] = functools.partial(
+                SharedAdaptedEnsemble, prior=prior, method=ENSEMBLE_CANDIDATES[n], machine=machine, **common
+            )
     return out

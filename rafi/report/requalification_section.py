@@ -39,8 +39,6 @@ CANDIDATES = {
     "prior_time": "the prior with its filter time constants scaled by one factor (by CV) and one gain",
     "prior_ridge": "the prior's coefficients moved by a ridge penalised towards them (strength by CV)",
     "prior_shared_gain": "the ensemble prior as a whole, its blend times one gain fitted on the new data",
-    "prior_member_weights": "the ensemble prior's members, their weights re-fitted on the new data "
-    "(towards the shared gain's, strength by CV)",
 }
 #: How many of the largest coefficient moves the section tabulates.
 MOVES_SHOWN = 12
