@@ -7,6 +7,7 @@ Usage (from the repository root; see benchmarks/README.md)::
     python benchmarks/bench_requalify.py --machine machining-center-b --sample-period 30
     python benchmarks/bench_requalify.py --random 40 --keep benchmarks/results/requalify_random
     python benchmarks/bench_requalify.py --seeds 40-59 --keep benchmarks/results/requalify_random
+    python benchmarks/bench_requalify.py --seeds 36-47 --no-fold-hours 2 --keep DIR   # the no-fold default
 
 **Named scenarios.** For each twin scenario (:mod:`rafi.twin.scenarios`: ``sibling``, ``reworn``,
 ``season``, ``replaced_sensor``), the OLD machine's full qualification is fitted with rule
@@ -222,6 +223,10 @@ JUDGED_SHARED = (*ENSEMBLE_CANDIDATES, "prior_shared_time")
 ADAPTATIONS = (*CANDIDATES, *JUDGED_SHARED)
 #: The judgement of the shared adaptations: name -> the candidates it adds to today's.
 SHARED = {"A: + prior_shared_gain": ("prior_shared_gain",), "B: + both": JUDGED_SHARED}
+#: The no-fold defaults judged (module docstring, "The no-fold default"): the product's before
+#: the judgement, and the one judged for an ensemble prior (a prior of one kind has no shared gain:
+#: its own ``prior_gain`` stands for it).
+NO_FOLD = ("prior_gain", "prior_shared_gain")
 #: The rules judged one level up on the random scenarios (module docstring, "The choice among
 #: adaptations"): name -> what it does, for the record.
 RULES = {
@@ -804,6 +809,128 @@ def shared_markdown(judged: dict) -> str:
     return "\n".join(lines)
 
 
+def no_fold_fit(seed: int, hours: float, args, settings: dict, prior_cache: dict) -> dict:
+    """Random scenario ``seed`` with the plan with the prior for ``hours`` of new data (module
+    docstring, "The no-fold default"): the fit with the prior, its selection basis (``default``:
+    no CV fold) and pick, and every candidate's validation MAE and worst (the same validation runs
+    as the full plan's)."""
+    rs = random_scenario(seed)
+    sc = rs.scenario(args.sample_period)
+    prior, _, speeds, _ = fit_prior(rs.machine, args, settings, prior_cache)
+    plan = plan_for(prior, speeds, hours, settings)
+    data = combine(sc.plan_runs(plan), sc.new_validation())
+    out = {"hours": float(hours), "plan_h": plan.attrs["total_h"], "speeds_rpm": plan.attrs["speeds_rpm"]}
+    out["training_runs"] = int((data.table["role"] == "training").sum())
+    out["prior_kind"] = str(prior.get("kind"))
+    progress(f"seed {seed}: {hours:g} h ({out['training_runs']} training runs) with the prior")
+    fit = fit_family(data, settings, sc.key_sensors, rs.machine, args.kinds, prior=prior)
+    out["selection_basis"] = fit.get("selection_basis")
+    out["champion"] = str(fit["champion"])
+    out["candidates"] = every_candidate(fit)
+    return out
+
+
+def _no_fold_key(hours: float) -> str:
+    return f"{float(hours):g}"
+
+
+def judge_no_fold(results: list[dict], hours: float, defaults=NO_FOLD) -> dict:
+    """The no-fold default judged (module docstring, "The no-fold default"), on the scenarios of
+    ``results`` whose fit at ``hours`` has no CV fold (``left_out``: those with one): per default
+    of ``defaults`` (a missing one - no shared gain for a prior of one kind - stands as
+    ``defaults[0]``), its MAE and worst ratios to the full plan from scratch, the share within
+    15 % on MAE, on worst and on both, the mean MAE ratio; for each default after the first, the
+    mean and standard error of the per-scenario MAE ratio differences against the first, and
+    ``adopted``: the share within 15 % on both not lower and the mean difference below minus one
+    standard error."""
+    key = _no_fold_key(hours)
+    runs = [r for r in results if key in (r.get("no_fold") or {})]
+    judged = [r for r in runs if r["no_fold"][key]["selection_basis"] == "default"]
+    out = {
+        "hours": float(hours),
+        "seeds": [r["seed"] for r in judged],
+        "left_out": [r["seed"] for r in runs if r not in judged],
+        "product_picks": {r["seed"]: r["no_fold"][key]["champion"] for r in judged},
+        "defaults": {},
+    }
+    for name in defaults:
+        picks, r = {}, []
+        for res in judged:
+            cands = res["no_fold"][key]["candidates"]
+            pick = name if name in cands else defaults[0]
+            picks[res["seed"]] = pick
+            r.append(ratios({**res, "candidates": cands}, pick))
+        n = max(len(r), 1)
+        out["defaults"][name] = {
+            "picks": picks,
+            "mae_ratio": [m for m, _ in r],
+            "worst_ratio": [w for _, w in r],
+            "share_mae": sum(m <= 1 + TARGET_FRACTION for m, _ in r) / n,
+            "share_worst": sum(w <= 1 + TARGET_FRACTION for _, w in r) / n,
+            "share_both": sum(passes(m, w) for m, w in r) / n,
+            "n_both": sum(passes(m, w) for m, w in r),
+            "mean_mae_ratio": float(np.mean([m for m, _ in r])) if r else math.nan,
+        }
+    base = out["defaults"][defaults[0]]
+    for name in defaults[1:]:
+        v = out["defaults"][name]
+        d = np.array(v["mae_ratio"]) - np.array(base["mae_ratio"])
+        v["mean_mae_difference"] = float(d.mean()) if d.size else math.nan
+        v["se_mae_difference"] = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
+        v["adopted"] = bool(
+            v["share_both"] >= base["share_both"] and v["mean_mae_difference"] < -v["se_mae_difference"]
+        )
+    return out
+
+
+def no_fold_markdown(judged: dict, results: list[dict]) -> str:
+    """The no-fold defaults' judgement: one row per scenario (the product's pick, each default's
+    ratios to the full plan), then one row per default."""
+    names = list(judged["defaults"])
+    changes = {r["seed"]: r.get("change", "") for r in results}
+    lines = [
+        f"No CV fold at {judged['hours']:g} h of new data (the plan with the prior): ratios to the full "
+        "plan from scratch, MAE ; worst.",
+        "",
+        "| seed | change | product's pick | " + " | ".join(names) + " |",
+        "|---|---|---|" + "---|" * len(names),
+    ]
+    for i, seed in enumerate(judged["seeds"]):
+        cells = []
+        for n in names:
+            v = judged["defaults"][n]
+            m, w = v["mae_ratio"][i], v["worst_ratio"][i]
+            cells.append(f"{m:.2f} ; {w:.2f}{'' if passes(m, w) else ' (NO)'}")
+        lines.append(
+            f"| {seed} | {changes.get(seed, '')} | {judged['product_picks'][seed]} | "
+            + " | ".join(cells)
+            + " |"
+        )
+    lines += [
+        "",
+        "| default | within 15 % on MAE | on worst | on both | mean MAE ratio | vs "
+        f"{names[0]}: mean difference (SE) | criterion holds |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    n = len(judged["seeds"])
+    for name, v in judged["defaults"].items():
+        diff = (
+            f"{v['mean_mae_difference']:+.3f} ({v['se_mae_difference']:.3f})"
+            if "mean_mae_difference" in v
+            else "-"
+        )
+        held = ("yes" if v["adopted"] else "no") if "adopted" in v else "-"
+        lines.append(
+            f"| {name} | {round(v['share_mae'] * n)} of {n} | {round(v['share_worst'] * n)} of {n} "
+            f"| {v['n_both']} of {n} | {v['mean_mae_ratio']:.3f} | {diff} | {held} |"
+        )
+    if judged["left_out"]:
+        lines.append(
+            f"\nLeft out (a CV fold at {judged['hours']:g} h): {', '.join(map(str, judged['left_out']))}."
+        )
+    return "\n".join(lines)
+
+
 def run_random(seeds: list[int], args, settings: dict) -> list[dict]:
     """Every random scenario of ``seeds``; with ``--keep DIR`` each result is ``DIR/seed-<n>.json``,
     read back instead of run again (so a stopped run resumes)."""
@@ -814,7 +941,8 @@ def run_random(seeds: list[int], args, settings: dict) -> list[dict]:
     for seed in seeds:
         path = keep / f"seed-{seed}.json" if keep is not None else None
         if path is not None and path.exists():
-            out.append(json.loads(path.read_text()))
+            res = json.loads(path.read_text())
+            out.append(with_no_fold(res, path, args, settings, cache))
             continue
         started = time.perf_counter()
         res = one_random(seed, args, settings, cache)
@@ -828,8 +956,21 @@ def run_random(seeds: list[int], args, settings: dict) -> list[dict]:
         )
         if path is not None:
             write_text_atomic(path, json.dumps(res, indent=1, default=float) + "\n")
-        out.append(res)
+        out.append(with_no_fold(res, path, args, settings, cache))
     return out
+
+
+def with_no_fold(res: dict, path: Path | None, args, settings: dict, cache: dict) -> dict:
+    """``res`` with its fit at ``--no-fold-hours`` (:func:`no_fold_fit`) under ``no_fold``, fitted
+    only when not kept yet (then written back to ``path``)."""
+    hours = getattr(args, "no_fold_hours", None)
+    if hours is None or _no_fold_key(hours) in (res.get("no_fold") or {}):
+        return res
+    res = {**res, "no_fold": {**(res.get("no_fold") or {})}}
+    res["no_fold"][_no_fold_key(hours)] = no_fold_fit(res["seed"], hours, args, settings, cache)
+    if path is not None:
+        write_text_atomic(path, json.dumps(res, indent=1, default=float) + "\n")
+    return res
 
 
 def main(argv=None) -> int:
@@ -847,6 +988,13 @@ def main(argv=None) -> int:
     )
     p.add_argument(
         "--keep", metavar="DIR", help="one result JSON per random seed (and the priors) there; resumes"
+    )
+    p.add_argument(
+        "--no-fold-hours",
+        type=float,
+        metavar="H",
+        help="random scenarios: also fit H h of the plan with the prior (one run: no CV fold) and "
+        "judge the no-fold default (prior_gain against prior_shared_gain)",
     )
     p.add_argument("--kinds", nargs="+", help="the kinds run_family fits (default: models.enabled)")
     p.add_argument(
@@ -899,6 +1047,9 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
     rules = rules_markdown(judged)
     shared = judge_shared(results)
     rules += "\n\n" + shared_markdown(shared)
+    no_fold = judge_no_fold(results, args.no_fold_hours) if args.no_fold_hours is not None else None
+    if no_fold is not None:
+        rules += "\n\n" + no_fold_markdown(no_fold, results)
     print(table)
     print()
     print(rules)
@@ -911,6 +1062,7 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
         "scenarios": results,
         "rules": judged,
         "shared": shared,
+        "no_fold": no_fold,
         "markdown": table + "\n\n" + rules,
     }
     out = Path(args.json)

@@ -259,3 +259,74 @@ def test_the_shared_adaptations_are_judged_against_today_by_share_and_mae_ratio(
     assert bench.judge_shared(results[:2] + better)["A: + prior_shared_gain"]["adopted"]
     table = bench.shared_markdown(judged)
     assert "| today | 67 % | 100 % | 67 % |" in table and "| 2 | prior_gain 1.10 ; 1.10 |" in table
+
+
+def test_the_no_fold_default_is_judged_on_the_scenarios_without_a_fold(bench):
+    """Hand-made scenarios (full plan MAE 1, worst 1) at 2 h: prior_gain against prior_shared_gain
+    on those whose 2 h fit has no fold; the shares, the mean MAE ratio and the paired difference
+    computed here by hand; a prior of one kind (no shared gain) counts as prior_gain for both."""
+
+    def c(mae, worst):
+        return {"selection_score_um": math.nan, "validation_mae_um": mae, "validation_um": worst}
+
+    def scenario(seed, basis="default", **cands):
+        fit = {"selection_basis": basis, "champion": "prior_gain", "candidates": cands}
+        return {"seed": seed, "change": "repair", "full_mae_um": 1.0, "full_um": 1.0, "no_fold": {"2": fit}}
+
+    results = [
+        scenario(0, prior_gain=c(1.3, 1.0), prior_shared_gain=c(1.1, 1.1)),  # shared passes, gain not
+        scenario(1, prior_gain=c(1.0, 1.0), prior_shared_gain=c(1.2, 1.0)),  # gain passes, shared not
+        scenario(2, prior_gain=c(1.5, 1.1)),  # a prior of one kind: prior_gain for both
+        scenario(3, basis="cv", prior_gain=c(9.0, 9.0), prior_shared_gain=c(1.0, 1.0)),  # a fold: out
+        {"seed": 4, "full_mae_um": 1.0, "full_um": 1.0},  # not fitted at 2 h: out
+    ]
+    judged = bench.judge_no_fold(results, 2.0)
+    assert judged["seeds"] == [0, 1, 2] and judged["left_out"] == [3]
+    gain, shared = judged["defaults"]["prior_gain"], judged["defaults"]["prior_shared_gain"]
+    assert shared["picks"] == {0: "prior_shared_gain", 1: "prior_shared_gain", 2: "prior_gain"}
+    assert gain["n_both"] == shared["n_both"] == 1
+    assert gain["mean_mae_ratio"] == pytest.approx((1.3 + 1.0 + 1.5) / 3)
+    diffs = [1.1 - 1.3, 1.2 - 1.0, 0.0]
+    assert shared["mean_mae_difference"] == pytest.approx(sum(diffs) / 3)
+    assert shared["se_mae_difference"] == pytest.approx(float(np.std(diffs, ddof=1) / np.sqrt(3)))
+    assert not shared["adopted"]  # the mean difference (0) is not below minus one SE
+    # lower by more than one SE and the share not lower: adopted
+    better = [
+        scenario(0, prior_gain=c(1.3, 1.0), prior_shared_gain=c(1.1, 1.1)),
+        scenario(1, prior_gain=c(1.4, 1.0), prior_shared_gain=c(1.1, 1.0)),
+    ]
+    assert bench.judge_no_fold(better, 2.0)["defaults"]["prior_shared_gain"]["adopted"]
+    # lower by far, but one scenario fewer within 15 % on both: not adopted
+    fewer = [
+        scenario(5, prior_gain=c(1.0, 1.0), prior_shared_gain=c(0.9, 1.2)),
+        scenario(6, prior_gain=c(1.3, 1.0), prior_shared_gain=c(1.0, 1.2)),
+    ]
+    judged_fewer = bench.judge_no_fold(fewer, 2.0)["defaults"]
+    assert judged_fewer["prior_gain"]["n_both"] == 1 and judged_fewer["prior_shared_gain"]["n_both"] == 0
+    assert judged_fewer["prior_shared_gain"]["mean_mae_difference"] == pytest.approx(-0.2)
+    assert judged_fewer["prior_shared_gain"]["se_mae_difference"] == pytest.approx(0.1)
+    assert not judged_fewer["prior_shared_gain"]["adopted"]
+    table = bench.no_fold_markdown(judged, results)
+    assert "| 0 | repair | prior_gain | 1.30 ; 1.00 (NO) | 1.10 ; 1.10 |" in table
+    assert "| prior_gain | 1 of 3 | 3 of 3 | 1 of 3 | 1.267 | - | - |" in table
+    assert table.endswith("Left out (a CV fold at 2 h): 3.")
+
+
+def test_the_no_fold_fit_is_kept_beside_the_seed_and_not_run_again(bench, tmp_path, monkeypatch):
+    calls = []
+
+    def fake_fit(seed, hours, args, settings, cache):
+        calls.append((seed, hours))
+        return {"hours": hours, "selection_basis": "default", "champion": "prior_gain", "candidates": {}}
+
+    monkeypatch.setattr(bench, "no_fold_fit", fake_fit)
+    path = tmp_path / "seed-7.json"
+    kept = {"seed": 7, "full_mae_um": 1.0}
+    args = type("Args", (), {"no_fold_hours": 2.0})()
+    res = bench.with_no_fold(kept, path, args, {}, {})
+    assert calls == [(7, 2.0)] and res["no_fold"]["2"]["champion"] == "prior_gain" and "no_fold" not in kept
+    assert json.loads(path.read_text()) == json.loads(json.dumps(res))
+    assert bench.with_no_fold(json.loads(path.read_text()), path, args, {}, {})["no_fold"].keys() == {"2"}
+    assert calls == [(7, 2.0)]  # kept: not fitted again
+    args.no_fold_hours = None
+    assert bench.with_no_fold(kept, path, args, {}, {}) is kept
