@@ -303,6 +303,32 @@ def test_run_family_offers_the_shared_gain_of_an_ensemble_prior(states):
         assert art["adaptation"]["parent"] == prior["model_id"]
 
 
+def test_one_training_run_offers_the_shared_gain_of_an_ensemble_prior_and_the_gain_of_one_kind(
+    states, dynamic_prior
+):
+    """A programme of one training run (no whole-run fold, too short for time blocks): with an
+    ensemble prior the default rule offers the ensemble times one shared gain (issue 47,
+    benchmarks/bench_requalify.py "The no-fold default"); with a prior of one kind, that model
+    times one gain. Truth: state 2 is state 1 times 1.2, so each gain is near 1.2."""
+    (t1, f1), (t2, f2) = states
+    first = t2.loc[t2["role"] == "training", "run_id"].iloc[0]
+    one = t2[(t2["role"] != "training") | (t2["run_id"] == first)]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        shared = _family(one, f2, prior=_ensemble_prior(t1, f1))
+        single = _family(one, f2, prior=dynamic_prior)
+    for res in (shared, single):
+        assert res["selection_basis"] == "default" and res["cv"].empty
+    assert shared["champion"] == "prior_shared_gain" and "prior_gain" in set(shared["summary"]["model"])
+    art = shared["best_artefact"]
+    assert art["kind"] == "ensemble" and art["adaptation"]["method"] == "shared_gain"
+    assert art["adaptation"]["gain"] == pytest.approx(SCALE, abs=0.05)
+    assert single["champion"] == "prior_gain" and "prior_shared_gain" not in set(single["summary"]["model"])
+    art = single["best_artefact"]
+    assert art["kind"] == "dynamic" and art["adaptation"]["method"] == "gain"
+    assert art["adaptation"]["gain"] == pytest.approx(SCALE, abs=0.05)
+
+
 def test_a_shared_gain_artefact_streams_and_replays_as_it_predicts():
     """An ensemble of every kind (test_compensator's, RAFI's kinds included) adapted by a shared
     gain on the same runs with the displacement times 1.2: its artefact runs in the streaming

@@ -8,9 +8,10 @@ the twin with the sibling's build spread (``rafi simulate day --sibling``) runs 
 validation run. Night 2 refuses the prior in one line: the first machine is not declared a
 sibling (``models.prior_siblings``, issue 47). Declared, night 3 starts the sibling from the
 prior: the programme is one heat-up (no whole-run CV fold), so the prior with one gain is offered
-(:func:`rafi.family.selection.default_champion`), judged by the same gates, and held back by the
-prior's fitness warning (the prior's speeds the heat-up does not cover); confirmed in
-``checks.confirmed``, night 4 promotes it with its parent recorded.
+(:func:`rafi.family.selection.default_champion`; the first machine's champion is a CV-weighted
+ensemble: the whole ensemble times one shared gain, ``prior_shared_gain``), judged by the same
+gates, and held back by the prior's fitness warning (the prior's speeds the heat-up does not
+cover); confirmed in ``checks.confirmed``, night 4 promotes it with its parent recorded.
 """
 
 from __future__ import annotations
@@ -119,14 +120,15 @@ def test_plan_twin_night_gives_a_requalified_sibling_with_its_parent(tmp_path):
     model = json.loads((registry / "models" / f"{champion['model_id']}.json").read_text(encoding="utf-8"))
     adaptation = model["adaptation"]
     assert adaptation["parent"] == prior_id and adaptation["parent_machine"] == MACHINE
-    assert adaptation["method"] == "gain" and adaptation["gain"] > 0  # one heat-up: no fold, the default
+    # one heat-up: no fold, the default; the prior an ensemble (models: offer), so its shared gain
+    assert model["kind"] == "ensemble" and adaptation["method"] == "shared_gain" and adaptation["gain"] > 0
     meta = json.loads((registry / "models" / f"{champion['model_id']}.meta.json").read_text(encoding="utf-8"))
     assert meta["parent"] == prior_id
     # what qualified it: the sibling's files only; the prior's training data stays its own
     assert set(model["data"]) <= {p.name for p in new_files}
     assert set(adaptation["prior_data"]) >= set(TRAIN[:3])
     summary = (proj / "results" / SIBLING / "comparison" / "summary.csv").read_text(encoding="utf-8")
-    assert all(f"\n{name}," in summary for name in ("prior", "prior_gain"))
+    assert all(f"\n{name}," in summary for name in ("prior", "prior_gain", "prior_shared_gain"))
     assert adaptation["fitness"]["origin"] == "declared sibling"
     assert adaptation["fitness"]["prior"]["promoted"] == first["time"]
     status = run_rafi(proj, "status", "--machine", SIBLING)

@@ -106,6 +106,9 @@ def test_default_when_there_is_no_fold():
     assert default_champion(["grey_box", "dynamic"]) == "grey_box"
     # with a prior: the prior with one gain, the fewest parameters a single run can estimate
     assert default_champion(["rafi", "grey_box", "prior", "prior_gain", "prior_ridge"]) == "prior_gain"
+    # an ensemble prior (issue 47): the whole ensemble with one shared gain
+    with_shared = ["rafi", "prior", "prior_gain", "prior_time", "prior_ridge", "prior_shared_gain"]
+    assert default_champion(with_shared) == "prior_shared_gain"
     table, frame = _data()
     one = table[(table["role"] != "training") | (table["run_id"] == "train-9000")]
     res = _family(one, frame, enabled=["rafi_linear", "ridge_global"])

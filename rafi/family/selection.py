@@ -201,13 +201,18 @@ def default_champion(enabled: Sequence[str]) -> str:
     speeds under ``leave_one_speed_out``, and too little training time for two time blocks,
     :func:`rafi.family.time_blocks.block_count`). Declared before any data:
 
-    * with a prior (``prior_gain`` among the candidates: :mod:`rafi.family.adapted`), the prior
-      with one gain fitted on the new data - the fewest parameters any candidate fits, the one a
-      single run can estimate; a model from scratch has nothing to judge it on;
+    * with a prior, the prior with one gain fitted on the new data - the fewest parameters any
+      candidate fits, the one a single run can estimate; a model from scratch has nothing to
+      judge it on. A CV-weighted ensemble prior (``prior_shared_gain`` among the candidates:
+      :data:`rafi.family.adapted.ENSEMBLE_CANDIDATES`): the whole ensemble times one gain; a
+      prior of one kind (``prior_gain``): that model times one gain. Judged on random
+      re-qualification scenarios with a 2 h programme (issue 47, ``benchmarks/bench_requalify.py``,
+      "The no-fold default"): the shared gain within 15 % of the full plan on both MAE and worst
+      in 7 of 12, the heaviest member's gain in 5;
     * else RAFI as published if enabled (the paper's method has no hyperparameter to choose);
     * else the first enabled kind.
     """
-    for name in ("prior_gain", "rafi"):
+    for name in ("prior_shared_gain", "prior_gain", "rafi"):
         if name in enabled:
             return name
     return str(enabled[0])
