@@ -158,12 +158,9 @@ def _fold_solution(fold: dict, cols: np.ndarray, alphas: Sequence[float]) -> np.
     return ridge_gram(g / np.outer(sc, sc), c / sc, n, alphas) / sc[:, None]
 
 
-def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
-    """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds:
-    ``rmse`` over every held-out sample, or ``max_abs``, the mean over folds of the held-out
-    runs' max |residual|."""
-    sq = np.zeros(len(alphas))
-    fold_max, count = [], 0
+def _fold_errors(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str):
+    """Per fold with a training sample, ``(error, n_test)``: the held-out sum of squared
+    residuals per alpha (``rmse``) or the max |residual| per alpha (``max_abs``)."""
     ix = np.ix_(cols, cols)
     for fold in folds:
         b = fold_solution(fold, cols, alphas)
@@ -172,15 +169,29 @@ def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: st
         if metric == "rmse":
             # |y - Xb|^2 = y'y - 2 b'X'y + b'X'Xb from the test fold's Gram matrix: no pass
             # over the test samples per candidate
-            sq += (
+            sq = (
                 fold["yy_test"]
                 - 2.0 * (fold["c_test"][cols] @ b)
                 + np.einsum("ia,ij,ja->a", b, fold["g_test"][ix], b)
             )
-            count += len(fold["y_test"])
+            yield sq, len(fold["y_test"])
         else:
             res = fold["y_test"][:, None] - fold["x_test"][:, cols] @ b
-            fold_max.append(np.max(np.abs(res), axis=0))
+            yield np.max(np.abs(res), axis=0), len(fold["y_test"])
+
+
+def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
+    """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds:
+    ``rmse`` over every held-out sample, or ``max_abs``, the mean over folds of the held-out
+    runs' max |residual|."""
+    sq = np.zeros(len(alphas))
+    fold_max, count = [], 0
+    for error, n in _fold_errors(folds, cols, alphas, metric):
+        if metric == "rmse":
+            sq += error
+            count += n
+        else:
+            fold_max.append(error)
     if metric == "rmse":
         return np.sqrt(np.clip(sq, 0.0, None) / count) if count else np.zeros(len(alphas))
     return np.mean(fold_max, axis=0) if fold_max else np.zeros(len(alphas))
@@ -190,22 +201,10 @@ def cv_fold_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metri
     """Per fold (rows) and alpha (columns): the held-out runs' RMSE (``rmse``) or max
     |residual| (``max_abs``) of the feature columns ``cols``; folds without a training sample
     are left out. The scores :func:`cv_scores` pools."""
-    ix = np.ix_(cols, cols)
-    out = []
-    for fold in folds:
-        b = fold_solution(fold, cols, alphas)
-        if b is None:
-            continue
-        if metric == "rmse":
-            sq = (
-                fold["yy_test"]
-                - 2.0 * (fold["c_test"][cols] @ b)
-                + np.einsum("ia,ij,ja->a", b, fold["g_test"][ix], b)
-            )
-            out.append(np.sqrt(np.clip(sq, 0.0, None) / max(len(fold["y_test"]), 1)))
-        else:
-            res = fold["y_test"][:, None] - fold["x_test"][:, cols] @ b
-            out.append(np.max(np.abs(res), axis=0))
+    out = [
+        np.sqrt(np.clip(error, 0.0, None) / max(n, 1)) if metric == "rmse" else error
+        for error, n in _fold_errors(folds, cols, alphas, metric)
+    ]
     return np.array(out).reshape(len(out), len(alphas))
 
 
