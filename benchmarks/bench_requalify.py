@@ -168,6 +168,37 @@ seeds 38 (a moved sensor) and 43 (a repair) pass with it, none fails with it tha
 ``prior_shared_gain``** (:func:`rafi.family.selection.default_champion`; a prior of one kind
 keeps ``prior_gain``). The same seeds at 4 h with the prior (the CV's pick): 5 of 12.
 
+**The shared gain unless beaten** (issue 47; criterion written 2026-11-29 before seeds 48-59 were
+run and before either rule below was scored on any seed). With three training runs the CV's
+choice among close candidates is noise (three folds); the shared gain is one parameter. Two
+rules of :data:`RULES`, judged against ``cv`` (the product's rule) from the kept per-candidate
+numbers, every rule choosing among the candidates the product offers today (a kept record's
+``prior_shared_time`` or ``prior_member_weights`` is dropped first):
+
+* ``shared_gain_unless_beaten``: with an ensemble prior (``prior_shared_gain`` among the
+  candidates), ``prior_shared_gain`` unless some candidate's CV score (``selection_score_um``)
+  is lower than its by more than one standard error of the **paired per-fold differences** (that
+  candidate's held-out max |residual| minus the shared gain's, fold by fold over the same
+  whole-run folds: ``cv_fold_max_abs_um``, kept for every candidate; SE = their sample standard
+  deviation / sqrt(number of folds)); then the lowest CV score among the candidates that beat it
+  so. Without an ensemble prior: ``cv``.
+* ``always_shared_gain``: ``prior_shared_gain`` whenever it is a candidate, else ``cv``.
+
+Development: seeds 0-47, the kept records that exist (``--keep``; every one holds each
+candidate's per-fold scores; the CV of a candidate does not depend on the others, and seeds 0-11
+run at 14:20 and again at 17:30 gave identical numbers for every common candidate): 0-23 from
+the run that judged the shared adaptations, 24-35 from the member-weights run, 36-47 from the
+no-fold run. Confirmation: seeds 48-59, new (``--seeds 48-59 --keep``). A variant **replaces the
+CV's rule** only if (1) its share of scenarios within 15 % of the full plan from scratch on both
+the validation MAE and the worst residual is **strictly higher** than ``cv``'s on the
+confirmation seeds **and not lower** on the development seeds, and (2) on each of the two sets
+its mean MAE ratio (pick / full plan) is not higher than ``cv``'s by more than **one standard
+error** of the per-scenario differences (variant minus ``cv``) (``judge_default``). If both
+variants qualify: the higher share on the confirmation seeds, then on the development seeds,
+then the lower mean MAE ratio on the confirmation seeds, then ``shared_gain_unless_beaten``
+(it keeps the CV's word when another candidate is clearly better). Otherwise ``cv`` stays.
+Nothing is changed after the confirmation seeds are scored.
+
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:
 ``requalify_random.json`` and ``.md``). The runs are simulated clean at ``--sample-period``
