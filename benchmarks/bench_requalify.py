@@ -273,7 +273,13 @@ RULES = {
     "one_se_simplest": "the simplest candidate whose CV score is within one standard error of the best's",
     "mean_and_worst": "the lowest mean of the CV's pooled RMSE and its mean held-out max abs residual",
     "adaptations_only": "with a prior, the CV's rule among the adaptation candidates only",
+    "shared_gain_unless_beaten": "with an ensemble prior prior_shared_gain, unless a candidate's CV score is "
+    "lower by more than one SE of the paired per-fold differences; else the CV's rule",
+    "always_shared_gain": "prior_shared_gain whenever it is a candidate, else the CV's rule",
 }
+#: The variants of the CV's rule judged by :func:`judge_default` (module docstring, "The shared
+#: gain unless beaten"), in the order the criterion prefers between two that qualify.
+DEFAULT_VARIANTS = ("shared_gain_unless_beaten", "always_shared_gain")
 
 
 def progress(message: str) -> None:
@@ -606,6 +612,12 @@ def rule_pick(rule: str, cands: dict, cv_choice: str | None = None) -> str | Non
     if rule == "adaptations_only":
         pool = {m: c for m, c in cands.items() if m in ADAPTATIONS}
         return _lowest(pool or cands, lambda c: c["selection_score_um"])
+    if rule == "always_shared_gain" and "prior_shared_gain" in cands:
+        return "prior_shared_gain"
+    if rule == "shared_gain_unless_beaten" and "prior_shared_gain" in cands:
+        return shared_gain_unless_beaten(cands)
+    if rule in ("always_shared_gain", "shared_gain_unless_beaten"):
+        return _lowest(cands, lambda c: c["selection_score_um"])
     if rule == "one_se_simplest":
         best = _lowest(cands, lambda c: c["selection_score_um"])
         if best is None:
@@ -620,6 +632,134 @@ def rule_pick(rule: str, cands: dict, cv_choice: str | None = None) -> str | Non
         ]
         return min(ok, key=lambda m: (_order(m), m))
     raise ValueError(f"unknown rule {rule!r}; known: {', '.join(RULES)}")
+
+
+def paired_se(a, b) -> float:
+    """The standard error of the mean of the paired differences ``a - b`` (fold by fold; NaN with
+    fewer than two finite pairs)."""
+    d = np.asarray(a, dtype=float) - np.asarray(b, dtype=float)
+    d = d[np.isfinite(d)]
+    return float(np.std(d, ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
+
+
+def shared_gain_unless_beaten(cands: dict) -> str | None:
+    """``prior_shared_gain`` unless a candidate's CV score is lower than its by more than one
+    standard error of the paired per-fold differences (``cv_fold_max_abs_um``, the same whole-run
+    folds in the same order for every candidate); then the lowest CV score among those that beat
+    it so (module docstring, "The shared gain unless beaten")."""
+    ref = cands["prior_shared_gain"]
+    if not math.isfinite(ref["selection_score_um"]):
+        return _lowest(cands, lambda c: c["selection_score_um"])
+    beat = {}
+    for m, c in cands.items():
+        if m == "prior_shared_gain" or not math.isfinite(c["selection_score_um"]):
+            continue
+        folds, ref_folds = c.get("cv_fold_max_abs_um", []), ref.get("cv_fold_max_abs_um", [])
+        if len(folds) != len(ref_folds):
+            continue
+        se = paired_se(folds, ref_folds)
+        if math.isfinite(se) and ref["selection_score_um"] - c["selection_score_um"] > se:
+            beat[m] = c
+    return _lowest(beat, lambda c: c["selection_score_um"]) if beat else "prior_shared_gain"
+
+
+def offered(cands: dict) -> dict:
+    """The candidates the product offers today: a kept record's judged-only adaptations
+    (``prior_shared_time``, ``prior_member_weights``) dropped."""
+    today = (*CANDIDATES, *ENSEMBLE_CANDIDATES)
+    return {m: c for m, c in cands.items() if not m.startswith("prior") or m in today}
+
+
+def judge_default(results: list[dict], variants=DEFAULT_VARIANTS) -> dict:
+    """``cv`` and each rule of ``variants`` on ``results`` (module docstring, "The shared gain
+    unless beaten"), every rule among the candidates offered today (:func:`offered`): per rule the
+    picks, the MAE and worst ratios to the full plan, the shares within 15 % on MAE, on worst and on
+    both, the mean MAE ratio and, for a variant, the mean and SE of the per-scenario MAE ratio
+    differences (variant minus ``cv``) and ``mae_ok`` (the mean not higher than one SE)."""
+
+    def row(rule: str) -> dict:
+        chosen = {res["seed"]: rule_pick(rule, offered(res["candidates"])) for res in results}
+        r = [ratios(res, chosen[res["seed"]]) for res in results]
+        n = max(len(r), 1)
+        return {
+            "picks": chosen,
+            "mae_ratio": [m for m, _ in r],
+            "worst_ratio": [w for _, w in r],
+            "share_mae": sum(m <= 1 + TARGET_FRACTION for m, _ in r) / n,
+            "share_worst": sum(w <= 1 + TARGET_FRACTION for _, w in r) / n,
+            "share_both": sum(passes(m, w) for m, w in r) / n,
+            "n_both": sum(passes(m, w) for m, w in r),
+            "mean_mae_ratio": float(np.mean([m for m, _ in r])) if r else math.nan,
+        }
+
+    cv = row("cv")
+    out = {"cv": cv}
+    for rule in variants:
+        v = row(rule)
+        d = np.array(v["mae_ratio"]) - np.array(cv["mae_ratio"])
+        v["mean_mae_difference"] = float(d.mean()) if d.size else math.nan
+        v["se_mae_difference"] = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
+        v["mae_ok"] = bool(v["mean_mae_difference"] <= v["se_mae_difference"] + 1e-12)
+        out[rule] = v
+    return out
+
+
+def adopt_default(development: dict, confirmation: dict) -> str:
+    """The rule the criterion names from :func:`judge_default` on the development and the
+    confirmation seeds: a variant whose share within 15 % on both is strictly higher than ``cv``'s
+    on the confirmation seeds and not lower on the development seeds, its mean MAE ratio within
+    one SE of ``cv``'s on both; between two, the higher confirmation share, then development share,
+    then the lower confirmation mean MAE ratio, then the earlier of :data:`DEFAULT_VARIANTS`;
+    else ``cv``."""
+    ok = [
+        rule
+        for rule in DEFAULT_VARIANTS
+        if rule in confirmation
+        and confirmation[rule]["share_both"] > confirmation["cv"]["share_both"]
+        and development[rule]["share_both"] >= development["cv"]["share_both"]
+        and confirmation[rule]["mae_ok"]
+        and development[rule]["mae_ok"]
+    ]
+    if not ok:
+        return "cv"
+    return min(
+        ok,
+        key=lambda r: (
+            -confirmation[r]["share_both"],
+            -development[r]["share_both"],
+            confirmation[r]["mean_mae_ratio"],
+            DEFAULT_VARIANTS.index(r),
+        ),
+    )
+
+
+def default_markdown(judged: dict) -> str:
+    """:func:`judge_default`'s table: one row per rule, then the picks per scenario."""
+    lines = [
+        "| rule | within 15 % on MAE | on worst | on both | mean MAE ratio | vs cv: mean difference (SE) "
+        "| MAE not worse by > 1 SE |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    n = len(judged["cv"]["picks"])
+    for name, v in judged.items():
+        diff = "-"
+        if "mean_mae_difference" in v:
+            diff = f"{v['mean_mae_difference']:+.3f} ({v['se_mae_difference']:.3f})"
+        ok = ("yes" if v["mae_ok"] else "no") if "mae_ok" in v else "-"
+        lines.append(
+            f"| {name} | {round(v['share_mae'] * n)} of {n} | {round(v['share_worst'] * n)} of {n} "
+            f"| {v['n_both']} of {n} | {v['mean_mae_ratio']:.3f} | {diff} | {ok} |"
+        )
+    lines += ["", "| seed | " + " | ".join(f"{r}: pick, ratios MAE ; worst" for r in judged) + " |"]
+    lines.append("|---|" + "---|" * len(judged))
+    for i, seed in enumerate(judged["cv"]["picks"]):
+        cells = [
+            f"{v['picks'][seed]} {v['mae_ratio'][i]:.2f} ; {v['worst_ratio'][i]:.2f}"
+            f"{'' if passes(v['mae_ratio'][i], v['worst_ratio'][i]) else ' x'}"
+            for v in judged.values()
+        ]
+        lines.append(f"| {seed} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
 
 
 def one_random(seed: int, args, settings: dict, prior_cache: dict) -> dict:
@@ -1086,6 +1226,8 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
     rules = rules_markdown(judged)
     shared = judge_shared(results)
     rules += "\n\n" + shared_markdown(shared)
+    default = judge_default(results)
+    rules += "\n\n" + default_markdown(default)
     no_fold = judge_no_fold(results, args.no_fold_hours) if args.no_fold_hours is not None else None
     if no_fold is not None:
         rules += "\n\n" + no_fold_markdown(no_fold, results)
@@ -1101,6 +1243,7 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
         "scenarios": results,
         "rules": judged,
         "shared": shared,
+        "default": default,
         "no_fold": no_fold,
         "markdown": table + "\n\n" + rules,
     }
