@@ -269,7 +269,8 @@ NO_FOLD = ("prior_gain", "prior_shared_gain")
 #: The rules judged one level up on the random scenarios (module docstring, "The choice among
 #: adaptations"): name -> what it does, for the record.
 RULES = {
-    "cv": "the product's rule: the lowest CV max abs residual score among every candidate",
+    "cv": "the lowest CV max abs residual score among every candidate (the product's rule until "
+    "2026-11-29; with an ensemble prior the product now follows shared_gain_unless_beaten)",
     "one_se_simplest": "the simplest candidate whose CV score is within one standard error of the best's",
     "mean_and_worst": "the lowest mean of the CV's pooled RMSE and its mean held-out max abs residual",
     "adaptations_only": "with a prior, the CV's rule among the adaptation candidates only",
