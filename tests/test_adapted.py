@@ -357,3 +357,53 @@ def test_a_shared_gain_artefact_streams_and_replays_as_it_predicts():
     ok = defined & (replayed["status"].to_numpy() == "ok")
     assert ok.sum() > 0.9 * len(newer)
     np.testing.assert_allclose(replayed["command_um"].to_numpy(dtype=float)[ok], want[ok], rtol=0, atol=1e-9)
+
+
+def _lead_and_se(cv, model: str) -> tuple[float, float]:
+    """How far ``model``'s CV score is below the shared gain's and the SE of their paired per-fold
+    differences, computed here from the CV rows."""
+
+    def folds(m):
+        rows = cv[cv["model"] == m].set_index(["fold", "test_runs"])
+        return rows["max_abs_after_um"].astype(float)
+
+    d = (folds(model) - folds("prior_shared_gain")).to_numpy()
+    return float(-d.mean()), float(np.std(d, ddof=1) / np.sqrt(len(d)))
+
+
+def test_with_an_ensemble_prior_the_shared_gain_is_offered_unless_clearly_beaten(states):
+    """Issue 47's rule among adaptation candidates. Truth 1: the new machine is the prior's times
+    1.2 (the shared gain is the truth), three noisy training runs: prior_time scores lower by less
+    than one SE of the paired fold differences, and the shared gain is offered. Truth 2: the
+    displacement lags 4000 s instead of 1200 s (the prior's lags are wrong): dynamic from scratch
+    scores lower by far more than one SE and is offered."""
+    from rafi.family.selection import choose_champion
+
+    (t1, f1), _ = states
+    prior = _ensemble_prior(t1, f1)
+    noisy = machine_state(
+        seed=1,
+        prefix="n-",
+        factor=SCALE,
+        duration_s=3 * 3600.0,
+        sample_s=60.0,
+        train_speeds=(3000, 9000, 15000),
+        noise_um=0.3,
+    )
+    slower = machine_state(
+        seed=1, prefix="l-", factor=SCALE, duration_s=3 * 3600.0, sample_s=60.0, tau_lag_s=4000.0
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        close, far = _family(*noisy, prior=prior), _family(*slower, prior=prior)
+    lowest = close["selection"]  # the offered model first, then the scores in order
+    scores = lowest.set_index("model")["selection_score_um"].astype(float)
+    best = scores.drop("ridge", errors="ignore").idxmin()
+    assert best == "prior_time"  # the generator's noise: it scores lowest ...
+    lead, se = _lead_and_se(close["cv"], best)
+    assert 0 < lead < se  # ... by less than one SE
+    assert close["champion"] == "prior_shared_gain" and close["selection_basis"] == "cv"
+    assert lowest["model"].iloc[0] == "prior_shared_gain" and lowest["selection_rank"].iloc[0] == 1
+    assert choose_champion(close["cv"], ["prior_time", "prior_gain"]) == "prior_time"  # no ensemble prior
+    lead, se = _lead_and_se(far["cv"], "dynamic")
+    assert lead > 3 * se and far["champion"] == "dynamic"

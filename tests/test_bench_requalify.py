@@ -330,3 +330,65 @@ def test_the_no_fold_fit_is_kept_beside_the_seed_and_not_run_again(bench, tmp_pa
     assert calls == [(7, 2.0)]  # kept: not fitted again
     args.no_fold_hours = None
     assert bench.with_no_fold(kept, path, args, {}, {}) is kept
+
+
+def test_the_shared_gain_is_offered_unless_a_candidate_beats_it_by_one_paired_se(bench):
+    """The paired per-fold differences decide: a candidate lower by less than their SE leaves the
+    shared gain; one lower by more takes it; without an ensemble prior the CV's rule."""
+    close = CANDS | {"prior_shared_gain": cand(1.1, [1.6, 1.1, 0.6], 0.3, 0.4, 1.9)}
+    # grey_box - shared gain per fold: -1.1, -0.1, +0.9: mean -0.1, SE 0.577 -> not beaten by it;
+    # prior_time: -0.4, +0.1, +0.6: mean +0.1 (not lower)
+    assert bench.rule_pick("cv", close) == "grey_box"
+    assert bench.rule_pick("shared_gain_unless_beaten", close) == "prior_shared_gain"
+    assert bench.rule_pick("always_shared_gain", close) == "prior_shared_gain"
+    far = CANDS | {"prior_shared_gain": cand(2.0, [2.0, 1.9, 2.1], 0.3, 0.4, 1.9)}
+    # grey_box - shared gain: -1.5, -0.9, -0.6: mean -1.0, SE 0.265 -> beaten; prior_time
+    # (-0.8, -0.7, -0.9: mean -0.8, SE 0.058) too: the lower CV score of the two, grey_box
+    assert bench.shared_gain_unless_beaten(far) == "grey_box"
+    only_time = far | {"grey_box": cand(1.9, [0.9, 1.9, 2.9], 0.9, 1.0, 4.0)}  # lower by 0.1, SE 0.58
+    assert bench.rule_pick("shared_gain_unless_beaten", only_time) == "prior_time"
+    assert bench.rule_pick("always_shared_gain", far) == "prior_shared_gain"
+    for rule in ("shared_gain_unless_beaten", "always_shared_gain"):  # no ensemble prior
+        assert bench.rule_pick(rule, CANDS) == "grey_box"
+
+
+def test_a_variant_replaces_the_cv_only_if_the_confirmation_share_rises_and_nothing_falls(bench):
+    """judge_default's shares, paired MAE differences and adopt_default's criterion, by hand."""
+
+    def scenario(seed, **cands):
+        return {"seed": seed, "full_mae_um": 1.0, "full_um": 1.0, "candidates": cands}
+
+    def c(score, folds, mae, worst):
+        return cand(score, folds, 1.0, mae, worst)
+
+    results = [  # the CV takes grey_box (by noise) in 0 and 1, by far in 2
+        scenario(
+            0, grey_box=c(1.0, [0.5, 1.0, 1.5], 1.3, 1.0), prior_shared_gain=c(1.1, [1.6, 1.1, 0.6], 1.0, 1.0)
+        ),
+        scenario(
+            1, grey_box=c(1.0, [0.5, 1.0, 1.5], 1.0, 1.0), prior_shared_gain=c(1.1, [1.6, 1.1, 0.6], 1.1, 1.1)
+        ),
+        scenario(
+            2,
+            grey_box=c(1.0, [1.0, 1.0, 1.1], 1.0, 1.0),
+            prior_shared_gain=c(3.0, [3.0, 3.1, 2.9], 2.0, 2.0),
+            prior_member_weights=c(0.5, [0.5, 0.5, 0.5], 5.0, 5.0),  # a judged-only candidate: dropped
+        ),
+    ]
+    judged = bench.judge_default(results)
+    cv, sg, always = judged["cv"], judged["shared_gain_unless_beaten"], judged["always_shared_gain"]
+    assert cv["picks"] == {0: "grey_box", 1: "grey_box", 2: "grey_box"}
+    assert sg["picks"] == {0: "prior_shared_gain", 1: "prior_shared_gain", 2: "grey_box"}
+    assert always["picks"][2] == "prior_shared_gain"
+    assert (cv["n_both"], sg["n_both"], always["n_both"]) == (2, 3, 2)
+    diffs = [1.0 - 1.3, 1.1 - 1.0, 0.0]
+    assert sg["mean_mae_difference"] == pytest.approx(np.mean(diffs))
+    assert sg["se_mae_difference"] == pytest.approx(float(np.std(diffs, ddof=1) / np.sqrt(3)))
+    assert sg["mae_ok"]
+    assert bench.adopt_default(judged, judged) == "shared_gain_unless_beaten"
+    worse = bench.judge_default(results[1:])  # 2 of 2 for both
+    assert worse["shared_gain_unless_beaten"]["n_both"] == worse["cv"]["n_both"] == 2
+    assert bench.adopt_default(judged, worse) == "cv"  # not strictly higher on the confirmation seeds
+    assert bench.adopt_default(worse, judged) == "shared_gain_unless_beaten"  # equal on development
+    table = bench.default_markdown(judged)
+    assert "| shared_gain_unless_beaten | 3 of 3 | 3 of 3 | 3 of 3 |" in table

@@ -200,3 +200,25 @@ def test_cross_validation_always_runs():
     ranks = res["summary"].set_index("model")["selection_rank"]
     assert set(ranks.drop("temperature_ridge")) == {1, 2} and pd.isna(ranks["temperature_ridge"])
     assert "cv_report" not in MACHINE_DEFAULTS["models"]
+
+
+def test_the_shared_gain_of_an_ensemble_prior_is_offered_unless_beaten_by_one_paired_se():
+    """Hand-made folds: prior_time lower by 0.1 with paired differences -1.1, -0.1, +0.9 (SE
+    0.577): the shared gain; by 1.0 with -1.5, -0.9, -0.6 (SE 0.265): prior_time. Without the
+    shared gain among the candidates, the lowest score."""
+    shared = [1.6, 1.1, 0.6]
+    close = _cv({"prior_shared_gain": shared, "prior_time": [0.5, 1.0, 1.5], "prior": [3.0, 3.0, 3.0]})
+    candidates = ["prior", "prior_time", "prior_shared_gain"]
+    assert choose_champion(close) == "prior_time"  # every model of cv: the plain rule
+    assert choose_champion(close, candidates) == "prior_shared_gain"
+    assert choose_champion(close, candidates[:2]) == "prior_time"
+    far = _cv({"prior_shared_gain": [2.0, 1.9, 2.1], "prior_time": [0.5, 1.0, 1.5], "prior": [3.0, 3.0, 3.0]})
+    assert choose_champion(far, candidates) == "prior_time"
+    # grey_box scores lowest (1.133) but its paired differences -2.0, -1.8, +1.2 have SE 1.035 > 0.867:
+    # passed over; prior_time (1.2; -0.8, -0.7, -0.9, SE 0.058) beats the shared gain (2.0)
+    both = _cv({"prior_shared_gain": [2.0, 1.9, 2.1], "grey_box": [0.0, 0.1, 3.3], "prior_time": [1.2] * 3})
+    assert choose_champion(both) == "grey_box"
+    assert choose_champion(both, ["grey_box", "prior_time", "prior_shared_gain"]) == "prior_time"
+    # a shared gain that cannot predict a held-out run: the plain rule
+    blind = _cv({"prior_shared_gain": [0.1, np.nan, 0.1], "prior_time": [1.0, 1.0, 1.0]})
+    assert choose_champion(blind, ["prior_time", "prior_shared_gain"]) == "prior_time"

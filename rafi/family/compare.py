@@ -637,6 +637,9 @@ def run_family(
     selection = selection_table(cv, offered)
     champion = choose_champion(cv, candidates)
     basis = "cv"
+    if champion is not None and not selection.empty and champion != str(selection["model"].iloc[0]):
+        log(f"{champion} offered: the lowest score, {selection['model'].iloc[0]}, does not beat it by one SE")
+        selection = offered_first(selection, champion)
     if ENSEMBLE in models:
         champion, selection = ENSEMBLE, offered_first(selection, ENSEMBLE)
     if champion is None:

@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.forward_folds import MIN_TRAIN, horizon_of, is_forward
-from rafi.family.selection import selection_rule
+from rafi.family.selection import SHARED_GAIN, SHARED_GAIN_RULE, selection_rule
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.report.ensemble_section import ensemble_context
 from rafi.report.envelope_text import MEANING, held_by_model
@@ -268,7 +268,9 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward
     -------
     dict
         ``rule`` (:func:`rafi.family.selection.selection_rule` of the folds' ``scheme`` and
-        ``forward``), ``time_blocks`` (the folds were time blocks), ``horizon`` (runs a forward
+        ``forward``; with the shared gain of an ensemble prior among the models,
+        :data:`rafi.family.selection.SHARED_GAIN_RULE` after it), ``time_blocks`` (the folds were
+        time blocks), ``horizon`` (runs a forward
         fold holds out; 0 without forward folds), ``min_train`` (fewest training runs before a
         forward fold's origin), ``champion``, ``n`` (models), ``basis``
         (``cv``, ``default`` without a CV score, ``none`` without a champion) and, with a
@@ -280,7 +282,8 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward
         ``better_on_validation`` (candidates with a lower worst residual on the validation runs).
     """
     out = {
-        "rule": selection_rule(scheme, forward),
+        "rule": selection_rule(scheme, forward)
+        + (f" {SHARED_GAIN_RULE}" if SHARED_GAIN in set(summary["model"].astype(str)) else ""),
         "time_blocks": str(scheme) == TIME_BLOCKS,
         "horizon": horizon_of(forward) if is_forward(forward) else 0,
         "min_train": MIN_TRAIN,
