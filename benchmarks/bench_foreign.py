@@ -512,7 +512,7 @@ def main(argv: list[str] | None = None) -> int:
         "--models",
         type=json.loads,
         default=None,
-        help='more models: settings of every machine as JSON, e.g. \'{"ridge_alpha_rule": "one_se"}\' '
+        help='more models: settings of every machine as JSON, e.g. \'{"cv_metric": "max_abs"}\' '
         "(a variant judged against the defaults); use its own --keep",
     )
     parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")

@@ -126,7 +126,7 @@ def test_a_kept_seed_made_with_other_models_settings_is_refused_and_a_variant_re
     folder = tmp_path / "seed-004"
     folder.mkdir()
     (folder / "result.json").write_text(json.dumps({"seed": 4}))
-    variant = {"ridge_alpha_rule": "one_se"}
+    variant = {"cv_metric": "max_abs"}
     with pytest.raises(SystemExit, match="models"):
         bench.judge_seed(4, tmp_path, 1, models=variant)
     (folder / "result.json").write_text(json.dumps({"seed": 4, "models": variant}))
@@ -136,4 +136,4 @@ def test_a_kept_seed_made_with_other_models_settings_is_refused_and_a_variant_re
     proj = tmp_path / "project"
     bench.make_project(4, proj, models=variant)
     defaults = yaml.safe_load((proj / "config.yaml").read_text(encoding="utf-8"))["defaults"]["models"]
-    assert defaults["ridge_alpha_rule"] == "one_se" and "temperature_ridge" in defaults["enabled"]
+    assert defaults["cv_metric"] == "max_abs" and "temperature_ridge" in defaults["enabled"]

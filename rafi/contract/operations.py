@@ -164,16 +164,6 @@ OPERATIONS_SETTINGS: dict = {
                 shown="1e-8 ... 10, 1-2-5 per decade",
                 doc="ridge penalties tried by CV",
             ),
-            "ridge_alpha_rule": Setting(
-                default="min",
-                schema={"enum": ["min", "one_se"]},
-                shown="`min`",
-                doc=(
-                    "the ridge kinds' penalty for the design CV chose: `min`, the lowest CV score; "
-                    "`one_se`, the largest within one standard error of the folds' scores "
-                    "(`docs/models.md`, Grids)"
-                ),
-            ),
             "prior_ridge_alphas": Setting(
                 default=[float(f"{m}e{e}") for e in range(-4, 5) for m in (1, 2, 5)] + [1e5],
                 schema={"type": "array", "items": {"type": "number", "exclusiveMinimum": 0}, "minItems": 1},

@@ -114,7 +114,6 @@ def make_model(
     o = options
     common = {"reference": reference, "machine": machine, "speed_tolerance_rpm": speed_tolerance_rpm}
     ridge = {"alphas": o["ridge_alphas"], "cv": o["cv"], "speed_reference": o["speed_reference"], **common}
-    ridge["alpha_rule"] = o["ridge_alpha_rule"]
     ridge["filter_restart_gap_s"] = o["filter_restart_gap_s"]
     if kind == "rafi":
         return PublishedRafi(key_sensors=key_sensors, terms=terms, hac_maxlags=hac_maxlags, **common)

@@ -65,8 +65,6 @@ class GreyBox(RidgeBase):
         First-order lags of the ``n^2`` draw-in term to choose from (``models: grey_box_centrifugal_lags_s``).
     cv_metric : str
         ``rmse`` or ``max_abs`` (``models: grey_box_cv_metric``).
-    alpha_rule : str
-        ``min`` or ``one_se`` (``models: ridge_alpha_rule``, :meth:`RidgeBase._penalty`).
     **others
         ``sensors``, ``alphas``, ``cv``, ``speed_terms``, ``speed_reference``, ``reference``,
         ``machine``, ``speed_tolerance_rpm``, ``filter_restart_gap_s`` as
@@ -83,7 +81,6 @@ class GreyBox(RidgeBase):
         speed_powers: Sequence[float] = MODELS["grey_box_speed_powers"],
         centrifugal_lags_s: Sequence[float] = MODELS["grey_box_centrifugal_lags_s"],
         cv_metric: str = MODELS["grey_box_cv_metric"],
-        alpha_rule: str = MODELS["ridge_alpha_rule"],
         sensors: Sequence[str] | None = None,
         alphas: Sequence[float] = MODELS["ridge_alphas"],
         cv: str = MODELS["cv"],
@@ -99,7 +96,6 @@ class GreyBox(RidgeBase):
         self.speed_powers = speed_powers
         self.centrifugal_lags_s = centrifugal_lags_s
         self.cv_metric = cv_metric
-        self.alpha_rule = alpha_rule
         self.sensors = sensors
         self.alphas = alphas
         self.cv = cv
@@ -265,7 +261,6 @@ class GreyBox(RidgeBase):
                         if sc < best[0] - 1e-12:
                             best = (float(sc), taus, staus, a, lag, cols)
         _, taus, staus, alpha, lag, cols = best
-        alpha = self._penalty(folds, cols, alphas, alpha)
         self.speed_taus_ = staus
         self.centrifugal_lag_s_ = float(lag)
         design = self._chosen_design(feats, names, cols, frame, key)

@@ -34,9 +34,6 @@ from rafi.family.time_blocks import blocks_text, max_filter_s, unit_column
 from rafi.family.whole_log import has_whole_logs, layout, rows_of_logs
 
 CV_METRICS = ("rmse", "max_abs")
-#: How the penalty is chosen among ``ridge_alphas`` for the design CV chose (``models:
-#: ridge_alpha_rule``): the lowest CV score, or the largest penalty within one standard error.
-ALPHA_RULES = ("min", "one_se")
 
 #: How the filters start and what a filtered feature is relative to (the artefact's ``filter``).
 FILTER_STATE_TEXT = {
@@ -158,9 +155,12 @@ def _fold_solution(fold: dict, cols: np.ndarray, alphas: Sequence[float]) -> np.
     return ridge_gram(g / np.outer(sc, sc), c / sc, n, alphas) / sc[:, None]
 
 
-def _fold_errors(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str):
-    """Per fold with a training sample, ``(error, n_test)``: the held-out sum of squared
-    residuals per alpha (``rmse``) or the max |residual| per alpha (``max_abs``)."""
+def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
+    """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds:
+    ``rmse`` over every held-out sample, or ``max_abs``, the mean over folds of the held-out
+    runs' max |residual|."""
+    sq = np.zeros(len(alphas))
+    fold_max, count = [], 0
     ix = np.ix_(cols, cols)
     for fold in folds:
         b = fold_solution(fold, cols, alphas)
@@ -169,61 +169,18 @@ def _fold_errors(folds: list, cols: np.ndarray, alphas: Sequence[float], metric:
         if metric == "rmse":
             # |y - Xb|^2 = y'y - 2 b'X'y + b'X'Xb from the test fold's Gram matrix: no pass
             # over the test samples per candidate
-            sq = (
+            sq += (
                 fold["yy_test"]
                 - 2.0 * (fold["c_test"][cols] @ b)
                 + np.einsum("ia,ij,ja->a", b, fold["g_test"][ix], b)
             )
-            yield sq, len(fold["y_test"])
+            count += len(fold["y_test"])
         else:
             res = fold["y_test"][:, None] - fold["x_test"][:, cols] @ b
-            yield np.max(np.abs(res), axis=0), len(fold["y_test"])
-
-
-def cv_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
-    """CV score per alpha (lower is better) of the feature columns ``cols``, whole-run folds:
-    ``rmse`` over every held-out sample, or ``max_abs``, the mean over folds of the held-out
-    runs' max |residual|."""
-    sq = np.zeros(len(alphas))
-    fold_max, count = [], 0
-    for error, n in _fold_errors(folds, cols, alphas, metric):
-        if metric == "rmse":
-            sq += error
-            count += n
-        else:
-            fold_max.append(error)
+            fold_max.append(np.max(np.abs(res), axis=0))
     if metric == "rmse":
         return np.sqrt(np.clip(sq, 0.0, None) / count) if count else np.zeros(len(alphas))
     return np.mean(fold_max, axis=0) if fold_max else np.zeros(len(alphas))
-
-
-def cv_fold_scores(folds: list, cols: np.ndarray, alphas: Sequence[float], metric: str) -> np.ndarray:
-    """Per fold (rows) and alpha (columns): the held-out runs' RMSE (``rmse``) or max
-    |residual| (``max_abs``) of the feature columns ``cols``; folds without a training sample
-    are left out. The scores :func:`cv_scores` pools."""
-    out = [
-        np.sqrt(np.clip(error, 0.0, None) / max(n, 1)) if metric == "rmse" else error
-        for error, n in _fold_errors(folds, cols, alphas, metric)
-    ]
-    return np.array(out).reshape(len(out), len(alphas))
-
-
-def one_se_alpha(scores: np.ndarray, fold_scores: np.ndarray, alphas: Sequence[float]) -> float:
-    """The largest penalty whose CV score is within one standard error of the best score
-    (the "one standard error" rule of Hastie, Tibshirani and Friedman, *The Elements of
-    Statistical Learning*, 7.10, as glmnet's ``lambda.1se``).
-
-    ``scores``: the pooled CV score per alpha (lower is better); ``fold_scores``: the folds'
-    scores (folds x alphas); the standard error is that of the best alpha's fold scores,
-    ``std(ddof=1) / sqrt(k)``. With fewer than two folds the best alpha is kept."""
-    alphas = np.asarray(alphas, dtype=float)
-    best = int(np.argmin(scores))  # the first lowest, as the kinds' searches take it
-    k = fold_scores.shape[0]
-    if k < 2:
-        return float(alphas[best])
-    se = float(np.std(fold_scores[:, best], ddof=1) / np.sqrt(k))
-    within = np.asarray(scores) <= scores[best] + se + 1e-12
-    return float(np.max(alphas[within]))
 
 
 class RidgeBase(FamilyModel):
@@ -243,19 +200,6 @@ class RidgeBase(FamilyModel):
     def _check_params(self) -> None:
         if self.cv_metric not in CV_METRICS:
             raise ValueError(f"cv_metric {self.cv_metric!r}: use rmse or max_abs")
-        if self.alpha_rule not in ALPHA_RULES:
-            raise ValueError(f"alpha_rule {self.alpha_rule!r}: use min or one_se")
-
-    def _penalty(self, folds: list, cols: np.ndarray, alphas: Sequence[float], best_alpha: float) -> float:
-        """The penalty of the design CV chose: ``best_alpha`` (``alpha_rule: min``) or the
-        largest within one standard error of the folds' scores (``one_se``, :func:`one_se_alpha`)."""
-        if self.alpha_rule == "min":
-            return best_alpha
-        return one_se_alpha(
-            cv_scores(folds, cols, alphas, self.cv_metric),
-            cv_fold_scores(folds, cols, alphas, self.cv_metric),
-            alphas,
-        )
 
     def _alphas(self) -> list[float]:
         return [float(a) for a in self.alphas]
@@ -471,7 +415,7 @@ class RidgeBase(FamilyModel):
             "speed_reference": self.speed_reference,
             "speed_tolerance_rpm": float(self.speed_tolerance_rpm),
             "filter_restart_gap_s": float(self.filter_restart_gap_s),
-        } | ({"alpha_rule": self.alpha_rule} if self.alpha_rule != "min" else {})
+        }
 
     def _selected(self) -> dict:
         """What CV chose, as recorded in the artefact (``selected``; ``cv_folds`` only when the

@@ -40,9 +40,6 @@ class RidgeGlobal(RidgeBase):
         Whole-run CV scheme (``models: cv``).
     cv_metric : str
         ``rmse`` or ``max_abs`` (``models: cv_metric``).
-    alpha_rule : str
-        ``min`` or ``one_se``: the penalty of the chosen design (``models: ridge_alpha_rule``,
-        :meth:`RidgeBase._penalty`).
     speed_terms : bool
         Allow the terms ``n - n0``, ``n^2 - n0^2``.
     speed_gain : bool or "cv"
@@ -69,7 +66,6 @@ class RidgeGlobal(RidgeBase):
         alphas: Sequence[float] = MODELS["ridge_alphas"],
         cv: str = MODELS["cv"],
         cv_metric: str = MODELS["cv_metric"],
-        alpha_rule: str = MODELS["ridge_alpha_rule"],
         speed_terms: bool = True,
         speed_gain: bool | str = MODELS["speed_gain"],
         speed_reference: str = MODELS["speed_reference"],
@@ -82,7 +78,6 @@ class RidgeGlobal(RidgeBase):
         self.alphas = alphas
         self.cv = cv
         self.cv_metric = cv_metric
-        self.alpha_rule = alpha_rule
         self.speed_terms = speed_terms
         self.speed_gain = speed_gain
         self.speed_reference = speed_reference
@@ -174,7 +169,6 @@ class RidgeGlobal(RidgeBase):
                     if sc < best[0] - 1e-12:
                         best = (float(sc), taus, a, gain, cols)
         _, taus, alpha, gain, cols = best
-        alpha = self._penalty(folds, cols, alphas, alpha)
         self.speed_gain_ = bool(gain)
         design = self._chosen_design(all_feats, all_names, cols, frame, key)
         return self._fit_final(

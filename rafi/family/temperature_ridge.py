@@ -27,7 +27,7 @@ class TemperatureRidge(DynamicRidge):
     ----------
     taus_s : sequence of float
         The filter time constants, every one used (``models: temperature_ridge_taus_s``).
-    sensors, alphas, cv, cv_metric, alpha_rule, reference, machine, speed_tolerance_rpm, filter_restart_gap_s
+    sensors, alphas, cv, cv_metric, reference, machine, speed_tolerance_rpm, filter_restart_gap_s
         As :class:`rafi.family.ridge_global.RidgeGlobal`.
     """
 
@@ -41,7 +41,6 @@ class TemperatureRidge(DynamicRidge):
         alphas: Sequence[float] = MODELS["ridge_alphas"],
         cv: str = MODELS["cv"],
         cv_metric: str = MODELS["cv_metric"],
-        alpha_rule: str = MODELS["ridge_alpha_rule"],
         reference: dict = MACHINE_DEFAULTS["reference"],
         machine: str | None = None,
         speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
@@ -52,7 +51,6 @@ class TemperatureRidge(DynamicRidge):
         self.alphas = alphas
         self.cv = cv
         self.cv_metric = cv_metric
-        self.alpha_rule = alpha_rule
         self.reference = reference
         self.machine = machine
         self.speed_tolerance_rpm = speed_tolerance_rpm
