@@ -687,6 +687,32 @@ def offered(cands: dict) -> dict:
     return {m: c for m, c in cands.items() if not m.startswith("prior") or m in today}
 
 
+def ratio_row(picks: dict, r: list) -> dict:
+    """A candidate set's or rule's figures on the scenarios: its ``picks``, the MAE and worst
+    ratios ``r`` to the full plan (one pair per scenario, in order), the shares within 15 % on
+    MAE, on worst and on both, ``n_both`` and the mean MAE ratio."""
+    n = max(len(r), 1)
+    return {
+        "picks": picks,
+        "mae_ratio": [m for m, _ in r],
+        "worst_ratio": [w for _, w in r],
+        "share_mae": sum(m <= 1 + TARGET_FRACTION for m, _ in r) / n,
+        "share_worst": sum(w <= 1 + TARGET_FRACTION for _, w in r) / n,
+        "share_both": sum(passes(m, w) for m, w in r) / n,
+        "n_both": sum(passes(m, w) for m, w in r),
+        "mean_mae_ratio": float(np.mean([m for m, _ in r])) if r else math.nan,
+    }
+
+
+def with_difference(row: dict, base: dict) -> dict:
+    """``row`` with the mean and standard error of its per-scenario MAE ratio differences against
+    ``base``'s (``mean_mae_difference``, ``se_mae_difference``)."""
+    d = np.array(row["mae_ratio"]) - np.array(base["mae_ratio"])
+    row["mean_mae_difference"] = float(d.mean()) if d.size else math.nan
+    row["se_mae_difference"] = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
+    return row
+
+
 def judge_default(results: list[dict], variants=DEFAULT_VARIANTS) -> dict:
     """``cv`` and each rule of ``variants`` on ``results`` (module docstring, "The shared gain
     unless beaten"), every rule among the candidates offered today (:func:`offered`): per rule the
@@ -696,26 +722,12 @@ def judge_default(results: list[dict], variants=DEFAULT_VARIANTS) -> dict:
 
     def row(rule: str) -> dict:
         chosen = {res["seed"]: rule_pick(rule, offered(res["candidates"])) for res in results}
-        r = [ratios(res, chosen[res["seed"]]) for res in results]
-        n = max(len(r), 1)
-        return {
-            "picks": chosen,
-            "mae_ratio": [m for m, _ in r],
-            "worst_ratio": [w for _, w in r],
-            "share_mae": sum(m <= 1 + TARGET_FRACTION for m, _ in r) / n,
-            "share_worst": sum(w <= 1 + TARGET_FRACTION for _, w in r) / n,
-            "share_both": sum(passes(m, w) for m, w in r) / n,
-            "n_both": sum(passes(m, w) for m, w in r),
-            "mean_mae_ratio": float(np.mean([m for m, _ in r])) if r else math.nan,
-        }
+        return ratio_row(chosen, [ratios(res, chosen[res["seed"]]) for res in results])
 
     cv = row("cv")
     out = {"cv": cv}
     for rule in variants:
-        v = row(rule)
-        d = np.array(v["mae_ratio"]) - np.array(cv["mae_ratio"])
-        v["mean_mae_difference"] = float(d.mean()) if d.size else math.nan
-        v["se_mae_difference"] = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
+        v = with_difference(row(rule), cv)
         v["mae_ok"] = bool(v["mean_mae_difference"] <= v["se_mae_difference"] + 1e-12)
         out[rule] = v
     return out
@@ -950,25 +962,12 @@ def judge_shared(results: list[dict], added=SHARED) -> dict:
 
     def row(extra: tuple) -> dict:
         chosen = picks(extra)
-        r = [ratios(res, chosen[res["seed"]]) for res in results]
-        n = max(len(r), 1)
-        return {
-            "picks": chosen,
-            "mae_ratio": [m for m, _ in r],
-            "worst_ratio": [w for _, w in r],
-            "share_mae": sum(m <= 1 + TARGET_FRACTION for m, _ in r) / n,
-            "share_worst": sum(w <= 1 + TARGET_FRACTION for _, w in r) / n,
-            "share_both": sum(passes(m, w) for m, w in r) / n,
-            "mean_mae_ratio": float(np.mean([m for m, _ in r])) if r else math.nan,
-        }
+        return ratio_row(chosen, [ratios(res, chosen[res["seed"]]) for res in results])
 
     today = row(())
     out = {"today": today}
     for name, extra in added.items():
-        v = row(tuple(extra))
-        d = np.array(v["mae_ratio"]) - np.array(today["mae_ratio"])
-        v["mean_mae_difference"] = float(d.mean()) if d.size else math.nan
-        v["se_mae_difference"] = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
+        v = with_difference(row(tuple(extra)), today)
         v["adopted"] = bool(
             v["share_both"] > today["share_both"] and v["mean_mae_difference"] <= v["se_mae_difference"]
         )
@@ -1056,23 +1055,10 @@ def judge_no_fold(results: list[dict], hours: float, defaults=NO_FOLD) -> dict:
             pick = name if name in cands else defaults[0]
             picks[res["seed"]] = pick
             r.append(ratios({**res, "candidates": cands}, pick))
-        n = max(len(r), 1)
-        out["defaults"][name] = {
-            "picks": picks,
-            "mae_ratio": [m for m, _ in r],
-            "worst_ratio": [w for _, w in r],
-            "share_mae": sum(m <= 1 + TARGET_FRACTION for m, _ in r) / n,
-            "share_worst": sum(w <= 1 + TARGET_FRACTION for _, w in r) / n,
-            "share_both": sum(passes(m, w) for m, w in r) / n,
-            "n_both": sum(passes(m, w) for m, w in r),
-            "mean_mae_ratio": float(np.mean([m for m, _ in r])) if r else math.nan,
-        }
+        out["defaults"][name] = ratio_row(picks, r)
     base = out["defaults"][defaults[0]]
     for name in defaults[1:]:
-        v = out["defaults"][name]
-        d = np.array(v["mae_ratio"]) - np.array(base["mae_ratio"])
-        v["mean_mae_difference"] = float(d.mean()) if d.size else math.nan
-        v["se_mae_difference"] = float(d.std(ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
+        v = with_difference(out["defaults"][name], base)
         v["adopted"] = bool(
             v["share_both"] >= base["share_both"] and v["mean_mae_difference"] < -v["se_mae_difference"]
         )
