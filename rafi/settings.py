@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import copy
 import os
+import re
 from collections.abc import Mapping
 
 from rafi.contract import (
@@ -159,6 +160,15 @@ def probes_by_machine(units) -> dict[str, list[str]]:
         if probe is not None:
             out.setdefault(machine, []).append(probe)
     return out
+
+
+def one_of_pattern(names) -> str:
+    """A regular expression that matches exactly one of ``names`` (escaped), or nothing when
+    there are none: a rule's ``wildcard_constraints`` that keeps it to those names (a machine
+    with several probes for ``probes_report``), so Snakemake never calls its input function
+    for another folder."""
+    names = sorted(names, key=len, reverse=True)  # a name that is a prefix of another comes last
+    return "|".join(re.escape(n) for n in names) if names else "(?!)"
 
 
 def machine_units(config: Mapping, machine: str) -> list[str]:

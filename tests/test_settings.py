@@ -16,6 +16,8 @@ from pathlib import Path
 import jsonschema
 import pytest
 import yaml
+from hypothesis import given
+from hypothesis import strategies as st
 
 from rafi import contract
 from rafi.errors import SettingsError
@@ -26,6 +28,7 @@ from rafi.settings import (
     check_layout,
     deep_merge,
     machine_settings,
+    one_of_pattern,
     run_settings,
     validate_config,
 )
@@ -343,3 +346,16 @@ def test_rafi_deploy_refuses_a_credential_in_config_yaml_without_printing_it(tmp
         out, err = capsys.readouterr()
         assert SECRET not in out + err and "bob" not in out + err
         assert "deploy.opcua.endpoint" in err or "deploy.opcua.password: credentials never go" in err
+
+
+@given(
+    st.lists(st.text(alphabet="abc-_.+()[]@x1", min_size=1, max_size=6), max_size=5, unique=True),
+    st.text(alphabet="abc-_.+()[]@x1", max_size=7),
+)
+def test_one_of_pattern_matches_exactly_its_names(names, other):
+    """The folder constraint of the several-probes report: every name and nothing else, escaped
+    (a name may be a prefix of another or hold regex characters); none: matches nothing."""
+    pattern = one_of_pattern(names)
+    for name in names:
+        assert re.fullmatch(pattern, name)
+    assert bool(re.fullmatch(pattern, other)) == (other in names)

@@ -179,6 +179,9 @@ MACHINES = sorted(RAW)
 #: Machine folder -> its probes, of the machines with several probes (``input.probes``).
 PROBES = _settings.probes_by_machine(MACHINES)
 
+#: The folder wildcard of the report of a machine with several probes (probes_report): one of them.
+MULTI_PROBE_FOLDER = _settings.one_of_pattern(PROBES)
+
 unit_name = _settings.unit_name
 
 

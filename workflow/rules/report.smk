@@ -129,6 +129,8 @@ rule probes_report:
         pdf=report_paths("{folder}")["pdf"],
     log:
         log_path("probes_report", "{folder}"),
+    wildcard_constraints:
+        folder=MULTI_PROBE_FOLDER,
     conda:
         "../envs/rafi.yaml"
     params:
