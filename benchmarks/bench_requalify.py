@@ -762,6 +762,20 @@ def adopt_default(development: dict, confirmation: dict) -> str:
     )
 
 
+def difference_cells(v: dict, verdict: str) -> tuple[str, str]:
+    """A judged row's last two table cells: its paired MAE ratio difference ``+d (se)`` (``-``
+    for the baseline) and its ``verdict`` key as yes / no (``-`` where it has none)."""
+    if "mean_mae_difference" not in v:
+        return "-", ("yes" if v[verdict] else "no") if verdict in v else "-"
+    diff = f"{v['mean_mae_difference']:+.3f} ({v['se_mae_difference']:.3f})"
+    return diff, ("yes" if v[verdict] else "no") if verdict in v else "-"
+
+
+def count_cells(v: dict, n: int) -> str:
+    """A judged row's shares within 15 % on MAE, on worst and on both as ``k of n`` cells."""
+    return f"{round(v['share_mae'] * n)} of {n} | {round(v['share_worst'] * n)} of {n} | {v['n_both']} of {n}"
+
+
 def default_markdown(judged: dict) -> str:
     """:func:`judge_default`'s table: one row per rule, then the picks per scenario."""
     lines = [
@@ -771,14 +785,8 @@ def default_markdown(judged: dict) -> str:
     ]
     n = len(judged["cv"]["picks"])
     for name, v in judged.items():
-        diff = "-"
-        if "mean_mae_difference" in v:
-            diff = f"{v['mean_mae_difference']:+.3f} ({v['se_mae_difference']:.3f})"
-        ok = ("yes" if v["mae_ok"] else "no") if "mae_ok" in v else "-"
-        lines.append(
-            f"| {name} | {round(v['share_mae'] * n)} of {n} | {round(v['share_worst'] * n)} of {n} "
-            f"| {v['n_both']} of {n} | {v['mean_mae_ratio']:.3f} | {diff} | {ok} |"
-        )
+        diff, ok = difference_cells(v, "mae_ok")
+        lines.append(f"| {name} | {count_cells(v, n)} | {v['mean_mae_ratio']:.3f} | {diff} | {ok} |")
     lines += ["", "| seed | " + " | ".join(f"{r}: pick, ratios MAE ; worst" for r in judged) + " |"]
     lines.append("|---|" + "---|" * len(judged))
     for i, seed in enumerate(judged["cv"]["picks"]):
@@ -983,12 +991,7 @@ def shared_markdown(judged: dict) -> str:
         "|---|---|---|---|---|---|---|",
     ]
     for name, v in judged.items():
-        diff = (
-            f"{v['mean_mae_difference']:+.3f} ({v['se_mae_difference']:.3f})"
-            if "mean_mae_difference" in v
-            else "-"
-        )
-        held = ("yes" if v["adopted"] else "no") if "adopted" in v else "-"
+        diff, held = difference_cells(v, "adopted")
         lines.append(
             f"| {name} | {100 * v['share_mae']:.0f} % | {100 * v['share_worst']:.0f} % "
             f"| {100 * v['share_both']:.0f} % | {v['mean_mae_ratio']:.3f} | {diff} | {held} |"
@@ -1096,16 +1099,8 @@ def no_fold_markdown(judged: dict, results: list[dict]) -> str:
     ]
     n = len(judged["seeds"])
     for name, v in judged["defaults"].items():
-        diff = (
-            f"{v['mean_mae_difference']:+.3f} ({v['se_mae_difference']:.3f})"
-            if "mean_mae_difference" in v
-            else "-"
-        )
-        held = ("yes" if v["adopted"] else "no") if "adopted" in v else "-"
-        lines.append(
-            f"| {name} | {round(v['share_mae'] * n)} of {n} | {round(v['share_worst'] * n)} of {n} "
-            f"| {v['n_both']} of {n} | {v['mean_mae_ratio']:.3f} | {diff} | {held} |"
-        )
+        diff, held = difference_cells(v, "adopted")
+        lines.append(f"| {name} | {count_cells(v, n)} | {v['mean_mae_ratio']:.3f} | {diff} | {held} |")
     if judged["left_out"]:
         lines.append(
             f"\nLeft out (a CV fold at {judged['hours']:g} h): {', '.join(map(str, judged['left_out']))}."
