@@ -164,6 +164,16 @@ OPERATIONS_SETTINGS: dict = {
                 shown="1e-8 ... 10, 1-2-5 per decade",
                 doc="ridge penalties tried by CV",
             ),
+            "component_envelope": Setting(
+                default=False,
+                schema={"type": "boolean"},
+                shown="`false`",
+                doc=(
+                    "the ridge kinds also hold each principal component of their standardised features "
+                    "where it would add more than one training span of the displacement beyond its "
+                    "training range (`docs/decisions.md`, issue 46; being judged)"
+                ),
+            ),
             "prior_ridge_alphas": Setting(
                 default=[float(f"{m}e{e}") for e in range(-4, 5) for m in (1, 2, 5)] + [1e5],
                 schema={"type": "array", "items": {"type": "number", "exclusiveMinimum": 0}, "minItems": 1},

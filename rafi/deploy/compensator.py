@@ -106,8 +106,10 @@ from rafi.deploy.interval_stream import NO_INTERVAL, StreamInterval
 from rafi.deploy.step import ENSEMBLE, KINDS, MEMBER_KINDS, STATUSES, Step
 from rafi.deploy.streaming import LowpassBank, ReferenceWindow
 from rafi.family.envelope import (
+    bound_components,
     bound_features,
     bound_output,
+    component_bounds,
     envelope_bounds,
     key_range_excess,
     key_range_inputs,
@@ -243,6 +245,7 @@ class Compensator:
         interval: StreamInterval | None = None,
         envelope: tuple | None = None,
         output_bounds: tuple | None = None,
+        components: tuple | None = None,
     ):
         self.kind = kind
         self.model_id = model_id
@@ -270,6 +273,7 @@ class Compensator:
         self.interval = interval
         self.envelope = envelope
         self.output_bounds = output_bounds
+        self.components = components
         self._outside_envelope = False
         self._excess = 0.0  # the last row's range_excess (a ridge kind's; the interval widens with it)
         self._since_change_s = float("nan")
@@ -416,6 +420,7 @@ class Compensator:
             speed_range_rpm=tuple(float(v) for v in d["speed_range_rpm"]),
             banks=banks,
             envelope=envelope_bounds(d.get("envelope"), len(names)),
+            components=component_bounds(d.get("envelope"), len(names), d["coefficients"]),
             output_bounds=output_bounds(d.get("envelope")),
         )
 
@@ -581,9 +586,11 @@ class Compensator:
             parts.append(filt[k * p :])
         if self.draw_in_lag_s is not None:
             parts.append(np.array([draw - (self.ref_speed_rpm / SPEED_SCALE_RPM) ** 2]))
-        bounded, beyond = bound_features(np.concatenate(parts), self.envelope)  # rafi.family.envelope
+        # rafi.family.envelope: the components, the box, the output, as the batch code
+        combined, beyond_components = bound_components(np.concatenate(parts), self.components)
+        bounded, beyond = bound_features(combined, self.envelope)
         pred, beyond_output = bound_output(bounded @ self.coef, self.output_bounds)
-        self._outside_envelope = bool(beyond or beyond_output)
+        self._outside_envelope = bool(beyond or beyond_output or beyond_components)
         pred = float(pred)
         lo, hi = self.ranges[:, 0], self.ranges[:, 1]
         out_temp = bool(((rises < lo) | (rises > hi)).any())

@@ -115,6 +115,7 @@ def make_model(
     common = {"reference": reference, "machine": machine, "speed_tolerance_rpm": speed_tolerance_rpm}
     ridge = {"alphas": o["ridge_alphas"], "cv": o["cv"], "speed_reference": o["speed_reference"], **common}
     ridge["filter_restart_gap_s"] = o["filter_restart_gap_s"]
+    ridge["component_envelope"] = o["component_envelope"]
     if kind == "rafi":
         return PublishedRafi(key_sensors=key_sensors, terms=terms, hac_maxlags=hac_maxlags, **common)
     if kind == "rafi_linear":

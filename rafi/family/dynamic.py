@@ -67,6 +67,7 @@ class DynamicRidge(RidgeGlobal):
         machine: str | None = None,
         speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
         filter_restart_gap_s: float = MODELS["filter_restart_gap_s"],
+        component_envelope: bool = MODELS["component_envelope"],
     ):
         super().__init__(
             sensors=sensors,
@@ -80,6 +81,7 @@ class DynamicRidge(RidgeGlobal):
             machine=machine,
             speed_tolerance_rpm=speed_tolerance_rpm,
             filter_restart_gap_s=filter_restart_gap_s,
+            component_envelope=component_envelope,
         )
         self.taus_s = taus_s
         self.max_taus = max_taus

@@ -15,8 +15,17 @@ itself is also held inside the training displacement range (``output_range``) wi
 study archived 2026-11-29: ``git show 62841e2:benchmarks/bench_envelope.py``) as the widest margin
 that costs nothing measurable.
 
-The artefact carries the envelope (``envelope``: ``margin``, ``feature_ranges`` and, from
-2026-11-29, ``output_margin`` and ``output_range``), so the streaming
+A combination can also be bounded where it happens: with ``components`` (``models:
+component_envelope``) the envelope records the principal components of the standardised training
+features and holds each component's score inside its training range widened by the same margin
+widened by the same margin times the larger of its span and what it would add to the prediction
+(:func:`fit_components`, :func:`component_bounds`, :func:`bound_components`), before the
+per-feature box; a row inside is unchanged to the bit, a row outside moves along the clipped
+components only.
+
+The artefact carries the envelope (``envelope``: ``margin``, ``feature_ranges``, from
+2026-11-29 ``output_margin`` and ``output_range``, and with the components ``components``), so the
+streaming
 compensator bounds exactly as the batch code does (:mod:`rafi.deploy.compensator`); an artefact
 without it is evaluated unbounded, as it was fitted.
 
@@ -30,9 +39,12 @@ import numpy as np
 __all__ = [
     "ENVELOPE_MARGIN",
     "OUTPUT_MARGIN",
+    "bound_components",
     "bound_features",
     "bound_output",
+    "component_bounds",
     "envelope_bounds",
+    "fit_components",
     "fit_envelope",
     "join_envelope",
     "key_range_excess",
@@ -71,11 +83,21 @@ def _join(a: list, b: list) -> list:
     return [min(lows) if lows else None, max(highs) if highs else None]
 
 
+#: A component whose singular value is below this share of the largest has no training variance
+#: to speak of (exactly collinear features): it is left out, never bounded.
+COMPONENT_RTOL = 1e-10
+
+
 def fit_envelope(
-    features: np.ndarray, target: np.ndarray | None = None, margin: float = ENVELOPE_MARGIN
+    features: np.ndarray,
+    target: np.ndarray | None = None,
+    margin: float = ENVELOPE_MARGIN,
+    *,
+    components: bool = False,
 ) -> dict:
     """The envelope of training ``features`` (rows x features) and, given, of the training
-    ``target`` (the displacement) as the artefact records it.
+    ``target`` (the displacement) as the artefact records it; with ``components``, also the
+    principal components of the features (:func:`fit_components`).
 
     A feature without a finite training value gets ``[null, null]`` (never bounded).
     """
@@ -84,13 +106,111 @@ def fit_envelope(
     if target is not None:
         env["output_margin"] = OUTPUT_MARGIN
         env["output_range"] = _range(np.asarray(target, dtype=float))
+    if components:
+        fitted = fit_components(x)
+        if fitted is not None:
+            env["components"] = fitted
     return env
+
+
+def fit_components(features: np.ndarray) -> dict | None:
+    """The principal components of training ``features`` (rows x features) as the envelope
+    records them: ``columns`` (the features that spread beyond rounding), their ``center`` and ``scale``
+    (mean and standard deviation), ``vectors`` (one list per component, over those columns; the
+    components of non-zero variance, :data:`COMPONENT_RTOL`) and ``score_ranges`` (each
+    component's training range). Rows with a NaN are left out; None with fewer than two rows or
+    two varying features (nothing to combine)."""
+    x = np.asarray(features, dtype=float)
+    x = x[np.isfinite(x).all(axis=1)]
+    if len(x) < 2:
+        return None
+    center = x.mean(axis=0)
+    scale = x.std(axis=0)
+    # a spread below rounding of the feature's size is none (it would divide rounding noise)
+    columns = np.flatnonzero(scale > COMPONENT_RTOL * np.abs(x).max(axis=0))
+    if len(columns) < 2:
+        return None
+    z = (x[:, columns] - center[columns]) / scale[columns]
+    _, singular, vt = np.linalg.svd(z, full_matrices=False)
+    vectors = vt[singular > singular[0] * COMPONENT_RTOL]
+    scores = z @ vectors.T
+    return {
+        "columns": [int(c) for c in columns],
+        "center": [float(v) for v in center[columns]],
+        "scale": [float(v) for v in scale[columns]],
+        "vectors": vectors.tolist(),
+        "score_ranges": [[float(lo), float(hi)] for lo, hi in zip(scores.min(axis=0), scores.max(axis=0))],
+    }
+
+
+def component_bounds(envelope: dict | None, n_features: int, coef=None) -> tuple | None:
+    """``(columns, center, scale, vectors, low, high)`` of the envelope's components; None
+    without components (the default, or an artefact fitted before them).
+
+    Each score range is widened by the envelope's margin ``m`` times the larger of its own span
+    and ``Y / |g|``: ``g`` the model's gain along the component (``coef``, the model's
+    coefficients, in um per unit score) and ``Y`` the training displacement span. A direction the
+    model reads with a small gain is held only where it would add more than ``m`` training spans
+    to the prediction; without ``coef`` or an output range, the score span alone.
+
+    Raises
+    ------
+    ValueError
+        Components of a column the model does not have.
+    """
+    comp = (envelope or {}).get("components")
+    if not comp:
+        return None
+    columns = np.asarray(comp["columns"], dtype=int)
+    if columns.size and columns.max() >= n_features:
+        raise ValueError(f"the envelope's components read column {columns.max()}, the model has {n_features}")
+    rng = np.asarray(comp["score_ranges"], dtype=float).reshape(-1, 2)
+    vectors = np.asarray(comp["vectors"], dtype=float).reshape(len(rng), len(columns))
+    scale = np.asarray(comp["scale"], dtype=float)
+    reach = rng[:, 1] - rng[:, 0]
+    out = envelope.get("output_range") or [None, None]
+    if coef is not None and out[0] is not None and out[1] is not None:
+        gain = np.abs(vectors @ (scale * np.asarray(coef, dtype=float)[columns]))
+        with np.errstate(divide="ignore"):
+            reach = np.maximum(reach, (float(out[1]) - float(out[0])) / gain)
+    pad = float(envelope["margin"]) * reach
+    return (
+        columns,
+        np.asarray(comp["center"], dtype=float),
+        scale,
+        vectors,
+        rng[:, 0] - pad,
+        rng[:, 1] + pad,
+    )
+
+
+def bound_components(features: np.ndarray, bounds) -> tuple[np.ndarray, np.ndarray]:
+    """``features`` with each principal component's score held inside ``bounds``
+    (:func:`component_bounds`) and, per row, whether any score was outside. A row inside is
+    returned unchanged to the bit; a row outside moves along its clipped components only (the
+    other components' scores stay as they were). A row with a NaN is never outside. Without
+    bounds: unchanged."""
+    x = np.asarray(features, dtype=float)
+    if bounds is None:
+        return x, np.zeros(x.shape[:-1], dtype=bool)
+    columns, center, scale, vectors, lo, hi = bounds
+    z = (x[..., columns] - center) / scale
+    scores = z @ vectors.T
+    with np.errstate(invalid="ignore"):
+        outside = ((scores < lo) | (scores > hi)).any(axis=-1)
+    if not outside.any():
+        return x, outside
+    shift = ((np.clip(scores, lo, hi) - scores) @ vectors) * scale
+    out = x.copy()
+    out[..., columns] = np.where(outside[..., None], x[..., columns] + shift, x[..., columns])
+    return out, outside
 
 
 def join_envelope(envelope: dict | None, features: np.ndarray, target: np.ndarray | None = None) -> dict:
     """``envelope`` (a prior's) joined with the range of new training ``features`` and ``target``:
-    an adapted model stands on both (:mod:`rafi.family.adapted`). Without a prior envelope: the
-    new one."""
+    an adapted model stands on both (:mod:`rafi.family.adapted`); the prior's components, if it
+    has them, keep their directions and widen their score ranges by the new rows'. Without a prior
+    envelope: the new one."""
     margin = ENVELOPE_MARGIN if not envelope else float(envelope["margin"])
     new = fit_envelope(features, target, margin)
     if not envelope or len(envelope["feature_ranges"]) != len(new["feature_ranges"]):
@@ -103,7 +223,24 @@ def join_envelope(envelope: dict | None, features: np.ndarray, target: np.ndarra
         prior = envelope.get("output_range", [None, None])
         joined["output_margin"] = float(envelope.get("output_margin", OUTPUT_MARGIN))
         joined["output_range"] = _join(prior, new["output_range"])
+    if envelope.get("components"):
+        joined["components"] = _join_components(envelope["components"], np.asarray(features, dtype=float))
     return joined
+
+
+def _join_components(comp: dict, features: np.ndarray) -> dict:
+    """The prior's components with their score ranges widened by the scores of ``features``."""
+    columns = np.asarray(comp["columns"], dtype=int)
+    x = features[np.isfinite(features).all(axis=1)]
+    if not len(x):
+        return comp
+    vectors = np.asarray(comp["vectors"], dtype=float).reshape(-1, len(columns))
+    scores = ((x[:, columns] - np.asarray(comp["center"])) / np.asarray(comp["scale"])) @ vectors.T
+    ranges = [
+        _join(list(r), [float(lo), float(hi)])
+        for r, lo, hi in zip(comp["score_ranges"], scores.min(axis=0), scores.max(axis=0))
+    ]
+    return {**comp, "score_ranges": ranges}
 
 
 def envelope_bounds(envelope: dict | None, n_features: int) -> tuple[np.ndarray, np.ndarray] | None:

@@ -67,7 +67,7 @@ class GreyBox(RidgeBase):
         ``rmse`` or ``max_abs`` (``models: grey_box_cv_metric``).
     **others
         ``sensors``, ``alphas``, ``cv``, ``speed_terms``, ``speed_reference``, ``reference``,
-        ``machine``, ``speed_tolerance_rpm``, ``filter_restart_gap_s`` as
+        ``machine``, ``speed_tolerance_rpm``, ``filter_restart_gap_s``, ``component_envelope`` as
         :class:`rafi.family.ridge_global.RidgeGlobal`.
     """
 
@@ -90,6 +90,7 @@ class GreyBox(RidgeBase):
         machine: str | None = None,
         speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
         filter_restart_gap_s: float = MODELS["filter_restart_gap_s"],
+        component_envelope: bool = MODELS["component_envelope"],
     ):
         self.taus_s = taus_s
         self.speed_taus_s = speed_taus_s
@@ -105,6 +106,7 @@ class GreyBox(RidgeBase):
         self.machine = machine
         self.speed_tolerance_rpm = speed_tolerance_rpm
         self.filter_restart_gap_s = filter_restart_gap_s
+        self.component_envelope = component_envelope
 
     def _inputs_text(self) -> str:
         return (

@@ -13,8 +13,10 @@ import pandas as pd
 from rafi.family.base import CODE_VERSION, FamilyModel, check_artefact, data_hashes, finish_artefact, floats
 from rafi.family.crossval import split_runs, training_mask, training_runs
 from rafi.family.envelope import (
+    bound_components,
     bound_features,
     bound_output,
+    component_bounds,
     envelope_bounds,
     fit_envelope,
     key_range_excess,
@@ -347,7 +349,7 @@ class RidgeBase(FamilyModel):
             s: [float(x[:, i].min()), float(x[:, i].max())] for i, s in enumerate(sensors)
         }
         self.speed_range_rpm_ = [float(table["speed_rpm"].min()), float(table["speed_rpm"].max())]
-        self.envelope_ = fit_envelope(feats, y)
+        self.envelope_ = fit_envelope(feats, y, components=bool(getattr(self, "component_envelope", False)))
         self.rmse_um_ = float(np.sqrt(np.mean((y - feats @ self.coef_) ** 2)))
         self.n_ = int(len(y))
         self.cv_table_ = cv_table
@@ -383,7 +385,11 @@ class RidgeBase(FamilyModel):
         (:func:`rafi.family.envelope.range_excess`; the interval widens with it)."""
         feats = self._design_of(frame)
         envelope = getattr(self, "envelope_", None)
-        bounded, beyond = bound_features(feats, envelope_bounds(envelope, feats.shape[1]))
+        combined, beyond_components = bound_components(
+            feats, component_bounds(envelope, feats.shape[1], self.coef_)
+        )
+        bounded, beyond = bound_features(combined, envelope_bounds(envelope, feats.shape[1]))
+        beyond = beyond | beyond_components
         pred, beyond_output = bound_output(bounded @ self.coef_, output_bounds(envelope))
         beyond = beyond | beyond_output
         x = frame[[rise_column(s) for s in self.sensors_]].to_numpy(dtype=float)
@@ -451,7 +457,8 @@ class RidgeBase(FamilyModel):
             "target": "displacement change dz (um) from the reference state",
             "reference": dict(self.reference),
             "speed_reference": {"rule": self._speed_rule(), "window_s": self._window_s()},
-            "hyperparameters": self._hyper(),
+            "hyperparameters": self._hyper()
+            | ({"component_envelope": True} if getattr(self, "component_envelope", False) else {}),
             "selected": self._selected(),
             "cv": self.cv_table_,
             "features": self.feature_names_,

@@ -55,6 +55,9 @@ class RidgeGlobal(RidgeBase):
     filter_restart_gap_s : float
         Whole-log frames: a gap longer than this (s) restarts the filters
         (``models: filter_restart_gap_s``; :mod:`rafi.family.whole_log`).
+    component_envelope : bool
+        Also hold the features' principal components inside their training envelope (``models:
+        component_envelope``; :mod:`rafi.family.envelope`).
     """
 
     kind = "ridge_global"
@@ -73,6 +76,7 @@ class RidgeGlobal(RidgeBase):
         machine: str | None = None,
         speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
         filter_restart_gap_s: float = MODELS["filter_restart_gap_s"],
+        component_envelope: bool = MODELS["component_envelope"],
     ):
         self.sensors = sensors
         self.alphas = alphas
@@ -85,6 +89,7 @@ class RidgeGlobal(RidgeBase):
         self.machine = machine
         self.speed_tolerance_rpm = speed_tolerance_rpm
         self.filter_restart_gap_s = filter_restart_gap_s
+        self.component_envelope = component_envelope
 
     def _inputs_text(self) -> str:
         return "temperature rises dT (K) of all usable sensors; speed (krpm) relative to the reference state"

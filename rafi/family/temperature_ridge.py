@@ -27,7 +27,8 @@ class TemperatureRidge(DynamicRidge):
     ----------
     taus_s : sequence of float
         The filter time constants, every one used (``models: temperature_ridge_taus_s``).
-    sensors, alphas, cv, cv_metric, reference, machine, speed_tolerance_rpm, filter_restart_gap_s
+    sensors, alphas, cv, cv_metric, reference, machine, speed_tolerance_rpm, filter_restart_gap_s,
+    component_envelope
         As :class:`rafi.family.ridge_global.RidgeGlobal`.
     """
 
@@ -45,6 +46,7 @@ class TemperatureRidge(DynamicRidge):
         machine: str | None = None,
         speed_tolerance_rpm: float = MACHINE_DEFAULTS["speed_tolerance_rpm"],
         filter_restart_gap_s: float = MODELS["filter_restart_gap_s"],
+        component_envelope: bool = MODELS["component_envelope"],
     ):
         self.taus_s = taus_s
         self.sensors = sensors
@@ -55,6 +57,7 @@ class TemperatureRidge(DynamicRidge):
         self.machine = machine
         self.speed_tolerance_rpm = speed_tolerance_rpm
         self.filter_restart_gap_s = filter_restart_gap_s
+        self.component_envelope = component_envelope
 
     # The parts of DynamicRidge this kind does not have, fixed (not parameters: a temperature
     # ridge with a speed input would be `dynamic`).
