@@ -309,10 +309,13 @@ def judge_seed(
     setup_drift: bool = False,
     realism: tuple[str, ...] = (),
     models: dict | None = None,
+    offered_only: bool = False,
 ) -> dict:
     """The result of one seed: read from ``keep/seed-NNN/result.json`` if there (made with the
     same ``setup_drift``, ``realism`` and ``models``, else a stop), else made (the project, the
-    pipeline, both judges) and written there."""
+    pipeline, both judges) and written there. ``offered_only``: without the outer judge (the
+    pipeline's offered model, which is the current rule, and every kind on the test days only;
+    about a quarter of the time)."""
     folder = keep / f"seed-{seed:03d}"
     cached = folder / "result.json"
     if cached.is_file():
@@ -333,13 +336,13 @@ def judge_seed(
     machine = truth["machine"]
     pipeline_s = run_pipeline(proj, machine, cores)
     t0 = time.perf_counter()
-    judged = judge.judge_machine(proj, machine, log=lambda m: None)
+    judged = None if offered_only else judge.judge_machine(proj, machine, log=lambda m: None)
     judge_s = time.perf_counter() - t0
     summary = pd.read_csv(proj / "results" / machine / RESULT_FILES["comparison"])
     offered = str(summary.loc[summary["champion"].astype(bool), "model"].iloc[0])
     rows = test_rows(proj, machine, truth)
     kinds = single_kinds(rows)
-    picks = choices(judged, kinds)
+    picks = choices(judged, kinds) if judged is not None else {CURRENT: {offered: 1.0}}
     picks["offered"] = {offered: 1.0}
     if offered != ENSEMBLE_MODEL:
         log(f"{machine}: the pipeline offers {offered}, not its ensemble (fewer than two members scored)")
@@ -357,7 +360,7 @@ def judge_seed(
         "offered": offered,
         "choices": picks,
         "test": tests,
-        "outer": judge.summarise(judged),
+        "outer": judge.summarise(judged) if judged is not None else [],
         "seconds": {"pipeline": round(pipeline_s, 1), "judge": round(judge_s, 1)},
     }
     tmp = cached.with_suffix(".tmp")
@@ -389,7 +392,7 @@ def rule_rows(results: list[dict]) -> list[dict]:
     """Per rule (and per kind always offered, and the pipeline's offered model) across machines:
     the primary, its paired difference to the current rule, the guard, inside/outside ratios and
     the outer CV ratio (module docstring)."""
-    names = list(results[0]["test"])
+    names = [n for n in results[0]["test"] if all(n in r["test"] for r in results)]  # offered-only seeds
     best = [min(r["test"][k]["mae"] for k in r["test"] if k.startswith("kind:")) for r in results]
     current = np.array([r["test"][CURRENT]["mae"] / b for r, b in zip(results, best)])
     out = []
@@ -517,6 +520,12 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")
     parser.add_argument(
+        "--offered-only",
+        action="store_true",
+        help="without the outer judge of the rules: the offered model and every kind on the test days "
+        "(a variant of the settings judged against a kept run; a quarter of the time)",
+    )
+    parser.add_argument(
         "--rescore",
         action="store_true",
         help="score the test days of seeds already done anew from their kept projects (a rule added "
@@ -542,6 +551,7 @@ def main(argv: list[str] | None = None) -> int:
                 setup_drift=args.setup_drift,
                 realism=realism,
                 models=args.models,
+                offered_only=args.offered_only,
             )
             if args.rescore:
                 result = rescored(result, keep / f"seed-{seed:03d}")

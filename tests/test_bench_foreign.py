@@ -137,3 +137,25 @@ def test_a_kept_seed_made_with_other_models_settings_is_refused_and_a_variant_re
     bench.make_project(4, proj, models=variant)
     defaults = yaml.safe_load((proj / "config.yaml").read_text(encoding="utf-8"))["defaults"]["models"]
     assert defaults["cv_metric"] == "max_abs" and "temperature_ridge" in defaults["enabled"]
+
+
+def _seed_result(bench, seed: int, scores: dict) -> dict:
+    day = {"mae": 0.0, "none_mae": 5.0}
+    test = {
+        name: {"mae": mae, "max": mae, "none_mae": 5.0, "days": {"d1": {**day, "mae": mae}}}
+        for name, mae in scores.items()
+    }
+    return {"seed": seed, "test": test, "test_runs": [{"stem": "d1", "outside_any": 1.0}], "outer": []}
+
+
+def test_seeds_judged_without_the_outer_judge_join_on_what_every_seed_has(bench):
+    """A seed run with --offered-only has the current rule (the pipeline's offered ensemble) and the
+    kinds; a kept full seed has every rule too: the table keeps what both have."""
+    full = _seed_result(
+        bench, 0, {bench.CURRENT: 1.2, "ridge_floor": 1.1, "offered": 1.2, "kind:dynamic": 1.0}
+    )
+    lean = _seed_result(bench, 1, {bench.CURRENT: 0.9, "offered": 0.9, "kind:dynamic": 0.6})
+    rows = {r["rule"]: r for r in bench.rule_rows([full, lean])}
+    assert set(rows) == {bench.CURRENT, "offered", "kind:dynamic"}
+    assert rows[bench.CURRENT]["primary"] == pytest.approx((1.2 / 1.0 + 0.9 / 0.6) / 2)
+    assert rows["kind:dynamic"]["primary"] == pytest.approx(1.0)
