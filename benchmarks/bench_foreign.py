@@ -277,6 +277,12 @@ def choices(result: dict, kinds: list[str]) -> dict:
     return out
 
 
+def offered_choices(offered: str, kinds: list[str]) -> dict:
+    """The choices without the outer judge (``--offered-only``): the current rule is the
+    pipeline's ``offered`` model, plus every kind always offered (``kind:<name>``)."""
+    return {CURRENT: {offered: 1.0}, **{f"kind:{k}": {k: 1.0} for k in kinds}}
+
+
 def test_scores(rows: pd.DataFrame, picks: dict) -> dict:
     """Every choice's :func:`scores_of` on the test rows."""
     return {
@@ -342,7 +348,7 @@ def judge_seed(
     offered = str(summary.loc[summary["champion"].astype(bool), "model"].iloc[0])
     rows = test_rows(proj, machine, truth)
     kinds = single_kinds(rows)
-    picks = choices(judged, kinds) if judged is not None else {CURRENT: {offered: 1.0}}
+    picks = choices(judged, kinds) if judged is not None else offered_choices(offered, kinds)
     picks["offered"] = {offered: 1.0}
     if offered != ENSEMBLE_MODEL:
         log(f"{machine}: the pipeline offers {offered}, not its ensemble (fewer than two members scored)")

@@ -155,6 +155,11 @@ def test_seeds_judged_without_the_outer_judge_join_on_what_every_seed_has(bench)
         bench, 0, {bench.CURRENT: 1.2, "ridge_floor": 1.1, "offered": 1.2, "kind:dynamic": 1.0}
     )
     lean = _seed_result(bench, 1, {bench.CURRENT: 0.9, "offered": 0.9, "kind:dynamic": 0.6})
+    assert bench.offered_choices("ensemble", ["dynamic", "grey_box"]) == {
+        bench.CURRENT: {"ensemble": 1.0},
+        "kind:dynamic": {"dynamic": 1.0},
+        "kind:grey_box": {"grey_box": 1.0},
+    }
     rows = {r["rule"]: r for r in bench.rule_rows([full, lean])}
     assert set(rows) == {bench.CURRENT, "offered", "kind:dynamic"}
     assert rows[bench.CURRENT]["primary"] == pytest.approx((1.2 / 1.0 + 0.9 / 0.6) / 2)
