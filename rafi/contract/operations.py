@@ -165,13 +165,13 @@ OPERATIONS_SETTINGS: dict = {
                 doc="ridge penalties tried by CV",
             ),
             "component_envelope": Setting(
-                default=False,
+                default=True,
                 schema={"type": "boolean"},
-                shown="`false`",
+                shown="`true`",
                 doc=(
                     "the ridge kinds also hold each principal component of their standardised features "
                     "where it would add more than one training span of the displacement beyond its "
-                    "training range (`docs/decisions.md`, issue 46; being judged)"
+                    "training range (`docs/models.md`, The training envelope)"
                 ),
             ),
             "prior_ridge_alphas": Setting(

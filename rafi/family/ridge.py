@@ -458,7 +458,7 @@ class RidgeBase(FamilyModel):
             "reference": dict(self.reference),
             "speed_reference": {"rule": self._speed_rule(), "window_s": self._window_s()},
             "hyperparameters": self._hyper()
-            | ({"component_envelope": True} if getattr(self, "component_envelope", False) else {}),
+            | {"component_envelope": bool(getattr(self, "component_envelope", False))},
             "selected": self._selected(),
             "cv": self.cv_table_,
             "features": self.feature_names_,
