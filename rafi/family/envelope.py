@@ -16,18 +16,17 @@ study archived 2026-11-29: ``git show 62841e2:benchmarks/bench_envelope.py``) as
 that costs nothing measurable.
 
 A combination can also be bounded where it happens: with ``components`` (``models:
-component_envelope``) the envelope records the principal components of the standardised training
-features and holds each component's score inside its training range widened by the same margin
-widened by the same margin times the larger of its span and what it would add to the prediction
+component_envelope``, on by default) the envelope records the principal components of the
+standardised training features and holds each component's score inside its training range widened
+by the same margin times the larger of its span and what it would add to the prediction
 (:func:`fit_components`, :func:`component_bounds`, :func:`bound_components`), before the
 per-feature box; a row inside is unchanged to the bit, a row outside moves along the clipped
 components only.
 
 The artefact carries the envelope (``envelope``: ``margin``, ``feature_ranges``, from
 2026-11-29 ``output_margin`` and ``output_range``, and with the components ``components``), so the
-streaming
-compensator bounds exactly as the batch code does (:mod:`rafi.deploy.compensator`); an artefact
-without it is evaluated unbounded, as it was fitted.
+streaming compensator bounds exactly as the batch code does (:mod:`rafi.deploy.compensator`); an
+artefact without it is evaluated unbounded, as it was fitted.
 
 NumPy only (the compensator imports it).
 """
