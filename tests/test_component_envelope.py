@@ -18,11 +18,11 @@ import warnings
 
 import numpy as np
 import pytest
+from hotter_runs import hotter_than_ever_runs, streamed
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from rafi.deploy.compensator import Compensator
 from rafi.family.envelope import (
     ENVELOPE_MARGIN,
     bound_components,
@@ -30,8 +30,7 @@ from rafi.family.envelope import (
     fit_envelope,
     join_envelope,
 )
-from rafi.twin.synthetic_logs import schedule_log
-from rafi.twin.synthetic_runs import runs_of_logs, small_family_model
+from rafi.twin.synthetic_runs import small_family_model
 
 #: Values at a logger's resolution (a milli-unit): features are kelvin, scaled speeds and their filters.
 finite = st.integers(-(10**6), 10**6).map(lambda i: i / 1000.0)
@@ -151,14 +150,7 @@ def test_an_adapted_model_keeps_the_prior_components_and_widens_their_ranges():
 
 @pytest.fixture(scope="module")
 def hotter_than_ever():
-    rest = (0, 180)
-    logs = {
-        f"train{i}.csv": schedule_log([rest, (speed, 2 * 3600), (0, 3600)], period_s=20, seed=i)[0]
-        for i, speed in enumerate((3000, 6000))
-    }
-    logs["test.csv"] = schedule_log([rest, (9000, 5 * 3600)], period_s=20, seed=9)[0]
-    table, frame = runs_of_logs(logs, training_speeds_rpm=[3000, 6000], reference_window_s=60)
-    return table, frame
+    return hotter_than_ever_runs()
 
 
 @pytest.mark.parametrize("kind", ["dynamic", "grey_box", "ridge_global", "temperature_ridge"])
@@ -183,15 +175,12 @@ def test_a_ridge_kind_with_components_bounds_the_same_in_batch_and_stream(hotter
     pred = detail["predicted_um"].to_numpy()
     ok = np.isfinite(pred)
     assert np.abs(y - pred)[ok].mean() < 0.5 * np.abs(y)[ok].mean()
-    comp = Compensator.from_artefact(art)
-    sensors = [c for c in test.columns if c.startswith("T") and c[1:].isdigit()]
-    cols = (test["log_t_s"].to_numpy(), test["speed_rpm"].to_numpy(), test[sensors].to_numpy(dtype=float))
-    steps = [comp.step(t, n, row) for t, n, row in zip(*cols)]
+    steps = streamed(model, test)
     after = test["log_t_s"].to_numpy() >= test["log_t_s"].min() + 60.0  # after the reference window
     got = np.array([s.compensation_um for s in steps])
     np.testing.assert_allclose(got[after], pred[after], rtol=0, atol=1e-9)
-    streamed = np.array([s.outside_envelope for s in steps])
-    np.testing.assert_array_equal(streamed[after], detail["outside_envelope"].to_numpy()[after])
+    flags = np.array([s.outside_envelope for s in steps])
+    np.testing.assert_array_equal(flags[after], detail["outside_envelope"].to_numpy()[after])
     # the same model without components: the rows inside both boxes predict the same
     plain = small_family_model(
         kind, reference_rule="run_start", reference_window_s=60, filter_restart_gap_s=3600, alphas=(1e-8,)

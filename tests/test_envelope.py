@@ -15,11 +15,11 @@ import warnings
 
 import numpy as np
 import pytest
+from hotter_runs import hotter_than_ever_runs, streamed
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-from rafi.deploy.compensator import Compensator
 from rafi.family.envelope import (
     OUTPUT_MARGIN,
     bound_features,
@@ -29,8 +29,7 @@ from rafi.family.envelope import (
     join_envelope,
     output_bounds,
 )
-from rafi.twin.synthetic_logs import schedule_log
-from rafi.twin.synthetic_runs import runs_of_logs, small_family_model
+from rafi.twin.synthetic_runs import small_family_model
 
 RIDGE_KINDS = ["temperature_ridge", "dynamic", "ridge_global", "grey_box"]
 finite = st.floats(-1e3, 1e3, allow_nan=False)
@@ -107,13 +106,7 @@ def test_a_prediction_is_held_inside_the_training_range_widened_by_the_output_ma
 
 @pytest.fixture(scope="module")
 def hotter_than_ever():
-    rest = (0, 180)
-    logs = {
-        f"train{i}.csv": schedule_log([rest, (speed, 2 * 3600), (0, 3600)], period_s=20, seed=i)[0]
-        for i, speed in enumerate((3000, 6000))
-    }
-    logs["test.csv"] = schedule_log([rest, (9000, 5 * 3600)], period_s=20, seed=9)[0]
-    table, frame = runs_of_logs(logs, training_speeds_rpm=[3000, 6000], reference_window_s=60)
+    table, frame = hotter_than_ever_runs()
     assert set(table.loc[table["run_id"] == "test", "role"]) == {"validation_single"}
     return table, frame
 
@@ -141,26 +134,12 @@ def test_outside_the_envelope_a_model_is_better_than_no_compensation(hotter_than
     # the artefact carries the envelope: the streaming compensator bounds as the batch code does
     art = json.loads(json.dumps(model.to_dict()))
     assert len(art["envelope"]["feature_ranges"]) == len(art["features"])
-    comp = Compensator.from_artefact(art)
-    sensors = [c for c in test.columns if c.startswith("T") and c[1:].isdigit()]
-    steps = [
-        comp.step(t, n, row)
-        for t, n, row in zip(
-            test["log_t_s"].to_numpy(), test["speed_rpm"].to_numpy(), test[sensors].to_numpy(dtype=float)
-        )
-    ]
-    streamed = np.array([s.outside_envelope for s in steps])
+    steps = streamed(model, test)
+    flags = np.array([s.outside_envelope for s in steps])
     after = test["log_t_s"].to_numpy() >= test["log_t_s"].min() + 60.0  # after the reference window
-    np.testing.assert_array_equal(streamed[after], detail["outside_envelope"].to_numpy()[after])
+    np.testing.assert_array_equal(flags[after], detail["outside_envelope"].to_numpy()[after])
     got = np.array([s.compensation_um for s in steps])
     np.testing.assert_allclose(got[after], detail["predicted_um"].to_numpy()[after], rtol=0, atol=1e-9)
-
-
-def _streamed(model, test):
-    comp = Compensator.from_artefact(json.loads(json.dumps(model.to_dict())))
-    sensors = [c for c in test.columns if c.startswith("T") and c[1:].isdigit()]
-    cols = (test["log_t_s"].to_numpy(), test["speed_rpm"].to_numpy(), test[sensors].to_numpy(dtype=float))
-    return [comp.step(t, n, row) for t, n, row in zip(*cols)]
 
 
 @pytest.mark.parametrize("kind", ["dynamic", "temperature_ridge"])
@@ -187,12 +166,12 @@ def test_a_runaway_is_capped_at_the_output_bound_in_batch_and_stream(hotter_than
     assert pred[ok].min() >= lo - 1e-9 and pred[ok].max() <= hi + 1e-9
     assert np.isclose(pred[ok].max(), hi) or np.isclose(pred[ok].min(), lo)
     assert detail["outside_envelope"].to_numpy()[np.abs(free - pred) > 1e-9].all()
-    steps = _streamed(model, test)
+    steps = streamed(model, test)
     after = test["log_t_s"].to_numpy() >= test["log_t_s"].min() + 60.0
     got = np.array([s.compensation_um for s in steps])
     np.testing.assert_allclose(got[after], pred[after], rtol=0, atol=1e-9)
-    streamed = np.array([s.outside_envelope for s in steps])
-    np.testing.assert_array_equal(streamed[after], detail["outside_envelope"].to_numpy()[after])
+    flags = np.array([s.outside_envelope for s in steps])
+    np.testing.assert_array_equal(flags[after], detail["outside_envelope"].to_numpy()[after])
 
 
 def test_beyond_the_trained_range_the_interval_widens_the_same_in_batch_and_stream(hotter_than_ever):
@@ -228,7 +207,7 @@ def test_beyond_the_trained_range_the_interval_widens_the_same_in_batch_and_stre
     half = (batch["upper_um"] - batch["lower_um"]).to_numpy() / 2
     np.testing.assert_allclose(half[outside], 1.0 * (1 + EXCESS_SLOPE * excess[outside]), rtol=1e-12)
     assert half[outside].max() > 1.0 + EXCESS_SLOPE * 0.4  # it does widen
-    steps = _streamed(model, test)
+    steps = streamed(model, test)
     after = test["log_t_s"].to_numpy() >= test["log_t_s"].min() + 60.0
     streamed_half = np.array([s.half_width_um for s in steps])
     np.testing.assert_allclose(streamed_half[after], half[after], rtol=0, atol=1e-9)
@@ -266,9 +245,9 @@ def test_an_ensemble_holds_a_member_without_its_own_cap_in_batch_and_stream(hott
     dz = test["dz_um"].to_numpy(dtype=float)
     ok = np.isfinite(detail["predicted_um"].to_numpy())
     assert np.abs(dz - detail["predicted_um"].to_numpy())[ok].mean() < np.abs(dz)[ok].mean()
-    steps = _streamed(ensemble, test)
+    steps = streamed(ensemble, test)
     after = test["log_t_s"].to_numpy() >= test["log_t_s"].min() + 60.0
     got = np.array([s.compensation_um for s in steps])
     np.testing.assert_allclose(got[after], detail["predicted_um"].to_numpy()[after], rtol=0, atol=1e-9)
-    streamed = np.array([s.outside_envelope for s in steps])
-    np.testing.assert_array_equal(streamed[after], detail["outside_envelope"].to_numpy()[after])
+    flags = np.array([s.outside_envelope for s in steps])
+    np.testing.assert_array_equal(flags[after], detail["outside_envelope"].to_numpy()[after])
