@@ -93,7 +93,7 @@ from _results import write_results  # noqa: E402
 from rafi.contract import RESULT_FILES  # noqa: E402
 from rafi.contract.operations import MODEL_KINDS  # noqa: E402
 from rafi.family.ensemble import ENSEMBLE as ENSEMBLE_MODEL  # noqa: E402
-from rafi.twin.foreign import parse_realism, write_foreign  # noqa: E402
+from rafi.twin.foreign import PLANS, parse_realism, write_foreign  # noqa: E402
 
 #: The current rule (what the pipeline offers: the CV-weighted ensemble since 2026-11-29).
 CURRENT = judge.ENSEMBLE
@@ -143,11 +143,13 @@ def make_project(
     setup_drift: bool = False,
     realism: tuple[str, ...] = (),
     models: dict | None = None,
+    plan: str = "varied",
 ) -> dict:
     """The foreign machine of ``seed`` as a runnable project in ``proj`` (every kind enabled;
-    ``realism``: :func:`rafi.twin.foreign.foreign_machine`; ``models``: more ``models:``
-    settings of every machine, a variant judged against the defaults); returns its truth."""
-    machine, _ = write_foreign(seed, proj, setup_drift=setup_drift, realism=realism)
+    ``realism``, ``plan``: :func:`rafi.twin.foreign.foreign_machine`; ``models``: more
+    ``models:`` settings of every machine, a variant judged against the defaults); returns its
+    truth."""
+    machine, _ = write_foreign(seed, proj, setup_drift=setup_drift, realism=realism, plan=plan)
     shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
     for name in ("workflow", "rafi"):
         shutil.rmtree(proj / name, ignore_errors=True)
@@ -316,9 +318,10 @@ def judge_seed(
     realism: tuple[str, ...] = (),
     models: dict | None = None,
     offered_only: bool = False,
+    plan: str = "varied",
 ) -> dict:
     """The result of one seed: read from ``keep/seed-NNN/result.json`` if there (made with the
-    same ``setup_drift``, ``realism`` and ``models``, else a stop), else made (the project, the
+    same ``setup_drift``, ``realism``, ``models`` and ``plan``, else a stop), else made (the project, the
     pipeline, both judges) and written there. ``offered_only``: without the outer judge (the
     pipeline's offered model, which is the current rule, and every kind on the test days only;
     about a quarter of the time)."""
@@ -334,11 +337,14 @@ def judge_seed(
             )
         if dict(result.get("models", {})) != dict(models or {}):
             raise SystemExit(f"{cached} was made with models={result.get('models', {})}: use another --keep")
+        if result.get("plan", "varied") != plan:
+            made = result.get("plan", "varied")
+            raise SystemExit(f"{cached} was made with plan={made}: use another --keep")
         return result
     proj = folder / "project"
     shutil.rmtree(proj, ignore_errors=True)
     proj.mkdir(parents=True)
-    truth = make_project(seed, proj, setup_drift, realism, models)
+    truth = make_project(seed, proj, setup_drift, realism, models, plan)
     machine = truth["machine"]
     pipeline_s = run_pipeline(proj, machine, cores)
     t0 = time.perf_counter()
@@ -360,6 +366,7 @@ def judge_seed(
         "setup_drift_um": truth.get("setup_drift_um", 0.0),
         **({"realism": list(realism), "realism_truth": truth["realism"]} if realism else {}),
         **({"models": dict(models)} if models else {}),
+        **({"plan": plan} if plan != "varied" else {}),
         "sensors": len(truth["sensors"]),
         "training_days": sum(d["role"] == "training" for d in truth["days"]),
         "test_runs": truth["test_runs"],
@@ -524,6 +531,14 @@ def main(argv: list[str] | None = None) -> int:
         help='more models: settings of every machine as JSON, e.g. \'{"cv_metric": "max_abs"}\' '
         "(a variant judged against the defaults); use its own --keep",
     )
+    parser.add_argument(
+        "--plan",
+        choices=PLANS,
+        default="varied",
+        help="how the machines' days are planned (rafi simulate foreign --plan): varied (a qualification's "
+        "runs and steps) or production (4-8 sensors, the same job every day through a season); use its "
+        "own --keep",
+    )
     parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")
     parser.add_argument(
         "--offered-only",
@@ -558,6 +573,7 @@ def main(argv: list[str] | None = None) -> int:
                 realism=realism,
                 models=args.models,
                 offered_only=args.offered_only,
+                plan=args.plan,
             )
             if args.rescore:
                 result = rescored(result, keep / f"seed-{seed:03d}")

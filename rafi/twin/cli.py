@@ -227,6 +227,8 @@ def _add_layout_mode(sub: argparse._SubParsersAction, formatter: type[argparse.H
 
 def _add_foreign_mode(sub: argparse._SubParsersAction, formatter: type[argparse.HelpFormatter]) -> None:
     """``foreign``: a random machine, its config and the truth of its test days."""
+    from rafi.twin.foreign import PLANS
+
     mode = sub.add_parser(
         "foreign",
         formatter_class=formatter,
@@ -258,6 +260,14 @@ def _add_foreign_mode(sub: argparse._SubParsersAction, formatter: type[argparse.
         "warm_start (a test day, 60 %%, starts after only 1-10 h at rest, still warm from the day before); "
         "truth.json says what was drawn and each day's contribution; 'none' gives the plain machine",
     )
+    mode.add_argument(
+        "--plan",
+        choices=PLANS,
+        default="varied",
+        help="how its days are planned: varied (a qualification: a run at each training speed, speed "
+        "steps, test days leaving the range) or production (4-8 sensors, the same job every day in a "
+        "shop that warms while it runs, over a season that carries the test days out of the range)",
+    )
 
 
 def _run_foreign(args: argparse.Namespace) -> int:
@@ -271,7 +281,9 @@ def _run_foreign(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"rafi simulate foreign: --realism: {exc}", file=sys.stderr)
         return 2
-    machine, paths = write_foreign(args.seed, args.out, setup_drift=args.setup_drift, realism=effects)
+    machine, paths = write_foreign(
+        args.seed, args.out, setup_drift=args.setup_drift, realism=effects, plan=args.plan
+    )
     for path in paths:
         print(path, file=sys.stderr)
     for run in machine.truth["test_runs"]:

@@ -12,6 +12,20 @@ run longer than any training run). :func:`foreign_machine` returns the logs, the
 that reads them and the truth; :func:`envelope_fractions` states, per test day, the fraction of
 its rows outside the training envelope, computed from the generated logs.
 
+**Production** (``plan="production"``, ``rafi simulate foreign --plan production``; default
+``varied``). The varied plan tests a machine the way a qualification does: runs at every
+training speed and speed steps, each day different. A machine in production is logged otherwise,
+like the turning centre of issue 46: a handful of sensors (:data:`PRODUCTION_SENSOR_COUNT`), the
+same job every day (one programme of speed steps, each step 0.9-1.1 x as long from day to day)
+in a shop that warms while it runs (:data:`PRODUCTION_SHOP_WARMING_K_PER_H`, the same each day
+within 20 %), over weeks in which the season moves the room (:data:`PRODUCTION_SEASON_K_PER_DAY`):
+8-12 training days, then 4-6 test days of the same job that carry the season on, so the later
+ones lie above every training temperature. Every training day then shows the temperatures in one
+combination (the job's), the fit reads them with whatever coefficients fit that one combination,
+and the test days leave it: the conditions under which the turning centre's ridge on filtered
+rises ran away. :func:`production_days`; the machine and its sensors are drawn as for the varied
+plan, with fewer sensors.
+
 **Realism** (``realism=``, ``rafi simulate foreign --realism all``; default none). The twin's
 physics is linear: every sensor and the displacement are linear responses of the same few drives
 (the speed's heat, the room), so a fit on strongly collinear temperatures extrapolates honestly
@@ -96,6 +110,22 @@ PLACES = {
 }
 #: How sensors are named, one style a machine ("{place}" names it after its node).
 NAME_STYLES = ("T{i}", "TC{i:02d}", "Temp{i}", "ch{i:02d}", "sensor_{i}", "{place}_{i}")
+#: How a machine's days are planned (``plan=``): :func:`plan_days` or :func:`production_days`.
+PLANS = ("varied", "production")
+#: A machine in production (``plan="production"``): its sensors (fewest, most), training and test
+#: days (fewest, most), the job's steps (count, minutes each), how fast its shop warms while it
+#: runs (K/h, per machine; each day within :data:`PRODUCTION_DAY_SPREAD`) and how fast the season
+#: moves the room's level from one day to the next (K/day, per machine; up or down).
+PRODUCTION_SENSOR_COUNT = (4, 8)
+PRODUCTION_TRAINING_DAYS = (8, 12)
+PRODUCTION_TEST_DAYS = (4, 6)
+PRODUCTION_JOB_STEPS = (3, 6)
+PRODUCTION_STEP_MIN = (20.0, 60.0)
+PRODUCTION_SHOP_WARMING_K_PER_H = (0.5, 2.0)
+PRODUCTION_SEASON_K_PER_DAY = (0.15, 0.45)
+PRODUCTION_DAY_SPREAD = 0.2
+#: A production test day's kind: the training days' job on a day of the season's trend.
+PRODUCTION_KIND = "production"
 #: Envelope margin (K): a temperature or rise more than this beyond the training range is outside
 #: (about twice a sensor's noise, so a test day at the edge of the range is not outside by noise).
 ENVELOPE_MARGIN_K = 0.1
@@ -312,6 +342,43 @@ def plan_days(rng: np.random.Generator, speeds: list[float], lo: float, room_c: 
         start = day0 + pd.Timedelta(days=d - 1, hours=7, minutes=int(rng.integers(0, 60)))
         stem = f"day{d:02d}_{'train' if role == 'training' else 'test'}"
         out.append(Day(stem, role, kind, tuple(with_rest(steps)), _room(rng, room_c, shift), start))
+    return out
+
+
+def production_days(rng: np.random.Generator, speeds: list[float], lo: float, room_c: float) -> list[Day]:
+    """The days of a machine in production (the module's docstring), one a day from 2026-06-01
+    (each a cold start after :data:`REST_BEFORE_START_S` at rest).
+
+    One job for every day: :data:`PRODUCTION_JOB_STEPS` steps of :data:`PRODUCTION_STEP_MIN`
+    minutes, each at one of the training speeds ``speeds`` (``lo`` unused: the job runs the
+    speeds it was qualified at); on each day every step 0.9-1.1 x
+    as long. The room: the machine's level ``room_c`` moved by the season (a per-machine
+    :data:`PRODUCTION_SEASON_K_PER_DAY`, warming or cooling, times the day's index) plus the day's
+    own spread, warming while the job runs by the machine's :data:`PRODUCTION_SHOP_WARMING_K_PER_H`
+    (within :data:`PRODUCTION_DAY_SPREAD` each day). :data:`PRODUCTION_TRAINING_DAYS` training
+    days, then :data:`PRODUCTION_TEST_DAYS` test days (:data:`PRODUCTION_KIND`).
+    """
+    job = [
+        Step(60.0 * float(rng.uniform(*PRODUCTION_STEP_MIN)), float(rng.choice(speeds)))
+        for _ in range(int(rng.integers(PRODUCTION_JOB_STEPS[0], PRODUCTION_JOB_STEPS[1] + 1)))
+    ]
+    warming = float(rng.uniform(*PRODUCTION_SHOP_WARMING_K_PER_H))
+    season = float(rng.uniform(*PRODUCTION_SEASON_K_PER_DAY)) * float(rng.choice([-1.0, 1.0]))
+    n_train = int(rng.integers(PRODUCTION_TRAINING_DAYS[0], PRODUCTION_TRAINING_DAYS[1] + 1))
+    n_test = int(rng.integers(PRODUCTION_TEST_DAYS[0], PRODUCTION_TEST_DAYS[1] + 1))
+    day0 = pd.Timestamp("2026-06-01")
+    spread = (1.0 - PRODUCTION_DAY_SPREAD, 1.0 + PRODUCTION_DAY_SPREAD)
+    out = []
+    for d in range(1, n_train + n_test + 1):
+        role = "training" if d <= n_train else "test"
+        steps = [Step(s.duration_s * float(rng.uniform(0.9, 1.1)), s.speed_rpm) for s in job]
+        ambient = replace(
+            _room(rng, room_c, season * (d - 1)), drift_c_per_h=warming * float(rng.uniform(*spread))
+        )
+        start = day0 + pd.Timedelta(days=d - 1, hours=7, minutes=int(rng.integers(0, 60)))
+        stem = f"day{d:02d}_{'train' if role == 'training' else 'test'}"
+        kind = INSIDE_KIND if role == "training" else PRODUCTION_KIND
+        out.append(Day(stem, role, kind, tuple(with_rest(steps)), ambient, start))
     return out
 
 
@@ -664,25 +731,30 @@ class Design:
     days: list[Day]
 
 
-def foreign_design(seed: int) -> Design:
+def foreign_design(seed: int, plan: str = "varied") -> Design:
     """The design of the foreign machine of ``seed``, cheap (no day simulated): the base network,
-    its spread constants (:func:`foreign_params`), 4-40 sensors (:func:`foreign_sensors`), the
-    training speeds (:func:`training_speeds`), a room level of 18-26 degC and the days
-    (:func:`plan_days`)."""
+    its spread constants (:func:`foreign_params`), 4-40 sensors (:func:`foreign_sensors`; with
+    ``plan="production"`` :data:`PRODUCTION_SENSOR_COUNT`), the training speeds
+    (:func:`training_speeds`), a room level of 18-26 degC and the days (:func:`plan_days`, or
+    :func:`production_days`)."""
+    if plan not in PLANS:
+        raise ValueError(f"unknown plan {plan!r}; expected one of {', '.join(PLANS)}")
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 46]))
     base = str(rng.choice(list(BASES)))
     params = foreign_params(machine_params(base), rng)
+    lo_n, hi_n = PRODUCTION_SENSOR_COUNT if plan == "production" else SENSOR_COUNT
     params = replace(
         params,
         machine=f"foreign-{int(seed)}",
-        sensors=foreign_sensors(int(rng.integers(SENSOR_COUNT[0], SENSOR_COUNT[1] + 1)), rng),
+        sensors=foreign_sensors(int(rng.integers(lo_n, hi_n + 1)), rng),
     )
     speeds, lo = training_speeds(rng, base)
-    return Design(base, params, speeds, plan_days(rng, speeds, lo, float(rng.uniform(18.0, 26.0))))
+    days = production_days if plan == "production" else plan_days
+    return Design(base, params, speeds, days(rng, speeds, lo, float(rng.uniform(18.0, 26.0))))
 
 
 def foreign_machine(
-    seed: int, setup_drift: bool = False, realism: tuple[str, ...] | str = ()
+    seed: int, setup_drift: bool = False, realism: tuple[str, ...] | str = (), plan: str = "varied"
 ) -> ForeignMachine:
     """A foreign machine from ``seed``: its name ``foreign-<seed>``, config block, logs and truth.
 
@@ -700,6 +772,10 @@ def foreign_machine(
         real machines have and the linear twin has not (the module's docstring), drawn by
         :func:`foreign_realism` on a stream of their own: the same machine, days and noise as
         without, plus the effects. Default none: the logs are those of the plain machine.
+    plan : str
+        How its days are planned (:data:`PLANS`): ``varied`` (a qualification's runs and steps,
+        :func:`plan_days`) or ``production`` (the same job every day through a season, with
+        fewer sensors, :func:`production_days`): another machine from the same seed.
 
     Returns
     -------
@@ -711,7 +787,7 @@ def foreign_machine(
         with ``realism`` also ``realism`` (:func:`realism_truth`), and ``parts`` holds per day
         the noise-free contributions (:func:`simulate_day_parts`).
     """
-    design = foreign_design(seed)
+    design = foreign_design(seed, plan)
     base, params, speeds, days = design.base, design.params, design.speeds, design.days
     drift_um = 0.0
     if setup_drift:
@@ -740,6 +816,7 @@ def foreign_machine(
     truth = {
         "seed": int(seed),
         "machine": params.machine,
+        **({"plan": plan} if plan != "varied" else {}),
         "base": base,
         "sample_period_s": FOREIGN_SAMPLE_S,
         "setup_drift_um": drift_um,
@@ -827,20 +904,24 @@ def realism_truth(real: Realism, params: TwinParams, days: list[Day], parts: dic
 
 
 def write_foreign(
-    seed: int, out_dir: str | os.PathLike, setup_drift: bool = False, realism: tuple[str, ...] | str = ()
+    seed: int,
+    out_dir: str | os.PathLike,
+    setup_drift: bool = False,
+    realism: tuple[str, ...] | str = (),
+    plan: str = "varied",
 ) -> tuple[ForeignMachine, list[Path]]:
     """Write the foreign machine of ``seed`` as a project's data: its logs as native CSVs in
     ``out_dir/raw/<name>/``, ``out_dir/config.yaml`` (that machine only) and
     ``out_dir/truth.json``; returns the machine and the files written (logs first). Beside
     ``Snakefile`` and ``workflow/`` (copied, or ``snakemake -s <Snakefile> -d out_dir``) the
-    folder is a project. ``setup_drift``, ``realism``: :func:`foreign_machine` (the parts are
-    not written; ``truth.json`` says what was drawn)."""
+    folder is a project. ``setup_drift``, ``realism``, ``plan``: :func:`foreign_machine` (the
+    parts are not written; ``truth.json`` says what was drawn)."""
     import yaml
 
     from rafi.artefact import write_text_atomic
     from rafi.readers.native import format_raw_log
 
-    machine = foreign_machine(seed, setup_drift=setup_drift, realism=realism)
+    machine = foreign_machine(seed, setup_drift=setup_drift, realism=realism, plan=plan)
     out = Path(out_dir)
     folder = out / "raw" / machine.name
     folder.mkdir(parents=True, exist_ok=True)
