@@ -16,7 +16,8 @@ its rows outside the training envelope, computed from the generated logs.
 ``varied``). The varied plan tests a machine the way a qualification does: runs at every
 training speed and speed steps, each day different. A machine in production is logged otherwise,
 like the turning centre of issue 46: a handful of sensors (:data:`PRODUCTION_SENSOR_COUNT`), the
-same job every day (one programme of speed steps, each step 0.9-1.1 x as long from day to day)
+same job every day (one programme of speed steps, 70-100 min at each training speed in an order of
+its own, each step 0.9-1.1 x as long from day to day)
 in a shop that warms while it runs (:data:`PRODUCTION_SHOP_WARMING_K_PER_H`, the same each day
 within 20 %), over weeks in which the season moves the room (:data:`PRODUCTION_SEASON_K_PER_DAY`):
 8-12 training days, then 4-6 test days of the same job that carry the season on, so the later
@@ -113,14 +114,16 @@ NAME_STYLES = ("T{i}", "TC{i:02d}", "Temp{i}", "ch{i:02d}", "sensor_{i}", "{plac
 #: How a machine's days are planned (``plan=``): :func:`plan_days` or :func:`production_days`.
 PLANS = ("varied", "production")
 #: A machine in production (``plan="production"``): its sensors (fewest, most), training and test
-#: days (fewest, most), the job's steps (count, minutes each), how fast its shop warms while it
+#: days (fewest, most), the job's steps beyond one at each training speed (fewest, most) and their
+#: length (minutes; above ``runs.min_constant_s`` even at 0.9 x, so RAFI's per-speed fits have
+#: runs), how fast its shop warms while it
 #: runs (K/h, per machine; each day within :data:`PRODUCTION_DAY_SPREAD`) and how fast the season
 #: moves the room's level from one day to the next (K/day, per machine; up or down).
 PRODUCTION_SENSOR_COUNT = (4, 8)
 PRODUCTION_TRAINING_DAYS = (8, 12)
 PRODUCTION_TEST_DAYS = (4, 6)
-PRODUCTION_JOB_STEPS = (3, 6)
-PRODUCTION_STEP_MIN = (20.0, 60.0)
+PRODUCTION_JOB_EXTRA_STEPS = (0, 2)
+PRODUCTION_STEP_MIN = (70.0, 100.0)
 PRODUCTION_SHOP_WARMING_K_PER_H = (0.5, 2.0)
 PRODUCTION_SEASON_K_PER_DAY = (0.15, 0.45)
 PRODUCTION_DAY_SPREAD = 0.2
@@ -349,19 +352,18 @@ def production_days(rng: np.random.Generator, speeds: list[float], lo: float, ro
     """The days of a machine in production (the module's docstring), one a day from 2026-06-01
     (each a cold start after :data:`REST_BEFORE_START_S` at rest).
 
-    One job for every day: :data:`PRODUCTION_JOB_STEPS` steps of :data:`PRODUCTION_STEP_MIN`
-    minutes, each at one of the training speeds ``speeds`` (``lo`` unused: the job runs the
-    speeds it was qualified at); on each day every step 0.9-1.1 x
-    as long. The room: the machine's level ``room_c`` moved by the season (a per-machine
+    One job for every day: a step at each training speed and :data:`PRODUCTION_JOB_EXTRA_STEPS`
+    more at one of them, in a random order, each of :data:`PRODUCTION_STEP_MIN` minutes (``lo``
+    unused: the job runs the speeds it was qualified at); on each day every step 0.9-1.1 x as
+    long. The room: the machine's level ``room_c`` moved by the season (a per-machine
     :data:`PRODUCTION_SEASON_K_PER_DAY`, warming or cooling, times the day's index) plus the day's
     own spread, warming while the job runs by the machine's :data:`PRODUCTION_SHOP_WARMING_K_PER_H`
     (within :data:`PRODUCTION_DAY_SPREAD` each day). :data:`PRODUCTION_TRAINING_DAYS` training
     days, then :data:`PRODUCTION_TEST_DAYS` test days (:data:`PRODUCTION_KIND`).
     """
-    job = [
-        Step(60.0 * float(rng.uniform(*PRODUCTION_STEP_MIN)), float(rng.choice(speeds)))
-        for _ in range(int(rng.integers(PRODUCTION_JOB_STEPS[0], PRODUCTION_JOB_STEPS[1] + 1)))
-    ]
+    extra = int(rng.integers(PRODUCTION_JOB_EXTRA_STEPS[0], PRODUCTION_JOB_EXTRA_STEPS[1] + 1))
+    order = rng.permutation([*speeds, *rng.choice(speeds, size=extra)])
+    job = [Step(60.0 * float(rng.uniform(*PRODUCTION_STEP_MIN)), float(v)) for v in order]
     warming = float(rng.uniform(*PRODUCTION_SHOP_WARMING_K_PER_H))
     season = float(rng.uniform(*PRODUCTION_SEASON_K_PER_DAY)) * float(rng.choice([-1.0, 1.0]))
     n_train = int(rng.integers(PRODUCTION_TRAINING_DAYS[0], PRODUCTION_TRAINING_DAYS[1] + 1))
