@@ -342,3 +342,50 @@ def test_a_warm_start_begins_where_the_previous_day_left_after_its_rest_and_trai
     assert (after < 30.0).all() and (after > 20.0).any()
     column, housing = NODE_INDEX["column"], NODE_INDEX["housing"]
     assert after[column] - 20.0 > after[housing] - 20.0
+
+
+def test_production_designs_repeat_one_job_through_a_season():
+    from rafi.twin.foreign import (
+        PRODUCTION_SEASON_K_PER_DAY,
+        PRODUCTION_SHOP_WARMING_K_PER_H,
+        PRODUCTION_STEP_MIN,
+    )
+
+    designs = [foreign_design(s, "production") for s in DESIGN_SEEDS]
+    counts = [len(d.params.sensors) for d in designs]
+    assert min(counts) == 4 and max(counts) == 8
+    trends = []
+    for d, varied in zip(designs, (foreign_design(s) for s in DESIGN_SEEDS)):
+        assert d.params.disp_gain == varied.params.disp_gain  # the same machine, fewer sensors
+        roles = [day.role for day in d.days]
+        assert 8 <= roles.count("training") <= 12 and 4 <= roles.count("test") <= 6
+        assert roles == sorted(roles, key=lambda r: r != "training")
+        jobs = [[s for s in day.schedule if s.speed_rpm > 0] for day in d.days]
+        assert all([s.speed_rpm for s in job] == [s.speed_rpm for s in jobs[0]] for job in jobs)  # one job
+        assert set(s.speed_rpm for s in jobs[0]) == set(d.speeds)  # every training speed, so RAFI has runs
+        lengths = np.array([[s.duration_s for s in job] for job in jobs]) / 60.0
+        assert (
+            lengths.min() >= 0.9 * PRODUCTION_STEP_MIN[0] > 60.0
+            and lengths.max() <= 1.1 * PRODUCTION_STEP_MIN[1]
+        )
+        warming = [day.ambient.drift_c_per_h for day in d.days]
+        assert 0.8 * PRODUCTION_SHOP_WARMING_K_PER_H[0] <= min(warming)
+        assert max(warming) <= 1.2 * PRODUCTION_SHOP_WARMING_K_PER_H[1]
+        levels = np.array([day.ambient.base_c for day in d.days])
+        trends.append(np.polyfit(np.arange(len(levels)), levels, 1)[0])
+    trends = np.array(trends)
+    assert (trends > 0).any() and (trends < 0).any()  # seasons warming and cooling
+    # the drawn trend's size, blurred by each day's own room (sd 0.7 K): the median within the range
+    assert PRODUCTION_SEASON_K_PER_DAY[0] <= np.median(np.abs(trends)) <= PRODUCTION_SEASON_K_PER_DAY[1]
+
+
+def test_production_machines_leave_their_training_range_on_test_days():
+    machines = [foreign_machine(seed, plan="production") for seed in range(8)]
+    assert machines[0].truth["plan"] == "production" and "plan" not in foreign_machine(0).truth
+    mostly_outside = [max(run["outside_temperature"] for run in m.truth["test_runs"]) > 0.5 for m in machines]
+    assert sum(mostly_outside) >= 4  # the season carries a test day beyond the training temperatures
+    for m in machines:
+        numbers = [int(d["stem"][3:5]) for d in m.truth["days"]]
+        assert numbers == sorted(numbers) and len(set(numbers)) == len(numbers)  # day since the first
+    with pytest.raises(ValueError, match="unknown plan 'weekly'"):
+        foreign_design(0, "weekly")

@@ -20,8 +20,9 @@ same job every day (one programme of speed steps, 70-100 min at each training sp
 its own, each step 0.9-1.1 x as long from day to day)
 in a shop that warms while it runs (:data:`PRODUCTION_SHOP_WARMING_K_PER_H`, the same each day
 within 20 %), over weeks in which the season moves the room (:data:`PRODUCTION_SEASON_K_PER_DAY`):
-8-12 training days, then 4-6 test days of the same job that carry the season on, so the later
-ones lie above every training temperature. Every training day then shows the temperatures in one
+8-12 training days, then, 1-7 days on (:data:`PRODUCTION_TEST_GAP_DAYS`), 4-6 test days of
+the same job that carry the season on, so many of their rows lie beyond every training
+temperature. Every training day then shows the temperatures in one
 combination (the job's), the fit reads them with whatever coefficients fit that one combination,
 and the test days leave it: the conditions under which the turning centre's ridge on filtered
 rises ran away. :func:`production_days`; the machine and its sensors are drawn as for the varied
@@ -127,6 +128,9 @@ PRODUCTION_STEP_MIN = (70.0, 100.0)
 PRODUCTION_SHOP_WARMING_K_PER_H = (0.5, 2.0)
 PRODUCTION_SEASON_K_PER_DAY = (0.15, 0.45)
 PRODUCTION_DAY_SPREAD = 0.2
+#: Days between the last training day and the first test day (fewest, most): the test part is
+#: logged some weeks on, when the season has moved the room further.
+PRODUCTION_TEST_GAP_DAYS = (1, 7)
 #: A production test day's kind: the training days' job on a day of the season's trend.
 PRODUCTION_KIND = "production"
 #: Envelope margin (K): a temperature or rise more than this beyond the training range is outside
@@ -359,7 +363,8 @@ def production_days(rng: np.random.Generator, speeds: list[float], lo: float, ro
     :data:`PRODUCTION_SEASON_K_PER_DAY`, warming or cooling, times the day's index) plus the day's
     own spread, warming while the job runs by the machine's :data:`PRODUCTION_SHOP_WARMING_K_PER_H`
     (within :data:`PRODUCTION_DAY_SPREAD` each day). :data:`PRODUCTION_TRAINING_DAYS` training
-    days, then :data:`PRODUCTION_TEST_DAYS` test days (:data:`PRODUCTION_KIND`).
+    days, then after :data:`PRODUCTION_TEST_GAP_DAYS` days :data:`PRODUCTION_TEST_DAYS` test days
+    (:data:`PRODUCTION_KIND`; a file's day number is its day since the first).
     """
     extra = int(rng.integers(PRODUCTION_JOB_EXTRA_STEPS[0], PRODUCTION_JOB_EXTRA_STEPS[1] + 1))
     order = rng.permutation([*speeds, *rng.choice(speeds, size=extra)])
@@ -368,17 +373,19 @@ def production_days(rng: np.random.Generator, speeds: list[float], lo: float, ro
     season = float(rng.uniform(*PRODUCTION_SEASON_K_PER_DAY)) * float(rng.choice([-1.0, 1.0]))
     n_train = int(rng.integers(PRODUCTION_TRAINING_DAYS[0], PRODUCTION_TRAINING_DAYS[1] + 1))
     n_test = int(rng.integers(PRODUCTION_TEST_DAYS[0], PRODUCTION_TEST_DAYS[1] + 1))
+    gap = int(rng.integers(PRODUCTION_TEST_GAP_DAYS[0], PRODUCTION_TEST_GAP_DAYS[1] + 1))
     day0 = pd.Timestamp("2026-06-01")
     spread = (1.0 - PRODUCTION_DAY_SPREAD, 1.0 + PRODUCTION_DAY_SPREAD)
     out = []
     for d in range(1, n_train + n_test + 1):
         role = "training" if d <= n_train else "test"
+        on = d - 1 + (gap if role == "test" else 0)  # days since the first day
         steps = [Step(s.duration_s * float(rng.uniform(0.9, 1.1)), s.speed_rpm) for s in job]
         ambient = replace(
-            _room(rng, room_c, season * (d - 1)), drift_c_per_h=warming * float(rng.uniform(*spread))
+            _room(rng, room_c, season * on), drift_c_per_h=warming * float(rng.uniform(*spread))
         )
-        start = day0 + pd.Timedelta(days=d - 1, hours=7, minutes=int(rng.integers(0, 60)))
-        stem = f"day{d:02d}_{'train' if role == 'training' else 'test'}"
+        start = day0 + pd.Timedelta(days=on, hours=7, minutes=int(rng.integers(0, 60)))
+        stem = f"day{on + 1:02d}_{'train' if role == 'training' else 'test'}"
         kind = INSIDE_KIND if role == "training" else PRODUCTION_KIND
         out.append(Day(stem, role, kind, tuple(with_rest(steps)), ambient, start))
     return out
