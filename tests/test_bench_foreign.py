@@ -116,6 +116,22 @@ def test_a_kept_seed_made_with_other_realism_is_refused_not_mixed(bench, tmp_pat
     assert bench.judge_seed(3, tmp_path, 1, realism=("convection",))["seed"] == 3
 
 
+def test_a_kept_seed_made_with_another_plan_is_refused_and_the_plan_reaches_the_project(bench, tmp_path):
+    import json
+
+    folder = tmp_path / "seed-005"
+    folder.mkdir()
+    (folder / "result.json").write_text(json.dumps({"seed": 5}))
+    with pytest.raises(SystemExit, match="plan=varied"):
+        bench.judge_seed(5, tmp_path, 1, plan="production")
+    (folder / "result.json").write_text(json.dumps({"seed": 5, "plan": "production"}))
+    with pytest.raises(SystemExit, match="plan=production"):
+        bench.judge_seed(5, tmp_path, 1)
+    assert bench.judge_seed(5, tmp_path, 1, plan="production")["seed"] == 5
+    truth = bench.make_project(5, tmp_path / "project", plan="production")
+    assert truth["plan"] == "production" and len(truth["sensors"]) <= 8
+
+
 def test_a_kept_seed_made_with_other_models_settings_is_refused_and_a_variant_reaches_the_config(
     bench, tmp_path
 ):

@@ -389,3 +389,15 @@ def test_production_machines_leave_their_training_range_on_test_days():
         assert numbers == sorted(numbers) and len(set(numbers)) == len(numbers)  # day since the first
     with pytest.raises(ValueError, match="unknown plan 'weekly'"):
         foreign_design(0, "weekly")
+
+
+def test_rafi_simulate_foreign_plan_production_writes_that_machine(tmp_path):
+    from rafi.cli import main
+
+    assert main(["simulate", "foreign", "--seed", "3", "--out", str(tmp_path), "--plan", "production"]) == 0
+    truth = json.loads((tmp_path / "truth.json").read_text())
+    assert truth["plan"] == "production" and 4 <= len(truth["sensors"]) <= 8
+    files = sorted(p.name for p in (tmp_path / "raw" / "foreign-3").glob("*.csv"))
+    assert files == [f"{d['stem']}.csv" for d in truth["days"]]
+    with pytest.raises(SystemExit):
+        main(["simulate", "foreign", "--seed", "3", "--out", str(tmp_path / "x"), "--plan", "weekly"])
