@@ -15,6 +15,7 @@ import argparse
 import json
 import os
 
+import numpy as np
 import pytest
 
 from rafi.artefact import json_text
@@ -144,7 +145,11 @@ def test_the_fitness_figures_are_the_generators_truth(project):
     # how far it moved: one gain, the generator's factor
     assert block["method"] == "gain" and block["gain"] == pytest.approx(1.8, rel=0.02)
     assert block["prediction_change"] == pytest.approx(0.8, rel=0.03)
-    assert block["largest_coefficient_change"]["relative"] == pytest.approx(0.8, rel=0.03)
+    # one gain moves every coefficient by 0.8 of its size (a tie): the first is named, its sign its own
+    largest = block["largest_coefficient_change"]
+    assert largest["relative"] == pytest.approx(0.8 * np.sign(largest["prior"]), rel=0.03)
+    first_moved = next(c for c in fit.coefficient_change_ if float(c["prior"]) != 0)
+    assert largest["name"] == first_moved["name"]
     # speeds: tested here, the prior's, the prior's alone (two ranges, each said as such)
     assert block["speeds_tested_rpm"] == [9000.0, 12000.0]
     assert block["speed_range_tested_rpm"] == [9000.0, 12000.0]
@@ -246,7 +251,10 @@ def test_status_names_the_prior_its_machine_and_its_fitness(project, tmp_path, c
     own = f"{pid} of m-a, declared sibling (promoted {first['time']}; worst "
     assert lines[2].startswith(f"  prior:            {own}")
     gain = champion["prior"]["gain"]
-    assert lines[3].startswith(f"  adaptation:       gain, gain {gain:.3g}, largest coefficient change +")
+    moved = champion["prior"]["largest_coefficient_change"]
+    sign = "+" if moved["relative"] > 0 else "-"
+    adaptation = f"  adaptation:       gain, gain {gain:.3g}, largest coefficient change {sign}"
+    assert lines[3].startswith(adaptation)
     speeds = "tested here 9000, 12000 r/min; the prior's alone 3000, 6000, 15000, 18000"
     assert lines[4] == f"  speeds:           {speeds}"
     assert "prior_adaptation, prior_speeds" in lines[5]

@@ -114,15 +114,21 @@ def _outside(prior: list[float] | None, tested: list[float] | None) -> list[list
     return out
 
 
+#: Relative moves closer than this are a tie (one gain moves every coefficient by the same share,
+#: up to rounding, which differs between NumPy builds): the first coefficient in order is named.
+TIE_RELATIVE = 1e-9
+
+
 def _largest_change(change: list[dict]) -> dict | None:
-    """The coefficient that moved most relative to its prior value (``|prior|`` above 0)."""
+    """The coefficient that moved most relative to its prior value (``|prior|`` above 0); of
+    moves tied within :data:`TIE_RELATIVE`, the first."""
     best = None
     for c in change or []:
         a, b = float(c["prior"]), float(c["new"])
         if a == 0 or not (math.isfinite(a) and math.isfinite(b)):
             continue
         rel = (b - a) / abs(a)
-        if best is None or abs(rel) > abs(best["relative"]):
+        if best is None or abs(rel) > abs(best["relative"]) * (1.0 + TIE_RELATIVE):
             best = {"name": str(c["name"]), "prior": a, "new": b, "relative": rel}
     return best
 
