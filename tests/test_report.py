@@ -641,6 +641,24 @@ def test_samples_a_model_could_not_predict_in_the_cv_are_said_in_the_comparison(
     assert f"No value where an input it reads was missing: {said}; on the controller" in text
 
 
+def test_training_runs_no_model_explains_are_named_in_the_comparison(tmp_path):
+    results = tmp_path / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    cfg, settings = _settings()
+    before = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
+    assert "Training runs no model explains" not in before
+    cv = pd.read_csv(results / "comparison" / "cv.csv")
+    held = cv["test_runs"] == "train-6000"
+    cv.loc[held, "max_abs_after_um"] = cv.loc[held, "max_abs_before_um"] + 1.0 + np.arange(held.sum())
+    cv.to_csv(results / "comparison" / "cv.csv", index=False)
+    text = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
+    best = cv.loc[held].iloc[0]
+    runs = cv.loc[cv["scheme"] == "leave_one_run_out", "test_runs"].nunique()
+    assert f"Training runs no model explains: On 1 of {runs} training runs held out" in text
+    figures = f"{best['max_abs_after_um']:.2f} against {best['max_abs_before_um']:.2f} um"
+    assert f"train-6000 {best['model']} {figures}" in text
+
+
 def test_machine_b_like_results_render_and_fit(tmp_path):
     results = tmp_path / "results" / "machining-center-b"
     _machine_b_like(FIXTURE, results)

@@ -14,7 +14,9 @@ The CV rows are memoised by content in ``results/<machine>/.cv_memo/`` (not an o
 priors; the job chooses the first that learnt from none of these runs, checks it
 (:func:`rafi.family.prior.resolved_prior`: a prior of another machine not declared a sibling stops
 the job with one line) and the adaptation candidates join the family, each with its fitness block
-(the prior's origin and qualification: :func:`rafi.family.prior.prior_record`)."""
+(the prior's origin and qualification: :func:`rafi.family.prior.prior_record`).
+
+The log warns of training runs no model explains (:mod:`rafi.family.unexplained`)."""
 
 import json
 
@@ -24,6 +26,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import rafi.artefact
     from rafi.family.compare import load_any, run_family
     from rafi.family.prior import prior_record, resolved_prior
+    from rafi.family.unexplained import unexplained_text
 
     smk = snakemake  # noqa: F821
     table, frame = read_runs(smk)
@@ -68,6 +71,9 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
             "still that model (no second pick on validation) and the registry will not promote it",
             flush=True,
         )
+    disagree = unexplained_text(result["cv"])
+    if disagree:
+        print(f"WARNING: {disagree}", flush=True)
     rafi.artefact.write_csv_atomic(as_table(result["summary"]), smk.output.summary, index=False)
     rafi.artefact.write_csv_atomic(as_table(result["per_run"]), smk.output.per_run, index=False)
     rafi.artefact.write_csv_atomic(as_table(result["verdict"]), smk.output.verdict, index=False)
