@@ -13,6 +13,7 @@ from hypothesis import strategies as st
 from project_copy import copy_project, run_snakemake
 
 from rafi.family.unexplained import COLUMNS, unexplained_runs, unexplained_text
+from rafi.ops.outcome import machine_warnings
 from rafi.twin.foreign import write_foreign
 
 
@@ -118,4 +119,11 @@ def test_the_remounted_days_are_the_runs_no_model_explains_and_the_log_says_so(r
     table = unexplained_runs(pd.read_csv(res / "comparison" / "cv.csv"))
     assert {day_of[r] for r in table["run"]} == set(reversed_days)
     log = (proj / "logs" / machine.name / "compare.log").read_text(encoding="utf-8")
-    assert f"WARNING: On {len(table)} of " in log and all(r in log for r in table["run"])
+    said = [
+        line
+        for line in log.splitlines()
+        if line.startswith(f"RAFI compare (machine={machine.name}) warning: ")
+    ]
+    assert len(said) == 1 and f"On {len(table)} of " in said[0] and all(r in said[0] for r in table["run"])
+    # the end-of-run lines (and rafi nightly) repeat the warnings of a machine's logs under its line
+    assert any(w.startswith("(compare): On ") for w in machine_warnings(proj / "logs", machine.name))

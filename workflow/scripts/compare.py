@@ -16,7 +16,8 @@ priors; the job chooses the first that learnt from none of these runs, checks it
 the job with one line) and the adaptation candidates join the family, each with its fitness block
 (the prior's origin and qualification: :func:`rafi.family.prior.prior_record`).
 
-The log warns of training runs no model explains (:mod:`rafi.family.unexplained`)."""
+A warning line names the training runs no model explains (:mod:`rafi.family.unexplained`); the
+end-of-run lines repeat it under the machine's line."""
 
 import json
 
@@ -27,6 +28,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     from rafi.family.compare import load_any, run_family
     from rafi.family.prior import prior_record, resolved_prior
     from rafi.family.unexplained import unexplained_text
+    from rafi.ops.run_messages import warning_line
 
     smk = snakemake  # noqa: F821
     table, frame = read_runs(smk)
@@ -72,8 +74,9 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
             flush=True,
         )
     disagree = unexplained_text(result["cv"])
-    if disagree:
-        print(f"WARNING: {disagree}", flush=True)
+    if disagree:  # a warning line: the end-of-run lines and rafi nightly repeat it (rafi.ops.run_messages)
+        wildcards = ", ".join(f"{k}={v}" for k, v in smk.wildcards.items())
+        print(warning_line("compare", wildcards, disagree), flush=True)
     rafi.artefact.write_csv_atomic(as_table(result["summary"]), smk.output.summary, index=False)
     rafi.artefact.write_csv_atomic(as_table(result["per_run"]), smk.output.per_run, index=False)
     rafi.artefact.write_csv_atomic(as_table(result["verdict"]), smk.output.verdict, index=False)
