@@ -117,9 +117,9 @@ PLANS = ("varied", "production")
 #: A machine in production (``plan="production"``): its sensors (fewest, most), training and test
 #: days (fewest, most), the job's steps beyond one at each training speed (fewest, most) and their
 #: length (minutes; above ``runs.min_constant_s`` even at 0.9 x, so RAFI's per-speed fits have
-#: runs), how fast its shop warms while it
-#: runs (K/h, per machine; each day within :data:`PRODUCTION_DAY_SPREAD`) and how fast the season
-#: moves the room's level from one day to the next (K/day, per machine; up or down).
+#: runs), how fast its shop warms while it runs (K/h, per machine; each day within
+#: :data:`PRODUCTION_DAY_SPREAD`) and how fast the season moves the room's level from one day to
+#: the next (K/day, per machine; up or down).
 PRODUCTION_SENSOR_COUNT = (4, 8)
 PRODUCTION_TRAINING_DAYS = (8, 12)
 PRODUCTION_TEST_DAYS = (4, 6)
