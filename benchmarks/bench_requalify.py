@@ -252,7 +252,7 @@ from rafi.family.selection import SIMPLICITY, selection_table  # noqa: E402
 from rafi.ops.plan import plan_limits, plan_programme, prior_view  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS  # noqa: E402
 from rafi.twin.requalify_scenarios import random_scenario  # noqa: E402
-from rafi.twin.scenarios import SCENARIOS, RunSet, combine, make_scenario, noise_floor  # noqa: E402
+from rafi.twin.scenarios import SCENARIOS, RunSet, combine, make_scenario, noise_floor, noise_mae  # noqa: E402
 
 HOURS = (1.05, 2.0, 4.0, 8.0)
 #: The issue's target: within this fraction of the full plan from scratch, at 4 h or less.
@@ -809,6 +809,7 @@ def one_random(seed: int, args, settings: dict, prior_cache: dict) -> dict:
     validation = sc.new_validation()
     out = {"seed": int(seed), "machine": rs.machine, "change": rs.change, "truth": rs.truth}
     out |= {"prior_champion": prior_kind, "floor_um": noise_floor(validation)}
+    out["floor_mae_um"] = noise_mae(validation)
     out["unchanged_mae_um"], out["unchanged_um"] = unchanged_errors(
         prior, validation, settings["qualification"]
     )
@@ -916,7 +917,34 @@ def random_markdown(results: list[dict]) -> str:
         f"Within 15 % of the full plan on both MAE and worst: {n_pass} of {len(results)} scenarios "
         f"({100.0 * n_pass / max(len(results), 1):.0f} %); fail: {', '.join(failed) or 'none'}."
     )
+    floor = noise_floor_line(results)
+    if floor:
+        lines += ["", floor]
     return "\n".join(lines)
+
+
+def noise_floor_line(results: list[dict]) -> str | None:
+    """How the MAE target compares with the noise: over the scenarios whose 4 h model misses 15 %
+    of the full plan's MAE, the median excess over the full plan's MAE in um and as a share of the
+    validation noise's own MAE (``floor_mae_um``: a perfect model's MAE, :func:`noise_mae`);
+    ``None`` when no scenario misses on MAE or the kept seeds predate ``floor_mae_um``."""
+    missed = [
+        r
+        for r in results
+        if r["prior_mae_um"] > r["full_mae_um"] * (1 + TARGET_FRACTION)
+        and math.isfinite(r.get("floor_mae_um", math.nan))
+    ]
+    if not missed:
+        return None
+    excess = np.array([r["prior_mae_um"] - r["full_mae_um"] for r in missed])
+    floor = np.array([r["floor_mae_um"] for r in missed])
+    full = np.array([r["full_mae_um"] for r in missed])
+    return (
+        f"The noise: on the {len(missed)} scenarios whose 4 h model misses 15 % on MAE, it is above the "
+        f"full plan's MAE by a median {np.median(excess):.3f} um ({np.median(excess / floor):.0%} of the "
+        f"validation noise's own MAE, a perfect model's, median {np.median(floor):.3f} um; the full "
+        f"plan's MAE is a median {np.median(full / floor):.2f} x that noise MAE)."
+    )
 
 
 def truth_text(truth: dict) -> str:

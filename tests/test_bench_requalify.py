@@ -392,3 +392,37 @@ def test_a_variant_replaces_the_cv_only_if_the_confirmation_share_rises_and_noth
     assert bench.adopt_default(worse, judged) == "shared_gain_unless_beaten"  # equal on development
     table = bench.default_markdown(judged)
     assert "| shared_gain_unless_beaten | 3 of 3 | 3 of 3 | 3 of 3 |" in table
+
+
+def test_the_noise_line_says_the_misses_against_a_perfect_models_mae(bench):
+    def seed(prior_mae, full_mae, floor_mae):
+        return {"prior_mae_um": prior_mae, "full_mae_um": full_mae, "floor_mae_um": floor_mae}
+
+    results = [
+        seed(0.30, 0.20, 0.25),  # misses: +0.10 um, 40 % of the noise MAE, full 0.8 x
+        seed(0.50, 0.25, 0.20),  # misses: +0.25 um, 125 %, full 1.25 x
+        seed(0.22, 0.20, 0.25),  # within 15 %: not counted
+        seed(0.90, 0.20, float("nan")),  # kept before the noise MAE: not counted
+    ]
+    line = bench.noise_floor_line(results)
+    assert "on the 2 scenarios whose 4 h model misses 15 % on MAE" in line
+    assert "by a median 0.175 um (82% of the validation noise's own MAE" in line
+    assert "median 0.225 um; the full plan's MAE is a median 1.02 x" in line
+    assert bench.noise_floor_line(results[2:]) is None
+
+
+def test_the_noise_mae_is_a_perfect_models_mae_over_the_validation_runs():
+    from types import SimpleNamespace
+
+    import pandas as pd
+
+    from rafi.twin.scenarios import noise_floor, noise_mae
+
+    table = pd.DataFrame(
+        {"run_id": ["t", "v1", "v2"], "role": ["training", "validation_single", "validation_multi"]}
+    )
+    frame = pd.DataFrame({"run_id": ["t", "t", "v1", "v1", "v2"], "dz_um": [9.0, 9.0, 1.5, 2.0, -1.0]})
+    truth = pd.DataFrame({"dz_true_um": [0.0, 0.0, 1.0, 2.5, 0.0]})
+    runs = SimpleNamespace(table=table, frame=frame, truth=truth)
+    assert noise_mae(runs) == pytest.approx((0.5 + 0.5 + 1.0) / 3)  # the training run is not counted
+    assert noise_floor(runs) == pytest.approx(1.0)

@@ -124,6 +124,16 @@ def noise_floor(runs: RunSet, roles: Sequence[str] = ("validation_single", "vali
     )
 
 
+def noise_mae(runs: RunSet, roles: Sequence[str] = ("validation_single", "validation_multi")) -> float:
+    """mean |measured - true displacement rise| (um) over the runs of ``roles``: a perfect model's
+    MAE (what :func:`noise_floor` is to the worst residual)."""
+    ids = set(runs.table.loc[runs.table["role"].isin(roles), "run_id"])
+    keep = runs.frame["run_id"].isin(ids).to_numpy()
+    return float(
+        np.mean(np.abs(runs.frame["dz_um"].to_numpy()[keep] - runs.truth["dz_true_um"].to_numpy()[keep]))
+    )
+
+
 def _factor(rng: np.random.Generator) -> float:
     return float(np.exp(SIBLING_SPREAD * np.clip(rng.standard_normal(), -2.0, 2.0)))
 
