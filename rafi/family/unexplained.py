@@ -10,7 +10,8 @@ fitted on runs that disagree may not hold on the next one, however it was chosen
 step's log and the report name those runs with both figures, so the engineer looks at them before
 signing. On the turning centre of issue 46 four of its twelve training days are such runs (its
 second week reverses the daily drift of the first at the same temperature rises,
-``docs/decisions.md``, 2026-11-29); on 20 foreign machines in production none of about 700.
+``docs/decisions.md``, 2026-11-29); on 40 foreign machines (production and varied plans) and
+the shipped twins none.
 
 It states what the CV measured and decides nothing: no model is left out and no gate changes.
 Only the whole-run folds count (a forward fold predicts from fewer runs by design).
