@@ -28,6 +28,18 @@ from rafi.family.forward_folds import is_forward
 COLUMNS = ("run", "none_max_um", "best_max_um", "best_model", "models")
 
 
+#: The columns of ``comparison/cv.csv`` the rule reads.
+NEEDED = ("model", "scheme", "test_runs", "max_abs_before_um", "max_abs_after_um")
+
+
+def _whole_run_rows(cv: pd.DataFrame | None) -> pd.DataFrame | None:
+    """The whole-run rows of ``cv`` (a copy; forward folds left out), ``None`` without the table
+    or its columns (:data:`NEEDED`)."""
+    if cv is None or not len(cv) or not set(NEEDED) <= set(cv.columns):
+        return None
+    return cv.loc[~cv["scheme"].map(is_forward)].copy()
+
+
 def unexplained_runs(cv: pd.DataFrame | None) -> pd.DataFrame:
     """The held-out training runs on which every model is worse than no compensation.
 
@@ -48,10 +60,9 @@ def unexplained_runs(cv: pd.DataFrame | None) -> pd.DataFrame:
         Empty (with those columns) without the table or without such a run.
     """
     empty = pd.DataFrame(columns=list(COLUMNS))
-    need = {"model", "scheme", "test_runs", "max_abs_before_um", "max_abs_after_um"}
-    if cv is None or not len(cv) or not need <= set(cv.columns):
+    rows = _whole_run_rows(cv)
+    if rows is None:
         return empty
-    rows = cv.loc[~cv["scheme"].map(is_forward)].copy()
     rows["after"] = pd.to_numeric(rows["max_abs_after_um"], errors="coerce")
     rows["before"] = pd.to_numeric(rows["max_abs_before_um"], errors="coerce")
     rows = rows.loc[np.isfinite(rows["after"]) & np.isfinite(rows["before"])]
@@ -78,7 +89,7 @@ def unexplained_text(cv: pd.DataFrame | None) -> str | None:
     table = unexplained_runs(cv)
     if not len(table):
         return None
-    held_out = cv.loc[~cv["scheme"].map(is_forward), "test_runs"].astype(str).nunique()
+    held_out = _whole_run_rows(cv)["test_runs"].astype(str).nunique()
     each = "; ".join(
         f"{r.run} {r.best_model} {r.best_max_um:.2f} against {r.none_max_um:.2f} um"
         for r in table.itertuples()

@@ -16,17 +16,17 @@ its rows outside the training envelope, computed from the generated logs.
 ``varied``). The varied plan tests a machine the way a qualification does: runs at every
 training speed and speed steps, each day different. A machine in production is logged otherwise,
 like the turning centre of issue 46: a handful of sensors (:data:`PRODUCTION_SENSOR_COUNT`), the
-same job every day (one programme of speed steps, 70-100 min at each training speed in an order of
-its own, each step 0.9-1.1 x as long from day to day)
-in a shop that warms while it runs (:data:`PRODUCTION_SHOP_WARMING_K_PER_H`, the same each day
-within 20 %), over weeks in which the season moves the room (:data:`PRODUCTION_SEASON_K_PER_DAY`):
-8-12 training days, then, 1-7 days on (:data:`PRODUCTION_TEST_GAP_DAYS`), 4-6 test days of
-the same job that carry the season on, so many of their rows lie beyond every training
-temperature. Every training day then shows the temperatures in one
-combination (the job's), the fit reads them with whatever coefficients fit that one combination,
-and the test days leave it: the conditions under which the turning centre's ridge on filtered
-rises ran away. :func:`production_days`; the machine and its sensors are drawn as for the varied
-plan, with fewer sensors.
+same job every day (70-100 min at each training speed in an order of its own, each step 0.9-1.1 x
+as long from day to day) in a shop that warms while it runs
+(:data:`PRODUCTION_SHOP_WARMING_K_PER_H`, the same each day within 20 %), over weeks in which the
+season moves the room (:data:`PRODUCTION_SEASON_K_PER_DAY`): 8-12 training days, then, 1-7 days
+on (:data:`PRODUCTION_TEST_GAP_DAYS`), 4-6 test days of the same job that carry the season on,
+so many of their rows lie beyond every training temperature. Every training day shows the
+temperatures in one combination (the job's) and the test days leave it: the conditions under
+which the turning centre's ridge on filtered rises ran away. Its kinds do not run away here
+(``docs/decisions.md``, 2026-11-29, "foreign machines in production do not run away either").
+:func:`production_days`; the machine and its sensors are drawn as for the varied plan, with
+fewer sensors.
 
 **Realism** (``realism=``, ``rafi simulate foreign --realism all``; default none). The twin's
 physics is linear: every sensor and the displacement are linear responses of the same few drives
@@ -353,8 +353,9 @@ def plan_days(rng: np.random.Generator, speeds: list[float], lo: float, room_c: 
 
 
 def production_days(rng: np.random.Generator, speeds: list[float], lo: float, room_c: float) -> list[Day]:
-    """The days of a machine in production (the module's docstring), one a day from 2026-06-01
-    (each a cold start after :data:`REST_BEFORE_START_S` at rest).
+    """The days of a machine in production (the module's docstring): the training days one a day
+    from 2026-06-01, the test days one a day after a gap (each a cold start after
+    :data:`REST_BEFORE_START_S` at rest).
 
     One job for every day: a step at each training speed and :data:`PRODUCTION_JOB_EXTRA_STEPS`
     more at one of them, in a random order, each of :data:`PRODUCTION_STEP_MIN` minutes (``lo``
