@@ -654,7 +654,7 @@ def test_training_runs_no_model_explains_are_named_in_the_comparison(tmp_path):
     text = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
     best = cv.loc[held].iloc[0]
     runs = cv.loc[cv["scheme"] == "leave_one_run_out", "test_runs"].nunique()
-    assert f"Training runs no model explains: On 1 of {runs} training runs held out" in text
+    assert f"Training runs no model explains: On 1 of {runs} training runs held out by the" in text
     figures = f"{best['max_abs_after_um']:.2f} against {best['max_abs_before_um']:.2f} um"
     assert f"train-6000 {best['model']} {figures}" in text
 

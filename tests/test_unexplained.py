@@ -47,8 +47,13 @@ def test_a_run_is_named_only_when_every_model_is_worse_than_no_compensation():
     ]
     assert table.set_index("run").loc["r3", "models"] == 1
     text = unexplained_text(cv)
-    assert text.startswith("On 2 of 3 training runs held out by the whole-run CV every model")
+    assert text.startswith("On 2 of 3 training runs held out by the cross-validation every model")
     assert "r1 b 11.00 against 10.00 um; r3 b 6.00 against 5.00 um" in text
+
+
+def test_time_blocks_of_a_single_run_are_called_so():
+    cv = _cv([("a", "time_blocks", "b0", 4.0, 5.0), ("a", "time_blocks", "b1", 4.0, 1.0)])
+    assert unexplained_text(cv).startswith("On 1 of 2 time blocks of the training data held out")
 
 
 def test_nothing_is_said_without_such_a_run_or_without_the_table():

@@ -23,6 +23,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.forward_folds import is_forward
+from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 
 #: The columns of :func:`unexplained_runs`.
 COLUMNS = ("run", "none_max_um", "best_max_um", "best_model", "models")
@@ -84,19 +85,22 @@ def unexplained_runs(cv: pd.DataFrame | None) -> pd.DataFrame:
 
 def unexplained_text(cv: pd.DataFrame | None) -> str | None:
     """One sentence for the log and the report: how many of the training runs held out by the
-    whole-run CV of ``cv`` no model explains (:func:`unexplained_runs`), each with the best
-    model's max |residual| and no compensation's (um); ``None`` when there is none."""
+    whole-run CV of ``cv`` (time blocks, for a single run's log) no model explains
+    (:func:`unexplained_runs`), each with the best model's max |residual| and no compensation's
+    (um); ``None`` when there is none."""
     table = unexplained_runs(cv)
     if not len(table):
         return None
-    held_out = _whole_run_rows(cv)["test_runs"].astype(str).nunique()
+    rows = _whole_run_rows(cv)
+    held_out = rows["test_runs"].astype(str).nunique()
+    units = "time blocks of the training data" if (rows["scheme"] == TIME_BLOCKS).all() else "training runs"
     each = "; ".join(
         f"{r.run} {r.best_model} {r.best_max_um:.2f} against {r.none_max_um:.2f} um"
         for r in table.itertuples()
     )
     return (
-        f"On {len(table)} of {held_out} training runs held out by the whole-run CV every model fitted on "
-        "the other training runs was worse than no compensation (the best model's max |residual| "
+        f"On {len(table)} of {held_out} {units} held out by the cross-validation every model fitted on "
+        "the others was worse than no compensation (the best model's max |residual| "
         f"against the run's own max |displacement change|: {each}): those runs do not behave "
         "like the others (a changed setup, a moved probe or fixture, a heat source no sensor sees?), "
         "and a model fitted on runs that disagree may not hold on the next."
