@@ -144,12 +144,15 @@ def make_project(
     realism: tuple[str, ...] = (),
     models: dict | None = None,
     plan: str = "varied",
+    setup_change: bool = False,
 ) -> dict:
     """The foreign machine of ``seed`` as a runnable project in ``proj`` (every kind enabled;
-    ``realism``, ``plan``: :func:`rafi.twin.foreign.foreign_machine`; ``models``: more
+    ``realism``, ``plan``, ``setup_change``: :func:`rafi.twin.foreign.foreign_machine`; ``models``: more
     ``models:`` settings of every machine, a variant judged against the defaults); returns its
     truth."""
-    machine, _ = write_foreign(seed, proj, setup_drift=setup_drift, realism=realism, plan=plan)
+    machine, _ = write_foreign(
+        seed, proj, setup_drift=setup_drift, realism=realism, plan=plan, setup_change=setup_change
+    )
     shutil.copy2(ROOT / "Snakefile", proj / "Snakefile")
     for name in ("workflow", "rafi"):
         shutil.rmtree(proj / name, ignore_errors=True)
@@ -319,6 +322,7 @@ def judge_seed(
     models: dict | None = None,
     offered_only: bool = False,
     plan: str = "varied",
+    setup_change: bool = False,
 ) -> dict:
     """The result of one seed: read from ``keep/seed-NNN/result.json`` if there (made with the
     same ``setup_drift``, ``realism``, ``models`` and ``plan``, else a stop), else made (the project, the
@@ -340,11 +344,13 @@ def judge_seed(
         if result.get("plan", "varied") != plan:
             made = result.get("plan", "varied")
             raise SystemExit(f"{cached} was made with plan={made}: use another --keep")
+        if bool(result.get("setup_change", False)) != setup_change:
+            raise SystemExit(f"{cached} was made with setup_change={not setup_change}: use another --keep")
         return result
     proj = folder / "project"
     shutil.rmtree(proj, ignore_errors=True)
     proj.mkdir(parents=True)
-    truth = make_project(seed, proj, setup_drift, realism, models, plan)
+    truth = make_project(seed, proj, setup_drift, realism, models, plan, setup_change)
     machine = truth["machine"]
     pipeline_s = run_pipeline(proj, machine, cores)
     t0 = time.perf_counter()
@@ -367,6 +373,7 @@ def judge_seed(
         **({"realism": list(realism), "realism_truth": truth["realism"]} if realism else {}),
         **({"models": dict(models)} if models else {}),
         **({"plan": plan} if plan != "varied" else {}),
+        **({"setup_change": truth["setup_change"]} if setup_change else {}),
         "sensors": len(truth["sensors"]),
         "training_days": sum(d["role"] == "training" for d in truth["days"]),
         "test_runs": truth["test_runs"],
@@ -539,6 +546,12 @@ def main(argv: list[str] | None = None) -> int:
         "runs and steps) or production (4-8 sensors, the same job every day through a season); use its "
         "own --keep",
     )
+    parser.add_argument(
+        "--setup-change",
+        action="store_true",
+        help="machines whose probe sees the largest node's growth changed from a training day on (rafi "
+        "simulate foreign --setup-change: the training runs disagree); use its own --keep",
+    )
     parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")
     parser.add_argument(
         "--offered-only",
@@ -574,6 +587,7 @@ def main(argv: list[str] | None = None) -> int:
                 models=args.models,
                 offered_only=args.offered_only,
                 plan=args.plan,
+                setup_change=args.setup_change,
             )
             if args.rescore:
                 result = rescored(result, keep / f"seed-{seed:03d}")

@@ -261,6 +261,13 @@ def _add_foreign_mode(sub: argparse._SubParsersAction, formatter: type[argparse.
         "truth.json says what was drawn and each day's contribution; 'none' gives the plain machine",
     )
     mode.add_argument(
+        "--setup-change",
+        action="store_true",
+        help="from a training day in the second half on, the displacement's largest node gain reaches the "
+        "probe only by a factor of -1 to 0 (a fixture or the probe re-clamped: a change no sensor sees, "
+        "so the training runs disagree); truth.json says from which day",
+    )
+    mode.add_argument(
         "--plan",
         choices=PLANS,
         default="varied",
@@ -282,7 +289,12 @@ def _run_foreign(args: argparse.Namespace) -> int:
         print(f"rafi simulate foreign: --realism: {exc}", file=sys.stderr)
         return 2
     machine, paths = write_foreign(
-        args.seed, args.out, setup_drift=args.setup_drift, realism=effects, plan=args.plan
+        args.seed,
+        args.out,
+        setup_drift=args.setup_drift,
+        realism=effects,
+        plan=args.plan,
+        setup_change=args.setup_change,
     )
     for path in paths:
         print(path, file=sys.stderr)

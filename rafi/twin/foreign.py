@@ -140,6 +140,10 @@ ENVELOPE_MARGIN_K = 0.1
 ENVELOPE_SPEED_TOL_RPM = 50.0
 #: The spindle stands below this (r/min): such rows have no speed to be outside (``idle_below_rpm``).
 IDLE_BELOW_RPM = 100.0
+#: Setup change (``setup_change=True``): from a day in the second half of the training days on,
+#: the node with the largest displacement gain reaches the probe by this factor of its gain (a
+#: fixture or the probe re-clamped: its growth now partly cancels, or reverses, what it did).
+SETUP_CHANGE_FACTOR = (-1.0, 0.0)
 #: Setup drift (``setup_drift=True``): its standard deviation per machine (um) and time constant (s).
 SETUP_DRIFT_UM = (0.5, 3.0)
 SETUP_DRIFT_TAU_S = 7200.0
@@ -763,8 +767,25 @@ def foreign_design(seed: int, plan: str = "varied") -> Design:
     return Design(base, params, speeds, days(rng, speeds, lo, float(rng.uniform(18.0, 26.0))))
 
 
+def setup_change_of(seed: int, params: TwinParams, days: list[Day]) -> dict:
+    """What ``setup_change=True`` changes on the machine of ``seed``, from a stream of its own:
+    ``from_day`` (the stem of a training day in the second half of the training days, never the
+    last), ``node`` (the largest |displacement gain|) and ``factor`` (:data:`SETUP_CHANGE_FACTOR`,
+    the share of the node's gain that reaches the probe from that day on)."""
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 46, 3]))
+    training = [d.stem for d in days if d.role == "training"]
+    first = max(1, len(training) // 2)
+    day = training[int(rng.integers(first, max(first + 1, len(training) - 1)))]
+    node = max(params.disp_gain, key=lambda k: abs(params.disp_gain[k]))
+    return {"from_day": day, "node": node, "factor": float(rng.uniform(*SETUP_CHANGE_FACTOR))}
+
+
 def foreign_machine(
-    seed: int, setup_drift: bool = False, realism: tuple[str, ...] | str = (), plan: str = "varied"
+    seed: int,
+    setup_drift: bool = False,
+    realism: tuple[str, ...] | str = (),
+    plan: str = "varied",
+    setup_change: bool = False,
 ) -> ForeignMachine:
     """A foreign machine from ``seed``: its name ``foreign-<seed>``, config block, logs and truth.
 
@@ -786,6 +807,11 @@ def foreign_machine(
         How its days are planned (:data:`PLANS`): ``varied`` (a qualification's runs and steps,
         :func:`plan_days`) or ``production`` (the same job every day through a season, with
         fewer sensors, :func:`production_days`): another machine from the same seed.
+    setup_change : bool
+        From a training day in the second half on, the displacement's largest node gain reaches the
+        probe only by a factor in :data:`SETUP_CHANGE_FACTOR` (:func:`setup_change_of`): a change
+        no sensor sees, so the training runs disagree (``rafi.family.unexplained``). The same
+        machine, days, temperatures and noise as without; ``truth["setup_change"]`` says what.
 
     Returns
     -------
@@ -807,11 +833,24 @@ def foreign_machine(
     if unknown:
         raise ValueError(f"unknown realism effect(s) {sorted(unknown)}; known: {', '.join(REALISM_EFFECTS)}")
     real = foreign_realism(seed, design, effects) if effects else None
+    change = setup_change_of(seed, params, days) if setup_change else None
+    changed = params
+    if change is not None:
+        gains = {**params.disp_gain, change["node"]: params.disp_gain[change["node"]] * change["factor"]}
+        changed = replace(params, disp_gain=gains)
+    stems = [d.stem for d in days]
     logs, parts, end = {}, {}, None
     for k, d in enumerate(days):
         seed_k = int(seed) * 1000 + k
+        after = change is not None and k >= stems.index(change["from_day"])
         frame, part, end = simulate_day_parts(
-            params, d, seed_k, setup_drift_um=drift_um, realism=real, days=days, warm_from=end
+            changed if after else params,
+            d,
+            seed_k,
+            setup_drift_um=drift_um,
+            realism=real,
+            days=days,
+            warm_from=end,
         )
         logs[d.stem] = frame
         if part is not None:
@@ -857,6 +896,8 @@ def foreign_machine(
     }
     if real is not None:
         truth["realism"] = realism_truth(real, params, days, parts)
+    if change is not None:
+        truth["setup_change"] = {**change, "factor": round(change["factor"], 4)}
     return ForeignMachine(params.machine, foreign_config(names, speeds), logs, truth, parts)
 
 
@@ -919,19 +960,22 @@ def write_foreign(
     setup_drift: bool = False,
     realism: tuple[str, ...] | str = (),
     plan: str = "varied",
+    setup_change: bool = False,
 ) -> tuple[ForeignMachine, list[Path]]:
     """Write the foreign machine of ``seed`` as a project's data: its logs as native CSVs in
     ``out_dir/raw/<name>/``, ``out_dir/config.yaml`` (that machine only) and
     ``out_dir/truth.json``; returns the machine and the files written (logs first). Beside
     ``Snakefile`` and ``workflow/`` (copied, or ``snakemake -s <Snakefile> -d out_dir``) the
-    folder is a project. ``setup_drift``, ``realism``, ``plan``: :func:`foreign_machine` (the
-    parts are not written; ``truth.json`` says what was drawn)."""
+    folder is a project. ``setup_drift``, ``realism``, ``plan``, ``setup_change``:
+    :func:`foreign_machine` (the parts are not written; ``truth.json`` says what was drawn)."""
     import yaml
 
     from rafi.artefact import write_text_atomic
     from rafi.readers.native import format_raw_log
 
-    machine = foreign_machine(seed, setup_drift=setup_drift, realism=realism, plan=plan)
+    machine = foreign_machine(
+        seed, setup_drift=setup_drift, realism=realism, plan=plan, setup_change=setup_change
+    )
     out = Path(out_dir)
     folder = out / "raw" / machine.name
     folder.mkdir(parents=True, exist_ok=True)
