@@ -128,6 +128,10 @@ def test_a_kept_seed_made_with_another_plan_is_refused_and_the_plan_reaches_the_
     with pytest.raises(SystemExit, match="plan=production"):
         bench.judge_seed(5, tmp_path, 1)
     assert bench.judge_seed(5, tmp_path, 1, plan="production")["seed"] == 5
+    (folder / "result.json").write_text(json.dumps({"seed": 5, "setup_change": {"from_day": "day06_train"}}))
+    with pytest.raises(SystemExit, match="made with setup_change=True"):
+        bench.judge_seed(5, tmp_path, 1)
+    assert bench.judge_seed(5, tmp_path, 1, setup_change=True)["seed"] == 5
     truth = bench.make_project(5, tmp_path / "project", plan="production")
     assert truth["plan"] == "production" and len(truth["sensors"]) <= 8
 

@@ -401,3 +401,25 @@ def test_rafi_simulate_foreign_plan_production_writes_that_machine(tmp_path):
     assert files == [f"{d['stem']}.csv" for d in truth["days"]]
     with pytest.raises(SystemExit):
         main(["simulate", "foreign", "--seed", "3", "--out", str(tmp_path / "x"), "--plan", "weekly"])
+    assert main(["simulate", "foreign", "--seed", "3", "--out", str(tmp_path / "c"), "--setup-change"]) == 0
+    assert "from_day" in json.loads((tmp_path / "c" / "truth.json").read_text())["setup_change"]
+
+
+def test_a_setup_change_moves_only_the_displacement_from_its_day_on():
+    from rafi.twin.foreign import SETUP_CHANGE_FACTOR
+
+    plain = foreign_machine(3, plan="production")
+    changed = foreign_machine(3, plan="production", setup_change=True)
+    change = changed.truth["setup_change"]
+    assert "setup_change" not in plain.truth and plain.config == changed.config
+    training = [d["stem"] for d in plain.truth["days"] if d["role"] == "training"]
+    assert training.index(change["from_day"]) >= len(training) // 2 and change["from_day"] != training[-1]
+    gains = plain.truth["disp_gain_um_per_k"]
+    assert change["node"] == max(gains, key=lambda k: abs(gains[k]))
+    assert SETUP_CHANGE_FACTOR[0] <= change["factor"] <= SETUP_CHANGE_FACTOR[1]
+    stems = list(plain.logs)
+    for k, stem in enumerate(stems):
+        a, b = plain.logs[stem], changed.logs[stem]
+        pd.testing.assert_frame_equal(a.drop(columns="disp_um"), b.drop(columns="disp_um"))
+        moved = (a["disp_um"] - b["disp_um"]).abs().max()
+        assert (moved > 1.0) if k >= stems.index(change["from_day"]) else (moved == 0.0), (stem, moved)
