@@ -838,13 +838,12 @@ def foreign_machine(
     if change is not None:
         gains = {**params.disp_gain, change["node"]: params.disp_gain[change["node"]] * change["factor"]}
         changed = replace(params, disp_gain=gains)
-    stems = [d.stem for d in days]
+    change_at = [d.stem for d in days].index(change["from_day"]) if change is not None else len(days)
     logs, parts, end = {}, {}, None
     for k, d in enumerate(days):
         seed_k = int(seed) * 1000 + k
-        after = change is not None and k >= stems.index(change["from_day"])
         frame, part, end = simulate_day_parts(
-            changed if after else params,
+            changed if k >= change_at else params,
             d,
             seed_k,
             setup_drift_um=drift_um,
