@@ -659,6 +659,31 @@ def test_training_runs_no_model_explains_are_named_in_the_comparison(tmp_path):
     assert f"train-6000 {best['model']} {figures}" in text
 
 
+def test_training_runs_set_aside_before_a_change_are_said_in_the_comparison(tmp_path):
+    from rafi.family.since_change import Change, set_aside_table
+
+    results = tmp_path / "results" / "tapping-center-a"
+    shutil.copytree(FIXTURE, results)
+    cfg, settings = _settings()
+    change = Change(
+        first_run="train-6000",
+        set_aside=("train-2000", "train-4000"),
+        named=("train-6000", "train-8000", "train-10000"),
+        named_side="since",
+        exceptions=0,
+    )
+    set_aside_table(None).to_csv(results / "comparison" / "set_aside.csv", index=False)
+    before = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
+    assert "Training runs set aside" not in before  # an empty table: nothing said
+    set_aside_table(change).to_csv(results / "comparison" / "set_aside.csv", index=False)
+    text = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
+    assert (
+        "Training runs set aside: 2 training runs recorded before a change found at train-6000 were set "
+        "aside (train-2000 to train-4000): the 3 training runs no model explains lie from it on, with 0 "
+        "exceptions" in text
+    )
+
+
 def test_machine_b_like_results_render_and_fit(tmp_path):
     results = tmp_path / "results" / "machining-center-b"
     _machine_b_like(FIXTURE, results)

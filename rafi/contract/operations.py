@@ -164,6 +164,16 @@ OPERATIONS_SETTINGS: dict = {
                 shown="1e-8 ... 10, 1-2-5 per decade",
                 doc="ridge penalties tried by CV",
             ),
+            "since_change": Setting(
+                default=False,
+                schema={"type": "boolean"},
+                shown="`false`",
+                doc=(
+                    "when the training runs no model explains are separated from the others by one "
+                    "change in the order the runs were recorded, set aside the runs before it and train "
+                    "on the runs since (`docs/models.md`, Training runs that disagree)"
+                ),
+            ),
             "component_envelope": Setting(
                 default=True,
                 schema={"type": "boolean"},

@@ -34,6 +34,7 @@ RESULT_FILES: dict[str, str] = {
     "best_model": "comparison/best_model.json",
     "comparison_cv": "comparison/cv.csv",
     "comparison_verdict": "comparison/verdict.csv",
+    "comparison_set_aside": "comparison/set_aside.csv",
     # decide (the registry's declared outputs; its own files are side effects, see REGISTRY_DIR)
     "decision": "registry/decision.json",
     "registry_comparison": "registry/comparison.csv",
@@ -89,6 +90,7 @@ COMPARISON_FILES = (
     "best_model",
     "comparison_cv",
     "comparison_verdict",
+    "comparison_set_aside",
 )
 #: Declared outputs of rule decide.
 DECISION_FILES = ("decision", "registry_comparison")
@@ -147,6 +149,7 @@ REPORT_OPTIONAL = (
     "comparison_per_run",
     "comparison_cv",
     "comparison_verdict",
+    "comparison_set_aside",
     "best_model",
     "replay_summary",
     "replay",

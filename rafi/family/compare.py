@@ -62,6 +62,7 @@ from rafi.family.selection import (  # noqa: F401 - re-exported: the selection r
     default_champion,
     selection_table,
 )
+from rafi.family.since_change import change_of, set_aside_before, set_aside_table
 from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.whole_log import rows_of_logs
 from rafi.method.rank import trained_speeds
@@ -621,6 +622,24 @@ def run_family(
     models, cv, oof = with_ensemble(
         models, cv, oof, members, machine=machine, trained_speeds_rpm=speeds, log=log
     )
+    change = change_of(cv, runs_table) if options["since_change"] else None
+    if change is not None:  # the runs before a change are set aside: everything again on the rest
+        log(f"{len(change.set_aside)} training runs {change.reason}")
+        runs_table = set_aside_before(runs_table, change)
+        models, cv, oof, memo, fit_table = _cross_validated(
+            factories,
+            runs_table,
+            runs_frame,
+            settings,
+            rafi_model=None,  # model.json learnt from every training run: RAFI is refitted here
+            cv_memo_dir=cv_memo_dir,
+            code_version=code_version,
+            log=log,
+        )
+        speeds = trained_speeds(runs_table) if members else None
+        models, cv, oof = with_ensemble(
+            models, cv, oof, members, machine=machine, trained_speeds_rpm=speeds, log=log
+        )
     # every model's prediction interval, from its own OOF residuals (RAFI's model.json keeps its own)
     samples, calibrated_on = calibration_units(oof, scheme_of(fit_table, options["cv"]))
     calibrate_family(
@@ -629,7 +648,7 @@ def run_family(
         options=options,
         scheme=calibrated_on,
         tolerance_rpm=speed_tolerance_rpm,
-        keep={"rafi"} if rafi_model is not None else set(),
+        keep={"rafi"} if rafi_model is not None and change is None else set(),
         log=log,
     )
     # the choice: training runs only, before any validation run is predicted
@@ -671,4 +690,5 @@ def run_family(
         "best_artefact": models[champion].to_dict(),
         "models": models,
         "cv_memo": memo,
+        "set_aside": set_aside_table(change),
     }

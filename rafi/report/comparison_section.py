@@ -12,6 +12,7 @@ import pandas as pd
 
 from rafi.family.forward_folds import MIN_TRAIN, horizon_of, is_forward
 from rafi.family.selection import SHARED_GAIN, SHARED_GAIN_RULE, selection_rule
+from rafi.family.since_change import set_aside_text
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.family.unexplained import unexplained_text
 from rafi.report.ensemble_section import ensemble_context
@@ -448,7 +449,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         :func:`_cv_stats`: whole-run ``scheme`` and ``folds``, ``forward_scheme``,
         ``forward_folds``, ``horizon``), ``unpredicted`` and ``cv_unpredicted`` (:func:`unpredicted_models`),
         ``unexplained`` (:func:`rafi.family.unexplained.unexplained_text`: the held-out training
-        runs no model explains, ``None`` when there is none),
+        runs no model explains, ``None`` when there is none), ``set_aside``
+        (:func:`rafi.family.since_change.set_aside_text` of ``comparison_set_aside``: the training
+        runs set aside before a change, ``None`` when none were),
         ``run_models`` and ``per_run`` (:func:`per_run_rows`), ``figure_bars``, ``rafi_fail``
         (:func:`rafi_failure` with ``champion``: :func:`champion_beside_rafi`) and
         ``figures_resid``, ``plain_ridge`` (:func:`rafi.report.plain_ridge.section_plain_ridge`);
@@ -497,6 +500,8 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "unpredicted": unpredicted_models(s),
         # held-out training runs on which every model is worse than no compensation (rafi.family.unexplained)
         "unexplained": unexplained_text(cv_rows),
+        # training runs recorded before a change, set aside (models.since_change)
+        "set_aside": set_aside_text(res.get("comparison_set_aside")),
         "cv_unpredicted": unpredicted_models(s, "cv_unpredicted", "cv_unpredicted_inputs"),
         "run_models": [],
         "per_run": None,

@@ -35,6 +35,7 @@ rule compare:
         best_model=out("best_model"),
         cv=out("comparison_cv"),
         verdict=out("comparison_verdict"),
+        set_aside=out("comparison_set_aside"),
     log:
         log_path("compare"),
     benchmark:

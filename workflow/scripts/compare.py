@@ -1,5 +1,5 @@
 """Rule compare: runs + key sensors + model.json -> comparison/summary.csv, per_run.csv,
-residuals.parquet, best_model.json, cv.csv, verdict.csv (docs/models.md).
+residuals.parquet, best_model.json, cv.csv, verdict.csv, set_aside.csv (docs/models.md).
 
 verdict.csv stores every model's gates per validation run (the rows of
 rafi.method.validate.qualify, named by model and model id): the report reads them there.
@@ -16,8 +16,9 @@ priors; the job chooses the first that learnt from none of these runs, checks it
 the job with one line) and the adaptation candidates join the family, each with its fitness block
 (the prior's origin and qualification: :func:`rafi.family.prior.prior_record`).
 
-A warning line names the training runs no model explains (:mod:`rafi.family.unexplained`); the
-end-of-run lines repeat it under the machine's line."""
+A warning line names the training runs no model explains (:mod:`rafi.family.unexplained`), and
+one the runs set aside before a change (``models.since_change``, :mod:`rafi.family.since_change`);
+the end-of-run lines repeat them under the machine's line."""
 
 import json
 
@@ -27,6 +28,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import rafi.artefact
     from rafi.family.compare import load_any, run_family
     from rafi.family.prior import prior_record, resolved_prior
+    from rafi.family.since_change import set_aside_text
     from rafi.family.unexplained import unexplained_text
     from rafi.ops.run_messages import warning_line
 
@@ -73,13 +75,17 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
             "still that model (no second pick on validation) and the registry will not promote it",
             flush=True,
         )
+    wildcards = ", ".join(f"{k}={v}" for k, v in smk.wildcards.items())
+    set_aside = result["set_aside"]
+    if len(set_aside):  # warning lines: the end-of-run lines and rafi nightly repeat them
+        print(warning_line("compare", wildcards, set_aside_text(set_aside)), flush=True)
     disagree = unexplained_text(result["cv"])
-    if disagree:  # a warning line: the end-of-run lines and rafi nightly repeat it (rafi.ops.run_messages)
-        wildcards = ", ".join(f"{k}={v}" for k, v in smk.wildcards.items())
+    if disagree:
         print(warning_line("compare", wildcards, disagree), flush=True)
     rafi.artefact.write_csv_atomic(as_table(result["summary"]), smk.output.summary, index=False)
     rafi.artefact.write_csv_atomic(as_table(result["per_run"]), smk.output.per_run, index=False)
     rafi.artefact.write_csv_atomic(as_table(result["verdict"]), smk.output.verdict, index=False)
     rafi.artefact.write_parquet_atomic(result["residuals"], smk.output.residuals)
     rafi.artefact.write_csv_atomic(as_table(result["cv"]), smk.output.cv, index=False)
+    rafi.artefact.write_csv_atomic(set_aside, smk.output.set_aside, index=False)
     rafi.artefact.write_text_atomic(smk.output.best_model, rafi.artefact.json_text(result["best_artefact"]))

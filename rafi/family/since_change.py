@@ -1,0 +1,194 @@
+"""Training on the runs since a change: the runs recorded before it are set aside.
+
+The whole-run CV names the training runs no model explains (:mod:`rafi.family.unexplained`). When,
+in the order the training runs were recorded, one change between two consecutive runs separates
+those runs from the others (the named ones all before it, or all from it on), the machine was set
+up otherwise from that change on (a fixture, the probe re-clamped, a heat source moved) and its
+current state is that of the runs since. A compensation fitted across the change predicts the
+state before it, so with ``models.since_change`` the runs before the change are set aside (role
+``excluded``, the reason naming the change) and the family is fitted, cross-validated, chosen and
+validated on the runs from it on (``docs/models.md``, Training runs that disagree;
+``docs/decisions.md``, 2026-11-30).
+
+The separation allows exceptions (an unnamed run on the named side, a named run on the other), at
+most :data:`MAX_EXCEPTION_SHARE` of the named runs; the change chosen is the one with the fewest,
+the earliest of equals; at least :data:`MIN_RUNS_SINCE` runs must lie from it on. Where the warning
+names no run nothing changes.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import pandas as pd
+
+from rafi.family.unexplained import unexplained_runs
+
+__all__ = [
+    "MAX_EXCEPTION_SHARE",
+    "MIN_RUNS_SINCE",
+    "SET_ASIDE_COLUMNS",
+    "Change",
+    "change_of",
+    "find_change",
+    "recorded_order",
+    "set_aside_before",
+    "set_aside_table",
+    "set_aside_text",
+]
+
+#: At most this share of the named runs may lie on the wrong side of the change.
+MAX_EXCEPTION_SHARE = 0.5
+
+#: The fewest training runs from the change on (three whole-run folds).
+MIN_RUNS_SINCE = 3
+
+#: The columns of ``comparison/set_aside.csv`` (:func:`set_aside_table`).
+SET_ASIDE_COLUMNS = ("run_id", "change_run", "named_side", "named_runs", "exceptions", "reason")
+
+
+@dataclass(frozen=True)
+class Change:
+    """A change between two consecutive training runs (:func:`find_change`).
+
+    Attributes
+    ----------
+    first_run : str
+        The first training run from the change on.
+    set_aside : tuple of str
+        The training runs before it, in recorded order.
+    named : tuple of str
+        The runs no model explains (:func:`rafi.family.unexplained.unexplained_runs`).
+    named_side : str
+        ``"since"`` when the named runs lie from the change on, ``"before"`` when before it.
+    exceptions : int
+        Unnamed runs on the named side plus named runs on the other.
+    """
+
+    first_run: str
+    set_aside: tuple[str, ...]
+    named: tuple[str, ...]
+    named_side: str
+    exceptions: int
+
+    @property
+    def reason(self) -> str:
+        """One line for ``role_reason`` and the log."""
+        side = "from it on" if self.named_side == "since" else "before it"
+        return (
+            f"set aside: recorded before a change found at {self.first_run} (the training runs no model "
+            f"explains, {len(self.named)}, lie {side}, with {self.exceptions} exception"
+            f"{'' if self.exceptions == 1 else 's'}); the model is trained on the runs since"
+        )
+
+
+def recorded_order(runs_table: pd.DataFrame) -> list[str]:
+    """The training runs' ids in the order they were recorded: by ``start_time`` where the table
+    has it (ISO text), then by file and start in the file (``start_s``), the table's order last."""
+    table = runs_table.loc[runs_table["role"].astype(str) == "training"].copy()
+    table["_order"] = range(len(table))
+    keys = [c for c in ("start_time", "file", "start_s") if c in table.columns] + ["_order"]
+    if "start_time" in table.columns:
+        table["start_time"] = table["start_time"].astype(str)
+    return [str(r) for r in table.sort_values(keys, kind="stable")["run_id"]]
+
+
+def find_change(order: list[str], named: set[str], *, min_since: int = MIN_RUNS_SINCE) -> Change | None:
+    """The change that separates the ``named`` runs from the others in ``order``, or ``None``.
+
+    Parameters
+    ----------
+    order : list of str
+        The training runs in recorded order (:func:`recorded_order`).
+    named : set of str
+        The runs no model explains.
+    min_since : int
+        The fewest runs from the change on.
+
+    Returns
+    -------
+    Change or None
+        The change with the fewest exceptions (the earliest of equals; at each position the named
+        runs after it first), if those are at most :data:`MAX_EXCEPTION_SHARE` of the named runs;
+        ``None`` without named runs or without such a change.
+    """
+    named = {r for r in named if r in set(order)}
+    if not named:
+        return None
+    flags = [r in named for r in order]
+    best: tuple[int, int, str] | None = None
+    for cut in range(1, len(order) - min_since + 1):
+        before, since = flags[:cut], flags[cut:]
+        named_since = sum(before) + sum(not f for f in since)
+        named_before = sum(not f for f in before) + sum(since)
+        for exceptions, side in ((named_since, "since"), (named_before, "before")):
+            if best is None or exceptions < best[0]:
+                best = (exceptions, cut, side)
+    if best is None or best[0] > MAX_EXCEPTION_SHARE * len(named):
+        return None
+    exceptions, cut, side = best
+    return Change(
+        first_run=order[cut],
+        set_aside=tuple(order[:cut]),
+        named=tuple(r for r in order if r in named),
+        named_side=side,
+        exceptions=int(exceptions),
+    )
+
+
+def change_of(cv: pd.DataFrame | None, runs_table: pd.DataFrame) -> Change | None:
+    """:func:`find_change` on the runs of ``runs_table`` that the whole-run CV rows ``cv`` name
+    (:func:`rafi.family.unexplained.unexplained_runs`)."""
+    named = set(unexplained_runs(cv)["run"].astype(str))
+    return find_change(recorded_order(runs_table), named) if named else None
+
+
+def set_aside_before(runs_table: pd.DataFrame, change: Change) -> pd.DataFrame:
+    """``runs_table`` with the runs of ``change.set_aside`` in role ``excluded``, their
+    ``role_reason`` the change's (a copy; the raw logs and ``runs.csv`` are not touched)."""
+    out = runs_table.copy()
+    aside = out["run_id"].astype(str).isin(set(change.set_aside))
+    out.loc[aside, "role"] = "excluded"
+    if "role_reason" in out.columns:
+        out["role_reason"] = out["role_reason"].astype(object)
+        out.loc[aside, "role_reason"] = change.reason
+    return out
+
+
+def set_aside_table(change: Change | None) -> pd.DataFrame:
+    """``comparison/set_aside.csv``: one row per run set aside (:data:`SET_ASIDE_COLUMNS`), empty
+    with those columns when nothing was."""
+    if change is None:
+        return pd.DataFrame(columns=list(SET_ASIDE_COLUMNS))
+    return pd.DataFrame(
+        [
+            {
+                "run_id": run,
+                "change_run": change.first_run,
+                "named_side": change.named_side,
+                "named_runs": len(change.named),
+                "exceptions": change.exceptions,
+                "reason": change.reason,
+            }
+            for run in change.set_aside
+        ],
+        columns=list(SET_ASIDE_COLUMNS),
+    )
+
+
+def set_aside_text(table: pd.DataFrame) -> str | None:
+    """One sentence for the log and the report from ``comparison/set_aside.csv`` (``table``,
+    :func:`set_aside_table`); ``None`` when nothing was set aside."""
+    if table is None or not len(table):
+        return None
+    first = table.iloc[0]
+    side = "from it on" if str(first["named_side"]) == "since" else "before it"
+    ids = [str(r) for r in table["run_id"]]
+    runs = ids[0] if len(ids) == 1 else f"{ids[0]} to {ids[-1]}"
+    return (
+        f"{len(table)} training runs recorded before a change found at {first['change_run']} were set "
+        f"aside ({runs}): the {int(first['named_runs'])} training runs no model explains lie {side}, "
+        f"with {int(first['exceptions'])} exception{'' if int(first['exceptions']) == 1 else 's'}, so "
+        "the machine's current state is that of the runs since, and the models were fitted, "
+        "cross-validated, chosen and validated on those (models.since_change)"
+    )
