@@ -107,6 +107,14 @@ def test_recorded_order_is_by_start_time_then_file():
     assert recorded_order(table.drop(columns=["start_time"])) == ["a#1", "a#2", "b#1"]
 
 
+def test_logs_without_a_clock_are_in_the_natural_order_of_their_names():
+    names = ["Sheet1", "Sheet10", "Sheet11", "Sheet12", "Sheet2", "Sheet9"]
+    table = pd.DataFrame(
+        {"run_id": names, "role": "training", "file": names, "start_s": 0.0, "start_time": float("nan")}
+    )
+    assert recorded_order(table) == ["Sheet1", "Sheet2", "Sheet9", "Sheet10", "Sheet11", "Sheet12"]
+
+
 def test_set_aside_runs_are_excluded_with_the_reason_and_the_table_is_a_copy():
     table = pd.DataFrame(
         {"run_id": ORDER, "role": ["training"] * 12, "role_reason": ["window"] * 12, "start_s": range(12)}

@@ -18,6 +18,7 @@ names no run nothing changes.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import pandas as pd
@@ -82,15 +83,28 @@ class Change:
         )
 
 
+def _natural(text: str) -> tuple:
+    """A sort key that compares the numbers in ``text`` as numbers (``day2`` before ``day10``)."""
+    return tuple((0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", text) if t)
+
+
 def recorded_order(runs_table: pd.DataFrame) -> list[str]:
-    """The training runs' ids in the order they were recorded: by ``start_time`` where the table
-    has it (ISO text), then by file and start in the file (``start_s``), the table's order last."""
-    table = runs_table.loc[runs_table["role"].astype(str) == "training"].copy()
-    table["_order"] = range(len(table))
-    keys = [c for c in ("start_time", "file", "start_s") if c in table.columns] + ["_order"]
-    if "start_time" in table.columns:
-        table["start_time"] = table["start_time"].astype(str)
-    return [str(r) for r in table.sort_values(keys, kind="stable")["run_id"]]
+    """The training runs' ids in the order they were recorded: by ``start_time`` (ISO text) where
+    the logs have a clock, then by log name in natural order (``Sheet2`` before ``Sheet10``: logs
+    without a clock are ordered by their names), then by start in the log (``start_s``)."""
+    table = runs_table.loc[runs_table["role"].astype(str) == "training"]
+    column = {
+        c: table[c] if c in table.columns else pd.Series("", index=table.index)
+        for c in ("start_time", "file")
+    }
+    start_s = pd.to_numeric(table["start_s"], errors="coerce") if "start_s" in table.columns else None
+    keys = []
+    for i, (idx, run) in enumerate(zip(table.index, table["run_id"].astype(str))):
+        clock = column["start_time"].loc[idx]
+        clock = "" if pd.isna(clock) else str(clock)
+        offset = float(start_s.loc[idx]) if start_s is not None and pd.notna(start_s.loc[idx]) else 0.0
+        keys.append(((clock, _natural(str(column["file"].loc[idx])), offset, i), run))
+    return [run for _, run in sorted(keys, key=lambda k: k[0])]
 
 
 def find_change(order: list[str], named: set[str], *, min_since: int = MIN_RUNS_SINCE) -> Change | None:
