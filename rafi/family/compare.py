@@ -564,7 +564,9 @@ def run_family(
     :mod:`rafi.family.prior`) the adaptation candidates ``prior``, ``prior_gain``, ``prior_ridge``
     join the kinds (:func:`rafi.family.adapted.adaptation_factories`); the memo key covers its id.
     ``prior_origin`` (``origin`` and ``qualification``: :func:`rafi.family.prior.prior_record`)
-    goes to the candidates' fitness block.
+    goes to the candidates' fitness block. With ``options["since_change"]``, when the CV's runs
+    no model explains lie on one side of a change (:mod:`rafi.family.since_change`), the training
+    runs recorded before it are set aside and the fits and the CV run again on the runs since.
 
     Returns
     -------
@@ -577,7 +579,8 @@ def run_family(
         ``champion`` (name of the model offered), ``champion_passed`` (its gates on the
         validation runs), ``selection_basis`` (``"cv"`` or ``"default"``), ``best_name`` (=
         ``champion``) and ``best_artefact`` (its artefact), ``models`` (name -> fitted model),
-        ``cv_memo`` (``"read"``, ``"written"`` or ``None``).
+        ``cv_memo`` (``"read"``, ``"written"`` or ``None``), ``set_aside``
+        (:func:`rafi.family.since_change.set_aside_table`: the runs set aside, empty when none).
     """
     settings = {
         "key_sensors": list(key_sensors),

@@ -6,8 +6,8 @@ those runs from the others (the named ones all before it, or all from it on), th
 up otherwise from that change on (a fixture, the probe re-clamped, a heat source moved) and its
 current state is that of the runs since. A compensation fitted across the change predicts the
 state before it, so with ``models.since_change`` the runs before the change are set aside (role
-``excluded``, the reason naming the change) and the family is fitted, cross-validated, chosen and
-validated on the runs from it on (``docs/models.md``, Training runs that disagree;
+``excluded``, the reason naming the change) and the family is fitted, cross-validated and chosen
+on the runs from it on (the validation runs as before) (``docs/models.md``, Training runs that disagree;
 ``docs/decisions.md``, 2026-11-30).
 
 The separation allows exceptions (an unnamed run on the named side, a named run on the other), at
@@ -204,5 +204,5 @@ def set_aside_text(table: pd.DataFrame) -> str | None:
         f"aside ({runs}): the {int(first['named_runs'])} training runs no model explains lie {side}, "
         f"with {int(first['exceptions'])} exception{'' if int(first['exceptions']) == 1 else 's'}, so "
         "the machine's current state is that of the runs since, and the models were fitted, "
-        "cross-validated, chosen and validated on those (models.since_change)"
+        "cross-validated and chosen on those (models.since_change)"
     )
