@@ -165,13 +165,13 @@ OPERATIONS_SETTINGS: dict = {
                 doc="ridge penalties tried by CV",
             ),
             "since_change": Setting(
-                default=False,
+                default=True,
                 schema={"type": "boolean"},
-                shown="`false`",
+                shown="`true`",
                 doc=(
                     "when the training runs no model explains are separated from the others by one "
                     "change in the order the runs were recorded, set aside the runs before it and train "
-                    "on the runs since (`docs/models.md`, Training runs that disagree)"
+                    "on the runs since (`docs/models.md`, Training runs since a change)"
                 ),
             ),
             "component_envelope": Setting(
