@@ -674,9 +674,12 @@ def test_training_runs_set_aside_before_a_change_are_said_in_the_comparison(tmp_
     )
     set_aside_table(None).to_csv(results / "comparison" / "set_aside.csv", index=False)
     before = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
-    assert "Training runs set aside" not in before  # an empty table: nothing said
+    assert "Training runs set aside" not in before and "set aside by" not in before  # empty: nothing said
     set_aside_table(change).to_csv(results / "comparison" / "set_aside.csv", index=False)
     text = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
+    assert (
+        "of which 2 training run(s) recorded before a change were set aside by the model comparison" in text
+    )
     assert (
         "Training runs set aside: 2 training runs recorded before a change found at train-6000 were set "
         "aside (train-2000 to train-4000): the 3 training runs no model explains lie from it on, with 0 "

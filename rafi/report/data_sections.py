@@ -57,7 +57,8 @@ def section_data(res: dict, period_s=None) -> dict:
     ``rows_in`` of ``audit.csv`` counts the data rows read from a raw file, ``rows_out`` the
     rows of its clean regular grid (``period_s``, the machine's ``sample_period_s``): gaps
     bridged by interpolation add grid rows, duplicates remove rows, so more rows can come
-    out than went in. ``totals_text`` says so with this machine's counts.
+    out than went in. ``totals_text`` says so with this machine's counts. ``set_aside``: how many
+    training runs the compare step set aside before a change (``comparison/set_aside.csv``).
     """
     runs = res["runs_csv"]
     audit = res["audit"]
@@ -125,6 +126,8 @@ def section_data(res: dict, period_s=None) -> dict:
         "totals": totals,
         "totals_text": totals_text,
         "roles": roles,
+        # training runs the compare step set aside before a change (rafi.family.since_change)
+        "set_aside": _rows(res.get("comparison_set_aside")),
         "n_files": 0 if audit is None else len(audit),
     }
 
@@ -423,3 +426,8 @@ def collinearity_text(m: pd.DataFrame, chosen: list) -> dict:
         "collinear": bool(best >= COLLINEAR_ABS_R),
         "collinear_limit": f"{COLLINEAR_ABS_R:g}",
     }
+
+
+def _rows(table) -> int:
+    """The number of rows of ``table`` (0 without it)."""
+    return 0 if table is None else len(table)
