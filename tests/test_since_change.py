@@ -22,6 +22,7 @@ from rafi.family.since_change import (
     set_aside_before,
     set_aside_table,
     set_aside_text,
+    speeds_covered,
 )
 from rafi.ops.outcome import machine_warnings
 from rafi.twin.foreign import write_foreign
@@ -133,12 +134,41 @@ def test_set_aside_runs_are_excluded_with_the_reason_and_the_table_is_a_copy():
     assert set_aside_table(None).empty and set_aside_text(set_aside_table(None)) is None
 
 
+def _cv_naming(runs) -> pd.DataFrame:
+    """CV rows of one model on ``ORDER``, worse than no compensation on ``runs``."""
+    rows = [("m", "leave_one_run_out", r, 5.0, 9.0 if r in runs else 1.0) for r in ORDER]
+    return pd.DataFrame(
+        rows, columns=["model", "scheme", "test_runs", "max_abs_before_um", "max_abs_after_um"]
+    )
+
+
 def test_change_of_reads_the_cv_rows():
-    table = pd.DataFrame({"run_id": ORDER, "role": ["training"] * 12, "start_s": range(12)})
-    rows = [("m", "leave_one_run_out", r, 5.0, 9.0 if r >= "r09" else 1.0) for r in ORDER]
-    cv = pd.DataFrame(rows, columns=["model", "scheme", "test_runs", "max_abs_before_um", "max_abs_after_um"])
-    assert change_of(cv, table).first_run == "r09"
-    assert change_of(None, table) is None
+    table = pd.DataFrame(
+        {
+            "run_id": ORDER,
+            "role": ["training"] * 12,
+            "start_s": range(12),
+            "speed_rpm": [1000, 2000, 3000] * 4,
+        }
+    )
+    assert change_of(_cv_naming(ORDER[9:]), table, tolerance_rpm=50).first_run == "r09"
+    assert change_of(None, table, tolerance_rpm=50) is None
+
+
+def test_no_change_where_the_runs_since_miss_a_speed_of_those_before():
+    # a programme recorded in order of speed: the top speeds held out are extrapolations that
+    # every model may miss; the runs since (9000-11000 r/min) do not cover the speeds before
+    table = pd.DataFrame(
+        {
+            "run_id": ORDER,
+            "role": "training",
+            "start_s": range(12),
+            "speed_rpm": [1000.0 * (i + 1) for i in range(12)],
+        }
+    )
+    change = find_change(ORDER, set(ORDER[9:]))
+    assert change is not None and not speeds_covered(change, table, tolerance_rpm=50)
+    assert change_of(_cv_naming(ORDER[9:]), table, tolerance_rpm=50) is None
 
 
 # ----------------------------------------------------------------------------- the real Snakefile

@@ -625,7 +625,7 @@ def run_family(
     models, cv, oof = with_ensemble(
         models, cv, oof, members, machine=machine, trained_speeds_rpm=speeds, log=log
     )
-    change = change_of(cv, runs_table) if options["since_change"] else None
+    change = change_of(cv, runs_table, tolerance_rpm=speed_tolerance_rpm) if options["since_change"] else None
     if change is not None:  # the runs before a change are set aside: everything again on the rest
         log(f"{len(change.set_aside)} training runs {change.reason}")
         runs_table = set_aside_before(runs_table, change)

@@ -12,8 +12,9 @@ on the runs from it on (the validation runs as before) (``docs/models.md``, Trai
 
 The separation allows exceptions (an unnamed run on the named side, a named run on the other), at
 most :data:`MAX_EXCEPTION_SHARE` of the named runs; the change chosen is the one with the fewest,
-the earliest of equals; at least :data:`MIN_RUNS_SINCE` runs must lie from it on. Where the warning
-names no run nothing changes.
+the earliest of equals; at least :data:`MIN_RUNS_SINCE` runs must lie from it on, and the runs
+since must cover every speed of the runs set aside (:func:`speeds_covered`: otherwise the runs may
+disagree by speed, not by a change). Where the warning names no run nothing changes.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from __future__ import annotations
 import re
 from dataclasses import dataclass
 
+import numpy as np
 import pandas as pd
 
 from rafi.family.unexplained import unexplained_runs
@@ -36,6 +38,7 @@ __all__ = [
     "set_aside_before",
     "set_aside_table",
     "set_aside_text",
+    "speeds_covered",
 ]
 
 #: At most this share of the named runs may lie on the wrong side of the change.
@@ -150,11 +153,35 @@ def find_change(order: list[str], named: set[str], *, min_since: int = MIN_RUNS_
     )
 
 
-def change_of(cv: pd.DataFrame | None, runs_table: pd.DataFrame) -> Change | None:
+def speeds_covered(change: Change, runs_table: pd.DataFrame, *, tolerance_rpm: float) -> bool:
+    """Whether every speed of the runs ``change`` sets aside has a training run since the change
+    within ``tolerance_rpm`` (``speed_rpm`` of ``runs_table``). Where it has not, the runs that
+    disagree may differ by their speed rather than by a change (a programme recorded in order of
+    speed: the top speed held out is an extrapolation), so no change is taken."""
+    speed = dict(
+        zip(runs_table["run_id"].astype(str), pd.to_numeric(runs_table["speed_rpm"], errors="coerce"))
+    )
+    since = np.array(
+        [speed.get(r, np.nan) for r in recorded_order(runs_table) if r not in set(change.set_aside)]
+    )
+    since = since[np.isfinite(since)]
+    for run in change.set_aside:
+        s = speed.get(run, np.nan)
+        if np.isfinite(s) and not (np.abs(since - s) <= tolerance_rpm).any():
+            return False
+    return True
+
+
+def change_of(cv: pd.DataFrame | None, runs_table: pd.DataFrame, *, tolerance_rpm: float) -> Change | None:
     """:func:`find_change` on the runs of ``runs_table`` that the whole-run CV rows ``cv`` name
-    (:func:`rafi.family.unexplained.unexplained_runs`)."""
+    (:func:`rafi.family.unexplained.unexplained_runs`), kept only where the runs since cover the
+    speeds of the runs set aside (:func:`speeds_covered`, ``tolerance_rpm``: the machine's
+    ``speed_tolerance_rpm``)."""
     named = set(unexplained_runs(cv)["run"].astype(str))
-    return find_change(recorded_order(runs_table), named) if named else None
+    change = find_change(recorded_order(runs_table), named) if named else None
+    if change is None or not speeds_covered(change, runs_table, tolerance_rpm=tolerance_rpm):
+        return None
+    return change
 
 
 def set_aside_before(runs_table: pd.DataFrame, change: Change) -> pd.DataFrame:
