@@ -4,14 +4,11 @@ other way for its last training days, through the real Snakefile with ``models.s
 
 from __future__ import annotations
 
-import shutil
-
 import pandas as pd
 import pytest
-import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from project_copy import copy_project, run_snakemake
+from remounted_machine import remounted_project
 
 from rafi.family.since_change import (
     MAX_EXCEPTION_SHARE,
@@ -25,7 +22,6 @@ from rafi.family.since_change import (
     speeds_covered,
 )
 from rafi.ops.outcome import machine_warnings
-from rafi.twin.foreign import write_foreign
 
 ORDER = [f"r{i:02d}" for i in range(12)]
 
@@ -172,35 +168,11 @@ def test_no_change_where_the_runs_since_miss_a_speed_of_those_before():
 
 
 # ----------------------------------------------------------------------------- the real Snakefile
-#: A production machine (the same job every day); on its last three training days the probe was
-#: remounted the other way (the displacement's sign reversed): a change no sensor sees.
-SEED = 7
-
-
 @pytest.fixture(scope="module")
 def remounted(tmp_path_factory):
-    """The pipeline up to the comparison, with ``models.since_change``, on the machine with its
-    probe reversed on its last three training days; returns the project, the machine and those
-    days."""
-    out = tmp_path_factory.mktemp("since-change")
-    machine, _ = write_foreign(SEED, out / "data", plan="production")
-    folder = out / "data" / "raw" / machine.name
-    reversed_days = [d["stem"] for d in machine.truth["days"] if d["role"] == "training"][-3:]
-    for stem in reversed_days:
-        path = folder / f"{stem}.csv"
-        lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
-        header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
-        frame = pd.read_csv(path, comment="#")
-        frame["disp_um"] = -frame["disp_um"]
-        path.write_text("".join(lines[:header]) + frame.to_csv(index=False), encoding="utf-8")
-    proj = copy_project(out / "proj", config=False)
-    config = yaml.safe_load((out / "data" / "config.yaml").read_text(encoding="utf-8"))
-    config.setdefault("defaults", {}).setdefault("models", {})["since_change"] = True
-    (proj / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
-    shutil.copytree(out / "data" / "raw", proj / "raw")
-    done = run_snakemake(proj, f"results/{machine.name}/comparison/cv.csv", cores=2)
-    assert done.returncode == 0, done.stderr[-3000:]
-    return proj, machine, reversed_days
+    """The machine with its probe reversed on its last training days (tests/remounted_machine.py),
+    with ``models.since_change``."""
+    return remounted_project(tmp_path_factory.mktemp("since-change"), since_change=True)
 
 
 def test_the_runs_before_the_remounting_are_set_aside_and_the_models_learn_from_the_rest(remounted):

@@ -3,19 +3,15 @@ whose probe was remounted the other way for some training days, through the real
 
 from __future__ import annotations
 
-import shutil
-
 import numpy as np
 import pandas as pd
 import pytest
-import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from project_copy import copy_project, run_snakemake
+from remounted_machine import remounted_project
 
 from rafi.family.unexplained import COLUMNS, unexplained_runs, unexplained_text
 from rafi.ops.outcome import machine_warnings
-from rafi.twin.foreign import write_foreign
 
 
 def _cv(rows: list[tuple]) -> pd.DataFrame:
@@ -89,36 +85,12 @@ def test_a_named_run_has_no_model_at_or_below_no_compensation(rows):
 
 
 # ----------------------------------------------------------------------------- the real Snakefile
-#: A production machine (the same job every day); on its last three training days the probe was
-#: remounted the other way (the displacement's sign reversed): a change no sensor sees.
-SEED = 7
-
-
 @pytest.fixture(scope="module")
 def remounted(tmp_path_factory):
-    """The pipeline up to the comparison on the machine with its probe reversed on its last three
-    training days; returns the project, the machine and those days."""
-    out = tmp_path_factory.mktemp("remounted")
-    machine, _ = write_foreign(SEED, out / "data", plan="production")
-    folder = out / "data" / "raw" / machine.name
-    reversed_days = [d["stem"] for d in machine.truth["days"] if d["role"] == "training"][-3:]
-    for stem in reversed_days:
-        path = folder / f"{stem}.csv"
-        lines = path.read_text(encoding="utf-8").splitlines(keepends=True)
-        header = next(i for i, line in enumerate(lines) if not line.startswith("#"))
-        frame = pd.read_csv(path, comment="#")
-        frame["disp_um"] = -frame["disp_um"]
-        path.write_text("".join(lines[:header]) + frame.to_csv(index=False), encoding="utf-8")
-    proj = copy_project(out / "proj", config=False)
-    config = yaml.safe_load((out / "data" / "config.yaml").read_text(encoding="utf-8"))
-    # the warning alone: with models.since_change the runs before them are set aside
-    # (tests/test_since_change.py), and the CV of the rest is another
-    config.setdefault("defaults", {}).setdefault("models", {})["since_change"] = False
-    (proj / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
-    shutil.copytree(out / "data" / "raw", proj / "raw")
-    done = run_snakemake(proj, f"results/{machine.name}/comparison/cv.csv", cores=2)
-    assert done.returncode == 0, done.stderr[-3000:]
-    return proj, machine, reversed_days
+    """The machine with its probe reversed on its last training days (tests/remounted_machine.py),
+    the warning alone: with ``models.since_change`` the runs before those days are set aside
+    (tests/test_since_change.py) and the CV of the rest is another."""
+    return remounted_project(tmp_path_factory.mktemp("remounted"), since_change=False)
 
 
 def test_the_remounted_days_are_the_runs_no_model_explains_and_the_log_says_so(remounted):
