@@ -500,8 +500,21 @@ def project_facts(proj: Path, machine: str) -> dict:
         "champion": champion,
         "selection": basis,
         "selected": dict(zip(summary["model"].astype(str), summary["selected"].astype(str))),
-        "warnings": [f"{w.get('check')}: {w.get('message')}" for w in status.get("warnings", [])],
+        "warnings": [f"{w.get('check')}: {w.get('message')}" for w in status.get("warnings", [])]
+        + compare_warnings(log),
     }
+
+
+def compare_warnings(log: Path) -> list[str]:
+    """The compare step's warning lines in its log ``log`` (training runs no model explains, runs
+    set aside before a change: ``rafi.ops.run_messages.warning_line``), their text only."""
+    marker = " warning: "
+    lines = log.read_text(encoding="utf-8").splitlines() if log.is_file() else []
+    return [
+        f"compare: {line.split(marker, 1)[1]}"
+        for line in lines
+        if line.startswith("RAFI compare") and marker in line
+    ]
 
 
 def scored_rows(

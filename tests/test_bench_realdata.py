@@ -338,3 +338,15 @@ def test_scored_rows_take_the_raw_displacement_from_the_runs_reference(tmp_path)
     assert table.loc[("Day 13", "none"), "max_um"] == pytest.approx(
         np.abs(days[12].disp - days[12].disp[0]).max()
     )
+
+
+def test_the_compare_steps_warnings_are_read_from_its_log(tmp_path):
+    log = tmp_path / "compare.log"
+    log.write_text(
+        "fit ridge_global\n"
+        "RAFI compare (machine=m) warning: 6 training runs recorded before a change were set aside\n"
+        "RAFI runs (machine=m) warning: not the compare step\n",
+        encoding="utf-8",
+    )
+    assert bench.compare_warnings(log) == ["compare: 6 training runs recorded before a change were set aside"]
+    assert bench.compare_warnings(tmp_path / "missing.log") == []
