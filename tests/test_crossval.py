@@ -16,11 +16,9 @@ from hypothesis import strategies as st
 from rafi.artefact import write_csv_atomic, write_parquet_atomic
 from rafi.family.compare import COMPARISON_COLUMNS, compare_models, run_family
 from rafi.family.crossval import (
-    MIN_LOGS,
     assert_disjoint,
     cross_validate,
     hold_out,
-    leave_one_log_out,
     leave_one_run_out,
     leave_one_speed_out,
     split_runs,
@@ -88,30 +86,6 @@ def test_leave_one_speed_out_holds_out_all_runs_of_a_speed():
     folds = list(leave_one_speed_out(table))
     assert folds == [(["c"], ["a", "b"]), (["a", "b"], ["c"])]
     assert [f[1] for f in leave_one_run_out(table)] == [["a"], ["b"], ["c"]]
-
-
-@settings(max_examples=80, deadline=None)
-@given(runs_tables(), st.lists(st.sampled_from(["d1", "d2", "d3", "d4"]), min_size=12, max_size=12))
-def test_leave_one_log_out_holds_out_every_run_of_a_log_together(table, logs):
-    table = table.assign(file=logs[: len(table)])
-    train_ids = set(table.loc[table["role"] == "training", "run_id"])
-    file_of = dict(zip(table["run_id"], table["file"]))
-    n_logs = len({file_of[r] for r in train_ids})
-    held_out = []
-    for train, test in split_runs(table, "leave_one_log_out"):
-        assert not set(train) & set(test) and set(train) | set(test) == train_ids
-        if n_logs >= MIN_LOGS:  # one log per fold, none of its runs left in training
-            assert len({file_of[r] for r in test}) == 1
-            assert not {file_of[r] for r in test} & {file_of[r] for r in train}
-        else:  # too few logs: one run at a time
-            assert len(test) == 1
-        held_out += test
-    assert sorted(held_out) == sorted(train_ids)
-
-
-def test_leave_one_log_out_without_logs_is_leave_one_run_out():
-    table = pd.DataFrame({"run_id": ["a", "b", "c"], "role": "training", "speed_rpm": [3000, 6000, 9000]})
-    assert list(leave_one_log_out(table)) == list(leave_one_run_out(table))
 
 
 def test_assert_disjoint_raises():

@@ -94,13 +94,11 @@ OPERATIONS_SETTINGS: dict = {
             ),
             "cv": Setting(
                 default="leave_one_run_out",
-                schema={"enum": ["leave_one_run_out", "leave_one_speed_out", "leave_one_log_out"]},
+                schema={"enum": ["leave_one_run_out", "leave_one_speed_out"]},
                 shown="`leave_one_run_out`",
                 doc=(
-                    "whole-run cross-validation on training runs: `leave_one_run_out`, "
-                    "`leave_one_speed_out` or `leave_one_log_out` (every run of one log held out "
-                    "together, with at least three logs; else one run at a time); it always runs "
-                    "(`comparison/cv.csv`): its held-out scores choose"
+                    "whole-run cross-validation on training runs: `leave_one_run_out` or "
+                    "`leave_one_speed_out`; it always runs (`comparison/cv.csv`): its held-out scores choose"
                     " the model offered to the machine (`docs/models.md`; the former `models.cv_report` "
                     "switch is gone)"
                 ),

@@ -181,33 +181,9 @@ def leave_one_speed_out(
         yield train, list(test)
 
 
-#: :func:`leave_one_log_out` holds out logs only with at least this many logs of training runs.
-MIN_LOGS = 3
-
-
-def leave_one_log_out(runs_table: pd.DataFrame) -> Iterator[tuple[list[str], list[str]]]:
-    """One fold per log holding training runs: every training run of one log (``file``) held out
-    together, so a run is never predicted from runs recorded beside it in the same continuous log
-    (they share its day, its room and its drift). With fewer than :data:`MIN_LOGS` such logs, or
-    without a ``file`` column, one run at a time (:func:`leave_one_run_out`)."""
-    t = _train_ids(runs_table)
-    files = runs_table.set_index(runs_table["run_id"].astype(str))["file"] if "file" in runs_table else None
-    if files is None or files.loc[t["run_id"]].nunique() < MIN_LOGS:
-        yield from leave_one_run_out(runs_table)
-        return
-    file_of = files.loc[t["run_id"]].astype(str)
-    all_ids = list(t["run_id"])
-    for log in dict.fromkeys(file_of.loc[all_ids]):
-        test = [r for r in all_ids if file_of.loc[r] == log]
-        train = [r for r in all_ids if file_of.loc[r] != log]
-        assert_disjoint(train, test)
-        yield train, test
-
-
 SCHEMES: dict[str, Callable] = {
     "leave_one_run_out": leave_one_run_out,
     "leave_one_speed_out": leave_one_speed_out,
-    "leave_one_log_out": leave_one_log_out,
 }
 
 
