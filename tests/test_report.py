@@ -34,7 +34,7 @@ from report_fixture import write_upstream_tables
 from rafi.artefact import compute_model_id
 from rafi.family.selection import SELECTION_RULE
 from rafi.method.validate import qualify
-from rafi.report import figures, tables
+from rafi.report import figures, plots, tables
 from rafi.report.context import build_context
 from rafi.report.format import equation_text, fmt_duration, fmt_num, fmt_p, fmt_sig, micro, truthy
 from rafi.report.inputs import figure_dirs, result_paths
@@ -659,32 +659,35 @@ def test_training_runs_no_model_explains_are_named_in_the_comparison(tmp_path):
     assert f"train-6000 {best['model']} {figures}" in text
 
 
-def test_training_runs_set_aside_before_a_change_are_said_in_the_comparison(tmp_path):
-    from rafi.family.since_change import Change, set_aside_table
+def test_training_runs_set_aside_before_a_change_are_said_and_drawn_in_the_comparison(tmp_path):
+    from rafi.family.since_change import change_of, change_table
 
     results = tmp_path / "results" / "tapping-center-a"
     shutil.copytree(FIXTURE, results)
     cfg, settings = _settings()
-    change = Change(
-        first_run="train-6000",
-        set_aside=("train-2000", "train-4000"),
-        named=("train-6000", "train-8000", "train-10000"),
-        named_side="since",
-        exceptions=0,
+    runs = pd.DataFrame(
+        {"run_id": [f"day{i}#1" for i in range(1, 7)], "role": "training", "start_s": 0.0, "speed_rpm": 6e3}
+    ).assign(file=lambda t: t["run_id"].str.removesuffix("#1"))
+    cv = pd.DataFrame(
+        [("m", "leave_one_run_out", r, 5.0, 9.0 if i >= 3 else 1.0) for i, r in enumerate(runs["run_id"])],
+        columns=["model", "scheme", "test_runs", "max_abs_before_um", "max_abs_after_um"],
     )
-    set_aside_table(None).to_csv(results / "comparison" / "set_aside.csv", index=False)
+    change_table(None, cv, runs).to_csv(results / "comparison" / "since_change.csv", index=False)
     before = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
     assert "Training runs set aside" not in before and "set aside by" not in before  # empty: nothing said
-    set_aside_table(change).to_csv(results / "comparison" / "set_aside.csv", index=False)
+    table = change_table(change_of(cv, runs, tolerance_rpm=50), cv, runs)
+    table.to_csv(results / "comparison" / "since_change.csv", index=False)
     text = _text(render_html(_context(results, settings, machine="tapping-center-a", config=cfg)))
+    said = "of which 3 training run(s) recorded before a change were set aside by the model comparison"
+    assert said in text
     assert (
-        "of which 2 training run(s) recorded before a change were set aside by the model comparison" in text
-    )
-    assert (
-        "Training runs set aside: 2 training runs recorded before a change found at train-6000 were set "
-        "aside (train-2000 to train-4000): the 3 training runs no model explains lie from it on, with 0 "
+        "Training runs set aside: 3 training runs recorded before a change found at day4#1 were set "
+        "aside (day1#1 to day3#1): the 3 training runs no model explains lie from it on, with 0 "
         "exceptions" in text
     )
+    caption = "The training runs in the order they were recorded, each held out by the cross-validation"
+    assert caption in text and caption not in before  # drawn by the figure rule only with runs set aside
+    assert plots.fig_since_change(table, fmt="png").startswith(b"\x89PNG")
 
 
 def test_machine_b_like_results_render_and_fit(tmp_path):

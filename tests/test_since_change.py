@@ -4,6 +4,8 @@ other way for its last training days, through the real Snakefile with ``models.s
 
 from __future__ import annotations
 
+import io
+
 import pandas as pd
 import pytest
 from hypothesis import given, settings
@@ -11,14 +13,15 @@ from hypothesis import strategies as st
 from remounted_machine import remounted_project
 
 from rafi.family.since_change import (
+    CHANGE_COLUMNS,
     MAX_EXCEPTION_SHARE,
-    SET_ASIDE_COLUMNS,
     change_of,
+    change_table,
+    change_text,
     find_change,
     recorded_order,
     set_aside_before,
-    set_aside_table,
-    set_aside_text,
+    set_aside_count,
     speeds_covered,
 )
 from rafi.ops.outcome import machine_warnings
@@ -121,13 +124,26 @@ def test_set_aside_runs_are_excluded_with_the_reason_and_the_table_is_a_copy():
     assert (table["role"] == "training").all()  # the input is not touched
     assert out.loc[out["role"] == "excluded", "run_id"].tolist() == ORDER[:8]
     assert out.loc[0, "role_reason"].startswith("set aside: recorded before a change found at r08")
-    aside = set_aside_table(change)
-    assert list(aside.columns) == list(SET_ASIDE_COLUMNS) and aside["run_id"].tolist() == ORDER[:8]
-    assert set_aside_text(aside).startswith(
+
+
+def test_the_change_table_holds_every_run_in_recorded_order_with_its_cv_figures():
+    table = pd.DataFrame({"run_id": ORDER, "role": "training", "start_s": range(12), "speed_rpm": 1000.0})
+    cv = _cv_naming(ORDER[8:])
+    change = change_of(cv, table, tolerance_rpm=50)
+    out = change_table(change, cv, table)
+    assert list(out.columns) == list(CHANGE_COLUMNS) and out["run_id"].tolist() == ORDER
+    assert out["order"].tolist() == list(range(1, 13))
+    assert out.loc[out["set_aside"], "run_id"].tolist() == ORDER[:8]
+    assert out.loc[out["unexplained"], "run_id"].tolist() == ORDER[8:]
+    assert out["none_max_um"].eq(5.0).all() and out.loc[8, "best_max_um"] == 9.0
+    assert change_text(out).startswith(
         "8 training runs recorded before a change found at r08 were set aside (r00 to r07): the 4 "
         "training runs no model explains lie from it on, with 0 exceptions"
     )
-    assert set_aside_table(None).empty and set_aside_text(set_aside_table(None)) is None
+    back = pd.read_csv(io.StringIO(out.to_csv(index=False)))  # as the report reads it
+    assert change_text(back) == change_text(out) and set_aside_count(back) == 8
+    assert change_table(None, cv, table).empty and change_text(change_table(None, cv, table)) is None
+    assert set_aside_count(None) == 0
 
 
 def _cv_naming(runs) -> pd.DataFrame:
@@ -181,10 +197,11 @@ def test_the_runs_before_the_remounting_are_set_aside_and_the_models_learn_from_
     runs = pd.read_csv(res / "runs.csv")  # the runs step's table is not rewritten
     training = runs.loc[runs["role"] == "training"]
     since = training["file"].str.removesuffix(".csv").isin(reversed_days)
-    aside = pd.read_csv(res / "comparison" / "set_aside.csv")
-    assert sorted(aside["run_id"]) == sorted(training.loc[~since, "run_id"])
-    assert (aside["named_side"] == "since").all()
-    assert (aside["exceptions"] <= MAX_EXCEPTION_SHARE * aside["named_runs"]).all()
+    table = pd.read_csv(res / "comparison" / "since_change.csv")
+    assert table["run_id"].tolist() == recorded_order(runs)
+    assert sorted(table.loc[table["set_aside"], "run_id"]) == sorted(training.loc[~since, "run_id"])
+    assert (table["named_side"] == "since").all()
+    assert (table["exceptions"] <= MAX_EXCEPTION_SHARE * table["unexplained"].sum()).all()
     cv = pd.read_csv(res / "comparison" / "cv.csv")
     held = set(cv.loc[cv["scheme"] == "leave_one_run_out", "test_runs"].astype(str))
     assert held == set(training.loc[since, "run_id"])  # the CV saw the runs since the change only

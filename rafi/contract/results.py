@@ -34,7 +34,7 @@ RESULT_FILES: dict[str, str] = {
     "best_model": "comparison/best_model.json",
     "comparison_cv": "comparison/cv.csv",
     "comparison_verdict": "comparison/verdict.csv",
-    "comparison_set_aside": "comparison/set_aside.csv",
+    "comparison_since_change": "comparison/since_change.csv",
     # decide (the registry's declared outputs; its own files are side effects, see REGISTRY_DIR)
     "decision": "registry/decision.json",
     "registry_comparison": "registry/comparison.csv",
@@ -90,7 +90,7 @@ COMPARISON_FILES = (
     "best_model",
     "comparison_cv",
     "comparison_verdict",
-    "comparison_set_aside",
+    "comparison_since_change",
 )
 #: Declared outputs of rule decide.
 DECISION_FILES = ("decision", "registry_comparison")
@@ -118,7 +118,14 @@ FIGURE_GROUPS: dict[str, tuple[str, ...]] = {
         "fuzzy_example",
     ),
     # model.json and best_model.json: the level of the interval bands (their "interval" blocks)
-    "comparison": ("comparison", "comparison_per_run", "comparison_residuals", "model", "best_model"),
+    "comparison": (
+        "comparison",
+        "comparison_per_run",
+        "comparison_residuals",
+        "model",
+        "best_model",
+        "comparison_since_change",
+    ),
     # model.json and best_model.json: the level of the replayed model's interval (the candidate)
     "replay": ("replay", "replay_summary", "model", "best_model"),
 }
@@ -149,7 +156,7 @@ REPORT_OPTIONAL = (
     "comparison_per_run",
     "comparison_cv",
     "comparison_verdict",
-    "comparison_set_aside",
+    "comparison_since_change",
     "best_model",
     "replay_summary",
     "replay",

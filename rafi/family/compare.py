@@ -62,7 +62,7 @@ from rafi.family.selection import (  # noqa: F401 - re-exported: the selection r
     default_champion,
     selection_table,
 )
-from rafi.family.since_change import change_of, set_aside_before, set_aside_table
+from rafi.family.since_change import change_of, change_table, set_aside_before
 from rafi.family.temperature_ridge import TemperatureRidge
 from rafi.family.whole_log import rows_of_logs
 from rafi.method.rank import trained_speeds
@@ -579,8 +579,9 @@ def run_family(
         ``champion`` (name of the model offered), ``champion_passed`` (its gates on the
         validation runs), ``selection_basis`` (``"cv"`` or ``"default"``), ``best_name`` (=
         ``champion``) and ``best_artefact`` (its artefact), ``models`` (name -> fitted model),
-        ``cv_memo`` (``"read"``, ``"written"`` or ``None``), ``set_aside``
-        (:func:`rafi.family.since_change.set_aside_table`: the runs set aside, empty when none).
+        ``cv_memo`` (``"read"``, ``"written"`` or ``None``), ``since_change``
+        (:func:`rafi.family.since_change.change_table`: the training runs in recorded order with
+        the first CV's figures and the runs set aside; empty without a change).
     """
     settings = {
         "key_sensors": list(key_sensors),
@@ -626,6 +627,7 @@ def run_family(
         models, cv, oof, members, machine=machine, trained_speeds_rpm=speeds, log=log
     )
     change = change_of(cv, runs_table, tolerance_rpm=speed_tolerance_rpm) if options["since_change"] else None
+    since_change = change_table(change, cv, runs_table)
     if change is not None:  # the runs before a change are set aside: everything again on the rest
         log(f"{len(change.set_aside)} training runs {change.reason}")
         runs_table = set_aside_before(runs_table, change)
@@ -693,5 +695,5 @@ def run_family(
         "best_artefact": models[champion].to_dict(),
         "models": models,
         "cv_memo": memo,
-        "set_aside": set_aside_table(change),
+        "since_change": since_change,
     }

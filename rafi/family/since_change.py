@@ -25,19 +25,21 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from rafi.family.unexplained import unexplained_runs
+from rafi.family.unexplained import held_out_figures, unexplained_runs
+from rafi.settings import truthy
 
 __all__ = [
     "MAX_EXCEPTION_SHARE",
     "MIN_RUNS_SINCE",
-    "SET_ASIDE_COLUMNS",
+    "CHANGE_COLUMNS",
     "Change",
     "change_of",
     "find_change",
     "recorded_order",
+    "change_table",
+    "change_text",
     "set_aside_before",
-    "set_aside_table",
-    "set_aside_text",
+    "set_aside_count",
     "speeds_covered",
 ]
 
@@ -47,8 +49,19 @@ MAX_EXCEPTION_SHARE = 0.5
 #: The fewest training runs from the change on (three whole-run folds).
 MIN_RUNS_SINCE = 3
 
-#: The columns of ``comparison/set_aside.csv`` (:func:`set_aside_table`).
-SET_ASIDE_COLUMNS = ("run_id", "change_run", "named_side", "named_runs", "exceptions", "reason")
+#: The columns of ``comparison/since_change.csv`` (:func:`change_table`).
+CHANGE_COLUMNS = (
+    "run_id",
+    "order",
+    "none_max_um",
+    "best_max_um",
+    "best_model",
+    "unexplained",
+    "set_aside",
+    "change_run",
+    "named_side",
+    "exceptions",
+)
 
 
 @dataclass(frozen=True)
@@ -196,40 +209,58 @@ def set_aside_before(runs_table: pd.DataFrame, change: Change) -> pd.DataFrame:
     return out
 
 
-def set_aside_table(change: Change | None) -> pd.DataFrame:
-    """``comparison/set_aside.csv``: one row per run set aside (:data:`SET_ASIDE_COLUMNS`), empty
-    with those columns when nothing was."""
+def change_table(change: Change | None, cv: pd.DataFrame | None, runs_table: pd.DataFrame) -> pd.DataFrame:
+    """``comparison/since_change.csv``: with a ``change``, every training run of ``runs_table`` in
+    recorded order (:data:`CHANGE_COLUMNS`) with its figures in the whole-run CV ``cv`` that found
+    the change (:func:`rafi.family.unexplained.held_out_figures`; NaN where it was not held out),
+    whether no model explains it and whether it was set aside; empty with those columns without
+    a change."""
     if change is None:
-        return pd.DataFrame(columns=list(SET_ASIDE_COLUMNS))
-    return pd.DataFrame(
-        [
+        return pd.DataFrame(columns=list(CHANGE_COLUMNS))
+    figures = held_out_figures(cv).set_index("run")
+    named, aside = set(change.named), set(change.set_aside)
+    rows = []
+    for k, run in enumerate(recorded_order(runs_table), start=1):
+        has = run in figures.index
+        rows.append(
             {
                 "run_id": run,
+                "order": k,
+                "none_max_um": float(figures.loc[run, "none_max_um"]) if has else np.nan,
+                "best_max_um": float(figures.loc[run, "best_max_um"]) if has else np.nan,
+                "best_model": str(figures.loc[run, "best_model"]) if has else "",
+                "unexplained": run in named,
+                "set_aside": run in aside,
                 "change_run": change.first_run,
                 "named_side": change.named_side,
-                "named_runs": len(change.named),
                 "exceptions": change.exceptions,
-                "reason": change.reason,
             }
-            for run in change.set_aside
-        ],
-        columns=list(SET_ASIDE_COLUMNS),
-    )
+        )
+    return pd.DataFrame(rows, columns=list(CHANGE_COLUMNS))
 
 
-def set_aside_text(table: pd.DataFrame) -> str | None:
-    """One sentence for the log and the report from ``comparison/set_aside.csv`` (``table``,
-    :func:`set_aside_table`); ``None`` when nothing was set aside."""
+def change_text(table: pd.DataFrame | None) -> str | None:
+    """One sentence for the log and the report from ``comparison/since_change.csv`` (``table``,
+    :func:`change_table`); ``None`` when nothing was set aside."""
     if table is None or not len(table):
+        return None
+    aside = table.loc[table["set_aside"].map(truthy)]
+    if not len(aside):
         return None
     first = table.iloc[0]
     side = "from it on" if str(first["named_side"]) == "since" else "before it"
-    ids = [str(r) for r in table["run_id"]]
+    ids = [str(r) for r in aside["run_id"]]
     runs = ids[0] if len(ids) == 1 else f"{ids[0]} to {ids[-1]}"
+    named, exceptions = int(table["unexplained"].map(truthy).sum()), int(first["exceptions"])
     return (
-        f"{len(table)} training runs recorded before a change found at {first['change_run']} were set "
-        f"aside ({runs}): the {int(first['named_runs'])} training runs no model explains lie {side}, "
-        f"with {int(first['exceptions'])} exception{'' if int(first['exceptions']) == 1 else 's'}, so "
+        f"{len(aside)} training runs recorded before a change found at {first['change_run']} were set "
+        f"aside ({runs}): the {named} training runs no model explains lie {side}, "
+        f"with {exceptions} exception{'' if exceptions == 1 else 's'}, so "
         "the machine's current state is that of the runs since, and the models were fitted, "
         "cross-validated and chosen on those (models.since_change)"
     )
+
+
+def set_aside_count(table: pd.DataFrame | None) -> int:
+    """How many training runs ``comparison/since_change.csv`` (``table``) says were set aside."""
+    return 0 if table is None or not len(table) else int(table["set_aside"].map(truthy).sum())

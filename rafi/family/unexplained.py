@@ -41,6 +41,44 @@ def _whole_run_rows(cv: pd.DataFrame | None) -> pd.DataFrame | None:
     return cv.loc[~cv["scheme"].map(is_forward)].copy()
 
 
+def held_out_figures(cv: pd.DataFrame | None) -> pd.DataFrame:
+    """Every held-out training run of the whole-run CV with the best model's figure there.
+
+    Parameters
+    ----------
+    cv : pandas.DataFrame or None
+        ``comparison/cv.csv`` (as :func:`unexplained_runs`).
+
+    Returns
+    -------
+    pandas.DataFrame
+        One row per held-out run in the CV's order (:data:`COLUMNS`): ``run``, ``none_max_um``
+        (no compensation's max |displacement change|), ``best_max_um`` (the lowest max |residual|
+        of any model fitted on the other runs), ``best_model`` (the first of equals) and
+        ``models`` (how many were scored). Runs no model has a finite score on are left out.
+    """
+    empty = pd.DataFrame(columns=list(COLUMNS))
+    rows = _whole_run_rows(cv)
+    if rows is None:
+        return empty
+    rows["after"] = pd.to_numeric(rows["max_abs_after_um"], errors="coerce")
+    rows["before"] = pd.to_numeric(rows["max_abs_before_um"], errors="coerce")
+    rows = rows.loc[np.isfinite(rows["after"]) & np.isfinite(rows["before"])]
+    out = []
+    for run, g in rows.groupby(rows["test_runs"].astype(str), sort=False):
+        best = g.loc[g["after"].idxmin()]
+        out.append(
+            {
+                "run": run,
+                "none_max_um": float(g["before"].iloc[0]),
+                "best_max_um": float(best["after"]),
+                "best_model": str(best["model"]),
+                "models": int(g["model"].nunique()),
+            }
+        )
+    return pd.DataFrame(out, columns=list(COLUMNS)) if out else empty
+
+
 def unexplained_runs(cv: pd.DataFrame | None) -> pd.DataFrame:
     """The held-out training runs on which every model is worse than no compensation.
 
@@ -55,32 +93,12 @@ def unexplained_runs(cv: pd.DataFrame | None) -> pd.DataFrame:
     Returns
     -------
     pandas.DataFrame
-        One row per such run in the CV's order (:data:`COLUMNS`): ``run`` (``test_runs``),
-        ``none_max_um``, ``best_max_um`` (the lowest max |residual| of any model),
-        ``best_model`` (its name, the first of equals) and ``models`` (how many were scored).
-        Empty (with those columns) without the table or without such a run.
+        The rows of :func:`held_out_figures` whose ``best_max_um`` is above ``none_max_um``, in
+        the CV's order (:data:`COLUMNS`); empty (with those columns) without the table or
+        without such a run.
     """
-    empty = pd.DataFrame(columns=list(COLUMNS))
-    rows = _whole_run_rows(cv)
-    if rows is None:
-        return empty
-    rows["after"] = pd.to_numeric(rows["max_abs_after_um"], errors="coerce")
-    rows["before"] = pd.to_numeric(rows["max_abs_before_um"], errors="coerce")
-    rows = rows.loc[np.isfinite(rows["after"]) & np.isfinite(rows["before"])]
-    out = []
-    for run, g in rows.groupby(rows["test_runs"].astype(str), sort=False):
-        best = g.loc[g["after"].idxmin()]
-        if float(best["after"]) > float(g["before"].iloc[0]):
-            out.append(
-                {
-                    "run": run,
-                    "none_max_um": float(g["before"].iloc[0]),
-                    "best_max_um": float(best["after"]),
-                    "best_model": str(best["model"]),
-                    "models": int(g["model"].nunique()),
-                }
-            )
-    return pd.DataFrame(out, columns=list(COLUMNS)) if out else empty
+    table = held_out_figures(cv)
+    return table.loc[table["best_max_um"] > table["none_max_um"]].reset_index(drop=True)
 
 
 def unexplained_text(cv: pd.DataFrame | None) -> str | None:

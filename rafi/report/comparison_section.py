@@ -12,7 +12,7 @@ import pandas as pd
 
 from rafi.family.forward_folds import MIN_TRAIN, horizon_of, is_forward
 from rafi.family.selection import SHARED_GAIN, SHARED_GAIN_RULE, selection_rule
-from rafi.family.since_change import set_aside_text
+from rafi.family.since_change import change_text
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.family.unexplained import unexplained_text
 from rafi.report.ensemble_section import ensemble_context
@@ -450,8 +450,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         ``forward_folds``, ``horizon``), ``unpredicted`` and ``cv_unpredicted`` (:func:`unpredicted_models`),
         ``unexplained`` (:func:`rafi.family.unexplained.unexplained_text`: the held-out training
         runs no model explains, ``None`` when there is none), ``set_aside``
-        (:func:`rafi.family.since_change.set_aside_text` of ``comparison_set_aside``: the training
-        runs set aside before a change, ``None`` when none were),
+        (:func:`rafi.family.since_change.change_text` of ``comparison_since_change``: the training
+        runs set aside before a change, ``None`` when none were), ``figure_since_change`` (the
+        figure of the training runs in recorded order, when runs were set aside),
         ``run_models`` and ``per_run`` (:func:`per_run_rows`), ``figure_bars``, ``rafi_fail``
         (:func:`rafi_failure` with ``champion``: :func:`champion_beside_rafi`) and
         ``figures_resid``, ``plain_ridge`` (:func:`rafi.report.plain_ridge.section_plain_ridge`);
@@ -501,7 +502,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         # held-out training runs on which every model is worse than no compensation (rafi.family.unexplained)
         "unexplained": unexplained_text(cv_rows),
         # training runs recorded before a change, set aside (models.since_change)
-        "set_aside": set_aside_text(res.get("comparison_set_aside")),
+        "set_aside": change_text(res.get("comparison_since_change")),
         "cv_unpredicted": unpredicted_models(s, "cv_unpredicted", "cv_unpredicted_inputs"),
         "run_models": [],
         "per_run": None,
@@ -526,6 +527,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
     out["per_run"] = per_run_rows(fr, noise_floors(res))
     out["run_coverage"] = fr["coverage"] is not None
     out["figure_bars"] = figs.get("comparison", "comparison_bars")
+    out["figure_since_change"] = figs.get("comparison", "since_change")
     rafi_name, passed = fr["rafi"], fr["passed"]
     if rafi_name is not None and rafi_name in passed.columns and not passed[rafi_name].all():
         p = fr["per_run"]

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from rafi.family.since_change import set_aside_count
 from rafi.method.equilibrium import TAU_MAX_SPANS, TAU_MIN_S
 from rafi.method.paper import T_EQ_S
 from rafi.report.format import (
@@ -58,7 +59,7 @@ def section_data(res: dict, period_s=None) -> dict:
     rows of its clean regular grid (``period_s``, the machine's ``sample_period_s``): gaps
     bridged by interpolation add grid rows, duplicates remove rows, so more rows can come
     out than went in. ``totals_text`` says so with this machine's counts. ``set_aside``: how many
-    training runs the compare step set aside before a change (``comparison/set_aside.csv``).
+    training runs the compare step set aside before a change (``comparison/since_change.csv``).
     """
     runs = res["runs_csv"]
     audit = res["audit"]
@@ -127,7 +128,7 @@ def section_data(res: dict, period_s=None) -> dict:
         "totals_text": totals_text,
         "roles": roles,
         # training runs the compare step set aside before a change (rafi.family.since_change)
-        "set_aside": _rows(res.get("comparison_set_aside")),
+        "set_aside": set_aside_count(res.get("comparison_since_change")),
         "n_files": 0 if audit is None else len(audit),
     }
 
@@ -426,8 +427,3 @@ def collinearity_text(m: pd.DataFrame, chosen: list) -> dict:
         "collinear": bool(best >= COLLINEAR_ABS_R),
         "collinear_limit": f"{COLLINEAR_ABS_R:g}",
     }
-
-
-def _rows(table) -> int:
-    """The number of rows of ``table`` (0 without it)."""
-    return 0 if table is None else len(table)

@@ -29,6 +29,7 @@ import pandas as pd
 
 from rafi import contract
 from rafi.artefact import write_bytes_atomic, write_csv_atomic
+from rafi.family.since_change import set_aside_count
 from rafi.method.fuzzy import membership_curves
 from rafi.report import plots
 from rafi.report.comparison_section import comparison_frames, residual_figure_key, residual_runs
@@ -232,6 +233,8 @@ def _comparison(res: dict, gates: dict, fmt: str):
             fr["after"], fr["before"], failed=~fr["passed"], gate_um=gate_um, labels=labels, fmt=fmt
         ),
     )
+    if set_aside_count(res.get("comparison_since_change")):
+        yield "since_change", plots.fig_since_change(res["comparison_since_change"], fmt=fmt)
     resid = res["comparison_residuals"]
     if resid is None or not len(resid) or rafi is None:
         return

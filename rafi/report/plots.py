@@ -40,6 +40,7 @@ from rafi.report.plot_layout import (
     text_colour,
     y_room_in,
 )
+from rafi.settings import truthy
 
 # --------------------------------------------------------------------------- section 3
 
@@ -481,6 +482,44 @@ def fig_comparison_bars(
         ax.set_ylabel("max |residual| after compensation (µm)")
         h, lab = ax.get_legend_handles_labels()
         fig.legend(h, lab, ncol=min(m + 2, 4), loc="outside upper center", frameon=False)
+        return render(fig, fmt)
+
+
+def fig_since_change(table: pd.DataFrame, *, fmt: str = "png") -> bytes:
+    """The training runs in recorded order, as the whole-run CV that found a change saw them.
+
+    Parameters
+    ----------
+    table : DataFrame
+        ``comparison/since_change.csv`` (:func:`rafi.family.since_change.change_table`): per run
+        ``order``, ``none_max_um`` (no compensation, black), ``best_max_um`` (the best model
+        fitted on the other runs), ``unexplained`` (ringed red: no model beats no compensation),
+        ``set_aside`` (shaded) and ``change_run`` (dashed line before it).
+    """
+    with plt.rc_context(STYLE):
+        t = table.sort_values("order")
+        x = t["order"].to_numpy(float)
+        none = pd.to_numeric(t["none_max_um"], errors="coerce").to_numpy(float)
+        best = pd.to_numeric(t["best_max_um"], errors="coerce").to_numpy(float)
+        named = t["unexplained"].map(truthy).to_numpy(bool)
+        aside = t["set_aside"].map(truthy).to_numpy(bool)
+        fig, ax = plt.subplots(figsize=(PAGE_WIDTH_IN, 2.6), constrained_layout=True)
+        if aside.any():
+            ax.axvspan(x[aside].min() - 0.5, x[aside].max() + 0.5, color="0.88", lw=0, label="set aside")
+            change = f"change ({t['change_run'].iloc[0]})"
+            ax.axvline(x[aside].max() + 0.5, color="black", ls="--", lw=0.9, label=change)
+        ax.plot(x, none, "s", color="black", ms=3.5, label="no compensation: max |dz|")
+        ax.plot(x, best, "o", color=C_PRED, ms=4, label="best model held out: max |residual|")
+        if named.any():
+            ax.plot(
+                x[named], best[named], "o", mfc="none", mec=C_RES, ms=8, mew=1.2, label="no model explains it"
+            )
+        ax.set_xlim(x.min() - 0.6, x.max() + 0.6)
+        ax.set_ylim(bottom=0)
+        ax.set_xlabel("training run, in recorded order")
+        ax.set_ylabel("max |value| (µm)")
+        h, lab = ax.get_legend_handles_labels()
+        fig.legend(h, lab, ncol=3, loc="outside upper center", frameon=False)
         return render(fig, fmt)
 
 

@@ -35,7 +35,7 @@ rule compare:
         best_model=out("best_model"),
         cv=out("comparison_cv"),
         verdict=out("comparison_verdict"),
-        set_aside=out("comparison_set_aside"),
+        since_change=out("comparison_since_change"),
     log:
         log_path("compare"),
     benchmark:

@@ -1,5 +1,5 @@
 """Rule compare: runs + key sensors + model.json -> comparison/summary.csv, per_run.csv,
-residuals.parquet, best_model.json, cv.csv, verdict.csv, set_aside.csv (docs/models.md).
+residuals.parquet, best_model.json, cv.csv, verdict.csv, since_change.csv (docs/models.md).
 
 verdict.csv stores every model's gates per validation run (the rows of
 rafi.method.validate.qualify, named by model and model id): the report reads them there.
@@ -28,7 +28,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import rafi.artefact
     from rafi.family.compare import load_any, run_family
     from rafi.family.prior import prior_record, resolved_prior
-    from rafi.family.since_change import set_aside_text
+    from rafi.family.since_change import change_text
     from rafi.family.unexplained import unexplained_text
     from rafi.ops.run_messages import warning_line
 
@@ -76,9 +76,9 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
             flush=True,
         )
     wildcards = ", ".join(f"{k}={v}" for k, v in smk.wildcards.items())
-    set_aside = result["set_aside"]
-    if len(set_aside):  # warning lines: the end-of-run lines and rafi nightly repeat them
-        print(warning_line("compare", wildcards, set_aside_text(set_aside)), flush=True)
+    since_change = change_text(result["since_change"])
+    if since_change:  # warning lines: the end-of-run lines and rafi nightly repeat them
+        print(warning_line("compare", wildcards, since_change), flush=True)
     disagree = unexplained_text(result["cv"])
     if disagree:
         print(warning_line("compare", wildcards, disagree), flush=True)
@@ -87,5 +87,5 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     rafi.artefact.write_csv_atomic(as_table(result["verdict"]), smk.output.verdict, index=False)
     rafi.artefact.write_parquet_atomic(result["residuals"], smk.output.residuals)
     rafi.artefact.write_csv_atomic(as_table(result["cv"]), smk.output.cv, index=False)
-    rafi.artefact.write_csv_atomic(set_aside, smk.output.set_aside, index=False)
+    rafi.artefact.write_csv_atomic(as_table(result["since_change"]), smk.output.since_change, index=False)
     rafi.artefact.write_text_atomic(smk.output.best_model, rafi.artefact.json_text(result["best_artefact"]))
