@@ -7,8 +7,8 @@ up otherwise from that change on (a fixture, the probe re-clamped, a heat source
 current state is that of the runs since. A compensation fitted across the change predicts the
 state before it, so with ``models.since_change`` the runs before the change are set aside (role
 ``excluded``, the reason naming the change) and the family is fitted, cross-validated and chosen
-on the runs from it on (the validation runs as before) (``docs/models.md``, Training runs that disagree;
-``docs/decisions.md``, 2026-11-30).
+on the runs from it on, the validation runs as before (``docs/models.md``, Training runs since a
+change; ``docs/decisions.md``, 2026-11-30).
 
 The separation allows exceptions (an unnamed run on the named side, a named run on the other), at
 most :data:`MAX_EXCEPTION_SHARE` of the named runs; the change chosen is the one with the fewest,
@@ -109,18 +109,19 @@ def recorded_order(runs_table: pd.DataFrame) -> list[str]:
     the logs have a clock, then by log name in natural order (``Sheet2`` before ``Sheet10``: logs
     without a clock are ordered by their names), then by start in the log (``start_s``)."""
     table = runs_table.loc[runs_table["role"].astype(str) == "training"]
-    column = {
-        c: table[c] if c in table.columns else pd.Series("", index=table.index)
-        for c in ("start_time", "file")
-    }
-    start_s = pd.to_numeric(table["start_s"], errors="coerce") if "start_s" in table.columns else None
-    keys = []
-    for i, (idx, run) in enumerate(zip(table.index, table["run_id"].astype(str))):
-        clock = column["start_time"].loc[idx]
-        clock = "" if pd.isna(clock) else str(clock)
-        offset = float(start_s.loc[idx]) if start_s is not None and pd.notna(start_s.loc[idx]) else 0.0
-        keys.append(((clock, _natural(str(column["file"].loc[idx])), offset, i), run))
-    return [run for _, run in sorted(keys, key=lambda k: k[0])]
+    n = len(table)
+    clock = (
+        [c if isinstance(c, str) else "" for c in table["start_time"]] if "start_time" in table else [""] * n
+    )
+    logs = table["file"].astype(str).tolist() if "file" in table else [""] * n
+    starts = (
+        pd.to_numeric(table["start_s"], errors="coerce").fillna(0.0).tolist()
+        if "start_s" in table
+        else [0.0] * n
+    )
+    keys = sorted((c, _natural(f), s, i) for i, (c, f, s) in enumerate(zip(clock, logs, starts)))
+    runs = table["run_id"].astype(str).tolist()
+    return [runs[k[-1]] for k in keys]
 
 
 def find_change(order: list[str], named: set[str], *, min_since: int = MIN_RUNS_SINCE) -> Change | None:
@@ -142,7 +143,7 @@ def find_change(order: list[str], named: set[str], *, min_since: int = MIN_RUNS_
         runs after it first), if those are at most :data:`MAX_EXCEPTION_SHARE` of the named runs;
         ``None`` without named runs or without such a change.
     """
-    named = {r for r in named if r in set(order)}
+    named = set(named) & set(order)
     if not named:
         return None
     flags = [r in named for r in order]
@@ -171,18 +172,13 @@ def speeds_covered(change: Change, runs_table: pd.DataFrame, *, tolerance_rpm: f
     within ``tolerance_rpm`` (``speed_rpm`` of ``runs_table``). Where it has not, the runs that
     disagree may differ by their speed rather than by a change (a programme recorded in order of
     speed: the top speed held out is an extrapolation), so no change is taken."""
-    speed = dict(
-        zip(runs_table["run_id"].astype(str), pd.to_numeric(runs_table["speed_rpm"], errors="coerce"))
-    )
-    since = np.array(
-        [speed.get(r, np.nan) for r in recorded_order(runs_table) if r not in set(change.set_aside)]
-    )
+    training = runs_table.loc[runs_table["role"].astype(str) == "training"]
+    speed = pd.to_numeric(training["speed_rpm"], errors="coerce")
+    aside = training["run_id"].astype(str).isin(set(change.set_aside)).to_numpy()
+    since = speed[~aside].to_numpy(dtype=float)
     since = since[np.isfinite(since)]
-    for run in change.set_aside:
-        s = speed.get(run, np.nan)
-        if np.isfinite(s) and not (np.abs(since - s) <= tolerance_rpm).any():
-            return False
-    return True
+    before = speed[aside].to_numpy(dtype=float)
+    return all(np.abs(since - s).min(initial=np.inf) <= tolerance_rpm for s in before[np.isfinite(before)])
 
 
 def change_of(cv: pd.DataFrame | None, runs_table: pd.DataFrame, *, tolerance_rpm: float) -> Change | None:
