@@ -110,9 +110,7 @@ def recorded_order(runs_table: pd.DataFrame) -> list[str]:
     without a clock are ordered by their names), then by start in the log (``start_s``)."""
     table = runs_table.loc[runs_table["role"].astype(str) == "training"]
     n = len(table)
-    clock = (
-        [c if isinstance(c, str) else "" for c in table["start_time"]] if "start_time" in table else [""] * n
-    )
+    clock = ["" if pd.isna(c) else str(c) for c in table["start_time"]] if "start_time" in table else [""] * n
     logs = table["file"].astype(str).tolist() if "file" in table else [""] * n
     starts = (
         pd.to_numeric(table["start_s"], errors="coerce").fillna(0.0).tolist()
