@@ -610,41 +610,36 @@ def run_family(
         )
         settings = {**settings, "prior": prior.get("model_id")}  # the CV memo's key covers the prior
     candidates, factories = list(factories), with_plain_ridge(factories, floor)  # offered / scored
-    models, cv, oof, memo, fit_table = _cross_validated(
-        factories,
-        runs_table,
-        runs_frame,
-        settings,
-        rafi_model=rafi_model,
-        cv_memo_dir=cv_memo_dir,
-        code_version=code_version,
-        log=log,
-    )
     offer_ensemble = options["offer"] == ENSEMBLE and prior is None  # judged from scratch only
     members = ensemble_members(options["enabled"], floor=PLAIN_RIDGE) if offer_ensemble else []
-    speeds = trained_speeds(runs_table) if members else None
-    models, cv, oof = with_ensemble(
-        models, cv, oof, members, machine=machine, trained_speeds_rpm=speeds, log=log
-    )
+
+    def fit_on(table: pd.DataFrame, rafi):
+        """Every model fitted and cross-validated on the training runs of ``table``, the
+        ensemble of ``members`` beside them: ``models, cv, oof, memo, fit_table``."""
+        models, cv, oof, memo, fit_table = _cross_validated(
+            factories,
+            table,
+            runs_frame,
+            settings,
+            rafi_model=rafi,
+            cv_memo_dir=cv_memo_dir,
+            code_version=code_version,
+            log=log,
+        )
+        speeds = trained_speeds(table) if members else None
+        models, cv, oof = with_ensemble(
+            models, cv, oof, members, machine=machine, trained_speeds_rpm=speeds, log=log
+        )
+        return models, cv, oof, memo, fit_table
+
+    models, cv, oof, memo, fit_table = fit_on(runs_table, rafi_model)
     change = change_of(cv, runs_table, tolerance_rpm=speed_tolerance_rpm) if options["since_change"] else None
     since_change = change_table(change, cv, runs_table)
     if change is not None:  # the runs before a change are set aside: everything again on the rest
         log(f"{len(change.set_aside)} training runs {change.reason}")
         runs_table = set_aside_before(runs_table, change)
-        models, cv, oof, memo, fit_table = _cross_validated(
-            factories,
-            runs_table,
-            runs_frame,
-            settings,
-            rafi_model=None,  # model.json learnt from every training run: RAFI is refitted here
-            cv_memo_dir=cv_memo_dir,
-            code_version=code_version,
-            log=log,
-        )
-        speeds = trained_speeds(runs_table) if members else None
-        models, cv, oof = with_ensemble(
-            models, cv, oof, members, machine=machine, trained_speeds_rpm=speeds, log=log
-        )
+        # model.json learnt from every training run: RAFI is refitted here
+        models, cv, oof, memo, fit_table = fit_on(runs_table, None)
     # every model's prediction interval, from its own OOF residuals (RAFI's model.json keeps its own)
     samples, calibrated_on = calibration_units(oof, scheme_of(fit_table, options["cv"]))
     calibrate_family(
