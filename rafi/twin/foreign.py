@@ -371,14 +371,14 @@ def production_days(rng: np.random.Generator, speeds: list[float], lo: float, ro
     days, then after :data:`PRODUCTION_TEST_GAP_DAYS` days :data:`PRODUCTION_TEST_DAYS` test days
     (:data:`PRODUCTION_KIND`; a file's day number is its day since the first).
     """
-    extra = int(rng.integers(PRODUCTION_JOB_EXTRA_STEPS[0], PRODUCTION_JOB_EXTRA_STEPS[1] + 1))
+    extra = int(rng.integers(*PRODUCTION_JOB_EXTRA_STEPS, endpoint=True))
     order = rng.permutation([*speeds, *rng.choice(speeds, size=extra)])
     job = [Step(60.0 * float(rng.uniform(*PRODUCTION_STEP_MIN)), float(v)) for v in order]
     warming = float(rng.uniform(*PRODUCTION_SHOP_WARMING_K_PER_H))
     season = float(rng.uniform(*PRODUCTION_SEASON_K_PER_DAY)) * float(rng.choice([-1.0, 1.0]))
-    n_train = int(rng.integers(PRODUCTION_TRAINING_DAYS[0], PRODUCTION_TRAINING_DAYS[1] + 1))
-    n_test = int(rng.integers(PRODUCTION_TEST_DAYS[0], PRODUCTION_TEST_DAYS[1] + 1))
-    gap = int(rng.integers(PRODUCTION_TEST_GAP_DAYS[0], PRODUCTION_TEST_GAP_DAYS[1] + 1))
+    n_train = int(rng.integers(*PRODUCTION_TRAINING_DAYS, endpoint=True))
+    n_test = int(rng.integers(*PRODUCTION_TEST_DAYS, endpoint=True))
+    gap = int(rng.integers(*PRODUCTION_TEST_GAP_DAYS, endpoint=True))
     day0 = pd.Timestamp("2026-06-01")
     spread = (1.0 - PRODUCTION_DAY_SPREAD, 1.0 + PRODUCTION_DAY_SPREAD)
     out = []
@@ -505,7 +505,7 @@ def foreign_realism(seed: int, design: Design, effects: tuple[str, ...]) -> Real
     if "sensor_mount" in effects:
         tests = [d.stem for d in days if d.role == "test"]
         movable = [j for j, spec in enumerate(params.sensors) if spec.position != AMBIENT]
-        k = int(rng.integers(MOUNT_SENSORS[0], MOUNT_SENSORS[1] + 1))
+        k = int(rng.integers(*MOUNT_SENSORS, endpoint=True))
         k = max(1, min(k, len(params.sensors) // 5, len(movable)))
         chosen = set(int(j) for j in rng.choice(movable, size=k, replace=False))
         mounted = tuple(_reseat(spec, rng) if j in chosen else spec for j, spec in enumerate(params.sensors))
@@ -760,7 +760,7 @@ def foreign_design(seed: int, plan: str = "varied") -> Design:
     params = replace(
         params,
         machine=f"foreign-{int(seed)}",
-        sensors=foreign_sensors(int(rng.integers(lo_n, hi_n + 1)), rng),
+        sensors=foreign_sensors(int(rng.integers(lo_n, hi_n, endpoint=True)), rng),
     )
     speeds, lo = training_speeds(rng, base)
     days = production_days if plan == "production" else plan_days
