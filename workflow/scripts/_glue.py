@@ -39,6 +39,20 @@ def debug_wanted(config) -> bool:
         return False
 
 
+def wildcards_text(smk) -> str:
+    """The job's wildcards as its log lines name them (``machine=m, probe=p``)."""
+    return ", ".join(f"{k}={v}" for k, v in smk.wildcards.items())
+
+
+def warn(smk, step_name: str, message: str) -> None:
+    """Print ``message`` as a warning line of the job's log
+    (:func:`rafi.ops.run_messages.warning_line`): the end-of-run lines and ``rafi nightly``
+    repeat it under the machine's line."""
+    from rafi.ops.run_messages import warning_line
+
+    print(warning_line(step_name, wildcards_text(smk), message), flush=True)
+
+
 @contextlib.contextmanager
 def step(smk):
     """Run a script body with all output redirected to the rule's log file."""
@@ -58,7 +72,7 @@ def step(smk):
             format="%(asctime)s %(levelname)s %(name)s: %(message)s",
         )
         log = logging.getLogger(f"rafi.workflow.{smk.rule}")
-        wildcards = ", ".join(f"{k}={v}" for k, v in smk.wildcards.items())
+        wildcards = wildcards_text(smk)
         print(f"[{smk.rule}] {wildcards}", flush=True)
         try:
             yield log

@@ -22,7 +22,7 @@ the end-of-run lines repeat them under the machine's line."""
 
 import json
 
-from _glue import as_table, read_runs, step
+from _glue import as_table, read_runs, step, warn
 
 with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     import rafi.artefact
@@ -30,7 +30,6 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     from rafi.family.prior import prior_record, resolved_prior
     from rafi.family.since_change import change_text
     from rafi.family.unexplained import unexplained_text
-    from rafi.ops.run_messages import warning_line
 
     smk = snakemake  # noqa: F821
     table, frame = read_runs(smk)
@@ -75,13 +74,9 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
             "still that model (no second pick on validation) and the registry will not promote it",
             flush=True,
         )
-    wildcards = ", ".join(f"{k}={v}" for k, v in smk.wildcards.items())
-    since_change = change_text(result["since_change"])
-    if since_change:  # warning lines: the end-of-run lines and rafi nightly repeat them
-        print(warning_line("compare", wildcards, since_change), flush=True)
-    disagree = unexplained_text(result["cv"])
-    if disagree:
-        print(warning_line("compare", wildcards, disagree), flush=True)
+    for warning in (change_text(result["since_change"]), unexplained_text(result["cv"])):
+        if warning:
+            warn(smk, "compare", warning)
     rafi.artefact.write_csv_atomic(as_table(result["summary"]), smk.output.summary, index=False)
     rafi.artefact.write_csv_atomic(as_table(result["per_run"]), smk.output.per_run, index=False)
     rafi.artefact.write_csv_atomic(as_table(result["verdict"]), smk.output.verdict, index=False)

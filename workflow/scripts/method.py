@@ -22,7 +22,7 @@ import functools
 import json
 from pathlib import Path
 
-from _glue import as_table, part, step
+from _glue import as_table, part, step, warn
 
 
 def read_runs(table_path, frame_path):
@@ -43,7 +43,6 @@ def runs_step(smk, log):
     from rafi.method.run_checks import check_runs, log_spans
     from rafi.method.runs import find_runs
     from rafi.ops.clean_job import files_in, output_paths
-    from rafi.ops.run_messages import warning_line
     from rafi.readers.input_spec import log_id
     from rafi.readers.quarantine import read_input_status
 
@@ -107,9 +106,8 @@ def runs_step(smk, log):
         all_files=audit["file"].astype(str),
         speed_by_file=smk.params.speed_by_file,
     )
-    wildcards = ", ".join(f"{k}={v}" for k, v in smk.wildcards.items())
     for warning in warnings:
-        print(warning_line("runs", wildcards, warning), flush=True)
+        warn(smk, "runs", warning)
     rafi.artefact.write_csv_atomic(table, smk.output.table)
     rafi.artefact.write_parquet_atomic(frame, smk.output.frame)
 
