@@ -215,6 +215,16 @@ both with equal shares and the same confirmation mean: by its tie-break **``shar
 is the product's rule with an ensemble prior** (:func:`rafi.family.selection.choose_champion`). Over
 all 60: 29 within 15 % on both against 26; the 80 % target is not reached at 4 h.
 
+**Every member moved** (issue 47; criterion written 2026-11-30 before its run, in
+``docs/decisions.md``). ``prior_shared_ridge``: every member of an ensemble prior re-fitted as the
+shared gain times its coefficients plus a ridge move on its own features, one penalty by whole-run
+CV; judged as G (the product's rule with it among the candidates) and H (it in the place of the
+shared gain) against today, development seeds 0-47, confirmation 60-79. Today 22 of 48 and 8 of
+20 within 15 % on both; G and H the same counts: **not adopted** (code and judge at git tag
+``study/issue47-shared-ridge``). With three training runs the CV holds out a whole speed and
+scores every move from the shared gain as an extrapolation (the candidate's CV score was worse than
+the shared gain's on 42 of 48), while the validation runs lie between the training speeds.
+
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:
 ``requalify_random.json`` and ``.md``). The runs are simulated clean at ``--sample-period``
