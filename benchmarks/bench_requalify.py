@@ -279,13 +279,14 @@ ADAPTATION_ORDER = (
     "prior_time",
     "prior_shared_time",
     "prior_ridge",
+    "prior_shared_ridge",
 )
 #: The shared adaptations judged (module docstring, "One shared adaptation"): the product offers
 #: ``prior_shared_gain`` (:data:`rafi.family.adapted.ENSEMBLE_CANDIDATES`); ``prior_shared_time``
 #: was judged beside it and stands in the kept records of that judgement only.
-JUDGED_SHARED = (*ENSEMBLE_CANDIDATES, "prior_shared_time")
+JUDGED_SHARED = ("prior_shared_gain", "prior_shared_time")
 #: Every adaptation candidate (one model of the prior, or an ensemble prior as a whole).
-ADAPTATIONS = (*CANDIDATES, *JUDGED_SHARED)
+ADAPTATIONS = (*CANDIDATES, *ENSEMBLE_CANDIDATES, "prior_shared_time")
 #: The judgement of the shared adaptations: name -> the candidates it adds to today's.
 SHARED = {"A: + prior_shared_gain": ("prior_shared_gain",), "B: + both": JUDGED_SHARED}
 #: The no-fold defaults judged (module docstring, "The no-fold default"): the product's before
@@ -304,6 +305,9 @@ RULES = {
     "lower by more than one SE of the paired per-fold differences; else the CV's rule",
     "always_shared_gain": "prior_shared_gain whenever it is a candidate, else the CV's rule",
 }
+#: Every member of an ensemble prior moved toward the new data (module docstring, "Every member
+#: moved"): judged by :func:`judge_shared_ridge`.
+SHARED_RIDGE = "prior_shared_ridge"
 #: The variants of the CV's rule judged by :func:`judge_default` (module docstring, "The shared
 #: gain unless beaten"), in the order the criterion prefers between two that qualify.
 DEFAULT_VARIANTS = ("shared_gain_unless_beaten", "always_shared_gain")
@@ -669,17 +673,17 @@ def paired_se(a, b) -> float:
     return float(np.std(d, ddof=1) / math.sqrt(d.size)) if d.size > 1 else math.nan
 
 
-def shared_gain_unless_beaten(cands: dict) -> str | None:
-    """``prior_shared_gain`` unless a candidate's CV score is lower than its by more than one
-    standard error of the paired per-fold differences (``cv_fold_max_abs_um``, the same whole-run
-    folds in the same order for every candidate); then the lowest CV score among those that beat
-    it so (module docstring, "The shared gain unless beaten")."""
-    ref = cands["prior_shared_gain"]
+def shared_gain_unless_beaten(cands: dict, reference: str = "prior_shared_gain") -> str | None:
+    """``reference`` (``prior_shared_gain``) unless a candidate's CV score is lower than its by more
+    than one standard error of the paired per-fold differences (``cv_fold_max_abs_um``, the same
+    whole-run folds in the same order for every candidate); then the lowest CV score among those
+    that beat it so (module docstring, "The shared gain unless beaten")."""
+    ref = cands[reference]
     if not math.isfinite(ref["selection_score_um"]):
         return _lowest(cands, lambda c: c["selection_score_um"])
     beat = {}
     for m, c in cands.items():
-        if m == "prior_shared_gain" or not math.isfinite(c["selection_score_um"]):
+        if m == reference or not math.isfinite(c["selection_score_um"]):
             continue
         folds, ref_folds = c.get("cv_fold_max_abs_um", []), ref.get("cv_fold_max_abs_um", [])
         if len(folds) != len(ref_folds):
@@ -687,7 +691,7 @@ def shared_gain_unless_beaten(cands: dict) -> str | None:
         se = paired_se(folds, ref_folds)
         if math.isfinite(se) and ref["selection_score_um"] - c["selection_score_um"] > se:
             beat[m] = c
-    return _lowest(beat, lambda c: c["selection_score_um"]) if beat else "prior_shared_gain"
+    return _lowest(beat, lambda c: c["selection_score_um"]) if beat else reference
 
 
 def offered(cands: dict) -> dict:
@@ -793,13 +797,14 @@ def default_markdown(judged: dict) -> str:
         "| MAE not worse by > 1 SE |",
         "|---|---|---|---|---|---|---|",
     ]
-    n = len(judged["cv"]["picks"])
+    base = next(iter(judged.values()))
+    n = len(base["picks"])
     for name, v in judged.items():
         diff, ok = difference_cells(v, "mae_ok")
         lines.append(f"| {name} | {count_cells(v, n)} | {v['mean_mae_ratio']:.3f} | {diff} | {ok} |")
     lines += ["", "| seed | " + " | ".join(f"{r}: pick, ratios MAE ; worst" for r in judged) + " |"]
     lines.append("|---|" + "---|" * len(judged))
-    for i, seed in enumerate(judged["cv"]["picks"]):
+    for i, seed in enumerate(base["picks"]):
         cells = [
             f"{v['picks'][seed]} {v['mae_ratio'][i]:.2f} ; {v['worst_ratio'][i]:.2f}"
             f"{'' if passes(v['mae_ratio'][i], v['worst_ratio'][i]) else ' x'}"
@@ -1001,6 +1006,70 @@ def rules_markdown(judged: dict) -> str:
     return "\n".join(lines)
 
 
+def judge_shared_ridge(results: list[dict]) -> dict:
+    """Every member of an ensemble prior moved toward the new data, judged (module docstring,
+    "Every member moved"): ``today``, the product's rule (``shared_gain_unless_beaten``) among the
+    candidates offered before :data:`SHARED_RIDGE`; ``G``, the same rule with it among them; ``H``,
+    the rule with it in the place of ``prior_shared_gain``; ``A``, it whenever it is a candidate.
+    Per row :func:`ratio_row`'s figures, and for G, H and A the mean and SE of the per-scenario MAE
+    ratio differences against today and ``mae_ok`` (the mean not higher than one SE)."""
+
+    def pool(res: dict, with_new: bool) -> dict:
+        cands = offered(res["candidates"])
+        return cands if with_new else {m: c for m, c in cands.items() if m != SHARED_RIDGE}
+
+    def pick(res: dict, variant: str) -> str | None:
+        if variant == "H" and SHARED_RIDGE in res["candidates"]:
+            return shared_gain_unless_beaten(pool(res, True), reference=SHARED_RIDGE)
+        if variant == "A" and SHARED_RIDGE in res["candidates"]:
+            return SHARED_RIDGE
+        return rule_pick("shared_gain_unless_beaten", pool(res, variant != "today"))
+
+    def row(variant: str) -> dict:
+        chosen = {res["seed"]: pick(res, variant) for res in results}
+        return ratio_row(chosen, [ratios(res, chosen[res["seed"]]) for res in results])
+
+    today = row("today")
+    out = {"today": today}
+    for variant, name in (
+        ("G", "G: + prior_shared_ridge"),
+        ("H", "H: prior_shared_ridge unless beaten"),
+        ("A", "A: always prior_shared_ridge"),
+    ):
+        v = with_difference(row(variant), today)
+        v["mae_ok"] = bool(v["mean_mae_difference"] <= v["se_mae_difference"] + 1e-12)
+        out[name] = v
+    return out
+
+
+def adopt_shared_ridge(development: dict, confirmation: dict) -> str:
+    """What the criterion of "Every member moved" names from :func:`judge_shared_ridge` on the
+    development and the confirmation seeds: a variant whose share within 15 % on both is strictly
+    higher than today's on the confirmation seeds and not lower on the development seeds, its mean
+    MAE ratio within one SE of today's on both; between two, the higher confirmation share, then
+    development share, then the lower confirmation mean MAE ratio, then G; else ``today``."""
+    variants = [name for name in confirmation if name != "today"]
+    ok = [
+        name
+        for name in variants
+        if confirmation[name]["share_both"] > confirmation["today"]["share_both"]
+        and development[name]["share_both"] >= development["today"]["share_both"]
+        and confirmation[name]["mae_ok"]
+        and development[name]["mae_ok"]
+    ]
+    if not ok:
+        return "today"
+    return min(
+        ok,
+        key=lambda r: (
+            -confirmation[r]["share_both"],
+            -development[r]["share_both"],
+            confirmation[r]["mean_mae_ratio"],
+            variants.index(r),
+        ),
+    )
+
+
 def judge_shared(results: list[dict], added=SHARED) -> dict:
     """The shared adaptations judged (module docstring, "One shared adaptation"): for today's
     candidates (every candidate but :data:`JUDGED_SHARED`) and each of ``added`` (today's
@@ -1011,7 +1080,11 @@ def judge_shared(results: list[dict], added=SHARED) -> dict:
     def picks(extra: tuple) -> dict:
         out = {}
         for res in results:
-            pool = {m: c for m, c in res["candidates"].items() if m not in JUDGED_SHARED or m in extra}
+            pool = {
+                m: c
+                for m, c in res["candidates"].items()
+                if (m not in JUDGED_SHARED or m in extra) and m != SHARED_RIDGE
+            }
             out[res["seed"]] = _lowest(pool, lambda c: c["selection_score_um"])
         return out
 
@@ -1286,6 +1359,8 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
     rules += "\n\n" + shared_markdown(shared)
     default = judge_default(results)
     rules += "\n\n" + default_markdown(default)
+    shared_ridge = judge_shared_ridge(results)
+    rules += "\n\n" + default_markdown(shared_ridge)
     no_fold = judge_no_fold(results, args.no_fold_hours) if args.no_fold_hours is not None else None
     if no_fold is not None:
         rules += "\n\n" + no_fold_markdown(no_fold, results)
@@ -1302,6 +1377,7 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
         "rules": judged,
         "shared": shared,
         "default": default,
+        "shared_ridge": shared_ridge,
         "no_fold": no_fold,
         "markdown": table + "\n\n" + rules,
     }

@@ -279,6 +279,82 @@ def test_a_shared_gain_over_an_ensemble_prior_recovers_the_scale(states):
         SharedAdaptedEnsemble(prior=prior["members"]["dynamic"], method="shared_gain").fit(t2, f2)
 
 
+def test_ridge_toward_is_statsmodels_ridge_on_features_scaled_to_unit_rms():
+    """Oracle: the move of ``ridge_toward`` at a penalty is statsmodels' ridge
+    (``fit_regularized(L1_wt=0)``: ``0.5 |r - X b|^2 / n + 0.5 alpha |b|^2``, the same minimiser)
+    on the features scaled to unit RMS, back in the features' own units."""
+    import statsmodels.api as sm
+
+    from rafi.family.adapted import ridge_toward
+
+    rng = np.random.default_rng(3)
+    x = rng.normal(size=(400, 5)) * np.array([1.0, 10.0, 0.1, 3.0, 50.0]) + np.array([0, 5, 0, -2, 100])
+    r = x @ np.array([0.5, -0.2, 8.0, 1.0, 0.01]) + rng.normal(scale=0.5, size=400)
+    scale = np.sqrt(np.mean(x**2, axis=0))
+    for alpha in (0.01, 1.0, 10.0):
+        oracle = sm.OLS(r, x / scale).fit_regularized(alpha=alpha, L1_wt=0.0).params / scale
+        np.testing.assert_allclose(ridge_toward(x, r, [alpha])[:, 0], oracle, rtol=1e-6, atol=1e-9)
+
+
+def test_a_shared_ridge_moves_every_member_toward_the_new_data(states):
+    """Every member of an ensemble prior moved toward the new data (``prior_shared_ridge``):
+    the shared gain, then each ridge member's coefficients ``g c_prior + delta``, ``delta`` the
+    ridge at the fixed penalty of the residual of ``g c_prior`` on the member's own features.
+    Truth: state 2 is state 1 times 1.2 with other noise, so the gain is the shared gain's and the
+    moves are small; on the new training runs the moved blend fits at least as well."""
+    from rafi.family.adapted import SHARED_RIDGE_ALPHA, SharedAdaptedEnsemble, _training_rows, ridge_toward
+
+    (t1, f1), (t2, f2) = states
+    prior = _ensemble_prior(t1, f1)
+    gain = SharedAdaptedEnsemble(prior=prior, method="shared_gain").fit(t2, f2)
+    moved = SharedAdaptedEnsemble(prior=prior, method="shared_ridge").fit(t2, f2)
+    assert moved.gain_ == pytest.approx(gain.gain_) and moved.alpha_chosen_ == SHARED_RIDGE_ALPHA
+    table, frame, rows = _training_rows(t2, f2)
+    y = frame.loc[rows, "dz_um"].to_numpy(dtype=float)
+    art = json.loads(json.dumps(moved.to_dict()))
+    for name, member in art["members"].items():
+        base = load_any(prior["members"][name])
+        x = np.asarray(base._design(frame)[0], dtype=float)[rows]
+        c = np.asarray(base.coef_, dtype=float)
+        want = moved.gain_ * c + ridge_toward(x, y - moved.gain_ * (x @ c), [SHARED_RIDGE_ALPHA])[:, 0]
+        np.testing.assert_allclose(member["coefficients"], want, rtol=1e-9, atol=1e-12)
+        assert np.linalg.norm(want - moved.gain_ * c) < 0.2 * np.linalg.norm(moved.gain_ * c)
+    block = art["adaptation"]
+    assert block["method"] == "shared_ridge" and block["alpha"] == SHARED_RIDGE_ALPHA
+    assert block["fitness"]["alpha"] == SHARED_RIDGE_ALPHA and model_id_verifies(art)
+    np.testing.assert_allclose(load_any(art).predict(f2), moved.predict(f2), equal_nan=True)
+    train = f2.loc[f2["run_id"].isin(t2.loc[t2["role"] == "training", "run_id"])]
+
+    def rmse(model):
+        r = train["dz_um"].to_numpy() - model.predict(train)
+        return float(np.sqrt(np.nanmean(r**2)))
+
+    assert rmse(moved) <= rmse(gain) + 1e-9
+    assert "fixed penalty 10" in moved.describe()
+
+
+def test_a_shared_ridge_follows_members_that_moved_apart():
+    """Truth: the new machine's displacement is the old one's plus a drift of one sensor's rise
+    that the prior gave no weight to (a part whose gain moved): the shared gain cannot follow it, the
+    shared ridge moves toward it and fits the new training runs better."""
+    from rafi.family.adapted import SharedAdaptedEnsemble
+
+    (t1, f1) = _state(0, 1.0, "p1-")
+    (t2, f2) = _state(1, 1.0, "p2-")
+    prior = _ensemble_prior(t1, f1)
+    rise = next(c for c in f2.columns if c.startswith("dT"))
+    f2 = f2.assign(dz_um=f2["dz_um"] + 0.5 * f2[rise].fillna(0.0))
+    gain = SharedAdaptedEnsemble(prior=prior, method="shared_gain").fit(t2, f2)
+    moved = SharedAdaptedEnsemble(prior=prior, method="shared_ridge").fit(t2, f2)
+    train = f2.loc[f2["run_id"].isin(t2.loc[t2["role"] == "training", "run_id"])]
+
+    def rmse(model):
+        r = train["dz_um"].to_numpy() - model.predict(train)
+        return float(np.sqrt(np.nanmean(r**2)))
+
+    assert rmse(moved) < 0.85 * rmse(gain)
+
+
 def test_run_family_offers_the_shared_gain_of_an_ensemble_prior(states):
     """With an ensemble prior, the family's CV scores ``prior_shared_gain`` beside the heaviest
     member's candidates, with its own interval; its artefact is an ensemble with the adaptation
@@ -329,7 +405,8 @@ def test_one_training_run_offers_the_shared_gain_of_an_ensemble_prior_and_the_ga
     assert art["adaptation"]["gain"] == pytest.approx(SCALE, abs=0.05)
 
 
-def test_a_shared_gain_artefact_streams_and_replays_as_it_predicts():
+@pytest.mark.parametrize("method", ["shared_gain", "shared_ridge"])
+def test_a_shared_gain_artefact_streams_and_replays_as_it_predicts(method):
     """An ensemble of every kind (test_compensator's, RAFI's kinds included) adapted by a shared
     gain on the same runs with the displacement times 1.2: its artefact runs in the streaming
     compensator and in the replay with the limits wide open unchanged, equal to the batch
@@ -343,10 +420,10 @@ def test_a_shared_gain_artefact_streams_and_replays_as_it_predicts():
     table, frame = _find_runs(_logs(), [3000, 6000, 9000], rule)
     prior = _ensemble(rule, table, frame).to_dict()
     newer = time_ordered(frame.assign(dz_um=frame["dz_um"] * SCALE))
-    adapted = SharedAdaptedEnsemble(prior=prior, method="shared_gain").fit(table, newer)
+    adapted = SharedAdaptedEnsemble(prior=prior, method=method).fit(table, newer)
     assert adapted.gain_ == pytest.approx(SCALE, abs=0.05)  # the same runs: the ensemble's own fit
     artefact = json.loads(json.dumps(adapted.to_dict()))
-    assert artefact["kind"] == "ensemble" and artefact["adaptation"]["method"] == "shared_gain"
+    assert artefact["kind"] == "ensemble" and artefact["adaptation"]["method"] == method
     Compensator.from_artefact(artefact)  # verifies the id, checks the features
     want = adapted.predict_detail(newer)["predicted_um"].to_numpy(dtype=float)
     got = _stream(artefact, newer, rule)["um"].to_numpy()

@@ -85,7 +85,11 @@ CANDIDATES = {"prior": "as_is", "prior_gain": "gain", "prior_time": "time", "pri
 #: The candidates offered only for a CV-weighted ensemble prior -> their method
 #: (:class:`SharedAdaptedEnsemble`: one gain shared by every member; issue 47. One time factor
 #: shared too was judged beside it and not offered: ``benchmarks/bench_requalify.py``).
-ENSEMBLE_CANDIDATES = {"prior_shared_gain": "shared_gain"}
+ENSEMBLE_CANDIDATES = {"prior_shared_gain": "shared_gain", "prior_shared_ridge": "shared_ridge"}
+#: The penalty of ``prior_shared_ridge`` (dimensionless: the ridge of :func:`ridge_toward` on
+#: features scaled to unit RMS), fixed: whole-run CV on the few runs of a re-qualification cannot
+#: choose it (issue 47, ``docs/decisions.md`` 2026-11-30).
+SHARED_RIDGE_ALPHA = 10.0
 #: The shared methods of :class:`SharedAdaptedEnsemble`.
 SHARED_METHODS = tuple(ENSEMBLE_CANDIDATES.values())
 #: The methods that need a prior of a ridge kind (features @ coefficients, filter constants).
@@ -221,15 +225,28 @@ class AdaptedPrior(FamilyModel):
         """Re-fit the prior on the training runs of ``runs_table`` by ``method``; returns ``self``."""
         return self._fit(runs_table, runs_frame)
 
-    def fit_gain(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, gain: float):
-        """As :meth:`fit` (``method="gain"``) with the gain given, not fitted: a member of an
-        ensemble prior adapted by one gain shared by every member (:class:`SharedAdaptedEnsemble`);
-        returns ``self``."""
-        if self.method != "gain":
-            raise ValueError(f"fit_gain needs method='gain', not {self.method!r}")
-        return self._fit(runs_table, runs_frame, gain=float(gain))
+    def fit_gain(
+        self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, *, gain: float, alpha: float | None = None
+    ):
+        """As :meth:`fit` with the gain (and, for ``method="ridge"``, the penalty) given, not
+        fitted: a member of an ensemble prior adapted with every member (:class:`SharedAdaptedEnsemble`).
+        ``method="gain"``: every coefficient times ``gain``; ``method="ridge"`` (``alpha`` given):
+        ``gain`` times every coefficient plus the ridge solution at ``alpha`` of the residual of
+        that on the prior's own features. Returns ``self``."""
+        if self.method not in ("gain", "ridge") or (self.method == "ridge") != (alpha is not None):
+            raise ValueError(
+                f"fit_gain needs method='gain' without alpha or method='ridge' with one, not "
+                f"method={self.method!r}, alpha={alpha!r}"
+            )
+        return self._fit(runs_table, runs_frame, gain=float(gain), alpha=alpha)
 
-    def _fit(self, runs_table: pd.DataFrame, runs_frame: pd.DataFrame, gain: float | None = None):
+    def _fit(
+        self,
+        runs_table: pd.DataFrame,
+        runs_frame: pd.DataFrame,
+        gain: float | None = None,
+        alpha: float | None = None,
+    ):
         self._check_params()
         model = self._base()
         table, frame, rows = _training_rows(runs_table, runs_frame)
@@ -252,6 +269,9 @@ class AdaptedPrior(FamilyModel):
         elif self.method == "gain":
             self.gain_ = gain if gain is not None else _gain(pred[ok], y[ok])
             model.coef_ = before * self.gain_
+        elif self.method == "ridge" and alpha is not None:  # a member of a shared ridge: both given
+            self.gain_, self.alpha_chosen_ = gain, float(alpha)
+            model.coef_ = before * gain + ridge_toward(x[ok], y[ok] - gain * pred[ok], [alpha])[:, 0]
         elif self.method == "ridge":
             units = frame.loc[rows, unit_column(frame, table)].astype(str).to_numpy()
             delta, cv_table = self._ridge(x[ok], y[ok] - pred[ok], units[ok], table)
@@ -338,9 +358,7 @@ class AdaptedPrior(FamilyModel):
         if len(alphas) > 1 and folds and self.alpha_chosen_ in (min(alphas), max(alphas)):
             edge = f"prior_ridge alpha {self.alpha_chosen_:g} at an edge of models.prior_ridge_alphas"
             self.grid_edges_ = [edge]
-        sc = rms_scale(x)
-        xs = x / sc
-        delta = ridge_gram(xs.T @ xs, xs.T @ r, len(r), [self.alpha_chosen_])[:, 0] / sc
+        delta = ridge_toward(x, r, [self.alpha_chosen_])[:, 0]
         cv_table = [
             {"alpha": a, "score_um": float(s) if np.isfinite(s) else None} for a, s in zip(alphas, scores)
         ]
@@ -546,10 +564,14 @@ class SharedAdaptedEnsemble(FamilyModel):
         self.time_factor_, self.alpha_chosen_, self.grid_edges_ = None, None, []
         ok = np.isfinite(prior_prediction) & np.isfinite(y)
         self.gain_ = _gain(prior_prediction[ok], y[ok])
-        members = {
-            name: self._member(arts[name], "gain").fit_gain(runs_table, runs_frame, gain=self.gain_)
-            for name in weights
-        }
+        if self.method == "shared_ridge":
+            self.alpha_chosen_ = SHARED_RIDGE_ALPHA
+        members = {}
+        for name in weights:
+            moved = self.method == "shared_ridge" and arts[name].get("kind") in RIDGE_KINDS
+            member = self._member(arts[name], "ridge" if moved else "gain")
+            alpha = self.alpha_chosen_ if moved else None
+            members[name] = member.fit_gain(runs_table, runs_frame, gain=self.gain_, alpha=alpha)
         self.adapted_members_ = members
         machine = self.machine if self.machine is not None else self.prior.get("machine")
         # a ridge member: its adapted model (envelope and bound); RAFI's: the adapted wrapper (its kind)
@@ -571,7 +593,7 @@ class SharedAdaptedEnsemble(FamilyModel):
             "parent": self.prior.get("model_id"),
             "parent_machine": self.prior.get("machine"),
             "gain": self.gain_,
-            "alpha": None,
+            "alpha": self.alpha_chosen_,
             "time_factor": self.time_factor_,
             "prior_data": _lineage_data(self.prior),
             "members": {
@@ -600,7 +622,7 @@ class SharedAdaptedEnsemble(FamilyModel):
             method=self.method,
             gain=self.gain_,
             time_factor=self.time_factor_,
-            alpha=None,
+            alpha=self.alpha_chosen_,
             coefficient_change=self.coefficient_change_,
             prior_prediction=before,
             new_prediction=after,
@@ -637,6 +659,9 @@ class SharedAdaptedEnsemble(FamilyModel):
         pid = str(self.prior.get("model_id", ""))[:12]
         n = len(self.prior.get("weights") or {})
         what = f"blend times {self.gain_:.4g}"
+        if self.method == "shared_ridge":
+            penalty = f"{self.alpha_chosen_:g}"
+            what += f", every member moved toward the new data (a ridge at the fixed penalty {penalty})"
         return (
             f"prior {pid} (ensemble of {self.prior.get('machine')}, {n} members, the prior's weights) {what}"
         )
@@ -675,6 +700,16 @@ def _held_out_gain_score(pred: np.ndarray, y: np.ndarray, units: np.ndarray, met
         r = y[test] - _gain(pred[train], y[train]) * pred[test]
         errors.append(float(np.sqrt(np.mean(r**2))) if metric == "rmse" else float(np.max(np.abs(r))))
     return float(np.mean(errors))
+
+
+def ridge_toward(x: np.ndarray, r: np.ndarray, alphas: Sequence[float]) -> np.ndarray:
+    """The moves (p x n_alphas) from a model's coefficients that a ridge of the residual ``r`` on
+    its features ``x`` (scaled to unit RMS, :func:`rafi.family.ridge.rms_scale`) gives at each
+    penalty of ``alphas`` (:func:`rafi.family.ridge.ridge_gram`'s ``min |r - x d|^2/n + alpha |d|^2``
+    on the scaled features), in the features' own units."""
+    sc = rms_scale(x)
+    xs = x / sc
+    return ridge_gram(xs.T @ xs, xs.T @ r, len(r), alphas) / sc[:, None]
 
 
 def _retimed(model, factor: float):
