@@ -448,12 +448,16 @@ def _lead_and_se(cv, model: str) -> tuple[float, float]:
     return float(-d.mean()), float(np.std(d, ddof=1) / np.sqrt(len(d)))
 
 
-def test_with_an_ensemble_prior_the_shared_gain_is_offered_unless_clearly_beaten(states):
-    """Issue 47's rule among adaptation candidates. Truth 1: the new machine is the prior's times
-    1.2 (the shared gain is the truth), three noisy training runs: prior_time scores lower by less
-    than one SE of the paired fold differences, and the shared gain is offered. Truth 2: the
-    displacement lags 4000 s instead of 1200 s (the prior's lags are wrong): dynamic from scratch
-    scores lower by far more than one SE and is offered."""
+def test_with_an_ensemble_prior_the_moved_members_are_offered_and_the_shared_gain_rule_stays_beneath(states):
+    """Issue 47's rules among adaptation candidates. With an ensemble prior and a CV fold the prior
+    with every member moved toward the new data (``prior_shared_ridge``) is offered whatever the
+    scores (judged on random scenarios, docs/decisions.md 2026-11-30). Beneath it, and when it
+    has no finite score, the shared gain unless clearly beaten. Truth 1: the new machine is the
+    prior's times 1.2, three noisy training runs: prior_time scores lower than the shared gain by
+    less than one SE of the paired fold differences, so the shared gain would be offered. Truth 2:
+    the displacement lags 4000 s instead of 1200 s (the prior's lags are wrong): dynamic from
+    scratch scores lower by far more than one SE and would be offered; the moved members are
+    offered all the same (the rule keeps no net for a prior this wrong: the decision log says why)."""
     from rafi.family.selection import choose_champion
 
     (t1, f1), _ = states
@@ -473,14 +477,21 @@ def test_with_an_ensemble_prior_the_shared_gain_is_offered_unless_clearly_beaten
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         close, far = _family(*noisy, prior=prior), _family(*slower, prior=prior)
-    lowest = close["selection"]  # the offered model first, then the scores in order
-    scores = lowest.set_index("model")["selection_score_um"].astype(float)
-    best = scores.drop("ridge", errors="ignore").idxmin()
+    for res in (close, far):
+        assert res["champion"] == "prior_shared_ridge" and res["selection_basis"] == "cv"
+        assert res["selection"]["model"].iloc[0] == "prior_shared_ridge"
+    without = [m for m in close["selection"]["model"] if m != "prior_shared_ridge"]
+    scores = close["selection"].set_index("model")["selection_score_um"].astype(float)
+    best = scores.drop(["ridge", "prior_shared_ridge"], errors="ignore").idxmin()
     assert best == "prior_time"  # the generator's noise: it scores lowest ...
     lead, se = _lead_and_se(close["cv"], best)
     assert 0 < lead < se  # ... by less than one SE
-    assert close["champion"] == "prior_shared_gain" and close["selection_basis"] == "cv"
-    assert lowest["model"].iloc[0] == "prior_shared_gain" and lowest["selection_rank"].iloc[0] == 1
+    assert choose_champion(close["cv"], without) == "prior_shared_gain"
     assert choose_champion(close["cv"], ["prior_time", "prior_gain"]) == "prior_time"  # no ensemble prior
     lead, se = _lead_and_se(far["cv"], "dynamic")
-    assert lead > 3 * se and far["champion"] == "dynamic"
+    far_without = [m for m in far["selection"]["model"] if m != "prior_shared_ridge"]
+    assert lead > 3 * se and choose_champion(far["cv"], far_without) == "dynamic"
+    # the moved members without a finite score: the shared gain's rule decides
+    broken = far["cv"].copy()
+    broken.loc[broken["model"] == "prior_shared_ridge", "max_abs_after_um"] = np.nan
+    assert choose_champion(broken, list(far["selection"]["model"])) == "dynamic"

@@ -213,6 +213,7 @@ def test_a_tiny_run_writes_the_table_and_the_json(bench, tmp_path, capsys):
         "prior_time",
         "prior_ridge",
         "prior_shared_gain",
+        "prior_shared_ridge",
     }
     printed = capsys.readouterr().out
     assert record["markdown"] in printed and "replaced_sensor:" in printed

@@ -24,7 +24,7 @@ A prior that is a CV-weighted ensemble (:mod:`rafi.family.ensemble`) is adapted 
 heaviest member (:func:`rafi.family.prior.prior_base`): the four candidates re-fit that member and
 the adapted artefact is of its kind; the block's ``parent`` is the ensemble (the registry's model)
 and its ``member`` names the member re-fitted (``name``, ``kind``, ``model_id``, ``weight``,
-``n_members``). And it is adapted as a whole by a fifth candidate:
+``n_members``). And it is adapted as a whole by two more candidates:
 
 * ``prior_shared_gain`` - every member keeps its coefficients and the prior's weights, the blend
   times one gain ``g`` fitted as ``prior_gain``'s on the prior's blended prediction
@@ -32,7 +32,13 @@ and its ``member`` names the member re-fitted (``name``, ``kind``, ``model_id``,
   whose members' coefficients are the prior's times ``g``, the block on the ensemble (no
   ``member``; ``members`` names the prior's). Judged on random re-qualification scenarios
   (issue 47, ``benchmarks/bench_requalify.py``); one time factor shared too (``prior_time``'s
-  way over every member) was judged beside it and is not offered.
+  way over every member) was judged beside it and is not offered;
+* ``prior_shared_ridge`` - the shared gain, then every ridge member's coefficients moved toward
+  the new data: ``g c_prior + delta``, ``delta`` the ridge (:func:`ridge_toward`) of the shared
+  gain's residual on the member's own features at the fixed penalty :data:`SHARED_RIDGE_ALPHA`
+  (``method="shared_ridge"``; other members the gain alone). Offered with an ensemble prior
+  whatever the CV scores (:func:`rafi.family.selection.choose_champion`; issue 47, judged on
+  random re-qualification scenarios, ``docs/decisions.md`` 2026-11-30).
 
 What is never re-fitted: the prior's sensors and terms, and its filter time constants other than
 by the one factor of ``prior_time``; the from-scratch kinds beside re-choose those. The fitted
@@ -446,8 +452,10 @@ class AdaptedPrior(FamilyModel):
 
 class SharedAdaptedEnsemble(FamilyModel):
     """A CV-weighted ensemble prior (:mod:`rafi.family.ensemble`) re-qualified as a whole: every
-    member keeps its coefficients and the prior's weights, and one gain is shared by all of them
-    (``shared_gain``, the candidate ``prior_shared_gain``; issue 47).
+    member keeps the prior's weight, and one gain is shared by all of them (``shared_gain``, the
+    candidate ``prior_shared_gain``; issue 47); with ``shared_ridge`` (``prior_shared_ridge``)
+    every ridge member's coefficients are then moved toward the new data by a ridge at the fixed
+    penalty :data:`SHARED_RIDGE_ALPHA` (:meth:`AdaptedPrior.fit_gain` with ``alpha``).
 
     ``g = sum(p y) / sum(p p)`` over the new training samples, ``p`` the prior's blended
     prediction (its own bound and blend), ``y`` the measured displacement change: least squares
@@ -463,8 +471,9 @@ class SharedAdaptedEnsemble(FamilyModel):
     ----------
     prior : dict
         The ensemble prior's artefact (``kind: ensemble`` with ``weights`` and ``members``).
-    method : {"shared_gain"}
-        What is shared (:data:`SHARED_METHODS`).
+    method : {"shared_gain", "shared_ridge"}
+        What is shared (:data:`SHARED_METHODS`): the gain alone, or the gain and one ridge
+        penalty for every member's move.
     cv, cv_metric, machine, reference, origin, qualification, speed_tolerance_rpm
         As :class:`AdaptedPrior`.
     alphas : sequence of float
@@ -478,7 +487,9 @@ class SharedAdaptedEnsemble(FamilyModel):
         Name -> the member's :class:`AdaptedPrior` (the shared gain given).
     gain_ : float
         The shared gain ``g``.
-    time_factor_, alpha_chosen_ : None
+    alpha_chosen_ : float or None
+        ``shared_ridge``: :data:`SHARED_RIDGE_ALPHA` (fixed, not fitted); else None.
+    time_factor_ : None
         Nothing else fitted.
     coefficient_change_ : list of dict
         ``name`` (``<member>: <coefficient>``), ``prior``, ``new``.

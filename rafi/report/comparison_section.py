@@ -11,7 +11,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.forward_folds import MIN_TRAIN, horizon_of, is_forward
-from rafi.family.selection import SHARED_GAIN, SHARED_GAIN_RULE, selection_rule
+from rafi.family.selection import rule_of_candidates, selection_rule
 from rafi.family.since_change import change_text
 from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.family.unexplained import unexplained_text
@@ -270,8 +270,8 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward
     -------
     dict
         ``rule`` (:func:`rafi.family.selection.selection_rule` of the folds' ``scheme`` and
-        ``forward``; with the shared gain of an ensemble prior among the models,
-        :data:`rafi.family.selection.SHARED_GAIN_RULE` after it), ``time_blocks`` (the folds were
+        ``forward``; with an ensemble prior's adaptations among the models,
+        :func:`rafi.family.selection.rule_of_candidates` after it), ``time_blocks`` (the folds were
         time blocks), ``horizon`` (runs a forward
         fold holds out; 0 without forward folds), ``min_train`` (fewest training runs before a
         forward fold's origin), ``champion``, ``n`` (models), ``basis``
@@ -283,9 +283,9 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward
         once after the choice), ``validation_worst``, ``noise`` (the noise floor of that run) and
         ``better_on_validation`` (candidates with a lower worst residual on the validation runs).
     """
+    rule, extra = selection_rule(scheme, forward), rule_of_candidates(summary["model"])
     out = {
-        "rule": selection_rule(scheme, forward)
-        + (f" {SHARED_GAIN_RULE}" if SHARED_GAIN in set(summary["model"].astype(str)) else ""),
+        "rule": f"{rule} {extra}" if extra else rule,
         "time_blocks": str(scheme) == TIME_BLOCKS,
         "horizon": horizon_of(forward) if is_forward(forward) else 0,
         "min_train": MIN_TRAIN,

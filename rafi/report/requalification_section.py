@@ -39,6 +39,8 @@ CANDIDATES = {
     "prior_time": "the prior with its filter time constants scaled by one factor (by CV) and one gain",
     "prior_ridge": "the prior's coefficients moved by a ridge penalised towards them (strength by CV)",
     "prior_shared_gain": "the ensemble prior as a whole, its blend times one gain fitted on the new data",
+    "prior_shared_ridge": "the ensemble prior as a whole times one gain, every member then moved toward the "
+    "new data by a ridge at one fixed penalty",
 }
 #: How many of the largest coefficient moves the section tabulates.
 MOVES_SHOWN = 12
