@@ -755,33 +755,39 @@ def judge_default(results: list[dict], variants=DEFAULT_VARIANTS) -> dict:
     return out
 
 
-def adopt_default(development: dict, confirmation: dict) -> str:
-    """The rule the criterion names from :func:`judge_default` on the development and the
-    confirmation seeds: a variant whose share within 15 % on both is strictly higher than ``cv``'s
-    on the confirmation seeds and not lower on the development seeds, its mean MAE ratio within
-    one SE of ``cv``'s on both; between two, the higher confirmation share, then development share,
-    then the lower confirmation mean MAE ratio, then the earlier of :data:`DEFAULT_VARIANTS`;
-    else ``cv``."""
+def adopt_variant(development: dict, confirmation: dict, variants, base: str) -> str:
+    """The variant of ``variants`` (in the order preferred between equals) the criteria of the
+    rule judgements name against ``base`` (a row of both ``development`` and ``confirmation``):
+    its share within 15 % on both strictly higher than ``base``'s on the confirmation seeds and
+    not lower on the development seeds, its mean MAE ratio within one SE of ``base``'s on both
+    (``mae_ok``); between two, the higher confirmation share, then development share, then the
+    lower confirmation mean MAE ratio, then the earlier in ``variants``; else ``base``."""
+    variants = [v for v in variants if v in confirmation and v in development]
     ok = [
-        rule
-        for rule in DEFAULT_VARIANTS
-        if rule in confirmation
-        and confirmation[rule]["share_both"] > confirmation["cv"]["share_both"]
-        and development[rule]["share_both"] >= development["cv"]["share_both"]
-        and confirmation[rule]["mae_ok"]
-        and development[rule]["mae_ok"]
+        v
+        for v in variants
+        if confirmation[v]["share_both"] > confirmation[base]["share_both"]
+        and development[v]["share_both"] >= development[base]["share_both"]
+        and confirmation[v]["mae_ok"]
+        and development[v]["mae_ok"]
     ]
     if not ok:
-        return "cv"
+        return base
     return min(
         ok,
-        key=lambda r: (
-            -confirmation[r]["share_both"],
-            -development[r]["share_both"],
-            confirmation[r]["mean_mae_ratio"],
-            DEFAULT_VARIANTS.index(r),
+        key=lambda v: (
+            -confirmation[v]["share_both"],
+            -development[v]["share_both"],
+            confirmation[v]["mean_mae_ratio"],
+            variants.index(v),
         ),
     )
+
+
+def adopt_default(development: dict, confirmation: dict) -> str:
+    """The rule the criterion names from :func:`judge_default` on the development and the
+    confirmation seeds (:func:`adopt_variant` of :data:`DEFAULT_VARIANTS` against ``cv``)."""
+    return adopt_variant(development, confirmation, DEFAULT_VARIANTS, "cv")
 
 
 def difference_cells(v: dict, verdict: str) -> tuple[str, str]:
@@ -801,8 +807,8 @@ def count_cells(v: dict, n: int) -> str:
 def default_markdown(judged: dict) -> str:
     """:func:`judge_default`'s table: one row per rule, then the picks per scenario."""
     lines = [
-        "| rule | within 15 % on MAE | on worst | on both | mean MAE ratio | vs the first row: mean difference (SE) "
-        "| MAE not worse by > 1 SE |",
+        "| rule | within 15 % on MAE | on worst | on both | mean MAE ratio "
+        "| vs the first row: mean difference (SE) | MAE not worse by > 1 SE |",
         "|---|---|---|---|---|---|---|",
     ]
     base = next(iter(judged.values()))
@@ -1056,30 +1062,10 @@ def judge_shared_ridge(results: list[dict]) -> dict:
 
 def adopt_shared_ridge(development: dict, confirmation: dict) -> str:
     """What the criterion of "Every member moved" names from :func:`judge_shared_ridge` on the
-    development and the confirmation seeds: a variant whose share within 15 % on both is strictly
-    higher than today's on the confirmation seeds and not lower on the development seeds, its mean
-    MAE ratio within one SE of today's on both; between two, the higher confirmation share, then
-    development share, then the lower confirmation mean MAE ratio, then G; else ``today``."""
-    variants = [name for name in confirmation if name[:2] in ("G:", "H:", "A:")]  # A+ is judged apart
-    ok = [
-        name
-        for name in variants
-        if confirmation[name]["share_both"] > confirmation["today"]["share_both"]
-        and development[name]["share_both"] >= development["today"]["share_both"]
-        and confirmation[name]["mae_ok"]
-        and development[name]["mae_ok"]
-    ]
-    if not ok:
-        return "today"
-    return min(
-        ok,
-        key=lambda r: (
-            -confirmation[r]["share_both"],
-            -development[r]["share_both"],
-            confirmation[r]["mean_mae_ratio"],
-            variants.index(r),
-        ),
-    )
+    development and the confirmation seeds: :func:`adopt_variant` of G, H and A against
+    ``today`` (A+ is judged apart, :func:`keep_the_net`)."""
+    variants = [name for name in confirmation if name[:2] in ("G:", "H:", "A:")]
+    return adopt_variant(development, confirmation, variants, "today")
 
 
 def keep_the_net(judged: dict) -> bool:

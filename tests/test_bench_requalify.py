@@ -395,6 +395,50 @@ def test_a_variant_replaces_the_cv_only_if_the_confirmation_share_rises_and_noth
     assert "| shared_gain_unless_beaten | 3 of 3 | 3 of 3 | 3 of 3 |" in table
 
 
+def test_the_moved_members_are_judged_as_a_candidate_as_the_default_and_always(bench):
+    """judge_shared_ridge's picks for today, G, H, A and A+, adopt_shared_ridge and keep_the_net,
+    by hand. Scenario 0: grey_box lower than the shared gain by noise, the moved members' CV poor
+    (their folds extrapolate) but their validation within 15 %; scenario 1: grey_box beats the
+    shared gain clearly and is right."""
+
+    def scenario(seed, **cands):
+        return {"seed": seed, "full_mae_um": 1.0, "full_um": 1.0, "candidates": cands}
+
+    def c(score, folds, mae, worst):
+        return cand(score, folds, 1.0, mae, worst)
+
+    results = [
+        scenario(
+            0,
+            grey_box=c(1.0, [0.5, 1.0, 1.5], 1.3, 1.0),
+            prior_shared_gain=c(1.1, [1.6, 1.1, 0.6], 1.3, 1.0),
+            prior_shared_ridge=c(3.0, [3.0, 3.0, 3.0], 1.0, 1.0),
+        ),
+        scenario(
+            1,
+            grey_box=c(1.0, [1.0, 1.0, 1.1], 1.0, 1.0),
+            prior_shared_gain=c(3.0, [3.0, 3.1, 2.9], 2.0, 2.0),
+            prior_shared_ridge=c(3.5, [3.5, 3.5, 3.5], 1.5, 1.0),
+        ),
+    ]
+    judged = bench.judge_shared_ridge(results)
+    picks = {name.split(":")[0]: v["picks"] for name, v in judged.items()}
+    assert picks["today"] == {0: "prior_shared_gain", 1: "grey_box"}
+    assert picks["G"] == picks["today"]  # the moved members never beat the shared gain clearly
+    assert picks["H"] == {0: "grey_box", 1: "grey_box"}  # everything beats the moved members
+    assert picks["A"] == {0: "prior_shared_ridge", 1: "prior_shared_ridge"}
+    assert picks["A+"] == {0: "prior_shared_ridge", 1: "grey_box"}
+    counts = {name.split(":")[0]: v["n_both"] for name, v in judged.items()}
+    assert counts == {"today": 1, "G": 1, "H": 1, "A": 1, "A+": 2}
+    a = judged["A: always prior_shared_ridge"]
+    assert a["mean_mae_difference"] == pytest.approx(np.mean([1.0 - 1.3, 1.5 - 1.0]))
+    assert bench.adopt_shared_ridge(judged, judged) == "today"  # no variant strictly higher
+    assert bench.keep_the_net(judged)  # A+ 2 against A's 1, its MAE lower
+    twice = bench.judge_shared_ridge([results[0], {**results[0], "seed": 2}])
+    assert bench.adopt_shared_ridge(twice, twice).startswith("A:")  # 2 of 2 against 0; G, H: 0
+    assert bench.keep_the_net(twice)  # equal: the net costs nothing there
+
+
 def test_the_noise_line_says_the_misses_against_a_perfect_models_mae(bench):
     def seed(prior_mae, full_mae, floor_mae):
         return {"prior_mae_um": prior_mae, "full_mae_um": full_mae, "floor_mae_um": floor_mae}
