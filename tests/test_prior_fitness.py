@@ -343,3 +343,26 @@ def test_the_speed_range_is_the_tested_and_the_priors_each_said_as_such_for_ever
     assert [w["check"] for w in block["warnings"] if w["check"] == "prior_speeds"] == ["prior_speeds"]
     # the stored artefact reads back with the same ranges (the compensator flags by the union)
     assert type(adapted.model_).from_dict(art).speed_range_rpm_ == [3000.0, 15000.0]
+
+
+def test_status_names_the_adaptation_of_every_member_with_its_ridge_penalty():
+    """An ensemble prior adapted with every member moved (``shared_ridge``): ``rafi status`` says the
+    method, the shared gain and the fixed ridge penalty from the artefact's adaptation block."""
+    from rafi.ops.fleet import prior_summary
+    from rafi.ops.fleet_cli import describe_prior
+
+    artefact = {
+        "adaptation": {
+            "parent": "a" * 64,
+            "parent_machine": "m-a",
+            "method": "shared_ridge",
+            "gain": 1.2345,
+            "alpha": 10.0,
+            "time_factor": None,
+            "fitness": {"origin": "this machine", "warnings": []},
+        }
+    }
+    summary = prior_summary(artefact)
+    assert summary["alpha"] == 10.0 and summary["method"] == "shared_ridge"
+    lines = describe_prior(summary)
+    assert lines[1] == "  adaptation:       shared_ridge, gain 1.23, ridge penalty 10"

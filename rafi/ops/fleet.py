@@ -268,10 +268,10 @@ def prior_summary(artefact: dict | None) -> dict | None:
     """The prior of a model re-qualified from one, from its ``adaptation`` block: ``id``,
     ``machine``, ``origin`` (``this machine`` / ``declared sibling``; None: not recorded),
     ``promoted`` / ``max_residual_um`` / ``n_runs`` (its own qualification), ``method``,
-    ``gain``, ``time_factor``, ``largest_coefficient_change``, ``prediction_change``,
-    ``speeds_tested_rpm``, ``speeds_prior_only_rpm`` and ``warnings`` (the fitness block,
-    :mod:`rafi.family.prior_fitness`; the figures are None for a model without one). None for a
-    model that is not an adapted prior."""
+    ``gain``, ``time_factor``, ``alpha`` (a ridge's penalty), ``largest_coefficient_change``,
+    ``prediction_change``, ``speeds_tested_rpm``, ``speeds_prior_only_rpm`` and ``warnings``
+    (the fitness block, :mod:`rafi.family.prior_fitness`; the figures are None for a model
+    without one). None for a model that is not an adapted prior."""
     block = (artefact or {}).get("adaptation")
     if not isinstance(block, dict) or not block.get("parent"):
         return None
@@ -288,6 +288,7 @@ def prior_summary(artefact: dict | None) -> dict | None:
         "method": block.get("method"),
         "gain": block.get("gain"),
         "time_factor": block.get("time_factor"),
+        "alpha": block.get("alpha"),
         **{k: fit.get(k) for k in keys},
         "warnings": [str(w.get("check")) for w in fit.get("warnings") or []],
         "member": block.get("member") if isinstance(block.get("member"), dict) else None,

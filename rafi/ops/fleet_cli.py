@@ -90,6 +90,8 @@ def describe_prior(prior: dict | None) -> list[str]:
         moved.append(f"gain {float(prior['gain']):.3g}")
     if prior.get("time_factor") is not None:
         moved.append(f"time factor {float(prior['time_factor']):g}")
+    if prior.get("alpha") is not None:
+        moved.append(f"ridge penalty {float(prior['alpha']):g}")
     big = prior.get("largest_coefficient_change")
     if big:
         moved.append(f"largest coefficient change {100 * float(big['relative']):+.0f} % ({big['name']})")
