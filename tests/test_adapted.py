@@ -448,6 +448,10 @@ def _lead_and_se(cv, model: str) -> tuple[float, float]:
     return float(-d.mean()), float(np.std(d, ddof=1) / np.sqrt(len(d)))
 
 
+def _score(result, model: str) -> float:
+    return float(result["selection"].set_index("model").loc[model, "selection_score_um"])
+
+
 def test_with_an_ensemble_prior_the_moved_members_are_offered_and_the_shared_gain_rule_stays_beneath(states):
     """Issue 47's rules among adaptation candidates. With an ensemble prior and a CV fold the prior
     with every member moved toward the new data (``prior_shared_ridge``) is offered whatever the
@@ -491,6 +495,23 @@ def test_with_an_ensemble_prior_the_moved_members_are_offered_and_the_shared_gai
     lead, se = _lead_and_se(far["cv"], "dynamic")
     far_without = [m for m in far["selection"]["model"] if m != "prior_shared_ridge"]
     assert lead > 3 * se and choose_champion(far["cv"], far_without) == "dynamic"
+    # a model from scratch far ahead of the prior with one gain: the fitness warning prior_dynamics
+    # (blocks promotion until confirmed); none where the prior fits
+    from rafi.family.selection import scratch_ahead
+
+    adaptations = [m for m in far_without + ["prior_shared_ridge"] if m.startswith("prior")]
+    assert scratch_ahead(far["cv"], list(far["selection"]["model"]), adaptations)[:3] == (
+        "dynamic",
+        pytest.approx(_score(far, "dynamic")),
+        "prior_shared_gain",
+    )
+    checks = [w["check"] for w in far["best_artefact"]["adaptation"]["fitness"]["warnings"]]
+    assert "prior_dynamics" in checks
+    assert scratch_ahead(close["cv"], list(close["selection"]["model"]), adaptations) is None
+    close_checks = [w["check"] for w in close["best_artefact"]["adaptation"]["fitness"]["warnings"]]
+    assert "prior_dynamics" not in close_checks
+    summary_id = far["summary"].set_index("model").loc["prior_shared_ridge", "model_id"]
+    assert summary_id == far["best_artefact"]["model_id"]  # the warning is in the id the table shows
     # the moved members without a finite score: the shared gain's rule decides
     broken = far["cv"].copy()
     broken.loc[broken["model"] == "prior_shared_ridge", "max_abs_after_um"] = np.nan

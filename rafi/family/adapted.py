@@ -246,6 +246,14 @@ class AdaptedPrior(FamilyModel):
             )
         return self._fit(runs_table, runs_frame, gain=float(gain), alpha=alpha)
 
+    def add_warning(self, warning: dict):
+        """Append ``warning`` (``{check, message}``) to the fitness block's warnings: one found
+        beside the fit, by the family's CV (``prior_dynamics``, :func:`rafi.family.compare.run_family`);
+        the artefact carries it and its promotion waits for a confirmation. Returns ``self``."""
+        self.fitness_["warnings"] = [*self.fitness_.get("warnings", []), dict(warning)]
+        self.model_.adaptation_["fitness"] = self.fitness_
+        return self
+
     def _fit(
         self,
         runs_table: pd.DataFrame,
@@ -613,6 +621,12 @@ class SharedAdaptedEnsemble(FamilyModel):
             "fitness": self.fitness_,
         }
         self.model_ = model
+        return self
+
+    def add_warning(self, warning: dict):
+        """As :meth:`AdaptedPrior.add_warning`, on the ensemble's own fitness block. Returns ``self``."""
+        self.fitness_["warnings"] = [*self.fitness_.get("warnings", []), dict(warning)]
+        self.adaptation_["fitness"] = self.fitness_
         return self
 
     def _fitness(self, table: pd.DataFrame, train: pd.DataFrame, before: np.ndarray, after: np.ndarray):

@@ -52,6 +52,7 @@ from rafi.family.grey_box import GreyBox
 from rafi.family.interval_fit import calibrate_family, calibration_units, stacked_oof
 from rafi.family.intervals import coverage_and_width, interval_columns
 from rafi.family.plain_ridge import PLAIN_RIDGE, floor_columns, with_plain_ridge
+from rafi.family.prior_fitness import dynamics_warning
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
 from rafi.family.ridge_global import RidgeGlobal
@@ -60,6 +61,7 @@ from rafi.family.selection import (  # noqa: F401 - re-exported: the selection r
     SELECTION_RULE,
     choose_champion,
     default_champion,
+    scratch_ahead,
     selection_table,
 )
 from rafi.family.since_change import change_of, change_table, set_aside_before
@@ -520,6 +522,25 @@ def offered_first(selection: pd.DataFrame, offered: str) -> pd.DataFrame:
     return out
 
 
+def _choose(cv: pd.DataFrame, candidates: list, offered: list, ensemble: bool, log) -> tuple:
+    """``(champion, selection table, basis)`` of :func:`run_family`: :func:`choose_champion` among
+    ``candidates`` (the CV-weighted ensemble when ``ensemble``; :func:`default_champion` without
+    a fold, basis ``default``), the offered model first in the table of ``offered``."""
+    selection = selection_table(cv, offered)
+    champion = choose_champion(cv, candidates)
+    basis = "cv"
+    if champion is not None and not selection.empty and champion != str(selection["model"].iloc[0]):
+        lowest = selection["model"].iloc[0]
+        log(f"{champion} offered by the selection rule with a prior; the lowest score: {lowest}")
+        selection = offered_first(selection, champion)
+    if ensemble:
+        champion, selection = ENSEMBLE, offered_first(selection, ENSEMBLE)
+    if champion is None:
+        champion, basis = default_champion(candidates), "default"
+        log(f"no cross-validation fold: {champion} offered by the default rule")
+    return champion, selection, basis
+
+
 def run_family(
     runs_table: pd.DataFrame,
     runs_frame: pd.DataFrame,
@@ -593,21 +614,21 @@ def run_family(
         "speed_tolerance_rpm": speed_tolerance_rpm,
     }
     factories = {kind: functools.partial(make_model, kind, **settings) for kind in options["enabled"]}
+    adaptations: dict = {}
     floor = functools.partial(make_model, PLAIN_RIDGE, **settings)  # always scored, offered if enabled
     if prior is not None:
         origin = prior_origin or {}
-        factories.update(
-            adaptation_factories(
-                prior,
-                options=options,
-                machine=machine,
-                reference=reference,  # this machine's reference
-                log=log,
-                origin=origin.get("origin"),
-                qualification=origin.get("qualification"),
-                speed_tolerance_rpm=speed_tolerance_rpm,
-            )
+        adaptations = adaptation_factories(
+            prior,
+            options=options,
+            machine=machine,
+            reference=reference,  # this machine's reference
+            log=log,
+            origin=origin.get("origin"),
+            qualification=origin.get("qualification"),
+            speed_tolerance_rpm=speed_tolerance_rpm,
         )
+        factories.update(adaptations)
         settings = {**settings, "prior": prior.get("model_id")}  # the CV memo's key covers the prior
     candidates, factories = list(factories), with_plain_ridge(factories, floor)  # offered / scored
     offer_ensemble = options["offer"] == ENSEMBLE and prior is None  # judged from scratch only
@@ -653,17 +674,13 @@ def run_family(
     )
     # the choice: training runs only, before any validation run is predicted
     offered = [*candidates, ENSEMBLE] if ENSEMBLE in models else candidates
-    selection = selection_table(cv, offered)
-    champion = choose_champion(cv, candidates)
-    basis = "cv"
-    if champion is not None and not selection.empty and champion != str(selection["model"].iloc[0]):
-        log(f"{champion} offered: the lowest score, {selection['model'].iloc[0]}, does not beat it by one SE")
-        selection = offered_first(selection, champion)
-    if ENSEMBLE in models:
-        champion, selection = ENSEMBLE, offered_first(selection, ENSEMBLE)
-    if champion is None:
-        champion, basis = default_champion(candidates), "default"
-        log(f"no cross-validation fold: {champion} offered by the default rule")
+    champion, selection, basis = _choose(cv, candidates, offered, ENSEMBLE in models, log)
+    if champion in adaptations:  # a model from scratch far ahead: the prior's dynamics in doubt
+        ahead = scratch_ahead(cv, candidates, list(adaptations))
+        if ahead is not None:
+            warning = dynamics_warning(*ahead)
+            models[champion].add_warning(warning)
+            log(f"warning: {warning['message']}")
     log(f"champion (chosen on the training runs): {champion}")
     table, residuals, verdict = compare_models(
         models, runs_table, runs_frame, gates, champion=champion, return_residuals=True, return_verdict=True

@@ -28,6 +28,7 @@ __all__ = [
     "CHECKS",
     "fitness_block",
     "fitness_warnings",
+    "dynamics_warning",
     "prior_speed_range",
     "prior_trained_speeds",
     "prior_rise_ranges",
@@ -42,7 +43,7 @@ __all__ = [
 #: 0.5 is the gain bound's upper side for every method, ``prior_ridge`` included).
 BOUNDS = {"gain": (0.67, 1.5), "time_factor": (0.71, 1.41), "prediction_change": 0.5}
 #: The check ids of the fitness warnings (``checks.confirmed``: ``{file: <prior id>, check: <id>}``).
-CHECKS = ("prior_adaptation", "prior_speeds")
+CHECKS = ("prior_adaptation", "prior_speeds", "prior_dynamics")
 
 
 def _finite(values: Iterable) -> list[float]:
@@ -243,6 +244,22 @@ def fitness_block(
         block["prior"]["member"] = {"kind": base.get("kind"), "model_id": str(base.get("model_id") or "")}
     block["warnings"] = fitness_warnings(block)
     return block
+
+
+def dynamics_warning(model: str, score_um: float, reference: str, reference_um: float) -> dict:
+    """The fitness warning ``prior_dynamics`` (one line): a model fitted from scratch on the new
+    data, ``model``, scored clearly lower in the whole-run CV than the prior adapted by one gain,
+    ``reference`` (:func:`rafi.family.selection.scratch_ahead`), so the prior may not describe this
+    machine's dynamics. Found beside the fit, by the family's CV (:func:`rafi.family.compare.run_family`)."""
+    return {
+        "check": "prior_dynamics",
+        "message": (
+            f"{model}, fitted from scratch on the new data, scored clearly lower in the cross-validation "
+            f"than the prior with one gain ({reference}): {score_um:.3g} against {reference_um:.3g} um, by "
+            "more than one standard error of the paired per-fold differences; the prior may not describe "
+            "this machine's dynamics"
+        ),
+    }
 
 
 def fitness_warnings(block: Mapping) -> list[dict]:

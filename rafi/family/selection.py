@@ -33,6 +33,7 @@ __all__ = [
     "SHARED_RIDGE",
     "SHARED_RIDGE_RULE",
     "shared_gain_unless_beaten",
+    "scratch_ahead",
     "rule_of_candidates",
 ]
 
@@ -284,20 +285,56 @@ def shared_gain_unless_beaten(cv: pd.DataFrame, table: pd.DataFrame) -> str:
     development scenarios against 20.
     """
     ranked = table[table["selection_rank"].notna()]
-    scores = dict(zip(ranked["model"].astype(str), ranked["selection_score_um"].astype(float)))
-    mine = scores.get(SHARED_GAIN, np.inf)
-    if not np.isfinite(mine):
+    if not np.isfinite(_scores(table).get(SHARED_GAIN, np.inf)):
         return str(ranked["model"].iloc[0])
-    ref = _whole_run_folds(cv, SHARED_GAIN)
+    beaten = _clearly_ahead(cv, table, SHARED_GAIN)
+    return beaten[0] if beaten else SHARED_GAIN
+
+
+def _scores(table: pd.DataFrame) -> dict:
+    """Model -> selection score of the ranked rows of ``table``, best first."""
+    ranked = table[table["selection_rank"].notna()]
+    return dict(zip(ranked["model"].astype(str), ranked["selection_score_um"].astype(float)))
+
+
+def _clearly_ahead(cv: pd.DataFrame, table: pd.DataFrame, reference: str, among=None) -> tuple | None:
+    """The best-ranked model of ``table`` (of ``among``, default every one) whose selection score is
+    lower than ``reference``'s by more than one standard error of the paired differences of the two
+    over the same whole-run folds (at least two pairs, every one finite): ``(model, its score, the
+    reference's score)``; None when none is."""
+    scores = _scores(table)
+    mine = scores.get(reference, np.inf)
+    if not np.isfinite(mine):
+        return None
+    ref = _whole_run_folds(cv, reference)
     for model, score in scores.items():  # best first
-        if model == SHARED_GAIN or not np.isfinite(score) or score >= mine:
+        if model == reference or (among is not None and model not in among):
+            continue
+        if not np.isfinite(score) or score >= mine:
             continue
         d = (_whole_run_folds(cv, model) - ref).reindex(ref.index).to_numpy(dtype=float)
         if len(d) < 2 or not np.isfinite(d).all():
             continue
         if mine - score > float(np.std(d, ddof=1) / np.sqrt(len(d))):
-            return model
-    return SHARED_GAIN
+            return model, float(score), float(mine)
+    return None
+
+
+def scratch_ahead(cv: pd.DataFrame, candidates: Sequence[str], adaptations: Sequence[str]) -> tuple | None:
+    """Whether a model fitted from scratch (a candidate not in ``adaptations``) scored clearly lower
+    than the prior adapted by one gain (:data:`SHARED_GAIN` with an ensemble prior, else
+    ``prior_gain``): ``(model, its score, the reference, the reference's score)`` by the paired test
+    of :func:`shared_gain_unless_beaten`; None when none did, or no such reference is a candidate.
+    The prior's fitness warning ``prior_dynamics`` (:func:`rafi.family.prior_fitness.dynamics_warning`):
+    with an ensemble prior the moved members are offered whatever the scores, and this is what says
+    when a model from scratch beats the prior plainly (on random re-qualification scenarios it
+    never did; with a prior whose lags are three times the machine's it does)."""
+    reference = SHARED_GAIN if SHARED_GAIN in candidates else "prior_gain"
+    if reference not in candidates:
+        return None
+    scratch = [c for c in candidates if c not in set(adaptations)]
+    ahead = _clearly_ahead(cv, selection_table(cv, candidates), reference, among=scratch)
+    return None if ahead is None else (ahead[0], ahead[1], reference, ahead[2])
 
 
 def selection_rule(scheme: str = "", forward: str = "") -> str:
