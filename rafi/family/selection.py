@@ -95,8 +95,8 @@ SHARED_RIDGE_RULE = (
     "data (the blend times one shared gain, then each member's coefficients moved by a ridge at one "
     "fixed penalty on its own features) is offered whenever the cross-validation could score it, "
     "whatever the scores: with three or so training runs every whole-run fold holds out a whole "
-    "speed, so the scores cannot tell a move of the members from noise, while on random "
-    "re-qualification scenarios offering it always came closer to a full test plan from scratch "
+    "speed, so the scores cannot tell a move of the members from noise, while over many random "
+    "re-qualification scenarios offering it every time came closer to a full test plan from scratch "
     "than letting the scores choose. Every candidate's scores are shown all the same."
 )
 
