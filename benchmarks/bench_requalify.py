@@ -301,6 +301,9 @@ SHARED = {"A: + prior_shared_gain": ("prior_shared_gain",), "B: + both": JUDGED_
 #: the judgement, and the one judged for an ensemble prior (a prior of one kind has no shared gain:
 #: its own ``prior_gain`` stands for it).
 NO_FOLD = ("prior_gain", "prior_shared_gain")
+#: The no-fold default judged again once the moved members were offered (module docstring, "Every
+#: member moved"): the shared gain against them.
+NO_FOLD_MOVED = ("prior_shared_gain", "prior_shared_ridge")
 #: The rules judged one level up on the random scenarios (module docstring, "The choice among
 #: adaptations"): name -> what it does, for the record.
 RULES = {
@@ -1374,8 +1377,11 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
     shared_ridge = judge_shared_ridge(results)
     rules += "\n\n" + default_markdown(shared_ridge)
     no_fold = judge_no_fold(results, args.no_fold_hours) if args.no_fold_hours is not None else None
+    no_fold_moved = None
     if no_fold is not None:
         rules += "\n\n" + no_fold_markdown(no_fold, results)
+        no_fold_moved = judge_no_fold(results, args.no_fold_hours, defaults=NO_FOLD_MOVED)
+        rules += "\n\n" + no_fold_markdown(no_fold_moved, results)
     print(table)
     print()
     print(rules)
@@ -1391,6 +1397,7 @@ def main_random(seeds: list[int], args, settings: dict) -> int:
         "default": default,
         "shared_ridge": shared_ridge,
         "no_fold": no_fold,
+        "no_fold_moved": no_fold_moved,
         "markdown": table + "\n\n" + rules,
     }
     out = Path(args.json)
