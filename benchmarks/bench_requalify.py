@@ -231,7 +231,9 @@ it with an ensemble prior): today 22 of 48 and 10 of 20 within 15 % on both; G 2
 SE lower): **A is the product's rule** (``judge_shared_ridge``, ``adopt_shared_ridge``). A+ (A
 where today's rule offers the shared gain, else today's pick: the shared gain's safety net kept)
 judged after it on new seeds 100-119 (``keep_the_net``): A 10 of 20, A+ 9, today 7; the net is
-not kept.
+not kept. The moved members as the no-fold default (``--no-fold-hours 2``, :data:`NO_FOLD_MOVED`;
+criterion 2026-11-30): development 36-47 6 of 12 against the shared gain's 7, confirmation
+120-139 9 of 20 against 8: lower on the development seeds, the shared gain stays.
 
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:

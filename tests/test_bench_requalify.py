@@ -307,6 +307,16 @@ def test_the_no_fold_default_is_judged_on_the_scenarios_without_a_fold(bench):
     assert judged_fewer["prior_shared_gain"]["mean_mae_difference"] == pytest.approx(-0.2)
     assert judged_fewer["prior_shared_gain"]["se_mae_difference"] == pytest.approx(0.1)
     assert not judged_fewer["prior_shared_gain"]["adopted"]
+    # the moved members against the shared gain (NO_FOLD_MOVED): the shared gain is the base
+    moved = [
+        scenario(7, prior_shared_gain=c(1.3, 1.0), prior_shared_ridge=c(1.1, 1.0)),
+        scenario(8, prior_shared_gain=c(1.2, 1.0), prior_shared_ridge=c(1.0, 1.1)),
+    ]
+    judged_moved = bench.judge_no_fold(moved, 2.0, defaults=bench.NO_FOLD_MOVED)["defaults"]
+    assert judged_moved["prior_shared_gain"]["n_both"] == 0
+    assert judged_moved["prior_shared_ridge"]["n_both"] == 2
+    assert judged_moved["prior_shared_ridge"]["mean_mae_difference"] == pytest.approx(-0.2)
+    assert judged_moved["prior_shared_ridge"]["adopted"]  # SE 0: lower by more than it
     table = bench.no_fold_markdown(judged, results)
     assert "| 0 | repair | prior_gain | 1.30 ; 1.00 (NO) | 1.10 ; 1.10 |" in table
     assert "| prior_gain | 1 of 3 | 3 of 3 | 1 of 3 | 1.267 | - | - |" in table
