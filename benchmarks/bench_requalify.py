@@ -271,7 +271,7 @@ from rafi.family.compare import compare_models, load_any, run_family  # noqa: E4
 from rafi.family.selection import SIMPLICITY, selection_table  # noqa: E402
 from rafi.ops.plan import plan_limits, plan_programme, prior_view  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS  # noqa: E402
-from rafi.twin.requalify_scenarios import random_scenario  # noqa: E402
+from rafi.twin.requalify_scenarios import ISSUE_SCENARIOS, issue_scenario, random_scenario  # noqa: E402
 from rafi.twin.scenarios import SCENARIOS, RunSet, combine, make_scenario, noise_floor, noise_mae  # noqa: E402
 
 HOURS = (1.05, 2.0, 4.0, 8.0)
@@ -833,13 +833,14 @@ def default_markdown(judged: dict) -> str:
     return "\n".join(lines)
 
 
-def one_random(seed: int, args, settings: dict, prior_cache: dict) -> dict:
-    """Every number of random scenario ``seed`` (:func:`rafi.twin.requalify_scenarios.random_scenario`)
-    at ``args.budget`` h of new data (:data:`TARGET_HOURS` unless ``--budget``): the prior, the full
+def one_random(seed: int, args, settings: dict, prior_cache: dict, scenario=None) -> dict:
+    """Every number of random scenario ``seed`` (:func:`rafi.twin.requalify_scenarios.random_scenario`;
+    or ``scenario``, a :class:`~rafi.twin.requalify_scenarios.RandomScenario` built otherwise) at
+    ``args.budget`` h of new data (:data:`TARGET_HOURS` unless ``--budget``): the prior, the full
     plan from scratch and every candidate of the fit with the prior, each with its validation MAE
     and worst residual."""
     budget = float(getattr(args, "budget", TARGET_HOURS))
-    rs = random_scenario(seed)
+    rs = scenario if scenario is not None else random_scenario(seed)
     sc = rs.scenario(args.sample_period)
     prior, prior_kind, speeds, _ = fit_prior(rs.machine, args, settings, prior_cache)
     validation = sc.new_validation()
@@ -1323,6 +1324,12 @@ def main(argv=None) -> int:
         help="random scenarios: also fit H h of the plan with the prior (one run: no CV fold) and "
         "judge the no-fold default (prior_gain against prior_shared_gain)",
     )
+    p.add_argument(
+        "--issue-scenarios",
+        action="store_true",
+        help="the two scenarios issue 47 states (rafi.twin.requalify_scenarios.ISSUE_SCENARIOS), their "
+        "new machine's runs seeded from --seeds (default 0-1), as the random ones",
+    )
     p.add_argument("--kinds", nargs="+", help="the kinds run_family fits (default: models.enabled)")
     p.add_argument(
         "--json",
@@ -1336,6 +1343,8 @@ def main(argv=None) -> int:
     if not TAKES_PRIOR:
         progress("run_family has no 'prior' argument here: the 'with the prior' column stays empty")
     seeds = parse_seeds(args.random, args.seeds)
+    if args.issue_scenarios:
+        return main_issue(seeds or [0, 1], args, settings)
     if seeds:
         return main_random(seeds, args, settings)
     started, cache, results = time.perf_counter(), {}, []
@@ -1362,6 +1371,25 @@ def main(argv=None) -> int:
         out.stem, record, out_dir=out.parent, indent=1, default=float, final_newline=True
     )
     progress(f"wrote {written} ({record['seconds']:g} s)")
+    return 0
+
+
+def main_issue(seeds: list[int], args, settings: dict) -> int:
+    """``--issue-scenarios``: issue 47's two scenarios at each seed, their table and record
+    (``requalify_issue.json`` and ``.md`` unless ``--json``); nothing kept per seed."""
+    started, cache = time.perf_counter(), {}
+    results = [
+        one_random(seed, args, settings, cache, scenario=issue_scenario(name, seed))
+        for name in ISSUE_SCENARIOS
+        for seed in seeds
+    ]
+    table = random_markdown(results)
+    print(table)
+    out = Path(args.json)
+    stem = out.stem if args.json != p_default_json() else "requalify_issue"
+    record = {"seeds": seeds, "seconds": round(time.perf_counter() - started, 1), "scenarios": results}
+    written = write_results(stem, record, table + "\n", out_dir=out.parent, indent=1, default=float)
+    progress(f"wrote {', '.join(map(str, written))} ({record['seconds']:g} s)")
     return 0
 
 

@@ -123,3 +123,29 @@ def test_the_scenario_simulates_the_changed_machine_against_the_base(drawn):
     sc = d.scenario(sample_period_s=60.0)
     assert sc.machine == d.machine and sc.new == d.new and sc.old.params == d.prior_params
     assert sc.seed == d.seed and sc.key_sensors == KEY_SENSORS[d.machine] and sc.sample_period_s == 60.0
+
+
+def test_the_issues_two_scenarios_are_built_as_the_issue_states_them():
+    """issue_scenario: the repair scales every spindle node's heat capacity by 0.7, the shaft's
+    gain by 1.3 and the housing's by 1.2 and nothing else; the sibling is the build spread of its
+    seed with every gain of the machine times 1.2 or 1.35 and the room 2.5 K warmer."""
+    from rafi.twin.requalify_scenarios import ISSUE_SCENARIOS, issue_scenario
+    from rafi.twin.scenarios import sibling_params
+
+    repair = issue_scenario("issue_repair", 3)
+    old, new = machine_params("tapping-center-a"), repair.new_params
+    for node, c in old.capacity.items():
+        assert new.capacity[node] == pytest.approx(c * (0.7 if node in SPINDLE_NODES else 1.0))
+    for node, g in old.disp_gain.items():
+        assert new.disp_gain[node] == pytest.approx(g * {"shaft": 1.3, "housing": 1.2}.get(node, 1.0))
+    named = (repair.machine, repair.change, repair.truth["issue"])
+    assert named == ("tapping-center-a", "repair", "issue_repair")
+    sibling = issue_scenario("issue_sibling", 3)
+    build = sibling_params(machine_params("machining-center-b"), 3)
+    factors = sibling.truth["gain_factors"]
+    assert set(factors.values()) == {1.2, 1.35} and sibling.new.room_shift_c == 2.5
+    for node, g in build.disp_gain.items():
+        assert sibling.new_params.disp_gain[node] == pytest.approx(g * factors.get(node, 1.0))
+    assert ISSUE_SCENARIOS == ("issue_repair", "issue_sibling")
+    with pytest.raises(ValueError, match="unknown issue scenario"):
+        issue_scenario("issue_flood", 3)

@@ -41,6 +41,8 @@ __all__ = [
     "SPINDLE_NODES",
     "RandomScenario",
     "random_scenario",
+    "ISSUE_SCENARIOS",
+    "issue_scenario",
 ]
 
 #: The machines a scenario starts from (the prior's machine: the shipped twin).
@@ -224,4 +226,39 @@ def random_scenario(seed: int) -> RandomScenario:
     else:
         new, truth = _sensor_move(rng, params, machine)
     truth = {"seed": int(seed), "machine": machine, "change": change} | truth
+    return RandomScenario(int(seed), machine, change, params, new, truth)
+
+
+#: The two scenarios issue 47 states (its table), as built here: a repair of tapping-center-a
+#: (every spindle node's heat capacity times 0.7, the shaft's displacement gain times 1.3, the
+#: housing's times 1.2) and a sibling of machining-center-b with another spindle (the build spread
+#: of :func:`rafi.twin.scenarios.sibling_params`, every node with a displacement gain times 1.2 or
+#: 1.35 in turn, by name: the issue says "gains x1.2-1.35", not which; the room 2.5 K warmer).
+ISSUE_SCENARIOS = ("issue_repair", "issue_sibling")
+
+
+def issue_scenario(name: str, seed: int) -> RandomScenario:
+    """The scenario ``name`` of :data:`ISSUE_SCENARIOS`, its new machine's runs (and the sibling's
+    build spread) seeded from ``seed``; the prior is the base machine's champion, as for
+    :func:`random_scenario`."""
+    if name == "issue_repair":
+        machine, change = "tapping-center-a", "repair"
+        params = machine_params(machine)
+        capacity = {n: c * 0.7 if n in SPINDLE_NODES else c for n, c in params.capacity.items()}
+        factors = {"housing": 1.2, "shaft": 1.3}
+        gains = {n: g * factors.get(n, 1.0) for n, g in params.disp_gain.items()}
+        new = TwinMachine(replace(params, capacity=capacity, disp_gain=gains))
+        truth = {"capacity_factor": 0.7, "gain_factors": factors}
+    elif name == "issue_sibling":
+        machine, change = "machining-center-b", "sibling"
+        params = machine_params(machine)
+        build = sibling_params(params, int(seed))
+        nodes = sorted(n for n, g in params.disp_gain.items() if g)
+        factors = {n: (1.2, 1.35)[i % 2] for i, n in enumerate(nodes)}
+        gains = {n: g * factors.get(n, 1.0) for n, g in build.disp_gain.items()}
+        new = TwinMachine(replace(build, disp_gain=gains), room_shift_c=2.5)
+        truth = {"build_spread_seed": int(seed), "gain_factors": factors, "room_shift_c": 2.5}
+    else:
+        raise ValueError(f"unknown issue scenario {name!r}; known: {', '.join(ISSUE_SCENARIOS)}")
+    truth = {"seed": int(seed), "machine": machine, "change": change, "issue": name} | truth
     return RandomScenario(int(seed), machine, change, params, new, truth)
