@@ -8,6 +8,8 @@ Usage (from the repository root; see benchmarks/README.md)::
     python benchmarks/bench_requalify.py --random 40 --keep benchmarks/results/requalify_random
     python benchmarks/bench_requalify.py --seeds 40-59 --keep benchmarks/results/requalify_random
     python benchmarks/bench_requalify.py --seeds 36-47 --no-fold-hours 2 --keep DIR   # the no-fold default
+    python benchmarks/bench_requalify.py --issue-scenarios --seeds 9001-9002          # issue 47's two
+    python benchmarks/bench_requalify.py --false-siblings --seeds 0-23                 # a foreign prior
 
 **Named scenarios.** For each twin scenario (:mod:`rafi.twin.scenarios`: ``sibling``, ``reworn``,
 ``season``, ``replaced_sensor``), the OLD machine's full qualification is fitted with rule
@@ -235,6 +237,15 @@ not kept. The moved members as the no-fold default (``--no-fold-hours 2``, :data
 criterion 2026-11-30): development 36-47 6 of 12 against the shared gain's 7, confirmation
 120-139 9 of 20 against 8: lower on the development seeds, the shared gain stays.
 
+**A foreign prior declared a sibling** (``--false-siblings``, issue 47's "a foreign prior never
+reaches promotion without a confirmation", in its hardest form): each random scenario of
+``--seeds`` re-qualified from the OTHER base machine's champion, as if ``models.prior_siblings``
+named it (the two twins share sensor names and probe map, so nothing refuses it). The table gives
+what the product offers, its ratio to the full plan from scratch, the fitness warnings on it
+(:func:`fitness_checks`) and whether the promotion is stopped; the summary counts the scenarios
+stopped, and those stopped by a warning other than ``prior_speeds`` (which fires whenever the new
+runs leave a speed of the prior untested, whatever the prior's origin).
+
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:
 ``requalify_random.json`` and ``.md``). The runs are simulated clean at ``--sample-period``
@@ -268,10 +279,11 @@ from _results import write_results  # noqa: E402
 from rafi.artefact import write_text_atomic  # noqa: E402
 from rafi.family.adapted import CANDIDATES, ENSEMBLE_CANDIDATES  # noqa: E402
 from rafi.family.compare import compare_models, load_any, run_family  # noqa: E402
+from rafi.family.prior_fitness import CHECKS  # noqa: E402
 from rafi.family.selection import SIMPLICITY, selection_table  # noqa: E402
 from rafi.ops.plan import plan_limits, plan_programme, prior_view  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS  # noqa: E402
-from rafi.twin.requalify_scenarios import ISSUE_SCENARIOS, issue_scenario, random_scenario  # noqa: E402
+from rafi.twin.requalify_scenarios import BASES, ISSUE_SCENARIOS, issue_scenario, random_scenario  # noqa: E402
 from rafi.twin.scenarios import SCENARIOS, RunSet, combine, make_scenario, noise_floor, noise_mae  # noqa: E402
 
 HOURS = (1.05, 2.0, 4.0, 8.0)
@@ -833,18 +845,23 @@ def default_markdown(judged: dict) -> str:
     return "\n".join(lines)
 
 
-def one_random(seed: int, args, settings: dict, prior_cache: dict, scenario=None) -> dict:
+def one_random(
+    seed: int, args, settings: dict, prior_cache: dict, scenario=None, prior_machine: str | None = None
+) -> dict:
     """Every number of random scenario ``seed`` (:func:`rafi.twin.requalify_scenarios.random_scenario`;
     or ``scenario``, a :class:`~rafi.twin.requalify_scenarios.RandomScenario` built otherwise) at
     ``args.budget`` h of new data (:data:`TARGET_HOURS` unless ``--budget``): the prior, the full
     plan from scratch and every candidate of the fit with the prior, each with its validation MAE
-    and worst residual."""
+    and worst residual, and the fitness warnings on the champion. The prior is the base machine's
+    champion, or ``prior_machine``'s (a prior from another machine, declared a sibling)."""
     budget = float(getattr(args, "budget", TARGET_HOURS))
     rs = scenario if scenario is not None else random_scenario(seed)
     sc = rs.scenario(args.sample_period)
-    prior, prior_kind, speeds, _ = fit_prior(rs.machine, args, settings, prior_cache)
+    prior_of = prior_machine or rs.machine
+    prior, prior_kind, speeds, _ = fit_prior(prior_of, args, settings, prior_cache)
     validation = sc.new_validation()
     out = {"seed": int(seed), "machine": rs.machine, "change": rs.change, "truth": rs.truth}
+    out["prior_machine"] = prior_of
     out |= {"prior_champion": prior_kind, "floor_um": noise_floor(validation)}
     out["floor_mae_um"] = noise_mae(validation)
     out["unchanged_mae_um"], out["unchanged_um"] = unchanged_errors(
@@ -862,6 +879,7 @@ def one_random(seed: int, args, settings: dict, prior_cache: dict, scenario=None
     progress(f"seed {seed}: {budget:g} h ({out['training_runs']} training runs) with the prior")
     adapted = fit_family(data, settings, sc.key_sensors, rs.machine, args.kinds, prior=prior)
     out["prior_mae_um"], out["prior_um"], out["prior_choice"] = champion_errors(adapted)
+    out["warnings"] = fitness_checks(adapted["models"].get(adapted["champion"]))
     out["selection_basis"] = adapted.get("selection_basis")
     out["candidates"] = every_candidate(adapted)
     pick = _scratch_pick(out["candidates"])
@@ -872,6 +890,58 @@ def one_random(seed: int, args, settings: dict, prior_cache: dict, scenario=None
         c.get("validation_um", math.nan),
     )
     return out
+
+
+def fitness_checks(model) -> list[str]:
+    """The checks (:data:`rafi.family.prior_fitness.CHECKS`) of ``model``'s fitness warnings, in
+    their order; none for a model that is not an adaptation of a prior. Any of them blocks the
+    promotion until an engineer confirms it."""
+    block = getattr(model, "fitness_", None) or {}
+    return [str(w.get("check")) for w in block.get("warnings") or [] if w.get("check") in CHECKS]
+
+
+#: The warning that fires whenever the new runs leave a speed of the prior untested: at a 4 h
+#: budget nearly always, so it tells a foreign prior from this machine's by nothing.
+UNTESTED_SPEEDS = "prior_speeds"
+
+
+def other_base(machine: str) -> str:
+    """The base machine of :data:`rafi.twin.requalify_scenarios.BASES` that is not ``machine``."""
+    others = [b for b in BASES if b != machine]
+    if not others:
+        raise ValueError(f"no base machine other than {machine!r} in {BASES}")
+    return others[0]
+
+
+def false_sibling_markdown(results: list[dict]) -> str:
+    """One row per scenario whose prior came from the other base machine, declared a sibling:
+    how the product did on the changed machine's validation runs, the warnings on its champion,
+    whether the promotion is stopped; then how many were stopped, and by what."""
+    h = f"{_budget_of(results):g} h"
+    lines = [
+        f"| seed | machine | change | prior of | CV chose | {h} with this prior, MAE ; worst (um) | "
+        "ratio to the full plan from scratch, MAE ; worst | fitness warnings | promotion stopped |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for res in results:
+        m, w = res["prior_mae_um"] / res["full_mae_um"], res["prior_um"] / res["full_um"]
+        checks = res.get("warnings") or []
+        lines.append(
+            f"| {res['seed']} | {res['machine']} | {res['change']} | {res['prior_machine']} "
+            f"| {res['prior_choice']} | {both(res['prior_mae_um'], res['prior_um'])} | {m:.2f} ; {w:.2f} "
+            f"| {', '.join(checks) or 'none'} | {'yes' if checks else '**NO**'} |"
+        )
+    stopped = [r for r in results if r.get("warnings")]
+    told = [r for r in results if set(r.get("warnings") or []) - {UNTESTED_SPEEDS}]
+    missed = [str(r["seed"]) for r in results if not r.get("warnings")]
+    lines += [
+        "",
+        f"Promotion stopped until confirmed: {len(stopped)} of {len(results)} scenarios "
+        f"(not stopped: {', '.join(missed) or 'none'}); by a warning other than `{UNTESTED_SPEEDS}` "
+        f"(which fires whenever the new runs leave a speed of the prior untested, whatever the "
+        f"prior's origin): {len(told)} of {len(results)}.",
+    ]
+    return "\n".join(lines)
 
 
 def ratios(res: dict, pick: str | None) -> tuple[float, float]:
@@ -1330,6 +1400,12 @@ def main(argv=None) -> int:
         help="the two scenarios issue 47 states (rafi.twin.requalify_scenarios.ISSUE_SCENARIOS), their "
         "new machine's runs seeded from --seeds (default 0-1), as the random ones",
     )
+    p.add_argument(
+        "--false-siblings",
+        action="store_true",
+        help="the random scenarios of --seeds (default 0-1) re-qualified from the other base machine's "
+        "champion, declared a sibling: is the promotion stopped, and by which fitness warnings",
+    )
     p.add_argument("--kinds", nargs="+", help="the kinds run_family fits (default: models.enabled)")
     p.add_argument(
         "--json",
@@ -1345,6 +1421,8 @@ def main(argv=None) -> int:
     seeds = parse_seeds(args.random, args.seeds)
     if args.issue_scenarios:
         return main_issue(seeds or [0, 1], args, settings)
+    if args.false_siblings:
+        return main_false_siblings(seeds or [0, 1], args, settings)
     if seeds:
         return main_random(seeds, args, settings)
     started, cache, results = time.perf_counter(), {}, []
@@ -1387,6 +1465,26 @@ def main_issue(seeds: list[int], args, settings: dict) -> int:
     print(table)
     out = Path(args.json)
     stem = out.stem if args.json != p_default_json() else "requalify_issue"
+    record = {"seeds": seeds, "seconds": round(time.perf_counter() - started, 1), "scenarios": results}
+    written = write_results(stem, record, table + "\n", out_dir=out.parent, indent=1, default=float)
+    progress(f"wrote {', '.join(map(str, written))} ({record['seconds']:g} s)")
+    return 0
+
+
+def main_false_siblings(seeds: list[int], args, settings: dict) -> int:
+    """``--false-siblings``: the random scenarios of ``seeds``, each re-qualified from the OTHER
+    base machine's champion as if it were a declared sibling (the sensors and probe map match, so
+    the origin check lets it through); their table and record (``requalify_false_siblings.json``
+    and ``.md`` unless ``--json``); nothing kept per seed."""
+    started, cache = time.perf_counter(), {}
+    results = []
+    for seed in seeds:
+        machine = random_scenario(seed).machine
+        results.append(one_random(seed, args, settings, cache, prior_machine=other_base(machine)))
+    table = false_sibling_markdown(results)
+    print(table)
+    out = Path(args.json)
+    stem = out.stem if args.json != p_default_json() else "requalify_false_siblings"
     record = {"seeds": seeds, "seconds": round(time.perf_counter() - started, 1), "scenarios": results}
     written = write_results(stem, record, table + "\n", out_dir=out.parent, indent=1, default=float)
     progress(f"wrote {', '.join(map(str, written))} ({record['seconds']:g} s)")

@@ -481,3 +481,49 @@ def test_the_noise_mae_is_a_perfect_models_mae_over_the_validation_runs():
     runs = SimpleNamespace(table=table, frame=frame, truth=truth)
     assert noise_mae(runs) == pytest.approx((0.5 + 0.5 + 1.0) / 3)  # the training run is not counted
     assert noise_floor(runs) == pytest.approx(1.0)
+
+
+def test_the_fitness_checks_are_the_champions_warnings_and_none_without_an_adaptation(bench):
+    from types import SimpleNamespace
+
+    adapted = SimpleNamespace(
+        fitness_={
+            "warnings": [
+                {"check": "prior_speeds", "message": "..."},
+                {"check": "prior_dynamics", "message": "..."},
+                {"check": "something_else", "message": "not a fitness check"},
+            ]
+        }
+    )
+    assert bench.fitness_checks(adapted) == ["prior_speeds", "prior_dynamics"]
+    assert bench.fitness_checks(SimpleNamespace()) == [] and bench.fitness_checks(None) == []
+    assert bench.other_base("tapping-center-a") == "machining-center-b"
+    assert bench.other_base("machining-center-b") == "tapping-center-a"
+
+
+def test_the_false_sibling_table_says_which_promotions_are_stopped_and_by_what(bench):
+    rows = []
+    for seed, checks in ((0, ["prior_speeds"]), (1, ["prior_adaptation", "prior_speeds"]), (2, [])):
+        res = random_result(seed, "prior_gain", CANDS_GAIN)
+        rows.append(res | {"prior_machine": "machining-center-b", "warnings": checks, "budget_h": 4.0})
+    lines = bench.false_sibling_markdown(rows).splitlines()
+    assert len(lines) == 2 + 3 + 2 and all(line.count("|") == 10 for line in lines[:5])
+    assert lines[2].startswith("| 0 | tapping-center-a | season | machining-center-b | prior_gain |")
+    assert lines[2].endswith("| prior_speeds | yes |")
+    assert lines[3].endswith("| prior_adaptation, prior_speeds | yes |")
+    assert lines[4].endswith("| none | **NO** |")
+    assert lines[-1].startswith("Promotion stopped until confirmed: 2 of 3 scenarios (not stopped: 2); ")
+    assert lines[-1].endswith("whatever the prior's origin): 1 of 3.")
+
+
+def test_a_tiny_false_sibling_run_takes_the_other_machines_prior(bench, tmp_path, capsys):
+    out = tmp_path / "fs.json"
+    args = ["--false-siblings", "--seeds", "0-0", "--sample-period", "120", "--kinds", "ridge_global"]
+    assert bench.main([*args, "--json", str(out)]) == 0
+    (res,) = json.loads(out.read_text())["scenarios"]
+    assert res["machine"] == bench.random_scenario(0).machine
+    assert res["prior_machine"] == bench.other_base(res["machine"]) != res["machine"]
+    assert isinstance(res["warnings"], list) and set(res["warnings"]) <= set(bench.CHECKS)
+    printed = capsys.readouterr().out
+    assert "| prior of |" in printed and f"| {res['prior_machine']} |" in printed
+    assert (tmp_path / "fs.md").read_text().strip() == printed.strip()
