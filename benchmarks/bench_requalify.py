@@ -1461,10 +1461,17 @@ def main_issue(seeds: list[int], args, settings: dict) -> int:
         for name in ISSUE_SCENARIOS
         for seed in seeds
     ]
-    table = random_markdown(results)
+    return write_scenarios(random_markdown(results), results, seeds, started, args, "requalify_issue")
+
+
+def write_scenarios(
+    table: str, results: list[dict], seeds: list[int], started: float, args, stem: str
+) -> int:
+    """Print ``table`` and write it with the ``results`` of ``seeds`` as ``<stem>.md`` and
+    ``.json`` (``--json``'s name and folder when given); nothing kept per seed."""
     print(table)
     out = Path(args.json)
-    stem = out.stem if args.json != p_default_json() else "requalify_issue"
+    stem = out.stem if args.json != p_default_json() else stem
     record = {"seeds": seeds, "seconds": round(time.perf_counter() - started, 1), "scenarios": results}
     written = write_results(stem, record, table + "\n", out_dir=out.parent, indent=1, default=float)
     progress(f"wrote {', '.join(map(str, written))} ({record['seconds']:g} s)")
@@ -1482,13 +1489,7 @@ def main_false_siblings(seeds: list[int], args, settings: dict) -> int:
         machine = random_scenario(seed).machine
         results.append(one_random(seed, args, settings, cache, prior_machine=other_base(machine)))
     table = false_sibling_markdown(results)
-    print(table)
-    out = Path(args.json)
-    stem = out.stem if args.json != p_default_json() else "requalify_false_siblings"
-    record = {"seeds": seeds, "seconds": round(time.perf_counter() - started, 1), "scenarios": results}
-    written = write_results(stem, record, table + "\n", out_dir=out.parent, indent=1, default=float)
-    progress(f"wrote {', '.join(map(str, written))} ({record['seconds']:g} s)")
-    return 0
+    return write_scenarios(table, results, seeds, started, args, "requalify_false_siblings")
 
 
 def main_random(seeds: list[int], args, settings: dict) -> int:
