@@ -859,6 +859,8 @@ def one_random(
     sc = rs.scenario(args.sample_period)
     prior_of = prior_machine or rs.machine
     prior, prior_kind, speeds, _ = fit_prior(prior_of, args, settings, prior_cache)
+    if prior_of != rs.machine:  # the plan tests this machine's speeds, whoever the prior is of
+        speeds = fit_prior(rs.machine, args, settings, prior_cache)[2]
     validation = sc.new_validation()
     out = {"seed": int(seed), "machine": rs.machine, "change": rs.change, "truth": rs.truth}
     out["prior_machine"] = prior_of

@@ -524,6 +524,10 @@ def test_a_tiny_false_sibling_run_takes_the_other_machines_prior(bench, tmp_path
     assert res["machine"] == bench.random_scenario(0).machine
     assert res["prior_machine"] == bench.other_base(res["machine"]) != res["machine"]
     assert isinstance(res["warnings"], list) and set(res["warnings"]) <= set(bench.CHECKS)
+    from rafi.twin.day import TRAINING_SPEEDS
+
+    # the plan tests this machine's speeds, not the prior's machine's
+    assert res["speeds_rpm"] and set(res["speeds_rpm"]) <= set(TRAINING_SPEEDS[res["machine"]])
     printed = capsys.readouterr().out
     assert "| prior of |" in printed and f"| {res['prior_machine']} |" in printed
     assert (tmp_path / "fs.md").read_text().strip() == printed.strip()
