@@ -235,7 +235,10 @@ where today's rule offers the shared gain, else today's pick: the shared gain's 
 judged after it on new seeds 100-119 (``keep_the_net``): A 10 of 20, A+ 9, today 7; the net is
 not kept. The moved members as the no-fold default (``--no-fold-hours 2``, :data:`NO_FOLD_MOVED`;
 criterion 2026-11-30): development 36-47 6 of 12 against the shared gain's 7, confirmation
-120-139 9 of 20 against 8: lower on the development seeds, the shared gain stays.
+120-139 9 of 20 against 8: lower on the development seeds, the shared gain stays. The penalty set
+by the shared gain (0.1 where it moved the prior by more than 10 %, else 10; criterion
+2026-11-30), judged on new seeds 140-179 with a grid of the moves' penalties (scratch, not kept):
+18 of 40 against the fixed penalty's 22, not adopted.
 
 **A foreign prior declared a sibling** (``--false-siblings``, issue 47's "a foreign prior never
 reaches promotion without a confirmation", in its hardest form): each random scenario of
