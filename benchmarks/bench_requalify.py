@@ -952,7 +952,7 @@ def false_sibling_markdown(results: list[dict]) -> str:
 def ratios(res: dict, pick: str | None) -> tuple[float, float]:
     """(MAE, worst) of candidate ``pick`` over the full plan from scratch's."""
     c = res["candidates"].get(pick) if pick else None
-    if not c:
+    if not c or "validation_mae_um" not in c:
         return math.nan, math.nan
     return c["validation_mae_um"] / res["full_mae_um"], c["validation_um"] / res["full_um"]
 
@@ -1035,9 +1035,43 @@ def random_markdown(results: list[dict]) -> str:
         f"Within 15 % of the full plan on both MAE and worst: {n_pass} of {len(results)} scenarios "
         f"({100.0 * n_pass / max(len(results), 1):.0f} %); fail: {', '.join(failed) or 'none'}."
     )
+    lines += ["", by_change_markdown(results)]
     floor = noise_floor_line(results)
     if floor:
         lines += ["", floor]
+    return "\n".join(lines)
+
+
+def _passes_as(res: dict, mae_key: str, worst_key: str) -> bool:
+    return passes(res[mae_key] / res["full_mae_um"], res[worst_key] / res["full_um"])
+
+
+def by_change_markdown(results: list[dict]) -> str:
+    """Where the misses are: per base machine and kind of change, how many scenarios are within 15 %
+    of the full plan on both MAE and worst with the prior (the product's pick), with the prior
+    unchanged, from scratch on the same hours, and with the best candidate in hindsight (any
+    candidate of the fit whose validation figures pass: the ceiling of a choice among them)."""
+    cells: dict[tuple[str, str], list[dict]] = {}
+    for res in results:
+        cells.setdefault((res["machine"], res["change"]), []).append(res)
+    h = f"{_budget_of(results):g} h"
+    lines = [
+        f"| base machine | change | scenarios | {h} with the prior | prior unchanged | {h} from scratch "
+        "| best candidate in hindsight |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    totals = [0, 0, 0, 0, 0]
+    for (machine, change), rs in sorted(cells.items()):
+        counts = [
+            len(rs),
+            sum(_passes_as(r, "prior_mae_um", "prior_um") for r in rs),
+            sum(_passes_as(r, "unchanged_mae_um", "unchanged_um") for r in rs),
+            sum(_passes_as(r, "scratch_mae_um", "scratch_um") for r in rs),
+            sum(any(passes(*ratios(r, k)) for k in r["candidates"]) for r in rs),
+        ]
+        totals = [t + c for t, c in zip(totals, counts)]
+        lines.append(f"| {machine} | {change} | " + " | ".join(map(str, counts)) + " |")
+    lines.append("| all | | " + " | ".join(map(str, totals)) + " |")
     return "\n".join(lines)
 
 
