@@ -42,8 +42,10 @@ the prior (the CV's pick), 4 h from scratch (the CV's pick among the from-scratc
 the same fit: each candidate's CV does not depend on the others) and the prior unchanged;
 whether "4 h with the prior within 15 % of the full plan from scratch on both MAE and worst"
 holds, and the share of scenarios where it does (issue 47's target: at least 80 % of at least
-20 scenarios). With ``--keep DIR`` each seed's result is ``DIR/seed-<n>.json`` (every
-candidate's CV scores and validation MAE and worst), read back instead of run again.
+20 scenarios), then the counts by base machine and kind of change beside the prior unchanged,
+from scratch and the best candidate in hindsight (:func:`by_change_markdown`: the ceiling of a
+choice among the candidates). With ``--keep DIR`` each seed's result is ``DIR/seed-<n>.json``
+(every candidate's CV scores and validation MAE and worst), read back instead of run again.
 
 **The choice among adaptations** (issue 47, item 4), judged one level up on the random
 scenarios, from the kept per-candidate numbers (no refit): the rules of :data:`RULES` -
