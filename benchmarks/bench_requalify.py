@@ -10,6 +10,7 @@ Usage (from the repository root; see benchmarks/README.md)::
     python benchmarks/bench_requalify.py --seeds 36-47 --no-fold-hours 2 --keep DIR   # the no-fold default
     python benchmarks/bench_requalify.py --issue-scenarios --seeds 9001-9002          # issue 47's two
     python benchmarks/bench_requalify.py --false-siblings --seeds 0-23                 # a foreign prior
+    python benchmarks/bench_requalify.py --other-designs --seeds 0-39                  # random designs
 
 **Named scenarios.** For each twin scenario (:mod:`rafi.twin.scenarios`: ``sibling``, ``reworn``,
 ``season``, ``replaced_sensor``), the OLD machine's full qualification is fitted with rule
@@ -251,6 +252,17 @@ what the product offers, its ratio to the full plan from scratch, the fitness wa
 stopped, and those stopped by a warning other than ``prior_speeds`` (which fires whenever the new
 runs leave a speed of the prior untested, whatever the prior's origin).
 
+**Another design declared a sibling** (``--other-designs``): the two twins are two designs, so a
+rule for telling a sibling from another design judged on them says nothing about a third. For each
+seed a random design of tapping-center-a's sensor layout
+(:func:`rafi.twin.requalify_scenarios.random_design`: every constant and every sensor's lag and mix
+weights times its own factor, spread 0.4) is qualified on its full plan; its champion re-qualifies
+at 4 h a true sibling of it (the 4 % build spread) and another design declared a sibling
+(:func:`~rafi.twin.requalify_scenarios.design_pair`). The table gives the fitness warnings, whether
+the promotion is stopped, the ratio to the new machine's full plan, and the prior as it is on the
+new runs over its own pooled 90 % half width (:func:`prior_misfit`, a signal judged in
+``docs/decisions.md``, 2026-11-30).
+
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:
 ``requalify_random.json`` and ``.md``). The runs are simulated clean at ``--sample-period``
@@ -288,8 +300,25 @@ from rafi.family.prior_fitness import CHECKS  # noqa: E402
 from rafi.family.selection import SIMPLICITY, selection_table  # noqa: E402
 from rafi.ops.plan import plan_limits, plan_programme, prior_view  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS  # noqa: E402
-from rafi.twin.requalify_scenarios import BASES, ISSUE_SCENARIOS, issue_scenario, random_scenario  # noqa: E402
-from rafi.twin.scenarios import SCENARIOS, RunSet, combine, make_scenario, noise_floor, noise_mae  # noqa: E402
+from rafi.twin.requalify_scenarios import (  # noqa: E402
+    BASES,
+    ISSUE_SCENARIOS,
+    design_pair,
+    issue_scenario,
+    random_design,
+    random_scenario,
+)
+from rafi.twin.scenarios import (  # noqa: E402
+    KEY_SENSORS,
+    SCENARIOS,
+    RunSet,
+    Scenario,
+    TwinMachine,
+    combine,
+    make_scenario,
+    noise_floor,
+    noise_mae,
+)
 
 HOURS = (1.05, 2.0, 4.0, 8.0)
 #: The issue's target: within this fraction of the full plan from scratch, at 4 h or less.
@@ -851,25 +880,37 @@ def default_markdown(judged: dict) -> str:
 
 
 def one_random(
-    seed: int, args, settings: dict, prior_cache: dict, scenario=None, prior_machine: str | None = None
+    seed: int,
+    args,
+    settings: dict,
+    prior_cache: dict,
+    scenario=None,
+    prior_machine: str | None = None,
+    prior_fit: tuple | None = None,
 ) -> dict:
     """Every number of random scenario ``seed`` (:func:`rafi.twin.requalify_scenarios.random_scenario`;
     or ``scenario``, a :class:`~rafi.twin.requalify_scenarios.RandomScenario` built otherwise) at
     ``args.budget`` h of new data (:data:`TARGET_HOURS` unless ``--budget``): the prior, the full
     plan from scratch and every candidate of the fit with the prior, each with its validation MAE
     and worst residual, and the fitness warnings on the champion. The prior is the base machine's
-    champion, or ``prior_machine``'s (a prior from another machine, declared a sibling)."""
+    champion, or ``prior_machine``'s (a prior from another machine, declared a sibling), or
+    ``prior_fit`` (``(artefact, champion, training speeds)``, :func:`fit_design_prior`)."""
     budget = float(getattr(args, "budget", TARGET_HOURS))
     rs = scenario if scenario is not None else random_scenario(seed)
     sc = rs.scenario(args.sample_period)
     prior_of = prior_machine or rs.machine
-    prior, prior_kind, speeds, _ = fit_prior(prior_of, args, settings, prior_cache)
+    if prior_fit is not None:
+        prior, prior_kind, speeds = prior_fit
+    else:
+        prior, prior_kind, speeds, _ = fit_prior(prior_of, args, settings, prior_cache)
     if prior_of != rs.machine:  # the plan tests this machine's speeds, whoever the prior is of
         speeds = fit_prior(rs.machine, args, settings, prior_cache)[2]
     validation = sc.new_validation()
     out = {"seed": int(seed), "machine": rs.machine, "change": rs.change, "truth": rs.truth}
     out["prior_machine"] = prior_of
     out |= {"prior_champion": prior_kind, "floor_um": noise_floor(validation)}
+    calibration = (prior.get("interval") or {}).get("calibration") or {}
+    out["prior_half_width_um"] = calibration.get("pooled_half_width_um", math.nan)
     out["floor_mae_um"] = noise_mae(validation)
     out["unchanged_mae_um"], out["unchanged_um"] = unchanged_errors(
         prior, validation, settings["qualification"]
@@ -1447,6 +1488,12 @@ def main(argv=None) -> int:
         help="the random scenarios of --seeds (default 0-1) re-qualified from the other base machine's "
         "champion, declared a sibling: is the promotion stopped, and by which fitness warnings",
     )
+    p.add_argument(
+        "--other-designs",
+        action="store_true",
+        help="for each seed of --seeds (default 0-1) a random design's prior re-qualifies a true sibling "
+        "of it and another design declared a sibling: stopped, by which warnings, and how far off",
+    )
     p.add_argument("--kinds", nargs="+", help="the kinds run_family fits (default: models.enabled)")
     p.add_argument(
         "--json",
@@ -1464,6 +1511,8 @@ def main(argv=None) -> int:
         return main_issue(seeds or [0, 1], args, settings)
     if args.false_siblings:
         return main_false_siblings(seeds or [0, 1], args, settings)
+    if args.other_designs:
+        return main_other_designs(seeds or [0, 1], args, settings)
     if seeds:
         return main_random(seeds, args, settings)
     started, cache, results = time.perf_counter(), {}, []
@@ -1531,6 +1580,87 @@ def main_false_siblings(seeds: list[int], args, settings: dict) -> int:
         results.append(one_random(seed, args, settings, cache, prior_machine=other_base(machine)))
     table = false_sibling_markdown(results)
     return write_scenarios(table, results, seeds, started, args, "requalify_false_siblings")
+
+
+#: The base machine of the random designs of ``--other-designs`` (its sensor layout).
+DESIGN_MACHINE = "tapping-center-a"
+
+
+def fit_design_prior(seed: int, args, settings: dict, machine: str = DESIGN_MACHINE) -> tuple:
+    """The prior of design ``seed`` (:func:`rafi.twin.requalify_scenarios.random_design`): its
+    champion on its full test plan (the named scenarios' old machine with the design's constants),
+    ``(artefact, champion, training speeds)``."""
+    design = random_design(seed, machine)
+    sc = Scenario(
+        f"design-{seed}",
+        machine,
+        TwinMachine(design),
+        TwinMachine(design),
+        args.seed,
+        args.sample_period,
+        KEY_SENSORS[machine],
+    )
+    old = sc.old_runs()
+    fit = fit_family(old, settings, sc.key_sensors, machine, args.kinds)
+    speeds = sorted(float(v) for v in set(old.table.loc[old.table["role"] == "training", "speed_rpm"]))
+    return fit["best_artefact"], fit["champion"], speeds
+
+
+def prior_misfit(res: dict) -> float:
+    """The prior as it is on the new runs (the whole-run CV's ``prior`` score: the mean over
+    held-out runs of the max |residual|) over the prior's own pooled 90 % half width: how many of
+    its own intervals the prior lies off on this machine (NaN where a record lacks either)."""
+    score = (res.get("candidates", {}).get("prior") or {}).get("selection_score_um", math.nan)
+    return float(score) / float(res.get("prior_half_width_um", math.nan))
+
+
+def other_design_markdown(results: list[dict]) -> str:
+    """One row per re-qualification from a random design's prior, of a true sibling of the design
+    or of another design declared a sibling (:func:`rafi.twin.requalify_scenarios.design_pair`);
+    then, per kind, how many were stopped, by a warning on the prior (other than
+    ``prior_speeds``), and within 15 % of the new machine's full plan on both."""
+    h = f"{_budget_of(results):g} h"
+    lines = [
+        f"| design | re-qualified | CV chose | {h} with the design's prior, MAE ; worst (um) | ratio to the "
+        "full plan from scratch, MAE ; worst | prior as it is / its own 90 % half width | fitness "
+        "warnings | promotion stopped |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for res in results:
+        m, w = res["prior_mae_um"] / res["full_mae_um"], res["prior_um"] / res["full_um"]
+        checks = res.get("warnings") or []
+        lines.append(
+            f"| {res['seed']} | {res['change']} | {res['prior_choice']} "
+            f"| {both(res['prior_mae_um'], res['prior_um'])} | {m:.2f} ; {w:.2f} | {prior_misfit(res):.1f} "
+            f"| {', '.join(checks) or 'none'} | {'yes' if checks else '**NO**'} |"
+        )
+    lines.append("")
+    for change, what in (("sibling", "true siblings"), ("other_design", "other designs declared siblings")):
+        rs = [r for r in results if r["change"] == change]
+        if not rs:
+            continue
+        stopped = sum(bool(r.get("warnings")) for r in rs)
+        told = sum(bool(set(r.get("warnings") or []) - {UNTESTED_SPEEDS}) for r in rs)
+        within = sum(passes(r["prior_mae_um"] / r["full_mae_um"], r["prior_um"] / r["full_um"]) for r in rs)
+        lines.append(
+            f"{what}: promotion stopped on {stopped} of {len(rs)}, by a warning on the prior (not "
+            f"`{UNTESTED_SPEEDS}`) on {told}; within 15 % of the full plan on both: {within}."
+        )
+    return "\n".join(lines)
+
+
+def main_other_designs(seeds: list[int], args, settings: dict) -> int:
+    """``--other-designs``: for each seed a random design's prior re-qualifies a true sibling of the
+    design and another design declared a sibling; their table and record
+    (``requalify_other_designs.json`` and ``.md`` unless ``--json``); nothing kept per seed."""
+    started, results = time.perf_counter(), []
+    for seed in seeds:
+        progress(f"design {seed}: fitting its full qualification (the prior)")
+        prior_fit = fit_design_prior(seed, args, settings)
+        for scenario in design_pair(seed):
+            results.append(one_random(seed, args, settings, {}, scenario=scenario, prior_fit=prior_fit))
+    table = other_design_markdown(results)
+    return write_scenarios(table, results, seeds, started, args, "requalify_other_designs")
 
 
 def main_random(seeds: list[int], args, settings: dict) -> int:

@@ -544,3 +544,42 @@ def test_a_tiny_false_sibling_run_takes_the_other_machines_prior(bench, tmp_path
     printed = capsys.readouterr().out
     assert "| prior of |" in printed and f"| {res['prior_machine']} |" in printed
     assert (tmp_path / "fs.md").read_text().strip() == printed.strip()
+
+
+def test_the_other_design_table_says_what_stopped_each_and_how_far_the_prior_lies_off(bench):
+    rows = []
+    for seed, change, checks in (
+        (0, "sibling", ["prior_speeds"]),
+        (0, "other_design", ["prior_dynamics", "prior_speeds"]),
+        (1, "sibling", []),
+        (1, "other_design", ["prior_speeds"]),
+    ):
+        res = random_result(seed, "prior_gain", CANDS_GAIN) | {"change": change, "warnings": checks}
+        rows.append(res | {"budget_h": 4.0, "prior_half_width_um": 0.5})
+    rows[3] |= {"prior_mae_um": 2.0}  # 4 x the full plan's 0.5
+    lines = bench.other_design_markdown(rows).splitlines()
+    assert len(lines) == 2 + 4 + 1 + 2 and all(line.count("|") == 9 for line in lines[:6])
+    # the prior as it is scores 3.0 um in the CV (CANDS_GAIN) against its own half width 0.5 um
+    assert lines[2] == "| 0 | sibling | prior_gain | 0.50 ; 2.00 | 1.00 ; 1.00 | 6.0 | prior_speeds | yes |"
+    assert lines[4].endswith("| none | **NO** |") and "| 4.00 ; 1.00 |" in lines[5]
+    assert lines[7] == (
+        "true siblings: promotion stopped on 1 of 2, by a warning on the prior (not `prior_speeds`) on 0; "
+        "within 15 % of the full plan on both: 2."
+    )
+    assert lines[8] == (
+        "other designs declared siblings: promotion stopped on 2 of 2, by a warning on the prior (not "
+        "`prior_speeds`) on 1; within 15 % of the full plan on both: 1."
+    )
+    assert math.isnan(bench.prior_misfit({"candidates": {}, "prior_half_width_um": 0.5}))
+
+
+def test_a_tiny_other_design_run_requalifies_a_sibling_and_another_design_from_one_prior(bench, tmp_path):
+    out = tmp_path / "od.json"
+    args = ["--other-designs", "--seeds", "0-0", "--sample-period", "120", "--kinds", "ridge_global"]
+    assert bench.main([*args, "--json", str(out)]) == 0
+    sibling, other = json.loads(out.read_text())["scenarios"]
+    assert (sibling["change"], other["change"]) == ("sibling", "other_design")
+    assert sibling["truth"]["design_seed"] == other["truth"]["design_seed"] == 0
+    assert sibling["prior_half_width_um"] == other["prior_half_width_um"] > 0  # one prior for both
+    assert sibling["full_mae_um"] != other["full_mae_um"]  # two machines
+    assert set(sibling["warnings"]) <= set(bench.CHECKS) and set(other["warnings"]) <= set(bench.CHECKS)

@@ -149,3 +149,42 @@ def test_the_issues_two_scenarios_are_built_as_the_issue_states_them():
     assert ISSUE_SCENARIOS == ("issue_repair", "issue_sibling")
     with pytest.raises(ValueError, match="unknown issue scenario"):
         issue_scenario("issue_flood", 3)
+
+
+def test_a_random_design_keeps_the_sensor_layout_and_moves_every_constant_within_its_spread():
+    """random_design: the same sensors (names, positions, offsets) and nodes, every constant times
+    a factor in [exp(-2 s), exp(2 s)] (s the design spread), each sensor's mix still summing to 1
+    over the same nodes; the same seed gives the same design, another seed another one."""
+    import numpy as np
+
+    from rafi.twin.requalify_scenarios import DESIGN_SPREAD, random_design
+
+    base = machine_params("tapping-center-a")
+    lo, hi = math.exp(-2 * DESIGN_SPREAD) - 1e-12, math.exp(2 * DESIGN_SPREAD) + 1e-12
+    for seed in range(20):
+        design = random_design(seed)
+        assert design == random_design(seed) and design != random_design(seed + 1)
+        factors = [design.capacity[n] / c for n, c in base.capacity.items()]
+        factors += [design.links[k] / v for k, v in base.links.items()]
+        factors += [design.disp_gain[n] / g for n, g in base.disp_gain.items() if g]
+        factors += [design.bearing_front_w / base.bearing_front_w, design.rotor_w / base.rotor_w]
+        factors += [d.lag_s / s.lag_s for d, s in zip(design.sensors, base.sensors)]
+        assert all(lo <= f <= hi for f in factors)
+        assert len(set(np.round(factors, 9))) > len(factors) // 2  # each its own factor
+        for d, s in zip(design.sensors, base.sensors):
+            assert (d.name, d.position, d.offset_c) == (s.name, s.position, s.offset_c)
+            assert [n for n, _ in d.mix] == [n for n, _ in s.mix]
+            assert sum(w for _, w in d.mix) == pytest.approx(1.0)
+        assert design.speed_links.keys() == base.speed_links.keys()
+        assert all(design.speed_links[k][2] == v[2] for k, v in base.speed_links.items())  # exponents kept
+
+
+def test_a_design_pair_is_a_true_sibling_and_another_design_from_the_same_prior():
+    from rafi.twin.requalify_scenarios import OTHER_DESIGN, design_pair, random_design
+    from rafi.twin.scenarios import sibling_params
+
+    sibling, other = design_pair(5)
+    assert sibling.prior_params == other.prior_params == random_design(5)
+    assert sibling.new_params == sibling_params(random_design(5), 5) and sibling.change == "sibling"
+    assert other.new_params == random_design(5 + OTHER_DESIGN) and other.change == "other_design"
+    assert other.truth["other_design_seed"] == 5 + OTHER_DESIGN and sibling.machine == other.machine

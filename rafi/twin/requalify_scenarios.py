@@ -43,6 +43,10 @@ __all__ = [
     "random_scenario",
     "ISSUE_SCENARIOS",
     "issue_scenario",
+    "DESIGN_SPREAD",
+    "OTHER_DESIGN",
+    "random_design",
+    "design_pair",
 ]
 
 #: The machines a scenario starts from (the prior's machine: the shipped twin).
@@ -262,3 +266,81 @@ def issue_scenario(name: str, seed: int) -> RandomScenario:
         raise ValueError(f"unknown issue scenario {name!r}; known: {', '.join(ISSUE_SCENARIOS)}")
     truth = {"seed": int(seed), "machine": machine, "change": change, "issue": name} | truth
     return RandomScenario(int(seed), machine, change, params, new, truth)
+
+
+#: Log-normal sigma of a random design's constants against its base machine's (clipped at 2 sigma:
+#: factors 0.45-2.2): another design of the same sensor layout, not a build spread (4 %).
+DESIGN_SPREAD = 0.4
+#: The seed offset of the other design :func:`design_pair` declares a sibling.
+OTHER_DESIGN = 10_000
+#: Salt of a design's seed sequence.
+DESIGN_SALT = 4747
+
+
+def random_design(seed: int, machine: str = "tapping-center-a") -> TwinParams:
+    """A machine of another design with ``machine``'s sensor layout (the same 16 sensor names,
+    positions and probe): every physical constant (heat capacities, conductances and their speed
+    laws, room conductances, coolant flow, cooler power, every heat source, every displacement
+    gain, the draw-in) and every sensor's lag and mix weights (renormalised) times its own factor
+    ``exp(DESIGN_SPREAD z)``, ``z`` standard normal clipped to +-2. Pure: the same seed gives the
+    same design."""
+    params = machine_params(machine)
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), DESIGN_SALT]))
+
+    def factor() -> float:
+        return float(np.exp(DESIGN_SPREAD * np.clip(rng.standard_normal(), -2.0, 2.0)))
+
+    def law(g):
+        return (g[0] * factor(), g[1] * factor(), g[2])
+
+    sensors = []
+    for s in params.sensors:
+        mix = {n: w * factor() for n, w in s.mix}
+        total = sum(mix.values())
+        sensors.append(
+            replace(s, mix=tuple((n, w / total) for n, w in mix.items()), lag_s=s.lag_s * factor())
+        )
+    return replace(
+        params,
+        capacity={k: v * factor() for k, v in params.capacity.items()},
+        links={k: v * factor() for k, v in params.links.items()},
+        speed_links={k: law(v) for k, v in params.speed_links.items()},
+        to_ambient={k: law(v) for k, v in params.to_ambient.items()},
+        coolant_flow_w_per_k=params.coolant_flow_w_per_k * factor(),
+        cooler_power_w=params.cooler_power_w * factor(),
+        bearing_front_w=params.bearing_front_w * factor(),
+        bearing_rear_w=params.bearing_rear_w * factor(),
+        motor_magnetising_w=params.motor_magnetising_w * factor(),
+        motor_iron_w=params.motor_iron_w * factor(),
+        rotor_w=params.rotor_w * factor(),
+        disp_gain={k: v * factor() for k, v in params.disp_gain.items()},
+        centrifugal_um=params.centrifugal_um * factor(),
+        sensors=tuple(sensors),
+    )
+
+
+def design_pair(seed: int, machine: str = "tapping-center-a") -> tuple[RandomScenario, RandomScenario]:
+    """Two re-qualifications from the prior of design ``seed`` (:func:`random_design`): a true
+    sibling of it (``change="sibling"``: :func:`rafi.twin.scenarios.sibling_params`, the 4 % build
+    spread) and another design declared a sibling (``change="other_design"``: design ``seed +
+    OTHER_DESIGN``), both with ``machine``'s sensor layout, so no compatibility check tells them
+    apart (issue 47: a foreign prior declared a sibling)."""
+    design = random_design(seed, machine)
+    truth = {"seed": int(seed), "machine": machine, "design_seed": int(seed)}
+    sibling = RandomScenario(
+        int(seed),
+        machine,
+        "sibling",
+        design,
+        TwinMachine(sibling_params(design, int(seed))),
+        truth | {"change": "sibling", "build_spread_seed": int(seed)},
+    )
+    other = RandomScenario(
+        int(seed),
+        machine,
+        "other_design",
+        design,
+        TwinMachine(random_design(int(seed) + OTHER_DESIGN, machine)),
+        truth | {"change": "other_design", "other_design_seed": int(seed) + OTHER_DESIGN},
+    )
+    return sibling, other
