@@ -260,8 +260,8 @@ weights times its own factor, spread 0.4) is qualified on its full plan; its cha
 at 4 h a true sibling of it (the 4 % build spread) and another design declared a sibling
 (:func:`~rafi.twin.requalify_scenarios.design_pair`). The table gives the fitness warnings, whether
 the promotion is stopped, the ratio to the new machine's full plan, and the prior as it is on the
-new runs over its own pooled 90 % half width (:func:`prior_misfit`, a signal judged in
-``docs/decisions.md``, 2026-11-30).
+new runs over its own pooled 90 % half width (:func:`prior_misfit`; beyond
+:data:`~rafi.family.prior_fitness.MISFIT_HALF_WIDTHS` the product's warning ``prior_misfit``).
 
 Output: progress on stderr, a markdown table on stdout (docs/results.md's), and
 ``benchmarks/results/requalify.json`` (``--json`` to change; random scenarios:
@@ -296,7 +296,7 @@ from _results import write_results  # noqa: E402
 from rafi.artefact import write_text_atomic  # noqa: E402
 from rafi.family.adapted import CANDIDATES, ENSEMBLE_CANDIDATES  # noqa: E402
 from rafi.family.compare import compare_models, load_any, run_family  # noqa: E402
-from rafi.family.prior_fitness import CHECKS  # noqa: E402
+from rafi.family.prior_fitness import CHECKS, MISFIT_HALF_WIDTHS  # noqa: E402
 from rafi.family.selection import SIMPLICITY, selection_table  # noqa: E402
 from rafi.ops.plan import plan_limits, plan_programme, prior_view  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS  # noqa: E402
@@ -1642,9 +1642,11 @@ def other_design_markdown(results: list[dict]) -> str:
         stopped = sum(bool(r.get("warnings")) for r in rs)
         told = sum(bool(set(r.get("warnings") or []) - {UNTESTED_SPEEDS}) for r in rs)
         within = sum(passes(r["prior_mae_um"] / r["full_mae_um"], r["prior_um"] / r["full_um"]) for r in rs)
+        beyond = sum(prior_misfit(r) > MISFIT_HALF_WIDTHS for r in rs)
         lines.append(
             f"{what}: promotion stopped on {stopped} of {len(rs)}, by a warning on the prior (not "
-            f"`{UNTESTED_SPEEDS}`) on {told}; within 15 % of the full plan on both: {within}."
+            f"`{UNTESTED_SPEEDS}`) on {told}; within 15 % of the full plan on both: {within}; the prior "
+            f"as it is beyond {MISFIT_HALF_WIDTHS:g} of its own half widths: {beyond}."
         )
     return "\n".join(lines)
 

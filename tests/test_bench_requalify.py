@@ -564,11 +564,12 @@ def test_the_other_design_table_says_what_stopped_each_and_how_far_the_prior_lie
     assert lines[4].endswith("| none | **NO** |") and "| 4.00 ; 1.00 |" in lines[5]
     assert lines[7] == (
         "true siblings: promotion stopped on 1 of 2, by a warning on the prior (not `prior_speeds`) on 0; "
-        "within 15 % of the full plan on both: 2."
+        "within 15 % of the full plan on both: 2; the prior as it is beyond 11 of its own half widths: 0."
     )
     assert lines[8] == (
         "other designs declared siblings: promotion stopped on 2 of 2, by a warning on the prior (not "
-        "`prior_speeds`) on 1; within 15 % of the full plan on both: 1."
+        "`prior_speeds`) on 1; within 15 % of the full plan on both: 1; the prior as it is beyond 11 of "
+        "its own half widths: 0."
     )
     assert math.isnan(bench.prior_misfit({"candidates": {}, "prior_half_width_um": 0.5}))
 
@@ -583,3 +584,7 @@ def test_a_tiny_other_design_run_requalifies_a_sibling_and_another_design_from_o
     assert sibling["prior_half_width_um"] == other["prior_half_width_um"] > 0  # one prior for both
     assert sibling["full_mae_um"] != other["full_mae_um"]  # two machines
     assert set(sibling["warnings"]) <= set(bench.CHECKS) and set(other["warnings"]) <= set(bench.CHECKS)
+    for res in (sibling, other):  # the product's prior_misfit is the table's ratio beyond its limit
+        if res["prior_choice"].startswith("prior"):
+            fired = "prior_misfit" in res["warnings"]
+            assert fired == (bench.prior_misfit(res) > bench.MISFIT_HALF_WIDTHS)

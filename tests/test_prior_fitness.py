@@ -366,3 +366,21 @@ def test_status_names_the_adaptation_of_every_member_with_its_ridge_penalty():
     assert summary["alpha"] == 10.0 and summary["method"] == "shared_ridge"
     lines = describe_prior(summary)
     assert lines[1] == "  adaptation:       shared_ridge, gain 1.23, ridge penalty 10"
+
+
+def test_the_misfit_warning_fires_beyond_its_share_of_the_priors_own_half_width():
+    """prior_misfit: the prior as it is, on the new runs, more than MISFIT_HALF_WIDTHS of its own
+    pooled 90 % half widths off; nothing at or below it, without a calibrated interval, or without a
+    finite score."""
+    from rafi.family.prior_fitness import CHECKS, MISFIT_HALF_WIDTHS, misfit_warning
+
+    prior = {"interval": {"calibration": {"pooled_half_width_um": 0.5}}}
+    limit = MISFIT_HALF_WIDTHS * 0.5
+    assert misfit_warning(limit, prior) is None and misfit_warning(limit * 0.5, prior) is None
+    warning = misfit_warning(limit + 0.01, prior)
+    assert warning["check"] == "prior_misfit" and "prior_misfit" in CHECKS
+    assert f"{(limit + 0.01) / 0.5:.1f} times its own 90 % half width (0.5 um" in warning["message"]
+    assert "\n" not in warning["message"]
+    for other in ({}, {"interval": {"calibration": {"pooled_half_width_um": None}}}):
+        assert misfit_warning(100.0, other) is None
+    assert misfit_warning(float("nan"), prior) is None

@@ -52,7 +52,7 @@ from rafi.family.grey_box import GreyBox
 from rafi.family.interval_fit import calibrate_family, calibration_units, stacked_oof
 from rafi.family.intervals import coverage_and_width, interval_columns
 from rafi.family.plain_ridge import PLAIN_RIDGE, floor_columns, with_plain_ridge
-from rafi.family.prior_fitness import dynamics_warning
+from rafi.family.prior_fitness import dynamics_warning, misfit_warning
 from rafi.family.published import PublishedRafi
 from rafi.family.rafi_linear import RafiLinear
 from rafi.family.ridge_global import RidgeGlobal
@@ -522,6 +522,16 @@ def offered_first(selection: pd.DataFrame, offered: str) -> pd.DataFrame:
     return out
 
 
+def prior_misfit_warning(models: dict, selection: pd.DataFrame) -> dict | None:
+    """The fitness warning ``prior_misfit`` (:func:`rafi.family.prior_fitness.misfit_warning`) from
+    the CV score of the candidate ``prior`` (the prior as it is) in ``selection``, or None without
+    that candidate."""
+    rows = selection.loc[selection["model"] == "prior", "selection_score_um"] if len(selection) else []
+    if "prior" not in models or not len(rows):
+        return None
+    return misfit_warning(float(rows.iloc[0]), models["prior"].prior)
+
+
 def _choose(cv: pd.DataFrame, candidates: list, offered: list, ensemble: bool, log) -> tuple:
     """``(champion, selection table, basis)`` of :func:`run_family`: :func:`choose_champion` among
     ``candidates`` (the CV-weighted ensemble when ``ensemble``; :func:`default_champion` without
@@ -681,6 +691,10 @@ def run_family(
             warning = dynamics_warning(*ahead)
             models[champion].add_warning(warning)
             log(f"warning: {warning['message']}")
+        misfit = prior_misfit_warning(models, selection)
+        if misfit is not None:
+            models[champion].add_warning(misfit)
+            log(f"warning: {misfit['message']}")
     log(f"champion (chosen on the training runs): {champion}")
     table, residuals, verdict = compare_models(
         models, runs_table, runs_frame, gates, champion=champion, return_residuals=True, return_verdict=True
