@@ -248,8 +248,9 @@ class AdaptedPrior(FamilyModel):
 
     def add_warning(self, warning: dict):
         """Append ``warning`` (``{check, message}``) to the fitness block's warnings: one found
-        beside the fit, by the family's CV (``prior_dynamics``, :func:`rafi.family.compare.run_family`);
-        the artefact carries it and its promotion waits for a confirmation. Returns ``self``."""
+        beside the fit, by the family's CV (``prior_dynamics``, ``prior_misfit``,
+        :func:`rafi.family.compare.run_family`); the artefact carries it and its promotion waits for
+        a confirmation. Returns ``self``."""
         self.fitness_["warnings"] = [*self.fitness_.get("warnings", []), dict(warning)]
         self.model_.adaptation_["fitness"] = self.fitness_
         return self

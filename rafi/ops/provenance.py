@@ -273,7 +273,7 @@ def prior_warnings(candidate_model: dict | None, confirmed=()) -> dict:
     """The fitness warnings of a candidate adapted from a prior (``adaptation.fitness.warnings``,
     :func:`rafi.family.prior_fitness.fitness_warnings`), split by ``checks.confirmed``
     (``confirmed``): an entry ``{file: <the prior's model id, its first 12 characters or a
-    glob>, check: prior_adaptation | prior_speeds | prior_dynamics}`` confirms it.
+    glob>, check: prior_adaptation | prior_speeds | prior_dynamics | prior_misfit}`` confirms it.
 
     Returns
     -------
