@@ -296,7 +296,7 @@ from _results import write_results  # noqa: E402
 from rafi.artefact import write_text_atomic  # noqa: E402
 from rafi.family.adapted import CANDIDATES, ENSEMBLE_CANDIDATES  # noqa: E402
 from rafi.family.compare import compare_models, load_any, run_family  # noqa: E402
-from rafi.family.prior_fitness import CHECKS, MISFIT_HALF_WIDTHS  # noqa: E402
+from rafi.family.prior_fitness import CHECKS, MISFIT_HALF_WIDTHS, prior_half_width  # noqa: E402
 from rafi.family.selection import SIMPLICITY, selection_table  # noqa: E402
 from rafi.ops.plan import plan_limits, plan_programme, prior_view  # noqa: E402
 from rafi.settings import MACHINE_DEFAULTS  # noqa: E402
@@ -909,8 +909,8 @@ def one_random(
     out = {"seed": int(seed), "machine": rs.machine, "change": rs.change, "truth": rs.truth}
     out["prior_machine"] = prior_of
     out |= {"prior_champion": prior_kind, "floor_um": noise_floor(validation)}
-    calibration = (prior.get("interval") or {}).get("calibration") or {}
-    out["prior_half_width_um"] = calibration.get("pooled_half_width_um", math.nan)
+    half = prior_half_width(prior)
+    out["prior_half_width_um"] = math.nan if half is None else half
     out["floor_mae_um"] = noise_mae(validation)
     out["unchanged_mae_um"], out["unchanged_um"] = unchanged_errors(
         prior, validation, settings["qualification"]

@@ -34,6 +34,7 @@ __all__ = [
     "dynamics_warning",
     "misfit_warning",
     "MISFIT_HALF_WIDTHS",
+    "prior_half_width",
     "prior_speed_range",
     "prior_trained_speeds",
     "prior_rise_ranges",
@@ -281,20 +282,27 @@ def misfit_warning(score_um: float, prior: Mapping) -> dict | None:
     The prior does not describe this machine as it is: another design declared a sibling, or a
     large change (a repair). None when the prior has no calibrated interval or the score is not
     finite. Found beside the fit, by the family's CV (:func:`rafi.family.compare.run_family`)."""
-    calibration = (prior.get("interval") or {}).get("calibration") or {}
-    half = _finite([calibration.get("pooled_half_width_um")])
+    half = prior_half_width(prior)
     score = _finite([score_um])
-    if not half or half[0] <= 0 or not score or score[0] <= MISFIT_HALF_WIDTHS * half[0]:
+    if half is None or not score or score[0] <= MISFIT_HALF_WIDTHS * half:
         return None
     return {
         "check": "prior_misfit",
         "message": (
             f"the prior as it is lies {score[0]:.3g} um off on the new training runs (the cross-validation's "
-            f"mean worst residual per run), {score[0] / half[0]:.1f} times its own 90 % half width "
-            f"({half[0]:.3g} um; more than {MISFIT_HALF_WIDTHS:g}): it does not describe this machine as it "
+            f"mean worst residual per run), {score[0] / half:.1f} times its own 90 % half width "
+            f"({half:.3g} um; more than {MISFIT_HALF_WIDTHS:g}): it does not describe this machine as it "
             "is (another design, or a large change)"
         ),
     }
+
+
+def prior_half_width(prior: Mapping) -> float | None:
+    """The prior's own pooled 90 % half width (um, ``interval.calibration.pooled_half_width_um``:
+    its calibration over the held-out runs of its qualification), or None without a positive one."""
+    calibration = (prior.get("interval") or {}).get("calibration") or {}
+    half = _finite([calibration.get("pooled_half_width_um")])
+    return half[0] if half and half[0] > 0 else None
 
 
 def fitness_warnings(block: Mapping) -> list[dict]:
