@@ -961,6 +961,18 @@ def other_base(machine: str) -> str:
     return others[0]
 
 
+def _with_prior_cells(res: dict) -> str:
+    """The cells ``| MAE ; worst | ratios to the full plan`` of the model offered with the prior."""
+    m, w = res["prior_mae_um"] / res["full_mae_um"], res["prior_um"] / res["full_um"]
+    return f"| {both(res['prior_mae_um'], res['prior_um'])} | {m:.2f} ; {w:.2f}"
+
+
+def _stopped_cells(res: dict) -> str:
+    """The cells ``| fitness warnings | promotion stopped |`` of a record."""
+    checks = res.get("warnings") or []
+    return f"| {', '.join(checks) or 'none'} | {'yes' if checks else '**NO**'} |"
+
+
 def false_sibling_markdown(results: list[dict]) -> str:
     """One row per scenario whose prior came from the other base machine, declared a sibling:
     how the product did on the changed machine's validation runs, the warnings on its champion,
@@ -972,12 +984,9 @@ def false_sibling_markdown(results: list[dict]) -> str:
         "|---|---|---|---|---|---|---|---|---|",
     ]
     for res in results:
-        m, w = res["prior_mae_um"] / res["full_mae_um"], res["prior_um"] / res["full_um"]
-        checks = res.get("warnings") or []
         lines.append(
             f"| {res['seed']} | {res['machine']} | {res['change']} | {res['prior_machine']} "
-            f"| {res['prior_choice']} | {both(res['prior_mae_um'], res['prior_um'])} | {m:.2f} ; {w:.2f} "
-            f"| {', '.join(checks) or 'none'} | {'yes' if checks else '**NO**'} |"
+            f"| {res['prior_choice']} {_with_prior_cells(res)} {_stopped_cells(res)}"
         )
     stopped = [r for r in results if r.get("warnings")]
     told = [r for r in results if set(r.get("warnings") or []) - {UNTESTED_SPEEDS}]
@@ -1627,12 +1636,9 @@ def other_design_markdown(results: list[dict]) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for res in results:
-        m, w = res["prior_mae_um"] / res["full_mae_um"], res["prior_um"] / res["full_um"]
-        checks = res.get("warnings") or []
         lines.append(
-            f"| {res['seed']} | {res['change']} | {res['prior_choice']} "
-            f"| {both(res['prior_mae_um'], res['prior_um'])} | {m:.2f} ; {w:.2f} | {prior_misfit(res):.1f} "
-            f"| {', '.join(checks) or 'none'} | {'yes' if checks else '**NO**'} |"
+            f"| {res['seed']} | {res['change']} | {res['prior_choice']} {_with_prior_cells(res)} "
+            f"| {prior_misfit(res):.1f} {_stopped_cells(res)}"
         )
     lines.append("")
     for change, what in (("sibling", "true siblings"), ("other_design", "other designs declared siblings")):
