@@ -494,6 +494,15 @@ def plan_for(prior: dict, speeds, hours: float, settings: dict):
     return plan_programme(speeds_rpm=speeds, budget_h=hours, prior=view, **limits)
 
 
+def qualify_old(sc, settings: dict, kinds=None) -> tuple[dict, list[float]]:
+    """The old machine of scenario ``sc`` qualified on its full test plan: the family's fit
+    (:func:`fit_family`) and its training speeds (r/min, sorted)."""
+    old = sc.old_runs()
+    fit = fit_family(old, settings, sc.key_sensors, sc.machine, kinds)
+    speeds = sorted(float(v) for v in set(old.table.loc[old.table["role"] == "training", "speed_rpm"]))
+    return fit, speeds
+
+
 def fit_prior(machine: str, args, settings: dict, cache: dict) -> tuple:
     """The old machine's full qualification fitted (the prior): (artefact, champion, training
     speeds, CV by speed). The old machine's runs are those of the named scenarios at seed
@@ -513,9 +522,7 @@ def fit_prior(machine: str, args, settings: dict, cache: dict) -> tuple:
         return cache[machine]
     progress(f"{machine}: fitting the old machine's full qualification (the prior)")
     sc = make_scenario(SCENARIOS[0], machine, seed=args.seed, sample_period_s=args.sample_period)
-    old = sc.old_runs()
-    fit = fit_family(old, settings, sc.key_sensors, machine, args.kinds)
-    speeds = sorted(float(v) for v in set(old.table.loc[old.table["role"] == "training", "speed_rpm"]))
+    fit, speeds = qualify_old(sc, settings, args.kinds)
     cache[machine] = (fit["best_artefact"], fit["champion"], speeds, prior_uncertainty(fit))
     if keep is not None:
         a, c, sp, u = cache[machine]
@@ -967,6 +974,12 @@ def _with_prior_cells(res: dict) -> str:
     return f"| {both(res['prior_mae_um'], res['prior_um'])} | {m:.2f} ; {w:.2f}"
 
 
+def _warned_on_prior(res: dict) -> bool:
+    """Whether a record's fitness warnings hold one other than :data:`UNTESTED_SPEEDS`: one that
+    points at the prior, not at the speeds the new runs left untested."""
+    return bool(set(res.get("warnings") or []) - {UNTESTED_SPEEDS})
+
+
 def _stopped_cells(res: dict) -> str:
     """The cells ``| fitness warnings | promotion stopped |`` of a record."""
     checks = res.get("warnings") or []
@@ -989,7 +1002,7 @@ def false_sibling_markdown(results: list[dict]) -> str:
             f"| {res['prior_choice']} {_with_prior_cells(res)} {_stopped_cells(res)}"
         )
     stopped = [r for r in results if r.get("warnings")]
-    told = [r for r in results if set(r.get("warnings") or []) - {UNTESTED_SPEEDS}]
+    told = [r for r in results if _warned_on_prior(r)]
     missed = [str(r["seed"]) for r in results if not r.get("warnings")]
     lines += [
         "",
@@ -1609,9 +1622,7 @@ def fit_design_prior(seed: int, args, settings: dict, machine: str = DESIGN_MACH
         args.sample_period,
         KEY_SENSORS[machine],
     )
-    old = sc.old_runs()
-    fit = fit_family(old, settings, sc.key_sensors, machine, args.kinds)
-    speeds = sorted(float(v) for v in set(old.table.loc[old.table["role"] == "training", "speed_rpm"]))
+    fit, speeds = qualify_old(sc, settings, args.kinds)
     return fit["best_artefact"], fit["champion"], speeds
 
 
@@ -1646,8 +1657,8 @@ def other_design_markdown(results: list[dict]) -> str:
         if not rs:
             continue
         stopped = sum(bool(r.get("warnings")) for r in rs)
-        told = sum(bool(set(r.get("warnings") or []) - {UNTESTED_SPEEDS}) for r in rs)
-        within = sum(passes(r["prior_mae_um"] / r["full_mae_um"], r["prior_um"] / r["full_um"]) for r in rs)
+        told = sum(_warned_on_prior(r) for r in rs)
+        within = sum(_passes_as(r, "prior_mae_um", "prior_um") for r in rs)
         beyond = sum(prior_misfit(r) > MISFIT_HALF_WIDTHS for r in rs)
         lines.append(
             f"{what}: promotion stopped on {stopped} of {len(rs)}, by a warning on the prior (not "

@@ -32,7 +32,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from rafi.twin.machines import AMBIENT, TwinParams, machine_params
-from rafi.twin.scenarios import KEY_SENSORS, Scenario, TwinMachine, sibling_params
+from rafi.twin.scenarios import KEY_SENSORS, Scenario, TwinMachine, scaled_constants, sibling_params
 
 __all__ = [
     "BASES",
@@ -290,9 +290,6 @@ def random_design(seed: int, machine: str = "tapping-center-a") -> TwinParams:
     def factor() -> float:
         return float(np.exp(DESIGN_SPREAD * np.clip(rng.standard_normal(), -2.0, 2.0)))
 
-    def law(g):
-        return (g[0] * factor(), g[1] * factor(), g[2])
-
     sensors = []
     for s in params.sensors:
         mix = {n: w * factor() for n, w in s.mix}
@@ -300,23 +297,7 @@ def random_design(seed: int, machine: str = "tapping-center-a") -> TwinParams:
         sensors.append(
             replace(s, mix=tuple((n, w / total) for n, w in mix.items()), lag_s=s.lag_s * factor())
         )
-    return replace(
-        params,
-        capacity={k: v * factor() for k, v in params.capacity.items()},
-        links={k: v * factor() for k, v in params.links.items()},
-        speed_links={k: law(v) for k, v in params.speed_links.items()},
-        to_ambient={k: law(v) for k, v in params.to_ambient.items()},
-        coolant_flow_w_per_k=params.coolant_flow_w_per_k * factor(),
-        cooler_power_w=params.cooler_power_w * factor(),
-        bearing_front_w=params.bearing_front_w * factor(),
-        bearing_rear_w=params.bearing_rear_w * factor(),
-        motor_magnetising_w=params.motor_magnetising_w * factor(),
-        motor_iron_w=params.motor_iron_w * factor(),
-        rotor_w=params.rotor_w * factor(),
-        disp_gain={k: v * factor() for k, v in params.disp_gain.items()},
-        centrifugal_um=params.centrifugal_um * factor(),
-        sensors=tuple(sensors),
-    )
+    return replace(params, **scaled_constants(params, factor), sensors=tuple(sensors))
 
 
 def design_pair(seed: int, machine: str = "tapping-center-a") -> tuple[RandomScenario, RandomScenario]:

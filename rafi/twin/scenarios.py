@@ -45,6 +45,7 @@ __all__ = [
     "TwinMachine",
     "combine",
     "make_scenario",
+    "scaled_constants",
     "noise_floor",
 ]
 
@@ -147,27 +148,39 @@ def sibling_params(params: TwinParams, seed: int) -> TwinParams:
     mixes and offsets, noise, quanta, the thermostat.
     """
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 27]))
-
-    def law(g):
-        return (g[0] * _factor(rng), g[1] * _factor(rng), g[2])
-
     return replace(
         params,
-        capacity={k: v * _factor(rng) for k, v in params.capacity.items()},
-        links={k: v * _factor(rng) for k, v in params.links.items()},
-        speed_links={k: law(v) for k, v in params.speed_links.items()},
-        to_ambient={k: law(v) for k, v in params.to_ambient.items()},
-        coolant_flow_w_per_k=params.coolant_flow_w_per_k * _factor(rng),
-        cooler_power_w=params.cooler_power_w * _factor(rng),
-        bearing_front_w=params.bearing_front_w * _factor(rng),
-        bearing_rear_w=params.bearing_rear_w * _factor(rng),
-        motor_magnetising_w=params.motor_magnetising_w * _factor(rng),
-        motor_iron_w=params.motor_iron_w * _factor(rng),
-        rotor_w=params.rotor_w * _factor(rng),
-        disp_gain={k: v * _factor(rng) for k, v in params.disp_gain.items()},
-        centrifugal_um=params.centrifugal_um * _factor(rng),
+        **scaled_constants(params, lambda: _factor(rng)),
         sensors=tuple(replace(s, lag_s=s.lag_s * _factor(rng)) for s in params.sensors),
     )
+
+
+def scaled_constants(params: TwinParams, factor) -> dict:
+    """Every physical constant of ``params`` but the sensors' (capacities, fixed and
+    speed-dependent conductances - both terms, the exponents stay -, room conductances, coolant
+    flow, cooler power, every heat source, every displacement sensitivity, the centrifugal
+    draw-in), each times its own ``factor()``, drawn in that order: the keyword arguments of
+    :func:`dataclasses.replace` (:func:`sibling_params`,
+    :func:`rafi.twin.requalify_scenarios.random_design`)."""
+
+    def law(g):
+        return (g[0] * factor(), g[1] * factor(), g[2])
+
+    return {
+        "capacity": {k: v * factor() for k, v in params.capacity.items()},
+        "links": {k: v * factor() for k, v in params.links.items()},
+        "speed_links": {k: law(v) for k, v in params.speed_links.items()},
+        "to_ambient": {k: law(v) for k, v in params.to_ambient.items()},
+        "coolant_flow_w_per_k": params.coolant_flow_w_per_k * factor(),
+        "cooler_power_w": params.cooler_power_w * factor(),
+        "bearing_front_w": params.bearing_front_w * factor(),
+        "bearing_rear_w": params.bearing_rear_w * factor(),
+        "motor_magnetising_w": params.motor_magnetising_w * factor(),
+        "motor_iron_w": params.motor_iron_w * factor(),
+        "rotor_w": params.rotor_w * factor(),
+        "disp_gain": {k: v * factor() for k, v in params.disp_gain.items()},
+        "centrifugal_um": params.centrifugal_um * factor(),
+    }
 
 
 def replaced_sensor(spec: SensorSpec, offset_c: float, gain: float, lag_factor: float) -> SensorSpec:
