@@ -28,6 +28,7 @@ from rafi.ops import decide as D
 from rafi.ops import fleet as F
 from rafi.ops import fleet_cli
 from rafi.ops.project import Paths
+from rafi.ops.provenance import prior_warning_reason
 from rafi.ops.registry import registry_dir
 from rafi.settings import MACHINE_DEFAULTS
 from rafi.twin.synthetic_runs import machine_state, small_family_model
@@ -193,6 +194,12 @@ def test_the_fitness_warnings_block_promotion_until_confirmed(project, tmp_path)
     lines = [r for r in rec["reasons"] if r.startswith("prior fitness not confirmed")]
     assert len(lines) == 2 and all(f"prior {pid} of m-a" in r for r in lines)
     assert f"{{file: {pid}, check: prior_adaptation}}" in lines[0]
+    # beside the confirmation, what to do instead: qualify without the prior / record the runs
+    machine = artefact["machine"]
+    assert f"machines: {machine}: models: {{prior: none}}" in lines[0]
+    assert f"rafi plan --machine {machine} --prior none" in lines[0]
+    assert "prior_speeds" in lines[1] and f"rafi plan --machine {machine} --hours" in lines[1]
+    assert "--prior none" not in lines[1]
     # one confirmed, the other still blocks
     half = [{"file": pid, "check": "prior_adaptation"}]
     rec = _decide(tmp_path, "m-b", artefact, s2, confirmed=half)
@@ -384,3 +391,17 @@ def test_the_misfit_warning_fires_beyond_its_share_of_the_priors_own_half_width(
     for other in ({}, {"interval": {"calibration": {"pooled_half_width_um": None}}}):
         assert misfit_warning(100.0, other) is None
     assert misfit_warning(float("nan"), prior) is None
+
+
+def test_a_warning_that_the_prior_does_not_describe_the_machine_says_to_qualify_without_it():
+    for check in ("prior_misfit", "prior_dynamics", "prior_adaptation"):
+        w = {"prior": "a" * 64, "machine": "m-a", "for_machine": "m-b@z2", "check": check, "message": "x"}
+        line = prior_warning_reason(w)
+        assert line.startswith(f"prior fitness not confirmed: prior {'a' * 12} of m-a: x; ")
+        assert f"{{file: {'a' * 12}, check: {check}}}" in line
+        # a probe unit's machine is its folder's name in config.yaml and rafi plan
+        assert "machines: m-b: models: {prior: none}" in line
+        assert "rafi plan --machine m-b --prior none" in line
+    speeds = {"prior": "b" * 12, "machine": "m-a", "check": "prior_speeds", "message": "y"}
+    line = prior_warning_reason(speeds)
+    assert "record runs at those speeds" in line and "rafi plan --machine <machine> --hours" in line

@@ -278,9 +278,10 @@ def prior_warnings(candidate_model: dict | None, confirmed=()) -> dict:
     Returns
     -------
     dict
-        ``blocking`` and ``confirmed``, each a list of ``{prior, machine, check, message,
-        confirmed}`` (``prior``: the prior's model id); both empty for a candidate that is not
-        an adapted prior, or one without a fitness block.
+        ``blocking`` and ``confirmed``, each a list of ``{prior, machine, for_machine, check,
+        message, confirmed}`` (``prior``: the prior's model id, ``machine`` its machine,
+        ``for_machine`` the candidate's); both empty for a candidate that is not an adapted prior,
+        or one without a fitness block.
     """
     from rafi.readers.checks_machine import is_confirmed
 
@@ -299,6 +300,7 @@ def prior_warnings(candidate_model: dict | None, confirmed=()) -> dict:
         rec = {
             "prior": prior,
             "machine": machine,
+            "for_machine": (candidate_model or {}).get("machine"),
             "check": check,
             "message": w.get("message"),
             "confirmed": ok,
@@ -308,10 +310,28 @@ def prior_warnings(candidate_model: dict | None, confirmed=()) -> dict:
 
 
 def prior_warning_reason(w: dict) -> str:
-    """The reason line of a blocking fitness warning (:func:`prior_warnings`)."""
+    """The reason line of a blocking fitness warning (:func:`prior_warnings`): the warning, how to
+    confirm it, and what else to do (:func:`prior_warning_remedy`)."""
     pid = str(w.get("prior") or "")[:12]
     return (
         f"prior fitness not confirmed: prior {pid} of {w.get('machine')}: {w.get('message')}; "
-        f"confirm it in config checks.confirmed ({{file: {pid}, check: {w.get('check')}}}) or record "
-        "the runs it lacks"
+        f"confirm it in config checks.confirmed ({{file: {pid}, check: {w.get('check')}}}) or "
+        + prior_warning_remedy(str(w.get("check")), w.get("for_machine"))
+    )
+
+
+def prior_warning_remedy(check: str, machine: str | None) -> str:
+    """What to do instead of confirming a fitness warning ``check``: record runs at the speeds the
+    new data lack (``prior_speeds``), or, where the prior does not describe the machine or had to
+    move beyond its bounds (``prior_misfit``, ``prior_dynamics``, ``prior_adaptation``), qualify it
+    without the prior."""
+    m = str(machine).split("@")[0] if machine else "<machine>"  # a probe unit's machine folder
+    if check == "prior_speeds":
+        return (
+            "record runs at those speeds (a longer programme covers more of them: "
+            f"rafi plan --machine {m} --hours <budget>)"
+        )
+    return (
+        f"qualify the machine without this prior (config.yaml: machines: {m}: models: {{prior: none}}; "
+        f"the programme of a first qualification: rafi plan --machine {m} --prior none --hours <budget>)"
     )
