@@ -172,7 +172,7 @@ def test_rules_are_judged_by_the_share_within_15_percent_on_both_then_the_mean_r
 def test_the_random_table_says_which_scenarios_fail_and_the_share_that_pass(bench):
     results = [random_result(0, "grey_box"), random_result(1, "prior_gain"), random_result(2, "prior_time")]
     lines = bench.random_markdown(results).splitlines()
-    assert len(lines) == 2 + 3 + 2 + 5 and all(line.count("|") == 12 for line in lines[:5])
+    assert len(lines) == 2 + 3 + 2 + 5 + 1 + 8 and all(line.count("|") == 12 for line in lines[:5])
     assert lines[2].startswith("| 0 | tapping-center-a | season | room +3.0 K, swing 1.0 K, cooler -0.5 K |")
     assert lines[2].endswith("| 2.00 ; 2.00 | grey_box | 1.00 ; 4.00 (grey_box) | 2.00 ; 5.00 | **NO** |")
     assert lines[3].endswith("| yes |") and lines[4].endswith("| yes |")
@@ -192,6 +192,21 @@ def test_the_misses_are_counted_by_base_machine_and_change_beside_the_best_in_hi
     assert lines[2] == "| machining-center-b | repair | 1 | 1 | 0 | 0 | 1 |"
     assert lines[3] == "| tapping-center-a | season | 3 | 1 | 1 | 1 | 2 |"
     assert lines[4] == "| all | | 4 | 2 | 1 | 1 | 3 |"
+
+
+def test_the_share_within_each_tolerance_with_the_prior_unchanged_from_scratch_and_in_hindsight(bench):
+    # full 0.5 ; 2.0. With the prior: grey_box 1.0 ; 4.0 (ratios 2, 2), prior_gain 0.5 ; 2.0 (1, 1),
+    # prior_time 0.45 ; 2.1 (0.9, 1.05); the prior unchanged 2.0 ; 5.0 (4, 2.5) but one at 1.28 x the
+    # full plan on both; from scratch 1.0 ; 4.0 (2, 2) but one at 1.18 x
+    results = [random_result(0, "grey_box"), random_result(1, "prior_gain"), random_result(2, "prior_time")]
+    results[0] = results[0] | {"unchanged_mae_um": 0.64, "unchanged_um": 2.56}
+    results[1] = results[1] | {"scratch_mae_um": 0.59, "scratch_um": 2.36}
+    lines = bench.tolerance_markdown(results, fractions=(0.15, 0.2, 0.3, 1.5)).splitlines()
+    assert len(lines) == 2 + 4
+    assert lines[2] == "| 15 % | 2 of 3 (67 %) | 0 of 3 (0 %) | 0 of 3 (0 %) | 3 of 3 (100 %) |"
+    assert lines[3] == "| 20 % | 2 of 3 (67 %) | 0 of 3 (0 %) | 1 of 3 (33 %) | 3 of 3 (100 %) |"
+    assert lines[4] == "| 30 % | 2 of 3 (67 %) | 1 of 3 (33 %) | 1 of 3 (33 %) | 3 of 3 (100 %) |"
+    assert lines[5] == "| 150 % | 3 of 3 (100 %) | 1 of 3 (33 %) | 3 of 3 (100 %) | 3 of 3 (100 %) |"
 
 
 def test_seeds_come_from_random_n_and_a_range(bench):
