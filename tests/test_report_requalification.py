@@ -253,5 +253,11 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
     assert "speeds 3 000 r/min tested here, 0 … 18 000 r/min covered by the prior" in text
     assert f"confirm with {{file: {PARENT[:12]}, check: prior_adaptation}}" in text
     assert f"confirm with {{file: {PARENT[:12]}, check: prior_speeds}}" in text
+    # and what to do instead: qualify without the prior / record runs at the missing speeds
+    machine = best["machine"]
+    instead = f"or qualify the machine without this prior (config.yaml: machines: {machine}: models:"
+    assert f"check: prior_adaptation}} , {instead} {{prior: none}}" in text
+    assert f"rafi plan --machine {machine} --prior none" in text
+    assert "check: prior_speeds} , or record runs at those speeds" in text
     table = next(t for t in html_tables(render_html(ctx)) if any("tested here" in h for h in t["headers"]))
     assert [list(r.values()) for r in table["records"]] == [["T1", "0.0 … 4.0", "0.0 … 9.0", "4.0 … 9.0"]]

@@ -35,6 +35,7 @@ __all__ = [
     "misfit_warning",
     "MISFIT_HALF_WIDTHS",
     "prior_half_width",
+    "warning_remedy",
     "prior_speed_range",
     "prior_trained_speeds",
     "prior_rise_ranges",
@@ -295,6 +296,23 @@ def misfit_warning(score_um: float, prior: Mapping) -> dict | None:
             "is (another design, or a large change)"
         ),
     }
+
+
+def warning_remedy(check: str, machine: str | None) -> str:
+    """What to do instead of confirming a fitness warning ``check``: record runs at the speeds the
+    new data lack (``prior_speeds``), or, where the prior does not describe the machine or had to
+    move beyond its bounds (``prior_misfit``, ``prior_dynamics``, ``prior_adaptation``), qualify it
+    without the prior."""
+    m = str(machine).split("@")[0] if machine else "<machine>"  # a probe unit's machine folder
+    if check == "prior_speeds":
+        return (
+            "record runs at those speeds (a longer programme covers more of them: "
+            f"rafi plan --machine {m} --hours <budget>)"
+        )
+    return (
+        f"qualify the machine without this prior (config.yaml: machines: {m}: models: {{prior: none}}; "
+        f"the programme of a first qualification: rafi plan --machine {m} --prior none --hours <budget>)"
+    )
 
 
 def prior_half_width(prior: Mapping) -> float | None:

@@ -20,6 +20,8 @@ import math
 
 import pandas as pd
 
+from rafi.family.prior_fitness import warning_remedy
+
 
 def _speed_of_run(runs_table: pd.DataFrame) -> dict[str, float]:
     if not {"run_id", "speed_rpm"} <= set(runs_table.columns):
@@ -311,27 +313,10 @@ def prior_warnings(candidate_model: dict | None, confirmed=()) -> dict:
 
 def prior_warning_reason(w: dict) -> str:
     """The reason line of a blocking fitness warning (:func:`prior_warnings`): the warning, how to
-    confirm it, and what else to do (:func:`prior_warning_remedy`)."""
+    confirm it, and what else to do (:func:`rafi.family.prior_fitness.warning_remedy`)."""
     pid = str(w.get("prior") or "")[:12]
     return (
         f"prior fitness not confirmed: prior {pid} of {w.get('machine')}: {w.get('message')}; "
         f"confirm it in config checks.confirmed ({{file: {pid}, check: {w.get('check')}}}) or "
-        + prior_warning_remedy(str(w.get("check")), w.get("for_machine"))
-    )
-
-
-def prior_warning_remedy(check: str, machine: str | None) -> str:
-    """What to do instead of confirming a fitness warning ``check``: record runs at the speeds the
-    new data lack (``prior_speeds``), or, where the prior does not describe the machine or had to
-    move beyond its bounds (``prior_misfit``, ``prior_dynamics``, ``prior_adaptation``), qualify it
-    without the prior."""
-    m = str(machine).split("@")[0] if machine else "<machine>"  # a probe unit's machine folder
-    if check == "prior_speeds":
-        return (
-            "record runs at those speeds (a longer programme covers more of them: "
-            f"rafi plan --machine {m} --hours <budget>)"
-        )
-    return (
-        f"qualify the machine without this prior (config.yaml: machines: {m}: models: {{prior: none}}; "
-        f"the programme of a first qualification: rafi plan --machine {m} --prior none --hours <budget>)"
+        + warning_remedy(str(w.get("check")), w.get("for_machine"))
     )

@@ -28,6 +28,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from rafi.family.prior_fitness import warning_remedy
 from rafi.report.comparison_section import selection_score
 from rafi.report.format import fmt_num, fmt_speed, fmt_speed_range, isnum, short_id
 from rafi.settings import truthy
@@ -157,14 +158,15 @@ def _range(pair, digits: int = 1) -> str:
     return f"{fmt_num(pair[0], digits)} … {fmt_num(pair[1], digits)}" if pair else "–"
 
 
-def fitness_context(block: dict | None) -> dict | None:
+def fitness_context(block: dict | None, machine: str | None = None) -> dict | None:
     """The prior's fitness (the adaptation block's ``fitness``) as the section shows it, or
     ``None`` without one: ``origin``, ``prior`` (its own qualification: ``id``, ``machine``,
     ``kind``, ``promoted``, ``max_residual_um``, ``n_runs``), ``prediction_change`` and
     ``largest`` (:func:`rafi.family.prior_fitness.fitness_block`), ``speeds_tested``,
     ``speeds_prior``, ``speeds_prior_only`` and the two ranges (text), ``temperature`` (rows:
     ``sensor``, ``tested``, ``prior``, ``prior_only``, text in K), ``bounds`` and ``warnings``
-    (``check``, ``message``, ``confirm``: the ``checks.confirmed`` entry that confirms it)."""
+    (``check``, ``message``, ``confirm``: the ``checks.confirmed`` entry that confirms it,
+    ``instead``: what to do instead for ``machine``, :func:`rafi.family.prior_fitness.warning_remedy`)."""
     fit = (block or {}).get("fitness")
     if not isinstance(fit, dict):
         return None
@@ -191,7 +193,12 @@ def fitness_context(block: dict | None) -> dict | None:
         ],
         "bounds": fit.get("bounds") or {},
         "warnings": [
-            {**w, "confirm": f"{{file: {pid}, check: {w.get('check')}}}"} for w in fit.get("warnings") or []
+            {
+                **w,
+                "confirm": f"{{file: {pid}, check: {w.get('check')}}}",
+                "instead": warning_remedy(str(w.get("check")), machine),
+            }
+            for w in fit.get("warnings") or []
         ],
     }
 
@@ -240,7 +247,7 @@ def section_requalification(res: dict) -> dict | None:
         "parent": short_id(block.get("parent", "")) if block else "",
         "parent_machine": (block or {}).get("parent_machine") or "",
         "moves": coefficient_moves((block or {}).get("coefficient_change")),
-        "fitness": fitness_context(block),
+        "fitness": fitness_context(block, best.get("machine")),
         # a CV-weighted ensemble prior: the member re-fitted (rafi.family.prior.prior_base)
         "member": ensemble_prior(block),
         "sentence": comparison_sentence(offered, prior_row, scratch),
