@@ -138,6 +138,26 @@ def test_the_section_states_the_prior_the_moves_and_the_comparison_from_the_tabl
     assert q["new_data"]["hours"] == pytest.approx(tr["duration_s"].sum() / 3600)
 
 
+def test_with_an_ensemble_prior_the_member_candidates_are_named_as_its_heaviest_member(tmp_path):
+    results = copy_fixture(tmp_path)
+    summ = _add_candidates(results, offered="rafi")
+    shared = summ[summ["model"] == "prior_gain"].assign(model="prior_shared_ridge", kind="ensemble")
+    summ = pd.concat([summ, shared], ignore_index=True)
+    summ.to_csv(results / "comparison" / "summary.csv", index=False)
+    ctx = _context(results)
+    rows = {r["model"]: r for r in ctx["requalification"]["rows"]}
+    assert (
+        rows["prior"]["member"] and rows["prior_gain"]["member"] and not rows["prior_shared_ridge"]["member"]
+    )
+    assert (
+        rows["prior"]["what"] == "the ensemble prior's heaviest member (dynamic) as it is (nothing re-fitted)"
+    )
+    assert rows["prior_shared_ridge"]["what"].startswith("the ensemble prior as a whole")
+    text = html.unescape(_text(render_html(ctx)))
+    assert f"the ensemble prior's heaviest member (dynamic) unchanged {3.0:.2f} \u00b5m" in text
+    assert "the prior unchanged" not in text
+
+
 def test_an_offered_model_from_scratch_says_the_prior_lost(tmp_path):
     ctx, html, summ, _ = _render(tmp_path, "rafi")
     q = ctx["requalification"]

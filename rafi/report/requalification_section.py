@@ -43,23 +43,41 @@ CANDIDATES = {
     "prior_shared_ridge": "the ensemble prior as a whole times one gain, every member then moved toward the "
     "new data by a ridge at one fixed penalty",
 }
+#: The candidates that adapt the whole of a CV-weighted ensemble prior; beside them the others adapt
+#: its heaviest member only (:mod:`rafi.family.adapted`), and the section says so.
+ENSEMBLE_CANDIDATES = ("prior_shared_gain", "prior_shared_ridge")
+#: What the member candidates are with an ensemble prior (``{kind}``: the heaviest member's kind).
+MEMBER_CANDIDATES = {
+    "prior": "the ensemble prior's heaviest member ({kind}) as it is (nothing re-fitted)",
+    "prior_gain": "the ensemble prior's heaviest member ({kind}) with one gain on every coefficient",
+    "prior_time": "the ensemble prior's heaviest member ({kind}) with its filter time constants scaled "
+    "by one factor (by CV) and one gain",
+    "prior_ridge": "the ensemble prior's heaviest member ({kind}), its coefficients moved by a ridge "
+    "penalised towards them (strength by CV)",
+}
 #: How many of the largest coefficient moves the section tabulates.
 MOVES_SHOWN = 12
 
 
 def _model_rows(summary: pd.DataFrame) -> list[dict]:
-    """One row per model: group, CV scores (``cv_um`` the selection score that chose,
-    ``cv_whole_um`` and ``cv_forward_um`` its parts), worst validation residual, coverage, offered."""
+    """One row per model: group, what it is (``what``; ``member``: with an ensemble prior, a
+    candidate that adapts its heaviest member only), CV scores (``cv_um`` the selection score that
+    chose, ``cv_whole_um`` and ``cv_forward_um`` its parts), worst validation residual, coverage,
+    offered."""
     rows = []
+    ensemble_prior = summary["model"].astype(str).isin(ENSEMBLE_CANDIDATES).any()
     for r in summary.to_dict("records"):
         name = str(r["model"])
         group = "prior" if name == "prior" else ("adapted prior" if name in CANDIDATES else "from scratch")
+        member = ensemble_prior and name in MEMBER_CANDIDATES
+        what = CANDIDATES.get(name, f"kind {r.get('kind', name)}, fitted on the new data only")
         rows.append(
             {
                 "model": name,
                 "kind": str(r.get("kind", name)),
                 "group": group,
-                "what": CANDIDATES.get(name, f"kind {r.get('kind', name)}, fitted on the new data only"),
+                "what": MEMBER_CANDIDATES[name].format(kind=r.get("kind", "?")) if member else what,
+                "member": member,
                 "cv_um": selection_score(r),
                 "cv_whole_um": r.get("cv_mean_max_abs_um"),
                 "cv_forward_um": r.get("cv_forward_mean_max_abs_um"),
@@ -265,7 +283,12 @@ def comparison_sentence(offered: dict | None, prior_row: dict | None, scratch: d
     parts[0] += " on every validation run"
     beside = []
     if prior_row is not None and prior_row is not offered and isnum(prior_row["worst_um"]):
-        beside.append(f"the prior unchanged {fmt_num(prior_row['worst_um'], 2)} \u00b5m")
+        who = (
+            f"the ensemble prior's heaviest member ({prior_row['kind']})"
+            if prior_row.get("member")
+            else "the prior"
+        )
+        beside.append(f"{who} unchanged {fmt_num(prior_row['worst_um'], 2)} \u00b5m")
     if scratch is not None and scratch is not offered and isnum(scratch["worst_um"]):
         beside.append(
             f"the from-scratch fit the selection takes on the same data ({scratch['model']}) "
