@@ -391,6 +391,16 @@ def test_the_misfit_warning_fires_beyond_its_share_of_the_priors_own_half_width(
     for other in ({}, {"interval": {"calibration": {"pooled_half_width_um": None}}}):
         assert misfit_warning(100.0, other) is None
     assert misfit_warning(float("nan"), prior) is None
+    assert warning["message"].startswith("the prior as it is lies ")
+    # an ensemble prior: the candidate prior is its heaviest member as it is, the half width the ensemble's
+    ensemble = prior | {
+        "kind": "ensemble",
+        "weights": {"a": 0.3, "b": 0.7},
+        "members": {"a": {"kind": "dynamic"}, "b": {"kind": "grey_box"}},
+    }
+    message = misfit_warning(limit + 0.01, ensemble)["message"]
+    assert message.startswith("the ensemble prior's heaviest member (grey_box) as it is lies ")
+    assert "times the ensemble's 90 % half width (0.5 um" in message
 
 
 def test_a_warning_that_the_prior_does_not_describe_the_machine_says_to_qualify_without_it():

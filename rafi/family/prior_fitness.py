@@ -287,13 +287,19 @@ def misfit_warning(score_um: float, prior: Mapping) -> dict | None:
     score = _finite([score_um])
     if half is None or not score or score[0] <= MISFIT_HALF_WIDTHS * half:
         return None
+    who, whose = "the prior as it is", "its own"
+    if prior.get("kind") == "ensemble":  # the candidate ``prior`` is its heaviest member as it is
+        weights = prior.get("weights") or {}
+        member = (prior.get("members") or {}).get(max(weights, key=weights.get)) if weights else None
+        who = f"the ensemble prior's heaviest member ({(member or {}).get('kind', '?')}) as it is"
+        whose = "the ensemble's"
     return {
         "check": "prior_misfit",
         "message": (
-            f"the prior as it is lies {score[0]:.3g} um off on the new training runs (the cross-validation's "
-            f"mean worst residual per run), {score[0] / half:.1f} times its own 90 % half width "
-            f"({half:.3g} um; more than {MISFIT_HALF_WIDTHS:g}): it does not describe this machine as it "
-            "is (another design, or a large change)"
+            f"{who} lies {score[0]:.3g} um off on the new training runs (the cross-validation's "
+            f"mean worst residual per run), {score[0] / half:.1f} times {whose} 90 % half width "
+            f"({half:.3g} um; more than {MISFIT_HALF_WIDTHS:g}): the prior does not describe this machine "
+            "as it is (another design, or a large change)"
         ),
     }
 
