@@ -18,10 +18,12 @@ from rafi.ops.plan import (
     MAX_RUN_S,
     PLAN_TABLE_COLUMNS,
     REST_S,
+    covering_budget_h,
     plan_csv,
     plan_limits,
     plan_programme,
     plan_text,
+    prior_speeds_left,
     prior_view,
     spread_order,
 )
@@ -182,6 +184,26 @@ def test_two_priors_trained_at_other_speeds_give_plans_at_other_speeds_and_no_pr
     )
     assert "trained by the prior" in heat["reason"].iloc[-1]
     assert "prior" not in " ".join(plain["reason"])  # no prior: the reasons do not invent one
+
+
+def test_the_speeds_a_plan_leaves_to_the_prior_and_the_budget_that_tests_them_all():
+    artefact = {"kind": "rafi", "model_id": "0" * 64, "speeds": [{"speed_rpm": s} for s in PAPER]}
+    programme = {"speeds_rpm": PAPER, "prior": prior_view(artefact, tolerance_rpm=50)}
+    four = plan_programme(budget_h=4, **programme)
+    taken = four.attrs["speeds_rpm"]
+    assert prior_speeds_left(four, artefact, tolerance_rpm=50) == sorted(set(PAPER) - set(taken))
+    assert prior_speeds_left(four, None, tolerance_rpm=50) == []
+    # six heat-ups of 1800 s with five cool-downs between them after the rest (step 2 of the rule)
+    need = math.ceil((REST_S + 11 * 1800) / 36) / 100
+    assert covering_budget_h(artefact, tolerance_rpm=50, **programme) == need
+    assert prior_speeds_left(plan_programme(budget_h=need, **programme), artefact, tolerance_rpm=50) == []
+    assert prior_speeds_left(plan_programme(budget_h=need - 0.01, **programme), artefact, tolerance_rpm=50)
+    # a speed the machine's training speeds never come within the tolerance of: no budget tests it
+    odd = artefact | {"speeds": [{"speed_rpm": 3000}, {"speed_rpm": 7000}]}
+    assert covering_budget_h(odd, tolerance_rpm=50, **programme) is None
+    assert covering_budget_h(odd, tolerance_rpm=1000, **programme) is not None
+    # the range in use leaves the prior's high speeds out of every programme
+    assert covering_budget_h(artefact, tolerance_rpm=50, speed_range=(0, 10000), **programme) is None
 
 
 def test_the_interval_buys_time_where_the_prior_is_least_sure():

@@ -37,6 +37,8 @@ __all__ = [
     "prior_half_width",
     "warning_remedy",
     "prior_speed_range",
+    "prior_speeds_known",
+    "prior_only_speeds",
     "prior_trained_speeds",
     "prior_rise_ranges",
 ]
@@ -156,6 +158,38 @@ def _prediction_change(before: np.ndarray, after: np.ndarray) -> float | None:
     return float(np.sqrt(np.mean((after[ok] - before[ok]) ** 2))) / size
 
 
+def prior_speeds_known(
+    prior: Mapping, *, base: Mapping | None = None, qualification: Mapping | None = None
+) -> list[float]:
+    """The speeds (r/min, sorted) the prior is known to have been trained at: its (or ``base``'s)
+    per-speed models' (:func:`prior_trained_speeds`), else its qualification's ``speeds_rpm``;
+    empty when neither says."""
+    base = prior if base is None else base
+    speeds = prior_trained_speeds(prior, base) or _finite((qualification or {}).get("speeds_rpm") or [])
+    return sorted(set(speeds))
+
+
+def prior_only_speeds(
+    prior: Mapping,
+    tested_speeds_rpm: Iterable[float],
+    *,
+    tolerance_rpm: float,
+    base: Mapping | None = None,
+    qualification: Mapping | None = None,
+) -> list[float]:
+    """The prior's speeds (r/min) that no tested speed is within ``tolerance_rpm`` of: those of
+    :func:`prior_speeds_known`, else the ends of its speed range. The fitness warning
+    ``prior_speeds`` names them; ``rafi plan`` says beforehand which a programme leaves to the
+    prior alone."""
+    base = prior if base is None else base
+    tested = _finite(tested_speeds_rpm)
+    ends = prior_speeds_known(prior, base=base, qualification=qualification) or (
+        prior_speed_range(base) or []
+    )
+    tol = float(tolerance_rpm)
+    return sorted({s for s in ends if not any(abs(s - t) <= tol for t in tested)})
+
+
 def fitness_block(
     prior: Mapping,
     *,
@@ -215,12 +249,11 @@ def fitness_block(
     qual = dict(qualification or {})
     base = prior if base is None else base
     tested = sorted(set(_finite(tested_speeds_rpm)))
-    tol = float(speed_tolerance_rpm)
     prior_range = prior_speed_range(base)
-    prior_speeds = sorted(set(prior_trained_speeds(prior, base) or _finite(qual.get("speeds_rpm") or [])))
-    prior_speeds = prior_speeds or None
-    ends = prior_speeds if prior_speeds is not None else (prior_range or [])
-    prior_only = sorted({s for s in ends if not any(abs(s - t) <= tol for t in tested)})
+    prior_speeds = prior_speeds_known(prior, base=base, qualification=qual) or None
+    prior_only = prior_only_speeds(
+        prior, tested, tolerance_rpm=speed_tolerance_rpm, base=base, qualification=qual
+    )
     ranges = prior_rise_ranges(base)
     temperature = []
     for sensor in sorted(set(ranges) | set(tested_rises)):

@@ -20,10 +20,12 @@ from rafi.errors import RafiUserError, SettingsError
 
 __all__ = [
     "PLAN_TABLE_COLUMNS",
+    "covering_budget_h",
     "plan_csv",
     "plan_limits",
     "plan_programme",
     "plan_text",
+    "prior_speeds_left",
     "prior_view",
     "spread_order",
 ]
@@ -491,6 +493,41 @@ def plan_programme(
         untrained_rpm=[s for s in speeds if s in untrained],
     )
     return plan
+
+
+def prior_speeds_left(plan: pd.DataFrame, prior: Mapping | None, *, tolerance_rpm: float) -> list[float]:
+    """The speeds (r/min) the prior was trained at that ``plan`` does not test: there the
+    re-qualified model is the prior's alone, and the night's fitness warning ``prior_speeds``
+    blocks its promotion until confirmed (:func:`rafi.family.prior_fitness.prior_only_speeds`, the
+    same rule on the prior's artefact ``prior``, read whole). Empty without a prior."""
+    from rafi.family.prior_fitness import prior_only_speeds
+
+    if not prior:
+        return []
+    return prior_only_speeds(prior, plan["speed_rpm"].astype(float).tolist(), tolerance_rpm=tolerance_rpm)
+
+
+def covering_budget_h(
+    artefact: Mapping | None, *, tolerance_rpm: float, max_h: float = 48.0, **programme
+) -> float | None:
+    """The smallest budget (h, rounded up to 0.01 h) whose :func:`plan_programme` (``programme``:
+    its keyword arguments but ``budget_h``, ``prior`` the view of ``artefact``) leaves no speed of
+    the prior's artefact ``artefact`` untested
+    (:func:`prior_speeds_left`), or None when no programme of at most ``max_h`` does (the prior's
+    speeds are not among the machine's training speeds in the range, or need more time).
+
+    A programme of ``k`` heat-ups needs ``rest_s + k run_s + (k - 1) run_s`` (step 2 of
+    :func:`plan_programme`), so only those budgets are tried, ``k`` = 1, 2, ..."""
+    rest_s = float(programme.get("rest_s", REST_S))
+    run_s = max(float(programme.get("min_run_s", 1800.0)), float(programme.get("transient_s", 1800.0)))
+    for k in range(1, len(programme.get("speeds_rpm") or []) + 1):
+        budget_h = math.ceil((rest_s + (2 * k - 1) * run_s) / 36.0) / 100.0
+        if budget_h > max_h:
+            return None
+        plan = plan_programme(budget_h=budget_h, **programme)
+        if not prior_speeds_left(plan, artefact, tolerance_rpm=tolerance_rpm):
+            return budget_h
+    return None
 
 
 def plan_text(plan: pd.DataFrame) -> str:

@@ -68,7 +68,15 @@ def run(args) -> int:
     from rafi.artefact import write_text_atomic
     from rafi.deploy.record_plan import read_plan
     from rafi.family.prior import prior_chain
-    from rafi.ops.plan import plan_csv, plan_limits, plan_programme, plan_text, prior_view
+    from rafi.ops.plan import (
+        covering_budget_h,
+        plan_csv,
+        plan_limits,
+        plan_programme,
+        plan_text,
+        prior_speeds_left,
+        prior_view,
+    )
     from rafi.settings import read_machine_config, run_settings
 
     if not math.isfinite(args.hours) or args.hours <= 0:
@@ -90,20 +98,42 @@ def run(args) -> int:
     limits["transient_s"] = float(
         ((prior or {}).get("interval") or {}).get("transient_s") or limits["transient_s"]
     )
-    table = plan_programme(
+    tolerance = float(settings["speed_tolerance_rpm"])
+    programme = dict(
         speeds_rpm=speeds,
-        budget_h=float(args.hours),
         speed_range=tuple(args.speed_range) if args.speed_range else None,
-        prior=prior_view(prior, tolerance_rpm=float(settings["speed_tolerance_rpm"])),
+        prior=prior_view(prior, tolerance_rpm=tolerance),
         name=f"requal_{args.machine}"[:80],
         **limits,
     )
+    table = plan_programme(budget_h=float(args.hours), **programme)
     out = Path(args.out or f"plan_{args.machine}.csv")
     write_text_atomic(out, plan_csv(table))
     plan = read_plan(out)  # the recorder's own reader accepts what was written
     print(plan_header(args.machine, prior, plan.total_s, out))
     print(plan_text(table))
+    left = prior_speeds_left(table, prior, tolerance_rpm=tolerance)
+    if left:
+        budget = covering_budget_h(prior, tolerance_rpm=tolerance, **programme)
+        print(speeds_left_text(left, prior, budget, args.speed_range is not None))
     return 0
+
+
+def speeds_left_text(left: list[float], prior: dict, budget_h: float | None, ranged: bool) -> str:
+    """The line under the table when the programme leaves speeds of the prior untested: which,
+    what the night will do about them, and the budget that tests them all (or why none does)."""
+    pid = str(prior.get("model_id", ""))[:12]
+    speeds = ", ".join(f"{s:g}" for s in left)
+    if budget_h is not None:
+        cover = f"--hours {budget_h:g} tests them all"
+    else:
+        where = "inside --speed-range" if ranged else "of this machine's training_speeds_rpm"
+        cover = f"no programme {where} tests them all"
+    return (
+        f"  left to the prior alone: {speeds} r/min (trained by the prior, untested here); the night's "
+        f"fitness warning prior_speeds blocks the promotion until confirmed (checks.confirmed: "
+        f"{{file: {pid}, check: prior_speeds}}); {cover}"
+    )
 
 
 def plan_header(machine: str, prior: dict | None, total_s: float, out: Path) -> str:
