@@ -198,7 +198,7 @@ def test_the_fitness_warnings_block_promotion_until_confirmed(project, tmp_path)
     machine = artefact["machine"]
     assert f"machines: {machine}: models: {{prior: none}}" in lines[0]
     assert f"rafi plan --machine {machine} --prior none" in lines[0]
-    assert "prior_speeds" in lines[1] and f"rafi plan --machine {machine} --hours" in lines[1]
+    assert "prior_speeds" in lines[1] and f"rafi plan --machine {machine} names the --hours" in lines[1]
     assert "--prior none" not in lines[1]
     # one confirmed, the other still blocks
     half = [{"file": pid, "check": "prior_adaptation"}]
@@ -414,4 +414,4 @@ def test_a_warning_that_the_prior_does_not_describe_the_machine_says_to_qualify_
         assert "rafi plan --machine m-b --prior none" in line
     speeds = {"prior": "b" * 12, "machine": "m-a", "check": "prior_speeds", "message": "y"}
     line = prior_warning_reason(speeds)
-    assert "record runs at those speeds" in line and "rafi plan --machine <machine> --hours" in line
+    assert "record runs at those speeds (rafi plan --machine <machine> names the --hours" in line

@@ -345,8 +345,8 @@ def warning_remedy(check: str, machine: str | None) -> str:
     m = str(machine).split("@")[0] if machine else "<machine>"  # a probe unit's machine folder
     if check == "prior_speeds":
         return (
-            "record runs at those speeds (a longer programme covers more of them: "
-            f"rafi plan --machine {m} --hours <budget>)"
+            f"record runs at those speeds (rafi plan --machine {m} names the --hours whose programme "
+            "tests them all)"
         )
     return (
         f"qualify the machine without this prior (config.yaml: machines: {m}: models: {{prior: none}}; "
