@@ -320,12 +320,12 @@ def misfit_warning(score_um: float, prior: Mapping) -> dict | None:
     score = _finite([score_um])
     if half is None or not score or score[0] <= MISFIT_HALF_WIDTHS * half:
         return None
+    from rafi.family.prior import ensemble_member
+
     who, whose = "the prior as it is", "its own"
-    if prior.get("kind") == "ensemble":  # the candidate ``prior`` is its heaviest member as it is
-        weights = prior.get("weights") or {}
-        member = (prior.get("members") or {}).get(max(weights, key=weights.get)) if weights else None
-        who = f"the ensemble prior's heaviest member ({(member or {}).get('kind', '?')}) as it is"
-        whose = "the ensemble's"
+    member = ensemble_member(dict(prior))  # the candidate ``prior`` is its heaviest member as it is
+    if member is not None:
+        who, whose = f"the ensemble prior's heaviest member ({member['kind']}) as it is", "the ensemble's"
     return {
         "check": "prior_misfit",
         "message": (

@@ -21,6 +21,7 @@ from rafi.errors import RafiUserError, SettingsError
 __all__ = [
     "PLAN_TABLE_COLUMNS",
     "covering_budget_h",
+    "heat_ups_s",
     "plan_csv",
     "plan_limits",
     "plan_programme",
@@ -467,7 +468,7 @@ def plan_programme(
     first = spread_order(untrained)
     order = first + spread_order([s for s in candidates if s not in untrained], taken=first)
     k = 0
-    while k < len(order) and rest_s + (k + 1) * run_s + k * run_s <= budget_s + 1e-9:
+    while k < len(order) and heat_ups_s(k + 1, run_s=run_s, rest_s=rest_s) <= budget_s + 1e-9:
         k += 1
     if k == 0:
         raise RafiUserError(
@@ -491,8 +492,16 @@ def plan_programme(
         total_h=float(plan["duration_s"].sum()) / 3600.0,
         speeds_rpm=speeds,
         untrained_rpm=[s for s in speeds if s in untrained],
+        run_s=run_s,
+        rest_s=rest_s,
     )
     return plan
+
+
+def heat_ups_s(k: int, *, run_s: float, rest_s: float) -> float:
+    """Seconds a programme of ``k`` heat-ups needs (step 2 of :func:`plan_programme`): the rest,
+    the heat-ups and a cool-down between each two, every run ``run_s`` long."""
+    return rest_s + k * run_s + (k - 1) * run_s
 
 
 def prior_speeds_left(plan: pd.DataFrame, prior: Mapping | None, *, tolerance_rpm: float) -> list[float]:
@@ -512,18 +521,16 @@ def covering_budget_h(
 ) -> float | None:
     """The smallest budget (h, rounded up to 0.01 h) whose :func:`plan_programme` (``programme``:
     its keyword arguments but ``budget_h``, ``prior`` the view of ``artefact``) leaves no speed of
-    the prior's artefact ``artefact`` untested
-    (:func:`prior_speeds_left`), or None when no programme of at most ``max_h`` does (the prior's
-    speeds are not among the machine's training speeds in the range, or need more time).
-
-    A programme of ``k`` heat-ups needs ``rest_s + k run_s + (k - 1) run_s`` (step 2 of
-    :func:`plan_programme`), so only those budgets are tried, ``k`` = 1, 2, ..."""
-    rest_s = float(programme.get("rest_s", REST_S))
-    run_s = max(float(programme.get("min_run_s", 1800.0)), float(programme.get("transient_s", 1800.0)))
-    for k in range(1, len(programme.get("speeds_rpm") or []) + 1):
-        budget_h = math.ceil((rest_s + (2 * k - 1) * run_s) / 36.0) / 100.0
-        if budget_h > max_h:
-            return None
+    the prior's artefact ``artefact`` untested (:func:`prior_speeds_left`), or None when no
+    programme of at most ``max_h`` does (the prior's speeds are not among the machine's training
+    speeds in the range, or need more time). Only the budgets of whole programmes are tried
+    (:func:`heat_ups_s` for ``k`` = 1, 2, ...: between them the plan does not take another speed)."""
+    longest = plan_programme(budget_h=max_h, **programme)
+    if prior_speeds_left(longest, artefact, tolerance_rpm=tolerance_rpm):
+        return None
+    timing = {"run_s": longest.attrs["run_s"], "rest_s": longest.attrs["rest_s"]}
+    for k in range(1, len(longest.attrs["speeds_rpm"]) + 1):
+        budget_h = math.ceil(heat_ups_s(k, **timing) / 36.0) / 100.0
         plan = plan_programme(budget_h=budget_h, **programme)
         if not prior_speeds_left(plan, artefact, tolerance_rpm=tolerance_rpm):
             return budget_h
