@@ -61,6 +61,9 @@ def test_the_champion_is_the_prior_the_header_names(project, capsys):
         main(["plan", "--machine", MACHINE, "--hours", f"{float(hours) - 0.01:g}", "--out", "less.csv"]) == 0
     )
     assert "left to the prior alone" in capsys.readouterr().out
+    # a range in use that leaves some of the prior's speeds out: no programme inside it tests them
+    assert main(["plan", "--machine", MACHINE, "--hours", "9", "--speed-range", "5000", "13000"]) == 0
+    assert "no programme inside --speed-range tests them all" in capsys.readouterr().out
     # --prior none: the same programme without a prior
     assert main(["plan", "--machine", MACHINE, "--hours", "3", "--prior", "none", "--out", "q.csv"]) == 0
     out = capsys.readouterr().out
