@@ -603,3 +603,21 @@ def test_a_tiny_other_design_run_requalifies_a_sibling_and_another_design_from_o
         if res["prior_choice"].startswith("prior"):
             fired = "prior_misfit" in res["warnings"]
             assert fired == (bench.prior_misfit(res) > bench.MISFIT_HALF_WIDTHS)
+
+
+def test_a_second_full_plan_is_counted_beside_the_others_only_when_every_record_holds_one(bench):
+    # full 0.5 ; 2.0. The full plan again: 0.55 ; 2.2 (1.1, 1.1: within 15 %), 0.5 ; 2.5 (1.0,
+    # 1.25: within 30 % only) and 0.7 ; 2.0 (1.4: within 150 % only)
+    results = [random_result(0, "grey_box"), random_result(1, "prior_gain"), random_result(2, "prior_time")]
+    assert not bench.has_repeat(results)
+    assert "again" not in bench.tolerance_markdown(results)
+    assert "again" not in bench.by_change_markdown(results)
+    again = [(0.55, 2.2), (0.5, 2.5), (0.7, 2.0)]
+    results = [r | dict(zip(bench.REPEAT_KEYS, a)) for r, a in zip(results, again)]
+    assert bench.has_repeat(results) and not bench.has_repeat(results[:2] + [random_result(3, "grey_box")])
+    lines = bench.tolerance_markdown(results, fractions=(0.15, 0.3, 1.5)).splitlines()
+    assert lines[0].endswith("| best candidate in hindsight | the full plan again |")
+    assert lines[2].endswith("| 1 of 3 (33 %) |") and lines[3].endswith("| 2 of 3 (67 %) |")
+    assert lines[4].endswith("| 3 of 3 (100 %) |")
+    rows = bench.by_change_markdown(results).splitlines()
+    assert rows[1].count("---") == 8 and rows[-1] == "| all | | 3 | 2 | 0 | 0 | 3 | 1 |"

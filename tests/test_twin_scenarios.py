@@ -195,3 +195,19 @@ def test_machining_center_b_has_its_scenarios_too():
     old = sc.old_runs()
     assert list(old.table.loc[old.table["role"] == "training", "speed_rpm"]) == [1250, 2500, 3750, 5000]
     assert set(old.table["role"]) == {"training", "validation_single", "validation_multi"}
+
+
+def test_a_second_draw_of_the_full_plan_is_the_same_plan_on_the_same_machine_with_fresh_noise():
+    sc = scenario("reworn")
+    first, again = sc.new_full_training(), sc.new_full_training(draw=1)
+    cols = ["run_id", "role", "speed_rpm"]
+    pd.testing.assert_frame_equal(first.table[cols], again.table[cols])
+    pd.testing.assert_series_equal(first.frame["t_s"], again.frame["t_s"])
+    noise_first = first.frame["dz_um"] - first.truth["dz_true_um"]
+    noise_again = again.frame["dz_um"] - again.truth["dz_true_um"]
+    assert not np.allclose(noise_first, noise_again)
+    assert noise_again.std() == pytest.approx(noise_first.std(), rel=0.3)
+    pd.testing.assert_frame_equal(again.frame, sc.new_full_training(draw=1).frame)
+    assert not np.allclose(again.frame["dz_um"], sc.new_full_training(draw=2).frame["dz_um"])
+    with pytest.raises(ValueError, match="draw"):
+        sc.new_full_training(draw=-1)

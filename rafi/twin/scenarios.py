@@ -63,6 +63,9 @@ REWORN = {"wear": 0.30, "preload_conductance_factor": 1.25}
 SEASON = {"room_shift_c": 6.0, "daily_amplitude_c": 1.5, "cooler_offset_c": -1.2}
 #: Reference window of every run (rule ``runs``: median of the first 60 s).
 REFERENCE_S = 60.0
+#: The seed side of a repeated full plan's draws (:meth:`Scenario.new_full_training`): above the
+#: sides of the old runs (0), the validation runs (1), the full plan (2) and a plan's programme (3).
+REPEAT_SIDE = 100
 RISES = [f"d{s}" for s in SENSORS]
 
 
@@ -454,9 +457,13 @@ class Scenario:
         """The new machine's validation runs (the full plan's, ``new-`` ids)."""
         return self._runs(self.new, 1, ("validation_single", "validation_multi"), "new-")
 
-    def new_full_training(self) -> RunSet:
-        """The new machine's training runs of the full test plan (``new-`` ids)."""
-        return self._runs(self.new, 2, ("training",), "new-")
+    def new_full_training(self, draw: int = 0) -> RunSet:
+        """The new machine's training runs of the full test plan (``new-`` ids). ``draw`` > 0: the
+        same plan run again on the same machine, every run seeded afresh (its noise), as a second
+        qualification would be: how far two full plans from scratch lie apart."""
+        if draw < 0:
+            raise ValueError(f"draw must be 0 or more, got {draw}")
+        return self._runs(self.new, 2 if draw == 0 else REPEAT_SIDE + draw, ("training",), "new-")
 
     def new_runs(self) -> RunSet:
         """The new machine's full qualification: :meth:`new_full_training` + :meth:`new_validation`."""
