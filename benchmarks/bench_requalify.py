@@ -1519,13 +1519,14 @@ def with_no_fold(res: dict, path: Path | None, args, settings: dict, cache: dict
     return res
 
 
-def repeat_full(seed: int, args, settings: dict) -> dict:
-    """Random scenario ``seed``'s full plan from scratch run again on the same changed machine
+def repeat_full(scenario, args, settings: dict) -> dict:
+    """The full plan from scratch of ``scenario`` (a
+    :class:`~rafi.twin.requalify_scenarios.RandomScenario`) run again on the same changed machine
     (:meth:`rafi.twin.scenarios.Scenario.new_full_training` with ``draw=1``: every run's noise and
-    weather drawn afresh), judged on the same validation runs: the record's :data:`REPEAT_KEYS` and
-    its champion's name."""
-    sc = random_scenario(seed).scenario(args.sample_period)
-    progress(f"seed {seed}: the full plan from scratch again")
+    weather drawn afresh), judged on the same validation runs: the record's :data:`REPEAT_KEYS`
+    and its champion's name."""
+    sc = scenario.scenario(args.sample_period)
+    progress(f"seed {scenario.seed}: the full plan from scratch again")
     fit = fit_family(
         combine(sc.new_full_training(draw=1), sc.new_validation()),
         settings,
@@ -1537,12 +1538,13 @@ def repeat_full(seed: int, args, settings: dict) -> dict:
     return {REPEAT_KEYS[0]: mae, REPEAT_KEYS[1]: worst, "repeat_full_choice": choice}
 
 
-def with_repeat_full(res: dict, path: Path | None, args, settings: dict) -> dict:
-    """``res`` with its second full plan from scratch (:func:`repeat_full`) when ``--repeat-full``
-    asks for it and it is not kept yet (then written back to ``path``)."""
+def with_repeat_full(res: dict, path: Path | None, args, settings: dict, scenario=None) -> dict:
+    """``res`` with its second full plan from scratch (:func:`repeat_full` of ``scenario``, by
+    default random scenario ``res["seed"]``) when ``--repeat-full`` asks for it and it is not kept
+    yet (then written back to ``path``)."""
     if not getattr(args, "repeat_full", False) or all(k in res for k in REPEAT_KEYS):
         return res
-    res = res | repeat_full(res["seed"], args, settings)
+    res = res | repeat_full(scenario or random_scenario(res["seed"]), args, settings)
     if path is not None:
         write_text_atomic(path, json.dumps(res, indent=1, default=float) + "\n")
     return res
@@ -1655,11 +1657,12 @@ def main_issue(seeds: list[int], args, settings: dict) -> int:
     """``--issue-scenarios``: issue 47's two scenarios at each seed, their table and record
     (``requalify_issue.json`` and ``.md`` unless ``--json``); nothing kept per seed."""
     started, cache = time.perf_counter(), {}
-    results = [
-        one_random(seed, args, settings, cache, scenario=issue_scenario(name, seed))
-        for name in ISSUE_SCENARIOS
-        for seed in seeds
-    ]
+    results = []
+    for name in ISSUE_SCENARIOS:
+        for seed in seeds:
+            scenario = issue_scenario(name, seed)
+            res = one_random(seed, args, settings, cache, scenario=scenario)
+            results.append(with_repeat_full(res, None, args, settings, scenario=scenario))
     return write_scenarios(random_markdown(results), results, seeds, started, args, "requalify_issue")
 
 

@@ -7,6 +7,7 @@ import json
 import math
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -495,7 +496,6 @@ def test_the_noise_line_says_the_misses_against_a_perfect_models_mae(bench):
 
 
 def test_the_noise_mae_is_a_perfect_models_mae_over_the_validation_runs():
-    from types import SimpleNamespace
 
     import pandas as pd
 
@@ -621,3 +621,14 @@ def test_a_second_full_plan_is_counted_beside_the_others_only_when_every_record_
     assert lines[4].endswith("| 3 of 3 (100 %) |")
     rows = bench.by_change_markdown(results).splitlines()
     assert rows[1].count("---") == 8 and rows[-1] == "| all | | 3 | 2 | 0 | 0 | 3 | 1 |"
+
+
+def test_a_kept_second_full_plan_is_read_back_and_none_is_fitted_unless_asked(bench, monkeypatch):
+    def no_fit(*a, **k):
+        raise AssertionError("fitted")
+
+    monkeypatch.setattr(bench, "repeat_full", no_fit)
+    res = random_result(0, "grey_box")
+    assert bench.with_repeat_full(res, None, SimpleNamespace(repeat_full=False), {}) is res
+    kept = res | dict(zip(bench.REPEAT_KEYS, (0.5, 2.0)))
+    assert bench.with_repeat_full(kept, None, SimpleNamespace(repeat_full=True), {}) is kept
