@@ -184,3 +184,71 @@ def test_seeds_judged_without_the_outer_judge_join_on_what_every_seed_has(bench)
     assert set(rows) == {bench.CURRENT, "offered", "kind:dynamic"}
     assert rows[bench.CURRENT]["primary"] == pytest.approx((1.2 / 1.0 + 0.9 / 0.6) / 2)
     assert rows["kind:dynamic"]["primary"] == pytest.approx(1.0)
+
+
+def test_a_days_coverage_weighs_its_runs_by_their_samples_and_leaves_other_days_out(bench):
+    runs = pd.DataFrame(
+        {
+            "run_id": ["a#1", "a#2", "b#1", "t#1"],
+            "file": ["day9_test.csv", "day9_test.csv", "day10_test.csv", "d1.csv"],
+        }
+    )
+    per_run = pd.DataFrame(
+        {
+            "model": ["ensemble"] * 4 + ["dynamic"],
+            "run_id": ["a#1", "a#2", "b#1", "t#1", "a#1"],
+            "n_samples": [30, 10, 20, 50, 30],
+            "coverage": [1.0, 0.5, 0.8, 0.0, 0.0],
+        }
+    )
+    cov = bench.day_coverage(per_run, runs, "ensemble", ["day9_test", "day10_test"])
+    assert cov.loc["day9_test", "n"] == 40 and cov.loc["day9_test", "coverage"] == pytest.approx(35 / 40)
+    assert cov.loc["day10_test", "coverage"] == pytest.approx(0.8) and "d1" not in cov.index
+
+
+def test_the_chance_of_a_perfect_interval_inside_the_band_follows_students_t(bench):
+    # five days whose mean coverage has a standard error of 0.05: the band 0.80-0.97 around 0.90
+    # is -2.0 and +1.4 standard errors; Student's t with 4 degrees of freedom (tables: P(T <= 1.4)
+    # = 0.8829, P(T <= -2.0) = 0.0581) gives 0.8248
+    days = pd.Series([0.9, 0.9, 0.9, 0.9, 0.9]) + np.array([-2, -1, 0, 1, 2]) * 0.05 * np.sqrt(5 / 2.5)
+    assert days.std(ddof=1) / np.sqrt(5) == pytest.approx(0.05)
+    assert bench.band_chance(days) == pytest.approx(0.8248, abs=1e-3)
+    assert bench.band_chance(pd.Series([0.7, 0.7, 0.7])) == 1.0  # no spread: the mean is the truth
+    assert np.isnan(bench.band_chance(pd.Series([0.9])))
+    wider = pd.Series([0.9, 0.9, 0.9, 0.9, 0.9]) + np.array([-2, -1, 0, 1, 2]) * 0.1
+    assert bench.band_chance(wider) < bench.band_chance(days)
+
+
+def test_the_promises_of_a_kept_machine_and_their_counts(bench, tmp_path):
+    res = tmp_path / "seed-007" / "project" / "results" / "foreign-7"
+    res.mkdir(parents=True)
+    pd.DataFrame({"run_id": ["x#1", "y#1"], "file": ["d5_test.csv", "d6_test.csv"]}).to_csv(
+        res / "runs.csv", index=False
+    )
+    (res / "comparison").mkdir()
+    pd.DataFrame(
+        {"model": ["ensemble"] * 2, "run_id": ["x#1", "y#1"], "n_samples": [10, 30], "coverage": [0.7, 0.9]}
+    ).to_csv(res / "comparison" / "per_run.csv", index=False)
+    result = {
+        "seed": 7,
+        "machine": "foreign-7",
+        "offered": "ensemble",
+        "test_runs": [{"stem": "d5_test"}, {"stem": "d6_test"}],
+        "test": {
+            "offered": {
+                "mae": 0.5,
+                "days": {"d5_test": {"mae": 0.4, "none_mae": 2.0}, "d6_test": {"mae": 0.6, "none_mae": 0.5}},
+            },
+            "kind:temperature_ridge": {"mae": 0.6},
+        },
+    }
+    p = bench.promises(result, tmp_path / "seed-007")
+    assert p["coverage"] == pytest.approx((7 + 27) / 40) and p["worse_than_none"] == 1 and p["test_days"] == 2
+    assert p["day_sd"] == pytest.approx(np.std([0.7, 0.9], ddof=1))
+    assert bench.promises(result, tmp_path / "seed-008") is None
+    other = p | {"seed": 8, "offered_mae": 0.7, "coverage": 0.99, "band_chance": 0.5}
+    text = bench.promises_markdown([p, other])
+    assert "| 7 | 0.500 | 0.600 | 1 of 2 | 85.0 % |" in text
+    assert "at or below the family's plain ridge on 1 of 2 machines" in text
+    assert "worse than no compensation: 2 of 4" in text
+    assert "on 1 of 2 (0 below, 1 above)" in text
