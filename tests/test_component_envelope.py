@@ -27,6 +27,8 @@ from rafi.family.envelope import (
     ENVELOPE_MARGIN,
     bound_components,
     component_bounds,
+    component_excess,
+    component_reach,
     fit_envelope,
     join_envelope,
 )
@@ -68,6 +70,34 @@ def test_an_unseen_combination_of_in_range_features_is_held_near_the_truth():
     scores = ((held[0, columns] - center) / scale) @ vectors.T
     assert np.all(scores >= lo - 1e-9) and np.all(scores <= hi + 1e-9)
     assert np.isclose(scores, hi).any() or np.isclose(scores, lo).any()
+
+
+def test_the_component_excess_is_what_the_prediction_reaches_beyond_the_trained_combinations():
+    """The interval's widening beyond the trained combinations (rafi.family.interval_rule): 0 on
+    every training row, and for a row off the training line what holding it at the components'
+    unpadded training ranges would take off the prediction, in training displacement spans."""
+    x, y = _collinear_pair()
+    coef = np.array([31.0, -30.0])
+    env = json.loads(json.dumps(fit_envelope(x, y, components=True)))
+    reach = component_reach(env, 2, coef)
+    assert np.all(component_excess(x, reach) == 0.0)
+    test = np.array([[5.0, 8.0], [5.0, 5.0], [5.0, 11.0], [np.nan, 1.0]])
+    excess = component_excess(test, reach)
+    assert excess[1] == 0.0 and excess[3] == 0.0 and excess[2] > 1.9 * excess[0] > 0.0
+    # the oracle: the rows held at the training score ranges (no margin) by bound_components
+    columns, center, scale, vectors, lo, hi, _ = reach
+    held, outside = bound_components(test[:3], (columns, center, scale, vectors, lo, hi))
+    assert outside.tolist() == [True, False, True]
+    np.testing.assert_allclose(
+        excess[:3], np.abs((test[:3] - held) @ coef) / np.ptp(y), rtol=1e-9, atol=1e-12
+    )
+    # nothing to measure against: no components, no coefficients, no output range
+    assert component_reach(fit_envelope(x, y), 2, coef) is None
+    assert (
+        component_reach(env, 2, None) is None
+        and component_reach(fit_envelope(x, components=True), 2, coef) is None
+    )
+    assert np.all(component_excess(test, None) == 0.0)
 
 
 @settings(max_examples=60, deadline=None)

@@ -156,7 +156,9 @@ def test_streaming_intervals_equal_the_batch_ones_for_an_ensemble(data):
     np.testing.assert_array_equal(cells[after], want["interval_cell"].to_numpy()[after])
     for col in ("lower_um", "upper_um"):
         np.testing.assert_allclose(got[col].to_numpy()[after], want[col].to_numpy()[after], rtol=0, atol=1e-9)
-    np.testing.assert_allclose(got["range_excess"].to_numpy()[after], excess[after], rtol=0, atol=1e-12)
+    # the component excess reads every feature, which the stream's filters and the batch's agree on
+    # to about 1e-12 before the gains along the components scale it
+    np.testing.assert_allclose(got["range_excess"].to_numpy()[after], excess[after], rtol=0, atol=1e-9)
     # every cell is met, and the excess widens some intervals
     counts = pd.Series(cells[after]).value_counts()
     assert set(counts.index) == {"settled", "transient", "outside"} and counts.min() > 20

@@ -110,6 +110,8 @@ from rafi.family.envelope import (
     bound_features,
     bound_output,
     component_bounds,
+    component_excess,
+    component_reach,
     envelope_bounds,
     key_range_excess,
     key_range_inputs,
@@ -246,6 +248,7 @@ class Compensator:
         envelope: tuple | None = None,
         output_bounds: tuple | None = None,
         components: tuple | None = None,
+        reach: tuple | None = None,
     ):
         self.kind = kind
         self.model_id = model_id
@@ -274,6 +277,7 @@ class Compensator:
         self.envelope = envelope
         self.output_bounds = output_bounds
         self.components = components
+        self.reach = reach  # rafi.family.envelope.component_reach: the component excess's constants
         self._outside_envelope = False
         self._excess = 0.0  # the last row's range_excess (a ridge kind's; the interval widens with it)
         self._since_change_s = float("nan")
@@ -421,6 +425,7 @@ class Compensator:
             banks=banks,
             envelope=envelope_bounds(d.get("envelope"), len(names)),
             components=component_bounds(d.get("envelope"), len(names), d["coefficients"]),
+            reach=component_reach(d.get("envelope"), len(names), d["coefficients"]),
             output_bounds=output_bounds(d.get("envelope")),
         )
 
@@ -587,7 +592,8 @@ class Compensator:
         if self.draw_in_lag_s is not None:
             parts.append(np.array([draw - (self.ref_speed_rpm / SPEED_SCALE_RPM) ** 2]))
         # rafi.family.envelope: the components, the box, the output, as the batch code
-        combined, beyond_components = bound_components(np.concatenate(parts), self.components)
+        design = np.concatenate(parts)
+        combined, beyond_components = bound_components(design, self.components)
         bounded, beyond = bound_features(combined, self.envelope)
         pred, beyond_output = bound_output(bounded @ self.coef, self.output_bounds)
         self._outside_envelope = bool(beyond or beyond_output or beyond_components)
@@ -600,7 +606,7 @@ class Compensator:
         excess = key_range_excess(
             rises[None, :], [rpm], self.ranges, self.speed_range_rpm, inputs=self._excess_inputs
         )
-        self._excess = float(excess[0])
+        self._excess = float(excess[0] + component_excess(design[None, :], self.reach)[0])
         return pred, out_speed, out_temp
 
     def speed_weights(self, rpm: float) -> tuple[np.ndarray, np.ndarray]:

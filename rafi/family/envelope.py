@@ -42,6 +42,8 @@ __all__ = [
     "bound_features",
     "bound_output",
     "component_bounds",
+    "component_excess",
+    "component_reach",
     "envelope_bounds",
     "fit_components",
     "fit_envelope",
@@ -181,6 +183,48 @@ def component_bounds(envelope: dict | None, n_features: int, coef=None) -> tuple
         rng[:, 0] - pad,
         rng[:, 1] + pad,
     )
+
+
+def component_reach(envelope: dict | None, n_features: int, coef=None) -> tuple | None:
+    """What :func:`component_excess` measures against, constants of a fitted model:
+    ``(columns, center, scale, vectors, low, high, weight)``, the envelope's components with
+    their training score ranges (no margin) and per component ``|g| / Y`` (``g`` the model's gain
+    along it in um per unit score, ``Y`` the training displacement span). None without components,
+    coefficients or an output range (the excess is then 0)."""
+    comp = (envelope or {}).get("components")
+    out = (envelope or {}).get("output_range") or [None, None]
+    if not comp or coef is None or out[0] is None or out[1] is None:
+        return None
+    span = float(out[1]) - float(out[0])
+    columns = np.asarray(comp["columns"], dtype=int)
+    if not span > 0 or (columns.size and columns.max() >= n_features):
+        return None
+    rng = np.asarray(comp["score_ranges"], dtype=float).reshape(-1, 2)
+    vectors = np.asarray(comp["vectors"], dtype=float).reshape(len(rng), len(columns))
+    scale = np.asarray(comp["scale"], dtype=float)
+    gain = np.abs(vectors @ (scale * np.asarray(coef, dtype=float)[columns]))
+    return columns, np.asarray(comp["center"], dtype=float), scale, vectors, rng[:, 0], rng[:, 1], gain / span
+
+
+def component_excess(features: np.ndarray, reach) -> np.ndarray:
+    """Per row, how far the prediction reaches beyond the combinations of features the model was
+    trained on: over the principal components of its standardised features (:func:`component_reach`),
+    the sum of each score's distance beyond its training range times the model's gain along it, in
+    training displacement spans. 0 inside every range, for a row with a NaN and without ``reach``.
+    The prediction interval widens with it beside the key sensors' :func:`range_excess`
+    (:mod:`rafi.family.interval_rule`): a direction of the temperatures the training never showed
+    (a heat source nobody put a sensor on, a sensor reseated, a warm start) is one the model was
+    never checked on, though every sensor may be inside its own range."""
+    x = np.asarray(features, dtype=float)
+    if reach is None:
+        return np.zeros(x.shape[:-1])
+    columns, center, scale, vectors, lo, hi, weight = reach
+    scores = ((x[..., columns] - center) / scale) @ vectors.T
+    with np.errstate(invalid="ignore"):
+        beyond = np.maximum(lo - scores, scores - hi)
+    beyond = np.where(np.isfinite(beyond), np.maximum(beyond, 0.0), 0.0)
+    total = beyond @ weight
+    return np.where(np.isfinite(x).all(axis=-1), total, 0.0)
 
 
 def bound_components(features: np.ndarray, bounds) -> tuple[np.ndarray, np.ndarray]:

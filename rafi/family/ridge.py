@@ -17,6 +17,8 @@ from rafi.family.envelope import (
     bound_features,
     bound_output,
     component_bounds,
+    component_excess,
+    component_reach,
     envelope_bounds,
     fit_envelope,
     key_range_excess,
@@ -397,6 +399,7 @@ class RidgeBase(FamilyModel):
         hi = np.array([self.regressor_ranges_[s][1] for s in self.sensors_])
         n = frame["speed_rpm"].to_numpy(dtype=float)
         excess = key_range_excess(x, n, np.column_stack([lo, hi]), self.speed_range_rpm_)
+        excess = excess + component_excess(feats, component_reach(envelope, feats.shape[1], self.coef_))
         return pd.DataFrame(
             {
                 "predicted_um": pred,
