@@ -179,3 +179,35 @@ def test_calibration_units_leave_out_the_forward_units():
     samples, scheme = calibration_units(oof, "leave_one_run_out")
     assert list(samples["unit"]) == ["log#1", "log#3", "log#2@block1"] and scheme == "leave_one_run_out"
     assert calibration_units(oof.iloc[:0], "time_blocks")[1] == "time_blocks"
+
+
+def test_an_interval_calibrated_before_the_component_excess_is_evaluated_as_it_was(syn, calibrated):
+    """Since 2026-11-30 a ridge kind's range excess holds its component excess and the calibrated
+    block says so; a block calibrated before (without the key) widens with the key sensors' and the
+    speed's excess alone, in batch and in the streaming compensator."""
+    import copy
+
+    from rafi.deploy.compensator import Compensator
+    from rafi.family.envelope import component_excess, component_reach, key_range_excess
+    from rafi.family.features import rise_column
+    from rafi.family.intervals import set_interval
+
+    model = calibrated[0]["ridge_global"]
+    block = interval_of(model)
+    assert block["component_excess"] is True
+    frame = syn.runs_frame
+    new = model.predict_detail(frame)["range_excess"].to_numpy()
+    before = copy.deepcopy(model)
+    set_interval(before, {k: v for k, v in block.items() if k != "component_excess"})
+    old = before.predict_detail(frame)["range_excess"].to_numpy()
+    rises = frame[[rise_column(s) for s in model.sensors_]].to_numpy(dtype=float)
+    ranges = np.array([model.regressor_ranges_[s] for s in model.sensors_])
+    keys = key_range_excess(rises, frame["speed_rpm"].to_numpy(dtype=float), ranges, model.speed_range_rpm_)
+    np.testing.assert_allclose(old, keys, rtol=0, atol=1e-12)
+    reach = component_reach(model.envelope_, len(model.coef_), model.coef_)
+    parts = component_excess(model._design_of(frame), reach)
+    np.testing.assert_allclose(new, keys + parts, rtol=0, atol=1e-12)
+    assert (parts > 0).any()
+    # the compensator reads the artefact's block the same way
+    assert Compensator.from_artefact(model.to_dict()).reach is not None
+    assert Compensator.from_artefact(before.to_dict()).reach is None

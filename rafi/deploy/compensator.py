@@ -117,6 +117,7 @@ from rafi.family.envelope import (
     key_range_inputs,
     output_bounds,
 )
+from rafi.family.interval_rule import reads_components
 from rafi.method.fuzzy import prepare_centres, triangular_weights
 
 if TYPE_CHECKING:
@@ -425,7 +426,9 @@ class Compensator:
             banks=banks,
             envelope=envelope_bounds(d.get("envelope"), len(names)),
             components=component_bounds(d.get("envelope"), len(names), d["coefficients"]),
-            reach=component_reach(d.get("envelope"), len(names), d["coefficients"]),
+            reach=component_reach(d.get("envelope"), len(names), d["coefficients"])
+            if reads_components(d.get("interval"))
+            else None,
             output_bounds=output_bounds(d.get("envelope")),
         )
 

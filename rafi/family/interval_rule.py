@@ -16,8 +16,14 @@ Beyond the trained range the half-width also grows with the distance: ``h x (1 +
 ``excess`` the sample's key sensor rises and speed beyond their training ranges in training spans
 (``range_excess`` of ``predict_detail``, :func:`rafi.family.envelope.range_excess`; 0 inside the
 ranges and for the kinds without it) and ``c`` the block's ``excess_slope`` (:data:`EXCESS_SLOPE`
-from 2026-11-29; a block without it: 0, the interval as before). The calibration divides each
-residual by the same factor (a normalised conformal score), so the level holds.
+from 2026-11-29; a block without it: 0, the interval as before). Since 2026-11-30 a ridge kind's
+``excess`` also holds its **component excess** (:func:`rafi.family.envelope.component_excess`:
+how far its prediction reaches beyond the combinations of features it was trained on, in
+training displacement spans), so a direction of the temperatures the training never showed
+widens the interval though every sensor is inside its own range; a block calibrated so says
+:data:`COMPONENT_EXCESS` and one calibrated before is evaluated as it was
+(:func:`reads_components`). The calibration divides each residual by the same factor (a
+normalised conformal score), so the level holds.
 
 The change clock (:class:`ChangeClock`) is reset at the first sample, at a filter restart (a
 gap longer than the restart limit), at the start of a reference window, and when the speed
@@ -43,6 +49,19 @@ CELLS = ("settled", "transient", "outside")
 #: 0.104 against 0.124 without, 0.110-0.121 at 3, 20 and 30) and 92 % coverage of their rows
 #: outside the range against 82 %.
 EXCESS_SLOPE = 10.0
+
+
+#: The ``interval`` block's key saying that the excess it widens with holds the component excess
+#: (calibrated since 2026-11-30, issue 46; the decision log).
+COMPONENT_EXCESS = "component_excess"
+
+
+def reads_components(block) -> bool:
+    """Whether a model's range excess holds its component excess: yes for a model not calibrated
+    yet (``block`` None: a fold's model, or one being calibrated, whose out-of-fold excess the
+    calibration reads) and for one calibrated with it; no for a block calibrated before
+    (2026-11-30), which is evaluated as it was calibrated."""
+    return not isinstance(block, dict) or bool(block.get(COMPONENT_EXCESS, False))
 
 
 def widening(interval: dict, excess) -> np.ndarray:

@@ -31,6 +31,7 @@ import pandas as pd
 from rafi.family.forward_folds import unit_run
 from rafi.family.interval_rule import (
     CELLS,
+    COMPONENT_EXCESS,
     EXCESS_SLOPE,
     INTERVAL_SCHEMA,
     interval_cell,
@@ -357,6 +358,7 @@ def calibrate(
         "tolerance_rpm": float(tolerance_rpm),
         "half_width_um": {c: float(half[c]) for c in CELLS},
         "excess_slope": EXCESS_SLOPE,
+        COMPONENT_EXCESS: True,
         "decorrelation_s": float(decorrelation_s(data, a > h, res[ok])),
         "calibration": {
             "scheme": str(scheme),

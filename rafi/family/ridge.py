@@ -34,6 +34,7 @@ from rafi.family.features import (
     usable_sensors,
 )
 from rafi.family.grids import data_scales, edge_flags, resolve
+from rafi.family.interval_rule import reads_components
 from rafi.family.time_blocks import blocks_text, max_filter_s, unit_column
 from rafi.family.whole_log import has_whole_logs, layout, rows_of_logs
 
@@ -399,7 +400,8 @@ class RidgeBase(FamilyModel):
         hi = np.array([self.regressor_ranges_[s][1] for s in self.sensors_])
         n = frame["speed_rpm"].to_numpy(dtype=float)
         excess = key_range_excess(x, n, np.column_stack([lo, hi]), self.speed_range_rpm_)
-        excess = excess + component_excess(feats, component_reach(envelope, feats.shape[1], self.coef_))
+        if reads_components(getattr(self, "interval_", None)):
+            excess = excess + component_excess(feats, component_reach(envelope, feats.shape[1], self.coef_))
         return pd.DataFrame(
             {
                 "predicted_um": pred,
