@@ -270,3 +270,29 @@ def test_without_forward_folds_the_report_reads_as_before(tmp_path):
         text = _text(part[: part.index("</section>")])
         assert "forward" not in text and "selection score" not in text, sec
     assert ctx["comparison"]["selection"]["horizon"] == 0 and ctx["deployed"]["cv"]["forward_folds"] is None
+
+
+def test_the_choices_say_how_the_interval_widens_beyond_the_trained_range():
+    """The widening is a choice the paper leaves open: said as the block was calibrated - not at
+    all without a slope, with the key sensors and the speed, and with the components since
+    2026-11-30 (``component_excess``)."""
+    import html
+
+    from test_report_text import _section
+
+    settings = machine_settings({"machines": {"m": {}}}, "m")
+
+    def said(block):
+        iv = interval_context({"interval": block})
+        return html.unescape(
+            _text(_section("choices", choices=section_choices(settings, {}, None, interval=iv)))
+        )
+
+    before = said(copy.deepcopy(BLOCK))
+    assert "Each compensation comes with a 90" in before and "grows with the distance" not in before
+    keys = said({**copy.deepcopy(BLOCK), "excess_slope": 10.0})
+    assert "Beyond the trained range it grows with the distance, h × (1 + 10 × excess)" in keys
+    assert "in training spans." in keys and "principal components" not in keys
+    both = said({**copy.deepcopy(BLOCK), "excess_slope": 10.0, "component_excess": True})
+    assert "beyond the combinations of features the model was trained on (its features' principal" in both
+    assert interval_context({"interval": {**BLOCK, "excess_slope": 10.0}})["components"] is False

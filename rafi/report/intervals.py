@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.forward_folds import horizon_of, is_forward
-from rafi.family.interval_rule import CELLS
+from rafi.family.interval_rule import CELLS, COMPONENT_EXCESS
 from rafi.report.format import isnum
 
 #: The columns of an interval in ``residuals.parquet``.
@@ -221,7 +221,10 @@ def interval_context(doc) -> dict | None:
         calibration unit per fold), ``n_runs``, ``n_samples`` (over all cells), ``fallbacks``
         (cells that took the pooled value), ``split`` (the method is split-conformal by run) and
         ``by_run`` (the level correction left out every unit of a run together,
-        ``calibration.left_out: run``) and ``other`` (the calibration's other plain entries,
+        ``calibration.left_out: run``), ``excess_slope`` (how fast h grows beyond the trained
+        range, per training span; None for a block without it), ``components`` (the growth also
+        reads the prediction's reach beyond the trained combinations of its features,
+        ``component_excess``) and ``other`` (the calibration's other plain entries,
         ``(key, text)``).
     """
     block = interval_block(doc)
@@ -246,6 +249,8 @@ def interval_context(doc) -> dict | None:
         "n_samples": cal.get("n_samples") if isnum(cal.get("n_samples")) else None,
         "fallbacks": [c["cell"] for c in cells if c["fallback"]],
         "by_run": cal.get("left_out") == "run",
+        "excess_slope": block.get("excess_slope") if isnum(block.get("excess_slope")) else None,
+        "components": bool(block.get(COMPONENT_EXCESS, False)),
         "other": _other_calibration(cal),
     }
 
