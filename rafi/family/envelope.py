@@ -144,15 +144,12 @@ def fit_components(features: np.ndarray) -> dict | None:
     }
 
 
-def component_bounds(envelope: dict | None, n_features: int, coef=None) -> tuple | None:
-    """``(columns, center, scale, vectors, low, high)`` of the envelope's components; None
-    without components (the default, or an artefact fitted before them).
-
-    Each score range is widened by the envelope's margin ``m`` times the larger of its own span
-    and ``Y / |g|``: ``g`` the model's gain along the component (``coef``, the model's
-    coefficients, in um per unit score) and ``Y`` the training displacement span. A direction the
-    model reads with a small gain is held only where it would add more than ``m`` training spans
-    to the prediction; without ``coef`` or an output range, the score span alone.
+def _components(envelope: dict | None, n_features: int, coef=None) -> tuple | None:
+    """The envelope's components as arrays: ``(columns, center, scale, vectors, ranges, gain,
+    span)``, ``ranges`` their training score ranges (components x 2), ``gain`` the model's
+    ``|gain|`` along each (um per unit score; None without ``coef`` or an output range) and
+    ``span`` the training displacement span (None without an output range). None without
+    components.
 
     Raises
     ------
@@ -168,21 +165,39 @@ def component_bounds(envelope: dict | None, n_features: int, coef=None) -> tuple
     rng = np.asarray(comp["score_ranges"], dtype=float).reshape(-1, 2)
     vectors = np.asarray(comp["vectors"], dtype=float).reshape(len(rng), len(columns))
     scale = np.asarray(comp["scale"], dtype=float)
-    reach = rng[:, 1] - rng[:, 0]
     out = envelope.get("output_range") or [None, None]
-    if coef is not None and out[0] is not None and out[1] is not None:
+    span = float(out[1]) - float(out[0]) if out[0] is not None and out[1] is not None else None
+    gain = None
+    if coef is not None and span is not None:
         gain = np.abs(vectors @ (scale * np.asarray(coef, dtype=float)[columns]))
+    return columns, np.asarray(comp["center"], dtype=float), scale, vectors, rng, gain, span
+
+
+def component_bounds(envelope: dict | None, n_features: int, coef=None) -> tuple | None:
+    """``(columns, center, scale, vectors, low, high)`` of the envelope's components; None
+    without components (the default, or an artefact fitted before them).
+
+    Each score range is widened by the envelope's margin ``m`` times the larger of its own span
+    and ``Y / |g|``: ``g`` the model's gain along the component (``coef``, the model's
+    coefficients, in um per unit score) and ``Y`` the training displacement span. A direction the
+    model reads with a small gain is held only where it would add more than ``m`` training spans
+    to the prediction; without ``coef`` or an output range, the score span alone.
+
+    Raises
+    ------
+    ValueError
+        Components of a column the model does not have.
+    """
+    parts = _components(envelope, n_features, coef)
+    if parts is None:
+        return None
+    columns, center, scale, vectors, rng, gain, span = parts
+    reach = rng[:, 1] - rng[:, 0]
+    if gain is not None:
         with np.errstate(divide="ignore"):
-            reach = np.maximum(reach, (float(out[1]) - float(out[0])) / gain)
+            reach = np.maximum(reach, span / gain)
     pad = float(envelope["margin"]) * reach
-    return (
-        columns,
-        np.asarray(comp["center"], dtype=float),
-        scale,
-        vectors,
-        rng[:, 0] - pad,
-        rng[:, 1] + pad,
-    )
+    return columns, center, scale, vectors, rng[:, 0] - pad, rng[:, 1] + pad
 
 
 def component_reach(envelope: dict | None, n_features: int, coef=None) -> tuple | None:
@@ -190,20 +205,18 @@ def component_reach(envelope: dict | None, n_features: int, coef=None) -> tuple 
     ``(columns, center, scale, vectors, low, high, weight)``, the envelope's components with
     their training score ranges (no margin) and per component ``|g| / Y`` (``g`` the model's gain
     along it in um per unit score, ``Y`` the training displacement span). None without components,
-    coefficients or an output range (the excess is then 0)."""
-    comp = (envelope or {}).get("components")
-    out = (envelope or {}).get("output_range") or [None, None]
-    if not comp or coef is None or out[0] is None or out[1] is None:
+    coefficients or a training displacement span (the excess is then 0).
+
+    Raises
+    ------
+    ValueError
+        Components of a column the model does not have.
+    """
+    parts = _components(envelope, n_features, coef)
+    if parts is None or parts[5] is None or not parts[6] > 0:
         return None
-    span = float(out[1]) - float(out[0])
-    columns = np.asarray(comp["columns"], dtype=int)
-    if not span > 0 or (columns.size and columns.max() >= n_features):
-        return None
-    rng = np.asarray(comp["score_ranges"], dtype=float).reshape(-1, 2)
-    vectors = np.asarray(comp["vectors"], dtype=float).reshape(len(rng), len(columns))
-    scale = np.asarray(comp["scale"], dtype=float)
-    gain = np.abs(vectors @ (scale * np.asarray(coef, dtype=float)[columns]))
-    return columns, np.asarray(comp["center"], dtype=float), scale, vectors, rng[:, 0], rng[:, 1], gain / span
+    columns, center, scale, vectors, rng, gain, span = parts
+    return columns, center, scale, vectors, rng[:, 0], rng[:, 1], gain / span
 
 
 def component_excess(features: np.ndarray, reach) -> np.ndarray:
