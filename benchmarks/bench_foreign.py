@@ -572,6 +572,57 @@ def promises_markdown(rows: list[dict]) -> str:
     return "\n".join(lines)
 
 
+def paired_promises(before: list[dict], after: list[dict]) -> dict:
+    """The coverage promise of the same machines under two versions of the code (``before``: the
+    :func:`promises` of a ``--baseline`` keep, ``after``: this run's), paired by seed: per machine
+    the coverage before and after; over the machines present in both, how many are inside
+    :data:`COVERAGE_BAND`, below and above, the mean ``|coverage - level|`` with the standard error
+    of the paired differences, and whether the offered model's test MAE is the same on every
+    machine (to 1e-9 um: a change of the interval alone leaves it)."""
+    old = {r["seed"]: r for r in before}
+    pairs = [(old[r["seed"]], r) for r in after if r["seed"] in old]
+    lo, hi = COVERAGE_BAND
+
+    def counts(rows):
+        cov = np.array([r["coverage"] for r in rows])
+        return {
+            "inside": int(((cov >= lo) & (cov <= hi)).sum()),
+            "below": int((cov < lo).sum()),
+            "above": int((cov > hi).sum()),
+        }
+
+    dev_before = np.array([abs(b["coverage"] - COVERAGE_LEVEL) for b, _ in pairs])
+    dev_after = np.array([abs(a["coverage"] - COVERAGE_LEVEL) for _, a in pairs])
+    diff = dev_after - dev_before
+    return {
+        "machines": len(pairs),
+        "rows": [{"seed": a["seed"], "before": b["coverage"], "after": a["coverage"]} for b, a in pairs],
+        "before": counts([b for b, _ in pairs]),
+        "after": counts([a for _, a in pairs]),
+        "mean_deviation_before": float(dev_before.mean()) if len(pairs) else np.nan,
+        "mean_deviation_after": float(dev_after.mean()) if len(pairs) else np.nan,
+        "deviation_se": float(diff.std(ddof=1) / np.sqrt(len(diff))) if len(diff) > 1 else np.nan,
+        "same_mae": all(abs(a["offered_mae"] - b["offered_mae"]) <= 1e-9 for b, a in pairs),
+    }
+
+
+def paired_markdown(paired: dict) -> str:
+    """:func:`paired_promises` as a table per machine and a line of totals."""
+    lines = ["| seed | 90 % coverage before | after |", "|---|---|---|"]
+    for r in paired["rows"]:
+        lines.append(f"| {r['seed']} | {100 * r['before']:.1f} % | {100 * r['after']:.1f} % |")
+    b, a = paired["before"], paired["after"]
+    lines += [
+        "",
+        f"Over {paired['machines']} machines: inside 80-97 % {b['inside']} -> {a['inside']}, below "
+        f"{b['below']} -> {a['below']}, above {b['above']} -> {a['above']}; mean |coverage - 90| "
+        f"{100 * paired['mean_deviation_before']:.2f} -> {100 * paired['mean_deviation_after']:.2f} points "
+        f"(SE of the paired difference {100 * paired['deviation_se']:.2f}); the offered test MAE "
+        + ("the same on every machine." if paired["same_mae"] else "**differs** on some machine."),
+    ]
+    return "\n".join(lines)
+
+
 def markdown(report: dict) -> str:
     """The report: the table per rule across machines, the decision, a line per seed."""
     head = (
@@ -608,6 +659,8 @@ def markdown(report: dict) -> str:
     ]
     if report.get("promises"):
         lines += ["", "## What issue 46 will check on unseen logs", "", promises_markdown(report["promises"])]
+    if report.get("paired"):
+        lines += ["", f"## Against {report['baseline']}", "", paired_markdown(report["paired"])]
     return "\n".join(lines) + "\n"
 
 
@@ -652,6 +705,13 @@ def main(argv: list[str] | None = None) -> int:
         "simulate foreign --setup-change: the training runs disagree); use its own --keep",
     )
     parser.add_argument("--report-only", action="store_true", help="only the seeds already done under --keep")
+    parser.add_argument(
+        "--baseline",
+        type=Path,
+        default=None,
+        help="another --keep of the same seeds and settings made with other code (a worktree of an "
+        "earlier commit): each machine's coverage promise before and after, paired",
+    )
     parser.add_argument(
         "--offered-only",
         action="store_true",
@@ -714,6 +774,16 @@ def main(argv: list[str] | None = None) -> int:
         "promises": [p for r in results if (p := promises(r, keep / f"seed-{r['seed']:03d}")) is not None],
         "machines": results,
     }
+    if args.baseline is not None:
+        before = []
+        for r in results:
+            kept = args.baseline / f"seed-{r['seed']:03d}"
+            if (kept / "result.json").is_file():
+                old = json.loads((kept / "result.json").read_text(encoding="utf-8"))
+                if (p := promises(old, kept)) is not None:
+                    before.append(p)
+        report["baseline"] = str(args.baseline)
+        report["paired"] = paired_promises(before, report["promises"])
     text = markdown(report)
     print("\n" + text)
     write_results(args.out, report, text)

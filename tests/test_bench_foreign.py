@@ -252,3 +252,23 @@ def test_the_promises_of_a_kept_machine_and_their_counts(bench, tmp_path):
     assert "at or below the family's plain ridge on 1 of 2 machines" in text
     assert "worse than no compensation: 2 of 4" in text
     assert "on 1 of 2 (0 below, 1 above)" in text
+
+
+def test_two_versions_of_the_code_are_compared_machine_by_machine(bench):
+    def row(seed, coverage, mae=0.5):
+        return {"seed": seed, "coverage": coverage, "offered_mae": mae}
+
+    before = [row(1, 0.70), row(2, 0.99), row(3, 0.90), row(9, 0.5)]
+    after = [row(1, 0.85), row(2, 0.99), row(3, 0.80), row(4, 0.9)]  # seeds 4 and 9 unpaired
+    paired = bench.paired_promises(before, after)
+    assert paired["machines"] == 3 and [r["seed"] for r in paired["rows"]] == [1, 2, 3]
+    assert paired["before"] == {"inside": 1, "below": 1, "above": 1}
+    assert paired["after"] == {"inside": 2, "below": 0, "above": 1}
+    assert paired["mean_deviation_before"] == pytest.approx((0.20 + 0.09 + 0.0) / 3)
+    assert paired["mean_deviation_after"] == pytest.approx((0.05 + 0.09 + 0.10) / 3)
+    assert paired["deviation_se"] == pytest.approx(np.std([-0.15, 0.0, 0.10], ddof=1) / np.sqrt(3))
+    assert paired["same_mae"]
+    assert not bench.paired_promises(before, [row(1, 0.85, mae=0.6)])["same_mae"]
+    text = bench.paired_markdown(paired)
+    assert "| 1 | 70.0 % | 85.0 % |" in text and "inside 80-97 % 1 -> 2, below 1 -> 0, above 1 -> 1" in text
+    assert "the same on every machine" in text
