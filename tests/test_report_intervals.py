@@ -281,7 +281,40 @@ def test_a_verdict_without_a_level_says_nothing():
     assert worst_run_interval(rows.assign(coverage=[0.9, np.nan]), 0.9) is None  # at the worst run
     got = worst_run_interval(rows, 0.9)
     assert got["run_id"] == "b" and got["half_width_um"] == 2.0 and got["coverage_pct"] == 80.0
+    assert got["uncompensated_um"] is None  # no uncompensated figure to compare with
     assert times_in(0.9) == "9 times in 10" and times_in(0.95) == "19 times in 20" and times_in(1.0) is None
+
+
+def test_an_interval_wider_than_the_displacement_itself_is_said():
+    """At the worst run the half-width (2 um) against the largest uncompensated change: said only
+    when wider than it, with that figure (the machine's own table), in the verdict's sentence."""
+    from collections import defaultdict
+
+    from test_report_text import _section
+
+    rows = pd.DataFrame(
+        {
+            "run_id": ["a", "b"],
+            "max_abs_after_um": [1.0, 3.0],
+            "max_abs_before_um": [9.0, 1.5],
+            "coverage": [0.9, 0.8],
+            "interval_width_um": [2.0, 4.0],
+        }
+    )
+    wide = worst_run_interval(rows, 0.9)
+    assert wide["uncompensated_um"] == 1.5
+    assert worst_run_interval(rows.assign(max_abs_before_um=[9.0, 2.0]), 0.9)["uncompensated_um"] is None
+    assert worst_run_interval(rows, 0.9, run_id="a")["uncompensated_um"] is None
+
+    def said(iv):  # a verdict with nothing else to say (every other key absent)
+        verdict = defaultdict(lambda: None, interval=iv, css="fail", status="FAIL", stored=True, rows=[])
+        return _text(_section("verdict", verdict=verdict))
+
+    text = said(wide)
+    assert "That is wider than the displacement change itself on that run (at most 1.50" in text
+    assert "cannot be told from none" in text
+    narrow = worst_run_interval(rows.assign(max_abs_before_um=[9.0, 2.0]), 0.9)
+    assert "At the worst run b" in said(narrow) and "wider than the displacement" not in said(narrow)
 
 
 # --------------------------------------------------------------------------- figures

@@ -139,7 +139,10 @@ def worst_run_interval(rows: pd.DataFrame | None, level, run_id=None) -> dict | 
     -------
     dict or None
         ``run_id``, ``half_width_um`` (half the median width), ``width_um``, ``coverage_pct``,
-        ``level_pct`` and ``times`` (:func:`times_in`); ``None`` without a level, a coverage
+        ``level_pct``, ``times`` (:func:`times_in`) and ``uncompensated_um``: the run's largest
+        uncompensated displacement change (``max_abs_before_um``) when the half-width is wider
+        than it (an interval that no longer tells a compensation from none: the model is far
+        from what it was trained on there), else None; ``None`` without a level, a coverage
         column or a finite value at that run.
     """
     times = times_in(level)
@@ -157,13 +160,17 @@ def worst_run_interval(rows: pd.DataFrame | None, level, run_id=None) -> dict | 
     f = coverage_fields(hit.iloc[0])
     if f["coverage_pct"] is None or f["interval_width_um"] is None:
         return None
+    half = f["interval_width_um"] / 2.0
+    before = hit.iloc[0].get("max_abs_before_um")
+    wider = isnum(before) and half > float(before)
     return {
         "run_id": str(run_id),
-        "half_width_um": f["interval_width_um"] / 2.0,
+        "half_width_um": half,
         "width_um": f["interval_width_um"],
         "coverage_pct": f["coverage_pct"],
         "level_pct": 100.0 * float(level),
         "times": times,
+        "uncompensated_um": float(before) if wider else None,
     }
 
 
