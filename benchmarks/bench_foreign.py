@@ -183,12 +183,17 @@ def run_pipeline(proj: Path, machine: str, cores: int) -> float:
     return time.perf_counter() - t0
 
 
+def day_of_runs(runs: pd.DataFrame) -> dict:
+    """Run id -> the file stem of the day log it was cut from (the pipeline's ``runs.csv``)."""
+    return dict(zip(runs["run_id"].astype(str), runs["file"].astype(str).str.rsplit(".", n=1).str[0]))
+
+
 def test_rows(proj: Path, machine: str, truth: dict) -> pd.DataFrame:
     """The validation residuals of every kind on the test days: ``model``, ``day`` (the test
     day's file stem), ``run_id``, ``t_s``, ``measured_um``, ``predicted_um``."""
     res = proj / "results" / machine
     runs = pd.read_csv(res / RESULT_FILES["runs_csv"])
-    day_of = dict(zip(runs["run_id"].astype(str), runs["file"].astype(str).str.rsplit(".", n=1).str[0]))
+    day_of = day_of_runs(runs)
     rows = pd.read_parquet(res / RESULT_FILES["comparison_residuals"])
     rows = rows.assign(run_id=rows["run_id"].astype(str), model=rows["model"].astype(str))
     rows["day"] = rows["run_id"].map(day_of)
@@ -486,7 +491,7 @@ def day_coverage(per_run: pd.DataFrame, runs: pd.DataFrame, model: str, days) ->
     """Per test day (a file stem of ``days``): its samples ``n`` and the share ``coverage`` of them
     inside ``model``'s 90 % interval, from the pipeline's ``comparison/per_run.csv`` (a run's
     ``coverage`` weighted by its ``n_samples``) and ``runs.csv`` (which file a run came from)."""
-    day_of = dict(zip(runs["run_id"].astype(str), runs["file"].astype(str).str.rsplit(".", n=1).str[0]))
+    day_of = day_of_runs(runs)
     rows = per_run.loc[per_run["model"].astype(str) == model].copy()
     rows["day"] = rows["run_id"].astype(str).map(day_of)
     rows = rows.loc[rows["day"].isin(set(days)) & rows["coverage"].notna()]
