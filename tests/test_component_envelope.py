@@ -29,6 +29,7 @@ from rafi.family.envelope import (
     component_bounds,
     component_excess,
     component_reach,
+    component_scores,
     fit_envelope,
     join_envelope,
 )
@@ -98,6 +99,25 @@ def test_the_component_excess_is_what_the_prediction_reaches_beyond_the_trained_
         and component_reach(fit_envelope(x, components=True), 2, coef) is None
     )
     assert np.all(component_excess(test, None) == 0.0)
+
+
+def test_one_set_of_scores_serves_the_bound_and_the_excess():
+    """The compensator and the batch code compute the component scores once for both: the
+    bound and the excess read from them are those each computes on its own, to the bit."""
+    x, y = _collinear_pair()
+    coef = np.array([31.0, -30.0])
+    env = json.loads(json.dumps(fit_envelope(x, y, components=True)))
+    bounds, reach = component_bounds(env, 2, coef), component_reach(env, 2, coef)
+    test = np.array([[5.0, 8.0], [5.0, 5.0], [5.0, 11.0], [np.nan, 1.0], [-40.0, 40.0]])
+    scores = component_scores(test, bounds)
+    np.testing.assert_array_equal(scores, component_scores(test, reach))  # the same components
+    held, outside = bound_components(test, bounds, scores)
+    held_alone, outside_alone = bound_components(test, bounds)
+    np.testing.assert_array_equal(held, held_alone)
+    np.testing.assert_array_equal(outside, outside_alone)
+    assert outside.tolist() == [True, False, True, False, True]
+    np.testing.assert_array_equal(component_excess(test, reach, scores), component_excess(test, reach))
+    assert component_scores(test, None) is None
 
 
 @settings(max_examples=60, deadline=None)

@@ -112,6 +112,7 @@ from rafi.family.envelope import (
     component_bounds,
     component_excess,
     component_reach,
+    component_scores,
     envelope_bounds,
     key_range_excess,
     key_range_inputs,
@@ -596,7 +597,11 @@ class Compensator:
             parts.append(np.array([draw - (self.ref_speed_rpm / SPEED_SCALE_RPM) ** 2]))
         # rafi.family.envelope: the components, the box, the output, as the batch code
         design = np.concatenate(parts)
-        combined, beyond_components = bound_components(design, self.components)
+        # one set of component scores for the bound and the interval's excess (same components)
+        scores = component_scores(design[None, :], self.components or self.reach)
+        combined, beyond_components = bound_components(
+            design, self.components, None if scores is None else scores[0]
+        )
         bounded, beyond = bound_features(combined, self.envelope)
         pred, beyond_output = bound_output(bounded @ self.coef, self.output_bounds)
         self._outside_envelope = bool(beyond or beyond_output or beyond_components)
@@ -609,7 +614,7 @@ class Compensator:
         excess = key_range_excess(
             rises[None, :], [rpm], self.ranges, self.speed_range_rpm, inputs=self._excess_inputs
         )
-        self._excess = float(excess[0] + component_excess(design[None, :], self.reach)[0])
+        self._excess = float(excess[0] + component_excess(design[None, :], self.reach, scores)[0])
         return pred, out_speed, out_temp
 
     def speed_weights(self, rpm: float) -> tuple[np.ndarray, np.ndarray]:

@@ -44,6 +44,7 @@ __all__ = [
     "component_bounds",
     "component_excess",
     "component_reach",
+    "component_scores",
     "envelope_bounds",
     "fit_components",
     "fit_envelope",
@@ -219,7 +220,17 @@ def component_reach(envelope: dict | None, n_features: int, coef=None) -> tuple 
     return columns, center, scale, vectors, rng[:, 0], rng[:, 1], gain / span
 
 
-def component_excess(features: np.ndarray, reach) -> np.ndarray:
+def component_scores(features: np.ndarray, parts) -> np.ndarray | None:
+    """The principal-component scores of ``features`` (rows x components) on the components of
+    ``parts``: what :func:`component_bounds` or :func:`component_reach` returned for one envelope
+    (they share its components, so one set of scores serves both). None without components."""
+    if parts is None:
+        return None
+    columns, center, scale, vectors = parts[:4]
+    return ((np.asarray(features, dtype=float)[..., columns] - center) / scale) @ vectors.T
+
+
+def component_excess(features: np.ndarray, reach, scores: np.ndarray | None = None) -> np.ndarray:
     """Per row, how far the prediction reaches beyond the combinations of features the model was
     trained on: over the principal components of its standardised features (:func:`component_reach`),
     the sum of each score's distance beyond its training range times the model's gain along it, in
@@ -227,12 +238,14 @@ def component_excess(features: np.ndarray, reach) -> np.ndarray:
     The prediction interval widens with it beside the key sensors' :func:`range_excess`
     (:mod:`rafi.family.interval_rule`): a direction of the temperatures the training never showed
     (a heat source nobody put a sensor on, a sensor reseated, a warm start) is one the model was
-    never checked on, though every sensor may be inside its own range."""
+    never checked on, though every sensor may be inside its own range. ``scores``: the rows'
+    :func:`component_scores` if already computed."""
     x = np.asarray(features, dtype=float)
     if reach is None:
         return np.zeros(x.shape[:-1])
-    columns, center, scale, vectors, lo, hi, weight = reach
-    scores = ((x[..., columns] - center) / scale) @ vectors.T
+    lo, hi, weight = reach[4:]
+    if scores is None:
+        scores = component_scores(x, reach)
     with np.errstate(invalid="ignore"):
         beyond = np.maximum(lo - scores, scores - hi)
     beyond = np.where(np.isfinite(beyond), np.maximum(beyond, 0.0), 0.0)
@@ -240,18 +253,20 @@ def component_excess(features: np.ndarray, reach) -> np.ndarray:
     return np.where(np.isfinite(x).all(axis=-1), total, 0.0)
 
 
-def bound_components(features: np.ndarray, bounds) -> tuple[np.ndarray, np.ndarray]:
+def bound_components(
+    features: np.ndarray, bounds, scores: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """``features`` with each principal component's score held inside ``bounds``
     (:func:`component_bounds`) and, per row, whether any score was outside. A row inside is
     returned unchanged to the bit; a row outside moves along its clipped components only (the
     other components' scores stay as they were). A row with a NaN is never outside. Without
-    bounds: unchanged."""
+    bounds: unchanged. ``scores``: the rows' :func:`component_scores` if already computed."""
     x = np.asarray(features, dtype=float)
     if bounds is None:
         return x, np.zeros(x.shape[:-1], dtype=bool)
     columns, center, scale, vectors, lo, hi = bounds
-    z = (x[..., columns] - center) / scale
-    scores = z @ vectors.T
+    if scores is None:
+        scores = component_scores(x, bounds)
     with np.errstate(invalid="ignore"):
         outside = ((scores < lo) | (scores > hi)).any(axis=-1)
     if not outside.any():

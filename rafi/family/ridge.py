@@ -19,6 +19,7 @@ from rafi.family.envelope import (
     component_bounds,
     component_excess,
     component_reach,
+    component_scores,
     envelope_bounds,
     fit_envelope,
     key_range_excess,
@@ -388,9 +389,9 @@ class RidgeBase(FamilyModel):
         (:func:`rafi.family.envelope.range_excess`; the interval widens with it)."""
         feats = self._design_of(frame)
         envelope = getattr(self, "envelope_", None)
-        combined, beyond_components = bound_components(
-            feats, component_bounds(envelope, feats.shape[1], self.coef_)
-        )
+        bounds = component_bounds(envelope, feats.shape[1], self.coef_)
+        scores = component_scores(feats, bounds)  # the interval's excess below reads them too
+        combined, beyond_components = bound_components(feats, bounds, scores)
         bounded, beyond = bound_features(combined, envelope_bounds(envelope, feats.shape[1]))
         beyond = beyond | beyond_components
         pred, beyond_output = bound_output(bounded @ self.coef_, output_bounds(envelope))
@@ -401,7 +402,8 @@ class RidgeBase(FamilyModel):
         n = frame["speed_rpm"].to_numpy(dtype=float)
         excess = key_range_excess(x, n, np.column_stack([lo, hi]), self.speed_range_rpm_)
         if reads_components(getattr(self, "interval_", None)):
-            excess = excess + component_excess(feats, component_reach(envelope, feats.shape[1], self.coef_))
+            reach = component_reach(envelope, feats.shape[1], self.coef_)
+            excess = excess + component_excess(feats, reach, scores)
         return pd.DataFrame(
             {
                 "predicted_um": pred,
