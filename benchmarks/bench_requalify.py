@@ -1488,7 +1488,7 @@ def run_random(seeds: list[int], args, settings: dict) -> list[dict]:
                     f"{path}: kept at {res.get('budget_h'):g} h of new data, asked for "
                     f"{args.budget:g} h (--budget): keep each budget in its own --keep DIR"
                 )
-            out.append(with_repeat_full(with_no_fold(res, path, args, settings, cache), path, args, settings))
+            out.append(with_extras(res, path, args, settings, cache))
             continue
         started = time.perf_counter()
         res = one_random(seed, args, settings, cache)
@@ -1502,8 +1502,14 @@ def run_random(seeds: list[int], args, settings: dict) -> list[dict]:
         )
         if path is not None:
             write_text_atomic(path, json.dumps(res, indent=1, default=float) + "\n")
-        out.append(with_repeat_full(with_no_fold(res, path, args, settings, cache), path, args, settings))
+        out.append(with_extras(res, path, args, settings, cache))
     return out
+
+
+def with_extras(res: dict, path: Path | None, args, settings: dict, cache: dict) -> dict:
+    """``res`` with what the options ask beside the 4 h fit: the fit without a fold
+    (:func:`with_no_fold`) and the full plan run again (:func:`with_repeat_full`)."""
+    return with_repeat_full(with_no_fold(res, path, args, settings, cache), path, args, settings)
 
 
 def with_no_fold(res: dict, path: Path | None, args, settings: dict, cache: dict) -> dict:
