@@ -6,14 +6,16 @@ that run), ``predicted_um`` and, where the model has one, its 90 % interval ``lo
 ``upper_um``. :func:`per_run` turns them into one line per test run and model: rows, test MAE,
 largest error, the interval's coverage and mean width; the pseudo model ``none`` (no
 compensation: the error is the target itself) and the pooled line ``all`` (every test row of the
-log) are added. :func:`per_run_markdown` writes the two tables of one log. Nothing here reads a
-file: the tests feed generated rows.
+log) are added. :func:`per_run_markdown` writes the two tables of one log, and below them
+:func:`chance_sentence`: how much of issue 46's coverage promise chance decides on so few test
+runs. Nothing here reads a file: the tests feed generated rows.
 """
 
 from __future__ import annotations
 
 import numpy as np
 import pandas as pd
+from _coverage import NAMED_LOG_BAND, UNSEEN_LOG_BAND, band_chance
 
 #: The pseudo model "no compensation" and the pooled line of every test run.
 NONE = "none"
@@ -134,4 +136,29 @@ def per_run_markdown(table: pd.DataFrame, offered: str, extra: dict | None = Non
     for run in runs:
         cells = [run] + [f"{pct(cell[(run, m)].coverage)} / {fmt(cell[(run, m)].width_um)}" for m in models]
         lines.append(f"| {' | '.join(cells)} |")
-    return lines
+    chance = chance_sentence(table, offered)
+    return lines + ["", chance] if chance else lines
+
+
+def band_text(band: tuple[float, float]) -> str:
+    """A coverage band as words: ``85-95 %``."""
+    return f"{100 * band[0]:.0f}-{100 * band[1]:.0f} %"
+
+
+def chance_sentence(table: pd.DataFrame, offered: str) -> str | None:
+    """How much of the offered model's coverage promise chance decides on these test runs: the
+    spread of its coverage over the runs and the chance that a perfectly calibrated interval
+    varying as much covers a share within issue 46's bands (:func:`band_chance`). None with fewer
+    than two runs with a coverage."""
+    rows = table.loc[(table["model"] == offered) & (table["run_id"] != ALL)]
+    cov = rows["coverage"].astype(float).dropna()
+    if len(cov) < 2:
+        return None
+    named, unseen = band_chance(cov, NAMED_LOG_BAND), band_chance(cov, UNSEEN_LOG_BAND)
+    named_band, unseen_band = (band_text(b) for b in (NAMED_LOG_BAND, UNSEEN_LOG_BAND))
+    return (
+        f"The offered model's interval covers {pct(cov.min())} to {pct(cov.max())} of a test run's "
+        f"rows (spread {100 * cov.std(ddof=1):.1f} points over {len(cov)} runs): a perfectly "
+        f"calibrated interval varying as much from run to run would cover {named_band} of the test "
+        f"rows with a chance of {named:.2f} ({unseen_band}: {unseen:.2f})."
+    )

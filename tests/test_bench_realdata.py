@@ -216,6 +216,31 @@ def test_the_per_run_tables_put_the_offered_model_first_and_no_compensation_last
     assert [c.strip() for c in cover.strip("|").split("|")] == ["a", "- / -", "100.0% / 2.00"]
 
 
+def test_below_the_coverage_table_the_chance_a_perfect_interval_keeps_the_promise():
+    # five runs whose mean coverage has a standard error of 0.05 (as in test_bench_foreign; the
+    # chance is that of a perfect interval, so only the spread counts): 85-95 % is +-1.0 standard
+    # error, Student's t with 4 degrees of freedom (tables: P(T <= 1.0) = 0.8130) gives 0.626;
+    # 80-97 % gives 0.8248
+    cov = 0.85 + np.array([-2, -1, 0, 1, 2]) * 0.05 * np.sqrt(5 / 2.5)
+    table = pd.DataFrame(
+        {
+            "run_id": [*"abcde", "all", *"abcde"],
+            "model": ["ens"] * 6 + ["ridge"] * 5,
+            "rows": 10,
+            "mae_um": 1.0,
+            "max_um": 2.0,
+            "coverage": [*cov, 0.9, *(cov * 0 + 0.5)],
+            "width_um": 1.0,
+        }
+    )
+    sentence = runs_mod.chance_sentence(table, "ens")
+    assert "covers 70.9% to 99.1% of a test run's rows (spread 11.2 points over 5 runs)" in sentence
+    assert "cover 85-95 % of the test rows with a chance of 0.63 (80-97 %: 0.82)" in sentence
+    # runs that do not vary: a perfect interval would cover 90 % of each
+    assert runs_mod.chance_sentence(table, "ridge").endswith("with a chance of 1.00 (80-97 %: 1.00).")
+    assert runs_mod.chance_sentence(table.iloc[[0, 5]], "ens") is None  # one run: no spread to judge
+
+
 def test_a_real_log_whose_data_is_absent_is_skipped(tmp_path):
     plan, skipped = bench.log_plan(list(bench.LOGS), tmp_path / "none.xlsx", None)
     assert plan == [] and len(skipped) == 2
