@@ -22,14 +22,19 @@ the pipeline's models otherwise:
 * **Logs**: the samples of each log (column ``log``) in ``log_t_s`` order, every sample of a log
   whatever its role (the filters run causally from the log's first sample, as a controller's
   would).
-* **Features**: every temperature sensor ``T1``..``T16`` usable on the training rows (some
-  finite value, not constant); a missing value holds the sensor's last value within its log (at
-  the log's start, its first finite value). Rises from the mean over the log's first
-  ``RIDGE_REST_S`` and their low-pass filters (``RIDGE_TAUS_S``), 3 columns per sensor,
-  standardised on the fitting rows.
+* **Features**: every temperature sensor of the machine (its own names, the columns ``s`` of
+  ``runs.parquet`` beside their rise ``d<s>``: :func:`rafi.contract.sensors.run_sensors`) usable on
+  the training rows (some finite value, not constant); a missing value holds the sensor's last
+  value within its log (at the log's start, its first finite value). Per sensor the temperature
+  and its low-pass filters (``RIDGE_TAUS_S``, run over the whole log), each as a change from the
+  temperature at the sample's reference (the run's or the log's, as the pipeline took it for
+  ``dz_um``: the median over the run of ``s - d<s>``), 3 columns per sensor, standardised on the
+  fitting rows. On a log with one reference (FL_THERMAL's ``log_start``) these are
+  ``bench_realdata``'s rises and their filters.
 * **Target**: ``dz_um``, the displacement change from the pipeline's reference, the quantity every
   model of the family predicts (``measured_um`` of ``comparison/residuals.parquet``), with an
-  unpenalised intercept.
+  unpenalised intercept. Features and target change from the same reference, so a log of several
+  runs each referenced at its own start (``run_start``) is read as the pipeline reads it.
 * **Penalty**: blocked CV on the training rows only (``RIDGE_BLOCKS`` contiguous blocks of equal
   row count, rows within ``RIDGE_GAP_S`` of a held-out block left out of its fit). The logs are
   laid end to end on one time axis, each one ``2 x RIDGE_GAP_S`` after the previous one ends, so
@@ -49,6 +54,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -63,7 +69,6 @@ from _results import write_results  # noqa: E402
 from bench_realdata import (  # noqa: E402
     RIDGE_ALPHAS,
     RIDGE_GAP_S,
-    RIDGE_REST_S,
     RIDGE_TAUS_S,
     choose_alpha,
     lowpass,
@@ -72,7 +77,7 @@ from bench_realdata import (  # noqa: E402
     ridge_predict,
 )
 
-from rafi import SENSORS  # noqa: E402
+from rafi.contract.sensors import run_sensors  # noqa: E402
 
 
 def in_log_order(frame: pd.DataFrame) -> pd.DataFrame:
@@ -103,11 +108,12 @@ def end_to_end_time(frame: pd.DataFrame, gap_s: float = RIDGE_GAP_S) -> np.ndarr
 
 
 def ridge_sensors(frame: pd.DataFrame, train: np.ndarray) -> list[str]:
-    """The sensors (:data:`rafi.SENSORS`) with a finite value on the training rows and not constant
-    there (unlike the family's :func:`rafi.family.features.usable_sensors`, a sensor with missing
-    values is kept: :func:`plain_features` holds its last value)."""
+    """The machine's sensors (:func:`rafi.contract.sensors.run_sensors`) with a finite value on the
+    training rows and not constant there (unlike the family's
+    :func:`rafi.family.features.usable_sensors`, a sensor with missing values is kept:
+    :func:`plain_features` holds its last value)."""
     keep = []
-    for col in (s for s in SENSORS if s in frame.columns):
+    for col in run_sensors(frame):
         values = frame[col].to_numpy(dtype=float)[train]
         finite = values[np.isfinite(values)]
         if finite.size and np.ptp(finite) > 0:
@@ -115,18 +121,37 @@ def ridge_sensors(frame: pd.DataFrame, train: np.ndarray) -> list[str]:
     return keep
 
 
+def reference_temperatures(frame: pd.DataFrame, sensors: list[str]) -> np.ndarray:
+    """Per sample and sensor, the temperature at the sample's reference as the pipeline took it
+    (``runs.parquet``'s rise ``d<s>`` is ``s`` minus it, one value a run): the median over the run
+    of ``s - d<s>``; a run where that is never finite falls back to the run's first held value
+    (:func:`plain_features`' hold)."""
+    out = np.empty((len(frame), len(sensors)))
+    held = frame[sensors].ffill().bfill().to_numpy(dtype=float)
+    for rows in frame.groupby(frame["run_id"].astype(str), sort=False).indices.values():
+        part = frame.iloc[rows]
+        diff = part[sensors].to_numpy(dtype=float) - part[[f"d{s}" for s in sensors]].to_numpy(dtype=float)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a sensor never finite in the run
+            ref = np.nanmedian(diff, axis=0)
+        out[rows] = np.where(np.isfinite(ref), ref, held[rows[0]])
+    return out
+
+
 def plain_features(frame: pd.DataFrame, sensors: list[str]) -> np.ndarray:
     """The plain ridge's features of a frame in :func:`in_log_order` (module docstring): per log,
-    the held sensors' rises from the mean over the first ``RIDGE_REST_S`` and their low-pass
-    filters, ``3 x len(sensors)`` columns (rises first, then per filter)."""
+    the held sensors' temperatures and their low-pass filters (run over the log), each less the
+    temperature at the sample's reference (:func:`reference_temperatures`), ``3 x len(sensors)``
+    columns (rises first, then per filter)."""
     x = np.empty((len(frame), len(sensors) * (1 + len(RIDGE_TAUS_S))))
+    ref = reference_temperatures(frame, sensors)
     for rows in frame.groupby(frame["log"].astype(str), sort=False).indices.values():
         part = frame.iloc[rows]
         temps = part[sensors].ffill().bfill().to_numpy(dtype=float)
         t_log = part["log_t_s"].to_numpy(dtype=float)
-        rest = t_log - t_log[0] < RIDGE_REST_S
-        rises = temps - temps[rest].mean(axis=0)
-        x[rows] = np.hstack([rises, *(lowpass(rises, t_log, tau) for tau in RIDGE_TAUS_S)])
+        x[rows] = np.hstack(
+            [temps - ref[rows], *(lowpass(temps, t_log, tau) - ref[rows] for tau in RIDGE_TAUS_S)]
+        )
     return x
 
 

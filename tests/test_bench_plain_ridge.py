@@ -35,6 +35,9 @@ def _log(name: str, start: str, n_runs: int, roles: list[str], rng) -> tuple[pd.
             "T3": t3,
         }
     )
+    rest = t < realdata.RIDGE_REST_S  # the log's reference (log_start), as bench_realdata takes it
+    for name_ in ("T1", "T2", "T3"):
+        frame[f"d{name_}"] = frame[name_] - frame.loc[rest, name_].mean()
     table = [
         {"run_id": f"{name}#{i + 1}", "role": role, "file": f"{name}.csv", "start_time": f"{start}+{i}"}
         for i, role in enumerate(roles)
@@ -101,6 +104,53 @@ def test_the_offered_model_is_scored_on_its_own_validation_samples(tmp_path):
         assert row["scores"]["offered"][key] == pytest.approx(expected[key], abs=1e-12)
     assert row["scores"]["offered"]["mae_um"] == pytest.approx(BIAS_UM, abs=3 * NOISE_UM)
     assert row["ratio_mae"] > 5
+
+
+def test_a_machine_of_its_own_sensors_and_runs_referenced_at_their_start(tmp_path):
+    """Sensors not named T1..T16, two runs a log each referenced at its own start (run_start): the
+    features change from the same reference as the target, so a displacement inside their space
+    is recovered (before, the bench read T1..T16 only and the rises from the log's start)."""
+    rng = np.random.default_rng(3)
+    step, run_s = 60.0, 4 * 3600.0  # blocks of the penalty's CV keep rows beside their 3 h guard
+    frames, table = [], []
+    days = (["training", "training"], ["training", "training"], ["training", "validation_single"])
+    for day, roles in enumerate(days):
+        t = np.arange(0.0, 2 * run_s, step)
+        spindle = (
+            22.0
+            + day
+            + 4.0 * (1.0 - np.exp(-t / 2000.0))
+            - 2.0 * (t >= run_s) * (1.0 - np.exp(-(t - run_s) / 1500.0))
+        )
+        bed = 21.0 + 0.5 * day + 0.8 * np.sin(t / 3000.0)
+        run = np.where(t < run_s, 1, 2)
+        part = pd.DataFrame(
+            {
+                "run_id": [f"d{day}#{r}" for r in run],
+                "t_s": t - (run - 1) * run_s,
+                "time": pd.Timestamp(f"2026-02-0{day + 1}") + pd.to_timedelta(t, unit="s"),
+                "log": f"d{day}.csv",
+                "log_t_s": t,
+                "spindle_front": spindle,
+                "bed": bed,
+            }
+        )
+        start = part.groupby("run_id")[["spindle_front", "bed"]].transform("first")
+        part["dspindle_front"] = part["spindle_front"] - start["spindle_front"]
+        part["dbed"] = part["bed"] - start["bed"]
+        slow = realdata.lowpass(part[["spindle_front"]].to_numpy(), t, 3600.0)[:, 0] - start["spindle_front"]
+        part["dz_um"] = 2.0 * part["dspindle_front"] - 1.2 * part["dbed"] + 0.7 * slow
+        part["dz_um"] += rng.normal(0.0, NOISE_UM, len(part))
+        frames.append(part)
+        table += [
+            {"run_id": f"d{day}#{i + 1}", "role": r, "file": f"d{day}.csv"} for i, r in enumerate(roles)
+        ]
+    frame = pd.concat(frames, ignore_index=True)
+    pred, record = bench.plain_ridge_predictions(frame, pd.DataFrame(table))
+    assert record["sensors"] == ["spindle_front", "bed"]
+    valid = (pred["run_id"] == "d2#2").to_numpy()
+    err = frame.loc[valid, "dz_um"].to_numpy() - pred.loc[valid, "predicted_um"].to_numpy()
+    assert np.abs(err).mean() < 5 * NOISE_UM
 
 
 def test_run_scores_by_hand():
