@@ -87,6 +87,7 @@ for path in (ROOT, ROOT / "benchmarks"):
     if str(path) not in sys.path:
         sys.path.insert(0, str(path))
 
+import bench_plain_ridge as plain_ridge  # noqa: E402
 import bench_selection_rules as judge  # noqa: E402
 from _coverage import LEVEL, UNSEEN_LOG_BAND, band_chance  # noqa: E402
 from _results import write_results  # noqa: E402
@@ -519,11 +520,27 @@ def promises(result: dict, folder: Path) -> dict | None:
         "seed": result["seed"],
         "offered_mae": offered["mae"],
         "ridge_mae": ridge,
+        **independent_ridge(res),
         "test_days": len(days),
         "worse_than_none": sum(d["mae"] > d["none_mae"] for d in days),
         "coverage": total,
         "day_sd": float(cov["coverage"].std(ddof=1)) if len(cov) > 1 else np.nan,
         "band_chance": band_chance(cov["coverage"]),
+    }
+
+
+def independent_ridge(result_dir: Path) -> dict:
+    """The plain ridge written apart from the family (``bench_plain_ridge.py``'s, fitted on the
+    machine's training runs) on the offered model's test samples: ``independent_ridge_mae`` and
+    the offered model's MAE over it on the same samples, ``independent_ratio``; NaN where the kept
+    project lacks the tables it reads."""
+    needed = [RESULT_FILES[k] for k in ("runs_parquet", "runs_csv", "comparison", "comparison_residuals")]
+    if not all((result_dir / name).is_file() for name in needed):
+        return {"independent_ridge_mae": np.nan, "independent_ratio": np.nan}
+    scores = plain_ridge.machine_scores(result_dir)
+    return {
+        "independent_ridge_mae": scores["scores"]["plain_ridge"]["mae_um"],
+        "independent_ratio": scores["ratio_mae"],
     }
 
 
@@ -533,18 +550,28 @@ def promises_markdown(rows: list[dict]) -> str:
     perfectly calibrated interval would expect inside it (the sum of :func:`band_chance`)."""
     lo, hi = (100 * b for b in COVERAGE_BAND)
     lines = [
-        "| seed | offered test MAE (um) | plain ridge | test days worse than none | 90 % coverage | "
-        "its spread over days (points) | chance inside the band if perfectly calibrated |",
-        "|---|---|---|---|---|---|---|",
+        "| seed | offered test MAE (um) | the family's plain ridge | a plain ridge written apart "
+        "(offered / it) | test days worse than none | 90 % coverage | its spread over days (points) "
+        "| chance inside the band if perfectly calibrated |",
+        "|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        indep, ratio = r.get("independent_ridge_mae", np.nan), r.get("independent_ratio", np.nan)
         lines.append(
-            f"| {r['seed']} | {r['offered_mae']:.3f} | {r['ridge_mae']:.3f} | {r['worse_than_none']} of "
-            f"{r['test_days']} | {100 * r['coverage']:.1f} % | {100 * r['day_sd']:.1f} "
-            f"| {r['band_chance']:.2f} |"
+            f"| {r['seed']} | {r['offered_mae']:.3f} | {r['ridge_mae']:.3f} | "
+            f"{'-' if not np.isfinite(indep) else f'{indep:.3f} ({ratio:.2f})'} "
+            f"| {r['worse_than_none']} of {r['test_days']} | {100 * r['coverage']:.1f} % | "
+            f"{100 * r['day_sd']:.1f} | {r['band_chance']:.2f} |"
         )
     n = len(rows)
     below = sum(r["offered_mae"] <= r["ridge_mae"] + 1e-12 for r in rows)
+    ratios = np.array([r.get("independent_ratio", np.nan) for r in rows], dtype=float)
+    apart = (
+        f" and at or below the plain ridge written apart on {int((ratios <= 1 + 1e-12).sum())} of "
+        f"{int(np.isfinite(ratios).sum())} (largest ratio {np.nanmax(ratios):.2f})"
+        if np.isfinite(ratios).any()
+        else ""
+    )
     worse = sum(r["worse_than_none"] for r in rows)
     days = sum(r["test_days"] for r in rows)
     cov = np.array([r["coverage"] for r in rows])
@@ -552,9 +579,9 @@ def promises_markdown(rows: list[dict]) -> str:
     expected = float(np.nansum([r["band_chance"] for r in rows]))
     lines += [
         "",
-        f"Offered at or below the family's plain ridge on {below} of {n} machines; test days worse than "
-        f"no compensation: {worse} of {days}; the 90 % interval covers {lo:g}-{hi:g} % of the test rows "
-        f"on {inside} of {n} ({int((cov < COVERAGE_BAND[0]).sum())} below, "
+        f"Offered at or below the family's plain ridge on {below} of {n} machines{apart}; test days "
+        f"worse than no compensation: {worse} of {days}; the 90 % interval covers {lo:g}-{hi:g} % of "
+        f"the test rows on {inside} of {n} ({int((cov < COVERAGE_BAND[0]).sum())} below, "
         f"{int((cov > COVERAGE_BAND[1]).sum())} above); a perfectly calibrated interval with the same "
         f"spread over days would be inside on {expected:.1f} of {n} on average.",
     ]

@@ -246,10 +246,14 @@ def test_the_promises_of_a_kept_machine_and_their_counts(bench, tmp_path):
     assert p["coverage"] == pytest.approx((7 + 27) / 40) and p["worse_than_none"] == 1 and p["test_days"] == 2
     assert p["day_sd"] == pytest.approx(np.std([0.7, 0.9], ddof=1))
     assert bench.promises(result, tmp_path / "seed-008") is None
+    assert np.isnan(p["independent_ridge_mae"])  # the kept project lacks runs.parquet
     other = p | {"seed": 8, "offered_mae": 0.7, "coverage": 0.99, "band_chance": 0.5}
+    other |= {"independent_ridge_mae": 0.8, "independent_ratio": 0.875}
     text = bench.promises_markdown([p, other])
-    assert "| 7 | 0.500 | 0.600 | 1 of 2 | 85.0 % |" in text
+    assert "| 7 | 0.500 | 0.600 | - | 1 of 2 | 85.0 % |" in text
+    assert "| 8 | 0.700 | 0.600 | 0.800 (0.88) | 1 of 2 | 99.0 % |" in text
     assert "at or below the family's plain ridge on 1 of 2 machines" in text
+    assert "at or below the plain ridge written apart on 1 of 1 (largest ratio 0.88)" in text
     assert "worse than no compensation: 2 of 4" in text
     assert "on 1 of 2 (0 below, 1 above)" in text
 
