@@ -35,3 +35,8 @@ def band_chance(run_cov: pd.Series, band=UNSEEN_LOG_BAND, level: float = LEVEL) 
         return 1.0
     dist = student_t(df=k - 1)
     return float(dist.cdf((band[1] - level) / se) - dist.cdf((band[0] - level) / se))
+
+
+def band_text(band: tuple[float, float]) -> str:
+    """A coverage band as words: ``85-95 %``."""
+    return f"{100 * band[0]:.0f}-{100 * band[1]:.0f} %"

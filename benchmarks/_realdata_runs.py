@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 import pandas as pd
-from _coverage import NAMED_LOG_BAND, UNSEEN_LOG_BAND, band_chance
+from _coverage import NAMED_LOG_BAND, UNSEEN_LOG_BAND, band_chance, band_text
 
 #: The pseudo model "no compensation" and the pooled line of every test run.
 NONE = "none"
@@ -138,11 +138,6 @@ def per_run_markdown(table: pd.DataFrame, offered: str, extra: dict | None = Non
         lines.append(f"| {' | '.join(cells)} |")
     chance = chance_sentence(table, offered)
     return lines + ["", chance] if chance else lines
-
-
-def band_text(band: tuple[float, float]) -> str:
-    """A coverage band as words: ``85-95 %``."""
-    return f"{100 * band[0]:.0f}-{100 * band[1]:.0f} %"
 
 
 def chance_sentence(table: pd.DataFrame, offered: str) -> str | None:

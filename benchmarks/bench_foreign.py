@@ -89,7 +89,7 @@ for path in (ROOT, ROOT / "benchmarks"):
 
 import bench_plain_ridge as plain_ridge  # noqa: E402
 import bench_selection_rules as judge  # noqa: E402
-from _coverage import LEVEL, UNSEEN_LOG_BAND, band_chance  # noqa: E402
+from _coverage import LEVEL, UNSEEN_LOG_BAND, band_chance, band_text  # noqa: E402
 from _results import write_results  # noqa: E402
 
 from rafi.contract import RESULT_FILES  # noqa: E402
@@ -182,6 +182,11 @@ def run_pipeline(proj: Path, machine: str, cores: int) -> float:
         tail = "\n".join((done.stdout + done.stderr).splitlines()[-15:])
         raise SystemExit(f"{machine}: snakemake failed\n{tail}")
     return time.perf_counter() - t0
+
+
+def seed_folder(keep: Path, seed: int) -> Path:
+    """A seed's folder under ``--keep``: its ``result.json`` and its ``project``."""
+    return keep / f"seed-{seed:03d}"
 
 
 def day_of_runs(runs: pd.DataFrame) -> dict:
@@ -336,7 +341,7 @@ def judge_seed(
     pipeline, both judges) and written there. ``offered_only``: without the outer judge (the
     pipeline's offered model, which is the current rule, and every kind on the test days only;
     about a quarter of the time)."""
-    folder = keep / f"seed-{seed:03d}"
+    folder = seed_folder(keep, seed)
     cached = folder / "result.json"
     if cached.is_file():
         result = json.loads(cached.read_text(encoding="utf-8"))
@@ -548,7 +553,6 @@ def promises_markdown(rows: list[dict]) -> str:
     """The promises of :func:`promises` per machine, then counted: at or below the plain ridge,
     test days worse than none, coverage inside :data:`COVERAGE_BAND`, and how many machines a
     perfectly calibrated interval would expect inside it (the sum of :func:`band_chance`)."""
-    lo, hi = (100 * b for b in COVERAGE_BAND)
     lines = [
         "| seed | offered test MAE (um) | the family's plain ridge | a plain ridge written apart "
         "(offered / it) | test days worse than none | 90 % coverage | its spread over days (points) "
@@ -575,15 +579,16 @@ def promises_markdown(rows: list[dict]) -> str:
     worse = sum(r["worse_than_none"] for r in rows)
     days = sum(r["test_days"] for r in rows)
     cov = np.array([r["coverage"] for r in rows])
-    inside = int(((cov >= COVERAGE_BAND[0]) & (cov <= COVERAGE_BAND[1])).sum())
+    lo, hi = COVERAGE_BAND
+    inside, low, high = int(((cov >= lo) & (cov <= hi)).sum()), int((cov < lo).sum()), int((cov > hi).sum())
     expected = float(np.nansum([r["band_chance"] for r in rows]))
     lines += [
         "",
         f"Offered at or below the family's plain ridge on {below} of {n} machines{apart}; test days "
-        f"worse than no compensation: {worse} of {days}; the 90 % interval covers {lo:g}-{hi:g} % of "
-        f"the test rows on {inside} of {n} ({int((cov < COVERAGE_BAND[0]).sum())} below, "
-        f"{int((cov > COVERAGE_BAND[1]).sum())} above); a perfectly calibrated interval with the same "
-        f"spread over days would be inside on {expected:.1f} of {n} on average.",
+        f"worse than no compensation: {worse} of {days}; the 90 % interval covers "
+        f"{band_text(COVERAGE_BAND)} of the test rows on {inside} of {n} ({low} below, {high} above); a "
+        f"perfectly calibrated interval with the same spread over days would be inside on "
+        f"{expected:.1f} of {n} on average.",
     ]
     return "\n".join(lines)
 
@@ -630,8 +635,9 @@ def paired_markdown(paired: dict) -> str:
     b, a = paired["before"], paired["after"]
     lines += [
         "",
-        f"Over {paired['machines']} machines: inside 80-97 % {b['inside']} -> {a['inside']}, below "
-        f"{b['below']} -> {a['below']}, above {b['above']} -> {a['above']}; mean |coverage - 90| "
+        f"Over {paired['machines']} machines: inside {band_text(COVERAGE_BAND)} {b['inside']} -> "
+        f"{a['inside']}, below {b['below']} -> {a['below']}, above {b['above']} -> {a['above']}; mean "
+        f"|coverage - {100 * COVERAGE_LEVEL:.0f}| "
         f"{100 * paired['mean_deviation_before']:.2f} -> {100 * paired['mean_deviation_after']:.2f} points "
         f"(SE of the paired difference {100 * paired['deviation_se']:.2f}); the offered test MAE "
         + ("the same on every machine." if paired["same_mae"] else "**differs** on some machine."),
@@ -747,7 +753,7 @@ def main(argv: list[str] | None = None) -> int:
     keep.mkdir(parents=True, exist_ok=True)
     results, failed = [], []
     for seed in seeds:
-        if args.report_only and not (keep / f"seed-{seed:03d}" / "result.json").is_file():
+        if args.report_only and not (seed_folder(keep, seed) / "result.json").is_file():
             continue
         print(f"seed {seed} ...", flush=True)
         try:
@@ -765,7 +771,7 @@ def main(argv: list[str] | None = None) -> int:
                 setup_change=args.setup_change,
             )
             if args.rescore:
-                result = rescored(result, keep / f"seed-{seed:03d}")
+                result = rescored(result, seed_folder(keep, seed))
             results.append(result)
         except (SystemExit, Exception) as exc:  # one machine's failure is said; the next one runs
             failed.append(seed)
@@ -787,13 +793,13 @@ def main(argv: list[str] | None = None) -> int:
         "rows": rows,
         "decision": decide(rows),
         "seed_lines": [seed_line(r) for r in results],
-        "promises": [p for r in results if (p := promises(r, keep / f"seed-{r['seed']:03d}")) is not None],
+        "promises": [p for r in results if (p := promises(r, seed_folder(keep, r["seed"]))) is not None],
         "machines": results,
     }
     if args.baseline is not None:
         before = []
         for r in results:
-            kept = args.baseline / f"seed-{r['seed']:03d}"
+            kept = seed_folder(args.baseline, r["seed"])
             if (kept / "result.json").is_file():
                 old = json.loads((kept / "result.json").read_text(encoding="utf-8"))
                 if (p := promises(old, kept)) is not None:
