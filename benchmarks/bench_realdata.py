@@ -1,5 +1,5 @@
 """Test error of the model family on every real log present: CAIVIAC/FL_THERMAL (one machine per
-channel) and the turning centre of ``--turning DIR``.
+channel), the turning centre of ``--turning DIR`` and the 78 h spindle of ``--spindle FILE``.
 
 Usage (from the repository root; see benchmarks/README.md)::
 
@@ -7,14 +7,17 @@ Usage (from the repository root; see benchmarks/README.md)::
     python benchmarks/bench_realdata.py --channels ch3 --configs windows
     python benchmarks/bench_realdata.py --data PATH --cores 2 --keep /tmp/rd
     python benchmarks/bench_realdata.py --logs turning-centre --turning DIR --out-dir /tmp/tc
+    python benchmarks/bench_realdata.py --logs spindle-78h --spindle FILE --out-dir /tmp/sp
 
-**Every real log present** (``--logs``, default both): a log whose data is absent is skipped with
-a line saying where it was looked for (the data is never shipped; CI needs neither); with none
-present the bench runs nothing and exits 0. The turning centre (``_realdata_turning``: 18 daily
-tests in two workbooks without a licence, days 1-12 train, 13-18 test) runs first; its results
-go to ``<out-dir>/<out>-turning-centre.json`` and ``.md`` and ``--out-dir`` must lie outside the
-repository (refused otherwise: they are derived from unlicensed rows). FL_THERMAL's go to
-``<out-dir>/<out>.json`` and ``.md`` (default ``benchmarks/results/realdata``).
+**Every real log present** (``--logs``, default all three): a log whose data is absent is skipped
+with a line saying where it was looked for (the data is never shipped; CI needs none); with none
+present the bench runs nothing and exits 0. The 78 h spindle (``_realdata_spindle``: one CSV
+without a licence, one speed, two chronological splits) runs first, then the turning centre
+(``_realdata_turning``: 18 daily tests in two workbooks without a licence, days 1-12 train, 13-18
+test); their results go to ``<out-dir>/<out>-spindle-78h`` and ``<out>-turning-centre`` (``.json``
+and ``.md``) and ``--out-dir`` must lie outside the repository (refused otherwise: they are derived
+from unlicensed rows). FL_THERMAL's go to ``<out-dir>/<out>.json`` and ``.md`` (default
+``benchmarks/results/realdata``).
 
 **Per test run** (``_realdata_runs``), for every log: the test MAE and largest error of the
 offered model, of every kind of the family, of the family's plain ridge ``temperature_ridge``
@@ -108,7 +111,7 @@ from _results import OUT_DIR, write_results  # noqa: E402
 DATA_REL = Path("shared", "data", "fl-thermal", "data.xlsx")
 
 #: The real logs this bench runs when their data is present.
-LOGS = ("fl-thermal", "turning-centre")
+LOGS = ("fl-thermal", "turning-centre", "spindle-78h")
 CHANNELS = ("ch1", "ch2", "ch3", "ch4", "ch5")
 CONFIGS = ("windows", "automatic")
 #: Published test MAE, um: seq2seq-v2, the best of the repository's four models.
@@ -237,20 +240,29 @@ def choose_alpha(x: np.ndarray, y: np.ndarray, t_s: np.ndarray, alphas: np.ndarr
     }
 
 
-def plain_ridge(temps: np.ndarray, disp: np.ndarray, t_s: np.ndarray) -> dict:
+def plain_ridge(
+    temps: np.ndarray,
+    disp: np.ndarray,
+    t_s: np.ndarray,
+    train: np.ndarray | None = None,
+    test: np.ndarray | None = None,
+) -> dict:
     """The plain ridge reference (module docstring): penalty by blocked CV on the training rows,
-    fitted on all of them, scored on the test rows. Returns ``test_mae_um``, ``alpha``,
-    ``cv_rmse_um``, ``at_grid_edge``, ``train_mae_um``."""
+    fitted on all of them, scored on the test rows (``train`` / ``test``: boolean masks of the
+    rows; default FL_THERMAL's published split). Returns ``test_mae_um``, ``test_max_um``,
+    ``alpha``, ``cv_rmse_um``, ``at_grid_edge``, ``train_mae_um``."""
     t_s = np.asarray(t_s, dtype=float)
     disp = np.asarray(disp, dtype=float)
     x = ridge_features(temps, t_s)
-    train, test = training_rows(t_s), test_rows(t_s)
+    train = training_rows(t_s) if train is None else np.asarray(train, dtype=bool)
+    test = test_rows(t_s) if test is None else np.asarray(test, dtype=bool)
     chosen = choose_alpha(x[train], disp[train], t_s[train])
     model = ridge_fit(x[train], disp[train], np.array([chosen["alpha"]]))
     pred = ridge_predict(model, x)[:, 0]
     return {
         **chosen,
         "test_mae_um": float(np.mean(np.abs(disp[test] - pred[test]))),
+        "test_max_um": float(np.max(np.abs(disp[test] - pred[test]))),
         "train_mae_um": float(np.mean(np.abs(disp[train] - pred[train]))),
     }
 
@@ -704,16 +716,22 @@ def progress(row: dict) -> str:
     )
 
 
-def log_plan(logs: list[str], fl_data: Path, turning: Path | None) -> tuple[list[str], list[str]]:
+def log_plan(
+    logs: list[str], fl_data: Path, turning: Path | None, spindle: Path | None = None
+) -> tuple[list[str], list[str]]:
     """``(logs to run, a line per log skipped)``: a real log runs when its data is present
-    (FL_THERMAL's workbook; the turning centre's two workbooks in ``turning``), else it is
-    skipped with a line saying where it was looked for."""
+    (FL_THERMAL's workbook; the turning centre's two workbooks in ``turning``; the 78 h spindle's
+    CSV file ``spindle``), else it is skipped with a line saying where it was looked for."""
+    import _realdata_spindle as spindle_log
     import _realdata_turning as turning_centre
 
     run, skipped = [], []
     for log in logs:
         if log == "fl-thermal":
             present, where = fl_data.is_file(), f"no workbook at {fl_data} (--data)"
+        elif log == "spindle-78h":
+            present = spindle_log.present(spindle)
+            where = f"no file {spindle} (--spindle FILE)" if spindle else "no --spindle FILE"
         else:
             present = turning_centre.present(turning)
             names = " and ".join(turning_centre.FILES)
@@ -725,8 +743,8 @@ def log_plan(logs: list[str], fl_data: Path, turning: Path | None) -> tuple[list
 
 
 def inside_repository(path: Path, root: Path = ROOT) -> bool:
-    """True when ``path`` lies in the repository ``root`` (the turning centre's results may not:
-    they are derived from rows without a licence)."""
+    """True when ``path`` lies in the repository ``root`` (the turning centre's and the 78 h
+    spindle's results may not: they are derived from rows without a licence)."""
     return Path(path).resolve().is_relative_to(Path(root).resolve())
 
 
@@ -741,6 +759,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         default=None,
         help="a folder holding the turning centre's ACE_X.xlsx and ACE_Y.xlsx",
     )
+    parser.add_argument(
+        "--spindle",
+        type=Path,
+        default=None,
+        help="the 78 h spindle's CSV ('thermal expansion error original.csv')",
+    )
     parser.add_argument("--logs", default=",".join(LOGS), help="the real logs to run, of " + ",".join(LOGS))
     parser.add_argument("--channels", default=",".join(CHANNELS), help="comma-separated, e.g. ch3,ch5")
     parser.add_argument("--configs", default=",".join(CONFIGS), help="windows,automatic")
@@ -753,13 +777,15 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
         help='JSON: the machines\' models: settings, e.g. \'{"enabled": ["dynamic", "grey_box"]}\'',
     )
     parser.add_argument(
-        "--out", default="realdata", help="file stem (the turning centre's: <stem>-turning-centre)"
+        "--out",
+        default="realdata",
+        help="file stem (the other logs': <stem>-turning-centre, <stem>-spindle-78h)",
     )
     parser.add_argument(
         "--out-dir",
         type=Path,
         default=None,
-        help="results folder (default benchmarks/results; the turning centre's: outside the repository)",
+        help="results folder (default benchmarks/results; for the unlicensed logs: outside the repository)",
     )
     args = parser.parse_args(argv)
     args.channels = [c.strip() for c in args.channels.split(",") if c.strip()]
@@ -777,11 +803,12 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
             parser.error(f"unknown log {c!r}; expected some of {', '.join(LOGS)}")
     args.data = args.data or default_data()
     args.out_dir = args.out_dir or OUT_DIR
-    args.plan, args.skipped = log_plan(args.logs, args.data, args.turning)
-    if "turning-centre" in args.plan and inside_repository(args.out_dir):
+    args.plan, args.skipped = log_plan(args.logs, args.data, args.turning, args.spindle)
+    unlicensed = [log for log in ("turning-centre", "spindle-78h") if log in args.plan]
+    if unlicensed and inside_repository(args.out_dir):
         parser.error(
-            f"--out-dir {args.out_dir} lies in the repository: the turning centre's results are derived "
-            "from data without a licence and are never written there; give a folder outside it"
+            f"--out-dir {args.out_dir} lies in the repository: the results of {' and '.join(unlicensed)} "
+            "are derived from data without a licence and are never written there; give a folder outside it"
         )
     return args
 
@@ -831,6 +858,20 @@ def run_turning_centre(args: argparse.Namespace, command: str) -> None:
     write_results(f"{args.out}-turning-centre", report, text, ensure_ascii=False, out_dir=args.out_dir)
 
 
+def run_spindle(args: argparse.Namespace, command: str) -> None:
+    """The 78 h spindle (``_realdata_spindle``), both splits; writes ``<out>-spindle-78h.json/.md``."""
+    import _realdata_spindle as spindle_log
+
+    results = []
+    for split in spindle_log.SPLITS:
+        results.append(spindle_log.run(args.spindle, split, args.cores, args.keep, args.models))
+        print(f"spindle-78h split {split}: done ({results[-1].get('wall_s')} s)", flush=True)
+    report = {**host_facts(command), "data": str(args.spindle), "spindle": results}
+    text = spindle_log.markdown(report)
+    print("\n" + text, flush=True)
+    write_results(f"{args.out}-spindle-78h", report, text, ensure_ascii=False, out_dir=args.out_dir)
+
+
 def host_facts(command: str) -> dict:
     """Date, command, host and CPUs of a report."""
     return {
@@ -851,7 +892,9 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     if args.keep is not None:
         args.keep.mkdir(parents=True, exist_ok=True)
-    if "turning-centre" in args.plan:  # the smaller one first
+    if "spindle-78h" in args.plan:  # the smaller ones first
+        run_spindle(args, command)
+    if "turning-centre" in args.plan:
         run_turning_centre(args, command)
     if "fl-thermal" in args.plan:
         run_fl_thermal(args, command)

@@ -243,14 +243,23 @@ def test_below_the_coverage_table_the_chance_a_perfect_interval_keeps_the_promis
 
 def test_a_real_log_whose_data_is_absent_is_skipped(tmp_path):
     plan, skipped = bench.log_plan(list(bench.LOGS), tmp_path / "none.xlsx", None)
-    assert plan == [] and len(skipped) == 2
+    assert plan == [] and len(skipped) == 3
     assert "fl-thermal: skipped, no workbook at" in skipped[0] and "--turning DIR" in skipped[1]
+    assert skipped[2] == "spindle-78h: skipped, no --spindle FILE"
     (tmp_path / "ACE_X.xlsx").write_bytes(b"")  # one of the two: still absent
     plan, skipped = bench.log_plan(["turning-centre"], tmp_path / "none.xlsx", tmp_path)
     assert plan == [] and "no ACE_X.xlsx and ACE_Y.xlsx in" in skipped[0]
     (tmp_path / "ACE_Y.xlsx").write_bytes(b"")
     (tmp_path / "data.xlsx").write_bytes(b"")
-    assert bench.log_plan(list(bench.LOGS), tmp_path / "data.xlsx", tmp_path) == (list(bench.LOGS), [])
+    spindle = tmp_path / "log.csv"
+    assert bench.log_plan(list(bench.LOGS), tmp_path / "data.xlsx", tmp_path, spindle)[1] == [
+        f"spindle-78h: skipped, no file {spindle} (--spindle FILE)"
+    ]
+    spindle.write_bytes(b"")
+    assert bench.log_plan(list(bench.LOGS), tmp_path / "data.xlsx", tmp_path, spindle) == (
+        list(bench.LOGS),
+        [],
+    )
 
 
 def test_without_any_real_log_the_bench_runs_nothing_and_succeeds(tmp_path, capsys):
