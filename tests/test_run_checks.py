@@ -114,6 +114,17 @@ def test_a_training_speed_without_a_run_is_a_warning_naming_it(singles):
     assert training_speed_problems(table, [3000, 6000], 50, "m") == []
 
 
+def test_a_machine_left_at_the_default_training_speeds_is_told_so_and_what_to_set(singles):
+    frames, table = singles
+    table = table[table["speed_rpm"].round() != 3000]  # only 6000 r/min trains
+    (warning,) = training_speed_problems(table, [3000, 6000, 9000, 12000, 15000, 18000], 50, "m")
+    assert (
+        "(the default 3000, 6000, 9000, 12000, 15000, 18000 r/min, the paper rig's: this machine sets none)"
+        in (warning)
+    )
+    assert warning.endswith("set training_speeds_rpm: [6000]")
+
+
 def test_a_window_glob_matching_no_log_names_the_key_and_the_logs(singles):
     frames, table = singles
     windows = [{"role": "training", "log": "train_*"}, {"role": "validation", "log": "test_*"}]
@@ -204,8 +215,9 @@ def test_check_runs_returns_the_warnings(continuous):
     # 9000 r/min comes after the 4500 r/min validation run: the leak guard makes it validation;
     # the training cool-down (idle) is no speed
     assert warnings[0].startswith(
-        "training_speeds_rpm: no training run at 9000, 12000, 15000, 18000 r/min (configured 3000, "
+        "training_speeds_rpm: no training run at 9000, 12000, 15000, 18000 r/min (the default 3000, "
     )
+    assert warnings[0].endswith("set training_speeds_rpm: [3000, 6000]")
     assert "the training runs are at 3000 (1), 6000 (1) r/min" in warnings[0]
     assert warnings[1].startswith("log cont.csv holds")
     assert _check(frames, table, reference_rule="log_start", training_speeds_rpm=[3000, 6000]) == []

@@ -30,6 +30,7 @@ import pandas as pd
 from rafi.errors import SettingsError
 from rafi.method.rank import speed_training_runs
 from rafi.method.windows import applies_to, check_windows, describe_window, window_interval
+from rafi.settings import MACHINE_DEFAULTS
 
 #: How many names a message lists before ``... (N more)``.
 LISTED = 8
@@ -106,11 +107,18 @@ def training_speed_problems(
     missing = [s for s in configured if not (np.abs(trained - s) <= tolerance_rpm + 1e-9).any()]
     if not missing:
         return []
-    at = ", ".join(f"{_rpm(s)} ({n})" for s, n in speed_groups(trained, tolerance_rpm))
+    groups = speed_groups(trained, tolerance_rpm)
+    at = ", ".join(f"{_rpm(s)} ({n})" for s, n in groups)
+    if configured == [float(s) for s in MACHINE_DEFAULTS["training_speeds_rpm"]]:
+        where = f"the default {speeds} r/min, the paper rig's: this machine sets none"
+        own = ", ".join(_rpm(s) for s, _ in groups)
+        advice = f"; if these are this machine's speeds, set training_speeds_rpm: [{own}]"
+    else:
+        where, advice = f"configured {speeds} r/min", ""
     return [
         f"training_speeds_rpm: no training run at {', '.join(_rpm(s) for s in missing)} r/min "
-        f"(configured {speeds} r/min); the training runs are at {at} r/min (run counts in brackets); "
-        "the model is fitted at those speeds only"
+        f"({where}); the training runs are at {at} r/min (run counts in brackets); "
+        f"the model is fitted at those speeds only{advice}"
     ]
 
 
