@@ -220,6 +220,7 @@ def test_the_interval_is_in_every_residual_table_and_section(both):
     other = dict(ctx["deployed"]["interval"]["other"])
     assert other == {"corrected level": "0.904", "pooled half width um": "0.674", "units": "runs"}
     assert "corrected level: 0.904; pooled half width um: 0.674; units: runs." in text
+    assert ctx["deployed"]["interval"]["near_largest"] is None and "The level correction" not in text
     # the model comparison: pooled coverage per model, and per run under each model's residual
     table = next(t for t in html_tables(html) if any("median width" in h for h in t["headers"]))
     i = next(k for k, h in enumerate(table["headers"]) if "median width" in h)
@@ -654,3 +655,23 @@ def test_without_the_fault_column_every_hold_is_the_fault_rule(kept, tmp_path):
     h = (f["t_s"] - f["t_s"].iloc[0]).to_numpy(float) / 3600.0
     held = f["status"].isin(["hold", "ramp"]).to_numpy()
     assert shades["fault rule (hold / ramp)"][1] == {round(x, 9) for x in h[held]}
+
+
+def test_a_level_correction_near_the_largest_residual_is_said_in_words(both):
+    from copy import deepcopy
+
+    from rafi.report.intervals import interval_context
+
+    block = deepcopy(BLOCK)
+    block["calibration"].update(corrected_level=0.995, n_runs=4)
+    assert interval_context({"interval": block})["near_largest"] == 0.995
+    block["calibration"]["corrected_level"] = 0.98
+    assert interval_context({"interval": block})["near_largest"] is None
+    ctx = deepcopy(both[True][0])
+    ctx["deployed"]["interval"].update(near_largest=0.995, n_runs=4)
+    text = _text(render_html(ctx))
+    assert (
+        "The level correction (each calibration unit left out in turn) took the 0.995 quantile of the "
+        "held-out residuals, not the 0.90, with 4 calibration units: each cell's half-width sits near "
+        "its largest held-out residual." in text
+    )

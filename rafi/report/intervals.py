@@ -231,8 +231,9 @@ def interval_context(doc) -> dict | None:
         ``calibration.left_out: run``), ``excess_slope`` (how fast h grows beyond the trained
         range, per training span; None for a block without it), ``components`` (the growth also
         reads the prediction's reach beyond the trained combinations of its features,
-        ``component_excess``) and ``other`` (the calibration's other plain entries,
-        ``(key, text)``).
+        ``component_excess``), ``other`` (the calibration's other plain entries,
+        ``(key, text)``) and ``near_largest`` (the corrected level when it is
+        :data:`NEAR_LARGEST_LEVEL` or more, else None: :func:`_near_largest`).
     """
     block = interval_block(doc)
     if block is None:
@@ -259,7 +260,22 @@ def interval_context(doc) -> dict | None:
         "excess_slope": block.get("excess_slope") if isnum(block.get("excess_slope")) else None,
         "components": bool(block.get(COMPONENT_EXCESS, False)),
         "other": _other_calibration(cal),
+        "near_largest": _near_largest(cal, float(block["level"])),
     }
+
+
+#: A corrected level at or above this takes each cell's half-width near its largest held-out residual.
+NEAR_LARGEST_LEVEL = 0.99
+
+
+def _near_largest(cal: dict, level: float) -> float | None:
+    """The corrected level when the level correction raised it to :data:`NEAR_LARGEST_LEVEL` or
+    more (few calibration units: the half-widths sit near the largest held-out residuals), else
+    None."""
+    corrected = cal.get("corrected_level")
+    if not isnum(corrected) or float(corrected) < max(NEAR_LARGEST_LEVEL, level + 1e-9):
+        return None
+    return float(corrected)
 
 
 #: Keys of the calibration record the deployed section words itself.
