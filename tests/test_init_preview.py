@@ -205,3 +205,34 @@ def test_a_title_line_and_a_units_row_around_the_header(tmp_path):
     s = survey("x", [table])
     assert [g.role for g in s.guesses] == ["time", "speed", "temperature", "temperature", "displacement"]
     assert [g.unit for g in s.guesses] == ["s", "rpm", "degC", "degC", "um"]
+
+
+def test_preview_says_when_no_run_validates_and_its_split_gives_one(tmp_path):
+    entry = {"training_speeds_rpm": [3000, 4500, 6000], "reference": {"rule": "log_start"}}
+    (w,) = warnings(preview(str(project(tmp_path, entry)), "m"))
+    assert w.startswith(
+        "warning: only cool-downs validate: the pipeline qualifies a model on the spindle at rest"
+    )
+    hint = yaml.safe_load(w.split("e.g. the last 30 %: ", 1)[1])
+    assert hint == {
+        "runs": {
+            "windows": [
+                {"role": "training", "end": 0.7, "unit": "fraction"},
+                {"role": "validation", "start": 0.7, "unit": "fraction"},
+            ]
+        }
+    }
+    split = tmp_path / "split"
+    lines = preview(str(project(split, {**entry, **hint})), "m")
+    assert warnings(lines) == []
+    runs = [ln for ln in lines if ln.startswith("  log#")]
+    assert any(" constant training " in ln for ln in runs)
+    assert any(" constant validation_" in ln for ln in runs)
+
+
+def test_a_candidate_without_a_validation_run_is_told_how_to_get_one():
+    from rafi.ops.gates import gate_outcome
+
+    passed, (reason,), _ = gate_outcome(None, None, {})
+    assert not passed and reason.startswith("no validation runs: the candidate cannot be qualified; ")
+    assert "runs.windows" in reason and "docs/raw-format.md#" in reason

@@ -96,6 +96,14 @@ def worse_than_uncompensated(summary: pd.DataFrame, verdict: pd.DataFrame, gates
     return worse, unjudged
 
 
+#: The reason of a candidate without a validation run, and what to do.
+NO_VALIDATION = (
+    "no validation runs: the candidate cannot be qualified; give the machine a validation log, or split "
+    "a continuous log in time (runs.windows, docs/raw-format.md#worked-example-a-continuous-log-with-a-"
+    "chronological-split)"
+)
+
+
 def gate_outcome(summary: pd.DataFrame, verdict: pd.DataFrame, gates: dict) -> tuple[bool, list[str], dict]:
     """Did the candidate pass every gate? Returns ``(passed, reasons, measured)``.
 
@@ -105,7 +113,7 @@ def gate_outcome(summary: pd.DataFrame, verdict: pd.DataFrame, gates: dict) -> t
     so no (gate, run) is reported twice. No validation run at all fails.
     """
     if summary is None or len(summary) == 0:
-        return False, ["no validation runs: the candidate cannot be qualified"], {}
+        return False, [NO_VALIDATION], {}
     failures = failed_gates(verdict)
     worse, unjudged = worse_than_uncompensated(summary, verdict, gates)
     reasons = [failed_gate_reason(f) for f in failures]

@@ -6,8 +6,8 @@
 method step does (:func:`rafi.method.runs.find_runs`), without Snakemake and without writing
 anything. It lists every run (log, start, duration, speed, kind, role and why, the reference
 rule) and warns where the configuration and the data disagree (:func:`preview_warnings`): a
-continuous log referenced by ``run_start``, no run at a training speed, a window, a window's
-``log`` glob or an override that matches nothing.
+continuous log referenced by ``run_start``, no run at a training speed, no validation run with
+the spindle turning, a window, a window's ``log`` glob or an override that matches nothing.
 """
 
 from __future__ import annotations
@@ -119,6 +119,18 @@ def preview_warnings(table: pd.DataFrame, frames: Mapping, settings: Mapping) ->
         out.append(
             f"no run at a training speed: training_speeds_rpm is {list(settings['training_speeds_rpm'])}, "
             f"the constant runs found are at {', '.join(f'{x:g}' for x in found) or 'no speed'} r/min"
+        )
+    validating = table["role"].astype(str).str.startswith("validation")
+    if not (validating & (table["kind"] != "idle")).any():
+        what = (
+            "only cool-downs validate: the pipeline qualifies a model on the spindle at rest"
+            if validating.any()
+            else "no validation run: the pipeline fits a model but cannot qualify it"
+        )
+        out.append(
+            f"{what}; add a validation log, or split a continuous log in time, e.g. the last 30 %: "
+            "runs: {windows: [{role: training, end: 0.7, unit: fraction}, {role: validation, start: 0.7, "
+            "unit: fraction}]}"
         )
     out += _window_warnings(frames, settings["runs"]["windows"])
     stems = {Path(n).stem for n in frames}
