@@ -190,44 +190,29 @@ def outside_range(frame: pd.DataFrame, split: str) -> dict:
 def run(path: Path, split: str, cores: int, keep: Path | None, models: dict | None = None) -> dict:
     """Build, run and score the log's project for one split (module docstring); the temporary
     project goes unless ``keep`` (then ``keep/spindle-78h-<split>``). Returns the report's record."""
-    import shutil
-    import tempfile
-
     import bench_realdata as rd
-    from _realdata_runs import per_run
 
     frame = read_log(path)
     entry = machine_config(len(frame), split)
     if models is not None:
         entry["models"] = models
     title = f"78 h spindle (ruoheng-du/thermal-expansion-error-prediction), split '{split}'"
-    if keep is not None:
-        proj = keep / f"{MACHINE}-{split}"
-        shutil.rmtree(proj, ignore_errors=True)
-    else:
-        proj = Path(tempfile.mkdtemp(prefix=f"rafi-realdata-spindle-{split}-"))
-    files = {"log.csv": Path(path)}
+    disp = frame[DISPLACEMENT].to_numpy(dtype=float)
     out = {"split": split, "train_share": SPLITS[split], "first_test_row": split_row(len(frame), split)}
-    try:
-        rd.write_project_files(proj, MACHINE, files, entry, title)
-        ok, wall, output = rd.run_snakemake(proj, MACHINE, cores)
-        out.update(ok=ok, wall_s=round(wall, 1))
-        if not ok:
-            out["tail"] = "\n".join(output.splitlines()[-25:])
-            return out
-        out["plain_ridge_run"] = rd.add_plain_ridge(proj, MACHINE, files, entry, cores, title)
-        residuals = rd.read_residuals(proj, MACHINE)
-        runs = pd.read_csv(proj / "results" / MACHINE / "runs.csv")
-        scored, worst = scored_rows(residuals, runs, frame[DISPLACEMENT].to_numpy(dtype=float))
-        out.update(rd.project_facts(proj, MACHINE))
-        out["per_run"] = per_run(scored).to_dict("records")
-        out["test_runs"] = list(dict.fromkeys(scored["run_id"]))
-        out["max_clean_diff_um"] = worst
-    finally:
-        if keep is None:
-            shutil.rmtree(proj, ignore_errors=True)
-    out["plain_ridge"] = plain_ridge_split(frame, split)
-    out["outside"] = outside_range(frame, split)
+    record, _ = rd.scored_project(
+        keep,
+        f"{MACHINE}-{split}",
+        MACHINE,
+        {"log.csv": Path(path)},
+        entry,
+        cores,
+        title,
+        lambda residuals, runs: scored_rows(residuals, runs, disp),
+    )
+    out.update(record)
+    if out["ok"]:
+        out["plain_ridge"] = plain_ridge_split(frame, split)
+        out["outside"] = outside_range(frame, split)
     return out
 
 

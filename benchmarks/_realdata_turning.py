@@ -277,41 +277,28 @@ def pipeline_outside(residuals: pd.DataFrame, model: str) -> dict:
 def run(folder: Path, cores: int, keep: Path | None, models: dict | None = None) -> dict:
     """Build, run and score the turning centre's project (module docstring); the temporary
     project goes unless ``keep`` (then ``keep/turning-centre``). Returns the report's record."""
-    import shutil
-    import tempfile
-
     import bench_realdata as rd
-    from _realdata_runs import per_run
 
     days = read_days(folder)
     entry = machine_config([d.name for d in days])
     if models is not None:
         entry["models"] = models
     title = "turning centre (srivathsan902/Thermal_Compensation_Webpage), days 1-12 train, 13-18 test"
-    if keep is not None:
-        proj = keep / MACHINE
-        shutil.rmtree(proj, ignore_errors=True)
-    else:
-        proj = Path(tempfile.mkdtemp(prefix="rafi-realdata-turning-"))
-    files = {name: Path(folder) / name for name in FILES}
-    try:
-        rd.write_project_files(proj, MACHINE, files, entry, title)
-        ok, wall, output = rd.run_snakemake(proj, MACHINE, cores)
-        out = {"ok": ok, "wall_s": round(wall, 1), "period_s_assumed": PERIOD_S, "rpm_assumed": NOMINAL_RPM}
-        if not ok:
-            out["tail"] = "\n".join(output.splitlines()[-25:])
-            return out
-        out["plain_ridge_run"] = rd.add_plain_ridge(proj, MACHINE, files, entry, cores, title)
-        residuals = rd.read_residuals(proj, MACHINE)
-        runs = pd.read_csv(proj / "results" / MACHINE / "runs.csv")
-        scored, worst = scored_rows(residuals, runs, days)
-        out.update(rd.project_facts(proj, MACHINE))
-        out["per_run"] = per_run(scored).to_dict("records")
-        out["max_clean_diff_um"] = worst
-        out["pipeline_outside"] = pipeline_outside(residuals, out["champion"])
-    finally:
-        if keep is None:
-            shutil.rmtree(proj, ignore_errors=True)
+    out = {"period_s_assumed": PERIOD_S, "rpm_assumed": NOMINAL_RPM}
+    record, residuals = rd.scored_project(
+        keep,
+        MACHINE,
+        MACHINE,
+        {name: Path(folder) / name for name in FILES},
+        entry,
+        cores,
+        title,
+        lambda residuals, runs: scored_rows(residuals, runs, days),
+    )
+    out.update(record)
+    if not out["ok"]:
+        return out
+    out["pipeline_outside"] = pipeline_outside(residuals, out["champion"])
     out["plain_ridge"] = plain_ridge_days(days)
     out["outside"] = outside_range(days)
     return out

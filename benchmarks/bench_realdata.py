@@ -416,6 +416,41 @@ def run_snakemake(proj: Path, machine: str, cores: int) -> tuple[bool, float, st
     return done.returncode == 0, wall, done.stdout + done.stderr
 
 
+def scored_project(
+    keep: Path | None, name: str, machine: str, files: dict, entry: dict, cores: int, title: str, score
+) -> tuple[dict, pd.DataFrame | None]:
+    """Build and run one real log's project, fit the plain ridge beside it (:func:`add_plain_ridge`)
+    and score its validation residuals: ``(record, residuals)``. The project is ``keep/name``
+    (kept) or a temporary folder (removed). ``score(residuals, runs) -> (scored rows, largest
+    change cleaning made)`` maps the residuals onto the raw log (``_realdata_runs.SCORED``). The
+    record: ``ok``, ``wall_s``, on failure ``tail`` (and no residuals), else
+    :func:`project_facts`, ``plain_ridge_run``, ``per_run``, ``test_runs``, ``max_clean_diff_um``.
+    """
+    if keep is not None:
+        proj = keep / name
+        shutil.rmtree(proj, ignore_errors=True)
+    else:
+        proj = Path(tempfile.mkdtemp(prefix=f"rafi-realdata-{name}-"))
+    try:
+        write_project_files(proj, machine, files, entry, title)
+        ok, wall, output = run_snakemake(proj, machine, cores)
+        out = {"ok": ok, "wall_s": round(wall, 1)}
+        if not ok:
+            out["tail"] = "\n".join(output.splitlines()[-25:])
+            return out, None
+        out["plain_ridge_run"] = add_plain_ridge(proj, machine, files, entry, cores, title)
+        residuals = read_residuals(proj, machine)
+        scored, worst = score(residuals, pd.read_csv(proj / "results" / machine / "runs.csv"))
+        out.update(project_facts(proj, machine))
+        out["per_run"] = per_run(scored).to_dict("records")
+        out["test_runs"] = list(dict.fromkeys(scored["run_id"].astype(str)))
+        out["max_clean_diff_um"] = worst
+        return out, residuals
+    finally:
+        if keep is None:
+            shutil.rmtree(proj, ignore_errors=True)
+
+
 # ----------------------------------------------------------------------------- the score
 
 
