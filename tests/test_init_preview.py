@@ -169,6 +169,18 @@ def test_time_speed_counter_and_text():
     assert alone.role == "time" and "row counter" in alone.check
 
 
+def test_a_german_time_stamp_header_is_time_not_temperature():
+    from rafi.readers.infer import header_hints
+
+    assert header_hints("Zeitstempel") == {"time"}  # "...stempel" holds "temp"
+    assert header_hints("Gastemperatur [°C]") == {"temperature"}
+    assert header_hints("Temp. Lager") == {"temperature"}
+    t0 = dt.datetime(2023, 7, 1, 8, 0)
+    stamps = [(t0 + dt.timedelta(seconds=60 * k)).strftime("%d.%m.%Y %H:%M:%S") for k in range(300)]
+    (got,) = guess_columns(["Zeitstempel"], [stamps])
+    assert got.role == "time" and got.check is None
+
+
 @pytest.mark.parametrize(
     "headers, names",
     [

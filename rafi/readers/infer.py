@@ -53,7 +53,7 @@ PARSE_SHARE = 0.95
 
 _HINTS = {
     "time": re.compile(
-        r"(^|[^a-z])(time|zeit|datum|date|timestamp|elapsed|sec|seconds|uhrzeit)([^a-z]|$)"
+        r"(^|[^a-z])(time|zeit|datum|date|timestamp|zeitstempel|elapsed|sec|seconds|uhrzeit)([^a-z]|$)"
         r"|時間|时间|[\[(]\s*s\s*[\])]",
         re.I,
     ),
@@ -61,7 +61,7 @@ _HINTS = {
         r"rpm|1/min|r/min|u/min|min-1|min\^-1|drehzahl|speed|spindle|spindel|轉速|转速|^n\s*[\[(]", re.I
     ),
     "temperature": re.compile(
-        r"°\s*[cf]|deg\s*[cf]|[\[(]\s*[ck]\s*[\])]|temp|^t\s*_?\d+|^tc\s*_?\d*|pt\s*100|溫度|温度|fühler",
+        r"°\s*[cf]|deg\s*[cf]|[\[(]\s*[ck]\s*[\])]|temp(?!el)|^t\s*_?\d+|^tc\s*_?\d*|pt\s*100|溫度|温度|fühler",
         re.I,
     ),
     "displacement": re.compile(
