@@ -238,6 +238,32 @@ def test_elapsed_default_start_and_timedelta_cells(tmp_path):
     assert f["notiz"].isna().all()  # an empty extra column: all missing
 
 
+@pytest.mark.parametrize("kind, per_s", [("elapsed_s", 1.0), ("elapsed_min", 60.0), ("elapsed_h", 3600.0)])
+def test_fahrenheit_and_elapsed_minutes_or_hours_read_as_the_same_log(tmp_path, kind, per_s):
+    """The same log written in deg F with its clock in minutes or hours reads as in deg C and
+    seconds: the temperatures (F - 32) x 5/9, the times the cells times 60 or 3600."""
+    header = ["t", "n [1/min]", *[f"Temp{i} [F]" for i in range(1, 17)], "Z [mm]", "Notiz"]
+    rows = [header]
+    for k in range(6):
+        rows.append([15.0 * k / per_s, 3000, *[68.0 + 1.8 * k] * 16, 0.001 * k, None])
+    path = tmp_path / "f.xlsx"
+    _write_xlsx(path, rows)
+    spec = _simple_spec(time={"kind": kind}, temperature_unit="F")
+    spec["columns"] = {"time": "t", "speed_rpm": "n [1/min]", "disp_um": "Z [mm]"}
+    spec["columns"].update({f"T{i}": f"Temp{i} [F]" for i in range(1, 17)})
+    f = read_log(path, spec)
+    np.testing.assert_allclose(f["T7"].to_numpy(), 20.0 + np.arange(6.0))  # 68 F = 20 C, 1.8 F = 1 K
+    seconds = (f["time"] - f["time"].iloc[0]).dt.total_seconds().to_numpy()
+    np.testing.assert_allclose(seconds, 15.0 * np.arange(6), atol=1e-6)
+    rows[3][0] = "soon"
+    _write_xlsx(path, rows)
+    word = {"elapsed_s": "seconds", "elapsed_min": "minutes", "elapsed_h": "hours"}[kind]
+    with pytest.raises(
+        RawFormatError, match=rf"row 4, column 't': 'soon' is not a number; expected elapsed {word}"
+    ):
+        read_log(path, spec)
+
+
 def test_duplicate_mapped_header_and_cell_beyond_header(tmp_path):
     header = _simple_header()
     header[5] = "Temp1 [K]"
@@ -299,7 +325,7 @@ def test_missing_mapped_column_lists_closest(xlsx_spec):
         ({"time": {"start": "yesterday"}}, "input.time.start"),
         ({"time": {"format": "dd.mm.yyyy"}}, "input.time.format"),
         ({"sample_period_s": 0}, "input.sample_period_s"),
-        ({"temperature_unit": "F"}, "input.temperature_unit"),
+        ({"temperature_unit": "R"}, "input.temperature_unit"),
         ({"sheet": -1}, "input.sheet"),
         ({"pattern": ""}, "input.pattern"),
     ],
@@ -321,7 +347,7 @@ def test_bad_mapping_raises_input_spec_error(change, key):
         {"header_row": 0},
         {"colour": "red"},
         {"time": {"kind": "relative"}},
-        {"temperature_unit": "F"},
+        {"temperature_unit": "R"},
     ],
 )
 def test_schema_rejects_what_the_normaliser_rejects(bad):

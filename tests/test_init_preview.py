@@ -248,3 +248,20 @@ def test_a_candidate_without_a_validation_run_is_told_how_to_get_one():
     passed, (reason,), _ = gate_outcome(None, None, {})
     assert not passed and reason.startswith("no validation runs: the candidate cannot be qualified; ")
     assert "runs.windows" in reason and "docs/raw-format.md#" in reason
+
+
+def test_a_clock_in_hours_and_temperatures_in_deg_f_are_proposed_as_such(tmp_path, capsys):
+    folder = tmp_path / "raw" / "m"
+    folder.mkdir(parents=True)
+    hours = np.arange(400) / 60.0  # a row a minute
+    temps = 68.0 + 18.0 * (1.0 - np.exp(-np.arange(400) / 80.0))
+    lines = ["Time (h),Z (mm),Sensor 1 (F),Sensor 2 (F)"]
+    lines += [f"{h:.6f},{0.00001 * k:.6f},{t:.3f},{t - 2:.3f}" for k, (h, t) in enumerate(zip(hours, temps))]
+    (folder / "run.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    assert main(["init", "--machine", "m", str(folder)]) == 0
+    out = capsys.readouterr()
+    block = yaml.safe_load(out.out)["machines"]["m"]
+    assert block["sample_period_s"] == 60  # the period in seconds, not 0.0167 (hours)
+    assert block["input"]["time"]["kind"] == "elapsed_h"
+    assert block["input"]["temperature_unit"] == "F"
+    assert "convert" not in out.err  # nothing to convert by hand

@@ -293,12 +293,12 @@ def test_the_workflow_names_the_key_of_a_machine_setting_the_schema_refuses(tmp_
     from project_copy import copy_project, run_snakemake
 
     proj = copy_project(tmp_path / "proj", config=False)
-    bad = {"machines": {"m": {"input": {"format": "csv", "pattern": "*.csv", "temperature_unit": "F"}}}}
+    bad = {"machines": {"m": {"input": {"format": "csv", "pattern": "*.csv", "temperature_unit": "R"}}}}
     (proj / "config.yaml").write_text(yaml.safe_dump(bad), encoding="utf-8")
     done = run_snakemake(proj, "-n")
     out = done.stdout + done.stderr
     assert done.returncode != 0
-    assert "RAFI: config.yaml: machines.m.input.temperature_unit: 'F' is not one of ['C', 'K']" in out
+    assert "RAFI: config.yaml: machines.m.input.temperature_unit: 'R' is not one of ['C', 'K', 'F']" in out
     assert "not valid under any of the given schemas" not in out
 
 

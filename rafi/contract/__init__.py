@@ -30,6 +30,7 @@ from rafi.contract.input import (
     CANONICAL_RE,
     DEFAULT_PATTERN,
     DEFAULT_SENSORS,
+    ELAPSED_SECONDS,
     FORMATS,
     INPUT_DEFAULTS,
     INPUT_SCHEMA,
@@ -46,6 +47,7 @@ from rafi.contract.input import (
     PROBE_SEPARATOR,
     RESERVED_NAMES,
     SENSOR_NAME_RE,
+    TEMPERATURE_UNITS,
     TIME_KINDS,
 )
 from rafi.contract.keys import Section, Setting
@@ -110,6 +112,8 @@ __all__ = [
     "TABLES_BEGIN",
     "TABLES_END",
     "TIME_KINDS",
+    "ELAPSED_SECONDS",
+    "TEMPERATURE_UNITS",
     "NO_CLOCK_EPOCH",
     "Section",
     "Setting",

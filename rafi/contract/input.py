@@ -65,9 +65,15 @@ JOIN_LAYOUT_KEYS = (
 
 DEFAULT_PATTERN = {"native": "*.csv", "csv": "*.csv", "xlsx": "*.xlsx"}
 
-#: ``input.time.kind``: a column of timestamps, a column of elapsed seconds, or no time column
-#: (row k of the file at ``start + k * period_s``).
-TIME_KINDS = ("timestamp", "elapsed_s", "none")
+#: ``input.time.kind``: a column of timestamps, a column of elapsed seconds (or minutes, or hours),
+#: or no time column (row k of the file at ``start + k * period_s``).
+TIME_KINDS = ("timestamp", "elapsed_s", "elapsed_min", "elapsed_h", "none")
+
+#: Seconds per unit of an elapsed time column (``input.time.kind`` ``elapsed_*``).
+ELAPSED_SECONDS = {"elapsed_s": 1.0, "elapsed_min": 60.0, "elapsed_h": 3600.0}
+
+#: ``input.temperature_unit``: degrees Celsius, kelvin or degrees Fahrenheit (converted to deg C).
+TEMPERATURE_UNITS = ("C", "K", "F")
 
 #: ``input.time.start`` left out (``None``) with ``elapsed_s`` or ``none``: the log has no clock.
 #: Its times are counted from this instant for the arithmetic only (never shown as a date): the
@@ -190,7 +196,7 @@ INPUT_SCHEMA: dict = {
                 },
             },
         },
-        "temperature_unit": {"enum": ["C", "K"]},
+        "temperature_unit": {"enum": list(TEMPERATURE_UNITS)},
         "keep_extra": {"type": "boolean"},
         "join": {
             "type": ["object", "null"],

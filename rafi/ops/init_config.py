@@ -17,6 +17,7 @@ import re
 
 import yaml
 
+from rafi.contract import ELAPSED_SECONDS
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError
 from rafi.ops.init_pairs import main_pattern
@@ -121,7 +122,8 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
         if s.time_format:
             out.add(8, f"format: {q(s.time_format)}")
         return
-    out.add(8, "kind: elapsed_s", f"{s.time.header!r}: {s.time.why}")
+    kind = f"elapsed_{s.time.unit}" if f"elapsed_{s.time.unit}" in ELAPSED_SECONDS else "elapsed_s"
+    out.add(8, f"kind: {kind}", f"{s.time.header!r}: {s.time.why}")
     hint = s.first.start_hint
     if hint:
         out.add(8, f"start: {q(hint[0])}", f"from {hint[1]}")
@@ -177,6 +179,15 @@ def _temperature_unit(out: _Lines, s: Survey) -> None:
     unsure = [g for g in s.temperatures if g.check]
     if units == {"K"}:
         out.add(6, "temperature_unit: K", "every temperature reads 250-400: Kelvin")
+    elif units == {"degF"}:
+        out.add(6, "temperature_unit: F", "every temperature header says deg F: read as deg C")
+    elif "degF" in units:
+        out.add(
+            6,
+            "temperature_unit: C",
+            "CHECK: some headers say deg F, others not: one unit a machine",
+            off=True,
+        )
     elif unsure:
         out.add(6, "temperature_unit: C", f"CHECK: {unsure[0].check}", off=True)
     elif units:

@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from rafi.contract import ELAPSED_SECONDS
 from rafi.ops.init_layout import (
     LogShape,
     elapsed_seconds,
@@ -151,7 +152,8 @@ def _time_and_speed(
             survey.time_format = fmt
             t = elapsed_seconds(times)
         else:
-            t = elapsed_seconds(to_numbers(cells, table.layout.get("decimal", ".")))
+            per = ELAPSED_SECONDS.get(f"elapsed_{survey.time.unit}", 1.0)  # minutes, hours
+            t = elapsed_seconds(to_numbers(cells, table.layout.get("decimal", "."))) * per
     if survey.speed is not None:
         s = to_numbers(table.columns[survey.speed.index], table.layout.get("decimal", "."))
     return t, s
@@ -233,6 +235,8 @@ def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
             survey.shapes.append(LogShape(table.name, table.n_rows, None, 0.0, ()))
             continue
         period, share = sample_period(t)
+        if period is not None and survey.time is not None and survey.time.unit in ("min", "h"):
+            period = float(f"{period:.3g}")  # a clock in minutes or hours is rounded: 60.0012 s is 60
         periods.append(period)
         shares.append(share)
         steps = tuple(speed_steps(t, s, period)) if s is not None and period else ()

@@ -105,7 +105,7 @@ def temperature_unit(sig: Signals, where: Where) -> None:
             f"temperatures look like deg F: the coolest sensor {where.label(coolest)} starts at "
             f"{fmt(level)} (= {(level - 32) / 1.8:.1f} deg C if deg F); a machine's coolest sensor "
             f"is {lo:g}-{hi:g} deg C at the start of a log, values above {DEGF_ABOVE:g} are not. "
-            "The logger writes deg F: convert to deg C",
+            "The logger writes deg F: set input.temperature_unit: F (mapped files) or write deg C",
             column=coolest,
         )
     _some_sensors(levels, where)

@@ -278,11 +278,7 @@ def _temperature(header: str, v: np.ndarray, hints: set) -> tuple[str, str, str 
     named = header_unit(header)
     span = f"{lo:.1f}-{hi:.1f}"
     if named == "degF":
-        return (
-            "degF",
-            f"header says deg F, {span}",
-            "deg F: convert to deg C (input.temperature_unit is C or K)",
-        )
+        return "degF", f"header says deg F, {span}", None
     if KELVIN_RANGE[0] <= lo and hi <= KELVIN_RANGE[1]:
         return "K", f"{span}: Kelvin", None
     if not (CELSIUS_RANGE[0] <= lo and hi <= CELSIUS_RANGE[1]):
@@ -369,7 +365,7 @@ def _numeric_guess(header: str, v: np.ndarray, hints: set, guess) -> ColumnGuess
     if clock and ("time" in hints or not hints):  # a header naming another role is not a clock
         unit = header_unit(header)
         if unit in ("min", "h"):
-            return guess("time", unit, f"rises by {step:g} every row", f"elapsed {unit}: convert to seconds")
+            return guess("time", unit, f"rises by {step:g} {unit} every row: elapsed {unit}")
         if _COUNTER.match(header.strip()):
             return guess("other", None, f"rises by {step:g} every row: a row counter", agree=True)
         if step == 1 and "time" not in hints:

@@ -38,6 +38,7 @@ from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of thi
     PROBE_SEPARATOR,
     RESERVED_NAMES,
     SENSOR_NAME_RE,
+    TEMPERATURE_UNITS,
     TIME_KINDS,
 )
 from rafi.errors import InputSpecError, bound_message, short_path
@@ -114,8 +115,10 @@ def normalise_input_spec(spec: dict | None) -> dict:
     check_time(out)
     check_no_time_column(out)
     check_speed(out)
-    if out["temperature_unit"] not in ("C", "K"):
-        raise _spec_error("temperature_unit", f"{out['temperature_unit']!r}: expected C or K")
+    if out["temperature_unit"] not in TEMPERATURE_UNITS:
+        raise _spec_error(
+            "temperature_unit", f"{out['temperature_unit']!r}: expected {', '.join(TEMPERATURE_UNITS)}"
+        )
     if not isinstance(out["keep_extra"], bool):
         raise _spec_error("keep_extra", f"{out['keep_extra']!r}: expected true or false")
     return out
@@ -287,7 +290,7 @@ def check_time(out: dict) -> None:
     float). ``out`` is changed in place."""
     tm = out["time"]
     if tm["kind"] not in TIME_KINDS:
-        raise _spec_error("time.kind", f"{tm['kind']!r}: expected timestamp, elapsed_s or none")
+        raise _spec_error("time.kind", f"{tm['kind']!r}: expected {', '.join(TIME_KINDS)}")
     if tm["start"] is not None and not _plain_start_ok(str(tm["start"])):
         import pandas as pd
 

@@ -250,7 +250,7 @@ def canonical_values(table: Table, column: list, canon: str, col_index: int, spe
     -------
     numpy.ndarray
         ``float64``; empty cells NaN; a displacement in mm times 1000 and by its sign
-        (never -0.0), a temperature in K minus 273.15.
+        (never -0.0), a temperature in K minus 273.15, in deg F as (F - 32) x 5/9.
 
     Raises
     ------
@@ -267,4 +267,6 @@ def canonical_values(table: Table, column: list, canon: str, col_index: int, spe
         values = values * spec["displacement"]["sign"] + 0.0  # no -0.0
     elif canon in spec["sensors"] and spec["temperature_unit"] == "K":
         values = values - 273.15
+    elif canon in spec["sensors"] and spec["temperature_unit"] == "F":
+        values = (values - 32.0) * (5.0 / 9.0)
     return values.astype("float64")

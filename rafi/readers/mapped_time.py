@@ -4,6 +4,7 @@
 
 * ``timestamp``: a column of dates and times (``time.format``, or ISO-8601);
 * ``elapsed_s``: a column of seconds (or ``h:mm:ss`` cells) counted from ``time.start``;
+  ``elapsed_min`` and ``elapsed_h`` the same in minutes or hours (a duration cell is a duration);
 * ``none``: the file has no time column. Data row k (0-based, in file order, blank lines
   not counted) is at ``time.start + k * time.period_s``: a logger that writes one row per
   period and never misses one. The times are *assumed*, not measured, and the frame says so
@@ -24,9 +25,12 @@ import datetime as dt
 import numpy as np
 import pandas as pd
 
-from rafi.contract import NO_CLOCK_EPOCH
+from rafi.contract import ELAPSED_SECONDS, NO_CLOCK_EPOCH
 from rafi.readers.mapped_table import Table, numeric
 from rafi.readers.parsing import TIME_MAX, TIME_MIN
+
+#: The unit of an elapsed time column, in words (its messages).
+ELAPSED_WORDS = {"elapsed_s": "seconds", "elapsed_min": "minutes", "elapsed_h": "hours"}
 
 
 def timestamps(table: Table, values: list, spec: dict, column: str, col_index: int) -> pd.Series:
@@ -55,7 +59,7 @@ def timestamps(table: Table, values: list, spec: dict, column: str, col_index: i
     RawFormatError
         At the first cell that is empty, not a time, or outside 1678..2261.
     """
-    if spec["time"]["kind"] == "elapsed_s":
+    if spec["time"]["kind"] in ELAPSED_SECONDS:
         return _elapsed_times(table, values, spec, column, col_index)
     fast = _text_times(values, spec["time"]["format"])
     if fast is not None:
@@ -64,7 +68,8 @@ def timestamps(table: Table, values: list, spec: dict, column: str, col_index: i
 
 
 def _elapsed_times(table: Table, values: list, spec: dict, column: str, col_index: int) -> pd.Series:
-    """A column of seconds (or ``h:mm:ss`` cells) from ``time.start``, as naive timestamps.
+    """A column of seconds (minutes, hours: ``time.kind``; or ``h:mm:ss`` cells) from
+    ``time.start``, as naive timestamps.
 
     Parameters
     ----------
@@ -91,19 +96,21 @@ def _elapsed_times(table: Table, values: list, spec: dict, column: str, col_inde
         At the first cell that is not a number, is empty, or lands outside 1678..2261.
     """
     tm = spec["time"]
+    per = ELAPSED_SECONDS[tm["kind"]]
+    word = ELAPSED_WORDS[tm["kind"]]
     secs = []
     for v in values:
         if isinstance(v, dt.timedelta):
-            v = v.total_seconds()
+            v = v.total_seconds() / per
         elif isinstance(v, dt.time):
-            v = v.hour * 3600 + v.minute * 60 + v.second + v.microsecond / 1e6
+            v = (v.hour * 3600 + v.minute * 60 + v.second + v.microsecond / 1e6) / per
         secs.append(v)
-    sec = numeric(table, secs, spec["decimal"], column, col_index, "elapsed seconds")
+    sec = numeric(table, secs, spec["decimal"], column, col_index, f"elapsed {word}") * per
     empty = np.isnan(sec)
     if empty.any():
         k = int(np.argmax(empty))
         raise table.error(
-            "empty time; expected elapsed seconds",
+            f"empty time; expected elapsed {word}",
             row=table.row_numbers[k],
             column=column,
             col_index=col_index,
@@ -115,7 +122,7 @@ def _elapsed_times(table: Table, values: list, spec: dict, column: str, col_inde
     if bad.any():
         k = int(np.argmax(bad))
         raise table.error(
-            f"{values[k]!r} seconds from {_start_text(tm)} is outside the supported years 1678..2261",
+            f"{values[k]!r} {word} from {_start_text(tm)} is outside the supported years 1678..2261",
             row=table.row_numbers[k],
             column=column,
             col_index=col_index,
