@@ -264,6 +264,37 @@ def test_fahrenheit_and_elapsed_minutes_or_hours_read_as_the_same_log(tmp_path, 
         read_log(path, spec)
 
 
+def test_a_date_column_and_a_time_of_day_column_read_as_one_clock(tmp_path):
+    """Loggers that write the date and the time of day in two columns: text (csv, with a format
+    for both joined by a space) and workbook date and time cells (xlsx) give the same times."""
+    t0 = dt.datetime(2023, 7, 1, 23, 58, 0)
+    stamps = [t0 + dt.timedelta(seconds=30 * k) for k in range(8)]  # across midnight
+    header = ["Datum", "Uhrzeit", "n [1/min]", *[f"Temp{i} [K]" for i in range(1, 17)], "Z [mm]"]
+    body = [[3000, *[293.15] * 16, 0.001 * k] for k in range(8)]
+    lines = [";".join(header)]
+    lines += [
+        ";".join([t.strftime("%d.%m.%Y"), t.strftime("%H:%M:%S"), *map(str, b)]) for t, b in zip(stamps, body)
+    ]
+    csv = tmp_path / "d.csv"
+    csv.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    columns = {"time": "Uhrzeit", "speed_rpm": "n [1/min]", "disp_um": "Z [mm]"}
+    columns.update({f"T{i}": f"Temp{i} [K]" for i in range(1, 17)})
+    time = {"kind": "timestamp", "date_column": "Datum", "format": "%d.%m.%Y %H:%M:%S"}
+    f = read_log(csv, _simple_spec("csv", delimiter=";", columns=columns, time=time))
+    assert f["time"].tolist() == [pd.Timestamp(t) for t in stamps]
+    assert "datum" not in f.columns and "uhrzeit" not in f.columns  # the clock's columns are not extras
+    xlsx = tmp_path / "d.xlsx"
+    _write_xlsx(xlsx, [header, *[[t.date(), t.time(), *b] for t, b in zip(stamps, body)]])
+    g = read_log(xlsx, _simple_spec(columns=columns, time={"kind": "timestamp", "date_column": "Datum"}))
+    assert g["time"].tolist() == f["time"].tolist()
+    with pytest.raises(InputSpecError, match=r"input\.time\.date_column"):
+        normalise_input_spec({"format": "csv", "time": {"kind": "elapsed_s", "date_column": "Datum"}})
+    lines[3] = lines[3].replace("01.07.2023", "", 1)  # a row without its date
+    csv.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    with pytest.raises(RawFormatError, match=r"line 4, column 'Datum \+ Uhrzeit'"):
+        read_log(csv, _simple_spec("csv", delimiter=";", columns=columns, time=time))
+
+
 def test_duplicate_mapped_header_and_cell_beyond_header(tmp_path):
     header = _simple_header()
     header[5] = "Temp1 [K]"
@@ -365,6 +396,7 @@ def test_defaults():
         "start": None,
         "format": None,
         "period_s": None,
+        "date_column": None,
     }
     assert spec["speed"] == {"constant_rpm": None, "constant_rpm_by_file": {}}
     assert spec["displacement"] == {"column": None, "unit": "um", "sign": 1}

@@ -6,6 +6,7 @@ import datetime as dt
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import yaml
 from layout_files import write_sheet_pair
@@ -265,3 +266,36 @@ def test_a_clock_in_hours_and_temperatures_in_deg_f_are_proposed_as_such(tmp_pat
     assert block["input"]["time"]["kind"] == "elapsed_h"
     assert block["input"]["temperature_unit"] == "F"
     assert "convert" not in out.err  # nothing to convert by hand
+
+
+def test_a_date_and_a_time_of_day_column_are_proposed_as_one_clock_and_read_back(tmp_path, capsys):
+    from rafi.readers.input_spec import normalise_input_spec
+    from rafi.readers.logs import read_log
+
+    folder = tmp_path / "raw" / "m"
+    folder.mkdir(parents=True)
+    t0 = dt.datetime(2023, 7, 1, 20, 0)
+    stamps = [t0 + dt.timedelta(seconds=60 * k) for k in range(400)]  # across midnight
+    temps = 22.0 + 9.0 * (1.0 - np.exp(-np.arange(400) / 80.0))
+    lines = ["Date,Time,RPM,T1,T2,Z_um"]
+    lines += [
+        f"{t:%Y-%m-%d},{t:%H:%M:%S},6000,{v:.3f},{v - 1:.3f},{0.05 * k:.3f}"
+        for k, (t, v) in enumerate(zip(stamps, temps))
+    ]
+    (folder / "log.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    assert main(["init", "--machine", "m", str(folder)]) == 0
+    out = capsys.readouterr()
+    block = yaml.safe_load(out.out)["machines"]["m"]
+    assert block["sample_period_s"] == 60
+    assert block["input"]["columns"]["time"] == "Time"
+    assert block["input"]["time"]["kind"] == "timestamp" and block["input"]["time"]["date_column"] == "Date"
+    assert "Date" not in out.err.split("CHECK", 1)[-1]  # no check on the date column
+    frame = read_log(folder / "log.csv", normalise_input_spec(block["input"]))
+    assert frame["time"].tolist() == [pd.Timestamp(t) for t in stamps]
+
+
+def test_a_time_of_day_without_a_date_is_not_a_clock():
+    got = guess_columns(
+        ["Time", "T1"], [["08:00:00", "08:00:30", "08:01:00"] * 50, list(np.linspace(20, 30, 150))]
+    )
+    assert got[0].role == "other" and "without a date column" in got[0].why

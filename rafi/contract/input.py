@@ -17,7 +17,7 @@ INPUT_DEFAULTS: dict = {
     "skip_rows": 0,
     "sensors": None,
     "columns": {},
-    "time": {"kind": "timestamp", "start": None, "format": None, "period_s": None},
+    "time": {"kind": "timestamp", "start": None, "format": None, "period_s": None, "date_column": None},
     "speed": {"constant_rpm": None, "constant_rpm_by_file": {}},
     "sample_period_s": None,
     "displacement": {"column": None, "unit": "um", "sign": 1},
@@ -156,6 +156,7 @@ INPUT_SCHEMA: dict = {
                 "start": {"type": ["string", "null"], "minLength": 1},
                 "format": {"type": ["string", "null"]},
                 "period_s": {"type": "number", "exclusiveMinimum": 0},
+                "date_column": {"type": ["string", "null"], "minLength": 1},
             },
         },
         "speed": {

@@ -117,6 +117,12 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
             out.add(8, "period_s: 60", "CHECK: the seconds between two rows (--period-s)", off=True)
         out.add(8, 'start: "2026-01-01T00:00:00"', "CHECK: when the first row was logged", off=True)
         return
+    if s.time.unit == "timeofday" and s.date is not None:
+        out.add(8, "kind: timestamp", f"{s.time.header!r}: {s.time.why}")
+        out.add(8, f"date_column: {q(s.date.header)}", f"{s.date.header!r}: {s.date.why}")
+        if s.time_format:
+            out.add(8, f"format: {q(s.time_format)}", "of the date and the time of day joined by a space")
+        return
     if s.time.unit == "timestamp":
         out.add(8, "kind: timestamp", f"{s.time.header!r}: {s.time.why}")
         if s.time_format:

@@ -29,6 +29,7 @@ from rafi.ops.init_layout import (
 from rafi.ops.init_pairs import pair_parts, sheet_glob
 from rafi.readers.infer import ColumnGuess, guess_columns, sensor_names, to_numbers, to_times
 from rafi.readers.infer_files import RawTable
+from rafi.readers.mapped_time import date_and_time
 
 #: Time constant (s) of the low-pass of the speed that stands for "the spindle heats the machine"
 #: when the probe's sign is looked at.
@@ -55,6 +56,8 @@ class Survey:
     sensors : dict
         Sensor name -> header of each temperature column, in column order.
     time, speed : ColumnGuess or None
+    date : ColumnGuess or None
+        The date column of a time of day (``input.time.date_column``), else None.
     probes : list of ColumnGuess
         The displacement candidates, the one to model first.
     time_format : str or None
@@ -98,6 +101,7 @@ class Survey:
     guesses: list
     sensors: dict
     time: ColumnGuess | None
+    date: ColumnGuess | None
     speed: ColumnGuess | None
     probes: list
     time_format: str | None = None
@@ -147,7 +151,12 @@ def _time_and_speed(
     t = s = None
     if survey.time is not None:
         cells = table.columns[survey.time.index]
-        if survey.time.unit == "timestamp":
+        if survey.time.unit == "timeofday" and survey.date is not None:
+            cells = date_and_time(list(table.columns[survey.date.index]), list(cells))
+            times, fmt, _ = to_times(cells)
+            survey.time_format = fmt
+            t = None if times is None else elapsed_seconds(times)
+        elif survey.time.unit == "timestamp":
             times, fmt, _ = to_times(cells)
             survey.time_format = fmt
             t = elapsed_seconds(times)
@@ -166,6 +175,8 @@ def probe_sign(t_s: np.ndarray, speed: np.ndarray, disp: np.ndarray) -> tuple[in
     if ok.sum() < 10:
         return None, "too few rows to tell"
     period = float(np.median(np.diff(t_s[ok])))
+    if not period > 0:
+        return None, "the time column does not advance from row to row"
     heat = pd.Series(speed[ok]).ewm(alpha=1.0 - np.exp(-period / HEAT_TAU_S), adjust=False).mean().to_numpy()
     if np.std(heat) == 0 or np.std(disp[ok]) == 0:
         return None, "the speed or the probe does not change"
@@ -277,6 +288,7 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         guesses=guesses,
         sensors=dict(zip(names, (g.header for g in temps))),
         time=next((g for g in guesses if g.role == "time"), None),
+        date=next((g for g in guesses if g.role == "date"), None),
         speed=next((g for g in guesses if g.role == "speed"), None),
         probes=_axis_first([g for g in partner_guesses or guesses if g.role == "displacement"]),
         partner=partners[0] if partners else None,
@@ -343,7 +355,7 @@ def _checks(s: Survey) -> list[str]:
         out.append(
             f"sample_period_s: the time steps are irregular ({s.regular_share:.0%} regular); give the period"
         )
-    if s.time is not None and s.time.unit != "timestamp" and not s.first.start_hint:
+    if s.time is not None and s.time.unit not in ("timestamp", "timeofday") and not s.first.start_hint:
         out.append("input.time.start: elapsed seconds with no start date found; give when second 0 was")
     if s.speed is None and not s.speed_by_file:
         out.append("input.speed: no speed column; give constant_rpm or constant_rpm_by_file")

@@ -11,7 +11,8 @@ sentence: ``rafi init`` says it in the terminal and writes the key commented out
 The rules, in words (``docs/init.md``):
 
 * **time**: timestamps (date cells, or text that parses as date and time), or numbers that rise
-  at every row in regular steps (elapsed seconds);
+  at every row in regular steps (elapsed seconds), or a time of day (``08:00:00``, time cells)
+  beside a **date** column (dates, all at midnight, no time in the text);
 * **speed**: non-negative, up to 100 000, mostly held at a few levels with jumps between them
   (a spindle speed in r/min); a column at one level is a speed only if its header says so;
 * **temperature**: smooth (no jumps), 0-120 (deg C), 250-400 (K); a start between
@@ -35,7 +36,7 @@ import pandas as pd
 from rafi.readers.mapped_table import excel_column
 
 #: Roles a column can get.
-ROLES = ("time", "speed", "temperature", "displacement", "other", "text", "empty")
+ROLES = ("time", "date", "speed", "temperature", "displacement", "other", "text", "empty")
 
 #: Highest plausible spindle speed, r/min.
 SPEED_MAX_RPM = 100_000.0
@@ -162,6 +163,21 @@ def to_numbers(cells, decimal: str = ".") -> np.ndarray:
 
 #: Text time formats tried in order (``None``: ISO 8601, read by pandas without a format).
 TIME_FORMATS = (None, "%d.%m.%Y %H:%M:%S", "%d.%m.%Y %H:%M", "%d/%m/%Y %H:%M:%S", "%m/%d/%Y %H:%M:%S")
+
+
+_TIME_OF_DAY = re.compile(r"^\d{1,2}:\d{2}(:\d{2}([.,]\d+)?)?$")
+
+
+def _is_time_of_day(filled: list) -> bool:
+    """Every cell a time of day: a workbook's time cell, or text ``H:MM[:SS[.f]]``."""
+    return all(
+        isinstance(v, dt.time) or (isinstance(v, str) and _TIME_OF_DAY.match(v.strip())) for v in filled
+    )
+
+
+def _has_clock_text(filled: list) -> bool:
+    """Some text cell carries a time of day (``08:00``): a timestamp, though at midnight."""
+    return any(isinstance(v, str) and ":" in v for v in filled)
 
 
 def to_times(cells) -> tuple[np.ndarray | None, str | None, str | None]:
@@ -331,9 +347,10 @@ def guess_column(index: int, header: str, cells, decimal: str = ".", label: str 
     hints = header_hints(named)
 
     def guess(role, unit, why, check=None, agree=None):
-        agree = role in hints if agree is None else agree
+        same = {role, "time"} if role == "date" else {role}  # a "Date" header names the clock too
+        agree = bool(same & hints) if agree is None else agree
         conf = "low" if check else ("high" if agree else "medium")
-        other = hints - {role}
+        other = hints - same
         if other and role not in hints and not check:
             conf = "low"
             check = f"the header suggests {', '.join(sorted(other))}; the content says {role}"
@@ -342,8 +359,15 @@ def guess_column(index: int, header: str, cells, decimal: str = ".", label: str 
     filled = [c for c in cells if c is not None and str(c).strip() != ""]
     if not filled:
         return ColumnGuess(index, header, "empty", None, "high", "no values")
+    if _is_time_of_day(filled):
+        return guess("time", "timeofday", "a time of day (the date in another column?)")
     times, fmt, tcheck = to_times(cells)
     if times is not None:
+        stamps = pd.to_datetime(pd.Series(times)).dropna()
+        if len(stamps) and (stamps == stamps.dt.normalize()).all() and not _has_clock_text(filled):
+            return guess(
+                "date", "date", "a date without the time of day" + (f" ({fmt})" if fmt else ""), tcheck
+            )
         why = "date and time" + (f" ({fmt})" if fmt else "")
         return guess("time", "timestamp", why, tcheck)
     v = to_numbers(cells, decimal)
@@ -423,6 +447,13 @@ def guess_columns(
     guesses = [
         guess_column(j, h, c, decimal, lab) for j, (h, c, lab) in enumerate(zip(header, columns, labels))
     ]
+    if not any(g.role == "date" for g in guesses):  # a time of day needs its date
+        guesses = [
+            ColumnGuess(g.index, g.header, "other", None, "low", "a time of day without a date column", None)
+            if g.role == "time" and g.unit == "timeofday"
+            else g
+            for g in guesses
+        ]
     rank = {"high": 0, "medium": 1, "low": 2}
     for role in ("time", "speed"):
         found = [g for g in guesses if g.role == role]

@@ -305,6 +305,12 @@ def check_time(out: dict) -> None:
         if not (TIME_MIN <= start <= TIME_MAX):
             raise _spec_error("time.start", f"{tm['start']!r} is outside 1678..2261")
     tm["start"] = None if tm["start"] is None else str(tm["start"])
+    if tm["date_column"] is not None and (tm["kind"] != "timestamp" or not str(tm["date_column"]).strip()):
+        raise _spec_error(
+            "time.date_column",
+            f"{tm['date_column']!r}: a date column goes with time.kind timestamp (the time column then "
+            "holds the time of day)",
+        )
     if tm["format"] is not None and (not isinstance(tm["format"], str) or "%" not in tm["format"]):
         raise _spec_error(
             "time.format", f"{tm['format']!r}: expected a strptime format such as '%d.%m.%Y %H:%M:%S'"
@@ -326,10 +332,15 @@ def _is_default(key: str, value) -> bool:
     return False
 
 
+#: The canonical name of ``input.time.date_column`` among the mapped columns (never a frame column).
+DATE_COLUMN = "time_date"
+
+
 def resolve_columns(spec: dict) -> dict[str, str]:
     """Canonical name -> the header text to look for (identity where not mapped).
 
-    ``time`` is left out when ``time.kind`` is ``none``, ``speed_rpm`` when the speed is a
+    ``time`` is left out when ``time.kind`` is ``none`` (:data:`DATE_COLUMN` is added with
+    ``time.date_column``), ``speed_rpm`` when the speed is a
     configured constant and the columns of ``join.columns``: those columns are not read from
     the file.
     """
@@ -337,6 +348,8 @@ def resolve_columns(spec: dict) -> dict[str, str]:
     cols = {name: spec["columns"].get(name, name) for name in names}
     if spec["time"]["kind"] == "none":
         del cols["time"]
+    elif spec["time"]["date_column"] is not None:
+        cols[DATE_COLUMN] = spec["time"]["date_column"]
     if has_constant_speed(spec):
         del cols["speed_rpm"]
     if spec["displacement"]["column"] is not None:

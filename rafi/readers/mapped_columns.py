@@ -17,9 +17,9 @@ import pandas as pd
 
 from rafi.errors import RawFormatError
 from rafi.readers.input_layouts import column_index
-from rafi.readers.input_spec import norm_header, resolve_columns
+from rafi.readers.input_spec import DATE_COLUMN, norm_header, resolve_columns
 from rafi.readers.mapped_table import Table, excel_column, numeric
-from rafi.readers.mapped_time import row_times, row_times_error, timestamps
+from rafi.readers.mapped_time import date_and_time, row_times, row_times_error, timestamps
 
 # --------------------------------------------------------------------------- the mapping
 
@@ -100,6 +100,8 @@ def _mapping_key(spec: dict, canon: str) -> str:
     """The config key that names canonical column ``canon``'s column."""
     if canon == "disp_um" and spec["displacement"]["column"]:
         return "input.displacement.column"
+    if canon == DATE_COLUMN:
+        return "input.time.date_column"
     return f"input.columns.{canon}"
 
 
@@ -226,6 +228,10 @@ def frame_times(table: Table, cols: list[tuple], positions: dict[str, int], spec
             raise RawFormatError(table.path, problem, line=table.row_numbers[-1], sheet=table.sheet)
         return row_times(len(table.rows), spec)
     j = positions["time"]
+    if DATE_COLUMN in positions:  # a date column and a time-of-day column
+        d = positions[DATE_COLUMN]
+        cells = date_and_time(list(cols[d]), list(cols[j]))
+        return timestamps(table, cells, spec, f"{column_label(table, d)} + {column_label(table, j)}", j)
     return timestamps(table, list(cols[j]), spec, column_label(table, j), j)
 
 

@@ -2,7 +2,8 @@
 
 ``input.time.kind`` says where a mapped file's times come from (``docs/raw-format.md``):
 
-* ``timestamp``: a column of dates and times (``time.format``, or ISO-8601);
+* ``timestamp``: a column of dates and times (``time.format``, or ISO-8601), or a column of the
+  time of day with the date in another (``time.date_column``: :func:`date_and_time`);
 * ``elapsed_s``: a column of seconds (or ``h:mm:ss`` cells) counted from ``time.start``;
   ``elapsed_min`` and ``elapsed_h`` the same in minutes or hours (a duration cell is a duration);
 * ``none``: the file has no time column. Data row k (0-based, in file order, blank lines
@@ -65,6 +66,36 @@ def timestamps(table: Table, values: list, spec: dict, column: str, col_index: i
     if fast is not None:
         return fast
     return _cell_times(table, values, spec["time"]["format"], column, col_index)
+
+
+def date_and_time(dates: list, times: list) -> list:
+    """The cells of a date column and a time-of-day column as one cell per row
+    (``input.time.date_column``): a workbook's date and time cells combined into a
+    ``datetime``, anything else as the text ``"<date> <time>"`` (a date cell written as its ISO
+    date, a time cell as ``HH:MM:SS``), ready for :func:`timestamps` and ``time.format``. A row
+    whose date or time is empty stays empty.
+
+    Parameters
+    ----------
+    dates, times : list
+        The cells of the two columns, in row order.
+    """
+    out = []
+    for d, t in zip(dates, times):
+        if d is None or t is None or str(d).strip() == "" or str(t).strip() == "":
+            out.append(None)
+            continue
+        if isinstance(d, dt.datetime):
+            d = d.date()
+        if isinstance(t, dt.datetime):
+            t = t.time()
+        if isinstance(d, dt.date) and isinstance(t, dt.time):
+            out.append(dt.datetime.combine(d, t))
+            continue
+        day = d.isoformat() if isinstance(d, dt.date) else str(d).strip()
+        clock = t.isoformat() if isinstance(t, dt.time) else str(t).strip()
+        out.append(f"{day} {clock}")
+    return out
 
 
 def _elapsed_times(table: Table, values: list, spec: dict, column: str, col_index: int) -> pd.Series:
