@@ -248,8 +248,9 @@ def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
         period, share = sample_period(t)
         if period is not None and survey.time is not None and survey.time.unit in ("min", "h"):
             period = float(f"{period:.3g}")  # a clock in minutes or hours is rounded: 60.0012 s is 60
-        periods.append(period)
-        shares.append(share)
+        if period is not None:  # a clock that stands still has no period
+            periods.append(period)
+            shares.append(share)
         steps = tuple(speed_steps(t, s, period)) if s is not None and period else ()
         survey.shapes.append(LogShape(table.name, table.n_rows, period, share, steps))
         if survey.sign is None and survey.probes and s is not None:
