@@ -17,11 +17,10 @@ import re
 
 import yaml
 
-from rafi.contract import ELAPSED_SECONDS
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError
 from rafi.ops.init_pairs import main_pattern
-from rafi.ops.init_survey import Survey
+from rafi.ops.init_survey import Survey, elapsed_kind
 from rafi.settings import machine_settings, validate_config
 
 #: Column at which line comments start (when the text is shorter).
@@ -128,8 +127,7 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
         if s.time_format:
             out.add(8, f"format: {q(s.time_format)}")
         return
-    kind = f"elapsed_{s.time.unit}" if f"elapsed_{s.time.unit}" in ELAPSED_SECONDS else "elapsed_s"
-    out.add(8, f"kind: {kind}", f"{s.time.header!r}: {s.time.why}")
+    out.add(8, f"kind: {elapsed_kind(s.time.unit)}", f"{s.time.header!r}: {s.time.why}")
     hint = s.first.start_hint
     if hint:
         out.add(8, f"start: {q(hint[0])}", f"from {hint[1]}")

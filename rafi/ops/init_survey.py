@@ -144,6 +144,12 @@ def _axis_first(probes: list[ColumnGuess]) -> list[ColumnGuess]:
     return sorted(probes, key=lambda g: (not z.search(g.header), g.index))
 
 
+def elapsed_kind(unit: str | None) -> str:
+    """``input.time.kind`` of an elapsed time column in ``unit`` (``min``, ``h``; else seconds)."""
+    kind = f"elapsed_{unit}"
+    return kind if kind in ELAPSED_SECONDS else "elapsed_s"
+
+
 def _time_and_speed(
     table: RawTable, guesses: list, survey: Survey
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -153,15 +159,12 @@ def _time_and_speed(
         cells = table.columns[survey.time.index]
         if survey.time.unit == "timeofday" and survey.date is not None:
             cells = date_and_time(list(table.columns[survey.date.index]), list(cells))
+        if survey.time.unit in ("timestamp", "timeofday"):
             times, fmt, _ = to_times(cells)
             survey.time_format = fmt
             t = None if times is None else elapsed_seconds(times)
-        elif survey.time.unit == "timestamp":
-            times, fmt, _ = to_times(cells)
-            survey.time_format = fmt
-            t = elapsed_seconds(times)
         else:
-            per = ELAPSED_SECONDS.get(f"elapsed_{survey.time.unit}", 1.0)  # minutes, hours
+            per = ELAPSED_SECONDS[elapsed_kind(survey.time.unit)]  # seconds, minutes, hours
             t = elapsed_seconds(to_numbers(cells, table.layout.get("decimal", "."))) * per
     if survey.speed is not None:
         s = to_numbers(table.columns[survey.speed.index], table.layout.get("decimal", "."))
