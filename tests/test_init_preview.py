@@ -174,6 +174,11 @@ def test_a_german_time_stamp_header_is_time_not_temperature():
     from rafi.readers.infer import header_hints
 
     assert header_hints("Zeitstempel") == {"time"}  # "...stempel" holds "temp"
+    assert header_hints("Datum") == {"time"}  # "...um" is not a unit
+    assert header_hints("Z_um") == header_hints("Z [µm]") == header_hints("Weg µm") == {"displacement"}
+    days = [dt.date(2023, 7, 1)] * 10 + [dt.date(2023, 7, 2)] * 10  # workbook date cells
+    (date,) = guess_columns(["Datum"], [days])
+    assert (date.role, date.confidence, date.check) == ("date", "high", None)
     assert header_hints("Gastemperatur [°C]") == {"temperature"}
     assert header_hints("Temp. Lager") == {"temperature"}
     t0 = dt.datetime(2023, 7, 1, 8, 0)

@@ -66,7 +66,7 @@ _HINTS = {
         re.I,
     ),
     "displacement": re.compile(
-        r"[µμu]m\b|[\[(]\s*mm\s*[\])]|verlagerung|displacement|disp|deform|dehnung|elongation|probe|"
+        r"[µμ]m\b|(?<![a-z])um\b|[\[(]\s*mm\s*[\])]|verlagerung|displacement|disp|deform|dehnung|elongation|probe|"
         r"sonde|位移|變位|变位|^ch\s*_?\d+|^[xyz]\s*_?\d*\s*([\[(]|$)|^d[xyz]\b",
         re.I,
     ),
@@ -188,7 +188,7 @@ def to_times(cells) -> tuple[np.ndarray | None, str | None, str | None]:
     filled = [v for v in cells if v is not None and str(v).strip() != ""]
     if not filled:
         return None, None, None
-    if all(isinstance(v, (dt.datetime, pd.Timestamp)) for v in filled):
+    if all(isinstance(v, (dt.date, pd.Timestamp)) for v in filled):  # a datetime is a date too
         return pd.to_datetime(pd.Series(list(cells)), errors="coerce").to_numpy(), None, None
     if not all(isinstance(v, str) for v in filled):
         return None, None, None
