@@ -304,3 +304,17 @@ def test_a_time_of_day_without_a_date_is_not_a_clock():
         ["Time", "T1"], [["08:00:00", "08:00:30", "08:01:00"] * 50, list(np.linspace(20, 30, 150))]
     )
     assert got[0].role == "other" and "without a date column" in got[0].why
+
+
+def test_a_utf16_text_export_is_named_as_such(tmp_path, capsys):
+    """Excel's "Unicode text" export is UTF-16 with a byte-order mark: ``rafi init`` says so and
+    what to do, not that it found no header (it read the bytes as cp1252)."""
+    folder = tmp_path / "raw" / "m"
+    folder.mkdir(parents=True)
+    rows = ["Zeit\tDrehzahl\tT1\tZ [µm]"] + [
+        f"{10 * k}\t3000\t{22 + 0.01 * k:.2f}\t{0.1 * k:.2f}" for k in range(50)
+    ]
+    (folder / "log.txt").write_text("\r\n".join(rows) + "\r\n", encoding="utf-16")
+    assert main(["init", "--machine", "m", str(folder)]) != 0
+    err = capsys.readouterr().err
+    assert "UTF-16 encoded; save it as UTF-8 text" in err and "no header line" not in err

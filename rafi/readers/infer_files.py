@@ -11,6 +11,7 @@ says what they hold. The csv text is split by the project's own reader
 
 from __future__ import annotations
 
+import codecs
 import datetime as dt
 import io
 import os
@@ -246,7 +247,10 @@ def _native_header(header: list[str]) -> bool:
 
 
 def _read_text(path: Path, raw: bytes) -> RawTable:
-    for enc in ENCODINGS:
+    # a byte-order mark of UTF-16 (Excel's "Unicode text" export, some Windows loggers) decides;
+    # else UTF-8, then cp1252, which decodes any byte
+    encodings = ("utf-16",) if raw.startswith((codecs.BOM_UTF16_LE, codecs.BOM_UTF16_BE)) else ENCODINGS
+    for enc in encodings:
         try:
             text = raw.decode("utf-8-sig" if enc == "utf-8" else enc)
             break
