@@ -23,6 +23,7 @@ from rafi.readers.checks_base import (
     whole_log_warning,
 )
 from rafi.readers.checks_jumps import displacement_jumps
+from rafi.readers.parsing import TO_DEG_C
 
 #: Coolest sensor's start level above this (in the file's numbers) -> deg F.
 DEGF_ABOVE = 40.0
@@ -74,10 +75,6 @@ GROWTH_PER_K_UM = (0.2, 15.0)
 PERIOD_FACTOR = 1.5
 
 
-def _fahrenheit(x):
-    return (x - 32.0) / 1.8
-
-
 def temperature_unit(sig: Signals, where: Where) -> None:
     """Error if the temperatures are in deg F or K: all of them (from the coolest sensor's start
     level), some of them (their start levels, converted, land among the others'), or from part
@@ -94,7 +91,7 @@ def temperature_unit(sig: Signals, where: Where) -> None:
         raise where.check_error(
             "temperature_unit",
             f"temperatures look like kelvin: the coolest sensor {where.label(coolest)} starts at "
-            f"{fmt(level)} (= {level - 273.15:.1f} deg C if K); a machine's coolest sensor is "
+            f"{fmt(level)} (= {TO_DEG_C['K'](level):.1f} deg C if K); a machine's coolest sensor is "
             f"{lo:g}-{hi:g} deg C at the start of a log. Set input.temperature_unit: K (mapped "
             "files) or write deg C",
             column=coolest,
@@ -103,7 +100,7 @@ def temperature_unit(sig: Signals, where: Where) -> None:
         raise where.check_error(
             "temperature_unit",
             f"temperatures look like deg F: the coolest sensor {where.label(coolest)} starts at "
-            f"{fmt(level)} (= {(level - 32) / 1.8:.1f} deg C if deg F); a machine's coolest sensor "
+            f"{fmt(level)} (= {TO_DEG_C['F'](level):.1f} deg C if deg F); a machine's coolest sensor "
             f"is {lo:g}-{hi:g} deg C at the start of a log, values above {DEGF_ABOVE:g} are not. "
             "The logger writes deg F: set input.temperature_unit: F (mapped files) or write deg C",
             column=coolest,
@@ -119,7 +116,7 @@ def _some_sensors(levels: dict, where: Where) -> None:
     if not cool:
         return
     band = (min(cool) - CONVERTED_BAND_K, max(cool) + CONVERTED_BAND_K)
-    for unit, convert in (("deg F", _fahrenheit), ("kelvin", lambda x: x - 273.15)):
+    for unit, convert in (("deg F", TO_DEG_C["F"]), ("kelvin", TO_DEG_C["K"])):
         hits = [s for s, v in levels.items() if v > DEGF_ABOVE and band[0] <= convert(v) <= band[1]]
         if not hits:
             continue

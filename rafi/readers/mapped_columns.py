@@ -20,6 +20,7 @@ from rafi.readers.input_layouts import column_index
 from rafi.readers.input_spec import DATE_COLUMN, norm_header, resolve_columns
 from rafi.readers.mapped_table import Table, excel_column, numeric
 from rafi.readers.mapped_time import date_and_time, row_times, row_times_error, timestamps
+from rafi.readers.parsing import TO_DEG_C
 
 # --------------------------------------------------------------------------- the mapping
 
@@ -256,7 +257,7 @@ def canonical_values(table: Table, column: list, canon: str, col_index: int, spe
     -------
     numpy.ndarray
         ``float64``; empty cells NaN; a displacement in mm times 1000 and by its sign
-        (never -0.0), a temperature in K minus 273.15, in deg F as (F - 32) x 5/9.
+        (never -0.0), a temperature in K or deg F in deg C (:data:`rafi.readers.parsing.TO_DEG_C`).
 
     Raises
     ------
@@ -271,8 +272,6 @@ def canonical_values(table: Table, column: list, canon: str, col_index: int, spe
     if canon == "disp_um":
         values = values * (1000.0 if spec["displacement"]["unit"] == "mm" else 1.0)
         values = values * spec["displacement"]["sign"] + 0.0  # no -0.0
-    elif canon in spec["sensors"] and spec["temperature_unit"] == "K":
-        values = values - 273.15
-    elif canon in spec["sensors"] and spec["temperature_unit"] == "F":
-        values = (values - 32.0) * (5.0 / 9.0)
+    elif canon in spec["sensors"] and spec["temperature_unit"] in TO_DEG_C:
+        values = TO_DEG_C[spec["temperature_unit"]](values)
     return values.astype("float64")

@@ -28,6 +28,10 @@ import pandas as pd
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import QUOTE_MAX_CHARS, RawFormatError, quote
 
+#: A temperature unit other than deg C (``input.temperature_unit``, the unit checks) -> its
+#: conversion to deg C.
+TO_DEG_C = {"K": lambda v: v - 273.15, "F": lambda v: (v - 32.0) / 1.8}
+
 
 def numeric_columns(sensors=DEFAULT_SENSORS) -> tuple[str, ...]:
     """The numeric canonical columns of a machine with ``sensors``: speed, sensors, displacement."""
