@@ -54,6 +54,19 @@ def test_check_header_names_the_first_problem():
     assert info.value.column == "T5"
 
 
+def test_check_header_of_another_logger_points_to_rafi_init():
+    """A header sharing (nearly) nothing with the native layout is another logger's log in a
+    folder without its input block: the message says so and names `rafi init`, instead of
+    listing every native column twice."""
+    foreign = ["Date Time", "Spindle Speed (RPM)", *[f"Spindle Temp {i} (F)" for i in range(1, 17)], "Z (um)"]
+    with pytest.raises(RawFormatError) as info:
+        _check_header(Path("raw/new-lathe/log.csv"), foreign, 1)
+    text = str(info.value)
+    assert "not the native layout" in text and "19 of 19 missing" in text
+    assert "rafi init --machine NAME raw/new-lathe/" in text and "'Date Time'" in text
+    assert "expected time" not in text and info.value.line == 1 and info.value.column == "time"
+
+
 def test_split_rows_skips_blank_lines_strips_fields_and_numbers_each_line():
     body = [_row(0), "", f" {_row(1)} ".replace(",", " , "), "   ", _row(2)]
     rows, lines = _split_rows(PATH, body, HEADER, 3)

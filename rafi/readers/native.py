@@ -24,6 +24,7 @@ import pandas as pd
 from rafi.artefact import write_text_atomic
 from rafi.contract.sensors import DEFAULT_SENSORS, canonical_columns, frame_sensors
 from rafi.errors import RawFormatError, quote
+from rafi.readers.discovery import FOREIGN_FORMAT_DOCS
 from rafi.readers.parsing import (
     _INNER_SPACE,
     FIELD_MAX_CHARS,
@@ -171,6 +172,17 @@ def _check_header(
             )
         seen.add(name)
     missing = [c for c in required if c not in seen]
+    if len(missing) * 2 > len(required):
+        shown = ", ".join(quote(name) for name in header[:4]) + (", ..." if len(header) > 4 else "")
+        raise RawFormatError(
+            path,
+            f"the header ({shown}) is not the native layout's (time, speed_rpm, the sensors, "
+            f"disp_um: {len(missing)} of {len(required)} missing); a log written by another "
+            f"logger needs the machine's input block in config.yaml: `rafi init --machine NAME "
+            f"{path.parent}/` proposes it ({FOREIGN_FORMAT_DOCS})",
+            line=line_no,
+            column=missing[0],
+        )
     if missing:
         raise RawFormatError(
             path,
