@@ -264,6 +264,36 @@ def test_fahrenheit_and_elapsed_minutes_or_hours_read_as_the_same_log(tmp_path, 
         read_log(path, spec)
 
 
+@pytest.mark.parametrize("kind", ["epoch_s", "epoch_ms", "excel_days"])
+def test_a_clock_written_as_a_number_reads_as_its_dates(tmp_path, kind):
+    """Unix seconds or milliseconds and Excel's serial day numbers are dates: each cell's time is
+    what the standard library (Unix time) or openpyxl (Excel's day numbers) makes of it;
+    ``time.start`` is refused beside them."""
+    from openpyxl.utils.datetime import from_excel, to_excel
+
+    t0 = dt.datetime(2026, 3, 29, 0, 58, 0)
+    stamps = [t0 + dt.timedelta(seconds=60 * k) for k in range(6)]
+    if kind == "excel_days":
+        cells = [f"{to_excel(t):.10f}" for t in stamps]
+        expected = [from_excel(float(c)) for c in cells]
+    else:
+        unix = [(t - dt.datetime(1970, 1, 1)).total_seconds() for t in stamps]
+        cells = [f"{u:.0f}" if kind == "epoch_s" else f"{u * 1000:.0f}" for u in unix]
+        scale = 1.0 if kind == "epoch_s" else 1000.0
+        expected = [dt.datetime.fromtimestamp(int(c) / scale, dt.UTC).replace(tzinfo=None) for c in cells]
+    lines = [",".join(_simple_header()[:-1])]
+    lines += [",".join([c, "3000", *["293.15"] * 16, f"{0.001 * k:.3f}"]) for k, c in enumerate(cells)]
+    path = tmp_path / "clock.csv"
+    path.write_text("\n".join(lines) + "\n", encoding="utf-8")
+    spec = _simple_spec("csv", time={"kind": kind})
+    f = read_log(path, spec)
+    assert [t.to_pydatetime() for t in f["time"]] == expected
+    assert f.attrs["metadata"].get("clock", True) is not False
+    spec = _simple_spec("csv", time={"kind": kind, "start": "2026-01-01T00:00:00"})
+    with pytest.raises(InputSpecError, match=rf"time.start.*with kind {kind}.*leave time.start out"):
+        read_log(path, spec)
+
+
 def test_a_date_column_and_a_time_of_day_column_read_as_one_clock(tmp_path):
     """Loggers that write the date and the time of day in two columns: text (csv, with a format
     for both joined by a space) and workbook date and time cells (xlsx) give the same times."""

@@ -273,6 +273,40 @@ def test_a_clock_in_hours_and_temperatures_in_deg_f_are_proposed_as_such(tmp_pat
     assert "convert" not in out.err  # nothing to convert by hand
 
 
+@pytest.mark.parametrize("kind", ["epoch_s", "epoch_ms", "excel_days"])
+def test_a_clock_written_as_a_number_is_proposed_as_its_kind_and_read_back(tmp_path, capsys, kind):
+    """Unix seconds, Unix milliseconds and Excel's day numbers are dates, not elapsed seconds:
+    proposed with their kind, no start asked for, the period in seconds, the block reads the
+    file back at the dates written (openpyxl and the standard library as the oracles)."""
+    from openpyxl.utils.datetime import to_excel
+
+    from rafi.readers.input_spec import normalise_input_spec
+    from rafi.readers.logs import read_log
+
+    folder = tmp_path / "raw" / "m"
+    folder.mkdir(parents=True)
+    t0 = dt.datetime(2026, 3, 2, 6, 0)
+    stamps = [t0 + dt.timedelta(seconds=60 * k) for k in range(400)]
+    unix = [int((t - dt.datetime(1970, 1, 1)).total_seconds()) for t in stamps]
+    clock = {
+        "epoch_s": [str(u) for u in unix],
+        "epoch_ms": [str(1000 * u) for u in unix],
+        "excel_days": [f"{to_excel(t):.10f}" for t in stamps],
+    }[kind]
+    temps = 22.0 + 9.0 * (1.0 - np.exp(-np.arange(400) / 80.0))
+    lines = ["Clock,RPM,T1,T2,Z_um"]
+    lines += [f"{c},6000,{v:.3f},{v - 1:.3f},{0.05 * k:.3f}" for k, (c, v) in enumerate(zip(clock, temps))]
+    (folder / "log.csv").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    assert main(["init", "--machine", "m", str(folder)]) == 0
+    out = capsys.readouterr()
+    block = yaml.safe_load(out.out)["machines"]["m"]
+    assert block["sample_period_s"] == 60
+    assert block["input"]["time"] == {"kind": kind}
+    assert "input.time.start" not in out.err and "elapsed seconds" not in out.err
+    frame = read_log(folder / "log.csv", normalise_input_spec(block["input"]))
+    assert frame["time"].tolist() == [pd.Timestamp(t) for t in stamps]
+
+
 def test_a_date_and_a_time_of_day_column_are_proposed_as_one_clock_and_read_back(tmp_path, capsys):
     from rafi.readers.input_spec import normalise_input_spec
     from rafi.readers.logs import read_log

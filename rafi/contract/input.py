@@ -66,11 +66,29 @@ JOIN_LAYOUT_KEYS = (
 DEFAULT_PATTERN = {"native": "*.csv", "csv": "*.csv", "xlsx": "*.xlsx"}
 
 #: ``input.time.kind``: a column of timestamps, a column of elapsed seconds (or minutes, or hours),
-#: or no time column (row k of the file at ``start + k * period_s``).
-TIME_KINDS = ("timestamp", "elapsed_s", "elapsed_min", "elapsed_h", "none")
+#: a clock written as a number from a fixed origin (Unix seconds or milliseconds, Excel's serial
+#: day numbers), or no time column (row k of the file at ``start + k * period_s``).
+TIME_KINDS = (
+    "timestamp",
+    "elapsed_s",
+    "elapsed_min",
+    "elapsed_h",
+    "epoch_s",
+    "epoch_ms",
+    "excel_days",
+    "none",
+)
 
 #: Seconds per unit of an elapsed time column (``input.time.kind`` ``elapsed_*``).
 ELAPSED_SECONDS = {"elapsed_s": 1.0, "elapsed_min": 60.0, "elapsed_h": 3600.0}
+
+#: A clock written as a number: per ``input.time.kind``, its origin (naive, the logger's own time;
+#: Unix time is UTC) and seconds per unit. Such a log has dates; ``time.start`` is not read.
+EPOCH_CLOCKS = {
+    "epoch_s": ("1970-01-01T00:00:00", 1.0),
+    "epoch_ms": ("1970-01-01T00:00:00", 0.001),
+    "excel_days": ("1899-12-30T00:00:00", 86400.0),
+}
 
 #: ``input.temperature_unit``: degrees Celsius, kelvin or degrees Fahrenheit (converted to deg C).
 TEMPERATURE_UNITS = ("C", "K", "F")

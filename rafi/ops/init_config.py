@@ -17,6 +17,7 @@ import re
 
 import yaml
 
+from rafi.contract import EPOCH_CLOCKS
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError
 from rafi.ops.init_pairs import main_pattern
@@ -126,6 +127,9 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
         out.add(8, "kind: timestamp", f"{s.time.header!r}: {s.time.why}")
         if s.time_format:
             out.add(8, f"format: {q(s.time_format)}")
+        return
+    if s.time.unit in EPOCH_CLOCKS:
+        out.add(8, f"kind: {s.time.unit}", f"{s.time.header!r}: {s.time.why}")
         return
     out.add(8, f"kind: {elapsed_kind(s.time.unit)}", f"{s.time.header!r}: {s.time.why}")
     hint = s.first.start_hint

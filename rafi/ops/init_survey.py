@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi.contract import ELAPSED_SECONDS
+from rafi.contract import ELAPSED_SECONDS, EPOCH_CLOCKS
 from rafi.ops.init_layout import (
     LogShape,
     elapsed_seconds,
@@ -164,7 +164,8 @@ def _time_and_speed(
             survey.time_format = fmt
             t = None if times is None else elapsed_seconds(times)
         else:
-            per = ELAPSED_SECONDS[elapsed_kind(survey.time.unit)]  # seconds, minutes, hours
+            unit = survey.time.unit
+            per = EPOCH_CLOCKS[unit][1] if unit in EPOCH_CLOCKS else ELAPSED_SECONDS[elapsed_kind(unit)]
             t = elapsed_seconds(to_numbers(cells, table.layout.get("decimal", "."))) * per
     if survey.speed is not None:
         s = to_numbers(table.columns[survey.speed.index], table.layout.get("decimal", "."))
@@ -249,8 +250,8 @@ def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
             survey.shapes.append(LogShape(table.name, table.n_rows, None, 0.0, ()))
             continue
         period, share = sample_period(t)
-        if period is not None and survey.time is not None and survey.time.unit in ("min", "h"):
-            period = float(f"{period:.3g}")  # a clock in minutes or hours is rounded: 60.0012 s is 60
+        if period is not None and survey.time is not None and survey.time.unit in ("min", "h", "excel_days"):
+            period = float(f"{period:.3g}")  # a clock in minutes, hours or days is rounded: 60.0012 s is 60
         if period is not None:  # a clock that stands still has no period
             periods.append(period)
             shares.append(share)
@@ -359,7 +360,11 @@ def _checks(s: Survey) -> list[str]:
         out.append(
             f"sample_period_s: the time steps are irregular ({s.regular_share:.0%} regular); give the period"
         )
-    if s.time is not None and s.time.unit not in ("timestamp", "timeofday") and not s.first.start_hint:
+    if (
+        s.time is not None
+        and s.time.unit not in ("timestamp", "timeofday", *EPOCH_CLOCKS)
+        and not s.first.start_hint
+    ):
         out.append("input.time.start: elapsed seconds with no start date found; give when second 0 was")
     if s.speed is None and not s.speed_by_file:
         out.append("input.speed: no speed column; give constant_rpm or constant_rpm_by_file")

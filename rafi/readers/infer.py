@@ -11,8 +11,10 @@ sentence: ``rafi init`` says it in the terminal and writes the key commented out
 The rules, in words (``docs/init.md``):
 
 * **time**: timestamps (date cells, or text that parses as date and time), or numbers that rise
-  at every row in regular steps (elapsed seconds), or a time of day (``08:00:00``, time cells)
-  beside a **date** column (dates, all at midnight, no time in the text);
+  at every row in regular steps (elapsed seconds; or a clock number, :data:`CLOCK_NUMBERS`, when
+  the first one is a date of 2000-2099 in Unix seconds, Unix milliseconds or Excel's day
+  numbers), or a time of day (``08:00:00``, time cells) beside a **date** column (dates, all at
+  midnight, no time in the text);
 * **speed**: non-negative, up to 100 000, mostly held at a few levels with jumps between them
   (a spindle speed in r/min); a column at one level is a speed only if its header says so;
 * **temperature**: smooth (no jumps), 0-120 (deg C), 250-400 (K); a start between
@@ -51,6 +53,21 @@ FAHRENHEIT_START = (45.0, 100.0)
 
 #: Share of cells that must parse for a column to be numbers (or times).
 PARSE_SHARE = 0.95
+
+#: A clock number's kind in words (``rafi init``'s reason).
+CLOCK_WORDS = {
+    "epoch_s": "a date in Unix seconds",
+    "epoch_ms": "a date in Unix milliseconds",
+    "excel_days": "a date as Excel's day number",
+}
+
+#: A clock written as a number (``input.time.kind``): the first value's range (a date of
+#: 2000-2099) and the largest step (an hour), per kind.
+CLOCK_NUMBERS = {
+    "epoch_s": ((946_684_800.0, 4_102_444_800.0), 3600.0),
+    "epoch_ms": ((946_684_800_000.0, 4_102_444_800_000.0), 3_600_000.0),
+    "excel_days": ((36_526.0, 73_051.0), 1.0 / 24.0),
+}
 
 _HINTS = {
     "time": re.compile(
@@ -235,6 +252,16 @@ def _is_clock(values: np.ndarray) -> tuple[bool, float]:
     return bool(regular >= 0.9), step
 
 
+def clock_number_kind(values: np.ndarray, step: float) -> str | None:
+    """The kind of a clock written as a number (:data:`CLOCK_NUMBERS`) whose first value and
+    step fit it, else None (elapsed time)."""
+    first = float(values[np.isfinite(values)][0])
+    for kind, ((lo, hi), max_step) in CLOCK_NUMBERS.items():
+        if lo <= first < hi and 0 < step <= max_step:
+            return kind
+    return None
+
+
 def _is_speed(values: np.ndarray) -> tuple[bool, str]:
     """Held at levels with jumps between them, non-negative, in the r/min range."""
     v = values[np.isfinite(values)]
@@ -390,6 +417,13 @@ def _numeric_guess(header: str, v: np.ndarray, hints: set, guess) -> ColumnGuess
         unit = header_unit(header)
         if unit in ("min", "h"):
             return guess("time", unit, f"rises by {step:g} {unit} every row: elapsed {unit}")
+        kind = clock_number_kind(v, step)
+        if kind is not None:
+            return guess(
+                "time",
+                kind,
+                f"from {v[np.isfinite(v)][0]:.12g}, by {step:.6g} every row: {CLOCK_WORDS[kind]}",
+            )
         if _COUNTER.match(header.strip()):
             return guess("other", None, f"rises by {step:g} every row: a row counter", agree=True)
         if step == 1 and "time" not in hints:

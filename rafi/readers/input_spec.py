@@ -27,6 +27,7 @@ from pathlib import Path
 from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of this module's API)
     DEFAULT_PATTERN,
     DEFAULT_SENSORS,
+    EPOCH_CLOCKS,
     FORMATS,
     INPUT_DEFAULTS,
     INPUT_SCHEMA,
@@ -304,6 +305,12 @@ def check_time(out: dict) -> None:
             start = start.tz_convert(None)
         if not (TIME_MIN <= start <= TIME_MAX):
             raise _spec_error("time.start", f"{tm['start']!r} is outside 1678..2261")
+    if tm["start"] is not None and tm["kind"] in EPOCH_CLOCKS:
+        raise _spec_error(
+            "time.start",
+            f"{tm['start']!r} with kind {tm['kind']}: the clock numbers carry their own date "
+            f"(from {EPOCH_CLOCKS[tm['kind']][0][:10]}); leave time.start out",
+        )
     tm["start"] = None if tm["start"] is None else str(tm["start"])
     if tm["date_column"] is not None and (tm["kind"] != "timestamp" or not str(tm["date_column"]).strip()):
         raise _spec_error(

@@ -6,6 +6,9 @@
   time of day with the date in another (``time.date_column``: :func:`date_and_time`);
 * ``elapsed_s``: a column of seconds (or ``h:mm:ss`` cells) counted from ``time.start``;
   ``elapsed_min`` and ``elapsed_h`` the same in minutes or hours (a duration cell is a duration);
+* ``epoch_s``, ``epoch_ms``, ``excel_days``: a clock written as a number from a fixed origin
+  (:data:`rafi.contract.input.EPOCH_CLOCKS`: Unix seconds or milliseconds, UTC; Excel's serial
+  day numbers, the logger's own time): dates, ``time.start`` not read;
 * ``none``: the file has no time column. Data row k (0-based, in file order, blank lines
   not counted) is at ``time.start + k * time.period_s``: a logger that writes one row per
   period and never misses one. The times are *assumed*, not measured, and the frame says so
@@ -26,12 +29,19 @@ import datetime as dt
 import numpy as np
 import pandas as pd
 
-from rafi.contract import ELAPSED_SECONDS, NO_CLOCK_EPOCH
+from rafi.contract import ELAPSED_SECONDS, EPOCH_CLOCKS, NO_CLOCK_EPOCH
 from rafi.readers.mapped_table import Table, numeric
 from rafi.readers.parsing import TIME_MAX, TIME_MIN
 
 #: The unit of an elapsed time column, in words (its messages).
-ELAPSED_WORDS = {"elapsed_s": "seconds", "elapsed_min": "minutes", "elapsed_h": "hours"}
+ELAPSED_WORDS = {
+    "elapsed_s": "seconds",
+    "elapsed_min": "minutes",
+    "elapsed_h": "hours",
+    "epoch_s": "seconds since 1970-01-01 (Unix time)",
+    "epoch_ms": "milliseconds since 1970-01-01 (Unix time)",
+    "excel_days": "days since 1899-12-30 (an Excel date number)",
+}
 
 
 def timestamps(table: Table, values: list, spec: dict, column: str, col_index: int) -> pd.Series:
@@ -60,7 +70,7 @@ def timestamps(table: Table, values: list, spec: dict, column: str, col_index: i
     RawFormatError
         At the first cell that is empty, not a time, or outside 1678..2261.
     """
-    if spec["time"]["kind"] in ELAPSED_SECONDS:
+    if spec["time"]["kind"] in ELAPSED_SECONDS or spec["time"]["kind"] in EPOCH_CLOCKS:
         return _elapsed_times(table, values, spec, column, col_index)
     fast = _text_times(values, spec["time"]["format"])
     if fast is not None:
@@ -127,7 +137,7 @@ def _elapsed_times(table: Table, values: list, spec: dict, column: str, col_inde
         At the first cell that is not a number, is empty, or lands outside 1678..2261.
     """
     tm = spec["time"]
-    per = ELAPSED_SECONDS[tm["kind"]]
+    per = EPOCH_CLOCKS[tm["kind"]][1] if tm["kind"] in EPOCH_CLOCKS else ELAPSED_SECONDS[tm["kind"]]
     word = ELAPSED_WORDS[tm["kind"]]
     secs = []
     for v in values:
@@ -136,12 +146,15 @@ def _elapsed_times(table: Table, values: list, spec: dict, column: str, col_inde
         elif isinstance(v, dt.time):
             v = (v.hour * 3600 + v.minute * 60 + v.second + v.microsecond / 1e6) / per
         secs.append(v)
-    sec = numeric(table, secs, spec["decimal"], column, col_index, f"elapsed {word}") * per
+    expected = word if tm["kind"] in EPOCH_CLOCKS else f"elapsed {word}"
+    sec = numeric(table, secs, spec["decimal"], column, col_index, expected) * per
+    if tm["kind"] == "excel_days":
+        sec = np.round(sec, 3)  # Excel keeps milliseconds; its day fractions are not exact in binary
     empty = np.isnan(sec)
     if empty.any():
         k = int(np.argmax(empty))
         raise table.error(
-            f"empty time; expected elapsed {word}",
+            f"empty time; expected {expected}",
             row=table.row_numbers[k],
             column=column,
             col_index=col_index,
@@ -152,8 +165,13 @@ def _elapsed_times(table: Table, values: list, spec: dict, column: str, col_inde
     bad = (sec < lo) | (sec > hi)
     if bad.any():
         k = int(np.argmax(bad))
+        where = (
+            f"{values[k]!r} {word}"
+            if tm["kind"] in EPOCH_CLOCKS
+            else f"{values[k]!r} {word} from {_start_text(tm)}"
+        )
         raise table.error(
-            f"{values[k]!r} {word} from {_start_text(tm)} is outside the supported years 1678..2261",
+            f"{where} is outside the supported years 1678..2261",
             row=table.row_numbers[k],
             column=column,
             col_index=col_index,
@@ -291,11 +309,14 @@ def has_clock(spec: dict) -> bool:
         from :data:`rafi.contract.input.NO_CLOCK_EPOCH` and mean nothing as dates.
     """
     tm = spec["time"]
-    return tm["kind"] == "timestamp" or tm["start"] is not None
+    return tm["kind"] == "timestamp" or tm["kind"] in EPOCH_CLOCKS or tm["start"] is not None
 
 
 def _start(spec: dict) -> pd.Timestamp:
-    """``time.start`` as a naive timestamp; :data:`NO_CLOCK_EPOCH` when it is not set."""
+    """``time.start`` as a naive timestamp; :data:`NO_CLOCK_EPOCH` when it is not set; a clock
+    number's own origin (:data:`rafi.contract.input.EPOCH_CLOCKS`)."""
+    if spec["time"]["kind"] in EPOCH_CLOCKS:
+        return pd.Timestamp(EPOCH_CLOCKS[spec["time"]["kind"]][0])
     given = spec["time"]["start"]
     start = pd.Timestamp(NO_CLOCK_EPOCH if given is None else given)
     return start.tz_convert(None) if start.tzinfo is not None else start
