@@ -934,11 +934,14 @@ def one_random(
     )
     out["full_mae_um"], out["full_um"], out["full_choice"] = champion_errors(full)
     plan = plan_for(prior, speeds, budget, settings)
-    data = combine(sc.plan_runs(plan), validation)
+    reference = getattr(args, "plan_reference", "run_start")
+    data = combine(sc.plan_runs(plan, reference=reference), validation)
     out |= {"budget_h": budget, "plan_h": plan.attrs["total_h"], "speeds_rpm": plan.attrs["speeds_rpm"]}
+    out["plan_reference"] = reference
     out["training_runs"] = int((data.table["role"] == "training").sum())
     progress(f"seed {seed}: {budget:g} h ({out['training_runs']} training runs) with the prior")
-    adapted = fit_family(data, settings, sc.key_sensors, rs.machine, args.kinds, prior=prior)
+    plan_settings = {**settings, "reference": {**settings["reference"], "rule": reference}}
+    adapted = fit_family(data, plan_settings, sc.key_sensors, rs.machine, args.kinds, prior=prior)
     out["prior_mae_um"], out["prior_um"], out["prior_choice"] = champion_errors(adapted)
     out["warnings"] = fitness_checks(adapted["models"].get(adapted["champion"]))
     out["selection_basis"] = adapted.get("selection_basis")
@@ -1612,6 +1615,13 @@ def main(argv=None) -> int:
         "of it and another design declared a sibling: stopped, by which warnings, and how far off",
     )
     p.add_argument("--kinds", nargs="+", help="the kinds run_family fits (default: models.enabled)")
+    p.add_argument(
+        "--plan-reference",
+        choices=("run_start", "log_start"),
+        default="run_start",
+        help="random scenarios: the plan's recording referenced per run (the default reference.rule) "
+        "or at the log's start (reference: {rule: log_start} for the fit with the prior)",
+    )
     p.add_argument(
         "--json",
         default=str(ROOT / "benchmarks" / "results" / "requalify.json"),

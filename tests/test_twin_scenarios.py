@@ -168,6 +168,29 @@ def test_the_new_machine_follows_a_plan_as_one_log_cut_as_the_pipeline_cuts_it()
     assert not np.allclose(runs.frame["dz_um"], other.frame["dz_um"])
 
 
+def test_the_plans_recording_referenced_at_the_log_start_keeps_the_readings_and_moves_the_zero():
+    """``reference="log_start"``: the same absolute readings, the rises and the displacement
+    against the log's first 60 s (so a cool-down starts hot instead of at 0); an unknown rule is
+    refused."""
+    sc = scenario("reworn")
+    plan = plan_programme(speeds_rpm=[3000, 18000], budget_h=2)
+    runs = sc.plan_runs(plan, reference="log_start")
+    per_run, per_log = sc.plan_runs(plan).frame, runs.frame
+    pd.testing.assert_frame_equal(
+        per_run[["run_id", "t_s", "T8", "disp_um"]], per_log[["run_id", "t_s", "T8", "disp_um"]]
+    )
+    for name, rise in (("T8", "dT8"), ("disp_um", "dz_um")):
+        ref = per_log.loc[per_log["log_t_s"] <= 60, name].median()
+        assert np.allclose(per_log[rise], per_log[name] - ref)
+    cool_downs = set(runs.table.loc[runs.table["speed_rpm"] == 0, "run_id"])
+    starts = per_log[per_log["run_id"].isin(cool_downs)].groupby("run_id")["dz_um"].first()
+    assert len(starts) and (starts > 5).all()  # a cool-down starts where the heat-up left the spindle
+    first = per_log["run_id"] == per_log["run_id"].iloc[0]
+    assert np.allclose(per_log.loc[first, "dz_um"], per_run.loc[first, "dz_um"])
+    with pytest.raises(ValueError, match="reference 'cold'"):
+        sc.plan_runs(plan, reference="cold")
+
+
 def test_plan_pieces_cut_each_recording_into_its_runs_and_skip_what_is_not_recorded():
     plan = pd.DataFrame(
         {

@@ -302,6 +302,7 @@ def simulate_runs(
     start: str,
     ambient: Ambient,
     dt: float,
+    reference: str = "run_start",
 ) -> RunSet:
     """Simulate ``steps`` on ``machine`` from cold as ONE log ``log_name``, cut into ``runs``.
 
@@ -322,6 +323,9 @@ def simulate_runs(
     seed, start, ambient, dt
         As :func:`rafi.twin.simulate.simulate_run` (no logger defects; the room shifted by
         :meth:`TwinMachine.room`).
+    reference : {"run_start", "log_start"}
+        The rises and ``dz_um`` against each run's first 60 s (``reference.rule: run_start``) or
+        against the log's (``log_start``).
     """
     sim = simulate_run(
         steps,
@@ -335,20 +339,30 @@ def simulate_runs(
     )
     log, truth = sim.log, sim.truth
     temps, disp = log[list(SENSORS)].to_numpy(), log["disp_um"].to_numpy()
+    true_disp = truth["disp_um"].to_numpy()
+    if reference not in ("run_start", "log_start"):
+        raise ValueError(f"reference {reference!r}: expected run_start or log_start")
+    log_t = np.arange(len(log)) * dt
     rows, frames, truths = [], [], []
     for run_id, role, speed, first, n in runs:
         part = slice(first, first + n)
         t_s = np.arange(n) * dt
+
+        def rise(values, part=part, t_s=t_s):
+            if reference == "run_start":
+                return _rise(values[part], t_s)
+            return _rise(values, log_t)[part]
+
         frame = pd.DataFrame({"run_id": run_id, "t_s": t_s, "speed_rpm": log["speed_rpm"].to_numpy()[part]})
         for j, name in enumerate(SENSORS):
             frame[name] = temps[part, j]
         frame["disp_um"] = disp[part]
-        rises = _rise(temps[part], t_s)
+        rises = rise(temps)
         for j, name in enumerate(RISES):
             frame[name] = rises[:, j]
-        frame["dz_um"] = _rise(disp[part], t_s)
+        frame["dz_um"] = rise(disp)
         frame["log"], frame["log_t_s"], frame["segment"] = log_name, (first + np.arange(n)) * dt, 0
-        true = _rise(truth["disp_um"].to_numpy()[part], t_s)
+        true = rise(true_disp)
         digest = hashlib.sha256(frame[["t_s", "speed_rpm", *RISES, "dz_um"]].to_numpy().tobytes()).hexdigest()
         kind = "idle" if speed == 0 else ("varying" if role == "validation_multi" else "constant")
         rows.append(
@@ -469,10 +483,13 @@ class Scenario:
         """The new machine's full qualification: :meth:`new_full_training` + :meth:`new_validation`."""
         return combine(self.new_full_training(), self.new_validation())
 
-    def plan_runs(self, plan: pd.DataFrame, start: str = "2026-06-01T07:00:00") -> RunSet:
+    def plan_runs(
+        self, plan: pd.DataFrame, start: str = "2026-06-01T07:00:00", reference: str = "run_start"
+    ) -> RunSet:
         """The new machine following ``plan`` (:func:`rafi.ops.plan.plan_programme`) from cold, in one
         go: every run the pipeline would cut from its recordings (:func:`plan_pieces`) is a training
-        run ``new-<recording>-<nn>`` (speed 0: a cool-down), each recording one log."""
+        run ``new-<recording>-<nn>`` (speed 0: a cool-down), each recording one log, its runs
+        referenced as ``reference`` says (:func:`simulate_runs`)."""
         dt = self.sample_period_s
         steps = [Step(float(d), float(s)) for d, s in zip(plan["duration_s"], plan["speed_rpm"])]
         digest = hashlib.sha256(plan[["speed_rpm", "duration_s"]].to_numpy(float).tobytes()).digest()
@@ -490,6 +507,7 @@ class Scenario:
                     start=start,
                     ambient=Ambient(),
                     dt=dt,
+                    reference=reference,
                 )
             )
         return combine(*sets)
