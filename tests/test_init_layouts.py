@@ -216,3 +216,37 @@ def test_daily_sheets_with_the_displacement_alone_in_a_one_column_partner_workbo
     for frame, (temps, disp) in zip(frames, truth.values()):
         assert frame["disp_um"].to_numpy() == pytest.approx(disp)
         assert frame[list(spec["columns"])].to_numpy() == pytest.approx(temps)
+
+
+# --------------------------------------------------------------------------- column order
+
+
+def write_reordered_csv(path: Path, frame, order: list[str]) -> None:
+    """``frame`` as a csv with readable headers, its columns in ``order`` (canonical names)."""
+    headers = {"time": "Zeit", "speed_rpm": "Spindle speed [rpm]", "disp_um": "Z [um]"}
+    out = frame[order].rename(columns=headers)
+    out["Zeit"] = frame["time"].dt.strftime("%Y-%m-%d %H:%M:%S")
+    path.write_text(out.to_csv(index=False), encoding="utf-8")
+
+
+def test_files_with_the_same_columns_in_another_order_are_one_layout_and_all_surveyed(tmp_path):
+    files, truth = [], []
+    columns = list(canonical_frame(2).columns)
+    for day, rpm in enumerate((1000, 3000, 6000)):
+        frame = canonical_frame(60, seed=day, start=f"2026-06-0{day + 1} 06:00")
+        frame["speed_rpm"] = float(rpm)
+        order = list(np.random.default_rng(day).permutation(columns)) if day else columns
+        files.append(tmp_path / f"2026060{day + 1}.csv")
+        write_reordered_csv(files[-1], frame, order)
+        truth.append(frame)
+    s, entry = propose("daily", files)
+    assert not any("another layout" in n for n in s.notes)
+    assert any("in another order" in n for n in s.notes)
+    assert len(s.logs) == len(s.shapes) == 3
+    assert sorted(entry["training_speeds_rpm"]) == [1000, 3000, 6000]  # every file's speed, not the first's
+    frames = read_proposal(entry, files)
+    assert len(frames) == 3
+    for frame, expected in zip(frames, truth):
+        assert frame["disp_um"].to_numpy() == pytest.approx(expected["disp_um"].to_numpy())
+        assert frame["T7"].to_numpy() == pytest.approx(expected["T7"].to_numpy())
+

@@ -150,15 +150,35 @@ def elapsed_kind(unit: str | None) -> str:
     return kind if kind in ELAPSED_SECONDS else "elapsed_s"
 
 
+def layout_key(table: RawTable) -> tuple:
+    """What two tables of one layout share: the format and the header names, in any order for a
+    csv or a workbook with a header row of distinct names (the pipeline's reader finds each
+    mapped column by its header, wherever it stands); in order otherwise (a native log, columns
+    by letter, a header twice)."""
+    names = tuple(table.header)
+    if table.format != "native" and not table.headerless and len(set(names)) == len(names):
+        names = tuple(sorted(names))
+    return table.format, names
+
+
+def column_cells(table: RawTable, guess: ColumnGuess) -> list:
+    """The cells of ``guess``'s column in ``table``: at its position when the header there is
+    the same, else under its header (a file of the same layout with its columns in another order)."""
+    j = guess.index
+    if not (j < len(table.header) and table.header[j] == guess.header):
+        j = table.header.index(guess.header)
+    return table.columns[j]
+
+
 def _time_and_speed(
     table: RawTable, guesses: list, survey: Survey
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Seconds since the first row and the speed of one table (None where the column is missing)."""
     t = s = None
     if survey.time is not None:
-        cells = table.columns[survey.time.index]
+        cells = column_cells(table, survey.time)
         if survey.time.unit == "timeofday" and survey.date is not None:
-            cells = date_and_time(list(table.columns[survey.date.index]), list(cells))
+            cells = date_and_time(list(column_cells(table, survey.date)), list(cells))
         if survey.time.unit in ("timestamp", "timeofday"):
             times, fmt, _ = to_times(cells)
             survey.time_format = fmt
@@ -167,7 +187,7 @@ def _time_and_speed(
             per = ELAPSED_SECONDS[elapsed_kind(survey.time.unit)]  # seconds, minutes, hours
             t = elapsed_seconds(to_numbers(cells, table.layout.get("decimal", "."))) * per
     if survey.speed is not None:
-        s = to_numbers(table.columns[survey.speed.index], table.layout.get("decimal", "."))
+        s = to_numbers(column_cells(table, survey.speed), table.layout.get("decimal", "."))
     return t, s
 
 
@@ -205,12 +225,12 @@ def _probe_cells(survey: Survey, table: RawTable) -> np.ndarray | None:
     """The first probe's values beside ``table``'s rows: its own column, or its partner file's
     (row by row, when the two have as many rows; else None)."""
     if survey.join is None:
-        return to_numbers(table.columns[survey.probes[0].index], table.layout.get("decimal", "."))
+        return to_numbers(column_cells(table, survey.probes[0]), table.layout.get("decimal", "."))
     name = table.path.name.replace(*survey.join)
     partner = next((t for t in survey.tables if t.path.name == name), None)
     if partner is None or partner.n_rows != table.n_rows:
         return None
-    return to_numbers(partner.columns[survey.probes[0].index], partner.layout.get("decimal", "."))
+    return to_numbers(column_cells(partner, survey.probes[0]), partner.layout.get("decimal", "."))
 
 
 def _guesses(table: RawTable) -> list[ColumnGuess]:
@@ -227,7 +247,7 @@ def _pairs(tables: list[RawTable]) -> tuple[list[RawTable], list[RawTable], tupl
     layout with the displacement when they come in pairs by name, else ``(tables, [], None)``."""
     groups: dict = {}
     for t in tables:
-        groups.setdefault((tuple(t.header), t.format), []).append(t)
+        groups.setdefault(layout_key(t), []).append(t)
     if len(groups) != 2:
         return tables, [], None
     roles = {key: {g.role for g in _guesses(group[0])} for key, group in groups.items()}
@@ -307,9 +327,16 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         has_time = any(g.role == "time" for g in partner_guesses)
         out.join_by = "time" if out.time is not None and has_time else "row"
     for table in logs[1:] if parts else tables[1:]:
-        if table.header != first.header or table.format != first.format:
+        if layout_key(table) != layout_key(first):
             out.notes.append(f"{table.path.name}: another layout than {first.path.name}; it is not surveyed")
-    same = [t for t in logs if t.header == first.header and t.format == first.format]
+    same = [t for t in logs if layout_key(t) == layout_key(first)]
+    reordered = [t.path.name for t in same if t.header != first.header]
+    if reordered:
+        names = ", ".join(reordered[:3]) + (", ..." if len(reordered) > 3 else "")
+        out.notes.append(
+            f"{len(reordered)} file(s) hold the columns of {first.path.name} in another order ({names}): "
+            "surveyed too (the block names each column by its header)"
+        )
     out.logs = same
     if len(first.sheet_group) > 1:
         out.sheet_glob = sheet_glob(list(first.sheet_group), [x.name for x in first.sheets])
