@@ -218,7 +218,7 @@ def test_daily_sheets_with_the_displacement_alone_in_a_one_column_partner_workbo
         assert frame[list(spec["columns"])].to_numpy() == pytest.approx(temps)
 
 
-# --------------------------------------------------------------------------- column order
+# --------------------------------------------------------------------------- column order, offsets
 
 
 def write_reordered_csv(path: Path, frame, order: list[str]) -> None:
@@ -250,3 +250,23 @@ def test_files_with_the_same_columns_in_another_order_are_one_layout_and_all_sur
         assert frame["disp_um"].to_numpy() == pytest.approx(expected["disp_um"].to_numpy())
         assert frame["T7"].to_numpy() == pytest.approx(expected["T7"].to_numpy())
 
+
+def test_iso_times_with_a_utc_offset_are_read_as_utc_as_the_pipeline_reads_them(tmp_path):
+    frame = canonical_frame(120, seed=4, start="2026-03-29 00:00")  # UTC; Europe/Berlin: DST at 01:00
+    local = frame["time"].dt.tz_localize("UTC").dt.tz_convert("Europe/Berlin")
+    cells = [t.isoformat() for t in local]  # '+01:00' then '+02:00'
+    assert {c[-6:] for c in cells} == {"+01:00", "+02:00"}
+    path = tmp_path / "log.csv"
+    out = frame.rename(columns={"time": "Time", "speed_rpm": "Speed [rpm]", "disp_um": "Z [um]"})
+    out["Time"] = cells
+    path.write_text(out.to_csv(index=False), encoding="utf-8")
+    s, entry = propose("tz", [path])  # it stopped with a TypeError (aware Timestamps)
+    assert s.time is not None and s.time.unit == "timestamp" and "UTC" in s.time.why
+    assert s.period_s == 60 and s.regular_share == 1.0  # the DST change is no gap: UTC is regular
+    assert entry["input"]["time"] == {"kind": "timestamp"}
+    (read,) = read_proposal(entry, [path])
+    assert (read["time"].to_numpy() == frame["time"].to_numpy()).all()
+
+    path.write_text(out.assign(Time=[f"{t:%Y-%m-%dT%H:%M:%S}Z" for t in frame["time"]]).to_csv(index=False))
+    s, entry = propose("tz", [path])
+    assert s.period_s == 60 and entry["input"]["time"] == {"kind": "timestamp"}
