@@ -270,3 +270,27 @@ def test_iso_times_with_a_utc_offset_are_read_as_utc_as_the_pipeline_reads_them(
     path.write_text(out.assign(Time=[f"{t:%Y-%m-%dT%H:%M:%S}Z" for t in frame["time"]]).to_csv(index=False))
     s, entry = propose("tz", [path])
     assert s.period_s == 60 and entry["input"]["time"] == {"kind": "timestamp"}
+
+
+# --------------------------------------------------------------------------- text above and around
+
+
+@pytest.mark.parametrize("delimiter, decimal", [(",", "."), (";", ",")])
+def test_a_csv_with_every_field_in_double_quotes_is_read_as_the_pipeline_reads_it(
+    tmp_path, delimiter, decimal
+):
+    import csv
+
+    frame = canonical_frame(60, seed=6)
+    out = frame.rename(columns={"time": "Time", "speed_rpm": "Speed [rpm]", "disp_um": "Disp Z (um)"})
+    out["Time"] = frame["time"].dt.strftime("%d.%m.%Y %H:%M:%S")
+    path = tmp_path / "quoted.csv"
+    out.to_csv(path, sep=delimiter, decimal=decimal, index=False, quoting=csv.QUOTE_ALL)
+    assert path.read_text().startswith('"Time"')
+    table = read_unknown(path)  # 'no header line followed by rows of numbers'
+    assert (table.layout["delimiter"], table.layout["decimal"]) == (delimiter, decimal)
+    s, entry = propose("quoted", [path])
+    assert s.time is not None and s.period_s == 60 and len(s.sensors) == 16
+    (read,) = read_proposal(entry, [path])
+    assert read["disp_um"].to_numpy() == pytest.approx(frame["disp_um"].to_numpy())
+    assert read["T16"].to_numpy() == pytest.approx(frame["T16"].to_numpy())
