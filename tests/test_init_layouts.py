@@ -275,6 +275,23 @@ def test_iso_times_with_a_utc_offset_are_read_as_utc_as_the_pipeline_reads_them(
 # --------------------------------------------------------------------------- text above and around
 
 
+def test_a_key_value_preamble_above_the_header_is_not_taken_for_it(tmp_path):
+    frame = canonical_frame(60, seed=5)
+    out = frame.rename(columns={"time": "Timestamp", "speed_rpm": "Spindle Speed", "disp_um": "Z Displ"})
+    units = ["", "rpm", *["degC"] * 16, "um"]
+    preamble = "Machine,HMC-800 #3\nStart,2026-03-02 06:00:00\nSample interval,60 s\n\n"
+    lines = out.to_csv(index=False).split("\n", 1)
+    path = tmp_path / "export.csv"
+    path.write_text(preamble + lines[0] + "\n" + ",".join(units) + "\n" + lines[1], encoding="utf-8")
+    table = read_unknown(path)  # it took 'Sample interval,60 s' for the header of 19 columns
+    assert table.layout["header_row"] == 5 and table.layout["skip_rows"] == 1
+    assert table.header[0] == "Timestamp" and table.n_rows == 60
+    s, entry = propose("pre", [path])
+    assert entry["input"]["header_row"] == 5 and entry["input"]["skip_rows"] == 1
+    (read,) = read_proposal(entry, [path])
+    assert read["disp_um"].to_numpy() == pytest.approx(frame["disp_um"].to_numpy())
+
+
 @pytest.mark.parametrize("delimiter, decimal", [(",", "."), (";", ",")])
 def test_a_csv_with_every_field_in_double_quotes_is_read_as_the_pipeline_reads_it(
     tmp_path, delimiter, decimal

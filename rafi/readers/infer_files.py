@@ -149,8 +149,23 @@ def _least_filled(rows: list) -> int:
     return 1 if max((len(_filled(r)) for r in rows[:HEAD_LINES]), default=0) == 1 else 2
 
 
+def _width(cells) -> int:
+    """Cells up to the last filled one (a row's width, empty cells at its end not counted)."""
+    return max((j + 1 for j, c in enumerate(cells) if c is not None and str(c).strip() != ""), default=0)
+
+
+#: A header row names at least this share of the columns of the data rows below it (a
+#: ``key,value`` line of a preamble above a table of 19 columns names 2: not its header).
+HEADER_MIN_WIDTH_SHARE = 0.5
+
+
 def header_position(rows: list) -> tuple[int, int] | None:
-    """``(header index, label rows after it)`` of the first text row followed by data, or None."""
+    """``(header index, label rows after it)`` of the first text row followed by data, or None.
+
+    A header and its label rows (units) name about as many columns as the data rows below
+    them hold (at least :data:`HEADER_MIN_WIDTH_SHARE` of the widest of them): the text lines
+    of a ``key,value`` preamble are not the header of the table under them.
+    """
     least = _least_filled(rows)
     for k, cells in enumerate(rows[:HEAD_LINES]):
         if not _label_row(cells, least):
@@ -159,8 +174,12 @@ def header_position(rows: list) -> tuple[int, int] | None:
         while k + 1 + skip < len(rows) and skip < 3 and _label_row(rows[k + 1 + skip], least):
             skip += 1
         nxt = [r for r in rows[k + 1 + skip : k + 6 + skip] if any(c not in (None, "") for c in r)]
-        if nxt and all(_data_row(r, least) for r in nxt):
-            return k, skip
+        if not (nxt and all(_data_row(r, least) for r in nxt)):
+            continue
+        data_width = max(_width(r) for r in nxt)
+        if _width(cells) < HEADER_MIN_WIDTH_SHARE * data_width:
+            continue  # a preamble line: the header is one of the label rows after it
+        return k, skip
     return None
 
 
