@@ -311,3 +311,28 @@ def test_a_csv_with_every_field_in_double_quotes_is_read_as_the_pipeline_reads_i
     (read,) = read_proposal(entry, [path])
     assert read["disp_um"].to_numpy() == pytest.approx(frame["disp_um"].to_numpy())
     assert read["T16"].to_numpy() == pytest.approx(frame["T16"].to_numpy())
+
+
+# --------------------------------------------------------------------------- time formats
+
+
+def test_a_us_12_hour_clock_is_proposed_as_a_time_format_the_pipeline_reads(tmp_path):
+    frame = canonical_frame(150, seed=7, start="2026-10-31 10:50")  # AM, noon, PM
+    out = frame.rename(columns={"time": "Date Time", "speed_rpm": "Spindle Speed (RPM)", "disp_um": "Z (um)"})
+    out["Date Time"] = frame["time"].dt.strftime("%m/%d/%Y %I:%M:%S %p")
+    assert {"10/31/2026 11:59:00 AM", "10/31/2026 12:00:00 PM", "10/31/2026 01:00:00 PM"} <= set(
+        out["Date Time"]
+    )
+    path = tmp_path / "us.csv"
+    path.write_text(out.to_csv(index=False), encoding="utf-8")
+    s, entry = propose("us", [path])  # 'no time column'
+    assert s.time is not None and s.period_s == 60 and s.regular_share == 1.0
+    assert entry["input"]["time"] == {"kind": "timestamp", "format": "%m/%d/%Y %I:%M:%S %p"}
+    assert not any(c for c in s.checks if "day/month" in c)  # the 31st is a day
+    (read,) = read_proposal(entry, [path])
+    assert (read["time"].to_numpy() == frame["time"].to_numpy()).all()
+
+    out["Date Time"] = frame["time"].dt.strftime("03/02/2026 %I:%M:%S %p")  # 2 March or 3 February
+    path.write_text(out.to_csv(index=False), encoding="utf-8")
+    s, _ = propose("us", [path])
+    assert s.time.check == "day/month or month/day? both read every cell; set time.format"

@@ -161,8 +161,25 @@ def to_numbers(cells, decimal: str = ".") -> np.ndarray:
     return out
 
 
-#: Text time formats tried in order (``None``: ISO 8601, read by pandas without a format).
-TIME_FORMATS = (None, "%d.%m.%Y %H:%M:%S", "%d.%m.%Y %H:%M", "%d/%m/%Y %H:%M:%S", "%m/%d/%Y %H:%M:%S")
+#: Text time formats tried in order (``None``: ISO 8601, read by pandas without a format); the
+#: 12-hour clocks (``10/31/2026 08:00:00 PM``) of US loggers last.
+TIME_FORMATS = (
+    None,
+    "%d.%m.%Y %H:%M:%S",
+    "%d.%m.%Y %H:%M",
+    "%d/%m/%Y %H:%M:%S",
+    "%m/%d/%Y %H:%M:%S",
+    "%m/%d/%Y %I:%M:%S %p",
+    "%m/%d/%Y %I:%M %p",
+    "%d/%m/%Y %I:%M:%S %p",
+    "%Y-%m-%d %I:%M:%S %p",
+)
+
+
+def _day_month_swapped(formats: set) -> bool:
+    """Two of ``formats`` differ only by the order of day and month (both read every cell)."""
+    swapped = {f.replace("%d", "%@").replace("%m", "%d").replace("%@", "%m") for f in formats if f}
+    return bool(swapped & formats)
 
 
 _TIME_OF_DAY = re.compile(r"^\d{1,2}:\d{2}(:\d{2}([.,]\d+)?)?$")
@@ -226,7 +243,7 @@ def to_times(cells) -> tuple[np.ndarray | None, str | None, str | None]:
         return None, None, None
     fmt, parsed = hits[0]
     check = None
-    if len(hits) > 1 and {h[0] for h in hits} >= {"%d/%m/%Y %H:%M:%S", "%m/%d/%Y %H:%M:%S"}:
+    if len(hits) > 1 and _day_month_swapped({h[0] for h in hits}):
         check = "day/month or month/day? both read every cell; set time.format"
     return parsed.to_numpy(), fmt, check
 
