@@ -184,7 +184,7 @@ def _temperature_unit(out: _Lines, s: Survey) -> None:
     if units == {"K"}:
         out.add(6, "temperature_unit: K", "every temperature reads 250-400: Kelvin")
     elif units == {"degF"}:
-        out.add(6, "temperature_unit: F", "every temperature header says deg F: read as deg C")
+        out.add(6, "temperature_unit: F", "every temperature header says deg F: converted to deg C as read")
     elif "degF" in units:
         out.add(
             6,
