@@ -22,7 +22,7 @@ from layout_files import (
 )
 
 from rafi.ops.init_cli import findings
-from rafi.ops.init_config import config_block, parse_block
+from rafi.ops.init_config import config_block, parse_block, probe_names
 from rafi.ops.init_pairs import main_pattern, pair_parts, sheet_glob
 from rafi.ops.init_survey import survey
 from rafi.readers.infer_files import read_unknown, read_unknown_logs
@@ -336,3 +336,25 @@ def test_a_us_12_hour_clock_is_proposed_as_a_time_format_the_pipeline_reads(tmp_
     path.write_text(out.to_csv(index=False), encoding="utf-8")
     s, _ = propose("us", [path])
     assert s.time.check == "day/month or month/day? both read every cell; set time.format"
+
+
+# --------------------------------------------------------------------------- names
+
+
+def test_probe_names_leave_the_unit_at_the_end_of_a_header_out():
+    assert probe_names(["X_um", "Y_mm", "Z_um"]) == ["X", "Y", "Z"]
+    assert probe_names(["dX_um", "dZ_µm"]) == ["dX", "dZ"]
+    assert probe_names(["Z_um", "Z_mm"]) == ["Z_um", "Z_mm"]  # one name for two probes: kept whole
+    assert probe_names(["ch1(um)", "ch2(um)"]) == ["ch1", "ch2"]
+
+
+def test_probes_of_a_log_are_proposed_under_their_axis_names(tmp_path):
+    frame = canonical_frame(120, seed=8)
+    frame["speed_rpm"] = np.where(np.arange(120) < 10, 0.0, 3000.0)
+    warm = 1 - np.exp(-np.arange(120) / 40)
+    out = frame.drop(columns=["disp_um"]).rename(columns={"time": "Time", "speed_rpm": "Speed [rpm]"})
+    out["Z_um"], out["Y_mm"] = np.round(12 * warm, 3), np.round(0.004 * warm, 4)
+    path = tmp_path / "log.csv"
+    path.write_text(out.to_csv(index=False), encoding="utf-8")
+    _, entry = propose("axes", [path])
+    assert entry["input"]["probes"] == {"Z": {"column": "Z_um"}, "Y": {"column": "Y_mm", "unit": "mm"}}
