@@ -18,6 +18,7 @@ import pandas as pd
 
 from rafi.contract import ELAPSED_SECONDS
 from rafi.ops.init_layout import (
+    STEP_MIN_S,
     LogShape,
     elapsed_seconds,
     log_kind,
@@ -94,6 +95,9 @@ class Survey:
         ``time`` when both files have a time column, else ``row``.
     logs : list of RawTable
         The tables surveyed as logs (of the first log's layout; partners not among them).
+    given_period_s : float or None
+        The sample period the user gave (``--period-s``): the clock of a log without a time
+        column, row k at k times it.
     """
 
     machine: str
@@ -123,6 +127,7 @@ class Survey:
     join: tuple | None = None
     join_by: str = "time"
     logs: list = field(default_factory=list)
+    given_period_s: float | None = None
 
     @property
     def first(self) -> RawTable:
@@ -186,6 +191,8 @@ def _time_and_speed(
         else:
             per = ELAPSED_SECONDS[elapsed_kind(survey.time.unit)]  # seconds, minutes, hours
             t = elapsed_seconds(to_numbers(cells, table.layout.get("decimal", "."))) * per
+    elif survey.given_period_s is not None:  # no time column: row k at k periods (--period-s)
+        t = np.arange(table.n_rows, dtype=float) * survey.given_period_s
     if survey.speed is not None:
         s = to_numbers(column_cells(table, survey.speed), table.layout.get("decimal", "."))
     return t, s
@@ -285,7 +292,7 @@ def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
         survey.regular_share = float(min(shares))
 
 
-def survey(machine: str, tables: list[RawTable]) -> Survey:
+def survey(machine: str, tables: list[RawTable], *, period_s: float | None = None) -> Survey:
     """What the logs of ``machine`` hold (see the module docstring).
 
     Parameters
@@ -294,6 +301,9 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         The machine's name (its folder under ``raw/``).
     tables : list of RawTable
         Its files as read, at least one.
+    period_s : float, optional
+        The seconds between two rows the user gave (``--period-s``): a log without a time
+        column has this clock, and its speed steps are read as with a time column.
 
     Returns
     -------
@@ -318,6 +328,7 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         partner=partners[0] if partners else None,
         partner_guesses=partner_guesses,
         join=parts,
+        given_period_s=period_s,
     )
     if parts:
         out.notes.append(
@@ -348,15 +359,33 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         if out.kind == "continuous":  # separate runs: each file's step is its run, whatever its length
             out.min_constant = propose_min_constant([s for s in out.shapes if s.steps])
     else:
-        out.kind_why = f"{len(out.shapes)} log(s) without a speed column or a clock: each log one run"
+        out.kind_why = f"{len(out.shapes)} log(s) {_without_steps(out)}: each log one run"
     if out.sign is None and not out.sign_why:
-        out.sign_why = (
-            "without a speed column or a clock its direction while the spindle heats cannot be read"
+        without = (
+            "with the probe's rows not beside the speed's (a partner file of another length)"
+            if any(s.steps for s in out.shapes)
+            else _without_steps(out)
         )
+        out.sign_why = f"{without} its direction while the spindle heats cannot be read"
     if out.speed is None:
         out.speed_by_file = _speeds_from_names([t.path.name for t in same])
     out.checks = _checks(out)
     return out
+
+
+def _without_steps(s: Survey) -> str:
+    """Why no speed step was read, in words: what the logs are without (a speed column, a clock),
+    or that the speed never holds a level long enough."""
+    clock = s.time is not None or s.given_period_s is not None
+    if s.speed is None and not clock:
+        return "without a speed column or a clock"
+    if s.speed is None:
+        return "without a speed column"
+    if not clock:
+        return "without a clock (no time column; --period-s gives one)"
+    if s.period_s is None:
+        return "with a clock that does not advance"
+    return f"without a speed held for {STEP_MIN_S / 60:g} min or more"
 
 
 def _checks(s: Survey) -> list[str]:
@@ -380,7 +409,7 @@ def _checks(s: Survey) -> list[str]:
         out.append("training_speeds_rpm: decide which speeds train; the others validate")
     if s.format == "native":
         return out
-    if s.time is None:
+    if s.time is None and s.given_period_s is None:
         out.append("input.time.period_s: no time column; give the seconds between two rows (--period-s)")
     elif s.period_s is None or s.regular_share < REGULAR_SHARE:
         out.append(
