@@ -264,6 +264,31 @@ def test_no_time_column_leaves_the_period_to_the_user(tmp_path, capsys):
     assert np.allclose(np.diff(frame["time"].to_numpy()).astype("timedelta64[s]").astype(float), 60)
 
 
+def test_a_period_given_for_a_log_without_a_clock_reads_its_speed_steps(tmp_path, capsys):
+    folder = tmp_path / "raw"
+    folder.mkdir()
+    frame = canonical(CONTINUOUS, period_s=60.0)
+    out = frame[["speed_rpm", *SENSORS]].round(2).rename(columns={"speed_rpm": "Spindle Speed (RPM)"})
+    out["Z Growth (um)"] = frame["disp_um"].round(2)
+    (folder / "log.csv").write_text(out.to_csv(index=False), encoding="utf-8")
+    tables = [read_unknown(folder / "log.csv")]
+    s = survey("rig", tables)
+    assert s.time is None and s.speed is not None and s.kind == "runs"
+    said = "\n".join(findings(s))  # it said 'without a speed column or a clock' beside the speed it found
+    assert "1 log(s) without a clock (no time column; --period-s gives one)" in said
+    assert "speed column" not in said.split("layout:")[1].split("\n")[0]
+    s = survey("rig", tables, period_s=60.0)  # as with a clock: the steps, the split, log_start
+    assert s.kind == "continuous" and s.training["speeds"] == [2000, 4000]
+    assert s.sign == 1 and not any(c.startswith("input.time.period_s") for c in s.checks)
+    config = tmp_path / "config.yaml"
+    args = ["init", "--machine", "rig", "--config", str(config), str(folder), "--period-s", "60"]
+    assert main(args) == 0
+    entry = yaml.safe_load(capsys.readouterr().out)["machines"]["rig"]
+    assert entry["training_speeds_rpm"] == [2000, 4000] and entry["reference"] == {"rule": "log_start"}
+    assert entry["runs"]["windows"][0]["end"] == 120 + 14400 + 7200 + 14400
+    assert entry["input"]["time"] == {"kind": "none", "period_s": 60}
+
+
 # --------------------------------------------------------------------------- FL_THERMAL
 
 

@@ -22,7 +22,7 @@ from layout_files import (
 )
 
 from rafi.ops.init_cli import findings
-from rafi.ops.init_config import config_block, parse_block
+from rafi.ops.init_config import config_block, parse_block, probe_names
 from rafi.ops.init_pairs import main_pattern, pair_parts, sheet_glob
 from rafi.ops.init_survey import survey
 from rafi.readers.infer_files import read_unknown, read_unknown_logs
@@ -216,3 +216,145 @@ def test_daily_sheets_with_the_displacement_alone_in_a_one_column_partner_workbo
     for frame, (temps, disp) in zip(frames, truth.values()):
         assert frame["disp_um"].to_numpy() == pytest.approx(disp)
         assert frame[list(spec["columns"])].to_numpy() == pytest.approx(temps)
+
+
+# --------------------------------------------------------------------------- column order, offsets
+
+
+def write_reordered_csv(path: Path, frame, order: list[str]) -> None:
+    """``frame`` as a csv with readable headers, its columns in ``order`` (canonical names)."""
+    headers = {"time": "Zeit", "speed_rpm": "Spindle speed [rpm]", "disp_um": "Z [um]"}
+    out = frame[order].rename(columns=headers)
+    out["Zeit"] = frame["time"].dt.strftime("%Y-%m-%d %H:%M:%S")
+    path.write_text(out.to_csv(index=False), encoding="utf-8")
+
+
+def test_files_with_the_same_columns_in_another_order_are_one_layout_and_all_surveyed(tmp_path):
+    files, truth = [], []
+    columns = list(canonical_frame(2).columns)
+    for day, rpm in enumerate((1000, 3000, 6000)):
+        frame = canonical_frame(60, seed=day, start=f"2026-06-0{day + 1} 06:00")
+        frame["speed_rpm"] = float(rpm)
+        order = list(np.random.default_rng(day).permutation(columns)) if day else columns
+        files.append(tmp_path / f"2026060{day + 1}.csv")
+        write_reordered_csv(files[-1], frame, order)
+        truth.append(frame)
+    s, entry = propose("daily", files)
+    assert not any("another layout" in n for n in s.notes)
+    assert any("in another order" in n for n in s.notes)
+    assert len(s.logs) == len(s.shapes) == 3
+    assert sorted(entry["training_speeds_rpm"]) == [1000, 3000, 6000]  # every file's speed, not the first's
+    frames = read_proposal(entry, files)
+    assert len(frames) == 3
+    for frame, expected in zip(frames, truth):
+        assert frame["disp_um"].to_numpy() == pytest.approx(expected["disp_um"].to_numpy())
+        assert frame["T7"].to_numpy() == pytest.approx(expected["T7"].to_numpy())
+
+
+def test_iso_times_with_a_utc_offset_are_read_as_utc_as_the_pipeline_reads_them(tmp_path):
+    frame = canonical_frame(120, seed=4, start="2026-03-29 00:00")  # UTC; Europe/Berlin: DST at 01:00
+    local = frame["time"].dt.tz_localize("UTC").dt.tz_convert("Europe/Berlin")
+    cells = [t.isoformat() for t in local]  # '+01:00' then '+02:00'
+    assert {c[-6:] for c in cells} == {"+01:00", "+02:00"}
+    path = tmp_path / "log.csv"
+    out = frame.rename(columns={"time": "Time", "speed_rpm": "Speed [rpm]", "disp_um": "Z [um]"})
+    out["Time"] = cells
+    path.write_text(out.to_csv(index=False), encoding="utf-8")
+    s, entry = propose("tz", [path])  # it stopped with a TypeError (aware Timestamps)
+    assert s.time is not None and s.time.unit == "timestamp" and "UTC" in s.time.why
+    assert s.period_s == 60 and s.regular_share == 1.0  # the DST change is no gap: UTC is regular
+    assert entry["input"]["time"] == {"kind": "timestamp"}
+    (read,) = read_proposal(entry, [path])
+    assert (read["time"].to_numpy() == frame["time"].to_numpy()).all()
+
+    path.write_text(out.assign(Time=[f"{t:%Y-%m-%dT%H:%M:%S}Z" for t in frame["time"]]).to_csv(index=False))
+    s, entry = propose("tz", [path])
+    assert s.period_s == 60 and entry["input"]["time"] == {"kind": "timestamp"}
+
+
+# --------------------------------------------------------------------------- text above and around
+
+
+def test_a_key_value_preamble_above_the_header_is_not_taken_for_it(tmp_path):
+    frame = canonical_frame(60, seed=5)
+    out = frame.rename(columns={"time": "Timestamp", "speed_rpm": "Spindle Speed", "disp_um": "Z Displ"})
+    units = ["", "rpm", *["degC"] * 16, "um"]
+    preamble = "Machine,HMC-800 #3\nStart,2026-03-02 06:00:00\nSample interval,60 s\n\n"
+    lines = out.to_csv(index=False).split("\n", 1)
+    path = tmp_path / "export.csv"
+    path.write_text(preamble + lines[0] + "\n" + ",".join(units) + "\n" + lines[1], encoding="utf-8")
+    table = read_unknown(path)  # it took 'Sample interval,60 s' for the header of 19 columns
+    assert table.layout["header_row"] == 5 and table.layout["skip_rows"] == 1
+    assert table.header[0] == "Timestamp" and table.n_rows == 60
+    s, entry = propose("pre", [path])
+    assert entry["input"]["header_row"] == 5 and entry["input"]["skip_rows"] == 1
+    (read,) = read_proposal(entry, [path])
+    assert read["disp_um"].to_numpy() == pytest.approx(frame["disp_um"].to_numpy())
+
+
+@pytest.mark.parametrize("delimiter, decimal", [(",", "."), (";", ",")])
+def test_a_csv_with_every_field_in_double_quotes_is_read_as_the_pipeline_reads_it(
+    tmp_path, delimiter, decimal
+):
+    import csv
+
+    frame = canonical_frame(60, seed=6)
+    out = frame.rename(columns={"time": "Time", "speed_rpm": "Speed [rpm]", "disp_um": "Disp Z (um)"})
+    out["Time"] = frame["time"].dt.strftime("%d.%m.%Y %H:%M:%S")
+    path = tmp_path / "quoted.csv"
+    out.to_csv(path, sep=delimiter, decimal=decimal, index=False, quoting=csv.QUOTE_ALL)
+    assert path.read_text().startswith('"Time"')
+    table = read_unknown(path)  # 'no header line followed by rows of numbers'
+    assert (table.layout["delimiter"], table.layout["decimal"]) == (delimiter, decimal)
+    s, entry = propose("quoted", [path])
+    assert s.time is not None and s.period_s == 60 and len(s.sensors) == 16
+    (read,) = read_proposal(entry, [path])
+    assert read["disp_um"].to_numpy() == pytest.approx(frame["disp_um"].to_numpy())
+    assert read["T16"].to_numpy() == pytest.approx(frame["T16"].to_numpy())
+
+
+# --------------------------------------------------------------------------- time formats
+
+
+def test_a_us_12_hour_clock_is_proposed_as_a_time_format_the_pipeline_reads(tmp_path):
+    frame = canonical_frame(150, seed=7, start="2026-10-31 10:50")  # AM, noon, PM
+    out = frame.rename(columns={"time": "Date Time", "speed_rpm": "Spindle Speed (RPM)", "disp_um": "Z (um)"})
+    out["Date Time"] = frame["time"].dt.strftime("%m/%d/%Y %I:%M:%S %p")
+    assert {"10/31/2026 11:59:00 AM", "10/31/2026 12:00:00 PM", "10/31/2026 01:00:00 PM"} <= set(
+        out["Date Time"]
+    )
+    path = tmp_path / "us.csv"
+    path.write_text(out.to_csv(index=False), encoding="utf-8")
+    s, entry = propose("us", [path])  # 'no time column'
+    assert s.time is not None and s.period_s == 60 and s.regular_share == 1.0
+    assert entry["input"]["time"] == {"kind": "timestamp", "format": "%m/%d/%Y %I:%M:%S %p"}
+    assert not any(c for c in s.checks if "day/month" in c)  # the 31st is a day
+    (read,) = read_proposal(entry, [path])
+    assert (read["time"].to_numpy() == frame["time"].to_numpy()).all()
+
+    out["Date Time"] = frame["time"].dt.strftime("03/02/2026 %I:%M:%S %p")  # 2 March or 3 February
+    path.write_text(out.to_csv(index=False), encoding="utf-8")
+    s, _ = propose("us", [path])
+    assert s.time.check == "day/month or month/day? both read every cell; set time.format"
+
+
+# --------------------------------------------------------------------------- names
+
+
+def test_probe_names_leave_the_unit_at_the_end_of_a_header_out():
+    assert probe_names(["X_um", "Y_mm", "Z_um"]) == ["X", "Y", "Z"]
+    assert probe_names(["dX_um", "dZ_µm"]) == ["dX", "dZ"]
+    assert probe_names(["Z_um", "Z_mm"]) == ["Z_um", "Z_mm"]  # one name for two probes: kept whole
+    assert probe_names(["ch1(um)", "ch2(um)"]) == ["ch1", "ch2"]
+
+
+def test_probes_of_a_log_are_proposed_under_their_axis_names(tmp_path):
+    frame = canonical_frame(120, seed=8)
+    frame["speed_rpm"] = np.where(np.arange(120) < 10, 0.0, 3000.0)
+    warm = 1 - np.exp(-np.arange(120) / 40)
+    out = frame.drop(columns=["disp_um"]).rename(columns={"time": "Time", "speed_rpm": "Speed [rpm]"})
+    out["Z_um"], out["Y_mm"] = np.round(12 * warm, 3), np.round(0.004 * warm, 4)
+    path = tmp_path / "log.csv"
+    path.write_text(out.to_csv(index=False), encoding="utf-8")
+    _, entry = propose("axes", [path])
+    assert entry["input"]["probes"] == {"Z": {"column": "Z_um"}, "Y": {"column": "Y_mm", "unit": "mm"}}

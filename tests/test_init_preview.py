@@ -55,6 +55,20 @@ def test_preview_says_no_run_is_at_a_training_speed_and_lists_the_speeds(tmp_pat
     assert "3000, 4500, 6000 r/min" in w
 
 
+def test_preview_says_so_when_no_constant_run_was_found(tmp_path):
+    entry = {"training_speeds_rpm": [3000], "reference": {"rule": "log_start"}}
+    entry["runs"] = {"min_constant_s": 100000}  # every step shorter: one varying run
+    w = next(w for w in warnings(preview(str(project(tmp_path, entry)), "m")) if "training speed" in w)
+    assert w.endswith("training_speeds_rpm is [3000], no constant run was found")  # not 'at no speed r/min'
+
+
+def test_preview_names_a_run_s_length_and_the_limit_it_is_shorter_than(tmp_path):
+    window = {"role": "training", "end": 1.0, "unit": "fraction"}
+    entry = {"training_speeds_rpm": [3000], "runs": {"windows": [window], "min_run_s": 8000}}
+    said = "\n".join(preview(str(project(tmp_path, entry)), "m"))
+    assert "but shorter than runs.min_run_s (7200 s < 8000 s)" in said  # not '(7200 s)' alone
+
+
 def test_preview_names_a_window_glob_and_an_override_that_match_nothing(tmp_path, capsys):
     entry = {
         "training_speeds_rpm": [3000, 6000],
@@ -270,6 +284,7 @@ def test_a_clock_in_hours_and_temperatures_in_deg_f_are_proposed_as_such(tmp_pat
     assert block["sample_period_s"] == 60  # the period in seconds, not 0.0167 (hours)
     assert block["input"]["time"]["kind"] == "elapsed_h"
     assert block["input"]["temperature_unit"] == "F"
+    assert "deg F: converted to deg C as read" in out.out  # not 'read as deg C'
     assert "convert" not in out.err  # nothing to convert by hand
 
 

@@ -24,6 +24,13 @@ ROWS = 120
 T0 = dt.datetime(2023, 7, 1, 23, 0)
 
 
+def local_time_with_offset(t: dt.datetime) -> str:
+    """``t`` (UTC) as local ISO text with its offset: ``+02:00`` for the first two hours after
+    :data:`T0`, then ``+01:00`` (a change of the offset within one file, as daylight saving time ends)."""
+    hours = 2 if t < T0 + dt.timedelta(hours=2) else 1
+    return f"{t + dt.timedelta(hours=hours):%Y-%m-%dT%H:%M:%S}+{hours:02d}:00"
+
+
 def column(kind: str, seed: int) -> tuple[str, list[str]]:
     """A header and the cells of one column of ``kind``."""
     rng = np.random.default_rng(seed)
@@ -31,6 +38,8 @@ def column(kind: str, seed: int) -> tuple[str, list[str]]:
     stamps = [T0 + dt.timedelta(seconds=30 * int(i)) for i in k]
     cells = {
         "stamp": ("Zeitstempel", [f"{t:%d.%m.%Y %H:%M:%S}" for t in stamps]),
+        "stamp_utc": ("Timestamp", [f"{t:%Y-%m-%dT%H:%M:%S}Z" for t in stamps]),
+        "stamp_offset": ("Zeit", [local_time_with_offset(t) for t in stamps]),
         "date": ("Date", [f"{t:%Y-%m-%d}" for t in stamps]),
         "frozen": ("Zeit", [f"{T0:%Y-%m-%d %H:%M:%S}"] * ROWS),
         "clock": ("Time", [f"{t:%H:%M:%S}" for t in stamps]),
@@ -50,6 +59,8 @@ def column(kind: str, seed: int) -> tuple[str, list[str]]:
 
 KINDS = [
     "stamp",
+    "stamp_utc",
+    "stamp_offset",
     "date",
     "clock",
     "elapsed",
@@ -68,6 +79,8 @@ KINDS = [
 @SETTINGS
 @example(kinds=["frozen", "speed", "temp", "disp"], seed=1, delimiter=",")  # a clock that stands still
 @example(kinds=["date", "clock", "speed", "temp", "disp"], seed=2, delimiter=";")
+@example(kinds=["stamp_utc", "speed", "temp", "disp"], seed=3, delimiter=",")  # aware times: a TypeError
+@example(kinds=["stamp_offset", "speed", "temp", "disp"], seed=4, delimiter=";")
 @given(
     kinds=st.lists(st.sampled_from(KINDS), min_size=1, max_size=6),
     seed=st.integers(0, 1000),

@@ -205,6 +205,17 @@ def test_read_csv_table_skips_rows_and_trims_empty_trailing_fields(tmp_path):
         read_csv_table(tmp_path / "a.csv", b"Zeit,Wert\n1,2\n", spec | {"header_row": 1})
 
 
+def test_too_many_fields_hint_a_decimal_comma_only_where_the_counts_allow_it(tmp_path):
+    spec = normalise_input_spec({"format": "csv", "header_row": 1})
+    with pytest.raises(RawFormatError, match=r"line 2: found 3 fields, expected 2 .*a decimal comma"):
+        read_csv_table(tmp_path / "a.csv", b"Zeit,Wert\n1,20,5\n", spec)
+    preamble = b"Sample interval,60 s\ntime,speed,T1,T2,T3\n1,0,20.1,20.2,20.3\n"
+    with pytest.raises(RawFormatError, match=r"line 3: found 5 fields, expected 2") as err:
+        read_csv_table(tmp_path / "a.csv", preamble, spec | {"skip_rows": 1})
+    assert "decimal comma" not in str(err.value)
+    assert "line 1 (input.header_row) looks like a line above the table" in str(err.value)
+
+
 def test_read_table_refuses_an_empty_workbook(tmp_path):
     with pytest.raises(RawFormatError, match="file is empty; expected an .xlsx workbook"):
         read_table(tmp_path / "a.xlsx", b"", normalise_input_spec({"format": "xlsx"}))

@@ -579,7 +579,11 @@ def _window_role(win, what, kind, duration, min_run_s, idle_training) -> tuple[s
     if win.role == "excluded":
         return "excluded", "window", f"in the {win.text}"
     if duration < min_run_s - 1e-9:
-        return "excluded", "window", f"in the {win.text} but shorter than runs.min_run_s ({duration:g} s)"
+        return (
+            "excluded",
+            "window",
+            f"in the {win.text} but shorter than runs.min_run_s ({duration:g} s < {min_run_s:g} s)",
+        )
     if win.role == "validation":
         return VALIDATION_BY_KIND[kind], "window", f"in the {win.text} ({what})"
     if kind == "idle" and idle_training is False:

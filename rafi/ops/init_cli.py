@@ -78,6 +78,17 @@ def _table(rows: list[list[str]]) -> list[str]:
     return ["  " + "  ".join(c.ljust(w) for c, w in zip(r, widths)) + "  " + r[-1] for r in rows]
 
 
+def _period_lines(s) -> list[str]:
+    """The sample period found, given (``--period-s``) or left to the user, as a line."""
+    if s.time is None and s.given_period_s is not None:
+        return [f"sample period: {s.given_period_s:g} s, given with --period-s (no time column)"]
+    if s.time is None:
+        return ["sample period: no time column; give it (--period-s), it is left for you in the block"]
+    if s.period_s is not None:
+        return [f"sample period: {s.period_s:g} s (median step, {s.regular_share:.0%} of steps regular)"]
+    return []
+
+
 def findings(s) -> list[str]:
     """What ``rafi init`` found, as the lines it prints (``s``: a :class:`rafi.ops.init_survey.Survey`)."""
     out = [f"rafi init: machine {s.machine}, {len({t.path for t in s.tables})} file(s)"]
@@ -104,10 +115,7 @@ def findings(s) -> list[str]:
         rows = [["col", "header", "role", "unit", "confidence", "why"]]
         rows += [[g.letter, g.header, g.role, g.unit or "-", g.confidence, g.why] for g in s.partner_guesses]
         out += [f"columns of its partner {s.partner.path.name}:", *_table(rows)]
-    if s.time is None:
-        out.append("sample period: no time column; give it (--period-s), it is left for you in the block")
-    elif s.period_s is not None:
-        out.append(f"sample period: {s.period_s:g} s (median step, {s.regular_share:.0%} of steps regular)")
+    out += _period_lines(s)
     if s.kind == "continuous":
         out.append(f"layout: one continuous log ({s.kind_why}): proposing reference: {{rule: log_start}}")
     else:
@@ -147,10 +155,8 @@ def run(args) -> int:
     from rafi.readers.infer_files import read_unknown_logs
 
     paths = log_paths(args.paths)
-    s = survey(args.machine, [t for p in paths for t in read_unknown_logs(p)])
+    s = survey(args.machine, [t for p in paths for t in read_unknown_logs(p)], period_s=args.period_s)
     block = config_block(s, period_s=args.period_s)
-    if args.period_s is not None:  # given: no longer a question
-        s.checks = [c for c in s.checks if not c.startswith("input.time.period_s")]
     parse_block(block, args.machine)
     if not args.write:
         print("\n".join(findings(s)), file=sys.stderr)

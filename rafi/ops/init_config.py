@@ -168,15 +168,24 @@ def _displacement_keys(out: _Lines, s: Survey) -> None:
                 out.add(8, f"{name}: {{column: {q(guess.header)}}}")
 
 
+#: A unit at the end of a probe's word (``Z_um``, ``Y_mm``, ``X_`` of ``X_µm``): not part of its name.
+_UNIT_SUFFIX = re.compile(r"(?<=[A-Za-z0-9])_+(um|mm|microns?|mu)?_*$", re.I)
+
+
 def probe_names(headers: list[str]) -> list[str]:
     """A probe name for every displacement header: its first word that the other headers do not
-    share (``ch1(um)`` -> ``ch1``, ``Verlagerung Z1 [µm]`` -> ``Z1``) where that is a valid, unique
-    name, else ``P<k>``."""
+    share (``ch1(um)`` -> ``ch1``, ``Verlagerung Z1 [µm]`` -> ``Z1``), without a unit at its end
+    (``Z_um`` -> ``Z``, ``Y_mm`` -> ``Y``) unless that makes two names one, where that is a
+    valid, unique name, else ``P<k>``."""
     from rafi.contract import PROBE_NAME_RE
 
     tokens = [re.findall(r"[A-Za-z][A-Za-z0-9_]*", h) for h in headers]
     shared = set.intersection(*(set(t) for t in tokens)) if len(tokens) > 1 else set()
-    words = [next((w[:16] for w in t if w not in shared), "") for t in tokens]
+    words = [next((w for w in t if w not in shared), "") for t in tokens]
+    bare = [_UNIT_SUFFIX.sub("", w) for w in words]
+    if len(set(bare)) == len(bare):
+        words = bare
+    words = [w[:16] for w in words]
     return [
         w if re.match(PROBE_NAME_RE, w) and words.count(w) == 1 else f"P{k + 1}" for k, w in enumerate(words)
     ]
@@ -188,7 +197,7 @@ def _temperature_unit(out: _Lines, s: Survey) -> None:
     if units == {"K"}:
         out.add(6, "temperature_unit: K", "every temperature reads 250-400: Kelvin")
     elif units == {"degF"}:
-        out.add(6, "temperature_unit: F", "every temperature header says deg F: read as deg C")
+        out.add(6, "temperature_unit: F", "every temperature header says deg F: converted to deg C as read")
     elif "degF" in units:
         out.add(
             6,

@@ -116,9 +116,14 @@ def preview_warnings(table: pd.DataFrame, frames: Mapping, settings: Mapping) ->
     trained = table[(table["role"] == "training") & (table["kind"] != "idle")]
     if trained.empty:
         found = sorted({float(x) for x in moving.loc[moving["kind"] == "constant", "speed_rpm"].round()})
+        speeds = (
+            f"the constant runs found are at {', '.join(f'{x:g}' for x in found)} r/min"
+            if found
+            else "no constant run was found"
+        )
         out.append(
             f"no run at a training speed: training_speeds_rpm is {list(settings['training_speeds_rpm'])}, "
-            f"the constant runs found are at {', '.join(f'{x:g}' for x in found) or 'no speed'} r/min"
+            f"{speeds}"
         )
     validating = table["role"].astype(str).str.startswith("validation")
     if not (validating & (table["kind"] != "idle")).any():

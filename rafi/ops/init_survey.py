@@ -18,6 +18,7 @@ import pandas as pd
 
 from rafi.contract import ELAPSED_SECONDS, EPOCH_CLOCKS
 from rafi.ops.init_layout import (
+    STEP_MIN_S,
     LogShape,
     elapsed_seconds,
     log_kind,
@@ -94,6 +95,9 @@ class Survey:
         ``time`` when both files have a time column, else ``row``.
     logs : list of RawTable
         The tables surveyed as logs (of the first log's layout; partners not among them).
+    given_period_s : float or None
+        The sample period the user gave (``--period-s``): the clock of a log without a time
+        column, row k at k times it.
     """
 
     machine: str
@@ -123,6 +127,7 @@ class Survey:
     join: tuple | None = None
     join_by: str = "time"
     logs: list = field(default_factory=list)
+    given_period_s: float | None = None
 
     @property
     def first(self) -> RawTable:
@@ -150,15 +155,35 @@ def elapsed_kind(unit: str | None) -> str:
     return kind if kind in ELAPSED_SECONDS else "elapsed_s"
 
 
+def layout_key(table: RawTable) -> tuple:
+    """What two tables of one layout share: the format and the header names, in any order for a
+    csv or a workbook with a header row of distinct names (the pipeline's reader finds each
+    mapped column by its header, wherever it stands); in order otherwise (a native log, columns
+    by letter, a header twice)."""
+    names = tuple(table.header)
+    if table.format != "native" and not table.headerless and len(set(names)) == len(names):
+        names = tuple(sorted(names))
+    return table.format, names
+
+
+def column_cells(table: RawTable, guess: ColumnGuess) -> list:
+    """The cells of ``guess``'s column in ``table``: at its position when the header there is
+    the same, else under its header (a file of the same layout with its columns in another order)."""
+    j = guess.index
+    if not (j < len(table.header) and table.header[j] == guess.header):
+        j = table.header.index(guess.header)
+    return table.columns[j]
+
+
 def _time_and_speed(
     table: RawTable, guesses: list, survey: Survey
 ) -> tuple[np.ndarray | None, np.ndarray | None]:
     """Seconds since the first row and the speed of one table (None where the column is missing)."""
     t = s = None
     if survey.time is not None:
-        cells = table.columns[survey.time.index]
+        cells = column_cells(table, survey.time)
         if survey.time.unit == "timeofday" and survey.date is not None:
-            cells = date_and_time(list(table.columns[survey.date.index]), list(cells))
+            cells = date_and_time(list(column_cells(table, survey.date)), list(cells))
         if survey.time.unit in ("timestamp", "timeofday"):
             times, fmt, _ = to_times(cells)
             survey.time_format = fmt
@@ -167,8 +192,10 @@ def _time_and_speed(
             unit = survey.time.unit
             per = EPOCH_CLOCKS[unit][1] if unit in EPOCH_CLOCKS else ELAPSED_SECONDS[elapsed_kind(unit)]
             t = elapsed_seconds(to_numbers(cells, table.layout.get("decimal", "."))) * per
+    elif survey.given_period_s is not None:  # no time column: row k at k periods (--period-s)
+        t = np.arange(table.n_rows, dtype=float) * survey.given_period_s
     if survey.speed is not None:
-        s = to_numbers(table.columns[survey.speed.index], table.layout.get("decimal", "."))
+        s = to_numbers(column_cells(table, survey.speed), table.layout.get("decimal", "."))
     return t, s
 
 
@@ -206,12 +233,12 @@ def _probe_cells(survey: Survey, table: RawTable) -> np.ndarray | None:
     """The first probe's values beside ``table``'s rows: its own column, or its partner file's
     (row by row, when the two have as many rows; else None)."""
     if survey.join is None:
-        return to_numbers(table.columns[survey.probes[0].index], table.layout.get("decimal", "."))
+        return to_numbers(column_cells(table, survey.probes[0]), table.layout.get("decimal", "."))
     name = table.path.name.replace(*survey.join)
     partner = next((t for t in survey.tables if t.path.name == name), None)
     if partner is None or partner.n_rows != table.n_rows:
         return None
-    return to_numbers(partner.columns[survey.probes[0].index], partner.layout.get("decimal", "."))
+    return to_numbers(column_cells(partner, survey.probes[0]), partner.layout.get("decimal", "."))
 
 
 def _guesses(table: RawTable) -> list[ColumnGuess]:
@@ -228,7 +255,7 @@ def _pairs(tables: list[RawTable]) -> tuple[list[RawTable], list[RawTable], tupl
     layout with the displacement when they come in pairs by name, else ``(tables, [], None)``."""
     groups: dict = {}
     for t in tables:
-        groups.setdefault((tuple(t.header), t.format), []).append(t)
+        groups.setdefault(layout_key(t), []).append(t)
     if len(groups) != 2:
         return tables, [], None
     roles = {key: {g.role for g in _guesses(group[0])} for key, group in groups.items()}
@@ -266,7 +293,7 @@ def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
         survey.regular_share = float(min(shares))
 
 
-def survey(machine: str, tables: list[RawTable]) -> Survey:
+def survey(machine: str, tables: list[RawTable], *, period_s: float | None = None) -> Survey:
     """What the logs of ``machine`` hold (see the module docstring).
 
     Parameters
@@ -275,6 +302,9 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         The machine's name (its folder under ``raw/``).
     tables : list of RawTable
         Its files as read, at least one.
+    period_s : float, optional
+        The seconds between two rows the user gave (``--period-s``): a log without a time
+        column has this clock, and its speed steps are read as with a time column.
 
     Returns
     -------
@@ -299,6 +329,7 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         partner=partners[0] if partners else None,
         partner_guesses=partner_guesses,
         join=parts,
+        given_period_s=period_s,
     )
     if parts:
         out.notes.append(
@@ -308,9 +339,16 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         has_time = any(g.role == "time" for g in partner_guesses)
         out.join_by = "time" if out.time is not None and has_time else "row"
     for table in logs[1:] if parts else tables[1:]:
-        if table.header != first.header or table.format != first.format:
+        if layout_key(table) != layout_key(first):
             out.notes.append(f"{table.path.name}: another layout than {first.path.name}; it is not surveyed")
-    same = [t for t in logs if t.header == first.header and t.format == first.format]
+    same = [t for t in logs if layout_key(t) == layout_key(first)]
+    reordered = [t.path.name for t in same if t.header != first.header]
+    if reordered:
+        names = ", ".join(reordered[:3]) + (", ..." if len(reordered) > 3 else "")
+        out.notes.append(
+            f"{len(reordered)} file(s) hold the columns of {first.path.name} in another order ({names}): "
+            "surveyed too (the block names each column by its header)"
+        )
     out.logs = same
     if len(first.sheet_group) > 1:
         out.sheet_glob = sheet_glob(list(first.sheet_group), [x.name for x in first.sheets])
@@ -322,15 +360,33 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         if out.kind == "continuous":  # separate runs: each file's step is its run, whatever its length
             out.min_constant = propose_min_constant([s for s in out.shapes if s.steps])
     else:
-        out.kind_why = f"{len(out.shapes)} log(s) without a speed column or a clock: each log one run"
+        out.kind_why = f"{len(out.shapes)} log(s) {_without_steps(out)}: each log one run"
     if out.sign is None and not out.sign_why:
-        out.sign_why = (
-            "without a speed column or a clock its direction while the spindle heats cannot be read"
+        without = (
+            "with the probe's rows not beside the speed's (a partner file of another length)"
+            if any(s.steps for s in out.shapes)
+            else _without_steps(out)
         )
+        out.sign_why = f"{without} its direction while the spindle heats cannot be read"
     if out.speed is None:
         out.speed_by_file = _speeds_from_names([t.path.name for t in same])
     out.checks = _checks(out)
     return out
+
+
+def _without_steps(s: Survey) -> str:
+    """Why no speed step was read, in words: what the logs are without (a speed column, a clock),
+    or that the speed never holds a level long enough."""
+    clock = s.time is not None or s.given_period_s is not None
+    if s.speed is None and not clock:
+        return "without a speed column or a clock"
+    if s.speed is None:
+        return "without a speed column"
+    if not clock:
+        return "without a clock (no time column; --period-s gives one)"
+    if s.period_s is None:
+        return "with a clock that does not advance"
+    return f"without a speed held for {STEP_MIN_S / 60:g} min or more"
 
 
 def _checks(s: Survey) -> list[str]:
@@ -354,7 +410,7 @@ def _checks(s: Survey) -> list[str]:
         out.append("training_speeds_rpm: decide which speeds train; the others validate")
     if s.format == "native":
         return out
-    if s.time is None:
+    if s.time is None and s.given_period_s is None:
         out.append("input.time.period_s: no time column; give the seconds between two rows (--period-s)")
     elif s.period_s is None or s.regular_share < REGULAR_SHARE:
         out.append(

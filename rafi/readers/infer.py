@@ -178,8 +178,25 @@ def to_numbers(cells, decimal: str = ".") -> np.ndarray:
     return out
 
 
-#: Text time formats tried in order (``None``: ISO 8601, read by pandas without a format).
-TIME_FORMATS = (None, "%d.%m.%Y %H:%M:%S", "%d.%m.%Y %H:%M", "%d/%m/%Y %H:%M:%S", "%m/%d/%Y %H:%M:%S")
+#: Text time formats tried in order (``None``: ISO 8601, read by pandas without a format); the
+#: 12-hour clocks (``10/31/2026 08:00:00 PM``) of US loggers last.
+TIME_FORMATS = (
+    None,
+    "%d.%m.%Y %H:%M:%S",
+    "%d.%m.%Y %H:%M",
+    "%d/%m/%Y %H:%M:%S",
+    "%m/%d/%Y %H:%M:%S",
+    "%m/%d/%Y %I:%M:%S %p",
+    "%m/%d/%Y %I:%M %p",
+    "%d/%m/%Y %I:%M:%S %p",
+    "%Y-%m-%d %I:%M:%S %p",
+)
+
+
+def _day_month_swapped(formats: set) -> bool:
+    """Two of ``formats`` differ only by the order of day and month (both read every cell)."""
+    swapped = {f.replace("%d", "%@").replace("%m", "%d").replace("%@", "%m") for f in formats if f}
+    return bool(swapped & formats)
 
 
 _TIME_OF_DAY = re.compile(r"^\d{1,2}:\d{2}(:\d{2}([.,]\d+)?)?$")
@@ -197,16 +214,34 @@ def _has_clock_text(filled: list) -> bool:
     return any(isinstance(v, str) and ":" in v for v in filled)
 
 
+#: A UTC offset at the end of a timestamp's text (``Z``, ``+01:00``, ``-0500``).
+UTC_OFFSET = re.compile(r"\d(Z|[+-]\d{2}:?\d{2})$")
+
+
+def has_utc_offset(cells) -> bool:
+    """Some text cell ends with a UTC offset (``2026-03-02T06:00:00+01:00``, ``...Z``)."""
+    return any(isinstance(v, str) and UTC_OFFSET.search(v.strip()) for v in cells)
+
+
+def _naive_utc(parsed: pd.Series) -> pd.Series:
+    """Timestamps parsed with ``utc=True`` as naive UTC, as the pipeline's reader keeps them
+    (:func:`rafi.readers.mapped_time.timestamps`: an offset is converted to UTC)."""
+    return parsed.dt.tz_convert(None) if isinstance(parsed.dtype, pd.DatetimeTZDtype) else parsed
+
+
 def to_times(cells) -> tuple[np.ndarray | None, str | None, str | None]:
     """Cells as timestamps: ``(datetime64 array, time.format or None, check or None)``; ``(None, None,
     None)`` when the cells are not times. Date cells of a workbook are times as they are;
     text is tried against :data:`TIME_FORMATS` (two formats that both read every cell, day
-    first and month first, give a ``check`` sentence)."""
+    first and month first, give a ``check`` sentence). Times with a UTC offset (``Z``,
+    ``+01:00``) are converted to UTC and made naive, as the pipeline's reader does: the array is
+    always ``datetime64[ns]``."""
     filled = [v for v in cells if v is not None and str(v).strip() != ""]
     if not filled:
         return None, None, None
     if all(isinstance(v, (dt.date, pd.Timestamp)) for v in filled):  # a datetime is a date too
-        return pd.to_datetime(pd.Series(list(cells)), errors="coerce").to_numpy(), None, None
+        parsed = pd.to_datetime(pd.Series(list(cells)), errors="coerce", utc=True)
+        return _naive_utc(parsed).to_numpy(), None, None
     if not all(isinstance(v, str) for v in filled):
         return None, None, None
     texts = pd.Series([str(v).strip() if v is not None else None for v in cells])
@@ -215,16 +250,17 @@ def to_times(cells) -> tuple[np.ndarray | None, str | None, str | None]:
     hits = []
     for fmt in TIME_FORMATS:
         try:
-            parsed = pd.to_datetime(texts, format=fmt if fmt else "ISO8601", errors="coerce")
-        except (ValueError, TypeError):
+            parsed = pd.to_datetime(texts, format=fmt if fmt else "ISO8601", errors="coerce", utc=True)
+        except (ValueError, TypeError, OverflowError):
             continue
+        parsed = _naive_utc(parsed)
         if parsed.notna().sum() >= PARSE_SHARE * len(filled):
             hits.append((fmt, parsed))
     if not hits:
         return None, None, None
     fmt, parsed = hits[0]
     check = None
-    if len(hits) > 1 and {h[0] for h in hits} >= {"%d/%m/%Y %H:%M:%S", "%m/%d/%Y %H:%M:%S"}:
+    if len(hits) > 1 and _day_month_swapped({h[0] for h in hits}):
         check = "day/month or month/day? both read every cell; set time.format"
     return parsed.to_numpy(), fmt, check
 
@@ -396,6 +432,8 @@ def guess_column(index: int, header: str, cells, decimal: str = ".", label: str 
                 "date", "date", "a date without the time of day" + (f" ({fmt})" if fmt else ""), tcheck
             )
         why = "date and time" + (f" ({fmt})" if fmt else "")
+        if has_utc_offset(filled):
+            why += ", with a UTC offset: read as UTC"
         return guess("time", "timestamp", why, tcheck)
     v = to_numbers(cells, decimal)
     n_num = int(np.isfinite(v).sum())

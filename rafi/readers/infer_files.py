@@ -12,6 +12,7 @@ says what they hold. The csv text is split by the project's own reader
 from __future__ import annotations
 
 import codecs
+import csv
 import datetime as dt
 import io
 import os
@@ -148,8 +149,23 @@ def _least_filled(rows: list) -> int:
     return 1 if max((len(_filled(r)) for r in rows[:HEAD_LINES]), default=0) == 1 else 2
 
 
+def _width(cells) -> int:
+    """Cells up to the last filled one (a row's width, empty cells at its end not counted)."""
+    return max((j + 1 for j, c in enumerate(cells) if c is not None and str(c).strip() != ""), default=0)
+
+
+#: A header row names at least this share of the columns of the data rows below it (a
+#: ``key,value`` line of a preamble above a table of 19 columns names 2: not its header).
+HEADER_MIN_WIDTH_SHARE = 0.5
+
+
 def header_position(rows: list) -> tuple[int, int] | None:
-    """``(header index, label rows after it)`` of the first text row followed by data, or None."""
+    """``(header index, label rows after it)`` of the first text row followed by data, or None.
+
+    A header and its label rows (units) name about as many columns as the data rows below
+    them hold (at least :data:`HEADER_MIN_WIDTH_SHARE` of the widest of them): the text lines
+    of a ``key,value`` preamble are not the header of the table under them.
+    """
     least = _least_filled(rows)
     for k, cells in enumerate(rows[:HEAD_LINES]):
         if not _label_row(cells, least):
@@ -158,8 +174,12 @@ def header_position(rows: list) -> tuple[int, int] | None:
         while k + 1 + skip < len(rows) and skip < 3 and _label_row(rows[k + 1 + skip], least):
             skip += 1
         nxt = [r for r in rows[k + 1 + skip : k + 6 + skip] if any(c not in (None, "") for c in r)]
-        if nxt and all(_data_row(r, least) for r in nxt):
-            return k, skip
+        if not (nxt and all(_data_row(r, least) for r in nxt)):
+            continue
+        data_width = max(_width(r) for r in nxt)
+        if _width(cells) < HEADER_MIN_WIDTH_SHARE * data_width:
+            continue  # a preamble line: the header is one of the label rows after it
+        return k, skip
     return None
 
 
@@ -182,6 +202,16 @@ def letter_header(n: int) -> list[str]:
 # --------------------------------------------------------------------------- text files
 
 
+def split_quoted(line: str, delimiter: str) -> list[str]:
+    """The stripped fields of one text line, split as the pipeline's reader splits it (the csv
+    module: a field in double quotes may hold the delimiter, and its quotes are not part of it)."""
+    try:
+        fields = next(csv.reader([line], delimiter=delimiter, strict=False), [])
+    except csv.Error:  # a line the reader refuses too: split plainly, the reader says why later
+        fields = line.split(delimiter)
+    return [f.strip() for f in fields]
+
+
 def sniff_text(lines: list[str]) -> dict:
     """The delimiter, decimal mark and header line of text ``lines`` (comment lines ``#`` skipped).
 
@@ -195,18 +225,18 @@ def sniff_text(lines: list[str]) -> dict:
     body = [(i, ln) for i, ln in enumerate(lines[: HEAD_LINES * 5]) if ln.strip() and not ln.startswith("#")]
     best, score = ",", -1
     for delim in DELIMITERS:
-        counts = [ln.count(delim) for _, ln in body[:HEAD_LINES]]
+        counts = [len(split_quoted(ln, delim)) - 1 for _, ln in body[:HEAD_LINES]]
         if not counts or max(counts) == 0:
             continue
         common = max(set(counts), key=counts.count)
         s = counts.count(common) * 1000 + common
         if common > 0 and s > score:
             best, score = delim, s
-    fields = [f.strip() for _, ln in body[1:HEAD_LINES] for f in ln.split(best)]
+    rows = [split_quoted(ln, best) for _, ln in body]
+    fields = [f for r in rows[1:HEAD_LINES] for f in r]
     commas = sum(bool(re.match(r"^[+-]?\d+,\d+$", f)) for f in fields)
     points = sum(bool(re.match(r"^[+-]?\d+\.\d+$", f)) for f in fields)
     decimal = "," if best != "," and commas > points else "."
-    rows = [[f.strip() for f in ln.split(best)] for _, ln in body]
     found = header_position(rows)
     header_row = body[found[0]][0] + 1 if found else None
     start = headerless_start(rows) if found is None else None
@@ -277,7 +307,7 @@ def _read_text(path: Path, raw: bytes) -> RawTable:
     else:
         header = list(table.header)
         below = [ln for ln in lines[spec["header_row"] :] if ln.strip()][: spec["skip_rows"]]
-        labels = _labels([ln.split(spec["delimiter"]) for ln in below], len(header))
+        labels = _labels([split_quoted(ln, spec["delimiter"]) for ln in below], len(header))
         notes = [f"{spec['skip_rows']} label row(s) after the header skipped"] if spec["skip_rows"] else []
     native = _native_header(header) and found["delimiter"] == ","
     layout = {k: spec[k] for k in ("delimiter", "decimal", "encoding", "header_row", "skip_rows")}

@@ -163,15 +163,26 @@ def read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
                 len(fields),
                 len(header),
                 last=i == len(lines) - 1,
-                too_many_hint=(
-                    "a decimal comma with delimiter ','? set input.delimiter and input.decimal"
-                    if delim == ","
-                    else "a delimiter inside a value?"
-                ),
+                too_many_hint=too_many_fields_hint(len(fields), len(header), delim, hr),
             )
         rows.append(fields)
         numbers.append(line_no)
     return Table(path, header, rows, numbers, hr, None)
+
+
+def too_many_fields_hint(found: int, expected: int, delimiter: str, header_row: int | None) -> str:
+    """The likely cause of a data line with ``found`` fields under a header of ``expected``:
+    a decimal comma split by the delimiter ``,`` only when the counts allow it (each value split
+    in two at most: no more than twice the header's fields); far more fields than that, a line
+    above the table (a preamble) taken for the header; else a delimiter inside a value."""
+    if delimiter == "," and found <= 2 * expected:
+        return "a decimal comma with delimiter ','? set input.delimiter and input.decimal"
+    if header_row is not None and found > 2 * expected:
+        return (
+            f"line {header_row} (input.header_row) looks like a line above the table, "
+            "not its header: set input.header_row to the line of the column names"
+        )
+    return "a delimiter inside a value?"
 
 
 def _check_delimiter(path: Path, fields: list[str], delim: str, line_no: int, what: str) -> None:
