@@ -355,3 +355,23 @@ def test_the_champions_verdict_is_stored_for_the_report_and_absent_without_one()
     expected = qualify(CHAMP_SUM, GATES)
     assert stored[["criterion", "run_id", "passed"]].equals(expected[["criterion", "run_id", "passed"]])
     assert "champion_verdict" not in run(summary({"v1": 2.0}), champ=None).record
+
+
+def test_training_files_gone_from_the_raw_folder_are_one_reason_the_others_one_each():
+    from rafi.ops.provenance import GONE_NAMES_SHOWN, data_change_reasons
+
+    gone = [
+        {"file": f"train_{k}.csv", "sha256": f"h{k}", "why": "no longer in the raw folder"} for k in range(6)
+    ]
+    quarantined = {"file": "t15.csv", "sha256": "h15", "why": "quarantined tonight: unit: mm"}
+    reasons = data_change_reasons({"vanished": [*gone, quarantined]}, "0123456789abcdef")
+    assert (
+        reasons[0]
+        == "training file of champion 0123456789ab vanished: t15.csv (quarantined tonight: unit: mm)"
+    )
+    (together,) = reasons[1:]
+    assert together.startswith("6 training files of champion 0123456789ab vanished: train_0.csv, ")
+    assert f"... ({6 - GONE_NAMES_SHOWN} more)" in together and "train_5.csv" not in together
+    assert data_change_reasons({"vanished": gone[:1]}, "c") == [
+        "training file of champion c vanished: train_0.csv (no longer in the raw folder)"
+    ]

@@ -218,10 +218,33 @@ def training_data_changes(
     return {"vanished": vanished, "changed": changed, "renamed": renamed}
 
 
+#: At most this many names in the one reason line of the champion's training files that are no
+#: longer in the raw folder (``...`` and the count beyond).
+GONE_NAMES_SHOWN = 4
+
+
 def data_change_reasons(changes: dict, champion_id: str | None) -> list[str]:
-    """One reason line per vanished or changed training file of the champion."""
+    """Reason lines for the champion's vanished or changed training files: one per file, except
+    the files no longer in the raw folder, said in one line (a machine re-qualified on new logs
+    has its old ones archived: every one of them is gone, for one reason)."""
     who = f"champion {str(champion_id)[:12]}"
-    out = [f"training file of {who} vanished: {v['file']} ({v['why']})" for v in changes.get("vanished", [])]
+    vanished = changes.get("vanished", [])
+    gone = [v["file"] for v in vanished if v["why"] == "no longer in the raw folder"]
+    out = [
+        f"training file of {who} vanished: {v['file']} ({v['why']})"
+        for v in vanished
+        if v["file"] not in gone
+    ]
+    if len(gone) == 1:
+        out.append(f"training file of {who} vanished: {gone[0]} (no longer in the raw folder)")
+    elif gone:
+        shown = ", ".join(gone[:GONE_NAMES_SHOWN]) + (
+            f", ... ({len(gone) - GONE_NAMES_SHOWN} more)" if len(gone) > GONE_NAMES_SHOWN else ""
+        )
+        out.append(
+            f"{len(gone)} training files of {who} vanished: {shown} (no longer in the raw folder: "
+            "archived, e.g. for a re-qualification on new logs?)"
+        )
     out += [
         f"training file of {who} changed: {c['file']} (sha256 {c['sha256_champion'][:12]} at training, "
         f"{c['sha256_now'][:12]} now)"
