@@ -20,7 +20,7 @@ import yaml
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError
 from rafi.ops.init_pairs import main_pattern
-from rafi.ops.init_survey import Survey, elapsed_kind
+from rafi.ops.init_survey import Survey, elapsed_kind, markers_text
 from rafi.settings import machine_settings, validate_config
 
 #: Column at which line comments start (when the text is shorter).
@@ -218,6 +218,10 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     else:
         _text_keys(out, table.layout)
     _header_keys(out, table.headerless, table.layout)
+    if s.missing_values:
+        markers = ", ".join(q(text) for text, _ in s.missing_values.most_common())
+        why = "cells without a value in numeric columns: " + markers_text(s.missing_values)
+        out.add(6, f"missing_values: [{markers}]", why)
     _column_keys(out, s)
     _time_keys(out, s, period)
     if s.speed is None:

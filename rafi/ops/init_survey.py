@@ -10,6 +10,7 @@ the block, :mod:`rafi.ops.init_cli` prints the findings.
 from __future__ import annotations
 
 import re
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -27,7 +28,15 @@ from rafi.ops.init_layout import (
     speed_steps,
 )
 from rafi.ops.init_pairs import pair_parts, sheet_glob
-from rafi.readers.infer import ColumnGuess, guess_columns, sensor_names, to_numbers, to_times
+from rafi.readers.infer import (
+    MARKERS_MAX,
+    ColumnGuess,
+    guess_columns,
+    missing_markers,
+    sensor_names,
+    to_numbers,
+    to_times,
+)
 from rafi.readers.infer_files import RawTable
 from rafi.readers.mapped_time import date_and_time
 
@@ -94,6 +103,10 @@ class Survey:
         ``time`` when both files have a time column, else ``row``.
     logs : list of RawTable
         The tables surveyed as logs (of the first log's layout; partners not among them).
+    missing_values : collections.Counter
+        ``input.missing_values``: the texts of cells without a value found in the numeric
+        columns of the logs and partners (:func:`rafi.readers.infer.missing_markers`) and how
+        many cells hold each.
     """
 
     machine: str
@@ -123,6 +136,7 @@ class Survey:
     join: tuple | None = None
     join_by: str = "time"
     logs: list = field(default_factory=list)
+    missing_values: Counter = field(default_factory=Counter)
 
     @property
     def first(self) -> RawTable:
@@ -213,13 +227,22 @@ def _probe_cells(survey: Survey, table: RawTable) -> np.ndarray | None:
     return to_numbers(partner.columns[survey.probes[0].index], partner.layout.get("decimal", "."))
 
 
-def _guesses(table: RawTable) -> list[ColumnGuess]:
-    """Every column's guess; a table without a header row is guessed by content alone and its
-    columns are named by letter."""
+def _guesses(table: RawTable, markers=()) -> list[ColumnGuess]:
+    """Every column's guess (``markers``: missing-value texts, read as empty cells); a table
+    without a header row is guessed by content alone and its columns are named by letter."""
+    decimal = table.layout.get("decimal", ".")
     if not table.headerless:
-        return guess_columns(table.header, table.columns, table.layout.get("decimal", "."), table.labels)
-    guesses = guess_columns([""] * len(table.header), table.columns, table.layout.get("decimal", "."))
+        return guess_columns(table.header, table.columns, decimal, table.labels, markers)
+    guesses = guess_columns([""] * len(table.header), table.columns, decimal, markers=markers)
     return [replace(g, header=g.letter) for g in guesses]
+
+
+def _markers(tables: list[RawTable]) -> Counter:
+    """The missing-value markers of ``tables`` together (:func:`rafi.readers.infer.missing_markers`)."""
+    found: Counter = Counter()
+    for t in tables:
+        found.update(missing_markers(t.columns, t.layout.get("decimal", ".")))
+    return found if len(found) <= MARKERS_MAX else Counter()
 
 
 def _pairs(tables: list[RawTable]) -> tuple[list[RawTable], list[RawTable], tuple | None]:
@@ -281,11 +304,12 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
     """
     logs, partners, parts = _pairs(tables)
     first = logs[0]
-    guesses = _guesses(first)
+    markers = _markers([t for t in logs if t.header == first.header and t.format == first.format] + partners)
+    guesses = _guesses(first, markers)
     temps = [g for g in guesses if g.role == "temperature"]
     names = sensor_names([g.header for g in temps]) if not first.headerless else []
     names = names or [f"T{k}" for k in range(1, len(temps) + 1)]
-    partner_guesses = _guesses(partners[0]) if partners else []
+    partner_guesses = _guesses(partners[0], markers) if partners else []
     out = Survey(
         machine=machine,
         tables=tables,
@@ -298,6 +322,7 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
         partner=partners[0] if partners else None,
         partner_guesses=partner_guesses,
         join=parts,
+        missing_values=markers,
     )
     if parts:
         out.notes.append(
@@ -314,6 +339,8 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
     if len(first.sheet_group) > 1:
         out.sheet_glob = sheet_glob(list(first.sheet_group), [x.name for x in first.sheets])
     out.notes += list(dict.fromkeys(n for t in same for n in t.notes))  # once, not once a file
+    if markers:
+        out.notes.append(f"missing values: {markers_text(markers)}: read as missing (input.missing_values)")
     _log_shapes(out, same)
     if any(s.steps for s in out.shapes):
         out.kind, out.kind_why = log_kind(out.shapes)
@@ -373,6 +400,15 @@ def _checks(s: Survey) -> list[str]:
                 "not a displacement, and give a probe its own unit or sign where it differs"
             )
     return out
+
+
+def markers_text(markers) -> str:
+    """``'---' in 9 cells, 'NaN' in 3`` (most first)."""
+    counts = markers.most_common()
+    return ", ".join(
+        f"{text!r} in {n} cell{'s' if n != 1 else ''}" if k == 0 else f"{text!r} in {n}"
+        for k, (text, n) in enumerate(counts)
+    )
 
 
 def short_name(path: str | Path) -> str:

@@ -96,11 +96,12 @@ def _add_extra_columns(
     positions : dict
         Canonical column -> 0-based column index (these columns are not repeated).
     spec : dict
-        The normalised ``input:`` mapping (``decimal``).
+        The normalised ``input:`` mapping (``decimal``, ``missing_values``).
 
     Notes
     -----
-    A column is numbers if every cell is one, else text. A column without a header is
+    A column is numbers if every cell is one (or empty, or a marker of
+    ``input.missing_values``), else text. A column without a header is
     named after its letter (``column_x``) and left out when it is empty too; a name
     already taken gets ``_2``, ``_3``, ...
     """
@@ -118,7 +119,8 @@ def _add_extra_columns(
             new, n = f"{base}_{n}", n + 1
         taken.add(new)
         try:
-            frame[new] = numeric(table, values, spec["decimal"], name, j, "a number")
+            markers = spec["missing_values"]
+            frame[new] = numeric(table, values, spec["decimal"], name, j, "a number", missing=markers)
         except RawFormatError:
             frame[new] = pd.Series(text(values), index=frame.index, dtype="str")
 

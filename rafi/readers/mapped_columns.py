@@ -250,14 +250,15 @@ def canonical_values(table: Table, column: list, canon: str, col_index: int, spe
     col_index : int
         0-based index of the column in the file.
     spec : dict
-        The normalised ``input:`` mapping (``decimal``, ``displacement.unit`` and
-        ``sign``, ``temperature_unit``).
+        The normalised ``input:`` mapping (``decimal``, ``missing_values``, ``displacement.unit``
+        and ``sign``, ``temperature_unit``).
 
     Returns
     -------
     numpy.ndarray
-        ``float64``; empty cells NaN; a displacement in mm times 1000 and by its sign
-        (never -0.0), a temperature in K or deg F in deg C (:data:`rafi.readers.parsing.TO_DEG_C`).
+        ``float64``; empty cells and ``input.missing_values`` markers NaN; a displacement in mm
+        times 1000 and by its sign (never -0.0), a temperature in K or deg F in deg C
+        (:data:`rafi.readers.parsing.TO_DEG_C`).
 
     Raises
     ------
@@ -268,7 +269,8 @@ def canonical_values(table: Table, column: list, canon: str, col_index: int, spe
         canon, "deg " + spec["temperature_unit"]
     )
     label = column_label(table, col_index)
-    values = numeric(table, column, spec["decimal"], label, col_index, f"a number ({unit}) for {canon}")
+    what = f"a number ({unit}) for {canon}"
+    values = numeric(table, column, spec["decimal"], label, col_index, what, missing=spec["missing_values"])
     if canon == "disp_um":
         values = values * (1000.0 if spec["displacement"]["unit"] == "mm" else 1.0)
         values = values * spec["displacement"]["sign"] + 0.0  # no -0.0

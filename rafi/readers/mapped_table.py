@@ -17,9 +17,11 @@ from __future__ import annotations
 import datetime as dt
 import difflib
 import io
+import json
 import math
 import re
 import zipfile
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -485,7 +487,16 @@ def check_formulas(table: Table, header_row: list, raw: bytes | None = None) -> 
 _THOUSANDS_POINT = re.compile(r"^[+-]?\d{1,3}(\.\d{3})+(,\d*)?$")
 
 
-def numeric(table: Table, values: list, decimal: str, column: str, col_index: int, what: str) -> np.ndarray:
+def numeric(
+    table: Table,
+    values: list,
+    decimal: str,
+    column: str,
+    col_index: int,
+    what: str,
+    *,
+    missing: Collection[str] = (),
+) -> np.ndarray:
     """Raw cells -> float64 (NaN for empty); RawFormatError at the first bad cell.
 
     Parameters
@@ -502,13 +513,16 @@ def numeric(table: Table, values: list, decimal: str, column: str, col_index: in
         0-based column index (the Excel letter in xlsx errors).
     what : str
         What was expected, for the error message.
+    missing : collection of str
+        ``input.missing_values``: text cells (compared stripped) that are missing values.
 
     Returns
     -------
     numpy.ndarray
-        float64, NaN where a cell is empty.
+        float64, NaN where a cell is empty or a missing-value marker.
     """
     out = np.full(len(values), np.nan)
+    markers = frozenset(missing)
     for k, v in enumerate(values):
         if v is None:
             continue
@@ -522,7 +536,10 @@ def numeric(table: Table, values: list, decimal: str, column: str, col_index: in
         if isinstance(v, (int, float, np.integer, np.floating)):
             x = float(v)
         else:
-            s = str(v).strip().replace("\u00a0", "").replace(" ", "")
+            s = str(v).strip()
+            if s in markers:
+                continue
+            s = s.replace("\u00a0", "").replace(" ", "")
             if not s:
                 continue
             t = s
@@ -543,20 +560,29 @@ def numeric(table: Table, values: list, decimal: str, column: str, col_index: in
                 elif decimal == "," and "." in s:
                     hint = " (decimal point in a file with input.decimal: ',')"
                 raise table.error(
-                    f"{s!r} is not a number{hint}; expected {what}",
+                    f"{s!r} is not a number{hint}; expected {what}{marker_hint(s, hint)}",
                     row=table.row_numbers[k],
                     column=column,
                     col_index=col_index,
                 ) from None
         if not math.isfinite(x):
             raise table.error(
-                f"{v!r} is not a finite number; expected {what}",
+                f"{v!r} is not a finite number; expected {what}{marker_hint(str(v).strip())}",
                 row=table.row_numbers[k],
                 column=column,
                 col_index=col_index,
             )
         out[k] = x
     return out
+
+
+def marker_hint(cell: str, other_hint: str = "") -> str:
+    """`` (a missing-value marker? ...)`` for a text cell without a digit (``---``, ``#N/A``,
+    ``NaN``, ``ERR``) where no other cause was named; else empty."""
+    if other_hint or not cell or any(c.isdigit() for c in cell):
+        return ""
+    listed = json.dumps(cell, ensure_ascii=False)
+    return f" (a missing-value marker? list it in input.missing_values: [{listed}])"
 
 
 def text(values: list) -> list[str]:
