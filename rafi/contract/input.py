@@ -16,6 +16,7 @@ INPUT_DEFAULTS: dict = {
     "header_row": 1,
     "skip_rows": 0,
     "missing_values": [],
+    "footer_rows": 0,
     "sensors": None,
     "columns": {},
     "time": {"kind": "timestamp", "start": None, "format": None, "period_s": None, "date_column": None},
@@ -63,6 +64,7 @@ JOIN_LAYOUT_KEYS = (
     "header_row",
     "skip_rows",
     "missing_values",
+    "footer_rows",
     "columns",
     "time",
     "displacement",
@@ -145,6 +147,7 @@ INPUT_SCHEMA: dict = {
             "items": {"type": "string", "minLength": 1, "maxLength": MISSING_VALUE_MAX_CHARS},
             "uniqueItems": True,
         },
+        "footer_rows": {"type": "integer", "minimum": 0},
         "sensors": {
             "type": ["array", "null"],
             "items": {"type": "string", "pattern": SENSOR_NAME_RE},

@@ -20,7 +20,7 @@ import yaml
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError
 from rafi.ops.init_pairs import main_pattern
-from rafi.ops.init_survey import Survey, elapsed_kind, markers_text
+from rafi.ops.init_survey import Survey, elapsed_kind, footer_counts, markers_text
 from rafi.settings import machine_settings, validate_config
 
 #: Column at which line comments start (when the text is shorter).
@@ -218,6 +218,16 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     else:
         _text_keys(out, table.layout)
     _header_keys(out, table.headerless, table.layout)
+    footers = footer_counts(s)
+    if len(footers) > 1:
+        why = (
+            f"CHECK: the logs end in {' or '.join(map(str, footers))} summary rows; one count for every file"
+        )
+        out.add(6, f"footer_rows: {footers[-1]}", why)
+    elif footers[0]:
+        out.add(
+            6, f"footer_rows: {footers[0]}", "summary rows at the end of each log (Mean, Max, ...): dropped"
+        )
     if s.missing_values:
         markers = ", ".join(q(text) for text, _ in s.missing_values.most_common())
         why = "cells without a value in numeric columns: " + markers_text(s.missing_values)

@@ -359,6 +359,11 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
     return out
 
 
+def footer_counts(s: Survey) -> list[int]:
+    """The numbers of summary rows the logs end in (``input.footer_rows``), sorted, each once."""
+    return sorted({t.layout.get("footer_rows", 0) for t in s.logs or s.tables})
+
+
 def _checks(s: Survey) -> list[str]:
     """What the user must decide, one sentence each (key first)."""
     out = [f"column {g.letter} {g.header!r}: {g.check}" for g in s.guesses if g.check]
@@ -375,6 +380,11 @@ def _checks(s: Survey) -> list[str]:
         out.append(
             f"input.sheet: {len(group)} sheets share one layout but no pattern matches only them; "
             "give a pattern (each matching sheet is a log) or read one sheet"
+        )
+    if len(footer_counts(s)) > 1:
+        out.append(
+            "input.footer_rows: the logs end in different numbers of summary rows "
+            f"({', '.join(map(str, footer_counts(s)))}); the key drops as many at the end of every file"
         )
     if s.training.get("speeds"):
         out.append("training_speeds_rpm: decide which speeds train; the others validate")

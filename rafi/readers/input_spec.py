@@ -188,7 +188,8 @@ def check_format(out: dict, spec: dict) -> None:
 
 def check_text_layout(out: dict) -> None:
     """``sheet``, ``delimiter`` (``tab`` becomes a tab), ``decimal``, ``encoding``, ``header_row``,
-    ``skip_rows`` and ``missing_values``: how the file's text is read. ``out`` is changed in place."""
+    ``skip_rows``, ``footer_rows`` and ``missing_values``: how the file's text is read. ``out`` is
+    changed in place."""
     check_sheet(out)
     delim = out["delimiter"]
     if delim in ("tab", "\\t"):
@@ -209,9 +210,10 @@ def check_text_layout(out: dict) -> None:
             "encoding", f"unknown encoding {out['encoding']!r} (e.g. utf-8, latin-1, cp1252)"
         ) from None
     check_header_row(out)
-    v = out["skip_rows"]
-    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-        raise _spec_error("skip_rows", f"{v!r}: expected an integer >= 0")
+    for key in ("skip_rows", "footer_rows"):
+        v = out[key]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise _spec_error(key, f"{v!r}: expected an integer >= 0")
     out["missing_values"] = check_missing_values(out["missing_values"])
 
 

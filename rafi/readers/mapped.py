@@ -37,6 +37,7 @@ from rafi.readers.input_spec import (
 )
 from rafi.readers.mapped_columns import canonical_values as _canonical_values
 from rafi.readers.mapped_columns import (
+    check_footer,
     closest_headers,  # noqa: F401 (this module's API)
     column_label,
     sanitise_name,
@@ -229,6 +230,7 @@ def read_mapped(
     positions = _column_positions(table, spec)
     if not table.rows:
         raise RawFormatError(path, "header found but no data rows", line=table.header_row, sheet=table.sheet)
+    check_footer(table, positions, spec)
 
     cols = list(zip(*table.rows))
     index = pd.Index(table.row_numbers, name="line", dtype="int64")

@@ -19,7 +19,7 @@ from rafi.errors import RawFormatError
 from rafi.readers.input_layouts import column_index
 from rafi.readers.input_spec import DATE_COLUMN, norm_header, resolve_columns
 from rafi.readers.mapped_table import Table, excel_column, numeric
-from rafi.readers.mapped_time import date_and_time, row_times, row_times_error, timestamps
+from rafi.readers.mapped_time import date_and_time, is_time_cell, row_times, row_times_error, timestamps
 from rafi.readers.parsing import TO_DEG_C
 
 # --------------------------------------------------------------------------- the mapping
@@ -234,6 +234,35 @@ def frame_times(table: Table, cols: list[tuple], positions: dict[str, int], spec
         cells = date_and_time(list(cols[d]), list(cols[j]))
         return timestamps(table, cells, spec, f"{column_label(table, d)} + {column_label(table, j)}", j)
     return timestamps(table, list(cols[j]), spec, column_label(table, j), j)
+
+
+def check_footer(table: Table, positions: dict[str, int], spec: dict) -> None:
+    """The rows ``input.footer_rows`` set aside (:attr:`Table.footer`) are summary rows, not
+    samples: a row whose time cell reads as a time is refused (a file without summary rows, or
+    with fewer; the key is the same for every file of the machine). Nothing to check without a
+    time column.
+
+    Raises
+    ------
+    RawFormatError
+        Naming the row, its time and the key.
+    """
+    if not table.footer or "time" not in positions:
+        return
+    j = positions["time"]
+    for cells, row in zip(table.footer, table.footer_numbers):
+        cell = cells[j]
+        if DATE_COLUMN in positions:
+            cell = date_and_time([cells[positions[DATE_COLUMN]]], [cell])[0]
+        if is_time_cell(cell, spec):
+            n = spec["footer_rows"]
+            raise table.error(
+                f"{str(cell).strip()!r} is a sample (a time), not a summary row; input.footer_rows: {n} "
+                f"drops the last {n} rows of every file: does this file end without them, or with fewer?",
+                row=row,
+                column=column_label(table, j),
+                col_index=j,
+            )
 
 
 def canonical_values(table: Table, column: list, canon: str, col_index: int, spec: dict) -> np.ndarray:

@@ -60,6 +60,30 @@ class Table:
         self.row_numbers = row_numbers
         self.header_row = header_row
         self.sheet = sheet
+        self.footer: list[list] = []
+        self.footer_numbers: list[int] = []
+
+    def drop_footer(self, n: int) -> None:
+        """Set the last ``n`` data rows aside as summary rows (``input.footer_rows``): they are no
+        longer :attr:`rows`, but :attr:`footer` (and their numbers :attr:`footer_numbers`).
+
+        Raises
+        ------
+        RawFormatError
+            The table has no more than ``n`` data rows.
+        """
+        if n <= 0 or not self.rows:  # no data row at all: the reader says so
+            return
+        if len(self.rows) <= n:
+            raise RawFormatError(
+                self.path,
+                f"input.footer_rows: {n} summary row(s) to drop at the end, but the "
+                f"{'sheet' if self.sheet is not None else 'file'} has only {len(self.rows)} data rows",
+                line=self.row_numbers[-1] if self.row_numbers else self.header_row,
+                sheet=self.sheet,
+            )
+        self.footer, self.footer_numbers = self.rows[-n:], self.row_numbers[-n:]
+        self.rows, self.row_numbers = self.rows[:-n], self.row_numbers[:-n]
 
     def error(
         self, message: str, *, row: int | None = None, column: str | None = None, col_index: int | None = None
@@ -88,19 +112,23 @@ def read_table(path: Path, raw: bytes, spec: dict) -> Table:
     Returns
     -------
     Table
-        Header, rows and their line (csv) or row (xlsx) numbers.
+        Header, rows and their line (csv) or row (xlsx) numbers; the last ``input.footer_rows``
+        rows set aside as :attr:`Table.footer`.
 
     Raises
     ------
     RawFormatError
         On anything in the file's layout that does not follow the mapping (an empty
-        workbook file included).
+        workbook file included), or no more data rows than ``input.footer_rows``.
     """
     if spec["format"] == "csv":
-        return read_csv_table(path, raw, spec)
-    if not raw:
+        table = read_csv_table(path, raw, spec)
+    elif not raw:
         raise RawFormatError(path, "file is empty; expected an .xlsx workbook")
-    return read_xlsx_table(path, raw, spec)
+    else:
+        table = read_xlsx_table(path, raw, spec)
+    table.drop_footer(spec.get("footer_rows", 0))
+    return table
 
 
 def read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
