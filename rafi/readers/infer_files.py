@@ -151,12 +151,12 @@ def footer_rows(columns: list) -> int:
 
 
 def _without_footer(columns: list, layout: dict, notes: list) -> list:
-    """``columns`` without their summary rows (:func:`footer_rows`); ``layout['footer_rows']`` and a
-    note say how many, and which (both changed in place)."""
+    """``columns`` without their summary rows (:func:`footer_rows`); when there are some,
+    ``layout['footer_rows']`` and a note say how many, and which (both changed in place)."""
     n = footer_rows(columns)
-    layout["footer_rows"] = n
     if not n:
         return columns
+    layout["footer_rows"] = n
     texts = ", ".join(repr(str(v).strip()) for v in columns[0][-n:])
     notes.append(f"the last {n} row(s) are a summary ({texts}), not samples: left out (input.footer_rows)")
     return [list(c[:-n]) for c in columns]
