@@ -19,7 +19,14 @@ INPUT_DEFAULTS: dict = {
     "footer_rows": 0,
     "sensors": None,
     "columns": {},
-    "time": {"kind": "timestamp", "start": None, "format": None, "period_s": None, "date_column": None},
+    "time": {
+        "kind": "timestamp",
+        "start": None,
+        "format": None,
+        "period_s": None,
+        "date_column": None,
+        "timezone": None,
+    },
     "speed": {"constant_rpm": None, "constant_rpm_by_file": {}},
     "sample_period_s": None,
     "displacement": {"column": None, "unit": "um", "sign": 1},
@@ -171,6 +178,7 @@ INPUT_SCHEMA: dict = {
                 "format": {"type": ["string", "null"]},
                 "period_s": {"type": "number", "exclusiveMinimum": 0},
                 "date_column": {"type": ["string", "null"], "minLength": 1},
+                "timezone": {"type": ["string", "null"], "minLength": 1},
             },
         },
         "speed": {

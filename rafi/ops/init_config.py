@@ -20,7 +20,7 @@ import yaml
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError
 from rafi.ops.init_pairs import main_pattern
-from rafi.ops.init_survey import Survey, elapsed_kind, footer_counts, markers_text
+from rafi.ops.init_survey import Survey, clock_back_text, elapsed_kind, footer_counts, markers_text
 from rafi.settings import machine_settings, validate_config
 
 #: Column at which line comments start (when the text is shorter).
@@ -121,11 +121,13 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
         out.add(8, f"date_column: {q(s.date.header)}", f"{s.date.header!r}: {s.date.why}")
         if s.time_format:
             out.add(8, f"format: {q(s.time_format)}", "of the date and the time of day joined by a space")
+        _timezone_key(out, s)
         return
     if s.time.unit == "timestamp":
         out.add(8, "kind: timestamp", f"{s.time.header!r}: {s.time.why}")
         if s.time_format:
             out.add(8, f"format: {q(s.time_format)}")
+        _timezone_key(out, s)
         return
     out.add(8, f"kind: {elapsed_kind(s.time.unit)}", f"{s.time.header!r}: {s.time.why}")
     hint = s.first.start_hint
@@ -133,6 +135,13 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
         out.add(8, f"start: {q(hint[0])}", f"from {hint[1]}")
     else:
         out.add(8, 'start: "2026-01-01T00:00:00"', "CHECK: when elapsed second 0 was", off=True)
+
+
+def _timezone_key(out: _Lines, s: Survey) -> None:
+    """input.time.timezone, commented out, when a clock goes back by about an hour (indent 8)."""
+    if s.clock_back is not None:
+        why = f"CHECK: {clock_back_text(s.clock_back)} your logger's time zone"
+        out.add(8, 'timezone: "Europe/Berlin"', why, off=True)
 
 
 def _displacement_keys(out: _Lines, s: Survey) -> None:

@@ -39,6 +39,7 @@ from rafi.readers.infer import (
 )
 from rafi.readers.infer_files import RawTable
 from rafi.readers.mapped_time import date_and_time
+from rafi.settings import DAYLIGHT_SAVING_SHIFT_S, DAYLIGHT_SAVING_SLACK_S
 
 #: Time constant (s) of the low-pass of the speed that stands for "the spindle heats the machine"
 #: when the probe's sign is looked at.
@@ -103,6 +104,9 @@ class Survey:
         ``time`` when both files have a time column, else ``row``.
     logs : list of RawTable
         The tables surveyed as logs (of the first log's layout; partners not among them).
+    clock_back : tuple or None
+        ``(log name, data row, seconds)`` of the first step back of about an hour of a clock
+        (a daylight-saving change of a local clock: ``input.time.timezone``), else None.
     missing_values : collections.Counter
         ``input.missing_values``: the texts of cells without a value found in the numeric
         columns of the logs and partners (:func:`rafi.readers.infer.missing_markers`) and how
@@ -137,6 +141,7 @@ class Survey:
     join_by: str = "time"
     logs: list = field(default_factory=list)
     missing_values: Counter = field(default_factory=Counter)
+    clock_back: tuple | None = None
 
     @property
     def first(self) -> RawTable:
@@ -263,6 +268,17 @@ def _pairs(tables: list[RawTable]) -> tuple[list[RawTable], list[RawTable], tupl
     return (logs, others, parts) if parts else (tables, [], None)
 
 
+def _hour_back(name: str, t_s: np.ndarray) -> tuple | None:
+    """``(name, data row, seconds)`` of the first step back of a clock by about an hour (a
+    daylight-saving change), else None; the row is 1-based among the data rows."""
+    steps = np.diff(t_s)
+    near = np.abs(-steps - DAYLIGHT_SAVING_SHIFT_S) <= DAYLIGHT_SAVING_SLACK_S
+    if not near.any():
+        return None
+    k = int(np.argmax(near)) + 1
+    return name, k + 1, float(-steps[k - 1])
+
+
 def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
     """Period, steps and the probe's sign of every table (``survey`` is filled in)."""
     periods, shares = [], []
@@ -271,6 +287,10 @@ def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
         if t is None:
             survey.shapes.append(LogShape(table.name, table.n_rows, None, 0.0, ()))
             continue
+        back = _hour_back(table.name, t) if survey.time.unit in ("timestamp", "timeofday") else None
+        if back is not None:  # read as the reader reads it with input.time.timezone: an hour later
+            survey.clock_back = survey.clock_back or back
+            t = np.concatenate([t[: back[1] - 1], t[back[1] - 1 :] + DAYLIGHT_SAVING_SHIFT_S])
         period, share = sample_period(t)
         if period is not None and survey.time is not None and survey.time.unit in ("min", "h"):
             period = float(f"{period:.3g}")  # a clock in minutes or hours is rounded: 60.0012 s is 60
@@ -359,6 +379,12 @@ def survey(machine: str, tables: list[RawTable]) -> Survey:
     return out
 
 
+def clock_back_text(found: tuple) -> str:
+    """``the clock of a.csv goes back by 3540 s at data row 1081: a daylight-saving change?``"""
+    name, row, back_s = found
+    return f"the clock of {name} goes back by {back_s:g} s at data row {row}: a daylight-saving change?"
+
+
 def footer_counts(s: Survey) -> list[int]:
     """The numbers of summary rows the logs end in (``input.footer_rows``), sorted, each once."""
     return sorted({t.layout.get("footer_rows", 0) for t in s.logs or s.tables})
@@ -390,6 +416,11 @@ def _checks(s: Survey) -> list[str]:
         out.append("training_speeds_rpm: decide which speeds train; the others validate")
     if s.format == "native":
         return out
+    if s.clock_back is not None:
+        out.append(
+            f"input.time.timezone: {clock_back_text(s.clock_back)} give the logger's time zone "
+            "(an IANA name, e.g. Europe/Berlin); the steps are read as if it were given"
+        )
     if s.time is None:
         out.append("input.time.period_s: no time column; give the seconds between two rows (--period-s)")
     elif s.period_s is None or s.regular_share < REGULAR_SHARE:

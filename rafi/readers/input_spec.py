@@ -375,6 +375,7 @@ def check_time(out: dict) -> None:
             f"{tm['date_column']!r}: a date column goes with time.kind timestamp (the time column then "
             "holds the time of day)",
         )
+    check_timezone(tm)
     if tm["format"] is not None and (not isinstance(tm["format"], str) or "%" not in tm["format"]):
         raise _spec_error(
             "time.format", f"{tm['format']!r}: expected a strptime format such as '%d.%m.%Y %H:%M:%S'"
@@ -384,6 +385,32 @@ def check_time(out: dict) -> None:
         if isinstance(sp, bool) or not isinstance(sp, (int, float)) or not (math.isfinite(sp) and sp > 0):
             raise _spec_error("sample_period_s", f"{sp!r}: expected a positive number of seconds")
         out["sample_period_s"] = float(sp)
+
+
+def check_timezone(tm: dict) -> None:
+    """``time.timezone``: an IANA time zone name (``Europe/Berlin``) whose local times a timestamp
+    column holds (read into UTC, so a daylight-saving change repeats no time and leaves no gap),
+    or None (the times as written)."""
+    zone = tm["timezone"]
+    if zone is None:
+        return
+    if tm["kind"] != "timestamp":
+        raise _spec_error(
+            "time.timezone",
+            f"applies to time.kind timestamp only (kind is {tm['kind']}: counted times, not a clock's)",
+        )
+    import zoneinfo
+
+    try:
+        if not isinstance(zone, str) or not zone.strip():
+            raise ValueError(zone)
+        zoneinfo.ZoneInfo(zone.strip())
+    except (zoneinfo.ZoneInfoNotFoundError, ValueError, TypeError):
+        raise _spec_error(
+            "time.timezone",
+            f"{zone!r} is not a time zone name; expected an IANA name such as Europe/Berlin, America/Chicago",
+        ) from None
+    tm["timezone"] = zone.strip()
 
 
 def _is_default(key: str, value) -> bool:

@@ -22,6 +22,7 @@ The speed of a log without a speed column is a configured constant
 from __future__ import annotations
 
 import datetime as dt
+import re
 
 import numpy as np
 import pandas as pd
@@ -63,10 +64,73 @@ def timestamps(table: Table, values: list, spec: dict, column: str, col_index: i
     """
     if spec["time"]["kind"] in ELAPSED_SECONDS:
         return _elapsed_times(table, values, spec, column, col_index)
-    fast = _text_times(values, spec["time"]["format"])
-    if fast is not None:
-        return fast
-    return _cell_times(table, values, spec["time"]["format"], column, col_index)
+    times = _text_times(values, spec["time"]["format"])
+    if times is None:
+        times = _cell_times(table, values, spec["time"]["format"], column, col_index)
+    zone = spec["time"]["timezone"]
+    return times if zone is None else local_to_utc(table, values, times, zone, column, col_index)
+
+
+#: A text time ending in a UTC offset (``Z``, ``+01:00``, ``-0500``).
+_UTC_OFFSET = re.compile(r"(?:[zZ]|[+-]\d{2}:?\d{2})$")
+
+
+def local_to_utc(
+    table: Table, values: list, times: pd.Series, zone: str, column: str, col_index: int
+) -> pd.Series:
+    """Naive local times of the time zone ``zone`` (``input.time.timezone``) as naive UTC.
+
+    A clock that goes back an hour in the autumn writes one hour twice: the order of the rows
+    tells which is which (``ambiguous="infer"``); a time the spring change skips is moved
+    forward. So the times rise where the clock went back, and no false gap opens where it
+    went forward.
+
+    Parameters
+    ----------
+    table : Table
+        The file (words the error).
+    values : list
+        The cells of the time column, in row order.
+    times : pandas.Series
+        The cells as naive times.
+    zone : str
+        An IANA time zone name.
+    column : str
+        The header as written in the file.
+    col_index : int
+        0-based column index.
+
+    Raises
+    ------
+    RawFormatError
+        A cell carries a UTC offset (it says its zone itself), or the repeated hour of a
+        fall-back cannot be told apart by the order of the rows.
+    """
+    for k, v in enumerate(values):
+        if isinstance(v, str) and _UTC_OFFSET.search(v.strip()):
+            raise table.error(
+                f"{v.strip()!r} carries a UTC offset, while input.time.timezone is {zone!r}: the offset "
+                "says the zone already; leave input.time.timezone out",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+    try:
+        local = pd.DatetimeIndex(times).tz_localize(zone, ambiguous="infer", nonexistent="shift_forward")
+    except (ValueError, TypeError) as exc:  # pytz's AmbiguousTimeError is a ValueError
+        found = re.search(r"(\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2})", str(exc))
+        at = pd.Timestamp(found.group(1)) if found else None
+        hits = np.flatnonzero(pd.DatetimeIndex(times) == at) if at is not None else []
+        k = int(hits[0]) if len(hits) else 0
+        raise table.error(
+            f"{values[k]!r} lies in the hour repeated when the clock of {zone} went back, and the order "
+            "of the rows does not tell which of the two it is (no row repeats it, or the rows are not "
+            "in time order); split the file there, or leave input.time.timezone out",
+            row=table.row_numbers[k],
+            column=column,
+            col_index=col_index,
+        ) from None
+    return pd.Series(local.tz_convert("UTC").tz_localize(None), index=times.index)
 
 
 def date_and_time(dates: list, times: list) -> list:
