@@ -42,6 +42,12 @@ from rafi.readers.input_spec import normalise_input_spec, probe_spec
 #: Largest backwards time step (sample periods) that cleaning repairs by sorting; more is a clock reset.
 BACKWARDS_TOLERANCE_SAMPLES = 3.0
 
+#: A daylight-saving change moves a local clock by this many seconds (one hour) ...
+DAYLIGHT_SAVING_SHIFT_S = 3600.0
+#: ... and a backwards jump within this many seconds of it is worded as one (a fall-back between
+#: two samples of up to 5 min reads as a jump back of 55-60 min).
+DAYLIGHT_SAVING_SLACK_S = 300.0
+
 #: Run settings: top level of ``config.yaml`` (``--config key=value`` on the command line); each
 #: key's type, default and meaning is in :data:`rafi.contract.RUN_SETTINGS`.
 RUN_DEFAULTS: dict = defaults(RUN_SETTINGS)

@@ -427,6 +427,7 @@ def test_defaults():
         "format": None,
         "period_s": None,
         "date_column": None,
+        "timezone": None,
     }
     assert spec["speed"] == {"constant_rpm": None, "constant_rpm_by_file": {}}
     assert spec["displacement"] == {"column": None, "unit": "um", "sign": 1}

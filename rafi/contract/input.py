@@ -15,9 +15,18 @@ INPUT_DEFAULTS: dict = {
     "encoding": "utf-8",
     "header_row": 1,
     "skip_rows": 0,
+    "missing_values": [],
+    "footer_rows": 0,
     "sensors": None,
     "columns": {},
-    "time": {"kind": "timestamp", "start": None, "format": None, "period_s": None, "date_column": None},
+    "time": {
+        "kind": "timestamp",
+        "start": None,
+        "format": None,
+        "period_s": None,
+        "date_column": None,
+        "timezone": None,
+    },
     "speed": {"constant_rpm": None, "constant_rpm_by_file": {}},
     "sample_period_s": None,
     "displacement": {"column": None, "unit": "um", "sign": 1},
@@ -26,6 +35,10 @@ INPUT_DEFAULTS: dict = {
     "keep_extra": True,
     "join": None,
 }
+
+#: Longest text of ``input.missing_values`` (a logger's marker for a cell without a value: ``---``,
+#: ``#N/A``, ``NaN``, ``ERR``).
+MISSING_VALUE_MAX_CHARS = 32
 
 #: ``input.header_row`` of a file without a header row (YAML ``none`` or ``null``): the columns
 #: are then given by letter or 1-based position.
@@ -57,6 +70,8 @@ JOIN_LAYOUT_KEYS = (
     "encoding",
     "header_row",
     "skip_rows",
+    "missing_values",
+    "footer_rows",
     "columns",
     "time",
     "displacement",
@@ -152,6 +167,12 @@ INPUT_SCHEMA: dict = {
         "encoding": {"type": "string", "minLength": 1},
         "header_row": {"anyOf": [{"type": "integer", "minimum": 1}, {"enum": [NO_HEADER, None]}]},
         "skip_rows": {"type": "integer", "minimum": 0},
+        "missing_values": {
+            "type": "array",
+            "items": {"type": "string", "minLength": 1, "maxLength": MISSING_VALUE_MAX_CHARS},
+            "uniqueItems": True,
+        },
+        "footer_rows": {"type": "integer", "minimum": 0},
         "sensors": {
             "type": ["array", "null"],
             "items": {"type": "string", "pattern": SENSOR_NAME_RE},
@@ -175,6 +196,7 @@ INPUT_SCHEMA: dict = {
                 "format": {"type": ["string", "null"]},
                 "period_s": {"type": "number", "exclusiveMinimum": 0},
                 "date_column": {"type": ["string", "null"], "minLength": 1},
+                "timezone": {"type": ["string", "null"], "minLength": 1},
             },
         },
         "speed": {

@@ -67,6 +67,7 @@ import pandas as pd
 
 from rafi.contract.sensors import DEFAULT_SENSORS, frame_sensors
 from rafi.errors import RawFormatError
+from rafi.readers.checks_base import backwards_cause
 from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
 
 #: Columns of the audit table, in order (``docs/design.md``).
@@ -204,7 +205,7 @@ def clean_log(
     rows = column_rows(frame, lines, text_extras)
     samples = Samples(timestamps_ns(frame, lines, file), value_array(frame, names), lines)
 
-    samples, done = sort_by_time(samples, period, file)
+    samples, done = sort_by_time(samples, period, frame.attrs.get("source") or file, _sheet_of(frame))
     rows += done
     samples, done = drop_duplicate_times(samples, names)
     rows += done
@@ -387,13 +388,18 @@ def bridgeable(span_s, max_gap_s: float):
 # --------------------------------------------------------------------------- before the grid
 
 
-def sort_by_time(samples: Samples, period_s: float, file: str) -> tuple[Samples, list[tuple]]:
+def sort_by_time(
+    samples: Samples, period_s: float, file: str, sheet: str | None = None
+) -> tuple[Samples, list[tuple]]:
     """Step 1: sort the rows by time (stable); each local backwards step is ``reordered``.
+
+    ``file`` (the raw file's path) and ``sheet`` (of a workbook) name the error.
 
     Raises
     ------
     RawFormatError
-        A step back of more than ``BACKWARDS_TOLERANCE_SAMPLES`` periods (a clock reset).
+        A step back of more than ``BACKWARDS_TOLERANCE_SAMPLES`` periods (a clock reset, or a
+        daylight-saving change of a local clock: the message says which is likelier).
     """
     times, lines = samples.times_ns, samples.lines
     if len(times) <= 1:
@@ -402,13 +408,14 @@ def sort_by_time(samples: Samples, period_s: float, file: str) -> tuple[Samples,
     reset = back_ns > BACKWARDS_TOLERANCE_SAMPLES * period_s * 1e9 + 0.5
     if reset.any():
         i = int(np.argmax(reset)) + 1
+        back_s = back_ns[i - 1] / 1e9
         raise RawFormatError(
             file,
-            f"timestamps go backwards by {fmt(back_ns[i - 1] / 1e9)} s at line "
-            f"{lines[i]}; expected increasing times (a clock reset? split the file or "
-            "fix the clock)",
+            f"timestamps go backwards by {fmt(back_s)} s at {'row' if sheet else 'line'} "
+            f"{lines[i]}; expected increasing times ({backwards_cause(back_s)})",
             line=int(lines[i]),
             column="time",
+            sheet=sheet,
         )
     steps = np.flatnonzero(times[1:] < times[:-1]) + 1
     rows = [
@@ -426,6 +433,13 @@ def sort_by_time(samples: Samples, period_s: float, file: str) -> tuple[Samples,
     if not len(steps):
         return samples, rows
     return samples.take(np.argsort(times, kind="stable")), rows
+
+
+def _sheet_of(frame: pd.DataFrame) -> str | None:
+    """The workbook sheet a frame was read from (``attrs['metadata']['sheet']``), else None."""
+    meta = frame.attrs.get("metadata")
+    sheet = meta.get("sheet") if isinstance(meta, dict) else None
+    return sheet if isinstance(sheet, str) else None
 
 
 def drop_repeated_rows(

@@ -21,7 +21,7 @@ from rafi.contract import EPOCH_CLOCKS
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError
 from rafi.ops.init_pairs import main_pattern
-from rafi.ops.init_survey import Survey, elapsed_kind
+from rafi.ops.init_survey import Survey, clock_back_text, elapsed_kind, footer_counts, markers_text
 from rafi.settings import machine_settings, validate_config
 
 #: Column at which line comments start (when the text is shorter).
@@ -122,11 +122,13 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
         out.add(8, f"date_column: {q(s.date.header)}", f"{s.date.header!r}: {s.date.why}")
         if s.time_format:
             out.add(8, f"format: {q(s.time_format)}", "of the date and the time of day joined by a space")
+        _timezone_key(out, s)
         return
     if s.time.unit == "timestamp":
         out.add(8, "kind: timestamp", f"{s.time.header!r}: {s.time.why}")
         if s.time_format:
             out.add(8, f"format: {q(s.time_format)}")
+        _timezone_key(out, s)
         return
     if s.time.unit in EPOCH_CLOCKS:
         out.add(8, f"kind: {s.time.unit}", f"{s.time.header!r}: {s.time.why}")
@@ -137,6 +139,13 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
         out.add(8, f"start: {q(hint[0])}", f"from {hint[1]}")
     else:
         out.add(8, 'start: "2026-01-01T00:00:00"', "CHECK: when elapsed second 0 was", off=True)
+
+
+def _timezone_key(out: _Lines, s: Survey) -> None:
+    """input.time.timezone, commented out, when a clock goes back by about an hour (indent 8)."""
+    if s.clock_back is not None:
+        why = f"CHECK: {clock_back_text(s.clock_back)} your logger's time zone"
+        out.add(8, 'timezone: "Europe/Berlin"', why, off=True)
 
 
 def _displacement_keys(out: _Lines, s: Survey) -> None:
@@ -231,6 +240,20 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     else:
         _text_keys(out, table.layout)
     _header_keys(out, table.headerless, table.layout)
+    footers = footer_counts(s)
+    if len(footers) > 1:
+        why = (
+            f"CHECK: the logs end in {' or '.join(map(str, footers))} summary rows; one count for every file"
+        )
+        out.add(6, f"footer_rows: {footers[-1]}", why)
+    elif footers[0]:
+        out.add(
+            6, f"footer_rows: {footers[0]}", "summary rows at the end of each log (Mean, Max, ...): dropped"
+        )
+    if s.missing_values:
+        markers = ", ".join(q(text) for text, _ in s.missing_values.most_common())
+        why = "cells without a value in numeric columns: " + markers_text(s.missing_values)
+        out.add(6, f"missing_values: [{markers}]", why)
     _column_keys(out, s)
     _time_keys(out, s, period)
     if s.speed is None:

@@ -10,6 +10,7 @@ the block, :mod:`rafi.ops.init_cli` prints the findings.
 from __future__ import annotations
 
 import re
+from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
@@ -28,9 +29,18 @@ from rafi.ops.init_layout import (
     speed_steps,
 )
 from rafi.ops.init_pairs import pair_parts, sheet_glob
-from rafi.readers.infer import ColumnGuess, guess_columns, sensor_names, to_numbers, to_times
+from rafi.readers.infer import (
+    MARKERS_MAX,
+    ColumnGuess,
+    guess_columns,
+    missing_markers,
+    sensor_names,
+    to_numbers,
+    to_times,
+)
 from rafi.readers.infer_files import RawTable
 from rafi.readers.mapped_time import date_and_time
+from rafi.settings import DAYLIGHT_SAVING_SHIFT_S, DAYLIGHT_SAVING_SLACK_S
 
 #: Time constant (s) of the low-pass of the speed that stands for "the spindle heats the machine"
 #: when the probe's sign is looked at.
@@ -98,6 +108,13 @@ class Survey:
     given_period_s : float or None
         The sample period the user gave (``--period-s``): the clock of a log without a time
         column, row k at k times it.
+    clock_back : tuple or None
+        ``(log name, data row, seconds)`` of the first step back of about an hour of a clock
+        (a daylight-saving change of a local clock: ``input.time.timezone``), else None.
+    missing_values : collections.Counter
+        ``input.missing_values``: the texts of cells without a value found in the numeric
+        columns of the logs and partners (:func:`rafi.readers.infer.missing_markers`) and how
+        many cells hold each.
     """
 
     machine: str
@@ -128,6 +145,8 @@ class Survey:
     join_by: str = "time"
     logs: list = field(default_factory=list)
     given_period_s: float | None = None
+    missing_values: Counter = field(default_factory=Counter)
+    clock_back: tuple | None = None
 
     @property
     def first(self) -> RawTable:
@@ -241,13 +260,22 @@ def _probe_cells(survey: Survey, table: RawTable) -> np.ndarray | None:
     return to_numbers(column_cells(partner, survey.probes[0]), partner.layout.get("decimal", "."))
 
 
-def _guesses(table: RawTable) -> list[ColumnGuess]:
-    """Every column's guess; a table without a header row is guessed by content alone and its
-    columns are named by letter."""
+def _guesses(table: RawTable, markers=()) -> list[ColumnGuess]:
+    """Every column's guess (``markers``: missing-value texts, read as empty cells); a table
+    without a header row is guessed by content alone and its columns are named by letter."""
+    decimal = table.layout.get("decimal", ".")
     if not table.headerless:
-        return guess_columns(table.header, table.columns, table.layout.get("decimal", "."), table.labels)
-    guesses = guess_columns([""] * len(table.header), table.columns, table.layout.get("decimal", "."))
+        return guess_columns(table.header, table.columns, decimal, table.labels, markers)
+    guesses = guess_columns([""] * len(table.header), table.columns, decimal, markers=markers)
     return [replace(g, header=g.letter) for g in guesses]
+
+
+def _markers(tables: list[RawTable]) -> Counter:
+    """The missing-value markers of ``tables`` together (:func:`rafi.readers.infer.missing_markers`)."""
+    found: Counter = Counter()
+    for t in tables:
+        found.update(missing_markers(t.columns, t.layout.get("decimal", ".")))
+    return found if len(found) <= MARKERS_MAX else Counter()
 
 
 def _pairs(tables: list[RawTable]) -> tuple[list[RawTable], list[RawTable], tuple | None]:
@@ -268,6 +296,17 @@ def _pairs(tables: list[RawTable]) -> tuple[list[RawTable], list[RawTable], tupl
     return (logs, others, parts) if parts else (tables, [], None)
 
 
+def _hour_back(name: str, t_s: np.ndarray) -> tuple | None:
+    """``(name, data row, seconds)`` of the first step back of a clock by about an hour (a
+    daylight-saving change), else None; the row is 1-based among the data rows."""
+    steps = np.diff(t_s)
+    near = np.abs(-steps - DAYLIGHT_SAVING_SHIFT_S) <= DAYLIGHT_SAVING_SLACK_S
+    if not near.any():
+        return None
+    k = int(np.argmax(near)) + 1
+    return name, k + 1, float(-steps[k - 1])
+
+
 def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
     """Period, steps and the probe's sign of every table (``survey`` is filled in)."""
     periods, shares = [], []
@@ -276,6 +315,11 @@ def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
         if t is None:
             survey.shapes.append(LogShape(table.name, table.n_rows, None, 0.0, ()))
             continue
+        clock_text = survey.time is not None and survey.time.unit in ("timestamp", "timeofday")
+        back = _hour_back(table.name, t) if clock_text else None
+        if back is not None:  # read as the reader reads it with input.time.timezone: an hour later
+            survey.clock_back = survey.clock_back or back
+            t = np.concatenate([t[: back[1] - 1], t[back[1] - 1 :] + DAYLIGHT_SAVING_SHIFT_S])
         period, share = sample_period(t)
         if period is not None and survey.time is not None and survey.time.unit in ("min", "h", "excel_days"):
             period = float(f"{period:.3g}")  # a clock in minutes, hours or days is rounded: 60.0012 s is 60
@@ -312,11 +356,12 @@ def survey(machine: str, tables: list[RawTable], *, period_s: float | None = Non
     """
     logs, partners, parts = _pairs(tables)
     first = logs[0]
-    guesses = _guesses(first)
+    markers = _markers([t for t in logs if t.header == first.header and t.format == first.format] + partners)
+    guesses = _guesses(first, markers)
     temps = [g for g in guesses if g.role == "temperature"]
     names = sensor_names([g.header for g in temps]) if not first.headerless else []
     names = names or [f"T{k}" for k in range(1, len(temps) + 1)]
-    partner_guesses = _guesses(partners[0]) if partners else []
+    partner_guesses = _guesses(partners[0], markers) if partners else []
     out = Survey(
         machine=machine,
         tables=tables,
@@ -330,6 +375,7 @@ def survey(machine: str, tables: list[RawTable], *, period_s: float | None = Non
         partner_guesses=partner_guesses,
         join=parts,
         given_period_s=period_s,
+        missing_values=markers,
     )
     if parts:
         out.notes.append(
@@ -353,6 +399,8 @@ def survey(machine: str, tables: list[RawTable], *, period_s: float | None = Non
     if len(first.sheet_group) > 1:
         out.sheet_glob = sheet_glob(list(first.sheet_group), [x.name for x in first.sheets])
     out.notes += list(dict.fromkeys(n for t in same for n in t.notes))  # once, not once a file
+    if markers:
+        out.notes.append(f"missing values: {markers_text(markers)}: read as missing (input.missing_values)")
     _log_shapes(out, same)
     if any(s.steps for s in out.shapes):
         out.kind, out.kind_why = log_kind(out.shapes)
@@ -389,6 +437,17 @@ def _without_steps(s: Survey) -> str:
     return f"without a speed held for {STEP_MIN_S / 60:g} min or more"
 
 
+def clock_back_text(found: tuple) -> str:
+    """``the clock of a.csv goes back by 3540 s at data row 1081: a daylight-saving change?``"""
+    name, row, back_s = found
+    return f"the clock of {name} goes back by {back_s:g} s at data row {row}: a daylight-saving change?"
+
+
+def footer_counts(s: Survey) -> list[int]:
+    """The numbers of summary rows the logs end in (``input.footer_rows``), sorted, each once."""
+    return sorted({t.layout.get("footer_rows", 0) for t in s.logs or s.tables})
+
+
 def _checks(s: Survey) -> list[str]:
     """What the user must decide, one sentence each (key first)."""
     out = [f"column {g.letter} {g.header!r}: {g.check}" for g in s.guesses if g.check]
@@ -406,10 +465,20 @@ def _checks(s: Survey) -> list[str]:
             f"input.sheet: {len(group)} sheets share one layout but no pattern matches only them; "
             "give a pattern (each matching sheet is a log) or read one sheet"
         )
+    if len(footer_counts(s)) > 1:
+        out.append(
+            "input.footer_rows: the logs end in different numbers of summary rows "
+            f"({', '.join(map(str, footer_counts(s)))}); the key drops as many at the end of every file"
+        )
     if s.training.get("speeds"):
         out.append("training_speeds_rpm: decide which speeds train; the others validate")
     if s.format == "native":
         return out
+    if s.clock_back is not None:
+        out.append(
+            f"input.time.timezone: {clock_back_text(s.clock_back)} give the logger's time zone "
+            "(an IANA name, e.g. Europe/Berlin); the steps are read as if it were given"
+        )
     if s.time is None and s.given_period_s is None:
         out.append("input.time.period_s: no time column; give the seconds between two rows (--period-s)")
     elif s.period_s is None or s.regular_share < REGULAR_SHARE:
@@ -434,6 +503,15 @@ def _checks(s: Survey) -> list[str]:
                 "not a displacement, and give a probe its own unit or sign where it differs"
             )
     return out
+
+
+def markers_text(markers) -> str:
+    """``'---' in 9 cells, 'NaN' in 3`` (most first)."""
+    counts = markers.most_common()
+    return ", ".join(
+        f"{text!r} in {n} cell{'s' if n != 1 else ''}" if k == 0 else f"{text!r} in {n}"
+        for k, (text, n) in enumerate(counts)
+    )
 
 
 def short_name(path: str | Path) -> str:

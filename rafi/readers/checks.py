@@ -42,7 +42,7 @@ import pandas as pd
 from rafi.contract.sensors import frame_sensors
 from rafi.readers import checks_channels as channels
 from rafi.readers import checks_units as units
-from rafi.readers.checks_base import CheckWarning, Signals, Where
+from rafi.readers.checks_base import CheckWarning, Signals, Where, backwards_cause
 from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
 
 #: Every check id of the per-file checks (docs/raw-format.md, "Checks").
@@ -129,7 +129,7 @@ def _check_time(frame, where, t, lines, *, sample_period_s, backwards_tolerance_
         raise where.error(
             f"time goes back from {prev:%Y-%m-%dT%H:%M:%S} to {cur:%Y-%m-%dT%H:%M:%S} "
             f"({-steps[k - 1]:.0f} s, more than {backwards_tolerance_samples:g} samples of "
-            f"{sample_period_s:g} s): a clock reset? split the file there or correct the clock",
+            f"{sample_period_s:g} s): {backwards_cause(-steps[k - 1])}",
             line=lines[k],
             column="time",
             check="clock_reset",

@@ -30,6 +30,7 @@ from __future__ import annotations
 
 import datetime as dt
 import re
+from collections import Counter
 from dataclasses import dataclass
 
 import numpy as np
@@ -265,6 +266,54 @@ def to_times(cells) -> tuple[np.ndarray | None, str | None, str | None]:
     return parsed.to_numpy(), fmt, check
 
 
+#: Most distinct texts of a table's numeric columns read as missing-value markers; more are text.
+MARKERS_MAX = 8
+
+#: Least share of numbers among the filled cells of a column whose other cells may be markers.
+MARKER_COLUMN_NUMBERS = 0.5
+
+
+def missing_markers(columns: list, decimal: str = ".") -> Counter:
+    """The texts a logger writes for a cell without a value (``---``, ``#N/A``, ``NaN``, ``ERR``,
+    ``n/a``): text cells without a digit in columns otherwise of numbers.
+
+    Parameters
+    ----------
+    columns : list of sequence
+        The cells of each column of a table.
+    decimal : str
+        The decimal mark of text cells.
+
+    Returns
+    -------
+    collections.Counter
+        Marker (stripped) -> how many cells hold it. Empty when none is found, or when more than
+        :data:`MARKERS_MAX` distinct texts are (the columns hold text, not markers). A column
+        whose numbers are fewer than :data:`MARKER_COLUMN_NUMBERS` of its cells, or whose other
+        texts carry a digit (dates, ``12a``), gives none.
+    """
+    found: Counter = Counter()
+    for cells in columns:
+        filled = [c for c in cells if c is not None and str(c).strip() != ""]
+        if not filled:
+            continue
+        numbers = to_numbers(filled, decimal)
+        texts = [str(c).strip() for c, x in zip(filled, numbers) if np.isnan(x) and isinstance(c, str)]
+        if not texts or len(filled) - len(texts) < MARKER_COLUMN_NUMBERS * len(filled):
+            continue
+        if any(ch.isdigit() for t in texts for ch in t):
+            continue
+        found.update(texts)
+    return found if len(found) <= MARKERS_MAX else Counter()
+
+
+def without_markers(cells, markers) -> list:
+    """``cells`` with every text cell that is one of ``markers`` (stripped) as None (a missing value)."""
+    if not markers:
+        return list(cells)
+    return [None if isinstance(c, str) and c.strip() in markers else c for c in cells]
+
+
 # --------------------------------------------------------------------------- content features
 
 
@@ -494,7 +543,11 @@ def _numeric_guess(header: str, v: np.ndarray, hints: set, guess) -> ColumnGuess
 
 
 def guess_columns(
-    header: list[str], columns: list, decimal: str = ".", labels: list[str] | None = None
+    header: list[str],
+    columns: list,
+    decimal: str = ".",
+    labels: list[str] | None = None,
+    markers=(),
 ) -> list[ColumnGuess]:
     """Every column's guess, with one time and one speed column at most.
 
@@ -508,6 +561,8 @@ def guess_columns(
         The decimal mark of text cells.
     labels : list of str, optional
         Each column's label rows after the header (units).
+    markers : collection of str
+        Missing-value markers (:func:`missing_markers`): such cells are read as empty.
 
     Returns
     -------
@@ -517,7 +572,8 @@ def guess_columns(
     """
     labels = labels or [""] * len(header)
     guesses = [
-        guess_column(j, h, c, decimal, lab) for j, (h, c, lab) in enumerate(zip(header, columns, labels))
+        guess_column(j, h, without_markers(c, markers), decimal, lab)
+        for j, (h, c, lab) in enumerate(zip(header, columns, labels))
     ]
     if not any(g.role == "date" for g in guesses):  # a time of day needs its date
         guesses = [

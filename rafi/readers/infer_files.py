@@ -125,6 +125,44 @@ def _is_number(text) -> bool:
     return True
 
 
+#: Most rows at the end of a table taken as summary rows (``Mean``, ``Max``, ...).
+FOOTER_MAX_ROWS = 10
+
+_CLOCK_TEXT = re.compile(r"^\d{1,2}:\d{2}")
+
+
+def footer_rows(columns: list) -> int:
+    """How many rows at the end of a table are summary rows (``Mean``, ``Max``, ``Average``): its
+    last rows whose first column holds text that is neither a number nor a date nor a time of
+    day, below cells that all are (``input.footer_rows``). 0 when there are none, more than
+    :data:`FOOTER_MAX_ROWS`, or as many as half the rows."""
+    if not columns or not columns[0]:
+        return 0
+    first = columns[0]
+    n = 0
+    for v in reversed(first):
+        if not (isinstance(v, str) and v.strip()) or _is_number(v) or _CLOCK_TEXT.match(v.strip()):
+            break
+        n += 1
+    if not n or n > FOOTER_MAX_ROWS or 2 * n >= len(first):
+        return 0
+    body = _filled(first[:-n])
+    timeish = [c for c in body if _is_number(c) or (isinstance(c, str) and _CLOCK_TEXT.match(c.strip()))]
+    return n if body and len(timeish) == len(body) else 0
+
+
+def _without_footer(columns: list, layout: dict, notes: list) -> list:
+    """``columns`` without their summary rows (:func:`footer_rows`); when there are some,
+    ``layout['footer_rows']`` and a note say how many, and which (both changed in place)."""
+    n = footer_rows(columns)
+    if not n:
+        return columns
+    layout["footer_rows"] = n
+    texts = ", ".join(repr(str(v).strip()) for v in columns[0][-n:])
+    notes.append(f"the last {n} row(s) are a summary ({texts}), not samples: left out (input.footer_rows)")
+    return [list(c[:-n]) for c in columns]
+
+
 def _filled(cells) -> list:
     return [c for c in cells if c is not None and str(c).strip() != ""]
 
@@ -311,12 +349,13 @@ def _read_text(path: Path, raw: bytes) -> RawTable:
         notes = [f"{spec['skip_rows']} label row(s) after the header skipped"] if spec["skip_rows"] else []
     native = _native_header(header) and found["delimiter"] == ","
     layout = {k: spec[k] for k in ("delimiter", "decimal", "encoding", "header_row", "skip_rows")}
+    columns = [list(c) for c in zip(*table.rows)] if table.rows else [[] for _ in header]
     return RawTable(
         path,
         "native" if native else "csv",
         layout,
         header,
-        [list(c) for c in zip(*table.rows)] if table.rows else [[] for _ in header],
+        columns if native else _without_footer(columns, layout, notes),
         meta=meta,
         notes=notes,
         labels=labels,
@@ -409,16 +448,21 @@ def _read_workbook(path: Path, raw: bytes) -> list[RawTable]:
     out = []
     for name in [first, *twins]:
         header_row, skip, header, data, labels = tables[name]
+        layout = {"sheet": name, "header_row": header_row, "skip_rows": skip}
+        own = list(notes) if name == first else []
+        columns = _without_footer(
+            [list(c) for c in zip(*data)] if data else [[] for _ in header], layout, own
+        )
         out.append(
             RawTable(
                 path,
                 "xlsx",
-                {"sheet": name, "header_row": header_row, "skip_rows": skip},
+                layout,
                 header,
-                [list(c) for c in zip(*data)] if data else [[] for _ in header],
+                columns,
                 sheets=sheets,
                 start_hint=start,
-                notes=notes if name == first else [],
+                notes=own,
                 labels=labels,
                 sheet_group=tuple(group),
             )

@@ -42,6 +42,7 @@ from rafi.contract import (  # noqa: F401 (INPUT_SCHEMA, TIME_KINDS: part of thi
     TEMPERATURE_UNITS,
     TIME_KINDS,
 )
+from rafi.contract.input import MISSING_VALUE_MAX_CHARS
 from rafi.errors import InputSpecError, bound_message, short_path
 from rafi.readers.discovery import (
     SKIP_PREFIX,
@@ -187,8 +188,9 @@ def check_format(out: dict, spec: dict) -> None:
 
 
 def check_text_layout(out: dict) -> None:
-    """``sheet``, ``delimiter`` (``tab`` becomes a tab), ``decimal``, ``encoding``, ``header_row``
-    and ``skip_rows``: how the file's text is read. ``out`` is changed in place."""
+    """``sheet``, ``delimiter`` (``tab`` becomes a tab), ``decimal``, ``encoding``, ``header_row``,
+    ``skip_rows``, ``footer_rows`` and ``missing_values``: how the file's text is read. ``out`` is
+    changed in place."""
     check_sheet(out)
     delim = out["delimiter"]
     if delim in ("tab", "\\t"):
@@ -209,9 +211,71 @@ def check_text_layout(out: dict) -> None:
             "encoding", f"unknown encoding {out['encoding']!r} (e.g. utf-8, latin-1, cp1252)"
         ) from None
     check_header_row(out)
-    v = out["skip_rows"]
-    if isinstance(v, bool) or not isinstance(v, int) or v < 0:
-        raise _spec_error("skip_rows", f"{v!r}: expected an integer >= 0")
+    for key in ("skip_rows", "footer_rows"):
+        v = out[key]
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise _spec_error(key, f"{v!r}: expected an integer >= 0")
+    out["missing_values"] = check_missing_values(out["missing_values"])
+
+
+def check_missing_values(markers) -> list[str]:
+    """``input.missing_values``: the texts a logger writes in a cell without a value (``---``,
+    ``#N/A``, ``NaN``), each read as missing in every numeric column.
+
+    Parameters
+    ----------
+    markers : list of str or None
+        As written in the config (``None``: none).
+
+    Returns
+    -------
+    list of str
+        The markers, stripped (cells are compared stripped), in the order given.
+
+    Raises
+    ------
+    InputSpecError
+        Not a list; a marker that is not text (YAML reads ``null``, ``yes`` or ``1.5`` as no
+        text: quote it), empty, longer than :data:`rafi.contract.input.MISSING_VALUE_MAX_CHARS`
+        characters, a number (a number a sensor writes for no value is
+        ``clean.open_circuit_values``), or given twice.
+    """
+    if markers is None:
+        return []
+    if not isinstance(markers, (list, tuple)):
+        raise _spec_error(
+            "missing_values", f'{markers!r}: expected a list of texts, e.g. ["---", "#N/A", "NaN"]'
+        )
+    out: list[str] = []
+    for k, marker in enumerate(markers):
+        key = f"missing_values[{k}]"
+        if not isinstance(marker, str):
+            raise _spec_error(
+                key, f'{marker!r} is not a text; quote the marker as the file writes it ("#N/A", "null")'
+            )
+        text = marker.strip()
+        if not text or len(text) > MISSING_VALUE_MAX_CHARS:
+            raise _spec_error(
+                key, f"{marker!r}: expected the text of a cell, 1 to {MISSING_VALUE_MAX_CHARS} characters"
+            )
+        if _is_finite_number(text):
+            raise _spec_error(
+                key,
+                f"{marker!r} is a number; a number a sensor reports when it has no reading is "
+                "clean.open_circuit_values",
+            )
+        if text in out:
+            raise _spec_error(key, f"{marker!r} is listed twice")
+        out.append(text)
+    return out
+
+
+def _is_finite_number(text: str) -> bool:
+    """True if ``text`` reads as a finite number with a decimal point or comma (``-9999``, ``1,5``)."""
+    try:
+        return math.isfinite(float(text.replace(",", ".")))
+    except ValueError:
+        return False
 
 
 def check_columns(out: dict) -> None:
@@ -318,6 +382,7 @@ def check_time(out: dict) -> None:
             f"{tm['date_column']!r}: a date column goes with time.kind timestamp (the time column then "
             "holds the time of day)",
         )
+    check_timezone(tm)
     if tm["format"] is not None and (not isinstance(tm["format"], str) or "%" not in tm["format"]):
         raise _spec_error(
             "time.format", f"{tm['format']!r}: expected a strptime format such as '%d.%m.%Y %H:%M:%S'"
@@ -327,6 +392,32 @@ def check_time(out: dict) -> None:
         if isinstance(sp, bool) or not isinstance(sp, (int, float)) or not (math.isfinite(sp) and sp > 0):
             raise _spec_error("sample_period_s", f"{sp!r}: expected a positive number of seconds")
         out["sample_period_s"] = float(sp)
+
+
+def check_timezone(tm: dict) -> None:
+    """``time.timezone``: an IANA time zone name (``Europe/Berlin``) whose local times a timestamp
+    column holds (read into UTC, so a daylight-saving change repeats no time and leaves no gap),
+    or None (the times as written)."""
+    zone = tm["timezone"]
+    if zone is None:
+        return
+    if tm["kind"] != "timestamp":
+        raise _spec_error(
+            "time.timezone",
+            f"applies to time.kind timestamp only (kind is {tm['kind']}: counted times, not a clock's)",
+        )
+    import zoneinfo
+
+    try:
+        if not isinstance(zone, str) or not zone.strip():
+            raise ValueError(zone)
+        zoneinfo.ZoneInfo(zone.strip())
+    except (zoneinfo.ZoneInfoNotFoundError, ValueError, TypeError):
+        raise _spec_error(
+            "time.timezone",
+            f"{zone!r} is not a time zone name; expected an IANA name such as Europe/Berlin, America/Chicago",
+        ) from None
+    tm["timezone"] = zone.strip()
 
 
 def _is_default(key: str, value) -> bool:

@@ -37,6 +37,7 @@ from rafi.readers.input_spec import (
 )
 from rafi.readers.mapped_columns import canonical_values as _canonical_values
 from rafi.readers.mapped_columns import (
+    check_footer,
     closest_headers,  # noqa: F401 (this module's API)
     column_label,
     sanitise_name,
@@ -96,11 +97,12 @@ def _add_extra_columns(
     positions : dict
         Canonical column -> 0-based column index (these columns are not repeated).
     spec : dict
-        The normalised ``input:`` mapping (``decimal``).
+        The normalised ``input:`` mapping (``decimal``, ``missing_values``).
 
     Notes
     -----
-    A column is numbers if every cell is one, else text. A column without a header is
+    A column is numbers if every cell is one (or empty, or a marker of
+    ``input.missing_values``), else text. A column without a header is
     named after its letter (``column_x``) and left out when it is empty too; a name
     already taken gets ``_2``, ``_3``, ...
     """
@@ -118,7 +120,8 @@ def _add_extra_columns(
             new, n = f"{base}_{n}", n + 1
         taken.add(new)
         try:
-            frame[new] = numeric(table, values, spec["decimal"], name, j, "a number")
+            markers = spec["missing_values"]
+            frame[new] = numeric(table, values, spec["decimal"], name, j, "a number", missing=markers)
         except RawFormatError:
             frame[new] = pd.Series(text(values), index=frame.index, dtype="str")
 
@@ -227,6 +230,7 @@ def read_mapped(
     positions = _column_positions(table, spec)
     if not table.rows:
         raise RawFormatError(path, "header found but no data rows", line=table.header_row, sheet=table.sheet)
+    check_footer(table, positions, spec)
 
     cols = list(zip(*table.rows))
     index = pd.Index(table.row_numbers, name="line", dtype="int64")

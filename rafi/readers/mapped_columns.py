@@ -19,7 +19,7 @@ from rafi.errors import RawFormatError
 from rafi.readers.input_layouts import column_index
 from rafi.readers.input_spec import DATE_COLUMN, norm_header, resolve_columns
 from rafi.readers.mapped_table import Table, excel_column, numeric
-from rafi.readers.mapped_time import date_and_time, row_times, row_times_error, timestamps
+from rafi.readers.mapped_time import date_and_time, is_time_cell, row_times, row_times_error, timestamps
 from rafi.readers.parsing import TO_DEG_C
 
 # --------------------------------------------------------------------------- the mapping
@@ -236,6 +236,35 @@ def frame_times(table: Table, cols: list[tuple], positions: dict[str, int], spec
     return timestamps(table, list(cols[j]), spec, column_label(table, j), j)
 
 
+def check_footer(table: Table, positions: dict[str, int], spec: dict) -> None:
+    """The rows ``input.footer_rows`` set aside (:attr:`Table.footer`) are summary rows, not
+    samples: a row whose time cell reads as a time is refused (a file without summary rows, or
+    with fewer; the key is the same for every file of the machine). Nothing to check without a
+    time column.
+
+    Raises
+    ------
+    RawFormatError
+        Naming the row, its time and the key.
+    """
+    if not table.footer or "time" not in positions:
+        return
+    j = positions["time"]
+    for cells, row in zip(table.footer, table.footer_numbers):
+        cell = cells[j]
+        if DATE_COLUMN in positions:
+            cell = date_and_time([cells[positions[DATE_COLUMN]]], [cell])[0]
+        if is_time_cell(cell, spec):
+            n = spec["footer_rows"]
+            raise table.error(
+                f"{str(cell).strip()!r} is a sample (a time), not a summary row; input.footer_rows: {n} "
+                f"drops the last {n} rows of every file: does this file end without them, or with fewer?",
+                row=row,
+                column=column_label(table, j),
+                col_index=j,
+            )
+
+
 def canonical_values(table: Table, column: list, canon: str, col_index: int, spec: dict) -> np.ndarray:
     """One numeric canonical column in the canonical unit and sign (um, deg C, r/min).
 
@@ -250,14 +279,15 @@ def canonical_values(table: Table, column: list, canon: str, col_index: int, spe
     col_index : int
         0-based index of the column in the file.
     spec : dict
-        The normalised ``input:`` mapping (``decimal``, ``displacement.unit`` and
-        ``sign``, ``temperature_unit``).
+        The normalised ``input:`` mapping (``decimal``, ``missing_values``, ``displacement.unit``
+        and ``sign``, ``temperature_unit``).
 
     Returns
     -------
     numpy.ndarray
-        ``float64``; empty cells NaN; a displacement in mm times 1000 and by its sign
-        (never -0.0), a temperature in K or deg F in deg C (:data:`rafi.readers.parsing.TO_DEG_C`).
+        ``float64``; empty cells and ``input.missing_values`` markers NaN; a displacement in mm
+        times 1000 and by its sign (never -0.0), a temperature in K or deg F in deg C
+        (:data:`rafi.readers.parsing.TO_DEG_C`).
 
     Raises
     ------
@@ -268,7 +298,8 @@ def canonical_values(table: Table, column: list, canon: str, col_index: int, spe
         canon, "deg " + spec["temperature_unit"]
     )
     label = column_label(table, col_index)
-    values = numeric(table, column, spec["decimal"], label, col_index, f"a number ({unit}) for {canon}")
+    what = f"a number ({unit}) for {canon}"
+    values = numeric(table, column, spec["decimal"], label, col_index, what, missing=spec["missing_values"])
     if canon == "disp_um":
         values = values * (1000.0 if spec["displacement"]["unit"] == "mm" else 1.0)
         values = values * spec["displacement"]["sign"] + 0.0  # no -0.0

@@ -17,9 +17,11 @@ from __future__ import annotations
 import datetime as dt
 import difflib
 import io
+import json
 import math
 import re
 import zipfile
+from collections.abc import Collection
 from pathlib import Path
 
 import numpy as np
@@ -58,6 +60,30 @@ class Table:
         self.row_numbers = row_numbers
         self.header_row = header_row
         self.sheet = sheet
+        self.footer: list[list] = []
+        self.footer_numbers: list[int] = []
+
+    def drop_footer(self, n: int) -> None:
+        """Set the last ``n`` data rows aside as summary rows (``input.footer_rows``): they are no
+        longer :attr:`rows`, but :attr:`footer` (and their numbers :attr:`footer_numbers`).
+
+        Raises
+        ------
+        RawFormatError
+            The table has no more than ``n`` data rows.
+        """
+        if n <= 0 or not self.rows:  # no data row at all: the reader says so
+            return
+        if len(self.rows) <= n:
+            raise RawFormatError(
+                self.path,
+                f"input.footer_rows: {n} summary row(s) to drop at the end, but the "
+                f"{'sheet' if self.sheet is not None else 'file'} has only {len(self.rows)} data rows",
+                line=self.row_numbers[-1] if self.row_numbers else self.header_row,
+                sheet=self.sheet,
+            )
+        self.footer, self.footer_numbers = self.rows[-n:], self.row_numbers[-n:]
+        self.rows, self.row_numbers = self.rows[:-n], self.row_numbers[:-n]
 
     def error(
         self, message: str, *, row: int | None = None, column: str | None = None, col_index: int | None = None
@@ -86,19 +112,23 @@ def read_table(path: Path, raw: bytes, spec: dict) -> Table:
     Returns
     -------
     Table
-        Header, rows and their line (csv) or row (xlsx) numbers.
+        Header, rows and their line (csv) or row (xlsx) numbers; the last ``input.footer_rows``
+        rows set aside as :attr:`Table.footer`.
 
     Raises
     ------
     RawFormatError
         On anything in the file's layout that does not follow the mapping (an empty
-        workbook file included).
+        workbook file included), or no more data rows than ``input.footer_rows``.
     """
     if spec["format"] == "csv":
-        return read_csv_table(path, raw, spec)
-    if not raw:
+        table = read_csv_table(path, raw, spec)
+    elif not raw:
         raise RawFormatError(path, "file is empty; expected an .xlsx workbook")
-    return read_xlsx_table(path, raw, spec)
+    else:
+        table = read_xlsx_table(path, raw, spec)
+    table.drop_footer(spec.get("footer_rows", 0))
+    return table
 
 
 def read_csv_table(path: Path, raw: bytes, spec: dict) -> Table:
@@ -496,7 +526,16 @@ def check_formulas(table: Table, header_row: list, raw: bytes | None = None) -> 
 _THOUSANDS_POINT = re.compile(r"^[+-]?\d{1,3}(\.\d{3})+(,\d*)?$")
 
 
-def numeric(table: Table, values: list, decimal: str, column: str, col_index: int, what: str) -> np.ndarray:
+def numeric(
+    table: Table,
+    values: list,
+    decimal: str,
+    column: str,
+    col_index: int,
+    what: str,
+    *,
+    missing: Collection[str] = (),
+) -> np.ndarray:
     """Raw cells -> float64 (NaN for empty); RawFormatError at the first bad cell.
 
     Parameters
@@ -513,13 +552,16 @@ def numeric(table: Table, values: list, decimal: str, column: str, col_index: in
         0-based column index (the Excel letter in xlsx errors).
     what : str
         What was expected, for the error message.
+    missing : collection of str
+        ``input.missing_values``: text cells (compared stripped) that are missing values.
 
     Returns
     -------
     numpy.ndarray
-        float64, NaN where a cell is empty.
+        float64, NaN where a cell is empty or a missing-value marker.
     """
     out = np.full(len(values), np.nan)
+    markers = frozenset(missing)
     for k, v in enumerate(values):
         if v is None:
             continue
@@ -533,7 +575,10 @@ def numeric(table: Table, values: list, decimal: str, column: str, col_index: in
         if isinstance(v, (int, float, np.integer, np.floating)):
             x = float(v)
         else:
-            s = str(v).strip().replace("\u00a0", "").replace(" ", "")
+            s = str(v).strip()
+            if s in markers:
+                continue
+            s = s.replace("\u00a0", "").replace(" ", "")
             if not s:
                 continue
             t = s
@@ -554,20 +599,29 @@ def numeric(table: Table, values: list, decimal: str, column: str, col_index: in
                 elif decimal == "," and "." in s:
                     hint = " (decimal point in a file with input.decimal: ',')"
                 raise table.error(
-                    f"{s!r} is not a number{hint}; expected {what}",
+                    f"{s!r} is not a number{hint}; expected {what}{marker_hint(s, hint)}",
                     row=table.row_numbers[k],
                     column=column,
                     col_index=col_index,
                 ) from None
         if not math.isfinite(x):
             raise table.error(
-                f"{v!r} is not a finite number; expected {what}",
+                f"{v!r} is not a finite number; expected {what}{marker_hint(str(v).strip())}",
                 row=table.row_numbers[k],
                 column=column,
                 col_index=col_index,
             )
         out[k] = x
     return out
+
+
+def marker_hint(cell: str, other_hint: str = "") -> str:
+    """`` (a missing-value marker? ...)`` for a text cell without a digit (``---``, ``#N/A``,
+    ``NaN``, ``ERR``) where no other cause was named; else empty."""
+    if other_hint or not cell or any(c.isdigit() for c in cell):
+        return ""
+    listed = json.dumps(cell, ensure_ascii=False)
+    return f" (a missing-value marker? list it in input.missing_values: [{listed}])"
 
 
 def text(values: list) -> list[str]:

@@ -25,11 +25,13 @@ The speed of a log without a speed column is a configured constant
 from __future__ import annotations
 
 import datetime as dt
+import re
 
 import numpy as np
 import pandas as pd
 
 from rafi.contract import ELAPSED_SECONDS, EPOCH_CLOCKS, NO_CLOCK_EPOCH
+from rafi.errors import RawFormatError
 from rafi.readers.mapped_table import Table, numeric
 from rafi.readers.parsing import TIME_MAX, TIME_MIN
 
@@ -72,10 +74,73 @@ def timestamps(table: Table, values: list, spec: dict, column: str, col_index: i
     """
     if spec["time"]["kind"] in ELAPSED_SECONDS or spec["time"]["kind"] in EPOCH_CLOCKS:
         return _elapsed_times(table, values, spec, column, col_index)
-    fast = _text_times(values, spec["time"]["format"])
-    if fast is not None:
-        return fast
-    return _cell_times(table, values, spec["time"]["format"], column, col_index)
+    times = _text_times(values, spec["time"]["format"])
+    if times is None:
+        times = _cell_times(table, values, spec["time"]["format"], column, col_index)
+    zone = spec["time"]["timezone"]
+    return times if zone is None else local_to_utc(table, values, times, zone, column, col_index)
+
+
+#: A text time ending in a UTC offset (``Z``, ``+01:00``, ``-0500``).
+_UTC_OFFSET = re.compile(r"(?:[zZ]|[+-]\d{2}:?\d{2})$")
+
+
+def local_to_utc(
+    table: Table, values: list, times: pd.Series, zone: str, column: str, col_index: int
+) -> pd.Series:
+    """Naive local times of the time zone ``zone`` (``input.time.timezone``) as naive UTC.
+
+    A clock that goes back an hour in the autumn writes one hour twice: the order of the rows
+    tells which is which (``ambiguous="infer"``); a time the spring change skips is moved
+    forward. So the times rise where the clock went back, and no false gap opens where it
+    went forward.
+
+    Parameters
+    ----------
+    table : Table
+        The file (words the error).
+    values : list
+        The cells of the time column, in row order.
+    times : pandas.Series
+        The cells as naive times.
+    zone : str
+        An IANA time zone name.
+    column : str
+        The header as written in the file.
+    col_index : int
+        0-based column index.
+
+    Raises
+    ------
+    RawFormatError
+        A cell carries a UTC offset (it says its zone itself), or the repeated hour of a
+        fall-back cannot be told apart by the order of the rows.
+    """
+    for k, v in enumerate(values):
+        if isinstance(v, str) and _UTC_OFFSET.search(v.strip()):
+            raise table.error(
+                f"{v.strip()!r} carries a UTC offset, while input.time.timezone is {zone!r}: the offset "
+                "says the zone already; leave input.time.timezone out",
+                row=table.row_numbers[k],
+                column=column,
+                col_index=col_index,
+            )
+    try:
+        local = pd.DatetimeIndex(times).tz_localize(zone, ambiguous="infer", nonexistent="shift_forward")
+    except (ValueError, TypeError) as exc:  # pytz's AmbiguousTimeError is a ValueError
+        found = re.search(r"(\d{4}-\d{2}-\d{2} \d{2}:\d{2}:\d{2})", str(exc))
+        at = pd.Timestamp(found.group(1)) if found else None
+        hits = np.flatnonzero(pd.DatetimeIndex(times) == at) if at is not None else []
+        k = int(hits[0]) if len(hits) else 0
+        raise table.error(
+            f"{values[k]!r} lies in the hour repeated when the clock of {zone} went back, and the order "
+            "of the rows does not tell which of the two it is (no row repeats it, or the rows are not "
+            "in time order); split the file there, or leave input.time.timezone out",
+            row=table.row_numbers[k],
+            column=column,
+            col_index=col_index,
+        ) from None
+    return pd.Series(local.tz_convert("UTC").tz_localize(None), index=times.index)
 
 
 def date_and_time(dates: list, times: list) -> list:
@@ -147,7 +212,12 @@ def _elapsed_times(table: Table, values: list, spec: dict, column: str, col_inde
             v = (v.hour * 3600 + v.minute * 60 + v.second + v.microsecond / 1e6) / per
         secs.append(v)
     expected = word if tm["kind"] in EPOCH_CLOCKS else f"elapsed {word}"
-    sec = numeric(table, secs, spec["decimal"], column, col_index, expected) * per
+    try:
+        sec = numeric(table, secs, spec["decimal"], column, col_index, expected) * per
+    except RawFormatError as exc:
+        what = f"a number of {expected}"
+        summary = footer_error(table, values, _is_elapsed_cell, column, col_index, exc, what=what)
+        raise summary or exc from None
     if tm["kind"] == "excel_days":
         sec = np.round(sec, 3)  # Excel keeps milliseconds; its day fractions are not exact in binary
     empty = np.isnan(sec)
@@ -287,11 +357,90 @@ def _cell_times(
                 if time_format
                 else "an ISO-8601 time such as 2026-10-14T08:00:00 (or set input.time.format)"
             )
-            raise table.error(f"{v!r} is not a timestamp; expected {expect}", **where)
+            exc = table.error(f"{v!r} is not a timestamp; expected {expect}", **where)
+            is_time = lambda cell: _cell_time(cell, time_format) is not None  # noqa: E731
+            raise footer_error(table, values, is_time, column, col_index, exc) or exc
         if not (TIME_MIN <= ts <= TIME_MAX):
             raise table.error(f"timestamp {v!r} is outside the supported years 1678..2261", **where)
         parsed.append(ts)
     return pd.Series(pd.DatetimeIndex(parsed))
+
+
+#: Most rows at the end of a file that the reader calls summary rows (``input.footer_rows``).
+FOOTER_MAX_ROWS = 10
+
+
+def _is_elapsed_cell(value) -> bool:
+    """An elapsed-time cell: a number, a duration or time cell, or text that reads as a number."""
+    if isinstance(value, (int, float, dt.timedelta, dt.time)) and not isinstance(value, bool):
+        return True
+    try:
+        float(str(value).strip().replace(",", "."))
+    except ValueError:
+        return False
+    return True
+
+
+def trailing_text(values: list, is_time) -> int:
+    """How many of the last ``values`` are text that ``is_time`` does not read as a time (the
+    time cells of summary rows: ``Mean``, ``Max``), at most :data:`FOOTER_MAX_ROWS`; 0 when more
+    are, or when they are half the rows or more."""
+    n = 0
+    for v in reversed(values):
+        if not (isinstance(v, str) and v.strip()) or is_time(v):
+            break
+        n += 1
+        if n > FOOTER_MAX_ROWS:
+            return 0
+    return n if 2 * n < len(values) else 0
+
+
+def footer_error(
+    table: Table, values: list, is_time, column: str, col_index: int, exc, *, what: str = "a timestamp"
+) -> RawFormatError | None:
+    """The error for summary rows at the end of a file (``Mean``, ``Max`` in the time column) when
+    ``exc``, the error at the first cell that is not a time, is at the first of them; else None
+    (a bad time elsewhere keeps its own error).
+
+    Parameters
+    ----------
+    table : Table
+        The file (words the error).
+    values : list
+        The cells of the time column, in row order.
+    is_time : callable
+        ``cell -> bool``: the cell reads as a time of this column.
+    column : str
+        The header as written in the file.
+    col_index : int
+        0-based column index.
+    exc : RawFormatError
+        The error at the first bad cell.
+    what : str
+        What a time cell of the column is, in words.
+    """
+    n = trailing_text(values, is_time)
+    if not n or exc.line != table.row_numbers[len(values) - n]:
+        return None
+    texts = ", ".join(repr(str(v).strip()) for v in values[-n:])
+    return table.error(
+        f"{values[-n].strip()!r} is not {what}: the last {n} rows hold text in the time column "
+        f"({texts}), not times; a summary row? set input.footer_rows: {n} (the rows to drop at the "
+        "end of each file)",
+        row=exc.line,
+        column=column,
+        col_index=col_index,
+    )
+
+
+def is_time_cell(value, spec: dict) -> bool:
+    """Whether ``value``, the time cell of a row (the date and the time joined with
+    ``time.date_column``), reads as a time of the mapped log's clock (``input.time``)."""
+    if value is None or (isinstance(value, str) and not value.strip()):
+        return False
+    if spec["time"]["kind"] in ELAPSED_SECONDS:
+        return _is_elapsed_cell(value)
+    return _cell_time(value, spec["time"]["format"]) is not None
 
 
 def has_clock(spec: dict) -> bool:
