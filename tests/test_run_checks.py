@@ -125,6 +125,20 @@ def test_a_machine_left_at_the_default_training_speeds_is_told_so_and_what_to_se
     assert warning.endswith("set training_speeds_rpm: [6000]")
 
 
+def test_a_machine_requalified_from_a_prior_is_told_the_speeds_are_the_priors_not_to_drop_them(singles):
+    """A re-qualification's short programme leaves speeds to the prior: the warning says so and
+    names the prior_speeds confirmation; it never advises fewer training speeds."""
+    frames, table = singles
+    table = table[table["speed_rpm"].round() != 3000]
+    speeds = [3000, 6000, 9000, 12000, 15000, 18000]
+    (warning,) = training_speed_problems(table, speeds, 50, "m", prior="champion")
+    assert warning.startswith("training_speeds_rpm: no training run at 3000, 9000, 12000, 15000, 18000 r/min")
+    assert "left to the prior (models.prior)" in warning and "prior_speeds" in warning
+    assert "set training_speeds_rpm" not in warning
+    (same,) = _check(frames, table, training_speeds_rpm=speeds, prior={"machine": "m"})
+    assert same == warning
+
+
 def test_a_window_glob_matching_no_log_names_the_key_and_the_logs(singles):
     frames, table = singles
     windows = [{"role": "training", "log": "train_*"}, {"role": "validation", "log": "test_*"}]

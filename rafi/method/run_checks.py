@@ -82,9 +82,18 @@ def speeds_found(table: pd.DataFrame, tolerance_rpm: float) -> str:
 
 
 def training_speed_problems(
-    table: pd.DataFrame, training_speeds_rpm: Sequence[float], tolerance_rpm: float, machine: str
+    table: pd.DataFrame,
+    training_speeds_rpm: Sequence[float],
+    tolerance_rpm: float,
+    machine: str,
+    *,
+    prior: object = None,
 ) -> list[str]:
     """Warnings for the configured training speeds without a training run; raises if no run trains.
+
+    With a prior (``models.prior`` set: a re-qualification, whose short programme tests some
+    speeds and leaves the rest to the prior) the warning says so and points at the prior's
+    ``prior_speeds`` confirmation instead of advising fewer training speeds.
 
     Raises
     ------
@@ -109,6 +118,13 @@ def training_speed_problems(
         return []
     groups = speed_groups(trained, tolerance_rpm)
     at = ", ".join(f"{_rpm(s)} ({n})" for s, n in groups)
+    if prior is not None:
+        return [
+            f"training_speeds_rpm: no training run at {', '.join(_rpm(s) for s in missing)} r/min; the "
+            f"training runs are at {at} r/min (run counts in brackets): the speeds left to the prior "
+            "(models.prior), which the re-qualified model takes from it; its promotion waits for the "
+            "prior_speeds confirmation (docs/models.md)"
+        ]
     if configured == [float(s) for s in MACHINE_DEFAULTS["training_speeds_rpm"]]:
         where = f"the default {speeds} r/min, the paper rig's: this machine sets none"
         own = ", ".join(_rpm(s) for s, _ in groups)
@@ -221,6 +237,7 @@ def check_runs(
     speed_tolerance_rpm: float,
     all_files: Iterable[str] = (),
     speed_by_file: Mapping | None = None,
+    prior: object = None,
 ) -> list[str]:
     """Every check of this module on one machine's runs; returns the warnings.
 
@@ -242,6 +259,8 @@ def check_runs(
         Every raw file name of the machine, quarantined ones included.
     speed_by_file : mapping, optional
         ``input.speed.constant_rpm_by_file``.
+    prior : optional
+        ``models.prior`` (None: the machine qualifies from scratch): :func:`training_speed_problems`.
 
     Raises
     ------
@@ -255,7 +274,7 @@ def check_runs(
     problems += speed_glob_problems(speed_by_file, all_files, machine)
     if problems:
         raise SettingsError("; ".join(problems))
-    warnings = training_speed_problems(table, training_speeds_rpm, speed_tolerance_rpm, machine)
+    warnings = training_speed_problems(table, training_speeds_rpm, speed_tolerance_rpm, machine, prior=prior)
     return warnings + continuous_log_warnings(table, reference_rule)
 
 

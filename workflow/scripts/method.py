@@ -105,6 +105,7 @@ def runs_step(smk, log):
         speed_tolerance_rpm=smk.params.speed_tolerance_rpm,
         all_files=audit["file"].astype(str),
         speed_by_file=smk.params.speed_by_file,
+        prior=smk.params.models.get("prior"),
     )
     for warning in warnings:
         warn(smk, "runs", warning)
