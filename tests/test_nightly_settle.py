@@ -69,11 +69,17 @@ def test_a_night_names_the_files_that_wait_and_the_next_one_asks_snakemake(tmp_p
     assert "settle_s=600" in res.stdout
     assert "waits for the next night" in res.stdout and "raw/m1/y.csv" in res.stdout
     assert "x.csv" not in res.stdout
+    # the machine's status line says its files were not judged (not only the old decision)
+    (line,) = [ln for ln in res.stdout.splitlines() if ln.startswith("rafi nightly: m1: ")]
+    assert line.endswith(
+        "; 1 new raw file(s) not judged tonight: they wait for the next night (nightly_settle_s)"
+    )
     # no fast path past a file that waited
     assert not (proj / "results" / STATE_NAME).exists()
     os.utime(proj / "raw" / "m1" / "y.csv", (time.time() - DAY, time.time() - DAY))
     res = subprocess.run(rafi_cmd("nightly", "--directory", str(proj)), capture_output=True, text=True)
     assert res.returncode == 0 and "waits for the next night" not in res.stdout
+    assert "not judged tonight" not in res.stdout
     assert (proj / "results" / STATE_NAME).exists()
 
 

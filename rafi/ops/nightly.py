@@ -58,6 +58,7 @@ from pathlib import Path
 
 from rafi.artefact import now_iso
 from rafi.cli import add_config_option
+from rafi.contract import PROBE_SEPARATOR
 from rafi.errors import LockHeld, RegistryError, SettingsError
 from rafi.ops import snakemake_api
 from rafi.ops.lock import (
@@ -167,6 +168,9 @@ def run(args) -> int:
     args.reports_dir = directory / str(run_settings(config)["reports_dir"])
     args.settle_s = float(overrides["settle_s"])
     args.settling = settling(paths, config, machines, args.settle_s)
+    args.waiting = (
+        {m: len(settling(paths, config, [m], args.settle_s)) for m in machines} if args.settling else {}
+    )
     args.unmatched = unmatched_folders(paths, config, machines)
 
     if args.dry_run:
@@ -369,7 +373,7 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
     fp = None if args.full_check else fingerprint(args.config, paths, overrides, scope)
     if fp is not None and read_state(paths, scope).get("fingerprint") == fp:
         # nothing changed since the last successful night: no need to ask Snakemake
-        return _nothing_new(paths, machines, started)
+        return _nothing_new(paths, machines, started, args.waiting)
     # One Snakemake run, no separate dry run (it would build the job graph twice): Snakemake
     # itself schedules no job when no new data arrived.
     cfg = config_path(paths.directory, args.config)
@@ -399,7 +403,7 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
     if not every or not outcome.ok:  # else rule fleet_index has written it
         _refresh_fleet_page(paths, getattr(args, "reports_dir", paths.directory / "reports"))
     if outcome.nothing_to_do:
-        return _nothing_new(paths, machines, started)
+        return _nothing_new(paths, machines, started, args.waiting)
     if not outcome.ok and "LockException" in str(outcome.error):
         # a Snakemake run started here between the check above and ours
         print(
@@ -415,7 +419,7 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
             return _os_error(exc, paths.results_dir)
     qualified = units(load_config(args.directory, args.config), machines)
     statuses = [machine_status(paths, m, night_start) for m in qualified]
-    code = _report(statuses, pipeline_failed=not outcome.ok)
+    code = _report(statuses, pipeline_failed=not outcome.ok, waiting=args.waiting)
     _say_outcomes(args, paths, qualified, night_start)
     print(
         f"rafi nightly: {len(outcome.ran)} job(s) in {time.time() - started:.1f} s; "
@@ -453,7 +457,7 @@ def _refresh_fleet_page(paths: Paths, reports_dir: Path) -> None:
     print(f"rafi nightly: fleet overview {out} updated", flush=True)
 
 
-def _nothing_new(paths: Paths, machines: list[str], started: float) -> int:
+def _nothing_new(paths: Paths, machines: list[str], started: float, waiting: dict | None = None) -> int:
     statuses = [machine_status(paths, m, None) for m in machines]
     champs = (
         ", ".join(f"{s.machine} {short_id((s.decision or {}).get('champion_id_after'))}" for s in statuses)
@@ -463,13 +467,21 @@ def _nothing_new(paths: Paths, machines: list[str], started: float) -> int:
         f"rafi nightly: nothing new since {last_activity(statuses)}: champion {champs} "
         f"stays ({time.time() - started:.1f} s)"
     )
-    return _report(statuses)
+    return _report(statuses, waiting=waiting)
 
 
-def _report(statuses: list[MachineStatus], pipeline_failed: bool = False) -> int:
+def _report(statuses: list[MachineStatus], pipeline_failed: bool = False, waiting: dict | None = None) -> int:
+    """The status line of every machine (with the raw files that wait for the next night, from
+    ``waiting``: machine -> count), then the input summary; returns the exit code."""
     codes = {EXIT_PIPELINE_FAILED} if pipeline_failed else set()
     for s in statuses:
-        print("rafi nightly: " + s.line())
+        n = (waiting or {}).get(s.machine.split(PROBE_SEPARATOR)[0], 0)  # a probe's machine folder
+        wait = (
+            f"; {n} new raw file(s) not judged tonight: they wait for the next night (nightly_settle_s)"
+            if n
+            else ""
+        )
+        print("rafi nightly: " + s.line() + wait)
         codes |= s.codes()
     skipped = [s.machine for s in statuses if s.skipped]
     n_files = sum(len(s.quarantined) for s in statuses)
