@@ -258,6 +258,12 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
     best["adaptation"]["fitness"] = block
     best["model_id"] = "1" * 64  # the row prior_gain of summary.csv (_add_candidates): the model shown
     best_path.write_text(json.dumps(best), encoding="utf-8")
+    # when the prior was made champion is its registry's fact, not the artefact's (the adapted
+    # model's id depends on content only): read from the prior machine's history
+    assert "promoted" not in block["prior"]
+    promotion = {"decision": "promoted", "champion_id_after": PARENT, "time": "2026-11-01T02:03:04Z"}
+    with open(results / "registry" / "history.jsonl", "a", encoding="utf-8") as history:
+        history.write(json.dumps(promotion) + "\n")
     ctx = _context(results)
     text = " ".join(html.unescape(_text(render_html(ctx))).replace("\u00a0", " ").split())
     who = f"The prior: model {PARENT[:12]} (dynamic) of tapping-center-a , a sibling declared in"

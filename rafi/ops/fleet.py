@@ -49,6 +49,7 @@ import json
 import os
 from pathlib import Path
 
+from rafi.family.prior import prior_promoted
 from rafi.ops.project import Paths
 from rafi.ops.status import (
     EXIT_OK,
@@ -264,10 +265,13 @@ def _drift(decision: dict | None, champion_id: str | None = None) -> dict | None
     return out
 
 
-def prior_summary(artefact: dict | None) -> dict | None:
+def prior_summary(artefact: dict | None, results_dir: str | os.PathLike | None = None) -> dict | None:
     """The prior of a model re-qualified from one, from its ``adaptation`` block: ``id``,
     ``machine``, ``origin`` (``this machine`` / ``declared sibling``; None: not recorded),
-    ``promoted`` / ``max_residual_um`` / ``n_runs`` (its own qualification), ``method``,
+    ``promoted`` (when it was made champion: read from its machine's registry under
+    ``results_dir``, :func:`rafi.family.prior.prior_promoted`; an artefact of an earlier
+    version may carry it in its fitness block), ``max_residual_um`` / ``n_runs`` (its own
+    qualification), ``method``,
     ``gain``, ``time_factor``, ``alpha`` (a ridge's penalty), ``largest_coefficient_change``,
     ``prediction_change``, ``speeds_tested_rpm``, ``speeds_prior_only_rpm`` and ``warnings``
     (the fitness block, :mod:`rafi.family.prior_fitness`; the figures are None for a model
@@ -278,11 +282,13 @@ def prior_summary(artefact: dict | None) -> dict | None:
     fit = block.get("fitness") if isinstance(block.get("fitness"), dict) else {}
     own = fit.get("prior") or {}
     keys = ("largest_coefficient_change", "prediction_change", "speeds_tested_rpm", "speeds_prior_only_rpm")
+    machine = block.get("parent_machine") or own.get("machine")
+    promoted = prior_promoted(results_dir, machine, block.get("parent")) if results_dir is not None else None
     return {
         "id": block.get("parent"),
-        "machine": block.get("parent_machine") or own.get("machine"),
+        "machine": machine,
         "origin": fit.get("origin"),
-        "promoted": own.get("promoted"),
+        "promoted": promoted or own.get("promoted"),
         "max_residual_um": own.get("max_residual_um"),
         "n_runs": own.get("n_runs"),
         "method": block.get("method"),
@@ -352,7 +358,7 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
         artefact = _read_json(reg / "models" / f"{champion_id}.json") or {}
         kind = artefact.get("kind") or None
         parent = (artefact.get("adaptation") or {}).get("parent") or None
-        prior = prior_summary(artefact)
+        prior = prior_summary(artefact, paths.results_dir)
         members = ensemble_weights(artefact)
     decision = _read_json(reg / "decision.json")
     last = None
