@@ -287,3 +287,36 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
     assert "check: prior_speeds} , or record runs at those speeds" in text
     table = next(t for t in html_tables(render_html(ctx)) if any("tested here" in h for h in t["headers"]))
     assert [list(r.values()) for r in table["records"]] == [["T1", "0.0 … 4.0", "0.0 … 9.0", "4.0 … 9.0"]]
+
+
+@pytest.mark.parametrize(
+    ("method", "cv_scores", "said"),
+    [
+        ("shared_ridge", None, "ridge strength 10.0000 (fixed for every machine, not chosen by CV)"),
+        ("ridge", [1.5, 1.2], "ridge strength 10.0000 (chosen by CV)"),
+        (
+            "ridge",
+            [None, None],
+            "ridge strength 10.0000 (no CV fold: the largest of models.prior_ridge_alphas",
+        ),
+    ],
+)
+def test_the_ridge_penalty_is_said_chosen_by_cv_only_where_a_cv_chose_it(tmp_path, method, cv_scores, said):
+    """shared_ridge's penalty is fixed (SHARED_RIDGE_ALPHA, docs/models.md); prior_ridge's is
+    chosen by whole-run CV on the training runs, or, without a fold, is the largest."""
+    from rafi.family.adapted import SHARED_RIDGE_ALPHA
+
+    results = copy_fixture(tmp_path)
+    _add_candidates(results, offered="prior_ridge")
+    best_path = results / "comparison" / "best_model.json"
+    best = json.loads(best_path.read_text(encoding="utf-8"))
+    best["adaptation"] |= {"method": method, "alpha": SHARED_RIDGE_ALPHA}
+    if method == "shared_ridge":
+        best["adaptation"]["gain"] = 1.0375
+    else:  # the ridge kind's CV table of the penalties tried (score None: no fold)
+        best["cv"] = [{"alpha": a, "score_um": sc} for a, sc in zip((1.0, SHARED_RIDGE_ALPHA), cv_scores)]
+    best_path.write_text(json.dumps(best), encoding="utf-8")
+    text = " ".join(html.unescape(_text(render_html(_context(results)))).replace("\u00a0", " ").split())
+    assert said in text
+    if method == "shared_ridge":
+        assert "(chosen by CV)" not in text and "gain 1.0375 on every coefficient" in text

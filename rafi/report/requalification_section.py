@@ -243,6 +243,40 @@ def ensemble_prior(block: dict | None) -> dict | None:
     return {**member, "model_id": short_id(str(member.get("model_id") or ""))}
 
 
+def _scored_by_cv(best: dict, key: str, cv: bool) -> bool:
+    """Whether the adapted model's ``key`` (``alpha`` or ``factor``) was chosen by a CV that
+    scored it: its artefact's ``cv`` table (one row a value tried, ``score_um`` None without a
+    fold), else, for an artefact without one, whether the family's CV had a fold (``cv``)."""
+    rows = [r for r in best.get("cv") or [] if isinstance(r, dict) and key in r]
+    if rows:
+        return any(isnum(r.get("score_um")) for r in rows)
+    return cv
+
+
+def how_chosen(best: dict, block: dict | None, cv: bool) -> dict:
+    """How the offered adaptation's ridge penalty and time factor were set, in words (the
+    section's "How far the prior moved"): ``alpha`` and ``time_factor`` (None where the block has
+    none). ``shared_ridge``'s penalty is fixed for every machine
+    (:data:`rafi.family.adapted.SHARED_RIDGE_ALPHA`), not chosen; ``prior_ridge``'s penalty and
+    ``prior_time``'s factor are chosen by whole-run CV on the training runs, or, without a fold,
+    are the prior's side (the largest penalty, the factor 1)."""
+    block = block or {}
+    words: dict = {"alpha": None, "time_factor": None}
+    if block.get("alpha") is not None:
+        if block.get("method") == "shared_ridge":
+            words["alpha"] = "fixed for every machine, not chosen by CV"
+        elif _scored_by_cv(best, "alpha", cv):
+            words["alpha"] = "chosen by CV"
+        else:
+            words["alpha"] = "no CV fold: the largest of models.prior_ridge_alphas, the prior's side"
+    if block.get("time_factor") is not None:
+        if _scored_by_cv(best, "factor", cv):
+            words["time_factor"] = "chosen by CV"
+        else:
+            words["time_factor"] = "no CV fold: the prior's own time constants"
+    return words
+
+
 def section_requalification(res: dict, results_dir: str | os.PathLike | None = None) -> dict | None:
     """The context of the re-qualification section, or ``None`` when no prior was a candidate.
 
@@ -264,7 +298,8 @@ def section_requalification(res: dict, results_dir: str | os.PathLike | None = N
         ``adaptation`` (the offered model's block or ``None``: the prior lost), ``parent``
         (short id), ``moves`` (:func:`coefficient_moves`) and ``sentence`` (the comparison in
         one sentence, every number from the rows), ``fitness`` (:func:`fitness_context`),
-        ``member`` (:func:`ensemble_prior`: the member of an ensemble prior that was re-fitted).
+        ``member`` (:func:`ensemble_prior`: the member of an ensemble prior that was re-fitted),
+        ``chosen`` (:func:`how_chosen`: how the ridge penalty and the time factor were set).
     """
     summ = res.get("comparison")
     if summ is None or "model" not in summ or not summ["model"].astype(str).isin(list(CANDIDATES)).any():
@@ -275,6 +310,7 @@ def section_requalification(res: dict, results_dir: str | os.PathLike | None = N
     block = best.get("adaptation") if isinstance(best.get("adaptation"), dict) else None
     prior_row = next((r for r in rows if r["model"] == "prior"), None)
     scratch = _best_by_cv(rows, "from scratch")
+    cv = any(isnum(r["cv_um"]) for r in rows)
     return {
         "rows": rows,
         "offered": offered,
@@ -289,7 +325,8 @@ def section_requalification(res: dict, results_dir: str | os.PathLike | None = N
         # a CV-weighted ensemble prior: the member re-fitted (rafi.family.prior.prior_base)
         "member": ensemble_prior(block),
         "sentence": comparison_sentence(offered, prior_row, scratch),
-        "cv": any(isnum(r["cv_um"]) for r in rows),
+        "cv": cv,
+        "chosen": how_chosen(best, block, cv),
         "forward": any(isnum(r["cv_forward_um"]) for r in rows),
     }
 
