@@ -320,3 +320,40 @@ def test_the_ridge_penalty_is_said_chosen_by_cv_only_where_a_cv_chose_it(tmp_pat
     assert said in text
     if method == "shared_ridge":
         assert "(chosen by CV)" not in text and "gain 1.0375 on every coefficient" in text
+
+
+def test_a_first_model_waiting_for_its_priors_confirmation_is_neither_pass_nor_fail(tmp_path):
+    """No model on the machine, the candidate passed every gate and only its prior's fitness
+    warning holds it back: the verdict says WAITING with the check and the entry to add, the words
+    of the end-of-run line and rafi status (rafi.ops.outcome.awaiting_confirmation)."""
+    results = copy_fixture(tmp_path)
+    path = results / "registry" / "decision.json"
+    decision = json.loads(path.read_text(encoding="utf-8"))
+    blocking = [
+        {
+            "check": "prior_speeds",
+            "prior": PARENT,
+            "machine": "tapping-center-a",
+            "for_machine": "a2",
+            "message": "x",
+        }
+    ]
+    decision |= {
+        "decision": "rejected",
+        "champion_id_before": None,
+        "champion_id_after": None,
+        "gates_passed": True,
+        "blocked_by": ["prior_fitness"],
+        "prior_fitness": {"blocking": blocking, "confirmed": []},
+    }
+    path.write_text(json.dumps(decision), encoding="utf-8")
+    ctx = _context(results)
+    assert ctx["verdict"]["status"] == "WAITING"
+    text = " ".join(html.unescape(_text(render_html(ctx))).replace("\u00a0", " ").split())
+    candidate = str(decision["candidate_id"])[:12]
+    assert (
+        f"no model is on the machine yet: the candidate {candidate} passed every gate and waits for a "
+        f"confirmation of the prior fitness check prior_speeds of prior {PARENT[:12]} (tapping-center-a): "
+        f"add checks.confirmed: [{{file: {PARENT[:12]}, check: prior_speeds}}] in a2's settings"
+    ) in text
+    assert "no model is qualified for this machine" not in text

@@ -50,6 +50,7 @@ import os
 from pathlib import Path
 
 from rafi.family.prior import prior_promoted
+from rafi.ops.outcome import awaiting_confirmation
 from rafi.ops.project import Paths
 from rafi.ops.status import (
     EXIT_OK,
@@ -324,6 +325,20 @@ def _older(a: Path, b: Path) -> bool:
         return False
 
 
+def rejected_text(decision: dict, *, has_champion: bool) -> str:
+    """What ``rafi status`` says of a last decision ``rejected``: a candidate that passed every gate
+    and waits for its prior's fitness warnings to be confirmed is named with each check and the
+    ``checks.confirmed`` entry to add (:func:`rafi.ops.outcome.awaiting_confirmation`, the words of
+    the end-of-run line); any other is rejected. Then whether a model stays in service."""
+    waiting = awaiting_confirmation(decision)
+    if waiting:  # passed every gate: goes on the machine once confirmed
+        stays = "the champion stays until then" if has_champion else "no model in service until then"
+        who = short_id(str(decision.get("candidate_id") or ""))
+        return f"the last candidate {who} passed every gate and {waiting}; {stays}"
+    stays = "the champion stays" if has_champion else "no model in service"
+    return f"the last candidate was rejected; {stays}"
+
+
 def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str) -> dict:
     """The state of one machine (see the module docstring for the sources and states).
 
@@ -408,7 +423,7 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
             by = f" by {deg:.2f} um" if deg is not None else ""
             attention.append(("recalibration_due", f"the model in service drifted{by}: recalibration due"))
     if (decision or {}).get("decision") == "rejected":
-        attention.append(("rejected", "the last candidate was rejected; the champion stays"))
+        attention.append(("rejected", rejected_text(decision, has_champion=bool(champion_id))))
     if status.quarantined and not status.skipped:
         attention.append(("quarantined", f"{len(status.quarantined)} raw file(s) quarantined"))
     attention.sort(key=lambda a: RANK[a[0]])
@@ -416,6 +431,8 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     return {
         "machine": machine,
         "state": state,
+        # the last candidate passed every gate and waits for a confirmation (state rejected, exit 2)
+        "waiting": state == "rejected" and awaiting_confirmation(decision) is not None,
         "rank": RANK[state],
         "attention": [{"state": s, "text": t} for s, t in attention],
         "champion": (
