@@ -186,6 +186,33 @@ def test_a_requalification_from_an_ensemble_adapts_its_heaviest_member(offered):
         assert f"through its heaviest member {name}" in describe_selection(res["models"][cand])
 
 
+def test_an_ensemble_adapted_as_a_whole_shows_its_own_members_and_the_priors_weights(offered):
+    """prior_shared_ridge: the members are the prior's as this run moved them (other model ids than
+    the from-scratch kinds of the same names), the weights the prior's; no member is paired with
+    the CV score of another model, and the weights are not said to come from this run's CV."""
+    art = offered["best_artefact"]
+    res = _run(prior=art, options={"offer": "ensemble"})
+    best, summary = res["best_artefact"], res["summary"]
+    assert best["kind"] == ENSEMBLE and best["adaptation"]["method"] == "shared_ridge"
+    assert best["weights"] == art["weights"]  # the prior's weights, kept
+    scratch = summary.set_index("model")
+    for name, member in best["members"].items():  # a from-scratch kind of the same name: another model
+        assert name in scratch.index and scratch.loc[name, "model_id"] != member["model_id"]
+    ctx = ensemble_context(best, summary)
+    assert ctx["adapted"]["parent"] == art["model_id"][:12]
+    assert ctx["adapted"]["candidate"] == "prior_shared_ridge"
+    for row in ctx["members"]:
+        assert row["weight"] == pytest.approx(art["weights"][row["model"]], rel=1e-12)
+        assert row["model_id"] == best["members"][row["model"]]["model_id"][:12]
+        assert row["cv_um"] is row["cv_worst_um"] is row["validation_um"] is row["passed"] is None
+    assert WEIGHT_RULE not in ctx["rule"] and ctx["rule"].startswith("the prior's weights, kept as they are")
+    assert f"(model {art['model_id'][:12]}" in ctx["rule"] and "not from this run's CV" in ctx["rule"]
+    assert ctx["selection_rule"] is None and ctx["plain_ridge_weight"] is None
+    # an ensemble of this run's own kinds keeps its members' own rows (matched by name and id)
+    own = ensemble_context(art, offered["summary"])
+    assert own["adapted"] is None and all(r["cv_um"] is not None for r in own["members"])
+
+
 # --------------------------------------------------------------------------- rafi status
 
 

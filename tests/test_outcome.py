@@ -18,6 +18,7 @@ from rafi.ops.outcome import (
     DOCS,
     Outcome,
     RunFiles,
+    awaiting_confirmation,
     decision_outcome,
     failed_gate_words,
     failed_step_outcome,
@@ -92,6 +93,38 @@ def test_pass_says_the_model_and_what_became_of_it():
     assert outcome_line(blocked) == (
         "m: PASS - model offered: 92289bc7cc53, not promoted (blocked by input_warnings, coverage)"
     )
+
+
+def test_a_candidate_waiting_for_its_priors_confirmation_is_neither_pass_nor_fail():
+    """Every gate passed, only the prior's fitness warning holds it back: WAITING, with the check,
+    the prior and the checks.confirmed entry to add (rafi status says the same words)."""
+    from rafi.ops.fleet import rejected_text
+
+    prior = "6fca63e8ad59" + "0" * 52
+    blocking = [
+        {"check": "prior_speeds", "prior": prior, "machine": "a", "for_machine": "a2", "message": "x"}
+    ]
+    decision = _decision(True, decision="rejected", blocked_by=["prior_fitness"])
+    decision["prior_fitness"] = {"blocking": blocking, "confirmed": []}
+    waiting = decision_outcome("a2", decision, kind="ensemble", report="report r.html")
+    words = (
+        "waits for a confirmation of the prior fitness check prior_speeds of prior 6fca63e8ad59 (a): add "
+        "checks.confirmed: [{file: 6fca63e8ad59, check: prior_speeds}] in a2's settings"
+    )
+    assert awaiting_confirmation(decision) == words
+    assert outcome_line(waiting) == (
+        f"a2: WAITING - model offered: ensemble 92289bc7cc53, passed every gate, not promoted: {words}; "
+        "report r.html"
+    )
+    assert rejected_text(decision, has_champion=False) == (
+        f"the last candidate 92289bc7cc53 passed every gate and {words}; no model in service until then"
+    )
+    # another block beside it (or a failed gate): not waiting for a confirmation alone
+    other = {**decision, "blocked_by": ["prior_fitness", "relative_gate"]}
+    assert awaiting_confirmation(other) is None
+    assert outcome_line(decision_outcome("a2", other)).startswith("a2: PASS - ")
+    assert rejected_text(other, has_champion=True) == "the last candidate was rejected; the champion stays"
+    assert awaiting_confirmation({**decision, "gates_passed": False}) is None
 
 
 def test_fail_says_each_failed_gate():

@@ -86,6 +86,42 @@ def test_mistakes_are_one_line_and_exit_64(project, capsys, args, expected):
     assert not list(project.glob("plan_*.csv"))
 
 
+def test_a_prior_of_an_undeclared_machine_is_refused_before_anything_is_recorded(project, capsys):
+    """The night refuses a prior of a machine not declared in models.prior_siblings (PriorForeign);
+    rafi plan refuses it up front with the same one line, not after the hours are recorded."""
+    import json
+
+    import yaml
+
+    from rafi.errors import PriorForeign
+    from rafi.family.prior import check_origin
+
+    shutil.copytree(FIXTURE / "registry", project / "results" / MACHINE / "registry")
+    registry = project / "results" / MACHINE / "registry"
+    champion = json.loads((registry / "champion.json").read_text(encoding="utf-8"))["model_id"]
+    prior = json.loads((registry / "models" / f"{champion}.json").read_text(encoding="utf-8"))
+    other = "machining-center-b"
+    with pytest.raises(PriorForeign) as night:  # the line the night's compare step prints
+        check_origin(prior, other, ())
+    assert main(["plan", "--machine", other, "--hours", "4", "--prior", MACHINE]) == 64
+    err = capsys.readouterr().err.strip()
+    assert err == f"rafi plan: {night.value}"
+    assert f"models.prior_siblings: [{MACHINE}] in {other}'s settings" in err
+    assert not list(project.glob("plan_*.csv"))
+    # models.prior naming it in the config: refused the same way
+    config = yaml.safe_load((project / "config.yaml").read_text(encoding="utf-8"))
+    config["machines"][other]["models"] = {"prior": {"machine": MACHINE}}
+    (project / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+    assert main(["plan", "--machine", other, "--hours", "4"]) == 64
+    assert capsys.readouterr().err.strip() == f"rafi plan: {night.value}"
+    # declared a sibling: the programme is written
+    config["machines"][other]["models"]["prior_siblings"] = [MACHINE]
+    (project / "config.yaml").write_text(yaml.safe_dump(config, sort_keys=False), encoding="utf-8")
+    assert main(["plan", "--machine", other, "--hours", "4"]) == 0
+    assert f"prior {champion[:12]}" in capsys.readouterr().out
+    assert (project / f"plan_{other}.csv").exists()
+
+
 def test_the_prior_is_least_sure_outside_its_trained_speeds():
     settings = machine_settings({}, MACHINE)
     prior = {

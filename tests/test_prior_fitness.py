@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import shutil
 
 import numpy as np
 import pytest
@@ -22,7 +23,7 @@ from rafi.artefact import json_text
 from rafi.errors import EX_USAGE, PriorForeign
 from rafi.family.adapted import AdaptedPrior
 from rafi.family.dynamic import DynamicRidge
-from rafi.family.prior import prior_origin, prior_param, prior_record, resolved_prior
+from rafi.family.prior import prior_origin, prior_param, prior_promoted, prior_record, resolved_prior
 from rafi.family.prior_fitness import BOUNDS, fitness_warnings
 from rafi.ops import decide as D
 from rafi.ops import fleet as F
@@ -141,7 +142,8 @@ def test_the_fitness_figures_are_the_generators_truth(project):
     # the prior's own qualification: its promotion in m-a's registry
     own = block["prior"]
     assert (own["model_id"], own["machine"], own["kind"]) == (prior["model_id"], "m-a", "dynamic")
-    assert own["promoted"] == first["time"]
+    assert "promoted" not in own  # a fact of m-a's registry, not of the data: read where shown
+    assert prior_promoted(root / "results", "m-a", prior["model_id"]) == first["time"]
     assert own["max_residual_um"] == pytest.approx(first["candidate_summary"]["max_residual_um"])
     # how far it moved: one gain, the generator's factor
     assert block["method"] == "gain" and block["gain"] == pytest.approx(1.8, rel=0.02)
@@ -170,6 +172,27 @@ def test_the_fitness_figures_are_the_generators_truth(project):
     # the same inputs, the same bytes
     again, _ = _adapted(project, 1.8, NEW_SPEEDS)
     assert json_text(again.to_dict()["adaptation"]) == json_text(fit.to_dict()["adaptation"])
+
+
+def test_the_adapted_id_does_not_depend_on_when_the_prior_was_promoted(project):
+    """The same data and the same prior give the same model id, whenever and wherever the prior
+    was made champion (a checks.confirmed entry written once matches every re-run)."""
+    root, prior, first = project
+    s2 = _state(1, "b-", 1.8, NEW_SPEEDS)
+    record = prior_record(_param(root, ["m-a"], s2), prior)
+    ids = []
+    for promoted in (first["time"], "2031-01-01T00:00:00Z", None):
+        qualification = {**record["qualification"], "promoted": promoted}
+        model = AdaptedPrior(
+            prior=prior,
+            method="gain",
+            machine="m-b",
+            origin=record["origin"],
+            qualification=qualification,
+            speed_tolerance_rpm=50,
+        )
+        ids.append(model.fit(*s2).to_dict()["model_id"])
+    assert len(set(ids)) == 1, ids
 
 
 def test_an_adaptation_inside_its_bounds_on_the_priors_speeds_warns_of_nothing(project):
@@ -248,6 +271,8 @@ def test_status_names_the_prior_its_machine_and_its_fitness(project, tmp_path, c
     rec = _decide(tmp_path, "m-b", fit.to_dict(), s2, confirmed=confirmed)
     assert rec["decision"] == "promoted"
     _project_files(tmp_path, "m-b")
+    # the prior's machine in the same project: its promotion time is read from its registry
+    shutil.copytree(registry_dir(root / "results", "m-a"), registry_dir(tmp_path / "results", "m-a"))
     rows = F.fleet_overview(Paths.from_config(tmp_path, {}), tmp_path / "reports", ["m-b"])
     champion = rows[0]["champion"]
     assert champion["parent"] == prior["model_id"] and champion["parent_machine"] == "m-a"

@@ -258,6 +258,12 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
     best["adaptation"]["fitness"] = block
     best["model_id"] = "1" * 64  # the row prior_gain of summary.csv (_add_candidates): the model shown
     best_path.write_text(json.dumps(best), encoding="utf-8")
+    # when the prior was made champion is its registry's fact, not the artefact's (the adapted
+    # model's id depends on content only): read from the prior machine's history
+    assert "promoted" not in block["prior"]
+    promotion = {"decision": "promoted", "champion_id_after": PARENT, "time": "2026-11-01T02:03:04Z"}
+    with open(results / "registry" / "history.jsonl", "a", encoding="utf-8") as history:
+        history.write(json.dumps(promotion) + "\n")
     ctx = _context(results)
     text = " ".join(html.unescape(_text(render_html(ctx))).replace("\u00a0", " ").split())
     who = f"The prior: model {PARENT[:12]} (dynamic) of tapping-center-a , a sibling declared in"
@@ -281,3 +287,73 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
     assert "check: prior_speeds} , or record runs at those speeds" in text
     table = next(t for t in html_tables(render_html(ctx)) if any("tested here" in h for h in t["headers"]))
     assert [list(r.values()) for r in table["records"]] == [["T1", "0.0 … 4.0", "0.0 … 9.0", "4.0 … 9.0"]]
+
+
+@pytest.mark.parametrize(
+    ("method", "cv_scores", "said"),
+    [
+        ("shared_ridge", None, "ridge strength 10.0000 (fixed for every machine, not chosen by CV)"),
+        ("ridge", [1.5, 1.2], "ridge strength 10.0000 (chosen by CV)"),
+        (
+            "ridge",
+            [None, None],
+            "ridge strength 10.0000 (no CV fold: the largest of models.prior_ridge_alphas",
+        ),
+    ],
+)
+def test_the_ridge_penalty_is_said_chosen_by_cv_only_where_a_cv_chose_it(tmp_path, method, cv_scores, said):
+    """shared_ridge's penalty is fixed (SHARED_RIDGE_ALPHA, docs/models.md); prior_ridge's is
+    chosen by whole-run CV on the training runs, or, without a fold, is the largest."""
+    from rafi.family.adapted import SHARED_RIDGE_ALPHA
+
+    results = copy_fixture(tmp_path)
+    _add_candidates(results, offered="prior_ridge")
+    best_path = results / "comparison" / "best_model.json"
+    best = json.loads(best_path.read_text(encoding="utf-8"))
+    best["adaptation"] |= {"method": method, "alpha": SHARED_RIDGE_ALPHA}
+    if method == "shared_ridge":
+        best["adaptation"]["gain"] = 1.0375
+    else:  # the ridge kind's CV table of the penalties tried (score None: no fold)
+        best["cv"] = [{"alpha": a, "score_um": sc} for a, sc in zip((1.0, SHARED_RIDGE_ALPHA), cv_scores)]
+    best_path.write_text(json.dumps(best), encoding="utf-8")
+    text = " ".join(html.unescape(_text(render_html(_context(results)))).replace("\u00a0", " ").split())
+    assert said in text
+    if method == "shared_ridge":
+        assert "(chosen by CV)" not in text and "gain 1.0375 on every coefficient" in text
+
+
+def test_a_first_model_waiting_for_its_priors_confirmation_is_neither_pass_nor_fail(tmp_path):
+    """No model on the machine, the candidate passed every gate and only its prior's fitness
+    warning holds it back: the verdict says WAITING with the check and the entry to add, the words
+    of the end-of-run line and rafi status (rafi.ops.outcome.awaiting_confirmation)."""
+    results = copy_fixture(tmp_path)
+    path = results / "registry" / "decision.json"
+    decision = json.loads(path.read_text(encoding="utf-8"))
+    blocking = [
+        {
+            "check": "prior_speeds",
+            "prior": PARENT,
+            "machine": "tapping-center-a",
+            "for_machine": "a2",
+            "message": "x",
+        }
+    ]
+    decision |= {
+        "decision": "rejected",
+        "champion_id_before": None,
+        "champion_id_after": None,
+        "gates_passed": True,
+        "blocked_by": ["prior_fitness"],
+        "prior_fitness": {"blocking": blocking, "confirmed": []},
+    }
+    path.write_text(json.dumps(decision), encoding="utf-8")
+    ctx = _context(results)
+    assert ctx["verdict"]["status"] == "WAITING"
+    text = " ".join(html.unescape(_text(render_html(ctx))).replace("\u00a0", " ").split())
+    candidate = str(decision["candidate_id"])[:12]
+    assert (
+        f"no model is on the machine yet: the candidate {candidate} passed every gate and waits for a "
+        f"confirmation of the prior fitness check prior_speeds of prior {PARENT[:12]} (tapping-center-a): "
+        f"add checks.confirmed: [{{file: {PARENT[:12]}, check: prior_speeds}}] in a2's settings"
+    ) in text
+    assert "no model is qualified for this machine" not in text

@@ -70,8 +70,19 @@ def test_plan_twin_night_gives_a_requalified_sibling_with_its_parent(tmp_path):
         "models": {**cfg["machines"][MACHINE]["models"], "prior": {"machine": MACHINE}},
     }
     (proj / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
+    # not declared a sibling: rafi plan refuses the prior before anything is recorded, with the
+    # line the night prints (night 2 below)
+    plan = run_rafi(proj, "plan", "--machine", SIBLING, "--hours", "2", "--out", "plan.csv")
+    assert plan.returncode == 64 and not (proj / "plan.csv").exists(), plan.stdout + plan.stderr
+    assert f"prior {prior_id[:12]} is a model of {MACHINE}" in plan.stderr
+    assert f"models.prior_siblings: [{MACHINE}]" in plan.stderr
+    # declared for the plan; the declaration is taken back below to see the night refuse it too
+    declared = copy.deepcopy(cfg)
+    declared["machines"][SIBLING]["models"]["prior_siblings"] = [MACHINE]
+    (proj / "config.yaml").write_text(yaml.safe_dump(declared, sort_keys=False), encoding="utf-8")
     plan = run_rafi(proj, "plan", "--machine", SIBLING, "--hours", "2", "--out", "plan.csv")
     assert plan.returncode == 0, plan.stderr
+    (proj / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False), encoding="utf-8")
     assert f"prior {prior_id[:12]}" in plan.stdout and f"champion of {MACHINE}" in plan.stdout
     steps = read_plan(proj / "plan.csv").steps
     assert sum(s.duration_s for s in steps) <= 2 * 3600 and max(s.speed_rpm for s in steps) == 15000
@@ -130,7 +141,9 @@ def test_plan_twin_night_gives_a_requalified_sibling_with_its_parent(tmp_path):
     summary = (proj / "results" / SIBLING / "comparison" / "summary.csv").read_text(encoding="utf-8")
     assert all(f"\n{name}," in summary for name in ("prior", "prior_gain", "prior_shared_gain"))
     assert adaptation["fitness"]["origin"] == "declared sibling"
-    assert adaptation["fitness"]["prior"]["promoted"] == first["time"]
+    # its promotion time is the registry's, not the artefact's (the id depends on content only)
+    assert "promoted" not in adaptation["fitness"]["prior"]
+    assert f"(promoted {first['time']};" in run_rafi(proj, "status", "--machine", SIBLING).stdout
     status = run_rafi(proj, "status", "--machine", SIBLING)
     assert f"(adapted from {prior_id[:12]} of {MACHINE})" in status.stdout, status.stdout + status.stderr
     assert f"prior:            {prior_id[:12]} of {MACHINE}, declared sibling" in status.stdout

@@ -16,7 +16,10 @@ the adaptation family (:mod:`rafi.family.adapted`) starts from, and whether it m
   sibling declared in ``models.prior_siblings``, or elsewhere); a prior from elsewhere is
   refused (:class:`rafi.errors.PriorForeign`, one line naming its id, its machine and the key);
 * :func:`prior_qualification` is the prior's own qualification (its promotion in its registry:
-  date, worst validation residual, training speeds), for the fitness figures and the report.
+  date, worst validation residual, training speeds), for the fitness figures and the report;
+  the date is a fact of that registry, not of the data, so the fitness block leaves it out (the
+  adapted model's id depends on content only) and the report and ``rafi status`` read it from
+  the registry (:func:`prior_promoted`).
 * :func:`prior_base`: what the adaptation re-fits. A prior that is a CV-weighted ensemble
   (:mod:`rafi.family.ensemble`, the champion of a machine qualified under ``models: offer:
   ensemble``) is adapted through its heaviest member (the largest weight): the adaptation family
@@ -49,6 +52,7 @@ __all__ = [
     "prior_origin",
     "check_origin",
     "prior_qualification",
+    "prior_promoted",
     "prior_record",
     "seen_data",
     "choose_prior",
@@ -348,6 +352,27 @@ def prior_qualification(registry_root: str | os.PathLike, prior: dict) -> dict:
         "n_runs": (summary or {}).get("n_runs"),
         "speeds_rpm": sorted({float(s) for s in speeds}) or None,
     }
+
+
+def prior_promoted(results_dir: str | os.PathLike, machine: str | None, model_id: str | None) -> str | None:
+    """When the prior ``model_id`` of ``machine`` was made champion: the time of its promotion
+    record in ``<results_dir>/<machine>/registry/history.jsonl``, or ``None`` (no such registry or
+    record).
+
+    A fact of that registry, not of the data: it differs between two installations that made the
+    same model champion, so it is read where it is shown (the report, ``rafi status``) and kept out
+    of the adapted model's artefact, whose ``model_id`` depends on content only.
+    """
+    from rafi.artefact import read_jsonl
+    from rafi.ops.registry import promotion_record, registry_dir
+
+    if not machine or not model_id:
+        return None
+    try:
+        history = read_jsonl(registry_dir(results_dir, str(machine)) / "history.jsonl")
+    except (OSError, ValueError):
+        return None
+    return (promotion_record(history, str(model_id)) or {}).get("time")
 
 
 def check_compatible(prior: dict, *, sensors_available: Iterable[str], unit: str | None = None) -> None:

@@ -238,7 +238,10 @@ def fitness_block(
     Returns
     -------
     dict
-        ``origin``, ``prior`` (its qualification), ``method``, ``gain``, ``time_factor``,
+        ``origin``, ``prior`` (its qualification: ``model_id``, ``machine``, ``kind``,
+        ``max_residual_um``, ``n_runs``; not the time of its promotion, a fact of its registry that
+        would make the adapted model's id differ between installations:
+        :func:`rafi.family.prior.prior_promoted`), ``method``, ``gain``, ``time_factor``,
         ``alpha``, ``largest_coefficient_change`` (``name``, ``prior``, ``new``, ``relative``),
         ``prediction_change``, ``speeds_tested_rpm``, ``speed_range_tested_rpm``,
         ``speeds_prior_rpm`` (``None``: only its range is known), ``speed_range_prior_rpm``,
@@ -268,7 +271,6 @@ def fitness_block(
             "model_id": str(prior.get("model_id") or ""),
             "machine": prior.get("machine"),
             "kind": prior.get("kind"),
-            "promoted": qual.get("promoted"),
             "max_residual_um": qual.get("max_residual_um"),
             "n_runs": qual.get("n_runs"),
         },

@@ -49,6 +49,8 @@ import json
 import os
 from pathlib import Path
 
+from rafi.family.prior import prior_promoted
+from rafi.ops.outcome import awaiting_confirmation
 from rafi.ops.project import Paths
 from rafi.ops.status import (
     EXIT_OK,
@@ -264,10 +266,13 @@ def _drift(decision: dict | None, champion_id: str | None = None) -> dict | None
     return out
 
 
-def prior_summary(artefact: dict | None) -> dict | None:
+def prior_summary(artefact: dict | None, results_dir: str | os.PathLike | None = None) -> dict | None:
     """The prior of a model re-qualified from one, from its ``adaptation`` block: ``id``,
     ``machine``, ``origin`` (``this machine`` / ``declared sibling``; None: not recorded),
-    ``promoted`` / ``max_residual_um`` / ``n_runs`` (its own qualification), ``method``,
+    ``promoted`` (when it was made champion: read from its machine's registry under
+    ``results_dir``, :func:`rafi.family.prior.prior_promoted`; an artefact of an earlier
+    version may carry it in its fitness block), ``max_residual_um`` / ``n_runs`` (its own
+    qualification), ``method``,
     ``gain``, ``time_factor``, ``alpha`` (a ridge's penalty), ``largest_coefficient_change``,
     ``prediction_change``, ``speeds_tested_rpm``, ``speeds_prior_only_rpm`` and ``warnings``
     (the fitness block, :mod:`rafi.family.prior_fitness`; the figures are None for a model
@@ -278,11 +283,13 @@ def prior_summary(artefact: dict | None) -> dict | None:
     fit = block.get("fitness") if isinstance(block.get("fitness"), dict) else {}
     own = fit.get("prior") or {}
     keys = ("largest_coefficient_change", "prediction_change", "speeds_tested_rpm", "speeds_prior_only_rpm")
+    machine = block.get("parent_machine") or own.get("machine")
+    promoted = prior_promoted(results_dir, machine, block.get("parent")) if results_dir is not None else None
     return {
         "id": block.get("parent"),
-        "machine": block.get("parent_machine") or own.get("machine"),
+        "machine": machine,
         "origin": fit.get("origin"),
-        "promoted": own.get("promoted"),
+        "promoted": promoted or own.get("promoted"),
         "max_residual_um": own.get("max_residual_um"),
         "n_runs": own.get("n_runs"),
         "method": block.get("method"),
@@ -316,6 +323,20 @@ def _older(a: Path, b: Path) -> bool:
         return a.stat().st_mtime_ns < b.stat().st_mtime_ns
     except OSError:
         return False
+
+
+def rejected_text(decision: dict, *, has_champion: bool) -> str:
+    """What ``rafi status`` says of a last decision ``rejected``: a candidate that passed every gate
+    and waits for its prior's fitness warnings to be confirmed is named with each check and the
+    ``checks.confirmed`` entry to add (:func:`rafi.ops.outcome.awaiting_confirmation`, the words of
+    the end-of-run line); any other is rejected. Then whether a model stays in service."""
+    waiting = awaiting_confirmation(decision)
+    if waiting:  # passed every gate: goes on the machine once confirmed
+        stays = "the champion stays until then" if has_champion else "no model in service until then"
+        who = short_id(str(decision.get("candidate_id") or ""))
+        return f"the last candidate {who} passed every gate and {waiting}; {stays}"
+    stays = "the champion stays" if has_champion else "no model in service"
+    return f"the last candidate was rejected; {stays}"
 
 
 def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str) -> dict:
@@ -352,7 +373,7 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
         artefact = _read_json(reg / "models" / f"{champion_id}.json") or {}
         kind = artefact.get("kind") or None
         parent = (artefact.get("adaptation") or {}).get("parent") or None
-        prior = prior_summary(artefact)
+        prior = prior_summary(artefact, paths.results_dir)
         members = ensemble_weights(artefact)
     decision = _read_json(reg / "decision.json")
     last = None
@@ -402,7 +423,7 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
             by = f" by {deg:.2f} um" if deg is not None else ""
             attention.append(("recalibration_due", f"the model in service drifted{by}: recalibration due"))
     if (decision or {}).get("decision") == "rejected":
-        attention.append(("rejected", "the last candidate was rejected; the champion stays"))
+        attention.append(("rejected", rejected_text(decision, has_champion=bool(champion_id))))
     if status.quarantined and not status.skipped:
         attention.append(("quarantined", f"{len(status.quarantined)} raw file(s) quarantined"))
     attention.sort(key=lambda a: RANK[a[0]])
@@ -410,6 +431,8 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     return {
         "machine": machine,
         "state": state,
+        # the last candidate passed every gate and waits for a confirmation (state rejected, exit 2)
+        "waiting": state == "rejected" and awaiting_confirmation(decision) is not None,
         "rank": RANK[state],
         "attention": [{"state": s, "text": t} for s, t in attention],
         "champion": (

@@ -126,7 +126,8 @@ def format_rows(rows: list[dict]) -> str:
             if worst
             else "-"
         )
-        lines.append(f"{r['machine']}: {r['state'].upper()}")
+        headline = "WAITING FOR CONFIRMATION" if r.get("waiting") else r["state"].upper()
+        lines.append(f"{r['machine']}: {headline}")
         for a in r["attention"]:
             lines.append(f"  ! {a['text']}")
         lines.append(f"  model in service: {model}")

@@ -13,7 +13,9 @@ lines")::
       mill-d: not judged in this run (no decision built; the last is of 2026-11-20T02:00:00Z)
 
 (each entry is one line; wrapped here). PASS: the model offered passed every qualification gate
-(``decision.json`` ``gates_passed``); whether it was promoted is said after it. FAIL: it failed
+(``decision.json`` ``gates_passed``); whether it was promoted is said after it. WAITING: it
+passed every gate and waits for a person to confirm its prior's fitness warnings (the checks and
+the ``checks.confirmed`` entries to add are named). FAIL: it failed
 a gate (each failed gate in words), or a step of the machine failed in this run. skipped: the
 machine folder has no usable raw file (discovery found no file, or every file was quarantined).
 A machine whose decision was not built in this run (``tables`` target, a night for another
@@ -38,7 +40,7 @@ from rafi.ops.run_messages import MARKER, log_warnings, step_failed
 #: The docs section on these lines.
 DOCS = "docs/operations.md#end-of-run-lines"
 #: The statuses of a line, in the order they are listed.
-STATUSES = ("FAIL", "skipped", "PASS", "not judged")
+STATUSES = ("FAIL", "skipped", "WAITING", "PASS", "not judged")
 
 #: A gate (``rafi.method.validate.qualify``'s criterion) in words: (what is measured, the unit,
 #: the comparison a failure makes, ``True`` if the worst measurement is the largest).
@@ -127,6 +129,39 @@ def model_words(kind: str | None, model_id: str | None) -> str:
     return f"{kind} {short}" if kind else short
 
 
+def awaiting_confirmation(decision: dict | None) -> str | None:
+    """What a candidate that passed every gate waits for, in words, or None.
+
+    A decision ``rejected`` with ``gates_passed`` whose only block is ``prior_fitness`` (the
+    fitness warnings of its prior, :func:`prior_warnings`) is neither a pass that went on the
+    machine nor a failure: it goes on once a person confirms the warnings. The words name each
+    check and the prior, and the ``checks.confirmed`` entries to add to the machine's settings
+    (``docs/models.md``, "The prior's fitness"); the end-of-run line, ``rafi status`` and the
+    report say them alike.
+    """
+    decision = decision or {}
+    blocking = ((decision.get("prior_fitness") or {}).get("blocking")) or []
+    if (
+        decision.get("decision") != "rejected"
+        or not decision.get("gates_passed")
+        or list(decision.get("blocked_by") or []) != ["prior_fitness"]
+        or not blocking
+    ):
+        return None
+    checks = ", ".join(
+        f"{w.get('check')} of prior {str(w.get('prior') or '')[:12]} ({w.get('machine')})" for w in blocking
+    )
+    entries = ", ".join(
+        f"{{file: {str(w.get('prior') or '')[:12]}, check: {w.get('check')}}}" for w in blocking
+    )
+    machine = next((w.get("for_machine") for w in blocking if w.get("for_machine")), None)
+    where = f" in {machine}'s settings" if machine else ""
+    return (
+        f"waits for a confirmation of the prior fitness check {checks}: add checks.confirmed: "
+        f"[{entries}]{where}"
+    )
+
+
 def decision_outcome(
     machine: str,
     decision: dict,
@@ -140,12 +175,24 @@ def decision_outcome(
     candidate's model kind, from the registry).
 
     PASS if every gate passed (``gates_passed``), with the decision (``promoted``, ``kept``, or
-    ``not promoted: <what blocked it>``); FAIL with each failed gate in words
+    ``not promoted: <what blocked it>``); WAITING when it passed every gate and only the prior's
+    fitness warnings hold it back (:func:`awaiting_confirmation`: each check and
+    the ``checks.confirmed`` entry to add); FAIL with each failed gate in words
     (:func:`failed_gate_words`; the decision's first reason where the verdict names none, e.g.
     no validation run).
     """
     offered = f"model offered: {model_words(kind, decision.get('candidate_id'))}"
     state = decision.get("decision")
+    waiting = awaiting_confirmation(decision)
+    if waiting:  # passed every gate, goes on once a person confirms: neither PASS nor FAIL
+        return Outcome(
+            machine,
+            "WAITING",
+            f"{offered}, passed every gate, not promoted: {waiting}",
+            probe,
+            report,
+            tuple(warnings),
+        )
     if decision.get("gates_passed"):
         if state == "promoted" or state == "kept":
             text = f"{offered}, {state}"

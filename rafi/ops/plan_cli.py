@@ -4,7 +4,10 @@ The programme (:func:`rafi.ops.plan.plan_programme`, ``docs/operations.md``, "Re
 in hours" and "A programme shaped by the prior") is built from:
 
 * the **prior**: the model the re-qualification starts from, resolved as rule compare resolves
-  it (``models.prior``, :func:`rafi.family.prior.prior_chain`; ``--prior`` overrides it here),
+  it (``models.prior``, :func:`rafi.family.prior.prior_chain`; ``--prior`` overrides it here) and
+  refused as the night refuses it: a model of a machine that is neither this one nor declared in
+  ``models.prior_siblings`` stops the command with the night's one line
+  (:func:`rafi.family.prior.check_origin`, :class:`rafi.errors.PriorForeign`, exit status 64),
   read by :func:`rafi.ops.plan.prior_view`: the speeds it was trained at, its interval's half
   widths, its slowest time constant (a CV-weighted ensemble read whole: its members' speeds and
   ranges, its own interval, the time constants of the member the adaptation re-fits);
@@ -67,7 +70,7 @@ def prior_setting(text: str | None, configured):
 def run(args) -> int:
     from rafi.artefact import write_text_atomic
     from rafi.deploy.record_plan import read_plan
-    from rafi.family.prior import prior_chain
+    from rafi.family.prior import check_origin, prior_chain, source_unit
     from rafi.ops.plan import (
         covering_budget_h,
         plan_csv,
@@ -88,6 +91,9 @@ def run(args) -> int:
     setting = prior_setting(args.prior, settings["models"]["prior"])
     chain = prior_chain(results, args.machine, setting)
     prior = chain[0] if chain else None
+    if prior is not None:  # a prior the night would refuse is refused here, before hours are recorded
+        source = source_unit(results, setting, args.machine)[1]
+        check_origin(prior, args.machine, settings["models"]["prior_siblings"] or (), source)
     speeds = [float(s) for s in settings["training_speeds_rpm"] or []]
     if not speeds:
         raise SettingsError(

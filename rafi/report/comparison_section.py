@@ -518,7 +518,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "envelope_meaning": MEANING,
     }
     if ensemble is not None:  # offered by models: offer, not by the lowest score: the rule says so
-        out["selection"] |= {"rule": ensemble["selection_rule"], "ensemble": ensemble}
+        out["selection"]["ensemble"] = ensemble
+        if ensemble["selection_rule"]:  # an ensemble adapted from a prior: the re-qualification's rule stands
+            out["selection"]["rule"] = ensemble["selection_rule"]
     pr = res.get("comparison_per_run")
     if pr is None or not len(pr):
         return out

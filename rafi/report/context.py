@@ -114,7 +114,9 @@ def build_context(
     ctx["registry"] = section_registry(res, infos)
     dec = res["decision"] if isinstance(res.get("decision"), dict) else {}
     ctx["comparison"] = section_comparison(res, dec.get("champion_id_after"), settings, figs)
-    ctx["requalification"] = section_requalification(res)
+    ctx["requalification"] = section_requalification(
+        res, registry_dir.parent.parent if registry_dir is not None else None
+    )
     ctx["replay"] = section_replay(res, settings, figs, dec.get("champion_id_after"))
     ctx["deployed"] = section_deployed(res, figs, dec.get("champion_id_after"))
     # figure numbers in document order: the offered model, its replay, then sections 3 on

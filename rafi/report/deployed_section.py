@@ -61,6 +61,12 @@ ENSEMBLE_DESCRIPTION = (
     "weighted by its whole-run cross-validation score on the training runs (models: offer: ensemble)."
 )
 
+#: What the section says an ensemble adapted from a prior as a whole is.
+ADAPTED_ENSEMBLE_DESCRIPTION = (
+    "The ensemble prior adapted as a whole: the weighted mean of the predictions of the prior's "
+    "members as this run moved them, with the prior's weights (from its own qualification)."
+)
+
 #: At most this many validation runs per residual figure (3 rows of 2 panels: one page).
 RUNS_PER_FIGURE = 6
 
@@ -421,7 +427,13 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "kind": kind,
         "model_id": mid,
         "short_id": short_id(mid),
-        "description": kind_description(kind) if ensemble is None else ENSEMBLE_DESCRIPTION,
+        "description": (
+            kind_description(kind)
+            if ensemble is None
+            else ADAPTED_ENSEMBLE_DESCRIPTION
+            if ensemble["adapted"]
+            else ENSEMBLE_DESCRIPTION
+        ),
         "inputs_text": str(art.get("inputs", "")) or parts.get("inputs_text", ""),
         "ensemble": ensemble,
         "inputs": [{"input": a, "how": b} for a, b in inputs],

@@ -27,6 +27,8 @@ __all__ = [
     "ensemble_rule",
     "ensemble_members",
     "ensemble_context",
+    "adapted_from",
+    "adapted_weight_rule",
 ]
 
 #: The selection rule under ``models: offer: ensemble``, for people (the comparison states it).
@@ -60,6 +62,21 @@ OPTIMISM = (
 )
 
 
+#: Why an ensemble adapted from a prior as a whole is offered (``docs/models.md``, "The choice with
+#: an ensemble prior").
+ADAPTED_WHY = (
+    "it is the ensemble prior adapted as a whole ({candidate}), chosen by the re-qualification's rule "
+    '(Model comparison, selection rule; docs/models.md, "The choice with an ensemble prior"), not by '
+    "models: offer: ensemble: this run fitted no ensemble of its own kinds."
+)
+
+#: The blend, in words.
+EQUATION = (
+    "dz = \u03a3 w_k dz_k / \u03a3 w_k over the members k that have a value at the sample "
+    "(each dz_k its member's own prediction: its filters, reference, envelope and output cap)"
+)
+
+
 def is_ensemble(artefact) -> bool:
     """True for an ensemble's artefact (``kind: ensemble``, :mod:`rafi.family.ensemble`)."""
     return isinstance(artefact, dict) and artefact.get("kind") == ENSEMBLE
@@ -89,11 +106,52 @@ def ensemble_rule(scheme: str = "", forward: str = "") -> str:
     return text
 
 
-def _row(summary: pd.DataFrame | None, name: str) -> dict:
+def _row(summary: pd.DataFrame | None, name: str, model_id: str | None = None) -> dict:
+    """The row of ``summary`` of the model ``name`` whose ``model_id`` is ``model_id`` (a member's
+    own row); ``{}`` when there is none: a row of the same name but another model (the from-scratch
+    kind beside an adapted ensemble's moved member) is not the member's."""
     if summary is None or "model" not in summary:
         return {}
     rows = summary[summary["model"].astype(str) == name]
+    if model_id and "model_id" in rows:
+        rows = rows[rows["model_id"].astype(str) == str(model_id)]
     return rows.iloc[0].to_dict() if len(rows) else {}
+
+
+def adapted_from(artefact: dict) -> dict | None:
+    """The prior an ensemble was adapted from as a whole (``prior_shared_gain``,
+    ``prior_shared_ridge``: its ``adaptation`` block), or None for an ensemble of this run's kinds:
+    ``parent`` (short id), ``parent_machine``, ``method``, ``candidate`` (its row of
+    ``comparison/summary.csv``), ``gain`` and ``alpha``."""
+    block = artefact.get("adaptation")
+    if not isinstance(block, dict) or not block.get("parent"):
+        return None
+    method = str(block.get("method") or "")
+    return {
+        "parent": short_id(str(block["parent"])),
+        "parent_machine": block.get("parent_machine") or "",
+        "method": method,
+        "candidate": f"prior_{method}" if method else "",
+        "gain": block.get("gain"),
+        "alpha": block.get("alpha"),
+    }
+
+
+def adapted_weight_rule(adapted: dict) -> str:
+    """Where an adapted ensemble's weights come from, in words: the prior's, kept as they are."""
+    alpha = adapted.get("alpha")
+    penalty = f"the fixed penalty {float(alpha):g}" if alpha is not None else "a fixed penalty"
+    moved = (
+        f"every ridge member then moved toward the new data by a ridge at {penalty}"
+        if adapted["method"] == "shared_ridge"
+        else "every member's coefficients times that gain"
+    )
+    where = f" of {adapted['parent_machine']}" if adapted["parent_machine"] else ""
+    return (
+        f"the prior's weights, kept as they are: fixed from the whole-run CV of the prior's own "
+        f"qualification (model {adapted['parent']}{where}), not from this run's CV; this run fitted one gain "
+        f"on the blend, {moved}"
+    )
 
 
 def ensemble_members(artefact: dict, summary: pd.DataFrame | None) -> list[dict]:
@@ -101,13 +159,16 @@ def ensemble_members(artefact: dict, summary: pd.DataFrame | None) -> list[dict]
     and ``weight_pct``, ``cv_um`` (its whole-run CV mean max |residual|: the ``s`` of its weight),
     ``cv_worst_um``, ``validation_um`` (its own worst validation max |residual|), ``passed`` (its
     own gates), ``heaviest`` and ``plain_ridge``; the numbers from its own row of
-    ``comparison/summary.csv`` (``None`` where it has none)."""
+    ``comparison/summary.csv``: the row of its name and its model id (``None`` where it has none:
+    an adapted ensemble's moved members are scored as the whole ensemble only, and the
+    from-scratch kinds of the same names are other models)."""
     weights = {str(k): float(v) for k, v in (artefact.get("weights") or {}).items()}
     members = artefact.get("members") or {}
     order = sorted(weights, key=lambda n: -weights[n])
     out = []
     for k, name in enumerate(order):
-        art, r = members.get(name) or {}, _row(summary, name)
+        art = members.get(name) or {}
+        r = _row(summary, name, art.get("model_id"))
         out.append(
             {
                 "model": name,
@@ -138,22 +199,39 @@ def ensemble_context(
         (:data:`rafi.family.ensemble.WEIGHT_RULE`), ``selection_rule`` (:func:`ensemble_rule`),
         ``why`` (:data:`WHY`), ``optimism`` (:data:`OPTIMISM`), ``plain_ridge_weight`` (the plain
         ridge's weight, ``None`` when it is not a member) and ``equation`` (the blend, in words).
+        For an ensemble adapted from a prior as a whole, ``adapted`` (:func:`adapted_from`; else
+        None), its members the prior's as the adaptation moved them with the prior's weights:
+        ``rule`` says so (:func:`adapted_weight_rule`), ``selection_rule`` is None (the
+        re-qualification's rule stands), ``why`` is :data:`ADAPTED_WHY`, ``optimism`` empty and
+        ``plain_ridge_weight`` None (the plain ridge scored in this run is not its member).
     """
     if not is_ensemble(artefact):
         return None
     members = ensemble_members(artefact, summary)
+    adapted = adapted_from(artefact)
     ridge = next((m["weight"] for m in members if m["plain_ridge"]), None)
+    if adapted is not None:  # the prior's members and weights: not this run's kinds, not its CV's
+        return {
+            "members": members,
+            "n": len(members),
+            "heaviest": members[0]["model"] if members else None,
+            "adapted": adapted,
+            "rule": adapted_weight_rule(adapted),
+            "selection_rule": None,  # the re-qualification's rule (rafi.family.selection) stands
+            "why": ADAPTED_WHY.format(candidate=adapted["candidate"] or "the adaptation"),
+            "optimism": "",
+            "plain_ridge_weight": None,  # the plain ridge scored here is not its member
+            "equation": EQUATION,
+        }
     return {
         "members": members,
         "n": len(members),
         "heaviest": members[0]["model"] if members else None,
+        "adapted": None,
         "rule": WEIGHT_RULE,
         "selection_rule": ensemble_rule(scheme, forward),
         "why": WHY,
         "optimism": OPTIMISM,
         "plain_ridge_weight": ridge,
-        "equation": (
-            "dz = \u03a3 w_k dz_k / \u03a3 w_k over the members k that have a value at the sample "
-            "(each dz_k its member's own prediction: its filters, reference, envelope and output cap)"
-        ),
+        "equation": EQUATION,
     }

@@ -25,9 +25,12 @@ by how much).
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pandas as pd
 
+from rafi.family.prior import prior_promoted
 from rafi.family.prior_fitness import warning_remedy
 from rafi.report.comparison_section import selection_score
 from rafi.report.format import fmt_num, fmt_speed, fmt_speed_range, isnum, short_id
@@ -176,20 +179,29 @@ def _range(pair, digits: int = 1) -> str:
     return f"{fmt_num(pair[0], digits)} … {fmt_num(pair[1], digits)}" if pair else "–"
 
 
-def fitness_context(block: dict | None, machine: str | None = None) -> dict | None:
+def fitness_context(
+    block: dict | None, machine: str | None = None, results_dir: str | os.PathLike | None = None
+) -> dict | None:
     """The prior's fitness (the adaptation block's ``fitness``) as the section shows it, or
     ``None`` without one: ``origin``, ``prior`` (its own qualification: ``id``, ``machine``,
-    ``kind``, ``promoted``, ``max_residual_um``, ``n_runs``), ``prediction_change`` and
-    ``largest`` (:func:`rafi.family.prior_fitness.fitness_block`), ``speeds_tested``,
-    ``speeds_prior``, ``speeds_prior_only`` and the two ranges (text), ``temperature`` (rows:
-    ``sensor``, ``tested``, ``prior``, ``prior_only``, text in K), ``bounds`` and ``warnings``
-    (``check``, ``message``, ``confirm``: the ``checks.confirmed`` entry that confirms it,
-    ``instead``: what to do instead for ``machine``, :func:`rafi.family.prior_fitness.warning_remedy`)."""
+    ``kind``, ``promoted``, ``max_residual_um``, ``n_runs``; ``promoted`` is read from its
+    machine's registry under ``results_dir``, :func:`rafi.family.prior.prior_promoted`: a fact of
+    the registry, not of the artefact, which carries it only from an earlier version),
+    ``prediction_change`` and ``largest`` (:func:`rafi.family.prior_fitness.fitness_block`),
+    ``speeds_tested``, ``speeds_prior``, ``speeds_prior_only`` and the two ranges (text),
+    ``temperature`` (rows: ``sensor``, ``tested``, ``prior``, ``prior_only``, text in K),
+    ``bounds`` and ``warnings`` (``check``, ``message``, ``confirm``: the ``checks.confirmed``
+    entry that confirms it, ``instead``: what to do instead for ``machine``,
+    :func:`rafi.family.prior_fitness.warning_remedy`)."""
     fit = (block or {}).get("fitness")
     if not isinstance(fit, dict):
         return None
     own = dict(fit.get("prior") or {})
-    pid = short_id(own.get("model_id") or (block or {}).get("parent") or "")
+    full_id = own.get("model_id") or (block or {}).get("parent") or ""
+    pid = short_id(full_id)
+    if results_dir is not None:
+        prior_machine = (block or {}).get("parent_machine") or own.get("machine")
+        own["promoted"] = prior_promoted(results_dir, prior_machine, full_id) or own.get("promoted")
     return {
         "origin": fit.get("origin"),
         "prior": {**own, "id": pid},
@@ -231,8 +243,50 @@ def ensemble_prior(block: dict | None) -> dict | None:
     return {**member, "model_id": short_id(str(member.get("model_id") or ""))}
 
 
-def section_requalification(res: dict) -> dict | None:
+def _scored_by_cv(best: dict, key: str, cv: bool) -> bool:
+    """Whether the adapted model's ``key`` (``alpha`` or ``factor``) was chosen by a CV that
+    scored it: its artefact's ``cv`` table (one row a value tried, ``score_um`` None without a
+    fold), else, for an artefact without one, whether the family's CV had a fold (``cv``)."""
+    rows = [r for r in best.get("cv") or [] if isinstance(r, dict) and key in r]
+    if rows:
+        return any(isnum(r.get("score_um")) for r in rows)
+    return cv
+
+
+def how_chosen(best: dict, block: dict | None, cv: bool) -> dict:
+    """How the offered adaptation's ridge penalty and time factor were set, in words (the
+    section's "How far the prior moved"): ``alpha`` and ``time_factor`` (None where the block has
+    none). ``shared_ridge``'s penalty is fixed for every machine
+    (:data:`rafi.family.adapted.SHARED_RIDGE_ALPHA`), not chosen; ``prior_ridge``'s penalty and
+    ``prior_time``'s factor are chosen by whole-run CV on the training runs, or, without a fold,
+    are the prior's side (the largest penalty, the factor 1)."""
+    block = block or {}
+    words: dict = {"alpha": None, "time_factor": None}
+    if block.get("alpha") is not None:
+        if block.get("method") == "shared_ridge":
+            words["alpha"] = "fixed for every machine, not chosen by CV"
+        elif _scored_by_cv(best, "alpha", cv):
+            words["alpha"] = "chosen by CV"
+        else:
+            words["alpha"] = "no CV fold: the largest of models.prior_ridge_alphas, the prior's side"
+    if block.get("time_factor") is not None:
+        if _scored_by_cv(best, "factor", cv):
+            words["time_factor"] = "chosen by CV"
+        else:
+            words["time_factor"] = "no CV fold: the prior's own time constants"
+    return words
+
+
+def section_requalification(res: dict, results_dir: str | os.PathLike | None = None) -> dict | None:
     """The context of the re-qualification section, or ``None`` when no prior was a candidate.
+
+    Parameters
+    ----------
+    res : dict
+        The loaded results (:func:`rafi.report.inputs.load_results`).
+    results_dir : str or path, optional
+        The folder holding every machine's ``registry``: the prior's promotion time is read from
+        its machine's (None: not shown unless the artefact carries it).
 
     Returns
     -------
@@ -244,7 +298,8 @@ def section_requalification(res: dict) -> dict | None:
         ``adaptation`` (the offered model's block or ``None``: the prior lost), ``parent``
         (short id), ``moves`` (:func:`coefficient_moves`) and ``sentence`` (the comparison in
         one sentence, every number from the rows), ``fitness`` (:func:`fitness_context`),
-        ``member`` (:func:`ensemble_prior`: the member of an ensemble prior that was re-fitted).
+        ``member`` (:func:`ensemble_prior`: the member of an ensemble prior that was re-fitted),
+        ``chosen`` (:func:`how_chosen`: how the ridge penalty and the time factor were set).
     """
     summ = res.get("comparison")
     if summ is None or "model" not in summ or not summ["model"].astype(str).isin(list(CANDIDATES)).any():
@@ -255,6 +310,7 @@ def section_requalification(res: dict) -> dict | None:
     block = best.get("adaptation") if isinstance(best.get("adaptation"), dict) else None
     prior_row = next((r for r in rows if r["model"] == "prior"), None)
     scratch = _best_by_cv(rows, "from scratch")
+    cv = any(isnum(r["cv_um"]) for r in rows)
     return {
         "rows": rows,
         "offered": offered,
@@ -265,11 +321,12 @@ def section_requalification(res: dict) -> dict | None:
         "parent": short_id(block.get("parent", "")) if block else "",
         "parent_machine": (block or {}).get("parent_machine") or "",
         "moves": coefficient_moves((block or {}).get("coefficient_change")),
-        "fitness": fitness_context(block, best.get("machine")),
+        "fitness": fitness_context(block, best.get("machine"), results_dir),
         # a CV-weighted ensemble prior: the member re-fitted (rafi.family.prior.prior_base)
         "member": ensemble_prior(block),
         "sentence": comparison_sentence(offered, prior_row, scratch),
-        "cv": any(isnum(r["cv_um"]) for r in rows),
+        "cv": cv,
+        "chosen": how_chosen(best, block, cv),
         "forward": any(isnum(r["cv_forward_um"]) for r in rows),
     }
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from rafi.ops.outcome import awaiting_confirmation
 from rafi.report.format import fmt_num, fmt_speed_range, short_id, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import interval_block, worst_run_interval
@@ -504,7 +505,10 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
     floor (:func:`judged_verdict`, :func:`rafi_verdict`: the stored verdicts; NOT STORED where
     no result file stores one); ``interval``: the prediction interval at the worst run of the
     judged model (:func:`judged_interval`; RAFI's: :func:`rafi_context`), ``None`` without
-    interval results. ``registry_dir``: where ``registry/models/<id>.json`` are looked up."""
+    interval results; without a model on the machine and a candidate that passed every gate and
+    waits for its prior's fitness to be confirmed, the status is WAITING and ``judged`` has
+    ``waiting`` (:func:`rafi.ops.outcome.awaiting_confirmation`) and ``candidate``.
+    ``registry_dir``: where ``registry/models/<id>.json`` are looked up."""
     noise = noise_floors(res)
     rafi_v = rafi_context(res, noise)
     dec = res.get("decision")
@@ -522,9 +526,15 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
         "none": not after,
         "is_rafi": info.get("kind") == "rafi",
     }
+    # no model on the machine yet, the candidate waiting for its prior's fitness to be confirmed:
+    # neither PASS nor FAIL (the words of the end-of-run line and rafi status)
+    judged["waiting"] = awaiting_confirmation(dec) if not after else None
+    judged["candidate"] = short_id(dec.get("candidate_id") or "")
     verdict, src = judged_verdict(res, dec)
     if not after:
         out = empty_verdict("no model on the machine")
+        if judged["waiting"]:
+            out.update(status="WAITING", css="unknown")
     elif verdict is None:
         out = empty_verdict(src, stored=False)
     else:
