@@ -44,8 +44,9 @@ def test_preview_lists_the_runs_and_warns_of_run_start_on_a_continuous_log(tmp_p
     assert len(runs) == 6  # three steps (the first with its rest), three cool-downs
     assert "training" in runs[0] and "3000 r/min" in runs[0]
     assert "reference: run_start" in "\n".join(lines)
-    (w,) = warnings(lines)
-    assert "reference: {rule: log_start}" in w and "log.csv holds 3 runs" in w
+    (w,) = warnings(lines)  # the pipeline's warning, counting the runs as it does (cool-downs too)
+    assert "`reference: {rule: log_start}`" in w and "read per run by design" in w
+    assert "log log.csv holds 6 runs of one continuous recording" in w
 
 
 def test_preview_says_no_run_is_at_a_training_speed_and_lists_the_speeds(tmp_path):

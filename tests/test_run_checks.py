@@ -125,18 +125,21 @@ def test_a_machine_left_at_the_default_training_speeds_is_told_so_and_what_to_se
     assert warning.endswith("set training_speeds_rpm: [6000]")
 
 
-def test_a_machine_requalified_from_a_prior_is_told_the_speeds_are_the_priors_not_to_drop_them(singles):
-    """A re-qualification's short programme leaves speeds to the prior: the warning says so and
-    names the prior_speeds confirmation; it never advises fewer training speeds."""
+def test_a_machine_that_may_requalify_from_a_prior_is_told_the_untested_speeds_may_be_the_priors(singles):
+    """``rafi plan``'s short programme leaves speeds to the prior: where a prior may be in use the
+    warning adds that case and the prior_speeds confirmation; with ``models.prior: none`` it does not."""
     frames, table = singles
     table = table[table["speed_rpm"].round() != 3000]
     speeds = [3000, 6000, 9000, 12000, 15000, 18000]
-    (warning,) = training_speed_problems(table, speeds, 50, "m", prior="champion")
-    assert warning.startswith("training_speeds_rpm: no training run at 3000, 9000, 12000, 15000, 18000 r/min")
-    assert "left to the prior (models.prior)" in warning and "prior_speeds" in warning
-    assert "set training_speeds_rpm" not in warning
-    (same,) = _check(frames, table, training_speeds_rpm=speeds, prior={"machine": "m"})
-    assert same == warning
+    plain = training_speed_problems(table, speeds, 50, "m")
+    assert training_speed_problems(table, speeds, 50, "m", prior="none") == plain
+    (warning,) = training_speed_problems(table, speeds, 50, "m", prior="auto")
+    assert warning.startswith(plain[0])
+    assert warning.endswith(
+        "; in a re-qualification from a prior (models.prior) these speeds are left to the prior, and "
+        "the promotion waits for the prior_speeds confirmation (docs/models.md)"
+    )
+    assert _check(frames, table, training_speeds_rpm=speeds, prior={"machine": "m"}) == [warning]
 
 
 def test_a_window_glob_matching_no_log_names_the_key_and_the_logs(singles):

@@ -91,9 +91,10 @@ def training_speed_problems(
 ) -> list[str]:
     """Warnings for the configured training speeds without a training run; raises if no run trains.
 
-    With a prior (``models.prior`` set: a re-qualification, whose short programme tests some
-    speeds and leaves the rest to the prior) the warning says so and points at the prior's
-    ``prior_speeds`` confirmation instead of advising fewer training speeds.
+    Where the machine may re-qualify from a prior (``models.prior`` other than ``none``: ``rafi
+    plan``'s short programme tests some speeds and leaves the rest to the prior) the warning adds
+    that case and the prior's ``prior_speeds`` confirmation; the rule cannot tell whether a prior
+    is in use tonight (``auto`` takes the champion when there is one), so it says both.
 
     Raises
     ------
@@ -118,13 +119,13 @@ def training_speed_problems(
         return []
     groups = speed_groups(trained, tolerance_rpm)
     at = ", ".join(f"{_rpm(s)} ({n})" for s, n in groups)
-    if prior is not None:
-        return [
-            f"training_speeds_rpm: no training run at {', '.join(_rpm(s) for s in missing)} r/min; the "
-            f"training runs are at {at} r/min (run counts in brackets): the speeds left to the prior "
-            "(models.prior), which the re-qualified model takes from it; its promotion waits for the "
-            "prior_speeds confirmation (docs/models.md)"
-        ]
+    if prior not in (None, "none"):
+        advice_prior = (
+            "; in a re-qualification from a prior (models.prior) these speeds are left to the prior, "
+            "and the promotion waits for the prior_speeds confirmation (docs/models.md)"
+        )
+    else:
+        advice_prior = ""
     if configured == [float(s) for s in MACHINE_DEFAULTS["training_speeds_rpm"]]:
         where = f"the default {speeds} r/min, the paper rig's: this machine sets none"
         own = ", ".join(_rpm(s) for s, _ in groups)
@@ -134,7 +135,7 @@ def training_speed_problems(
     return [
         f"training_speeds_rpm: no training run at {', '.join(_rpm(s) for s in missing)} r/min "
         f"({where}); the training runs are at {at} r/min (run counts in brackets); "
-        f"the model is fitted at those speeds only{advice}"
+        f"the model is fitted at those speeds only{advice}{advice_prior}"
     ]
 
 
@@ -155,7 +156,8 @@ def continuous_log_warnings(table: pd.DataFrame, reference_rule: str) -> list[st
             "reference.rule is run_start: each run's rises and "
             "displacement start from its own first samples, a warm machine for every run but the "
             "first. For runs inside one continuous log set `reference: {rule: log_start}` "
-            f"({CONTINUOUS_LOG_DOCS})"
+            f"({CONTINUOUS_LOG_DOCS}); a recording of `rafi plan`'s programme is read per run by "
+            "design, leave it (docs/record.md)"
         )
     return out
 
@@ -260,7 +262,7 @@ def check_runs(
     speed_by_file : mapping, optional
         ``input.speed.constant_rpm_by_file``.
     prior : optional
-        ``models.prior`` (None: the machine qualifies from scratch): :func:`training_speed_problems`.
+        ``models.prior`` (None or ``none``: never a prior): :func:`training_speed_problems`.
 
     Raises
     ------

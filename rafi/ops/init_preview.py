@@ -104,15 +104,10 @@ def _window_warnings(frames: Mapping, windows: list) -> list[str]:
 def preview_warnings(table: pd.DataFrame, frames: Mapping, settings: Mapping) -> list[str]:
     """What in the configuration the runs contradict, one line each naming the key."""
     out = []
+    from rafi.method.run_checks import continuous_log_warnings
+
     moving = table[(table["kind"] != "idle") & (table["role"] != "excluded")]
-    if settings["reference"]["rule"] == "run_start":
-        for name, runs in moving.groupby("file"):
-            if len(runs) >= 2:
-                out.append(
-                    f"{name} holds {len(runs)} runs one after another (a continuous log) but reference.rule "
-                    "is run_start: each run would be measured from its own warm start; set reference: "
-                    "{rule: log_start}"
-                )
+    out += continuous_log_warnings(table, settings["reference"]["rule"])  # the pipeline's, runs counted alike
     trained = table[(table["role"] == "training") & (table["kind"] != "idle")]
     if trained.empty:
         found = sorted({float(x) for x in moving.loc[moving["kind"] == "constant", "speed_rpm"].round()})
