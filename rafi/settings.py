@@ -48,6 +48,19 @@ DAYLIGHT_SAVING_SHIFT_S = 3600.0
 #: two samples of up to 5 min reads as a jump back of 55-60 min).
 DAYLIGHT_SAVING_SLACK_S = 300.0
 
+
+def backwards_cause(back_s: float) -> str:
+    """The likely cause of a clock that goes back by ``back_s`` seconds, for its error: a
+    daylight-saving change (about an hour: ``input.time.timezone``), else a clock reset."""
+    if abs(back_s - DAYLIGHT_SAVING_SHIFT_S) <= DAYLIGHT_SAVING_SLACK_S:
+        return (
+            "a daylight-saving change? set input.time.timezone to the logger's time zone "
+            "(e.g. Europe/Berlin), or check the zone set there; else a clock reset: split the file "
+            "there or correct the clock"
+        )
+    return "a clock reset? split the file there or correct the clock"
+
+
 #: Run settings: top level of ``config.yaml`` (``--config key=value`` on the command line); each
 #: key's type, default and meaning is in :data:`rafi.contract.RUN_SETTINGS`.
 RUN_DEFAULTS: dict = defaults(RUN_SETTINGS)

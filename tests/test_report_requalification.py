@@ -325,7 +325,7 @@ def test_the_ridge_penalty_is_said_chosen_by_cv_only_where_a_cv_chose_it(tmp_pat
 def test_a_first_model_waiting_for_its_priors_confirmation_is_neither_pass_nor_fail(tmp_path):
     """No model on the machine, the candidate passed every gate and only its prior's fitness
     warning holds it back: the verdict says WAITING with the check and the entry to add, the words
-    of the end-of-run line and rafi status (rafi.ops.outcome.awaiting_confirmation)."""
+    of the end-of-run line and rafi status (rafi.family.prior_fitness.awaiting_confirmation)."""
     results = copy_fixture(tmp_path)
     path = results / "registry" / "decision.json"
     decision = json.loads(path.read_text(encoding="utf-8"))

@@ -67,8 +67,7 @@ import pandas as pd
 
 from rafi.contract.sensors import DEFAULT_SENSORS, frame_sensors
 from rafi.errors import RawFormatError
-from rafi.readers.checks_base import backwards_cause
-from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
+from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES, backwards_cause
 
 #: Columns of the audit table, in order (``docs/design.md``).
 AUDIT_COLUMNS = ("file", "action", "column", "first_line", "last_line", "n_rows", "detail")

@@ -42,8 +42,8 @@ import pandas as pd
 from rafi.contract.sensors import frame_sensors
 from rafi.readers import checks_channels as channels
 from rafi.readers import checks_units as units
-from rafi.readers.checks_base import CheckWarning, Signals, Where, backwards_cause
-from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES
+from rafi.readers.checks_base import CheckWarning, Signals, Where
+from rafi.settings import BACKWARDS_TOLERANCE_SAMPLES, backwards_cause
 
 #: Every check id of the per-file checks (docs/raw-format.md, "Checks").
 FILE_CHECKS = (

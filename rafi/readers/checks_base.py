@@ -15,7 +15,6 @@ import numpy as np
 import pandas as pd
 
 from rafi.errors import RawFormatError
-from rafi.settings import DAYLIGHT_SAVING_SHIFT_S, DAYLIGHT_SAVING_SLACK_S
 
 #: Seconds at the start of a log whose median is a sensor's *start level*.
 START_WINDOW_S = 600.0
@@ -55,17 +54,6 @@ def whole_log_warning(check: str, column: str, message: str, sig) -> CheckWarnin
     """A :class:`CheckWarning` about the whole log: it spans the first to the last line of ``sig``
     (a :class:`Signals`)."""
     return CheckWarning(check, column, message, int(sig.lines[0]), int(sig.lines[-1]))
-
-
-def backwards_cause(back_s: float) -> str:
-    """The likely cause of a clock that goes back by ``back_s`` seconds, for its error: a
-    daylight-saving change (about an hour: ``input.time.timezone``), else a clock reset."""
-    if abs(back_s - DAYLIGHT_SAVING_SHIFT_S) <= DAYLIGHT_SAVING_SLACK_S:
-        return (
-            "a daylight-saving change? set input.time.timezone to the logger's time zone "
-            "(e.g. Europe/Berlin); else a clock reset: split the file there or correct the clock"
-        )
-    return "a clock reset? split the file there or correct the clock"
 
 
 class Where:

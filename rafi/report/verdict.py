@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi.ops.outcome import awaiting_confirmation
+from rafi.family.prior_fitness import awaiting_confirmation
 from rafi.report.format import fmt_num, fmt_speed_range, short_id, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import interval_block, worst_run_interval
@@ -507,7 +507,7 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
     judged model (:func:`judged_interval`; RAFI's: :func:`rafi_context`), ``None`` without
     interval results; without a model on the machine and a candidate that passed every gate and
     waits for its prior's fitness to be confirmed, the status is WAITING and ``judged`` has
-    ``waiting`` (:func:`rafi.ops.outcome.awaiting_confirmation`) and ``candidate``.
+    ``waiting`` (:func:`rafi.family.prior_fitness.awaiting_confirmation`) and ``candidate``.
     ``registry_dir``: where ``registry/models/<id>.json`` are looked up."""
     noise = noise_floors(res)
     rafi_v = rafi_context(res, noise)
