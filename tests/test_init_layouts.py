@@ -251,6 +251,33 @@ def test_files_with_the_same_columns_in_another_order_are_one_layout_and_all_sur
         assert frame["T7"].to_numpy() == pytest.approx(expected["T7"].to_numpy())
 
 
+def test_files_of_the_same_columns_written_with_another_delimiter_are_another_layout_said_at_the_pattern(
+    tmp_path,
+):
+    """One block reads one delimiter and decimal mark: a file written with ``;`` and decimal
+    commas beside ``,`` files is another layout (not surveyed, said), and the proposed pattern,
+    which matches it too, carries a CHECK naming it."""
+    columns = list(canonical_frame(2).columns)
+    files = []
+    for day in range(2):
+        files.append(tmp_path / f"2026060{day + 1}.csv")
+        write_reordered_csv(
+            files[-1], canonical_frame(60, seed=day, start=f"2026-06-0{day + 1} 06:00"), columns
+        )
+    german = tmp_path / "2026060z.csv"
+    text = files[1].read_text(encoding="utf-8")
+    german.write_text(
+        "\n".join(ln.replace(",", ";").replace(".", ",") for ln in text.splitlines()), encoding="utf-8"
+    )
+    s = survey("mixed", [t for f in [*files, german] for t in read_unknown_logs(f)])
+    assert [t.path.name for t in s.logs] == ["20260601.csv", "20260602.csv"]
+    assert any(n.startswith("2026060z.csv: another layout") for n in s.notes)
+    block = config_block(s)
+    check = next(ln for ln in block.splitlines() if "another layout" in ln)
+    assert "CHECK" in check and "2026060z.csv" in check
+    assert parse_block(block, "mixed")["input"]["pattern"] == "*.csv"
+
+
 def test_iso_times_with_a_utc_offset_are_read_as_utc_as_the_pipeline_reads_them(tmp_path):
     frame = canonical_frame(120, seed=4, start="2026-03-29 00:00")  # UTC; Europe/Berlin: DST at 01:00
     local = frame["time"].dt.tz_localize("UTC").dt.tz_convert("Europe/Berlin")

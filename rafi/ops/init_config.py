@@ -234,7 +234,17 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
         why = f"the files holding {s.join[0]!r}; their partners are joined (join: below)"
         out.add(6, f"pattern: {q(main_pattern(s.join[0], names, ext))}", why)
     else:
-        out.add(6, f"pattern: {q('*' + ext)}")
+        others = [t.path.name for t in s.tables if t.path.suffix.lower() == ext and t not in s.logs]
+        others = sorted(set(others) - {t.path.name for t in s.logs})
+        if others:
+            shown = ", ".join(others[:3]) + (", ..." if len(others) > 3 else "")
+            why = (
+                f"CHECK: it also matches {len(others)} file(s) of another layout ({shown}), which this "
+                "block does not read: move them to a folder of their own and run rafi init there"
+            )
+            out.add(6, f"pattern: {q('*' + ext)}", why)
+        else:
+            out.add(6, f"pattern: {q('*' + ext)}")
     if s.format == "xlsx":
         _sheet_key(out, s)
     else:

@@ -174,15 +174,22 @@ def elapsed_kind(unit: str | None) -> str:
     return kind if kind in ELAPSED_SECONDS else "elapsed_s"
 
 
+#: The keys of a table's layout (:attr:`RawTable.layout`) that one ``input`` block holds for
+#: every file: two files that differ in one are read by two blocks.
+SHARED_LAYOUT_KEYS = ("delimiter", "decimal", "encoding", "header_row", "skip_rows")
+
+
 def layout_key(table: RawTable) -> tuple:
-    """What two tables of one layout share: the format and the header names, in any order for a
-    csv or a workbook with a header row of distinct names (the pipeline's reader finds each
-    mapped column by its header, wherever it stands); in order otherwise (a native log, columns
-    by letter, a header twice)."""
+    """What two tables of one layout share: the format, the reading keys of one ``input`` block
+    (:data:`SHARED_LAYOUT_KEYS`: the delimiter, the decimal mark, the header's row, ...) and the
+    header names, in any order for a csv or a workbook with a header row of distinct names (the
+    pipeline's reader finds each mapped column by its header, wherever it stands); in order
+    otherwise (a native log, columns by letter, a header twice)."""
     names = tuple(table.header)
     if table.format != "native" and not table.headerless and len(set(names)) == len(names):
         names = tuple(sorted(names))
-    return table.format, names
+    reading = tuple(str(table.layout.get(key)) for key in SHARED_LAYOUT_KEYS)
+    return table.format, reading, names
 
 
 def column_cells(table: RawTable, guess: ColumnGuess) -> list:
