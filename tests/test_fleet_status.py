@@ -437,3 +437,28 @@ def test_the_page_says_in_words_why_drift_was_not_checked(fleet):
     for name in ("swap-m", "recal-m", "ok-m"):
         text = fleet_cli.format_rows([rows[name] | {"report_path": None}])
         assert f"drift:            {rows[name]['drift']['text']}; recalibration due" in text
+
+
+def test_a_machine_waiting_for_a_confirmation_reads_so_in_its_headline_and_last_decision():
+    row = {
+        "machine": "a2",
+        "champion": None,
+        "last_decision": {"decision": "rejected", "time": "2026-11-30T20:41:39Z"},
+        "waiting": True,
+        "state": "rejected",
+        "attention": [{"text": "waits for a confirmation of the prior fitness check prior_speeds ..."}],
+        "worst_residual": None,
+        "recalibration_due": False,
+        "drift": None,
+        "quarantined": [],
+        "report_path": None,
+    }
+    text = fleet_cli.format_rows([row])
+    assert text.startswith("a2: WAITING FOR CONFIRMATION\n  ! waits for a confirmation")
+    assert (
+        "  last decision:    rejected at 2026-11-30T20:41:39Z (not promoted until the confirmation above)"
+        in text
+    )
+    assert "REJECTED" not in text
+    plain = fleet_cli.format_rows([row | {"waiting": False}])
+    assert plain.startswith("a2: REJECTED\n") and "(not promoted until" not in plain

@@ -120,6 +120,8 @@ def format_rows(rows: list[dict]) -> str:
             model += f" (adapted from {short_id(ch['parent'])} of {ch.get('parent_machine') or '?'})"
         last = r["last_decision"]
         decided = f"{last['decision']} at {last['time']}" if last else "none"
+        if last and r.get("waiting"):
+            decided += " (not promoted until the confirmation above)"
         worst = r["worst_residual"]
         resid = (
             f"{_num(worst['max_residual_um'], ' um')}" + (f" ({worst['run']})" if worst.get("run") else "")
