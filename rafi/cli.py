@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import importlib
+import os
 import re
 import sys
 import traceback
@@ -44,6 +45,9 @@ COMMANDS = {
 #: The option naming the pipeline config, the same on every command; ``--config-file`` (the
 #: spelling of ``rafi nightly`` and ``rafi status`` before issue 45) is kept as a hidden alias.
 CONFIG_OPTION = "--config"
+#: Exit status when the reader of the output closed the pipe early (128 + SIGPIPE, as a shell
+#: reports a command killed by it).
+EXIT_BROKEN_PIPE = 141
 CONFIG_ALIAS = "--config-file"
 
 
@@ -116,6 +120,13 @@ def main(argv: list[str] | None = None) -> int:
             traceback.print_exc()
         print(f"rafi {args.command}: {exc}", file=sys.stderr)
         return exc.exit_status
+    except BrokenPipeError:
+        # the reader of our output went away (`rafi plan ... | head`): no traceback; the
+        # Python documentation's recipe (signal's "Note on SIGPIPE"), so that the flush at exit
+        # does not raise again
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":

@@ -44,3 +44,24 @@ def test_no_command_has_a_config_option_of_its_own_spelling():
     for name, command in sub.choices.items():
         strings = {s for action in command._actions for s in action.option_strings if "config" in s}
         assert strings <= {CONFIG_OPTION, CONFIG_ALIAS}, (name, strings)
+
+
+def test_a_reader_that_closes_the_pipe_early_gets_no_traceback():
+    """``rafi settings ... | head -1``: the command stops quietly with 141 (128 + SIGPIPE)."""
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from rafi.cli import EXIT_BROKEN_PIPE
+
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "rafi.cli", "settings", "--machine", "tapping-center-a"],
+        cwd=root,
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+    )
+    proc.stdout.close()  # before the command writes anything: its first write meets a closed pipe
+    err = proc.stderr.read().decode()
+    assert proc.wait(timeout=60) == EXIT_BROKEN_PIPE
+    assert "Traceback" not in err and "BrokenPipeError" not in err
