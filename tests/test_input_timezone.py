@@ -31,9 +31,12 @@ SPANS = {
 }
 
 
-def local_log(path: Path, change: str, zone: str = ZONE, header: str = "time") -> pd.DatetimeIndex:
-    """A log at 60 s whose times are the local clock of ``zone`` (naive text); its UTC times."""
-    utc = pd.date_range(*SPANS[change], freq="60s", tz="UTC")
+def local_log(
+    path: Path, change: str, zone: str = ZONE, header: str = "time", span: tuple | None = None
+) -> pd.DatetimeIndex:
+    """A log at 60 s whose times are the local clock of ``zone`` (naive text), over ``span`` (UTC;
+    default ``SPANS[change]``); its UTC times."""
+    utc = pd.date_range(*(span or SPANS[change]), freq="60s", tz="UTC")
     frame, _ = schedule_log([(0, 600), (3000, len(utc) * 60 - 600)], period_s=60.0, seed=1)
     frame = frame.iloc[: len(utc)].copy()
     frame["time"] = utc.tz_convert(zone).tz_localize(None).strftime("%Y-%m-%d %H:%M:%S")
@@ -148,3 +151,20 @@ def test_init_proposes_the_timezone_commented_with_a_check(tmp_path):
     assert "CHECK: the clock of log.csv goes back by 3540 s" in block
     entry = parse_block(block, "m")
     assert "timezone" not in entry["input"]["time"]  # the user gives it
+
+
+def test_init_proposes_the_zone_whose_clocks_go_back_on_that_day(tmp_path):
+    """A US logger's fall-back (1 November 2026) proposes America/New_York, not Europe/Berlin,
+    whose clocks went back a week before; the zone proposed reads the log right."""
+    path = tmp_path / "log.csv"
+    us_fall_back = ("2026-10-31T20:00:00", "2026-11-01T12:00:00")
+    utc = local_log(path, "us", zone="America/New_York", header="Zeitstempel", span=us_fall_back)
+    s = survey("m", read_unknown_logs(path))
+    assert s.clock_back_zone == "America/New_York"
+    block = config_block(s)
+    assert '# timezone: "America/New_York"' in block
+    assert "America/New_York's clocks go back that day" in block
+    entry = parse_block(block, "m")
+    entry["input"]["time"]["timezone"] = "America/New_York"
+    frame = read_log(path, normalise_input_spec(entry["input"]))
+    assert frame["time"].tolist() == list(utc)

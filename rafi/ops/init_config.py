@@ -21,7 +21,14 @@ from rafi.contract import EPOCH_CLOCKS
 from rafi.contract.sensors import DEFAULT_SENSORS
 from rafi.errors import RafiUserError, SettingsError
 from rafi.ops.init_pairs import main_pattern
-from rafi.ops.init_survey import Survey, clock_back_text, elapsed_kind, footer_counts, markers_text
+from rafi.ops.init_survey import (
+    FALL_BACK_ZONES,
+    Survey,
+    clock_back_text,
+    elapsed_kind,
+    footer_counts,
+    markers_text,
+)
 from rafi.settings import machine_settings, validate_config
 
 #: Column at which line comments start (when the text is shorter).
@@ -144,8 +151,12 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
 def _timezone_key(out: _Lines, s: Survey) -> None:
     """input.time.timezone, commented out, when a clock goes back by about an hour (indent 8)."""
     if s.clock_back is not None:
-        why = f"CHECK: {clock_back_text(s.clock_back)} your logger's time zone"
-        out.add(8, 'timezone: "Europe/Berlin"', why, off=True)
+        zone = s.clock_back_zone or FALL_BACK_ZONES[0]
+        region = ""
+        if s.clock_back_zone:
+            region = f" ({zone}'s clocks go back that day; another zone of its region may be yours)"
+        why = f"CHECK: {clock_back_text(s.clock_back)} your logger's time zone{region}"
+        out.add(8, f"timezone: {q(zone)}", why, off=True)
 
 
 def _displacement_keys(out: _Lines, s: Survey) -> None:

@@ -9,10 +9,12 @@ the block, :mod:`rafi.ops.init_cli` prints the findings.
 
 from __future__ import annotations
 
+import datetime as dt
 import re
 from collections import Counter
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from zoneinfo import ZoneInfo
 
 import numpy as np
 import pandas as pd
@@ -111,6 +113,9 @@ class Survey:
     clock_back : tuple or None
         ``(log name, data row, seconds)`` of the first step back of about an hour of a clock
         (a daylight-saving change of a local clock: ``input.time.timezone``), else None.
+    clock_back_zone : str or None
+        A time zone whose daylight-saving change falls on the date of that step back
+        (:func:`zone_falling_back_on`), the one proposed for ``input.time.timezone``.
     missing_values : collections.Counter
         ``input.missing_values``: the texts of cells without a value found in the numeric
         columns of the logs and partners (:func:`rafi.readers.infer.missing_markers`) and how
@@ -147,6 +152,7 @@ class Survey:
     given_period_s: float | None = None
     missing_values: Counter = field(default_factory=Counter)
     clock_back: tuple | None = None
+    clock_back_zone: str | None = None
 
     @property
     def first(self) -> RawTable:
@@ -314,6 +320,35 @@ def _hour_back(name: str, t_s: np.ndarray) -> tuple | None:
     return name, k + 1, float(-steps[k - 1])
 
 
+#: Time zones whose daylight-saving changes fall on different days (the European Union's, the
+#: United States', Australia's): the one whose clocks go back on the date of a log's step back is
+#: proposed for ``input.time.timezone`` (a CHECK: zones of one region share the day).
+FALL_BACK_ZONES = ("Europe/Berlin", "America/New_York", "Australia/Sydney")
+
+
+def zone_falling_back_on(day: dt.date) -> str | None:
+    """The first zone of :data:`FALL_BACK_ZONES` whose clocks go back (a daylight-saving change
+    to a smaller UTC offset) on ``day``, else None."""
+    for name in FALL_BACK_ZONES:
+        zone = ZoneInfo(name)
+        start = dt.datetime.combine(day, dt.time(0, 0), zone).utcoffset()
+        end = dt.datetime.combine(day, dt.time(23, 59), zone).utcoffset()
+        if end < start:
+            return name
+    return None
+
+
+def _clock_back_day(table: RawTable, survey: Survey, row: int) -> dt.date | None:
+    """The date of data row ``row`` (1-based) of a table whose clock is a timestamp, else None."""
+    cells = table.columns[survey.time.index]
+    if survey.time.unit == "timeofday" and survey.date is not None:
+        cells = date_and_time(list(table.columns[survey.date.index]), list(cells))
+    times, _, _ = to_times(cells)
+    if times is None or not 0 < row <= len(times) or pd.isna(times[row - 1]):
+        return None
+    return pd.Timestamp(times[row - 1]).date()
+
+
 def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
     """Period, steps and the probe's sign of every table (``survey`` is filled in)."""
     periods, shares = [], []
@@ -325,7 +360,10 @@ def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
         clock_text = survey.time is not None and survey.time.unit in ("timestamp", "timeofday")
         back = _hour_back(table.name, t) if clock_text else None
         if back is not None:  # read as the reader reads it with input.time.timezone: an hour later
-            survey.clock_back = survey.clock_back or back
+            if survey.clock_back is None:
+                survey.clock_back = back
+                day = _clock_back_day(table, survey, back[1])
+                survey.clock_back_zone = zone_falling_back_on(day) if day is not None else None
             t = np.concatenate([t[: back[1] - 1], t[back[1] - 1 :] + DAYLIGHT_SAVING_SHIFT_S])
         period, share = sample_period(t)
         if period is not None and survey.time is not None and survey.time.unit in ("min", "h", "excel_days"):
