@@ -949,6 +949,9 @@ def one_random(
     out["warnings"] = fitness_checks(adapted["models"].get(adapted["champion"]))
     out["selection_basis"] = adapted.get("selection_basis")
     out["candidates"] = every_candidate(adapted)
+    out["moved_with_gain_interval"] = borrowed_interval(
+        adapted["residuals"], "prior_shared_ridge", "prior_shared_gain"
+    )
     pick = _scratch_pick(out["candidates"])
     c = out["candidates"].get(pick, {})
     out["scratch_choice"] = pick
@@ -957,6 +960,25 @@ def one_random(
         c.get("validation_um", math.nan),
     )
     return out
+
+
+def borrowed_interval(residuals, model: str, lender: str) -> dict:
+    """Coverage of the validation samples and mean width (um) of ``model``'s predictions with the
+    half-widths of ``lender``'s 90 % interval at the same samples (a candidate interval for the
+    moved members: the shared gain's calibration, the same prior and runs); NaN without both."""
+    cols = ["run_id", "t_s", "residual_um", "lower_um", "upper_um"]
+    a = residuals.loc[residuals["model"] == model, cols]
+    b = residuals.loc[residuals["model"] == lender, cols]
+    j = a.merge(b, on=["run_id", "t_s"], suffixes=("", "_lender"))
+    half = (j["upper_um_lender"] - j["lower_um_lender"]).to_numpy(float) / 2.0
+    res = j["residual_um"].to_numpy(float)
+    ok = np.isfinite(half) & np.isfinite(res)
+    if not ok.any():
+        return {"coverage": math.nan, "width_um": math.nan}
+    return {
+        "coverage": float(np.mean(np.abs(res[ok]) <= half[ok])),
+        "width_um": float(np.mean(2.0 * half[ok])),
+    }
 
 
 def fitness_checks(model) -> list[str]:
