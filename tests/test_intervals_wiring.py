@@ -211,3 +211,40 @@ def test_an_interval_calibrated_before_the_component_excess_is_evaluated_as_it_w
     # the compensator reads the artefact's block the same way
     assert Compensator.from_artefact(model.to_dict()).reach is not None
     assert Compensator.from_artefact(before.to_dict()).reach is None
+
+
+def test_a_borrowed_interval_is_the_lenders_said_so_and_covered_by_the_id(syn):
+    """``borrow_interval``: the borrower's artefact carries the lender's half-widths, its
+    calibration names the lender, its id covers the block; nothing without a lender's block."""
+    from rafi.family.interval_fit import borrow_interval
+
+    models, oof = {}, []
+    for kind in ("rafi_linear", "ridge_global"):
+
+        def factory(kind=kind):
+            return make_model(kind, **_settings(syn))
+
+        models[kind] = factory().fit(syn.runs_table, syn.runs_frame)
+        cross_validate(factory, syn.runs_table, syn.runs_frame, OPTIONS["cv"], name=kind, oof=oof)
+    blocks = calibrate_family(
+        models,
+        stacked_oof(oof),
+        options=OPTIONS,
+        scheme=OPTIONS["cv"],
+        tolerance_rpm=50.0,
+        log=lambda m: None,
+    )
+    own_id = models["ridge_global"].to_dict()["model_id"]
+    assert blocks["ridge_global"]["half_width_um"] != blocks["rafi_linear"]["half_width_um"]
+    said = []
+    block = borrow_interval(models, blocks, "ridge_global", "rafi_linear", log=said.append)
+    d = models["ridge_global"].to_dict()
+    assert d["interval"] == block == blocks["ridge_global"]
+    assert block["half_width_um"] == blocks["rafi_linear"]["half_width_um"]
+    assert block["calibration"]["borrowed_from"] == "rafi_linear"
+    assert "borrowed_from" not in blocks["rafi_linear"]["calibration"]  # the lender's own is untouched
+    assert d["model_id"] != own_id and said == [
+        "interval of ridge_global: rafi_linear's (the same prior and runs), not its own CV's"
+    ]
+    assert borrow_interval(models, {**blocks, "dynamic": None}, "ridge_global", "dynamic") is None
+    assert borrow_interval(models, blocks, "grey_box", "rafi_linear") is None

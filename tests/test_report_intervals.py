@@ -675,3 +675,22 @@ def test_a_level_correction_near_the_largest_residual_is_said_in_words(both):
         "held-out residuals, not the 0.90, with 4 calibration units: each cell's half-width sits near "
         "its largest held-out residual." in text
     )
+
+
+def test_a_borrowed_interval_is_said_whose_it_is(both):
+    from copy import deepcopy
+
+    from rafi.report.intervals import interval_context
+
+    block = deepcopy(BLOCK)
+    assert interval_context({"interval": block})["borrowed_from"] is None
+    block["calibration"]["borrowed_from"] = "prior_shared_gain"
+    iv = interval_context({"interval": block})
+    assert iv["borrowed_from"] == "prior_shared_gain" and all(k != "borrowed_from" for k, _ in iv["other"])
+    ctx = deepcopy(both[True][0])
+    ctx["deployed"]["interval"].update(borrowed_from="prior_shared_gain")
+    text = _text(render_html(ctx))
+    assert "These half-widths are those of prior_shared_gain , fitted on the same prior and runs" in text
+    plain = deepcopy(both[True][0])
+    plain["deployed"]["interval"].update(borrowed_from=None)
+    assert "These half-widths are those of" not in _text(render_html(plain))

@@ -49,7 +49,7 @@ from rafi.family.feature_memo import sharing_features
 from rafi.family.forward_folds import configured_scheme as forward_scheme
 from rafi.family.forward_folds import is_forward
 from rafi.family.grey_box import GreyBox
-from rafi.family.interval_fit import calibrate_family, calibration_units, stacked_oof
+from rafi.family.interval_fit import borrow_interval, calibrate_family, calibration_units, stacked_oof
 from rafi.family.intervals import coverage_and_width, interval_columns
 from rafi.family.plain_ridge import PLAIN_RIDGE, floor_columns, with_plain_ridge
 from rafi.family.prior_fitness import dynamics_warning, misfit_warning
@@ -59,6 +59,8 @@ from rafi.family.ridge_global import RidgeGlobal
 from rafi.family.selection import (  # noqa: F401 - re-exported: the selection rule lives there
     SELECTION_COLUMNS,
     SELECTION_RULE,
+    SHARED_GAIN,
+    SHARED_RIDGE,
     choose_champion,
     default_champion,
     scratch_ahead,
@@ -673,7 +675,7 @@ def run_family(
         models, cv, oof, memo, fit_table = fit_on(runs_table, None)
     # every model's prediction interval, from its own OOF residuals (RAFI's model.json keeps its own)
     samples, calibrated_on = calibration_units(oof, scheme_of(fit_table, options["cv"]))
-    calibrate_family(
+    blocks = calibrate_family(
         models,
         samples,
         options=options,
@@ -682,6 +684,7 @@ def run_family(
         keep={"rafi"} if rafi_model is not None and change is None else set(),
         log=log,
     )
+    borrow_interval(models, blocks, SHARED_RIDGE, SHARED_GAIN, log=log)
     # the choice: training runs only, before any validation run is predicted
     offered = [*candidates, ENSEMBLE] if ENSEMBLE in models else candidates
     champion, selection, basis = _choose(cv, candidates, offered, ENSEMBLE in models, log)

@@ -23,6 +23,7 @@ __all__ = [
     "whole_run_units",
     "calibration_units",
     "calibrate_family",
+    "borrow_interval",
     "rafi_interval",
 ]
 
@@ -123,6 +124,40 @@ def calibrate_family(
         out[name] = block
         log(_describe(name, block))
     return out
+
+
+def borrow_interval(models: dict, blocks: dict, borrower: str, lender: str, log=print) -> dict | None:
+    """Give ``borrower`` the interval of ``lender`` (both fitted here, on the same runs), its
+    calibration saying so (``calibration.borrowed_from``); nothing without both or a lender's block.
+
+    The moved members of an ensemble prior (``prior_shared_ridge``) would calibrate on their own
+    whole-run CV of a few hours' runs, which holds out a run the others cannot predict (the one
+    top-speed heat-up of a ``rafi plan`` programme): an interval tens of um wide on a model right to
+    a few tenths. The shared gain, fitted on the same prior and runs and predicting alike, lends
+    its own (``docs/decisions.md``, 2026-11-30).
+
+    Parameters
+    ----------
+    models : dict
+        Name -> fitted model (``borrower`` changed in place).
+    blocks : dict
+        Name -> its calibrated block (:func:`calibrate_family`'s return; changed in place).
+    borrower, lender : str
+        The names.
+
+    Returns
+    -------
+    dict or None
+        The borrowed block (None: nothing borrowed).
+    """
+    lent = blocks.get(lender)
+    if borrower not in models or lent is None:
+        return None
+    block = {**lent, "calibration": {**lent["calibration"], "borrowed_from": lender}}
+    set_interval(models[borrower], block)
+    blocks[borrower] = block
+    log(f"interval of {borrower}: {lender}'s (the same prior and runs), not its own CV's")
+    return block
 
 
 def rafi_interval(

@@ -233,7 +233,8 @@ def interval_context(doc) -> dict | None:
         reads the prediction's reach beyond the trained combinations of its features,
         ``component_excess``), ``other`` (the calibration's other plain entries,
         ``(key, text)``) and ``near_largest`` (the corrected level when it is
-        :data:`NEAR_LARGEST_LEVEL` or more, else None: :func:`_near_largest`).
+        :data:`NEAR_LARGEST_LEVEL` or more, else None: :func:`_near_largest`) and ``borrowed_from``
+        (the model whose calibration the interval takes, ``calibration.borrowed_from``; None: its own).
     """
     block = interval_block(doc)
     if block is None:
@@ -261,6 +262,7 @@ def interval_context(doc) -> dict | None:
         "components": bool(block.get(COMPONENT_EXCESS, False)),
         "other": _other_calibration(cal),
         "near_largest": _near_largest(cal, float(block["level"])),
+        "borrowed_from": str(cal["borrowed_from"]) if cal.get("borrowed_from") else None,
     }
 
 
@@ -288,6 +290,7 @@ _CALIBRATION_WORDED = (
     "n_runs",
     "n_samples",
     "left_out",
+    "borrowed_from",
 )
 
 
