@@ -39,8 +39,7 @@ def _settings(syn):
     }
 
 
-@pytest.fixture(scope="module")
-def calibrated(syn):
+def _fit_and_calibrate(syn) -> tuple[dict, dict]:
     """rafi_linear and ridge_global fitted with their intervals (the run_family path)."""
     models, oof = {}, []
     for kind in ("rafi_linear", "ridge_global"):
@@ -59,6 +58,11 @@ def calibrated(syn):
         log=lambda m: None,
     )
     return models, blocks
+
+
+@pytest.fixture(scope="module")
+def calibrated(syn):
+    return _fit_and_calibrate(syn)
 
 
 @pytest.mark.parametrize("kind", ["rafi_linear", "ridge_global"])
@@ -218,22 +222,7 @@ def test_a_borrowed_interval_is_the_lenders_said_so_and_covered_by_the_id(syn):
     calibration names the lender, its id covers the block; nothing without a lender's block."""
     from rafi.family.interval_fit import borrow_interval
 
-    models, oof = {}, []
-    for kind in ("rafi_linear", "ridge_global"):
-
-        def factory(kind=kind):
-            return make_model(kind, **_settings(syn))
-
-        models[kind] = factory().fit(syn.runs_table, syn.runs_frame)
-        cross_validate(factory, syn.runs_table, syn.runs_frame, OPTIONS["cv"], name=kind, oof=oof)
-    blocks = calibrate_family(
-        models,
-        stacked_oof(oof),
-        options=OPTIONS,
-        scheme=OPTIONS["cv"],
-        tolerance_rpm=50.0,
-        log=lambda m: None,
-    )
+    models, blocks = _fit_and_calibrate(syn)  # its own: borrowing changes the models in place
     own_id = models["ridge_global"].to_dict()["model_id"]
     assert blocks["ridge_global"]["half_width_um"] != blocks["rafi_linear"]["half_width_um"]
     said = []
