@@ -159,3 +159,19 @@ def write_sheet_pair(folder: Path, days: int = 4, *, rows: int = 60, seed: int =
     wx.save(folder / "rig_X.xlsx")
     wy.save(folder / "rig_Y.xlsx")
     return truth
+
+
+def write_table(table: pd.DataFrame, path: Path, *, sheet: str = "Log", sep: str = ",") -> Path:
+    """``table`` (its headers in row 1) as an xlsx workbook of one sheet named ``sheet`` when
+    ``path`` ends in ``.xlsx``, else as a csv separated by ``sep``; returns ``path``."""
+    if path.suffix == ".xlsx":
+        wb = openpyxl.Workbook()
+        ws = wb.active
+        ws.title = sheet
+        ws.append(list(table.columns))
+        for row in table.itertuples(index=False):
+            ws.append(list(row))
+        wb.save(path)
+    else:
+        path.write_text(table.to_csv(sep=sep, index=False), encoding="utf-8")
+    return path

@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import openpyxl
 import pandas as pd
 import pytest
+from layout_files import write_table
 
 from rafi import SENSORS
 from rafi.errors import InputSpecError, RawFormatError
@@ -45,17 +45,7 @@ def with_summary(table: pd.DataFrame, labels=("Mean", "Max")) -> pd.DataFrame:
 
 
 def write(table: pd.DataFrame, path: Path) -> Path:
-    if path.suffix == ".xlsx":
-        wb = openpyxl.Workbook()
-        ws = wb.active
-        ws.title = "Log"
-        ws.append(list(table.columns))
-        for row in table.itertuples(index=False):
-            ws.append(list(row))
-        wb.save(path)
-    else:
-        path.write_text(table.to_csv(index=False), encoding="utf-8")
-    return path
+    return write_table(table, path)
 
 
 def spec_for(path: Path, **more) -> dict:

@@ -8,9 +8,9 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-import openpyxl
 import pandas as pd
 import pytest
+from layout_files import write_table
 
 from rafi import SENSORS
 from rafi.errors import InputSpecError, RawFormatError
@@ -55,17 +55,7 @@ def with_marker(table: pd.DataFrame, token: str) -> pd.DataFrame:
 
 
 def write(table: pd.DataFrame, path: Path) -> Path:
-    if path.suffix == ".xlsx":
-        wb = openpyxl.Workbook()
-        ws = wb.active
-        ws.title = "Daten"
-        ws.append(list(table.columns))
-        for row in table.itertuples(index=False):
-            ws.append(list(row))
-        wb.save(path)
-    else:
-        path.write_text(table.to_csv(sep=";", index=False), encoding="utf-8")
-    return path
+    return write_table(table, path, sheet="Daten", sep=";")
 
 
 def spec(path: Path, **more) -> dict:

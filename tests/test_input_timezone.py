@@ -69,6 +69,18 @@ def test_local_times_across_a_change_read_as_utc(tmp_path, change):
     assert not set(audit["action"]) & {"gap_split", "duplicate_dropped", "reordered"}
 
 
+def clean(frame: pd.DataFrame, path: Path):
+    """The pipeline's cleaning of a 60 s log read from ``path``."""
+    return clean_log(
+        frame,
+        file=path.name,
+        sample_period_s=60.0,
+        max_interpolate_gap_s=120.0,
+        spike_threshold=8.0,
+        open_circuit_values=[],
+    )
+
+
 def test_without_the_key_the_fall_back_names_the_raw_file_and_the_key(tmp_path):
     folder = tmp_path / "raw" / "m"
     folder.mkdir(parents=True)
@@ -79,14 +91,7 @@ def test_without_the_key_the_fall_back_names_the_raw_file_and_the_key(tmp_path):
         (pd.Timestamp("2026-10-25T01:00:00") - pd.Timestamp(SPANS["fall_back"][0])).total_seconds() // 60
     )
     with pytest.raises(RawFormatError) as info:
-        clean_log(
-            frame,
-            file=path.name,
-            sample_period_s=60.0,
-            max_interpolate_gap_s=120.0,
-            spike_threshold=8.0,
-            open_circuit_values=[],
-        )
+        clean(frame, path)
     message = str(info.value)
     assert message.startswith(f"{path}, line {line}, column 'time': timestamps go backwards by 3540 s")
     assert "a daylight-saving change? set input.time.timezone" in message
@@ -101,14 +106,7 @@ def test_a_clock_reset_is_not_called_daylight_saving(tmp_path):
     frame = read_log(path, spec())
     frame.loc[frame.index >= 200, "time"] -= pd.Timedelta(hours=5)
     with pytest.raises(RawFormatError) as info:
-        clean_log(
-            frame,
-            file=path.name,
-            sample_period_s=60.0,
-            max_interpolate_gap_s=120.0,
-            spike_threshold=8.0,
-            open_circuit_values=[],
-        )
+        clean(frame, path)
     assert "a clock reset? split the file" in str(info.value) and "daylight" not in str(info.value)
 
 
