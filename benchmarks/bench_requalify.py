@@ -952,6 +952,10 @@ def one_random(
     out["moved_with_gain_interval"] = borrowed_interval(
         adapted["residuals"], "prior_shared_ridge", "prior_shared_gain"
     )
+    out["with_prior_gain_interval"] = {
+        name: borrowed_interval(adapted["residuals"], name, "prior_gain")
+        for name in ("prior_ridge", "prior_time")
+    }
     pick = _scratch_pick(out["candidates"])
     c = out["candidates"].get(pick, {})
     out["scratch_choice"] = pick
@@ -1641,6 +1645,12 @@ def main(argv=None) -> int:
     )
     p.add_argument("--kinds", nargs="+", help="the kinds run_family fits (default: models.enabled)")
     p.add_argument(
+        "--offer",
+        choices=("ensemble", "best"),
+        help="models.offer of every qualification (default: the project's): `best` makes the prior a "
+        "single kind, so the adaptations prior_gain / prior_time / prior_ridge are what is offered",
+    )
+    p.add_argument(
         "--plan-reference",
         choices=("run_start", "log_start"),
         default="run_start",
@@ -1656,6 +1666,8 @@ def main(argv=None) -> int:
     args = p.parse_args(argv)
     warnings.simplefilter("ignore")
     settings = MACHINE_DEFAULTS
+    if args.offer is not None:
+        settings = {**settings, "models": {**settings["models"], "offer": args.offer}}
     if not TAKES_PRIOR:
         progress("run_family has no 'prior' argument here: the 'with the prior' column stays empty")
     seeds = parse_seeds(args.random, args.seeds)
