@@ -174,3 +174,34 @@ def test_a_shared_gain_artefact_says_what_was_tested_here_and_what_the_prior_cov
     again = load_any(art)
     assert again.to_dict()["model_id"] == art["model_id"]
     Compensator.from_artefact(art)
+
+
+@pytest.mark.parametrize("kind", ["rafi", "ridge_global"])
+def test_a_prior_that_is_itself_a_requalification_says_which_speeds_it_only_inherited(states, kind):
+    """A chain: the old machine's model re-qualified on ``new`` (tested at 3000 and 6000 r/min),
+    that model the prior of ``newer`` (tested at the same speeds). The speeds ``newer`` leaves to
+    its prior were never tested on ``new`` either: the fitness block and the warning name the
+    older prior they come from; a first re-qualification carries no such key (its bytes and id
+    unchanged)."""
+    (t1, f1), (t2, f2) = states
+    first = _prior(kind, t1, f1)
+    middle = json.loads(
+        json.dumps(AdaptedPrior(prior=first, method="gain", machine="new").fit(t2, f2).to_dict())
+    )
+    assert "speeds_inherited" not in middle["adaptation"]["fitness"]
+    left = middle["adaptation"]["fitness"]["speeds_prior_only_rpm"]
+    assert left  # the generator's prior speeds above the new ones
+    last = AdaptedPrior(prior=middle, method="gain", machine="newer").fit(t2, f2).to_dict()
+    fit = last["adaptation"]["fitness"]
+    assert fit["speeds_prior_only_rpm"] == left
+    assert fit["speeds_inherited"] == {
+        "speeds_rpm": left,
+        "from": {"model_id": first["model_id"], "machine": "old"},
+        "via": "new",
+    }
+    said = {w["check"]: w["message"] for w in fit["warnings"]}["prior_speeds"]
+    speeds = ", ".join(f"{s:g}" for s in left)
+    assert said.endswith(
+        f"; {speeds} r/min the prior had from its own prior ({first['model_id'][:12]} of old), never "
+        "tested on new either"
+    )

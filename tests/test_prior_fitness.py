@@ -440,3 +440,30 @@ def test_a_warning_that_the_prior_does_not_describe_the_machine_says_to_qualify_
     speeds = {"prior": "b" * 12, "machine": "m-a", "check": "prior_speeds", "message": "y"}
     line = prior_warning_reason(speeds)
     assert "record runs at those speeds (rafi plan --machine <machine> names the --hours" in line
+
+
+def test_status_says_which_speeds_the_prior_had_only_from_its_own_prior():
+    """A prior that was itself re-qualified: ``rafi status`` adds the speeds it only inherited, with
+    the older prior and the machine they were never tested on."""
+    from rafi.ops.fleet import prior_summary
+    from rafi.ops.fleet_cli import describe_prior
+
+    fitness = {
+        "origin": "this machine",
+        "warnings": [],
+        "speeds_tested_rpm": [3000.0],
+        "speeds_prior_only_rpm": [12000.0, 18000.0],
+        "speeds_inherited": {
+            "speeds_rpm": [18000.0],
+            "from": {"model_id": "c" * 64, "machine": "m-0"},
+            "via": "m-a",
+        },
+    }
+    artefact = {
+        "adaptation": {"parent": "a" * 64, "parent_machine": "m-a", "method": "gain", "fitness": fitness}
+    }
+    lines = describe_prior(prior_summary(artefact))
+    assert lines[2] == (
+        "  speeds:           tested here 3000 r/min; the prior's alone 12000, 18000; 18000 r/min the prior "
+        f"had from its own prior ({'c' * 12} of m-0), never tested on m-a either"
+    )

@@ -235,6 +235,13 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
         "kind": "dynamic",
         "speed_range_rpm": [0.0, 18000.0],
         "regressor_ranges": {"T1": [0.0, 9.0]},
+        # itself re-qualified from an older model that alone knew 18000 r/min
+        "adaptation": {
+            "fitness": {
+                "speeds_prior_only_rpm": [18000.0],
+                "prior": {"model_id": "b" * 64, "machine": "mill"},
+            }
+        },
     }
     qualification = {"promoted": "2026-11-01T02:03:04Z", "max_residual_um": 1.234, "n_runs": 3}
     qualification["speeds_rpm"] = [3000, 9000, 18000]
@@ -273,7 +280,10 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
         in text
     )
     assert "tested here 3 000 r/min (range 3 000 r/min); the prior's 3 000, 9 000, 18 000 r/min" in text
-    assert "(range 0–18 000 r/min); covered by the prior alone: 9 000, 18 000 r/min" in text
+    assert (
+        "(range 0–18 000 r/min); covered by the prior alone: 9 000, 18 000 r/min ; 18 000 r/min the prior "
+        "had from its own prior (bbbbbbbbbbbb of mill), never tested on tapping-center-a either." in text
+    )
     assert "prediction moved by 76.0 % of its size" in text
     # the model's section: its speeds, each range said as what it is
     assert "speeds 3 000 r/min tested here, 0 … 18 000 r/min covered by the prior" in text

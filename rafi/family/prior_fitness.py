@@ -13,7 +13,9 @@ promotion until confirmed in ``checks.confirmed`` (:func:`fitness_warnings`, rea
 * ``prior_adaptation``: the adaptation moved the prior beyond :data:`BOUNDS` (a gain, a time
   factor at an edge of its grid, or a prediction moved by more than half its size);
 * ``prior_speeds``: a speed the prior was trained at that no new training run covers (within the
-  machine's ``speed_tolerance_rpm``): there the model is the prior's alone, untested here.
+  machine's ``speed_tolerance_rpm``): there the model is the prior's alone, untested here. When the
+  prior is itself a re-qualification that left some of those speeds to its own prior
+  (:func:`inherited_speeds`), the warning says so: nothing since that older prior tested them.
 
 Two more are found beside the fit, by the family's CV (:func:`rafi.family.compare.run_family`):
 ``prior_dynamics`` (:func:`dynamics_warning`) and ``prior_misfit`` (:func:`misfit_warning`).
@@ -39,6 +41,8 @@ __all__ = [
     "prior_speed_range",
     "prior_speeds_known",
     "prior_only_speeds",
+    "inherited_speeds",
+    "inherited_text",
     "prior_trained_speeds",
     "prior_rise_ranges",
 ]
@@ -190,6 +194,33 @@ def prior_only_speeds(
     return sorted({s for s in ends if not any(abs(s - t) <= tol for t in tested)})
 
 
+def inherited_speeds(prior: Mapping, speeds_rpm: Iterable[float], *, tolerance_rpm: float) -> dict | None:
+    """Of ``speeds_rpm`` (the speeds a re-qualification leaves to ``prior`` alone), those the prior
+    itself left to its own prior: the prior is a re-qualification too and its fitness block's
+    ``speeds_prior_only_rpm`` holds them (within ``tolerance_rpm``). Its tested speeds never
+    reached them, so the model there is older than the prior.
+
+    Returns
+    -------
+    dict or None
+        ``speeds_rpm`` (sorted), ``from`` (the older prior's ``model_id`` and ``machine``, as the
+        prior's fitness block names it) and ``via`` (the prior's own machine); None when the prior
+        is no re-qualification or left none of them to its prior.
+    """
+    fitness = (prior.get("adaptation") or {}).get("fitness") or {}
+    older = _finite(fitness.get("speeds_prior_only_rpm") or [])
+    tol = float(tolerance_rpm)
+    speeds = sorted({float(s) for s in _finite(speeds_rpm) if any(abs(s - o) <= tol for o in older)})
+    if not speeds:
+        return None
+    origin = fitness.get("prior") or {}
+    return {
+        "speeds_rpm": speeds,
+        "from": {"model_id": str(origin.get("model_id") or ""), "machine": origin.get("machine")},
+        "via": prior.get("machine"),
+    }
+
+
 def fitness_block(
     prior: Mapping,
     *,
@@ -247,7 +278,8 @@ def fitness_block(
         ``speeds_prior_rpm`` (``None``: only its range is known), ``speed_range_prior_rpm``,
         ``speeds_prior_only_rpm``, ``temperature`` (per sensor: ``tested``, ``prior``,
         ``prior_only`` ranges), ``bounds`` (:data:`BOUNDS`) and ``warnings``
-        (:func:`fitness_warnings`).
+        (:func:`fitness_warnings`); and ``speeds_inherited`` (:func:`inherited_speeds`) only when
+        the prior left some of its prior-only speeds to its own prior.
     """
     qual = dict(qualification or {})
     base = prior if base is None else base
@@ -288,6 +320,9 @@ def fitness_block(
         "temperature": temperature,
         "bounds": {k: list(v) if isinstance(v, tuple) else v for k, v in BOUNDS.items()},
     }
+    inherited = inherited_speeds(prior, prior_only, tolerance_rpm=speed_tolerance_rpm)
+    if inherited is not None:  # only then: every other adapted artefact keeps its bytes and its id
+        block["speeds_inherited"] = inherited
     if base is not prior:  # the member of an ensemble prior that was re-fitted
         block["prior"]["member"] = {"kind": base.get("kind"), "model_id": str(base.get("model_id") or "")}
     block["warnings"] = fitness_warnings(block)
@@ -398,11 +433,26 @@ def fitness_warnings(block: Mapping) -> list[dict]:
                 "message": (
                     f"the prior's speed(s) {', '.join(f'{s:g}' for s in only)} r/min have no new training "
                     f"run (tested here: {', '.join(f'{s:g}' for s in tested) or 'none'} r/min); there the "
-                    "model is the prior's alone"
+                    "model is the prior's alone" + inherited_text(block.get("speeds_inherited"))
                 ),
             }
         )
     return out
+
+
+def inherited_text(inherited: Mapping | None, speeds_text=None) -> str:
+    """The clause the ``prior_speeds`` warning, the report and ``rafi status`` add for the speeds
+    the prior itself had only from its own prior (:func:`inherited_speeds`); empty without.
+    ``speeds_text`` formats the list of speeds with their unit (default ``12000, 18000 r/min``)."""
+    if not inherited:
+        return ""
+    values = [float(s) for s in inherited.get("speeds_rpm") or []]
+    speeds = speeds_text(values) if speeds_text else ", ".join(f"{s:g}" for s in values) + " r/min"
+    origin = inherited.get("from") or {}
+    who = str(origin.get("model_id") or "")[:12] or "?"
+    whose = f" of {origin['machine']}" if origin.get("machine") else ""
+    via = f" on {inherited['via']}" if inherited.get("via") else ""
+    return f"; {speeds} the prior had from its own prior ({who}{whose}), never tested{via} either"
 
 
 def awaiting_confirmation(decision: dict | None) -> str | None:

@@ -274,7 +274,8 @@ def prior_summary(artefact: dict | None, results_dir: str | os.PathLike | None =
     version may carry it in its fitness block), ``max_residual_um`` / ``n_runs`` (its own
     qualification), ``method``,
     ``gain``, ``time_factor``, ``alpha`` (a ridge's penalty), ``largest_coefficient_change``,
-    ``prediction_change``, ``speeds_tested_rpm``, ``speeds_prior_only_rpm`` and ``warnings``
+    ``prediction_change``, ``speeds_tested_rpm``, ``speeds_prior_only_rpm``, ``speeds_inherited``
+    (:func:`rafi.family.prior_fitness.inherited_speeds`) and ``warnings``
     (the fitness block, :mod:`rafi.family.prior_fitness`; the figures are None for a model
     without one). None for a model that is not an adapted prior."""
     block = (artefact or {}).get("adaptation")
@@ -282,7 +283,13 @@ def prior_summary(artefact: dict | None, results_dir: str | os.PathLike | None =
         return None
     fit = block.get("fitness") if isinstance(block.get("fitness"), dict) else {}
     own = fit.get("prior") or {}
-    keys = ("largest_coefficient_change", "prediction_change", "speeds_tested_rpm", "speeds_prior_only_rpm")
+    keys = (
+        "largest_coefficient_change",
+        "prediction_change",
+        "speeds_tested_rpm",
+        "speeds_prior_only_rpm",
+        "speeds_inherited",
+    )
     machine = block.get("parent_machine") or own.get("machine")
     promoted = prior_promoted(results_dir, machine, block.get("parent")) if results_dir is not None else None
     return {

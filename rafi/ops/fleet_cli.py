@@ -31,6 +31,7 @@ from pathlib import Path
 
 from rafi.cli import add_config_option
 from rafi.errors import SettingsError
+from rafi.family.prior_fitness import inherited_text
 from rafi.ops.fleet import describe_drift, exit_code, fleet_overview
 from rafi.ops.project import Paths, load_config, units
 from rafi.ops.status import EXIT_CANTCREAT, EXIT_USAGE, short_id
@@ -100,6 +101,7 @@ def describe_prior(prior: dict | None) -> list[str]:
         lines.append(
             f"  speeds:           tested here {_speeds(prior['speeds_tested_rpm'])} r/min; the prior's "
             f"alone {_speeds(prior.get('speeds_prior_only_rpm'))}"
+            + inherited_text(prior.get("speeds_inherited"), lambda v: _speeds(v) + " r/min")
         )
     if prior.get("warnings"):
         lines.append(f"  prior warnings:   {', '.join(prior['warnings'])} (confirmed in checks.confirmed)")

@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.prior import prior_promoted
-from rafi.family.prior_fitness import warning_remedy
+from rafi.family.prior_fitness import inherited_text, warning_remedy
 from rafi.report.comparison_section import selection_score
 from rafi.report.format import fmt_num, fmt_speed, fmt_speed_range, isnum, short_id
 from rafi.settings import truthy
@@ -188,7 +188,9 @@ def fitness_context(
     machine's registry under ``results_dir``, :func:`rafi.family.prior.prior_promoted`: a fact of
     the registry, not of the artefact, which carries it only from an earlier version),
     ``prediction_change`` and ``largest`` (:func:`rafi.family.prior_fitness.fitness_block`),
-    ``speeds_tested``, ``speeds_prior``, ``speeds_prior_only`` and the two ranges (text),
+    ``speeds_tested``, ``speeds_prior``, ``speeds_prior_only``, ``inherited`` (the clause for the
+    speeds the prior had only from its own prior, :func:`rafi.family.prior_fitness.inherited_text`)
+    and the two ranges (text),
     ``temperature`` (rows: ``sensor``, ``tested``, ``prior``, ``prior_only``, text in K),
     ``bounds`` and ``warnings`` (``check``, ``message``, ``confirm``: the ``checks.confirmed``
     entry that confirms it, ``instead``: what to do instead for ``machine``,
@@ -210,6 +212,7 @@ def fitness_context(
         "speeds_tested": _speeds(fit.get("speeds_tested_rpm")),
         "speeds_prior": _speeds(fit.get("speeds_prior_rpm")) if fit.get("speeds_prior_rpm") else None,
         "speeds_prior_only": _speeds(fit.get("speeds_prior_only_rpm")),
+        "inherited": inherited_text(fit.get("speeds_inherited"), _speeds),
         "range_tested": fmt_speed_range(*(fit.get("speed_range_tested_rpm") or [None, None])),
         "range_prior": fmt_speed_range(*(fit.get("speed_range_prior_rpm") or [None, None])),
         "temperature": [
