@@ -150,3 +150,19 @@ def test_the_prior_is_least_sure_outside_its_trained_speeds():
     )
     assert prior_view(None) is None and prior_view({"kind": "rafi"})["half_width_um"] == {}
     assert settings["runs"]["min_constant_s"] >= settings["runs"]["min_run_s"]
+
+
+def test_the_speeds_a_re_qualified_prior_only_inherited_are_said_as_such():
+    """A prior that is itself a re-qualification: of the speeds a programme leaves to it, those it
+    had only from its own prior are named with that older prior."""
+    from rafi.ops.plan_cli import speeds_left_text
+
+    fitness = {"speeds_prior_only_rpm": [18000.0], "prior": {"model_id": "e" * 64, "machine": "mill-1"}}
+    prior = {"model_id": "d" * 64, "machine": "mill-2", "adaptation": {"fitness": fitness}}
+    line = speeds_left_text([12000.0, 18010.0], prior, 6.0, False, tolerance_rpm=50.0)
+    assert line.startswith(
+        "  left to the prior alone: 12000, 18010 r/min (trained by the prior, untested here; 18010 r/min "
+        f"the prior had from its own prior ({'e' * 12} of mill-1), never tested on mill-2 either); "
+    )
+    plain = speeds_left_text([12000.0], prior, 6.0, False, tolerance_rpm=50.0)
+    assert "(trained by the prior, untested here); the night's" in plain

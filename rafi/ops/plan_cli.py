@@ -121,14 +121,20 @@ def run(args) -> int:
     left = prior_speeds_left(table, prior, tolerance_rpm=tolerance)
     if left:
         budget = covering_budget_h(prior, tolerance_rpm=tolerance, **programme)
-        print(speeds_left_text(left, prior, budget, args.speed_range is not None))
+        print(speeds_left_text(left, prior, budget, args.speed_range is not None, tolerance_rpm=tolerance))
     return 0
 
 
-def speeds_left_text(left: list[float], prior: dict, budget_h: float | None, ranged: bool) -> str:
-    """The line under the table when the programme leaves speeds of the prior untested: which,
+def speeds_left_text(
+    left: list[float], prior: dict, budget_h: float | None, ranged: bool, *, tolerance_rpm: float = 0.0
+) -> str:
+    """The line under the table when the programme leaves speeds of the prior untested: which (and
+    those the prior itself had only from its own prior, :func:`rafi.family.prior_fitness.inherited_speeds`),
     what the night will do about them, and the budget that tests them all (or why none does)."""
+    from rafi.family.prior_fitness import inherited_speeds, inherited_text
+
     pid = str(prior.get("model_id", ""))[:12]
+    older = inherited_text(inherited_speeds(prior, left, tolerance_rpm=tolerance_rpm))
     speeds = ", ".join(f"{s:g}" for s in left)
     if budget_h is not None:
         cover = f"--hours {budget_h:g} tests them all"
@@ -136,8 +142,8 @@ def speeds_left_text(left: list[float], prior: dict, budget_h: float | None, ran
         where = "inside --speed-range" if ranged else "of this machine's training_speeds_rpm"
         cover = f"no programme {where} tests them all"
     return (
-        f"  left to the prior alone: {speeds} r/min (trained by the prior, untested here); the night's "
-        f"fitness warning prior_speeds blocks the promotion until confirmed (checks.confirmed: "
+        f"  left to the prior alone: {speeds} r/min (trained by the prior, untested here{older}); the "
+        f"night's fitness warning prior_speeds blocks the promotion until confirmed (checks.confirmed: "
         f"{{file: {pid}, check: prior_speeds}}); {cover}"
     )
 
