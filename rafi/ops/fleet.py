@@ -49,8 +49,8 @@ import json
 import os
 from pathlib import Path
 
+from rafi.family.confirmation import awaiting_confirmation
 from rafi.family.prior import prior_promoted
-from rafi.family.prior_fitness import awaiting_confirmation
 from rafi.ops.project import Paths
 from rafi.ops.status import (
     EXIT_OK,
@@ -327,9 +327,10 @@ def _older(a: Path, b: Path) -> bool:
 
 def rejected_text(decision: dict, *, has_champion: bool) -> str:
     """What ``rafi status`` says of a last decision ``rejected``: a candidate that passed every gate
-    and waits for its prior's fitness warnings to be confirmed is named with each check and the
-    ``checks.confirmed`` entry to add (:func:`rafi.family.prior_fitness.awaiting_confirmation`, the words of
-    the end-of-run line); any other is rejected. Then whether a model stays in service."""
+    and waits for its input warnings or its prior's fitness warnings to be confirmed is named with
+    each warning and the ``checks.confirmed`` entries to add
+    (:func:`rafi.family.confirmation.awaiting_confirmation`, the words of the end-of-run line); any
+    other is rejected. Then whether a model stays in service."""
     waiting = awaiting_confirmation(decision)
     if waiting:  # passed every gate: goes on the machine once confirmed
         stays = "the champion stays until then" if has_champion else "no model in service until then"
