@@ -445,7 +445,7 @@ def test_a_machine_waiting_for_a_confirmation_reads_so_in_its_headline_and_last_
         "champion": None,
         "last_decision": {"decision": "rejected", "time": "2026-11-30T20:41:39Z"},
         "waiting": True,
-        "state": "rejected",
+        "state": "waiting",
         "attention": [{"text": "waits for a confirmation of the prior fitness check prior_speeds ..."}],
         "worst_residual": None,
         "recalibration_due": False,
@@ -460,5 +460,69 @@ def test_a_machine_waiting_for_a_confirmation_reads_so_in_its_headline_and_last_
         in text
     )
     assert "REJECTED" not in text
-    plain = fleet_cli.format_rows([row | {"waiting": False}])
+    plain = fleet_cli.format_rows([row | {"waiting": False, "state": "rejected"}])
     assert plain.startswith("a2: REJECTED\n") and "(not promoted until" not in plain
+
+
+def test_a_candidate_waiting_for_a_confirmation_is_its_own_state_not_rejected(fleet):
+    """A last candidate that passed every gate and waits only for a confirmation (an input warning,
+    its prior's fitness) is state waiting on rafi status and the page, never rejected: ranked with
+    the rejected (a person has something to do, the model in service stays) and exit 2 as rafi
+    nightly exits that night; its attention line names the checks.confirmed entry to add."""
+    warning = {"file": "val.csv", "sha256": "ab" * 32, "check": "probe_sign", "message": "x"}
+    _machine(
+        fleet,
+        "wait-m",
+        champion="Z",
+        decision=_decision(
+            "rejected",
+            "Z",
+            "C",
+            machine="wait-m",
+            gates_passed=True,
+            blocked_by=["input_warnings"],
+            input_warnings={"blocking": [warning], "confirmed": [], "not_used": []},
+            champion_summary=_summary("v2", 4.0),
+        ),
+    )
+    rows = {r["machine"]: r for r in _rows(fleet)}
+    wait = rows["wait-m"]
+    assert (wait["state"], wait["rank"], wait["exit_code"], wait["waiting"]) == ("waiting", 2, 2, True)
+    assert [a["state"] for a in wait["attention"]] == ["waiting"]
+    assert wait["attention"][0]["text"].endswith(
+        'add checks.confirmed: [{file: "val.csv", check: probe_sign}] in wait-m\'s settings; '
+        "the champion stays until then"
+    )
+    assert rows["rej-m"]["state"] == "rejected" and not rows["rej-m"]["waiting"]
+    order = [r["machine"] for r in _rows(fleet)]
+    assert order.index("recal-m") < order.index("wait-m") < order.index("ok-m")  # rank 2, by name
+    assert F.exit_code(_rows(fleet, ["wait-m", "quar-m", "ok-m"])) == 2
+    assert F.exit_code(_rows(fleet, ["wait-m", "recal-m"])) == 3
+    text = fleet_cli.format_rows([wait | {"report_path": None}])
+    assert text.startswith("wait-m: WAITING FOR CONFIRMATION\n  ! the last candidate")
+    page = fleet_page(list(rows.values()), created="now")
+    cells = _cells(page, "wait-m")
+    assert cells["state"].startswith("waiting the last candidate") and "rejected" not in cells["state"]
+    assert "waiting: 1" in page and "rejected: 1" in page  # rej-m stays rejected
+    # drift beside it: recalibration due leads, the waiting candidate is still said below it
+    _machine(
+        fleet,
+        "wait-recal-m",
+        champion="Z",
+        decision=_decision(
+            "rejected",
+            "Z",
+            "C",
+            gates_passed=True,
+            blocked_by=["input_warnings"],
+            input_warnings={"blocking": [warning]},
+            recalibration_due=True,
+            drift={"status": "degraded", "degradation_um": 3.1, "limit_um": 2.0},
+        ),
+    )
+    (both,) = _rows(fleet, ["wait-recal-m"])
+    assert both["state"] == "recalibration_due" and both["waiting"] and both["exit_code"] == 3
+    assert [a["state"] for a in both["attention"]] == ["recalibration_due", "waiting"]
+    text = fleet_cli.format_rows([both | {"report_path": None}])
+    assert text.startswith("wait-recal-m: RECALIBRATION_DUE\n")
+    assert "last decision:    rejected at 2026-03-04T05:06:07Z (not promoted until the confirmation" in text

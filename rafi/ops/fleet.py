@@ -32,13 +32,16 @@ Attention order (:data:`RANK`, most urgent first; within a rank by machine name)
    ``audit.csv``: the last run stopped before the decision), ``not_run`` (nothing in results/
    yet) and ``skipped`` (no usable raw file);
 1. ``recalibration_due``;
-2. ``rejected`` (the last decision rejected the candidate; the champion stays) and
-   ``quarantined`` (some raw file was set aside);
+2. ``waiting`` (the last candidate passed every gate and waits for a person to confirm an input
+   warning or its prior's fitness warnings: :func:`rafi.family.confirmation.awaiting_confirmation`;
+   the champion stays until then), ``rejected`` (the last decision rejected the candidate for any
+   other reason; the champion stays) and ``quarantined`` (some raw file was set aside);
 3. ``ok``.
 
 Exit status of ``rafi status`` (:func:`exit_code`): the codes of ``rafi nightly`` with its
 severity 1 > 3 > 2 > 4 > 0: 1 some machine failed or was never run, 3 recalibration due,
-2 the last decision of some machine was a rejection, 4 input rejected (quarantined files or a
+2 the last decision of some machine did not promote its candidate (rejected, or waiting for a
+confirmation: the night that decided it exited 2 too), 4 input rejected (quarantined files or a
 skipped machine), 0 every machine ok.
 """
 
@@ -71,6 +74,7 @@ RANK = {
     "not_run": 0,
     "skipped": 0,
     "recalibration_due": 1,
+    "waiting": 2,
     "rejected": 2,
     "quarantined": 2,
     "ok": 3,
@@ -82,6 +86,7 @@ STATE_CODE = {
     "not_run": EXIT_PIPELINE_FAILED,
     "skipped": EXIT_QUARANTINED,
     "recalibration_due": EXIT_RECALIBRATION_DUE,
+    "waiting": EXIT_REJECTED,  # not promoted, as rafi nightly exits that night
     "rejected": EXIT_REJECTED,
     "quarantined": EXIT_QUARANTINED,
     "ok": EXIT_OK,
@@ -340,6 +345,15 @@ def rejected_text(decision: dict, *, has_champion: bool) -> str:
     return f"the last candidate was rejected; {stays}"
 
 
+def rejected_attention(decision: dict, *, has_champion: bool) -> tuple[str, str]:
+    """The state and attention line of a last decision ``rejected``: ``waiting`` when the candidate
+    passed every gate and waits for a confirmation alone
+    (:func:`rafi.family.confirmation.awaiting_confirmation`), else ``rejected``; the line is
+    :func:`rejected_text`."""
+    waits = awaiting_confirmation(decision) is not None
+    return ("waiting" if waits else "rejected"), rejected_text(decision, has_champion=has_champion)
+
+
 def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str) -> dict:
     """The state of one machine (see the module docstring for the sources and states).
 
@@ -424,7 +438,7 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
             by = f" by {deg:.2f} um" if deg is not None else ""
             attention.append(("recalibration_due", f"the model in service drifted{by}: recalibration due"))
     if (decision or {}).get("decision") == "rejected":
-        attention.append(("rejected", rejected_text(decision, has_champion=bool(champion_id))))
+        attention.append(rejected_attention(decision, has_champion=bool(champion_id)))
     if status.quarantined and not status.skipped:
         attention.append(("quarantined", f"{len(status.quarantined)} raw file(s) quarantined"))
     attention.sort(key=lambda a: RANK[a[0]])
@@ -432,8 +446,9 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     return {
         "machine": machine,
         "state": state,
-        # the last candidate passed every gate and waits for a confirmation (state rejected, exit 2)
-        "waiting": state == "rejected" and awaiting_confirmation(decision) is not None,
+        # the last candidate passed every gate and waits for a confirmation (state waiting unless
+        # a more urgent one leads)
+        "waiting": any(s == "waiting" for s, _ in attention),
         "rank": RANK[state],
         "attention": [{"state": s, "text": t} for s, t in attention],
         "champion": (

@@ -3,14 +3,17 @@
 Reads the files the pipeline and the nights wrote (rafi.ops.fleet; nothing is recomputed, no
 lock is taken) and prints one block per machine, machines that need attention first: failed
 (data but no decision), never run or skipped (no usable raw file); then recalibration due;
-then a rejected candidate or quarantined files; then ok. docs/operations.md, "rafi status".
+then a candidate waiting for a confirmation (WAITING FOR CONFIRMATION: it passed every gate,
+and the checks.confirmed entries to add are named), a rejected candidate or quarantined files;
+then ok. docs/operations.md, "rafi status".
 
 Exit status (for monitoring; the codes of rafi nightly, most severe first 1 > 3 > 2 > 4 > 0):
   0   every machine ok
   1   some machine failed (data but no decision) or has never been run
   3   some machine's model in service is due for recalibration (drift: its max residual grew
       past the margin, or new samples fall outside its interval more often than its level allows)
-  2   some machine's last decision rejected the candidate (the champion stays)
+  2   some machine's last candidate was not promoted (the champion stays): rejected, or
+      waiting for a person to confirm an input warning or its prior's fitness (checks.confirmed)
   4   some input was rejected: quarantined raw files, or a machine skipped
   64  usage error (config unreadable, unknown --machine)
   73  --html PATH cannot be written
@@ -128,7 +131,7 @@ def format_rows(rows: list[dict]) -> str:
             if worst
             else "-"
         )
-        headline = "WAITING FOR CONFIRMATION" if r.get("waiting") else r["state"].upper()
+        headline = "WAITING FOR CONFIRMATION" if r["state"] == "waiting" else r["state"].upper()
         lines.append(f"{r['machine']}: {headline}")
         for a in r["attention"]:
             lines.append(f"  ! {a['text']}")
