@@ -24,7 +24,9 @@ nights wrote; nothing is computed anew:
 * quarantined files and whether the machine was skipped: ``audit.csv`` and
   ``input_status.json`` (:func:`rafi.ops.status.machine_status`);
 * its page: ``reports/<m>/qualification.html``, or ``reports/<m>/skipped.html`` for a skipped
-  machine.
+  machine;
+* the raw files its last decision has not judged (:func:`rafi.ops.project.unjudged_files`,
+  given the config): modified after that decision's time, or not cleaned in their present content.
 
 Attention order (:data:`RANK`, most urgent first; within a rank by machine name):
 
@@ -54,7 +56,7 @@ from pathlib import Path
 
 from rafi.family.confirmation import awaiting_confirmation
 from rafi.family.prior import prior_promoted
-from rafi.ops.project import Paths
+from rafi.ops.project import Paths, unjudged_files
 from rafi.ops.status import (
     EXIT_OK,
     EXIT_PIPELINE_FAILED,
@@ -65,6 +67,7 @@ from rafi.ops.status import (
     interval_evidence,
     machine_status,
     most_severe,
+    parse_time,
     short_id,
 )
 
@@ -345,6 +348,17 @@ def rejected_text(decision: dict, *, has_champion: bool) -> str:
     return f"the last candidate was rejected; {stays}"
 
 
+def _unjudged(paths: Paths, config: dict | None, machine: str, last: dict | None) -> dict | None:
+    """The raw files the last decision has not judged (:func:`rafi.ops.project.unjudged_files`):
+    ``count``, ``files`` and ``since`` (its time); None without the config, a decision with a
+    readable time, or such a file."""
+    since = parse_time((last or {}).get("time"))
+    if config is None or since is None:
+        return None
+    files = unjudged_files(paths, config, machine, since)
+    return {"count": len(files), "files": files, "since": last["time"]} if files else None
+
+
 def rejected_attention(decision: dict, *, has_champion: bool) -> tuple[str, str]:
     """The state and attention line of a last decision ``rejected``: ``waiting`` when the candidate
     passed every gate and waits for a confirmation alone
@@ -354,7 +368,9 @@ def rejected_attention(decision: dict, *, has_champion: bool) -> tuple[str, str]
     return ("waiting" if waits else "rejected"), rejected_text(decision, has_champion=has_champion)
 
 
-def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str) -> dict:
+def machine_overview(
+    paths: Paths, reports_dir: str | os.PathLike, machine: str, config: dict | None = None
+) -> dict:
     """The state of one machine (see the module docstring for the sources and states).
 
     Parameters
@@ -364,7 +380,10 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     reports_dir : path
         The project's ``reports_dir`` (absolute, or relative to the current directory).
     machine : str
-        Folder name under raw/.
+        Folder name under raw/ (or a probe's unit, ``<machine>@<probe>``).
+    config : dict, optional
+        The project's config: with it, ``unjudged`` counts the raw files the last decision has
+        not judged (:func:`rafi.ops.project.unjudged_files`); without it, ``unjudged`` is None.
 
     Returns
     -------
@@ -377,7 +396,8 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
         ``candidate_id``, ``reasons``, ``source``; or None), ``worst_residual``
         (:func:`champion_residual`), ``drift``, ``recalibration_due``, ``quarantined`` (list of
         ``file (reason)``), ``skipped``, ``report`` (path relative to ``reports_dir``, or None),
-        ``exit_code``.
+        ``unjudged`` (:func:`_unjudged`), ``waiting`` (the last candidate waits for a
+        confirmation), ``exit_code``.
     """
     reports_dir = Path(reports_dir)
     reg = paths.registry(machine)
@@ -472,17 +492,23 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
         "quarantined": list(status.quarantined),
         "skipped": status.skipped,
         "report": _page(reports_dir, machine, status.skipped),
+        "unjudged": _unjudged(paths, config, machine, last),
         "exit_code": most_severe(STATE_CODE[s] for s, _ in attention),
     }
 
 
 def fleet_overview(
-    paths: Paths, reports_dir: str | os.PathLike, machines: list[str] | None = None
+    paths: Paths,
+    reports_dir: str | os.PathLike,
+    machines: list[str] | None = None,
+    *,
+    config: dict | None = None,
 ) -> list[dict]:
     """:func:`machine_overview` of every machine (``machines``, default every folder of raw/),
-    most urgent first (:data:`RANK`), then by machine name."""
+    most urgent first (:data:`RANK`), then by machine name; ``config`` (the project's) counts the
+    raw files each last decision has not judged."""
     names = paths.machines() if machines is None else list(machines)
-    rows = [machine_overview(paths, reports_dir, m) for m in names]
+    rows = [machine_overview(paths, reports_dir, m, config) for m in names]
     return sorted(rows, key=lambda r: (r["rank"], r["machine"]))
 
 

@@ -5,7 +5,9 @@ lock is taken) and prints one block per machine, machines that need attention fi
 (data but no decision), never run or skipped (no usable raw file); then recalibration due;
 then a candidate waiting for a confirmation (WAITING FOR CONFIRMATION: it passed every gate,
 and the checks.confirmed entries to add are named), a rejected candidate or quarantined files;
-then ok. docs/operations.md, "rafi status".
+then ok. Under a machine's last decision, the raw files that arrived after it (modified since,
+or never read by its run) and wait for the next night: "not judged yet". docs/operations.md,
+"rafi status".
 
 Exit status (for monitoring; the codes of rafi nightly, most severe first 1 > 3 > 2 > 4 > 0):
   0   every machine ok
@@ -109,6 +111,23 @@ def describe_prior(prior: dict | None) -> list[str]:
     return lines
 
 
+#: At most this many names of raw files not judged yet on a line of ``rafi status``.
+UNJUDGED_SHOWN = 5
+
+
+def unjudged_text(unjudged: dict) -> str:
+    """The raw files the last decision has not judged (:func:`rafi.ops.fleet.unjudged_files`), in
+    words: how many, since when, their first :data:`UNJUDGED_SHOWN` names."""
+    files = list(unjudged["files"])
+    shown = ", ".join(files[:UNJUDGED_SHOWN])
+    if len(files) > UNJUDGED_SHOWN:
+        shown += f", ... ({len(files) - UNJUDGED_SHOWN} more)"
+    return (
+        f"{unjudged['count']} raw file(s) arrived after the last decision ({unjudged['since']}): "
+        f"{shown}; the next night judges them"
+    )
+
+
 def format_rows(rows: list[dict]) -> str:
     """The text ``rafi status`` prints: one block per machine (most urgent first)."""
     if not rows:
@@ -138,6 +157,8 @@ def format_rows(rows: list[dict]) -> str:
         lines.append(f"  model in service: {model}")
         lines += describe_prior((ch or {}).get("prior"))
         lines.append(f"  last decision:    {decided}")
+        if r.get("unjudged"):
+            lines.append(f"  not judged yet:   {unjudged_text(r['unjudged'])}")
         lines.append(f"  worst residual:   {resid}")
         due = "YES" if r["recalibration_due"] else "no"
         drift = describe_drift(r["drift"], has_champion=bool(ch))
@@ -171,7 +192,7 @@ def run(args) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
-    rows = fleet_overview(paths, reports_dir, units(config, args.machine or machines))
+    rows = fleet_overview(paths, reports_dir, units(config, args.machine or machines), config=config)
     for r in rows:
         r["report_path"] = str(reports_dir / r["report"]) if r["report"] else None
     if args.html:
