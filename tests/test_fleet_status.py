@@ -21,6 +21,7 @@ from rafi.ops.project import Paths
 from rafi.report.fleet_page import fleet_page, write_fleet_page
 
 T0 = 1_800_000_000  # audit.csv time; a decision is written after it unless the machine is stale
+RAW_T = 1_700_000_000  # when the raw files were recorded (2023), before every decision's time
 ID = {k: (c * 64) for k, c in {"X": "a", "Y": "b", "Z": "c", "C": "d", "R": "e", "Q": "f"}.items()}
 
 
@@ -55,6 +56,7 @@ def _machine(
 ) -> None:
     (root / "raw" / name).mkdir(parents=True)
     (root / "raw" / name / "day1.csv").write_text("time\n")
+    os.utime(root / "raw" / name / "day1.csv", (RAW_T, RAW_T))  # recorded before any decision here
     if audit is None:  # never run: nothing under results/
         return
     res = root / "results" / name
@@ -66,6 +68,10 @@ def _machine(
         {"machine": name, "status": "skipped" if skipped else "usable", "rejected": []},
     )
     os.utime(res / "audit.csv", (T0, T0))
+    for f, _, _ in audit:  # each raw file cleaned by that run, after it was recorded
+        (res / "clean").mkdir(exist_ok=True)
+        (res / "clean" / f"{Path(f).stem}.summary.csv").write_text("file,status\n")
+        os.utime(res / "clean" / f"{Path(f).stem}.summary.csv", (T0, T0))
     reg = res / "registry"
     if champion:
         _json(
@@ -445,7 +451,7 @@ def test_a_machine_waiting_for_a_confirmation_reads_so_in_its_headline_and_last_
         "champion": None,
         "last_decision": {"decision": "rejected", "time": "2026-11-30T20:41:39Z"},
         "waiting": True,
-        "state": "rejected",
+        "state": "waiting",
         "attention": [{"text": "waits for a confirmation of the prior fitness check prior_speeds ..."}],
         "worst_residual": None,
         "recalibration_due": False,
@@ -460,5 +466,117 @@ def test_a_machine_waiting_for_a_confirmation_reads_so_in_its_headline_and_last_
         in text
     )
     assert "REJECTED" not in text
-    plain = fleet_cli.format_rows([row | {"waiting": False}])
+    plain = fleet_cli.format_rows([row | {"waiting": False, "state": "rejected"}])
     assert plain.startswith("a2: REJECTED\n") and "(not promoted until" not in plain
+
+
+def test_a_candidate_waiting_for_a_confirmation_is_its_own_state_not_rejected(fleet):
+    """A last candidate that passed every gate and waits only for a confirmation (an input warning,
+    its prior's fitness) is state waiting on rafi status and the page, never rejected: ranked with
+    the rejected (a person has something to do, the model in service stays) and exit 2 as rafi
+    nightly exits that night; its attention line names the checks.confirmed entry to add."""
+    warning = {"file": "val.csv", "sha256": "ab" * 32, "check": "probe_sign", "message": "x"}
+    _machine(
+        fleet,
+        "wait-m",
+        champion="Z",
+        decision=_decision(
+            "rejected",
+            "Z",
+            "C",
+            machine="wait-m",
+            gates_passed=True,
+            blocked_by=["input_warnings"],
+            input_warnings={"blocking": [warning], "confirmed": [], "not_used": []},
+            champion_summary=_summary("v2", 4.0),
+        ),
+    )
+    rows = {r["machine"]: r for r in _rows(fleet)}
+    wait = rows["wait-m"]
+    assert (wait["state"], wait["rank"], wait["exit_code"], wait["waiting"]) == ("waiting", 2, 2, True)
+    assert [a["state"] for a in wait["attention"]] == ["waiting"]
+    assert wait["attention"][0]["text"].endswith(
+        'add checks.confirmed: [{file: "val.csv", check: probe_sign}] in wait-m\'s settings; '
+        "the champion stays until then"
+    )
+    assert rows["rej-m"]["state"] == "rejected" and not rows["rej-m"]["waiting"]
+    order = [r["machine"] for r in _rows(fleet)]
+    assert order.index("recal-m") < order.index("wait-m") < order.index("ok-m")  # rank 2, by name
+    assert F.exit_code(_rows(fleet, ["wait-m", "quar-m", "ok-m"])) == 2
+    assert F.exit_code(_rows(fleet, ["wait-m", "recal-m"])) == 3
+    text = fleet_cli.format_rows([wait | {"report_path": None}])
+    assert text.startswith("wait-m: WAITING FOR CONFIRMATION\n  ! the last candidate")
+    page = fleet_page(list(rows.values()), created="now")
+    cells = _cells(page, "wait-m")
+    assert cells["state"].startswith("waiting the last candidate") and "rejected" not in cells["state"]
+    assert "waiting: 1" in page and "rejected: 1" in page  # rej-m stays rejected
+    # drift beside it: recalibration due leads, the waiting candidate is still said below it
+    _machine(
+        fleet,
+        "wait-recal-m",
+        champion="Z",
+        decision=_decision(
+            "rejected",
+            "Z",
+            "C",
+            gates_passed=True,
+            blocked_by=["input_warnings"],
+            input_warnings={"blocking": [warning]},
+            recalibration_due=True,
+            drift={"status": "degraded", "degradation_um": 3.1, "limit_um": 2.0},
+        ),
+    )
+    (both,) = _rows(fleet, ["wait-recal-m"])
+    assert both["state"] == "recalibration_due" and both["waiting"] and both["exit_code"] == 3
+    assert [a["state"] for a in both["attention"]] == ["recalibration_due", "waiting"]
+    text = fleet_cli.format_rows([both | {"report_path": None}])
+    assert text.startswith("wait-recal-m: RECALIBRATION_DUE\n")
+    assert "last decision:    rejected at 2026-03-04T05:06:07Z (not promoted until the confirmation" in text
+
+
+def test_status_counts_the_raw_files_that_arrived_after_the_last_decision(fleet, capsys):
+    """rafi status says per machine how many raw files the last decision has not judged: modified
+    after its time, or not cleaned in their present content (no clean/<log>.summary.csv, or one
+    older than the file: a copy that kept an old mtime, a file rafi nightly left out as still being
+    written); none, no line. The same rows feed --json and the page."""
+    raw = fleet / "raw" / "ok-m"
+    decided = 1_772_600_767  # 2026-03-04T05:06:07Z, the time of ok-m's decision
+    (raw / "day2.csv").write_text("time\n")
+    os.utime(raw / "day2.csv", (decided + 60, decided + 60))  # arrived after it
+    (raw / "day0.csv").write_text("time\n")
+    os.utime(raw / "day0.csv", (RAW_T, RAW_T))  # copied keeping its mtime: its run never read it
+    stale = fleet / "results" / "rej-m" / "clean" / "day1.summary.csv"
+    os.utime(stale, (RAW_T - 1, RAW_T - 1))  # cleaned before its file was last written
+    (raw / "notes.txt").write_text("not a raw log: input.pattern *.csv\n")
+    os.utime(raw / "notes.txt", (decided + 60, decided + 60))
+    paths = Paths.from_config(fleet, {})
+    rows = {r["machine"]: r for r in F.fleet_overview(paths, fleet / "reports", config={})}
+    assert rows["ok-m"]["unjudged"] == {
+        "count": 2,
+        "files": ["day0.csv", "day2.csv"],
+        "since": "2026-03-04T05:06:07Z",
+    }
+    assert rows["rej-m"]["unjudged"]["files"] == ["day1.csv"]
+    os.utime(stale, (T0, T0))
+    rows = {r["machine"]: r for r in F.fleet_overview(paths, fleet / "reports", config={})}
+    assert rows["rej-m"]["unjudged"] is None  # day1.csv: cleaned by its run, recorded before it
+    assert rows["new-m"]["unjudged"] is None  # no decision yet: its state says so
+    assert F.fleet_overview(paths, fleet / "reports")[0]["unjudged"] is None  # without the config
+    page = fleet_page(list(rows.values()), created="now")
+    assert _cells(page, "ok-m")["last decision"].endswith("2 raw file(s) not judged yet (arrived after it)")
+    assert "not judged yet" not in _cells(page, "rej-m")["last decision"]
+    many = {"count": 7, "files": [f"d{i}.csv" for i in range(7)], "since": "t"}
+    assert fleet_cli.unjudged_text(many) == (
+        "7 raw file(s) arrived after the last decision (t): d0.csv, d1.csv, d2.csv, d3.csv, d4.csv, "
+        "... (2 more); the next night judges them"
+    )
+    assert fleet_cli.run(_cli(fleet, "--machine", "ok-m", "--machine", "rej-m")) == 2
+    text = capsys.readouterr().out
+    assert (
+        "  not judged yet:   2 raw file(s) arrived after the last decision (2026-03-04T05:06:07Z): "
+        "day0.csv, day2.csv; the next night judges them\n"
+    ) in text
+    assert text.count("not judged yet") == 1
+    assert fleet_cli.run(_cli(fleet, "--machine", "ok-m", "--json")) == 0
+    (row,) = json.loads(capsys.readouterr().out)["machines"]
+    assert row["unjudged"]["count"] == 2

@@ -127,6 +127,54 @@ def test_a_candidate_waiting_for_its_priors_confirmation_is_neither_pass_nor_fai
     assert awaiting_confirmation({**decision, "gates_passed": False}) is None
 
 
+def _input_warning(file="valid_50000rpm.csv", check="speed_range"):
+    return {"file": file, "sha256": "ab" * 32, "check": check, "column": "speed", "message": "x"}
+
+
+def test_a_candidate_waiting_for_an_input_warnings_confirmation_is_neither_pass_nor_fail():
+    """Every gate passed, only an unconfirmed input warning holds it back (issue 47): it waits for
+    a person's confirmation as a prior's fitness warning does - WAITING, with the file, the check
+    and the checks.confirmed entry to add; both kinds at once are one list of entries."""
+    from rafi.ops.fleet import rejected_text
+
+    decision = _decision(True, decision="rejected", blocked_by=["input_warnings"], machine="a2")
+    decision["input_warnings"] = {"blocking": [_input_warning()], "confirmed": [], "not_used": []}
+    words = (
+        "waits for a confirmation of the input warning speed_range on valid_50000rpm.csv: add "
+        'checks.confirmed: [{file: "valid_50000rpm.csv", check: speed_range}] in a2\'s settings'
+    )
+    assert awaiting_confirmation(decision) == words
+    line = outcome_line(decision_outcome("a2", decision, kind="dynamic"))
+    assert line == (
+        f"a2: WAITING - model offered: dynamic 92289bc7cc53, passed every gate, not promoted: {words}"
+    )
+    assert rejected_text(decision, has_champion=True) == (
+        f"the last candidate 92289bc7cc53 passed every gate and {words}; the champion stays until then"
+    )
+    # two warnings and a prior's fitness check: every entry in one list, the input's first
+    prior = "6fca63e8ad59" + "0" * 52
+    both = {
+        **decision,
+        "blocked_by": ["input_warnings", "prior_fitness"],
+        "input_warnings": {"blocking": [_input_warning(), _input_warning("b.csv", "probe_sign")]},
+        "prior_fitness": {
+            "blocking": [{"check": "prior_speeds", "prior": prior, "machine": "a", "for_machine": "a2"}]
+        },
+    }
+    assert awaiting_confirmation(both) == (
+        "waits for a confirmation of the input warnings speed_range on valid_50000rpm.csv, probe_sign on "
+        "b.csv and the prior fitness check prior_speeds of prior 6fca63e8ad59 (a): add checks.confirmed: "
+        '[{file: "valid_50000rpm.csv", check: speed_range}, {file: "b.csv", check: probe_sign}, '
+        "{file: 6fca63e8ad59, check: prior_speeds}] in a2's settings"
+    )
+    # beside a block no confirmation lifts (coverage, the relative gate): not waiting, PASS as before
+    other = {**decision, "blocked_by": ["input_warnings", "coverage"]}
+    assert awaiting_confirmation(other) is None
+    assert outcome_line(decision_outcome("a2", other)).startswith("a2: PASS - ")
+    # a block named without its warnings (a decision.json cut short): nothing to name, not waiting
+    assert awaiting_confirmation({**decision, "input_warnings": {"blocking": []}}) is None
+
+
 def test_fail_says_each_failed_gate():
     verdict = [
         ("max_residual_um", "x#2", 178.73, 12.0, False),

@@ -335,7 +335,7 @@ def test_the_ridge_penalty_is_said_chosen_by_cv_only_where_a_cv_chose_it(tmp_pat
 def test_a_first_model_waiting_for_its_priors_confirmation_is_neither_pass_nor_fail(tmp_path):
     """No model on the machine, the candidate passed every gate and only its prior's fitness
     warning holds it back: the verdict says WAITING with the check and the entry to add, the words
-    of the end-of-run line and rafi status (rafi.family.prior_fitness.awaiting_confirmation)."""
+    of the end-of-run line and rafi status (rafi.family.confirmation.awaiting_confirmation)."""
     results = copy_fixture(tmp_path)
     path = results / "registry" / "decision.json"
     decision = json.loads(path.read_text(encoding="utf-8"))
@@ -367,3 +367,84 @@ def test_a_first_model_waiting_for_its_priors_confirmation_is_neither_pass_nor_f
         f"add checks.confirmed: [{{file: {PARENT[:12]}, check: prior_speeds}}] in a2's settings"
     ) in text
     assert "no model is qualified for this machine" not in text
+
+
+@pytest.mark.parametrize("champion", [False, True])
+def test_a_candidate_waiting_for_an_input_warnings_confirmation_reads_waiting(tmp_path, champion):
+    """Every gate passed and only an unconfirmed input warning holds the candidate back (issue 47):
+    it waits for a confirmation as a prior's fitness check does. Without a model on the machine
+    the verdict says WAITING; with one, the verdict is that model's and the line above it names
+    the candidate waiting. Both name the warning and the checks.confirmed entry to add, the words
+    of the end-of-run line and rafi status."""
+    results = copy_fixture(tmp_path)
+    path = results / "registry" / "decision.json"
+    decision = json.loads(path.read_text(encoding="utf-8"))
+    champ = decision["champion_id_before"] if champion else None
+    warning = {"file": "2026-03-12_val_10500rpm.csv", "sha256": "ab" * 32, "check": "probe_sign"}
+    decision |= {
+        "decision": "rejected",
+        "candidate_id": "cd" * 32,
+        "champion_id_before": champ,
+        "champion_id_after": champ,
+        "gates_passed": True,
+        "blocked_by": ["input_warnings"],
+        "input_warnings": {"blocking": [{**warning, "message": "x", "confirmed": False}]},
+    }
+    path.write_text(json.dumps(decision), encoding="utf-8")
+    ctx = _context(results)
+    words = (
+        "passed every gate and waits for a confirmation of the input warning probe_sign on "
+        '2026-03-12_val_10500rpm.csv: add checks.confirmed: [{file: "2026-03-12_val_10500rpm.csv", '
+        "check: probe_sign}] in tapping-center-a's settings"
+    )
+    text = " ".join(html.unescape(_text(render_html(ctx))).replace("\u00a0", " ").split())
+    if champion:
+        assert ctx["verdict"]["status"] != "WAITING"
+        assert f"the candidate {'cd' * 6} {words}; the model on the machine stays until then" in text
+    else:
+        assert ctx["verdict"]["status"] == "WAITING"
+        assert f"no model is on the machine yet: the candidate {'cd' * 6} {words}" in text
+        assert "no model is qualified for this machine" not in text
+
+
+@pytest.mark.parametrize("prior_was", ["adapted", "offered", "unknown"])
+def test_an_ensemble_prior_is_said_offered_the_way_its_own_artefact_says(tmp_path, prior_was):
+    """The passage on an ensemble prior adapted through its heaviest member says how that ensemble
+    became its machine's champion, from its own artefact in that machine's registry (issue 47): an
+    ensemble adapted as a whole was offered by that re-qualification's rule, not by models: offer:
+    ensemble; an ensemble of its machine's own kinds by that setting; without its artefact, neither."""
+    results = copy_fixture(tmp_path)
+    _add_candidates(results, offered="prior_gain")
+    best_path = results / "comparison" / "best_model.json"
+    best = json.loads(best_path.read_text(encoding="utf-8"))
+    best["adaptation"]["member"] = {
+        "name": "dynamic",
+        "kind": "dynamic",
+        "model_id": "12" * 32,
+        "weight": 0.6,
+        "n_members": 3,
+    }
+    best_path.write_text(json.dumps(best), encoding="utf-8")
+    prior = {"model_id": PARENT, "kind": "ensemble", "machine": "tapping-center-a"}
+    if prior_was == "adapted":
+        prior["adaptation"] = {"parent": "ef" * 32, "parent_machine": "lathe-b", "method": "shared_ridge"}
+    if prior_was != "unknown":  # its machine's registry (here the same machine's)
+        models = results / "registry" / "models"
+        models.mkdir(parents=True, exist_ok=True)
+        (models / f"{PARENT}.json").write_text(json.dumps(prior), encoding="utf-8")
+    text = " ".join(html.unescape(_text(render_html(_context(results)))).replace("\u00a0", " ").split())
+    text = re.sub(r" ([).,:])", r"\1", text)  # the space a tag left before punctuation
+    lead = "An ensemble as the prior. The prior is a CV-weighted ensemble of 3 members"
+    assert lead in text
+    said = {
+        "adapted": (
+            f"{lead} (the champion of tapping-center-a: the ensemble prior {'ef' * 6} of lathe-b adapted as "
+            "a whole, prior_shared_ridge, offered by that re-qualification's rule, not by models: offer: "
+            "ensemble)."
+        ),
+        "offered": f"{lead} (the champion of tapping-center-a, qualified with models: offer: ensemble).",
+        "unknown": f"{lead}. The re-qualification adapts its heaviest member",
+    }[prior_was]
+    assert said in text
+    if prior_was != "offered":
+        assert "qualified with models: offer: ensemble" not in text

@@ -22,7 +22,10 @@ enabled (``not_enabled``), on a tie (``tie``) or without a CV score (``no_cv``);
 ``tests/test_plain_ridge.py`` checks that no other case occurs. Under ``models: offer: ensemble``
 the CV-weighted ensemble (:mod:`rafi.family.ensemble`, the plain ridge one of its members) is
 offered whatever its own score: where it does not beat the plain ridge the reason is
-``ensemble``.
+``ensemble``. An ensemble prior adapted as a whole (``prior_shared_gain``, ``prior_shared_ridge``:
+:mod:`rafi.family.adapted`) is offered by the re-qualification's rule
+(:func:`rafi.family.selection.choose_champion`), not by that setting, and its members are the
+prior's, not the plain ridge scored here: the reason is ``adapted_ensemble``.
 """
 
 from __future__ import annotations
@@ -33,7 +36,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.ensemble import ENSEMBLE
-from rafi.family.selection import SIMPLICITY, TIE_UM
+from rafi.family.selection import SHARED_GAIN, SHARED_RIDGE, SIMPLICITY, TIE_UM
 
 __all__ = [
     "PLAIN_RIDGE",
@@ -68,6 +71,10 @@ REASONS = {
     "ensemble": (
         "the CV-weighted ensemble, offered under models.offer: ensemble whatever its own score "
         "(the plain ridge among its members)"
+    ),
+    "adapted_ensemble": (
+        "the ensemble prior adapted as a whole (prior_shared_gain, prior_shared_ridge), offered by the "
+        "re-qualification's rule, not by models.offer (its members are the prior's, as the run moved them)"
     ),
     "other": "offered with a higher selection score than a candidate plain ridge (not the current rule)",
 }
@@ -123,6 +130,8 @@ def versus_plain_ridge(champion: dict, ridge: dict) -> str:
         return "no_cv"
     if not np.isfinite(floor) or np.round(mine / TIE_UM) < np.round(floor / TIE_UM):
         return "beats"  # also a plain ridge that cannot predict some held-out run
+    if name in (SHARED_GAIN, SHARED_RIDGE):  # offered by the re-qualification's rule, not by models.offer
+        return "adapted_ensemble"
     if str(champion.get("kind") or name) == ENSEMBLE:  # offered by models.offer, not by its score
         return "ensemble"
     if not bool(ridge.get("candidate", True)):

@@ -453,37 +453,3 @@ def inherited_text(inherited: Mapping | None, speeds_text=None) -> str:
     whose = f" of {origin['machine']}" if origin.get("machine") else ""
     via = f" on {inherited['via']}" if inherited.get("via") else ""
     return f"; {speeds} the prior had from its own prior ({who}{whose}), never tested{via} either"
-
-
-def awaiting_confirmation(decision: dict | None) -> str | None:
-    """What a candidate that passed every gate waits for, in words, or None.
-
-    A decision ``rejected`` with ``gates_passed`` whose only block is ``prior_fitness`` (the
-    fitness warnings of its prior, :func:`rafi.ops.provenance.prior_warnings`) is neither a pass
-    that went on the machine nor a failure: it goes on once a person confirms the warnings. The
-    words name each check and the prior, and the ``checks.confirmed`` entries to add to the
-    machine's settings
-    (``docs/models.md``, "The prior's fitness"); the end-of-run line, ``rafi status`` and the
-    report say them alike.
-    """
-    decision = decision or {}
-    blocking = ((decision.get("prior_fitness") or {}).get("blocking")) or []
-    if (
-        decision.get("decision") != "rejected"
-        or not decision.get("gates_passed")
-        or list(decision.get("blocked_by") or []) != ["prior_fitness"]
-        or not blocking
-    ):
-        return None
-    checks = ", ".join(
-        f"{w.get('check')} of prior {str(w.get('prior') or '')[:12]} ({w.get('machine')})" for w in blocking
-    )
-    entries = ", ".join(
-        f"{{file: {str(w.get('prior') or '')[:12]}, check: {w.get('check')}}}" for w in blocking
-    )
-    machine = next((w.get("for_machine") for w in blocking if w.get("for_machine")), None)
-    where = f" in {machine}'s settings" if machine else ""
-    return (
-        f"waits for a confirmation of the prior fitness check {checks}: add checks.confirmed: "
-        f"[{entries}]{where}"
-    )

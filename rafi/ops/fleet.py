@@ -24,7 +24,9 @@ nights wrote; nothing is computed anew:
 * quarantined files and whether the machine was skipped: ``audit.csv`` and
   ``input_status.json`` (:func:`rafi.ops.status.machine_status`);
 * its page: ``reports/<m>/qualification.html``, or ``reports/<m>/skipped.html`` for a skipped
-  machine.
+  machine;
+* the raw files its last decision has not judged (:func:`rafi.ops.project.unjudged_files`,
+  given the config): modified after that decision's time, or not cleaned in their present content.
 
 Attention order (:data:`RANK`, most urgent first; within a rank by machine name):
 
@@ -32,13 +34,16 @@ Attention order (:data:`RANK`, most urgent first; within a rank by machine name)
    ``audit.csv``: the last run stopped before the decision), ``not_run`` (nothing in results/
    yet) and ``skipped`` (no usable raw file);
 1. ``recalibration_due``;
-2. ``rejected`` (the last decision rejected the candidate; the champion stays) and
-   ``quarantined`` (some raw file was set aside);
+2. ``waiting`` (the last candidate passed every gate and waits for a person to confirm an input
+   warning or its prior's fitness warnings: :func:`rafi.family.confirmation.awaiting_confirmation`;
+   the champion stays until then), ``rejected`` (the last decision rejected the candidate for any
+   other reason; the champion stays) and ``quarantined`` (some raw file was set aside);
 3. ``ok``.
 
 Exit status of ``rafi status`` (:func:`exit_code`): the codes of ``rafi nightly`` with its
 severity 1 > 3 > 2 > 4 > 0: 1 some machine failed or was never run, 3 recalibration due,
-2 the last decision of some machine was a rejection, 4 input rejected (quarantined files or a
+2 the last decision of some machine did not promote its candidate (rejected, or waiting for a
+confirmation: the night that decided it exited 2 too), 4 input rejected (quarantined files or a
 skipped machine), 0 every machine ok.
 """
 
@@ -49,9 +54,9 @@ import json
 import os
 from pathlib import Path
 
+from rafi.family.confirmation import awaiting_confirmation
 from rafi.family.prior import prior_promoted
-from rafi.family.prior_fitness import awaiting_confirmation
-from rafi.ops.project import Paths
+from rafi.ops.project import Paths, unjudged_files
 from rafi.ops.status import (
     EXIT_OK,
     EXIT_PIPELINE_FAILED,
@@ -62,6 +67,7 @@ from rafi.ops.status import (
     interval_evidence,
     machine_status,
     most_severe,
+    parse_time,
     short_id,
 )
 
@@ -71,6 +77,7 @@ RANK = {
     "not_run": 0,
     "skipped": 0,
     "recalibration_due": 1,
+    "waiting": 2,
     "rejected": 2,
     "quarantined": 2,
     "ok": 3,
@@ -82,6 +89,7 @@ STATE_CODE = {
     "not_run": EXIT_PIPELINE_FAILED,
     "skipped": EXIT_QUARANTINED,
     "recalibration_due": EXIT_RECALIBRATION_DUE,
+    "waiting": EXIT_REJECTED,  # not promoted, as rafi nightly exits that night
     "rejected": EXIT_REJECTED,
     "quarantined": EXIT_QUARANTINED,
     "ok": EXIT_OK,
@@ -334,9 +342,10 @@ def _older(a: Path, b: Path) -> bool:
 
 def rejected_text(decision: dict, *, has_champion: bool) -> str:
     """What ``rafi status`` says of a last decision ``rejected``: a candidate that passed every gate
-    and waits for its prior's fitness warnings to be confirmed is named with each check and the
-    ``checks.confirmed`` entry to add (:func:`rafi.family.prior_fitness.awaiting_confirmation`, the words of
-    the end-of-run line); any other is rejected. Then whether a model stays in service."""
+    and waits for its input warnings or its prior's fitness warnings to be confirmed is named with
+    each warning and the ``checks.confirmed`` entries to add
+    (:func:`rafi.family.confirmation.awaiting_confirmation`, the words of the end-of-run line); any
+    other is rejected. Then whether a model stays in service."""
     waiting = awaiting_confirmation(decision)
     if waiting:  # passed every gate: goes on the machine once confirmed
         stays = "the champion stays until then" if has_champion else "no model in service until then"
@@ -346,7 +355,29 @@ def rejected_text(decision: dict, *, has_champion: bool) -> str:
     return f"the last candidate was rejected; {stays}"
 
 
-def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str) -> dict:
+def _unjudged(paths: Paths, config: dict | None, machine: str, last: dict | None) -> dict | None:
+    """The raw files the last decision has not judged (:func:`rafi.ops.project.unjudged_files`):
+    ``count``, ``files`` and ``since`` (its time); None without the config, a decision with a
+    readable time, or such a file."""
+    since = parse_time((last or {}).get("time"))
+    if config is None or since is None:
+        return None
+    files = unjudged_files(paths, config, machine, since)
+    return {"count": len(files), "files": files, "since": last["time"]} if files else None
+
+
+def rejected_attention(decision: dict, *, has_champion: bool) -> tuple[str, str]:
+    """The state and attention line of a last decision ``rejected``: ``waiting`` when the candidate
+    passed every gate and waits for a confirmation alone
+    (:func:`rafi.family.confirmation.awaiting_confirmation`), else ``rejected``; the line is
+    :func:`rejected_text`."""
+    waits = awaiting_confirmation(decision) is not None
+    return ("waiting" if waits else "rejected"), rejected_text(decision, has_champion=has_champion)
+
+
+def machine_overview(
+    paths: Paths, reports_dir: str | os.PathLike, machine: str, config: dict | None = None
+) -> dict:
     """The state of one machine (see the module docstring for the sources and states).
 
     Parameters
@@ -356,7 +387,10 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     reports_dir : path
         The project's ``reports_dir`` (absolute, or relative to the current directory).
     machine : str
-        Folder name under raw/.
+        Folder name under raw/ (or a probe's unit, ``<machine>@<probe>``).
+    config : dict, optional
+        The project's config: with it, ``unjudged`` counts the raw files the last decision has
+        not judged (:func:`rafi.ops.project.unjudged_files`); without it, ``unjudged`` is None.
 
     Returns
     -------
@@ -369,7 +403,8 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
         ``candidate_id``, ``reasons``, ``source``; or None), ``worst_residual``
         (:func:`champion_residual`), ``drift``, ``recalibration_due``, ``quarantined`` (list of
         ``file (reason)``), ``skipped``, ``report`` (path relative to ``reports_dir``, or None),
-        ``exit_code``.
+        ``unjudged`` (:func:`_unjudged`), ``waiting`` (the last candidate waits for a
+        confirmation), ``exit_code``.
     """
     reports_dir = Path(reports_dir)
     reg = paths.registry(machine)
@@ -430,7 +465,7 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
             by = f" by {deg:.2f} um" if deg is not None else ""
             attention.append(("recalibration_due", f"the model in service drifted{by}: recalibration due"))
     if (decision or {}).get("decision") == "rejected":
-        attention.append(("rejected", rejected_text(decision, has_champion=bool(champion_id))))
+        attention.append(rejected_attention(decision, has_champion=bool(champion_id)))
     if status.quarantined and not status.skipped:
         attention.append(("quarantined", f"{len(status.quarantined)} raw file(s) quarantined"))
     attention.sort(key=lambda a: RANK[a[0]])
@@ -438,8 +473,9 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
     return {
         "machine": machine,
         "state": state,
-        # the last candidate passed every gate and waits for a confirmation (state rejected, exit 2)
-        "waiting": state == "rejected" and awaiting_confirmation(decision) is not None,
+        # the last candidate passed every gate and waits for a confirmation (state waiting unless
+        # a more urgent one leads)
+        "waiting": any(s == "waiting" for s, _ in attention),
         "rank": RANK[state],
         "attention": [{"state": s, "text": t} for s, t in attention],
         "champion": (
@@ -463,17 +499,23 @@ def machine_overview(paths: Paths, reports_dir: str | os.PathLike, machine: str)
         "quarantined": list(status.quarantined),
         "skipped": status.skipped,
         "report": _page(reports_dir, machine, status.skipped),
+        "unjudged": _unjudged(paths, config, machine, last),
         "exit_code": most_severe(STATE_CODE[s] for s, _ in attention),
     }
 
 
 def fleet_overview(
-    paths: Paths, reports_dir: str | os.PathLike, machines: list[str] | None = None
+    paths: Paths,
+    reports_dir: str | os.PathLike,
+    machines: list[str] | None = None,
+    *,
+    config: dict | None = None,
 ) -> list[dict]:
     """:func:`machine_overview` of every machine (``machines``, default every folder of raw/),
-    most urgent first (:data:`RANK`), then by machine name."""
+    most urgent first (:data:`RANK`), then by machine name; ``config`` (the project's) counts the
+    raw files each last decision has not judged."""
     names = paths.machines() if machines is None else list(machines)
-    rows = [machine_overview(paths, reports_dir, m) for m in names]
+    rows = [machine_overview(paths, reports_dir, m, config) for m in names]
     return sorted(rows, key=lambda r: (r["rank"], r["machine"]))
 
 

@@ -3,14 +3,19 @@
 Reads the files the pipeline and the nights wrote (rafi.ops.fleet; nothing is recomputed, no
 lock is taken) and prints one block per machine, machines that need attention first: failed
 (data but no decision), never run or skipped (no usable raw file); then recalibration due;
-then a rejected candidate or quarantined files; then ok. docs/operations.md, "rafi status".
+then a candidate waiting for a confirmation (WAITING FOR CONFIRMATION: it passed every gate,
+and the checks.confirmed entries to add are named), a rejected candidate or quarantined files;
+then ok. Under a machine's last decision, the raw files that arrived after it (modified since,
+or never read by its run) and wait for the next night: "not judged yet". docs/operations.md,
+"rafi status".
 
 Exit status (for monitoring; the codes of rafi nightly, most severe first 1 > 3 > 2 > 4 > 0):
   0   every machine ok
   1   some machine failed (data but no decision) or has never been run
   3   some machine's model in service is due for recalibration (drift: its max residual grew
       past the margin, or new samples fall outside its interval more often than its level allows)
-  2   some machine's last decision rejected the candidate (the champion stays)
+  2   some machine's last candidate was not promoted (the champion stays): rejected, or
+      waiting for a person to confirm an input warning or its prior's fitness (checks.confirmed)
   4   some input was rejected: quarantined raw files, or a machine skipped
   64  usage error (config unreadable, unknown --machine)
   73  --html PATH cannot be written
@@ -108,6 +113,23 @@ def describe_prior(prior: dict | None) -> list[str]:
     return lines
 
 
+#: At most this many names of raw files not judged yet on a line of ``rafi status``.
+UNJUDGED_SHOWN = 5
+
+
+def unjudged_text(unjudged: dict) -> str:
+    """The raw files the last decision has not judged (:func:`rafi.ops.fleet.unjudged_files`), in
+    words: how many, since when, their first :data:`UNJUDGED_SHOWN` names."""
+    files = list(unjudged["files"])
+    shown = ", ".join(files[:UNJUDGED_SHOWN])
+    if len(files) > UNJUDGED_SHOWN:
+        shown += f", ... ({len(files) - UNJUDGED_SHOWN} more)"
+    return (
+        f"{unjudged['count']} raw file(s) arrived after the last decision ({unjudged['since']}): "
+        f"{shown}; the next night judges them"
+    )
+
+
 def format_rows(rows: list[dict]) -> str:
     """The text ``rafi status`` prints: one block per machine (most urgent first)."""
     if not rows:
@@ -130,13 +152,15 @@ def format_rows(rows: list[dict]) -> str:
             if worst
             else "-"
         )
-        headline = "WAITING FOR CONFIRMATION" if r.get("waiting") else r["state"].upper()
+        headline = "WAITING FOR CONFIRMATION" if r["state"] == "waiting" else r["state"].upper()
         lines.append(f"{r['machine']}: {headline}")
         for a in r["attention"]:
             lines.append(f"  ! {a['text']}")
         lines.append(f"  model in service: {model}")
         lines += describe_prior((ch or {}).get("prior"))
         lines.append(f"  last decision:    {decided}")
+        if r.get("unjudged"):
+            lines.append(f"  not judged yet:   {unjudged_text(r['unjudged'])}")
         lines.append(f"  worst residual:   {resid}")
         due = "YES" if r["recalibration_due"] else "no"
         drift = describe_drift(r["drift"], has_champion=bool(ch))
@@ -170,7 +194,7 @@ def run(args) -> int:
             file=sys.stderr,
         )
         return EXIT_USAGE
-    rows = fleet_overview(paths, reports_dir, units(config, args.machine or machines))
+    rows = fleet_overview(paths, reports_dir, units(config, args.machine or machines), config=config)
     for r in rows:
         r["report_path"] = str(reports_dir / r["report"]) if r["report"] else None
     if args.html:

@@ -14,8 +14,8 @@ lines")::
 
 (each entry is one line; wrapped here). PASS: the model offered passed every qualification gate
 (``decision.json`` ``gates_passed``); whether it was promoted is said after it. WAITING: it
-passed every gate and waits for a person to confirm its prior's fitness warnings (the checks and
-the ``checks.confirmed`` entries to add are named). FAIL: it failed
+passed every gate and waits for a person to confirm an input warning or its prior's fitness
+warnings (each warning and the ``checks.confirmed`` entries to add are named). FAIL: it failed
 a gate (each failed gate in words), or a step of the machine failed in this run. skipped: the
 machine folder has no usable raw file (discovery found no file, or every file was quarantined).
 A machine whose decision was not built in this run (``tables`` target, a night for another
@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rafi.contract import REGISTRY_DIR, result_file
-from rafi.family.prior_fitness import awaiting_confirmation
+from rafi.family.confirmation import awaiting_confirmation
 from rafi.ops.run_messages import MARKER, log_warnings, step_failed
 
 #: The docs section on these lines.
@@ -143,11 +143,11 @@ def decision_outcome(
     candidate's model kind, from the registry).
 
     PASS if every gate passed (``gates_passed``), with the decision (``promoted``, ``kept``, or
-    ``not promoted: <what blocked it>``); WAITING when it passed every gate and only the prior's
-    fitness warnings hold it back (:func:`awaiting_confirmation`: each check and
-    the ``checks.confirmed`` entry to add); FAIL with each failed gate in words
-    (:func:`failed_gate_words`; the decision's first reason where the verdict names none, e.g.
-    no validation run).
+    ``not promoted (blocked by ...)``); WAITING when it passed every gate and only warnings a
+    person confirms hold it back - unconfirmed input warnings, the prior's fitness warnings
+    (:func:`awaiting_confirmation`: each warning and the ``checks.confirmed`` entries to add);
+    FAIL with each failed gate in words (:func:`failed_gate_words`; the decision's first reason
+    where the verdict names none, e.g. no validation run).
     """
     offered = f"model offered: {model_words(kind, decision.get('candidate_id'))}"
     state = decision.get("decision")

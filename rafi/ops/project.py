@@ -7,9 +7,9 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from rafi.contract import REGISTRY_DIR
-from rafi.errors import InputSpecError, SettingsError
-from rafi.settings import machine_settings, run_settings, validate_config
+from rafi.contract import REGISTRY_DIR, result_file
+from rafi.errors import InputSpecError, RawFormatError, SettingsError
+from rafi.settings import machine_settings, run_settings, split_unit, validate_config
 
 
 def config_path(directory: Path, config_file: str | Path) -> Path:
@@ -156,3 +156,68 @@ def settling(
             path = path.relative_to(paths.directory)
         out.append((path, float(age)))
     return out
+
+
+def raw_log_files(paths: Paths, config: dict, machine: str) -> dict[str, list[Path]]:
+    """The logs of ``machine``'s raw files, by log id (:func:`rafi.readers.log_sources.expand_logs`:
+    a file, a sheet of a workbook, a file with its partner, a recording), each with the raw files
+    it is read from; by file stem where the machine's ``input`` cannot be resolved."""
+    from rafi.readers.input_spec import find_logs, normalise_input_spec
+    from rafi.readers.log_sources import expand_logs, log_id
+    from rafi.readers.recordings import find_recordings
+
+    folder = paths.raw_dir / machine
+    try:
+        spec = normalise_input_spec(machine_settings(config, machine)["input"])
+        recorded, _ = find_recordings(folder, spec, paths.raw_dir) if folder.is_dir() else ([], [])
+        logs, _ = expand_logs(find_logs(folder, spec, paths.raw_dir), spec, recorded)
+    except (InputSpecError, RawFormatError, SettingsError, OSError):
+        return {log_id(p.stem): [p] for p in raw_logs(paths, config, machine)}
+    return {
+        key: [Path(f) for f in (src["path"], src.get("partner")) if f and Path(f).exists()]
+        for key, src in logs.items()
+    }
+
+
+def _mtime(path: Path) -> float | None:
+    try:
+        return path.stat().st_mtime
+    except OSError:
+        return None
+
+
+def unjudged_files(paths: Paths, config: dict, unit: str, since: float) -> list[str]:
+    """The raw files of ``unit`` a decision taken at ``since`` has not judged.
+
+    A raw file of one of the unit's logs (:func:`raw_log_files`, of the machine's folder for a
+    probe's unit) counts when it was modified after ``since``, or when its log was not cleaned
+    in its present content: no ``results/<unit>/clean/<log id>.summary.csv``, or one older than
+    the file (a file ``rafi nightly`` left out while it was still being written, ``settle_s``; a
+    copy that kept an older modification time). The next night judges them.
+
+    Parameters
+    ----------
+    paths : Paths
+        The project.
+    config : dict
+        The project's config (each machine's ``input``).
+    unit : str
+        ``<machine>`` or ``<machine>@<probe>``.
+    since : float
+        When the last decision was taken (seconds since the epoch).
+
+    Returns
+    -------
+    list of str
+        The files, relative to the machine's raw folder, sorted (empty: none).
+    """
+    machine = split_unit(unit)[0]
+    folder = paths.raw_dir / machine
+    found = set()
+    for key, files in raw_log_files(paths, config, machine).items():
+        cleaned = _mtime(paths.results_dir / unit / result_file("clean_summary").format(stem=key))
+        for path in files:
+            modified = _mtime(path)
+            if modified is not None and (modified > since or cleaned is None or cleaned < modified):
+                found.add(path.relative_to(folder).as_posix() if path.is_relative_to(folder) else path.name)
+    return sorted(found)

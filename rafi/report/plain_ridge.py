@@ -13,12 +13,24 @@ from __future__ import annotations
 import pandas as pd
 
 from rafi.family.plain_ridge import PLAIN_RIDGE, floor_facts
-from rafi.family.selection import TIE_UM
+from rafi.family.selection import SHARED_GAIN, SHARED_RIDGE, TIE_UM
 from rafi.report.format import fmt_num, isnum
 
 __all__ = ["UM", "floor_sentence", "floor_reason", "section_plain_ridge"]
 
 UM = "\u00b5m"
+
+#: What the re-qualification's rule does with each adaptation of an ensemble prior as a whole
+#: (:func:`rafi.family.selection.choose_champion`), for the reason ``adapted_ensemble``.
+ADAPTED_RULES = {
+    SHARED_RIDGE: (
+        "offers the moved members whenever the cross-validation could score them, whatever the scores"
+    ),
+    SHARED_GAIN: (
+        "offers the shared gain unless another candidate's score is lower than its by more than one "
+        "standard error of the paired per-fold differences"
+    ),
+}
 
 
 def _clause(um, pct, where: str) -> tuple[str, str] | None:
@@ -94,6 +106,13 @@ def floor_reason(facts: dict | None) -> str:
             f"{lead}: models: offer is ensemble on this machine, which offers the CV-weighted blend of "
             "every kind whatever its own CV score (the rule judged one level up, across real logs and "
             "foreign machines, not on this machine's folds); the plain ridge is one of its members."
+        )
+    if reason == "adapted_ensemble":
+        rule = ADAPTED_RULES.get(name, "chooses among the candidates that start from the prior")
+        return (
+            f"{lead}: it is the ensemble prior adapted as a whole, offered by the re-qualification's "
+            f"rule, which {rule} (Model comparison, selection rule), not by models: offer; the plain "
+            "ridge scored here is not one of its members (they are the prior's, as this run moved them)."
         )
     if reason == "other":
         return f"{lead}, although the plain ridge is enabled and scores lower: not the rule stated above."

@@ -25,14 +25,18 @@ by how much).
 
 from __future__ import annotations
 
+import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
+from rafi.contract import REGISTRY_DIR
 from rafi.family.prior import prior_promoted
 from rafi.family.prior_fitness import inherited_text, warning_remedy
 from rafi.report.comparison_section import selection_score
+from rafi.report.ensemble_section import adapted_from
 from rafi.report.format import fmt_num, fmt_speed, fmt_speed_range, isnum, short_id
 from rafi.settings import truthy
 
@@ -236,14 +240,44 @@ def fitness_context(
     }
 
 
-def ensemble_prior(block: dict | None) -> dict | None:
+def registry_artefact(
+    results_dir: str | os.PathLike | None, machine: str | None, model_id: str | None
+) -> dict | None:
+    """The artefact of ``model_id`` in ``machine``'s registry under ``results_dir``
+    (``<results_dir>/<machine>/registry/models/<id>.json``), or None where it is not readable."""
+    if results_dir is None or not machine or not model_id or "/" in f"{machine}{model_id}":
+        return None
+    path = Path(results_dir) / str(machine) / REGISTRY_DIR / "models" / f"{model_id}.json"
+    try:
+        doc = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return doc if isinstance(doc, dict) else None
+
+
+def ensemble_prior(block: dict | None, results_dir: str | os.PathLike | None = None) -> dict | None:
     """The member of a CV-weighted ensemble prior that the adaptation re-fitted (the adaptation
     block's ``member``: ``name``, ``kind``, ``model_id`` short, ``weight``, ``n_members``), or
-    ``None`` for any other prior."""
+    ``None`` for any other prior.
+
+    Also how that ensemble became its machine's champion, from its own artefact in that machine's
+    registry under ``results_dir`` (:func:`registry_artefact`): ``offered_by`` ``adaptation`` (an
+    ensemble prior adapted as a whole, offered by that re-qualification's rule; ``adapted``:
+    :func:`rafi.report.ensemble_section.adapted_from` of it), ``setting`` (an ensemble of its
+    machine's own kinds: ``models: offer: ensemble``) or None (its artefact is not readable here).
+    """
     member = (block or {}).get("member")
     if not isinstance(member, dict) or not member.get("name"):
         return None
-    return {**member, "model_id": short_id(str(member.get("model_id") or ""))}
+    prior = registry_artefact(results_dir, (block or {}).get("parent_machine"), (block or {}).get("parent"))
+    adapted = adapted_from(prior) if prior is not None else None
+    offered_by = None if prior is None else ("adaptation" if adapted else "setting")
+    return {
+        **member,
+        "model_id": short_id(str(member.get("model_id") or "")),
+        "offered_by": offered_by,
+        "adapted": adapted,
+    }
 
 
 def _scored_by_cv(best: dict, key: str, cv: bool) -> bool:
@@ -326,7 +360,7 @@ def section_requalification(res: dict, results_dir: str | os.PathLike | None = N
         "moves": coefficient_moves((block or {}).get("coefficient_change")),
         "fitness": fitness_context(block, best.get("machine"), results_dir),
         # a CV-weighted ensemble prior: the member re-fitted (rafi.family.prior.prior_base)
-        "member": ensemble_prior(block),
+        "member": ensemble_prior(block, results_dir),
         "sentence": comparison_sentence(offered, prior_row, scratch),
         "cv": cv,
         "chosen": how_chosen(best, block, cv),

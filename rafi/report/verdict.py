@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from rafi.family.prior_fitness import awaiting_confirmation
+from rafi.family.confirmation import awaiting_confirmation
 from rafi.report.format import fmt_num, fmt_speed_range, short_id, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import interval_block, worst_run_interval
@@ -505,9 +505,10 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
     floor (:func:`judged_verdict`, :func:`rafi_verdict`: the stored verdicts; NOT STORED where
     no result file stores one); ``interval``: the prediction interval at the worst run of the
     judged model (:func:`judged_interval`; RAFI's: :func:`rafi_context`), ``None`` without
-    interval results; without a model on the machine and a candidate that passed every gate and
-    waits for its prior's fitness to be confirmed, the status is WAITING and ``judged`` has
-    ``waiting`` (:func:`rafi.family.prior_fitness.awaiting_confirmation`) and ``candidate``.
+    interval results. ``judged`` has ``waiting``
+    (:func:`rafi.family.confirmation.awaiting_confirmation`: what a candidate that passed every
+    gate waits for, an input warning or its prior's fitness to be confirmed; None otherwise) and
+    ``candidate``; without a model on the machine such a candidate makes the status WAITING.
     ``registry_dir``: where ``registry/models/<id>.json`` are looked up."""
     noise = noise_floors(res)
     rafi_v = rafi_context(res, noise)
@@ -526,9 +527,9 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
         "none": not after,
         "is_rafi": info.get("kind") == "rafi",
     }
-    # no model on the machine yet, the candidate waiting for its prior's fitness to be confirmed:
-    # neither PASS nor FAIL (the words of the end-of-run line and rafi status)
-    judged["waiting"] = awaiting_confirmation(dec) if not after else None
+    # the candidate waiting for a confirmation (an input warning, its prior's fitness): without a
+    # model on the machine neither PASS nor FAIL (the words of the end-of-run line and rafi status)
+    judged["waiting"] = awaiting_confirmation(dec)
     judged["candidate"] = short_id(dec.get("candidate_id") or "")
     verdict, src = judged_verdict(res, dec)
     if not after:
