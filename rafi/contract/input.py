@@ -25,6 +25,7 @@ INPUT_DEFAULTS: dict = {
         "format": None,
         "period_s": None,
         "date_column": None,
+        "date_from_name": None,
         "timezone": None,
     },
     "speed": {"constant_rpm": None, "constant_rpm_by_file": {}},
@@ -104,6 +105,12 @@ EPOCH_CLOCKS = {
     "epoch_ms": ("1970-01-01T00:00:00", 0.001),
     "excel_days": ("1899-12-30T00:00:00", 86400.0),
 }
+
+#: ``input.time.date_from_name``: a log's date in its file name (``strftime`` codes: ``%Y``, ``%y``,
+#: ``%m``, ``%b``, ``%B``, ``%d``), its rows the time of day. A time of day more than this many
+#: seconds before the row above is on the next day (the log ran over midnight); a smaller step
+#: back stays a step back (a clock reset).
+DATE_FROM_NAME_ROLLOVER_S = 12 * 3600.0
 
 #: ``input.temperature_unit``: degrees Celsius, kelvin or degrees Fahrenheit (converted to deg C).
 TEMPERATURE_UNITS = ("C", "K", "F")
@@ -196,6 +203,7 @@ INPUT_SCHEMA: dict = {
                 "format": {"type": ["string", "null"]},
                 "period_s": {"type": "number", "exclusiveMinimum": 0},
                 "date_column": {"type": ["string", "null"], "minLength": 1},
+                "date_from_name": {"type": ["string", "null"], "minLength": 1},
                 "timezone": {"type": ["string", "null"], "minLength": 1},
             },
         },

@@ -25,6 +25,7 @@ from rafi.artefact import write_text_atomic
 from rafi.contract.sensors import DEFAULT_SENSORS, canonical_columns, frame_sensors
 from rafi.errors import RawFormatError, quote
 from rafi.readers.discovery import FOREIGN_FORMAT_DOCS
+from rafi.readers.name_dates import is_time_of_day, time_of_day_hint
 from rafi.readers.parsing import (
     _INNER_SPACE,
     FIELD_MAX_CHARS,
@@ -301,6 +302,9 @@ def _parse_times(path: Path, time_str: list[str], line_numbers: list[int]) -> np
                 line=line_numbers[k],
                 column="time",
             )
+        if is_time_of_day(time_str[k]):
+            hint = time_of_day_hint(time_str[k], path.name, str(path.parent), native=True)
+            raise RawFormatError(path, hint, line=line_numbers[k], column="time")
         raise RawFormatError(
             path,
             f"{quote(time_str[k])} is not an ISO-8601 timestamp (e.g. 2026-03-01T08:00:00)",
