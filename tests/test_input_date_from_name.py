@@ -20,7 +20,11 @@ from layout_files import CLOCK_HEADERS, canonical_frame, write_time_of_day_log
 
 from rafi import SENSORS
 from rafi.errors import InputSpecError, RawFormatError
+from rafi.ops.init_cli import findings
+from rafi.ops.init_config import config_block, parse_block
+from rafi.ops.init_survey import survey
 from rafi.readers.checks import check_file
+from rafi.readers.infer_files import read_unknown_logs
 from rafi.readers.input_spec import normalise_input_spec
 from rafi.readers.logs import read_log
 from rafi.readers.name_dates import dates_in_name
@@ -169,6 +173,75 @@ def test_date_from_name_is_a_csv_and_xlsx_key_and_validates_in_the_config():
     assert machine_settings(config, "m")["input"]["time"]["date_from_name"] == "%Y%m%d"
 
 
+# --------------------------------------------------------------------------- rafi init
+
+
+def write_folder(folder: Path, names: list[str], start_times: list[str]) -> dict[str, pd.DataFrame]:
+    folder.mkdir(parents=True, exist_ok=True)
+    truth = {}
+    for k, (name, start) in enumerate(zip(names, start_times)):
+        frame = canonical_frame(240, seed=k, start=start, period_s=30)
+        frame.loc[:20, "speed_rpm"] = 0.0  # a step: a speed column, not a constant
+        truth[name] = frame
+        write_time_of_day_log(folder / name, frame)
+    return truth
+
+
+def read_with_block(folder: Path, block: str) -> dict[str, pd.DataFrame]:
+    config = {"machines": {"m": parse_block(block, "m")}}
+    validate_config(config)
+    spec_ = machine_settings(config, "m")["input"]
+    return {p.name: read_log(p, spec_) for p in sorted(folder.glob("*.csv"))}
+
+
+def test_init_proposes_the_date_in_the_names_and_the_block_reads_the_logs(tmp_path):
+    folder = tmp_path / "raw" / "m"
+    names = ["spindle_2026-03-14.csv", "spindle_2026-03-15.csv"]
+    truth = write_folder(folder, names, ["2026-03-14 22:30", "2026-03-15 08:00"])
+    s = survey("m", [t for p in sorted(folder.iterdir()) for t in read_unknown_logs(p)])
+    assert s.time is not None and s.time.header == "Uhrzeit" and s.date is None
+    assert s.date_from_name == "%Y-%m-%d" and s.period_s == 30.0
+    assert not any(c.startswith("input.time") for c in s.checks)
+    lines = "\n".join(findings(s))
+    assert "the date in the file names" in lines
+    block = config_block(s)
+    assert 'date_from_name: "%Y-%m-%d"' in block
+    for name, frame in read_with_block(folder, block).items():
+        assert frame["time"].tolist() == truth[name]["time"].tolist()
+
+
+def test_init_checks_a_date_that_reads_day_first_and_month_first(tmp_path):
+    folder = tmp_path / "raw" / "m"
+    names = ["03.04.2026.csv", "05.04.2026.csv"]
+    truth = write_folder(folder, names, ["2026-04-03 08:00", "2026-04-05 08:00"])
+    s = survey("m", [t for p in sorted(folder.iterdir()) for t in read_unknown_logs(p)])
+    assert s.date_from_name == "%d.%m.%Y"
+    check = next(c for c in s.checks if c.startswith("input.time.date_from_name:"))
+    assert "day first or month first" in check and "03.04.2026" in check
+    block = config_block(s)
+    assert 'date_from_name: "%d.%m.%Y"' in block
+    assert "# CHECK: the file names' dates read day first or month first (03.04.2026.csv)" in block
+    for name, frame in read_with_block(folder, block).items():
+        assert frame["time"].tolist() == truth[name]["time"].tolist()
+
+
+def test_init_takes_the_one_order_that_reads_every_name(tmp_path):
+    folder = tmp_path / "raw" / "m"
+    names = ["03.04.2026.csv", "14.04.2026.csv"]  # 14 is no month: day first
+    write_folder(folder, names, ["2026-04-03 08:00", "2026-04-14 08:00"])
+    s = survey("m", [t for p in sorted(folder.iterdir()) for t in read_unknown_logs(p)])
+    assert s.date_from_name == "%d.%m.%Y"
+    assert not any(c.startswith("input.time.date_from_name") for c in s.checks)
+
+
+def test_init_without_a_date_in_the_names_leaves_the_time_of_day_unread(tmp_path):
+    folder = tmp_path / "raw" / "m"
+    write_folder(folder, ["spindle_a.csv"], ["2026-03-14 08:00"])
+    s = survey("m", [t for p in sorted(folder.iterdir()) for t in read_unknown_logs(p)])
+    assert s.time is None and s.date_from_name is None
+    assert "date_from_name" not in config_block(s)
+
+
 # --------------------------------------------------------------------------- properties
 
 NAME_FORMATS = ["%Y-%m-%d", "%Y%m%d", "%d.%m.%Y", "%Y_%m_%d", "%d-%m-%Y"]
@@ -202,4 +275,20 @@ def test_a_log_of_steps_under_twelve_hours_reads_back_its_clock(tmp_path, start,
     frame = canonical_frame(n, start=start.isoformat(), period_s=period_s)
     path = write_time_of_day_log(tmp_path / f"log_{start:%Y%m%d}.csv", frame)
     got = read_log(path, spec(path, "%Y%m%d"))
+    assert got["time"].tolist() == frame["time"].tolist()
+
+
+def test_init_reads_the_native_header_over_a_time_of_day_as_csv(tmp_path):
+    """The native layout's header over times of day: the native reader cannot read it, so the
+    block is a csv one with the date from the names."""
+    folder = tmp_path / "raw" / "m"
+    folder.mkdir(parents=True)
+    frame = canonical_frame(120, start="2026-03-14 23:00", period_s=30)
+    frame.loc[:10, "speed_rpm"] = 0.0
+    frame.assign(time=frame["time"].dt.strftime("%H:%M:%S")).to_csv(folder / "run_20260314.csv", index=False)
+    s = survey("m", read_unknown_logs(folder / "run_20260314.csv"))
+    assert s.format == "csv" and s.date_from_name == "%Y%m%d"
+    block = config_block(s)
+    assert "format: csv" in block and 'date_from_name: "%Y%m%d"' in block
+    got = read_with_block(folder, block)["run_20260314.csv"]
     assert got["time"].tolist() == frame["time"].tolist()

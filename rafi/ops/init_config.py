@@ -29,6 +29,7 @@ from rafi.ops.init_survey import (
     footer_counts,
     markers_text,
 )
+from rafi.readers.name_dates import dates_in_name
 from rafi.settings import machine_settings, validate_config
 
 #: Column at which line comments start (when the text is shorter).
@@ -123,6 +124,15 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
         else:
             out.add(8, "period_s: 60", "CHECK: the seconds between two rows (--period-s)", off=True)
         out.add(8, 'start: "2026-01-01T00:00:00"', "CHECK: when the first row was logged", off=True)
+        return
+    if s.time.unit == "timeofday" and s.date is None and s.date_from_name:
+        out.add(8, "kind: timestamp", f"{s.time.header!r}: {s.time.why}")
+        name = s.first.path.name
+        why = f"the date in the file names ({name}: {dates_in_name(name, s.date_from_name)[0]})"
+        if s.date_from_name_check:
+            out.note(8, f"CHECK: {s.date_from_name_check}")
+        out.add(8, f"date_from_name: {q(s.date_from_name)}", why)
+        _timezone_key(out, s)
         return
     if s.time.unit == "timeofday" and s.date is not None:
         out.add(8, "kind: timestamp", f"{s.time.header!r}: {s.time.why}")
