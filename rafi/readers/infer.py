@@ -38,6 +38,7 @@ import pandas as pd
 
 from rafi.readers.mapped_table import excel_column
 from rafi.readers.name_dates import is_time_of_day
+from rafi.readers.parsing import without_markers
 
 #: Roles a column can get.
 ROLES = ("time", "date", "speed", "temperature", "displacement", "other", "text", "empty")
@@ -304,13 +305,6 @@ def missing_markers(columns: list, decimal: str = ".") -> Counter:
     return found if len(found) <= MARKERS_MAX else Counter()
 
 
-def without_markers(cells, markers) -> list:
-    """``cells`` with every text cell that is one of ``markers`` (stripped) as None (a missing value)."""
-    if not markers:
-        return list(cells)
-    return [None if isinstance(c, str) and c.strip() in markers else c for c in cells]
-
-
 # --------------------------------------------------------------------------- content features
 
 
@@ -574,7 +568,7 @@ def guess_columns(
     """
     labels = labels or [""] * len(header)
     guesses = [
-        guess_column(j, h, without_markers(c, markers), decimal, lab)
+        guess_column(j, h, without_markers(list(c), markers), decimal, lab)
         for j, (h, c, lab) in enumerate(zip(header, columns, labels))
     ]
     if not any(g.role == "date" for g in guesses):  # a time of day needs its date
