@@ -122,7 +122,7 @@ TEMPERATURE_UNITS = ("C", "K", "F")
 NO_CLOCK_EPOCH = "2000-01-01T00:00:00"
 
 #: Keys meaningful for the native format (everything else is for csv/xlsx).
-NATIVE_KEYS = {"format", "pattern", "sample_period_s", "sensors"}
+NATIVE_KEYS = {"format", "pattern", "sample_period_s", "sensors", "missing_values"}
 
 #: The temperature sensors of a machine that names none: the paper's rig, ``T1`` .. ``T16``.
 DEFAULT_SENSORS = tuple(f"T{i}" for i in range(1, 17))

@@ -247,6 +247,7 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     out.add(4, "input:")
     if s.format == "native":
         _native_keys(out, table.header)
+        _missing_values_key(out, s)
         return
     ext = table.path.suffix.lower() or ".csv"
     out.add(6, f"format: {s.format}")
@@ -281,10 +282,7 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
         out.add(
             6, f"footer_rows: {footers[0]}", "summary rows at the end of each log (Mean, Max, ...): dropped"
         )
-    if s.missing_values:
-        markers = ", ".join(q(text) for text, _ in s.missing_values.most_common())
-        why = "cells without a value in numeric columns: " + markers_text(s.missing_values)
-        out.add(6, f"missing_values: [{markers}]", why)
+    _missing_values_key(out, s)
     _column_keys(out, s)
     _time_keys(out, s, period)
     if s.speed is None:
@@ -293,6 +291,14 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     if s.join:
         _join_keys(out, s)
     _temperature_unit(out, s)
+
+
+def _missing_values_key(out: _Lines, s: Survey) -> None:
+    """input.missing_values, the markers found in the numeric columns (indent 6)."""
+    if s.missing_values:
+        markers = ", ".join(q(text) for text, _ in s.missing_values.most_common())
+        why = "cells without a value in numeric columns: " + markers_text(s.missing_values)
+        out.add(6, f"missing_values: [{markers}]", why)
 
 
 def _native_keys(out: _Lines, header: list[str]) -> None:
