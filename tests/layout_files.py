@@ -175,3 +175,20 @@ def write_table(table: pd.DataFrame, path: Path, *, sheet: str = "Log", sep: str
     else:
         path.write_text(table.to_csv(sep=sep, index=False), encoding="utf-8")
     return path
+
+
+#: The headers of a logger that writes the time of day and the date only in the file name.
+CLOCK_HEADERS = {"time": "Uhrzeit", "speed_rpm": "Drehzahl", **{s: f"Temp {s}" for s in SENSORS}}
+CLOCK_HEADERS["disp_um"] = "Z [um]"
+
+
+def write_time_of_day_log(path: Path, frame: pd.DataFrame, *, time_format: str = "%H:%M:%S") -> Path:
+    """``frame`` under :data:`CLOCK_HEADERS` with its time of day only (text ``time_format`` in a csv,
+    time cells in a workbook): the date is the file name's to give. Returns ``path``."""
+    table = frame.rename(columns=CLOCK_HEADERS)
+    clock = frame["time"]
+    if path.suffix == ".xlsx":
+        table["Uhrzeit"] = [t.to_pydatetime().time() for t in clock]
+    else:
+        table["Uhrzeit"] = clock.dt.strftime(time_format)
+    return write_table(table, path, sheet="Daten", sep=";")

@@ -427,6 +427,7 @@ def test_defaults():
         "format": None,
         "period_s": None,
         "date_column": None,
+        "date_from_name": None,
         "timezone": None,
     }
     assert spec["speed"] == {"constant_rpm": None, "constant_rpm_by_file": {}}

@@ -5,11 +5,14 @@ finds them and proposes the key."""
 
 from __future__ import annotations
 
+import tempfile
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from layout_files import write_table
 
 from rafi import SENSORS
@@ -130,13 +133,64 @@ def test_a_wrong_missing_values_key_is_refused_naming_it(value, fragment):
         normalise_input_spec({"format": "csv", "missing_values": value})
 
 
-def test_missing_values_is_a_csv_and_xlsx_key_and_validates_in_the_config():
-    with pytest.raises(InputSpecError, match="input.missing_values: applies to format csv or xlsx"):
-        normalise_input_spec({"format": "native", "missing_values": ["---"]})
-    assert normalise_input_spec({"format": "csv"})["missing_values"] == []
-    config = {"machines": {"m": {"input": {"format": "csv", "missing_values": ["#N/A", "---"]}}}}
+@pytest.mark.parametrize("fmt", ["native", "csv", "xlsx"])
+def test_missing_values_is_a_key_of_every_format_and_validates_in_the_config(fmt):
+    assert normalise_input_spec({"format": fmt, "missing_values": ["---"]})["missing_values"] == ["---"]
+    assert normalise_input_spec({"format": fmt})["missing_values"] == []
+    config = {"machines": {"m": {"input": {"format": fmt, "missing_values": ["#N/A", "---"]}}}}
     validate_config(config)
     assert machine_settings(config, "m")["input"]["missing_values"] == ["#N/A", "---"]
+
+
+def native_text(table: pd.DataFrame) -> str:
+    """``table`` (:func:`logger_table`) in the native layout: its columns under the canonical names."""
+    names = {header: canon for canon, header in COLUMNS.items()} | {"Kuehlmittel": "kuehlmittel"}
+    return table.rename(columns=names).to_csv(index=False)
+
+
+@pytest.mark.parametrize("token", TOKENS)
+def test_the_native_reader_reads_a_declared_marker_as_the_mapped_reader_does(tmp_path, token):
+    path = tmp_path / "log.csv"
+    path.write_text(native_text(with_marker(logger_table(), token)), encoding="utf-8")
+    markers = ["unused", token]
+    frame = read_log(path, {"format": "native", "missing_values": markers})
+    mapped = read_log(path, {"format": "csv", "missing_values": markers})
+    for row, header in HOLES:
+        canon = next((k for k, v in COLUMNS.items() if v == header), "kuehlmittel")
+        assert np.isnan(frame[canon].iloc[row]), (token, header)
+    assert frame["kuehlmittel"].dtype == np.float64  # a marker does not make the column text
+    pd.testing.assert_frame_equal(frame, mapped)
+    plain = tmp_path / "plain.csv"
+    plain.write_text(native_text(logger_table()), encoding="utf-8")
+    assert read_log(plain, {"format": "native", "missing_values": markers}).notna().all().all()
+
+
+@pytest.mark.parametrize("token", TOKENS)
+def test_an_undeclared_marker_in_a_native_log_names_the_cell_and_the_key(tmp_path, token):
+    table = logger_table().astype(object)
+    table.loc[10, "Temp T3"] = token
+    path = tmp_path / "log.csv"
+    path.write_text(native_text(table), encoding="utf-8")
+    with pytest.raises(RawFormatError) as info:
+        read_log(path)
+    message = str(info.value)
+    assert message.startswith(f"{path}, line 12, column 'T3': {token!r} is not a")
+    assert f'a missing-value marker? list it in input.missing_values: ["{token}"]' in message
+
+
+def test_init_proposes_the_markers_of_native_logs_and_the_block_reads_them(tmp_path):
+    folder = tmp_path / "raw" / "m"
+    folder.mkdir(parents=True)
+    path = folder / "log.csv"
+    path.write_text(native_text(with_marker(logger_table(), "---")), encoding="utf-8")
+    s = survey("m", read_unknown_logs(path))
+    assert s.format == "native" and dict(s.missing_values) == {"---": 5}
+    block = config_block(s)
+    assert "format: native" in block and 'missing_values: ["---"]' in block
+    config = {"machines": {"m": parse_block(block, "m")}}
+    validate_config(config)
+    frame = read_log(path, machine_settings(config, "m")["input"])
+    assert frame["T3"].isna().sum() == 2 and frame["disp_um"].isna().sum() == 1
 
 
 def test_markers_found_only_in_columns_of_numbers():
@@ -176,3 +230,29 @@ def test_init_proposes_the_markers_and_the_block_reads_the_logs(tmp_path, suffix
     for path in paths:
         frame = read_log(path, settings["input"])
         assert frame["T3"].isna().sum() == 2 and frame["disp_um"].isna().sum() == 1
+
+
+#: Marker texts: no digit (a text with one is never a marker), no delimiter, quote or line end.
+MARKER_TEXT = st.text(alphabet="-#/_!?*.abcNAnERr ", min_size=1, max_size=12).filter(str.strip)
+
+
+@settings(max_examples=60, deadline=None, derandomize=True)
+@given(
+    marker=MARKER_TEXT,
+    cells=st.sets(
+        st.tuples(st.integers(0, 59), st.sampled_from(["Temp T5", "Z [um]", "Kuehlmittel"])), max_size=8
+    ),
+)
+def test_a_marker_is_missing_in_exactly_its_cells_in_the_native_and_the_mapped_reader(marker, cells):
+    table = logger_table(60).astype(object)
+    for row, header in cells:
+        table.loc[row, header] = marker
+    with tempfile.TemporaryDirectory() as folder:
+        path = Path(folder) / "log.csv"
+        path.write_text(native_text(table), encoding="utf-8")
+        native = read_log(path, {"format": "native", "missing_values": [marker]})
+        mapped = read_log(path, {"format": "csv", "missing_values": [marker]})
+    pd.testing.assert_frame_equal(native, mapped)
+    for header, canon in (("Temp T5", "T5"), ("Z [um]", "disp_um"), ("Kuehlmittel", "kuehlmittel")):
+        holes = {row for row, h in cells if h == header}
+        assert set(np.flatnonzero(native[canon].isna().to_numpy())) == holes

@@ -25,6 +25,7 @@ INPUT_DEFAULTS: dict = {
         "format": None,
         "period_s": None,
         "date_column": None,
+        "date_from_name": None,
         "timezone": None,
     },
     "speed": {"constant_rpm": None, "constant_rpm_by_file": {}},
@@ -105,6 +106,12 @@ EPOCH_CLOCKS = {
     "excel_days": ("1899-12-30T00:00:00", 86400.0),
 }
 
+#: ``input.time.date_from_name``: a log's date in its file name (``strftime`` codes: ``%Y``, ``%y``,
+#: ``%m``, ``%b``, ``%B``, ``%d``), its rows the time of day. A time of day more than this many
+#: seconds before the row above is on the next day (the log ran over midnight); a smaller step
+#: back stays a step back (a clock reset).
+DATE_FROM_NAME_ROLLOVER_S = 12 * 3600.0
+
 #: ``input.temperature_unit``: degrees Celsius, kelvin or degrees Fahrenheit (converted to deg C).
 TEMPERATURE_UNITS = ("C", "K", "F")
 
@@ -115,7 +122,7 @@ TEMPERATURE_UNITS = ("C", "K", "F")
 NO_CLOCK_EPOCH = "2000-01-01T00:00:00"
 
 #: Keys meaningful for the native format (everything else is for csv/xlsx).
-NATIVE_KEYS = {"format", "pattern", "sample_period_s", "sensors"}
+NATIVE_KEYS = {"format", "pattern", "sample_period_s", "sensors", "missing_values"}
 
 #: The temperature sensors of a machine that names none: the paper's rig, ``T1`` .. ``T16``.
 DEFAULT_SENSORS = tuple(f"T{i}" for i in range(1, 17))
@@ -196,6 +203,7 @@ INPUT_SCHEMA: dict = {
                 "format": {"type": ["string", "null"]},
                 "period_s": {"type": "number", "exclusiveMinimum": 0},
                 "date_column": {"type": ["string", "null"], "minLength": 1},
+                "date_from_name": {"type": ["string", "null"], "minLength": 1},
                 "timezone": {"type": ["string", "null"], "minLength": 1},
             },
         },

@@ -29,6 +29,7 @@ from rafi.ops.init_survey import (
     footer_counts,
     markers_text,
 )
+from rafi.readers.name_dates import dates_in_name
 from rafi.settings import machine_settings, validate_config
 
 #: Column at which line comments start (when the text is shorter).
@@ -123,6 +124,15 @@ def _time_keys(out: _Lines, s: Survey, period: float | None) -> None:
         else:
             out.add(8, "period_s: 60", "CHECK: the seconds between two rows (--period-s)", off=True)
         out.add(8, 'start: "2026-01-01T00:00:00"', "CHECK: when the first row was logged", off=True)
+        return
+    if s.time.unit == "timeofday" and s.date is None and s.date_from_name:
+        out.add(8, "kind: timestamp", f"{s.time.header!r}: {s.time.why}")
+        name = s.first.path.name
+        why = f"the date in the file names ({name}: {dates_in_name(name, s.date_from_name)[0]})"
+        if s.date_from_name_check:
+            out.note(8, f"CHECK: {s.date_from_name_check}")
+        out.add(8, f"date_from_name: {q(s.date_from_name)}", why)
+        _timezone_key(out, s)
         return
     if s.time.unit == "timeofday" and s.date is not None:
         out.add(8, "kind: timestamp", f"{s.time.header!r}: {s.time.why}")
@@ -237,6 +247,7 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     out.add(4, "input:")
     if s.format == "native":
         _native_keys(out, table.header)
+        _missing_values_key(out, s)
         return
     ext = table.path.suffix.lower() or ".csv"
     out.add(6, f"format: {s.format}")
@@ -271,10 +282,7 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
         out.add(
             6, f"footer_rows: {footers[0]}", "summary rows at the end of each log (Mean, Max, ...): dropped"
         )
-    if s.missing_values:
-        markers = ", ".join(q(text) for text, _ in s.missing_values.most_common())
-        why = "cells without a value in numeric columns: " + markers_text(s.missing_values)
-        out.add(6, f"missing_values: [{markers}]", why)
+    _missing_values_key(out, s)
     _column_keys(out, s)
     _time_keys(out, s, period)
     if s.speed is None:
@@ -283,6 +291,14 @@ def _input_keys(out: _Lines, s: Survey, period: float | None) -> None:
     if s.join:
         _join_keys(out, s)
     _temperature_unit(out, s)
+
+
+def _missing_values_key(out: _Lines, s: Survey) -> None:
+    """input.missing_values, the markers found in the numeric columns (indent 6)."""
+    if s.missing_values:
+        markers = ", ".join(q(text) for text, _ in s.missing_values.most_common())
+        why = "cells without a value in numeric columns: " + markers_text(s.missing_values)
+        out.add(6, f"missing_values: [{markers}]", why)
 
 
 def _native_keys(out: _Lines, header: list[str]) -> None:

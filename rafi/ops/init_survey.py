@@ -42,6 +42,7 @@ from rafi.readers.infer import (
 )
 from rafi.readers.infer_files import RawTable
 from rafi.readers.mapped_time import date_and_time
+from rafi.readers.name_dates import dates_in_name, day_offsets, name_date_format, time_of_day_seconds
 from rafi.settings import DAYLIGHT_SAVING_SHIFT_S, DAYLIGHT_SAVING_SLACK_S
 
 #: Time constant (s) of the low-pass of the speed that stands for "the spindle heats the machine"
@@ -116,6 +117,12 @@ class Survey:
     clock_back_zone : str or None
         A time zone whose daylight-saving change falls on the date of that step back
         (:func:`zone_falling_back_on`), the one proposed for ``input.time.timezone``.
+    date_from_name : str or None
+        ``input.time.date_from_name``: the date format every log's file name holds
+        (:func:`rafi.readers.name_dates.name_date_format`) when the clock is a time of day
+        without a date column, else None.
+    date_from_name_check : str or None
+        Why that format needs a look (the names read day first and month first), else None.
     missing_values : collections.Counter
         ``input.missing_values``: the texts of cells without a value found in the numeric
         columns of the logs and partners (:func:`rafi.readers.infer.missing_markers`) and how
@@ -153,6 +160,8 @@ class Survey:
     missing_values: Counter = field(default_factory=Counter)
     clock_back: tuple | None = None
     clock_back_zone: str | None = None
+    date_from_name: str | None = None
+    date_from_name_check: str | None = None
 
     @property
     def first(self) -> RawTable:
@@ -214,9 +223,12 @@ def _time_and_speed(
     t = s = None
     if survey.time is not None:
         cells = column_cells(table, survey.time)
-        if survey.time.unit == "timeofday" and survey.date is not None:
-            cells = date_and_time(list(column_cells(table, survey.date)), list(cells))
-        if survey.time.unit in ("timestamp", "timeofday"):
+        if survey.time.unit == "timeofday" and survey.date is None:
+            times = name_dated(cells, table.path.name, survey.date_from_name)
+            t = None if times is None else elapsed_seconds(times)
+        elif survey.time.unit in ("timestamp", "timeofday"):
+            if survey.time.unit == "timeofday":
+                cells = date_and_time(list(column_cells(table, survey.date)), list(cells))
             times, fmt, _ = to_times(cells)
             survey.time_format = fmt
             t = None if times is None else elapsed_seconds(times)
@@ -273,13 +285,14 @@ def _probe_cells(survey: Survey, table: RawTable) -> np.ndarray | None:
     return to_numbers(column_cells(partner, survey.probes[0]), partner.layout.get("decimal", "."))
 
 
-def _guesses(table: RawTable, markers=()) -> list[ColumnGuess]:
-    """Every column's guess (``markers``: missing-value texts, read as empty cells); a table
-    without a header row is guessed by content alone and its columns are named by letter."""
+def _guesses(table: RawTable, markers=(), *, dated: bool = False) -> list[ColumnGuess]:
+    """Every column's guess (``markers``: missing-value texts, read as empty cells; ``dated``: the
+    file names carry the date, a time of day is the clock); a table without a header row is
+    guessed by content alone and its columns are named by letter."""
     decimal = table.layout.get("decimal", ".")
     if not table.headerless:
-        return guess_columns(table.header, table.columns, decimal, table.labels, markers)
-    guesses = guess_columns([""] * len(table.header), table.columns, decimal, markers=markers)
+        return guess_columns(table.header, table.columns, decimal, table.labels, markers, dated=dated)
+    guesses = guess_columns([""] * len(table.header), table.columns, decimal, markers=markers, dated=dated)
     return [replace(g, header=g.letter) for g in guesses]
 
 
@@ -341,12 +354,34 @@ def zone_falling_back_on(day: dt.date) -> str | None:
 def _clock_back_day(table: RawTable, survey: Survey, row: int) -> dt.date | None:
     """The date of data row ``row`` (1-based) of a table whose clock is a timestamp, else None."""
     cells = table.columns[survey.time.index]
-    if survey.time.unit == "timeofday" and survey.date is not None:
-        cells = date_and_time(list(table.columns[survey.date.index]), list(cells))
-    times, _, _ = to_times(cells)
+    if survey.time.unit == "timeofday" and survey.date is None:
+        times = name_dated(cells, table.path.name, survey.date_from_name)
+    else:
+        if survey.time.unit == "timeofday":
+            cells = date_and_time(list(table.columns[survey.date.index]), list(cells))
+        times, _, _ = to_times(cells)
     if times is None or not 0 < row <= len(times) or pd.isna(times[row - 1]):
         return None
     return pd.Timestamp(times[row - 1]).date()
+
+
+def name_dated(cells, name: str, fmt: str | None) -> np.ndarray | None:
+    """Time-of-day cells on the date ``name`` writes in the form ``fmt``, as the pipeline's reader
+    dates them (:func:`rafi.readers.mapped_time.name_dated_times`: a day later at each midnight
+    passed); ``datetime64[ns]``, NaT where a cell is no time of day. None without one date in the
+    name."""
+    found = dates_in_name(name, fmt) if fmt else []
+    if len(found) != 1:
+        return None
+    secs = [time_of_day_seconds(c) for c in cells]
+    kept = [x for x in secs if x is not None]
+    days = iter(day_offsets(kept))
+    start = np.datetime64(found[0], "ns")
+    out = np.full(len(secs), np.datetime64("NaT"), dtype="datetime64[ns]")
+    for k, x in enumerate(secs):
+        if x is not None:
+            out[k] = start + np.timedelta64(int(round((next(days) * 86400 + x) * 1e9)), "ns")
+    return out
 
 
 def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
@@ -402,7 +437,10 @@ def survey(machine: str, tables: list[RawTable], *, period_s: float | None = Non
     logs, partners, parts = _pairs(tables)
     first = logs[0]
     markers = _markers([t for t in logs if t.header == first.header and t.format == first.format] + partners)
-    guesses = _guesses(first, markers)
+    name_format, name_check = name_date_format(
+        [t.path.name for t in logs if layout_key(t) == layout_key(first)]
+    )
+    guesses = _guesses(first, markers, dated=name_format is not None)
     temps = [g for g in guesses if g.role == "temperature"]
     names = sensor_names([g.header for g in temps]) if not first.headerless else []
     names = names or [f"T{k}" for k in range(1, len(temps) + 1)]
@@ -422,6 +460,13 @@ def survey(machine: str, tables: list[RawTable], *, period_s: float | None = Non
         given_period_s=period_s,
         missing_values=markers,
     )
+    if out.time is not None and out.time.unit == "timeofday" and out.date is None:
+        out.date_from_name, out.date_from_name_check = name_format, name_check
+        example = first.path.name
+        out.notes.append(
+            f"the date of each log from its file name ({example}: {dates_in_name(example, name_format)[0]}), "
+            f"the time of day from {out.time.header!r}: input.time.date_from_name {name_format!r}"
+        )
     if parts:
         out.notes.append(
             f"{len(logs)} pair(s) of files by name: {parts[0]!r} holds the temperatures, {parts[1]!r} "
@@ -519,6 +564,8 @@ def _checks(s: Survey) -> list[str]:
         out.append("training_speeds_rpm: decide which speeds train; the others validate")
     if s.format == "native":
         return out
+    if s.date_from_name_check:
+        out.append(f"input.time.date_from_name: {s.date_from_name_check}")
     if s.clock_back is not None:
         out.append(
             f"input.time.timezone: {clock_back_text(s.clock_back)} give the logger's time zone "

@@ -31,12 +31,14 @@ from __future__ import annotations
 import datetime as dt
 import re
 from collections import Counter
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
 
 from rafi.readers.mapped_table import excel_column
+from rafi.readers.name_dates import is_time_of_day
+from rafi.readers.parsing import without_markers
 
 #: Roles a column can get.
 ROLES = ("time", "date", "speed", "temperature", "displacement", "other", "text", "empty")
@@ -200,14 +202,10 @@ def _day_month_swapped(formats: set) -> bool:
     return bool(swapped & formats)
 
 
-_TIME_OF_DAY = re.compile(r"^\d{1,2}:\d{2}(:\d{2}([.,]\d+)?)?$")
-
-
 def _is_time_of_day(filled: list) -> bool:
-    """Every cell a time of day: a workbook's time cell, or text ``H:MM[:SS[.f]]``."""
-    return all(
-        isinstance(v, dt.time) or (isinstance(v, str) and _TIME_OF_DAY.match(v.strip())) for v in filled
-    )
+    """Every cell a time of day: a workbook's time cell, or text ``H:MM[:SS[.f]]``
+    (:func:`rafi.readers.name_dates.is_time_of_day`)."""
+    return all(is_time_of_day(v) for v in filled)
 
 
 def _has_clock_text(filled: list) -> bool:
@@ -305,13 +303,6 @@ def missing_markers(columns: list, decimal: str = ".") -> Counter:
             continue
         found.update(texts)
     return found if len(found) <= MARKERS_MAX else Counter()
-
-
-def without_markers(cells, markers) -> list:
-    """``cells`` with every text cell that is one of ``markers`` (stripped) as None (a missing value)."""
-    if not markers:
-        return list(cells)
-    return [None if isinstance(c, str) and c.strip() in markers else c for c in cells]
 
 
 # --------------------------------------------------------------------------- content features
@@ -548,6 +539,8 @@ def guess_columns(
     decimal: str = ".",
     labels: list[str] | None = None,
     markers=(),
+    *,
+    dated: bool = False,
 ) -> list[ColumnGuess]:
     """Every column's guess, with one time and one speed column at most.
 
@@ -563,6 +556,9 @@ def guess_columns(
         Each column's label rows after the header (units).
     markers : collection of str
         Missing-value markers (:func:`missing_markers`): such cells are read as empty.
+    dated : bool
+        The file names carry the date (``input.time.date_from_name``): a time of day is the
+        clock without a date column.
 
     Returns
     -------
@@ -572,12 +568,18 @@ def guess_columns(
     """
     labels = labels or [""] * len(header)
     guesses = [
-        guess_column(j, h, without_markers(c, markers), decimal, lab)
+        guess_column(j, h, without_markers(list(c), markers), decimal, lab)
         for j, (h, c, lab) in enumerate(zip(header, columns, labels))
     ]
     if not any(g.role == "date" for g in guesses):  # a time of day needs its date
         guesses = [
-            ColumnGuess(g.index, g.header, "other", None, "low", "a time of day without a date column", None)
+            (
+                replace(g, why="a time of day; the date in the file names")
+                if dated
+                else ColumnGuess(
+                    g.index, g.header, "other", None, "low", "a time of day without a date column", None
+                )
+            )
             if g.role == "time" and g.unit == "timeofday"
             else g
             for g in guesses

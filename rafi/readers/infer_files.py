@@ -23,6 +23,7 @@ from pathlib import Path
 from rafi.errors import RawFormatError, quote
 from rafi.readers.input_spec import norm_header
 from rafi.readers.mapped_table import excel_column, read_csv_table
+from rafi.readers.name_dates import is_time_of_day
 from rafi.readers.parsing import read_file_bytes, split_lines
 
 #: Delimiters tried on a text file, in order of preference on a tie.
@@ -314,6 +315,13 @@ def _native_header(header: list[str]) -> bool:
     return all(sensor_name_problem(name) is None for name in sensors)
 
 
+def _times_of_day(cells: list) -> bool:
+    """Every filled cell a time of day (``14:03:20``): the native layout's header over a clock
+    without its date, which the native reader cannot read (``input.time.date_from_name``)."""
+    filled = [c for c in cells if c is not None and str(c).strip()]
+    return bool(filled) and all(is_time_of_day(c) for c in filled)
+
+
 def _read_text(path: Path, raw: bytes) -> RawTable:
     # a byte-order mark of UTF-16 (Excel's "Unicode text" export, some Windows loggers) decides;
     # else UTF-8, then cp1252, which decodes any byte
@@ -347,9 +355,9 @@ def _read_text(path: Path, raw: bytes) -> RawTable:
         below = [ln for ln in lines[spec["header_row"] :] if ln.strip()][: spec["skip_rows"]]
         labels = _labels([split_quoted(ln, spec["delimiter"]) for ln in below], len(header))
         notes = [f"{spec['skip_rows']} label row(s) after the header skipped"] if spec["skip_rows"] else []
-    native = _native_header(header) and found["delimiter"] == ","
-    layout = {k: spec[k] for k in ("delimiter", "decimal", "encoding", "header_row", "skip_rows")}
     columns = [list(c) for c in zip(*table.rows)] if table.rows else [[] for _ in header]
+    native = _native_header(header) and found["delimiter"] == "," and not _times_of_day(columns[0])
+    layout = {k: spec[k] for k in ("delimiter", "decimal", "encoding", "header_row", "skip_rows")}
     return RawTable(
         path,
         "native" if native else "csv",

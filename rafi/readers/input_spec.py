@@ -75,6 +75,7 @@ from rafi.readers.input_layouts import (
     ref_key,
 )
 from rafi.readers.log_sources import expand_logs, log_id, log_name  # noqa: F401 (log_id: this module's API)
+from rafi.readers.name_dates import date_format_problem
 from rafi.readers.recordings import find_recordings
 
 # --------------------------------------------------------------------------- the input: mapping
@@ -351,8 +352,8 @@ def partner_input_spec(spec: dict) -> tuple[dict, list[str]]:
 
 def check_time(out: dict) -> None:
     """``time.kind``, ``time.start`` (ISO 8601 within pandas' range, or None: no clock),
-    ``time.format`` (a strptime format) and ``sample_period_s`` (a positive number, made a
-    float). ``out`` is changed in place."""
+    ``time.date_column``, ``time.date_from_name``, ``time.timezone``, ``time.format`` (a strptime
+    format) and ``sample_period_s`` (a positive number, made a float). ``out`` is changed in place."""
     tm = out["time"]
     if tm["kind"] not in TIME_KINDS:
         raise _spec_error("time.kind", f"{tm['kind']!r}: expected {', '.join(TIME_KINDS)}")
@@ -382,6 +383,7 @@ def check_time(out: dict) -> None:
             f"{tm['date_column']!r}: a date column goes with time.kind timestamp (the time column then "
             "holds the time of day)",
         )
+    check_date_from_name(tm)
     check_timezone(tm)
     if tm["format"] is not None and (not isinstance(tm["format"], str) or "%" not in tm["format"]):
         raise _spec_error(
@@ -392,6 +394,30 @@ def check_time(out: dict) -> None:
         if isinstance(sp, bool) or not isinstance(sp, (int, float)) or not (math.isfinite(sp) and sp > 0):
             raise _spec_error("sample_period_s", f"{sp!r}: expected a positive number of seconds")
         out["sample_period_s"] = float(sp)
+
+
+def check_date_from_name(tm: dict) -> None:
+    """``time.date_from_name``: the date of each file in its name, in ``strftime`` codes
+    (:func:`rafi.readers.name_dates.date_format_problem`), the time column holding the time of day;
+    or None. It goes with ``time.kind`` timestamp and without ``time.date_column``."""
+    fmt = tm["date_from_name"]
+    if fmt is None:
+        return
+    if tm["kind"] != "timestamp":
+        raise _spec_error(
+            "time.date_from_name",
+            f"applies to time.kind timestamp only (kind is {tm['kind']}; the time column then holds "
+            "the time of day)",
+        )
+    if tm["date_column"] is not None:
+        raise _spec_error(
+            "time.date_from_name",
+            f"the date is in a column (time.date_column {tm['date_column']!r}) or in the file name: "
+            "give one of the two",
+        )
+    problem = date_format_problem(fmt)
+    if problem is not None:
+        raise _spec_error("time.date_from_name", problem)
 
 
 def check_timezone(tm: dict) -> None:

@@ -75,7 +75,7 @@ def read_log(
 
     spec = formats.normalise_input_spec(input_spec)
     if spec["format"] == "native":
-        frame = read_raw_log(path, spec["sensors"])
+        frame = read_raw_log(path, spec["sensors"], spec["missing_values"])
         if spec.get("sample_period_s") is not None:
             frame.attrs["metadata"].setdefault("sample_period_s", float(spec["sample_period_s"]))
         return frame

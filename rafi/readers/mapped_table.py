@@ -17,7 +17,6 @@ from __future__ import annotations
 import datetime as dt
 import difflib
 import io
-import json
 import math
 import re
 import zipfile
@@ -36,9 +35,11 @@ from rafi.readers.parsing import (
     check_fields,
     decode_bytes,
     field_count_error,
+    marker_hint,
     split_fields,
     split_lines,
     unreadable_error,
+    without_markers,
 )
 
 
@@ -561,7 +562,7 @@ def numeric(
         float64, NaN where a cell is empty or a missing-value marker.
     """
     out = np.full(len(values), np.nan)
-    markers = frozenset(missing)
+    values = without_markers(values, missing)
     for k, v in enumerate(values):
         if v is None:
             continue
@@ -576,8 +577,6 @@ def numeric(
             x = float(v)
         else:
             s = str(v).strip()
-            if s in markers:
-                continue
             s = s.replace("\u00a0", "").replace(" ", "")
             if not s:
                 continue
@@ -613,15 +612,6 @@ def numeric(
             )
         out[k] = x
     return out
-
-
-def marker_hint(cell: str, other_hint: str = "") -> str:
-    """`` (a missing-value marker? ...)`` for a text cell without a digit (``---``, ``#N/A``,
-    ``NaN``, ``ERR``) where no other cause was named; else empty."""
-    if other_hint or not cell or any(c.isdigit() for c in cell):
-        return ""
-    listed = json.dumps(cell, ensure_ascii=False)
-    return f" (a missing-value marker? list it in input.missing_values: [{listed}])"
 
 
 def text(values: list) -> list[str]:

@@ -3,7 +3,8 @@
 ``input.time.kind`` says where a mapped file's times come from (``docs/raw-format.md``):
 
 * ``timestamp``: a column of dates and times (``time.format``, or ISO-8601), or a column of the
-  time of day with the date in another (``time.date_column``: :func:`date_and_time`);
+  time of day with the date in another (``time.date_column``: :func:`date_and_time`) or in the
+  file name (``time.date_from_name``: :func:`name_dated_times`);
 * ``elapsed_s``: a column of seconds (or ``h:mm:ss`` cells) counted from ``time.start``;
   ``elapsed_min`` and ``elapsed_h`` the same in minutes or hours (a duration cell is a duration);
 * ``epoch_s``, ``epoch_ms``, ``excel_days``: a clock written as a number from a fixed origin
@@ -33,6 +34,14 @@ import pandas as pd
 from rafi.contract import ELAPSED_SECONDS, EPOCH_CLOCKS, NO_CLOCK_EPOCH
 from rafi.errors import RawFormatError
 from rafi.readers.mapped_table import Table, numeric
+from rafi.readers.name_dates import (
+    cell_text,
+    dates_in_name,
+    day_offsets,
+    is_time_of_day,
+    time_of_day_hint,
+    time_of_day_seconds,
+)
 from rafi.readers.parsing import TIME_MAX, TIME_MIN
 
 #: The unit of an elapsed time column, in words (its messages).
@@ -74,7 +83,10 @@ def timestamps(table: Table, values: list, spec: dict, column: str, col_index: i
     """
     if spec["time"]["kind"] in ELAPSED_SECONDS or spec["time"]["kind"] in EPOCH_CLOCKS:
         return _elapsed_times(table, values, spec, column, col_index)
-    times = _text_times(values, spec["time"]["format"])
+    if spec["time"]["date_from_name"] is not None:
+        times = name_dated_times(table, values, spec, column, col_index)
+    else:
+        times = _text_times(values, spec["time"]["format"])
     if times is None:
         times = _cell_times(table, values, spec["time"]["format"], column, col_index)
     zone = spec["time"]["timezone"]
@@ -351,6 +363,9 @@ def _cell_times(
         if v is None or (isinstance(v, str) and not v.strip()):
             raise table.error("empty timestamp; expected a date and time", **where)
         ts = _cell_time(v, time_format)
+        if ts is None and is_time_of_day(v):
+            hint = time_of_day_hint(v, table.path.name, str(table.path.parent))
+            raise table.error(hint, **where)
         if ts is None:
             expect = (
                 f"a time in the format {time_format!r}"
@@ -364,6 +379,96 @@ def _cell_times(
             raise table.error(f"timestamp {v!r} is outside the supported years 1678..2261", **where)
         parsed.append(ts)
     return pd.Series(pd.DatetimeIndex(parsed))
+
+
+def file_date(table: Table, fmt: str) -> dt.date:
+    """The date the file name of ``table`` writes in the form ``fmt`` (``input.time.date_from_name``).
+
+    Raises
+    ------
+    RawFormatError
+        Naming the file: the name holds no date of that form, or two.
+    """
+    name = table.path.name
+    found = dates_in_name(name, fmt)
+    example = dt.date(2026, 3, 14).strftime(fmt)
+    if not found:
+        raise RawFormatError(
+            table.path,
+            f"no date in the form {fmt!r} (input.time.date_from_name) in the file name {name!r}; expected "
+            f"the date as e.g. {example!r} for 14 March 2026 (the log's date: its rows hold the time of "
+            "day); a file of another logger, or names that write the date another way?",
+        )
+    if len(found) > 1:
+        shown = ", ".join(str(d) for d in found)
+        raise RawFormatError(
+            table.path,
+            f"two dates in the form {fmt!r} (input.time.date_from_name) in the file name {name!r} "
+            f"({shown}): which is the log's cannot be told; put the text beside it into the format, "
+            f"e.g. 'log_{fmt}'",
+        )
+    return found[0]
+
+
+def name_dated_times(table: Table, values: list, spec: dict, column: str, col_index: int) -> pd.Series:
+    """A time-of-day column on the date of the file's name (``input.time.date_from_name``).
+
+    Row k is at the name's date, plus as many days as the log passed midnight before it
+    (:func:`rafi.readers.name_dates.day_offsets`: a time of day more than 12 h before the row
+    above), plus its time of day. A smaller step back is kept (the checks call it a clock reset).
+
+    Parameters
+    ----------
+    table : Table
+        The file (its name gives the date; words the error).
+    values : list
+        The cells of the time column, in row order: ``H:MM[:SS[.fff]]`` text (or as
+        ``time.format`` writes a time of day), or a workbook's time cells.
+    spec : dict
+        The normalised ``input:`` mapping.
+    column : str
+        The header as written in the file.
+    col_index : int
+        0-based column index.
+
+    Returns
+    -------
+    pandas.Series
+        Naive timestamps (the logger's own clock; :func:`timestamps` applies ``time.timezone``).
+
+    Raises
+    ------
+    RawFormatError
+        The name holds no date (or two: :func:`file_date`), at the first cell that is empty or
+        not a time of day, or a date outside 1678..2261.
+    """
+    tm = spec["time"]
+    day = file_date(table, tm["date_from_name"])
+    secs = []
+    for k, v in enumerate(values):
+        sec = time_of_day_seconds(v, tm["format"])
+        if sec is None:
+            where = {"row": table.row_numbers[k], "column": column, "col_index": col_index}
+            if v is None or (isinstance(v, str) and not v.strip()):
+                raise table.error("empty time; expected a time of day such as 14:03:20", **where)
+            expect = (
+                f"a time of day in the format {tm['format']!r}"
+                if tm["format"]
+                else "a time of day such as 14:03:20 (HH:MM:SS, 24-hour clock; or set input.time.format)"
+            )
+            exc = table.error(f"{cell_text(v)!r} is not a time of day; expected {expect}", **where)
+            is_time = lambda cell: time_of_day_seconds(cell, tm["format"]) is not None  # noqa: E731
+            raise footer_error(table, values, is_time, column, col_index, exc, what="a time of day") or exc
+        secs.append(sec)
+    offsets = np.asarray(day_offsets(secs), dtype="float64") * 86400.0 + np.asarray(secs, dtype="float64")
+    start = pd.Timestamp(day)
+    if not (TIME_MIN <= start and start + pd.Timedelta(seconds=float(offsets.max())) <= TIME_MAX):
+        raise RawFormatError(
+            table.path,
+            f"the date {day} of the file name (input.time.date_from_name {tm['date_from_name']!r}) is "
+            "outside the supported years 1678..2261",
+        )
+    return pd.Series(start + pd.to_timedelta(np.round(offsets * 1e9).astype("int64"), unit="ns"))
 
 
 #: Most rows at the end of a file that the reader calls summary rows (``input.footer_rows``).
@@ -440,6 +545,8 @@ def is_time_cell(value, spec: dict) -> bool:
         return False
     if spec["time"]["kind"] in ELAPSED_SECONDS:
         return _is_elapsed_cell(value)
+    if spec["time"]["date_from_name"] is not None:
+        return time_of_day_seconds(value, spec["time"]["format"]) is not None
     return _cell_time(value, spec["time"]["format"]) is not None
 
 

@@ -25,6 +25,7 @@ from rafi.artefact import write_text_atomic
 from rafi.contract.sensors import DEFAULT_SENSORS, canonical_columns, frame_sensors
 from rafi.errors import RawFormatError, quote
 from rafi.readers.discovery import FOREIGN_FORMAT_DOCS
+from rafi.readers.name_dates import is_time_of_day, time_of_day_hint
 from rafi.readers.parsing import (
     _INNER_SPACE,
     FIELD_MAX_CHARS,
@@ -35,12 +36,14 @@ from rafi.readers.parsing import (
     check_fields,
     field_count_error,
     field_too_long_error,
+    marker_hint,
     out_of_range_time,
     parse_numbers,
     read_file_bytes,
     split_fields,
     split_lines,
     to_naive_ns,
+    without_markers,
 )
 
 #: Metadata keys with a documented meaning; any other ``# key: value`` is kept as text.
@@ -301,6 +304,9 @@ def _parse_times(path: Path, time_str: list[str], line_numbers: list[int]) -> np
                 line=line_numbers[k],
                 column="time",
             )
+        if is_time_of_day(time_str[k]):
+            hint = time_of_day_hint(time_str[k], path.name, str(path.parent), native=True)
+            raise RawFormatError(path, hint, line=line_numbers[k], column="time")
         raise RawFormatError(
             path,
             f"{quote(time_str[k])} is not an ISO-8601 timestamp (e.g. 2026-03-01T08:00:00)",
@@ -324,6 +330,7 @@ def _parse_values(
     columns: dict[str, list[str]],
     line_numbers: list[int],
     numeric: tuple[str, ...] = NUMERIC_COLUMNS,
+    missing: tuple[str, ...] = (),
 ) -> dict[str, object]:
     """The numeric canonical columns, then the extra columns (numbers where every field is one, else text).
 
@@ -339,12 +346,16 @@ def _parse_values(
         The line of each row.
     numeric : tuple of str
         The numeric canonical columns (:func:`rafi.readers.parsing.numeric_columns`).
+    missing : tuple of str
+        ``input.missing_values``: fields that are missing values in every numeric column
+        (:func:`rafi.readers.parsing.without_markers`, as the mapped readers read them).
 
     Returns
     -------
     dict
         Column name -> values: ``float64`` arrays for ``speed_rpm``, the sensors and
-        ``disp_um`` (empty fields NaN), then every other column except ``time`` in file order.
+        ``disp_um`` (empty fields and markers NaN), then every other column except ``time`` in
+        file order (numbers where every field is one, a marker or empty, else text).
 
     Raises
     ------
@@ -353,13 +364,14 @@ def _parse_values(
     """
     data: dict[str, object] = {}
     for name in numeric:
-        parsed, bad = parse_numbers(columns[name])
+        parsed, bad = parse_numbers(without_markers(columns[name], missing, ""))
         if bad is not None:
             found = columns[name][bad]
             hint = " (decimal comma? use a point)" if "," in found else ""
             raise RawFormatError(
                 path,
-                f"{quote(found)} is not a number{hint}; expected a decimal number in {name}",
+                f"{quote(found)} is not a number{hint}; expected a decimal number in {name}"
+                f"{marker_hint(found, hint)}",
                 line=line_numbers[bad],
                 column=name,
             )
@@ -367,12 +379,12 @@ def _parse_values(
     for name in header:
         if name in data or name == "time":
             continue
-        parsed, bad = parse_numbers(columns[name])
+        parsed, bad = parse_numbers(without_markers(columns[name], missing, ""))
         data[name] = parsed if bad is None else pd.array(columns[name], dtype="str")
     return data
 
 
-def read_raw_log(path: str | os.PathLike, sensors=DEFAULT_SENSORS) -> pd.DataFrame:
+def read_raw_log(path: str | os.PathLike, sensors=DEFAULT_SENSORS, missing_values=()) -> pd.DataFrame:
     """Read one native raw log (``docs/raw-format.md``) into the canonical frame.
 
     Parameters
@@ -382,6 +394,9 @@ def read_raw_log(path: str | os.PathLike, sensors=DEFAULT_SENSORS) -> pd.DataFra
     sensors : sequence of str
         The machine's temperature sensors (``input.sensors``; the paper rig's ``T1`` .. ``T16``
         by default): columns the header must have.
+    missing_values : sequence of str
+        ``input.missing_values``: the texts the logger writes for no value (``---``, ``NaN``),
+        missing in every numeric column as in a mapped log (none by default).
 
     Returns
     -------
@@ -389,8 +404,8 @@ def read_raw_log(path: str | os.PathLike, sensors=DEFAULT_SENSORS) -> pd.DataFra
         Canonical columns first (``time``, ``speed_rpm``, the sensors, ``disp_um``), then
         extra columns; index = 1-based line number in the file.
         ``attrs`` holds ``metadata`` (dict), ``source`` (path) and ``sha256``.
-        Empty numeric fields become NaN (a logger dropout); cleaning decides what
-        to do with them.
+        Empty numeric fields and ``missing_values`` markers become NaN (a logger dropout);
+        cleaning decides what to do with them.
 
     Raises
     ------
@@ -414,7 +429,7 @@ def read_raw_log(path: str | os.PathLike, sensors=DEFAULT_SENSORS) -> pd.DataFra
     index = pd.Index(line_numbers, name="line", dtype="int64")
     columns = {name: list(col) for name, col in zip(header, zip(*rows))}
     data: dict[str, object] = {"time": _parse_times(path, columns["time"], line_numbers)}
-    data.update(_parse_values(path, header, columns, line_numbers, required[1:]))
+    data.update(_parse_values(path, header, columns, line_numbers, required[1:], tuple(missing_values)))
 
     frame = pd.DataFrame(data, index=index)
     frame.attrs["metadata"] = meta

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import csv
 import errno
+import json
 import os
 import re
 import stat
@@ -348,6 +349,42 @@ _INNER_SPACE = re.compile(r"[^\S\r\n]")
 
 
 _PLAIN_NUMBER_CHARS = re.compile(r"[^0-9.eE+\-]")
+
+
+def without_markers(cells: list, markers, empty=None) -> list:
+    """``cells`` with every text cell that is one of ``markers`` as ``empty`` (a missing value).
+
+    The one reading of ``input.missing_values`` (``docs/raw-format.md``, "Missing-value
+    markers"), for the native and the mapped readers and ``rafi init``: a text cell, stripped,
+    equal to a marker (case counts) is missing; numbers, dates and other texts are kept.
+
+    Parameters
+    ----------
+    cells : list
+        The cells of one column (text, numbers, None).
+    markers : collection of str
+        The markers, stripped (:func:`rafi.readers.input_spec.check_missing_values`).
+    empty : object
+        What a marker's cell becomes: None (a mapped cell), ``""`` (a native field).
+
+    Returns
+    -------
+    list
+        ``cells`` itself when there are no markers, else a new list.
+    """
+    if not markers:
+        return cells
+    marks = frozenset(markers)
+    return [empty if isinstance(c, str) and c.strip() in marks else c for c in cells]
+
+
+def marker_hint(cell: str, other_hint: str = "") -> str:
+    """`` (a missing-value marker? ...)`` for a text cell without a digit (``---``, ``#N/A``,
+    ``NaN``, ``ERR``) where no other cause was named; else empty."""
+    if other_hint or not cell or any(c.isdigit() for c in cell):
+        return ""
+    listed = json.dumps(cell, ensure_ascii=False)
+    return f" (a missing-value marker? list it in input.missing_values: [{listed}])"
 
 
 def parse_numbers(values: list[str]) -> tuple[np.ndarray, int | None]:
