@@ -164,3 +164,28 @@ def test_status_shows_the_parent():
     }
     line = MachineStatus("m", d, [], tonight=True).line()
     assert "(adapted from bbbbbbbbbbbb of sib)" in line
+
+
+def test_the_nights_line_says_waiting_for_a_candidate_held_for_a_confirmation():
+    """A candidate that passed every gate and waits only for a confirmation of its prior's fitness:
+    the night's status line says WAITING and what to add, not "rejected"."""
+    d = {
+        "decision": "rejected",
+        "gates_passed": True,
+        "blocked_by": ["prior_fitness"],
+        "prior_fitness": {
+            "blocking": [{"check": "prior_speeds", "prior": "b" * 64, "machine": "sib", "for_machine": "m"}]
+        },
+        "champion_id_after": None,
+        "candidate_id": "a" * 64,
+        "candidate_parent": "b" * 64,
+        "candidate_parent_machine": "sib",
+    }
+    line = MachineStatus("m", d, [], tonight=True).line()
+    assert line.startswith("m: WAITING tonight; champion ")
+    assert "rejected" not in line
+    assert line.endswith(
+        "waits for a confirmation of the prior fitness check prior_speeds of prior bbbbbbbbbbbb (sib): add "
+        "checks.confirmed: [{file: bbbbbbbbbbbb, check: prior_speeds}] in m's settings"
+    )
+    assert MachineStatus("m", {**d, "gates_passed": False}, [], tonight=True).line().startswith("m: rejected")

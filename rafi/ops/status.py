@@ -15,6 +15,7 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+from rafi.family.confirmation import awaiting_confirmation
 from rafi.ops.project import Paths
 
 EXIT_OK = 0
@@ -132,8 +133,9 @@ class MachineStatus:
             return text + f"; quarantined: {', '.join(self.quarantined) or 'every file'}"
         if not d:
             return f"{self.machine}: no decision yet"
+        waiting = awaiting_confirmation(d)  # passed every gate, held for a person's confirmation
         text = (
-            f"{self.machine}: {d.get('decision')}"
+            f"{self.machine}: {'WAITING' if waiting else d.get('decision')}"
             f"{' tonight' if self.tonight else ' (' + str(d.get('time')) + ')'}; champion "
             f"{short_id(d.get('champion_id_after'))}"
         )
@@ -157,6 +159,8 @@ class MachineStatus:
             if interval.get("detected"):
                 causes.append(interval_evidence(interval))
             text += "; RECALIBRATION DUE: " + "; ".join(causes)
+        if waiting:
+            text += f"; {waiting}"
         if self.quarantined:
             text += f"; quarantined: {', '.join(self.quarantined)}"
         return text
