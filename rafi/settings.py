@@ -246,38 +246,6 @@ def machine_settings(config: Mapping, machine: str) -> dict:
     return merged
 
 
-def sign_key(config: Mapping, machine: str) -> str | None:
-    """The key of ``config.yaml`` that sets the sign of ``machine``'s displacement probe, or None
-    where nothing sets it and the sign is the default (+1; ``rafi init`` leaves it a ``# CHECK:``
-    line for a person to decide).
-
-    Parameters
-    ----------
-    config : Mapping
-        ``config.yaml`` as loaded.
-    machine : str
-        A machine, or a probe of one (``<machine>@<probe>``, :func:`split_unit`).
-
-    Returns
-    -------
-    str or None
-        ``machines.<m>.input.probes.<probe>.sign``, ``machines.<m>.input.displacement.sign`` or
-        ``defaults.input.displacement.sign``, the first that is given (a probe's own sign wins;
-        a probe without one takes ``displacement.sign``, as
-        :func:`rafi.readers.input_spec.normalise_input_spec` fills it in).
-    """
-    folder, probe = split_unit(machine)
-    own = ((config.get("machines") or {}).get(folder) or {}).get("input") or {}
-    if probe is not None:
-        entry = (own.get("probes") or {}).get(probe)
-        if isinstance(entry, Mapping) and "sign" in entry:
-            return f"machines.{folder}.input.probes.{probe}.sign"
-    if "sign" in (own.get("displacement") or {}):
-        return f"machines.{folder}.input.displacement.sign"
-    shared = ((config.get("defaults") or {}).get("input") or {}).get("displacement") or {}
-    return "defaults.input.displacement.sign" if "sign" in shared else None
-
-
 def read_machine_config(config_path: str | os.PathLike, machine: str) -> tuple[dict, dict]:
     """``(config, the machine's settings)`` of a command that works on one named machine.
 

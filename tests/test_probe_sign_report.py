@@ -11,8 +11,8 @@ import re
 import pandas as pd
 import pytest
 
-from rafi.report.probe import probe_sign_record
-from rafi.settings import machine_settings, sign_key
+from rafi.report.probe import probe_sign_record, sign_key
+from rafi.settings import machine_settings
 
 PROBES = {"format": "csv", "probes": {"ch1": {"column": "ch1(um)"}, "ch3": {"column": "ch3(um)", "sign": -1}}}
 

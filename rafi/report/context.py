@@ -83,7 +83,7 @@ def build_context(
     now : datetime, optional
         The time the report says it was made.
     sign_key : str, optional
-        The key of config.yaml that sets the probe's sign (:func:`rafi.settings.sign_key`);
+        The key of config.yaml that sets the probe's sign (:func:`rafi.report.probe.sign_key`);
         ``None``: nothing sets it, the sign is the default (section provenance says where the
         sign comes from and what the data say: :func:`rafi.report.probe.probe_sign_record`).
 

@@ -9,6 +9,8 @@ named only where ``report.paper_rig`` says the machine is that rig.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 
 def probe_words(settings: dict) -> str:
     """Where the probe measured, in words.
@@ -81,7 +83,7 @@ def probe_sign_record(settings: dict, sign_key: str | None, audit) -> dict:
         The unit's settings: ``input.displacement.sign``, ``input.probes`` (the probe's name),
         ``checks.probe_sign`` and ``checks.confirmed``.
     sign_key : str or None
-        The key of config.yaml that sets the sign (:func:`rafi.settings.sign_key`); ``None``: not
+        The key of config.yaml that sets the sign (:func:`sign_key`); ``None``: not
         set, the default.
     audit : DataFrame or None
         ``audit.csv``.
@@ -171,3 +173,37 @@ def probe_sign_record(settings: dict, sign_key: str | None, audit) -> dict:
         "body": text,
         "text": f"{head}: {text}",
     }
+
+
+def sign_key(config: Mapping, machine: str) -> str | None:
+    """The key of ``config.yaml`` that sets the sign of ``machine``'s displacement probe, or None
+    where nothing sets it and the sign is the default (+1; ``rafi init`` leaves it a ``# CHECK:``
+    line for a person to decide).
+
+    Parameters
+    ----------
+    config : Mapping
+        ``config.yaml`` as loaded.
+    machine : str
+        A machine, or a probe of one (``<machine>@<probe>``, :func:`split_unit`).
+
+    Returns
+    -------
+    str or None
+        ``machines.<m>.input.probes.<probe>.sign``, ``machines.<m>.input.displacement.sign`` or
+        ``defaults.input.displacement.sign``, the first that is given (a probe's own sign wins;
+        a probe without one takes ``displacement.sign``, as
+        :func:`rafi.readers.input_spec.normalise_input_spec` fills it in).
+    """
+    from rafi.settings import split_unit
+
+    folder, probe = split_unit(machine)
+    own = ((config.get("machines") or {}).get(folder) or {}).get("input") or {}
+    if probe is not None:
+        entry = (own.get("probes") or {}).get(probe)
+        if isinstance(entry, Mapping) and "sign" in entry:
+            return f"machines.{folder}.input.probes.{probe}.sign"
+    if "sign" in (own.get("displacement") or {}):
+        return f"machines.{folder}.input.displacement.sign"
+    shared = ((config.get("defaults") or {}).get("input") or {}).get("displacement") or {}
+    return "defaults.input.displacement.sign" if "sign" in shared else None

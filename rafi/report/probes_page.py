@@ -42,7 +42,7 @@ def probe_row(
     report_href : str
         The probe's own report, relative to this page.
     sign_key : str, optional
-        The key of config.yaml that sets the probe's sign (:func:`rafi.settings.sign_key`);
+        The key of config.yaml that sets the probe's sign (:func:`rafi.report.probe.sign_key`);
         ``None``: the default.
 
     Returns
