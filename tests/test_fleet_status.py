@@ -580,3 +580,54 @@ def test_status_counts_the_raw_files_that_arrived_after_the_last_decision(fleet,
     assert fleet_cli.run(_cli(fleet, "--machine", "ok-m", "--json")) == 0
     (row,) = json.loads(capsys.readouterr().out)["machines"]
     assert row["unjudged"]["count"] == 2
+
+
+def test_a_machine_with_several_probes_is_one_machine_with_its_probes_under_it(tmp_path):
+    """FL_THERMAL (issue 46's audit): one machine, five probe units ``fl-thermal@ch1``..; the page
+    counted "5 machine(s)" and never linked the machine's own page."""
+    root = tmp_path / "p"
+    for probe, kind in (("ch1", "promoted"), ("ch2", "rejected")):
+        decision = _decision(
+            kind, "X", "X" if kind == "promoted" else "C", candidate_summary=_summary("v1", 2.0)
+        )
+        _machine(root, f"fl@{probe}", champion="X", decision=decision | {"champion_id_after": ID["X"]})
+    _machine(
+        root,
+        "solo",
+        champion="X",
+        decision=_decision("promoted", None, "X", candidate_summary=_summary("v1", 1.0)),
+    )
+    (root / "reports" / "fl" / "qualification.html").parent.mkdir(parents=True)
+    (root / "reports" / "fl" / "qualification.html").write_text("<html></html>")
+    rows = _rows(root, ["fl@ch1", "fl@ch2", "solo"])
+    by = {r["machine"]: r for r in rows}
+    assert (by["fl@ch1"]["folder"], by["fl@ch1"]["probe"], by["solo"]["probe"]) == ("fl", "ch1", None)
+    assert by["fl@ch2"]["machine_report"] == "fl/qualification.html" and by["solo"]["machine_report"] is None
+    paths = Paths.from_config(root, {})
+    page = write_fleet_page(paths, root / "reports", tmp_path / "www" / "index.html", rows=rows).read_text()
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html.unescape(page)))
+    assert "1 of 2 machine(s) need attention" in text and "2 machine(s)" in text and "3 machine" not in text
+    assert "rejected: 1" in text and "ok: 1" in text  # a machine is as urgent as its most urgent probe
+    assert 'href="../p/reports/fl/qualification.html"' in page
+    assert 'href="../p/reports/fl@ch1/qualification.html"' in page
+    # the probes under their machine: fl, then its probes, then the other machine
+    order = [page.index(s) for s in ("<strong>fl</strong>", "@ch2", "@ch1", "<strong>solo</strong>")]
+    assert order == sorted(order)
+
+
+def test_without_a_machine_list_the_config_lists_each_machines_probes(tmp_path):
+    """What a night for some machines writes the page with: raw/fl is one folder, qualified as
+    ``fl@ch1`` and ``fl@ch2``; without the config its probes' results were never found."""
+    import shutil
+
+    root = tmp_path / "p"
+    for probe in ("ch1", "ch2"):
+        _machine(root, f"fl@{probe}", champion="X", decision=_decision("promoted", None, "X"))
+        shutil.rmtree(root / "raw" / f"fl@{probe}")
+    (root / "raw" / "fl").mkdir()
+    (root / "raw" / "fl" / "data.csv").write_text("time\n")
+    config = {"machines": {"fl": {"input": {"format": "csv", "probes": {"ch1": "a", "ch2": "b"}}}}}
+    paths = Paths.from_config(root, {})
+    assert [r["state"] for r in F.fleet_overview(paths, root / "reports")] == ["not_run"]
+    rows = F.fleet_overview(paths, root / "reports", config=config)
+    assert [(r["machine"], r["state"]) for r in rows] == [("fl@ch1", "ok"), ("fl@ch2", "ok")]

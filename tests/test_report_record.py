@@ -358,3 +358,24 @@ def test_idle_runs_are_listed_with_their_noise_floor():
     )
     cells = re.findall(r"<td[^>]*>(.*?)</td>", html)
     assert cells[3:5] == ["1.25", "0.72"]  # max |residual| after, noise floor
+
+
+def test_the_thermal_drift_names_the_probe_it_was_measured_on(synthetic):
+    """Section "Test record" says on which probe dz was measured with the verdict's words
+    (:func:`rafi.report.probe.probe_words`), never the paper rig's spindle axis on another machine."""
+    frame, runs = synthetic
+    res = {"runs_parquet": frame, "runs_csv": runs}
+    probes = {"format": "csv", "probes": {"ch3": {"column": "ch3(um)"}}}
+    ch3 = machine_settings({"machines": {"m": {"input": probes}}}, "m@ch3")
+    cases = [
+        (ch3, "on probe ch3 (channel 'ch3(um)')"),
+        (_settings(), "on the machine's displacement channel (disp_um)"),
+        (_settings(paper_rig=True), "on the spindle axis (Z)"),
+    ]
+    for settings, words in cases:
+        ctx = section_test_record(res, settings)
+        assert ctx["measured"] == words
+        text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", "", _render_section(ctx))).replace("&#39;", "'")
+        assert f"displacement change dz {words} over the run" in text
+        if "spindle axis" not in words:
+            assert "axial" not in text and "Z)" not in text

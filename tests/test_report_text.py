@@ -381,6 +381,61 @@ def test_equilibrium_flags_disagreement_and_a_fit_at_its_bound():
     assert "paper" not in text.replace("the paper's reference", "").replace("the paper's method", "")
 
 
+def test_equilibrium_says_why_a_run_has_no_t_eq_and_flags_a_tau_time_beyond_the_run():
+    """FL_THERMAL ch3 and ch1 (issue 46's audit): equilibrium.csv says why a run has no t_eq, and a
+    t_eq from the fitted tau longer than the run is an extrapolation of the fit, not a time seen."""
+    never = "band: ...; times from the spindle start; never settled inside the band before the end of the run"
+
+    def row(run_id, speed, t_eq, low, high, tau, method="band: ...; times from the spindle start"):
+        r = _eq_row(run_id, speed, t_eq, tau, tau * np.log(20.0))
+        return {**r, "t_eq_low_s": low, "t_eq_high_s": high, "method": method}
+
+    rows = [
+        row("data#2", 1250.0, np.nan, 14385.0, np.nan, 7058.9, never),  # tau t_eq 21 147 s
+        row("data#4", 2500.0, np.nan, np.nan, np.nan, 3552.2, never),  # tau t_eq 10 642 s: inside
+        row("data#8", 5000.0, 10500.0, 9600.0, np.nan, 5198.2),  # tau t_eq 15 572 s
+    ]
+    spans = {"data#2": 14385.0, "data#4": 14385.0, "data#8": 14385.0}
+    eq = section_equilibrium(_eq_res(rows, spans), _Figs(), machine_settings({}, "m"))
+    t = eq["table"]
+    assert [r["no_t_eq"] for r in t] == [
+        "never settled inside the band before the end of the run",
+        "never settled inside the band before the end of the run",
+        None,
+    ]
+    assert [r["beyond"] for r in t] == [True, False, True]
+    assert [r["tau_flagged"] for r in t] == [True, False, True]
+    gaps, beyond = eq["flags"]
+    assert "1\u00a0250\u00a0r/min and 2\u00a0500\u00a0r/min" in gaps
+    assert "never settled inside the band" in gaps
+    assert "21\u00a0147\u00a0s" in beyond and "15\u00a0572\u00a0s" in beyond and "10\u00a0642" not in beyond
+    assert "14\u00a0385\u00a0s" in beyond and "extrapolat" in beyond
+    html = _section("equilibrium", equilibrium=eq)
+    (table,) = html_tables(html, "num")
+    cells = [[c["text"] for c in r] for r in table["rows"]]
+    assert cells[0][1] == "not settled" and cells[0][2] == "14\u00a0385\u00a0s \u2013 not settled"
+    assert cells[1][2] == "not settled" and cells[2][2] == "9\u00a0600\u00a0s \u2013 not settled"
+    assert [r[3]["cls"] for r in table["rows"]] == ["fail", "", "fail"]
+    assert [r[1]["cls"] for r in table["rows"]] == ["fail", "fail", ""]
+    assert "\u2013\u2013" not in html
+
+
+def test_the_reason_equilibrium_table_writes_is_the_one_the_report_shows():
+    from rafi.method.equilibrium import equilibrium_table
+
+    t = np.arange(0.0, 4 * 3600.0, 15.0)
+    dz = 10 * (1 - np.exp(-t / 1200.0))
+    dz[t >= t[-1] - 300] += 5.0  # the last 5 min leave the band: it never settles
+    frame = pd.DataFrame({"run_id": "r", "t_s": t, "dz_um": dz, "speed_rpm": 3000.0})
+    runs = pd.DataFrame({"run_id": ["r"], "role": ["training"], "speed_rpm": [3000.0]})
+    eq = equilibrium_table(runs, frame)
+    assert np.isnan(eq["t_eq_s"].iloc[0])
+    res = _eq_res(eq.to_dict("records"), {"r": float(t[-1])})
+    (row,) = section_equilibrium(res, _Figs(), machine_settings({}, "m"))["table"]
+    assert row["no_t_eq"] == "never settled inside the band before the end of the run"
+    assert row["t_eq"] == "not settled"
+
+
 def test_a_ramp_drives_the_real_fit_to_the_bound_the_report_checks():
     t = np.arange(0.0, 4 * 3600.0, 15.0)
     _, _, tau = first_order_fit(t, 1e-3 * t)  # a straight ramp: no time constant

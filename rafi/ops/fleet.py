@@ -56,7 +56,7 @@ from pathlib import Path
 
 from rafi.family.confirmation import awaiting_confirmation
 from rafi.family.prior import prior_promoted
-from rafi.ops.project import Paths, unjudged_files
+from rafi.ops.project import Paths, units, unjudged_files
 from rafi.ops.status import (
     EXIT_OK,
     EXIT_PIPELINE_FAILED,
@@ -332,6 +332,18 @@ def _page(reports_dir: Path, machine: str, skipped: bool) -> str | None:
     return f"{machine}/{name}" if (reports_dir / machine / name).is_file() else None
 
 
+def unit_fields(reports_dir: Path, machine: str) -> dict:
+    """``folder`` and ``probe`` of a qualification unit (:func:`rafi.settings.split_unit`; ``probe``
+    None for a machine with one probe) and ``machine_report``: a probe's machine's own page
+    relative to ``reports_dir`` (rule probes_report; None where it is not built, and for a machine
+    with one probe)."""
+    from rafi.settings import split_unit
+
+    folder, probe = split_unit(machine)
+    page = _page(Path(reports_dir), folder, False) if probe is not None else None
+    return {"folder": folder, "probe": probe, "machine_report": page}
+
+
 def _older(a: Path, b: Path) -> bool:
     """``a`` was modified before ``b`` (False if either is missing)."""
     try:
@@ -404,7 +416,10 @@ def machine_overview(
         (:func:`champion_residual`), ``drift``, ``recalibration_due``, ``quarantined`` (list of
         ``file (reason)``), ``skipped``, ``report`` (path relative to ``reports_dir``, or None),
         ``unjudged`` (:func:`_unjudged`), ``waiting`` (the last candidate waits for a
-        confirmation), ``exit_code``.
+        confirmation), ``exit_code``; ``folder`` and ``probe`` (the machine and its probe of a
+        unit ``<machine>@<probe>``, ``probe`` None for a machine with one probe) and
+        ``machine_report`` (a probe's: its machine's page, ``<machine>/qualification.html``
+        relative to ``reports_dir``, or None).
     """
     reports_dir = Path(reports_dir)
     reg = paths.registry(machine)
@@ -499,6 +514,7 @@ def machine_overview(
         "quarantined": list(status.quarantined),
         "skipped": status.skipped,
         "report": _page(reports_dir, machine, status.skipped),
+        **unit_fields(reports_dir, machine),
         "unjudged": _unjudged(paths, config, machine, last),
         "exit_code": most_severe(STATE_CODE[s] for s, _ in attention),
     }
@@ -511,10 +527,14 @@ def fleet_overview(
     *,
     config: dict | None = None,
 ) -> list[dict]:
-    """:func:`machine_overview` of every machine (``machines``, default every folder of raw/),
-    most urgent first (:data:`RANK`), then by machine name; ``config`` (the project's) counts the
-    raw files each last decision has not judged."""
-    names = paths.machines() if machines is None else list(machines)
+    """:func:`machine_overview` of every machine (``machines``, default every folder of raw/: with
+    ``config`` each of its probes, :func:`rafi.ops.project.units`), most urgent first
+    (:data:`RANK`), then by machine name; ``config`` (the project's) counts the raw files each
+    last decision has not judged."""
+    if machines is None:
+        names = paths.machines() if config is None else units(config, paths.machines())
+    else:
+        names = list(machines)
     rows = [machine_overview(paths, reports_dir, m, config) for m in names]
     return sorted(rows, key=lambda r: (r["rank"], r["machine"]))
 

@@ -50,6 +50,7 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import contextlib
 import errno
 import os
 import sys
@@ -401,7 +402,7 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
     else:
         clear_state(paths, scope)
     if not every or not outcome.ok:  # else rule fleet_index has written it
-        _refresh_fleet_page(paths, getattr(args, "reports_dir", paths.directory / "reports"))
+        _refresh_fleet_page(paths, getattr(args, "reports_dir", paths.directory / "reports"), args)
     if outcome.nothing_to_do:
         return _nothing_new(paths, machines, started, args.waiting)
     if not outcome.ok and "LockException" in str(outcome.error):
@@ -443,14 +444,21 @@ def _say_outcomes(args, paths: Paths, machines: list[str], since: float) -> None
         print(line)
 
 
-def _refresh_fleet_page(paths: Paths, reports_dir: Path) -> None:
+def _refresh_fleet_page(paths: Paths, reports_dir: Path, args=None) -> None:
     """Rewrite ``reports/index.html`` after a night for some machines (one line if it cannot
-    be written; the night's exit code is not changed)."""
+    be written; the night's exit code is not changed). With the project's config (``args``), a
+    machine with several probes is listed with its probes' units, as rule fleet_index lists it."""
+    from rafi.errors import RafiUserError
     from rafi.ops.fleet import fleet_overview
     from rafi.report.fleet_page import write_fleet_page
 
+    config = None
+    if args is not None:
+        with contextlib.suppress(OSError, RafiUserError):
+            config = load_config(args.directory, args.config)
     try:
-        out = write_fleet_page(paths, reports_dir, rows=lambda: fleet_overview(paths, reports_dir))
+        rows = lambda: fleet_overview(paths, reports_dir, config=config)  # noqa: E731 - read under the lock
+        out = write_fleet_page(paths, reports_dir, rows=rows)
     except (OSError, ValueError) as exc:
         print(f"rafi nightly: the fleet overview was not updated: {exc}", file=sys.stderr)
         return

@@ -24,6 +24,7 @@ from rafi.report.embed import FigureFiles
 from rafi.report.inputs import load_results
 from rafi.report.intervals import interval_context
 from rafi.report.model_sections import section_fuzzy, section_models, section_validation
+from rafi.report.probe import probe_sign_record
 from rafi.report.registry_section import section_registry
 from rafi.report.replay_section import section_replay, section_title
 from rafi.report.requalification_section import section_requalification
@@ -60,6 +61,7 @@ def build_context(
     settings: dict,
     config: dict | None = None,
     now=None,
+    sign_key: str | None = None,
 ) -> dict:
     """Load the results and build the template context.
 
@@ -80,6 +82,10 @@ def build_context(
         in the provenance section's table (:func:`rafi.report.choices.settings_changes`).
     now : datetime, optional
         The time the report says it was made.
+    sign_key : str, optional
+        The key of config.yaml that sets the probe's sign (:func:`rafi.report.probe.sign_key`);
+        ``None``: nothing sets it, the sign is the default (section provenance says where the
+        sign comes from and what the data say: :func:`rafi.report.probe.probe_sign_record`).
 
     Returns
     -------
@@ -141,6 +147,7 @@ def build_context(
     ctx["signoff"] = section_signoff(res, settings)  # first page: number, revision, names
     # the configuration appendix: only what differs from the defaults (docs/settings.md)
     ctx["config_changes"] = settings_changes(settings, config)
+    ctx["probe_sign"] = probe_sign_record(settings, sign_key, res.get("audit"))
     ctx["model_id"] = model.get("model_id", "")
     ctx["champion_id"] = dec.get("champion_id_after") or ""
     ctx["code_version"] = model.get("code_version", "")

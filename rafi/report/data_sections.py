@@ -9,6 +9,7 @@ from rafi.family.since_change import set_aside_count
 from rafi.method.equilibrium import TAU_MAX_SPANS, TAU_MIN_S
 from rafi.method.paper import T_EQ_S
 from rafi.report.format import (
+    DASH,
     NBSP,
     fmt_num,
     fmt_speed,
@@ -164,6 +165,13 @@ BOUND_TOL = 0.05
 #: than this factor.
 DISAGREE_FACTOR = 2.0
 
+#: How ``equilibrium.csv`` says why a run has no t_eq: the last ``; ``-part of its ``method``
+#: (:func:`rafi.method.equilibrium.equilibrium_table` appends it) starts with one of these.
+NO_T_EQ_REASONS = ("never settled", "not computed")
+#: What the table shows for a time of the band detection that does not exist because dz never
+#: stayed inside that band before the run's end.
+NOT_SETTLED = "not settled"
+
 
 def tau_bounds(span_s, max_rest_s: float = 0.0) -> tuple[float, float]:
     """``(lower, upper)`` bound of the fitted tau of a run spanning ``span_s`` seconds; the
@@ -206,6 +214,82 @@ def disagreement_text(apart: list[str]) -> list[str]:
         f"{DISAGREE_FACTOR:g} at {runs}: dz does not rise like a single first-order system on "
         f"{'this run' if one else 'these runs'}, the two estimates do not confirm each other and "
         f"t_eq is uncertain beyond the range in the table."
+    ]
+
+
+def no_t_eq_reason(t_eq_s, method) -> str | None:
+    """Why a run of ``equilibrium.csv`` has no t_eq, in its own words (``None`` when it has one).
+
+    Parameters
+    ----------
+    t_eq_s : float
+        The run's detected equilibrium time (NaN: none).
+    method : str
+        The run's ``method``: the detection described, then ``"; never settled inside the band
+        before the end of the run"`` or ``"; not computed: <n> valid samples"`` where there is no
+        t_eq (:data:`NO_T_EQ_REASONS`).
+
+    Returns
+    -------
+    str or None
+        That last part, e.g. ``"never settled inside the band before the end of the run"``;
+        ``"no time in equilibrium.csv"`` where the table gives none.
+    """
+    if isnum(t_eq_s):
+        return None
+    last = str(method or "").rsplit("; ", 1)[-1].strip()
+    return last if last.startswith(NO_T_EQ_REASONS) else "no time in equilibrium.csv"
+
+
+def beyond_run(t_eq_tau_s, span_s) -> bool:
+    """Whether the t_eq from the fitted tau lies beyond the run's last sample: longer than the run's
+    span (``runs.csv``: ``end_s - start_s``, which the time from the spindle start cannot exceed),
+    a time the first-order fit extrapolates and the run never showed."""
+    return bool(isnum(t_eq_tau_s) and isnum(span_s) and float(t_eq_tau_s) > float(span_s))
+
+
+def band_times(row: dict, reason: str | None) -> dict:
+    """The band detection's times of one run as the table shows them: ``t_eq`` and ``range``
+    (``low - high``), each a time, :data:`NOT_SETTLED` where dz never stayed inside that band
+    before the run's end, or an en dash where nothing was computed (``reason`` ``not computed``)."""
+    computed = not (reason or "").startswith("not computed")
+
+    def one(v) -> str:
+        if isnum(v):
+            return fmt_num(v, 0, "s")
+        return NOT_SETTLED if computed else DASH
+
+    lo, hi = row.get("t_eq_low_s"), row.get("t_eq_high_s")
+    if not isnum(lo) and not isnum(hi):
+        rng = NOT_SETTLED if computed else DASH
+    else:
+        rng = f"{one(lo)} \u2013 {one(hi)}"
+    return {"t_eq": one(row.get("t_eq_s")), "range": rng}
+
+
+def _speeds_text(speeds: list[str]) -> str:
+    """``a``, ``a and b``, ``a, b and c``."""
+    return speeds[0] if len(speeds) == 1 else ", ".join(speeds[:-1]) + " and " + speeds[-1]
+
+
+def gap_text(gaps: list[tuple[str, str]]) -> list[str]:
+    """One sentence per reason of the runs without a t_eq (``(speed, reason)``; ``[]`` without)."""
+    by: dict = {}
+    for speed, reason in gaps:
+        by.setdefault(reason, []).append(speed)
+    return [f"No t_eq at {_speeds_text(runs)}: {reason} (equilibrium.csv)." for reason, runs in by.items()]
+
+
+def beyond_text(beyond: list[str]) -> list[str]:
+    """One sentence on the runs whose t_eq from the fitted tau is longer than the run
+    (``"<speed> (<t_eq_tau> against a run of <span>)"``; ``[]`` without)."""
+    if not beyond:
+        return []
+    one = len(beyond) == 1
+    return [
+        f"The t_eq from the fitted \u03c4 is longer than the run at {_speeds_text(beyond)}: an "
+        f"extrapolation of the first-order fit beyond the run's last sample, not a time "
+        f"{'the run' if one else 'these runs'} showed."
     ]
 
 
@@ -257,16 +341,20 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
     Returns
     -------
     dict
-        ``table`` (one dict per run: equilibrium.csv's times, ``bound`` (tau at a bound of the
-        fit: ``"upper"``/``"lower"``/``None``), ``apart`` (the two estimates disagree),
-        ``tau_flagged``; with ``paper`` also ``paper_t_eq_s``, ``vs_paper_pct``), ``paper``,
-        ``figure``, ``method`` and ``flags`` (one sentence per flagged run: the two estimates
-        disagree by more than :data:`DISAGREE_FACTOR`, or tau at a bound).
+        ``table`` (one dict per run: equilibrium.csv's times, ``t_eq`` / ``range`` as shown
+        (:func:`band_times`), ``no_t_eq`` (why there is no t_eq, :func:`no_t_eq_reason`, or
+        ``None``), ``bound`` (tau at a bound of the fit: ``"upper"``/``"lower"``/``None``),
+        ``apart`` (the two estimates disagree), ``t_eq_flagged`` (``apart`` or no t_eq),
+        ``beyond`` (the t_eq from tau is longer than the run: :func:`beyond_run`),
+        ``tau_flagged``; with ``paper`` also ``paper_t_eq_s``,
+        ``vs_paper_pct``), ``paper``, ``figure``, ``method`` and ``flags`` (sentences: the runs
+        without a t_eq and why, tau at a bound, the two estimates disagreeing by more than
+        :data:`DISAGREE_FACTOR`, a t_eq from tau beyond the run's end).
     """
     eq = res["equilibrium"]
     spans = _run_spans(res.get("runs_csv"))
     max_rest = float(((settings or {}).get("runs") or {}).get("max_leading_rest_s") or 0.0)
-    rows, flags, apart = [], [], []
+    rows, flags, apart, gaps, beyond = [], [], [], [], []
     if eq is not None:
         for i in eq.index:
             r = eq.loc[i]
@@ -285,6 +373,13 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
                     f"{fmt_num(r.tau_s, 0, 's')}, bound {limit}); the run does not identify a time "
                     "constant and the \u03c4 cross-check is void."
                 )
+            reason = no_t_eq_reason(r.t_eq_s, r.get("method"))
+            if reason:
+                gaps.append((speed, reason))
+            past = not bound and beyond_run(r.t_eq_tau_s, span)
+            if past:
+                tau_t = fmt_num(r.t_eq_tau_s, 0, "s")
+                beyond.append(f"{speed} ({tau_t} against a run of {fmt_num(span, 0, 's')})")
             ratio = np.nan if bound else disagreement(r.t_eq_s, r.t_eq_tau_s)
             far = bool(isnum(ratio) and ratio > DISAGREE_FACTOR)
             if far:
@@ -304,7 +399,17 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
                     "plateau_um",
                 )
             }
-            row.update({"bound": bound, "apart": far, "tau_flagged": bool(bound) or far})
+            row.update(band_times(row, reason))
+            row.update(
+                {
+                    "bound": bound,
+                    "apart": far,
+                    "no_t_eq": reason,
+                    "beyond": past,
+                    "t_eq_flagged": far or bool(reason),
+                    "tau_flagged": bool(bound) or far or past,
+                }
+            )
             if paper:
                 ref = paper_value(eq, i, "paper_t_eq_s", T_EQ_S, r.speed_rpm)
                 diff = (
@@ -324,7 +429,7 @@ def section_equilibrium(res: dict, figs, settings: dict | None = None, *, paper:
         "figure": fig,
         "method": method,
         "description": equilibrium_description((settings or {}).get("equilibrium")),
-        "flags": flags + disagreement_text(apart),
+        "flags": gap_text(gaps) + flags + disagreement_text(apart) + beyond_text(beyond),
         "factor": f"{DISAGREE_FACTOR:g}",
     }
 

@@ -49,6 +49,43 @@ def _environment():
     )
 
 
+def machine_groups(rows: list[dict]) -> list[dict]:
+    """The rows of :func:`rafi.ops.fleet.fleet_overview` by machine: a machine with several probes
+    (units ``<machine>@<probe>``, :func:`rafi.settings.split_unit`) is one machine with its
+    probes' rows under it.
+
+    Parameters
+    ----------
+    rows : list of dict
+        One per qualification unit (``machine``, ``state``, ``rank``; a probe's
+        ``machine_report``: its machine's page), in the order to show.
+
+    Returns
+    -------
+    list of dict
+        One per machine, in the order of its first row: ``machine`` (the folder), ``units`` (its
+        rows in order, each ``{"probe", "row"}``: the probe's name, None for the machine
+        itself), ``probes`` (its probe names; ``[]`` for a machine with one probe, whose row is
+        the machine's), ``state`` / ``rank`` (the most urgent of its rows: a machine needs
+        attention when one of its probes does) and ``report`` (a machine with several probes:
+        its own page, or None where it is not built).
+    """
+    from rafi.settings import split_unit
+
+    groups: dict = {}
+    for r in rows:
+        folder, probe = split_unit(r["machine"])
+        first = {"machine": folder, "units": [], "probes": [], "report": None}
+        g = groups.setdefault(folder, {**first, "state": r["state"], "rank": r["rank"]})
+        g["units"].append({"probe": probe, "row": r})
+        if probe is not None:
+            g["probes"].append(probe)
+            g["report"] = g["report"] or r.get("machine_report")
+        if r["rank"] < g["rank"]:
+            g["state"], g["rank"] = r["state"], r["rank"]
+    return list(groups.values())
+
+
 def fleet_page(
     rows: list[dict],
     *,
@@ -63,7 +100,8 @@ def fleet_page(
     ----------
     rows : list of dict
         :func:`rafi.ops.fleet.fleet_overview` (in the order to show; ``state`` and its
-        attention ``rank`` are read).
+        attention ``rank`` are read), one per qualification unit: the page lists them by machine
+        (:func:`machine_groups`), counts machines and links a machine's own page.
     created : str
         When the page is written (shown).
     results_dir, raw_dir : str
@@ -80,13 +118,16 @@ def fleet_page(
     shown = []
     for r in rows:
         r = dict(r)
-        if r.get("report"):
-            r["report"] = f"{link_prefix}{r['report']}"
+        for key in ("report", "machine_report"):
+            if r.get(key):
+                r[key] = f"{link_prefix}{r[key]}"
         shown.append(r)
-    by_state = Counter(r["state"] for r in rows)
-    rank = {r["state"]: r["rank"] for r in rows}
+    groups = machine_groups(shown)
+    by_state = Counter(g["state"] for g in groups)
+    rank = {g["state"]: g["rank"] for g in groups}
     counts = {
-        "attention": sum(1 for r in rows if r["state"] != "ok"),
+        "machines": len(groups),
+        "attention": sum(1 for g in groups if g["state"] != "ok"),
         "by_state": sorted(by_state.items(), key=lambda kv: (rank[kv[0]], kv[0])),
     }
     return (
@@ -94,6 +135,7 @@ def fleet_page(
         .get_template(TEMPLATE)
         .render(
             rows=shown,
+            groups=groups,
             counts=counts,
             rank=rank,
             created=created,

@@ -16,6 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from rafi.report.format import fmt_num
+from rafi.report.probe import probe_sign_record
 
 
 def _json(path) -> dict:
@@ -23,7 +24,9 @@ def _json(path) -> dict:
         return json.load(fh)
 
 
-def probe_row(probe: str, settings: Mapping, paths: Mapping[str, str], report_href: str) -> dict:
+def probe_row(
+    probe: str, settings: Mapping, paths: Mapping[str, str], report_href: str, sign_key: str | None = None
+) -> dict:
     """What the first page says of one probe, from its unit's tables.
 
     Parameters
@@ -33,15 +36,21 @@ def probe_row(probe: str, settings: Mapping, paths: Mapping[str, str], report_hr
     settings : Mapping
         The unit's effective settings (``rafi.settings.machine_settings`` of ``<machine>@<probe>``).
     paths : Mapping
-        ``summary`` (comparison/summary.csv), ``per_run`` (comparison/per_run.csv) and
-        ``decision`` (registry/decision.json) of the unit.
+        ``summary`` (comparison/summary.csv), ``per_run`` (comparison/per_run.csv),
+        ``decision`` (registry/decision.json) and ``audit`` (audit.csv: the files' probe sign;
+        optional) of the unit.
     report_href : str
         The probe's own report, relative to this page.
+    sign_key : str, optional
+        The key of config.yaml that sets the probe's sign (:func:`rafi.report.probe.sign_key`);
+        ``None``: the default.
 
     Returns
     -------
     dict
-        ``probe``, ``channel``, ``description``, ``unit``/``sign`` (as configured), ``verdict``
+        ``probe``, ``channel``, ``description``, ``unit``/``sign`` (as configured), ``sign_record``
+        (where the sign comes from and whether the data agree,
+        :func:`rafi.report.probe.probe_sign_record`), ``verdict``
         (``PASS`` / ``FAIL``: the offered model's gates on the validation runs), ``model`` (its
         kind), ``worst_um`` / ``before_um`` (its worst validation residual and the worst
         uncompensated displacement), ``decision`` (the registry's), ``runs`` (one dict per
@@ -65,6 +74,8 @@ def probe_row(probe: str, settings: Mapping, paths: Mapping[str, str], report_hr
                 }
             )
     decision = _json(paths["decision"])
+    audit_path = paths.get("audit")
+    audit = pd.read_csv(audit_path) if audit_path and Path(audit_path).is_file() else None
     passed = bool(row["passed"]) if row is not None else False
     return {
         "probe": probe,
@@ -72,6 +83,7 @@ def probe_row(probe: str, settings: Mapping, paths: Mapping[str, str], report_hr
         "description": described or "",
         "unit": disp["unit"],
         "sign": disp["sign"],
+        "sign_record": probe_sign_record(dict(settings), sign_key, audit),
         "verdict": "PASS" if passed else "FAIL",
         "model": str(row["kind"]) if row is not None else "none",
         "worst_um": fmt_num(row["max_abs_after_um"], 2) if row is not None else "",

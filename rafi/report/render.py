@@ -98,6 +98,7 @@ def generate(
     settings: dict,
     machine: str | None = None,
     config: dict | None = None,
+    sign_key: str | None = None,
 ) -> dict:
     """Build, render and write ``qualification.html`` and ``.pdf`` atomically; return timings.
 
@@ -117,6 +118,7 @@ def generate(
         machine=machine or results_dir.name,
         settings=settings,
         config=config,
+        sign_key=sign_key,
     )
     t["context_s"] = time.perf_counter() - t0
     t1 = time.perf_counter()

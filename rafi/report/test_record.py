@@ -14,7 +14,8 @@ ISO 230-3 terms (docs/report.md, "Test record"), computed from the recorded logs
   230-3 Clause 5 records; the ETVE itself, a displacement measured with the machine at rest,
   is not computed here);
 * **thermal drift** of a run: ``max - min`` of the displacement change ``dz`` over the run's
-  samples (the drift of the spindle test of ISO 230-3 Clause 6, axial direction Z only).
+  samples (the drift of the spindle test of ISO 230-3 Clause 6, in the direction the unit's
+  probe measures: :func:`rafi.report.probe.probe_words` names it, as the verdict does).
 
 Nothing here is evaluated from a model; the numbers are the recorded data's own.
 """
@@ -27,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.report.format import DASH, fmt_num, fmt_speed, isnum, records
+from rafi.report.probe import probe_words
 
 UM = "\u00b5m"
 
@@ -159,7 +161,7 @@ def run_record(frame: pd.DataFrame, runs: pd.DataFrame | None, ambient: str | No
     -------
     DataFrame
         :data:`RUN_COLUMNS`; ``thermal_drift_um`` = max - min of ``dz_um`` over the run (ISO
-        230-3's thermal drift of the test, Z), ``ambient_variation_k`` = max - min of the
+        230-3's thermal drift of the test, on the unit's probe), ``ambient_variation_k`` = max - min of the
         ambient sensor over the run. A run of ``runs.csv`` with no samples has NaN values.
     """
     if frame is None:
@@ -416,11 +418,13 @@ def section_test_record(res: dict, settings: dict) -> dict:
         ``runs_csv``, ``key_sensors_json``.
     settings : dict
         The machine's settings (``report.ambient_sensor``, ``report.instruments``,
-        ``report.coolant_sensors``, ``sample_period_s``).
+        ``report.coolant_sensors``, ``sample_period_s``; ``input`` and ``report.paper_rig`` name
+        the probe).
 
     Returns
     -------
     dict
+        ``measured`` (where the probe measured dz, :func:`rafi.report.probe.probe_words`),
         ``logs`` and ``runs`` (rows: :func:`log_record`'s and :func:`run_record`'s, with the
         span, role, speed and period as text; ``None`` without ``runs.parquet``; ``runs``
         ``None`` too when each log is one run, ``logs_one_run``: then the logs carry the run's
@@ -437,6 +441,7 @@ def section_test_record(res: dict, settings: dict) -> dict:
     frame = res.get("runs_parquet")
     runs = res.get("runs_csv")
     out: dict = {
+        "measured": probe_words(settings),
         "logs": None,
         "logs_one_run": False,
         "logs_widths": [],

@@ -26,6 +26,7 @@ from rafi.family.confirmation import awaiting_confirmation
 from rafi.report.format import fmt_num, fmt_speed_range, short_id, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import interval_block, worst_run_interval
+from rafi.report.probe import probe_words
 
 #: The columns of a verdict (:data:`rafi.method.validate.VERDICT_COLUMNS`).
 VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
@@ -543,19 +544,3 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
     out["interval"] = judged_interval(res, after, verdict, registry_dir) if after else None
     out.update(judged=judged, rafi=rafi_v, subject=f"model {judged['id']} ({judged['kind']}) on the machine")
     return out
-
-
-def probe_words(settings: dict) -> str:
-    """Where the probe measured, in words: its ``description`` (``input.probes``), else its
-    channel and, on the paper's rig, the spindle axis; e.g. ``"on channel 'ch1(um)'"``."""
-    inp = settings.get("input") or {}
-    disp = inp.get("displacement") or {}
-    probes = inp.get("probes") or {}
-    for name, probe in probes.items():
-        if probe.get("column") == disp.get("column"):
-            described = f": {probe['description']}" if probe.get("description") else ""
-            return f"on probe {name} (channel '{probe['column']}'{described})"
-    if settings.get("report", {}).get("paper_rig"):
-        return "on the spindle axis (Z)"
-    column = disp.get("column")
-    return f"on channel '{column}'" if column else "on the machine's displacement channel (disp_um)"

@@ -55,6 +55,7 @@ from rafi.ops.code_deps import code_version as _code_version
 from rafi.ops.raw_hashes import CACHE_NAME as _RAW_HASH_CACHE, raw_stamps
 from rafi.ops.outcome import RunFiles, outcome_lines, read_outcome, skipped_folders
 from rafi.ops.run_messages import failure_lines
+from rafi.report.probe import sign_key as _probe_sign_key
 from rafi.readers.discovery import SKIP_PREFIX
 from snakemake.utils import validate
 

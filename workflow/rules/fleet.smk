@@ -2,7 +2,8 @@
 # model in service, last decision, worst validation residual, drift, quarantined files and a
 # link to its page, machines that need attention first (rafi.ops.fleet, rafi.report.fleet_page).
 #
-#   every machine's nightly targets (tables, decision, report or skipped page)
+#   every machine's nightly targets (tables, decision, report or skipped page), and the page of
+#   each machine with several probes (rule probes_report) when the reports are built
 #     -> fleet_index   reports/index.html
 #
 # Part of `all`, and of `nightly` when the night covers every machine (common.smk); a
@@ -15,6 +16,8 @@ rule fleet_index:
     input:
         # one input function per machine (checkpoint input_status): its nightly targets
         [machine_targets(m, "nightly") for m in MACHINES],
+        # a machine with several probes: its own page, which the overview links (with the reports)
+        [probes_report_targets(f) for f in sorted(PROBES)] if _settings.truthy(RUN["nightly_report"]) else [],
     output:
         html=report(
             FLEET_INDEX,

@@ -81,6 +81,8 @@ rule report:
     params:
         code=code_version("report"),
         settings=lambda w: machine_config(w.machine),
+        # the key of config.yaml that sets the probe's sign, or None: the default (section provenance)
+        sign_key=lambda w: _probe_sign_key(config, w.machine),
         figure_groups=list(contract.FIGURE_GROUPS),
         paths={"raw_dir": str(RAW_DIR), "results_dir": RESULTS_DIR, "reports_dir": REPORTS_DIR},
         # not an output: compiled templates shared by the run's report jobs (keyed by the sources)
@@ -137,5 +139,6 @@ rule probes_report:
         code=code_version("probes_report"),
         probes=lambda w: PROBES[w.folder],
         settings=lambda w: {p: machine_config(unit_name(w.folder, p)) for p in PROBES[w.folder]},
+        sign_keys=lambda w: {p: _probe_sign_key(config, unit_name(w.folder, p)) for p in PROBES[w.folder]},
     script:
         "../scripts/probes_report.py"

@@ -55,7 +55,8 @@ def report_inputs(wildcards):
 
 def probes_report_inputs(wildcards):
     """Named inputs of the report of a machine with several probes (``probes_report``), every
-    probe's comparison summary, per-run table and registry decision (``summary_<probe>``, ...)
+    probe's comparison summary, per-run table, registry decision and cleaning audit
+    (``summary_<probe>``, ..., ``audit_<probe>``: the files' probe sign)
     and, as ``reports``, every probe's report (HTML) in the order of ``input.probes``."""
     folder = wildcards.folder
     inputs = {}
@@ -64,6 +65,7 @@ def probes_report_inputs(wildcards):
         inputs[f"summary_{probe}"] = out("comparison", unit)
         inputs[f"per_run_{probe}"] = out("comparison_per_run", unit)
         inputs[f"decision_{probe}"] = out("decision", unit)
+        inputs[f"audit_{probe}"] = out("audit", unit)
     inputs["reports"] = [report_paths(unit_name(folder, p))["html"] for p in PROBES[folder]]
     return inputs
 

@@ -13,9 +13,9 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     page_dir = os.path.dirname(smk.output.html)
     rows = []
     for probe, html in zip(smk.params.probes, smk.input.reports):
-        paths = {key: smk.input[f"{key}_{probe}"] for key in ("summary", "per_run", "decision")}
+        paths = {key: smk.input[f"{key}_{probe}"] for key in ("summary", "per_run", "decision", "audit")}
         href = os.path.relpath(html, page_dir)
-        rows.append(probe_row(probe, smk.params.settings[probe], paths, href))
+        rows.append(probe_row(probe, smk.params.settings[probe], paths, href, smk.params.sign_keys[probe]))
     ctx = probes_context(smk.wildcards.folder, rows)
     html = render_probes_html(ctx)
     pdf = render_probes_pdf(html, list(smk.input.reports))
