@@ -15,7 +15,7 @@ import pandas as pd
 from rafi.method.paper import MULTI_CONDITION, RESIDUAL_UM, RMSE_UM
 from rafi.report.data_sections import paper_value
 from rafi.report.envelope_text import MEANING, held_runs
-from rafi.report.format import isnum, records, short_id, speed_key, truthy
+from rafi.report.format import fmt_speed_range, isnum, records, run_speeds, short_id, speed_key, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, interval_block
 
@@ -266,11 +266,23 @@ def range_rows(summary: pd.DataFrame) -> list[dict]:
     return rows
 
 
-def other_runs(summary: pd.DataFrame, resid: pd.DataFrame, noise: dict, figs, paper: bool) -> list[dict]:
+def other_runs(
+    summary: pd.DataFrame,
+    resid: pd.DataFrame,
+    noise: dict,
+    figs,
+    paper: bool,
+    *,
+    runs: pd.DataFrame | None = None,
+) -> list[dict]:
     """The validation runs that are neither single-speed nor idle (multi-condition, ...), each
-    with its figure, duration, speed range and changes (from ``validation/residuals.parquet``),
-    max |dz| before and |residual| after, noise floor, improvement, samples outside the trained
-    ranges and, on the paper's rig, the paper's multi-condition run (``paper``)."""
+    with its figure, duration, ``speed`` (:func:`rafi.report.format.fmt_run_speed` of its row of
+    ``runs``, ``runs.csv``: a varying run's range without its rest before start, as every section
+    prints it; the range of its samples only without that row), speed changes (from
+    ``validation/residuals.parquet``), max |dz| before and |residual| after, noise floor,
+    improvement, samples outside the trained ranges and, on the paper's rig, the paper's
+    multi-condition run (``paper``)."""
+    speeds = run_speeds(runs)
     others = (
         summary[~summary["role"].isin(["validation_single", "validation_idle"])]
         if "role" in summary
@@ -288,8 +300,8 @@ def other_runs(summary: pd.DataFrame, resid: pd.DataFrame, noise: dict, figs, pa
                 "role": r.role,
                 "figure": figs.get("pipeline", f"multi_condition/{r.run_id}"),
                 "duration_s": r.duration_s,
-                "speed_min_rpm": f["speed_rpm"].min(),
-                "speed_max_rpm": f["speed_rpm"].max(),
+                "speed": speeds.get(str(r.run_id))
+                or fmt_speed_range(f["speed_rpm"].min(), f["speed_rpm"].max()),
                 "changes": int((f["speed_rpm"].diff().abs() > 100).sum()),
                 "max_abs_before_um": r.max_abs_before_um,
                 "max_abs_after_um": r.max_abs_after_um,
@@ -364,5 +376,5 @@ def section_validation(res: dict, figs, *, paper: bool = False) -> dict:
     out["figure_single"] = figs.get("pipeline", "validation_single")
     out["figure_idle"] = figs.get("pipeline", "validation_idle")
     out["n_idle"] = sum(bool((resid["run_id"] == rid).any()) for rid in idle["run_id"])
-    out["multi"] = other_runs(summ, resid, noise, figs, paper)
+    out["multi"] = other_runs(summ, resid, noise, figs, paper, runs=res.get("runs_csv"))
     return out
