@@ -17,10 +17,11 @@ from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.family.unexplained import unexplained_text
 from rafi.report.ensemble_section import ensemble_context
 from rafi.report.envelope_text import MEANING, held_by_model
-from rafi.report.format import fmt_num, isnum, truthy
+from rafi.report.format import isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, shared_level
 from rafi.report.plain_ridge import PLAIN_RIDGE, section_plain_ridge
+from rafi.report.trained_range import trained_speed_span, trained_speeds_text
 
 
 def family_champion(summary: pd.DataFrame):
@@ -213,8 +214,9 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
         ``outside_temp_pct``, ``outside_speed_pct``), ``n``, ``n_extrapolated`` (runs with at
         least :data:`EXTRAPOLATED_PCT` % of the samples outside the trained temperature range),
         ``extrapolated_pct``, ``max_temp_pct``, ``max_speed_pct`` (``None`` unless some sample
-        is outside the trained speeds), ``trained_speeds`` (``trained speeds 3 000–18 000`` or
-        ``trained speed 3 000``, r/min, or ``None``),
+        is outside the trained speeds), ``trained_speeds`` (:func:`_trained_speeds` of
+        ``model.json``: ``trained speeds 3 000–18 000 r/min``, ``trained speed 3 000 r/min`` or
+        ``None``),
         ``key_sensor_r`` (largest |r| between two key sensors, ``None`` unknown) and
         ``log_start`` (``reference.rule`` is ``log_start``).
     """
@@ -231,7 +233,6 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
     ]
     t_share = np.asarray([r["outside_temp_pct"] for r in runs], float)
     max_speed = _finite_max([r["outside_speed_pct"] for r in runs])
-    speeds = [float(x["speed_rpm"]) for x in (res.get("model") or {}).get("speeds") or [] if "speed_rpm" in x]
     r_max = _key_sensor_r(res)
     return {
         "runs": runs,
@@ -240,18 +241,22 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
         "extrapolated_pct": EXTRAPOLATED_PCT,
         "max_temp_pct": _finite_max(t_share),
         "max_speed_pct": max_speed if max_speed is not None and max_speed > 0 else None,
-        "trained_speeds": _trained_speeds(speeds),
+        "trained_speeds": _trained_speeds(res.get("model")),
         "key_sensor_r": r_max if isnum(r_max) else None,
         "log_start": settings["reference"]["rule"] == "log_start",
     }
 
 
-def _trained_speeds(speeds: list) -> str | None:
-    """RAFI's trained speeds as the failure explanation words them: a range, or one speed once."""
-    if not speeds:
+def _trained_speeds(artefact) -> str | None:
+    """RAFI's trained speeds as the failure explanation words them (``trained speeds 1 250–5 000
+    r/min``, one speed once: ``trained speed 3 000 r/min``), from
+    :func:`rafi.report.trained_range.trained_speeds_text` as the verdict and the validation section
+    read them; ``None`` where its artefact records none."""
+    text = trained_speeds_text(artefact)
+    if not text:
         return None
-    lo, hi = fmt_num(min(speeds), 0), fmt_num(max(speeds), 0)
-    return f"trained speed {lo}" if lo == hi else f"trained speeds {lo}\u2013{hi}"
+    span = trained_speed_span(artefact)
+    return f"trained speed {text}" if span[0] == span[1] else f"trained speeds {text}"
 
 
 def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward: str = "") -> dict:
