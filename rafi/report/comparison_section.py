@@ -492,7 +492,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "models": rows,
         "kind_column": any(str(r.get("kind", "")) != str(r["model"]) for r in s.to_dict("records")),
         "selection": selection_context(s, fam_champ, *cv_schemes(cv_rows)),
-        "plain_ridge": section_plain_ridge(s),
+        "plain_ridge": section_plain_ridge(s, cv_schemes(cv_rows)[0]),
         # the CV-weighted ensemble offered under models: offer: ensemble (rafi.report.ensemble_section)
         "ensemble": ensemble,
         # the forward CV's column: only when some model was scored on forward folds
