@@ -132,6 +132,8 @@ def test_sections_1_11_and_13_state_the_same_trained_speeds_for_the_same_model()
     bad = per_run[(per_run["model"] == "rafi")]
     fail = rafi_failure(bad, res, _settings())
     assert fail["trained_speeds"] == f"trained speeds {mine['speeds']}"
+    shares = [(r["outside_temp_pct"], r["outside_speed_pct"]) for r in fail["runs"]]
+    assert shares == [(100.0, 100.0), (100.0, 0.0), (100.0, 100.0), (100.0, pytest.approx(100 * 480 / 1440))]
     summary = res["validation_summary"].assign(
         duration_s=14400.0, max_abs_before_um=10.0, improvement_pct=50.0
     )

@@ -21,7 +21,7 @@ from rafi.report.format import isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, shared_level
 from rafi.report.plain_ridge import PLAIN_RIDGE, section_plain_ridge
-from rafi.report.trained_range import trained_speed_span, trained_speeds_text
+from rafi.report.trained_range import outside_counts, trained_speed_span, trained_speeds_text
 
 
 def family_champion(summary: pd.DataFrame):
@@ -220,17 +220,20 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
         ``key_sensor_r`` (largest |r| between two key sensors, ``None`` unknown) and
         ``log_start`` (``reference.rule`` is ``log_start``).
     """
-    runs = [
-        {
-            "run_id": str(r["run_id"]),
-            "max_abs_after_um": r["max_abs_after_um"],
-            "noise_floor_um": r.get("noise_floor_um"),
-            "n_samples": float(r.get("n_samples") or 0),
-            "outside_temp_pct": _share_pct(r.get("n_outside_temp_range"), r.get("n_samples")),
-            "outside_speed_pct": _share_pct(r.get("n_outside_speed_range"), r.get("n_samples")),
-        }
-        for r in bad.to_dict("records")
-    ]
+    runs = []
+    for r in bad.to_dict("records"):
+        # the shares as the verdict's statement and the validation section count them
+        c = outside_counts(pd.DataFrame([r])) or {}
+        runs.append(
+            {
+                "run_id": str(r["run_id"]),
+                "max_abs_after_um": r["max_abs_after_um"],
+                "noise_floor_um": r.get("noise_floor_um"),
+                "n_samples": float(r.get("n_samples") or 0),
+                "outside_temp_pct": np.nan if c.get("temp_pct") is None else c["temp_pct"],
+                "outside_speed_pct": np.nan if c.get("speed_pct") is None else c["speed_pct"],
+            }
+        )
     t_share = np.asarray([r["outside_temp_pct"] for r in runs], float)
     max_speed = _finite_max([r["outside_speed_pct"] for r in runs])
     r_max = _key_sensor_r(res)
