@@ -77,14 +77,21 @@ def test_the_sentence_states_the_margins_computed_from_the_folds():
         assert row["plain_ridge_validation_margin_um"] == pytest.approx(val_margin)
         text = floor_sentence(floor_facts(summary))
         assert text.startswith(f"The offered model ({champ}) ")
-        x, pct, z = _numbers(text)
+        # margin, %, both scores; margin, both worst residuals (no forward folds: the whole-run
+        # mean is the selection score, and the sentence says so)
+        x, pct, mine, ridge, z, mine_val, ridge_val = _numbers(text)
         assert (
             abs(x - abs(cv_margin)) <= 0.005 + 1e-12
             and abs(pct - abs(row["plain_ridge_cv_margin_pct"])) <= 0.5
         )
+        assert (
+            abs(mine - np.mean(folds[champ])) <= 0.005 and abs(ridge - np.mean(folds[PLAIN_RIDGE])) <= 0.005
+        )
         assert abs(z - abs(val_margin)) <= 0.005 + 1e-12
+        assert abs(mine_val - worst[champ]) <= 0.005 and abs(ridge_val - worst[PLAIN_RIDGE]) <= 0.005
         cv_verb = "beats the plain ridge" if cv_margin > 0 else "trails the plain ridge"
-        assert cv_verb in text and "in the training-run CV" in text and "on the validation runs" in text
+        assert cv_verb in text and "in the whole-run CV, the selection score" in text
+        assert "on the validation runs" in text and "training-run CV" not in text
         # the reason is there exactly when the offered model does not beat it on the training runs
         assert bool(floor_reason(floor_facts(summary))) == (cv_margin <= 0)
 
@@ -94,22 +101,20 @@ def test_a_missing_number_leaves_its_clause_out_and_no_number_the_sentence():
     worst = {"rafi": 5.0, "grey_box": 2.5, PLAIN_RIDGE: 3.0}
     summary, champ = _summary(folds, worst, ["rafi", "grey_box"])
     both = floor_sentence(floor_facts(summary))
-    assert champ == "grey_box" and both == (
-        f"The offered model (grey_box) beats the plain ridge by 0.50{NBSP}µm (25 %) in the training-run CV"
-        f" and by 0.50{NBSP}µm on the validation runs."
+    cv = (
+        f"The offered model (grey_box) beats the plain ridge by 0.50{NBSP}µm (25 %) in the whole-run CV, the "
+        f"selection score (mean held-out max |residual| 1.50{NBSP}µm against 2.00{NBSP}µm)"
     )
+    val = f"by 0.50{NBSP}µm on the validation runs (worst max |residual| 2.50{NBSP}µm against 3.00{NBSP}µm)"
+    assert champ == "grey_box" and both == f"{cv} and {val}."
     no_val = summary.assign(max_abs_after_um=np.nan)
-    assert floor_sentence(floor_facts(no_val)) == (
-        f"The offered model (grey_box) beats the plain ridge by 0.50{NBSP}µm (25 %) in the training-run CV."
-    )
+    assert floor_sentence(floor_facts(no_val)) == f"{cv}."
     no_cv = summary.assign(selection_score_um=np.nan)
-    assert floor_sentence(floor_facts(no_cv)) == (
-        f"The offered model (grey_box) beats the plain ridge by 0.50{NBSP}µm on the validation runs."
-    )
+    assert floor_sentence(floor_facts(no_cv)) == f"The offered model (grey_box) beats the plain ridge {val}."
     assert floor_sentence(floor_facts(no_cv.assign(max_abs_after_um=np.nan))) == ""
     # a plain ridge that cannot predict a held-out run: no CV number, and nothing to explain
     inf = _summary({**folds, PLAIN_RIDGE: [2.0, np.nan]}, worst, ["rafi", "grey_box"])[0]
-    assert "training-run CV" not in floor_sentence(floor_facts(inf)) and floor_reason(floor_facts(inf)) == ""
+    assert "CV" not in floor_sentence(floor_facts(inf)) and floor_reason(floor_facts(inf)) == ""
     # no plain ridge row (a summary written before it was scored) or no champion: no passage
     assert floor_facts(summary[summary["model"] != PLAIN_RIDGE]) is None
     assert section_plain_ridge(summary.assign(champion=False)) is None
@@ -119,8 +124,9 @@ def test_trailing_and_equal_margins_read_as_such():
     folds = {"rafi": [2.0, 3.0], "grey_box": [2.0, 2.2], PLAIN_RIDGE: [1.6, 2.0]}
     summary, _ = _summary(folds, {"rafi": 5.0, "grey_box": 2.5, PLAIN_RIDGE: 2.5}, ["rafi", "grey_box"])
     assert floor_sentence(floor_facts(summary)) == (
-        f"The offered model (grey_box) trails the plain ridge by 0.30{NBSP}µm (17 %) in the training-run CV"
-        " and equals it on the validation runs."
+        f"The offered model (grey_box) trails the plain ridge by 0.30{NBSP}µm (17 %) in the whole-run CV, "
+        f"the selection score (mean held-out max |residual| 2.10{NBSP}µm against 1.80{NBSP}µm) and equals it "
+        f"on the validation runs (worst max |residual| 2.50{NBSP}µm against 2.50{NBSP}µm)."
     )
 
 
@@ -173,9 +179,9 @@ def test_without_a_cv_fold_the_default_rule_is_the_reason():
     )
     facts = floor_facts(floor_columns(s, ["rafi", "grey_box"], "rafi"))
     assert facts["reason"] == "no_cv"
-    assert (
-        floor_sentence(facts)
-        == f"The offered model (rafi) trails the plain ridge by 1.00{NBSP}µm on the validation runs."
+    assert floor_sentence(facts) == (
+        f"The offered model (rafi) trails the plain ridge by 1.00{NBSP}µm on the validation runs (worst max "
+        f"|residual| 4.00{NBSP}µm against 3.00{NBSP}µm)."
     )
     assert floor_reason(facts).startswith(
         "No cross-validation fold scored the models, so the default rule offered rafi"
@@ -313,10 +319,83 @@ def test_the_report_states_the_passage_from_this_machines_numbers(tmp_path):
     text = " ".join(re.sub(r"<[^>]+>", " ", passage).replace("&#39;", "'").split())  # NBSP: a space
     pct = 100 * 0.25 / (champ["cv_mean_max_abs_um"] - 0.25)
     assert (
-        f"The offered model (rafi) trails the plain ridge by 0.25 µm ({pct:.0f} %) in the training-run"
-        " CV" in text
+        f"The offered model (rafi) trails the plain ridge by 0.25 µm ({pct:.0f} %) in the whole-run"
+        " CV, the selection score (mean held-out max |residual|" in text
     )
-    assert "and by 3.50 µm on the validation runs." in text
-    assert "rafi is offered although it does not beat the plain ridge in the training-run CV" in text
+    assert "and by 3.50 µm on the validation runs (worst max |residual|" in text
+    assert "rafi is offered although it does not beat the plain ridge on the selection score" in text
     assert "not enabled on this machine, it is the reference only and is never offered" in text
     assert "plain ridge: reference, not offered" in html
+
+
+# ------------------------------------------------------------- which score the margin is on (issue 46)
+def _fl(probe: str) -> pd.DataFrame:
+    """fl-thermal's comparison summary (the audit of issue 46, ``/tmp/auditF/fl``): the ridge kinds,
+    the plain ridge (not enabled: a member of the ensemble) and the offered ensemble."""
+    rows = {  # model: selection score, whole-run CV, forward CV, worst held-out run, validation worst
+        "ch1": {
+            "dynamic": (3.811682, 2.936952, 4.686412, 6.9345, 7.738235),
+            "grey_box": (4.708872, 4.514267, 4.903476, 16.111, 6.409392),
+            PLAIN_RIDGE: (10.46703, 3.496156, 17.43790, 9.8091, 5.966389),
+            "ensemble": (4.848432, 2.972867, 6.723997, 9.3841, 4.070880),
+        },
+        "ch5": {
+            "dynamic": (9.041992, 4.198130, 13.88585, 6.9586, 10.01596),
+            "grey_box": (11.54466, 7.013280, 16.07604, 13.351, 7.162669),
+            PLAIN_RIDGE: (7.580355, 5.138454, 10.02225, 7.6563, 6.427087),
+            "ensemble": (7.407761, 4.586249, 10.22927, 6.9100, 7.571222),
+        },
+    }[probe]
+    s = pd.DataFrame(
+        [
+            {
+                "model": m,
+                "kind": m,
+                "selection_score_um": v[0],
+                "cv_mean_max_abs_um": v[1],
+                "cv_forward_mean_max_abs_um": v[2],
+                "cv_max_abs_um": v[3],
+                "max_abs_after_um": v[4],
+                "champion": m == "ensemble",
+            }
+            for m, v in rows.items()
+        ]
+    )
+    return floor_columns(s, ["dynamic", "grey_box", "ensemble"], "ensemble")
+
+
+def test_the_margin_names_its_score_the_whole_run_and_forward_cv_and_their_mean():
+    """fl-thermal@ch1 read "beats the plain ridge by 5.62 µm (54 %) in the training-run CV": the
+    selection score's margin, driven by the plain ridge's forward folds (17.44 µm against 3.50
+    whole-run), while the ensemble's weights use the whole-run CV alone, where it is 0.52 µm."""
+    text = floor_sentence(floor_facts(_fl("ch1")))
+    assert "in the training-run CV" not in text
+    assert text.startswith(
+        f"The offered model (ensemble) beats the plain ridge by 0.52{NBSP}µm (15 %) in the whole-run CV "
+        f"(mean held-out max |residual| 2.97{NBSP}µm against 3.50{NBSP}µm), by 10.71{NBSP}µm (61 %) in the "
+        f"forward CV (6.72{NBSP}µm against 17.44{NBSP}µm) and by 5.62{NBSP}µm (54 %) in the selection score, "
+        f"their mean (4.85{NBSP}µm against 10.47{NBSP}µm)"
+    )
+    assert text.endswith(
+        f"and by 1.90{NBSP}µm on the validation runs (worst max |residual| 4.07{NBSP}µm against "
+        f"5.97{NBSP}µm)."
+    )
+    # ch5: ahead on the whole-run CV, behind on the forward folds, ahead on their mean by 0.17 um
+    text = floor_sentence(floor_facts(_fl("ch5")))
+    assert f"beats the plain ridge by 0.55{NBSP}µm (11 %) in the whole-run CV" in text
+    assert f"trails it by 0.21{NBSP}µm (2 %) in the forward CV (10.23{NBSP}µm against 10.02{NBSP}µm)" in text
+    assert f"beats it by 0.17{NBSP}µm (2 %) in the selection score, their mean" in text
+    assert f"trails it by 1.14{NBSP}µm on the validation runs" in text
+
+
+def test_an_offered_ensemble_is_offered_by_the_setting_whether_or_not_it_beats_the_plain_ridge():
+    """``versus_plain_ridge`` says why the offered model is offered: an ensemble is offered under
+    ``models: offer: ensemble`` whatever its score, so its reason is ``ensemble`` on both probes
+    (fl-thermal@ch5's summary.csv read ``beats``), as docs/models.md says."""
+    for probe in ("ch1", "ch5"):
+        s = _fl(probe).set_index("model")
+        assert s.loc["ensemble", "versus_plain_ridge"] == "ensemble"
+        assert s.loc["ensemble", "plain_ridge_cv_margin_um"] > 0  # it does beat it on the selection score
+        why = floor_reason(floor_facts(_fl(probe)))
+        assert "offered by models: offer: ensemble" in why and "not because it beats the plain ridge" in why
+        assert "its weights come from the whole-run CV only" in why

@@ -304,7 +304,7 @@ def test_why_rafi_fails_is_computed_from_the_runs():
     assert (f["n"], f["n_extrapolated"], f["max_temp_pct"]) == (2, 1, 25.0)
     assert (
         f["max_speed_pct"] is None
-        and f["trained_speeds"] == "trained speeds 3\u00a0000\u20139\u00a0000"
+        and f["trained_speeds"] == "trained speeds 3\u00a0000\u20139\u00a0000\u00a0r/min"
         and f["log_start"]
     )
     assert [r["outside_temp_pct"] for r in f["runs"]] == [25.0, 5.0]

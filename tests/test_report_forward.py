@@ -173,7 +173,9 @@ def test_the_calibration_folds_read_as_words():
 
 
 def test_the_choices_say_what_chose():
-    settings = machine_settings({"machines": {"m": {}}}, "m")
+    # without a comparison in the results the section states the rule of models.offer: here best
+    # (an offered ensemble, and the rule as applied: tests/test_report_choices_applied.py)
+    settings = machine_settings({"machines": {"m": {"models": {"offer": "best"}}}}, "m")
     from test_report_text import _section
 
     def said(**kw):

@@ -288,26 +288,19 @@ def _validation_summary():
 def test_residual_statement_numbers_come_from_the_tables():
     from rafi.report.verdict import residual_statement
 
-    runs = pd.DataFrame(
-        {
-            "run_id": ["t1", "t2", "t3", "v1"],
-            "role": ["training", "training", "training", "validation_single"],
-            "kind": ["constant", "constant", "varying", "constant"],
-            # a constant run counts at its nominal speed, a varying one over its range
-            "speed_rpm": [1000.0, 3000.0, 2000.0, 9000.0],
-            "speed_min_rpm": [997.0, 2996.0, 500.0, 8990.0],
-            "speed_max_rpm": [1003.0, 3004.0, 4000.0, 9010.0],
-        }
-    )
-    res = {"validation_summary": _validation_summary(), "runs_csv": runs}
+    model = {"speeds": [{"speed_rpm": 1000.0}, {"speed_rpm": 4000.0}]}
+    res = {"validation_summary": _validation_summary(), "model": model}
     st = residual_statement(res, _settings(instruments={"probe": "KJ2 inductive"}))
     assert (st["noise_lo"], st["noise_hi"], st["n_runs"]) == ("0.61", "0.93\u00a0\u00b5m", 3)
-    assert st["speeds"] == "500\u20134\u00a0000\u00a0r/min"
-    assert (st["outside"], st["n_samples"]) == (120, 2520) and st["probe"] == "KJ2 inductive"
+    # without a comparison: RAFI as published's trained speeds and samples (the offered model's:
+    # tests/test_report_trained_range.py)
+    assert st["speeds"] == "1\u00a0000\u20134\u00a0000\u00a0r/min" and st["model"] == "RAFI as published"
+    assert (st["n_temp"], st["n_samples"]) == (120, 2520) and st["probe"] == "KJ2 inductive"
+    assert st["n_speed"] is None  # no n_outside_speed_range column: nothing said
     no_noise = _validation_summary().drop(columns="noise_floor_um")
-    assert residual_statement({"validation_summary": no_noise, "runs_csv": runs}, _settings()) is None
-    # one training speed is printed once, never "3 000-3 000 r/min"
-    one = {"validation_summary": _validation_summary(), "runs_csv": runs.iloc[[1, 3]]}
+    assert residual_statement({"validation_summary": no_noise, "model": model}, _settings()) is None
+    # one trained speed is printed once, never "3 000-3 000 r/min"
+    one = {"validation_summary": _validation_summary(), "model": {"speeds": [{"speed_rpm": 3000.0}]}}
     assert residual_statement(one, _settings())["speeds"] == "3\u00a0000\u00a0r/min"
 
 
@@ -317,8 +310,12 @@ def test_one_trained_speed_is_printed_once_in_the_deployed_section_and_the_compa
 
     assert _speed_span([3000.0, 3000.0]) == "3\u00a0000 r/min"
     assert _speed_span([3000.0, 18000.0]) == "3\u00a0000 \u2026 18\u00a0000 r/min"
-    assert _trained_speeds([3000.0, 3000.0]) == "trained speed 3\u00a0000"
-    assert _trained_speeds([9000.0, 3000.0, 18000.0]) == "trained speeds 3\u00a0000\u201318\u00a0000"
+    one = {"speeds": [{"speed_rpm": 3000.0}, {"speed_rpm": 3000.0}]}
+    assert _trained_speeds(one) == "trained speed 3\u00a0000\u00a0r/min"
+    three = {"speeds": [{"speed_rpm": s} for s in (9000.0, 3000.0, 18000.0)]}
+    assert _trained_speeds(three) == "trained speeds 3\u00a0000\u201318\u00a0000\u00a0r/min"
+    ranged = {"speed_range_rpm": [0.0, 5000.0]}
+    assert _trained_speeds(ranged) == "trained speeds 0\u20135\u00a0000\u00a0r/min"
 
 
 def test_worst_residual_of_a_decision_carries_its_runs_noise_floor():

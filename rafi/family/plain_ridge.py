@@ -21,11 +21,16 @@ So the offered model trails the plain ridge on the training runs only when the p
 enabled (``not_enabled``), on a tie (``tie``) or without a CV score (``no_cv``);
 ``tests/test_plain_ridge.py`` checks that no other case occurs. Under ``models: offer: ensemble``
 the CV-weighted ensemble (:mod:`rafi.family.ensemble`, the plain ridge one of its members) is
-offered whatever its own score: where it does not beat the plain ridge the reason is
-``ensemble``. An ensemble prior adapted as a whole (``prior_shared_gain``, ``prior_shared_ridge``:
+offered whatever its own score: its reason is ``ensemble`` whether its score is lower than the
+plain ridge's or not (the margins say which; ``beats`` is the reason of a model the lowest score
+chose). An ensemble prior adapted as a whole (``prior_shared_gain``, ``prior_shared_ridge``:
 :mod:`rafi.family.adapted`) is offered by the re-qualification's rule
 (:func:`rafi.family.selection.choose_champion`), not by that setting, and its members are the
-prior's, not the plain ridge scored here: the reason is ``adapted_ensemble``.
+prior's, not the plain ridge scored here: the reason is ``adapted_ensemble``, ahead or behind.
+
+The selection score is the mean of the whole-run and the forward CV means where forward folds
+ran; a margin on it can come from one of the two alone (a plain ridge that holds out whole runs
+well and predicts the next runs badly), so :func:`floor_facts` gives the margins on each.
 """
 
 from __future__ import annotations
@@ -42,6 +47,7 @@ __all__ = [
     "PLAIN_RIDGE",
     "FLOOR_COLUMNS",
     "REASONS",
+    "SCORE_PARTS",
     "with_plain_ridge",
     "floor_columns",
     "versus_plain_ridge",
@@ -63,18 +69,22 @@ FLOOR_COLUMNS = [
 
 #: The values of ``versus_plain_ridge`` on the offered model's row (empty on the others).
 REASONS = {
-    "beats": "its selection score is lower than the plain ridge's by more than a tie",
+    "beats": (
+        "its selection score is lower than the plain ridge's by more than a tie, and the rule offers "
+        "the lowest score (never on an ensemble: its rule is its reason)"
+    ),
     "is_plain_ridge": "the offered model is the plain ridge",
     "not_enabled": "the plain ridge is not among the enabled kinds: scored as the reference only",
     "tie": "equal selection scores within TIE_UM: the tie-breakers chose",
     "no_cv": "no CV score: the default rule offered the model",
     "ensemble": (
-        "the CV-weighted ensemble, offered under models.offer: ensemble whatever its own score "
-        "(the plain ridge among its members)"
+        "the CV-weighted ensemble, offered under models.offer: ensemble whatever its own score, ahead "
+        "of the plain ridge or behind it (the plain ridge among its members)"
     ),
     "adapted_ensemble": (
         "the ensemble prior adapted as a whole (prior_shared_gain, prior_shared_ridge), offered by the "
-        "re-qualification's rule, not by models.offer (its members are the prior's, as the run moved them)"
+        "re-qualification's rule, not by models.offer, ahead of the plain ridge or behind it (its "
+        "members are the prior's, as the run moved them)"
     ),
     "other": "offered with a higher selection score than a candidate plain ridge (not the current rule)",
 }
@@ -128,12 +138,14 @@ def versus_plain_ridge(champion: dict, ridge: dict) -> str:
     mine, floor = _score(champion), _score(ridge)
     if not np.isfinite(mine):
         return "no_cv"
-    if not np.isfinite(floor) or np.round(mine / TIE_UM) < np.round(floor / TIE_UM):
-        return "beats"  # also a plain ridge that cannot predict some held-out run
+    # an ensemble is offered by its rule whatever its score, ahead of the plain ridge or behind it:
+    # the rule is the reason (the margins say whether it beats it)
     if name in (SHARED_GAIN, SHARED_RIDGE):  # offered by the re-qualification's rule, not by models.offer
         return "adapted_ensemble"
     if str(champion.get("kind") or name) == ENSEMBLE:  # offered by models.offer, not by its score
         return "ensemble"
+    if not np.isfinite(floor) or np.round(mine / TIE_UM) < np.round(floor / TIE_UM):
+        return "beats"  # also a plain ridge that cannot predict some held-out run
     if not bool(ridge.get("candidate", True)):
         return "not_enabled"
     # a candidate plain ridge with a finite, lower score is offered instead: never reached by
@@ -206,7 +218,10 @@ def floor_facts(summary: pd.DataFrame) -> dict | None:
         the scores as :func:`floor_columns` computes them), ``reason``
         (:data:`REASONS`), ``candidate`` (the plain ridge may be offered), ``enabled`` (the
         candidates), ``tie_breaker`` (:func:`_tie_breaker` on a tie, else ``""``),
-        ``worst_um`` / ``ridge_worst_um`` (their worst held-out runs).
+        ``worst_um`` / ``ridge_worst_um`` (their worst held-out runs) and ``scores``: for each
+        score of :data:`SCORE_PARTS` (``selection``, ``whole``, ``forward``, ``validation``), both
+        values and the margin (:func:`_scores`; ``cv_um`` / ``validation_um`` are those of
+        ``selection`` / ``validation``).
     """
     if summary is None or not len(summary) or "champion" not in summary:
         return None
@@ -238,4 +253,26 @@ def floor_facts(summary: pd.DataFrame) -> dict | None:
         "tie_breaker": _tie_breaker(me, ridge) if reason == "tie" else "",
         "worst_um": _num(me.get("cv_max_abs_um")),
         "ridge_worst_um": _num(ridge.get("cv_max_abs_um")),
+        "scores": {part: _scores(me, ridge, column) for part, column in SCORE_PARTS.items()},
     }
+
+
+#: The scores a margin over the plain ridge is on: the selection score (the mean of the other
+#: two where forward folds ran, else the whole-run mean), the whole-run CV mean max |residual|,
+#: the forward CV's, and the worst max |residual| over the validation runs.
+SCORE_PARTS = {
+    "selection": "selection_score_um",
+    "whole": "cv_mean_max_abs_um",
+    "forward": "cv_forward_mean_max_abs_um",
+    "validation": "max_abs_after_um",
+}
+
+
+def _scores(me: dict, ridge: dict, column: str) -> dict:
+    """The offered model's and the plain ridge's ``column`` and the margin on it: ``mine``,
+    ``ridge``, ``um`` (the plain ridge's minus the model's) and ``pct`` (of the plain ridge's);
+    NaN where a number is missing or infinite (:func:`_margin`)."""
+    mine = _score(me) if column == "selection_score_um" else _num(me.get(column))
+    floor = _score(ridge) if column == "selection_score_um" else _num(ridge.get(column))
+    um, pct = _margin(floor, mine)
+    return {"mine": mine, "ridge": floor, "um": um, "pct": pct}

@@ -17,10 +17,11 @@ from rafi.family.time_blocks import SCHEME as TIME_BLOCKS
 from rafi.family.unexplained import unexplained_text
 from rafi.report.ensemble_section import ensemble_context
 from rafi.report.envelope_text import MEANING, held_by_model
-from rafi.report.format import fmt_num, isnum, truthy
+from rafi.report.format import isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, shared_level
 from rafi.report.plain_ridge import PLAIN_RIDGE, section_plain_ridge
+from rafi.report.trained_range import outside_counts, trained_speed_span, trained_speeds_text
 
 
 def family_champion(summary: pd.DataFrame):
@@ -213,25 +214,28 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
         ``outside_temp_pct``, ``outside_speed_pct``), ``n``, ``n_extrapolated`` (runs with at
         least :data:`EXTRAPOLATED_PCT` % of the samples outside the trained temperature range),
         ``extrapolated_pct``, ``max_temp_pct``, ``max_speed_pct`` (``None`` unless some sample
-        is outside the trained speeds), ``trained_speeds`` (``trained speeds 3 000–18 000`` or
-        ``trained speed 3 000``, r/min, or ``None``),
+        is outside the trained speeds), ``trained_speeds`` (:func:`_trained_speeds` of
+        ``model.json``: ``trained speeds 3 000–18 000 r/min``, ``trained speed 3 000 r/min`` or
+        ``None``),
         ``key_sensor_r`` (largest |r| between two key sensors, ``None`` unknown) and
         ``log_start`` (``reference.rule`` is ``log_start``).
     """
-    runs = [
-        {
-            "run_id": str(r["run_id"]),
-            "max_abs_after_um": r["max_abs_after_um"],
-            "noise_floor_um": r.get("noise_floor_um"),
-            "n_samples": float(r.get("n_samples") or 0),
-            "outside_temp_pct": _share_pct(r.get("n_outside_temp_range"), r.get("n_samples")),
-            "outside_speed_pct": _share_pct(r.get("n_outside_speed_range"), r.get("n_samples")),
-        }
-        for r in bad.to_dict("records")
-    ]
+    runs = []
+    for r in bad.to_dict("records"):
+        # the shares as the verdict's statement and the validation section count them
+        c = outside_counts(pd.DataFrame([r])) or {}
+        runs.append(
+            {
+                "run_id": str(r["run_id"]),
+                "max_abs_after_um": r["max_abs_after_um"],
+                "noise_floor_um": r.get("noise_floor_um"),
+                "n_samples": float(r.get("n_samples") or 0),
+                "outside_temp_pct": np.nan if c.get("temp_pct") is None else c["temp_pct"],
+                "outside_speed_pct": np.nan if c.get("speed_pct") is None else c["speed_pct"],
+            }
+        )
     t_share = np.asarray([r["outside_temp_pct"] for r in runs], float)
     max_speed = _finite_max([r["outside_speed_pct"] for r in runs])
-    speeds = [float(x["speed_rpm"]) for x in (res.get("model") or {}).get("speeds") or [] if "speed_rpm" in x]
     r_max = _key_sensor_r(res)
     return {
         "runs": runs,
@@ -240,18 +244,22 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
         "extrapolated_pct": EXTRAPOLATED_PCT,
         "max_temp_pct": _finite_max(t_share),
         "max_speed_pct": max_speed if max_speed is not None and max_speed > 0 else None,
-        "trained_speeds": _trained_speeds(speeds),
+        "trained_speeds": _trained_speeds(res.get("model")),
         "key_sensor_r": r_max if isnum(r_max) else None,
         "log_start": settings["reference"]["rule"] == "log_start",
     }
 
 
-def _trained_speeds(speeds: list) -> str | None:
-    """RAFI's trained speeds as the failure explanation words them: a range, or one speed once."""
-    if not speeds:
+def _trained_speeds(artefact) -> str | None:
+    """RAFI's trained speeds as the failure explanation words them (``trained speeds 1 250–5 000
+    r/min``, one speed once: ``trained speed 3 000 r/min``), from
+    :func:`rafi.report.trained_range.trained_speeds_text` as the verdict and the validation section
+    read them; ``None`` where its artefact records none."""
+    text = trained_speeds_text(artefact)
+    if not text:
         return None
-    lo, hi = fmt_num(min(speeds), 0), fmt_num(max(speeds), 0)
-    return f"trained speed {lo}" if lo == hi else f"trained speeds {lo}\u2013{hi}"
+    span = trained_speed_span(artefact)
+    return f"trained speed {text}" if span[0] == span[1] else f"trained speeds {text}"
 
 
 def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward: str = "") -> dict:
@@ -487,7 +495,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "models": rows,
         "kind_column": any(str(r.get("kind", "")) != str(r["model"]) for r in s.to_dict("records")),
         "selection": selection_context(s, fam_champ, *cv_schemes(cv_rows)),
-        "plain_ridge": section_plain_ridge(s),
+        "plain_ridge": section_plain_ridge(s, cv_schemes(cv_rows)[0]),
         # the CV-weighted ensemble offered under models: offer: ensemble (rafi.report.ensemble_section)
         "ensemble": ensemble,
         # the forward CV's column: only when some model was scored on forward folds

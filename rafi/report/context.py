@@ -142,6 +142,8 @@ def build_context(
         time_blocks=bool(sel.get("time_blocks")),
         forward=int(sel.get("horizon") or 0),
         interval=interval,
+        comparison=ctx["comparison"],  # the rule that chose, as applied (not the settings' text)
+        runs=res.get("runs_csv"),  # where the roles came from
     )
     ctx["versions"] = versions()
     ctx["signoff"] = section_signoff(res, settings)  # first page: number, revision, names

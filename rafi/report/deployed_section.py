@@ -33,7 +33,7 @@ from rafi.report.deployed_terms import (
     ridge_tables,
 )
 from rafi.report.ensemble_section import ensemble_context
-from rafi.report.format import fmt_num, fmt_sig, isnum, plain, short_id, truthy
+from rafi.report.format import fmt_num, fmt_sig, fmt_speed, isnum, plain, run_speeds, short_id, truthy
 from rafi.report.intervals import (
     band_columns,
     band_label,
@@ -311,13 +311,20 @@ def _fields(row: dict, keys) -> dict:
     return {k: plain(row.get(k)) for k in keys}
 
 
-def _validation_rows(per_run: pd.DataFrame | None, name: str) -> list[dict] | None:
-    """``per_run.csv``'s rows of model ``name`` (``passed`` as a bool), ``None`` without it."""
+def _validation_rows(
+    per_run: pd.DataFrame | None, name: str, runs: pd.DataFrame | None = None
+) -> list[dict] | None:
+    """``per_run.csv``'s rows of model ``name`` (``passed`` as a bool), ``None`` without it; each
+    with its ``speed`` as every section prints it (:func:`rafi.report.format.fmt_run_speed` of its
+    row of ``runs``, ``runs.csv``: a varying run's range, not the median speed of ``per_run.csv``;
+    that median only for a run ``runs.csv`` does not hold)."""
     if per_run is None or not len(per_run):
         return None
     keys = ("speed_rpm", "max_abs_before_um", "max_abs_after_um", "noise_floor_um", "rmse_after_um")
+    speeds = run_speeds(runs)
     return [
         {**_fields(r, keys), "run_id": r["run_id"], "role": str(r.get("role", ""))}
+        | {"speed": speeds.get(str(r["run_id"])) or fmt_speed(r.get("speed_rpm"))}
         | {"passed": truthy(r.get("passed", False))}
         | coverage_fields(r)
         for r in per_run[per_run["model"].astype(str) == name].to_dict("records")
@@ -419,7 +426,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         parts = _rafi_parts(art) if rafi_like else _ridge_parts(art, res)
     blocks, terms, equation, inputs = parts["blocks"], parts["terms"], parts["equation"], parts["inputs"]
     train_runs = parts["train_runs"]
-    validation = _validation_rows(res.get("comparison_per_run"), name)
+    validation = _validation_rows(res.get("comparison_per_run"), name, res.get("runs_csv"))
     figures = _figures(figs)
     on_machine = None if not champion_after else str(champion_after) == mid
     return {

@@ -90,6 +90,44 @@ def fmt_speed_range(lo, hi) -> str:
     return fmt_speed(float(hi)) if a == b else f"{a}{DASH}{b}{NBSP}r/min"
 
 
+#: Without a ``kind``, a run whose speed ends lie farther apart than this (r/min) is shown as a range.
+VARYING_SPREAD_RPM = 100.0
+
+
+def fmt_run_speed(run) -> str:
+    """A run's speed as every section of the report shows it, from its row of ``runs.csv``.
+
+    Parameters
+    ----------
+    run : mapping
+        ``kind``, ``speed_rpm``, ``speed_min_rpm`` and ``speed_max_rpm`` of ``runs.csv``
+        (:mod:`rafi.method.runs`: the rest before start is left out of the three speeds).
+
+    Returns
+    -------
+    str
+        A varying run its range (``3 119–7 123 r/min``, :func:`fmt_speed_range`), any other run
+        its speed (``3 500 r/min``). Without a ``kind`` a run is varying where its ends lie more
+        than :data:`VARYING_SPREAD_RPM` apart; without its ends, its ``speed_rpm``.
+    """
+    get = run.get if hasattr(run, "get") else (lambda k, d=None: getattr(run, k, d))
+    lo, hi, kind = get("speed_min_rpm"), get("speed_max_rpm"), get("kind")
+    kind = "" if kind is None or (isinstance(kind, float) and math.isnan(kind)) else str(kind)
+    if isnum(lo) and isnum(hi):
+        varying = kind == "varying" if kind else float(hi) - float(lo) > VARYING_SPREAD_RPM
+        if varying:
+            return fmt_speed_range(lo, hi)
+    return fmt_speed(get("speed_rpm"))
+
+
+def run_speeds(runs) -> dict:
+    """Run id -> :func:`fmt_run_speed` of every run of ``runs.csv`` (``{}`` without it): the
+    speed a section shows beside a run it reads from another table."""
+    if runs is None or not len(runs) or "run_id" not in runs:
+        return {}
+    return {str(r["run_id"]): fmt_run_speed(r) for r in runs.to_dict("records")}
+
+
 _UM = re.compile(r"(?<=[\d\s(])um\b")
 
 
@@ -249,6 +287,7 @@ FILTERS = {
     "p": fmt_p,
     "speed": fmt_speed,
     "speed_range": fmt_speed_range,
+    "run_speed": fmt_run_speed,
     "duration": fmt_duration,
     "run": run_label,
     "short_id": short_id,

@@ -15,9 +15,10 @@ import pandas as pd
 from rafi.method.paper import MULTI_CONDITION, RESIDUAL_UM, RMSE_UM
 from rafi.report.data_sections import paper_value
 from rafi.report.envelope_text import MEANING, held_runs
-from rafi.report.format import isnum, records, short_id, speed_key, truthy
+from rafi.report.format import fmt_speed_range, isnum, records, run_speeds, short_id, speed_key, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, interval_block
+from rafi.report.trained_range import range_facts
 
 #: Where the membership curves of the figure come from (shown in its caption).
 MEMBERSHIP_SOURCE = "rafi.method.fuzzy.membership_curves"
@@ -266,11 +267,26 @@ def range_rows(summary: pd.DataFrame) -> list[dict]:
     return rows
 
 
-def other_runs(summary: pd.DataFrame, resid: pd.DataFrame, noise: dict, figs, paper: bool) -> list[dict]:
+def other_runs(
+    summary: pd.DataFrame,
+    resid: pd.DataFrame,
+    noise: dict,
+    figs,
+    paper: bool,
+    *,
+    runs: pd.DataFrame | None = None,
+    model: dict | None = None,
+) -> list[dict]:
     """The validation runs that are neither single-speed nor idle (multi-condition, ...), each
-    with its figure, duration, speed range and changes (from ``validation/residuals.parquet``),
-    max |dz| before and |residual| after, noise floor, improvement, samples outside the trained
-    ranges and, on the paper's rig, the paper's multi-condition run (``paper``)."""
+    with its figure, duration, ``speed`` (:func:`rafi.report.format.fmt_run_speed` of its row of
+    ``runs``, ``runs.csv``: a varying run's range without its rest before start, as every section
+    prints it; the range of its samples only without that row), speed changes (from
+    ``validation/residuals.parquet``), max |dz| before and |residual| after, noise floor,
+    improvement, the samples outside the trained ranges with ``trained_speeds`` (the speeds of
+    ``model``, ``model.json``: :func:`rafi.report.trained_range.range_facts`, as the verdict and
+    the comparison count them; ``""`` unknown) and, on the paper's rig, the paper's
+    multi-condition run (``paper``)."""
+    speeds = run_speeds(runs)
     others = (
         summary[~summary["role"].isin(["validation_single", "validation_idle"])]
         if "role" in summary
@@ -281,6 +297,7 @@ def other_runs(summary: pd.DataFrame, resid: pd.DataFrame, noise: dict, figs, pa
         f = resid[resid["run_id"] == r["run_id"]]
         if not len(f):
             continue
+        facts = range_facts(pd.DataFrame([r]), model) or {}
         r = pd.Series(r)
         out.append(
             {
@@ -288,16 +305,17 @@ def other_runs(summary: pd.DataFrame, resid: pd.DataFrame, noise: dict, figs, pa
                 "role": r.role,
                 "figure": figs.get("pipeline", f"multi_condition/{r.run_id}"),
                 "duration_s": r.duration_s,
-                "speed_min_rpm": f["speed_rpm"].min(),
-                "speed_max_rpm": f["speed_rpm"].max(),
+                "speed": speeds.get(str(r.run_id))
+                or fmt_speed_range(f["speed_rpm"].min(), f["speed_rpm"].max()),
                 "changes": int((f["speed_rpm"].diff().abs() > 100).sum()),
                 "max_abs_before_um": r.max_abs_before_um,
                 "max_abs_after_um": r.max_abs_after_um,
                 "noise_floor_um": noise.get(str(r.run_id)),
                 "improvement_pct": r.improvement_pct,
-                "n_outside_temp_range": int(r.n_outside_temp_range),
-                "n_outside_speed_range": int(r.n_outside_speed_range),
-                "n_samples": int(r.n_samples),
+                "n_outside_temp_range": facts.get("n_temp"),
+                "n_outside_speed_range": facts.get("n_speed"),
+                "n_samples": facts.get("n_samples"),
+                "trained_speeds": facts.get("speeds", ""),
                 "paper": dict(MULTI_CONDITION) if paper and r.role == "validation_multi" else None,
                 **coverage_fields(r),
             }
@@ -364,5 +382,7 @@ def section_validation(res: dict, figs, *, paper: bool = False) -> dict:
     out["figure_single"] = figs.get("pipeline", "validation_single")
     out["figure_idle"] = figs.get("pipeline", "validation_idle")
     out["n_idle"] = sum(bool((resid["run_id"] == rid).any()) for rid in idle["run_id"])
-    out["multi"] = other_runs(summ, resid, noise, figs, paper)
+    out["multi"] = other_runs(
+        summ, resid, noise, figs, paper, runs=res.get("runs_csv"), model=res.get("model")
+    )
     return out

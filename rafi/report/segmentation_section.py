@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import pandas as pd
 
-from rafi.report.format import isnum, plain
+from rafi.report.format import fmt_run_speed, isnum, plain
 
 #: Where a role came from (``role_source`` of runs.csv), for people.
 SOURCE_TEXT = {
@@ -48,14 +48,6 @@ def training_after_validation(runs: pd.DataFrame) -> list[str]:
     return out
 
 
-def _speed_range(r):
-    """``[min, max]`` speed of a varying run (shown as a range), else ``None`` (its speed)."""
-    lo, hi = r.get("speed_min_rpm"), r.get("speed_max_rpm")
-    if str(r.get("kind")) != "varying" or not (isnum(lo) and isnum(hi)) or float(hi) - float(lo) < 1.0:
-        return None
-    return [float(lo), float(hi)]
-
-
 def _row(r: dict) -> dict:
     """One run of ``runs.csv`` as the segmentation table shows it."""
     source = _text(r.get("role_source"))
@@ -67,7 +59,7 @@ def _row(r: dict) -> dict:
         "end_time": _text(r.get("end_time")),
         "duration_s": plain(r.get("duration_s")),
         "speed_rpm": plain(r.get("speed_rpm")),
-        "speed_range": _speed_range(r),
+        "speed": fmt_run_speed(r),
         "kind": _text(r.get("kind")),
         "role": str(r.get("role", "")),
         "source": SOURCE_TEXT.get(source, source),
@@ -91,8 +83,9 @@ def section_segmentation(res: dict, settings: dict, figs) -> dict | None:
     -------
     dict or None
         ``table`` (one dict per run: ``run_id``, ``start_h`` / ``end_h`` on the log's clock,
-        ``start_time`` / ``end_time``, ``duration_s``, ``speed_rpm``, ``speed_range`` (a varying
-        run's ``[min, max]``), ``kind``, ``role``, ``source``, ``why``), ``figure``,
+        ``start_time`` / ``end_time``, ``duration_s``, ``speed_rpm``, ``speed`` (as every section
+        prints a run's speed: :func:`rafi.report.format.fmt_run_speed`, a varying run's range),
+        ``kind``, ``role``, ``source``, ``why``), ``figure``,
         ``n_runs``, ``n_logs``, ``by_role`` / ``by_source`` (counts), ``allow_late`` (the
         setting), ``late`` (training runs after validation data of their log), ``windows``
         (number of configured windows); ``None`` without ``runs.csv``.

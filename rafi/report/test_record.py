@@ -27,7 +27,7 @@ import datetime as dt
 import numpy as np
 import pandas as pd
 
-from rafi.report.format import DASH, fmt_num, fmt_speed, isnum, records
+from rafi.report.format import DASH, fmt_num, fmt_run_speed, isnum, records
 from rafi.report.probe import probe_words
 
 UM = "\u00b5m"
@@ -60,6 +60,7 @@ RUN_COLUMNS = [
     "speed_rpm",
     "speed_min_rpm",
     "speed_max_rpm",
+    "kind",
     "first_time",
     "last_time",
     "first_s",
@@ -153,7 +154,7 @@ def run_record(frame: pd.DataFrame, runs: pd.DataFrame | None, ambient: str | No
         ``runs.parquet`` (``run_id``, ``t_s``, ``time``, ``dz_um``, the sensor columns).
     runs : DataFrame, optional
         ``runs.csv`` (order, ``log``/``file``, ``role``, ``speed_rpm``, ``speed_min_rpm``,
-        ``speed_max_rpm``); without it the runs of ``frame`` in order of appearance.
+        ``speed_max_rpm``, ``kind``); without it the runs of ``frame`` in order of appearance.
     ambient : str, optional
         The ambient sensor's column.
 
@@ -204,6 +205,7 @@ def run_record(frame: pd.DataFrame, runs: pd.DataFrame | None, ambient: str | No
                 m.get("speed_rpm", speed.median() if len(speed) else np.nan),
                 m.get("speed_min_rpm", speed.min() if len(speed) else np.nan),
                 m.get("speed_max_rpm", speed.max() if len(speed) else np.nan),
+                str(m.get("kind") or ""),
                 first,
                 last,
                 first_s,
@@ -348,13 +350,6 @@ def _logged_sensors(frame: pd.DataFrame) -> list:
     return [c for c in run_sensors(frame) if pd.to_numeric(frame[c], errors="coerce").notna().any()]
 
 
-def _speed_text(r: dict) -> str:
-    lo, hi = r["speed_min_rpm"], r["speed_max_rpm"]
-    if isnum(lo) and isnum(hi) and hi - lo > 100:  # a varying run: its range
-        return f"{fmt_num(lo, 0)}\u2013{fmt_speed(hi)}"
-    return fmt_speed(r["speed_rpm"])
-
-
 def _role_text(role) -> str:
     return str(role).replace("validation_", "valid.\u00a0") or DASH
 
@@ -386,7 +381,7 @@ def _logs_rows(logs: pd.DataFrame, one_run) -> list[dict]:
         if one_run is not None:
             rr = one_run.loc[orig["log"]].to_dict()
             row.update(
-                role=_role_text(rr["role"]), speed=_speed_text(rr), thermal_drift_um=rr["thermal_drift_um"]
+                role=_role_text(rr["role"]), speed=fmt_run_speed(rr), thermal_drift_um=rr["thermal_drift_um"]
             )
         rows.append(row)
     return rows
@@ -403,7 +398,7 @@ def _logs_widths(one_run: bool, ambient) -> list:
 def _runs_rows(rr: pd.DataFrame) -> list[dict]:
     """Thermal drift per run (logs cut into several runs): :func:`run_record`'s rows."""
     return [
-        {**r, **_span(orig), "role": _role_text(orig["role"]), "speed": _speed_text(orig)}
+        {**r, **_span(orig), "role": _role_text(orig["role"]), "speed": fmt_run_speed(orig)}
         for r, orig in zip(records(rr), rr.to_dict("records"))
     ]
 

@@ -23,10 +23,12 @@ import numpy as np
 import pandas as pd
 
 from rafi.family.confirmation import awaiting_confirmation
-from rafi.report.format import fmt_num, fmt_speed_range, short_id, truthy
+from rafi.report.comparison_section import family_champion
+from rafi.report.format import fmt_num, short_id, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import interval_block, worst_run_interval
 from rafi.report.probe import probe_words
+from rafi.report.trained_range import range_facts
 
 #: The columns of a verdict (:data:`rafi.method.validate.VERDICT_COLUMNS`).
 VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
@@ -383,15 +385,45 @@ def rafi_verdict(res: dict) -> tuple[pd.DataFrame | None, str]:
     return stored_verdict_of(res, model_id, name=None if model_id else "rafi")
 
 
+def offered_range_facts(res: dict) -> dict | None:
+    """The samples outside the trained ranges of the model offered to the machine, and its trained
+    speeds (:func:`rafi.report.trained_range.range_facts`).
+
+    The offered model is the comparison's champion (``comparison/summary.csv``), its rows those of
+    ``comparison/per_run.csv`` and its artefact ``comparison/best_model.json`` (when it carries the
+    champion's id; else its trained speeds are unknown). Without a comparison, RAFI as published:
+    ``validation/summary.csv`` and ``model.json``.
+
+    Returns
+    -------
+    dict or None
+        :func:`~rafi.report.trained_range.range_facts` with ``model`` (its name, ``RAFI as
+        published`` for ``model.json``) and ``offered`` (it is the comparison's offered model);
+        ``None`` without counts.
+    """
+    summ, per_run = res.get("comparison"), res.get("comparison_per_run")
+    champ = family_champion(summ) if summ is not None and len(summ) else None
+    if champ is not None and per_run is not None and "model" in per_run:
+        row = summ[summ["model"].astype(str) == champ].iloc[0]
+        best = res.get("best_model")
+        same = isinstance(best, dict) and str(best.get("model_id", "")) == str(row.get("model_id", ""))
+        facts = range_facts(per_run[per_run["model"].astype(str) == champ], best if same else None)
+        if facts is not None:
+            return {**facts, "model": champ, "offered": True}
+    facts = range_facts(res.get("validation_summary"), res.get("model"))
+    return None if facts is None else {**facts, "model": "RAFI as published", "offered": False}
+
+
 def residual_statement(res: dict, settings: dict) -> dict | None:
     """What a residual of this report can and cannot show, with this machine's numbers.
 
     Parameters
     ----------
     res : dict
-        Loaded inputs: the noise floors (:func:`rafi.report.inputs.noise_floors`), ``runs_csv``
-        (the speeds of the training runs) and ``validation_summary`` (RAFI's samples outside
-        its trained temperature range).
+        Loaded inputs: the noise floors (:func:`rafi.report.inputs.noise_floors`) and the offered
+        model's samples outside its trained ranges (:func:`offered_range_facts`: the comparison's
+        ``summary.csv``, ``per_run.csv`` and ``best_model.json``; without them
+        ``validation/summary.csv`` and ``model.json``).
     settings : dict
         The machine's settings (``report.instruments.probe``).
 
@@ -399,39 +431,32 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
     -------
     dict or None
         ``noise_lo``, ``noise_hi`` (the range of the validation runs' noise floors, um),
-        ``n_runs``, ``speeds`` (the training runs' speed range; ``""`` without runs.csv),
-        ``outside`` / ``n_samples`` (validation samples outside RAFI's trained temperature
-        range; ``None`` without the summary) and ``probe``; ``None`` without a noise floor.
+        ``n_runs``, ``probe`` and ``measured``; and the offered model's
+        (:func:`offered_range_facts`, the same computation as the validation section's and the
+        comparison's for RAFI as published): ``model``, ``offered``, ``speeds`` (its trained
+        speeds, ``""`` unknown), ``n_samples``, ``n_temp`` / ``temp_pct`` (validation samples
+        outside its trained temperature range) and ``n_speed`` (outside its trained speeds;
+        ``None`` unknown), each ``None`` without counts; ``None`` without a noise floor.
     """
     noise = noise_floors(res)
     if not noise:
         return None
     vals = np.asarray(list(noise.values()), float)
-    out = {
+    facts = offered_range_facts(res) or {}
+    return {
         "noise_lo": fmt_num(vals.min(), 2),
         "noise_hi": fmt_num(vals.max(), 2, "\u00b5m"),
         "n_runs": len(vals),
-        "speeds": "",
-        "outside": None,
-        "n_samples": None,
         "probe": (settings["report"].get("instruments") or {}).get("probe") or "",
         "measured": probe_words(settings),
+        "model": facts.get("model"),
+        "offered": bool(facts.get("offered")),
+        "speeds": facts.get("speeds") or "",
+        "n_samples": facts.get("n_samples"),
+        "n_temp": facts.get("n_temp"),
+        "temp_pct": facts.get("temp_pct"),
+        "n_speed": facts.get("n_speed"),
     }
-    runs = res.get("runs_csv")
-    if runs is not None and "role" in runs:
-        tr = runs[runs["role"].astype(str) == "training"]
-        # a constant-speed run at its nominal speed, a varying one over its whole range
-        nominal = pd.to_numeric(tr["speed_rpm"], errors="coerce")
-        varying = tr["kind"].astype(str).eq("varying") if "kind" in tr else nominal.isna()
-        lo = nominal.where(~varying, pd.to_numeric(tr.get("speed_min_rpm", nominal), errors="coerce")).min()
-        hi = nominal.where(~varying, pd.to_numeric(tr.get("speed_max_rpm", nominal), errors="coerce")).max()
-        if pd.notna(lo) and pd.notna(hi):
-            out["speeds"] = fmt_speed_range(lo, hi)  # one training speed: printed once
-    summ = res.get("validation_summary")
-    if summ is not None and {"n_outside_temp_range", "n_samples"} <= set(summ.columns):
-        out["outside"] = int(pd.to_numeric(summ["n_outside_temp_range"], errors="coerce").fillna(0).sum())
-        out["n_samples"] = int(pd.to_numeric(summ["n_samples"], errors="coerce").fillna(0).sum())
-    return out
 
 
 def rafi_context(res: dict, noise: dict) -> dict:

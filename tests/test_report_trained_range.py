@@ -1,0 +1,165 @@
+"""The samples outside a model's trained ranges, one computation for sections 1, 11 and 13.
+
+The audit of two machines nobody here tuned on (issue 46) found the verdict's statement of what a
+residual can show giving RAFI as published's count ("4320 of 4320 validation samples lie outside
+the temperature rises RAFI as published was fitted on") beside the training runs' speed range
+(0–5 000 r/min, so 500 r/min inside), while the validation section and the comparison counted
+RAFI's samples outside its trained speeds 1 250–5 000 r/min. The statement now gives the offered
+model's counts (``comparison/per_run.csv``) and its trained speeds (``best_model.json``), and all
+three passages read :mod:`rafi.report.trained_range`. The numbers below are fl-thermal@ch1's
+(``/tmp/auditF``): the ensemble 47 + 9 + 229 + 1109 = 1394 of 4320 samples (32 %), 0 outside
+0–5 000 r/min; RAFI 4320 of 4320, 2400 outside 1 250–5 000 r/min.
+"""
+
+from __future__ import annotations
+
+import pandas as pd
+import pytest
+
+from rafi.report.comparison_section import rafi_failure
+from rafi.report.format import NBSP
+from rafi.report.model_sections import other_runs
+from rafi.report.trained_range import outside_counts, range_facts, trained_speed_span, trained_speeds_text
+from rafi.report.verdict import residual_statement
+from rafi.settings import machine_settings
+
+RUNS = ["data#9", "data#10", "data#11", "data#12"]
+ROLES = ["validation_idle", "validation_single", "validation_idle", "validation_multi"]
+N = [960, 960, 960, 1440]
+
+RAFI = {
+    "model_id": "r" * 64,
+    "kind": "rafi",
+    "speeds": [{"speed_rpm": s} for s in (1250, 2500, 3750, 5000)],
+}
+ENSEMBLE = {
+    "model_id": "e" * 64,
+    "kind": "ensemble",
+    "speed_range_rpm": [0.0, 5000.0],
+    "trained_speeds_rpm": [1250.0, 2500.0, 3750.0, 5000.0],
+}
+
+
+def _per_run() -> pd.DataFrame:
+    rows = []
+    for name, mid, temp, speed in (
+        ("rafi", RAFI["model_id"], N, [960, 0, 960, 480]),
+        ("ensemble", ENSEMBLE["model_id"], [47, 9, 229, 1109], [0, 0, 0, 0]),
+    ):
+        for k, rid in enumerate(RUNS):
+            rows.append(
+                {
+                    "model": name,
+                    "kind": name,
+                    "model_id": mid,
+                    "run_id": rid,
+                    "role": ROLES[k],
+                    "speed_rpm": [0.0, 3500.0, 0.0, 1500.0][k],
+                    "n_samples": N[k],
+                    "n_outside_temp_range": temp[k],
+                    "n_outside_speed_range": speed[k],
+                    "max_abs_after_um": 5.0,
+                    "noise_floor_um": [0.05, 0.10, 0.04, 0.07][k],
+                    "passed": name != "rafi",
+                }
+            )
+    return pd.DataFrame(rows)
+
+
+def _res(comparison: bool = True) -> dict:
+    per_run = _per_run()
+    rafi_rows = per_run[per_run["model"] == "rafi"].drop(columns=["model", "kind", "model_id"])
+    res = {
+        "model": RAFI,
+        "validation_summary": rafi_rows.reset_index(drop=True),
+        "runs_csv": pd.DataFrame(
+            {
+                "run_id": ["t0", "t1", *RUNS],
+                "role": ["training", "training", *ROLES],
+                "kind": ["idle", "constant", "idle", "constant", "idle", "varying"],
+                "speed_rpm": [0.0, 5000.0, 0.0, 3500.0, 0.0, 1500.0],
+                "speed_min_rpm": [0.0, 5000.0, 0.0, 3500.0, 0.0, 500.0],
+                "speed_max_rpm": [0.0, 5000.0, 0.0, 3500.0, 0.0, 4500.0],
+            }
+        ),
+    }
+    if comparison:
+        res["comparison"] = pd.DataFrame(
+            {
+                "model": ["rafi", "ensemble"],
+                "kind": ["rafi", "ensemble"],
+                "model_id": [RAFI["model_id"], ENSEMBLE["model_id"]],
+                "champion": [False, True],
+            }
+        )
+        res["comparison_per_run"] = per_run
+        res["best_model"] = ENSEMBLE
+    return res
+
+
+def _settings():
+    return machine_settings({}, "m")
+
+
+def test_the_trained_speeds_are_the_artefacts():
+    assert trained_speed_span(ENSEMBLE) == (0.0, 5000.0)  # the range its flag used, idle included
+    assert trained_speed_span(RAFI) == (1250.0, 5000.0)  # RAFI: its per-speed records
+    assert trained_speed_span({"kind": "dynamic"}) is None and trained_speeds_text(None) == ""
+    assert trained_speeds_text(RAFI) == f"1{NBSP}250\u20135{NBSP}000{NBSP}r/min"
+    assert trained_speeds_text({"speeds": [{"speed_rpm": 3000}]}) == f"3{NBSP}000{NBSP}r/min"
+    counts = outside_counts(_per_run().query("model == 'ensemble'"))
+    assert counts["n_samples"] == 4320 and counts["n_temp"] == 1394 and counts["n_speed"] == 0
+    assert counts["temp_pct"] == pytest.approx(100 * 1394 / 4320)
+    assert outside_counts(pd.DataFrame({"n_samples": [1]})) is None
+
+
+def test_the_residual_statement_gives_the_offered_models_counts_and_trained_speeds():
+    st = residual_statement(_res(), _settings())
+    assert st["model"] == "ensemble" and st["offered"]
+    assert (st["n_temp"], st["n_samples"], st["n_speed"]) == (1394, 4320, 0)  # not RAFI's 4320 of 4320
+    assert st["speeds"] == f"0\u20135{NBSP}000{NBSP}r/min"
+    # without a comparison the statement is RAFI's, said as RAFI's, with RAFI's trained speeds
+    st = residual_statement(_res(comparison=False), _settings())
+    assert st["model"] == "RAFI as published" and not st["offered"]
+    assert (st["n_temp"], st["n_samples"], st["n_speed"]) == (4320, 4320, 2400)
+    assert st["speeds"] == f"1{NBSP}250\u20135{NBSP}000{NBSP}r/min"
+
+
+def test_sections_1_11_and_13_state_the_same_trained_speeds_for_the_same_model():
+    res = _res(comparison=False)
+    mine = range_facts(res["validation_summary"], RAFI)
+    per_run = _per_run()
+    bad = per_run[(per_run["model"] == "rafi")]
+    fail = rafi_failure(bad, res, _settings())
+    assert fail["trained_speeds"] == f"trained speeds {mine['speeds']}"
+    shares = [(r["outside_temp_pct"], r["outside_speed_pct"]) for r in fail["runs"]]
+    assert shares == [(100.0, 100.0), (100.0, 0.0), (100.0, 100.0), (100.0, pytest.approx(100 * 480 / 1440))]
+    summary = res["validation_summary"].assign(
+        duration_s=14400.0, max_abs_before_um=10.0, improvement_pct=50.0
+    )
+    resid = pd.DataFrame({"run_id": "data#12", "speed_rpm": [500.0, 4500.0]})
+
+    class _Figs:
+        def get(self, group, key):
+            return None
+
+    (multi,) = other_runs(summary, resid, {}, _Figs(), False, runs=res["runs_csv"], model=RAFI)
+    assert multi["trained_speeds"] == mine["speeds"] == residual_statement(res, _settings())["speeds"]
+    assert (multi["n_outside_speed_range"], multi["n_samples"]) == (480, 1440)
+
+
+def test_the_verdict_says_whose_counts_they_are():
+    from collections import defaultdict
+
+    from test_report_text import _section, _text
+
+    verdict = defaultdict(
+        lambda: None, residual=residual_statement(_res(), _settings()), status="PASS", rows=[]
+    )
+    text = _text(_section("verdict", verdict=verdict))
+    said = text[text.index("It says nothing about") :]
+    said = said[: said.index("Criteria from")]
+    assert "the model offered to the machine (ensemble) was trained on" in said
+    assert "1394 of 4320 validation samples (32 %) lie outside its trained temperature range" in said
+    assert "0 outside its trained speeds" in said and "RAFI as published" not in said
+    assert "05000 r/min" in said.replace("\u2013", "")  # 0-5 000 r/min: its range, digit groups joined
