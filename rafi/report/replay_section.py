@@ -18,6 +18,7 @@ from rafi.deploy.metrics import fault_classes, fault_groups, fault_groups_text
 from rafi.report.envelope_text import MEANING, held_runs
 from rafi.report.format import fmt_num, isnum, records, short_id
 from rafi.report.intervals import band_label, coverage_fields, has_coverage, replayed_level
+from rafi.report.verdict import placement
 
 UM = "\u00b5m"
 
@@ -116,7 +117,9 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
     figs : rafi.report.embed.FigureFiles
         The figure files (group ``replay``).
     champion_id : str or None
-        The model on the machine after this run (``decision.json`` ``champion_id_after``).
+        The model on the machine after this run (``decision.json`` ``champion_id_after``); where
+        the replayed model stands after the decision (``res["decision"]``):
+        :func:`rafi.report.verdict.placement`.
     """
     s = res.get("replay_summary")
     if s is None or not len(s):
@@ -124,10 +127,7 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
     s = s.assign(run_id=s["run_id"].astype(str))
     model_id = str(s["model_id"].iloc[0]) if "model_id" in s else ""
     kind = str(s["kind"].iloc[0]) if "kind" in s else ""
-    if not champion_id:
-        on_machine = None
-    else:
-        on_machine = bool(model_id) and str(champion_id) == model_id
+    placed = placement(res.get("decision"), model_id, champion_id)
     runs = []
     for r in s.to_dict("records"):
         runs.append(
@@ -146,7 +146,7 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
     acted = int(s[["n_clamped", "n_rate_limited", "n_hold", "n_ramp"]].fillna(0).to_numpy().sum())
     return {
         "model": Markup(f"<b>{escape(kind)}</b> <code>{escape(short_id(model_id))}</code>"),
-        "on_machine": on_machine,
+        **placed,
         "champion": short_id(champion_id) if champion_id else "",
         "runs": runs,
         "roles": ", ".join(str(r) for r in deploy.get("replay_roles") or []),

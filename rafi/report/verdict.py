@@ -246,6 +246,7 @@ def verdict_context(verdict: pd.DataFrame, source: str, noise: dict | None = Non
         "stored": True,
         "rows": rows,
         "source": source,
+        "of_candidate": False,
         "n_checks": 0 if verdict is None else len(verdict),
         "n_failed": 0 if verdict is None else int((~verdict["passed"].map(truthy)).sum()),
     }
@@ -262,6 +263,7 @@ def empty_verdict(source: str, stored: bool = True) -> dict:
         "stored": stored,
         "rows": [],
         "source": source,
+        "of_candidate": False,
         "n_checks": 0,
         "n_failed": 0,
     }
@@ -499,6 +501,51 @@ def judged_interval(res: dict, model_id, verdict, registry_dir: Path | None = No
     return worst_run_interval(rows.reset_index(drop=True), level, worst)
 
 
+def candidate_box(res: dict, dec: dict, noise: dict, waiting: str | None) -> tuple[dict, pd.DataFrame | None]:
+    """The verdict box where no model is on the machine after this run: the stored verdict on
+    tonight's candidate (rule decide's, on the runs ``registry/comparison.csv`` scores it on).
+
+    Nothing is on the machine, so the box is never PASS: WAITING when the candidate passed every
+    gate and waits for a confirmation (``waiting``,
+    :func:`rafi.family.confirmation.awaiting_confirmation`), else FAIL. Its rows are the
+    candidate's criteria, ``n_checks`` / ``n_failed`` count the candidate's checks and
+    ``of_candidate`` is true, so the box states what decision.json holds (not "no validation
+    results" beside nine stored checks).
+
+    Parameters
+    ----------
+    res : dict
+        Loaded inputs (``registry_comparison`` and the comparison's verdict).
+    dec : dict
+        ``registry/decision.json``.
+    noise : dict
+        Run id -> noise floor (:func:`rafi.report.inputs.noise_floors`).
+    waiting : str or None
+        What the candidate waits for.
+
+    Returns
+    -------
+    (dict, DataFrame or None)
+        The box (:func:`verdict_context` or, without a stored verdict on a candidate,
+        :func:`empty_verdict` "no model on the machine") and the candidate's verdict rows.
+    """
+    cand = dec.get("candidate_id")
+    verdict = None
+    if cand:
+        verdict, src = stored_verdict_of(
+            {**res, "decision": dec}, cand, scored_runs(res.get("registry_comparison"), "candidate")
+        )
+    if verdict is None or not len(verdict):
+        out = empty_verdict("no model on the machine")
+        verdict = None
+    else:
+        out = verdict_context(verdict, src, noise)
+        out.update(passed=False, status="FAIL", css="fail", of_candidate=True)
+    if waiting:
+        out.update(status="WAITING", css="unknown")
+    return out, verdict
+
+
 def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dict:
     """The verdict of section 1: the model on the machine (with decision.json) + RAFI, over
     every validation run (idle cool-downs included), each max residual beside its run's noise
@@ -508,7 +555,8 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
     interval results. ``judged`` has ``waiting``
     (:func:`rafi.family.confirmation.awaiting_confirmation`: what a candidate that passed every
     gate waits for, an input warning or its prior's fitness to be confirmed; None otherwise) and
-    ``candidate``; without a model on the machine such a candidate makes the status WAITING.
+    ``candidate``; without a model on the machine such a candidate makes the status WAITING, and
+    the box shows the candidate's stored checks (:func:`candidate_box`; ``candidate_kind``).
     ``registry_dir``: where ``registry/models/<id>.json`` are looked up."""
     noise = noise_floors(res)
     rafi_v = rafi_context(res, noise)
@@ -533,16 +581,53 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
     judged["candidate"] = short_id(dec.get("candidate_id") or "")
     verdict, src = judged_verdict(res, dec)
     if not after:
-        out = empty_verdict("no model on the machine")
-        if judged["waiting"]:
-            out.update(status="WAITING", css="unknown")
+        out, verdict = candidate_box(res, dec, noise, judged["waiting"])
+        cand = dec.get("candidate_id")
+        judged["candidate_kind"] = (infos.get(cand or "") or {}).get("kind") or "kind unknown"
+        out["interval"] = judged_interval(res, cand, verdict, registry_dir) if verdict is not None else None
     elif verdict is None:
         out = empty_verdict(src, stored=False)
     else:
         out = verdict_context(verdict, src, noise)
-    out["interval"] = judged_interval(res, after, verdict, registry_dir) if after else None
+    if after:
+        out["interval"] = judged_interval(res, after, verdict, registry_dir)
     out.update(judged=judged, rafi=rafi_v, subject=f"model {judged['id']} ({judged['kind']}) on the machine")
     return out
+
+
+def placement(dec, model_id, champion_after) -> dict:
+    """Where this run's registry decision left ``model_id`` (the model a section documents or
+    replays), for sections 2 and 3.
+
+    Parameters
+    ----------
+    dec : dict or None
+        ``registry/decision.json`` (``None``: results without a decision).
+    model_id : str
+        The model of the section.
+    champion_after : str or None
+        The model on the machine after this run (``champion_id_after``).
+
+    Returns
+    -------
+    dict
+        ``on_machine``: True when ``model_id`` is on the machine, False when it is not, ``None``
+        only without a decision and a model on the machine (no registry decision in this run);
+        ``no_model``: a decision that left no model on the machine (rejected, no champion yet);
+        ``decision`` (the decision's word, ``""`` without one) and ``waiting``: what the model
+        waits for when it is the candidate that passed every gate and waits for a confirmation
+        (:func:`rafi.family.confirmation.awaiting_confirmation`), else None.
+    """
+    decided = isinstance(dec, dict) and bool(dec)
+    if not champion_after and not decided:
+        return {"on_machine": None, "no_model": False, "decision": "", "waiting": None}
+    is_candidate = decided and bool(model_id) and str(dec.get("candidate_id") or "") == str(model_id)
+    return {
+        "on_machine": bool(champion_after) and str(champion_after) == str(model_id),
+        "no_model": not champion_after,
+        "decision": str(dec.get("decision") or "") if decided else "",
+        "waiting": awaiting_confirmation(dec) if is_candidate and not champion_after else None,
+    }
 
 
 def probe_words(settings: dict) -> str:

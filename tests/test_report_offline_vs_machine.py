@@ -1,0 +1,165 @@
+"""Section 1 says what was judged, and what the compensator on the machine would leave (issue 46).
+
+An independent audit read the report of a machine nobody here tuned on (``foreign-3``: no model
+on the machine yet, the candidate passed every gate and waits for an input warning's
+confirmation; a validation run beyond the trained speeds) against its tables and found:
+
+1. the verdict box said "No validation results" and "0 checks" while ``registry/decision.json``
+   held nine checks of the candidate, all passing; sections 2 and 3 said "No registry decision
+   in this run" beside the registry section's decision;
+2. "It passes every gate on them" stood alone while the replay with the controller's limits left
+   26.4 um (day07) where the model alone left 2.85 um, and the run beyond the trained speeds was
+   never replayed (only ``validation_multi`` runs were);
+3. "the compensation is right to +/-X um, 9 times in 10" stood beside a measured coverage of
+   2.3 %.
+
+The report fixture (``tests/data/report_fixture/tapping-center-a``) is set up the way the audit's
+results were, and every sentence is checked against the tables it is computed from.
+"""
+
+from __future__ import annotations
+
+import html as html_lib
+import json
+import re
+
+import pandas as pd
+from report_fixture import copy_fixture, empty_figure_dirs, write_upstream_tables
+from test_report_text import CONFIG, _Figs, _section
+from test_report_text import _text as _tagged_text
+
+from rafi.report.context import build_context
+from rafi.report.render import render_html
+from rafi.report.replay_section import section_replay
+from rafi.settings import machine_settings
+
+MACHINE = "tapping-center-a"
+
+
+def _no_champion(results, *, gates_passed: bool) -> dict:
+    """The fixture's decision made the audit's: no model on the machine before or after, the
+    candidate rejected, waiting for an input warning (``gates_passed``) or failing a gate."""
+    path = results / "registry" / "decision.json"
+    dec = json.loads(path.read_text(encoding="utf-8"))
+    for row in dec["verdict"]:
+        row["passed"] = gates_passed or row["run_id"] != "multi-1" or row["criterion"] != "max_residual_um"
+    warning = {"file": "2026-03-16_multi_condition.csv", "sha256": "ab" * 32, "check": "speed_range"}
+    dec |= {
+        "decision": "rejected",
+        "champion_id_before": None,
+        "champion_id_after": None,
+        "champion_summary": None,
+        "gates_passed": gates_passed,
+        "blocked_by": ["input_warnings"] if gates_passed else ["gates"],
+        "input_warnings": {"blocking": [{**warning, "message": "x"}] if gates_passed else []},
+    }
+    path.write_text(json.dumps(dec), encoding="utf-8")
+    return dec
+
+
+def _text(html: str) -> str:
+    """Visible text, without the spaces a tag leaves before punctuation (``<code>id</code>,``)."""
+    text = html_lib.unescape(_tagged_text(html)).replace("\u00a0", " ")
+    return re.sub(r"\( ", "(", re.sub(r" (?=[,;:.)])", "", text))
+
+
+def _context(results) -> dict:
+    paths = write_upstream_tables(results)
+    return build_context(
+        paths, empty_figure_dirs(results), machine=MACHINE, settings=machine_settings(CONFIG, MACHINE)
+    )
+
+
+def _scored(results) -> list[str]:
+    comp = pd.read_csv(results / "registry" / "comparison.csv")
+    return comp.loc[comp["candidate_max_abs_after_um"].notna(), "run_id"].astype(str).tolist()
+
+
+# --------------------------------------------------------------------------- item 1
+
+
+def test_without_a_model_on_the_machine_the_box_shows_the_candidates_stored_checks(tmp_path):
+    """No champion, the candidate passed every gate and waits: the box is WAITING with the
+    candidate's stored checks (criterion x validation run), never "No validation results" or
+    "0 checks" beside a decision.json that holds them."""
+    results = copy_fixture(tmp_path)
+    dec = _no_champion(results, gates_passed=True)
+    ctx = _context(results)
+    v = ctx["verdict"]
+    runs = _scored(results)
+    n = sum(r["run_id"] in runs for r in dec["verdict"])
+    assert v["status"] == "WAITING"
+    assert v["n_checks"] == n > 0 and v["n_failed"] == 0
+    assert [r["status"] for r in v["rows"]] == ["PASS"] * 3
+    text = _text(render_html(ctx))
+    assert "No validation results" not in text
+    cand = dec["candidate_id"][:12]
+    assert f"{n} checks (criterion × validation run) of the candidate {cand}, 0 failed" in text
+    worst = max(r["measured"] for r in dec["verdict"] if r["criterion"] == "max_residual_um")
+    assert f"Largest residual after compensation: {worst:.2f} µm" in text
+
+
+def test_without_a_model_on_the_machine_a_failed_candidate_is_shown_failing(tmp_path):
+    results = copy_fixture(tmp_path)
+    dec = _no_champion(results, gates_passed=False)
+    ctx = _context(results)
+    v = ctx["verdict"]
+    assert v["status"] == "FAIL" and v["n_failed"] == 1
+    failed = [r for r in v["rows"] if not r["passed"]]
+    assert [r["criterion"] for r in failed] == ["max_residual_um"] and failed[0]["run_id"] == "run multi-1"
+    text = _text(render_html(ctx))
+    assert "No validation results" not in text
+    kind = v["judged"]["candidate_kind"]
+    assert kind == "rafi"  # the registry's artefact of the candidate
+    assert (
+        f"no model is qualified for this machine: the candidate {dec['candidate_id'][:12]} ({kind}) "
+        "does not meet the qualification criteria"
+    ) in text
+
+
+def test_a_decision_without_a_model_on_the_machine_is_not_called_no_decision(tmp_path):
+    """Sections 2 and 3 said "No registry decision in this run" whenever no model was on the
+    machine; the registry decided (rejected): they say the offered model is not on the machine
+    and why, and keep "no registry decision" for results without decision.json."""
+    results = copy_fixture(tmp_path)
+    dec = _no_champion(results, gates_passed=True)
+    ctx = _context(results)
+    d = ctx["deployed"]
+    assert d["on_machine"] is False and d["no_model"]
+    text = _text(render_html(ctx))
+    assert "No registry decision in this run" not in text
+    assert "It is not on the machine: it passed every gate and waits for a confirmation" in text
+    # the replay section, on a summary of the offered model
+    summary = pd.DataFrame(
+        {
+            "model_id": [ctx["deployed"]["model_id"]],
+            "kind": ["dynamic"],
+            "reference_rule": ["run_start"],
+            "run_id": ["multi-1"],
+            "log": ["a.csv"],
+            "n_samples": [10],
+            **{f"n_{s}": [0] for s in ("off", "referencing", "hold", "ramp", "clamped", "rate_limited")},
+            "n_ok": [10],
+            "n_fault": [0],
+            "n_outside_range": [0],
+            "faults": [""],
+            "max_abs_command_minus_model_um": [0.0],
+            "max_abs_measured_um": [9.0],
+            "max_abs_residual_model_um": [1.0],
+            "max_abs_residual_um": [1.0],
+        }
+    )
+    settings = machine_settings(CONFIG, MACHINE)
+    base = {"section_by_id": {"replay": {"id": "replay", "number": 3, "title": "replay"}}, "fig_replay0": 0}
+    for decision, said, unsaid in (
+        (
+            dec,
+            "is not on the machine: the registry decision of this run (rejected) leaves no model on the "
+            "machine",
+            "no registry decision",
+        ),
+        (None, "(no registry decision in this run)", "leaves no model"),
+    ):
+        rp = section_replay({"replay_summary": summary, "decision": decision}, settings, _Figs(), None)
+        text = _text(_section("replay", replay=rp, **base))
+        assert said in text and unsaid not in text
