@@ -29,6 +29,7 @@ from test_report_text import CONFIG, _Figs, _section
 from test_report_text import _text as _tagged_text
 
 from rafi.report.context import build_context
+from rafi.report.intervals import worst_run_interval
 from rafi.report.render import render_html
 from rafi.report.replay_section import section_replay
 from rafi.settings import machine_settings
@@ -163,3 +164,92 @@ def test_a_decision_without_a_model_on_the_machine_is_not_called_no_decision(tmp
         rp = section_replay({"replay_summary": summary, "decision": decision}, settings, _Figs(), None)
         text = _text(_section("replay", replay=rp, **base))
         assert said in text and unsaid not in text
+
+
+# --------------------------------------------------------------------------- item 3
+
+
+def _interval_rows(run_cov: float) -> pd.DataFrame:
+    return pd.DataFrame(
+        {
+            "run_id": ["a", "b"],
+            "max_abs_after_um": [1.0, 3.0],
+            "max_abs_before_um": [20.0, 30.0],
+            "coverage": [0.95, run_cov],
+            "interval_width_um": [2.0, 9.32],
+        }
+    )
+
+
+def test_the_interval_sentence_claims_its_level_only_where_the_measured_coverage_holds_it():
+    """The claim "right to +/-X, 9 times in 10" needs the coverage measured at that run and over
+    every validation run to reach the level; else the sentence gives the coverage and says it is
+    fewer than the level promises."""
+    cases = {
+        (0.76, 0.83): "both",
+        (0.76, 0.95): "run",
+        (0.95, 0.83): "all",
+        (0.95, 0.92): None,
+        (0.76, None): "run",
+        (0.90, None): None,
+    }
+    for (run_cov, pooled), short in cases.items():
+        iv = worst_run_interval(_interval_rows(run_cov), 0.9, coverage_all=pooled)
+        assert iv["run_id"] == "b" and iv["coverage_pct"] == 100 * run_cov
+        assert iv["short"] == short, (run_cov, pooled)
+        assert iv["coverage_all_pct"] == (None if pooled is None else 100 * pooled)
+
+
+def test_the_verdict_does_not_say_nine_in_ten_beside_a_coverage_that_refutes_it():
+    from collections import defaultdict
+
+    def said(iv):
+        verdict = defaultdict(lambda: None, interval=iv, css="pass", status="PASS", stored=True, rows=[])
+        return _text(_section("verdict", verdict=verdict))
+
+    low = said(worst_run_interval(_interval_rows(0.76), 0.9, coverage_all=0.83))
+    assert (
+        "At the worst run b, the 90 % interval is ±4.66 µm (median width 9.32 µm); it held the measured "
+        "dz on 76.0 % of that run's samples and on 83.0 % over every validation run, fewer than the 90 % "
+        "it promises."
+    ) in low
+    assert "9 times in 10" not in low and "right to" not in low
+    run_only = said(worst_run_interval(_interval_rows(0.76), 0.9, coverage_all=0.95))
+    assert (
+        "it held the measured dz on 76.0 % of that run's samples, fewer than the 90 % it promises "
+        "(95.0 % over every validation run)."
+    ) in run_only
+    all_only = said(worst_run_interval(_interval_rows(0.95), 0.9, coverage_all=0.83))
+    assert (
+        "it held the measured dz on 95.0 % of that run's samples but on 83.0 % over every validation run, "
+        "fewer than the 90 % it promises."
+    ) in all_only
+    held = said(worst_run_interval(_interval_rows(0.95), 0.9, coverage_all=0.92))
+    assert (
+        "At the worst run b, the compensation is right to ±4.66 µm, 9 times in 10: the 90 % interval "
+        "(median width 9.32 µm) held the measured dz on 95.0 % of that run's samples and on 92.0 % over "
+        "every validation run."
+    ) in held
+
+
+def test_the_foreign_machines_rafi_line_says_its_coverage_is_far_below_its_level(tmp_path):
+    """The rendered report: RAFI's worst run covered at 2.3 % (foreign-3) - the sentence says so
+    with the pooled coverage of comparison/summary.csv, and does not claim 9 times in 10."""
+    from test_report_intervals import add_interval_results
+
+    results = copy_fixture(tmp_path)
+    add_interval_results(results)
+    summ = pd.read_csv(results / "validation" / "summary.csv")
+    worst = summ["max_abs_after_um"].idxmax()
+    summ.loc[worst, "coverage"] = 0.023
+    summ.to_csv(results / "validation" / "summary.csv", index=False)
+    comp = pd.read_csv(results / "comparison" / "summary.csv")
+    pooled = float(comp.loc[comp["model"] == "rafi", "coverage"].iloc[0])
+    ctx = _context(results)
+    text = _text(render_html(ctx))
+    run = summ.loc[worst, "run_id"]
+    rv = ctx["verdict"]["rafi"]["interval"]
+    assert rv["short"] in ("run", "both") and rv["coverage_all_pct"] == 100 * pooled
+    assert f"At its worst run {run}, the 90 % interval is ±" in text
+    assert "it held the measured dz on 2.3 % of that run's samples" in text
+    assert f"{100 * pooled:.1f} % over every validation run" in text

@@ -25,7 +25,7 @@ import pandas as pd
 from rafi.family.confirmation import awaiting_confirmation
 from rafi.report.format import fmt_num, fmt_speed_range, short_id, truthy
 from rafi.report.inputs import noise_floors
-from rafi.report.intervals import interval_block, worst_run_interval
+from rafi.report.intervals import interval_block, pooled_coverage, worst_run_interval
 
 #: The columns of a verdict (:data:`rafi.method.validate.VERDICT_COLUMNS`).
 VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
@@ -438,7 +438,8 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
 def rafi_context(res: dict, noise: dict) -> dict:
     """The RAFI line of the verdict: its stored verdict (:func:`rafi_verdict`; NOT STORED where
     no file stores it) with the worst residual, its run's noise floor and the smallest
-    improvement of ``validation/summary.csv``."""
+    improvement of ``validation/summary.csv``, and the interval at that run (its pooled coverage
+    from RAFI's row of ``comparison/summary.csv``)."""
     gated = res.get("validation_summary")
     if gated is None:
         return {
@@ -454,8 +455,10 @@ def rafi_context(res: dict, noise: dict) -> dict:
     worst_run = str(gated.loc[after.idxmax(), "run_id"]) if after.notna().any() else ""
     rafi_v["worst_noise"] = fmt_num(noise[worst_run], 2, "\u00b5m") if worst_run in noise else ""
     rafi_v["min_imp"] = fmt_num(pd.to_numeric(gated["improvement_pct"], errors="coerce").min(), 1, "%")
-    level = (interval_block(res.get("model")) or {}).get("level")
-    rafi_v["interval"] = worst_run_interval(gated, level, worst_run) if worst_run else None
+    model = res.get("model") or {}
+    level = (interval_block(model) or {}).get("level")
+    pooled = pooled_coverage(res.get("comparison"), model.get("model_id"), "rafi")
+    rafi_v["interval"] = worst_run_interval(gated, level, worst_run, pooled) if worst_run else None
     return rafi_v
 
 
@@ -489,7 +492,9 @@ def judged_interval(res: dict, model_id, verdict, registry_dir: Path | None = No
     """The interval at the worst run of the model on the machine
     (:func:`rafi.report.intervals.worst_run_interval`): its rows of ``comparison/per_run.csv``
     (by ``model_id``), the level of its artefact (:func:`artefact_of`), the worst run of its
-    stored verdict (else of those rows); ``None`` where a result is missing."""
+    stored verdict (else of those rows), its coverage over every validation sample of
+    ``comparison/summary.csv`` (:func:`rafi.report.intervals.pooled_coverage`); ``None`` where a
+    result is missing."""
     per_run = res.get("comparison_per_run")
     if per_run is None or "model_id" not in per_run or not model_id:
         return None
@@ -498,7 +503,8 @@ def judged_interval(res: dict, model_id, verdict, registry_dir: Path | None = No
     worst = _worst_run(verdict)
     if worst is not None and worst not in set(rows["run_id"].astype(str)):
         return None  # the verdict's worst run is not among the comparison's runs: say nothing
-    return worst_run_interval(rows.reset_index(drop=True), level, worst)
+    pooled = pooled_coverage(res.get("comparison"), model_id)
+    return worst_run_interval(rows.reset_index(drop=True), level, worst, pooled)
 
 
 def candidate_box(res: dict, dec: dict, noise: dict, waiting: str | None) -> tuple[dict, pd.DataFrame | None]:
