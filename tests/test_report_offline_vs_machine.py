@@ -253,3 +253,144 @@ def test_the_foreign_machines_rafi_line_says_its_coverage_is_far_below_its_level
     assert f"At its worst run {run}, the 90 % interval is ±" in text
     assert "it held the measured dz on 2.3 % of that run's samples" in text
     assert f"{100 * pooled:.1f} % over every validation run" in text
+
+
+# --------------------------------------------------------------------------- item 2
+
+
+def _replay_summary(model_id: str) -> pd.DataFrame:
+    """A replay summary as rule replay writes it, with the audit's numbers of foreign-3: a run the
+    limits left alone (day06) and two where they held the output (day07: the trained range, day08:
+    a speed beyond the trained ones)."""
+    return pd.DataFrame(
+        {
+            "model_id": [model_id] * 3,
+            "kind": ["ensemble"] * 3,
+            "reference_rule": ["run_start"] * 3,
+            "run_id": ["day06_test", "day07_test", "day08_test"],
+            "log": ["day06_test.csv", "day07_test.csv", "day08_test.csv"],
+            "n_samples": [169, 149, 171],
+            "n_off": [0, 0, 0],
+            "n_referencing": [1, 1, 1],
+            "n_ok": [168, 48, 2],
+            "n_hold": [0, 79, 10],
+            "n_ramp": [0, 21, 158],
+            "n_clamped": [0, 0, 0],
+            "n_rate_limited": [0, 3, 0],
+            "n_fault": [0, 100, 168],
+            "n_outside_range": [0, 100, 168],
+            "faults": [
+                "",
+                "outside_range: 100 (first: Temp9 rise -2.85 K outside trained range)",
+                "outside_range: 168 (first: speed 14840 r/min above trained 11240 r/min)",
+            ],
+            "max_abs_command_minus_model_um": [0.0, 24.10, 51.48],
+            "max_abs_measured_um": [36.4, 39.2, 51.0],
+            "max_abs_residual_model_um": [2.955, 2.853, 3.032],
+            "max_abs_residual_um": [2.955, 26.393, 51.0],
+        }
+    )
+
+
+NOISE = {"day06_test": 0.71, "day07_test": 0.52, "day08_test": 0.71}
+
+
+def test_the_replay_gaps_are_the_runs_where_the_limits_leave_more_than_the_noise_floor():
+    from rafi.report.replay_section import replay_gaps
+
+    s = _replay_summary("ab" * 32)
+    g = replay_gaps(s, NOISE, 12.0)
+    assert g["id"] == "ab" * 6 and g["gate_um"] == 12.0
+    assert [r["run_id"] for r in g["runs"]] == ["day08_test", "day07_test"]  # largest first; day06 equal
+    day08, day07 = g["runs"]
+    assert (day08["with_um"], day08["offline_um"], day08["n_samples"]) == (51.0, 3.032, 171)
+    assert day08["actions"] == [["held its output", 10], ["ramped it", 158]] and day08["above_gate"]
+    assert day07["actions"] == [["held its output", 79], ["ramped it", 21], ["rate-limited it", 3]]
+    assert day07["faults"].startswith("outside_range: 100")
+    # a difference inside the run's noise floor is not material; without a floor, any that shows
+    clamped = replay_gaps(s.assign(n_hold=0, n_ramp=0, n_clamped=[0, 0, 181]), NOISE)["runs"][0]
+    assert clamped["actions"] == [["clamped its output", 181]]
+    close = s.assign(max_abs_residual_um=s["max_abs_residual_model_um"] + 0.5)
+    assert replay_gaps(close, NOISE, 12.0) is None  # 0.5 um: inside every run's noise floor
+    assert [r["run_id"] for r in replay_gaps(close, {}, 12.0)["runs"]] == [
+        "day08_test",
+        "day06_test",
+        "day07_test",
+    ]
+    assert replay_gaps(s.assign(max_abs_residual_um=s["max_abs_residual_model_um"]), NOISE) is None
+    assert replay_gaps(None) is None and replay_gaps(s.drop(columns="max_abs_residual_model_um")) is None
+    assert not replay_gaps(s, NOISE)["runs"][0]["above_gate"]  # no gate given: never said above
+
+
+def _with_replay(results, model_id: str) -> pd.DataFrame:
+    """The fixture with the replay summary (its runs renamed to the audit's) and its champion passing."""
+    (results / "deploy").mkdir(exist_ok=True)
+    s = _replay_summary(model_id)
+    runs = pd.read_csv(results / "runs.csv")["run_id"].astype(str).tolist()
+    s["run_id"] = [r for r in runs if r.startswith(("val", "multi"))][:3]
+    s.to_csv(results / "deploy" / "replay_summary.csv", index=False)
+    summ = pd.read_csv(results / "comparison" / "summary.csv")
+    summ.loc[summ["champion"].astype(bool), "passed"] = True
+    summ.to_csv(results / "comparison" / "summary.csv", index=False)
+    return s
+
+
+def test_passes_every_gate_is_said_beside_what_the_compensator_would_leave(tmp_path):
+    """foreign-3: the candidate waits, the replayed model is the box's and the offered one. The
+    box says, from the replay, what the compensator would leave where it differs from the model
+    alone; the selection's "passes every gate" says it is offline; section 2 points to it."""
+    results = copy_fixture(tmp_path)
+    dec = _no_champion(results, gates_passed=True)
+    s = _with_replay(results, dec["candidate_id"])
+    ctx = _context(results)
+    v = ctx["verdict"]
+    assert v["replay_in_box"] and v["replay_offered"]
+    first, second = s["run_id"].iloc[2], s["run_id"].iloc[1]
+    assert [r["run_id"] for r in v["replay"]["runs"]] == [first, second]
+    text = _text(render_html(ctx))
+    n = ctx["section_by_id"]["replay"]["number"]
+    assert (
+        f"With the controller's limits (the replay, section {n}) the compensator on the machine would "
+        f"leave more than the model alone: on {first} a worst residual of 51.00 µm (model alone 3.03 µm, "
+        "above the 12.00 µm limit of the largest-residual gate): it held its output on 10, ramped it on 158 "
+        "of 171 samples (fault rule: outside_range: 168 (first: speed 14840 r/min above trained 11240 "
+        f"r/min)); on {second} 26.39 µm (model alone 2.85 µm, above the 12.00 µm limit of the "
+        "largest-residual gate): it held its output on 79, ramped it on 21, rate-limited it on 3 of 149 "
+        "samples"
+    ) in text
+    assert "The gates judge the model alone (offline), not the replay." in text
+    assert (
+        "It passes every gate on them offline (the model alone); with the controller's limits it leaves "
+        f"up to 51.00 µm ({first}, above)."
+    ) in text
+    assert (
+        "These are the model alone (offline); with the controller's limits the compensator would leave "
+        f"up to 51.00 µm on {first} (section {n}, the replay)."
+    ) in text
+    assert "It passes every gate on them." not in text
+
+
+def test_the_replay_of_another_model_than_the_boxs_is_said_beside_the_offered_models_gates(tmp_path):
+    """The model on the machine is another one: the box is not the replayed model's and says
+    nothing of the replay; the sentence on the offered model's gates says it in full. Without a
+    material difference nothing is added."""
+    results = copy_fixture(tmp_path)
+    path = results / "registry" / "decision.json"
+    dec = json.loads(path.read_text(encoding="utf-8"))
+    _with_replay(results, dec["candidate_id"])
+    dec |= {"champion_id_before": "ee" * 32, "champion_id_after": "ee" * 32, "decision": "rejected"}
+    path.write_text(json.dumps(dec), encoding="utf-8")
+    ctx = _context(results)
+    assert ctx["verdict"]["replay_offered"] and not ctx["verdict"]["replay_in_box"]
+    text = _text(render_html(ctx))
+    assert "It passes every gate on them. With the controller's limits (the replay, section" in text
+    assert text.count("would leave more than the model alone") == 1
+    s = pd.read_csv(results / "deploy" / "replay_summary.csv")
+    s.assign(max_abs_residual_um=s["max_abs_residual_model_um"]).to_csv(
+        results / "deploy" / "replay_summary.csv", index=False
+    )
+    ctx = _context(results)
+    text = _text(render_html(ctx))
+    assert ctx["verdict"]["replay"] is None and "It passes every gate on them." in text
+    assert "would leave more than the model alone" not in text and "These are the model alone" not in text
+

@@ -105,6 +105,86 @@ def _runs(s: pd.DataFrame) -> list[dict]:
     return rows
 
 
+#: What each limit did to the command, by the ``n_*`` column of ``replay_summary.csv``, as the
+#: verdict says it: the first with "its output", the others with "it" ("held its output on 79,
+#: ramped it on 21 of 149 samples"; "clamped its output on 181 of 960 samples").
+ACTIONS = (
+    ("n_hold", "held"),
+    ("n_ramp", "ramped"),
+    ("n_clamped", "clamped"),
+    ("n_rate_limited", "rate-limited"),
+)
+#: Without a noise floor, a difference smaller than this (um) does not show at two decimals.
+SHOWN_UM = 0.005
+
+
+def _actions(row: dict) -> list[list]:
+    """``[words, samples]`` of each limit that acted on a replayed run (:data:`ACTIONS`)."""
+    acted = [(verb, _n(row.get(col))) for col, verb in ACTIONS if _n(row.get(col))]
+    return [[f"{verb} {'its output' if k == 0 else 'it'}", n] for k, (verb, n) in enumerate(acted)]
+
+
+def replay_gaps(summary: pd.DataFrame | None, noise: dict | None = None, gate_um=None) -> dict | None:
+    """Where the compensator with the controller's limits leaves materially more than the model
+    alone, per replayed run, for the verdict: the gates judge the model alone (offline), the
+    replay says what the machine would keep.
+
+    A run differs materially when its max |residual| with the limits (``max_abs_residual_um``)
+    exceeds the model's alone (``max_abs_residual_model_um``) by more than the run's noise floor
+    (the expected max |noise| of its dz: a smaller difference cannot be told from the probe's
+    noise), or, without a noise floor, by more than shows at two decimals (:data:`SHOWN_UM`).
+
+    Parameters
+    ----------
+    summary : DataFrame or None
+        ``deploy/replay_summary.csv``.
+    noise : dict, optional
+        Run id -> noise floor (um, :func:`rafi.report.inputs.noise_floors`).
+    gate_um : float, optional
+        ``qualification.max_residual_um``: a run whose residual with the limits is above it is
+        flagged ``above_gate`` (said, not judged: the gates stay those of the model alone).
+
+    Returns
+    -------
+    dict or None
+        ``model_id`` (the replayed model), ``id`` (its short id), ``gate_um`` and ``runs``: one
+        dict per such run, largest residual with the limits first: ``run_id``, ``with_um``,
+        ``offline_um``, ``n_samples``, ``actions`` (``[words, samples]`` of each limit that acted,
+        :data:`ACTIONS`), ``faults`` (the run's ``faults`` of the summary, the fault rule's causes)
+        and ``above_gate``; ``None`` without a summary or without such a run.
+    """
+    need = {"run_id", "max_abs_residual_um", "max_abs_residual_model_um"}
+    if summary is None or not len(summary) or not need <= set(summary.columns):
+        return None
+    noise = noise or {}
+    gate = float(gate_um) if isnum(gate_um) else None
+    runs = []
+    for r in summary.to_dict("records"):
+        with_um, alone = r["max_abs_residual_um"], r["max_abs_residual_model_um"]
+        if not isnum(with_um):
+            continue
+        floor = noise.get(str(r["run_id"]))
+        margin = float(floor) if isnum(floor) else SHOWN_UM
+        if isnum(alone) and float(with_um) - float(alone) <= margin:
+            continue
+        runs.append(
+            {
+                "run_id": str(r["run_id"]),
+                "with_um": float(with_um),
+                "offline_um": float(alone) if isnum(alone) else None,
+                "n_samples": _n(r.get("n_samples")),
+                "actions": _actions(r),
+                "faults": str(r.get("faults") or "") if pd.notna(r.get("faults")) else "",
+                "above_gate": gate is not None and float(with_um) > gate,
+            }
+        )
+    if not runs:
+        return None
+    runs.sort(key=lambda g: -g["with_um"])
+    model_id = str(summary["model_id"].iloc[0]) if "model_id" in summary else ""
+    return {"model_id": model_id, "id": short_id(model_id), "gate_um": gate, "runs": runs}
+
+
 def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
     """The section's context, or ``None`` without a replay (no ``replay_summary.csv`` or no run).
 
