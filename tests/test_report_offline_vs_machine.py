@@ -394,3 +394,16 @@ def test_the_replay_of_another_model_than_the_boxs_is_said_beside_the_offered_mo
     assert ctx["verdict"]["replay"] is None and "It passes every gate on them." in text
     assert "would leave more than the model alone" not in text and "These are the model alone" not in text
 
+
+def test_every_validation_run_is_replayed_by_default_and_a_long_list_is_counted_in_the_title():
+    """foreign-3's run beyond the trained speeds (validation_single) was never replayed: only
+    validation_multi runs were. Every validation role is replayed by default (a replay costs
+    about a second per run); beyond three runs the section's title counts them."""
+    from rafi.method.runs import ROLES
+    from rafi.report.replay_section import section_title
+
+    roles = machine_settings(CONFIG, MACHINE)["deploy"]["replay_roles"]
+    assert set(roles) == {r for r in ROLES if r.startswith("validation")}
+    title = section_title({"runs": [{"run_id": f"r{k}"} for k in range(3)]}, "x")
+    assert title == "The model on the machine: replay of r0, r1, r2"
+    assert section_title({"runs": [{"run_id": f"r{k}"} for k in range(9)]}, "x").endswith("replay of 9 runs")

@@ -41,11 +41,20 @@ def replay_figure_key(run_id) -> str:
     return f"replay/{run_id}"
 
 
+#: Up to this many replayed runs the section's title names them; beyond, it counts them.
+TITLE_RUNS = 3
+
+
 def section_title(replay: dict | None, default: str) -> str:
-    """The section's title: ``The model on the machine: replay of <run>[, <run>]``."""
+    """The section's title: ``The model on the machine: replay of <run>[, <run>]`` for up to
+    :data:`TITLE_RUNS` runs, ``... replay of <n> runs`` beyond (every validation run is replayed:
+    the table and the figures name them)."""
     if not replay or not replay["runs"]:
         return default
-    return "The model on the machine: replay of " + ", ".join(r["run_id"] for r in replay["runs"])
+    runs = [r["run_id"] for r in replay["runs"]]
+    if len(runs) > TITLE_RUNS:
+        return f"The model on the machine: replay of {len(runs)} runs"
+    return "The model on the machine: replay of " + ", ".join(runs)
 
 
 def _n(value) -> int:
