@@ -253,6 +253,8 @@ def test_the_foreign_machines_rafi_line_says_its_coverage_is_far_below_its_level
     assert f"At its worst run {run}, the 90 % interval is ±" in text
     assert "it held the measured dz on 2.3 % of that run's samples" in text
     assert f"{100 * pooled:.1f} % over every validation run" in text
+    # section 2's pooled coverage is a sentence of its own (it read "every validation run.Over all")
+    assert "Over all its validation samples" in text and ".Over all" not in text
 
 
 # --------------------------------------------------------------------------- item 2
