@@ -98,6 +98,8 @@ def test_without_a_model_on_the_machine_the_box_shows_the_candidates_stored_chec
     assert f"{n} checks (criterion × validation run) of the candidate {cand}, 0 failed" in text
     worst = max(r["measured"] for r in dec["verdict"] if r["criterion"] == "max_residual_um")
     assert f"Largest residual after compensation: {worst:.2f} µm" in text
+    # the run and its noise floor apart in the PDF's text too (it read "run day08_test· noise floor")
+    assert re.search(r"</span>\s+<span\s+class=\"muted\">&middot; noise floor of that run", render_html(ctx))
 
 
 def test_without_a_model_on_the_machine_a_failed_candidate_is_shown_failing(tmp_path):
