@@ -309,7 +309,7 @@ PRESENTATION_SETTINGS: dict = {
                 ),
             ),
             "replay_roles": Setting(
-                default=["validation_multi"],
+                default=["validation_single", "validation_multi", "validation_idle"],
                 schema={
                     "type": "array",
                     "items": {
@@ -317,10 +317,11 @@ PRESENTATION_SETTINGS: dict = {
                     },
                     "uniqueItems": True,
                 },
-                shown="`[validation_multi]`",
+                shown="`[validation_single, validation_multi, validation_idle]`",
                 doc=(
                     "the report replays the runs of these roles through the compensator with the limits in "
-                    "force"
+                    "force (every validation run: the verdict says where the limits leave more than the "
+                    "model alone; a replay costs about a second per run)"
                 ),
                 replay=True,
             ),

@@ -21,12 +21,12 @@ from rafi.report.comparison_section import section_comparison
 from rafi.report.data_sections import section_data, section_equilibrium, section_ranking
 from rafi.report.deployed_section import section_deployed
 from rafi.report.embed import FigureFiles
-from rafi.report.inputs import load_results
+from rafi.report.inputs import load_results, noise_floors
 from rafi.report.intervals import interval_context
 from rafi.report.model_sections import section_fuzzy, section_models, section_validation
 from rafi.report.probe import probe_sign_record
 from rafi.report.registry_section import section_registry
-from rafi.report.replay_section import section_replay, section_title
+from rafi.report.replay_section import replay_gaps, section_replay, section_title
 from rafi.report.requalification_section import section_requalification
 from rafi.report.segmentation_section import section_segmentation
 from rafi.report.signoff import section_signoff
@@ -125,6 +125,7 @@ def build_context(
     )
     ctx["replay"] = section_replay(res, settings, figs, dec.get("champion_id_after"))
     ctx["deployed"] = section_deployed(res, figs, dec.get("champion_id_after"))
+    _replay_findings(ctx, res, dec, gates)
     # figure numbers in document order: the offered model, its replay, then sections 3 on
     ctx["fig_deployed0"] = 0
     ctx["fig_replay0"] = len(ctx["deployed"]["figures"]) if ctx["deployed"] else 0
@@ -171,6 +172,24 @@ def _verdict_findings(ctx: dict) -> None:
     verdict["late"] = list(seg.get("late") or [])
     verdict["selection"] = (ctx["comparison"] or {}).get("selection")
     verdict["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
+
+
+def _replay_findings(ctx: dict, res: dict, dec: dict, gates: dict) -> None:
+    """Where the replay with the controller's limits leaves materially more than the model alone
+    (:func:`rafi.report.replay_section.replay_gaps`): ``verdict.replay`` (``None`` where it does
+    not), ``verdict.replay_in_box`` (the replayed model is the box's: the model on the machine,
+    or tonight's candidate where none is), ``verdict.replay_offered`` (it is the model offered,
+    whose gates the selection sentence states) and ``deployed.replay_gap`` (for section 2)."""
+    verdict = ctx["verdict"]
+    gaps = replay_gaps(res.get("replay_summary"), noise_floors(res), gates.get("max_residual_um"))
+    box = dec.get("champion_id_after") or (dec.get("candidate_id") if verdict.get("of_candidate") else None)
+    offered = (ctx["deployed"] or {}).get("model_id")
+    replayed = gaps["model_id"] if gaps else None
+    verdict["replay"] = gaps
+    verdict["replay_in_box"] = bool(replayed) and replayed == box
+    verdict["replay_offered"] = bool(replayed) and replayed == offered
+    if ctx["deployed"] is not None:
+        ctx["deployed"]["replay_gap"] = gaps if verdict["replay_offered"] else None
 
 
 def numbered_sections(ctx: dict) -> list[dict]:

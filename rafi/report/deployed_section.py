@@ -42,6 +42,7 @@ from rafi.report.intervals import (
     interval_block,
     interval_context,
 )
+from rafi.report.verdict import placement
 
 UM = "\u00b5m"
 
@@ -399,7 +400,8 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
     figs : rafi.report.embed.FigureFiles
         The figure files (group ``comparison``: :func:`deployed_figure_key`).
     champion_after : str, optional
-        The model id on the machine after this run (``registry/decision.json``).
+        The model id on the machine after this run (``registry/decision.json``); where the model
+        stands after the decision (``res["decision"]``): :func:`rafi.report.verdict.placement`.
     """
     summary = res.get("comparison")
     name = offered_name(summary)
@@ -428,7 +430,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
     train_runs = parts["train_runs"]
     validation = _validation_rows(res.get("comparison_per_run"), name, res.get("runs_csv"))
     figures = _figures(figs)
-    on_machine = None if not champion_after else str(champion_after) == mid
+    placed = placement(res.get("decision"), mid, champion_after)
     return {
         "name": name,
         "kind": kind,
@@ -462,7 +464,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "unpredicted": unpredicted_rows(res.get("comparison_per_run"), name),
         "n_runs": len(validation or []),
         "figures": figures,
-        "on_machine": on_machine,
+        **placed,
         "champion_after": short_id(champion_after) if champion_after else "",
         "rafi_like": rafi_like,
         "interval": interval_context(art),

@@ -121,7 +121,31 @@ def has_coverage(table) -> bool:
     return bool(pd.to_numeric(table["coverage"], errors="coerce").notna().any())
 
 
-def worst_run_interval(rows: pd.DataFrame | None, level, run_id=None) -> dict | None:
+def coverage_short(run_pct: float, all_pct: float | None, level_pct: float) -> str | None:
+    """Which measured coverage falls short of the interval's level: ``"both"`` (the run's and
+    the pooled one over every validation run), ``"run"``, ``"all"`` or ``None`` (neither: the
+    level is held where it was measured). A pooled coverage not measured (``None``) never falls
+    short. Strict: 89.9 % against a 90 % level is short."""
+    run = run_pct < level_pct
+    pooled = all_pct is not None and all_pct < level_pct
+    return "both" if run and pooled else "run" if run else "all" if pooled else None
+
+
+def pooled_coverage(summary: pd.DataFrame | None, model_id=None, name=None) -> float | None:
+    """The coverage of a model over every validation sample, as ``comparison/summary.csv``
+    stores it (``coverage``, 0..1), for the row of ``model_id`` (else of the model ``name``);
+    ``None`` without the table, the row or a value."""
+    if summary is None or "coverage" not in summary:
+        return None
+    column, value = ("model_id", model_id) if model_id else ("model", name)
+    if not value or column not in summary:
+        return None
+    hit = summary[summary[column].astype(str) == str(value)]
+    cov = pd.to_numeric(hit["coverage"], errors="coerce").dropna()
+    return float(cov.iloc[0]) if len(cov) else None
+
+
+def worst_run_interval(rows: pd.DataFrame | None, level, run_id=None, coverage_all=None) -> dict | None:
     """The interval at the worst run, for the verdict's sentence.
 
     Parameters
@@ -134,11 +158,16 @@ def worst_run_interval(rows: pd.DataFrame | None, level, run_id=None) -> dict | 
         The level of the model's artefact (its ``interval`` block).
     run_id : str, optional
         The worst run as the verdict names it; else the run with the largest max |residual|.
+    coverage_all : float, optional
+        The model's coverage over every validation sample (0..1, :func:`pooled_coverage`).
 
     Returns
     -------
     dict or None
         ``run_id``, ``half_width_um`` (half the median width), ``width_um``, ``coverage_pct``,
+        ``coverage_all_pct`` (``None`` without ``coverage_all``), ``short``
+        (:func:`coverage_short`: the sentence claims "right to +/-X, 9 times in 10" only when it
+        is ``None``, else it says the measured coverage falls short of the level),
         ``level_pct``, ``times`` (:func:`times_in`) and ``uncompensated_um``: the run's largest
         uncompensated displacement change (``max_abs_before_um``) when the half-width is wider
         than it (an interval that no longer tells a compensation from none: the model is far
@@ -163,11 +192,14 @@ def worst_run_interval(rows: pd.DataFrame | None, level, run_id=None) -> dict | 
     half = f["interval_width_um"] / 2.0
     before = hit.iloc[0].get("max_abs_before_um")
     wider = isnum(before) and half > float(before)
+    all_pct = 100.0 * float(coverage_all) if isnum(coverage_all) else None
     return {
         "run_id": str(run_id),
         "half_width_um": half,
         "width_um": f["interval_width_um"],
         "coverage_pct": f["coverage_pct"],
+        "coverage_all_pct": all_pct,
+        "short": coverage_short(f["coverage_pct"], all_pct, 100.0 * float(level)),
         "level_pct": 100.0 * float(level),
         "times": times,
         "uncompensated_um": float(before) if wider else None,

@@ -18,6 +18,7 @@ from rafi.deploy.metrics import fault_classes, fault_groups, fault_groups_text
 from rafi.report.envelope_text import MEANING, held_runs
 from rafi.report.format import fmt_num, isnum, records, short_id
 from rafi.report.intervals import band_label, coverage_fields, has_coverage, replayed_level
+from rafi.report.verdict import placement
 
 UM = "\u00b5m"
 
@@ -40,11 +41,20 @@ def replay_figure_key(run_id) -> str:
     return f"replay/{run_id}"
 
 
+#: Up to this many replayed runs the section's title names them; beyond, it counts them.
+TITLE_RUNS = 3
+
+
 def section_title(replay: dict | None, default: str) -> str:
-    """The section's title: ``The model on the machine: replay of <run>[, <run>]``."""
+    """The section's title: ``The model on the machine: replay of <run>[, <run>]`` for up to
+    :data:`TITLE_RUNS` runs, ``... replay of <n> runs`` beyond (every validation run is replayed:
+    the table and the figures name them)."""
     if not replay or not replay["runs"]:
         return default
-    return "The model on the machine: replay of " + ", ".join(r["run_id"] for r in replay["runs"])
+    runs = [r["run_id"] for r in replay["runs"]]
+    if len(runs) > TITLE_RUNS:
+        return f"The model on the machine: replay of {len(runs)} runs"
+    return "The model on the machine: replay of " + ", ".join(runs)
 
 
 def _n(value) -> int:
@@ -104,6 +114,86 @@ def _runs(s: pd.DataFrame) -> list[dict]:
     return rows
 
 
+#: What each limit did to the command, by the ``n_*`` column of ``replay_summary.csv``, as the
+#: verdict says it: the first with "its output", the others with "it" ("held its output on 79,
+#: ramped it on 21 of 149 samples"; "clamped its output on 181 of 960 samples").
+ACTIONS = (
+    ("n_hold", "held"),
+    ("n_ramp", "ramped"),
+    ("n_clamped", "clamped"),
+    ("n_rate_limited", "rate-limited"),
+)
+#: Without a noise floor, a difference smaller than this (um) does not show at two decimals.
+SHOWN_UM = 0.005
+
+
+def _actions(row: dict) -> list[list]:
+    """``[words, samples]`` of each limit that acted on a replayed run (:data:`ACTIONS`)."""
+    acted = [(verb, _n(row.get(col))) for col, verb in ACTIONS if _n(row.get(col))]
+    return [[f"{verb} {'its output' if k == 0 else 'it'}", n] for k, (verb, n) in enumerate(acted)]
+
+
+def replay_gaps(summary: pd.DataFrame | None, noise: dict | None = None, gate_um=None) -> dict | None:
+    """Where the compensator with the controller's limits leaves materially more than the model
+    alone, per replayed run, for the verdict: the gates judge the model alone (offline), the
+    replay says what the machine would keep.
+
+    A run differs materially when its max |residual| with the limits (``max_abs_residual_um``)
+    exceeds the model's alone (``max_abs_residual_model_um``) by more than the run's noise floor
+    (the expected max |noise| of its dz: a smaller difference cannot be told from the probe's
+    noise), or, without a noise floor, by more than shows at two decimals (:data:`SHOWN_UM`).
+
+    Parameters
+    ----------
+    summary : DataFrame or None
+        ``deploy/replay_summary.csv``.
+    noise : dict, optional
+        Run id -> noise floor (um, :func:`rafi.report.inputs.noise_floors`).
+    gate_um : float, optional
+        ``qualification.max_residual_um``: a run whose residual with the limits is above it is
+        flagged ``above_gate`` (said, not judged: the gates stay those of the model alone).
+
+    Returns
+    -------
+    dict or None
+        ``model_id`` (the replayed model), ``id`` (its short id), ``gate_um`` and ``runs``: one
+        dict per such run, largest residual with the limits first: ``run_id``, ``with_um``,
+        ``offline_um``, ``n_samples``, ``actions`` (``[words, samples]`` of each limit that acted,
+        :data:`ACTIONS`), ``faults`` (the run's ``faults`` of the summary, the fault rule's causes)
+        and ``above_gate``; ``None`` without a summary or without such a run.
+    """
+    need = {"run_id", "max_abs_residual_um", "max_abs_residual_model_um"}
+    if summary is None or not len(summary) or not need <= set(summary.columns):
+        return None
+    noise = noise or {}
+    gate = float(gate_um) if isnum(gate_um) else None
+    runs = []
+    for r in summary.to_dict("records"):
+        with_um, alone = r["max_abs_residual_um"], r["max_abs_residual_model_um"]
+        if not isnum(with_um):
+            continue
+        floor = noise.get(str(r["run_id"]))
+        margin = float(floor) if isnum(floor) else SHOWN_UM
+        if isnum(alone) and float(with_um) - float(alone) <= margin:
+            continue
+        runs.append(
+            {
+                "run_id": str(r["run_id"]),
+                "with_um": float(with_um),
+                "offline_um": float(alone) if isnum(alone) else None,
+                "n_samples": _n(r.get("n_samples")),
+                "actions": _actions(r),
+                "faults": str(r.get("faults") or "") if pd.notna(r.get("faults")) else "",
+                "above_gate": gate is not None and float(with_um) > gate,
+            }
+        )
+    if not runs:
+        return None
+    runs.sort(key=lambda g: -g["with_um"])
+    model_id = str(summary["model_id"].iloc[0]) if "model_id" in summary else ""
+    return {"model_id": model_id, "id": short_id(model_id), "gate_um": gate, "runs": runs}
+
+
 def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
     """The section's context, or ``None`` without a replay (no ``replay_summary.csv`` or no run).
 
@@ -116,7 +206,9 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
     figs : rafi.report.embed.FigureFiles
         The figure files (group ``replay``).
     champion_id : str or None
-        The model on the machine after this run (``decision.json`` ``champion_id_after``).
+        The model on the machine after this run (``decision.json`` ``champion_id_after``); where
+        the replayed model stands after the decision (``res["decision"]``):
+        :func:`rafi.report.verdict.placement`.
     """
     s = res.get("replay_summary")
     if s is None or not len(s):
@@ -124,10 +216,7 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
     s = s.assign(run_id=s["run_id"].astype(str))
     model_id = str(s["model_id"].iloc[0]) if "model_id" in s else ""
     kind = str(s["kind"].iloc[0]) if "kind" in s else ""
-    if not champion_id:
-        on_machine = None
-    else:
-        on_machine = bool(model_id) and str(champion_id) == model_id
+    placed = placement(res.get("decision"), model_id, champion_id)
     runs = []
     for r in s.to_dict("records"):
         runs.append(
@@ -146,7 +235,7 @@ def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:
     acted = int(s[["n_clamped", "n_rate_limited", "n_hold", "n_ramp"]].fillna(0).to_numpy().sum())
     return {
         "model": Markup(f"<b>{escape(kind)}</b> <code>{escape(short_id(model_id))}</code>"),
-        "on_machine": on_machine,
+        **placed,
         "champion": short_id(champion_id) if champion_id else "",
         "runs": runs,
         "roles": ", ".join(str(r) for r in deploy.get("replay_roles") or []),

@@ -26,7 +26,7 @@ from rafi.family.confirmation import awaiting_confirmation
 from rafi.report.comparison_section import family_champion
 from rafi.report.format import fmt_num, short_id, truthy
 from rafi.report.inputs import noise_floors
-from rafi.report.intervals import interval_block, worst_run_interval
+from rafi.report.intervals import interval_block, pooled_coverage, worst_run_interval
 from rafi.report.probe import probe_words
 from rafi.report.trained_range import range_facts
 
@@ -249,6 +249,7 @@ def verdict_context(verdict: pd.DataFrame, source: str, noise: dict | None = Non
         "stored": True,
         "rows": rows,
         "source": source,
+        "of_candidate": False,
         "n_checks": 0 if verdict is None else len(verdict),
         "n_failed": 0 if verdict is None else int((~verdict["passed"].map(truthy)).sum()),
     }
@@ -265,6 +266,7 @@ def empty_verdict(source: str, stored: bool = True) -> dict:
         "stored": stored,
         "rows": [],
         "source": source,
+        "of_candidate": False,
         "n_checks": 0,
         "n_failed": 0,
     }
@@ -462,7 +464,8 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
 def rafi_context(res: dict, noise: dict) -> dict:
     """The RAFI line of the verdict: its stored verdict (:func:`rafi_verdict`; NOT STORED where
     no file stores it) with the worst residual, its run's noise floor and the smallest
-    improvement of ``validation/summary.csv``."""
+    improvement of ``validation/summary.csv``, and the interval at that run (its pooled coverage
+    from RAFI's row of ``comparison/summary.csv``)."""
     gated = res.get("validation_summary")
     if gated is None:
         return {
@@ -478,8 +481,10 @@ def rafi_context(res: dict, noise: dict) -> dict:
     worst_run = str(gated.loc[after.idxmax(), "run_id"]) if after.notna().any() else ""
     rafi_v["worst_noise"] = fmt_num(noise[worst_run], 2, "\u00b5m") if worst_run in noise else ""
     rafi_v["min_imp"] = fmt_num(pd.to_numeric(gated["improvement_pct"], errors="coerce").min(), 1, "%")
-    level = (interval_block(res.get("model")) or {}).get("level")
-    rafi_v["interval"] = worst_run_interval(gated, level, worst_run) if worst_run else None
+    model = res.get("model") or {}
+    level = (interval_block(model) or {}).get("level")
+    pooled = pooled_coverage(res.get("comparison"), model.get("model_id"), "rafi")
+    rafi_v["interval"] = worst_run_interval(gated, level, worst_run, pooled) if worst_run else None
     return rafi_v
 
 
@@ -513,7 +518,9 @@ def judged_interval(res: dict, model_id, verdict, registry_dir: Path | None = No
     """The interval at the worst run of the model on the machine
     (:func:`rafi.report.intervals.worst_run_interval`): its rows of ``comparison/per_run.csv``
     (by ``model_id``), the level of its artefact (:func:`artefact_of`), the worst run of its
-    stored verdict (else of those rows); ``None`` where a result is missing."""
+    stored verdict (else of those rows), its coverage over every validation sample of
+    ``comparison/summary.csv`` (:func:`rafi.report.intervals.pooled_coverage`); ``None`` where a
+    result is missing."""
     per_run = res.get("comparison_per_run")
     if per_run is None or "model_id" not in per_run or not model_id:
         return None
@@ -522,7 +529,53 @@ def judged_interval(res: dict, model_id, verdict, registry_dir: Path | None = No
     worst = _worst_run(verdict)
     if worst is not None and worst not in set(rows["run_id"].astype(str)):
         return None  # the verdict's worst run is not among the comparison's runs: say nothing
-    return worst_run_interval(rows.reset_index(drop=True), level, worst)
+    pooled = pooled_coverage(res.get("comparison"), model_id)
+    return worst_run_interval(rows.reset_index(drop=True), level, worst, pooled)
+
+
+def candidate_box(res: dict, dec: dict, noise: dict, waiting: str | None) -> tuple[dict, pd.DataFrame | None]:
+    """The verdict box where no model is on the machine after this run: the stored verdict on
+    tonight's candidate (rule decide's, on the runs ``registry/comparison.csv`` scores it on).
+
+    Nothing is on the machine, so the box is never PASS: WAITING when the candidate passed every
+    gate and waits for a confirmation (``waiting``,
+    :func:`rafi.family.confirmation.awaiting_confirmation`), else FAIL. Its rows are the
+    candidate's criteria, ``n_checks`` / ``n_failed`` count the candidate's checks and
+    ``of_candidate`` is true, so the box states what decision.json holds (not "no validation
+    results" beside nine stored checks).
+
+    Parameters
+    ----------
+    res : dict
+        Loaded inputs (``registry_comparison`` and the comparison's verdict).
+    dec : dict
+        ``registry/decision.json``.
+    noise : dict
+        Run id -> noise floor (:func:`rafi.report.inputs.noise_floors`).
+    waiting : str or None
+        What the candidate waits for.
+
+    Returns
+    -------
+    (dict, DataFrame or None)
+        The box (:func:`verdict_context` or, without a stored verdict on a candidate,
+        :func:`empty_verdict` "no model on the machine") and the candidate's verdict rows.
+    """
+    cand = dec.get("candidate_id")
+    verdict = None
+    if cand:
+        verdict, src = stored_verdict_of(
+            {**res, "decision": dec}, cand, scored_runs(res.get("registry_comparison"), "candidate")
+        )
+    if verdict is None or not len(verdict):
+        out = empty_verdict("no model on the machine")
+        verdict = None
+    else:
+        out = verdict_context(verdict, src, noise)
+        out.update(passed=False, status="FAIL", css="fail", of_candidate=True)
+    if waiting:
+        out.update(status="WAITING", css="unknown")
+    return out, verdict
 
 
 def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dict:
@@ -534,7 +587,8 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
     interval results. ``judged`` has ``waiting``
     (:func:`rafi.family.confirmation.awaiting_confirmation`: what a candidate that passed every
     gate waits for, an input warning or its prior's fitness to be confirmed; None otherwise) and
-    ``candidate``; without a model on the machine such a candidate makes the status WAITING.
+    ``candidate``; without a model on the machine such a candidate makes the status WAITING, and
+    the box shows the candidate's stored checks (:func:`candidate_box`; ``candidate_kind``).
     ``registry_dir``: where ``registry/models/<id>.json`` are looked up."""
     noise = noise_floors(res)
     rafi_v = rafi_context(res, noise)
@@ -559,13 +613,50 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
     judged["candidate"] = short_id(dec.get("candidate_id") or "")
     verdict, src = judged_verdict(res, dec)
     if not after:
-        out = empty_verdict("no model on the machine")
-        if judged["waiting"]:
-            out.update(status="WAITING", css="unknown")
+        out, verdict = candidate_box(res, dec, noise, judged["waiting"])
+        cand = dec.get("candidate_id")
+        judged["candidate_kind"] = (infos.get(cand or "") or {}).get("kind") or "kind unknown"
+        out["interval"] = judged_interval(res, cand, verdict, registry_dir) if verdict is not None else None
     elif verdict is None:
         out = empty_verdict(src, stored=False)
     else:
         out = verdict_context(verdict, src, noise)
-    out["interval"] = judged_interval(res, after, verdict, registry_dir) if after else None
+    if after:
+        out["interval"] = judged_interval(res, after, verdict, registry_dir)
     out.update(judged=judged, rafi=rafi_v, subject=f"model {judged['id']} ({judged['kind']}) on the machine")
     return out
+
+
+def placement(dec, model_id, champion_after) -> dict:
+    """Where this run's registry decision left ``model_id`` (the model a section documents or
+    replays), for sections 2 and 3.
+
+    Parameters
+    ----------
+    dec : dict or None
+        ``registry/decision.json`` (``None``: results without a decision).
+    model_id : str
+        The model of the section.
+    champion_after : str or None
+        The model on the machine after this run (``champion_id_after``).
+
+    Returns
+    -------
+    dict
+        ``on_machine``: True when ``model_id`` is on the machine, False when it is not, ``None``
+        only without a decision and a model on the machine (no registry decision in this run);
+        ``no_model``: a decision that left no model on the machine (rejected, no champion yet);
+        ``decision`` (the decision's word, ``""`` without one) and ``waiting``: what the model
+        waits for when it is the candidate that passed every gate and waits for a confirmation
+        (:func:`rafi.family.confirmation.awaiting_confirmation`), else None.
+    """
+    decided = isinstance(dec, dict) and bool(dec)
+    if not champion_after and not decided:
+        return {"on_machine": None, "no_model": False, "decision": "", "waiting": None}
+    is_candidate = decided and bool(model_id) and str(dec.get("candidate_id") or "") == str(model_id)
+    return {
+        "on_machine": bool(champion_after) and str(champion_after) == str(model_id),
+        "no_model": not champion_after,
+        "decision": str(dec.get("decision") or "") if decided else "",
+        "waiting": awaiting_confirmation(dec) if is_candidate and not champion_after else None,
+    }
