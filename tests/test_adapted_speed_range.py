@@ -202,6 +202,6 @@ def test_a_prior_that_is_itself_a_requalification_says_which_speeds_it_only_inhe
     said = {w["check"]: w["message"] for w in fit["warnings"]}["prior_speeds"]
     speeds = ", ".join(f"{s:g}" for s in left)
     assert said.endswith(
-        f"; {speeds} r/min the prior had from its own prior ({first['model_id'][:12]} of old), never "
-        "tested on new either"
+        f"; {speeds} r/min the prior had only from its own prior ({first['model_id'][:12]} of old): "
+        "no run at them since that model"
     )

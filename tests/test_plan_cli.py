@@ -162,7 +162,7 @@ def test_the_speeds_a_re_qualified_prior_only_inherited_are_said_as_such():
     line = speeds_left_text([12000.0, 18010.0], prior, 6.0, False, tolerance_rpm=50.0)
     assert line.startswith(
         "  left to the prior alone: 12000, 18010 r/min (trained by the prior, untested here; 18010 r/min "
-        f"the prior had from its own prior ({'e' * 12} of mill-1), never tested on mill-2 either); "
+        f"the prior had only from its own prior ({'e' * 12} of mill-1): no run at them since that model); "
     )
     plain = speeds_left_text([12000.0], prior, 6.0, False, tolerance_rpm=50.0)
     assert "(trained by the prior, untested here); the night's" in plain

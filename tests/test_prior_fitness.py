@@ -465,5 +465,5 @@ def test_status_says_which_speeds_the_prior_had_only_from_its_own_prior():
     lines = describe_prior(prior_summary(artefact))
     assert lines[2] == (
         "  speeds:           tested here 3000 r/min; the prior's alone 12000, 18000; 18000 r/min the prior "
-        f"had from its own prior ({'c' * 12} of m-0), never tested on m-a either"
+        f"had only from its own prior ({'c' * 12} of m-0): no run at them since that model"
     )

@@ -282,7 +282,7 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
     assert "tested here 3 000 r/min (range 3 000 r/min); the prior's 3 000, 9 000, 18 000 r/min" in text
     assert (
         "(range 0–18 000 r/min); covered by the prior alone: 9 000, 18 000 r/min ; 18 000 r/min the prior "
-        "had from its own prior (bbbbbbbbbbbb of mill), never tested on tapping-center-a either." in text
+        "had only from its own prior (bbbbbbbbbbbb of mill): no run at them since that model." in text
     )
     assert "prediction moved by 76.0 % of its size" in text
     # the model's section: its speeds, each range said as what it is

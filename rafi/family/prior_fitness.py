@@ -451,5 +451,5 @@ def inherited_text(inherited: Mapping | None, speeds_text=None) -> str:
     origin = inherited.get("from") or {}
     who = str(origin.get("model_id") or "")[:12] or "?"
     whose = f" of {origin['machine']}" if origin.get("machine") else ""
-    via = f" on {inherited['via']}" if inherited.get("via") else ""
-    return f"; {speeds} the prior had from its own prior ({who}{whose}), never tested{via} either"
+    # not "never tested on <via>": a repair's chain is one machine, whose older prior was tested there
+    return f"; {speeds} the prior had only from its own prior ({who}{whose}): no run at them since that model"
