@@ -20,7 +20,12 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     shown = {**smk.params.paths, "machine": smk.wildcards.machine, "settings": settings}
     folders = dict(zip(smk.params.figure_groups, smk.input.figures))
     ctx = build_context(
-        paths, folders, machine=smk.wildcards.machine, settings=settings, config=shown, sign_key=smk.params.sign_key
+        paths,
+        folders,
+        machine=smk.wildcards.machine,
+        settings=settings,
+        config=shown,
+        sign_key=smk.params.sign_key,
     )
     log.info(
         "context with %d section(s) built in %.2f s; verdict %s; %d figure(s) embedded",
