@@ -154,7 +154,10 @@ def test_with_an_ensemble_prior_the_member_candidates_are_named_as_its_heaviest_
     )
     assert rows["prior_shared_ridge"]["what"].startswith("the ensemble prior as a whole")
     text = html.unescape(_text(render_html(ctx)))
-    assert f"the ensemble prior's heaviest member (dynamic) unchanged {3.0:.2f} \u00b5m" in text
+    assert (
+        "the ensemble prior's heaviest member alone (dynamic, the candidate prior) "
+        f"unchanged {3.0:.2f} \u00b5m" in text
+    )
     assert "the prior unchanged" not in text
 
 
@@ -302,7 +305,7 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
 @pytest.mark.parametrize(
     ("method", "cv_scores", "said"),
     [
-        ("shared_ridge", None, "ridge strength 10.0000 (fixed for every machine, not chosen by CV)"),
+        ("shared_ridge", None, "at the penalty 10.0000 (fixed for every machine, not chosen by CV)"),
         ("ridge", [1.5, 1.2], "ridge strength 10.0000 (chosen by CV)"),
         (
             "ridge",
@@ -328,8 +331,9 @@ def test_the_ridge_penalty_is_said_chosen_by_cv_only_where_a_cv_chose_it(tmp_pat
     best_path.write_text(json.dumps(best), encoding="utf-8")
     text = " ".join(html.unescape(_text(render_html(_context(results)))).replace("\u00a0", " ").split())
     assert said in text
-    if method == "shared_ridge":
-        assert "(chosen by CV)" not in text and "gain 1.0375 on every coefficient" in text
+    if method == "shared_ridge":  # one gain on the blend, then each member's own ridge (not one gain on all)
+        assert "(chosen by CV)" not in text and "the prior's blend times one gain, 1.0375" in text
+        assert "gain 1.0375 on every coefficient" not in text
 
 
 def test_a_first_model_waiting_for_its_priors_confirmation_is_neither_pass_nor_fail(tmp_path):
@@ -372,10 +376,10 @@ def test_a_first_model_waiting_for_its_priors_confirmation_is_neither_pass_nor_f
 @pytest.mark.parametrize("champion", [False, True])
 def test_a_candidate_waiting_for_an_input_warnings_confirmation_reads_waiting(tmp_path, champion):
     """Every gate passed and only an unconfirmed input warning holds the candidate back (issue 47):
-    it waits for a confirmation as a prior's fitness check does. Without a model on the machine
-    the verdict says WAITING; with one, the verdict is that model's and the line above it names
-    the candidate waiting. Both name the warning and the checks.confirmed entry to add, the words
-    of the end-of-run line and rafi status."""
+    it waits for a confirmation as a prior's fitness check does. The verdict says WAITING, with or
+    without a model on the machine (with one, its rows stay that model's checks and the box says it
+    stays until then). Both name the warning and the checks.confirmed entry to add, the words of
+    the end-of-run line and rafi status."""
     results = copy_fixture(tmp_path)
     path = results / "registry" / "decision.json"
     decision = json.loads(path.read_text(encoding="utf-8"))
@@ -398,11 +402,11 @@ def test_a_candidate_waiting_for_an_input_warnings_confirmation_reads_waiting(tm
         "check: probe_sign}] in tapping-center-a's settings"
     )
     text = " ".join(html.unescape(_text(render_html(ctx))).replace("\u00a0", " ").split())
+    assert ctx["verdict"]["status"] == "WAITING"
     if champion:
-        assert ctx["verdict"]["status"] != "WAITING"
-        assert f"the candidate {'cd' * 6} {words}; the model on the machine stays until then" in text
+        assert f"WAITING the candidate {'cd' * 6} {words}; the model on the machine stays until then" in text
+        assert "Record new training runs" not in text and "record new training runs" not in text
     else:
-        assert ctx["verdict"]["status"] == "WAITING"
         assert f"no model is on the machine yet: the candidate {'cd' * 6} {words}" in text
         assert "no model is qualified for this machine" not in text
 
@@ -448,3 +452,125 @@ def test_an_ensemble_prior_is_said_offered_the_way_its_own_artefact_says(tmp_pat
     assert said in text
     if prior_was != "offered":
         assert "qualified with models: offer: ensemble" not in text
+
+
+def test_an_ensemble_prior_adapted_as_a_whole_is_read_as_the_engineer_signs_it(tmp_path):
+    """Issue 47, audit of 2026-12-01 (items 1, 3, 6, 8, 13), rendered: the candidate
+    prior_shared_ridge, offered by the re-qualification's rule although prior_shared_gain scored
+    lower, promoted once its prior's fitness warning was confirmed. Section 3 says the rule that
+    applied, each member's coefficients as moved (new / prior, not one gain), the warning as
+    confirmed, and the ensemble prior on the machine beside its heaviest member alone; section 1
+    and the registry say the promotion rested on the confirmation; the registry's candidate is
+    the adapted ensemble, not an ensemble of this run's kinds."""
+    results = copy_fixture(tmp_path)
+    summ = _add_candidates(results, offered="rafi")
+    base = summ[summ["model"] == "prior_gain"].iloc[0]
+    shared = [
+        base.copy().set_axis(base.index) for _ in range(2)
+    ]  # prior_shared_gain (lowest score), prior_shared_ridge (offered whatever the scores)
+    for row, name, score, worst in zip(
+        shared, ("prior_shared_gain", "prior_shared_ridge"), (0.5, 9.25), (2.1, 1.9)
+    ):
+        row["model"], row["kind"], row["cv_mean_max_abs_um"], row["max_abs_after_um"] = (
+            name,
+            "ensemble",
+            score,
+            worst,
+        )
+        row["model_id"] = name[-1] * 64
+    summ = pd.concat([summ, pd.DataFrame(shared)], ignore_index=True)
+    summ["champion"] = summ["model"] == "prior_shared_ridge"
+    summ.to_csv(results / "comparison" / "summary.csv", index=False)
+    candidate = "9c" * 32
+    change = {
+        "dynamic": [
+            {"name": "dT1@0s", "prior": 0.4, "new": 0.6},
+            {"name": "dT2@0s", "prior": -0.2, "new": -0.1},
+        ],
+        "ridge_global": [{"name": "dT11@0s", "prior": -0.05302628193778224, "new": -0.5617482702903772}],
+    }
+    members = {
+        name: {
+            "kind": name,
+            "model_id": f"{k}" * 64,
+            "adaptation": {"method": "ridge", "coefficient_change": c},
+        }
+        for k, (name, c) in enumerate(change.items())
+    }
+    warning = {"check": "prior_speeds", "message": "the prior's speed(s) 9000 r/min have no new training run"}
+    best = {
+        "kind": "ensemble",
+        "model_id": candidate,
+        "machine": "tapping-center-a",
+        "weights": {"dynamic": 0.7, "ridge_global": 0.3},
+        "members": members,
+        "adaptation": {
+            "method": "shared_ridge",
+            "parent": PARENT,
+            "parent_machine": "tapping-center-a",
+            "gain": 1.251,
+            "alpha": 10.0,
+            "members": {n: {"kind": n, "model_id": m["model_id"]} for n, m in members.items()},
+            "fitness": {
+                "prior": {"model_id": PARENT, "machine": "tapping-center-a", "kind": "ensemble"},
+                "largest_coefficient_change": {
+                    "name": "ridge_global: dT11@0s",
+                    "prior": -0.05302628193778224,
+                    "new": -0.5617482702903772,
+                    "relative": -9.593770669222064,
+                },
+                "warnings": [warning],
+            },
+        },
+    }
+    (results / "comparison" / "best_model.json").write_text(json.dumps(best), encoding="utf-8")
+    path = results / "registry" / "decision.json"
+    decision = json.loads(path.read_text(encoding="utf-8"))
+    confirmed = {**warning, "prior": PARENT, "machine": "tapping-center-a", "for_machine": "tapping-center-a"}
+    decision |= {
+        "decision": "promoted",
+        "candidate_id": candidate,
+        "champion_id_before": PARENT,
+        "champion_id_after": candidate,
+        "gates_passed": True,
+        "blocked_by": [],
+        "prior_fitness": {"blocking": [], "confirmed": [{**confirmed, "confirmed": True}]},
+    }
+    path.write_text(json.dumps(decision), encoding="utf-8")
+    ctx = _context(results)
+    text = " ".join(html.unescape(_text(render_html(ctx))).replace("\u00a0", " ").split())
+    text = re.sub(r" ([).,:;])", r"\1", text)
+    entry = f"{{file: {PARENT[:12]}, check: prior_speeds}}"
+    words = (
+        f"the prior fitness check prior_speeds of prior {PARENT[:12]} (tapping-center-a), confirmed in "
+        f"checks.confirmed: [{entry}]"
+    )
+    # items 1: section 1, section 3 and the registry say the promotion rested on the confirmation
+    assert f"promoted (see Model registry): it rested on a person's confirmation: {words}" in text
+    assert f"Promoted on a confirmation. It rested on a person's confirmation: {words}" in text
+    assert "Fitness warnings, confirmed: this model went on the machine on this confirmation" in text
+    assert f"confirmed by {entry}" in text and f"confirm with {entry}" not in text
+    assert "they block promotion until confirmed" not in text
+    # item 6: the rule that applied, with the scores it applied to
+    assert "whatever the scores" in text and "chose between the prior as it is" not in text
+    assert "prior_shared_ridge 9.25 µm, the lowest prior_shared_gain 0.50 µm" in text
+    # item 3: one gain on the blend, then each member's own moves as new / prior
+    assert "gain 1.2510 on every coefficient" not in text
+    assert "the prior's blend times one gain, 1.2510," in text
+    assert "over the 3 coefficients of the 2 members new / prior runs from 0.500 to 10.6" in text
+    assert "ridge_global dT11@0s −0.05303 −0.5617 10.6" in text
+    assert (
+        "ridge_global: dT11@0s, −0.05303 → −0.5617: 10.6 times its prior value" in text and "−959" not in text
+    )
+    # item 13: the ensemble prior on the machine and its heaviest member alone, each named
+    on_machine = decision["champion_summary"]["max_residual_um"]
+    assert (
+        f"the ensemble prior as it is ({PARENT[:12]}, on the machine before this run) "
+        f"{on_machine:.2f} µm, its heaviest member alone (dynamic, the candidate prior) unchanged 3.00 µm"
+    ) in text
+    # item 8: the registry's candidate is the adapted ensemble
+    assert "the CV-weighted ensemble blends" not in text
+    assert (
+        f"the candidate is an adapted ensemble: the 2 members of the prior {PARENT[:12]} of tapping-center-a "
+        "as this run moved them (prior_shared_ridge), with the prior's weights, kept as they are"
+    ) in text

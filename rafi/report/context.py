@@ -117,11 +117,13 @@ def build_context(
     ctx["models"] = section_models(res, figs, paper=paper)
     ctx["fuzzy"] = section_fuzzy(res, figs, paper=paper)
     ctx["validation"] = section_validation(res, figs, paper=paper)
-    ctx["registry"] = section_registry(res, infos)
+    ctx["registry"] = section_registry(res, infos, registry_dir, settings["checks"]["confirmed"])
     dec = res["decision"] if isinstance(res.get("decision"), dict) else {}
     ctx["comparison"] = section_comparison(res, dec.get("champion_id_after"), settings, figs)
     ctx["requalification"] = section_requalification(
-        res, registry_dir.parent.parent if registry_dir is not None else None
+        res,
+        registry_dir.parent.parent if registry_dir is not None else None,
+        settings["checks"]["confirmed"],
     )
     ctx["replay"] = section_replay(res, settings, figs, dec.get("champion_id_after"))
     ctx["deployed"] = section_deployed(res, figs, dec.get("champion_id_after"))
@@ -163,7 +165,8 @@ def build_context(
 
 def _verdict_findings(ctx: dict) -> None:
     """What the verdict box adds from the sections: quarantined files, unconfirmed warnings,
-    late training data, the selection, a recalibration due (set in ``ctx["verdict"]``)."""
+    late training data, the selection, a recalibration due and the fitness warnings a promotion
+    rested on (set in ``ctx["verdict"]``)."""
     verdict = ctx["verdict"]
     verdict["quarantined"] = len(ctx["data"]["quarantined"])
     verdict["unconfirmed_warnings"] = sum(not w["confirmed"] for w in ctx["data"]["warnings"])
@@ -172,6 +175,8 @@ def _verdict_findings(ctx: dict) -> None:
     verdict["late"] = list(seg.get("late") or [])
     verdict["selection"] = (ctx["comparison"] or {}).get("selection")
     verdict["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
+    # the fitness warnings a person confirmed, when the promotion rested on them
+    verdict["confirmed"] = (ctx["registry"] or {}).get("confirmed")
 
 
 def _replay_findings(ctx: dict, res: dict, dec: dict, gates: dict) -> None:

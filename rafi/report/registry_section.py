@@ -14,9 +14,12 @@ from __future__ import annotations
 
 import pandas as pd
 
-from rafi.report.format import isnum, truthy
+from rafi.family.confirmation import awaiting_confirmation
+from rafi.report.ensemble_section import adapted_from, adapted_weight_rule
+from rafi.report.format import isnum, short_id, truthy
 from rafi.report.inputs import noise_floors
-from rafi.report.verdict import registry_gates
+from rafi.report.requalification_section import confirmed_fitness
+from rafi.report.verdict import artefact_of, registry_gates
 
 
 def worst_with_noise(summ_rec: dict | None, noise: dict) -> dict:
@@ -137,8 +140,37 @@ def per_run_rows(comp: pd.DataFrame | None, noise: dict, gates: dict) -> list[di
     return rows
 
 
-def adaptation(dec: dict, infos: dict) -> dict:
+def adaptation_words(artefact: dict | None) -> str | None:
+    """What the candidate is when it was adapted from a prior, in words, from its artefact's
+    ``adaptation`` block; ``None`` for a model fitted from scratch (or no artefact).
+
+    An ensemble adapted as a whole (``prior_shared_gain``, ``prior_shared_ridge``) is the prior's
+    members and weights, moved (:func:`rafi.report.ensemble_section.adapted_weight_rule`), not an
+    ensemble of this run's kinds; a model of one kind is the prior adapted by its method.
+    """
+    if not isinstance(artefact, dict):
+        return None
+    block = artefact.get("adaptation")
+    if not isinstance(block, dict) or not block.get("parent"):
+        return None
+    where = f" of {block['parent_machine']}" if block.get("parent_machine") else ""
+    prior = f"the prior {short_id(str(block['parent']))}{where}"
+    if artefact.get("kind") == "ensemble":
+        adapted = adapted_from(artefact)
+        n = len(artefact.get("weights") or {})
+        return (
+            f"an adapted ensemble: the {n} members of {prior} as this run moved them "
+            f"({adapted['candidate']}), with {adapted_weight_rule(adapted)}"
+        )
+    method = str(block.get("method") or "")
+    return f"{prior} adapted on the training runs (prior_{method}; one {artefact.get('kind')} model)"
+
+
+def adaptation(dec: dict, infos: dict, artefact: dict | None = None) -> dict:
     """What this run retrained (``adaptation`` and ``retrained_speeds`` of ``decision.json``).
+
+    ``artefact``: the candidate's artefact (:func:`rafi.report.verdict.artefact_of`), for what it
+    is when adapted from a prior (:func:`adaptation_words`).
 
     Returns
     -------
@@ -147,7 +179,8 @@ def adaptation(dec: dict, infos: dict) -> dict:
         stored: ``None`` or ``[lo, hi]``), ``lo_hi`` (its two ends, ``None`` for a missing one),
         ``kept_from`` (the model the other speeds come from), ``note``, ``retrained``
         (``speed_rpm``, ``train_runs``, ``files`` per retrained speed), ``equals_champion``
-        (the candidate is the champion) and ``candidate_kind``.
+        (the candidate is the champion), ``candidate_kind`` and ``adapted``
+        (:func:`adaptation_words`; None for a model fitted from scratch).
     """
     ad = dec.get("adaptation") or {}
     cand_id = dec.get("candidate_id")
@@ -167,7 +200,8 @@ def adaptation(dec: dict, infos: dict) -> dict:
             for r in dec.get("retrained_speeds") or []
         ],
         "equals_champion": bool(cand_id and cand_id == dec.get("champion_id_before")),
-        "candidate_kind": infos.get(cand_id or "", {}).get("kind"),
+        "candidate_kind": infos.get(cand_id or "", {}).get("kind") or (artefact or {}).get("kind"),
+        "adapted": adaptation_words(artefact),
     }
 
 
@@ -255,7 +289,7 @@ def drift(dec: dict, noise: dict) -> dict:
     }
 
 
-def section_registry(res: dict, infos: dict) -> dict | None:
+def section_registry(res: dict, infos: dict, registry_dir=None, confirmed=()) -> dict | None:
     """Section 8: the registry's decision, as data for ``sections/registry.html.j2``.
 
     Parameters
@@ -263,9 +297,14 @@ def section_registry(res: dict, infos: dict) -> dict | None:
     res : dict
         Loaded inputs: ``decision`` (``registry/decision.json``: the stored verdicts of both
         models, :func:`rafi.report.verdict.registry_gates`), ``registry_comparison``,
-        ``runs_csv`` (the order of the runs) and the noise floors.
+        ``runs_csv`` (the order of the runs), the noise floors and ``best_model`` (the
+        candidate's artefact when it carries its id).
     infos : dict
         ``model_id -> {kind, created, files}`` (:func:`rafi.report.verdict.model_infos`).
+    registry_dir : path, optional
+        Where ``models/<id>.json`` are looked up (the candidate's artefact).
+    confirmed : sequence of dict
+        The machine's ``checks.confirmed`` (:func:`rafi.report.requalification_section.confirmed_fitness`).
 
     Returns
     -------
@@ -273,7 +312,11 @@ def section_registry(res: dict, infos: dict) -> dict | None:
         ``None`` without ``decision.json``; else ``decision``, ``reasons``, ``time``,
         ``schema``, ``champion`` / ``candidate`` (:func:`model_column`), ``champion_stays``,
         ``candidate_on_machine``, ``runs`` (:func:`per_run_rows`), ``against``
-        (:func:`against_champion`), ``adaptation``, ``new_files`` and ``drift``.
+        (:func:`against_champion`), ``adaptation``, ``new_files``, ``drift``, ``waiting``
+        (what tonight's candidate waits for, :func:`rafi.family.confirmation.awaiting_confirmation`:
+        the words of the end-of-run line; None) and ``confirmed`` (the fitness warnings a person
+        confirmed, :func:`rafi.report.requalification_section.confirmed_fitness`, when the decision
+        promoted the candidate on them; else None).
     """
     dec = res.get("decision")
     if not isinstance(dec, dict):
@@ -283,6 +326,7 @@ def section_registry(res: dict, infos: dict) -> dict | None:
     run_gates = registry_gates(res)
     cand_id, champ_id = dec.get("candidate_id"), dec.get("champion_id_before")
     after = dec.get("champion_id_after")
+    conf = confirmed_fitness(dec, confirmed)
     return {
         "decision": str(dec.get("decision", "?")),
         "reasons": [str(r) for r in dec.get("reasons") or []],
@@ -298,9 +342,11 @@ def section_registry(res: dict, infos: dict) -> dict | None:
         "candidate_on_machine": bool(after and after == cand_id and after != champ_id),
         "runs": per_run_rows(comp, noise, run_gates),
         "against": against_champion(dec, comp),
-        "adaptation": adaptation(dec, infos),
+        "adaptation": adaptation(dec, infos, artefact_of(res, cand_id, registry_dir)),
         "new_files": [str(f) for f in (dec.get("data") or {}).get("new_since_champion") or []],
         "drift": drift(dec, noise),
+        "waiting": awaiting_confirmation(dec),
+        "confirmed": conf if conf is not None and conf["promoted"] else None,
     }
 
 

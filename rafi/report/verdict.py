@@ -587,8 +587,10 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
     interval results. ``judged`` has ``waiting``
     (:func:`rafi.family.confirmation.awaiting_confirmation`: what a candidate that passed every
     gate waits for, an input warning or its prior's fitness to be confirmed; None otherwise) and
-    ``candidate``; without a model on the machine such a candidate makes the status WAITING, and
-    the box shows the candidate's stored checks (:func:`candidate_box`; ``candidate_kind``).
+    ``candidate``; such a candidate makes the status WAITING, with or without a model on the
+    machine (the end-of-run line's word): with one, the box's rows stay that model's stored checks
+    (``passed``: whether it meets them); without one, the box shows the candidate's stored checks
+    (:func:`candidate_box`; ``candidate_kind``).
     ``registry_dir``: where ``registry/models/<id>.json`` are looked up."""
     noise = noise_floors(res)
     rafi_v = rafi_context(res, noise)
@@ -621,6 +623,10 @@ def verdict_all(res: dict, infos: dict, registry_dir: Path | None = None) -> dic
         out = empty_verdict(src, stored=False)
     else:
         out = verdict_context(verdict, src, noise)
+    if after and judged["waiting"]:
+        # the model on the machine stays, tonight's candidate waits for a confirmation: WAITING,
+        # the words of the end-of-run line (its rows stay the model on the machine's own checks)
+        out.update(status="WAITING", css="unknown")
     if after:
         out["interval"] = judged_interval(res, after, verdict, registry_dir)
     out.update(judged=judged, rafi=rafi_v, subject=f"model {judged['id']} ({judged['kind']}) on the machine")
@@ -648,15 +654,17 @@ def placement(dec, model_id, champion_after) -> dict:
         ``no_model``: a decision that left no model on the machine (rejected, no champion yet);
         ``decision`` (the decision's word, ``""`` without one) and ``waiting``: what the model
         waits for when it is the candidate that passed every gate and waits for a confirmation
-        (:func:`rafi.family.confirmation.awaiting_confirmation`), else None.
+        (:func:`rafi.family.confirmation.awaiting_confirmation`), with or without a model on the
+        machine; else None.
     """
     decided = isinstance(dec, dict) and bool(dec)
     if not champion_after and not decided:
         return {"on_machine": None, "no_model": False, "decision": "", "waiting": None}
     is_candidate = decided and bool(model_id) and str(dec.get("candidate_id") or "") == str(model_id)
+    on_machine = bool(champion_after) and str(champion_after) == str(model_id)
     return {
-        "on_machine": bool(champion_after) and str(champion_after) == str(model_id),
+        "on_machine": on_machine,
         "no_model": not champion_after,
         "decision": str(dec.get("decision") or "") if decided else "",
-        "waiting": awaiting_confirmation(dec) if is_candidate and not champion_after else None,
+        "waiting": awaiting_confirmation(dec) if is_candidate and not on_machine else None,
     }
