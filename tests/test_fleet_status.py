@@ -215,6 +215,7 @@ def test_what_each_row_says(fleet):
         "parent": None,  # not re-qualified from a prior (tests/test_requalify_e2e.py: one that is)
         "parent_machine": None,
         "prior": None,  # tests/test_prior_fitness.py: a model in service that has one
+        "trail": None,  # no history line put it in service (tests/test_promotion_trail.py: lines that did)
         "since": "2026-01-02T03:04:05Z",
         "reason": "promoted",
     }

@@ -254,7 +254,8 @@ def check_provenance(
     (:func:`rafi.ops.provenance.champion_speeds`), its training files from its artefact's
     ``data``, else the promotion's ``data_files``. ``input_status`` (``input_status.json``)
     says why a training file is missing and carries the input warnings; ``confirmed``
-    (``checks.confirmed``) confirms a prior's fitness warnings.
+    (``checks.confirmed``) confirms a prior's fitness warnings and names the entries that confirm
+    each confirmed warning (``confirmed_by``).
     """
     tonight = files_of(runs_table)
     status = input_status or {}
@@ -273,7 +274,7 @@ def check_provenance(
         coverage=speed_coverage(champion_training, candidate_training, speed_tolerance_rpm),
         champion_data=champion_data,
         changes=training_data_changes(champion_data, tonight, status.get("rejected"), status.get("usable")),
-        warnings=input_warnings(status, tonight),
+        warnings=input_warnings(status, tonight, confirmed),
         prior=prior_warnings(candidate_model, confirmed),
     )
 

@@ -20,7 +20,10 @@ RELATIVE_COLUMNS = [
     "candidate_worse",
 ]
 
-#: The fields of ``decision.json`` a ``history.jsonl`` line repeats.
+#: The fields of ``decision.json`` a ``history.jsonl`` line repeats. ``input_warnings`` and
+#: ``prior_fitness`` (each confirmed warning with the ``checks.confirmed`` entries that confirm it)
+#: keep what a promotion rested on after the next decision replaces ``decision.json``; a line
+#: written before them has neither (readers take a missing key for "not recorded").
 HISTORY_FIELDS = (
     "candidate_id",
     "champion_id_before",
@@ -38,6 +41,8 @@ HISTORY_FIELDS = (
     "training",
     "recalibration_due",
     "drift",
+    "input_warnings",
+    "prior_fitness",
 )
 
 #: What ``relative_gate.worse_runs`` of ``decision.json`` says about each run.

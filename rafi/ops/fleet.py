@@ -21,6 +21,9 @@ nights wrote; nothing is computed anew:
 * the prior of a model in service re-qualified from one: its ``adaptation`` block (the prior's
   id and machine, where it comes from, its own qualification and the fitness figures:
   :func:`prior_summary`);
+* what the model in service rests on: the line of ``history.jsonl`` that put it in service (its
+  warnings confirmed, and by which ``checks.confirmed`` entries, or promoted by hand over them:
+  :func:`rafi.ops.promotion_trail.promotion_trail`);
 * quarantined files and whether the machine was skipped: ``audit.csv`` and
   ``input_status.json`` (:func:`rafi.ops.status.machine_status`);
 * its page: ``reports/<m>/qualification.html``, or ``reports/<m>/skipped.html`` for a skipped
@@ -31,7 +34,8 @@ nights wrote; nothing is computed anew:
 Attention order (:data:`RANK`, most urgent first; within a rank by machine name):
 
 0. ``failed`` (the machine has data but no decision, or its decision is older than its
-   ``audit.csv``: the last run stopped before the decision), ``not_run`` (nothing in results/
+   ``audit.csv``: the last run stopped before the decision; the step that failed and its one
+   line, read from the job log the run left, :func:`machine_failure`), ``not_run`` (nothing in results/
    yet) and ``skipped`` (no usable raw file);
 1. ``recalibration_due``;
 2. ``waiting`` (the last candidate passed every gate and waits for a person to confirm an input
@@ -57,6 +61,7 @@ from pathlib import Path
 from rafi.family.confirmation import awaiting_confirmation
 from rafi.family.prior import prior_promoted
 from rafi.ops.project import Paths, units, unjudged_files
+from rafi.ops.promotion_trail import promotion_trail
 from rafi.ops.status import (
     EXIT_OK,
     EXIT_PIPELINE_FAILED,
@@ -104,6 +109,19 @@ def _read_json(path: Path) -> dict | None:
         data = json.loads(path.read_text(encoding="utf-8"))
         return data if isinstance(data, dict) else None
     return None
+
+
+def _history(path: Path) -> list[dict]:
+    """The complete JSON lines of ``history.jsonl`` (a line torn by a crash is skipped)."""
+    lines = []
+    with contextlib.suppress(OSError):
+        with open(path, encoding="utf-8", errors="replace") as fh:
+            for line in fh:
+                with contextlib.suppress(ValueError):
+                    rec = json.loads(line)
+                    if isinstance(rec, dict):
+                        lines.append(rec)
+    return lines
 
 
 def _last_history(path: Path) -> dict | None:
@@ -367,6 +385,68 @@ def rejected_text(decision: dict, *, has_champion: bool) -> str:
     return f"the last candidate was rejected; {stays}"
 
 
+def failure_words(
+    failed: tuple[str, str, str | None] | None, directory: str | os.PathLike | None = None
+) -> str | None:
+    """A failed step of a machine (:func:`rafi.ops.outcome.failed_step`: step, log, failure line)
+    in words: ``step compare failed: <its one line> (logs/m/compare.log)``, or with a traceback
+    ``step compare failed (details in logs/m/compare.log)``; the log relative to ``directory``
+    where it is under it. None without one."""
+    from rafi.ops.run_messages import MARKER
+
+    if not failed:
+        return None
+    step, log, line = failed
+    with contextlib.suppress(ValueError, TypeError):
+        log = str(Path(log).relative_to(directory)) if directory is not None else log
+    if line is None:
+        return f"step {step} failed (details in {log})"
+    return f"step {step} failed: {line.split(MARKER, 1)[-1]} ({log})"
+
+
+def machine_failure(paths: Paths, machine: str, since: float = 0.0) -> tuple[str, str, str | None] | None:
+    """The step of ``machine`` that stopped its last run, from the job logs that run left
+    (``logs/<machine>/<step>.log``, written at or after ``since``): ``(step, log, failure line or
+    None)`` of the newest log that ended in a failure (:func:`rafi.ops.run_messages.step_failed`:
+    a refusal's one line, e.g. a prior of an undeclared machine, ``PriorForeign``; None after a
+    traceback), or None. A step that failed on an earlier run and was not run since is older than
+    the step that failed last."""
+    from rafi.ops.run_messages import step_failed
+
+    found = []
+    for log in sorted((Path(paths.directory) / "logs" / machine).glob("*.log")):
+        stamp = _mtime(log)
+        if stamp < since:
+            continue
+        failed, line = step_failed(log)
+        if failed:
+            found.append((stamp, log.stem, str(log), line))
+    if not found:
+        return None
+    return max(found, key=lambda f: f[0])[1:]
+
+
+def _mtime(path: Path) -> float:
+    try:
+        return path.stat().st_mtime
+    except OSError:
+        return 0.0
+
+
+def _stopped(paths: Paths, machine: str, decision: dict | None) -> str:
+    """The attention line of a machine whose last run stopped before the decision: no
+    ``decision.json``, or one older than ``audit.csv``; the step that stopped it and its line
+    (:func:`machine_failure`, a log written after that decision), where a job log says."""
+    if decision is None:
+        text = "no decision.json: the last run stopped before the decision"
+        since = 0.0
+    else:
+        text = "decision.json is older than audit.csv: the last run stopped before the decision"
+        since = _mtime(paths.registry(machine) / "decision.json")
+    failure = failure_words(machine_failure(paths, machine, since), paths.directory)
+    return f"{text}: {failure}" if failure else text
+
+
 def _unjudged(paths: Paths, config: dict | None, machine: str, last: dict | None) -> dict | None:
     """The raw files the last decision has not judged (:func:`rafi.ops.project.unjudged_files`):
     ``count``, ``files`` and ``since`` (its time); None without the config, a decision with a
@@ -411,6 +491,8 @@ def machine_overview(
         first, with a short text each), ``champion`` (``id``, ``kind``, ``members``: an ensemble's
         weights, heaviest first, :func:`ensemble_weights`, else None; ``parent``: the prior it was
         re-qualified from or ``None``, ``parent_machine``, ``prior`` (:func:`prior_summary`),
+        ``trail`` (what it rests on: its warnings confirmed and by which ``checks.confirmed``
+        entries, or promoted by hand over them, :func:`rafi.ops.promotion_trail.promotion_trail`),
         ``since``, ``reason``; or None), ``last_decision`` (``decision``, ``time``,
         ``candidate_id``, ``reasons``, ``source``; or None), ``worst_residual``
         (:func:`champion_residual`), ``drift``, ``recalibration_due``, ``quarantined`` (list of
@@ -433,6 +515,7 @@ def machine_overview(
         prior = prior_summary(artefact, paths.results_dir)
         members = ensemble_weights(artefact)
     decision = _read_json(reg / "decision.json")
+    trail = promotion_trail(_history(reg / "history.jsonl"), champion_id, decision) if champion_id else None
     last = None
     if decision:
         last = {k: decision.get(k) for k in ("decision", "time", "candidate_id")} | {
@@ -454,12 +537,8 @@ def machine_overview(
         attention.append(("skipped", "no usable raw file: nothing retrained or judged"))
     elif not machine_dir.is_dir() or not (audit.exists() or (machine_dir / "input_status.json").exists()):
         attention.append(("not_run", "no results yet: the pipeline has not run for this machine"))
-    elif decision is None:
-        attention.append(("failed", "no decision.json: the last run stopped before the decision"))
-    elif decision.get("decision") in _DECIDED and _older(reg / "decision.json", audit):
-        attention.append(
-            ("failed", "decision.json is older than audit.csv: the last run stopped before the decision")
-        )
+    elif decision is None or (decision.get("decision") in _DECIDED and _older(reg / "decision.json", audit)):
+        attention.append(("failed", _stopped(paths, machine, decision)))
     drift = _drift(decision, champion_id)
     if drift is not None:
         drift["text"] = describe_drift(drift, has_champion=bool(champion_id))
@@ -501,6 +580,7 @@ def machine_overview(
                 "parent": parent,
                 "parent_machine": (prior or {}).get("machine"),
                 "prior": prior,
+                "trail": trail,
                 "since": champion.get("since"),
                 "reason": champion.get("reason"),
             }

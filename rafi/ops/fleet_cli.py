@@ -2,12 +2,15 @@
 
 Reads the files the pipeline and the nights wrote (rafi.ops.fleet; nothing is recomputed, no
 lock is taken) and prints one block per machine, machines that need attention first: failed
-(data but no decision), never run or skipped (no usable raw file); then recalibration due;
+(data but no decision; the step that stopped the last run and its line, from its job log), never
+run or skipped (no usable raw file); then recalibration due;
 then a candidate waiting for a confirmation (WAITING FOR CONFIRMATION: it passed every gate,
 and the checks.confirmed entries to add are named), a rejected candidate or quarantined files;
 then ok. Under a machine's last decision, the raw files that arrived after it (modified since,
-or never read by its run) and wait for the next night: "not judged yet". docs/operations.md,
-"rafi status".
+or never read by its run) and wait for the next night: "not judged yet". Under a model in
+service re-qualified from a prior, what its promotion rested on: its fitness warnings confirmed
+(by which checks.confirmed entries), or promoted by hand over them (rafi.ops.promotion_trail).
+docs/operations.md, "rafi status".
 
 Exit status (for monitoring; the codes of rafi nightly, most severe first 1 > 3 > 2 > 4 > 0):
   0   every machine ok
@@ -39,6 +42,7 @@ from rafi.errors import SettingsError
 from rafi.family.prior_fitness import inherited_text
 from rafi.ops.fleet import describe_drift, exit_code, fleet_overview
 from rafi.ops.project import Paths, load_config, units
+from rafi.ops.promotion_trail import trail_lines
 from rafi.ops.status import EXIT_CANTCREAT, EXIT_USAGE, short_id
 from rafi.settings import run_settings
 
@@ -70,10 +74,13 @@ def _members(champion: dict) -> str:
     return f" of {len(members)} members, heaviest {name} {float(weight):.3f}"
 
 
-def describe_prior(prior: dict | None) -> list[str]:
+def describe_prior(prior: dict | None, trail: dict | None = None, machine: str | None = None) -> list[str]:
     """The lines naming the prior of a model in service re-qualified from one
     (:func:`rafi.ops.fleet.prior_summary`): its id and machine, where it comes from, its own
-    qualification; how far the adaptation moved it; the speeds tested here and those only it covers."""
+    qualification; how far the adaptation moved it; the speeds tested here and those only it
+    covers; its fitness warnings and what the promotion did with them (``trail``,
+    :func:`rafi.ops.promotion_trail.trail_lines`: confirmed, and by which ``checks.confirmed``
+    entries, or promoted by hand over them; ``machine`` takes the entries to add)."""
     if not prior:
         return []
     origin = f", {prior['origin']}" if prior.get("origin") else ""
@@ -109,7 +116,8 @@ def describe_prior(prior: dict | None) -> list[str]:
             + inherited_text(prior.get("speeds_inherited"), lambda v: _speeds(v) + " r/min")
         )
     if prior.get("warnings"):
-        lines.append(f"  prior warnings:   {', '.join(prior['warnings'])} (confirmed in checks.confirmed)")
+        said = trail_lines(trail, prior["warnings"], machine)["prior"]
+        lines.append(f"  prior warnings:   {', '.join(prior['warnings'])}: {said}")
     return lines
 
 
@@ -157,7 +165,12 @@ def format_rows(rows: list[dict]) -> str:
         for a in r["attention"]:
             lines.append(f"  ! {a['text']}")
         lines.append(f"  model in service: {model}")
-        lines += describe_prior((ch or {}).get("prior"))
+        trail = (ch or {}).get("trail")
+        lines += describe_prior((ch or {}).get("prior"), trail, r.get("folder") or r["machine"])
+        checks = ((ch or {}).get("prior") or {}).get("warnings") or []
+        inputs = trail_lines(trail, checks, r.get("folder") or r["machine"])["inputs"]
+        if ch and inputs:
+            lines.append(f"  input warnings:   {inputs}")
         lines.append(f"  last decision:    {decided}")
         if r.get("unjudged"):
             lines.append(f"  not judged yet:   {unjudged_text(r['unjudged'])}")

@@ -26,7 +26,9 @@ Exit codes (most severe first when several apply: 1 > 3 > 2 > 4 > 0):
   4   some input was rejected: a raw file quarantined, or a machine skipped because none of
       its raw files is usable (the other files and machines carried on)
 Returned alone, before any decision:
-  64  usage error (unknown machine or model id for --promote)
+  64  usage error (unknown machine or model id for --promote; --promote of a model no night
+      promoted while a warning of it is not confirmed: one line names each warning and the
+      checks.confirmed entries to add, --confirm-warnings promotes over them)
   73  results/ (or the log file) cannot be written: read-only, disk full, quota, permission
       (EX_CANTCREAT; one line names the path and the errno, no traceback)
   74  another I/O error on the project's files (EX_IOERR; one line)
@@ -45,6 +47,8 @@ Examples:
   rafi nightly --cores 2                   # cron / systemd
   rafi nightly --dry-run                   # what would run, no lock, no changes
   rafi nightly --machine tapping-center-a --promote 3f2a9c1b   # roll back the champion
+  rafi nightly --machine tapping-center-a --promote 9cb3d9298248 --confirm-warnings
+                                           # over unconfirmed warnings (recorded)
 """
 
 from __future__ import annotations
@@ -126,7 +130,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--promote",
         metavar="MODEL_ID",
         help="point the champion of --machine at this registered model "
-        "(id or unique prefix; rollback) and exit",
+        "(id or unique prefix; rollback) and exit; a model no night promoted is refused while a "
+        "warning of it is not confirmed in checks.confirmed",
+    )
+    parser.add_argument(
+        "--confirm-warnings",
+        action="store_true",
+        help="with --promote: promote over unconfirmed input or prior fitness warnings (recorded "
+        "in history.jsonl with who did it)",
     )
     parser.add_argument(
         "--full-check",
@@ -165,6 +176,10 @@ def run(args) -> int:
         return EXIT_USAGE
     if args.machine:
         machines = [args.machine]
+    if getattr(args, "confirm_warnings", False) and not args.promote:
+        print("rafi nightly: --confirm-warnings goes with --promote", file=sys.stderr)
+        return EXIT_USAGE
+    args.config_data = config
     overrides = config_overrides(args, config)
     args.reports_dir = directory / str(run_settings(config)["reports_dir"])
     args.settle_s = float(overrides["settle_s"])
@@ -338,7 +353,10 @@ def _dry_run(args, paths: Paths, overrides: dict) -> int:
 
 
 def _promote(args, paths: Paths, machines: list[str]) -> int:
-    from rafi.ops.registry import promote
+    """``--promote``: :func:`rafi.ops.promotion_trail.promote_by_hand` with the machine's
+    ``checks.confirmed``; a refusal (an unknown id, an unconfirmed warning) is one line, exit 64."""
+    from rafi.ops.promotion_trail import promote_by_hand
+    from rafi.settings import machine_settings
 
     if not args.machine:
         if len(machines) != 1:
@@ -347,13 +365,24 @@ def _promote(args, paths: Paths, machines: list[str]) -> int:
         args.machine = machines[0]
     reg = paths.registry(args.machine)
     try:
-        rec = promote(reg, args.machine, args.promote, decision_path=reg / "decision.json")
-    except RegistryError as exc:
+        settings = machine_settings(getattr(args, "config_data", None) or {}, args.machine)
+        confirmed = settings["checks"]["confirmed"]
+        rec = promote_by_hand(
+            reg,
+            args.machine,
+            args.promote,
+            confirmed=confirmed or (),
+            confirm_warnings=bool(getattr(args, "confirm_warnings", False)),
+        )
+    except (RegistryError, SettingsError) as exc:
         print(f"rafi nightly: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    over = (rec.get("by_hand") or {}).get("overridden")
     print(
         f"rafi nightly: {args.machine}: champion {short_id(rec['champion_id_before'])} -> "
-        f"{short_id(rec['champion_id_after'])} (recorded in {reg / 'history.jsonl'})"
+        f"{short_id(rec['champion_id_after'])}"
+        + (f" over unconfirmed warnings ({over['warnings']})" if over else "")
+        + f" (recorded in {reg / 'history.jsonl'})"
     )
     return EXIT_OK
 
@@ -420,13 +449,30 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
             return _os_error(exc, paths.results_dir)
     qualified = units(load_config(args.directory, args.config), machines)
     statuses = [machine_status(paths, m, night_start) for m in qualified]
-    code = _report(statuses, pipeline_failed=not outcome.ok, waiting=args.waiting)
+    failures = _failures(paths, qualified, night_start) if not outcome.ok else {}
+    code = _report(statuses, pipeline_failed=not outcome.ok, waiting=args.waiting, failures=failures)
     _say_outcomes(args, paths, qualified, night_start)
+    failed = ""
+    if outcome.failed:
+        failed = f" done, {len(outcome.failed)} failed ({', '.join(sorted(set(outcome.failed)))})"
     print(
-        f"rafi nightly: {len(outcome.ran)} job(s) in {time.time() - started:.1f} s; "
+        f"rafi nightly: {len(outcome.ran)} job(s){failed} in {time.time() - started:.1f} s; "
         f"exit {code} (log {log_file})"
     )
     return code
+
+
+def _failures(paths: Paths, machines: list[str], since: float) -> dict[str, str]:
+    """Machine -> its step that failed tonight in words (:func:`rafi.ops.fleet.failure_words`:
+    the step and the one line its job log ended with, e.g. a refused prior)."""
+    from rafi.ops.fleet import failure_words, machine_failure
+
+    found = {}
+    for m in machines:
+        words = failure_words(machine_failure(paths, m, since), paths.directory)
+        if words:
+            found[m] = words
+    return found
 
 
 def _say_outcomes(args, paths: Paths, machines: list[str], since: float) -> None:
@@ -478,9 +524,16 @@ def _nothing_new(paths: Paths, machines: list[str], started: float, waiting: dic
     return _report(statuses, waiting=waiting)
 
 
-def _report(statuses: list[MachineStatus], pipeline_failed: bool = False, waiting: dict | None = None) -> int:
+def _report(
+    statuses: list[MachineStatus],
+    pipeline_failed: bool = False,
+    waiting: dict | None = None,
+    failures: dict | None = None,
+) -> int:
     """The status line of every machine (with the raw files that wait for the next night, from
-    ``waiting``: machine -> count), then the input summary; returns the exit code."""
+    ``waiting``: machine -> count; a machine whose step failed tonight, ``failures``: machine ->
+    the step and its line, :func:`_failures`, says so first), then the input summary; returns the
+    exit code."""
     codes = {EXIT_PIPELINE_FAILED} if pipeline_failed else set()
     for s in statuses:
         n = (waiting or {}).get(s.machine.split(PROBE_SEPARATOR)[0], 0)  # a probe's machine folder
@@ -489,7 +542,12 @@ def _report(statuses: list[MachineStatus], pipeline_failed: bool = False, waitin
             if n
             else ""
         )
-        print("rafi nightly: " + s.line() + wait)
+        line = s.line()
+        failure = (failures or {}).get(s.machine)
+        if failure:  # the step and the line that stopped it, before the decision of an earlier night
+            last = s.line().split(": ", 1)[1] if s.decision else "none"
+            line = f"{s.machine}: FAILED tonight, {failure}; last decision: {last}"
+        print("rafi nightly: " + line + wait)
         codes |= s.codes()
     skipped = [s.machine for s in statuses if s.skipped]
     n_files = sum(len(s.quarantined) for s in statuses)

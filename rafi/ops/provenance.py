@@ -9,7 +9,9 @@
   data uses; an unconfirmed one blocks promotion;
 * :func:`prior_warnings`: the fitness warnings of a candidate adapted from a prior
   (:mod:`rafi.family.prior_fitness`); an unconfirmed one blocks promotion likewise, confirmed in
-  the same ``checks.confirmed`` as ``{file: <the prior's model id>, check: <check id>}``.
+  the same ``checks.confirmed`` as ``{file: <the prior's model id>, check: <check id>}``;
+* :func:`confirming_entries`: which entries of ``checks.confirmed`` confirm a warning (kept with
+  it: what a promotion rested on).
 
 Pure functions on dicts and frames; no I/O.
 """
@@ -253,19 +255,47 @@ def data_change_reasons(changes: dict, champion_id: str | None) -> list[str]:
     return out
 
 
-def input_warnings(status: dict | None, tonight: dict[str, str]) -> dict:
+def confirming_entries(name: str, check: str, confirmed=()) -> list[dict]:
+    """The entries of ``checks.confirmed`` (``confirmed``) that confirm the warning ``check`` on
+    ``name`` (a raw file's name, or a prior's model id): ``{file, check}`` each, in their order.
+
+    The match of :func:`rafi.readers.checks_machine.is_confirmed` (the file name without folder
+    against the entry's glob, case-sensitive; the check id exactly); a prior's id matches whole
+    or by its first 12 characters, as :func:`prior_warnings` confirms it. Kept with each confirmed
+    warning (``confirmed_by``) in ``decision.json`` and ``history.jsonl``: what a promotion rested
+    on, after ``config.yaml`` changed.
+    """
+    from rafi.readers.checks_machine import is_confirmed
+
+    names = [str(name)] if len(str(name)) <= 12 else [str(name), str(name)[:12]]
+    found = []
+    for c in confirmed or ():
+        if not hasattr(c, "get"):
+            continue
+        if any(is_confirmed(n, check, [c]) for n in names):
+            entry = {"file": str(c.get("file", "")), "check": str(c.get("check"))}
+            if entry not in found:
+                found.append(entry)
+    return found
+
+
+def input_warnings(status: dict | None, tonight: dict[str, str], confirmed=()) -> dict:
     """Split the ``warnings`` of ``input_status.json`` by what they mean for promotion.
 
     A warning applies to tonight's data if its file (by name or sha256) is one of ``tonight``
     (``file -> sha256``), or if it names no file (a machine-level warning). A missing
-    ``warnings`` key means no warnings.
+    ``warnings`` key means no warnings. ``confirmed`` (``checks.confirmed``) names, under each
+    confirmed warning, the entries that confirm it (``confirmed_by``, :func:`confirming_entries`;
+    the warning's own ``confirmed`` flag, set by rule ``input_status`` from the same setting,
+    decides).
 
     Returns
     -------
     dict
         ``blocking`` (unconfirmed, on data tonight uses), ``confirmed`` (confirmed in config
         ``checks.confirmed``), ``not_used`` (unconfirmed, on a file tonight's data does not use);
-        each a list of ``{file, sha256, check, column, message, confirmed}``.
+        each a list of ``{file, sha256, check, column, message, confirmed}``, a confirmed one with
+        ``confirmed_by`` besides.
     """
     out: dict[str, list] = {"blocking": [], "confirmed": [], "not_used": []}
     shas = set(tonight.values())
@@ -277,6 +307,7 @@ def input_warnings(status: dict | None, tonight: dict[str, str]) -> dict:
         f, sha = rec["file"], rec["sha256"]
         used = not f or str(f) in tonight or (bool(sha) and sha in shas)
         if rec["confirmed"]:
+            rec["confirmed_by"] = confirming_entries(str(f or ""), str(rec["check"]), confirmed)
             out["confirmed"].append(rec)
         elif used:
             out["blocking"].append(rec)
@@ -305,8 +336,9 @@ def prior_warnings(candidate_model: dict | None, confirmed=()) -> dict:
     dict
         ``blocking`` and ``confirmed``, each a list of ``{prior, machine, for_machine, check,
         message, confirmed}`` (``prior``: the prior's model id, ``machine`` its machine,
-        ``for_machine`` the candidate's); both empty for a candidate that is not an adapted prior,
-        or one without a fitness block.
+        ``for_machine`` the candidate's), a confirmed one with ``confirmed_by`` besides (the
+        entries that confirm it, :func:`confirming_entries`); both empty for a candidate that is
+        not an adapted prior, or one without a fitness block.
     """
     from rafi.readers.checks_machine import is_confirmed
 
@@ -330,6 +362,8 @@ def prior_warnings(candidate_model: dict | None, confirmed=()) -> dict:
             "message": w.get("message"),
             "confirmed": ok,
         }
+        if ok:
+            rec["confirmed_by"] = confirming_entries(prior, check, confirmed)
         out["confirmed" if ok else "blocking"].append(rec)
     return out
 
