@@ -279,14 +279,17 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
         "Its own qualification: promoted 2026-11-01T02:03:04Z, worst validation residual 1.23 µm on 3 runs"
         in text
     )
-    assert "tested here 3 000 r/min (range 3 000 r/min); the prior's 3 000, 9 000, 18 000 r/min" in text
+    assert "tested here 3 000 r/min; the prior's 3 000, 9 000, 18 000 r/min" in text
     assert (
         "(range 0–18 000 r/min); covered by the prior alone: 9 000, 18 000 r/min ; 18 000 r/min the prior "
         "had from its own prior (bbbbbbbbbbbb of mill), never tested on tapping-center-a either." in text
     )
     assert "prediction moved by 76.0 % of its size" in text
     # the model's section: its speeds, each range said as what it is
-    assert "speeds 3 000 r/min tested here, 0 … 18 000 r/min covered by the prior" in text
+    assert (
+        "speeds tested here 3 000 r/min; covered by the prior alone 9 000 and 18 000 r/min "
+        "(the prior's range 0–18 000 r/min)" in text
+    )
     assert f"confirm with {{file: {PARENT[:12]}, check: prior_adaptation}}" in text
     assert f"confirm with {{file: {PARENT[:12]}, check: prior_speeds}}" in text
     # and what to do instead: qualify without the prior / record runs at the missing speeds

@@ -282,3 +282,58 @@ def test_the_verdict_says_the_tolerance_beside_the_count():
     )
     text = _text(_section("verdict", verdict=verdict))
     assert "0 more than 50 r/min ( speed_tolerance_rpm ) outside its trained speeds" in text
+
+
+# --------------------------------------------------------------------------- an adapted model's speeds
+#
+# After the repair of tapping-center-a (issue 47) the offered model's adaptation.fitness said
+# speeds_tested_rpm [0, 3000, 18000] (0: the cool-down between the heat-ups) and
+# speeds_prior_only_rpm [6000, 9000, 12000, 15000]; the verdict said "speeds outside the 0-18 000
+# r/min the model was trained on" and the deployed section "speeds 0 … 18 000 r/min tested here".
+
+FITNESS = {
+    "speeds_tested_rpm": [0.0, 3000.0, 18000.0],
+    "speed_range_tested_rpm": [0.0, 18000.0],
+    "speeds_prior_rpm": [3000.0, 6000.0, 9000.0, 12000.0, 15000.0, 18000.0],
+    "speed_range_prior_rpm": [3000.0, 18000.0],
+    "speeds_prior_only_rpm": [6000.0, 9000.0, 12000.0, 15000.0],
+}
+
+
+def _plain(text: str) -> str:
+    return text.replace(NBSP, " ")
+
+
+def test_an_adapted_models_speeds_are_said_as_a_list_and_rest_as_the_machine_at_rest():
+    from rafi.report.trained_range import adapted_speeds, speed_list
+
+    assert speed_list([]) == "" and _plain(speed_list([3000.0])) == "3 000 r/min"
+    sp = adapted_speeds({**OFFERED, "adaptation": {"fitness": FITNESS}})
+    assert (
+        _plain(sp["tested_text"]) == "3 000 and 18 000 r/min and the machine at rest (0 r/min, a cool-down)"
+    )
+    assert _plain(sp["prior_only"]) == "6 000, 9 000, 12 000 and 15 000 r/min"
+    assert _plain(sp["span"]) == "3 000\u201318 000 r/min" and sp["rest"]
+    assert adapted_speeds(OFFERED) is None and adapted_speeds(None) is None
+    no_rest = adapted_speeds({"adaptation": {"fitness": {**FITNESS, "speeds_tested_rpm": [3000.0]}}})
+    assert _plain(no_rest["tested_text"]) == "3 000 r/min" and not no_rest["rest"]
+
+
+def test_the_verdict_names_the_speeds_tested_here_and_those_of_the_prior_alone():
+    from collections import defaultdict
+
+    from test_report_text import _section, _text
+
+    res = _repaired()
+    res["best_model"] = {**OFFERED, "adaptation": {"fitness": FITNESS}}
+    st = residual_statement(res, _settings())
+    verdict = defaultdict(lambda: None, residual=st, status="PASS", rows=[])
+    said = _plain(_text(_section("verdict", verdict=verdict)))
+    said = said[said.index("It says nothing about") : said.index("Criteria from")]
+    assert " 0–18000" not in said  # not a range from rest, as if every speed between were run
+    assert (
+        "It says nothing about speeds outside the 3000–18000 r/min the model offered to the machine "
+        "(ensemble) was trained at (tested here by this machine's training runs: 3000 and 18000 r/min and "
+        "the machine at rest (0 r/min, a cool-down); covered by the prior alone: 6000, "
+        "9000, 12000 and 15000 r/min) nor about temperatures" in said
+    )

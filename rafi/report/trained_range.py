@@ -31,7 +31,8 @@ import pandas as pd
 
 from rafi.method.fuzzy import triangular_weights
 from rafi.method.rank import speed_training_runs
-from rafi.report.format import fmt_speed_range, isnum
+from rafi.report.format import NBSP, fmt_num, fmt_speed_range, isnum
+from rafi.settings import MACHINE_DEFAULTS
 
 __all__ = [
     "trained_speed_span",
@@ -44,6 +45,8 @@ __all__ = [
     "speed_counts",
     "model_speed_counts",
     "with_speed_counts",
+    "speed_list",
+    "adapted_speeds",
 ]
 
 
@@ -252,3 +255,66 @@ def with_speed_counts(rows: pd.DataFrame | None, counts: pd.Series | None) -> pd
     else:
         out["n_outside_speed_range"] = int(counts.sum())
     return out
+
+
+def speed_list(values) -> str:
+    """Speeds one by one, as the report writes a list: ``3 000 and 18 000 r/min``, ``6 000, 9 000,
+    12 000 and 15 000 r/min``; ``""`` for none. A list, never a range: the speeds between were
+    not run."""
+    words = [fmt_num(float(v), 0) for v in values or [] if isnum(v)]
+    if not words:
+        return ""
+    joined = words[0] if len(words) == 1 else ", ".join(words[:-1]) + " and " + words[-1]
+    return f"{joined}{NBSP}r/min"
+
+
+def adapted_speeds(
+    artefact, rest_below_rpm: float = MACHINE_DEFAULTS["runs"]["idle_below_rpm"]
+) -> dict | None:
+    """The speeds of a model adapted from a prior, each said as what it is.
+
+    From the ``adaptation.fitness`` block (:func:`rafi.family.prior_fitness.fitness_block`; its
+    stored keys are read, not changed): the speeds this machine's new training runs tested
+    (``speeds_tested_rpm``), a rest among them said as the machine at rest - an idle training run,
+    a cool-down - not as a speed tested between the others, and the prior's speeds no new run
+    tested (``speeds_prior_only_rpm``).
+
+    Parameters
+    ----------
+    artefact : dict or None
+        The model's artefact (``comparison/best_model.json``).
+    rest_below_rpm : float
+        Below this a tested speed is the machine at rest (``runs.idle_below_rpm``).
+
+    Returns
+    -------
+    dict or None
+        ``tested`` (the running speeds tested here, :func:`speed_list`), ``rest`` (the new
+        training runs include the machine at rest), ``tested_text`` (both in words: ``3 000 and
+        18 000 r/min and the machine at rest (0 r/min, a cool-down)``), ``prior_only``
+        (:func:`speed_list`; ``""`` none), ``prior`` (the prior's speeds, a list; ``""``
+        unknown), ``prior_range`` (the prior's range, ``3 000–18 000 r/min``; ``""`` unknown) and
+        ``span`` (the running speeds the model was trained at, here and by the prior, as a range);
+        ``None`` for a model not adapted from a prior.
+    """
+    adaptation = artefact.get("adaptation") if isinstance(artefact, dict) else None
+    fit = adaptation.get("fitness") if isinstance(adaptation, dict) else None
+    if not isinstance(fit, dict) or fit.get("speeds_tested_rpm") is None:
+        return None
+    tested = [float(v) for v in fit.get("speeds_tested_rpm") or [] if isnum(v)]
+    running = [v for v in tested if abs(v) >= float(rest_below_rpm)]
+    rest = [v for v in tested if abs(v) < float(rest_below_rpm)]
+    words = [speed_list(running)] if running else []
+    if rest:
+        words.append(f"the machine at rest ({speed_list(rest[:1])}, a cool-down)")
+    prior_range = [float(v) for v in fit.get("speed_range_prior_rpm") or [] if isnum(v)]
+    known = running + prior_range + [float(v) for v in fit.get("speeds_prior_rpm") or [] if isnum(v)]
+    return {
+        "tested": speed_list(running),
+        "rest": bool(rest),
+        "tested_text": " and ".join(words) or "none",
+        "prior_only": speed_list(fit.get("speeds_prior_only_rpm")),
+        "prior": speed_list(fit.get("speeds_prior_rpm")),
+        "prior_range": fmt_speed_range(*prior_range) if len(prior_range) == 2 else "",
+        "span": fmt_speed_range(min(known), max(known)) if known else "",
+    }

@@ -28,7 +28,7 @@ from rafi.report.format import fmt_num, isnum, short_id, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import interval_block, pooled_coverage, worst_run_interval
 from rafi.report.probe import probe_words
-from rafi.report.trained_range import model_speed_counts, range_facts
+from rafi.report.trained_range import adapted_speeds, model_speed_counts, range_facts
 
 #: The columns of a verdict (:data:`rafi.method.validate.VERDICT_COLUMNS`).
 VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
@@ -415,7 +415,12 @@ def offered_range_facts(res: dict, tolerance_rpm=None) -> dict | None:
         rows = per_run[per_run["model"].astype(str) == champ]
         facts = range_facts(rows, best if same else None, counts.get(champ))
         if facts is not None:
-            return {**facts, "model": champ, "offered": True}
+            return {
+                **facts,
+                "model": champ,
+                "offered": True,
+                "adapted": adapted_speeds(best if same else None),
+            }
     facts = range_facts(res.get("validation_summary"), res.get("model"), counts.get("rafi"))
     return None if facts is None else {**facts, "model": "RAFI as published", "offered": False}
 
@@ -441,7 +446,10 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
         ``n_runs``, ``probe`` and ``measured``; and the offered model's
         (:func:`offered_range_facts`, the same computation as the validation section's and the
         comparison's for RAFI as published): ``model``, ``offered``, ``speeds`` (its trained
-        speeds, ``""`` unknown), ``n_samples``, ``n_temp`` / ``temp_pct`` (validation samples
+        speeds, ``""`` unknown), ``adapted`` (a model adapted from a prior:
+        :func:`rafi.report.trained_range.adapted_speeds`, the speeds its training runs here tested
+        and those the prior alone covers, said instead of the range; else None), ``n_samples``,
+        ``n_temp`` / ``temp_pct`` (validation samples
         outside its trained temperature range) and ``n_speed`` (more than
         ``speed_tolerance_rpm`` outside its trained speeds; ``None`` unknown), each ``None``
         without counts; ``None`` without a noise floor.
@@ -461,6 +469,8 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
         "model": facts.get("model"),
         "offered": bool(facts.get("offered")),
         "speeds": facts.get("speeds") or "",
+        # a model adapted from a prior: its speeds tested here and those of the prior alone
+        "adapted": facts.get("adapted"),
         "n_samples": facts.get("n_samples"),
         "n_temp": facts.get("n_temp"),
         "temp_pct": facts.get("temp_pct"),
