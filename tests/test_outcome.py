@@ -109,7 +109,7 @@ def test_a_candidate_waiting_for_its_priors_confirmation_is_neither_pass_nor_fai
     waiting = decision_outcome("a2", decision, kind="ensemble", report="report r.html")
     words = (
         "waits for a confirmation of the prior fitness check prior_speeds of prior 6fca63e8ad59 (a): add "
-        "checks.confirmed: [{file: 6fca63e8ad59, check: prior_speeds}] in a2's settings"
+        'checks.confirmed: [{file: "6fca63e8ad59", check: prior_speeds}] in a2\'s settings'
     )
     assert awaiting_confirmation(decision) == words
     assert outcome_line(waiting) == (
@@ -165,7 +165,7 @@ def test_a_candidate_waiting_for_an_input_warnings_confirmation_is_neither_pass_
         "waits for a confirmation of the input warnings speed_range on valid_50000rpm.csv, probe_sign on "
         "b.csv and the prior fitness check prior_speeds of prior 6fca63e8ad59 (a): add checks.confirmed: "
         '[{file: "valid_50000rpm.csv", check: speed_range}, {file: "b.csv", check: probe_sign}, '
-        "{file: 6fca63e8ad59, check: prior_speeds}] in a2's settings"
+        '{file: "6fca63e8ad59", check: prior_speeds}] in a2\'s settings'
     )
     # beside a block no confirmation lifts (coverage, the relative gate): not waiting, PASS as before
     other = {**decision, "blocked_by": ["input_warnings", "coverage"]}

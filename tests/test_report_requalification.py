@@ -290,8 +290,8 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
         "speeds tested here 3 000 r/min; covered by the prior alone 9 000 and 18 000 r/min "
         "(the prior's range 0–18 000 r/min)" in text
     )
-    assert f"confirm with {{file: {PARENT[:12]}, check: prior_adaptation}}" in text
-    assert f"confirm with {{file: {PARENT[:12]}, check: prior_speeds}}" in text
+    assert f'confirm with {{file: "{PARENT[:12]}", check: prior_adaptation}}' in text
+    assert f'confirm with {{file: "{PARENT[:12]}", check: prior_speeds}}' in text
     # and what to do instead: qualify without the prior / record runs at the missing speeds
     machine = best["machine"]
     instead = f"or qualify the machine without this prior (config.yaml: machines: {machine}: models:"
@@ -367,7 +367,7 @@ def test_a_first_model_waiting_for_its_priors_confirmation_is_neither_pass_nor_f
     assert (
         f"no model is on the machine yet: the candidate {candidate} passed every gate and waits for a "
         f"confirmation of the prior fitness check prior_speeds of prior {PARENT[:12]} (tapping-center-a): "
-        f"add checks.confirmed: [{{file: {PARENT[:12]}, check: prior_speeds}}] in a2's settings"
+        f'add checks.confirmed: [{{file: "{PARENT[:12]}", check: prior_speeds}}] in a2\'s settings'
     ) in text
     assert "no model is qualified for this machine" not in text
 

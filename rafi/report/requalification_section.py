@@ -33,6 +33,7 @@ import numpy as np
 import pandas as pd
 
 from rafi.contract import REGISTRY_DIR
+from rafi.family.confirmation import confirmation_entry
 from rafi.family.prior import prior_promoted
 from rafi.family.prior_fitness import inherited_text, warning_remedy
 from rafi.report.comparison_section import selection_score
@@ -235,7 +236,7 @@ def fitness_context(
         "warnings": [
             {
                 **w,
-                "confirm": f"{{file: {pid}, check: {w.get('check')}}}",
+                "confirm": confirmation_entry(pid, w.get("check")),
                 "instead": warning_remedy(str(w.get("check")), machine),
             }
             for w in fit.get("warnings") or []
