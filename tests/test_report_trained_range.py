@@ -238,10 +238,19 @@ def _repaired(extra_rpm: tuple = ()) -> dict:
 
 
 def test_a_speed_within_the_machines_tolerance_is_not_outside_the_trained_speeds():
+    import numpy as np
+
+    from rafi.method.fuzzy import triangular_weights
     from rafi.report.trained_range import beyond_trained_speeds, machine_training_span, speed_counts
 
     speeds = [18004.0, 18050.0, 18051.0, -51.0, float("nan")]
     assert beyond_trained_speeds(speeds, (0, 18000), 50).tolist() == [False, False, True, True, False]
+    # the rule of RAFI's own flag, one rule: equal to triangular_weights' on a grid around the edges
+    grid = np.concatenate([np.arange(2800.0, 3200.0, 0.5), np.arange(17800.0, 18200.0, 0.5), [np.nan]])
+    for span, tol in (((3000.0, 18000.0), 50.0), ((3000.0, 3000.0), 50.0), ((3000.0, 18000.0), 0.0)):
+        centres = sorted(set(span))
+        flag = triangular_weights(grid, centres, tolerance_rpm=tol)[1]
+        assert (beyond_trained_speeds(grid, span, tol) == flag).all()
     assert machine_training_span(_repaired()["runs_csv"]) == (3000.0, 18000.0)  # constant runs only
     res = _repaired()
     st = residual_statement(res, _settings())

@@ -13,7 +13,8 @@ speed, and blends between them), not the speeds the training runs happened to co
 
 A sample counts outside the trained speeds only when its speed lies more than the machine's
 ``speed_tolerance_rpm`` beyond them (:func:`beyond_trained_speeds`: the rule of RAFI's own flag,
-:func:`rafi.method.fuzzy.triangular_weights`, which the streaming compensator applies too): a
+:func:`rafi.method.fuzzy.triangular_weights`, which the streaming compensator applies too; the
+report runs no model code, so it is written out here and held equal by a test): a
 measured speed jitters by a few r/min around its set point, and the ridge kinds' flag
 (``outside_speed_range`` of ``residuals.parquet``) takes any sample above the highest training run's
 nominal speed, 18 001 r/min beside a training run at 18 000 r/min that itself ran at 17 997-18 003.
@@ -29,7 +30,6 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from rafi.method.fuzzy import triangular_weights
 from rafi.method.rank import speed_training_runs
 from rafi.report.format import NBSP, fmt_num, fmt_speed_range, isnum
 from rafi.settings import MACHINE_DEFAULTS
@@ -134,7 +134,9 @@ def beyond_trained_speeds(speed_rpm, span, tolerance_rpm: float) -> np.ndarray:
 
     The rule of RAFI's own ``outside_speed_range`` flag and of the streaming compensator's
     (:func:`rafi.method.fuzzy.triangular_weights`, ``tolerance_rpm`` the machine's
-    ``speed_tolerance_rpm``), applied to any model's trained range.
+    ``speed_tolerance_rpm``), applied to any model's trained range. Written out here, not
+    imported: the report job runs no model code (``tests/test_report.py``);
+    ``tests/test_report_trained_range.py`` holds it equal to ``triangular_weights``' flag.
 
     Parameters
     ----------
@@ -155,9 +157,10 @@ def beyond_trained_speeds(speed_rpm, span, tolerance_rpm: float) -> np.ndarray:
     [False, True, False]
     """
     lo, hi = float(min(span)), float(max(span))
-    centres = [lo] if lo == hi else [lo, hi]
-    speeds = np.asarray(speed_rpm, dtype=float)
-    return triangular_weights(speeds, centres, tolerance_rpm=float(tolerance_rpm))[1]
+    s = np.atleast_1d(np.asarray(speed_rpm, dtype=float))
+    tol = float(tolerance_rpm)
+    with np.errstate(invalid="ignore"):
+        return np.isfinite(s) & ((s < lo - tol) | (s > hi + tol))
 
 
 def machine_training_span(runs: pd.DataFrame | None) -> tuple[float, float] | None:
