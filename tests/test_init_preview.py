@@ -47,6 +47,9 @@ def test_preview_lists_the_runs_and_warns_of_run_start_on_a_continuous_log(tmp_p
     (w,) = warnings(lines)  # the pipeline's warning, counting the runs as it does (cool-downs too)
     assert "`reference: {rule: log_start}`" in w and "read per run by design" in w
     assert "log log.csv holds 6 runs of one continuous recording" in w
+    # one instruction for a `rafi plan` recording, as the end-of-run line says it (issue 47)
+    assert "If the log is a recording of `rafi plan`'s programme, leave it" in w
+    assert "For runs inside one continuous log set" not in w
 
 
 def test_preview_says_no_run_is_at_a_training_speed_and_lists_the_speeds(tmp_path):

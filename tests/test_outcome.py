@@ -109,7 +109,7 @@ def test_a_candidate_waiting_for_its_priors_confirmation_is_neither_pass_nor_fai
     waiting = decision_outcome("a2", decision, kind="ensemble", report="report r.html")
     words = (
         "waits for a confirmation of the prior fitness check prior_speeds of prior 6fca63e8ad59 (a): add "
-        "checks.confirmed: [{file: 6fca63e8ad59, check: prior_speeds}] in a2's settings"
+        'checks.confirmed: [{file: "6fca63e8ad59", check: prior_speeds}] in a2\'s settings'
     )
     assert awaiting_confirmation(decision) == words
     assert outcome_line(waiting) == (
@@ -165,7 +165,7 @@ def test_a_candidate_waiting_for_an_input_warnings_confirmation_is_neither_pass_
         "waits for a confirmation of the input warnings speed_range on valid_50000rpm.csv, probe_sign on "
         "b.csv and the prior fitness check prior_speeds of prior 6fca63e8ad59 (a): add checks.confirmed: "
         '[{file: "valid_50000rpm.csv", check: speed_range}, {file: "b.csv", check: probe_sign}, '
-        "{file: 6fca63e8ad59, check: prior_speeds}] in a2's settings"
+        '{file: "6fca63e8ad59", check: prior_speeds}] in a2\'s settings'
     )
     # beside a block no confirmation lifts (coverage, the relative gate): not waiting, PASS as before
     other = {**decision, "blocked_by": ["input_warnings", "coverage"]}
@@ -376,3 +376,98 @@ def test_rafi_nightly_prints_the_lines_and_names_a_folder_without_a_matching_fil
     assert out[0].startswith("RAFI: outcome of this run")
     assert out[1] == f"  fl: skipped - {unmatched['fl']}"
     assert out[2] == "  m: PASS - model offered: dynamic 92289bc7cc53, promoted; no report built in this run"
+
+
+# --------------------------------------------------------------------------- the runs warnings in state
+#
+# The re-qualification of tapping-center-a (issue 47): after the promotion (the prior's warnings
+# confirmed) the end-of-run still said "the promotion waits for the prior_speeds confirmation",
+# and the continuous-log warning said both "set `reference: {rule: log_start}`" and "a recording
+# of `rafi plan`'s programme is read per run by design, leave it". The texts are run_checks' own.
+
+PRIOR = "6fca63e8ad59" + "0" * 52
+
+
+def _runs_warnings() -> tuple[str, str]:
+    """The training-speeds warning with a prior and the continuous-log warning, as the runs step
+    writes them (rafi.method.run_checks) for a `rafi plan` recording of tapping-center-a."""
+    import pandas as pd
+
+    from rafi.method.run_checks import continuous_log_warnings, training_speed_problems
+
+    table = pd.DataFrame(
+        {
+            "run_id": ["r#1", "r#2", "r#3"],
+            "file": "r.csv",
+            "segment": 0,
+            "role": "training",
+            "kind": ["constant", "idle", "constant"],
+            "speed_rpm": [18000.0, 0.0, 3000.0],
+        }
+    )
+    (speeds,) = training_speed_problems(table, [3000, 9000, 18000], 50, "m", prior="auto")
+    (continuous,) = continuous_log_warnings(table, "run_start")
+    return f"(runs): {speeds}", f"(runs): {continuous}"
+
+
+def _fitness(state: str) -> dict:
+    w = {"check": "prior_speeds", "prior": PRIOR, "machine": "m", "for_machine": "m", "message": "x"}
+    return {
+        "prior_fitness": {
+            "blocking": [w] if state == "blocking" else [],
+            "confirmed": [w] if state == "confirmed" else [],
+        }
+    }
+
+
+def test_the_prior_speeds_clause_says_what_the_decision_in_place_says():
+    from rafi.ops.outcome import warning_in_state
+
+    speeds, _ = _runs_warnings()
+    waits = "and the promotion waits for the prior_speeds confirmation (docs/models.md)"
+    assert speeds.endswith(waits)
+    assert warning_in_state(speeds, None) == speeds  # no decision (a step failed before it): as written
+    assert warning_in_state(speeds, {**_decision(True), **_fitness("blocking")}) == speeds
+    promoted = warning_in_state(speeds, {**_decision(True, decision="promoted"), **_fitness("confirmed")})
+    assert "waits" not in promoted
+    assert promoted.endswith(
+        "; in this re-qualification from a prior these speeds are left to the prior, its prior_speeds "
+        'warning confirmed in checks.confirmed ({file: "6fca63e8ad59", check: prior_speeds}; docs/models.md)'
+    )
+    # a decision without the warning (no prior tonight): the clause about a prior goes
+    plain = warning_in_state(speeds, _decision(True, decision="promoted"))
+    assert plain == speeds[: speeds.index("; in a re-qualification")]
+
+
+def test_the_continuous_log_warning_gives_one_instruction_for_a_rafi_plan_recording():
+    from rafi.ops.outcome import warning_in_state
+
+    _, continuous = _runs_warnings()
+    said = warning_in_state(continuous, None)
+    assert said.startswith("(runs): log r.csv holds 3 runs of one continuous recording")
+    assert said.endswith(
+        "If the log is a recording of `rafi plan`'s programme, leave it: such a recording is read per run "
+        "by design (docs/record.md); set `reference: {rule: log_start}` only for runs cut out of one "
+        f"continuous log of production ({CONTINUOUS_LOG_DOCS})"
+    )
+    assert "For runs inside one continuous log set" not in said
+    assert warning_in_state(said, None) == said
+
+
+def test_read_outcome_says_the_runs_warnings_as_the_promotion_left_them(tmp_path: Path):
+    files = _tree(tmp_path)
+    speeds, continuous = _runs_warnings()
+    log = tmp_path / "logs" / "m" / "runs.log"
+    log.write_text(
+        "".join(warning_line("runs", "machine=m", w.split(": ", 1)[1]) + "\n" for w in (speeds, continuous))
+    )
+    _age(log)  # the runs step ran on an earlier night; tonight's decision confirmed and promoted
+    decision = {**_decision(True, decision="promoted"), **_fitness("confirmed")}
+    (tmp_path / "results" / "m" / "registry" / "decision.json").write_text(json.dumps(decision))
+    got = read_outcome("m", None, files)
+    assert got.status == "PASS" and got.text.endswith("promoted")
+    assert not any("waits" in w for w in got.warnings)
+    assert not any("For runs inside one continuous log set" in w for w in got.warnings)
+    # the runs step re-ran after that decision (tonight's failed before deciding): as written
+    _age(tmp_path / "results" / "m" / "registry" / "decision.json", 7200)
+    assert "promotion waits" in read_outcome("m", None, files).warnings[0]

@@ -53,7 +53,7 @@ def test_the_champion_is_the_prior_the_header_names(project, capsys):
     assert read_plan(project / "p.csv").total_s <= 3 * 3600
     # the speeds the prior was trained at that 3 h leave untested, and the budget that tests them all
     left = next(line for line in out.splitlines() if line.startswith("  left to the prior alone: "))
-    assert "check: prior_speeds}" in left and "{file: 1479963c6588," in left
+    assert "check: prior_speeds}" in left and '{file: "1479963c6588",' in left
     hours = left.rsplit("--hours ", 1)[1].split()[0]
     assert main(["plan", "--machine", MACHINE, "--hours", hours, "--out", "all.csv"]) == 0
     assert "left to the prior alone" not in capsys.readouterr().out

@@ -186,6 +186,6 @@ def test_the_nights_line_says_waiting_for_a_candidate_held_for_a_confirmation():
     assert "rejected" not in line
     assert line.endswith(
         "waits for a confirmation of the prior fitness check prior_speeds of prior bbbbbbbbbbbb (sib): add "
-        "checks.confirmed: [{file: bbbbbbbbbbbb, check: prior_speeds}] in m's settings"
+        'checks.confirmed: [{file: "bbbbbbbbbbbb", check: prior_speeds}] in m\'s settings'
     )
     assert MachineStatus("m", {**d, "gates_passed": False}, [], tonight=True).line().startswith("m: rejected")

@@ -216,7 +216,7 @@ def test_the_fitness_warnings_block_promotion_until_confirmed(project, tmp_path)
     assert rec["blocked_by"] == ["prior_fitness"]
     lines = [r for r in rec["reasons"] if r.startswith("prior fitness not confirmed")]
     assert len(lines) == 2 and all(f"prior {pid} of m-a" in r for r in lines)
-    assert f"{{file: {pid}, check: prior_adaptation}}" in lines[0]
+    assert f'{{file: "{pid}", check: prior_adaptation}}' in lines[0]
     # beside the confirmation, what to do instead: qualify without the prior / record the runs
     machine = artefact["machine"]
     assert f"machines: {machine}: models: {{prior: none}}" in lines[0]
@@ -433,7 +433,7 @@ def test_a_warning_that_the_prior_does_not_describe_the_machine_says_to_qualify_
         w = {"prior": "a" * 64, "machine": "m-a", "for_machine": "m-b@z2", "check": check, "message": "x"}
         line = prior_warning_reason(w)
         assert line.startswith(f"prior fitness not confirmed: prior {'a' * 12} of m-a: x; ")
-        assert f"{{file: {'a' * 12}, check: {check}}}" in line
+        assert f'{{file: "{"a" * 12}", check: {check}}}' in line
         # a probe unit's machine is its folder's name in config.yaml and rafi plan
         assert "machines: m-b: models: {prior: none}" in line
         assert "rafi plan --machine m-b --prior none" in line

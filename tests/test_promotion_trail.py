@@ -110,7 +110,7 @@ def _status(root: Path, capsys) -> str:
 
 
 def _entries(champ: dict) -> list[str]:
-    return [f"{{file: {champ['model_id'][:12]}, check: {c}}}" for c in CHECKS]
+    return [f'{{file: "{champ["model_id"][:12]}", check: {c}}}' for c in CHECKS]
 
 
 # --------------------------------------------------------------------------- item 1: the trail
@@ -147,7 +147,7 @@ def test_the_promotion_line_says_which_entries_confirmed_the_priors_warnings(tmp
     assert _decide(tmp_path, cand, confirmed)["decision"] == "kept"
     _project(tmp_path)
     text = _status(tmp_path, capsys)
-    said = f"{{file: {pid}, check: prior_speeds}}, {{file: {pid}*, check: prior_misfit}}"
+    said = f'{{file: "{pid}", check: prior_speeds}}, {{file: "{pid}*", check: prior_misfit}}'
     assert (
         f"  prior warnings:   prior_speeds, prior_misfit: confirmed in checks.confirmed ({said}) at "
         f"the decision of {line['time']} that promoted it\n"

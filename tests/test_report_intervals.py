@@ -62,8 +62,10 @@ BLOCK = {
         "cells": {
             "settled": {"n_runs": 6, "n_samples": 640},
             "transient": {"n_runs": 6, "n_samples": 150},
-            "outside": {"n_runs": 2, "n_samples": 22, "fallback": True},
+            "outside": {"n_runs": 2, "n_samples": 22},
         },
+        # the cells that took the pooled value, as rafi.family.intervals.calibrate writes them
+        "fallback": ["outside"],
     },
 }
 
@@ -693,6 +695,61 @@ def test_a_borrowed_interval_is_said_whose_it_is(both):
     ctx["deployed"]["interval"].update(borrowed_from="prior_shared_gain")
     text = _text(render_html(ctx))
     assert "These half-widths are those of prior_shared_gain , fitted on the same prior and runs" in text
+    # the calibration's own sentence names whose held-out runs they are, not "the model"
+    lender = "the model that lends this one its half-widths (below)"
+    assert f"each predicted by prior_shared_gain , {lender}, refitted without it" in text
+    assert "each predicted by the model refitted" not in text
     plain = deepcopy(both[True][0])
     plain["deployed"]["interval"].update(borrowed_from=None)
-    assert "These half-widths are those of" not in _text(render_html(plain))
+    plain_text = _text(render_html(plain))
+    assert "These half-widths are those of" not in plain_text
+    assert "each predicted by the model refitted without it" in plain_text
+
+
+def test_the_cells_that_took_the_pooled_value_are_those_the_calibration_names():
+    """A real calibration (rafi.family.intervals.calibrate) with two runs in the transient cell:
+    the table says which cells took the pooled value as ``calibration.fallback`` lists them."""
+    from rafi.family.intervals import calibrate
+    from rafi.report.intervals import interval_context
+
+    rng = np.random.default_rng(4)
+
+    def oof(units: dict, since: float, outside: bool) -> pd.DataFrame:
+        return pd.concat(
+            [
+                pd.DataFrame(
+                    {
+                        "model": "m",
+                        "unit": u,
+                        "run_id": u,
+                        "t_s": 5.0 * np.arange(len(r)),
+                        "residual_um": r,
+                        "since_change_s": since,
+                        "outside": outside,
+                    }
+                )
+                for u, r in units.items()
+            ],
+            ignore_index=True,
+        )
+
+    frame = pd.concat(
+        [
+            oof({f"s{k}": rng.normal(0, 1, 100) for k in range(4)}, 1e9, False),
+            oof({f"s{k}": rng.normal(0, 3, 20) for k in range(2)}, 10.0, False),  # 2 runs: falls back
+            oof({f"s{k}": rng.normal(0, 0.2, 50) for k in range(4)}, 1e9, True),
+        ],
+        ignore_index=True,
+    )
+    block = calibrate(
+        frame, level=0.9, transient_s=1800, tolerance_rpm=50, min_runs=3, scheme="leave_one_run_out"
+    )
+    assert block["calibration"]["fallback"] == ["transient"]
+    iv = interval_context({"interval": block})
+    fell = {c["cell"]: c["fallback"] for c in iv["cells"]}
+    assert fell == {"settled": False, "transient": True, "outside": False}
+    assert iv["fallbacks"] == ["transient"]
+    # the list is worded in the table, not repeated among the calibration's other entries
+    assert all(k != "fallback" for k, _ in iv["other"])
+    none = {**block, "calibration": {**block["calibration"], "fallback": []}}
+    assert not any(c["fallback"] for c in interval_context({"interval": none})["cells"])

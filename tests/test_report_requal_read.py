@@ -332,7 +332,7 @@ def test_the_registry_says_waiting_and_the_adapted_ensemble():
     dec = _decision("waiting")
     g = section_registry({"decision": dec, "best_model": _best()}, {CANDIDATE: {"kind": "ensemble"}})
     assert g["waiting"].startswith("waits for a confirmation of the prior fitness check prior_speeds")
-    assert f"add checks.confirmed: [{{file: {PRIOR[:12]}, check: prior_speeds}}" in g["waiting"]
+    assert f'add checks.confirmed: [{{file: "{PRIOR[:12]}", check: prior_speeds}}' in g["waiting"]
     words = g["adaptation"]["adapted"]
     assert words.startswith(
         f"an adapted ensemble: the 4 members of the prior {PRIOR[:12]} of tapping-center-a"

@@ -282,16 +282,19 @@ def test_the_section_names_the_priors_machine_its_qualification_and_fitness(tmp_
         "Its own qualification: promoted 2026-11-01T02:03:04Z, worst validation residual 1.23 µm on 3 runs"
         in text
     )
-    assert "tested here 3 000 r/min (range 3 000 r/min); the prior's 3 000, 9 000, 18 000 r/min" in text
+    assert "tested here 3 000 r/min; the prior's 3 000, 9 000, 18 000 r/min" in text
     assert (
         "(range 0–18 000 r/min); covered by the prior alone: 9 000, 18 000 r/min ; 18 000 r/min the prior "
         "had only from its own prior (bbbbbbbbbbbb of mill): no run at them since that model." in text
     )
     assert "prediction moved by 76.0 % of its size" in text
     # the model's section: its speeds, each range said as what it is
-    assert "speeds 3 000 r/min tested here, 0 … 18 000 r/min covered by the prior" in text
-    assert f"confirm with {{file: {PARENT[:12]}, check: prior_adaptation}}" in text
-    assert f"confirm with {{file: {PARENT[:12]}, check: prior_speeds}}" in text
+    assert (
+        "speeds tested here 3 000 r/min; covered by the prior alone 9 000 and 18 000 r/min "
+        "(the prior's range 0–18 000 r/min)" in text
+    )
+    assert f'confirm with {{file: "{PARENT[:12]}", check: prior_adaptation}}' in text
+    assert f'confirm with {{file: "{PARENT[:12]}", check: prior_speeds}}' in text
     # and what to do instead: qualify without the prior / record runs at the missing speeds
     machine = best["machine"]
     instead = f"or qualify the machine without this prior (config.yaml: machines: {machine}: models:"
@@ -368,7 +371,7 @@ def test_a_first_model_waiting_for_its_priors_confirmation_is_neither_pass_nor_f
     assert (
         f"no model is on the machine yet: the candidate {candidate} passed every gate and waits for a "
         f"confirmation of the prior fitness check prior_speeds of prior {PARENT[:12]} (tapping-center-a): "
-        f"add checks.confirmed: [{{file: {PARENT[:12]}, check: prior_speeds}}] in a2's settings"
+        f'add checks.confirmed: [{{file: "{PARENT[:12]}", check: prior_speeds}}] in a2\'s settings'
     ) in text
     assert "no model is qualified for this machine" not in text
 

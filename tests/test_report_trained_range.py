@@ -161,5 +161,188 @@ def test_the_verdict_says_whose_counts_they_are():
     said = said[: said.index("Criteria from")]
     assert "the model offered to the machine (ensemble) was trained on" in said
     assert "1394 of 4320 validation samples (32 %) lie outside its trained temperature range" in said
-    assert "0 outside its trained speeds" in said and "RAFI as published" not in said
+    assert "0 more than 50 r/min ( speed_tolerance_rpm ) outside its trained speeds" in said
+    assert "RAFI as published" not in said
     assert "05000 r/min" in said.replace("\u2013", "")  # 0-5 000 r/min: its range, digit groups joined
+
+
+# --------------------------------------------------------------------------- the speed tolerance
+#
+# The re-qualification of tapping-center-a after a repair (issue 47, /tmp/auditJ): the offered
+# ensemble (speed_range_rpm 0-18 000) had "137 outside its trained speeds", every one of them at
+# 18 001-18 004 r/min on the multi-condition run, while its training run at 18 000 r/min itself
+# ran at 17 997-18 003 (runs.csv) and the machine's speed_tolerance_rpm is 50 r/min.
+
+OFFERED = {"model_id": "o" * 64, "kind": "ensemble", "speed_range_rpm": [0.0, 18000.0]}
+MULTI = "2026-04-18_s11_multi_condition"
+
+
+def _repaired(extra_rpm: tuple = ()) -> dict:
+    """The offered ensemble and a ridge kind without an artefact here (``dynamic``), both flagging
+    the 137 samples at 18 001-18 004 r/min (and ``extra_rpm``) outside their trained speeds."""
+    jitter = [18001.0] * 114 + [18002.0] * 21 + [18003.0, 18004.0]
+    speeds = [18000.0] * 50 + jitter + list(extra_rpm) + [0.0] * 10
+    flagged = [False] * 50 + [True] * (len(jitter) + len(extra_rpm)) + [False] * 10
+    samples = pd.concat(
+        [
+            pd.DataFrame(
+                {
+                    "model": name,
+                    "run_id": MULTI,
+                    "speed_rpm": speeds,
+                    "outside_speed_range": flagged,
+                    "residual_um": 0.1,
+                }
+            )
+            for name in ("ensemble", "dynamic")
+        ],
+        ignore_index=True,
+    )
+    n = len(speeds)
+    per_run = pd.DataFrame(
+        {
+            "model": ["ensemble", "dynamic"],
+            "model_id": [OFFERED["model_id"], "d" * 64],
+            "run_id": MULTI,
+            "role": "validation_multi",
+            "n_samples": n,
+            "n_outside_temp_range": 0,
+            "n_outside_speed_range": sum(flagged),
+            "noise_floor_um": 0.6,
+        }
+    )
+    return {
+        "comparison": pd.DataFrame(
+            {
+                "model": ["ensemble", "dynamic"],
+                "kind": ["ensemble", "dynamic"],
+                "model_id": [OFFERED["model_id"], "d" * 64],
+                "champion": [True, False],
+                "n_samples": n,
+                "n_outside_temp_range": 0,
+                "n_outside_speed_range": sum(flagged),
+            }
+        ),
+        "comparison_per_run": per_run,
+        "comparison_residuals": samples,
+        "best_model": OFFERED,
+        "runs_csv": pd.DataFrame(
+            {
+                "run_id": ["r#1", "r#2", "r#3", MULTI],
+                "role": ["training", "training", "training", "validation_multi"],
+                "kind": ["constant", "idle", "constant", "varying"],
+                "speed_rpm": [18000.0, 0.0, 3000.0, 10499.0],
+            }
+        ),
+    }
+
+
+def test_a_speed_within_the_machines_tolerance_is_not_outside_the_trained_speeds():
+    import numpy as np
+
+    from rafi.method.fuzzy import triangular_weights
+    from rafi.report.trained_range import beyond_trained_speeds, machine_training_span, speed_counts
+
+    speeds = [18004.0, 18050.0, 18051.0, -51.0, float("nan")]
+    assert beyond_trained_speeds(speeds, (0, 18000), 50).tolist() == [False, False, True, True, False]
+    # the rule of RAFI's own flag, one rule: equal to triangular_weights' on a grid around the edges
+    grid = np.concatenate([np.arange(2800.0, 3200.0, 0.5), np.arange(17800.0, 18200.0, 0.5), [np.nan]])
+    for span, tol in (((3000.0, 18000.0), 50.0), ((3000.0, 3000.0), 50.0), ((3000.0, 18000.0), 0.0)):
+        centres = sorted(set(span))
+        flag = triangular_weights(grid, centres, tolerance_rpm=tol)[1]
+        assert (beyond_trained_speeds(grid, span, tol) == flag).all()
+    assert machine_training_span(_repaired()["runs_csv"]) == (3000.0, 18000.0)  # constant runs only
+    res = _repaired()
+    st = residual_statement(res, _settings())
+    assert _settings()["speed_tolerance_rpm"] == 50
+    assert (st["n_speed"], st["speed_tolerance_rpm"]) == (0, 50)  # not the flag's 137
+    res = _repaired(extra_rpm=(18100.0, 18200.0))  # beyond the tolerance: outside
+    assert residual_statement(res, _settings())["n_speed"] == 2
+    wider = machine_settings({"defaults": {"speed_tolerance_rpm": 150}}, "m")
+    assert residual_statement(res, wider)["n_speed"] == 1
+    # without the residual samples the stored count stands
+    res.pop("comparison_residuals")
+    assert residual_statement(res, _settings())["n_speed"] == 139
+    rows = _repaired()["comparison_residuals"].query("model == 'dynamic'")
+    assert speed_counts(rows, None, 50) is None and speed_counts(rows, (0, 18000), None) is None
+
+
+def test_the_comparison_counts_every_model_by_the_same_rule_as_the_verdict():
+    from rafi.report.comparison_section import model_rows
+    from rafi.report.trained_range import model_speed_counts
+
+    res = _repaired(extra_rpm=(18100.0,))
+    counts = model_speed_counts(res, 50)
+    # the offered model by its artefact's 0-18 000 r/min; dynamic by the training runs' 3 000-18 000
+    assert {k: int(v.sum()) for k, v in counts.items()} == {"ensemble": 1, "dynamic": 1}
+    rows = model_rows(res["comparison"], "ensemble", None, counts)
+    assert [r["n_outside_speed_range"] for r in rows] == [1, 1]
+    assert residual_statement(res, _settings())["n_speed"] == rows[0]["n_outside_speed_range"]
+    assert [r["n_outside_speed_range"] for r in model_rows(res["comparison"], "ensemble", None)] == [138, 138]
+
+
+def test_the_verdict_says_the_tolerance_beside_the_count():
+    from collections import defaultdict
+
+    from test_report_text import _section, _text
+
+    verdict = defaultdict(
+        lambda: None, residual=residual_statement(_repaired(), _settings()), status="PASS", rows=[]
+    )
+    text = _text(_section("verdict", verdict=verdict))
+    assert "0 more than 50 r/min ( speed_tolerance_rpm ) outside its trained speeds" in text
+
+
+# --------------------------------------------------------------------------- an adapted model's speeds
+#
+# After the repair of tapping-center-a (issue 47) the offered model's adaptation.fitness said
+# speeds_tested_rpm [0, 3000, 18000] (0: the cool-down between the heat-ups) and
+# speeds_prior_only_rpm [6000, 9000, 12000, 15000]; the verdict said "speeds outside the 0-18 000
+# r/min the model was trained on" and the deployed section "speeds 0 … 18 000 r/min tested here".
+
+FITNESS = {
+    "speeds_tested_rpm": [0.0, 3000.0, 18000.0],
+    "speed_range_tested_rpm": [0.0, 18000.0],
+    "speeds_prior_rpm": [3000.0, 6000.0, 9000.0, 12000.0, 15000.0, 18000.0],
+    "speed_range_prior_rpm": [3000.0, 18000.0],
+    "speeds_prior_only_rpm": [6000.0, 9000.0, 12000.0, 15000.0],
+}
+
+
+def _plain(text: str) -> str:
+    return text.replace(NBSP, " ")
+
+
+def test_an_adapted_models_speeds_are_said_as_a_list_and_rest_as_the_machine_at_rest():
+    from rafi.report.trained_range import adapted_speeds, speed_list
+
+    assert speed_list([]) == "" and _plain(speed_list([3000.0])) == "3 000 r/min"
+    sp = adapted_speeds({**OFFERED, "adaptation": {"fitness": FITNESS}})
+    assert (
+        _plain(sp["tested_text"]) == "3 000 and 18 000 r/min and the machine at rest (0 r/min, a cool-down)"
+    )
+    assert _plain(sp["prior_only"]) == "6 000, 9 000, 12 000 and 15 000 r/min"
+    assert _plain(sp["span"]) == "3 000\u201318 000 r/min" and sp["rest"]
+    assert adapted_speeds(OFFERED) is None and adapted_speeds(None) is None
+    no_rest = adapted_speeds({"adaptation": {"fitness": {**FITNESS, "speeds_tested_rpm": [3000.0]}}})
+    assert _plain(no_rest["tested_text"]) == "3 000 r/min" and not no_rest["rest"]
+
+
+def test_the_verdict_names_the_speeds_tested_here_and_those_of_the_prior_alone():
+    from collections import defaultdict
+
+    from test_report_text import _section, _text
+
+    res = _repaired()
+    res["best_model"] = {**OFFERED, "adaptation": {"fitness": FITNESS}}
+    st = residual_statement(res, _settings())
+    verdict = defaultdict(lambda: None, residual=st, status="PASS", rows=[])
+    said = _plain(_text(_section("verdict", verdict=verdict)))
+    said = said[said.index("It says nothing about") : said.index("Criteria from")]
+    assert " 0–18000" not in said  # not a range from rest, as if every speed between were run
+    assert (
+        "It says nothing about speeds outside the 3000–18000 r/min the model offered to the machine "
+        "(ensemble) was trained at (tested here by this machine's training runs: 3000 and 18000 r/min and "
+        "the machine at rest (0 r/min, a cool-down); covered by the prior alone: 6000, "
+        "9000, 12000 and 15000 r/min) nor about temperatures" in said
+    )

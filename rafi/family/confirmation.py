@@ -7,7 +7,10 @@ uses (``input_warnings``, :func:`rafi.ops.provenance.input_warnings`; ``docs/raw
 (``prior_fitness``, :func:`rafi.ops.provenance.prior_warnings`; ``docs/models.md``, "The prior's
 fitness"). Both are confirmed in the machine's ``checks.confirmed``: ``{file: <file name or
 glob>, check: <check id>}`` for an input warning, ``{file: <the prior's model id>, check: <check
-id>}`` for a fitness warning.
+id>}`` for a fitness warning. Every entry printed quotes its ``file`` (:func:`confirmation_entry`):
+a file name is read as a glob, and a model id is hex, whose first 12 characters are sometimes all
+digits, which YAML would read as a number (:func:`unquoted_ids` takes such a number back where it
+can only be the id).
 
 A candidate held back by nothing else is neither a pass that went on the machine nor a failure:
 it waits for a confirmation. :func:`awaiting_confirmation` says so in the words the end-of-run
@@ -18,8 +21,17 @@ fleet page and the report's verdict share. Pure, on the dict of ``decision.json`
 from __future__ import annotations
 
 import json
+from collections.abc import Mapping
 
-__all__ = ["CONFIRMABLE", "awaiting_confirmation", "confirmation_entries"]
+from rafi.errors import SettingsError
+
+__all__ = [
+    "CONFIRMABLE",
+    "awaiting_confirmation",
+    "confirmation_entries",
+    "confirmation_entry",
+    "unquoted_ids",
+]
 
 #: The blocks of ``decision.json`` ``blocked_by`` a confirmation in ``checks.confirmed`` lifts.
 CONFIRMABLE = ("input_warnings", "prior_fitness")
@@ -35,17 +47,82 @@ def _prior(w: dict) -> str:
     return str(w.get("prior") or "")[:12]
 
 
+def confirmation_entry(file, check) -> str:
+    """One ``checks.confirmed`` entry in YAML flow style, ``file`` quoted (``json.dumps``) so that
+    it reads back as the string printed: ``{file: "012345670123", check: prior_speeds}`` (an id of
+    digits unquoted is a number in YAML, a file name a glob either way).
+
+    >>> confirmation_entry("6fca63e8ad59", "prior_speeds")
+    '{file: "6fca63e8ad59", check: prior_speeds}'
+    """
+    return f"{{file: {json.dumps(str(file or ''))}, check: {check}}}"
+
+
+#: The lengths of a model id in ``checks.confirmed``: its first 12 characters, or all of it.
+ID_LENGTHS = (12, 64)
+
+
+def unquoted_ids(config: Mapping) -> list[str]:
+    """Take back, in place, a prior's id written unquoted in ``checks.confirmed`` that YAML read
+    as a number; refuse, in one line naming the fix, a number that cannot be told back.
+
+    An id of 12 (or 64) decimal digits without a leading zero is read as that integer, whose
+    digits are the id: it becomes the string again. With a leading zero and digits 0-7 only YAML
+    reads it as an octal number (``012345670123`` is 1402433619): the zeros and the digits are
+    lost, as for any other number, and the entry is refused. Read are ``defaults.checks.confirmed``
+    and every ``machines.<name>.checks.confirmed``; the workflow and ``rafi nightly`` call this
+    before the schema (``file``: a string) sees the config.
+
+    Parameters
+    ----------
+    config : mapping
+        ``config.yaml`` as loaded (changed in place).
+
+    Returns
+    -------
+    list of str
+        ``<key>: <number>`` for each id taken back (the caller may say so).
+
+    Raises
+    ------
+    SettingsError
+        A ``file`` that is a number and not an id of digits: the key, the number, and to quote it.
+    """
+    blocks = [("defaults", (config.get("defaults") or {}) if isinstance(config, Mapping) else {})]
+    machines = config.get("machines") if isinstance(config, Mapping) else None
+    blocks += [(f"machines.{name}", value) for name, value in (machines or {}).items()]
+    taken = []
+    for where, block in blocks:
+        checks = block.get("checks") if isinstance(block, Mapping) else None
+        entries = checks.get("confirmed") if isinstance(checks, Mapping) else None
+        for k, entry in enumerate(entries if isinstance(entries, list) else []):
+            value = entry.get("file") if isinstance(entry, dict) else None
+            if not isinstance(value, int) or isinstance(value, bool):
+                continue
+            key = f"{where}.checks.confirmed[{k}].file: {value}"
+            if value > 0 and len(str(value)) in ID_LENGTHS:
+                entry["file"] = str(value)
+                taken.append(key)
+                continue
+            raise SettingsError(
+                f"config.yaml: {key} is a number: YAML reads an unquoted id or name of digits as one "
+                f"(a leading 0 as octal), so it matches no file or prior; quote it: "
+                f'{{file: "<the id as printed>", check: {entry.get("check")}}}'
+            )
+    return taken
+
+
 def confirmation_entries(decision: dict | None) -> list[str]:
     """The ``checks.confirmed`` entries that lift the blocks of ``decision`` a confirmation can
     lift, in YAML flow style, each once: the input warnings' (the file name quoted: it is read as a
-    glob), then the prior's fitness warnings' (the prior's id, its first 12 characters)."""
+    glob), then the prior's fitness warnings' (the prior's id, its first 12 characters, quoted
+    too: :func:`confirmation_entry`)."""
     decision = decision or {}
     entries = [
-        f"{{file: {json.dumps(str(w.get('file') or ''))}, check: {w.get('check')}}}"
-        for w in _blocking(decision, "input_warnings")
+        confirmation_entry(w.get("file"), w.get("check")) for w in _blocking(decision, "input_warnings")
     ]
     priors = _blocking(decision, "prior_fitness")
-    entries += [f"{{file: {_prior(w)}, check: {w.get('check')}}}" for w in priors]
+    entries += [confirmation_entry(_prior(w), w.get("check")) for w in priors]
     return list(dict.fromkeys(entries))
 
 

@@ -105,9 +105,11 @@ def preview_warnings(table: pd.DataFrame, frames: Mapping, settings: Mapping) ->
     """What in the configuration the runs contradict, one line each naming the key."""
     out = []
     from rafi.method.run_checks import continuous_log_warnings
+    from rafi.ops.outcome import one_instruction
 
     moving = table[(table["kind"] != "idle") & (table["role"] != "excluded")]
-    out += continuous_log_warnings(table, settings["reference"]["rule"])  # the pipeline's, runs counted alike
+    # the pipeline's, runs counted alike, in the end-of-run line's words (one instruction)
+    out += [one_instruction(w) for w in continuous_log_warnings(table, settings["reference"]["rule"])]
     trained = table[(table["role"] == "training") & (table["kind"] != "idle")]
     if trained.empty:
         found = sorted({float(x) for x in moving.loc[moving["kind"] == "constant", "speed_rpm"].round()})

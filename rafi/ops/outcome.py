@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from rafi.contract import REGISTRY_DIR, result_file
-from rafi.family.confirmation import awaiting_confirmation
+from rafi.family.confirmation import awaiting_confirmation, confirmation_entry
 from rafi.ops.run_messages import MARKER, log_warnings, step_failed
 
 #: The docs section on these lines.
@@ -177,6 +177,93 @@ def decision_outcome(
     return Outcome(machine, status, text, probe, report, tuple(warnings))
 
 
+# --------------------------------------------------------------------------- the warnings, true to the state
+#
+# The runs step writes its warnings before anything is decided (rafi.method.run_checks); the
+# end-of-run lines repeat them from the logs in place, under a decision that may have moved on.
+# Two of its clauses are said here as the decision in place has it (the runs step's text is left
+# as it is: changing it would re-run the runs step, and all that follows, on every project).
+# tests/test_outcome.py checks these texts against run_checks' own output.
+
+#: The training-speeds warning's clause on a prior (``training_speed_problems`` with a prior).
+PRIOR_SPEEDS_CLAUSE = (
+    "; in a re-qualification from a prior (models.prior) these speeds are left to the prior, and "
+    "the promotion waits for the prior_speeds confirmation (docs/models.md)"
+)
+#: What the continuous-log warning (``continuous_log_warnings``) said to do, two instructions.
+CONTINUOUS_LOG_ADVICE = (
+    "For runs inside one continuous log set `reference: {rule: log_start}` ({docs}); a recording "
+    "of `rafi plan`'s programme is read per run by design, leave it (docs/record.md)"
+)
+#: ... said as one instruction: a `rafi plan` recording is left as it is.
+CONTINUOUS_LOG_ONE = (
+    "If the log is a recording of `rafi plan`'s programme, leave it: such a recording is read per "
+    "run by design (docs/record.md); set `reference: {rule: log_start}` only for runs cut out of "
+    "one continuous log of production ({docs})"
+)
+
+
+def _prior_speeds_state(decision: dict) -> tuple[str, str | None]:
+    """``("blocking" | "confirmed" | "none", the prior's id)`` of the fitness warning
+    ``prior_speeds`` in ``decision`` (``prior_fitness``)."""
+    fitness = decision.get("prior_fitness") if isinstance(decision.get("prior_fitness"), dict) else {}
+    for state in ("blocking", "confirmed"):
+        for w in fitness.get(state) or []:
+            if isinstance(w, dict) and w.get("check") == "prior_speeds":
+                return state, str(w.get("prior") or "")[:12]
+    return "none", None
+
+
+def one_instruction(warning: str) -> str:
+    """The continuous-log warning's two instructions (:data:`CONTINUOUS_LOG_ADVICE`) said as one
+    (:data:`CONTINUOUS_LOG_ONE`): a recording of ``rafi plan``'s programme is left as it is,
+    ``log_start`` is for runs cut out of a continuous log of production; any other line as it is."""
+    head, _, tail = CONTINUOUS_LOG_ADVICE.partition("{docs}")
+    start = warning.find(head)
+    end = warning.find(tail, start + len(head)) if start >= 0 else -1
+    if end < 0:
+        return warning
+    one = CONTINUOUS_LOG_ONE.replace("{docs}", warning[start + len(head) : end])
+    return warning[:start] + one + warning[end + len(tail) :]
+
+
+def warning_in_state(warning: str, decision: dict | None) -> str:
+    """A job's warning line as the decision in place has it.
+
+    * The training-speeds warning's clause "the promotion waits for the prior_speeds
+      confirmation" (:data:`PRIOR_SPEEDS_CLAUSE`) stays while the decision's ``prior_speeds``
+      warning blocks; once confirmed it names the confirmation instead; under a decision without
+      that warning (no prior tonight, or a prior that left no speed to itself) the clause goes.
+      Without a decision (a step failed before it) the line is as the runs step wrote it.
+    * The continuous-log warning's two instructions are one (:func:`one_instruction`).
+
+    Parameters
+    ----------
+    warning : str
+        ``(<step>): <message>`` (:func:`rafi.ops.run_messages.log_warnings`).
+    decision : dict or None
+        ``decision.json`` in place.
+
+    Returns
+    -------
+    str
+    """
+    warning = one_instruction(warning)
+    if PRIOR_SPEEDS_CLAUSE not in warning or not isinstance(decision, dict):
+        return warning
+    state, prior = _prior_speeds_state(decision)
+    if state == "blocking":
+        return warning
+    if state == "confirmed":
+        entry = confirmation_entry(prior, "prior_speeds")
+        said = (
+            "; in this re-qualification from a prior these speeds are left to the prior, its "
+            f"prior_speeds warning confirmed in checks.confirmed ({entry}; docs/models.md)"
+        )
+        return warning.replace(PRIOR_SPEEDS_CLAUSE, said)
+    return warning.replace(PRIOR_SPEEDS_CLAUSE, "")
+
+
 def skipped_outcome(machine: str, why: str, *, probe: str | None = None) -> Outcome:
     """A machine skipped for want of a usable raw file; ``why`` says why (and where to read on)."""
     return Outcome(machine, "skipped", why, probe)
@@ -275,6 +362,18 @@ def _fresh(path: Path, since: float) -> bool:
         return False
 
 
+def _newer(path: Path, than: Path) -> bool:
+    """``path`` exists and was written no earlier than ``than`` (or ``than`` does not exist)."""
+    try:
+        mine = path.stat().st_mtime
+    except OSError:
+        return False
+    try:
+        return mine >= than.stat().st_mtime
+    except OSError:
+        return True
+
+
 def _json(path: Path) -> dict | None:
     try:
         with open(path, encoding="utf-8") as fh:
@@ -322,7 +421,12 @@ def read_outcome(
     if skipped_folders and machine in skipped_folders:
         return skipped_outcome(machine, skipped_folders[machine], probe=probe)
     results = Path(files.results_dir) / machine
-    warnings = machine_warnings(files.logs_dir, machine)
+    decision_path = results / result_file("decision")
+    decision = _json(decision_path)
+    # the runs step's warnings as the decision in place has them (a confirmed prior_speeds), where
+    # that decision judged the runs in place (written after the runs step's log)
+    judged = decision if _newer(decision_path, Path(files.logs_dir) / machine / "runs.log") else None
+    warnings = [warning_in_state(w, judged) for w in machine_warnings(files.logs_dir, machine)]
     status = _json(results / result_file("input_status"))
     if status and status.get("status") == "skipped":
         rejected = status.get("rejected") or []
@@ -336,8 +440,6 @@ def read_outcome(
         return failed_step_outcome(
             machine, step, log, line, said_below=files.failures_said_below, probe=probe, warnings=warnings
         )
-    decision_path = results / result_file("decision")
-    decision = _json(decision_path)
     if decision is None or not _fresh(decision_path, files.since):
         return not_judged_outcome(machine, (decision or {}).get("time"), probe=probe, warnings=warnings)
     from rafi.ops.registry import Registry  # NumPy: not while the workflow plans

@@ -31,6 +31,7 @@ from pathlib import Path
 
 from rafi.cli import add_config_option
 from rafi.errors import SettingsError, short_path
+from rafi.family.confirmation import confirmation_entry
 
 #: Default budget of recorded machine time, h.
 DEFAULT_HOURS = 4.0
@@ -144,7 +145,7 @@ def speeds_left_text(
     return (
         f"  left to the prior alone: {speeds} r/min (trained by the prior, untested here{older}); the "
         f"night's fitness warning prior_speeds blocks the promotion until confirmed (checks.confirmed: "
-        f"{{file: {pid}, check: prior_speeds}}); {cover}"
+        f"{confirmation_entry(pid, 'prior_speeds')}); {cover}"
     )
 
 

@@ -9,6 +9,7 @@ from pathlib import Path
 
 from rafi.contract import REGISTRY_DIR, result_file
 from rafi.errors import InputSpecError, RawFormatError, SettingsError
+from rafi.family.confirmation import unquoted_ids
 from rafi.settings import machine_settings, run_settings, split_unit, validate_config
 
 
@@ -26,12 +27,15 @@ def load_config(directory: Path, config_file: str | Path) -> dict:
     OSError
         If the file cannot be read.
     rafi.errors.SettingsError
-        If the config does not follow the contract (:func:`rafi.settings.validate_config`).
+        If the config does not follow the contract (:func:`rafi.settings.validate_config`); a
+        prior's id in ``checks.confirmed`` written unquoted is taken back first where it can only
+        be that id (:func:`rafi.family.confirmation.unquoted_ids`).
     """
     import yaml
 
     with open(config_path(directory, config_file), encoding="utf-8") as fh:
         config = yaml.safe_load(fh) or {}
+    unquoted_ids(config)
     validate_config(config)
     return config
 

@@ -418,14 +418,16 @@ def promotion_trail(history: list[dict], model_id: str | None, decision: dict | 
     return out
 
 
-def _entry(entry: dict, kind: str) -> str:
+def _entry(entry: dict) -> str:
     file = str(entry.get("file", ""))
-    return f"{{file: {json.dumps(file) if kind == 'input' else file}, check: {entry.get('check')}}}"
+    # quoted as every printed entry is (rafi.family.confirmation.confirmation_entry): an id of
+    # digits would be a number in YAML
+    return f"{{file: {json.dumps(file)}, check: {entry.get('check')}}}"
 
 
 def _by_words(items: list[dict] | None) -> str:
     """``{file: .., check: ..}, ...``: every entry that confirmed ``items``, each once."""
-    entries = [_entry(e, i["kind"]) for i in items or [] for e in i["by"]]
+    entries = [_entry(e) for i in items or [] for e in i["by"]]
     return ", ".join(dict.fromkeys(entries))
 
 

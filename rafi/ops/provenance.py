@@ -22,6 +22,7 @@ import math
 
 import pandas as pd
 
+from rafi.family.confirmation import confirmation_entry
 from rafi.family.prior_fitness import warning_remedy
 
 
@@ -374,6 +375,6 @@ def prior_warning_reason(w: dict) -> str:
     pid = str(w.get("prior") or "")[:12]
     return (
         f"prior fitness not confirmed: prior {pid} of {w.get('machine')}: {w.get('message')}; "
-        f"confirm it in config checks.confirmed ({{file: {pid}, check: {w.get('check')}}}) or "
+        f"confirm it in config checks.confirmed ({confirmation_entry(pid, w.get('check'))}) or "
         + warning_remedy(str(w.get("check")), w.get("for_machine"))
     )

@@ -21,7 +21,12 @@ from rafi.report.format import isnum, truthy
 from rafi.report.inputs import collinearity_frame, noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, shared_level
 from rafi.report.plain_ridge import PLAIN_RIDGE, section_plain_ridge
-from rafi.report.trained_range import outside_counts, trained_speed_span, trained_speeds_text
+from rafi.report.trained_range import (
+    model_speed_counts,
+    outside_counts,
+    trained_speed_span,
+    trained_speeds_text,
+)
 
 
 def family_champion(summary: pd.DataFrame):
@@ -334,17 +339,23 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward
     return out
 
 
-def model_rows(summary: pd.DataFrame, champion, on_machine) -> list[dict]:
+def model_rows(summary: pd.DataFrame, champion, on_machine, speed_counts: dict | None = None) -> list[dict]:
     """One row per model of ``comparison/summary.csv``: its CV numbers (``selection_score_um``,
     the score that chose, :func:`selection_score`; ``cv_mean_max_abs_um`` of the whole-run folds;
     ``cv_forward_mean_max_abs_um`` of the forward folds, ``None`` in an older ``summary.csv``),
     its validation numbers, the share of samples outside its trained temperature range, its gates
     and ``is_champion``, ``on_machine``, ``is_rafi`` (the paper's reference), ``is_plain_ridge``
     (the floor, :mod:`rafi.family.plain_ridge`) and ``candidate`` (the rule may offer it; true in a
-    ``summary.csv`` without the column)."""
+    ``summary.csv`` without the column). ``speed_counts``: model -> its samples more than the
+    machine's ``speed_tolerance_rpm`` outside its trained speeds, per run
+    (:func:`rafi.report.trained_range.model_speed_counts`), their total in place of the summary's
+    ``n_outside_speed_range``, the verdict's count for the offered model."""
     rows = []
     for r in summary.to_dict("records"):
         name = str(r["model"])
+        counted = (speed_counts or {}).get(name)
+        if counted is not None:
+            r = {**r, "n_outside_speed_range": int(counted.sum())}
         n = r.get("n_samples")
         outside = r.get("n_outside_temp_range")
         rows.append(
@@ -485,7 +496,8 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         on_machine = hit["model"].iloc[0] if len(hit) else None
     cv_rows = res.get("comparison_cv")
     cvs = _cv_stats(cv_rows)
-    rows = model_rows(s, fam_champ, on_machine)
+    tolerance = settings.get("speed_tolerance_rpm")
+    rows = model_rows(s, fam_champ, on_machine, model_speed_counts(res, tolerance))
     best, ids = res.get("best_model"), set(s["model_id"].astype(str)) if "model_id" in s else set()
     offered = best if isinstance(best, dict) and str(best.get("model_id", "")) in ids else None
     ensemble = ensemble_context(offered, s, *cv_schemes(cv_rows))
@@ -524,6 +536,8 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "interval_label": band_label(shared_level(res.get("model"), res.get("best_model"))),
         "envelope": held_by_model(res.get("comparison_residuals")),
         "envelope_meaning": MEANING,
+        # a sample outside the trained speeds: beyond them by more than this (rafi.report.trained_range)
+        "speed_tolerance_rpm": tolerance if isnum(tolerance) else None,
     }
     if ensemble is not None:  # offered by models: offer, not by the lowest score: the rule says so
         out["selection"]["ensemble"] = ensemble

@@ -42,6 +42,7 @@ from rafi.report.intervals import (
     interval_block,
     interval_context,
 )
+from rafi.report.trained_range import adapted_speeds
 from rafi.report.verdict import placement
 
 UM = "\u00b5m"
@@ -378,14 +379,23 @@ def _speed_span(speeds) -> str:
 
 
 def _adapted_span(art: dict) -> str | None:
-    """An adapted prior's speeds, each range said as what it is: tested here (the new training
-    runs) and covered by the prior (``adaptation.fitness``, :mod:`rafi.family.prior_fitness`);
-    ``None`` for any other model."""
-    fit = (art.get("adaptation") or {}).get("fitness") if isinstance(art.get("adaptation"), dict) else None
-    if not isinstance(fit, dict) or fit.get("speed_range_tested_rpm") is None:
+    """An adapted prior's speeds, each said as what it is (:func:`rafi.report.trained_range.adapted_speeds`):
+    those the new training runs tested, a list (a rest among them: the machine at rest, a
+    cool-down), and those the prior alone covers, with the prior's range; ``None`` for any other
+    model."""
+    sp = adapted_speeds(art)
+    if sp is None:
         return None
-    tested, prior = _speed_span(fit["speed_range_tested_rpm"]), _speed_span(fit.get("speed_range_prior_rpm"))
-    return f"{tested} tested here, {prior} covered by the prior"
+    text = f"tested here {sp['tested_text']}"
+    if sp["prior_only"]:
+        text += f"; covered by the prior alone {sp['prior_only']}"
+    if sp["prior_range"]:
+        text += (
+            f" (the prior's range {sp['prior_range']})"
+            if sp["prior_only"]
+            else f"; the prior's range {sp['prior_range']}"
+        )
+    return text
 
 
 def section_deployed(res: dict, figs, champion_after=None) -> dict | None:

@@ -208,13 +208,18 @@ def worst_run_interval(rows: pd.DataFrame | None, level, run_id=None, coverage_a
 
 def _calibration_rows(cal: dict, half: dict) -> list[dict]:
     """Per cell: its half-width, what it means, the runs and samples it was calibrated on and
-    whether it fell back to the pooled value (fields the calibration does not state: ``None``)."""
+    whether it fell back to the pooled value (fields the calibration does not state: ``None``).
+
+    The cells that took the pooled value are the list ``calibration.fallback``, as
+    :func:`rafi.family.intervals.calibrate` has written it since the interval exists (no other key
+    was ever written); a calibration without the key does not say (``None``: an en dash)."""
     per_cell = cal.get("cells") if isinstance(cal.get("cells"), dict) else {}
-    fallback = cal.get("fallback_cells") or cal.get("fell_back") or []
+    fallback = cal.get("fallback")
+    said = isinstance(fallback, (list, tuple))
     rows = []
     for cell in [c for c in CELLS if c in half] + [c for c in half if c not in CELLS]:
         info = per_cell.get(cell) if isinstance(per_cell.get(cell), dict) else {}
-        fell = info.get("fallback", cell in fallback)
+        fell = (cell in fallback) if said else None
         rows.append(
             {
                 "cell": cell,
@@ -315,8 +320,7 @@ def _near_largest(cal: dict, level: float) -> float | None:
 #: Keys of the calibration record the deployed section words itself.
 _CALIBRATION_WORDED = (
     "cells",
-    "fallback_cells",
-    "fell_back",
+    "fallback",
     "scheme",
     "cv",
     "n_runs",

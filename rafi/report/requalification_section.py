@@ -33,12 +33,14 @@ import numpy as np
 import pandas as pd
 
 from rafi.contract import REGISTRY_DIR
+from rafi.family.confirmation import confirmation_entry
 from rafi.family.prior import prior_promoted
 from rafi.family.prior_fitness import inherited_text, warning_remedy
 from rafi.family.selection import SHARED_GAIN, SHARED_RIDGE
 from rafi.report.comparison_section import selection_score
 from rafi.report.ensemble_section import adapted_from
 from rafi.report.format import fmt_num, fmt_sig, fmt_speed, fmt_speed_range, isnum, short_id
+from rafi.report.trained_range import adapted_speeds
 from rafi.settings import truthy
 
 #: The adaptation candidates, in the order the section lists them, and what each is.
@@ -424,7 +426,7 @@ def fitness_context(
     warnings = [
         {
             **w,
-            "confirm": f"{{file: {pid}, check: {w.get('check')}}}",
+            "confirm": confirmation_entry(pid, w.get("check")),
             "instead": warning_remedy(str(w.get("check")), machine),
             "confirmed_by": by_check.get(str(w.get("check"))),
         }
@@ -442,7 +444,9 @@ def fitness_context(
         "prior": {**own, "id": pid},
         "prediction_change": fit.get("prediction_change"),
         "largest": fit.get("largest_coefficient_change"),
-        "speeds_tested": _speeds(fit.get("speeds_tested_rpm")),
+        # the speeds tested here, a list with a rest said as the machine at rest (rafi.report.trained_range)
+        "speeds_tested": (adapted_speeds({"adaptation": {"fitness": fit}}) or {}).get("tested_text")
+        or "none",
         "speeds_prior": _speeds(fit.get("speeds_prior_rpm")) if fit.get("speeds_prior_rpm") else None,
         "speeds_prior_only": _speeds(fit.get("speeds_prior_only_rpm")),
         "inherited": inherited_text(fit.get("speeds_inherited"), _speeds),

@@ -24,11 +24,11 @@ import pandas as pd
 
 from rafi.family.confirmation import awaiting_confirmation
 from rafi.report.comparison_section import family_champion
-from rafi.report.format import fmt_num, short_id, truthy
+from rafi.report.format import fmt_num, isnum, short_id, truthy
 from rafi.report.inputs import noise_floors
 from rafi.report.intervals import interval_block, pooled_coverage, worst_run_interval
 from rafi.report.probe import probe_words
-from rafi.report.trained_range import range_facts
+from rafi.report.trained_range import adapted_speeds, model_speed_counts, range_facts
 
 #: The columns of a verdict (:data:`rafi.method.validate.VERDICT_COLUMNS`).
 VERDICT_COLUMNS = ["criterion", "limit", "measured", "passed", "run_id"]
@@ -387,14 +387,16 @@ def rafi_verdict(res: dict) -> tuple[pd.DataFrame | None, str]:
     return stored_verdict_of(res, model_id, name=None if model_id else "rafi")
 
 
-def offered_range_facts(res: dict) -> dict | None:
+def offered_range_facts(res: dict, tolerance_rpm=None) -> dict | None:
     """The samples outside the trained ranges of the model offered to the machine, and its trained
     speeds (:func:`rafi.report.trained_range.range_facts`).
 
     The offered model is the comparison's champion (``comparison/summary.csv``), its rows those of
     ``comparison/per_run.csv`` and its artefact ``comparison/best_model.json`` (when it carries the
     champion's id; else its trained speeds are unknown). Without a comparison, RAFI as published:
-    ``validation/summary.csv`` and ``model.json``.
+    ``validation/summary.csv`` and ``model.json``. With ``tolerance_rpm`` (the machine's
+    ``speed_tolerance_rpm``) a sample is outside the trained speeds only beyond it, recounted from
+    the residual samples (:func:`rafi.report.trained_range.model_speed_counts`).
 
     Returns
     -------
@@ -405,14 +407,21 @@ def offered_range_facts(res: dict) -> dict | None:
     """
     summ, per_run = res.get("comparison"), res.get("comparison_per_run")
     champ = family_champion(summ) if summ is not None and len(summ) else None
+    counts = model_speed_counts(res, tolerance_rpm) if tolerance_rpm is not None else {}
     if champ is not None and per_run is not None and "model" in per_run:
         row = summ[summ["model"].astype(str) == champ].iloc[0]
         best = res.get("best_model")
         same = isinstance(best, dict) and str(best.get("model_id", "")) == str(row.get("model_id", ""))
-        facts = range_facts(per_run[per_run["model"].astype(str) == champ], best if same else None)
+        rows = per_run[per_run["model"].astype(str) == champ]
+        facts = range_facts(rows, best if same else None, counts.get(champ))
         if facts is not None:
-            return {**facts, "model": champ, "offered": True}
-    facts = range_facts(res.get("validation_summary"), res.get("model"))
+            return {
+                **facts,
+                "model": champ,
+                "offered": True,
+                "adapted": adapted_speeds(best if same else None),
+            }
+    facts = range_facts(res.get("validation_summary"), res.get("model"), counts.get("rafi"))
     return None if facts is None else {**facts, "model": "RAFI as published", "offered": False}
 
 
@@ -427,7 +436,8 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
         ``summary.csv``, ``per_run.csv`` and ``best_model.json``; without them
         ``validation/summary.csv`` and ``model.json``).
     settings : dict
-        The machine's settings (``report.instruments.probe``).
+        The machine's settings (``report.instruments.probe``; ``speed_tolerance_rpm``: a sample
+        is outside the trained speeds only beyond it).
 
     Returns
     -------
@@ -436,15 +446,20 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
         ``n_runs``, ``probe`` and ``measured``; and the offered model's
         (:func:`offered_range_facts`, the same computation as the validation section's and the
         comparison's for RAFI as published): ``model``, ``offered``, ``speeds`` (its trained
-        speeds, ``""`` unknown), ``n_samples``, ``n_temp`` / ``temp_pct`` (validation samples
-        outside its trained temperature range) and ``n_speed`` (outside its trained speeds;
-        ``None`` unknown), each ``None`` without counts; ``None`` without a noise floor.
+        speeds, ``""`` unknown), ``adapted`` (a model adapted from a prior:
+        :func:`rafi.report.trained_range.adapted_speeds`, the speeds its training runs here tested
+        and those the prior alone covers, said instead of the range; else None), ``n_samples``,
+        ``n_temp`` / ``temp_pct`` (validation samples
+        outside its trained temperature range) and ``n_speed`` (more than
+        ``speed_tolerance_rpm`` outside its trained speeds; ``None`` unknown), each ``None``
+        without counts; ``None`` without a noise floor.
     """
     noise = noise_floors(res)
     if not noise:
         return None
     vals = np.asarray(list(noise.values()), float)
-    facts = offered_range_facts(res) or {}
+    tolerance = settings.get("speed_tolerance_rpm")
+    facts = offered_range_facts(res, tolerance) or {}
     return {
         "noise_lo": fmt_num(vals.min(), 2),
         "noise_hi": fmt_num(vals.max(), 2, "\u00b5m"),
@@ -454,10 +469,13 @@ def residual_statement(res: dict, settings: dict) -> dict | None:
         "model": facts.get("model"),
         "offered": bool(facts.get("offered")),
         "speeds": facts.get("speeds") or "",
+        # a model adapted from a prior: its speeds tested here and those of the prior alone
+        "adapted": facts.get("adapted"),
         "n_samples": facts.get("n_samples"),
         "n_temp": facts.get("n_temp"),
         "temp_pct": facts.get("temp_pct"),
         "n_speed": facts.get("n_speed"),
+        "speed_tolerance_rpm": tolerance if isnum(tolerance) else None,
     }
 
 
