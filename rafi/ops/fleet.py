@@ -126,15 +126,8 @@ def _history(path: Path) -> list[dict]:
 
 def _last_history(path: Path) -> dict | None:
     """The last complete JSON line of ``history.jsonl`` (a line torn by a crash is skipped)."""
-    last = None
-    with contextlib.suppress(OSError):
-        with open(path, encoding="utf-8", errors="replace") as fh:
-            for line in fh:
-                with contextlib.suppress(ValueError):
-                    rec = json.loads(line)
-                    if isinstance(rec, dict):
-                        last = rec
-    return last
+    lines = _history(path)
+    return lines[-1] if lines else None
 
 
 def _num(value) -> float | None:
