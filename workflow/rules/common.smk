@@ -64,7 +64,10 @@ try:
     # a prior's id in checks.confirmed written unquoted, read by YAML as a number: taken back where
     # it can only be that id, else refused naming the fix (before the schema sees it)
     for _taken in unquoted_ids(config):
-        print(f"RAFI: {_taken} read as the prior's id '{_taken.rsplit(' ', 1)[-1]}'; quote it in config.yaml", file=sys.stderr)
+        print(
+            f"RAFI: {_taken} read as the prior's id '{_taken.rsplit(' ', 1)[-1]}'; quote it in config.yaml",
+            file=sys.stderr,
+        )
     #: Run settings (top level of config.yaml over the contract's defaults).
     RUN = _settings.run_settings(config)
     # the key the schema refuses, in one line (Snakemake's own validation below reports a
