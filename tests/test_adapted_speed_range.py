@@ -205,3 +205,23 @@ def test_a_prior_that_is_itself_a_requalification_says_which_speeds_it_only_inhe
         f"; {speeds} r/min the prior had only from its own prior ({first['model_id'][:12]} of old): "
         "no run at them since that model"
     )
+
+
+def test_an_adapted_ensemble_prior_passes_on_what_it_only_inherited(states):
+    """The chain through ensembles adapted as a whole (the moved members, offered by default): the
+    second re-qualification names the speeds its prior had only from the first model."""
+    from rafi.family.adapted import SharedAdaptedEnsemble
+
+    (t1, f1), (t2, f2) = states
+    first = _prior("ensemble_ridge", t1, f1)
+    middle = SharedAdaptedEnsemble(prior=first, method="shared_ridge", machine="new").fit(t2, f2).to_dict()
+    middle = json.loads(json.dumps(middle))
+    left = middle["adaptation"]["fitness"]["speeds_prior_only_rpm"]
+    last = SharedAdaptedEnsemble(prior=middle, method="shared_ridge", machine="newer").fit(t2, f2).to_dict()
+    fit = last["adaptation"]["fitness"]
+    assert left and fit["speeds_prior_only_rpm"] == left
+    assert fit["speeds_inherited"] == {
+        "speeds_rpm": left,
+        "from": {"model_id": first["model_id"], "machine": "old"},
+        "via": "new",
+    }
