@@ -57,15 +57,8 @@ def test_local_times_across_a_change_read_as_utc(tmp_path, change):
     assert (frame["time"].to_numpy() == utc.to_numpy()).all()
     steps = np.diff(frame["time"].to_numpy()).astype("timedelta64[s]").astype(int)
     assert (steps == 60).all()  # no time repeated, no gap
-    clean, audit = clean_log(
-        frame,
-        file=path.name,
-        sample_period_s=60.0,
-        max_interpolate_gap_s=120.0,
-        spike_threshold=8.0,
-        open_circuit_values=[],
-    )
-    assert clean["segment"].nunique() == 1 and len(clean) == len(frame)
+    cleaned, audit = clean(frame, path)
+    assert cleaned["segment"].nunique() == 1 and len(cleaned) == len(frame)
     assert not set(audit["action"]) & {"gap_split", "duplicate_dropped", "reordered"}
 
 
