@@ -322,3 +322,26 @@ def test_status_and_the_fleet_page_show_recalibration_due_with_the_evidence(tmp_
     del rec["drift"]["interval"]
     row = F.fleet_overview(Paths.from_config(_project(tmp_path / "old", rec), {}), root / "reports")[0]
     assert row["drift"]["interval"] is None and "<th>interval drift</th>" in fleet_page([row], created="now")
+
+
+def test_a_drift_beside_a_candidate_waiting_for_a_confirmation_says_so_not_recalibration_due():
+    """The champion drifts while tonight's candidate (new runs, every gate passed) is held only by
+    an unconfirmed input warning: the drift line points at the WAITING candidate instead of asking
+    for new training runs, which the night already has."""
+    champ = {"model_id": "c" * 64, "kind": "fake", "interval": INTERVAL}
+    cand = {"model_id": "d" * 64, "kind": "fake", "interval": INTERVAL}
+    champ_sum = summary({"v1": 4.0, "v2": 4.5, "v3": 4.8})
+    record = D.decide(
+        machine="m1",
+        candidate=D.Candidate(model=cand, summary=champ_sum, verdict=qualify(champ_sum, GATES)),
+        champion=D.Champion(model_id=champ["model_id"], summary=champ_sum, model=champ, residuals=_residuals(2.0)),
+        runs_table=RUNS,
+        settings=D.DecisionSettings(gates=GATES, nightly=NIGHTLY),
+        history=[PROMOTION | {"champion_id_after": champ["model_id"]}],
+        input_status={"warnings": [{"check": "speed_range", "message": "a speed beyond the range"}]},
+        time="2026-05-01T00:00:00Z",
+    ).record
+    assert record["decision"] == "rejected" and record["blocked_by"] == ["input_warnings"]
+    line = [r for r in record["reasons"] if "outside the 90 % interval" in r]
+    assert len(line) == 1 and line[0].endswith("waits for a confirmation (the WAITING line)")
+    assert not any("new training runs needed" in r for r in record["reasons"])

@@ -26,6 +26,7 @@ import pandas as pd
 
 from rafi.artefact import json_text, jsonable, now_iso, write_text_atomic
 from rafi.errors import IncompatibleModels
+from rafi.family.confirmation import awaiting_confirmation
 from rafi.family.intervals import interval_columns
 from rafi.family.prior import parent_of, registry_meta
 from rafi.method.validate import qualify as _qualify
@@ -384,10 +385,19 @@ def decide(
     )
     reasons += data_change_reasons(provenance.changes, champion.model_id)
     drift, new_runs = champion_drift(champion, promotion, runs_table, settings.nightly)
+    waiting = awaiting_confirmation(
+        {
+            "decision": decision,
+            "gates_passed": bool(passed),
+            "blocked_by": blocking.names,
+            "input_warnings": provenance.warnings,
+            "prior_fitness": provenance.prior,
+        }
+    )
     if drift["detected"]:
-        reasons.append(drift_reason(drift, champion.model_id, decision))
+        reasons.append(drift_reason(drift, champion.model_id, decision, waiting=bool(waiting)))
     if drift["interval"]["detected"]:
-        reasons.append(interval_drift_reason(drift, champion.model_id, decision))
+        reasons.append(interval_drift_reason(drift, champion.model_id, decision, waiting=bool(waiting)))
     record = {
         "schema": DECISION_SCHEMA,
         "machine": machine,

@@ -300,22 +300,29 @@ def champion_drift(
     return drift, new_runs
 
 
-def drift_reason(drift: dict, champion_id: str | None, decision: str) -> str:
-    """The reason line of a detected drift: resolved by a promotion tonight, else recalibration due."""
+def _drift_outcome(decision: str, waiting: bool) -> str:
+    """How a detected drift ends tonight: resolved by the promotion; a candidate from new runs that
+    waits for a person's confirmation (:func:`rafi.family.confirmation.awaiting_confirmation`); else
+    recalibration due."""
+    if decision == "promoted":
+        return "; resolved by tonight's promotion"
+    if waiting:
+        return "; tonight's candidate would replace it and waits for a confirmation (the WAITING line)"
+    return "; recalibration due (new training runs needed)"
+
+
+def drift_reason(drift: dict, champion_id: str | None, decision: str, waiting: bool = False) -> str:
+    """The reason line of a detected drift and how it ends tonight (:func:`_drift_outcome`)."""
     line = (
         f"drift: champion {str(champion_id)[:12]} max residual on {len(drift['per_run'])} new "
         f"validation run(s) is {fmt_value(drift['new_max_residual_um'])} um vs "
         f"{fmt_value(drift['reference_max_residual_um'])} um at promotion (margin "
         f"{fmt_value(drift['margin_um'])} um)"
     )
-    if decision == "promoted":
-        return line + "; resolved by tonight's promotion"
-    return line + "; recalibration due (new training runs needed)"
+    return line + _drift_outcome(decision, waiting)
 
 
-def interval_drift_reason(drift: dict, champion_id: str | None, decision: str) -> str:
-    """The reason line of a detected interval drift (:func:`interval_drift`)."""
+def interval_drift_reason(drift: dict, champion_id: str | None, decision: str, waiting: bool = False) -> str:
+    """The reason line of a detected interval drift (:func:`interval_drift`) and how it ends tonight."""
     line = f"drift: champion {str(champion_id)[:12]}: {interval_evidence(drift['interval'])}"
-    if decision == "promoted":
-        return line + "; resolved by tonight's promotion"
-    return line + "; recalibration due (new training runs needed)"
+    return line + _drift_outcome(decision, waiting)
