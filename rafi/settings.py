@@ -246,6 +246,36 @@ def machine_settings(config: Mapping, machine: str) -> dict:
     return merged
 
 
+def read_config(config_path: str | os.PathLike, *, say: bool = True) -> dict:
+    """``config.yaml`` as every command reads it: ``{}`` for an empty file, and a prior's id in
+    ``checks.confirmed`` written unquoted taken back where it can only be that id, said on stderr
+    (:func:`rafi.family.confirmation.unquoted_ids`, as the workflow does; ``say=False`` for a
+    command's second reading of the same file), so that ``rafi settings`` and the pipeline read
+    the same settings.
+
+    Raises
+    ------
+    SettingsError
+        The file cannot be read or parsed (one line naming it), or an unquoted number in
+        ``checks.confirmed`` cannot be an id.
+    """
+    import sys
+
+    import yaml
+
+    from rafi.family.confirmation import taken_back_line, unquoted_ids
+
+    try:
+        with open(config_path, encoding="utf-8") as fh:
+            config = yaml.safe_load(fh) or {}
+    except (OSError, yaml.YAMLError) as exc:
+        raise SettingsError(f"{config_path}: cannot read the config ({exc})") from None
+    for taken in unquoted_ids(config):
+        if say:
+            print(f"rafi: {taken_back_line(taken)}", file=sys.stderr)
+    return config
+
+
 def read_machine_config(config_path: str | os.PathLike, machine: str) -> tuple[dict, dict]:
     """``(config, the machine's settings)`` of a command that works on one named machine.
 
@@ -255,15 +285,9 @@ def read_machine_config(config_path: str | os.PathLike, machine: str) -> tuple[d
         The file cannot be read or parsed, or ``machine`` is not under ``machines:`` (a typo would
         otherwise start a new machine folder): one line naming the file and the machines it has.
     """
-    import yaml
-
     from rafi.errors import short_path
 
-    try:
-        with open(config_path, encoding="utf-8") as fh:
-            config = yaml.safe_load(fh) or {}
-    except (OSError, yaml.YAMLError) as exc:
-        raise SettingsError(f"{config_path}: cannot read the config ({exc})") from None
+    config = read_config(config_path)
     known = sorted((config.get("machines") or {}) if isinstance(config, dict) else {})
     if split_unit(machine)[0] not in known:
         raise SettingsError(
@@ -336,8 +360,7 @@ def run(args) -> int:
     from rafi.secret_mask import MASK, masked, secret_paths
 
     try:
-        with open(args.config, encoding="utf-8") as fh:
-            config = yaml.safe_load(fh) or {}
+        config = read_config(args.config)
         validate_config(config)
         shown = machine_settings(config, args.machine) if args.machine else run_settings(config)
     except (OSError, yaml.YAMLError, SettingsError) as exc:

@@ -95,3 +95,35 @@ def test_the_project_config_reads_an_unquoted_id(tmp_path):
     assert config["machines"]["a"]["checks"]["confirmed"] == [
         {"file": "123456789012", "check": "prior_speeds"}
     ]
+
+
+def test_rafi_settings_and_rafi_plan_read_an_unquoted_id_as_the_pipeline_does(tmp_path, capsys):
+    """``rafi settings`` refused the entry the pipeline takes back ("is not of type 'string'"):
+    every command now reads config.yaml through the one reader, which takes the id back and says
+    so once."""
+    from argparse import Namespace
+
+    from rafi import settings
+
+    path = tmp_path / "config.yaml"
+    path.write_text(
+        "machines:\n  a:\n    checks:\n      confirmed: [{file: 123456789012, check: prior_speeds}]\n",
+        encoding="utf-8",
+    )
+    assert settings.run(Namespace(config=str(path), machine="a")) == 0
+    out, err = capsys.readouterr()
+    shown = yaml.safe_load(out)
+    assert shown["checks"]["confirmed"] == [{"file": "123456789012", "check": "prior_speeds"}]
+    assert err.count("read as the prior's id '123456789012'; quote it in config.yaml") == 1
+    config, machine = settings.read_machine_config(path, "a")
+    assert machine["checks"]["confirmed"][0]["file"] == "123456789012"
+    assert settings.read_config(path, say=False) == config and capsys.readouterr().err.count("quote it") == 1
+
+
+def test_a_config_that_is_not_yaml_is_one_line_naming_the_file(tmp_path):
+    path = tmp_path / "config.yaml"
+    path.write_text("machines: [a\n", encoding="utf-8")
+    with pytest.raises(SettingsError, match=r"config\.yaml: cannot read the config"):
+        from rafi.ops.project import load_config
+
+        load_config(tmp_path, "config.yaml")

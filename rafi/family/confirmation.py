@@ -30,6 +30,7 @@ __all__ = [
     "awaiting_confirmation",
     "confirmation_entries",
     "confirmation_entry",
+    "taken_back_line",
     "unquoted_ids",
 ]
 
@@ -110,6 +111,13 @@ def unquoted_ids(config: Mapping) -> list[str]:
                 f'{{file: "<the id as printed>", check: {entry.get("check")}}}'
             )
     return taken
+
+
+def taken_back_line(taken: str) -> str:
+    """What is said of an id :func:`unquoted_ids` took back (``taken``, one of its lines):
+    ``machines.m.checks.confirmed[0].file: 123456789012 read as the prior's id '123456789012';
+    quote it in config.yaml``."""
+    return f"{taken} read as the prior's id '{taken.rsplit(' ', 1)[-1]}'; quote it in config.yaml"
 
 
 def confirmation_entries(decision: dict | None) -> list[str]:

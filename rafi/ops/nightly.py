@@ -447,7 +447,7 @@ def _night(args, paths: Paths, machines: list[str], overrides: dict, every: bool
             check_writable(paths.results_dir)
         except OSError as exc:
             return _os_error(exc, paths.results_dir)
-    qualified = units(load_config(args.directory, args.config), machines)
+    qualified = units(load_config(args.directory, args.config, say=False), machines)
     statuses = [machine_status(paths, m, night_start) for m in qualified]
     failures = _failures(paths, qualified, night_start) if not outcome.ok else {}
     code = _report(statuses, pipeline_failed=not outcome.ok, waiting=args.waiting, failures=failures)
@@ -501,7 +501,7 @@ def _refresh_fleet_page(paths: Paths, reports_dir: Path, args=None) -> None:
     config = None
     if args is not None:
         with contextlib.suppress(OSError, RafiUserError):
-            config = load_config(args.directory, args.config)
+            config = load_config(args.directory, args.config, say=False)
     try:
         rows = lambda: fleet_overview(paths, reports_dir, config=config)  # noqa: E731 - read under the lock
         out = write_fleet_page(paths, reports_dir, rows=rows)

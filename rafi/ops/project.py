@@ -9,8 +9,7 @@ from pathlib import Path
 
 from rafi.contract import REGISTRY_DIR, result_file
 from rafi.errors import InputSpecError, RawFormatError, SettingsError
-from rafi.family.confirmation import unquoted_ids
-from rafi.settings import machine_settings, run_settings, split_unit, validate_config
+from rafi.settings import machine_settings, read_config, run_settings, split_unit, validate_config
 
 
 def config_path(directory: Path, config_file: str | Path) -> Path:
@@ -19,23 +18,18 @@ def config_path(directory: Path, config_file: str | Path) -> Path:
     return path if path.is_absolute() else Path(directory) / path
 
 
-def load_config(directory: Path, config_file: str | Path) -> dict:
-    """The pipeline config (YAML) of the project in ``directory``; ``{}`` for an empty file.
+def load_config(directory: Path, config_file: str | Path, *, say: bool = True) -> dict:
+    """The pipeline config (YAML) of the project in ``directory``; ``{}`` for an empty file
+    (:func:`rafi.settings.read_config`; ``say=False``: a second reading says nothing again).
 
     Raises
     ------
-    OSError
-        If the file cannot be read.
     rafi.errors.SettingsError
-        If the config does not follow the contract (:func:`rafi.settings.validate_config`); a
+        If the file cannot be read or parsed, or the config does not follow the contract (:func:`rafi.settings.validate_config`); a
         prior's id in ``checks.confirmed`` written unquoted is taken back first where it can only
         be that id (:func:`rafi.family.confirmation.unquoted_ids`).
     """
-    import yaml
-
-    with open(config_path(directory, config_file), encoding="utf-8") as fh:
-        config = yaml.safe_load(fh) or {}
-    unquoted_ids(config)
+    config = read_config(config_path(directory, config_file), say=say)
     validate_config(config)
     return config
 

@@ -42,7 +42,7 @@ import rafi.settings as _settings
 from rafi import contract
 from rafi.errors import InputSpecError, RafiUserError, RawFormatError, SettingsError
 from rafi.family import prior as _prior
-from rafi.family.confirmation import unquoted_ids
+from rafi.family.confirmation import taken_back_line, unquoted_ids
 from rafi.readers.input_spec import discover_logs, has_braces
 from rafi.readers.log_sources import log_name, log_stamp
 from rafi.readers.quarantine import (
@@ -64,10 +64,7 @@ try:
     # a prior's id in checks.confirmed written unquoted, read by YAML as a number: taken back where
     # it can only be that id, else refused naming the fix (before the schema sees it)
     for _taken in unquoted_ids(config):
-        print(
-            f"RAFI: {_taken} read as the prior's id '{_taken.rsplit(' ', 1)[-1]}'; quote it in config.yaml",
-            file=sys.stderr,
-        )
+        print(f"RAFI: {taken_back_line(_taken)}", file=sys.stderr)
     #: Run settings (top level of config.yaml over the contract's defaults).
     RUN = _settings.run_settings(config)
     # the key the schema refuses, in one line (Snakemake's own validation below reports a
