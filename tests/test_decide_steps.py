@@ -220,7 +220,8 @@ def test_drift_of_the_champion_and_its_line():
     assert D.drift_reason(drift, "c" * 64, "kept").endswith("recalibration due (new training runs needed)")
     assert D.drift_reason(drift, "c" * 64, "promoted").endswith("resolved by tonight's promotion")
     waiting = D.drift_reason(drift, "c" * 64, "rejected", waiting=True)
-    assert waiting.endswith("waits for a confirmation (the WAITING line)") and "new training runs" not in waiting
+    assert waiting.endswith("waits for a confirmation (the WAITING line)")
+    assert "new training runs" not in waiting
     none, no_runs = D.champion_drift(D.Champion(), None, RUNS, nightly)
     assert no_runs == [] and not none["detected"] and none["interval"]["status"] == "no_champion"
 

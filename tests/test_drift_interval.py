@@ -334,7 +334,9 @@ def test_a_drift_beside_a_candidate_waiting_for_a_confirmation_says_so_not_recal
     record = D.decide(
         machine="m1",
         candidate=D.Candidate(model=cand, summary=champ_sum, verdict=qualify(champ_sum, GATES)),
-        champion=D.Champion(model_id=champ["model_id"], summary=champ_sum, model=champ, residuals=_residuals(2.0)),
+        champion=D.Champion(
+            model_id=champ["model_id"], summary=champ_sum, model=champ, residuals=_residuals(2.0)
+        ),
         runs_table=RUNS,
         settings=D.DecisionSettings(gates=GATES, nightly=NIGHTLY),
         history=[PROMOTION | {"champion_id_after": champ["model_id"]}],

@@ -25,9 +25,10 @@ def load_config(directory: Path, config_file: str | Path, *, say: bool = True) -
     Raises
     ------
     rafi.errors.SettingsError
-        If the file cannot be read or parsed, or the config does not follow the contract (:func:`rafi.settings.validate_config`); a
-        prior's id in ``checks.confirmed`` written unquoted is taken back first where it can only
-        be that id (:func:`rafi.family.confirmation.unquoted_ids`).
+        If the file cannot be read or parsed, or the config does not follow the contract
+        (:func:`rafi.settings.validate_config`); a prior's id in ``checks.confirmed`` written
+        unquoted is taken back first where it can only be that id
+        (:func:`rafi.family.confirmation.unquoted_ids`).
     """
     config = read_config(config_path(directory, config_file), say=say)
     validate_config(config)
