@@ -116,3 +116,31 @@ def test_every_section_prints_the_same_speed_for_the_same_run():
     assert offered["multi"] == segmentation["multi"] == record["multi"] == RANGE  # not "6 450"
     for rid in ("single", "idle"):
         assert offered[rid] == segmentation[rid] == record[rid] == expected[rid]
+
+
+def test_a_start_from_rest_is_not_counted_as_a_speed_change():
+    """The multi-condition run of the shipped twin read "with 8 speed change(s)": 7 changes of speed
+    and the spindle's start from the rest absorbed into the run. The start is said as such."""
+    from rafi.report.model_sections import speed_changes
+
+    assert speed_changes(_samples()["speed_rpm"]) == (2, True)  # 0 -> 3 119 is the start
+    assert speed_changes(pd.Series([3000.0, 3000.0, 6000.0, 0.0, 6000.0])) == (3, False)  # a stop counts
+    assert speed_changes(pd.Series([0.0, 0.0])) == (0, False)
+    assert speed_changes(pd.Series([], dtype=float)) == (0, False)
+    summary = pd.DataFrame(
+        {
+            "run_id": ["multi"],
+            "role": ["validation_multi"],
+            "duration_s": [3600.0],
+            "max_abs_before_um": [10.0],
+            "max_abs_after_um": [1.0],
+            "improvement_pct": [90.0],
+        }
+    )
+
+    class _Figs:
+        def get(self, group, key):
+            return None
+
+    (row,) = other_runs(summary, _samples(), {}, _Figs(), False, runs=RUNS)
+    assert row["changes"] == 2 and row["from_rest"] is True

@@ -267,6 +267,35 @@ def range_rows(summary: pd.DataFrame) -> list[dict]:
     return rows
 
 
+#: A step of the speed (r/min) between two samples that counts as a change of speed.
+SPEED_STEP_RPM = 100.0
+
+
+def speed_changes(speed: pd.Series, step_rpm: float = SPEED_STEP_RPM) -> tuple[int, bool]:
+    """How often a run's speed changes, without the spindle's start from a rest before it.
+
+    Parameters
+    ----------
+    speed : pandas.Series
+        The run's speed (r/min), in time order.
+    step_rpm : float
+        A step between two samples larger than this is a change.
+
+    Returns
+    -------
+    (int, bool)
+        The changes after the first sample that turns (a stop and a restart later count), and
+        whether the run starts at rest (its leading samples below ``step_rpm`` before a change).
+    """
+    values = pd.to_numeric(speed, errors="coerce").to_numpy(dtype=float)
+    turning = np.flatnonzero(np.abs(values) > step_rpm)
+    if not len(turning):
+        return 0, False
+    start = int(turning[0])
+    steps = np.abs(np.diff(values[start:])) > step_rpm
+    return int(steps.sum()), start > 0
+
+
 def other_runs(
     summary: pd.DataFrame,
     resid: pd.DataFrame,
@@ -280,9 +309,10 @@ def other_runs(
     """The validation runs that are neither single-speed nor idle (multi-condition, ...), each
     with its figure, duration, ``speed`` (:func:`rafi.report.format.fmt_run_speed` of its row of
     ``runs``, ``runs.csv``: a varying run's range without its rest before start, as every section
-    prints it; the range of its samples only without that row), speed changes (from
-    ``validation/residuals.parquet``), max |dz| before and |residual| after, noise floor,
-    improvement, the samples outside the trained ranges with ``trained_speeds`` (the speeds of
+    prints it; the range of its samples only without that row), speed changes and whether it
+    starts from rest (:func:`speed_changes` of ``validation/residuals.parquet``), max |dz| before
+    and |residual| after, noise floor, improvement, the samples outside the trained ranges with
+    ``trained_speeds`` (the speeds of
     ``model``, ``model.json``: :func:`rafi.report.trained_range.range_facts`, as the verdict and
     the comparison count them; ``""`` unknown) and, on the paper's rig, the paper's
     multi-condition run (``paper``)."""
@@ -307,7 +337,7 @@ def other_runs(
                 "duration_s": r.duration_s,
                 "speed": speeds.get(str(r.run_id))
                 or fmt_speed_range(f["speed_rpm"].min(), f["speed_rpm"].max()),
-                "changes": int((f["speed_rpm"].diff().abs() > 100).sum()),
+                **dict(zip(("changes", "from_rest"), speed_changes(f["speed_rpm"]), strict=True)),
                 "max_abs_before_um": r.max_abs_before_um,
                 "max_abs_after_um": r.max_abs_after_um,
                 "noise_floor_um": noise.get(str(r.run_id)),
