@@ -90,6 +90,33 @@ def test_a_twelve_hour_time_of_day_is_read_with_time_format(tmp_path):
     assert got["time"].tolist() == frame["time"].tolist()
 
 
+@pytest.mark.parametrize("time_format", ["%I:%M:%S %p", "%I:%M %p", "%I:%M:%S%p"])
+def test_a_twelve_hour_time_of_day_is_read_without_a_format(tmp_path, time_format):
+    """``02:15:30 PM`` is a time of day as ``14:15:30`` is: read without ``input.time.format``,
+    over noon and midnight (12 AM is 0 h, 12 PM is noon)."""
+    frame = canonical_frame(200, start="2026-03-14 11:10", period_s=300)  # past noon and midnight
+    path = write_time_of_day_log(tmp_path / "log_2026-03-14.csv", frame, time_format=time_format)
+    got = read_log(path, spec(path))
+    want = frame["time"] if "%S" in time_format else frame["time"].dt.floor("min")
+    assert got["time"].tolist() == want.tolist()
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(st.integers(0, 86399), st.sampled_from(["%I:%M:%S %p", "%I:%M:%S %P", "%-I:%M:%S %p", "%I:%M:%S%p"]))
+def test_every_second_of_the_day_on_a_twelve_hour_clock_reads_back(second, fmt):
+    from rafi.readers.name_dates import is_time_of_day, time_of_day_seconds
+
+    text = (dt.datetime(2026, 3, 14) + dt.timedelta(seconds=second)).strftime(fmt)
+    assert is_time_of_day(text) and time_of_day_seconds(text) == second
+
+
+@pytest.mark.parametrize("text", ["13:00 PM", "0:30 AM", "12:60 PM", "12:00 XM", "12 PM"])
+def test_what_no_twelve_hour_clock_writes_is_no_time_of_day(text):
+    from rafi.readers.name_dates import is_time_of_day, time_of_day_seconds
+
+    assert not is_time_of_day(text) and time_of_day_seconds(text) is None
+
+
 def test_local_times_of_day_across_a_fall_back_read_as_utc(tmp_path):
     utc = pd.date_range("2026-10-24T21:00", "2026-10-25T03:00", freq="60s")
     frame = canonical_frame(len(utc), period_s=60)
@@ -176,14 +203,16 @@ def test_date_from_name_is_a_csv_and_xlsx_key_and_validates_in_the_config():
 # --------------------------------------------------------------------------- rafi init
 
 
-def write_folder(folder: Path, names: list[str], start_times: list[str]) -> dict[str, pd.DataFrame]:
+def write_folder(
+    folder: Path, names: list[str], start_times: list[str], time_format: str = "%H:%M:%S"
+) -> dict[str, pd.DataFrame]:
     folder.mkdir(parents=True, exist_ok=True)
     truth = {}
     for k, (name, start) in enumerate(zip(names, start_times)):
         frame = canonical_frame(240, seed=k, start=start, period_s=30)
         frame.loc[:20, "speed_rpm"] = 0.0  # a step: a speed column, not a constant
         truth[name] = frame
-        write_time_of_day_log(folder / name, frame)
+        write_time_of_day_log(folder / name, frame, time_format=time_format)
     return truth
 
 
@@ -207,6 +236,17 @@ def test_init_proposes_the_date_in_the_names_and_the_block_reads_the_logs(tmp_pa
     block = config_block(s)
     assert 'date_from_name: "%Y-%m-%d"' in block
     for name, frame in read_with_block(folder, block).items():
+        assert frame["time"].tolist() == truth[name]["time"].tolist()
+
+
+def test_init_proposes_the_date_in_the_names_for_a_twelve_hour_clock_too(tmp_path):
+    folder = tmp_path / "raw" / "m"
+    names = ["spindle_2026-03-14.csv", "spindle_2026-03-15.csv"]
+    truth = write_folder(folder, names, ["2026-03-14 22:30", "2026-03-15 11:50"], time_format="%I:%M:%S %p")
+    s = survey("m", [t for p in sorted(folder.iterdir()) for t in read_unknown_logs(p)])
+    assert s.time is not None and s.time.unit == "timeofday" and s.date_from_name == "%Y-%m-%d"
+    assert s.period_s == 30.0
+    for name, frame in read_with_block(folder, config_block(s)).items():
         assert frame["time"].tolist() == truth[name]["time"].tolist()
 
 

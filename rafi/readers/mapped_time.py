@@ -454,7 +454,7 @@ def name_dated_times(table: Table, values: list, spec: dict, column: str, col_in
             expect = (
                 f"a time of day in the format {tm['format']!r}"
                 if tm["format"]
-                else "a time of day such as 14:03:20 (HH:MM:SS, 24-hour clock; or set input.time.format)"
+                else "a time of day such as 14:03:20 or 2:03:20 PM (H:MM[:SS]; or set input.time.format)"
             )
             exc = table.error(f"{cell_text(v)!r} is not a time of day; expected {expect}", **where)
             is_time = lambda cell: time_of_day_seconds(cell, tm["format"]) is not None  # noqa: E731

@@ -31,8 +31,9 @@ DATE_CODES = {
     "B": r"[A-Za-z]{3,9}",
 }
 
-#: A time of day as text: ``H:MM``, ``H:MM:SS``, ``H:MM:SS.fff`` (24-hour clock).
-TIME_OF_DAY = re.compile(r"^(\d{1,2}):(\d{2})(?::(\d{2})(?:[.,](\d+))?)?$")
+#: A time of day as text: ``H:MM``, ``H:MM:SS``, ``H:MM:SS.fff`` on a 24-hour clock, or the same
+#: with ``AM`` / ``PM`` after it on a 12-hour clock (``2:15:30 PM``, ``02:15 pm``, ``2:15:30PM``).
+TIME_OF_DAY = re.compile(r"^(\d{1,2}):(\d{2})(?::(\d{2})(?:[.,](\d+))?)?(?:\s*([AaPp])\.?[Mm]\.?)?$")
 
 _CODE = re.compile(r"%(.)")
 
@@ -107,8 +108,9 @@ def time_of_day_seconds(cell, time_format: str | None = None) -> float | None:
     Parameters
     ----------
     cell : object
-        A workbook's time cell (``datetime.time``), or text: ``H:MM[:SS[.fff]]`` (24-hour), or
-        as ``time_format`` writes it (``%I:%M:%S %p``) when given.
+        A workbook's time cell (``datetime.time``), or text: ``H:MM[:SS[.fff]]`` (24-hour, or
+        12-hour with ``AM`` / ``PM`` after it: :data:`TIME_OF_DAY`), or as ``time_format``
+        writes it when given.
     time_format : str or None
         ``input.time.format``: a ``strptime`` format of the time of day.
     """
@@ -127,16 +129,19 @@ def time_of_day_seconds(cell, time_format: str | None = None) -> float | None:
     if m is None:
         return None
     h, mi, s = int(m.group(1)), int(m.group(2)), int(m.group(3) or 0)
+    if m.group(5):  # a 12-hour clock: 12 AM is midnight, 12 PM noon
+        if not 1 <= h <= 12:
+            return None
+        h = h % 12 + (12 if m.group(5) in "Pp" else 0)
     if h > 23 or mi > 59 or s > 59:
         return None
     return h * 3600 + mi * 60 + s + (float("0." + m.group(4)) if m.group(4) else 0.0)
 
 
 def is_time_of_day(cell) -> bool:
-    """``cell`` is a time of day and nothing more: a time cell, or text ``H:MM[:SS[.fff]]``."""
-    return isinstance(cell, dt.time) or (
-        isinstance(cell, str) and TIME_OF_DAY.match(cell.strip()) is not None
-    )
+    """``cell`` is a time of day and nothing more: a time cell, or text ``H:MM[:SS[.fff]]`` (with
+    ``AM`` / ``PM`` on a 12-hour clock) that :func:`time_of_day_seconds` reads."""
+    return isinstance(cell, dt.time) or (isinstance(cell, str) and time_of_day_seconds(cell) is not None)
 
 
 def day_offsets(seconds: list[float]) -> list[int]:
