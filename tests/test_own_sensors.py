@@ -195,6 +195,10 @@ def test_machines_of_4_to_40_sensors_and_three_probes_run_end_to_end_from_rafi_i
     assert {p: p.read_bytes() for p in (proj / "raw").rglob("*") if p.is_file()} == raw_before
     again = run_snakemake(proj, "-n", *targets, cores=2)
     assert "Nothing to be done" in again.stdout + again.stderr
+    # a night of this machine alone (rafi nightly --machine probes-xyz) rebuilds its probes report
+    (proj / "reports" / "probes-xyz" / "qualification.html").unlink()
+    night = run_snakemake(proj, "-n", "nightly", "--config", "nightly_machines=probes-xyz", cores=2)
+    assert night.returncode == 0 and "rule probes_report:" in night.stdout + night.stderr
 
 
 #: The workbook and file layouts of issue 45: no header row, a sheet a day, two files a run.

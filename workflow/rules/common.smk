@@ -459,10 +459,15 @@ def nightly_targets():
     ``--config nightly_report=false``) the report, for the machines of the night (a skipped
     machine: its audit and skipped page); ``INPUT_CHECK`` and the fleet overview when the night
     covers every machine (a night for some machines, ``rafi nightly --machine M``, rewrites the
-    page itself)."""
+    page itself); the report of a machine with several probes whose every probe is in the night."""
     machines = _nightly_machines()
     targets = [machine_targets(m, "nightly") for m in machines]
-    return targets + ([INPUT_CHECK, FLEET_INDEX] if machines == MACHINES else [])
+    if machines == MACHINES:
+        return targets + [INPUT_CHECK, FLEET_INDEX]
+    night = _settings.probes_by_machine(machines)
+    whole = [f for f in sorted(PROBES) if night.get(f) == PROBES[f]]
+    with_report = _settings.truthy(RUN["nightly_report"])
+    return targets + [probes_report_targets(f) for f in whole if with_report]
 
 
 # --------------------------------------------------------------------------- messages at the end
