@@ -135,6 +135,36 @@ def test_rafi_simulate_foreign_writes_a_project_and_prints_its_block(tmp_path):
     assert files == [d["stem"] for d in truth["days"]]
 
 
+def test_rafi_simulate_foreign_into_a_project_adds_its_machine_and_keeps_the_others(tmp_path, capsys):
+    """``--out`` a project that has machines: the config keeps them (and its comments), the logs go
+    to its raw_dir, the truth beside the config under the machine's name; the same command again
+    changes nothing; a machine of that name with other settings is refused, nothing written."""
+    from rafi.cli import main
+
+    text = "# the plant's machines\nraw_dir: logs\nmachines:\n  lathe-1:\n    sample_period_s: 30\n"
+    (tmp_path / "config.yaml").write_text(text, encoding="utf-8")
+    assert main(["simulate", "foreign", "--seed", "2", "--out", str(tmp_path)]) == 0
+    after = (tmp_path / "config.yaml").read_text(encoding="utf-8")
+    assert after.startswith(text)
+    config = yaml.safe_load(after)
+    assert config["machines"]["lathe-1"] == {"sample_period_s": 30}
+    assert config["machines"]["foreign-2"] == foreign_machine(2).config
+    assert sorted((tmp_path / "logs" / "foreign-2").glob("*.csv")) and not (tmp_path / "raw").exists()
+    truth = json.loads((tmp_path / "truth-foreign-2.json").read_text())
+    assert truth == json.loads(json.dumps(foreign_machine(2).truth))
+    assert not (tmp_path / "truth.json").exists()
+    assert main(["simulate", "foreign", "--seed", "2", "--out", str(tmp_path)]) == 0  # again: the same
+    assert (tmp_path / "config.yaml").read_text(encoding="utf-8") == after
+    config["machines"]["foreign-2"]["sample_period_s"] = 30
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(config), encoding="utf-8")
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    capsys.readouterr()
+    assert main(["simulate", "foreign", "--seed", "2", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "foreign-2" in err and "already under machines" in err and len(err.strip().splitlines()) == 1
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
 @pytest.mark.slow
 def test_the_pipeline_reads_a_foreign_machine_with_its_roles_and_sensors(tmp_path, written):
     out, truth = written

@@ -236,7 +236,9 @@ def _add_foreign_mode(sub: argparse._SubParsersAction, formatter: type[argparse.
         description="Write the foreign machine of a seed (rafi.twin.foreign: the twin's network with "
         "every constant drawn anew, 4 to 40 sensors of its own, one cold start a day at 60 s, training "
         "days then test days) into OUT: raw/<machine>/*.csv, config.yaml (that machine only) and "
-        "truth.json (per test day the fraction of rows outside the training envelope). With "
+        "truth.json (per test day the fraction of rows outside the training envelope). Into a project "
+        "that has a config.yaml: the machine is added under its machines: (the others and the "
+        "comments kept), the logs go to its raw_dir and the truth to truth-<machine>.json. With "
         "Snakefile and workflow/ beside them (or snakemake -s <Snakefile> -d OUT) OUT is a project.",
     )
     mode.add_argument("--seed", type=int, required=True, help="the machine's seed (its name: foreign-SEED)")
@@ -281,6 +283,7 @@ def _run_foreign(args: argparse.Namespace) -> int:
     """``rafi simulate foreign``: write the machine, print its config block and test days."""
     import yaml
 
+    from rafi.errors import SettingsError
     from rafi.twin.foreign import parse_realism, write_foreign
 
     try:
@@ -288,14 +291,18 @@ def _run_foreign(args: argparse.Namespace) -> int:
     except ValueError as exc:
         print(f"rafi simulate foreign: --realism: {exc}", file=sys.stderr)
         return 2
-    machine, paths = write_foreign(
-        args.seed,
-        args.out,
-        setup_drift=args.setup_drift,
-        realism=effects,
-        plan=args.plan,
-        setup_change=args.setup_change,
-    )
+    try:
+        machine, paths = write_foreign(
+            args.seed,
+            args.out,
+            setup_drift=args.setup_drift,
+            realism=effects,
+            plan=args.plan,
+            setup_change=args.setup_change,
+        )
+    except SettingsError as exc:
+        print(f"rafi simulate foreign: {exc}", file=sys.stderr)
+        return 2
     for path in paths:
         print(path, file=sys.stderr)
     for run in machine.truth["test_runs"]:

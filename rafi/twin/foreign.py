@@ -961,13 +961,24 @@ def write_foreign(
     plan: str = "varied",
     setup_change: bool = False,
 ) -> tuple[ForeignMachine, list[Path]]:
-    """Write the foreign machine of ``seed`` as a project's data: its logs as native CSVs in
-    ``out_dir/raw/<name>/``, ``out_dir/config.yaml`` (that machine only) and
-    ``out_dir/truth.json``; returns the machine and the files written (logs first). Beside
+    """Write the foreign machine of ``seed`` as a project's data; returns the machine and the files
+    written (logs first).
+
+    Into a new folder: its logs as native CSVs in ``out_dir/raw/<name>/``, ``out_dir/config.yaml``
+    (that machine only) and ``out_dir/truth.json``. Into a project that has a ``config.yaml``: the
+    machine's block added under its ``machines:`` (:func:`rafi.ops.init_config.add_machine`: the
+    rest of the file, comments included, as it was), the logs in the project's ``raw_dir`` and
+    the truth in ``out_dir/truth-<name>.json``; the same machine again changes nothing. Beside
     ``Snakefile`` and ``workflow/`` (copied, or ``snakemake -s <Snakefile> -d out_dir``) the
     folder is a project. ``setup_drift``, ``realism``, ``plan``, ``setup_change``:
-    :func:`foreign_machine` (the parts are not written; ``truth.json`` says what was drawn)."""
-    import yaml
+    :func:`foreign_machine` (the parts are not written; the truth says what was drawn).
+
+    Raises
+    ------
+    rafi.errors.SettingsError
+        The project's ``config.yaml`` cannot be read, or has a machine of that name with other
+        settings (nothing is written).
+    """
 
     from rafi.artefact import write_text_atomic
     from rafi.readers.native import format_raw_log
@@ -976,7 +987,9 @@ def write_foreign(
         seed, setup_drift=setup_drift, realism=realism, plan=plan, setup_change=setup_change
     )
     out = Path(out_dir)
-    folder = out / "raw" / machine.name
+    config_file = out / "config.yaml"
+    config_text, raw_dir, truth_file = _project_for(machine, config_file)
+    folder = out / raw_dir / machine.name
     folder.mkdir(parents=True, exist_ok=True)
     sensors = machine.config["input"]["sensors"]
     written = []
@@ -986,8 +999,40 @@ def write_foreign(
         decimals = {"disp_um": DISP_DECIMALS, **{s: TEMP_DECIMALS for s in sensors}}
         write_text_atomic(path, format_raw_log(frame, meta, decimals=decimals))
         written.append(path)
-    config = {"raw_dir": "raw", "results_dir": "results", "reports_dir": "reports", "defaults": {}}
-    config["machines"] = {machine.name: machine.config}
-    write_text_atomic(out / "config.yaml", yaml.safe_dump(config, sort_keys=False))
-    write_text_atomic(out / "truth.json", json.dumps(machine.truth, indent=1) + "\n")
-    return machine, [*written, out / "config.yaml", out / "truth.json"]
+    if config_text is not None:
+        write_text_atomic(config_file, config_text)
+    write_text_atomic(out / truth_file, json.dumps(machine.truth, indent=1) + "\n")
+    return machine, [*written, config_file, out / truth_file]
+
+
+def _project_for(machine: ForeignMachine, config_file: Path) -> tuple[str | None, str, str]:
+    """Where :func:`write_foreign` puts ``machine`` beside ``config_file``: ``(the config text to
+    write, or None to leave the file as it is; the raw_dir; the truth's file name)``."""
+    import yaml
+
+    from rafi.errors import SettingsError
+    from rafi.ops.init_config import add_machine
+    from rafi.settings import run_settings
+
+    block = {machine.name: machine.config}
+    if not config_file.exists():
+        config = {"raw_dir": "raw", "results_dir": "results", "reports_dir": "reports", "defaults": {}}
+        return yaml.safe_dump({**config, "machines": block}, sort_keys=False), "raw", "truth.json"
+    try:
+        text = config_file.read_text(encoding="utf-8")
+        config = yaml.safe_load(text) or {}
+    except (OSError, UnicodeDecodeError, yaml.YAMLError) as exc:
+        raise SettingsError(f"{config_file}: cannot read the config ({exc}); nothing written") from None
+    raw_dir = str(run_settings(config)["raw_dir"])
+    truth_file = f"truth-{machine.name}.json"
+    present = (config.get("machines") or {}).get(machine.name)
+    if present == json.loads(json.dumps(machine.config)):
+        return None, raw_dir, truth_file
+    if present is not None:
+        raise SettingsError(
+            f"{config_file}: machine {machine.name!r} is already under machines: with other settings; "
+            "nothing written (remove its entry, or write into another --out)"
+        )
+    lines = yaml.safe_dump(block, sort_keys=False).splitlines()
+    new_text, _ = add_machine(text, "".join(f"  {line}\n" for line in lines), machine.name)
+    return new_text, raw_dir, truth_file
