@@ -141,7 +141,7 @@ def test_german_workbook_unsure_items_are_marked_check(b_survey):
     assert sign == ["        # sign: -1"]  # commented out, the flip the data suggest
     assert "CHECK: it falls while the spindle heats" in block
     assert any(c.startswith("input.displacement.sign") for c in b_survey.checks)
-    probes = [ln.strip() for ln in block.splitlines() if ": {column: " in ln]
+    probes = [ln.split(" #")[0].strip() for ln in block.splitlines() if ": {column: " in ln]
     assert probes == [f'{p}: {{column: "Verlagerung {p} [µm]"}}' for p in ("Z1", "Z2", "X1", "Y1")]
     assert any(c.startswith("input.probes: 4 displacement columns") for c in b_survey.checks)
     assert [g.header for g in b_survey.probes][0] == "Verlagerung Z1 [µm]"

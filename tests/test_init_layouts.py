@@ -22,9 +22,9 @@ from layout_files import (
 )
 
 from rafi.ops.init_cli import findings
-from rafi.ops.init_config import config_block, parse_block, probe_names
+from rafi.ops.init_config import config_block, parse_block
 from rafi.ops.init_pairs import main_pattern, pair_parts, sheet_glob
-from rafi.ops.init_survey import survey
+from rafi.ops.init_survey import probe_names, survey
 from rafi.readers.infer_files import read_unknown, read_unknown_logs
 from rafi.readers.input_spec import normalise_input_spec
 from rafi.readers.log_sources import expand_logs
@@ -385,3 +385,21 @@ def test_probes_of_a_log_are_proposed_under_their_axis_names(tmp_path):
     path.write_text(out.to_csv(index=False), encoding="utf-8")
     _, entry = propose("axes", [path])
     assert entry["input"]["probes"] == {"Z": {"column": "Z_um"}, "Y": {"column": "Y_mm", "unit": "mm"}}
+
+
+def test_each_probe_is_said_with_its_own_direction_while_the_spindle_heats(tmp_path):
+    """Three probes of one machine: the twin's Y probe moves against the spindle's growth (its gain
+    is negative in the layout, the ground truth). ``rafi init`` said one direction, the first
+    probe's, for all; now each probe's line says its own and the checks name the one that differs."""
+    gains = {name: gain for name, _, gain, _ in LAYOUTS["probes-xyz"].probes}
+    files = write_layout("probes-xyz", tmp_path / "raw")
+    s = survey("probes-xyz", [t for p in files for t in read_unknown_logs(p)])
+    assert [sign for sign, _ in s.probe_signs] == [1 if gains[n] > 0 else -1 for n in ("X", "Y", "Z")]
+    assert (s.sign, s.sign_why) == s.probe_signs[0]
+    lines = {ln.split(":")[0].strip(): ln for ln in config_block(s).splitlines() if ": {column: " in ln}
+    assert "falls while the spindle heats" in lines["dY"]
+    assert "rises while the spindle heats" in lines["dX"] and "rises while the spindle heats" in lines["dZ"]
+    (apart,) = [c for c in s.checks if c.startswith("input.probes: unlike")]
+    assert "dY it falls" in apart and "dZ" not in apart
+    entry = parse_block(config_block(s), "probes-xyz")
+    assert all("sign" not in p for p in entry["input"]["probes"].values())  # the user's decision

@@ -28,6 +28,7 @@ from rafi.ops.init_survey import (
     elapsed_kind,
     footer_counts,
     markers_text,
+    probe_names,
 )
 from rafi.readers.name_dates import dates_in_name
 from rafi.settings import machine_settings, validate_config
@@ -189,36 +190,15 @@ def _displacement_keys(out: _Lines, s: Survey) -> None:
     out.add(8, f"sign: {flip}", why, off=True)
     if several:
         out.add(6, "probes:", f"{len(s.probes)} displacement columns: one model and one verdict per probe")
-        for name, guess in zip(probe_names([g.header for g in s.probes]), s.probes):
+        directions = s.probe_signs if len(s.probe_signs) == len(s.probes) else [(None, "")] * len(s.probes)
+        names = probe_names([g.header for g in s.probes])
+        for name, guess, (_, direction) in zip(names, s.probes, directions, strict=True):
+            entry, why = f"column: {q(guess.header)}", None
             if guess.unit in ("um", "mm") and guess.unit != first.unit:  # its own, not the first's
-                out.add(8, f"{name}: {{column: {q(guess.header)}, unit: {guess.unit}}}", guess.why)
+                entry, why = f"{entry}, unit: {guess.unit}", guess.why
             elif guess.unit not in ("um", "mm"):
-                out.add(8, f"{name}: {{column: {q(guess.header)}}}", f"CHECK: {guess.check or 'um or mm?'}")
-            else:
-                out.add(8, f"{name}: {{column: {q(guess.header)}}}")
-
-
-#: A unit at the end of a probe's word (``Z_um``, ``Y_mm``, ``X_`` of ``X_µm``): not part of its name.
-_UNIT_SUFFIX = re.compile(r"(?<=[A-Za-z0-9])_+(um|mm|microns?|mu)?_*$", re.I)
-
-
-def probe_names(headers: list[str]) -> list[str]:
-    """A probe name for every displacement header: its first word that the other headers do not
-    share (``ch1(um)`` -> ``ch1``, ``Verlagerung Z1 [µm]`` -> ``Z1``), without a unit at its end
-    (``Z_um`` -> ``Z``, ``Y_mm`` -> ``Y``) unless that makes two names one, where that is a
-    valid, unique name, else ``P<k>``."""
-    from rafi.contract import PROBE_NAME_RE
-
-    tokens = [re.findall(r"[A-Za-z][A-Za-z0-9_]*", h) for h in headers]
-    shared = set.intersection(*(set(t) for t in tokens)) if len(tokens) > 1 else set()
-    words = [next((w for w in t if w not in shared), "") for t in tokens]
-    bare = [_UNIT_SUFFIX.sub("", w) for w in words]
-    if len(set(bare)) == len(bare):
-        words = bare
-    words = [w[:16] for w in words]
-    return [
-        w if re.match(PROBE_NAME_RE, w) and words.count(w) == 1 else f"P{k + 1}" for k, w in enumerate(words)
-    ]
+                why = f"CHECK: {guess.check or 'um or mm?'}"
+            out.add(8, f"{name}: {{{entry}}}", "; ".join(w for w in (why, direction) if w) or None)
 
 
 def _temperature_unit(out: _Lines, s: Survey) -> None:

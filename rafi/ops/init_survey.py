@@ -31,6 +31,8 @@ from rafi.ops.init_layout import (
     speed_steps,
 )
 from rafi.ops.init_pairs import pair_parts, sheet_glob
+from rafi.readers.checks_base import robust_range
+from rafi.readers.checks_channels import SIGN_MIN_HEAT_RPM, sign_evidence, speed_heat
 from rafi.readers.infer import (
     MARKERS_MAX,
     ColumnGuess,
@@ -44,13 +46,6 @@ from rafi.readers.infer_files import RawTable
 from rafi.readers.mapped_time import date_and_time
 from rafi.readers.name_dates import dates_in_name, day_offsets, name_date_format, time_of_day_seconds
 from rafi.settings import DAYLIGHT_SAVING_SHIFT_S, DAYLIGHT_SAVING_SLACK_S
-
-#: Time constant (s) of the low-pass of the speed that stands for "the spindle heats the machine"
-#: when the probe's sign is looked at.
-HEAT_TAU_S = 1800.0
-
-#: Correlation between the probe and the heating that counts as evidence of its direction.
-SIGN_MIN_CORR = 0.5
 
 #: Share of regular time steps below which the sample period is not taken as given.
 REGULAR_SHARE = 0.9
@@ -89,6 +84,9 @@ class Survey:
     sign : int or None
         The sign that makes the probe positive while the spindle heats (None: no evidence).
     sign_why : str
+    probe_signs : list of (int or None, str)
+        ``sign`` and ``sign_why`` of every probe, in the order of ``probes`` (the first is
+        ``sign``'s): several probes of one machine may move in different directions.
     speed_by_file : dict
         Without a speed column: glob -> r/min read from the file names (``*_3000rpm*``).
     checks : list of str
@@ -147,6 +145,7 @@ class Survey:
     min_constant: tuple | None = None
     sign: int | None = None
     sign_why: str = ""
+    probe_signs: list = field(default_factory=list)
     speed_by_file: dict = field(default_factory=dict)
     checks: list = field(default_factory=list)
     notes: list = field(default_factory=list)
@@ -245,21 +244,24 @@ def _time_and_speed(
 
 def probe_sign(t_s: np.ndarray, speed: np.ndarray, disp: np.ndarray) -> tuple[int | None, str]:
     """The sign that makes ``disp`` positive while the spindle heats, and why (None: no clear
-    evidence). The heating is the speed through a first-order low-pass of :data:`HEAT_TAU_S`."""
+    evidence), by the pipeline's own check (:func:`rafi.readers.checks_channels.sign_evidence` of
+    :func:`~rafi.readers.checks_channels.speed_heat`), so that ``rafi init`` and the report's
+    probe sign agree on a log."""
     ok = np.isfinite(t_s) & np.isfinite(speed) & np.isfinite(disp)
     if ok.sum() < 10:
         return None, "too few rows to tell"
     period = float(np.median(np.diff(t_s[ok])))
     if not period > 0:
         return None, "the time column does not advance from row to row"
-    heat = pd.Series(speed[ok]).ewm(alpha=1.0 - np.exp(-period / HEAT_TAU_S), adjust=False).mean().to_numpy()
-    if np.std(heat) == 0 or np.std(disp[ok]) == 0:
+    heat = speed_heat(speed[ok], period)
+    if robust_range(heat) < SIGN_MIN_HEAT_RPM or np.std(disp[ok]) == 0:
         return None, "the speed or the probe does not change"
-    r = float(np.corrcoef(heat, disp[ok])[0, 1])
-    if abs(r) < SIGN_MIN_CORR:
-        return None, f"no clear direction while the spindle heats (r = {r:.2f})"
-    word = "rises" if r > 0 else "falls"
-    return (1 if r > 0 else -1), f"it {word} while the spindle heats (r = {r:+.2f})"
+    sign, r = sign_evidence(heat, disp[ok])
+    if r is None:
+        return None, "the probe does not change enough to tell"
+    if sign == 0:
+        return None, f"no clear direction while the spindle heats (r = {r:+.2f})"
+    return sign, f"it {'rises' if sign > 0 else 'falls'} while the spindle heats (r = {r:+.2f})"
 
 
 def _speeds_from_names(names: list[str]) -> dict[str, float]:
@@ -273,16 +275,53 @@ def _speeds_from_names(names: list[str]) -> dict[str, float]:
     return out
 
 
-def _probe_cells(survey: Survey, table: RawTable) -> np.ndarray | None:
-    """The first probe's values beside ``table``'s rows: its own column, or its partner file's
+def _probe_cells(survey: Survey, table: RawTable, k: int = 0) -> np.ndarray | None:
+    """Probe ``k``'s values beside ``table``'s rows: its own column, or its partner file's
     (row by row, when the two have as many rows; else None)."""
     if survey.join is None:
-        return to_numbers(column_cells(table, survey.probes[0]), table.layout.get("decimal", "."))
+        return to_numbers(column_cells(table, survey.probes[k]), table.layout.get("decimal", "."))
     name = table.path.name.replace(*survey.join)
     partner = next((t for t in survey.tables if t.path.name == name), None)
     if partner is None or partner.n_rows != table.n_rows:
         return None
-    return to_numbers(column_cells(partner, survey.probes[0]), partner.layout.get("decimal", "."))
+    return to_numbers(column_cells(partner, survey.probes[k]), partner.layout.get("decimal", "."))
+
+
+#: A unit at the end of a probe's word (``Z_um``, ``Y_mm``, ``X_`` of ``X_µm``): not part of its name.
+_UNIT_SUFFIX = re.compile(r"(?<=[A-Za-z0-9])_+(um|mm|microns?|mu)?_*$", re.I)
+
+
+def probe_names(headers: list[str]) -> list[str]:
+    """A probe name for every displacement header: its first word that the other headers do not
+    share (``ch1(um)`` -> ``ch1``, ``Verlagerung Z1 [µm]`` -> ``Z1``), without a unit at its end
+    (``Z_um`` -> ``Z``, ``Y_mm`` -> ``Y``) unless that makes two names one, where that is a
+    valid, unique name, else ``P<k>``."""
+    from rafi.contract import PROBE_NAME_RE
+
+    tokens = [re.findall(r"[A-Za-z][A-Za-z0-9_]*", h) for h in headers]
+    shared = set.intersection(*(set(t) for t in tokens)) if len(tokens) > 1 else set()
+    words = [next((w for w in t if w not in shared), "") for t in tokens]
+    bare = [_UNIT_SUFFIX.sub("", w) for w in words]
+    if len(set(bare)) == len(bare):
+        words = bare
+    words = [w[:16] for w in words]
+    return [
+        w if re.match(PROBE_NAME_RE, w) and words.count(w) == 1 else f"P{k + 1}" for k, w in enumerate(words)
+    ]
+
+
+def _read_probe_signs(survey: Survey, table: RawTable, t: np.ndarray, speed: np.ndarray) -> None:
+    """Each probe's direction while the spindle heats (:func:`probe_sign`) from ``table``, for the
+    probes no earlier table has told; ``survey.sign`` is the first probe's."""
+    if len(survey.probe_signs) != len(survey.probes):
+        survey.probe_signs = [(None, "")] * len(survey.probes)
+    for k, (sign, _) in enumerate(survey.probe_signs):
+        if sign is None:
+            d = _probe_cells(survey, table, k)
+            if d is not None:
+                survey.probe_signs[k] = probe_sign(t, speed, d)
+    if survey.probe_signs:
+        survey.sign, survey.sign_why = survey.probe_signs[0]
 
 
 def _guesses(table: RawTable, markers=(), *, dated: bool = False) -> list[ColumnGuess]:
@@ -408,10 +447,8 @@ def _log_shapes(survey: Survey, tables: list[RawTable]) -> None:
             shares.append(share)
         steps = tuple(speed_steps(t, s, period)) if s is not None and period else ()
         survey.shapes.append(LogShape(table.name, table.n_rows, period, share, steps))
-        if survey.sign is None and survey.probes and s is not None:
-            d = _probe_cells(survey, table)
-            if d is not None:
-                survey.sign, survey.sign_why = probe_sign(t, s, d)
+        if s is not None:
+            _read_probe_signs(survey, table, t, s)
     if periods:
         survey.period_s = float(np.median(periods))
         survey.regular_share = float(min(shares))
@@ -594,7 +631,25 @@ def _checks(s: Survey) -> list[str]:
                 f"input.probes: {len(s.probes)} displacement columns, each a probe; remove any that is "
                 "not a displacement, and give a probe its own unit or sign where it differs"
             )
+            out += _probe_sign_checks(s)
     return out
+
+
+def _probe_sign_checks(s: Survey) -> list[str]:
+    """The probes whose direction while the spindle heats is not the first probe's (or cannot be
+    read), in one sentence; none when every probe moves as the first."""
+    names = probe_names([g.header for g in s.probes])
+    apart = [
+        f"{name} {why}"
+        for name, (sign, why) in zip(names[1:], s.probe_signs[1:], strict=False)
+        if why and sign != s.sign
+    ]
+    if not apart:
+        return []
+    return [
+        f"input.probes: unlike {names[0]} ({s.sign_why}): " + "; ".join(apart) + "; a probe that moves "
+        "the other way takes its own sign (input.probes.<name>.sign)"
+    ]
 
 
 def markers_text(markers) -> str:

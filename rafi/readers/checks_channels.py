@@ -400,19 +400,37 @@ def probe_sign(sig: Signals) -> int:
     :data:`SIGN_MIN_CORR` in size.
     """
     heat = heat_signal(sig)
-    d = sig.values["disp_um"]
-    if heat is None:
-        return 0
-    both = ~np.isnan(heat) & ~np.isnan(d)
+    return 0 if heat is None else sign_evidence(heat, sig.values["disp_um"])[0]
+
+
+def sign_evidence(heat: np.ndarray, disp: np.ndarray) -> tuple[int, float | None]:
+    """The displacement's direction while ``heat`` rises: ``(+1, -1 or 0, their correlation)``.
+
+    0 without clear evidence: fewer than 10 samples where both are finite, a displacement that
+    changes by less than :data:`SIGN_MIN_DISP_UM`, or a correlation under :data:`SIGN_MIN_CORR` in
+    size (the correlation is None where it cannot be computed). ``rafi init`` says the same
+    (:func:`rafi.ops.init_survey.probe_sign`).
+    """
+    heat, disp = np.asarray(heat, dtype=float), np.asarray(disp, dtype=float)
+    both = np.isfinite(heat) & np.isfinite(disp)
     if both.sum() < 10:
-        return 0
-    heat, d = heat[both], d[both]
-    if robust_range(d) < SIGN_MIN_DISP_UM or np.std(heat) == 0 or np.std(d) == 0:
-        return 0
-    r = float(np.corrcoef(heat, d)[0, 1])
-    if not np.isfinite(r) or abs(r) < SIGN_MIN_CORR:
-        return 0
-    return 1 if r > 0 else -1
+        return 0, None
+    heat, disp = heat[both], disp[both]
+    if robust_range(disp) < SIGN_MIN_DISP_UM or np.std(heat) == 0 or np.std(disp) == 0:
+        return 0, None
+    r = float(np.corrcoef(heat, disp)[0, 1])
+    if not np.isfinite(r):
+        return 0, None
+    return (0 if abs(r) < SIGN_MIN_CORR else (1 if r > 0 else -1)), r
+
+
+def speed_heat(speed: np.ndarray, period_s: float) -> np.ndarray:
+    """The spindle's heat input as the sign check reads it: the speed through a first-order
+    low-pass of :data:`SIGN_HEAT_TAU_S` from rest before the first sample, a missing speed holding
+    the last value."""
+    from_rest = pd.Series(np.r_[0.0, np.asarray(speed, dtype=float)]).ffill().fillna(0.0)
+    gain = 1.0 - np.exp(-period_s / SIGN_HEAT_TAU_S)
+    return from_rest.ewm(alpha=gain, adjust=False).mean().to_numpy()[1:]
 
 
 def heat_signal(sig: Signals) -> np.ndarray | None:
@@ -426,9 +444,7 @@ def heat_signal(sig: Signals) -> np.ndarray | None:
     """
     speed = sig.values["speed_rpm"]
     if np.isfinite(speed).any():
-        from_rest = pd.Series(np.r_[0.0, speed]).ffill().fillna(0.0)
-        gain = 1.0 - np.exp(-sig.period_s / SIGN_HEAT_TAU_S)
-        heat = from_rest.ewm(alpha=gain, adjust=False).mean().to_numpy()[1:]
+        heat = speed_heat(speed, sig.period_s)
         if robust_range(heat) >= SIGN_MIN_HEAT_RPM:
             return heat
     temps = np.column_stack([sig.values[s] for s in sig.sensors])
