@@ -31,6 +31,7 @@ from rafi.report.context import build_context
 from rafi.report.data_sections import (
     COLLINEAR_ABS_R,
     TAU_MAX_SPANS,
+    equilibrium_description,
     section_data,
     section_equilibrium,
     section_ranking,
@@ -434,6 +435,14 @@ def test_the_reason_equilibrium_table_writes_is_the_one_the_report_shows():
     (row,) = section_equilibrium(res, _Figs(), machine_settings({}, "m"))["table"]
     assert row["no_t_eq"] == "never settled inside the band before the end of the run"
     assert row["t_eq"] == "not settled"
+
+
+def test_the_equilibrium_method_states_t_eq_from_tau_as_an_equation():
+    """The cross-check's formula: t_eq = tau ln(1/band), as the table computes it."""
+    eqs = {"smooth_window_s": 300, "band_fraction": 0.05, "plateau_window_s": 1800}
+    text = equilibrium_description(eqs)
+    assert "t_eq = \u03c4 ln(1/0.05)" in text
+    assert "from \u03c4 = \u03c4" not in text  # was "t_eq from \u03c4 = \u03c4 ln(1/0.05)"
 
 
 def test_a_ramp_drives_the_real_fit_to_the_bound_the_report_checks():

@@ -320,8 +320,8 @@ def equilibrium_description(eqs: dict | None) -> str:
         f"{fmt_num(eqs['plateau_window_s'], 0, 's')}), counted from the spindle start (the first "
         "sample at half the run's median speed or more). The uncertainty range repeats the "
         "detection with a 1.5\u00d7 wider and narrower band. Cross-check: a first-order rise "
-        f"dz = c + A (1 \u2212 e^(\u2212t/\u03c4)) fitted from the spindle start, t_eq from \u03c4 = "
-        f"\u03c4 ln(1/{float(eqs['band_fraction']):g})."
+        f"dz = c + A (1 \u2212 e^(\u2212t/\u03c4)) fitted from the spindle start, with "
+        f"t_eq = \u03c4 ln(1/{float(eqs['band_fraction']):g})."
     )
 
 
