@@ -24,6 +24,7 @@ from rafi.report.plain_ridge import PLAIN_RIDGE, section_plain_ridge
 from rafi.report.trained_range import (
     model_speed_counts,
     outside_counts,
+    stored_speed_counts,
     trained_speed_span,
     trained_speeds_text,
 )
@@ -493,7 +494,11 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         :func:`rafi.report.envelope_text.held_by_model`; empty when none were) and
         ``envelope_meaning``; ``ensemble``: :func:`rafi.report.ensemble_section.ensemble_context`
         of the offered artefact (``best_model``, when its id is in the summary; ``None`` unless it
-        is the CV-weighted ensemble), which also gives ``selection`` its ``rule`` and ``ensemble``.
+        is the CV-weighted ensemble), which also gives ``selection`` its ``rule`` and ``ensemble``;
+        ``speed_tolerance_rpm``, ``speed_recounted`` (the models' samples outside their trained
+        speeds are recounted from ``residuals.parquet``: :func:`rafi.report.trained_range.model_speed_counts`)
+        and ``speed_stored`` (where ``per_run.csv``'s own counts differ from the recount:
+        :func:`rafi.report.trained_range.stored_speed_counts`).
     """
     summ = res.get("comparison")
     if summ is None or not len(summ):
@@ -508,7 +513,8 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
     cvs = _cv_stats(cv_rows)
     tolerance = settings.get("speed_tolerance_rpm")
     model_noise = model_noise_floors(res)
-    rows = model_rows(s, fam_champ, on_machine, model_speed_counts(res, tolerance), model_noise)
+    recounted = model_speed_counts(res, tolerance)
+    rows = model_rows(s, fam_champ, on_machine, recounted, model_noise)
     best, ids = res.get("best_model"), set(s["model_id"].astype(str)) if "model_id" in s else set()
     offered = best if isinstance(best, dict) and str(best.get("model_id", "")) in ids else None
     ensemble = ensemble_context(offered, s, *cv_schemes(cv_rows))
@@ -549,6 +555,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "envelope_meaning": MEANING,
         # a sample outside the trained speeds: beyond them by more than this (rafi.report.trained_range)
         "speed_tolerance_rpm": tolerance if isnum(tolerance) else None,
+        # the table's outside-speed counts are the recount, not per_run.csv's (the footer says so)
+        "speed_recounted": bool(recounted),
+        "speed_stored": stored_speed_counts(s, recounted),
     }
     if ensemble is not None:  # offered by models: offer, not by the lowest score: the rule says so
         out["selection"]["ensemble"] = ensemble
