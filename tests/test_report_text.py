@@ -262,7 +262,7 @@ def test_the_reference_state_sentence_follows_the_reference_rule(rule, cold):
     settings = machine_settings({"machines": {"m": {"reference": {"rule": rule, "window_s": 60}}}}, "m")
     text = _choices_text(settings)
     text = text[text.index("Runs, roles and the rest before start") : text.index("Sensor dropouts")]
-    assert ("the cold machine at rest" in text) is cold
+    assert ("the reference state is the machine at rest, before the spindle turns" in text) is cold
     assert ("does not start cold" in text) is not cold
 
 
