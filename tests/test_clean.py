@@ -335,6 +335,28 @@ def test_open_circuit_recorded_per_sensor_and_line_range():
     assert out[SENSORS].abs().max().max() < 100
 
 
+def test_summary_counts_and_names_the_values_left_missing():
+    """Values the cleaning could not fill are counted and named in the file's summary row (sensor,
+    source lines, open circuit or absent), beside the values it interpolated."""
+    log, _ = canonical_log(400, extras=False)
+    frame = log.copy()
+    i = frame.index
+    frame.loc[i[100:156], "T8"] = OPEN_CIRCUIT  # 56 values: 285 s between valid samples
+    frame.loc[i[200:286], "T11"] = np.nan  # 86 values absent from the file
+    frame.loc[i[300:302], "T5"] = OPEN_CIRCUIT  # 2 values: bridged
+    out, audit = clean(frame)
+    s = summarise_audit("f.csv", "s", len(frame), out, audit).iloc[0]
+    assert s["values_left_missing"] == 56 + 86 == out[["T8", "T11"]].isna().sum().sum()
+    assert s["open_circuit_removed"] == 56 + 2 and s["values_interpolated"] == 2
+    spans = s["missing_spans"].split("; ")
+    assert spans == [
+        f"T8 lines {i[100]}-{i[155]}: 56 open-circuit value(s) removed and left missing",
+        f"T11 lines {i[200]}-{i[285]}: 86 value(s) absent from the file and left missing",
+    ]
+    s = summarise_audit("g.csv", "s", len(log), *clean(log)).iloc[0]
+    assert (s["values_left_missing"], s["open_circuit_removed"], s["missing_spans"]) == (0, 0, "")
+
+
 def test_numeric_extras_kept_and_interpolated_text_extras_dropped(log_truth):
     log, truth = log_truth
     frame = log.copy()

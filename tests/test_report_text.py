@@ -24,6 +24,8 @@ import yaml
 from html_tables import html_tables
 from report_fixture import copy_fixture, empty_figure_dirs, write_upstream_tables
 
+from rafi.method.audit import summarise_audit
+from rafi.method.clean import clean_log
 from rafi.method.equilibrium import first_order_fit
 from rafi.report import plot_layout, plots
 from rafi.report.choices import section_choices, setting_text, settings_changes
@@ -31,6 +33,7 @@ from rafi.report.context import build_context
 from rafi.report.data_sections import (
     COLLINEAR_ABS_R,
     TAU_MAX_SPANS,
+    equilibrium_description,
     section_data,
     section_equilibrium,
     section_ranking,
@@ -40,6 +43,7 @@ from rafi.report.format import fmt_speed_range, micro
 from rafi.report.model_sections import section_validation
 from rafi.report.render import _environment, render_html
 from rafi.settings import MACHINE_DEFAULTS, machine_settings
+from rafi.twin.synthetic_logs import CLEAN_KWARGS, OPEN_CIRCUIT, canonical_log
 
 ROOT = Path(__file__).resolve().parents[1]
 FIXTURE = ROOT / "tests" / "data" / "report_fixture" / "tapping-center-a"
@@ -258,7 +262,7 @@ def test_the_reference_state_sentence_follows_the_reference_rule(rule, cold):
     settings = machine_settings({"machines": {"m": {"reference": {"rule": rule, "window_s": 60}}}}, "m")
     text = _choices_text(settings)
     text = text[text.index("Runs, roles and the rest before start") : text.index("Sensor dropouts")]
-    assert ("the cold machine at rest" in text) is cold
+    assert ("the reference state is the machine at rest, before the spindle turns" in text) is cold
     assert ("does not start cold" in text) is not cold
 
 
@@ -306,6 +310,40 @@ def test_cleaning_says_rows_read_and_rows_on_the_grid():
     (audit_t,) = html_tables(_section("data", data=d), "audit num")
     assert audit_t["headers"][1:3] == ["rows read", "rows on the grid"]
     assert [r[-1]["cls"] for r in audit_t["rows"]] == ["pass", "pass"]
+
+
+def test_the_data_section_names_the_values_cleaning_left_missing():
+    """A file whose cleaning left sensor values missing (an open circuit, a long dropout): the
+    Data section counts them and names each span (file, run, sensor, lines, what was done), as the
+    clean step recorded them; the cleaning-audit table shows the count per file."""
+    log, _ = canonical_log(400, extras=False)
+    broken = log.copy()
+    i = broken.index
+    broken.loc[i[100:156], "T8"] = OPEN_CIRCUIT
+    broken.loc[i[200:286], "T11"] = np.nan
+    rows = []
+    for name, frame in (("valid_a.csv", broken), ("valid_b.csv", log)):
+        out, actions = clean_log(frame, **{**CLEAN_KWARGS, "file": name})
+        rows.append(summarise_audit(name, "0" * 64, len(frame), out, actions))
+    audit = pd.read_csv(io.StringIO(pd.concat(rows).to_csv(index=False)))  # as audit.csv reads back
+    runs = pd.DataFrame(
+        {"run_id": ["valid_a", "valid_b"], "file": ["valid_a.csv", "valid_b.csv"], "role": ["validation"] * 2}
+    )
+    d = section_data({"runs_csv": runs, "audit": audit}, 5, max_gap_s=60)
+    assert (
+        d["totals_text"]
+        .replace("\u00a0", " ")
+        .endswith("0 sensor value(s) interpolated, 142 sensor value(s) left missing.")
+    )
+    assert [m["file"] for m in d["missing"]] == ["valid_a.csv"]
+    html = _section("data", data=d)
+    text = _text(html)
+    assert f"valid_a.csv (run valid_a): T8 lines {i[100]}-{i[155]}: 56 open-circuit value(s) removed" in text
+    assert f"T11 lines {i[200]}-{i[285]}: 86 value(s) absent from the file and left missing" in text
+    assert "more than 60 s apart" in text and "gets no compensation" in text
+    (audit_t,) = html_tables(html, "audit num")
+    col = audit_t["headers"].index("values missing")
+    assert [r[col]["text"] for r in audit_t["rows"]] == ["142", "0"]
 
 
 def test_speed_range_never_prints_the_same_speed_twice():
@@ -434,6 +472,14 @@ def test_the_reason_equilibrium_table_writes_is_the_one_the_report_shows():
     (row,) = section_equilibrium(res, _Figs(), machine_settings({}, "m"))["table"]
     assert row["no_t_eq"] == "never settled inside the band before the end of the run"
     assert row["t_eq"] == "not settled"
+
+
+def test_the_equilibrium_method_states_t_eq_from_tau_as_an_equation():
+    """The cross-check's formula: t_eq = tau ln(1/band), as the table computes it."""
+    eqs = {"smooth_window_s": 300, "band_fraction": 0.05, "plateau_window_s": 1800}
+    text = equilibrium_description(eqs)
+    assert "t_eq = \u03c4 ln(1/0.05)" in text
+    assert "from \u03c4 = \u03c4" not in text  # was "t_eq from \u03c4 = \u03c4 ln(1/0.05)"
 
 
 def test_a_ramp_drives_the_real_fit_to_the_bound_the_report_checks():

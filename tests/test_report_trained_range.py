@@ -346,3 +346,52 @@ def test_the_verdict_names_the_speeds_tested_here_and_those_of_the_prior_alone()
         "the machine at rest (0 r/min, a cool-down); covered by the prior alone: 6000, "
         "9000, 12000 and 15000 r/min) nor about temperatures" in said
     )
+
+
+# --------------------------------------------------------------------------- the comparison's source
+#
+# foreign-5 (2026-12-01): the comparison table counted 9 samples outside the trained speeds per model
+# (recounted from residuals.parquet with speed_tolerance_rpm) where per_run.csv's n_outside_speed_range
+# held 142 for every ridge kind (their own flag, without the tolerance: day08_test at 11 250 r/min, the
+# top training speed, jitters to 11 253), and the footer said "From ... per_run.csv". The flag is not
+# only a count (it widens the prediction interval), so the model keeps it: the footer says the source.
+
+
+def test_the_comparison_footer_says_the_speed_counts_are_recounted_not_per_run_csvs(tmp_path):
+    import numpy as np
+    from report_fixture import copy_fixture, empty_figure_dirs, write_upstream_tables
+    from test_report_text import _text
+
+    from rafi.report.context import build_context
+    from rafi.report.render import render_html
+
+    results = copy_fixture(tmp_path)
+    path = results / "comparison" / "residuals.parquet"
+    samples = pd.read_parquet(path)
+    top = float(machine_settings({}, "m")["speed_tolerance_rpm"])  # nothing beyond this slack
+    ridge = (samples["model"] == "ridge_global").to_numpy()
+    first = samples.loc[ridge, "run_id"].iloc[0]
+    jitter = ridge & (samples["run_id"] == first).to_numpy()
+    jitter &= np.cumsum(jitter) <= 40  # 40 samples just above the top training speed, flagged
+    samples.loc[jitter, "speed_rpm"] = 18000.0 + top / 10
+    samples.loc[jitter, "outside_speed_range"] = True
+    samples.to_parquet(path)
+    for rel in ("comparison/per_run.csv", "comparison/summary.csv"):
+        table = pd.read_csv(results / rel)
+        at = table["model"] == "ridge_global"
+        if "run_id" in table:
+            at &= table["run_id"] == first
+        table.loc[at, "n_outside_speed_range"] = 40
+        table.to_csv(results / rel, index=False)
+    settings = machine_settings({}, "tapping-center-a")
+    ctx = build_context(
+        write_upstream_tables(results), empty_figure_dirs(results), machine="m", settings=settings
+    )
+    text = _text(render_html(ctx))
+    assert "outside trained speed" in text
+    assert (
+        "the samples outside the trained speeds are recounted from residuals.parquet with the 50 r/min of "
+        "speed_tolerance_rpm , not per_run.csv's n_outside_speed_range , which holds each model's own flag: "
+        "40 for ridge_global (their flag takes any sample beyond the training speeds, without the "
+        "tolerance"
+    ) in text

@@ -444,3 +444,42 @@ def test_a_log_without_a_clock_gives_runs_without_clock_times(tmp_path):
     assert rf["time"].isna().all() and dated_rf["time"].notna().all()
     cols = ["run_id", "start_s", "end_s", "role"]
     pd.testing.assert_frame_equal(table[cols], dated_table[cols])
+
+
+# --------------------------------------------------------------------------- cold or only at rest
+#
+# foreign-5 (2026-12-01) said "(reference state = cold machine at rest)" of every run that starts from
+# rest, also of day09_test, which its generator started warm (1.26 h after the day before). The
+# generator's warm starts (rafi.twin.foreign, effect warm_start) are the ground truth: a run is said
+# cold only where its temperatures at the reference sit in the machine's at-rest pattern.
+
+
+def _foreign_runs(seed: int, realism) -> tuple[pd.DataFrame, dict]:
+    from rafi.ops.init_preview import runs_arguments
+    from rafi.settings import machine_settings
+    from rafi.twin.foreign import foreign_machine
+
+    m = foreign_machine(seed, realism=realism)
+    settings = machine_settings({"machines": {m.name: m.config}}, m.name)
+    table, _ = find_runs(dict(m.logs), {}, **runs_arguments(settings))
+    return table.set_index("run_id"), m.truth["realism"]["warm_start"]["rest_h"]
+
+
+@pytest.mark.parametrize("seed, realism", [(5, ("warm_start",)), (5, "all"), (10, ("warm_start",))])
+def test_a_warm_start_is_said_at_rest_and_a_cold_start_cold(seed, realism):
+    table, warm_h = _foreign_runs(seed, realism)
+    rested = table[table["note"].str.contains("rest before start", regex=False)]
+    assert len(rested) == len(table)  # every day starts from rest
+    shortly = [stem for stem, h in warm_h.items() if h < 2.0]  # still warm: 1-2 h after the day before
+    assert shortly  # the generator drew one for these seeds
+    for stem in shortly:
+        assert "(reference state = machine at rest)" in table.loc[stem, "note"], stem
+    cold = [d for d in table.index if d not in warm_h]  # stood overnight: the training days among them
+    for stem in cold:
+        assert "(reference state = cold machine at rest)" in table.loc[stem, "note"], stem
+
+
+def test_too_few_starts_from_rest_are_never_said_cold():
+    frame, _ = schedule_log([(0, 180), (12000, 4 * H)], speed_noise_rpm=20, seed=3)
+    table, _ = runs({"train_12000.csv": frame})
+    assert "(reference state = machine at rest)" in table["note"].iloc[0]

@@ -8,6 +8,7 @@ import pytest
 
 from rafi.method.fit import fit_rafi
 from rafi.method.model import RafiModel
+from rafi.method.noise import expected_max_abs_noise, white_noise_sigma
 from rafi.method.validate import (
     RESIDUAL_COLUMNS,
     SUMMARY_COLUMNS,
@@ -144,6 +145,32 @@ def test_unpredicted_inputs_name_what_the_model_reads_and_the_speed():
     s = validate_runs(m, table, frame)[0].set_index("run_id").loc["good"]
     assert s["n_samples"] == 1 and s["n_unpredicted"] == 2
     assert s["unpredicted_inputs"] == "T6, speed"  # T9 is missing too, but the model does not read it
+
+
+def test_the_noise_floor_is_the_runs_whatever_the_model_compensates():
+    """A run's noise floor comes from its measured dz alone: a model that gives no compensation on
+    some samples (a dropout of a sensor it reads) gets the same floor as one that compensates
+    every sample, the expected max |noise| over all the run's measured samples."""
+    rng = np.random.default_rng(5)
+    n = 400
+    rise = np.linspace(0.0, 2.0, n)
+    dz = 2.0 * rise + rng.normal(0.0, 0.2, n)
+    dz[7] = np.nan  # no measurement: not a sample of the run
+    frame = pd.DataFrame(
+        {"run_id": "v", "t_s": 5.0 * np.arange(n), "speed_rpm": 4500.0, "dT6": rise, "dT9": rise, "dz_um": dz}
+    )
+    frame.loc[100:185, "dT9"] = np.nan  # 86 samples the T9 model cannot compensate
+    table = pd.DataFrame({"run_id": ["v"], "role": ["validation_single"], "speed_rpm": [4500.0]})
+    floors = {}
+    for sensor in ("T6", "T9"):
+        m = RafiModel([sensor], ["1", "x1"], created="2026-01-01T00:00:00Z", code_version="t")
+        m.add_speed_model(3000, [0.0, 2.0], {sensor: (0.0, 2.0)})
+        m.add_speed_model(6000, [0.0, 2.0], {sensor: (0.0, 2.0)})
+        s = validate_runs(m, table, frame)[0].iloc[0]
+        floors[sensor] = s["noise_floor_um"]
+        assert s["n_unpredicted"] == (86 if sensor == "T9" else 0)
+    sigma = white_noise_sigma(dz)
+    assert floors["T6"] == floors["T9"] == expected_max_abs_noise(sigma, n - 1)
 
 
 class _Opaque:

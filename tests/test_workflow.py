@@ -51,6 +51,9 @@ TABLES = {
         "segments",
         "status",
         "reason",
+        "open_circuit_removed",
+        "values_left_missing",
+        "missing_spans",
     ],
     "runs.csv": [
         "run_id",

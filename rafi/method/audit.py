@@ -36,6 +36,9 @@ SUMMARY_COLUMNS = (
     "reason",
     "warnings",
     "probe_sign",
+    "open_circuit_removed",
+    "values_left_missing",
+    "missing_spans",
 )
 
 #: ``action`` of an audit row that records a warning of the plausibility checks.
@@ -76,7 +79,10 @@ def summarise_audit(
         extra values filled after a dropout or open circuit; spikes and inserted
         gap rows not included), ``gaps_interpolated`` (gaps bridged, not rows),
         ``segments``, ``status`` (``ok``), ``reason`` (empty), ``warnings`` (rows with action
-        ``warning``) and ``probe_sign``.
+        ``warning``), ``probe_sign``, ``open_circuit_removed`` (values equal to an open-circuit
+        marker, removed: then bridged or left missing like a dropout), ``values_left_missing``
+        (values left NaN: a gap longer than ``max_interpolate_gap_s`` or at a segment's end) and
+        ``missing_spans`` (:func:`missing_spans`).
     """
     a = audit_actions
 
@@ -108,8 +114,43 @@ def summarise_audit(
         "reason": "",
         "warnings": events_of(WARNING_ACTION),
         "probe_sign": int(probe_sign),
+        "open_circuit_removed": rows_of("open_circuit_removed"),
+        "values_left_missing": rows_of("dropout_left_nan"),
+        "missing_spans": missing_spans(a),
     }
     return pd.DataFrame([row], columns=list(SUMMARY_COLUMNS))
+
+
+def missing_spans(audit_actions: pd.DataFrame) -> str:
+    """The values a file's cleaning left missing, one span per ``dropout_left_nan`` row, in
+    source-line order, joined by ``"; "``: ``"T8 lines 1145-1200: 56 open-circuit value(s)
+    removed and left missing"`` or ``"T11 lines 404-489: 86 value(s) absent from the file and left
+    missing"`` (``""`` without any).
+
+    A span's open-circuit values are the ``open_circuit_removed`` rows of its column inside its
+    lines; a span holding both kinds says how many of its values were open-circuit markers. A
+    sample that needs such a value is not fitted or scored and gets no compensation.
+    """
+    a = audit_actions
+    if len(a) == 0:
+        return ""
+    left = a[a["action"] == "dropout_left_nan"]
+    opened = a[a["action"] == "open_circuit_removed"]
+    spans = []
+    for r in left.itertuples(index=False):
+        first, last, n = int(r.first_line), int(r.last_line), int(r.n_rows)
+        inside = (
+            (opened["column"] == r.column) & (opened["first_line"] >= first) & (opened["last_line"] <= last)
+        )
+        n_open = int(opened.loc[inside, "n_rows"].sum())
+        if n_open >= n:
+            what = f"{n} open-circuit value(s) removed and left missing"
+        elif n_open:
+            what = f"{n} value(s) left missing, {n_open} of them open-circuit values removed"
+        else:
+            what = f"{n} value(s) absent from the file and left missing"
+        spans.append((first, str(r.column), f"{r.column} lines {first}-{last}: {what}"))
+    return "; ".join(text for *_, text in sorted(spans))
 
 
 def warning_rows(file: str, warnings) -> pd.DataFrame:
@@ -216,6 +257,9 @@ def quarantined(
                 "reason": reason,
                 "warnings": 0,
                 "probe_sign": 0,
+                "open_circuit_removed": 0,
+                "values_left_missing": 0,
+                "missing_spans": "",
             }
         ],
         columns=list(SUMMARY_COLUMNS),

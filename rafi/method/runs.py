@@ -26,8 +26,10 @@ never spans a gap). Within a segment:
    into that run as its rest before start (a cold-start log: the logger is started with
    the machine at rest, then the spindle). A one-run file stays one run (``run_id`` = the
    stem), ``t_s`` of the run starts at the log (segment) start, and the reference window
-   falls on the rest: the reference state is the cold machine at rest, which is also what
-   a compensation on the controller is relative to. The kind (constant / varying) and the
+   falls on the rest: the reference state is the machine at rest, which is also what
+   a compensation on the controller is relative to; ``note`` calls it the cold machine at rest
+   only where the temperatures show it (:func:`cold_starts`: a machine that rested only an
+   hour or two after work is still warm). The kind (constant / varying) and the
    speed statistics (``speed_rpm``, ``speed_min_rpm``, ``speed_max_rpm``) ignore the rest;
    ``duration_s`` counts every sample of the run, rest included; ``note`` states the rest.
    A longer leading idle piece stays an idle run of its own.
@@ -120,6 +122,23 @@ SPEED_SMOOTH_S = 60.0
 
 #: A varying stretch of at most this many samples next to a constant run is a ramp.
 RAMP_MAX_SAMPLES = 3
+
+#: What the note of a run with a rest before start calls its reference state: the machine at rest,
+#: and a cold machine at rest only where the temperatures show it (:func:`cold_starts`).
+AT_REST = "machine at rest"
+COLD_AT_REST = "cold machine at rest"
+#: A start from rest is cold when its reference temperatures lie as close to the machine's
+#: at-rest pattern as its usual start does: their distance from it (K, root mean square over the
+#: sensors) at most this many times the median distance of the machine's starts from rest, or
+#: :data:`COLD_FLOOR_K` (:func:`cold_starts`).
+COLD_DISTANCE_FACTOR = 2.0
+#: The distance (K) below which a start from rest is always cold: sensors that read the same to the
+#: logger's resolution every morning leave a median distance near 0.
+COLD_FLOOR_K = 0.05
+#: Fewest runs starting from rest that give the machine an at-rest pattern, and fewest sensors
+#: with a reference value that give a run one.
+MIN_COLD_RUNS = 3
+MIN_COLD_SENSORS = 3
 
 
 class RunSpan(NamedTuple):
@@ -239,12 +258,15 @@ def find_runs(
     sensors = common_sensors(clean_frames)
     rows: list[dict] = []
     samples: list[dict] = []
+    rests: dict = {}
     for key in sorted(clean_frames):
         if len(clean_frames[key]) == 0:
             continue
-        log_rows, log_samples = log_runs(key, log_arrays(clean_frames[key]), sha256, rules)
+        log_rows, log_samples, log_rests = log_runs(key, log_arrays(clean_frames[key]), sha256, rules)
         rows += log_rows
         samples += log_samples
+        rests.update(log_rests)
+    rows = _said_cold(rows, cold_starts(rests))
     return runs_table(rows), stack_runs(samples, sensors)
 
 
@@ -364,9 +386,10 @@ def log_arrays(frame: pd.DataFrame) -> LogArrays:
     )
 
 
-def log_runs(key, log: LogArrays, sha256: dict, rules: RunRules) -> tuple[list[dict], list[dict]]:
+def log_runs(key, log: LogArrays, sha256: dict, rules: RunRules) -> tuple[list[dict], list[dict], dict]:
     """The runs of one log (``key``: its key in ``clean_frames``): their rows of the runs table
-    (after the leak guard) and their samples (:func:`run_samples`).
+    (after the leak guard), their samples (:func:`run_samples`) and, per run with a rest before
+    start, its reference temperatures by sensor (for :func:`cold_starts`).
 
     The log is cut into runs (:func:`split_log`), then at its window
     boundaries; each run gets its role (:func:`assign_role`) and reference state
@@ -384,7 +407,7 @@ def log_runs(key, log: LogArrays, sha256: dict, rules: RunRules) -> tuple[list[d
         max_leading_rest_s=rules.max_leading_rest_s,
     )
     spans = cut_at(spans, cut_points(log_windows, log.t_s))
-    rows, samples = [], []
+    rows, samples, rests = [], [], {}
     for k, span in enumerate(spans, start=1):
         run_id = stem if len(spans) == 1 else f"{stem}#{k}"
         speed_rpm, speed_min, speed_max = speed_statistics(log.speed[span.start + span.rest : span.end])
@@ -398,8 +421,9 @@ def log_runs(key, log: LogArrays, sha256: dict, rules: RunRules) -> tuple[list[d
         if span.rest:
             notes.append(
                 f"rest before start: {span.rest * log.period:g} s at rest absorbed (reference "
-                "state = cold machine at rest)"
+                f"state = {AT_REST})"
             )
+            rests[run_id] = pd.Series(reference.temps, index=list(log.sensors))
         if reference.missing:
             notes.append(f"no valid reference value for {', '.join(reference.missing)}: rises are NaN")
         rows.append(
@@ -425,7 +449,70 @@ def log_runs(key, log: LogArrays, sha256: dict, rules: RunRules) -> tuple[list[d
             }
         )
         samples.append(run_samples(log, span, reference, run_id=run_id, key=name))
-    return _guard_log(rows, rules), samples
+    return _guard_log(rows, rules), samples, rests
+
+
+def cold_starts(
+    rest_temps: dict,
+    factor: float = COLD_DISTANCE_FACTOR,
+    floor_k: float = COLD_FLOOR_K,
+    min_runs: int = MIN_COLD_RUNS,
+    min_sensors: int = MIN_COLD_SENSORS,
+) -> set:
+    """The runs starting from rest whose reference temperatures show a cold machine.
+
+    A machine that stood long enough is at the room's temperature throughout: every sensor reads
+    the room plus its own fixed offset (where it sits, its mounting), the same pattern on every
+    such morning whatever the room's level that day. A machine that rested only an hour or two
+    after work is still warm in its heavy parts and cooler in its fast ones: its sensors leave
+    that pattern. So each run's reference temperatures are taken less their mean over the run's
+    sensors (the room's level out); the machine's at-rest pattern is the median of that over its
+    runs from rest; a run's distance from it is the root mean square over its sensors; and a run
+    is cold when that distance is at most ``factor`` times the median distance of those runs (the
+    scatter a cold start shows: noise, the logger's resolution), or at most ``floor_k``. The
+    absolute level says nothing here: rooms differ by kelvins from day to day, a warm start by
+    tenths between the sensors. On the generated foreign machines a start 1-3 h after the day
+    before lies 2-18 times the median distance away, a cold start at most 1.5 times; after 4 h
+    and more a start is cold by this rule, and by the temperatures too.
+
+    The pattern is that of the machine's usual start: most starts from rest must be cold (a
+    qualification's days start after a night). Without ``min_runs`` runs from rest there is no
+    pattern, and a run with fewer than ``min_sensors`` reference values has none of its own:
+    nothing is shown cold, and the note says the machine at rest.
+
+    Parameters
+    ----------
+    rest_temps : dict
+        Run id -> its reference temperatures (``pandas.Series`` by sensor; NaN: no value), of the
+        runs with a rest before start.
+    factor, floor_k : float
+        How far (times the median distance, or K) a cold start may lie from the pattern.
+    min_runs, min_sensors : int
+        See above.
+
+    Returns
+    -------
+    set of str
+        The run ids shown cold.
+    """
+    if len(rest_temps) < min_runs:
+        return set()
+    table = pd.DataFrame(rest_temps).T.astype(float)
+    pattern = table.sub(table.mean(axis=1), axis=0)
+    off = pattern.sub(pattern.median(axis=0), axis=1)
+    distance = np.sqrt((off**2).mean(axis=1, skipna=True))
+    limit = max(factor * float(distance.median()), floor_k)
+    cold = (table.notna().sum(axis=1) >= min_sensors) & (distance <= limit)
+    return {str(run_id) for run_id in table.index[cold.to_numpy()]}
+
+
+def _said_cold(rows: list[dict], cold: set) -> list[dict]:
+    """``rows`` with the reference state of the runs in ``cold`` said as the cold machine at rest."""
+    rest, said = f"(reference state = {AT_REST})", f"(reference state = {COLD_AT_REST})"
+    return [
+        {**row, "note": str(row["note"]).replace(rest, said)} if row["run_id"] in cold else row
+        for row in rows
+    ]
 
 
 def speed_statistics(speed: np.ndarray) -> tuple[float, float, float]:

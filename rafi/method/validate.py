@@ -23,8 +23,9 @@ leak). Per run, over the samples where both ``dz_um`` and the prediction exist:
 * ``paper_residual_um``: paper Table 4 for ``validation_single`` runs whose speed is
   within 50 r/min of a Table 4 speed, else NaN;
 * ``noise_sigma_um`` / ``noise_floor_um``: the white-noise sigma of the run's ``dz`` and the
-  expected max |noise| over its samples, estimated from the measurement alone
-  (:mod:`rafi.method.noise`): a ``max_abs_after_um`` near ``noise_floor_um`` is at the noise;
+  expected max |noise| over its measured samples, estimated from the measurement alone
+  (:func:`run_noise_floor`: the same for every model, whatever samples it compensated): a
+  ``max_abs_after_um`` near ``noise_floor_um`` is at the noise;
 * ``coverage`` / ``interval_width_um``: the fraction (0..1) of the run's samples with a finite
   measurement and interval that lie inside the model's prediction interval, and the median width
   of that interval (:mod:`rafi.family.intervals`; NaN for a model without an interval).
@@ -64,7 +65,7 @@ import pandas as pd
 
 from rafi.contract.sensors import run_sensors
 from rafi.method import paper
-from rafi.method.noise import expected_max_abs_noise, white_noise_sigma
+from rafi.method.noise import noise_floor
 from rafi.method.paper import paper_value
 from rafi.settings import GATE_KEYS
 
@@ -74,6 +75,7 @@ __all__ = [
     "RESIDUAL_COLUMNS",
     "VERDICT_COLUMNS",
     "validate_runs",
+    "run_noise_floor",
     "coverage_and_width",
     "input_sensors",
     "inputs_without_value",
@@ -160,6 +162,22 @@ def _envelope_flags(detail: pd.DataFrame) -> np.ndarray:
     return detail["outside_envelope"].fillna(False).to_numpy(dtype=bool)
 
 
+def run_noise_floor(measured) -> tuple[float, float]:
+    """``(noise_sigma_um, noise_floor_um)`` of a validation run, from its measured dz alone.
+
+    The floor is the max |residual| a perfect model would typically leave on the run: a perfect
+    model compensates every sample with a measurement, so the expected max |noise| is taken over
+    all the run's measured samples (:func:`rafi.method.noise.noise_floor`), not over the samples a
+    given model compensated. A model that gives no compensation on some samples (a dropout of a
+    sensor it reads) is scored on fewer samples, but the run, and so its floor, is the same for
+    every model: one figure per run in ``validation/summary.csv``, ``comparison/per_run.csv``
+    and every place of the report (the model's max over fewer samples is compared against a
+    floor at most a few hundredths of a um higher: the expected max grows with the log of the
+    count).
+    """
+    return noise_floor(measured)
+
+
 def _run_summary(run_id, role, speed, duration, *, detail, measured, t_s, bounds, sub, sensors) -> dict:
     pred = detail["predicted_um"].to_numpy(dtype=float)
     resid = measured - pred
@@ -182,8 +200,7 @@ def _run_summary(run_id, role, speed, duration, *, detail, measured, t_s, bounds
         if role == "validation_single" and pd.notna(speed)
         else float("nan")
     )
-    sigma = white_noise_sigma(measured)  # the run's own dz; the floor over the compared samples
-    floor = expected_max_abs_noise(sigma, n) if n else float("nan")
+    sigma, floor = run_noise_floor(measured)
     return {
         "run_id": run_id,
         "role": role,

@@ -18,12 +18,13 @@ from rafi.family.unexplained import unexplained_text
 from rafi.report.ensemble_section import ensemble_context
 from rafi.report.envelope_text import MEANING, held_by_model
 from rafi.report.format import isnum, truthy
-from rafi.report.inputs import collinearity_frame, noise_floors
+from rafi.report.inputs import collinearity_frame, model_noise_floors, noise_floors
 from rafi.report.intervals import band_label, coverage_fields, has_band, has_coverage, shared_level
 from rafi.report.plain_ridge import PLAIN_RIDGE, section_plain_ridge
 from rafi.report.trained_range import (
     model_speed_counts,
     outside_counts,
+    stored_speed_counts,
     trained_speed_span,
     trained_speeds_text,
 )
@@ -226,6 +227,7 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
         ``log_start`` (``reference.rule`` is ``log_start``).
     """
     runs = []
+    noise = noise_floors(res)
     for r in bad.to_dict("records"):
         # the shares as the verdict's statement and the validation section count them
         c = outside_counts(pd.DataFrame([r])) or {}
@@ -233,7 +235,7 @@ def rafi_failure(bad: pd.DataFrame, res: dict, settings: dict) -> dict:
             {
                 "run_id": str(r["run_id"]),
                 "max_abs_after_um": r["max_abs_after_um"],
-                "noise_floor_um": r.get("noise_floor_um"),
+                "noise_floor_um": noise.get(str(r["run_id"])),
                 "n_samples": float(r.get("n_samples") or 0),
                 "outside_temp_pct": np.nan if c.get("temp_pct") is None else c["temp_pct"],
                 "outside_speed_pct": np.nan if c.get("speed_pct") is None else c["speed_pct"],
@@ -267,7 +269,9 @@ def _trained_speeds(artefact) -> str | None:
     return f"trained speed {text}" if span[0] == span[1] else f"trained speeds {text}"
 
 
-def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward: str = "") -> dict:
+def selection_context(
+    summary: pd.DataFrame, champion, scheme: str = "", forward: str = "", noise: dict | None = None
+) -> dict:
     """How the champion was chosen, from ``comparison/summary.csv``.
 
     Parameters
@@ -278,6 +282,9 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward
         The champion's name.
     scheme, forward : str
         The whole-run and the forward scheme of ``comparison/cv.csv`` (:func:`cv_schemes`).
+    noise : dict, optional
+        Model -> the noise floor beside its worst residual
+        (:func:`rafi.report.inputs.model_noise_floors`); without it the summary's.
 
     Returns
     -------
@@ -321,7 +328,7 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward
     out["worst_fold"] = r.get("cv_max_abs_um")
     out["passed"] = truthy(r.get("passed", False))
     out["validation_worst"] = r.get("max_abs_after_um")
-    out["noise"] = r.get("noise_floor_um")
+    out["noise"] = r.get("noise_floor_um") if noise is None else noise.get(str(champion))
     offerable = summary["candidate"].map(truthy) if "candidate" in summary else pd.Series(True, summary.index)
     out["better_on_validation"] = [
         str(m)
@@ -339,7 +346,9 @@ def selection_context(summary: pd.DataFrame, champion, scheme: str = "", forward
     return out
 
 
-def model_rows(summary: pd.DataFrame, champion, on_machine, speed_counts: dict | None = None) -> list[dict]:
+def model_rows(
+    summary: pd.DataFrame, champion, on_machine, speed_counts: dict | None = None, noise: dict | None = None
+) -> list[dict]:
     """One row per model of ``comparison/summary.csv``: its CV numbers (``selection_score_um``,
     the score that chose, :func:`selection_score`; ``cv_mean_max_abs_um`` of the whole-run folds;
     ``cv_forward_mean_max_abs_um`` of the forward folds, ``None`` in an older ``summary.csv``),
@@ -349,7 +358,9 @@ def model_rows(summary: pd.DataFrame, champion, on_machine, speed_counts: dict |
     ``summary.csv`` without the column). ``speed_counts``: model -> its samples more than the
     machine's ``speed_tolerance_rpm`` outside its trained speeds, per run
     (:func:`rafi.report.trained_range.model_speed_counts`), their total in place of the summary's
-    ``n_outside_speed_range``, the verdict's count for the offered model."""
+    ``n_outside_speed_range``, the verdict's count for the offered model. ``noise``: model -> the
+    noise floor of its worst run (:func:`rafi.report.inputs.model_noise_floors`; without it the
+    summary's)."""
     rows = []
     for r in summary.to_dict("records"):
         name = str(r["model"])
@@ -368,7 +379,7 @@ def model_rows(summary: pd.DataFrame, champion, on_machine, speed_counts: dict |
                 "cv_max_abs_um": r.get("cv_max_abs_um"),
                 "selection_rank": r.get("selection_rank"),
                 "max_abs_after_um": r.get("max_abs_after_um"),
-                "noise_floor_um": r.get("noise_floor_um"),
+                "noise_floor_um": r.get("noise_floor_um") if noise is None else noise.get(name),
                 "improvement_pct": r.get("improvement_pct"),
                 "n_outside_temp_range": outside,
                 "outside_temp_pct": _share_pct(outside, n) if isnum(n) and isnum(outside) else np.nan,
@@ -483,7 +494,11 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         :func:`rafi.report.envelope_text.held_by_model`; empty when none were) and
         ``envelope_meaning``; ``ensemble``: :func:`rafi.report.ensemble_section.ensemble_context`
         of the offered artefact (``best_model``, when its id is in the summary; ``None`` unless it
-        is the CV-weighted ensemble), which also gives ``selection`` its ``rule`` and ``ensemble``.
+        is the CV-weighted ensemble), which also gives ``selection`` its ``rule`` and ``ensemble``;
+        ``speed_tolerance_rpm``, ``speed_recounted`` (the models' samples outside their trained
+        speeds are recounted from ``residuals.parquet``: :func:`rafi.report.trained_range.model_speed_counts`)
+        and ``speed_stored`` (where ``per_run.csv``'s own counts differ from the recount:
+        :func:`rafi.report.trained_range.stored_speed_counts`).
     """
     summ = res.get("comparison")
     if summ is None or not len(summ):
@@ -497,7 +512,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
     cv_rows = res.get("comparison_cv")
     cvs = _cv_stats(cv_rows)
     tolerance = settings.get("speed_tolerance_rpm")
-    rows = model_rows(s, fam_champ, on_machine, model_speed_counts(res, tolerance))
+    model_noise = model_noise_floors(res)
+    recounted = model_speed_counts(res, tolerance)
+    rows = model_rows(s, fam_champ, on_machine, recounted, model_noise)
     best, ids = res.get("best_model"), set(s["model_id"].astype(str)) if "model_id" in s else set()
     offered = best if isinstance(best, dict) and str(best.get("model_id", "")) in ids else None
     ensemble = ensemble_context(offered, s, *cv_schemes(cv_rows))
@@ -506,7 +523,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "on_machine": on_machine,
         "models": rows,
         "kind_column": any(str(r.get("kind", "")) != str(r["model"]) for r in s.to_dict("records")),
-        "selection": selection_context(s, fam_champ, *cv_schemes(cv_rows)),
+        "selection": selection_context(s, fam_champ, *cv_schemes(cv_rows), noise=model_noise),
         "plain_ridge": section_plain_ridge(s, cv_schemes(cv_rows)[0]),
         # the CV-weighted ensemble offered under models: offer: ensemble (rafi.report.ensemble_section)
         "ensemble": ensemble,
@@ -538,6 +555,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "envelope_meaning": MEANING,
         # a sample outside the trained speeds: beyond them by more than this (rafi.report.trained_range)
         "speed_tolerance_rpm": tolerance if isnum(tolerance) else None,
+        # the table's outside-speed counts are the recount, not per_run.csv's (the footer says so)
+        "speed_recounted": bool(recounted),
+        "speed_stored": stored_speed_counts(s, recounted),
     }
     if ensemble is not None:  # offered by models: offer, not by the lowest score: the rule says so
         out["selection"]["ensemble"] = ensemble

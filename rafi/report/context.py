@@ -109,7 +109,9 @@ def build_context(
     paper = bool(settings["report"]["paper_rig"])  # paper numbers only on the paper's rig
     ctx["paper_rig"] = paper
     ctx["coolant_sensors"] = list(settings["report"]["coolant_sensors"])
-    ctx["data"] = section_data(res, settings["sample_period_s"])
+    ctx["data"] = section_data(
+        res, settings["sample_period_s"], max_gap_s=settings["clean"]["max_interpolate_gap_s"]
+    )
     ctx["test_record"] = section_test_record(res, settings)
     ctx["segmentation"] = section_segmentation(res, settings, figs)
     ctx["equilibrium"] = section_equilibrium(res, figs, settings, paper=paper)

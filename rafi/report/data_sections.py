@@ -47,12 +47,13 @@ AUDIT_COUNTS = (
     "reordered",
     "spikes_replaced",
     "values_interpolated",
+    "values_left_missing",
     "gaps_interpolated",
     "segments",
 )
 
 
-def section_data(res: dict, period_s=None) -> dict:
+def section_data(res: dict, period_s=None, *, max_gap_s=None) -> dict:
     """Section 2: the runs by role, the cleaning audit per file and the quarantined files (every
     run in detail: :mod:`rafi.report.segmentation_section`).
 
@@ -61,6 +62,8 @@ def section_data(res: dict, period_s=None) -> dict:
     bridged by interpolation add grid rows, duplicates remove rows, so more rows can come
     out than went in. ``totals_text`` says so with this machine's counts. ``set_aside``: how many
     training runs the compare step set aside before a change (``comparison/since_change.csv``).
+    ``missing``: the values cleaning left missing, per file (:func:`missing_values`; ``max_gap_s``
+    is ``clean.max_interpolate_gap_s``, the longest gap it bridges).
     """
     runs = res["runs_csv"]
     audit = res["audit"]
@@ -72,7 +75,7 @@ def section_data(res: dict, period_s=None) -> dict:
             a_rows.append(
                 {
                     "file": r.file,
-                    **{k: plain(getattr(r, k)) for k in AUDIT_COUNTS},
+                    **{k: plain(getattr(r, k, None)) for k in AUDIT_COUNTS},
                     "status": str(r.status),
                     "ok": not q,
                 }
@@ -95,7 +98,9 @@ def section_data(res: dict, period_s=None) -> dict:
                 "spikes_replaced",
                 "values_interpolated",
                 "gaps_interpolated",
+                "values_left_missing",
             )
+            if k in audit  # values_left_missing: not in an audit.csv written before it existed
         }
     else:
         totals = {}
@@ -107,8 +112,11 @@ def section_data(res: dict, period_s=None) -> dict:
             f"rows on {grid}: {fmt_num(totals['duplicates_dropped'], 0)} duplicate row(s) dropped, "
             f"{fmt_num(totals['gaps_interpolated'], 0)} gap(s) bridged by interpolated grid rows, "
             f"{fmt_num(totals['spikes_replaced'], 0)} spike value(s) replaced, "
-            f"{fmt_num(totals['values_interpolated'], 0)} sensor value(s) interpolated."
+            f"{fmt_num(totals['values_interpolated'], 0)} sensor value(s) interpolated"
         )
+        if "values_left_missing" in totals:
+            totals_text += f", {fmt_num(totals['values_left_missing'], 0)} sensor value(s) left missing"
+        totals_text += "."
     roles = runs["role"].value_counts().to_dict() if runs is not None else {}
     status = res.get("input_status") if isinstance(res.get("input_status"), dict) else {}
     listed = {q["file"] for q in quarantined}
@@ -127,11 +135,47 @@ def section_data(res: dict, period_s=None) -> dict:
         "warnings": input_warnings(status),
         "totals": totals,
         "totals_text": totals_text,
+        "missing": missing_values(audit, runs),
+        "max_gap_s": max_gap_s,
         "roles": roles,
         # training runs the compare step set aside before a change (rafi.family.since_change)
         "set_aside": set_aside_count(res.get("comparison_since_change")),
         "n_files": 0 if audit is None else len(audit),
     }
+
+
+def missing_values(audit: pd.DataFrame | None, runs: pd.DataFrame | None) -> list[dict]:
+    """The files whose cleaning left sensor values missing, in ``audit.csv`` order.
+
+    Each: ``file``, ``runs`` (the run ids of that file in ``runs.csv``, joined), ``n`` (values
+    left missing) and ``spans`` (``missing_spans`` of ``audit.csv``: per span the sensor, the
+    source lines, how many values and whether they were open-circuit markers removed or absent
+    from the file; :func:`rafi.method.audit.missing_spans`). A sample that needs such a value is
+    not fitted or scored, and a model gives it no compensation: these are the samples the
+    deployed model's "no compensation on ..." counts within a validation run. ``[]`` for an
+    ``audit.csv`` written before these columns existed.
+    """
+    if audit is None or not {"values_left_missing", "missing_spans"} <= set(audit.columns):
+        return []
+    run_ids: dict[str, list[str]] = {}
+    if runs is not None and {"run_id", "file"} <= set(runs.columns):
+        for rid, file in zip(runs["run_id"].astype(str), runs["file"].astype(str)):
+            run_ids.setdefault(file, []).append(rid)
+    out = []
+    for r in audit.itertuples(index=False):
+        n = pd.to_numeric(r.values_left_missing, errors="coerce")
+        if str(r.status) != "ok" or not isnum(n) or n <= 0:
+            continue
+        spans = "" if pd.isna(r.missing_spans) else str(r.missing_spans)
+        out.append(
+            {
+                "file": str(r.file),
+                "runs": ", ".join(run_ids.get(str(r.file), [])),
+                "n": int(n),
+                "spans": [part for part in spans.split("; ") if part],
+            }
+        )
+    return out
 
 
 def input_warnings(status: dict) -> list[dict]:
@@ -320,8 +364,8 @@ def equilibrium_description(eqs: dict | None) -> str:
         f"{fmt_num(eqs['plateau_window_s'], 0, 's')}), counted from the spindle start (the first "
         "sample at half the run's median speed or more). The uncertainty range repeats the "
         "detection with a 1.5\u00d7 wider and narrower band. Cross-check: a first-order rise "
-        f"dz = c + A (1 \u2212 e^(\u2212t/\u03c4)) fitted from the spindle start, t_eq from \u03c4 = "
-        f"\u03c4 ln(1/{float(eqs['band_fraction']):g})."
+        f"dz = c + A (1 \u2212 e^(\u2212t/\u03c4)) fitted from the spindle start, with "
+        f"t_eq = \u03c4 ln(1/{float(eqs['band_fraction']):g})."
     )
 
 

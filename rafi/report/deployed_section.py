@@ -34,6 +34,7 @@ from rafi.report.deployed_terms import (
 )
 from rafi.report.ensemble_section import ensemble_context
 from rafi.report.format import fmt_num, fmt_sig, fmt_speed, isnum, plain, run_speeds, short_id, truthy
+from rafi.report.inputs import model_noise_floors, noise_floors
 from rafi.report.intervals import (
     band_columns,
     band_label,
@@ -98,11 +99,12 @@ def offered_name(summary: pd.DataFrame | None):
     return family_champion(summary.assign(model=summary["model"].astype(str)))
 
 
-def deployed_panels(summary, per_run, residuals) -> list[list[dict]]:
+def deployed_panels(summary, per_run, residuals, noise: dict | None = None) -> list[list[dict]]:
     """The residual panels of the offered model, grouped into figures of at most
     :data:`RUNS_PER_FIGURE`: per validation run (``per_run.csv`` order, idle cool-downs
     included) ``run_id``, ``role``, ``before`` / ``after`` (max |dz|, max |residual|, um),
-    ``noise_floor`` (um or NaN) and ``frame`` (``t_s``, ``measured_um``, ``residual_um``; with
+    ``noise_floor`` (um or NaN: the run's, ``noise`` of :func:`rafi.report.inputs.noise_floors`;
+    without it ``per_run.csv``'s) and ``frame`` (``t_s``, ``measured_um``, ``residual_um``; with
     ``lower_um``, ``upper_um``, ``predicted_um`` where the results hold the interval)."""
     name = offered_name(summary)
     if name is None or per_run is None or residuals is None or not len(residuals):
@@ -115,13 +117,14 @@ def deployed_panels(summary, per_run, residuals) -> list[list[dict]]:
         f = res[res["run_id"].astype(str) == rid].sort_values("t_s")
         if not len(f):
             continue
+        floor = r.get("noise_floor_um") if noise is None else noise.get(rid)
         panels.append(
             {
                 "run_id": rid,
                 "role": str(r.get("role", "")),
                 "before": float(r.get("max_abs_before_um", np.nan)),
                 "after": float(r.get("max_abs_after_um", np.nan)),
-                "noise_floor": float(r["noise_floor_um"]) if isnum(r.get("noise_floor_um")) else np.nan,
+                "noise_floor": float(floor) if isnum(floor) else np.nan,
                 "frame": f[["t_s", "measured_um", "residual_um", *band_columns(f)]].reset_index(drop=True),
             }
         )
@@ -314,18 +317,20 @@ def _fields(row: dict, keys) -> dict:
 
 
 def _validation_rows(
-    per_run: pd.DataFrame | None, name: str, runs: pd.DataFrame | None = None
+    per_run: pd.DataFrame | None, name: str, runs: pd.DataFrame | None = None, noise: dict | None = None
 ) -> list[dict] | None:
     """``per_run.csv``'s rows of model ``name`` (``passed`` as a bool), ``None`` without it; each
     with its ``speed`` as every section prints it (:func:`rafi.report.format.fmt_run_speed` of its
     row of ``runs``, ``runs.csv``: a varying run's range, not the median speed of ``per_run.csv``;
-    that median only for a run ``runs.csv`` does not hold)."""
+    that median only for a run ``runs.csv`` does not hold) and the run's ``noise_floor_um``
+    (``noise``: :func:`rafi.report.inputs.noise_floors`; without it ``per_run.csv``'s)."""
     if per_run is None or not len(per_run):
         return None
     keys = ("speed_rpm", "max_abs_before_um", "max_abs_after_um", "noise_floor_um", "rmse_after_um")
     speeds = run_speeds(runs)
     return [
         {**_fields(r, keys), "run_id": r["run_id"], "role": str(r.get("role", ""))}
+        | ({} if noise is None else {"noise_floor_um": noise.get(str(r["run_id"]))})
         | {"speed": speeds.get(str(r["run_id"])) or fmt_speed(r.get("speed_rpm"))}
         | {"passed": truthy(r.get("passed", False))}
         | coverage_fields(r)
@@ -438,7 +443,8 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         parts = _rafi_parts(art) if rafi_like else _ridge_parts(art, res)
     blocks, terms, equation, inputs = parts["blocks"], parts["terms"], parts["equation"], parts["inputs"]
     train_runs = parts["train_runs"]
-    validation = _validation_rows(res.get("comparison_per_run"), name, res.get("runs_csv"))
+    noise = noise_floors(res)
+    validation = _validation_rows(res.get("comparison_per_run"), name, res.get("runs_csv"), noise)
     figures = _figures(figs)
     placed = placement(res.get("decision"), mid, champion_after)
     return {
@@ -469,7 +475,7 @@ def section_deployed(res: dict, figs, champion_after=None) -> dict | None:
         "cv": _cv_context(art, summary, res.get("comparison_cv"), name),
         "passed": truthy(row.get("passed", False)),
         "worst": fmt_num(row.get("max_abs_after_um"), 2, UM),
-        "worst_noise": fmt_num(row.get("noise_floor_um"), 2, UM),
+        "worst_noise": fmt_num(model_noise_floors(res).get(name), 2, UM),
         "validation": validation,
         "unpredicted": unpredicted_rows(res.get("comparison_per_run"), name),
         "n_runs": len(validation or []),

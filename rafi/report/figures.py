@@ -43,6 +43,7 @@ from rafi.report.inputs import (
     collinearity_frame,
     correlation_wide,
     load_results,
+    noise_floors,
     sensors,
     training_runs,
 )
@@ -273,7 +274,9 @@ def _comparison(res: dict, gates: dict, fmt: str):
 def _deployed(res: dict, fmt: str):
     """``(key, file bytes)`` of the residual figures of the model offered to the machine: every
     validation run (idle cool-downs included), :func:`rafi.report.deployed_section.deployed_panels`."""
-    groups = deployed_panels(res["comparison"], res["comparison_per_run"], res["comparison_residuals"])
+    groups = deployed_panels(
+        res["comparison"], res["comparison_per_run"], res["comparison_residuals"], noise_floors(res)
+    )
     label = band_label(shared_level(res.get("best_model"), res.get("model")))
     for k, group in enumerate(groups, start=1):
         panels = []

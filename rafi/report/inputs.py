@@ -143,9 +143,13 @@ def chosen_sensors(key_info: dict, key_sensors: pd.DataFrame | None) -> list:
 
 def noise_floors(res: dict) -> dict:
     """``run_id -> noise floor (um)`` of every validation run: the expected max |noise| estimated
-    from the run's own dz (``noise_floor_um`` of ``validation/summary.csv``, else of
-    ``comparison/per_run.csv``; a property of the run, the same for every model). Results
-    written before the noise floor existed give an empty dict."""
+    from the run's own measured dz (:func:`rafi.method.validate.run_noise_floor`), a property of
+    the run, the same for every model. Every place of the report that states a run's noise floor
+    reads it here (or through :func:`model_noise_floors`), so a run has one figure on every page.
+    From ``validation/summary.csv``, else ``comparison/per_run.csv`` (they agree; results written
+    before the floor was the run's own counted only the samples each model compensated, and
+    then ``validation/summary.csv`` is the one shown). Results written before the noise floor
+    existed give an empty dict."""
     out: dict = {}
     for name in ("comparison_per_run", "validation_summary"):
         t = res.get(name)
@@ -154,4 +158,32 @@ def noise_floors(res: dict) -> dict:
         for rid, v in zip(t["run_id"].astype(str), pd.to_numeric(t["noise_floor_um"], errors="coerce")):
             if pd.notna(v):
                 out[rid] = float(v)
+    return out
+
+
+def model_noise_floors(res: dict) -> dict:
+    """``model -> noise floor (um)`` of the validation run where the model leaves its largest
+    max |residual| (``comparison/per_run.csv``), read from :func:`noise_floors`: the floor
+    beside a model's worst residual. Without ``per_run.csv`` (or that run's floor), the
+    ``noise_floor_um`` of the model's row of ``comparison/summary.csv`` (the same run's)."""
+    out: dict = {}
+    summary = res.get("comparison")
+    if summary is not None and {"model", "noise_floor_um"} <= set(summary.columns):
+        floors = pd.to_numeric(summary["noise_floor_um"], errors="coerce")
+        for name, v in zip(summary["model"].astype(str), floors):
+            if pd.notna(v):
+                out[name] = float(v)
+    per_run = res.get("comparison_per_run")
+    if per_run is None or not {"model", "run_id", "max_abs_after_um"} <= set(per_run.columns):
+        return out
+    noise = noise_floors(res)
+    after = per_run.assign(
+        model=per_run["model"].astype(str),
+        run_id=per_run["run_id"].astype(str),
+        after=pd.to_numeric(per_run["max_abs_after_um"], errors="coerce"),
+    ).dropna(subset=["after"])
+    for name, rows in after.groupby("model", sort=False):
+        worst = str(rows.loc[rows["after"].idxmax(), "run_id"])
+        if worst in noise:
+            out[name] = noise[worst]
     return out

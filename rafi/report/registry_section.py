@@ -341,7 +341,7 @@ def section_registry(res: dict, infos: dict, registry_dir=None, confirmed=()) ->
         "champion_stays": bool(after and after == champ_id),
         "candidate_on_machine": bool(after and after == cand_id and after != champ_id),
         "runs": per_run_rows(comp, noise, run_gates),
-        "against": against_champion(dec, comp),
+        "against": against_champion(dec, comp, noise),
         "adaptation": adaptation(dec, infos, artefact_of(res, cand_id, registry_dir)),
         "new_files": [str(f) for f in (dec.get("data") or {}).get("new_since_champion") or []],
         "drift": drift(dec, noise),
@@ -350,10 +350,12 @@ def section_registry(res: dict, infos: dict, registry_dir=None, confirmed=()) ->
     }
 
 
-def relative_rows(comp: pd.DataFrame | None) -> list[dict] | None:
+def relative_rows(comp: pd.DataFrame | None, noise: dict | None = None) -> list[dict] | None:
     """The relative gate per validation run (``registry/comparison.csv``): both models' max
-    |residual|, the difference, noise floor, margin and ``state`` (``worse``, ``not_worse``,
-    ``not_compared``: a model has no finite prediction); ``None`` without the columns."""
+    |residual|, the difference, noise floor (the run's, ``noise``:
+    :func:`rafi.report.inputs.noise_floors`; without it the table's), margin (as the decision
+    applied it) and ``state`` (``worse``, ``not_worse``, ``not_compared``: a model has no finite
+    prediction); ``None`` without the columns."""
     if comp is None or not len(comp) or "candidate_worse" not in comp:
         return None
     rows = []
@@ -367,7 +369,7 @@ def relative_rows(comp: pd.DataFrame | None) -> list[dict] | None:
                 "champion_max_abs_after_um": r.get("champion_max_abs_after_um"),
                 "candidate_max_abs_after_um": r.get("candidate_max_abs_after_um"),
                 "candidate_minus_champion_um": r.get("candidate_minus_champion_um"),
-                "noise_floor_um": r.get("noise_floor_um"),
+                "noise_floor_um": r.get("noise_floor_um") if noise is None else noise.get(str(r["run_id"])),
                 "margin_um": margin if scored or isnum(margin) else None,
                 "state": "worse" if worse else "not_worse" if scored else "not_compared",
             }
@@ -417,7 +419,7 @@ def warning_rows(warns: dict) -> list[dict] | None:
     return rows or None
 
 
-def against_champion(dec: dict, comp) -> dict | None:
+def against_champion(dec: dict, comp, noise: dict | None = None) -> dict | None:
     """The checks of tonight's candidate against the champion in service (issue 13 item 4).
 
     Parameters
@@ -426,6 +428,8 @@ def against_champion(dec: dict, comp) -> dict | None:
         ``registry/decision.json``.
     comp : DataFrame or None
         ``registry/comparison.csv``.
+    noise : dict, optional
+        Run id -> noise floor (:func:`rafi.report.inputs.noise_floors`).
 
     Returns
     -------
@@ -451,7 +455,7 @@ def against_champion(dec: dict, comp) -> dict | None:
             "n_worse": len(rel.get("worse_runs") or []),
             "margin": rel.get("champion_margin_um", "noise"),
         },
-        "relative": relative_rows(comp) if has_champion else None,
+        "relative": relative_rows(comp, noise) if has_champion else None,
         "coverage": dict(dec.get("coverage") or {}),
         "files": changed_files(dec.get("data") or {}),
         "warnings": warning_rows(dec.get("input_warnings") or {}),

@@ -45,6 +45,7 @@ __all__ = [
     "speed_counts",
     "model_speed_counts",
     "with_speed_counts",
+    "stored_speed_counts",
     "speed_list",
     "adapted_speeds",
 ]
@@ -258,6 +259,33 @@ def with_speed_counts(rows: pd.DataFrame | None, counts: pd.Series | None) -> pd
     else:
         out["n_outside_speed_range"] = int(counts.sum())
     return out
+
+
+def stored_speed_counts(summary: pd.DataFrame | None, counts: dict) -> list[dict]:
+    """The stored counts the recount replaced where they differ: the models whose
+    ``n_outside_speed_range`` in ``comparison/summary.csv`` (the sum of their rows of
+    ``per_run.csv``: each model's own ``outside_speed_range`` flag) is not their recounted total
+    (``counts``: :func:`model_speed_counts`), grouped by that stored total.
+
+    The ridge kinds' flag takes any sample beyond their training speeds, without the tolerance;
+    it is not only a count (it widens the prediction interval: ``interval_cell`` ``outside``), so
+    the models keep it and the report states the recount and the stored figure beside each other.
+
+    Returns
+    -------
+    list of dict
+        ``count`` (the stored total) and ``models`` (names, in the summary's order), one per stored
+        total, in order of first appearance; ``[]`` when every recounted model agrees.
+    """
+    if summary is None or not counts or not {"model", "n_outside_speed_range"} <= set(summary.columns):
+        return []
+    groups: dict[int, list[str]] = {}
+    for name, stored in zip(
+        summary["model"].astype(str), pd.to_numeric(summary["n_outside_speed_range"], errors="coerce")
+    ):
+        if name in counts and isnum(stored) and int(stored) != int(counts[name].sum()):
+            groups.setdefault(int(stored), []).append(name)
+    return [{"count": count, "models": names} for count, names in groups.items()]
 
 
 def speed_list(values) -> str:
