@@ -175,6 +175,8 @@ def format_rows(rows: list[dict]) -> str:
         if r.get("unjudged"):
             lines.append(f"  not judged yet:   {unjudged_text(r['unjudged'])}")
         lines.append(f"  worst residual:   {resid}")
+        if r.get("replay_above_gate"):
+            lines.append(f"  replay:           {r['replay_above_gate']}")
         due = "YES" if r["recalibration_due"] else "no"
         drift = describe_drift(r["drift"], has_champion=bool(ch))
         lines.append(f"  drift:            {drift}; recalibration due: {due}")
