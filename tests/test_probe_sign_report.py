@@ -180,3 +180,24 @@ def test_the_verdict_box_says_a_flagged_sign_in_one_line_naming_the_key_that_set
     assert "Probe sign +1 unconfirmed" in re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", inside))
     assert 'href="#provenance"' in inside
     assert "Probe sign" not in box(None)[1]
+
+
+def test_the_files_sign_is_said_to_be_measured_after_the_configured_sign():
+    """machining-center-b read "Probe sign −1: set in the settings ...; the data agree: ... rises
+    while the spindle heats (audit.csv probe_sign +1)", a contradiction at first sight: the clean
+    job measures the sign of the displacement the reader already multiplied by −1."""
+    reversed_probe = _settings(unit="m@ch3")  # input.probes.ch3.sign: -1
+    rec = probe_sign_record(reversed_probe, "machines.m.input.probes.ch3.sign", _audit(**{"log.xlsx": 1}))
+    assert rec["sign"] == -1 and rec["data"] == "agree"
+    assert (
+        "log.xlsx rises while the spindle heats (audit.csv probe_sign +1, measured after the configured "
+        in rec["text"]
+    )
+    assert "sign \u22121 is applied)" in rec["text"]
+    against = probe_sign_record(
+        reversed_probe, "machines.m.input.probes.ch3.sign", _audit(**{"log.xlsx": -1})
+    )
+    assert "probe_sign \u22121, measured after the configured sign \u22121 is applied" in against["text"]
+    # a sign of +1 changes nothing: nothing to say
+    plain = probe_sign_record(_settings(), None, _audit(**{"log.xlsx": 1}))
+    assert "(audit.csv probe_sign +1)" in plain["text"] and "applied" not in plain["text"]

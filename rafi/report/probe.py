@@ -138,7 +138,9 @@ def probe_sign_record(settings: dict, sign_key: str | None, audit) -> dict:
         source, said = "default", f"the default ({to_set} not set)"
 
     def where(value: int) -> str:
-        return f"(audit.csv probe_sign {value:+d})".replace("-", "\u2212")
+        # the clean job measures the displacement the reader already multiplied by the sign
+        applied = f", measured after the configured sign {sign:+d} is applied" if sign < 0 else ""
+        return f"(audit.csv probe_sign {value:+d}{applied})".replace("-", "\u2212")
 
     if audit is None:
         data, seen = "unknown", "no audit.csv: what the data say is not known"
