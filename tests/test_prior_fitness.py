@@ -31,6 +31,7 @@ from rafi.ops import fleet_cli
 from rafi.ops.project import Paths
 from rafi.ops.provenance import prior_warning_reason
 from rafi.ops.registry import registry_dir
+from rafi.report.format import fmt_sig
 from rafi.settings import MACHINE_DEFAULTS
 from rafi.twin.synthetic_runs import machine_state, small_family_model
 
@@ -284,9 +285,11 @@ def test_status_names_the_prior_its_machine_and_its_fitness(project, tmp_path, c
     assert lines[2].startswith(f"  prior:            {own}")
     gain = champion["prior"]["gain"]
     moved = champion["prior"]["largest_coefficient_change"]
-    sign = "+" if moved["relative"] > 0 else "-"
-    adaptation = f"  adaptation:       gain, gain {gain:.3g}, largest coefficient change {sign}"
-    assert lines[3].startswith(adaptation)
+    factor = f"{fmt_sig(moved['new'] / moved['prior'], 3)} times its prior value"  # the report's words
+    adaptation = (
+        f"  adaptation:       gain, gain {gain:.3g}, the coefficient that moved most relative to its prior"
+    )
+    assert lines[3].startswith(adaptation) and moved["name"] in lines[3] and factor in lines[3]
     speeds = "tested here 9000, 12000 r/min; the prior's alone 3000, 6000, 15000, 18000"
     assert lines[4] == f"  speeds:           {speeds}"
     assert "prior_adaptation, prior_speeds" in lines[5]

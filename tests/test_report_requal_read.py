@@ -347,3 +347,21 @@ def test_the_registry_says_waiting_and_the_adapted_ensemble():
 
 def test_ratios_print_three_significant_digits():
     assert fmt_sig(-0.5617482702903772 / -0.05302628193778224, 3) == "10.6"
+
+
+def test_status_says_the_largest_move_in_the_reports_words():
+    """tapping-center-a-rep: ``rafi status`` said "largest coefficient change -460 %
+    (ridge_global: dT11@0s)" where the report says "-0.05303 -> -0.2968: 5.60 times its prior
+    value" (the mixed fleet read page by page, 2026-12-01): a relative change reads as a shrink
+    of a coefficient that grew 5.6-fold with its sign (docs/report.md)."""
+    from rafi.ops.fleet_cli import describe_prior
+
+    largest = {"name": "ridge_global: dT11@0s", "prior": -0.053026281942656864, "new": -0.2967688093311099}
+    block = {"parent": PRIOR, "fitness": {"largest_coefficient_change": largest | {"relative": -4.5966}}}
+    report = fitness_context(block, "tapping-center-a-rep")["largest_words"]
+    assert report == "ridge_global: dT11@0s, \u22120.05303 \u2192 \u22120.2968: 5.60 times its prior value"
+    prior = {"id": PRIOR, "machine": "tapping-center-a", "method": "shared_ridge", "gain": 1.02}
+    lines = describe_prior(prior | {"largest_coefficient_change": largest | {"relative": -4.5966}})
+    (adaptation,) = [line for line in lines if line.startswith("  adaptation:")]
+    assert adaptation.endswith(f"the coefficient that moved most relative to its prior value: {report}")
+    assert "%" not in adaptation and "460" not in adaptation

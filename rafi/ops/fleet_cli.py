@@ -44,6 +44,7 @@ from rafi.ops.fleet import describe_drift, exit_code, fleet_overview
 from rafi.ops.project import Paths, load_config, units
 from rafi.ops.promotion_trail import trail_lines
 from rafi.ops.status import EXIT_CANTCREAT, EXIT_USAGE, short_id
+from rafi.report.requalification_section import largest_change_words
 from rafi.settings import run_settings
 
 
@@ -105,9 +106,9 @@ def describe_prior(prior: dict | None, trail: dict | None = None, machine: str |
         moved.append(f"time factor {float(prior['time_factor']):g}")
     if prior.get("alpha") is not None:
         moved.append(f"ridge penalty {float(prior['alpha']):g}")
-    big = prior.get("largest_coefficient_change")
-    if big:
-        moved.append(f"largest coefficient change {100 * float(big['relative']):+.0f} % ({big['name']})")
+    big = largest_change_words(prior.get("largest_coefficient_change"))
+    if big:  # the report's words: a factor of its prior value, never a relative change
+        moved.append(f"the coefficient that moved most relative to its prior value: {big}")
     lines = [f"  prior:            {first}", f"  adaptation:       {', '.join(moved)}"]
     if prior.get("speeds_tested_rpm") is not None:
         lines.append(

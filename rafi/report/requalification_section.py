@@ -206,6 +206,17 @@ def ratio_words(prior, new) -> str:
     return f"{fmt_sig(ratio, 3)} times its prior value{flipped}"
 
 
+def largest_change_words(largest) -> str:
+    """The coefficient that moved most relative to its prior value (the fitness block's
+    ``largest_coefficient_change``: ``name``, ``prior``, ``new``) as the report and ``rafi status``
+    say it: ``ridge_global: dT11@0s, −0.05303 → −0.2968: 5.60 times its prior value``
+    (:func:`ratio_words`, never a relative change); ``""`` without one."""
+    if not isinstance(largest, dict) or not largest.get("name"):
+        return ""
+    prior, new = largest.get("prior"), largest.get("new")
+    return f"{largest['name']}, {fmt_sig(prior, 4)} \u2192 {fmt_sig(new, 4)}: {ratio_words(prior, new)}"
+
+
 def _member_change(art: dict) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """``prior``, ``new`` and names of a member's ``adaptation.coefficient_change`` (empty
     without one)."""
@@ -432,13 +443,7 @@ def fitness_context(
         }
         for w in fit.get("warnings") or []
     ]
-    largest = fit.get("largest_coefficient_change")
-    largest_words = ""
-    if isinstance(largest, dict) and largest.get("name"):
-        largest_words = (
-            f"{largest['name']}, {fmt_sig(largest.get('prior'), 4)} \u2192 {fmt_sig(largest.get('new'), 4)}: "
-            f"{ratio_words(largest.get('prior'), largest.get('new'))}"
-        )
+    largest_words = largest_change_words(fit.get("largest_coefficient_change"))
     return {
         "origin": fit.get("origin"),
         "prior": {**own, "id": pid},
