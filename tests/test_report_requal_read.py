@@ -365,3 +365,27 @@ def test_status_says_the_largest_move_in_the_reports_words():
     (adaptation,) = [line for line in lines if line.startswith("  adaptation:")]
     assert adaptation.endswith(f"the coefficient that moved most relative to its prior value: {report}")
     assert "%" not in adaptation and "460" not in adaptation
+
+
+def test_the_prior_rise_table_reads_none_for_ranges_too_narrow_to_show_and_in_sensor_order():
+    """tapping-center-a-rep p6: the prior's alone column read "T11 −0.7 … −0.7; 1.1 … 1.1" (two
+    slivers of 0.05 and 0.005 K, below the table's 0.1 K) and the rows ran T1, T10, T11 … T2."""
+    rises = {  # sensor: (tested here, the prior's training), K; the prior's alone follows from them
+        "T2": ([-1.625, 2.325], [-0.155, 2.86]),
+        "T11": ([-0.69, 1.105], [-0.74, 1.11]),
+        "T10": ([-3.53, 4.335], [-0.13, 4.535]),
+        "T1": ([-1.8, 2.485], [-0.12, 2.87]),
+        "T8": ([-12.255, 13.36], [-0.14, 12.755]),
+    }
+    from rafi.family.prior_fitness import _outside
+
+    temperature = [
+        {"sensor": s, "tested": here, "prior": there, "prior_only": _outside(there, here)}
+        for s, (here, there) in sorted(rises.items())  # as the fitness block stores them: as text
+    ]
+    block = {"parent": PRIOR, "fitness": {"temperature": temperature, "warnings": []}}
+    rows = {r["sensor"]: r for r in fitness_context(block, "m")["temperature"]}
+    assert list(rows) == ["T1", "T2", "T8", "T10", "T11"]
+    assert rows["T11"]["prior_only"] == "none" and rows["T8"]["prior_only"] == "none"
+    assert rows["T1"]["prior_only"] == "2.5 \u2026 2.9" and rows["T10"]["prior_only"] == "4.3 \u2026 4.5"
+    assert rows["T11"]["prior"] == "\u22120.7 \u2026 1.1"
