@@ -139,8 +139,9 @@ def test_status_and_the_fleet_page_say_it_of_the_model_in_service(tmp_path, caps
     said = by["fl@ch3"]["replay_above_gate"]
     assert "21.12 um on data#9 (model alone 3.80 um), above the 12.00 um limit" in said
     text = fleet_cli.format_rows([r | {"report_path": None} for r in rows])
-    ch3 = text[text.index("fl@ch3:") :]
-    assert f"  replay:           {said}" in ch3 and "replay:" not in text[: text.index("fl@ch3:")]
+    ch1 = text[text.index("fl@ch1:") : text.index("fl@ch3:")]
+    assert f"  replay:           {said}" in text[text.index("fl@ch3:") :] and "replay:" not in ch1
+    assert f"  replay:           @ch3: {said}" in text[: text.index("fl@ch1:")]  # the machine's line
     page = _text(fleet_page(rows, created="now"))
     # the machine's row names the probe, before the probes' rows; the probe's row says it again
     machine_row = page[page.index("the most urgent state of its probes") : page.index("@ch1")]
