@@ -453,6 +453,7 @@ def test_a_machine_waiting_for_a_confirmation_reads_so_in_its_headline_and_last_
         "last_decision": {"decision": "rejected", "time": "2026-11-30T20:41:39Z"},
         "waiting": True,
         "state": "waiting",
+        "rank": F.RANK["waiting"],
         "attention": [{"text": "waits for a confirmation of the prior fitness check prior_speeds ..."}],
         "worst_residual": None,
         "recalibration_due": False,
@@ -632,3 +633,51 @@ def test_without_a_machine_list_the_config_lists_each_machines_probes(tmp_path):
     assert [r["state"] for r in F.fleet_overview(paths, root / "reports")] == ["not_run"]
     rows = F.fleet_overview(paths, root / "reports", config=config)
     assert [(r["machine"], r["state"]) for r in rows] == [("fl@ch1", "ok"), ("fl@ch2", "ok")]
+
+
+def test_status_prints_the_pages_table_a_machine_then_its_probes(tmp_path, capsys):
+    """The page's footer said "rafi status prints the same table" while status listed FL_THERMAL's
+    units flat, with no machine line, and left out the interval drift line where the page shows
+    "-" (the mixed fleet read page by page, 2026-12-01)."""
+    import shutil
+
+    root = tmp_path / "p"
+    for probe, kind in (("ch1", "promoted"), ("ch2", "rejected")):
+        decision = _decision(
+            kind, "X", "X" if kind == "promoted" else "C", candidate_summary=_summary("v1", 2.0)
+        )
+        _machine(root, f"fl@{probe}", champion="X", decision=decision | {"champion_id_after": ID["X"]})
+        shutil.rmtree(root / "raw" / f"fl@{probe}")  # one raw folder, two probe units
+    (root / "raw" / "fl").mkdir()
+    (root / "raw" / "fl" / "data.csv").write_text("time\n")
+    _machine(root, "solo", champion="X", decision=_decision("promoted", None, "X"))
+    (root / "reports" / "fl" / "qualification.html").parent.mkdir(parents=True)
+    (root / "reports" / "fl" / "qualification.html").write_text("<html></html>")
+    probes = {"ch1": {"column": "a"}, "ch2": {"column": "b"}}
+    config = {"machines": {"fl": {"input": {"format": "csv", "probes": probes}}}}
+    (root / "config.yaml").write_text(json.dumps(config))  # YAML reads JSON
+    assert fleet_cli.run(_cli(root)) == 2
+    text = capsys.readouterr().out
+    heads = [line for line in text.splitlines() if not line.startswith(" ")]
+    # as the page: the machine (as urgent as its most urgent probe), its probes under it, then the others
+    assert heads[0].startswith("fl: REJECTED (2 probes, each qualified on its own")
+    assert heads[1:] == ["fl@ch2: REJECTED", "fl@ch1: OK", "solo: OK"]
+    machine = text[: text.index("fl@ch2:")]
+    assert f"report:           {root / 'reports' / 'fl' / 'qualification.html'}" in machine
+    # every unit's block has the page's columns, an interval drift line too ("-" as the page)
+    blocks = text.split("\nfl@")[1:]
+    assert all("  interval drift:   " in b for b in blocks)
+    assert "  interval drift:   -\n" in text
+    page = (
+        (root / "reports" / "index.html").read_text() if (root / "reports" / "index.html").exists() else None
+    )
+    assert page is None  # status writes the page only with --html
+
+
+def test_the_page_fits_a_phone_and_its_footer_says_what_status_prints(fleet):
+    page = fleet_page(_rows(fleet), created="now")
+    assert '<meta name="viewport" content="width=device-width, initial-scale=1">' in page
+    wrapper = re.search(r'<div class="table-wrap">\s*<table>', page)
+    assert wrapper and ".table-wrap { overflow-x: auto;" in page
+    text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", page))
+    assert "rafi status prints the same rows as text" in text and "prints the same table" not in text

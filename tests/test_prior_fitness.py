@@ -31,6 +31,7 @@ from rafi.ops import fleet_cli
 from rafi.ops.project import Paths
 from rafi.ops.provenance import prior_warning_reason
 from rafi.ops.registry import registry_dir
+from rafi.report.format import fmt_sig
 from rafi.settings import MACHINE_DEFAULTS
 from rafi.twin.synthetic_runs import machine_state, small_family_model
 
@@ -284,16 +285,18 @@ def test_status_names_the_prior_its_machine_and_its_fitness(project, tmp_path, c
     assert lines[2].startswith(f"  prior:            {own}")
     gain = champion["prior"]["gain"]
     moved = champion["prior"]["largest_coefficient_change"]
-    sign = "+" if moved["relative"] > 0 else "-"
-    adaptation = f"  adaptation:       gain, gain {gain:.3g}, largest coefficient change {sign}"
-    assert lines[3].startswith(adaptation)
+    factor = f"{fmt_sig(moved['new'] / moved['prior'], 3)} times its prior value"  # the report's words
+    adaptation = (
+        f"  adaptation:       gain, gain {gain:.3g}, the coefficient that moved most relative to its prior"
+    )
+    assert lines[3].startswith(adaptation) and moved["name"] in lines[3] and factor in lines[3]
     speeds = "tested here 9000, 12000 r/min; the prior's alone 3000, 6000, 15000, 18000"
     assert lines[4] == f"  speeds:           {speeds}"
     assert "prior_adaptation, prior_speeds" in lines[5]
     # the first promotion checked no model in service: said once, no contradiction below it
     text = "\n".join(lines)
     assert "drift:            not checked yet (the model was promoted by the last decision)" in text
-    assert "no model in service" not in text and "interval drift" not in text
+    assert "no model in service" not in text and "interval drift:   -\n" in text  # the page's "-"
 
 
 def test_status_after_a_promotion_shows_no_drift_of_the_replaced_champion(tmp_path, capsys):
@@ -327,7 +330,7 @@ def test_status_after_a_promotion_shows_no_drift_of_the_replaced_champion(tmp_pa
     assert rows[0]["state"] == "ok" and not rows[0]["recalibration_due"]
     assert rows[0]["drift"]["status"] == "not_checked" and rows[0]["drift"]["checked_model"] == old
     text = _status(tmp_path, rows[0]["machine"], capsys)
-    assert "4.53" not in text and "degraded" not in text and "interval drift" not in text
+    assert "4.53" not in text and "degraded" not in text and "interval drift:   -\n" in text
     assert "not checked yet (the last check was of aaaaaaaaaaaa, the model replaced)" in text
     # the model in service kept after a night: its own drift again
     decision |= {"decision": "kept", "champion_id_before": new, "candidate_id": new}

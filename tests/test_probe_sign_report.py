@@ -146,3 +146,58 @@ def test_the_machine_page_says_where_each_probes_sign_comes_from(tmp_path):
     text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html))
     assert "default, the data agree" in text and "default, unconfirmed" in text
     assert "data.xlsx rises while the spindle heats" in text and "Unconfirmed" in text
+
+
+def test_the_verdict_box_says_a_flagged_sign_in_one_line_naming_the_key_that_settles_it():
+    """FL_THERMAL ch3's page 1 was a plain PASS; its sign, a default no file confirms, was said only
+    in the provenance on the last page (the mixed fleet read page by page, 2026-12-01)."""
+    from collections import defaultdict
+
+    from test_report_text import _section
+
+    unconfirmed = probe_sign_record(_settings(), None, _audit(**{"data.xlsx": 0}))
+    line = unconfirmed["verdict_line"]
+    assert line.startswith("Probe sign +1 unconfirmed") and "\n" not in line
+    assert "set input.probes.ch1.sign" in line and "no clear direction" in line
+    contradicted = probe_sign_record(
+        _settings(unit="m@ch3"), "machines.m.input.probes.ch3.sign", _audit(b=-1)
+    )
+    assert contradicted["verdict_line"].startswith("Probe sign \u22121 contradicted by the data")
+    assert "machines.m.input.probes.ch3.sign" in contradicted["verdict_line"]
+    # a sign the data agree with, or one set in the settings: nothing on page 1
+    assert probe_sign_record(_settings(), None, _audit(**{"data.xlsx": 1}))["verdict_line"] is None
+    set_sign = probe_sign_record(_settings(unit="m@ch3"), "machines.m.input.probes.ch3.sign", _audit(x=0))
+    assert set_sign["verdict_line"] is None
+
+    def box(rec):
+        verdict = defaultdict(lambda: None, css="pass", status="PASS", stored=True, rows=[], probe_sign=rec)
+        html = _section("verdict", verdict=verdict)
+        text = re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html))
+        return html, text
+
+    html, text = box(line)
+    inside = html[html.index('<div class="verdict') : html.index("</div>")]
+    assert "Probe sign +1 unconfirmed" in re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", inside))
+    assert 'href="#provenance"' in inside
+    assert "Probe sign" not in box(None)[1]
+
+
+def test_the_files_sign_is_said_to_be_measured_after_the_configured_sign():
+    """machining-center-b read "Probe sign −1: set in the settings ...; the data agree: ... rises
+    while the spindle heats (audit.csv probe_sign +1)", a contradiction at first sight: the clean
+    job measures the sign of the displacement the reader already multiplied by −1."""
+    reversed_probe = _settings(unit="m@ch3")  # input.probes.ch3.sign: -1
+    rec = probe_sign_record(reversed_probe, "machines.m.input.probes.ch3.sign", _audit(**{"log.xlsx": 1}))
+    assert rec["sign"] == -1 and rec["data"] == "agree"
+    assert (
+        "log.xlsx rises while the spindle heats (audit.csv probe_sign +1, measured after the configured "
+        in rec["text"]
+    )
+    assert "sign \u22121 is applied)" in rec["text"]
+    against = probe_sign_record(
+        reversed_probe, "machines.m.input.probes.ch3.sign", _audit(**{"log.xlsx": -1})
+    )
+    assert "probe_sign \u22121, measured after the configured sign \u22121 is applied" in against["text"]
+    # a sign of +1 changes nothing: nothing to say
+    plain = probe_sign_record(_settings(), None, _audit(**{"log.xlsx": 1}))
+    assert "(audit.csv probe_sign +1)" in plain["text"] and "applied" not in plain["text"]

@@ -288,3 +288,27 @@ def test_compiled_templates_from_the_cache_give_the_same_html(fixture_results, t
     assert render_html(ctx, template_cache=cache) == want
     assert compiled == []
     assert render_html(ctx) == want and compiled  # without the cache: compiled again
+
+
+def test_the_revision_note_names_a_model_on_the_machine_only_where_there_is_one():
+    """tapping-center-a-rep's WAITING report said "The revision is a hash of the model on the
+    machine, ..." while no model was on it (its candidate waited for a confirmation)."""
+    from test_report_text import _section
+
+    audit = pd.DataFrame({"file": ["a.csv", "b.csv"], "sha256": ["1" * 64, "2" * 64]})
+    settings = {"report": {"document": {}}}
+
+    def note(decision):
+        res = {"decision": decision, "model": {"kind": "rafi"}, "audit": audit}
+        html = _section("signoff", signoff=section_signoff(res, settings))
+        return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", html)).strip()
+
+    placed = note({"decision": "kept", "champion_id_after": "ab" * 32})
+    assert "The revision is a hash of the model on the machine ( abababababab )" in placed
+    waiting = note({"decision": "rejected", "champion_id_after": None, "candidate_id": "cd" * 32})
+    assert "model on the machine" not in waiting and "No model is on the machine after this run" in waiting
+    assert (
+        "the SHA-256 of the 2 raw files read" in waiting and "when a model is put on the machine" in waiting
+    )
+    unregistered = note(None)
+    assert "model on the machine" not in unregistered and "No registry decision in this run" in unregistered

@@ -347,3 +347,45 @@ def test_the_registry_says_waiting_and_the_adapted_ensemble():
 
 def test_ratios_print_three_significant_digits():
     assert fmt_sig(-0.5617482702903772 / -0.05302628193778224, 3) == "10.6"
+
+
+def test_status_says_the_largest_move_in_the_reports_words():
+    """tapping-center-a-rep: ``rafi status`` said "largest coefficient change -460 %
+    (ridge_global: dT11@0s)" where the report says "-0.05303 -> -0.2968: 5.60 times its prior
+    value" (the mixed fleet read page by page, 2026-12-01): a relative change reads as a shrink
+    of a coefficient that grew 5.6-fold with its sign (docs/report.md)."""
+    from rafi.ops.fleet_cli import describe_prior
+
+    largest = {"name": "ridge_global: dT11@0s", "prior": -0.053026281942656864, "new": -0.2967688093311099}
+    block = {"parent": PRIOR, "fitness": {"largest_coefficient_change": largest | {"relative": -4.5966}}}
+    report = fitness_context(block, "tapping-center-a-rep")["largest_words"]
+    assert report == "ridge_global: dT11@0s, \u22120.05303 \u2192 \u22120.2968: 5.60 times its prior value"
+    prior = {"id": PRIOR, "machine": "tapping-center-a", "method": "shared_ridge", "gain": 1.02}
+    lines = describe_prior(prior | {"largest_coefficient_change": largest | {"relative": -4.5966}})
+    (adaptation,) = [line for line in lines if line.startswith("  adaptation:")]
+    assert adaptation.endswith(f"the coefficient that moved most relative to its prior value: {report}")
+    assert "%" not in adaptation and "460" not in adaptation
+
+
+def test_the_prior_rise_table_reads_none_for_ranges_too_narrow_to_show_and_in_sensor_order():
+    """tapping-center-a-rep p6: the prior's alone column read "T11 −0.7 … −0.7; 1.1 … 1.1" (two
+    slivers of 0.05 and 0.005 K, below the table's 0.1 K) and the rows ran T1, T10, T11 … T2."""
+    rises = {  # sensor: (tested here, the prior's training), K; the prior's alone follows from them
+        "T2": ([-1.625, 2.325], [-0.155, 2.86]),
+        "T11": ([-0.69, 1.105], [-0.74, 1.11]),
+        "T10": ([-3.53, 4.335], [-0.13, 4.535]),
+        "T1": ([-1.8, 2.485], [-0.12, 2.87]),
+        "T8": ([-12.255, 13.36], [-0.14, 12.755]),
+    }
+    from rafi.family.prior_fitness import _outside
+
+    temperature = [
+        {"sensor": s, "tested": here, "prior": there, "prior_only": _outside(there, here)}
+        for s, (here, there) in sorted(rises.items())  # as the fitness block stores them: as text
+    ]
+    block = {"parent": PRIOR, "fitness": {"temperature": temperature, "warnings": []}}
+    rows = {r["sensor"]: r for r in fitness_context(block, "m")["temperature"]}
+    assert list(rows) == ["T1", "T2", "T8", "T10", "T11"]
+    assert rows["T11"]["prior_only"] == "none" and rows["T8"]["prior_only"] == "none"
+    assert rows["T1"]["prior_only"] == "2.5 \u2026 2.9" and rows["T10"]["prior_only"] == "4.3 \u2026 4.5"
+    assert rows["T11"]["prior"] == "\u22120.7 \u2026 1.1"

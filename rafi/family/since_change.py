@@ -99,7 +99,7 @@ class Change:
         )
 
 
-def _natural(text: str) -> tuple:
+def natural_order(text: str) -> tuple:
     """A sort key that compares the numbers in ``text`` as numbers (``day2`` before ``day10``)."""
     return tuple((0, int(t), "") if t.isdigit() else (1, 0, t) for t in re.split(r"(\d+)", text) if t)
 
@@ -117,7 +117,7 @@ def recorded_order(runs_table: pd.DataFrame) -> list[str]:
         if "start_s" in table
         else [0.0] * n
     )
-    keys = sorted((c, _natural(f), s, i) for i, (c, f, s) in enumerate(zip(clock, logs, starts)))
+    keys = sorted((c, natural_order(f), s, i) for i, (c, f, s) in enumerate(zip(clock, logs, starts)))
     runs = table["run_id"].astype(str).tolist()
     return [runs[k[-1]] for k in keys]
 

@@ -24,6 +24,10 @@ nights wrote; nothing is computed anew:
 * what the model in service rests on: the line of ``history.jsonl`` that put it in service (its
   warnings confirmed, and by which ``checks.confirmed`` entries, or promoted by hand over them:
   :func:`rafi.ops.promotion_trail.promotion_trail`);
+* where the model in service with the controller's limits leaves more than the largest-residual
+  gate (``deploy/replay_summary.csv`` of the run that offered it, its noise floors and the gate
+  of ``decision.json``: :func:`replay_above_gate`, the words of the unit's own verdict). The
+  replay does not gate: the state stays what the gates and the checks make it;
 * quarantined files and whether the machine was skipped: ``audit.csv`` and
   ``input_status.json`` (:func:`rafi.ops.status.machine_status`);
 * its page: ``reports/<m>/qualification.html``, or ``reports/<m>/skipped.html`` for a skipped
@@ -337,6 +341,30 @@ def ensemble_weights(artefact: dict | None) -> dict | None:
     return dict(sorted(weights.items(), key=lambda kv: -kv[1]))
 
 
+def replay_above_gate(machine_dir: Path, decision: dict | None, champion_id: str | None) -> str | None:
+    """Where the model in service, with the controller's limits, leaves more than the
+    largest-residual gate of ``decision.json`` allows: the sentence of its report's verdict
+    (:func:`rafi.report.replay_section.above_gate_words`, plain numbers), from the unit's
+    ``deploy/replay_summary.csv``, ``comparison/per_run.csv`` and ``validation/summary.csv``. None
+    where it does not, where the replay is of another model (tonight's candidate, not promoted)
+    or there is no replay."""
+    from rafi.contract import result_file
+    from rafi.report.replay_section import above_gate_words, replay_gaps_of
+
+    gate = ((decision or {}).get("gates") or {}).get("max_residual_um")
+    if not champion_id or gate is None:
+        return None
+    gaps = replay_gaps_of(
+        machine_dir / result_file("replay_summary"),
+        machine_dir / result_file("comparison_per_run"),
+        machine_dir / result_file("validation_summary"),
+        gate,
+    )
+    if not gaps or gaps["model_id"] != champion_id:
+        return None
+    return above_gate_words(gaps, plain=True)
+
+
 def _page(reports_dir: Path, machine: str, skipped: bool) -> str | None:
     """The machine's page relative to ``reports_dir`` (None if it is not there)."""
     name = "skipped.html" if skipped else "qualification.html"
@@ -481,7 +509,8 @@ def machine_overview(
     -------
     dict
         ``machine``, ``state``, ``rank``, ``attention`` (every state that applies, most urgent
-        first, with a short text each), ``champion`` (``id``, ``kind``, ``members``: an ensemble's
+        first, with a short text each), ``replay_above_gate`` (:func:`replay_above_gate`: said,
+        not a state), ``champion`` (``id``, ``kind``, ``members``: an ensemble's
         weights, heaviest first, :func:`ensemble_weights`, else None; ``parent``: the prior it was
         re-qualified from or ``None``, ``parent_machine``, ``prior`` (:func:`prior_summary`),
         ``trail`` (what it rests on: its warnings confirmed and by which ``checks.confirmed``
@@ -582,6 +611,7 @@ def machine_overview(
         ),
         "last_decision": last,
         "worst_residual": champion_residual(decision, champion_id),
+        "replay_above_gate": replay_above_gate(machine_dir, decision, champion_id),
         "drift": drift,
         "recalibration_due": recal,
         "quarantined": list(status.quarantined),

@@ -44,6 +44,7 @@ from rafi.ops.fleet import describe_drift, exit_code, fleet_overview
 from rafi.ops.project import Paths, load_config, units
 from rafi.ops.promotion_trail import trail_lines
 from rafi.ops.status import EXIT_CANTCREAT, EXIT_USAGE, short_id
+from rafi.report.requalification_section import largest_change_words
 from rafi.settings import run_settings
 
 
@@ -105,9 +106,9 @@ def describe_prior(prior: dict | None, trail: dict | None = None, machine: str |
         moved.append(f"time factor {float(prior['time_factor']):g}")
     if prior.get("alpha") is not None:
         moved.append(f"ridge penalty {float(prior['alpha']):g}")
-    big = prior.get("largest_coefficient_change")
-    if big:
-        moved.append(f"largest coefficient change {100 * float(big['relative']):+.0f} % ({big['name']})")
+    big = largest_change_words(prior.get("largest_coefficient_change"))
+    if big:  # the report's words: a factor of its prior value, never a relative change
+        moved.append(f"the coefficient that moved most relative to its prior value: {big}")
     lines = [f"  prior:            {first}", f"  adaptation:       {', '.join(moved)}"]
     if prior.get("speeds_tested_rpm") is not None:
         lines.append(
@@ -138,51 +139,87 @@ def unjudged_text(unjudged: dict) -> str:
     )
 
 
+def _headline(state: str) -> str:
+    return "WAITING FOR CONFIRMATION" if state == "waiting" else state.upper()
+
+
+def machine_lines(group: dict) -> list[str]:
+    """The line of a machine with several probes (:func:`rafi.report.fleet_page.machine_groups`,
+    as the page's machine row): its state (the most urgent of its probes'), the probes whose model
+    in service with the controller's limits leaves more than the largest-residual gate, and its
+    own page (``report_path`` of its first row's ``machine_report``)."""
+    n = len(group["probes"])
+    lines = [
+        f"{group['machine']}: {_headline(group['state'])} ({n} probes, each qualified on its own: the most "
+        "urgent state of its probes; their blocks follow)"
+    ]
+    for a in group["above_gate"]:
+        lines.append(f"  replay:           @{a['probe']}: {a['text']}")
+    page = next((u["row"].get("machine_report_path") for u in group["units"]), None)
+    lines.append(f"  report:           {page + ' (every probe on one page)' if page else 'not built'}")
+    return lines
+
+
+def unit_lines(r: dict) -> list[str]:
+    """The block of one qualification unit: its state and attention lines, then the page's columns
+    (model in service, last decision, worst residual, drift, interval drift, quarantined files,
+    report), a line each; ``-`` where the page shows ``-``."""
+    lines = []
+    ch = r["champion"]
+    model = f"{short_id(ch['id'])} {ch['kind'] or '?'}{_members(ch)} since {ch['since']}" if ch else "none"
+    if ch and ch.get("parent"):
+        model += f" (adapted from {short_id(ch['parent'])} of {ch.get('parent_machine') or '?'})"
+    last = r["last_decision"]
+    decided = f"{last['decision']} at {last['time']}" if last else "none"
+    if last and r.get("waiting"):
+        decided += " (not promoted until the confirmation above)"
+    worst = r["worst_residual"]
+    resid = (
+        f"{_num(worst['max_residual_um'], ' um')}" + (f" ({worst['run']})" if worst.get("run") else "")
+        if worst
+        else "-"
+    )
+    lines.append(f"{r['machine']}: {_headline(r['state'])}")
+    for a in r["attention"]:
+        lines.append(f"  ! {a['text']}")
+    lines.append(f"  model in service: {model}")
+    trail = (ch or {}).get("trail")
+    lines += describe_prior((ch or {}).get("prior"), trail, r.get("folder") or r["machine"])
+    checks = ((ch or {}).get("prior") or {}).get("warnings") or []
+    inputs = trail_lines(trail, checks, r.get("folder") or r["machine"])["inputs"]
+    if ch and inputs:
+        lines.append(f"  input warnings:   {inputs}")
+    lines.append(f"  last decision:    {decided}")
+    if r.get("unjudged"):
+        lines.append(f"  not judged yet:   {unjudged_text(r['unjudged'])}")
+    lines.append(f"  worst residual:   {resid}")
+    if r.get("replay_above_gate"):
+        lines.append(f"  replay:           {r['replay_above_gate']}")
+    due = "YES" if r["recalibration_due"] else "no"
+    drift = describe_drift(r["drift"], has_champion=bool(ch))
+    lines.append(f"  drift:            {drift}; recalibration due: {due}")
+    interval = (r["drift"] or {}).get("interval")
+    lines.append(f"  interval drift:   {interval['text'] if interval else '-'}")
+    lines.append(f"  quarantined:      {'; '.join(r['quarantined']) or 'none'}")
+    lines.append(f"  report:           {r['report_path'] or 'not built'}")
+    return lines
+
+
 def format_rows(rows: list[dict]) -> str:
-    """The text ``rafi status`` prints: one block per machine (most urgent first)."""
+    """The text ``rafi status`` prints: the page's table as text. One block per unit, most urgent
+    first; a machine with several probes (units ``<machine>@<probe>``) is one machine, its line
+    (:func:`machine_lines`) at the place of its most urgent probe with its probes' blocks under
+    it (:func:`rafi.report.fleet_page.machine_groups`, the page's grouping)."""
+    from rafi.report.fleet_page import machine_groups
+
     if not rows:
         return "no machine\n"
     lines = []
-    for r in rows:
-        ch = r["champion"]
-        model = (
-            f"{short_id(ch['id'])} {ch['kind'] or '?'}{_members(ch)} since {ch['since']}" if ch else "none"
-        )
-        if ch and ch.get("parent"):
-            model += f" (adapted from {short_id(ch['parent'])} of {ch.get('parent_machine') or '?'})"
-        last = r["last_decision"]
-        decided = f"{last['decision']} at {last['time']}" if last else "none"
-        if last and r.get("waiting"):
-            decided += " (not promoted until the confirmation above)"
-        worst = r["worst_residual"]
-        resid = (
-            f"{_num(worst['max_residual_um'], ' um')}" + (f" ({worst['run']})" if worst.get("run") else "")
-            if worst
-            else "-"
-        )
-        headline = "WAITING FOR CONFIRMATION" if r["state"] == "waiting" else r["state"].upper()
-        lines.append(f"{r['machine']}: {headline}")
-        for a in r["attention"]:
-            lines.append(f"  ! {a['text']}")
-        lines.append(f"  model in service: {model}")
-        trail = (ch or {}).get("trail")
-        lines += describe_prior((ch or {}).get("prior"), trail, r.get("folder") or r["machine"])
-        checks = ((ch or {}).get("prior") or {}).get("warnings") or []
-        inputs = trail_lines(trail, checks, r.get("folder") or r["machine"])["inputs"]
-        if ch and inputs:
-            lines.append(f"  input warnings:   {inputs}")
-        lines.append(f"  last decision:    {decided}")
-        if r.get("unjudged"):
-            lines.append(f"  not judged yet:   {unjudged_text(r['unjudged'])}")
-        lines.append(f"  worst residual:   {resid}")
-        due = "YES" if r["recalibration_due"] else "no"
-        drift = describe_drift(r["drift"], has_champion=bool(ch))
-        lines.append(f"  drift:            {drift}; recalibration due: {due}")
-        interval = (r["drift"] or {}).get("interval")
-        if interval:
-            lines.append(f"  interval drift:   {interval['text']}")
-        lines.append(f"  quarantined:      {'; '.join(r['quarantined']) or 'none'}")
-        lines.append(f"  report:           {r['report_path'] or 'not built'}")
+    for group in machine_groups(rows):
+        if group["probes"]:
+            lines += machine_lines(group)
+        for unit in group["units"]:
+            lines += unit_lines(unit["row"])
     return "\n".join(lines) + "\n"
 
 
@@ -210,6 +247,7 @@ def run(args) -> int:
     rows = fleet_overview(paths, reports_dir, units(config, args.machine or machines), config=config)
     for r in rows:
         r["report_path"] = str(reports_dir / r["report"]) if r["report"] else None
+        r["machine_report_path"] = str(reports_dir / r["machine_report"]) if r.get("machine_report") else None
     if args.html:
         try:
             out = write_fleet_page(paths, reports_dir, args.html, rows=rows)

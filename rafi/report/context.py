@@ -135,6 +135,7 @@ def build_context(
     ctx["fig_replay0"] = len(ctx["deployed"]["figures"]) if ctx["deployed"] else 0
     ctx["fig_offset"] = ctx["fig_replay0"] + (len(ctx["replay"]["runs"]) if ctx["replay"] else 0)
     ctx["figures_used"] = list(figs.used)
+    ctx["probe_sign"] = probe_sign_record(settings, sign_key, res.get("audit"))
     _verdict_findings(ctx)
     # the folds the family's CV used (time blocks when the training data hold no whole-run fold)
     # and whether forward-in-time folds scored the models too
@@ -154,7 +155,6 @@ def build_context(
     ctx["signoff"] = section_signoff(res, settings)  # first page: number, revision, names
     # the configuration appendix: only what differs from the defaults (docs/settings.md)
     ctx["config_changes"] = settings_changes(settings, config)
-    ctx["probe_sign"] = probe_sign_record(settings, sign_key, res.get("audit"))
     ctx["model_id"] = model.get("model_id", "")
     ctx["champion_id"] = dec.get("champion_id_after") or ""
     ctx["code_version"] = model.get("code_version", "")
@@ -167,8 +167,8 @@ def build_context(
 
 def _verdict_findings(ctx: dict) -> None:
     """What the verdict box adds from the sections: quarantined files, unconfirmed warnings,
-    late training data, the selection, a recalibration due and the fitness warnings a promotion
-    rested on (set in ``ctx["verdict"]``)."""
+    late training data, the selection, a recalibration due, the fitness warnings a promotion
+    rested on and a flagged probe sign (set in ``ctx["verdict"]``)."""
     verdict = ctx["verdict"]
     verdict["quarantined"] = len(ctx["data"]["quarantined"])
     verdict["unconfirmed_warnings"] = sum(not w["confirmed"] for w in ctx["data"]["warnings"])
@@ -179,6 +179,8 @@ def _verdict_findings(ctx: dict) -> None:
     verdict["recalibration_due"] = bool(ctx["registry"] and ctx["registry"]["drift"]["recal"])
     # the fitness warnings a person confirmed, when the promotion rested on them
     verdict["confirmed"] = (ctx["registry"] or {}).get("confirmed")
+    # a probe sign the data contradict or nothing confirms: on page 1 too, not only in section 15
+    verdict["probe_sign"] = ctx["probe_sign"]["verdict_line"]
 
 
 def _replay_findings(ctx: dict, res: dict, dec: dict, gates: dict) -> None:

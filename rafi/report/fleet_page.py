@@ -67,20 +67,24 @@ def machine_groups(rows: list[dict]) -> list[dict]:
         rows in order, each ``{"probe", "row"}``: the probe's name, None for the machine
         itself), ``probes`` (its probe names; ``[]`` for a machine with one probe, whose row is
         the machine's), ``state`` / ``rank`` (the most urgent of its rows: a machine needs
-        attention when one of its probes does) and ``report`` (a machine with several probes:
-        its own page, or None where it is not built).
+        attention when one of its probes does), ``report`` (a machine with several probes:
+        its own page, or None where it is not built) and ``above_gate`` (``{"probe", "text"}`` of
+        each probe whose model in service with the controller's limits leaves more than the
+        largest-residual gate: its row's ``replay_above_gate``).
     """
     from rafi.settings import split_unit
 
     groups: dict = {}
     for r in rows:
         folder, probe = split_unit(r["machine"])
-        first = {"machine": folder, "units": [], "probes": [], "report": None}
+        first = {"machine": folder, "units": [], "probes": [], "report": None, "above_gate": []}
         g = groups.setdefault(folder, {**first, "state": r["state"], "rank": r["rank"]})
         g["units"].append({"probe": probe, "row": r})
         if probe is not None:
             g["probes"].append(probe)
             g["report"] = g["report"] or r.get("machine_report")
+        if r.get("replay_above_gate"):
+            g["above_gate"].append({"probe": probe, "text": r["replay_above_gate"]})
         if r["rank"] < g["rank"]:
             g["state"], g["rank"] = r["state"], r["rank"]
     return list(groups.values())

@@ -68,6 +68,21 @@ def file_signs(audit) -> dict:
     return out
 
 
+def _verdict_line(head: str, seen: str, key: str, contradicted: bool, unconfirmed: bool) -> str | None:
+    """A flagged sign in one line for the verdict box (:func:`probe_sign_record`): what the data
+    say and the key that settles it (``key``: the one that sets the sign, or the one to set; an
+    unconfirmed sign is a default, so it is the one to set); None when not flagged."""
+    if contradicted:
+        said = seen.split(": ", 1)[1]  # "the data contradict it: <files> falls while ..."
+        return (
+            f"{head} contradicted by the data: {said}; set {key} to the probe's sign, or confirm the "
+            "file's sign in checks.confirmed."
+        )
+    if unconfirmed:
+        return f"{head} unconfirmed: the default, and {seen}; set {key} (or checks.probe_sign) to settle it."
+    return None
+
+
 def probe_sign_record(settings: dict, sign_key: str | None, audit) -> dict:
     """Where the unit's probe sign comes from and whether the data agree, for the report.
 
@@ -98,7 +113,9 @@ def probe_sign_record(settings: dict, sign_key: str | None, audit) -> dict:
         ``audit.csv``), ``flagged`` (the data contradict it, a file a person confirmed in
         ``checks.confirmed`` aside, or a default no file gives clear evidence for), ``short`` (a few words
         for a table cell), ``head`` (``"Probe sign +1"``), ``body`` (where it comes from, what the
-        data say, and what to do when flagged) and ``text`` (``head: body``).
+        data say, and what to do when flagged), ``text`` (``head: body``) and ``verdict_line`` (a
+        flagged sign in one line for the verdict box, naming the key that settles it; None when
+        not flagged).
     """
     from rafi.readers.checks_machine import CONFIGURED_SIGNS, is_confirmed
 
@@ -121,7 +138,9 @@ def probe_sign_record(settings: dict, sign_key: str | None, audit) -> dict:
         source, said = "default", f"the default ({to_set} not set)"
 
     def where(value: int) -> str:
-        return f"(audit.csv probe_sign {value:+d})".replace("-", "\u2212")
+        # the clean job measures the displacement the reader already multiplied by the sign
+        applied = f", measured after the configured sign {sign:+d} is applied" if sign < 0 else ""
+        return f"(audit.csv probe_sign {value:+d}{applied})".replace("-", "\u2212")
 
     if audit is None:
         data, seen = "unknown", "no audit.csv: what the data say is not known"
@@ -172,6 +191,7 @@ def probe_sign_record(settings: dict, sign_key: str | None, audit) -> dict:
         "head": head,
         "body": text,
         "text": f"{head}: {text}",
+        "verdict_line": _verdict_line(head, seen, sign_key or to_set, contradicted, unconfirmed),
     }
 
 

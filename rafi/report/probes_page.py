@@ -17,6 +17,7 @@ import pandas as pd
 
 from rafi.report.format import fmt_num
 from rafi.report.probe import probe_sign_record
+from rafi.report.replay_section import above_gate_words, replay_gaps_of
 
 
 def _json(path) -> dict:
@@ -37,8 +38,10 @@ def probe_row(
         The unit's effective settings (``rafi.settings.machine_settings`` of ``<machine>@<probe>``).
     paths : Mapping
         ``summary`` (comparison/summary.csv), ``per_run`` (comparison/per_run.csv),
-        ``decision`` (registry/decision.json) and ``audit`` (audit.csv: the files' probe sign;
-        optional) of the unit.
+        ``decision`` (registry/decision.json), ``audit`` (audit.csv: the files' probe sign;
+        optional), ``replay`` (deploy/replay_summary.csv: the offered model with the
+        controller's limits; optional) and ``validation`` (validation/summary.csv: the runs'
+        noise floors beside per_run's; optional) of the unit.
     report_href : str
         The probe's own report, relative to this page.
     sign_key : str, optional
@@ -54,7 +57,10 @@ def probe_row(
         (``PASS`` / ``FAIL``: the offered model's gates on the validation runs), ``model`` (its
         kind), ``worst_um`` / ``before_um`` (its worst validation residual and the worst
         uncompensated displacement), ``decision`` (the registry's), ``runs`` (one dict per
-        validation run of the offered model) and ``href``.
+        validation run of the offered model), ``replay_above_gate`` (where the offered model with
+        the controller's limits leaves more than the largest-residual gate, in the words of the
+        probe's own verdict: :func:`rafi.report.replay_section.above_gate_words`; None where it
+        does not: the replay says, it does not gate) and ``href``.
     """
     disp = settings["input"]["displacement"]
     described = (settings["input"].get("probes") or {}).get(probe, {}).get("description")
@@ -77,6 +83,8 @@ def probe_row(
     audit_path = paths.get("audit")
     audit = pd.read_csv(audit_path) if audit_path and Path(audit_path).is_file() else None
     passed = bool(row["passed"]) if row is not None else False
+    gate = (settings.get("qualification") or {}).get("max_residual_um")
+    gaps = replay_gaps_of(paths.get("replay"), paths["per_run"], paths.get("validation"), gate)
     return {
         "probe": probe,
         "channel": disp["column"],
@@ -90,18 +98,21 @@ def probe_row(
         "before_um": fmt_num(row["max_abs_before_um"], 2) if row is not None else "",
         "decision": str(decision.get("decision", "")),
         "runs": runs,
+        "replay_above_gate": above_gate_words(gaps),
         "href": report_href,
     }
 
 
 def probes_context(machine: str, rows: list[dict]) -> dict:
-    """The template's context: the machine, its probes' rows and the machine's verdict (PASS only
-    when every probe passes)."""
+    """The template's context: the machine, its probes' rows, the machine's verdict (PASS only
+    when every probe passes) and ``above_gate``: the probes whose offered model with the
+    controller's limits leaves more than the largest-residual gate (said, not judged)."""
     return {
         "machine": machine,
         "probes": rows,
         "verdict": "PASS" if rows and all(r["verdict"] == "PASS" for r in rows) else "FAIL",
         "n_pass": sum(r["verdict"] == "PASS" for r in rows),
+        "above_gate": [r["probe"] for r in rows if r.get("replay_above_gate")],
     }
 
 

@@ -10,6 +10,8 @@ the replay table ``deploy/replay.parquet`` (same rule) by class over all replaye
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pandas as pd
 from markupsafe import Markup, escape
@@ -192,6 +194,66 @@ def replay_gaps(summary: pd.DataFrame | None, noise: dict | None = None, gate_um
     runs.sort(key=lambda g: -g["with_um"])
     model_id = str(summary["model_id"].iloc[0]) if "model_id" in summary else ""
     return {"model_id": model_id, "id": short_id(model_id), "gate_um": gate, "runs": runs}
+
+
+def _read_csv(path) -> pd.DataFrame | None:
+    """A result table, or None where it is not there or cannot be read."""
+    if not path or not Path(path).is_file():
+        return None
+    try:
+        return pd.read_csv(path)
+    except (OSError, ValueError):
+        return None
+
+
+def replay_gaps_of(replay_summary, per_run=None, validation_summary=None, gate_um=None) -> dict | None:
+    """:func:`replay_gaps` of a unit's files, as its report's verdict computes them: for the pages
+    that summarise several units (the machine's page of its probes, ``rafi status``, the fleet
+    page), which must say what each unit's verdict says.
+
+    Parameters
+    ----------
+    replay_summary : path
+        ``deploy/replay_summary.csv`` (missing: None is returned).
+    per_run, validation_summary : path, optional
+        ``comparison/per_run.csv`` and ``validation/summary.csv``: the runs' noise floors
+        (:func:`rafi.report.inputs.noise_floors`).
+    gate_um : float, optional
+        ``qualification.max_residual_um`` (the limit of the largest-residual gate).
+    """
+    from rafi.report.inputs import noise_floors
+
+    summary = _read_csv(replay_summary)
+    tables = {"comparison_per_run": _read_csv(per_run), "validation_summary": _read_csv(validation_summary)}
+    return replay_gaps(summary, noise_floors(tables), gate_um)
+
+
+def above_gate_words(gaps: dict | None, *, plain: bool = False) -> str | None:
+    """Where the compensator with the controller's limits leaves more than the largest-residual
+    gate allows, in the words of the report's verdict (the runs of :func:`replay_gaps` flagged
+    ``above_gate``); None where no run is. The replay says it, it does not gate.
+
+    ``"with the controller's limits (the replay) the compensator would leave 21.12 µm on data#9
+    (model alone 3.80 µm), above the 12.00 µm limit of the largest-residual gate; the gates judge
+    the model alone"``; ``plain``: ASCII numbers (``21.12 um``), as ``rafi status`` prints them.
+    """
+    runs = [r for r in (gaps or {}).get("runs") or [] if r.get("above_gate")]
+    if not runs:
+        return None
+
+    def um(value) -> str:
+        return f"{float(value):.2f} um" if plain else fmt_num(value, 2, UM)
+
+    left = [
+        f"{um(r['with_um'])} on {r['run_id']}"
+        + (f" (model alone {um(r['offline_um'])})" if r.get("offline_um") is not None else "")
+        for r in runs
+    ]
+    leaves = ", ".join(left[:-1]) + " and " + left[-1] if len(left) > 1 else left[0]
+    return (
+        f"with the controller's limits (the replay) the compensator would leave {leaves}, above the "
+        f"{um(gaps['gate_um'])} limit of the largest-residual gate; the gates judge the model alone"
+    )
 
 
 def section_replay(res: dict, settings: dict, figs, champion_id) -> dict | None:

@@ -37,6 +37,7 @@ from rafi.family.confirmation import confirmation_entry
 from rafi.family.prior import prior_promoted
 from rafi.family.prior_fitness import inherited_text, warning_remedy
 from rafi.family.selection import SHARED_GAIN, SHARED_RIDGE
+from rafi.family.since_change import natural_order
 from rafi.report.comparison_section import selection_score
 from rafi.report.ensemble_section import adapted_from
 from rafi.report.format import fmt_num, fmt_sig, fmt_speed, fmt_speed_range, isnum, short_id
@@ -206,6 +207,17 @@ def ratio_words(prior, new) -> str:
     return f"{fmt_sig(ratio, 3)} times its prior value{flipped}"
 
 
+def largest_change_words(largest) -> str:
+    """The coefficient that moved most relative to its prior value (the fitness block's
+    ``largest_coefficient_change``: ``name``, ``prior``, ``new``) as the report and ``rafi status``
+    say it: ``ridge_global: dT11@0s, −0.05303 → −0.2968: 5.60 times its prior value``
+    (:func:`ratio_words`, never a relative change); ``""`` without one."""
+    if not isinstance(largest, dict) or not largest.get("name"):
+        return ""
+    prior, new = largest.get("prior"), largest.get("new")
+    return f"{largest['name']}, {fmt_sig(prior, 4)} \u2192 {fmt_sig(new, 4)}: {ratio_words(prior, new)}"
+
+
 def _member_change(art: dict) -> tuple[np.ndarray, np.ndarray, list[str]]:
     """``prior``, ``new`` and names of a member's ``adaptation.coefficient_change`` (empty
     without one)."""
@@ -312,6 +324,14 @@ def _range(pair, digits: int = 1) -> str:
     return f"{fmt_num(pair[0], digits)} … {fmt_num(pair[1], digits)}" if pair else "–"
 
 
+def _outside_ranges(parts, digits: int = 1) -> str:
+    """The parts of the prior's rise range the new data do not reach (``prior_only``), ``; ``
+    between them; a part whose ends read the same at ``digits`` (narrower than the table shows)
+    is left out, and ``none`` is said without one."""
+    shown = [_range(p, digits) for p in parts or [] if fmt_num(p[0], digits) != fmt_num(p[1], digits)]
+    return "; ".join(shown) or "none"
+
+
 def _entry_text(entry: dict, check: str) -> str:
     """A ``checks.confirmed`` entry in YAML flow style, as the settings hold it."""
     return f"{{file: {entry.get('file')}, check: {check}}}"
@@ -400,7 +420,9 @@ def fitness_context(
     ``speeds_tested``, ``speeds_prior``, ``speeds_prior_only``, ``inherited`` (the clause for the
     speeds the prior had only from its own prior, :func:`rafi.family.prior_fitness.inherited_text`)
     and the two ranges (text),
-    ``temperature`` (rows: ``sensor``, ``tested``, ``prior``, ``prior_only``, text in K),
+    ``temperature`` (rows: ``sensor``, ``tested``, ``prior``, ``prior_only``, text in K; the
+    sensors in natural order, T2 before T10; a part of ``prior_only`` narrower than the table shows
+    left out, :func:`_outside_ranges`),
     ``bounds`` and ``warnings`` (``check``, ``message``, ``confirm``: the ``checks.confirmed``
     entry that confirms it, ``instead``: what to do instead for ``machine``,
     :func:`rafi.family.prior_fitness.warning_remedy`; ``confirmed_by``: the entry that confirmed
@@ -432,13 +454,7 @@ def fitness_context(
         }
         for w in fit.get("warnings") or []
     ]
-    largest = fit.get("largest_coefficient_change")
-    largest_words = ""
-    if isinstance(largest, dict) and largest.get("name"):
-        largest_words = (
-            f"{largest['name']}, {fmt_sig(largest.get('prior'), 4)} \u2192 {fmt_sig(largest.get('new'), 4)}: "
-            f"{ratio_words(largest.get('prior'), largest.get('new'))}"
-        )
+    largest_words = largest_change_words(fit.get("largest_coefficient_change"))
     return {
         "origin": fit.get("origin"),
         "prior": {**own, "id": pid},
@@ -457,9 +473,10 @@ def fitness_context(
                 "sensor": t.get("sensor"),
                 "tested": _range(t.get("tested")),
                 "prior": _range(t.get("prior")),
-                "prior_only": "; ".join(_range(r) for r in t.get("prior_only") or []) or "none",
+                "prior_only": _outside_ranges(t.get("prior_only")),
             }
-            for t in fit.get("temperature") or []
+            # the block lists the sensors as text (T1, T10, T11, T2): the table in natural order
+            for t in sorted(fit.get("temperature") or [], key=lambda t: natural_order(str(t.get("sensor"))))
         ],
         "bounds": fit.get("bounds") or {},
         "warnings": warnings,

@@ -104,10 +104,15 @@ def section_signoff(res: dict, settings: dict) -> dict:
     -------
     dict
         ``fields`` (``[{key, label, value}]``, an empty value is a line to sign),
-        ``revision``, ``number``, ``inputs`` (a summary of what the revision covers).
+        ``revision``, ``number``, ``inputs`` (a summary of what the revision covers:
+        ``deployed_model``, ``rafi_model``, ``raw_files`` and ``on_machine``: ``model`` where a
+        model is on the machine after this run, ``none`` where the decision left none on it (a
+        candidate waiting or rejected with no champion), ``no_decision`` without a registry
+        decision).
     """
     doc = (settings.get("report") or {}).get("document") or {}
     dec = res.get("decision") if isinstance(res.get("decision"), dict) else {}
+    on_machine = "model" if dec.get("champion_id_after") else ("none" if dec else "no_decision")
     inputs = revision_inputs(
         deployed_id=dec.get("champion_id_after"),
         rafi_model=res.get("model"),
@@ -130,5 +135,6 @@ def section_signoff(res: dict, settings: dict) -> dict:
             "deployed_model": inputs["deployed_model"][:12],
             "rafi_model": inputs["rafi_model"][:12],
             "raw_files": len(inputs["raw_files"]),
+            "on_machine": on_machine,
         },
     }

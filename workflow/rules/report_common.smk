@@ -55,8 +55,9 @@ def report_inputs(wildcards):
 
 def probes_report_inputs(wildcards):
     """Named inputs of the report of a machine with several probes (``probes_report``), every
-    probe's comparison summary, per-run table, registry decision and cleaning audit
-    (``summary_<probe>``, ..., ``audit_<probe>``: the files' probe sign)
+    probe's comparison summary, per-run table, registry decision, cleaning audit, replay summary
+    and validation summary (``summary_<probe>``, ..., ``audit_<probe>``: the files' probe sign,
+    ``replay_<probe>``: the offered model with the controller's limits, ``validation_<probe>``)
     and, as ``reports``, every probe's report (HTML) in the order of ``input.probes``."""
     folder = wildcards.folder
     inputs = {}
@@ -66,6 +67,8 @@ def probes_report_inputs(wildcards):
         inputs[f"per_run_{probe}"] = out("comparison_per_run", unit)
         inputs[f"decision_{probe}"] = out("decision", unit)
         inputs[f"audit_{probe}"] = out("audit", unit)
+        inputs[f"replay_{probe}"] = out("replay_summary", unit)
+        inputs[f"validation_{probe}"] = out("validation_summary", unit)
     inputs["reports"] = [report_paths(unit_name(folder, p))["html"] for p in PROBES[folder]]
     return inputs
 
