@@ -68,7 +68,13 @@ def test_the_formatter_shows_a_varying_run_as_its_range_and_any_other_as_its_spe
     assert run_speeds(RUNS)["multi"] == RANGE and run_speeds(None) == {}
 
 
-def test_the_validation_section_takes_the_range_from_runs_csv_not_from_the_samples_with_the_rest():
+class _NoFigures:
+    def get(self, group, key):
+        return None
+
+
+def _multi_row() -> dict:
+    """The validation section's row of the multi-condition run of :func:`_samples`."""
     summary = pd.DataFrame(
         {
             "run_id": ["multi"],
@@ -82,13 +88,12 @@ def test_the_validation_section_takes_the_range_from_runs_csv_not_from_the_sampl
             "n_samples": [63],
         }
     )
+    (row,) = other_runs(summary, _samples(), {}, _NoFigures(), False, runs=RUNS)
+    return row
 
-    class _Figs:
-        def get(self, group, key):
-            return None
 
-    (row,) = other_runs(summary, _samples(), {}, _Figs(), False, runs=RUNS)
-    assert row["speed"] == RANGE  # 0-7 123 r/min before: the rest before start counted
+def test_the_validation_section_takes_the_range_from_runs_csv_not_from_the_samples_with_the_rest():
+    assert _multi_row()["speed"] == RANGE  # 0-7 123 r/min before: the rest before start counted
 
 
 def test_every_section_prints_the_same_speed_for_the_same_run():
@@ -127,20 +132,5 @@ def test_a_start_from_rest_is_not_counted_as_a_speed_change():
     assert speed_changes(pd.Series([3000.0, 3000.0, 6000.0, 0.0, 6000.0])) == (3, False)  # a stop counts
     assert speed_changes(pd.Series([0.0, 0.0])) == (0, False)
     assert speed_changes(pd.Series([], dtype=float)) == (0, False)
-    summary = pd.DataFrame(
-        {
-            "run_id": ["multi"],
-            "role": ["validation_multi"],
-            "duration_s": [3600.0],
-            "max_abs_before_um": [10.0],
-            "max_abs_after_um": [1.0],
-            "improvement_pct": [90.0],
-        }
-    )
-
-    class _Figs:
-        def get(self, group, key):
-            return None
-
-    (row,) = other_runs(summary, _samples(), {}, _Figs(), False, runs=RUNS)
+    row = _multi_row()
     assert row["changes"] == 2 and row["from_rest"] is True
