@@ -11,6 +11,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from matplotlib.colors import to_hex
 
 from rafi.report.intervals import band_label, has_band, residual_band
 from rafi.report.plot_layout import (
@@ -377,18 +378,51 @@ def fig_multi_condition(
 
 # --------------------------------------------------------------------------- model comparison
 
-#: One colour per model kind (stable across figures); unknown kinds cycle through tab10.
+#: One colour per model the comparison can score, the same in every figure: its kinds
+#: (rafi.family.compare.KINDS), the CV-weighted ensemble and a prior's adaptation candidates
+#: (rafi.family.adapted), no two alike.
 MODEL_COLOURS = {
     "rafi": "#c0392b",
     "rafi_linear": "#e07b00",
     "ridge_global": "#1f77b4",
     "dynamic": "#2e7d32",
+    "grey_box": "#bcbd22",
     "temperature_ridge": "#6a3d9a",
+    "ensemble": "#17becf",
+    "prior": "#8c564b",
+    "prior_gain": "#c49c94",
+    "prior_time": "#e377c2",
+    "prior_ridge": "#f7b6d2",
+    "prior_shared_gain": "#7f7f7f",
+    "prior_shared_ridge": "#6b6ecf",
 }
+#: The colours a model without one of its own takes, in turn (tab20b, then tab20).
+SPARE_COLOURS = tuple(to_hex(c) for name in ("tab20b", "tab20") for c in plt.get_cmap(name).colors)
+#: Width (pt) of the black outline of the offered model's bars.
+OFFERED_EDGE_PT = 1.4
 
 
-def _model_colour(name: str, k: int) -> str:
-    return MODEL_COLOURS.get(name, plt.get_cmap("tab10")((k + 4) % 10))
+def model_colours(models) -> dict:
+    """The colour of each model of a figure: its own (:data:`MODEL_COLOURS`), else the first of
+    :data:`SPARE_COLOURS` no other model of the figure has.
+
+    Parameters
+    ----------
+    models : iterable of str
+        The figure's models.
+
+    Returns
+    -------
+    dict
+        model -> colour (hex); distinct while the figure has at most as many models without a
+        colour of their own as there are spare colours (40), then the spares repeat.
+    """
+    models = list(models)
+    out = {m: MODEL_COLOURS[m] for m in models if m in MODEL_COLOURS}
+    spare = [c for c in SPARE_COLOURS if c not in set(out.values())] or list(SPARE_COLOURS)
+    for k, m in enumerate(m for m in models if m not in out):
+        out[m] = spare[k % len(spare)]
+    return out
 
 
 def fig_comparison_bars(
@@ -398,6 +432,7 @@ def fig_comparison_bars(
     failed: pd.DataFrame | None = None,
     gate_um: float | None = None,
     labels: dict | None = None,
+    offered: str | None = None,
     fmt: str = "png",
 ) -> bytes:
     """Grouped bars: max |residual| per validation run (groups) and model (bars).
@@ -414,9 +449,13 @@ def fig_comparison_bars(
         The ``max_residual_um`` gate (dashed red line).
     labels : dict, optional
         model -> legend label (e.g. marking the champion).
+    offered : str, optional
+        The model offered to the machine: its bars (and its legend entry) outlined in black
+        (:data:`OFFERED_EDGE_PT`). Each model has its colour (:func:`model_colours`).
     """
     with plt.rc_context(STYLE):
         runs, models = list(after.index), list(after.columns)
+        colours = model_colours(models)
         n, m = len(runs), max(len(models), 1)
         fig, ax = plt.subplots(figsize=(PAGE_WIDTH_IN, 2.9), constrained_layout=True)
         x = np.arange(n, dtype=float)
@@ -447,8 +486,17 @@ def fig_comparison_bars(
                         )
                 vals = np.minimum(vals, top)
             bad = failed[name].to_numpy(bool) if failed is not None and name in failed else np.zeros(n, bool)
-            colour = _model_colour(name, k)
-            ax.bar(pos, np.nan_to_num(vals), width * 0.92, color=colour, label=(labels or {}).get(name, name))
+            outline = (
+                {"edgecolor": "black", "linewidth": OFFERED_EDGE_PT} if name == offered else {"linewidth": 0}
+            )
+            ax.bar(
+                pos,
+                np.nan_to_num(vals),
+                width * 0.92,
+                color=colours[name],
+                label=(labels or {}).get(name, name),
+                **outline,
+            )
             if bad.any():
                 ax.bar(
                     pos[bad],
