@@ -64,14 +64,31 @@ def test_frame_table_formats_and_classes_each_column():
     assert re.findall(r"<th>(.*?)</th>", html) == ["run", "after (µm)", "gate", "change"]
     assert _cells(html) == [
         ("rowhead", "a_<wbr>1<wbr>#2"),
-        ("", "1.2\u00a0µm"),
+        ("n", "1.2\u00a0µm"),
         ("pass", "PASS"),
-        ("", "\u2013"),
+        ("n", "\u2013"),
         ("rowhead", "b"),
-        ("", "\u2013"),
+        ("n", "\u2013"),
         ("fail", "FAIL"),
-        ("", "\u22120.50"),
+        ("n", "\u22120.50"),
     ]
+
+
+def test_a_number_column_never_wraps_and_a_cell_keeps_its_own_class():
+    """Class ``n`` (``white-space: nowrap``) on every cell of a column of a number format or
+    ``"nowrap": true``, beside the class its ``cls_key`` gives; none on a text column."""
+    frame = [{"name": "prior_shared_ridge", "x": 1530.24, "p": 0.0004, "speed": 12000.0, "ok": False}]
+    html = _table(
+        "{% call(row, col) frame_table(frame, ["
+        '{"head": "name", "key": "name"},'
+        '{"head": "x", "key": "x", "fmt": "num", "cls_key": "ok", "cls_map": {false: "fail"}},'
+        '{"head": "p", "key": "p", "fmt": "p"},'
+        '{"head": "speed", "key": "speed", "fmt": "speed"},'
+        '{"head": "range", "call": true, "nowrap": true},'
+        "]) %}2 997\u201318 003 r/min{% endcall %}",
+        frame=frame,
+    )
+    assert [c for c, _ in _cells(html)] == ["", "fail n", "n", "n", "n"]
 
 
 def test_frame_table_without_a_frame_is_nothing_and_without_rows_its_headers():

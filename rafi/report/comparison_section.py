@@ -421,6 +421,43 @@ def per_run_rows(frames: dict, noise: dict) -> list[dict]:
     return rows
 
 
+#: The per-model fields of a row of :func:`per_run_rows`, ``<field>:<model>``.
+RUN_CELL_FIELDS = ("after", "imp", "passed", "cov", "width")
+
+
+def per_model_rows(per_run: list[dict], models: list) -> list[dict]:
+    """The rows of :func:`per_run_rows` turned: the table with a row per model and a column per
+    validation run, for a family with more models than validation runs (fewer, wider columns).
+
+    Parameters
+    ----------
+    per_run : list of dict
+        :func:`per_run_rows`.
+    models : list
+        The models, in the order of ``comparison/summary.csv``.
+
+    Returns
+    -------
+    list of dict
+        First the runs' own numbers, ``what`` ``"before"`` (max |dz| without compensation) and
+        ``"noise"`` (noise floor), each with ``value:<run id>``; then per model ``what``
+        ``"model"``, ``model`` and ``<field>:<run id>`` for the fields of
+        :data:`RUN_CELL_FIELDS` the rows hold (``after:<run id>`` its max |residual| on the run).
+    """
+    rows = [
+        {"what": "before", **{f"value:{r['run_id']}": r["max_abs_before_um"] for r in per_run}},
+        {"what": "noise", **{f"value:{r['run_id']}": r["noise_floor_um"] for r in per_run}},
+    ]
+    for m in models:
+        row = {"what": "model", "model": m}
+        for r in per_run:
+            for field in RUN_CELL_FIELDS:
+                if f"{field}:{m}" in r:
+                    row[f"{field}:{r['run_id']}"] = r[f"{field}:{m}"]
+        rows.append(row)
+    return rows
+
+
 def champion_beside_rafi(frames: dict, champion, on_machine) -> dict | None:
     """The family's champion on the runs where RAFI as published fails: its name, whether it
     passes every gate on them and whether it is on the machine (``None`` when RAFI is the
@@ -483,7 +520,9 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         (:func:`rafi.family.since_change.change_text` of ``comparison_since_change``: the training
         runs set aside before a change, ``None`` when none were), ``figure_since_change`` (the
         figure of the training runs in recorded order, when runs were set aside),
-        ``run_models`` and ``per_run`` (:func:`per_run_rows`), ``figure_bars``, ``rafi_fail``
+        ``run_models`` and ``per_run`` (:func:`per_run_rows`), ``per_model`` (:func:`per_model_rows`,
+        the same table with a row per model, where the models outnumber the validation runs;
+        else ``None``), ``figure_bars``, ``rafi_fail``
         (:func:`rafi_failure` with ``champion``: :func:`champion_beside_rafi`) and
         ``figures_resid``, ``plain_ridge`` (:func:`rafi.report.plain_ridge.section_plain_ridge`);
         the interval:
@@ -543,6 +582,7 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
         "cv_unpredicted": unpredicted_models(s, "cv_unpredicted", "cv_unpredicted_inputs"),
         "run_models": [],
         "per_run": None,
+        "per_model": None,
         "figure_bars": None,
         "rafi_fail": None,
         "figures_resid": [],
@@ -569,6 +609,8 @@ def section_comparison(res: dict, champion_after, settings: dict, figs) -> dict 
     fr = comparison_frames(summ, pr)
     out["run_models"] = fr["models"]
     out["per_run"] = per_run_rows(fr, noise_floors(res))
+    if len(fr["models"]) > len(fr["runs"]):
+        out["per_model"] = per_model_rows(out["per_run"], fr["models"])
     out["run_coverage"] = fr["coverage"] is not None
     out["figure_bars"] = figs.get("comparison", "comparison_bars")
     out["figure_since_change"] = figs.get("comparison", "since_change")

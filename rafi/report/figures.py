@@ -231,7 +231,13 @@ def _comparison(res: dict, gates: dict, fmt: str):
     yield (
         "comparison_bars",
         plots.fig_comparison_bars(
-            fr["after"], fr["before"], failed=~fr["passed"], gate_um=gate_um, labels=labels, fmt=fmt
+            fr["after"],
+            fr["before"],
+            failed=~fr["passed"],
+            gate_um=gate_um,
+            labels=labels,
+            offered=champion,
+            fmt=fmt,
         ),
     )
     if set_aside_count(res.get("comparison_since_change")):

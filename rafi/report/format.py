@@ -187,6 +187,14 @@ def run_label(run_id) -> Markup:
     return Markup(text)
 
 
+def identifier(name) -> Markup:
+    """A name of the code (a model, a kind, a setting) that may wrap after each ``_`` and nowhere
+    else: ``prior_shared_ridge`` breaks as ``prior_`` / ``shared_`` / ``ridge``, never with a
+    hyphen inside a word (``<wbr>`` after ``_``, in ``<span class="id">``: the template's CSS
+    lets no other break into it)."""
+    return Markup('<span class="id">' + str(escape(str(name))).replace("_", "_<wbr>") + "</span>")
+
+
 def short_id(value, n: int = 12) -> str:
     """The first ``n`` characters of a hash or model id; an en dash for none."""
     return str(value)[:n] if isinstance(value, str) and value else DASH
@@ -290,6 +298,7 @@ FILTERS = {
     "run_speed": fmt_run_speed,
     "duration": fmt_duration,
     "run": run_label,
+    "ident": identifier,
     "short_id": short_id,
     "micro": micro,
     "subscript": subscript,

@@ -11,6 +11,7 @@ from __future__ import annotations
 import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
+from matplotlib.colors import to_hex
 
 from rafi.report.intervals import band_label, has_band, residual_band
 from rafi.report.plot_layout import (
@@ -118,23 +119,95 @@ def fig_training_runs(
 # --------------------------------------------------------------------------- section 4
 
 
+#: The |r| heatmap: height of a row (in) with the scopes as rows and with the sensors as rows,
+#: the type of its values (pt), the room a value or a tick label keeps from the next one (pt) and
+#: the tallest the figure grows (in: a page of the report with its caption).
+HEATMAP_SCOPE_ROW_IN = 0.3
+HEATMAP_SENSOR_ROW_IN = 0.14
+HEATMAP_VALUE_PT = 5.5
+HEATMAP_CLEAR_PT = 1.5
+HEATMAP_MAX_HEIGHT_IN = 9.0
+
+
 def fig_correlation_heatmap(
     abs_r: pd.DataFrame, *, threshold: float, chosen: list[str], fmt: str = "png"
 ) -> bytes:
-    """Heatmap of |r| (rows = scopes: speeds and pooled, columns = sensors)."""
+    """Heatmap of |r|: a cell per scope (training speed, pooled) and sensor, its value in it.
+
+    The sensors are the columns while a column holds a cell's value, else the rows (a row per
+    sensor, the figure as tall as they need, at most :data:`HEATMAP_MAX_HEIGHT_IN`): from 4 to 40
+    sensors every value is written. Sensor names side by side that would run together stand
+    upright; a value is written only where every cell holds one (:func:`_heatmap`).
+
+    Parameters
+    ----------
+    abs_r : DataFrame
+        |r| with a row per scope and a column per sensor.
+    threshold : float
+        The key-sensor threshold: bold values at or above it, a red line on the colour bar.
+    chosen : list of str
+        The chosen key sensors, named in bold.
+    """
     with plt.rc_context({**STYLE, "axes.grid": False}):
-        nrow, ncol = abs_r.shape
-        fig, ax = plt.subplots(figsize=(PAGE_WIDTH_IN, 0.75 + 0.3 * nrow), constrained_layout=True)
-        vals = abs_r.to_numpy(dtype=float)
-        lo = float(np.nanmin(vals)) if np.isfinite(vals).any() else 0.0
-        im = ax.imshow(vals, aspect="auto", cmap="viridis", vmin=min(lo, threshold - 0.05), vmax=1.0)
-        ax.set_xticks(range(ncol), abs_r.columns)
-        ax.set_yticks(range(nrow), abs_r.index)
-        ax.set_xlabel("sensor (chosen key sensors in bold)")
-        ax.set_ylabel("scope (training speed, r/min)")
-        for lab in ax.get_xticklabels():
-            if lab.get_text() in chosen:
-                lab.set_fontweight("bold")
+        fig, written = _heatmap(abs_r, threshold=threshold, chosen=chosen, sensors_as_rows=False)
+        if not written:
+            plt.close(fig)
+            fig, _ = _heatmap(abs_r.T, threshold=threshold, chosen=chosen, sensors_as_rows=True)
+        return render(fig, fmt)
+
+
+def _heatmap(table: pd.DataFrame, *, threshold: float, chosen: list[str], sensors_as_rows: bool):
+    """The |r| heatmap of ``table`` (its rows drawn as rows) and whether its values are written.
+
+    Drawn twice: once to measure the laid-out cells and tick labels (matplotlib's own extents),
+    then with the x tick labels upright where side by side they would be closer than
+    :data:`HEATMAP_CLEAR_PT`, the figure taller by what they need, and the values written where
+    the widest of them (bold ``.999``) fits every cell with that room on each side.
+    """
+    nrow, ncol = table.shape
+    if sensors_as_rows:
+        row_in = min(HEATMAP_SENSOR_ROW_IN, (HEATMAP_MAX_HEIGHT_IN - 0.9) / max(nrow, 1))
+        # a row holds its tick label: smaller type where the rows are thinner than the default
+        ytick_pt = min(STYLE["ytick.labelsize"], 72.0 * row_in / 1.4)
+    else:
+        row_in, ytick_pt = HEATMAP_SCOPE_ROW_IN, STYLE["ytick.labelsize"]
+    height = 0.75 + row_in * nrow + (0.15 if sensors_as_rows else 0.0)
+    fig, ax = plt.subplots(figsize=(PAGE_WIDTH_IN, height), constrained_layout=True)
+    vals = table.to_numpy(dtype=float)
+    lo = float(np.nanmin(vals)) if np.isfinite(vals).any() else 0.0
+    im = ax.imshow(vals, aspect="auto", cmap="viridis", vmin=min(lo, threshold - 0.05), vmax=1.0)
+    ax.set_xticks(range(ncol), table.columns)
+    ax.set_yticks(range(nrow), table.index)
+    ax.tick_params(axis="y", labelsize=ytick_pt)
+    sensors = "sensor (chosen key sensors in bold)"
+    scopes = "scope (training speed, r/min)"
+    ax.set_xlabel(scopes if sensors_as_rows else sensors)
+    ax.set_ylabel(sensors if sensors_as_rows else scopes)
+    for lab in ax.get_yticklabels() if sensors_as_rows else ax.get_xticklabels():
+        if lab.get_text() in chosen:
+            lab.set_fontweight("bold")
+    cb = fig.colorbar(im, ax=ax, pad=0.01, fraction=0.03)
+    cb.set_label("|r| (-)")
+    cb.ax.axhline(threshold, color="red", lw=1)
+
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    pt = 72.0 / fig.dpi
+    widths = [lab.get_window_extent(renderer).width * pt for lab in ax.get_xticklabels()]
+    if widths and max(widths) + HEATMAP_CLEAR_PT > ax.bbox.width * pt / ncol:
+        before = max(lab.get_window_extent(renderer).height for lab in ax.get_xticklabels()) / fig.dpi
+        ax.tick_params(axis="x", labelrotation=90)
+        fig.canvas.draw()
+        after = max(lab.get_window_extent(renderer).height for lab in ax.get_xticklabels()) / fig.dpi
+        fig.set_size_inches(PAGE_WIDTH_IN, min(height + after - before, HEATMAP_MAX_HEIGHT_IN))
+        fig.canvas.draw()
+
+    cell_w, cell_h = ax.bbox.width * pt / ncol, ax.bbox.height * pt / nrow
+    probe = ax.text(0, 0, ".999", fontsize=HEATMAP_VALUE_PT, fontweight="bold")
+    box = probe.get_window_extent(renderer)
+    probe.remove()
+    written = box.width * pt + 2 * HEATMAP_CLEAR_PT <= cell_w and box.height * pt + HEATMAP_CLEAR_PT <= cell_h
+    if written:
         for i in range(nrow):
             for j in range(ncol):
                 v = vals[i, j]
@@ -145,14 +218,11 @@ def fig_correlation_heatmap(
                         f"{v:.3f}"[1:] if v < 1 else "1.00",
                         ha="center",
                         va="center",
-                        fontsize=5.5,
+                        fontsize=HEATMAP_VALUE_PT,
                         color=text_colour(im.cmap(im.norm(v))),
                         fontweight="bold" if v >= threshold else "normal",
                     )
-        cb = fig.colorbar(im, ax=ax, pad=0.01, fraction=0.03)
-        cb.set_label("|r| (-)")
-        cb.ax.axhline(threshold, color="red", lw=1)
-        return render(fig, fmt)
+    return fig, written
 
 
 def fig_matrix(matrix: pd.DataFrame, *, label: str = "Pearson r (-)", fmt: str = "png") -> bytes:
@@ -377,18 +447,51 @@ def fig_multi_condition(
 
 # --------------------------------------------------------------------------- model comparison
 
-#: One colour per model kind (stable across figures); unknown kinds cycle through tab10.
+#: One colour per model the comparison can score, the same in every figure: its kinds
+#: (rafi.family.compare.KINDS), the CV-weighted ensemble and a prior's adaptation candidates
+#: (rafi.family.adapted), no two alike.
 MODEL_COLOURS = {
     "rafi": "#c0392b",
     "rafi_linear": "#e07b00",
     "ridge_global": "#1f77b4",
     "dynamic": "#2e7d32",
+    "grey_box": "#bcbd22",
     "temperature_ridge": "#6a3d9a",
+    "ensemble": "#17becf",
+    "prior": "#8c564b",
+    "prior_gain": "#c49c94",
+    "prior_time": "#e377c2",
+    "prior_ridge": "#f7b6d2",
+    "prior_shared_gain": "#7f7f7f",
+    "prior_shared_ridge": "#6b6ecf",
 }
+#: The colours a model without one of its own takes, in turn (tab20b, then tab20).
+SPARE_COLOURS = tuple(to_hex(c) for name in ("tab20b", "tab20") for c in plt.get_cmap(name).colors)
+#: Width (pt) of the black outline of the offered model's bars.
+OFFERED_EDGE_PT = 1.4
 
 
-def _model_colour(name: str, k: int) -> str:
-    return MODEL_COLOURS.get(name, plt.get_cmap("tab10")((k + 4) % 10))
+def model_colours(models) -> dict:
+    """The colour of each model of a figure: its own (:data:`MODEL_COLOURS`), else the first of
+    :data:`SPARE_COLOURS` no other model of the figure has.
+
+    Parameters
+    ----------
+    models : iterable of str
+        The figure's models.
+
+    Returns
+    -------
+    dict
+        model -> colour (hex); distinct while the figure has at most as many models without a
+        colour of their own as there are spare colours (40), then the spares repeat.
+    """
+    models = list(models)
+    out = {m: MODEL_COLOURS[m] for m in models if m in MODEL_COLOURS}
+    spare = [c for c in SPARE_COLOURS if c not in set(out.values())] or list(SPARE_COLOURS)
+    for k, m in enumerate(m for m in models if m not in out):
+        out[m] = spare[k % len(spare)]
+    return out
 
 
 def fig_comparison_bars(
@@ -398,6 +501,7 @@ def fig_comparison_bars(
     failed: pd.DataFrame | None = None,
     gate_um: float | None = None,
     labels: dict | None = None,
+    offered: str | None = None,
     fmt: str = "png",
 ) -> bytes:
     """Grouped bars: max |residual| per validation run (groups) and model (bars).
@@ -414,9 +518,13 @@ def fig_comparison_bars(
         The ``max_residual_um`` gate (dashed red line).
     labels : dict, optional
         model -> legend label (e.g. marking the champion).
+    offered : str, optional
+        The model offered to the machine: its bars (and its legend entry) outlined in black
+        (:data:`OFFERED_EDGE_PT`). Each model has its colour (:func:`model_colours`).
     """
     with plt.rc_context(STYLE):
         runs, models = list(after.index), list(after.columns)
+        colours = model_colours(models)
         n, m = len(runs), max(len(models), 1)
         fig, ax = plt.subplots(figsize=(PAGE_WIDTH_IN, 2.9), constrained_layout=True)
         x = np.arange(n, dtype=float)
@@ -447,8 +555,17 @@ def fig_comparison_bars(
                         )
                 vals = np.minimum(vals, top)
             bad = failed[name].to_numpy(bool) if failed is not None and name in failed else np.zeros(n, bool)
-            colour = _model_colour(name, k)
-            ax.bar(pos, np.nan_to_num(vals), width * 0.92, color=colour, label=(labels or {}).get(name, name))
+            outline = (
+                {"edgecolor": "black", "linewidth": OFFERED_EDGE_PT} if name == offered else {"linewidth": 0}
+            )
+            ax.bar(
+                pos,
+                np.nan_to_num(vals),
+                width * 0.92,
+                color=colours[name],
+                label=(labels or {}).get(name, name),
+                **outline,
+            )
             if bad.any():
                 ax.bar(
                     pos[bad],
