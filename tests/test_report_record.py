@@ -196,6 +196,9 @@ def test_section_with_ambient_sensor_and_instruments(synthetic):
     (per_run,) = html_tables(html, "num test-runs")
     a = [c["text"] for c in logs["rows"][0]]
     assert a[1] == "2026-01-05 08:00:00" and a[2] == "10:13:20" and a[5] == "10\u00a0s"
+    # a speed ("12 000 r/min") never breaks after "r/": its cells are the number cells' (class n)
+    speeds = [row[per_run["headers"].index("speed")] for row in per_run["rows"]]
+    assert speeds and all("r/min" in c["text"] and "n" in c["cls"].split() for c in speeds)
     assert a[-3:] == ["20.00", "21.50", "1.50"]
     b = [c["text"] for c in logs["rows"][1]]
     # log B has no clock: its span in hours since its first sample (200 steps of 5 s), no date
