@@ -117,15 +117,11 @@ def probes_context(machine: str, rows: list[dict]) -> dict:
 
 
 def render_probes_html(ctx: dict) -> str:
-    """The page as HTML (jinja2, ``templates/probes.html.j2``)."""
-    import jinja2
+    """The page as HTML (``templates/probes.html.j2``, in the environment and with the stylesheet
+    of a unit's report: :func:`rafi.report.render._environment`)."""
+    from rafi.report.render import _environment
 
-    env = jinja2.Environment(
-        loader=jinja2.PackageLoader("rafi.report", "templates"),
-        autoescape=jinja2.select_autoescape(["html", "j2"]),
-        undefined=jinja2.StrictUndefined,
-    )
-    return env.get_template("probes.html.j2").render(**ctx)
+    return _environment().get_template("probes.html.j2").render(**ctx)
 
 
 def render_probes_pdf(html: str, probe_reports: list[str | Path]) -> bytes:

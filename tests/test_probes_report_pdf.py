@@ -1,0 +1,110 @@
+"""The report of a machine with several probes as the engineer signs it: the cover page
+(rafi.report.probes_page, templates/probes.html.j2) and the PDF that appends every probe's own
+report to it (``render_probes_pdf``), read back with poppler (pdftotext), an independent reader.
+
+The fixture is a machine ``m`` with three probes: each unit ``m@<probe>`` is the report fixture
+(tests/data/report_fixture/tapping-center-a) with the probe's settings, its report rendered with
+the real template (what rule report writes), the cover built from the units' tables as rule
+probes_report builds it (the mixed fleet read page by page, 2026-12-01: FL_THERMAL's cover was
+wider than A4).
+"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+import yaml
+from conftest import which_or_skip
+from test_report import FIXTURE, _context
+from test_report_layout import layout_defects, pdf_words
+
+from rafi.report.probes_page import probe_row, probes_context, render_probes_html, render_probes_pdf
+from rafi.report.render import render_html
+from rafi.settings import machine_settings
+
+ROOT = Path(__file__).resolve().parents[1]
+MACHINE = "m"
+#: The probes as rafi init writes them, one with a description (a second line in its table cell).
+PROBES = {
+    "ch1": {"column": "ch1(um)", "description": "spindle nose, axial (Z), on the tool holder"},
+    "ch2": "ch2(um)",
+    "ch3": "ch3(um)",
+}
+
+
+def _config() -> dict:
+    cfg = yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))
+    cfg["machines"][MACHINE] = {"input": {"format": "csv", "probes": PROBES}}
+    return cfg
+
+
+def _unit_paths(results: Path) -> dict:
+    """The unit's tables rule probes_report reads (workflow/rules/report_common.smk)."""
+    rel = {
+        "summary": "comparison/summary.csv",
+        "per_run": "comparison/per_run.csv",
+        "decision": "registry/decision.json",
+        "audit": "audit.csv",
+        "validation": "validation/summary.csv",
+    }
+    return {key: str(results / path) for key, path in rel.items()}
+
+
+@pytest.fixture(scope="module")
+def project(tmp_path_factory):
+    """The machine's units rendered as rule report renders them, and the cover's inputs."""
+    tmp = tmp_path_factory.mktemp("probes")
+    cfg = _config()
+    rows, reports = [], []
+    for probe in PROBES:
+        unit = f"{MACHINE}@{probe}"
+        results = tmp / "results" / unit
+        shutil.copytree(FIXTURE, results)
+        settings = machine_settings(cfg, unit)
+        out = tmp / "reports" / unit
+        out.mkdir(parents=True)
+        (out / "qualification.html").write_text(render_html(_context(results, settings, machine=unit)))
+        reports.append(out / "qualification.html")
+        rows.append(probe_row(probe, settings, _unit_paths(results), f"../{unit}/qualification.html"))
+    return {"tmp": tmp, "rows": rows, "reports": reports}
+
+
+@pytest.fixture(scope="module")
+def merged(project):
+    """The cover's HTML and the whole PDF, written where rule probes_report writes them."""
+    out = project["tmp"] / "reports" / MACHINE
+    out.mkdir(parents=True, exist_ok=True)
+    html = render_probes_html(probes_context(MACHINE, project["rows"]))
+    (out / "qualification.html").write_text(html, encoding="utf-8")
+    (out / "qualification.pdf").write_bytes(render_probes_pdf(html, project["reports"]))
+    return {"html": html, "pdf": out / "qualification.pdf", "dir": out}
+
+
+def _page_texts(pdf: Path) -> list[str]:
+    text = subprocess.run(
+        [which_or_skip("pdftotext"), "-layout", str(pdf), "-"], capture_output=True, text=True, check=True
+    ).stdout
+    return text.split("\f")[:-1]
+
+
+def _cover_pages(pdf: Path) -> int:
+    """Pages before the first probe's own report (its title line)."""
+    pages = _page_texts(pdf)
+    return next(i for i, t in enumerate(pages) if f"RAFI qualification report: {MACHINE}@" in t)
+
+
+def test_the_cover_table_stays_inside_the_page(merged, tmp_path):
+    """FL_THERMAL's cover table ran past the right edge of A4: its "report" column clipped, its
+    right border gone. Every word of the cover pages lies inside the text area of the page."""
+    n_cover = _cover_pages(merged["pdf"])
+    assert n_cover >= 1
+    defects = layout_defects(merged["pdf"], tmp_path / "xml")
+    on_cover = [d for d in defects if int(re.match(r"page (\d+):", d).group(1)) <= n_cover]
+    assert on_cover == [], on_cover
+    # the words of the report column are there (not clipped away)
+    first = " ".join(w["text"] for w in pdf_words(merged["pdf"])[0]["words"])
+    assert "report" in first and all(probe in first for probe in PROBES)
