@@ -24,6 +24,7 @@ from test_report_layout import layout_defects, pdf_words
 
 from rafi.report.probes_page import probe_row, probes_context, render_probes_html, render_probes_pdf
 from rafi.report.render import render_html
+from rafi.report.signoff import probes_signoff
 from rafi.settings import machine_settings
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -36,9 +37,14 @@ PROBES = {
 }
 
 
+#: What the machine's settings say of the document (report.document); the approver is left to sign.
+DOCUMENT = {"number": "QR-0042", "prepared_by": "A. Engineer"}
+
+
 def _config() -> dict:
     cfg = yaml.safe_load((ROOT / "config.yaml").read_text(encoding="utf-8"))
-    cfg["machines"][MACHINE] = {"input": {"format": "csv", "probes": PROBES}}
+    machine = {"input": {"format": "csv", "probes": PROBES}, "report": {"document": DOCUMENT}}
+    cfg["machines"][MACHINE] = machine
     return cfg
 
 
@@ -50,6 +56,7 @@ def _unit_paths(results: Path) -> dict:
         "decision": "registry/decision.json",
         "audit": "audit.csv",
         "validation": "validation/summary.csv",
+        "model": "model.json",
     }
     return {key: str(results / path) for key, path in rel.items()}
 
@@ -59,7 +66,7 @@ def project(tmp_path_factory):
     """The machine's units rendered as rule report renders them, and the cover's inputs."""
     tmp = tmp_path_factory.mktemp("probes")
     cfg = _config()
-    rows, reports = [], []
+    rows, reports, revisions = [], [], {}
     for probe in PROBES:
         unit = f"{MACHINE}@{probe}"
         results = tmp / "results" / unit
@@ -67,10 +74,18 @@ def project(tmp_path_factory):
         settings = machine_settings(cfg, unit)
         out = tmp / "reports" / unit
         out.mkdir(parents=True)
-        (out / "qualification.html").write_text(render_html(_context(results, settings, machine=unit)))
+        ctx = _context(results, settings, machine=unit)
+        revisions[probe] = ctx["signoff"]["revision"]
+        (out / "qualification.html").write_text(render_html(ctx))
         reports.append(out / "qualification.html")
         rows.append(probe_row(probe, settings, _unit_paths(results), f"../{unit}/qualification.html"))
-    return {"tmp": tmp, "rows": rows, "reports": reports}
+    return {
+        "tmp": tmp,
+        "rows": rows,
+        "reports": reports,
+        "revisions": revisions,
+        "settings": machine_settings(cfg, MACHINE),
+    }
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +93,7 @@ def merged(project):
     """The cover's HTML and the whole PDF, written where rule probes_report writes them."""
     out = project["tmp"] / "reports" / MACHINE
     out.mkdir(parents=True, exist_ok=True)
-    html = render_probes_html(probes_context(MACHINE, project["rows"]))
+    html = render_probes_html(probes_context(MACHINE, project["rows"], project["settings"]))
     (out / "qualification.html").write_text(html, encoding="utf-8")
     (out / "qualification.pdf").write_bytes(render_probes_pdf(html, project["reports"]))
     return {"html": html, "pdf": out / "qualification.pdf", "dir": out}
@@ -108,3 +123,26 @@ def test_the_cover_table_stays_inside_the_page(merged, tmp_path):
     # the words of the report column are there (not clipped away)
     first = " ".join(w["text"] for w in pdf_words(merged["pdf"])[0]["words"])
     assert "report" in first and all(probe in first for probe in PROBES)
+
+
+def test_the_cover_has_the_page_frame_and_the_sign_off_block_of_a_units_report(merged, project):
+    """FL_THERMAL's cover pages had no running header, no revision, no page number and no
+    Document no. / Prepared / Approved block, where each probe's report has them."""
+    pages = _page_texts(merged["pdf"])
+    n_cover = _cover_pages(merged["pdf"])
+    revision = re.search(r"rev\. ([0-9a-f]{10}) \u00b7", pages[0]).group(1)
+    for page in pages[:n_cover]:
+        assert f"RAFI qualification report \u2014 {MACHINE}" in page and f"rev. {revision}" in page
+        assert re.search(r"\bPage \d+ of \d+\b", page), page[-300:]
+    first = re.sub(r"\s+", " ", pages[0])
+    for label in ("Document no.", "Revision", "Prepared by", "Approved by", "Date"):
+        assert label in first
+    assert DOCUMENT["number"] in first and DOCUMENT["prepared_by"] in first
+    # the revision is a hash of the probes' reports' revisions, each said on the cover
+    assert [row["revision"] for row in project["rows"]] == list(project["revisions"].values())
+    assert all(rev in first for rev in project["revisions"].values())
+    assert probes_signoff(project["settings"], project["revisions"])["revision"] == revision
+    other = {**project["revisions"], "ch2": "0" * 10}
+    assert probes_signoff(project["settings"], other)["revision"] != revision
+    # the HTML has the same block (one template for both)
+    assert 'id="signoff"' in merged["html"] and DOCUMENT["number"] in merged["html"]

@@ -15,9 +15,12 @@ from pathlib import Path
 
 import pandas as pd
 
+from rafi.report.choices import generated_at
 from rafi.report.format import fmt_num
+from rafi.report.inputs import load_results
 from rafi.report.probe import probe_sign_record
 from rafi.report.replay_section import above_gate_words, replay_gaps_of
+from rafi.report.signoff import probes_signoff, section_signoff
 
 
 def _json(path) -> dict:
@@ -41,7 +44,8 @@ def probe_row(
         ``decision`` (registry/decision.json), ``audit`` (audit.csv: the files' probe sign;
         optional), ``replay`` (deploy/replay_summary.csv: the offered model with the
         controller's limits; optional) and ``validation`` (validation/summary.csv: the runs'
-        noise floors beside per_run's; optional) of the unit.
+        noise floors beside per_run's; optional) and ``model`` (model.json: RAFI as published,
+        which the revision of the unit's report hashes; optional) of the unit.
     report_href : str
         The probe's own report, relative to this page.
     sign_key : str, optional
@@ -60,7 +64,8 @@ def probe_row(
         validation run of the offered model), ``replay_above_gate`` (where the offered model with
         the controller's limits leaves more than the largest-residual gate, in the words of the
         probe's own verdict: :func:`rafi.report.replay_section.above_gate_words`; None where it
-        does not: the replay says, it does not gate) and ``href``.
+        does not: the replay says, it does not gate), ``revision`` (the revision of the probe's
+        own report: :func:`unit_revision`) and ``href``.
     """
     disp = settings["input"]["displacement"]
     described = (settings["input"].get("probes") or {}).get(probe, {}).get("description")
@@ -99,16 +104,32 @@ def probe_row(
         "decision": str(decision.get("decision", "")),
         "runs": runs,
         "replay_above_gate": above_gate_words(gaps),
+        "revision": unit_revision(paths, settings),
         "href": report_href,
     }
 
 
-def probes_context(machine: str, rows: list[dict]) -> dict:
+def unit_revision(paths: Mapping[str, str], settings: Mapping) -> str:
+    """The revision of a probe's own report, as that report computes it
+    (:func:`rafi.report.signoff.section_signoff` of the unit's ``decision``, ``model`` and ``audit``
+    and its settings)."""
+    keys = ("decision", "model", "audit")
+    res = load_results({key: paths.get(key) for key in keys})
+    return section_signoff(res, dict(settings))["revision"]
+
+
+def probes_context(machine: str, rows: list[dict], settings: Mapping | None = None, now=None) -> dict:
     """The template's context: the machine, its probes' rows, the machine's verdict (PASS only
-    when every probe passes) and ``above_gate``: the probes whose offered model with the
-    controller's limits leaves more than the largest-residual gate (said, not judged)."""
+    when every probe passes), ``above_gate``: the probes whose offered model with the
+    controller's limits leaves more than the largest-residual gate (said, not judged), the
+    sign-off block (:func:`rafi.report.signoff.probes_signoff` of the machine's settings
+    ``settings`` and the rows' revisions) and ``generated``
+    (:func:`rafi.report.choices.generated_at` of ``now``)."""
+    revisions = {r["probe"]: r["revision"] for r in rows}
     return {
         "machine": machine,
+        "generated": generated_at(now),
+        "signoff": probes_signoff(dict(settings or {}), revisions),
         "probes": rows,
         "verdict": "PASS" if rows and all(r["verdict"] == "PASS" for r in rows) else "FAIL",
         "n_pass": sum(r["verdict"] == "PASS" for r in rows),
