@@ -66,7 +66,7 @@ def project(tmp_path_factory):
     """The machine's units rendered as rule report renders them, and the cover's inputs."""
     tmp = tmp_path_factory.mktemp("probes")
     cfg = _config()
-    rows, reports, revisions = [], [], {}
+    rows, reports, revisions = [], {}, {}
     for probe in PROBES:
         unit = f"{MACHINE}@{probe}"
         results = tmp / "results" / unit
@@ -77,7 +77,7 @@ def project(tmp_path_factory):
         ctx = _context(results, settings, machine=unit)
         revisions[probe] = ctx["signoff"]["revision"]
         (out / "qualification.html").write_text(render_html(ctx))
-        reports.append(out / "qualification.html")
+        reports[unit] = out / "qualification.html"
         rows.append(probe_row(probe, settings, _unit_paths(results), f"../{unit}/qualification.html"))
     return {
         "tmp": tmp,
@@ -146,3 +146,27 @@ def test_the_cover_has_the_page_frame_and_the_sign_off_block_of_a_units_report(m
     assert probes_signoff(project["settings"], other)["revision"] != revision
     # the HTML has the same block (one template for both)
     assert 'id="signoff"' in merged["html"] and DOCUMENT["number"] in merged["html"]
+
+
+def test_every_page_has_one_number_of_the_whole_pdf(merged, project):
+    """FL_THERMAL's 126 pages kept each report's own "Page 1 of 24": no page could be cited. Every
+    page now says "Page k of N" with k its place in the PDF and N its pages, and nothing else
+    "Page ... of ..."; each probe's own page is said beside it ("m@ch1: page 3 of 24"), and the
+    contents of each probe's report lead to the pages of the PDF its sections are on."""
+    pages = _page_texts(merged["pdf"])
+    n = len(pages)
+    for k, page in enumerate(pages, start=1):
+        assert re.findall(r"\bPage (\d+) of (\d+)\b", page) == [(str(k), str(n))], (k, page[-400:])
+    starts = [i for i, t in enumerate(pages) if re.search(rf"RAFI qualification report: {MACHINE}@ch\d\n", t)]
+    assert len(starts) == len(PROBES) and starts[0] == _cover_pages(merged["pdf"])
+    ends = starts[1:] + [n]
+    for probe, start, end in zip(PROBES, starts, ends):
+        own = end - start
+        for j in range(start, end):
+            assert f"{MACHINE}@{probe}: page {j - start + 1} of {own}" in pages[j], (probe, j)
+        toc = re.findall(r"^\s*(\d+)\. (.+?) \.{3,}\s*(\d+)\s*$", pages[start], flags=re.M)
+        assert len(toc) >= 10, pages[start]
+        for number, title, page_no in toc:
+            assert start < int(page_no) <= end, (probe, title, page_no)
+            text = re.sub(r"\s+", " ", pages[int(page_no) - 1])
+            assert f"{number}. {title.strip()[:20]}" in text, (probe, number, title, page_no)

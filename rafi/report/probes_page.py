@@ -145,14 +145,68 @@ def render_probes_html(ctx: dict) -> str:
     return _environment().get_template("probes.html.j2").render(**ctx)
 
 
-def render_probes_pdf(html: str, probe_reports: list[str | Path]) -> bytes:
-    """The PDF: this page, then every page of each probe's own report (its HTML, rendered again
-    by WeasyPrint: the figures are embedded, so the HTML stands alone)."""
-    from weasyprint import HTML
+#: Renderings of the parts at most, after the first that counts their pages: the page numbers of
+#: the next renderings do not move a page break (they are in the page margins), only the width of
+#: a number in a report's contents could, by a line.
+MAX_RENUMBERINGS = 3
 
-    cover = HTML(string=html).render()
-    pages = list(cover.pages)
-    for path in probe_reports:
+
+def numbering_css(first_page: int, total: int, part: str | None = None, part_pages: int = 0) -> str:
+    """The page numbers of one part of the PDF (``templates/styles/numbering.css.j2``): its pages
+    numbered from ``first_page`` of ``total``; a probe's report (``part``: its unit) also its own
+    page of ``part_pages``."""
+    from rafi.report.render import _environment
+
+    template = _environment().get_template("styles/numbering.css.j2")
+    return template.render(first_page=first_page, total=total, part=part, part_pages=part_pages)
+
+
+def render_probes_pdf(html: str, probe_reports: Mapping[str, str | Path]) -> bytes:
+    """The PDF: this page, then every page of each probe's own report (its HTML, rendered again
+    by WeasyPrint: the figures are embedded, so the HTML stands alone), numbered as one document.
+
+    Every page's footer says its place in the whole PDF, "Page k of N", the number to cite; a
+    probe's report also says its own page beside it (``<unit>: page j of n``, the number of its
+    own PDF), and its contents lead to the pages of the whole PDF (:func:`numbering_css`). The
+    parts are rendered once to count their pages, then again numbered (until the counts hold:
+    :data:`MAX_RENUMBERINGS`).
+
+    Parameters
+    ----------
+    html : str
+        This page.
+    probe_reports : Mapping
+        ``unit -> path`` of each probe's report (``reports/<machine>@<probe>/qualification.html``),
+        in the order they follow this page.
+    """
+    import gc
+
+    from weasyprint import CSS, HTML
+
+    parts = [(None, HTML(string=html))]
+    for unit, path in probe_reports.items():
         text = Path(path).read_text(encoding="utf-8")
-        pages += HTML(string=text, base_url=str(Path(path).parent)).render().pages
-    return cover.copy(pages).write_pdf()
+        parts.append((unit, HTML(string=text, base_url=str(Path(path).parent))))
+
+    # WeasyPrint allocates millions of small objects: the garbage collector paused, as render_pdf
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        counts = [len(doc.render().pages) for _, doc in parts]
+        for _ in range(MAX_RENUMBERINGS):
+            firsts = [1 + sum(counts[:i]) for i in range(len(parts))]
+            docs = [
+                doc.render(stylesheets=[CSS(string=numbering_css(first, sum(counts), unit, n))])
+                for (unit, doc), first, n in zip(parts, firsts, counts)
+            ]
+            numbered = [len(doc.pages) for doc in docs]
+            if numbered == counts:
+                break
+            counts = numbered
+        else:
+            raise RuntimeError(f"the page counts of the parts do not settle: {counts}")
+        pages = [page for doc in docs for page in doc.pages]
+        return docs[0].copy(pages).write_pdf()
+    finally:
+        if enabled:
+            gc.enable()
