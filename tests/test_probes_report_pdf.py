@@ -93,9 +93,10 @@ def merged(project):
     """The cover's HTML and the whole PDF, written where rule probes_report writes them."""
     out = project["tmp"] / "reports" / MACHINE
     out.mkdir(parents=True, exist_ok=True)
-    html = render_probes_html(probes_context(MACHINE, project["rows"], project["settings"]))
+    ctx = probes_context(MACHINE, project["rows"], project["settings"])
+    html = render_probes_html(ctx)
     (out / "qualification.html").write_text(html, encoding="utf-8")
-    (out / "qualification.pdf").write_bytes(render_probes_pdf(html, project["reports"]))
+    (out / "qualification.pdf").write_bytes(render_probes_pdf(ctx, project["reports"]))
     return {"html": html, "pdf": out / "qualification.pdf", "dir": out}
 
 
@@ -170,3 +171,28 @@ def test_every_page_has_one_number_of_the_whole_pdf(merged, project):
             assert start < int(page_no) <= end, (probe, title, page_no)
             text = re.sub(r"\s+", " ", pages[int(page_no) - 1])
             assert f"{number}. {title.strip()[:20]}" in text, (probe, number, title, page_no)
+
+
+def _html_text(html: str) -> str:
+    body = html[html.index("<body") :]
+    return re.sub(r"\s+", " ", re.sub(r"<[^>]+>", " ", body))
+
+
+def test_the_cover_says_where_the_reports_are_in_each_medium(merged):
+    """The HTML said "Each probe's full report follows this page" where nothing follows it (it
+    links them). The HTML says they are linked; the PDF says they follow, at which pages, and
+    those are the pages each report is on."""
+    html = _html_text(merged["html"])
+    assert "follows this page" not in html and "follows in this PDF" not in html
+    assert "Each probe's full report is linked" in html
+    for probe in PROBES:
+        assert f'href="../{MACHINE}@{probe}/qualification.html"' in merged["html"]
+    pages = _page_texts(merged["pdf"])
+    cover = re.sub(r"\s+", " ", " ".join(pages[: _cover_pages(merged["pdf"])]))
+    assert "Each probe's full report follows" in cover and "linked" not in cover
+    starts = [i for i, t in enumerate(pages) if re.search(rf"RAFI qualification report: {MACHINE}@ch\d\n", t)]
+    ends = starts[1:] + [len(pages)]
+    for probe, start, end in zip(PROBES, starts, ends):
+        said = f"pages {start + 1}\u2013{end}"
+        assert f"Full report: {said} of this PDF" in cover, (probe, said)
+        assert cover.count(said) == 2, (probe, said)  # in its row too

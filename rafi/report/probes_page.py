@@ -1,5 +1,6 @@
 """The qualification report of a machine with several probes: the verdict of every probe on its
-first page, then a section per probe, then every probe's own report (the PDF holds their pages).
+first page, then a section per probe, then every probe's own report (the HTML links them, the PDF
+holds their pages, numbered as one document).
 
 A machine of ``input.probes`` is qualified one probe at a time (``<machine>@<probe>``: its own
 model, chosen by the same training-run cross-validation, its registry and its report). This page
@@ -137,12 +138,17 @@ def probes_context(machine: str, rows: list[dict], settings: Mapping | None = No
     }
 
 
-def render_probes_html(ctx: dict) -> str:
+def render_probes_html(ctx: dict, medium: str = "html") -> str:
     """The page as HTML (``templates/probes.html.j2``, in the environment and with the stylesheet
-    of a unit's report: :func:`rafi.report.render._environment`)."""
+    of a unit's report: :func:`rafi.report.render._environment`).
+
+    ``medium``: ``html``, the page written beside the probes' reports, which links them; ``pdf``,
+    the first pages of the PDF, which the probes' reports follow (then every row of ``ctx``
+    carries ``pages``, the first and the last page of its report in the PDF:
+    :func:`render_probes_pdf`)."""
     from rafi.report.render import _environment
 
-    return _environment().get_template("probes.html.j2").render(**ctx)
+    return _environment().get_template("probes.html.j2").render(**ctx, medium=medium)
 
 
 #: Renderings of the parts at most, after the first that counts their pages: the page numbers of
@@ -161,8 +167,9 @@ def numbering_css(first_page: int, total: int, part: str | None = None, part_pag
     return template.render(first_page=first_page, total=total, part=part, part_pages=part_pages)
 
 
-def render_probes_pdf(html: str, probe_reports: Mapping[str, str | Path]) -> bytes:
-    """The PDF: this page, then every page of each probe's own report (its HTML, rendered again
+def render_probes_pdf(ctx: dict, probe_reports: Mapping[str, str | Path]) -> bytes:
+    """The PDF: this page (:func:`render_probes_html` for the PDF: it says at which pages each
+    probe's report follows), then every page of each probe's own report (its HTML, rendered again
     by WeasyPrint: the figures are embedded, so the HTML stands alone), numbered as one document.
 
     Every page's footer says its place in the whole PDF, "Page k of N", the number to cite; a
@@ -173,27 +180,40 @@ def render_probes_pdf(html: str, probe_reports: Mapping[str, str | Path]) -> byt
 
     Parameters
     ----------
-    html : str
-        This page.
+    ctx : dict
+        This page's context (:func:`probes_context`).
     probe_reports : Mapping
         ``unit -> path`` of each probe's report (``reports/<machine>@<probe>/qualification.html``),
-        in the order they follow this page.
+        in the order of ``ctx["probes"]``.
     """
     import gc
 
     from weasyprint import CSS, HTML
 
-    parts = [(None, HTML(string=html))]
+    if len(probe_reports) != len(ctx["probes"]):
+        raise ValueError(f"{len(probe_reports)} probe report(s) for {len(ctx['probes'])} probe(s)")
+    reports = []
     for unit, path in probe_reports.items():
         text = Path(path).read_text(encoding="utf-8")
-        parts.append((unit, HTML(string=text, base_url=str(Path(path).parent))))
+        reports.append((unit, HTML(string=text, base_url=str(Path(path).parent))))
+
+    def cover(counts: list[int]):
+        """The cover for the PDF, each row with the pages of its report (from ``counts``)."""
+        first = 1 + counts[0]
+        rows = []
+        for row, n in zip(ctx["probes"], counts[1:]):
+            rows.append({**row, "pages": (first, first + n - 1)})
+            first += n
+        return HTML(string=render_probes_html({**ctx, "probes": rows}, medium="pdf"))
 
     # WeasyPrint allocates millions of small objects: the garbage collector paused, as render_pdf
     enabled = gc.isenabled()
     gc.disable()
     try:
-        counts = [len(doc.render().pages) for _, doc in parts]
+        counts = [len(doc.render().pages) for _, doc in reports]
+        counts = [len(cover([1, *counts]).render().pages), *counts]
         for _ in range(MAX_RENUMBERINGS):
+            parts = [(None, cover(counts)), *reports]
             firsts = [1 + sum(counts[:i]) for i in range(len(parts))]
             docs = [
                 doc.render(stylesheets=[CSS(string=numbering_css(first, sum(counts), unit, n))])

@@ -21,7 +21,7 @@ with step(snakemake) as log:  # noqa: F821 - injected by Snakemake
     ctx = probes_context(smk.wildcards.folder, rows, smk.params.machine_settings)
     html = render_probes_html(ctx)
     units = [unit_name(smk.wildcards.folder, probe) for probe in smk.params.probes]
-    pdf = render_probes_pdf(html, dict(zip(units, smk.input.reports)))
+    pdf = render_probes_pdf(ctx, dict(zip(units, smk.input.reports)))
     write_text_atomic(smk.output.html, html)
     write_bytes_atomic(smk.output.pdf, pdf)
     print(
