@@ -29,13 +29,12 @@ from rafi.settings import machine_settings
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINE = "m"
-#: The probes as rafi init writes them, one with a description (a second line in its table cell).
+#: The machine's probes (input.probes), one with a description (a second line in its table cell).
 PROBES = {
     "ch1": {"column": "ch1(um)", "description": "spindle nose, axial (Z), on the tool holder"},
     "ch2": "ch2(um)",
     "ch3": "ch3(um)",
 }
-
 
 #: What the machine's settings say of the document (report.document); the approver is left to sign.
 DOCUMENT = {"number": "QR-0042", "prepared_by": "A. Engineer"}
@@ -76,7 +75,7 @@ def project(tmp_path_factory):
         out.mkdir(parents=True)
         ctx = _context(results, settings, machine=unit)
         revisions[probe] = ctx["signoff"]["revision"]
-        (out / "qualification.html").write_text(render_html(ctx))
+        (out / "qualification.html").write_text(render_html(ctx), encoding="utf-8")
         reports[unit] = out / "qualification.html"
         rows.append(probe_row(probe, settings, _unit_paths(results), f"../{unit}/qualification.html"))
     return {
