@@ -44,7 +44,8 @@ from tests.project_copy import copy_project, copy_settled, run_snakemake
 
 ROOT = Path(__file__).resolve().parents[1]
 MACHINES = ("tapping-center-a", "machining-center-b")
-TEMPLATE = ROOT / "rafi" / "report" / "templates" / "qualification.html.j2"
+#: The page frame of the reports (included by templates/qualification.html.j2 and probes.html.j2).
+TEMPLATE = ROOT / "rafi" / "report" / "templates" / "styles" / "page.css.j2"
 MM = 72.0 / 25.4
 
 EDGE_TOL_PT = 1.0

@@ -288,6 +288,13 @@ def plain(value):
     return value
 
 
+def css_string(text) -> Markup:
+    """``text`` for the inside of a double-quoted CSS string (a backslash, a quote and a line
+    break escaped), marked safe: HTML escaping does not apply inside CSS."""
+    out = str(text).replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\a ")
+    return Markup(out)
+
+
 #: The filters of the report's templates (:func:`rafi.report.render._environment`).
 FILTERS = {
     "num": fmt_num,
@@ -305,4 +312,5 @@ FILTERS = {
     "equation": equation_text,
     "term": term_text,
     "column": fmt_column,
+    "css_string": css_string,
 }

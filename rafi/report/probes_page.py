@@ -1,5 +1,6 @@
 """The qualification report of a machine with several probes: the verdict of every probe on its
-first page, then a section per probe, then every probe's own report (the PDF holds their pages).
+first page, then a section per probe, then every probe's own report (the HTML links them, the PDF
+holds their pages, numbered as one document).
 
 A machine of ``input.probes`` is qualified one probe at a time (``<machine>@<probe>``: its own
 model, chosen by the same training-run cross-validation, its registry and its report). This page
@@ -15,9 +16,12 @@ from pathlib import Path
 
 import pandas as pd
 
+from rafi.report.choices import generated_at
 from rafi.report.format import fmt_num
+from rafi.report.inputs import load_results
 from rafi.report.probe import probe_sign_record
 from rafi.report.replay_section import above_gate_words, replay_gaps_of
+from rafi.report.signoff import probes_signoff, section_signoff
 
 
 def _json(path) -> dict:
@@ -41,7 +45,8 @@ def probe_row(
         ``decision`` (registry/decision.json), ``audit`` (audit.csv: the files' probe sign;
         optional), ``replay`` (deploy/replay_summary.csv: the offered model with the
         controller's limits; optional) and ``validation`` (validation/summary.csv: the runs'
-        noise floors beside per_run's; optional) of the unit.
+        noise floors beside per_run's; optional) and ``model`` (model.json: RAFI as published,
+        which the revision of the unit's report hashes; optional) of the unit.
     report_href : str
         The probe's own report, relative to this page.
     sign_key : str, optional
@@ -60,7 +65,8 @@ def probe_row(
         validation run of the offered model), ``replay_above_gate`` (where the offered model with
         the controller's limits leaves more than the largest-residual gate, in the words of the
         probe's own verdict: :func:`rafi.report.replay_section.above_gate_words`; None where it
-        does not: the replay says, it does not gate) and ``href``.
+        does not: the replay says, it does not gate), ``revision`` (the revision of the probe's
+        own report: :func:`unit_revision`) and ``href``.
     """
     disp = settings["input"]["displacement"]
     described = (settings["input"].get("probes") or {}).get(probe, {}).get("description")
@@ -99,16 +105,32 @@ def probe_row(
         "decision": str(decision.get("decision", "")),
         "runs": runs,
         "replay_above_gate": above_gate_words(gaps),
+        "revision": unit_revision(paths, settings),
         "href": report_href,
     }
 
 
-def probes_context(machine: str, rows: list[dict]) -> dict:
+def unit_revision(paths: Mapping[str, str], settings: Mapping) -> str:
+    """The revision of a probe's own report, as that report computes it
+    (:func:`rafi.report.signoff.section_signoff` of the unit's ``decision``, ``model`` and ``audit``
+    and its settings)."""
+    keys = ("decision", "model", "audit")
+    res = load_results({key: paths.get(key) for key in keys})
+    return section_signoff(res, dict(settings))["revision"]
+
+
+def probes_context(machine: str, rows: list[dict], settings: Mapping | None = None, now=None) -> dict:
     """The template's context: the machine, its probes' rows, the machine's verdict (PASS only
-    when every probe passes) and ``above_gate``: the probes whose offered model with the
-    controller's limits leaves more than the largest-residual gate (said, not judged)."""
+    when every probe passes), ``above_gate``: the probes whose offered model with the
+    controller's limits leaves more than the largest-residual gate (said, not judged), the
+    sign-off block (:func:`rafi.report.signoff.probes_signoff` of the machine's settings
+    ``settings`` and the rows' revisions) and ``generated``
+    (:func:`rafi.report.choices.generated_at` of ``now``)."""
+    revisions = {r["probe"]: r["revision"] for r in rows}
     return {
         "machine": machine,
+        "generated": generated_at(now),
+        "signoff": probes_signoff(dict(settings or {}), revisions),
         "probes": rows,
         "verdict": "PASS" if rows and all(r["verdict"] == "PASS" for r in rows) else "FAIL",
         "n_pass": sum(r["verdict"] == "PASS" for r in rows),
@@ -116,26 +138,95 @@ def probes_context(machine: str, rows: list[dict]) -> dict:
     }
 
 
-def render_probes_html(ctx: dict) -> str:
-    """The page as HTML (jinja2, ``templates/probes.html.j2``)."""
-    import jinja2
+def render_probes_html(ctx: dict, medium: str = "html") -> str:
+    """The page as HTML (``templates/probes.html.j2``, in the environment and with the stylesheet
+    of a unit's report: :func:`rafi.report.render._environment`).
 
-    env = jinja2.Environment(
-        loader=jinja2.PackageLoader("rafi.report", "templates"),
-        autoescape=jinja2.select_autoescape(["html", "j2"]),
-        undefined=jinja2.StrictUndefined,
-    )
-    return env.get_template("probes.html.j2").render(**ctx)
+    ``medium``: ``html``, the page written beside the probes' reports, which links them; ``pdf``,
+    the first pages of the PDF, which the probes' reports follow (then every row of ``ctx``
+    carries ``pages``, the first and the last page of its report in the PDF:
+    :func:`render_probes_pdf`)."""
+    from rafi.report.render import _environment
+
+    return _environment().get_template("probes.html.j2").render(**ctx, medium=medium)
 
 
-def render_probes_pdf(html: str, probe_reports: list[str | Path]) -> bytes:
-    """The PDF: this page, then every page of each probe's own report (its HTML, rendered again
-    by WeasyPrint: the figures are embedded, so the HTML stands alone)."""
-    from weasyprint import HTML
+#: Renderings of the parts at most, after the first that counts their pages: the page numbers of
+#: the next renderings do not move a page break (they are in the page margins), only the width of
+#: a number in a report's contents could, by a line.
+MAX_RENUMBERINGS = 3
 
-    cover = HTML(string=html).render()
-    pages = list(cover.pages)
-    for path in probe_reports:
+
+def numbering_css(first_page: int, total: int, part: str | None = None, part_pages: int = 0) -> str:
+    """The page numbers of one part of the PDF (``templates/styles/numbering.css.j2``): its pages
+    numbered from ``first_page`` of ``total``; a probe's report (``part``: its unit) also its own
+    page of ``part_pages``."""
+    from rafi.report.render import _environment
+
+    template = _environment().get_template("styles/numbering.css.j2")
+    return template.render(first_page=first_page, total=total, part=part, part_pages=part_pages)
+
+
+def render_probes_pdf(ctx: dict, probe_reports: Mapping[str, str | Path]) -> bytes:
+    """The PDF: this page (:func:`render_probes_html` for the PDF: it says at which pages each
+    probe's report follows), then every page of each probe's own report (its HTML, rendered again
+    by WeasyPrint: the figures are embedded, so the HTML stands alone), numbered as one document.
+
+    Every page's footer says its place in the whole PDF, "Page k of N", the number to cite; a
+    probe's report also says its own page beside it (``<unit>: page j of n``, the number of its
+    own PDF), and its contents lead to the pages of the whole PDF (:func:`numbering_css`). The
+    parts are rendered once to count their pages, then again numbered (until the counts hold:
+    :data:`MAX_RENUMBERINGS`).
+
+    Parameters
+    ----------
+    ctx : dict
+        This page's context (:func:`probes_context`).
+    probe_reports : Mapping
+        ``unit -> path`` of each probe's report (``reports/<machine>@<probe>/qualification.html``),
+        in the order of ``ctx["probes"]``.
+    """
+    import gc
+
+    from weasyprint import CSS, HTML
+
+    if len(probe_reports) != len(ctx["probes"]):
+        raise ValueError(f"{len(probe_reports)} probe report(s) for {len(ctx['probes'])} probe(s)")
+    reports = []
+    for unit, path in probe_reports.items():
         text = Path(path).read_text(encoding="utf-8")
-        pages += HTML(string=text, base_url=str(Path(path).parent)).render().pages
-    return cover.copy(pages).write_pdf()
+        reports.append((unit, HTML(string=text, base_url=str(Path(path).parent))))
+
+    def cover(counts: list[int]):
+        """The cover for the PDF, each row with the pages of its report (from ``counts``)."""
+        first = 1 + counts[0]
+        rows = []
+        for row, n in zip(ctx["probes"], counts[1:]):
+            rows.append({**row, "pages": (first, first + n - 1)})
+            first += n
+        return HTML(string=render_probes_html({**ctx, "probes": rows}, medium="pdf"))
+
+    # WeasyPrint allocates millions of small objects: the garbage collector paused, as render_pdf
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        counts = [len(doc.render().pages) for _, doc in reports]
+        counts = [len(cover([1, *counts]).render().pages), *counts]
+        for _ in range(MAX_RENUMBERINGS):
+            parts = [(None, cover(counts)), *reports]
+            firsts = [1 + sum(counts[:i]) for i in range(len(parts))]
+            docs = [
+                doc.render(stylesheets=[CSS(string=numbering_css(first, sum(counts), unit, n))])
+                for (unit, doc), first, n in zip(parts, firsts, counts)
+            ]
+            numbered = [len(doc.pages) for doc in docs]
+            if numbered == counts:
+                break
+            counts = numbered
+        else:
+            raise RuntimeError(f"the page counts of the parts do not settle: {counts}")
+        pages = [page for doc in docs for page in doc.pages]
+        return docs[0].copy(pages).write_pdf()
+    finally:
+        if enabled:
+            gc.enable()

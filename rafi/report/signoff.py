@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import datetime as dt
 import hashlib
+from collections.abc import Mapping
 
 from rafi.artefact import canonical_json
 
@@ -89,6 +90,23 @@ def _text(value) -> str:
     return str(value).strip()
 
 
+def _block(doc: Mapping, rev: str, inputs: dict) -> dict:
+    """The block's fields from ``report.document`` (``doc``) and the revision ``rev``."""
+    values = {
+        "number": _text(doc.get("number")),
+        "revision": rev,
+        "prepared_by": _text(doc.get("prepared_by")),
+        "approved_by": _text(doc.get("approved_by")),
+        "approved_date": _text(doc.get("approved_date")),
+    }
+    return {
+        "fields": [{"key": k, "label": label, "value": values[k]} for k, label in FIELDS],
+        "revision": rev,
+        "number": values["number"],
+        "inputs": inputs,
+    }
+
+
 def section_signoff(res: dict, settings: dict) -> dict:
     """The sign-off block of the first page.
 
@@ -119,22 +137,37 @@ def section_signoff(res: dict, settings: dict) -> dict:
         audit=res.get("audit"),
         settings=settings,
     )
-    rev = revision(inputs)
-    values = {
-        "number": _text(doc.get("number")),
-        "revision": rev,
-        "prepared_by": _text(doc.get("prepared_by")),
-        "approved_by": _text(doc.get("approved_by")),
-        "approved_date": _text(doc.get("approved_date")),
-    }
-    return {
-        "fields": [{"key": k, "label": label, "value": values[k]} for k, label in FIELDS],
-        "revision": rev,
-        "number": values["number"],
-        "inputs": {
+    return _block(
+        doc,
+        revision(inputs),
+        {
             "deployed_model": inputs["deployed_model"][:12],
             "rafi_model": inputs["rafi_model"][:12],
             "raw_files": len(inputs["raw_files"]),
             "on_machine": on_machine,
         },
-    }
+    )
+
+
+def probes_signoff(settings: dict, revisions: Mapping[str, str]) -> dict:
+    """The sign-off block of the report of a machine with several probes (its cover).
+
+    Parameters
+    ----------
+    settings : dict
+        The machine's settings (``report.document``: the number and the names, as a unit's).
+    revisions : Mapping
+        ``probe -> revision`` of each probe's own report (:func:`section_signoff` of the unit),
+        in the order the reports follow the cover.
+
+    Returns
+    -------
+    dict
+        As :func:`section_signoff`; the revision is the first :data:`REVISION_DIGITS` hex digits
+        of the SHA-256 of the canonical JSON of ``{"probes": [[probe, revision], ...]}``: it
+        changes when one probe's report changes (its model, its data, its settings) or the probes
+        change, and only then. ``inputs``: ``probes`` (``[(probe, revision)]``).
+    """
+    doc = (settings.get("report") or {}).get("document") or {}
+    parts = [[str(probe), str(rev)] for probe, rev in revisions.items()]
+    return _block(doc, revision({"probes": parts}), {"probes": [tuple(p) for p in parts]})

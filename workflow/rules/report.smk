@@ -139,6 +139,7 @@ rule probes_report:
         code=code_version("probes_report"),
         probes=lambda w: PROBES[w.folder],
         settings=lambda w: {p: machine_config(unit_name(w.folder, p)) for p in PROBES[w.folder]},
+        machine_settings=lambda w: machine_config(w.folder),
         sign_keys=lambda w: {p: _probe_sign_key(config, unit_name(w.folder, p)) for p in PROBES[w.folder]},
     script:
         "../scripts/probes_report.py"

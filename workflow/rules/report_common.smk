@@ -55,10 +55,12 @@ def report_inputs(wildcards):
 
 def probes_report_inputs(wildcards):
     """Named inputs of the report of a machine with several probes (``probes_report``), every
-    probe's comparison summary, per-run table, registry decision, cleaning audit, replay summary
-    and validation summary (``summary_<probe>``, ..., ``audit_<probe>``: the files' probe sign,
-    ``replay_<probe>``: the offered model with the controller's limits, ``validation_<probe>``)
-    and, as ``reports``, every probe's report (HTML) in the order of ``input.probes``."""
+    probe's comparison summary, per-run table, registry decision, cleaning audit, replay summary,
+    validation summary and RAFI as published (``summary_<probe>``, ..., ``audit_<probe>``: the
+    files' probe sign, ``replay_<probe>``: the offered model with the controller's limits,
+    ``validation_<probe>``, ``model_<probe>``: with the decision and the audit, what the revision
+    of the probe's report hashes) and, as ``reports``, every probe's report (HTML) in the order of
+    ``input.probes``."""
     folder = wildcards.folder
     inputs = {}
     for probe in PROBES[folder]:
@@ -69,6 +71,7 @@ def probes_report_inputs(wildcards):
         inputs[f"audit_{probe}"] = out("audit", unit)
         inputs[f"replay_{probe}"] = out("replay_summary", unit)
         inputs[f"validation_{probe}"] = out("validation_summary", unit)
+        inputs[f"model_{probe}"] = out("model", unit)
     inputs["reports"] = [report_paths(unit_name(folder, p))["html"] for p in PROBES[folder]]
     return inputs
 
