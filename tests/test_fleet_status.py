@@ -211,6 +211,7 @@ def test_what_each_row_says(fleet):
     assert rows["recal-m"]["champion"] == {
         "id": ID["Y"],
         "kind": "grey_box",
+        "candidate": None,  # not adapted from a prior: no prior_* row names it
         "members": None,  # not an ensemble (tests/test_ensemble_report.py: one that is)
         "parent": None,  # not re-qualified from a prior (tests/test_requalify_e2e.py: one that is)
         "parent_machine": None,
@@ -418,7 +419,7 @@ def test_the_page_says_in_words_why_drift_was_not_checked(fleet):
         {
             "model_id": ID["C"],
             "kind": "grey_box",
-            "adaptation": {"parent": ID["Q"], "parent_machine": "quar-m"},
+            "adaptation": {"parent": ID["Q"], "parent_machine": "quar-m", "method": "gain"},
         },
     )
     paths = Paths.from_config(root, {})
@@ -431,6 +432,8 @@ def test_the_page_says_in_words_why_drift_was_not_checked(fleet):
     assert swap["drift"] == f"not checked yet (the last check was of {ID['Z'][:12]}, the model replaced)"
     assert swap["interval drift"] == "-" and "4.53" not in page and swap["state"] == "ok"
     assert swap["model in service"].endswith(f"adapted from {ID['Q'][:12]} of quar-m")
+    # named as the report's sections 1 and 3 name it, beside its kind
+    assert swap["model in service"].startswith(f"{ID['C'][:12]} grey_box (prior_gain)")
     assert _cells(page, "ok-m")["drift"] == "not checked yet (the model was promoted by the last decision)"
     # a rollback keeps the drift block of the decision before it: not the model in service's
     assert (

@@ -79,6 +79,7 @@ from rafi.ops.status import (
     parse_time,
     short_id,
 )
+from rafi.report.ensemble_section import adapted_from
 
 #: Attention rank of each state (lower: more urgent).
 RANK = {
@@ -529,10 +530,11 @@ def machine_overview(
     reg = paths.registry(machine)
     champion = _read_json(reg / "champion.json")
     champion_id = (champion or {}).get("model_id")
-    kind = parent = prior = members = None
+    kind = candidate = parent = prior = members = None
     if champion_id and "/" not in champion_id and not champion_id.startswith("."):
         artefact = _read_json(reg / "models" / f"{champion_id}.json") or {}
         kind = artefact.get("kind") or None
+        candidate = (adapted_from(artefact) or {}).get("candidate") or None
         parent = (artefact.get("adaptation") or {}).get("parent") or None
         prior = prior_summary(artefact, paths.results_dir)
         members = ensemble_weights(artefact)
@@ -598,6 +600,8 @@ def machine_overview(
             {
                 "id": champion_id,
                 "kind": kind,
+                # an adapted model's row in the report's comparison (prior_shared_ridge, ...)
+                "candidate": candidate,
                 "members": members,
                 "parent": parent,
                 "parent_machine": (prior or {}).get("machine"),

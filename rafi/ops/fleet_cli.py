@@ -166,7 +166,10 @@ def unit_lines(r: dict) -> list[str]:
     report), a line each; ``-`` where the page shows ``-``."""
     lines = []
     ch = r["champion"]
-    model = f"{short_id(ch['id'])} {ch['kind'] or '?'}{_members(ch)} since {ch['since']}" if ch else "none"
+    named = f" ({ch['candidate']})" if ch and ch.get("candidate") else ""
+    model = (
+        f"{short_id(ch['id'])} {ch['kind'] or '?'}{named}{_members(ch)} since {ch['since']}" if ch else "none"
+    )
     if ch and ch.get("parent"):
         model += f" (adapted from {short_id(ch['parent'])} of {ch.get('parent_machine') or '?'})"
     last = r["last_decision"]
