@@ -79,7 +79,6 @@ from rafi.ops.status import (
     parse_time,
     short_id,
 )
-from rafi.report.ensemble_section import adapted_from
 
 #: Attention rank of each state (lower: more urgent).
 RANK = {
@@ -489,6 +488,14 @@ def rejected_attention(decision: dict, *, has_champion: bool) -> tuple[str, str]
     return ("waiting" if waits else "rejected"), rejected_text(decision, has_champion=has_champion)
 
 
+def adapted_name(artefact: dict) -> str | None:
+    """The name the report's comparison gives a model adapted from a prior (``prior_shared_ridge``,
+    ``prior_gain``, ...: :func:`rafi.report.ensemble_section.adapted_from`), else None."""
+    from rafi.report.ensemble_section import adapted_from  # local: the report's pandas
+
+    return (adapted_from(artefact) or {}).get("candidate") or None
+
+
 def machine_overview(
     paths: Paths, reports_dir: str | os.PathLike, machine: str, config: dict | None = None
 ) -> dict:
@@ -534,7 +541,7 @@ def machine_overview(
     if champion_id and "/" not in champion_id and not champion_id.startswith("."):
         artefact = _read_json(reg / "models" / f"{champion_id}.json") or {}
         kind = artefact.get("kind") or None
-        candidate = (adapted_from(artefact) or {}).get("candidate") or None
+        candidate = adapted_name(artefact)
         parent = (artefact.get("adaptation") or {}).get("parent") or None
         prior = prior_summary(artefact, paths.results_dir)
         members = ensemble_weights(artefact)
