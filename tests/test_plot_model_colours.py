@@ -112,3 +112,30 @@ def test_the_legend_names_the_offered_model_with_its_outline(kept):
         handles["ridge_global"].get_linewidth() in (0.0, None)
         or to_hex(handles["ridge_global"].get_edgecolor(), keep_alpha=True) == "#00000000"
     )
+
+
+def test_the_residual_figures_draw_each_model_in_its_bar_colour(tmp_path, monkeypatch):
+    """The residual-against-time figures of the comparison drew the second model blue whatever its
+    colour in the bar chart: the ensemble was ridge_global's blue there. Each model's residual line
+    now has its colour of the bars (:func:`plots.model_colours`), RAFI its red."""
+    from report_fixture import copy_fixture, write_upstream_tables
+
+    from rafi.report import figures
+    from rafi.report.inputs import load_results
+
+    res = load_results(write_upstream_tables(copy_fixture(tmp_path)))
+    drawn = []
+    monkeypatch.setattr(
+        plots,
+        "fig_comparison_residuals",
+        lambda series, **kw: drawn.append((list(series), kw["colours"])) or b"",
+    )
+    list(figures._comparison(res, {"max_residual_um": 12.0}, "png"))
+    assert drawn
+    models = [str(m) for m in res["comparison"]["model"]]
+    palette = plots.model_colours(models)
+    for labels, colours in drawn:
+        assert set(colours) == set(labels)
+        for label in labels:
+            assert colours[label] == palette[label.split(" ")[0]]
+    assert {colours[lab] for _, colours in drawn for lab in colours} >= {plots.MODEL_COLOURS["rafi"]}

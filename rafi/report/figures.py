@@ -246,11 +246,12 @@ def _comparison(res: dict, gates: dict, fmt: str):
     if resid is None or not len(resid) or rafi is None:
         return
     level = shared_level(res.get("model"), res.get("best_model"))
+    palette = plots.model_colours(models)  # the bar chart's: a model in one colour on every figure
     for rid in residual_runs(fr):
         sub = resid[resid["run_id"].astype(str) == rid]
         rf = sub[sub["model"].astype(str) == rafi].sort_values("t_s")
         for other in [m for m in models if m != rafi] or [None]:
-            series = {}
+            series, colours = {}, {}
             for m in (rafi, other):
                 if m is None:
                     continue
@@ -258,6 +259,7 @@ def _comparison(res: dict, gates: dict, fmt: str):
                 if len(f):
                     tag = " (paper)" if m == rafi else " (champion)" if m == champion else ""
                     series[f"{m}{tag}"] = f
+                    colours[f"{m}{tag}"] = palette.get(m)
             if not series:
                 continue
             yield (
@@ -272,6 +274,7 @@ def _comparison(res: dict, gates: dict, fmt: str):
                     ),
                     gate_um=gate_um,
                     level=level,
+                    colours=colours,
                     fmt=fmt,
                 ),
             )

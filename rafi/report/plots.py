@@ -648,11 +648,14 @@ def fig_comparison_residuals(
     gate_um=None,
     title: str = "",
     level: float | None = None,
+    colours: dict | None = None,
     fmt: str = "png",
 ) -> bytes:
     """Residual against time of several models on one run (RAFI vs the champion).
 
     ``series``: label -> DataFrame with ``t_s`` and ``residual_um`` (first = RAFI, drawn red);
+    ``colours``: label -> colour, each model in its colour of the comparison's bar chart
+    (:func:`model_colours`); a label without one takes red first, then blue, green, orange;
     a frame with ``lower_um``, ``upper_um`` and ``predicted_um`` gets its model's interval on
     the residual's scale as a band around zero in its colour, named by the ``level``.
     ``measured``: DataFrame ``t_s``, ``measured_um`` (uncompensated dz, thin grey).
@@ -671,7 +674,9 @@ def fig_comparison_residuals(
                 label="uncompensated dz",
             )
         for k, (lab, f) in enumerate(series.items()):
-            colour = C_RES if k == 0 else ("#1f77b4", "#2e7d32", "#e07b00")[(k - 1) % 3]
+            colour = (colours or {}).get(lab) or (
+                C_RES if k == 0 else ("#1f77b4", "#2e7d32", "#e07b00")[(k - 1) % 3]
+            )
             if has_band(f):
                 lo, hi = residual_band(f)
                 name = f"{band_label(level)} {lab}"
