@@ -1,5 +1,5 @@
-"""What every test module shares: how a test that needs a system program behaves without it, and
-in which order the tests run.
+"""What every test module shares: how a test that needs a system program behaves without it, in
+which order the tests run, and the figures a plotting function draws, kept (:func:`kept_figures`).
 
 On a fresh machine (the README's test command, nothing installed beyond Python) a test that needs
 Chromium, poppler-utils, Slurm or a private mount namespace is skipped with a one-line reason. Under
@@ -82,3 +82,18 @@ def pytest_collection_modifyitems(config, items):
     last, so the short modules at the end even out the two workers."""
     slow = {item.nodeid.split("::", 1)[0] for item in items if item.get_closest_marker("slow")}
     items.sort(key=lambda item: item.nodeid.split("::", 1)[0] not in slow)
+
+
+@pytest.fixture
+def kept_figures(monkeypatch):
+    """The matplotlib figures the report's plotting functions draw (``rafi.report.plots.render``),
+    kept open instead of rendered, for a test to read back; closed after the test."""
+    import matplotlib.pyplot as plt
+
+    from rafi.report import plots
+
+    kept = []
+    monkeypatch.setattr(plots, "render", lambda fig, fmt="png": kept.append(fig) or b"")
+    yield kept
+    for fig in kept:
+        plt.close(fig)

@@ -10,7 +10,6 @@ names are those of the shipped machines (``T1`` .. ``T16``) and of the foreign t
 
 from __future__ import annotations
 
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 import pytest
@@ -19,16 +18,6 @@ from rafi.report import plots
 from rafi.report.plot_layout import text_overlaps
 
 PLACES = ("head", "housing", "frontbearing", "rearbearing", "motorbase", "column", "coolant", "tank")
-
-
-@pytest.fixture
-def kept(monkeypatch):
-    """The figures the plotting functions draw, kept open instead of rendered."""
-    figs = []
-    monkeypatch.setattr(plots, "render", lambda fig, fmt="png": figs.append(fig) or b"")
-    yield figs
-    for fig in figs:
-        plt.close(fig)
 
 
 def correlation(n_sensors: int, scopes=("3000", "5750", "8500", "11250", "pooled"), *, short=False, seed=0):
@@ -45,9 +34,9 @@ def correlation(n_sensors: int, scopes=("3000", "5750", "8500", "11250", "pooled
     return pd.DataFrame(vals, index=list(scopes), columns=names)
 
 
-def _draw(kept, abs_r, chosen):
+def _draw(kept_figures, abs_r, chosen):
     plots.fig_correlation_heatmap(abs_r, threshold=0.97, chosen=chosen)
-    return kept[-1]
+    return kept_figures[-1]
 
 
 def _sensor_axis(ax, names):
@@ -60,27 +49,27 @@ def _sensor_axis(ax, names):
 
 @pytest.mark.parametrize("n", [4, 8, 12, 16, 24, 32, 39, 40])
 @pytest.mark.parametrize("short", [False, True])
-def test_no_text_of_the_heatmap_overlaps_or_runs_off(kept, n, short):
+def test_no_text_of_the_heatmap_overlaps_or_runs_off(kept_figures, n, short):
     abs_r = correlation(n, short=short, seed=n)
-    fig = _draw(kept, abs_r, chosen=list(abs_r.columns[:3]))
+    fig = _draw(kept_figures, abs_r, chosen=list(abs_r.columns[:3]))
     found = text_overlaps(fig)
     assert not found, f"{len(found)} text defect(s) with {n} sensors: {found[:5]}"
 
 
 @pytest.mark.parametrize("n", [4, 16, 39, 40])
-def test_every_sensor_is_named_and_the_chosen_ones_in_bold(kept, n):
+def test_every_sensor_is_named_and_the_chosen_ones_in_bold(kept_figures, n):
     abs_r = correlation(n, seed=n)
     chosen = list(abs_r.columns[1::5])
-    ax = _draw(kept, abs_r, chosen).axes[0]
+    ax = _draw(kept_figures, abs_r, chosen).axes[0]
     axis = _sensor_axis(ax, abs_r.columns)
     bold = [t.get_text() for t in axis.get_ticklabels() if t.get_fontweight() in ("bold", 700)]
     assert bold == chosen
 
 
 @pytest.mark.parametrize("n", [4, 16, 39, 40])
-def test_a_value_written_stands_in_its_cell_and_says_its_r(kept, n):
+def test_a_value_written_stands_in_its_cell_and_says_its_r(kept_figures, n):
     abs_r = correlation(n, seed=n)
-    ax = _draw(kept, abs_r, []).axes[0]
+    ax = _draw(kept_figures, abs_r, []).axes[0]
     sensors_on_x = _sensor_axis(ax, abs_r.columns) is ax.xaxis
     cells = abs_r.to_numpy(float) if sensors_on_x else abs_r.to_numpy(float).T
     values = [t for t in ax.texts if t.get_visible()]
@@ -96,10 +85,10 @@ def test_a_value_written_stands_in_its_cell_and_says_its_r(kept, n):
     assert len(values) == cells.size
 
 
-def test_the_foreign_twin_s_39_sensors_at_the_audit(kept):
+def test_the_foreign_twin_s_39_sensors_at_the_audit(kept_figures):
     """foreign-5: 39 sensors, 4 training speeds and pooled; the names ran into a black band."""
     abs_r = correlation(39, seed=5)
-    fig = _draw(kept, abs_r, chosen=["housing_2", "housing_4"])
+    fig = _draw(kept_figures, abs_r, chosen=["housing_2", "housing_4"])
     assert not text_overlaps(fig)
     width_in, height_in = fig.get_size_inches()
     assert width_in == plots.PAGE_WIDTH_IN and height_in <= 9.0  # one page of the report

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import itertools
 
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 import pytest
@@ -26,17 +25,7 @@ from rafi.report import plots
 FAMILY = [*KINDS, *CANDIDATES, *ENSEMBLE_CANDIDATES, ENSEMBLE]
 
 
-@pytest.fixture
-def kept(monkeypatch):
-    """The figures the plotting functions draw, kept open instead of rendered."""
-    figs = []
-    monkeypatch.setattr(plots, "render", lambda fig, fmt="png": figs.append(fig) or b"")
-    yield figs
-    for fig in figs:
-        plt.close(fig)
-
-
-def _draw(kept, models: list, offered=None, seed: int = 0):
+def _draw(kept_figures, models: list, offered=None, seed: int = 0):
     """The bar chart of ``models`` on three runs (random residuals, one failing model); returns
     ``{model: [its bar patches]}``."""
     rng = np.random.default_rng(seed)
@@ -47,7 +36,7 @@ def _draw(kept, models: list, offered=None, seed: int = 0):
     before = pd.Series(25.0, index=runs)
     kwargs = {"offered": offered} if offered is not None else {}
     plots.fig_comparison_bars(after, before, failed=failed, gate_um=12.0, **kwargs)
-    (ax,) = kept[-1].axes
+    (ax,) = kept_figures[-1].axes
     bars = {}
     for container in ax.containers:
         if container.get_label() in models:
@@ -61,39 +50,39 @@ def _colour(patches) -> str:
     return colour
 
 
-def test_every_kind_of_the_family_has_its_own_colour(kept):
-    bars = _draw(kept, FAMILY)
+def test_every_kind_of_the_family_has_its_own_colour(kept_figures):
+    bars = _draw(kept_figures, FAMILY)
     colours = [_colour(p) for p in bars.values()]
     assert len(set(colours)) == len(FAMILY), dict(zip(bars, colours))
 
 
 @pytest.mark.parametrize("seed", range(6))
-def test_any_subset_in_any_order_has_distinct_colours_and_each_kind_keeps_its_own(kept, seed):
+def test_any_subset_in_any_order_has_distinct_colours_and_each_kind_keeps_its_own(kept_figures, seed):
     rng = np.random.default_rng(seed)
-    everyone = {m: _colour(p) for m, p in _draw(kept, FAMILY).items()}
+    everyone = {m: _colour(p) for m, p in _draw(kept_figures, FAMILY).items()}
     subset = [str(m) for m in rng.permutation(FAMILY)[: rng.integers(3, len(FAMILY) + 1)]]
-    colours = {m: _colour(p) for m, p in _draw(kept, subset, seed=seed).items()}
+    colours = {m: _colour(p) for m, p in _draw(kept_figures, subset, seed=seed).items()}
     assert len(set(colours.values())) == len(subset), colours
     assert colours == {m: everyone[m] for m in subset}
 
 
-def test_names_no_kind_has_take_colours_no_other_model_of_the_figure_has(kept):
+def test_names_no_kind_has_take_colours_no_other_model_of_the_figure_has(kept_figures):
     for extra in itertools.combinations(["custom", "ridge_global_v2", "prior_x", "late"], 2):
         models = [*FAMILY, *extra]
-        colours = [_colour(p) for p in _draw(kept, models).values()]
+        colours = [_colour(p) for p in _draw(kept_figures, models).values()]
         assert len(set(colours)) == len(models), dict(zip(models, colours))
 
 
-def test_the_fl_family_offers_the_ensemble_beside_ridge_global_in_two_colours(kept):
+def test_the_fl_family_offers_the_ensemble_beside_ridge_global_in_two_colours(kept_figures):
     """The audit's case: fl-thermal, foreign-5, tapping-center-a drew both in #1f77b4."""
     models = ["rafi", "rafi_linear", "ridge_global", "dynamic", "grey_box", "temperature_ridge", "ensemble"]
-    bars = _draw(kept, models, offered="ensemble")
+    bars = _draw(kept_figures, models, offered="ensemble")
     assert _colour(bars["ensemble"]) != _colour(bars["ridge_global"])
 
 
 @pytest.mark.parametrize("offered", ["ensemble", "prior_shared_ridge", "dynamic"])
-def test_the_offered_model_is_outlined_and_no_other(kept, offered):
-    bars = _draw(kept, FAMILY, offered=offered)
+def test_the_offered_model_is_outlined_and_no_other(kept_figures, offered):
+    bars = _draw(kept_figures, FAMILY, offered=offered)
     for model, patches in bars.items():
         widths = {round(p.get_linewidth(), 2) for p in patches}
         edges = {to_hex(p.get_edgecolor(), keep_alpha=True) for p in patches}
@@ -103,9 +92,9 @@ def test_the_offered_model_is_outlined_and_no_other(kept, offered):
             assert widths == {0.0} or edges == {"#00000000"}, (model, widths, edges)
 
 
-def test_the_legend_names_the_offered_model_with_its_outline(kept):
-    _draw(kept, FAMILY, offered="prior_shared_ridge")
-    legend = kept[-1].legends[0]
+def test_the_legend_names_the_offered_model_with_its_outline(kept_figures):
+    _draw(kept_figures, FAMILY, offered="prior_shared_ridge")
+    legend = kept_figures[-1].legends[0]
     handles = dict(zip([t.get_text() for t in legend.get_texts()], legend.legend_handles))
     assert handles["prior_shared_ridge"].get_linewidth() == plots.OFFERED_EDGE_PT
     assert (

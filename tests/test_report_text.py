@@ -16,7 +16,6 @@ import json
 import re
 from pathlib import Path
 
-import matplotlib.pyplot as plt
 import numpy as np
 import pandas as pd
 import pytest
@@ -492,16 +491,6 @@ def test_a_ramp_drives_the_real_fit_to_the_bound_the_report_checks():
 
 
 # --------------------------------------------------------------------------- figures
-
-
-@pytest.fixture
-def kept_figures(monkeypatch):
-    """The matplotlib figures the plotting functions draw, kept open instead of rendered."""
-    kept = []
-    monkeypatch.setattr(plots, "render", lambda fig, fmt="png": kept.append(fig) or b"")
-    yield kept
-    for fig in kept:
-        plt.close(fig)
 
 
 def test_heatmap_text_colour_follows_the_cell(kept_figures):
