@@ -247,16 +247,16 @@ def promote_by_hand(
     :func:`rafi.ops.registry.promote`: a ``rolled_back`` line in ``history.jsonl`` (with the
     ``by_hand`` block, :func:`by_hand_block`; the drift reference, files and training speeds of
     the model's promotion, else of the decision that judged it), ``champion.json`` replaced,
-    ``decision.json`` rewritten (the manual change and the same block).
+    ``decision.json`` rewritten (the manual change and the same block), by the registry's one
+    writer of a manual promotion (:func:`rafi.ops.registry.record_manual_promotion`).
 
     Returns
     -------
     dict
         The ``history.jsonl`` line.
     """
-    from rafi.artefact import json_text, now_iso, write_text_atomic
     from rafi.errors import RegistryError
-    from rafi.ops.registry import DECISION_SCHEMA, Registry, promotion_record
+    from rafi.ops.registry import Registry, promotion_record, record_manual_promotion
 
     reg = Registry(Path(registry_root), machine)
     model_id = reg.resolve(model_id)
@@ -275,44 +275,22 @@ def promote_by_hand(
     block = by_hand_block(
         found, promotion=promotion, operator=_operator() if found and unconfirmed(found) else None
     )
-    before = reg.champion_id()
-    time = now_iso()
     # the drift reference, the files seen and the training speeds of the model's own promotion;
     # for a model no decision promoted, of the decision that judged it (what it would have kept)
     prom = promotion_record(history, model_id) or judged_record(None, history, model_id) or {}
     said = f"{reason}: champion set to {model_id[:12]} by an operator"
     if block["overridden"]:
         said += f" over unconfirmed warnings ({CONFIRM_OPTION}): {block['overridden']['warnings']}"
-    rec = {
-        "decision": "rolled_back",
-        "candidate_id": model_id,
-        "champion_id_before": before,
-        "champion_id_after": model_id,
-        "reasons": [said],
-        # keep the drift reference of the model's own promotion
-        "candidate_summary": prom.get("candidate_summary"),
-        "data_files": prom.get("data_files"),
-        # and the speeds it was trained on (coverage check of the next candidates)
-        "training": prom.get("training"),
-        "by_hand": block,
-        "time": time,
-    }
-    reg.append_history(rec)
-    reg.set_champion(model_id, reason=reason, time=time)
-    new = {
-        **decision,
-        "schema": DECISION_SCHEMA,
-        "machine": machine,
-        "decision": "rolled_back",
-        "champion_id_before": before,
-        "champion_id_after": model_id,
-        "reasons": rec["reasons"],
-        "recalibration_due": False,
-        "by_hand": {"model_id": model_id, **block},
-        "time": time,
-    }
-    write_text_atomic(reg.decision_path, json_text(new))
-    return rec
+    return record_manual_promotion(
+        reg,
+        model_id,
+        reason=reason,
+        reference=prom,
+        said=said,
+        by_hand=block,
+        decision=decision,
+        decision_path=reg.decision_path,
+    )
 
 
 # --------------------------------------------------------------------------- reading the trail

@@ -239,44 +239,90 @@ def promote(
 
     Appends a ``rolled_back`` history record (so the nightly decision does not re-promote
     the demoted model from the same data) and, if ``decision_path`` is given, rewrites
-    decision.json so the report shows the manual change.
+    decision.json so the report shows the manual change (:func:`record_manual_promotion`).
     """
     reg = Registry(Path(registry_root), machine)
     model_id = reg.resolve(model_id)
+    prom = promotion_record(reg.history(), model_id) or {}
+    reg.load_model_dict(model_id)
+    decision = {}
+    if decision_path is not None and Path(decision_path).exists():
+        with contextlib.suppress(ValueError):
+            decision = json.loads(Path(decision_path).read_text(encoding="utf-8"))
+    return record_manual_promotion(
+        reg, model_id, reason=reason, reference=prom, decision=decision, decision_path=decision_path
+    )
+
+
+def record_manual_promotion(
+    reg: Registry,
+    model_id: str,
+    *,
+    reason: str,
+    reference: dict,
+    said: str | None = None,
+    by_hand: dict | None = None,
+    decision: dict | None = None,
+    decision_path: str | os.PathLike | None = None,
+) -> dict:
+    """Write a promotion by an operator of the resolved ``model_id``: the ``rolled_back`` line of
+    ``history.jsonl``, ``champion.json`` and, with ``decision_path``, ``decision.json`` (``decision``,
+    the file as it was, with the manual change over it). The one writer of :func:`promote` and
+    ``rafi nightly --promote`` (:func:`rafi.ops.promotion_trail.promote_by_hand`).
+
+    Parameters
+    ----------
+    reg : Registry
+        The machine's registry.
+    model_id : str
+        The model put in service (full id, registered).
+    reason : str
+        ``champion.json``'s reason.
+    reference : dict
+        The record whose drift reference (``candidate_summary``), files (``data_files``) and
+        training speeds (``training``) the line keeps: the model's own promotion, else what
+        judged it.
+    said : str, optional
+        The line's reason sentence (default: ``<reason>: champion set to <id> by an operator``).
+    by_hand : dict, optional
+        The ``by_hand`` block of the line (and, with the model id, of ``decision.json``).
+    decision, decision_path
+        ``decision.json`` as it was and where it is; without ``decision_path`` it is not written.
+
+    Returns
+    -------
+    dict
+        The ``history.jsonl`` line.
+    """
     before = reg.champion_id()
     time = now_iso()
-    history = reg.history()
-    prom = promotion_record(history, model_id) or {}
     rec = {
         "decision": "rolled_back",
         "candidate_id": model_id,
         "champion_id_before": before,
         "champion_id_after": model_id,
-        "reasons": [f"{reason}: champion set to {model_id[:12]} by an operator"],
+        "reasons": [said or f"{reason}: champion set to {model_id[:12]} by an operator"],
         # keep the drift reference of the model's own promotion
-        "candidate_summary": prom.get("candidate_summary"),
-        "data_files": prom.get("data_files"),
+        "candidate_summary": reference.get("candidate_summary"),
+        "data_files": reference.get("data_files"),
         # and the speeds it was trained on (coverage check of the next candidates)
-        "training": prom.get("training"),
+        "training": reference.get("training"),
+        **({"by_hand": by_hand} if by_hand is not None else {}),
         "time": time,
     }
-    reg.load_model_dict(model_id)
     reg.append_history(rec)
     reg.set_champion(model_id, reason=reason, time=time)
     if decision_path is not None:
-        old = {}
-        if Path(decision_path).exists():
-            with contextlib.suppress(ValueError):
-                old = json.loads(Path(decision_path).read_text(encoding="utf-8"))
         new = {
-            **old,
+            **(decision or {}),
             "schema": DECISION_SCHEMA,
-            "machine": machine,
+            "machine": reg.machine,
             "decision": "rolled_back",
             "champion_id_before": before,
             "champion_id_after": model_id,
             "reasons": rec["reasons"],
             "recalibration_due": False,
+            **({"by_hand": {"model_id": model_id, **by_hand}} if by_hand is not None else {}),
             "time": time,
         }
         write_text_atomic(Path(decision_path), json_text(new))
