@@ -18,6 +18,7 @@ import shutil
 
 import numpy as np
 import pytest
+from decide_files import decide_on_files
 
 from rafi.artefact import json_text
 from rafi.errors import EX_USAGE, PriorForeign
@@ -25,7 +26,6 @@ from rafi.family.adapted import AdaptedPrior
 from rafi.family.dynamic import DynamicRidge
 from rafi.family.prior import prior_origin, prior_param, prior_promoted, prior_record, resolved_prior
 from rafi.family.prior_fitness import BOUNDS, fitness_warnings
-from rafi.ops import decide as D
 from rafi.ops import fleet as F
 from rafi.ops import fleet_cli
 from rafi.ops.project import Paths
@@ -55,23 +55,15 @@ def _state(seed, prefix, factor=1.0, speeds=PRIOR_SPEEDS):
 
 def _decide(tmp_path, machine, artefact, state, confirmed=()):
     """The real decision of ``artefact`` on ``state``'s runs (``results/<machine>/registry``)."""
-    work = tmp_path / f"work-{machine}"
-    work.mkdir(exist_ok=True)
-    (work / "model.json").write_text(json_text(artefact), encoding="utf-8")
-    state[0].to_csv(work / "runs.csv", index=False)
-    state[1].to_parquet(work / "runs.parquet")
-    reg = registry_dir(tmp_path / "results", machine)
-    return D.run_decide(
-        machine=machine,
-        candidate_path=work / "model.json",
-        runs_csv=work / "runs.csv",
-        runs_parquet=work / "runs.parquet",
-        registry_root=reg,
-        decision_path=reg / "decision.json",
-        comparison_path=reg / "comparison.csv",
+    return decide_on_files(
+        tmp_path / f"work-{machine}",
+        registry_dir(tmp_path / "results", machine),
+        machine,
+        json_text(artefact),
+        state[0],
+        state[1],
         gates=MACHINE_DEFAULTS["qualification"],
         nightly=MACHINE_DEFAULTS["nightly"],
-        log=lambda m: None,
         displacement_sign=1,
         confirmed=confirmed,
     )

@@ -16,12 +16,12 @@ from pathlib import Path
 
 import pandas as pd
 import yaml
+from decide_files import decide_on_files
 from test_registry import GATES, NIGHTLY, RUNS, FakeModel, fake_validate
 
 from rafi import artefact
 from rafi.cli import main
 from rafi.method.validate import qualify
-from rafi.ops import decide as D
 from rafi.ops import decision_record as DR
 from rafi.ops import fleet as F
 from rafi.ops import nightly
@@ -53,23 +53,15 @@ def _model(tag: str, after: dict, parent: str | None = None) -> dict:
 
 
 def _decide(root: Path, cand: dict, confirmed=()) -> dict:
-    work = root / "work"
-    work.mkdir(parents=True, exist_ok=True)
-    (work / "model.json").write_text(json.dumps(cand))
-    RUNS.to_csv(work / "runs.csv", index=False)
-    pd.DataFrame({"run_id": ["v1"], "t_s": [0.0]}).to_parquet(work / "runs.parquet")
-    reg = root / "results" / M / "registry"
-    return D.run_decide(
-        machine=M,
-        candidate_path=work / "model.json",
-        runs_csv=work / "runs.csv",
-        runs_parquet=work / "runs.parquet",
-        registry_root=reg,
-        decision_path=reg / "decision.json",
-        comparison_path=reg / "comparison.csv",
+    return decide_on_files(
+        root / "work",
+        root / "results" / M / "registry",
+        M,
+        json.dumps(cand),
+        RUNS,
+        pd.DataFrame({"run_id": ["v1"], "t_s": [0.0]}),
         gates=GATES,
         nightly=NIGHTLY,
-        log=lambda m: None,
         model_from_dict=FakeModel,
         validate_runs=fake_validate,
         qualify=qualify,

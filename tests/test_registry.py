@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from decide_files import decide_on_files
 
 from rafi import artefact, errors
 from rafi.family.compare import run_family
@@ -367,21 +368,15 @@ def fake_model(tag, after):
 
 
 def _run(tmp_path, cand, nightly=None):
-    (tmp_path / "model.json").write_text(json.dumps(cand))
-    RUNS.to_csv(tmp_path / "runs.csv", index=False)
-    pd.DataFrame({"run_id": ["v1"], "t_s": [0.0]}).to_parquet(tmp_path / "runs.parquet")
-    reg = tmp_path / "registry"
-    return D.run_decide(
-        machine="m1",
-        candidate_path=tmp_path / "model.json",
-        runs_csv=tmp_path / "runs.csv",
-        runs_parquet=tmp_path / "runs.parquet",
-        registry_root=reg,
-        decision_path=reg / "decision.json",
-        comparison_path=reg / "comparison.csv",
+    return decide_on_files(
+        tmp_path,
+        tmp_path / "registry",
+        "m1",
+        json.dumps(cand),
+        RUNS,
+        pd.DataFrame({"run_id": ["v1"], "t_s": [0.0]}),
         gates=GATES,
         nightly={**NIGHTLY, **(nightly or {})},
-        log=lambda m: None,
         model_from_dict=FakeModel,
         validate_runs=fake_validate,
         qualify=qualify,
